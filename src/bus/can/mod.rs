@@ -1,0 +1,26 @@
+//! CAN: the portable frame, the async bus trait every backend implements, and the backends.
+
+pub mod frame;
+
+pub use frame::Frame;
+
+use std::future::Future;
+
+/// Errors a CAN backend reports. `Unsupported` is for hosts without the transport (e.g. no SocketCAN).
+#[derive(Debug, thiserror::Error)]
+pub enum CanError {
+    #[error("CAN transport unsupported on this host: {0}")]
+    Unsupported(String),
+    #[error("CAN bus closed")]
+    Closed,
+    #[error("CAN protocol error: {0}")]
+    Protocol(String),
+    #[error("CAN I/O error: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// An async CAN bus: the one interface the gateway, the simulator and the tests use.
+pub trait CanBus: Send {
+    fn send(&mut self, frame: &Frame) -> impl Future<Output = Result<(), CanError>> + Send;
+    fn recv(&mut self) -> impl Future<Output = Result<Frame, CanError>> + Send;
+}
