@@ -119,6 +119,9 @@ pub struct TableCompensator {
     /// (0: direction = sign of the last change).
     pub hysteresis_um: f64,
     pub period_s: f64,
+    /// Age of the position the compensator acts on (bus sampling + transport delay), s.
+    pub latency_s: f64,
+    history: std::collections::VecDeque<(f64, f64)>,
     next_s: f64,
     dir: i8,
     anchor_mm: Option<f64>,
@@ -149,6 +152,8 @@ impl TableCompensator {
             source,
             hysteresis_um,
             period_s,
+            latency_s: 0.0,
+            history: std::collections::VecDeque::new(),
             next_s: 0.0,
             dir: 1,
             anchor_mm: None,
@@ -204,13 +209,26 @@ impl TableCompensator {
         self.dir
     }
 
+    /// Act on positions `latency_s` old (the gateway sees the encoder through a bus).
+    pub fn with_latency(mut self, latency_s: f64) -> Self {
+        self.latency_s = latency_s;
+        self
+    }
+
+    /// Call after every world step.
     pub fn update(&mut self, world: &mut World) -> anyhow::Result<()> {
-        if world.t_s() + 1e-9 >= self.next_s {
+        let now = match self.source {
+            Source::Measured => world.measured_mm(self.axis),
+            Source::Setpoint => world.setpoint().pos_mm[self.axis],
+        };
+        let t = world.t_s();
+        self.history.push_back((t, now));
+        while self.history.len() > 1 && self.history[1].0 <= t - self.latency_s + 1e-9 {
+            self.history.pop_front();
+        }
+        if t + 1e-9 >= self.next_s {
             self.next_s += self.period_s;
-            let pos = match self.source {
-                Source::Measured => world.measured_mm(self.axis),
-                Source::Setpoint => world.setpoint().pos_mm[self.axis],
-            };
+            let pos = self.history[0].1;
             self.update_direction(pos);
             let e = self.error_at_um(pos, self.dir);
             let lsb = world.plc().config().lsb_um;
