@@ -6,7 +6,10 @@
 //! `position_mm = sign · unwrapped / counts_per_mm + offset_mm`.
 //! Rollover: the raw value wraps at `total_range_counts` (6002h; default 2^32). A jump of more than half
 //! the range between two frames is taken as a wrap, so travel between two frames must stay below half
-//! the range (at 1 kHz TPDOs this is never binding).
+//! the range (at 1 kHz TPDOs this is never binding). The first frame is read nearest to zero (unwrapped
+//! count in [−range/2, range/2)), so small negative positions, which the encoder reports wrapped to
+//! just below the range, decode as negative; put the machine's travel inside that window with
+//! `offset_mm` (or the encoder preset 6003h).
 
 use super::tpdo_cob_id;
 use crate::bus::can::Frame;
@@ -152,6 +155,9 @@ impl PositionDecoder {
             self.decode_errors += 1;
             return Some(self.sample(t_s, self.last_good_mm, Health::DecodeError));
         };
+        if self.last_raw.is_none() && raw >= range / 2 {
+            self.turns = -1;
+        }
         if let Some(last) = self.last_raw {
             let delta = raw as i64 - last as i64;
             let half = (range / 2) as i64;
@@ -257,20 +263,24 @@ mod tests {
         };
         let mut d = PositionDecoder::new(cfg.clone());
         let top = (1u32 << 24) - 10;
-        assert!(
-            (d.decode(&cfg.encode_raw(top), 0.0).unwrap().value - top as f64 / 1000.0).abs() < 1e-9
-        );
-        // wraps past the top: +20 counts
+        // First frame just below the top of the range: read nearest to zero, i.e. −10 counts.
+        assert!((d.decode(&cfg.encode_raw(top), 0.0).unwrap().value + 0.010).abs() < 1e-9);
+        // wraps past the top: +20 counts → +10
         let s = d.decode(&cfg.encode_raw(10), 0.1).unwrap();
-        assert!(
-            (s.value - (top as f64 + 20.0) / 1000.0).abs() < 1e-9,
-            "{}",
-            s.value
-        );
+        assert!((s.value - 0.010).abs() < 1e-9, "{}", s.value);
         // and back down
         let s = d.decode(&cfg.encode_raw(top), 0.2).unwrap();
-        assert!((s.value - top as f64 / 1000.0).abs() < 1e-9);
+        assert!((s.value + 0.010).abs() < 1e-9);
         assert_eq!(d.rollovers, 2);
+        // Far travel: 3 times round the range upwards in steps below half the range.
+        let mut far = PositionDecoder::new(cfg.clone());
+        let step_mm = ((1u64 << 24) / 3) as f64 / 1000.0;
+        let mut last = 0.0;
+        for k in 0..=9 {
+            let f = cfg.encode_position(k as f64 * step_mm).unwrap();
+            last = far.decode(&f, 0.0).unwrap().value;
+        }
+        assert!((last - 9.0 * step_mm).abs() < 1e-9, "{last}");
         // a raw value beyond the configured range is a decode error, not a position
         let bad = d.decode(&cfg.encode_raw(1 << 24), 0.3).unwrap();
         assert_eq!(bad.health, Health::DecodeError);

@@ -10,6 +10,7 @@ pub mod cia404;
 pub mod cia406;
 pub mod nmt;
 pub mod sdo;
+pub mod source;
 
 /// A node id was outside 1..=127.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
