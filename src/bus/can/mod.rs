@@ -1,6 +1,8 @@
 //! CAN: the portable frame, the async bus trait every backend implements, and the backends.
 
 pub mod frame;
+#[cfg(all(feature = "socketcan", target_os = "linux"))]
+pub mod socketcan;
 
 pub use frame::Frame;
 

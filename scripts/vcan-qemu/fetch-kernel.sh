@@ -1,0 +1,76 @@
+#!/bin/sh
+# Fetch Debian's stock kernel for the vcan QEMU guest, without installing it.
+#
+# `apt-get download` + `dpkg -x` into a cache directory avoids the slow initramfs-tools trigger and
+# leaves the host's /boot alone. Reruns are free: an unpacked kernel in the cache is reused.
+#
+# Usage: fetch-kernel.sh [CACHE_DIR]      (default: $RETROCOMP_VCAN_CACHE or ~/.cache/retrocomp-vcan)
+# Prints one line on stdout: the unpacked tree (it holds boot/vmlinuz-<abi> and lib/modules/<abi>/).
+# Needs: apt-get, apt-cache, dpkg (any Debian/Ubuntu host). Install peers: scripts/setup-vcan.sh
+set -eu
+
+cache="${1:-${RETROCOMP_VCAN_CACHE:-$HOME/.cache/retrocomp-vcan}}"
+mkdir -p "$cache"
+
+# The metapackage linux-image-amd64 depends on exactly one ABI package, e.g. linux-image-6.1.0-56-amd64.
+# RETROCOMP_VCAN_KPKG pins it (for hosts whose apt lists are stale or not Debian).
+kpkg="${RETROCOMP_VCAN_KPKG:-}"
+if [ -z "$kpkg" ]; then
+    if ! command -v apt-cache >/dev/null 2>&1; then
+        echo "fetch-kernel.sh: apt-cache not found; this needs a Debian-like host (see docs/vcan.md)" >&2
+        exit 2
+    fi
+    kpkg=$(apt-cache depends linux-image-amd64 2>/dev/null |
+        sed -n 's/^ *Depends: \(linux-image-[0-9][^ ]*-amd64\)$/\1/p' | head -n 1)
+fi
+if [ -z "$kpkg" ]; then
+    # A cached unpack is still usable when apt lists are missing (offline rerun).
+    cached=$(ls -d "$cache"/linux-image-*-amd64 2>/dev/null | tail -n 1 || true)
+    if [ -n "$cached" ] && [ -f "$cached/.unpacked" ]; then
+        echo "$cached"
+        exit 0
+    fi
+    echo "fetch-kernel.sh: cannot resolve the kernel ABI package: 'apt-cache depends linux-image-amd64' gave nothing." >&2
+    echo "  run 'apt-get update' (or scripts/setup-vcan.sh), or set RETROCOMP_VCAN_KPKG=linux-image-<abi>-amd64" >&2
+    exit 2
+fi
+
+tree="$cache/$kpkg"
+if [ -f "$tree/.unpacked" ]; then
+    echo "$tree"
+    exit 0
+fi
+
+dl="$cache/download"
+mkdir -p "$dl"
+if ! ls "$dl/${kpkg}_"*.deb >/dev/null 2>&1; then
+    # apt-get download writes into the current directory; as root it warns about the _apt sandbox.
+    (cd "$dl" && apt-get download "$kpkg" >&2) || {
+        echo "fetch-kernel.sh: 'apt-get download $kpkg' failed (network? apt lists? run 'apt-get update')" >&2
+        exit 2
+    }
+fi
+deb=$(ls "$dl/${kpkg}_"*.deb | tail -n 1)
+
+rm -rf "$tree.tmp"
+mkdir -p "$tree.tmp"
+dpkg -x "$deb" "$tree.tmp"
+abi=${kpkg#linux-image-}
+if [ ! -f "$tree.tmp/boot/vmlinuz-$abi" ] || [ ! -d "$tree.tmp/lib/modules/$abi" ]; then
+    echo "fetch-kernel.sh: $deb does not hold boot/vmlinuz-$abi and lib/modules/$abi" >&2
+    exit 2
+fi
+# Keep only what the guest needs (vmlinuz, the CAN modules, modules.dep): ~400 MB → ~10 MB.
+keep="$tree.tmp/keep"
+mkdir -p "$keep/boot" "$keep/lib/modules/$abi/kernel/net" "$keep/lib/modules/$abi/kernel/drivers/net"
+cp "$tree.tmp/boot/vmlinuz-$abi" "$keep/boot/"
+cp "$tree.tmp/lib/modules/$abi/modules.dep" "$keep/lib/modules/$abi/" 2>/dev/null || true
+cp -r "$tree.tmp/lib/modules/$abi/kernel/net/can" "$keep/lib/modules/$abi/kernel/net/"
+cp -r "$tree.tmp/lib/modules/$abi/kernel/drivers/net/can" "$keep/lib/modules/$abi/kernel/drivers/net/"
+rm -rf "$tree"
+mv "$keep" "$tree"
+rm -rf "$tree.tmp"
+# The 70 MB .deb is not needed once unpacked.
+rm -f "$deb"
+echo "$kpkg" >"$tree/.unpacked"
+echo "$tree"
