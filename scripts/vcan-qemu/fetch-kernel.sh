@@ -41,36 +41,41 @@ if [ -f "$tree/.unpacked" ]; then
     exit 0
 fi
 
-dl="$cache/download"
-mkdir -p "$dl"
-if ! ls "$dl/${kpkg}_"*.deb >/dev/null 2>&1; then
-    # apt-get download writes into the current directory; as root it warns about the _apt sandbox.
-    (cd "$dl" && apt-get download "$kpkg" >&2) || {
-        echo "fetch-kernel.sh: 'apt-get download $kpkg' failed (network? apt lists? run 'apt-get update')" >&2
-        exit 2
-    }
+# Parallel test runs (several target dirs) share the cache: serialize the download, and unpack into
+# a private directory that is renamed into place only when complete.
+if command -v flock >/dev/null 2>&1; then
+    exec 9>"$cache/.lock"
+    flock 9
+    if [ -f "$tree/.unpacked" ]; then
+        echo "$tree"
+        exit 0
+    fi
 fi
-deb=$(ls "$dl/${kpkg}_"*.deb | tail -n 1)
-
-rm -rf "$tree.tmp"
-mkdir -p "$tree.tmp"
-dpkg -x "$deb" "$tree.tmp"
+work=$(mktemp -d "$cache/.unpack.XXXXXX")
+trap 'rm -rf "$work"' EXIT
+# apt-get download writes into the current directory; as root it warns about the _apt sandbox.
+(cd "$work" && apt-get download "$kpkg" >&2) || {
+    echo "fetch-kernel.sh: 'apt-get download $kpkg' failed (network? apt lists? run 'apt-get update')" >&2
+    exit 2
+}
+deb=$(ls "$work/${kpkg}_"*.deb | tail -n 1)
+dpkg -x "$deb" "$work/root"
 abi=${kpkg#linux-image-}
-if [ ! -f "$tree.tmp/boot/vmlinuz-$abi" ] || [ ! -d "$tree.tmp/lib/modules/$abi" ]; then
+if [ ! -f "$work/root/boot/vmlinuz-$abi" ] || [ ! -d "$work/root/lib/modules/$abi" ]; then
     echo "fetch-kernel.sh: $deb does not hold boot/vmlinuz-$abi and lib/modules/$abi" >&2
     exit 2
 fi
-# Keep only what the guest needs (vmlinuz, the CAN modules, modules.dep): ~400 MB → ~10 MB.
-keep="$tree.tmp/keep"
+# Keep only what the guest needs (vmlinuz and the CAN modules): ~400 MB unpacked → ~10 MB.
+keep="$work/keep"
 mkdir -p "$keep/boot" "$keep/lib/modules/$abi/kernel/net" "$keep/lib/modules/$abi/kernel/drivers/net"
-cp "$tree.tmp/boot/vmlinuz-$abi" "$keep/boot/"
-cp "$tree.tmp/lib/modules/$abi/modules.dep" "$keep/lib/modules/$abi/" 2>/dev/null || true
-cp -r "$tree.tmp/lib/modules/$abi/kernel/net/can" "$keep/lib/modules/$abi/kernel/net/"
-cp -r "$tree.tmp/lib/modules/$abi/kernel/drivers/net/can" "$keep/lib/modules/$abi/kernel/drivers/net/"
+cp "$work/root/boot/vmlinuz-$abi" "$keep/boot/"
+cp -r "$work/root/lib/modules/$abi/kernel/net/can" "$keep/lib/modules/$abi/kernel/net/"
+cp -r "$work/root/lib/modules/$abi/kernel/drivers/net/can" "$keep/lib/modules/$abi/kernel/drivers/net/"
+echo "$kpkg" >"$keep/.unpacked"
 rm -rf "$tree"
 mv "$keep" "$tree"
-rm -rf "$tree.tmp"
-# The 70 MB .deb is not needed once unpacked.
-rm -f "$deb"
-echo "$kpkg" >"$tree/.unpacked"
+# Kernels of earlier ABIs (the metapackage moved on after an apt-get update) are dead weight.
+for old in "$cache"/linux-image-*-amd64; do
+    [ "$old" = "$tree" ] || rm -rf "$old"
+done
 echo "$tree"
