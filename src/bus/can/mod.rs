@@ -6,6 +6,8 @@ pub mod hub;
 pub mod mem;
 pub mod socketcand;
 pub mod socketcand_bus;
+#[cfg(all(feature = "socketcan", target_os = "linux"))]
+pub mod socketcan;
 
 pub use backend::{AnyCanBus, CanBackendConfig};
 pub use frame::Frame;
