@@ -4,10 +4,10 @@ pub mod backend;
 pub mod frame;
 pub mod hub;
 pub mod mem;
-pub mod socketcand;
-pub mod socketcand_bus;
 #[cfg(all(feature = "socketcan", target_os = "linux"))]
 pub mod socketcan;
+pub mod socketcand;
+pub mod socketcand_bus;
 
 pub use backend::{AnyCanBus, CanBackendConfig};
 pub use frame::Frame;
