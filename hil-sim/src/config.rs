@@ -220,6 +220,10 @@ pub struct HandshakeConfig {
 #[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct TruthConfig {
+    /// The project's machine model (TOML, `retrocomp::models`); relative paths resolve against the
+    /// config file's folder. When given, `builtin` must be empty.
+    #[serde(default)]
+    pub model_path: Option<PathBuf>,
     #[serde(default)]
     pub builtin: crate::truth::BuiltinGeometry,
 }
@@ -333,6 +337,11 @@ impl SimConfig {
         {
             *p = base.join(&*p);
         }
+        if let (Some(p), Some(base)) = (cfg.truth.model_path.as_mut(), base_dir)
+            && p.is_relative()
+        {
+            *p = base.join(&*p);
+        }
         cfg.validate()?;
         Ok(cfg)
     }
@@ -374,6 +383,11 @@ impl SimConfig {
         ensure!(p.scan_s > 0.0, "plc.scan_s must be > 0, got {}", p.scan_s);
         ensure!(p.lsb_um > 0.0, "plc.lsb_um must be > 0, got {}", p.lsb_um);
         ensure!(self.record.every_s > 0.0, "record.every_s must be > 0");
+        ensure!(
+            self.truth.model_path.is_none()
+                || self.truth.builtin == crate::truth::BuiltinGeometry::default(),
+            "truth: give either `model_path` or `[truth.builtin]`, not both"
+        );
         let sources = [
             self.program.gcode.is_some(),
             self.program.gcode_path.is_some(),

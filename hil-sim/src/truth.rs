@@ -7,8 +7,9 @@ use serde::{Deserialize, Serialize};
 
 /// A static geometric error model of the machine.
 pub trait TruthModel: Send {
-    /// Tool-tip error (µm, actual − nominal) with the slides at `q_mm` and the tool `tool_mm` long.
-    fn static_error_um(&mut self, q_mm: [f64; 3], tool_mm: f64) -> [f64; 3];
+    /// Tool-tip error (µm, actual − nominal) with the slides at `q_mm`, approached in direction
+    /// `dir` (+1/−1 per axis, 0 unknown), and the tool `tool_mm` long.
+    fn static_error_um(&mut self, q_mm: [f64; 3], dir: [i8; 3], tool_mm: f64) -> [f64; 3];
     /// Parameters for the manifest of hidden truth.
     fn describe(&self) -> serde_json::Value;
 }
@@ -43,7 +44,7 @@ pub struct BuiltinGeometry {
 }
 
 impl TruthModel for BuiltinGeometry {
-    fn static_error_um(&mut self, q: [f64; 3], tool_mm: f64) -> [f64; 3] {
+    fn static_error_um(&mut self, q: [f64; 3], _dir: [i8; 3], tool_mm: f64) -> [f64; 3] {
         let [x, y, z] = q;
         [
             self.exx_ppm * x * 1e-3
@@ -62,6 +63,51 @@ impl TruthModel for BuiltinGeometry {
     }
 }
 
+/// The project's volumetric model (`retrocomp::models::MachineModel`, exact 4×4 evaluation) as the
+/// true machine's geometry. Temperatures, forces and strains stay at the model's references: the
+/// hidden physics adds those effects itself.
+pub struct VolumetricTruth {
+    path: String,
+    model: retrocomp::models::MachineModel,
+    state: retrocomp::models::ModelState,
+    input: retrocomp::models::ModelInput,
+    out: retrocomp::models::ErrorBreakdown,
+}
+
+impl VolumetricTruth {
+    pub fn from_toml_path(path: &std::path::Path) -> anyhow::Result<Self> {
+        let model = retrocomp::models::MachineModel::from_toml_path(path)
+            .map_err(|e| anyhow::anyhow!("truth.model_path: {e}"))?;
+        Ok(Self::new(model, path.display().to_string()))
+    }
+
+    pub fn new(model: retrocomp::models::MachineModel, origin: String) -> Self {
+        Self {
+            path: origin,
+            state: model.new_state(),
+            input: model.new_input(),
+            out: model.new_breakdown(),
+            model,
+        }
+    }
+}
+
+impl TruthModel for VolumetricTruth {
+    fn static_error_um(&mut self, q_mm: [f64; 3], dir: [i8; 3], tool_mm: f64) -> [f64; 3] {
+        self.input.pos_mm = q_mm;
+        self.input.dir = dir;
+        self.input.tool_mm = Some(tool_mm);
+        self.model
+            .evaluate(&self.input, &mut self.state, &mut self.out);
+        self.out.total_um
+    }
+
+    fn describe(&self) -> serde_json::Value {
+        serde_json::json!({ "kind": "volumetric_model", "path": self.path, "name": self.model.name(),
+            "model_toml": self.model.to_toml_string() })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -73,7 +119,7 @@ mod tests {
             ..Default::default()
         };
         assert_eq!(
-            m.static_error_um([100.0, 0.0, 0.0], 0.0),
+            m.static_error_um([100.0, 0.0, 0.0], [0; 3], 0.0),
             [1.0, 0.0, 0.0],
             "10 ppm over 100 mm = +1 µm"
         );
@@ -81,12 +127,15 @@ mod tests {
             ec0y_urad: 20.0,
             ..Default::default()
         };
-        assert_eq!(m.static_error_um([0.0, 50.0, 0.0], 0.0), [1.0, 0.0, 0.0]);
+        assert_eq!(
+            m.static_error_um([0.0, 50.0, 0.0], [0; 3], 0.0),
+            [1.0, 0.0, 0.0]
+        );
         let mut m = BuiltinGeometry {
             ebx_urad_per_m: 50.0,
             ..Default::default()
         };
-        let e = m.static_error_um([200.0, 0.0, 0.0], 100.0);
+        let e = m.static_error_um([200.0, 0.0, 0.0], [0; 3], 100.0);
         assert!(
             (e[0] - 1.0).abs() < 1e-12,
             "10 µrad pitch at 200 mm × 100 mm arm = 1 µm: {e:?}"

@@ -84,12 +84,17 @@ pub struct World {
     readings: Readings,
     next_sample_s: f64,
     sampled: bool,
+    /// Latched direction of each motor (last non-zero motion), for bidirectional truth tables.
+    dir: [i8; 3],
 }
 
 impl World {
-    /// A world whose visible geometry is the config's built-in model.
+    /// A world whose visible geometry is the config's `truth.model_path` model, or its built-in one.
     pub fn new(cfg: SimConfig) -> anyhow::Result<Self> {
-        let truth = Box::new(cfg.truth.builtin.clone());
+        let truth: Box<dyn TruthModel> = match &cfg.truth.model_path {
+            Some(p) => Box::new(crate::truth::VolumetricTruth::from_toml_path(p)?),
+            None => Box::new(cfg.truth.builtin.clone()),
+        };
         Self::with_truth(cfg, truth)
     }
 
@@ -178,6 +183,7 @@ impl World {
             readings: Readings::default(),
             next_sample_s: 0.0,
             sampled: false,
+            dir: [0; 3],
             traj,
             cfg,
         };
@@ -253,7 +259,13 @@ impl World {
 
     /// Visible static geometric error at any position (what an oracle would know), µm.
     pub fn static_error_um(&mut self, q_mm: [f64; 3]) -> [f64; 3] {
-        self.truth.static_error_um(q_mm, self.cfg.program.tool_mm)
+        self.truth
+            .static_error_um(q_mm, self.dir, self.cfg.program.tool_mm)
+    }
+
+    /// Latched direction per axis (+1/−1; 0 before the first motion).
+    pub fn direction(&self) -> [i8; 3] {
+        self.dir
     }
 
     pub fn truth_model(&self) -> &dyn TruthModel {
@@ -299,6 +311,9 @@ impl World {
                 b.update(prev_motor, motor);
             }
             motor_vel[k] = (motor - prev_motor) / dt_s;
+            if motor != prev_motor {
+                self.dir[k] = if motor > prev_motor { 1 } else { -1 };
+            }
         }
         if let Some(t) = &mut self.thermal {
             t.step(dt_s, self.sp.rpm, motor_vel);
@@ -338,7 +353,9 @@ impl World {
             b.growth_um[k] = thermal.growth_um[k];
             b.force_um[k] = force[k];
         }
-        b.geometric_um = self.truth.static_error_um(slide, self.cfg.program.tool_mm);
+        b.geometric_um = self
+            .truth
+            .static_error_um(slide, self.dir, self.cfg.program.tool_mm);
         for k in 0..3 {
             b.total_um[k] = b.loop_um[k]
                 + b.backlash_um[k]
@@ -360,7 +377,7 @@ impl World {
         let nominal = self.sp.pos_mm;
         let visible = self
             .truth
-            .static_error_um(nominal, self.cfg.program.tool_mm);
+            .static_error_um(nominal, self.dir, self.cfg.program.tool_mm);
         let count_um = self.cfg.servo.count_um;
         let mut r = Readings {
             t_s: t,
