@@ -69,3 +69,50 @@ pub fn run_config(
     }
     Ok((rows, world.t_s()))
 }
+
+#[derive(Debug, clap::Args)]
+pub struct ServeArgs {
+    /// Simulator config (TOML) with an `[io]` section.
+    #[arg(long)]
+    pub config: PathBuf,
+    /// Optional output folder for recording.csv + manifest.json.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Override the config's seed.
+    #[arg(long)]
+    pub seed: Option<u64>,
+}
+
+/// Run the world with its buses until the program ends or Ctrl-C.
+pub fn serve(args: &ServeArgs) -> anyhow::Result<()> {
+    let mut cfg = SimConfig::from_toml_path(&args.config)?;
+    if let Some(s) = args.seed {
+        cfg.seed = s;
+    }
+    anyhow::ensure!(
+        cfg.io.modbus.is_some() || cfg.io.can.is_some() || cfg.io.weighing.is_some(),
+        "{}: serve needs an [io.modbus], [io.can] or [io.weighing] section",
+        args.config.display()
+    );
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(async {
+        let mem = retrocomp::bus::can::MemBus::default();
+        let running = crate::io::serve::start(cfg, Some(mem), args.out.as_deref()).await?;
+        if let Some(a) = running.modbus_tcp {
+            eprintln!("hil-sim: modbus tcp on {a}");
+        }
+        if let Some(p) = &running.rtu_pty {
+            eprintln!("hil-sim: modbus rtu on {}", p.display());
+        }
+        if let Some(p) = &running.weighing_pty {
+            eprintln!("hil-sim: weighing lines on {}", p.display());
+        }
+        tokio::select! {
+            r = running.join() => { let steps = r?; eprintln!("hil-sim: program ended after {steps} steps"); }
+            _ = tokio::signal::ctrl_c() => eprintln!("hil-sim: interrupted"),
+        }
+        Ok(())
+    })
+}

@@ -18,6 +18,8 @@ struct Cli {
 enum Cmd {
     /// Run a config to the end as fast as possible; write recording.csv + manifest.json.
     Run(hil_sim::cli::RunArgs),
+    /// Run with the field buses up (Modbus TCP/RTU, CAN, weighing lines), real time or fast.
+    Serve(hil_sim::cli::ServeArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -27,5 +29,6 @@ fn main() -> anyhow::Result<()> {
         .init();
     match Cli::parse().cmd {
         Cmd::Run(a) => hil_sim::cli::run(&a),
+        Cmd::Serve(a) => hil_sim::cli::serve(&a),
     }
 }

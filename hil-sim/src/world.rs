@@ -249,6 +249,21 @@ impl World {
         self.servos[axis].motor_mm()
     }
 
+    /// True slide position (motor + backlash + lead-screw error + screw expansion), mm: what a linear
+    /// scale on the slide would read.
+    pub fn slide_mm(&self, axis: usize) -> f64 {
+        let motor = self.servos[axis].motor_mm();
+        let backlash = self.backlash[axis].as_ref().map_or(0.0, |b| b.offset_um());
+        let cyclic = self.cyclic[axis]
+            .as_ref()
+            .map_or(0.0, |c| c.error_um(motor));
+        let expansion = self
+            .thermal
+            .as_ref()
+            .map_or(0.0, |t| t.terms().expansion_um_per_mm[axis] * motor);
+        motor + (backlash + cyclic + expansion) / 1000.0
+    }
+
     pub fn force_N(&self) -> f64 {
         self.force_N
     }
