@@ -6,5 +6,6 @@ pub mod can;
 pub mod canopen;
 pub mod modbus;
 pub mod sample;
+pub mod serial;
 
 pub use sample::{Health, Sample};
