@@ -35,6 +35,17 @@ pub fn tool(name: &str) -> PathBuf {
 pub struct Peer {
     pub child: Child,
     pub name: String,
+    /// stdout lines printed after `READY`.
+    pub lines: Option<std::sync::mpsc::Receiver<String>>,
+}
+
+impl Peer {
+    /// Next stdout line, waiting up to `secs`.
+    pub fn line(&self, secs: u64) -> String {
+        let rx = self.lines.as_ref().expect("peer has no stdout");
+        rx.recv_timeout(Duration::from_secs(secs))
+            .unwrap_or_else(|_| panic!("{}: no output line within {secs} s", self.name))
+    }
 }
 
 impl Drop for Peer {
@@ -63,11 +74,15 @@ pub fn spawn_python(script: &str, args: &[&str]) -> Peer {
     let mut peer = Peer {
         child,
         name: script.to_string(),
+        lines: None,
     };
     let deadline = Instant::now() + Duration::from_secs(20);
     loop {
         match rx.recv_timeout(Duration::from_millis(100)) {
-            Ok(l) if l.trim() == "READY" => return peer,
+            Ok(l) if l.trim() == "READY" => {
+                peer.lines = Some(rx);
+                return peer;
+            }
             Ok(_) => {}
             Err(_) => {
                 if let Ok(Some(st)) = peer.child.try_wait() {
@@ -108,6 +123,7 @@ pub fn socat_pair(dir: &Path) -> (Peer, PathBuf, PathBuf) {
     let peer = Peer {
         child,
         name: "socat".into(),
+        lines: None,
     };
     let deadline = Instant::now() + Duration::from_secs(10);
     while !(a.exists() && b.exists()) {
