@@ -4,6 +4,7 @@
 
 pub mod can;
 pub mod canopen;
+pub mod config;
 pub mod modbus;
 pub mod sample;
 pub mod serial;
