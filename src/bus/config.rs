@@ -344,7 +344,7 @@ pub fn validate(cfg: &FieldConfig) -> Vec<(String, String)> {
             ));
         }
         if s.channel.is_empty() {
-            p.push((format!("{k}"), "has no [[modbus.source.channel]]".into()));
+            p.push((k.clone(), "has no [[modbus.source.channel]]".into()));
         }
         for (j, c) in s.channel.iter().enumerate() {
             let kc = format!("{k}.channel[{j}]");
@@ -390,7 +390,7 @@ pub fn validate(cfg: &FieldConfig) -> Vec<(String, String)> {
             ));
         }
         if s.channel.is_empty() {
-            p.push((format!("{k}"), "has no [[serial.source.channel]]".into()));
+            p.push((k.clone(), "has no [[serial.source.channel]]".into()));
         }
         for (j, c) in s.channel.iter().enumerate() {
             let kc = format!("{k}.channel[{j}]");
