@@ -32,6 +32,10 @@ const GUEST_CHECKS: &[&str] = &[
     "cansend_error_frame_is_counted_and_skipped",
     "retrocomp_to_candump",
     "retrocomp_burst_in_order",
+    "kernel_filters_select_ids",
+    "recv_timestamp_is_kernel_arrival_time",
+    "interface_down_is_an_error_not_a_hang",
+    "interface_removed_is_an_error_not_a_hang",
 ];
 
 fn repo() -> PathBuf {

@@ -13,9 +13,9 @@
 mod guest {
     use anyhow::{Context, Result, bail, ensure};
     use embedded_can::{Frame as _, Id, StandardId};
-    use retrocomp::bus::can::socketcan::SocketCanBus;
+    use retrocomp::bus::can::socketcan::{IdFilter, SocketCanBus};
     use retrocomp::bus::can::{CanBus, CanError, Frame};
-    use std::time::Duration;
+    use std::time::{Duration, SystemTime};
     use tokio::io::AsyncReadExt;
     use tokio::process::Command;
     use tokio::time::timeout;
@@ -35,6 +35,10 @@ mod guest {
         "cansend_error_frame_is_counted_and_skipped",
         "retrocomp_to_candump",
         "retrocomp_burst_in_order",
+        "kernel_filters_select_ids",
+        "recv_timestamp_is_kernel_arrival_time",
+        "interface_down_is_an_error_not_a_hang",
+        "interface_removed_is_an_error_not_a_hang",
     ];
 
     pub async fn run() -> bool {
@@ -55,6 +59,10 @@ mod guest {
                 "cansend_error_frame_is_counted_and_skipped" => error_frame_skipped().await,
                 "retrocomp_to_candump" => retrocomp_to_candump().await,
                 "retrocomp_burst_in_order" => burst_in_order().await,
+                "kernel_filters_select_ids" => kernel_filters().await,
+                "recv_timestamp_is_kernel_arrival_time" => recv_timestamp().await,
+                "interface_down_is_an_error_not_a_hang" => interface_down().await,
+                "interface_removed_is_an_error_not_a_hang" => interface_removed().await,
                 other => Err(anyhow::anyhow!("no such check {other}")),
             };
             match result {
@@ -267,6 +275,126 @@ mod guest {
             let want = Frame::standard(0x200 + (seq % 0x100), &seq.to_be_bytes()).unwrap();
             ensure!(got == want, "frame {seq}: got {got:?}, want {want:?}");
         }
+        Ok(())
+    }
+
+    /// Standard 0x180/0x780 passes the TPDO1s only: a standard 0x281 and an extended id with the
+    /// same low bits (0x0000_0181) must be dropped by the kernel, before they reach us.
+    async fn kernel_filters() -> Result<()> {
+        let mut bus = SocketCanBus::open(IF)?;
+        ensure!(
+            bus.set_filters(&[]).is_err(),
+            "an empty filter list must be refused"
+        );
+        bus.set_filters(&[IdFilter {
+            id: Id::Standard(StandardId::new(0x180).unwrap()),
+            mask: 0x780,
+        }])?;
+        for arg in ["281#01", "00000181#02", "181#03", "1FF#04"] {
+            cansend(arg).await?;
+        }
+        for want in [(0x181, 3u8), (0x1FF, 4)] {
+            let got = recv(&mut bus).await?;
+            let want = Frame::standard(want.0, &[want.1]).unwrap();
+            ensure!(got == want, "filtered: got {got:?}, want {want:?}");
+        }
+        bus.accept_all()?;
+        cansend("281#05").await?;
+        let got = recv(&mut bus).await?;
+        ensure!(
+            got == Frame::standard(0x281, &[5]).unwrap(),
+            "after accept_all: {got:?}"
+        );
+        Ok(())
+    }
+
+    async fn recv_timestamp() -> Result<()> {
+        let mut bus = SocketCanBus::open(IF)?;
+        let before = SystemTime::now();
+        cansend("181#0102").await?;
+        let (got, at) = timeout(STEP_TIMEOUT, bus.recv_timestamped())
+            .await
+            .context("no frame within the timeout")??;
+        let after = SystemTime::now();
+        ensure!(
+            got == Frame::standard(0x181, &[1, 2]).unwrap(),
+            "got {got:?}"
+        );
+        ensure!(
+            before <= at && at <= after,
+            "kernel timestamp {at:?} outside [{before:?}, {after:?}]"
+        );
+        Ok(())
+    }
+
+    async fn ip_link(state: &str) -> Result<()> {
+        ip(&["link", "set", IF, state]).await
+    }
+
+    /// The kernel reports ENETDOWN to sockets bound to an interface taken down (net/can/raw.c
+    /// `raw_notify`); recv and send must return it, not hang, and the socket works again once
+    /// the interface is back up.
+    async fn interface_down() -> Result<()> {
+        let mut bus = SocketCanBus::open(IF)?;
+        ip_link("down").await?;
+        let down = async {
+            let recv_result = timeout(STEP_TIMEOUT, bus.recv()).await;
+            let send_result = bus.send(&Frame::standard(0x181, &[1]).unwrap()).await;
+            (recv_result, send_result)
+        }
+        .await;
+        ip_link("up").await?;
+        match down.0 {
+            Err(_) => bail!("recv hung on a downed interface"),
+            Ok(Err(CanError::Io(e))) => ensure!(
+                e.kind() == std::io::ErrorKind::NetworkDown && e.to_string().contains(IF),
+                "recv on a downed interface: {e}"
+            ),
+            Ok(other) => bail!("recv on a downed interface: expected ENETDOWN, got {other:?}"),
+        }
+        match down.1 {
+            Err(CanError::Io(e)) if e.kind() == std::io::ErrorKind::NetworkDown => {}
+            other => bail!("send on a downed interface: expected ENETDOWN, got {other:?}"),
+        }
+        cansend("181#07").await?;
+        let got = recv(&mut bus).await?;
+        ensure!(
+            got == Frame::standard(0x181, &[7]).unwrap(),
+            "after up: {got:?}"
+        );
+        Ok(())
+    }
+
+    async fn ip(args: &[&str]) -> Result<()> {
+        let status = Command::new("ip").args(args).status().await?;
+        ensure!(status.success(), "ip {}: {status}", args.join(" "));
+        Ok(())
+    }
+
+    /// Deleting the interface unbinds every socket (ENODEV): recv must say so, not hang. vcan0 is
+    /// re-created afterwards so the check order does not matter.
+    async fn interface_removed() -> Result<()> {
+        let mut bus = SocketCanBus::open(IF)?;
+        ip(&["link", "del", IF]).await?;
+        let result = timeout(STEP_TIMEOUT, bus.recv()).await;
+        ip(&["link", "add", "dev", IF, "type", "vcan"]).await?;
+        ip(&["link", "set", IF, "up"]).await?;
+        match result {
+            Err(_) => bail!("recv hung on a deleted interface"),
+            Ok(Err(CanError::Io(e))) => ensure!(
+                e.kind() == std::io::ErrorKind::NotFound && e.to_string().contains("removed"),
+                "recv on a deleted interface: {e}"
+            ),
+            Ok(other) => bail!("recv on a deleted interface: expected NotFound, got {other:?}"),
+        }
+        // A fresh open on the re-created interface works.
+        let mut bus = SocketCanBus::open(IF)?;
+        cansend("181#08").await?;
+        let got = recv(&mut bus).await?;
+        ensure!(
+            got == Frame::standard(0x181, &[8]).unwrap(),
+            "after re-create: {got:?}"
+        );
         Ok(())
     }
 }
