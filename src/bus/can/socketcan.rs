@@ -41,6 +41,9 @@ const EPROTONOSUPPORT: i32 = 93;
 const EAFNOSUPPORT: i32 = 97;
 /// Reads wait for data OR a socket error (EPOLLERR): see the module comment.
 const READ_OR_ERROR: Interest = Interest::READABLE.add(Interest::ERROR);
+const REGISTERED: Interest = Interest::READABLE
+    .add(Interest::WRITABLE)
+    .add(Interest::ERROR);
 /// IFNAMSIZ − 1: longer names can never name an interface.
 const MAX_IFNAME_LEN: usize = 15;
 /// `CAN_ERR_MASK` from linux/can.h: every error class.
@@ -92,6 +95,12 @@ impl SocketCanBus {
     /// missing interface an [`CanError::Io`] of kind `NotFound`, both naming the interface.
     pub fn open(ifname: &str) -> Result<Self, CanError> {
         validate_ifname(ifname)?;
+        // Registering with tokio outside a runtime panics; say so instead.
+        if tokio::runtime::Handle::try_current().is_err() {
+            return Err(CanError::Io(io::Error::other(format!(
+                "SocketCanBus::open({ifname:?}) must be called inside a tokio runtime"
+            ))));
+        }
         let socket = match ::socketcan::CanSocket::open(ifname) {
             Ok(s) => s,
             Err(e) => return Err(classify_open_error(ifname, &e, can_family_available)),
@@ -105,8 +114,11 @@ impl SocketCanBus {
         socket
             .set_recv_timestamp(true)
             .map_err(|e| io_context(ifname, "enabling SO_TIMESTAMPNS", e))?;
-        let socket =
-            AsyncFd::new(socket).map_err(|e| io_context(ifname, "registering with tokio", e))?;
+        // SAFETY: `socketcan::CanSocket` owns its descriptor (an `OwnedFd` inside socket2) and never
+        // replaces it, and the `AsyncFd` owns the socket until both are dropped together, so the
+        // fd stays open and the same for the registration's whole lifetime.
+        let socket = unsafe { AsyncFd::register_with_interest(socket, REGISTERED) }
+            .map_err(|e| io_context(ifname, "registering with tokio", e.into()))?;
         Ok(SocketCanBus {
             ifname: ifname.to_owned(),
             socket,
@@ -367,6 +379,14 @@ mod tests {
             mask: 0x00FF_FF00,
         };
         assert_eq!(j1939.to_kernel(), (0x98FF_50E5, 0x80FF_FF00));
+    }
+
+    #[test]
+    fn open_outside_a_tokio_runtime_is_an_error_not_a_panic() {
+        match SocketCanBus::open("vcan0") {
+            Err(CanError::Io(e)) => assert!(e.to_string().contains("tokio runtime"), "{e}"),
+            other => panic!("expected an Io error, got {other:?}"),
+        }
     }
 
     #[tokio::test]
