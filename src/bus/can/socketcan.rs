@@ -81,6 +81,8 @@ impl IdFilter {
 
 /// A bus on one kernel CAN interface. Frames sent are looped back to *other* sockets on the host
 /// (kernel default), so `candump` on the same interface sees them; the sender does not.
+/// `recv`, `recv_timestamped` and `send` are cancel-safe (a frame is taken from the socket only
+/// inside one non-blocking syscall), so they can sit in `tokio::select!` or under a timeout.
 #[derive(Debug)]
 pub struct SocketCanBus {
     ifname: String,
@@ -218,6 +220,8 @@ impl CanBus for SocketCanBus {
 /// "(os error N)" text. ENETDOWN (kind `NetworkDown`): the interface is down, the socket recovers
 /// when it comes back up. ENODEV after `open` (kind `NotFound`): the interface was deleted and the
 /// socket is unbound for good, so the caller must open it again.
+/// ENOBUFS on send (a real controller's TX queue is full; the socket still polls writable, so it
+/// is not EAGAIN) is passed on as is for the caller to retry later; vcan has no queue to test it.
 fn io_context(ifname: &str, op: &str, e: io::Error) -> CanError {
     if e.raw_os_error() == Some(ENODEV) {
         return CanError::Io(io::Error::new(
