@@ -260,20 +260,29 @@ mod guest {
         Ok(())
     }
 
-    /// Two retrocomp sockets on vcan0: 200 frames with a sequence number arrive complete and in
-    /// order (vcan delivers synchronously; 200 frames fit the default receive buffer).
+    /// Two retrocomp sockets on vcan0: 4 bursts of 50 frames with a sequence number arrive complete
+    /// and in order. vcan delivers synchronously into the receiver's socket queue; a burst of 50
+    /// stays far below the default receive buffer (~270 classic frames with rmem_default 212992),
+    /// so a drop here is a real fault, not buffer sizing.
     async fn burst_in_order() -> Result<()> {
-        const N: u16 = 200;
+        const BURST: u16 = 50;
+        const BURSTS: u16 = 4;
         let mut tx = SocketCanBus::open(IF)?;
         let mut rx = SocketCanBus::open(IF)?;
-        for seq in 0..N {
-            let f = Frame::standard(0x200 + (seq % 0x100), &seq.to_be_bytes()).unwrap();
-            tx.send(&f).await?;
-        }
-        for seq in 0..N {
-            let got = recv(&mut rx).await?;
-            let want = Frame::standard(0x200 + (seq % 0x100), &seq.to_be_bytes()).unwrap();
-            ensure!(got == want, "frame {seq}: got {got:?}, want {want:?}");
+        let frame = |seq: u16| Frame::standard(0x200 + (seq % 0x100), &seq.to_be_bytes()).unwrap();
+        for burst in 0..BURSTS {
+            let seqs = burst * BURST..(burst + 1) * BURST;
+            for seq in seqs.clone() {
+                tx.send(&frame(seq)).await?;
+            }
+            for seq in seqs {
+                let got = recv(&mut rx).await?;
+                ensure!(
+                    got == frame(seq),
+                    "frame {seq}: got {got:?}, want {:?}",
+                    frame(seq)
+                );
+            }
         }
         Ok(())
     }
