@@ -30,6 +30,7 @@ const GUEST_CHECKS: &[&str] = &[
     "cansend_remote_to_retrocomp",
     "cansend_empty_to_retrocomp",
     "cansend_error_frame_is_counted_and_skipped",
+    "cansend_canfd_frame_is_not_delivered",
     "retrocomp_to_candump",
     "retrocomp_burst_in_order",
     "kernel_filters_select_ids",

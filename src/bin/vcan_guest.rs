@@ -33,6 +33,7 @@ mod guest {
         "cansend_remote_to_retrocomp",
         "cansend_empty_to_retrocomp",
         "cansend_error_frame_is_counted_and_skipped",
+        "cansend_canfd_frame_is_not_delivered",
         "retrocomp_to_candump",
         "retrocomp_burst_in_order",
         "kernel_filters_select_ids",
@@ -57,6 +58,7 @@ mod guest {
                     cansend_expect("7FF#", Frame::standard(0x7FF, &[]).unwrap()).await
                 }
                 "cansend_error_frame_is_counted_and_skipped" => error_frame_skipped().await,
+                "cansend_canfd_frame_is_not_delivered" => canfd_not_delivered().await,
                 "retrocomp_to_candump" => retrocomp_to_candump().await,
                 "retrocomp_burst_in_order" => burst_in_order().await,
                 "kernel_filters_select_ids" => kernel_filters().await,
@@ -179,6 +181,18 @@ mod guest {
             "error frames counted: {}",
             bus.error_frames()
         );
+        Ok(())
+    }
+
+    /// vcan0 has the CAN FD MTU (72), so peers may send FD frames; our classic CAN_RAW socket does
+    /// not enable CAN_RAW_FD_FRAMES, so the kernel must not hand them to us (net/can/raw.c
+    /// `raw_rcv`), and the next classic frame still arrives.
+    async fn canfd_not_delivered() -> Result<()> {
+        let mut bus = SocketCanBus::open(IF)?;
+        cansend("181##1112233445566778899AABB").await?;
+        cansend("101#01").await?;
+        let got = recv(&mut bus).await?;
+        ensure!(got == Frame::standard(0x101, &[1]).unwrap(), "got {got:?}");
         Ok(())
     }
 

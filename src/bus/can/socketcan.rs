@@ -369,6 +369,33 @@ mod tests {
         }
     }
 
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(100_000))]
+
+        /// The conversion `send` relies on never panics and loses nothing, for every classic frame.
+        #[test]
+        fn every_frame_survives_the_kernel_frame_conversion(
+            extended in proptest::prelude::any::<bool>(),
+            raw_id in 0u32..=0x1FFF_FFFF,
+            remote in proptest::prelude::any::<bool>(),
+            data in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..=8),
+        ) {
+            use embedded_can::{ExtendedId, Frame as _, StandardId};
+            let id: Id = if extended {
+                ExtendedId::new(raw_id).unwrap().into()
+            } else {
+                StandardId::new((raw_id & 0x7FF) as u16).unwrap().into()
+            };
+            let frame = if remote {
+                Frame::new_remote(id, data.len()).unwrap()
+            } else {
+                Frame::new(id, &data).unwrap()
+            };
+            let kernel: ::socketcan::CanFrame = frame.into();
+            proptest::prop_assert_eq!(Frame::try_from(kernel).unwrap(), frame);
+        }
+    }
+
     #[test]
     fn filters_carry_the_id_width_flag() {
         use embedded_can::{ExtendedId, StandardId};
