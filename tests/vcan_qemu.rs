@@ -5,7 +5,7 @@
 //!
 //! Host peers: qemu-system-x86_64, busybox-static, can-utils, cpio, and apt-get/dpkg for the first
 //! kernel download (cached in `~/.cache/retrocomp-vcan`, or `$RETROCOMP_VCAN_CACHE`). If any is
-//! missing the test FAILS saying how to install them: `scripts/setup-vcan.sh`. On any guest failure
+//! missing the test FAILS saying how to install them: `scripts/setup-peers.sh`. On any guest failure
 //! it prints the guest's whole serial console. See docs/vcan.md.
 
 #![cfg(all(feature = "socketcan", target_os = "linux"))]
@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 /// Boot + tests take ~7 s under TCG on an idle host; a loaded 2-core CI box can be several times slower.
 const QEMU_TIMEOUT: Duration = Duration::from_secs(180);
 const MARKER: &str = "RETROCOMP-VCAN-RESULT: ";
-const INSTALL_HINT: &str = "install the host peers with `sudo scripts/setup-vcan.sh` \
+const INSTALL_HINT: &str = "install the host peers with `sudo scripts/setup-peers.sh` \
      (apt-get install qemu-system-x86 busybox-static can-utils cpio xz-utils)";
 
 /// The checks `vcan_guest` must report as `ok` (same names as its `CHECKS`).

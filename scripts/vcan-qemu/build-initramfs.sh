@@ -7,7 +7,7 @@
 #   KERNEL_TREE  the directory printed by fetch-kernel.sh (boot/vmlinuz-<abi>, lib/modules/<abi>/)
 #   GUEST_BIN    the in-guest test program (target/<profile>/vcan_guest), stripped into the image
 # Needs: busybox (static), cansend, candump, cpio, gzip, ldd; xz/zstd only if modules are compressed.
-# Install them with scripts/setup-vcan.sh.
+# Install them with scripts/setup-peers.sh.
 set -eu
 
 tree=$1
@@ -17,7 +17,7 @@ here=$(cd "$(dirname "$0")" && pwd)
 
 fail() {
     echo "build-initramfs.sh: $*" >&2
-    echo "  install the peers with: scripts/setup-vcan.sh (apt-get install busybox-static can-utils cpio xz-utils)" >&2
+    echo "  install the peers with: scripts/setup-peers.sh (apt-get install busybox-static can-utils cpio xz-utils)" >&2
     exit 2
 }
 

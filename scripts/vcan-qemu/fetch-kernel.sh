@@ -6,7 +6,7 @@
 #
 # Usage: fetch-kernel.sh [CACHE_DIR]      (default: $RETROCOMP_VCAN_CACHE or ~/.cache/retrocomp-vcan)
 # Prints one line on stdout: the unpacked tree (it holds boot/vmlinuz-<abi> and lib/modules/<abi>/).
-# Needs: apt-get, apt-cache, dpkg (any Debian/Ubuntu host). Install peers: scripts/setup-vcan.sh
+# Needs: apt-get, apt-cache, dpkg (any Debian/Ubuntu host). Install peers: scripts/setup-peers.sh
 set -eu
 
 cache="${1:-${RETROCOMP_VCAN_CACHE:-$HOME/.cache/retrocomp-vcan}}"
@@ -31,7 +31,7 @@ if [ -z "$kpkg" ]; then
         exit 0
     fi
     echo "fetch-kernel.sh: cannot resolve the kernel ABI package: 'apt-cache depends linux-image-amd64' gave nothing." >&2
-    echo "  run 'apt-get update' (or scripts/setup-vcan.sh), or set RETROCOMP_VCAN_KPKG=linux-image-<abi>-amd64" >&2
+    echo "  run 'apt-get update' (or scripts/setup-peers.sh), or set RETROCOMP_VCAN_KPKG=linux-image-<abi>-amd64" >&2
     exit 2
 fi
 
