@@ -26,6 +26,7 @@ const GUEST_CHECKS: &[&str] = &[
     "open_missing_interface_is_not_found",
     "open_non_can_interface_is_not_found",
     "cansend_cia406_tpdo_to_retrocomp",
+    "canopen_source_end_to_end_from_field_toml",
     "cansend_extended_to_retrocomp",
     "cansend_remote_to_retrocomp",
     "cansend_empty_to_retrocomp",

@@ -13,8 +13,10 @@
 mod guest {
     use anyhow::{Context, Result, bail, ensure};
     use embedded_can::{Frame as _, Id, StandardId};
+    use retrocomp::bus::Health;
     use retrocomp::bus::can::socketcan::{IdFilter, SocketCanBus};
-    use retrocomp::bus::can::{CanBus, CanError, Frame};
+    use retrocomp::bus::can::{CanBackendConfig, CanBus, CanError, Frame};
+    use retrocomp::bus::canopen::source::{self, CanopenConfig, CanopenSource};
     use std::time::{Duration, SystemTime};
     use tokio::io::AsyncReadExt;
     use tokio::process::Command;
@@ -29,6 +31,7 @@ mod guest {
         "open_missing_interface_is_not_found",
         "open_non_can_interface_is_not_found",
         "cansend_cia406_tpdo_to_retrocomp",
+        "canopen_source_end_to_end_from_field_toml",
         "cansend_extended_to_retrocomp",
         "cansend_remote_to_retrocomp",
         "cansend_empty_to_retrocomp",
@@ -49,6 +52,7 @@ mod guest {
                 "open_missing_interface_is_not_found" => open_not_found("rcnone0"),
                 "open_non_can_interface_is_not_found" => open_not_found("lo"),
                 "cansend_cia406_tpdo_to_retrocomp" => cansend_cia406_tpdo().await,
+                "canopen_source_end_to_end_from_field_toml" => canopen_end_to_end().await,
                 "cansend_extended_to_retrocomp" => {
                     let want = Frame::extended(0x18FF_50E5, &[1, 2, 3, 4, 5, 6, 7, 8]).unwrap();
                     cansend_expect("18FF50E5#0102030405060708", want).await
@@ -148,6 +152,104 @@ mod guest {
         Ok(())
     }
 
+    /// The gateway's path as configured in the field TOML: backend = "socketcan" selects
+    /// `SocketCanBus` via `backend::open`; the CANopen source sends its bring-up (SDO write 6200h
+    /// cyclic timer = 10 ms, then NMT start), which candump must see byte for byte; a TPDO from
+    /// cansend becomes a sample; with no further PDO the channel goes stale (pdo_timeout_s).
+    async fn canopen_end_to_end() -> Result<()> {
+        #[derive(serde::Deserialize)]
+        struct Field {
+            can: CanBackendConfig,
+            canopen: CanopenConfig,
+        }
+        let field: Field = toml::from_str(
+            r#"
+            [can]
+            backend = "socketcan"
+            interface = "vcan0"
+
+            [canopen]
+            pdo_timeout_s = 0.5
+
+            [[canopen.encoder]]
+            channel = "x_mm"
+            node_id = 1
+            counts_per_mm = 1000.0
+            cyclic_ms = 10
+            "#,
+        )?;
+        // SDO expedited download of 2 bytes (0x2B) to 6200h sub 0, value 10 ms; NMT start (01) node 1.
+        let bring_up = ["601#2B0062000A000000", "000#0101"];
+        let before = vcan_receivers()?;
+        let mut dump = Command::new("candump")
+            .args(["-L", "-n", "2", "-T", "20000", IF])
+            .stdout(std::process::Stdio::piped())
+            .kill_on_drop(true)
+            .spawn()
+            .context("cannot run candump")?;
+        wait_for_receivers(before).await?;
+
+        let mut bus = retrocomp::bus::can::backend::open(&field.can, None).await?;
+        ensure!(
+            matches!(bus, retrocomp::bus::can::AnyCanBus::Socketcan(_)),
+            "backend = \"socketcan\" opened {bus:?}"
+        );
+        let mut src = CanopenSource::new(field.canopen);
+        let (tx, mut rx) = tokio::sync::mpsc::channel(64);
+        let start = std::time::Instant::now();
+        let task = tokio::spawn(async move {
+            source::run(
+                &mut bus,
+                &mut src,
+                move || start.elapsed().as_secs_f64(),
+                Duration::from_millis(50),
+                tx,
+            )
+            .await
+        });
+
+        let mut text = String::new();
+        let mut stdout = dump.stdout.take().context("candump stdout")?;
+        timeout(STEP_TIMEOUT, stdout.read_to_string(&mut text))
+            .await
+            .context("candump did not see the bring-up frames")??;
+        let got: Vec<&str> = text
+            .lines()
+            .filter_map(|l| l.split_whitespace().nth(2))
+            .collect();
+        ensure!(
+            got == bring_up,
+            "bring-up on the wire: {got:?}, want {bring_up:?}"
+        );
+
+        cansend("181#78563412").await?;
+        let mut ok_value = None;
+        let deadline = tokio::time::Instant::now() + STEP_TIMEOUT;
+        let mut went_stale = false;
+        while !went_stale {
+            let batch = tokio::time::timeout_at(deadline, rx.recv())
+                .await
+                .context("no Ok-then-Stale samples within the timeout")?
+                .context("CANopen source stopped")?;
+            for s in batch {
+                ensure!(s.channel == "x_mm", "unexpected channel {}", s.channel);
+                match s.health {
+                    Health::Ok => ok_value = Some(s.value),
+                    Health::Stale if ok_value.is_some() => went_stale = true,
+                    _ => {}
+                }
+            }
+        }
+        task.abort();
+        // 0x12345678 counts / 1000 counts per mm.
+        let want_mm = f64::from(0x1234_5678u32) / 1000.0;
+        ensure!(
+            ok_value == Some(want_mm),
+            "decoded {ok_value:?} mm, want {want_mm}"
+        );
+        Ok(())
+    }
+
     async fn cansend_remote() -> Result<()> {
         let mut bus = SocketCanBus::open(IF)?;
         cansend("123#R4").await?;
@@ -227,6 +329,19 @@ mod guest {
             .count())
     }
 
+    /// Waits until the kernel lists more raw receivers on vcan0 than `before` (a peer has bound).
+    async fn wait_for_receivers(before: usize) -> Result<()> {
+        let deadline = tokio::time::Instant::now() + STEP_TIMEOUT;
+        while vcan_receivers()? <= before {
+            ensure!(
+                tokio::time::Instant::now() < deadline,
+                "candump never bound to {IF}"
+            );
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        Ok(())
+    }
+
     async fn retrocomp_to_candump() -> Result<()> {
         let mut bus = SocketCanBus::open(IF)?;
         let frames = [
@@ -243,14 +358,7 @@ mod guest {
             .kill_on_drop(true)
             .spawn()
             .context("cannot run candump")?;
-        let deadline = tokio::time::Instant::now() + STEP_TIMEOUT;
-        while vcan_receivers()? <= before {
-            ensure!(
-                tokio::time::Instant::now() < deadline,
-                "candump never bound to {IF}"
-            );
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
+        wait_for_receivers(before).await?;
         for f in &frames {
             bus.send(f).await?;
         }
