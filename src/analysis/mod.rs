@@ -11,7 +11,7 @@
 //! ([`import_error::ImportErrors`]).
 
 // pub mod circular;
-// pub mod export;
+pub mod export;
 // pub mod fit;
 pub mod import_error;
 pub mod iso230_2;
