@@ -264,6 +264,92 @@ pub fn remove_linear_drift(readings: &mut [Reading]) -> f64 {
     slope
 }
 
+/// Reads a bidirectional table from named CSV columns (position, forward, reverse), multiplying
+/// the error columns by `to_um` (1000 for tables printed in mm). Bad cells are reported with line
+/// and column; positions must increase.
+pub fn parse_table_columns(
+    file: &str,
+    text: &str,
+    position_col: &str,
+    forward_col: &str,
+    reverse_col: &str,
+    to_um: f64,
+) -> Result<super::table::BidirectionalTable, ImportErrors> {
+    let mut sink = ErrorSink::new(file);
+    let mut rdr = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .comment(Some(b'#'))
+        .trim(csv::Trim::All)
+        .flexible(true)
+        .from_reader(text.as_bytes());
+    let headers = match rdr.headers() {
+        Ok(h) => h.clone(),
+        Err(e) => {
+            sink.push(1, None, format!("cannot read the header: {e}"));
+            return sink.finish(Default::default());
+        }
+    };
+    let header_line = rdr.position().line();
+    let names: Vec<&str> = headers.iter().collect();
+    let idx: Vec<Option<usize>> = [position_col, forward_col, reverse_col]
+        .iter()
+        .map(|c| column(&mut sink, &names, c, header_line))
+        .collect();
+    let (Some(cp), Some(cf), Some(cr)) = (idx[0], idx[1], idx[2]) else {
+        return sink.finish(Default::default());
+    };
+    let mut t = super::table::BidirectionalTable {
+        positions_mm: vec![],
+        forward_um: vec![],
+        reverse_um: vec![],
+    };
+    for rec in rdr.records() {
+        let rec = match rec {
+            Ok(r) => r,
+            Err(e) => {
+                sink.push(
+                    e.position().map_or(0, |p| p.line()),
+                    None,
+                    format!("unreadable row: {e}"),
+                );
+                continue;
+            }
+        };
+        let line = rec.position().map_or(0, |p| p.line());
+        if rec.len() != names.len() {
+            sink.push(
+                line,
+                None,
+                format!("expected {} fields, found {}", names.len(), rec.len()),
+            );
+            continue;
+        }
+        let p = sink.parse_f64(line, position_col, &rec[cp]);
+        let f = sink.parse_f64(line, forward_col, &rec[cf]);
+        let r = sink.parse_f64(line, reverse_col, &rec[cr]);
+        let (Some(p), Some(f), Some(r)) = (p, f, r) else {
+            continue;
+        };
+        if let Some(&prev) = t.positions_mm.last()
+            && p <= prev
+        {
+            sink.push(
+                line,
+                Some(position_col),
+                format!("positions must increase: {p} follows {prev}"),
+            );
+            continue;
+        }
+        t.positions_mm.push(p);
+        t.forward_um.push(f * to_um);
+        t.reverse_um.push(r * to_um);
+    }
+    if t.positions_mm.is_empty() && sink.is_empty() {
+        sink.push(header_line, None, "no data rows");
+    }
+    sink.finish(t)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -27,7 +27,7 @@ impl Direction {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct BidirectionalTable {
     /// Strictly increasing nominal positions.
     pub positions_mm: Vec<f64>,
