@@ -10,9 +10,9 @@
 //! Every importer reports file, line and column of each bad row and never drops one silently
 //! ([`import_error::ImportErrors`]).
 
-// pub mod circular;
+pub mod circular;
 pub mod export;
-// pub mod fit;
+pub mod fit;
 pub mod import_error;
 pub mod iso230_2;
 pub mod laser_import;
