@@ -18,5 +18,5 @@ pub mod iso230_2;
 pub mod laser_import;
 pub mod nc;
 pub mod plane_model;
-// pub mod report;
+pub mod report;
 pub mod table;
