@@ -2,4 +2,9 @@
 //! quadratics with stepwise knot selection, thermal regression with sensor-subset selection
 //! (Mallows' Cp, BIC), and Spaan's efficiency δ on held-out data.
 
+pub mod efficiency;
 pub mod lsq;
+pub mod piecewise;
+pub mod recording;
+pub mod regression;
+pub mod workflow;
