@@ -3,3 +3,6 @@
 
 pub mod analysis;
 pub mod bus;
+pub mod cli;
+pub mod models;
+pub mod units;

@@ -1,10 +1,9 @@
-//! retrocomp command line. Each subcommand's logic lives in `src/cli/<name>.rs`.
-
-mod cli;
+//! The `retrocomp` command line: one subcommand per module in `src/cli/`.
 
 use clap::{Parser, Subcommand};
+use retrocomp::cli;
 
-#[derive(Debug, Parser)]
+#[derive(Parser)]
 #[command(
     name = "retrocomp",
     version,
@@ -15,8 +14,12 @@ struct Cli {
     command: Command,
 }
 
-#[derive(Debug, Subcommand)]
+#[derive(Subcommand)]
 enum Command {
+    /// Load a machine model and print a summary, or every problem with file, line and key.
+    CheckConfig(cli::check_config::Args),
+    /// Evaluate a machine model along a path CSV; writes the errors and every term as CSV.
+    Eval(cli::eval::Args),
     /// ISO 230-2:2014 positioning evaluation of one axis from laser runs.
     #[command(name = "iso230-2")]
     Iso230_2(cli::iso230_2::Args),
@@ -31,13 +34,14 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
-    let result = match &cli.command {
-        Command::Iso230_2(a) => cli::iso230_2::run(a),
-        Command::Import(a) => cli::import::run(a),
-        Command::Export(a) => cli::export::run(a),
-        Command::Nc(a) => cli::nc::run(a),
-        Command::Circle(a) => cli::circle::run(a),
+    let result = match Cli::parse().command {
+        Command::CheckConfig(a) => cli::check_config::run(&a),
+        Command::Eval(a) => cli::eval::run(&a),
+        Command::Iso230_2(a) => cli::iso230_2::run(&a),
+        Command::Import(a) => cli::import::run(&a),
+        Command::Export(a) => cli::export::run(&a),
+        Command::Nc(a) => cli::nc::run(&a),
+        Command::Circle(a) => cli::circle::run(&a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -5,9 +5,9 @@
 
 use std::path::PathBuf;
 
-use retrocomp::analysis::circular::{self, CircleSetup, CircleTrace, Rotation};
-use retrocomp::analysis::import_error::ErrorSink;
-use retrocomp::analysis::report::{Series, xy_svg};
+use crate::analysis::circular::{self, CircleSetup, CircleTrace, Rotation};
+use crate::analysis::import_error::ErrorSink;
+use crate::analysis::report::{Series, xy_svg};
 
 use super::util::{read, write};
 
@@ -31,7 +31,7 @@ pub struct Args {
 pub fn parse_traces(
     file: &str,
     text: &str,
-) -> Result<Vec<CircleTrace>, retrocomp::analysis::import_error::ImportErrors> {
+) -> Result<Vec<CircleTrace>, crate::analysis::import_error::ImportErrors> {
     let mut sink = ErrorSink::new(file);
     let mut ccw = CircleTrace {
         rotation: Rotation::Ccw,

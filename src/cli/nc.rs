@@ -14,13 +14,13 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::analysis::laser_import::parse_table_columns;
+use crate::analysis::nc::parser::parse_program;
+use crate::analysis::nc::rewrite::{RewriteConfig, rewrite};
+use crate::analysis::plane_model::{PlaneTerms, ZxPlaneModel};
+use crate::analysis::report::{Series, xy_svg};
+use crate::analysis::table::BidirectionalTable;
 use anyhow::Context;
-use retrocomp::analysis::laser_import::parse_table_columns;
-use retrocomp::analysis::nc::parser::parse_program;
-use retrocomp::analysis::nc::rewrite::{RewriteConfig, rewrite};
-use retrocomp::analysis::plane_model::{PlaneTerms, ZxPlaneModel};
-use retrocomp::analysis::report::{Series, xy_svg};
-use retrocomp::analysis::table::BidirectionalTable;
 use serde::Deserialize;
 
 use super::util::{emit, read, write};
