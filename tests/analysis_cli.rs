@@ -146,6 +146,26 @@ fn nc_rewrites_the_diagonal_program() {
     // whose X Ø values carry ±0.2 µm of print rounding (tests/analysis_nc.rs checks all rows).
     assert!(prog.contains("X19.9814 Z29.9988;"), "{prog}");
     assert!(prog.contains("X339.9378 Z509.9275;"), "{prog}");
+    // Same program through the machine model (deploy/examples, positional terms): Table 6.3 Pos F row 30/20.
+    let model = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("deploy/examples/studer-s36-positional.toml");
+    let json: serde_json::Value = serde_json::from_str(&run_ok(
+        bin()
+            .arg("nc")
+            .arg(fx("asadullah_diagonal_uncompensated.nc"))
+            .arg("--model")
+            .arg(&model)
+            .arg("--diameter-x")
+            .arg("--json"),
+    ))
+    .unwrap();
+    assert!(
+        json["output"]
+            .as_str()
+            .unwrap()
+            .contains("X19.9848 Z29.9993;")
+    );
+    assert_eq!(json["stats"]["moves_outside_domain"], 2);
 }
 
 #[test]

@@ -224,3 +224,73 @@ fn unsupported_codes_and_limits_are_refused_with_the_line() {
         "{e}"
     );
 }
+
+mod with_machine_model {
+    use super::*;
+    use retrocomp::analysis::nc::model_errors::ModelErrors;
+    use retrocomp::models::{Axis, ComponentId, MachineModel, Motion};
+
+    fn example(name: &str) -> MachineModel {
+        let p = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("deploy/examples")
+            .join(name);
+        MachineModel::from_toml_path(&p).unwrap()
+    }
+
+    fn rewrite_diagonal(model: &MachineModel) -> Vec<(f64, f64)> {
+        let (path, prog) = fixture("asadullah_diagonal_uncompensated.nc");
+        let blocks = parse_program(&path, &prog, true).unwrap();
+        let cfg = RewriteConfig {
+            diameter_x: true,
+            ..Default::default()
+        };
+        let (out, stats) = rewrite(&blocks, &ModelErrors::new(model, true), &cfg).unwrap();
+        assert_eq!(
+            stats.moves_outside_domain, 2,
+            "overshoot moves are outside the model's travel"
+        );
+        moves(&out)
+    }
+
+    fn worst_vs_table(mv: &[(f64, f64)], col: usize) -> (f64, f64) {
+        let mut worst = (0.0f64, 0.0f64);
+        for (i, row) in table_6_3().iter().enumerate() {
+            let (fwd, rev) = (mv[2 + i], mv[2 + 18 + 1 + (17 - i)]);
+            for ((z, x), (cz, cx)) in [
+                (fwd, (row[col], row[col + 1])),
+                (rev, (row[col + 2], row[col + 3])),
+            ] {
+                worst.0 = worst.0.max((z - cz).abs() * 1000.0);
+                worst.1 = worst.1.max((x - cx).abs() * 1000.0);
+            }
+        }
+        worst
+    }
+
+    /// The machine model of deploy/examples (helper "models") drives the same rewrite: positional
+    /// columns of Table 6.3 to the printed digit.
+    #[test]
+    fn table_6_3_positional_via_machine_model() {
+        let w = worst_vs_table(&rewrite_diagonal(&example("studer-s36-positional.toml")), 6);
+        assert!(w.0 <= 0.05 && w.1 <= 0.05, "{w:?}");
+    }
+
+    /// Geometric columns: the thesis dropped the first-order yaw Abbe term (digest §1.2), so the
+    /// model without EBZ matches within print rounding; with EBZ the difference stays ≤ 1.5 µm.
+    #[test]
+    fn table_6_3_geometric_via_machine_model() {
+        let full = example("studer-s36.toml");
+        let mut spec = full.spec().clone();
+        spec.components.retain(|c| {
+            c.id != ComponentId {
+                axis: Axis::Z,
+                motion: Motion::Rotation(Axis::Y),
+            }
+        });
+        let thesis = MachineModel::from_spec(spec);
+        let w = worst_vs_table(&rewrite_diagonal(&thesis), 2);
+        assert!(w.0 <= 0.11 && w.1 <= 0.21, "{w:?}");
+        let w_full = worst_vs_table(&rewrite_diagonal(&full), 2);
+        assert!(w_full.0 > w.0 && w_full.0 <= 1.6, "{w_full:?}");
+    }
+}

@@ -1,6 +1,9 @@
-//! `retrocomp nc IN.nc --plane-model MODEL.toml [--diameter-x] [--split-mm S] [--out OUT.nc] [--json] [--svg OUT]`
+//! `retrocomp nc IN.nc (--model MACHINE.toml | --plane-model PLANE.toml) [--diameter-x] [--split-mm S]
+//! [--out OUT.nc] [--json] [--svg OUT]`
 //!
-//! MODEL.toml (tables are CSV files, paths relative to the TOML file):
+//! `--model` takes the machine model (docs/model.md; evaluated exactly, temperatures and loads at
+//! their references). `--plane-model` takes a two-axis Z–X table model (tables are CSV files, paths
+//! relative to the TOML file):
 //! ```toml
 //! terms = "geometric"        # or "positional"
 //! szx_urad = -382.35         # squareness Szx, µrad
@@ -15,11 +18,13 @@
 use std::path::{Path, PathBuf};
 
 use crate::analysis::laser_import::parse_table_columns;
+use crate::analysis::nc::model_errors::ModelErrors;
 use crate::analysis::nc::parser::parse_program;
 use crate::analysis::nc::rewrite::{RewriteConfig, rewrite};
 use crate::analysis::plane_model::{PlaneTerms, ZxPlaneModel};
 use crate::analysis::report::{Series, xy_svg};
 use crate::analysis::table::BidirectionalTable;
+use crate::models::MachineModel;
 use anyhow::Context;
 use serde::Deserialize;
 
@@ -28,9 +33,19 @@ use super::util::{emit, read, write};
 #[derive(Debug, clap::Args)]
 pub struct Args {
     pub program: PathBuf,
-    /// Two-axis Z–X table model (see `retrocomp nc --help` / docs/toolkit.md).
+    /// Machine model TOML (the error function to compensate).
+    #[arg(
+        long,
+        required_unless_present = "plane_model",
+        conflicts_with = "plane_model"
+    )]
+    pub model: Option<PathBuf>,
+    /// Two-axis Z–X table model (see docs/toolkit.md).
     #[arg(long)]
-    pub plane_model: PathBuf,
+    pub plane_model: Option<PathBuf>,
+    /// Use the model's first-order closed form instead of the exact 4×4 evaluation.
+    #[arg(long)]
+    pub first_order: bool,
     /// X words are diameters (lathe, cylindrical grinder).
     #[arg(long)]
     pub diameter_x: bool,
@@ -113,7 +128,6 @@ pub fn load_plane_model(path: &Path) -> anyhow::Result<ZxPlaneModel> {
 }
 
 pub fn run(a: &Args) -> anyhow::Result<()> {
-    let model = load_plane_model(&a.plane_model)?;
     let text = read(&a.program)?;
     let blocks = parse_program(
         &a.program.display().to_string(),
@@ -126,8 +140,15 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
         max_correction_um: a.max_correction_um,
         ..Default::default()
     };
-    let (out, stats) =
-        rewrite(&blocks, &model, &cfg).with_context(|| format!("{}", a.program.display()))?;
+    let (out, stats) = match (&a.model, &a.plane_model) {
+        (Some(m), _) => {
+            let model = MachineModel::from_toml_path(m)?;
+            rewrite(&blocks, &ModelErrors::new(&model, !a.first_order), &cfg)
+        }
+        (None, Some(p)) => rewrite(&blocks, &load_plane_model(p)?, &cfg),
+        (None, None) => anyhow::bail!("give --model or --plane-model"),
+    }
+    .with_context(|| format!("{}", a.program.display()))?;
     if a.json {
         let v = serde_json::json!({ "program": a.program.display().to_string(), "stats": stats, "output": out });
         println!("{}", serde_json::to_string_pretty(&v)?);

@@ -7,6 +7,7 @@
 //! coordinates are taken as machine coordinates: work offsets, cutter compensation and canned cycles
 //! must be expanded first and are refused, not silently misread.
 
+pub mod model_errors;
 pub mod parser;
 pub mod rewrite;
 
