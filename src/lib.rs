@@ -1,6 +1,7 @@
 //! retrocomp: a fieldbus gateway that computes the volumetric error of a legacy CNC machine and feeds
 //! the correction back to its controller. See README.md for the pipeline and the conventions.
 
+pub mod analysis;
 pub mod bus;
 pub mod cli;
 pub mod models;
