@@ -2,4 +2,5 @@
 //! the correction back to its controller. See README.md for the pipeline and the conventions.
 
 pub mod bus;
+pub mod gateway;
 pub mod quadrature;

@@ -1,0 +1,13 @@
+//! The gateway runtime: sources → state → model → safety → sinks. This module holds the sans-IO parts
+//! (safety limits, direction latch, sensor health and recovery, field configuration, status) and the
+//! thin async runtime that wires them to the buses.
+
+pub mod direction;
+pub mod health;
+pub mod recovery;
+pub mod safety;
+
+pub use direction::{Direction, DirectionConfig, DirectionLatch};
+pub use health::{ChannelLimits, ChannelMonitor, ChannelStatus, FaultEvent, FaultKind, FaultLog};
+pub use recovery::NeighbourEstimate;
+pub use safety::{AxisSafety, Input, Mode, SafetyConfig};
