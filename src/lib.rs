@@ -3,4 +3,5 @@
 
 pub mod bus;
 pub mod gateway;
+pub mod origin_shift;
 pub mod quadrature;
