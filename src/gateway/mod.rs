@@ -2,6 +2,7 @@
 //! (safety limits, direction latch, sensor health and recovery, field configuration, status) and the
 //! thin async runtime that wires them to the buses.
 
+pub mod config;
 pub mod direction;
 pub mod health;
 pub mod recovery;
