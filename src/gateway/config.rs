@@ -304,13 +304,13 @@ impl FieldConfig {
         }
         for (i, c) in self.channels.iter().enumerate() {
             let l = c.limits();
-            if !(l.min < l.max) {
+            if !(l.min.is_finite() && l.max.is_finite() && l.min < l.max) {
                 return Err((
                     format!("channel[{i}]"),
                     format!("{}: min {} must be < max {}", c.name, l.min, l.max),
                 ));
             }
-            if !(l.stale_after_s > 0.0) {
+            if !(l.stale_after_s.is_finite() && l.stale_after_s > 0.0) {
                 return Err((
                     format!("channel[{i}].stale_after_s"),
                     "expected > 0 s".into(),
