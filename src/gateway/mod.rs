@@ -4,11 +4,15 @@
 
 pub mod config;
 pub mod direction;
+pub mod engine;
 pub mod health;
 pub mod recovery;
 pub mod safety;
+pub mod status;
 
 pub use direction::{Direction, DirectionConfig, DirectionLatch};
+pub use engine::{Engine, ErrorModel, MachineState, TermError};
 pub use health::{ChannelLimits, ChannelMonitor, ChannelStatus, FaultEvent, FaultKind, FaultLog};
 pub use recovery::NeighbourEstimate;
 pub use safety::{AxisSafety, Input, Mode, SafetyConfig};
+pub use status::{AxisStatus, SinkStatus, StatusSnapshot};
