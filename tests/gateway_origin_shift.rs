@@ -3,71 +3,16 @@
 //! strobe/ack handshake and read-back, reports an ack timeout, survives the server being killed and
 //! restarted (timeout + reconnect with backoff), and never writes outside the allow-list.
 
-use std::collections::HashMap;
-use std::future;
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use retrocomp::origin_shift::{ClientConfig, OriginShiftClient, Outcome, RegisterMap, Transport};
 use tokio::net::TcpListener;
-use tokio_modbus::prelude::*;
-use tokio_modbus::server::tcp::{Server, accept_tcp_connection};
 
-#[derive(Default)]
-struct Plc {
-    regs: HashMap<u16, u16>,
-    /// Every write request: (address, words).
-    writes: Vec<(u16, Vec<u16>)>,
-    /// Copy the strobe into the ack register (a cooperating PLC).
-    auto_ack: bool,
-}
-
-const STROBE: u16 = 110;
-const ACK: u16 = 111;
-
-#[derive(Clone)]
-struct Svc(Arc<Mutex<Plc>>);
-
-impl tokio_modbus::server::Service for Svc {
-    type Request = Request<'static>;
-    type Response = Response;
-    type Exception = ExceptionCode;
-    type Future = future::Ready<Result<Response, ExceptionCode>>;
-
-    fn call(&self, req: Self::Request) -> Self::Future {
-        let mut plc = self.0.lock().unwrap();
-        let r = match req {
-            Request::ReadHoldingRegisters(a, n) => Ok(Response::ReadHoldingRegisters(
-                (a..a + n)
-                    .map(|k| *plc.regs.get(&k).unwrap_or(&0))
-                    .collect(),
-            )),
-            Request::WriteMultipleRegisters(a, words) => {
-                plc.writes.push((a, words.to_vec()));
-                for (k, w) in words.iter().enumerate() {
-                    plc.regs.insert(a + k as u16, *w);
-                }
-                if plc.auto_ack && a == STROBE {
-                    let s = words[0];
-                    plc.regs.insert(ACK, s);
-                }
-                Ok(Response::WriteMultipleRegisters(a, words.len() as u16))
-            }
-            _ => Err(ExceptionCode::IllegalFunction),
-        };
-        future::ready(r)
-    }
-}
-
-async fn serve(listener: TcpListener, plc: Arc<Mutex<Plc>>) {
-    let server = Server::new(listener);
-    let on_connected = move |stream, addr| {
-        let svc = Svc(plc.clone());
-        async move { accept_tcp_connection(stream, addr, move |_| Ok(Some(svc.clone()))) }
-    };
-    let _ = server.serve(&on_connected, |_e| {}).await;
-}
+#[path = "gateway_support/plc.rs"]
+mod plc;
+use plc::{Plc, STROBE, serve};
 
 fn map() -> RegisterMap {
     toml::from_str(

@@ -341,6 +341,29 @@ impl Engine {
         }
     }
 
+    /// The sink found a different value in the controller than we last wrote (controller restarted,
+    /// operator cleared it): continue from that value instead of jumping back to ours.
+    pub fn reseed(&mut self, axis: &str, held_um: f64) -> Result<(), SafetyError> {
+        if let Some(a) = self.axes.iter_mut().find(|a| a.name == axis) {
+            let cfg = *a.safety.config();
+            a.safety = AxisSafety::new(cfg, held_um)?;
+            tracing::warn!(
+                axis,
+                held_um,
+                "controller holds a different value: continuing from it"
+            );
+        }
+        Ok(())
+    }
+
+    /// Current outputs without running a cycle.
+    pub fn outputs(&self) -> Vec<(String, f64)> {
+        self.axes
+            .iter()
+            .map(|a| (a.name.clone(), a.safety.output_um()))
+            .collect()
+    }
+
     pub fn axis_mode(&self, axis: &str) -> Option<Mode> {
         self.axes
             .iter()

@@ -6,7 +6,9 @@ pub mod config;
 pub mod direction;
 pub mod engine;
 pub mod health;
+pub mod http;
 pub mod recovery;
+pub mod run;
 pub mod safety;
 pub mod status;
 
