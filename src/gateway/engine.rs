@@ -148,10 +148,14 @@ impl Engine {
 
     /// Take one decoded sample (any order; health is judged per channel).
     pub fn ingest(&mut self, s: &Sample) {
-        self.monitors
-            .entry(s.channel.clone())
-            .or_insert_with(|| ChannelMonitor::new(default_limits()))
-            .observe(s);
+        // get_mut first: the hot path (a known channel) must not allocate a key.
+        if let Some(m) = self.monitors.get_mut(&s.channel) {
+            m.observe(s);
+        } else {
+            let mut m = ChannelMonitor::new(default_limits());
+            m.observe(s);
+            self.monitors.insert(s.channel.clone(), m);
+        }
     }
 
     /// Run one cycle at `now_s`; returns the per-axis outputs (µm, in configured axis order).
