@@ -2,6 +2,9 @@
 //! the correction back to its controller. See README.md for the pipeline and the conventions.
 
 pub mod bus;
+pub mod cli;
 pub mod gateway;
+pub mod models;
 pub mod origin_shift;
 pub mod quadrature;
+pub mod units;
