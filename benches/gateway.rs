@@ -35,7 +35,7 @@ impl ErrorModel for BenchModel {
         ]
     }
     fn axis_errors(
-        &self,
+        &mut self,
         s: &MachineState,
         out: &mut Vec<(String, Vec<TermError>)>,
     ) -> Result<(), String> {
@@ -55,18 +55,15 @@ impl ErrorModel for BenchModel {
                 vec![
                     TermError {
                         term: "geometric".into(),
-                        forward_um: geo + sq,
-                        reverse_um: geo + sq,
+                        error_um: geo + sq,
                     },
                     TermError {
                         term: "thermal".into(),
-                        forward_um: th,
-                        reverse_um: th,
+                        error_um: th,
                     },
                     TermError {
                         term: "reversal".into(),
-                        forward_um: 1.5,
-                        reverse_um: -1.5,
+                        error_um: 3.0 * s.weight_forward[axis] - 1.5,
                     },
                 ],
             ));
@@ -127,12 +124,12 @@ fn feed(e: &mut Engine, t: f64) {
 
 fn cycle_compute(c: &mut Criterion) {
     let mut e = engine();
-    let m = BenchModel;
+    let mut m = BenchModel;
     let mut t = 0.0;
     for _ in 0..1000 {
         t += 1e-3;
         feed(&mut e, t);
-        e.cycle(t, &m);
+        e.cycle(t, &mut m);
     }
     // Percentiles of individually timed cycles (samples fed outside the timed region).
     let mut ns = Vec::with_capacity(100_000);
@@ -140,7 +137,7 @@ fn cycle_compute(c: &mut Criterion) {
         t += 1e-3;
         feed(&mut e, t);
         let t0 = Instant::now();
-        black_box(e.cycle(t, &m));
+        black_box(e.cycle(t, &mut m));
         ns.push(t0.elapsed().as_nanos() as u64);
     }
     ns.sort_unstable();
@@ -159,7 +156,7 @@ fn cycle_compute(c: &mut Criterion) {
         b.iter(|| {
             t += 1e-3;
             feed(&mut e, t);
-            black_box(e.cycle(t, &m))
+            black_box(e.cycle(t, &mut m))
         })
     });
 }
@@ -186,7 +183,7 @@ fn pipeline_frames(c: &mut Criterion) {
         .collect();
     let names = ["x_mm", "y_mm", "z_mm"];
     let mut e = engine();
-    let m = BenchModel;
+    let mut m = BenchModel;
     let mut t = 0.0;
     feed(&mut e, t);
     let mut g = c.benchmark_group("pipeline");
@@ -219,7 +216,7 @@ fn pipeline_frames(c: &mut Criterion) {
                             health: Health::Ok,
                         });
                     }
-                    black_box(e.cycle(t, &m));
+                    black_box(e.cycle(t, &mut m));
                 }
             }
         })

@@ -27,7 +27,7 @@ impl ErrorModel for ThermalModel {
         vec!["T_spindle_C".into()]
     }
     fn axis_errors(
-        &self,
+        &mut self,
         s: &MachineState,
         out: &mut Vec<(String, Vec<TermError>)>,
     ) -> Result<(), String> {
@@ -36,8 +36,7 @@ impl ErrorModel for ThermalModel {
             "x".into(),
             vec![TermError {
                 term: "thermal".into(),
-                forward_um: e,
-                reverse_um: e,
+                error_um: e,
             }],
         ));
         Ok(())

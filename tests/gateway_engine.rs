@@ -18,7 +18,7 @@ impl ErrorModel for TestModel {
         vec!["T_spindle_C".into()]
     }
     fn axis_errors(
-        &self,
+        &mut self,
         s: &MachineState,
         out: &mut Vec<(String, Vec<TermError>)>,
     ) -> Result<(), String> {
@@ -29,13 +29,12 @@ impl ErrorModel for TestModel {
             vec![
                 TermError {
                     term: "thermal".into(),
-                    forward_um: thermal,
-                    reverse_um: thermal,
+                    error_um: thermal,
                 },
                 TermError {
                     term: "backlash".into(),
-                    forward_um: 3.0,
-                    reverse_um: -3.0,
+                    // F/R blended with the latch weight: +3 forward, −3 reverse.
+                    error_um: s.weight_forward["x"] * 6.0 - 3.0,
                 },
             ],
         ));
@@ -95,18 +94,18 @@ fn s(ch: &str, t: f64, v: f64) -> Sample {
 fn closed_loop_core_behaviour() {
     let cfg = FieldConfig::parse(CFG, Path::new("t.toml")).unwrap();
     let mut e = Engine::new(&cfg, &BTreeMap::from([("x".to_string(), 4.0)])).unwrap();
-    let m = TestModel;
+    let mut m = TestModel;
     let dt = 0.01;
     let mut t = 0.0;
     let mut x = 100.0;
     let mut last = 4.0;
-    let run = |e: &mut Engine,
-               t: &mut f64,
-               x: &mut f64,
-               n: usize,
-               v_mm_s: f64,
-               temp: Option<f64>,
-               pos_alive: bool| {
+    let mut run = |e: &mut Engine,
+                   t: &mut f64,
+                   x: &mut f64,
+                   n: usize,
+                   v_mm_s: f64,
+                   temp: Option<f64>,
+                   pos_alive: bool| {
         let mut outs = Vec::new();
         for _ in 0..n {
             *t += dt;
@@ -118,7 +117,7 @@ fn closed_loop_core_behaviour() {
                 e.ingest(&s("T_spindle_C", *t, tc));
             }
             e.ingest(&s("T_bed_C", *t, 30.0));
-            let o = e.cycle(*t, &m)[0].1;
+            let o = e.cycle(*t, &mut m)[0].1;
             outs.push(o);
         }
         outs
@@ -187,7 +186,7 @@ fn closed_loop_core_behaviour() {
 fn temperatures_are_latched_at_the_thermal_period() {
     let cfg = FieldConfig::parse(CFG, Path::new("t.toml")).unwrap();
     let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
-    let m = TestModel;
+    let mut m = TestModel;
     let mut t = 0.0;
     let mut targets = Vec::new();
     for k in 0..250 {
@@ -196,7 +195,7 @@ fn temperatures_are_latched_at_the_thermal_period() {
         // Temperature rises 0.5 °C/s (within the 1 °C/s rate limit).
         e.ingest(&s("T_spindle_C", t, 25.0 + 0.5 * t));
         e.ingest(&s("T_bed_C", t, 25.0));
-        e.cycle(t, &m);
+        e.cycle(t, &mut m);
         targets.push(e.snapshot().axes[0].terms_um["thermal"]);
     }
     let distinct: std::collections::BTreeSet<i64> =

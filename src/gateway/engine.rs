@@ -1,5 +1,6 @@
 //! The runtime's sans-IO core: samples in → health → state (positions, velocities, direction latch,
-//! slow channels latched at the thermal period) → model → correction = −error, blended F/R → safety →
+//! slow channels latched at the thermal period) → model (blends F/R by the latch weight) →
+//! correction = −error → safety →
 //! per-axis outputs and a status snapshot. No sockets, no clock: the async shell (`run.rs`) feeds
 //! samples and time.
 //!
@@ -27,24 +28,30 @@ pub struct MachineState {
     pub velocities_mm_per_s: BTreeMap<String, f64>,
     /// Every usable channel value by channel name (slow ones latched), channel units.
     pub channels: BTreeMap<String, f64>,
+    /// Per axis, the forward weight of the direction latch: 1 forward, 0 reverse, ½ unknown, in
+    /// between while a reversal is being blended (sin² over `switch_time_s`). The model blends its
+    /// forward/reverse tables with it: e = w·e_forward + (1 − w)·e_reverse.
+    pub weight_forward: BTreeMap<String, f64>,
+    /// Time of this cycle, s (steps thermal lags in the model).
+    pub t_s: f64,
 }
 
-/// One error term of one axis, µm (actual − nominal), for each direction of travel. A term that does
-/// not depend on direction gives the same value twice.
+/// One error term's contribution along one machine axis, µm (actual − nominal), already blended
+/// for direction with [`MachineState::weight_forward`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct TermError {
     pub term: String,
-    pub forward_um: f64,
-    pub reverse_um: f64,
+    pub error_um: f64,
 }
 
-/// What the gateway needs from a model (implemented for `src/models` by an adapter).
+/// What the gateway needs from a model (`model_adapter.rs` implements it for `src/models`).
 pub trait ErrorModel {
     /// Channels the model reads (besides axis positions). Missing ones make the inputs stale.
     fn required_channels(&self) -> Vec<String>;
-    /// Push, per axis, its error terms at `state` into `out` (cleared by the caller).
+    /// Push, per machine axis, its error terms at `state` into `out` (cleared by the caller).
+    /// `&mut self`: models keep evaluation state (thermal lags, scratch buffers).
     fn axis_errors(
-        &self,
+        &mut self,
         state: &MachineState,
         out: &mut Vec<(String, Vec<TermError>)>,
     ) -> Result<(), String>;
@@ -159,7 +166,7 @@ impl Engine {
     }
 
     /// Run one cycle at `now_s`; returns the per-axis outputs (µm, in configured axis order).
-    pub fn cycle(&mut self, now_s: f64, model: &dyn ErrorModel) -> Vec<(String, f64)> {
+    pub fn cycle(&mut self, now_s: f64, model: &mut dyn ErrorModel) -> Vec<(String, f64)> {
         self.now_s = now_s;
         self.cycles += 1;
         // 1. Health of every channel, with fault transitions logged once.
@@ -249,12 +256,16 @@ impl Engine {
                 a.last_pos = Some((now_s, p));
                 a.latch.update(p, now_s);
                 self.state.positions_mm.insert(a.name.clone(), p);
+                self.state
+                    .weight_forward
+                    .insert(a.name.clone(), a.latch.weight_forward());
             } else {
                 self.state.positions_mm.remove(&a.name);
                 self.state.velocities_mm_per_s.remove(&a.name);
             }
             positions_ok.push(pos.is_some());
         }
+        self.state.t_s = now_s;
         // 4. Model.
         let missing: Vec<String> = model
             .required_channels()
@@ -296,12 +307,11 @@ impl Engine {
                 a.target_um = None;
                 Input::Stale
             } else {
-                let w = a.latch.weight_forward();
                 a.terms.clear();
                 let mut total = 0.0;
                 if let Some((_, terms)) = self.errors.iter().find(|(ax, _)| *ax == a.name) {
                     for t in terms {
-                        let corr = -(w * t.forward_um + (1.0 - w) * t.reverse_um);
+                        let corr = -t.error_um;
                         total += corr;
                         a.terms.push((t.term.clone(), corr));
                     }

@@ -7,6 +7,7 @@ pub mod direction;
 pub mod engine;
 pub mod health;
 pub mod http;
+pub mod model_adapter;
 pub mod recovery;
 pub mod run;
 pub mod safety;

@@ -39,7 +39,7 @@ type Outputs = Vec<(String, f64)>;
 /// Run until `shutdown` resolves. `status_addr` receives the bound status address (port 0 allowed).
 pub async fn run(
     cfg: FieldConfig,
-    model: Box<dyn ErrorModel + Send>,
+    mut model: Box<dyn ErrorModel + Send>,
     mut samples: mpsc::Receiver<Sample>,
     shutdown: impl std::future::Future<Output = ()>,
     status_addr: Option<tokio::sync::oneshot::Sender<SocketAddr>>,
@@ -114,7 +114,7 @@ pub async fn run(
             }
         }
         let t0 = std::time::Instant::now();
-        let outs = engine.cycle(epoch.elapsed().as_secs_f64(), model.as_ref());
+        let outs = engine.cycle(epoch.elapsed().as_secs_f64(), model.as_mut());
         compute_ns.push(t0.elapsed().as_nanos() as u64);
         let _ = out_tx.send(outs);
         let mut snap = engine.snapshot();
