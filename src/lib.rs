@@ -4,5 +4,8 @@
 pub mod analysis;
 pub mod bus;
 pub mod cli;
+pub mod gateway;
 pub mod models;
+pub mod origin_shift;
+pub mod quadrature;
 pub mod units;
