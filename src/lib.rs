@@ -2,3 +2,5 @@
 //! the correction back to its controller. See README.md for the pipeline and the conventions.
 
 pub mod bus;
+pub mod diagnose;
+pub mod recording;
