@@ -2,5 +2,6 @@
 //! the correction back to its controller. See README.md for the pipeline and the conventions.
 
 pub mod bus;
+pub mod cli;
 pub mod diagnose;
 pub mod recording;

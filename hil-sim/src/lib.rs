@@ -1,1 +1,3 @@
 //! hil-sim: the virtual legacy CNC.
+
+pub mod cases;

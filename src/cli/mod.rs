@@ -1,0 +1,3 @@
+//! Subcommand implementations of the `retrocomp` binary (one module per command).
+
+pub mod diagnose;
