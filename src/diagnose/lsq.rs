@@ -53,19 +53,30 @@ pub fn deflate(u: &[Vec<f64>], r0: &[f64]) -> Vec<f64> {
     r
 }
 
-/// Lag-1 autocorrelation ρ of `r` and the effective number of independent samples n(1−ρ)/(1+ρ)
-/// (ρ ≤ 0 counts as white). Used for every test and criterion, because recordings sampled faster
-/// than their noise decorrelates would otherwise make any smooth candidate "significant".
+/// Effective number of independent samples of a residual: n / (long-run variance factor), the
+/// factor 1 + 2·Σ_k w_k·ρ_k over lags k ≤ L = 4·n^{1/3} with Bartlett weights w_k = 1 − k/(L+1)
+/// (Newey–West). Used for every test and criterion, because recordings sampled faster than their
+/// noise decorrelates would otherwise make any smooth candidate "significant". A lag-1 (AR(1))
+/// estimate is not enough: white + AR(1) noise mixtures have ρ₁ well below their long-run memory.
 pub fn effective_n(r: &[f64]) -> f64 {
-    let n = r.len() as f64;
-    let mean = r.iter().sum::<f64>() / n.max(1.0);
-    let den: f64 = r.iter().map(|v| (v - mean).powi(2)).sum();
-    if den.is_nan() || den <= 0.0 || r.len() < 3 {
-        return n;
+    let n = r.len();
+    let nf = n as f64;
+    if n < 8 {
+        return nf;
     }
-    let num: f64 = r.windows(2).map(|w| (w[0] - mean) * (w[1] - mean)).sum();
-    let rho = (num / den).clamp(0.0, 0.995);
-    (n * (1.0 - rho) / (1.0 + rho)).max(n.min(5.0))
+    let mean = r.iter().sum::<f64>() / nf;
+    let c: Vec<f64> = r.iter().map(|v| v - mean).collect();
+    let den = dot(&c, &c);
+    if den.is_nan() || den <= 0.0 {
+        return nf;
+    }
+    let lags = ((4.0 * nf.cbrt()) as usize).min(n / 4).max(1);
+    let mut factor = 1.0;
+    for k in 1..=lags {
+        let rho = dot(&c[..n - k], &c[k..]) / den;
+        factor += 2.0 * (1.0 - k as f64 / (lags + 1) as f64) * rho;
+    }
+    (nf / factor.max(1.0)).max(nf.min(5.0))
 }
 
 fn gram(

@@ -289,6 +289,14 @@ impl Summary {
     }
 }
 
+/// Read a case manifest (`case_NNNN.json`).
+pub fn read_manifest(path: &std::path::Path) -> anyhow::Result<CaseManifest> {
+    let text =
+        std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    serde_json::from_str(&text)
+        .map_err(|e| anyhow::anyhow!("{}: not a case manifest: {e}", path.display()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -313,12 +321,4 @@ mod tests {
             (rel(&serde_json::json!(1.1), &serde_json::json!(1.0)).unwrap() - 0.1).abs() < 1e-12
         );
     }
-}
-
-/// Read a case manifest (`case_NNNN.json`).
-pub fn read_manifest(path: &std::path::Path) -> anyhow::Result<CaseManifest> {
-    let text =
-        std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    serde_json::from_str(&text)
-        .map_err(|e| anyhow::anyhow!("{}: not a case manifest: {e}", path.display()))
 }

@@ -86,11 +86,9 @@ struct Scored {
     gain: f64,
     q: usize,
     delta_bic: f64,
-    n_eff: f64,
-    fit_dir: Vec<f64>,
 }
 
-/// Screen one candidate at one θ: RSS drop, ΔBIC on n_eff, fitted contribution.
+/// Screen one candidate at one θ: RSS drop and parameter count (θ counts as one).
 fn score(
     ctx: &Context,
     c: &Candidate,
@@ -98,18 +96,30 @@ fn score(
     basis: &[Vec<f64>],
     r0: &[f64],
     rss0: f64,
-) -> Option<(f64, usize, f64, f64, Vec<f64>)> {
+) -> Option<(f64, usize)> {
     let u = lsq::orthonormalize(basis, c.columns(ctx, theta), 1);
     if u.is_empty() {
         return None;
     }
     let g = lsq::gain(&u, r0).min(rss0 * (1.0 - 1e-12));
+    Some((g, u.len() + usize::from(c.is_nonlinear())))
+}
+
+/// The part of `r0` a candidate explains (for collinearity between candidates).
+fn contribution(
+    ctx: &Context,
+    c: &Candidate,
+    theta: f64,
+    basis: &[Vec<f64>],
+    r0: &[f64],
+) -> Vec<f64> {
+    let u = lsq::orthonormalize(basis, c.columns(ctx, theta), 1);
     let r1 = lsq::deflate(&u, r0);
-    let n_eff = lsq::effective_n(&r1);
-    let q = u.len() + usize::from(c.is_nonlinear());
-    let dbic = n_eff * (rss0 / (rss0 - g)).ln() - q as f64 * n_eff.ln();
-    let contrib: Vec<f64> = r0.iter().zip(&r1).map(|(a, b)| a - b).collect();
-    Some((g, q, dbic, n_eff, contrib))
+    r0.iter().zip(&r1).map(|(a, b)| a - b).collect()
+}
+
+fn delta_bic(n_eff: f64, rss0: f64, gain: f64, q: usize) -> f64 {
+    n_eff * (rss0 / (rss0 - gain)).ln() - q as f64 * n_eff.ln()
 }
 
 fn golden_refine(f: impl Fn(f64) -> f64, lo: f64, hi: f64, iters: usize) -> f64 {
@@ -160,6 +170,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
         if rss0.is_nan() || rss0 <= 0.0 {
             break;
         }
+        // Profile every candidate over its grid (best θ by RSS drop: q is fixed within a candidate).
         let mut scored: Vec<Scored> = vec![];
         for (idx, c) in lib.iter().enumerate() {
             if used[idx] {
@@ -172,17 +183,15 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             };
             let mut best: Option<Scored> = None;
             for &th in &thetas {
-                if let Some((g, q, dbic, n_eff, contrib)) = score(ctx, c, th, &basis, &r0, rss0)
-                    && best.as_ref().is_none_or(|b| dbic > b.delta_bic)
+                if let Some((g, q)) = score(ctx, c, th, &basis, &r0, rss0)
+                    && best.as_ref().is_none_or(|b| g > b.gain)
                 {
                     best = Some(Scored {
                         idx,
                         theta: th,
                         gain: g,
                         q,
-                        delta_bic: dbic,
-                        n_eff,
-                        fit_dir: contrib,
+                        delta_bic: 0.0,
                     });
                 }
             }
@@ -190,6 +199,18 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
         }
         if scored.is_empty() {
             break;
+        }
+        // One effective sample size for the whole step (from the residual left by the candidate that
+        // explains most), so candidates are ranked on the same scale.
+        let top = scored
+            .iter()
+            .max_by(|a, b| a.gain.total_cmp(&b.gain))
+            .expect("non-empty");
+        let top_contrib = contribution(ctx, &lib[top.idx], top.theta, &basis, &r0);
+        let r1_top: Vec<f64> = r0.iter().zip(&top_contrib).map(|(a, b)| a - b).collect();
+        let n_eff = lsq::effective_n(&r1_top);
+        for s in &mut scored {
+            s.delta_bic = delta_bic(n_eff, rss0, s.gain, s.q);
         }
         scored.sort_by(|a, b| b.delta_bic.total_cmp(&a.delta_bic));
         if terms.is_empty() {
@@ -208,28 +229,26 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             let hi = g[(i + 1).min(g.len() - 1)];
             if hi > lo {
                 let th = golden_refine(
-                    |t| score(ctx, cand, t, &basis, &r0, rss0).map_or(f64::NEG_INFINITY, |s| s.2),
+                    |t| score(ctx, cand, t, &basis, &r0, rss0).map_or(f64::NEG_INFINITY, |s| s.0),
                     lo,
                     hi,
                     18,
                 );
-                if let Some((g2, q, dbic, n_eff, contrib)) = score(ctx, cand, th, &basis, &r0, rss0)
-                    && dbic >= win.delta_bic
+                if let Some((g2, q)) = score(ctx, cand, th, &basis, &r0, rss0)
+                    && g2 >= win.gain
                 {
                     win = Scored {
                         idx: win.idx,
                         theta: th,
                         gain: g2,
                         q,
-                        delta_bic: dbic,
-                        n_eff,
-                        fit_dir: contrib,
+                        delta_bic: delta_bic(n_eff, rss0, g2, q),
                     };
                 }
             }
         }
         let p_cols = raw_cols.len() as f64;
-        let df2 = win.n_eff - p_cols - win.q as f64;
+        let df2 = n_eff - p_cols - win.q as f64;
         let rss1 = rss0 - win.gain;
         let p_value = if df2 >= 1.0 {
             let f = ((rss0 - rss1) / win.q as f64) / (rss1 / df2);
@@ -248,7 +267,8 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             break;
         }
         // Ambiguity: another family, nearly as good, explaining the same shape.
-        let wn = dot(&win.fit_dir, &win.fit_dir).sqrt();
+        let win_contrib = contribution(ctx, cand, win.theta, &basis, &r0);
+        let wn = dot(&win_contrib, &win_contrib).sqrt();
         let ambiguous_with = scored
             .iter()
             .filter(|s| lib[s.idx].family() != cand.family())
@@ -256,8 +276,8 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 s.delta_bic > opts.min_delta_bic && win.delta_bic - s.delta_bic < opts.ambiguity_bic
             })
             .filter_map(|s| {
-                let corr =
-                    dot(&s.fit_dir, &win.fit_dir) / (wn * dot(&s.fit_dir, &s.fit_dir).sqrt());
+                let sc = contribution(ctx, &lib[s.idx], s.theta, &basis, &r0);
+                let corr = dot(&sc, &win_contrib) / (wn * dot(&sc, &sc).sqrt());
                 (corr > opts.ambiguity_corr).then(|| Alternative {
                     cand: lib[s.idx].clone(),
                     theta: s.theta,

@@ -202,10 +202,21 @@ pub fn generate_case(seed: u64, index: usize) -> (Recording, CaseManifest) {
         .iter()
         .map(|&t| if t < t_off { rpm_level } else { 0.0 })
         .collect();
+    let speed: Vec<f64> = (0..n)
+        .map(|i| {
+            if i == 0 {
+                0.0
+            } else {
+                (path.x_mm[i] - path.x_mm[i - 1]).hypot(path.y_mm[i] - path.y_mm[i - 1]) / DT_S
+            }
+        })
+        .collect();
+    let k_heat = uniform(&mut rng, 0.8, 1.2);
     let th = thermal(
         &t_s,
         &rpm,
-        uniform(&mut rng, 0.8, 1.2),
+        &speed,
+        k_heat,
         tau_node,
         1500.0,
         0.3,

@@ -19,18 +19,34 @@ pub fn quantize(v: f64, lsb: f64) -> f64 {
     (v / lsb).round() * lsb
 }
 
-/// True node temperatures (°C) for a spindle-speed history: `spindle` heats with gain
-/// `k_c_per_krpm` and time constant `tau_node_s`; `structure` follows it with `tau_struct_s`;
-/// ambient drifts slowly (sinusoid, `amb_amp_c`).
+/// True node temperatures (°C). The machine starts cold (every node at ambient). `spindle` is heated
+/// by spindle speed (`k_c_per_krpm`, time constant `tau_node_s`); `structure` by a share of the
+/// spindle heat AND by axis-motion friction (`motion_speed_mm_s`, 0.05 °C per mm/s), with its own
+/// time constant `tau_struct_s` — so it is not a pure lag of the spindle node; ambient drifts slowly.
 pub struct Thermal {
     pub spindle_c: Vec<f64>,
     pub structure_c: Vec<f64>,
     pub ambient_c: Vec<f64>,
 }
 
+fn first_order(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64) -> Vec<f64> {
+    let mut y = y0;
+    let mut out = Vec::with_capacity(u.len());
+    for i in 0..u.len() {
+        if i > 0 {
+            let a = 1.0 - (-(t_s[i] - t_s[i - 1]) / tau_s).exp();
+            y += a * (u[i - 1] - y);
+        }
+        out.push(y);
+    }
+    out
+}
+
+#[allow(clippy::too_many_arguments)]
 pub fn thermal(
     t_s: &[f64],
     rpm: &[f64],
+    motion_speed_mm_s: &[f64],
     k_c_per_krpm: f64,
     tau_node_s: f64,
     tau_struct_s: f64,
@@ -46,8 +62,12 @@ pub fn thermal(
         .zip(&ambient_c)
         .map(|(r, a)| a + k_c_per_krpm * r / 1000.0)
         .collect();
-    let spindle_c = lowpass(t_s, &drive, tau_node_s);
-    let structure_c = lowpass(t_s, &spindle_c, tau_struct_s);
+    let spindle_c = first_order(t_s, &drive, tau_node_s, ambient_c[0]);
+    let motion = first_order(t_s, motion_speed_mm_s, 120.0, 0.0);
+    let sdrive: Vec<f64> = (0..t_s.len())
+        .map(|i| ambient_c[i] + 0.4 * (spindle_c[i] - ambient_c[i]) + 0.05 * motion[i])
+        .collect();
+    let structure_c = first_order(t_s, &sdrive, tau_struct_s, ambient_c[0]);
     Thermal {
         spindle_c,
         structure_c,
