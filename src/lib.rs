@@ -4,4 +4,6 @@
 pub mod bus;
 pub mod cli;
 pub mod diagnose;
+pub mod models;
 pub mod recording;
+pub mod units;

@@ -3,6 +3,8 @@
 //! timestamped [`Sample`]s that carry their health.
 
 pub mod can;
+pub mod canopen;
+pub mod modbus;
 pub mod sample;
 
 pub use sample::{Health, Sample};

@@ -1,3 +1,6 @@
-//! Subcommand implementations of the `retrocomp` binary (one module per command).
+//! Command-line front ends. Each subcommand lives in its own module with a clap `Args` struct and a
+//! `run` function; `src/main.rs` only lists them.
 
+pub mod check_config;
 pub mod diagnose;
+pub mod eval;
