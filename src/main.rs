@@ -31,6 +31,10 @@ enum Command {
     Nc(cli::nc::Args),
     /// Circular (ballbar) test: ISO 230-4 G/F and error diagnosis.
     Circle(cli::circle::Args),
+    /// Find where simulation and recording disagree, name the missing physics, fit it (DESIGN §5).
+    Diagnose(cli::diagnose::DiagnoseArgs),
+    /// Run diagnose over `hil-sim gen-cases` output and score it against the truth manifests.
+    DiagnoseBench(cli::diagnose::BenchArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -42,6 +46,8 @@ fn main() -> std::process::ExitCode {
         Command::Export(a) => cli::export::run(&a),
         Command::Nc(a) => cli::nc::run(&a),
         Command::Circle(a) => cli::circle::run(&a),
+        Command::Diagnose(a) => cli::diagnose::run_diagnose(&a),
+        Command::DiagnoseBench(a) => cli::diagnose::run_bench(&a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
