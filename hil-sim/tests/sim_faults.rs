@@ -168,3 +168,31 @@ fn manifest_names_effects_with_design_ids_and_params() {
     );
     assert_eq!(m["seed"], 7);
 }
+
+#[test]
+fn recordings_read_back_with_the_projects_reader_and_fault_rows_are_reported() {
+    use retrocomp::recording::Recording;
+    // Faults on: exactly the faulted rows are bad (with their line and column), none silently lost.
+    let mut w = World::new(cfg(FAULTS)).unwrap();
+    let (bytes, rows) = run_to_end(&mut w, Vec::new(), |_| {}).unwrap();
+    let (rec, bad) = Recording::read_lenient(&bytes[..], "faults.csv").unwrap();
+    assert_eq!(rec.n_rows() + bad.len(), rows as usize);
+    let in_window_rows = (0..rows).filter(|i| in_window(*i as f64 * 0.01)).count();
+    assert_eq!(
+        bad.len(),
+        in_window_rows,
+        "every row inside the dropout/NaN window, no other"
+    );
+    assert!(
+        bad.iter().all(|b| b.column.as_deref() == Some("T_b_C")),
+        "first bad cell is the dropout: {:?}",
+        bad[0]
+    );
+    // Faults off: the strict reader takes the whole file.
+    let clean = FAULTS.split("[[faults]]").next().unwrap();
+    let mut w = World::new(cfg(clean)).unwrap();
+    let (bytes, rows) = run_to_end(&mut w, Vec::new(), |_| {}).unwrap();
+    let rec = Recording::read_strict(&bytes[..], "clean.csv").unwrap();
+    assert_eq!(rec.n_rows() as u64, rows);
+    assert_eq!(rec.temperature_channels().len(), 4);
+}
