@@ -3,6 +3,7 @@
 //! names the hidden effects with DESIGN §5 ids and parameters.
 
 mod sim_common;
+use embedded_can::Frame as _;
 use hil_sim::World;
 use hil_sim::io::IoConfig;
 use hil_sim::io::publish::{PT100_BREAK, PT100_OVERRANGE, Publisher};
@@ -108,7 +109,7 @@ fn fault_kinds_on_the_buses() {
     let (mut saw_break, mut can_silent_in_window, mut can_outside) = (false, true, 0);
     while !w.done() {
         w.tick();
-        let out = p.poll(&w);
+        let out = p.poll(&mut w);
         let t = w.t_s();
         if let Some((_, words)) = out.input_regs.first()
             && in_window(t - 0.0005)
@@ -195,4 +196,68 @@ fn recordings_read_back_with_the_projects_reader_and_fault_rows_are_reported() {
     let rec = Recording::read_strict(&bytes[..], "clean.csv").unwrap();
     assert_eq!(rec.n_rows() as u64, rows);
     assert_eq!(rec.temperature_channels().len(), 4);
+}
+
+#[test]
+fn encoder_faults_freeze_or_silence_the_tpdo_and_faults_can_be_injected_at_run_time() {
+    let toml = r#"
+[program]
+script = [{ t_s = 0.0, x_mm = 0.0, y_mm = 0.0, z_mm = 0.0 }, { t_s = 1.0, x_mm = 10.0, y_mm = 0.0, z_mm = 0.0 }]
+[[faults]]
+channel = "enc_x"
+kind = "stuck"
+from_s = 0.3
+to_s = 0.5
+"#;
+    let mut w = World::new(cfg(toml)).unwrap();
+    let io: IoConfig =
+        toml::from_str("[can]\nbackend = \"mem\"\nencoder_period_s = 0.01\n").unwrap();
+    let mut p = Publisher::new(io, &w);
+    let bad = hil_sim::config::FaultConfig {
+        channel: "enc_q".into(),
+        kind: hil_sim::physics::faults::FaultKind::Dropout,
+        from_s: 0.0,
+        to_s: 1.0,
+        spike_size: 0.0,
+        spike_every_s: 1.0,
+    };
+    assert!(
+        w.inject_fault(bad.clone())
+            .unwrap_err()
+            .to_string()
+            .contains("enc_q")
+    );
+    w.inject_fault(hil_sim::config::FaultConfig {
+        channel: "enc_y".into(),
+        from_s: 0.6,
+        to_s: 0.8,
+        ..bad
+    })
+    .unwrap();
+    let (mut stuck_raw, mut y_in_window, mut y_outside, mut x_moving_outside) =
+        (Vec::new(), 0, 0, Vec::new());
+    while !w.done() {
+        w.tick();
+        let t = w.t_s();
+        for f in p.poll(&mut w).frames {
+            let raw = u32::from_le_bytes(f.data()[..4].try_into().unwrap());
+            match f.raw_id() {
+                0x181 if (0.3..=0.5).contains(&t) => stuck_raw.push(raw),
+                0x181 => x_moving_outside.push(raw),
+                0x182 if (0.6..=0.8).contains(&t) => y_in_window += 1,
+                0x182 => y_outside += 1,
+                _ => {}
+            }
+        }
+    }
+    assert!(
+        stuck_raw.len() >= 15 && stuck_raw.iter().all(|r| *r == stuck_raw[0]),
+        "x frozen while moving: {stuck_raw:?}"
+    );
+    assert!(
+        x_moving_outside.windows(2).any(|w| w[1] > w[0]),
+        "x counts move outside the window"
+    );
+    assert_eq!(y_in_window, 0, "y silent during the injected dropout");
+    assert!(y_outside > 50);
 }
