@@ -42,11 +42,7 @@ pub enum CanBackendConfig {
 pub enum AnyCanBus {
     Socketcand(SocketcandBus),
     Mem(MemEndpoint),
-    #[cfg(all(
-        feature = "socketcan",
-        target_os = "linux",
-        retrocomp_socketcan_backend
-    ))]
+    #[cfg(all(feature = "socketcan", target_os = "linux"))]
     Socketcan(super::socketcan::SocketCanBus),
 }
 
@@ -69,20 +65,12 @@ pub async fn open(cfg: &CanBackendConfig, mem: Option<&MemBus>) -> Result<AnyCan
     }
 }
 
-#[cfg(all(
-    feature = "socketcan",
-    target_os = "linux",
-    retrocomp_socketcan_backend
-))]
+#[cfg(all(feature = "socketcan", target_os = "linux"))]
 fn open_socketcan(interface: &str) -> Result<AnyCanBus, CanError> {
     super::socketcan::SocketCanBus::open(interface).map(AnyCanBus::Socketcan)
 }
 
-#[cfg(not(all(
-    feature = "socketcan",
-    target_os = "linux",
-    retrocomp_socketcan_backend
-)))]
+#[cfg(not(all(feature = "socketcan", target_os = "linux")))]
 fn open_socketcan(interface: &str) -> Result<AnyCanBus, CanError> {
     Err(CanError::Unsupported(format!(
         "backend = \"socketcan\" (interface `{interface}`) is not built into this binary: it needs Linux \
@@ -95,11 +83,7 @@ impl CanBus for AnyCanBus {
         match self {
             AnyCanBus::Socketcand(b) => b.send(frame).await,
             AnyCanBus::Mem(b) => b.send(frame).await,
-            #[cfg(all(
-                feature = "socketcan",
-                target_os = "linux",
-                retrocomp_socketcan_backend
-            ))]
+            #[cfg(all(feature = "socketcan", target_os = "linux"))]
             AnyCanBus::Socketcan(b) => b.send(frame).await,
         }
     }
@@ -108,11 +92,7 @@ impl CanBus for AnyCanBus {
         match self {
             AnyCanBus::Socketcand(b) => b.recv().await,
             AnyCanBus::Mem(b) => b.recv().await,
-            #[cfg(all(
-                feature = "socketcan",
-                target_os = "linux",
-                retrocomp_socketcan_backend
-            ))]
+            #[cfg(all(feature = "socketcan", target_os = "linux"))]
             AnyCanBus::Socketcan(b) => b.recv().await,
         }
     }

@@ -4,6 +4,8 @@ pub mod backend;
 pub mod frame;
 pub mod hub;
 pub mod mem;
+#[cfg(all(feature = "socketcan", target_os = "linux"))]
+pub mod socketcan;
 pub mod socketcand;
 pub mod socketcand_bus;
 

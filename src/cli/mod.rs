@@ -1,0 +1,11 @@
+//! Command-line front ends. Each subcommand lives in its own module with a clap `Args` struct and a
+//! `run` function; `src/main.rs` only lists them.
+
+pub mod check_config;
+pub mod circle;
+pub mod eval;
+pub mod export;
+pub mod import;
+pub mod iso230_2;
+pub mod nc;
+pub mod util;

@@ -1,0 +1,383 @@
+//! One-dimensional error functions of an axis position: bidirectional tables, polynomials and C¹
+//! piecewise quadratics (Spaan 1995 Ch3, truncated-power form).
+//!
+//! Positions are mm in the axis' own coordinate. Values are in whatever internal unit the owner
+//! gives them (µm for translations, µrad for rotations, µm/N for compliances); this module never
+//! converts. Direction: +1 = forward table (approach in + direction), −1 = reverse table, 0 = the
+//! mean of the two. Outside a table's span, or a polynomial's `range_mm`, the value is clamped to the
+//! end value and the evaluation reports `clamped = true`.
+
+/// Interpolation between table points.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Interpolation {
+    /// Piecewise linear: exact at the nodes, C⁰.
+    Linear,
+    /// Monotone piecewise cubic Hermite (Fritsch–Carlson/PCHIP slopes): exact at the nodes, C¹, and
+    /// never overshoots the data between two nodes (no invented peaks in a correction).
+    C1,
+}
+
+impl Interpolation {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Interpolation::Linear => "linear",
+            Interpolation::C1 => "c1",
+        }
+    }
+}
+
+/// A bidirectional table: forward and reverse values at the same positions.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Table {
+    pub positions_mm: Vec<f64>,
+    pub forward: Vec<f64>,
+    pub reverse: Vec<f64>,
+    pub interpolation: Interpolation,
+    /// `Some((x0, 1/h))` when the positions are evenly spaced: O(1) lookup.
+    uniform: Option<(f64, f64)>,
+    slopes_fwd: Vec<f64>,
+    slopes_rev: Vec<f64>,
+}
+
+impl Table {
+    /// Build a table. The caller has validated: ≥ 2 points, strictly increasing positions, equal
+    /// lengths, finite values.
+    pub fn new(
+        positions_mm: Vec<f64>,
+        forward: Vec<f64>,
+        reverse: Vec<f64>,
+        interpolation: Interpolation,
+    ) -> Self {
+        let n = positions_mm.len();
+        let x0 = positions_mm[0];
+        let h = (positions_mm[n - 1] - x0) / (n - 1) as f64;
+        let uniform = positions_mm
+            .iter()
+            .enumerate()
+            .all(|(i, &x)| (x - (x0 + h * i as f64)).abs() <= 1e-9 * h.abs().max(1.0))
+            .then_some((x0, 1.0 / h));
+        let (slopes_fwd, slopes_rev) = match interpolation {
+            Interpolation::Linear => (Vec::new(), Vec::new()),
+            Interpolation::C1 => (
+                pchip_slopes(&positions_mm, &forward),
+                pchip_slopes(&positions_mm, &reverse),
+            ),
+        };
+        Table {
+            positions_mm,
+            forward,
+            reverse,
+            interpolation,
+            uniform,
+            slopes_fwd,
+            slopes_rev,
+        }
+    }
+
+    pub fn is_bidirectional(&self) -> bool {
+        self.forward != self.reverse
+    }
+
+    /// Segment index i (x_i ≤ q ≤ x_{i+1}) for q inside the span.
+    #[inline]
+    fn segment(&self, q: f64) -> usize {
+        let n = self.positions_mm.len();
+        let i = match self.uniform {
+            Some((x0, inv_h)) => ((q - x0) * inv_h) as usize,
+            None => self
+                .positions_mm
+                .partition_point(|&x| x <= q)
+                .saturating_sub(1),
+        };
+        i.min(n - 2)
+    }
+
+    #[inline]
+    pub fn eval(&self, q_mm: f64, dir: i8) -> (f64, bool) {
+        let n = self.positions_mm.len();
+        let (lo, hi) = (self.positions_mm[0], self.positions_mm[n - 1]);
+        let pick = |fwd: f64, rev: f64| match dir {
+            d if d > 0 => fwd,
+            d if d < 0 => rev,
+            _ => 0.5 * (fwd + rev),
+        };
+        // NaN is clamped and flagged rather than propagated.
+        if q_mm.is_nan() || q_mm < lo {
+            return (pick(self.forward[0], self.reverse[0]), true);
+        }
+        if q_mm > hi {
+            return (pick(self.forward[n - 1], self.reverse[n - 1]), true);
+        }
+        let i = self.segment(q_mm);
+        let (x0, x1) = (self.positions_mm[i], self.positions_mm[i + 1]);
+        let h = x1 - x0;
+        let t = (q_mm - x0) / h;
+        let v = match self.interpolation {
+            Interpolation::Linear => {
+                let lin = |v: &[f64]| v[i] + t * (v[i + 1] - v[i]);
+                match dir {
+                    d if d > 0 => lin(&self.forward),
+                    d if d < 0 => lin(&self.reverse),
+                    _ => 0.5 * (lin(&self.forward) + lin(&self.reverse)),
+                }
+            }
+            Interpolation::C1 => {
+                let t2 = t * t;
+                let t3 = t2 * t;
+                let h00 = 2.0 * t3 - 3.0 * t2 + 1.0;
+                let h10 = t3 - 2.0 * t2 + t;
+                let h01 = -2.0 * t3 + 3.0 * t2;
+                let h11 = t3 - t2;
+                let herm = |v: &[f64], m: &[f64]| {
+                    h00 * v[i] + h10 * h * m[i] + h01 * v[i + 1] + h11 * h * m[i + 1]
+                };
+                match dir {
+                    d if d > 0 => herm(&self.forward, &self.slopes_fwd),
+                    d if d < 0 => herm(&self.reverse, &self.slopes_rev),
+                    _ => {
+                        0.5 * (herm(&self.forward, &self.slopes_fwd)
+                            + herm(&self.reverse, &self.slopes_rev))
+                    }
+                }
+            }
+        };
+        (v, false)
+    }
+}
+
+/// Fritsch–Carlson monotone slopes (the PCHIP rule of Fritsch & Butland 1984).
+fn pchip_slopes(x: &[f64], y: &[f64]) -> Vec<f64> {
+    let n = x.len();
+    let d: Vec<f64> = (0..n - 1)
+        .map(|i| (y[i + 1] - y[i]) / (x[i + 1] - x[i]))
+        .collect();
+    let mut m = vec![0.0; n];
+    if n == 2 {
+        m[0] = d[0];
+        m[1] = d[0];
+        return m;
+    }
+    for i in 1..n - 1 {
+        if d[i - 1] * d[i] > 0.0 {
+            let (h0, h1) = (x[i] - x[i - 1], x[i + 1] - x[i]);
+            let (w1, w2) = (2.0 * h1 + h0, h1 + 2.0 * h0);
+            m[i] = (w1 + w2) / (w1 / d[i - 1] + w2 / d[i]);
+        }
+    }
+    // One-sided three-point end slopes, limited so the end segments stay monotone.
+    let end = |h0: f64, h1: f64, d0: f64, d1: f64| {
+        let s = ((2.0 * h0 + h1) * d0 - h0 * d1) / (h0 + h1);
+        if s * d0 <= 0.0 {
+            0.0
+        } else if d0 * d1 <= 0.0 && s.abs() > 3.0 * d0.abs() {
+            3.0 * d0
+        } else {
+            s
+        }
+    };
+    m[0] = end(x[1] - x[0], x[2] - x[1], d[0], d[1]);
+    m[n - 1] = end(x[n - 1] - x[n - 2], x[n - 2] - x[n - 3], d[n - 2], d[n - 3]);
+    m
+}
+
+/// The shape of one error function.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ErrorFunction {
+    Table(Table),
+    /// value = Σ a_i q^i (q in mm). Outside `range_mm`, if given, q is clamped and flagged.
+    Polynomial {
+        coefficients: Vec<f64>,
+        range_mm: Option<(f64, f64)>,
+    },
+    /// Spaan's truncated-power form with degree 2 and C¹ continuity:
+    /// value = b0 + b1 q + b2 q² + Σ_i c_i (q − t_i)₊².
+    PiecewiseQuadratic {
+        base: [f64; 3],
+        knots_mm: Vec<f64>,
+        knot_coefficients: Vec<f64>,
+        range_mm: Option<(f64, f64)>,
+    },
+}
+
+impl ErrorFunction {
+    /// Value at `q_mm` for approach direction `dir`, and whether the position was clamped.
+    #[inline]
+    pub fn eval(&self, q_mm: f64, dir: i8) -> (f64, bool) {
+        match self {
+            ErrorFunction::Table(t) => t.eval(q_mm, dir),
+            ErrorFunction::Polynomial {
+                coefficients,
+                range_mm,
+            } => {
+                let (q, clamped) = clamp_range(q_mm, *range_mm);
+                (
+                    coefficients.iter().rev().fold(0.0, |acc, &a| acc * q + a),
+                    clamped,
+                )
+            }
+            ErrorFunction::PiecewiseQuadratic {
+                base,
+                knots_mm,
+                knot_coefficients,
+                range_mm,
+            } => {
+                let (q, clamped) = clamp_range(q_mm, *range_mm);
+                let mut v = base[0] + q * (base[1] + q * base[2]);
+                for (&t, &c) in knots_mm.iter().zip(knot_coefficients) {
+                    let d = q - t;
+                    if d > 0.0 {
+                        v += c * d * d;
+                    }
+                }
+                (v, clamped)
+            }
+        }
+    }
+
+    pub fn kind_name(&self) -> &'static str {
+        match self {
+            ErrorFunction::Table(_) => "table",
+            ErrorFunction::Polynomial { .. } => "polynomial",
+            ErrorFunction::PiecewiseQuadratic { .. } => "piecewise_quadratic",
+        }
+    }
+
+    /// Multiply every value by `k` (unit conversion at load, sign flips in fixtures).
+    pub fn scaled(&self, k: f64) -> ErrorFunction {
+        let s = |v: &[f64]| v.iter().map(|x| x * k).collect::<Vec<_>>();
+        match self {
+            ErrorFunction::Table(t) => ErrorFunction::Table(Table::new(
+                t.positions_mm.clone(),
+                s(&t.forward),
+                s(&t.reverse),
+                t.interpolation,
+            )),
+            ErrorFunction::Polynomial {
+                coefficients,
+                range_mm,
+            } => ErrorFunction::Polynomial {
+                coefficients: s(coefficients),
+                range_mm: *range_mm,
+            },
+            ErrorFunction::PiecewiseQuadratic {
+                base,
+                knots_mm,
+                knot_coefficients,
+                range_mm,
+            } => ErrorFunction::PiecewiseQuadratic {
+                base: [base[0] * k, base[1] * k, base[2] * k],
+                knots_mm: knots_mm.clone(),
+                knot_coefficients: s(knot_coefficients),
+                range_mm: *range_mm,
+            },
+        }
+    }
+}
+
+#[inline]
+fn clamp_range(q: f64, range: Option<(f64, f64)>) -> (f64, bool) {
+    match range {
+        Some((lo, _)) if q.is_nan() || q < lo => (lo, true),
+        Some((_, hi)) if q > hi => (hi, true),
+        Some(_) => (q, false),
+        None if q.is_finite() => (q, false),
+        None => (0.0, true),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn table(interp: Interpolation) -> Table {
+        Table::new(
+            vec![0.0, 10.0, 20.0, 40.0],
+            vec![0.0, 1.0, 3.0, 2.0],
+            vec![1.0, 2.0, 2.0, 0.0],
+            interp,
+        )
+    }
+
+    #[test]
+    fn exact_at_nodes_both_directions_and_mean() {
+        for interp in [Interpolation::Linear, Interpolation::C1] {
+            let t = table(interp);
+            for (i, &x) in t.positions_mm.iter().enumerate() {
+                assert_eq!(t.eval(x, 1), (t.forward[i], false));
+                assert_eq!(t.eval(x, -1), (t.reverse[i], false));
+                assert!((t.eval(x, 0).0 - 0.5 * (t.forward[i] + t.reverse[i])).abs() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn linear_midpoint_and_clamp_outside() {
+        let t = table(Interpolation::Linear);
+        assert!((t.eval(15.0, 1).0 - 2.0).abs() < 1e-12);
+        assert!((t.eval(30.0, -1).0 - 1.0).abs() < 1e-12);
+        assert_eq!(t.eval(-5.0, 1), (0.0, true));
+        assert_eq!(t.eval(45.0, -1), (0.0, true));
+        assert_eq!(t.eval(f64::NAN, 1), (0.0, true));
+    }
+
+    #[test]
+    fn c1_is_continuous_in_slope_and_does_not_overshoot() {
+        let t = table(Interpolation::C1);
+        // Slope left and right of an interior node agree.
+        let e = 1e-6;
+        let d = |q: f64| (t.eval(q + e, 1).0 - t.eval(q - e, 1).0) / (2.0 * e);
+        let left = (t.eval(10.0, 1).0 - t.eval(10.0 - e, 1).0) / e;
+        let right = (t.eval(10.0 + e, 1).0 - t.eval(10.0, 1).0) / e;
+        assert!((left - right).abs() < 1e-4, "{left} vs {right}");
+        assert!(d(5.0) > 0.0);
+        // Between 20 (3.0) and 40 (2.0) the curve stays inside [2, 3].
+        for k in 0..=100 {
+            let v = t.eval(20.0 + 0.2 * k as f64, 1).0;
+            assert!((2.0 - 1e-12..=3.0 + 1e-12).contains(&v), "overshoot {v}");
+        }
+    }
+
+    #[test]
+    fn uniform_and_nonuniform_lookup_agree() {
+        let xs: Vec<f64> = (0..=50).map(|i| i as f64 * 2.0).collect();
+        let ys: Vec<f64> = xs.iter().map(|x| (x * 0.1).sin()).collect();
+        let uni = Table::new(xs.clone(), ys.clone(), ys.clone(), Interpolation::Linear);
+        assert!(uni.uniform.is_some());
+        let mut xs2 = xs.clone();
+        xs2[1] += 0.5; // breaks uniformity; query only beyond segment 1
+        let mut ys2 = ys.clone();
+        ys2[1] = (xs2[1] * 0.1).sin();
+        let non = Table::new(xs2, ys2.clone(), ys2, Interpolation::Linear);
+        assert!(non.uniform.is_none());
+        for k in 0..400 {
+            let q = 4.0 + k as f64 * 0.24;
+            assert!(
+                (uni.eval(q, 1).0 - non.eval(q, 1).0).abs() < 1e-12,
+                "at {q}"
+            );
+        }
+    }
+
+    #[test]
+    fn polynomial_and_truncated_power() {
+        let p = ErrorFunction::Polynomial {
+            coefficients: vec![1.0, -2.0, 0.5],
+            range_mm: Some((0.0, 10.0)),
+        };
+        assert_eq!(p.eval(2.0, 0), (1.0 - 4.0 + 2.0, false));
+        assert_eq!(p.eval(12.0, 0), (1.0 - 20.0 + 50.0, true));
+        let pq = ErrorFunction::PiecewiseQuadratic {
+            base: [0.0, 1.0, 0.0],
+            knots_mm: vec![5.0],
+            knot_coefficients: vec![2.0],
+            range_mm: None,
+        };
+        assert_eq!(pq.eval(4.0, 0).0, 4.0);
+        assert_eq!(pq.eval(7.0, 0).0, 7.0 + 2.0 * 4.0);
+        // C¹ at the knot: the truncated square has zero value and slope there.
+        let e = 1e-7;
+        let sl = (pq.eval(5.0, 0).0 - pq.eval(5.0 - e, 0).0) / e;
+        let sr = (pq.eval(5.0 + e, 0).0 - pq.eval(5.0, 0).0) / e;
+        assert!((sl - sr).abs() < 1e-5);
+    }
+}

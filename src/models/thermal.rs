@@ -1,0 +1,232 @@
+//! Thermal terms (a)–(e) and the per-sensor first-order lag state (d).
+//!
+//! Temperatures are °C; ΔT_i = T_i(lagged) − reference_C_i. A term's value is in its target's unit
+//! (µm or µrad); positions are mm. The lag is the exact discretisation of τ·dT'/dt = T − T':
+//! T' += (1 − e^(−Δt/τ)) · (T − T'), so the result does not depend on the step size for a constant
+//! input, and a reading held for Δt ≫ τ is reached.
+
+use super::spec::{SensorSpec, ThermalKind};
+
+/// Lag states, one per sensor.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ThermalState {
+    /// Lagged temperature per sensor, °C (`None` until the first valid reading).
+    pub lagged_c: Vec<Option<f64>>,
+    /// ΔT per sensor used by the last evaluation (0 while a sensor has never been read).
+    pub delta_c: Vec<f64>,
+    pub last_t_s: Option<f64>,
+    /// (Δt, 1 − e^(−Δt/τ)) of the last step per sensor: avoids an `exp` per sample at a fixed rate.
+    alpha_cache: Vec<(f64, f64)>,
+}
+
+/// What stepping found wrong with the inputs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StepIssues {
+    pub missing_temperature: bool,
+    pub time_backwards: bool,
+}
+
+impl ThermalState {
+    pub fn new(n: usize) -> Self {
+        ThermalState {
+            lagged_c: vec![None; n],
+            delta_c: vec![0.0; n],
+            last_t_s: None,
+            alpha_cache: vec![(f64::NAN, 0.0); n],
+        }
+    }
+
+    /// Advance every lag to `t_s` with readings `temps_c` (by sensor index). A missing or non-finite
+    /// reading holds that sensor's state; time going backwards holds all states and is reported.
+    pub fn step(&mut self, sensors: &[SensorSpec], temps_c: &[f64], t_s: f64) -> StepIssues {
+        let mut issues = StepIssues::default();
+        if self.lagged_c.len() != sensors.len() {
+            *self = ThermalState::new(sensors.len());
+        }
+        let dt = match self.last_t_s {
+            Some(last) if t_s < last => {
+                issues.time_backwards = true;
+                None
+            }
+            Some(last) => Some(t_s - last),
+            None => None,
+        };
+        if !issues.time_backwards {
+            self.last_t_s = Some(t_s);
+        }
+        for (i, s) in sensors.iter().enumerate() {
+            let reading = temps_c.get(i).copied().filter(|t| t.is_finite());
+            let Some(t) = reading else {
+                issues.missing_temperature = true;
+                self.delta_c[i] = self.lagged_c[i].map_or(0.0, |l| l - s.reference_c);
+                continue;
+            };
+            let new = match (self.lagged_c[i], s.tau_s, dt) {
+                (None, _, _) | (_, None, _) => t,
+                (Some(prev), Some(tau), Some(dt)) => {
+                    let cache = &mut self.alpha_cache[i];
+                    if cache.0 != dt {
+                        *cache = (dt, 1.0 - (-dt / tau).exp());
+                    }
+                    prev + cache.1 * (t - prev)
+                }
+                (Some(prev), Some(_), None) => prev,
+            };
+            self.lagged_c[i] = Some(new);
+            self.delta_c[i] = new - s.reference_c;
+        }
+        issues
+    }
+}
+
+/// Σ_i Σ_j c_ij x_i x_j over the term's sensor list.
+#[inline]
+fn quadratic(c: &[Vec<f64>], idx: &[usize], dt: &[f64]) -> f64 {
+    let mut acc = 0.0;
+    for (i, row) in c.iter().enumerate() {
+        let xi = dt[idx[i]];
+        for (j, cij) in row.iter().enumerate() {
+            acc += cij * xi * dt[idx[j]];
+        }
+    }
+    acc
+}
+
+#[inline]
+fn linear(b: &[f64], idx: &[usize], dt: &[f64]) -> f64 {
+    b.iter().zip(idx).map(|(bi, &i)| bi * dt[i]).sum()
+}
+
+/// Value of one thermal term. `idx` maps the term's sensors to model sensor indices; `lagged_abs_c`
+/// gives absolute lagged temperatures for the expansion term; `q_target_mm` is the target axis'
+/// position, `q_along_mm` the stations axis' position. Returns (value, clamped).
+#[inline]
+pub fn thermal_value(
+    kind: &ThermalKind,
+    idx: &[usize],
+    delta_c: &[f64],
+    abs_c: f64,
+    q_target_mm: f64,
+    q_along_mm: f64,
+) -> (f64, bool) {
+    match kind {
+        ThermalKind::PolynomialDt {
+            e0,
+            b_per_k,
+            c_per_k2,
+            ..
+        } => (
+            e0 + linear(b_per_k, idx, delta_c) + quadratic(c_per_k2, idx, delta_c),
+            false,
+        ),
+        ThermalKind::Slope {
+            s0_per_mm,
+            s_per_mm_k,
+            d_per_mm_k2,
+            ..
+        } => {
+            // Coefficients are per metre of travel: q_mm · 1e-3 m/mm.
+            let slope =
+                s0_per_mm + linear(s_per_mm_k, idx, delta_c) + quadratic(d_per_mm_k2, idx, delta_c);
+            (q_target_mm * 1e-3 * slope, false)
+        }
+        ThermalKind::Expansion {
+            alpha_ppm_per_k,
+            origin_mm,
+            reference_c,
+            ..
+        } => {
+            // ppm/K · mm · K = 1e-6 mm = 1e-3 µm.
+            (
+                alpha_ppm_per_k * (q_target_mm - origin_mm) * (abs_c - reference_c) * 1e-3,
+                false,
+            )
+        }
+        ThermalKind::Stations {
+            stations_mm,
+            e0,
+            b_per_k,
+            ..
+        } => {
+            let n = stations_mm.len();
+            let at = |k: usize| e0[k] + linear(&b_per_k[k], idx, delta_c);
+            if q_along_mm.is_nan() || q_along_mm < stations_mm[0] {
+                return (at(0), true);
+            }
+            if q_along_mm > stations_mm[n - 1] {
+                return (at(n - 1), true);
+            }
+            let k = stations_mm
+                .partition_point(|&s| s <= q_along_mm)
+                .saturating_sub(1)
+                .min(n - 2);
+            let w = (q_along_mm - stations_mm[k]) / (stations_mm[k + 1] - stations_mm[k]);
+            ((1.0 - w) * at(k) + w * at(k + 1), false)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sensor(tau: Option<f64>) -> SensorSpec {
+        SensorSpec {
+            name: "s".into(),
+            reference_c: 20.0,
+            tau_s: tau,
+        }
+    }
+
+    #[test]
+    fn lag_reaches_63_percent_after_one_tau_independent_of_step() {
+        for steps in [10usize, 100, 1000] {
+            let s = [sensor(Some(100.0))];
+            let mut st = ThermalState::new(1);
+            st.step(&s, &[20.0], 0.0);
+            for k in 1..=steps {
+                st.step(&s, &[30.0], 100.0 * k as f64 / steps as f64);
+            }
+            let expect = 10.0 * (1.0 - (-1.0f64).exp());
+            assert!(
+                (st.delta_c[0] - expect).abs() < 1e-9,
+                "steps {steps}: {}",
+                st.delta_c[0]
+            );
+        }
+    }
+
+    #[test]
+    fn missing_reading_holds_and_backwards_time_is_reported() {
+        let s = [sensor(None)];
+        let mut st = ThermalState::new(1);
+        assert_eq!(st.step(&s, &[25.0], 1.0), StepIssues::default());
+        let i = st.step(&s, &[f64::NAN], 2.0);
+        assert!(i.missing_temperature);
+        assert_eq!(st.delta_c[0], 5.0);
+        let i = st.step(&s, &[26.0], 1.5);
+        assert!(i.time_backwards);
+        assert_eq!(st.last_t_s, Some(2.0));
+    }
+
+    #[test]
+    fn stations_interpolate_and_clamp() {
+        let k = ThermalKind::Stations {
+            along: super::super::names::Axis::Z,
+            sensors: vec!["s".into()],
+            stations_mm: vec![0.0, 100.0, 300.0],
+            e0: vec![0.0, 10.0, 10.0],
+            b_per_k: vec![vec![1.0], vec![2.0], vec![4.0]],
+        };
+        let dt = [2.0];
+        assert_eq!(
+            thermal_value(&k, &[0], &dt, 0.0, 0.0, 50.0),
+            (0.5 * 2.0 + 0.5 * 14.0, false)
+        );
+        assert_eq!(
+            thermal_value(&k, &[0], &dt, 0.0, 0.0, 200.0),
+            (0.5 * 14.0 + 0.5 * 18.0, false)
+        );
+        assert_eq!(thermal_value(&k, &[0], &dt, 0.0, 0.0, 400.0), (18.0, true));
+    }
+}
