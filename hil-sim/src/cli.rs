@@ -35,7 +35,8 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     if let Some(s) = args.seed {
         cfg.seed = s;
     }
-    let (rows, t_s) = run_config(cfg, &args.out, args.compensate)?;
+    let (rows, t_s) = run_config(cfg, &args.out, args.compensate)
+        .map_err(|e| e.context(format!("config {}", args.config.display())))?;
     eprintln!(
         "hil-sim: {rows} rows, {t_s:.3} s simulated → {}",
         args.out.display()

@@ -111,7 +111,12 @@ impl World {
                     .map_err(|e| anyhow::anyhow!("program.gcode_path {}: {e}", p.display()))?,
                 _ => unreachable!("validated"),
             };
-            let blocks = gcode::parse(&text, start, cfg.servo.rapid_mm_min)?;
+            let source = match &cfg.program.gcode_path {
+                Some(p) => format!("program.gcode_path {}", p.display()),
+                None => "program.gcode".to_string(),
+            };
+            let blocks = gcode::parse(&text, start, cfg.servo.rapid_mm_min)
+                .map_err(|e| anyhow::anyhow!("{source}: {e}"))?;
             Trajectory::Program(ProgramRunner::new(blocks, start))
         };
         let start_pos = match &traj {
