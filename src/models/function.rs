@@ -33,8 +33,8 @@ pub struct Table {
     pub forward: Vec<f64>,
     pub reverse: Vec<f64>,
     pub interpolation: Interpolation,
-    /// `Some((x0, 1/h))` when the positions are evenly spaced: O(1) lookup.
-    uniform: Option<(f64, f64)>,
+    /// (x0, 1/mean spacing): the first guess of a lookup.
+    guide: (f64, f64),
     slopes_fwd: Vec<f64>,
     slopes_rev: Vec<f64>,
 }
@@ -51,11 +51,7 @@ impl Table {
         let n = positions_mm.len();
         let x0 = positions_mm[0];
         let h = (positions_mm[n - 1] - x0) / (n - 1) as f64;
-        let uniform = positions_mm
-            .iter()
-            .enumerate()
-            .all(|(i, &x)| (x - (x0 + h * i as f64)).abs() <= 1e-9 * h.abs().max(1.0))
-            .then_some((x0, 1.0 / h));
+        let guide = (x0, 1.0 / h);
         let (slopes_fwd, slopes_rev) = match interpolation {
             Interpolation::Linear => (Vec::new(), Vec::new()),
             Interpolation::C1 => (
@@ -68,7 +64,7 @@ impl Table {
             forward,
             reverse,
             interpolation,
-            uniform,
+            guide,
             slopes_fwd,
             slopes_rev,
         }
@@ -78,18 +74,30 @@ impl Table {
         self.forward != self.reverse
     }
 
-    /// Segment index i (x_i ≤ q ≤ x_{i+1}) for q inside the span.
+    /// Segment index i (x_i ≤ q ≤ x_{i+1}) for q inside the span. Guesses from the mean spacing
+    /// and walks at most two steps (tables written with rounded, almost even positions), else falls
+    /// back to a binary search; always exact.
     #[inline]
     fn segment(&self, q: f64) -> usize {
-        let n = self.positions_mm.len();
-        let i = match self.uniform {
-            Some((x0, inv_h)) => ((q - x0) * inv_h) as usize,
-            None => self
-                .positions_mm
-                .partition_point(|&x| x <= q)
-                .saturating_sub(1),
-        };
-        i.min(n - 2)
+        let x = &self.positions_mm;
+        let last = x.len() - 2;
+        let (x0, inv_h) = self.guide;
+        let guess = ((q - x0) * inv_h) as usize;
+        let mut i = guess.min(last);
+        for _ in 0..2 {
+            if x[i] > q && i > 0 {
+                i -= 1;
+            } else if x[i + 1] <= q && i < last {
+                i += 1;
+            } else {
+                return i;
+            }
+        }
+        if x[i] <= q && (q < x[i + 1] || i == last) {
+            i
+        } else {
+            x.partition_point(|&p| p <= q).saturating_sub(1).min(last)
+        }
     }
 
     #[inline]
@@ -338,23 +346,23 @@ mod tests {
     }
 
     #[test]
-    fn uniform_and_nonuniform_lookup_agree() {
-        let xs: Vec<f64> = (0..=50).map(|i| i as f64 * 2.0).collect();
-        let ys: Vec<f64> = xs.iter().map(|x| (x * 0.1).sin()).collect();
-        let uni = Table::new(xs.clone(), ys.clone(), ys.clone(), Interpolation::Linear);
-        assert!(uni.uniform.is_some());
-        let mut xs2 = xs.clone();
-        xs2[1] += 0.5; // breaks uniformity; query only beyond segment 1
-        let mut ys2 = ys.clone();
-        ys2[1] = (xs2[1] * 0.1).sin();
-        let non = Table::new(xs2, ys2.clone(), ys2, Interpolation::Linear);
-        assert!(non.uniform.is_none());
-        for k in 0..400 {
-            let q = 4.0 + k as f64 * 0.24;
-            assert!(
-                (uni.eval(q, 1).0 - non.eval(q, 1).0).abs() < 1e-12,
-                "at {q}"
-            );
+    fn lookup_finds_the_right_segment_for_even_rounded_and_uneven_tables() {
+        let even: Vec<f64> = (0..100).map(|i| i as f64 * 800.0 / 99.0).collect();
+        let rounded: Vec<f64> = even.iter().map(|x| (x * 1e4).round() / 1e4).collect();
+        let uneven: Vec<f64> = (0..40).map(|i| (i as f64).powi(2) * 0.7).collect();
+        for xs in [even, rounded, uneven] {
+            let t = Table::new(xs.clone(), xs.clone(), xs.clone(), Interpolation::Linear);
+            let (lo, hi) = (xs[0], xs[xs.len() - 1]);
+            for k in 0..=5000 {
+                let q = lo + (hi - lo) * k as f64 / 5000.0;
+                let i = t.segment(q);
+                assert!(xs[i] <= q && (q <= xs[i + 1]), "q {q} got segment {i}");
+                // The table is the identity function: interpolation must return q itself.
+                assert!((t.eval(q, 1).0 - q).abs() < 1e-9 * hi.max(1.0));
+            }
+            for &x in &xs {
+                assert_eq!(t.eval(x, -1), (x, false));
+            }
         }
     }
 
