@@ -226,7 +226,9 @@ impl<'a, 't> Tbl<'a, 't> {
         };
         for (k, v) in self.table.iter() {
             let name = k.get_ref().as_ref();
-            if !used.iter().any(|u| u == name) && !(had_error && fits(name)) {
+            let read = used.iter().any(|u| u == name);
+            let skipped_after_error = had_error && fits(name);
+            if !read && !skipped_after_error {
                 self.ctx.err(
                     k.span().start..v.span().end,
                     &self.key_path(name),
