@@ -129,6 +129,30 @@ fn bench<M: Measurement>(c: &mut Criterion<M>, clock: &str) {
             black_box(out.total_um)
         })
     });
+    // Breakdown: the same points through the geometric part only (no sensors, thermal, load).
+    let mut geo_spec = m.spec().clone();
+    geo_spec.sensors.clear();
+    geo_spec.thermal.clear();
+    geo_spec.forces.clear();
+    geo_spec.load.clear();
+    let geo = MachineModel::from_spec(geo_spec);
+    let (mut gs, mut go) = (geo.new_state(), geo.new_breakdown());
+    let geo_pts: Vec<ModelInput> = pts
+        .iter()
+        .map(|p| ModelInput {
+            pos_mm: p.pos_mm,
+            dir: p.dir,
+            ..geo.new_input()
+        })
+        .collect();
+    g.bench_function("evaluate_exact_geometry_only_one", |b| {
+        b.iter(|| {
+            let input = &geo_pts[i & 4095];
+            i += 1;
+            geo.evaluate(black_box(input), &mut gs, &mut go);
+            black_box(go.total_um)
+        })
+    });
     g.finish();
 
     // Batch: 10⁶ points, one state, exact evaluation, times advancing 1 ms per point.

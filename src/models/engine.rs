@@ -202,14 +202,17 @@ impl Compiled {
 /// First-order tip contribution (µm) of value `v` in `slot` of an element with Abbe arm `arm_mm`.
 #[inline(always)]
 fn contribution(slot: usize, v: f64, arm_mm: [f64; 3]) -> [f64; 3] {
-    if slot < 3 {
-        let mut c = [0.0; 3];
-        c[slot] = v;
-        c
-    } else {
-        let mut eps = [0.0; 3];
-        eps[slot - 3] = v * 1e-3; // µrad × mm = 1e-3 µm
-        cross(eps, arm_mm)
+    // Written out per slot (not `c[slot] = v`): a one-lane store followed by a whole-vector load
+    // defeats store forwarding and cost ~40 % of an evaluation.
+    let w = v * 1e-3; // µrad × mm = 1e-3 µm
+    let [ax, ay, az] = arm_mm;
+    match slot {
+        0 => [v, 0.0, 0.0],
+        1 => [0.0, v, 0.0],
+        2 => [0.0, 0.0, v],
+        3 => [0.0, -w * az, w * ay], // (w, 0, 0) × arm
+        4 => [w * az, 0.0, -w * ax], // (0, w, 0) × arm
+        _ => [-w * ay, w * ax, 0.0], // (0, 0, w) × arm
     }
 }
 
