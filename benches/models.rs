@@ -153,6 +153,24 @@ fn bench<M: Measurement>(c: &mut Criterion<M>, clock: &str) {
             black_box(go.total_um)
         })
     });
+    // Breakdown: the 18 component functions alone (the table lookups).
+    let funcs: Vec<_> = m
+        .spec()
+        .components
+        .iter()
+        .map(|c| (c.id.axis.index(), c.function.clone()))
+        .collect();
+    g.bench_function("tables_only_18", |b| {
+        b.iter(|| {
+            let input = &geo_pts[i & 4095];
+            i += 1;
+            let mut acc = 0.0;
+            for (a, f) in &funcs {
+                acc += f.eval(input.pos_mm[*a], input.dir[*a]).0;
+            }
+            black_box(acc)
+        })
+    });
     g.finish();
 
     // Batch: 10⁶ points, one state, exact evaluation, times advancing 1 ms per point.

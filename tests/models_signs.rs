@@ -243,3 +243,74 @@ fn bidirectional_table_direction_picks_forward_reverse_or_mean() {
     assert_eq!(out.total_um, [0.0; 3]);
     assert!(out.flags.invalid_input);
 }
+
+#[test]
+fn slope_stations_lag_and_weight_terms_follow_their_equations() {
+    let text = format!(
+        "{MILL}
+[[sensors]]
+name = \"screw\"
+tau_s = 100.0
+[[sensors]]
+name = \"col\"
+[[thermal]]
+name = \"x_slope\"
+target = \"EXX\"
+kind = \"slope\"
+sensors = [\"screw\"]
+s0_um_per_m = 1.0
+s_um_per_m_K = [10.0]
+[[thermal]]
+name = \"drift\"
+target = \"EYZ\"
+kind = \"stations\"
+along = \"z\"
+sensors = [\"col\"]
+stations_mm = [0.0, 200.0, 400.0]
+e0_um = [0.0, 1.0, 2.0]
+b_um_per_K = [[1.0], [2.0], [3.0]]
+[[forces]]
+name = \"w\"
+[[load]]
+name = \"roll\"
+target = \"EAX\"
+kind = \"weight_angular\"
+force = \"w\"
+reference_force_N = 4800.0
+lever_mm = 375.0
+load_height_mm = 75.0
+coefficients_urad = [8.0]
+"
+    );
+    let m = MachineModel::from_toml_str(&text, "terms").unwrap_or_else(|e| panic!("{e}"));
+    let id = |n: &str| m.term_names().iter().position(|t| t == n).unwrap();
+    let mut st = m.new_state();
+    let mut out = m.new_breakdown();
+    let mut input = m.new_input();
+    input.pos_mm = [500.0, 0.0, 100.0];
+    input.forces_n = vec![2400.0];
+    // t = 0: the first reading initialises the lag (steady state): screw ΔT = 0.
+    input.temps_c = vec![20.0, 22.0];
+    m.evaluate_first_order(&input, &mut st, &mut out);
+    // (b) Ni: x·(s0 + s·ΔT)/1000 = 500·1/1000 = 0.5 µm.
+    assert!((out.terms_um[id("x_slope")][0] - 0.5).abs() < 1e-12);
+    // (e) Spaan stations at z = 100: halfway between (0 + 1·2) and (1 + 2·2) = 3.5 µm in Y.
+    assert!((out.terms_um[id("drift")][1] - 3.5).abs() < 1e-12);
+    // Spaan eq. 4.1: 8 µrad · 2400/4800 · (375 − 75)/375 = 3.2 µrad about X on the table (X, on
+    // the workpiece side), arm = (500, 0, 100 − 100) → x̂ × arm = 0: no tip error at z = 100 …
+    assert!(out.terms_um[id("roll")].iter().all(|v| v.abs() < 1e-12));
+    input.pos_mm[2] = 300.0; // … and 3.2 µrad · 200 mm = 0.64 µm in −Y once the arm has a Z part.
+    m.evaluate_first_order(&input, &mut st, &mut out);
+    let roll = out.terms_um[id("roll")];
+    assert!(
+        (roll[1] + 0.64).abs() < 1e-12 && roll[2].abs() < 1e-12,
+        "{roll:?}"
+    );
+    // (d) lag: screw steps to 30 °C; after one τ the lagged ΔT is 10·(1 − e⁻¹).
+    input.pos_mm[2] = 100.0;
+    input.temps_c = vec![30.0, 22.0];
+    input.t_s = 100.0;
+    m.evaluate_first_order(&input, &mut st, &mut out);
+    let dt = 10.0 * (1.0 - (-1.0f64).exp());
+    assert!((out.terms_um[id("x_slope")][0] - 500.0 * (1.0 + 10.0 * dt) / 1000.0).abs() < 1e-9);
+}
