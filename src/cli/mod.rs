@@ -2,4 +2,11 @@
 //! `run` function; `src/main.rs` only lists them.
 
 pub mod check_config;
+pub mod circle;
+pub mod diagnose;
 pub mod eval;
+pub mod export;
+pub mod import;
+pub mod iso230_2;
+pub mod nc;
+pub mod util;

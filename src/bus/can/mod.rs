@@ -1,8 +1,19 @@
 //! CAN: the portable frame, the async bus trait every backend implements, and the backends.
 
+pub mod backend;
 pub mod frame;
+pub mod hub;
+pub mod mem;
+#[cfg(all(feature = "socketcan", target_os = "linux"))]
+pub mod socketcan;
+pub mod socketcand;
+pub mod socketcand_bus;
 
+pub use backend::{AnyCanBus, CanBackendConfig};
 pub use frame::Frame;
+pub use hub::Hub;
+pub use mem::{MemBus, MemEndpoint};
+pub use socketcand_bus::SocketcandBus;
 
 use std::future::Future;
 
@@ -13,6 +24,9 @@ pub enum CanError {
     Unsupported(String),
     #[error("CAN bus closed")]
     Closed,
+    /// The receiver fell behind and this many frames were lost (in-memory and hub backends).
+    #[error("CAN receive overrun: {0} frames lost")]
+    Overrun(u64),
     #[error("CAN protocol error: {0}")]
     Protocol(String),
     #[error("CAN I/O error: {0}")]

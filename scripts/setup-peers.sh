@@ -1,0 +1,65 @@
+#!/usr/bin/env bash
+# Installs the third-party peers the integration tests talk to (idempotent; safe to re-run).
+#   apt: the packages in APT_PACKAGES (socat: pty pairs for Modbus RTU; mbpoll: Modbus TCP client;
+#        qemu-system-x86, busybox-static, can-utils, cpio, gzip, xz-utils, binutils: the QEMU guest
+#        that runs the SocketCAN backend against real kernel vcan, see docs/vcan.md)
+#   kernel: Debian's linux-image-amd64 unpacked into a cache (scripts/vcan-qemu/fetch-kernel.sh)
+#   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial)
+# Tests look for <repo>/.venv/bin/python and fail with "run scripts/setup-peers.sh" if it is missing.
+set -euo pipefail
+
+REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+
+# One package per line; other helpers append their own.
+APT_PACKAGES=(
+  socat
+  mbpoll
+  qemu-system-x86
+  busybox-static
+  can-utils
+  cpio
+  gzip
+  xz-utils
+  binutils
+)
+
+PIP_PACKAGES=(
+  "python-can==4.6.1"
+  "pymodbus[serial]==3.16.1"
+  "pyserial==3.5"
+)
+
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+
+missing=()
+for p in "${APT_PACKAGES[@]}"; do
+  if ! dpkg -s "$p" >/dev/null 2>&1; then missing+=("$p"); fi
+done
+# fetch-kernel.sh resolves the kernel ABI from the apt lists (apt-cache depends linux-image-amd64),
+# so they must exist even when every package is already installed (a fresh container has none).
+if [ "${#missing[@]}" -gt 0 ] || ! apt-cache show linux-image-amd64 >/dev/null 2>&1; then
+  $SUDO apt-get -o DPkg::Lock::Timeout=600 update -qq
+fi
+if [ "${#missing[@]}" -gt 0 ]; then
+  echo "setup-peers: apt-get install ${missing[*]}"
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get -o DPkg::Lock::Timeout=600 install -y -qq --no-install-recommends "${missing[@]}"
+  # (no recommends: qemu-system-x86 would pull in a GUI stack we never use)
+else
+  echo "setup-peers: apt packages already present: ${APT_PACKAGES[*]}"
+fi
+
+PY="${PYTHON:-python3}"
+if [ ! -x "$REPO/.venv/bin/python" ]; then
+  echo "setup-peers: creating $REPO/.venv with $($PY --version)"
+  "$PY" -m venv "$REPO/.venv"
+fi
+echo "setup-peers: pip install ${PIP_PACKAGES[*]}"
+"$REPO/.venv/bin/python" -m pip install -q --disable-pip-version-check "${PIP_PACKAGES[@]}"
+"$REPO/.venv/bin/python" - <<'PYEOF'
+import can, pymodbus, serial
+print(f"setup-peers: python-can {can.__version__}, pymodbus {pymodbus.__version__}, "
+      f"pyserial {serial.VERSION}")
+PYEOF
+sh "$REPO/scripts/vcan-qemu/fetch-kernel.sh"
+echo "setup-peers: done"

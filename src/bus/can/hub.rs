@@ -1,0 +1,254 @@
+//! A socketcand-protocol hub: a userspace CAN bus on TCP that tests and the simulator start in-process.
+//!
+//! Every client that completes the rawmode handshake (`< hi >`, `< open BUS >`, `< rawmode >`) joins the
+//! bus named in `open`; each frame a client sends is delivered to every *other* client of the same bus
+//! (no echo to the sender, like socketcand and a real CAN controller without loopback). python-can's
+//! `socketcand` interface and [`super::socketcand_bus::SocketcandBus`] are both clients.
+//!
+//! Timestamps in `< frame … >` are the hub's receive time in seconds since the Unix epoch, as
+//! socketcand writes kernel timestamps. A client that falls more than [`HUB_QUEUE`] frames behind loses
+//! the oldest ones; the loss is counted in [`HubStats::frames_dropped`] and reported to that client as
+//! `< error lagged N >`.
+
+use super::Frame;
+use super::socketcand::{Decoder, Message, encode_into};
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{SystemTime, UNIX_EPOCH};
+use tokio::io::{AsyncReadExt, AsyncWriteExt, BufWriter};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::broadcast;
+use tokio::task::JoinHandle;
+
+/// Frames a client may fall behind before it loses some.
+pub const HUB_QUEUE: usize = 8192;
+
+/// Counters, readable while the hub runs.
+#[derive(Debug, Default)]
+pub struct HubStats {
+    pub clients_connected: AtomicU64,
+    pub frames_in: AtomicU64,
+    pub frames_out: AtomicU64,
+    pub frames_dropped: AtomicU64,
+    pub bad_messages: AtomicU64,
+}
+
+#[derive(Clone, Debug)]
+struct Routed {
+    from_client: u64,
+    bus: Arc<str>,
+    frame: Frame,
+    t_s: f64,
+}
+
+/// A running hub; dropping it stops the listener and disconnects every client.
+#[derive(Debug)]
+pub struct Hub {
+    addr: SocketAddr,
+    stats: Arc<HubStats>,
+    task: JoinHandle<()>,
+}
+
+impl Hub {
+    /// Listen on `addr` (tests use `127.0.0.1:0`) and serve until dropped.
+    pub async fn start(addr: SocketAddr) -> std::io::Result<Hub> {
+        let listener = TcpListener::bind(addr).await?;
+        let addr = listener.local_addr()?;
+        let stats = Arc::new(HubStats::default());
+        let (tx, _) = broadcast::channel::<Routed>(HUB_QUEUE);
+        let task = tokio::spawn(accept_loop(listener, tx, Arc::clone(&stats)));
+        Ok(Hub { addr, stats, task })
+    }
+
+    /// Shorthand for a hub on an ephemeral loopback port.
+    pub async fn start_loopback() -> std::io::Result<Hub> {
+        Self::start(SocketAddr::from(([127, 0, 0, 1], 0))).await
+    }
+
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    pub fn stats(&self) -> &HubStats {
+        &self.stats
+    }
+}
+
+impl Drop for Hub {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+async fn accept_loop(listener: TcpListener, tx: broadcast::Sender<Routed>, stats: Arc<HubStats>) {
+    // Client tasks live in the JoinSet, so aborting this task (Hub::drop) disconnects them all.
+    let mut clients = tokio::task::JoinSet::new();
+    let mut next_id = 0u64;
+    loop {
+        tokio::select! {
+            accepted = listener.accept() => {
+                let Ok((stream, peer)) = accepted else { continue };
+                next_id += 1;
+                stats.clients_connected.fetch_add(1, Ordering::Relaxed);
+                let (tx, stats) = (tx.clone(), Arc::clone(&stats));
+                let id = next_id;
+                clients.spawn(async move {
+                    if let Err(e) = serve_client(stream, id, tx, &stats).await {
+                        tracing::debug!(%peer, "socketcand hub client ended: {e}");
+                    }
+                });
+            }
+            Some(_) = clients.join_next() => {}
+        }
+    }
+}
+
+fn now_s() -> f64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(0.0)
+}
+
+enum Phase {
+    AwaitOpen,
+    AwaitRawMode(Arc<str>),
+    Raw(Arc<str>, broadcast::Receiver<Routed>),
+}
+
+async fn serve_client(
+    stream: TcpStream,
+    id: u64,
+    tx: broadcast::Sender<Routed>,
+    stats: &HubStats,
+) -> std::io::Result<()> {
+    stream.set_nodelay(true)?;
+    let (mut rd, wr) = stream.into_split();
+    let mut wr = BufWriter::with_capacity(64 * 1024, wr);
+    let mut out = String::with_capacity(4096);
+    // python-can compares each handshake reply to one recv(): every reply is its own flushed write.
+    reply(&mut wr, &mut out, &Message::Hi).await?;
+    let mut phase = Phase::AwaitOpen;
+    let mut dec = Decoder::new();
+    let mut buf = vec![0u8; 16 * 1024];
+    loop {
+        let routed = match &mut phase {
+            Phase::Raw(_, rx) => {
+                tokio::select! {
+                    n = rd.read(&mut buf) => Err(n?),
+                    r = rx.recv() => Ok(r),
+                }
+            }
+            _ => Err(rd.read(&mut buf).await?),
+        };
+        match routed {
+            Err(0) => return Ok(()),
+            Err(n) => {
+                dec.push(&buf[..n]);
+                while let Some(msg) = dec.next_message() {
+                    let Ok(msg) = msg else {
+                        stats.bad_messages.fetch_add(1, Ordering::Relaxed);
+                        continue;
+                    };
+                    phase = handle(msg, phase, id, &tx, stats, &mut wr, &mut out).await?;
+                }
+            }
+            Ok(r) => {
+                let Phase::Raw(bus, rx) = &mut phase else {
+                    unreachable!("frames are only received in rawmode")
+                };
+                out.clear();
+                let mut next = Some(r);
+                let mut batch = 0;
+                // Drain what is queued into one write: a syscall per frame would cap throughput.
+                while let Some(r) = next.take() {
+                    match r {
+                        Ok(f) if f.from_client != id && f.bus == *bus => {
+                            let m = Message::Frame {
+                                frame: f.frame,
+                                t_s: f.t_s,
+                            };
+                            encode_into(&mut out, &m);
+                            stats.frames_out.fetch_add(1, Ordering::Relaxed);
+                        }
+                        Ok(_) => {}
+                        Err(broadcast::error::RecvError::Lagged(n)) => {
+                            stats.frames_dropped.fetch_add(n, Ordering::Relaxed);
+                            encode_into(&mut out, &Message::Error(format!("lagged {n}")));
+                        }
+                        Err(broadcast::error::RecvError::Closed) => return Ok(()),
+                    }
+                    batch += 1;
+                    if batch < 512 {
+                        match rx.try_recv() {
+                            Ok(f) => next = Some(Ok(f)),
+                            Err(broadcast::error::TryRecvError::Lagged(n)) => {
+                                next = Some(Err(broadcast::error::RecvError::Lagged(n)))
+                            }
+                            Err(_) => {}
+                        }
+                    }
+                }
+                wr.write_all(out.as_bytes()).await?;
+                wr.flush().await?;
+            }
+        }
+    }
+}
+
+async fn reply(
+    wr: &mut BufWriter<tokio::net::tcp::OwnedWriteHalf>,
+    out: &mut String,
+    msg: &Message,
+) -> std::io::Result<()> {
+    out.clear();
+    encode_into(out, msg);
+    wr.write_all(out.as_bytes()).await?;
+    wr.flush().await
+}
+
+async fn handle(
+    msg: Message,
+    phase: Phase,
+    id: u64,
+    tx: &broadcast::Sender<Routed>,
+    stats: &HubStats,
+    wr: &mut BufWriter<tokio::net::tcp::OwnedWriteHalf>,
+    out: &mut String,
+) -> std::io::Result<Phase> {
+    Ok(match (msg, phase) {
+        (Message::Open(bus), Phase::AwaitOpen) => {
+            reply(wr, out, &Message::Ok).await?;
+            Phase::AwaitRawMode(bus.into())
+        }
+        (Message::RawMode, Phase::AwaitRawMode(bus)) => {
+            // Subscribe before acknowledging so no frame sent after our `< ok >` is missed, and
+            // write nothing before the `< ok >` (python-can's handshake reads it alone).
+            let rx = tx.subscribe();
+            reply(wr, out, &Message::Ok).await?;
+            Phase::Raw(bus, rx)
+        }
+        (Message::Send(frame), Phase::Raw(bus, rx)) => {
+            stats.frames_in.fetch_add(1, Ordering::Relaxed);
+            // No other client: the frame goes nowhere, as on a bus with no other node.
+            let _ = tx.send(Routed {
+                from_client: id,
+                bus: Arc::clone(&bus),
+                frame,
+                t_s: now_s(),
+            });
+            Phase::Raw(bus, rx)
+        }
+        (Message::Echo, p) => {
+            reply(wr, out, &Message::Echo).await?;
+            p
+        }
+        (other, p) => {
+            stats.bad_messages.fetch_add(1, Ordering::Relaxed);
+            let text = format!("unexpected {}", super::socketcand::encode(&other));
+            reply(wr, out, &Message::Error(text.replace(['<', '>'], ""))).await?;
+            p
+        }
+    })
+}

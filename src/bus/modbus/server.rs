@@ -1,0 +1,266 @@
+//! A small Modbus server (tokio-modbus) over a shared register image: the simulator serves its
+//! PT100/strain channels and its origin-shift registers with it, and the gateway tests read and write it.
+//!
+//! Supports FC03, FC04, FC06 and FC16. Writes are allowed only to holding registers in the write
+//! allow-list, and a multi-register write is applied all-or-nothing under one lock, so a reader never
+//! sees half of a 32-bit offset. Unmapped addresses give exception 02 (illegal data address), other
+//! function codes exception 01. On TCP every unit id is answered; on RTU only the configured slave id
+//! (others are silent, as on a multi-drop line). Addresses are 0-based protocol addresses.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex, MutexGuard};
+use tokio::net::TcpListener;
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+use tokio_modbus::prelude::{ExceptionCode, Request, Response, SlaveRequest};
+use tokio_modbus::server::Service;
+
+#[derive(Debug, Default)]
+struct Image {
+    holding: BTreeMap<u16, u16>,
+    input: BTreeMap<u16, u16>,
+    writable: BTreeSet<u16>,
+}
+
+/// The shared register image. Clone it to hand the same registers to the server and to the code that
+/// updates or inspects them.
+#[derive(Debug, Clone)]
+pub struct RegisterBank {
+    image: Arc<Mutex<Image>>,
+    /// Counts accepted client writes; `changed()` on a receiver wakes on each.
+    writes: Arc<watch::Sender<u64>>,
+}
+
+impl Default for RegisterBank {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl RegisterBank {
+    pub fn new() -> Self {
+        RegisterBank {
+            image: Arc::default(),
+            writes: Arc::new(watch::channel(0).0),
+        }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Image> {
+        // A panic while holding the lock cannot leave the maps inconsistent (each op is one insert
+        // loop), so a poisoned lock is still usable.
+        self.image.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Set holding registers from `addr` on (creating them). Not subject to the allow-list: this is
+    /// the device's own side.
+    pub fn set_holding(&self, addr: u16, words: &[u16]) {
+        let mut im = self.lock();
+        for (i, w) in words.iter().enumerate() {
+            im.holding.insert(addr.wrapping_add(i as u16), *w);
+        }
+    }
+
+    pub fn set_input(&self, addr: u16, words: &[u16]) {
+        let mut im = self.lock();
+        for (i, w) in words.iter().enumerate() {
+            im.input.insert(addr.wrapping_add(i as u16), *w);
+        }
+    }
+
+    /// Let clients write `count` holding registers from `addr` (they are created as 0 if absent).
+    pub fn allow_writes(&self, addr: u16, count: u16) {
+        let mut im = self.lock();
+        for a in addr..addr.saturating_add(count) {
+            im.writable.insert(a);
+            im.holding.entry(a).or_insert(0);
+        }
+    }
+
+    pub fn holding(&self, addr: u16, count: u16) -> Option<Vec<u16>> {
+        read(&self.lock().holding, addr, count).ok()
+    }
+
+    pub fn input(&self, addr: u16, count: u16) -> Option<Vec<u16>> {
+        read(&self.lock().input, addr, count).ok()
+    }
+
+    /// A receiver of the count of accepted client writes.
+    pub fn subscribe_writes(&self) -> watch::Receiver<u64> {
+        self.writes.subscribe()
+    }
+
+    /// Apply a client write: all registers must be in the allow-list, else nothing changes.
+    pub fn client_write(&self, addr: u16, words: &[u16]) -> Result<(), ExceptionCode> {
+        if words.is_empty() || usize::from(addr) + words.len() > 0x1_0000 {
+            return Err(ExceptionCode::IllegalDataAddress);
+        }
+        {
+            let mut im = self.lock();
+            if !(0..words.len()).all(|i| im.writable.contains(&(addr + i as u16))) {
+                return Err(ExceptionCode::IllegalDataAddress);
+            }
+            for (i, w) in words.iter().enumerate() {
+                im.holding.insert(addr + i as u16, *w);
+            }
+        }
+        self.writes.send_modify(|n| *n += 1);
+        Ok(())
+    }
+
+    /// Answer one request (the sans-IO core of the service).
+    pub fn handle(&self, req: &Request<'_>) -> Result<Response, ExceptionCode> {
+        match req {
+            Request::ReadHoldingRegisters(a, n) => {
+                read(&self.lock().holding, *a, *n).map(Response::ReadHoldingRegisters)
+            }
+            Request::ReadInputRegisters(a, n) => {
+                read(&self.lock().input, *a, *n).map(Response::ReadInputRegisters)
+            }
+            Request::WriteSingleRegister(a, w) => self
+                .client_write(*a, &[*w])
+                .map(|()| Response::WriteSingleRegister(*a, *w)),
+            Request::WriteMultipleRegisters(a, ws) => self
+                .client_write(*a, ws)
+                .map(|()| Response::WriteMultipleRegisters(*a, ws.len() as u16)),
+            _ => Err(ExceptionCode::IllegalFunction),
+        }
+    }
+}
+
+fn read(map: &BTreeMap<u16, u16>, addr: u16, count: u16) -> Result<Vec<u16>, ExceptionCode> {
+    if count == 0 || count > 125 {
+        return Err(ExceptionCode::IllegalDataValue);
+    }
+    (0..count)
+        .map(|i| {
+            addr.checked_add(i)
+                .and_then(|a| map.get(&a).copied())
+                .ok_or(ExceptionCode::IllegalDataAddress)
+        })
+        .collect()
+}
+
+/// tokio-modbus service over a [`RegisterBank`]. `slave = None` answers every unit id (TCP).
+#[derive(Debug, Clone)]
+pub struct RegisterService {
+    pub bank: RegisterBank,
+    pub slave: Option<u8>,
+}
+
+impl Service for RegisterService {
+    type Request = SlaveRequest<'static>;
+    type Response = Option<Response>;
+    type Exception = ExceptionCode;
+    type Future = std::future::Ready<Result<Self::Response, Self::Exception>>;
+
+    fn call(&self, req: Self::Request) -> Self::Future {
+        let for_us = match self.slave {
+            None => true,
+            // Unit 0 is broadcast: writes apply, nobody answers.
+            Some(s) => req.slave == s || req.slave == 0,
+        };
+        if !for_us {
+            return std::future::ready(Ok(None));
+        }
+        let r = self.bank.handle(&req.request);
+        if self.slave.is_some() && req.slave == 0 {
+            return std::future::ready(Ok(None));
+        }
+        std::future::ready(r.map(Some))
+    }
+}
+
+/// A running Modbus TCP server; dropping it stops the listener and every connection.
+#[derive(Debug)]
+pub struct TcpServer {
+    addr: SocketAddr,
+    task: JoinHandle<()>,
+}
+
+impl TcpServer {
+    /// Serve `bank` on `addr` (tests: `127.0.0.1:0`).
+    pub async fn start(addr: SocketAddr, bank: RegisterBank) -> std::io::Result<TcpServer> {
+        let listener = TcpListener::bind(addr).await?;
+        let addr = listener.local_addr()?;
+        let server = tokio_modbus::server::tcp::Server::new(listener);
+        let task = tokio::spawn(async move {
+            let on_connected = |stream, peer| {
+                let svc = RegisterService {
+                    bank: bank.clone(),
+                    slave: None,
+                };
+                async move {
+                    tokio_modbus::server::tcp::accept_tcp_connection(stream, peer, |_| {
+                        Ok(Some(svc.clone()))
+                    })
+                }
+            };
+            let on_err = |e| tracing::debug!("modbus tcp connection: {e}");
+            if let Err(e) = server.serve(&on_connected, on_err).await {
+                tracing::warn!("modbus tcp server stopped: {e}");
+            }
+        });
+        Ok(TcpServer { addr, task })
+    }
+
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+}
+
+impl Drop for TcpServer {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+/// Serve `bank` as RTU slave `slave` on a serial stream (a pty in tests). Abort the handle to stop.
+pub fn spawn_rtu(
+    serial: tokio_serial::SerialStream,
+    bank: RegisterBank,
+    slave: u8,
+) -> JoinHandle<std::io::Result<()>> {
+    let server = tokio_modbus::server::rtu::Server::new(serial);
+    tokio::spawn(server.serve_forever(RegisterService {
+        bank,
+        slave: Some(slave),
+    }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::borrow::Cow;
+
+    #[test]
+    fn reads_writes_and_exceptions() {
+        let b = RegisterBank::new();
+        b.set_input(0, &[235, 236]);
+        b.allow_writes(100, 2);
+        assert_eq!(
+            b.handle(&Request::ReadInputRegisters(0, 2)),
+            Ok(Response::ReadInputRegisters(vec![235, 236]))
+        );
+        assert_eq!(
+            b.handle(&Request::ReadInputRegisters(1, 2)),
+            Err(ExceptionCode::IllegalDataAddress)
+        );
+        assert_eq!(
+            b.handle(&Request::ReadHoldingRegisters(0, 1)),
+            Err(ExceptionCode::IllegalDataAddress)
+        );
+        let w = Request::WriteMultipleRegisters(100, Cow::Owned(vec![0xFFFF, 0xFFFE]));
+        assert!(b.handle(&w).is_ok());
+        assert_eq!(b.holding(100, 2), Some(vec![0xFFFF, 0xFFFE]));
+        // 101..103 is partly outside the allow-list: nothing is written.
+        let w = Request::WriteMultipleRegisters(101, Cow::Owned(vec![1, 2]));
+        assert_eq!(b.handle(&w), Err(ExceptionCode::IllegalDataAddress));
+        assert_eq!(b.holding(100, 2), Some(vec![0xFFFF, 0xFFFE]));
+        assert_eq!(*b.subscribe_writes().borrow(), 1);
+        assert_eq!(
+            b.handle(&Request::ReadCoils(0, 1)),
+            Err(ExceptionCode::IllegalFunction)
+        );
+    }
+}
