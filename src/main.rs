@@ -31,6 +31,8 @@ enum Command {
     Nc(cli::nc::Args),
     /// Circular (ballbar) test: ISO 230-4 G/F and error diagnosis.
     Circle(cli::circle::Args),
+    /// Fit model terms (axis tables, thermal, load) from measurements; writes model TOML.
+    Fit(cli::fit::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -42,6 +44,7 @@ fn main() -> std::process::ExitCode {
         Command::Export(a) => cli::export::run(&a),
         Command::Nc(a) => cli::nc::run(&a),
         Command::Circle(a) => cli::circle::run(&a),
+        Command::Fit(a) => cli::fit::run(&a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

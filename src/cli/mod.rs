@@ -5,6 +5,7 @@ pub mod check_config;
 pub mod circle;
 pub mod eval;
 pub mod export;
+pub mod fit;
 pub mod import;
 pub mod iso230_2;
 pub mod nc;
