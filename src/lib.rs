@@ -4,5 +4,10 @@
 pub mod analysis;
 pub mod bus;
 pub mod cli;
+pub mod diagnose;
+pub mod gateway;
 pub mod models;
+pub mod origin_shift;
+pub mod quadrature;
+pub mod recording;
 pub mod units;

@@ -33,6 +33,10 @@ enum Command {
     Circle(cli::circle::Args),
     /// Fit model terms (axis tables, thermal, load) from measurements; writes model TOML.
     Fit(cli::fit::Args),
+    /// Find where simulation and recording disagree, name the missing physics, fit it (DESIGN §5).
+    Diagnose(cli::diagnose::DiagnoseArgs),
+    /// Run diagnose over `hil-sim gen-cases` output and score it against the truth manifests.
+    DiagnoseBench(cli::diagnose::BenchArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -45,6 +49,8 @@ fn main() -> std::process::ExitCode {
         Command::Nc(a) => cli::nc::run(&a),
         Command::Circle(a) => cli::circle::run(&a),
         Command::Fit(a) => cli::fit::run(&a),
+        Command::Diagnose(a) => cli::diagnose::run_diagnose(&a),
+        Command::DiagnoseBench(a) => cli::diagnose::run_bench(&a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
