@@ -173,3 +173,64 @@ async fn rtu_server_on_a_pty_answers_the_poller_and_mbpoll() {
     );
     srv.abort();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rtu_poller_keeps_the_inter_frame_silence() {
+    // 1200 Bd: t3.5 = 3.5 × 11 / 1200 = 32 ms. A pty ignores the baud rate and answers in well under
+    // a millisecond, so three reads of one poll take ≥ 2 × t3.5 only if the poller waits (#180).
+    let dir = tempfile::tempdir().unwrap();
+    let (_socat, a, b) = peers::socat_pair(dir.path());
+    let bank = RegisterBank::new();
+    for addr in [0u16, 100, 200] {
+        bank.set_input(addr, &[addr + 1]);
+    }
+    let serial =
+        tokio_serial::SerialStream::open(&tokio_serial::new(a.to_string_lossy(), 1200)).unwrap();
+    let srv = spawn_rtu(serial, bank, 1);
+    let channel = [0u16, 100, 200]
+        .iter()
+        .map(|&address| RegisterChannel {
+            channel: format!("T{address}_C"),
+            kind: RegisterKind::Input,
+            address,
+            data_type: DataType::Uint16,
+            word_order: WordOrder::Abcd,
+            scale: 1.0,
+            offset: 0.0,
+            min: None,
+            max: None,
+        })
+        .collect();
+    let mut p = ModbusPoller::new(ModbusSourceConfig {
+        name: "slow".into(),
+        transport: TransportKind::Rtu,
+        host: None,
+        port: 502,
+        device: Some(b.to_string_lossy().into_owned()),
+        baud: 1200,
+        parity: Parity::None,
+        unit_id: 1,
+        period_s: 1.0,
+        timeout_s: 2.0,
+        backoff_min_s: 0.05,
+        backoff_max_s: 0.5,
+        max_gap: 0,
+        channel,
+    });
+    assert_eq!(p.core.plan.len(), 3, "three separate reads");
+    let mut out = Vec::new();
+    p.poll_once(0.0, &mut out).await; // first poll: connect and warm up
+    assert!(out.iter().all(|s| s.health == Health::Ok), "{out:?}");
+    out.clear();
+    let t0 = std::time::Instant::now();
+    p.poll_once(1.0, &mut out).await;
+    let took = t0.elapsed();
+    let values: Vec<f64> = out.iter().map(|s| s.value).collect();
+    assert_eq!(values, vec![1.0, 101.0, 201.0]);
+    // Three frames after a previous one: three gaps of t3.5.
+    assert!(
+        took >= Duration::from_millis(3 * 32),
+        "no silence kept: {took:?}"
+    );
+    srv.abort();
+}

@@ -381,4 +381,29 @@ mod tests {
         let c = s.counters();
         assert_eq!((c.unstable_skipped, c.unmatched, c.readings), (1, 1, 4));
     }
+
+    #[tokio::test]
+    async fn run_sends_the_request_and_reads_the_reply_block() {
+        // A Heidenhain DRO answers Ctrl-B (0x02) with one line per axis.
+        let (ours, mut device) = tokio::io::duplex(256);
+        let (tx, mut rx) = tokio::sync::mpsc::channel(16);
+        let task = tokio::spawn(run(ours, LineSource::new(dro()), || 0.0, tx));
+        let mut req = [0u8; 1];
+        device.read_exact(&mut req).await.unwrap();
+        assert_eq!(req, [0x02]);
+        device
+            .write_all(b"\x02+000100000\r\n\x02+000200000\r\n\x02-000300000\r\n")
+            .await
+            .unwrap();
+        let mut got = Vec::new();
+        while got.len() < 3 {
+            let b = rx.recv().await.unwrap();
+            got.extend(b.into_iter().filter(|s| s.health == Health::Ok));
+        }
+        let v: Vec<_> = got.iter().map(|s| (s.channel.as_str(), s.value)).collect();
+        assert_eq!(v, vec![("x_mm", 10.0), ("y_mm", 20.0), ("z_mm", -30.0)]);
+        drop(device); // EOF ends the source with its counters
+        let c = task.await.unwrap().unwrap();
+        assert_eq!((c.lines, c.readings, c.garbage_lines), (3, 3, 0));
+    }
 }
