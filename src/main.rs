@@ -20,12 +20,18 @@ enum Command {
     CheckConfig(cli::check_config::Args),
     /// Evaluate a machine model along a path CSV; writes the errors and every term as CSV.
     Eval(cli::eval::Args),
+    /// Run the gateway: sources → model → safety → origin-shift / quadrature sinks.
+    Run(cli::run::Args),
+    /// Show a running gateway's per-axis corrections, term breakdown and sensor health.
+    Status(cli::status::Args),
 }
 
 fn main() -> std::process::ExitCode {
     let result = match Cli::parse().command {
         Command::CheckConfig(a) => cli::check_config::run(&a),
         Command::Eval(a) => cli::eval::run(&a),
+        Command::Run(a) => cli::run::run(&a),
+        Command::Status(a) => cli::status::run(&a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -3,3 +3,5 @@
 
 pub mod check_config;
 pub mod eval;
+pub mod run;
+pub mod status;
