@@ -1,0 +1,400 @@
+//! `hil-sim gen-cases`: the concealed-effect benchmark. Each case is a recording (DESIGN §4) whose
+//! `sim_e*_um` columns come from a model that omits zero, one or two hidden effects, plus a JSON
+//! manifest of the truth ([`retrocomp::diagnose::scoring::CaseManifest`], params in DESIGN §5 units).
+//!
+//! Deterministic: case `i` of seed `s` depends only on (s, i) through a ChaCha8 stream. The schedule
+//! cycles so every effect id appears in every variant: case i with i mod 10 < 3 is a null (30 %);
+//! the others take effect id `EFFECT_IDS[j mod 14]` and variant `(j / 14) mod 5` (j counts effect
+//! cases): 0 single (effect/noise 2–6), 1 masked under large modelled terms (1–3), 2 low SNR
+//! (0.2–0.8), 3 two effects (1.5–5), 4 confounded (thermal/scale/time effects: one forward sweep
+//! during a linear warm-up, unidentifiable; others: extra decoy channels, 1–4).
+//! Errors are actual − nominal (µm); the truth of thermal effects is on the NODE temperature while
+//! the recording carries lagged, noisy, quantised sensors (so the candidate forms are approximations).
+
+pub mod physics;
+pub mod trajectory;
+
+use std::path::{Path, PathBuf};
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use retrocomp::diagnose::effects::{EFFECT_IDS, EffectModel};
+use retrocomp::diagnose::features::Context;
+use retrocomp::diagnose::scoring::{CaseManifest, TruthEffect};
+use retrocomp::recording::Recording;
+
+use physics::*;
+use trajectory::{Path as MotionPath, uniform};
+
+const DT_S: f64 = 1.0;
+const X_TRAVEL: (f64, f64) = (0.0, 300.0);
+const Y_TRAVEL: (f64, f64) = (0.0, 200.0);
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Program {
+    /// Four runs: laser runs on X and Y, slow scans, a diagonal, a cutting pass; warm-up then cool-down.
+    Standard,
+    /// One slow forward sweep of X during a steady warm-up: position, time and temperature collinear.
+    SingleSweep,
+}
+
+fn build_path(rng: &mut ChaCha8Rng, program: Program) -> MotionPath {
+    let mut p = MotionPath::new(DT_S);
+    match program {
+        Program::Standard => {
+            let tools = [80.0, 140.0, 200.0, 110.0];
+            p.move_to(0.0, 0.0, 20.0, false, 0, tools[0]);
+            for run in 0..4i64 {
+                let tool = tools[run as usize];
+                p.laser_run(rng, X_TRAVEL.0, X_TRAVEL.1, 11, false, 20.0, 4.0, run, tool);
+                p.move_to(X_TRAVEL.1, 0.0, 1.0, false, run, tool);
+                p.move_to(X_TRAVEL.0, 0.0, 1.0, false, run, tool);
+                p.move_to(X_TRAVEL.1, Y_TRAVEL.1, 20.0, false, run, tool);
+                p.move_to(X_TRAVEL.0, Y_TRAVEL.0, 20.0, false, run, tool);
+                p.laser_run(rng, Y_TRAVEL.0, Y_TRAVEL.1, 9, true, 20.0, 4.0, run, tool);
+                p.move_to(20.0, 100.0, 20.0, false, run, tool);
+                p.move_to(280.0, 100.0, 5.0, true, run, tool);
+                p.move_to(0.0, 0.0, 20.0, false, run, tool);
+                p.dwell(uniform(rng, 60.0, 240.0), run, tool);
+            }
+        }
+        Program::SingleSweep => {
+            p.move_to(0.0, 100.0, 20.0, false, 0, 100.0);
+            p.move_to(X_TRAVEL.1, 100.0, 0.1, false, 0, 100.0);
+        }
+    }
+    p
+}
+
+fn rms_centered(v: &[f64]) -> f64 {
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt()
+}
+
+fn signed(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
+    uniform(rng, lo, hi) * if rng.random_bool(0.5) { 1.0 } else { -1.0 }
+}
+
+/// Draw a hidden effect of id `id` with physically plausible parameters (anchors-discrepancy §3).
+fn draw_effect(rng: &mut ChaCha8Rng, id: &str, x_range: (f64, f64)) -> TruthEffect {
+    let ex = |model| TruthEffect {
+        signal: "ex_um".into(),
+        axis: "x".into(),
+        model,
+    };
+    let ey = |model| TruthEffect {
+        signal: "ey_um".into(),
+        axis: "y".into(),
+        model,
+    };
+    let sensor = if rng.random_bool(0.5) {
+        "T_spindle_C"
+    } else {
+        "T_column_C"
+    };
+    match id {
+        "scale_error" => ex(EffectModel::ScaleError {
+            ppm: signed(rng, 10.0, 60.0),
+        }),
+        "backlash" => ex(EffectModel::Backlash {
+            b_um: signed(rng, 3.0, 15.0),
+        }),
+        "reversal_profile" => {
+            let (lo, hi) = x_range;
+            let edges_mm = (0..=4).map(|k| lo + (hi - lo) * k as f64 / 4.0).collect();
+            let start = uniform(rng, 8.0, 14.0);
+            let b_um = (0..4)
+                .map(|k| start * (1.0 - 0.25 * k as f64) + uniform(rng, -0.5, 0.5))
+                .collect();
+            ex(EffectModel::ReversalProfile { edges_mm, b_um })
+        }
+        "cyclic_error" => ex(EffectModel::CyclicError {
+            period_mm: uniform(rng, 5.0, 25.0),
+            amplitude_um: uniform(rng, 1.0, 5.0),
+            phase_rad: uniform(rng, -3.1, 3.1),
+        }),
+        "squareness" => ex(EffectModel::Squareness {
+            other_axis: 'y',
+            urad: signed(rng, 10.0, 50.0),
+        }),
+        "straightness" => {
+            let half = 0.5 * (x_range.1 - x_range.0);
+            let bow = signed(rng, 2.0, 8.0);
+            ey(EffectModel::Straightness {
+                along_axis: 'x',
+                mid_mm: 0.5 * (x_range.0 + x_range.1),
+                c2_um_per_mm2: bow / (half * half),
+            })
+        }
+        "abbe" => ex(EffectModel::Abbe {
+            urad_per_mm: signed(rng, 0.03, 0.12),
+        }),
+        "thermal_drift" => ex(EffectModel::ThermalDrift {
+            sensor: sensor.into(),
+            um_per_k: signed(rng, 1.0, 4.0),
+        }),
+        "thermal_lag" => ex(EffectModel::ThermalLag {
+            sensor: "T_spindle_C".into(),
+            tau_s: uniform(rng, 200.0, 900.0),
+            um_per_k: signed(rng, 1.5, 4.0),
+        }),
+        "thermal_expansion" => ex(EffectModel::ThermalExpansion {
+            sensor: sensor.into(),
+            ppm_per_k: uniform(rng, 6.0, 16.0),
+        }),
+        "force_deflection" => ex(EffectModel::ForceDeflection {
+            channel: "F_cut_N".into(),
+            um_per_n: uniform(rng, 0.01, 0.05),
+        }),
+        "servo_lag" => ex(EffectModel::ServoLag {
+            ms: signed(rng, 0.1, 0.5),
+        }),
+        "reversal_spike" => ex(EffectModel::ReversalSpike {
+            amplitude_um: signed(rng, 3.0, 10.0),
+            decay_mm: uniform(rng, 2.0, 10.0),
+        }),
+        "time_drift" => ex(EffectModel::TimeDrift {
+            um_per_h: signed(rng, 2.0, 8.0),
+        }),
+        other => unreachable!("unknown effect id {other}"),
+    }
+}
+
+/// Generate case `index` of `seed`.
+pub fn generate_case(seed: u64, index: usize) -> (Recording, CaseManifest) {
+    let mut rng =
+        ChaCha8Rng::seed_from_u64(seed ^ (index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let is_null = index % 10 < 3;
+    let j = index - (index / 10) * 3 - (index % 10).min(3);
+    let id = EFFECT_IDS[j % EFFECT_IDS.len()];
+    let variant = if is_null {
+        0
+    } else {
+        (j / EFFECT_IDS.len()) % 5
+    };
+    let confound_group = matches!(
+        id,
+        "thermal_drift" | "thermal_expansion" | "scale_error" | "time_drift"
+    );
+    let (class, program, snr_range) = match (is_null, variant) {
+        (true, _) => ("null", Program::Standard, (0.0, 0.0)),
+        (false, 0) => ("single", Program::Standard, (2.0, 6.0)),
+        (false, 1) => ("masked", Program::Standard, (1.0, 3.0)),
+        (false, 2) => ("low_snr", Program::Standard, (0.2, 0.8)),
+        (false, 3) => ("two", Program::Standard, (1.5, 5.0)),
+        (false, _) if confound_group => ("confounded", Program::SingleSweep, (1.5, 4.0)),
+        (false, _) => ("decoy", Program::Standard, (1.0, 4.0)),
+    };
+    let path = build_path(&mut rng, program);
+    let n = path.len();
+    let t_s: Vec<f64> = (0..n).map(|i| i as f64 * DT_S).collect();
+    let duration = t_s[n - 1];
+    // Spindle: warm-up then cool-down (Standard), or steady heating through the sweep.
+    let (t_off, tau_node) = match program {
+        Program::Standard => (
+            duration * uniform(&mut rng, 0.55, 0.7),
+            uniform(&mut rng, 300.0, 700.0),
+        ),
+        Program::SingleSweep => (f64::INFINITY, 4.0 * duration),
+    };
+    let rpm_level = uniform(&mut rng, 4000.0, 8000.0);
+    let rpm: Vec<f64> = t_s
+        .iter()
+        .map(|&t| if t < t_off { rpm_level } else { 0.0 })
+        .collect();
+    let speed: Vec<f64> = (0..n)
+        .map(|i| {
+            if i == 0 {
+                0.0
+            } else {
+                (path.x_mm[i] - path.x_mm[i - 1]).hypot(path.y_mm[i] - path.y_mm[i - 1]) / DT_S
+            }
+        })
+        .collect();
+    let k_heat = uniform(&mut rng, 0.8, 1.2);
+    let th = thermal(
+        &t_s,
+        &rpm,
+        &speed,
+        k_heat,
+        tau_node,
+        1500.0,
+        0.3,
+        4.0 * duration,
+    );
+    let force_level_n = uniform(&mut rng, 150.0, 500.0);
+    let force = cutting_force(&mut rng, &path.cut, force_level_n);
+    // Truth context: commanded path and the TRUE node temperatures and force.
+    let run: Vec<f64> = path.run.iter().map(|&r| r as f64).collect();
+    let truth_rec = Recording::from_columns(vec![
+        ("t_s".into(), t_s.clone()),
+        ("x_mm".into(), path.x_mm.clone()),
+        ("y_mm".into(), path.y_mm.clone()),
+        ("ex_um".into(), vec![0.0; n]),
+        ("T_spindle_C".into(), th.spindle_c.clone()),
+        ("T_column_C".into(), th.structure_c.clone()),
+        ("F_cut_N".into(), force.clone()),
+        ("tool_mm".into(), path.tool_mm.clone()),
+        ("run".into(), run.clone()),
+    ])
+    .expect("generator columns are valid");
+    let tctx = Context::from_recording(&truth_rec);
+    let x_range = (
+        path.x_mm.iter().copied().fold(f64::INFINITY, f64::min),
+        path.x_mm.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+    );
+    let mut hidden = vec![];
+    if !is_null {
+        hidden.push(draw_effect(&mut rng, id, x_range));
+        if class == "two" {
+            let k = (EFFECT_IDS.iter().position(|e| *e == id).expect("id")
+                + 1
+                + rng.random_range(0..12))
+                % 14;
+            hidden.push(draw_effect(&mut rng, EFFECT_IDS[k], x_range));
+        }
+    }
+    // Large modelled terms (in the errors AND in the simulation) for masked cases and half the nulls.
+    let mut modelled = vec![];
+    if class == "masked" || (is_null && rng.random_bool(0.5)) {
+        modelled.push(TruthEffect {
+            signal: "ex_um".into(),
+            axis: "x".into(),
+            model: EffectModel::ScaleError {
+                ppm: uniform(&mut rng, 40.0, 80.0),
+            },
+        });
+        modelled.push(TruthEffect {
+            signal: "ey_um".into(),
+            axis: "y".into(),
+            model: EffectModel::Squareness {
+                other_axis: 'x',
+                urad: uniform(&mut rng, 20.0, 60.0),
+            },
+        });
+    }
+    let contrib = |effs: &[TruthEffect], sig: &str| -> Vec<f64> {
+        let mut v = vec![0.0; n];
+        for e in effs.iter().filter(|e| e.signal == sig) {
+            let c = e
+                .model
+                .evaluate(e.axis.chars().next().expect("axis"), &tctx)
+                .expect("truth inputs exist");
+            v.iter_mut().zip(c).for_each(|(a, b)| *a += b);
+        }
+        v
+    };
+    let hx = contrib(&hidden, "ex_um");
+    let hy = contrib(&hidden, "ey_um");
+    let mx = contrib(&modelled, "ex_um");
+    let my = contrib(&modelled, "ey_um");
+    let effect_rms: Vec<f64> = hidden
+        .iter()
+        .map(|e| {
+            rms_centered(
+                &e.model
+                    .evaluate(e.axis.chars().next().expect("axis"), &tctx)
+                    .expect("inputs"),
+            )
+        })
+        .collect();
+    let snr = (!is_null).then(|| uniform(&mut rng, snr_range.0, snr_range.1));
+    let noise_um = match snr {
+        None => uniform(&mut rng, 0.3, 2.0),
+        Some(s) => effect_rms.iter().copied().fold(f64::INFINITY, f64::min) / s,
+    };
+    let nx = error_noise(&mut rng, n, noise_um);
+    let ny = error_noise(&mut rng, n, noise_um);
+    let ex_um: Vec<f64> = (0..n)
+        .map(|i| quantize(hx[i] + mx[i] + nx[i], 0.05))
+        .collect();
+    let ey_um: Vec<f64> = (0..n)
+        .map(|i| quantize(hy[i] + my[i] + ny[i], 0.05))
+        .collect();
+    // Sensors as recorded.
+    let t_spindle = temp_sensor(&mut rng, &t_s, &th.spindle_c, 15.0, 0.02);
+    let t_column = temp_sensor(&mut rng, &t_s, &th.structure_c, 30.0, 0.02);
+    let t_amb = temp_sensor(&mut rng, &t_s, &th.ambient_c, 60.0, 0.02);
+    let t_decoy = random_walk(&mut rng, n, 21.0, 0.01);
+    let f_cut = load_cell(&mut rng, &force, 2.0);
+    let strain = strain_gauge(&mut rng, &force, &t_column, 0.05, 2.0);
+    let aux = random_walk(&mut rng, n, 0.0, 0.05);
+    let mut cols = vec![
+        ("t_s".to_string(), t_s),
+        ("x_mm".into(), path.x_mm.clone()),
+        ("y_mm".into(), path.y_mm.clone()),
+        ("ex_um".into(), ex_um),
+        ("ey_um".into(), ey_um),
+        ("sim_ex_um".into(), mx),
+        ("sim_ey_um".into(), my),
+        ("T_spindle_C".into(), t_spindle),
+        ("T_column_C".into(), t_column),
+        ("T_amb_C".into(), t_amb),
+        ("T_decoy_C".into(), t_decoy),
+        ("rpm".into(), rpm),
+        ("F_cut_N".into(), f_cut),
+        ("strain_col_ue".into(), strain),
+        ("tool_mm".into(), path.tool_mm.clone()),
+        ("aux_V".into(), aux),
+    ];
+    let mut decoys = vec![
+        "T_decoy_C".to_string(),
+        "aux_V".to_string(),
+        "T_amb_C".to_string(),
+    ];
+    if class == "decoy" {
+        let f_clamp: Vec<f64> = (0..n)
+            .map(|_| quantize(uniform(&mut rng, 800.0, 820.0), 0.1))
+            .collect();
+        cols.push(("F_clamp_N".into(), f_clamp));
+        cols.push(("T_decoy2_C".into(), random_walk(&mut rng, n, 22.0, 0.02)));
+        decoys.extend(["F_clamp_N".to_string(), "T_decoy2_C".to_string()]);
+    }
+    if program == Program::Standard {
+        cols.push(("run".into(), run));
+    }
+    let rec = Recording::from_columns(cols).expect("generated recording is valid");
+    let identifiable = class != "confounded";
+    let expected_verdict = if is_null {
+        "none"
+    } else if identifiable {
+        "found"
+    } else {
+        "ambiguous"
+    };
+    let notes = format!(
+        "program {program:?}; thermal truth on node temperatures (sensors lag 15/30 s, 0.1 °C steps); \
+         noise: white+AR(1) rho 0.9, 0.5 % outliers at 6 sigma, 0.05 um steps; hidden effect RMS {effect_rms:?} um"
+    );
+    let manifest = CaseManifest {
+        case: format!("case_{index:04}"),
+        seed,
+        class: class.into(),
+        hidden,
+        modelled,
+        noise_um,
+        snr,
+        identifiable,
+        expected_verdict: expected_verdict.into(),
+        decoys,
+        notes,
+    };
+    (rec, manifest)
+}
+
+/// Write cases `0..count` of `seed` into `dir` as `case_NNNN.csv` + `case_NNNN.json`.
+pub fn write_cases(seed: u64, count: usize, dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir)?;
+    let mut out = vec![];
+    for i in 0..count {
+        let (rec, m) = generate_case(seed, i);
+        let csv = dir.join(format!("{}.csv", m.case));
+        rec.write_csv(std::fs::File::create(&csv)?)?;
+        std::fs::write(
+            dir.join(format!("{}.json", m.case)),
+            serde_json::to_string_pretty(&m)?,
+        )?;
+        out.push(csv);
+    }
+    Ok(out)
+}

@@ -1,0 +1,200 @@
+//! Context features computed from a recording, per sample: axis position (mm), velocity (mm/s),
+//! latched direction of travel (+1 / −1, the last approach direction; 0 before the axis first moves),
+//! distance travelled since the last reversal (mm), temperatures and their first-order low-pass over
+//! any τ (°C), force/strain channels, spindle speed, tool length (mm), time (s) and `run` blocks.
+//!
+//! Direction is latched from position changes larger than a deadband, so dwells (v = 0) keep the
+//! direction of the approach, as in ISO 230-2 step-and-dwell runs.
+
+use crate::recording::{AXES, Recording};
+
+/// Position change (mm) between samples below which the direction latch does not change.
+pub const DIRECTION_DEADBAND_MM: f64 = 1e-4;
+
+#[derive(Clone, Debug)]
+pub struct AxisFeatures {
+    pub pos_mm: Vec<f64>,
+    pub vel_mm_s: Vec<f64>,
+    /// Latched direction of the last approach: +1, −1, 0 before the first move.
+    pub dir: Vec<f64>,
+    /// Distance travelled since the direction last flipped (mm); large before the first reversal.
+    pub dist_since_rev_mm: Vec<f64>,
+}
+
+#[derive(Clone, Debug)]
+pub struct Context {
+    pub t_s: Vec<f64>,
+    pub axes: [Option<AxisFeatures>; 3],
+    /// `T_<name>_C` channels.
+    pub temps: Vec<(String, Vec<f64>)>,
+    /// `F_<name>_N` and `strain_<name>_ue` channels.
+    pub loads: Vec<(String, Vec<f64>)>,
+    pub rpm: Option<Vec<f64>>,
+    pub tool_mm: Option<Vec<f64>>,
+    /// Block id per sample (the `run` column, else contiguous time blocks; see [`Context::blocks`]).
+    pub run: Option<Vec<i64>>,
+    /// Columns with no DESIGN §4 role (possible decoys).
+    pub others: Vec<(String, Vec<f64>)>,
+}
+
+pub fn axis_index(a: char) -> usize {
+    AXES.iter()
+        .position(|&b| b == a)
+        .expect("axis is x, y or z")
+}
+
+impl Context {
+    pub fn from_recording(rec: &Recording) -> Self {
+        let t_s = rec.t_s().to_vec();
+        let axes = AXES.map(|a| rec.col(&format!("{a}_mm")).map(|p| axis_features(&t_s, p)));
+        let grab = |names: Vec<String>| -> Vec<(String, Vec<f64>)> {
+            names
+                .into_iter()
+                .map(|n| (n.clone(), rec.col(&n).expect("listed").to_vec()))
+                .collect()
+        };
+        Context {
+            temps: grab(rec.temperature_channels()),
+            loads: grab(rec.load_channels()),
+            rpm: rec.col("rpm").map(<[f64]>::to_vec),
+            tool_mm: rec.col("tool_mm").map(<[f64]>::to_vec),
+            run: rec
+                .col("run")
+                .map(|r| r.iter().map(|v| v.round() as i64).collect()),
+            others: grab(rec.other_channels()),
+            axes,
+            t_s,
+        }
+    }
+
+    pub fn n(&self) -> usize {
+        self.t_s.len()
+    }
+
+    pub fn axis(&self, a: char) -> Option<&AxisFeatures> {
+        self.axes[axis_index(a)].as_ref()
+    }
+
+    pub fn temp(&self, name: &str) -> Option<&[f64]> {
+        self.temps
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
+    }
+
+    pub fn load(&self, name: &str) -> Option<&[f64]> {
+        self.loads
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
+    }
+
+    /// Validation blocks: the distinct `run` ids when there are at least two, else `k` contiguous
+    /// time blocks of equal sample count. Returns a block index per sample and the block count.
+    pub fn blocks(&self, k: usize) -> (Vec<usize>, usize) {
+        if let Some(run) = &self.run {
+            let mut ids: Vec<i64> = run.clone();
+            ids.sort_unstable();
+            ids.dedup();
+            if ids.len() >= 2 {
+                let idx = run
+                    .iter()
+                    .map(|r| ids.binary_search(r).expect("present"))
+                    .collect();
+                return (idx, ids.len());
+            }
+        }
+        let n = self.n();
+        let k = k.clamp(1, n.max(1));
+        ((0..n).map(|i| i * k / n.max(1)).collect(), k)
+    }
+}
+
+fn axis_features(t_s: &[f64], pos: &[f64]) -> AxisFeatures {
+    let n = pos.len();
+    let mut vel = vec![0.0; n];
+    let mut dir = vec![0.0; n];
+    let mut dist = vec![0.0; n];
+    let mut d = 0.0;
+    let mut since = 1e9; // no reversal seen yet: "far from any reversal"
+    for i in 0..n {
+        if i > 0 {
+            let dx = pos[i] - pos[i - 1];
+            let dt = t_s[i] - t_s[i - 1];
+            vel[i] = if dt > 0.0 { dx / dt } else { vel[i - 1] };
+            if dx.abs() > DIRECTION_DEADBAND_MM {
+                let s = dx.signum();
+                if d != 0.0 && s != d {
+                    since = 0.0;
+                }
+                d = s;
+            }
+            since += dx.abs();
+        }
+        dir[i] = d;
+        dist[i] = since;
+    }
+    // The first move's direction also applies to the samples before it (they were approached from
+    // somewhere; the best guess is the same side), so the latch never has to invent a zero level.
+    if let Some(first) = dir.iter().position(|&v| v != 0.0) {
+        let d0 = dir[first];
+        dir[..first].iter_mut().for_each(|v| *v = d0);
+    }
+    AxisFeatures {
+        pos_mm: pos.to_vec(),
+        vel_mm_s: vel,
+        dir,
+        dist_since_rev_mm: dist,
+    }
+}
+
+/// First-order low-pass of `u` with time constant `tau_s`, exact for a signal held between samples
+/// (`y += (1 − e^{−Δt/τ})(u − y)`), started at the first value (the machine was at rest before).
+pub fn lowpass(t_s: &[f64], u: &[f64], tau_s: f64) -> Vec<f64> {
+    let mut y = Vec::with_capacity(u.len());
+    let mut acc = u.first().copied().unwrap_or(0.0);
+    for i in 0..u.len() {
+        if i > 0 {
+            let dt = t_s[i] - t_s[i - 1];
+            let a = if tau_s > 0.0 {
+                1.0 - (-dt / tau_s).exp()
+            } else {
+                1.0
+            };
+            acc += a * (u[i - 1] - acc);
+        }
+        y.push(acc);
+    }
+    y
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn direction_latches_through_dwells_and_counts_distance_since_reversal() {
+        let t: Vec<f64> = (0..7).map(f64::from).collect();
+        let x = [0.0, 1.0, 1.0, 2.0, 1.5, 1.5, 1.0];
+        let f = axis_features(&t, &x);
+        assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0]);
+        assert_eq!(&f.dist_since_rev_mm[4..], &[0.5, 0.5, 1.0]);
+        assert_eq!(f.vel_mm_s[3], 1.0);
+    }
+
+    #[test]
+    fn lowpass_step_response_reaches_63_percent_at_tau() {
+        let t: Vec<f64> = (0..=1000).map(|i| i as f64).collect();
+        let u: Vec<f64> = t
+            .iter()
+            .map(|&ti| if ti > 0.0 { 1.0 } else { 0.0 })
+            .collect();
+        let y = lowpass(&t, &u, 100.0);
+        // Input steps between sample 0 and 1 (held); after τ = 100 s from the step, 1 − 1/e.
+        assert!(
+            (y[101] - (1.0 - (-1.0f64).exp())).abs() < 1e-9,
+            "{}",
+            y[101]
+        );
+    }
+}

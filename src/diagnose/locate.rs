@@ -1,0 +1,232 @@
+//! Locate a residual: where it concentrates (position bin × direction of travel, time, temperature
+//! regime, in-cut vs air-cut), when it starts (two-sided CUSUM onset), and whether structure is left
+//! after the findings (one-way ANOVA over bins, on the effective sample size).
+
+use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+
+use super::features::Context;
+use super::lsq::effective_n;
+use super::report::Mismatch;
+
+const BINS: usize = 8;
+
+fn rms(v: impl Iterator<Item = f64>) -> (f64, usize) {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
+    ((s / n.max(1) as f64).sqrt(), n)
+}
+
+fn bin_edges(v: &[f64]) -> Option<(f64, f64)> {
+    let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    (hi - lo > 1e-9).then_some((lo, hi))
+}
+
+fn bin_of(x: f64, lo: f64, hi: f64) -> usize {
+    (((x - lo) / (hi - lo) * BINS as f64) as usize).min(BINS - 1)
+}
+
+/// Regimes over which a residual can concentrate: (description, membership per sample).
+fn regimes(ctx: &Context) -> Vec<(String, Vec<bool>)> {
+    let mut out = vec![];
+    let n = ctx.n();
+    for (k, f) in ctx.axes.iter().enumerate() {
+        let Some(f) = f else { continue };
+        let a = ['x', 'y', 'z'][k];
+        let Some((lo, hi)) = bin_edges(&f.pos_mm) else {
+            continue;
+        };
+        let w = (hi - lo) / BINS as f64;
+        for b in 0..BINS {
+            for (dname, dv) in [("forward", 1.0), ("reverse", -1.0)] {
+                let m: Vec<bool> = (0..n)
+                    .map(|i| bin_of(f.pos_mm[i], lo, hi) == b && f.dir[i] == dv)
+                    .collect();
+                out.push((
+                    format!(
+                        "{a}_mm in [{:.1}, {:.1}], {dname} direction",
+                        lo + w * b as f64,
+                        lo + w * (b + 1) as f64
+                    ),
+                    m,
+                ));
+            }
+        }
+    }
+    if let Some((lo, hi)) = bin_edges(&ctx.t_s) {
+        let w = (hi - lo) / BINS as f64;
+        for b in 0..BINS {
+            let m = ctx.t_s.iter().map(|&t| bin_of(t, lo, hi) == b).collect();
+            out.push((
+                format!(
+                    "t_s in [{:.0}, {:.0}]",
+                    lo + w * b as f64,
+                    lo + w * (b + 1) as f64
+                ),
+                m,
+            ));
+        }
+    }
+    for (name, t) in &ctx.temps {
+        if let Some((lo, hi)) = bin_edges(t) {
+            let mid = 0.5 * (lo + hi);
+            out.push((
+                format!("{name} above {mid:.1} °C (warm regime)"),
+                t.iter().map(|&v| v > mid).collect(),
+            ));
+        }
+    }
+    for (name, f) in &ctx.loads {
+        let peak = f.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        if peak > 0.0 {
+            out.push((
+                format!("in cut ({name} above 5 % of its peak)"),
+                f.iter().map(|v| v.abs() > 0.05 * peak).collect(),
+            ));
+        }
+    }
+    out
+}
+
+/// Where residual `r` (mean removed) concentrates: the regime with the largest RMS, if it is at least
+/// 1.3× the overall RMS and holds ≥ 2 % of the samples; plus the CUSUM onset of a level change.
+pub fn locate(ctx: &Context, signal: &str, r: &[f64]) -> Vec<Mismatch> {
+    let mean = r.iter().sum::<f64>() / r.len().max(1) as f64;
+    let (total, n) = rms(r.iter().map(|v| v - mean));
+    let mut out = vec![Mismatch {
+        signal: signal.into(),
+        where_: "whole recording (mean removed)".into(),
+        rms_um: total,
+    }];
+    let best = regimes(ctx)
+        .into_iter()
+        .filter_map(|(desc, m)| {
+            let (v, k) = rms(r.iter().zip(&m).filter(|(_, b)| **b).map(|(v, _)| v - mean));
+            (k * 50 >= n).then_some((desc, v))
+        })
+        .max_by(|a, b| a.1.total_cmp(&b.1));
+    if let Some((desc, v)) = best
+        && v > 1.3 * total
+    {
+        out.push(Mismatch {
+            signal: signal.into(),
+            where_: desc,
+            rms_um: v,
+        });
+    }
+    if let Some(t_on) = cusum_onset(&ctx.t_s, r) {
+        out.push(Mismatch {
+            signal: signal.into(),
+            where_: format!("level change (CUSUM) from t_s ≈ {t_on:.0}"),
+            rms_um: total,
+        });
+    }
+    out
+}
+
+/// Two-sided CUSUM against the level of the first 10 % of the residual: k = 0.5σ, h = max(5, ln n)·σ.
+/// Returns the estimated onset time (where the alarming sum last left zero).
+pub fn cusum_onset(t_s: &[f64], r: &[f64]) -> Option<f64> {
+    let n = r.len();
+    if n < 50 {
+        return None;
+    }
+    let m0 = r[..n / 10].iter().sum::<f64>() / (n / 10) as f64;
+    // σ of the first 10 % (the reference level); h grows with ln n so a long stationary recording
+    // does not raise a false alarm just by its length (ARL₀ ≫ n).
+    let var0 = r[..n / 10].iter().map(|v| (v - m0).powi(2)).sum::<f64>() / (n / 10) as f64;
+    let sigma = var0.sqrt().max(1e-12);
+    let (k, h) = (0.5 * sigma, (5.0f64).max((n as f64).ln()) * sigma);
+    let (mut sp, mut sn) = (0.0f64, 0.0f64);
+    let (mut start_p, mut start_n) = (0, 0);
+    for (i, ri) in r.iter().enumerate() {
+        let z = ri - m0;
+        if sp == 0.0 {
+            start_p = i;
+        }
+        if sn == 0.0 {
+            start_n = i;
+        }
+        sp = (sp + z - k).max(0.0);
+        sn = (sn - z - k).max(0.0);
+        if sp > h {
+            return Some(t_s[start_p]);
+        }
+        if sn > h {
+            return Some(t_s[start_n]);
+        }
+    }
+    None
+}
+
+/// Structure left in a residual: bins of each position axis and of time whose means differ beyond
+/// noise (ANOVA on n_eff, p < 1e-3) and explain ≥ 10 % of the residual variance.
+pub fn unexplained(ctx: &Context, signal: &str, r: &[f64]) -> Vec<Mismatch> {
+    let n = r.len();
+    let mean = r.iter().sum::<f64>() / n.max(1) as f64;
+    let sst: f64 = r.iter().map(|v| (v - mean).powi(2)).sum();
+    if sst.is_nan() || sst <= 0.0 || n < 4 * BINS {
+        return vec![];
+    }
+    let n_eff = effective_n(r);
+    let mut feats: Vec<(String, &[f64])> = ctx
+        .axes
+        .iter()
+        .enumerate()
+        .filter_map(|(k, f)| {
+            f.as_ref()
+                .map(|f| (format!("{}_mm", ['x', 'y', 'z'][k]), f.pos_mm.as_slice()))
+        })
+        .collect();
+    feats.push(("t_s".into(), &ctx.t_s));
+    let mut out = vec![];
+    for (name, v) in feats {
+        let Some((lo, hi)) = bin_edges(v) else {
+            continue;
+        };
+        let mut s = [0.0; BINS];
+        let mut c = [0usize; BINS];
+        for (vi, ri) in v.iter().zip(r) {
+            let b = bin_of(*vi, lo, hi);
+            s[b] += ri;
+            c[b] += 1;
+        }
+        let groups = c.iter().filter(|&&k| k > 0).count();
+        if groups < 2 {
+            continue;
+        }
+        let ssb: f64 = (0..BINS)
+            .filter(|&b| c[b] > 0)
+            .map(|b| c[b] as f64 * (s[b] / c[b] as f64 - mean).powi(2))
+            .sum();
+        let df1 = (groups - 1) as f64;
+        let df2 = n_eff - groups as f64;
+        if df2 < 1.0 || ssb / sst < 0.10 {
+            continue;
+        }
+        let f = (ssb / df1) / ((sst - ssb).max(1e-300) / df2);
+        let p = FisherSnedecor::new(df1, df2).map_or(1.0, |d| d.sf(f));
+        if p < 1e-3 {
+            let w = (hi - lo) / BINS as f64;
+            let worst = (0..BINS)
+                .filter(|&b| c[b] > 0)
+                .max_by(|&a, &b| {
+                    (s[a] / c[a] as f64 - mean)
+                        .abs()
+                        .total_cmp(&(s[b] / c[b] as f64 - mean).abs())
+                })
+                .expect("groups ≥ 2");
+            let dev = s[worst] / c[worst] as f64 - mean;
+            out.push(Mismatch {
+                signal: signal.into(),
+                where_: format!(
+                    "unexplained structure vs {name}: largest in {name} in [{:.1}, {:.1}] (bin mean {dev:+.2} µm; {:.0} % of residual variance, p {p:.1e})",
+                    lo + w * worst as f64,
+                    lo + w * (worst + 1) as f64,
+                    100.0 * ssb / sst
+                ),
+                rms_um: ((sst - ssb) / n as f64).sqrt(),
+            });
+        }
+    }
+    out
+}

@@ -1,0 +1,229 @@
+//! Least-squares kernels on column vectors: Gram–Schmidt projection (the screening step adds a
+//! candidate's columns to an orthonormal basis and reads off the RSS drop, as FROLS/ERR does),
+//! full fits with covariance (normal equations solved by SVD, so rank deficiency is tolerated),
+//! block cross-validation, and the effective sample size of AR(1)-correlated residuals.
+
+use nalgebra::{DMatrix, DVector};
+
+pub fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+fn axpy(k: f64, x: &[f64], y: &mut [f64]) {
+    y.iter_mut().zip(x).for_each(|(yi, xi)| *yi += k * xi);
+}
+
+/// Orthonormalise `cols` against `basis` and each other (modified Gram–Schmidt, `passes` sweeps).
+/// Columns that are (numerically) in the span already are dropped: they can explain nothing new.
+pub fn orthonormalize(basis: &[Vec<f64>], cols: Vec<Vec<f64>>, passes: usize) -> Vec<Vec<f64>> {
+    let mut out: Vec<Vec<f64>> = vec![];
+    for mut c in cols {
+        let n0 = dot(&c, &c).sqrt();
+        if n0.is_nan() || n0 <= 0.0 {
+            continue;
+        }
+        for _ in 0..passes {
+            for b in basis.iter().chain(out.iter()) {
+                let d = dot(b, &c);
+                axpy(-d, b, &mut c);
+            }
+        }
+        let n1 = dot(&c, &c).sqrt();
+        if n1 < 1e-7 * n0 {
+            continue;
+        }
+        c.iter_mut().for_each(|v| *v /= n1);
+        out.push(c);
+    }
+    out
+}
+
+/// RSS drop from projecting `r0` (already orthogonal to the basis) on orthonormal `u`.
+pub fn gain(u: &[Vec<f64>], r0: &[f64]) -> f64 {
+    u.iter().map(|c| dot(c, r0).powi(2)).sum()
+}
+
+/// `r0` minus its projection on orthonormal `u`.
+pub fn deflate(u: &[Vec<f64>], r0: &[f64]) -> Vec<f64> {
+    let mut r = r0.to_vec();
+    for c in u {
+        let d = dot(c, r0);
+        axpy(-d, c, &mut r);
+    }
+    r
+}
+
+/// Effective number of independent samples of a residual: n / (long-run variance factor), the
+/// factor 1 + 2·Σ_k w_k·ρ_k over lags k ≤ L = 4·n^{1/3} with Bartlett weights w_k = 1 − k/(L+1)
+/// (Newey–West). Used for every test and criterion, because recordings sampled faster than their
+/// noise decorrelates would otherwise make any smooth candidate "significant". A lag-1 (AR(1))
+/// estimate is not enough: white + AR(1) noise mixtures have ρ₁ well below their long-run memory.
+pub fn effective_n(r: &[f64]) -> f64 {
+    let n = r.len();
+    let nf = n as f64;
+    if n < 8 {
+        return nf;
+    }
+    let mean = r.iter().sum::<f64>() / nf;
+    let c: Vec<f64> = r.iter().map(|v| v - mean).collect();
+    let den = dot(&c, &c);
+    if den.is_nan() || den <= 0.0 {
+        return nf;
+    }
+    let lags = ((4.0 * nf.cbrt()) as usize).min(n / 4).max(1);
+    let mut factor = 1.0;
+    for k in 1..=lags {
+        let rho = dot(&c[..n - k], &c[k..]) / den;
+        factor += 2.0 * (1.0 - k as f64 / (lags + 1) as f64) * rho;
+    }
+    (nf / factor.max(1.0)).max(nf.min(5.0))
+}
+
+fn gram(
+    cols: &[&[f64]],
+    r: &[f64],
+    rows: impl Iterator<Item = usize> + Clone,
+) -> (DMatrix<f64>, DVector<f64>) {
+    let p = cols.len();
+    let mut g = DMatrix::zeros(p, p);
+    let mut h = DVector::zeros(p);
+    for i in rows {
+        for a in 0..p {
+            let xa = cols[a][i];
+            h[a] += xa * r[i];
+            for b in 0..=a {
+                g[(a, b)] += xa * cols[b][i];
+            }
+        }
+    }
+    for a in 0..p {
+        for b in 0..a {
+            g[(b, a)] = g[(a, b)];
+        }
+    }
+    (g, h)
+}
+
+fn pinv_solve(g: &DMatrix<f64>, h: &DVector<f64>) -> (DVector<f64>, DMatrix<f64>) {
+    let svd = g.clone().svd(true, true);
+    let smax = svd.singular_values.max();
+    let inv = svd
+        .pseudo_inverse(smax * 1e-12)
+        .unwrap_or_else(|_| DMatrix::zeros(g.nrows(), g.ncols()));
+    (&inv * h, inv)
+}
+
+/// Least-squares fit of `r` on `cols`: coefficients, their covariance (σ² scaled by n/n_eff for
+/// correlated residuals), the residual and n_eff of the residual.
+pub struct Fit {
+    pub coef: Vec<f64>,
+    pub cov: DMatrix<f64>,
+    pub resid: Vec<f64>,
+    pub rss: f64,
+    pub n_eff: f64,
+}
+
+pub fn fit(cols: &[&[f64]], r: &[f64]) -> Fit {
+    let n = r.len();
+    let (g, h) = gram(cols, r, 0..n);
+    let (beta, inv) = pinv_solve(&g, &h);
+    let resid: Vec<f64> = (0..n)
+        .map(|i| {
+            r[i] - cols
+                .iter()
+                .enumerate()
+                .map(|(a, c)| beta[a] * c[i])
+                .sum::<f64>()
+        })
+        .collect();
+    let rss = dot(&resid, &resid);
+    let n_eff = effective_n(&resid);
+    let dof = (n_eff - cols.len() as f64).max(1.0);
+    let sigma2 = rss / n as f64 * n_eff / dof; // per-sample variance, corrected for lost dof
+    let inflate = n as f64 / n_eff;
+    Fit {
+        coef: beta.iter().copied().collect(),
+        cov: inv * (sigma2 * inflate),
+        resid,
+        rss,
+        n_eff,
+    }
+}
+
+/// Held-out RSS: for each block, fit on the other blocks and predict this one.
+pub fn cv_rss(cols: &[&[f64]], r: &[f64], block: &[usize], n_blocks: usize) -> f64 {
+    let n = r.len();
+    let (g, h) = gram(cols, r, 0..n);
+    let mut per: Vec<(DMatrix<f64>, DVector<f64>)> = (0..n_blocks)
+        .map(|_| {
+            (
+                DMatrix::zeros(cols.len(), cols.len()),
+                DVector::zeros(cols.len()),
+            )
+        })
+        .collect();
+    for i in 0..n {
+        let (gb, hb) = &mut per[block[i]];
+        for a in 0..cols.len() {
+            let xa = cols[a][i];
+            hb[a] += xa * r[i];
+            for b in 0..cols.len() {
+                gb[(a, b)] += xa * cols[b][i];
+            }
+        }
+    }
+    let betas: Vec<DVector<f64>> = per
+        .iter()
+        .map(|(gb, hb)| pinv_solve(&(&g - gb), &(&h - hb)).0)
+        .collect();
+    (0..n)
+        .map(|i| {
+            let b = &betas[block[i]];
+            (r[i]
+                - cols
+                    .iter()
+                    .enumerate()
+                    .map(|(a, c)| b[a] * c[i])
+                    .sum::<f64>())
+            .powi(2)
+        })
+        .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fit_recovers_exact_coefficients_and_projection_matches_fit() {
+        let x: Vec<f64> = (0..50).map(|i| i as f64).collect();
+        let one = vec![1.0; 50];
+        let r: Vec<f64> = x
+            .iter()
+            .map(|v| 3.0 + 0.5 * v + ((v * 1.7).sin() * 0.1))
+            .collect();
+        let f = fit(&[&one, &x], &r);
+        assert!((f.coef[1] - 0.5).abs() < 0.01, "{:?}", f.coef);
+        let basis = orthonormalize(&[], vec![one.clone()], 2);
+        let r0 = deflate(&basis, &r);
+        let u = orthonormalize(&basis, vec![x.clone()], 2);
+        let rss1 = dot(&r0, &r0) - gain(&u, &r0);
+        assert!(
+            (rss1 - f.rss).abs() < 1e-9 * dot(&r0, &r0),
+            "{rss1} vs {}",
+            f.rss
+        );
+        // A column already in the span is dropped.
+        assert!(orthonormalize(&basis, vec![vec![2.0; 50]], 2).is_empty());
+    }
+
+    #[test]
+    fn effective_n_shrinks_for_correlated_noise() {
+        let white: Vec<f64> = (0..1000)
+            .map(|i| if i % 2 == 0 { 1.0 } else { -1.0 })
+            .collect();
+        assert_eq!(effective_n(&white), 1000.0);
+        let slow: Vec<f64> = (0..1000).map(|i| ((i as f64) / 50.0).sin()).collect();
+        assert!(effective_n(&slow) < 10.0);
+    }
+}

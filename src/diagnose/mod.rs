@@ -1,0 +1,342 @@
+//! `retrocomp diagnose`: find where a simulation and a recording disagree, name the missing physics
+//! from the effect library of DESIGN §5, fit it, and prove the fit improves on held-out blocks.
+//!
+//! Residual r = measured − simulated, per error signal (`ex_um` …, µm, actual − nominal). Every
+//! finding's parameters are in DESIGN §5 units; adding the finding's term to the simulation reduces r.
+//! Pipeline: [`features`] (context per sample) → [`locate`] (where/when) → [`select`] (screen, select,
+//! refine, validate, detect ambiguity over [`candidates`]) → joint refit with confidence intervals
+//! (this file) → [`report`] (DESIGN §5 JSON / text), [`plots`] and the found-terms TOML ([`output`]).
+
+pub mod candidates;
+pub mod effects;
+pub mod features;
+pub mod locate;
+pub mod lsq;
+pub mod output;
+pub mod plots;
+pub mod report;
+pub mod scoring;
+pub mod select;
+
+use serde_json::{Map, Value, json};
+
+use crate::recording::Recording;
+use candidates::separating_experiment;
+use effects::EffectModel;
+use features::Context;
+use report::{AlternativeOut, Evidence, Finding, Report};
+use select::{Options, Term};
+
+#[derive(Debug, thiserror::Error)]
+pub enum DiagnoseError {
+    #[error("signal `{signal}` has no simulation: add a `sim_{signal}` column or give --model")]
+    NoSimulation { signal: String },
+    #[error("the recording has only {0} rows; diagnose needs at least 8")]
+    TooShort(usize),
+}
+
+/// One signal's result, kept for plots and the found-terms TOML.
+#[derive(Clone, Debug)]
+pub struct SignalResult {
+    pub signal: String,
+    pub axis: char,
+    pub residual_before: Vec<f64>,
+    /// Residual after each accepted term (cumulative, intercept removed), in acceptance order.
+    pub residual_after: Vec<Vec<f64>>,
+    pub models: Vec<EffectModel>,
+}
+
+pub struct Diagnosis {
+    pub report: Report,
+    pub signals: Vec<SignalResult>,
+    pub context: Context,
+}
+
+/// Diagnose a recording whose simulation is in its `sim_e*_um` columns.
+pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Diagnosis, DiagnoseError> {
+    let sims = rec
+        .error_signals()
+        .into_iter()
+        .map(|s| {
+            let sim = rec
+                .col(&format!("sim_{s}"))
+                .ok_or(DiagnoseError::NoSimulation { signal: s.clone() })?;
+            Ok((s, sim.to_vec()))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    diagnose_with_sim(rec, &sims, opts)
+}
+
+/// Diagnose against an explicit simulation per signal (`(signal, sim_um per row)`).
+pub fn diagnose_with_sim(
+    rec: &Recording,
+    sims: &[(String, Vec<f64>)],
+    opts: &Options,
+) -> Result<Diagnosis, DiagnoseError> {
+    if rec.n_rows() < 8 {
+        return Err(DiagnoseError::TooShort(rec.n_rows()));
+    }
+    let ctx = Context::from_recording(rec);
+    let mut findings: Vec<(f64, Finding)> = vec![];
+    let mut alternatives = vec![];
+    let mut mismatch = vec![];
+    let mut signals = vec![];
+    let mut ambiguous = false;
+    let mut all_sq = 0.0;
+    let mut all_n = 0usize;
+    for (signal, sim) in sims {
+        let axis = signal.chars().nth(1).expect("e<axis>_um");
+        let meas = rec.col(signal).ok_or(DiagnoseError::NoSimulation {
+            signal: signal.clone(),
+        })?;
+        let r: Vec<f64> = meas.iter().zip(sim).map(|(m, s)| m - s).collect();
+        all_sq += r.iter().map(|v| v * v).sum::<f64>();
+        all_n += r.len();
+        mismatch.extend(locate::locate(&ctx, signal, &r));
+        let sel = select::select(&ctx, axis, &r, opts);
+        let (models, cis, resid_after) = joint_refit(&ctx, &r, &sel.terms);
+        for (k, term) in sel.terms.iter().enumerate() {
+            let model = &models[k];
+            let mut params =
+                match serde_json::to_value(model).expect("serialisable")["params"].clone() {
+                    Value::Object(m) => m,
+                    _ => Map::new(),
+                };
+            params.retain(|_, v| !v.is_null());
+            findings.push((
+                term.gain_rss,
+                Finding {
+                    effect: model.id().into(),
+                    axis: axis.to_string(),
+                    signal: signal.clone(),
+                    explanation: report::explanation(model.id()).into(),
+                    equation: model.equation(axis),
+                    params,
+                    ci95: cis[k].clone(),
+                    evidence: Evidence {
+                        delta_bic: term.delta_bic,
+                        p_value: term.p_value,
+                    },
+                    rms_after_um: term.rms_after_um,
+                    heldout_rms_before_um: term.heldout_rms_before_um,
+                    heldout_rms_after_um: term.heldout_rms_after_um,
+                },
+            ));
+            for alt in &term.ambiguous_with {
+                ambiguous = true;
+                let exp = separating_experiment(term.cand.effect_id(), alt.cand.effect_id());
+                alternatives.push(AlternativeOut {
+                    effect: alt.cand.effect_id().into(),
+                    axis: Some(axis.to_string()),
+                    why_not: format!(
+                        "{} explains the same residual of {signal} as {} (ΔBIC {:.1} vs {:.1}, correlation {:.3}): the data cannot separate them; {exp}",
+                        alt.cand.label(),
+                        term.cand.label(),
+                        alt.delta_bic,
+                        term.delta_bic,
+                        alt.corr
+                    ),
+                    experiment: Some(exp),
+                });
+            }
+        }
+        // Runners-up of the first step that were not taken: why not.
+        let chosen: Vec<String> = sel
+            .terms
+            .iter()
+            .map(|t| t.cand.effect_id().to_string())
+            .collect();
+        let best = sel.runners_up.first().map_or(0.0, |r| r.1);
+        for (c, dbic) in sel
+            .runners_up
+            .iter()
+            .filter(|(c, _)| !chosen.iter().any(|e| e == c.effect_id()))
+            .take(2)
+        {
+            if alternatives.iter().any(|a: &AlternativeOut| {
+                a.effect == c.effect_id() && a.axis.as_deref() == Some(&axis.to_string())
+            }) {
+                continue;
+            }
+            let why = if sel.terms.is_empty() {
+                format!(
+                    "best candidate for {signal} but below the bar (ΔBIC {dbic:.1}; needs > {} with a Holm-corrected F-test and a held-out gain)",
+                    opts.min_delta_bic
+                )
+            } else {
+                format!(
+                    "{} on {signal}: ΔBIC {dbic:.1} against {best:.1} for the chosen term at the first step",
+                    c.label()
+                )
+            };
+            alternatives.push(AlternativeOut {
+                effect: c.effect_id().into(),
+                axis: Some(axis.to_string()),
+                why_not: why,
+                experiment: None,
+            });
+        }
+        let final_resid = resid_after.last().cloned().unwrap_or_else(|| {
+            let m = r.iter().sum::<f64>() / r.len() as f64;
+            r.iter().map(|v| v - m).collect()
+        });
+        mismatch.extend(locate::unexplained(&ctx, signal, &final_resid));
+        signals.push(SignalResult {
+            signal: signal.clone(),
+            axis,
+            residual_before: r,
+            residual_after: resid_after,
+            models,
+        });
+    }
+    findings.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let findings: Vec<Finding> = findings.into_iter().map(|f| f.1).collect();
+    let verdict = if findings.is_empty() {
+        "none"
+    } else if ambiguous {
+        "ambiguous"
+    } else {
+        "found"
+    };
+    let report = Report {
+        verdict: verdict.into(),
+        rms_before_um: (all_sq / all_n.max(1) as f64).sqrt(),
+        mismatch,
+        findings,
+        alternatives,
+    };
+    Ok(Diagnosis {
+        report,
+        signals,
+        context: ctx,
+    })
+}
+
+/// Refit all accepted terms jointly (one coordinate pass refining each nonlinear parameter with the
+/// others held), then give each term its model and 95 % intervals: linear gains from the covariance
+/// (inflated for correlated residuals), nonlinear ones by profile likelihood (n_eff·ln RSS ratio ≤ 3.84).
+/// Also returns the residual after each term, cumulatively (terms fitted jointly up to that one).
+/// Models, 95 % intervals and cumulative residuals of [`joint_refit`].
+type Refit = (Vec<EffectModel>, Vec<Map<String, Value>>, Vec<Vec<f64>>);
+
+fn joint_refit(ctx: &Context, r: &[f64], terms: &[Term]) -> Refit {
+    let n = r.len();
+    let ones = vec![1.0; n];
+    let mut thetas: Vec<f64> = terms.iter().map(|t| t.theta).collect();
+    let mut cols: Vec<Vec<Vec<f64>>> = terms.iter().map(|t| t.cols.clone()).collect();
+    let others_basis = |cols: &[Vec<Vec<f64>>], skip: usize| {
+        let mut v = vec![ones.clone()];
+        for (j, c) in cols.iter().enumerate() {
+            if j != skip {
+                v.extend(c.iter().cloned());
+            }
+        }
+        let b = lsq::orthonormalize(&[], v, 2);
+        let r0 = lsq::deflate(&b, r);
+        (b, r0)
+    };
+    let rss_at = |b: &[Vec<f64>], r0: &[f64], t: &Term, th: f64| {
+        let u = lsq::orthonormalize(b, t.cand.columns(ctx, th), 1);
+        lsq::dot(r0, r0) - lsq::gain(&u, r0)
+    };
+    for (k, t) in terms.iter().enumerate() {
+        if t.cand.is_nonlinear() && terms.len() > 1 {
+            let (b, r0) = others_basis(&cols, k);
+            let th = refine_min(
+                |th| rss_at(&b, &r0, t, th),
+                thetas[k] / 1.3,
+                thetas[k] * 1.3,
+            );
+            if rss_at(&b, &r0, t, th) <= rss_at(&b, &r0, t, thetas[k]) {
+                thetas[k] = th;
+                cols[k] = t.cand.columns(ctx, th);
+            }
+        }
+    }
+    let mut flat: Vec<&[f64]> = vec![&ones];
+    let mut spans = vec![];
+    for c in &cols {
+        let s = flat.len();
+        flat.extend(c.iter().map(Vec::as_slice));
+        spans.push(s..flat.len());
+    }
+    let fit = lsq::fit(&flat, r);
+    let mut models = vec![];
+    let mut cis = vec![];
+    for (k, t) in terms.iter().enumerate() {
+        let sp = spans[k].clone();
+        let c: Vec<f64> = fit.coef[sp.clone()].to_vec();
+        let se: Vec<f64> = sp
+            .clone()
+            .map(|i| fit.cov[(i, i)].max(0.0).sqrt())
+            .collect();
+        models.push(t.cand.to_model(&c, thetas[k]));
+        let mut ci = Map::new();
+        let iv = |v: f64, s: f64| json!([v - 1.96 * s, v + 1.96 * s]);
+        match t.cand.kind {
+            candidates::Kind::ReversalProfile { .. } => {
+                ci.insert(
+                    "b_um".into(),
+                    Value::Array(c.iter().zip(&se).map(|(v, s)| iv(*v, *s)).collect()),
+                );
+            }
+            candidates::Kind::Cyclic => {
+                let (a, b) = (c[0], c[1]);
+                let amp = a.hypot(b).max(1e-300);
+                let (i0, i1) = (sp.start, sp.start + 1);
+                let var = (a * a * fit.cov[(i0, i0)]
+                    + b * b * fit.cov[(i1, i1)]
+                    + 2.0 * a * b * fit.cov[(i0, i1)])
+                    / (amp * amp);
+                ci.insert("amplitude_um".into(), iv(amp, var.max(0.0).sqrt()));
+            }
+            _ => {
+                ci.insert(t.cand.coef_key().into(), iv(c[0], se[0]));
+            }
+        }
+        if let Some(key) = t.cand.theta_key() {
+            let (b, r0) = others_basis(&cols, k);
+            let best = rss_at(&b, &r0, t, thetas[k]);
+            let ok = |th: f64| fit.n_eff * (rss_at(&b, &r0, t, th) / best).ln() <= 3.84;
+            let step = 1.01f64;
+            let mut lo = thetas[k];
+            let mut hi = thetas[k];
+            for _ in 0..120 {
+                if !ok(lo / step) {
+                    break;
+                }
+                lo /= step;
+            }
+            for _ in 0..120 {
+                if !ok(hi * step) {
+                    break;
+                }
+                hi *= step;
+            }
+            ci.insert(key.into(), json!([lo, hi]));
+        }
+        cis.push(ci);
+    }
+    // Cumulative residuals for plots: fit ones + terms[..=k].
+    let mut resid_after = vec![];
+    for k in 0..terms.len() {
+        let upto: Vec<&[f64]> = flat[..spans[k].end].to_vec();
+        resid_after.push(lsq::fit(&upto, r).resid);
+    }
+    (models, cis, resid_after)
+}
+
+fn refine_min(f: impl Fn(f64) -> f64, lo: f64, hi: f64) -> f64 {
+    let (mut a, mut b) = (lo.ln(), hi.ln());
+    let k = (5f64.sqrt() - 1.0) / 2.0;
+    for _ in 0..24 {
+        let c = b - k * (b - a);
+        let d = a + k * (b - a);
+        if f(c.exp()) < f(d.exp()) {
+            b = d;
+        } else {
+            a = c;
+        }
+    }
+    ((a + b) / 2.0).exp()
+}

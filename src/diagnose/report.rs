@@ -1,0 +1,143 @@
+//! The diagnose report: the JSON object of DESIGN §5 (keys fixed: outside tools score it) and its
+//! plain-text rendering for people.
+
+use serde::{Deserialize, Serialize};
+use serde_json::{Map, Value};
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Mismatch {
+    pub signal: String,
+    #[serde(rename = "where")]
+    pub where_: String,
+    pub rms_um: f64,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Evidence {
+    pub delta_bic: f64,
+    pub p_value: f64,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Finding {
+    pub effect: String,
+    pub axis: String,
+    pub signal: String,
+    pub explanation: String,
+    pub equation: String,
+    pub params: Map<String, Value>,
+    pub ci95: Map<String, Value>,
+    pub evidence: Evidence,
+    pub rms_after_um: f64,
+    pub heldout_rms_before_um: f64,
+    pub heldout_rms_after_um: f64,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct AlternativeOut {
+    pub effect: String,
+    pub why_not: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub axis: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub experiment: Option<String>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Report {
+    pub verdict: String,
+    pub rms_before_um: f64,
+    pub mismatch: Vec<Mismatch>,
+    pub findings: Vec<Finding>,
+    pub alternatives: Vec<AlternativeOut>,
+}
+
+/// What each effect means, in words (the report's "explanation").
+pub fn explanation(effect: &str) -> &'static str {
+    match effect {
+        "scale_error" => "error grows linearly with the axis' own position (scale / lead error)",
+        "backlash" => "direction-dependent offset: the error jumps when the axis reverses",
+        "reversal_profile" => "direction-dependent offset whose size changes along the axis",
+        "cyclic_error" => "error periodic in the axis' own position (lead-screw pitch or encoder)",
+        "squareness" => "error proportional to another axis' position (out-of-square axes)",
+        "straightness" => "a smooth bow of this error across another axis' travel",
+        "abbe" => {
+            "error proportional to the tool/probe offset times an angular error along the axis"
+        }
+        "thermal_drift" => "error follows a temperature with no lag",
+        "thermal_lag" => "error follows a temperature through a first-order lag",
+        "thermal_expansion" => {
+            "scale grows with temperature: error proportional to position times temperature rise"
+        }
+        "force_deflection" => {
+            "error proportional to the measured force/strain (compliance under load)"
+        }
+        "servo_lag" => "error proportional to velocity (following error / servo gain mismatch)",
+        "reversal_spike" => {
+            "a spike after each reversal that decays with distance travelled (friction)"
+        }
+        "time_drift" => "slow drift in time with no measured cause",
+        _ => "unknown effect",
+    }
+}
+
+fn fmt_val(v: &Value) -> String {
+    match v {
+        Value::Number(n) => n.as_f64().map_or(n.to_string(), |f| format!("{f:.4}")),
+        Value::Array(a) => format!("[{}]", a.iter().map(fmt_val).collect::<Vec<_>>().join(", ")),
+        Value::String(s) => s.clone(),
+        other => other.to_string(),
+    }
+}
+
+impl Report {
+    /// Human-readable report.
+    pub fn to_text(&self) -> String {
+        let mut s = format!(
+            "verdict: {}   (residual RMS before: {:.3} µm)\n",
+            self.verdict, self.rms_before_um
+        );
+        if !self.mismatch.is_empty() {
+            s.push_str("\nwhere the simulation and the recording disagree:\n");
+            for m in &self.mismatch {
+                s.push_str(&format!(
+                    "  {:<6} {:>8.3} µm RMS  {}\n",
+                    m.signal, m.rms_um, m.where_
+                ));
+            }
+        }
+        if self.findings.is_empty() {
+            s.push_str("\nno candidate effect earns its place (ΔBIC, Holm-corrected F-test, held-out blocks)\n");
+        }
+        for (i, f) in self.findings.iter().enumerate() {
+            s.push_str(&format!(
+                "\n{}. {} on {} ({}): {}\n",
+                i + 1,
+                f.effect,
+                f.axis,
+                f.signal,
+                f.explanation
+            ));
+            s.push_str(&format!("   {}\n", f.equation));
+            for (k, v) in &f.params {
+                let ci = f
+                    .ci95
+                    .get(k)
+                    .map(|c| format!("  95% CI {}", fmt_val(c)))
+                    .unwrap_or_default();
+                s.push_str(&format!("   {k} = {}{ci}\n", fmt_val(v)));
+            }
+            s.push_str(&format!(
+                "   evidence: ΔBIC {:.1}, p {:.2e}; RMS after {:.3} µm; held-out RMS {:.3} → {:.3} µm\n",
+                f.evidence.delta_bic, f.evidence.p_value, f.rms_after_um, f.heldout_rms_before_um, f.heldout_rms_after_um
+            ));
+        }
+        if !self.alternatives.is_empty() {
+            s.push_str("\nalternatives:\n");
+            for a in &self.alternatives {
+                s.push_str(&format!("  {}: {}\n", a.effect, a.why_not));
+            }
+        }
+        s
+    }
+}

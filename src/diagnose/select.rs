@@ -1,0 +1,371 @@
+//! Forward selection of candidate terms for one residual signal r = measured − sim (µm).
+//!
+//! Each step: every candidate (at every grid value of its nonlinear parameter) is screened by the RSS
+//! drop it gives on top of what is already fitted (score/ERR test via an orthonormal basis); the best
+//! by ΔBIC is tested with an F-test whose p-value is multiplied by the number of (candidate, grid)
+//! pairs tried (Holm's first step), both on the effective sample size of the AR(1) residual; its
+//! nonlinear parameter is refined by golden-section on the profile RSS (linear gains solved inside:
+//! variable projection); it is kept only if block cross-validation (leave one run / time block out)
+//! improves. Candidates of another family that explain the same residual almost as well and almost
+//! collinearly are recorded as ambiguous alternatives.
+
+use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+
+use super::candidates::{Candidate, library};
+use super::features::Context;
+use super::lsq::{self, dot};
+
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// Family-wise significance level of a step.
+    pub alpha: f64,
+    /// Minimum ΔBIC (on n_eff) for a term to enter ("strong" evidence).
+    pub min_delta_bic: f64,
+    pub max_terms: usize,
+    /// Contiguous time blocks when there is no usable `run` column.
+    pub cv_blocks: usize,
+    /// Minimum relative held-out RMS improvement for a term to stay.
+    pub cv_min_gain: f64,
+    /// Alternatives within this ΔBIC of the winner and correlated above `ambiguity_corr` are ambiguous.
+    pub ambiguity_bic: f64,
+    pub ambiguity_corr: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            alpha: 0.01,
+            min_delta_bic: 10.0,
+            max_terms: 4,
+            cv_blocks: 5,
+            cv_min_gain: 0.01,
+            ambiguity_bic: 10.0,
+            ambiguity_corr: 0.95,
+        }
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct Alternative {
+    pub cand: Candidate,
+    pub theta: f64,
+    pub delta_bic: f64,
+    pub corr: f64,
+}
+
+/// One accepted term with the evidence from the step that accepted it.
+#[derive(Clone, Debug)]
+pub struct Term {
+    pub cand: Candidate,
+    pub theta: f64,
+    pub cols: Vec<Vec<f64>>,
+    pub delta_bic: f64,
+    pub p_value: f64,
+    /// RSS drop at acceptance (µm²), for ordering by importance.
+    pub gain_rss: f64,
+    pub rms_after_um: f64,
+    pub heldout_rms_before_um: f64,
+    pub heldout_rms_after_um: f64,
+    pub ambiguous_with: Vec<Alternative>,
+}
+
+#[derive(Clone, Debug)]
+pub struct SignalSelection {
+    pub axis: char,
+    pub n: usize,
+    pub terms: Vec<Term>,
+    /// Candidates screened at the first step, best first (label, ΔBIC) — the "why not" list.
+    pub runners_up: Vec<(Candidate, f64)>,
+    /// Candidate/grid pairs screened per step.
+    pub tried: usize,
+}
+
+struct Scored {
+    idx: usize,
+    theta: f64,
+    gain: f64,
+    q: usize,
+    delta_bic: f64,
+}
+
+/// Screen one candidate at one θ: RSS drop and parameter count (θ counts as one).
+fn score(
+    ctx: &Context,
+    c: &Candidate,
+    theta: f64,
+    basis: &[Vec<f64>],
+    r0: &[f64],
+    rss0: f64,
+) -> Option<(f64, usize)> {
+    let u = lsq::orthonormalize(basis, c.columns(ctx, theta), 1);
+    if u.is_empty() {
+        return None;
+    }
+    let g = lsq::gain(&u, r0).min(rss0 * (1.0 - 1e-12));
+    Some((g, u.len() + usize::from(c.is_nonlinear())))
+}
+
+/// The part of `r0` a candidate explains (for collinearity between candidates).
+fn contribution(
+    ctx: &Context,
+    c: &Candidate,
+    theta: f64,
+    basis: &[Vec<f64>],
+    r0: &[f64],
+) -> Vec<f64> {
+    let u = lsq::orthonormalize(basis, c.columns(ctx, theta), 1);
+    let r1 = lsq::deflate(&u, r0);
+    r0.iter().zip(&r1).map(|(a, b)| a - b).collect()
+}
+
+fn delta_bic(n_eff: f64, rss0: f64, gain: f64, q: usize) -> f64 {
+    n_eff * (rss0 / (rss0 - gain)).ln() - q as f64 * n_eff.ln()
+}
+
+fn golden_refine(f: impl Fn(f64) -> f64, lo: f64, hi: f64, iters: usize) -> f64 {
+    // Maximise f over log θ in [lo, hi].
+    let (mut a, mut b) = (lo.ln(), hi.ln());
+    let k = (5f64.sqrt() - 1.0) / 2.0;
+    let mut c = b - k * (b - a);
+    let mut d = a + k * (b - a);
+    let (mut fc, mut fd) = (f(c.exp()), f(d.exp()));
+    for _ in 0..iters {
+        if fc > fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - k * (b - a);
+            fc = f(c.exp());
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + k * (b - a);
+            fd = f(d.exp());
+        }
+    }
+    ((a + b) / 2.0).exp()
+}
+
+/// Run forward selection on residual `r` of the signal of axis `axis`.
+pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSelection {
+    let n = r.len();
+    let lib = library(ctx, axis);
+    let tried: usize = lib.iter().map(|c| c.grid.len().max(1)).sum();
+    let (block, n_blocks) = ctx.blocks(opts.cv_blocks);
+    let ones = vec![1.0; n];
+    let mut basis = lsq::orthonormalize(&[], vec![ones.clone()], 2);
+    let mut raw_cols: Vec<Vec<f64>> = vec![ones];
+    let mut terms: Vec<Term> = vec![];
+    let mut runners_up = vec![];
+    let mut used = vec![false; lib.len()];
+    let cv_of = |cols: &[Vec<f64>]| {
+        let refs: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
+        (lsq::cv_rss(&refs, r, &block, n_blocks) / n as f64).sqrt()
+    };
+    let mut cv_before = cv_of(&raw_cols);
+    while terms.len() < opts.max_terms && n > raw_cols.len() + 3 {
+        let r0 = lsq::deflate(&basis, r);
+        let rss0 = dot(&r0, &r0);
+        if rss0.is_nan() || rss0 <= 0.0 {
+            break;
+        }
+        // Profile every candidate over its grid (best θ by RSS drop: q is fixed within a candidate).
+        let mut scored: Vec<Scored> = vec![];
+        for (idx, c) in lib.iter().enumerate() {
+            if used[idx] {
+                continue;
+            }
+            let thetas: Vec<f64> = if c.grid.is_empty() {
+                vec![f64::NAN]
+            } else {
+                c.grid.clone()
+            };
+            let mut best: Option<Scored> = None;
+            for &th in &thetas {
+                if let Some((g, q)) = score(ctx, c, th, &basis, &r0, rss0)
+                    && best.as_ref().is_none_or(|b| g > b.gain)
+                {
+                    best = Some(Scored {
+                        idx,
+                        theta: th,
+                        gain: g,
+                        q,
+                        delta_bic: 0.0,
+                    });
+                }
+            }
+            scored.extend(best);
+        }
+        if scored.is_empty() {
+            break;
+        }
+        // One effective sample size for the whole step (from the residual left by the candidate that
+        // explains most), so candidates are ranked on the same scale.
+        let top = scored
+            .iter()
+            .max_by(|a, b| a.gain.total_cmp(&b.gain))
+            .expect("non-empty");
+        let top_contrib = contribution(ctx, &lib[top.idx], top.theta, &basis, &r0);
+        let r1_top: Vec<f64> = r0.iter().zip(&top_contrib).map(|(a, b)| a - b).collect();
+        let n_eff = lsq::effective_n(&r1_top);
+        for s in &mut scored {
+            s.delta_bic = delta_bic(n_eff, rss0, s.gain, s.q);
+        }
+        scored.sort_by(|a, b| b.delta_bic.total_cmp(&a.delta_bic));
+        if terms.is_empty() {
+            runners_up = scored
+                .iter()
+                .map(|s| (lib[s.idx].clone(), s.delta_bic))
+                .collect();
+        }
+        // Refine the winner's nonlinear parameter between its grid neighbours.
+        let mut win = scored.remove(0);
+        let cand = &lib[win.idx];
+        if cand.is_nonlinear() {
+            let g = &cand.grid;
+            let i = g.iter().position(|&v| v == win.theta).unwrap_or(0);
+            let lo = g[i.saturating_sub(1)];
+            let hi = g[(i + 1).min(g.len() - 1)];
+            if hi > lo {
+                let th = golden_refine(
+                    |t| score(ctx, cand, t, &basis, &r0, rss0).map_or(f64::NEG_INFINITY, |s| s.0),
+                    lo,
+                    hi,
+                    18,
+                );
+                if let Some((g2, q)) = score(ctx, cand, th, &basis, &r0, rss0)
+                    && g2 >= win.gain
+                {
+                    win = Scored {
+                        idx: win.idx,
+                        theta: th,
+                        gain: g2,
+                        q,
+                        delta_bic: delta_bic(n_eff, rss0, g2, q),
+                    };
+                }
+            }
+        }
+        let p_cols = raw_cols.len() as f64;
+        let df2 = n_eff - p_cols - win.q as f64;
+        let rss1 = rss0 - win.gain;
+        let p_value = if df2 >= 1.0 {
+            let f = ((rss0 - rss1) / win.q as f64) / (rss1 / df2);
+            FisherSnedecor::new(win.q as f64, df2).map_or(1.0, |d| d.sf(f))
+        } else {
+            1.0
+        };
+        if !(win.delta_bic > opts.min_delta_bic && p_value * (tried as f64) < opts.alpha) {
+            break;
+        }
+        let new_cols = cand.columns(ctx, win.theta);
+        let mut trial = raw_cols.clone();
+        trial.extend(new_cols.iter().cloned());
+        let cv_after = cv_of(&trial);
+        if cv_after.is_nan() || cv_after >= cv_before * (1.0 - opts.cv_min_gain) {
+            break;
+        }
+        // Ambiguity: another family, nearly as good, explaining the same shape.
+        let win_contrib = contribution(ctx, cand, win.theta, &basis, &r0);
+        let wn = dot(&win_contrib, &win_contrib).sqrt();
+        let ambiguous_with = scored
+            .iter()
+            .filter(|s| lib[s.idx].family() != cand.family())
+            .filter(|s| {
+                s.delta_bic > opts.min_delta_bic && win.delta_bic - s.delta_bic < opts.ambiguity_bic
+            })
+            .filter_map(|s| {
+                let sc = contribution(ctx, &lib[s.idx], s.theta, &basis, &r0);
+                let corr = dot(&sc, &win_contrib) / (wn * dot(&sc, &sc).sqrt());
+                (corr > opts.ambiguity_corr).then(|| Alternative {
+                    cand: lib[s.idx].clone(),
+                    theta: s.theta,
+                    delta_bic: s.delta_bic,
+                    corr,
+                })
+            })
+            .collect();
+        used[win.idx] = true;
+        // Nested forms of the same family are not tried again once one is in.
+        for (j, c) in lib.iter().enumerate() {
+            if c.family() == cand.family()
+                && c.effect_id() != "reversal_spike"
+                && cand.effect_id() != "reversal_spike"
+            {
+                used[j] = true;
+            }
+        }
+        basis.extend(lsq::orthonormalize(&basis, new_cols.clone(), 2));
+        raw_cols.extend(new_cols.iter().cloned());
+        terms.push(Term {
+            cand: cand.clone(),
+            theta: win.theta,
+            cols: new_cols,
+            delta_bic: win.delta_bic,
+            p_value,
+            gain_rss: win.gain,
+            rms_after_um: (rss1 / n as f64).sqrt(),
+            heldout_rms_before_um: cv_before,
+            heldout_rms_after_um: cv_after,
+            ambiguous_with,
+        });
+        cv_before = cv_after;
+    }
+    SignalSelection {
+        axis,
+        n,
+        terms,
+        runners_up,
+        tried,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::recording::Recording;
+
+    #[test]
+    fn finds_a_backlash_and_nothing_in_pure_noise() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let n = 2000;
+        let t: Vec<f64> = (0..n).map(|i| i as f64).collect();
+        // Step-and-dwell up and down over 0..200 mm: 10 mm steps, 10 samples per dwell, so velocity
+        // (servo lag) and latched direction (backlash) are not collinear.
+        let x: Vec<f64> = (0..n)
+            .map(|i| {
+                let k = (i / 10) % 40;
+                10.0 * if k < 20 { k as f64 } else { (40 - k) as f64 }
+            })
+            .collect();
+        let noise: Vec<f64> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let rec = Recording::from_columns(vec![
+            ("t_s".into(), t),
+            ("x_mm".into(), x),
+            ("ex_um".into(), vec![0.0; n]),
+        ])
+        .unwrap();
+        let ctx = Context::from_recording(&rec);
+        let dir = &ctx.axis('x').unwrap().dir;
+        let r: Vec<f64> = dir.iter().zip(&noise).map(|(d, e)| 3.0 * d + e).collect();
+        let s = select(&ctx, 'x', &r, &Options::default());
+        assert_eq!(
+            s.terms.len(),
+            1,
+            "{:?}",
+            s.terms.iter().map(|t| t.cand.label()).collect::<Vec<_>>()
+        );
+        assert_eq!(s.terms[0].cand.effect_id(), "backlash");
+        let none = select(&ctx, 'x', &noise, &Options::default());
+        assert!(
+            none.terms.is_empty(),
+            "{:?}",
+            none.terms
+                .iter()
+                .map(|t| t.cand.label())
+                .collect::<Vec<_>>()
+        );
+    }
+}
