@@ -20,6 +20,10 @@ enum Command {
     CheckConfig(cli::check_config::Args),
     /// Evaluate a machine model along a path CSV; writes the errors and every term as CSV.
     Eval(cli::eval::Args),
+    /// Run the gateway: sources → model → safety → origin-shift / quadrature sinks.
+    Run(cli::run::Args),
+    /// Show a running gateway's per-axis corrections, term breakdown and sensor health.
+    Status(cli::status::Args),
     /// ISO 230-2:2014 positioning evaluation of one axis from laser runs.
     #[command(name = "iso230-2")]
     Iso230_2(cli::iso230_2::Args),
@@ -43,6 +47,8 @@ fn main() -> std::process::ExitCode {
     let result = match Cli::parse().command {
         Command::CheckConfig(a) => cli::check_config::run(&a),
         Command::Eval(a) => cli::eval::run(&a),
+        Command::Run(a) => cli::run::run(&a),
+        Command::Status(a) => cli::status::run(&a),
         Command::Iso230_2(a) => cli::iso230_2::run(&a),
         Command::Import(a) => cli::import::run(&a),
         Command::Export(a) => cli::export::run(&a),

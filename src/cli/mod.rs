@@ -10,4 +10,6 @@ pub mod fit;
 pub mod import;
 pub mod iso230_2;
 pub mod nc;
+pub mod run;
+pub mod status;
 pub mod util;
