@@ -70,7 +70,8 @@ pub fn effective_n(r: &[f64]) -> f64 {
     if den.is_nan() || den <= 0.0 {
         return nf;
     }
-    let lags = ((4.0 * nf.cbrt()) as usize).min(n / 4).max(1);
+    // Short records (tens of laser targets) cannot estimate long lags: cap L at n/10.
+    let lags = ((4.0 * nf.cbrt()) as usize).min(n / 10).max(1);
     let mut factor = 1.0;
     for k in 1..=lags {
         let rho = dot(&c[..n - k], &c[k..]) / den;
