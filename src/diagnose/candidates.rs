@@ -110,10 +110,7 @@ impl Candidate {
             Kind::Cyclic => {
                 let f = own();
                 let w = TAU / theta;
-                vec![
-                    f.pos_mm.iter().map(|x| (w * x).sin()).collect(),
-                    f.pos_mm.iter().map(|x| (w * x).cos()).collect(),
-                ]
+                vec![f.map_pos(|x| (w * x).sin()), f.map_pos(|x| (w * x).cos())]
             }
             Kind::Squareness { other } => {
                 vec![
@@ -258,8 +255,8 @@ pub fn log_grid(lo: f64, hi: f64, r: f64) -> Vec<f64> {
 
 /// Period grid for cyclic error: spacing Δp = p²/(3L) keeps the phase drift over the travel L
 /// below a third of a cycle between neighbours, so the profile cannot step over a true period.
-fn period_grid(travel_mm: f64, min_step_mm: f64) -> Vec<f64> {
-    let lo = (4.0 * min_step_mm).max(1.0).max(travel_mm / 200.0);
+fn period_grid(travel_mm: f64, min_period_mm: f64) -> Vec<f64> {
+    let lo = min_period_mm.max(1.0).max(travel_mm / 200.0);
     let hi = travel_mm / 1.5;
     let mut g = vec![];
     let mut p = lo;
@@ -296,16 +293,12 @@ pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
             .filter(|d| *d > 1e-6)
             .fold(f64::INFINITY, f64::min);
         // With readings only at a few targets, a period shorter than twice their spacing aliases.
-        let distinct = {
-            let mut p: Vec<i64> = f.pos_mm.iter().map(|x| (x * 1e3).round() as i64).collect();
-            p.sort_unstable();
-            p.dedup();
-            p.len()
-        };
+        let distinct = f.distinct_mm.len();
         let min_period = if distinct < 200 {
             2.5 * travel / distinct as f64
         } else {
-            min_step
+            // Densely sampled positions: a period must span ≥ 4 sample steps to be seen.
+            4.0 * min_step
         };
         out.push(Candidate {
             axis: a,

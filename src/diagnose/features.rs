@@ -19,6 +19,22 @@ pub struct AxisFeatures {
     pub dir: Vec<f64>,
     /// Distance travelled since the direction last flipped (mm); large before the first reversal.
     pub dist_since_rev_mm: Vec<f64>,
+    /// Distinct positions (sorted) and each sample's index into them: functions of position alone
+    /// (sin/cos of a cyclic candidate) are computed once per distinct position, a large saving on
+    /// step-and-dwell recordings.
+    pub distinct_mm: Vec<f64>,
+    pub distinct_idx: Vec<u32>,
+}
+
+impl AxisFeatures {
+    /// `f(pos)` for every sample, evaluating `f` once per distinct position.
+    pub fn map_pos(&self, f: impl Fn(f64) -> f64) -> Vec<f64> {
+        let vals: Vec<f64> = self.distinct_mm.iter().map(|&x| f(x)).collect();
+        self.distinct_idx
+            .iter()
+            .map(|&k| vals[k as usize])
+            .collect()
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -140,11 +156,24 @@ fn axis_features(t_s: &[f64], pos: &[f64]) -> AxisFeatures {
         let d0 = dir[first];
         dir[..first].iter_mut().for_each(|v| *v = d0);
     }
+    let mut distinct_mm = pos.to_vec();
+    distinct_mm.sort_by(f64::total_cmp);
+    distinct_mm.dedup();
+    let distinct_idx = pos
+        .iter()
+        .map(|x| {
+            distinct_mm
+                .binary_search_by(|d| d.total_cmp(x))
+                .expect("present") as u32
+        })
+        .collect();
     AxisFeatures {
         pos_mm: pos.to_vec(),
         vel_mm_s: vel,
         dir,
         dist_since_rev_mm: dist,
+        distinct_mm,
+        distinct_idx,
     }
 }
 
@@ -153,14 +182,19 @@ fn axis_features(t_s: &[f64], pos: &[f64]) -> AxisFeatures {
 pub fn lowpass(t_s: &[f64], u: &[f64], tau_s: f64) -> Vec<f64> {
     let mut y = Vec::with_capacity(u.len());
     let mut acc = u.first().copied().unwrap_or(0.0);
+    let (mut last_dt, mut a) = (f64::NAN, 1.0);
     for i in 0..u.len() {
         if i > 0 {
             let dt = t_s[i] - t_s[i - 1];
-            let a = if tau_s > 0.0 {
-                1.0 - (-dt / tau_s).exp()
-            } else {
-                1.0
-            };
+            if dt != last_dt {
+                // Recomputed only when the sample period changes (usually never after the first).
+                a = if tau_s > 0.0 {
+                    1.0 - (-dt / tau_s).exp()
+                } else {
+                    1.0
+                };
+                last_dt = dt;
+            }
             acc += a * (u[i - 1] - acc);
         }
         y.push(acc);
