@@ -110,7 +110,24 @@ impl Candidate {
             Kind::Cyclic => {
                 let f = own();
                 let w = TAU / theta;
-                vec![f.map_pos(|x| (w * x).sin()), f.map_pos(|x| (w * x).cos())]
+                // One transcendental per distinct position: sin from cos with the half-cycle sign.
+                let (mut sv, mut cv) = (
+                    Vec::with_capacity(f.distinct_mm.len()),
+                    Vec::with_capacity(f.distinct_mm.len()),
+                );
+                for &x in &f.distinct_mm {
+                    let ph = (w * x).rem_euclid(TAU);
+                    let c = ph.cos();
+                    cv.push(c);
+                    sv.push(
+                        (1.0 - c * c).max(0.0).sqrt()
+                            * if ph < std::f64::consts::PI { 1.0 } else { -1.0 },
+                    );
+                }
+                vec![
+                    f.distinct_idx.iter().map(|&k| sv[k as usize]).collect(),
+                    f.distinct_idx.iter().map(|&k| cv[k as usize]).collect(),
+                ]
             }
             Kind::Squareness { other } => {
                 vec![
@@ -256,7 +273,8 @@ pub fn log_grid(lo: f64, hi: f64, r: f64) -> Vec<f64> {
 /// Period grid for cyclic error: spacing Δp = p²/(3L) keeps the phase drift over the travel L
 /// below a third of a cycle between neighbours, so the profile cannot step over a true period.
 fn period_grid(travel_mm: f64, min_period_mm: f64) -> Vec<f64> {
-    let lo = min_period_mm.max(1.0).max(travel_mm / 200.0);
+    // Lead-screw pitches and scale periods that matter at the µm level are ≥ 2 mm.
+    let lo = min_period_mm.max(2.0).max(travel_mm / 200.0);
     let hi = travel_mm / 1.5;
     let mut g = vec![];
     let mut p = lo;
