@@ -117,9 +117,12 @@ const TEMP_NAN: u8 = 3;
 const GARBAGE: u8 = 4;
 const HOT: u8 = 5; // 45 °C: the model asks for −50 µm, beyond the 30 µm clamp
 
-fn feeder(tx: mpsc::Sender<Sample>, mode: Arc<AtomicU8>) -> tokio::task::JoinHandle<()> {
+fn feeder(
+    tx: mpsc::Sender<Sample>,
+    mode: Arc<AtomicU8>,
+    t0: std::time::Instant,
+) -> tokio::task::JoinHandle<()> {
     tokio::spawn(async move {
-        let t0 = std::time::Instant::now();
         let mut k = 0u64;
         loop {
             tokio::time::sleep(Duration::from_millis(2)).await;
@@ -215,13 +218,15 @@ async fn gateway_survives_faults_and_never_jumps() {
 
     // --- gateway run 1 ---
     let (tx, rx) = mpsc::channel(4096);
-    let feed = feeder(tx, mode.clone());
+    let epoch = std::time::Instant::now();
+    let feed = feeder(tx, mode.clone(), epoch);
     let (stop_tx, stop_rx) = oneshot::channel::<()>();
     let (addr_tx, addr_rx) = oneshot::channel();
     let gw = tokio::spawn(run(
         cfg.clone(),
         Box::new(ThermalModel),
         rx,
+        epoch,
         async {
             let _ = stop_rx.await;
         },
@@ -350,12 +355,14 @@ async fn gateway_survives_faults_and_never_jumps() {
     let held = wait_until(&plc, &map, |_| true, Duration::ZERO).await;
     let n_before = plc.lock().unwrap().history.len();
     let (tx, rx) = mpsc::channel(4096);
-    let feed = feeder(tx, mode.clone());
+    let epoch = std::time::Instant::now();
+    let feed = feeder(tx, mode.clone(), epoch);
     let (stop_tx, stop_rx) = oneshot::channel::<()>();
     let gw = tokio::spawn(run(
         cfg.clone(),
         Box::new(ThermalModel),
         rx,
+        epoch,
         async {
             let _ = stop_rx.await;
         },

@@ -28,12 +28,12 @@ fn shipped_field_configs_are_valid() {
     assert_eq!(q.axes[0].min_edge_gap_ns, 400);
 
     let sensors = FieldConfig::load(&field("sensors-can-modbus-serial.toml")).unwrap();
-    let kinds: Vec<&str> = sensors
-        .sources
-        .iter()
-        .filter_map(|s| s.get("kind")?.as_str())
-        .collect();
-    assert_eq!(kinds, ["can", "modbus_tcp", "serial"]);
+    assert!(sensors.can.is_some() && sensors.modbus.is_some() && sensors.serial.is_some());
+    assert_eq!(
+        sensors.canopen.as_ref().unwrap().encoder.len(),
+        3,
+        "three CiA 406 encoders"
+    );
 }
 
 fn parse(text: &str) -> Result<FieldConfig, ConfigError> {

@@ -28,7 +28,8 @@ pub struct RunArgs {
     pub compensate: Compensate,
 }
 
-/// Run a config to the end as fast as possible; write the recording and the manifest.
+/// Run a config to the end (as fast as possible, or paced when `clock.realtime`); write the
+/// recording and the manifest.
 pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     let mut cfg = SimConfig::from_toml_path(&args.config)?;
     if let Some(s) = args.seed {
@@ -50,6 +51,8 @@ pub fn run_config(
 ) -> anyhow::Result<(u64, f64)> {
     std::fs::create_dir_all(out).map_err(|e| anyhow::anyhow!("--out {}: {e}", out.display()))?;
     let scan = cfg.plc.scan_s;
+    let realtime = cfg.clock.realtime;
+    let pacer = crate::clock::RealtimePacer::new(cfg.dt_s());
     let mut world = World::new(cfg)?;
     let manifest = serde_json::to_string_pretty(&world.manifest())?;
     std::fs::write(out.join("manifest.json"), manifest + "\n")?;
@@ -57,6 +60,9 @@ pub fn run_config(
     let mut oracle = Oracle::new(scan);
     let mut failure: Option<anyhow::Error> = None;
     let (_, rows) = run_to_end(&mut world, std::io::BufWriter::new(file), |w| {
+        if realtime {
+            std::thread::sleep(pacer.until_next(w.ticks()));
+        }
         if compensate == Compensate::Oracle
             && failure.is_none()
             && let Err(e) = oracle.update(w)

@@ -10,6 +10,8 @@ use super::direction::DirectionConfig;
 use super::health::ChannelLimits;
 use super::recovery::NeighbourEstimate;
 use super::safety::SafetyConfig;
+use crate::bus::can::backend::CanBackendConfig;
+use crate::bus::canopen::source::CanopenConfig;
 use crate::origin_shift::{ClientConfig, RegisterMap, Transport};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -22,9 +24,18 @@ pub struct FieldConfig {
     pub model: Option<ModelSection>,
     #[serde(rename = "axis")]
     pub axes: Vec<AxisSection>,
-    /// Bus sources; each table's schema belongs to `src/bus` (`kind = "can" | "modbus" | "serial" …`).
-    #[serde(default, rename = "source")]
-    pub sources: Vec<toml::Table>,
+    /// CAN backend (`src/bus/can/backend.rs`: socketcan | socketcand | mem).
+    #[serde(default)]
+    pub can: Option<CanBackendConfig>,
+    /// CANopen nodes on that bus: CiA 406 encoders, CiA 404 analog inputs (`src/bus/canopen`).
+    #[serde(default)]
+    pub canopen: Option<CanopenConfig>,
+    /// Modbus sources; schema owned by `src/bus/modbus` (kept as a table until its poller lands).
+    #[serde(default)]
+    pub modbus: Option<toml::Table>,
+    /// Serial-line sources (DRO, scales); schema owned by `src/bus` (kept as a table until it lands).
+    #[serde(default)]
+    pub serial: Option<toml::Table>,
     #[serde(default, rename = "channel")]
     pub channels: Vec<ChannelSection>,
     #[serde(default, rename = "recovery")]
@@ -359,6 +370,12 @@ impl FieldConfig {
                     },
                 )?;
             }
+        }
+        if self.canopen.is_some() && self.can.is_none() {
+            return Err((
+                "canopen".into(),
+                "[canopen] nodes need a [can] backend".into(),
+            ));
         }
         if self.sink.origin_shift.is_none() && self.sink.quadrature.is_none() {
             tracing::warn!(

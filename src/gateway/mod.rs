@@ -11,6 +11,7 @@ pub mod model_adapter;
 pub mod recovery;
 pub mod run;
 pub mod safety;
+pub mod sources;
 pub mod status;
 
 pub use direction::{Direction, DirectionConfig, DirectionLatch};

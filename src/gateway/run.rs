@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use anyhow::{Context as _, bail};
 use tokio::sync::{mpsc, watch};
-use tokio::time::{Instant, MissedTickBehavior};
+use tokio::time::MissedTickBehavior;
 
 use super::config::{FieldConfig, OriginShiftSink, QuadratureSink};
 use super::engine::{Engine, ErrorModel};
@@ -36,11 +36,14 @@ pub struct RunSummary {
 
 type Outputs = Vec<(String, f64)>;
 
-/// Run until `shutdown` resolves. `status_addr` receives the bound status address (port 0 allowed).
+/// Run until `shutdown` resolves. `epoch` is the clock the sources stamp samples with (`t_s` =
+/// seconds since it); the engine runs on the same clock so staleness is judged right.
+/// `status_addr` receives the bound status address (port 0 allowed).
 pub async fn run(
     cfg: FieldConfig,
     mut model: Box<dyn ErrorModel + Send>,
     mut samples: mpsc::Receiver<Sample>,
+    epoch: std::time::Instant,
     shutdown: impl std::future::Future<Output = ()>,
     status_addr: Option<tokio::sync::oneshot::Sender<SocketAddr>>,
 ) -> anyhow::Result<RunSummary> {
@@ -94,7 +97,6 @@ pub async fn run(
     };
 
     let mut engine = Engine::new(&cfg, &initial)?;
-    let epoch = Instant::now();
     let mut tick = tokio::time::interval(Duration::from_millis(cfg.gateway.cycle_ms));
     tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
     let mut compute_ns: Vec<u64> = Vec::new();

@@ -1,7 +1,7 @@
 //! Thin I/O shells that put the simulated machine on real transports, around a sans-IO publisher:
 //! - CAN ([`retrocomp::bus::can`] backends: in-memory, socketcand hub/daemon, SocketCAN/vcan):
 //!   CiA 406 encoder TPDOs (6004h, one node per axis) and CiA 404 temperatures (INT16, 0.1 °C, four per
-//!   TPDO), plus CANopen heartbeats;
+//!   TPDO), plus CANopen heartbeats; encoder faults (`enc_x` …) silence or freeze an encoder's TPDO;
 //! - Modbus TCP and RTU (on a pty), one register image ([`retrocomp::bus::modbus::server`]): the PLC's
 //!   origin-shift window as holding registers (FC03/06/16; the ack register is read-only), PT100
 //!   temperatures as input registers (int16, 0.1 °C; 0x7FFF = NaN/over-range, 0x8000 = sensor break

@@ -110,7 +110,7 @@ impl Publisher {
     }
 
     /// Outputs due after the world's latest step.
-    pub fn poll(&mut self, world: &World) -> Outputs {
+    pub fn poll(&mut self, world: &mut World) -> Outputs {
         let t = world.t_s() + 1e-9;
         let mut out = Outputs::default();
         if let Some(can) = &self.cfg.can {
@@ -124,8 +124,9 @@ impl Publisher {
                             (world.slide_mm(k) * 1000.0 / count_um).round() as i64
                         }
                     };
-                    out.frames
-                        .push(ch.encode_raw(counts.rem_euclid(1 << 32) as u32));
+                    if let Some(c) = world.encoder_fault(k, counts) {
+                        out.frames.push(ch.encode_raw(c.rem_euclid(1 << 32) as u32));
+                    }
                 }
             }
             if let Some(node) = can.temp_node
