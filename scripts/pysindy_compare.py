@@ -31,6 +31,7 @@ import time
 try:
     import numpy as np
     import pysindy as ps
+    from scipy.signal import lfilter
 except ImportError as e:  # the script is not part of CI; say how to get the peers
     sys.exit(f"missing {e.name}: pip install -r scripts/requirements-bench.txt")
 
@@ -44,13 +45,9 @@ def read_recording(path):
 
 
 def lowpass(t, u, tau):
-    y = np.empty_like(u)
-    acc = u[0]
-    y[0] = acc
-    a = 1.0 - np.exp(-np.diff(t) / tau)
-    for i in range(1, len(u)):
-        acc += a[i - 1] * (u[i - 1] - acc)
-        y[i] = acc
+    """Same filter as retrocomp's features::lowpass (held input, start at u[0]); constant Δt assumed."""
+    a = 1.0 - np.exp(-(t[1] - t[0]) / tau)
+    y, _ = lfilter([0.0, a], [1.0, -(1.0 - a)], u, zi=[u[0]])
     return y
 
 
