@@ -36,9 +36,13 @@ missing=()
 for p in "${APT_PACKAGES[@]}"; do
   if ! dpkg -s "$p" >/dev/null 2>&1; then missing+=("$p"); fi
 done
+# fetch-kernel.sh resolves the kernel ABI from the apt lists (apt-cache depends linux-image-amd64),
+# so they must exist even when every package is already installed (a fresh container has none).
+if [ "${#missing[@]}" -gt 0 ] || ! apt-cache show linux-image-amd64 >/dev/null 2>&1; then
+  $SUDO apt-get -o DPkg::Lock::Timeout=600 update -qq
+fi
 if [ "${#missing[@]}" -gt 0 ]; then
   echo "setup-peers: apt-get install ${missing[*]}"
-  $SUDO apt-get -o DPkg::Lock::Timeout=600 update -qq
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get -o DPkg::Lock::Timeout=600 install -y -qq --no-install-recommends "${missing[@]}"
   # (no recommends: qemu-system-x86 would pull in a GUI stack we never use)
 else

@@ -1,9 +1,13 @@
 //! retrocomp: a fieldbus gateway that computes the volumetric error of a legacy CNC machine and feeds
 //! the correction back to its controller. See README.md for the pipeline and the conventions.
 
+pub mod analysis;
 pub mod bus;
 pub mod cli;
 pub mod diagnose;
+pub mod gateway;
 pub mod models;
+pub mod origin_shift;
+pub mod quadrature;
 pub mod recording;
 pub mod units;

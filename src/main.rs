@@ -20,6 +20,23 @@ enum Command {
     CheckConfig(cli::check_config::Args),
     /// Evaluate a machine model along a path CSV; writes the errors and every term as CSV.
     Eval(cli::eval::Args),
+    /// Run the gateway: sources → model → safety → origin-shift / quadrature sinks.
+    Run(cli::run::Args),
+    /// Show a running gateway's per-axis corrections, term breakdown and sensor health.
+    Status(cli::status::Args),
+    /// ISO 230-2:2014 positioning evaluation of one axis from laser runs.
+    #[command(name = "iso230-2")]
+    Iso230_2(cli::iso230_2::Args),
+    /// Import laser runs or controller tables into a bidirectional error table.
+    Import(cli::import::Args),
+    /// Export an error table as a Fanuc pitch tape, LinuxCNC comp file or ISG CSV.
+    Export(cli::export::Args),
+    /// Rewrite an NC program with compensation.
+    Nc(cli::nc::Args),
+    /// Circular (ballbar) test: ISO 230-4 G/F and error diagnosis.
+    Circle(cli::circle::Args),
+    /// Fit model terms (axis tables, thermal, load) from measurements; writes model TOML.
+    Fit(cli::fit::Args),
     /// Find where simulation and recording disagree, name the missing physics, fit it (DESIGN §5).
     Diagnose(cli::diagnose::DiagnoseArgs),
     /// Run diagnose over `hil-sim gen-cases` output and score it against the truth manifests.
@@ -30,6 +47,14 @@ fn main() -> std::process::ExitCode {
     let result = match Cli::parse().command {
         Command::CheckConfig(a) => cli::check_config::run(&a),
         Command::Eval(a) => cli::eval::run(&a),
+        Command::Run(a) => cli::run::run(&a),
+        Command::Status(a) => cli::status::run(&a),
+        Command::Iso230_2(a) => cli::iso230_2::run(&a),
+        Command::Import(a) => cli::import::run(&a),
+        Command::Export(a) => cli::export::run(&a),
+        Command::Nc(a) => cli::nc::run(&a),
+        Command::Circle(a) => cli::circle::run(&a),
+        Command::Fit(a) => cli::fit::run(&a),
         Command::Diagnose(a) => cli::diagnose::run_diagnose(&a),
         Command::DiagnoseBench(a) => cli::diagnose::run_bench(&a),
     };

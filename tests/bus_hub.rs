@@ -83,3 +83,51 @@ async fn client_reports_refused_handshake() {
     let e = SocketcandBus::connect(addr, "can9").await.unwrap_err();
     assert!(e.to_string().contains("could not open bus"), "{e}");
 }
+
+#[tokio::test]
+async fn backends_from_toml_talk_to_each_other() {
+    use retrocomp::bus::can::MemBus;
+    use retrocomp::bus::can::backend::{CanBackendConfig, open};
+    #[derive(serde::Deserialize)]
+    struct Doc {
+        can: CanBackendConfig,
+    }
+    let hub = Hub::start_loopback().await.unwrap();
+    let text = format!(
+        "[can]\nbackend = \"socketcand\"\nport = {}\nchannel = \"can0\"\n",
+        hub.local_addr().port()
+    );
+    let cfg: Doc = toml::from_str(&text).unwrap();
+    let mut a = open(&cfg.can, None).await.unwrap();
+    let mut b = open(&cfg.can, None).await.unwrap();
+    let f = Frame::standard(0x285, &[9, 8, 7]).unwrap();
+    a.send(&f).await.unwrap();
+    assert_eq!(timeout(T, b.recv()).await.unwrap().unwrap(), f);
+
+    let mem = MemBus::default();
+    let mut m1 = open(&CanBackendConfig::Mem, Some(&mem)).await.unwrap();
+    let mut m2 = open(&CanBackendConfig::Mem, Some(&mem)).await.unwrap();
+    m1.send(&f).await.unwrap();
+    assert_eq!(timeout(T, m2.recv()).await.unwrap().unwrap(), f);
+
+    // On a host without vcan0 (or without the kernel backend built in), `socketcan` is a clear
+    // error, not a panic.
+    let e = open(
+        &CanBackendConfig::Socketcan {
+            interface: "vcan0".into(),
+        },
+        None,
+    )
+    .await;
+    match e {
+        Ok(_) => {} // a host with vcan0 and the socketcan backend merged
+        Err(e) => assert!(
+            matches!(
+                e,
+                retrocomp::bus::can::CanError::Unsupported(_)
+                    | retrocomp::bus::can::CanError::Io(_)
+            ),
+            "{e}"
+        ),
+    }
+}

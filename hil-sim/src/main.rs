@@ -1,4 +1,5 @@
-//! hil-sim: the virtual legacy CNC.
+//! hil-sim: the virtual legacy CNC. A small clap enum + dispatch; each command's logic lives in the
+//! library (`hil_sim::cli`, `hil_sim::io`, `hil_sim::cases`).
 
 use std::path::PathBuf;
 
@@ -7,7 +8,8 @@ use clap::{Parser, Subcommand};
 #[derive(Parser)]
 #[command(
     name = "hil-sim",
-    about = "Hardware-in-the-loop simulator of a legacy CNC"
+    version,
+    about = "Virtual legacy CNC: hidden physics, field buses, recordings"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -16,6 +18,10 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
+    /// Run a config to the end as fast as possible; write recording.csv + manifest.json.
+    Run(hil_sim::cli::RunArgs),
+    /// Run with the field buses up (Modbus TCP/RTU, CAN, weighing lines), real time or fast.
+    Serve(hil_sim::cli::ServeArgs),
     /// Write concealed-effect cases (recording CSV + truth manifest JSON per case) for `retrocomp diagnose`.
     GenCases {
         #[arg(long, default_value_t = 1)]
@@ -29,11 +35,17 @@ enum Cmd {
 }
 
 fn main() -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .with_writer(std::io::stderr)
+        .init();
     match Cli::parse().cmd {
+        Cmd::Run(a) => hil_sim::cli::run(&a),
+        Cmd::Serve(a) => hil_sim::cli::serve(&a),
         Cmd::GenCases { seed, count, out } => {
             let files = hil_sim::cases::write_cases(seed, count, &out)?;
             println!("wrote {} cases to {}", files.len(), out.display());
+            Ok(())
         }
     }
-    Ok(())
 }

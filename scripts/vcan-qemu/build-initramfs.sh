@@ -41,7 +41,7 @@ mkdir -p "$stage/bin" "$stage/sbin" "$stage/usr/bin" "$stage/lib/modules" "$stag
 
 # busybox and the applets init uses.
 cp "$busybox" "$stage/bin/busybox"
-for applet in sh mount insmod ip cat echo sleep poweroff mkdir ls dmesg uname; do
+for applet in sh mount insmod ip cat cut echo sleep poweroff mkdir ls dmesg uname; do
     ln -s busybox "$stage/bin/$applet"
 done
 

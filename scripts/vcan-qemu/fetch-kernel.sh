@@ -54,10 +54,18 @@ fi
 work=$(mktemp -d "$cache/.unpack.XXXXXX")
 trap 'rm -rf "$work"' EXIT
 # apt-get download writes into the current directory; as root it warns about the _apt sandbox.
-(cd "$work" && apt-get download "$kpkg" >&2) || {
-    echo "fetch-kernel.sh: 'apt-get download $kpkg' failed (network? apt lists? run 'apt-get update')" >&2
+if ! (cd "$work" && apt-get download "$kpkg" >&2); then
+    # Stale apt lists name a version the mirror has dropped (Debian security keeps only the newest),
+    # or we are offline: an earlier cached kernel still does the job.
+    cached=$(ls -d "$cache"/linux-image-*-amd64 2>/dev/null | tail -n 1 || true)
+    if [ -n "$cached" ] && [ -f "$cached/.unpacked" ]; then
+        echo "fetch-kernel.sh: 'apt-get download $kpkg' failed; using the cached $(basename "$cached")" >&2
+        echo "$cached"
+        exit 0
+    fi
+    echo "fetch-kernel.sh: 'apt-get download $kpkg' failed (network? stale apt lists? run 'apt-get update')" >&2
     exit 2
-}
+fi
 deb=$(ls "$work/${kpkg}_"*.deb | tail -n 1)
 dpkg -x "$deb" "$work/root"
 abi=${kpkg#linux-image-}

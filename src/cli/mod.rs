@@ -2,5 +2,14 @@
 //! `run` function; `src/main.rs` only lists them.
 
 pub mod check_config;
+pub mod circle;
 pub mod diagnose;
 pub mod eval;
+pub mod export;
+pub mod fit;
+pub mod import;
+pub mod iso230_2;
+pub mod nc;
+pub mod run;
+pub mod status;
+pub mod util;

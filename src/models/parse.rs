@@ -402,7 +402,21 @@ fn read_scaled_vec(
     units: &[(String, f64)],
 ) -> Option<(Vec<f64>, String)> {
     let names: Vec<&str> = units.iter().map(|u| u.0.as_str()).collect();
-    let (unit, key) = t.find_suffixed(prefix, &names)?;
+    let Some((unit, key)) = t.find_suffixed(prefix, &names) else {
+        // A key with this prefix in a unit that does not fit (e.g. `_um` for a rotation).
+        let start = format!("{prefix}_");
+        for k in t.keys().into_iter().filter(|k| k.starts_with(&start)) {
+            let rest = &k[start.len()..];
+            if !names.contains(&rest) {
+                t.get(&k);
+                t.err_key(
+                    &k,
+                    format!("unit `{rest}` does not fit here; expected {prefix}_<unit> with unit one of {}", names.join("|")),
+                );
+            }
+        }
+        return None;
+    };
     let factor = units
         .iter()
         .find(|u| u.0 == unit)
@@ -446,7 +460,7 @@ fn read_function(
                 return None;
             };
             let fwd = read_scaled_vec(t, "forward", units);
-            if fwd.is_none() && !unit_names.iter().any(|u| t.has(&format!("forward_{u}"))) {
+            if fwd.is_none() && !t.keys().iter().any(|k| k.starts_with("forward_")) {
                 t.err_here(format!(
                     "a table needs `forward_<unit>` with unit one of {suffix_hint}"
                 ));
@@ -527,6 +541,9 @@ fn read_function(
         }
         "polynomial" => {
             let Some((coefficients, _)) = read_scaled_vec(t, "coefficients", units) else {
+                if t.keys().iter().any(|k| k.starts_with("coefficients_")) {
+                    return None;
+                }
                 t.err_here(format!("a polynomial needs `coefficients_<unit>` = [a0, a1, …] (value = Σ a_i·q^i, q in mm), unit one of {suffix_hint}"));
                 return None;
             };
@@ -702,9 +719,11 @@ fn read_thermal(
     } else {
         ("um", "urad")
     };
-    // A key in the wrong unit for the target is a clear mistake; say so.
+    // A key in the wrong unit for the target is a clear mistake; say so and stop here.
+    let mut wrong_unit = false;
     for k in t.keys() {
         if k.contains(&format!("_{other}")) && !k.starts_with("alpha") {
+            wrong_unit = true;
             t.err_key(
                 &k,
                 format!(
@@ -719,6 +738,9 @@ fn read_thermal(
             );
             t.get(&k);
         }
+    }
+    if wrong_unit {
+        return None;
     }
     match kind {
         "polynomial_dt" => {

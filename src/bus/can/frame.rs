@@ -25,7 +25,7 @@ impl Frame {
         embedded_can::Frame::new(ExtendedId::new(raw_id)?, data)
     }
 
-    /// The identifier as a plain number (11 or 29 bits); see [`Frame::is_extended`].
+    /// The identifier as a plain number (11 or 29 bits); see [`embedded_can::Frame::is_extended`].
     pub fn raw_id(&self) -> u32 {
         match self.id {
             Id::Standard(s) => u32::from(s.as_raw()),

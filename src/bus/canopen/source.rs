@@ -9,7 +9,7 @@
 use super::cia404::AnalogChannel;
 use super::cia406::{EncoderChannel, PositionDecoder};
 use super::nmt::{HeartbeatMonitor, NmtCommand, encode_nmt};
-use super::sdo::{CYCLIC_TIMER_6200, SdoRequest};
+use super::sdo::{CYCLIC_TIMER_6200, SdoRequest, SdoResponse};
 use crate::bus::can::{CanBus, CanError, Frame};
 use crate::bus::{Health, Sample};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
@@ -43,6 +43,8 @@ pub struct CanopenCounters {
     pub decode_errors: u64,
     pub out_of_range: u64,
     pub heartbeat_timeouts: u64,
+    /// SDO aborts received from our nodes (e.g. the encoder refused the 6200h cyclic timer).
+    pub sdo_aborts: u64,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -176,9 +178,14 @@ impl CanopenSource {
             }
         }
         // SDO replies from our nodes (0x580 + node) are expected traffic after bring-up.
-        let id = f.raw_id();
-        if (0x581..=0x5FF).contains(&id) && self.nodes().contains(&((id - 0x580) as u8)) {
+        if let Some((node, resp)) = SdoResponse::decode(f)
+            && self.nodes().contains(&node)
+        {
             matched = true;
+            if let SdoResponse::Abort { index, sub, code } = resp {
+                self.counters.sdo_aborts += 1;
+                tracing::warn!(node, "SDO abort {code:#010x} on {index:04X}h:{sub}");
+            }
         }
         if !matched {
             self.counters.unmatched += 1;
@@ -287,9 +294,25 @@ mod tests {
 
     #[test]
     fn bring_up_sets_timer_then_starts_nodes() {
-        let src = CanopenSource::new(cfg());
+        let mut src = CanopenSource::new(cfg());
         let ids: Vec<u32> = src.bring_up().iter().map(|f| f.raw_id()).collect();
         assert_eq!(ids, vec![0x601, 0x000, 0x000]);
+        let mut out = Vec::new();
+        let ack = SdoResponse::DownloadAck {
+            index: 0x6200,
+            sub: 0,
+        }
+        .encode(1);
+        let abort = SdoResponse::Abort {
+            index: 0x6200,
+            sub: 0,
+            code: 0x0609_0030,
+        }
+        .encode(1);
+        src.on_frame(&ack, 0.0, &mut out);
+        src.on_frame(&abort, 0.0, &mut out);
+        assert!(out.is_empty());
+        assert_eq!((src.counters.sdo_aborts, src.counters.unmatched), (1, 0));
     }
 
     #[test]

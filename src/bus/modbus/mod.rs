@@ -1,8 +1,12 @@
-//! Modbus sources and server: the register map and its sans-IO conversion ([`regmap`]), the polling
-//! client over tokio-modbus TCP/RTU ([`poller`]), and a small register server ([`server`]).
+//! Modbus sources and server: the register map and its sans-IO conversion ([`regmap`]), the sans-IO
+//! poll core ([`poll_core`]), the polling client over tokio-modbus TCP/RTU ([`poller`]), and a small
+//! register server ([`server`]).
 
+pub mod poll_core;
+pub mod poller;
 pub mod regmap;
 pub mod server;
 
+pub use poller::{ModbusPoller, ModbusSourceConfig, TransportKind};
 pub use regmap::{DataType, RegisterChannel, RegisterKind, WordOrder};
 pub use server::{RegisterBank, TcpServer};

@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Cross-build retrocomp for an aarch64 Linux box (Raspberry Pi 4/5, industrial ARM PCs).
+# Needs: rustup, and the Debian cross linker: sudo apt-get install gcc-aarch64-linux-gnu libc6-dev-arm64-cross
+# Usage: deploy/cross-build.sh [extra cargo args]   → target/aarch64-unknown-linux-gnu/release/retrocomp
+set -euo pipefail
+cd "$(dirname "$0")/.."
+TARGET=aarch64-unknown-linux-gnu
+if ! command -v aarch64-linux-gnu-gcc >/dev/null; then
+    echo "error: aarch64-linux-gnu-gcc not found. Install the Debian cross linker:" >&2
+    echo "  sudo apt-get install gcc-aarch64-linux-gnu libc6-dev-arm64-cross" >&2
+    exit 1
+fi
+if ! rustup target list --installed | grep -qx "$TARGET"; then
+    rustup target add "$TARGET"
+fi
+export CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc
+export CC_aarch64_unknown_linux_gnu=aarch64-linux-gnu-gcc
+cargo build --release --locked --target "$TARGET" -p retrocomp "$@"
+BIN="${CARGO_TARGET_DIR:-target}/$TARGET/release/retrocomp"
+file "$BIN" 2>/dev/null || true
+echo "built $BIN"

@@ -1,0 +1,243 @@
+//! The async shell of `hil-sim serve`: runs the world on the simulation clock (real time, or as fast
+//! as possible) and moves the publisher's bytes onto the configured transports; client writes to the
+//! Modbus holding registers reach the PLC window before every step.
+
+use super::publish::Publisher;
+use crate::clock::RealtimePacer;
+use crate::recording::Recorder;
+use crate::{SimConfig, World};
+use retrocomp::bus::can::backend::{AnyCanBus, open as open_can};
+use retrocomp::bus::can::{CanBus, MemBus};
+use retrocomp::bus::modbus::server::{RegisterBank, TcpServer, spawn_rtu};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use tokio::io::AsyncWriteExt;
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+use tokio_serial::SerialStream;
+
+/// Live state for observers (tests, the CLI).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Status {
+    pub t_s: f64,
+    pub shift_counts: [i64; 3],
+    pub encoder_counts: [i64; 3],
+    /// Nominal (interpolator) position, mm.
+    pub setpoint_mm: [f64; 3],
+    pub done: bool,
+    /// Weighing lines not written because nobody read the pty.
+    pub dropped_lines: u64,
+}
+
+pub struct Running {
+    pub modbus_tcp: Option<SocketAddr>,
+    /// Device path of the RTU pty (open it with any serial client, 8N1; baud is ignored on a pty).
+    pub rtu_pty: Option<PathBuf>,
+    pub weighing_pty: Option<PathBuf>,
+    /// The register image served on Modbus (the holding block mirrors the PLC window).
+    pub bank: RegisterBank,
+    pub status: watch::Receiver<Status>,
+    task: JoinHandle<anyhow::Result<u64>>,
+    _tcp: Option<TcpServer>,
+    _rtu: Option<JoinHandle<std::io::Result<()>>>,
+    _keep_open: Vec<SerialStream>,
+}
+
+impl Running {
+    /// Wait until the program ends; returns the number of steps.
+    pub async fn join(mut self) -> anyhow::Result<u64> {
+        let r = (&mut self.task)
+            .await
+            .map_err(|e| anyhow::anyhow!("simulation task: {e}"))?;
+        if let Some(h) = self._rtu.take() {
+            h.abort();
+        }
+        r
+    }
+
+    pub fn abort(&self) {
+        self.task.abort();
+    }
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        self.task.abort();
+        if let Some(h) = &self._rtu {
+            h.abort();
+        }
+    }
+}
+
+fn pty_pair(link: &Path) -> anyhow::Result<(SerialStream, SerialStream, PathBuf)> {
+    let (master, slave) = SerialStream::pair().map_err(|e| anyhow::anyhow!("pty: {e}"))?;
+    let dev = PathBuf::from(
+        tokio_serial::SerialPort::name(&slave)
+            .ok_or_else(|| anyhow::anyhow!("pty: slave has no device name"))?,
+    );
+    let _ = std::fs::remove_file(link);
+    std::os::unix::fs::symlink(&dev, link)
+        .map_err(|e| anyhow::anyhow!("pty link {}: {e}", link.display()))?;
+    Ok((master, slave, dev))
+}
+
+/// Start the simulation and its buses. `mem` is the in-process CAN bus for `backend = "mem"`;
+/// `out` optionally receives recording.csv + manifest.json.
+pub async fn start(
+    cfg: SimConfig,
+    mem: Option<MemBus>,
+    out: Option<&Path>,
+) -> anyhow::Result<Running> {
+    let io = cfg.io.clone();
+    let mut world = World::new(cfg)?;
+    let bank = RegisterBank::new();
+    let n = world.plc().len() as u16;
+    let ack = world
+        .plc()
+        .config()
+        .handshake
+        .as_ref()
+        .map(|h| h.ack_register);
+    bank.set_holding(0, world.plc().read(0, n as usize)?);
+    for a in 0..n {
+        if Some(a) != ack {
+            bank.allow_writes(a, 1);
+        }
+    }
+    let (mut tcp, mut rtu, mut rtu_pty, mut keep) = (None, None, None, Vec::new());
+    if let Some(mb) = &io.modbus {
+        if let Some(b) = &mb.tcp_bind {
+            let addr: SocketAddr = b
+                .parse()
+                .map_err(|e| anyhow::anyhow!("io.modbus.tcp_bind `{b}`: {e}"))?;
+            tcp = Some(
+                TcpServer::start(addr, bank.clone())
+                    .await
+                    .map_err(|e| anyhow::anyhow!("io.modbus.tcp_bind {addr}: {e}"))?,
+            );
+        }
+        if let Some(link) = &mb.rtu_pty_link {
+            let (master, slave, dev) = pty_pair(link)?;
+            rtu = Some(spawn_rtu(master, bank.clone(), mb.rtu_slave));
+            keep.push(slave);
+            rtu_pty = Some(dev);
+        }
+    }
+    let (mut weigh, mut weighing_pty) = (None, None);
+    if let Some(w) = &io.weighing {
+        let (master, slave, dev) = pty_pair(&w.pty_link)?;
+        weigh = Some(master);
+        keep.push(slave);
+        weighing_pty = Some(dev);
+    }
+    let mut can: Option<AnyCanBus> = match &io.can {
+        Some(c) => Some(
+            open_can(&c.backend, mem.as_ref())
+                .await
+                .map_err(|e| anyhow::anyhow!("io.can: {e}"))?,
+        ),
+        None => None,
+    };
+    let mut rec = match out {
+        Some(dir) => {
+            std::fs::create_dir_all(dir)?;
+            std::fs::write(
+                dir.join("manifest.json"),
+                serde_json::to_string_pretty(&world.manifest())? + "\n",
+            )?;
+            let f = std::io::BufWriter::new(std::fs::File::create(dir.join("recording.csv"))?);
+            let mut r = Recorder::new(f, &world)?;
+            r.write(world.readings())?;
+            Some(r)
+        }
+        None => None,
+    };
+    let mut publisher = Publisher::new(io, &world);
+    let (status_tx, status) = watch::channel(Status::default());
+    let task = tokio::spawn({
+        let bank = bank.clone();
+        async move {
+            let dt = world.config().dt_s();
+            let realtime = world.config().clock.realtime;
+            let pacer = RealtimePacer::new(dt);
+            let mut steps = 0u64;
+            let mut dropped = 0u64;
+            while !world.done() {
+                let due = if realtime { pacer.steps_due(steps) } else { 50 };
+                if due == 0 {
+                    tokio::time::sleep(pacer.until_next(steps)).await;
+                    continue;
+                }
+                for _ in 0..due.min(500) {
+                    // Client writes → PLC window (the ack register belongs to the PLC).
+                    if let Some(mut words) = bank.holding(0, n) {
+                        if let Some(a) = ack {
+                            words[a as usize] = world.plc().read(a, 1)?[0];
+                        }
+                        world.plc_mut().write(0, &words)?;
+                    }
+                    world.tick();
+                    steps += 1;
+                    if let Some(a) = ack {
+                        bank.set_holding(a, world.plc().read(a, 1)?);
+                    }
+                    if let (Some(r), true) = (rec.as_mut(), world.sampled()) {
+                        r.write(world.readings())?;
+                    }
+                    let o = publisher.poll(&mut world);
+                    if let Some(bus) = can.as_mut() {
+                        for f in &o.frames {
+                            bus.send(f)
+                                .await
+                                .map_err(|e| anyhow::anyhow!("CAN send: {e}"))?;
+                        }
+                    }
+                    for (a, w) in &o.input_regs {
+                        bank.set_input(*a, w);
+                    }
+                    if let Some(p) = weigh.as_mut() {
+                        for l in &o.lines {
+                            let wr = tokio::time::timeout(
+                                std::time::Duration::from_millis(2),
+                                p.write_all(l.as_bytes()),
+                            );
+                            if !matches!(wr.await, Ok(Ok(()))) {
+                                dropped += 1;
+                            }
+                        }
+                    }
+                    if world.done() {
+                        break;
+                    }
+                }
+                let enc = std::array::from_fn(|k| world.encoder_counts(k));
+                status_tx.send_replace(Status {
+                    t_s: world.t_s(),
+                    shift_counts: world.plc().shift_counts(),
+                    encoder_counts: enc,
+                    setpoint_mm: world.setpoint().pos_mm,
+                    done: world.done(),
+                    dropped_lines: dropped,
+                });
+                if !realtime {
+                    tokio::task::yield_now().await;
+                }
+            }
+            if let Some(r) = rec {
+                r.finish()?;
+            }
+            Ok(steps)
+        }
+    });
+    Ok(Running {
+        modbus_tcp: tcp.as_ref().map(|t| t.local_addr()),
+        rtu_pty,
+        weighing_pty,
+        bank,
+        status,
+        task,
+        _tcp: tcp,
+        _rtu: rtu,
+        _keep_open: keep,
+    })
+}

@@ -1,0 +1,11 @@
+//! Model fitting from measurements (Spaan Ch3, Ch5; Ni 1996): linear least squares, C¹ piecewise
+//! quadratics with stepwise knot selection, thermal regression with sensor-subset selection
+//! (Mallows' Cp, BIC), and Spaan's efficiency δ on held-out data.
+
+pub mod efficiency;
+pub mod lsq;
+pub mod piecewise;
+pub mod recording;
+pub mod regression;
+pub mod to_model;
+pub mod workflow;

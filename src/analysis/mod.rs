@@ -1,0 +1,22 @@
+//! Offline tools of the compensation engineer: ISO 230-2 positioning analysis, laser-data import,
+//! circular (ballbar) test analysis, model fitting, controller-table export and NC-program rewriting.
+//!
+//! Conventions used throughout this module tree (DESIGN §3):
+//! - positions in mm (`_mm`), errors in µm (`_um`), angles in µrad (`_urad`);
+//! - **error = actual − nominal** (ISO 230-2); **correction = −error**;
+//! - "forward" / "up" (`+`) = approach in the positive axis direction, "reverse" / "down" (`-`) the
+//!   other way (ISO 230-2 ↑ / ↓).
+//!
+//! Every importer reports file, line and column of each bad row and never drops one silently
+//! ([`import_error::ImportErrors`]).
+
+pub mod circular;
+pub mod export;
+pub mod fit;
+pub mod import_error;
+pub mod iso230_2;
+pub mod laser_import;
+pub mod nc;
+pub mod plane_model;
+pub mod report;
+pub mod table;

@@ -1,0 +1,191 @@
+//! G-code block parser (ISO 6983 / Fanuc dialect): words `<letter><number>`, `( … )` comments,
+//! `%` tape marks, and `;` as end of block (Fanuc EOB; set `semicolon_is_eob = false` for
+//! LinuxCNC, where `;` starts a comment). Letters are case-insensitive (upper-cased).
+//! Bad words are reported with line and column; nothing is skipped.
+
+use crate::analysis::import_error::{ErrorSink, ImportErrors};
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Word {
+    pub letter: char,
+    pub value: f64,
+    /// The number as written (kept so untouched words are re-emitted byte for byte).
+    pub text: String,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Block {
+    /// 1-based source line.
+    pub line: u64,
+    pub words: Vec<Word>,
+    /// The block's source text (without EOB), for verbatim pass-through.
+    pub source: String,
+}
+
+impl Block {
+    pub fn get(&self, letter: char) -> Option<&Word> {
+        self.words.iter().find(|w| w.letter == letter)
+    }
+
+    /// G codes in the block (G4, G01 → 1, …); fractional codes (G64.1) keep their fraction.
+    pub fn g_codes(&self) -> impl Iterator<Item = f64> + '_ {
+        self.words
+            .iter()
+            .filter(|w| w.letter == 'G')
+            .map(|w| w.value)
+    }
+
+    pub fn has_g(&self, code: f64) -> bool {
+        self.g_codes().any(|g| (g - code).abs() < 1e-9)
+    }
+}
+
+/// Parses a program into blocks. Empty blocks and tape marks are dropped (they carry nothing);
+/// comment-only blocks are kept with no words so they are re-emitted.
+pub fn parse_program(
+    file: &str,
+    text: &str,
+    semicolon_is_eob: bool,
+) -> Result<Vec<Block>, ImportErrors> {
+    let mut sink = ErrorSink::new(file);
+    let mut blocks = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let line = i as u64 + 1;
+        let raw = if semicolon_is_eob {
+            raw
+        } else {
+            raw.split(';').next().unwrap_or("")
+        };
+        for piece in split_eob(raw, semicolon_is_eob) {
+            let source = piece.trim();
+            if source.is_empty() || source == "%" {
+                continue;
+            }
+            if let Some(words) = parse_words(&mut sink, line, source) {
+                blocks.push(Block {
+                    line,
+                    words,
+                    source: source.to_string(),
+                });
+            }
+        }
+    }
+    sink.finish(blocks)
+}
+
+/// Splits at `;` outside comments.
+fn split_eob(raw: &str, semicolon_is_eob: bool) -> Vec<&str> {
+    if !semicolon_is_eob {
+        return vec![raw];
+    }
+    let mut out = Vec::new();
+    let mut depth = 0;
+    let mut start = 0;
+    for (i, c) in raw.char_indices() {
+        match c {
+            '(' => depth += 1,
+            ')' => depth -= 1,
+            ';' if depth <= 0 => {
+                out.push(&raw[start..i]);
+                start = i + 1;
+            }
+            _ => {}
+        }
+    }
+    out.push(&raw[start..]);
+    out
+}
+
+fn parse_words(sink: &mut ErrorSink, line: u64, src: &str) -> Option<Vec<Word>> {
+    let chars: Vec<char> = src.chars().collect();
+    let mut words = Vec::new();
+    let mut ok = true;
+    let mut i = 0;
+    while i < chars.len() {
+        let c = chars[i];
+        if c.is_whitespace() {
+            i += 1;
+        } else if c == '(' {
+            match chars[i..].iter().position(|&c| c == ')') {
+                Some(end) => i += end + 1,
+                None => {
+                    sink.push(
+                        line,
+                        Some(&format!("char {}", i + 1)),
+                        "comment `(` is not closed",
+                    );
+                    return None;
+                }
+            }
+        } else if c.is_ascii_alphabetic() {
+            let letter = c.to_ascii_uppercase();
+            let mut j = i + 1;
+            while j < chars.len() && chars[j] == ' ' {
+                j += 1;
+            }
+            let num_start = j;
+            while j < chars.len()
+                && (chars[j].is_ascii_digit() || matches!(chars[j], '+' | '-' | '.'))
+            {
+                j += 1;
+            }
+            let text: String = chars[num_start..j].iter().collect();
+            match text.parse::<f64>() {
+                Ok(value) if value.is_finite() => words.push(Word {
+                    letter,
+                    value,
+                    text,
+                }),
+                _ => {
+                    sink.push(
+                        line,
+                        Some(&format!("char {}", i + 1)),
+                        format!("word `{letter}` needs a number, found `{text}`"),
+                    );
+                    ok = false;
+                }
+            }
+            i = j.max(i + 1);
+        } else {
+            sink.push(
+                line,
+                Some(&format!("char {}", i + 1)),
+                format!("unexpected character `{c}`"),
+            );
+            ok = false;
+            i += 1;
+        }
+    }
+    ok.then_some(words)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_fanuc_blocks_with_eob_comments_and_lower_case() {
+        let b = parse_program(
+            "p.nc",
+            "G01 X0 z-1.5 F1000; G04 X5 (dwell; 5 s)\n%\nM30;",
+            true,
+        )
+        .unwrap();
+        assert_eq!(b.len(), 3);
+        assert_eq!(b[0].get('Z').unwrap().value, -1.5);
+        assert!(b[0].has_g(1.0));
+        assert_eq!(b[1].source, "G04 X5 (dwell; 5 s)");
+        assert_eq!(b[2].line, 3);
+    }
+
+    #[test]
+    fn typo_word_is_reported_with_position() {
+        // Asad Ullah's compensated listing has `XX-0.0016` (digest §3.4).
+        let e = parse_program("t.nc", "G04 X5\nXX-0.0016 Z-0.0007\n", true).unwrap_err();
+        assert_eq!(e.0.len(), 1);
+        assert_eq!(
+            e.0[0].to_string(),
+            "t.nc:2: column `char 1`: word `X` needs a number, found ``"
+        );
+    }
+}

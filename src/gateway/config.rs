@@ -1,0 +1,396 @@
+//! Field configuration (`retrocomp run --config FIELD.toml`): one TOML file per machine. Every key
+//! that carries a quantity has its unit in its name. Parse errors carry file, line, column and key
+//! (from the toml crate); semantic errors name the key path (`axis[1].position_channel`).
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::direction::DirectionConfig;
+use super::health::ChannelLimits;
+use super::recovery::NeighbourEstimate;
+use super::safety::SafetyConfig;
+use crate::bus::can::backend::CanBackendConfig;
+use crate::bus::canopen::source::CanopenConfig;
+use crate::origin_shift::{ClientConfig, RegisterMap, Transport};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FieldConfig {
+    pub gateway: GatewaySection,
+    pub safety: SafetyConfig,
+    pub direction: DirectionConfig,
+    #[serde(default)]
+    pub model: Option<ModelSection>,
+    #[serde(rename = "axis")]
+    pub axes: Vec<AxisSection>,
+    /// CAN backend (`src/bus/can/backend.rs`: socketcan | socketcand | mem).
+    #[serde(default)]
+    pub can: Option<CanBackendConfig>,
+    /// CANopen nodes on that bus: CiA 406 encoders, CiA 404 analog inputs (`src/bus/canopen`).
+    #[serde(default)]
+    pub canopen: Option<CanopenConfig>,
+    /// Modbus sources; schema owned by `src/bus/modbus` (kept as a table until its poller lands).
+    #[serde(default)]
+    pub modbus: Option<toml::Table>,
+    /// Serial-line sources (DRO, scales); schema owned by `src/bus` (kept as a table until it lands).
+    #[serde(default)]
+    pub serial: Option<toml::Table>,
+    #[serde(default, rename = "channel")]
+    pub channels: Vec<ChannelSection>,
+    #[serde(default, rename = "recovery")]
+    pub recoveries: Vec<NeighbourEstimate>,
+    #[serde(default)]
+    pub sink: SinkSection,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GatewaySection {
+    pub name: String,
+    /// Position-term cycle (1–10 ms typical), ms.
+    pub cycle_ms: u64,
+    /// Temperatures (and other slow channels) are latched at this period, s (Spaan: 60 s tables).
+    #[serde(default = "default_thermal_period_s")]
+    pub thermal_period_s: f64,
+    /// Read-only status HTTP endpoint; 127.0.0.1 unless you mean otherwise.
+    #[serde(default = "default_status_listen")]
+    pub status_listen: String,
+    /// Compensation enabled at start (can be toggled at run time).
+    #[serde(default = "yes")]
+    pub enabled: bool,
+}
+
+fn default_thermal_period_s() -> f64 {
+    60.0
+}
+fn default_status_listen() -> String {
+    "127.0.0.1:9184".into()
+}
+fn yes() -> bool {
+    true
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelSection {
+    /// Machine model TOML (see `src/models`), relative to this file.
+    pub path: PathBuf,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum PositionSource {
+    /// The interpolator's set-point (Spaan Ch6: stable, no limit cycle). Preferred.
+    #[default]
+    Setpoint,
+    /// The measured scale position (can limit-cycle at table steps; then keep the dosing cap small).
+    Feedback,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisSection {
+    /// Axis name: x, y or z.
+    pub name: String,
+    /// Channel carrying the axis position, mm (e.g. `x_mm`).
+    pub position_channel: String,
+    #[serde(default)]
+    pub position_source: PositionSource,
+    /// Per-axis override of `[safety]`.
+    #[serde(default)]
+    pub safety: Option<SafetyConfig>,
+}
+
+/// Health limits of one channel (the fields of [`ChannelLimits`] plus its name; spelled out rather
+/// than `flatten`ed because serde ignores `deny_unknown_fields` under `flatten`, and typos must fail).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChannelSection {
+    pub name: String,
+    pub min: f64,
+    pub max: f64,
+    pub stale_after_s: f64,
+    #[serde(default)]
+    pub max_rate_per_s: Option<f64>,
+    #[serde(default)]
+    pub stuck_after_s: Option<f64>,
+}
+
+impl ChannelSection {
+    pub fn limits(&self) -> ChannelLimits {
+        ChannelLimits {
+            min: self.min,
+            max: self.max,
+            stale_after_s: self.stale_after_s,
+            max_rate_per_s: self.max_rate_per_s,
+            stuck_after_s: self.stuck_after_s,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct SinkSection {
+    #[serde(default)]
+    pub origin_shift: Option<OriginShiftSink>,
+    #[serde(default)]
+    pub quadrature: Option<QuadratureSink>,
+}
+
+/// Spelled out (no `flatten`) so unknown keys are rejected; [`OriginShiftSink::client`] builds the
+/// client settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OriginShiftSink {
+    pub transport: Transport,
+    #[serde(default = "one")]
+    pub unit_id: u8,
+    #[serde(default = "default_timeout_ms")]
+    pub request_timeout_ms: u64,
+    #[serde(default = "default_backoff_min_ms")]
+    pub reconnect_min_ms: u64,
+    #[serde(default = "default_backoff_max_ms")]
+    pub reconnect_max_ms: u64,
+    /// Write period, ms (a PLC scan takes 10–100 ms; writing faster only loads the bus).
+    #[serde(default = "default_write_period_ms")]
+    pub write_period_ms: u64,
+    pub map: RegisterMap,
+}
+
+fn default_write_period_ms() -> u64 {
+    50
+}
+fn one() -> u8 {
+    1
+}
+fn default_timeout_ms() -> u64 {
+    200
+}
+fn default_backoff_min_ms() -> u64 {
+    100
+}
+fn default_backoff_max_ms() -> u64 {
+    5_000
+}
+
+impl OriginShiftSink {
+    pub fn client(&self) -> ClientConfig {
+        ClientConfig {
+            transport: self.transport.clone(),
+            unit_id: self.unit_id,
+            request_timeout_ms: self.request_timeout_ms,
+            reconnect_min_ms: self.reconnect_min_ms,
+            reconnect_max_ms: self.reconnect_max_ms,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QuadratureSink {
+    #[serde(rename = "axis")]
+    pub axes: Vec<QuadratureAxis>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QuadratureAxis {
+    pub axis: String,
+    /// Slide travel per count (per A/B edge), µm.
+    pub resolution_um: f64,
+    /// +1 if the encoder counts up when the axis moves +.
+    pub count_sign: i8,
+    /// Receiver's minimum edge separation, ns (RS-422 at 400 kHz: 400).
+    pub min_edge_gap_ns: u64,
+    pub max_inject_rate_hz: f64,
+    /// GPIO lines (chip, A offset, B offset) for the `gpio` feature; None = simulated.
+    #[serde(default)]
+    pub gpio: Option<GpioLines>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GpioLines {
+    pub chip: String,
+    pub line_a: u32,
+    pub line_b: u32,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{path}: cannot read: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {source}")]
+    Parse {
+        path: PathBuf,
+        source: Box<toml::de::Error>,
+    },
+    #[error("{path}: key `{key}`: {what}")]
+    Invalid {
+        path: PathBuf,
+        key: String,
+        what: String,
+    },
+}
+
+impl FieldConfig {
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+            path: path.into(),
+            source,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// Parse and validate; `path` is only used in messages and to resolve relative paths.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let cfg: FieldConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: path.into(),
+            source: Box::new(e),
+        })?;
+        cfg.validate().map_err(|(key, what)| ConfigError::Invalid {
+            path: path.into(),
+            key,
+            what,
+        })?;
+        Ok(cfg)
+    }
+
+    fn validate(&self) -> Result<(), (String, String)> {
+        let g = &self.gateway;
+        if !(1..=1000).contains(&g.cycle_ms) {
+            return Err((
+                "gateway.cycle_ms".into(),
+                format!("expected 1..=1000 ms, got {}", g.cycle_ms),
+            ));
+        }
+        if !(g.thermal_period_s.is_finite() && g.thermal_period_s > 0.0) {
+            return Err((
+                "gateway.thermal_period_s".into(),
+                "expected a positive number of seconds".into(),
+            ));
+        }
+        if g.status_listen.parse::<std::net::SocketAddr>().is_err() {
+            return Err((
+                "gateway.status_listen".into(),
+                format!("expected ip:port, got {:?}", g.status_listen),
+            ));
+        }
+        self.safety
+            .validate()
+            .map_err(|e| ("safety".into(), e.to_string()))?;
+        if self.axes.is_empty() {
+            return Err(("axis".into(), "at least one [[axis]] is required".into()));
+        }
+        for (i, a) in self.axes.iter().enumerate() {
+            if !matches!(a.name.as_str(), "x" | "y" | "z") {
+                return Err((
+                    format!("axis[{i}].name"),
+                    format!("expected x, y or z, got {:?}", a.name),
+                ));
+            }
+            if self.axes[..i].iter().any(|b| b.name == a.name) {
+                return Err((
+                    format!("axis[{i}].name"),
+                    format!("axis {} configured twice", a.name),
+                ));
+            }
+            if !a.position_channel.ends_with("_mm") {
+                return Err((
+                    format!("axis[{i}].position_channel"),
+                    format!(
+                        "a position channel carries mm: expected a name ending in _mm, got {:?}",
+                        a.position_channel
+                    ),
+                ));
+            }
+            if let Some(s) = &a.safety {
+                s.validate()
+                    .map_err(|e| (format!("axis[{i}].safety"), e.to_string()))?;
+            }
+        }
+        for (i, c) in self.channels.iter().enumerate() {
+            let l = c.limits();
+            if !(l.min.is_finite() && l.max.is_finite() && l.min < l.max) {
+                return Err((
+                    format!("channel[{i}]"),
+                    format!("{}: min {} must be < max {}", c.name, l.min, l.max),
+                ));
+            }
+            if !(l.stale_after_s.is_finite() && l.stale_after_s > 0.0) {
+                return Err((
+                    format!("channel[{i}].stale_after_s"),
+                    "expected > 0 s".into(),
+                ));
+            }
+        }
+        for (i, r) in self.recoveries.iter().enumerate() {
+            if r.coefficients.len() != r.neighbours.len() + 1 {
+                return Err((
+                    format!("recovery[{i}].coefficients"),
+                    format!(
+                        "expected {} (intercept + one per neighbour), got {}",
+                        r.neighbours.len() + 1,
+                        r.coefficients.len()
+                    ),
+                ));
+            }
+        }
+        if let Some(os) = &self.sink.origin_shift {
+            os.map
+                .validate()
+                .map_err(|e| ("sink.origin_shift.map".to_string(), e.to_string()))?;
+            for (i, r) in os.map.axes.iter().enumerate() {
+                if !self.axes.iter().any(|a| a.name == r.axis) {
+                    return Err((
+                        format!("sink.origin_shift.map.axis[{i}].axis"),
+                        format!("{} is not an [[axis]]", r.axis),
+                    ));
+                }
+            }
+        }
+        if let Some(q) = &self.sink.quadrature {
+            for (i, a) in q.axes.iter().enumerate() {
+                let sc = crate::quadrature::SchedulerConfig {
+                    min_edge_gap_ns: a.min_edge_gap_ns,
+                    max_inject_rate_hz: a.max_inject_rate_hz,
+                };
+                sc.validate()
+                    .map_err(|e| (format!("sink.quadrature.axis[{i}]"), e.to_string()))?;
+                crate::quadrature::CountQuantizer::new(a.resolution_um, a.count_sign).map_err(
+                    |e| {
+                        (
+                            format!("sink.quadrature.axis[{i}].resolution_um"),
+                            e.to_string(),
+                        )
+                    },
+                )?;
+            }
+        }
+        if self.canopen.is_some() && self.can.is_none() {
+            return Err((
+                "canopen".into(),
+                "[canopen] nodes need a [can] backend".into(),
+            ));
+        }
+        if self.sink.origin_shift.is_none() && self.sink.quadrature.is_none() {
+            tracing::warn!(
+                "no [sink] configured: the gateway computes and reports, but corrects nothing"
+            );
+        }
+        Ok(())
+    }
+
+    /// Safety settings for an axis (its override or the global one).
+    pub fn safety_for(&self, axis: &str) -> SafetyConfig {
+        self.axes
+            .iter()
+            .find(|a| a.name == axis)
+            .and_then(|a| a.safety)
+            .unwrap_or(self.safety)
+    }
+}

@@ -1,0 +1,282 @@
+//! Sensor health per channel: range, staleness, rate of change, stuck value; plus a fault log that
+//! reports each fault once when it starts and once when it clears (tracing), never every cycle.
+//!
+//! Units are the channel's own (its name carries them). Time is seconds on the gateway's clock.
+//! A rejected value is never used: the channel keeps its last good value and reports the fault.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use crate::bus::{Health, Sample};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChannelLimits {
+    /// Physical range (inclusive), channel units.
+    pub min: f64,
+    pub max: f64,
+    /// No fresh good value for this long → stale, s.
+    pub stale_after_s: f64,
+    /// Largest plausible |rate of change|, channel units per s (None: not checked).
+    #[serde(default)]
+    pub max_rate_per_s: Option<f64>,
+    /// A value that stays bit-identical this long is a stuck sensor, s (None: not checked).
+    /// Real ADC readings carry noise; a frozen one means a dead converter or a stuck gateway.
+    #[serde(default)]
+    pub stuck_after_s: Option<f64>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FaultKind {
+    Stale,
+    OutOfRange,
+    NotFinite,
+    RateOfChange,
+    Stuck,
+    Decode,
+}
+
+/// Health of one channel now.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ChannelStatus {
+    /// Last good value (what the model may use), channel units.
+    pub value: Option<f64>,
+    pub health: Health,
+    /// The active faults (empty when healthy).
+    pub faults: Vec<FaultKind>,
+    /// True when `value` is an estimate from correlated neighbours (see `recovery`).
+    pub substituted: bool,
+}
+
+#[derive(Clone, Debug)]
+pub struct ChannelMonitor {
+    limits: ChannelLimits,
+    last_good: Option<(f64, f64)>,
+    /// Time the current raw value was first seen (for the stuck check).
+    same_since: Option<(f64, u64)>,
+    sample_fault: Option<FaultKind>,
+    stuck: bool,
+}
+
+impl ChannelMonitor {
+    pub fn new(limits: ChannelLimits) -> Self {
+        Self {
+            limits,
+            last_good: None,
+            same_since: None,
+            sample_fault: None,
+            stuck: false,
+        }
+    }
+
+    pub fn limits(&self) -> &ChannelLimits {
+        &self.limits
+    }
+
+    /// Judge a new sample. A bad one leaves the last good value untouched.
+    pub fn observe(&mut self, s: &Sample) {
+        let v = s.value;
+        self.sample_fault = match s.health {
+            Health::Ok => None,
+            Health::DecodeError => Some(FaultKind::Decode),
+            Health::OutOfRange => Some(FaultKind::OutOfRange),
+            Health::Stale => Some(FaultKind::Stale),
+        };
+        if self.sample_fault.is_some() {
+            return;
+        }
+        if !v.is_finite() {
+            self.sample_fault = Some(FaultKind::NotFinite);
+            return;
+        }
+        if v < self.limits.min || v > self.limits.max {
+            self.sample_fault = Some(FaultKind::OutOfRange);
+            return;
+        }
+        if let (Some(max_rate), Some((t0, v0))) = (self.limits.max_rate_per_s, self.last_good) {
+            let dt = s.t_s - t0;
+            if dt > 0.0 && ((v - v0) / dt).abs() > max_rate {
+                self.sample_fault = Some(FaultKind::RateOfChange);
+                return;
+            }
+        }
+        match self.same_since {
+            Some((_, bits)) if bits == v.to_bits() => {}
+            _ => self.same_since = Some((s.t_s, v.to_bits())),
+        }
+        self.stuck = match (self.limits.stuck_after_s, self.same_since) {
+            (Some(limit), Some((since, _))) => s.t_s - since >= limit,
+            _ => false,
+        };
+        if !self.stuck {
+            self.last_good = Some((s.t_s, v));
+        }
+    }
+
+    /// Status at `now_s` (staleness is judged here, so call it every cycle).
+    pub fn status(&self, now_s: f64) -> ChannelStatus {
+        let mut faults = Vec::new();
+        if let Some(f) = self.sample_fault {
+            faults.push(f);
+        }
+        if self.stuck {
+            faults.push(FaultKind::Stuck);
+        }
+        let fresh = self
+            .last_good
+            .is_some_and(|(t, _)| now_s - t <= self.limits.stale_after_s);
+        if !fresh && !faults.contains(&FaultKind::Stale) {
+            faults.push(FaultKind::Stale);
+        }
+        faults.sort();
+        let health = match faults.first() {
+            None => Health::Ok,
+            Some(FaultKind::Decode) => Health::DecodeError,
+            Some(FaultKind::Stale) if faults.len() == 1 => Health::Stale,
+            Some(_) => Health::OutOfRange,
+        };
+        ChannelStatus {
+            value: self.last_good.map(|(_, v)| v),
+            health,
+            faults,
+            substituted: false,
+        }
+    }
+}
+
+/// Transition of one fault, for logs and tests.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FaultEvent {
+    pub source: String,
+    pub kind: FaultKind,
+    pub started: bool,
+    pub t_s: f64,
+}
+
+/// Remembers which faults are active so each is logged once when it starts and once when it clears.
+#[derive(Clone, Debug, Default)]
+pub struct FaultLog {
+    active: BTreeMap<(String, FaultKind), f64>,
+}
+
+impl FaultLog {
+    /// Reconcile the faults of `source` with `now_faults`; returns (and logs) only the changes.
+    pub fn update(
+        &mut self,
+        source: &str,
+        now_faults: &[FaultKind],
+        now_s: f64,
+    ) -> Vec<FaultEvent> {
+        let mut events = Vec::new();
+        for &kind in now_faults {
+            let key = (source.to_string(), kind);
+            if let std::collections::btree_map::Entry::Vacant(slot) = self.active.entry(key) {
+                tracing::warn!(source, ?kind, t_s = now_s, "fault started");
+                slot.insert(now_s);
+                events.push(FaultEvent {
+                    source: source.to_string(),
+                    kind,
+                    started: true,
+                    t_s: now_s,
+                });
+            }
+        }
+        let cleared: Vec<(String, FaultKind)> = self
+            .active
+            .keys()
+            .filter(|(s, k)| s == source && !now_faults.contains(k))
+            .cloned()
+            .collect();
+        for key in cleared {
+            let since = self.active.remove(&key).unwrap_or(now_s);
+            tracing::info!(source, kind = ?key.1, t_s = now_s, lasted_s = now_s - since, "fault cleared");
+            events.push(FaultEvent {
+                source: key.0,
+                kind: key.1,
+                started: false,
+                t_s: now_s,
+            });
+        }
+        events
+    }
+
+    pub fn active(&self) -> impl Iterator<Item = (&str, FaultKind, f64)> {
+        self.active.iter().map(|((s, k), t)| (s.as_str(), *k, *t))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn limits() -> ChannelLimits {
+        ChannelLimits {
+            min: -20.0,
+            max: 80.0,
+            stale_after_s: 2.0,
+            max_rate_per_s: Some(1.0),
+            stuck_after_s: Some(30.0),
+        }
+    }
+
+    fn sample(t_s: f64, value: f64) -> Sample {
+        Sample {
+            channel: "T_spindle_C".into(),
+            t_s,
+            value,
+            health: Health::Ok,
+        }
+    }
+
+    #[test]
+    fn range_rate_nan_stale_and_stuck_are_caught_and_keep_last_good() {
+        let mut m = ChannelMonitor::new(limits());
+        m.observe(&sample(0.0, 21.0));
+        assert_eq!(m.status(0.0).health, Health::Ok);
+        m.observe(&sample(1.0, 150.0));
+        assert_eq!(m.status(1.0).faults, vec![FaultKind::OutOfRange]);
+        m.observe(&sample(1.5, 25.0)); // +4 °C in 1.5 s > 1 °C/s
+        assert_eq!(m.status(1.5).faults, vec![FaultKind::RateOfChange]);
+        m.observe(&sample(1.6, f64::NAN));
+        let st = m.status(1.6);
+        assert_eq!(st.faults, vec![FaultKind::NotFinite]);
+        assert_eq!(
+            st.value,
+            Some(21.0),
+            "bad values never replace the last good one"
+        );
+        assert_eq!(
+            m.status(2.5).faults,
+            vec![FaultKind::Stale, FaultKind::NotFinite]
+        );
+        // Stuck: the same bits for 30 s.
+        let mut m = ChannelMonitor::new(limits());
+        for k in 0..=31 {
+            m.observe(&sample(k as f64, 22.5));
+        }
+        assert_eq!(m.status(31.0).faults.first(), Some(&FaultKind::Stuck));
+        m.observe(&sample(32.0, 22.6));
+        assert!(m.status(32.0).faults.is_empty());
+    }
+
+    #[test]
+    fn fault_logged_once_at_start_and_once_at_clear() {
+        let mut log = FaultLog::default();
+        let mut starts = 0;
+        let mut clears = 0;
+        for k in 0..100 {
+            let faults: &[FaultKind] = if (20..60).contains(&k) {
+                &[FaultKind::Stale]
+            } else {
+                &[]
+            };
+            for e in log.update("T_spindle_C", faults, k as f64) {
+                if e.started { starts += 1 } else { clears += 1 }
+            }
+        }
+        assert_eq!((starts, clears), (1, 1));
+        assert_eq!(log.active().count(), 0);
+    }
+}

@@ -1,0 +1,22 @@
+//! The gateway runtime: sources → state → model → safety → sinks. This module holds the sans-IO parts
+//! (safety limits, direction latch, sensor health and recovery, field configuration, status) and the
+//! thin async runtime that wires them to the buses.
+
+pub mod config;
+pub mod direction;
+pub mod engine;
+pub mod health;
+pub mod http;
+pub mod model_adapter;
+pub mod recovery;
+pub mod run;
+pub mod safety;
+pub mod sources;
+pub mod status;
+
+pub use direction::{Direction, DirectionConfig, DirectionLatch};
+pub use engine::{Engine, ErrorModel, MachineState, TermError};
+pub use health::{ChannelLimits, ChannelMonitor, ChannelStatus, FaultEvent, FaultKind, FaultLog};
+pub use recovery::NeighbourEstimate;
+pub use safety::{AxisSafety, Input, Mode, SafetyConfig};
+pub use status::{AxisStatus, SinkStatus, StatusSnapshot};

@@ -1,0 +1,167 @@
+//! Adapter from the machine model (`src/models`, [`MachineModel`]) to the gateway's [`ErrorModel`].
+//!
+//! Channel names follow DESIGN §4: temperature sensor `s` is channel `T_<s>_C`, force `F_<f>_N`,
+//! strain `strain_<g>_ue`. Direction: the model picks forward/reverse tables by `dir` (+1/−1, 0 = mean).
+//! The gateway latches each axis' direction and blends a reversal over time; for an axis mid-blend
+//! (0 < w < 1) the model is evaluated with that axis forward and reverse and the results mixed
+//! w·e₊ + (1 − w)·e₋, so a reversal never steps the output. Errors are actual − nominal, µm.
+
+use super::engine::{ErrorModel, MachineState, TermError};
+use crate::models::{Axis, ErrorBreakdown, MachineModel, ModelInput, ModelState};
+
+pub struct MachineModelAdapter {
+    model: MachineModel,
+    state: ModelState,
+    input: ModelInput,
+    main: ErrorBreakdown,
+    plus: ErrorBreakdown,
+    minus: ErrorBreakdown,
+    /// Per-term errors after the reversal blend, µm.
+    acc: Vec<[f64; 3]>,
+    temp_channels: Vec<String>,
+    force_channels: Vec<String>,
+    strain_channels: Vec<String>,
+    /// Use the first-order closed form (cheaper) instead of the exact 4×4 chain.
+    pub first_order: bool,
+}
+
+fn dir_of(w: f64) -> i8 {
+    if w >= 1.0 {
+        1
+    } else if w <= 0.0 {
+        -1
+    } else {
+        0
+    }
+}
+
+impl MachineModelAdapter {
+    pub fn new(model: MachineModel) -> Self {
+        Self {
+            state: model.new_state(),
+            input: model.new_input(),
+            main: model.new_breakdown(),
+            plus: model.new_breakdown(),
+            minus: model.new_breakdown(),
+            acc: Vec::new(),
+            temp_channels: model
+                .temperature_sensors()
+                .iter()
+                .map(|s| format!("T_{s}_C"))
+                .collect(),
+            force_channels: model
+                .force_channels()
+                .iter()
+                .map(|s| format!("F_{s}_N"))
+                .collect(),
+            strain_channels: model
+                .strain_channels()
+                .iter()
+                .map(|s| format!("strain_{s}_ue"))
+                .collect(),
+            model,
+            first_order: false,
+        }
+    }
+
+    pub fn model(&self) -> &MachineModel {
+        &self.model
+    }
+
+    fn eval(&mut self, which: u8) {
+        let out = match which {
+            0 => &mut self.main,
+            1 => &mut self.plus,
+            _ => &mut self.minus,
+        };
+        if self.first_order {
+            self.model
+                .evaluate_first_order(&self.input, &mut self.state, out);
+        } else {
+            self.model.evaluate(&self.input, &mut self.state, out);
+        }
+    }
+}
+
+impl ErrorModel for MachineModelAdapter {
+    fn required_channels(&self) -> Vec<String> {
+        self.temp_channels
+            .iter()
+            .chain(&self.force_channels)
+            .chain(&self.strain_channels)
+            .cloned()
+            .collect()
+    }
+
+    fn axis_errors(
+        &mut self,
+        s: &MachineState,
+        out: &mut Vec<(String, Vec<TermError>)>,
+    ) -> Result<(), String> {
+        self.input.t_s = s.t_s;
+        let mut weights = [1.0f64; 3];
+        for ax in Axis::ALL {
+            let name = ax.lower().to_string();
+            let i = ax.index();
+            self.input.pos_mm[i] = s.positions_mm.get(&name).copied().unwrap_or(0.0);
+            weights[i] = s.weight_forward.get(&name).copied().unwrap_or(0.5);
+            self.input.dir[i] = dir_of(weights[i]);
+        }
+        for (k, ch) in self.temp_channels.iter().enumerate() {
+            self.input.temps_c[k] = *s.channels.get(ch).ok_or_else(|| format!("missing {ch}"))?;
+        }
+        for (k, ch) in self.force_channels.iter().enumerate() {
+            self.input.forces_n[k] = *s.channels.get(ch).ok_or_else(|| format!("missing {ch}"))?;
+        }
+        for (k, ch) in self.strain_channels.iter().enumerate() {
+            self.input.strains_ue[k] =
+                *s.channels.get(ch).ok_or_else(|| format!("missing {ch}"))?;
+        }
+        self.eval(0);
+        if self.main.flags.invalid_input {
+            return Err("model rejected the input (non-finite position or time)".into());
+        }
+        // Axes mid-reversal: the base evaluation used dir 0 (mean of F/R) for them; add, per such
+        // axis, w·e₊ + (1 − w)·e₋ − e_base. Exact when each table's F/R choice follows its own axis'
+        // direction (terms are additive), which is how the model defines bidirectional tables.
+        self.acc.clone_from(&self.main.terms_um);
+        for (i, &w) in weights.iter().enumerate() {
+            if w > 0.0 && w < 1.0 && (w - 0.5).abs() > 1e-12 {
+                self.input.dir[i] = 1;
+                self.eval(1);
+                self.input.dir[i] = -1;
+                self.eval(2);
+                self.input.dir[i] = 0;
+                for ((a, b), (p, n)) in self
+                    .acc
+                    .iter_mut()
+                    .zip(&self.main.terms_um)
+                    .zip(self.plus.terms_um.iter().zip(&self.minus.terms_um))
+                {
+                    for k in 0..3 {
+                        a[k] += w * p[k] + (1.0 - w) * n[k] - b[k];
+                    }
+                }
+            }
+        }
+        let names = self.model.term_names();
+        for ax in Axis::ALL {
+            let i = ax.index();
+            if !s.positions_mm.contains_key(&ax.lower().to_string()) {
+                continue;
+            }
+            let terms = self
+                .acc
+                .iter()
+                .zip(names)
+                .filter(|(v, _)| v[i] != 0.0)
+                .map(|(v, n)| TermError {
+                    term: n.clone(),
+                    error_um: v[i],
+                })
+                .collect();
+            out.push((ax.lower().to_string(), terms));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,267 @@
+//! Safety in one place, per axis: every value that leaves the box passes through [`AxisSafety::step`].
+//!
+//! - clamp: |output| ≤ `max_correction_um`, always (a NaN or out-of-range target never passes);
+//! - dosing: |Δoutput| ≤ `max_change_um_per_cycle` every cycle (Spaan 1995 Ch6 "compensation dosing
+//!   system": "never more than a predefined number of increments per NC-controller cycle-time");
+//! - ramp at `ramp_um_per_s` (and still within the dosing cap) after start, enable, disable, fault and
+//!   return from stale inputs, so none of these makes the output jump;
+//! - stale inputs: hold the last output for `stale_hold_s`, then ramp to zero.
+//!
+//! Units: µm and s. The output is the correction (= −error) handed to a sink.
+
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SafetyConfig {
+    /// Clamp on the absolute correction, µm.
+    pub max_correction_um: f64,
+    /// Dosing cap: largest change of the output in one cycle, µm.
+    pub max_change_um_per_cycle: f64,
+    /// Ramp rate used on enable/disable/fault/stale transitions, µm/s.
+    pub ramp_um_per_s: f64,
+    /// How long stale inputs hold the last output before it ramps to zero, s.
+    pub stale_hold_s: f64,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum SafetyError {
+    #[error("safety.{key} must be finite and > 0 (got {value})")]
+    BadConfig { key: &'static str, value: f64 },
+    #[error(
+        "the controller already holds {value_um} µm, beyond the clamp ±{max_um} µm: refusing to start (clear the register or raise max_correction_um)"
+    )]
+    InitialBeyondClamp { value_um: f64, max_um: f64 },
+}
+
+impl SafetyConfig {
+    pub fn validate(&self) -> Result<(), SafetyError> {
+        for (key, value) in [
+            ("max_correction_um", self.max_correction_um),
+            ("max_change_um_per_cycle", self.max_change_um_per_cycle),
+            ("ramp_um_per_s", self.ramp_um_per_s),
+        ] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(SafetyError::BadConfig { key, value });
+            }
+        }
+        if !(self.stale_hold_s.is_finite() && self.stale_hold_s >= 0.0) {
+            return Err(SafetyError::BadConfig {
+                key: "stale_hold_s",
+                value: self.stale_hold_s,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// What the model side delivers this cycle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Input {
+    /// A fresh correction target, µm (may be NaN or huge: it is checked here).
+    Fresh(f64),
+    /// The inputs behind the target are stale (no fresh position/temperature).
+    Stale,
+    /// A fault that forbids compensation (e.g. a required sensor failed without substitute).
+    Fault,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    /// Following the target within the dosing cap.
+    Tracking,
+    /// Ramping towards the target after start, enable, or a recovered fault/stale input.
+    RampingIn,
+    /// Inputs stale: holding the last output.
+    Holding,
+    /// Ramping to zero (disabled, fault, or stale beyond the hold time).
+    RampingOut,
+}
+
+#[derive(Clone, Debug)]
+pub struct AxisSafety {
+    cfg: SafetyConfig,
+    output_um: f64,
+    mode: Mode,
+    stale_since_s: Option<f64>,
+    last_t_s: Option<f64>,
+}
+
+impl AxisSafety {
+    /// Start from the value the controller already holds (read back from its registers), so a
+    /// restart does not jump. Refuses a start value beyond the clamp: any write would be out of limit.
+    pub fn new(cfg: SafetyConfig, initial_output_um: f64) -> Result<Self, SafetyError> {
+        cfg.validate()?;
+        if !initial_output_um.is_finite() || initial_output_um.abs() > cfg.max_correction_um {
+            return Err(SafetyError::InitialBeyondClamp {
+                value_um: initial_output_um,
+                max_um: cfg.max_correction_um,
+            });
+        }
+        Ok(Self {
+            cfg,
+            output_um: initial_output_um,
+            mode: Mode::RampingIn,
+            stale_since_s: None,
+            last_t_s: None,
+        })
+    }
+
+    pub fn output_um(&self) -> f64 {
+        self.output_um
+    }
+
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    pub fn config(&self) -> &SafetyConfig {
+        &self.cfg
+    }
+
+    /// One cycle at time `now_s`. Returns the output to write (clamped, capped, ramped).
+    pub fn step(&mut self, now_s: f64, enabled: bool, input: Input) -> f64 {
+        let dt_s = match self.last_t_s {
+            Some(t) if now_s > t => now_s - t,
+            _ => 0.0,
+        };
+        self.last_t_s = Some(self.last_t_s.map_or(now_s, |t| t.max(now_s)));
+        let cap = self.cfg.max_change_um_per_cycle;
+        let ramp = (self.cfg.ramp_um_per_s * dt_s).min(cap);
+        let max = self.cfg.max_correction_um;
+
+        let fresh = match input {
+            Input::Fresh(v) if v.is_finite() => Some(v.clamp(-max, max)),
+            Input::Fresh(_) | Input::Fault => None,
+            Input::Stale => None,
+        };
+        if !matches!(input, Input::Stale) {
+            self.stale_since_s = None;
+        }
+
+        let (desired, limit, mode) = if !enabled {
+            (0.0, ramp, Mode::RampingOut)
+        } else if let Some(target) = fresh {
+            let mode = match self.mode {
+                Mode::Tracking => Mode::Tracking,
+                _ => Mode::RampingIn,
+            };
+            let limit = if mode == Mode::Tracking { cap } else { ramp };
+            (target, limit, mode)
+        } else if matches!(input, Input::Stale) {
+            let since = *self.stale_since_s.get_or_insert(now_s);
+            if now_s - since < self.cfg.stale_hold_s {
+                (self.output_um, 0.0, Mode::Holding)
+            } else {
+                (0.0, ramp, Mode::RampingOut)
+            }
+        } else {
+            // Fault or non-finite target.
+            (0.0, ramp, Mode::RampingOut)
+        };
+
+        let delta = (desired - self.output_um).clamp(-limit, limit);
+        self.output_um = (self.output_um + delta).clamp(-max, max);
+        self.mode = if mode == Mode::RampingIn
+            && (desired - self.output_um).abs() <= f64::EPSILON * max.max(1.0)
+        {
+            Mode::Tracking
+        } else {
+            mode
+        };
+        self.output_um
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg() -> SafetyConfig {
+        SafetyConfig {
+            max_correction_um: 50.0,
+            max_change_um_per_cycle: 1.0,
+            ramp_um_per_s: 20.0,
+            stale_hold_s: 0.5,
+        }
+    }
+
+    #[test]
+    fn dosing_spreads_spaan_2um_step_over_two_cycles() {
+        // Spaan 1995 §6 (p. 109–110): a 2 µm compensation jump gave a 5 µm limit cycle on the Maho 700S
+        // while 1 µm (= scale resolution) was stable; dosing limits the change per 15 ms NC cycle.
+        let c = SafetyConfig {
+            max_change_um_per_cycle: 1.0,
+            ramp_um_per_s: 1e6,
+            ..cfg()
+        };
+        let mut s = AxisSafety::new(c, 0.0).unwrap();
+        s.step(0.0, true, Input::Fresh(0.0));
+        assert_eq!(s.mode(), Mode::Tracking);
+        assert_eq!(s.step(0.015, true, Input::Fresh(2.0)), 1.0);
+        assert_eq!(s.step(0.030, true, Input::Fresh(2.0)), 2.0);
+    }
+
+    #[test]
+    fn nan_and_huge_targets_never_pass() {
+        let mut s = AxisSafety::new(cfg(), 0.0).unwrap();
+        let mut t = 0.0;
+        // Ramp-in at 20 µm/s × 10 ms = 0.2 µm per cycle reaches the 50 µm clamp after 250 cycles.
+        for _ in 0..300 {
+            t += 0.01;
+            let o = s.step(t, true, Input::Fresh(1e9));
+            assert!(o <= 50.0);
+        }
+        assert_eq!(s.output_um(), 50.0);
+        let before = s.output_um();
+        let o = s.step(t + 0.01, true, Input::Fresh(f64::NAN));
+        assert!(
+            o.is_finite() && (before - o) <= 20.0 * 0.01 + 1e-12,
+            "NaN makes it ramp down, not jump"
+        );
+    }
+
+    #[test]
+    fn stale_holds_then_ramps_to_zero_then_ramps_back() {
+        let mut s = AxisSafety::new(cfg(), 10.0).unwrap();
+        s.step(0.0, true, Input::Fresh(10.0));
+        assert_eq!(s.step(0.1, true, Input::Stale), 10.0);
+        assert_eq!(s.mode(), Mode::Holding);
+        assert_eq!(
+            s.step(0.55, true, Input::Stale),
+            10.0,
+            "still inside the 0.5 s hold"
+        );
+        let o = s.step(0.7, true, Input::Stale);
+        assert_eq!(s.mode(), Mode::RampingOut);
+        assert!(
+            (o - 9.0).abs() < 1e-9,
+            "ramp 20 µm/s × 0.15 s capped at 1 µm: {o}"
+        );
+        let mut t = 0.7;
+        while s.output_um() > 0.0 {
+            t += 0.01;
+            s.step(t, true, Input::Stale);
+        }
+        // Source back: ramp in, no jump to 10.
+        let o = s.step(t + 0.01, true, Input::Fresh(10.0));
+        assert!(o <= 0.2 + 1e-9);
+        assert_eq!(s.mode(), Mode::RampingIn);
+    }
+
+    #[test]
+    fn refuses_start_beyond_clamp() {
+        assert!(AxisSafety::new(cfg(), 60.0).is_err());
+        assert!(
+            AxisSafety::new(
+                SafetyConfig {
+                    ramp_um_per_s: 0.0,
+                    ..cfg()
+                },
+                0.0
+            )
+            .is_err()
+        );
+    }
+}

@@ -1,0 +1,299 @@
+//! "Is it working?": a status snapshot per cycle (per axis the applied correction, its breakdown by
+//! term, the safety mode; every channel's health; the active faults) and its Prometheus text form.
+//! Units: µm for corrections, mm for positions, channel units for channel values.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+
+use serde::Serialize;
+
+use super::direction::Direction;
+use super::health::{ChannelStatus, FaultKind};
+use super::safety::Mode;
+use crate::bus::Health;
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct AxisStatus {
+    pub axis: String,
+    pub position_mm: Option<f64>,
+    pub direction: Direction,
+    pub weight_forward: f64,
+    /// Correction the model asks for (before safety), µm; None while inputs are stale/faulty.
+    pub target_um: Option<f64>,
+    /// Correction actually applied (after clamp, dosing and ramps), µm.
+    pub applied_um: f64,
+    pub mode: Mode,
+    /// Breakdown of the target by model term (corrections, µm).
+    pub terms_um: BTreeMap<String, f64>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Default)]
+pub struct SinkStatus {
+    pub kind: String,
+    pub connected: bool,
+    pub writes_ok: u64,
+    pub writes_failed: u64,
+    pub last_error: Option<String>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StatusSnapshot {
+    pub t_s: f64,
+    pub cycles: u64,
+    pub enabled: bool,
+    pub axes: Vec<AxisStatus>,
+    pub channels: BTreeMap<String, ChannelStatus>,
+    /// (source, fault, since t_s).
+    pub active_faults: Vec<(String, FaultKind, f64)>,
+    pub model_error: Option<String>,
+    pub sink: Option<SinkStatus>,
+}
+
+fn esc(label: &str) -> String {
+    label
+        .replace('\\', "\\\\")
+        .replace('"', "\\\"")
+        .replace('\n', "\\n")
+}
+
+fn num(v: f64) -> String {
+    if v.is_nan() {
+        "NaN".into()
+    } else if v.is_infinite() {
+        if v > 0.0 {
+            "+Inf".into()
+        } else {
+            "-Inf".into()
+        }
+    } else {
+        format!("{v}")
+    }
+}
+
+impl StatusSnapshot {
+    /// Prometheus text exposition format 0.0.4.
+    pub fn prometheus(&self) -> String {
+        let mut s = String::with_capacity(2048);
+        let family = |s: &mut String, name: &str, kind: &str, help: &str| {
+            let _ = writeln!(s, "# HELP {name} {help}\n# TYPE {name} {kind}");
+        };
+        family(
+            &mut s,
+            "retrocomp_cycles_total",
+            "counter",
+            "Gateway cycles run.",
+        );
+        let _ = writeln!(s, "retrocomp_cycles_total {}", self.cycles);
+        family(
+            &mut s,
+            "retrocomp_enabled",
+            "gauge",
+            "1 when compensation is enabled.",
+        );
+        let _ = writeln!(s, "retrocomp_enabled {}", self.enabled as u8);
+        family(
+            &mut s,
+            "retrocomp_correction_applied_um",
+            "gauge",
+            "Correction applied per axis after safety, um.",
+        );
+        for a in &self.axes {
+            let _ = writeln!(
+                s,
+                "retrocomp_correction_applied_um{{axis=\"{}\"}} {}",
+                esc(&a.axis),
+                num(a.applied_um)
+            );
+        }
+        family(
+            &mut s,
+            "retrocomp_correction_target_um",
+            "gauge",
+            "Correction requested by the model per axis, um.",
+        );
+        for a in &self.axes {
+            if let Some(t) = a.target_um {
+                let _ = writeln!(
+                    s,
+                    "retrocomp_correction_target_um{{axis=\"{}\"}} {}",
+                    esc(&a.axis),
+                    num(t)
+                );
+            }
+        }
+        family(
+            &mut s,
+            "retrocomp_correction_term_um",
+            "gauge",
+            "Correction per axis and model term, um.",
+        );
+        for a in &self.axes {
+            for (term, v) in &a.terms_um {
+                let _ = writeln!(
+                    s,
+                    "retrocomp_correction_term_um{{axis=\"{}\",term=\"{}\"}} {}",
+                    esc(&a.axis),
+                    esc(term),
+                    num(*v)
+                );
+            }
+        }
+        family(
+            &mut s,
+            "retrocomp_axis_tracking",
+            "gauge",
+            "1 when the axis output tracks the model (no ramp/hold).",
+        );
+        for a in &self.axes {
+            let _ = writeln!(
+                s,
+                "retrocomp_axis_tracking{{axis=\"{}\"}} {}",
+                esc(&a.axis),
+                (a.mode == Mode::Tracking) as u8
+            );
+        }
+        family(
+            &mut s,
+            "retrocomp_channel_healthy",
+            "gauge",
+            "1 when the channel's latest value is healthy.",
+        );
+        for (name, c) in &self.channels {
+            let _ = writeln!(
+                s,
+                "retrocomp_channel_healthy{{channel=\"{}\"}} {}",
+                esc(name),
+                (c.health == Health::Ok) as u8
+            );
+        }
+        family(
+            &mut s,
+            "retrocomp_channel_substituted",
+            "gauge",
+            "1 when the channel is replaced by its neighbour estimate.",
+        );
+        for (name, c) in &self.channels {
+            let _ = writeln!(
+                s,
+                "retrocomp_channel_substituted{{channel=\"{}\"}} {}",
+                esc(name),
+                c.substituted as u8
+            );
+        }
+        family(
+            &mut s,
+            "retrocomp_channel_value",
+            "gauge",
+            "Last good (or substituted) channel value, channel units.",
+        );
+        for (name, c) in &self.channels {
+            if let Some(v) = c.value {
+                let _ = writeln!(
+                    s,
+                    "retrocomp_channel_value{{channel=\"{}\"}} {}",
+                    esc(name),
+                    num(v)
+                );
+            }
+        }
+        family(
+            &mut s,
+            "retrocomp_faults_active",
+            "gauge",
+            "Faults active now.",
+        );
+        let _ = writeln!(s, "retrocomp_faults_active {}", self.active_faults.len());
+        if let Some(k) = &self.sink {
+            family(
+                &mut s,
+                "retrocomp_sink_connected",
+                "gauge",
+                "1 when the output sink is connected.",
+            );
+            let _ = writeln!(
+                s,
+                "retrocomp_sink_connected{{sink=\"{}\"}} {}",
+                esc(&k.kind),
+                k.connected as u8
+            );
+            family(
+                &mut s,
+                "retrocomp_sink_writes_total",
+                "counter",
+                "Sink write cycles by result.",
+            );
+            let _ = writeln!(
+                s,
+                "retrocomp_sink_writes_total{{sink=\"{}\",result=\"ok\"}} {}",
+                esc(&k.kind),
+                k.writes_ok
+            );
+            let _ = writeln!(
+                s,
+                "retrocomp_sink_writes_total{{sink=\"{}\",result=\"failed\"}} {}",
+                esc(&k.kind),
+                k.writes_failed
+            );
+        }
+        s
+    }
+
+    /// Human-readable table for `retrocomp status`.
+    pub fn render_text(&self) -> String {
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "t = {:.3} s, {} cycles, compensation {}",
+            self.t_s,
+            self.cycles,
+            if self.enabled { "ENABLED" } else { "disabled" }
+        );
+        let _ = writeln!(
+            s,
+            "{:<4} {:>12} {:>9} {:>12} {:>12}  {:<11} terms (µm)",
+            "axis", "pos_mm", "dir", "target_um", "applied_um", "mode"
+        );
+        for a in &self.axes {
+            let terms: Vec<String> = a
+                .terms_um
+                .iter()
+                .map(|(k, v)| format!("{k}={v:+.2}"))
+                .collect();
+            let _ = writeln!(
+                s,
+                "{:<4} {:>12} {:>9} {:>12} {:>12.3}  {:<11} {}",
+                a.axis,
+                a.position_mm.map_or("-".into(), |p| format!("{p:.4}")),
+                format!("{:?}", a.direction).to_lowercase(),
+                a.target_um.map_or("-".into(), |t| format!("{t:.3}")),
+                a.applied_um,
+                format!("{:?}", a.mode).to_lowercase(),
+                terms.join(" ")
+            );
+        }
+        let _ = writeln!(s, "channels:");
+        for (name, c) in &self.channels {
+            let _ = writeln!(
+                s,
+                "  {:<20} {:>12} {:?}{}{}",
+                name,
+                c.value.map_or("-".into(), |v| format!("{v:.3}")),
+                c.health,
+                if c.substituted {
+                    " (substituted from neighbours)"
+                } else {
+                    ""
+                },
+                if c.faults.is_empty() {
+                    String::new()
+                } else {
+                    format!(" faults={:?}", c.faults)
+                }
+            );
+        }
+        if let Some(e) = &self.model_error {
+            let _ = writeln!(s, "model error: {e}");
+        }
+        s
+    }
+}

@@ -1,0 +1,383 @@
+//! Register map of the controller's origin-shift (work-offset) registers, from TOML, and the encoding
+//! of per-axis corrections into register words.
+//!
+//! Conventions:
+//! - Addresses are 0-based holding-register addresses as they go on the wire (mbpoll's `-r` is 1-based).
+//! - `lsb_um`: µm per register count (e.g. 0.1 µm).
+//! - `sign`: register value = `sign × correction_um / lsb_um`. `sign = 1` when the controller ADDS the
+//!   register to its axis origin (the register then holds the correction = −error); `sign = -1` when the
+//!   PLC expects the error itself and subtracts it (Siemens: "positive compensation moves the axis
+//!   negative").
+//! - 32-bit values span two registers; `word_order = "high_first"` (ABCD) or `"low_first"` (CDAB).
+//!   Both words always go out in ONE FC16 request so the controller never sees half an update.
+//! - Allow-list: the only writable addresses are the value registers and the strobe register
+//!   configured here; [`RegisterMap::check_write`] refuses anything else.
+
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RegisterKind {
+    Int16,
+    Int32,
+}
+
+impl RegisterKind {
+    pub fn words(self) -> u16 {
+        match self {
+            RegisterKind::Int16 => 1,
+            RegisterKind::Int32 => 2,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum WordOrder {
+    /// ABCD: high word at the lower address.
+    #[default]
+    HighFirst,
+    /// CDAB: low word at the lower address.
+    LowFirst,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisRegister {
+    /// Axis name (`x`, `y`, `z`).
+    pub axis: String,
+    pub address: u16,
+    pub kind: RegisterKind,
+    #[serde(default)]
+    pub word_order: WordOrder,
+    /// µm per count.
+    pub lsb_um: f64,
+    /// +1: register = correction; −1: register = −correction (= error).
+    pub sign: i8,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Handshake {
+    /// Register the box toggles (0/1) after writing the values.
+    pub strobe_address: u16,
+    /// Register the controller sets equal to the strobe once it has taken the values.
+    pub ack_address: u16,
+    /// Give up waiting for the ack after this long, ms.
+    pub timeout_ms: u64,
+    /// Ack poll interval, ms.
+    #[serde(default = "default_poll_ms")]
+    pub poll_ms: u64,
+}
+
+fn default_poll_ms() -> u64 {
+    5
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RegisterMap {
+    #[serde(rename = "axis")]
+    pub axes: Vec<AxisRegister>,
+    #[serde(default)]
+    pub handshake: Option<Handshake>,
+    /// Read the values back after each write and compare.
+    #[serde(default = "yes")]
+    pub verify_readback: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum MapError {
+    #[error("origin_shift.axis[{index}] ({axis}): {what}")]
+    Axis {
+        index: usize,
+        axis: String,
+        what: String,
+    },
+    #[error("origin_shift: registers {a} and {b} overlap at address {address}")]
+    Overlap { a: String, b: String, address: u32 },
+    #[error("origin_shift: no axis named {0} in the register map")]
+    UnknownAxis(String),
+    #[error("origin_shift: correction for axis {axis} is {value_um} µm, not finite")]
+    NotFinite { axis: String, value_um: f64 },
+    #[error(
+        "origin_shift: axis {axis}: {value_um} µm is {counts} counts of {lsb_um} µm, outside the {kind:?} range"
+    )]
+    OutOfRange {
+        axis: String,
+        value_um: f64,
+        counts: f64,
+        lsb_um: f64,
+        kind: RegisterKind,
+    },
+    #[error("origin_shift: write of {len} word(s) at {address} is outside the allow-list")]
+    NotAllowed { address: u16, len: usize },
+    #[error("origin_shift: expected {expected} words for axis {axis}, got {got}")]
+    WordCount {
+        axis: String,
+        expected: usize,
+        got: usize,
+    },
+}
+
+/// One FC16 request: contiguous words starting at `address`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct WriteBlock {
+    pub address: u16,
+    pub words: Vec<u16>,
+}
+
+/// FC16 carries at most 123 registers.
+const MAX_FC16_WORDS: usize = 123;
+
+impl RegisterMap {
+    pub fn validate(&self) -> Result<(), MapError> {
+        let mut spans: Vec<(u32, u32, String)> = Vec::new();
+        for (index, r) in self.axes.iter().enumerate() {
+            let err = |what: String| MapError::Axis {
+                index,
+                axis: r.axis.clone(),
+                what,
+            };
+            if !(r.lsb_um.is_finite() && r.lsb_um > 0.0) {
+                return Err(err(format!(
+                    "lsb_um must be finite and > 0, got {}",
+                    r.lsb_um
+                )));
+            }
+            if r.sign != 1 && r.sign != -1 {
+                return Err(err(format!("sign must be 1 or -1, got {}", r.sign)));
+            }
+            let start = r.address as u32;
+            let end = start + r.kind.words() as u32;
+            if end > 0x1_0000 {
+                return Err(err(format!(
+                    "register runs past address 65535 (start {start})"
+                )));
+            }
+            spans.push((start, end, r.axis.clone()));
+        }
+        if let Some(h) = &self.handshake {
+            spans.push((
+                h.strobe_address as u32,
+                h.strobe_address as u32 + 1,
+                "strobe".into(),
+            ));
+            spans.push((h.ack_address as u32, h.ack_address as u32 + 1, "ack".into()));
+        }
+        for (i, a) in spans.iter().enumerate() {
+            for b in &spans[i + 1..] {
+                if a.0 < b.1 && b.0 < a.1 {
+                    return Err(MapError::Overlap {
+                        a: a.2.clone(),
+                        b: b.2.clone(),
+                        address: a.0.max(b.0),
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    pub fn axis(&self, name: &str) -> Result<&AxisRegister, MapError> {
+        self.axes
+            .iter()
+            .find(|r| r.axis == name)
+            .ok_or_else(|| MapError::UnknownAxis(name.into()))
+    }
+
+    /// The allow-list check: every word of the write must fall inside a value register or the strobe.
+    pub fn check_write(&self, address: u16, len: usize) -> Result<(), MapError> {
+        let allowed = |a: u32| {
+            self.axes
+                .iter()
+                .any(|r| a >= r.address as u32 && a < r.address as u32 + r.kind.words() as u32)
+                || self
+                    .handshake
+                    .as_ref()
+                    .is_some_and(|h| a == h.strobe_address as u32)
+        };
+        if len == 0 || !(0..len as u32).all(|k| allowed(address as u32 + k)) {
+            return Err(MapError::NotAllowed { address, len });
+        }
+        Ok(())
+    }
+
+    /// Encode per-axis corrections (µm) into FC16 blocks: contiguous registers are merged into one
+    /// request (so several axes also change together), never splitting a 32-bit value.
+    pub fn encode(&self, corrections_um: &[(&str, f64)]) -> Result<Vec<WriteBlock>, MapError> {
+        let mut regs: Vec<(u16, Vec<u16>)> = Vec::new();
+        for (axis, value_um) in corrections_um {
+            let r = self.axis(axis)?;
+            regs.push((r.address, encode_value(r, *value_um)?));
+        }
+        regs.sort_by_key(|r| r.0);
+        let mut blocks: Vec<WriteBlock> = Vec::new();
+        for (address, words) in regs {
+            match blocks.last_mut() {
+                Some(b)
+                    if b.address as usize + b.words.len() == address as usize
+                        && b.words.len() + words.len() <= MAX_FC16_WORDS =>
+                {
+                    b.words.extend(words)
+                }
+                _ => blocks.push(WriteBlock { address, words }),
+            }
+        }
+        for b in &blocks {
+            self.check_write(b.address, b.words.len())?;
+        }
+        Ok(blocks)
+    }
+
+    /// Decode the words read from an axis' register back into its correction, µm.
+    pub fn decode(&self, axis: &str, words: &[u16]) -> Result<f64, MapError> {
+        let r = self.axis(axis)?;
+        decode_value(r, words)
+    }
+}
+
+/// Register words for one axis' correction.
+pub fn encode_value(r: &AxisRegister, value_um: f64) -> Result<Vec<u16>, MapError> {
+    if !value_um.is_finite() {
+        return Err(MapError::NotFinite {
+            axis: r.axis.clone(),
+            value_um,
+        });
+    }
+    let counts = (r.sign as f64 * value_um / r.lsb_um).round();
+    let (lo, hi) = match r.kind {
+        RegisterKind::Int16 => (i16::MIN as f64, i16::MAX as f64),
+        RegisterKind::Int32 => (i32::MIN as f64, i32::MAX as f64),
+    };
+    if counts < lo || counts > hi {
+        return Err(MapError::OutOfRange {
+            axis: r.axis.clone(),
+            value_um,
+            counts,
+            lsb_um: r.lsb_um,
+            kind: r.kind,
+        });
+    }
+    Ok(match r.kind {
+        RegisterKind::Int16 => vec![counts as i16 as u16],
+        RegisterKind::Int32 => {
+            let v = counts as i32 as u32;
+            let (high, low) = ((v >> 16) as u16, v as u16);
+            match r.word_order {
+                WordOrder::HighFirst => vec![high, low],
+                WordOrder::LowFirst => vec![low, high],
+            }
+        }
+    })
+}
+
+pub fn decode_value(r: &AxisRegister, words: &[u16]) -> Result<f64, MapError> {
+    if words.len() != r.kind.words() as usize {
+        return Err(MapError::WordCount {
+            axis: r.axis.clone(),
+            expected: r.kind.words() as usize,
+            got: words.len(),
+        });
+    }
+    let counts = match r.kind {
+        RegisterKind::Int16 => words[0] as i16 as f64,
+        RegisterKind::Int32 => {
+            let (high, low) = match r.word_order {
+                WordOrder::HighFirst => (words[0], words[1]),
+                WordOrder::LowFirst => (words[1], words[0]),
+            };
+            (((high as u32) << 16 | low as u32) as i32) as f64
+        }
+    };
+    Ok(r.sign as f64 * counts * r.lsb_um)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn map() -> RegisterMap {
+        toml::from_str(
+            r#"
+            verify_readback = true
+            [[axis]]
+            axis = "x"
+            address = 100
+            kind = "int32"
+            word_order = "low_first"
+            lsb_um = 0.1
+            sign = 1
+            [[axis]]
+            axis = "z"
+            address = 102
+            kind = "int32"
+            lsb_um = 0.1
+            sign = -1
+            [handshake]
+            strobe_address = 110
+            ack_address = 111
+            timeout_ms = 200
+            "#,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn int32_words_in_configured_order_and_one_block() {
+        let m = map();
+        m.validate().unwrap();
+        // −12.3 µm at 0.1 µm → −123 = 0xFFFF_FF85; CDAB puts the low word first.
+        let blocks = m.encode(&[("z", 70_000.0), ("x", -12.3)]).unwrap();
+        assert_eq!(
+            blocks.len(),
+            1,
+            "x (100-101) and z (102-103) are contiguous: one FC16"
+        );
+        assert_eq!(blocks[0].address, 100);
+        // z: sign −1 → −700000 counts = 0xFFF5_51A0, ABCD.
+        assert_eq!(blocks[0].words, vec![0xFF85, 0xFFFF, 0xFFF5, 0x51A0]);
+        assert!((m.decode("x", &blocks[0].words[0..2]).unwrap() + 12.3).abs() < 1e-9);
+        assert!((m.decode("z", &blocks[0].words[2..4]).unwrap() - 70_000.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn range_nan_and_allow_list() {
+        let mut m = map();
+        m.axes[0].kind = RegisterKind::Int16;
+        // int16 at 0.1 µm holds ±3276.7 µm.
+        assert!(m.encode(&[("x", 3276.7)]).is_ok());
+        assert!(matches!(
+            m.encode(&[("x", 3276.8)]),
+            Err(MapError::OutOfRange { .. })
+        ));
+        assert!(matches!(
+            m.encode(&[("x", f64::NAN)]),
+            Err(MapError::NotFinite { .. })
+        ));
+        assert!(m.check_write(110, 1).is_ok(), "strobe is writable");
+        assert!(
+            m.check_write(111, 1).is_err(),
+            "ack is read-only for the box"
+        );
+        assert!(
+            m.check_write(101, 2).is_err(),
+            "101 is not configured once x is int16"
+        );
+        assert!(matches!(
+            m.encode(&[("y", 1.0)]),
+            Err(MapError::UnknownAxis(_))
+        ));
+    }
+
+    #[test]
+    fn overlap_is_rejected() {
+        let mut m = map();
+        m.axes[1].address = 101;
+        assert!(matches!(m.validate(), Err(MapError::Overlap { .. })));
+    }
+}

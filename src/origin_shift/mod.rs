@@ -1,0 +1,16 @@
+//! Origin-shift output (Ni 1996 Fig. 3; Fanuc external work zero offset / machine zero point shift):
+//! per-axis corrections written to the controller's offset registers over Modbus TCP or RTU.
+//!
+//! [`map`] (TOML register map, encoding, allow-list), [`cycle`] (sans-IO write/strobe/ack/read-back
+//! state machine), [`client`] (tokio-modbus shell: per-request timeout, reconnect with backoff, start
+//! by reading the current values). Units: µm; sign convention in [`map`].
+
+pub mod client;
+pub mod cycle;
+pub mod map;
+
+pub use client::{ClientConfig, OriginShiftClient, Transport};
+pub use cycle::{Action, Outcome, Reply, WriteCycle};
+pub use map::{
+    AxisRegister, Handshake, MapError, RegisterKind, RegisterMap, WordOrder, WriteBlock,
+};

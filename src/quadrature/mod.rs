@@ -1,0 +1,27 @@
+//! Quadrature pulse injection (Ni 1996 Fig. 2, Yee & Gavin 1990): the box sits in the encoder feedback
+//! path between the scale and the legacy controller, passes the native A/B edges through and adds or
+//! removes counts so the servo moves the slide by the correction.
+//!
+//! Conventions:
+//! - Time is integer nanoseconds (`_ns`, u64) on the injector's clock: edge gaps are sub-µs (RS-422 at
+//!   400 kHz needs ≥ 0.4 µs between edges), so floats would blur the gap check.
+//! - A count is one A/B edge (4 counts per signal period). Position phase `p mod 4` maps to levels
+//!   (A,B) = 0:(0,0) 1:(1,0) 2:(1,1) 3:(0,1): A leads B when counting up.
+//! - Sign: injecting +n counts makes the controller believe the slide moved +n counts, so its servo
+//!   moves the slide by −n counts. To move the slide by a correction `c_um` (= −error), inject
+//!   `−c_um / resolution_um` counts (times `count_sign` if the encoder counts opposite to the axis).
+//!   [`counts::CountQuantizer`] owns this conversion.
+//!
+//! Layers: [`counts`] (µm → whole counts with a carried residual), [`gray`] (levels ↔ phase, the
+//! decoder), [`scheduler`] (pure edge scheduler merging native and injected edges under the gap and
+//! rate limits), [`driver`] (writes the schedule to two `embedded_hal::digital::OutputPin`s).
+
+pub mod counts;
+pub mod driver;
+pub mod gray;
+pub mod scheduler;
+
+pub use counts::CountQuantizer;
+pub use driver::QuadraturePins;
+pub use gray::{DecodeError, QuadDecoder, Step, levels_of_phase};
+pub use scheduler::{EdgeScheduler, Event, SchedulerConfig, Source, Transition, simulate};
