@@ -35,6 +35,8 @@ enum Command {
     Nc(cli::nc::Args),
     /// Circular (ballbar) test: ISO 230-4 G/F and error diagnosis.
     Circle(cli::circle::Args),
+    /// Fit model terms (axis tables, thermal, load) from measurements; writes model TOML.
+    Fit(cli::fit::Args),
     /// Find where simulation and recording disagree, name the missing physics, fit it (DESIGN §5).
     Diagnose(cli::diagnose::DiagnoseArgs),
     /// Run diagnose over `hil-sim gen-cases` output and score it against the truth manifests.
@@ -52,6 +54,7 @@ fn main() -> std::process::ExitCode {
         Command::Export(a) => cli::export::run(&a),
         Command::Nc(a) => cli::nc::run(&a),
         Command::Circle(a) => cli::circle::run(&a),
+        Command::Fit(a) => cli::fit::run(&a),
         Command::Diagnose(a) => cli::diagnose::run_diagnose(&a),
         Command::DiagnoseBench(a) => cli::diagnose::run_bench(&a),
     };

@@ -250,6 +250,16 @@ fn iso_230_4_g_and_f() {
         (rep.iso230_4.f_max_um - 5.0).abs() < 0.01 && (rep.iso230_4.f_min_um + 5.0).abs() < 0.01
     );
     assert_eq!(rep.iso230_4.g_bidirectional_um, None);
+    // One rotation: servo mismatch cannot be told from squareness and is not reported.
+    assert!(rep.terms.iter().all(|t| t.effect != "servo_mismatch"));
+    let sq = Truth {
+        square_urad: 30.0,
+        decay_mm: 1.0,
+        cyclic_period: 1.0,
+        ..Default::default()
+    };
+    let rep = analyse(&[trace(&sq, Rotation::Cw, 720, &mut rng)], &setup).unwrap();
+    assert!(within(param(&rep, "squareness", "urad"), 30.0, 0.05));
     let sc = Truth {
         eps_x_ppm: 20.0,
         decay_mm: 1.0,

@@ -196,3 +196,46 @@ fn circle_reports_g_and_terms() {
     assert!((json["terms"][0]["params"]["b_um"].as_f64().unwrap() - 4.0).abs() < 0.05);
     assert!(json["iso230_4"]["g_bidirectional_um"].as_f64().unwrap() > 3.0);
 }
+
+#[test]
+fn fit_axis_writes_a_model_that_check_config_accepts() {
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path().join("runs.csv");
+    let mut s = String::from("target_mm,run,direction,deviation_um\n");
+    for run in 1..=3 {
+        for i in 0..=20 {
+            let x = 25.0 * f64::from(i);
+            let e = 0.03 * x - 4e-5 * x * x + 0.05 * f64::from(run % 2);
+            s.push_str(&format!(
+                "{x},{run},+,{:.3}\n{x},{run},-,{:.3}\n",
+                e + 1.5,
+                e - 1.5
+            ));
+        }
+    }
+    std::fs::write(&runs, s).unwrap();
+    let model = dir.path().join("m.toml");
+    let svg = dir.path().join("fit.svg");
+    let text = run_ok(
+        bin()
+            .args(["fit", "axis"])
+            .arg(&runs)
+            .args(["--component", "EXX", "--holdout-run", "3", "--out"])
+            .arg(&model)
+            .arg("--svg")
+            .arg(&svg),
+    );
+    assert!(text.contains("held-out run 3: δ = 9"), "{text}");
+    let check = run_ok(bin().arg("check-config").arg(&model));
+    assert!(check.contains("EXX"), "{check}");
+    assert!(std::fs::read_to_string(&svg).unwrap().contains("EXX fit"));
+    // thermal needs a base model: a clear error without one.
+    let out = bin()
+        .args(["fit", "thermal"])
+        .arg(&runs)
+        .args(["--signal", "ex_um"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--base-model is required"));
+}

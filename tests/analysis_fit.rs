@@ -195,3 +195,157 @@ fn recording_errors_are_located() {
         ]
     );
 }
+
+mod to_model {
+    use super::*;
+    use retrocomp::analysis::fit::to_model::{
+        AxisForm, add_load, add_thermal, axis_component, put_component, single_axis_spec,
+        to_checked_toml,
+    };
+    use retrocomp::models::names::parse_component;
+    use retrocomp::models::{Axis, MachineModel};
+
+    fn runs() -> Vec<Reading> {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let mut rs = Vec::new();
+        for run in 1..=4 {
+            for i in 0..=25 {
+                let x = 20.0 * f64::from(i);
+                for d in [Direction::Forward, Direction::Reverse] {
+                    rs.push(Reading {
+                        target_mm: x,
+                        run,
+                        direction: d,
+                        deviation_um: truth_axis(x, d) + rng.random_range(-0.2..0.2),
+                    });
+                }
+            }
+        }
+        rs
+    }
+
+    fn eval(
+        m: &MachineModel,
+        x: f64,
+        dir: i8,
+        temps: &[f64],
+        strains: &[f64],
+        t_s: f64,
+        state: &mut retrocomp::models::ModelState,
+    ) -> [f64; 3] {
+        let mut input = m.new_input();
+        input.pos_mm = [x, 0.0, 0.0];
+        input.dir = [dir, 0, 0];
+        input.t_s = t_s;
+        if !temps.is_empty() {
+            input.temps_c = temps.to_vec();
+        }
+        if !strains.is_empty() {
+            input.strains_ue = strains.to_vec();
+        }
+        let mut out = m.new_breakdown();
+        m.evaluate(&input, state, &mut out);
+        out.total_um
+    }
+
+    /// The written model reproduces the fit with the documented sign (model ex = +EXX), in both
+    /// forms, and passes the model's own validating parser.
+    #[test]
+    fn axis_fit_writes_a_model_that_evaluates_to_the_fit() {
+        let rs = runs();
+        let fit = fit_axis(&rs, 50.0, 1e-4, None).unwrap();
+        let targets: Vec<f64> = rs.iter().map(|r| r.target_mm).collect();
+        let id = parse_component("EXX").unwrap();
+        for form in [AxisForm::Table, AxisForm::Piecewise] {
+            let mut spec = single_axis_spec("fit", Axis::X, (0.0, 500.0));
+            put_component(&mut spec, axis_component(&fit, id, form, &targets).unwrap()).unwrap();
+            let (toml, m) = to_checked_toml(spec).unwrap();
+            assert!(toml.contains("EXX"));
+            let mut st = m.new_state();
+            for x in [0.0, 140.0, 300.0, 460.0] {
+                let (f, r) = (
+                    eval(&m, x, 1, &[], &[], 0.0, &mut st)[0],
+                    eval(&m, x, -1, &[], &[], 0.0, &mut st)[0],
+                );
+                match form {
+                    AxisForm::Table => {
+                        assert!(
+                            (f - fit.forward.eval(x)).abs() < 1e-3
+                                && (r - fit.reverse.eval(x)).abs() < 1e-3,
+                            "{form:?} at {x}: {f} {r}"
+                        );
+                    }
+                    AxisForm::Piecewise => {
+                        let mean = 0.5 * (fit.forward.eval(x) + fit.reverse.eval(x));
+                        assert!(
+                            (f - mean).abs() < 1e-6 && (r - mean).abs() < 1e-6,
+                            "{form:?} at {x}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    /// Thermal and load terms written into the model predict what the regression predicts.
+    #[test]
+    fn thermal_and_load_terms_evaluate_like_the_regression() {
+        let rec = parse_recording("rec.csv", &recording(5)).unwrap();
+        let fit_t = fit_context(
+            &rec,
+            "ex_um",
+            true,
+            false,
+            &[0.0, 600.0],
+            2,
+            Criterion::Bic,
+            &[4],
+        )
+        .unwrap();
+        let fit_l =
+            fit_context(&rec, "ex_um", false, true, &[0.0], 1, Criterion::Bic, &[4]).unwrap();
+        let mut spec = single_axis_spec("base", Axis::X, (0.0, 500.0));
+        let mean = |name: &str| {
+            let v = &rec.columns[name];
+            v.iter().sum::<f64>() / v.len() as f64
+        };
+        add_thermal(&mut spec, &fit_t, parse_component("EXX").unwrap(), &mean).unwrap();
+        let (_, m) = to_checked_toml(spec.clone()).unwrap();
+        let t = &rec.columns["t_s"];
+        let pred = fit_t
+            .model
+            .predict(t, &|n: &str| rec.get(n).cloned())
+            .unwrap();
+        let sensors: Vec<String> = m.temperature_sensors().to_vec();
+        let mut st = m.new_state();
+        let mut worst = 0.0f64;
+        for i in 0..t.len() {
+            let temps: Vec<f64> = sensors
+                .iter()
+                .map(|s| rec.columns[&format!("T_{s}_C")][i])
+                .collect();
+            let e = eval(&m, 100.0, 1, &temps, &[], t[i], &mut st)[0];
+            worst = worst.max((e - pred[i]).abs());
+        }
+        // The model's lag and the regression's lag discretise the same ODE; they agree to 0.3 µm.
+        assert!(worst < 0.3, "worst {worst}");
+
+        let mut spec_l = single_axis_spec("base", Axis::X, (0.0, 500.0));
+        add_load(&mut spec_l, &fit_l, parse_component("EXX").unwrap()).unwrap();
+        let (_, ml) = to_checked_toml(spec_l).unwrap();
+        let pred_l = fit_l
+            .model
+            .predict(t, &|n: &str| rec.get(n).cloned())
+            .unwrap();
+        let chans: Vec<String> = ml.strain_channels().to_vec();
+        let mut st = ml.new_state();
+        for i in (0..t.len()).step_by(97) {
+            let strains: Vec<f64> = chans
+                .iter()
+                .map(|s| rec.columns[&format!("strain_{s}_ue")][i])
+                .collect();
+            let e = eval(&ml, 100.0, 1, &[], &strains, t[i], &mut st)[0];
+            assert!((e - pred_l[i]).abs() < 1e-6, "{e} vs {}", pred_l[i]);
+        }
+    }
+}

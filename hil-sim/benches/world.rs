@@ -1,5 +1,6 @@
 //! Simulation speed: 10 s of simulated time at a 1 kHz servo rate, 3 axes moving, thermal network
-//! with 3 nodes and 3 sensors, cutting force, noise on. Real-time factor = 10 s / measured time.
+//! with 3 nodes and 3 sensors, cutting force, noise on (built-in geometry, then the project's
+//! volumetric model). Real-time factor = 10 s / measured time.
 //! Run: `cargo bench -p hil-sim --bench world`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -56,6 +57,23 @@ fn bench(c: &mut Criterion) {
     g.bench_function("10s_sim_1kHz_3axes_thermal", |b| {
         b.iter(|| {
             let mut w = World::new(cfg.clone()).unwrap();
+            for _ in 0..10_000 {
+                w.tick();
+            }
+            assert!(w.t_s() > 9.99);
+            w.readings().error_um
+        })
+    });
+    // Same world with the project's exact (4×4 HTM) volumetric model as the geometry truth
+    // (Studer S-36, all tables bidirectional), evaluated at every sample and for every truth query.
+    let model =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/examples/studer-s36.toml");
+    let mut vcfg = cfg.clone();
+    vcfg.truth.builtin = Default::default();
+    vcfg.truth.model_path = Some(model);
+    g.bench_function("10s_sim_1kHz_3axes_thermal_volumetric_model", |b| {
+        b.iter(|| {
+            let mut w = World::new(vcfg.clone()).unwrap();
             for _ in 0..10_000 {
                 w.tick();
             }

@@ -28,13 +28,15 @@ pub struct RunArgs {
     pub compensate: Compensate,
 }
 
-/// Run a config to the end as fast as possible; write the recording and the manifest.
+/// Run a config to the end (as fast as possible, or paced when `clock.realtime`); write the
+/// recording and the manifest.
 pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     let mut cfg = SimConfig::from_toml_path(&args.config)?;
     if let Some(s) = args.seed {
         cfg.seed = s;
     }
-    let (rows, t_s) = run_config(cfg, &args.out, args.compensate)?;
+    let (rows, t_s) = run_config(cfg, &args.out, args.compensate)
+        .map_err(|e| e.context(format!("config {}", args.config.display())))?;
     eprintln!(
         "hil-sim: {rows} rows, {t_s:.3} s simulated → {}",
         args.out.display()
@@ -50,6 +52,8 @@ pub fn run_config(
 ) -> anyhow::Result<(u64, f64)> {
     std::fs::create_dir_all(out).map_err(|e| anyhow::anyhow!("--out {}: {e}", out.display()))?;
     let scan = cfg.plc.scan_s;
+    let realtime = cfg.clock.realtime;
+    let pacer = crate::clock::RealtimePacer::new(cfg.dt_s());
     let mut world = World::new(cfg)?;
     let manifest = serde_json::to_string_pretty(&world.manifest())?;
     std::fs::write(out.join("manifest.json"), manifest + "\n")?;
@@ -57,6 +61,9 @@ pub fn run_config(
     let mut oracle = Oracle::new(scan);
     let mut failure: Option<anyhow::Error> = None;
     let (_, rows) = run_to_end(&mut world, std::io::BufWriter::new(file), |w| {
+        if realtime {
+            std::thread::sleep(pacer.until_next(w.ticks()));
+        }
         if compensate == Compensate::Oracle
             && failure.is_none()
             && let Err(e) = oracle.update(w)

@@ -116,6 +116,13 @@ pub struct ServoConfig {
     /// Ideal servo: the motor sits exactly on its target (no following error, no quantization in the loop).
     #[serde(default)]
     pub ideal: bool,
+    /// Static friction: a standing axis breaks away only when kv·(position error) exceeds
+    /// kv·`stiction_um` (0 = off). Below it the drive's torque does not overcome friction.
+    #[serde(default)]
+    pub stiction_um: f64,
+    /// A moving axis sticks again once its velocity command falls below kv·`coulomb_um`.
+    #[serde(default)]
+    pub coulomb_um: f64,
 }
 fn d_kv() -> f64 {
     30.0
@@ -142,6 +149,8 @@ impl Default for ServoConfig {
             rapid_mm_min: d_rapid(),
             count_um: d_count(),
             ideal: false,
+            stiction_um: 0.0,
+            coulomb_um: 0.0,
         }
     }
 }
@@ -375,6 +384,10 @@ impl SimConfig {
         );
         ensure!(s.velocity_tau_s >= 0.0, "servo.velocity_tau_s must be >= 0");
         ensure!(s.count_um > 0.0, "servo.count_um must be > 0");
+        ensure!(
+            s.stiction_um >= 0.0 && s.coulomb_um >= 0.0 && s.coulomb_um <= s.stiction_um,
+            "servo: need 0 <= coulomb_um <= stiction_um"
+        );
         ensure!(
             s.max_speed_mm_s > 0.0 && s.rapid_mm_min > 0.0,
             "servo speeds must be > 0"

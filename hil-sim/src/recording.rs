@@ -7,7 +7,10 @@
 //! are the visible model's prediction at the nominal position plus the received correction.
 //! A dropped-out sensor leaves its cell empty; a NaN fault writes `NaN` (diagnose must report both).
 //! Numbers are written with Rust's shortest round-trip formatting, so output is byte-reproducible.
-//! (Until `retrocomp::recording` is merged this module is the only writer; it is small to swap.)
+//! Why not `retrocomp::recording::RecordingWriter`: that writer refuses non-finite and missing cells,
+//! and the simulator must be able to produce sensor faults on demand. Fault-free recordings read back
+//! with `retrocomp::recording::Recording::read_strict`; with faults, `read_lenient` reports exactly
+//! the faulted rows (tested in `tests/sim_faults.rs`).
 
 use crate::world::{Readings, World};
 use std::io::Write;

@@ -111,7 +111,12 @@ impl World {
                     .map_err(|e| anyhow::anyhow!("program.gcode_path {}: {e}", p.display()))?,
                 _ => unreachable!("validated"),
             };
-            let blocks = gcode::parse(&text, start, cfg.servo.rapid_mm_min)?;
+            let source = match &cfg.program.gcode_path {
+                Some(p) => format!("program.gcode_path {}", p.display()),
+                None => "program.gcode".to_string(),
+            };
+            let blocks = gcode::parse(&text, start, cfg.servo.rapid_mm_min)
+                .map_err(|e| anyhow::anyhow!("{source}: {e}"))?;
             Trajectory::Program(ProgramRunner::new(blocks, start))
         };
         let start_pos = match &traj {
@@ -455,15 +460,50 @@ impl World {
         self.readings = r;
     }
 
-    /// Every channel a fault may name, for config checks.
+    /// Every channel a fault may name: the sampled sensors and the encoders `enc_x`, `enc_y`, `enc_z`.
     pub fn channel_names(&self) -> Vec<String> {
         let r = &self.readings;
-        r.temps
+        let mut v: Vec<String> = r
+            .temps
             .iter()
             .chain(r.force.iter())
             .chain(r.strains.iter())
             .map(|c| c.name.clone())
-            .collect()
+            .collect();
+        v.extend(["enc_x", "enc_y", "enc_z"].map(String::from));
+        v
+    }
+
+    /// Apply the faults of encoder channel `enc_<axis>` to a count the encoder is about to send.
+    /// `None` = the encoder is silent (dropout; an integer encoder cannot send NaN, so `nan` is silence
+    /// too). Spikes add `spike_size` counts.
+    pub fn encoder_fault(&mut self, axis: usize, counts: i64) -> Option<i64> {
+        let name = ["enc_x", "enc_y", "enc_z"][axis];
+        let t = self.t_s;
+        let mut v = Some(counts as f64);
+        for f in self.faults.iter_mut().filter(|f| f.cfg.channel == name) {
+            v = f.apply(t, v);
+        }
+        v.filter(|x| x.is_finite()).map(|x| x.round() as i64)
+    }
+
+    /// Add a sensor fault while running (faults "on demand"); the channel must exist.
+    pub fn inject_fault(&mut self, f: crate::config::FaultConfig) -> anyhow::Result<()> {
+        let names = self.channel_names();
+        anyhow::ensure!(
+            names.contains(&f.channel),
+            "fault: unknown channel `{}` (known: {})",
+            f.channel,
+            names.join(", ")
+        );
+        anyhow::ensure!(
+            f.to_s >= f.from_s && f.spike_every_s > 0.0,
+            "fault on `{}`: bad window or spike rate",
+            f.channel
+        );
+        let i = self.faults.len();
+        self.faults.push(Fault::new(f, self.cfg.seed, i));
+        Ok(())
     }
 
     /// Manifest of the hidden truth: effect ids and parameters in DESIGN §5 conventions, plus the raw

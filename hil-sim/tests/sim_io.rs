@@ -40,6 +40,7 @@ nodes = [{{ name = "spindle", tau_s = 100.0, start_C = 23.4 }}]
 sensors = [{{ name = "spindle", node = "spindle" }}, {{ name = "room", node = "ambient" }}]
 [hidden.cutting]
 stock_top_z_mm = 0.0
+gauges = [{{ name = "column", ue_per_N = 0.1 }}]
 {io}
 "#
     );
@@ -48,8 +49,7 @@ stock_top_z_mm = 0.0
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn modbus_tcp_serves_temperatures_and_takes_origin_shift_with_handshake() {
-    let io =
-        "[io.modbus]\ntcp_bind = \"127.0.0.1:0\"\ntemps_first_input = 10\nforce_first_input = 20\n";
+    let io = "[io.modbus]\ntcp_bind = \"127.0.0.1:0\"\ntemps_first_input = 10\nforce_first_input = 20\nstrain_first_input = 30\n";
     let running = start(config(io, 3.0, true, 53.0), None, None)
         .await
         .unwrap();
@@ -77,6 +77,18 @@ async fn modbus_tcp_serves_temperatures_and_takes_origin_shift_with_handshake() 
     assert!(
         force_n > 10.0,
         "in cut the force register carries the load: {force_n} N"
+    );
+    // The strain gauge reads 0.1 µε/N (the force is constant at constant feed and depth).
+    let st = timeout(T, ctx.read_input_registers(30, 2))
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
+    let int32 = |hi: u16, lo: u16| (((hi as u32) << 16) | lo as u32) as i32 as f64;
+    let (f, strain) = (force_n, int32(st[0], st[1]) * 0.01);
+    assert!(
+        (strain - 0.1 * f).abs() < 0.02,
+        "strain {strain} µε vs force {f} N"
     );
     // The ack register belongs to the PLC.
     let r = timeout(T, ctx.write_single_register(7, 1))

@@ -12,7 +12,8 @@
 //! - `lateral_play_x` `p_um`: ey = (p/2)·sgn(vx) (X carriage shifts sideways when X reverses); `_y`: ex = (p/2)·sgn(vy).
 //! - `reversal_spike_x` `amplitude_um`, `decay_mm`: ex = −a·sgn(vx)·exp(−s/λ), s = path length since the X reversal.
 //! - `cyclic_x` `amplitude_um`, `period_mm`: ex = a·sin(2πx/λ + φ) (only when the period is given).
-//! - `servo_mismatch` `ms`: ex = −vx·τx, ey = −vy·τy, reported Δτ = τx − τy (tilt flips with rotation).
+//! - `servo_mismatch` `ms`: ex = −vx·τx, ey = −vy·τy, reported Δτ = τx − τy (tilt flips with rotation;
+//!   needs both a CW and a CCW trace, otherwise it is indistinguishable from squareness and omitted).
 //! - `squareness` `urad`: ex = α·y (α = −EC0Y in ISO 230-1 terms; same tilt in CW and CCW).
 //! - `straightness_x` `bow_um`: ey = bow·(x/R)²; `straightness_y`: ex = bow·(y/R)².
 //! - `scale_mismatch` `ppm`: ex = εx·x, ey = εy·y, reported εx − εy (the mean scale is
@@ -175,7 +176,13 @@ fn columns(traces: &[CircleTrace], setup: &CircleSetup, decay_mm: f64) -> Vec<Co
             (TAU * r * th.sin() / p).cos() * th.sin()
         });
     }
-    add("servo_mismatch", &|th, rot| rot.sign() * (2.0 * th).sin());
+    // Servo mismatch is told from squareness only by its sign flip between CW and CCW: with one
+    // rotation the two columns are identical, so it is not fitted (and not reported).
+    let both = traces.iter().any(|t| t.rotation == Rotation::Cw)
+        && traces.iter().any(|t| t.rotation == Rotation::Ccw);
+    if both {
+        add("servo_mismatch", &|th, rot| rot.sign() * (2.0 * th).sin());
+    }
     add("squareness", &|th, _| (2.0 * th).sin());
     add("straightness_x", &|th, _| th.cos().powi(2) * th.sin());
     add("straightness_y", &|th, _| th.sin().powi(2) * th.cos());
@@ -349,11 +356,13 @@ pub fn analyse(traces: &[CircleTrace], setup: &CircleSetup) -> Result<CircleRepo
         );
     }
     // Δr = d·(F·Δτ/2)·sin2θ with F in mm/s and Δτ in s → µm = F·Δτ·1000/2; Δτ in ms = 2β/F.
-    push(
-        "servo_mismatch",
-        vec![("ms", 2.0 * c("servo_mismatch") / feed_mm_s)],
-        &["servo_mismatch"],
-    );
+    if coef("servo_mismatch").is_some() {
+        push(
+            "servo_mismatch",
+            vec![("ms", 2.0 * c("servo_mismatch") / feed_mm_s)],
+            &["servo_mismatch"],
+        );
+    }
     // (R α / 2)·sin2θ: α [µrad] = 2β [µm] / R [mm] × 1000.
     push(
         "squareness",

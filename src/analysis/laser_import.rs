@@ -53,6 +53,29 @@ pub fn parse_readings(file: &str, text: &str) -> Result<Vec<Reading>, ImportErro
     }
 }
 
+/// Readings seen so far: (target in nm, run, direction) → line.
+type Seen = std::collections::HashMap<(i64, u32, char), u64>;
+
+/// A second reading for the same target, run and direction is an error (it would silently weigh
+/// that run twice in the means).
+fn check_duplicate(sink: &mut ErrorSink, seen: &mut Seen, r: &Reading, line: u64) {
+    let key = (
+        (r.target_mm * 1e6).round() as i64,
+        r.run,
+        r.direction.symbol(),
+    );
+    if let Some(first) = seen.insert(key, line) {
+        sink.push(
+            line,
+            None,
+            format!(
+                "second reading for target {} mm, run {}, direction `{}` (first on line {first})",
+                r.target_mm, r.run, key.2
+            ),
+        );
+    }
+}
+
 fn column(sink: &mut ErrorSink, names: &[&str], name: &str, line: u64) -> Option<usize> {
     let i = names.iter().position(|n| *n == name);
     if i.is_none() {
@@ -79,6 +102,7 @@ fn parse_long(
         return sink.finish(Vec::new());
     };
     let mut out = Vec::new();
+    let mut seen = Seen::new();
     for rec in rdr.records() {
         let rec = match rec {
             Ok(r) => r,
@@ -124,12 +148,14 @@ fn parse_long(
         let x = sink.parse_f64(line, "deviation_um", &rec[cx]);
         if let (Some(target_mm), Some(run), Some(direction), Some(deviation_um)) = (t, run, dir, x)
         {
-            out.push(Reading {
+            let r = Reading {
                 target_mm,
                 run,
                 direction,
                 deviation_um,
-            });
+            };
+            check_duplicate(&mut sink, &mut seen, &r, line);
+            out.push(r);
         }
     }
     if out.is_empty() && sink.is_empty() {
@@ -149,7 +175,7 @@ fn parse_wide(
     };
     // Map every other column to (run, direction); unknown columns are an error, not ignored.
     let mut cols: Vec<(usize, u32, Direction)> = Vec::new();
-    let mut seen: BTreeMap<u32, (bool, bool)> = BTreeMap::new();
+    let mut run_columns: BTreeMap<u32, (bool, bool)> = BTreeMap::new();
     for (i, n) in names.iter().enumerate() {
         if i == ct {
             continue;
@@ -165,7 +191,7 @@ fn parse_wide(
         match parsed {
             Some((k, d)) => {
                 cols.push((i, k, d));
-                let e = seen.entry(k).or_default();
+                let e = run_columns.entry(k).or_default();
                 match d {
                     Direction::Forward => e.0 = true,
                     Direction::Reverse => e.1 = true,
@@ -178,7 +204,7 @@ fn parse_wide(
             ),
         }
     }
-    for (k, (f, r)) in &seen {
+    for (k, (f, r)) in &run_columns {
         if !(*f && *r) {
             sink.push(
                 header_line,
@@ -191,6 +217,7 @@ fn parse_wide(
         return sink.finish(Vec::new());
     }
     let mut out = Vec::new();
+    let mut seen = Seen::new();
     for rec in rdr.records() {
         let rec = match rec {
             Ok(r) => r,
@@ -214,12 +241,14 @@ fn parse_wide(
         };
         for &(i, run, direction) in &cols {
             if let Some(deviation_um) = sink.parse_f64(line, names[i], &rec[i]) {
-                out.push(Reading {
+                let r = Reading {
                     target_mm,
                     run,
                     direction,
                     deviation_um,
-                });
+                };
+                check_duplicate(&mut sink, &mut seen, &r, line);
+                out.push(r);
             }
         }
     }
@@ -389,6 +418,20 @@ mod tests {
             msgs[2].starts_with("runs.csv:4: column `deviation_um`"),
             "{}",
             msgs[2]
+        );
+    }
+
+    #[test]
+    fn duplicate_readings_are_reported_not_double_counted() {
+        let text = "target_mm,run,direction,deviation_um\n0,1,+,1\n0,1,+,1.2\n0,1,-,0\n";
+        let err = parse_readings("d.csv", text).unwrap_err();
+        assert_eq!(err.0.len(), 1);
+        assert!(
+            err.0[0].to_string().starts_with(
+                "d.csv:3: second reading for target 0 mm, run 1, direction `+` (first on line 2)"
+            ),
+            "{}",
+            err.0[0]
         );
     }
 

@@ -40,15 +40,18 @@ pub fn read_recording(path: &Path, lenient: bool) -> anyhow::Result<Recording> {
 }
 
 pub fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
-    if a.model.is_some() {
-        bail!(
-            "--model is not available yet in this build (the machine-model evaluator is not merged); \
-             give the simulation as sim_e*_um columns in the recording"
-        );
-    }
     let rec = read_recording(&a.recording, a.skip_bad_rows)?;
-    let d = diagnose::diagnose(&rec, &Options::default())
-        .with_context(|| a.recording.display().to_string())?;
+    let d = match &a.model {
+        Some(m) => {
+            let model = crate::models::MachineModel::from_toml_path(m)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+            let sims = diagnose::model_sim::simulate(&model, &rec)
+                .with_context(|| m.display().to_string())?;
+            diagnose::diagnose_with_sim(&rec, &sims, &Options::default())
+        }
+        None => diagnose::diagnose(&rec, &Options::default()),
+    }
+    .with_context(|| a.recording.display().to_string())?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&d.report)?);
     } else {

@@ -6,6 +6,7 @@ pub mod circle;
 pub mod diagnose;
 pub mod eval;
 pub mod export;
+pub mod fit;
 pub mod import;
 pub mod iso230_2;
 pub mod nc;

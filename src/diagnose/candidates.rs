@@ -110,9 +110,23 @@ impl Candidate {
             Kind::Cyclic => {
                 let f = own();
                 let w = TAU / theta;
+                // One transcendental per distinct position: sin from cos with the half-cycle sign.
+                let (mut sv, mut cv) = (
+                    Vec::with_capacity(f.distinct_mm.len()),
+                    Vec::with_capacity(f.distinct_mm.len()),
+                );
+                for &x in &f.distinct_mm {
+                    let ph = (w * x).rem_euclid(TAU);
+                    let c = ph.cos();
+                    cv.push(c);
+                    sv.push(
+                        (1.0 - c * c).max(0.0).sqrt()
+                            * if ph < std::f64::consts::PI { 1.0 } else { -1.0 },
+                    );
+                }
                 vec![
-                    f.pos_mm.iter().map(|x| (w * x).sin()).collect(),
-                    f.pos_mm.iter().map(|x| (w * x).cos()).collect(),
+                    f.distinct_idx.iter().map(|&k| sv[k as usize]).collect(),
+                    f.distinct_idx.iter().map(|&k| cv[k as usize]).collect(),
                 ]
             }
             Kind::Squareness { other } => {
@@ -258,8 +272,9 @@ pub fn log_grid(lo: f64, hi: f64, r: f64) -> Vec<f64> {
 
 /// Period grid for cyclic error: spacing Δp = p²/(3L) keeps the phase drift over the travel L
 /// below a third of a cycle between neighbours, so the profile cannot step over a true period.
-fn period_grid(travel_mm: f64, min_step_mm: f64) -> Vec<f64> {
-    let lo = (4.0 * min_step_mm).max(1.0).max(travel_mm / 200.0);
+fn period_grid(travel_mm: f64, min_period_mm: f64) -> Vec<f64> {
+    // Lead-screw pitches and scale periods that matter at the µm level are ≥ 2 mm.
+    let lo = min_period_mm.max(2.0).max(travel_mm / 200.0);
     let hi = travel_mm / 1.5;
     let mut g = vec![];
     let mut p = lo;
@@ -296,16 +311,12 @@ pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
             .filter(|d| *d > 1e-6)
             .fold(f64::INFINITY, f64::min);
         // With readings only at a few targets, a period shorter than twice their spacing aliases.
-        let distinct = {
-            let mut p: Vec<i64> = f.pos_mm.iter().map(|x| (x * 1e3).round() as i64).collect();
-            p.sort_unstable();
-            p.dedup();
-            p.len()
-        };
+        let distinct = f.distinct_mm.len();
         let min_period = if distinct < 200 {
             2.5 * travel / distinct as f64
         } else {
-            min_step
+            // Densely sampled positions: a period must span ≥ 4 sample steps to be seen.
+            4.0 * min_step
         };
         out.push(Candidate {
             axis: a,

@@ -19,6 +19,22 @@ pub struct AxisFeatures {
     pub dir: Vec<f64>,
     /// Distance travelled since the direction last flipped (mm); large before the first reversal.
     pub dist_since_rev_mm: Vec<f64>,
+    /// Distinct positions (sorted) and each sample's index into them: functions of position alone
+    /// (sin/cos of a cyclic candidate) are computed once per distinct position, a large saving on
+    /// step-and-dwell recordings.
+    pub distinct_mm: Vec<f64>,
+    pub distinct_idx: Vec<u32>,
+}
+
+impl AxisFeatures {
+    /// `f(pos)` for every sample, evaluating `f` once per distinct position.
+    pub fn map_pos(&self, f: impl Fn(f64) -> f64) -> Vec<f64> {
+        let vals: Vec<f64> = self.distinct_mm.iter().map(|&x| f(x)).collect();
+        self.distinct_idx
+            .iter()
+            .map(|&k| vals[k as usize])
+            .collect()
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -46,7 +62,11 @@ pub fn axis_index(a: char) -> usize {
 impl Context {
     pub fn from_recording(rec: &Recording) -> Self {
         let t_s = rec.t_s().to_vec();
-        let axes = AXES.map(|a| rec.col(&format!("{a}_mm")).map(|p| axis_features(&t_s, p)));
+        let run = rec.col("run");
+        let axes = AXES.map(|a| {
+            rec.col(&format!("{a}_mm"))
+                .map(|p| axis_features(&t_s, p, run))
+        });
         let grab = |names: Vec<String>| -> Vec<(String, Vec<f64>)> {
             names
                 .into_iter()
@@ -89,14 +109,16 @@ impl Context {
             .map(|(_, v)| v.as_slice())
     }
 
-    /// Validation blocks: the distinct `run` ids when there are at least two, else `k` contiguous
+    /// Validation blocks: the distinct `run` ids when there are at least three, else `k` contiguous
     /// time blocks of equal sample count. Returns a block index per sample and the block count.
     pub fn blocks(&self, k: usize) -> (Vec<usize>, usize) {
         if let Some(run) = &self.run {
             let mut ids: Vec<i64> = run.clone();
             ids.sort_unstable();
             ids.dedup();
-            if ids.len() >= 2 {
+            // Leave-one-run-out needs ≥ 3 runs: with two (e.g. a forward and a reverse laser run)
+            // every direction-dependent term would be fitted on one direction only.
+            if ids.len() >= 3 {
                 let idx = run
                     .iter()
                     .map(|r| ids.binary_search(r).expect("present"))
@@ -110,7 +132,46 @@ impl Context {
     }
 }
 
-fn axis_features(t_s: &[f64], pos: &[f64]) -> AxisFeatures {
+/// Axis features; the direction latch restarts at every change of `run` (a new run is a new
+/// approach: its first samples take the direction of its own first move, like the first samples of
+/// the recording), so a reverse laser run that starts where the forward run ended is read as reverse.
+fn axis_features(t_s: &[f64], pos: &[f64], run: Option<&[f64]>) -> AxisFeatures {
+    let n = pos.len();
+    let mut starts = vec![0];
+    if let Some(r) = run {
+        starts.extend((1..n).filter(|&i| r[i] != r[i - 1]));
+    }
+    starts.push(n);
+    let (mut vel, mut dir, mut dist) = (vec![], vec![], vec![]);
+    for w in starts.windows(2) {
+        let (v, d, s) = latch(&t_s[w[0]..w[1]], &pos[w[0]..w[1]]);
+        vel.extend(v);
+        dir.extend(d);
+        dist.extend(s);
+    }
+    let mut distinct_mm = pos.to_vec();
+    distinct_mm.sort_by(f64::total_cmp);
+    distinct_mm.dedup();
+    let distinct_idx = pos
+        .iter()
+        .map(|x| {
+            distinct_mm
+                .binary_search_by(|d| d.total_cmp(x))
+                .expect("present") as u32
+        })
+        .collect();
+    AxisFeatures {
+        pos_mm: pos.to_vec(),
+        vel_mm_s: vel,
+        dir,
+        dist_since_rev_mm: dist,
+        distinct_mm,
+        distinct_idx,
+    }
+}
+
+/// Velocity, latched direction and distance since reversal of one run.
+fn latch(t_s: &[f64], pos: &[f64]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let n = pos.len();
     let mut vel = vec![0.0; n];
     let mut dir = vec![0.0; n];
@@ -140,12 +201,7 @@ fn axis_features(t_s: &[f64], pos: &[f64]) -> AxisFeatures {
         let d0 = dir[first];
         dir[..first].iter_mut().for_each(|v| *v = d0);
     }
-    AxisFeatures {
-        pos_mm: pos.to_vec(),
-        vel_mm_s: vel,
-        dir,
-        dist_since_rev_mm: dist,
-    }
+    (vel, dir, dist)
 }
 
 /// First-order low-pass of `u` with time constant `tau_s`, exact for a signal held between samples
@@ -153,14 +209,19 @@ fn axis_features(t_s: &[f64], pos: &[f64]) -> AxisFeatures {
 pub fn lowpass(t_s: &[f64], u: &[f64], tau_s: f64) -> Vec<f64> {
     let mut y = Vec::with_capacity(u.len());
     let mut acc = u.first().copied().unwrap_or(0.0);
+    let (mut last_dt, mut a) = (f64::NAN, 1.0);
     for i in 0..u.len() {
         if i > 0 {
             let dt = t_s[i] - t_s[i - 1];
-            let a = if tau_s > 0.0 {
-                1.0 - (-dt / tau_s).exp()
-            } else {
-                1.0
-            };
+            if dt != last_dt {
+                // Recomputed only when the sample period changes (usually never after the first).
+                a = if tau_s > 0.0 {
+                    1.0 - (-dt / tau_s).exp()
+                } else {
+                    1.0
+                };
+                last_dt = dt;
+            }
             acc += a * (u[i - 1] - acc);
         }
         y.push(acc);
@@ -176,7 +237,7 @@ mod tests {
     fn direction_latches_through_dwells_and_counts_distance_since_reversal() {
         let t: Vec<f64> = (0..7).map(f64::from).collect();
         let x = [0.0, 1.0, 1.0, 2.0, 1.5, 1.5, 1.0];
-        let f = axis_features(&t, &x);
+        let f = axis_features(&t, &x, None);
         assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0]);
         assert_eq!(&f.dist_since_rev_mm[4..], &[0.5, 0.5, 1.0]);
         assert_eq!(f.vel_mm_s[3], 1.0);

@@ -167,7 +167,6 @@ pub fn unexplained(ctx: &Context, signal: &str, r: &[f64]) -> Vec<Mismatch> {
     if sst.is_nan() || sst <= 0.0 || n < 4 * BINS {
         return vec![];
     }
-    let n_eff = effective_n(r);
     let mut feats: Vec<(String, &[f64])> = ctx
         .axes
         .iter()
@@ -190,6 +189,13 @@ pub fn unexplained(ctx: &Context, signal: &str, r: &[f64]) -> Vec<Mismatch> {
             s[b] += ri;
             c[b] += 1;
         }
+        // n_eff of the within-bin residual: the between-bin structure under test is not "noise".
+        let within: Vec<f64> = v
+            .iter()
+            .zip(r)
+            .map(|(x, ri)| ri - s[bin_of(*x, lo, hi)] / c[bin_of(*x, lo, hi)] as f64)
+            .collect();
+        let n_eff = effective_n(&within);
         let groups = c.iter().filter(|&&k| k > 0).count();
         if groups < 2 {
             continue;

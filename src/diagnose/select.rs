@@ -147,6 +147,36 @@ fn golden_refine(f: impl Fn(f64) -> f64, lo: f64, hi: f64, iters: usize) -> f64 
     ((a + b) / 2.0).exp()
 }
 
+/// `r` minus its mean in each (own-axis position bin × direction) cell. The effective sample size
+/// is estimated on this, so structure that is a function of position and direction (what the
+/// library is looking for, or a smooth positioning error no candidate names) is not mistaken for
+/// slowly correlated noise — which would make every test blind on short laser records.
+fn without_cell_means(ctx: &Context, axis: char, r: &[f64]) -> Vec<f64> {
+    const BINS: usize = 8;
+    let Some(f) = ctx.axis(axis) else {
+        return r.to_vec();
+    };
+    let lo = f.pos_mm.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = f.pos_mm.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if hi - lo <= 1e-9 {
+        return r.to_vec();
+    }
+    let cell = |i: usize| {
+        let b = (((f.pos_mm[i] - lo) / (hi - lo) * BINS as f64) as usize).min(BINS - 1);
+        2 * b + usize::from(f.dir[i] > 0.0)
+    };
+    let mut sum = [0.0; 2 * BINS];
+    let mut cnt = [0usize; 2 * BINS];
+    for (i, v) in r.iter().enumerate() {
+        sum[cell(i)] += v;
+        cnt[cell(i)] += 1;
+    }
+    r.iter()
+        .enumerate()
+        .map(|(i, v)| v - sum[cell(i)] / cnt[cell(i)] as f64)
+        .collect()
+}
+
 /// Run forward selection on residual `r` of the signal of axis `axis`.
 pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSelection {
     let n = r.len();
@@ -208,7 +238,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             .expect("non-empty");
         let top_contrib = contribution(ctx, &lib[top.idx], top.theta, &basis, &r0);
         let r1_top: Vec<f64> = r0.iter().zip(&top_contrib).map(|(a, b)| a - b).collect();
-        let n_eff = lsq::effective_n(&r1_top);
+        let n_eff = lsq::effective_n(&without_cell_means(ctx, axis, &r1_top));
         for s in &mut scored {
             s.delta_bic = delta_bic(n_eff, rss0, s.gain, s.q);
         }

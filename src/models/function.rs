@@ -33,10 +33,22 @@ pub struct Table {
     pub forward: Vec<f64>,
     pub reverse: Vec<f64>,
     pub interpolation: Interpolation,
-    /// `Some((x0, 1/h))` when the positions are evenly spaced: O(1) lookup.
-    uniform: Option<(f64, f64)>,
-    slopes_fwd: Vec<f64>,
-    slopes_rev: Vec<f64>,
+    /// (x0, 1/mean spacing): the first guess of a lookup.
+    guide: (f64, f64),
+    /// The same data interleaved per node, so one lookup touches one or two cache lines.
+    nodes: Vec<Node>,
+}
+
+/// One table node: position, forward and reverse value, and their C¹ slopes (0 when linear).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Node {
+    x: f64,
+    /// 1 / (x_{i+1} − x_i): a multiply instead of a divide per lookup (0 for the last node).
+    inv_h: f64,
+    f: f64,
+    r: f64,
+    mf: f64,
+    mr: f64,
 }
 
 impl Table {
@@ -51,26 +63,35 @@ impl Table {
         let n = positions_mm.len();
         let x0 = positions_mm[0];
         let h = (positions_mm[n - 1] - x0) / (n - 1) as f64;
-        let uniform = positions_mm
-            .iter()
-            .enumerate()
-            .all(|(i, &x)| (x - (x0 + h * i as f64)).abs() <= 1e-9 * h.abs().max(1.0))
-            .then_some((x0, 1.0 / h));
+        let guide = (x0, 1.0 / h);
         let (slopes_fwd, slopes_rev) = match interpolation {
-            Interpolation::Linear => (Vec::new(), Vec::new()),
+            Interpolation::Linear => (vec![0.0; n], vec![0.0; n]),
             Interpolation::C1 => (
                 pchip_slopes(&positions_mm, &forward),
                 pchip_slopes(&positions_mm, &reverse),
             ),
         };
+        let nodes = (0..n)
+            .map(|i| Node {
+                x: positions_mm[i],
+                inv_h: if i + 1 < n {
+                    1.0 / (positions_mm[i + 1] - positions_mm[i])
+                } else {
+                    0.0
+                },
+                f: forward[i],
+                r: reverse[i],
+                mf: slopes_fwd[i],
+                mr: slopes_rev[i],
+            })
+            .collect();
         Table {
             positions_mm,
             forward,
             reverse,
             interpolation,
-            uniform,
-            slopes_fwd,
-            slopes_rev,
+            guide,
+            nodes,
         }
     }
 
@@ -78,70 +99,67 @@ impl Table {
         self.forward != self.reverse
     }
 
-    /// Segment index i (x_i ≤ q ≤ x_{i+1}) for q inside the span.
+    /// Segment index i (x_i ≤ q ≤ x_{i+1}) for q inside the span. Guesses from the mean spacing
+    /// and walks at most two steps (tables written with rounded, almost even positions), else falls
+    /// back to a binary search; always exact.
     #[inline]
     fn segment(&self, q: f64) -> usize {
-        let n = self.positions_mm.len();
-        let i = match self.uniform {
-            Some((x0, inv_h)) => ((q - x0) * inv_h) as usize,
-            None => self
-                .positions_mm
-                .partition_point(|&x| x <= q)
-                .saturating_sub(1),
-        };
-        i.min(n - 2)
+        let x = &self.nodes;
+        let last = x.len() - 2;
+        let (x0, inv_h) = self.guide;
+        let guess = ((q - x0) * inv_h) as usize;
+        let mut i = guess.min(last);
+        for _ in 0..2 {
+            if x[i].x > q && i > 0 {
+                i -= 1;
+            } else if x[i + 1].x <= q && i < last {
+                i += 1;
+            } else {
+                return i;
+            }
+        }
+        if x[i].x <= q && (q < x[i + 1].x || i == last) {
+            i
+        } else {
+            x.partition_point(|p| p.x <= q).saturating_sub(1).min(last)
+        }
     }
 
     #[inline]
     pub fn eval(&self, q_mm: f64, dir: i8) -> (f64, bool) {
-        let n = self.positions_mm.len();
-        let (lo, hi) = (self.positions_mm[0], self.positions_mm[n - 1]);
-        let pick = |fwd: f64, rev: f64| match dir {
-            d if d > 0 => fwd,
-            d if d < 0 => rev,
-            _ => 0.5 * (fwd + rev),
-        };
+        let nodes = &self.nodes;
+        let n = nodes.len();
+        // Branch-free choice (the approach direction changes often): weights 1/0, 0/1 or ½/½; each
+        // is exact, so forward and reverse values come through unchanged.
+        let w_fwd = 0.5 * (1.0 + f64::from(dir.signum()));
+        let pick = |fwd: f64, rev: f64| w_fwd * fwd + (1.0 - w_fwd) * rev;
         // NaN is clamped and flagged rather than propagated.
-        if q_mm.is_nan() || q_mm < lo {
-            return (pick(self.forward[0], self.reverse[0]), true);
+        if q_mm.is_nan() || q_mm < nodes[0].x {
+            return (pick(nodes[0].f, nodes[0].r), true);
         }
-        if q_mm > hi {
-            return (pick(self.forward[n - 1], self.reverse[n - 1]), true);
+        if q_mm > nodes[n - 1].x {
+            return (pick(nodes[n - 1].f, nodes[n - 1].r), true);
         }
         let i = self.segment(q_mm);
-        let (x0, x1) = (self.positions_mm[i], self.positions_mm[i + 1]);
-        let h = x1 - x0;
-        let t = (q_mm - x0) / h;
-        let v = match self.interpolation {
-            Interpolation::Linear => {
-                let lin = |v: &[f64]| v[i] + t * (v[i + 1] - v[i]);
-                match dir {
-                    d if d > 0 => lin(&self.forward),
-                    d if d < 0 => lin(&self.reverse),
-                    _ => 0.5 * (lin(&self.forward) + lin(&self.reverse)),
-                }
-            }
+        let (a, b) = (nodes[i], nodes[i + 1]);
+        let h = b.x - a.x;
+        let t = (q_mm - a.x) * a.inv_h;
+        let (vf, vr) = match self.interpolation {
+            Interpolation::Linear => (a.f + t * (b.f - a.f), a.r + t * (b.r - a.r)),
             Interpolation::C1 => {
                 let t2 = t * t;
                 let t3 = t2 * t;
                 let h00 = 2.0 * t3 - 3.0 * t2 + 1.0;
-                let h10 = t3 - 2.0 * t2 + t;
+                let h10 = (t3 - 2.0 * t2 + t) * h;
                 let h01 = -2.0 * t3 + 3.0 * t2;
-                let h11 = t3 - t2;
-                let herm = |v: &[f64], m: &[f64]| {
-                    h00 * v[i] + h10 * h * m[i] + h01 * v[i + 1] + h11 * h * m[i + 1]
-                };
-                match dir {
-                    d if d > 0 => herm(&self.forward, &self.slopes_fwd),
-                    d if d < 0 => herm(&self.reverse, &self.slopes_rev),
-                    _ => {
-                        0.5 * (herm(&self.forward, &self.slopes_fwd)
-                            + herm(&self.reverse, &self.slopes_rev))
-                    }
-                }
+                let h11 = (t3 - t2) * h;
+                (
+                    h00 * a.f + h10 * a.mf + h01 * b.f + h11 * b.mf,
+                    h00 * a.r + h10 * a.mr + h01 * b.r + h11 * b.mr,
+                )
             }
         };
-        (v, false)
+        (pick(vf, vr), false)
     }
 }
 
@@ -338,23 +356,23 @@ mod tests {
     }
 
     #[test]
-    fn uniform_and_nonuniform_lookup_agree() {
-        let xs: Vec<f64> = (0..=50).map(|i| i as f64 * 2.0).collect();
-        let ys: Vec<f64> = xs.iter().map(|x| (x * 0.1).sin()).collect();
-        let uni = Table::new(xs.clone(), ys.clone(), ys.clone(), Interpolation::Linear);
-        assert!(uni.uniform.is_some());
-        let mut xs2 = xs.clone();
-        xs2[1] += 0.5; // breaks uniformity; query only beyond segment 1
-        let mut ys2 = ys.clone();
-        ys2[1] = (xs2[1] * 0.1).sin();
-        let non = Table::new(xs2, ys2.clone(), ys2, Interpolation::Linear);
-        assert!(non.uniform.is_none());
-        for k in 0..400 {
-            let q = 4.0 + k as f64 * 0.24;
-            assert!(
-                (uni.eval(q, 1).0 - non.eval(q, 1).0).abs() < 1e-12,
-                "at {q}"
-            );
+    fn lookup_finds_the_right_segment_for_even_rounded_and_uneven_tables() {
+        let even: Vec<f64> = (0..100).map(|i| i as f64 * 800.0 / 99.0).collect();
+        let rounded: Vec<f64> = even.iter().map(|x| (x * 1e4).round() / 1e4).collect();
+        let uneven: Vec<f64> = (0..40).map(|i| (i as f64).powi(2) * 0.7).collect();
+        for xs in [even, rounded, uneven] {
+            let t = Table::new(xs.clone(), xs.clone(), xs.clone(), Interpolation::Linear);
+            let (lo, hi) = (xs[0], xs[xs.len() - 1]);
+            for k in 0..=5000 {
+                let q = lo + (hi - lo) * k as f64 / 5000.0;
+                let i = t.segment(q);
+                assert!(xs[i] <= q && (q <= xs[i + 1]), "q {q} got segment {i}");
+                // The table is the identity function: interpolation must return q itself.
+                assert!((t.eval(q, 1).0 - q).abs() < 1e-9 * hi.max(1.0));
+            }
+            for &x in &xs {
+                assert_eq!(t.eval(x, -1), (x, false));
+            }
         }
     }
 

@@ -151,8 +151,12 @@ pub fn exact_tip(
             [r[0] * 1e-6, r[1] * 1e-6, r[2] * 1e-6],
         );
         let tr = e.actual_translation(q[j]);
-        let m = if e.workpiece_side { err * tr } else { tr * err };
-        p = m * p;
+        // Apply the two HTMs to the point (two 4×4 · 4-vector products, no matrix–matrix product).
+        p = if e.workpiece_side {
+            err * (tr * p)
+        } else {
+            tr * (err * p)
+        };
     }
     [p[0], p[1], p[2]]
 }

@@ -25,6 +25,7 @@ pub mod function;
 pub mod kinematics;
 pub mod names;
 pub mod parse;
+pub mod parse_terms;
 pub mod spec;
 pub mod thermal;
 pub mod toml_reader;

@@ -65,7 +65,11 @@ impl ThermalState {
                 (None, _, _) | (_, None, _) => t,
                 (Some(prev), Some(tau), Some(dt)) => {
                     let cache = &mut self.alpha_cache[i];
-                    if cache.0 != dt {
+                    // Sample times jitter by float rounding; a relative change of 1e-12 in Δt changes
+                    // α by less than that, far below any sensor's resolution.
+                    // (The cache starts as NaN, which never counts as the same step.)
+                    let same_step = (cache.0 - dt).abs() <= 1e-12 * dt;
+                    if !same_step {
                         *cache = (dt, 1.0 - (-dt / tau).exp());
                     }
                     prev + cache.1 * (t - prev)

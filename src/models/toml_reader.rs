@@ -206,12 +206,29 @@ impl<'a, 't> Tbl<'a, 't> {
             .collect()
     }
 
-    /// Report keys that were never read, with the list of keys this table accepts.
+    /// Report keys that were never read, with the list of keys this table accepts. When this table
+    /// already has a problem, keys that fit the accepted list were merely skipped after it and are
+    /// not reported again.
     pub fn finish(&self, accepted: &str) {
         let used = self.used.borrow();
+        let prefix = format!("{}.", self.path);
+        let had_error = self
+            .ctx
+            .issues
+            .borrow()
+            .iter()
+            .any(|i| i.key == self.path || i.key.starts_with(&prefix));
+        let fits = |name: &str| {
+            accepted.split(", ").any(|pat| match pat.find('<') {
+                Some(i) => name.starts_with(&pat[..i]),
+                None => name == pat.split_whitespace().next().unwrap_or(pat),
+            })
+        };
         for (k, v) in self.table.iter() {
             let name = k.get_ref().as_ref();
-            if !used.iter().any(|u| u == name) {
+            let read = used.iter().any(|u| u == name);
+            let skipped_after_error = had_error && fits(name);
+            if !read && !skipped_after_error {
                 self.ctx.err(
                     k.span().start..v.span().end,
                     &self.key_path(name),

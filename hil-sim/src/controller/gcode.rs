@@ -368,4 +368,18 @@ mod tests {
         );
         assert!(parse("T1", [0.0; 3], 1.0).unwrap_err().msg.contains("'T'"));
     }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(5000))]
+        #[test]
+        fn never_panics_and_moves_stay_finite(text in "[GXYZIJRFPSMN0-9 .\\-+();\n]{0,120}") {
+            if let Ok(blocks) = parse(&text, [0.0; 3], 6000.0) {
+                for b in blocks {
+                    if let Block::Move { to_mm, feed_mm_min, .. } = b {
+                        proptest::prop_assert!(to_mm.iter().all(|v| v.is_finite()) && feed_mm_min > 0.0);
+                    }
+                }
+            }
+        }
+    }
 }

@@ -5,6 +5,10 @@
 //! drive lag. `measured = (encoder counts + injected counts) · count`. The quadrature feedback input
 //! adds counts to the *measured* position, so the servo moves the slide the other way: injecting
 //! +n counts moves the slide by −n·count_um. Positions mm, velocities mm/s.
+//!
+//! Optional static friction: a standing axis stays put until the velocity command exceeds
+//! kv·`stiction_um` (the drive's torque overcomes static friction), and a moving axis sticks again
+//! once the command falls below kv·`coulomb_um` and its velocity has reversed or died out.
 
 use crate::config::ServoConfig;
 
@@ -13,6 +17,7 @@ pub struct AxisServo {
     motor_mm: f64,
     vel_mm_s: f64,
     injected_counts: i64,
+    stuck: bool,
 }
 
 impl AxisServo {
@@ -21,6 +26,7 @@ impl AxisServo {
             motor_mm: start_mm,
             vel_mm_s: 0.0,
             injected_counts: 0,
+            stuck: false,
         }
     }
 
@@ -64,6 +70,23 @@ impl AxisServo {
         let err_mm = target_mm - self.measured_mm(p.count_um);
         let vcmd = (p.feedforward * v_ff_mm_s + p.kv_per_s * err_mm)
             .clamp(-p.max_speed_mm_s, p.max_speed_mm_s);
+        if p.stiction_um > 0.0 {
+            let v_break = p.kv_per_s * p.stiction_um / 1000.0;
+            let v_stick = p.kv_per_s * p.coulomb_um / 1000.0;
+            if self.stuck {
+                if vcmd.abs() <= v_break {
+                    self.vel_mm_s = 0.0;
+                    return;
+                }
+                self.stuck = false;
+            } else if vcmd.abs() <= v_stick
+                && (self.vel_mm_s * vcmd <= 0.0 || self.vel_mm_s.abs() <= v_stick)
+            {
+                self.stuck = true;
+                self.vel_mm_s = 0.0;
+                return;
+            }
+        }
         let a = if p.velocity_tau_s > 0.0 {
             1.0 - (-dt_s / p.velocity_tau_s).exp()
         } else {
@@ -117,5 +140,34 @@ mod tests {
         }
         assert_eq!(s.encoder_counts(p.count_um), 5000 - 7);
         assert!((s.measured_mm(p.count_um) - 5.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn static_friction_holds_one_count_and_breaks_away_at_two() {
+        let p = ServoConfig {
+            stiction_um: 1.5,
+            coulomb_um: 0.5,
+            ..cfg()
+        };
+        let mut s = AxisServo::new(0.0);
+        for _ in 0..10 {
+            s.step(&p, 0.0, 0.0, 0.001); // settle and stick at the target
+        }
+        for _ in 0..500 {
+            s.step(&p, 0.001, 0.0, 0.001);
+        }
+        assert_eq!(
+            s.motor_mm(),
+            0.0,
+            "1 µm error: torque below static friction"
+        );
+        for _ in 0..500 {
+            s.step(&p, 0.002, 0.0, 0.001);
+        }
+        assert_eq!(
+            s.encoder_counts(p.count_um),
+            2,
+            "2 µm error breaks away and reaches the target"
+        );
     }
 }

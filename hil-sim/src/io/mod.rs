@@ -1,11 +1,12 @@
 //! Thin I/O shells that put the simulated machine on real transports, around a sans-IO publisher:
 //! - CAN ([`retrocomp::bus::can`] backends: in-memory, socketcand hub/daemon, SocketCAN/vcan):
 //!   CiA 406 encoder TPDOs (6004h, one node per axis) and CiA 404 temperatures (INT16, 0.1 °C, four per
-//!   TPDO), plus CANopen heartbeats;
+//!   TPDO), plus CANopen heartbeats; encoder faults (`enc_x` …) silence or freeze an encoder's TPDO;
 //! - Modbus TCP and RTU (on a pty), one register image ([`retrocomp::bus::modbus::server`]): the PLC's
 //!   origin-shift window as holding registers (FC03/06/16; the ack register is read-only), PT100
 //!   temperatures as input registers (int16, 0.1 °C; 0x7FFF = NaN/over-range, 0x8000 = sensor break
-//!   on dropout), the cutting force as an int32 input register pair (hi word first, `force_lsb_N`);
+//!   on dropout), the cutting force and the strain gauges as int32 input register pairs (hi word
+//!   first, `force_lsb_N`, `strain_lsb_ue`; i32::MIN = no valid reading);
 //! - the force as ASCII weighing-indicator lines on a pty (`ST,GS,+00250.0N`; `OL` for NaN; silence on
 //!   dropout).
 
@@ -46,6 +47,14 @@ pub struct ModbusIoConfig {
     pub force_first_input: Option<u16>,
     #[serde(default = "d_force_lsb")]
     pub force_lsb_N: f64,
+    /// First input register of the strain block: one int32 pair (hi word first) per gauge.
+    #[serde(default)]
+    pub strain_first_input: Option<u16>,
+    #[serde(default = "d_strain_lsb")]
+    pub strain_lsb_ue: f64,
+}
+fn d_strain_lsb() -> f64 {
+    0.01
 }
 fn d_slave() -> u8 {
     1

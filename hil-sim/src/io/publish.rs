@@ -46,6 +46,18 @@ pub fn pt100_word(value_C: Option<f64>) -> u16 {
     }
 }
 
+/// An int32 register pair, high word first, in units of `lsb`; `i32::MIN` = no valid reading.
+pub fn int32_words(value: Option<f64>, lsb: f64) -> [u16; 2] {
+    let raw = match value {
+        Some(v) if v.is_finite() => (v / lsb)
+            .round()
+            .clamp(i32::MIN as f64 + 1.0, i32::MAX as f64)
+            as i32,
+        _ => i32::MIN,
+    } as u32;
+    [(raw >> 16) as u16, raw as u16]
+}
+
 /// A weighing-indicator line (A&D/CAS style) for a force in N; `None` on dropout.
 pub fn weighing_line(force_N: Option<f64>) -> Option<String> {
     let f = force_N?;
@@ -110,7 +122,7 @@ impl Publisher {
     }
 
     /// Outputs due after the world's latest step.
-    pub fn poll(&mut self, world: &World) -> Outputs {
+    pub fn poll(&mut self, world: &mut World) -> Outputs {
         let t = world.t_s() + 1e-9;
         let mut out = Outputs::default();
         if let Some(can) = &self.cfg.can {
@@ -124,8 +136,9 @@ impl Publisher {
                             (world.slide_mm(k) * 1000.0 / count_um).round() as i64
                         }
                     };
-                    out.frames
-                        .push(ch.encode_raw(counts.rem_euclid(1 << 32) as u32));
+                    if let Some(c) = world.encoder_fault(k, counts) {
+                        out.frames.push(ch.encode_raw(c.rem_euclid(1 << 32) as u32));
+                    }
                 }
             }
             if let Some(node) = can.temp_node
@@ -174,15 +187,18 @@ impl Publisher {
                 ));
             }
             if let (Some(addr), Some(f)) = (mb.force_first_input, &r.force) {
-                let raw = match f.value {
-                    Some(v) if v.is_finite() => (v / mb.force_lsb_N)
-                        .round()
-                        .clamp(i32::MIN as f64, i32::MAX as f64)
-                        as i32,
-                    _ => i32::MIN, // no valid reading
-                } as u32;
                 out.input_regs
-                    .push((addr, vec![(raw >> 16) as u16, raw as u16]));
+                    .push((addr, int32_words(f.value, mb.force_lsb_N).to_vec()));
+            }
+            if let Some(addr) = mb.strain_first_input
+                && !r.strains.is_empty()
+            {
+                let words = r
+                    .strains
+                    .iter()
+                    .flat_map(|c| int32_words(c.value, mb.strain_lsb_ue))
+                    .collect();
+                out.input_regs.push((addr, words));
             }
         }
         if let Some(w) = &self.cfg.weighing
@@ -209,6 +225,14 @@ mod tests {
         assert_eq!(pt100_word(Some(f64::NAN)), PT100_OVERRANGE);
         assert_eq!(pt100_word(Some(1e9)), PT100_OVERRANGE);
         assert_eq!(pt100_word(None), PT100_BREAK);
+    }
+
+    #[test]
+    fn int32_pairs_are_hi_lo_and_mark_missing_values() {
+        assert_eq!(int32_words(Some(250.04), 0.1), [0, 2500]);
+        assert_eq!(int32_words(Some(-1.0), 0.01), [0xFFFF, (-100i16) as u16]);
+        assert_eq!(int32_words(None, 0.1), [0x8000, 0]);
+        assert_eq!(int32_words(Some(f64::NAN), 0.1), [0x8000, 0]);
     }
 
     #[test]

@@ -184,7 +184,7 @@ pub async fn start(
                     if let (Some(r), true) = (rec.as_mut(), world.sampled()) {
                         r.write(world.readings())?;
                     }
-                    let o = publisher.poll(&world);
+                    let o = publisher.poll(&mut world);
                     if let Some(bus) = can.as_mut() {
                         for f in &o.frames {
                             bus.send(f)

@@ -7,4 +7,5 @@ pub mod lsq;
 pub mod piecewise;
 pub mod recording;
 pub mod regression;
+pub mod to_model;
 pub mod workflow;

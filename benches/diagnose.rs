@@ -1,0 +1,115 @@
+//! Speed of `retrocomp diagnose` (issue 7 item 7): 100 000 samples × 20 context channels, one core
+//! (diagnose is single-threaded). Target ≤ 10 s per diagnosis.
+//! Run: `cargo bench -p retrocomp --bench diagnose`.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use rand::{Rng, SeedableRng};
+use retrocomp::diagnose::features::lowpass;
+use retrocomp::diagnose::{diagnose, select::Options};
+use retrocomp::recording::Recording;
+
+/// 100k samples at 10 Hz (2.8 h): X/Y step-and-dwell with scans, 12 temperatures (one drives a
+/// thermal lag of 900 s), 2 forces, 2 strains, rpm, tool, 2 decoys = 20 context channels beside
+/// positions; ex carries a hidden backlash + thermal lag, ey only noise.
+fn recording() -> Recording {
+    let n = 100_000;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let t: Vec<f64> = (0..n).map(|i| i as f64 * 0.1).collect();
+    let x: Vec<f64> = (0..n)
+        .map(|i| ((i / 50) % 60) as f64 * 5.0)
+        .map(|v| if v > 150.0 { 300.0 - v } else { v })
+        .collect();
+    let y: Vec<f64> = (0..n)
+        .map(|i| (i as f64 * 0.013).sin() * 100.0 + 100.0)
+        .collect();
+    let mut cols: Vec<(String, Vec<f64>)> = vec![
+        ("t_s".into(), t.clone()),
+        ("x_mm".into(), x.clone()),
+        ("y_mm".into(), y),
+    ];
+    let mut temps = vec![];
+    for k in 0..12 {
+        let tau = 600.0 + 300.0 * k as f64;
+        let drive: Vec<f64> = t
+            .iter()
+            .map(|s| 20.0 + 5.0 * (s / (3000.0 + 500.0 * k as f64)).sin().abs())
+            .collect();
+        let tk = lowpass(&t, &drive, tau);
+        temps.push(tk.clone());
+        cols.push((
+            format!("T_s{k}_C"),
+            tk.iter()
+                .map(|v| v + rng.random_range(-0.02..0.02))
+                .collect(),
+        ));
+    }
+    for k in 0..2 {
+        cols.push((
+            format!("F_c{k}_N"),
+            (0..n)
+                .map(
+                    |i| if (i / 5000) % 3 == k { 300.0 } else { 0.0 } + rng.random_range(-2.0..2.0),
+                )
+                .collect(),
+        ));
+        cols.push((
+            format!("strain_g{k}_ue"),
+            (0..n).map(|_| rng.random_range(-1.0..1.0)).collect(),
+        ));
+    }
+    cols.push((
+        "rpm".into(),
+        (0..n)
+            .map(|i| if i < 60_000 { 6000.0 } else { 0.0 })
+            .collect(),
+    ));
+    cols.push((
+        "tool_mm".into(),
+        (0..n)
+            .map(|i| 100.0 + 50.0 * ((i / 25_000) % 2) as f64)
+            .collect(),
+    ));
+    cols.push((
+        "aux_a".into(),
+        (0..n).map(|_| rng.random_range(0.0..1.0)).collect(),
+    ));
+    cols.push((
+        "aux_b".into(),
+        (0..n).map(|i| (i as f64 * 1e-4).cos()).collect(),
+    ));
+    let lag = lowpass(&t, &temps[3], 900.0);
+    let mut dir = 1.0;
+    let ex: Vec<f64> = (0..n)
+        .map(|i| {
+            if i > 0 && x[i] != x[i - 1] {
+                dir = (x[i] - x[i - 1]).signum();
+            }
+            2.0 * dir + 3.0 * (lag[i] - lag[0]) + rng.random_range(-1.0..1.0)
+        })
+        .collect();
+    let ey: Vec<f64> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+    cols.push(("ex_um".into(), ex));
+    cols.push(("ey_um".into(), ey));
+    cols.push(("sim_ex_um".into(), vec![0.0; n]));
+    cols.push(("sim_ey_um".into(), vec![0.0; n]));
+    Recording::from_columns(cols).unwrap()
+}
+
+fn bench(c: &mut Criterion) {
+    let rec = recording();
+    let ctx_channels = rec.names().len() - 3 - 4; // minus t_s, x_mm, y_mm and the four error/sim columns
+    assert_eq!(ctx_channels, 20);
+    let mut g = c.benchmark_group("diagnose");
+    g.sample_size(10);
+    g.bench_function("100k_samples_20_context_channels", |b| {
+        b.iter(|| {
+            let d = diagnose(std::hint::black_box(&rec), &Options::default()).unwrap();
+            assert!(d.report.findings.iter().any(|f| f.effect == "backlash"));
+            d
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

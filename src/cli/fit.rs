@@ -1,0 +1,443 @@
+//! `retrocomp fit axis|thermal|load …`: measurements in, machine-model TOML out, with the held-out
+//! efficiency δ = 1 − Σ|Δm − Δs| / Σ|Δm| and the max residual (Spaan). Text report by default,
+//! `--json` for one JSON object, `--svg` for a measured-vs-model plot.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+
+use super::util::{read, write};
+use crate::analysis::fit::recording::{Recording, parse_recording};
+use crate::analysis::fit::regression::Criterion;
+use crate::analysis::fit::to_model::{
+    AxisForm, add_load, add_thermal, axis_component, put_component, single_axis_spec,
+    to_checked_toml,
+};
+use crate::analysis::fit::workflow::{ContextFit, fit_axis, fit_context};
+use crate::analysis::report::{Series, xy_svg};
+use crate::analysis::table::Direction;
+use crate::models::names::parse_component;
+use crate::models::{ComponentId, MachineModel, ModelSpec};
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    pub what: What,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Form {
+    Table,
+    Piecewise,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Crit {
+    Bic,
+    Cp,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct Common {
+    /// Model to extend; without it (axis fits only) a one-axis model is written.
+    #[arg(long)]
+    pub base_model: Option<PathBuf>,
+    /// Where to write the model TOML (default: stdout in text mode).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    #[arg(long)]
+    pub json: bool,
+    #[arg(long)]
+    pub svg: Option<PathBuf>,
+}
+
+#[derive(Debug, clap::Subcommand)]
+pub enum What {
+    /// Piecewise-quadratic forward/reverse tables of one component from laser runs (ISO 230-2 CSV).
+    Axis {
+        runs: PathBuf,
+        /// ISO 230-1 component, e.g. EXX.
+        #[arg(long)]
+        component: String,
+        #[arg(long, default_value_t = 50.0)]
+        knot_step_mm: f64,
+        /// Significance level of a knot (Spaan: 99.99 % → 1e-4).
+        #[arg(long, default_value_t = 1e-4)]
+        alpha: f64,
+        /// Run left out of the fit and used for δ.
+        #[arg(long)]
+        holdout_run: Option<u32>,
+        #[arg(long, value_enum, default_value = "table")]
+        form: Form,
+        #[arg(long)]
+        remove_drift: bool,
+        #[command(flatten)]
+        common: Common,
+    },
+    /// Thermal regression of an error signal on `T_<name>_C` columns of a recording.
+    Thermal {
+        recording: PathBuf,
+        #[arg(long)]
+        signal: String,
+        /// Component the term adds to (default from the signal: ex_um → EXX).
+        #[arg(long)]
+        target: Option<String>,
+        /// Lag time constants to try, s (0 = no lag).
+        #[arg(long, value_delimiter = ',', default_value = "0")]
+        lags_s: Vec<f64>,
+        #[arg(long, default_value_t = 4)]
+        max_terms: usize,
+        #[arg(long, value_enum, default_value = "bic")]
+        criterion: Crit,
+        /// Values of the `run` column held out for δ (default: last 30 % of samples).
+        #[arg(long, value_delimiter = ',')]
+        holdout_runs: Vec<u32>,
+        #[command(flatten)]
+        common: Common,
+    },
+    /// Load regression of an error signal on `strain_<name>_ue` columns of a recording.
+    Load {
+        recording: PathBuf,
+        #[arg(long)]
+        signal: String,
+        #[arg(long)]
+        target: Option<String>,
+        #[arg(long, default_value_t = 2)]
+        max_terms: usize,
+        #[arg(long, value_enum, default_value = "bic")]
+        criterion: Crit,
+        #[arg(long, value_delimiter = ',')]
+        holdout_runs: Vec<u32>,
+        #[command(flatten)]
+        common: Common,
+    },
+}
+
+fn component(name: &str) -> anyhow::Result<ComponentId> {
+    parse_component(name)
+        .with_context(|| format!("`{name}` is not an ISO 230-1 component name (e.g. EXX, EBZ)"))
+}
+
+fn default_target(signal: &str) -> anyhow::Result<ComponentId> {
+    let a = signal
+        .strip_prefix('e')
+        .and_then(|s| s.chars().next())
+        .filter(|c| "xyz".contains(*c));
+    match a {
+        Some(c) => component(&format!("E{0}{0}", c.to_ascii_uppercase())),
+        None => anyhow::bail!("cannot derive a target from `{signal}`: give --target"),
+    }
+}
+
+fn base_spec(p: &Path) -> anyhow::Result<ModelSpec> {
+    Ok(MachineModel::from_toml_path(p)?.spec().clone())
+}
+
+fn finish(
+    common: &Common,
+    toml: &str,
+    report_text: String,
+    mut json: serde_json::Value,
+) -> anyhow::Result<()> {
+    if common.json {
+        json["model_toml"] = toml.into();
+        println!("{}", serde_json::to_string_pretty(&json)?);
+        if let Some(p) = &common.out {
+            write(p, toml)?;
+        }
+    } else {
+        match &common.out {
+            Some(p) => {
+                write(p, toml)?;
+                print!("{report_text}");
+                println!("model written to {}", p.display());
+            }
+            None => {
+                for l in report_text.lines() {
+                    println!("# {l}");
+                }
+                print!("{toml}");
+            }
+        }
+    }
+    Ok(())
+}
+
+fn context_text(f: &ContextFit) -> String {
+    let mut s = format!(
+        "fit of {} ({:?} selection)\n",
+        f.signal, f.selection.criterion
+    );
+    for st in &f.selection.path {
+        s.push_str(&format!(
+            "  p={} SSE={:.3} Cp={:.1} BIC={:.1} [{}]\n",
+            st.p,
+            st.sse,
+            st.cp,
+            st.bic,
+            st.signals.join(", ")
+        ));
+    }
+    s.push_str(&format!(
+        "chosen p = {}: intercept {:.3} µm",
+        f.selection.chosen_p, f.model.intercept_um
+    ));
+    for t in &f.model.terms {
+        s.push_str(&format!(
+            ", {:.4} µm/unit × {}{}",
+            t.coef,
+            t.signal,
+            if t.tau_s > 0.0 {
+                format!(" (lag {} s)", t.tau_s)
+            } else {
+                String::new()
+            }
+        ));
+    }
+    s.push_str(&format!(
+        "\nheld out ({}): δ = {:.1} %, max residual {:.2} µm, n = {}\n",
+        f.heldout_rule,
+        100.0 * f.heldout.delta,
+        f.heldout.max_residual_um,
+        f.heldout.n
+    ));
+    s
+}
+
+fn context_svg(p: &Path, rec: &Recording, f: &ContextFit) -> anyhow::Result<()> {
+    let t = rec.get("t_s").context("t_s")?;
+    let y = rec.get(&f.signal).context("signal")?;
+    let pred = f
+        .model
+        .predict(t, &|n: &str| rec.get(n).cloned())
+        .context("prediction")?;
+    let series = [
+        Series::line(
+            "measured",
+            t.iter().cloned().zip(y.iter().cloned()).collect(),
+        ),
+        Series::line("model", t.iter().cloned().zip(pred).collect()),
+    ];
+    write(
+        p,
+        &xy_svg(
+            &format!(
+                "{}: held-out δ = {:.1} %",
+                f.signal,
+                100.0 * f.heldout.delta
+            ),
+            "t_s",
+            "error_um",
+            &series,
+        )?,
+    )
+}
+
+fn training_mean(rec: &Recording, f: &ContextFit) -> impl Fn(&str) -> f64 {
+    let n = rec.len();
+    let test: Vec<bool> = match (rec.get("run"), f.heldout_rule.starts_with("runs")) {
+        (Some(run), true) => {
+            let held: Vec<f64> = f
+                .heldout_rule
+                .trim_start_matches("runs ")
+                .trim_matches(['[', ']'])
+                .split(',')
+                .filter_map(|v| v.trim().parse().ok())
+                .collect();
+            run.iter().map(|r| held.contains(r)).collect()
+        }
+        _ => (0..n).map(|i| i >= n * 7 / 10).collect(),
+    };
+    let cols = rec.columns.clone();
+    move |name: &str| {
+        let v = &cols[name];
+        let (s, k) = v
+            .iter()
+            .zip(&test)
+            .filter(|(_, t)| !**t)
+            .fold((0.0, 0usize), |(s, k), (x, _)| (s + x, k + 1));
+        s / k.max(1) as f64
+    }
+}
+
+pub fn run(a: &Args) -> anyhow::Result<()> {
+    match &a.what {
+        What::Axis {
+            runs,
+            component: comp,
+            knot_step_mm,
+            alpha,
+            holdout_run,
+            form,
+            remove_drift,
+            common,
+        } => {
+            let id = component(comp)?;
+            let (rs, slope) = super::iso230_2::load(runs, *remove_drift)?;
+            let fit = fit_axis(&rs, *knot_step_mm, *alpha, *holdout_run)?;
+            let targets: Vec<f64> = rs.iter().map(|r| r.target_mm).collect();
+            let f = match form {
+                Form::Table => AxisForm::Table,
+                Form::Piecewise => AxisForm::Piecewise,
+            };
+            let c = axis_component(&fit, id, f, &targets)?;
+            let mut spec = match &common.base_model {
+                Some(p) => base_spec(p)?,
+                None => {
+                    let lo = targets.iter().cloned().fold(f64::INFINITY, f64::min);
+                    let hi = targets.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+                    single_axis_spec("fit", id.axis, (lo, hi))
+                }
+            };
+            put_component(&mut spec, c)?;
+            let (toml, _) = to_checked_toml(spec)?;
+            let mut text = format!(
+                "{}: forward knots {:?}, reverse knots {:?}, fit rms {:.3} µm, drift removed {:.3} µm/run\n",
+                id.iso_name(),
+                fit.forward.knots_mm,
+                fit.reverse.knots_mm,
+                fit.fit_rms_um,
+                slope
+            );
+            match &fit.heldout {
+                Some(h) => text.push_str(&format!(
+                    "held-out run {}: δ = {:.1} %, max residual {:.2} µm\n",
+                    holdout_run.unwrap_or(0),
+                    100.0 * h.delta,
+                    h.max_residual_um
+                )),
+                None => text.push_str("no held-out run (--holdout-run): δ not computed\n"),
+            }
+            if let Some(p) = &common.svg {
+                let mut series = Vec::new();
+                for (d, name) in [
+                    (Direction::Forward, "forward"),
+                    (Direction::Reverse, "reverse"),
+                ] {
+                    series.push(Series::markers(
+                        &format!("measured {name}"),
+                        rs.iter()
+                            .filter(|r| r.direction == d)
+                            .map(|r| (r.target_mm, r.deviation_um))
+                            .collect(),
+                    ));
+                    let pq = if d == Direction::Forward {
+                        &fit.forward
+                    } else {
+                        &fit.reverse
+                    };
+                    let (lo, hi) = (
+                        targets.iter().cloned().fold(f64::INFINITY, f64::min),
+                        targets.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+                    );
+                    series.push(Series::line(
+                        &format!("fit {name}"),
+                        (0..=200)
+                            .map(|i| lo + (hi - lo) * f64::from(i) / 200.0)
+                            .map(|x| (x, pq.eval(x)))
+                            .collect(),
+                    ));
+                }
+                write(
+                    p,
+                    &xy_svg(
+                        &format!("{} fit", id.iso_name()),
+                        "position_mm",
+                        "error_um",
+                        &series,
+                    )?,
+                )?;
+            }
+            let json = serde_json::json!({ "component": id.iso_name(), "fit": fit, "drift_removed_um_per_run": slope });
+            finish(common, &toml, text, json)
+        }
+        What::Thermal {
+            recording,
+            signal,
+            target,
+            lags_s,
+            max_terms,
+            criterion,
+            holdout_runs,
+            common,
+        } => run_context(
+            true,
+            recording,
+            signal,
+            target.as_deref(),
+            lags_s,
+            *max_terms,
+            *criterion,
+            holdout_runs,
+            common,
+        ),
+        What::Load {
+            recording,
+            signal,
+            target,
+            max_terms,
+            criterion,
+            holdout_runs,
+            common,
+        } => run_context(
+            false,
+            recording,
+            signal,
+            target.as_deref(),
+            &[0.0],
+            *max_terms,
+            *criterion,
+            holdout_runs,
+            common,
+        ),
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_context(
+    thermal: bool,
+    recording: &Path,
+    signal: &str,
+    target: Option<&str>,
+    lags: &[f64],
+    max_terms: usize,
+    criterion: Crit,
+    holdout_runs: &[u32],
+    common: &Common,
+) -> anyhow::Result<()> {
+    let base = common
+        .base_model
+        .as_ref()
+        .context("--base-model is required: the term needs the model's axes and chain")?;
+    let id = match target {
+        Some(t) => component(t)?,
+        None => default_target(signal)?,
+    };
+    let rec = parse_recording(&recording.display().to_string(), &read(recording)?)?;
+    let crit = match criterion {
+        Crit::Bic => Criterion::Bic,
+        Crit::Cp => Criterion::Cp,
+    };
+    let f = fit_context(
+        &rec,
+        signal,
+        thermal,
+        !thermal,
+        lags,
+        max_terms,
+        crit,
+        holdout_runs,
+    )?;
+    let mut spec = base_spec(base)?;
+    if thermal {
+        add_thermal(&mut spec, &f, id, &training_mean(&rec, &f))?;
+    } else {
+        add_load(&mut spec, &f, id)?;
+    }
+    let (toml, _) = to_checked_toml(spec)?;
+    if let Some(p) = &common.svg {
+        context_svg(p, &rec, &f)?;
+    }
+    let json = serde_json::json!({ "target": id.iso_name(), "fit": f });
+    finish(common, &toml, context_text(&f), json)
+}

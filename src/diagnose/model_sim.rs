@@ -1,0 +1,85 @@
+//! The simulation as a machine model evaluated on the recording's inputs (`diagnose --model`):
+//! positions `<a>_mm`, the latched approach direction of each axis (the same latch diagnose uses),
+//! `t_s`, `T_<sensor>_C`, `F_<name>_N`, `strain_<name>_ue` and `tool_mm`. Output: sim error per
+//! signal, µm, actual − nominal (the model's sign convention is the recording's).
+
+use crate::models::MachineModel;
+use crate::recording::{AXES, Recording};
+
+use super::features::Context;
+
+/// Evaluate `model` (exact HTM form) at every row; returns `(signal, sim_um)` for each error signal
+/// of the recording. A channel the model needs but the recording lacks is an error naming it.
+pub fn simulate(model: &MachineModel, rec: &Recording) -> anyhow::Result<Vec<(String, Vec<f64>)>> {
+    let ctx = Context::from_recording(rec);
+    let need = |name: String| -> anyhow::Result<&[f64]> {
+        rec.col(&name).ok_or_else(|| {
+            anyhow::anyhow!("the model needs column `{name}`, which the recording does not have")
+        })
+    };
+    for a in model.axes() {
+        need(format!("{a}_mm"))?;
+    }
+    let temps: Vec<&[f64]> = model
+        .temperature_sensors()
+        .iter()
+        .map(|n| need(format!("T_{n}_C")))
+        .collect::<anyhow::Result<_>>()?;
+    let forces: Vec<&[f64]> = model
+        .force_channels()
+        .iter()
+        .map(|n| need(format!("F_{n}_N")))
+        .collect::<anyhow::Result<_>>()?;
+    let strains: Vec<&[f64]> = model
+        .strain_channels()
+        .iter()
+        .map(|n| need(format!("strain_{n}_ue")))
+        .collect::<anyhow::Result<_>>()?;
+    let tool = rec.col("tool_mm");
+    let mut state = model.new_state();
+    let mut out = model.new_breakdown();
+    let mut input = model.new_input();
+    let n = rec.n_rows();
+    let mut sim = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
+    for i in 0..n {
+        for (k, f) in ctx.axes.iter().enumerate() {
+            if let Some(f) = f {
+                input.pos_mm[k] = f.pos_mm[i];
+                input.dir[k] = f.dir[i] as i8;
+            }
+        }
+        input.t_s = ctx.t_s[i];
+        for (j, c) in temps.iter().enumerate() {
+            input.temps_c[j] = c[i];
+        }
+        for (j, c) in forces.iter().enumerate() {
+            input.forces_n[j] = c[i];
+        }
+        for (j, c) in strains.iter().enumerate() {
+            input.strains_ue[j] = c[i];
+        }
+        input.tool_mm = tool.map(|t| t[i]);
+        model.evaluate(&input, &mut state, &mut out);
+        if out.flags.invalid_input || out.flags.time_backwards {
+            anyhow::bail!(
+                "model evaluation failed at recording line {}: {:?}",
+                rec.line_of_row(i),
+                out.flags
+            );
+        }
+        for (s, v) in sim.iter_mut().zip(out.total_um) {
+            s[i] = v;
+        }
+    }
+    Ok(rec
+        .error_signals()
+        .into_iter()
+        .map(|s| {
+            let k = AXES
+                .iter()
+                .position(|&a| Some(a) == s.chars().nth(1))
+                .expect("e<axis>_um");
+            (s, sim[k].clone())
+        })
+        .collect())
+}

@@ -1,0 +1,540 @@
+//! Readers for the parts of a model file that carry values: error functions (tables, polynomials,
+//! piecewise quadratics), squareness, thermal and load terms. Units are converted here, once.
+
+use super::function::{ErrorFunction, Interpolation, Table};
+use super::names::{Axis, ComponentId, parse_squareness};
+use super::parse::{lower_names, unit_list_rotation, value_units};
+use super::spec::*;
+use super::toml_reader::Tbl;
+
+/// Read the one `{prefix}_{unit}` key, converted by the unit's factor.
+fn read_scaled_vec(
+    t: &Tbl<'_, '_>,
+    prefix: &str,
+    units: &[(String, f64)],
+) -> Option<(Vec<f64>, String)> {
+    let names: Vec<&str> = units.iter().map(|u| u.0.as_str()).collect();
+    let Some((unit, key)) = t.find_suffixed(prefix, &names) else {
+        // A key with this prefix in a unit that does not fit (e.g. `_um` for a rotation).
+        let start = format!("{prefix}_");
+        for k in t.keys().into_iter().filter(|k| k.starts_with(&start)) {
+            let rest = &k[start.len()..];
+            if !names.contains(&rest) {
+                t.get(&k);
+                t.err_key(
+                    &k,
+                    format!("unit `{rest}` does not fit here; expected {prefix}_<unit> with unit one of {}", names.join("|")),
+                );
+            }
+        }
+        return None;
+    };
+    let factor = units
+        .iter()
+        .find(|u| u.0 == unit)
+        .map(|u| u.1)
+        .unwrap_or(1.0);
+    let v = t.vec_opt(&key)?;
+    Some((v.into_iter().map(|x| x * factor).collect(), unit))
+}
+
+/// One error function from the keys of `t`; `prefix` is prepended to value keys (unused: "").
+pub(super) fn read_function(
+    t: &Tbl<'_, '_>,
+    kind_key: &str,
+    units: &[(String, f64)],
+) -> Option<ErrorFunction> {
+    let unit_names: Vec<&str> = units.iter().map(|u| u.0.as_str()).collect();
+    let suffix_hint = unit_names.join("|");
+    let kind = t.str_opt(kind_key).unwrap_or_else(|| {
+        if t.has("positions_mm") {
+            "table".into()
+        } else if t.has("knots_mm") {
+            "piecewise_quadratic".into()
+        } else {
+            "polynomial".into()
+        }
+    });
+    let range_mm = t.vec_opt("range_mm").and_then(|r| {
+        if r.len() == 2 && r[0] < r[1] {
+            Some((r[0], r[1]))
+        } else {
+            t.err_key("range_mm", "expected [min, max] with min < max");
+            None
+        }
+    });
+    match kind.as_str() {
+        "table" => {
+            let Some(positions) = t.vec_opt("positions_mm") else {
+                if !t.has("positions_mm") {
+                    t.err_here("a table needs `positions_mm` (strictly increasing, ≥ 2 points)");
+                }
+                return None;
+            };
+            let fwd = read_scaled_vec(t, "forward", units);
+            if fwd.is_none() && !t.keys().iter().any(|k| k.starts_with("forward_")) {
+                t.err_here(format!(
+                    "a table needs `forward_<unit>` with unit one of {suffix_hint}"
+                ));
+            }
+            let rev = read_scaled_vec(t, "reverse", units);
+            let interpolation = match t.str_opt("interpolation").as_deref() {
+                None | Some("linear") => Interpolation::Linear,
+                Some("c1") => Interpolation::C1,
+                Some(other) => {
+                    t.err_key(
+                        "interpolation",
+                        format!("expected \"linear\" or \"c1\", found {other:?}"),
+                    );
+                    Interpolation::Linear
+                }
+            };
+            if positions.len() < 2 {
+                t.err_key(
+                    "positions_mm",
+                    format!("expected at least 2 points, found {}", positions.len()),
+                );
+                return None;
+            }
+            if let Some(i) = positions.windows(2).position(|w| w[1] <= w[0]) {
+                t.err_key(
+                    "positions_mm",
+                    format!(
+                        "positions must increase strictly: [{}] = {} is not above [{}] = {}",
+                        i + 1,
+                        positions[i + 1],
+                        i,
+                        positions[i]
+                    ),
+                );
+                return None;
+            }
+            let (fwd, fwd_unit) = fwd?;
+            if fwd.len() != positions.len() {
+                t.err_key(
+                    &format!("forward_{fwd_unit}"),
+                    format!(
+                        "expected {} values (one per position), found {}",
+                        positions.len(),
+                        fwd.len()
+                    ),
+                );
+                return None;
+            }
+            let rev = match rev {
+                None => fwd.clone(),
+                Some((r, ru)) => {
+                    if r.len() != positions.len() {
+                        t.err_key(
+                            &format!("reverse_{ru}"),
+                            format!(
+                                "expected {} values (one per position), found {}",
+                                positions.len(),
+                                r.len()
+                            ),
+                        );
+                        return None;
+                    }
+                    r
+                }
+            };
+            if range_mm.is_some() {
+                t.err_key(
+                    "range_mm",
+                    "a table's range is its positions; range_mm is for polynomials",
+                );
+            }
+            Some(ErrorFunction::Table(Table::new(
+                positions,
+                fwd,
+                rev,
+                interpolation,
+            )))
+        }
+        "polynomial" => {
+            let Some((coefficients, _)) = read_scaled_vec(t, "coefficients", units) else {
+                if t.keys().iter().any(|k| k.starts_with("coefficients_")) {
+                    return None;
+                }
+                t.err_here(format!("a polynomial needs `coefficients_<unit>` = [a0, a1, …] (value = Σ a_i·q^i, q in mm), unit one of {suffix_hint}"));
+                return None;
+            };
+            if coefficients.is_empty() {
+                t.err_here("polynomial coefficients are empty");
+                return None;
+            }
+            Some(ErrorFunction::Polynomial {
+                coefficients,
+                range_mm,
+            })
+        }
+        "piecewise_quadratic" => {
+            let base = read_scaled_vec(t, "coefficients", units);
+            let knots = t.vec_opt("knots_mm").unwrap_or_default();
+            let kc = read_scaled_vec(t, "knot_coefficients", units)
+                .map(|v| v.0)
+                .unwrap_or_default();
+            let Some((base, _)) = base else {
+                t.err_here(format!("a piecewise_quadratic needs `coefficients_<unit>` = [b0, b1, b2], unit one of {suffix_hint}"));
+                return None;
+            };
+            if base.len() != 3 {
+                t.err_here(format!(
+                    "piecewise_quadratic coefficients: expected 3 values [b0, b1, b2], found {}",
+                    base.len()
+                ));
+                return None;
+            }
+            if knots.len() != kc.len() {
+                t.err_key(
+                    "knots_mm",
+                    format!(
+                        "expected one knot coefficient per knot: {} knots, {} coefficients",
+                        knots.len(),
+                        kc.len()
+                    ),
+                );
+                return None;
+            }
+            if knots.windows(2).any(|w| w[1] <= w[0]) {
+                t.err_key("knots_mm", "knots must increase strictly");
+                return None;
+            }
+            Some(ErrorFunction::PiecewiseQuadratic {
+                base: [base[0], base[1], base[2]],
+                knots_mm: knots,
+                knot_coefficients: kc,
+                range_mm,
+            })
+        }
+        other => {
+            t.err_key(kind_key, format!("unknown function shape {other:?}; expected table, polynomial or piecewise_quadratic"));
+            None
+        }
+    }
+}
+
+pub(super) fn read_squareness(t: &Tbl<'_, '_>, in_chain: &[Axis]) -> Option<SquarenessSpec> {
+    let name = t.str_req("name", "EC0Y, EB0Z or EA0Z")?;
+    let Some(kind) = parse_squareness(&name) else {
+        t.err_key(
+            "name",
+            format!("unknown squareness {name:?}; expected EC0Y (X–Y), EB0Z (X–Z) or EA0Z (Y–Z)"),
+        );
+        return None;
+    };
+    let (a, b, _) = kind.axes();
+    let on_axis = match t.str_opt("on_axis") {
+        None => b,
+        Some(s) => match s
+            .chars()
+            .next()
+            .and_then(Axis::from_letter)
+            .filter(|_| s.len() == 1)
+        {
+            Some(x) if x == a || x == b => x,
+            _ => {
+                t.err_key(
+                    "on_axis",
+                    format!("expected \"{a}\" or \"{b}\" (an axis of {name}), found {s:?}"),
+                );
+                return None;
+            }
+        },
+    };
+    if !in_chain.contains(&on_axis) {
+        t.err_key(
+            "name",
+            format!(
+                "{name} is carried by axis {on_axis}, which is not in the chain {:?}",
+                lower_names(in_chain)
+            ),
+        );
+        return None;
+    }
+    let units = unit_list_rotation();
+    let names: Vec<&str> = units.iter().map(|u| u.0.as_str()).collect();
+    let value_urad = match t.find_suffixed("value", &names) {
+        Some((unit, key)) => {
+            let f = units.iter().find(|u| u.0 == unit).unwrap().1;
+            t.f64_opt(&key)? * f
+        }
+        None => match (t.f64_opt("deviation_mm"), t.f64_opt("over_mm")) {
+            (Some(d), Some(l)) if l > 0.0 => d / l * 1e6,
+            (Some(_), Some(l)) => {
+                t.err_key("over_mm", format!("expected a length > 0, found {l}"));
+                return None;
+            }
+            _ => {
+                t.err_here(format!(
+                    "squareness needs value_<unit> ({}) or deviation_mm + over_mm",
+                    names.join("|")
+                ));
+                return None;
+            }
+        },
+    };
+    Some(SquarenessSpec {
+        kind,
+        on_axis,
+        value_urad,
+    })
+}
+
+fn read_sensor_list(t: &Tbl<'_, '_>, sensors: &[String]) -> Option<Vec<String>> {
+    let list = match t.strings_opt("sensors") {
+        Some(l) => l,
+        None => {
+            if !t.has("sensors") {
+                t.err_here("missing key `sensors` (names of [[sensors]] entries)");
+            }
+            return None;
+        }
+    };
+    let mut ok = true;
+    for s in &list {
+        if !sensors.contains(s) {
+            t.err_key(
+                "sensors",
+                format!("unknown sensor {s:?}; defined: {sensors:?}"),
+            );
+            ok = false;
+        }
+    }
+    ok.then_some(list)
+}
+
+fn read_square(t: &Tbl<'_, '_>, key: &str, n: usize) -> Option<Vec<Vec<f64>>> {
+    if !t.has(key) {
+        return Some(Vec::new());
+    }
+    let m = t.matrix_opt(key)?;
+    if m.len() != n || m.iter().any(|r| r.len() != n) {
+        t.err_key(
+            key,
+            format!("expected a {n}×{n} matrix (one row and column per sensor)"),
+        );
+        return None;
+    }
+    Some(m)
+}
+
+pub(super) fn read_thermal(
+    t: &Tbl<'_, '_>,
+    kind: &str,
+    target: ComponentId,
+    sensors: &[String],
+    in_chain: &[Axis],
+) -> Option<ThermalKind> {
+    let (u, other) = if target.is_rotation() {
+        ("urad", "um")
+    } else {
+        ("um", "urad")
+    };
+    // A key in the wrong unit for the target is a clear mistake; say so and stop here.
+    let mut wrong_unit = false;
+    for k in t.keys() {
+        if k.contains(&format!("_{other}")) && !k.starts_with("alpha") {
+            wrong_unit = true;
+            t.err_key(
+                &k,
+                format!(
+                    "target {} is a {}: use the `_{u}` form of this key",
+                    target.iso_name(),
+                    if target.is_rotation() {
+                        "rotation (µrad)"
+                    } else {
+                        "translation (µm)"
+                    }
+                ),
+            );
+            t.get(&k);
+        }
+    }
+    if wrong_unit {
+        return None;
+    }
+    match kind {
+        "polynomial_dt" => {
+            let s = read_sensor_list(t, sensors)?;
+            let e0 = t.f64_opt(&format!("e0_{u}")).unwrap_or(0.0);
+            let b = t.vec_opt(&format!("b_{u}_per_K")).unwrap_or_default();
+            if b.len() != s.len() {
+                t.err_key(
+                    &format!("b_{u}_per_K"),
+                    format!(
+                        "expected {} values (one per sensor), found {}",
+                        s.len(),
+                        b.len()
+                    ),
+                );
+                return None;
+            }
+            let c = read_square(t, &format!("c_{u}_per_K2"), s.len())?;
+            Some(ThermalKind::PolynomialDt {
+                sensors: s,
+                e0,
+                b_per_k: b,
+                c_per_k2: c,
+            })
+        }
+        "slope" => {
+            let s = read_sensor_list(t, sensors)?;
+            let s0 = t.f64_opt(&format!("s0_{u}_per_m")).unwrap_or(0.0);
+            let sv = t.vec_opt(&format!("s_{u}_per_m_K")).unwrap_or_default();
+            if sv.len() != s.len() {
+                t.err_key(
+                    &format!("s_{u}_per_m_K"),
+                    format!(
+                        "expected {} values (one per sensor), found {}",
+                        s.len(),
+                        sv.len()
+                    ),
+                );
+                return None;
+            }
+            let d = read_square(t, &format!("d_{u}_per_m_K2"), s.len())?;
+            Some(ThermalKind::Slope {
+                sensors: s,
+                s0_per_mm: s0,
+                s_per_mm_k: sv,
+                d_per_mm_k2: d,
+            })
+        }
+        "expansion" => {
+            if target.is_rotation() {
+                t.err_key("target", "expansion needs a translation target (e.g. EXX)");
+                return None;
+            }
+            let sensor = t.str_req("sensor", "the [[sensors]] name of the scale temperature")?;
+            if !sensors.contains(&sensor) {
+                t.err_key(
+                    "sensor",
+                    format!("unknown sensor {sensor:?}; defined: {sensors:?}"),
+                );
+                return None;
+            }
+            let alpha = t.f64_req(
+                "alpha_ppm_per_K",
+                "expansion coefficient, e.g. 11.5 for steel",
+            )?;
+            let origin = t.f64_opt("origin_mm").unwrap_or(0.0);
+            let reference = t.f64_opt("reference_C").unwrap_or(20.0);
+            Some(ThermalKind::Expansion {
+                sensor,
+                alpha_ppm_per_k: alpha,
+                origin_mm: origin,
+                reference_c: reference,
+            })
+        }
+        "stations" => {
+            let s = read_sensor_list(t, sensors)?;
+            let along = t.str_req("along", "the axis the stations lie on")?;
+            let Some(along) = along
+                .chars()
+                .next()
+                .and_then(Axis::from_letter)
+                .filter(|a| along.len() == 1 && in_chain.contains(a))
+            else {
+                t.err_key(
+                    "along",
+                    format!(
+                        "expected an axis of the chain {:?}, found {along:?}",
+                        lower_names(in_chain)
+                    ),
+                );
+                return None;
+            };
+            let st = t.vec_opt("stations_mm")?;
+            if st.len() < 2 || st.windows(2).any(|w| w[1] <= w[0]) {
+                t.err_key("stations_mm", "expected ≥ 2 strictly increasing positions");
+                return None;
+            }
+            let e0 = if t.has(&format!("e0_{u}")) {
+                t.vec_opt(&format!("e0_{u}"))?
+            } else {
+                vec![0.0; st.len()]
+            };
+            if e0.len() != st.len() {
+                t.err_key(
+                    &format!("e0_{u}"),
+                    format!("expected {} values (one per station)", st.len()),
+                );
+                return None;
+            }
+            let key = format!("b_{u}_per_K");
+            let b = t.matrix_opt(&key).unwrap_or_default();
+            if b.len() != st.len() || b.iter().any(|r| r.len() != s.len()) {
+                t.err_key(
+                    &key,
+                    format!(
+                        "expected {} rows (stations) of {} values (sensors)",
+                        st.len(),
+                        s.len()
+                    ),
+                );
+                return None;
+            }
+            Some(ThermalKind::Stations {
+                along,
+                sensors: s,
+                stations_mm: st,
+                e0,
+                b_per_k: b,
+            })
+        }
+        other => {
+            t.err_key("kind", format!("unknown thermal kind {other:?}; expected polynomial_dt, slope, expansion or stations"));
+            None
+        }
+    }
+}
+
+pub(super) fn read_load(
+    t: &Tbl<'_, '_>,
+    kind: &str,
+    target: ComponentId,
+    force: String,
+) -> Option<LoadKind> {
+    match kind {
+        "compliance" => {
+            let units: Vec<(String, f64)> = if target.is_rotation() {
+                vec![("urad_per_N".into(), 1.0)]
+            } else {
+                vec![("um_per_N".into(), 1.0), ("mm_per_N".into(), 1e3)]
+            };
+            let compliance = read_function(t, "shape", &units)?;
+            Some(LoadKind::Compliance { force, compliance })
+        }
+        "weight_angular" => {
+            let reference = read_function(t, "shape", &value_units(target))?;
+            let reference_force_n = t.f64_req(
+                "reference_force_N",
+                "the load the reference profile was measured with",
+            )?;
+            let lever_mm = t.f64_req(
+                "lever_mm",
+                "distance from the load to the guideway centroid (Spaan: 375 mm)",
+            )?;
+            let load_height_mm = t.f64_opt("load_height_mm").unwrap_or(0.0);
+            if reference_force_n == 0.0 || lever_mm == 0.0 {
+                t.err_here("reference_force_N and lever_mm must be non-zero");
+                return None;
+            }
+            Some(LoadKind::WeightAngular {
+                force,
+                reference,
+                reference_force_n,
+                lever_mm,
+                load_height_mm,
+            })
+        }
+        other => {
+            t.err_key(
+                "kind",
+                format!("unknown load kind {other:?}; expected compliance or weight_angular"),
+            );
+            None
+        }
+    }
+}

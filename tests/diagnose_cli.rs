@@ -1,0 +1,178 @@
+//! `retrocomp diagnose` end to end: the DESIGN §5 JSON keys, `--out` files (SVG plots whose text
+//! renders, found-terms TOML), `--model` as the simulation, and a bad recording refused with its line.
+
+use std::process::Command;
+
+use retrocomp::recording::Recording;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+}
+
+/// A small step-and-dwell recording with a 6 µm backlash on X and white-ish noise.
+fn backlash_recording(dir: &std::path::Path) -> std::path::PathBuf {
+    let n = 800;
+    let t: Vec<f64> = (0..n).map(|i| i as f64).collect();
+    let x: Vec<f64> = (0..n)
+        .map(|i| {
+            let k = (i / 8) % 20;
+            20.0 * if k < 10 { k as f64 } else { (20 - k) as f64 }
+        })
+        .collect();
+    let mut dir_latch = 1.0;
+    let mut ex = vec![];
+    for i in 0..n {
+        if i > 0 && (x[i] - x[i - 1]).abs() > 0.0 {
+            dir_latch = (x[i] - x[i - 1]).signum();
+        }
+        // Deterministic pseudo-noise (no RNG needed): ±0.4 µm.
+        let noise = 0.4 * ((i as f64 * 12.9898).sin() * 43758.5453).fract();
+        ex.push(3.0 * dir_latch + noise);
+    }
+    let rec = Recording::from_columns(vec![
+        ("t_s".into(), t),
+        ("x_mm".into(), x),
+        ("ex_um".into(), ex),
+        ("sim_ex_um".into(), vec![0.0; n]),
+    ])
+    .unwrap();
+    let p = dir.join("rec.csv");
+    rec.write_csv(std::fs::File::create(&p).unwrap()).unwrap();
+    p
+}
+
+#[test]
+fn json_output_follows_the_contract_and_out_dir_has_plots_and_terms() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = backlash_recording(tmp.path());
+    let out = tmp.path().join("out");
+    let o = bin()
+        .args(["diagnose", "--json", "--recording"])
+        .arg(&rec)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    for k in [
+        "verdict",
+        "rms_before_um",
+        "mismatch",
+        "findings",
+        "alternatives",
+    ] {
+        assert!(j.get(k).is_some(), "missing key {k}");
+    }
+    assert_eq!(j["verdict"], "found");
+    let f = &j["findings"][0];
+    assert_eq!(f["effect"], "backlash");
+    assert_eq!(f["axis"], "x");
+    assert_eq!(f["signal"], "ex_um");
+    let b = f["params"]["b_um"].as_f64().unwrap();
+    assert!((b - 6.0).abs() < 0.3, "b_um {b}");
+    let ci = f["ci95"]["b_um"].as_array().unwrap();
+    assert!(ci[0].as_f64().unwrap() < b && b < ci[1].as_f64().unwrap());
+    for k in ["delta_bic", "p_value"] {
+        assert!(f["evidence"][k].is_number());
+    }
+    for k in [
+        "rms_after_um",
+        "heldout_rms_before_um",
+        "heldout_rms_after_um",
+        "explanation",
+        "equation",
+    ] {
+        assert!(f.get(k).is_some(), "finding lacks {k}");
+    }
+    let svg = std::fs::read_to_string(out.join("residual_ex_um_vs_x_mm.svg")).unwrap();
+    assert!(
+        svg.contains("<text") && svg.contains("residual"),
+        "plot text must render"
+    );
+    assert!(svg.contains("<circle"), "plot has points");
+    let toml_text = std::fs::read_to_string(out.join("found_terms.toml")).unwrap();
+    let v: toml::Value = toml::from_str(&toml_text).unwrap();
+    assert_eq!(v["term"][0]["effect"].as_str(), Some("backlash"));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report, j);
+}
+
+#[test]
+fn model_option_evaluates_the_machine_model_as_simulation() {
+    let tmp = tempfile::tempdir().unwrap();
+    // The recording's error is a pure EXX scale of 50 ppm; the model states exactly that, so the
+    // residual is zero and nothing is found; without the model, scale_error is found.
+    let n = 400;
+    let x: Vec<f64> = (0..n).map(|i| ((i * 7) % 300) as f64).collect();
+    let ex: Vec<f64> = x.iter().map(|v| 0.05 * v).collect();
+    let rec = Recording::from_columns(vec![
+        ("t_s".into(), (0..n).map(|i| i as f64).collect()),
+        ("x_mm".into(), x),
+        ("z_mm".into(), vec![0.0; n]),
+        ("ex_um".into(), ex),
+        ("sim_ex_um".into(), vec![0.0; n]),
+    ])
+    .unwrap();
+    let rp = tmp.path().join("r.csv");
+    rec.write_csv(std::fs::File::create(&rp).unwrap()).unwrap();
+    let model = tmp.path().join("m.toml");
+    std::fs::write(
+        &model,
+        "schema = 1\n[machine]\nname = \"t\"\nchain = \"Z X\"\ntool_axis = \"+x\"\n\
+         [axes.z]\ntravel_mm = [0.0, 10.0]\n[axes.x]\ntravel_mm = [0.0, 300.0]\n\
+         [[tools]]\nname = \"t\"\noffset_mm = [0.0, 0.0, 0.0]\n\
+         [[components]]\nname = \"EXX\"\npositions_mm = [0, 300]\nforward_mm = [0.0, 0.015]\n",
+    )
+    .unwrap();
+    let with = bin()
+        .args(["diagnose", "--json", "--recording"])
+        .arg(&rp)
+        .arg("--model")
+        .arg(&model)
+        .output()
+        .unwrap();
+    assert!(
+        with.status.success(),
+        "{}",
+        String::from_utf8_lossy(&with.stderr)
+    );
+    let j: serde_json::Value = serde_json::from_slice(&with.stdout).unwrap();
+    assert!(j["rms_before_um"].as_f64().unwrap() < 0.01, "{j}");
+    assert_eq!(j["verdict"], "none");
+    let without = bin()
+        .args(["diagnose", "--json", "--recording"])
+        .arg(&rp)
+        .output()
+        .unwrap();
+    let j: serde_json::Value = serde_json::from_slice(&without.stdout).unwrap();
+    assert_eq!(j["findings"][0]["effect"], "scale_error");
+    assert!((j["findings"][0]["params"]["ppm"].as_f64().unwrap() - 50.0).abs() < 1e-6);
+}
+
+#[test]
+fn bad_rows_are_refused_with_their_line_numbers() {
+    let tmp = tempfile::tempdir().unwrap();
+    let p = tmp.path().join("bad.csv");
+    std::fs::write(
+        &p,
+        "t_s,x_mm,ex_um,sim_ex_um\n0,0,1,0\n1,1,oops,0\n-0.5,2,1,0\n",
+    )
+    .unwrap();
+    let o = bin()
+        .args(["diagnose", "--recording"])
+        .arg(&p)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        e.contains("line 3, column `ex_um`: `oops` is not a number"),
+        "{e}"
+    );
+    assert!(
+        e.contains("line 4, column `t_s`: time goes backwards"),
+        "{e}"
+    );
+}
