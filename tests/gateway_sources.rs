@@ -136,7 +136,7 @@ channel = [ {{ name = "F_spindle_N" }} ]
 name = "T_spindle_C"
 min = 5.0
 max = 80.0
-stale_after_s = 0.5
+stale_after_s = 2.0
 [[channel]]
 name = "F_spindle_N"
 min = -5000.0
