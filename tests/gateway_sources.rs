@@ -2,7 +2,8 @@
 //! temperatures from an in-process Modbus TCP server (src/bus/modbus/server.rs, on 127.0.0.1), axis
 //! positions (ND 522 DRO lines) and the spindle force (generic `F=…N` lines) from two socat ptys;
 //! `retrocomp status --json` shows them Ok and the model (deploy/field/vmc-machine.toml) computing;
-//! then the serial writer goes silent and the Modbus server goes down → those channels turn Stale.
+//! then the serial writer goes silent and the Modbus server goes down → those channels turn Stale,
+//! and a force pty that vanishes and returns is reopened (the channel is Ok again).
 //! Also: every shipped field config (deploy/field/) loads with its model, and every channel its model
 //! needs is delivered by one of its sources.
 //! Peer: socat (`scripts/setup-peers.sh`).
@@ -226,6 +227,34 @@ stale_after_s = 0.3
     assert_eq!(health(&s, "T_spindle_C"), "ok", "{s}");
     // Last good value is kept.
     assert!((value(&s, "F_spindle_N") - 1200.0).abs() < 1e-9, "{s}");
+
+    // The force line's pty vanishes (USB adapter unplugged: socat killed, links gone) and comes
+    // back: the source reopens the device and F_spindle_N is Ok again.
+    drop(socat_f);
+    std::thread::sleep(Duration::from_millis(300));
+    let (socat_f, f_a2, f_b2) = peers::socat_pair(&dir.path().join("f"));
+    assert_eq!(f_b2, f_b);
+    let talking = Arc::new(AtomicBool::new(true));
+    let writer = {
+        let talking = talking.clone();
+        std::thread::spawn(move || {
+            let mut f = std::fs::OpenOptions::new().write(true).open(&f_a2).unwrap();
+            while talking.load(Ordering::Relaxed) {
+                f.write_all(b"F=-800.0N\r\n").unwrap();
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        })
+    };
+    let back = |s: &serde_json::Value| {
+        health(s, "F_spindle_N") == "ok" && s["channels"]["F_spindle_N"]["value"] == -800.0
+    };
+    let s = wait_for(status_port, 20, back);
+    talking.store(false, Ordering::Relaxed);
+    writer.join().unwrap();
+    assert!(
+        back(&s),
+        "force source did not come back after the pty returned: {s}"
+    );
 
     // The Modbus server goes down → temperatures Stale.
     drop(server);
