@@ -16,7 +16,7 @@
 //! table); a tool-branch carriage rotates about its reference point, arm `Σ_{k > K} n_k + t`.
 //! Error = r − r_nominal; first order it is Σ δ_K + ε_K × arm_K + q_K (ũ_K − u_K).
 
-use nalgebra::{Matrix3, Matrix4, Vector3, Vector4};
+use nalgebra::{Matrix3, Matrix4, Vector3};
 
 use super::names::Axis;
 
@@ -97,14 +97,15 @@ impl Elem {
         ]
     }
 
+    /// Actual translation q·ũ ± offset of this element (squareness tilts included), mm.
     #[inline]
-    fn actual_translation(&self, q_mm: f64) -> Matrix4<f64> {
+    fn actual_translation(&self, q_mm: f64) -> [f64; 3] {
         let s = if self.workpiece_side { -1.0 } else { 1.0 };
-        Matrix4::new_translation(&Vector3::new(
+        [
             q_mm * self.u_tilted[0] + s * self.offset_mm[0],
             q_mm * self.u_tilted[1] + s * self.offset_mm[1],
             q_mm * self.u_tilted[2] + s * self.offset_mm[2],
-        ))
+        ]
     }
 }
 
@@ -142,23 +143,26 @@ pub fn exact_tip(
     delta_um: &[[f64; 3]; 3],
     eps_urad: &[[f64; 3]; 3],
 ) -> [f64; 3] {
-    let mut p = Vector4::new(tool_mm[0], tool_mm[1], tool_mm[2], 1.0);
+    // The HTM product applied to the point, written as R·p + δ: the same algebra as the 4×4
+    // matrices above without the multiplications by the constant bottom row.
+    let mut p = tool_mm;
     for (j, e) in elems.iter().enumerate().rev() {
         let d = delta_um[j];
         let r = eps_urad[j];
-        let err = error_htm(
-            [d[0] * 1e-3, d[1] * 1e-3, d[2] * 1e-3],
-            [r[0] * 1e-6, r[1] * 1e-6, r[2] * 1e-6],
-        );
+        let rot = rotation_xyz(r[0] * 1e-6, r[1] * 1e-6, r[2] * 1e-6);
+        let delta_mm = [d[0] * 1e-3, d[1] * 1e-3, d[2] * 1e-3];
         let tr = e.actual_translation(q[j]);
-        // Apply the two HTMs to the point (two 4×4 · 4-vector products, no matrix–matrix product).
+        let err = |v: [f64; 3]| {
+            let w = rot * Vector3::new(v[0], v[1], v[2]);
+            [w[0] + delta_mm[0], w[1] + delta_mm[1], w[2] + delta_mm[2]]
+        };
         p = if e.workpiece_side {
-            err * (tr * p)
+            err(add(p, tr))
         } else {
-            tr * (err * p)
+            add(err(p), tr)
         };
     }
-    [p[0], p[1], p[2]]
+    p
 }
 
 #[inline]
