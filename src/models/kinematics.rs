@@ -182,6 +182,7 @@ pub fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Vector4;
 
     #[test]
     fn series_sin_cos_matches_libm() {
@@ -261,6 +262,45 @@ mod tests {
             [[1.0, 202.0, 303.0], [1.0, 2.0, 303.0], [1.0, 2.0, 3.0]]
         );
         assert_eq!(nominal_tip(&mill, &q, t), [101.0, 202.0, 303.0]);
+    }
+
+    #[test]
+    fn exact_tip_equals_the_4x4_htm_product() {
+        // Reference: the chain's definition with full homogeneous matrices (module comment).
+        let mut chain = [
+            elem(Axis::X, true),
+            elem(Axis::Y, false),
+            elem(Axis::Z, false),
+        ];
+        chain[1].offset_mm = [5.0, -3.0, 20.0];
+        chain[2].u_tilted = [1e-5, -2e-5, 1.0];
+        let q = [412.5, -140.0, 37.0];
+        let t = [0.0, 0.0, -150.0];
+        let d = [[3.0, -8.0, 1.5], [-2.0, 4.0, 9.0], [0.5, -6.0, 2.0]];
+        let r = [[12.0, -7.0, 3.0], [-4.0, 15.0, -9.0], [6.0, 2.0, -11.0]];
+        let mut p = Vector4::new(t[0], t[1], t[2], 1.0);
+        for j in (0..3).rev() {
+            let err = error_htm(
+                [d[j][0] * 1e-3, d[j][1] * 1e-3, d[j][2] * 1e-3],
+                [r[j][0] * 1e-6, r[j][1] * 1e-6, r[j][2] * 1e-6],
+            );
+            let a = chain[j].actual_translation(q[j]);
+            let tr = Matrix4::new_translation(&Vector3::new(a[0], a[1], a[2]));
+            p = if chain[j].workpiece_side {
+                err * (tr * p)
+            } else {
+                tr * (err * p)
+            };
+        }
+        let got = exact_tip(&chain, &q, t, &d, &r);
+        for k in 0..3 {
+            assert!((got[k] - p[k]).abs() < 1e-12, "{k}: {} vs {}", got[k], p[k]);
+        }
+        let nominal = nominal_tip(&chain, &q, t);
+        let moved = (0..3)
+            .map(|k| (got[k] - nominal[k]).abs())
+            .fold(0.0, f64::max);
+        assert!(moved > 1e-3, "errors must show: {moved} mm");
     }
 
     #[test]
