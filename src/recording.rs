@@ -256,6 +256,14 @@ impl Recording {
             .cloned()
             .collect()
     }
+    /// Strain channels `strain_<name>_ue`.
+    pub fn strain_channels(&self) -> Vec<String> {
+        self.names
+            .iter()
+            .filter(|n| n.starts_with("strain_") && n.ends_with("_ue") && n.len() > 10)
+            .cloned()
+            .collect()
+    }
     /// Force (`F_<name>_N`) and strain (`strain_<name>_ue`) channels.
     pub fn load_channels(&self) -> Vec<String> {
         self.names
@@ -437,6 +445,7 @@ mod tests {
             vec!["F_cut_N".to_string(), "strain_col_ue".to_string()]
         );
         assert_eq!(back.other_channels(), vec!["decoy_a".to_string()]);
+        assert_eq!(back.strain_channels(), vec!["strain_col_ue".to_string()]);
     }
 
     #[test]

@@ -4,11 +4,11 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use retrocomp::analysis::fit::recording::parse_recording;
 use retrocomp::analysis::fit::regression::{Criterion, first_order_lag};
 use retrocomp::analysis::fit::workflow::{fit_axis, fit_context};
 use retrocomp::analysis::iso230_2::Reading;
 use retrocomp::analysis::table::Direction;
+use retrocomp::recording::Recording;
 
 fn truth_axis(x: f64, d: Direction) -> f64 {
     let b = if d == Direction::Forward { 2.0 } else { -2.0 };
@@ -128,7 +128,7 @@ fn recording(seed: u64) -> String {
 
 #[test]
 fn thermal_fit_selects_the_true_sensors_and_lag() {
-    let rec = parse_recording("rec.csv", &recording(2)).unwrap();
+    let rec = Recording::read_strict(recording(2).as_bytes(), "rec.csv").unwrap();
     for crit in [Criterion::Bic, Criterion::Cp] {
         let f = fit_context(
             &rec,
@@ -174,7 +174,7 @@ fn thermal_fit_selects_the_true_sensors_and_lag() {
 
 #[test]
 fn load_fit_uses_the_guide_strain() {
-    let rec = parse_recording("rec.csv", &recording(3)).unwrap();
+    let rec = Recording::read_strict(recording(3).as_bytes(), "rec.csv").unwrap();
     let f = fit_context(&rec, "ey_um", false, true, &[0.0], 2, Criterion::Bic, &[]).unwrap();
     assert_eq!(f.model.terms.len(), 1);
     assert_eq!(f.model.terms[0].signal, "strain_guide_ue");
@@ -185,14 +185,17 @@ fn load_fit_uses_the_guide_strain() {
 
 #[test]
 fn recording_errors_are_located() {
-    let e = parse_recording("r.csv", "t_s,ex_um\n0,1\n1,x\n0.5,2\n").unwrap_err();
-    let s: Vec<String> = e.0.iter().map(ToString::to_string).collect();
-    assert_eq!(
-        s,
-        vec![
-            "r.csv:3: column `ex_um`: expected a number, found `x`",
-            "r.csv:4: column `t_s`: time goes backwards: 0.5 after 1"
-        ]
+    let e = Recording::read_strict("t_s,ex_um\n0,1\n1,x\n2,3\n0.5,2\n".as_bytes(), "r.csv")
+        .unwrap_err()
+        .to_string();
+    assert!(e.starts_with("r.csv: 2 bad row(s)"), "{e}");
+    assert!(
+        e.contains("line 3, column `ex_um`: `x` is not a number"),
+        "{e}"
+    );
+    assert!(
+        e.contains("line 5, column `t_s`: time goes backwards (0.5 after 2)"),
+        "{e}"
     );
 }
 
@@ -290,7 +293,7 @@ mod to_model {
     /// Thermal and load terms written into the model predict what the regression predicts.
     #[test]
     fn thermal_and_load_terms_evaluate_like_the_regression() {
-        let rec = parse_recording("rec.csv", &recording(5)).unwrap();
+        let rec = Recording::read_strict(recording(5).as_bytes(), "rec.csv").unwrap();
         let fit_t = fit_context(
             &rec,
             "ex_um",
@@ -306,15 +309,15 @@ mod to_model {
             fit_context(&rec, "ex_um", false, true, &[0.0], 1, Criterion::Bic, &[4]).unwrap();
         let mut spec = single_axis_spec("base", Axis::X, (0.0, 500.0));
         let mean = |name: &str| {
-            let v = &rec.columns[name];
+            let v = rec.col(name).unwrap();
             v.iter().sum::<f64>() / v.len() as f64
         };
         add_thermal(&mut spec, &fit_t, parse_component("EXX").unwrap(), &mean).unwrap();
         let (_, m) = to_checked_toml(spec.clone()).unwrap();
-        let t = &rec.columns["t_s"];
+        let t = rec.t_s();
         let pred = fit_t
             .model
-            .predict(t, &|n: &str| rec.get(n).cloned())
+            .predict(t, &|n: &str| rec.col(n).map(<[f64]>::to_vec))
             .unwrap();
         let sensors: Vec<String> = m.temperature_sensors().to_vec();
         let mut st = m.new_state();
@@ -322,7 +325,7 @@ mod to_model {
         for i in 0..t.len() {
             let temps: Vec<f64> = sensors
                 .iter()
-                .map(|s| rec.columns[&format!("T_{s}_C")][i])
+                .map(|s| rec.col(&format!("T_{s}_C")).unwrap()[i])
                 .collect();
             let e = eval(&m, 100.0, 1, &temps, &[], t[i], &mut st)[0];
             worst = worst.max((e - pred[i]).abs());
@@ -335,14 +338,14 @@ mod to_model {
         let (_, ml) = to_checked_toml(spec_l).unwrap();
         let pred_l = fit_l
             .model
-            .predict(t, &|n: &str| rec.get(n).cloned())
+            .predict(t, &|n: &str| rec.col(n).map(<[f64]>::to_vec))
             .unwrap();
         let chans: Vec<String> = ml.strain_channels().to_vec();
         let mut st = ml.new_state();
         for i in (0..t.len()).step_by(97) {
             let strains: Vec<f64> = chans
                 .iter()
-                .map(|s| rec.columns[&format!("strain_{s}_ue")][i])
+                .map(|s| rec.col(&format!("strain_{s}_ue")).unwrap()[i])
                 .collect();
             let e = eval(&ml, 100.0, 1, &[], &strains, t[i], &mut st)[0];
             assert!((e - pred_l[i]).abs() < 1e-6, "{e} vs {}", pred_l[i]);

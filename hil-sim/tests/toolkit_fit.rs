@@ -17,11 +17,11 @@ use std::fmt::Write;
 
 use hil_sim::World;
 use hil_sim::recording::run_to_end;
-use retrocomp::analysis::fit::recording::parse_recording;
 use retrocomp::analysis::fit::regression::Criterion;
 use retrocomp::analysis::fit::workflow::{fit_axis, fit_context};
 use retrocomp::analysis::iso230_2::Reading;
 use retrocomp::analysis::table::Direction;
+use retrocomp::recording::Recording;
 use sim_common::{cfg, col, read_csv};
 
 /// Appends `n` X round trips 0 → 200 → 0 mm at 3000 mm/min (8 s each).
@@ -93,7 +93,7 @@ every_s = 1.0
 }
 
 struct ThermalRun {
-    rec: retrocomp::analysis::fit::recording::Recording,
+    rec: Recording,
     /// The sensors the truth manifest attaches to the effects on `ez_um`.
     truth: Vec<String>,
 }
@@ -104,7 +104,7 @@ fn thermal_run(sensor_tau_s: f64) -> ThermalRun {
     let (bytes, rows) = run_to_end(&mut w, Vec::new(), |_| {}).unwrap();
     assert!(rows > 2000, "{rows} rows");
     let text = String::from_utf8(bytes).unwrap();
-    let rec = parse_recording("thermal.csv", &text).unwrap();
+    let rec = Recording::read_strict(text.as_bytes(), "thermal.csv").unwrap();
     let mut truth: Vec<String> = manifest["effects"]
         .as_array()
         .unwrap()
@@ -117,7 +117,7 @@ fn thermal_run(sensor_tau_s: f64) -> ThermalRun {
     assert_eq!(truth, ["T_spindle_C"], "manifest: {manifest}");
     // The error must be sizeable and the decoy sensors must really move, else selection is trivial.
     let span = |name: &str| {
-        let v = rec.get(name).unwrap();
+        let v = rec.col(name).unwrap();
         v.iter().cloned().fold(f64::MIN, f64::max) - v.iter().cloned().fold(f64::MAX, f64::min)
     };
     assert!(span("ez_um") > 30.0, "ez span {}", span("ez_um"));

@@ -18,20 +18,9 @@ use super::table::Direction;
 /// Parses either layout from CSV text. `file` is used in error messages only.
 pub fn parse_readings(file: &str, text: &str) -> Result<Vec<Reading>, ImportErrors> {
     let mut sink = ErrorSink::new(file);
-    let mut rdr = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .flexible(true)
-        .comment(Some(b'#'))
-        .trim(csv::Trim::All)
-        .from_reader(text.as_bytes());
-    let headers = match rdr.headers() {
-        Ok(h) => h.clone(),
-        Err(e) => {
-            sink.push(1, None, format!("cannot read the header: {e}"));
-            return sink.finish(Vec::new());
-        }
+    let Some((mut rdr, headers, header_line)) = open_csv(&mut sink, text) else {
+        return sink.finish(Vec::new());
     };
-    let header_line = rdr.position().line();
     let names: Vec<&str> = headers.iter().collect();
     if names.contains(&"direction") {
         parse_long(sink, &mut rdr, &names, header_line)
@@ -76,6 +65,76 @@ fn check_duplicate(sink: &mut ErrorSink, seen: &mut Seen, r: &Reading, line: u64
     }
 }
 
+/// Opens the CSV text every importer here reads: header first, `#` lines are comments, cells trimmed.
+/// Returns the reader, the header and the header's line; `None` (error in `sink`) if the header is
+/// unreadable.
+fn open_csv<'a>(
+    sink: &mut ErrorSink,
+    text: &'a str,
+) -> Option<(csv::Reader<&'a [u8]>, csv::StringRecord, u64)> {
+    let mut rdr = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .flexible(true)
+        .comment(Some(b'#'))
+        .trim(csv::Trim::All)
+        .from_reader(text.as_bytes());
+    match rdr.headers() {
+        Ok(h) => {
+            let h = h.clone();
+            let line = rdr.position().line();
+            Some((rdr, h, line))
+        }
+        Err(e) => {
+            sink.push(1, None, format!("cannot read the header: {e}"));
+            None
+        }
+    }
+}
+
+/// Calls `row(sink, line, record)` for every data row with exactly `width` fields; an unreadable
+/// row or one of another width is reported in `sink` (with its line) and skipped, never dropped
+/// silently.
+fn for_each_row(
+    sink: &mut ErrorSink,
+    rdr: &mut csv::Reader<&[u8]>,
+    width: usize,
+    mut row: impl FnMut(&mut ErrorSink, u64, &csv::StringRecord),
+) {
+    for rec in rdr.records() {
+        let rec = match rec {
+            Ok(r) => r,
+            Err(e) => {
+                let line = e.position().map_or(0, |p| p.line());
+                sink.push(line, None, format!("unreadable row: {e}"));
+                continue;
+            }
+        };
+        let line = rec.position().map_or(0, |p| p.line());
+        if rec.len() != width {
+            sink.push(
+                line,
+                None,
+                format!("expected {width} fields, found {}", rec.len()),
+            );
+            continue;
+        }
+        row(sink, line, &rec);
+    }
+}
+
+/// Finishes an import: a file with a header but no data row (and no other error) is an error too.
+fn finish_rows<T>(
+    mut sink: ErrorSink,
+    header_line: u64,
+    no_rows: bool,
+    value: T,
+) -> Result<T, ImportErrors> {
+    if no_rows && sink.is_empty() {
+        sink.push(header_line, None, "no data rows");
+    }
+    sink.finish(value)
+}
+
 fn column(sink: &mut ErrorSink, names: &[&str], name: &str, line: u64) -> Option<usize> {
     let i = names.iter().position(|n| *n == name);
     if i.is_none() {
@@ -103,24 +162,7 @@ fn parse_long(
     };
     let mut out = Vec::new();
     let mut seen = Seen::new();
-    for rec in rdr.records() {
-        let rec = match rec {
-            Ok(r) => r,
-            Err(e) => {
-                let line = e.position().map_or(0, |p| p.line());
-                sink.push(line, None, format!("unreadable row: {e}"));
-                continue;
-            }
-        };
-        let line = rec.position().map_or(0, |p| p.line());
-        if rec.len() != names.len() {
-            sink.push(
-                line,
-                None,
-                format!("expected {} fields, found {}", names.len(), rec.len()),
-            );
-            continue;
-        }
+    for_each_row(&mut sink, rdr, names.len(), |sink, line, rec| {
         let t = sink.parse_f64(line, "target_mm", &rec[ct]);
         let run = match rec[cr].parse::<u32>() {
             Ok(v) => Some(v),
@@ -154,14 +196,11 @@ fn parse_long(
                 direction,
                 deviation_um,
             };
-            check_duplicate(&mut sink, &mut seen, &r, line);
+            check_duplicate(sink, &mut seen, &r, line);
             out.push(r);
         }
-    }
-    if out.is_empty() && sink.is_empty() {
-        sink.push(header_line, None, "no data rows");
-    }
-    sink.finish(out)
+    });
+    finish_rows(sink, header_line, out.is_empty(), out)
 }
 
 fn parse_wide(
@@ -218,26 +257,9 @@ fn parse_wide(
     }
     let mut out = Vec::new();
     let mut seen = Seen::new();
-    for rec in rdr.records() {
-        let rec = match rec {
-            Ok(r) => r,
-            Err(e) => {
-                let line = e.position().map_or(0, |p| p.line());
-                sink.push(line, None, format!("unreadable row: {e}"));
-                continue;
-            }
-        };
-        let line = rec.position().map_or(0, |p| p.line());
-        if rec.len() != names.len() {
-            sink.push(
-                line,
-                None,
-                format!("expected {} fields, found {}", names.len(), rec.len()),
-            );
-            continue;
-        }
+    for_each_row(&mut sink, rdr, names.len(), |sink, line, rec| {
         let Some(target_mm) = sink.parse_f64(line, "target_mm", &rec[ct]) else {
-            continue;
+            return;
         };
         for &(i, run, direction) in &cols {
             if let Some(deviation_um) = sink.parse_f64(line, names[i], &rec[i]) {
@@ -247,15 +269,12 @@ fn parse_wide(
                     direction,
                     deviation_um,
                 };
-                check_duplicate(&mut sink, &mut seen, &r, line);
+                check_duplicate(sink, &mut seen, &r, line);
                 out.push(r);
             }
         }
-    }
-    if out.is_empty() && sink.is_empty() {
-        sink.push(header_line, None, "no data rows");
-    }
-    sink.finish(out)
+    });
+    finish_rows(sink, header_line, out.is_empty(), out)
 }
 
 /// Removes a linear drift across measurement cycles (Spaan Ch3: "linear time drift is removed per
@@ -305,20 +324,9 @@ pub fn parse_table_columns(
     to_um: f64,
 ) -> Result<super::table::BidirectionalTable, ImportErrors> {
     let mut sink = ErrorSink::new(file);
-    let mut rdr = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .comment(Some(b'#'))
-        .trim(csv::Trim::All)
-        .flexible(true)
-        .from_reader(text.as_bytes());
-    let headers = match rdr.headers() {
-        Ok(h) => h.clone(),
-        Err(e) => {
-            sink.push(1, None, format!("cannot read the header: {e}"));
-            return sink.finish(Default::default());
-        }
+    let Some((mut rdr, headers, header_line)) = open_csv(&mut sink, text) else {
+        return sink.finish(Default::default());
     };
-    let header_line = rdr.position().line();
     let names: Vec<&str> = headers.iter().collect();
     let idx: Vec<Option<usize>> = [position_col, forward_col, reverse_col]
         .iter()
@@ -332,32 +340,12 @@ pub fn parse_table_columns(
         forward_um: vec![],
         reverse_um: vec![],
     };
-    for rec in rdr.records() {
-        let rec = match rec {
-            Ok(r) => r,
-            Err(e) => {
-                sink.push(
-                    e.position().map_or(0, |p| p.line()),
-                    None,
-                    format!("unreadable row: {e}"),
-                );
-                continue;
-            }
-        };
-        let line = rec.position().map_or(0, |p| p.line());
-        if rec.len() != names.len() {
-            sink.push(
-                line,
-                None,
-                format!("expected {} fields, found {}", names.len(), rec.len()),
-            );
-            continue;
-        }
+    for_each_row(&mut sink, &mut rdr, names.len(), |sink, line, rec| {
         let p = sink.parse_f64(line, position_col, &rec[cp]);
         let f = sink.parse_f64(line, forward_col, &rec[cf]);
         let r = sink.parse_f64(line, reverse_col, &rec[cr]);
         let (Some(p), Some(f), Some(r)) = (p, f, r) else {
-            continue;
+            return;
         };
         if let Some(&prev) = t.positions_mm.last()
             && p <= prev
@@ -367,16 +355,14 @@ pub fn parse_table_columns(
                 Some(position_col),
                 format!("positions must increase: {p} follows {prev}"),
             );
-            continue;
+            return;
         }
         t.positions_mm.push(p);
         t.forward_um.push(f * to_um);
         t.reverse_um.push(r * to_um);
-    }
-    if t.positions_mm.is_empty() && sink.is_empty() {
-        sink.push(header_line, None, "no data rows");
-    }
-    sink.finish(t)
+    });
+    let no_rows = t.positions_mm.is_empty();
+    finish_rows(sink, header_line, no_rows, t)
 }
 
 #[cfg(test)]

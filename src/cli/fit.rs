@@ -6,8 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-use super::util::{read, write};
-use crate::analysis::fit::recording::{Recording, parse_recording};
+use super::util::write;
 use crate::analysis::fit::regression::Criterion;
 use crate::analysis::fit::to_model::{
     AxisForm, add_load, add_thermal, axis_component, put_component, single_axis_spec,
@@ -18,6 +17,7 @@ use crate::analysis::report::{Series, xy_svg};
 use crate::analysis::table::Direction;
 use crate::models::names::parse_component;
 use crate::models::{ComponentId, MachineModel, ModelSpec};
+use crate::recording::Recording;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -205,11 +205,11 @@ fn context_text(f: &ContextFit) -> String {
 }
 
 fn context_svg(p: &Path, rec: &Recording, f: &ContextFit) -> anyhow::Result<()> {
-    let t = rec.get("t_s").context("t_s")?;
-    let y = rec.get(&f.signal).context("signal")?;
+    let t = rec.t_s();
+    let y = rec.col(&f.signal).context("signal")?;
     let pred = f
         .model
-        .predict(t, &|n: &str| rec.get(n).cloned())
+        .predict(t, &|n: &str| rec.col(n).map(<[f64]>::to_vec))
         .context("prediction")?;
     let series = [
         Series::line(
@@ -234,8 +234,8 @@ fn context_svg(p: &Path, rec: &Recording, f: &ContextFit) -> anyhow::Result<()> 
 }
 
 fn training_mean(rec: &Recording, f: &ContextFit) -> impl Fn(&str) -> f64 {
-    let n = rec.len();
-    let test: Vec<bool> = match (rec.get("run"), f.heldout_rule.starts_with("runs")) {
+    let n = rec.n_rows();
+    let test: Vec<bool> = match (rec.col("run"), f.heldout_rule.starts_with("runs")) {
         (Some(run), true) => {
             let held: Vec<f64> = f
                 .heldout_rule
@@ -248,9 +248,11 @@ fn training_mean(rec: &Recording, f: &ContextFit) -> impl Fn(&str) -> f64 {
         }
         _ => (0..n).map(|i| i >= n * 7 / 10).collect(),
     };
-    let cols = rec.columns.clone();
+    let rec = rec.clone();
     move |name: &str| {
-        let v = &cols[name];
+        let v = rec
+            .col(name)
+            .expect("a selected signal is a recording column");
         let (s, k) = v
             .iter()
             .zip(&test)
@@ -413,7 +415,7 @@ fn run_context(
         Some(t) => component(t)?,
         None => default_target(signal)?,
     };
-    let rec = parse_recording(&recording.display().to_string(), &read(recording)?)?;
+    let rec = Recording::read_path(recording)?;
     let crit = match criterion {
         Crit::Bic => Criterion::Bic,
         Crit::Cp => Criterion::Cp,

@@ -338,21 +338,37 @@ impl<'a, 't> Tbl<'a, 't> {
     }
 
     pub fn vec_value(&self, v: &Val<'t>, path: &str) -> Option<Vec<f64>> {
-        let DeValue::Array(arr) = v.get_ref() else {
-            self.ctx.err(
-                v.span(),
-                path,
-                format!(
-                    "expected an array of numbers, found {}",
-                    type_name(v.get_ref())
-                ),
-            );
-            return None;
-        };
+        let arr = self.array(v, path, "numbers")?;
+        self.every_item(arr, path, |item, p| self.num_value(item, p))
+    }
+
+    /// The array in `v`, or `None` with "expected an array of {what}" reported at `path`.
+    fn array<'v>(&self, v: &'v Val<'t>, path: &str, what: &str) -> Option<&'v DeArray<'t>> {
+        match v.get_ref() {
+            DeValue::Array(arr) => Some(arr),
+            other => {
+                self.ctx.err(
+                    v.span(),
+                    path,
+                    format!("expected an array of {what}, found {}", type_name(other)),
+                );
+                None
+            }
+        }
+    }
+
+    /// `item` applied to every element (path `{path}[i]`); every bad element is reported by `item`,
+    /// and the result is `None` if any was bad.
+    fn every_item<T>(
+        &self,
+        arr: &DeArray<'t>,
+        path: &str,
+        item: impl Fn(&Val<'t>, &str) -> Option<T>,
+    ) -> Option<Vec<T>> {
         let mut out = Vec::with_capacity(arr.len());
         let mut ok = true;
-        for (i, item) in arr.iter().enumerate() {
-            match self.num_value(item, &format!("{path}[{i}]")) {
+        for (i, v) in arr.iter().enumerate() {
+            match item(v, &format!("{path}[{i}]")) {
                 Some(x) => out.push(x),
                 None => ok = false,
             }
@@ -364,26 +380,8 @@ impl<'a, 't> Tbl<'a, 't> {
     pub fn matrix_opt(&self, key: &str) -> Option<Vec<Vec<f64>>> {
         let v = self.get(key)?;
         let path = self.key_path(key);
-        let DeValue::Array(arr) = v.get_ref() else {
-            self.ctx.err(
-                v.span(),
-                &path,
-                format!(
-                    "expected an array of arrays, found {}",
-                    type_name(v.get_ref())
-                ),
-            );
-            return None;
-        };
-        let mut rows = Vec::new();
-        let mut ok = true;
-        for (i, row) in arr.iter().enumerate() {
-            match self.vec_value(row, &format!("{path}[{i}]")) {
-                Some(r) => rows.push(r),
-                None => ok = false,
-            }
-        }
-        ok.then_some(rows)
+        let arr = self.array(v, &path, "arrays")?;
+        self.every_item(arr, &path, |row, p| self.vec_value(row, p))
     }
 
     pub fn vec3_opt(&self, key: &str) -> Option<[f64; 3]> {
@@ -404,17 +402,7 @@ impl<'a, 't> Tbl<'a, 't> {
     pub fn strings_opt(&self, key: &str) -> Option<Vec<String>> {
         let v = self.get(key)?;
         let path = self.key_path(key);
-        let DeValue::Array(arr) = v.get_ref() else {
-            self.ctx.err(
-                v.span(),
-                &path,
-                format!(
-                    "expected an array of strings, found {}",
-                    type_name(v.get_ref())
-                ),
-            );
-            return None;
-        };
+        let arr = self.array(v, &path, "strings")?;
         let mut out = Vec::new();
         for (i, item) in arr.iter().enumerate() {
             match item.get_ref() {
@@ -454,18 +442,9 @@ impl<'a, 't> Tbl<'a, 't> {
             return Vec::new();
         };
         let path = self.key_path(key);
-        let DeValue::Array(arr) = v.get_ref() else {
-            self.ctx.err(
-                v.span(),
-                &path,
-                format!(
-                    "expected an array of tables `[[{key}]]`, found {}",
-                    type_name(v.get_ref())
-                ),
-            );
+        let Some(arr) = self.array(v, &path, &format!("tables `[[{key}]]`")) else {
             return Vec::new();
         };
-        let arr: &'a DeArray<'t> = arr;
         let mut out = Vec::new();
         for (i, item) in arr.iter().enumerate() {
             match item.get_ref() {

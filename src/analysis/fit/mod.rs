@@ -5,7 +5,6 @@
 pub mod efficiency;
 pub mod lsq;
 pub mod piecewise;
-pub mod recording;
 pub mod regression;
 pub mod to_model;
 pub mod workflow;

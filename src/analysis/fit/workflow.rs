@@ -12,12 +12,12 @@ use serde::Serialize;
 
 use super::efficiency::{Efficiency, efficiency};
 use super::piecewise::{PiecewiseError, PiecewiseQuadratic, fit_stepwise};
-use super::recording::Recording;
 use super::regression::{
     Candidate, Criterion, LinearModel, RegressionError, Selection, first_order_lag, select,
 };
 use crate::analysis::iso230_2::Reading;
 use crate::analysis::table::Direction;
+use crate::recording::Recording;
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct AxisFit {
@@ -132,13 +132,13 @@ pub fn fit_context(
     heldout_runs: &[u32],
 ) -> Result<ContextFit, FitError> {
     let y = rec
-        .get(signal)
+        .col(signal)
         .ok_or_else(|| FitError::NoColumn(signal.to_string()))?;
     let t = rec
-        .get("t_s")
+        .col("t_s")
         .ok_or_else(|| FitError::NoColumn("t_s".into()))?;
     let n = y.len();
-    let (test, rule): (Vec<bool>, String) = match (rec.get("run"), heldout_runs.is_empty()) {
+    let (test, rule): (Vec<bool>, String) = match (rec.col("run"), heldout_runs.is_empty()) {
         (Some(run), false) => (
             run.iter()
                 .map(|r| heldout_runs.iter().any(|h| f64::from(*h) == *r))
@@ -155,22 +155,23 @@ pub fn fit_context(
     }
     let mut full: Vec<Candidate> = Vec::new();
     if use_temperatures {
-        for name in rec.temperatures() {
+        for name in rec.temperature_channels() {
+            let values = rec.col(&name).expect("listed by the recording");
             for &tau in lags_s {
                 full.push(Candidate {
-                    signal: name.to_string(),
+                    signal: name.clone(),
                     tau_s: tau,
-                    values: first_order_lag(t, &rec.columns[name], tau),
+                    values: first_order_lag(t, values, tau),
                 });
             }
         }
     }
     if use_strains {
-        for name in rec.strains() {
+        for name in rec.strain_channels() {
             full.push(Candidate {
-                signal: name.to_string(),
+                values: rec.col(&name).expect("listed by the recording").to_vec(),
+                signal: name,
                 tau_s: 0.0,
-                values: rec.columns[name].clone(),
             });
         }
     }
@@ -192,7 +193,7 @@ pub fn fit_context(
     let selection = select(&pick(y, false), &train_c, max_terms, criterion)?;
     let model = selection.model.clone();
     let predicted = model
-        .predict(t, &|name: &str| rec.get(name).cloned())
+        .predict(t, &|name: &str| rec.col(name).map(<[f64]>::to_vec))
         .ok_or_else(|| FitError::NoColumn("a selected signal".into()))?;
     let heldout = efficiency(&pick(y, true), &pick(&predicted, true)).ok_or(FitError::NoHeldout)?;
     Ok(ContextFit {

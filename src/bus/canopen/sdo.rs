@@ -91,19 +91,12 @@ impl SdoRequest {
                 (index, sub)
             }
         };
-        b[1..3].copy_from_slice(&index.to_le_bytes());
-        b[3] = sub;
-        Frame::standard(0x600 + u16::from(node & 0x7F), &b).expect("valid SDO frame")
+        sdo_frame(0x600, node, index, sub, b)
     }
 
     /// `Some((node, request))` for an SDO request frame this codec understands.
     pub fn decode(f: &Frame) -> Option<(u8, SdoRequest)> {
-        let id = f.raw_id();
-        if f.is_extended() || !(0x601..=0x67F).contains(&id) || f.data().len() != 8 {
-            return None;
-        }
-        let d = f.data();
-        let (index, sub) = (u16::from_le_bytes([d[1], d[2]]), d[3]);
+        let (id, d, index, sub) = sdo_fields(f, 0x601..=0x67F)?;
         let req = match d[0] {
             0x40 => SdoRequest::Upload { index, sub },
             cs if cs & 0xE3 == 0x23 => {
@@ -121,6 +114,24 @@ impl SdoRequest {
         };
         Some(((id - 0x600) as u8, req))
     }
+}
+
+/// An 8-byte SDO frame to or from `node` on COB-ID `cob_base + node`, with the multiplexer
+/// (index little-endian, sub-index) written into bytes 1..4 of `b`.
+fn sdo_frame(cob_base: u16, node: u8, index: u16, sub: u8, mut b: [u8; 8]) -> Frame {
+    b[1..3].copy_from_slice(&index.to_le_bytes());
+    b[3] = sub;
+    Frame::standard(cob_base + u16::from(node & 0x7F), &b).expect("valid SDO frame")
+}
+
+/// `(id, data, index, sub)` of a standard 8-byte frame whose id is in `ids`, else `None`.
+fn sdo_fields(f: &Frame, ids: std::ops::RangeInclusive<u32>) -> Option<(u32, &[u8], u16, u8)> {
+    let id = f.raw_id();
+    if f.is_extended() || !ids.contains(&id) || f.data().len() != 8 {
+        return None;
+    }
+    let d = f.data();
+    Some((id, d, u16::from_le_bytes([d[1], d[2]]), d[3]))
 }
 
 impl SdoResponse {
@@ -148,18 +159,11 @@ impl SdoResponse {
                 (index, sub)
             }
         };
-        b[1..3].copy_from_slice(&index.to_le_bytes());
-        b[3] = sub;
-        Frame::standard(0x580 + u16::from(node & 0x7F), &b).expect("valid SDO frame")
+        sdo_frame(0x580, node, index, sub, b)
     }
 
     pub fn decode(f: &Frame) -> Option<(u8, SdoResponse)> {
-        let id = f.raw_id();
-        if f.is_extended() || !(0x581..=0x5FF).contains(&id) || f.data().len() != 8 {
-            return None;
-        }
-        let d = f.data();
-        let (index, sub) = (u16::from_le_bytes([d[1], d[2]]), d[3]);
+        let (id, d, index, sub) = sdo_fields(f, 0x581..=0x5FF)?;
         let resp = match d[0] {
             0x60 => SdoResponse::DownloadAck { index, sub },
             0x80 => SdoResponse::Abort {
