@@ -275,6 +275,10 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin>(
     loop {
         let mut batch = Vec::new();
         tokio::select! {
+            // Checked first: once the consumer is gone, a hang-up of the line (EIO on a pty) is the
+            // expected end, not a failure to report.
+            biased;
+            _ = out.closed() => return Ok(src.counters()),
             n = rd.read(&mut buf) => {
                 let n = n?;
                 if n == 0 {
