@@ -16,8 +16,12 @@ fn hil_sim_next_to_retrocomp() -> PathBuf {
     cmd.args(["build", "-q", "-p", "hil-sim", "--bin", "hil-sim"])
         .env("CARGO_TARGET_DIR", target_dir)
         .current_dir(env!("CARGO_MANIFEST_DIR"));
+    // Same profile as this test's build, so the retrocomp library and every dependency are reused
+    // (a plain `cargo build` would rebuild them all at opt-level 0: minutes on a 2-core CI runner).
     if bin_dir.file_name().is_some_and(|n| n == "release") {
         cmd.arg("--release");
+    } else {
+        cmd.args(["--profile", "test"]);
     }
     let st = cmd.status().expect("running cargo to build hil-sim");
     assert!(st.success(), "cargo build -p hil-sim failed: {st}");

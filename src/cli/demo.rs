@@ -1,4 +1,4 @@
-//! `retrocomp demo [--out DIR] [--json] [--seed N]`: the main job on a machine with no hardware
+//! `retrocomp demo [--out DIR] [--json] [--seconds N] [--seed N]`: the main job on a machine with no hardware
 //! (src/gateway/demo). Prints per axis the tool-tip error RMS and max (µm) of the three runs; with
 //! `--json` the last stdout line is the machine-readable summary (DESIGN-fixed keys, see
 //! docs/demo.md).
@@ -15,6 +15,10 @@ pub struct Args {
     /// End with one JSON line on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Length of the accelerated warm-up (X strokes with the spindle at 4000 rpm), simulated s;
+    /// the part program follows. The sim runs in real time, so this adds to the wall time.
+    #[arg(long, default_value_t = 10.0)]
+    pub seconds: f64,
     /// Seed of the simulated machine's noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -30,10 +34,16 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .try_init();
+    anyhow::ensure!(
+        args.seconds.is_finite() && (0.0..=60.0).contains(&args.seconds),
+        "--seconds {}: the warm-up must be between 0 and 60 s (the demo runs in real time)",
+        args.seconds
+    );
     let hil_sim = locate_hil_sim()?;
     let opts = DemoOptions {
         out: args.out.clone(),
         seed: args.seed,
+        warmup_s: args.seconds,
         hil_sim,
     };
     let rt = tokio::runtime::Builder::new_multi_thread()

@@ -54,6 +54,8 @@ impl Mode {
 pub struct DemoOptions {
     pub out: PathBuf,
     pub seed: u64,
+    /// Length of the accelerated warm-up (X strokes with the spindle on), simulated s.
+    pub warmup_s: f64,
     pub hil_sim: PathBuf,
 }
 
@@ -134,7 +136,7 @@ async fn one_run(opts: &DemoOptions, mode: Mode, truth: &Path) -> anyhow::Result
     let sim_cfg = dir.join("sim.toml");
     std::fs::write(
         &sim_cfg,
-        sim_process::sim_config(opts.seed, truth, hub.local_addr().port()),
+        sim_process::sim_config(opts.seed, truth, hub.local_addr().port(), opts.warmup_s),
     )?;
     let mut sim = sim_process::start(&opts.hil_sim, &sim_cfg, &dir).await?;
     let model = model_for(mode)?;

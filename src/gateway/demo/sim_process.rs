@@ -11,7 +11,7 @@ use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, Command};
 use tokio::task::JoinHandle;
 
-/// The sim config template (placeholders `@SEED@`, `@TRUTH_MODEL@`, `@HUB_PORT@`).
+/// The sim config template (placeholders `@SEED@`, `@TRUTH_MODEL@`, `@HUB_PORT@`, `@WARMUP@`).
 pub const SIM_TEMPLATE: &str = include_str!("../../../deploy/demo/sim.toml");
 
 /// `hil-sim` next to the current executable, else `$HIL_SIM_BIN`.
@@ -47,8 +47,18 @@ pub fn locate_hil_sim() -> anyhow::Result<PathBuf> {
     )
 }
 
-pub fn sim_config(seed: u64, truth_model: &Path, hub_port: u16) -> String {
+/// One X stroke pair (150 mm out and back at 60 mm/s, with acceleration) takes about this long.
+const STROKE_PAIR_S: f64 = 5.0;
+
+/// The warm-up G-code: X stroke pairs for about `warmup_s` seconds (at least one pair).
+pub fn warmup_gcode(warmup_s: f64) -> String {
+    let pairs = (warmup_s / STROKE_PAIR_S).round().max(1.0) as usize;
+    "G1 X150\nG1 X0\n".repeat(pairs)
+}
+
+pub fn sim_config(seed: u64, truth_model: &Path, hub_port: u16, warmup_s: f64) -> String {
     SIM_TEMPLATE
+        .replace("@WARMUP@", &warmup_gcode(warmup_s))
         .replace("@SEED@", &seed.to_string())
         .replace("@TRUTH_MODEL@", &truth_model.display().to_string())
         .replace("@HUB_PORT@", &hub_port.to_string())
@@ -111,7 +121,9 @@ mod tests {
 
     #[test]
     fn template_is_filled_completely() {
-        let s = sim_config(3, Path::new("/m/t.toml"), 4242);
+        let s = sim_config(3, Path::new("/m/t.toml"), 4242, 20.0);
+        assert_eq!(s.matches("G1 X150\nG1 X0\n").count(), 4, "{s}");
+        assert_eq!(warmup_gcode(0.0).lines().count(), 2);
         assert!(!s.contains('@'), "unfilled placeholder");
         assert!(s.contains("port = 4242") && s.contains("model_path = \"/m/t.toml\""));
         let v: toml::Table = toml::from_str(&s).unwrap();
