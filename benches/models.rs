@@ -1,7 +1,7 @@
 //! Speed of the volumetric error engine on `deploy/examples/vmc-3axis.toml` (18 bidirectional
 //! 100-point tables, 3 squareness, 16 sensors with lag, 7 thermal and 3 load terms).
 //!
-//! Run: `CARGO_TARGET_DIR=/work/targets/models cargo bench --bench models`
+//! Run: `cargo bench --bench models` (figures and the exact command in docs/model.md, Speed)
 //! Targets (issue 2): one exact evaluation ≤ 250 ns; a batch of 10⁶ points ≥ 4 M evaluations/s.
 //!
 //! Each benchmark runs twice: `wall/…` with criterion's wall clock and `cpu/…` with the benchmark

@@ -1,5 +1,5 @@
 //! `retrocomp run --config FIELD.toml`: the gateway in the field. Loads the field config and the
-//! machine model, starts the configured sources (CAN/CANopen today), and runs the cycle with its
+//! machine model, starts the configured sources (CAN/CANopen, Modbus TCP/RTU, serial lines), and runs the cycle with its
 //! sinks until SIGINT/SIGTERM. Status on the configured loopback address (`retrocomp status`).
 
 use std::path::PathBuf;

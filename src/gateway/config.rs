@@ -12,6 +12,7 @@ use super::recovery::NeighbourEstimate;
 use super::safety::SafetyConfig;
 use crate::bus::can::backend::CanBackendConfig;
 use crate::bus::canopen::source::CanopenConfig;
+use crate::bus::config::{ModbusSection, SerialSection};
 use crate::origin_shift::{ClientConfig, RegisterMap, Transport};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -30,12 +31,12 @@ pub struct FieldConfig {
     /// CANopen nodes on that bus: CiA 406 encoders, CiA 404 analog inputs (`src/bus/canopen`).
     #[serde(default)]
     pub canopen: Option<CanopenConfig>,
-    /// Modbus sources; schema owned by `src/bus/modbus` (kept as a table until its poller lands).
+    /// Modbus TCP/RTU sources (`[[modbus.source]]`); schema and checks owned by `src/bus/config.rs`.
     #[serde(default)]
-    pub modbus: Option<toml::Table>,
-    /// Serial-line sources (DRO, scales); schema owned by `src/bus` (kept as a table until it lands).
+    pub modbus: Option<ModbusSection>,
+    /// Serial-line sources (DRO, scales, force lines: `[[serial.source]]`); schema in `src/bus/config.rs`.
     #[serde(default)]
-    pub serial: Option<toml::Table>,
+    pub serial: Option<SerialSection>,
     #[serde(default, rename = "channel")]
     pub channels: Vec<ChannelSection>,
     #[serde(default, rename = "recovery")]
@@ -377,6 +378,23 @@ impl FieldConfig {
                 "[canopen] nodes need a [can] backend".into(),
             ));
         }
+        // The bus sections' own checks (transport keys, register types, channel names with a unit
+        // suffix, a channel defined by two sources): the same as `src/bus/config.rs` applies.
+        let bus = crate::bus::config::FieldConfig {
+            can: self.can.clone(),
+            canopen: self.canopen.clone(),
+            modbus: self.modbus.clone().unwrap_or_default(),
+            serial: self.serial.clone().unwrap_or_default(),
+        };
+        let problems = crate::bus::config::validate(&bus);
+        if let Some(((key, first), rest)) = problems.split_first() {
+            // Every problem at once: the first under its key, the others after it with theirs.
+            let mut what = first.clone();
+            for (k, m) in rest {
+                what.push_str(&format!("; also `{k}`: {m}"));
+            }
+            return Err((key.clone(), what));
+        }
         if self.sink.origin_shift.is_none() && self.sink.quadrature.is_none() {
             tracing::warn!(
                 "no [sink] configured: the gateway computes and reports, but corrects nothing"
@@ -392,5 +410,97 @@ impl FieldConfig {
             .find(|a| a.name == axis)
             .and_then(|a| a.safety)
             .unwrap_or(self.safety)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const BASE: &str = r#"
+[gateway]
+name = "t"
+cycle_ms = 5
+[safety]
+max_correction_um = 50.0
+max_change_um_per_cycle = 0.5
+ramp_um_per_s = 10.0
+stale_hold_s = 1.0
+[direction]
+deadband_mm = 0.005
+switch_time_s = 0.05
+[[axis]]
+name = "x"
+position_channel = "x_mm"
+"#;
+
+    fn parse(extra: &str) -> Result<FieldConfig, ConfigError> {
+        FieldConfig::parse(&format!("{BASE}{extra}"), Path::new("field.toml"))
+    }
+
+    #[test]
+    fn modbus_and_serial_sources_parse_into_the_bus_schema() {
+        let cfg = parse(
+            r#"
+[[modbus.source]]
+name = "pt100"
+transport = "tcp"
+host = "127.0.0.1"
+channel = [ { channel = "T_bed_C", kind = "input", address = 3, type = "int16", scale = 0.1 } ]
+[[serial.source]]
+name = "dro"
+device = "/dev/ttyUSB0"
+format = { kind = "nd522" }
+channel = [ { name = "x_mm", key = "X" } ]
+"#,
+        )
+        .unwrap();
+        let m = &cfg.modbus.as_ref().unwrap().source[0];
+        assert_eq!((m.port, m.channel[0].address), (502, 3));
+        let s = &cfg.serial.as_ref().unwrap().source[0];
+        assert_eq!(s.channel[0].key.as_deref(), Some("X"));
+    }
+
+    #[test]
+    fn bus_section_problems_are_reported_with_their_key() {
+        // TCP without a host (src/bus/config.rs check) names the key path.
+        let e = parse(
+            r#"
+[[modbus.source]]
+name = "pt100"
+transport = "tcp"
+"#,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("modbus.source[0].transport") && e.contains("host"),
+            "{e}"
+        );
+        // The same channel from two sources is refused.
+        let e = parse(
+            r#"
+[[modbus.source]]
+name = "a"
+transport = "tcp"
+host = "127.0.0.1"
+channel = [ { channel = "x_mm", kind = "input", address = 0, type = "int16" } ]
+[[serial.source]]
+name = "dro"
+device = "/dev/ttyUSB0"
+format = { kind = "nd522" }
+channel = [ { name = "x_mm" } ]
+"#,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("x_mm") && e.contains("already defined"), "{e}");
+        // A typo in a source key is a parse error naming it.
+        let e = parse(
+            "[[serial.source]]\nname = \"d\"\ndevice = \"/dev/ttyS0\"\nformat = { kind = \"nd522\" }\nbaudrate = 9600\n",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("baudrate"), "{e}");
     }
 }

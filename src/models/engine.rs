@@ -4,7 +4,7 @@
 //! and last `higher_order` (exact − Σ first-order terms; zero in first-order evaluation). Every
 //! term's contribution is its first-order effect at the tool tip, so Σ terms = total in both modes.
 
-use super::function::ErrorFunction;
+use super::function::{ErrorFunction, Location};
 use super::kinematics::{Elem, arms, cross, exact_tip, nominal_tip, rotation_about};
 use super::names::Axis;
 use super::spec::{Branch, LoadKind, ModelSpec};
@@ -24,6 +24,9 @@ pub(crate) struct Compiled {
     pub elems: Vec<Elem>,
     pub axes: Vec<Axis>,
     pub components: Vec<Slot>,
+    /// Per component: its table has the same element and positions as the previous component's
+    /// table, so the previous lookup's location is reused (one search per axis, not six).
+    pub shares_location: Vec<bool>,
     /// Per squareness entry: element and the first-order tip shift per mm of travel, µm/mm.
     pub squareness: Vec<(usize, [f64; 3])>,
     pub thermal: Vec<(Slot, Vec<usize>, Option<usize>)>,
@@ -78,6 +81,20 @@ impl Compiled {
             .map(|c| {
                 term_names.push(c.id.iso_name());
                 slot(c.id.axis, c.id.slot())
+            })
+            .collect();
+
+        let shares_location = (0..spec.components.len())
+            .map(|k| {
+                k > 0 && {
+                    let (prev, cur) = (&spec.components[k - 1], &spec.components[k]);
+                    match (&prev.function, &cur.function) {
+                        (ErrorFunction::Table(a), ErrorFunction::Table(b)) => {
+                            prev.id.axis == cur.id.axis && a.same_positions(b)
+                        }
+                        _ => false,
+                    }
+                }
             })
             .collect();
 
@@ -187,6 +204,7 @@ impl Compiled {
             axes: elems.iter().map(|e| e.axis).collect(),
             elems,
             components,
+            shares_location,
             squareness,
             thermal,
             load,
@@ -328,8 +346,22 @@ pub(crate) fn run(
     let mut sq_total = [0.0; 3];
     let mut k = 0;
 
-    for (cs, s) in spec.components.iter().zip(&c.components) {
-        let (v, clamped) = eval_fn(&cs.function, q[s.elem], dir[s.elem]);
+    let mut loc = Location::Clamped(0);
+    for ((cs, s), &shared) in spec
+        .components
+        .iter()
+        .zip(&c.components)
+        .zip(&c.shares_location)
+    {
+        let (v, clamped) = match &cs.function {
+            ErrorFunction::Table(tb) => {
+                if !shared {
+                    loc = tb.locate(q[s.elem]);
+                }
+                tb.eval_at(loc, dir[s.elem])
+            }
+            f => eval_fn(f, q[s.elem], dir[s.elem]),
+        };
         if clamped {
             out.flags.clamped[c.elems[s.elem].axis.index()] = true;
         }

@@ -125,28 +125,49 @@ impl Table {
         }
     }
 
+    /// Where `q_mm` falls in the table. Tables with equal `positions_mm` locate alike, so one
+    /// [`Location`] serves every component of an axis (one search instead of six).
     #[inline]
-    pub fn eval(&self, q_mm: f64, dir: i8) -> (f64, bool) {
+    pub fn locate(&self, q_mm: f64) -> Location {
         let nodes = &self.nodes;
         let n = nodes.len();
+        // NaN is clamped and flagged rather than propagated.
+        if q_mm.is_nan() || q_mm < nodes[0].x {
+            return Location::Clamped(0);
+        }
+        if q_mm > nodes[n - 1].x {
+            return Location::Clamped(n - 1);
+        }
+        let i = self.segment(q_mm);
+        let a = &nodes[i];
+        Location::Inside {
+            segment: i,
+            t: (q_mm - a.x) * a.inv_h,
+        }
+    }
+
+    /// Whether two tables have the same nodes (then a [`Location`] of one is valid for the other).
+    pub fn same_positions(&self, other: &Table) -> bool {
+        self.positions_mm == other.positions_mm
+    }
+
+    /// Value at a location found by [`locate`](Self::locate) on a table with the same positions.
+    #[inline]
+    pub fn eval_at(&self, loc: Location, dir: i8) -> (f64, bool) {
+        let nodes = &self.nodes;
         // Branch-free choice (the approach direction changes often): weights 1/0, 0/1 or ½/½; each
         // is exact, so forward and reverse values come through unchanged.
         let w_fwd = 0.5 * (1.0 + f64::from(dir.signum()));
         let pick = |fwd: f64, rev: f64| w_fwd * fwd + (1.0 - w_fwd) * rev;
-        // NaN is clamped and flagged rather than propagated.
-        if q_mm.is_nan() || q_mm < nodes[0].x {
-            return (pick(nodes[0].f, nodes[0].r), true);
-        }
-        if q_mm > nodes[n - 1].x {
-            return (pick(nodes[n - 1].f, nodes[n - 1].r), true);
-        }
-        let i = self.segment(q_mm);
+        let (i, t) = match loc {
+            Location::Clamped(k) => return (pick(nodes[k].f, nodes[k].r), true),
+            Location::Inside { segment, t } => (segment, t),
+        };
         let (a, b) = (nodes[i], nodes[i + 1]);
-        let h = b.x - a.x;
-        let t = (q_mm - a.x) * a.inv_h;
         let (vf, vr) = match self.interpolation {
             Interpolation::Linear => (a.f + t * (b.f - a.f), a.r + t * (b.r - a.r)),
             Interpolation::C1 => {
+                let h = b.x - a.x;
                 let t2 = t * t;
                 let t3 = t2 * t;
                 let h00 = 2.0 * t3 - 3.0 * t2 + 1.0;
@@ -161,6 +182,19 @@ impl Table {
         };
         (pick(vf, vr), false)
     }
+
+    #[inline]
+    pub fn eval(&self, q_mm: f64, dir: i8) -> (f64, bool) {
+        self.eval_at(self.locate(q_mm), dir)
+    }
+}
+
+/// A position located in a table: a segment and the fraction t ∈ [0, 1] along it, or the end node
+/// it was clamped to.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Location {
+    Inside { segment: usize, t: f64 },
+    Clamped(usize),
 }
 
 /// Fritsch–Carlson monotone slopes (the PCHIP rule of Fritsch & Butland 1984).

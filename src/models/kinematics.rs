@@ -16,7 +16,7 @@
 //! table); a tool-branch carriage rotates about its reference point, arm `Σ_{k > K} n_k + t`.
 //! Error = r − r_nominal; first order it is Σ δ_K + ε_K × arm_K + q_K (ũ_K − u_K).
 
-use nalgebra::{Matrix3, Matrix4, Vector3, Vector4};
+use nalgebra::{Matrix3, Matrix4, Vector3};
 
 use super::names::Axis;
 
@@ -97,14 +97,15 @@ impl Elem {
         ]
     }
 
+    /// Actual translation q·ũ ± offset of this element (squareness tilts included), mm.
     #[inline]
-    fn actual_translation(&self, q_mm: f64) -> Matrix4<f64> {
+    fn actual_translation(&self, q_mm: f64) -> [f64; 3] {
         let s = if self.workpiece_side { -1.0 } else { 1.0 };
-        Matrix4::new_translation(&Vector3::new(
+        [
             q_mm * self.u_tilted[0] + s * self.offset_mm[0],
             q_mm * self.u_tilted[1] + s * self.offset_mm[1],
             q_mm * self.u_tilted[2] + s * self.offset_mm[2],
-        ))
+        ]
     }
 }
 
@@ -142,23 +143,26 @@ pub fn exact_tip(
     delta_um: &[[f64; 3]; 3],
     eps_urad: &[[f64; 3]; 3],
 ) -> [f64; 3] {
-    let mut p = Vector4::new(tool_mm[0], tool_mm[1], tool_mm[2], 1.0);
+    // The HTM product applied to the point, written as R·p + δ: the same algebra as the 4×4
+    // matrices above without the multiplications by the constant bottom row.
+    let mut p = tool_mm;
     for (j, e) in elems.iter().enumerate().rev() {
         let d = delta_um[j];
         let r = eps_urad[j];
-        let err = error_htm(
-            [d[0] * 1e-3, d[1] * 1e-3, d[2] * 1e-3],
-            [r[0] * 1e-6, r[1] * 1e-6, r[2] * 1e-6],
-        );
+        let rot = rotation_xyz(r[0] * 1e-6, r[1] * 1e-6, r[2] * 1e-6);
+        let delta_mm = [d[0] * 1e-3, d[1] * 1e-3, d[2] * 1e-3];
         let tr = e.actual_translation(q[j]);
-        // Apply the two HTMs to the point (two 4×4 · 4-vector products, no matrix–matrix product).
+        let err = |v: [f64; 3]| {
+            let w = rot * Vector3::new(v[0], v[1], v[2]);
+            [w[0] + delta_mm[0], w[1] + delta_mm[1], w[2] + delta_mm[2]]
+        };
         p = if e.workpiece_side {
-            err * (tr * p)
+            err(add(p, tr))
         } else {
-            tr * (err * p)
+            add(err(p), tr)
         };
     }
-    [p[0], p[1], p[2]]
+    p
 }
 
 #[inline]
@@ -178,6 +182,7 @@ pub fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Vector4;
 
     #[test]
     fn series_sin_cos_matches_libm() {
@@ -257,6 +262,45 @@ mod tests {
             [[1.0, 202.0, 303.0], [1.0, 2.0, 303.0], [1.0, 2.0, 3.0]]
         );
         assert_eq!(nominal_tip(&mill, &q, t), [101.0, 202.0, 303.0]);
+    }
+
+    #[test]
+    fn exact_tip_equals_the_4x4_htm_product() {
+        // Reference: the chain's definition with full homogeneous matrices (module comment).
+        let mut chain = [
+            elem(Axis::X, true),
+            elem(Axis::Y, false),
+            elem(Axis::Z, false),
+        ];
+        chain[1].offset_mm = [5.0, -3.0, 20.0];
+        chain[2].u_tilted = [1e-5, -2e-5, 1.0];
+        let q = [412.5, -140.0, 37.0];
+        let t = [0.0, 0.0, -150.0];
+        let d = [[3.0, -8.0, 1.5], [-2.0, 4.0, 9.0], [0.5, -6.0, 2.0]];
+        let r = [[12.0, -7.0, 3.0], [-4.0, 15.0, -9.0], [6.0, 2.0, -11.0]];
+        let mut p = Vector4::new(t[0], t[1], t[2], 1.0);
+        for j in (0..3).rev() {
+            let err = error_htm(
+                [d[j][0] * 1e-3, d[j][1] * 1e-3, d[j][2] * 1e-3],
+                [r[j][0] * 1e-6, r[j][1] * 1e-6, r[j][2] * 1e-6],
+            );
+            let a = chain[j].actual_translation(q[j]);
+            let tr = Matrix4::new_translation(&Vector3::new(a[0], a[1], a[2]));
+            p = if chain[j].workpiece_side {
+                err * (tr * p)
+            } else {
+                tr * (err * p)
+            };
+        }
+        let got = exact_tip(&chain, &q, t, &d, &r);
+        for k in 0..3 {
+            assert!((got[k] - p[k]).abs() < 1e-12, "{k}: {} vs {}", got[k], p[k]);
+        }
+        let nominal = nominal_tip(&chain, &q, t);
+        let moved = (0..3)
+            .map(|k| (got[k] - nominal[k]).abs())
+            .fold(0.0, f64::max);
+        assert!(moved > 1e-3, "errors must show: {moved} mm");
     }
 
     #[test]

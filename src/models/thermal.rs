@@ -64,15 +64,8 @@ impl ThermalState {
             let new = match (self.lagged_c[i], s.tau_s, dt) {
                 (None, _, _) | (_, None, _) => t,
                 (Some(prev), Some(tau), Some(dt)) => {
-                    let cache = &mut self.alpha_cache[i];
-                    // Sample times jitter by float rounding; a relative change of 1e-12 in Δt changes
-                    // α by less than that, far below any sensor's resolution.
-                    // (The cache starts as NaN, which never counts as the same step.)
-                    let same_step = (cache.0 - dt).abs() <= 1e-12 * dt;
-                    if !same_step {
-                        *cache = (dt, 1.0 - (-dt / tau).exp());
-                    }
-                    prev + cache.1 * (t - prev)
+                    let alpha = lag_alpha(&mut self.alpha_cache[i], dt, tau);
+                    prev + alpha * (t - prev)
                 }
                 (Some(prev), Some(_), None) => prev,
             };
@@ -80,6 +73,27 @@ impl ThermalState {
             self.delta_c[i] = new - s.reference_c;
         }
         issues
+    }
+}
+
+/// α = 1 − e^(−Δt/τ) for this step, from the sensor's cache (Δt₀, α₀) of the last `exp`.
+///
+/// Sample times at a fixed rate differ by float rounding (t = k·1 ms at t ≈ 1000 s jitters Δt by
+/// ~1e-10 relative), so an exact-match cache would call `exp` on almost every sample. For
+/// |Δt − Δt₀| ≤ 1e-6·Δt₀ the step is corrected instead: with x = (Δt − Δt₀)/τ,
+/// α = 1 − (1 − α₀)·e^(−x) = α₀ + (1 − α₀)·(x − x²/2 + x³/6), whose truncation (x⁴/24 ≤ 1e-24·(Δt/τ)⁴)
+/// is far below one rounding of α. (The cache starts as NaN, which never counts as near.)
+#[inline]
+fn lag_alpha(cache: &mut (f64, f64), dt: f64, tau: f64) -> f64 {
+    let (dt0, alpha0) = *cache;
+    let d = dt - dt0;
+    if d.abs() <= 1e-6 * dt0 {
+        let x = d / tau;
+        alpha0 + (1.0 - alpha0) * (x * (1.0 - x * (0.5 - x * (1.0 / 6.0))))
+    } else {
+        let alpha = 1.0 - (-dt / tau).exp();
+        *cache = (dt, alpha);
+        alpha
     }
 }
 
@@ -197,6 +211,22 @@ mod tests {
                 "steps {steps}: {}",
                 st.delta_c[0]
             );
+        }
+    }
+
+    #[test]
+    fn cached_lag_step_matches_exp_for_jittered_and_changed_steps() {
+        let tau = 180.0;
+        let mut cache = (f64::NAN, 0.0);
+        // Fixed-rate sample times at t ≈ 1000 s: Δt jitters by float rounding around 1 ms.
+        let ts: Vec<f64> = (1_000_000..1_000_200).map(|k| k as f64 * 1e-3).collect();
+        let mut steps: Vec<f64> = ts.windows(2).map(|w| w[1] - w[0]).collect();
+        steps.extend([0.002, 0.002 * (1.0 + 5e-7), 0.0, 0.5, 1e-3]);
+        assert!(steps.iter().any(|&d| d != 1e-3), "the fixture must jitter");
+        for dt in steps {
+            let want = 1.0 - (-dt / tau).exp();
+            let got = lag_alpha(&mut cache, dt, tau);
+            assert!((got - want).abs() <= 4e-16, "dt {dt}: {got} vs {want}");
         }
     }
 
