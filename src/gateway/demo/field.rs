@@ -1,12 +1,15 @@
 //! The gateway's field config for the demo, as text (the same TOML a field install would use, see
 //! deploy/field/): CiA 406 encoders 1..3 and the CiA 404 temperature node 10 on the socketcand hub,
 //! origin shifts into hil-sim's PLC window over Modbus TCP (int32 high word first, LSB 0.5 µm,
-//! registers 0..5, strobe 10 / ack 11). Register = correction = −error (sign +1).
+//! registers 0..5, strobe 10 / ack 11), the cutting force F_cut_N from weighing lines on hil-sim's
+//! serial pty. Register = correction = −error (sign +1).
 
 use std::net::SocketAddr;
+use std::path::Path;
 
 /// Field config for one run. `thermal_period_s` is short because the demo's warm-up is accelerated.
-pub fn field_toml(name: &str, hub: SocketAddr, plc: SocketAddr) -> String {
+pub fn field_toml(name: &str, hub: SocketAddr, plc: SocketAddr, weighing_pty: &Path) -> String {
+    let pty = weighing_pty.display();
     let (hub_port, plc_addr) = (hub.port(), plc);
     format!(
         r#"
@@ -56,6 +59,15 @@ analog = [
   {{ channel = "T_xscrew_C", node_id = 10, type = "int16", byte_offset = 2, decimal_digits = 1 }},
 ]
 
+# The cutting force: weighing-indicator lines on hil-sim's pty.
+[serial]
+[[serial.source]]
+name = "scale"
+device = "{pty}"
+baud = 9600
+format = {{ kind = "weighing", unit = "N" }}
+channel = [ {{ name = "F_cut_N" }} ]
+
 [sink.origin_shift]
 transport = {{ kind = "tcp", address = "{plc_addr}" }}
 write_period_ms = 10
@@ -95,9 +107,10 @@ mod tests {
     #[test]
     fn field_config_parses_and_has_a_sink() {
         let a: SocketAddr = "127.0.0.1:29536".parse().unwrap();
-        let text = field_toml("demo-full", a, a);
+        let text = field_toml("demo-full", a, a, Path::new("/dev/pts/9"));
         let cfg = FieldConfig::parse(&text, std::path::Path::new("demo.toml")).unwrap();
         assert_eq!(cfg.axes.len(), 3);
         crate::gateway::run::require_sink(&cfg).unwrap();
+        assert!(cfg.serial.is_some(), "the force source is configured");
     }
 }

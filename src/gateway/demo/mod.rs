@@ -3,7 +3,8 @@
 //! physics; the gateway (this crate, in-process) reads its encoders and temperatures through a
 //! socketcand hub on loopback and writes origin shifts into its PLC window over Modbus TCP. Three
 //! runs of the same program: no compensation, the geometric-only model, the full model (geometry +
-//! thermal). Error = actual − nominal, µm, at the tool tip; correction = −error.
+//! thermal + cutting-force load, the force read as weighing lines on a serial pty). Error = actual −
+//! nominal, µm, at the tool tip; correction = −error.
 //!
 //! The three runs go in parallel (each with its own hub, sim and gateway) so the demo takes one
 //! program's wall time; they are independent processes and sockets, with the same seed.
@@ -27,7 +28,7 @@ use metrics::{DemoStats, ErrorTrace, RunStats};
 
 /// The geometric-only model (also hil-sim's hidden truth geometry).
 pub const GEOMETRIC_MODEL: &str = include_str!("../../../deploy/demo/mill-geometric.toml");
-/// Geometry + thermal terms of the simulated mill.
+/// Geometry + thermal + load terms of the simulated mill.
 pub const FULL_MODEL: &str = include_str!("../../../deploy/demo/mill-full.toml");
 
 /// Which model the gateway runs with.
@@ -128,7 +129,7 @@ fn model_for(mode: Mode) -> anyhow::Result<Option<MachineModel>> {
 }
 
 async fn one_run(opts: &DemoOptions, mode: Mode, truth: &Path) -> anyhow::Result<RunResult> {
-    let dir = opts.out.join(mode.key());
+    let dir = std::path::absolute(opts.out.join(mode.key()))?;
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let hub = Hub::start_loopback()
         .await
@@ -136,7 +137,13 @@ async fn one_run(opts: &DemoOptions, mode: Mode, truth: &Path) -> anyhow::Result
     let sim_cfg = dir.join("sim.toml");
     std::fs::write(
         &sim_cfg,
-        sim_process::sim_config(opts.seed, truth, hub.local_addr().port(), opts.warmup_s),
+        sim_process::sim_config(
+            opts.seed,
+            truth,
+            hub.local_addr().port(),
+            opts.warmup_s,
+            &dir.join("weighing-pty"),
+        ),
     )?;
     let mut sim = sim_process::start(&opts.hil_sim, &sim_cfg, &dir).await?;
     let model = model_for(mode)?;
@@ -146,6 +153,7 @@ async fn one_run(opts: &DemoOptions, mode: Mode, truth: &Path) -> anyhow::Result
             &format!("demo-{}", mode.key()),
             hub.local_addr(),
             sim.modbus,
+            &sim.weighing_pty,
         );
         let field_path = dir.join("field.toml");
         std::fs::write(&field_path, &text)?;

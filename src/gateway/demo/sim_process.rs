@@ -56,8 +56,15 @@ pub fn warmup_gcode(warmup_s: f64) -> String {
     "G1 X150\nG1 X0\n".repeat(pairs)
 }
 
-pub fn sim_config(seed: u64, truth_model: &Path, hub_port: u16, warmup_s: f64) -> String {
+pub fn sim_config(
+    seed: u64,
+    truth_model: &Path,
+    hub_port: u16,
+    warmup_s: f64,
+    pty_link: &Path,
+) -> String {
     SIM_TEMPLATE
+        .replace("@PTY_LINK@", &pty_link.display().to_string())
         .replace("@WARMUP@", &warmup_gcode(warmup_s))
         .replace("@SEED@", &seed.to_string())
         .replace("@TRUTH_MODEL@", &truth_model.display().to_string())
@@ -68,11 +75,14 @@ pub fn sim_config(seed: u64, truth_model: &Path, hub_port: u16, warmup_s: f64) -
 pub struct Sim {
     pub child: Child,
     pub modbus: SocketAddr,
+    /// Device of the pty carrying the weighing lines (the cutting force).
+    pub weighing_pty: PathBuf,
     /// Everything hil-sim wrote to stderr (for error messages).
     pub log: JoinHandle<String>,
 }
 
-/// Start `hil-sim serve --config CONFIG --out OUT` and wait for its Modbus TCP address.
+/// Start `hil-sim serve --config CONFIG --out OUT` and wait for its Modbus TCP address and the
+/// weighing pty (hil-sim prints both before the program starts).
 pub async fn start(bin: &Path, config: &Path, out: &Path) -> anyhow::Result<Sim> {
     let mut child = Command::new(bin)
         .arg("serve")
@@ -88,10 +98,11 @@ pub async fn start(bin: &Path, config: &Path, out: &Path) -> anyhow::Result<Sim>
         .with_context(|| format!("starting {}", bin.display()))?;
     let mut lines = BufReader::new(child.stderr.take().context("hil-sim stderr")?).lines();
     let mut log = String::new();
-    let modbus = loop {
+    let mut modbus = None;
+    let weighing_pty = loop {
         let line = tokio::time::timeout(std::time::Duration::from_secs(20), lines.next_line())
             .await
-            .context("hil-sim did not report its Modbus address within 20 s")??;
+            .context("hil-sim did not report its Modbus address and pty within 20 s")??;
         let Some(line) = line else {
             let status = child.wait().await?;
             bail!("hil-sim exited ({status}) before serving:\n{log}");
@@ -99,12 +110,17 @@ pub async fn start(bin: &Path, config: &Path, out: &Path) -> anyhow::Result<Sim>
         log.push_str(&line);
         log.push('\n');
         if let Some(a) = line.strip_prefix("hil-sim: modbus tcp on ") {
-            break a
-                .trim()
-                .parse::<SocketAddr>()
-                .with_context(|| format!("hil-sim address `{a}`"))?;
+            let a = a.trim();
+            modbus = Some(
+                a.parse::<SocketAddr>()
+                    .with_context(|| format!("hil-sim address `{a}`"))?,
+            );
+        }
+        if let Some(p) = line.strip_prefix("hil-sim: weighing lines on ") {
+            break PathBuf::from(p.trim());
         }
     };
+    let modbus = modbus.context("hil-sim reported its weighing pty but no Modbus TCP address")?;
     let log = tokio::spawn(async move {
         while let Ok(Some(l)) = lines.next_line().await {
             log.push_str(&l);
@@ -112,7 +128,12 @@ pub async fn start(bin: &Path, config: &Path, out: &Path) -> anyhow::Result<Sim>
         }
         log
     });
-    Ok(Sim { child, modbus, log })
+    Ok(Sim {
+        child,
+        modbus,
+        weighing_pty,
+        log,
+    })
 }
 
 #[cfg(test)]
@@ -121,7 +142,7 @@ mod tests {
 
     #[test]
     fn template_is_filled_completely() {
-        let s = sim_config(3, Path::new("/m/t.toml"), 4242, 20.0);
+        let s = sim_config(3, Path::new("/m/t.toml"), 4242, 20.0, Path::new("/o/pty"));
         assert_eq!(s.matches("G1 X150\nG1 X0\n").count(), 4, "{s}");
         assert_eq!(warmup_gcode(0.0).lines().count(), 2);
         assert!(!s.contains('@'), "unfilled placeholder");
