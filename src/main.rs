@@ -22,6 +22,8 @@ enum Command {
     Eval(cli::eval::Args),
     /// Run the gateway: sources → model → safety → origin-shift / quadrature sinks.
     Run(cli::run::Args),
+    /// The main job with no hardware: hil-sim + the gateway over loopback, three runs compared.
+    Demo(cli::demo::Args),
     /// Show a running gateway's per-axis corrections, term breakdown and sensor health.
     Status(cli::status::Args),
     /// ISO 230-2:2014 positioning evaluation of one axis from laser runs.
@@ -48,6 +50,7 @@ fn main() -> std::process::ExitCode {
         Command::CheckConfig(a) => cli::check_config::run(&a),
         Command::Eval(a) => cli::eval::run(&a),
         Command::Run(a) => cli::run::run(&a),
+        Command::Demo(a) => cli::demo::run(&a),
         Command::Status(a) => cli::status::run(&a),
         Command::Iso230_2(a) => cli::iso230_2::run(&a),
         Command::Import(a) => cli::import::run(&a),

@@ -3,6 +3,7 @@
 
 pub mod check_config;
 pub mod circle;
+pub mod demo;
 pub mod diagnose;
 pub mod eval;
 pub mod export;

@@ -1,0 +1,169 @@
+//! Tool-tip error statistics of one demo run, from a hil-sim recording (DESIGN §4 columns `t_s`,
+//! `ex_um`, `ey_um`, `ez_um`). Sans-IO: takes the CSV text. Error = actual − nominal, µm; "max" is
+//! the largest |error|, "volumetric" the largest Euclidean length of (ex, ey, ez) over the run.
+
+use anyhow::{Context, bail};
+use serde::{Deserialize, Serialize};
+
+/// RMS and max |error| of one axis, µm.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct AxisStats {
+    pub rms_um: f64,
+    pub max_um: f64,
+}
+
+/// Statistics of one run (the JSON object of one mode in `retrocomp demo --json`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RunStats {
+    pub x: AxisStats,
+    pub y: AxisStats,
+    pub z: AxisStats,
+    pub volumetric_max_um: f64,
+}
+
+/// The recorded tool-tip error over time (kept for the plots).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ErrorTrace {
+    pub t_s: Vec<f64>,
+    pub e_um: Vec<[f64; 3]>,
+}
+
+/// Parse the `t_s` and `e*_um` columns of a recording. `what` names the file in errors.
+pub fn parse_recording(csv_text: &str, what: &str) -> anyhow::Result<ErrorTrace> {
+    let mut rdr = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .from_reader(csv_text.as_bytes());
+    let headers = rdr
+        .headers()
+        .with_context(|| format!("{what}: header"))?
+        .clone();
+    let col = |name: &str| {
+        headers
+            .iter()
+            .position(|h| h == name)
+            .with_context(|| format!("{what}: no column `{name}` in the header"))
+    };
+    let (it, ix, iy, iz) = (col("t_s")?, col("ex_um")?, col("ey_um")?, col("ez_um")?);
+    let mut trace = ErrorTrace::default();
+    for (i, rec) in rdr.records().enumerate() {
+        // Line 1 is the header.
+        let line = i + 2;
+        let rec = rec.with_context(|| format!("{what}:{line}"))?;
+        let num = |k: usize, name: &str| -> anyhow::Result<f64> {
+            let s = rec.get(k).unwrap_or("");
+            let v: f64 = s.trim().parse().with_context(|| {
+                format!("{what}:{line}: column `{name}`: `{s}` is not a number")
+            })?;
+            if !v.is_finite() {
+                bail!("{what}:{line}: column `{name}`: {v} is not finite");
+            }
+            Ok(v)
+        };
+        trace.t_s.push(num(it, "t_s")?);
+        trace
+            .e_um
+            .push([num(ix, "ex_um")?, num(iy, "ey_um")?, num(iz, "ez_um")?]);
+    }
+    if trace.t_s.is_empty() {
+        bail!("{what}: no data rows");
+    }
+    Ok(trace)
+}
+
+/// RMS and max per axis, and the volumetric max, over every sample with `t_s >= from_s`.
+pub fn stats(trace: &ErrorTrace, from_s: f64) -> anyhow::Result<RunStats> {
+    let mut sq = [0.0; 3];
+    let mut max = [0.0f64; 3];
+    let mut vol = 0.0f64;
+    let mut n = 0usize;
+    for (t, e) in trace.t_s.iter().zip(&trace.e_um) {
+        if *t < from_s {
+            continue;
+        }
+        n += 1;
+        for k in 0..3 {
+            sq[k] += e[k] * e[k];
+            max[k] = max[k].max(e[k].abs());
+        }
+        vol = vol.max((e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt());
+    }
+    if n == 0 {
+        bail!("no samples at or after t = {from_s} s");
+    }
+    let axis = |k: usize| AxisStats {
+        rms_um: (sq[k] / n as f64).sqrt(),
+        max_um: max[k],
+    };
+    Ok(RunStats {
+        x: axis(0),
+        y: axis(1),
+        z: axis(2),
+        volumetric_max_um: vol,
+    })
+}
+
+/// The three runs, in the order and with the keys of the `--json` line.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DemoStats {
+    pub uncompensated: RunStats,
+    pub geometric: RunStats,
+    pub full: RunStats,
+}
+
+impl DemoStats {
+    /// Fall of the max volumetric error, full vs uncompensated, percent.
+    pub fn volumetric_reduction_pct(&self) -> f64 {
+        100.0 * (1.0 - self.full.volumetric_max_um / self.uncompensated.volumetric_max_um)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const CSV: &str =
+        "t_s,x_mm,ex_um,ey_um,ez_um\n0.0,0,100,100,100\n1.0,0,3,-4,0\n2.0,0,0,0,-12\n";
+
+    #[test]
+    fn rms_max_and_volumetric_from_columns_by_name() {
+        let tr = parse_recording(CSV, "r.csv").unwrap();
+        let s = stats(&tr, 0.5).unwrap();
+        assert_eq!(s.x.max_um, 3.0);
+        assert_eq!(s.y.max_um, 4.0);
+        assert_eq!(s.z.max_um, 12.0);
+        assert!((s.x.rms_um - (9.0f64 / 2.0).sqrt()).abs() < 1e-12);
+        assert!((s.z.rms_um - (144.0f64 / 2.0).sqrt()).abs() < 1e-12);
+        // max of |(3,−4,0)| = 5 and |(0,0,−12)| = 12.
+        assert_eq!(s.volumetric_max_um, 12.0);
+        // The first sample counts from t = 0.
+        assert_eq!(stats(&tr, 0.0).unwrap().x.max_um, 100.0);
+    }
+
+    #[test]
+    fn bad_cell_names_file_line_and_column() {
+        let bad = "t_s,ex_um,ey_um,ez_um\n0,1,2,3\n0.1,1,oops,3\n";
+        let e = format!("{:#}", parse_recording(bad, "r.csv").unwrap_err());
+        assert!(
+            e.contains("r.csv:3") && e.contains("ey_um") && e.contains("oops"),
+            "{e}"
+        );
+        let missing = format!(
+            "{:#}",
+            parse_recording("t_s,ex_um\n0,1\n", "r.csv").unwrap_err()
+        );
+        assert!(missing.contains("ey_um"), "{missing}");
+        assert!(stats(&parse_recording(CSV, "r").unwrap(), 9.0).is_err());
+    }
+
+    #[test]
+    fn json_keys_are_the_outside_contract() {
+        let d = DemoStats::default();
+        let v = serde_json::to_value(d).unwrap();
+        for mode in ["uncompensated", "geometric", "full"] {
+            for ax in ["x", "y", "z"] {
+                assert!(v[mode][ax]["rms_um"].is_number() && v[mode][ax]["max_um"].is_number());
+            }
+            assert!(v[mode]["volumetric_max_um"].is_number());
+        }
+    }
+}

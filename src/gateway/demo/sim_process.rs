@@ -1,0 +1,153 @@
+//! The `hil-sim` child process of the demo: locating the binary, filling the config template, and
+//! waiting for its Modbus TCP address. hil-sim depends on retrocomp, so retrocomp cannot link it:
+//! it runs as a separate binary, connected only through loopback transports.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+
+use anyhow::{Context, bail};
+use tokio::io::{AsyncBufReadExt, BufReader};
+use tokio::process::{Child, Command};
+use tokio::task::JoinHandle;
+
+/// The sim config template (placeholders `@SEED@`, `@TRUTH_MODEL@`, `@HUB_PORT@`, `@WARMUP@`).
+pub const SIM_TEMPLATE: &str = include_str!("../../../deploy/demo/sim.toml");
+
+/// `hil-sim` next to the current executable, else `$HIL_SIM_BIN`.
+pub fn locate_hil_sim() -> anyhow::Result<PathBuf> {
+    let exe = std::env::current_exe().context("current executable")?;
+    let mut tried = Vec::new();
+    if let Some(dir) = exe.parent() {
+        // Test binaries live in target/<profile>/deps; the bins one level up.
+        for d in [Some(dir), dir.parent()].into_iter().flatten() {
+            let p = d.join("hil-sim");
+            if p.is_file() {
+                return Ok(p);
+            }
+            tried.push(p);
+        }
+    }
+    if let Some(p) = std::env::var_os("HIL_SIM_BIN") {
+        let p = PathBuf::from(p);
+        if p.is_file() {
+            return Ok(p);
+        }
+        bail!("$HIL_SIM_BIN = {} is not a file", p.display());
+    }
+    bail!(
+        "the hil-sim binary was not found (tried {}; $HIL_SIM_BIN unset). Build it with \
+         `cargo build --release --workspace` (the demo looks next to the retrocomp executable) \
+         or set HIL_SIM_BIN",
+        tried
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    )
+}
+
+/// One X stroke pair (150 mm out and back at 60 mm/s, with acceleration) takes about this long.
+const STROKE_PAIR_S: f64 = 5.0;
+
+/// The warm-up G-code: X stroke pairs for about `warmup_s` seconds (at least one pair).
+pub fn warmup_gcode(warmup_s: f64) -> String {
+    let pairs = (warmup_s / STROKE_PAIR_S).round().max(1.0) as usize;
+    "G1 X150\nG1 X0\n".repeat(pairs)
+}
+
+pub fn sim_config(
+    seed: u64,
+    truth_model: &Path,
+    hub_port: u16,
+    warmup_s: f64,
+    pty_link: &Path,
+) -> String {
+    SIM_TEMPLATE
+        .replace("@PTY_LINK@", &pty_link.display().to_string())
+        .replace("@WARMUP@", &warmup_gcode(warmup_s))
+        .replace("@SEED@", &seed.to_string())
+        .replace("@TRUTH_MODEL@", &truth_model.display().to_string())
+        .replace("@HUB_PORT@", &hub_port.to_string())
+}
+
+/// A running `hil-sim serve`.
+pub struct Sim {
+    pub child: Child,
+    pub modbus: SocketAddr,
+    /// Device of the pty carrying the weighing lines (the cutting force).
+    pub weighing_pty: PathBuf,
+    /// Everything hil-sim wrote to stderr (for error messages).
+    pub log: JoinHandle<String>,
+}
+
+/// Start `hil-sim serve --config CONFIG --out OUT` and wait for its Modbus TCP address and the
+/// weighing pty (hil-sim prints both before the program starts).
+pub async fn start(bin: &Path, config: &Path, out: &Path) -> anyhow::Result<Sim> {
+    let mut child = Command::new(bin)
+        .arg("serve")
+        .arg("--config")
+        .arg(config)
+        .arg("--out")
+        .arg(out)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .kill_on_drop(true)
+        .spawn()
+        .with_context(|| format!("starting {}", bin.display()))?;
+    let mut lines = BufReader::new(child.stderr.take().context("hil-sim stderr")?).lines();
+    let mut log = String::new();
+    let mut modbus = None;
+    let weighing_pty = loop {
+        let line = tokio::time::timeout(std::time::Duration::from_secs(20), lines.next_line())
+            .await
+            .context("hil-sim did not report its Modbus address and pty within 20 s")??;
+        let Some(line) = line else {
+            let status = child.wait().await?;
+            bail!("hil-sim exited ({status}) before serving:\n{log}");
+        };
+        log.push_str(&line);
+        log.push('\n');
+        if let Some(a) = line.strip_prefix("hil-sim: modbus tcp on ") {
+            let a = a.trim();
+            modbus = Some(
+                a.parse::<SocketAddr>()
+                    .with_context(|| format!("hil-sim address `{a}`"))?,
+            );
+        }
+        if let Some(p) = line.strip_prefix("hil-sim: weighing lines on ") {
+            break PathBuf::from(p.trim());
+        }
+    };
+    let modbus = modbus.context("hil-sim reported its weighing pty but no Modbus TCP address")?;
+    let log = tokio::spawn(async move {
+        while let Ok(Some(l)) = lines.next_line().await {
+            log.push_str(&l);
+            log.push('\n');
+        }
+        log
+    });
+    Ok(Sim {
+        child,
+        modbus,
+        weighing_pty,
+        log,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn template_is_filled_completely() {
+        let s = sim_config(3, Path::new("/m/t.toml"), 4242, 20.0, Path::new("/o/pty"));
+        assert_eq!(s.matches("G1 X150\nG1 X0\n").count(), 4, "{s}");
+        assert_eq!(warmup_gcode(0.0).lines().count(), 2);
+        assert!(!s.contains('@'), "unfilled placeholder");
+        assert!(s.contains("port = 4242") && s.contains("model_path = \"/m/t.toml\""));
+        let v: toml::Table = toml::from_str(&s).unwrap();
+        assert_eq!(v["seed"].as_integer(), Some(3));
+    }
+}
