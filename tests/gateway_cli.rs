@@ -14,6 +14,8 @@ use tokio::net::TcpListener;
 
 #[path = "gateway_support/plc.rs"]
 mod plc;
+#[path = "gateway_support/process.rs"]
+mod process;
 use plc::{Plc, serve};
 
 fn encoder(channel: &str, node: u8) -> EncoderChannel {
@@ -163,23 +165,7 @@ sign = 1
     );
 
     // Clean stop on SIGTERM.
-    let pid = child.id().to_string();
-    Command::new("kill").args(["-TERM", &pid]).status().unwrap();
-    let mut code = None;
-    for _ in 0..100 {
-        if let Some(s) = child.try_wait().unwrap() {
-            code = Some(s);
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    let code = code.unwrap_or_else(|| {
-        let _ = child.kill();
-        panic!("gateway did not stop on SIGTERM")
-    });
-    let mut err = String::new();
-    std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut err).unwrap();
-    assert!(code.success(), "exit {code:?}: {err}");
+    let err = process::stop_with_sigterm(&mut child);
     assert!(err.contains("stopped after"), "{err}");
     plc_task.abort();
 }

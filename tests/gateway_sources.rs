@@ -10,6 +10,8 @@
 
 #[path = "peers/mod.rs"]
 mod peers;
+#[path = "gateway_support/process.rs"]
+mod process;
 
 use std::collections::BTreeSet;
 use std::io::Write;
@@ -266,25 +268,7 @@ stale_after_s = 0.3
     );
 
     // Clean stop on SIGTERM.
-    Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status()
-        .unwrap();
-    let mut code = None;
-    for _ in 0..100 {
-        if let Some(c) = child.try_wait().unwrap() {
-            code = Some(c);
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    let code = code.unwrap_or_else(|| {
-        let _ = child.kill();
-        panic!("gateway did not stop on SIGTERM")
-    });
-    let mut err = String::new();
-    std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut err).unwrap();
-    assert!(code.success(), "exit {code:?}: {err}");
+    process::stop_with_sigterm(&mut child);
     drop((socat_dro, socat_f));
 }
 
