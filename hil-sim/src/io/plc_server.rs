@@ -1,8 +1,9 @@
 //! The PLC's Modbus TCP server, stoppable and restartable on the same port (the `modbus_down`
 //! transport fault), with a log of every client write for observers: after each accepted write to the
 //! holding block, the simulated time and the three origin-shift registers as they now stand, decoded
-//! in µm (register value × `plc.lsb_um`; + moves the slide +, i.e. register = correction). The log is
-//! written as `plc_writes.csv` next to the recording (`t_s,address,count,x_um,y_um,z_um`).
+//! in µm (register value × `plc.lsb_um`; + moves the slide +, i.e. register = correction), and the
+//! client's TCP port (a new port = a new connection: a reconnect or a restarted gateway). The log is
+//! written as `plc_writes.csv` next to the recording (`t_s,address,count,x_um,y_um,z_um,client_port`).
 //!
 //! Stopping drops the listener and every live connection (tokio-modbus cancels its connection tasks
 //! when `serve` is dropped); the register bank is kept, so the controller holds its shift across the
@@ -42,16 +43,18 @@ pub struct WriteEvent {
     pub count: u16,
     /// The shift registers of x, y, z after the write, µm.
     pub shifts_um: [f64; 3],
+    /// The writer's TCP source port.
+    pub client_port: u16,
 }
 
 impl WriteEvent {
-    pub const CSV_HEADER: &'static str = "t_s,address,count,x_um,y_um,z_um\n";
+    pub const CSV_HEADER: &'static str = "t_s,address,count,x_um,y_um,z_um,client_port\n";
 
     pub fn csv_row(&self) -> String {
         let [x, y, z] = self.shifts_um;
         format!(
-            "{:.4},{},{},{x},{y},{z}\n",
-            self.t_s, self.address, self.count
+            "{:.4},{},{},{x},{y},{z},{}\n",
+            self.t_s, self.address, self.count, self.client_port
         )
     }
 }
@@ -77,6 +80,7 @@ struct LoggedService {
     window_len: u16,
     clock: SimClock,
     log: mpsc::UnboundedSender<WriteEvent>,
+    client_port: u16,
 }
 
 impl Service for LoggedService {
@@ -100,6 +104,7 @@ impl Service for LoggedService {
                 address,
                 count,
                 shifts_um: shifts_um(&self.plc, &window),
+                client_port: self.client_port,
             });
         }
         std::future::ready(r)
@@ -130,6 +135,7 @@ impl PlcServer {
             window_len,
             clock,
             log,
+            client_port: 0,
         };
         let listener = TcpListener::bind(bind).await?;
         let addr = listener.local_addr()?;
@@ -146,8 +152,11 @@ impl PlcServer {
         let svc = self.svc.clone();
         self.task = Some(tokio::spawn(async move {
             let server = tokio_modbus::server::tcp::Server::new(listener);
-            let on_connected = |stream, peer| {
-                let svc = svc.clone();
+            let on_connected = |stream, peer: SocketAddr| {
+                let svc = LoggedService {
+                    client_port: peer.port(),
+                    ..svc.clone()
+                };
                 async move {
                     tokio_modbus::server::tcp::accept_tcp_connection(stream, peer, |_| {
                         Ok(Some(svc.clone()))
@@ -247,6 +256,7 @@ mod tests {
             .unwrap();
         let ev = rx.try_recv().unwrap();
         assert_eq!((ev.t_s, ev.address, ev.count), (1.25, 0, 2));
+        assert_ne!(ev.client_port, 0);
         assert_eq!(ev.shifts_um, [3.5, 0.0, 0.0]);
 
         srv.stop();

@@ -7,7 +7,7 @@
 
 use super::plc_server::{PlcServer, SimClock, WriteEvent};
 use super::publish::Publisher;
-use super::transport_faults::{Garbage, Schedule, silenced};
+use super::transport_faults::{Active, Garbage, Schedule, Transition, silenced};
 use crate::clock::RealtimePacer;
 use crate::recording::Recorder;
 use crate::{SimConfig, World};
@@ -84,6 +84,33 @@ fn pty_pair(link: &Path) -> anyhow::Result<(SerialStream, SerialStream, PathBuf)
     std::os::unix::fs::symlink(&dev, link)
         .map_err(|e| anyhow::anyhow!("pty link {}: {e}", link.display()))?;
     Ok((master, slave, dev))
+}
+
+/// Log each fault edge once and bring the Modbus TCP server down or up to match the schedule
+/// (idempotent, so overlapping `modbus_down` windows are one outage).
+async fn apply_transport_faults(
+    changes: &[Transition],
+    active: &Active,
+    tcp: Option<&mut PlcServer>,
+) -> anyhow::Result<()> {
+    for c in changes {
+        let what = match c.node {
+            Some(n) => format!("{:?} (node {n})", c.kind),
+            None => format!("{:?}", c.kind),
+        };
+        let edge = if c.started { "started" } else { "cleared" };
+        eprintln!("hil-sim: fault {what} {edge} at t = {:.3} s", c.t_s);
+    }
+    if let Some(srv) = tcp {
+        if active.modbus_down && srv.is_up() {
+            srv.stop();
+        } else if !active.modbus_down && !srv.is_up() {
+            srv.restart().await.map_err(|e| {
+                anyhow::anyhow!("modbus tcp: listening again on {}: {e}", srv.local_addr())
+            })?;
+        }
+    }
+    Ok(())
 }
 
 /// Start the simulation and its buses. `mem` is the in-process CAN bus for `backend = "mem"`;
@@ -178,7 +205,8 @@ pub async fn start(
     drop(write_log_tx);
     let modbus_tcp = tcp.as_ref().map(|t| t.local_addr());
     let mut schedule = Schedule::new(io.faults.clone());
-    let mut garbage = Garbage::new(world.config().seed);
+    // Mean 30 ms between bursts: about one and a half per weighing line at 50 lines/s.
+    let mut garbage = Garbage::new(world.config().seed, 0.03);
     let mut publisher = Publisher::new(io, &world);
     let (status_tx, status) = watch::channel(Status::default());
     let task = tokio::spawn({
@@ -207,27 +235,8 @@ pub async fn start(
                     steps += 1;
                     clock.set(world.t_s());
                     let (active, changes) = schedule.advance(world.t_s());
-                    for c in &changes {
-                        let what = match c.node {
-                            Some(n) => format!("{:?} (node {n})", c.kind),
-                            None => format!("{:?}", c.kind),
-                        };
-                        let edge = if c.started { "started" } else { "cleared" };
-                        eprintln!("hil-sim: fault {what} {edge} at t = {:.3} s", c.t_s);
-                        if c.kind == super::transport_faults::TransportFaultKind::ModbusDown {
-                            if let Some(srv) = tcp.as_mut() {
-                                if active.modbus_down {
-                                    srv.stop();
-                                } else {
-                                    srv.restart().await.map_err(|e| {
-                                        anyhow::anyhow!(
-                                            "modbus tcp: listening again on {}: {e}",
-                                            srv.local_addr()
-                                        )
-                                    })?;
-                                }
-                            }
-                        }
+                    if !changes.is_empty() {
+                        apply_transport_faults(&changes, &active, tcp.as_mut()).await?;
                     }
                     if let Some(a) = ack {
                         bank.set_holding(a, world.plc().read(a, 1)?);
@@ -247,15 +256,12 @@ pub async fn start(
                         bank.set_input(*a, w);
                     }
                     if let Some(p) = weigh.as_mut() {
-                        for l in &o.lines {
-                            let mut bytes = Vec::new();
-                            if active.serial_garbage {
-                                bytes = garbage.burst().1;
-                            }
-                            bytes.extend_from_slice(l.as_bytes());
+                        let mut chunks = vec![garbage.poll(world.t_s(), active.serial_garbage)];
+                        chunks.extend(o.lines.iter().map(|l| l.as_bytes().to_vec()));
+                        for bytes in chunks.iter().filter(|b| !b.is_empty()) {
                             let wr = tokio::time::timeout(
                                 std::time::Duration::from_millis(2),
-                                p.write_all(&bytes),
+                                p.write_all(bytes),
                             );
                             if !matches!(wr.await, Ok(Ok(()))) {
                                 dropped += 1;

@@ -162,10 +162,13 @@ pub fn silenced(frame: &Frame, active: &Active) -> bool {
     canopen_node(frame).is_some_and(|n| active.silent_nodes.contains(&n))
 }
 
-/// Line noise for the weighing pty (seeded): each burst goes on the line just before a regular line.
+/// Line noise for the weighing pty (seeded): bursts at Poisson times, between and into the regular
+/// lines (an unterminated burst glues onto the next line and breaks it).
 #[derive(Clone, Debug)]
 pub struct Garbage {
     noise: Noise,
+    mean_interval_s: f64,
+    next_s: Option<f64>,
 }
 
 /// What a garbage burst is (for tests and docs).
@@ -185,10 +188,33 @@ pub enum BurstKind {
 pub const ABSURD_FORCE_N: f64 = 90_000.0;
 
 impl Garbage {
-    pub fn new(seed: u64) -> Self {
+    /// Bursts every `mean_interval_s` on average while the fault is active.
+    pub fn new(seed: u64, mean_interval_s: f64) -> Self {
         Self {
             noise: Noise::new(seed, "io/serial_garbage"),
+            mean_interval_s,
+            next_s: None,
         }
+    }
+
+    /// The bursts due at `t_s` while the fault is active (call every step; `active = false` resets
+    /// the schedule so the next window starts afresh).
+    pub fn poll(&mut self, t_s: f64, active: bool) -> Vec<u8> {
+        let mut out = Vec::new();
+        if !active {
+            self.next_s = None;
+            return out;
+        }
+        let mut next = match self.next_s {
+            Some(n) => n,
+            None => t_s + self.noise.exp_wait(self.mean_interval_s),
+        };
+        while next <= t_s {
+            out.extend(self.burst().1);
+            next += self.noise.exp_wait(self.mean_interval_s);
+        }
+        self.next_s = Some(next);
+        out
     }
 
     fn below(&mut self, n: usize) -> usize {
@@ -345,7 +371,7 @@ mod tests {
     #[test]
     fn garbage_is_seeded_and_never_a_valid_plausible_reading() {
         use retrocomp::bus::serial::framer::LineFramer;
-        let (mut a, mut b) = (Garbage::new(7), Garbage::new(7));
+        let (mut a, mut b) = (Garbage::new(7, 0.03), Garbage::new(7, 0.03));
         let mut kinds = std::collections::BTreeMap::new();
         for _ in 0..2000 {
             let (ka, ba) = a.burst();
@@ -372,5 +398,18 @@ mod tests {
             }
         }
         assert_eq!(kinds.len(), 4, "every kind occurs: {kinds:?}");
+        // Poisson bursts only inside the window: ≈ 1 s / 30 ms = 33 in one second.
+        let mut g = Garbage::new(7, 0.03);
+        let mut bursts = 0;
+        for k in 0..3000 {
+            let t = k as f64 * 0.001;
+            let b = g.poll(t, (1.0..2.0).contains(&t));
+            if !(1.0..2.0).contains(&t) {
+                assert!(b.is_empty());
+            } else if !b.is_empty() {
+                bursts += 1;
+            }
+        }
+        assert!((15..60).contains(&bursts), "{bursts} bursts");
     }
 }
