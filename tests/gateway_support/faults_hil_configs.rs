@@ -276,7 +276,7 @@ channel = [ {{ name = "F_cut_N" }} ]
 
 [sink.origin_shift]
 transport = {{ kind = "tcp", address = "{plc}" }}
-request_timeout_ms = 100
+request_timeout_ms = 300
 reconnect_min_ms = 20
 reconnect_max_ms = 200
 write_period_ms = 10

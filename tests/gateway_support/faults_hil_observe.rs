@@ -125,13 +125,10 @@ pub fn fault_events(log: &str) -> Vec<(String, String, bool, f64)> {
 }
 
 /// Each fault logged once at start and once at clear: per (source, kind) the events alternate,
-/// starting with a start. Returns the number of episodes per (source, kind) starting at t ≥ `from_s`.
-pub fn episodes(
-    events: &[(String, String, bool, f64)],
-    from_s: f64,
-) -> BTreeMap<(String, String), usize> {
+/// starting with a start. Returns the start times per (source, kind).
+pub fn episodes(events: &[(String, String, bool, f64)]) -> BTreeMap<(String, String), Vec<f64>> {
     let mut last: BTreeMap<(String, String), bool> = BTreeMap::new();
-    let mut n = BTreeMap::new();
+    let mut starts: BTreeMap<(String, String), Vec<f64>> = BTreeMap::new();
     for (s, k, started, t) in events {
         let key = (s.clone(), k.clone());
         let prev = last.insert(key.clone(), *started);
@@ -141,9 +138,9 @@ pub fn episodes(
             "{s} {k} logged {} twice in a row (t = {t})",
             if *started { "started" } else { "cleared" }
         );
-        if *started && *t >= from_s {
-            *n.entry(key).or_insert(0) += 1;
+        if *started {
+            starts.entry(key).or_default().push(*t);
         }
     }
-    n
+    starts
 }
