@@ -86,6 +86,34 @@ pub fn max_latched_step(recording: &str) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// Share of the distinct values written to the shift registers (in write order, repeats collapsed)
+/// that the recording shows as the applied (latched) shift at some row. A value is missed only when
+/// it was latched and replaced between two recording rows.
+pub fn applied_share(writes: &[Write], recording: &str) -> f64 {
+    let mut rdr = csv::Reader::from_reader(recording.as_bytes());
+    let h = rdr.headers().unwrap().clone();
+    let cols: Vec<usize> = ["shift_x_um", "shift_y_um", "shift_z_um"]
+        .iter()
+        .map(|n| h.iter().position(|c| c == *n).unwrap())
+        .collect();
+    let key = |v: [f64; 3]| v.map(|x| (x * 1000.0).round() as i64);
+    let latched: std::collections::HashSet<[i64; 3]> = rdr
+        .records()
+        .map(|r| {
+            let r = r.unwrap();
+            key([0, 1, 2].map(|k| r[cols[k]].parse::<f64>().unwrap()))
+        })
+        .collect();
+    let mut written: Vec<[i64; 3]> = writes
+        .iter()
+        .filter(|w| w.address == 0)
+        .map(|w| key(w.um))
+        .collect();
+    written.dedup();
+    let seen = written.iter().filter(|v| latched.contains(*v)).count();
+    seen as f64 / written.len().max(1) as f64
+}
+
 pub fn max_dev(devs: &[(f64, [f64; 3])], from_s: f64, to_s: f64, axes: &[usize]) -> f64 {
     let rows: Vec<_> = devs
         .iter()
