@@ -395,3 +395,149 @@ pub fn fit_model(
     out.toml = toml;
     Ok((model, out))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A context recording with known terms: ex = 11.5 ppm/K · x · ΔT_xscrew + 0.004 µm/N · F,
+    /// ey = 0.003 µm/N · F, ez = −6 µm/K · ΔT_spindle − 0.002 µm/N · F (the demo mill's values),
+    /// plus ±0.05 µm of deterministic pseudo-noise; references 20 °C.
+    fn context() -> Recording {
+        let n = 3000;
+        let mut cols: Vec<(String, Vec<f64>)> = [
+            "t_s",
+            "x_mm",
+            "y_mm",
+            "z_mm",
+            "ex_um",
+            "ey_um",
+            "ez_um",
+            "T_spindle_C",
+            "T_xscrew_C",
+            "F_cut_N",
+        ]
+        .iter()
+        .map(|n| (n.to_string(), Vec::new()))
+        .collect();
+        for i in 0..n {
+            let t = i as f64 * 0.05;
+            let x = 75.0 + 75.0 * (0.3 * t).sin();
+            let y = 50.0 + 50.0 * (0.17 * t).sin();
+            let z = 25.0 + 25.0 * (0.11 * t).sin();
+            let ts = 20.0 + 5.0 * (1.0 - (-t / 30.0).exp()) * (1.0 + 0.3 * (0.05 * t).sin());
+            let tx = 20.0 + 8.0 * (1.0 - (-t / 15.0).exp()) * (1.0 + 0.5 * (0.023 * t).cos());
+            let f = if (t / 10.0) as u32 % 2 == 1 {
+                200.0 * (0.5 * t).sin().abs()
+            } else {
+                0.0
+            };
+            let noise = |k: f64| 0.05 * (7.3 * i as f64 + k).sin();
+            let ex = 0.0115 * x * (tx - 20.0) + 0.004 * f + noise(0.0);
+            let ey = 0.003 * f + noise(1.0);
+            let ez = -6.0 * (ts - 20.0) - 0.002 * f + noise(2.0);
+            for (c, v) in cols.iter_mut().zip([t, x, y, z, ex, ey, ez, ts, tx, f]) {
+                c.1.push(v);
+            }
+        }
+        Recording::from_columns(cols).unwrap()
+    }
+
+    fn base() -> ModelSpec {
+        MachineModel::from_toml_str(super::super::BASE_MODEL, "base")
+            .unwrap()
+            .spec()
+            .clone()
+    }
+
+    #[test]
+    fn context_terms_recover_expansion_growth_and_compliance_with_their_signs() {
+        let mut spec = base();
+        let geometric = MachineModel::from_spec(spec.clone());
+        let t_ref = vec![
+            ("T_spindle_C".to_string(), 20.0),
+            ("T_xscrew_C".to_string(), 20.0),
+        ];
+        let mut out = FitOutcome::default();
+        fit_context_terms(&mut spec, &geometric, &context(), &t_ref, "ctx", &mut out).unwrap();
+        let report = out.report.join("\n");
+        let alpha: Vec<f64> = spec
+            .thermal
+            .iter()
+            .filter_map(|t| match &t.kind {
+                ThermalKind::Expansion {
+                    sensor,
+                    alpha_ppm_per_k,
+                    ..
+                } if sensor == "xscrew" && t.target.iso_name() == "EXX" => Some(*alpha_ppm_per_k),
+                _ => None,
+            })
+            .collect();
+        assert!(
+            alpha.len() == 1 && (alpha[0] - 11.5).abs() < 0.2,
+            "{alpha:?}\n{report}"
+        );
+        let growth = spec.thermal.iter().find_map(|t| match &t.kind {
+            ThermalKind::PolynomialDt {
+                sensors, b_per_k, ..
+            } if t.target.iso_name() == "EZZ" => sensors
+                .iter()
+                .position(|s| s == "spindle")
+                .map(|k| b_per_k[k]),
+            _ => None,
+        });
+        assert!(
+            growth.is_some_and(|b| (b + 6.0).abs() < 0.05),
+            "{growth:?}\n{report}"
+        );
+        for (target, want) in [("EXX", 0.004), ("EYY", 0.003), ("EZZ", -0.002)] {
+            let c = spec.load.iter().find_map(|l| match &l.kind {
+                LoadKind::Compliance {
+                    force,
+                    compliance: ErrorFunction::Polynomial { coefficients, .. },
+                } if force == "cut" && l.target.iso_name() == target => Some(coefficients[0]),
+                _ => None,
+            });
+            assert!(
+                c.is_some_and(|c| (c - want).abs() < 2e-4),
+                "{target}: {c:?}\n{report}"
+            );
+        }
+        // End to end through the written model: at x = 100 mm, the screw 2 K over its reference,
+        // no force, the spindle at its reference: ex = 11.5e-3 µm/(mm·K) · 100 mm · 2 K = +2.3 µm.
+        let (_, model) = to_checked_toml(spec).unwrap();
+        let mut input = model.new_input();
+        input.pos_mm = [100.0, 0.0, 0.0];
+        for (k, s) in model.temperature_sensors().iter().enumerate() {
+            input.temps_c[k] = if s == "xscrew" { 22.0 } else { 20.0 };
+        }
+        let (mut st, mut bd) = (model.new_state(), model.new_breakdown());
+        model.evaluate(&input, &mut st, &mut bd);
+        assert!(
+            (bd.total_um[0] - 2.3).abs() < 0.1,
+            "{:?}\n{report}",
+            bd.total_um
+        );
+    }
+
+    #[test]
+    fn y_and_z_tables_are_zeroed_at_the_reference_and_directions_latch() {
+        let mut r: Vec<Reading> = [(0.0, 3.0), (0.0, 5.0), (10.0, 9.0)]
+            .iter()
+            .map(|&(t, v)| Reading {
+                target_mm: t,
+                run: 1,
+                direction: crate::analysis::table::Direction::Forward,
+                deviation_um: v,
+            })
+            .collect();
+        zero_at_reference(&mut r, 0.0).unwrap();
+        let v: Vec<f64> = r.iter().map(|x| x.deviation_um).collect();
+        assert_eq!(v, [-1.0, 1.0, 5.0]);
+        assert!(zero_at_reference(&mut r, 7.0).is_err());
+        let x = [0.0, 1.0, 1.0, 0.5];
+        let still = [2.0; 4];
+        let d = latched_directions(&[&x, &still, &still]);
+        assert_eq!(d, [[0, 0, 0], [1, 0, 0], [1, 0, 0], [-1, 0, 0]]);
+    }
+}
