@@ -36,6 +36,8 @@ pub enum FaultKind {
     RateOfChange,
     Stuck,
     Decode,
+    /// A sink lost its controller (transport down, no reply): reported by the sink, not a channel.
+    Disconnected,
 }
 
 /// Health of one channel now.

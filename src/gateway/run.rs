@@ -17,6 +17,7 @@ use tokio::time::MissedTickBehavior;
 
 use super::config::{FieldConfig, OriginShiftSink};
 use super::engine::{Engine, ErrorModel};
+use super::health::{FaultKind, FaultLog};
 use super::http::serve_status;
 use super::status::{SinkStatus, StatusSnapshot};
 use crate::bus::Sample;
@@ -84,9 +85,12 @@ pub async fn run(
             client,
             caps,
             initial.clone(),
-            out_rx,
-            reseed_tx,
-            sink_status_tx,
+            SinkChannels {
+                out_rx,
+                reseed_tx,
+                status: sink_status_tx,
+            },
+            epoch,
         )))
     } else {
         cfg.sink.quadrature.clone().map(|q| {
@@ -168,6 +172,13 @@ async fn read_initial(client: &mut OriginShiftClient) -> BTreeMap<String, f64> {
     }
 }
 
+/// The origin-shift sink's channels to the cycle: outputs in, reseeds back, status out.
+struct SinkChannels {
+    out_rx: watch::Receiver<Outputs>,
+    reseed_tx: mpsc::Sender<(String, f64)>,
+    status: watch::Sender<SinkStatus>,
+}
+
 /// Writes the engine's outputs every `write_period_ms`. The controller applies each write as a step,
 /// so the dosing cap is enforced per WRITE here too (the engine doses per cycle and may run ahead).
 async fn origin_shift_task(
@@ -175,10 +186,14 @@ async fn origin_shift_task(
     mut client: OriginShiftClient,
     caps_um: BTreeMap<String, f64>,
     initial: BTreeMap<String, f64>,
-    out_rx: watch::Receiver<Outputs>,
-    reseed_tx: mpsc::Sender<(String, f64)>,
-    status: watch::Sender<SinkStatus>,
+    channels: SinkChannels,
+    epoch: std::time::Instant,
 ) {
+    let SinkChannels {
+        out_rx,
+        reseed_tx,
+        status,
+    } = channels;
     let mut tick = tokio::time::interval(Duration::from_millis(os.write_period_ms));
     tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
     let mut st = SinkStatus {
@@ -187,6 +202,8 @@ async fn origin_shift_task(
     };
     let mut last_written: BTreeMap<String, f64> = initial;
     let mut was_connected = client.is_connected();
+    // The controller link as a fault: logged once when it is lost and once when it is back.
+    let mut link = LinkFault::default();
     loop {
         tick.tick().await;
         let mut outs = out_rx.borrow().clone();
@@ -214,6 +231,7 @@ async fn origin_shift_task(
                 // Let the engine apply the reseed before writing again.
                 was_connected = true;
                 st.connected = true;
+                link.update(true, epoch.elapsed().as_secs_f64());
                 let _ = status.send(st.clone());
                 continue;
             }
@@ -245,7 +263,34 @@ async fn origin_shift_task(
         }
         st.connected = client.is_connected();
         was_connected = st.connected;
+        link.update(st.connected, epoch.elapsed().as_secs_f64());
         let _ = status.send(st.clone());
+    }
+}
+
+/// The origin-shift sink's link to the controller, as a fault in a [`FaultLog`] (source
+/// `sink.origin_shift`, kind `Disconnected`): one log line when it is lost, one when it is back, however
+/// many writes fail in between. Sans-IO: the caller passes the link state after each attempt.
+#[derive(Default)]
+pub struct LinkFault {
+    log: FaultLog,
+}
+
+impl LinkFault {
+    pub const SOURCE: &'static str = "sink.origin_shift";
+
+    /// Returns true when this call started or cleared the fault.
+    pub fn update(&mut self, connected: bool, now_s: f64) -> bool {
+        let faults: &[FaultKind] = if connected {
+            &[]
+        } else {
+            &[FaultKind::Disconnected]
+        };
+        !self.log.update(Self::SOURCE, faults, now_s).is_empty()
+    }
+
+    pub fn is_down(&self) -> bool {
+        self.log.active().next().is_some()
     }
 }
 
@@ -257,4 +302,23 @@ pub fn require_sink(cfg: &FieldConfig) -> anyhow::Result<()> {
         );
     }
     super::quadrature_sink::check_buildable(cfg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn link_loss_is_one_fault_however_many_writes_fail() {
+        let mut link = LinkFault::default();
+        let mut edges = 0;
+        // Up for 10 writes, down for 50 (every write fails), up again.
+        for k in 0..100 {
+            if link.update(!(10..60).contains(&k), k as f64 * 0.01) {
+                edges += 1;
+            }
+            assert_eq!(link.is_down(), (10..60).contains(&k), "write {k}");
+        }
+        assert_eq!(edges, 2, "one start, one clear");
+    }
 }
