@@ -8,7 +8,7 @@ use std::path::Path;
 
 use retrocomp::bus::{Health, Sample};
 use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::{Engine, ErrorModel, MachineState, Mode, TermError};
+use retrocomp::gateway::{AxisErrors, Engine, ErrorModel, MachineState, Mode};
 
 /// x error: thermal growth 2 µm/K above 20 °C on T_spindle_C, plus a ±3 µm reversal (backlash).
 struct TestModel;
@@ -17,27 +17,12 @@ impl ErrorModel for TestModel {
     fn required_channels(&self) -> Vec<String> {
         vec!["T_spindle_C".into()]
     }
-    fn axis_errors(
-        &mut self,
-        s: &MachineState,
-        out: &mut Vec<(String, Vec<TermError>)>,
-    ) -> Result<(), String> {
+    fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
         let t = s.channels["T_spindle_C"];
         let thermal = 2.0 * (t - 20.0);
-        out.push((
-            "x".into(),
-            vec![
-                TermError {
-                    term: "thermal".into(),
-                    error_um: thermal,
-                },
-                TermError {
-                    term: "backlash".into(),
-                    // F/R blended with the latch weight: +3 forward, −3 reverse.
-                    error_um: s.weight_forward["x"] * 6.0 - 3.0,
-                },
-            ],
-        ));
+        out.push("x", "thermal".into(), thermal);
+        // F/R blended with the latch weight: +3 forward, −3 reverse.
+        out.push("x", "backlash".into(), s.weight_forward["x"] * 6.0 - 3.0);
         Ok(())
     }
 }
