@@ -191,3 +191,43 @@ fn temperatures_are_latched_at_the_thermal_period() {
         "2.5 s at a 1 s period → 3 latched values: {distinct:?}"
     );
 }
+
+#[test]
+fn a_bad_reading_replaced_before_the_cycle_is_logged_once_and_never_used() {
+    let cfg = FieldConfig::parse(CFG, Path::new("t.toml")).unwrap();
+    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let mut m = TestModel;
+    let mut t = 0.0;
+    let mut feed = |e: &mut Engine, t: f64, temp: f64| {
+        e.ingest(&s("x_mm", t, 100.0));
+        e.ingest(&s("T_bed_C", t, 30.0));
+        e.ingest(&s("T_spindle_C", t, temp));
+    };
+    for _ in 0..200 {
+        t += 0.01;
+        feed(&mut e, t, 30.0);
+        e.cycle(t, &mut m);
+    }
+    let settled = e.cycle(t, &mut m)[0].1;
+    // Within one 10 ms cycle: a NaN, then a good reading, before the engine looks.
+    t += 0.01;
+    e.ingest(&s("T_spindle_C", t - 0.005, f64::NAN));
+    feed(&mut e, t, 30.0);
+    let out = e.cycle(t, &mut m)[0].1;
+    let faults = e.snapshot().active_faults;
+    assert!(
+        faults
+            .iter()
+            .any(|(src, k, _)| src == "T_spindle_C" && format!("{k:?}") == "NotFinite"),
+        "the replaced NaN is logged: {faults:?}"
+    );
+    assert!((out - settled).abs() < 1e-9, "the NaN was never used");
+    t += 0.01;
+    feed(&mut e, t, 30.0);
+    e.cycle(t, &mut m);
+    assert!(
+        e.snapshot().active_faults.is_empty(),
+        "cleared the next cycle: {:?}",
+        e.snapshot().active_faults
+    );
+}

@@ -304,10 +304,26 @@ impl Engine {
         // 1. Health of every channel, with fault transitions logged once (in name order).
         for &id in self.ids.values() {
             let c = &mut self.channels[id];
-            c.status = c.monitor.as_ref().map(|m| m.status(now_s));
-            if let Some(st) = &c.status {
+            let Some(m) = c.monitor.as_mut() else {
+                c.status = None;
+                continue;
+            };
+            let st = m.status(now_s);
+            let mut gone = m
+                .take_rejected()
+                .filter(|k| !st.faults.contains(k))
+                .peekable();
+            if gone.peek().is_some() {
+                // Rejected readings that a good one replaced before this cycle: never used, but
+                // logged — started now, cleared next cycle.
+                let mut seen = st.faults.clone();
+                seen.extend(gone);
+                seen.sort();
+                self.faults.update(&c.name, &seen, now_s);
+            } else {
                 self.faults.update(&c.name, &st.faults, now_s);
             }
+            c.status = Some(st);
         }
         // 2. Substitute failed channels from their neighbours (Ni's recovery).
         for r in &mut self.recoveries {
