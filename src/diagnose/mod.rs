@@ -12,6 +12,7 @@ pub mod effects;
 pub mod features;
 pub mod locate;
 pub mod lsq;
+pub mod model_out;
 pub mod model_sim;
 pub mod output;
 pub mod plots;
