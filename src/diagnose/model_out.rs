@@ -76,7 +76,29 @@ pub fn model_with_findings(
         Some(m) => m.spec().clone(),
         None => default_spec(rec)?,
     };
-    let base_line = match base {
+    // A one-axis recording on the default chain: its placeholder axis is evaluated at 0 mm.
+    let padded;
+    let mut placeholder = None;
+    let rec = match spec
+        .axes
+        .iter()
+        .find(|a| rec.col(&format!("{}_mm", a.axis.lower())).is_none())
+    {
+        Some(a) if base.is_none() => {
+            let name = format!("{}_mm", a.axis.lower());
+            let mut cols: Vec<(String, Vec<f64>)> = rec
+                .names()
+                .iter()
+                .map(|n| (n.clone(), rec.col(n).expect("listed").to_vec()))
+                .collect();
+            cols.push((name.clone(), vec![0.0; rec.n_rows()]));
+            padded = Recording::from_columns(cols)?;
+            placeholder = Some(name);
+            &padded
+        }
+        _ => rec,
+    };
+    let mut base_line = match base {
         Some(m) => format!(
             "the input model `{}` (--model) with the found terms added",
             m.name()
@@ -86,6 +108,9 @@ pub fn model_with_findings(
             spec.chain_string()
         ),
     };
+    if let Some(p) = &placeholder {
+        base_line.push_str(&format!(" (`{p}` is a placeholder axis: give it as 0)"));
+    }
     let ctx = &d.context;
     let mut added = vec![];
     let mut not_in_model = vec![];
@@ -159,6 +184,11 @@ pub fn model_with_findings(
     head.push_str("# Machine model written by `retrocomp diagnose --out`.\n");
     head.push_str(&format!("# Base: {base_line}.\n"));
     head.push_str("# Sign: error = actual - nominal (um); correction = -error.\n");
+    if let Some(p) = &placeholder {
+        head.push_str(&format!(
+            "# The recording has one axis; `{p}` is a placeholder (the model format needs 2-3 axes): give it as 0.\n"
+        ));
+    }
     if !added.is_empty() {
         head.push_str("# Added (each checked against the finding on the recording):\n");
         for a in &added {
