@@ -15,13 +15,12 @@ use anyhow::{Context as _, bail};
 use tokio::sync::{mpsc, watch};
 use tokio::time::MissedTickBehavior;
 
-use super::config::{FieldConfig, OriginShiftSink, QuadratureSink};
+use super::config::{FieldConfig, OriginShiftSink};
 use super::engine::{Engine, ErrorModel};
 use super::http::serve_status;
 use super::status::{SinkStatus, StatusSnapshot};
 use crate::bus::Sample;
 use crate::origin_shift::{OriginShiftClient, Outcome};
-use crate::quadrature::{CountQuantizer, EdgeScheduler, SchedulerConfig, simulate};
 
 /// What a run reports when it stops.
 #[derive(Clone, Debug, Default)]
@@ -90,10 +89,13 @@ pub async fn run(
             sink_status_tx,
         )))
     } else {
-        cfg.sink
-            .quadrature
-            .clone()
-            .map(|q| tokio::spawn(quadrature_task(q, out_rx, sink_status_tx)))
+        cfg.sink.quadrature.clone().map(|q| {
+            tokio::spawn(super::quadrature_sink::quadrature_task(
+                q,
+                out_rx,
+                sink_status_tx,
+            ))
+        })
     };
 
     let mut engine = Engine::new(&cfg, &initial)?;
@@ -247,51 +249,6 @@ async fn origin_shift_task(
     }
 }
 
-/// Simulated injector: counts and edges are scheduled exactly as for GPIO, without pins.
-async fn quadrature_task(
-    q: QuadratureSink,
-    out_rx: watch::Receiver<Outputs>,
-    status: watch::Sender<SinkStatus>,
-) {
-    let mut axes = Vec::new();
-    for a in &q.axes {
-        let (Ok(quant), Ok(sched)) = (
-            CountQuantizer::new(a.resolution_um, a.count_sign),
-            EdgeScheduler::new(SchedulerConfig {
-                min_edge_gap_ns: a.min_edge_gap_ns,
-                max_inject_rate_hz: a.max_inject_rate_hz,
-            }),
-        ) else {
-            let _ = status.send(SinkStatus {
-                kind: "quadrature".into(),
-                last_error: Some(format!("bad axis {}", a.axis)),
-                ..Default::default()
-            });
-            return;
-        };
-        axes.push((a.axis.clone(), quant, sched));
-    }
-    let mut st = SinkStatus {
-        kind: "quadrature (simulated)".into(),
-        connected: true,
-        ..Default::default()
-    };
-    let mut rx = out_rx;
-    while rx.changed().await.is_ok() {
-        let outs = rx.borrow().clone();
-        for (axis, quant, sched) in &mut axes {
-            if let Some((_, v)) = outs.iter().find(|(a, _)| a == axis)
-                && let Ok(d) = quant.delta_counts(*v)
-            {
-                sched.add_inject_counts(d);
-                let _ = simulate(sched, &[]);
-            }
-        }
-        st.writes_ok += 1;
-        let _ = status.send(st.clone());
-    }
-}
-
 /// Refuse to run a config that would correct nothing in a field deployment.
 pub fn require_sink(cfg: &FieldConfig) -> anyhow::Result<()> {
     if cfg.sink.origin_shift.is_none() && cfg.sink.quadrature.is_none() {
@@ -299,5 +256,5 @@ pub fn require_sink(cfg: &FieldConfig) -> anyhow::Result<()> {
             "no [sink.origin_shift] or [sink.quadrature] in the config: nothing would be corrected"
         );
     }
-    Ok(())
+    super::quadrature_sink::check_buildable(cfg)
 }
