@@ -14,11 +14,13 @@ pub mod locate;
 pub mod lsq;
 pub mod model_out;
 pub mod model_sim;
+mod model_slots;
 pub mod output;
 pub mod plots;
 pub mod report;
 pub mod scoring;
 pub mod select;
+pub mod swap;
 
 use serde_json::{Map, Value, json};
 
