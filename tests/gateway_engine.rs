@@ -198,7 +198,7 @@ fn a_bad_reading_replaced_before_the_cycle_is_logged_once_and_never_used() {
     let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
     let mut m = TestModel;
     let mut t = 0.0;
-    let mut feed = |e: &mut Engine, t: f64, temp: f64| {
+    let feed = |e: &mut Engine, t: f64, temp: f64| {
         e.ingest(&s("x_mm", t, 100.0));
         e.ingest(&s("T_bed_C", t, 30.0));
         e.ingest(&s("T_spindle_C", t, temp));
