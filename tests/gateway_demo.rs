@@ -5,32 +5,12 @@
 //! the model fitted from hil-sim's own measurement runs it must be present, finite and better than
 //! no compensation (its figure is printed, not promised: docs/demo.md states the measured one).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
-/// The hil-sim binary next to retrocomp's, (re)built with the same profile and target dir so it is
-/// never stale when only this crate's tests were built.
-fn hil_sim_next_to_retrocomp() -> PathBuf {
-    let exe = Path::new(env!("CARGO_BIN_EXE_retrocomp"));
-    let bin_dir = exe.parent().unwrap();
-    let target_dir = bin_dir.parent().unwrap();
-    let mut cmd = Command::new(env!("CARGO"));
-    cmd.args(["build", "-q", "-p", "hil-sim", "--bin", "hil-sim"])
-        .env("CARGO_TARGET_DIR", target_dir)
-        .current_dir(env!("CARGO_MANIFEST_DIR"));
-    // Same profile as this test's build, so the retrocomp library and every dependency are reused
-    // (a plain `cargo build` would rebuild them all at opt-level 0: minutes on a 2-core CI runner).
-    if bin_dir.file_name().is_some_and(|n| n == "release") {
-        cmd.arg("--release");
-    } else {
-        cmd.args(["--profile", "test"]);
-    }
-    let st = cmd.status().expect("running cargo to build hil-sim");
-    assert!(st.success(), "cargo build -p hil-sim failed: {st}");
-    let p = bin_dir.join("hil-sim");
-    assert!(p.is_file(), "{} missing after the build", p.display());
-    p
-}
+#[path = "gateway_support/hil_sim.rs"]
+mod hil_sim;
+use hil_sim::hil_sim_next_to_retrocomp;
 
 #[test]
 fn demo_json_full_model_cuts_volumetric_error_by_80_percent() {
