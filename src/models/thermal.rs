@@ -76,6 +76,111 @@ impl ThermalState {
     }
 }
 
+/// Per-sensor lag constants in the layout [`ThermalState::step_planned`] reads: the reference
+/// temperature, and τ with 1/τ (`None` = the sensor is used as read).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct LagPlan {
+    reference_c: Vec<f64>,
+    lag: Vec<Option<(f64, f64)>>,
+}
+
+impl LagPlan {
+    pub fn new(sensors: &[SensorSpec]) -> Self {
+        LagPlan {
+            reference_c: sensors.iter().map(|s| s.reference_c).collect(),
+            lag: sensors
+                .iter()
+                .map(|s| s.tau_s.map(|tau| (tau, 1.0 / tau)))
+                .collect(),
+        }
+    }
+}
+
+impl ThermalState {
+    /// [`step`](Self::step) for the evaluation plan: the same rules and results (to the rounding of
+    /// one multiplication by 1/τ instead of a division per sensor), from flat per-sensor constants.
+    pub(crate) fn step_planned(&mut self, p: &LagPlan, temps_c: &[f64], t_s: f64) -> StepIssues {
+        let n = p.reference_c.len();
+        let mut issues = StepIssues::default();
+        if self.lagged_c.len() != n {
+            *self = ThermalState::new(n);
+        }
+        let dt = match self.last_t_s {
+            Some(last) if t_s < last => {
+                issues.time_backwards = true;
+                None
+            }
+            Some(last) => Some(t_s - last),
+            None => None,
+        };
+        if !issues.time_backwards {
+            self.last_t_s = Some(t_s);
+        }
+        // The usual step: forward in time, every reading present and finite, every lag started.
+        if let Some(dt) = dt
+            && let Some(temps) = temps_c.get(..n)
+            && temps.iter().all(|t| t.is_finite())
+            && self.lagged_c.iter().all(Option::is_some)
+        {
+            let sensors = self.lagged_c.iter_mut().zip(&mut self.delta_c[..n]);
+            let constants = p.reference_c.iter().zip(&p.lag);
+            for ((((lagged, delta), cache), (&reference_c, lag)), &t) in sensors
+                .zip(&mut self.alpha_cache[..n])
+                .zip(constants)
+                .zip(temps)
+            {
+                let new = match (*lagged, lag) {
+                    (Some(prev), Some((tau, inv_tau))) => {
+                        prev + lag_alpha_inv(cache, dt, *tau, *inv_tau) * (t - prev)
+                    }
+                    _ => t,
+                };
+                *lagged = Some(new);
+                *delta = new - reference_c;
+            }
+            return issues;
+        }
+        let sensors = self.lagged_c.iter_mut().zip(&mut self.delta_c[..n]);
+        let constants = p.reference_c.iter().zip(&p.lag);
+        for (i, (((lagged, delta), cache), (&reference_c, lag))) in sensors
+            .zip(&mut self.alpha_cache[..n])
+            .zip(constants)
+            .enumerate()
+        {
+            let Some(t) = temps_c.get(i).copied().filter(|t| t.is_finite()) else {
+                issues.missing_temperature = true;
+                *delta = lagged.map_or(0.0, |l| l - reference_c);
+                continue;
+            };
+            let new = match (*lagged, lag, dt) {
+                (None, _, _) | (_, None, _) => t,
+                (Some(prev), Some((tau, inv_tau)), Some(dt)) => {
+                    prev + lag_alpha_inv(cache, dt, *tau, *inv_tau) * (t - prev)
+                }
+                (Some(prev), Some(_), None) => prev,
+            };
+            *lagged = Some(new);
+            *delta = new - reference_c;
+        }
+        issues
+    }
+}
+
+/// [`lag_alpha`] with x = (Δt − Δt₀) · (1/τ) instead of a division.
+#[inline]
+fn lag_alpha_inv(cache: &mut (f64, f64), dt: f64, tau: f64, inv_tau: f64) -> f64 {
+    let (dt0, alpha0) = *cache;
+    let d = dt - dt0;
+    if d.abs() <= 1e-6 * dt0 {
+        let x = d * inv_tau;
+        alpha0 + (1.0 - alpha0) * (x * (1.0 - x * (0.5 - x * (1.0 / 6.0))))
+    } else {
+        let alpha = 1.0 - (-dt / tau).exp();
+        *cache = (dt, alpha);
+        alpha
+    }
+}
+
 /// α = 1 − e^(−Δt/τ) for this step, from the sensor's cache (Δt₀, α₀) of the last `exp`.
 ///
 /// Sample times at a fixed rate differ by float rounding (t = k·1 ms at t ≈ 1000 s jitters Δt by
