@@ -500,9 +500,10 @@ impl Plan {
             let b = &g.rows[2 * m * hi..2 * m * (hi + 1)];
             let (af, ar) = a.split_at(m);
             let (bf, br) = b.split_at(m);
-            for (k, &tg) in g.members.iter().enumerate() {
-                let vf = af[k] + f * (bf[k] - af[k]);
-                let vr = ar[k] + f * (br[k] - ar[k]);
+            let nodes = af.iter().zip(ar).zip(bf).zip(br);
+            for (&tg, (((af, ar), bf), br)) in g.members.iter().zip(nodes) {
+                let vf = af + f * (bf - af);
+                let vr = ar + f * (br - ar);
                 apply(&mut acc, &basis, terms, tg, w_fwd * vf + (1.0 - w_fwd) * vr);
             }
         }
@@ -614,8 +615,16 @@ impl Plan {
         ];
 
         if exact {
-            let delta = [0, 6, 12].map(|j| [acc[j], acc[j + 1], acc[j + 2]]);
-            let eps = [3, 9, 15].map(|j| [acc[j], acc[j + 1], acc[j + 2]]);
+            let delta = [
+                [acc[0], acc[1], acc[2]],
+                [acc[6], acc[7], acc[8]],
+                [acc[12], acc[13], acc[14]],
+            ];
+            let eps = [
+                [acc[3], acc[4], acc[5]],
+                [acc[9], acc[10], acc[11]],
+                [acc[15], acc[16], acc[17]],
+            ];
             let r = exact_tip(&self.elems, &q, t, &delta, &eps);
             let r0 = nominal_tip(&self.elems, &q, t);
             let e = [
