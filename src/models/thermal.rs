@@ -136,7 +136,7 @@ impl ThermalState {
             && self.lagged_c.iter().fold(true, |ok, l| ok & l.is_some())
         {
             let mut d = dt - self.shared_dt0;
-            if !(d.abs() <= 1e-6 * self.shared_dt0) {
+            if d.is_nan() || d.abs() > 1e-6 * self.shared_dt0 {
                 for (a0, lag) in self.shared_alpha0.iter_mut().zip(&p.lag) {
                     *a0 = lag.map_or(1.0, |(tau, _)| 1.0 - (-dt / tau).exp());
                 }
