@@ -1,5 +1,7 @@
 //! `retrocomp diagnose` end to end: the DESIGN §5 JSON keys, `--out` files (SVG plots whose text
-//! renders, found-terms TOML), `--model` as the simulation, and a bad recording refused with its line.
+//! renders, found-terms TOML, and `model.toml`, which `check-config` accepts and `eval` evaluates to
+//! the found term — with and without `--model`), `--model` as the simulation, and a bad recording
+//! refused with its line.
 
 use std::process::Command;
 
@@ -175,4 +177,170 @@ fn bad_rows_are_refused_with_their_line_numbers() {
         e.contains("line 4, column `t_s`: time goes backwards"),
         "{e}"
     );
+}
+
+/// `retrocomp eval` of `model` along (x, dir_x) points (extra columns given as `extra`): ex_um.
+fn eval_ex(
+    model: &std::path::Path,
+    pts: &[(f64, i8)],
+    extra: &str,
+    dir: &std::path::Path,
+) -> Vec<f64> {
+    let path = dir.join("path.csv");
+    let mut text = format!(
+        "x_mm,dir_x{}\n",
+        if extra.is_empty() {
+            String::new()
+        } else {
+            format!(",{extra}")
+        }
+    );
+    for (x, d) in pts {
+        let zeros = extra
+            .split(',')
+            .filter(|c| !c.is_empty())
+            .map(|_| ",0")
+            .collect::<String>();
+        text.push_str(&format!("{x},{d}{zeros}\n"));
+    }
+    std::fs::write(&path, text).unwrap();
+    let o = bin()
+        .args(["eval", "--model"])
+        .arg(model)
+        .arg("--path")
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = String::from_utf8(o.stdout).unwrap();
+    let mut lines = out.lines();
+    let head: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let k = head.iter().position(|h| *h == "ex_um").unwrap();
+    lines
+        .map(|l| l.split(',').nth(k).unwrap().parse().unwrap())
+        .collect()
+}
+
+fn check_config(model: &std::path::Path) {
+    let o = bin().arg("check-config").arg(model).output().unwrap();
+    assert!(
+        o.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+#[test]
+fn out_model_toml_loads_and_evaluates_to_the_found_backlash() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = backlash_recording(tmp.path());
+    let out = tmp.path().join("out");
+    let o = bin()
+        .args(["diagnose", "--recording"])
+        .arg(&rec)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8(o.stdout).unwrap();
+    assert!(
+        text.contains("added: backlash on x (ex_um) → EXX table"),
+        "{text}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let b = report["findings"][0]["params"]["b_um"].as_f64().unwrap();
+    let model = out.join("model.toml");
+    let toml_text = std::fs::read_to_string(&model).unwrap();
+    assert!(
+        toml_text.contains("# Base: no --model given"),
+        "{toml_text}"
+    );
+    check_config(&model);
+    // The recording has only x: the default chain is "X F Y" (y a placeholder, given as 0).
+    let ex = eval_ex(
+        &model,
+        &[(0.0, 1), (90.0, 1), (90.0, -1), (180.0, -1)],
+        "y_mm",
+        tmp.path(),
+    );
+    for (v, want) in ex.iter().zip([b / 2.0, b / 2.0, -b / 2.0, -b / 2.0]) {
+        assert!((v - want).abs() < 1e-6, "{ex:?} vs b/2 = {}", b / 2.0);
+    }
+}
+
+#[test]
+fn with_model_the_out_model_is_the_input_model_plus_the_found_term() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Truth: EXX = 50 ppm scale (in the input model) + a 6 µm backlash (not in it). Step-and-dwell.
+    let n = 800;
+    let x: Vec<f64> = (0..n)
+        .map(|i| {
+            let k = (i / 8) % 20;
+            30.0 * if k < 10 { k as f64 } else { (20 - k) as f64 }
+        })
+        .collect();
+    let mut dir = 1.0;
+    let mut ex = vec![];
+    for i in 0..n {
+        if i > 0 && x[i] != x[i - 1] {
+            dir = (x[i] - x[i - 1]).signum();
+        }
+        let noise = 0.3 * ((i as f64 * 12.9898).sin() * 43758.5453).fract();
+        ex.push(0.05 * x[i] + 3.0 * dir + noise);
+    }
+    let rec = Recording::from_columns(vec![
+        ("t_s".into(), (0..n).map(|i| i as f64).collect()),
+        ("x_mm".into(), x),
+        ("z_mm".into(), vec![0.0; n]),
+        ("ex_um".into(), ex),
+    ])
+    .unwrap();
+    let rp = tmp.path().join("r.csv");
+    rec.write_csv(std::fs::File::create(&rp).unwrap()).unwrap();
+    let base = tmp.path().join("m.toml");
+    std::fs::write(
+        &base,
+        "schema = 1\n[machine]\nname = \"lathe\"\nchain = \"Z X\"\ntool_axis = \"+x\"\n\
+         [axes.z]\ntravel_mm = [0.0, 10.0]\n[axes.x]\ntravel_mm = [0.0, 300.0]\n\
+         [[tools]]\nname = \"t\"\noffset_mm = [0.0, 0.0, 0.0]\n\
+         [[components]]\nname = \"EXX\"\npositions_mm = [0, 300]\nforward_mm = [0.0, 0.015]\n\
+         [[components]]\nname = \"EZZ\"\npositions_mm = [0, 10]\nforward_um = [0.0, 1.0]\n",
+    )
+    .unwrap();
+    let out = tmp.path().join("out");
+    let o = bin()
+        .args(["diagnose", "--json", "--recording"])
+        .arg(&rp)
+        .arg("--model")
+        .arg(&base)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(j["findings"][0]["effect"], "backlash", "{j}");
+    let b = j["findings"][0]["params"]["b_um"].as_f64().unwrap();
+    assert!((b - 6.0).abs() < 0.3, "{b}");
+    let model = out.join("model.toml");
+    let text = std::fs::read_to_string(&model).unwrap();
+    assert!(text.contains("# Base: the input model `lathe`"), "{text}");
+    check_config(&model);
+    let m = retrocomp::models::MachineModel::from_toml_str(&text, "model.toml").unwrap();
+    assert_eq!(
+        m.spec().chain_string(),
+        "F Z X",
+        "the input chain \"Z X\" (no F = frame first)"
+    );
+    assert!(m.term_names().iter().any(|t| t == "EZZ"), "base terms kept");
+    // EXX now = 50 ppm·x ± b/2 by approach direction, on the base's own table span.
+    let pts = [(0.0, 1), (150.0, 1), (150.0, -1), (300.0, -1)];
+    let ex = eval_ex(&model, &pts, "z_mm", tmp.path());
+    for ((x, d), v) in pts.iter().zip(&ex) {
+        let want = 0.05 * x + f64::from(*d) * b / 2.0;
+        assert!((v - want).abs() < 1e-6, "x {x} dir {d}: {v} vs {want}");
+    }
 }

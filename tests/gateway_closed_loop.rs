@@ -12,7 +12,7 @@ use std::time::Duration;
 use retrocomp::bus::{Health, Sample};
 use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::run::run;
-use retrocomp::gateway::{ErrorModel, MachineState, TermError};
+use retrocomp::gateway::{AxisErrors, ErrorModel, MachineState};
 use retrocomp::origin_shift::RegisterMap;
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, oneshot};
@@ -26,19 +26,9 @@ impl ErrorModel for ThermalModel {
     fn required_channels(&self) -> Vec<String> {
         vec!["T_spindle_C".into()]
     }
-    fn axis_errors(
-        &mut self,
-        s: &MachineState,
-        out: &mut Vec<(String, Vec<TermError>)>,
-    ) -> Result<(), String> {
+    fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
         let e = 2.0 * (s.channels["T_spindle_C"] - 20.0);
-        out.push((
-            "x".into(),
-            vec![TermError {
-                term: "thermal".into(),
-                error_um: e,
-            }],
-        ));
+        out.push("x", "thermal".into(), e);
         Ok(())
     }
 }

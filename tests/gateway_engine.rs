@@ -8,7 +8,7 @@ use std::path::Path;
 
 use retrocomp::bus::{Health, Sample};
 use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::{Engine, ErrorModel, MachineState, Mode, TermError};
+use retrocomp::gateway::{AxisErrors, Engine, ErrorModel, MachineState, Mode};
 
 /// x error: thermal growth 2 µm/K above 20 °C on T_spindle_C, plus a ±3 µm reversal (backlash).
 struct TestModel;
@@ -17,27 +17,12 @@ impl ErrorModel for TestModel {
     fn required_channels(&self) -> Vec<String> {
         vec!["T_spindle_C".into()]
     }
-    fn axis_errors(
-        &mut self,
-        s: &MachineState,
-        out: &mut Vec<(String, Vec<TermError>)>,
-    ) -> Result<(), String> {
+    fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
         let t = s.channels["T_spindle_C"];
         let thermal = 2.0 * (t - 20.0);
-        out.push((
-            "x".into(),
-            vec![
-                TermError {
-                    term: "thermal".into(),
-                    error_um: thermal,
-                },
-                TermError {
-                    term: "backlash".into(),
-                    // F/R blended with the latch weight: +3 forward, −3 reverse.
-                    error_um: s.weight_forward["x"] * 6.0 - 3.0,
-                },
-            ],
-        ));
+        out.push("x", "thermal".into(), thermal);
+        // F/R blended with the latch weight: +3 forward, −3 reverse.
+        out.push("x", "backlash".into(), s.weight_forward["x"] * 6.0 - 3.0);
         Ok(())
     }
 }
@@ -204,5 +189,45 @@ fn temperatures_are_latched_at_the_thermal_period() {
         distinct.len(),
         3,
         "2.5 s at a 1 s period → 3 latched values: {distinct:?}"
+    );
+}
+
+#[test]
+fn a_bad_reading_replaced_before_the_cycle_is_logged_once_and_never_used() {
+    let cfg = FieldConfig::parse(CFG, Path::new("t.toml")).unwrap();
+    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let mut m = TestModel;
+    let mut t = 0.0;
+    let feed = |e: &mut Engine, t: f64, temp: f64| {
+        e.ingest(&s("x_mm", t, 100.0));
+        e.ingest(&s("T_bed_C", t, 30.0));
+        e.ingest(&s("T_spindle_C", t, temp));
+    };
+    for _ in 0..200 {
+        t += 0.01;
+        feed(&mut e, t, 30.0);
+        e.cycle(t, &mut m);
+    }
+    let settled = e.cycle(t, &mut m)[0].1;
+    // Within one 10 ms cycle: a NaN, then a good reading, before the engine looks.
+    t += 0.01;
+    e.ingest(&s("T_spindle_C", t - 0.005, f64::NAN));
+    feed(&mut e, t, 30.0);
+    let out = e.cycle(t, &mut m)[0].1;
+    let faults = e.snapshot().active_faults;
+    assert!(
+        faults
+            .iter()
+            .any(|(src, k, _)| src == "T_spindle_C" && format!("{k:?}") == "NotFinite"),
+        "the replaced NaN is logged: {faults:?}"
+    );
+    assert!((out - settled).abs() < 1e-9, "the NaN was never used");
+    t += 0.01;
+    feed(&mut e, t, 30.0);
+    e.cycle(t, &mut m);
+    assert!(
+        e.snapshot().active_faults.is_empty(),
+        "cleared the next cycle: {:?}",
+        e.snapshot().active_faults
     );
 }

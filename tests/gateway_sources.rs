@@ -313,18 +313,14 @@ fn every_shipped_field_config_loads_with_its_model_and_sources_what_the_model_ne
                 path.display()
             );
         }
-        // mill-quadrature reads its axis positions from the encoder lines it sits in; src/bus has
-        // no source for that yet, so only configs with sources must deliver their positions.
-        if !sourced.is_empty() {
-            for a in &cfg.axes {
-                assert!(
-                    sourced.contains(&a.position_channel),
-                    "{}: axis {} position {} is not delivered by any source",
-                    path.display(),
-                    a.name,
-                    a.position_channel
-                );
-            }
+        for a in &cfg.axes {
+            assert!(
+                sourced.contains(&a.position_channel),
+                "{}: axis {} position {} is not delivered by any source",
+                path.display(),
+                a.name,
+                a.position_channel
+            );
         }
         checked += 1;
     }

@@ -425,6 +425,7 @@ impl SimConfig {
         if let Some(c) = &self.hidden.cutting {
             c.validate(self.hidden.thermal.as_ref())?;
         }
+        crate::io::transport_faults::validate(&self.io.faults)?;
         for (i, f) in self.faults.iter().enumerate() {
             ensure!(f.to_s >= f.from_s, "faults[{i}]: to_s must be >= from_s");
             ensure!(

@@ -16,7 +16,8 @@ pub struct DiagnoseArgs {
     /// Machine model TOML to evaluate as the simulation (instead of the `sim_e*_um` columns).
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Directory for report.json, found_terms.toml and SVG plots.
+    /// Directory for report.json, model.toml (the machine model with the found terms added),
+    /// found_terms.toml and SVG plots.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Print the DESIGN §5 JSON object instead of the text report.
@@ -41,15 +42,19 @@ pub fn read_recording(path: &Path, lenient: bool) -> anyhow::Result<Recording> {
 
 pub fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
     let rec = read_recording(&a.recording, a.skip_bad_rows)?;
-    let d = match &a.model {
-        Some(m) => {
-            let model = crate::models::MachineModel::from_toml_path(m)
-                .map_err(|e| anyhow::anyhow!("{e}"))?;
-            let sims = diagnose::model_sim::simulate(&model, &rec)
+    let base = match &a.model {
+        Some(m) => Some(
+            crate::models::MachineModel::from_toml_path(m).map_err(|e| anyhow::anyhow!("{e}"))?,
+        ),
+        None => None,
+    };
+    let d = match (&base, &a.model) {
+        (Some(model), Some(m)) => {
+            let sims = diagnose::model_sim::simulate(model, &rec)
                 .with_context(|| m.display().to_string())?;
             diagnose::diagnose_with_sim(&rec, &sims, &Options::default())
         }
-        None => diagnose::diagnose(&rec, &Options::default()),
+        _ => diagnose::diagnose(&rec, &Options::default()),
     }
     .with_context(|| a.recording.display().to_string())?;
     if a.json {
@@ -58,9 +63,20 @@ pub fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
         print!("{}", d.report.to_text());
     }
     if let Some(dir) = &a.out {
-        let files = output::write_outputs(&d, dir)?;
-        if !a.json {
-            println!("\nwrote {} files to {}", files.len(), dir.display());
+        let (files, m) = output::write_outputs(&d, &rec, base.as_ref(), dir)?;
+        // Nothing the model cannot hold is dropped silently: with --json it goes to stderr.
+        let mut text = format!("\nmachine model {}: {}\n", files[1].display(), m.base);
+        for l in &m.added {
+            text.push_str(&format!("  added: {l}\n"));
+        }
+        for l in &m.not_in_model {
+            text.push_str(&format!("  NOT in the model: {l}\n"));
+        }
+        if a.json {
+            eprint!("{text}");
+        } else {
+            print!("{text}");
+            println!("wrote {} files to {}", files.len(), dir.display());
         }
     }
     Ok(())

@@ -147,6 +147,31 @@ impl EffectModel {
         }
     }
 
+    /// Value (µm) of an effect that is a function of ONE axis position and the approach direction
+    /// only (`dir` ±1): scale, backlash, reversal profile and cyclic error (argument: own position),
+    /// straightness (argument: the `along_axis` position). `None` for every other effect. This is
+    /// what lets the effect become a bidirectional table of an ISO 230-1 component.
+    pub fn at_position(&self, pos_mm: f64, dir: f64) -> Option<f64> {
+        Some(match self {
+            Self::ScaleError { ppm } => ppm * 1e-3 * pos_mm,
+            Self::Backlash { b_um } => b_um / 2.0 * dir,
+            Self::ReversalProfile { edges_mm, b_um } => {
+                zone_of(edges_mm, pos_mm).map_or(0.0, |k| b_um[k] / 2.0 * dir)
+            }
+            Self::CyclicError {
+                period_mm,
+                amplitude_um,
+                phase_rad,
+            } => amplitude_um * (std::f64::consts::TAU * pos_mm / period_mm + phase_rad).sin(),
+            Self::Straightness {
+                mid_mm,
+                c2_um_per_mm2,
+                ..
+            } => c2_um_per_mm2 * (pos_mm - mid_mm).powi(2),
+            _ => return None,
+        })
+    }
+
     /// Contribution to the error signal of axis `a` (µm) at every sample.
     pub fn evaluate(&self, a: char, ctx: &Context) -> Result<Vec<f64>, MissingInput> {
         let id = self.id();
@@ -154,43 +179,27 @@ impl EffectModel {
         let own = || ctx.axis(a).ok_or_else(|| miss(format!("`{a}_mm`")));
         let temp = |s: &str| ctx.temp(s).ok_or_else(|| miss(format!("`{s}`")));
         Ok(match self {
-            Self::ScaleError { ppm } => own()?.pos_mm.iter().map(|x| ppm * 1e-3 * x).collect(),
-            Self::Backlash { b_um } => own()?.dir.iter().map(|d| b_um / 2.0 * d).collect(),
-            Self::ReversalProfile { edges_mm, b_um } => {
-                let f = own()?;
+            Self::ScaleError { .. }
+            | Self::Backlash { .. }
+            | Self::ReversalProfile { .. }
+            | Self::CyclicError { .. }
+            | Self::Straightness { .. } => {
+                let arg = match self {
+                    Self::Straightness { along_axis, .. } => *along_axis,
+                    _ => a,
+                };
+                let f = ctx.axis(arg).ok_or_else(|| miss(format!("`{arg}_mm`")))?;
                 f.pos_mm
                     .iter()
                     .zip(&f.dir)
-                    .map(|(x, d)| zone_of(edges_mm, *x).map_or(0.0, |k| b_um[k] / 2.0 * d))
+                    .map(|(x, d)| self.at_position(*x, *d).expect("positional effect"))
                     .collect()
             }
-            Self::CyclicError {
-                period_mm,
-                amplitude_um,
-                phase_rad,
-            } => own()?
-                .pos_mm
-                .iter()
-                .map(|x| amplitude_um * (std::f64::consts::TAU * x / period_mm + phase_rad).sin())
-                .collect(),
             Self::Squareness { other_axis, urad } => {
                 let o = ctx
                     .axis(*other_axis)
                     .ok_or_else(|| miss(format!("`{other_axis}_mm`")))?;
                 o.pos_mm.iter().map(|y| urad * 1e-3 * y).collect()
-            }
-            Self::Straightness {
-                along_axis,
-                mid_mm,
-                c2_um_per_mm2,
-            } => {
-                let o = ctx
-                    .axis(*along_axis)
-                    .ok_or_else(|| miss(format!("`{along_axis}_mm`")))?;
-                o.pos_mm
-                    .iter()
-                    .map(|y| c2_um_per_mm2 * (y - mid_mm).powi(2))
-                    .collect()
             }
             Self::Abbe { urad_per_mm } => {
                 let tool = ctx

@@ -132,6 +132,63 @@ impl Context {
     }
 }
 
+/// Most position cells [`Context::position_cells`] makes.
+pub const MAX_POSITION_CELLS: usize = 32;
+
+impl Context {
+    /// Cells of the axis' position, pooled over direction: one per distinct target when the axis
+    /// was read at ≤ [`MAX_POSITION_CELLS`] targets each seen at least twice on average (stepped
+    /// laser runs), else [`MAX_POSITION_CELLS`] equal-width bins over its travel. Returns the cell
+    /// per sample and the cell count; `None` without the axis.
+    pub fn position_cells(&self, axis: char) -> Option<(Vec<usize>, usize)> {
+        let f = self.axis(axis)?;
+        let n = f.pos_mm.len();
+        let distinct = f.distinct_mm.len();
+        if distinct <= MAX_POSITION_CELLS && 2 * distinct <= n {
+            return Some((
+                f.distinct_idx.iter().map(|&k| k as usize).collect(),
+                distinct,
+            ));
+        }
+        let lo = f.distinct_mm[0];
+        let hi = *f.distinct_mm.last().expect("n ≥ 1");
+        if hi - lo <= 1e-9 {
+            return Some((vec![0; n], 1));
+        }
+        let k = MAX_POSITION_CELLS;
+        let cell = |x: f64| (((x - lo) / (hi - lo) * k as f64) as usize).min(k - 1);
+        Some((f.pos_mm.iter().map(|&x| cell(x)).collect(), k))
+    }
+
+    /// Validation folds for the signal of `axis`. As [`Context::blocks`], except when there are
+    /// fewer than three runs and some contiguous time block holds only one approach direction of
+    /// the axis although the recording has both (a forward then a reverse laser run): then a
+    /// direction-dependent term could only ever be validated on the direction it was not fitted
+    /// on. The folds are then interleaved position cells (cell c → fold c mod k), so every fold
+    /// holds both directions at its positions and every position zone keeps data in training.
+    pub fn blocks_for(&self, axis: char, k: usize) -> (Vec<usize>, usize) {
+        let (block, nb) = self.blocks(k);
+        let runs = self.run.as_ref().map_or(1, |r| {
+            let mut ids = r.clone();
+            ids.sort_unstable();
+            ids.dedup();
+            ids.len()
+        });
+        let (Some(f), Some((cell, n_cells))) = (self.axis(axis), self.position_cells(axis)) else {
+            return (block, nb);
+        };
+        if runs >= 3 || n_cells < 2 * k {
+            return (block, nb);
+        }
+        let has = |b: usize, d: f64| (0..f.dir.len()).any(|i| block[i] == b && f.dir[i] == d);
+        let both = f.dir.contains(&1.0) && f.dir.contains(&-1.0);
+        if !both || (0..nb).all(|b| has(b, 1.0) && has(b, -1.0)) {
+            return (block, nb);
+        }
+        (cell.iter().map(|c| c % k).collect(), k)
+    }
+}
+
 /// Axis features; the direction latch restarts at every change of `run` (a new run is a new
 /// approach: its first samples take the direction of its own first move, like the first samples of
 /// the recording), so a reverse laser run that starts where the forward run ended is read as reverse.
@@ -241,6 +298,53 @@ mod tests {
         assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0]);
         assert_eq!(&f.dist_since_rev_mm[4..], &[0.5, 0.5, 1.0]);
         assert_eq!(f.vel_mm_s[3], 1.0);
+    }
+
+    #[test]
+    fn a_forward_then_reverse_run_is_validated_on_folds_holding_both_directions() {
+        // One reading per target, 0..170 mm forward (run 0) then back (run 1), as Table 6.2.
+        let x: Vec<f64> = (0..18)
+            .chain((0..18).rev())
+            .map(|k| 10.0 * k as f64)
+            .collect();
+        let n = x.len();
+        let rec = crate::recording::Recording::from_columns(vec![
+            ("t_s".into(), (0..n).map(|i| 10.0 * i as f64).collect()),
+            ("x_mm".into(), x),
+            ("ex_um".into(), vec![0.0; n]),
+            (
+                "run".into(),
+                (0..n).map(|i| f64::from(u8::from(i >= 18))).collect(),
+            ),
+        ])
+        .unwrap();
+        let ctx = Context::from_recording(&rec);
+        let dir = &ctx.axis('x').unwrap().dir;
+        // Contiguous time blocks would put each direction in different folds.
+        let (time_blocks, _) = ctx.blocks(5);
+        assert!(
+            (0..n)
+                .filter(|&i| time_blocks[i] == 0)
+                .all(|i| dir[i] == 1.0)
+        );
+        let (cells, k) = ctx.position_cells('x').unwrap();
+        assert_eq!(k, 18, "one cell per target");
+        assert_eq!(cells[0], cells[n - 1]);
+        let (fold, nf) = ctx.blocks_for('x', 5);
+        assert_eq!(nf, 5);
+        for b in 0..nf {
+            let d: Vec<f64> = (0..n).filter(|&i| fold[i] == b).map(|i| dir[i]).collect();
+            assert!(d.contains(&1.0) && d.contains(&-1.0), "fold {b}: {d:?}");
+        }
+        // With ≥ 3 runs the runs stay the folds.
+        let rec3 = crate::recording::Recording::from_columns(vec![
+            ("t_s".into(), (0..n).map(|i| i as f64).collect()),
+            ("x_mm".into(), rec.col("x_mm").unwrap().to_vec()),
+            ("ex_um".into(), vec![0.0; n]),
+            ("run".into(), (0..n).map(|i| (i / 12) as f64).collect()),
+        ])
+        .unwrap();
+        assert_eq!(Context::from_recording(&rec3).blocks_for('x', 5).1, 3);
     }
 
     #[test]

@@ -12,12 +12,15 @@ pub mod effects;
 pub mod features;
 pub mod locate;
 pub mod lsq;
+pub mod model_out;
 pub mod model_sim;
+mod model_slots;
 pub mod output;
 pub mod plots;
 pub mod report;
 pub mod scoring;
 pub mod select;
+pub mod swap;
 
 use serde_json::{Map, Value, json};
 
@@ -262,15 +265,41 @@ fn joint_refit(ctx: &Context, r: &[f64], terms: &[Term]) -> Refit {
         spans.push(s..flat.len());
     }
     let fit = lsq::fit(&flat, r);
+    // Backlash and reversal profile are tested within own-axis position cells (select.rs); their intervals come
+    // from the same null: the joint fit with the cell means in place of the intercept. (With both
+    // directions read at every position its estimates equal the plain fit's.)
+    let cell_cols: Vec<Vec<f64>> = terms
+        .iter()
+        .find(|t| t.within_cells)
+        .and_then(|t| ctx.position_cells(t.cand.axis))
+        .map_or(vec![], |(cell, k)| {
+            (0..k)
+                .map(|c| cell.iter().map(|&i| f64::from(u8::from(i == c))).collect())
+                .collect()
+        });
+    let fit_cells = (!cell_cols.is_empty()).then(|| {
+        let mut fl: Vec<&[f64]> = cell_cols.iter().map(Vec::as_slice).collect();
+        fl.extend(flat[1..].iter().copied());
+        lsq::fit(&fl, r)
+    });
     let mut models = vec![];
     let mut cis = vec![];
     for (k, t) in terms.iter().enumerate() {
         let sp = spans[k].clone();
         let c: Vec<f64> = fit.coef[sp.clone()].to_vec();
-        let se: Vec<f64> = sp
-            .clone()
-            .map(|i| fit.cov[(i, i)].max(0.0).sqrt())
-            .collect();
+        let se: Vec<f64> = match &fit_cells {
+            Some(fc) if t.within_cells => sp
+                .clone()
+                .map(|i| {
+                    let j = i - 1 + cell_cols.len();
+                    fc.cov[(j, j)].max(0.0).sqrt()
+                })
+                .collect(),
+            _ => sp
+                .clone()
+                .map(|i| fit.cov[(i, i)].max(0.0).sqrt())
+                .collect(),
+        };
         models.push(t.cand.to_model(&c, thetas[k]));
         let mut ci = Map::new();
         let iv = |v: f64, s: f64| json!([v - 1.96 * s, v + 1.96 * s]);

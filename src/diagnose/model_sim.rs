@@ -11,6 +11,22 @@ use super::features::Context;
 /// Evaluate `model` (exact HTM form) at every row; returns `(signal, sim_um)` for each error signal
 /// of the recording. A channel the model needs but the recording lacks is an error naming it.
 pub fn simulate(model: &MachineModel, rec: &Recording) -> anyhow::Result<Vec<(String, Vec<f64>)>> {
+    let sim = simulate_axes(model, rec)?;
+    Ok(rec
+        .error_signals()
+        .into_iter()
+        .map(|s| {
+            let k = AXES
+                .iter()
+                .position(|&a| Some(a) == s.chars().nth(1))
+                .expect("e<axis>_um");
+            (s, sim[k].clone())
+        })
+        .collect())
+}
+
+/// The model's error along machine x, y, z (µm) at every row.
+pub fn simulate_axes(model: &MachineModel, rec: &Recording) -> anyhow::Result<[Vec<f64>; 3]> {
     let ctx = Context::from_recording(rec);
     let need = |name: String| -> anyhow::Result<&[f64]> {
         rec.col(&name).ok_or_else(|| {
@@ -71,15 +87,5 @@ pub fn simulate(model: &MachineModel, rec: &Recording) -> anyhow::Result<Vec<(St
             s[i] = v;
         }
     }
-    Ok(rec
-        .error_signals()
-        .into_iter()
-        .map(|s| {
-            let k = AXES
-                .iter()
-                .position(|&a| Some(a) == s.chars().nth(1))
-                .expect("e<axis>_um");
-            (s, sim[k].clone())
-        })
-        .collect())
+    Ok(sim)
 }

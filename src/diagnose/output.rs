@@ -1,12 +1,16 @@
-//! Files written by `diagnose --out DIR`: the DESIGN §5 report as JSON, the found terms as TOML
-//! (`found_terms.toml`: one `[[term]]` per finding, params in contract units, ready to be added to a
-//! machine model), and the SVG plots of [`super::plots`].
+//! Files written by `diagnose --out DIR`: the DESIGN §5 report as JSON (`report.json`), the machine
+//! model with the found terms added (`model.toml`, see [`super::model_out`]), the found terms as a
+//! plain list (`found_terms.toml`: one `[[term]]` per finding, params in contract units, for people
+//! and scripts; not a model file), and the SVG plots of [`super::plots`].
 
 use std::path::Path;
 
 use serde::Serialize;
 
 use super::Diagnosis;
+use super::model_out::{ModelOut, model_with_findings, write_model};
+use crate::models::MachineModel;
+use crate::recording::Recording;
 
 #[derive(Serialize)]
 struct TermToml<'a> {
@@ -43,16 +47,25 @@ pub fn terms_toml(d: &Diagnosis) -> String {
     .expect("terms serialise to TOML")
 }
 
-/// Write report.json, found_terms.toml and the plots into `dir` (created if missing).
-pub fn write_outputs(d: &Diagnosis, dir: &Path) -> anyhow::Result<Vec<std::path::PathBuf>> {
+/// Write report.json, model.toml, found_terms.toml and the plots into `dir` (created if
+/// missing). `base` is the `--model` input (None: the simulation came from `sim_e*_um` columns).
+/// Returns the files (report.json first, model.toml second) and what went into the model.
+pub fn write_outputs(
+    d: &Diagnosis,
+    rec: &Recording,
+    base: Option<&MachineModel>,
+    dir: &Path,
+) -> anyhow::Result<(Vec<std::path::PathBuf>, ModelOut)> {
     std::fs::create_dir_all(dir)?;
     let mut written = vec![];
     let p = dir.join("report.json");
     std::fs::write(&p, serde_json::to_string_pretty(&d.report)?)?;
     written.push(p);
+    let m = model_with_findings(d, rec, base)?;
+    written.push(write_model(&m, dir)?);
     let p = dir.join("found_terms.toml");
     std::fs::write(&p, terms_toml(d))?;
     written.push(p);
     written.extend(super::plots::write_plots(d, dir)?);
-    Ok(written)
+    Ok((written, m))
 }

@@ -5,13 +5,26 @@
 //! by ΔBIC is tested with an F-test whose p-value is multiplied by the number of (candidate, grid)
 //! pairs tried (Holm's first step), both on the effective sample size of the AR(1) residual; its
 //! nonlinear parameter is refined by golden-section on the profile RSS (linear gains solved inside:
-//! variable projection); it is kept only if block cross-validation (leave one run / time block out)
-//! improves. Candidates of another family that explain the same residual almost as well and almost
+//! variable projection); it is kept only if block cross-validation (leave one run / time block out,
+//! or interleaved position cells for a forward + a reverse run: [`Context::blocks_for`]) improves.
+//! Candidates of another family that explain the same residual almost as well and almost
 //! collinearly are recorded as ambiguous alternatives.
+//!
+//! Backlash and reversal profile (functions of position and the latched approach direction only)
+//! are screened and tested both as usual and WITHIN own-axis position cells — the cell means are
+//! a nuisance in its null model, as in the two-way (position × direction) layout of an ISO 230-2
+//! reversal value. Where both directions are read at a position, a direction-odd column is
+//! orthogonal to every function of position alone, so an unmodelled positioning error (a shape no
+//! candidate names) no longer counts as noise against a reversal. Where the directions are not
+//! balanced within cells (one-way passes) the cells also absorb part of a real reversal, so the
+//! better of the two nulls (by ΔBIC) is used and both count in the Holm correction (`tried`).
+//! Every other candidate keeps the plain test (a reversal spike is not a
+//! function of position and direction alone: the cell means near the reversal points would absorb
+//! part of it).
 
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
-use super::candidates::{Candidate, library};
+use super::candidates::{Candidate, Kind, library};
 use super::features::Context;
 use super::lsq::{self, dot};
 
@@ -67,6 +80,8 @@ pub struct Term {
     pub heldout_rms_before_um: f64,
     pub heldout_rms_after_um: f64,
     pub ambiguous_with: Vec<Alternative>,
+    /// Accepted by the test within own-axis position cells (its CI comes from the same null).
+    pub within_cells: bool,
 }
 
 #[derive(Clone, Debug)]
@@ -83,9 +98,39 @@ pub struct SignalSelection {
 struct Scored {
     idx: usize,
     theta: f64,
+    /// RSS drop against the candidate's null (within position cells for the reversal family).
     gain: f64,
     q: usize,
     delta_bic: f64,
+    /// Screened within own-axis position cells (else against the plain null).
+    cells: bool,
+}
+
+/// Whether candidate `c` is tested within own-axis position cells (see the module comment).
+pub fn within_cells(c: &Candidate) -> bool {
+    matches!(c.kind, Kind::Backlash | Kind::ReversalProfile { .. })
+}
+
+/// The null a candidate is screened against: orthonormal basis, residual on it, its RSS, and the
+/// number of nuisance columns beyond the fitted terms.
+struct Null {
+    basis: Vec<Vec<f64>>,
+    r0: Vec<f64>,
+    rss0: f64,
+    extra: usize,
+}
+
+impl Null {
+    fn new(basis: Vec<Vec<f64>>, r: &[f64], extra: usize) -> Null {
+        let r0 = lsq::deflate(&basis, r);
+        let rss0 = dot(&r0, &r0);
+        Null {
+            basis,
+            r0,
+            rss0,
+            extra,
+        }
+    }
 }
 
 /// Screen one candidate at one θ: RSS drop and parameter count (θ counts as one).
@@ -181,8 +226,16 @@ fn without_cell_means(ctx: &Context, axis: char, r: &[f64]) -> Vec<f64> {
 pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSelection {
     let n = r.len();
     let lib = library(ctx, axis);
-    let tried: usize = lib.iter().map(|c| c.grid.len().max(1)).sum();
-    let (block, n_blocks) = ctx.blocks(opts.cv_blocks);
+    let mut tried: usize = lib.iter().map(|c| c.grid.len().max(1)).sum();
+    let (block, n_blocks) = ctx.blocks_for(axis, opts.cv_blocks);
+    let cell_cols: Vec<Vec<f64>> = ctx.position_cells(axis).map_or(vec![], |(cell, k)| {
+        (0..k)
+            .map(|c| cell.iter().map(|&i| f64::from(u8::from(i == c))).collect())
+            .collect()
+    });
+    if !cell_cols.is_empty() {
+        tried += lib.iter().filter(|c| within_cells(c)).count();
+    }
     let ones = vec![1.0; n];
     let mut basis = lsq::orthonormalize(&[], vec![ones.clone()], 2);
     let mut raw_cols: Vec<Vec<f64>> = vec![ones];
@@ -194,153 +247,242 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
         (lsq::cv_rss(&refs, r, &block, n_blocks) / n as f64).sqrt()
     };
     let mut cv_before = cv_of(&raw_cols);
-    while terms.len() < opts.max_terms && n > raw_cols.len() + 3 {
-        let r0 = lsq::deflate(&basis, r);
-        let rss0 = dot(&r0, &r0);
-        if rss0.is_nan() || rss0 <= 0.0 {
-            break;
-        }
-        // Profile every candidate over its grid (best θ by RSS drop: q is fixed within a candidate).
-        let mut scored: Vec<Scored> = vec![];
-        for (idx, c) in lib.iter().enumerate() {
-            if used[idx] {
-                continue;
+    let mut exchanges = 0;
+    loop {
+        while terms.len() < opts.max_terms && n > raw_cols.len() + 3 {
+            let r0 = lsq::deflate(&basis, r);
+            let rss0 = dot(&r0, &r0);
+            if rss0.is_nan() || rss0 <= 0.0 {
+                break;
             }
-            let thetas: Vec<f64> = if c.grid.is_empty() {
-                vec![f64::NAN]
-            } else {
-                c.grid.clone()
+            let plain = Null {
+                basis: basis.clone(),
+                r0: r0.clone(),
+                rss0,
+                extra: 0,
             };
-            let mut best: Option<Scored> = None;
-            for &th in &thetas {
-                if let Some((g, q)) = score(ctx, c, th, &basis, &r0, rss0)
-                    && best.as_ref().is_none_or(|b| g > b.gain)
-                {
-                    best = Some(Scored {
-                        idx,
-                        theta: th,
-                        gain: g,
-                        q,
-                        delta_bic: 0.0,
-                    });
+            let cells = {
+                let extra = lsq::orthonormalize(&basis, cell_cols.clone(), 2);
+                let k = extra.len();
+                let mut b = basis.clone();
+                b.extend(extra);
+                Null::new(b, r, k)
+            };
+            let cells_ok = cells.extra > 0 && cells.rss0 > 0.0 && n > cells.basis.len() + 3;
+            let null_of = |blocked: bool| if blocked { &cells } else { &plain };
+            // Profile every candidate over its grid (best θ by RSS drop: q is fixed within a candidate).
+            let mut scored: Vec<Scored> = vec![];
+            for (idx, c) in lib.iter().enumerate() {
+                if used[idx] {
+                    continue;
+                }
+                let thetas: Vec<f64> = if c.grid.is_empty() {
+                    vec![f64::NAN]
+                } else {
+                    c.grid.clone()
+                };
+                for blocked in [false, true] {
+                    if blocked && !(cells_ok && within_cells(c)) {
+                        continue;
+                    }
+                    let nl = null_of(blocked);
+                    let mut best: Option<Scored> = None;
+                    for &th in &thetas {
+                        if let Some((g, q)) = score(ctx, c, th, &nl.basis, &nl.r0, nl.rss0)
+                            && best.as_ref().is_none_or(|b| g > b.gain)
+                        {
+                            best = Some(Scored {
+                                idx,
+                                theta: th,
+                                gain: g,
+                                q,
+                                delta_bic: 0.0,
+                                cells: blocked,
+                            });
+                        }
+                    }
+                    scored.extend(best);
                 }
             }
-            scored.extend(best);
-        }
-        if scored.is_empty() {
-            break;
-        }
-        // One effective sample size for the whole step (from the residual left by the candidate that
-        // explains most), so candidates are ranked on the same scale.
-        let top = scored
-            .iter()
-            .max_by(|a, b| a.gain.total_cmp(&b.gain))
-            .expect("non-empty");
-        let top_contrib = contribution(ctx, &lib[top.idx], top.theta, &basis, &r0);
-        let r1_top: Vec<f64> = r0.iter().zip(&top_contrib).map(|(a, b)| a - b).collect();
-        let n_eff = lsq::effective_n(&without_cell_means(ctx, axis, &r1_top));
-        for s in &mut scored {
-            s.delta_bic = delta_bic(n_eff, rss0, s.gain, s.q);
-        }
-        scored.sort_by(|a, b| b.delta_bic.total_cmp(&a.delta_bic));
-        if terms.is_empty() {
-            runners_up = scored
+            if scored.is_empty() {
+                break;
+            }
+            // One effective sample size for the whole step (from the residual left by the candidate that
+            // explains the largest share of its null's RSS), so candidates are ranked on the same scale.
+            let share = |s: &Scored| s.gain / null_of(s.cells).rss0;
+            let top = scored
                 .iter()
-                .map(|s| (lib[s.idx].clone(), s.delta_bic))
+                .max_by(|a, b| share(a).total_cmp(&share(b)))
+                .expect("non-empty");
+            let top_contrib = contribution(ctx, &lib[top.idx], top.theta, &basis, &r0);
+            let r1_top: Vec<f64> = r0.iter().zip(&top_contrib).map(|(a, b)| a - b).collect();
+            let n_eff = lsq::effective_n(&without_cell_means(ctx, axis, &r1_top));
+            for s in &mut scored {
+                s.delta_bic = delta_bic(n_eff, null_of(s.cells).rss0, s.gain, s.q);
+            }
+            scored.sort_by(|a, b| b.delta_bic.total_cmp(&a.delta_bic));
+            // A candidate screened under both nulls keeps its better one.
+            let mut seen = vec![false; lib.len()];
+            scored.retain(|s| !std::mem::replace(&mut seen[s.idx], true));
+            if terms.is_empty() {
+                runners_up = scored
+                    .iter()
+                    .map(|s| (lib[s.idx].clone(), s.delta_bic))
+                    .collect();
+            }
+            // Refine the winner's nonlinear parameter between its grid neighbours.
+            let mut win = scored.remove(0);
+            let cand = &lib[win.idx];
+            let nl = null_of(win.cells);
+            if cand.is_nonlinear() {
+                let g = &cand.grid;
+                let i = g.iter().position(|&v| v == win.theta).unwrap_or(0);
+                let lo = g[i.saturating_sub(1)];
+                let hi = g[(i + 1).min(g.len() - 1)];
+                if hi > lo {
+                    let th = golden_refine(
+                        |t| {
+                            score(ctx, cand, t, &nl.basis, &nl.r0, nl.rss0)
+                                .map_or(f64::NEG_INFINITY, |s| s.0)
+                        },
+                        lo,
+                        hi,
+                        18,
+                    );
+                    if let Some((g2, q)) = score(ctx, cand, th, &nl.basis, &nl.r0, nl.rss0)
+                        && g2 >= win.gain
+                    {
+                        win = Scored {
+                            idx: win.idx,
+                            theta: th,
+                            gain: g2,
+                            q,
+                            delta_bic: delta_bic(n_eff, nl.rss0, g2, q),
+                            cells: win.cells,
+                        };
+                    }
+                }
+            }
+            let p_cols = (raw_cols.len() + nl.extra) as f64;
+            let df2 = n_eff - p_cols - win.q as f64;
+            let p_value = if df2 >= 1.0 {
+                let rss1 = nl.rss0 - win.gain;
+                let f = (win.gain / win.q as f64) / (rss1 / df2);
+                FisherSnedecor::new(win.q as f64, df2).map_or(1.0, |d| d.sf(f))
+            } else {
+                1.0
+            };
+            if !(win.delta_bic > opts.min_delta_bic && p_value * (tried as f64) < opts.alpha) {
+                break;
+            }
+            // What the term explains of the residual as it is (no nuisance): its importance and RMS.
+            let plain_gain = score(ctx, cand, win.theta, &basis, &r0, rss0).map_or(0.0, |s| s.0);
+            let rss1 = rss0 - plain_gain;
+            let new_cols = cand.columns(ctx, win.theta);
+            let mut trial = raw_cols.clone();
+            trial.extend(new_cols.iter().cloned());
+            let cv_after = cv_of(&trial);
+            if cv_after.is_nan() || cv_after >= cv_before * (1.0 - opts.cv_min_gain) {
+                break;
+            }
+            // Ambiguity: another family, nearly as good, explaining the same shape.
+            let win_contrib = contribution(ctx, cand, win.theta, &basis, &r0);
+            let wn = dot(&win_contrib, &win_contrib).sqrt();
+            let ambiguous_with = scored
+                .iter()
+                .filter(|s| lib[s.idx].family() != cand.family())
+                .filter(|s| {
+                    s.delta_bic > opts.min_delta_bic
+                        && win.delta_bic - s.delta_bic < opts.ambiguity_bic
+                })
+                .filter_map(|s| {
+                    let sc = contribution(ctx, &lib[s.idx], s.theta, &basis, &r0);
+                    let corr = dot(&sc, &win_contrib) / (wn * dot(&sc, &sc).sqrt());
+                    (corr > opts.ambiguity_corr).then(|| Alternative {
+                        cand: lib[s.idx].clone(),
+                        theta: s.theta,
+                        delta_bic: s.delta_bic,
+                        corr,
+                    })
+                })
                 .collect();
-        }
-        // Refine the winner's nonlinear parameter between its grid neighbours.
-        let mut win = scored.remove(0);
-        let cand = &lib[win.idx];
-        if cand.is_nonlinear() {
-            let g = &cand.grid;
-            let i = g.iter().position(|&v| v == win.theta).unwrap_or(0);
-            let lo = g[i.saturating_sub(1)];
-            let hi = g[(i + 1).min(g.len() - 1)];
-            if hi > lo {
-                let th = golden_refine(
-                    |t| score(ctx, cand, t, &basis, &r0, rss0).map_or(f64::NEG_INFINITY, |s| s.0),
-                    lo,
-                    hi,
-                    18,
-                );
-                if let Some((g2, q)) = score(ctx, cand, th, &basis, &r0, rss0)
-                    && g2 >= win.gain
+            used[win.idx] = true;
+            // Nested forms of the same family are not tried again once one is in.
+            for (j, c) in lib.iter().enumerate() {
+                if c.family() == cand.family()
+                    && c.effect_id() != "reversal_spike"
+                    && cand.effect_id() != "reversal_spike"
                 {
-                    win = Scored {
-                        idx: win.idx,
-                        theta: th,
-                        gain: g2,
-                        q,
-                        delta_bic: delta_bic(n_eff, rss0, g2, q),
-                    };
+                    used[j] = true;
+                }
+            }
+            basis.extend(lsq::orthonormalize(&basis, new_cols.clone(), 2));
+            raw_cols.extend(new_cols.iter().cloned());
+            terms.push(Term {
+                cand: cand.clone(),
+                theta: win.theta,
+                cols: new_cols,
+                delta_bic: win.delta_bic,
+                p_value,
+                gain_rss: plain_gain,
+                rms_after_um: (rss1 / n as f64).sqrt(),
+                heldout_rms_before_um: cv_before,
+                heldout_rms_after_um: cv_after,
+                ambiguous_with,
+                within_cells: win.cells,
+            });
+            cv_before = cv_after;
+        }
+        // Exchange step (swap.rs), then forward selection again; at most two exchanges per signal.
+        if terms.is_empty() || exchanges >= 2 {
+            break;
+        }
+        let mut fitted = vec![vec![1.0; n]];
+        for t in &terms {
+            fitted.extend(t.cols.iter().cloned());
+        }
+        let refs: Vec<&[f64]> = fitted.iter().map(Vec::as_slice).collect();
+        let resid = lsq::fit(&refs, r).resid;
+        // Only where structure is left that no candidate explains (the same test as the report's
+        // "unexplained structure"): a clean fit is not revisited, which keeps the cost where it helps.
+        if super::locate::unexplained(ctx, &format!("e{axis}_um"), &resid).is_empty() {
+            break;
+        }
+        let n_eff = lsq::effective_n(&without_cell_means(ctx, axis, &resid));
+        let Some(ex) = super::swap::best_exchange(
+            ctx,
+            r,
+            &lib,
+            &terms,
+            n_eff,
+            tried,
+            opts,
+            cv_before,
+            &|c: &[Vec<f64>]| cv_of(c),
+        ) else {
+            break;
+        };
+        exchanges += 1;
+        terms.remove(ex.k);
+        terms.extend(ex.terms);
+        raw_cols = vec![vec![1.0; n]];
+        for t in &terms {
+            raw_cols.extend(t.cols.iter().cloned());
+        }
+        basis = lsq::orthonormalize(&[], raw_cols.clone(), 2);
+        cv_before = cv_of(&raw_cols);
+        used = vec![false; lib.len()];
+        for t in &terms {
+            for (j, c) in lib.iter().enumerate() {
+                if c.kind == t.cand.kind
+                    || (c.family() == t.cand.family()
+                        && c.effect_id() != "reversal_spike"
+                        && t.cand.effect_id() != "reversal_spike")
+                {
+                    used[j] = true;
                 }
             }
         }
-        let p_cols = raw_cols.len() as f64;
-        let df2 = n_eff - p_cols - win.q as f64;
-        let rss1 = rss0 - win.gain;
-        let p_value = if df2 >= 1.0 {
-            let f = ((rss0 - rss1) / win.q as f64) / (rss1 / df2);
-            FisherSnedecor::new(win.q as f64, df2).map_or(1.0, |d| d.sf(f))
-        } else {
-            1.0
-        };
-        if !(win.delta_bic > opts.min_delta_bic && p_value * (tried as f64) < opts.alpha) {
-            break;
-        }
-        let new_cols = cand.columns(ctx, win.theta);
-        let mut trial = raw_cols.clone();
-        trial.extend(new_cols.iter().cloned());
-        let cv_after = cv_of(&trial);
-        if cv_after.is_nan() || cv_after >= cv_before * (1.0 - opts.cv_min_gain) {
-            break;
-        }
-        // Ambiguity: another family, nearly as good, explaining the same shape.
-        let win_contrib = contribution(ctx, cand, win.theta, &basis, &r0);
-        let wn = dot(&win_contrib, &win_contrib).sqrt();
-        let ambiguous_with = scored
-            .iter()
-            .filter(|s| lib[s.idx].family() != cand.family())
-            .filter(|s| {
-                s.delta_bic > opts.min_delta_bic && win.delta_bic - s.delta_bic < opts.ambiguity_bic
-            })
-            .filter_map(|s| {
-                let sc = contribution(ctx, &lib[s.idx], s.theta, &basis, &r0);
-                let corr = dot(&sc, &win_contrib) / (wn * dot(&sc, &sc).sqrt());
-                (corr > opts.ambiguity_corr).then(|| Alternative {
-                    cand: lib[s.idx].clone(),
-                    theta: s.theta,
-                    delta_bic: s.delta_bic,
-                    corr,
-                })
-            })
-            .collect();
-        used[win.idx] = true;
-        // Nested forms of the same family are not tried again once one is in.
-        for (j, c) in lib.iter().enumerate() {
-            if c.family() == cand.family()
-                && c.effect_id() != "reversal_spike"
-                && cand.effect_id() != "reversal_spike"
-            {
-                used[j] = true;
-            }
-        }
-        basis.extend(lsq::orthonormalize(&basis, new_cols.clone(), 2));
-        raw_cols.extend(new_cols.iter().cloned());
-        terms.push(Term {
-            cand: cand.clone(),
-            theta: win.theta,
-            cols: new_cols,
-            delta_bic: win.delta_bic,
-            p_value,
-            gain_rss: win.gain,
-            rms_after_um: (rss1 / n as f64).sqrt(),
-            heldout_rms_before_um: cv_before,
-            heldout_rms_after_um: cv_after,
-            ambiguous_with,
-        });
-        cv_before = cv_after;
     }
     SignalSelection {
         axis,

@@ -10,6 +10,7 @@
 //! spreads each step over cycles (Spaan Ch6: 60 s tables, 15 ms evaluation, dosing).
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use super::config::FieldConfig;
 use super::direction::{Direction, DirectionLatch};
@@ -19,7 +20,8 @@ use super::safety::{AxisSafety, Input, Mode, SafetyError};
 use super::status::{AxisStatus, StatusSnapshot};
 use crate::bus::{Health, Sample};
 
-/// The machine state the model sees.
+/// The machine state the model sees. The engine updates the maps in place, so in steady state
+/// (the same channels usable every cycle) they allocate nothing.
 #[derive(Clone, Debug, Default)]
 pub struct MachineState {
     /// Axis positions, mm, by axis name (`x`).
@@ -37,51 +39,118 @@ pub struct MachineState {
 }
 
 /// One error term's contribution along one machine axis, µm (actual − nominal), already blended
-/// for direction with [`MachineState::weight_forward`].
+/// for direction with [`MachineState::weight_forward`]. The name is shared (`Arc`), so a model
+/// that names its terms once hands them out every cycle without allocating.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TermError {
-    pub term: String,
+    pub term: Arc<str>,
     pub error_um: f64,
+}
+
+/// Error terms per machine axis, filled by [`ErrorModel::axis_errors`]. Holds one term list per
+/// axis the engine drives; the lists keep their capacity across cycles.
+#[derive(Clone, Debug, Default)]
+pub struct AxisErrors {
+    axes: Vec<(String, Vec<TermError>)>,
+}
+
+impl AxisErrors {
+    /// Term lists for the named axes (in this order).
+    pub fn with_axes<S: Into<String>>(axes: impl IntoIterator<Item = S>) -> Self {
+        Self {
+            axes: axes.into_iter().map(|a| (a.into(), Vec::new())).collect(),
+        }
+    }
+
+    /// Empties every axis' list (keeps the capacity).
+    pub fn clear(&mut self) {
+        for (_, t) in &mut self.axes {
+            t.clear();
+        }
+    }
+
+    /// Adds one term to `axis`; returns false (and drops it) when there is no such axis.
+    pub fn push(&mut self, axis: &str, term: Arc<str>, error_um: f64) -> bool {
+        match self.axes.iter_mut().find(|(a, _)| a == axis) {
+            Some((_, t)) => {
+                t.push(TermError { term, error_um });
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// The terms of `axis` (empty for an unknown axis or one the model left out).
+    pub fn axis(&self, axis: &str) -> &[TermError] {
+        self.axes
+            .iter()
+            .find(|(a, _)| a == axis)
+            .map_or(&[], |(_, t)| t.as_slice())
+    }
 }
 
 /// What the gateway needs from a model (`model_adapter.rs` implements it for `src/models`).
 pub trait ErrorModel {
     /// Channels the model reads (besides axis positions). Missing ones make the inputs stale.
+    /// The engine resolves them once, at its first cycle: one model per engine.
     fn required_channels(&self) -> Vec<String>;
     /// Push, per machine axis, its error terms at `state` into `out` (cleared by the caller).
     /// `&mut self`: models keep evaluation state (thermal lags, scratch buffers).
-    fn axis_errors(
-        &mut self,
-        state: &MachineState,
-        out: &mut Vec<(String, Vec<TermError>)>,
-    ) -> Result<(), String>;
+    fn axis_errors(&mut self, state: &MachineState, out: &mut AxisErrors) -> Result<(), String>;
+}
+
+/// Everything the engine knows about one channel, by channel id (index into `Engine::channels`).
+struct Channel {
+    name: String,
+    /// None until the first sample of a channel that is not configured (it is then judged with
+    /// [`default_limits`]); such a channel has no status and no value.
+    monitor: Option<ChannelMonitor>,
+    status: Option<ChannelStatus>,
+    slow: bool,
+    /// Slow channels: the value latched at the last thermal period.
+    latched: Option<f64>,
+    /// What the model sees this cycle (usable, slow ones latched).
+    value: Option<f64>,
 }
 
 struct AxisRuntime {
     name: String,
-    position_channel: String,
+    /// Channel id of the position.
+    position: usize,
+    position_ok: bool,
     latch: DirectionLatch,
     safety: AxisSafety,
     last_pos: Option<(f64, f64)>,
     target_um: Option<f64>,
-    terms: Vec<(String, f64)>,
+    terms: Vec<(Arc<str>, f64)>,
+}
+
+struct Recovery {
+    estimate: NeighbourEstimate,
+    target: usize,
+    neighbours: Vec<usize>,
+    values: Vec<f64>,
 }
 
 pub struct Engine {
     axes: Vec<AxisRuntime>,
-    monitors: BTreeMap<String, ChannelMonitor>,
-    statuses: BTreeMap<String, ChannelStatus>,
-    recoveries: Vec<NeighbourEstimate>,
+    channels: Vec<Channel>,
+    /// Channel id by name; iterated in name order (the order faults are logged in).
+    ids: BTreeMap<String, usize>,
+    recoveries: Vec<Recovery>,
+    /// The model's required channels, resolved at the first cycle.
+    required: Option<Vec<usize>>,
     thermal_period_s: f64,
     last_slow_latch_s: Option<f64>,
-    slow_latched: BTreeMap<String, f64>,
     faults: FaultLog,
     enabled: bool,
     state: MachineState,
-    errors: Vec<(String, Vec<TermError>)>,
+    errors: AxisErrors,
     model_error: Option<String>,
     cycles: u64,
     now_s: f64,
+    /// Per axis (configured order) the output of the last cycle, µm.
+    outputs: Vec<(String, f64)>,
 }
 
 /// Limits for channels seen on a bus but not configured: anything finite, stale after 1 s.
@@ -99,6 +168,38 @@ fn is_slow(channel: &str) -> bool {
     channel.starts_with("T_")
 }
 
+/// Sets or removes `name` in `map`; allocates a key only when the name was absent.
+fn put(map: &mut BTreeMap<String, f64>, name: &str, value: Option<f64>) {
+    match (value, map.get_mut(name)) {
+        (Some(v), Some(slot)) => *slot = v,
+        (Some(v), None) => {
+            map.insert(name.to_string(), v);
+        }
+        (None, Some(_)) => {
+            map.remove(name);
+        }
+        (None, None) => {}
+    }
+}
+
+/// The channel id of `name`, adding a channel without monitor when it is new.
+fn channel_id(channels: &mut Vec<Channel>, ids: &mut BTreeMap<String, usize>, name: &str) -> usize {
+    if let Some(&id) = ids.get(name) {
+        return id;
+    }
+    let id = channels.len();
+    channels.push(Channel {
+        name: name.to_string(),
+        monitor: None,
+        status: None,
+        slow: is_slow(name),
+        latched: None,
+        value: None,
+    });
+    ids.insert(name.to_string(), id);
+    id
+}
+
 impl Engine {
     /// `initial_outputs_um`: what each axis' sink holds now (origin-shift registers read at start;
     /// 0 for quadrature), so the first outputs continue from there.
@@ -106,12 +207,19 @@ impl Engine {
         cfg: &FieldConfig,
         initial_outputs_um: &BTreeMap<String, f64>,
     ) -> Result<Self, SafetyError> {
+        let mut channels = Vec::new();
+        let mut ids = BTreeMap::new();
+        for c in &cfg.channels {
+            let id = channel_id(&mut channels, &mut ids, &c.name);
+            channels[id].monitor = Some(ChannelMonitor::new(c.limits()));
+        }
         let mut axes = Vec::new();
         for a in &cfg.axes {
             let initial = initial_outputs_um.get(&a.name).copied().unwrap_or(0.0);
             axes.push(AxisRuntime {
                 name: a.name.clone(),
-                position_channel: a.position_channel.clone(),
+                position: channel_id(&mut channels, &mut ids, &a.position_channel),
+                position_ok: false,
                 latch: DirectionLatch::new(cfg.direction),
                 safety: AxisSafety::new(cfg.safety_for(&a.name), initial)?,
                 last_pos: None,
@@ -119,26 +227,40 @@ impl Engine {
                 terms: Vec::new(),
             });
         }
-        let monitors = cfg
-            .channels
+        let recoveries = cfg
+            .recoveries
             .iter()
-            .map(|c| (c.name.clone(), ChannelMonitor::new(c.limits())))
+            .map(|r| Recovery {
+                target: channel_id(&mut channels, &mut ids, &r.target),
+                neighbours: r
+                    .neighbours
+                    .iter()
+                    .map(|n| channel_id(&mut channels, &mut ids, n))
+                    .collect(),
+                values: Vec::with_capacity(r.neighbours.len()),
+                estimate: r.clone(),
+            })
+            .collect();
+        let outputs = axes
+            .iter()
+            .map(|a| (a.name.clone(), a.safety.output_um()))
             .collect();
         Ok(Self {
+            errors: AxisErrors::with_axes(axes.iter().map(|a| a.name.clone())),
             axes,
-            monitors,
-            statuses: BTreeMap::new(),
-            recoveries: cfg.recoveries.clone(),
+            channels,
+            ids,
+            recoveries,
+            required: None,
             thermal_period_s: cfg.gateway.thermal_period_s,
             last_slow_latch_s: None,
-            slow_latched: BTreeMap::new(),
             faults: FaultLog::default(),
             enabled: cfg.gateway.enabled,
             state: MachineState::default(),
-            errors: Vec::new(),
             model_error: None,
             cycles: 0,
             now_s: 0.0,
+            outputs,
         })
     }
 
@@ -153,55 +275,83 @@ impl Engine {
         self.enabled = enabled;
     }
 
-    /// Take one decoded sample (any order; health is judged per channel).
+    /// Take one decoded sample (any order; health is judged per channel). A known channel costs
+    /// one name lookup and no allocation.
     pub fn ingest(&mut self, s: &Sample) {
-        // get_mut first: the hot path (a known channel) must not allocate a key.
-        if let Some(m) = self.monitors.get_mut(&s.channel) {
-            m.observe(s);
-        } else {
-            let mut m = ChannelMonitor::new(default_limits());
-            m.observe(s);
-            self.monitors.insert(s.channel.clone(), m);
-        }
+        let id = match self.ids.get(s.channel.as_str()) {
+            Some(&id) => id,
+            None => channel_id(&mut self.channels, &mut self.ids, &s.channel),
+        };
+        self.channels[id]
+            .monitor
+            .get_or_insert_with(|| ChannelMonitor::new(default_limits()))
+            .observe(s);
     }
 
-    /// Run one cycle at `now_s`; returns the per-axis outputs (µm, in configured axis order).
+    /// Run one cycle at `now_s`; returns the per-axis outputs (µm, in configured axis order) as a
+    /// new vector, for callers that hand them to another task. [`Engine::cycle_in_place`] is the
+    /// same without the copy.
     pub fn cycle(&mut self, now_s: f64, model: &mut dyn ErrorModel) -> Vec<(String, f64)> {
+        self.cycle_in_place(now_s, model).to_vec()
+    }
+
+    /// Run one cycle at `now_s`; the per-axis outputs (µm, in configured axis order) are borrowed
+    /// from the engine. In steady state (same channels healthy, model terms unchanged) this
+    /// allocates nothing: channels are ids resolved at start, buffers are reused.
+    pub fn cycle_in_place(&mut self, now_s: f64, model: &mut dyn ErrorModel) -> &[(String, f64)] {
         self.now_s = now_s;
         self.cycles += 1;
-        // 1. Health of every channel, with fault transitions logged once.
-        self.statuses.clear();
-        for (name, m) in &self.monitors {
+        // 1. Health of every channel, with fault transitions logged once (in name order).
+        for &id in self.ids.values() {
+            let c = &mut self.channels[id];
+            let Some(m) = c.monitor.as_mut() else {
+                c.status = None;
+                continue;
+            };
             let st = m.status(now_s);
-            self.faults.update(name, &st.faults, now_s);
-            self.statuses.insert(name.clone(), st);
+            let mut gone = m
+                .take_rejected()
+                .filter(|k| !st.faults.contains(k))
+                .peekable();
+            if gone.peek().is_some() {
+                // Rejected readings that a good one replaced before this cycle: never used, but
+                // logged — started now, cleared next cycle.
+                let mut seen = st.faults.clone();
+                seen.extend(gone);
+                seen.sort();
+                self.faults.update(&c.name, &seen, now_s);
+            } else {
+                self.faults.update(&c.name, &st.faults, now_s);
+            }
+            c.status = Some(st);
         }
         // 2. Substitute failed channels from their neighbours (Ni's recovery).
-        for r in &self.recoveries {
-            let failed = self
-                .statuses
-                .get(&r.target)
+        for r in &mut self.recoveries {
+            let failed = self.channels[r.target]
+                .status
+                .as_ref()
                 .is_none_or(|s| s.health != Health::Ok);
             if !failed {
                 continue;
             }
-            let neighbours: Option<Vec<f64>> = r
-                .neighbours
-                .iter()
-                .map(|n| {
-                    self.statuses
-                        .get(n)
-                        .filter(|s| s.health == Health::Ok)
-                        .and_then(|s| s.value)
-                })
-                .collect();
-            if let Some(vals) = neighbours
-                && let Ok(est) = r.estimate(&vals)
+            r.values.clear();
+            for &n in &r.neighbours {
+                match self.channels[n]
+                    .status
+                    .as_ref()
+                    .filter(|s| s.health == Health::Ok)
+                    .and_then(|s| s.value)
+                {
+                    Some(v) => r.values.push(v),
+                    None => break,
+                }
+            }
+            if r.values.len() == r.neighbours.len()
+                && let Ok(est) = r.estimate.estimate(&r.values)
             {
-                let st = self
-                    .statuses
-                    .entry(r.target.clone())
-                    .or_insert(ChannelStatus {
+                let st = self.channels[r.target]
+                    .status
+                    .get_or_insert_with(|| ChannelStatus {
                         value: None,
                         health: Health::Stale,
                         faults: vec![FaultKind::Stale],
@@ -218,69 +368,77 @@ impl Engine {
         if latch_slow {
             self.last_slow_latch_s = Some(now_s);
         }
-        self.state.channels.clear();
-        for (name, st) in &self.statuses {
-            let usable = if st.health == Health::Ok || st.substituted {
-                st.value
-            } else {
+        for c in &mut self.channels {
+            let usable = c
+                .status
+                .as_ref()
+                .filter(|st| st.health == Health::Ok || st.substituted)
+                .and_then(|st| st.value);
+            c.value = if c.status.is_none() {
                 None
+            } else if c.slow {
+                if latch_slow || usable.is_none() {
+                    // A slow channel that fails between latches is dropped at once, not at the
+                    // next latch.
+                    c.latched = usable;
+                }
+                c.latched
+            } else {
+                usable
             };
-            if is_slow(name) {
-                if latch_slow {
-                    match usable {
-                        Some(v) => self.slow_latched.insert(name.clone(), v),
-                        None => self.slow_latched.remove(name),
-                    };
-                } else if usable.is_none() {
-                    // A slow channel that fails between latches is dropped at once, not at the next latch.
-                    self.slow_latched.remove(name);
-                }
-                if let Some(v) = self.slow_latched.get(name) {
-                    self.state.channels.insert(name.clone(), *v);
-                }
-            } else if let Some(v) = usable {
-                self.state.channels.insert(name.clone(), v);
-            }
+            put(&mut self.state.channels, &c.name, c.value);
         }
-        let mut positions_ok = Vec::with_capacity(self.axes.len());
         for a in &mut self.axes {
-            let pos = self.state.channels.get(&a.position_channel).copied();
+            let pos = self.channels[a.position].value;
             if let Some(p) = pos {
                 if let Some((t0, p0)) = a.last_pos
                     && now_s > t0
                 {
-                    self.state
-                        .velocities_mm_per_s
-                        .insert(a.name.clone(), (p - p0) / (now_s - t0));
+                    put(
+                        &mut self.state.velocities_mm_per_s,
+                        &a.name,
+                        Some((p - p0) / (now_s - t0)),
+                    );
                 }
                 a.last_pos = Some((now_s, p));
                 a.latch.update(p, now_s);
-                self.state.positions_mm.insert(a.name.clone(), p);
-                self.state
-                    .weight_forward
-                    .insert(a.name.clone(), a.latch.weight_forward());
+                put(&mut self.state.positions_mm, &a.name, Some(p));
+                put(
+                    &mut self.state.weight_forward,
+                    &a.name,
+                    Some(a.latch.weight_forward()),
+                );
             } else {
-                self.state.positions_mm.remove(&a.name);
-                self.state.velocities_mm_per_s.remove(&a.name);
+                put(&mut self.state.positions_mm, &a.name, None);
+                put(&mut self.state.velocities_mm_per_s, &a.name, None);
             }
-            positions_ok.push(pos.is_some());
+            a.position_ok = pos.is_some();
         }
         self.state.t_s = now_s;
         // 4. Model.
-        let missing: Vec<String> = model
-            .required_channels()
-            .into_iter()
-            .filter(|c| !self.state.channels.contains_key(c))
-            .collect();
+        if self.required.is_none() {
+            let ids = model
+                .required_channels()
+                .iter()
+                .map(|n| channel_id(&mut self.channels, &mut self.ids, n))
+                .collect();
+            self.required = Some(ids);
+        }
+        let inputs_ok = self
+            .required
+            .iter()
+            .flatten()
+            .all(|&id| self.channels[id].value.is_some())
+            && self.axes.iter().all(|a| a.position_ok);
         self.errors.clear();
-        let model_result = if missing.is_empty() && positions_ok.iter().all(|ok| *ok) {
+        let model_result = if inputs_ok {
             model
                 .axis_errors(&self.state, &mut self.errors)
                 .map(|()| true)
         } else {
             Ok(false)
         };
-        let model_fault = model_result.as_ref().err().cloned();
+        let model_fault = model_result.as_ref().err();
         self.faults.update(
             "model",
             if model_fault.is_some() {
@@ -290,38 +448,35 @@ impl Engine {
             },
             now_s,
         );
-        if model_fault != self.model_error
-            && let Some(e) = &model_fault
-        {
-            tracing::warn!(error = %e, "model evaluation failed");
+        if model_fault != self.model_error.as_ref() {
+            if let Some(e) = model_fault {
+                tracing::warn!(error = %e, "model evaluation failed");
+            }
+            self.model_error = model_fault.cloned();
         }
-        self.model_error = model_fault;
         let evaluated = matches!(model_result, Ok(true));
         // 5. Correction = −error, blended by direction; then safety.
-        let mut out = Vec::with_capacity(self.axes.len());
-        for (i, a) in self.axes.iter_mut().enumerate() {
+        for (a, out) in self.axes.iter_mut().zip(&mut self.outputs) {
             let input = if self.model_error.is_some() {
                 a.target_um = None;
                 Input::Fault
-            } else if !positions_ok[i] || !evaluated {
+            } else if !a.position_ok || !evaluated {
                 a.target_um = None;
                 Input::Stale
             } else {
                 a.terms.clear();
                 let mut total = 0.0;
-                if let Some((_, terms)) = self.errors.iter().find(|(ax, _)| *ax == a.name) {
-                    for t in terms {
-                        let corr = -t.error_um;
-                        total += corr;
-                        a.terms.push((t.term.clone(), corr));
-                    }
+                for t in self.errors.axis(&a.name) {
+                    let corr = -t.error_um;
+                    total += corr;
+                    a.terms.push((t.term.clone(), corr));
                 }
                 a.target_um = Some(total);
                 Input::Fresh(total)
             };
-            out.push((a.name.clone(), a.safety.step(now_s, self.enabled, input)));
+            out.1 = a.safety.step(now_s, self.enabled, input);
         }
-        out
+        &self.outputs
     }
 
     /// What `retrocomp status` and `/metrics` show.
@@ -341,10 +496,17 @@ impl Engine {
                     target_um: a.target_um,
                     applied_um: a.safety.output_um(),
                     mode: a.safety.mode(),
-                    terms_um: a.terms.iter().cloned().collect(),
+                    terms_um: a.terms.iter().map(|(n, v)| (n.to_string(), *v)).collect(),
                 })
                 .collect(),
-            channels: self.statuses.clone(),
+            channels: self
+                .ids
+                .iter()
+                .filter_map(|(name, &id)| {
+                    let st = self.channels[id].status.clone()?;
+                    Some((name.clone(), st))
+                })
+                .collect(),
             active_faults: self
                 .faults
                 .active()

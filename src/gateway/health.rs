@@ -36,6 +36,20 @@ pub enum FaultKind {
     RateOfChange,
     Stuck,
     Decode,
+    /// A sink lost its controller (transport down, no reply): reported by the sink, not a channel.
+    Disconnected,
+}
+
+impl FaultKind {
+    pub const ALL: [FaultKind; 7] = [
+        FaultKind::Stale,
+        FaultKind::OutOfRange,
+        FaultKind::NotFinite,
+        FaultKind::RateOfChange,
+        FaultKind::Stuck,
+        FaultKind::Decode,
+        FaultKind::Disconnected,
+    ];
 }
 
 /// Health of one channel now.
@@ -57,6 +71,9 @@ pub struct ChannelMonitor {
     /// Time the current raw value was first seen (for the stuck check).
     same_since: Option<(f64, u64)>,
     sample_fault: Option<FaultKind>,
+    /// Kinds of every sample rejected since the last [`ChannelMonitor::take_rejected`] (bit per
+    /// kind), so a bad reading that a good one replaces before the next cycle is still logged.
+    rejected: u8,
     stuck: bool,
 }
 
@@ -67,7 +84,26 @@ impl ChannelMonitor {
             last_good: None,
             same_since: None,
             sample_fault: None,
+            rejected: 0,
             stuck: false,
+        }
+    }
+
+    /// The kinds of the samples rejected since the last call (each at most once), then forgets
+    /// them. The engine logs these even when the channel is healthy again by cycle time.
+    pub fn take_rejected(&mut self) -> impl Iterator<Item = FaultKind> + use<> {
+        let bits = std::mem::take(&mut self.rejected);
+        FaultKind::ALL
+            .into_iter()
+            .enumerate()
+            .filter(move |(i, _)| bits & (1 << i) != 0)
+            .map(|(_, k)| k)
+    }
+
+    fn reject(&mut self, kind: FaultKind) {
+        self.sample_fault = Some(kind);
+        if let Some(i) = FaultKind::ALL.iter().position(|k| *k == kind) {
+            self.rejected |= 1 << i;
         }
     }
 
@@ -84,21 +120,22 @@ impl ChannelMonitor {
             Health::OutOfRange => Some(FaultKind::OutOfRange),
             Health::Stale => Some(FaultKind::Stale),
         };
-        if self.sample_fault.is_some() {
+        if let Some(kind) = self.sample_fault {
+            self.reject(kind);
             return;
         }
         if !v.is_finite() {
-            self.sample_fault = Some(FaultKind::NotFinite);
+            self.reject(FaultKind::NotFinite);
             return;
         }
         if v < self.limits.min || v > self.limits.max {
-            self.sample_fault = Some(FaultKind::OutOfRange);
+            self.reject(FaultKind::OutOfRange);
             return;
         }
         if let (Some(max_rate), Some((t0, v0))) = (self.limits.max_rate_per_s, self.last_good) {
             let dt = s.t_s - t0;
             if dt > 0.0 && ((v - v0) / dt).abs() > max_rate {
-                self.sample_fault = Some(FaultKind::RateOfChange);
+                self.reject(FaultKind::RateOfChange);
                 return;
             }
         }
@@ -210,6 +247,33 @@ impl FaultLog {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rejected_reading_replaced_before_the_cycle_is_still_reported_once() {
+        let mut m = ChannelMonitor::new(ChannelLimits {
+            min: 0.0,
+            max: 100.0,
+            stale_after_s: 1.0,
+            max_rate_per_s: None,
+            stuck_after_s: None,
+        });
+        let sample = |t_s: f64, value: f64| Sample {
+            channel: "T_C".into(),
+            t_s,
+            value,
+            health: Health::Ok,
+        };
+        m.observe(&sample(0.0, 20.0));
+        m.observe(&sample(0.001, f64::NAN));
+        m.observe(&sample(0.002, 900.0));
+        m.observe(&sample(0.003, 20.1));
+        let st = m.status(0.004);
+        assert_eq!(st.health, Health::Ok, "the good reading replaced them");
+        assert_eq!(st.value, Some(20.1), "the bad readings were never used");
+        let seen: Vec<FaultKind> = m.take_rejected().collect();
+        assert_eq!(seen, [FaultKind::OutOfRange, FaultKind::NotFinite]);
+        assert_eq!(m.take_rejected().count(), 0, "reported once");
+    }
 
     fn limits() -> ChannelLimits {
         ChannelLimits {

@@ -9,6 +9,7 @@ pub mod engine;
 pub mod health;
 pub mod http;
 pub mod model_adapter;
+pub mod quadrature_sink;
 pub mod recovery;
 pub mod run;
 pub mod safety;
@@ -16,7 +17,7 @@ pub mod sources;
 pub mod status;
 
 pub use direction::{Direction, DirectionConfig, DirectionLatch};
-pub use engine::{Engine, ErrorModel, MachineState, TermError};
+pub use engine::{AxisErrors, Engine, ErrorModel, MachineState, TermError};
 pub use health::{ChannelLimits, ChannelMonitor, ChannelStatus, FaultEvent, FaultKind, FaultLog};
 pub use recovery::NeighbourEstimate;
 pub use safety::{AxisSafety, Input, Mode, SafetyConfig};

@@ -6,8 +6,13 @@
 //! (0 < w < 1) the model is evaluated with that axis forward and reverse and the results mixed
 //! w·e₊ + (1 − w)·e₋, so a reversal never steps the output. Errors are actual − nominal, µm.
 
-use super::engine::{ErrorModel, MachineState, TermError};
+use std::sync::Arc;
+
+use super::engine::{AxisErrors, ErrorModel, MachineState};
 use crate::models::{Axis, ErrorBreakdown, MachineModel, ModelInput, ModelState};
+
+/// Axis names as the gateway's state keys them, by [`Axis::index`].
+const AXIS_NAMES: [&str; 3] = ["x", "y", "z"];
 
 pub struct MachineModelAdapter {
     model: MachineModel,
@@ -21,6 +26,8 @@ pub struct MachineModelAdapter {
     temp_channels: Vec<String>,
     force_channels: Vec<String>,
     strain_channels: Vec<String>,
+    /// The model's term names, shared with the engine's per-axis breakdown (no allocation per cycle).
+    term_names: Vec<Arc<str>>,
     /// Use the first-order closed form (cheaper) instead of the exact 4×4 chain.
     pub first_order: bool,
 }
@@ -59,6 +66,11 @@ impl MachineModelAdapter {
                 .iter()
                 .map(|s| format!("strain_{s}_ue"))
                 .collect(),
+            term_names: model
+                .term_names()
+                .iter()
+                .map(|n| Arc::from(n.as_str()))
+                .collect(),
             model,
             first_order: false,
         }
@@ -93,18 +105,14 @@ impl ErrorModel for MachineModelAdapter {
             .collect()
     }
 
-    fn axis_errors(
-        &mut self,
-        s: &MachineState,
-        out: &mut Vec<(String, Vec<TermError>)>,
-    ) -> Result<(), String> {
+    fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
         self.input.t_s = s.t_s;
         let mut weights = [1.0f64; 3];
         for ax in Axis::ALL {
-            let name = ax.lower().to_string();
             let i = ax.index();
-            self.input.pos_mm[i] = s.positions_mm.get(&name).copied().unwrap_or(0.0);
-            weights[i] = s.weight_forward.get(&name).copied().unwrap_or(0.5);
+            let name = AXIS_NAMES[i];
+            self.input.pos_mm[i] = s.positions_mm.get(name).copied().unwrap_or(0.0);
+            weights[i] = s.weight_forward.get(name).copied().unwrap_or(0.5);
             self.input.dir[i] = dir_of(weights[i]);
         }
         for (k, ch) in self.temp_channels.iter().enumerate() {
@@ -144,23 +152,17 @@ impl ErrorModel for MachineModelAdapter {
                 }
             }
         }
-        let names = self.model.term_names();
         for ax in Axis::ALL {
             let i = ax.index();
-            if !s.positions_mm.contains_key(&ax.lower().to_string()) {
+            let name = AXIS_NAMES[i];
+            if !s.positions_mm.contains_key(name) {
                 continue;
             }
-            let terms = self
-                .acc
-                .iter()
-                .zip(names)
-                .filter(|(v, _)| v[i] != 0.0)
-                .map(|(v, n)| TermError {
-                    term: n.clone(),
-                    error_um: v[i],
-                })
-                .collect();
-            out.push((ax.lower().to_string(), terms));
+            for (v, n) in self.acc.iter().zip(&self.term_names) {
+                if v[i] != 0.0 {
+                    out.push(name, n.clone(), v[i]);
+                }
+            }
         }
         Ok(())
     }

@@ -15,13 +15,13 @@ use anyhow::{Context as _, bail};
 use tokio::sync::{mpsc, watch};
 use tokio::time::MissedTickBehavior;
 
-use super::config::{FieldConfig, OriginShiftSink, QuadratureSink};
+use super::config::{FieldConfig, OriginShiftSink};
 use super::engine::{Engine, ErrorModel};
+use super::health::{FaultKind, FaultLog};
 use super::http::serve_status;
 use super::status::{SinkStatus, StatusSnapshot};
 use crate::bus::Sample;
 use crate::origin_shift::{OriginShiftClient, Outcome};
-use crate::quadrature::{CountQuantizer, EdgeScheduler, SchedulerConfig, simulate};
 
 /// What a run reports when it stops.
 #[derive(Clone, Debug, Default)]
@@ -85,15 +85,21 @@ pub async fn run(
             client,
             caps,
             initial.clone(),
-            out_rx,
-            reseed_tx,
-            sink_status_tx,
+            SinkChannels {
+                out_rx,
+                reseed_tx,
+                status: sink_status_tx,
+            },
+            epoch,
         )))
     } else {
-        cfg.sink
-            .quadrature
-            .clone()
-            .map(|q| tokio::spawn(quadrature_task(q, out_rx, sink_status_tx)))
+        cfg.sink.quadrature.clone().map(|q| {
+            tokio::spawn(super::quadrature_sink::quadrature_task(
+                q,
+                out_rx,
+                sink_status_tx,
+            ))
+        })
     };
 
     let mut engine = Engine::new(&cfg, &initial)?;
@@ -166,6 +172,13 @@ async fn read_initial(client: &mut OriginShiftClient) -> BTreeMap<String, f64> {
     }
 }
 
+/// The origin-shift sink's channels to the cycle: outputs in, reseeds back, status out.
+struct SinkChannels {
+    out_rx: watch::Receiver<Outputs>,
+    reseed_tx: mpsc::Sender<(String, f64)>,
+    status: watch::Sender<SinkStatus>,
+}
+
 /// Writes the engine's outputs every `write_period_ms`. The controller applies each write as a step,
 /// so the dosing cap is enforced per WRITE here too (the engine doses per cycle and may run ahead).
 async fn origin_shift_task(
@@ -173,10 +186,14 @@ async fn origin_shift_task(
     mut client: OriginShiftClient,
     caps_um: BTreeMap<String, f64>,
     initial: BTreeMap<String, f64>,
-    out_rx: watch::Receiver<Outputs>,
-    reseed_tx: mpsc::Sender<(String, f64)>,
-    status: watch::Sender<SinkStatus>,
+    channels: SinkChannels,
+    epoch: std::time::Instant,
 ) {
+    let SinkChannels {
+        out_rx,
+        reseed_tx,
+        status,
+    } = channels;
     let mut tick = tokio::time::interval(Duration::from_millis(os.write_period_ms));
     tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
     let mut st = SinkStatus {
@@ -185,6 +202,8 @@ async fn origin_shift_task(
     };
     let mut last_written: BTreeMap<String, f64> = initial;
     let mut was_connected = client.is_connected();
+    // The controller link as a fault: logged once when it is lost and once when it is back.
+    let mut link = LinkFault::default();
     loop {
         tick.tick().await;
         let mut outs = out_rx.borrow().clone();
@@ -212,6 +231,7 @@ async fn origin_shift_task(
                 // Let the engine apply the reseed before writing again.
                 was_connected = true;
                 st.connected = true;
+                link.update(true, epoch.elapsed().as_secs_f64());
                 let _ = status.send(st.clone());
                 continue;
             }
@@ -243,52 +263,34 @@ async fn origin_shift_task(
         }
         st.connected = client.is_connected();
         was_connected = st.connected;
+        link.update(st.connected, epoch.elapsed().as_secs_f64());
         let _ = status.send(st.clone());
     }
 }
 
-/// Simulated injector: counts and edges are scheduled exactly as for GPIO, without pins.
-async fn quadrature_task(
-    q: QuadratureSink,
-    out_rx: watch::Receiver<Outputs>,
-    status: watch::Sender<SinkStatus>,
-) {
-    let mut axes = Vec::new();
-    for a in &q.axes {
-        let (Ok(quant), Ok(sched)) = (
-            CountQuantizer::new(a.resolution_um, a.count_sign),
-            EdgeScheduler::new(SchedulerConfig {
-                min_edge_gap_ns: a.min_edge_gap_ns,
-                max_inject_rate_hz: a.max_inject_rate_hz,
-            }),
-        ) else {
-            let _ = status.send(SinkStatus {
-                kind: "quadrature".into(),
-                last_error: Some(format!("bad axis {}", a.axis)),
-                ..Default::default()
-            });
-            return;
+/// The origin-shift sink's link to the controller, as a fault in a [`FaultLog`] (source
+/// `sink.origin_shift`, kind `Disconnected`): one log line when it is lost, one when it is back, however
+/// many writes fail in between. Sans-IO: the caller passes the link state after each attempt.
+#[derive(Default)]
+pub struct LinkFault {
+    log: FaultLog,
+}
+
+impl LinkFault {
+    pub const SOURCE: &'static str = "sink.origin_shift";
+
+    /// Returns true when this call started or cleared the fault.
+    pub fn update(&mut self, connected: bool, now_s: f64) -> bool {
+        let faults: &[FaultKind] = if connected {
+            &[]
+        } else {
+            &[FaultKind::Disconnected]
         };
-        axes.push((a.axis.clone(), quant, sched));
+        !self.log.update(Self::SOURCE, faults, now_s).is_empty()
     }
-    let mut st = SinkStatus {
-        kind: "quadrature (simulated)".into(),
-        connected: true,
-        ..Default::default()
-    };
-    let mut rx = out_rx;
-    while rx.changed().await.is_ok() {
-        let outs = rx.borrow().clone();
-        for (axis, quant, sched) in &mut axes {
-            if let Some((_, v)) = outs.iter().find(|(a, _)| a == axis)
-                && let Ok(d) = quant.delta_counts(*v)
-            {
-                sched.add_inject_counts(d);
-                let _ = simulate(sched, &[]);
-            }
-        }
-        st.writes_ok += 1;
-        let _ = status.send(st.clone());
+
+    pub fn is_down(&self) -> bool {
+        self.log.active().next().is_some()
     }
 }
 
@@ -299,5 +301,24 @@ pub fn require_sink(cfg: &FieldConfig) -> anyhow::Result<()> {
             "no [sink.origin_shift] or [sink.quadrature] in the config: nothing would be corrected"
         );
     }
-    Ok(())
+    super::quadrature_sink::check_buildable(cfg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn link_loss_is_one_fault_however_many_writes_fail() {
+        let mut link = LinkFault::default();
+        let mut edges = 0;
+        // Up for 10 writes, down for 50 (every write fails), up again.
+        for k in 0..100 {
+            if link.update(!(10..60).contains(&k), k as f64 * 0.01) {
+                edges += 1;
+            }
+            assert_eq!(link.is_down(), (10..60).contains(&k), "write {k}");
+        }
+        assert_eq!(edges, 2, "one start, one clear");
+    }
 }

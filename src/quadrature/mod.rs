@@ -14,14 +14,20 @@
 //!
 //! Layers: [`counts`] (µm → whole counts with a carried residual), [`gray`] (levels ↔ phase, the
 //! decoder), [`scheduler`] (pure edge scheduler merging native and injected edges under the gap and
-//! rate limits), [`driver`] (writes the schedule to two `embedded_hal::digital::OutputPin`s).
+//! rate limits), [`driver`] (writes the schedule to two `embedded_hal::digital::OutputPin`s),
+//! [`injector`] (the real-time thread that writes owed edges when due), `gpio` (cargo feature `gpio`:
+//! the pins are Linux GPIO character-device lines).
 
 pub mod counts;
 pub mod driver;
+#[cfg(all(feature = "gpio", target_os = "linux"))]
+pub mod gpio;
 pub mod gray;
+pub mod injector;
 pub mod scheduler;
 
 pub use counts::CountQuantizer;
 pub use driver::QuadraturePins;
 pub use gray::{DecodeError, QuadDecoder, Step, levels_of_phase};
+pub use injector::{Injector, InjectorCounts, run_injector};
 pub use scheduler::{EdgeScheduler, Event, SchedulerConfig, Source, Transition, simulate};

@@ -4,8 +4,11 @@
 //!
 //! Sign: a register value of +n moves the slide by +n·lsb_um (target = nominal + shift). A gateway
 //! writes correction = −error. int32 shifts use two registers in the configured word order. With the
-//! optional handshake the PLC latches the words only on a strobe (strobe = 1, ack = 0 → latch, ack = 1;
-//! strobe = 0 → ack = 0), so a half-written pair is never applied.
+//! optional handshake the PLC latches the words only when the strobe changes (toggle handshake: the
+//! client writes the words, flips the strobe 0↔1 and waits for ack = strobe; the PLC latches once per
+//! flip and copies the strobe into the ack), so a half-written pair is never applied and every flip is
+//! exactly one latch. (An earlier version latched on the rising edge only, so every other write of a
+//! toggling client was acknowledged without being applied: found by tests/gateway_faults_hil.rs.)
 
 use crate::config::{PlcConfig, WordOrder, WordType};
 
@@ -105,18 +108,15 @@ impl OriginShiftPlc {
         let latch = match &self.cfg.handshake {
             None => true,
             Some(h) => {
-                let strobe = self.regs[h.strobe_register as usize] != 0;
-                let ack = self.regs[h.ack_register as usize] != 0;
-                match (strobe, ack) {
-                    (true, false) => {
-                        self.regs[h.ack_register as usize] = 1;
-                        true
-                    }
-                    (false, true) => {
-                        self.regs[h.ack_register as usize] = 0;
-                        false
-                    }
-                    _ => false,
+                // Toggle handshake (the gateway's side: src/origin_shift/cycle.rs): every change of
+                // the strobe is one request; the PLC latches and mirrors the strobe into the ack.
+                let strobe = self.regs[h.strobe_register as usize];
+                let ack = self.regs[h.ack_register as usize];
+                if strobe != ack {
+                    self.regs[h.ack_register as usize] = strobe;
+                    true
+                } else {
+                    false
                 }
             }
         };
@@ -216,7 +216,7 @@ mod tests {
     }
 
     #[test]
-    fn handshake_latches_only_on_strobe_and_acknowledges() {
+    fn handshake_latches_once_per_strobe_flip_and_acknowledges() {
         let cfg = PlcConfig {
             word: WordType::Int32,
             first_register: 10,
@@ -236,22 +236,20 @@ mod tests {
         plc.write(0, &[1]).unwrap();
         plc.scan();
         assert_eq!(plc.shift_um(1), -20.0);
-        assert_eq!(plc.read(1, 1).unwrap(), &[1], "ack raised");
+        assert_eq!(plc.read(1, 1).unwrap(), &[1], "ack mirrors the strobe");
         plc.write(y, &plc.encode(100).unwrap()).unwrap();
         plc.scan();
         assert_eq!(
             plc.shift_um(1),
             -20.0,
-            "strobe still high but already acknowledged: no second latch"
+            "strobe unchanged since the last latch: no second latch"
         );
         plc.write(0, &[0]).unwrap();
         plc.scan();
-        assert_eq!(
-            plc.read(1, 1).unwrap(),
-            &[0],
-            "ack dropped after strobe dropped"
-        );
-        assert_eq!(plc.latches(), 1);
+        assert_eq!(plc.shift_um(1), 50.0, "the flip back to 0 is a request too");
+        assert_eq!(plc.read(1, 1).unwrap(), &[0], "ack mirrors the strobe");
+        plc.scan();
+        assert_eq!(plc.latches(), 2, "one latch per flip, none per scan");
         assert!(matches!(
             plc.write(16, &[0, 0]),
             Err(RegisterError::OutOfWindow { .. })

@@ -8,10 +8,15 @@
 //!   on dropout), the cutting force and the strain gauges as int32 input register pairs (hi word
 //!   first, `force_lsb_N`, `strain_lsb_ue`; i32::MIN = no valid reading);
 //! - the force as ASCII weighing-indicator lines on a pty (`ST,GS,+00250.0N`; `OL` for NaN; silence on
-//!   dropout).
+//!   dropout);
+//! - transport faults on a schedule ([`transport_faults`]): Modbus TCP down and back, a CAN node
+//!   silent, garbage on the weighing line; every client write to the PLC window is logged
+//!   ([`plc_server`], `plc_writes.csv`).
 
+pub mod plc_server;
 pub mod publish;
 pub mod serve;
+pub mod transport_faults;
 
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -26,6 +31,9 @@ pub struct IoConfig {
     pub can: Option<CanIoConfig>,
     #[serde(default)]
     pub weighing: Option<WeighingIoConfig>,
+    /// Transport faults on a schedule (`[[io.faults]]`, see [`transport_faults`]).
+    #[serde(default)]
+    pub faults: Vec<transport_faults::TransportFaultConfig>,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize)]

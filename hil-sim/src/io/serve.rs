@@ -1,14 +1,20 @@
 //! The async shell of `hil-sim serve`: runs the world on the simulation clock (real time, or as fast
 //! as possible) and moves the publisher's bytes onto the configured transports; client writes to the
-//! Modbus holding registers reach the PLC window before every step.
+//! Modbus holding registers reach the PLC window before every step. Transport faults
+//! (`[[io.faults]]`, decided by [`super::transport_faults`]) are acted on here: the Modbus TCP server
+//! goes down and comes back, a CAN node's frames are dropped, garbage goes on the weighing pty. Each
+//! fault's start and clear is printed once on stderr (`hil-sim: fault modbus_down started at t = 4.000 s`).
 
+use super::plc_server::{PlcServer, SimClock, WriteEvent};
 use super::publish::Publisher;
+use super::transport_faults::{Active, Garbage, Schedule, Transition, silenced};
 use crate::clock::RealtimePacer;
 use crate::recording::Recorder;
 use crate::{SimConfig, World};
 use retrocomp::bus::can::backend::{AnyCanBus, open as open_can};
 use retrocomp::bus::can::{CanBus, MemBus};
-use retrocomp::bus::modbus::server::{RegisterBank, TcpServer, spawn_rtu};
+use retrocomp::bus::modbus::server::{RegisterBank, spawn_rtu};
+
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use tokio::io::AsyncWriteExt;
@@ -38,7 +44,6 @@ pub struct Running {
     pub bank: RegisterBank,
     pub status: watch::Receiver<Status>,
     task: JoinHandle<anyhow::Result<u64>>,
-    _tcp: Option<TcpServer>,
     _rtu: Option<JoinHandle<std::io::Result<()>>>,
     _keep_open: Vec<SerialStream>,
 }
@@ -81,6 +86,33 @@ fn pty_pair(link: &Path) -> anyhow::Result<(SerialStream, SerialStream, PathBuf)
     Ok((master, slave, dev))
 }
 
+/// Log each fault edge once and bring the Modbus TCP server down or up to match the schedule
+/// (idempotent, so overlapping `modbus_down` windows are one outage).
+async fn apply_transport_faults(
+    changes: &[Transition],
+    active: &Active,
+    tcp: Option<&mut PlcServer>,
+) -> anyhow::Result<()> {
+    for c in changes {
+        let what = match c.node {
+            Some(n) => format!("{:?} (node {n})", c.kind),
+            None => format!("{:?}", c.kind),
+        };
+        let edge = if c.started { "started" } else { "cleared" };
+        eprintln!("hil-sim: fault {what} {edge} at t = {:.3} s", c.t_s);
+    }
+    if let Some(srv) = tcp {
+        if active.modbus_down && srv.is_up() {
+            srv.stop();
+        } else if !active.modbus_down && !srv.is_up() {
+            srv.restart().await.map_err(|e| {
+                anyhow::anyhow!("modbus tcp: listening again on {}: {e}", srv.local_addr())
+            })?;
+        }
+    }
+    Ok(())
+}
+
 /// Start the simulation and its buses. `mem` is the in-process CAN bus for `backend = "mem"`;
 /// `out` optionally receives recording.csv + manifest.json.
 pub async fn start(
@@ -105,15 +137,24 @@ pub async fn start(
         }
     }
     let (mut tcp, mut rtu, mut rtu_pty, mut keep) = (None, None, None, Vec::new());
+    let clock = SimClock::default();
+    let (write_log_tx, mut write_log) = tokio::sync::mpsc::unbounded_channel::<WriteEvent>();
     if let Some(mb) = &io.modbus {
         if let Some(b) = &mb.tcp_bind {
             let addr: SocketAddr = b
                 .parse()
                 .map_err(|e| anyhow::anyhow!("io.modbus.tcp_bind `{b}`: {e}"))?;
             tcp = Some(
-                TcpServer::start(addr, bank.clone())
-                    .await
-                    .map_err(|e| anyhow::anyhow!("io.modbus.tcp_bind {addr}: {e}"))?,
+                PlcServer::start(
+                    addr,
+                    bank.clone(),
+                    world.plc().config().clone(),
+                    n,
+                    clock.clone(),
+                    write_log_tx.clone(),
+                )
+                .await
+                .map_err(|e| anyhow::anyhow!("io.modbus.tcp_bind {addr}: {e}"))?,
             );
         }
         if let Some(link) = &mb.rtu_pty_link {
@@ -152,6 +193,20 @@ pub async fn start(
         }
         None => None,
     };
+    // Every client write to the PLC window, for observers (tests assert clamp/cap/no-jump on it).
+    let mut writes_csv = match (out, &tcp) {
+        (Some(dir), Some(_)) => {
+            let mut f = std::io::BufWriter::new(std::fs::File::create(dir.join("plc_writes.csv"))?);
+            std::io::Write::write_all(&mut f, WriteEvent::CSV_HEADER.as_bytes())?;
+            Some(f)
+        }
+        _ => None,
+    };
+    drop(write_log_tx);
+    let modbus_tcp = tcp.as_ref().map(|t| t.local_addr());
+    let mut schedule = Schedule::new(io.faults.clone());
+    // Mean 30 ms between bursts: about one and a half per weighing line at 50 lines/s.
+    let mut garbage = Garbage::new(world.config().seed, 0.03);
     let mut publisher = Publisher::new(io, &world);
     let (status_tx, status) = watch::channel(Status::default());
     let task = tokio::spawn({
@@ -178,6 +233,11 @@ pub async fn start(
                     }
                     world.tick();
                     steps += 1;
+                    clock.set(world.t_s());
+                    let (active, changes) = schedule.advance(world.t_s());
+                    if !changes.is_empty() {
+                        apply_transport_faults(&changes, &active, tcp.as_mut()).await?;
+                    }
                     if let Some(a) = ack {
                         bank.set_holding(a, world.plc().read(a, 1)?);
                     }
@@ -186,7 +246,7 @@ pub async fn start(
                     }
                     let o = publisher.poll(&mut world);
                     if let Some(bus) = can.as_mut() {
-                        for f in &o.frames {
+                        for f in o.frames.iter().filter(|f| !silenced(f, &active)) {
                             bus.send(f)
                                 .await
                                 .map_err(|e| anyhow::anyhow!("CAN send: {e}"))?;
@@ -196,14 +256,21 @@ pub async fn start(
                         bank.set_input(*a, w);
                     }
                     if let Some(p) = weigh.as_mut() {
-                        for l in &o.lines {
+                        let mut chunks = vec![garbage.poll(world.t_s(), active.serial_garbage)];
+                        chunks.extend(o.lines.iter().map(|l| l.as_bytes().to_vec()));
+                        for bytes in chunks.iter().filter(|b| !b.is_empty()) {
                             let wr = tokio::time::timeout(
                                 std::time::Duration::from_millis(2),
-                                p.write_all(l.as_bytes()),
+                                p.write_all(bytes),
                             );
                             if !matches!(wr.await, Ok(Ok(()))) {
                                 dropped += 1;
                             }
+                        }
+                    }
+                    while let Ok(ev) = write_log.try_recv() {
+                        if let Some(f) = writes_csv.as_mut() {
+                            std::io::Write::write_all(f, ev.csv_row().as_bytes())?;
                         }
                     }
                     if world.done() {
@@ -226,17 +293,19 @@ pub async fn start(
             if let Some(r) = rec {
                 r.finish()?;
             }
+            if let Some(mut f) = writes_csv {
+                std::io::Write::flush(&mut f)?;
+            }
             Ok(steps)
         }
     });
     Ok(Running {
-        modbus_tcp: tcp.as_ref().map(|t| t.local_addr()),
+        modbus_tcp,
         rtu_pty,
         weighing_pty,
         bank,
         status,
         task,
-        _tcp: tcp,
         _rtu: rtu,
         _keep_open: keep,
     })

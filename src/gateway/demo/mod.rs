@@ -1,17 +1,23 @@
 //! `retrocomp demo`: the product's main job on a machine with no hardware. hil-sim (a separate
 //! binary, see [`sim_process`]) plays an old mill with hidden geometric, thermal and cutting-force
 //! physics; the gateway (this crate, in-process) reads its encoders and temperatures through a
-//! socketcand hub on loopback and writes origin shifts into its PLC window over Modbus TCP. Three
-//! runs of the same program: no compensation, the geometric-only model, the full model (geometry +
-//! thermal + cutting-force load, the force read as weighing lines on a serial pty). Error = actual −
-//! nominal, µm, at the tool tip; correction = −error.
+//! socketcand hub on loopback and writes origin shifts into its PLC window over Modbus TCP. Four
+//! runs of the same program: no compensation, the geometric-only truth model, the full truth model
+//! (geometry + thermal + cutting-force load, the force read as weighing lines on a serial pty), and
+//! the model FITTED from the simulator's own measurement runs ([`campaign`], [`fitted`]): what a
+//! compensation engineer would get without knowing the truth. Error = actual − nominal, µm, at the
+//! tool tip; correction = −error.
 //!
-//! The three runs go in parallel (each with its own hub, sim and gateway) so the demo takes one
-//! program's wall time; they are independent processes and sockets, with the same seed.
+//! The measurement runs come first (offline, seconds); then the four runs go in parallel (each
+//! with its own hub, sim and gateway) so the demo takes one program's wall time; they are
+//! independent processes and sockets, with the same seed.
 
+pub mod campaign;
 pub mod field;
+pub mod fitted;
 pub mod metrics;
 pub mod plot;
+pub mod readings;
 pub mod sim_process;
 
 use std::path::{Path, PathBuf};
@@ -24,12 +30,15 @@ use crate::gateway::config::FieldConfig;
 use crate::gateway::model_adapter::MachineModelAdapter;
 use crate::gateway::sources::spawn_sources;
 use crate::models::MachineModel;
+use crate::recording::Recording;
 use metrics::{DemoStats, ErrorTrace, RunStats};
 
 /// The geometric-only model (also hil-sim's hidden truth geometry).
 pub const GEOMETRIC_MODEL: &str = include_str!("../../../deploy/demo/mill-geometric.toml");
 /// Geometry + thermal + load terms of the simulated mill.
 pub const FULL_MODEL: &str = include_str!("../../../deploy/demo/mill-full.toml");
+/// The machine without error terms (chain, travels, tool): the start of the fitted model.
+pub const BASE_MODEL: &str = include_str!("../../../deploy/demo/mill-base.toml");
 
 /// Which model the gateway runs with.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -37,16 +46,24 @@ pub enum Mode {
     Uncompensated,
     Geometric,
     Full,
+    /// The model fitted from the measurement campaign.
+    Fitted,
 }
 
 impl Mode {
-    pub const ALL: [Mode; 3] = [Mode::Uncompensated, Mode::Geometric, Mode::Full];
+    pub const ALL: [Mode; 4] = [
+        Mode::Uncompensated,
+        Mode::Geometric,
+        Mode::Full,
+        Mode::Fitted,
+    ];
 
     pub fn key(self) -> &'static str {
         match self {
             Mode::Uncompensated => "uncompensated",
             Mode::Geometric => "geometric",
             Mode::Full => "full",
+            Mode::Fitted => "fitted",
         }
     }
 }
@@ -72,10 +89,15 @@ pub struct RunResult {
 pub struct DemoResult {
     pub stats: DemoStats,
     pub runs: Vec<RunResult>,
+    /// What the fit of the measurement runs produced (one line per component / signal).
+    pub fit_report: Vec<String>,
+    /// Wall time of the measurement runs and the fit, s.
+    pub campaign_s: f64,
     pub wall_s: f64,
 }
 
-/// Run the three modes and write recordings, configs and plots under `opts.out`.
+/// Measure, fit, then run the four modes; write recordings, configs, models and plots under
+/// `opts.out`.
 pub async fn run_demo(opts: &DemoOptions) -> anyhow::Result<DemoResult> {
     let t0 = Instant::now();
     let models = opts.out.join("models");
@@ -84,17 +106,27 @@ pub async fn run_demo(opts: &DemoOptions) -> anyhow::Result<DemoResult> {
     std::fs::write(&geo_path, GEOMETRIC_MODEL)?;
     std::fs::write(models.join("mill-full.toml"), FULL_MODEL)?;
     let geo_path = std::fs::canonicalize(&geo_path)?;
-    let runs = futures_join3(
-        one_run(opts, Mode::Uncompensated, &geo_path),
-        one_run(opts, Mode::Geometric, &geo_path),
-        one_run(opts, Mode::Full, &geo_path),
-    )
-    .await;
-    let runs: Vec<RunResult> = runs.into_iter().collect::<anyhow::Result<_>>()?;
+    let (fitted_model, fit) = measure_and_fit(opts, &geo_path).await?;
+    std::fs::write(models.join("mill-fitted.toml"), &fit.toml)?;
+    std::fs::write(models.join("fit-report.txt"), fit.report.join("\n") + "\n")?;
+    let campaign_s = t0.elapsed().as_secs_f64();
+    let (a, b, c, d) = tokio::join!(
+        one_run(opts, Mode::Uncompensated, &geo_path, None),
+        one_run(
+            opts,
+            Mode::Geometric,
+            &geo_path,
+            Some(truth_model(Mode::Geometric)?)
+        ),
+        one_run(opts, Mode::Full, &geo_path, Some(truth_model(Mode::Full)?)),
+        one_run(opts, Mode::Fitted, &geo_path, Some(fitted_model)),
+    );
+    let runs = vec![a?, b?, c?, d?];
     let stats = DemoStats {
         uncompensated: runs[0].stats,
         geometric: runs[1].stats,
         full: runs[2].stats,
+        fitted: runs[3].stats,
     };
     plot::write_plots(&opts.out, &runs)?;
     std::fs::write(
@@ -104,31 +136,85 @@ pub async fn run_demo(opts: &DemoOptions) -> anyhow::Result<DemoResult> {
     Ok(DemoResult {
         stats,
         runs,
+        fit_report: fit.report,
+        campaign_s,
         wall_s: t0.elapsed().as_secs_f64(),
     })
 }
 
-async fn futures_join3<T>(
-    a: impl std::future::Future<Output = T>,
-    b: impl std::future::Future<Output = T>,
-    c: impl std::future::Future<Output = T>,
-) -> [T; 3] {
-    let (a, b, c) = tokio::join!(a, b, c);
-    [a, b, c]
+/// The measurement campaign on hil-sim (the demo's hidden machine, `truth` = its geometry) and the
+/// fit; everything under `OUT/campaign`.
+async fn measure_and_fit(
+    opts: &DemoOptions,
+    truth: &Path,
+) -> anyhow::Result<(MachineModel, fitted::FitOutcome)> {
+    let dir = std::path::absolute(opts.out.join("campaign"))?;
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    // The demo's machine; the buses are dropped, so the port and pty are placeholders.
+    let sim = sim_process::sim_config(opts.seed, truth, 0, 0.0, &dir.join("unused-pty"));
+    let plans = campaign::demo_plans();
+    let mut jobs = Vec::new();
+    for p in &plans {
+        let name = format!("geometry-{}", p.axis.lower());
+        jobs.push((
+            name,
+            campaign::measurement_config(&sim, &p.gcode(), 0.1, "geometry")?,
+        ));
+    }
+    jobs.push((
+        "context".to_string(),
+        campaign::measurement_config(&sim, &campaign::context_gcode(), 0.05, "context")?,
+    ));
+    let mut set = tokio::task::JoinSet::new();
+    for (name, text) in &jobs {
+        let run_dir = dir.join(name);
+        std::fs::create_dir_all(&run_dir)?;
+        let cfg = run_dir.join("sim.toml");
+        std::fs::write(&cfg, text)?;
+        let bin = opts.hil_sim.clone();
+        set.spawn(async move { campaign::run_measurement(&bin, &cfg, &run_dir).await });
+    }
+    while let Some(r) = set.join_next().await {
+        r.context("measurement task")??;
+    }
+    let read = |name: &str| -> anyhow::Result<(Recording, String)> {
+        let p = dir.join(name).join("recording.csv");
+        Ok((Recording::read_path(&p)?, p.display().to_string()))
+    };
+    let geo: Vec<(Recording, String)> = plans
+        .iter()
+        .map(|p| read(&format!("geometry-{}", p.axis.lower())))
+        .collect::<anyhow::Result<_>>()?;
+    let (ctx, ctx_name) = read("context")?;
+    let base = MachineModel::from_toml_str(BASE_MODEL, "deploy/demo/mill-base.toml")
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let geometry: Vec<(&campaign::AxisPlan, &Recording, &str)> = plans
+        .iter()
+        .zip(&geo)
+        .map(|(p, (r, n))| (p, r, n.as_str()))
+        .collect();
+    let (model, fit) = fitted::fit_model(base.spec(), &geometry, (&ctx, &ctx_name))?;
+    for (name, text) in &fit.readings_csv {
+        std::fs::write(dir.join(name), text)?;
+    }
+    Ok((model, fit))
 }
 
-fn model_for(mode: Mode) -> anyhow::Result<Option<MachineModel>> {
+fn truth_model(mode: Mode) -> anyhow::Result<MachineModel> {
     let text = match mode {
-        Mode::Uncompensated => return Ok(None),
         Mode::Geometric => GEOMETRIC_MODEL,
-        Mode::Full => FULL_MODEL,
+        _ => FULL_MODEL,
     };
     MachineModel::from_toml_str(text, &format!("deploy/demo ({})", mode.key()))
-        .map(Some)
         .map_err(|e| anyhow::anyhow!("demo model ({}): {e}", mode.key()))
 }
 
-async fn one_run(opts: &DemoOptions, mode: Mode, truth: &Path) -> anyhow::Result<RunResult> {
+async fn one_run(
+    opts: &DemoOptions,
+    mode: Mode,
+    truth: &Path,
+    model: Option<MachineModel>,
+) -> anyhow::Result<RunResult> {
     let dir = std::path::absolute(opts.out.join(mode.key()))?;
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let hub = Hub::start_loopback()
@@ -146,7 +232,6 @@ async fn one_run(opts: &DemoOptions, mode: Mode, truth: &Path) -> anyhow::Result
         ),
     )?;
     let mut sim = sim_process::start(&opts.hil_sim, &sim_cfg, &dir).await?;
-    let model = model_for(mode)?;
     let (mut cycles, mut writes_ok) = (0, 0);
     let status = if let Some(model) = model {
         let text = field::field_toml(

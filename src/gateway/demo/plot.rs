@@ -1,5 +1,5 @@
 //! SVG plots of the demo (plotters, svg backend): per axis, the tool-tip error over time of the
-//! three runs, and the volumetric error |e| over time. Error = actual − nominal, µm.
+//! four runs, and the volumetric error |e| over time. Error = actual − nominal, µm.
 
 use std::path::Path;
 
@@ -8,7 +8,7 @@ use plotters::prelude::*;
 
 use super::RunResult;
 
-const COLOURS: [RGBColor; 3] = [RED, BLUE, RGBColor(0, 140, 0)];
+const COLOURS: [RGBColor; 4] = [RED, BLUE, RGBColor(0, 140, 0), RGBColor(230, 140, 0)];
 
 /// Writes `error_x.svg`, `error_y.svg`, `error_z.svg` and `volumetric.svg` into `out`.
 pub fn write_plots(out: &Path, runs: &[RunResult]) -> anyhow::Result<()> {

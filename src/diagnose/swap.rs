@@ -1,0 +1,193 @@
+//! The exchange step after greedy forward selection ([`super::select`]): each accepted term is
+//! tried against every other candidate given all the OTHER accepted terms, and replaced when a
+//! candidate explains the residual better. Greedy forward selection cannot undo an early choice:
+//! with two effects, a term that absorbs parts of both (a lagged spindle temperature standing in
+//! for a column temperature plus a time drift) wins the first step, and the nested-family rule then
+//! keeps the right sensor out. After an exchange, forward selection resumes, so the effect the
+//! wrong term had been absorbing can enter. It runs only when the residual after selection still
+//! holds structure no candidate explains (`locate::unexplained`), the sign of such a wrong turn.
+//!
+//! A replacement (one candidate, or one plus the best second candidate: a pure swap cannot help
+//! when the wrong term alone explains more than the right one alone) must beat the term it
+//! replaces by ΔBIC ≥ [`MIN_GAIN_BIC`] (one effective sample size for both), each new term must
+//! pass the forward bar as a partial test given all others (ΔBIC > `min_delta_bic`, F-test ×
+//! candidates tried < α), and the held-out RMS must not get worse.
+
+use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+
+use super::candidates::Candidate;
+use super::features::Context;
+use super::lsq::{self, dot};
+use super::select::{Options, Term};
+
+/// ΔBIC by which a replacement must beat the term it replaces ("positive" evidence).
+pub const MIN_GAIN_BIC: f64 = 6.0;
+
+/// Replacement candidates (best single gains) tried per accepted term, each alone and with the
+/// best second candidate.
+const TOP_REPLACEMENTS: usize = 4;
+
+/// An exchange under consideration: BIC improvement, the term replaced, the new (candidate, θ).
+type Choice = (f64, usize, Vec<(Candidate, f64)>);
+
+/// The best exchange found: replace `terms[k]` with these terms (one or two).
+pub struct Exchange {
+    pub k: usize,
+    pub terms: Vec<Term>,
+}
+
+/// Columns: intercept plus every accepted term except `skip`.
+fn others(terms: &[Term], skip: usize, n: usize) -> Vec<Vec<f64>> {
+    let mut v = vec![vec![1.0; n]];
+    for (j, t) in terms.iter().enumerate() {
+        if j != skip {
+            v.extend(t.cols.iter().cloned());
+        }
+    }
+    v
+}
+
+fn gain(
+    ctx: &Context,
+    c: &Candidate,
+    th: f64,
+    basis: &[Vec<f64>],
+    r0: &[f64],
+) -> Option<(f64, usize)> {
+    let u = lsq::orthonormalize(basis, c.columns(ctx, th), 1);
+    (!u.is_empty()).then(|| (lsq::gain(&u, r0), u.len() + usize::from(c.is_nonlinear())))
+}
+
+/// Look for the best exchange: replace `terms[k]` by a candidate c, or by c plus one more
+/// candidate d (the effect the old term had been absorbing). `n_eff` is the effective sample size
+/// of the current residual; `tried` the number of candidate/grid pairs (Holm-corrected F-test);
+/// `cv_now` the held-out RMS of the current set, `cv_of` the held-out RMS of a column set.
+#[allow(clippy::too_many_arguments)]
+pub fn best_exchange(
+    ctx: &Context,
+    r: &[f64],
+    lib: &[Candidate],
+    terms: &[Term],
+    n_eff: f64,
+    tried: usize,
+    opts: &Options,
+    cv_now: f64,
+    cv_of: &dyn Fn(&[Vec<f64>]) -> f64,
+) -> Option<Exchange> {
+    let n = r.len();
+    let ln_n = n_eff.ln();
+    let taken = |c: &Candidate| {
+        terms
+            .iter()
+            .any(|t| t.cand.kind == c.kind && t.cand.axis == c.axis)
+    };
+    // Best grid value of candidate c on `basis` (residual r0): (gain, q, θ).
+    let best_of = |c: &Candidate, basis: &[Vec<f64>], r0: &[f64]| {
+        let thetas: Vec<f64> = if c.grid.is_empty() {
+            vec![f64::NAN]
+        } else {
+            c.grid.clone()
+        };
+        thetas
+            .iter()
+            .filter_map(|&th| gain(ctx, c, th, basis, r0).map(|(g, q)| (g, q, th)))
+            .max_by(|a, b| a.0.total_cmp(&b.0))
+    };
+    // (improvement in BIC, k, [(cand, θ)]).
+    let mut best: Option<Choice> = None;
+    for k in 0..terms.len() {
+        let basis = lsq::orthonormalize(&[], others(terms, k, n), 2);
+        let r0 = lsq::deflate(&basis, r);
+        let rss0 = dot(&r0, &r0);
+        if rss0.is_nan() || rss0 <= 0.0 {
+            continue;
+        }
+        let Some((g_cur, q_cur)) = gain(ctx, &terms[k].cand, terms[k].theta, &basis, &r0) else {
+            continue;
+        };
+        let rss_cur = rss0 - g_cur;
+        let mut singles: Vec<(f64, usize, f64, &Candidate)> = lib
+            .iter()
+            .filter(|c| !taken(c))
+            .filter_map(|c| best_of(c, &basis, &r0).map(|(g, q, th)| (g, q, th, c)))
+            .collect();
+        singles.sort_by(|a, b| b.0.total_cmp(&a.0));
+        for &(g_c, q_c, th_c, c) in singles.iter().take(TOP_REPLACEMENTS) {
+            let score = |rss_new: f64, q: usize| {
+                n_eff * (rss_cur / rss_new.max(1e-300)).ln() - (q as f64 - q_cur as f64) * ln_n
+            };
+            let mut consider = |imp: f64, set: Vec<(Candidate, f64)>| {
+                if imp >= MIN_GAIN_BIC && best.as_ref().is_none_or(|b| imp > b.0) {
+                    best = Some((imp, k, set));
+                }
+            };
+            consider(score(rss0 - g_c, q_c), vec![(c.clone(), th_c)]);
+            let mut b2 = basis.clone();
+            b2.extend(lsq::orthonormalize(&basis, c.columns(ctx, th_c), 1));
+            let r1 = lsq::deflate(&b2, r);
+            for d in lib.iter().filter(|d| !taken(d) && d.kind != c.kind) {
+                if let Some((g_d, q_d, th_d)) = best_of(d, &b2, &r1) {
+                    consider(
+                        score(rss0 - g_c - g_d, q_c + q_d),
+                        vec![(c.clone(), th_c), (d.clone(), th_d)],
+                    );
+                }
+            }
+        }
+    }
+    let (_, k, set) = best?;
+    if terms.len() - 1 + set.len() > opts.max_terms {
+        return None;
+    }
+    // Every new term must pass the forward bar as a partial test given all the others.
+    let mut base = others(terms, k, n);
+    let new_cols: Vec<Vec<Vec<f64>>> = set.iter().map(|(c, th)| c.columns(ctx, *th)).collect();
+    let mut out = vec![];
+    for (i, (c, th)) in set.iter().enumerate() {
+        let mut rest = base.clone();
+        for (j, cols) in new_cols.iter().enumerate() {
+            if j != i {
+                rest.extend(cols.iter().cloned());
+            }
+        }
+        let basis = lsq::orthonormalize(&[], rest.clone(), 2);
+        let r0 = lsq::deflate(&basis, r);
+        let rss0 = dot(&r0, &r0);
+        let (g, q) = gain(ctx, c, *th, &basis, &r0)?;
+        let delta_bic = n_eff * (rss0 / (rss0 - g).max(1e-300)).ln() - q as f64 * ln_n;
+        let df2 = n_eff - rest.len() as f64 - q as f64;
+        let p_value = if df2 >= 1.0 {
+            let f = (g / q as f64) / ((rss0 - g) / df2);
+            FisherSnedecor::new(q as f64, df2).map_or(1.0, |d| d.sf(f))
+        } else {
+            1.0
+        };
+        if !(delta_bic > opts.min_delta_bic && p_value * (tried as f64) < opts.alpha) {
+            return None;
+        }
+        let cv_without = cv_of(&rest);
+        rest.extend(new_cols[i].iter().cloned());
+        let cv_after = cv_of(&rest);
+        out.push(Term {
+            cand: c.clone(),
+            theta: *th,
+            cols: new_cols[i].clone(),
+            delta_bic,
+            p_value,
+            gain_rss: g,
+            rms_after_um: ((rss0 - g) / n as f64).sqrt(),
+            heldout_rms_before_um: cv_without,
+            heldout_rms_after_um: cv_after,
+            ambiguous_with: vec![],
+            within_cells: false,
+        });
+    }
+    for cols in &new_cols {
+        base.extend(cols.iter().cloned());
+    }
+    let cv_after = cv_of(&base);
+    if cv_after.is_nan() || cv_after > cv_now {
+        return None;
+    }
+    Some(Exchange { k, terms: out })
+}

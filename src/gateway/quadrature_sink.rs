@@ -1,0 +1,196 @@
+//! The quadrature sink: per axis, the cycle's correction (µm, = −error) becomes whole counts
+//! ([`CountQuantizer`]: sign, resolution, carried residual) and goes to that axis's injector — a GPIO
+//! thread (`gpio` lines configured, cargo feature `gpio`) or the scheduler run in simulation (no
+//! lines configured: counts and edges are planned exactly as for GPIO, without pins).
+//!
+//! A config that names GPIO lines on a build without the `gpio` feature is refused at start
+//! ([`check_buildable`]) rather than silently simulated: the technician would otherwise see a
+//! healthy status while nothing reaches the controller.
+
+use anyhow::{Context as _, bail};
+use tokio::sync::watch;
+
+use super::config::{FieldConfig, QuadratureAxis, QuadratureSink};
+use super::status::SinkStatus;
+use crate::quadrature::{CountQuantizer, EdgeScheduler, SchedulerConfig, simulate};
+
+/// Refuse GPIO lines this build cannot drive.
+pub fn check_buildable(cfg: &FieldConfig) -> anyhow::Result<()> {
+    let Some(q) = &cfg.sink.quadrature else {
+        return Ok(());
+    };
+    for a in &q.axes {
+        if a.gpio.is_some() && !cfg!(all(feature = "gpio", target_os = "linux")) {
+            bail!(
+                "sink.quadrature axis {}: `gpio` lines are configured but this build has no GPIO \
+                 support; rebuild with `cargo build --release --features gpio` (Linux), or remove \
+                 `gpio = …` to run the injector in simulation",
+                a.axis
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Where one axis's counts go.
+enum AxisInjector {
+    Simulated(EdgeScheduler),
+    #[cfg(all(feature = "gpio", target_os = "linux"))]
+    Gpio {
+        deltas: std::sync::mpsc::Sender<i64>,
+        counts: std::sync::Arc<std::sync::Mutex<crate::quadrature::InjectorCounts>>,
+    },
+}
+
+impl AxisInjector {
+    fn open(a: &QuadratureAxis) -> anyhow::Result<Self> {
+        let sched = EdgeScheduler::new(SchedulerConfig {
+            min_edge_gap_ns: a.min_edge_gap_ns,
+            max_inject_rate_hz: a.max_inject_rate_hz,
+        })
+        .with_context(|| format!("sink.quadrature axis {}", a.axis))?;
+        match &a.gpio {
+            None => Ok(Self::Simulated(sched)),
+            #[cfg(all(feature = "gpio", target_os = "linux"))]
+            Some(lines) => {
+                use crate::quadrature::{Injector, InjectorCounts, run_injector};
+                let (pin_a, pin_b) =
+                    crate::quadrature::gpio::open_output_pins(lines, sched.levels())
+                        .with_context(|| format!("sink.quadrature axis {}", a.axis))?;
+                let inj = Injector::new(sched, pin_a, pin_b)
+                    .map_err(|e| anyhow::anyhow!("axis {}: {e}", a.axis))?;
+                let (tx, rx) = std::sync::mpsc::channel();
+                let counts = std::sync::Arc::new(std::sync::Mutex::new(InjectorCounts::default()));
+                let shared = counts.clone();
+                let axis = a.axis.clone();
+                std::thread::Builder::new()
+                    .name(format!("quadrature-{axis}"))
+                    .spawn(move || {
+                        let report = |c| *shared.lock().unwrap_or_else(|p| p.into_inner()) = c;
+                        if let Err(e) = run_injector(inj, rx, report) {
+                            tracing::error!(axis, %e, "GPIO injector stopped");
+                        }
+                    })
+                    .context("spawning the injector thread")?;
+                Ok(Self::Gpio { deltas: tx, counts })
+            }
+            #[cfg(not(all(feature = "gpio", target_os = "linux")))]
+            Some(_) => {
+                bail!(
+                    "sink.quadrature axis {}: this build has no GPIO support (feature `gpio`)",
+                    a.axis
+                )
+            }
+        }
+    }
+
+    /// Hand over `delta` counts; false if the injector is gone.
+    fn inject(&mut self, delta: i64) -> bool {
+        match self {
+            Self::Simulated(sched) => {
+                sched.add_inject_counts(delta);
+                let _ = simulate(sched, &[]);
+                true
+            }
+            #[cfg(all(feature = "gpio", target_os = "linux"))]
+            Self::Gpio { deltas, .. } => deltas.send(delta).is_ok(),
+        }
+    }
+
+    fn kind(&self) -> &'static str {
+        match self {
+            Self::Simulated(_) => "quadrature (simulated)",
+            #[cfg(all(feature = "gpio", target_os = "linux"))]
+            Self::Gpio { .. } => "quadrature (gpio)",
+        }
+    }
+
+    /// Counts requested but not yet written to the lines.
+    fn owed(&self) -> i64 {
+        match self {
+            Self::Simulated(s) => s.inject_remaining(),
+            #[cfg(all(feature = "gpio", target_os = "linux"))]
+            Self::Gpio { counts, .. } => counts.lock().map(|c| c.owed).unwrap_or(0),
+        }
+    }
+}
+
+/// Follow the cycle's outputs until the runtime drops its sender.
+pub async fn quadrature_task(
+    q: QuadratureSink,
+    mut out_rx: watch::Receiver<Vec<(String, f64)>>,
+    status: watch::Sender<SinkStatus>,
+) {
+    let mut axes = Vec::new();
+    for a in &q.axes {
+        let opened = CountQuantizer::new(a.resolution_um, a.count_sign)
+            .map_err(anyhow::Error::from)
+            .and_then(|quant| Ok((quant, AxisInjector::open(a)?)));
+        match opened {
+            Ok((quant, inj)) => axes.push((a.axis.clone(), quant, inj)),
+            Err(e) => {
+                tracing::error!(axis = a.axis, "{e:#}");
+                let _ = status.send(SinkStatus {
+                    kind: "quadrature".into(),
+                    last_error: Some(format!("{e:#}")),
+                    ..Default::default()
+                });
+                return;
+            }
+        }
+    }
+    let mut st = SinkStatus {
+        kind: axes.first().map_or("quadrature", |a| a.2.kind()).into(),
+        connected: true,
+        ..Default::default()
+    };
+    while out_rx.changed().await.is_ok() {
+        let outs = out_rx.borrow().clone();
+        for (axis, quant, inj) in &mut axes {
+            let Some((_, v)) = outs.iter().find(|(a, _)| a == axis) else {
+                continue;
+            };
+            match quant.delta_counts(*v) {
+                Ok(d) if inj.inject(d) => st.writes_ok += 1,
+                Ok(_) => {
+                    st.writes_failed += 1;
+                    st.connected = false;
+                    st.last_error = Some(format!("axis {axis}: injector stopped"));
+                }
+                Err(e) => {
+                    st.writes_failed += 1;
+                    st.last_error = Some(format!("axis {axis}: {e}"));
+                }
+            }
+            if inj.owed() != 0 {
+                tracing::debug!(axis, owed = inj.owed(), "counts still owed to the lines");
+            }
+        }
+        let _ = status.send(st.clone());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gpio_lines_need_a_gpio_build() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("deploy/field/mill-quadrature.toml");
+        let cfg = FieldConfig::load(&path).unwrap();
+        assert!(cfg.sink.quadrature.as_ref().unwrap().axes[0].gpio.is_some());
+        let checked = check_buildable(&cfg);
+        if cfg!(all(feature = "gpio", target_os = "linux")) {
+            checked.unwrap();
+        } else {
+            let e = checked.unwrap_err().to_string();
+            assert!(e.contains("--features gpio") && e.contains("axis x"), "{e}");
+        }
+        let mut simulated = cfg.clone();
+        for a in &mut simulated.sink.quadrature.as_mut().unwrap().axes {
+            a.gpio = None;
+        }
+        check_buildable(&simulated).unwrap();
+    }
+}

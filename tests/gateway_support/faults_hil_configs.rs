@@ -1,0 +1,309 @@
+//! The run of `gateway_faults_hil`: the fault script (simulated seconds), hil-sim's config (the demo
+//! mill with a second spindle sensor, sensor faults and `[[io.faults]]`) and the gateway's field
+//! config (clamps, dosing cap, channel limits, the spindle sensor's neighbour estimate).
+#![allow(dead_code)]
+
+use std::path::Path;
+
+pub const CLAMP_UM: f64 = 40.0;
+pub const CLAMP_Y_UM: f64 = 5.0;
+pub const CAP_UM: f64 = 1.0;
+pub const LSB_UM: f64 = 0.5;
+/// How close the applied correction must come back to the ideal one after a fault clears, µm.
+pub const TOL_UM: f64 = 5.0;
+/// Time allowed to come back after a fault clears (ramp at the dosing cap, PLC scan), s.
+pub const SETTLE_S: f64 = 1.0;
+
+pub const MODBUS_DOWN: (f64, f64) = (5.0, 7.0);
+pub const CAN_SILENT: (f64, f64) = (9.0, 10.5);
+pub const T_STUCK: (f64, f64) = (12.0, 14.0);
+pub const T_NAN: (f64, f64) = (14.0, 15.5);
+pub const GARBAGE: (f64, f64) = (17.5, 20.0);
+pub const KILL_AT_S: f64 = 22.0;
+pub const TERM_AT_S: f64 = 25.5;
+
+pub fn sim_toml(hub_port: u16, pty_link: &Path, truth: &Path) -> String {
+    let strokes = "G1 X150 Y100\nG1 X0 Y0\n".repeat(5);
+    format!(
+        r#"
+seed = 5
+[clock]
+realtime = true
+max_duration_s = 60.0
+
+[program]
+tool_mm = 100.0
+start_mm = [0.0, 0.0, 5.0]
+gcode = """
+G90 G21
+G4 P1.0
+S3000 M3
+G1 F3600
+{strokes}M5
+M30
+"""
+
+[servo]
+ideal = true
+count_um = 1.0
+
+[plc]
+scan_s = 0.004
+word = "int32"
+word_order = "hi_lo"
+lsb_um = {LSB_UM}
+first_register = 0
+handshake = {{ strobe_register = 10, ack_register = 11 }}
+
+[truth]
+model_path = "{truth}"
+
+[hidden.thermal]
+ambient_C = 20.0
+ambient_drift_C_per_h = 0.0
+
+[[hidden.thermal.nodes]]
+name = "spindle"
+tau_s = 8.0
+rise_C_per_krpm = 2.0
+
+[[hidden.thermal.nodes]]
+name = "xscrew"
+tau_s = 5.0
+rise_C_per_mm_s = {{ x = 0.15 }}
+
+# Sensor noise of 0.08 °C on 0.1 °C CAN steps: a healthy reading never stays bit-identical for 1 s.
+[[hidden.thermal.sensors]]
+name = "spindle"
+node = "spindle"
+tau_s = 0.2
+noise_C = 0.08
+
+[[hidden.thermal.sensors]]
+name = "xscrew"
+node = "xscrew"
+tau_s = 0.2
+noise_C = 0.08
+
+# A second sensor on the spindle housing: the neighbour that stands in for the first (Ni's recovery).
+[[hidden.thermal.sensors]]
+name = "spindle2"
+node = "spindle"
+tau_s = 0.3
+noise_C = 0.08
+
+[[hidden.thermal.effects]]
+kind = "growth"
+node = "spindle"
+axis = "z"
+um_per_K = -6.0
+
+[[hidden.thermal.effects]]
+kind = "expansion"
+node = "xscrew"
+axis = "x"
+ppm_per_K = 11.5
+
+[hidden.cutting]
+stock_top_z_mm = 0.0
+kc_N_per_mm2 = 2000.0
+teeth = 2.0
+compliance_um_per_N = {{ x = 0.004, y = 0.003, z = -0.002 }}
+force_name = "cut"
+force_noise_N = 1.0
+
+[[faults]]
+channel = "T_spindle_C"
+kind = "stuck"
+from_s = {stuck0}
+to_s = {stuck1}
+
+[[faults]]
+channel = "T_spindle_C"
+kind = "nan"
+from_s = {nan0}
+to_s = {nan1}
+
+[record]
+every_s = 0.01
+shift_columns = true
+
+[io.can]
+backend = "socketcand"
+host = "127.0.0.1"
+port = {hub_port}
+channel = "can0"
+encoder_nodes = [1, 2, 3]
+encoder_period_s = 0.002
+temp_node = 10
+temp_period_s = 0.05
+heartbeat_period_s = 0.1
+
+[io.modbus]
+tcp_bind = "127.0.0.1:0"
+
+[io.weighing]
+pty_link = "{pty}"
+period_s = 0.02
+
+[[io.faults]]
+kind = "modbus_down"
+from_s = {mb0}
+to_s = {mb1}
+
+[[io.faults]]
+kind = "can_node_silent"
+node = 1
+from_s = {can0}
+to_s = {can1}
+
+[[io.faults]]
+kind = "serial_garbage"
+from_s = {g0}
+to_s = {g1}
+"#,
+        truth = truth.display(),
+        pty = pty_link.display(),
+        stuck0 = T_STUCK.0,
+        stuck1 = T_STUCK.1,
+        nan0 = T_NAN.0,
+        nan1 = T_NAN.1,
+        mb0 = MODBUS_DOWN.0,
+        mb1 = MODBUS_DOWN.1,
+        can0 = CAN_SILENT.0,
+        can1 = CAN_SILENT.1,
+        g0 = GARBAGE.0,
+        g1 = GARBAGE.1,
+    )
+}
+
+pub fn field_toml(hub_port: u16, plc: &str, pty: &Path) -> String {
+    let pty = pty.display();
+    let axis = |name: &str, clamp: f64, lo: f64, hi: f64| {
+        format!(
+            r#"
+[[axis]]
+name = "{name}"
+position_channel = "{name}_mm"
+safety = {{ max_correction_um = {clamp}, max_change_um_per_cycle = {CAP_UM}, ramp_um_per_s = 400.0, stale_hold_s = 0.5 }}
+[[channel]]
+name = "{name}_mm"
+min = {lo}
+max = {hi}
+stale_after_s = 0.1
+"#
+        )
+    };
+    let axes = axis("x", CLAMP_UM, -10.0, 220.0)
+        + &axis("y", CLAMP_Y_UM, -10.0, 170.0)
+        + &axis("z", CLAMP_UM, -20.0, 70.0);
+    format!(
+        r#"
+[gateway]
+name = "faults-hil"
+cycle_ms = 5
+thermal_period_s = 0.1
+status_listen = "127.0.0.1:0"
+
+[safety]
+max_correction_um = {CLAMP_UM}
+max_change_um_per_cycle = {CAP_UM}
+ramp_um_per_s = 400.0
+stale_hold_s = 0.5
+
+[direction]
+deadband_mm = 0.005
+switch_time_s = 0.05
+{axes}
+[[channel]]
+name = "T_spindle_C"
+min = 5.0
+max = 80.0
+stale_after_s = 0.5
+stuck_after_s = 1.0
+
+[[channel]]
+name = "T_spindle2_C"
+min = 5.0
+max = 80.0
+stale_after_s = 0.5
+
+[[channel]]
+name = "T_xscrew_C"
+min = 5.0
+max = 80.0
+stale_after_s = 0.5
+
+[[channel]]
+name = "F_cut_N"
+min = -2000.0
+max = 2000.0
+stale_after_s = 0.5
+
+# Both sensors sit on the spindle housing node: the estimate is the neighbour itself.
+[[recovery]]
+target = "T_spindle_C"
+neighbours = ["T_spindle2_C"]
+coefficients = [0.0, 1.0]
+fit_rms = 0.1
+
+[can]
+backend = "socketcand"
+host = "127.0.0.1"
+port = {hub_port}
+channel = "can0"
+
+[canopen]
+pdo_timeout_s = 0.2
+encoder = [
+  {{ channel = "x_mm", node_id = 1, counts_per_mm = 1000.0 }},
+  {{ channel = "y_mm", node_id = 2, counts_per_mm = 1000.0 }},
+  {{ channel = "z_mm", node_id = 3, counts_per_mm = 1000.0 }},
+]
+analog = [
+  {{ channel = "T_spindle_C", node_id = 10, type = "int16", byte_offset = 0, decimal_digits = 1 }},
+  {{ channel = "T_xscrew_C", node_id = 10, type = "int16", byte_offset = 2, decimal_digits = 1 }},
+  {{ channel = "T_spindle2_C", node_id = 10, type = "int16", byte_offset = 4, decimal_digits = 1 }},
+]
+
+[serial]
+[[serial.source]]
+name = "scale"
+device = "{pty}"
+baud = 9600
+format = {{ kind = "weighing", unit = "N" }}
+channel = [ {{ name = "F_cut_N" }} ]
+
+[sink.origin_shift]
+transport = {{ kind = "tcp", address = "{plc}" }}
+request_timeout_ms = 300
+reconnect_min_ms = 20
+reconnect_max_ms = 200
+write_period_ms = 10
+
+[sink.origin_shift.map]
+[[sink.origin_shift.map.axis]]
+axis = "x"
+address = 0
+kind = "int32"
+lsb_um = {LSB_UM}
+sign = 1
+[[sink.origin_shift.map.axis]]
+axis = "y"
+address = 2
+kind = "int32"
+lsb_um = {LSB_UM}
+sign = 1
+[[sink.origin_shift.map.axis]]
+axis = "z"
+address = 4
+kind = "int32"
+lsb_um = {LSB_UM}
+sign = 1
+[sink.origin_shift.map.handshake]
+strobe_address = 10
+ack_address = 11
+timeout_ms = 200
+"#
+    )
+}

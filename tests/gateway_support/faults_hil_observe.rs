@@ -1,0 +1,174 @@
+//! What `gateway_faults_hil` reads back: hil-sim's log of client writes (`plc_writes.csv`), its
+//! recording (applied shift vs the ideal correction), and the gateway's fault log lines. Sans-IO:
+//! every function takes the text.
+#![allow(dead_code)]
+
+use std::collections::BTreeMap;
+
+use crate::configs::{CLAMP_UM, CLAMP_Y_UM};
+
+/// One row of plc_writes.csv.
+#[derive(Debug, Clone, Copy)]
+pub struct Write {
+    pub t_s: f64,
+    pub address: u16,
+    pub um: [f64; 3],
+    /// The gateway's TCP source port: a new one is a new connection.
+    pub port: u16,
+}
+
+pub fn parse_writes(text: &str) -> Vec<Write> {
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next(),
+        Some("t_s,address,count,x_um,y_um,z_um,client_port")
+    );
+    lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            assert_eq!(f.len(), 7, "{l}");
+            let num = |i: usize| f[i].parse::<f64>().unwrap_or_else(|e| panic!("{l}: {e}"));
+            Write {
+                t_s: num(0),
+                address: f[1].parse().unwrap(),
+                um: [num(3), num(4), num(5)],
+                port: f[6].parse().unwrap(),
+            }
+        })
+        .collect()
+}
+
+/// (t_s, deviation of the applied correction from the ideal one per axis, µm). Ideal = −(error
+/// without correction), clamped; the recording's error includes the applied shift, so the error
+/// without it is `e − shift` (register + moves the slide +).
+pub fn deviations(recording: &str) -> Vec<(f64, [f64; 3])> {
+    let mut rdr = csv::Reader::from_reader(recording.as_bytes());
+    let h = rdr.headers().unwrap().clone();
+    let col = |n: &str| {
+        h.iter()
+            .position(|c| c == n)
+            .unwrap_or_else(|| panic!("no {n}"))
+    };
+    let t = col("t_s");
+    let e = [col("ex_um"), col("ey_um"), col("ez_um")];
+    let s = [col("shift_x_um"), col("shift_y_um"), col("shift_z_um")];
+    let clamp = [CLAMP_UM, CLAMP_Y_UM, CLAMP_UM];
+    rdr.records()
+        .map(|r| {
+            let r = r.unwrap();
+            let v = |i: usize| r[i].parse::<f64>().unwrap();
+            let d = std::array::from_fn(|k| {
+                let uncorrected = v(e[k]) - v(s[k]);
+                v(s[k]) - (-uncorrected).clamp(-clamp[k], clamp[k])
+            });
+            (v(t), d)
+        })
+        .collect()
+}
+
+/// The largest change of the applied (latched) shift between recording rows, µm.
+pub fn max_latched_step(recording: &str) -> f64 {
+    let mut rdr = csv::Reader::from_reader(recording.as_bytes());
+    let h = rdr.headers().unwrap().clone();
+    let cols: Vec<usize> = ["shift_x_um", "shift_y_um", "shift_z_um"]
+        .iter()
+        .map(|n| h.iter().position(|c| c == *n).unwrap())
+        .collect();
+    let rows: Vec<Vec<f64>> = rdr
+        .records()
+        .map(|r| {
+            let r = r.unwrap();
+            cols.iter().map(|c| r[*c].parse::<f64>().unwrap()).collect()
+        })
+        .collect();
+    rows.windows(2)
+        .flat_map(|p| (0..3).map(move |k| (p[1][k] - p[0][k]).abs()))
+        .fold(0.0, f64::max)
+}
+
+/// Share of the distinct values written to the shift registers (in write order, repeats collapsed)
+/// that the recording shows as the applied (latched) shift at some row. A value is missed only when
+/// it was latched and replaced between two recording rows.
+pub fn applied_share(writes: &[Write], recording: &str) -> f64 {
+    let mut rdr = csv::Reader::from_reader(recording.as_bytes());
+    let h = rdr.headers().unwrap().clone();
+    let cols: Vec<usize> = ["shift_x_um", "shift_y_um", "shift_z_um"]
+        .iter()
+        .map(|n| h.iter().position(|c| c == *n).unwrap())
+        .collect();
+    let key = |v: [f64; 3]| v.map(|x| (x * 1000.0).round() as i64);
+    let latched: std::collections::HashSet<[i64; 3]> = rdr
+        .records()
+        .map(|r| {
+            let r = r.unwrap();
+            key([0, 1, 2].map(|k| r[cols[k]].parse::<f64>().unwrap()))
+        })
+        .collect();
+    let mut written: Vec<[i64; 3]> = writes
+        .iter()
+        .filter(|w| w.address == 0)
+        .map(|w| key(w.um))
+        .collect();
+    written.dedup();
+    let seen = written.iter().filter(|v| latched.contains(*v)).count();
+    seen as f64 / written.len().max(1) as f64
+}
+
+pub fn max_dev(devs: &[(f64, [f64; 3])], from_s: f64, to_s: f64, axes: &[usize]) -> f64 {
+    let rows: Vec<_> = devs
+        .iter()
+        .filter(|(t, _)| *t >= from_s && *t < to_s)
+        .collect();
+    assert!(rows.len() > 10, "no recording in {from_s}..{to_s}");
+    rows.iter()
+        .flat_map(|(_, d)| axes.iter().map(|k| d[*k].abs()))
+        .fold(0.0, f64::max)
+}
+
+/// Fault log lines of one gateway process: (source, kind, started, t_s).
+pub fn fault_events(log: &str) -> Vec<(String, String, bool, f64)> {
+    let field = |line: &str, key: &str| -> Option<String> {
+        let i = line.find(&format!(" {key}="))? + key.len() + 2;
+        let rest = &line[i..];
+        let v = rest.split_whitespace().next()?;
+        Some(v.trim_matches('"').to_string())
+    };
+    log.lines()
+        .filter_map(|l| {
+            let started = if l.contains("fault started") {
+                true
+            } else if l.contains("fault cleared") {
+                false
+            } else {
+                return None;
+            };
+            Some((
+                field(l, "source")?,
+                field(l, "kind")?,
+                started,
+                field(l, "t_s")?.parse().ok()?,
+            ))
+        })
+        .collect()
+}
+
+/// Each fault logged once at start and once at clear: per (source, kind) the events alternate,
+/// starting with a start. Returns the start times per (source, kind).
+pub fn episodes(events: &[(String, String, bool, f64)]) -> BTreeMap<(String, String), Vec<f64>> {
+    let mut last: BTreeMap<(String, String), bool> = BTreeMap::new();
+    let mut starts: BTreeMap<(String, String), Vec<f64>> = BTreeMap::new();
+    for (s, k, started, t) in events {
+        let key = (s.clone(), k.clone());
+        let prev = last.insert(key.clone(), *started);
+        assert_ne!(
+            prev.unwrap_or(false),
+            *started,
+            "{s} {k} logged {} twice in a row (t = {t})",
+            if *started { "started" } else { "cleared" }
+        );
+        if *started {
+            starts.entry(key).or_default().push(*t);
+        }
+    }
+    starts
+}
