@@ -194,6 +194,18 @@ fn bench<M: Measurement>(c: &mut Criterion<M>, clock: &str) {
             black_box(acc)
         })
     });
+    // The same through the batch API (one reused breakdown; `black_box` makes every term count as
+    // read).
+    g.bench_function("evaluate_batch_exact_1e6", |b| {
+        b.iter(|| {
+            let mut st = m.new_state();
+            let mut acc = 0.0;
+            m.evaluate_batch(&batch, &mut st, &mut out, |_, o| {
+                acc += black_box(o).total_um[0];
+            });
+            black_box(acc)
+        })
+    });
     g.finish();
 }
 

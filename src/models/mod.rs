@@ -26,6 +26,7 @@ pub mod kinematics;
 pub mod names;
 pub mod parse;
 pub mod parse_terms;
+mod plan;
 pub mod spec;
 pub mod thermal;
 pub mod toml_reader;
@@ -39,6 +40,7 @@ pub use spec::ModelSpec;
 pub use toml_reader::{ConfigError, ConfigIssue};
 
 use engine::Compiled;
+use plan::Plan;
 use thermal::ThermalState;
 
 /// A loaded machine model. Cheap to share (`Clone + Send + Sync`); evaluation state lives in
@@ -47,6 +49,7 @@ use thermal::ThermalState;
 pub struct MachineModel {
     spec: ModelSpec,
     compiled: Compiled,
+    plan: Plan,
 }
 
 /// One evaluation's inputs. Channel vectors are indexed like the model's channel lists.
@@ -141,7 +144,12 @@ impl MachineModel {
     /// checks; `to_toml_string` + `from_toml_str` is the checked path.
     pub fn from_spec(spec: ModelSpec) -> Self {
         let compiled = Compiled::new(&spec);
-        MachineModel { spec, compiled }
+        let plan = Plan::new(&spec, &compiled);
+        MachineModel {
+            spec,
+            compiled,
+            plan,
+        }
     }
 
     pub fn spec(&self) -> &ModelSpec {
@@ -207,9 +215,10 @@ impl MachineModel {
     }
 
     /// Exact (4×4 HTM) tool-tip error, µm, actual − nominal, in machine X/Y/Z; steps lag states
-    /// to `input.t_s`.
+    /// to `input.t_s`. Writes every term of `out` in place (no allocation once `out` is sized, e.g.
+    /// by [`new_breakdown`](Self::new_breakdown)).
     pub fn evaluate(&self, input: &ModelInput, state: &mut ModelState, out: &mut ErrorBreakdown) {
-        engine::run(&self.spec, &self.compiled, input, state, out, true);
+        self.plan.run(input, state, out, true);
     }
 
     /// First-order closed form Σ δ_K + ε_K × arm_K + squareness · q (+ thermal, load); agrees with
@@ -220,7 +229,35 @@ impl MachineModel {
         state: &mut ModelState,
         out: &mut ErrorBreakdown,
     ) {
-        engine::run(&self.spec, &self.compiled, input, state, out, false);
+        self.plan.run(input, state, out, false);
+    }
+
+    /// [`evaluate`](Self::evaluate) over `inputs` in time order with one state: `each(i, out)` sees
+    /// point i's full breakdown in the reused buffer `out` (nothing allocated per point).
+    pub fn evaluate_batch<F: FnMut(usize, &ErrorBreakdown)>(
+        &self,
+        inputs: &[ModelInput],
+        state: &mut ModelState,
+        out: &mut ErrorBreakdown,
+        mut each: F,
+    ) {
+        for (i, input) in inputs.iter().enumerate() {
+            self.plan.run(input, state, out, true);
+            each(i, out);
+        }
+    }
+
+    /// The straightforward evaluator (`engine.rs`) the fast plan is checked against: the same
+    /// results within rounding (`tests/models_fastpath.rs`), slower. `exact` picks the HTM chain.
+    #[doc(hidden)]
+    pub fn evaluate_reference(
+        &self,
+        input: &ModelInput,
+        state: &mut ModelState,
+        out: &mut ErrorBreakdown,
+        exact: bool,
+    ) {
+        engine::run(&self.spec, &self.compiled, input, state, out, exact);
     }
 }
 

@@ -17,6 +17,10 @@ pub struct ThermalState {
     pub last_t_s: Option<f64>,
     /// (Δt, 1 − e^(−Δt/τ)) of the last step per sensor: avoids an `exp` per sample at a fixed rate.
     alpha_cache: Vec<(f64, f64)>,
+    /// The plan's cache for its usual step (all sensors read, all started; `step_planned`): the Δt₀
+    /// shared by every sensor (NaN = none yet) and α₀ per sensor (1 for a sensor without lag).
+    shared_dt0: f64,
+    shared_alpha0: Vec<f64>,
 }
 
 /// What stepping found wrong with the inputs.
@@ -33,6 +37,8 @@ impl ThermalState {
             delta_c: vec![0.0; n],
             last_t_s: None,
             alpha_cache: vec![(f64::NAN, 0.0); n],
+            shared_dt0: f64::NAN,
+            shared_alpha0: vec![1.0; n],
         }
     }
 
@@ -73,6 +79,126 @@ impl ThermalState {
             self.delta_c[i] = new - s.reference_c;
         }
         issues
+    }
+}
+
+/// Per-sensor lag constants in the layout [`ThermalState::step_planned`] reads: the reference
+/// temperature, and τ with 1/τ (`None` = the sensor is used as read).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct LagPlan {
+    reference_c: Vec<f64>,
+    lag: Vec<Option<(f64, f64)>>,
+    /// 1/τ, 0 for a sensor without lag (its α is then exactly 1).
+    inv_tau_or_0: Vec<f64>,
+}
+
+impl LagPlan {
+    pub fn new(sensors: &[SensorSpec]) -> Self {
+        LagPlan {
+            reference_c: sensors.iter().map(|s| s.reference_c).collect(),
+            lag: sensors
+                .iter()
+                .map(|s| s.tau_s.map(|tau| (tau, 1.0 / tau)))
+                .collect(),
+            inv_tau_or_0: sensors
+                .iter()
+                .map(|s| s.tau_s.map_or(0.0, |tau| 1.0 / tau))
+                .collect(),
+        }
+    }
+}
+
+impl ThermalState {
+    /// [`step`](Self::step) for the evaluation plan: the same rules and results (to the rounding of
+    /// one multiplication by 1/τ instead of a division per sensor), from flat per-sensor constants.
+    pub(crate) fn step_planned(&mut self, p: &LagPlan, temps_c: &[f64], t_s: f64) -> StepIssues {
+        let n = p.reference_c.len();
+        let mut issues = StepIssues::default();
+        if self.lagged_c.len() != n {
+            *self = ThermalState::new(n);
+        }
+        let dt = match self.last_t_s {
+            Some(last) if t_s < last => {
+                issues.time_backwards = true;
+                None
+            }
+            Some(last) => Some(t_s - last),
+            None => None,
+        };
+        if !issues.time_backwards {
+            self.last_t_s = Some(t_s);
+        }
+        // The usual step: forward in time, every reading present and finite, every lag started.
+        // One Δt₀ serves all sensors (they all see the same Δt), so the loop below has no branch.
+        if let Some(dt) = dt
+            && let Some(temps) = temps_c.get(..n)
+            && temps.iter().fold(true, |ok, t| ok & t.is_finite())
+            && self.lagged_c.iter().fold(true, |ok, l| ok & l.is_some())
+        {
+            let mut d = dt - self.shared_dt0;
+            if d.is_nan() || d.abs() > 1e-6 * self.shared_dt0 {
+                for (a0, lag) in self.shared_alpha0.iter_mut().zip(&p.lag) {
+                    *a0 = lag.map_or(1.0, |(tau, _)| 1.0 - (-dt / tau).exp());
+                }
+                self.shared_dt0 = dt;
+                d = 0.0;
+            }
+            let sensors = self.lagged_c.iter_mut().zip(&mut self.delta_c[..n]);
+            let constants = p.reference_c.iter().zip(&p.inv_tau_or_0);
+            for ((((lagged, delta), &a0), (&reference_c, &inv_tau)), &t) in sensors
+                .zip(&self.shared_alpha0[..n])
+                .zip(constants)
+                .zip(temps)
+            {
+                // α as in `lag_alpha`; written T' = T + (1 − α)(T'₀ − T) so that α = 1 (no lag)
+                // gives the reading exactly.
+                let x = d * inv_tau;
+                let alpha = a0 + (1.0 - a0) * (x * (1.0 - x * (0.5 - x * (1.0 / 6.0))));
+                let prev = lagged.unwrap_or(t);
+                let new = t + (1.0 - alpha) * (prev - t);
+                *lagged = Some(new);
+                *delta = new - reference_c;
+            }
+            return issues;
+        }
+        let sensors = self.lagged_c.iter_mut().zip(&mut self.delta_c[..n]);
+        let constants = p.reference_c.iter().zip(&p.lag);
+        for (i, (((lagged, delta), cache), (&reference_c, lag))) in sensors
+            .zip(&mut self.alpha_cache[..n])
+            .zip(constants)
+            .enumerate()
+        {
+            let Some(t) = temps_c.get(i).copied().filter(|t| t.is_finite()) else {
+                issues.missing_temperature = true;
+                *delta = lagged.map_or(0.0, |l| l - reference_c);
+                continue;
+            };
+            let new = match (*lagged, lag, dt) {
+                (None, _, _) | (_, None, _) => t,
+                (Some(prev), Some((tau, inv_tau)), Some(dt)) => {
+                    prev + lag_alpha_inv(cache, dt, *tau, *inv_tau) * (t - prev)
+                }
+                (Some(prev), Some(_), None) => prev,
+            };
+            *lagged = Some(new);
+            *delta = new - reference_c;
+        }
+        issues
+    }
+}
+
+/// [`lag_alpha`] with x = (Δt − Δt₀) · (1/τ) instead of a division.
+#[inline]
+fn lag_alpha_inv(cache: &mut (f64, f64), dt: f64, tau: f64, inv_tau: f64) -> f64 {
+    let (dt0, alpha0) = *cache;
+    let d = dt - dt0;
+    if d.abs() <= 1e-6 * dt0 {
+        let x = d * inv_tau;
+        alpha0 + (1.0 - alpha0) * (x * (1.0 - x * (0.5 - x * (1.0 / 6.0))))
+    } else {
+        let alpha = 1.0 - (-dt / tau).exp();
+        *cache = (dt, alpha);
+        alpha
     }
 }
 

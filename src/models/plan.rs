@@ -1,0 +1,647 @@
+//! The fast evaluator: a [`ModelSpec`] compiled once into a flat evaluation plan.
+//!
+//! Same conventions, terms and results as the straightforward evaluator in `engine.rs`, which stays
+//! as the oracle `tests/models_fastpath.rs` checks this one against (≤ 1e-9 µm; they differ only by
+//! the rounding of reordered products): error = actual − nominal, µm, machine X/Y/Z; every term's
+//! first-order contribution at the tool tip, and `higher_order` = exact − Σ first-order terms.
+//! What differs is the layout, chosen so one evaluation neither branches per term nor allocates:
+//!
+//! * Linear tables of one chain element with equal positions form a [`Group`]: one search per axis
+//!   (a guess from the mean spacing, corrected against the real nodes, as `Table::locate`), and their
+//!   forward and reverse values interleaved per node, so a lookup reads two contiguous rows.
+//! * A term's first-order effect is its value times a basis row of its element (translation: unit
+//!   vector; rotation ε about e_i: 1e-3 µm/(µrad·mm) · e_i × arm), built once per evaluation.
+//! * Thermal terms keep only their non-zero coefficients, as flat (sensor, coefficient) lists; the
+//!   lag step multiplies by a stored 1/τ (`thermal::LagPlan`).
+//! * The breakdown is overwritten in place: every term is written on every valid evaluation, so
+//!   nothing is zeroed first and `terms_um` is only resized when its length is wrong.
+
+use std::ops::Range;
+
+use super::engine::{Compiled, ForceSource};
+use super::function::{ErrorFunction, Interpolation, Table};
+use super::kinematics::{Elem, arms, cross, exact_tip, nominal_tip};
+use super::spec::{LoadKind, ModelSpec, ThermalKind};
+use super::thermal::LagPlan;
+use super::{ErrorBreakdown, EvalFlags, ModelInput, ModelState};
+
+/// Where a term's value goes: its breakdown index, chain element and slot (0..3 δ x/y/z in µm,
+/// 3..6 ε a/b/c in µrad).
+#[derive(Clone, Copy, Debug)]
+struct Target {
+    term: usize,
+    elem: usize,
+    /// elem · 6 + slot: the index into the per-evaluation motion and basis arrays.
+    at: usize,
+}
+
+impl Target {
+    fn new(term: usize, elem: usize, slot: usize) -> Target {
+        assert!(elem < 3 && slot < 6, "validated: three axes, six slots");
+        Target {
+            term,
+            elem,
+            at: elem * 6 + slot,
+        }
+    }
+}
+
+/// Linear tables of one element sharing their positions.
+#[derive(Clone, Debug)]
+struct Group {
+    elem: usize,
+    /// The shared node positions (≥ 2, strictly increasing), mm.
+    x: Vec<f64>,
+    /// 1 / (x_{i+1} − x_i) per segment.
+    inv_h: Vec<f64>,
+    /// 1 / mean spacing: the first guess of a lookup.
+    inv_mean_h: f64,
+    /// Per node: the members' forward values, then their reverse values (2 · members per row).
+    rows: Vec<f64>,
+    members: Vec<Target>,
+}
+
+impl Group {
+    fn new(elem: usize, x: &[f64]) -> Group {
+        let n = x.len();
+        Group {
+            elem,
+            x: x.to_vec(),
+            inv_h: x.windows(2).map(|w| 1.0 / (w[1] - w[0])).collect(),
+            inv_mean_h: (n - 1) as f64 / (x[n - 1] - x[0]),
+            rows: Vec::new(),
+            members: Vec::new(),
+        }
+    }
+
+    /// (node a, node b, fraction f, clamped): the value is a + f · (b − a). The same segment and
+    /// fraction as `Table::locate`: segment i with x_i ≤ q < x_{i+1} (the last one up to its end);
+    /// outside the span (or NaN) both nodes are the end node and f = 0.
+    #[inline]
+    fn locate(&self, q: f64) -> (usize, usize, f64, bool) {
+        let x = &self.x[..];
+        let n = x.len();
+        if q.is_nan() || q < x[0] {
+            return (0, 0, 0.0, true);
+        }
+        if q > x[n - 1] {
+            return (n - 1, n - 1, 0.0, true);
+        }
+        let last = n - 2;
+        // Near-even tables (positions rounded when written): the guess from the mean spacing is
+        // right or one off; anything else falls back to a binary search.
+        let mut i = (((q - x[0]) * self.inv_mean_h) as usize).min(last);
+        if x[i] > q {
+            i -= 1; // x[0] ≤ q, so i > 0 here
+        } else if i < last && x[i + 1] <= q {
+            i += 1;
+        }
+        if x[i] > q || (q >= x[i + 1] && i != last) {
+            i = x.partition_point(|&p| p <= q).saturating_sub(1).min(last);
+        }
+        (i, i + 1, (q - x[i]) * self.inv_h[i], false)
+    }
+}
+
+/// A component the groups do not cover (C¹ table, polynomial, piecewise quadratic).
+#[derive(Clone, Debug)]
+struct Single {
+    target: Target,
+    function: ErrorFunction,
+}
+
+/// A thermal term's formula with sensor lists resolved to flat coefficient ranges (`Plan::linear`,
+/// `Plan::quadratic`).
+#[derive(Clone, Debug)]
+enum ThermalOp {
+    /// e0 + Σ b ΔT + Σ c ΔT ΔT.
+    Polynomial {
+        e0: f64,
+        linear: Range<usize>,
+        quadratic: Range<usize>,
+    },
+    /// q_target · 1e-3 · (s0 + Σ s ΔT + Σ d ΔT ΔT).
+    Slope {
+        s0: f64,
+        linear: Range<usize>,
+        quadratic: Range<usize>,
+    },
+    /// α · (q_target − origin) · (T_lagged − reference) · 1e-3.
+    Expansion {
+        sensor: usize,
+        alpha_ppm_per_k: f64,
+        origin_mm: f64,
+        reference_c: f64,
+    },
+    /// Stations along `along` (a chain element; absent axis = position 0), linear between them.
+    Stations {
+        along: Option<usize>,
+        stations_mm: Vec<f64>,
+        /// 1 / (s_{k+1} − s_k).
+        inv_gap: Vec<f64>,
+        e0: Vec<f64>,
+        linear: Vec<Range<usize>>,
+    },
+}
+
+#[derive(Clone, Debug)]
+struct ThermalTerm {
+    target: Target,
+    op: ThermalOp,
+}
+
+#[derive(Clone, Debug)]
+struct LoadTerm {
+    target: Target,
+    /// Index into the force channels (state scratch).
+    force: usize,
+    function: ErrorFunction,
+    /// v = function(q) · F · scale: 1 for a compliance, (lever − height) / lever / F_ref for a
+    /// weight-scaled reference.
+    scale: f64,
+}
+
+/// The compiled plan. Built by [`Plan::new`] when a model is loaded.
+#[derive(Clone, Debug)]
+pub(crate) struct Plan {
+    elems: Vec<Elem>,
+    travel_mm: Vec<Option<(f64, f64)>>,
+    tools_mm: Vec<[f64; 3]>,
+    tool_axis: (usize, f64),
+    n_terms: usize,
+    groups: Vec<Group>,
+    singles: Vec<Single>,
+    /// (term, element, first-order tip shift per mm of the element's travel, µm/mm).
+    squareness: Vec<(usize, usize, [f64; 3])>,
+    thermal: Vec<ThermalTerm>,
+    /// Non-zero linear coefficients: (sensor, coefficient).
+    linear: Vec<(usize, f64)>,
+    /// Non-zero quadratic coefficients: (sensor i, sensor j, coefficient).
+    quadratic: Vec<(usize, usize, f64)>,
+    lags: LagPlan,
+    force_source: Vec<ForceSource>,
+    load: Vec<LoadTerm>,
+}
+
+impl Plan {
+    pub fn new(spec: &ModelSpec, c: &Compiled) -> Plan {
+        let n_comp = spec.components.len();
+        let mut groups: Vec<Group> = Vec::new();
+        let mut singles = Vec::new();
+        for (k, (cs, s)) in spec.components.iter().zip(&c.components).enumerate() {
+            let target = Target::new(k, s.elem, s.slot);
+            match &cs.function {
+                ErrorFunction::Table(tb) if tb.interpolation == Interpolation::Linear => {
+                    let g = match groups
+                        .iter_mut()
+                        .position(|g| g.elem == s.elem && g.x == tb.positions_mm)
+                    {
+                        Some(i) => &mut groups[i],
+                        None => {
+                            groups.push(Group::new(s.elem, &tb.positions_mm));
+                            groups.last_mut().expect("just pushed")
+                        }
+                    };
+                    g.members.push(target);
+                }
+                f => singles.push(Single {
+                    target,
+                    function: f.clone(),
+                }),
+            }
+        }
+        // Interleave the members' values per node now that each group's members are known.
+        for g in &mut groups {
+            let tables: Vec<&Table> = g
+                .members
+                .iter()
+                .map(|m| match &spec.components[m.term].function {
+                    ErrorFunction::Table(t) => t,
+                    _ => unreachable!("groups hold tables only"),
+                })
+                .collect();
+            for i in 0..g.x.len() {
+                g.rows.extend(tables.iter().map(|t| t.forward[i]));
+                g.rows.extend(tables.iter().map(|t| t.reverse[i]));
+            }
+        }
+
+        let n_sq = spec.squareness.len();
+        let squareness = c
+            .squareness
+            .iter()
+            .enumerate()
+            .map(|(i, &(e, d))| (n_comp + i, e, d))
+            .collect();
+
+        let mut linear = Vec::new();
+        let mut quadratic = Vec::new();
+        let mut push_linear = |b: &[f64], idx: &[usize]| {
+            let start = linear.len();
+            linear.extend(
+                b.iter()
+                    .zip(idx)
+                    .filter(|(b, _)| **b != 0.0)
+                    .map(|(&b, &i)| (i, b)),
+            );
+            start..linear.len()
+        };
+        let mut push_quadratic = |cm: &[Vec<f64>], idx: &[usize]| {
+            let start = quadratic.len();
+            for (i, row) in cm.iter().enumerate() {
+                for (j, &cij) in row.iter().enumerate() {
+                    if cij != 0.0 {
+                        quadratic.push((idx[i], idx[j], cij));
+                    }
+                }
+            }
+            start..quadratic.len()
+        };
+        let thermal = spec
+            .thermal
+            .iter()
+            .zip(&c.thermal)
+            .enumerate()
+            .map(|(i, (th, (s, idx, along)))| {
+                let op = match &th.kind {
+                    ThermalKind::PolynomialDt {
+                        e0,
+                        b_per_k,
+                        c_per_k2,
+                        ..
+                    } => ThermalOp::Polynomial {
+                        e0: *e0,
+                        linear: push_linear(b_per_k, idx),
+                        quadratic: push_quadratic(c_per_k2, idx),
+                    },
+                    ThermalKind::Slope {
+                        s0_per_mm,
+                        s_per_mm_k,
+                        d_per_mm_k2,
+                        ..
+                    } => ThermalOp::Slope {
+                        s0: *s0_per_mm,
+                        linear: push_linear(s_per_mm_k, idx),
+                        quadratic: push_quadratic(d_per_mm_k2, idx),
+                    },
+                    ThermalKind::Expansion {
+                        alpha_ppm_per_k,
+                        origin_mm,
+                        reference_c,
+                        ..
+                    } => ThermalOp::Expansion {
+                        sensor: idx[0],
+                        alpha_ppm_per_k: *alpha_ppm_per_k,
+                        origin_mm: *origin_mm,
+                        reference_c: *reference_c,
+                    },
+                    ThermalKind::Stations {
+                        stations_mm,
+                        e0,
+                        b_per_k,
+                        ..
+                    } => ThermalOp::Stations {
+                        along: *along,
+                        inv_gap: stations_mm
+                            .windows(2)
+                            .map(|w| 1.0 / (w[1] - w[0]))
+                            .collect(),
+                        stations_mm: stations_mm.clone(),
+                        e0: e0.clone(),
+                        linear: b_per_k.iter().map(|b| push_linear(b, idx)).collect(),
+                    },
+                };
+                ThermalTerm {
+                    target: Target::new(n_comp + n_sq + i, s.elem, s.slot),
+                    op,
+                }
+            })
+            .collect();
+
+        let n_th = spec.thermal.len();
+        let load = spec
+            .load
+            .iter()
+            .zip(&c.load)
+            .enumerate()
+            .map(|(i, (l, (s, fi)))| {
+                let (function, scale) = match &l.kind {
+                    LoadKind::Compliance { compliance, .. } => (compliance.clone(), 1.0),
+                    LoadKind::WeightAngular {
+                        reference,
+                        reference_force_n,
+                        lever_mm,
+                        load_height_mm,
+                        ..
+                    } => (
+                        reference.clone(),
+                        (lever_mm - load_height_mm) / lever_mm / reference_force_n,
+                    ),
+                };
+                LoadTerm {
+                    target: Target::new(n_comp + n_sq + n_th + i, s.elem, s.slot),
+                    force: *fi,
+                    function,
+                    scale,
+                }
+            })
+            .collect();
+
+        Plan {
+            elems: c.elems.clone(),
+            travel_mm: spec.axes.iter().map(|a| a.travel_mm).collect(),
+            tools_mm: spec.tools.iter().map(|t| t.offset_mm).collect(),
+            tool_axis: (spec.tool_axis.0.index(), spec.tool_axis.1),
+            n_terms: c.term_names.len(),
+            groups,
+            singles,
+            squareness,
+            thermal,
+            linear,
+            quadratic,
+            lags: LagPlan::new(&spec.sensors),
+            force_source: c.force_source.clone(),
+            load,
+        }
+    }
+
+    #[inline]
+    fn linear(&self, r: &Range<usize>, dt: &[f64]) -> f64 {
+        self.linear[r.clone()].iter().map(|&(i, b)| b * dt[i]).sum()
+    }
+
+    #[inline]
+    fn quadratic(&self, r: &Range<usize>, dt: &[f64]) -> f64 {
+        self.quadratic[r.clone()]
+            .iter()
+            .fold(0.0, |acc, &(i, j, c)| acc + c * dt[i] * dt[j])
+    }
+
+    /// One evaluation (exact HTM chain or first order); steps the lag states to `input.t_s`.
+    #[inline]
+    pub fn run(
+        &self,
+        input: &ModelInput,
+        state: &mut ModelState,
+        out: &mut ErrorBreakdown,
+        exact: bool,
+    ) {
+        let n_terms = self.n_terms;
+        out.total_um = [0.0; 3];
+        out.flags = EvalFlags::default();
+        if out.terms_um.len() != n_terms {
+            out.reset(n_terms);
+        }
+
+        // Positions of the chain's axes; a non-finite position makes the whole evaluation invalid.
+        let mut q = [0.0; 3];
+        let mut dir = [0i8; 3];
+        for (j, e) in self.elems.iter().enumerate() {
+            q[j] = input.pos_mm[e.axis.index()];
+            dir[j] = input.dir[e.axis.index()].signum();
+        }
+        let mut t = self
+            .tools_mm
+            .get(input.tool)
+            .or(self.tools_mm.first())
+            .copied()
+            .unwrap_or([0.0; 3]);
+        if let Some(len) = input.tool_mm {
+            t[self.tool_axis.0] = self.tool_axis.1 * len;
+        }
+        if q.iter().chain(t.iter()).any(|x| !x.is_finite()) || !input.t_s.is_finite() {
+            out.reset(n_terms);
+            out.flags.invalid_input = true;
+            return;
+        }
+        if input.tool >= self.tools_mm.len() {
+            out.flags.missing_input = true;
+        }
+        for (j, travel) in self.travel_mm.iter().enumerate() {
+            if let Some((lo, hi)) = *travel
+                && (q[j] < lo || q[j] > hi)
+            {
+                out.flags.outside_travel[self.elems[j].axis.index()] = true;
+            }
+        }
+
+        let issues = state
+            .thermal
+            .step_planned(&self.lags, &input.temps_c, input.t_s);
+        out.flags.missing_input |= issues.missing_temperature;
+        out.flags.time_backwards |= issues.time_backwards;
+
+        // Forces (N) per force channel, into the state's scratch (sized once).
+        if state.forces_n.len() != self.force_source.len() {
+            state.forces_n.resize(self.force_source.len(), 0.0);
+        }
+        for (f, src) in state.forces_n.iter_mut().zip(&self.force_source) {
+            let v = match *src {
+                ForceSource::Direct(k) => input.forces_n.get(k).copied(),
+                ForceSource::Strain {
+                    index,
+                    gain_n_per_ue,
+                    offset_ue,
+                } => input
+                    .strains_ue
+                    .get(index)
+                    .map(|s| gain_n_per_ue * (s - offset_ue)),
+            };
+            *f = match v {
+                Some(f) if f.is_finite() => f,
+                _ => {
+                    out.flags.missing_input = true;
+                    0.0
+                }
+            };
+        }
+
+        let mut arm = [[0.0; 3]; 3];
+        arms(&self.elems, &q, t, &mut arm);
+        // basis[6 j + slot]: the tip shift (µm) per unit value in `slot` of element j.
+        let mut basis = [[0.0; 3]; 18];
+        for (b, a) in basis.chunks_exact_mut(6).zip(&arm) {
+            let [ax, ay, az] = [a[0] * 1e-3, a[1] * 1e-3, a[2] * 1e-3];
+            b.copy_from_slice(&[
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.0, 0.0, 1.0],
+                [0.0, -az, ay], // e_x × arm
+                [az, 0.0, -ax], // e_y × arm
+                [-ay, ax, 0.0], // e_z × arm
+            ]);
+        }
+        // acc[6 j + slot]: element j's δ x/y/z (µm), then ε a/b/c (µrad).
+        let mut acc = [0.0; 18];
+        let terms = &mut out.terms_um[..];
+        // A term's value: into its element's motions and, times its basis row, into its term.
+        #[inline(always)]
+        fn apply(
+            acc: &mut [f64; 18],
+            basis: &[[f64; 3]; 18],
+            terms: &mut [[f64; 3]],
+            tg: Target,
+            v: f64,
+        ) {
+            acc[tg.at] += v;
+            let b = basis[tg.at];
+            terms[tg.term] = [v * b[0], v * b[1], v * b[2]];
+        }
+        let mut clamped = [false; 3];
+
+        for g in &self.groups {
+            // Clamped: both nodes the end node and f = 0, so a + 0 · (b − a) = a exactly.
+            let (lo, hi, f, cl) = g.locate(q[g.elem]);
+            clamped[g.elem] |= cl;
+            // Weights 1/0, 0/1 or ½/½ as in `Table::eval_at`: forward and reverse pass unchanged.
+            let w_fwd = 0.5 * (1.0 + f64::from(dir[g.elem]));
+            let m = g.members.len();
+            let a = &g.rows[2 * m * lo..2 * m * (lo + 1)];
+            let b = &g.rows[2 * m * hi..2 * m * (hi + 1)];
+            let (af, ar) = a.split_at(m);
+            let (bf, br) = b.split_at(m);
+            let nodes = af.iter().zip(ar).zip(bf).zip(br);
+            for (&tg, (((af, ar), bf), br)) in g.members.iter().zip(nodes) {
+                let vf = af + f * (bf - af);
+                let vr = ar + f * (br - ar);
+                apply(&mut acc, &basis, terms, tg, w_fwd * vf + (1.0 - w_fwd) * vr);
+            }
+        }
+        for s in &self.singles {
+            let e = s.target.elem;
+            let (v, cl) = s.function.eval(q[e], dir[e]);
+            clamped[e] |= cl;
+            apply(&mut acc, &basis, terms, s.target, v);
+        }
+        let mut sq_total = [0.0; 3];
+        for &(k, e, d) in &self.squareness {
+            let ct = [d[0] * q[e], d[1] * q[e], d[2] * q[e]];
+            terms[k] = ct;
+            sq_total = [
+                sq_total[0] + ct[0],
+                sq_total[1] + ct[1],
+                sq_total[2] + ct[2],
+            ];
+        }
+        let ts = &state.thermal;
+        let dt = &ts.delta_c[..];
+        for th in &self.thermal {
+            let qt = q[th.target.elem];
+            let v = match &th.op {
+                ThermalOp::Polynomial {
+                    e0,
+                    linear,
+                    quadratic,
+                } => e0 + self.linear(linear, dt) + self.quadratic(quadratic, dt),
+                ThermalOp::Slope {
+                    s0,
+                    linear,
+                    quadratic,
+                } => {
+                    // Coefficients are per metre of travel: q_mm · 1e-3 m/mm.
+                    qt * 1e-3 * (s0 + self.linear(linear, dt) + self.quadratic(quadratic, dt))
+                }
+                ThermalOp::Expansion {
+                    sensor,
+                    alpha_ppm_per_k,
+                    origin_mm,
+                    reference_c,
+                } => {
+                    let abs_c = ts.lagged_c[*sensor].unwrap_or(*reference_c);
+                    // ppm/K · mm · K = 1e-6 mm = 1e-3 µm.
+                    alpha_ppm_per_k * (qt - origin_mm) * (abs_c - reference_c) * 1e-3
+                }
+                ThermalOp::Stations {
+                    along,
+                    stations_mm,
+                    inv_gap,
+                    e0,
+                    linear,
+                } => {
+                    let x = along.map_or(0.0, |a| q[a]);
+                    let at = |k: usize| e0[k] + self.linear(&linear[k], dt);
+                    let n = stations_mm.len();
+                    if x.is_nan() || x < stations_mm[0] || x > stations_mm[n - 1] {
+                        if let Some(a) = along {
+                            clamped[*a] = true;
+                        }
+                        if x > stations_mm[n - 1] {
+                            at(n - 1)
+                        } else {
+                            at(0)
+                        }
+                    } else {
+                        let mut k = 0;
+                        while k + 2 < n && stations_mm[k + 1] <= x {
+                            k += 1;
+                        }
+                        let w = (x - stations_mm[k]) * inv_gap[k];
+                        (1.0 - w) * at(k) + w * at(k + 1)
+                    }
+                }
+            };
+            apply(&mut acc, &basis, terms, th.target, v);
+        }
+        for l in &self.load {
+            let e = l.target.elem;
+            let (v, cl) = l.function.eval(q[e], dir[e]);
+            clamped[e] |= cl;
+            apply(
+                &mut acc,
+                &basis,
+                terms,
+                l.target,
+                v * state.forces_n[l.force] * l.scale,
+            );
+        }
+        for (j, e) in self.elems.iter().enumerate() {
+            out.flags.clamped[e.axis.index()] |= clamped[j];
+        }
+
+        // Σ over elements of δ + ε × arm: the first-order effect of all accumulated motions.
+        let mut first = [0.0; 3];
+        for (a, r) in acc.chunks_exact(6).zip(&arm).take(self.elems.len()) {
+            let c = cross([a[3] * 1e-3, a[4] * 1e-3, a[5] * 1e-3], *r);
+            first = [
+                first[0] + a[0] + c[0],
+                first[1] + a[1] + c[1],
+                first[2] + a[2] + c[2],
+            ];
+        }
+        let first = [
+            first[0] + sq_total[0],
+            first[1] + sq_total[1],
+            first[2] + sq_total[2],
+        ];
+
+        if exact {
+            let delta = [
+                [acc[0], acc[1], acc[2]],
+                [acc[6], acc[7], acc[8]],
+                [acc[12], acc[13], acc[14]],
+            ];
+            let eps = [
+                [acc[3], acc[4], acc[5]],
+                [acc[9], acc[10], acc[11]],
+                [acc[15], acc[16], acc[17]],
+            ];
+            let r = exact_tip(&self.elems, &q, t, &delta, &eps);
+            let r0 = nominal_tip(&self.elems, &q, t);
+            let e = [
+                (r[0] - r0[0]) * 1e3,
+                (r[1] - r0[1]) * 1e3,
+                (r[2] - r0[2]) * 1e3,
+            ];
+            terms[n_terms - 1] = [e[0] - first[0], e[1] - first[1], e[2] - first[2]];
+            out.total_um = e;
+        } else {
+            terms[n_terms - 1] = [0.0; 3];
+            out.total_um = first;
+        }
+        if out.total_um.iter().any(|x| !x.is_finite()) {
+            // Cannot happen with validated finite inputs; never hand a NaN to a controller anyway.
+            out.reset(n_terms);
+            out.flags.invalid_input = true;
+        }
+    }
+}
