@@ -5,7 +5,6 @@
 //! the model fitted from hil-sim's own measurement runs it must be present, finite and better than
 //! no compensation (its figure is printed, not promised: docs/demo.md states the measured one).
 
-use std::path::Path;
 use std::process::Command;
 
 #[path = "gateway_support/hil_sim.rs"]
