@@ -140,10 +140,11 @@ fn assert_same(fast: &ErrorBreakdown, reference: &ErrorBreakdown, what: &str) {
 fn assert_same_state(fast: &ModelState, reference: &ModelState, what: &str) {
     let (f, r) = (&fast.thermal, &reference.thermal);
     assert_eq!(f.last_t_s, r.last_t_s, "{what}");
-    for (a, b) in f.lagged_c.iter().zip(&r.lagged_c) {
-        match (a, b) {
+    assert_eq!(f.len(), r.len(), "{what}: sensors");
+    for i in 0..f.len() {
+        match (f.lagged_c(i), r.lagged_c(i)) {
             (Some(a), Some(b)) => assert!((a - b).abs() <= 1e-9, "{what}: lag {a} vs {b}"),
-            _ => assert_eq!(a, b, "{what}: lag started"),
+            (a, b) => assert_eq!(a, b, "{what}: lag started"),
         }
     }
     for (a, b) in f.delta_c.iter().zip(&r.delta_c) {

@@ -383,7 +383,7 @@ pub(crate) fn run(
     for (th, (s, idx, along)) in spec.thermal.iter().zip(&c.thermal) {
         let abs_c = idx
             .first()
-            .and_then(|&i| ts.lagged_c[i])
+            .and_then(|&i| ts.lagged_c(i))
             .unwrap_or(match &th.kind {
                 super::spec::ThermalKind::Expansion { reference_c, .. } => *reference_c,
                 _ => 20.0,

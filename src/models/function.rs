@@ -95,6 +95,11 @@ impl Table {
         }
     }
 
+    /// The C¹ slopes per node (forward, reverse); all 0 for a linear table.
+    pub fn slopes(&self) -> (Vec<f64>, Vec<f64>) {
+        self.nodes.iter().map(|n| (n.mf, n.mr)).unzip()
+    }
+
     pub fn is_bidirectional(&self) -> bool {
         self.forward != self.reverse
     }
@@ -327,7 +332,7 @@ impl ErrorFunction {
 }
 
 #[inline]
-fn clamp_range(q: f64, range: Option<(f64, f64)>) -> (f64, bool) {
+pub(crate) fn clamp_range(q: f64, range: Option<(f64, f64)>) -> (f64, bool) {
     match range {
         Some((lo, _)) if q.is_nan() || q < lo => (lo, true),
         Some((_, hi)) if q > hi => (hi, true),

@@ -49,12 +49,28 @@ pub fn sin_cos(theta: f64) -> (f64, f64) {
     }
 }
 
-/// Rx(a) · Ry(b) · Rz(c) as rows of plain arrays (the evaluator's form of [`rotation_xyz`]).
+/// [`sin_cos`] of nine angles (rad). When every |θ| ≤ 1e-4 (all error motions in practice) one
+/// test chooses the short series for all nine, which then run as straight array arithmetic; the
+/// values are the same as nine calls would give.
 #[inline(always)]
-fn rotation_rows(a: f64, b: f64, c: f64) -> [[f64; 3]; 3] {
-    let (sa, ca) = sin_cos(a);
-    let (sb, cb) = sin_cos(b);
-    let (sc, cc) = sin_cos(c);
+fn sin_cos_9(theta: [f64; 9]) -> ([f64; 9], [f64; 9]) {
+    if theta.iter().fold(true, |ok, t| ok & (t.abs() <= 1e-4)) {
+        let s = theta.map(|t| t - t * (t * t) * (1.0 / 6.0));
+        let c = theta.map(|t| {
+            let t2 = t * t;
+            1.0 - t2 * 0.5 + t2 * t2 * (1.0 / 24.0)
+        });
+        (s, c)
+    } else {
+        let sc = theta.map(sin_cos);
+        (sc.map(|(s, _)| s), sc.map(|(_, c)| c))
+    }
+}
+
+/// Rx(a) · Ry(b) · Rz(c) as rows of plain arrays (the evaluator's form of [`rotation_xyz`]) from
+/// the sines and cosines of a, b, c.
+#[inline(always)]
+fn rotation_rows([sa, sb, sc]: [f64; 3], [ca, cb, cc]: [f64; 3]) -> [[f64; 3]; 3] {
     let (sa_sb, ca_sb) = (sa * sb, ca * sb);
     [
         [cb * cc, -cb * sc, sb],
@@ -174,10 +190,13 @@ pub fn exact_tip(
 ) -> [f64; 3] {
     // The HTM product applied to the point, written as R·p + δ: the same algebra as the 4×4
     // matrices above without the multiplications by the constant bottom row.
+    let theta: [f64; 9] = std::array::from_fn(|k| eps_urad[k / 3][k % 3] * 1e-6);
+    let (sin, cos) = sin_cos_9(theta);
     let mut p = tool_mm;
-    for (j, e) in elems.iter().enumerate().rev() {
-        let (d, r) = (delta_um[j], eps_urad[j]);
-        let rot = rotation_rows(r[0] * 1e-6, r[1] * 1e-6, r[2] * 1e-6);
+    for (j, e) in elems.iter().enumerate().rev().take(3) {
+        let d = delta_um[j];
+        let pick = |v: &[f64; 9]| [v[3 * j], v[3 * j + 1], v[3 * j + 2]];
+        let rot = rotation_rows(pick(&sin), pick(&cos));
         let tr = e.actual_translation(q[j]);
         let v = if e.workpiece_side { add(p, tr) } else { p };
         let w = [
@@ -302,7 +321,22 @@ mod tests {
         let q = [412.5, -140.0, 37.0];
         let t = [0.0, 0.0, -150.0];
         let d = [[3.0, -8.0, 1.5], [-2.0, 4.0, 9.0], [0.5, -6.0, 2.0]];
-        let r = [[12.0, -7.0, 3.0], [-4.0, 15.0, -9.0], [6.0, 2.0, -11.0]];
+        // Angles of a few µrad (the series path), then one of 300 µrad (libm for all nine).
+        for r in [
+            [[12.0, -7.0, 3.0], [-4.0, 15.0, -9.0], [6.0, 2.0, -11.0]],
+            [[12.0, -7.0, 3.0], [-4.0, 300.0, -9.0], [6.0, 2.0, -11.0]],
+        ] {
+            check_exact_tip_against_htm(&chain, q, t, d, r);
+        }
+    }
+
+    fn check_exact_tip_against_htm(
+        chain: &[Elem],
+        q: [f64; 3],
+        t: [f64; 3],
+        d: [[f64; 3]; 3],
+        r: [[f64; 3]; 3],
+    ) {
         let mut p = Vector4::new(t[0], t[1], t[2], 1.0);
         for j in (0..3).rev() {
             let err = error_htm(
@@ -317,11 +351,11 @@ mod tests {
                 tr * (err * p)
             };
         }
-        let got = exact_tip(&chain, &q, t, &d, &r);
+        let got = exact_tip(chain, &q, t, &d, &r);
         for k in 0..3 {
             assert!((got[k] - p[k]).abs() < 1e-12, "{k}: {} vs {}", got[k], p[k]);
         }
-        let nominal = nominal_tip(&chain, &q, t);
+        let nominal = nominal_tip(chain, &q, t);
         let moved = (0..3)
             .map(|k| (got[k] - nominal[k]).abs())
             .fold(0.0, f64::max);

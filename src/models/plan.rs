@@ -7,8 +7,11 @@
 //! What differs is the layout, chosen so one evaluation neither branches per term nor allocates:
 //!
 //! * Linear tables of one chain element with equal positions form a [`Group`]: one search per axis
-//!   (a guess from the mean spacing, corrected against the real nodes, as `Table::locate`), and their
-//!   forward and reverse values interleaved per node, so a lookup reads two contiguous rows.
+//!   (`lookup::Nodes`), and per approach direction one row of the members' values per node (the
+//!   forward/reverse choice folded in when the plan is built), so a lookup reads two contiguous rows.
+//!   A group holding an element's six components in slot and term order is written as one block.
+//! * Other functions are `lookup::Curve`s: C¹ tables as one cubic per segment and direction,
+//!   polynomials by Horner.
 //! * A term's first-order effect is its value times a basis row of its element (translation: unit
 //!   vector; rotation ε about e_i: 1e-3 µm/(µrad·mm) · e_i × arm), built once per evaluation.
 //! * Thermal terms keep only their non-zero coefficients, as flat (sensor, coefficient) lists; the
@@ -21,6 +24,7 @@ use std::ops::Range;
 use super::engine::{Compiled, ForceSource};
 use super::function::{ErrorFunction, Interpolation, Table};
 use super::kinematics::{Elem, arms, cross, exact_tip, nominal_tip};
+use super::lookup::{Curve, Nodes, by_dir, dir_slot};
 use super::spec::{LoadKind, ModelSpec, ThermalKind};
 use super::thermal::LagPlan;
 use super::{ErrorBreakdown, EvalFlags, ModelInput, ModelState};
@@ -50,64 +54,21 @@ impl Target {
 #[derive(Clone, Debug)]
 struct Group {
     elem: usize,
-    /// The shared node positions (≥ 2, strictly increasing), mm.
-    x: Vec<f64>,
-    /// 1 / (x_{i+1} − x_i) per segment.
-    inv_h: Vec<f64>,
-    /// 1 / mean spacing: the first guess of a lookup.
-    inv_mean_h: f64,
-    /// Per node: the members' forward values, then their reverse values (2 · members per row).
-    rows: Vec<f64>,
+    nodes: Nodes,
+    /// Per direction slot ([`dir_slot`]): per node, the members' values (`members.len()` per row).
+    rows: [Vec<f64>; 3],
     members: Vec<Target>,
-}
-
-impl Group {
-    fn new(elem: usize, x: &[f64]) -> Group {
-        let n = x.len();
-        Group {
-            elem,
-            x: x.to_vec(),
-            inv_h: x.windows(2).map(|w| 1.0 / (w[1] - w[0])).collect(),
-            inv_mean_h: (n - 1) as f64 / (x[n - 1] - x[0]),
-            rows: Vec::new(),
-            members: Vec::new(),
-        }
-    }
-
-    /// (node a, node b, fraction f, clamped): the value is a + f · (b − a). The same segment and
-    /// fraction as `Table::locate`: segment i with x_i ≤ q < x_{i+1} (the last one up to its end);
-    /// outside the span (or NaN) both nodes are the end node and f = 0.
-    #[inline]
-    fn locate(&self, q: f64) -> (usize, usize, f64, bool) {
-        let x = &self.x[..];
-        let n = x.len();
-        if q.is_nan() || q < x[0] {
-            return (0, 0, 0.0, true);
-        }
-        if q > x[n - 1] {
-            return (n - 1, n - 1, 0.0, true);
-        }
-        let last = n - 2;
-        // Near-even tables (positions rounded when written): the guess from the mean spacing is
-        // right or one off; anything else falls back to a binary search.
-        let mut i = (((q - x[0]) * self.inv_mean_h) as usize).min(last);
-        if x[i] > q {
-            i -= 1; // x[0] ≤ q, so i > 0 here
-        } else if i < last && x[i + 1] <= q {
-            i += 1;
-        }
-        if x[i] > q || (q >= x[i + 1] && i != last) {
-            i = x.partition_point(|&p| p <= q).saturating_sub(1).min(last);
-        }
-        (i, i + 1, (q - x[i]) * self.inv_h[i], false)
-    }
+    /// Set when the members are the element's six slots in order (δx δy δz εa εb εc) with
+    /// consecutive term indices from this one, as a full set of ISO 230-1 components listed per
+    /// axis is: then one evaluation writes them as a block, without a lookup per member.
+    full_from_term: Option<usize>,
 }
 
 /// A component the groups do not cover (C¹ table, polynomial, piecewise quadratic).
 #[derive(Clone, Debug)]
 struct Single {
     target: Target,
-    function: ErrorFunction,
+    curve: Curve,
 }
 
 /// A thermal term's formula with sensor lists resolved to flat coefficient ranges (`Plan::linear`,
@@ -155,8 +116,8 @@ struct LoadTerm {
     target: Target,
     /// Index into the force channels (state scratch).
     force: usize,
-    function: ErrorFunction,
-    /// v = function(q) · F · scale: 1 for a compliance, (lever − height) / lever / F_ref for a
+    curve: Curve,
+    /// v = curve(q) · F · scale: 1 for a compliance, (lever − height) / lever / F_ref for a
     /// weight-scaled reference.
     scale: f64,
 }
@@ -194,11 +155,17 @@ impl Plan {
                 ErrorFunction::Table(tb) if tb.interpolation == Interpolation::Linear => {
                     let g = match groups
                         .iter_mut()
-                        .position(|g| g.elem == s.elem && g.x == tb.positions_mm)
+                        .position(|g| g.elem == s.elem && g.nodes.x == tb.positions_mm)
                     {
                         Some(i) => &mut groups[i],
                         None => {
-                            groups.push(Group::new(s.elem, &tb.positions_mm));
+                            groups.push(Group {
+                                elem: s.elem,
+                                nodes: Nodes::new(&tb.positions_mm),
+                                rows: Default::default(),
+                                members: Vec::new(),
+                                full_from_term: None,
+                            });
                             groups.last_mut().expect("just pushed")
                         }
                     };
@@ -206,12 +173,19 @@ impl Plan {
                 }
                 f => singles.push(Single {
                     target,
-                    function: f.clone(),
+                    curve: Curve::new(f),
                 }),
             }
         }
         // Interleave the members' values per node now that each group's members are known.
         for g in &mut groups {
+            let t0 = g.members[0].term;
+            let full = g.members.len() == 6
+                && g.members
+                    .iter()
+                    .enumerate()
+                    .all(|(s, m)| m.at == g.elem * 6 + s && m.term == t0 + s && m.elem == g.elem);
+            g.full_from_term = full.then_some(t0);
             let tables: Vec<&Table> = g
                 .members
                 .iter()
@@ -220,9 +194,14 @@ impl Plan {
                     _ => unreachable!("groups hold tables only"),
                 })
                 .collect();
-            for i in 0..g.x.len() {
-                g.rows.extend(tables.iter().map(|t| t.forward[i]));
-                g.rows.extend(tables.iter().map(|t| t.reverse[i]));
+            let per_table: Vec<[Vec<f64>; 3]> = tables
+                .iter()
+                .map(|t| by_dir(&t.forward, &t.reverse))
+                .collect();
+            for (slot, rows) in g.rows.iter_mut().enumerate() {
+                for i in 0..g.nodes.x.len() {
+                    rows.extend(per_table.iter().map(|v| v[slot][i]));
+                }
             }
         }
 
@@ -341,7 +320,7 @@ impl Plan {
                 LoadTerm {
                     target: Target::new(n_comp + n_sq + n_th + i, s.elem, s.slot),
                     force: *fi,
-                    function,
+                    curve: Curve::new(&function),
                     scale,
                 }
             })
@@ -458,10 +437,11 @@ impl Plan {
 
         let mut arm = [[0.0; 3]; 3];
         arms(&self.elems, &q, t, &mut arm);
-        // basis[6 j + slot]: the tip shift (µm) per unit value in `slot` of element j.
+        // arm_um[j]: element j's arm · 1e-3, the tip shift (µm) per µrad of rotation about each
+        // axis is e_i × arm_um. basis[6 j + slot]: the tip shift (µm) per unit value in `slot`.
+        let arm_um = arm.map(|a| [a[0] * 1e-3, a[1] * 1e-3, a[2] * 1e-3]);
         let mut basis = [[0.0; 3]; 18];
-        for (b, a) in basis.chunks_exact_mut(6).zip(&arm) {
-            let [ax, ay, az] = [a[0] * 1e-3, a[1] * 1e-3, a[2] * 1e-3];
+        for (b, &[ax, ay, az]) in basis.chunks_exact_mut(6).zip(&arm_um) {
             b.copy_from_slice(&[
                 [1.0, 0.0, 0.0],
                 [0.0, 1.0, 0.0],
@@ -491,25 +471,40 @@ impl Plan {
 
         for g in &self.groups {
             // Clamped: both nodes the end node and f = 0, so a + 0 · (b − a) = a exactly.
-            let (lo, hi, f, cl) = g.locate(q[g.elem]);
+            let (lo, hi, f, cl) = g.nodes.locate(q[g.elem]);
             clamped[g.elem] |= cl;
-            // Weights 1/0, 0/1 or ½/½ as in `Table::eval_at`: forward and reverse pass unchanged.
-            let w_fwd = 0.5 * (1.0 + f64::from(dir[g.elem]));
+            let rows = &g.rows[dir_slot(dir[g.elem])];
             let m = g.members.len();
-            let a = &g.rows[2 * m * lo..2 * m * (lo + 1)];
-            let b = &g.rows[2 * m * hi..2 * m * (hi + 1)];
-            let (af, ar) = a.split_at(m);
-            let (bf, br) = b.split_at(m);
-            let nodes = af.iter().zip(ar).zip(bf).zip(br);
-            for (&tg, (((af, ar), bf), br)) in g.members.iter().zip(nodes) {
-                let vf = af + f * (bf - af);
-                let vr = ar + f * (br - ar);
-                apply(&mut acc, &basis, terms, tg, w_fwd * vf + (1.0 - w_fwd) * vr);
+            let a = &rows[m * lo..m * (lo + 1)];
+            let b = &rows[m * hi..m * (hi + 1)];
+            if let Some(t0) = g.full_from_term
+                && let (Ok(a), Ok(b)) = (<&[f64; 6]>::try_from(a), <&[f64; 6]>::try_from(b))
+                && let Some(block) = terms.get_mut(t0..t0 + 6)
+            {
+                let v: [f64; 6] = std::array::from_fn(|s| a[s] + f * (b[s] - a[s]));
+                let e = g.elem;
+                for (acc, v) in acc[6 * e..6 * e + 6].iter_mut().zip(&v) {
+                    *acc += v;
+                }
+                // `apply` with the basis rows written out (the same products: v · 1, v · 0, v · (−a)).
+                let [ax, ay, az] = arm_um[e];
+                block.copy_from_slice(&[
+                    [v[0], 0.0, 0.0],
+                    [0.0, v[1], 0.0],
+                    [0.0, 0.0, v[2]],
+                    [0.0, v[3] * -az, v[3] * ay],
+                    [v[4] * az, 0.0, v[4] * -ax],
+                    [v[5] * -ay, v[5] * ax, 0.0],
+                ]);
+                continue;
+            }
+            for (&tg, (&a, &b)) in g.members.iter().zip(a.iter().zip(b)) {
+                apply(&mut acc, &basis, terms, tg, a + f * (b - a));
             }
         }
         for s in &self.singles {
             let e = s.target.elem;
-            let (v, cl) = s.function.eval(q[e], dir[e]);
+            let (v, cl) = s.curve.eval(q[e], dir[e]);
             clamped[e] |= cl;
             apply(&mut acc, &basis, terms, s.target, v);
         }
@@ -547,7 +542,7 @@ impl Plan {
                     origin_mm,
                     reference_c,
                 } => {
-                    let abs_c = ts.lagged_c[*sensor].unwrap_or(*reference_c);
+                    let abs_c = ts.lagged_c(*sensor).unwrap_or(*reference_c);
                     // ppm/K · mm · K = 1e-6 mm = 1e-3 µm.
                     alpha_ppm_per_k * (qt - origin_mm) * (abs_c - reference_c) * 1e-3
                 }
@@ -584,7 +579,7 @@ impl Plan {
         }
         for l in &self.load {
             let e = l.target.elem;
-            let (v, cl) = l.function.eval(q[e], dir[e]);
+            let (v, cl) = l.curve.eval(q[e], dir[e]);
             clamped[e] |= cl;
             apply(
                 &mut acc,

@@ -10,17 +10,23 @@ use super::spec::{SensorSpec, ThermalKind};
 /// Lag states, one per sensor.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ThermalState {
-    /// Lagged temperature per sensor, °C (`None` until the first valid reading).
-    pub lagged_c: Vec<Option<f64>>,
+    /// Lagged temperature per sensor, °C; meaningful once `started[i]` (see [`Self::lagged_c`]).
+    /// Plain floats plus flags rather than `Option<f64>` so the usual step is one straight loop
+    /// over contiguous floats.
+    lagged: Vec<f64>,
+    started: Vec<bool>,
+    /// Every sensor has had a valid reading (then no per-sensor start check is needed).
+    all_started: bool,
     /// ΔT per sensor used by the last evaluation (0 while a sensor has never been read).
     pub delta_c: Vec<f64>,
     pub last_t_s: Option<f64>,
     /// (Δt, 1 − e^(−Δt/τ)) of the last step per sensor: avoids an `exp` per sample at a fixed rate.
     alpha_cache: Vec<(f64, f64)>,
     /// The plan's cache for its usual step (all sensors read, all started; `step_planned`): the Δt₀
-    /// shared by every sensor (NaN = none yet) and α₀ per sensor (1 for a sensor without lag).
+    /// shared by every sensor (NaN = none yet) and e^(−Δt₀/τ) per sensor (0 for a sensor without
+    /// lag: the share of the old state that survives one step).
     shared_dt0: f64,
-    shared_alpha0: Vec<f64>,
+    shared_keep0: Vec<f64>,
 }
 
 /// What stepping found wrong with the inputs.
@@ -33,22 +39,47 @@ pub struct StepIssues {
 impl ThermalState {
     pub fn new(n: usize) -> Self {
         ThermalState {
-            lagged_c: vec![None; n],
+            lagged: vec![0.0; n],
+            started: vec![false; n],
+            all_started: n == 0,
             delta_c: vec![0.0; n],
             last_t_s: None,
             alpha_cache: vec![(f64::NAN, 0.0); n],
             shared_dt0: f64::NAN,
-            shared_alpha0: vec![1.0; n],
+            shared_keep0: vec![0.0; n],
         }
     }
 
-    /// Advance every lag to `t_s` with readings `temps_c` (by sensor index). A missing or non-finite
-    /// reading holds that sensor's state; time going backwards holds all states and is reported.
-    pub fn step(&mut self, sensors: &[SensorSpec], temps_c: &[f64], t_s: f64) -> StepIssues {
-        let mut issues = StepIssues::default();
-        if self.lagged_c.len() != sensors.len() {
-            *self = ThermalState::new(sensors.len());
+    /// Number of sensors.
+    pub fn len(&self) -> usize {
+        self.lagged.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.lagged.is_empty()
+    }
+
+    /// Lagged temperature of sensor `i`, °C (`None` until its first valid reading or for an
+    /// index past the end).
+    pub fn lagged_c(&self, i: usize) -> Option<f64> {
+        self.started
+            .get(i)
+            .copied()
+            .unwrap_or(false)
+            .then(|| self.lagged[i])
+    }
+
+    fn set_lagged(&mut self, i: usize, v: f64) {
+        self.lagged[i] = v;
+        if !self.started[i] {
+            self.started[i] = true;
+            self.all_started = self.started.iter().all(|&s| s);
         }
+    }
+
+    /// (Δt since the last step or `None`, issues); records `t_s` unless time went backwards.
+    fn advance_time(&mut self, t_s: f64) -> (Option<f64>, StepIssues) {
+        let mut issues = StepIssues::default();
         let dt = match self.last_t_s {
             Some(last) if t_s < last => {
                 issues.time_backwards = true;
@@ -60,14 +91,24 @@ impl ThermalState {
         if !issues.time_backwards {
             self.last_t_s = Some(t_s);
         }
+        (dt, issues)
+    }
+
+    /// Advance every lag to `t_s` with readings `temps_c` (by sensor index). A missing or non-finite
+    /// reading holds that sensor's state; time going backwards holds all states and is reported.
+    pub fn step(&mut self, sensors: &[SensorSpec], temps_c: &[f64], t_s: f64) -> StepIssues {
+        if self.len() != sensors.len() {
+            *self = ThermalState::new(sensors.len());
+        }
+        let (dt, mut issues) = self.advance_time(t_s);
         for (i, s) in sensors.iter().enumerate() {
             let reading = temps_c.get(i).copied().filter(|t| t.is_finite());
             let Some(t) = reading else {
                 issues.missing_temperature = true;
-                self.delta_c[i] = self.lagged_c[i].map_or(0.0, |l| l - s.reference_c);
+                self.delta_c[i] = self.lagged_c(i).map_or(0.0, |l| l - s.reference_c);
                 continue;
             };
-            let new = match (self.lagged_c[i], s.tau_s, dt) {
+            let new = match (self.lagged_c(i), s.tau_s, dt) {
                 (None, _, _) | (_, None, _) => t,
                 (Some(prev), Some(tau), Some(dt)) => {
                     let alpha = lag_alpha(&mut self.alpha_cache[i], dt, tau);
@@ -75,7 +116,7 @@ impl ThermalState {
                 }
                 (Some(prev), Some(_), None) => prev,
             };
-            self.lagged_c[i] = Some(new);
+            self.set_lagged(i, new);
             self.delta_c[i] = new - s.reference_c;
         }
         issues
@@ -88,7 +129,7 @@ impl ThermalState {
 pub(crate) struct LagPlan {
     reference_c: Vec<f64>,
     lag: Vec<Option<(f64, f64)>>,
-    /// 1/τ, 0 for a sensor without lag (its α is then exactly 1).
+    /// 1/τ, 0 for a sensor without lag (its kept share e^(−Δt/τ) is then exactly 0).
     inv_tau_or_0: Vec<f64>,
 }
 
@@ -113,77 +154,80 @@ impl ThermalState {
     /// one multiplication by 1/τ instead of a division per sensor), from flat per-sensor constants.
     pub(crate) fn step_planned(&mut self, p: &LagPlan, temps_c: &[f64], t_s: f64) -> StepIssues {
         let n = p.reference_c.len();
-        let mut issues = StepIssues::default();
-        if self.lagged_c.len() != n {
+        if self.len() != n {
             *self = ThermalState::new(n);
         }
-        let dt = match self.last_t_s {
-            Some(last) if t_s < last => {
-                issues.time_backwards = true;
-                None
-            }
-            Some(last) => Some(t_s - last),
-            None => None,
-        };
-        if !issues.time_backwards {
-            self.last_t_s = Some(t_s);
-        }
+        let (dt, mut issues) = self.advance_time(t_s);
         // The usual step: forward in time, every reading present and finite, every lag started.
         // One Δt₀ serves all sensors (they all see the same Δt), so the loop below has no branch.
         if let Some(dt) = dt
+            && self.all_started
             && let Some(temps) = temps_c.get(..n)
             && temps.iter().fold(true, |ok, t| ok & t.is_finite())
-            && self.lagged_c.iter().fold(true, |ok, l| ok & l.is_some())
         {
             let mut d = dt - self.shared_dt0;
             if d.is_nan() || d.abs() > 1e-6 * self.shared_dt0 {
-                for (a0, lag) in self.shared_alpha0.iter_mut().zip(&p.lag) {
-                    *a0 = lag.map_or(1.0, |(tau, _)| 1.0 - (-dt / tau).exp());
+                for (k0, lag) in self.shared_keep0.iter_mut().zip(&p.lag) {
+                    *k0 = lag.map_or(0.0, |(tau, _)| (-dt / tau).exp());
                 }
                 self.shared_dt0 = dt;
                 d = 0.0;
             }
-            let sensors = self.lagged_c.iter_mut().zip(&mut self.delta_c[..n]);
-            let constants = p.reference_c.iter().zip(&p.inv_tau_or_0);
-            for ((((lagged, delta), &a0), (&reference_c, &inv_tau)), &t) in sensors
-                .zip(&self.shared_alpha0[..n])
-                .zip(constants)
-                .zip(temps)
-            {
-                // α as in `lag_alpha`; written T' = T + (1 − α)(T'₀ − T) so that α = 1 (no lag)
-                // gives the reading exactly.
-                let x = d * inv_tau;
-                let alpha = a0 + (1.0 - a0) * (x * (1.0 - x * (0.5 - x * (1.0 / 6.0))));
-                let prev = lagged.unwrap_or(t);
-                let new = t + (1.0 - alpha) * (prev - t);
-                *lagged = Some(new);
-                *delta = new - reference_c;
-            }
+            lag_step_all(
+                &mut self.lagged,
+                &mut self.delta_c,
+                &self.shared_keep0,
+                &p.inv_tau_or_0,
+                &p.reference_c,
+                temps,
+                d,
+            );
             return issues;
         }
-        let sensors = self.lagged_c.iter_mut().zip(&mut self.delta_c[..n]);
-        let constants = p.reference_c.iter().zip(&p.lag);
-        for (i, (((lagged, delta), cache), (&reference_c, lag))) in sensors
-            .zip(&mut self.alpha_cache[..n])
-            .zip(constants)
-            .enumerate()
-        {
+        for (i, (&reference_c, lag)) in p.reference_c.iter().zip(&p.lag).enumerate() {
             let Some(t) = temps_c.get(i).copied().filter(|t| t.is_finite()) else {
                 issues.missing_temperature = true;
-                *delta = lagged.map_or(0.0, |l| l - reference_c);
+                self.delta_c[i] = self.lagged_c(i).map_or(0.0, |l| l - reference_c);
                 continue;
             };
-            let new = match (*lagged, lag, dt) {
+            let new = match (self.lagged_c(i), lag, dt) {
                 (None, _, _) | (_, None, _) => t,
                 (Some(prev), Some((tau, inv_tau)), Some(dt)) => {
-                    prev + lag_alpha_inv(cache, dt, *tau, *inv_tau) * (t - prev)
+                    prev + lag_alpha_inv(&mut self.alpha_cache[i], dt, *tau, *inv_tau) * (t - prev)
                 }
                 (Some(prev), Some(_), None) => prev,
             };
-            *lagged = Some(new);
-            *delta = new - reference_c;
+            self.set_lagged(i, new);
+            self.delta_c[i] = new - reference_c;
         }
         issues
+    }
+}
+
+/// The usual lag step for every sensor (all read, all started). A function of separate slices so
+/// the compiler knows they do not overlap and runs the loop on vector registers.
+#[inline(always)]
+fn lag_step_all(
+    lagged: &mut [f64],
+    delta_c: &mut [f64],
+    keep0: &[f64],
+    inv_tau: &[f64],
+    reference_c: &[f64],
+    temps: &[f64],
+    d: f64,
+) {
+    let n = lagged.len();
+    let (delta_c, keep0, inv_tau) = (&mut delta_c[..n], &keep0[..n], &inv_tau[..n]);
+    let (reference_c, temps) = (&reference_c[..n], &temps[..n]);
+    for i in 0..n {
+        // Kept share e^(−Δt/τ) = e^(−Δt₀/τ)·e^(−x), x = (Δt − Δt₀)/τ, as in `lag_alpha`; written
+        // T' = T + keep·(T'₀ − T) so that no lag (keep = 0) gives the reading exactly.
+        let x = d * inv_tau[i];
+        let keep = keep0[i] * (1.0 - x * (1.0 - x * (0.5 - x * (1.0 / 6.0))));
+        let t = temps[i];
+        let new = t + keep * (lagged[i] - t);
+        lagged[i] = new;
+        delta_c[i] = new - reference_c[i];
     }
 }
 
