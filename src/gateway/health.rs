@@ -70,6 +70,8 @@ pub struct ChannelMonitor {
     last_good: Option<(f64, f64)>,
     /// Time the current raw value was first seen (for the stuck check).
     same_since: Option<(f64, u64)>,
+    /// Time of the last reading that reached the stuck check.
+    last_reading_s: Option<f64>,
     sample_fault: Option<FaultKind>,
     /// Kinds of every sample rejected since the last [`ChannelMonitor::take_rejected`] (bit per
     /// kind), so a bad reading that a good one replaces before the next cycle is still logged.
@@ -83,6 +85,7 @@ impl ChannelMonitor {
             limits,
             last_good: None,
             same_since: None,
+            last_reading_s: None,
             sample_fault: None,
             rejected: 0,
             stuck: false,
@@ -139,8 +142,16 @@ impl ChannelMonitor {
                 return;
             }
         }
+        // Stuck means seen bit-identical for `stuck_after_s`. Across a gap in the readings (a mute
+        // Modbus slave, a silent node: longer than `stale_after_s`) nobody saw the value, so the same
+        // reading before and after it is no evidence: the window starts afresh. A sensor already
+        // found stuck stays stuck until its value changes (the gap brought no new evidence either).
+        let gap = self
+            .last_reading_s
+            .is_some_and(|t| s.t_s - t > self.limits.stale_after_s);
+        self.last_reading_s = Some(s.t_s);
         match self.same_since {
-            Some((_, bits)) if bits == v.to_bits() => {}
+            Some((_, bits)) if bits == v.to_bits() && (self.stuck || !gap) => {}
             _ => self.same_since = Some((s.t_s, v.to_bits())),
         }
         self.stuck = match (self.limits.stuck_after_s, self.same_since) {
@@ -323,6 +334,52 @@ mod tests {
         assert_eq!(m.status(31.0).faults.first(), Some(&FaultKind::Stuck));
         m.observe(&sample(32.0, 22.6));
         assert!(m.status(32.0).faults.is_empty());
+    }
+
+    #[test]
+    fn the_same_reading_before_and_after_a_comms_gap_is_not_stuck() {
+        // A Modbus RTU slave mute for 3 s: the poller sends `Stale` samples, then the first reading
+        // after it equals the last one before (0.1 °C steps: likely on a slow temperature). Nobody saw
+        // the value during the gap, so the stuck window starts afresh.
+        let mut m = ChannelMonitor::new(ChannelLimits {
+            min: 0.0,
+            max: 100.0,
+            stale_after_s: 0.5,
+            max_rate_per_s: None,
+            stuck_after_s: Some(1.0),
+        });
+        for k in 0..=10 {
+            m.observe(&sample(
+                k as f64 * 0.1,
+                if k % 2 == 0 { 22.4 } else { 22.5 },
+            ));
+        }
+        for k in 11..40 {
+            m.observe(&Sample {
+                health: Health::Stale,
+                ..sample(k as f64 * 0.1, 22.4)
+            });
+        }
+        assert_eq!(m.status(3.9).faults, vec![FaultKind::Stale]);
+        m.observe(&sample(4.0, 22.4));
+        let st = m.status(4.0);
+        assert!(st.faults.is_empty(), "spurious fault after the gap: {st:?}");
+        // A silent source (no samples at all, e.g. a CAN node) is a gap too.
+        m.observe(&sample(4.1, 22.5));
+        m.observe(&sample(6.0, 22.5));
+        assert!(m.status(6.0).faults.is_empty());
+        // A real stuck reading is still caught, and stays stuck across a later gap.
+        for k in 61..=72 {
+            m.observe(&sample(k as f64 * 0.1, 22.5));
+        }
+        assert_eq!(m.status(7.2).faults, vec![FaultKind::Stuck]);
+        m.observe(&sample(10.0, 22.5));
+        // (Stale too: a stuck reading never refreshes the last good value.)
+        assert_eq!(
+            m.status(10.0).faults,
+            vec![FaultKind::Stale, FaultKind::Stuck],
+            "no new evidence: still stuck"
+        );
     }
 
     #[test]

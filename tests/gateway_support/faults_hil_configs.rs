@@ -23,7 +23,13 @@ pub const KILL_AT_S: f64 = 22.0;
 pub const TERM_AT_S: f64 = 25.5;
 
 pub fn sim_toml(hub_port: u16, pty_link: &Path, truth: &Path) -> String {
-    let strokes = "G1 X150 Y100\nG1 X0 Y0\n".repeat(5);
+    sim_machine_toml(5, truth) + &sim_faults_and_io_toml(hub_port, pty_link)
+}
+
+/// The simulated machine (clock, program of `strokes` out-and-back strokes of 3 s each after a 1 s
+/// dwell, PLC, truth model, hidden thermal and cutting physics), without sensor faults or I/O.
+pub fn sim_machine_toml(strokes: usize, truth: &Path) -> String {
+    let strokes = "G1 X150 Y100\nG1 X0 Y0\n".repeat(strokes);
     format!(
         r#"
 seed = 5
@@ -111,7 +117,14 @@ teeth = 2.0
 compliance_um_per_N = {{ x = 0.004, y = 0.003, z = -0.002 }}
 force_name = "cut"
 force_noise_N = 1.0
+"#,
+        truth = truth.display(),
+    )
+}
 
+fn sim_faults_and_io_toml(hub_port: u16, pty_link: &Path) -> String {
+    format!(
+        r#"
 [[faults]]
 channel = "T_spindle_C"
 kind = "stuck"
@@ -162,7 +175,6 @@ kind = "serial_garbage"
 from_s = {g0}
 to_s = {g1}
 "#,
-        truth = truth.display(),
         pty = pty_link.display(),
         stuck0 = T_STUCK.0,
         stuck1 = T_STUCK.1,

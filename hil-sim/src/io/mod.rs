@@ -9,12 +9,13 @@
 //!   first, `force_lsb_N`, `strain_lsb_ue`; i32::MIN = no valid reading);
 //! - the force as ASCII weighing-indicator lines on a pty (`ST,GS,+00250.0N`; `OL` for NaN; silence on
 //!   dropout);
-//! - transport faults on a schedule ([`transport_faults`]): Modbus TCP down and back, a CAN node
-//!   silent, garbage on the weighing line; every client write to the PLC window is logged
+//! - transport faults on a schedule ([`transport_faults`]): Modbus TCP down and back, the RTU slave
+//!   mute and back ([`rtu_slave`]), a CAN node silent, garbage on the weighing line; every client write to the PLC window is logged
 //!   ([`plc_server`], `plc_writes.csv`).
 
 pub mod plc_server;
 pub mod publish;
+pub mod rtu_slave;
 pub mod serve;
 pub mod transport_faults;
 

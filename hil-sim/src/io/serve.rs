@@ -2,18 +2,20 @@
 //! as possible) and moves the publisher's bytes onto the configured transports; client writes to the
 //! Modbus holding registers reach the PLC window before every step. Transport faults
 //! (`[[io.faults]]`, decided by [`super::transport_faults`]) are acted on here: the Modbus TCP server
-//! goes down and comes back, a CAN node's frames are dropped, garbage goes on the weighing pty. Each
+//! goes down and comes back, the RTU slave goes mute and answers again ([`super::rtu_slave`]), a CAN
+//! node's frames are dropped, garbage goes on the weighing pty. Each
 //! fault's start and clear is printed once on stderr (`hil-sim: fault modbus_down started at t = 4.000 s`).
 
 use super::plc_server::{PlcServer, SimClock, WriteEvent};
 use super::publish::Publisher;
+use super::rtu_slave::{self, RtuMute};
 use super::transport_faults::{Active, Garbage, Schedule, Transition, silenced};
 use crate::clock::RealtimePacer;
 use crate::recording::Recorder;
 use crate::{SimConfig, World};
 use retrocomp::bus::can::backend::{AnyCanBus, open as open_can};
 use retrocomp::bus::can::{CanBus, MemBus};
-use retrocomp::bus::modbus::server::{RegisterBank, spawn_rtu};
+use retrocomp::bus::modbus::server::RegisterBank;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -86,12 +88,13 @@ fn pty_pair(link: &Path) -> anyhow::Result<(SerialStream, SerialStream, PathBuf)
     Ok((master, slave, dev))
 }
 
-/// Log each fault edge once and bring the Modbus TCP server down or up to match the schedule
-/// (idempotent, so overlapping `modbus_down` windows are one outage).
+/// Log each fault edge once, bring the Modbus TCP server down or up and mute or unmute the RTU
+/// slave to match the schedule (idempotent, so overlapping windows are one outage).
 async fn apply_transport_faults(
     changes: &[Transition],
     active: &Active,
     tcp: Option<&mut PlcServer>,
+    rtu: Option<&RtuMute>,
 ) -> anyhow::Result<()> {
     for c in changes {
         let what = match c.node {
@@ -100,6 +103,9 @@ async fn apply_transport_faults(
         };
         let edge = if c.started { "started" } else { "cleared" };
         eprintln!("hil-sim: fault {what} {edge} at t = {:.3} s", c.t_s);
+    }
+    if let Some(m) = rtu {
+        m.set(!active.rtu_answers());
     }
     if let Some(srv) = tcp {
         if active.modbus_down && srv.is_up() {
@@ -137,6 +143,7 @@ pub async fn start(
         }
     }
     let (mut tcp, mut rtu, mut rtu_pty, mut keep) = (None, None, None, Vec::new());
+    let mut rtu_mute = None;
     let clock = SimClock::default();
     let (write_log_tx, mut write_log) = tokio::sync::mpsc::unbounded_channel::<WriteEvent>();
     if let Some(mb) = &io.modbus {
@@ -159,7 +166,9 @@ pub async fn start(
         }
         if let Some(link) = &mb.rtu_pty_link {
             let (master, slave, dev) = pty_pair(link)?;
-            rtu = Some(spawn_rtu(master, bank.clone(), mb.rtu_slave));
+            let (task, mute) = rtu_slave::spawn(master, bank.clone(), mb.rtu_slave);
+            rtu = Some(task);
+            rtu_mute = Some(mute);
             keep.push(slave);
             rtu_pty = Some(dev);
         }
@@ -236,7 +245,8 @@ pub async fn start(
                     clock.set(world.t_s());
                     let (active, changes) = schedule.advance(world.t_s());
                     if !changes.is_empty() {
-                        apply_transport_faults(&changes, &active, tcp.as_mut()).await?;
+                        apply_transport_faults(&changes, &active, tcp.as_mut(), rtu_mute.as_ref())
+                            .await?;
                     }
                     if let Some(a) = ack {
                         bank.set_holding(a, world.plc().read(a, 1)?);

@@ -1,12 +1,16 @@
 //! Transport faults on demand, scripted from `[[io.faults]]` in the sim config so a test can play a
 //! run: `modbus_down` (the Modbus TCP listener closes and drops every live connection, then listens
 //! again on the same port; the PLC keeps its registers, as a real controller keeps its origin shift
-//! across a comms loss), `can_node_silent` (one CANopen node sends nothing: PDOs, heartbeat) and
-//! `serial_garbage` (random bytes, broken lines and absurd readings on the weighing-line pty).
+//! across a comms loss), `modbus_rtu_down` (the RTU slave on the pty goes mute: it still reads every
+//! request off the line but answers none and applies no write, as a powered-off or unplugged slave
+//! looks to the master; then it answers again with current values), `can_node_silent` (one CANopen
+//! node sends nothing: PDOs, heartbeat) and `serial_garbage` (random bytes, broken lines and absurd
+//! readings on the weighing-line pty).
 //!
 //! Sans-IO: [`Schedule`] maps simulated time (s) to the active faults and reports each start and
 //! clear once; [`Garbage`] decides the bytes (seeded); [`silenced`] decides which CAN frames are
-//! dropped. The shell (`serve.rs`) only closes sockets and writes bytes. Sensor faults (stuck, NaN,
+//! dropped; [`Active::rtu_answers`] decides whether the RTU slave answers. The shell (`serve.rs`,
+//! `rtu_slave.rs`) only closes sockets, flips a switch and writes bytes. Sensor faults (stuck, NaN,
 //! dropout, spike) are `[[faults]]` on a channel (`physics::faults`), not here.
 //!
 //! A window is `from_s ≤ t < to_s` (simulated seconds).
@@ -19,6 +23,7 @@ use serde::{Deserialize, Serialize};
 #[serde(rename_all = "snake_case")]
 pub enum TransportFaultKind {
     ModbusDown,
+    ModbusRtuDown,
     CanNodeSilent,
     SerialGarbage,
 }
@@ -73,8 +78,16 @@ pub fn validate(faults: &[TransportFaultConfig]) -> anyhow::Result<()> {
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Active {
     pub modbus_down: bool,
+    pub modbus_rtu_down: bool,
     pub silent_nodes: Vec<u8>,
     pub serial_garbage: bool,
+}
+
+impl Active {
+    /// Whether the RTU slave answers requests now (it is mute while `modbus_rtu_down` is active).
+    pub fn rtu_answers(&self) -> bool {
+        !self.modbus_rtu_down
+    }
 }
 
 /// One fault starting or clearing (logged once each by the shell).
@@ -113,6 +126,7 @@ impl Schedule {
         {
             match f.kind {
                 TransportFaultKind::ModbusDown => a.modbus_down = true,
+                TransportFaultKind::ModbusRtuDown => a.modbus_rtu_down = true,
                 TransportFaultKind::SerialGarbage => a.serial_garbage = true,
                 TransportFaultKind::CanNodeSilent => {
                     if let Some(n) = f.node
@@ -309,6 +323,63 @@ mod tests {
     }
 
     #[test]
+    fn modbus_rtu_down_mutes_only_the_rtu_slave_inside_its_window_and_edges_once() {
+        use TransportFaultKind::*;
+        // Two overlapping RTU windows are one outage on the line, but each logs its own edges.
+        let mut s = Schedule::new(vec![
+            f(ModbusRtuDown, 2.0, 4.0, None),
+            f(ModbusRtuDown, 3.5, 5.0, None),
+            f(ModbusDown, 6.0, 7.0, None),
+        ]);
+        assert!(s.at(1.999).rtu_answers());
+        assert!(!s.at(2.0).rtu_answers(), "from_s is inside the window");
+        assert!(!s.at(4.2).rtu_answers(), "the second window holds it down");
+        assert!(s.at(5.0).rtu_answers(), "to_s is outside: answering again");
+        let tcp_only = s.at(6.5);
+        assert!(
+            tcp_only.modbus_down && tcp_only.rtu_answers(),
+            "TCP down is not RTU down"
+        );
+        assert!(!s.at(3.0).modbus_down, "RTU down is not TCP down");
+        let mut answering = Vec::new();
+        let mut edges = Vec::new();
+        for k in 0..8000 {
+            let t = k as f64 * 0.001;
+            let (active, ch) = s.advance(t);
+            if answering.last().map(|(_, a)| *a) != Some(active.rtu_answers()) {
+                answering.push((k, active.rtu_answers()));
+            }
+            edges.extend(
+                ch.iter()
+                    .map(|c| (c.kind, c.started, (c.t_s * 1000.0).round() as i64)),
+            );
+        }
+        assert_eq!(answering, vec![(0, true), (2000, false), (5000, true)]);
+        assert_eq!(
+            edges,
+            vec![
+                (ModbusRtuDown, true, 2000),
+                (ModbusRtuDown, true, 3500),
+                (ModbusRtuDown, false, 4000),
+                (ModbusRtuDown, false, 5000),
+                (ModbusDown, true, 6000),
+                (ModbusDown, false, 7000),
+            ]
+        );
+        let e = validate(&[f(ModbusRtuDown, 1.0, 2.0, Some(1))])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("io.faults[0]") && e.contains("only for can_node_silent"),
+            "{e}"
+        );
+        let e = validate(&[f(ModbusRtuDown, 3.0, 3.0, None)])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("io.faults[0].to_s"), "{e}");
+    }
+
+    #[test]
     fn validation_names_the_entry_and_key() {
         use TransportFaultKind::*;
         let e = validate(&[
@@ -338,11 +409,16 @@ mod tests {
         }
         let w: W = toml::from_str(
             "[[faults]]\nkind = \"can_node_silent\"\nnode = 1\nfrom_s = 2.0\nto_s = 3.5\n\
-             [[faults]]\nkind = \"modbus_down\"\nfrom_s = 1.0\n",
+             [[faults]]\nkind = \"modbus_down\"\nfrom_s = 1.0\n\
+             [[faults]]\nkind = \"modbus_rtu_down\"\nfrom_s = 4.0\nto_s = 7.0\n",
         )
         .unwrap();
         assert_eq!(w.faults[0].node, Some(1));
         assert_eq!(w.faults[1].to_s, f64::INFINITY);
+        assert_eq!(
+            w.faults[2],
+            f(TransportFaultKind::ModbusRtuDown, 4.0, 7.0, None)
+        );
         assert!(toml::from_str::<W>("[[faults]]\nkind = \"modbus_up\"\nfrom_s = 1.0\n").is_err());
     }
 

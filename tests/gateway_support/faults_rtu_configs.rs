@@ -1,0 +1,96 @@
+//! The run of `gateway_faults_rtu_hil`: the same machine, physics, clamps and dosing cap as
+//! `gateway_faults_hil` (`faults_hil_configs.rs`), shorter, with the spindle temperature
+//! `T_spindle_C` read over Modbus RTU from hil-sim's pty instead of CAN, and one transport fault:
+//! `modbus_rtu_down` (the RTU slave mute) mid-run. Times are simulated seconds.
+#![allow(dead_code)]
+
+use std::path::Path;
+
+use crate::configs::{field_toml, sim_machine_toml};
+
+/// Out-and-back strokes of 3 s each after the 1 s dwell: the program ends (M30) at ≈ 19.5 s.
+pub const STROKES: usize = 3;
+/// The RTU slave mute: the spindle has warmed by ≈ 3.5 °C (Z ≈ −20 µm thermal) and keeps warming.
+pub const RTU_DOWN: (f64, f64) = (7.0, 10.0);
+/// The poller: a poll every 50 ms, 200 ms reply timeout, 100–400 ms before the port is reopened.
+pub const RTU_PERIOD_S: f64 = 0.05;
+pub const RTU_TIMEOUT_S: f64 = 0.2;
+pub const RTU_BACKOFF_S: (f64, f64) = (0.1, 0.4);
+/// Bound on "healthy again" after the slave answers: backoff max + one poll + one reply timeout
+/// + a thermal latch period and scheduling slack, s.
+pub const RTU_HEALTHY_WITHIN_S: f64 = 1.0;
+
+/// hil-sim: the machine of `gateway_faults_hil` plus Modbus RTU (the PT100 block as input registers
+/// 0.. in sensor order: spindle, xscrew, spindle2; int16, 0.1 °C) and the `modbus_rtu_down` window.
+pub fn sim_toml(hub_port: u16, weigh_link: &Path, rtu_link: &Path, truth: &Path) -> String {
+    sim_machine_toml(STROKES, truth)
+        + &format!(
+            r#"
+[record]
+every_s = 0.01
+shift_columns = true
+
+[io.can]
+backend = "socketcand"
+host = "127.0.0.1"
+port = {hub_port}
+channel = "can0"
+encoder_nodes = [1, 2, 3]
+encoder_period_s = 0.002
+temp_node = 10
+temp_period_s = 0.05
+heartbeat_period_s = 0.1
+
+[io.modbus]
+tcp_bind = "127.0.0.1:0"
+rtu_pty_link = "{rtu}"
+rtu_slave = 1
+temps_first_input = 0
+
+[io.weighing]
+pty_link = "{weigh}"
+period_s = 0.02
+
+[[io.faults]]
+kind = "modbus_rtu_down"
+from_s = {d0}
+to_s = {d1}
+"#,
+            rtu = rtu_link.display(),
+            weigh = weigh_link.display(),
+            d0 = RTU_DOWN.0,
+            d1 = RTU_DOWN.1,
+        )
+}
+
+/// The gateway: `gateway_faults_hil`'s field config with `T_spindle_C` moved from the CiA 404 PDO
+/// to a `[[modbus.source]]` on the RTU pty (its neighbour `T_spindle2_C` stays on CAN, so the
+/// `[[recovery]]` estimate can stand in while the slave is mute).
+pub fn field_toml_rtu(hub_port: u16, plc: &str, weigh_pty: &Path, rtu_dev: &Path) -> String {
+    let base = field_toml(hub_port, plc, weigh_pty);
+    let can_line = "  { channel = \"T_spindle_C\", node_id = 10, type = \"int16\", byte_offset = 0, decimal_digits = 1 },\n";
+    assert!(
+        base.contains(can_line),
+        "faults_hil_configs.rs changed: T_spindle_C's CAN mapping not found"
+    );
+    let (b0, b1) = RTU_BACKOFF_S;
+    base.replace(can_line, "")
+        + &format!(
+            r#"
+[[modbus.source]]
+name = "pt100-rtu"
+transport = "rtu"
+device = "{dev}"
+baud = 19200
+unit_id = 1
+period_s = {RTU_PERIOD_S}
+timeout_s = {RTU_TIMEOUT_S}
+backoff_min_s = {b0}
+backoff_max_s = {b1}
+channel = [
+  {{ channel = "T_spindle_C", kind = "input", address = 0, type = "int16", scale = 0.1, min = -50.0, max = 200.0 }},
+]
+"#,
+            dev = rtu_dev.display(),
+        )
+}
