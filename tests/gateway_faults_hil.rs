@@ -28,37 +28,18 @@ mod configs;
 mod hil_sim;
 #[path = "gateway_support/faults_hil_observe.rs"]
 mod observe;
+#[path = "gateway_support/faults_hil_run.rs"]
+mod run;
 
 use std::collections::BTreeMap;
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex, mpsc};
+use std::path::Path;
+use std::process::Child;
 use std::time::{Duration, Instant};
 
 use retrocomp::bus::can::hub::Hub;
 
 use configs::*;
 use observe::*;
-
-fn start_gateway(dir: &Path, n: usize, field: &Path, model: &Path) -> (Child, PathBuf) {
-    let log = dir.join(format!("gateway{n}.log"));
-    let child = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .arg("run")
-        .arg("--config")
-        .arg(field)
-        .arg("--model")
-        .arg(model)
-        .env("RUST_LOG", "info")
-        .env("NO_COLOR", "1")
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        // A file, not a pipe: a pipe nobody drains would block the gateway's logging.
-        .stderr(std::fs::File::create(&log).unwrap())
-        .spawn()
-        .expect("starting retrocomp run");
-    (child, log)
-}
 
 fn assert_alive(gw: &mut Child, log: &Path, when: &str) {
     if let Some(st) = gw.try_wait().unwrap() {
@@ -67,33 +48,6 @@ fn assert_alive(gw: &mut Child, log: &Path, when: &str) {
             std::fs::read_to_string(log).unwrap_or_default()
         );
     }
-}
-
-fn signal(gw: &Child, sig: &str) {
-    let st = Command::new("kill")
-        .args([sig, &gw.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(st.success(), "kill {sig}");
-}
-
-/// SIGTERM, wait up to 5 s, assert a clean exit.
-fn stop(gw: &mut Child, log: &Path) {
-    signal(gw, "-TERM");
-    let t = Instant::now();
-    while t.elapsed() < Duration::from_secs(5) {
-        if let Some(st) = gw.try_wait().unwrap() {
-            assert!(
-                st.success(),
-                "gateway exit {st}:\n{}",
-                std::fs::read_to_string(log).unwrap()
-            );
-            return;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    let _ = gw.kill();
-    panic!("the gateway did not stop on SIGTERM");
 }
 
 fn sleep_until(t0: Instant, at_s: f64) {
@@ -107,10 +61,7 @@ fn sleep_until(t0: Instant, at_s: f64) {
 fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
     let hil_sim = hil_sim::hil_sim_next_to_retrocomp();
     // Kept in the target dir after the run for a post-mortem (configs, gateway logs, hil-sim output).
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("gateway_faults_hil");
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    eprintln!("run folder: {}", dir.display());
+    let dir = run::run_dir("gateway_faults_hil");
     let dir = dir.as_path();
     let out = dir.join("out");
     let rt = tokio::runtime::Builder::new_multi_thread()
@@ -126,78 +77,48 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
         sim_toml(hub.local_addr().port(), &dir.join("weighing-pty"), &truth),
     )
     .unwrap();
-
-    let mut sim = Command::new(&hil_sim)
-        .args(["serve", "--config"])
-        .arg(&sim_cfg)
-        .arg("--out")
-        .arg(&out)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("starting hil-sim");
-    let sim_log = Arc::new(Mutex::new(String::new()));
-    let (line_tx, line_rx) = mpsc::channel::<(Instant, String)>();
-    {
-        let stderr = sim.stderr.take().unwrap();
-        let sim_log = sim_log.clone();
-        std::thread::spawn(move || {
-            for l in BufReader::new(stderr).lines().map_while(Result::ok) {
-                sim_log.lock().unwrap().push_str(&(l.clone() + "\n"));
-                let _ = line_tx.send((Instant::now(), l));
-            }
-        });
-    }
-    let (mut plc, mut pty) = (None, None);
-    while plc.is_none() || pty.is_none() {
-        let (_, l) = line_rx
-            .recv_timeout(Duration::from_secs(20))
-            .unwrap_or_else(|_| panic!("hil-sim did not come up:\n{}", sim_log.lock().unwrap()));
-        if let Some(a) = l.strip_prefix("hil-sim: modbus tcp on ") {
-            plc = Some(a.trim().to_string());
-        }
-        if let Some(p) = l.strip_prefix("hil-sim: weighing lines on ") {
-            pty = Some(PathBuf::from(p.trim()));
-        }
-    }
+    let mut sim = run::Sim::spawn(&hil_sim, &sim_cfg, &out);
+    let [plc, pty] = <[String; 2]>::try_from(
+        sim.wait_for(&["hil-sim: modbus tcp on ", "hil-sim: weighing lines on "]),
+    )
+    .unwrap();
     // The simulation clock started a few ms before hil-sim printed its addresses.
     let t0 = Instant::now();
     let field = dir.join("field.toml");
     std::fs::write(
         &field,
-        field_toml(hub.local_addr().port(), &plc.unwrap(), &pty.unwrap()),
+        field_toml(hub.local_addr().port(), &plc, Path::new(&pty)),
     )
     .unwrap();
 
-    let (mut gw, log1) = start_gateway(dir, 1, &field, &truth);
+    let (mut gw, log1) = run::start_gateway(dir, "gateway1.log", &field, &truth);
     sleep_until(t0, KILL_AT_S);
     assert_alive(&mut gw, &log1, "during the faults");
-    signal(&gw, "-KILL");
+    run::signal(&gw, "-KILL");
     gw.wait().unwrap();
-    let (mut gw, log2) = start_gateway(dir, 2, &field, &truth);
+    let (mut gw, log2) = run::start_gateway(dir, "gateway2.log", &field, &truth);
     sleep_until(t0, TERM_AT_S);
     assert_alive(&mut gw, &log2, "after the SIGKILL restart");
-    stop(&mut gw, &log2);
-    let (mut gw, log3) = start_gateway(dir, 3, &field, &truth);
+    run::stop_gateway(&mut gw, &log2);
+    let (mut gw, log3) = run::start_gateway(dir, "gateway3.log", &field, &truth);
 
     // The program ends by itself (M30) after ≈ 31 s.
     let deadline = Instant::now() + Duration::from_secs(40);
     let st = loop {
-        if let Some(st) = sim.try_wait().unwrap() {
+        if let Some(st) = sim.child.try_wait().unwrap() {
             break st;
         }
         if Instant::now() > deadline {
-            let _ = sim.kill();
-            panic!("hil-sim did not finish:\n{}", sim_log.lock().unwrap());
+            let _ = sim.child.kill();
+            panic!("hil-sim did not finish:\n{}", sim.log_text());
         }
         std::thread::sleep(Duration::from_millis(50));
     };
     let sim_wall_s = t0.elapsed().as_secs_f64();
     assert_alive(&mut gw, &log3, "at the end of the program");
-    stop(&mut gw, &log3);
+    run::stop_gateway(&mut gw, &log3);
     std::thread::sleep(Duration::from_millis(100));
-    let sim_log = sim_log.lock().unwrap().clone();
+    let sim_log = sim.log_text();
     assert!(st.success(), "hil-sim failed: {st}\n{sim_log}");
     drop(hub);
 
@@ -213,11 +134,7 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
 
     // Where the restarts fall on the simulation clock: hil-sim printed the end of the garbage window
     // at t = GARBAGE.1 (sim); the wall time we read it gives the sim clock's lag.
-    let cleared_at = line_rx
-        .try_iter()
-        .find(|(_, l)| l.starts_with("hil-sim: fault SerialGarbage cleared"))
-        .map(|(at, _)| at.duration_since(t0).as_secs_f64())
-        .unwrap();
+    let cleared_at = sim.printed_at("hil-sim: fault SerialGarbage cleared", t0);
     let lag_s = cleared_at - GARBAGE.1;
     assert!(
         lag_s.abs() < 1.0,
@@ -227,16 +144,7 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
     // ---- The PLC's write log: clamp, dosing cap, restarts.
     let writes = parse_writes(&std::fs::read_to_string(out.join("plc_writes.csv")).unwrap());
     assert!(writes.len() > 1000, "only {} writes", writes.len());
-    let clamp = [CLAMP_UM, CLAMP_Y_UM, CLAMP_UM];
-    let mut max_abs = [0.0f64; 3];
-    for w in &writes {
-        // One FC16 for all three int32 values at 0, then the strobe at 10: nothing else is written.
-        assert!(w.address == 0 || w.address == 10, "{w:?}");
-        for k in 0..3 {
-            assert!(w.um[k].abs() <= clamp[k] + 1e-9, "beyond the clamp: {w:?}");
-            max_abs[k] = max_abs[k].max(w.um[k].abs());
-        }
-    }
+    let (max_abs, max_step) = assert_clamp_and_cap(&writes);
     assert_eq!(
         max_abs[1], CLAMP_Y_UM,
         "Y's clamp should bind in this run: {max_abs:?}"
@@ -245,20 +153,6 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
         max_abs[0] > 10.0 && max_abs[2] > 10.0,
         "corrections too small to test: {max_abs:?}"
     );
-    let mut max_step = 0.0f64;
-    for p in writes.windows(2) {
-        for k in 0..3 {
-            let step = (p[1].um[k] - p[0].um[k]).abs();
-            max_step = max_step.max(step);
-            // The sink doses in µm; encoding rounds to the register LSB.
-            assert!(
-                step <= CAP_UM + LSB_UM + 1e-9,
-                "a change beyond the cap between {:?} and {:?}",
-                p[0],
-                p[1]
-            );
-        }
-    }
     // Modbus down: nothing reaches the PLC, then writes resume.
     let between = |a: f64, b: f64| writes.iter().filter(move |w| w.t_s >= a && w.t_s < b);
     assert_eq!(

@@ -25,16 +25,15 @@ mod hil_sim;
 mod observe;
 #[path = "gateway_support/faults_rtu_configs.rs"]
 mod rtu_configs;
+#[path = "gateway_support/faults_hil_run.rs"]
+mod run;
 
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex, mpsc};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use retrocomp::bus::can::hub::Hub;
 
-use configs::{CAP_UM, CLAMP_UM, CLAMP_Y_UM, LSB_UM, SETTLE_S, TOL_UM};
+use configs::{SETTLE_S, TOL_UM};
 use observe::*;
 use rtu_configs::*;
 
@@ -73,36 +72,10 @@ fn gateway_log_value(log: &Path, key: &str) -> Option<String> {
     Some(line[i..].split_whitespace().next()?.to_string())
 }
 
-fn sigterm_and_wait(gw: &mut Child, log: &Path) {
-    let st = Command::new("kill")
-        .args(["-TERM", &gw.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(st.success());
-    let t = Instant::now();
-    while t.elapsed() < Duration::from_secs(5) {
-        if let Some(st) = gw.try_wait().unwrap() {
-            assert!(
-                st.success(),
-                "gateway exit {st}:\n{}",
-                std::fs::read_to_string(log).unwrap()
-            );
-            return;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    let _ = gw.kill();
-    panic!("the gateway did not stop on SIGTERM");
-}
-
 #[test]
 fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
     let hil_sim = hil_sim::hil_sim_next_to_retrocomp();
-    // Kept in the target dir after the run for a post-mortem.
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("gateway_faults_rtu_hil");
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    eprintln!("run folder: {}", dir.display());
+    let dir = run::run_dir("gateway_faults_rtu_hil");
     let dir = dir.as_path();
     let out = dir.join("out");
     let rt = tokio::runtime::Builder::new_multi_thread()
@@ -123,43 +96,13 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
         ),
     )
     .unwrap();
-    let mut sim = Command::new(&hil_sim)
-        .args(["serve", "--config"])
-        .arg(&sim_cfg)
-        .arg("--out")
-        .arg(&out)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("starting hil-sim");
-    let sim_log = Arc::new(Mutex::new(String::new()));
-    let (line_tx, line_rx) = mpsc::channel::<(Instant, String)>();
-    {
-        let stderr = sim.stderr.take().unwrap();
-        let sim_log = sim_log.clone();
-        std::thread::spawn(move || {
-            for l in BufReader::new(stderr).lines().map_while(Result::ok) {
-                sim_log.lock().unwrap().push_str(&(l.clone() + "\n"));
-                let _ = line_tx.send((Instant::now(), l));
-            }
-        });
-    }
-    let (mut plc, mut weigh, mut rtu) = (None, None, None);
-    while plc.is_none() || weigh.is_none() || rtu.is_none() {
-        let (_, l) = line_rx
-            .recv_timeout(Duration::from_secs(20))
-            .unwrap_or_else(|_| panic!("hil-sim did not come up:\n{}", sim_log.lock().unwrap()));
-        if let Some(a) = l.strip_prefix("hil-sim: modbus tcp on ") {
-            plc = Some(a.trim().to_string());
-        }
-        if let Some(p) = l.strip_prefix("hil-sim: weighing lines on ") {
-            weigh = Some(PathBuf::from(p.trim()));
-        }
-        if let Some(p) = l.strip_prefix("hil-sim: modbus rtu on ") {
-            rtu = Some(PathBuf::from(p.trim()));
-        }
-    }
+    let mut sim = run::Sim::spawn(&hil_sim, &sim_cfg, &out);
+    let [plc, weigh, rtu] = <[String; 3]>::try_from(sim.wait_for(&[
+        "hil-sim: modbus tcp on ",
+        "hil-sim: weighing lines on ",
+        "hil-sim: modbus rtu on ",
+    ]))
+    .unwrap();
     // The simulation clock started a few ms before hil-sim printed its addresses.
     let t0 = Instant::now();
     let field = dir.join("field.toml");
@@ -167,46 +110,32 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
         &field,
         field_toml_rtu(
             hub.local_addr().port(),
-            &plc.unwrap(),
-            &weigh.unwrap(),
-            &rtu.unwrap(),
+            &plc,
+            Path::new(&weigh),
+            Path::new(&rtu),
         ),
     )
     .unwrap();
-    let log = dir.join("gateway.log");
-    let mut gw = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .arg("run")
-        .arg("--config")
-        .arg(&field)
-        .arg("--model")
-        .arg(&truth)
-        .env("RUST_LOG", "info")
-        .env("NO_COLOR", "1")
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        // A file, not a pipe: a pipe nobody drains would block the gateway's logging.
-        .stderr(std::fs::File::create(&log).unwrap())
-        .spawn()
-        .expect("starting retrocomp run");
+    let (mut gw, log) = run::start_gateway(dir, "gateway.log", &field, &truth);
 
     // Poll /status every 50 ms until hil-sim ends (M30 after ≈ 19.5 s).
     let mut status_addr = None;
     let mut probes: Vec<Probe> = Vec::new();
     let deadline = Instant::now() + Duration::from_secs(35);
     let st = loop {
-        if let Some(st) = sim.try_wait().unwrap() {
+        if let Some(st) = sim.child.try_wait().unwrap() {
             break st;
         }
         if let Some(st) = gw.try_wait().unwrap() {
-            let _ = sim.kill();
+            let _ = sim.child.kill();
             panic!(
                 "the gateway died ({st}):\n{}",
                 std::fs::read_to_string(&log).unwrap_or_default()
             );
         }
         if Instant::now() > deadline {
-            let _ = sim.kill();
-            panic!("hil-sim did not finish:\n{}", sim_log.lock().unwrap());
+            let _ = sim.child.kill();
+            panic!("hil-sim did not finish:\n{}", sim.log_text());
         }
         if status_addr.is_none() {
             status_addr = gateway_log_value(&log, "bound");
@@ -227,8 +156,8 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
         std::thread::sleep(Duration::from_millis(50));
     };
     let sim_wall_s = t0.elapsed().as_secs_f64();
-    sigterm_and_wait(&mut gw, &log);
-    let sim_log = sim_log.lock().unwrap().clone();
+    run::stop_gateway(&mut gw, &log);
+    let sim_log = sim.log_text();
     assert!(st.success(), "hil-sim failed: {st}\n{sim_log}");
     drop(hub);
 
@@ -239,13 +168,8 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
             .count();
         assert_eq!(n, 1, "ModbusRtuDown {edge}:\n{sim_log}");
     }
-    let edge_wall = |what: &str| {
-        line_rx
-            .try_iter()
-            .find(|(_, l)| l.starts_with(&format!("hil-sim: fault ModbusRtuDown {what}")))
-            .map(|(at, _)| at.duration_since(t0).as_secs_f64())
-            .unwrap()
-    };
+    let edge_wall =
+        |what: &str| sim.printed_at(&format!("hil-sim: fault ModbusRtuDown {what}"), t0);
     let down_wall = edge_wall("started");
     let up_wall = edge_wall("cleared");
     assert!(
@@ -256,26 +180,7 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
     // ---- The PLC's write log: clamp, dosing cap, the sink kept writing through the fault.
     let writes = parse_writes(&std::fs::read_to_string(out.join("plc_writes.csv")).unwrap());
     assert!(writes.len() > 500, "only {} writes", writes.len());
-    let clamp = [CLAMP_UM, CLAMP_Y_UM, CLAMP_UM];
-    for w in &writes {
-        assert!(w.address == 0 || w.address == 10, "{w:?}");
-        for (v, c) in w.um.iter().zip(clamp) {
-            assert!(v.abs() <= c + 1e-9, "beyond the clamp: {w:?}");
-        }
-    }
-    let mut max_step = 0.0f64;
-    for p in writes.windows(2) {
-        for k in 0..3 {
-            let step = (p[1].um[k] - p[0].um[k]).abs();
-            max_step = max_step.max(step);
-            assert!(
-                step <= CAP_UM + LSB_UM + 1e-9,
-                "a change beyond the cap between {:?} and {:?}",
-                p[0],
-                p[1]
-            );
-        }
-    }
+    let (_, max_step) = assert_clamp_and_cap(&writes);
     assert!(
         writes.windows(2).all(|p| p[0].port == p[1].port),
         "the PLC connection was dropped: an RTU sensor fault must not touch the sink"

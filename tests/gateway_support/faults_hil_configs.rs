@@ -137,28 +137,7 @@ kind = "nan"
 from_s = {nan0}
 to_s = {nan1}
 
-[record]
-every_s = 0.01
-shift_columns = true
-
-[io.can]
-backend = "socketcand"
-host = "127.0.0.1"
-port = {hub_port}
-channel = "can0"
-encoder_nodes = [1, 2, 3]
-encoder_period_s = 0.002
-temp_node = 10
-temp_period_s = 0.05
-heartbeat_period_s = 0.1
-
-[io.modbus]
-tcp_bind = "127.0.0.1:0"
-
-[io.weighing]
-pty_link = "{pty}"
-period_s = 0.02
-
+{io}
 [[io.faults]]
 kind = "modbus_down"
 from_s = {mb0}
@@ -175,7 +154,7 @@ kind = "serial_garbage"
 from_s = {g0}
 to_s = {g1}
 "#,
-        pty = pty_link.display(),
+        io = sim_io_toml(hub_port, pty_link, None),
         stuck0 = T_STUCK.0,
         stuck1 = T_STUCK.1,
         nan0 = T_NAN.0,
@@ -186,6 +165,44 @@ to_s = {g1}
         can1 = CAN_SILENT.1,
         g0 = GARBAGE.0,
         g1 = GARBAGE.1,
+    )
+}
+
+/// hil-sim's recording and transports: CAN through the hub at `hub_port` (three encoder nodes,
+/// the PT100 block on node 10), the PLC on Modbus TCP (an ephemeral port hil-sim prints), weighing
+/// lines on the pty `weigh_link`, and, with `rtu_link`, the PT100 block also as input registers
+/// 0.. of RTU slave 1 on that pty.
+pub fn sim_io_toml(hub_port: u16, weigh_link: &Path, rtu_link: Option<&Path>) -> String {
+    let rtu = rtu_link.map_or(String::new(), |l| {
+        format!(
+            "rtu_pty_link = \"{}\"\nrtu_slave = 1\ntemps_first_input = 0\n",
+            l.display()
+        )
+    });
+    format!(
+        r#"[record]
+every_s = 0.01
+shift_columns = true
+
+[io.can]
+backend = "socketcand"
+host = "127.0.0.1"
+port = {hub_port}
+channel = "can0"
+encoder_nodes = [1, 2, 3]
+encoder_period_s = 0.002
+temp_node = 10
+temp_period_s = 0.05
+heartbeat_period_s = 0.1
+
+[io.modbus]
+tcp_bind = "127.0.0.1:0"
+{rtu}
+[io.weighing]
+pty_link = "{pty}"
+period_s = 0.02
+"#,
+        pty = weigh_link.display(),
     )
 }
 

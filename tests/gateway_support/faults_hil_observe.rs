@@ -5,7 +5,7 @@
 
 use std::collections::BTreeMap;
 
-use crate::configs::{CLAMP_UM, CLAMP_Y_UM};
+use crate::configs::{CAP_UM, CLAMP_UM, CLAMP_Y_UM, LSB_UM};
 
 /// One row of plc_writes.csv.
 #[derive(Debug, Clone, Copy)]
@@ -36,6 +36,36 @@ pub fn parse_writes(text: &str) -> Vec<Write> {
             }
         })
         .collect()
+}
+
+/// Asserts every row of the PLC write log: only the shift block (address 0) and the strobe (10) are
+/// written, every value is within its axis' clamp, and no change between consecutive values exceeds
+/// the dosing cap (the sink doses in µm; encoding adds up to one register LSB of rounding).
+/// Returns (max |value| per axis, max change), µm.
+pub fn assert_clamp_and_cap(writes: &[Write]) -> ([f64; 3], f64) {
+    let clamp = [CLAMP_UM, CLAMP_Y_UM, CLAMP_UM];
+    let mut max_abs = [0.0f64; 3];
+    for w in writes {
+        assert!(w.address == 0 || w.address == 10, "{w:?}");
+        for k in 0..3 {
+            assert!(w.um[k].abs() <= clamp[k] + 1e-9, "beyond the clamp: {w:?}");
+            max_abs[k] = max_abs[k].max(w.um[k].abs());
+        }
+    }
+    let mut max_step = 0.0f64;
+    for p in writes.windows(2) {
+        for k in 0..3 {
+            let step = (p[1].um[k] - p[0].um[k]).abs();
+            max_step = max_step.max(step);
+            assert!(
+                step <= CAP_UM + LSB_UM + 1e-9,
+                "a change beyond the cap between {:?} and {:?}",
+                p[0],
+                p[1]
+            );
+        }
+    }
+    (max_abs, max_step)
 }
 
 /// (t_s, deviation of the applied correction from the ideal one per axis, µm). Ideal = −(error

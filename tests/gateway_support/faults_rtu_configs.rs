@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use crate::configs::{field_toml, sim_machine_toml};
+use crate::configs::{field_toml, sim_io_toml, sim_machine_toml};
 
 /// Out-and-back strokes of 3 s each after the 1 s dwell: the program ends (M30) at ≈ 19.5 s.
 pub const STROKES: usize = 3;
@@ -26,38 +26,13 @@ pub fn sim_toml(hub_port: u16, weigh_link: &Path, rtu_link: &Path, truth: &Path)
     sim_machine_toml(STROKES, truth)
         + &format!(
             r#"
-[record]
-every_s = 0.01
-shift_columns = true
-
-[io.can]
-backend = "socketcand"
-host = "127.0.0.1"
-port = {hub_port}
-channel = "can0"
-encoder_nodes = [1, 2, 3]
-encoder_period_s = 0.002
-temp_node = 10
-temp_period_s = 0.05
-heartbeat_period_s = 0.1
-
-[io.modbus]
-tcp_bind = "127.0.0.1:0"
-rtu_pty_link = "{rtu}"
-rtu_slave = 1
-temps_first_input = 0
-
-[io.weighing]
-pty_link = "{weigh}"
-period_s = 0.02
-
+{io}
 [[io.faults]]
 kind = "modbus_rtu_down"
 from_s = {d0}
 to_s = {d1}
 "#,
-            rtu = rtu_link.display(),
-            weigh = weigh_link.display(),
+            io = sim_io_toml(hub_port, weigh_link, Some(rtu_link)),
             d0 = RTU_DOWN.0,
             d1 = RTU_DOWN.1,
         )

@@ -1,0 +1,134 @@
+//! The two processes of the closed-loop fault tests (`gateway_faults_hil`, `gateway_faults_rtu_hil`):
+//! `hil-sim serve` with its stderr kept (whole text, and each line with the wall time it was read,
+//! to place hil-sim's fault edges on the test's clock) and its endpoints read from what it prints;
+//! `retrocomp run` with its log in a file, stopped with SIGTERM. Each run gets a fresh folder under
+//! the target dir, kept afterwards for a post-mortem.
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex, mpsc};
+use std::time::{Duration, Instant};
+
+/// A fresh, empty run folder `name` under the target dir's tmp.
+pub fn run_dir(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    eprintln!("run folder: {}", dir.display());
+    dir
+}
+
+/// A running `hil-sim serve`.
+pub struct Sim {
+    pub child: Child,
+    log: Arc<Mutex<String>>,
+    lines: mpsc::Receiver<(Instant, String)>,
+}
+
+impl Sim {
+    pub fn spawn(hil_sim: &Path, config: &Path, out: &Path) -> Sim {
+        let mut child = Command::new(hil_sim)
+            .args(["serve", "--config"])
+            .arg(config)
+            .arg("--out")
+            .arg(out)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("starting hil-sim");
+        let log = Arc::new(Mutex::new(String::new()));
+        let (tx, lines) = mpsc::channel();
+        let stderr = child.stderr.take().unwrap();
+        let text = log.clone();
+        std::thread::spawn(move || {
+            for l in BufReader::new(stderr).lines().map_while(Result::ok) {
+                text.lock().unwrap().push_str(&(l.clone() + "\n"));
+                let _ = tx.send((Instant::now(), l));
+            }
+        });
+        Sim { child, log, lines }
+    }
+
+    /// Everything hil-sim printed so far.
+    pub fn log_text(&self) -> String {
+        self.log.lock().unwrap().clone()
+    }
+
+    /// Waits (≤ 20 s) until hil-sim has printed a line starting with each prefix, in any order;
+    /// returns the rest of each line, trimmed, in the order of `prefixes`.
+    pub fn wait_for(&self, prefixes: &[&str]) -> Vec<String> {
+        let mut found: Vec<Option<String>> = vec![None; prefixes.len()];
+        while found.iter().any(Option::is_none) {
+            let (_, l) = self
+                .lines
+                .recv_timeout(Duration::from_secs(20))
+                .unwrap_or_else(|_| panic!("hil-sim did not come up:\n{}", self.log_text()));
+            for (p, f) in prefixes.iter().zip(&mut found) {
+                if let Some(rest) = l.strip_prefix(p) {
+                    *f = Some(rest.trim().to_string());
+                }
+            }
+        }
+        found.into_iter().map(Option::unwrap).collect()
+    }
+
+    /// Seconds after `t0` at which the test read hil-sim's first line starting with `prefix`,
+    /// among the lines not yet consumed (so edges printed in order are found in order).
+    pub fn printed_at(&self, prefix: &str, t0: Instant) -> f64 {
+        self.lines
+            .try_iter()
+            .find(|(_, l)| l.starts_with(prefix))
+            .map(|(at, _)| at.duration_since(t0).as_secs_f64())
+            .unwrap_or_else(|| panic!("hil-sim never printed {prefix:?}:\n{}", self.log_text()))
+    }
+}
+
+/// `retrocomp run --config field --model model`, info log into `dir/log_name`.
+pub fn start_gateway(dir: &Path, log_name: &str, field: &Path, model: &Path) -> (Child, PathBuf) {
+    let log = dir.join(log_name);
+    let child = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .arg("run")
+        .arg("--config")
+        .arg(field)
+        .arg("--model")
+        .arg(model)
+        .env("RUST_LOG", "info")
+        .env("NO_COLOR", "1")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        // A file, not a pipe: a pipe nobody drains would block the gateway's logging.
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .expect("starting retrocomp run");
+    (child, log)
+}
+
+pub fn signal(gw: &Child, sig: &str) {
+    let st = Command::new("kill")
+        .args([sig, &gw.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success(), "kill {sig}");
+}
+
+/// SIGTERM, wait up to 5 s, assert a clean exit.
+pub fn stop_gateway(gw: &mut Child, log: &Path) {
+    signal(gw, "-TERM");
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(5) {
+        if let Some(st) = gw.try_wait().unwrap() {
+            assert!(
+                st.success(),
+                "gateway exit {st}:\n{}",
+                std::fs::read_to_string(log).unwrap()
+            );
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = gw.kill();
+    panic!("the gateway did not stop on SIGTERM");
+}
