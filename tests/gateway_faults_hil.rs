@@ -36,8 +36,6 @@ use std::path::Path;
 use std::process::Child;
 use std::time::{Duration, Instant};
 
-use retrocomp::bus::can::hub::Hub;
-
 use configs::*;
 use observe::*;
 
@@ -64,13 +62,9 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
     let dir = run::run_dir("gateway_faults_hil");
     let dir = dir.as_path();
     let out = dir.join("out");
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .unwrap();
-    let hub = rt.block_on(Hub::start_loopback()).unwrap();
-    let truth = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/demo/mill-full.toml");
+    // `_rt` (not `_`): the runtime must outlive the hub it runs.
+    let (_rt, hub) = run::loopback_hub();
+    let truth = run::demo_truth_model();
     let sim_cfg = dir.join("sim.toml");
     std::fs::write(
         &sim_cfg,

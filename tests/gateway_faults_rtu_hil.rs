@@ -31,8 +31,6 @@ mod run;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use retrocomp::bus::can::hub::Hub;
-
 use configs::{SETTLE_S, TOL_UM};
 use observe::*;
 use rtu_configs::*;
@@ -78,13 +76,8 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
     let dir = run::run_dir("gateway_faults_rtu_hil");
     let dir = dir.as_path();
     let out = dir.join("out");
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .unwrap();
-    let hub = rt.block_on(Hub::start_loopback()).unwrap();
-    let truth = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/demo/mill-full.toml");
+    let (rt, hub) = run::loopback_hub();
+    let truth = run::demo_truth_model();
     let sim_cfg = dir.join("sim.toml");
     std::fs::write(
         &sim_cfg,

@@ -11,6 +11,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex, mpsc};
 use std::time::{Duration, Instant};
 
+use retrocomp::bus::can::hub::Hub;
+
 /// A fresh, empty run folder `name` under the target dir's tmp.
 pub fn run_dir(name: &str) -> PathBuf {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
@@ -18,6 +20,23 @@ pub fn run_dir(name: &str) -> PathBuf {
     std::fs::create_dir_all(&dir).unwrap();
     eprintln!("run folder: {}", dir.display());
     dir
+}
+
+/// The test's own runtime (one worker: it only hosts the hub and the /status client) and the
+/// socketcand hub on loopback that hil-sim's CAN nodes and the gateway both connect to.
+pub fn loopback_hub() -> (tokio::runtime::Runtime, Hub) {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    let hub = rt.block_on(Hub::start_loopback()).unwrap();
+    (rt, hub)
+}
+
+/// The demo mill's full model: hil-sim's hidden truth and the gateway's model in both tests.
+pub fn demo_truth_model() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/demo/mill-full.toml")
 }
 
 /// A running `hil-sim serve`.
