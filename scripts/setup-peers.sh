@@ -62,4 +62,5 @@ print(f"setup-peers: python-can {can.__version__}, pymodbus {pymodbus.__version_
       f"pyserial {serial.VERSION}")
 PYEOF
 sh "$REPO/scripts/vcan-qemu/fetch-kernel.sh"
+bash "$REPO/scripts/setup-linuxcnc.sh"
 echo "setup-peers: done"
