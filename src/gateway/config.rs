@@ -137,6 +137,9 @@ pub struct SinkSection {
     pub origin_shift: Option<OriginShiftSink>,
     #[serde(default)]
     pub quadrature: Option<QuadratureSink>,
+    /// The box as a Modbus server the controller reads (src/origin_shift/server.rs).
+    #[serde(default)]
+    pub origin_shift_server: Option<crate::origin_shift::server::ServerConfig>,
 }
 
 /// Spelled out (no `flatten`) so unknown keys are rejected; [`OriginShiftSink::client`] builds the
@@ -354,6 +357,9 @@ impl FieldConfig {
                 }
             }
         }
+        if let Some(srv) = &self.sink.origin_shift_server {
+            self.validate_server(srv)?;
+        }
         if let Some(q) = &self.sink.quadrature {
             for (i, a) in q.axes.iter().enumerate() {
                 let sc = crate::quadrature::SchedulerConfig {
@@ -395,10 +401,60 @@ impl FieldConfig {
             }
             return Err((key.clone(), what));
         }
-        if self.sink.origin_shift.is_none() && self.sink.quadrature.is_none() {
+        if self.sink.origin_shift.is_none()
+            && self.sink.quadrature.is_none()
+            && self.sink.origin_shift_server.is_none()
+        {
             tracing::warn!(
                 "no [sink] configured: the gateway computes and reports, but corrects nothing"
             );
+        }
+        Ok(())
+    }
+
+    /// `[sink.origin_shift_server]`: one sink only, a valid register image mapping every corrected
+    /// axis, and a register LSB the per-update cap can move by.
+    fn validate_server(
+        &self,
+        srv: &crate::origin_shift::server::ServerConfig,
+    ) -> Result<(), (String, String)> {
+        const KEY: &str = "sink.origin_shift_server";
+        if self.sink.origin_shift.is_some() || self.sink.quadrature.is_some() {
+            return Err((
+                KEY.into(),
+                "expected one sink: remove [sink.origin_shift] / [sink.quadrature] or this one"
+                    .into(),
+            ));
+        }
+        if !(1..=10_000).contains(&srv.update_period_ms) {
+            return Err((
+                format!("{KEY}.update_period_ms"),
+                format!("expected 1..=10000 ms, got {}", srv.update_period_ms),
+            ));
+        }
+        if let crate::origin_shift::server::ServerTransport::Tcp { listen } = &srv.transport
+            && listen.parse::<std::net::SocketAddr>().is_err()
+        {
+            return Err((
+                format!("{KEY}.transport.listen"),
+                format!("expected ip:port, got {listen:?}"),
+            ));
+        }
+        let axes: Vec<&str> = self.axes.iter().map(|a| a.name.as_str()).collect();
+        srv.map
+            .validate(&axes)
+            .map_err(|e| (format!("{KEY}.map.{}", e.key), e.what))?;
+        for (i, r) in srv.map.axes.iter().enumerate() {
+            let cap = self.safety_for(&r.axis).max_change_um_per_cycle;
+            if r.lsb_um > cap {
+                return Err((
+                    format!("{KEY}.map.axis[{i}].lsb_um"),
+                    format!(
+                        "expected at most the dosing cap max_change_um_per_cycle = {cap} µm, got {} µm: the output could never move",
+                        r.lsb_um
+                    ),
+                ));
+            }
         }
         Ok(())
     }

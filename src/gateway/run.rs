@@ -66,7 +66,14 @@ pub async fn run(
     let (reseed_tx, mut reseed_rx) = mpsc::channel::<(String, f64)>(8);
     let (sink_status_tx, sink_status_rx) = watch::channel::<SinkStatus>(SinkStatus::default());
     let mut initial = BTreeMap::new();
-    let sink_task = if let Some(os) = cfg.sink.origin_shift.clone() {
+    // Positions the controller writes into a served register image (origin-shift server).
+    let (served_tx, mut served_rx) = mpsc::channel::<Sample>(1024);
+    let sink_task = if let Some(srv) = cfg.sink.origin_shift_server.clone() {
+        let (task, held) =
+            start_origin_shift_server(&cfg, srv, out_rx, served_tx, sink_status_tx, epoch).await?;
+        initial = held;
+        Some(task)
+    } else if let Some(os) = cfg.sink.origin_shift.clone() {
         let mut client =
             OriginShiftClient::new(os.client(), os.map.clone()).context("sink.origin_shift.map")?;
         initial = read_initial(&mut client).await;
@@ -118,6 +125,9 @@ pub async fn run(
         while let Ok(s) = samples.try_recv() {
             engine.ingest(&s);
         }
+        while let Ok(s) = served_rx.try_recv() {
+            engine.ingest(&s);
+        }
         while let Ok((axis, held)) = reseed_rx.try_recv() {
             if let Err(e) = engine.reseed(&axis, held) {
                 tracing::error!(%e, axis, "cannot continue from the controller's value; holding");
@@ -154,6 +164,39 @@ pub async fn run(
     summary.compute_us_p50 = pct(0.5);
     summary.compute_us_p99 = pct(0.99);
     Ok(summary)
+}
+
+/// Start the origin-shift server, wait until the controller reports what it holds (the engine's
+/// start value), and spawn its update task.
+async fn start_origin_shift_server(
+    cfg: &FieldConfig,
+    srv: crate::origin_shift::server::ServerConfig,
+    out_rx: watch::Receiver<Outputs>,
+    samples: mpsc::Sender<Sample>,
+    status: watch::Sender<SinkStatus>,
+    epoch: std::time::Instant,
+) -> anyhow::Result<(tokio::task::JoinHandle<()>, BTreeMap<String, f64>)> {
+    use crate::origin_shift::server::OriginShiftServer;
+    use crate::origin_shift::server_core::Guard;
+    let guards: Vec<(String, Guard)> = cfg
+        .axes
+        .iter()
+        .map(|a| {
+            let s = cfg.safety_for(&a.name);
+            let g = Guard {
+                max_correction_um: s.max_correction_um,
+                max_change_um_per_update: s.max_change_um_per_cycle,
+            };
+            (a.name.clone(), g)
+        })
+        .collect();
+    let mut server = OriginShiftServer::start(srv, &guards)
+        .await
+        .context("sink.origin_shift_server")?;
+    let clock = move || epoch.elapsed().as_secs_f64();
+    let held = server.wait_seeded(&samples, &clock).await;
+    let task = tokio::spawn(server.run(out_rx, samples, status, clock));
+    Ok((task, held))
 }
 
 /// How many recent cycles the compute-time percentiles of [`RunSummary`] cover.
@@ -320,9 +363,12 @@ impl LinkFault {
 
 /// Refuse to run a config that would correct nothing in a field deployment.
 pub fn require_sink(cfg: &FieldConfig) -> anyhow::Result<()> {
-    if cfg.sink.origin_shift.is_none() && cfg.sink.quadrature.is_none() {
+    if cfg.sink.origin_shift.is_none()
+        && cfg.sink.quadrature.is_none()
+        && cfg.sink.origin_shift_server.is_none()
+    {
         bail!(
-            "no [sink.origin_shift] or [sink.quadrature] in the config: nothing would be corrected"
+            "no [sink.origin_shift], [sink.origin_shift_server] or [sink.quadrature] in the config: nothing would be corrected"
         );
     }
     super::quadrature_sink::check_buildable(cfg)

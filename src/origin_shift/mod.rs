@@ -3,11 +3,15 @@
 //!
 //! [`map`] (TOML register map, encoding, allow-list), [`cycle`] (sans-IO write/strobe/ack/read-back
 //! state machine), [`client`] (tokio-modbus shell: per-request timeout, reconnect with backoff, start
-//! by reading the current values). Units: µm; sign convention in [`map`].
+//! by reading the current values); or served: [`server`] (tokio-modbus TCP/RTU server shell) around
+//! [`server_core`] (sans-IO register image, clamp and per-update cap). Units: µm; sign convention in
+//! [`map`].
 
 pub mod client;
 pub mod cycle;
 pub mod map;
+pub mod server;
+pub mod server_core;
 
 pub use client::{ClientConfig, OriginShiftClient, Transport};
 pub use cycle::{Action, Outcome, Reply, WriteCycle};

@@ -1,0 +1,223 @@
+//! The box as a Modbus server for origin-shift corrections: the tokio-modbus shell (TCP or RTU) around
+//! [`ServerCore`]. Config `[sink.origin_shift_server]`; register image and safety in
+//! [`super::server_core`]. The register image is a [`RegisterBank`] (src/bus/modbus/server.rs): reads
+//! of registers not yet served get exception 02, the controller may write only the position and held
+//! registers, and a multi-register write is applied all-or-nothing.
+//!
+//! Flow: [`OriginShiftServer::start`] binds; [`OriginShiftServer::wait_seeded`] waits (logging) until
+//! the controller has written what it holds (only when held registers are configured), which is the
+//! engine's start value; [`OriginShiftServer::run`] then updates the image every `update_period_ms`
+//! from the engine's outputs and turns each controller write into position samples (`x_mm`).
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use tokio::sync::{mpsc, watch};
+use tokio::task::JoinHandle;
+use tokio::time::MissedTickBehavior;
+
+use super::server_core::{Guard, ServerCore, ServerMap};
+use crate::bus::modbus::server::{RegisterBank, TcpServer, spawn_rtu};
+use crate::bus::{Health, Sample};
+use crate::gateway::health::{FaultKind, FaultLog};
+use crate::gateway::status::SinkStatus;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ServerTransport {
+    /// Modbus TCP server on `listen` (`127.0.0.1:1502`; port 0 = any free port, logged).
+    Tcp { listen: String },
+    /// Modbus RTU slave on a serial device (8N1).
+    Rtu { path: String, baud: u32 },
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServerConfig {
+    pub transport: ServerTransport,
+    /// RTU slave id (TCP answers every unit id).
+    #[serde(default = "one")]
+    pub unit_id: u8,
+    /// Period of register updates (and heartbeat increments), ms.
+    #[serde(default = "default_update_period_ms")]
+    pub update_period_ms: u64,
+    /// The controller counts as gone (a fault) when it has not written for this long, ms. Only used
+    /// when position or held registers are configured.
+    #[serde(default = "default_controller_timeout_ms")]
+    pub controller_timeout_ms: u64,
+    pub map: ServerMap,
+}
+
+fn one() -> u8 {
+    1
+}
+fn default_update_period_ms() -> u64 {
+    20
+}
+fn default_controller_timeout_ms() -> u64 {
+    1_000
+}
+
+type Outputs = Vec<(String, f64)>;
+
+/// The running server (listener or RTU task) and its core.
+pub struct OriginShiftServer {
+    cfg: ServerConfig,
+    core: ServerCore,
+    bank: RegisterBank,
+    writes: watch::Receiver<u64>,
+    tcp: Option<TcpServer>,
+    rtu: Option<JoinHandle<std::io::Result<()>>>,
+}
+
+impl OriginShiftServer {
+    /// Bind the TCP listener or open the serial device. `guards`: clamp and per-update cap per axis.
+    pub async fn start(cfg: ServerConfig, guards: &[(String, Guard)]) -> anyhow::Result<Self> {
+        let bank = RegisterBank::new();
+        for (address, count) in cfg.map.writable() {
+            bank.allow_writes(address, count);
+        }
+        let writes = bank.subscribe_writes();
+        let (mut tcp, mut rtu) = (None, None);
+        match &cfg.transport {
+            ServerTransport::Tcp { listen } => {
+                let addr: SocketAddr = listen.parse()?;
+                let s = TcpServer::start(addr, bank.clone()).await?;
+                tracing::info!(addr = %s.local_addr(), "origin-shift server listening (Modbus TCP)");
+                tcp = Some(s);
+            }
+            ServerTransport::Rtu { path, baud } => {
+                let port = tokio_serial::SerialStream::open(&tokio_serial::new(path, *baud))?;
+                tracing::info!(
+                    path,
+                    baud,
+                    slave = cfg.unit_id,
+                    "origin-shift server on Modbus RTU"
+                );
+                rtu = Some(spawn_rtu(port, bank.clone(), cfg.unit_id));
+            }
+        }
+        Ok(Self {
+            core: ServerCore::new(cfg.map.clone(), guards),
+            cfg,
+            bank,
+            writes,
+            tcp,
+            rtu,
+        })
+    }
+
+    /// The bound TCP address (None on RTU).
+    pub fn local_addr(&self) -> Option<SocketAddr> {
+        self.tcp.as_ref().map(TcpServer::local_addr)
+    }
+
+    /// Handle one controller write: positions out as samples, held values into the core.
+    async fn on_write(&mut self, samples: &mpsc::Sender<Sample>, t_s: f64) {
+        let bank = self.bank.clone();
+        let positions = self.core.handle_controller_write(|a, n| bank.holding(a, n));
+        for (channel, value) in positions {
+            let s = Sample {
+                channel,
+                t_s,
+                value,
+                health: Health::Ok,
+            };
+            let _ = samples.send(s).await;
+        }
+    }
+
+    /// Wait until the controller has reported what it holds (returns it per axis, µm: the engine's
+    /// start value). Immediately (empty) without held registers.
+    pub async fn wait_seeded(
+        &mut self,
+        samples: &mpsc::Sender<Sample>,
+        clock: &impl Fn() -> f64,
+    ) -> BTreeMap<String, f64> {
+        let mut waited = 0u64;
+        while !self.core.is_seeded() {
+            match tokio::time::timeout(Duration::from_secs(5), self.writes.changed()).await {
+                Ok(Ok(())) => self.on_write(samples, clock()).await,
+                Ok(Err(_)) => break,
+                Err(_) => {
+                    waited += 5;
+                    tracing::warn!(
+                        waited_s = waited,
+                        "origin-shift server: waiting for the controller to write the held registers; serving nothing until then"
+                    );
+                }
+            }
+        }
+        let held: BTreeMap<String, f64> = self.core.held_um().into_iter().collect();
+        tracing::info!(
+            ?held,
+            "controller holds these corrections; continuing from them"
+        );
+        held
+    }
+
+    /// Serve until aborted: update the image every period, forward controller writes as samples.
+    pub async fn run(
+        mut self,
+        out_rx: watch::Receiver<Outputs>,
+        samples: mpsc::Sender<Sample>,
+        status: watch::Sender<SinkStatus>,
+        clock: impl Fn() -> f64,
+    ) {
+        let mut tick = tokio::time::interval(Duration::from_millis(self.cfg.update_period_ms));
+        tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
+        let listens_to_controller = !self.cfg.map.writable().is_empty();
+        let timeout_s = self.cfg.controller_timeout_ms as f64 / 1e3;
+        let mut last_write_s = clock();
+        let mut faults = FaultLog::default();
+        let mut st = SinkStatus {
+            kind: "origin_shift_server".into(),
+            connected: true,
+            ..Default::default()
+        };
+        loop {
+            tokio::select! {
+                _ = tick.tick() => {}
+                r = self.writes.changed() => {
+                    if r.is_err() { return; }
+                    last_write_s = clock();
+                    self.on_write(&samples, last_write_s).await;
+                    continue;
+                }
+            }
+            let outs = out_rx.borrow().clone();
+            if let Some(u) = self.core.poll_update(&outs) {
+                for b in &u.blocks {
+                    self.bank.set_holding(b.address, &b.words);
+                }
+                st.writes_ok = self.core.updates();
+            }
+            let now = clock();
+            let gone = listens_to_controller && now - last_write_s > timeout_s;
+            let kinds: &[FaultKind] = if gone {
+                &[FaultKind::Disconnected]
+            } else {
+                &[]
+            };
+            faults.update("sink.origin_shift_server", kinds, now);
+            st.connected = !gone;
+            st.last_error = gone.then(|| {
+                format!(
+                    "the controller has not written for {:.1} s",
+                    now - last_write_s
+                )
+            });
+            let _ = status.send(st.clone());
+        }
+    }
+}
+
+impl Drop for OriginShiftServer {
+    fn drop(&mut self) {
+        if let Some(t) = self.rtu.take() {
+            t.abort();
+        }
+    }
+}

@@ -1,0 +1,606 @@
+//! The box as a Modbus *server* for origin-shift corrections (LinuxCNC's `mb2hal`, a PLC's Modbus
+//! master): the sans-IO core. The I/O shell is [`super::server`].
+//!
+//! Register image (0-based holding-register addresses, all configured in [`ServerMap`]):
+//! - per-axis correction registers (read by the controller): the same [`AxisRegister`] schema and
+//!   encoding as the client sink (int16/int32, `lsb_um`, `sign`, `word_order`), so a served value is
+//!   bit for bit what the client sink would have written;
+//! - a heartbeat register, +1 (wrapping u16) at every update, so the controller can see the box alive;
+//! - optional position registers the controller writes its axis positions into (FC16), decoded into
+//!   channel samples (`x_mm`): `position_mm = counts × lsb_um / 1000`;
+//! - optional held registers the controller writes back the correction it actually applies (same
+//!   encoding as the axis' correction register).
+//!
+//! Safety at the last step (every update, per axis, µm): the exposed value is the engine's output
+//! clamped to ±`max_correction_um`, quantised to whole counts, and moved at most
+//! `max_change_um_per_cycle` from the last exposed value AND from what the controller reports holding
+//! (when held registers are configured). Before the controller has reported what it holds, no
+//! correction register exists (reads get exception 02): after a box restart it resumes from the
+//! controller's value instead of jumping from zero. Hold-then-ramp on stale input is the engine's
+//! ([`crate::gateway::safety`]); this core only guarantees clamp and per-update cap.
+//! Sign: register = `sign × correction_um / lsb_um`; correction = −error.
+
+use serde::{Deserialize, Serialize};
+
+use super::map::decode_value;
+use super::map::{AxisRegister, MapError, RegisterKind, RegisterMap, WordOrder, WriteBlock};
+
+/// A register the controller writes an axis position into.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PositionRegister {
+    /// Channel the decoded position feeds (unit suffix `_mm`), e.g. the `[[axis]] position_channel`.
+    pub channel: String,
+    pub address: u16,
+    pub kind: RegisterKind,
+    #[serde(default)]
+    pub word_order: WordOrder,
+    /// µm per count.
+    pub lsb_um: f64,
+}
+
+/// A register the controller writes back the correction it applies for `axis` (same encoding as
+/// that axis' correction register).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeldRegister {
+    pub axis: String,
+    pub address: u16,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServerMap {
+    /// Correction registers, one per corrected axis.
+    #[serde(rename = "axis")]
+    pub axes: Vec<AxisRegister>,
+    /// u16 incremented at every update.
+    pub heartbeat_address: u16,
+    #[serde(default, rename = "position")]
+    pub positions: Vec<PositionRegister>,
+    #[serde(default, rename = "held")]
+    pub held: Vec<HeldRegister>,
+}
+
+/// A validation problem: the key path under the map (`axis[1].address`) and what was expected.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("`{key}`: {what}")]
+pub struct ServerMapError {
+    pub key: String,
+    pub what: String,
+}
+
+fn bad(key: impl Into<String>, what: impl Into<String>) -> ServerMapError {
+    ServerMapError {
+        key: key.into(),
+        what: what.into(),
+    }
+}
+
+impl ServerMap {
+    /// The correction registers as a client-sink register map (no handshake, no read-back): the one
+    /// encoder both sinks use.
+    pub fn correction_map(&self) -> RegisterMap {
+        RegisterMap {
+            axes: self.axes.clone(),
+            handshake: None,
+            verify_readback: false,
+        }
+    }
+
+    fn held_register(&self, h: &HeldRegister) -> Option<AxisRegister> {
+        self.axes
+            .iter()
+            .find(|a| a.axis == h.axis)
+            .map(|a| AxisRegister {
+                address: h.address,
+                ..a.clone()
+            })
+    }
+
+    fn position_register(p: &PositionRegister) -> AxisRegister {
+        AxisRegister {
+            axis: p.channel.clone(),
+            address: p.address,
+            kind: p.kind,
+            word_order: p.word_order,
+            lsb_um: p.lsb_um,
+            sign: 1,
+        }
+    }
+
+    /// Every span of the image with its key path (for overlap checks and the write allow-list).
+    fn spans(&self) -> Vec<(u32, u32, String)> {
+        let mut spans = Vec::new();
+        for (i, a) in self.axes.iter().enumerate() {
+            spans.push((
+                a.address as u32,
+                a.kind.words() as u32,
+                format!("axis[{i}]"),
+            ));
+        }
+        spans.push((self.heartbeat_address as u32, 1, "heartbeat_address".into()));
+        for (i, p) in self.positions.iter().enumerate() {
+            spans.push((
+                p.address as u32,
+                p.kind.words() as u32,
+                format!("position[{i}]"),
+            ));
+        }
+        for (i, h) in self.held.iter().enumerate() {
+            let words = self.held_register(h).map_or(1, |r| r.kind.words() as u32);
+            spans.push((h.address as u32, words, format!("held[{i}]")));
+        }
+        spans
+    }
+
+    /// Checks every register, `corrected_axes` all mapped (and nothing else), no overlaps.
+    pub fn validate(&self, corrected_axes: &[&str]) -> Result<(), ServerMapError> {
+        self.correction_map().validate().map_err(|e| match e {
+            MapError::Axis { index, what, .. } => bad(format!("axis[{index}]"), what),
+            other => bad("axis", other.to_string()),
+        })?;
+        for (i, a) in self.axes.iter().enumerate() {
+            if !corrected_axes.contains(&a.axis.as_str()) {
+                return Err(bad(
+                    format!("axis[{i}].axis"),
+                    format!(
+                        "{:?} is not a corrected [[axis]] ({corrected_axes:?})",
+                        a.axis
+                    ),
+                ));
+            }
+            if self.axes[..i].iter().any(|b| b.axis == a.axis) {
+                return Err(bad(
+                    format!("axis[{i}].axis"),
+                    format!("{} mapped twice", a.axis),
+                ));
+            }
+        }
+        for name in corrected_axes {
+            if !self.axes.iter().any(|a| a.axis == *name) {
+                return Err(bad(
+                    "axis",
+                    format!(
+                        "corrected axis {name} has no correction register: add an [[…axis]] with axis = \"{name}\""
+                    ),
+                ));
+            }
+        }
+        for (i, p) in self.positions.iter().enumerate() {
+            if !p.channel.ends_with("_mm") {
+                return Err(bad(
+                    format!("position[{i}].channel"),
+                    format!(
+                        "a position carries mm: expected a name ending in _mm, got {:?}",
+                        p.channel
+                    ),
+                ));
+            }
+            if !(p.lsb_um.is_finite() && p.lsb_um > 0.0) {
+                return Err(bad(
+                    format!("position[{i}].lsb_um"),
+                    format!("expected > 0, got {}", p.lsb_um),
+                ));
+            }
+            if self.positions[..i].iter().any(|q| q.channel == p.channel) {
+                return Err(bad(
+                    format!("position[{i}].channel"),
+                    format!("{} mapped twice", p.channel),
+                ));
+            }
+        }
+        for (i, h) in self.held.iter().enumerate() {
+            if self.held_register(h).is_none() {
+                return Err(bad(
+                    format!("held[{i}].axis"),
+                    format!("{:?} has no correction register", h.axis),
+                ));
+            }
+            if self.held[..i].iter().any(|g| g.axis == h.axis) {
+                return Err(bad(
+                    format!("held[{i}].axis"),
+                    format!("{} mapped twice", h.axis),
+                ));
+            }
+        }
+        if !self.held.is_empty() && self.held.len() != self.axes.len() {
+            return Err(bad(
+                "held",
+                "either every corrected axis has a held register or none does",
+            ));
+        }
+        let spans = self.spans();
+        for (i, a) in spans.iter().enumerate() {
+            if a.0 + a.1 > 0x1_0000 {
+                return Err(bad(a.2.clone(), "register runs past address 65535"));
+            }
+            for b in &spans[i + 1..] {
+                if a.0 < b.0 + b.1 && b.0 < a.0 + a.1 {
+                    return Err(bad(
+                        b.2.clone(),
+                        format!("overlaps {} at address {}", a.2, a.0.max(b.0)),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// (address, words) ranges the controller may write: position and held registers.
+    pub fn writable(&self) -> Vec<(u16, u16)> {
+        let mut w: Vec<(u16, u16)> = self
+            .positions
+            .iter()
+            .map(|p| (p.address, p.kind.words()))
+            .collect();
+        for h in &self.held {
+            if let Some(r) = self.held_register(h) {
+                w.push((r.address, r.kind.words()));
+            }
+        }
+        w
+    }
+}
+
+/// Clamp and per-update cap of one axis (from the axis' [`crate::gateway::safety::SafetyConfig`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Guard {
+    pub max_correction_um: f64,
+    pub max_change_um_per_update: f64,
+}
+
+/// The value to expose: as close to `target_um` as the clamp and the cap around every reference
+/// allow, in whole counts of `lsb_um`. References are values the controller may hold (the last
+/// exposed value, the held value it reported). When the references are further apart than allows a
+/// common window, the LAST reference wins (callers put the controller's reported value last).
+pub fn guarded_counts(target_um: f64, references_um: &[f64], guard: Guard, lsb_um: f64) -> i64 {
+    let max_counts = (guard.max_correction_um / lsb_um).floor();
+    let cap_counts = (guard.max_change_um_per_update / lsb_um).floor();
+    let mut lo = -max_counts;
+    let mut hi = max_counts;
+    for (k, r) in references_um.iter().enumerate().rev() {
+        // References are whole counts already (they came from registers or from this function).
+        let rc = (r / lsb_um).round();
+        let (l, h) = (rc - cap_counts, rc + cap_counts);
+        if k == references_um.len() - 1 {
+            // The controller's own value: always honour its window (even beyond the clamp: then
+            // move towards the clamp by at most the cap).
+            lo = lo.max(l).min(h);
+            hi = hi.min(h).max(l);
+        } else if l.max(lo) <= h.min(hi) {
+            lo = lo.max(l);
+            hi = hi.min(h);
+        }
+    }
+    let want = if target_um.is_finite() {
+        (target_um / lsb_um).round()
+    } else {
+        0.0
+    };
+    want.clamp(lo, hi) as i64
+}
+
+/// One axis of the core.
+#[derive(Clone, Debug)]
+struct AxisState {
+    reg: AxisRegister,
+    held: Option<AxisRegister>,
+    guard: Guard,
+    /// Last exposed value, µm (None before the first update).
+    exposed_um: Option<f64>,
+    /// What the controller last reported holding, µm.
+    held_um: Option<f64>,
+}
+
+/// The server's state: which values are exposed, the heartbeat, what the controller reported.
+#[derive(Clone, Debug)]
+pub struct ServerCore {
+    map: ServerMap,
+    axes: Vec<AxisState>,
+    heartbeat: u16,
+    updates: u64,
+}
+
+/// One update to apply to the register image.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Update {
+    /// Blocks to set (corrections merged per contiguous run, then the heartbeat).
+    pub blocks: Vec<WriteBlock>,
+    /// Exposed correction per axis, µm.
+    pub exposed_um: Vec<(String, f64)>,
+}
+
+impl ServerCore {
+    /// `guards`: per corrected axis. The map must be valid.
+    pub fn new(map: ServerMap, guards: &[(String, Guard)]) -> Self {
+        let axes = map
+            .axes
+            .iter()
+            .map(|reg| {
+                let guard = guards
+                    .iter()
+                    .find(|(a, _)| *a == reg.axis)
+                    .map(|g| g.1)
+                    .unwrap_or(Guard {
+                        max_correction_um: 0.0,
+                        max_change_um_per_update: 0.0,
+                    });
+                let held = map
+                    .held
+                    .iter()
+                    .find(|h| h.axis == reg.axis)
+                    .and_then(|h| map.held_register(h));
+                AxisState {
+                    reg: reg.clone(),
+                    held,
+                    guard,
+                    exposed_um: None,
+                    held_um: None,
+                }
+            })
+            .collect();
+        Self {
+            map,
+            axes,
+            heartbeat: 0,
+            updates: 0,
+        }
+    }
+
+    pub fn map(&self) -> &ServerMap {
+        &self.map
+    }
+
+    pub fn heartbeat(&self) -> u16 {
+        self.heartbeat
+    }
+
+    pub fn updates(&self) -> u64 {
+        self.updates
+    }
+
+    /// True once corrections may be served: without held registers at once; with them once the
+    /// controller has reported what it holds for every axis.
+    pub fn is_seeded(&self) -> bool {
+        self.axes
+            .iter()
+            .all(|a| a.held.is_none() || a.held_um.is_some())
+    }
+
+    /// What the controller reported holding per axis, µm (for the engine's start value).
+    pub fn held_um(&self) -> Vec<(String, f64)> {
+        self.axes
+            .iter()
+            .filter_map(|a| a.held_um.map(|v| (a.reg.axis.clone(), v)))
+            .collect()
+    }
+
+    /// The controller wrote registers: decode positions (channel, mm) and held values from the
+    /// image. `read(address, count)` returns the image's words.
+    pub fn handle_controller_write(
+        &mut self,
+        read: impl Fn(u16, u16) -> Option<Vec<u16>>,
+    ) -> Vec<(String, f64)> {
+        for a in &mut self.axes {
+            if let Some(h) = &a.held
+                && let Some(words) = read(h.address, h.kind.words())
+                && let Ok(v) = decode_value(h, &words)
+            {
+                a.held_um = Some(v);
+            }
+        }
+        self.map
+            .positions
+            .iter()
+            .filter_map(|p| {
+                let r = ServerMap::position_register(p);
+                let words = read(r.address, r.kind.words())?;
+                let um = decode_value(&r, &words).ok()?;
+                Some((p.channel.clone(), um / 1000.0))
+            })
+            .collect()
+    }
+
+    /// One update from the engine's outputs (axis, correction µm). None until seeded. Axes missing
+    /// from `targets` keep their exposed value.
+    pub fn poll_update(&mut self, targets: &[(String, f64)]) -> Option<Update> {
+        if !self.is_seeded() {
+            return None;
+        }
+        let mut values: Vec<(String, f64)> = Vec::with_capacity(self.axes.len());
+        for a in &mut self.axes {
+            let start = a.exposed_um.or(a.held_um).unwrap_or(0.0);
+            let target = targets
+                .iter()
+                .find(|(n, _)| *n == a.reg.axis)
+                .map_or(start, |t| t.1);
+            let mut refs: Vec<f64> = Vec::with_capacity(2);
+            refs.extend(a.exposed_um);
+            refs.extend(a.held_um);
+            if refs.is_empty() {
+                refs.push(0.0);
+            }
+            let lsb = a.reg.lsb_um;
+            let counts = guarded_counts(target, &refs, a.guard, lsb);
+            let v = counts as f64 * lsb;
+            a.exposed_um = Some(v);
+            values.push((a.reg.axis.clone(), v));
+        }
+        let pairs: Vec<(&str, f64)> = values.iter().map(|(a, v)| (a.as_str(), *v)).collect();
+        let mut blocks = match self.map.correction_map().encode(&pairs) {
+            Ok(b) => b,
+            // Only reachable when the clamp exceeds the register range: expose nothing new.
+            Err(e) => {
+                tracing::error!(%e, "origin-shift server: cannot encode; keeping the last values");
+                return None;
+            }
+        };
+        self.heartbeat = self.heartbeat.wrapping_add(1);
+        self.updates += 1;
+        blocks.push(WriteBlock {
+            address: self.map.heartbeat_address,
+            words: vec![self.heartbeat],
+        });
+        Some(Update {
+            blocks,
+            exposed_um: values,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeMap;
+
+    pub(crate) fn map() -> ServerMap {
+        toml::from_str(
+            r#"
+            heartbeat_address = 10
+            [[axis]]
+            axis = "x"
+            address = 0
+            kind = "int16"
+            lsb_um = 0.1
+            sign = 1
+            [[axis]]
+            axis = "z"
+            address = 1
+            kind = "int32"
+            word_order = "low_first"
+            lsb_um = 0.1
+            sign = -1
+            [[position]]
+            channel = "x_mm"
+            address = 20
+            kind = "int16"
+            lsb_um = 10.0
+            [[held]]
+            axis = "x"
+            address = 30
+            [[held]]
+            axis = "z"
+            address = 31
+            "#,
+        )
+        .unwrap()
+    }
+
+    fn guards() -> Vec<(String, Guard)> {
+        let g = Guard {
+            max_correction_um: 50.0,
+            max_change_um_per_update: 1.0,
+        };
+        vec![("x".into(), g), ("z".into(), g)]
+    }
+
+    #[test]
+    fn validation_names_the_key() {
+        let m = map();
+        m.validate(&["x", "z"]).unwrap();
+        let e = m.validate(&["x", "y", "z"]).unwrap_err();
+        assert!(e.what.contains("corrected axis y"), "{e}");
+        let e = m.validate(&["x"]).unwrap_err();
+        assert_eq!(e.key, "axis[1].axis");
+        let mut m2 = map();
+        m2.heartbeat_address = 2; // inside z's int32 (1..3)
+        let e = m2.validate(&["x", "z"]).unwrap_err();
+        assert_eq!(e.key, "heartbeat_address", "{e}");
+        let mut m3 = map();
+        m3.held[1].address = 20; // on the position register
+        let e = m3.validate(&["x", "z"]).unwrap_err();
+        assert!(e.key == "held[1]" && e.what.contains("position[0]"), "{e}");
+        let mut m4 = map();
+        m4.positions[0].channel = "x".into();
+        assert_eq!(
+            m4.validate(&["x", "z"]).unwrap_err().key,
+            "position[0].channel"
+        );
+        let mut m5 = map();
+        m5.held.pop();
+        assert_eq!(m5.validate(&["x", "z"]).unwrap_err().key, "held");
+    }
+
+    #[test]
+    fn nothing_served_until_the_controller_reports_then_ramps_from_its_value() {
+        let mut c = ServerCore::new(map(), &guards());
+        assert!(c.poll_update(&[("x".into(), 20.0)]).is_none());
+        // The controller writes x held = 12.3 µm (123 counts), z held = 0, position x = 150.00 mm.
+        let image: BTreeMap<u16, u16> = [(30, 123), (31, 0), (32, 0), (20, 15000)].into();
+        let read = |a: u16, n: u16| (a..a + n).map(|k| image.get(&k).copied()).collect();
+        let pos = c.handle_controller_write(read);
+        assert_eq!(pos, vec![("x_mm".to_string(), 150.0)]);
+        assert!(c.is_seeded());
+        let u = c
+            .poll_update(&[("x".into(), 20.0), ("z".into(), -3.0)])
+            .unwrap();
+        // x: 12.3 → 13.3 (cap 1 µm); z: 0 → −1.0; heartbeat 1.
+        assert_eq!(u.exposed_um[0].0, "x");
+        assert!((u.exposed_um[0].1 - 13.3).abs() < 1e-9, "{u:?}");
+        assert!((u.exposed_um[1].1 + 1.0).abs() < 1e-9, "{u:?}");
+        // x int16 at 0 and z int32 (CDAB, sign −1 → +10 counts) at 1..3: one block, then heartbeat.
+        assert_eq!(u.blocks[0].address, 0);
+        assert_eq!(u.blocks[0].words, vec![133, 10, 0]);
+        assert_eq!(
+            u.blocks[1],
+            WriteBlock {
+                address: 10,
+                words: vec![1]
+            }
+        );
+        assert_eq!(c.poll_update(&[]).unwrap().blocks[1].words, vec![2]);
+    }
+
+    #[test]
+    fn a_controller_holding_zero_keeps_the_exposed_value_within_one_cap() {
+        // Not homed: the controller gates the counts to 0 and reports 0, so the box may not run
+        // ahead to the target however many updates pass.
+        let mut c = ServerCore::new(map(), &guards());
+        let image: BTreeMap<u16, u16> = [(30, 0), (31, 0), (32, 0)].into();
+        c.handle_controller_write(|a, n| (a..a + n).map(|k| image.get(&k).copied()).collect());
+        for _ in 0..100 {
+            let u = c
+                .poll_update(&[("x".into(), 40.0), ("z".into(), 40.0)])
+                .unwrap();
+            assert!(
+                u.exposed_um.iter().all(|(_, v)| v.abs() <= 1.0 + 1e-9),
+                "{u:?}"
+            );
+        }
+    }
+}
+
+#[cfg(test)]
+mod proptests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Whatever the target (NaN, huge) and references, the exposed value is within the clamp
+        /// (when the controller's value is) and within one cap of the controller's value, in counts.
+        #[test]
+        fn clamp_and_cap_hold(
+            target in prop_oneof![Just(f64::NAN), Just(f64::INFINITY), -1e6f64..1e6],
+            last in -50.0f64..50.0,
+            held in -50.0f64..50.0,
+            max in 1.0f64..100.0,
+            cap in 0.1f64..5.0,
+            lsb in prop_oneof![Just(0.1f64), Just(0.05), Just(1.0)],
+        ) {
+            let q = |v: f64| (v / lsb).round() * lsb;
+            let (last, held) = (q(last.clamp(-max, max)), q(held.clamp(-max, max)));
+            let g = Guard { max_correction_um: max, max_change_um_per_update: cap };
+            let v = guarded_counts(target, &[last, held], g, lsb) as f64 * lsb;
+            prop_assert!(v.abs() <= max + 1e-9 || (v - held).abs() <= cap + 1e-9);
+            prop_assert!((v - held).abs() <= cap + 1e-9, "v {v} held {held}");
+            if (last - held).abs() <= cap {
+                prop_assert!((v - last).abs() <= cap + 1e-9, "v {v} last {last}");
+            }
+            if target.is_finite() && target.abs() <= max && (target - held).abs() <= cap
+                && (target - last).abs() <= cap {
+                prop_assert!((v - target).abs() <= lsb + 1e-9);
+            }
+        }
+    }
+}
