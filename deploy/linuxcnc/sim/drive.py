@@ -1,0 +1,75 @@
+#!/usr/bin/python3
+"""Headless "display" for retrocomp-sim.ini: machine on, home, run part.ngc. At every M0 pause it
+writes the HAL pins the closed-loop test checks to pause-K.jsonl (one line every 0.1 s) and waits
+for the file resume-K before resuming. Writes done.json at the end; LinuxCNC stops when this exits.
+Uses Debian's python3 (the linuxcnc and hal modules are not in a venv)."""
+import json
+import os
+import sys
+import time
+
+import hal
+import linuxcnc
+
+ini = sys.argv[sys.argv.index("-ini") + 1]
+here = os.path.dirname(os.path.abspath(ini))
+# hal.get_value needs this process to be a HAL component.
+comp = hal.component("rc-drive")
+comp.ready()
+s = linuxcnc.stat()
+c = linuxcnc.command()
+PINS = ["axis.x.pos-cmd", "axis.x.eoffset", "axis.x.eoffset-counts", "rc-alive",
+        "rc-x-step-max.max", "mb2hal.rc-in.01.float", "motion.eoffset-active"]
+
+
+def log(msg):
+    with open(os.path.join(here, "drive.log"), "a") as f:
+        f.write("%.3f %s\n" % (time.time(), msg))
+
+
+def wait(what, pred, timeout_s=300.0):
+    t0 = time.time()
+    while time.time() - t0 < timeout_s:
+        s.poll()
+        if pred():
+            return
+        time.sleep(0.02)
+    log("timeout waiting for " + what)
+    sys.exit(2)
+
+
+def pins():
+    return {p: float(hal.get_value(p)) for p in PINS}
+
+
+c.state(linuxcnc.STATE_ESTOP_RESET)
+c.state(linuxcnc.STATE_ON)
+wait("machine on", lambda: s.task_state == linuxcnc.STATE_ON)
+c.home(-1)
+wait("homed", lambda: all(s.homed[i] for i in range(3)))
+log("on and homed")
+c.mode(linuxcnc.MODE_AUTO)
+c.wait_complete()
+c.program_open(os.path.join(here, "part.ngc"))
+c.auto(linuxcnc.AUTO_RUN, 0)
+wait("program start", lambda: s.interp_state != linuxcnc.INTERP_IDLE)
+k = 0
+while True:
+    s.poll()
+    if s.interp_state == linuxcnc.INTERP_IDLE and s.exec_state == linuxcnc.EXEC_DONE:
+        break
+    if s.paused:
+        log("pause %d at x=%.4f" % (k, s.position[0]))
+        resume = os.path.join(here, "resume-%d" % k)
+        with open(os.path.join(here, "pause-%d.jsonl" % k), "a") as f:
+            while not os.path.exists(resume):
+                f.write(json.dumps(pins()) + "\n")
+                f.flush()
+                time.sleep(0.1)
+        c.auto(linuxcnc.AUTO_RESUME)
+        wait("resume", lambda: not s.paused)
+        k += 1
+    time.sleep(0.02)
+with open(os.path.join(here, "done.json"), "w") as f:
+    json.dump({"pauses": k, "pins": pins()}, f)
+log("program done after %d pauses" % k)
