@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """Headless "display" for retrocomp-sim.ini: machine on, home, run part.ngc. At every M0 pause it
 writes the HAL pins the closed-loop test checks to pause-K.jsonl (one line every 0.1 s) and waits
-for the file resume-K before resuming. Writes done.json at the end; LinuxCNC stops when this exits.
+for the file resume-K before resuming (and stops if the file abort appears). Writes done.json at the end; LinuxCNC stops when this exits.
 Uses Debian's python3 (the linuxcnc and hal modules are not in a venv)."""
 import json
 import os
@@ -27,9 +27,17 @@ def log(msg):
         f.write("%.3f %s\n" % (time.time(), msg))
 
 
+def aborted():
+    # The test writes "abort" when it fails, so LinuxCNC shuts down instead of waiting.
+    if os.path.exists(os.path.join(here, "abort")):
+        log("aborted")
+        sys.exit(3)
+
+
 def wait(what, pred, timeout_s=300.0):
     t0 = time.time()
     while time.time() - t0 < timeout_s:
+        aborted()
         s.poll()
         if pred():
             return
@@ -58,11 +66,13 @@ while True:
     s.poll()
     if s.interp_state == linuxcnc.INTERP_IDLE and s.exec_state == linuxcnc.EXEC_DONE:
         break
+    aborted()
     if s.paused:
         log("pause %d at x=%.4f" % (k, s.position[0]))
         resume = os.path.join(here, "resume-%d" % k)
         with open(os.path.join(here, "pause-%d.jsonl" % k), "a") as f:
             while not os.path.exists(resume):
+                aborted()
                 f.write(json.dumps(pins()) + "\n")
                 f.flush()
                 time.sleep(0.1)
