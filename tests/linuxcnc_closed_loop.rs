@@ -11,7 +11,9 @@
 //! approach direction, clamped to ±50 µm) within 0.2 µm; |eoffset| never exceeds the clamp; the
 //! largest step of the applied counts between two servo periods over the whole run (start, homing,
 //! moves, box restart) is at most the 1 µm per-update cap; the heartbeat watch says alive at every
-//! point; the box is killed (SIGKILL) at the 6th point and restarted while LinuxCNC moves on.
+//! point; the box is killed (SIGKILL) at the 6th point and restarted while LinuxCNC moves on: it
+//! resumes from the value LinuxCNC holds (mb2hal restarted by the kit's mb2hal-watch.py) and, not
+//! having seen the last move, serves the forward/reverse mean at the 7th point.
 //! No timing is asserted: each point is polled (generous timeouts) until it settles.
 //! LinuxCNC runs as uid 65534 (rtapi_app refuses root) with the NML file's TCP=5005 removed (no port
 //! outside loopback); runs are serialised by flock on /tmp/retrocomp-linuxcnc.lock.
@@ -30,7 +32,10 @@ const CLAMP_UM: f64 = 50.0;
 const CAP_UM: f64 = 1.0;
 const LSB_UM: f64 = 0.1;
 const TOL_UM: f64 = 0.2;
-/// (x mm, approach direction) of the part program's M0 stops, in order.
+/// (x mm, approach direction) of the part program's M0 stops, in order. Direction 0 at the stop
+/// after the box restart: the restarted box has not seen the axis move (LinuxCNC finished the move
+/// while the box was down), so it does not know the approach direction and serves the mean of the
+/// forward and reverse tables (docs/model.md) until the axis moves again.
 const POINTS: [(f64, i8); 8] = [
     (50.0, 1),
     (150.0, 1),
@@ -38,7 +43,7 @@ const POINTS: [(f64, i8); 8] = [
     (120.0, -1),
     (40.0, -1),
     (160.0, 1),
-    (170.0, 1),
+    (170.0, 0),
     (80.0, -1),
 ];
 /// The box is killed at this stop and restarted while LinuxCNC moves to the next.
@@ -371,6 +376,25 @@ fn linuxcnc_eoffset_follows_the_served_correction() {
         serde_json::from_str(&std::fs::read_to_string(&done_path).unwrap()).unwrap();
     assert_eq!(done["pauses"], POINTS.len(), "{done}");
     let step_max_counts = done["pins"]["rc-x-step-max.max"].as_f64().unwrap();
+    // The restart really went through mb2hal-watch.py, and the second box started from the value
+    // LinuxCNC held at the 6th stop (not from 0).
+    let restarts = done["pins"]["rc-watch.restarts"].as_f64().unwrap();
+    assert!(restarts >= 1.0, "mb2hal was never restarted: {done}");
+    let log2 = std::fs::read_to_string(run.dir.path().join("box-2.log")).unwrap();
+    let held_line = log2
+        .lines()
+        .find(|l| l.contains("continuing from them"))
+        .unwrap_or_else(|| panic!("box 2 never seeded:\n{log2}"));
+    let held_um: f64 = held_line
+        .rsplit("\"x\": ")
+        .next()
+        .and_then(|v| v.trim_end_matches('}').trim().parse().ok())
+        .unwrap_or_else(|| panic!("no held x in {held_line:?}"));
+    assert!(
+        (held_um - rows[RESTART_AT].3).abs() <= TOL_UM,
+        "box 2 started from {held_um} µm, LinuxCNC held {} µm",
+        rows[RESTART_AT].3
+    );
 
     eprintln!("x_mm  dir  expected_um  eoffset_um  diff_um");
     let mut worst: f64 = 0.0;
@@ -382,6 +406,9 @@ fn linuxcnc_eoffset_follows_the_served_correction() {
         .iter()
         .map(|p| p.eoffset_um.abs())
         .fold(0.0, f64::max);
+    eprintln!(
+        "box restarted at stop {RESTART_AT}: resumed from {held_um:.1} µm, mb2hal restarts {restarts}"
+    );
     eprintln!(
         "max |eoffset − (−error)| at settled stops: {worst:.4} µm; largest applied step over the run: {} counts = {:.2} µm (cap {CAP_UM} µm); max |eoffset| while paused {max_abs:.3} µm (clamp {CLAMP_UM} µm)",
         step_max_counts,

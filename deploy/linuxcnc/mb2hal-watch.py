@@ -18,6 +18,7 @@ import hal
 
 ini = sys.argv[1]
 dead_s = float(sys.argv[2]) if len(sys.argv) > 2 else 3.0
+MARKER = "21930"  # register 12, as in retrocomp.hal and the box's write_marker
 NETS = [
     ("rc-x-raw", "mb2hal.rc-in.00.float"),
     ("rc-heartbeat", "mb2hal.rc-in.01.float"),
@@ -59,8 +60,11 @@ try:
         while halcmd("-s", "show", "comp", "mb2hal") == 0 and hal.component_exists("mb2hal"):
             time.sleep(0.1)
         halcmd("loadusr", "-W", "mb2hal", "config=" + ini)
+        # Link first, then set the write marker: until then the new mb2hal's writes (pins at 0)
+        # carry marker 0 and the box ignores them.
         for sig, pin in NETS:
             halcmd("net", sig, pin)
+        halcmd("setp", "mb2hal.rc-out.02", MARKER)
         comp["restarts"] += 1
         # Linked pins start at 0: pass the counts again only after two heartbeat changes (two
         # real reads from the box).

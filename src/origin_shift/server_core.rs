@@ -48,6 +48,17 @@ pub struct HeldRegister {
     pub address: u16,
 }
 
+/// A register the controller writes a fixed non-zero value into, in the same FC16 as its positions
+/// and held values: writes are taken only while it holds that value. A client that starts writing
+/// before its inputs are connected (mb2hal just loaded: every pin 0) is then ignored, not read as
+/// "position 0, holding 0".
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WriteMarker {
+    pub address: u16,
+    pub value: u16,
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ServerMap {
@@ -60,6 +71,8 @@ pub struct ServerMap {
     pub positions: Vec<PositionRegister>,
     #[serde(default, rename = "held")]
     pub held: Vec<HeldRegister>,
+    #[serde(default)]
+    pub write_marker: Option<WriteMarker>,
 }
 
 /// A validation problem: the key path under the map (`axis[1].address`) and what was expected.
@@ -130,6 +143,9 @@ impl ServerMap {
         for (i, h) in self.held.iter().enumerate() {
             let words = self.held_register(h).map_or(1, |r| r.kind.words() as u32);
             spans.push((h.address as u32, words, format!("held[{i}]")));
+        }
+        if let Some(m) = &self.write_marker {
+            spans.push((m.address as u32, 1, "write_marker".into()));
         }
         spans
     }
@@ -210,6 +226,12 @@ impl ServerMap {
                 "either every corrected axis has a held register or none does",
             ));
         }
+        if self.write_marker.as_ref().is_some_and(|m| m.value == 0) {
+            return Err(bad(
+                "write_marker.value",
+                "expected a non-zero value (0 is what an unconnected client writes)",
+            ));
+        }
         let spans = self.spans();
         for (i, a) in spans.iter().enumerate() {
             if a.0 + a.1 > 0x1_0000 {
@@ -239,6 +261,7 @@ impl ServerMap {
                 w.push((r.address, r.kind.words()));
             }
         }
+        w.extend(self.write_marker.as_ref().map(|m| (m.address, 1)));
         w
     }
 }
@@ -382,6 +405,11 @@ impl ServerCore {
         &mut self,
         read: impl Fn(u16, u16) -> Option<Vec<u16>>,
     ) -> Vec<(String, f64)> {
+        if let Some(m) = &self.map.write_marker
+            && read(m.address, 1) != Some(vec![m.value])
+        {
+            return Vec::new();
+        }
         for a in &mut self.axes {
             if let Some(h) = &a.held
                 && let Some(words) = read(h.address, h.kind.words())
@@ -550,6 +578,27 @@ mod tests {
             }
         );
         assert_eq!(c.poll_update(&[]).unwrap().blocks[1].words, vec![2]);
+    }
+
+    #[test]
+    fn writes_without_the_marker_are_ignored() {
+        let mut m = map();
+        m.write_marker = Some(WriteMarker {
+            address: 40,
+            value: 0x55AA,
+        });
+        m.validate(&["x", "z"]).unwrap();
+        let mut c = ServerCore::new(m, &guards());
+        // A freshly loaded client writes zeros everywhere, marker included: not taken.
+        let zeros: BTreeMap<u16, u16> = [(30, 0), (31, 0), (32, 0), (20, 0), (40, 0)].into();
+        let pos =
+            c.handle_controller_write(|a, n| (a..a + n).map(|k| zeros.get(&k).copied()).collect());
+        assert!(pos.is_empty() && !c.is_seeded());
+        let good: BTreeMap<u16, u16> = [(30, 5), (31, 0), (32, 0), (20, 100), (40, 0x55AA)].into();
+        let pos =
+            c.handle_controller_write(|a, n| (a..a + n).map(|k| good.get(&k).copied()).collect());
+        assert_eq!(pos, vec![("x_mm".to_string(), 1.0)]);
+        assert_eq!(c.held_um()[0], ("x".to_string(), 0.5));
     }
 
     #[test]

@@ -19,7 +19,8 @@ comp.ready()
 s = linuxcnc.stat()
 c = linuxcnc.command()
 PINS = ["axis.x.pos-cmd", "axis.x.eoffset", "axis.x.eoffset-counts", "rc-alive",
-        "rc-x-step-max.max", "mb2hal.rc-in.01.float", "motion.eoffset-active"]
+        "rc-x-step-max.max", "rc-heartbeat", "motion.eoffset-active",
+        "rc-watch.restarts"]
 
 
 def log(msg):
@@ -46,8 +47,15 @@ def wait(what, pred, timeout_s=300.0):
     sys.exit(2)
 
 
+def value(name):
+    try:
+        return float(hal.get_value(name))
+    except Exception:  # e.g. while mb2hal-watch.py reloads mb2hal
+        return None
+
+
 def pins():
-    return {p: float(hal.get_value(p)) for p in PINS}
+    return {p: value(p) for p in PINS}
 
 
 c.state(linuxcnc.STATE_ESTOP_RESET)
