@@ -228,6 +228,12 @@ fn an_unmapped_corrected_axis_is_refused_with_its_key() {
     ))
     .unwrap();
     FieldConfig::parse(&base, Path::new("sim.toml")).unwrap();
+    // The kit's field config is valid too.
+    FieldConfig::load(Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/deploy/linuxcnc/retrocomp-linuxcnc.toml"
+    )))
+    .unwrap();
     let two_axes = base.replace(
         "[[channel]]",
         "[[axis]]\nname = \"z\"\nposition_channel = \"z_mm\"\n\n[[channel]]",
