@@ -399,7 +399,7 @@ fn linuxcnc_eoffset_follows_the_served_correction() {
     eprintln!("x_mm  dir  expected_um  eoffset_um  diff_um");
     let mut worst: f64 = 0.0;
     for (x, dir, want, got) in &rows {
-        eprintln!("{x:6.1} {dir:+2} {want:10.3} {got:10.4} {:8.4}", got - want);
+        eprintln!("{x:6.1} {dir:+2} {want:10.3} {got:10.5} {:9.5}", got - want);
         worst = worst.max((got - want).abs());
     }
     let max_abs = all_lines
@@ -410,7 +410,7 @@ fn linuxcnc_eoffset_follows_the_served_correction() {
         "box restarted at stop {RESTART_AT}: resumed from {held_um:.1} µm, mb2hal restarts {restarts}"
     );
     eprintln!(
-        "max |eoffset − (−error)| at settled stops: {worst:.4} µm; largest applied step over the run: {} counts = {:.2} µm (cap {CAP_UM} µm); max |eoffset| while paused {max_abs:.3} µm (clamp {CLAMP_UM} µm)",
+        "max |eoffset − (−error)| at settled stops: {worst:.5} µm; largest applied step over the run: {} counts = {:.2} µm (cap {CAP_UM} µm); max |eoffset| while paused {max_abs:.3} µm (clamp {CLAMP_UM} µm)",
         step_max_counts,
         step_max_counts * LSB_UM
     );
