@@ -87,14 +87,26 @@ fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
             .any(|l| l.starts_with("ECZ") && l.contains("NO") && l.contains("second tool vector")),
         "ECZ must be named as unidentifiable with its remedy:\n{text}"
     );
-    assert_eq!(std::fs::read_dir(&svg).unwrap().count(), 10, "2 directions × 5 plates");
+    assert_eq!(
+        std::fs::read_dir(&svg).unwrap().count(),
+        10,
+        "2 directions × 5 plates"
+    );
 
     ok(
-        &retrocomp().arg("check-config").arg(&model).output().unwrap(),
+        &retrocomp()
+            .arg("check-config")
+            .arg(&model)
+            .output()
+            .unwrap(),
         "check-config on the identified model",
     );
     let path = dir.path().join("path.csv");
-    std::fs::write(&path, "x_mm,y_mm,z_mm,tool_mm\n300,200,150,120\n500,300,250,120\n").unwrap();
+    std::fs::write(
+        &path,
+        "x_mm,y_mm,z_mm,tool_mm\n300,200,150,120\n500,300,250,120\n",
+    )
+    .unwrap();
     let ev = ok(
         &retrocomp()
             .args(["eval", "--model"])
@@ -114,7 +126,8 @@ fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
         .args(&verify)
         .arg("--out")
         .arg(dir.path().join("bb.toml"));
-    let j: serde_json::Value = serde_json::from_str(&ok(&cmd.output().unwrap(), "identify --json")).unwrap();
+    let j: serde_json::Value =
+        serde_json::from_str(&ok(&cmd.output().unwrap(), "identify --json")).unwrap();
     assert_eq!(j["components"].as_array().unwrap().len(), 18);
     assert_eq!(j["verification"].as_array().unwrap().len(), 10);
     assert_eq!(j["setups"].as_array().unwrap().len(), 8);
@@ -149,5 +162,8 @@ fn identify_refuses_a_missing_side_file_and_bad_rows() {
         .output()
         .unwrap();
     let e = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && e.contains("P1.csv:2: column `z_mm`: `zz`"), "{e}");
+    assert!(
+        !out.status.success() && e.contains("P1.csv:2: column `z_mm`: `zz`"),
+        "{e}"
+    );
 }

@@ -33,7 +33,9 @@ fn hole_plate_errors_name_file_line_and_expectation() {
                b,forty,0,140,50,20,100,0,20.5\n\
                c,0,40,100,50,,100,x,20.5\n";
     let side = "kind = \"hole_plate\"\nplane = \"xw\"\nalpha_ppm_per_K = \"a lot\"\n";
-    let e = read_hole_plate("dir/P2", csv, side).unwrap_err().to_string();
+    let e = read_hole_plate("dir/P2", csv, side)
+        .unwrap_err()
+        .to_string();
     for want in [
         "dir/P2.toml:2: key `plane`: \"xw\", expected \"xy\", \"xz\" or \"yz\"",
         "dir/P2.toml:3: key `alpha_ppm_per_K`: expected a number",

@@ -12,7 +12,8 @@ use retrocomp::analysis::identify::{Options, identify};
 use retrocomp::models::MachineModel;
 
 fn bench(c: &mut Criterion) {
-    let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/examples/old-mill-3axis.toml");
+    let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../deploy/examples/old-mill-3axis.toml");
     let truth = MachineModel::from_toml_path(&p).unwrap();
     let meas = measure_all(&truth, &Metrology::default(), 1);
     let geo = Geometry::from_chain("X F Y Z").unwrap();

@@ -66,7 +66,14 @@ pub struct SpherePlacement {
     pub tool_mm: f64,
 }
 
-fn plate(name: &str, plane: Plane, o: [f64; 3], tool: f64, n: [usize; 2], pitch: [f64; 2]) -> PlatePlacement {
+fn plate(
+    name: &str,
+    plane: Plane,
+    o: [f64; 3],
+    tool: f64,
+    n: [usize; 2],
+    pitch: [f64; 2],
+) -> PlatePlacement {
     PlatePlacement {
         name: name.into(),
         plane,
@@ -78,26 +85,107 @@ fn plate(name: &str, plane: Plane, o: [f64; 3], tool: f64, n: [usize; 2], pitch:
 }
 
 /// Spaan's plan on an 800 × 500 × 500 mm mill: six identification plates, two per plane over the
-/// same footprint (x 130–670, y and z 50–410) at two heights and two probe lengths, so every
-/// rotation's Abbe arm changes while its axis moves; five verification plates at other places and
-/// probe lengths inside the identified volume.
+/// same footprint (x 130–670, y and z 50–410), each pair at two places across its plane and with
+/// two probe lengths (100/200 mm, Spaan's two probe configurations), so every rotation's Abbe arm
+/// changes while its axis moves; five verification plates at other places and with probe lengths
+/// outside the identification's (50 and 300 mm). (A pair at one place with two probes was tried:
+/// it leaves the table roll EAX and Y pitch EBY to a combination the plates cannot see, and the
+/// verification on plates elsewhere drops by up to 4 %.)
 pub fn spaan_plates() -> (Vec<PlatePlacement>, Vec<PlatePlacement>) {
     use Plane::*;
     let (wide, square) = ([10, 10], [10, 10]);
     let id = vec![
-        plate("id_xy_low", Xy, [130.0, 50.0, 50.0], 100.0, wide, [60.0, 40.0]),
-        plate("id_xy_high", Xy, [130.0, 50.0, 300.0], 200.0, wide, [60.0, 40.0]),
-        plate("id_xz_front", Xz, [130.0, 100.0, 50.0], 100.0, wide, [60.0, 40.0]),
-        plate("id_xz_back", Xz, [130.0, 350.0, 50.0], 200.0, wide, [60.0, 40.0]),
-        plate("id_yz_left", Yz, [150.0, 50.0, 50.0], 100.0, square, [40.0, 40.0]),
-        plate("id_yz_right", Yz, [600.0, 50.0, 50.0], 200.0, square, [40.0, 40.0]),
+        plate(
+            "id_xy_low",
+            Xy,
+            [130.0, 50.0, 50.0],
+            100.0,
+            wide,
+            [60.0, 40.0],
+        ),
+        plate(
+            "id_xy_high",
+            Xy,
+            [130.0, 50.0, 300.0],
+            200.0,
+            wide,
+            [60.0, 40.0],
+        ),
+        plate(
+            "id_xz_front",
+            Xz,
+            [130.0, 100.0, 50.0],
+            100.0,
+            wide,
+            [60.0, 40.0],
+        ),
+        plate(
+            "id_xz_back",
+            Xz,
+            [130.0, 350.0, 50.0],
+            200.0,
+            wide,
+            [60.0, 40.0],
+        ),
+        plate(
+            "id_yz_left",
+            Yz,
+            [150.0, 50.0, 50.0],
+            100.0,
+            square,
+            [40.0, 40.0],
+        ),
+        plate(
+            "id_yz_right",
+            Yz,
+            [600.0, 50.0, 50.0],
+            200.0,
+            square,
+            [40.0, 40.0],
+        ),
     ];
+    // Probe lengths outside the identification's 100/200 mm, so the Abbe terms must extrapolate.
     let verify = vec![
-        plate("v_xy", Xy, [220.0, 50.0, 150.0], 150.0, square, [40.0, 40.0]),
-        plate("v_xz_short", Xz, [300.0, 250.0, 120.0], 120.0, square, [30.0, 30.0]),
-        plate("v_xz_long", Xz, [150.0, 200.0, 50.0], 180.0, wide, [55.0, 40.0]),
-        plate("v_yz_left", Yz, [250.0, 50.0, 50.0], 150.0, square, [40.0, 40.0]),
-        plate("v_yz_right", Yz, [650.0, 50.0, 50.0], 120.0, square, [40.0, 40.0]),
+        plate(
+            "v_xy",
+            Xy,
+            [220.0, 50.0, 150.0],
+            300.0,
+            square,
+            [40.0, 40.0],
+        ),
+        plate(
+            "v_xz_short",
+            Xz,
+            [300.0, 250.0, 120.0],
+            50.0,
+            square,
+            [30.0, 30.0],
+        ),
+        plate(
+            "v_xz_long",
+            Xz,
+            [150.0, 200.0, 50.0],
+            300.0,
+            wide,
+            [55.0, 40.0],
+        ),
+        plate(
+            "v_yz_left",
+            Yz,
+            [250.0, 50.0, 50.0],
+            300.0,
+            square,
+            [40.0, 40.0],
+        ),
+        plate(
+            "v_yz_right",
+            Yz,
+            [650.0, 50.0, 50.0],
+            50.0,
+            square,
+            [40.0, 40.0],
+        ),
     ];
     (id, verify)
 }
@@ -307,7 +395,10 @@ pub fn measure_all(truth: &MachineModel, m: &Metrology, seed: u64) -> Measured {
     let (id, v) = spaan_plates();
     let tr = travel(truth);
     Measured {
-        plates: id.iter().map(|p| measure_plate(truth, p, m, seed)).collect(),
+        plates: id
+            .iter()
+            .map(|p| measure_plate(truth, p, m, seed))
+            .collect(),
         verify: v.iter().map(|p| measure_plate(truth, p, m, seed)).collect(),
         spheres: spaan_spheres()
             .iter()

@@ -56,19 +56,39 @@ fn texts(csv: &Path) -> anyhow::Result<(String, String)> {
 
 fn read_plate(p: &Path) -> anyhow::Result<HolePlate> {
     let (csv, side) = texts(p)?;
-    Ok(read_hole_plate(&p.with_extension("").display().to_string(), &csv, &side)?)
+    Ok(read_hole_plate(
+        &p.with_extension("").display().to_string(),
+        &csv,
+        &side,
+    )?)
 }
 
 fn read_bar(p: &Path) -> anyhow::Result<BallBar> {
     let (csv, side) = texts(p)?;
-    Ok(read_ballbar(&p.with_extension("").display().to_string(), &csv, &side)?)
+    Ok(read_ballbar(
+        &p.with_extension("").display().to_string(),
+        &csv,
+        &side,
+    )?)
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let geo = Geometry::from_chain(&args.chain)?;
-    let plates: Vec<HolePlate> = args.hole_plate.iter().map(|p| read_plate(p)).collect::<Result<_, _>>()?;
-    let bars: Vec<BallBar> = args.ballbar.iter().map(|p| read_bar(p)).collect::<Result<_, _>>()?;
-    let held: Vec<HolePlate> = args.verify.iter().map(|p| read_plate(p)).collect::<Result<_, _>>()?;
+    let plates: Vec<HolePlate> = args
+        .hole_plate
+        .iter()
+        .map(|p| read_plate(p))
+        .collect::<Result<_, _>>()?;
+    let bars: Vec<BallBar> = args
+        .ballbar
+        .iter()
+        .map(|p| read_bar(p))
+        .collect::<Result<_, _>>()?;
+    let held: Vec<HolePlate> = args
+        .verify
+        .iter()
+        .map(|p| read_plate(p))
+        .collect::<Result<_, _>>()?;
     if plates.is_empty() && bars.is_empty() {
         anyhow::bail!("give at least one --hole-plate or --ballbar");
     }
@@ -92,7 +112,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         plots(dir, &ver)?;
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&json(&id, &ver, &args.out))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json(&id, &ver, &args.out))?
+        );
     } else {
         print!("{}", text_report(&id, &ver, &args.out));
     }
@@ -140,7 +163,10 @@ fn text_report(id: &Identification, ver: &[DirVerify], out: &Path) -> String {
         id.solve.sigma_um,
         out.display()
     );
-    let _ = writeln!(s, "component  range_mm        knots  F        p         max     ±se    identifiable");
+    let _ = writeln!(
+        s,
+        "component  range_mm        knots  F        p         max     ±se    identifiable"
+    );
     for c in &comp {
         let _ = writeln!(
             s,
@@ -153,7 +179,11 @@ fn text_report(id: &Identification, ver: &[DirVerify], out: &Path) -> String {
             c.p_value.map_or("-".into(), |p| format!("{p:.1e}")),
             c.max_abs,
             c.max_se,
-            if c.identifiable { "yes".to_string() } else { format!("NO — needs {}", c.needs.clone().unwrap_or_default()) }
+            if c.identifiable {
+                "yes".to_string()
+            } else {
+                format!("NO — needs {}", c.needs.clone().unwrap_or_default())
+            }
         );
     }
     for q in &sq {
@@ -163,11 +193,18 @@ fn text_report(id: &Identification, ver: &[DirVerify], out: &Path) -> String {
             q.name,
             q.value_urad,
             q.se_urad,
-            if q.identifiable { "" } else { "  (not identifiable)" }
+            if q.identifiable {
+                ""
+            } else {
+                "  (not identifiable)"
+            }
         );
     }
     for (a, h, r) in &id.outliers {
-        let _ = writeln!(s, "outlier: {a} hole {h} repeat {r} (disagrees with its duplicate)");
+        let _ = writeln!(
+            s,
+            "outlier: {a} hole {h} repeat {r} (disagrees with its duplicate)"
+        );
     }
     if !ver.is_empty() {
         let _ = writeln!(s, "verification   dir  meas_um  res_um  σ_um  efficiency");
@@ -190,14 +227,29 @@ fn text_report(id: &Identification, ver: &[DirVerify], out: &Path) -> String {
 fn plots(dir: &Path, ver: &[DirVerify]) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     for v in ver {
-        let m: Vec<(f64, f64)> = v.holes.iter().enumerate().map(|(i, h)| (i as f64, h.1)).collect();
-        let r: Vec<(f64, f64)> = v.holes.iter().enumerate().map(|(i, h)| (i as f64, h.2)).collect();
+        let m: Vec<(f64, f64)> = v
+            .holes
+            .iter()
+            .enumerate()
+            .map(|(i, h)| (i as f64, h.1))
+            .collect();
+        let r: Vec<(f64, f64)> = v
+            .holes
+            .iter()
+            .enumerate()
+            .map(|(i, h)| (i as f64, h.2))
+            .collect();
         let mut sm = Series::line("measured Δm", m);
         sm.markers = true;
         let mut sr = Series::line("residual Δm − Δs", r);
         sr.markers = true;
         let svg = xy_svg(
-            &format!("{} {}: efficiency {:.1} %", v.plate, v.direction, 100.0 * v.efficiency),
+            &format!(
+                "{} {}: efficiency {:.1} %",
+                v.plate,
+                v.direction,
+                100.0 * v.efficiency
+            ),
             "probing",
             &format!("e{} µm", v.direction),
             &[sm, sr],

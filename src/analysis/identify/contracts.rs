@@ -331,7 +331,10 @@ pub fn read_hole_plate(name: &str, csv: &str, side: &str) -> Result<HolePlate, C
         let c = |n: &str| rows.col(n);
         let scale_cols = SCALE_COLS.map(c);
         if scale_cols.iter().any(Option::is_some) && scale_alpha.is_none() {
-            iss.at(1, "columns T_scale_*_C given: the side file needs `scale_alpha_ppm_per_K`");
+            iss.at(
+                1,
+                "columns T_scale_*_C given: the side file needs `scale_alpha_ppm_per_K`",
+            );
         }
         for (line, r) in &rows.rows {
             let line = *line;
@@ -352,14 +355,16 @@ pub fn read_hole_plate(name: &str, csv: &str, side: &str) -> Result<HolePlate, C
             let repeat = match c("repeat").and_then(|i| r.get(i)).filter(|s| !s.is_empty()) {
                 None => 0,
                 Some(s) => s.parse::<u32>().unwrap_or_else(|_| {
-                    iss.at(line, format!("column `repeat`: `{s}` is not a count 0, 1, 2…"));
+                    iss.at(
+                        line,
+                        format!("column `repeat`: `{s}` is not a count 0, 1, 2…"),
+                    );
                     0
                 }),
             };
             let t_plate = cell_f64(r, c("T_plate_C"), "T_plate_C", line, &mut iss);
-            let t_scale = std::array::from_fn(|k| {
-                cell_f64(r, scale_cols[k], SCALE_COLS[k], line, &mut iss)
-            });
+            let t_scale =
+                std::array::from_fn(|k| cell_f64(r, scale_cols[k], SCALE_COLS[k], line, &mut iss));
             let hole = r[c("hole").unwrap()].clone();
             if hole.is_empty() {
                 iss.at(line, "column `hole`: empty, expected a hole name");
@@ -438,7 +443,10 @@ pub fn read_ballbar(name: &str, csv: &str, side: &str) -> Result<BallBar, Contra
         let c = |n: &str| rows.col(n);
         let scale_cols = SCALE_COLS.map(c);
         if scale_cols.iter().any(Option::is_some) && scale_alpha.is_none() {
-            iss.at(1, "columns T_scale_*_C given: the side file needs `scale_alpha_ppm_per_K`");
+            iss.at(
+                1,
+                "columns T_scale_*_C given: the side file needs `scale_alpha_ppm_per_K`",
+            );
         }
         for (line, r) in &rows.rows {
             let line = *line;
@@ -457,9 +465,8 @@ pub fn read_ballbar(name: &str, csv: &str, side: &str) -> Result<BallBar, Contra
             );
             let tool = cell_f64(r, c("tool_mm"), "tool_mm", line, &mut iss).unwrap_or(0.0);
             let t_bar = cell_f64(r, c("T_bar_C"), "T_bar_C", line, &mut iss);
-            let t_scale = std::array::from_fn(|k| {
-                cell_f64(r, scale_cols[k], SCALE_COLS[k], line, &mut iss)
-            });
+            let t_scale =
+                std::array::from_fn(|k| cell_f64(r, scale_cols[k], SCALE_COLS[k], line, &mut iss));
             if let (Some(x), Some(y), Some(z), Some(dr)) = (x, y, z, dr) {
                 points.push(BallPoint {
                     point: r[c("point").unwrap()].clone(),
@@ -473,7 +480,10 @@ pub fn read_ballbar(name: &str, csv: &str, side: &str) -> Result<BallBar, Contra
             }
         }
         if rows.rows.len() < 4 {
-            iss.at(1, "fewer than 4 points: a sphere's centre needs 3 and one more");
+            iss.at(
+                1,
+                "fewer than 4 points: a sphere's centre needs 3 and one more",
+            );
         }
     }
     iss.finish(BallBar {
@@ -487,7 +497,11 @@ pub fn read_ballbar(name: &str, csv: &str, side: &str) -> Result<BallBar, Contra
 }
 
 /// Scale readings corrected to 20 °C: actual = reading·(1 + α·ΔT) per axis with a temperature.
-pub fn scale_corrected(pos_mm: [f64; 3], t_scale_c: [Option<f64>; 3], alpha: Option<f64>) -> [f64; 3] {
+pub fn scale_corrected(
+    pos_mm: [f64; 3],
+    t_scale_c: [Option<f64>; 3],
+    alpha: Option<f64>,
+) -> [f64; 3] {
     std::array::from_fn(|k| match (t_scale_c[k], alpha) {
         (Some(t), Some(a)) => pos_mm[k] * (1.0 + a * 1e-6 * (t - REFERENCE_C)),
         _ => pos_mm[k],
@@ -501,7 +515,9 @@ fn opt(v: Option<f64>) -> String {
 impl HolePlate {
     /// The CSV and side-file texts of this placement (the contract's writer).
     pub fn to_texts(&self) -> (String, String) {
-        let mut csv = String::from("hole,u_mm,v_mm,x_mm,y_mm,z_mm,tool_mm,repeat,T_plate_C,T_scale_x_C,T_scale_y_C,T_scale_z_C\n");
+        let mut csv = String::from(
+            "hole,u_mm,v_mm,x_mm,y_mm,z_mm,tool_mm,repeat,T_plate_C,T_scale_x_C,T_scale_y_C,T_scale_z_C\n",
+        );
         for p in &self.probes {
             let _ = writeln!(
                 csv,

@@ -15,7 +15,7 @@
 
 use crate::models::kinematics::{Elem, arms, cross};
 use crate::models::spec::Branch;
-use crate::models::{Axis, ComponentId, MachineModel, Motion, ModelSpec};
+use crate::models::{Axis, ComponentId, MachineModel, ModelSpec, Motion};
 
 /// Which kind of basis a component gets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -42,7 +42,12 @@ pub struct CompBasis {
 
 impl CompBasis {
     pub fn n_terms(&self) -> usize {
-        self.knots_mm.len() + if self.shape == Shape::Straightness { 1 } else { 2 }
+        self.knots_mm.len()
+            + if self.shape == Shape::Straightness {
+                1
+            } else {
+                2
+            }
     }
 
     /// Basis values at q (µm or µrad per unit coefficient), appended to `out`.

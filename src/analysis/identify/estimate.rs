@@ -12,7 +12,6 @@ use statrs::distribution::{ContinuousCDF, FisherSnedecor, StudentsT};
 
 use super::design::{CompBasis, Geometry, Obs, fill_row};
 
-
 /// One solve.
 #[derive(Debug, Clone)]
 pub struct Solve {
@@ -26,8 +25,8 @@ pub struct Solve {
     pub dof: usize,
     /// Pseudo-inverse of XᵀX in original units (covariance / σ²).
     pub xtx_pinv: DMatrix<f64>,
-    /// Unit null-space vectors in scaled coordinates (one per column).
-    pub null_scaled: Vec<DVector<f64>>,
+    /// Null-space vectors of X in original units (parameter changes the data cannot see).
+    pub null: Vec<DVector<f64>>,
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -86,7 +85,7 @@ pub fn solve(
     let eig = SymmetricEigen::new(a);
     let lmax = eig.eigenvalues.max().max(1e-300);
     let mut pinv = DMatrix::<f64>::zeros(p, p);
-    let mut null_scaled = Vec::new();
+    let mut null = Vec::new();
     let mut rank = 0;
     for k in 0..p {
         let l = eig.eigenvalues[k];
@@ -95,7 +94,7 @@ pub fn solve(
             rank += 1;
             pinv += (v * v.transpose()) / l;
         } else {
-            null_scaled.push(v.into_owned());
+            null.push(DVector::from_fn(p, |j, _| v[j] / scale[j]));
         }
     }
     // Back to original units: (XᵀX)⁺ = S⁻¹ A⁺ S⁻¹.
@@ -107,7 +106,11 @@ pub fn solve(
     let coef = &pinv * &xty;
     let x = DMatrix::from_row_slice(n, p, &rows);
     let fitted = &x * &coef;
-    let residual_um: Vec<f64> = obs.iter().zip(fitted.iter()).map(|(o, f)| o.y_um - f).collect();
+    let residual_um: Vec<f64> = obs
+        .iter()
+        .zip(fitted.iter())
+        .map(|(o, f)| o.y_um - f)
+        .collect();
     let dof = n.saturating_sub(rank).max(1);
     let sse: f64 = residual_um.iter().map(|r| r * r).sum();
     let sigma_um = (sse / dof as f64).sqrt();
@@ -122,7 +125,7 @@ pub fn solve(
         rank,
         dof,
         xtx_pinv: pinv,
-        null_scaled,
+        null,
     })
 }
 
@@ -140,7 +143,10 @@ pub fn duplicate_outliers(obs: &[Obs], residual_um: &[f64], limit_um: f64) -> Ve
     }
     let mut bad_probings: Vec<(usize, &str, u32)> = Vec::new();
     for idx in groups.values().filter(|g| g.len() >= 2) {
-        let lo = idx.iter().map(|&i| obs[i].y_um).fold(f64::INFINITY, f64::min);
+        let lo = idx
+            .iter()
+            .map(|&i| obs[i].y_um)
+            .fold(f64::INFINITY, f64::min);
         let hi = idx
             .iter()
             .map(|&i| obs[i].y_um)
@@ -228,12 +234,4 @@ pub fn block_f(s: &Solve, cols: std::ops::Range<usize>) -> Option<(f64, f64)> {
         .ok()
         .map(|d| 1.0 - d.cdf(f))?;
     Some((f, p))
-}
-
-/// Largest weight (0…1) of a β block in any null-space vector: 0 = fully identified.
-pub fn null_weight(s: &Solve, cols: std::ops::Range<usize>) -> f64 {
-    s.null_scaled
-        .iter()
-        .map(|v| cols.clone().map(|j| v[j] * v[j]).sum::<f64>().sqrt())
-        .fold(0.0, f64::max)
 }

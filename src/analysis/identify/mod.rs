@@ -100,9 +100,10 @@ pub fn identify(
         }
     }
     let range_mm: [(f64, f64); 3] = std::array::from_fn(|k| {
-        obs.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), o| {
-            (a.min(o.pos_mm[k]), b.max(o.pos_mm[k]))
-        })
+        obs.iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), o| {
+                (a.min(o.pos_mm[k]), b.max(o.pos_mm[k]))
+            })
     });
     if obs.is_empty() {
         return Err(EstimateError::TooFew { rows: 0, cols: 1 });

@@ -33,9 +33,9 @@ pub fn expanded_uv(plate: &HolePlate) -> Vec<[f64; 2]> {
         .probes
         .iter()
         .map(|p| {
-            let k = p
-                .t_plate_c
-                .map_or(1.0, |t| 1.0 + plate.alpha_ppm_per_k * 1e-6 * (t - REFERENCE_C));
+            let k = p.t_plate_c.map_or(1.0, |t| {
+                1.0 + plate.alpha_ppm_per_k * 1e-6 * (t - REFERENCE_C)
+            });
             [p.uv_mm[0] * k, p.uv_mm[1] * k]
         })
         .collect()
@@ -57,8 +57,12 @@ pub fn plane_readings(plate: &HolePlate) -> Vec<[f64; 2]> {
 /// Least-squares rigid 2-D fit r ≈ c + R(θ)p: (c, θ).
 pub fn rigid_2d(p: &[[f64; 2]], r: &[[f64; 2]]) -> ([f64; 2], f64) {
     let n = p.len() as f64;
-    let mp = p.iter().fold([0.0; 2], |a, x| [a[0] + x[0] / n, a[1] + x[1] / n]);
-    let mr = r.iter().fold([0.0; 2], |a, x| [a[0] + x[0] / n, a[1] + x[1] / n]);
+    let mp = p
+        .iter()
+        .fold([0.0; 2], |a, x| [a[0] + x[0] / n, a[1] + x[1] / n]);
+    let mr = r
+        .iter()
+        .fold([0.0; 2], |a, x| [a[0] + x[0] / n, a[1] + x[1] / n]);
     let (mut sc, mut ss) = (0.0, 0.0);
     for (p, r) in p.iter().zip(r) {
         let (pu, pv) = (p[0] - mp[0], p[1] - mp[1]);
@@ -136,9 +140,9 @@ pub fn ballbar_obs(bar: &BallBar, artefact: usize, first: usize) -> (Vec<Obs>, S
         let n = d.map(|v| v / len);
         // The bar at its temperature is longer than certified: the reading dr is relative to it.
         let r_bar = bar.r_nom_mm
-            * pt
-                .t_bar_c
-                .map_or(1.0, |t| 1.0 + bar.alpha_ppm_per_k * 1e-6 * (t - REFERENCE_C));
+            * pt.t_bar_c.map_or(1.0, |t| {
+                1.0 + bar.alpha_ppm_per_k * 1e-6 * (t - REFERENCE_C)
+            });
         obs.push(Obs {
             pos_mm: r,
             tool_mm: pt.tool_mm,

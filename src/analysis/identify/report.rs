@@ -13,7 +13,7 @@ use serde::Serialize;
 use super::Identification;
 use super::contracts::HolePlate;
 use super::design::{SQUARENESS, Shape};
-use super::estimate::{block_f, null_weight};
+use super::estimate::block_f;
 use super::observe::{expanded_uv, plane_readings, rigid_2d, rot};
 use crate::analysis::fit::efficiency::efficiency;
 use crate::models::spec::{ComponentSpec, SquarenessSpec, ToolSpec};
@@ -31,7 +31,8 @@ pub struct ComponentReport {
     pub p_value: Option<f64>,
     /// Per term: name, coefficient, t.
     pub terms: Vec<(String, f64, f64)>,
-    /// 0 = fully seen by the data; up to 1 = wholly in the null space.
+    /// How far the data's null space moves this component, relative to the component it moves most
+    /// (0 = fully seen by the data, 1 = moved as much as anything).
     pub null_weight: f64,
     pub identifiable: bool,
     /// Largest |value| and largest standard error over the range (µm or µrad).
@@ -53,19 +54,57 @@ pub struct SquarenessReport {
 /// Components whose null weight is above this are reported as not identifiable.
 pub const NULL_LIMIT: f64 = 0.05;
 
+/// For each null vector, how far it moves each component (max |value| over its range, µm or µrad)
+/// and each squareness angle, relative to the most-moved one: rows = null vectors, columns = the
+/// 18 components then the 3 angles. A component the data sees has ~0 in every row.
+fn null_moves(id: &Identification) -> Vec<Vec<f64>> {
+    id.solve
+        .null
+        .iter()
+        .map(|v| {
+            let mut col = 0;
+            let mut m: Vec<f64> = id
+                .bases
+                .iter()
+                .map(|b| {
+                    let c: Vec<f64> = (col..col + b.n_terms()).map(|j| v[j]).collect();
+                    col += b.n_terms();
+                    (0..=40)
+                        .map(|k| {
+                            b.eval(&c, b.lo_mm + (b.hi_mm - b.lo_mm) * f64::from(k) / 40.0)
+                                .abs()
+                        })
+                        .fold(0.0, f64::max)
+                })
+                .collect();
+            m.extend((0..3).map(|k| v[col + k].abs()));
+            let top = m.iter().copied().fold(0.0, f64::max);
+            if top > 0.0 {
+                m.iter_mut().for_each(|x| *x /= top);
+            }
+            m
+        })
+        .collect()
+}
+
 /// The per-component table.
 pub fn components(id: &Identification) -> (Vec<ComponentReport>, Vec<SquarenessReport>) {
     let s = &id.solve;
+    let moves = null_moves(id);
+    let weight = |k: usize| moves.iter().map(|m| m[k]).fold(0.0, f64::max);
     let mut col = 0;
     let mut out = Vec::new();
-    for b in &id.bases {
+    for (ib, b) in id.bases.iter().enumerate() {
         let cols = col..col + b.n_terms();
         col += b.n_terms();
         let coef = &s.coef[cols.clone()];
         let grid: Vec<f64> = (0..=40)
             .map(|k| b.lo_mm + (b.hi_mm - b.lo_mm) * f64::from(k) / 40.0)
             .collect();
-        let max_abs = grid.iter().map(|q| b.eval(coef, *q).abs()).fold(0.0, f64::max);
+        let max_abs = grid
+            .iter()
+            .map(|q| b.eval(coef, *q).abs())
+            .fold(0.0, f64::max);
         let max_se = grid
             .iter()
             .map(|q| {
@@ -78,7 +117,7 @@ pub fn components(id: &Identification) -> (Vec<ComponentReport>, Vec<SquarenessR
                 s.sigma_um * var.max(0.0).sqrt()
             })
             .fold(0.0, f64::max);
-        let nw = null_weight(s, cols.clone());
+        let nw = weight(ib);
         let identifiable = nw < NULL_LIMIT;
         let fp = if identifiable {
             block_f(s, cols.clone())
@@ -90,7 +129,11 @@ pub fn components(id: &Identification) -> (Vec<ComponentReport>, Vec<SquarenessR
             .into_iter()
             .zip(cols.clone())
             .map(|(n, j)| {
-                let t = if s.se[j] > 0.0 { s.coef[j] / s.se[j] } else { 0.0 };
+                let t = if s.se[j] > 0.0 {
+                    s.coef[j] / s.se[j]
+                } else {
+                    0.0
+                };
                 (n, s.coef[j], t)
             })
             .collect();
@@ -118,7 +161,7 @@ pub fn components(id: &Identification) -> (Vec<ComponentReport>, Vec<SquarenessR
                 name: q.iso_name(),
                 value_urad: s.coef[j],
                 se_urad: s.se[j],
-                identifiable: null_weight(s, j..j + 1) < NULL_LIMIT,
+                identifiable: weight(id.bases.len() + k) < NULL_LIMIT,
             }
         })
         .collect();
@@ -255,7 +298,10 @@ pub fn verify(model: &MachineModel, plate: &HolePlate) -> Vec<DirVerify> {
     let limit = (6.0 * 1.4826 * diffs[diffs.len() / 2]).max(1.0);
     let mut drop = vec![false; plate.probes.len()];
     for (i, j) in pairs {
-        let spread = first.iter().map(|d| (d.holes[i].1 - d.holes[j].1).abs()).fold(0.0, f64::max);
+        let spread = first
+            .iter()
+            .map(|d| (d.holes[i].1 - d.holes[j].1).abs())
+            .fold(0.0, f64::max);
         if spread > limit {
             let res = |k: usize| first.iter().map(|d| d.holes[k].2.abs()).fold(0.0, f64::max);
             drop[if res(i) > res(j) { i } else { j }] = true;
@@ -273,7 +319,8 @@ pub fn verify(model: &MachineModel, plate: &HolePlate) -> Vec<DirVerify> {
             Some(i) => {
                 let n = count[i];
                 for k in 0..3 {
-                    kept.probes[i].pos_mm[k] = (kept.probes[i].pos_mm[k] * n + p.pos_mm[k]) / (n + 1.0);
+                    kept.probes[i].pos_mm[k] =
+                        (kept.probes[i].pos_mm[k] * n + p.pos_mm[k]) / (n + 1.0);
                 }
                 count[i] += 1.0;
             }
@@ -307,10 +354,7 @@ fn verify_all_probings(model: &MachineModel, plate: &HolePlate) -> Vec<DirVerify
             );
             input.tool_mm = Some(probe.tool_mm);
             model.evaluate(&input, &mut state, &mut out);
-            [
-                r[0] + out.total_um[a] * 1e-3,
-                r[1] + out.total_um[b] * 1e-3,
-            ]
+            [r[0] + out.total_um[a] * 1e-3, r[1] + out.total_um[b] * 1e-3]
         })
         .collect();
     let res = pose_free_deviation(&p, &rc);
