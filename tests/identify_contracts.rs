@@ -40,7 +40,7 @@ fn hole_plate_errors_name_file_line_and_expectation() {
         "dir/P2.toml:2: key `plane`: \"xw\", expected \"xy\", \"xz\" or \"yz\"",
         "dir/P2.toml:3: key `alpha_ppm_per_K`: expected a number",
         "dir/P2.toml:1: key `certificate_uncertainty_um` missing",
-        "dir/P2.csv:1: columns T_scale_*_C given: the side file needs `scale_alpha_ppm_per_K`",
+        "dir/P2.csv:2: scale temperature given: the side file needs `scale_alpha_ppm_per_K`",
         "dir/P2.csv:3: column `u_mm`: `forty` is not a finite number",
         "dir/P2.csv:4: column `z_mm`: empty, expected a number",
         "dir/P2.csv:4: column `repeat`: `x` is not a count",

@@ -81,10 +81,7 @@ fn component_errors(
                 .components
                 .iter()
                 .find(|c| c.id.iso_name() == r.name)
-                .map_or(0.0, |c| match &c.function {
-                    f @ ErrorFunction::Table(_) => f.eval(q, 0).0,
-                    f => f.eval(q, 0).0,
-                })
+                .map_or(0.0, |c| c.function.eval(q, 0).0)
         };
         let qs: Vec<f64> = (0..=60)
             .map(|k| r.range_mm.0 + (r.range_mm.1 - r.range_mm.0) * f64::from(k) / 60.0)

@@ -330,12 +330,6 @@ pub fn read_hole_plate(name: &str, csv: &str, side: &str) -> Result<HolePlate, C
     {
         let c = |n: &str| rows.col(n);
         let scale_cols = SCALE_COLS.map(c);
-        if scale_cols.iter().any(Option::is_some) && scale_alpha.is_none() {
-            iss.at(
-                1,
-                "columns T_scale_*_C given: the side file needs `scale_alpha_ppm_per_K`",
-            );
-        }
         for (line, r) in &rows.rows {
             let line = *line;
             let req = |n: &str, iss: &mut Issues| {
@@ -368,6 +362,12 @@ pub fn read_hole_plate(name: &str, csv: &str, side: &str) -> Result<HolePlate, C
             let hole = r[c("hole").unwrap()].clone();
             if hole.is_empty() {
                 iss.at(line, "column `hole`: empty, expected a hole name");
+            }
+            if t_scale.iter().any(Option::is_some) && scale_alpha.is_none() {
+                iss.at(
+                    line,
+                    "scale temperature given: the side file needs `scale_alpha_ppm_per_K`",
+                );
             }
             if let (Some(u), Some(v), Some(x), Some(y), Some(z)) = (u, v, x, y, z) {
                 probes.push(HoleProbe {
@@ -442,12 +442,6 @@ pub fn read_ballbar(name: &str, csv: &str, side: &str) -> Result<BallBar, Contra
     {
         let c = |n: &str| rows.col(n);
         let scale_cols = SCALE_COLS.map(c);
-        if scale_cols.iter().any(Option::is_some) && scale_alpha.is_none() {
-            iss.at(
-                1,
-                "columns T_scale_*_C given: the side file needs `scale_alpha_ppm_per_K`",
-            );
-        }
         for (line, r) in &rows.rows {
             let line = *line;
             let req = |n: &str, iss: &mut Issues| {
@@ -467,6 +461,12 @@ pub fn read_ballbar(name: &str, csv: &str, side: &str) -> Result<BallBar, Contra
             let t_bar = cell_f64(r, c("T_bar_C"), "T_bar_C", line, &mut iss);
             let t_scale =
                 std::array::from_fn(|k| cell_f64(r, scale_cols[k], SCALE_COLS[k], line, &mut iss));
+            if t_scale.iter().any(Option::is_some) && scale_alpha.is_none() {
+                iss.at(
+                    line,
+                    "scale temperature given: the side file needs `scale_alpha_ppm_per_K`",
+                );
+            }
             if let (Some(x), Some(y), Some(z), Some(dr)) = (x, y, z, dr) {
                 points.push(BallPoint {
                     point: r[c("point").unwrap()].clone(),

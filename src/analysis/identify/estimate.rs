@@ -98,9 +98,9 @@ pub fn solve(
         }
     }
     // Back to original units: (XᵀX)⁺ = S⁻¹ A⁺ S⁻¹.
-    for i in 0..p {
-        for j in 0..p {
-            pinv[(i, j)] /= scale[i] * scale[j];
+    for (i, si) in scale.iter().enumerate() {
+        for (j, sj) in scale.iter().enumerate() {
+            pinv[(i, j)] /= si * sj;
         }
     }
     let coef = &pinv * &xty;
