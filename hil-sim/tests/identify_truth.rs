@@ -173,14 +173,6 @@ fn check_machine(name: &str, plates: bool, seed: u64, opts: &Options) -> Outcome
     }
 }
 
-fn assert_components(o: &Outcome, limit: f64) {
-    for (n, e, ok) in &o.errs {
-        if *ok {
-            assert!(*e <= limit, "{n} off the truth by {e:.2} (limit {limit})");
-        }
-    }
-}
-
 #[test]
 fn hole_plates_on_the_old_machine() {
     let o = check_machine("old-mill-3axis.toml", true, 7, &Options::default());
