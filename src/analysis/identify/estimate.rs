@@ -103,7 +103,13 @@ pub fn solve(
             pinv[(i, j)] /= si * sj;
         }
     }
-    let coef = &pinv * &xty;
+    let mut coef = &pinv * &xty;
+    // A column the data never touches (e.g. ECY with the tool along Z) gets exactly 0: rounding in
+    // the eigenvectors would otherwise leave ~1e-17 there with a meaningless t.
+    let untouched: Vec<usize> = (0..p).filter(|&j| xtx[(j, j)] == 0.0).collect();
+    for &j in &untouched {
+        coef[j] = 0.0;
+    }
     let x = DMatrix::from_row_slice(n, p, &rows);
     let fitted = &x * &coef;
     let residual_um: Vec<f64> = obs
@@ -115,7 +121,13 @@ pub fn solve(
     let sse: f64 = residual_um.iter().map(|r| r * r).sum();
     let sigma_um = (sse / dof as f64).sqrt();
     let se = (0..p)
-        .map(|j| sigma_um * pinv[(j, j)].max(0.0).sqrt())
+        .map(|j| {
+            if untouched.contains(&j) {
+                0.0
+            } else {
+                sigma_um * pinv[(j, j)].max(0.0).sqrt()
+            }
+        })
         .collect();
     Ok(Solve {
         coef: coef.iter().copied().collect(),
