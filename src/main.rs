@@ -39,6 +39,8 @@ enum Command {
     Circle(cli::circle::Args),
     /// Fit model terms (axis tables, thermal, load) from measurements; writes model TOML.
     Fit(cli::fit::Args),
+    /// Identify the 21 geometric components from hole plates / static ball bars (Spaan Ch3).
+    Identify(cli::identify::Args),
     /// Find where simulation and recording disagree, name the missing physics, fit it (DESIGN §5).
     Diagnose(cli::diagnose::DiagnoseArgs),
     /// Run diagnose over `hil-sim gen-cases` output and score it against the truth manifests.
@@ -58,6 +60,7 @@ fn main() -> std::process::ExitCode {
         Command::Nc(a) => cli::nc::run(&a),
         Command::Circle(a) => cli::circle::run(&a),
         Command::Fit(a) => cli::fit::run(&a),
+        Command::Identify(a) => cli::identify::run(&a),
         Command::Diagnose(a) => cli::diagnose::run_diagnose(&a),
         Command::DiagnoseBench(a) => cli::diagnose::run_bench(&a),
     };

@@ -11,6 +11,7 @@
 // Per-axis loops index several [f64; 3] arrays at once; `for k in 0..3` reads clearest.
 #![allow(clippy::needless_range_loop)]
 
+pub mod artefacts;
 pub mod cases;
 pub mod cli;
 pub mod clock;

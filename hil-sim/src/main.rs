@@ -32,6 +32,21 @@ enum Cmd {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Probe hole plates and static ball-bar spheres on a hidden machine model (Spaan's plan: six
+    /// identification plates, five verification plates, eight spheres) in `retrocomp identify`'s
+    /// contracts: <out>/plates, <out>/verify, <out>/ballbar.
+    Artefacts {
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// The hidden machine (a machine-model TOML with the 21 geometric components).
+        #[arg(long)]
+        truth: PathBuf,
+        /// Probing noise σ, µm.
+        #[arg(long, default_value_t = 0.5)]
+        noise_um: f64,
+        #[arg(long)]
+        out: PathBuf,
+    },
 }
 
 fn main() -> anyhow::Result<()> {
@@ -45,6 +60,23 @@ fn main() -> anyhow::Result<()> {
         Cmd::GenCases { seed, count, out } => {
             let files = hil_sim::cases::write_cases(seed, count, &out)?;
             println!("wrote {} cases to {}", files.len(), out.display());
+            Ok(())
+        }
+        Cmd::Artefacts {
+            seed,
+            truth,
+            noise_um,
+            out,
+        } => {
+            let model = retrocomp::models::MachineModel::from_toml_path(&truth)
+                .map_err(|e| anyhow::anyhow!("--truth: {e}"))?;
+            let m = hil_sim::artefacts::Metrology {
+                probing_noise_um: noise_um,
+                ..Default::default()
+            };
+            let meas = hil_sim::artefacts::measure_all(&model, &m, seed);
+            let n = hil_sim::artefacts::write_all(&meas, &out)?;
+            println!("wrote {n} artefact set-ups to {}", out.display());
             Ok(())
         }
     }

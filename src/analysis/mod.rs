@@ -13,6 +13,7 @@
 pub mod circular;
 pub mod export;
 pub mod fit;
+pub mod identify;
 pub mod import_error;
 pub mod iso230_2;
 pub mod laser_import;

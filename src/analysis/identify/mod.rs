@@ -1,0 +1,167 @@
+//! Indirect identification of a 3-axis machine's 21 geometric components from artefacts (Spaan
+//! 1995 Ch3): hole-plate placements and static ball-bar spheres in, one joint least-squares fit
+//! ΔP = Xβ + γ out, with β the C¹ piecewise quadratics of the 18 components plus 3 squareness
+//! angles and γ each artefact's set-up (plate pose, sphere centre). Sans-IO: texts in, structs out;
+//! `src/cli/identify.rs` does the files.
+//!
+//! Signs and units as in the machine model: error = actual − nominal of the tool tip relative to
+//! the workpiece, µm; rotations µrad; positions mm. Components are 0 at the low end of their
+//! identified range (artefacts cannot see constants); see `design.rs` for the other gauges.
+//!
+//! - [`contracts`]: the CSV + side-TOML readers and writers (docs/identify.md).
+//! - [`observe`]: artefact → observations, thermal expansion removed.
+//! - [`design`]: the chain's first-order design rows.
+//! - [`estimate`]: the solve, knot elimination, outliers, F/t, null space.
+//! - [`report`]: the fitted model, per-component significance and identifiability, verification.
+
+pub mod contracts;
+pub mod design;
+pub mod estimate;
+pub mod observe;
+pub mod report;
+
+use contracts::{BallBar, HolePlate};
+use design::{CompBasis, Geometry, Obs, component_bases};
+use estimate::{EstimateError, Solve, duplicate_outliers, eliminate_knots, solve};
+use observe::{Setup, ballbar_obs, plate_obs};
+
+/// Options of the fit.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Options {
+    /// Spacing of candidate knots, mm (Spaan: 50 mm).
+    pub knot_step_mm: f64,
+    /// At most this many candidate knots per axis (keeps X small for the 2 s budget).
+    pub max_knots: usize,
+    /// Significance level of a knot (two-sided t), Spaan 99.99 %: 1e-4.
+    pub alpha: f64,
+    /// Include the rotation (Abbe) components. Off only to show what they are worth.
+    pub rotations: bool,
+    /// Use the probe length. Off only to show what it is worth.
+    pub use_tool_length: bool,
+    /// Relative eigenvalue of the column-scaled XᵀX below which a direction of β, γ counts as not
+    /// seen by the data (its square root is the relative singular value). 1e-8: on Spaan's six
+    /// plates a combination of table roll (EAX), Y pitch (EBY) and Z pitch (EBZ) that plates with a
+    /// fitted pose cannot see sits at ~1e-10 (rounding keeps it off zero); at 1e-10 it was kept and
+    /// amplified noise to hundreds of µrad (hil-sim/tests/identify_truth.rs).
+    pub rank_tol: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            knot_step_mm: 50.0,
+            max_knots: 6,
+            alpha: 1e-4,
+            rotations: true,
+            use_tool_length: true,
+            rank_tol: 1e-8,
+        }
+    }
+}
+
+/// Everything a fit produced.
+#[derive(Debug, Clone)]
+pub struct Identification {
+    pub geometry: Geometry,
+    pub bases: Vec<CompBasis>,
+    pub setups: Vec<Setup>,
+    pub solve: Solve,
+    pub obs: Vec<Obs>,
+    /// Observations dropped as duplicate-probing outliers: (artefact name, hole, repeat).
+    pub outliers: Vec<(String, String, u32)>,
+    pub range_mm: [(f64, f64); 3],
+}
+
+/// The joint fit of all artefacts.
+pub fn identify(
+    geo: &Geometry,
+    plates: &[HolePlate],
+    bars: &[BallBar],
+    opts: &Options,
+) -> Result<Identification, EstimateError> {
+    let mut obs = Vec::new();
+    let mut setups = Vec::new();
+    let mut first = 0;
+    for p in plates {
+        let (o, s) = plate_obs(p, setups.len(), first);
+        first += s.names.len();
+        obs.extend(o);
+        setups.push(s);
+    }
+    for b in bars {
+        let (o, s) = ballbar_obs(b, setups.len(), first);
+        first += s.names.len();
+        obs.extend(o);
+        setups.push(s);
+    }
+    if !opts.use_tool_length {
+        for o in &mut obs {
+            o.tool_mm = 0.0;
+        }
+    }
+    let range_mm: [(f64, f64); 3] = std::array::from_fn(|k| {
+        obs.iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), o| {
+                (a.min(o.pos_mm[k]), b.max(o.pos_mm[k]))
+            })
+    });
+    if obs.is_empty() {
+        return Err(EstimateError::TooFew { rows: 0, cols: 1 });
+    }
+    let mut bases = component_bases(range_mm, opts.knot_step_mm, opts.max_knots);
+    if !opts.rotations {
+        bases.retain(|b| !b.id.is_rotation());
+    }
+    let n_setup = first;
+    // Outliers first, with every candidate knot, so a pulse cannot buy itself a knot.
+    let s0 = solve(geo, &bases, &obs, n_setup, opts.rank_tol)?;
+    let limit = outlier_limit_um(&obs);
+    let drop = duplicate_outliers(&obs, &s0.residual_um, limit);
+    let mut outliers: Vec<(String, String, u32)> = Vec::new();
+    for &i in &drop {
+        let o = &obs[i];
+        let e = (setups[o.artefact].name.clone(), o.key.clone(), o.repeat);
+        if !outliers.contains(&e) {
+            outliers.push(e);
+        }
+    }
+    let obs: Vec<Obs> = obs
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| drop.binary_search(i).is_err())
+        .map(|(_, o)| o)
+        .collect();
+    let solve = eliminate_knots(geo, &mut bases, &obs, n_setup, opts.alpha, opts.rank_tol)?;
+    Ok(Identification {
+        geometry: geo.clone(),
+        bases,
+        setups,
+        solve,
+        obs,
+        outliers,
+        range_mm,
+    })
+}
+
+/// Disagreement of two probings of one hole beyond which one is an outlier: six robust σ of the
+/// pair differences (never below 1 µm).
+fn outlier_limit_um(obs: &[Obs]) -> f64 {
+    use std::collections::HashMap;
+    let mut first: HashMap<(usize, &str, Option<usize>), f64> = HashMap::new();
+    let mut diffs = Vec::new();
+    for o in obs {
+        let k = (o.artefact, o.key.as_str(), o.dir);
+        match first.get(&k) {
+            Some(y) => diffs.push((o.y_um - y).abs()),
+            None => {
+                first.insert(k, o.y_um);
+            }
+        }
+    }
+    if diffs.is_empty() {
+        return f64::INFINITY;
+    }
+    diffs.sort_by(f64::total_cmp);
+    let med = diffs[diffs.len() / 2];
+    (6.0 * 1.4826 * med).max(1.0)
+}

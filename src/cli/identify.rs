@@ -1,0 +1,265 @@
+//! `retrocomp identify --chain "X F Y Z" --hole-plate P1.csv … [--ballbar S1.csv …]
+//! [--verify V1.csv …] --out MODEL.toml [--json] [--svg DIR]`: artefact measurements in (each CSV
+//! with its side file `<stem>.toml`, docs/identify.md), the identified machine model out, with a
+//! report of per-component significance and identifiability, set-up parameters, outliers and, per
+//! verification plate and direction, residual, σ and efficiency δ (Spaan Tables 3.2–3.4).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+
+use super::util::{read, write};
+use crate::analysis::identify::contracts::{BallBar, HolePlate, read_ballbar, read_hole_plate};
+use crate::analysis::identify::design::Geometry;
+use crate::analysis::identify::report::{DirVerify, components, to_spec, verify};
+use crate::analysis::identify::{Identification, Options, identify};
+use crate::analysis::report::{Series, xy_svg};
+use crate::models::MachineModel;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Kinematic chain, workpiece → tool, F = frame (e.g. "X F Y Z").
+    #[arg(long)]
+    pub chain: String,
+    /// Hole-plate placements (CSV; side file <stem>.toml).
+    #[arg(long, num_args = 1..)]
+    pub hole_plate: Vec<PathBuf>,
+    /// Static ball-bar set-ups (CSV; side file <stem>.toml).
+    #[arg(long, num_args = 1..)]
+    pub ballbar: Vec<PathBuf>,
+    /// Held-out hole plates for residual, σ and efficiency δ.
+    #[arg(long, num_args = 1..)]
+    pub verify: Vec<PathBuf>,
+    /// Where to write the model TOML.
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long)]
+    pub json: bool,
+    /// Folder for SVG plots: measured vs residual per hole of each verification plate.
+    #[arg(long)]
+    pub svg: Option<PathBuf>,
+    /// Spacing of candidate knots, mm (Spaan 50 mm).
+    #[arg(long, default_value_t = 50.0)]
+    pub knot_step_mm: f64,
+    /// Significance level of a knot (Spaan 99.99 % → 1e-4).
+    #[arg(long, default_value_t = 1e-4)]
+    pub alpha: f64,
+}
+
+/// The CSV's text and its side file's (same stem, `.toml`).
+fn texts(csv: &Path) -> anyhow::Result<(String, String)> {
+    let side = csv.with_extension("toml");
+    let side_text = read(&side)
+        .with_context(|| format!("side file of {} (same stem, .toml)", csv.display()))?;
+    Ok((read(csv)?, side_text))
+}
+
+fn read_plate(p: &Path) -> anyhow::Result<HolePlate> {
+    let (csv, side) = texts(p)?;
+    Ok(read_hole_plate(
+        &p.with_extension("").display().to_string(),
+        &csv,
+        &side,
+    )?)
+}
+
+fn read_bar(p: &Path) -> anyhow::Result<BallBar> {
+    let (csv, side) = texts(p)?;
+    Ok(read_ballbar(
+        &p.with_extension("").display().to_string(),
+        &csv,
+        &side,
+    )?)
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let geo = Geometry::from_chain(&args.chain)?;
+    let plates: Vec<HolePlate> = args
+        .hole_plate
+        .iter()
+        .map(|p| read_plate(p))
+        .collect::<Result<_, _>>()?;
+    let bars: Vec<BallBar> = args
+        .ballbar
+        .iter()
+        .map(|p| read_bar(p))
+        .collect::<Result<_, _>>()?;
+    let held: Vec<HolePlate> = args
+        .verify
+        .iter()
+        .map(|p| read_plate(p))
+        .collect::<Result<_, _>>()?;
+    if plates.is_empty() && bars.is_empty() {
+        anyhow::bail!("give at least one --hole-plate or --ballbar");
+    }
+    let opts = Options {
+        knot_step_mm: args.knot_step_mm,
+        alpha: args.alpha,
+        ..Options::default()
+    };
+    let id = identify(&geo, &plates, &bars, &opts)?;
+    let name = args
+        .out
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .unwrap_or("identified");
+    let text = MachineModel::from_spec(to_spec(&id, name)).to_toml_string();
+    let model = MachineModel::from_toml_str(&text, "identified model")
+        .map_err(|e| anyhow::anyhow!("the identified model does not validate: {e}"))?;
+    write(&args.out, &text)?;
+    let ver: Vec<DirVerify> = held.iter().flat_map(|p| verify(&model, p)).collect();
+    if let Some(dir) = &args.svg {
+        plots(dir, &ver)?;
+    }
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json(&id, &ver, &args.out))?
+        );
+    } else {
+        print!("{}", text_report(&id, &ver, &args.out));
+    }
+    Ok(())
+}
+
+fn json(id: &Identification, ver: &[DirVerify], out: &Path) -> serde_json::Value {
+    let (comp, sq) = components(id);
+    serde_json::json!({
+        "model": out.display().to_string(),
+        "observations": id.obs.len(),
+        "parameters": id.solve.coef.len(),
+        "rank": id.solve.rank,
+        "sigma_um": id.solve.sigma_um,
+        "range_mm": id.range_mm,
+        "components": comp,
+        "squareness": sq,
+        "setups": id.setups.iter().map(|s| serde_json::json!({
+            "name": s.name, "kind": s.kind,
+            "parameters": s.names.iter().enumerate().map(|(k, n)| serde_json::json!({
+                "name": n, "value": id.solve.coef[id.solve.coef.len() - total_setup(id) + s.first + k],
+                "se": id.solve.se[id.solve.coef.len() - total_setup(id) + s.first + k],
+            })).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
+        "outliers": id.outliers,
+        "verification": ver,
+    })
+}
+
+fn total_setup(id: &Identification) -> usize {
+    id.setups.iter().map(|s| s.names.len()).sum()
+}
+
+fn text_report(id: &Identification, ver: &[DirVerify], out: &Path) -> String {
+    use std::fmt::Write as _;
+    let (comp, sq) = components(id);
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "identify: {} set-ups, {} observations, {} parameters (rank {}), σ = {:.2} µm → {}",
+        id.setups.len(),
+        id.obs.len(),
+        id.solve.coef.len(),
+        id.solve.rank,
+        id.solve.sigma_um,
+        out.display()
+    );
+    let _ = writeln!(
+        s,
+        "component  range_mm        knots  F        p         max     ±se    identifiable"
+    );
+    for c in &comp {
+        let _ = writeln!(
+            s,
+            "{:<9}  {:>6.0}…{:<6.0}  {:>5}  {:>8}  {:>8}  {:>6.2}  {:>5.2}  {}",
+            c.name,
+            c.range_mm.0,
+            c.range_mm.1,
+            c.knots_mm.len(),
+            c.f.map_or("-".into(), |f| format!("{f:.1}")),
+            c.p_value.map_or("-".into(), |p| format!("{p:.1e}")),
+            c.max_abs,
+            c.max_se,
+            if c.identifiable {
+                "yes".to_string()
+            } else {
+                format!("NO — needs {}", c.needs.clone().unwrap_or_default())
+            }
+        );
+    }
+    for q in &sq {
+        let _ = writeln!(
+            s,
+            "{:<9}  {:+.2} ± {:.2} µrad{}",
+            q.name,
+            q.value_urad,
+            q.se_urad,
+            if q.identifiable {
+                ""
+            } else {
+                "  (not identifiable)"
+            }
+        );
+    }
+    for (a, h, r) in &id.outliers {
+        let _ = writeln!(
+            s,
+            "outlier: {a} hole {h} repeat {r} (disagrees with its duplicate)"
+        );
+    }
+    if !ver.is_empty() {
+        let _ = writeln!(s, "verification   dir  meas_um  res_um  σ_um  efficiency");
+        for v in ver {
+            let _ = writeln!(
+                s,
+                "{:<14} {}    {:>6.1}  {:>6.1}  {:>4.1}  {:>6.1} %",
+                v.plate,
+                v.direction,
+                v.meas_um,
+                v.res_um,
+                v.sigma_um,
+                100.0 * v.efficiency
+            );
+        }
+    }
+    s
+}
+
+fn plots(dir: &Path, ver: &[DirVerify]) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    for v in ver {
+        let m: Vec<(f64, f64)> = v
+            .holes
+            .iter()
+            .enumerate()
+            .map(|(i, h)| (i as f64, h.1))
+            .collect();
+        let r: Vec<(f64, f64)> = v
+            .holes
+            .iter()
+            .enumerate()
+            .map(|(i, h)| (i as f64, h.2))
+            .collect();
+        let mut sm = Series::line("measured Δm", m);
+        sm.markers = true;
+        let mut sr = Series::line("residual Δm − Δs", r);
+        sr.markers = true;
+        let svg = xy_svg(
+            &format!(
+                "{} {}: efficiency {:.1} %",
+                v.plate,
+                v.direction,
+                100.0 * v.efficiency
+            ),
+            "probing",
+            &format!("e{} µm", v.direction),
+            &[sm, sr],
+        )?;
+        let stem = Path::new(&v.plate)
+            .file_name()
+            .and_then(|s| s.to_str())
+            .unwrap_or("plate")
+            .to_string();
+        write(&dir.join(format!("{stem}_{}.svg", v.direction)), &svg)?;
+    }
+    Ok(())
+}

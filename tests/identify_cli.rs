@@ -1,0 +1,169 @@
+//! `retrocomp identify` end to end with the real binaries: `hil-sim artefacts` probes plates and
+//! spheres on its hidden machine (deploy/examples/old-mill-3axis.toml), `retrocomp identify` fits
+//! them, and the written model is loaded by `check-config` and evaluated by `eval`. Checks the
+//! report's content (verification rows, unidentifiable ECZ with its remedy, JSON fields, SVGs).
+
+#[path = "gateway_support/hil_sim.rs"]
+mod hil_sim;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn retrocomp() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+}
+
+fn csvs(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "csv"))
+        .collect();
+    v.sort();
+    v
+}
+
+fn ok(out: &std::process::Output, what: &str) -> String {
+    assert!(
+        out.status.success(),
+        "{what} failed: {}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout.clone()).unwrap()
+}
+
+#[test]
+fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let truth = root.join("deploy/examples/old-mill-3axis.toml");
+    let sim = hil_sim::hil_sim_next_to_retrocomp();
+    let art = dir.path().join("art");
+    let o = Command::new(&sim)
+        .args(["artefacts", "--seed", "3", "--truth"])
+        .arg(&truth)
+        .arg("--out")
+        .arg(&art)
+        .output()
+        .unwrap();
+    ok(&o, "hil-sim artefacts");
+    let plates = csvs(&art.join("plates"));
+    let verify = csvs(&art.join("verify"));
+    assert_eq!((plates.len(), verify.len()), (6, 5));
+    assert_eq!(csvs(&art.join("ballbar")).len(), 8);
+    // Deterministic per seed: a second run writes the same bytes.
+    let again = dir.path().join("again");
+    ok(
+        &Command::new(&sim)
+            .args(["artefacts", "--seed", "3", "--truth"])
+            .arg(&truth)
+            .arg("--out")
+            .arg(&again)
+            .output()
+            .unwrap(),
+        "hil-sim artefacts (again)",
+    );
+    assert_eq!(
+        std::fs::read(&plates[0]).unwrap(),
+        std::fs::read(again.join("plates").join(plates[0].file_name().unwrap())).unwrap()
+    );
+
+    let model = dir.path().join("identified.toml");
+    let svg = dir.path().join("svg");
+    let mut cmd = retrocomp();
+    cmd.args(["identify", "--chain", "X F Y Z", "--hole-plate"])
+        .args(&plates)
+        .arg("--verify")
+        .args(&verify)
+        .arg("--out")
+        .arg(&model)
+        .arg("--svg")
+        .arg(&svg);
+    let text = ok(&cmd.output().unwrap(), "retrocomp identify");
+    assert!(text.contains("verification"), "{text}");
+    assert!(
+        text.lines()
+            .any(|l| l.starts_with("ECZ") && l.contains("NO") && l.contains("second tool vector")),
+        "ECZ must be named as unidentifiable with its remedy:\n{text}"
+    );
+    assert_eq!(
+        std::fs::read_dir(&svg).unwrap().count(),
+        10,
+        "2 directions × 5 plates"
+    );
+
+    ok(
+        &retrocomp()
+            .arg("check-config")
+            .arg(&model)
+            .output()
+            .unwrap(),
+        "check-config on the identified model",
+    );
+    let path = dir.path().join("path.csv");
+    std::fs::write(
+        &path,
+        "x_mm,y_mm,z_mm,tool_mm\n300,200,150,120\n500,300,250,120\n",
+    )
+    .unwrap();
+    let ev = ok(
+        &retrocomp()
+            .args(["eval", "--model"])
+            .arg(&model)
+            .arg("--path")
+            .arg(&path)
+            .output()
+            .unwrap(),
+        "eval on the identified model",
+    );
+    assert!(ev.lines().count() >= 3 && ev.contains("ex_um"), "{ev}");
+
+    let mut cmd = retrocomp();
+    cmd.args(["identify", "--chain", "X F Y Z", "--json", "--ballbar"])
+        .args(csvs(&art.join("ballbar")))
+        .arg("--verify")
+        .args(&verify)
+        .arg("--out")
+        .arg(dir.path().join("bb.toml"));
+    let j: serde_json::Value =
+        serde_json::from_str(&ok(&cmd.output().unwrap(), "identify --json")).unwrap();
+    assert_eq!(j["components"].as_array().unwrap().len(), 18);
+    assert_eq!(j["verification"].as_array().unwrap().len(), 10);
+    assert_eq!(j["setups"].as_array().unwrap().len(), 8);
+    assert!(j["sigma_um"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
+fn identify_refuses_a_missing_side_file_and_bad_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("P1.csv");
+    std::fs::write(&p, "hole,u_mm,v_mm,x_mm,y_mm,z_mm\na,0,0,1,2,zz\n").unwrap();
+    let out = retrocomp()
+        .args(["identify", "--chain", "X F Y Z", "--hole-plate"])
+        .arg(&p)
+        .arg("--out")
+        .arg(dir.path().join("m.toml"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(e.contains("side file of") && e.contains("P1.csv"), "{e}");
+    std::fs::write(
+        dir.path().join("P1.toml"),
+        "kind = \"hole_plate\"\nplane = \"xy\"\nalpha_ppm_per_K = 11.5\ncertificate_uncertainty_um = 0.1\n",
+    )
+    .unwrap();
+    let out = retrocomp()
+        .args(["identify", "--chain", "X F Y Z", "--hole-plate"])
+        .arg(&p)
+        .arg("--out")
+        .arg(dir.path().join("m.toml"))
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && e.contains("P1.csv:2: column `z_mm`: `zz`"),
+        "{e}"
+    );
+}
