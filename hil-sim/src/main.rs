@@ -1,8 +1,6 @@
 //! hil-sim: the virtual legacy CNC. A small clap enum + dispatch; each command's logic lives in the
 //! library (`hil_sim::cli`, `hil_sim::io`, `hil_sim::cases`).
 
-use std::path::PathBuf;
-
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
@@ -23,15 +21,7 @@ enum Cmd {
     /// Run with the field buses up (Modbus TCP/RTU, CAN, weighing lines), real time or fast.
     Serve(hil_sim::cli::ServeArgs),
     /// Write concealed-effect cases (recording CSV + truth manifest JSON per case) for `retrocomp diagnose`.
-    GenCases {
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Number of cases (30 % nulls; every effect id appears every 20 cases).
-        #[arg(long, default_value_t = 100)]
-        count: usize,
-        #[arg(long)]
-        out: PathBuf,
-    },
+    GenCases(hil_sim::cli::GenCasesArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -42,10 +32,6 @@ fn main() -> anyhow::Result<()> {
     match Cli::parse().cmd {
         Cmd::Run(a) => hil_sim::cli::run(&a),
         Cmd::Serve(a) => hil_sim::cli::serve(&a),
-        Cmd::GenCases { seed, count, out } => {
-            let files = hil_sim::cases::write_cases(seed, count, &out)?;
-            println!("wrote {} cases to {}", files.len(), out.display());
-            Ok(())
-        }
+        Cmd::GenCases(a) => hil_sim::cli::gen_cases(&a),
     }
 }
