@@ -123,3 +123,42 @@ pub fn serve(args: &ServeArgs) -> anyhow::Result<()> {
         Ok(())
     })
 }
+
+#[derive(Debug, clap::Args)]
+pub struct GenCasesArgs {
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Number of cases per family (30 % nulls; in the standard family every effect id appears
+    /// every 20 cases).
+    #[arg(long, default_value_t = 100)]
+    pub count: usize,
+    /// Comma-separated case families: standard (`case_NNNN`, unchanged), ar099, random_walk,
+    /// rw_decoy, rpm_heat, ambient_drift, regime (`<family>_NNNN`); `hard` = the six hard ones,
+    /// `all` = all seven (docs/diagnose.md).
+    #[arg(long, default_value = "standard", value_delimiter = ',')]
+    pub families: Vec<String>,
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// `hil-sim gen-cases`: the concealed-effect cases with their truth manifests.
+pub fn gen_cases(a: &GenCasesArgs) -> anyhow::Result<()> {
+    use crate::cases::Family;
+    let mut fams = vec![];
+    for name in &a.families {
+        match name.as_str() {
+            "all" => fams.extend(Family::ALL),
+            "hard" => fams.extend(Family::HARD),
+            n => fams.push(Family::parse(n).ok_or_else(|| {
+                anyhow::anyhow!(
+                    "--families: unknown family `{n}` (expected all, hard or one of {})",
+                    Family::ALL.map(Family::name).join(", ")
+                )
+            })?),
+        }
+    }
+    fams.dedup();
+    let files = crate::cases::write_family_cases(a.seed, a.count, &fams, &a.out)?;
+    println!("wrote {} cases to {}", files.len(), a.out.display());
+    Ok(())
+}

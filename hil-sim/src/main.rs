@@ -23,15 +23,7 @@ enum Cmd {
     /// Run with the field buses up (Modbus TCP/RTU, CAN, weighing lines), real time or fast.
     Serve(hil_sim::cli::ServeArgs),
     /// Write concealed-effect cases (recording CSV + truth manifest JSON per case) for `retrocomp diagnose`.
-    GenCases {
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Number of cases (30 % nulls; every effect id appears every 20 cases).
-        #[arg(long, default_value_t = 100)]
-        count: usize,
-        #[arg(long)]
-        out: PathBuf,
-    },
+    GenCases(hil_sim::cli::GenCasesArgs),
     /// Probe hole plates and static ball-bar spheres on a hidden machine model (Spaan's plan: six
     /// identification plates, five verification plates, eight spheres) in `retrocomp identify`'s
     /// contracts: <out>/plates, <out>/verify, <out>/ballbar.
@@ -57,11 +49,7 @@ fn main() -> anyhow::Result<()> {
     match Cli::parse().cmd {
         Cmd::Run(a) => hil_sim::cli::run(&a),
         Cmd::Serve(a) => hil_sim::cli::serve(&a),
-        Cmd::GenCases { seed, count, out } => {
-            let files = hil_sim::cases::write_cases(seed, count, &out)?;
-            println!("wrote {} cases to {}", files.len(), out.display());
-            Ok(())
-        }
+        Cmd::GenCases(a) => hil_sim::cli::gen_cases(&a),
         Cmd::Artefacts {
             seed,
             truth,

@@ -90,6 +90,10 @@ pub struct BenchArgs {
     /// Also print one line per case.
     #[arg(long)]
     pub verbose: bool,
+    /// Print one JSON object (overall summary, per-family summaries, per-case scores, time)
+    /// instead of the tables.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Diagnose one case file pair and score it against its manifest.
@@ -104,12 +108,12 @@ pub fn run_bench(a: &BenchArgs) -> anyhow::Result<()> {
     let mut csvs: Vec<PathBuf> = std::fs::read_dir(&a.cases)
         .with_context(|| a.cases.display().to_string())?
         .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "csv"))
+        .filter(|p| p.extension().is_some_and(|e| e == "csv") && p.with_extension("json").exists())
         .collect();
     csvs.sort();
     if csvs.is_empty() {
         bail!(
-            "{}: no case_*.csv files (run `hil-sim gen-cases --out DIR` first)",
+            "{}: no case CSV + JSON pairs (run `hil-sim gen-cases --out DIR` first)",
             a.cases.display()
         );
     }
@@ -117,10 +121,11 @@ pub fn run_bench(a: &BenchArgs) -> anyhow::Result<()> {
     let mut scores = vec![];
     for c in &csvs {
         let s = score_file(c)?;
-        if a.verbose {
+        if a.verbose && !a.json {
             println!(
-                "{} {:<10} snr {:>6.2} verdict {:<9} recalled {}/{} spurious {} perr {:?} heldout {:?}",
+                "{} {:<13} {:<10} snr {:>6.2} verdict {:<9} recalled {}/{} spurious {} perr {:?} heldout {:?} forward {:?}",
                 s.case,
+                s.family,
                 s.class,
                 s.snr,
                 s.verdict,
@@ -128,17 +133,36 @@ pub fn run_bench(a: &BenchArgs) -> anyhow::Result<()> {
                 s.n_hidden,
                 s.spurious,
                 s.param_errors,
-                s.heldout_gain_ratio
+                s.heldout_gain_ratio,
+                s.forward_gain_ratio
             );
         }
         scores.push(s);
     }
     let sum = scoring::summarize(&scores);
+    let fams = scoring::summarize_by_family(&scores);
+    let elapsed_s = start.elapsed().as_secs_f64();
+    if a.json {
+        let families: Vec<serde_json::Value> = fams
+            .iter()
+            .map(|(f, s)| {
+                let mut v = serde_json::to_value(s).expect("serialisable");
+                v["family"] = f.as_str().into();
+                v["meets_targets"] = s.meets_targets().into();
+                v
+            })
+            .collect();
+        let out = serde_json::json!({
+            "overall": sum,
+            "families": families,
+            "cases": scores,
+            "diagnose_time_s": elapsed_s,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
     println!("{}", sum.to_markdown());
-    println!(
-        "diagnose time: {:.2} s for {} cases",
-        start.elapsed().as_secs_f64(),
-        csvs.len()
-    );
+    println!("{}", scoring::families_markdown(&fams));
+    println!("diagnose time: {elapsed_s:.2} s for {} cases", csvs.len());
     Ok(())
 }

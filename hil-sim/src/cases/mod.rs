@@ -10,9 +10,15 @@
 //! during a linear warm-up, unidentifiable; others: extra decoy channels, 1–4).
 //! Errors are actual − nominal (µm); the truth of thermal effects is on the NODE temperature while
 //! the recording carries lagged, noisy, quantised sensors (so the candidate forms are approximations).
+//!
+//! This is the `standard` family (files `case_NNNN`, output unchanged since before families
+//! existed); [`hard`] adds six families with one difficulty each (`<family>_NNNN`).
 
+pub mod hard;
 pub mod physics;
 pub mod trajectory;
+
+pub use hard::{Family, generate_family_case};
 
 use std::path::{Path, PathBuf};
 
@@ -26,19 +32,19 @@ use retrocomp::recording::Recording;
 use physics::*;
 use trajectory::{Path as MotionPath, uniform};
 
-const DT_S: f64 = 1.0;
+pub(crate) const DT_S: f64 = 1.0;
 const X_TRAVEL: (f64, f64) = (0.0, 300.0);
 const Y_TRAVEL: (f64, f64) = (0.0, 200.0);
 
 #[derive(Clone, Copy, Debug, PartialEq)]
-enum Program {
+pub(crate) enum Program {
     /// Four runs: laser runs on X and Y, slow scans, a diagonal, a cutting pass; warm-up then cool-down.
     Standard,
     /// One slow forward sweep of X during a steady warm-up: position, time and temperature collinear.
     SingleSweep,
 }
 
-fn build_path(rng: &mut ChaCha8Rng, program: Program) -> MotionPath {
+pub(crate) fn build_path(rng: &mut ChaCha8Rng, program: Program) -> MotionPath {
     let mut p = MotionPath::new(DT_S);
     match program {
         Program::Standard => {
@@ -66,17 +72,17 @@ fn build_path(rng: &mut ChaCha8Rng, program: Program) -> MotionPath {
     p
 }
 
-fn rms_centered(v: &[f64]) -> f64 {
+pub(crate) fn rms_centered(v: &[f64]) -> f64 {
     let m = v.iter().sum::<f64>() / v.len() as f64;
     (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt()
 }
 
-fn signed(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
+pub(crate) fn signed(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
     uniform(rng, lo, hi) * if rng.random_bool(0.5) { 1.0 } else { -1.0 }
 }
 
 /// Draw a hidden effect of id `id` with physically plausible parameters (anchors-discrepancy §3).
-fn draw_effect(rng: &mut ChaCha8Rng, id: &str, x_range: (f64, f64)) -> TruthEffect {
+pub(crate) fn draw_effect(rng: &mut ChaCha8Rng, id: &str, x_range: (f64, f64)) -> TruthEffect {
     let ex = |model| TruthEffect {
         signal: "ex_um".into(),
         axis: "x".into(),
@@ -369,6 +375,7 @@ pub fn generate_case(seed: u64, index: usize) -> (Recording, CaseManifest) {
     let manifest = CaseManifest {
         case: format!("case_{index:04}"),
         seed,
+        family: Family::Standard.name().into(),
         class: class.into(),
         hidden,
         modelled,
@@ -377,6 +384,7 @@ pub fn generate_case(seed: u64, index: usize) -> (Recording, CaseManifest) {
         identifiable,
         expected_verdict: expected_verdict.into(),
         decoys,
+        family_params: Default::default(),
         notes,
     };
     (rec, manifest)
@@ -384,10 +392,24 @@ pub fn generate_case(seed: u64, index: usize) -> (Recording, CaseManifest) {
 
 /// Write cases `0..count` of `seed` into `dir` as `case_NNNN.csv` + `case_NNNN.json`.
 pub fn write_cases(seed: u64, count: usize, dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    write_family_cases(seed, count, &[Family::Standard], dir)
+}
+
+/// Write cases `0..count` of `seed` for each family into `dir` (`case_NNNN.*` for the standard
+/// family, `<family>_NNNN.*` for the others).
+pub fn write_family_cases(
+    seed: u64,
+    count: usize,
+    families: &[Family],
+    dir: &Path,
+) -> anyhow::Result<Vec<PathBuf>> {
     std::fs::create_dir_all(dir)?;
     let mut out = vec![];
-    for i in 0..count {
-        let (rec, m) = generate_case(seed, i);
+    for (&fam, i) in families
+        .iter()
+        .flat_map(|f| std::iter::repeat(f).zip(0..count))
+    {
+        let (rec, m) = generate_family_case(fam, seed, i);
         let csv = dir.join(format!("{}.csv", m.case));
         rec.write_csv(std::fs::File::create(&csv)?)?;
         std::fs::write(

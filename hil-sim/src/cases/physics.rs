@@ -53,10 +53,38 @@ pub fn thermal(
     amb_amp_c: f64,
     amb_period_s: f64,
 ) -> Thermal {
-    let ambient_c: Vec<f64> = t_s
-        .iter()
-        .map(|t| 20.0 + amb_amp_c * (std::f64::consts::TAU * t / amb_period_s).sin())
-        .collect();
+    thermal_with_ambient(
+        t_s,
+        standard_ambient(t_s, amb_amp_c, amb_period_s),
+        rpm,
+        motion_speed_mm_s,
+        k_c_per_krpm,
+        tau_node_s,
+        tau_struct_s,
+        0.4,
+    )
+}
+
+/// The standard ambient: 20 °C plus a slow sine of `amp_c` and period `period_s`, starting at 20.
+pub fn standard_ambient(t_s: &[f64], amp_c: f64, period_s: f64) -> Vec<f64> {
+    t_s.iter()
+        .map(|t| 20.0 + amp_c * (std::f64::consts::TAU * t / period_s).sin())
+        .collect()
+}
+
+/// [`thermal`] with a given ambient and the share of the spindle node's rise that heats the
+/// structure (`spindle_share`, 0.4 in the standard cases; 0 leaves the structure unheated by it).
+#[allow(clippy::too_many_arguments)]
+pub fn thermal_with_ambient(
+    t_s: &[f64],
+    ambient_c: Vec<f64>,
+    rpm: &[f64],
+    motion_speed_mm_s: &[f64],
+    k_c_per_krpm: f64,
+    tau_node_s: f64,
+    tau_struct_s: f64,
+    spindle_share: f64,
+) -> Thermal {
     let drive: Vec<f64> = rpm
         .iter()
         .zip(&ambient_c)
@@ -65,7 +93,7 @@ pub fn thermal(
     let spindle_c = first_order(t_s, &drive, tau_node_s, ambient_c[0]);
     let motion = first_order(t_s, motion_speed_mm_s, 120.0, 0.0);
     let sdrive: Vec<f64> = (0..t_s.len())
-        .map(|i| ambient_c[i] + 0.4 * (spindle_c[i] - ambient_c[i]) + 0.05 * motion[i])
+        .map(|i| ambient_c[i] + spindle_share * (spindle_c[i] - ambient_c[i]) + 0.05 * motion[i])
         .collect();
     let structure_c = first_order(t_s, &sdrive, tau_struct_s, ambient_c[0]);
     Thermal {
@@ -151,4 +179,72 @@ pub fn error_noise(rng: &mut ChaCha8Rng, n: usize, sigma_um: f64) -> Vec<f64> {
             e
         })
         .collect()
+}
+
+/// AR(1) noise with coefficient `rho` and stationary standard deviation `sigma_um` (started in its
+/// stationary distribution, so the whole recording has that σ).
+pub fn ar1_noise(rng: &mut ChaCha8Rng, n: usize, sigma_um: f64, rho: f64) -> Vec<f64> {
+    let innov = (1.0 - rho * rho).sqrt();
+    let mut a = gauss(rng);
+    (0..n)
+        .map(|i| {
+            if i > 0 {
+                a = rho * a + innov * gauss(rng);
+            }
+            sigma_um * a
+        })
+        .collect()
+}
+
+fn centred_rms(v: &[f64]) -> f64 {
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt()
+}
+
+/// A Gaussian random walk (i.i.d. increments) scaled so its centred RMS over the recording is
+/// `sigma_um`: non-stationary noise with no σ of its own.
+pub fn walk_noise(rng: &mut ChaCha8Rng, n: usize, sigma_um: f64) -> Vec<f64> {
+    let mut w = 0.0;
+    let v: Vec<f64> = (0..n)
+        .map(|_| {
+            w += gauss(rng);
+            w
+        })
+        .collect();
+    let k = sigma_um / centred_rms(&v).max(1e-12);
+    v.into_iter().map(|x| x * k).collect()
+}
+
+/// Sample correlation of two equally long series.
+pub fn correlation(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len() as f64;
+    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        sab += (x - ma) * (y - mb);
+        saa += (x - ma).powi(2);
+        sbb += (y - mb).powi(2);
+    }
+    sab / (saa * sbb).sqrt().max(1e-300)
+}
+
+/// A spurious-regression decoy: `tries` random walks ([`random_walk`], own independent increments),
+/// the one whose sample correlation with `noise` is largest in magnitude is returned with that
+/// correlation. It tracks the noise over the recording by selection, not by cause: it holds no
+/// information about the noise's future.
+pub fn correlated_walk_decoy(
+    rng: &mut ChaCha8Rng,
+    noise: &[f64],
+    start: f64,
+    step: f64,
+    tries: usize,
+) -> (Vec<f64>, f64) {
+    (0..tries)
+        .map(|_| {
+            let w = random_walk(rng, noise.len(), start, step);
+            let c = correlation(&w, noise);
+            (w, c)
+        })
+        .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+        .expect("tries > 0")
 }
