@@ -1,0 +1,1 @@
+//! Headless LinuxCNC (filled in below).
