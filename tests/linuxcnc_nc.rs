@@ -411,17 +411,18 @@ fn arc_ending_on_a_quadrant_point_uses_the_arriving_direction() {
     assert_eq!(rep.points, 3);
 }
 
-/// Issue 13 (4): on a worn machine (40 µm reversal) the ends of an arc move by different
-/// amounts; the centre is moved so LinuxCNC accepts the arc, and the summary says so.
+/// Issue 13 (4): on a worn machine (40/35 µm reversal) the ends of an arc move by different
+/// amounts: X and Y arrive at the start of this 180° arc forward and at its end in reverse, so with
+/// the nominal centre the radii differ by ≈ 56 µm and LinuxCNC refuses the program (measured with
+/// the old rewriter). The centre is moved, LinuxCNC accepts, and the summary says so.
 #[test]
 fn worn_arcs_get_a_moved_centre_linuxcnc_accepts() {
     let p = write_prog(
         "worn",
-        "G21 G90 G17\nG0 X100 Y50 Z5\nG1 X160 F500\nG3 X100 Y50 I-30 J0\nG2 X160 Y50 R30\nM2\n",
+        "G21 G90 G17\nG0 X100 Y28.7868 Z5\nG1 X151.2132 F500\nG3 X108.7868 Y71.2132 I-21.2132 J21.2132\nG0 X100 Y50\nG1 X160 F500\nG3 X100 Y50 R30\nM2\n",
     );
     let rep = check(&p, &["--model", MILL, "--semicolon-comment"], "worn");
     assert!(rep.stdout.contains("2 arc centres moved"), "{}", rep.stdout);
-    // The nominal centre would leave the two radii ≈ 40 µm apart: beyond LinuxCNC's 28.3 µm.
     assert!(rep.max_corr_um > 35.0, "{rep:?}");
 }
 
