@@ -51,6 +51,8 @@ fn nc(c: &mut Criterion) {
     let cfg = RewriteConfig {
         diameter_x: true,
         split_step_mm: Some(5.0),
+        // The first move is split too: it needs a stated start.
+        start_mm: Some([0.0; 3]),
         ..Default::default()
     };
     c.bench_function("nc_rewrite_2000_moves_split_5mm", |b| {

@@ -97,14 +97,65 @@ fn fanuc_tape_round_trips_textually_and_numerically() {
     let ax = to_fanuc(&t, &cfg).unwrap();
     assert_eq!(ax.p1851_backlash_units, 3);
     let back = from_fanuc(&read_tape("x", &write_tape(&[ax])).unwrap()[0], 1.0, 0.0).unwrap();
-    let e0 = t.mean_um()[25]; // error at the reference (0 mm): the Fanuc table is relative to it
+    // The error at the reference (0 mm) travels in 1850, so the absolute error comes back: two
+    // roundings (pitch cumulative, shift) of half a unit each.
     for p in &pos {
-        let want =
-            0.5 * (t.error_um(*p, Direction::Forward) + t.error_um(*p, Direction::Reverse)) - e0;
+        let want = 0.5 * (t.error_um(*p, Direction::Forward) + t.error_um(*p, Direction::Reverse));
         let got =
             0.5 * (back.error_um(*p, Direction::Forward) + back.error_um(*p, Direction::Reverse));
-        assert!((got - want).abs() <= 0.5 + 1e-9, "at {p}: {got} vs {want}");
+        assert!((got - want).abs() <= 1.0 + 1e-9, "at {p}: {got} vs {want}");
     }
+}
+
+/// Issue 13.5: the points are exactly those Fanuc's formula gives for the travel
+/// (3621 = 3620 − negative travel/interval + 1, 3622 = 3620 + positive travel/interval), for
+/// grid-aligned and unaligned ends, and the error at the reference point goes to 1850.
+#[test]
+fn fanuc_points_follow_the_formula_and_the_reference_error_goes_to_1850() {
+    let cfg = FanucAxisConfig {
+        axis: 1,
+        ref_point: 60,
+        ref_position_mm: 0.0,
+        interval_mm: 20.0,
+        detection_unit_um: 1.0,
+        magnification: 1,
+        max_abs_value: 127,
+    };
+    let table = |lo: f64, hi: f64, e_ref: f64| {
+        let n = 13;
+        let pos: Vec<f64> = (0..n)
+            .map(|i| lo + (hi - lo) * f64::from(i) / f64::from(n - 1))
+            .collect();
+        // Linear error through e_ref at 0 mm, 0.05 µm/mm.
+        let e: Vec<f64> = pos.iter().map(|p| e_ref + 0.05 * p).collect();
+        BidirectionalTable::new(pos, e.clone(), e).unwrap()
+    };
+    // Travel −400 … +200 mm on the grid: 20 intervals below, 10 above.
+    let ax = to_fanuc(&table(-400.0, 200.0, 7.4), &cfg).unwrap();
+    assert_eq!(
+        (ax.p3621_min_point, ax.p3622_max_point),
+        (60 - 20 + 1, 60 + 10)
+    );
+    assert_eq!(
+        ax.values.len(),
+        30,
+        "one value per 20 mm segment of the 600 mm travel"
+    );
+    assert_eq!(
+        ax.p1850_ref_shift_units, -7,
+        "−error at the reference, rounded"
+    );
+    // Unaligned ends round outward: −390 … +185 needs the same points.
+    let ax2 = to_fanuc(&table(-390.0, 185.0, -3.6), &cfg).unwrap();
+    assert_eq!((ax2.p3621_min_point, ax2.p3622_max_point), (41, 70));
+    assert_eq!(ax2.p1850_ref_shift_units, 4);
+    // The tape carries 1850 and reads back.
+    let tape = write_tape(std::slice::from_ref(&ax));
+    assert!(tape.contains("N1850 A1 P-7\n"), "{tape}");
+    assert_eq!(read_tape("t", &tape).unwrap()[0], ax);
+    // The lowest segment is carried by point 3621 (−400 → −380 mm: 20 mm × 0.05 = 1 µm error
+    // rise → correction −1 unit).
+    assert_eq!(ax.values[&41], -1);
 }
 
 #[test]

@@ -119,6 +119,9 @@ impl ErrorFunction for Synthetic {
         };
         Some([10.0 * (p[1] / 50.0).sin() + b, 0.01 * p[0], 0.0])
     }
+    fn axes(&self) -> [bool; 3] {
+        [true, true, false]
+    }
 }
 
 #[test]
@@ -126,6 +129,7 @@ fn long_moves_are_split_and_each_piece_compensated() {
     let blocks = parse_program("s.nc", "G90 G01 X0 Y0 F500\nX100 Y0\n", true).unwrap();
     let cfg = RewriteConfig {
         split_step_mm: Some(20.0),
+        start_mm: Some([0.0; 3]),
         ..Default::default()
     };
     let (out, stats) = rewrite(&blocks, &Synthetic, &cfg).unwrap();
@@ -133,10 +137,11 @@ fn long_moves_are_split_and_each_piece_compensated() {
     assert_eq!(lines.len(), 1 + 5, "{out}");
     assert_eq!(stats.points_emitted, 6);
     // Piece ends at 20, 40 … 100 with ex = +2 (forward), ey = 0.01·x.
-    assert_eq!(lines[1], "X19.9980 Y-0.0002;");
-    assert_eq!(lines[5], "X99.9980 Y-0.0010;");
+    // Z is known from the stated start, so it is written too (no correction on Z).
+    assert_eq!(lines[1], "X19.9980 Y-0.0002 Z0.0000;");
+    assert_eq!(lines[5], "X99.9980 Y-0.0010 Z0.0000;");
     assert!(
-        lines[0].starts_with("G90 G01 X-0.0020 Y0.0000 F500"),
+        lines[0].starts_with("G90 G01 X-0.0020 Y0.0000 Z0.0000 F500"),
         "{}",
         lines[0]
     );
@@ -150,13 +155,18 @@ fn direction_latches_and_incremental_mode_emits_increments() {
     let l: Vec<&str> = out.lines().collect();
     assert_eq!(l[1], "X5.0020 Y-0.0001;");
     let ey = 0.01 * 5.0;
-    assert_eq!(
-        l[2],
-        format!(
-            "X{:.4} Y{:.4};",
-            5.0 - (10.0 * 1f64.sin() - 2.0) / 1000.0,
-            50.0 - ey / 1000.0
-        )
+    let w = parse_program("l2", l[2], true).unwrap();
+    let (x, y) = (w[0].get('X').unwrap().value, w[0].get('Y').unwrap().value);
+    assert!(
+        (x - (5.0 - (10.0 * 1f64.sin() - 2.0) / 1000.0)).abs() <= 0.5e-4 + 1e-12,
+        "{}",
+        l[2]
+    );
+    // 50 − 0.05 µm: either rounding of the half step is within the 0.1 µm output resolution.
+    assert!(
+        (y - (50.0 - ey / 1000.0)).abs() <= 0.5e-4 + 1e-12,
+        "{}",
+        l[2]
     );
     // G91 X-1: nominal 4.0, commanded = 4.0 − e(4, reverse) relative to the previous commanded.
     let prev_x = 5.0 - (10.0 * 1f64.sin() - 2.0) / 1000.0;
@@ -174,6 +184,7 @@ fn arcs_are_split_with_centre_words_and_directions_from_the_tangent() {
     let blocks = parse_program("a.nc", "G17 G01 X10 Y0\nG03 X0 Y10 I-10 J0\n", true).unwrap();
     let cfg = RewriteConfig {
         split_step_mm: Some(5.0),
+        start_mm: Some([0.0; 3]),
         ..Default::default()
     };
     let (out, _) = rewrite(&blocks, &Synthetic, &cfg).unwrap();

@@ -58,4 +58,8 @@ impl ErrorFunction for ZxPlaneModel {
         };
         Some([ex, 0.0, ez])
     }
+
+    fn axes(&self) -> [bool; 3] {
+        [true, false, true]
+    }
 }

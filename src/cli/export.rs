@@ -74,6 +74,13 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
             summary["p3621"] = ax.p3621_min_point.into();
             summary["p3622"] = ax.p3622_max_point.into();
             summary["p1851"] = ax.p1851_backlash_units.into();
+            // The error at the reference point is not in the pitch table: it goes to 1850.
+            summary["p1850"] = ax.p1850_ref_shift_units.into();
+            summary["p1850_note"] = format!(
+                "1850 (grid shift / reference-position shift) = {} detection units: the correction −error at the reference point {} mm, which the pitch table (0 there by definition) cannot carry",
+                ax.p1850_ref_shift_units, a.ref_position_mm
+            )
+            .into();
             summary["cumulative_sum_units"] = fanuc::cumulative_sum(&ax).into();
             fanuc::write_tape(&[ax])
         }

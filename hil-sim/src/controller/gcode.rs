@@ -210,44 +210,21 @@ fn value_code(v: f64) -> Option<u32> {
     (v >= 0.0 && v.fract() == 0.0 && v < 1000.0).then_some(v as u32)
 }
 
+/// Words of one line, read by the workspace's one G-code lexer (retrocomp's NC parser, issue 14.3)
+/// with LinuxCNC's rule for `;`: a comment to the end of the line, except inside `( … )`.
 fn tokenize(raw: &str) -> Result<Vec<(char, f64)>, String> {
-    let mut out = Vec::new();
-    let mut chars = raw.chars().peekable();
-    while let Some(c) = chars.next() {
-        match c {
-            ';' => break,
-            '(' => {
-                for c2 in chars.by_ref() {
-                    if c2 == ')' {
-                        break;
-                    }
-                }
-            }
-            c if c.is_whitespace() || c == '%' => {}
-            c if c.is_ascii_alphabetic() => {
-                let mut num = String::new();
-                while let Some(&d) = chars.peek() {
-                    if d.is_ascii_digit() || d == '.' || d == '-' || d == '+' {
-                        num.push(d);
-                        chars.next();
-                    } else if d == ' ' && num.is_empty() {
-                        chars.next();
-                    } else {
-                        break;
-                    }
-                }
-                let v: f64 = num
-                    .parse()
-                    .map_err(|_| format!("word '{c}' needs a number, got '{num}'"))?;
-                if !v.is_finite() {
-                    return Err(format!("word '{c}' is not finite"));
-                }
-                out.push((c.to_ascii_uppercase(), v));
-            }
-            other => return Err(format!("unexpected character '{other}'")),
-        }
-    }
-    Ok(out)
+    let blocks =
+        retrocomp::analysis::nc::parser::parse_line("program", 0, raw, false).map_err(|e| {
+            e.0.iter()
+                .map(|x| x.message.clone())
+                .collect::<Vec<_>>()
+                .join("; ")
+        })?;
+    Ok(blocks
+        .into_iter()
+        .flat_map(|b| b.words)
+        .map(|w| (w.letter, w.value))
+        .collect())
 }
 
 /// Centre of an XY arc given its signed radius (R > 0: the short arc, R < 0: the long arc).
@@ -358,7 +335,7 @@ mod tests {
             parse("G1 F10 Xabc", [0.0; 3], 1.0)
                 .unwrap_err()
                 .msg
-                .contains("'X'")
+                .contains("`X`")
         );
         assert!(
             parse("G2 F10 X10 I1", [0.0; 3], 1.0)

@@ -3,9 +3,15 @@
 //!
 //! Layout (per axis): 3620 reference-position point number, 3621 most-negative point, 3622
 //! most-positive point, 3623 magnification, 3624 point interval (detection units), 1851 backlash
-//! (detection units). Point n sits at `ref_position + (n − p3620) · interval`. The value stored at
-//! point n is the **incremental correction** for the segment from point n−1 to point n, in detection
-//! units × magnification; the correction at the reference point is 0 by definition.
+//! (detection units), 1850 grid shift / reference-position shift (detection units). Point n sits at
+//! `ref_position + (n − p3620) · interval`. The value stored at point n is the **incremental
+//! correction** for the segment from point n−1 to point n, in detection units × magnification, so
+//! the pitch table is 0 at the reference point by definition. The points are exactly those the
+//! travel needs, by Fanuc's formula: `3621 = 3620 − (negative travel / interval) + 1`,
+//! `3622 = 3620 + (positive travel / interval)` (travel = the table's span, rounded outward to the
+//! grid). The error *at* the reference point, which the pitch table cannot carry, goes to 1850:
+//! `1850 = round(−error(ref) / detection unit)` (a positive value shifts the reference position
+//! in +; check the sign convention of the control before loading).
 //!
 //! Sign: correction = −error (error = actual − nominal). The pitch table carries the mean of the
 //! forward and reverse errors; 1851 carries the lost motion L = mean(x̄↓ − x̄↑) (positive when the axis
@@ -53,6 +59,8 @@ pub struct FanucAxis {
     pub p3623_magnification: u32,
     pub p3624_interval_units: i64,
     pub p1851_backlash_units: i64,
+    /// Parameter 1850: correction at the reference point (−error there), detection units.
+    pub p1850_ref_shift_units: i64,
     /// Incremental values by point number (only the points present in the file).
     pub values: BTreeMap<u32, i64>,
 }
@@ -91,7 +99,8 @@ fn round_half_away(x: f64) -> i64 {
 }
 
 /// Converts a table to one Fanuc axis. The points cover the table's span (rounded outward to the
-/// grid); outside the measured span the end errors are held, so those increments are 0.
+/// grid; a span ending on a grid point needs no point beyond it); between the span and the
+/// reference point the end errors are held, so those increments are 0.
 pub fn to_fanuc(
     table: &BidirectionalTable,
     cfg: &FanucAxisConfig,
@@ -106,10 +115,12 @@ pub fn to_fanuc(
     }
     let lo_mm = table.positions_mm[0];
     let hi_mm = *table.positions_mm.last().expect("validated non-empty");
-    let k_lo = ((lo_mm - cfg.ref_position_mm) / cfg.interval_mm - 1e-9).floor() as i64;
-    let k_hi = ((hi_mm - cfg.ref_position_mm) / cfg.interval_mm + 1e-9).ceil() as i64;
-    // The most-negative point's own value covers the segment below it, so one more point below.
-    let min_point = i64::from(cfg.ref_point) + k_lo.min(0);
+    // Grid index of the travel ends, rounded outward (a grid-aligned end stays on its point).
+    let k_lo = ((lo_mm - cfg.ref_position_mm) / cfg.interval_mm + 1e-9).floor() as i64;
+    let k_hi = ((hi_mm - cfg.ref_position_mm) / cfg.interval_mm - 1e-9).ceil() as i64;
+    // Fanuc's formula: point n covers the segment below it, so the lowest segment (from grid
+    // index k_lo) is carried by point ref + k_lo + 1.
+    let min_point = i64::from(cfg.ref_point) + k_lo.min(0) + 1;
     let max_point = i64::from(cfg.ref_point) + k_hi.max(0);
     if min_point < 0 {
         return Err(FanucError::PointRange {
@@ -128,12 +139,7 @@ pub fn to_fanuc(
     let cumulative = |n: i64| round_half_away(correction_units(n) - c_ref);
     let mut values = BTreeMap::new();
     for n in min_point..=max_point {
-        // Value at the most-negative point covers the (unmeasured) segment below it: 0.
-        let v = if n == min_point {
-            0
-        } else {
-            cumulative(n) - cumulative(n - 1)
-        };
+        let v = cumulative(n) - cumulative(n - 1);
         if v.abs() > cfg.max_abs_value {
             return Err(FanucError::ValueRange {
                 point: n as u32,
@@ -158,6 +164,7 @@ pub fn to_fanuc(
         p3623_magnification: cfg.magnification,
         p3624_interval_units: units_per_interval.round() as i64,
         p1851_backlash_units: round_half_away(lost_motion_um / cfg.detection_unit_um),
+        p1850_ref_shift_units: round_half_away(c_ref * f64::from(cfg.magnification)),
         values,
     })
 }
@@ -208,19 +215,16 @@ pub fn from_fanuc(
             -(n + 1..=r).map(|k| axis.values[&k]).sum::<i64>()
         }
     };
-    // The lowest present value covers the segment below it, which fixes one more point, unless
-    // that point is the most-negative one (its value then covers unmeasured travel).
-    let first = if lo > axis.p3621_min_point {
-        lo - 1
-    } else {
-        lo
-    };
+    // The lowest present value covers the segment below it, which fixes one more point.
+    let first = lo.saturating_sub(1);
+    // 1850 carries the correction at the reference point (detection units, no magnification).
+    let shift_um = axis.p1850_ref_shift_units as f64 * detection_unit_um;
     let half_l = 0.5 * axis.p1851_backlash_units as f64 * detection_unit_um;
     let mut pos = Vec::new();
     let mut fwd = Vec::new();
     let mut rev = Vec::new();
     for n in first..=hi {
-        let e = -(cum(n) as f64) * unit;
+        let e = -(cum(n) as f64) * unit - shift_um;
         pos.push(ref_position_mm + (f64::from(n) - f64::from(r)) * interval_mm);
         fwd.push(e - half_l);
         rev.push(e + half_l);
@@ -243,6 +247,7 @@ pub fn write_tape(axes: &[FanucAxis]) -> String {
         }
         s.push('\n');
     };
+    row(&mut s, 1850, &|a| a.p1850_ref_shift_units);
     row(&mut s, 1851, &|a| a.p1851_backlash_units);
     row(&mut s, 3620, &|a| i64::from(a.p3620_ref_point));
     row(&mut s, 3621, &|a| i64::from(a.p3621_min_point));
@@ -293,11 +298,11 @@ pub fn read_tape(file: &str, text: &str) -> Result<Vec<FanucAxis>, ImportErrors>
             }
             continue;
         }
-        if ![1851, 3620, 3621, 3622, 3623, 3624].contains(&param) {
+        if ![1850, 1851, 3620, 3621, 3622, 3623, 3624].contains(&param) {
             sink.push(
                 line_no,
                 Some(n_word),
-                "unsupported parameter (expected 1851, 3620–3624 or pitch data ≥ 10000)",
+                "unsupported parameter (expected 1850, 1851, 3620–3624 or pitch data ≥ 10000)",
             );
             continue;
         }
@@ -354,6 +359,8 @@ pub fn read_tape(file: &str, text: &str) -> Result<Vec<FanucAxis>, ImportErrors>
             p3623_magnification: m as u32,
             p3624_interval_units: iv,
             p1851_backlash_units: b,
+            // Optional: a tape without it has no reference-point shift.
+            p1850_ref_shift_units: params.get(&(1850, a)).map_or(0, |v| v.0),
             values: BTreeMap::new(),
         });
     }

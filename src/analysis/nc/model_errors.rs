@@ -43,4 +43,12 @@ impl ErrorFunction for ModelErrors<'_> {
         }
         Some(out.total_um)
     }
+
+    fn axes(&self) -> [bool; 3] {
+        let mut a = [false; 3];
+        for x in self.model.axes() {
+            a[x.index()] = true;
+        }
+        a
+    }
 }

@@ -41,7 +41,7 @@ impl Block {
 }
 
 /// Parses a program into blocks. Empty blocks and tape marks are dropped (they carry nothing);
-/// comment-only blocks are kept with no words so they are re-emitted.
+/// comment-only blocks are kept with no words so they are re-emitted. Every bad word is reported.
 pub fn parse_program(
     file: &str,
     text: &str,
@@ -50,43 +50,62 @@ pub fn parse_program(
     let mut sink = ErrorSink::new(file);
     let mut blocks = Vec::new();
     for (i, raw) in text.lines().enumerate() {
-        let line = i as u64 + 1;
-        let raw = if semicolon_is_eob {
-            raw
-        } else {
-            raw.split(';').next().unwrap_or("")
-        };
-        for piece in split_eob(raw, semicolon_is_eob) {
-            let source = piece.trim();
-            if source.is_empty() || source == "%" {
-                continue;
-            }
-            if let Some(words) = parse_words(&mut sink, line, source) {
-                blocks.push(Block {
-                    line,
-                    words,
-                    source: source.to_string(),
-                });
-            }
-        }
+        parse_line_into(&mut sink, i as u64 + 1, raw, semicolon_is_eob, &mut blocks);
     }
     sink.finish(blocks)
 }
 
-/// Splits at `;` outside comments.
-fn split_eob(raw: &str, semicolon_is_eob: bool) -> Vec<&str> {
-    if !semicolon_is_eob {
-        return vec![raw];
+/// Parses one source line (for streaming readers): its blocks, or the line's errors.
+pub fn parse_line(
+    file: &str,
+    line: u64,
+    raw: &str,
+    semicolon_is_eob: bool,
+) -> Result<Vec<Block>, ImportErrors> {
+    let mut sink = ErrorSink::new(file);
+    let mut blocks = Vec::new();
+    parse_line_into(&mut sink, line, raw, semicolon_is_eob, &mut blocks);
+    sink.finish(blocks)
+}
+
+fn parse_line_into(
+    sink: &mut ErrorSink,
+    line: u64,
+    raw: &str,
+    semicolon_is_eob: bool,
+    blocks: &mut Vec<Block>,
+) {
+    for piece in split_blocks(raw, semicolon_is_eob) {
+        let source = piece.trim();
+        if source.is_empty() || source == "%" {
+            continue;
+        }
+        if let Some(words) = parse_words(sink, line, source) {
+            blocks.push(Block {
+                line,
+                words,
+                source: source.to_string(),
+            });
+        }
     }
+}
+
+/// The one lexical rule for `;`: inside a `( … )` comment it is text; outside, it ends the block
+/// (Fanuc/ISO EOB) or starts a comment running to the end of the line (LinuxCNC). Comments do
+/// not nest (ISO 6983, LinuxCNC): the first `)` closes.
+pub fn split_blocks(raw: &str, semicolon_is_eob: bool) -> Vec<&str> {
     let mut out = Vec::new();
-    let mut depth = 0;
+    let mut in_comment = false;
     let mut start = 0;
     for (i, c) in raw.char_indices() {
         match c {
-            '(' => depth += 1,
-            ')' => depth -= 1,
-            ';' if depth <= 0 => {
+            '(' => in_comment = true,
+            ')' => in_comment = false,
+            ';' if !in_comment => {
                 out.push(&raw[start..i]);
+                if !semicolon_is_eob {
+                    return out;
+                }
                 start = i + 1;
             }
             _ => {}
@@ -176,6 +195,18 @@ mod tests {
         assert!(b[0].has_g(1.0));
         assert_eq!(b[1].source, "G04 X5 (dwell; 5 s)");
         assert_eq!(b[2].line, 3);
+    }
+
+    #[test]
+    fn semicolon_inside_a_comment_is_text_in_both_dialects() {
+        // LinuxCNC: `(a; b)` is a comment, `; rest` a comment to the end of the line.
+        let b = parse_program("c.ngc", "G1 X1 (a; b) Y2 ; tail (x\nG0 Z3", false).unwrap();
+        assert_eq!(b.len(), 2);
+        assert_eq!(b[0].get('Y').unwrap().value, 2.0);
+        assert_eq!(b[0].source, "G1 X1 (a; b) Y2");
+        let b = parse_program("c.nc", "G1 X1 (a; b) Y2; Z4", true).unwrap();
+        assert_eq!(b.len(), 2);
+        assert_eq!(b[1].get('Z').unwrap().value, 4.0);
     }
 
     #[test]

@@ -1,35 +1,54 @@
-//! The rewriter: interprets parsed blocks with their modal state and emits the compensated program.
+//! The rewriter: interprets blocks with their modal state and streams the compensated program.
 //!
-//! - `commanded = nominal − error/1000` per axis (error in µm, positions in mm); on a lathe with
-//!   diameter programming the X word is a diameter, so the X correction is doubled in the output.
-//! - The approach direction of each axis is the sign of its motion in the move; an axis that does
-//!   not move keeps its last direction (the overshoot moves before a measurement exist to set it).
+//! - `commanded = nominal − error/1000` per axis (error in µm, positions in mm). The error is
+//!   evaluated in machine coordinates (`machine = program + work offset`); the program is written
+//!   back in its own work coordinates. With lathe diameter mode (G7, or `diameter_x` at start) X
+//!   words are diameters, so the X correction is doubled in the output; I/K stay radial (LinuxCNC).
+//! - The approach direction of each axis is the sign of its motion arriving at the point (on an
+//!   arc, the tangent just before the point, so an arc ending on a quadrant point keeps the
+//!   direction it arrived with); an axis that does not move keeps its last direction.
 //! - G1 moves longer than `split_step_mm` are split into equal pieces (Spaan Ch7: end-point-only
-//!   compensation leaves the straightness error along the path); G2/G3 arcs are split by arc
-//!   length into sub-arcs whose I/J/K point from the compensated start to the nominal centre;
-//!   G0 is compensated at its end point only (its path is not controlled).
-//! - Blocks without motion (dwells `G4`, M codes, comments) and moves ending outside the error
-//!   function's domain (e.g. overshoot moves beyond the measured travel) are emitted verbatim.
-//! - Output resolution is 0.1 µm (4 decimals in mm). A correction larger than
-//!   `max_correction_um` or not finite stops the rewrite with the line number: a program is never
-//!   written with a jump the model cannot justify.
+//!   compensation leaves the straightness error along the path), G2/G3 arcs by arc length. G0 is
+//!   compensated at its end point only (its path is not controlled). A split never exceeds
+//!   `max_pieces_per_move` (clear error), and output is written block by block.
+//! - Arcs: both compensated ends move, so the centre is moved onto the perpendicular bisector of
+//!   the compensated ends (the point there nearest the nominal centre) and I/J/K or R are
+//!   recomputed from it: start and end radius are equal to the output resolution, as a
+//!   controller's radius check needs (LinuxCNC refuses > 0.0283 mm).
+//! - Incremental (G91) output: each piece is written relative to the previous piece as emitted
+//!   (rounded), so rounding never accumulates and moves kept as programmed still end at their
+//!   nominal end point.
+//! - A move is never guessed from an unknown start: a split or arc move whose start is unknown
+//!   (nothing programmed yet, no `start_mm`) is refused; an unsplit line ending where a model axis
+//!   is still unknown is kept as programmed and counted.
+//! - Blocks without motion (dwells, M codes, comments, G10 L2) and lines ending outside the error
+//!   function's domain are written as programmed. Output resolution is 0.1 µm (4 decimals in mm).
+//!   A correction larger than `max_correction_um` or not finite stops the rewrite with the line.
 
-use std::fmt::Write as _;
-
-use super::parser::{Block, Word};
-use super::{AXES, ErrorFunction};
+use super::ErrorFunction;
+use super::parser::{Block, Word, parse_line};
+use crate::analysis::import_error::ImportErrors;
 use crate::analysis::table::Direction;
+
+pub use super::motion::fmt_mm;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct RewriteConfig {
-    /// X words are diameters (lathe / cylindrical grinder).
+    /// X words are diameters at program start (Fanuc lathe, cylindrical grinder); G7/G8 switch.
     pub diameter_x: bool,
     /// Split G1/G2/G3 moves into pieces no longer than this (mm); `None` = end points only.
     pub split_step_mm: Option<f64>,
+    /// Most pieces one move may be split into (bounds output size and time).
+    pub max_pieces_per_move: usize,
     /// Largest |error| accepted from the model, µm.
     pub max_correction_um: f64,
-    /// Accept G54–G59 and treat the program as if in machine coordinates (the offset is zero).
-    pub allow_work_offsets: bool,
+    /// Where the machine stands when the program starts, in the program's coordinates at start
+    /// (G54; X a diameter in diameter mode). `None`: unknown until each axis is programmed.
+    pub start_mm: Option<[f64; 3]>,
+    /// Work offsets G54, G55 … G59, G59.1, G59.2, G59.3 (index 0 … 8) in mm, X radial, as the
+    /// controller holds them. G54 not given = zero (program coordinates are machine coordinates);
+    /// any other system not given (nor set by G10 L2 in the program) is refused when selected.
+    pub work_offsets_mm: [Option<[f64; 3]>; 9],
 }
 
 impl Default for RewriteConfig {
@@ -37,8 +56,10 @@ impl Default for RewriteConfig {
         Self {
             diameter_x: false,
             split_step_mm: None,
+            max_pieces_per_move: 100_000,
             max_correction_um: 500.0,
-            allow_work_offsets: false,
+            start_mm: None,
+            work_offsets_mm: [None; 9],
         }
     }
 }
@@ -50,10 +71,16 @@ pub struct RewriteStats {
     pub points_emitted: usize,
     /// Moves left as programmed because their end point is outside the model's domain.
     pub moves_outside_domain: usize,
+    /// Unsplit lines left as programmed because a model axis position was still unknown.
+    pub moves_unknown_start: usize,
+    /// Arc pieces whose centre was moved so both compensated ends lie on one circle.
+    pub arc_centres_moved: usize,
+    /// Largest centre move, µm.
+    pub max_centre_shift_um: f64,
     pub max_abs_correction_um: f64,
 }
 
-#[derive(Debug, thiserror::Error, PartialEq)]
+#[derive(Debug, thiserror::Error)]
 pub enum RewriteError {
     #[error("line {line}: G{code} is not supported by the rewriter ({why})")]
     Unsupported {
@@ -61,8 +88,36 @@ pub enum RewriteError {
         code: f64,
         why: &'static str,
     },
+    #[error("line {line}: {why}")]
+    Refused { line: u64, why: String },
     #[error("line {line}: axis words without a motion mode (G0–G3) in effect")]
     NoMotionMode { line: u64 },
+    #[error(
+        "line {line}: {why} from an unknown position ({axis} not programmed yet): give the start position (--start X,Y,Z)"
+    )]
+    UnknownStart {
+        line: u64,
+        axis: char,
+        why: &'static str,
+    },
+    #[error(
+        "line {line}: G{code} selects work offset {name}, which the rewriter was not given: state it (--work-offset {name}=X,Y,Z) or set it in the program with G10 L2"
+    )]
+    UnknownWorkOffset {
+        line: u64,
+        code: f64,
+        name: &'static str,
+    },
+    #[error(
+        "line {line}: splitting this {length_mm:.3} mm move into pieces of {step_mm} mm needs {pieces} pieces, more than the limit of {limit}: use a larger --split-mm (or raise --max-pieces)"
+    )]
+    TooManyPieces {
+        line: u64,
+        length_mm: f64,
+        step_mm: f64,
+        pieces: f64,
+        limit: usize,
+    },
     #[error("line {line}: arc: {why}")]
     Arc { line: u64, why: String },
     #[error("line {line}: correction {value_um} µm on {axis} exceeds the limit of {limit_um} µm")]
@@ -72,403 +127,337 @@ pub enum RewriteError {
         value_um: f64,
         limit_um: f64,
     },
+    #[error(transparent)]
+    Parse(#[from] ImportErrors),
+    #[error("writing the output: {0}")]
+    Io(#[from] std::io::Error),
 }
 
+/// One motion point as written: the nominal target (machine coordinates, X radial), the
+/// approach directions used, and whether it was compensated. `move_index` counts motion blocks
+/// from 0 (one per canonical motion of the original program).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Point {
+    pub line: u64,
+    pub move_index: usize,
+    pub nominal_mm: [f64; 3],
+    pub dirs: [Direction; 3],
+    pub compensated: bool,
+}
+
+/// Where the rewritten program goes.
+pub trait RewriteSink {
+    fn line(&mut self, text: &str) -> std::io::Result<()>;
+    /// Every motion point written (for checks and plots); ignored by default.
+    fn point(&mut self, _p: &Point) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+impl RewriteSink for String {
+    fn line(&mut self, text: &str) -> std::io::Result<()> {
+        self.push_str(text);
+        self.push('\n');
+        Ok(())
+    }
+}
+
+/// Header of the points CSV written by `retrocomp nc --points` (`retrocomp eval --path` reads it:
+/// nominal machine position in mm, X radial; approach directions +1/−1; compensated 1/0).
+pub const POINTS_HEADER: &str = "line,move,x_mm,y_mm,z_mm,dir_x,dir_y,dir_z,compensated";
+
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum Motion {
+pub(super) enum Motion {
     Rapid,
     Linear,
     Cw,
     Ccw,
 }
 
-/// Plane of G2/G3 as (first, second) axis indices, right-handed about the plane normal.
-fn plane_axes(g: u32) -> (usize, usize) {
-    match g {
-        18 => (2, 0), // G18: Z, X (normal +Y)
-        19 => (1, 2), // G19: Y, Z (normal +X)
-        _ => (0, 1),  // G17: X, Y (normal +Z)
+/// Names of the work coordinate systems G54 … G59.3 (index 0 … 8).
+const WCS_NAMES: [&str; 9] = [
+    "G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3",
+];
+
+/// Modal state. Positions are machine coordinates (X radial); `None` = not known yet.
+pub(super) struct State {
+    pub nominal_mm: [Option<f64>; 3],
+    /// Commanded position as written (after output rounding), machine coordinates.
+    pub commanded_mm: [Option<f64>; 3],
+    pub dirs: [Direction; 3],
+    pub motion: Option<Motion>,
+    pub absolute: bool,
+    /// G90.1: I/J/K are absolute centre coordinates.
+    pub arc_absolute: bool,
+    pub plane: u32,
+    pub diameter: bool,
+    pub inverse_time: bool,
+    pub offsets_mm: [Option<[f64; 3]>; 9],
+    pub wcs: usize,
+    pub ended: bool,
+    pub move_index: usize,
+}
+
+impl State {
+    pub fn offset_mm(&self) -> [f64; 3] {
+        self.offsets_mm[self.wcs].unwrap_or([0.0; 3])
+    }
+    /// Program (work) value of axis `k` as written: X doubled in diameter mode.
+    pub fn machine_to_program(&self, k: usize, machine_mm: f64) -> f64 {
+        let v = machine_mm - self.offset_mm()[k];
+        if k == 0 && self.diameter { 2.0 * v } else { v }
+    }
+    pub fn program_to_machine(&self, k: usize, program: f64) -> f64 {
+        let v = if k == 0 && self.diameter {
+            program / 2.0
+        } else {
+            program
+        };
+        v + self.offset_mm()[k]
     }
 }
 
-struct State {
-    nominal_mm: [Option<f64>; 3],
-    commanded_mm: [f64; 3],
-    dirs: [Direction; 3],
-    motion: Option<Motion>,
-    absolute: bool,
-    plane: u32,
-    ended: bool,
+/// The streaming rewriter: feed blocks in order, then take the stats.
+pub struct Rewriter<'a> {
+    pub(super) model: &'a dyn ErrorFunction,
+    pub(super) cfg: RewriteConfig,
+    pub(super) st: State,
+    pub(super) stats: RewriteStats,
 }
 
-/// Rewrites `blocks` against `model`.
+impl<'a> Rewriter<'a> {
+    pub fn new(model: &'a dyn ErrorFunction, cfg: &RewriteConfig) -> Self {
+        let mut offsets = cfg.work_offsets_mm;
+        offsets[0].get_or_insert([0.0; 3]);
+        let mut st = State {
+            nominal_mm: [None; 3],
+            commanded_mm: [None; 3],
+            dirs: [Direction::Forward; 3],
+            motion: None,
+            absolute: true,
+            arc_absolute: false,
+            plane: 17,
+            diameter: cfg.diameter_x,
+            inverse_time: false,
+            offsets_mm: offsets,
+            wcs: 0,
+            ended: false,
+            move_index: 0,
+        };
+        if let Some(s) = cfg.start_mm {
+            let m: [f64; 3] = std::array::from_fn(|k| st.program_to_machine(k, s[k]));
+            st.nominal_mm = m.map(Some);
+            st.commanded_mm = m.map(Some);
+        }
+        Self {
+            model,
+            cfg: cfg.clone(),
+            st,
+            stats: RewriteStats::default(),
+        }
+    }
+
+    pub fn stats(&self) -> &RewriteStats {
+        &self.stats
+    }
+
+    /// Interprets one block and writes its output.
+    pub fn block(&mut self, b: &Block, sink: &mut dyn RewriteSink) -> Result<(), RewriteError> {
+        self.stats.blocks_in += 1;
+        if self.st.ended {
+            sink.line(&format!("{};", b.source))?;
+            return Ok(());
+        }
+        let has_axis = b.words.iter().any(|w| super::AXES.contains(&w.letter));
+        let non_motion = self.modal(b, has_axis)?;
+        if b.get('M')
+            .is_some_and(|m| m.value == 30.0 || m.value == 2.0)
+        {
+            self.st.ended = true;
+        }
+        if non_motion || !has_axis {
+            sink.line(&format!("{};", b.source))?;
+            return Ok(());
+        }
+        let Some(motion) = self.st.motion else {
+            return Err(RewriteError::NoMotionMode { line: b.line });
+        };
+        self.motion_block(b, motion, sink)?;
+        self.st.move_index += 1;
+        Ok(())
+    }
+
+    /// Applies the block's G codes to the modal state; `true` when the axis words of the block
+    /// are not a motion (G4 dwell, G10 offsets).
+    fn modal(&mut self, b: &Block, has_axis: bool) -> Result<bool, RewriteError> {
+        let line = b.line;
+        let unsupported =
+            |code: f64, why: &'static str| RewriteError::Unsupported { line, code, why };
+        let mut non_motion = false;
+        for g in b.g_codes() {
+            let tenths = (g * 10.0).round() as i64;
+            if ((g * 10.0) - tenths as f64).abs() > 1e-6 {
+                return Err(unsupported(g, "unknown G code"));
+            }
+            match tenths {
+                0 => self.st.motion = Some(Motion::Rapid),
+                10 => self.st.motion = Some(Motion::Linear),
+                20 => self.st.motion = Some(Motion::Cw),
+                30 => self.st.motion = Some(Motion::Ccw),
+                40 => non_motion = true,
+                70 => self.st.diameter = true,
+                80 => self.st.diameter = false,
+                100 => {
+                    self.g10(b)?;
+                    non_motion = true;
+                }
+                170 | 180 | 190 => self.st.plane = (tenths / 10) as u32,
+                210 | 400 | 490 | 610 | 611 | 640 | 690 | 950 | 960 | 970 | 980 | 990 => {}
+                800 => self.st.motion = None,
+                900 => self.st.absolute = true,
+                910 => self.st.absolute = false,
+                901 => self.st.arc_absolute = true,
+                911 => self.st.arc_absolute = false,
+                930 => self.st.inverse_time = true,
+                940 => self.st.inverse_time = false,
+                540 | 550 | 560 | 570 | 580 | 590 | 591 | 592 | 593 => {
+                    let i = if tenths <= 590 {
+                        ((tenths - 540) / 10) as usize
+                    } else {
+                        (tenths - 591) as usize + 6
+                    };
+                    if self.st.offsets_mm[i].is_none() {
+                        return Err(RewriteError::UnknownWorkOffset {
+                            line,
+                            code: g,
+                            name: WCS_NAMES[i],
+                        });
+                    }
+                    self.st.wcs = i;
+                }
+                200 => return Err(unsupported(g, "inch programs: convert to mm first")),
+                500 | 520 | 530 | 920..=923 => {
+                    return Err(unsupported(
+                        g,
+                        "coordinate-system shifts (G50–G53, G92) move the program by unknown amounts; expand them first",
+                    ));
+                }
+                410..=439 => {
+                    return Err(unsupported(
+                        g,
+                        "tool compensation: expand to tool-centre paths first",
+                    ));
+                }
+                280..=301 => {
+                    return Err(unsupported(
+                        g,
+                        "reference-point returns move through unknown points",
+                    ));
+                }
+                330..=339 | 50..=53 | 380..=385 => {
+                    return Err(unsupported(
+                        g,
+                        "threading, splines and probing moves are not rewritten",
+                    ));
+                }
+                150 | 160 | 510 | 680 | 700..=729 | 730..=899 => {
+                    return Err(unsupported(
+                        g,
+                        "polar coordinates, scaling, rotation and canned cycles must be expanded first",
+                    ));
+                }
+                _ if has_axis => {
+                    return Err(unsupported(g, "unknown G code in a block with axis words"));
+                }
+                _ => {}
+            }
+        }
+        Ok(non_motion)
+    }
+
+    /// G10 L2 P<n> X Y Z: sets work offset n (P0 = the current one) to the given values.
+    fn g10(&mut self, b: &Block) -> Result<(), RewriteError> {
+        let line = b.line;
+        let refuse = |why: &str| RewriteError::Refused {
+            line,
+            why: format!("G10: {why}"),
+        };
+        if b.get('L').map(|w| w.value) != Some(2.0) {
+            return Err(refuse(
+                "only L2 (work offset values) is interpreted; tool-table and L20 forms are not",
+            ));
+        }
+        if b.get('R').is_some() {
+            return Err(refuse("rotated coordinate systems (R) are not supported"));
+        }
+        let p = b.get('P').map_or(-1.0, |w| w.value);
+        let i = match p {
+            0.0 => self.st.wcs,
+            p if (1.0..=9.0).contains(&p) && p.fract() == 0.0 => p as usize - 1,
+            _ => return Err(refuse("P must be 0 … 9")),
+        };
+        let mut o = self.st.offsets_mm[i].unwrap_or([0.0; 3]);
+        for (k, &a) in super::AXES.iter().enumerate() {
+            if let Some(w) = b.get(a) {
+                // LinuxCNC halves X in diameter mode here too.
+                o[k] = if k == 0 && self.st.diameter {
+                    w.value / 2.0
+                } else {
+                    w.value
+                };
+            }
+        }
+        // Positions known in machine coordinates stay put; only the program's view changes.
+        self.st.offsets_mm[i] = Some(o);
+        Ok(())
+    }
+
+    /// Value of the axis word in machine mm (X radial): absolute words through the work offset,
+    /// incremental words from the nominal position (None when that is unknown).
+    pub(super) fn word_target(&self, w: &Word, k: usize) -> Option<f64> {
+        if self.st.absolute {
+            Some(self.st.program_to_machine(k, w.value))
+        } else {
+            let v = if k == 0 && self.st.diameter {
+                w.value / 2.0
+            } else {
+                w.value
+            };
+            self.st.nominal_mm[k].map(|n| n + v)
+        }
+    }
+}
+
+/// Rewrites parsed `blocks` into a string (small programs, tests).
 pub fn rewrite(
     blocks: &[Block],
     model: &dyn ErrorFunction,
     cfg: &RewriteConfig,
 ) -> Result<(String, RewriteStats), RewriteError> {
-    let mut st = State {
-        nominal_mm: [None; 3],
-        commanded_mm: [0.0; 3],
-        dirs: [Direction::Forward; 3],
-        motion: None,
-        absolute: true,
-        plane: 17,
-        ended: false,
-    };
+    let mut rw = Rewriter::new(model, cfg);
     let mut out = String::new();
-    let mut stats = RewriteStats {
-        blocks_in: blocks.len(),
-        ..Default::default()
-    };
     for b in blocks {
-        if st.ended {
-            let _ = writeln!(out, "{};", b.source);
-            continue;
-        }
-        let has_axis = b.words.iter().any(|w| AXES.contains(&w.letter));
-        let mut dwell = false;
-        for g in b.g_codes() {
-            let gi = g.round() as u32;
-            if (g - f64::from(gi)).abs() > 1e-9 {
-                return Err(RewriteError::Unsupported {
-                    line: b.line,
-                    code: g,
-                    why: "fractional G codes are not interpreted",
-                });
-            }
-            match gi {
-                0 => st.motion = Some(Motion::Rapid),
-                1 => st.motion = Some(Motion::Linear),
-                2 => st.motion = Some(Motion::Cw),
-                3 => st.motion = Some(Motion::Ccw),
-                4 => dwell = true,
-                17..=19 => st.plane = gi,
-                90 => st.absolute = true,
-                91 => st.absolute = false,
-                21 | 40 | 49 | 61 | 64 | 80 | 94 | 95 | 96 | 97 => {}
-                20 => {
-                    return Err(RewriteError::Unsupported {
-                        line: b.line,
-                        code: g,
-                        why: "inch programs: convert to mm first",
-                    });
-                }
-                54..=59 if cfg.allow_work_offsets => {}
-                54..=59 | 52 | 53 | 92 | 50 => {
-                    return Err(RewriteError::Unsupported {
-                        line: b.line,
-                        code: g,
-                        why: "coordinate systems: the rewriter needs machine coordinates; expand the offset first",
-                    });
-                }
-                41..=44 => {
-                    return Err(RewriteError::Unsupported {
-                        line: b.line,
-                        code: g,
-                        why: "tool compensation: expand to tool-centre paths first",
-                    });
-                }
-                28..=30 => {
-                    return Err(RewriteError::Unsupported {
-                        line: b.line,
-                        code: g,
-                        why: "reference-point returns move through unknown points",
-                    });
-                }
-                51 | 68 | 73..=89 | 70..=72 => {
-                    return Err(RewriteError::Unsupported {
-                        line: b.line,
-                        code: g,
-                        why: "scaling, rotation and canned cycles must be expanded first",
-                    });
-                }
-                _ if has_axis => {
-                    return Err(RewriteError::Unsupported {
-                        line: b.line,
-                        code: g,
-                        why: "unknown G code in a block with axis words",
-                    });
-                }
-                _ => {}
-            }
-        }
-        if b.get('M')
-            .is_some_and(|m| m.value == 30.0 || m.value == 2.0)
-        {
-            st.ended = true;
-        }
-        if dwell || !has_axis {
-            let _ = writeln!(out, "{};", b.source);
-            continue;
-        }
-        let Some(motion) = st.motion else {
-            return Err(RewriteError::NoMotionMode { line: b.line });
-        };
-        emit_move(&mut out, &mut stats, &mut st, b, motion, model, cfg)?;
+        rw.block(b, &mut out)?;
     }
-    Ok((out, stats))
+    Ok((out, rw.stats))
 }
 
-/// Value of the axis word in internal (radial) mm.
-fn word_mm(w: &Word, k: usize, cfg: &RewriteConfig) -> f64 {
-    if k == 0 && cfg.diameter_x {
-        w.value / 2.0
-    } else {
-        w.value
-    }
-}
-
-fn emit_move(
-    out: &mut String,
-    stats: &mut RewriteStats,
-    st: &mut State,
-    b: &Block,
-    motion: Motion,
+/// Streams a program from `input` line by line to `sink`: memory does not grow with the
+/// program or with the number of pieces.
+pub fn rewrite_stream(
+    file: &str,
+    input: impl std::io::BufRead,
+    semicolon_is_eob: bool,
     model: &dyn ErrorFunction,
     cfg: &RewriteConfig,
-) -> Result<(), RewriteError> {
-    let start: [f64; 3] = std::array::from_fn(|k| st.nominal_mm[k].unwrap_or(0.0));
-    let mut end = start;
-    let mut present = [false; 3];
-    for (k, &a) in AXES.iter().enumerate() {
-        if let Some(w) = b.get(a) {
-            let v = word_mm(w, k, cfg);
-            end[k] = if st.absolute { v } else { start[k] + v };
-            present[k] = true;
+    sink: &mut dyn RewriteSink,
+) -> Result<RewriteStats, RewriteError> {
+    let mut rw = Rewriter::new(model, cfg);
+    for (i, raw) in input.lines().enumerate() {
+        let raw = raw?;
+        for b in parse_line(file, i as u64 + 1, &raw, semicolon_is_eob)? {
+            rw.block(&b, sink)?;
         }
     }
-    // Sub-points (end of each piece) with the direction of motion arriving there, and for arcs the
-    // centre.
-    let mut pieces: Vec<([f64; 3], [Option<Direction>; 3])> = Vec::new();
-    let mut centre: Option<[f64; 3]> = None;
-    let sign_dir = |d: f64| {
-        if d.abs() < 1e-9 {
-            None
-        } else if d > 0.0 {
-            Some(Direction::Forward)
-        } else {
-            Some(Direction::Reverse)
-        }
-    };
-    match motion {
-        Motion::Rapid | Motion::Linear => {
-            let len = (0..3)
-                .map(|k| (end[k] - start[k]).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            let n = match (motion, cfg.split_step_mm) {
-                (Motion::Linear, Some(step)) if step > 0.0 => (len / step).ceil().max(1.0) as usize,
-                _ => 1,
-            };
-            let d: [Option<Direction>; 3] = std::array::from_fn(|k| sign_dir(end[k] - start[k]));
-            for i in 1..=n {
-                let f = i as f64 / n as f64;
-                pieces.push((
-                    std::array::from_fn(|k| start[k] + f * (end[k] - start[k])),
-                    d,
-                ));
-            }
-        }
-        Motion::Cw | Motion::Ccw => {
-            let (a, bb) = plane_axes(st.plane);
-            let c = arc_centre(b, start, end, (a, bb), motion)?;
-            let r0 = ((start[a] - c[a]).powi(2) + (start[bb] - c[bb]).powi(2)).sqrt();
-            let th0 = (start[bb] - c[bb]).atan2(start[a] - c[a]);
-            let mut th1 = (end[bb] - c[bb]).atan2(end[a] - c[a]);
-            let ccw = motion == Motion::Ccw;
-            if ccw {
-                while th1 <= th0 + 1e-12 {
-                    th1 += std::f64::consts::TAU;
-                }
-            } else {
-                while th1 >= th0 - 1e-12 {
-                    th1 -= std::f64::consts::TAU;
-                }
-            }
-            let sweep = th1 - th0;
-            let n = match cfg.split_step_mm {
-                Some(step) if step > 0.0 => ((sweep.abs() * r0) / step).ceil().max(1.0) as usize,
-                _ => 1,
-            };
-            for i in 1..=n {
-                let f = i as f64 / n as f64;
-                let th = th0 + f * sweep;
-                let mut p: [f64; 3] = std::array::from_fn(|k| start[k] + f * (end[k] - start[k])); // helix axis linear
-                if i == n {
-                    p[a] = end[a];
-                    p[bb] = end[bb];
-                } else {
-                    p[a] = c[a] + r0 * th.cos();
-                    p[bb] = c[bb] + r0 * th.sin();
-                }
-                // Tangent of the motion at this point.
-                let s = if ccw { 1.0 } else { -1.0 };
-                let mut d: [Option<Direction>; 3] =
-                    std::array::from_fn(|k| sign_dir(end[k] - start[k]));
-                d[a] = sign_dir(-s * th.sin());
-                d[bb] = sign_dir(s * th.cos());
-                pieces.push((p, d));
-            }
-            centre = Some(c);
-        }
-    }
-    // Evaluate all pieces first: the whole move is either compensated or (end outside the domain)
-    // left verbatim.
-    let mut comp: Vec<[f64; 3]> = Vec::with_capacity(pieces.len());
-    let mut dirs = st.dirs;
-    let mut outside = false;
-    for (p, d) in &pieces {
-        for k in 0..3 {
-            if let Some(dk) = d[k] {
-                dirs[k] = dk;
-            }
-        }
-        match model.error_um(*p, dirs) {
-            Some(e) => {
-                let mut c = *p;
-                for k in 0..3 {
-                    if !e[k].is_finite() || e[k].abs() > cfg.max_correction_um {
-                        return Err(RewriteError::Limit {
-                            line: b.line,
-                            axis: AXES[k],
-                            value_um: e[k],
-                            limit_um: cfg.max_correction_um,
-                        });
-                    }
-                    c[k] = p[k] - e[k] / 1000.0;
-                    stats.max_abs_correction_um = stats.max_abs_correction_um.max(e[k].abs());
-                }
-                comp.push(c);
-            }
-            None => {
-                outside = true;
-                comp.push(*p);
-            }
-        }
-    }
-    st.dirs = dirs;
-    for k in 0..3 {
-        if present[k] {
-            st.nominal_mm[k] = Some(end[k]);
-        }
-    }
-    let end_outside = model.error_um(end, dirs).is_none();
-    if outside && end_outside && pieces.len() == 1 {
-        stats.moves_outside_domain += 1;
-        let _ = writeln!(out, "{};", b.source);
-        st.commanded_mm = end;
-        stats.points_emitted += 1;
-        return Ok(());
-    }
-    stats.moves_compensated += 1;
-    let known: [bool; 3] = std::array::from_fn(|k| st.nominal_mm[k].is_some());
-    let (pa, pb) = plane_axes(st.plane);
-    for (i, c) in comp.iter().enumerate() {
-        let mut line = String::new();
-        if i == 0 {
-            for w in b.words.iter().filter(|w| matches!(w.letter, 'N' | 'G')) {
-                let _ = write!(line, "{}{} ", w.letter, w.text);
-            }
-        }
-        for k in 0..3 {
-            if !known[k] {
-                continue;
-            }
-            let v = if st.absolute {
-                c[k]
-            } else {
-                c[k] - st.commanded_mm[k]
-            };
-            let v = if k == 0 && cfg.diameter_x { 2.0 * v } else { v };
-            let _ = write!(line, "{}{} ", AXES[k], fmt_mm(v));
-        }
-        if let Some(ctr) = centre {
-            // I/J/K from the compensated start of this piece to the nominal centre.
-            let from = if i == 0 { st.commanded_mm } else { comp[i - 1] };
-            for k in [pa, pb] {
-                let letter = ['I', 'J', 'K'][k];
-                let _ = write!(line, "{letter}{} ", fmt_mm(ctr[k] - from[k]));
-            }
-        }
-        if i == 0 {
-            for w in b.words.iter().filter(|w| {
-                !matches!(
-                    w.letter,
-                    'N' | 'G' | 'X' | 'Y' | 'Z' | 'I' | 'J' | 'K' | 'R'
-                )
-            }) {
-                let _ = write!(line, "{}{} ", w.letter, w.text);
-            }
-        }
-        let _ = writeln!(out, "{};", line.trim_end());
-        stats.points_emitted += 1;
-    }
-    st.commanded_mm = *comp.last().expect("at least one piece");
-    Ok(())
-}
-
-/// Arc centre from R (perpendicular bisector) or I/J/K (incremental from the start; on a lathe I
-/// is a radius value, like the internal X).
-fn arc_centre(
-    b: &Block,
-    start: [f64; 3],
-    end: [f64; 3],
-    (a, bb): (usize, usize),
-    motion: Motion,
-) -> Result<[f64; 3], RewriteError> {
-    let ijk = ['I', 'J', 'K'];
-    let mut c = start;
-    if let Some(r) = b.get('R') {
-        // Centre on the perpendicular bisector; R < 0 selects the arc longer than 180°.
-        let (dx, dy) = (end[a] - start[a], end[bb] - start[bb]);
-        let d = (dx * dx + dy * dy).sqrt();
-        let rr = r.value.abs();
-        if d < 1e-12 || d > 2.0 * rr + 1e-9 {
-            return Err(RewriteError::Arc {
-                line: b.line,
-                why: format!("radius {} cannot join points {d:.4} mm apart", r.value),
-            });
-        }
-        let h = (rr * rr - d * d / 4.0).max(0.0).sqrt();
-        let (mx, my) = (start[a] + dx / 2.0, start[bb] + dy / 2.0);
-        let (ux, uy) = (-dy / d, dx / d); // left normal of the chord
-        let left = (motion == Motion::Ccw) == (r.value > 0.0);
-        let s = if left { 1.0 } else { -1.0 };
-        c[a] = mx + s * h * ux;
-        c[bb] = my + s * h * uy;
-        return Ok(c);
-    }
-    let mut any = false;
-    for k in [a, bb] {
-        if let Some(w) = b.get(ijk[k]) {
-            c[k] = start[k] + w.value;
-            any = true;
-        }
-    }
-    if !any {
-        return Err(RewriteError::Arc {
-            line: b.line,
-            why: "needs I/J/K or R".to_string(),
-        });
-    }
-    let r0 = ((start[a] - c[a]).powi(2) + (start[bb] - c[bb]).powi(2)).sqrt();
-    let r1 = ((end[a] - c[a]).powi(2) + (end[bb] - c[bb]).powi(2)).sqrt();
-    if (r0 - r1).abs() > 1e-3 {
-        return Err(RewriteError::Arc {
-            line: b.line,
-            why: format!("start radius {r0:.4} and end radius {r1:.4} differ"),
-        });
-    }
-    Ok(c)
-}
-
-/// mm with 4 decimals (0.1 µm), `-0.0000` printed as `0.0000`.
-pub fn fmt_mm(v: f64) -> String {
-    let s = format!("{v:.4}");
-    if s == "-0.0000" {
-        "0.0000".to_string()
-    } else {
-        s
-    }
+    Ok(rw.stats)
 }
