@@ -20,7 +20,7 @@ use super::engine::{Engine, ErrorModel};
 use super::health::{FaultKind, FaultLog};
 use super::http::serve_status;
 use super::status::{SinkStatus, StatusSnapshot};
-use crate::bus::Sample;
+use super::supervise::SourceFeed;
 use crate::origin_shift::{OriginShiftClient, Outcome};
 
 /// What a run reports when it stops.
@@ -39,14 +39,22 @@ type Outputs = Vec<(String, f64)>;
 /// Run until `shutdown` resolves. `epoch` is the clock the sources stamp samples with (`t_s` =
 /// seconds since it); the engine runs on the same clock so staleness is judged right.
 /// `status_addr` receives the bound status address (port 0 allowed).
+/// `sources` is the sample channel, or a [`SourceFeed`] from `spawn_sources` (then the sources'
+/// links show in the status, and the run stops with an error when a source or the sink task ends).
 pub async fn run(
     cfg: FieldConfig,
     mut model: Box<dyn ErrorModel + Send>,
-    mut samples: mpsc::Receiver<Sample>,
+    sources: impl Into<SourceFeed>,
     epoch: std::time::Instant,
     shutdown: impl std::future::Future<Output = ()>,
     status_addr: Option<tokio::sync::oneshot::Sender<SocketAddr>>,
 ) -> anyhow::Result<RunSummary> {
+    let SourceFeed {
+        mut samples,
+        board: source_board,
+        mut deaths,
+        cycles: cycle_counter,
+    } = sources.into();
     let (status_tx, status_rx) = watch::channel::<Option<Arc<StatusSnapshot>>>(None);
     let listen: SocketAddr = cfg
         .gateway
@@ -66,7 +74,7 @@ pub async fn run(
     let (reseed_tx, mut reseed_rx) = mpsc::channel::<(String, f64)>(8);
     let (sink_status_tx, sink_status_rx) = watch::channel::<SinkStatus>(SinkStatus::default());
     let mut initial = BTreeMap::new();
-    let sink_task = if let Some(os) = cfg.sink.origin_shift.clone() {
+    let mut sink_task = if let Some(os) = cfg.sink.origin_shift.clone() {
         let mut client =
             OriginShiftClient::new(os.client(), os.map.clone()).context("sink.origin_shift.map")?;
         initial = read_initial(&mut client).await;
@@ -114,6 +122,12 @@ pub async fn run(
         tokio::select! {
             _ = &mut shutdown => break,
             _ = tick.tick() => {}
+            why = deaths.next() => bail!("{why}: stopping the gateway"),
+            end = async { match sink_task.as_mut() { Some(t) => t.await, None => std::future::pending().await } } => {
+                let why = match end { Ok(()) => "returned".to_string(), Err(e) => e.to_string() };
+                tracing::error!(why, "the sink task ended; stopping so the service manager restarts the gateway");
+                bail!("the sink task ended ({why}): stopping the gateway");
+            }
         }
         while let Ok(s) = samples.try_recv() {
             engine.ingest(&s);
@@ -135,8 +149,14 @@ pub async fn run(
         out_tx.send_modify(|held| copy_outputs(held, outs));
         let mut snap = engine.snapshot();
         snap.sink = Some(sink_status_rx.borrow().clone());
+        source_board.copy_into(&mut snap.sources);
+        for src in &snap.sources {
+            let faults = src.faults.iter().map(|&(k, t)| (src.name.clone(), k, t));
+            snap.active_faults.extend(faults);
+        }
         let _ = status_tx.send(Some(Arc::new(snap)));
         summary.cycles += 1;
+        cycle_counter.set(summary.cycles);
     }
     if let Some(t) = sink_task {
         t.abort();
