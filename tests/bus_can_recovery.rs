@@ -59,7 +59,11 @@ fn socketcand_peer_hangs_up_and_comes_back_and_reports_bus_off() {
     });
     assert!(has_fault(&st, "can", "disconnected"), "{st:#}");
     let m = gw.get("/metrics").unwrap();
-    assert_eq!(metric(&m, "retrocomp_source_connected{source=\"can\"}"), Some(0.0), "{m}");
+    assert_eq!(
+        metric(&m, "retrocomp_source_connected{source=\"can\"}"),
+        Some(0.0),
+        "{m}"
+    );
 
     // It comes back with a new position: the source reconnects by itself and the new value flows.
     peer.send("counts 200000");
@@ -75,7 +79,10 @@ fn socketcand_peer_hangs_up_and_comes_back_and_reports_bus_off() {
             break;
         }
         seen.push(l);
-        assert!(seen.len() < 100, "no NMT start after the reconnect: {seen:?}");
+        assert!(
+            seen.len() < 100,
+            "no NMT start after the reconnect: {seen:?}"
+        );
     }
     let st = gw.wait_status("z = 200 mm after the reconnect", |s| {
         z_mm(s) == Some(200.0) && source(s, "can")["connected"] == true
@@ -90,8 +97,16 @@ fn socketcand_peer_hangs_up_and_comes_back_and_reports_bus_off() {
         "{st:#}"
     );
     let m = gw.get("/metrics").unwrap();
-    assert_eq!(metric(&m, "retrocomp_source_connected{source=\"can\"}"), Some(1.0), "{m}");
-    assert_eq!(metric(&m, "retrocomp_source_reconnects_total{source=\"can\"}"), Some(1.0), "{m}");
+    assert_eq!(
+        metric(&m, "retrocomp_source_connected{source=\"can\"}"),
+        Some(1.0),
+        "{m}"
+    );
+    assert_eq!(
+        metric(&m, "retrocomp_source_reconnects_total{source=\"can\"}"),
+        Some(1.0),
+        "{m}"
+    );
 
     // Bus-off (socketcand forwards the kernel's error frame class 0x040) until a restart (0x100).
     peer.send("busoff");
@@ -99,9 +114,21 @@ fn socketcand_peer_hangs_up_and_comes_back_and_reports_bus_off() {
     let st = gw.wait_status("bus-off", |s| source(s, "can")["can"]["state"] == "bus_off");
     assert!(has_fault(&st, "can", "bus_off"), "{st:#}");
     let m = gw.get("/metrics").unwrap();
-    assert_eq!(metric(&m, "retrocomp_can_bus_state{source=\"can\"}"), Some(3.0), "{m}");
-    assert_eq!(metric(&m, "retrocomp_can_bus_off_total{source=\"can\"}"), Some(1.0), "{m}");
-    assert_eq!(metric(&m, "retrocomp_can_error_frames_total{source=\"can\"}"), Some(1.0), "{m}");
+    assert_eq!(
+        metric(&m, "retrocomp_can_bus_state{source=\"can\"}"),
+        Some(3.0),
+        "{m}"
+    );
+    assert_eq!(
+        metric(&m, "retrocomp_can_bus_off_total{source=\"can\"}"),
+        Some(1.0),
+        "{m}"
+    );
+    assert_eq!(
+        metric(&m, "retrocomp_can_error_frames_total{source=\"can\"}"),
+        Some(1.0),
+        "{m}"
+    );
     peer.send("counts 300000");
     peer.expect("OK counts 300000", 20);
     peer.send("restarted");
@@ -111,14 +138,24 @@ fn socketcand_peer_hangs_up_and_comes_back_and_reports_bus_off() {
     });
     assert!(!has_fault(&st, "can", "bus_off"), "{st:#}");
     // BusErrors holds 1 s after the last error frame, then clears (event: wait for it).
-    gw.wait_status("the bus-errors episode over", |s| !has_fault(s, "can", "bus_errors"));
+    gw.wait_status("the bus-errors episode over", |s| {
+        !has_fault(s, "can", "bus_errors")
+    });
 
     let exit = gw.stop();
     assert!(exit.success(), "{exit:?}\n{}", gw.log().join("\n"));
     let log = gw.log().join("\n");
     for kind in ["Disconnected", "BusOff", "BusErrors"] {
-        assert_eq!(fault_lines(&gw, "fault started", kind), 1, "{kind} start lines:\n{log}");
-        assert_eq!(fault_lines(&gw, "fault cleared", kind), 1, "{kind} clear lines:\n{log}");
+        assert_eq!(
+            fault_lines(&gw, "fault started", kind),
+            1,
+            "{kind} start lines:\n{log}"
+        );
+        assert_eq!(
+            fault_lines(&gw, "fault cleared", kind),
+            1,
+            "{kind} clear lines:\n{log}"
+        );
     }
     assert!(!log.contains("CAN source stopped"), "{log}");
 }

@@ -54,9 +54,14 @@ channel = [{{ channel = "T_spindle_C", kind = "input", address = 0, type = "int1
     let mut gw = Gateway::start(&cfg, status_port, &[]);
 
     // No device yet: every poll fails.
-    let st = gw.wait_status("the Modbus source down", |s| has_fault(s, SRC, "disconnected"));
+    let st = gw.wait_status("the Modbus source down", |s| {
+        has_fault(s, SRC, "disconnected")
+    });
     assert_eq!(source(&st, SRC)["connected"], false, "{st:#}");
-    assert!(source(&st, SRC)["modbus"]["connect_failures"].as_u64() > Some(0), "{st:#}");
+    assert!(
+        source(&st, SRC)["modbus"]["connect_failures"].as_u64() > Some(0),
+        "{st:#}"
+    );
 
     // The device comes up.
     let mut mb = peers::spawn_python("pymodbus_flaky.py", &[&mb_port.to_string()]);
@@ -73,10 +78,16 @@ channel = [{{ channel = "T_spindle_C", kind = "input", address = 0, type = "int1
     assert_eq!(source(&st, SRC)["connected"], true, "{st:#}");
     assert!(!has_fault(&st, SRC, "disconnected"), "{st:#}");
     let m = gw.get("/metrics").unwrap();
-    let exceptions = metric(&m, "retrocomp_modbus_exceptions_total{source=\"modbus.pt100\"}");
+    let exceptions = metric(
+        &m,
+        "retrocomp_modbus_exceptions_total{source=\"modbus.pt100\"}",
+    );
     assert!(exceptions.is_some_and(|n| n >= 1.0), "{m}");
     assert_eq!(
-        metric(&m, "retrocomp_source_faults_active{source=\"modbus.pt100\"}"),
+        metric(
+            &m,
+            "retrocomp_source_faults_active{source=\"modbus.pt100\"}"
+        ),
         Some(1.0),
         "{m}"
     );

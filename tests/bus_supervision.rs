@@ -71,7 +71,8 @@ fn a_source_task_that_returns_stops_the_process_with_an_error() {
     let log = gw.log().join("\n");
     assert_eq!(exit.code(), Some(1), "{exit:?}\n{log}");
     assert!(
-        !gw.log_lines(&["ERROR", "a gateway task ended", "task=\"can\""]).is_empty(),
+        !gw.log_lines(&["ERROR", "a gateway task ended", "task=\"can\""])
+            .is_empty(),
         "{log}"
     );
     assert!(log.contains("error: task `can` ended"), "{log}");
@@ -98,7 +99,7 @@ fn ready_then_watchdog_pings_and_no_pings_once_the_cycle_hangs() {
     let sock = UnixDatagram::bind(&sock_path).unwrap();
     let sock_str = sock_path.to_str().unwrap();
     // WATCHDOG_USEC = 0.2 s: the gateway looks at its cycle counter every 0.1 s.
-    let mut gw = Gateway::start(
+    let gw = Gateway::start(
         &cfg,
         status_port,
         &[
@@ -111,7 +112,11 @@ fn ready_then_watchdog_pings_and_no_pings_once_the_cycle_hangs() {
     let t0 = Instant::now();
     // READY=1 first, then pings while the cycle runs (the hang comes after 200 model evaluations).
     while !got.iter().any(|m: &String| m == "WATCHDOG=1") {
-        assert!(t0.elapsed() < PATIENCE, "no READY/WATCHDOG: {got:?}\n{}", gw.log().join("\n"));
+        assert!(
+            t0.elapsed() < PATIENCE,
+            "no READY/WATCHDOG: {got:?}\n{}",
+            gw.log().join("\n")
+        );
         if let Some(msg) = recv_notify(&sock, Duration::from_secs(1)) {
             got.extend(msg);
         }
@@ -120,8 +125,15 @@ fn ready_then_watchdog_pings_and_no_pings_once_the_cycle_hangs() {
     assert_eq!(got.iter().filter(|m| *m == "READY=1").count(), 1, "{got:?}");
     // The cycle hangs: the hook says so in the log.
     let t0 = Instant::now();
-    while gw.log_lines(&["RETROCOMP_TEST_HANG_CYCLE_AFTER", "blocks forever"]).is_empty() {
-        assert!(t0.elapsed() < PATIENCE, "the hang hook never ran:\n{}", gw.log().join("\n"));
+    while gw
+        .log_lines(&["RETROCOMP_TEST_HANG_CYCLE_AFTER", "blocks forever"])
+        .is_empty()
+    {
+        assert!(
+            t0.elapsed() < PATIENCE,
+            "the hang hook never ran:\n{}",
+            gw.log().join("\n")
+        );
         while recv_notify(&sock, Duration::from_millis(10)).is_some() {}
     }
     // From now on at most one more ping (a look taken just before the hang) in 20 look periods;
@@ -136,5 +148,8 @@ fn ready_then_watchdog_pings_and_no_pings_once_the_cycle_hangs() {
     let pings = after.iter().filter(|m| *m == "WATCHDOG=1").count();
     assert!(pings <= 1, "{pings} pings after the cycle hung: {after:?}");
     // The process is alive (only the cycle hangs): systemd's WatchdogSec is what ends it.
-    assert!(gw.get("/metrics").is_some(), "the status endpoint still answers");
+    assert!(
+        gw.get("/metrics").is_some(),
+        "the status endpoint still answers"
+    );
 }

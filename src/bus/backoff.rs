@@ -23,7 +23,11 @@ impl Backoff {
     /// doubles from one millisecond (a zero delay must never become a busy loop).
     pub fn new(min: Duration, max: Duration) -> Self {
         let max = max.max(min);
-        Backoff { min, max, next: min }
+        Backoff {
+            min,
+            max,
+            next: min,
+        }
     }
 
     /// From seconds as written in config files; negative or non-finite values become 0 (min) or
@@ -47,10 +51,7 @@ impl Backoff {
     /// The wait before the next attempt after a failure; the one after it is twice as long (≤ max).
     pub fn next_delay(&mut self) -> Duration {
         let d = self.next;
-        let doubled = self
-            .next
-            .max(Duration::from_millis(1))
-            .saturating_mul(2);
+        let doubled = self.next.max(Duration::from_millis(1)).saturating_mul(2);
         self.next = doubled.min(self.max).max(self.min);
         d
     }
@@ -116,6 +117,9 @@ mod tests {
         let mut b = Backoff::from_secs_f64(2.0, 1.0);
         assert_eq!((b.next_delay(), b.next_delay()), (ms(2000), ms(2000)));
         let mut b = Backoff::new(Duration::MAX, Duration::MAX);
-        assert_eq!((b.next_delay(), b.next_delay()), (Duration::MAX, Duration::MAX));
+        assert_eq!(
+            (b.next_delay(), b.next_delay()),
+            (Duration::MAX, Duration::MAX)
+        );
     }
 }

@@ -186,7 +186,10 @@ impl SourceReporter {
     pub fn publish(&mut self, now_s: f64) -> Vec<FaultEvent> {
         let faults = self.faults(now_s);
         let same = faults.len() == self.status.faults.len()
-            && faults.iter().zip(&self.status.faults).all(|(a, (b, _))| a == b);
+            && faults
+                .iter()
+                .zip(&self.status.faults)
+                .all(|(a, (b, _))| a == b);
         let events = if same {
             Vec::new()
         } else {
@@ -275,6 +278,9 @@ mod tests {
             starts(&events),
             [(FaultKind::Exception, true), (FaultKind::Exception, false)]
         );
-        assert_eq!(r.status.reconnects, 0, "the first connection is not a reconnect");
+        assert_eq!(
+            r.status.reconnects, 0,
+            "the first connection is not a reconnect"
+        );
     }
 }

@@ -68,8 +68,14 @@ pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> anyhow::Result<
         let btx = forward(tx.clone(), &name, notice.clone());
         tracing::info!(source = %m.name, transport = ?m.transport, "starting Modbus poller");
         let rep = SourceReporter::new(&name, false, board.clone());
-        spawn_modbus(ModbusPoller::new(m.clone()), clock, btx, rep, notice.clone())
-            .with_context(|| format!("modbus source {:?}: cannot start its thread", m.name))?;
+        spawn_modbus(
+            ModbusPoller::new(m.clone()),
+            clock,
+            btx,
+            rep,
+            notice.clone(),
+        )
+        .with_context(|| format!("modbus source {:?}: cannot start its thread", m.name))?;
     }
     for s in cfg.serial.iter().flat_map(|s| &s.source) {
         let port = serial::open(s).with_context(|| {
@@ -100,7 +106,11 @@ pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> anyhow::Result<
 }
 
 /// A batch sender whose batches are unpacked into `tx` by a forwarding task.
-fn forward(tx: mpsc::Sender<Sample>, source: &str, notice: DeathNotice) -> mpsc::Sender<Vec<Sample>> {
+fn forward(
+    tx: mpsc::Sender<Sample>,
+    source: &str,
+    notice: DeathNotice,
+) -> mpsc::Sender<Vec<Sample>> {
     let (btx, mut brx) = mpsc::channel::<Vec<Sample>>(1024);
     let kill = std::env::var(KILL_HOOK)
         .ok()
@@ -109,9 +119,14 @@ fn forward(tx: mpsc::Sender<Sample>, source: &str, notice: DeathNotice) -> mpsc:
     tokio::spawn(async move {
         while let Some(batch) = brx.recv().await {
             match kill.as_deref() {
-                Some("panic") => panic!("{KILL_HOOK}: source `{source}` forwarder panics (test hook)"),
+                Some("panic") => {
+                    panic!("{KILL_HOOK}: source `{source}` forwarder panics (test hook)")
+                }
                 Some("return") => {
-                    notice.report(&source, &format!("{KILL_HOOK}: forwarder returned (test hook)"));
+                    notice.report(
+                        &source,
+                        &format!("{KILL_HOOK}: forwarder returned (test hook)"),
+                    );
                     return;
                 }
                 _ => {}
@@ -144,14 +159,21 @@ async fn can_loop(
     rep.publish(clock());
     loop {
         if let Some(mut b) = bus.take() {
-            let result = canopen::run_observed(&mut b, &mut src, clock, CAN_POLL, out.clone(), |b, frames| {
-                if frames > 0 && !rep.is_connected() {
-                    rep.on_link_up();
-                    tracing::info!(source = rep.name(), "CAN frames flow again");
-                }
-                rep.on_can_bus(b.bus_errors(), &base, clock());
-                rep.publish(clock());
-            })
+            let result = canopen::run_observed(
+                &mut b,
+                &mut src,
+                clock,
+                CAN_POLL,
+                out.clone(),
+                |b, frames| {
+                    if frames > 0 && !rep.is_connected() {
+                        rep.on_link_up();
+                        tracing::info!(source = rep.name(), "CAN frames flow again");
+                    }
+                    rep.on_can_bus(b.bus_errors(), &base, clock());
+                    rep.publish(clock());
+                },
+            )
             .await;
             let seen = b.bus_errors();
             base.error_frames += seen.error_frames;
@@ -202,16 +224,20 @@ fn spawn_modbus(
         .enable_all()
         .build()?;
     rep.publish(clock());
-    std::thread::Builder::new().name(name.clone()).spawn(move || {
-        let closed = out.clone();
-        rt.block_on(poller.run_observed(&clock, out, |before, after, connected| {
-            rep.on_modbus_poll(before, after, connected);
-            rep.publish(clock());
-        }));
-        if !closed.is_closed() {
-            notice.report(&name, "the Modbus poller returned");
-        }
-    })?;
+    std::thread::Builder::new()
+        .name(name.clone())
+        .spawn(move || {
+            let closed = out.clone();
+            rt.block_on(
+                poller.run_observed(&clock, out, |before, after, connected| {
+                    rep.on_modbus_poll(before, after, connected);
+                    rep.publish(clock());
+                }),
+            );
+            if !closed.is_closed() {
+                notice.report(&name, "the Modbus poller returned");
+            }
+        })?;
     Ok(())
 }
 

@@ -296,34 +296,84 @@ impl StatusSnapshot {
                 }
             }
         };
-        family(s, "retrocomp_source_connected", "gauge", "1 when the source's link is up.");
-        each(s, "retrocomp_source_connected", &|x| Some((x.connected as u8).to_string()));
-        family(s, "retrocomp_source_reconnects_total", "counter", "Links re-established after a loss.");
-        each(s, "retrocomp_source_reconnects_total", &|x| Some(x.reconnects.to_string()));
-        family(s, "retrocomp_source_faults_active", "gauge", "Source-level faults active now.");
-        each(s, "retrocomp_source_faults_active", &|x| Some(x.faults.len().to_string()));
+        family(
+            s,
+            "retrocomp_source_connected",
+            "gauge",
+            "1 when the source's link is up.",
+        );
+        each(s, "retrocomp_source_connected", &|x| {
+            Some((x.connected as u8).to_string())
+        });
+        family(
+            s,
+            "retrocomp_source_reconnects_total",
+            "counter",
+            "Links re-established after a loss.",
+        );
+        each(s, "retrocomp_source_reconnects_total", &|x| {
+            Some(x.reconnects.to_string())
+        });
+        family(
+            s,
+            "retrocomp_source_faults_active",
+            "gauge",
+            "Source-level faults active now.",
+        );
+        each(s, "retrocomp_source_faults_active", &|x| {
+            Some(x.faults.len().to_string())
+        });
         family(
             s,
             "retrocomp_can_bus_state",
             "gauge",
             "CAN controller state: 0 error-active, 1 warning, 2 error-passive, 3 bus-off.",
         );
-        each(s, "retrocomp_can_bus_state", &|x| x.can.map(|c| (c.state as u8).to_string()));
-        family(s, "retrocomp_can_error_frames_total", "counter", "CAN error frames received.");
+        each(s, "retrocomp_can_bus_state", &|x| {
+            x.can.map(|c| (c.state as u8).to_string())
+        });
+        family(
+            s,
+            "retrocomp_can_error_frames_total",
+            "counter",
+            "CAN error frames received.",
+        );
         each(s, "retrocomp_can_error_frames_total", &|x| {
             x.can.map(|c| c.error_frames.to_string())
         });
-        family(s, "retrocomp_can_bus_off_total", "counter", "Times the CAN controller went bus-off.");
-        each(s, "retrocomp_can_bus_off_total", &|x| x.can.map(|c| c.bus_off_events.to_string()));
-        family(s, "retrocomp_can_tx_error_count", "gauge", "CAN transmit error counter (TEC).");
+        family(
+            s,
+            "retrocomp_can_bus_off_total",
+            "counter",
+            "Times the CAN controller went bus-off.",
+        );
+        each(s, "retrocomp_can_bus_off_total", &|x| {
+            x.can.map(|c| c.bus_off_events.to_string())
+        });
+        family(
+            s,
+            "retrocomp_can_tx_error_count",
+            "gauge",
+            "CAN transmit error counter (TEC).",
+        );
         each(s, "retrocomp_can_tx_error_count", &|x| {
             x.can.and_then(|c| c.tx_error_count).map(|v| v.to_string())
         });
-        family(s, "retrocomp_can_rx_error_count", "gauge", "CAN receive error counter (REC).");
+        family(
+            s,
+            "retrocomp_can_rx_error_count",
+            "gauge",
+            "CAN receive error counter (REC).",
+        );
         each(s, "retrocomp_can_rx_error_count", &|x| {
             x.can.and_then(|c| c.rx_error_count).map(|v| v.to_string())
         });
-        family(s, "retrocomp_modbus_exceptions_total", "counter", "Modbus exception replies.");
+        family(
+            s,
+            "retrocomp_modbus_exceptions_total",
+            "counter",
+            "Modbus exception replies.",
+        );
         each(s, "retrocomp_modbus_exceptions_total", &|x| {
             x.modbus.map(|m| m.exceptions.to_string())
         });
@@ -334,7 +384,8 @@ impl StatusSnapshot {
             "Modbus requests without an answer (timeout or transport error).",
         );
         each(s, "retrocomp_modbus_failed_requests_total", &|x| {
-            x.modbus.map(|m| (m.timeouts + m.transport_errors).to_string())
+            x.modbus
+                .map(|m| (m.timeouts + m.transport_errors).to_string())
         });
     }
 
@@ -402,14 +453,20 @@ impl StatusSnapshot {
                 if src.connected { "connected" } else { "DOWN" },
                 src.reconnects,
                 src.can
-                    .map(|c| format!(" bus={:?} error_frames={}", c.state, c.error_frames).to_lowercase())
+                    .map(
+                        |c| format!(" bus={:?} error_frames={}", c.state, c.error_frames)
+                            .to_lowercase()
+                    )
                     .unwrap_or_default(),
                 if src.faults.is_empty() {
                     String::new()
                 } else {
                     format!(" faults={:?}", src.faults)
                 },
-                src.last_error.as_ref().map(|e| format!(" last_error={e}")).unwrap_or_default(),
+                src.last_error
+                    .as_ref()
+                    .map(|e| format!(" last_error={e}"))
+                    .unwrap_or_default(),
             );
         }
         if let Some(e) = &self.model_error {

@@ -74,7 +74,11 @@ impl TaskDeaths {
 
 impl DeathNotice {
     pub fn report(&self, task: &str, why: &str) {
-        tracing::error!(task, why, "a gateway task ended; stopping so the service manager restarts it");
+        tracing::error!(
+            task,
+            why,
+            "a gateway task ended; stopping so the service manager restarts it"
+        );
         let _ = self.0.send(format!("task `{task}` ended: {why}"));
     }
 }
@@ -125,12 +129,17 @@ impl WatchdogCore {
 
 /// Start the watchdog thread when running under a service manager (`NOTIFY_SOCKET` set). It looks
 /// at the counter every half `WATCHDOG_USEC` (or every second without one).
-pub fn spawn_watchdog(cycles: CycleCounter) -> std::io::Result<Option<std::thread::JoinHandle<()>>> {
+pub fn spawn_watchdog(
+    cycles: CycleCounter,
+) -> std::io::Result<Option<std::thread::JoinHandle<()>>> {
     if std::env::var_os("NOTIFY_SOCKET").is_none() {
         return Ok(None);
     }
     let period = sd_notify::watchdog_enabled().map_or(DEFAULT_PING, |d| d / 2);
-    tracing::info!(?period, "service manager notification on; watchdog look period");
+    tracing::info!(
+        ?period,
+        "service manager notification on; watchdog look period"
+    );
     std::thread::Builder::new()
         .name("sd-watchdog".into())
         .spawn(move || {

@@ -94,7 +94,11 @@ impl Gateway {
     pub fn get(&self, path: &str) -> Option<String> {
         let mut s = std::net::TcpStream::connect(("127.0.0.1", self.status_port)).ok()?;
         s.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
-        write!(s, "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").ok()?;
+        write!(
+            s,
+            "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+        )
+        .ok()?;
         let mut body = String::new();
         s.read_to_string(&mut body).ok()?;
         let (head, body) = body.split_once("\r\n\r\n")?;
@@ -115,7 +119,10 @@ impl Gateway {
         let mut last = serde_json::Value::Null;
         while t0.elapsed() < PATIENCE {
             if let Ok(Some(st)) = self.child.try_wait() {
-                panic!("gateway exited ({st}) while waiting for {what}:\n{}", self.log().join("\n"));
+                panic!(
+                    "gateway exited ({st}) while waiting for {what}:\n{}",
+                    self.log().join("\n")
+                );
             }
             if let Some(s) = self.status() {
                 if pred(&s) {
@@ -142,7 +149,10 @@ impl Gateway {
             }
             std::thread::sleep(Duration::from_millis(50));
         }
-        panic!("gateway still running after {PATIENCE:?}:\n{}", self.log().join("\n"));
+        panic!(
+            "gateway still running after {PATIENCE:?}:\n{}",
+            self.log().join("\n")
+        );
     }
 
     /// SIGTERM and wait for the exit.
@@ -196,7 +206,10 @@ pub fn has_fault(st: &serde_json::Value, source_name: &str, kind: &str) -> bool 
     let global = st["active_faults"]
         .as_array()
         .is_some_and(|f| f.iter().any(|f| f[0] == source_name && f[1] == kind));
-    assert_eq!(own, global, "source faults and active_faults disagree: {st:#}");
+    assert_eq!(
+        own, global,
+        "source faults and active_faults disagree: {st:#}"
+    );
     own
 }
 

@@ -53,9 +53,9 @@ impl Peer {
     pub fn send(&mut self, line: &str) {
         use std::io::Write;
         let stdin = self.child.stdin.as_mut().expect("peer has no stdin");
-        writeln!(stdin, "{line}").and_then(|()| stdin.flush()).unwrap_or_else(|e| {
-            panic!("{}: cannot write {line:?}: {e}", self.name)
-        });
+        writeln!(stdin, "{line}")
+            .and_then(|()| stdin.flush())
+            .unwrap_or_else(|e| panic!("{}: cannot write {line:?}: {e}", self.name));
     }
 
     /// Read lines until one equals `want` (≤ `secs` each); returns the lines skipped on the way.

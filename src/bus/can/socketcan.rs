@@ -140,7 +140,6 @@ impl SocketCanBus {
         self.errors.error_frames
     }
 
-
     /// Receive only frames passing at least one of `filters` (replaces earlier filters; error
     /// frames are not affected). An empty list is rejected: the kernel would read it as "drop
     /// everything", which is never what a gateway wants; use [`Self::accept_all`] to reset.

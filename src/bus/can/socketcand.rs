@@ -150,8 +150,12 @@ fn parse_error_frame(text: &str) -> Option<Message> {
         return None;
     }
     let class = u32::from_str_radix(class, 16).ok()? & 0x1FFF_FFFF;
-    let t_s = t.parse::<f64>().ok().filter(|t| t.is_finite() && *t >= 0.0)?;
-    t.contains('.').then_some(Message::ErrorFrame { class, t_s })
+    let t_s = t
+        .parse::<f64>()
+        .ok()
+        .filter(|t| t.is_finite() && *t >= 0.0)?;
+    t.contains('.')
+        .then_some(Message::ErrorFrame { class, t_s })
 }
 
 fn hex_pair(p: &[u8]) -> Option<u8> {
@@ -408,8 +412,16 @@ mod tests {
                 t_s: 1_700_000_000.000123
             }
         );
-        for text in ["error unknown command", "error lagged 3", "error 040 x", "error 040"] {
-            assert!(matches!(parse_message(text).unwrap(), Message::Error(_)), "{text}");
+        for text in [
+            "error unknown command",
+            "error lagged 3",
+            "error 040 x",
+            "error 040",
+        ] {
+            assert!(
+                matches!(parse_message(text).unwrap(), Message::Error(_)),
+                "{text}"
+            );
         }
     }
 
