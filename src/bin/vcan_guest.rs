@@ -295,19 +295,18 @@ mod guest {
         Ok(())
     }
 
+    /// Let `recv` consume the queued error frames (it returns data frames only): none may arrive.
+    async fn settle(bus: &mut SocketCanBus) -> Result<()> {
+        let r = timeout(Duration::from_millis(300), bus.recv()).await;
+        ensure!(r.is_err(), "a data frame arrived unexpectedly: {r:?}");
+        Ok(())
+    }
+
     /// Bus-off cannot happen on vcan, but its error frames can be sent (cansend with CAN_ERR_FLAG):
     /// error-passive (CRTL, data[1] = TX_PASSIVE), bus-off with counters (BUSOFF | CNT, TEC in
     /// data[6]), restarted; a data frame then still arrives.
     async fn error_frames_bus_state() -> Result<()> {
         let mut bus = SocketCanBus::open(IF)?;
-        let settle = |bus: &mut SocketCanBus| {
-            // recv consumes error frames and only returns data: let it run until idle.
-            let fut = timeout(Duration::from_millis(300), bus.recv());
-            async move {
-                ensure!(fut.await.is_err(), "a data frame arrived unexpectedly");
-                Ok(())
-            }
-        };
         cansend("20000004#0020000000000000").await?;
         settle(&mut bus).await?;
         ensure!(
