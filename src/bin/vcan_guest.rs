@@ -15,8 +15,9 @@ mod guest {
     use embedded_can::{Frame as _, Id, StandardId};
     use retrocomp::bus::Health;
     use retrocomp::bus::can::socketcan::{IdFilter, SocketCanBus};
-    use retrocomp::bus::can::{CanBackendConfig, CanBus, CanError, Frame};
+    use retrocomp::bus::can::{BusState, CanBackendConfig, CanBus, CanError, Frame};
     use retrocomp::bus::canopen::source::{self, CanopenConfig, CanopenSource};
+    use retrocomp::gateway::FaultKind;
     use std::time::{Duration, SystemTime};
     use tokio::io::AsyncReadExt;
     use tokio::process::Command;
@@ -43,6 +44,8 @@ mod guest {
         "recv_timestamp_is_kernel_arrival_time",
         "interface_down_is_an_error_not_a_hang",
         "interface_removed_is_an_error_not_a_hang",
+        "error_frames_drive_the_bus_state",
+        "gateway_can_source_reconnects_after_interface_down",
     ];
 
     pub async fn run() -> bool {
@@ -69,6 +72,10 @@ mod guest {
                 "recv_timestamp_is_kernel_arrival_time" => recv_timestamp().await,
                 "interface_down_is_an_error_not_a_hang" => interface_down().await,
                 "interface_removed_is_an_error_not_a_hang" => interface_removed().await,
+                "error_frames_drive_the_bus_state" => error_frames_bus_state().await,
+                "gateway_can_source_reconnects_after_interface_down" => {
+                    gateway_reconnects_after_down().await
+                }
                 other => Err(anyhow::anyhow!("no such check {other}")),
             };
             match result {
@@ -283,7 +290,144 @@ mod guest {
             "error frames counted: {}",
             bus.error_frames()
         );
+        let state = bus.bus_errors().state();
+        ensure!(state == BusState::Warning, "after RX_WARNING: {state:?}");
         Ok(())
+    }
+
+    /// Let `recv` consume the queued error frames (it returns data frames only): none may arrive.
+    async fn settle(bus: &mut SocketCanBus) -> Result<()> {
+        let r = timeout(Duration::from_millis(300), bus.recv()).await;
+        ensure!(r.is_err(), "a data frame arrived unexpectedly: {r:?}");
+        Ok(())
+    }
+
+    /// Bus-off cannot happen on vcan, but its error frames can be sent (cansend with CAN_ERR_FLAG):
+    /// error-passive (CRTL, data[1] = TX_PASSIVE), bus-off with counters (BUSOFF | CNT, TEC in
+    /// data[6]), restarted; a data frame then still arrives.
+    async fn error_frames_bus_state() -> Result<()> {
+        let mut bus = SocketCanBus::open(IF)?;
+        cansend("20000004#0020000000000000").await?;
+        settle(&mut bus).await?;
+        ensure!(
+            bus.bus_errors().state() == BusState::Passive,
+            "{:?}",
+            bus.bus_errors()
+        );
+        cansend("20000240#000000000000F803").await?;
+        settle(&mut bus).await?;
+        let e = bus.bus_errors();
+        ensure!(
+            e.state() == BusState::BusOff && e.bus_off_events == 1,
+            "after BUSOFF: {e:?}"
+        );
+        ensure!(
+            (e.tx_error_count, e.rx_error_count) == (Some(0xF8), Some(3)),
+            "counters: {e:?}"
+        );
+        cansend("20000100#0000000000000000").await?;
+        cansend("181#01").await?;
+        let got = recv(&mut bus).await?;
+        ensure!(got == Frame::standard(0x181, &[1]).unwrap(), "got {got:?}");
+        let e = bus.bus_errors();
+        ensure!(
+            e.state() == BusState::Active && e.error_frames == 3,
+            "after RESTARTED: {e:?}"
+        );
+        Ok(())
+    }
+
+    /// The gateway's CAN source (`spawn_sources`, backend = "socketcan") when vcan0 goes down
+    /// (ENETDOWN) and up again: it reopens with backoff, the link is `disconnected` meanwhile, and
+    /// samples flow again (a TPDO sent after the up arrives) with one reconnect counted.
+    async fn gateway_reconnects_after_down() -> Result<()> {
+        use retrocomp::gateway::config::FieldConfig;
+        use retrocomp::gateway::sources::spawn_sources;
+        let text = r#"
+            [gateway]
+            name = "vcan"
+            cycle_ms = 10
+            status_listen = "127.0.0.1:0"
+            [safety]
+            max_correction_um = 60.0
+            max_change_um_per_cycle = 0.5
+            ramp_um_per_s = 200.0
+            stale_hold_s = 0.5
+            [direction]
+            deadband_mm = 0.005
+            switch_time_s = 0.05
+            [[axis]]
+            name = "x"
+            position_channel = "x_mm"
+            [can]
+            backend = "socketcan"
+            interface = "vcan0"
+            [canopen]
+            pdo_timeout_s = 0.5
+            encoder = [{ channel = "x_mm", node_id = 1, counts_per_mm = 1000.0 }]
+        "#;
+        let cfg = FieldConfig::parse(text, std::path::Path::new("vcan-field.toml"))?;
+        let mut feed = spawn_sources(&cfg, std::time::Instant::now()).await?;
+        let can = |feed: &retrocomp::gateway::supervise::SourceFeed| {
+            feed.board.snapshot().into_iter().find(|s| s.name == "can")
+        };
+        // Resend a TPDO until its value arrives as an Ok sample (the source may be mid-reopen).
+        async fn value_arrives(
+            feed: &mut retrocomp::gateway::supervise::SourceFeed,
+            frame: &str,
+            want_mm: f64,
+        ) -> Result<()> {
+            let deadline = tokio::time::Instant::now() + STEP_TIMEOUT * 3;
+            loop {
+                cansend(frame).await?;
+                let wait = tokio::time::Instant::now() + Duration::from_millis(200);
+                while let Ok(Some(s)) = tokio::time::timeout_at(wait, feed.samples.recv()).await {
+                    if s.health == Health::Ok && s.value == want_mm {
+                        return Ok(());
+                    }
+                }
+                ensure!(
+                    tokio::time::Instant::now() < deadline,
+                    "{want_mm} mm never arrived"
+                );
+            }
+        }
+        value_arrives(&mut feed, "181#E8030000", 1.0).await?;
+        ip_link("down").await?;
+        let deadline = tokio::time::Instant::now() + STEP_TIMEOUT;
+        while can(&feed).is_some_and(|s| s.connected) {
+            ensure!(
+                tokio::time::Instant::now() < deadline,
+                "link never reported down"
+            );
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        let down = can(&feed).context("no `can` source on the board")?;
+        ensure!(
+            down.faults
+                .iter()
+                .any(|(k, _)| *k == FaultKind::Disconnected),
+            "no disconnected fault: {down:?}"
+        );
+        ip_link("up").await?;
+        value_arrives(&mut feed, "181#D0070000", 2.0).await?;
+        // The source reports the link up on its next poll tick after the frame.
+        let deadline = tokio::time::Instant::now() + STEP_TIMEOUT;
+        loop {
+            let st = can(&feed).context("no `can` source on the board")?;
+            if st.connected {
+                ensure!(
+                    st.reconnects == 1 && st.faults.is_empty(),
+                    "after up: {st:?}"
+                );
+                return Ok(());
+            }
+            ensure!(
+                tokio::time::Instant::now() < deadline,
+                "link never reported up: {st:?}"
+            );
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
     }
 
     /// vcan0 has the CAN FD MTU (72), so peers may send FD frames; our classic CAN_RAW socket does

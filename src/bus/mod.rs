@@ -6,6 +6,7 @@
 //! `DecodeError` carries NaN (CiA 406: the last good position), `OutOfRange` the decoded value. A
 //! consumer must look at `health` before it uses `value`. See `docs/buses.md`.
 
+pub mod backoff;
 pub mod can;
 pub mod canopen;
 pub mod config;
@@ -13,4 +14,5 @@ pub mod modbus;
 pub mod sample;
 pub mod serial;
 
+pub use backoff::Backoff;
 pub use sample::{Health, Sample};

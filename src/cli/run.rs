@@ -7,9 +7,11 @@ use std::path::PathBuf;
 use anyhow::bail;
 
 use crate::gateway::config::FieldConfig;
+use crate::gateway::engine::{AxisErrors, ErrorModel, MachineState};
 use crate::gateway::model_adapter::MachineModelAdapter;
 use crate::gateway::run::{require_sink, run as run_gateway};
 use crate::gateway::sources::spawn_sources;
+use crate::gateway::supervise::{exit_on_panic, spawn_watchdog};
 use crate::models::MachineModel;
 
 #[derive(Debug, clap::Args)]
@@ -36,6 +38,7 @@ pub fn init_tracing() {
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
     init_tracing();
+    exit_on_panic();
     let cfg = FieldConfig::load(&args.config)?;
     if !args.dry_run {
         require_sink(&cfg)?;
@@ -59,7 +62,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         .build()?;
     rt.block_on(async move {
         let epoch = std::time::Instant::now();
-        let rx = spawn_sources(&cfg, epoch).await?;
+        let feed = spawn_sources(&cfg, epoch).await?;
+        let _watchdog = spawn_watchdog(feed.cycles.clone())?;
         let mut cfg = cfg;
         if args.dry_run {
             cfg.sink = Default::default();
@@ -72,11 +76,45 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             }
             tracing::info!("stopping");
         };
-        let summary = run_gateway(cfg, Box::new(MachineModelAdapter::new(model)), rx, epoch, shutdown, None).await?;
+        let model: Box<dyn ErrorModel + Send> = match hang_hook() {
+            Some(after) => Box::new(HangAfter { inner: MachineModelAdapter::new(model), after }),
+            None => Box::new(MachineModelAdapter::new(model)),
+        };
+        let summary = run_gateway(cfg, model, feed, epoch, shutdown, None).await?;
         eprintln!(
             "stopped after {} cycles; {} writes ok, {} failed; compute p50 {:.1} µs p99 {:.1} µs",
             summary.cycles, summary.writes_ok, summary.writes_failed, summary.compute_us_p50, summary.compute_us_p99
         );
         Ok(())
     })
+}
+
+/// Test hook for the watchdog tests: `RETROCOMP_TEST_HANG_CYCLE_AFTER=N` makes the model evaluation
+/// block forever at its N-th call, i.e. the cycle hangs the way a stuck computation would.
+const HANG_HOOK: &str = "RETROCOMP_TEST_HANG_CYCLE_AFTER";
+
+fn hang_hook() -> Option<u64> {
+    std::env::var(HANG_HOOK).ok()?.parse().ok()
+}
+
+struct HangAfter<M> {
+    inner: M,
+    after: u64,
+}
+
+impl<M: ErrorModel> ErrorModel for HangAfter<M> {
+    fn required_channels(&self) -> Vec<String> {
+        self.inner.required_channels()
+    }
+
+    fn axis_errors(&mut self, state: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
+        if self.after == 0 {
+            tracing::warn!("{HANG_HOOK}: the cycle now blocks forever (test hook)");
+            loop {
+                std::thread::park();
+            }
+        }
+        self.after -= 1;
+        self.inner.axis_errors(state, out)
+    }
 }

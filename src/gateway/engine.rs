@@ -514,6 +514,7 @@ impl Engine {
                 .collect(),
             model_error: self.model_error.clone(),
             sink: None,
+            sources: Vec::new(),
         }
     }
 

@@ -36,12 +36,21 @@ pub enum FaultKind {
     RateOfChange,
     Stuck,
     Decode,
-    /// A sink lost its controller (transport down, no reply): reported by the sink, not a channel.
+    /// A link is down (transport closed, no reply, interface down): a sink's controller or a
+    /// source's bus, reported by that sink or source, not a channel.
     Disconnected,
+    /// A CAN controller is bus-off (error frames `CAN_ERR_BUSOFF`).
+    BusOff,
+    /// A CAN controller is error-passive (its error counters passed 127).
+    ErrorPassive,
+    /// CAN error frames arrived within the last [`BUS_ERROR_HOLD_S`].
+    BusErrors,
+    /// A Modbus device answered a request with an exception.
+    Exception,
 }
 
 impl FaultKind {
-    pub const ALL: [FaultKind; 7] = [
+    pub const ALL: [FaultKind; 11] = [
         FaultKind::Stale,
         FaultKind::OutOfRange,
         FaultKind::NotFinite,
@@ -49,8 +58,16 @@ impl FaultKind {
         FaultKind::Stuck,
         FaultKind::Decode,
         FaultKind::Disconnected,
+        FaultKind::BusOff,
+        FaultKind::ErrorPassive,
+        FaultKind::BusErrors,
+        FaultKind::Exception,
     ];
 }
+
+/// A CAN `BusErrors` fault lasts this long after the last error frame, s: error frames come in
+/// bursts, and one episode per burst is what an operator wants to read.
+pub const BUS_ERROR_HOLD_S: f64 = 1.0;
 
 /// Health of one channel now.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -75,7 +92,7 @@ pub struct ChannelMonitor {
     sample_fault: Option<FaultKind>,
     /// Kinds of every sample rejected since the last [`ChannelMonitor::take_rejected`] (bit per
     /// kind), so a bad reading that a good one replaces before the next cycle is still logged.
-    rejected: u8,
+    rejected: u16,
     stuck: bool,
 }
 

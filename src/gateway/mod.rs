@@ -13,12 +13,14 @@ pub mod quadrature_sink;
 pub mod recovery;
 pub mod run;
 pub mod safety;
+pub mod source_health;
 pub mod sources;
 pub mod status;
+pub mod supervise;
 
 pub use direction::{Direction, DirectionConfig, DirectionLatch};
 pub use engine::{AxisErrors, Engine, ErrorModel, MachineState, TermError};
 pub use health::{ChannelLimits, ChannelMonitor, ChannelStatus, FaultEvent, FaultKind, FaultLog};
 pub use recovery::NeighbourEstimate;
 pub use safety::{AxisSafety, Input, Mode, SafetyConfig};
-pub use status::{AxisStatus, SinkStatus, StatusSnapshot};
+pub use status::{AxisStatus, SinkStatus, SourceStatus, StatusSnapshot};

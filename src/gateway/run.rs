@@ -20,6 +20,7 @@ use super::engine::{Engine, ErrorModel};
 use super::health::{FaultKind, FaultLog};
 use super::http::serve_status;
 use super::status::{SinkStatus, StatusSnapshot};
+use super::supervise::SourceFeed;
 use crate::bus::Sample;
 use crate::origin_shift::{OriginShiftClient, Outcome};
 
@@ -39,14 +40,22 @@ type Outputs = Vec<(String, f64)>;
 /// Run until `shutdown` resolves. `epoch` is the clock the sources stamp samples with (`t_s` =
 /// seconds since it); the engine runs on the same clock so staleness is judged right.
 /// `status_addr` receives the bound status address (port 0 allowed).
+/// `sources` is the sample channel, or a [`SourceFeed`] from `spawn_sources` (then the sources'
+/// links show in the status, and the run stops with an error when a source or the sink task ends).
 pub async fn run(
     cfg: FieldConfig,
     mut model: Box<dyn ErrorModel + Send>,
-    mut samples: mpsc::Receiver<Sample>,
+    sources: impl Into<SourceFeed>,
     epoch: std::time::Instant,
     shutdown: impl std::future::Future<Output = ()>,
     status_addr: Option<tokio::sync::oneshot::Sender<SocketAddr>>,
 ) -> anyhow::Result<RunSummary> {
+    let SourceFeed {
+        mut samples,
+        board: source_board,
+        mut deaths,
+        cycles: cycle_counter,
+    } = sources.into();
     let (status_tx, status_rx) = watch::channel::<Option<Arc<StatusSnapshot>>>(None);
     let listen: SocketAddr = cfg
         .gateway
@@ -68,7 +77,7 @@ pub async fn run(
     let mut initial = BTreeMap::new();
     // Positions the controller writes into a served register image (origin-shift server).
     let (served_tx, mut served_rx) = mpsc::channel::<Sample>(1024);
-    let sink_task = if let Some(srv) = cfg.sink.origin_shift_server.clone() {
+    let mut sink_task = if let Some(srv) = cfg.sink.origin_shift_server.clone() {
         let (task, held) =
             start_origin_shift_server(&cfg, srv, out_rx, served_tx, sink_status_tx, epoch).await?;
         initial = held;
@@ -121,6 +130,12 @@ pub async fn run(
         tokio::select! {
             _ = &mut shutdown => break,
             _ = tick.tick() => {}
+            why = deaths.next() => bail!("{why}: stopping the gateway"),
+            end = async { match sink_task.as_mut() { Some(t) => t.await, None => std::future::pending().await } } => {
+                let why = match end { Ok(()) => "returned".to_string(), Err(e) => e.to_string() };
+                tracing::error!(why, "the sink task ended; stopping so the service manager restarts the gateway");
+                bail!("the sink task ended ({why}): stopping the gateway");
+            }
         }
         while let Ok(s) = samples.try_recv() {
             engine.ingest(&s);
@@ -145,8 +160,14 @@ pub async fn run(
         out_tx.send_modify(|held| copy_outputs(held, outs));
         let mut snap = engine.snapshot();
         snap.sink = Some(sink_status_rx.borrow().clone());
+        source_board.copy_into(&mut snap.sources);
+        for src in &snap.sources {
+            let faults = src.faults.iter().map(|&(k, t)| (src.name.clone(), k, t));
+            snap.active_faults.extend(faults);
+        }
         let _ = status_tx.send(Some(Arc::new(snap)));
         summary.cycles += 1;
+        cycle_counter.set(summary.cycles);
     }
     if let Some(t) = sink_task {
         t.abort();

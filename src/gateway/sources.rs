@@ -6,6 +6,15 @@
 //! All samples are timestamped in seconds since `epoch` (the runtime's clock). A source that goes
 //! silent sends nothing (or `Stale` samples): the runtime's channel health turns it `Stale` after the
 //! channel's `stale_after_s`, so a dead source never stops the others.
+//!
+//! Every source comes back by itself: a CAN backend that fails (socketcand peer hung up, SocketCAN
+//! interface down or removed) is reopened, a serial port reopened, a Modbus context rebuilt, each
+//! with the one [`Backoff`]. The link's state is a fault of the source (`can`, `modbus.<name>`,
+//! `serial.<name>`; [`SourceReporter`]): `disconnected` from the failure until data flows again
+//! (for CAN: until the first frame after the reopen, since a SocketCAN socket reopens fine on an
+//! interface that is still down), plus `bus_off` / `error_passive` / `bus_errors` from CAN error
+//! frames and `exception` while a Modbus device answers with exceptions. A source task that ends
+//! while the gateway runs is reported on the feed's `deaths` (the runtime then stops).
 
 use std::time::{Duration, Instant};
 
@@ -13,44 +22,60 @@ use anyhow::Context;
 use tokio::sync::mpsc;
 
 use super::config::FieldConfig;
-use crate::bus::Sample;
-use crate::bus::can::backend;
-use crate::bus::canopen::source::{self as canopen, CanopenSource};
+use super::source_health::{SourceBoard, SourceReporter};
+use super::supervise::{CycleCounter, DeathNotice, SourceFeed, TaskDeaths};
+use crate::bus::can::backend::{self, AnyCanBus, CanBackendConfig};
+use crate::bus::can::{BusErrors, CanBus};
+use crate::bus::canopen::source::{self as canopen, CanopenConfig, CanopenSource};
 use crate::bus::modbus::poller::ModbusPoller;
 use crate::bus::serial::source::{self as serial, LineSource, SerialSourceConfig};
+use crate::bus::{Backoff, Sample};
 
-/// Reopen delays of a serial port that closed or failed, s (doubling up to the max).
-const SERIAL_REOPEN_MIN_S: f64 = 0.5;
-const SERIAL_REOPEN_MAX_S: f64 = 10.0;
+/// Reopen delays of a CAN backend or a serial port that closed or failed (doubling up to the max).
+const REOPEN_MIN: Duration = Duration::from_millis(200);
+const REOPEN_MAX: Duration = Duration::from_secs(5);
+/// How often the CANopen loop checks PDO/heartbeat freshness and reports the bus state.
+const CAN_POLL: Duration = Duration::from_millis(10);
 
-/// Spawn every configured source; samples (timestamped on `epoch`) arrive on the returned channel.
+/// Test hook (integration tests of the supervision only): `RETROCOMP_TEST_KILL_SOURCE=<name>:panic`
+/// or `<name>:return` makes that source's sample forwarder panic or return at its first batch.
+const KILL_HOOK: &str = "RETROCOMP_TEST_KILL_SOURCE";
+
+/// Spawn every configured source; samples (timestamped on `epoch`) arrive on the returned feed.
 /// Fails at start (naming the source) if a CAN backend or a serial device cannot be opened; a Modbus
 /// peer that is down at start is retried by its poller.
-pub async fn spawn_sources(
-    cfg: &FieldConfig,
-    epoch: Instant,
-) -> anyhow::Result<mpsc::Receiver<Sample>> {
+pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> anyhow::Result<SourceFeed> {
     let (tx, rx) = mpsc::channel::<Sample>(16_384);
+    let board = SourceBoard::default();
+    let (notice, deaths) = TaskDeaths::new();
     let clock = move || epoch.elapsed().as_secs_f64();
     if let (Some(can), Some(co)) = (cfg.can.clone(), cfg.canopen.clone()) {
-        let mut bus = backend::open(&can, None)
+        let bus = backend::open(&can, None)
             .await
             .with_context(|| format!("opening CAN backend {can:?}"))?;
-        let btx = forward(tx.clone());
+        let rep = SourceReporter::new("can", true, board.clone());
+        let btx = forward(tx.clone(), "can", notice.clone());
+        let n = notice.clone();
         tokio::spawn(async move {
-            let mut src = CanopenSource::new(co);
-            if let Err(e) =
-                canopen::run(&mut bus, &mut src, clock, Duration::from_millis(10), btx).await
-            {
-                tracing::error!(%e, "CAN source stopped");
+            can_loop(can, co, bus, clock, btx.clone(), rep).await;
+            if !btx.is_closed() {
+                n.report("can", "the CAN source loop returned");
             }
         });
     }
     for m in cfg.modbus.iter().flat_map(|m| &m.source) {
-        let btx = forward(tx.clone());
+        let name = format!("modbus.{}", m.name);
+        let btx = forward(tx.clone(), &name, notice.clone());
         tracing::info!(source = %m.name, transport = ?m.transport, "starting Modbus poller");
-        spawn_modbus(ModbusPoller::new(m.clone()), clock, btx)
-            .with_context(|| format!("modbus source {:?}: cannot start its thread", m.name))?;
+        let rep = SourceReporter::new(&name, false, board.clone());
+        spawn_modbus(
+            ModbusPoller::new(m.clone()),
+            clock,
+            btx,
+            rep,
+            notice.clone(),
+        )
+        .with_context(|| format!("modbus source {:?}: cannot start its thread", m.name))?;
     }
     for s in cfg.serial.iter().flat_map(|s| &s.source) {
         let port = serial::open(s).with_context(|| {
@@ -61,17 +86,51 @@ pub async fn spawn_sources(
                 s.baud
             )
         })?;
-        let btx = forward(tx.clone());
-        tokio::spawn(serial_loop(s.clone(), port, clock, btx));
+        let name = format!("serial.{}", s.name);
+        let btx = forward(tx.clone(), &name, notice.clone());
+        let rep = SourceReporter::new(&name, true, board.clone());
+        let (cfg, n) = (s.clone(), notice.clone());
+        tokio::spawn(async move {
+            serial_loop(cfg, port, clock, btx.clone(), rep).await;
+            if !btx.is_closed() {
+                n.report(&name, "the serial source loop returned");
+            }
+        });
     }
-    Ok(rx)
+    Ok(SourceFeed {
+        samples: rx,
+        board,
+        deaths,
+        cycles: CycleCounter::default(),
+    })
 }
 
 /// A batch sender whose batches are unpacked into `tx` by a forwarding task.
-fn forward(tx: mpsc::Sender<Sample>) -> mpsc::Sender<Vec<Sample>> {
+fn forward(
+    tx: mpsc::Sender<Sample>,
+    source: &str,
+    notice: DeathNotice,
+) -> mpsc::Sender<Vec<Sample>> {
     let (btx, mut brx) = mpsc::channel::<Vec<Sample>>(1024);
+    let kill = std::env::var(KILL_HOOK)
+        .ok()
+        .and_then(|v| v.strip_prefix(&format!("{source}:")).map(str::to_string));
+    let source = source.to_string();
     tokio::spawn(async move {
         while let Some(batch) = brx.recv().await {
+            match kill.as_deref() {
+                Some("panic") => {
+                    panic!("{KILL_HOOK}: source `{source}` forwarder panics (test hook)")
+                }
+                Some("return") => {
+                    notice.report(
+                        &source,
+                        &format!("{KILL_HOOK}: forwarder returned (test hook)"),
+                    );
+                    return;
+                }
+                _ => {}
+            }
             for s in batch {
                 if tx.send(s).await.is_err() {
                     return;
@@ -82,6 +141,74 @@ fn forward(tx: mpsc::Sender<Sample>) -> mpsc::Sender<Vec<Sample>> {
     btx
 }
 
+/// The CANopen source over a CAN backend that is reopened whenever it fails. Ends only when `out`
+/// closes (the gateway stopped).
+async fn can_loop(
+    can: CanBackendConfig,
+    co: CanopenConfig,
+    first: AnyCanBus,
+    clock: impl Fn() -> f64 + Copy,
+    out: mpsc::Sender<Vec<Sample>>,
+    mut rep: SourceReporter,
+) {
+    let mut src = CanopenSource::new(co);
+    let mut bus = Some(first);
+    let mut backoff = Backoff::new(REOPEN_MIN, REOPEN_MAX);
+    // Error-frame totals of the backends closed so far (a reopened backend counts from zero).
+    let mut base = BusErrors::default();
+    rep.publish(clock());
+    loop {
+        if let Some(mut b) = bus.take() {
+            let result = canopen::run_observed(
+                &mut b,
+                &mut src,
+                clock,
+                CAN_POLL,
+                out.clone(),
+                |b, frames| {
+                    if frames > 0 && !rep.is_connected() {
+                        rep.on_link_up();
+                        tracing::info!(source = rep.name(), "CAN frames flow again");
+                    }
+                    rep.on_can_bus(b.bus_errors(), &base, clock());
+                    rep.publish(clock());
+                },
+            )
+            .await;
+            let seen = b.bus_errors();
+            base.error_frames += seen.error_frames;
+            base.bus_off_events += seen.bus_off_events;
+            match result {
+                Ok(()) => return, // `out` closed: the gateway stopped
+                Err(e) => {
+                    rep.on_link_down(&e.to_string());
+                    rep.publish(clock());
+                    tracing::debug!(%e, "CAN backend failed; reopening");
+                }
+            }
+            // A link that carried frames starts the next reopen at the shortest delay.
+            if rep.is_connected() {
+                backoff.reset();
+            }
+        }
+        if out.is_closed() {
+            return;
+        }
+        tokio::time::sleep(backoff.next_delay()).await;
+        match backend::open(&can, None).await {
+            Ok(b) => {
+                tracing::debug!(backend = ?can, "CAN backend reopened; waiting for frames");
+                bus = Some(b);
+            }
+            Err(e) => {
+                rep.on_link_down(&e.to_string());
+                rep.publish(clock());
+                tracing::debug!(%e, "CAN reopen failed");
+            }
+        }
+    }
+}
+
 /// Run one Modbus poller on its own thread and current-thread runtime: its future is not `Send`
 /// (tokio-modbus's client context is not `Sync` and the poller holds `&self` across the connect
 /// await), so it cannot go on the multi-thread runtime. It ends when `out` closes.
@@ -89,45 +216,62 @@ fn spawn_modbus(
     poller: ModbusPoller,
     clock: impl Fn() -> f64 + Send + 'static,
     out: mpsc::Sender<Vec<Sample>>,
+    mut rep: SourceReporter,
+    notice: DeathNotice,
 ) -> std::io::Result<()> {
-    let name = format!("modbus-{}", poller.cfg.name);
+    let name = rep.name().to_string();
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
+    rep.publish(clock());
     std::thread::Builder::new()
-        .name(name)
-        .spawn(move || rt.block_on(poller.run(clock, out)))?;
+        .name(name.clone())
+        .spawn(move || {
+            let closed = out.clone();
+            rt.block_on(
+                poller.run_observed(&clock, out, |before, after, connected| {
+                    rep.on_modbus_poll(before, after, connected);
+                    rep.publish(clock());
+                }),
+            );
+            if !closed.is_closed() {
+                notice.report(&name, "the Modbus poller returned");
+            }
+        })?;
     Ok(())
 }
 
-/// Run one serial source; when the port closes or fails (USB adapter unplugged), reopen it with a
-/// doubling delay. Meanwhile its channels get no samples and go `Stale` in the runtime.
+/// Run one serial source; when the port closes or fails (USB adapter unplugged), reopen it with the
+/// backoff. Meanwhile its channels get no samples and go `Stale` in the runtime.
 async fn serial_loop(
     cfg: SerialSourceConfig,
     first: tokio_serial::SerialStream,
     clock: impl Fn() -> f64 + Copy,
     out: mpsc::Sender<Vec<Sample>>,
+    mut rep: SourceReporter,
 ) {
     let mut port = Some(first);
-    let mut delay_s = SERIAL_REOPEN_MIN_S;
+    let mut backoff = Backoff::new(REOPEN_MIN, REOPEN_MAX);
+    rep.publish(clock());
     loop {
         if let Some(p) = port.take() {
-            match serial::run(p, LineSource::new(cfg.clone()), clock, out.clone()).await {
-                Ok(c) => tracing::warn!(source = %cfg.name, ?c, "serial port closed"),
-                Err(e) => tracing::warn!(source = %cfg.name, %e, "serial port failed"),
-            }
-            delay_s = SERIAL_REOPEN_MIN_S;
+            rep.on_link_up();
+            rep.publish(clock());
+            let why = match serial::run(p, LineSource::new(cfg.clone()), clock, out.clone()).await {
+                Ok(c) => format!("serial port closed ({c:?})"),
+                Err(e) => format!("serial port failed: {e}"),
+            };
+            rep.on_link_down(&why);
+            rep.publish(clock());
+            backoff.reset();
         }
         if out.is_closed() {
             return;
         }
-        tokio::time::sleep(Duration::from_secs_f64(delay_s)).await;
+        tokio::time::sleep(backoff.next_delay()).await;
         match serial::open(&cfg) {
             Ok(p) => port = Some(p),
-            Err(e) => {
-                tracing::debug!(source = %cfg.name, %e, "serial reopen failed");
-                delay_s = (delay_s * 2.0).min(SERIAL_REOPEN_MAX_S);
-            }
+            Err(e) => tracing::debug!(source = %cfg.name, %e, "serial reopen failed"),
         }
     }
 }

@@ -11,6 +11,7 @@ use super::direction::Direction;
 use super::health::{ChannelStatus, FaultKind};
 use super::safety::Mode;
 use crate::bus::Health;
+use crate::bus::can::BusState;
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct AxisStatus {
@@ -36,6 +37,45 @@ pub struct SinkStatus {
     pub last_error: Option<String>,
 }
 
+/// One bus source's link (the CAN backend, a Modbus poller, a serial line): what `/status` shows
+/// under `sources` and `/metrics` as `retrocomp_source_*`. `name` is also its fault-log source.
+#[derive(Clone, Debug, PartialEq, Serialize, Default)]
+pub struct SourceStatus {
+    /// `can`, `modbus.<name>` or `serial.<name>`.
+    pub name: String,
+    pub connected: bool,
+    /// Links re-established after a loss.
+    pub reconnects: u64,
+    /// Active source-level faults (`disconnected`, `bus_off`, `error_passive`, `bus_errors`,
+    /// `exception`), each with the time it started, s.
+    pub faults: Vec<(FaultKind, f64)>,
+    pub last_error: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub can: Option<CanBusStatus>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub modbus: Option<ModbusCounters>,
+}
+
+/// CAN controller state from error frames (see `bus::can::bus_state`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Default)]
+pub struct CanBusStatus {
+    pub state: BusState,
+    pub error_frames: u64,
+    pub bus_off_events: u64,
+    pub tx_error_count: Option<u8>,
+    pub rx_error_count: Option<u8>,
+}
+
+/// A Modbus poller's request outcomes since start.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Default)]
+pub struct ModbusCounters {
+    pub requests: u64,
+    pub exceptions: u64,
+    pub timeouts: u64,
+    pub transport_errors: u64,
+    pub connect_failures: u64,
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct StatusSnapshot {
     pub t_s: f64,
@@ -47,6 +87,8 @@ pub struct StatusSnapshot {
     pub active_faults: Vec<(String, FaultKind, f64)>,
     pub model_error: Option<String>,
     pub sink: Option<SinkStatus>,
+    /// Bus sources' links (filled by the runtime; empty when the samples come from elsewhere).
+    pub sources: Vec<SourceStatus>,
 }
 
 fn esc(label: &str) -> String {
@@ -235,7 +277,116 @@ impl StatusSnapshot {
                 k.writes_failed
             );
         }
+        self.prometheus_sources(&mut s);
         s
+    }
+
+    /// `retrocomp_source_*` and the CAN/Modbus link counters.
+    fn prometheus_sources(&self, s: &mut String) {
+        if self.sources.is_empty() {
+            return;
+        }
+        let family = |s: &mut String, name: &str, kind: &str, help: &str| {
+            let _ = writeln!(s, "# HELP {name} {help}\n# TYPE {name} {kind}");
+        };
+        let each = |s: &mut String, name: &str, v: &dyn Fn(&SourceStatus) -> Option<String>| {
+            for src in &self.sources {
+                if let Some(v) = v(src) {
+                    let _ = writeln!(s, "{name}{{source=\"{}\"}} {v}", esc(&src.name));
+                }
+            }
+        };
+        family(
+            s,
+            "retrocomp_source_connected",
+            "gauge",
+            "1 when the source's link is up.",
+        );
+        each(s, "retrocomp_source_connected", &|x| {
+            Some((x.connected as u8).to_string())
+        });
+        family(
+            s,
+            "retrocomp_source_reconnects_total",
+            "counter",
+            "Links re-established after a loss.",
+        );
+        each(s, "retrocomp_source_reconnects_total", &|x| {
+            Some(x.reconnects.to_string())
+        });
+        family(
+            s,
+            "retrocomp_source_faults_active",
+            "gauge",
+            "Source-level faults active now.",
+        );
+        each(s, "retrocomp_source_faults_active", &|x| {
+            Some(x.faults.len().to_string())
+        });
+        family(
+            s,
+            "retrocomp_can_bus_state",
+            "gauge",
+            "CAN controller state: 0 error-active, 1 warning, 2 error-passive, 3 bus-off.",
+        );
+        each(s, "retrocomp_can_bus_state", &|x| {
+            x.can.map(|c| (c.state as u8).to_string())
+        });
+        family(
+            s,
+            "retrocomp_can_error_frames_total",
+            "counter",
+            "CAN error frames received.",
+        );
+        each(s, "retrocomp_can_error_frames_total", &|x| {
+            x.can.map(|c| c.error_frames.to_string())
+        });
+        family(
+            s,
+            "retrocomp_can_bus_off_total",
+            "counter",
+            "Times the CAN controller went bus-off.",
+        );
+        each(s, "retrocomp_can_bus_off_total", &|x| {
+            x.can.map(|c| c.bus_off_events.to_string())
+        });
+        family(
+            s,
+            "retrocomp_can_tx_error_count",
+            "gauge",
+            "CAN transmit error counter (TEC).",
+        );
+        each(s, "retrocomp_can_tx_error_count", &|x| {
+            x.can.and_then(|c| c.tx_error_count).map(|v| v.to_string())
+        });
+        family(
+            s,
+            "retrocomp_can_rx_error_count",
+            "gauge",
+            "CAN receive error counter (REC).",
+        );
+        each(s, "retrocomp_can_rx_error_count", &|x| {
+            x.can.and_then(|c| c.rx_error_count).map(|v| v.to_string())
+        });
+        family(
+            s,
+            "retrocomp_modbus_exceptions_total",
+            "counter",
+            "Modbus exception replies.",
+        );
+        each(s, "retrocomp_modbus_exceptions_total", &|x| {
+            x.modbus.map(|m| m.exceptions.to_string())
+        });
+        family(
+            s,
+            "retrocomp_modbus_failed_requests_total",
+            "counter",
+            "Modbus requests without an answer (timeout or transport error).",
+        );
+        each(s, "retrocomp_modbus_failed_requests_total", &|x| {
+            x.modbus
+                .map(|m| (m.timeouts + m.transport_errors).to_string())
+        });
     }
 
     /// Human-readable table for `retrocomp status`.
@@ -289,6 +440,33 @@ impl StatusSnapshot {
                 } else {
                     format!(" faults={:?}", c.faults)
                 }
+            );
+        }
+        if !self.sources.is_empty() {
+            let _ = writeln!(s, "sources:");
+        }
+        for src in &self.sources {
+            let _ = writeln!(
+                s,
+                "  {:<20} {} reconnects={}{}{}{}",
+                src.name,
+                if src.connected { "connected" } else { "DOWN" },
+                src.reconnects,
+                src.can
+                    .map(
+                        |c| format!(" bus={:?} error_frames={}", c.state, c.error_frames)
+                            .to_lowercase()
+                    )
+                    .unwrap_or_default(),
+                if src.faults.is_empty() {
+                    String::new()
+                } else {
+                    format!(" faults={:?}", src.faults)
+                },
+                src.last_error
+                    .as_ref()
+                    .map(|e| format!(" last_error={e}"))
+                    .unwrap_or_default(),
             );
         }
         if let Some(e) = &self.model_error {

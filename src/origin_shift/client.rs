@@ -71,7 +71,7 @@ pub struct OriginShiftClient {
     cfg: ClientConfig,
     map: RegisterMap,
     ctx: Option<Context>,
-    backoff: Duration,
+    backoff: crate::bus::Backoff,
     next_attempt: Instant,
     last_error: String,
     strobe: u16,
@@ -84,7 +84,7 @@ impl OriginShiftClient {
     pub fn new(cfg: ClientConfig, map: RegisterMap) -> Result<Self, MapError> {
         map.validate()?;
         Ok(Self {
-            backoff: Duration::from_millis(cfg.reconnect_min_ms),
+            backoff: crate::bus::Backoff::from_millis(cfg.reconnect_min_ms, cfg.reconnect_max_ms),
             cfg,
             map,
             ctx: None,
@@ -143,7 +143,7 @@ impl OriginShiftClient {
             Ok(Ok(ctx)) => {
                 self.ctx = Some(ctx);
                 self.connects += 1;
-                self.backoff = Duration::from_millis(self.cfg.reconnect_min_ms);
+                self.backoff.reset();
                 tracing::info!(transport = ?self.cfg.transport, "origin_shift connected");
                 Ok(())
             }
@@ -154,9 +154,8 @@ impl OriginShiftClient {
 
     fn failed(&mut self, reason: String) -> ClientError {
         self.ctx = None;
-        self.next_attempt = Instant::now() + self.backoff;
-        let wait = self.backoff;
-        self.backoff = (self.backoff * 2).min(Duration::from_millis(self.cfg.reconnect_max_ms));
+        let wait = self.backoff.next_delay();
+        self.next_attempt = Instant::now() + wait;
         self.last_error = reason.clone();
         ClientError::Disconnected(wait, reason)
     }

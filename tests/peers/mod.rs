@@ -48,6 +48,29 @@ impl Peer {
     }
 }
 
+impl Peer {
+    /// Write one command line to the peer's stdin.
+    pub fn send(&mut self, line: &str) {
+        use std::io::Write;
+        let stdin = self.child.stdin.as_mut().expect("peer has no stdin");
+        writeln!(stdin, "{line}")
+            .and_then(|()| stdin.flush())
+            .unwrap_or_else(|e| panic!("{}: cannot write {line:?}: {e}", self.name));
+    }
+
+    /// Read lines until one equals `want` (≤ `secs` each); returns the lines skipped on the way.
+    pub fn expect(&self, want: &str, secs: u64) -> Vec<String> {
+        let mut skipped = Vec::new();
+        loop {
+            let l = self.line(secs);
+            if l.trim() == want {
+                return skipped;
+            }
+            skipped.push(l);
+        }
+    }
+}
+
 impl Drop for Peer {
     fn drop(&mut self) {
         let _ = self.child.kill();
@@ -60,6 +83,7 @@ pub fn spawn_python(script: &str, args: &[&str]) -> Peer {
     let mut child = Command::new(python())
         .arg(repo().join("tests/peers").join(script))
         .args(args)
+        .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()

@@ -79,6 +79,15 @@ fn open_socketcan(interface: &str) -> Result<AnyCanBus, CanError> {
 }
 
 impl CanBus for AnyCanBus {
+    fn bus_errors(&self) -> super::BusErrors {
+        match self {
+            AnyCanBus::Socketcand(b) => b.bus_errors(),
+            AnyCanBus::Mem(_) => super::BusErrors::default(),
+            #[cfg(all(feature = "socketcan", target_os = "linux"))]
+            AnyCanBus::Socketcan(b) => b.bus_errors(),
+        }
+    }
+
     async fn send(&mut self, frame: &Frame) -> Result<(), CanError> {
         match self {
             AnyCanBus::Socketcand(b) => b.send(frame).await,

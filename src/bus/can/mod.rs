@@ -1,6 +1,7 @@
 //! CAN: the portable frame, the async bus trait every backend implements, and the backends.
 
 pub mod backend;
+pub mod bus_state;
 pub mod frame;
 pub mod hub;
 pub mod mem;
@@ -10,6 +11,7 @@ pub mod socketcand;
 pub mod socketcand_bus;
 
 pub use backend::{AnyCanBus, CanBackendConfig};
+pub use bus_state::{BusErrors, BusState, ErrorFrame};
 pub use frame::Frame;
 pub use hub::Hub;
 pub use mem::{MemBus, MemEndpoint};
@@ -37,4 +39,8 @@ pub enum CanError {
 pub trait CanBus: Send {
     fn send(&mut self, frame: &Frame) -> impl Future<Output = Result<(), CanError>> + Send;
     fn recv(&mut self) -> impl Future<Output = Result<Frame, CanError>> + Send;
+    /// Bus state from the error frames seen since the bus was opened (none on in-memory buses).
+    fn bus_errors(&self) -> BusErrors {
+        BusErrors::default()
+    }
 }

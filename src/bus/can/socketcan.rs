@@ -20,13 +20,15 @@
 //!   `ErrorKind::NotFound` and a hint how to create it.
 //!
 //! Error frames (`CAN_ERR_FLAG`) carry bus state, not data: [`SocketCanBus`] subscribes to all error
-//! classes, counts them ([`SocketCanBus::error_frames`]) and keeps reading, so `recv` only ever
-//! returns data and remote frames.
+//! classes, feeds them to a [`BusErrors`] tracker (bus-off, error-passive, counters:
+//! [`SocketCanBus::bus_errors`]) and keeps reading, so `recv` only ever returns data and remote
+//! frames.
 //!
 //! Receive timestamps are the kernel's arrival time (`SO_TIMESTAMPNS`, wall clock), taken before
 //! any userspace scheduling delay: use [`SocketCanBus::recv_timestamped`] when a sample's `t_s`
 //! matters. Acceptance filters ([`IdFilter`]) run in the kernel, so a busy bus costs no wakeups.
 
+use super::bus_state::{BusErrors, ErrorFrame};
 use super::{CanBus, CanError, Frame};
 use ::socketcan::{Socket as _, SocketOptions as _};
 use embedded_can::Id;
@@ -88,7 +90,7 @@ pub struct SocketCanBus {
     ifname: String,
     /// Non-blocking raw socket bound to `ifname`.
     socket: AsyncFd<::socketcan::CanSocket>,
-    error_frames: u64,
+    errors: BusErrors,
 }
 
 impl SocketCanBus {
@@ -124,7 +126,7 @@ impl SocketCanBus {
         Ok(SocketCanBus {
             ifname: ifname.to_owned(),
             socket,
-            error_frames: 0,
+            errors: BusErrors::default(),
         })
     }
 
@@ -135,7 +137,7 @@ impl SocketCanBus {
 
     /// Error frames received (and skipped) since `open`.
     pub fn error_frames(&self) -> u64 {
-        self.error_frames
+        self.errors.error_frames
     }
 
     /// Receive only frames passing at least one of `filters` (replaces earlier filters; error
@@ -180,13 +182,27 @@ impl SocketCanBus {
         }
     }
 
-    /// Data and remote frames pass; error frames are counted and dropped.
+    /// Data and remote frames pass; error frames go to the bus-state tracker.
     fn accept(&mut self, kframe: ::socketcan::CanFrame) -> Option<Frame> {
         match Frame::try_from(kframe) {
-            Ok(f) => Some(f),
-            Err(error_frame) => {
-                self.error_frames += 1;
-                tracing::debug!(ifname = %self.ifname, ?error_frame, "CAN error frame");
+            Ok(f) => {
+                self.errors.on_frame();
+                Some(f)
+            }
+            Err(::socketcan::CanFrame::Error(ef)) => {
+                let mut data = [0u8; 8];
+                let d = embedded_can::Frame::data(&ef);
+                let n = d.len().min(8);
+                data[..n].copy_from_slice(&d[..n]);
+                self.errors.on_error_frame(&ErrorFrame {
+                    class: ef.error_bits(),
+                    data,
+                });
+                None
+            }
+            // A data/remote frame our portable type cannot hold (cannot happen for classic CAN).
+            Err(other) => {
+                tracing::debug!(ifname = %self.ifname, ?other, "CAN frame dropped");
                 None
             }
         }
@@ -194,6 +210,11 @@ impl SocketCanBus {
 }
 
 impl CanBus for SocketCanBus {
+    /// What the kernel's error frames said about the bus since it was opened.
+    fn bus_errors(&self) -> BusErrors {
+        self.errors
+    }
+
     async fn send(&mut self, frame: &Frame) -> Result<(), CanError> {
         let kframe: ::socketcan::CanFrame = (*frame).into();
         self.socket

@@ -4,7 +4,9 @@
 //! - server greeting `< hi >`; client `< open <bus> >` → `< ok >`; `< rawmode >` → `< ok >`;
 //! - client TX `< send <id-hex> <dlc> <byte-hex>… >` (bytes space-separated, 1–2 hex digits each);
 //! - server RX `< frame <id-hex> <sec>.<usec> <hexbytes> >` (bytes contiguous, 2 digits each);
-//! - `< error <text> >`, `< echo >`.
+//! - `< error <text> >`, `< echo >`;
+//! - server RX of a bus error frame `< error <class-hex> <sec>.<usec> >` (socketcand `state_raw.c`
+//!   forwards `can_id & CAN_EFF_MASK` of each `CAN_ERR_FLAG` frame): [`Message::ErrorFrame`].
 //!
 //! Identifier width follows python-can and socketcand: an id written with **exactly 3 hex digits or fewer
 //! is standard (11-bit)**, anything longer is extended (29-bit); the encoder always writes 3 or 8 digits.
@@ -37,6 +39,11 @@ pub enum Message {
         t_s: f64,
     },
     Error(String),
+    /// Server → client: an error frame seen on the bus (class bits of linux/can/error.h only).
+    ErrorFrame {
+        class: u32,
+        t_s: f64,
+    },
     /// A well-formed message with a command this codec does not implement (e.g. `bcmmode`); kept so
     /// a server can answer `< error … >` instead of dropping it.
     Other(String),
@@ -75,9 +82,9 @@ pub fn parse_message(inner: &str) -> Result<Message, CodecError> {
             .next()
             .map(|b| Message::Open(b.to_string()))
             .ok_or_else(|| bad("missing bus name")),
-        "error" => Ok(Message::Error(
-            text.strip_prefix("error").unwrap_or("").trim().to_string(),
-        )),
+        "error" => Ok(parse_error_frame(text).unwrap_or_else(|| {
+            Message::Error(text.strip_prefix("error").unwrap_or("").trim().to_string())
+        })),
         "send" => {
             let id = parse_id(words.next().ok_or_else(|| bad("missing id"))?)
                 .ok_or_else(|| bad("id is not a valid hex CAN id"))?;
@@ -134,6 +141,23 @@ pub fn parse_message(inner: &str) -> Result<Message, CodecError> {
     }
 }
 
+/// `error <class-hex> <sec>.<usec>` (exactly these two words) is a bus error frame; any other
+/// `error` text is a server message.
+fn parse_error_frame(text: &str) -> Option<Message> {
+    let mut w = text.split_ascii_whitespace().skip(1);
+    let (class, t, rest) = (w.next()?, w.next()?, w.next());
+    if rest.is_some() || class.len() > 8 || !class.bytes().all(|c| c.is_ascii_hexdigit()) {
+        return None;
+    }
+    let class = u32::from_str_radix(class, 16).ok()? & 0x1FFF_FFFF;
+    let t_s = t
+        .parse::<f64>()
+        .ok()
+        .filter(|t| t.is_finite() && *t >= 0.0)?;
+    t.contains('.')
+        .then_some(Message::ErrorFrame { class, t_s })
+}
+
 fn hex_pair(p: &[u8]) -> Option<u8> {
     let d = |c: u8| (c as char).to_digit(16);
     Some((d(p[0])? * 16 + d(p[1])?) as u8)
@@ -177,6 +201,12 @@ pub fn encode_into(out: &mut String, msg: &Message) {
             out.push_str(text);
         }
         Message::Other(text) => out.push_str(text),
+        Message::ErrorFrame { class, t_s } => {
+            out.push_str("error ");
+            let _ = write!(out, "{class:03X}");
+            write_time(out, *t_s);
+            out.push(' ');
+        }
         Message::Send(f) => {
             out.push_str("send ");
             write_id(out, f);
@@ -188,20 +218,26 @@ pub fn encode_into(out: &mut String, msg: &Message) {
         Message::Frame { frame, t_s } => {
             out.push_str("frame ");
             write_id(out, frame);
-            let t = if t_s.is_finite() && *t_s >= 0.0 {
-                *t_s
-            } else {
-                0.0
-            };
-            let sec = t.trunc();
-            let usec = ((t - sec) * 1e6).round().min(999_999.0);
-            let _ = write!(out, " {}.{:06} ", sec as u64, usec as u32);
+            write_time(out, *t_s);
+            out.push(' ');
             for b in frame.data() {
                 let _ = write!(out, "{b:02X}");
             }
         }
     }
     out.push_str(" >");
+}
+
+/// ` <sec>.<usec>` (negative or non-finite times are written as 0).
+fn write_time(out: &mut String, t_s: f64) {
+    let t = if t_s.is_finite() && t_s >= 0.0 {
+        t_s
+    } else {
+        0.0
+    };
+    let sec = t.trunc();
+    let usec = ((t - sec) * 1e6).round().min(999_999.0);
+    let _ = write!(out, " {}.{:06}", sec as u64, usec as u32);
 }
 
 /// The wire form of `msg`.
@@ -346,6 +382,11 @@ mod tests {
             },
             Message::Open("vcan0".into()),
             Message::Error("could not open bus".into()),
+            Message::Error("lagged 12".into()),
+            Message::ErrorFrame {
+                class: 0x40,
+                t_s: 1700000000.25,
+            },
         ] {
             let wire = encode(&msg);
             let mut d = Decoder::new();
@@ -359,6 +400,29 @@ mod tests {
             }),
             "< frame 123 3.000001 1122 >"
         );
+    }
+
+    #[test]
+    fn socketcand_error_frames_are_told_from_server_errors() {
+        // socketcand state_raw.c: sprintf("< error %03X %lld.%06lld >", class, sec, usec).
+        assert_eq!(
+            parse_message("error 040 1700000000.000123").unwrap(),
+            Message::ErrorFrame {
+                class: 0x40,
+                t_s: 1_700_000_000.000123
+            }
+        );
+        for text in [
+            "error unknown command",
+            "error lagged 3",
+            "error 040 x",
+            "error 040",
+        ] {
+            assert!(
+                matches!(parse_message(text).unwrap(), Message::Error(_)),
+                "{text}"
+            );
+        }
     }
 
     #[test]

@@ -4,6 +4,7 @@
 //! `recv` is cancel-safe (bytes read are kept in the decoder), so it can sit in a `tokio::select!`
 //! next to a timer that sends. Received timestamps are the server's, in seconds.
 
+use super::bus_state::{BusErrors, ErrorFrame};
 use super::socketcand::{Decoder, Message, encode_into};
 use super::{CanBus, CanError, Frame};
 use std::time::Duration;
@@ -25,6 +26,8 @@ pub struct SocketcandBus {
     pub server_errors: u64,
     /// Malformed messages received and skipped.
     pub bad_messages: u64,
+    /// Bus state from the server's forwarded error frames.
+    errors: BusErrors,
 }
 
 impl SocketcandBus {
@@ -41,6 +44,7 @@ impl SocketcandBus {
             out: String::with_capacity(64),
             server_errors: 0,
             bad_messages: 0,
+            errors: BusErrors::default(),
         };
         tokio::time::timeout(HANDSHAKE_TIMEOUT, me.handshake(bus))
             .await
@@ -106,7 +110,13 @@ impl SocketcandBus {
     pub async fn recv_timestamped(&mut self) -> Result<(Frame, f64), CanError> {
         loop {
             match self.next_message().await? {
-                Message::Frame { frame, t_s } => return Ok((frame, t_s)),
+                Message::Frame { frame, t_s } => {
+                    self.errors.on_frame();
+                    return Ok((frame, t_s));
+                }
+                Message::ErrorFrame { class, .. } => {
+                    self.errors.on_error_frame(&ErrorFrame::class_only(class))
+                }
                 Message::Error(_) => self.server_errors += 1,
                 _ => {}
             }
@@ -115,6 +125,11 @@ impl SocketcandBus {
 }
 
 impl CanBus for SocketcandBus {
+    /// What the server's error frames said about the bus since it was opened.
+    fn bus_errors(&self) -> BusErrors {
+        self.errors
+    }
+
     async fn send(&mut self, frame: &Frame) -> Result<(), CanError> {
         self.write(&Message::Send(*frame)).await
     }

@@ -233,21 +233,43 @@ pub async fn run<B: CanBus>(
     poll_period: std::time::Duration,
     out: tokio::sync::mpsc::Sender<Vec<Sample>>,
 ) -> Result<(), CanError> {
+    run_observed(bus, src, clock_s, poll_period, out, |_, _| {}).await
+}
+
+/// [`run`], calling `observe(bus, frames_received)` after the bring-up and on every poll tick, so
+/// the caller can report the link (frames flowing, the bus state from error frames) while it runs.
+/// `frames_received` counts the frames this call received (0 until the first one arrives).
+pub async fn run_observed<B: CanBus>(
+    bus: &mut B,
+    src: &mut CanopenSource,
+    clock_s: impl Fn() -> f64,
+    poll_period: std::time::Duration,
+    out: tokio::sync::mpsc::Sender<Vec<Sample>>,
+    mut observe: impl FnMut(&B, u64),
+) -> Result<(), CanError> {
     for f in src.bring_up() {
         bus.send(&f).await?;
     }
     let mut tick = tokio::time::interval(poll_period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut batch = Vec::new();
+    let mut received = 0u64;
+    observe(bus, received);
     loop {
         tokio::select! {
             f = bus.recv() => match f {
-                Ok(f) => src.on_frame(&f, clock_s(), &mut batch),
+                Ok(f) => {
+                    received += 1;
+                    src.on_frame(&f, clock_s(), &mut batch);
+                }
                 // Lost frames are not fatal: the positions come again in the next cycle.
                 Err(CanError::Overrun(n)) => src.counters.decode_errors += n,
                 Err(e) => return Err(e),
             },
-            _ = tick.tick() => src.poll(clock_s(), &mut batch),
+            _ = tick.tick() => {
+                src.poll(clock_s(), &mut batch);
+                observe(bus, received);
+            }
         }
         if !batch.is_empty() && out.send(std::mem::take(&mut batch)).await.is_err() {
             return Ok(());

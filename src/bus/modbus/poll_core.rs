@@ -1,5 +1,5 @@
 //! Sans-IO core of the Modbus poller: the read plan, turning each read's outcome into samples with
-//! health and counters, the reconnect backoff, and the RTU inter-frame silence.
+//! health and counters, and the RTU inter-frame silence (the reconnect backoff is [`crate::bus::Backoff`]).
 //!
 //! Outcome → health: registers → decoded value (`Ok` / `OutOfRange`); a Modbus exception (the device
 //! answered "no") → `DecodeError`, value NaN; a timeout or transport failure (no answer) → `Stale`
@@ -122,38 +122,6 @@ fn sample(c: &RegisterChannel, t_s: f64, value: f64, health: Health) -> Sample {
     }
 }
 
-/// Exponential reconnect backoff: `min_s`, doubling, capped at `max_s`; reset on success.
-#[derive(Debug, Clone)]
-pub struct Backoff {
-    pub min_s: f64,
-    pub max_s: f64,
-    next_s: f64,
-}
-
-impl Backoff {
-    pub fn new(min_s: f64, max_s: f64) -> Self {
-        let min_s = min_s.max(0.0);
-        Backoff {
-            min_s,
-            max_s: max_s.max(min_s),
-            next_s: min_s,
-        }
-    }
-
-    /// Delay before the next attempt after a failure.
-    pub fn on_failure(&mut self) -> f64 {
-        let d = self.next_s;
-        self.next_s = (self.next_s * 2.0)
-            .clamp(self.min_s, self.max_s)
-            .max(f64::MIN_POSITIVE);
-        d
-    }
-
-    pub fn on_success(&mut self) {
-        self.next_s = self.min_s;
-    }
-}
-
 /// Modbus RTU inter-frame silence t3.5 in seconds: 3.5 characters of 11 bits up to 19200 Bd, a fixed
 /// 1.75 ms above (Modbus over serial line spec §2.5.1.1; anchors-compensation.md: 9600 Bd → 4.01 ms).
 pub fn rtu_silence_s(baud: u32) -> f64 {
@@ -230,15 +198,6 @@ mod tests {
             ),
             (4, 2, 1, 1, 1)
         );
-    }
-
-    #[test]
-    fn backoff_doubles_caps_and_resets() {
-        let mut b = Backoff::new(0.1, 0.5);
-        let d: Vec<f64> = (0..5).map(|_| b.on_failure()).collect();
-        assert_eq!(d, vec![0.1, 0.2, 0.4, 0.5, 0.5]);
-        b.on_success();
-        assert_eq!(b.on_failure(), 0.1);
     }
 
     #[test]

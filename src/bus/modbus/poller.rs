@@ -5,9 +5,9 @@
 //! exponential backoff (#219 no reconnect; #60 poor RTU recovery after a bad frame); Modbus exceptions
 //! are values (→ `DecodeError` samples); on RTU a silence of t3.5 is kept between frames (#180).
 
-use super::poll_core::{Backoff, PollCore, PollCounters, ReadOutcome, rtu_silence_s};
+use super::poll_core::{PollCore, PollCounters, ReadOutcome, rtu_silence_s};
 use super::regmap::{RegisterChannel, RegisterKind};
-use crate::bus::Sample;
+use crate::bus::{Backoff, Sample};
 use std::time::Duration;
 use tokio::time::Instant;
 use tokio_modbus::client::{Context, Reader};
@@ -117,7 +117,7 @@ impl ModbusPoller {
     pub fn new(cfg: ModbusSourceConfig) -> Self {
         ModbusPoller {
             core: PollCore::new(cfg.channel.clone(), 125, cfg.max_gap),
-            backoff: Backoff::new(cfg.backoff_min_s, cfg.backoff_max_s),
+            backoff: Backoff::from_secs_f64(cfg.backoff_min_s, cfg.backoff_max_s),
             cfg,
             ctx: None,
             next_connect: Instant::now(),
@@ -170,7 +170,7 @@ impl ModbusPoller {
         match tokio::time::timeout(secs(self.cfg.timeout_s), self.connect()).await {
             Ok(Ok(ctx)) => {
                 self.core.counters.connects += 1;
-                self.backoff.on_success();
+                self.backoff.reset();
                 self.ctx = Some(ctx);
                 true
             }
@@ -188,7 +188,7 @@ impl ModbusPoller {
 
     fn fail_connect(&mut self) {
         self.core.counters.connect_failures += 1;
-        self.next_connect = Instant::now() + secs(self.backoff.on_failure());
+        self.next_connect = self.backoff.retry_at(Instant::now());
     }
 
     async fn read_block(&mut self, b: usize) -> ReadOutcome {
@@ -231,7 +231,7 @@ impl ModbusPoller {
             if matches!(outcome, ReadOutcome::Timeout | ReadOutcome::Transport(_)) {
                 // The context may hold a late reply or a half frame: rebuild it (#60, #219).
                 self.ctx = None;
-                self.next_connect = Instant::now() + secs(self.backoff.on_failure());
+                self.next_connect = self.backoff.retry_at(Instant::now());
                 up = false;
             }
             self.core.on_outcome(b, &outcome, t_s, out);
@@ -239,17 +239,26 @@ impl ModbusPoller {
     }
 
     /// Poll every `period_s` until `out` is closed.
-    pub async fn run(
+    pub async fn run(self, clock_s: impl Fn() -> f64, out: tokio::sync::mpsc::Sender<Vec<Sample>>) {
+        self.run_observed(clock_s, out, |_, _, _| {}).await
+    }
+
+    /// [`Self::run`], calling `observe(before, after, connected)` with the counters around every
+    /// poll, so the caller can turn failed polls and exception replies into faults.
+    pub async fn run_observed(
         mut self,
         clock_s: impl Fn() -> f64,
         out: tokio::sync::mpsc::Sender<Vec<Sample>>,
+        mut observe: impl FnMut(&PollCounters, &PollCounters, bool),
     ) {
         let mut tick = tokio::time::interval(secs(self.cfg.period_s).max(Duration::from_millis(1)));
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
             tick.tick().await;
             let mut batch = Vec::new();
+            let before = self.core.counters;
             self.poll_once(clock_s(), &mut batch).await;
+            observe(&before, &self.core.counters, self.is_connected());
             if out.send(batch).await.is_err() {
                 return;
             }
