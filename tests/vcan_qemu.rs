@@ -165,13 +165,12 @@ fn socketcan_backend_against_kernel_vcan_in_qemu() {
         })
         .collect();
     let passed = finished && result.as_deref() == Some("PASS") && missing.is_empty();
-    if !passed {
-        panic!(
-            "vcan QEMU guest FAILED: result marker {result:?}, finished before {QEMU_TIMEOUT:?}: \
+    assert!(
+        passed,
+        "vcan QEMU guest FAILED: result marker {result:?}, finished before {QEMU_TIMEOUT:?}: \
              {finished}, checks not reported ok: {missing:?}, wall {elapsed:.1?}.\n\
              ===== guest console =====\n{console}\n===== end of guest console ====="
-        );
-    }
+    );
     eprintln!(
         "vcan QEMU round trip passed in {elapsed:.1?} wall ({} checks)",
         guest_checks.len()
