@@ -36,3 +36,12 @@ fn config_inputs_give_configs_or_errors() {
         let _ = hil_sim::SimConfig::from_toml_str(t, None);
     });
 }
+
+/// docs/walkthrough.md's simulator side loads as written (its truth model path is relative to it).
+#[test]
+fn walkthrough_sim_config_loads() {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/walkthrough/sim.toml");
+    let cfg = hil_sim::SimConfig::from_toml_path(&p).unwrap_or_else(|e| panic!("{e:#}"));
+    let truth = cfg.truth.model_path.as_ref().expect("[truth] model_path");
+    assert!(truth.is_file(), "{}", truth.display());
+}

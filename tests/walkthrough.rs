@@ -1,4 +1,4 @@
-//! `retrocomp hub` (the shipped socketcand hub command) carries frames between two python-can 4.6.1
+//! docs/walkthrough.md, checked: `retrocomp hub` (the shipped socketcand hub command) carries frames between two python-can 4.6.1
 //! clients (`interface="socketcand"`, a third-party implementation of the protocol), and stops on
 //! SIGTERM with its counters. Peer: tests/peers/pycan_socketcand.py.
 
@@ -51,4 +51,17 @@ fn python_can_clients_talk_through_the_hub_command() {
         last.starts_with("retrocomp hub: stopped; clients 2, frames in 6,"),
         "{last:?}"
     );
+}
+
+/// docs/walkthrough.md's gateway side loads as written: the field config, and the model its
+/// `[model] path` names relative to it (hil-sim's side: hil-sim/tests/fuzz_regressions.rs).
+#[test]
+fn walkthrough_field_config_and_its_model_load() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/walkthrough");
+    let cfg = retrocomp::gateway::config::FieldConfig::load(&dir.join("field.toml"))
+        .unwrap_or_else(|e| panic!("{e}"));
+    retrocomp::gateway::run::require_sink(&cfg).unwrap();
+    let model = cfg.model.as_ref().expect("[model] path");
+    retrocomp::models::MachineModel::from_toml_path(&dir.join(&model.path))
+        .unwrap_or_else(|e| panic!("{e}"));
 }
