@@ -1,9 +1,13 @@
 #!/usr/bin/env bash
 # Installs the third-party peers the integration tests talk to (idempotent; safe to re-run).
 #   apt: the packages in APT_PACKAGES (socat: pty pairs for Modbus RTU; mbpoll: Modbus TCP client;
-#        qemu-system-x86, busybox-static, can-utils, cpio, gzip, xz-utils, binutils: the QEMU guest
-#        that runs the SocketCAN backend against real kernel vcan, see docs/vcan.md)
-#   kernel: Debian's linux-image-amd64 unpacked into a cache (scripts/vcan-qemu/fetch-kernel.sh)
+#        busybox-static, can-utils, cpio, gzip, xz-utils, binutils: the QEMU guest that runs the
+#        SocketCAN backend against real kernel vcan, see docs/vcan.md)
+#   qemu + kernel: Debian's qemu-system-x86 and linux-image-amd64 DOWNLOADED and unpacked into a cache
+#        (scripts/vcan-qemu/fetch-qemu.sh, fetch-kernel.sh), never installed: on a host with a newer
+#        qemu-utils (e.g. from backports) `apt-get install qemu-system-x86` would remove it.
+# Never removes or downgrades a host package: every install is simulated first (apt-get -s) and
+# refused if the simulation removes or downgrades anything; the real install adds --no-remove.
 #   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial)
 # Tests look for <repo>/.venv/bin/python and fail with "run scripts/setup-peers.sh" if it is missing.
 set -euo pipefail
@@ -14,7 +18,6 @@ REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 APT_PACKAGES=(
   socat
   mbpoll
-  qemu-system-x86
   busybox-static
   can-utils
   cpio
@@ -43,8 +46,7 @@ if [ "${#missing[@]}" -gt 0 ] || ! apt-cache show linux-image-amd64 >/dev/null 2
 fi
 if [ "${#missing[@]}" -gt 0 ]; then
   echo "setup-peers: apt-get install ${missing[*]}"
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get -o DPkg::Lock::Timeout=600 install -y -qq --no-install-recommends "${missing[@]}"
-  # (no recommends: qemu-system-x86 would pull in a GUI stack we never use)
+  bash "$REPO/scripts/apt-install-safe.sh" "${missing[@]}"
 else
   echo "setup-peers: apt packages already present: ${APT_PACKAGES[*]}"
 fi
@@ -61,6 +63,7 @@ import can, pymodbus, serial
 print(f"setup-peers: python-can {can.__version__}, pymodbus {pymodbus.__version__}, "
       f"pyserial {serial.VERSION}")
 PYEOF
+sh "$REPO/scripts/vcan-qemu/fetch-qemu.sh"
 sh "$REPO/scripts/vcan-qemu/fetch-kernel.sh"
 bash "$REPO/scripts/setup-linuxcnc.sh"
 echo "setup-peers: done"

@@ -1,17 +1,39 @@
 #!/usr/bin/env bash
 # Runs every test of retrocomp on a fresh Debian machine, as CI does (.ci/run calls exactly this).
-# 1. installs the third-party peers (apt: socat, mbpoll, qemu, can-utils…; a .venv with pinned
-#    python-can, pymodbus, pyserial) — idempotent, quick when already installed;
-# 2. runs the whole cargo test suite, which includes the real-peer integration tests and the
-#    QEMU guest that runs the socketcan backend against real kernel vcan;
-# 3. builds and tests the quadrature injector with the `gpio` feature (real Linux GPIO character
-#    device lines; no GPIO chip exists here, so its test checks the clear error for a missing chip).
-set -euo pipefail
+# 1. installs the third-party peers (scripts/setup-peers.sh: apt socat, mbpoll, can-utils…, never
+#    removing or downgrading a host package; QEMU and the guest kernel downloaded into a cache, not
+#    installed; LinuxCNC; a .venv with pinned python-can, pymodbus, pyserial) — quick when present;
+# 2. `cargo fmt --check` and `cargo clippy --workspace --all-targets -- -D warnings`;
+# 3. the whole cargo test suite with --no-fail-fast (every test binary runs even after a failure),
+#    including the real-peer integration tests and the QEMU guest that runs the socketcan backend
+#    against real kernel vcan;
+# 4. the quadrature injector with the `gpio` feature (real Linux GPIO character-device lines; no GPIO
+#    chip exists here, so its test checks the clear error for a missing chip).
+# Ends with ONE line `N passed, N failed` (the sum of every `test result:` line) and exits non-zero
+# if any test failed, a test binary did not build or run, or fmt/clippy complained.
+# Needs root or sudo for apt (step 1). Takes ≈ 10 min on an idle 2-core VM, much more under load.
+set -uo pipefail
 cd "$(dirname "$0")/.."
 
-bash scripts/setup-peers.sh
-
+bash scripts/setup-peers.sh || { echo "test.sh: scripts/setup-peers.sh failed" >&2; exit 1; }
 export RETROCOMP_PYTHON="$PWD/.venv/bin/python"
-cargo fmt --all -- --check
-cargo test --workspace --locked
-cargo test --locked -p retrocomp --features gpio --lib quadrature
+
+log=$(mktemp "${TMPDIR:-/tmp}/retrocomp-test.XXXXXX")
+trap 'rm -f "$log"' EXIT
+problems=()
+cargo fmt --all -- --check || problems+=("cargo fmt --check")
+cargo clippy --workspace --all-targets --locked -- -D warnings || problems+=("cargo clippy")
+cargo test --workspace --locked --no-fail-fast 2>&1 | tee -a "$log"
+[ "${PIPESTATUS[0]}" -eq 0 ] || problems+=("cargo test --workspace")
+cargo test --locked -p retrocomp --features gpio --lib quadrature 2>&1 | tee -a "$log"
+[ "${PIPESTATUS[0]}" -eq 0 ] || problems+=("cargo test --features gpio")
+
+# `test result: ok. 12 passed; 0 failed; 1 ignored; …` — one per test binary and doc-test run.
+read -r passed failed < <(awk '/^test result: / {
+    for (i = 1; i <= NF; i++) {
+      if ($(i+1) ~ /^passed;?$/) p += $i
+      if ($(i+1) ~ /^failed;?$/) f += $i
+    } } END { print p + 0, f + 0 }' "$log")
+for p in "${problems[@]}"; do echo "test.sh: FAILED step: $p"; done
+echo "$passed passed, $failed failed"
+[ "$failed" -eq 0 ] && [ "${#problems[@]}" -eq 0 ]

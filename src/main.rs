@@ -24,6 +24,8 @@ enum Command {
     Run(cli::run::Args),
     /// The main job with no hardware: hil-sim + the gateway over loopback, three runs compared.
     Demo(cli::demo::Args),
+    /// A socketcand-protocol CAN hub on TCP, for `hil-sim serve` and `retrocomp run` without hardware.
+    Hub(cli::hub::Args),
     /// Show a running gateway's per-axis corrections, term breakdown and sensor health.
     Status(cli::status::Args),
     /// ISO 230-2:2014 positioning evaluation of one axis from laser runs.
@@ -54,6 +56,7 @@ fn main() -> std::process::ExitCode {
         Command::Run(a) => cli::run::run(&a),
         Command::Demo(a) => cli::demo::run(&a),
         Command::Status(a) => cli::status::run(&a),
+        Command::Hub(a) => cli::hub::run(&a),
         Command::Iso230_2(a) => cli::iso230_2::run(&a),
         Command::Import(a) => cli::import::run(&a),
         Command::Export(a) => cli::export::run(&a),

@@ -101,6 +101,8 @@ fn both_simulations_give_the_same_reversal_because_it_is_tested_within_targets()
     )
     .unwrap();
     let (ba, bb) = (zone_b(&a.report.findings[0]), zone_b(&b.report.findings[0]));
+    assert!(!ba.is_empty(), "no zone-B values to compare");
+    assert_eq!(ba.len(), bb.len(), "{ba:?} vs {bb:?}");
     for (x, y) in ba.iter().zip(&bb) {
         assert!((x - y).abs() < 1e-6, "{ba:?} vs {bb:?}");
     }

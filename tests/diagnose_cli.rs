@@ -266,6 +266,7 @@ fn out_model_toml_loads_and_evaluates_to_the_found_backlash() {
         "y_mm",
         tmp.path(),
     );
+    assert_eq!(ex.len(), 4, "one value per query point: {ex:?}");
     for (v, want) in ex.iter().zip([b / 2.0, b / 2.0, -b / 2.0, -b / 2.0]) {
         assert!((v - want).abs() < 1e-6, "{ex:?} vs b/2 = {}", b / 2.0);
     }

@@ -193,6 +193,21 @@ async fn wait_until(
     }
 }
 
+/// GETs /status until `pred` holds on its body (at most 20 s: a generous bound, not a measurement),
+/// and returns the last body for the caller's assertion.
+async fn poll_status(addr: &str, pred: impl Fn(&str) -> bool) -> String {
+    let t0 = std::time::Instant::now();
+    loop {
+        let (_, body) = retrocomp::gateway::http::get(addr, "/status", Duration::from_secs(2))
+            .await
+            .unwrap();
+        if pred(&body) || t0.elapsed() > Duration::from_secs(20) {
+            return body;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn gateway_survives_faults_and_never_jumps() {
     let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
@@ -329,10 +344,25 @@ async fn gateway_survives_faults_and_never_jumps() {
     .await;
     assert!((v + 20.0).abs() < 0.11, "substitution keeps −20: {v}");
 
-    // Garbage on the position line is rejected without disturbing the output.
+    // Garbage on the position line is rejected without disturbing the output: the status shows the
+    // decode fault on x_mm while the PLC still holds −20 µm, and the fault clears once it stops.
     mode.store(GARBAGE, Ordering::Relaxed);
-    tokio::time::sleep(Duration::from_millis(200)).await;
+    let x_decode_fault = |body: &str| {
+        let js: serde_json::Value = serde_json::from_str(body).unwrap();
+        js["channels"]["x_mm"]["faults"]
+            .as_array()
+            .is_some_and(|f| f.iter().any(|k| k == "decode"))
+    };
+    let body = poll_status(&status_addr, |b| x_decode_fault(b)).await;
+    assert!(
+        x_decode_fault(&body),
+        "garbage never seen as a decode fault: {body}"
+    );
+    let v = wait_until(&plc, &map, |_| true, Duration::ZERO).await;
+    assert!((v + 20.0).abs() < 0.11, "garbage disturbed the output: {v}");
     mode.store(NORMAL, Ordering::Relaxed);
+    let body = poll_status(&status_addr, |b| !x_decode_fault(b)).await;
+    assert!(!x_decode_fault(&body), "decode fault never cleared: {body}");
 
     // --- gateway restarted: continues from what the PLC holds ---
     let _ = stop_tx.send(());

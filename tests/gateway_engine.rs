@@ -8,7 +8,7 @@ use std::path::Path;
 
 use retrocomp::bus::{Health, Sample};
 use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::{AxisErrors, Engine, ErrorModel, MachineState, Mode};
+use retrocomp::gateway::{AxisErrors, Engine, ErrorModel, FaultKind, MachineState, Mode};
 
 /// x error: thermal growth 2 µm/K above 20 °C on T_spindle_C, plus a ±3 µm reversal (backlash).
 struct TestModel;
@@ -218,7 +218,7 @@ fn a_bad_reading_replaced_before_the_cycle_is_logged_once_and_never_used() {
     assert!(
         faults
             .iter()
-            .any(|(src, k, _)| src == "T_spindle_C" && format!("{k:?}") == "NotFinite"),
+            .any(|(src, k, _)| src == "T_spindle_C" && *k == FaultKind::NotFinite),
         "the replaced NaN is logged: {faults:?}"
     );
     assert!((out - settled).abs() < 1e-9, "the NaN was never used");

@@ -3,8 +3,10 @@
 //! can, can-raw, can-dev and vcan modules, can-utils and retrocomp's in-guest test program
 //! (`src/bin/vcan_guest.rs`), and asserts the guest's result marker.
 //!
-//! Host peers: qemu-system-x86_64, busybox-static, can-utils, cpio, and apt-get/dpkg for the first
-//! kernel download (cached in `~/.cache/retrocomp-vcan`, or `$RETROCOMP_VCAN_CACHE`). If any is
+//! Host peers: busybox-static, can-utils, cpio, and apt-get/dpkg for the first kernel and QEMU
+//! download (cached in `~/.cache/retrocomp-vcan`, or `$RETROCOMP_VCAN_CACHE`). QEMU is the host's
+//! `qemu-system-x86_64` if one is on PATH, else Debian's qemu-system-x86 unpacked into the cache by
+//! `scripts/vcan-qemu/fetch-qemu.sh` (never installed: that could remove a newer host qemu-utils). If any is
 //! missing the test FAILS saying how to install them: `scripts/setup-peers.sh`. On any guest failure
 //! it prints the guest's whole serial console. See docs/vcan.md.
 
@@ -19,7 +21,8 @@ use std::time::{Duration, Instant};
 const QEMU_TIMEOUT: Duration = Duration::from_secs(180);
 const MARKER: &str = "RETROCOMP-VCAN-RESULT: ";
 const INSTALL_HINT: &str = "install the host peers with `sudo scripts/setup-peers.sh` \
-     (apt-get install qemu-system-x86 busybox-static can-utils cpio xz-utils)";
+     (apt-get install busybox-static can-utils cpio xz-utils; QEMU comes from \
+     scripts/vcan-qemu/fetch-qemu.sh)";
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -77,9 +80,9 @@ fn list_guest_checks(guest_bin: &Path) -> Vec<String> {
 }
 
 /// Boots the guest and returns (console text, wall time, whether it finished before the timeout).
-fn boot(vmlinuz: &Path, initrd: &Path) -> (String, Duration, bool) {
+fn boot(qemu: &Path, vmlinuz: &Path, initrd: &Path) -> (String, Duration, bool) {
     let start = Instant::now();
-    let mut child = Command::new("qemu-system-x86_64")
+    let mut child = Command::new(qemu)
         .args(["-accel", "tcg", "-m", "512", "-smp", "1"])
         .args(["-nographic", "-no-reboot", "-nic", "none"])
         .arg("-kernel")
@@ -91,7 +94,7 @@ fn boot(vmlinuz: &Path, initrd: &Path) -> (String, Duration, bool) {
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .unwrap_or_else(|e| panic!("cannot start qemu-system-x86_64: {e}; {INSTALL_HINT}"));
+        .unwrap_or_else(|e| panic!("cannot start {}: {e}; {INSTALL_HINT}", qemu.display()));
     let mut stdout = child.stdout.take().unwrap();
     let mut stderr = child.stderr.take().unwrap();
     let out_reader = std::thread::spawn(move || {
@@ -129,16 +132,10 @@ fn boot(vmlinuz: &Path, initrd: &Path) -> (String, Duration, bool) {
 
 #[test]
 fn socketcan_backend_against_kernel_vcan_in_qemu() {
-    for tool in [
-        "qemu-system-x86_64",
-        "busybox",
-        "cansend",
-        "candump",
-        "cpio",
-        "gzip",
-    ] {
+    for tool in ["busybox", "cansend", "candump", "cpio", "gzip"] {
         require_tool(tool);
     }
+    let qemu = run_script("fetch-qemu.sh", &[]);
     let tree = run_script("fetch-kernel.sh", &[]);
     let vmlinuz = std::fs::read_dir(tree.join("boot"))
         .expect("kernel tree has boot/")
@@ -153,7 +150,7 @@ fn socketcan_backend_against_kernel_vcan_in_qemu() {
     let initrd_path = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("vcan-initramfs.cpio.gz");
     let initrd = run_script("build-initramfs.sh", &[&tree, &guest_bin, &initrd_path]);
 
-    let (console, elapsed, finished) = boot(&vmlinuz, &initrd);
+    let (console, elapsed, finished) = boot(&qemu, &vmlinuz, &initrd);
     let result = console
         .lines()
         .find_map(|l| l.trim().strip_prefix(MARKER))
@@ -168,13 +165,12 @@ fn socketcan_backend_against_kernel_vcan_in_qemu() {
         })
         .collect();
     let passed = finished && result.as_deref() == Some("PASS") && missing.is_empty();
-    if !passed {
-        panic!(
-            "vcan QEMU guest FAILED: result marker {result:?}, finished before {QEMU_TIMEOUT:?}: \
+    assert!(
+        passed,
+        "vcan QEMU guest FAILED: result marker {result:?}, finished before {QEMU_TIMEOUT:?}: \
              {finished}, checks not reported ok: {missing:?}, wall {elapsed:.1?}.\n\
              ===== guest console =====\n{console}\n===== end of guest console ====="
-        );
-    }
+    );
     eprintln!(
         "vcan QEMU round trip passed in {elapsed:.1?} wall ({} checks)",
         guest_checks.len()

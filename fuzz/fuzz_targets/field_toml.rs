@@ -1,10 +1,9 @@
-//! The field TOML loader: arbitrary text must give a config or an error, never a panic.
+//! The bus layer's field TOML loader: a config or an error, never a panic.
+//! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
+//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/field_toml/ through it).
 #![no_main]
 
-use libfuzzer_sys::fuzz_target;
+#[path = "../../tests/fuzz_checks/mod.rs"]
+mod checks;
 
-fuzz_target!(|data: &[u8]| {
-    if let Ok(text) = std::str::from_utf8(data) {
-        let _ = retrocomp::bus::config::parse(text, "fuzz.toml");
-    }
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| checks::field_toml(data));

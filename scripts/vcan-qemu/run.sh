@@ -10,6 +10,7 @@ target="${CARGO_TARGET_DIR:-$repo/target}"
 (cd "$repo" && cargo build --profile test --bin vcan_guest)
 tree=$(sh "$here/fetch-kernel.sh" | tail -n 1)
 initrd=$(sh "$here/build-initramfs.sh" "$tree" "$target/debug/vcan_guest" "$target/vcan-qemu/initramfs.cpio.gz")
-exec qemu-system-x86_64 -accel tcg -m 512 -smp 1 -nographic -no-reboot -nic none \
+qemu=$(sh "$here/fetch-qemu.sh" | tail -n 1)
+exec "$qemu" -accel tcg -m 512 -smp 1 -nographic -no-reboot -nic none \
     -kernel "$(ls "$tree"/boot/vmlinuz-* | head -n 1)" -initrd "$initrd" \
     -append "console=ttyS0 quiet panic=-1" "$@"

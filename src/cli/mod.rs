@@ -8,6 +8,7 @@ pub mod diagnose;
 pub mod eval;
 pub mod export;
 pub mod fit;
+pub mod hub;
 pub mod identify;
 pub mod import;
 pub mod iso230_2;

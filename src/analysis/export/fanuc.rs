@@ -328,6 +328,15 @@ pub fn read_tape(file: &str, text: &str) -> Result<Vec<FanucAxis>, ImportErrors>
         }
     }
     let axis_ids: std::collections::BTreeSet<u8> = params.keys().map(|(_, a)| *a).collect();
+    // An empty tape (or one of comments only) would import as "no axes" and export as a tape of
+    // empty parameter rows that no reader accepts (found by fuzzing: fuzz/ controller_tables).
+    if axis_ids.is_empty() && sink.is_empty() {
+        sink.push(
+            0,
+            None,
+            "no axis parameters found (expected N1851 and N3620–N3624 with `A<axis> P<value>` pairs)",
+        );
+    }
     let mut axes = Vec::new();
     for a in axis_ids {
         let mut get = |p: u32| -> Option<i64> {
@@ -391,6 +400,14 @@ pub fn read_tape(file: &str, text: &str) -> Result<Vec<FanucAxis>, ImportErrors>
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_tape_without_axis_parameters_is_refused() {
+        for text in ["", "%\n%\n", "(comment only)\n"] {
+            let e = read_tape("t.tape", text).unwrap_err().to_string();
+            assert!(e.contains("no axis parameters found"), "{text:?}: {e}");
+        }
+    }
 
     #[test]
     fn rounding_carries_the_residual() {

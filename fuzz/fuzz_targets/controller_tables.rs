@@ -1,0 +1,9 @@
+//! Fanuc / ISG / LinuxCNC table readers, each with its writer's round trip.
+//! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
+//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/controller_tables/ through it).
+#![no_main]
+
+#[path = "../../tests/fuzz_checks/mod.rs"]
+mod checks;
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| checks::controller_tables(data));

@@ -1,0 +1,9 @@
+//! The whole field config (`retrocomp run --config`): a config or an error with file/line/key.
+//! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
+//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/gateway_config/ through it).
+#![no_main]
+
+#[path = "../../tests/fuzz_checks/mod.rs"]
+mod checks;
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| checks::gateway_config(data));

@@ -1,0 +1,9 @@
+//! The status endpoint's request handling, through the real server on loopback.
+//! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
+//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/http_request/ through it).
+#![no_main]
+
+#[path = "../../tests/fuzz_checks/mod.rs"]
+mod checks;
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| checks::http_request(data));

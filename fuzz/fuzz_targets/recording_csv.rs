@@ -1,0 +1,9 @@
+//! Recording CSV (DESIGN §4), strict and lenient readers.
+//! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
+//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/recording_csv/ through it).
+#![no_main]
+
+#[path = "../../tests/fuzz_checks/mod.rs"]
+mod checks;
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| checks::recording_csv(data));
