@@ -294,13 +294,12 @@ fn settle(run: &mut Run, k: usize, want_um: f64) -> (Pins, Vec<Pins>) {
                 diagnostics(run)
             );
         }
-        if t0.elapsed() > Duration::from_secs(300) {
-            panic!(
-                "stop {k}: eoffset did not settle at {want_um:.3} µm ± {TOL_UM}; last pins {:?}\n{}",
-                lines.last(),
-                diagnostics(run)
-            );
-        }
+        assert!(
+            t0.elapsed() <= Duration::from_secs(300),
+            "stop {k}: eoffset did not settle at {want_um:.3} µm ± {TOL_UM}; last pins {:?}\n{}",
+            lines.last(),
+            diagnostics(run)
+        );
         std::thread::sleep(Duration::from_millis(200));
     }
 }

@@ -112,7 +112,12 @@ pub fn nc_program(data: &[u8]) {
     };
     let cfg = RewriteConfig {
         diameter_x: flags & 2 != 0,
-        allow_work_offsets: flags & 4 != 0,
+        // Every work offset given (G55…G59.3 selectable) or only the implicit G54.
+        work_offsets_mm: if flags & 4 != 0 {
+            [Some([1.0, -2.0, 3.0]); 9]
+        } else {
+            [None; 9]
+        },
         ..RewriteConfig::default()
     };
     if let Ok((out, _)) = rewrite(&blocks, &Ppm, &cfg)
@@ -253,6 +258,7 @@ fn status_server() -> SocketAddr {
                     active_faults: vec![],
                     model_error: None,
                     sink: None,
+                    sources: vec![],
                 };
                 let (keep, wrx) = tokio::sync::watch::channel(Some(Arc::new(snap)));
                 let (addr, task) = serve_status("127.0.0.1:0".parse().unwrap(), wrx)

@@ -388,7 +388,7 @@ impl Rewriter<'_> {
     fn emit_piece(
         &mut self,
         b: &Block,
-        pc: &Piece,
+        pc: &Piece<'_>,
         present: [bool; 3],
         sink: &mut dyn RewriteSink,
     ) -> Result<bool, RewriteError> {
