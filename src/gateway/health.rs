@@ -38,10 +38,14 @@ pub enum FaultKind {
     Decode,
     /// A sink lost its controller (transport down, no reply): reported by the sink, not a channel.
     Disconnected,
+    /// A sink's request was refused (Modbus exception), failed, or was not acknowledged/read back.
+    WriteFailed,
+    /// The controller holds a correction beyond the clamp: the sink does not write that axis.
+    BeyondClamp,
 }
 
 impl FaultKind {
-    pub const ALL: [FaultKind; 7] = [
+    pub const ALL: [FaultKind; 9] = [
         FaultKind::Stale,
         FaultKind::OutOfRange,
         FaultKind::NotFinite,
@@ -49,6 +53,8 @@ impl FaultKind {
         FaultKind::Stuck,
         FaultKind::Decode,
         FaultKind::Disconnected,
+        FaultKind::WriteFailed,
+        FaultKind::BeyondClamp,
     ];
 }
 

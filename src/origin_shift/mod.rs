@@ -2,15 +2,20 @@
 //! per-axis corrections written to the controller's offset registers over Modbus TCP or RTU.
 //!
 //! [`map`] (TOML register map, encoding, allow-list), [`cycle`] (sans-IO write/strobe/ack/read-back
-//! state machine), [`client`] (tokio-modbus shell: per-request timeout, reconnect with backoff, start
+//! state machine), [`guard`] (the last-step check of every value against what the controller holds),
+//! [`sink`] (one write period: read, guard, write cycle; sans-IO), [`client`] (tokio-modbus shell: per-request timeout, reconnect with backoff, start
 //! by reading the current values). Units: µm; sign convention in [`map`].
 
 pub mod client;
 pub mod cycle;
+pub mod guard;
 pub mod map;
+pub mod sink;
 
 pub use client::{ClientConfig, OriginShiftClient, Transport};
 pub use cycle::{Action, Outcome, Reply, WriteCycle};
+pub use guard::{GuardLimits, Verdict, WriteGuard};
 pub use map::{
     AxisRegister, Handshake, MapError, RegisterKind, RegisterMap, WordOrder, WriteBlock,
 };
+pub use sink::{SinkAxis, SinkCore, SinkFaults};
