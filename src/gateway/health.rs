@@ -81,7 +81,7 @@ pub struct ChannelMonitor {
     sample_fault: Option<FaultKind>,
     /// Kinds of every sample rejected since the last [`ChannelMonitor::take_rejected`] (bit per
     /// kind), so a bad reading that a good one replaces before the next cycle is still logged.
-    rejected: u8,
+    rejected: u16,
     stuck: bool,
 }
 
