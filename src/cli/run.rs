@@ -36,7 +36,7 @@ pub fn init_tracing() {
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
     init_tracing();
-    let cfg = FieldConfig::load(&args.config)?;
+    let cfg = FieldConfig::load_for_run(&args.config)?;
     if !args.dry_run {
         require_sink(&cfg)?;
     }
