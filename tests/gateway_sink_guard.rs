@@ -170,8 +170,8 @@ fn run(
         applied_um: start_um,
         latches: 0,
     };
-    for axis in 0..2 {
-        plc.set(axis, start_um[axis]);
+    for (axis, um) in start_um.into_iter().enumerate() {
+        plc.set(axis, um);
         plc.applied_um[axis] = plc.value(axis);
     }
     let mut core = SinkCore::new(map, axes());
