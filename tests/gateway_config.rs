@@ -94,3 +94,178 @@ fn errors_name_file_line_and_key() {
         "unknown channel key must be rejected: {msg}"
     );
 }
+
+/// An origin-shift sink for BASE's x axis over TCP; `extra` goes into `[sink.origin_shift]`.
+fn with_sink(sink_keys: &str, map: &str) -> String {
+    format!(
+        "{BASE}\n[sink.origin_shift]\ntransport = {{ kind = \"tcp\", address = \"127.0.0.1:5020\" }}\n{sink_keys}\n{map}"
+    )
+}
+
+const X_REG: &str = "[[sink.origin_shift.map.axis]]\naxis = \"x\"\naddress = 0\nkind = \"int32\"\nlsb_um = 0.1\nsign = 1\n";
+
+/// The message of a refused config: file, line, key and what was expected.
+fn refused(text: &str) -> String {
+    parse(text).unwrap_err().to_string()
+}
+
+fn line_of(text: &str, needle: &str) -> usize {
+    text.lines().position(|l| l.contains(needle)).unwrap() + 1
+}
+
+#[test]
+fn unsafe_sink_configs_are_refused_with_file_line_and_key() {
+    assert!(parse(&with_sink("", X_REG)).is_ok());
+
+    // Zero write period (used to panic the sink task) and absurd periods.
+    let text = with_sink("write_period_ms = 0", X_REG);
+    let msg = refused(&text);
+    let line = line_of(&text, "write_period_ms");
+    assert!(
+        msg.starts_with(&format!(
+            "field.toml:{line}: key `sink.origin_shift.write_period_ms`"
+        )) && msg.contains("expected 1..=10000 ms"),
+        "{msg}"
+    );
+    let msg = refused(&with_sink("request_timeout_ms = 0", X_REG));
+    assert!(msg.contains("request_timeout_ms"), "{msg}");
+    let msg = refused(&with_sink(
+        "reconnect_min_ms = 500\nreconnect_max_ms = 100",
+        X_REG,
+    ));
+    assert!(
+        msg.contains("reconnect_max_ms") && msg.contains("reconnect_min_ms"),
+        "{msg}"
+    );
+
+    // The same axis mapped twice: the second entry's line.
+    let twice = X_REG.replace("address = 0", "address = 10");
+    let text = with_sink("", &format!("{X_REG}{twice}"));
+    let msg = refused(&text);
+    let second = text
+        .match_indices("[[sink.origin_shift.map.axis]]")
+        .nth(1)
+        .unwrap()
+        .0;
+    // The line of `axis = "x"` in the second entry (the header is the line before).
+    let line = text[..second].lines().count() + 2;
+    assert!(
+        msg.contains("sink.origin_shift.map.axis[1].axis") && msg.contains("mapped twice"),
+        "{msg}"
+    );
+    assert!(
+        msg.starts_with(&format!("field.toml:{line}:")),
+        "line {line}: {msg}"
+    );
+
+    // An axis not mapped at all.
+    let yz = BASE.to_string() + "[[axis]]\nname = \"y\"\nposition_channel = \"y_mm\"\n";
+    let text = format!(
+        "{yz}\n[sink.origin_shift]\ntransport = {{ kind = \"tcp\", address = \"127.0.0.1:5020\" }}\n{X_REG}"
+    );
+    let msg = refused(&text);
+    assert!(msg.contains("axis y has no entry"), "{msg}");
+
+    // Overlapping registers (strobe inside x's int32).
+    let text = with_sink(
+        "",
+        &format!(
+            "{X_REG}[sink.origin_shift.map.handshake]\nstrobe_address = 1\nack_address = 5\ntimeout_ms = 100\n"
+        ),
+    );
+    let msg = refused(&text);
+    assert!(msg.contains("overlap"), "{msg}");
+    // Handshake with zero timeout.
+    let text = with_sink(
+        "",
+        &format!(
+            "{X_REG}[sink.origin_shift.map.handshake]\nstrobe_address = 4\nack_address = 5\ntimeout_ms = 0\n"
+        ),
+    );
+    assert!(refused(&text).contains("handshake.timeout_ms"));
+}
+
+#[test]
+fn absurd_limits_are_refused_with_their_key_and_line() {
+    let text = BASE.replace("max_correction_um = 50.0", "max_correction_um = 50000.0");
+    let msg = refused(&text);
+    let line = line_of(&text, "max_correction_um");
+    assert!(
+        msg.starts_with(&format!(
+            "field.toml:{line}: key `safety.max_correction_um`"
+        )) && msg.contains("at most 10000"),
+        "{msg}"
+    );
+    let msg = refused(&BASE.replace(
+        "max_change_um_per_cycle = 0.5",
+        "max_change_um_per_cycle = 80.0",
+    ));
+    assert!(
+        msg.contains("safety.max_change_um_per_cycle") && msg.contains("at most 50"),
+        "{msg}"
+    );
+    let msg = refused(&BASE.replace("stale_hold_s = 1.0", "stale_hold_s = 1e9"));
+    assert!(msg.contains("stale_hold_s"), "{msg}");
+    let msg = refused(&BASE.replace("cycle_ms = 5", "cycle_ms = 0"));
+    assert!(
+        msg.starts_with("field.toml:4: key `gateway.cycle_ms`"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn run_refuses_an_axis_without_a_position_source() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("field.toml");
+    // x has a serial DRO source, y has none.
+    let text = format!(
+        "{BASE}[[axis]]\nname = \"y\"\nposition_channel = \"y_mm\"\n\
+         [[serial.source]]\nname = \"dro\"\ndevice = \"/dev/ttyUSB0\"\nformat = {{ kind = \"nd522\" }}\n\
+         channel = [ {{ name = \"x_mm\", key = \"X\" }} ]\n"
+    );
+    std::fs::write(&path, &text).unwrap();
+    assert!(
+        FieldConfig::load(&path).is_ok(),
+        "parse alone does not require sources"
+    );
+    let msg = FieldConfig::load_for_run(&path).unwrap_err().to_string();
+    let line = line_of(&text, "\"y_mm\"");
+    assert!(
+        msg.contains(&format!(
+            "field.toml:{line}: key `axis[1].position_channel`"
+        )) && msg.contains("no source delivers \"y_mm\""),
+        "{msg}"
+    );
+}
+
+#[test]
+fn a_model_value_infinite_after_unit_conversion_is_refused() {
+    let text = r#"schema = 1
+[machine]
+name = "huge"
+chain = "X F Y Z"
+[[tools]]
+name = "T"
+offset_mm = [0.0, 0.0, 0.0]
+[[components]]
+name = "EXX"
+positions_mm = [0.0, 10.0]
+forward_mm = [1.0, 1e306]
+"#;
+    let err = retrocomp::models::MachineModel::from_toml_str(text, "huge.toml").unwrap_err();
+    let msg = err.to_string();
+    assert!(
+        msg.contains("huge.toml") && msg.contains("forward_mm"),
+        "{msg}"
+    );
+    assert!(msg.contains("finite"), "{msg}");
+    assert_eq!(err.issues[0].line, 11, "{msg}");
+    // The same value in µm is fine.
+    assert!(
+        retrocomp::models::MachineModel::from_toml_str(
+            &text.replace("forward_mm = [1.0, 1e306]", "forward_mm = [0.001, 0.002]"),
+            "ok.toml"
+        )
+        .is_ok()
+    );
+}

@@ -39,7 +39,7 @@ pub fn init_tracing() {
 pub fn run(args: &Args) -> anyhow::Result<()> {
     init_tracing();
     exit_on_panic();
-    let cfg = FieldConfig::load(&args.config)?;
+    let cfg = FieldConfig::load_for_run(&args.config)?;
     if !args.dry_run {
         require_sink(&cfg)?;
     }

@@ -233,12 +233,90 @@ pub enum ConfigError {
         path: PathBuf,
         source: Box<toml::de::Error>,
     },
-    #[error("{path}: key `{key}`: {what}")]
+    #[error("{}{}: key `{key}`: {what}", path.display(), line.map(|l| format!(":{l}")).unwrap_or_default())]
     Invalid {
         path: PathBuf,
+        /// Line of the key in the file (the deepest part of the key path that exists there).
+        line: Option<usize>,
         key: String,
         what: String,
     },
+}
+
+fn safety_key(prefix: &str, e: &super::safety::SafetyError) -> String {
+    use super::safety::SafetyError::*;
+    match e {
+        BadConfig { key, .. } | Absurd { key, .. } => format!("{prefix}.{key}"),
+        InitialBeyondClamp { .. } => prefix.to_string(),
+    }
+}
+
+impl ConfigError {
+    fn invalid(path: &Path, text: &str, key: String, what: String) -> Self {
+        ConfigError::Invalid {
+            path: path.into(),
+            line: crate::bus::config::locate(text, &key),
+            key,
+            what,
+        }
+    }
+}
+
+/// `key` (an integer setting) must lie in `range`.
+fn in_range(
+    key: &str,
+    v: u64,
+    range: std::ops::RangeInclusive<u64>,
+    unit: &str,
+) -> Result<(), (String, String)> {
+    if range.contains(&v) {
+        return Ok(());
+    }
+    Err((
+        key.to_string(),
+        format!(
+            "expected {}..={} {unit}, got {v}",
+            range.start(),
+            range.end()
+        ),
+    ))
+}
+
+/// Every [[axis]] appears exactly once among a sink's axis names.
+fn mapped_once<'a>(
+    axes: &[AxisSection],
+    sink_key: &str,
+    mapped: impl Iterator<Item = &'a str>,
+) -> Result<(), (String, String)> {
+    let mapped: Vec<&str> = mapped.collect();
+    for (i, m) in mapped.iter().enumerate() {
+        if let Some(j) = mapped[..i].iter().position(|n| n == m) {
+            return Err((
+                format!("{sink_key}.axis[{i}].axis"),
+                format!(
+                    "axis {m} is mapped twice (also {sink_key}.axis[{j}]): expected each axis once"
+                ),
+            ));
+        }
+        if !axes.iter().any(|a| a.name == *m) {
+            return Err((
+                format!("{sink_key}.axis[{i}].axis"),
+                format!("{m} is not an [[axis]]"),
+            ));
+        }
+    }
+    for a in axes {
+        if !mapped.contains(&a.name.as_str()) {
+            return Err((
+                sink_key.to_string(),
+                format!(
+                    "axis {} has no entry: expected every [[axis]] mapped once (it would never be corrected)",
+                    a.name
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 impl FieldConfig {
@@ -256,12 +334,57 @@ impl FieldConfig {
             path: path.into(),
             source: Box::new(e),
         })?;
-        cfg.validate().map_err(|(key, what)| ConfigError::Invalid {
-            path: path.into(),
-            key,
-            what,
-        })?;
+        cfg.validate()
+            .map_err(|(key, what)| ConfigError::invalid(path, text, key, what))?;
         Ok(cfg)
+    }
+
+    /// [`Self::load`] plus the checks only a deployment needs (`retrocomp run`): every axis has a
+    /// position source among the configured buses. (Tests feed samples themselves, so `parse`
+    /// does not require sources.)
+    pub fn load_for_run(path: &Path) -> Result<Self, ConfigError> {
+        let cfg = Self::load(path)?;
+        if let Err((key, what)) = cfg.check_position_sources() {
+            let text = std::fs::read_to_string(path).unwrap_or_default();
+            return Err(ConfigError::invalid(path, &text, key, what));
+        }
+        Ok(cfg)
+    }
+
+    /// Channels the configured sources deliver.
+    pub fn source_channels(&self) -> Vec<&str> {
+        let mut out: Vec<&str> = Vec::new();
+        if let Some(co) = &self.canopen {
+            out.extend(co.encoder.iter().map(|e| e.channel.as_str()));
+            out.extend(co.analog.iter().map(|a| a.channel.as_str()));
+        }
+        if let Some(m) = &self.modbus {
+            for src in &m.source {
+                out.extend(src.channel.iter().map(|c| c.channel.as_str()));
+            }
+        }
+        if let Some(sr) = &self.serial {
+            for src in &sr.source {
+                out.extend(src.channel.iter().map(|c| c.name.as_str()));
+            }
+        }
+        out
+    }
+
+    fn check_position_sources(&self) -> Result<(), (String, String)> {
+        let have = self.source_channels();
+        for (i, a) in self.axes.iter().enumerate() {
+            if !have.contains(&a.position_channel.as_str()) {
+                return Err((
+                    format!("axis[{i}].position_channel"),
+                    format!(
+                        "no source delivers {:?} (sources deliver {have:?}): axis {} would never be compensated",
+                        a.position_channel, a.name
+                    ),
+                ));
+            }
+        }
+        Ok(())
     }
 
     fn validate(&self) -> Result<(), (String, String)> {
@@ -272,10 +395,13 @@ impl FieldConfig {
                 format!("expected 1..=1000 ms, got {}", g.cycle_ms),
             ));
         }
-        if !(g.thermal_period_s.is_finite() && g.thermal_period_s > 0.0) {
+        if !(g.thermal_period_s.is_finite()
+            && g.thermal_period_s > 0.0
+            && g.thermal_period_s <= 86_400.0)
+        {
             return Err((
                 "gateway.thermal_period_s".into(),
-                "expected a positive number of seconds".into(),
+                format!("expected 0 < s ≤ 86400, got {}", g.thermal_period_s),
             ));
         }
         if g.status_listen.parse::<std::net::SocketAddr>().is_err() {
@@ -286,7 +412,7 @@ impl FieldConfig {
         }
         self.safety
             .validate()
-            .map_err(|e| ("safety".into(), e.to_string()))?;
+            .map_err(|e| (safety_key("safety", &e), e.to_string()))?;
         if self.axes.is_empty() {
             return Err(("axis".into(), "at least one [[axis]] is required".into()));
         }
@@ -314,7 +440,7 @@ impl FieldConfig {
             }
             if let Some(s) = &a.safety {
                 s.validate()
-                    .map_err(|e| (format!("axis[{i}].safety"), e.to_string()))?;
+                    .map_err(|e| (safety_key(&format!("axis[{i}].safety"), &e), e.to_string()))?;
             }
         }
         for (i, c) in self.channels.iter().enumerate() {
@@ -325,10 +451,11 @@ impl FieldConfig {
                     format!("{}: min {} must be < max {}", c.name, l.min, l.max),
                 ));
             }
-            if !(l.stale_after_s.is_finite() && l.stale_after_s > 0.0) {
+            if !(l.stale_after_s.is_finite() && l.stale_after_s > 0.0 && l.stale_after_s <= 3600.0)
+            {
                 return Err((
                     format!("channel[{i}].stale_after_s"),
-                    "expected > 0 s".into(),
+                    format!("expected 0 < s ≤ 3600, got {}", l.stale_after_s),
                 ));
             }
         }
@@ -345,22 +472,69 @@ impl FieldConfig {
             }
         }
         if let Some(os) = &self.sink.origin_shift {
-            os.map
-                .validate()
-                .map_err(|e| ("sink.origin_shift.map".to_string(), e.to_string()))?;
-            for (i, r) in os.map.axes.iter().enumerate() {
-                if !self.axes.iter().any(|a| a.name == r.axis) {
-                    return Err((
-                        format!("sink.origin_shift.map.axis[{i}].axis"),
-                        format!("{} is not an [[axis]]", r.axis),
-                    ));
-                }
+            let k = "sink.origin_shift";
+            in_range(
+                &format!("{k}.write_period_ms"),
+                os.write_period_ms,
+                1..=10_000,
+                "ms",
+            )?;
+            in_range(
+                &format!("{k}.request_timeout_ms"),
+                os.request_timeout_ms,
+                1..=60_000,
+                "ms",
+            )?;
+            in_range(
+                &format!("{k}.reconnect_min_ms"),
+                os.reconnect_min_ms,
+                1..=60_000,
+                "ms",
+            )?;
+            in_range(
+                &format!("{k}.reconnect_max_ms"),
+                os.reconnect_max_ms,
+                os.reconnect_min_ms..=600_000,
+                "ms (≥ reconnect_min_ms)",
+            )?;
+            if let Some(h) = &os.map.handshake {
+                in_range(
+                    &format!("{k}.map.handshake.timeout_ms"),
+                    h.timeout_ms,
+                    1..=60_000,
+                    "ms",
+                )?;
+                in_range(
+                    &format!("{k}.map.handshake.poll_ms"),
+                    h.poll_ms,
+                    1..=h.timeout_ms,
+                    "ms (≤ timeout_ms)",
+                )?;
             }
+            mapped_once(
+                &self.axes,
+                &format!("{k}.map"),
+                os.map.axes.iter().map(|r| r.axis.as_str()),
+            )?;
+            os.map.validate().map_err(|e| {
+                let key = match &e {
+                    crate::origin_shift::MapError::Axis { index, .. } => {
+                        format!("{k}.map.axis[{index}]")
+                    }
+                    _ => format!("{k}.map"),
+                };
+                (key, e.to_string())
+            })?;
         }
         if let Some(srv) = &self.sink.origin_shift_server {
             self.validate_server(srv)?;
         }
         if let Some(q) = &self.sink.quadrature {
+            mapped_once(
+                &self.axes,
+                "sink.quadrature",
+                q.axes.iter().map(|a| a.axis.as_str()),
+            )?;
             for (i, a) in q.axes.iter().enumerate() {
                 let sc = crate::quadrature::SchedulerConfig {
                     min_edge_gap_ns: a.min_edge_gap_ns,

@@ -47,10 +47,14 @@ pub enum FaultKind {
     BusErrors,
     /// A Modbus device answered a request with an exception.
     Exception,
+    /// A sink's request was refused (Modbus exception), failed, or was not acknowledged/read back.
+    WriteFailed,
+    /// The controller holds a correction beyond the clamp: the sink does not write that axis.
+    BeyondClamp,
 }
 
 impl FaultKind {
-    pub const ALL: [FaultKind; 11] = [
+    pub const ALL: [FaultKind; 13] = [
         FaultKind::Stale,
         FaultKind::OutOfRange,
         FaultKind::NotFinite,
@@ -62,6 +66,8 @@ impl FaultKind {
         FaultKind::ErrorPassive,
         FaultKind::BusErrors,
         FaultKind::Exception,
+        FaultKind::WriteFailed,
+        FaultKind::BeyondClamp,
     ];
 }
 

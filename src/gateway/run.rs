@@ -3,8 +3,9 @@
 //! task writes the outputs so a slow or dead controller never stalls the cycle.
 //!
 //! Origin-shift start-up: the sink reads what the controller holds before the engine starts, and the
-//! engine continues from it (no jump after a gateway restart). After a reconnect the sink reads again;
-//! if the controller lost our value (it restarted), the engine is reseeded from what it holds.
+//! engine continues from it (no jump after a gateway restart). The sink reads the controller again
+//! before every write (`origin_shift/sink.rs`); when the controller changed the value behind our back
+//! (it restarted, an operator cleared it) the engine is reseeded from what it holds.
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
@@ -15,14 +16,14 @@ use anyhow::{Context as _, bail};
 use tokio::sync::{mpsc, watch};
 use tokio::time::MissedTickBehavior;
 
-use super::config::{FieldConfig, OriginShiftSink};
+use super::config::FieldConfig;
 use super::engine::{Engine, ErrorModel};
-use super::health::{FaultKind, FaultLog};
 use super::http::serve_status;
+use super::origin_shift_sink::{SinkChannels, origin_shift_task};
 use super::status::{SinkStatus, StatusSnapshot};
 use super::supervise::SourceFeed;
 use crate::bus::Sample;
-use crate::origin_shift::{OriginShiftClient, Outcome};
+use crate::origin_shift::{OriginShiftClient, SinkAxis};
 
 /// What a run reports when it stops.
 #[derive(Clone, Debug, Default)]
@@ -86,21 +87,32 @@ pub async fn run(
         let mut client =
             OriginShiftClient::new(os.client(), os.map.clone()).context("sink.origin_shift.map")?;
         initial = read_initial(&mut client).await;
-        let caps = cfg
+        // A value beyond the clamp is not a start value: the sink refuses to write that axis (a
+        // fault) until the controller's value is back in range, then the engine continues from it.
+        initial.retain(|axis, held_um| {
+            let max = cfg.safety_for(axis).max_correction_um;
+            let ok = held_um.is_finite() && held_um.abs() <= max;
+            if !ok {
+                tracing::error!(axis, held_um, max, "controller holds a correction beyond the clamp: not writing this axis until it is back in range");
+            }
+            ok
+        });
+        let axes = cfg
             .axes
             .iter()
             .map(|a| {
-                (
-                    a.name.clone(),
-                    cfg.safety_for(&a.name).max_change_um_per_cycle,
-                )
+                let s = cfg.safety_for(&a.name);
+                SinkAxis {
+                    axis: a.name.clone(),
+                    max_correction_um: s.max_correction_um,
+                    max_change_um_per_write: s.max_change_um_per_cycle,
+                }
             })
             .collect();
         Some(tokio::spawn(origin_shift_task(
             os,
             client,
-            caps,
-            initial.clone(),
+            axes,
             SinkChannels {
                 out_rx,
                 reseed_tx,
@@ -159,7 +171,9 @@ pub async fn run(
         // Reuse the channel's buffer (String::clone_from keeps the axis names' allocations).
         out_tx.send_modify(|held| copy_outputs(held, outs));
         let mut snap = engine.snapshot();
-        snap.sink = Some(sink_status_rx.borrow().clone());
+        let sink = sink_status_rx.borrow().clone();
+        snap.active_faults.extend(sink.faults.iter().cloned());
+        snap.sink = Some(sink);
         source_board.copy_into(&mut snap.sources);
         for src in &snap.sources {
             let faults = src.faults.iter().map(|&(k, t)| (src.name.clone(), k, t));
@@ -260,128 +274,6 @@ async fn read_initial(client: &mut OriginShiftClient) -> BTreeMap<String, f64> {
     }
 }
 
-/// The origin-shift sink's channels to the cycle: outputs in, reseeds back, status out.
-struct SinkChannels {
-    out_rx: watch::Receiver<Outputs>,
-    reseed_tx: mpsc::Sender<(String, f64)>,
-    status: watch::Sender<SinkStatus>,
-}
-
-/// Writes the engine's outputs every `write_period_ms`. The controller applies each write as a step,
-/// so the dosing cap is enforced per WRITE here too (the engine doses per cycle and may run ahead).
-async fn origin_shift_task(
-    os: OriginShiftSink,
-    mut client: OriginShiftClient,
-    caps_um: BTreeMap<String, f64>,
-    initial: BTreeMap<String, f64>,
-    channels: SinkChannels,
-    epoch: std::time::Instant,
-) {
-    let SinkChannels {
-        out_rx,
-        reseed_tx,
-        status,
-    } = channels;
-    let mut tick = tokio::time::interval(Duration::from_millis(os.write_period_ms));
-    tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
-    let mut st = SinkStatus {
-        kind: "origin_shift".into(),
-        ..Default::default()
-    };
-    let mut last_written: BTreeMap<String, f64> = initial;
-    let mut was_connected = client.is_connected();
-    // The controller link as a fault: logged once when it is lost and once when it is back.
-    let mut link = LinkFault::default();
-    loop {
-        tick.tick().await;
-        let mut outs = out_rx.borrow().clone();
-        if outs.is_empty() {
-            continue;
-        }
-        for (axis, v) in &mut outs {
-            if let (Some(last), Some(cap)) =
-                (last_written.get(axis.as_str()), caps_um.get(axis.as_str()))
-            {
-                *v = last + (*v - last).clamp(-cap, *cap);
-            }
-        }
-        if !was_connected {
-            // Reconnected: see whether the controller still holds what we wrote.
-            if let Ok(held) = client.read_current().await {
-                for (axis, v) in held {
-                    let ours = last_written.get(&axis).copied();
-                    let lsb = client.map().axis(&axis).map_or(0.1, |r| r.lsb_um);
-                    if ours.is_some_and(|o| (o - v).abs() > lsb) {
-                        let _ = reseed_tx.send((axis.clone(), v)).await;
-                        last_written.insert(axis, v);
-                    }
-                }
-                // Let the engine apply the reseed before writing again.
-                was_connected = true;
-                st.connected = true;
-                link.update(true, epoch.elapsed().as_secs_f64());
-                let _ = status.send(st.clone());
-                continue;
-            }
-        }
-        let pairs: Vec<(&str, f64)> = outs.iter().map(|(a, v)| (a.as_str(), *v)).collect();
-        match client.write(&pairs).await {
-            Ok(Outcome::Ok) => {
-                st.writes_ok += 1;
-                st.last_error = None;
-                for (a, v) in &outs {
-                    last_written.insert(a.clone(), *v);
-                }
-            }
-            Ok(other) => {
-                // Past the value write (strobe/ack/read-back failed) the controller may hold the new
-                // values: dose the next write from them.
-                if !matches!(other, Outcome::RequestFailed { step: "write", .. }) {
-                    for (a, v) in &outs {
-                        last_written.insert(a.clone(), *v);
-                    }
-                }
-                st.writes_failed += 1;
-                st.last_error = Some(format!("{other:?}"));
-            }
-            Err(e) => {
-                st.writes_failed += 1;
-                st.last_error = Some(e.to_string());
-            }
-        }
-        st.connected = client.is_connected();
-        was_connected = st.connected;
-        link.update(st.connected, epoch.elapsed().as_secs_f64());
-        let _ = status.send(st.clone());
-    }
-}
-
-/// The origin-shift sink's link to the controller, as a fault in a [`FaultLog`] (source
-/// `sink.origin_shift`, kind `Disconnected`): one log line when it is lost, one when it is back, however
-/// many writes fail in between. Sans-IO: the caller passes the link state after each attempt.
-#[derive(Default)]
-pub struct LinkFault {
-    log: FaultLog,
-}
-
-impl LinkFault {
-    pub const SOURCE: &'static str = "sink.origin_shift";
-
-    /// Returns true when this call started or cleared the fault.
-    pub fn update(&mut self, connected: bool, now_s: f64) -> bool {
-        let faults: &[FaultKind] = if connected {
-            &[]
-        } else {
-            &[FaultKind::Disconnected]
-        };
-        !self.log.update(Self::SOURCE, faults, now_s).is_empty()
-    }
-
-    pub fn is_down(&self) -> bool {
-        self.log.active().next().is_some()
-    }
-}
-
 /// Refuse to run a config that would correct nothing in a field deployment.
 pub fn require_sink(cfg: &FieldConfig) -> anyhow::Result<()> {
     if cfg.sink.origin_shift.is_none()
@@ -408,19 +300,5 @@ mod tests {
         assert_eq!(held[0].0.as_ptr(), names_at, "the name's buffer was reused");
         copy_outputs(&mut held, &[("y".into(), 0.25)]);
         assert_eq!(held, [("y".to_string(), 0.25)]);
-    }
-
-    #[test]
-    fn link_loss_is_one_fault_however_many_writes_fail() {
-        let mut link = LinkFault::default();
-        let mut edges = 0;
-        // Up for 10 writes, down for 50 (every write fails), up again.
-        for k in 0..100 {
-            if link.update(!(10..60).contains(&k), k as f64 * 0.01) {
-                edges += 1;
-            }
-            assert_eq!(link.is_down(), (10..60).contains(&k), "write {k}");
-        }
-        assert_eq!(edges, 2, "one start, one clear");
     }
 }

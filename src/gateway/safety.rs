@@ -28,11 +28,20 @@ pub struct SafetyConfig {
 pub enum SafetyError {
     #[error("safety.{key} must be finite and > 0 (got {value})")]
     BadConfig { key: &'static str, value: f64 },
+    #[error("safety.{key} = {value} is absurd: expected at most {max}")]
+    Absurd {
+        key: &'static str,
+        value: f64,
+        max: f64,
+    },
     #[error(
         "the controller already holds {value_um} µm, beyond the clamp ±{max_um} µm: refusing to start (clear the register or raise max_correction_um)"
     )]
     InitialBeyondClamp { value_um: f64, max_um: f64 },
 }
+
+/// Largest clamp a config may ask for, µm (10 mm: beyond that the unit is wrong, not the machine).
+pub const MAX_CORRECTION_LIMIT_UM: f64 = 10_000.0;
 
 impl SafetyConfig {
     pub fn validate(&self) -> Result<(), SafetyError> {
@@ -50,6 +59,25 @@ impl SafetyConfig {
                 key: "stale_hold_s",
                 value: self.stale_hold_s,
             });
+        }
+        // Absurd limits: a correction of centimetres is a wrong unit, not a machine error; a cap
+        // above the clamp or an hour-long hold means the limit does not limit.
+        for (key, value, max) in [
+            (
+                "max_correction_um",
+                self.max_correction_um,
+                MAX_CORRECTION_LIMIT_UM,
+            ),
+            (
+                "max_change_um_per_cycle",
+                self.max_change_um_per_cycle,
+                self.max_correction_um,
+            ),
+            ("stale_hold_s", self.stale_hold_s, 3600.0),
+        ] {
+            if value > max {
+                return Err(SafetyError::Absurd { key, value, max });
+            }
         }
         Ok(())
     }

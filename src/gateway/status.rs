@@ -35,6 +35,10 @@ pub struct SinkStatus {
     pub writes_ok: u64,
     pub writes_failed: u64,
     pub last_error: Option<String>,
+    /// What the controller's registers hold per axis, µm, as last read (origin shift only).
+    pub held_um: BTreeMap<String, f64>,
+    /// The sink's active faults: (source, fault, since t_s).
+    pub faults: Vec<(String, FaultKind, f64)>,
 }
 
 /// One bus source's link (the CAN backend, a Modbus poller, a serial line): what `/status` shows
@@ -276,6 +280,34 @@ impl StatusSnapshot {
                 esc(&k.kind),
                 k.writes_failed
             );
+            family(
+                &mut s,
+                "retrocomp_sink_held_um",
+                "gauge",
+                "Correction the controller's registers hold per axis (read back), um.",
+            );
+            for (axis, v) in &k.held_um {
+                let _ = writeln!(
+                    s,
+                    "retrocomp_sink_held_um{{sink=\"{}\",axis=\"{}\"}} {}",
+                    esc(&k.kind),
+                    esc(axis),
+                    num(*v)
+                );
+            }
+            family(
+                &mut s,
+                "retrocomp_sink_fault_active",
+                "gauge",
+                "1 per active sink fault (source, kind).",
+            );
+            for (source, kind, _) in &k.faults {
+                let _ = writeln!(
+                    s,
+                    "retrocomp_sink_fault_active{{source=\"{}\",kind=\"{kind:?}\"}} 1",
+                    esc(source)
+                );
+            }
         }
         self.prometheus_sources(&mut s);
         s
@@ -471,6 +503,29 @@ impl StatusSnapshot {
         }
         if let Some(e) = &self.model_error {
             let _ = writeln!(s, "model error: {e}");
+        }
+        if let Some(k) = &self.sink {
+            let held: Vec<String> = k
+                .held_um
+                .iter()
+                .map(|(a, v)| format!("{a}={v:+.3}"))
+                .collect();
+            let _ = writeln!(
+                s,
+                "sink {}: {}, {} writes ok, {} failed; controller holds (µm) {}",
+                k.kind,
+                if k.connected {
+                    "connected"
+                } else {
+                    "DISCONNECTED"
+                },
+                k.writes_ok,
+                k.writes_failed,
+                held.join(" ")
+            );
+            for (source, kind, since) in &k.faults {
+                let _ = writeln!(s, "  fault {source} {kind:?} since {since:.3} s");
+            }
         }
         s
     }

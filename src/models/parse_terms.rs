@@ -35,7 +35,19 @@ fn read_scaled_vec(
         .map(|u| u.1)
         .unwrap_or(1.0);
     let v = t.vec_opt(&key)?;
-    Some((v.into_iter().map(|x| x * factor).collect(), unit))
+    let v: Vec<f64> = v.into_iter().map(|x| x * factor).collect();
+    if let Some(bad) = v.iter().position(|x| !x.is_finite()) {
+        // Finite in the file but not after the unit conversion (e.g. 1e306 mm in µm).
+        t.err_key(
+            &key,
+            format!(
+                "value [{bad}] is {} after conversion from {unit} to internal units: expected a finite value",
+                v[bad]
+            ),
+        );
+        return None;
+    }
+    Some((v, unit))
 }
 
 /// One error function from the keys of `t`; `prefix` is prepended to value keys (unused: "").
@@ -257,10 +269,25 @@ pub(super) fn read_squareness(t: &Tbl<'_, '_>, in_chain: &[Axis]) -> Option<Squa
     let value_urad = match t.find_suffixed("value", &names) {
         Some((unit, key)) => {
             let f = units.iter().find(|u| u.0 == unit).unwrap().1;
-            t.f64_opt(&key)? * f
+            let v = t.f64_opt(&key)? * f;
+            if !v.is_finite() {
+                t.err_key(
+                    &key,
+                    format!("{v} µrad after conversion from {unit}: expected a finite value"),
+                );
+                return None;
+            }
+            v
         }
         None => match (t.f64_opt("deviation_mm"), t.f64_opt("over_mm")) {
-            (Some(d), Some(l)) if l > 0.0 => d / l * 1e6,
+            (Some(d), Some(l)) if l > 0.0 && (d / l * 1e6).is_finite() => d / l * 1e6,
+            (Some(_), Some(l)) if l > 0.0 => {
+                t.err_key(
+                    "deviation_mm",
+                    "deviation_mm / over_mm is not finite in µrad: expected a finite ratio",
+                );
+                return None;
+            }
             (Some(_), Some(l)) => {
                 t.err_key("over_mm", format!("expected a length > 0, found {l}"));
                 return None;

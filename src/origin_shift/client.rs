@@ -14,6 +14,7 @@ use tokio_modbus::prelude::Slave;
 
 use super::cycle::{Action, Outcome, Reply, WriteCycle};
 use super::map::{MapError, RegisterMap};
+use super::sink::SinkCore;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
@@ -162,7 +163,7 @@ impl OriginShiftClient {
 
     /// One request with the timeout. Transport failures drop the connection (reconnect next time);
     /// Modbus exceptions keep it.
-    async fn request(&mut self, action: &Action) -> Reply {
+    pub async fn request(&mut self, action: &Action) -> Reply {
         let timeout = self.timeout();
         let Some(ctx) = self.ctx.as_mut() else {
             return Reply::Failed("not connected".into());
@@ -233,7 +234,31 @@ impl OriginShiftClient {
         Ok(out)
     }
 
+    /// One write period of the sink core (read what the controller holds, guard, write cycle) for
+    /// these wanted corrections (µm). The gateway's sink uses this; every value it sends passed the
+    /// core's [`super::WriteGuard`].
+    pub async fn run_period(&mut self, core: &mut SinkCore, wants_um: &[(String, f64)]) -> Outcome {
+        if let Err(e) = self.ensure_connected().await {
+            core.not_connected(&e.to_string());
+            return Outcome::RequestFailed {
+                step: "connect",
+                address: 0,
+                reason: e.to_string(),
+            };
+        }
+        let mut action = core.begin(wants_um);
+        loop {
+            if let Action::Done(outcome) = action {
+                return outcome;
+            }
+            let reply = self.request(&action).await;
+            action = core.on_reply(reply, self.now_s());
+        }
+    }
+
     /// Encode and write one set of corrections (µm), with handshake and read-back as configured.
+    /// Unguarded and with a remembered strobe: for tests and tools; the gateway uses
+    /// [`Self::run_period`].
     pub async fn write(&mut self, corrections_um: &[(&str, f64)]) -> Result<Outcome, ClientError> {
         let blocks = self.map.encode(corrections_um)?;
         self.ensure_connected().await?;

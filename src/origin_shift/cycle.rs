@@ -69,6 +69,16 @@ impl WriteCycle {
     /// Start a cycle for already-encoded blocks. `strobe_value` is the value to write to the strobe
     /// (the caller toggles it 0/1 between cycles: [`WriteCycle::next_strobe`]).
     pub fn start(map: &RegisterMap, blocks: Vec<WriteBlock>, strobe_value: u16) -> (Self, Action) {
+        Self::start_at(map, blocks, strobe_value, 0.0)
+    }
+
+    /// [`WriteCycle::start`] at time `now_s` (matters when there is nothing to write or strobe).
+    pub fn start_at(
+        map: &RegisterMap,
+        blocks: Vec<WriteBlock>,
+        strobe_value: u16,
+        now_s: f64,
+    ) -> (Self, Action) {
         let mut c = Self {
             blocks,
             handshake: map.handshake.as_ref().map(|h| {
@@ -83,7 +93,7 @@ impl WriteCycle {
             strobe_value,
             state: State::Writing(0),
         };
-        let a = c.after_writes_from(0, 0.0);
+        let a = c.after_writes_from(0, now_s);
         (c, a)
     }
 

@@ -149,6 +149,11 @@ impl RegisterMap {
                     r.lsb_um
                 )));
             }
+            if self.axes[..index].iter().any(|o| o.axis == r.axis) {
+                // Two registers for one axis: the guard would judge each against a different
+                // controller value (the unused one's 0 read as the start: a 30 µm step).
+                return Err(err("axis mapped twice: expected each axis once".into()));
+            }
             if r.sign != 1 && r.sign != -1 {
                 return Err(err(format!("sign must be 1 or -1, got {}", r.sign)));
             }

@@ -2,19 +2,24 @@
 //! per-axis corrections written to the controller's offset registers over Modbus TCP or RTU.
 //!
 //! [`map`] (TOML register map, encoding, allow-list), [`cycle`] (sans-IO write/strobe/ack/read-back
-//! state machine), [`client`] (tokio-modbus shell: per-request timeout, reconnect with backoff, start
-//! by reading the current values); or served: [`server`] (tokio-modbus TCP/RTU server shell) around
-//! [`server_core`] (sans-IO register image, clamp and per-update cap). Units: µm; sign convention in
-//! [`map`].
+//! state machine), [`guard`] (the last-step check of every value against what the controller holds),
+//! [`sink`] (one write period: read, guard, write cycle; sans-IO), [`client`] (tokio-modbus shell:
+//! per-request timeout, reconnect with backoff, start by reading the current values); or served:
+//! [`server`] (tokio-modbus TCP/RTU server shell) around [`server_core`] (sans-IO register image,
+//! clamp and per-update cap). Units: µm; sign convention in [`map`].
 
 pub mod client;
 pub mod cycle;
+pub mod guard;
 pub mod map;
 pub mod server;
 pub mod server_core;
+pub mod sink;
 
 pub use client::{ClientConfig, OriginShiftClient, Transport};
 pub use cycle::{Action, Outcome, Reply, WriteCycle};
+pub use guard::{GuardLimits, Verdict, WriteGuard};
 pub use map::{
     AxisRegister, Handshake, MapError, RegisterKind, RegisterMap, WordOrder, WriteBlock,
 };
+pub use sink::{SinkAxis, SinkCore, SinkFaults};

@@ -1,0 +1,140 @@
+//! The origin-shift sink's async shell: every `write_period_ms` it runs one period of the sans-IO
+//! [`SinkCore`] (read what the controller holds → last-step guard → write cycle) through the
+//! tokio-modbus client, sends reseeds back to the engine, and turns the core's flags into fault
+//! episodes (one log line at start, one at clear; in status and metrics):
+//!
+//! - `sink.origin_shift` `Disconnected`: no connection to the controller;
+//! - `sink.origin_shift` `WriteFailed`: a request was refused (Modbus exception), failed, or the
+//!   controller did not acknowledge / read back a write (connected, but values are not getting in);
+//! - `sink.origin_shift.<axis>` `BeyondClamp`: the controller holds a value beyond the clamp; that
+//!   axis is not written until it is back in range (policy in `origin_shift/guard.rs`);
+//! - `sink.origin_shift.<axis>` `WriteFailed`: the controller's value is uncertain (a foreign value
+//!   arrived while a write of ours was unconfirmed); that axis is not written this period.
+//!
+//! Units: µm.
+
+use std::collections::BTreeMap;
+
+use tokio::sync::{mpsc, watch};
+use tokio::time::MissedTickBehavior;
+
+use super::config::OriginShiftSink;
+use super::health::{FaultKind, FaultLog};
+use super::status::SinkStatus;
+use crate::origin_shift::{OriginShiftClient, SinkAxis, SinkCore};
+
+/// The origin-shift sink's channels to the cycle: outputs in, reseeds back, status out.
+pub struct SinkChannels {
+    pub out_rx: watch::Receiver<Vec<(String, f64)>>,
+    pub reseed_tx: mpsc::Sender<(String, f64)>,
+    pub status: watch::Sender<SinkStatus>,
+}
+
+pub const SOURCE: &str = "sink.origin_shift";
+
+/// The sink's fault episodes from the core's flags after a period (sans-IO; `now_s` on the
+/// gateway clock). Returns the reason to log with each fault that started.
+pub fn update_faults(
+    log: &mut FaultLog,
+    core: &SinkCore,
+    connected: bool,
+    now_s: f64,
+) -> Vec<(String, FaultKind)> {
+    let f = core.faults();
+    let link: &[FaultKind] = if !connected {
+        &[FaultKind::Disconnected]
+    } else if f.write_failed {
+        &[FaultKind::WriteFailed]
+    } else {
+        &[]
+    };
+    let mut started: Vec<(String, FaultKind)> = log
+        .update(SOURCE, link, now_s)
+        .into_iter()
+        .filter(|e| e.started)
+        .map(|e| (e.source, e.kind))
+        .collect();
+    for (i, a) in core.axes().iter().enumerate() {
+        let mut kinds = Vec::new();
+        if f.beyond_clamp.get(i) == Some(&true) {
+            kinds.push(FaultKind::BeyondClamp);
+        }
+        if f.uncertain.get(i) == Some(&true) {
+            kinds.push(FaultKind::WriteFailed);
+        }
+        let source = format!("{SOURCE}.{}", a.axis);
+        started.extend(
+            log.update(&source, &kinds, now_s)
+                .into_iter()
+                .filter(|e| e.started)
+                .map(|e| (e.source, e.kind)),
+        );
+    }
+    started
+}
+
+/// Write the engine's outputs every `write_period_ms` until the runtime drops the output channel.
+pub async fn origin_shift_task(
+    os: OriginShiftSink,
+    mut client: OriginShiftClient,
+    axes: Vec<SinkAxis>,
+    channels: SinkChannels,
+    epoch: std::time::Instant,
+) {
+    let SinkChannels {
+        out_rx,
+        reseed_tx,
+        status,
+    } = channels;
+    let mut core = SinkCore::new(os.map.clone(), axes);
+    let mut tick =
+        tokio::time::interval(std::time::Duration::from_millis(os.write_period_ms.max(1)));
+    tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
+    let mut faults = FaultLog::default();
+    let mut st = SinkStatus {
+        kind: "origin_shift".into(),
+        ..Default::default()
+    };
+    let mut wants: Vec<(String, f64)> = Vec::new();
+    loop {
+        tick.tick().await;
+        wants.clone_from(&out_rx.borrow());
+        if wants.is_empty() {
+            if out_rx.has_changed().is_err() {
+                return;
+            }
+            continue;
+        }
+        client.run_period(&mut core, &wants).await;
+        for (axis, held_um) in core.take_reseeds() {
+            if reseed_tx.send((axis, held_um)).await.is_err() {
+                return;
+            }
+        }
+        let connected = client.is_connected();
+        let now_s = epoch.elapsed().as_secs_f64();
+        for (source, kind) in update_faults(&mut faults, &core, connected, now_s) {
+            let held: BTreeMap<&str, Option<f64>> = core.held_um().collect();
+            tracing::warn!(
+                source,
+                ?kind,
+                reason = core.last_error.as_deref().unwrap_or(""),
+                ?held,
+                "origin-shift sink fault"
+            );
+        }
+        st.connected = connected;
+        st.writes_ok = core.writes_ok;
+        st.writes_failed = core.writes_failed;
+        st.last_error.clone_from(&core.last_error);
+        st.held_um = core
+            .held_um()
+            .filter_map(|(a, v)| Some((a.to_string(), v?)))
+            .collect();
+        st.faults = faults
+            .active()
+            .map(|(s, k, t)| (s.to_string(), k, t))
+            .collect();
+        let _ = status.send(st.clone());
+    }
+}
