@@ -59,27 +59,27 @@ pub fn model_with_findings(
         Some(m) => m.spec().clone(),
         None => default_spec(rec)?,
     };
-    // A one-axis recording on the default chain: its placeholder axis is evaluated at 0 mm.
+    // On the default chain, axes the recording lacks (the placeholder of a one-axis recording, or
+    // every axis of a thermal-only one) are evaluated at 0 mm.
     let padded;
-    let mut placeholder = None;
-    let rec = match spec
+    let missing: Vec<String> = spec
         .axes
         .iter()
-        .find(|a| rec.col(&format!("{}_mm", a.axis.lower())).is_none())
-    {
-        Some(a) if base.is_none() => {
-            let name = format!("{}_mm", a.axis.lower());
-            let mut cols: Vec<(String, Vec<f64>)> = rec
-                .names()
-                .iter()
-                .map(|n| (n.clone(), rec.col(n).expect("listed").to_vec()))
-                .collect();
-            cols.push((name.clone(), vec![0.0; rec.n_rows()]));
-            padded = Recording::from_columns(cols)?;
-            placeholder = Some(name);
-            &padded
-        }
-        _ => rec,
+        .map(|a| format!("{}_mm", a.axis.lower()))
+        .filter(|n| rec.col(n).is_none())
+        .collect();
+    let placeholder = (base.is_none() && !missing.is_empty()).then(|| missing.join(", "));
+    let rec = if placeholder.is_some() {
+        let mut cols: Vec<(String, Vec<f64>)> = rec
+            .names()
+            .iter()
+            .map(|n| (n.clone(), rec.col(n).expect("listed").to_vec()))
+            .collect();
+        cols.extend(missing.iter().map(|n| (n.clone(), vec![0.0; rec.n_rows()])));
+        padded = Recording::from_columns(cols)?;
+        &padded
+    } else {
+        rec
     };
     let mut base_line = match base {
         Some(m) => format!(
@@ -92,7 +92,9 @@ pub fn model_with_findings(
         ),
     };
     if let Some(p) = &placeholder {
-        base_line.push_str(&format!(" (`{p}` is a placeholder axis: give it as 0)"));
+        base_line.push_str(&format!(
+            " ({p}: placeholder axis, held at 0; a model with no position-dependent term runs without it)"
+        ));
     }
     let ctx = &d.context;
     let mut added = vec![];
@@ -169,7 +171,7 @@ pub fn model_with_findings(
     head.push_str("# Sign: error = actual - nominal (um); correction = -error.\n");
     if let Some(p) = &placeholder {
         head.push_str(&format!(
-            "# The recording has one axis; `{p}` is a placeholder (the model format needs 2-3 axes): give it as 0.\n"
+            "# The recording lacks {p}: placeholder axes (the model format needs 2-3 axes), held at 0.\n"
         ));
     }
     if !added.is_empty() {
@@ -223,7 +225,9 @@ fn default_spec(rec: &Recording) -> anyhow::Result<ModelSpec> {
         .map(|&a| Axis::from_letter(a).expect("x, y or z"))
         .collect();
     if axes.is_empty() {
-        anyhow::bail!("the recording has no axis position column (x_mm, y_mm, z_mm)");
+        // Thermal-only recording (an ISO 230-3 test): the full X F Y Z chain, no travel limits;
+        // only position-independent terms can be found, so the axes are never read.
+        axes = Axis::ALL.to_vec();
     }
     if axes.len() == 1 {
         let extra = Axis::ALL
@@ -239,6 +243,8 @@ fn default_spec(rec: &Recording) -> anyhow::Result<ModelSpec> {
             let hi = p.iter().copied().fold(f64::NEG_INFINITY, f64::max);
             (lo, hi)
         })
+        // A constant column has no travel (the model format needs min < max).
+        .filter(|(lo, hi)| hi > lo)
     };
     Ok(ModelSpec {
         name: "diagnose-found-terms".into(),

@@ -302,7 +302,8 @@ fn add_context_terms(
                 name: s.to_string(),
                 reference_c: reference(s),
                 tau_s: None,
-            });
+                column: None,
+});
         }
     };
     for (name, coef) in &ct.terms {
