@@ -238,13 +238,14 @@ fn default_spec(rec: &Recording) -> anyhow::Result<ModelSpec> {
         axes.push(extra);
     }
     let travel = |a: Axis| {
-        rec.col(&format!("{}_mm", a.lower())).map(|p| {
-            let lo = p.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = p.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            (lo, hi)
-        })
-        // A constant column has no travel (the model format needs min < max).
-        .filter(|(lo, hi)| hi > lo)
+        rec.col(&format!("{}_mm", a.lower()))
+            .map(|p| {
+                let lo = p.iter().copied().fold(f64::INFINITY, f64::min);
+                let hi = p.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                (lo, hi)
+            })
+            // A constant column has no travel (the model format needs min < max).
+            .filter(|(lo, hi)| hi > lo)
     };
     Ok(ModelSpec {
         name: "diagnose-found-terms".into(),

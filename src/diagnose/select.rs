@@ -363,7 +363,12 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             // with a large gain fits a warm-up well and extrapolates badly).
             if std::env::var("DIAG_DEBUG").is_ok() {
                 for s in scored.iter().take(12) {
-                    eprintln!("  {} th {:.0} dbic {:.1}", lib[s.idx].label(), s.theta, s.delta_bic);
+                    eprintln!(
+                        "  {} th {:.0} dbic {:.1}",
+                        lib[s.idx].label(),
+                        s.theta,
+                        s.delta_bic
+                    );
                 }
             }
             if forward {
@@ -393,7 +398,9 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             // is taken. A sensor is itself a lagged response of the source; the source term
             // extrapolates to regimes the fit never saw (another spindle speed), a re-weighted
             // sensor with a large gain does not. The sensor stays a candidate for what is left.
-            if lib[scored[0].idx].family() == "thermal_offset" && !is_driver(ctx, &lib[scored[0].idx]) {
+            if lib[scored[0].idx].family() == "thermal_offset"
+                && !is_driver(ctx, &lib[scored[0].idx])
+            {
                 let top = scored[0].delta_bic;
                 if let Some(j) = scored.iter().position(|s| {
                     is_driver(ctx, &lib[s.idx])

@@ -364,7 +364,7 @@ mod tests {
             reference_c: 20.0,
             tau_s: tau,
             column: None,
-}
+        }
     }
 
     #[test]

@@ -303,7 +303,7 @@ fn add_context_terms(
                 reference_c: reference(s),
                 tau_s: None,
                 column: None,
-});
+            });
         }
     };
     for (name, coef) in &ct.terms {
