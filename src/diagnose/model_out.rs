@@ -55,6 +55,19 @@ pub fn model_with_findings(
     rec: &Recording,
     base: Option<&MachineModel>,
 ) -> anyhow::Result<ModelOut> {
+    model_with_findings_opts(d, rec, base, false)
+}
+
+/// As [`model_with_findings`]; with `write_offset` the joint refit's constant offset of each signal
+/// is written too, as `e0` of that signal's last added `polynomial_dt` term (`--fit-offset`: for a
+/// simulation that was itself fitted on this recording, whose intercept was fitted without the
+/// found terms).
+pub fn model_with_findings_opts(
+    d: &Diagnosis,
+    rec: &Recording,
+    base: Option<&MachineModel>,
+    write_offset: bool,
+) -> anyhow::Result<ModelOut> {
     let mut spec = match base {
         Some(m) => m.spec().clone(),
         None => default_spec(rec)?,
@@ -110,7 +123,8 @@ pub fn model_with_findings(
             }
         }
         let offset = left.iter().sum::<f64>() / left.len().max(1) as f64;
-        if !s.models.is_empty() && offset.abs() > 1e-9 {
+        let mut offset_pending = write_offset && !s.models.is_empty() && offset.abs() > 1e-9;
+        if !write_offset && !s.models.is_empty() && offset.abs() > 1e-9 {
             not_in_model.push(format!(
                 "{}: constant offset {offset:+.3} µm between recording and simulation (a measurement zero, not a machine term)",
                 s.signal
@@ -162,6 +176,30 @@ pub fn model_with_findings(
                 }
                 Err(why) => not_in_model.push(describe(&item, &why)),
             }
+        }
+        if offset_pending {
+            let stem = format!("diag_{}_", s.signal.trim_end_matches("_um"));
+            if let Some(th) = spec
+                .thermal
+                .iter_mut()
+                .rev()
+                .find(|t| t.name.starts_with(&stem))
+                && let crate::models::spec::ThermalKind::PolynomialDt { e0, .. } = &mut th.kind
+            {
+                *e0 += offset;
+                added.push(format!(
+                    "{}: constant offset {offset:+.3} µm of the joint refit → e0 of `{}` (--fit-offset)",
+                    s.signal, th.name
+                ));
+                offset_pending = false;
+                current = simulate_spec(&spec, rec)?;
+            }
+        }
+        if offset_pending {
+            not_in_model.push(format!(
+                "{}: constant offset {offset:+.3} µm (no polynomial_dt term of this signal to hold it)",
+                s.signal
+            ));
         }
     }
     let (text, model) = to_checked_toml(spec).map_err(|e| anyhow::anyhow!("{e}"))?;
