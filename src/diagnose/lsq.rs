@@ -235,6 +235,22 @@ mod tests {
     use super::*;
 
     #[test]
+    fn forward_validation_predicts_each_block_from_earlier_blocks_only() {
+        // r = 2·x in blocks 0–1 and 5·x in block 2: the forward fit of block 2 comes from blocks
+        // 0–1 only (slope 2), so its error is 3·x there; block 0 is never predicted.
+        let n = 30;
+        let x: Vec<f64> = (0..n).map(|i| 1.0 + i as f64).collect();
+        let block: Vec<usize> = (0..n).map(|i| i / 10).collect();
+        let r: Vec<f64> = (0..n)
+            .map(|i| if block[i] < 2 { 2.0 } else { 5.0 } * x[i])
+            .collect();
+        let (rss, m) = forward_rss(&[&x], &r, &block, 3);
+        assert_eq!(m, 20);
+        let want: f64 = (20..30).map(|i| (3.0 * x[i]).powi(2)).sum();
+        assert!((rss - want).abs() < 1e-6 * want, "{rss} vs {want}");
+    }
+
+    #[test]
     fn fit_recovers_exact_coefficients_and_projection_matches_fit() {
         let x: Vec<f64> = (0..50).map(|i| i as f64).collect();
         let one = vec![1.0; 50];

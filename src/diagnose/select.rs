@@ -263,7 +263,12 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
     // kept whole) are validated FORWARD: block k is predicted from blocks before it only, so a
     // term stays only if it improves error on data later than what chose it. Interleaved folds
     // (position cells of a forward + reverse laser run, runs out of order) keep leave-one-out.
-    let forward = n_blocks >= 3 && block.windows(2).all(|w| w[1] >= w[0]);
+    // Restricted for now to recordings with no axis column (thermal tests): on the generated
+    // motion cases, forward folds reject real thermal lags whose warm-up fills the first block
+    // (hil-sim cases_model_out case 14); they keep leave-one-block-out until that is resolved.
+    let forward = n_blocks >= 3
+        && ctx.axes.iter().all(Option::is_none)
+        && block.windows(2).all(|w| w[1] >= w[0]);
     let cv_of = |cols: &[Vec<f64>]| {
         let refs: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
         if forward {
@@ -402,10 +407,16 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 && !is_driver(ctx, &lib[scored[0].idx])
             {
                 let top = scored[0].delta_bic;
+                let passes_heldout = |s: &Scored| {
+                    let mut trial = raw_cols.clone();
+                    trial.extend(lib[s.idx].columns(ctx, s.theta));
+                    cv_of(&trial) < cv_before * (1.0 - opts.cv_min_gain)
+                };
                 if let Some(j) = scored.iter().position(|s| {
                     is_driver(ctx, &lib[s.idx])
                         && s.delta_bic > opts.min_delta_bic
                         && s.delta_bic >= DRIVER_SHARE * top
+                        && passes_heldout(s)
                 }) {
                     let _ = top;
                     let s = scored.remove(j);
