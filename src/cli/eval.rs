@@ -162,10 +162,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 }
             }
         };
-        for a in 0..3 {
-            input.pos_mm[a] = match cols.pos[a] {
+        for ((p, c), held) in input.pos_mm.iter_mut().zip(cols.pos).zip(held_mm) {
+            *p = match c {
                 Some(c) => num(c).unwrap_or(f64::NAN),
-                None => held_mm[a],
+                None => held,
             };
         }
         for (i, c) in cols.temps.iter().enumerate() {

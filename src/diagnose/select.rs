@@ -366,16 +366,6 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             // FORWARD_CHOICES of them) compete on forward held-out error: the one that best
             // predicts later blocks from earlier ones wins, not the best in-sample fit (a sensor
             // with a large gain fits a warm-up well and extrapolates badly).
-            if std::env::var("DIAG_DEBUG").is_ok() {
-                for s in scored.iter().take(12) {
-                    eprintln!(
-                        "  {} th {:.0} dbic {:.1}",
-                        lib[s.idx].label(),
-                        s.theta,
-                        s.delta_bic
-                    );
-                }
-            }
             if forward {
                 let k = scored
                     .iter()
