@@ -26,6 +26,10 @@ pub struct DiagnoseArgs {
     /// Keep going past bad rows (they are listed on stderr), instead of refusing the file.
     #[arg(long)]
     pub skip_bad_rows: bool,
+    /// With --out: also write the joint refit's constant offset into model.toml (for a simulation
+    /// fitted on this same recording, whose intercept was fitted without the found terms).
+    #[arg(long)]
+    pub fit_offset: bool,
 }
 
 pub fn read_recording(path: &Path, lenient: bool) -> anyhow::Result<Recording> {
@@ -63,7 +67,7 @@ pub fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
         print!("{}", d.report.to_text());
     }
     if let Some(dir) = &a.out {
-        let (files, m) = output::write_outputs(&d, &rec, base.as_ref(), dir)?;
+        let (files, m) = output::write_outputs_opts(&d, &rec, base.as_ref(), dir, a.fit_offset)?;
         // Nothing the model cannot hold is dropped silently: with --json it goes to stderr.
         let mut text = format!("\nmachine model {}: {}\n", files[1].display(), m.base);
         for l in &m.added {

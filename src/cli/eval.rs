@@ -2,7 +2,8 @@
 //!
 //! Input columns: `x_mm`, `y_mm`, `z_mm` (those of the model's axes are required), optional
 //! `dir_x`, `dir_y`, `dir_z` (+1/−1/0), `t_s`, `tool_mm`, `T_<sensor>_C`, `F_<force>_N`,
-//! `strain_<name>_ue`; other columns are passed through. Output (stdout): the input columns, then
+//! `strain_<name>_ue`, and any column a sensor names with `column` (e.g. `rpm`); other columns
+//! are passed through. A model with no position-dependent term needs no axis column. Output (stdout): the input columns, then
 //! `ex_um`, `ey_um`, `ez_um`, then `term_<name>_ex_um`, `term_<name>_ey_um`, `term_<name>_ez_um`
 //! per term, and `flags` (empty when nothing was assumed). Every bad row is reported with its line
 //! number and nothing is written.
@@ -65,9 +66,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         t: find(&headers, "t_s"),
         tool: find(&headers, "tool_mm"),
         temps: model
-            .temperature_sensors()
+            .sensor_columns()
             .iter()
-            .map(|n| find(&headers, &format!("T_{n}_C")))
+            .map(|n| find(&headers, n))
             .collect(),
         forces: model
             .force_channels()
@@ -86,7 +87,19 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         .filter(|a| cols.pos[a.index()].is_none())
         .map(|a| format!("{a}_mm"))
         .collect();
-    if !missing_axes.is_empty() {
+    // A model with no position-dependent term (e.g. thermal-only, from `diagnose --out` on an
+    // ISO 230-3 recording) runs over a recording without axis columns: missing axes are held at
+    // the start of their travel (0 mm without one), which no term reads.
+    let held_mm: [f64; 3] = std::array::from_fn(|a| {
+        model
+            .spec()
+            .axes
+            .iter()
+            .find(|s| s.axis.index() == a)
+            .and_then(|s| s.travel_mm)
+            .map_or(0.0, |t| t.0)
+    });
+    if !missing_axes.is_empty() && model.is_position_dependent() {
         bail!(
             "{file}:1: missing column(s) {} (the model's axes need them)",
             missing_axes.join(", ")
@@ -101,9 +114,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             }
         };
     warn_missing(
-        model.temperature_sensors(),
+        model.sensor_columns(),
         &cols.temps,
-        &|n| format!("T_{n}_C"),
+        &|n| n.to_string(),
         "the sensor is held at its reference temperature",
     );
     warn_missing(
@@ -149,10 +162,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 }
             }
         };
-        for a in 0..3 {
-            if let Some(c) = cols.pos[a] {
-                input.pos_mm[a] = num(c).unwrap_or(f64::NAN);
-            }
+        for ((p, c), held) in input.pos_mm.iter_mut().zip(cols.pos).zip(held_mm) {
+            *p = match c {
+                Some(c) => num(c).unwrap_or(f64::NAN),
+                None => held,
+            };
         }
         for (i, c) in cols.temps.iter().enumerate() {
             if let Some(c) = c {

@@ -361,6 +361,22 @@ pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
             }
         }
     }
+    // Heat sources seen without a temperature sensor: a driver column (rpm, or any other numeric
+    // column, which may be a decoy) through a first-order lag; other columns also as they are.
+    if duration_s > 60.0 {
+        for (s, v) in ctx.drivers() {
+            if varies(v) {
+                if s != "rpm" {
+                    out.push(lin(Kind::ThermalDrift { sensor: s.into() }));
+                }
+                out.push(Candidate {
+                    axis: a,
+                    kind: Kind::ThermalLag { sensor: s.into() },
+                    grid: log_grid(30.0, (duration_s / 2.0).max(60.0), 1.3),
+                });
+            }
+        }
+    }
     for (c, v) in &ctx.loads {
         if varies(v) {
             out.push(lin(Kind::Force { channel: c.clone() }));

@@ -95,11 +95,25 @@ impl Context {
         self.axes[axis_index(a)].as_ref()
     }
 
+    /// A temperature channel, or any other driver column (`rpm`, columns with no DESIGN §4 role):
+    /// thermal candidates read their driver through this.
     pub fn temp(&self, name: &str) -> Option<&[f64]> {
         self.temps
             .iter()
+            .chain(&self.others)
             .find(|(n, _)| n == name)
             .map(|(_, v)| v.as_slice())
+            .or_else(|| self.rpm.as_deref().filter(|_| name == "rpm"))
+    }
+
+    /// Heat-source drivers other than temperatures: `rpm` and every column with no DESIGN §4
+    /// role (spindle load, power, coolant, ambient… or a decoy), name and values.
+    pub fn drivers(&self) -> Vec<(&str, &[f64])> {
+        self.rpm
+            .iter()
+            .map(|v| ("rpm", v.as_slice()))
+            .chain(self.others.iter().map(|(n, v)| (n.as_str(), v.as_slice())))
+            .collect()
     }
 
     pub fn load(&self, name: &str) -> Option<&[f64]> {

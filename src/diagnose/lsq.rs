@@ -191,9 +191,64 @@ pub fn cv_rss(cols: &[&[f64]], r: &[f64], block: &[usize], n_blocks: usize) -> f
         .sum()
 }
 
+/// Forward (rolling-origin) validation over time-ordered blocks 0..n_blocks: block k is predicted
+/// by the fit on blocks 0..k only, for k ≥ 1, so nothing is judged on data earlier than what
+/// chose it. Returns (RSS over the predicted rows, number of predicted rows).
+pub fn forward_rss(cols: &[&[f64]], r: &[f64], block: &[usize], n_blocks: usize) -> (f64, usize) {
+    let p = cols.len();
+    let mut per: Vec<(DMatrix<f64>, DVector<f64>)> = (0..n_blocks)
+        .map(|_| (DMatrix::zeros(p, p), DVector::zeros(p)))
+        .collect();
+    for i in 0..r.len() {
+        let (gb, hb) = &mut per[block[i]];
+        for a in 0..p {
+            let xa = cols[a][i];
+            hb[a] += xa * r[i];
+            for b in 0..p {
+                gb[(a, b)] += xa * cols[b][i];
+            }
+        }
+    }
+    // Coefficients fitted on blocks before k, per k.
+    let mut betas: Vec<Option<DVector<f64>>> = vec![None; n_blocks];
+    let (mut g, mut h) = (DMatrix::zeros(p, p), DVector::zeros(p));
+    for k in 0..n_blocks {
+        if k > 0 {
+            betas[k] = Some(pinv_solve(&g, &h).0);
+        }
+        g += &per[k].0;
+        h += &per[k].1;
+    }
+    let (mut rss, mut m) = (0.0, 0usize);
+    for i in 0..r.len() {
+        if let Some(b) = &betas[block[i]] {
+            let fit: f64 = (0..p).map(|a| b[a] * cols[a][i]).sum();
+            rss += (r[i] - fit).powi(2);
+            m += 1;
+        }
+    }
+    (rss, m)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn forward_validation_predicts_each_block_from_earlier_blocks_only() {
+        // r = 2·x in blocks 0–1 and 5·x in block 2: the forward fit of block 2 comes from blocks
+        // 0–1 only (slope 2), so its error is 3·x there; block 0 is never predicted.
+        let n = 30;
+        let x: Vec<f64> = (0..n).map(|i| 1.0 + i as f64).collect();
+        let block: Vec<usize> = (0..n).map(|i| i / 10).collect();
+        let r: Vec<f64> = (0..n)
+            .map(|i| if block[i] < 2 { 2.0 } else { 5.0 } * x[i])
+            .collect();
+        let (rss, m) = forward_rss(&[&x], &r, &block, 3);
+        assert_eq!(m, 20);
+        let want: f64 = (20..30).map(|i| (3.0 * x[i]).powi(2)).sum();
+        assert!((rss - want).abs() < 1e-6 * want, "{rss} vs {want}");
+    }
 
     #[test]
     fn fit_recovers_exact_coefficients_and_projection_matches_fit() {

@@ -97,8 +97,40 @@ pub fn diagnose_with_sim(
         all_sq += r.iter().map(|v| v * v).sum::<f64>();
         all_n += r.len();
         mismatch.extend(locate::locate(&ctx, signal, &r));
-        let sel = select::select(&ctx, axis, &r, opts);
-        let (models, cis, resid_after) = joint_refit(&ctx, &r, &sel.terms);
+        let mut sel = select::select(&ctx, axis, &r, opts);
+        // Parsimony after the final refit: a term whose 95 % interval of its gain includes 0 once
+        // every term is fitted jointly is dropped (the weakest first) and the rest refitted.
+        let (models, cis, resid_after) = loop {
+            let (models, cis, resid_after) = joint_refit(&ctx, &r, &sel.terms);
+            let weakest = sel
+                .terms
+                .iter()
+                .enumerate()
+                .filter_map(|(k, t)| {
+                    let iv = cis[k].get(t.cand.coef_key())?.as_array()?;
+                    let (lo, hi) = (iv.first()?.as_f64()?, iv.get(1)?.as_f64()?);
+                    // Terms with one interval (a zone table's per-zone intervals are not judged here).
+                    (lo <= 0.0 && hi >= 0.0).then(|| (k, (lo + hi).abs() / (hi - lo).max(1e-300)))
+                })
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(k, _)| k);
+            match weakest {
+                Some(k) => {
+                    let t = sel.terms.remove(k);
+                    alternatives.push(AlternativeOut {
+                        effect: t.cand.effect_id().into(),
+                        axis: Some(axis.to_string()),
+                        why_not: format!(
+                            "{} on {signal} was selected (ΔBIC {:.1}) but dropped after the final joint refit: the 95 % interval of its gain includes 0",
+                            t.cand.label(),
+                            t.delta_bic
+                        ),
+                        experiment: None,
+                    });
+                }
+                _ => break (models, cis, resid_after),
+            }
+        };
         for (k, term) in sel.terms.iter().enumerate() {
             let model = &models[k];
             let mut params =

@@ -55,31 +55,44 @@ pub fn model_with_findings(
     rec: &Recording,
     base: Option<&MachineModel>,
 ) -> anyhow::Result<ModelOut> {
+    model_with_findings_opts(d, rec, base, false)
+}
+
+/// As [`model_with_findings`]; with `write_offset` the joint refit's constant offset of each signal
+/// is written too, as `e0` of that signal's last added `polynomial_dt` term (`--fit-offset`: for a
+/// simulation that was itself fitted on this recording, whose intercept was fitted without the
+/// found terms).
+pub fn model_with_findings_opts(
+    d: &Diagnosis,
+    rec: &Recording,
+    base: Option<&MachineModel>,
+    write_offset: bool,
+) -> anyhow::Result<ModelOut> {
     let mut spec = match base {
         Some(m) => m.spec().clone(),
         None => default_spec(rec)?,
     };
-    // A one-axis recording on the default chain: its placeholder axis is evaluated at 0 mm.
+    // On the default chain, axes the recording lacks (the placeholder of a one-axis recording, or
+    // every axis of a thermal-only one) are evaluated at 0 mm.
     let padded;
-    let mut placeholder = None;
-    let rec = match spec
+    let missing: Vec<String> = spec
         .axes
         .iter()
-        .find(|a| rec.col(&format!("{}_mm", a.axis.lower())).is_none())
-    {
-        Some(a) if base.is_none() => {
-            let name = format!("{}_mm", a.axis.lower());
-            let mut cols: Vec<(String, Vec<f64>)> = rec
-                .names()
-                .iter()
-                .map(|n| (n.clone(), rec.col(n).expect("listed").to_vec()))
-                .collect();
-            cols.push((name.clone(), vec![0.0; rec.n_rows()]));
-            padded = Recording::from_columns(cols)?;
-            placeholder = Some(name);
-            &padded
-        }
-        _ => rec,
+        .map(|a| format!("{}_mm", a.axis.lower()))
+        .filter(|n| rec.col(n).is_none())
+        .collect();
+    let placeholder = (base.is_none() && !missing.is_empty()).then(|| missing.join(", "));
+    let rec = if placeholder.is_some() {
+        let mut cols: Vec<(String, Vec<f64>)> = rec
+            .names()
+            .iter()
+            .map(|n| (n.clone(), rec.col(n).expect("listed").to_vec()))
+            .collect();
+        cols.extend(missing.iter().map(|n| (n.clone(), vec![0.0; rec.n_rows()])));
+        padded = Recording::from_columns(cols)?;
+        &padded
+    } else {
+        rec
     };
     let mut base_line = match base {
         Some(m) => format!(
@@ -92,7 +105,9 @@ pub fn model_with_findings(
         ),
     };
     if let Some(p) = &placeholder {
-        base_line.push_str(&format!(" (`{p}` is a placeholder axis: give it as 0)"));
+        base_line.push_str(&format!(
+            " ({p}: placeholder axis, held at 0; a model with no position-dependent term runs without it)"
+        ));
     }
     let ctx = &d.context;
     let mut added = vec![];
@@ -108,7 +123,8 @@ pub fn model_with_findings(
             }
         }
         let offset = left.iter().sum::<f64>() / left.len().max(1) as f64;
-        if !s.models.is_empty() && offset.abs() > 1e-9 {
+        let mut offset_pending = write_offset && !s.models.is_empty() && offset.abs() > 1e-9;
+        if !write_offset && !s.models.is_empty() && offset.abs() > 1e-9 {
             not_in_model.push(format!(
                 "{}: constant offset {offset:+.3} µm between recording and simulation (a measurement zero, not a machine term)",
                 s.signal
@@ -161,6 +177,30 @@ pub fn model_with_findings(
                 Err(why) => not_in_model.push(describe(&item, &why)),
             }
         }
+        if offset_pending {
+            let stem = format!("diag_{}_", s.signal.trim_end_matches("_um"));
+            if let Some(th) = spec
+                .thermal
+                .iter_mut()
+                .rev()
+                .find(|t| t.name.starts_with(&stem))
+                && let crate::models::spec::ThermalKind::PolynomialDt { e0, .. } = &mut th.kind
+            {
+                *e0 += offset;
+                added.push(format!(
+                    "{}: constant offset {offset:+.3} µm of the joint refit → e0 of `{}` (--fit-offset)",
+                    s.signal, th.name
+                ));
+                offset_pending = false;
+                current = simulate_spec(&spec, rec)?;
+            }
+        }
+        if offset_pending {
+            not_in_model.push(format!(
+                "{}: constant offset {offset:+.3} µm (no polynomial_dt term of this signal to hold it)",
+                s.signal
+            ));
+        }
     }
     let (text, model) = to_checked_toml(spec).map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut head = String::new();
@@ -169,7 +209,7 @@ pub fn model_with_findings(
     head.push_str("# Sign: error = actual - nominal (um); correction = -error.\n");
     if let Some(p) = &placeholder {
         head.push_str(&format!(
-            "# The recording has one axis; `{p}` is a placeholder (the model format needs 2-3 axes): give it as 0.\n"
+            "# The recording lacks {p}: placeholder axes (the model format needs 2-3 axes), held at 0.\n"
         ));
     }
     if !added.is_empty() {
@@ -223,7 +263,9 @@ fn default_spec(rec: &Recording) -> anyhow::Result<ModelSpec> {
         .map(|&a| Axis::from_letter(a).expect("x, y or z"))
         .collect();
     if axes.is_empty() {
-        anyhow::bail!("the recording has no axis position column (x_mm, y_mm, z_mm)");
+        // Thermal-only recording (an ISO 230-3 test): the full X F Y Z chain, no travel limits;
+        // only position-independent terms can be found, so the axes are never read.
+        axes = Axis::ALL.to_vec();
     }
     if axes.len() == 1 {
         let extra = Axis::ALL
@@ -234,11 +276,14 @@ fn default_spec(rec: &Recording) -> anyhow::Result<ModelSpec> {
         axes.push(extra);
     }
     let travel = |a: Axis| {
-        rec.col(&format!("{}_mm", a.lower())).map(|p| {
-            let lo = p.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = p.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            (lo, hi)
-        })
+        rec.col(&format!("{}_mm", a.lower()))
+            .map(|p| {
+                let lo = p.iter().copied().fold(f64::INFINITY, f64::min);
+                let hi = p.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                (lo, hi)
+            })
+            // A constant column has no travel (the model format needs min < max).
+            .filter(|(lo, hi)| hi > lo)
     };
     Ok(ModelSpec {
         name: "diagnose-found-terms".into(),

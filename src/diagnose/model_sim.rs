@@ -33,13 +33,17 @@ pub fn simulate_axes(model: &MachineModel, rec: &Recording) -> anyhow::Result<[V
             anyhow::anyhow!("the model needs column `{name}`, which the recording does not have")
         })
     };
-    for a in model.axes() {
-        need(format!("{a}_mm"))?;
+    // A model with no position-dependent term needs no axis column (a thermal-only recording):
+    // missing axes stay at the input's 0 mm, which no term reads.
+    if model.is_position_dependent() {
+        for a in model.axes() {
+            need(format!("{a}_mm"))?;
+        }
     }
     let temps: Vec<&[f64]> = model
-        .temperature_sensors()
+        .sensor_columns()
         .iter()
-        .map(|n| need(format!("T_{n}_C")))
+        .map(|n| need(n.clone()))
         .collect::<anyhow::Result<_>>()?;
     let forces: Vec<&[f64]> = model
         .force_channels()

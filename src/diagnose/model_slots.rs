@@ -120,9 +120,12 @@ pub(super) fn add_item(
             ))
         }
         EffectModel::ThermalDrift { sensor, um_per_k } => {
-            let name = sensor_name(sensor)?;
+            let (name, column) = match sensor_name(sensor) {
+                Ok(n) => (n, None),
+                Err(_) => (format!("{sensor}_direct"), Some(sensor.clone())),
+            };
             let t0 = first_reading(rec, sensor)?;
-            let reference = ensure_sensor(spec, &name, None, t0)?;
+            let reference = ensure_sensor(spec, &name, None, t0, column)?;
             push_thermal(
                 spec,
                 item,
@@ -144,9 +147,28 @@ pub(super) fn add_item(
             tau_s,
             um_per_k,
         } => {
-            let name = sensor_name(sensor)?;
+            // A temperature is read as its sensor; any other driver column (rpm, load, power…)
+            // gets a lag state of its own reading that column (one per τ).
+            let (mut name, mut column) = match sensor_name(sensor) {
+                Ok(n) => (n, None),
+                Err(_) => (
+                    format!("{sensor}_tau_{:.0}s", tau_s.round()),
+                    Some(sensor.clone()),
+                ),
+            };
+            // A temperature already read with another lag (e.g. as read, by the base model)
+            // gets a second lag state of its own on the same column.
+            if column.is_none()
+                && spec
+                    .sensors
+                    .iter()
+                    .any(|s| s.name == name && s.tau_s != Some(*tau_s))
+            {
+                name = format!("{name}_tau_{:.0}s", tau_s.round());
+                column = Some(sensor.clone());
+            }
             let t0 = first_reading(rec, sensor)?;
-            let reference = ensure_sensor(spec, &name, Some(*tau_s), t0)?;
+            let reference = ensure_sensor(spec, &name, Some(*tau_s), t0, column)?;
             push_thermal(
                 spec,
                 item,
@@ -166,7 +188,7 @@ pub(super) fn add_item(
         EffectModel::ThermalExpansion { sensor, ppm_per_k } => {
             let name = sensor_name(sensor)?;
             let t0 = first_reading(rec, sensor)?;
-            ensure_sensor(spec, &name, None, t0)?;
+            ensure_sensor(spec, &name, None, t0, None)?;
             push_thermal(
                 spec,
                 item,
@@ -290,6 +312,7 @@ fn ensure_sensor(
     name: &str,
     tau_s: Option<f64>,
     t0: f64,
+    column: Option<String>,
 ) -> Result<f64, String> {
     if let Some(s) = spec.sensors.iter().find(|s| s.name == name) {
         let same = match (s.tau_s, tau_s) {
@@ -310,6 +333,7 @@ fn ensure_sensor(
         name: name.to_string(),
         reference_c: t0,
         tau_s,
+        column,
     });
     Ok(t0)
 }

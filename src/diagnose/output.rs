@@ -8,7 +8,7 @@ use std::path::Path;
 use serde::Serialize;
 
 use super::Diagnosis;
-use super::model_out::{ModelOut, model_with_findings, write_model};
+use super::model_out::{ModelOut, write_model};
 use crate::models::MachineModel;
 use crate::recording::Recording;
 
@@ -56,12 +56,23 @@ pub fn write_outputs(
     base: Option<&MachineModel>,
     dir: &Path,
 ) -> anyhow::Result<(Vec<std::path::PathBuf>, ModelOut)> {
+    write_outputs_opts(d, rec, base, dir, false)
+}
+
+/// As [`write_outputs`]; `write_offset`: see [`super::model_out::model_with_findings_opts`].
+pub fn write_outputs_opts(
+    d: &Diagnosis,
+    rec: &Recording,
+    base: Option<&MachineModel>,
+    dir: &Path,
+    write_offset: bool,
+) -> anyhow::Result<(Vec<std::path::PathBuf>, ModelOut)> {
     std::fs::create_dir_all(dir)?;
     let mut written = vec![];
     let p = dir.join("report.json");
     std::fs::write(&p, serde_json::to_string_pretty(&d.report)?)?;
     written.push(p);
-    let m = model_with_findings(d, rec, base)?;
+    let m = super::model_out::model_with_findings_opts(d, rec, base, write_offset)?;
     written.push(write_model(&m, dir)?);
     let p = dir.join("found_terms.toml");
     std::fs::write(&p, terms_toml(d))?;

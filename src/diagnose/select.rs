@@ -28,6 +28,23 @@ use super::candidates::{Candidate, Kind, library};
 use super::features::Context;
 use super::lsq::{self, dot};
 
+/// Share of the best thermal ΔBIC a driver-column lag needs to be preferred over a sensor.
+const DRIVER_SHARE: f64 = 0.0;
+
+/// A thermal candidate read from a driver column (`rpm`, a column with no DESIGN §4 role), not a
+/// temperature sensor.
+fn is_driver(ctx: &Context, c: &Candidate) -> bool {
+    match &c.kind {
+        Kind::ThermalLag { sensor } | Kind::ThermalDrift { sensor } => {
+            ctx.drivers().iter().any(|(n, _)| n == sensor)
+        }
+        _ => false,
+    }
+}
+
+/// How many of a step's strongest candidates compete on forward held-out error.
+const FORWARD_CHOICES: usize = 8;
+
 #[derive(Clone, Debug)]
 pub struct Options {
     /// Family-wise significance level of a step.
@@ -242,9 +259,24 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
     let mut terms: Vec<Term> = vec![];
     let mut runners_up = vec![];
     let mut used = vec![false; lib.len()];
+    // Folds that follow time (contiguous time blocks, or `run` blocks in recording order, each
+    // kept whole) are validated FORWARD: block k is predicted from blocks before it only, so a
+    // term stays only if it improves error on data later than what chose it. Interleaved folds
+    // (position cells of a forward + reverse laser run, runs out of order) keep leave-one-out.
+    // Restricted for now to recordings with no axis column (thermal tests): on the generated
+    // motion cases, forward folds reject real thermal lags whose warm-up fills the first block
+    // (hil-sim cases_model_out case 14); they keep leave-one-block-out until that is resolved.
+    let forward = n_blocks >= 3
+        && ctx.axes.iter().all(Option::is_none)
+        && block.windows(2).all(|w| w[1] >= w[0]);
     let cv_of = |cols: &[Vec<f64>]| {
         let refs: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
-        (lsq::cv_rss(&refs, r, &block, n_blocks) / n as f64).sqrt()
+        if forward {
+            let (rss, m) = lsq::forward_rss(&refs, r, &block, n_blocks);
+            (rss / m.max(1) as f64).sqrt()
+        } else {
+            (lsq::cv_rss(&refs, r, &block, n_blocks) / n as f64).sqrt()
+        }
     };
     let mut cv_before = cv_of(&raw_cols);
     let mut exchanges = 0;
@@ -329,6 +361,57 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                     .iter()
                     .map(|s| (lib[s.idx].clone(), s.delta_bic))
                     .collect();
+            }
+            // With forward folds, the strong candidates (ΔBIC above the bar, at most
+            // FORWARD_CHOICES of them) compete on forward held-out error: the one that best
+            // predicts later blocks from earlier ones wins, not the best in-sample fit (a sensor
+            // with a large gain fits a warm-up well and extrapolates badly).
+            if forward {
+                let k = scored
+                    .iter()
+                    .take(FORWARD_CHOICES)
+                    .take_while(|s| s.delta_bic > opts.min_delta_bic)
+                    .count();
+                let cv_with = |s: &Scored| {
+                    let mut trial = raw_cols.clone();
+                    trial.extend(lib[s.idx].columns(ctx, s.theta));
+                    cv_of(&trial)
+                };
+                if let Some(best) = (0..k)
+                    .map(|i| (i, cv_with(&scored[i])))
+                    .filter(|(_, v)| v.is_finite())
+                    .min_by(|a, b| a.1.total_cmp(&b.1))
+                    .map(|(i, _)| i)
+                {
+                    let s = scored.remove(best);
+                    scored.insert(0, s);
+                }
+            }
+            // Heat source before its symptoms: when the winner is a thermal term read from a
+            // temperature sensor and a driver column (rpm, or a named heat source) explains the
+            // same family with strong evidence of its own (ΔBIC above the bar), the driver's lag
+            // is taken. A sensor is itself a lagged response of the source; the source term
+            // extrapolates to regimes the fit never saw (another spindle speed), a re-weighted
+            // sensor with a large gain does not. The sensor stays a candidate for what is left.
+            if lib[scored[0].idx].family() == "thermal_offset"
+                && !is_driver(ctx, &lib[scored[0].idx])
+            {
+                let top = scored[0].delta_bic;
+                let passes_heldout = |s: &Scored| {
+                    let mut trial = raw_cols.clone();
+                    trial.extend(lib[s.idx].columns(ctx, s.theta));
+                    cv_of(&trial) < cv_before * (1.0 - opts.cv_min_gain)
+                };
+                if let Some(j) = scored.iter().position(|s| {
+                    is_driver(ctx, &lib[s.idx])
+                        && s.delta_bic > opts.min_delta_bic
+                        && s.delta_bic >= DRIVER_SHARE * top
+                        && passes_heldout(s)
+                }) {
+                    let _ = top;
+                    let s = scored.remove(j);
+                    scored.insert(0, s);
+                }
             }
             // Refine the winner's nonlinear parameter between its grid neighbours.
             let mut win = scored.remove(0);

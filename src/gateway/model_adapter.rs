@@ -51,11 +51,7 @@ impl MachineModelAdapter {
             plus: model.new_breakdown(),
             minus: model.new_breakdown(),
             acc: Vec::new(),
-            temp_channels: model
-                .temperature_sensors()
-                .iter()
-                .map(|s| format!("T_{s}_C"))
-                .collect(),
+            temp_channels: model.sensor_columns().to_vec(),
             force_channels: model
                 .force_channels()
                 .iter()

@@ -37,6 +37,8 @@ pub(crate) struct Compiled {
     pub force_source: Vec<ForceSource>,
     pub term_names: Vec<String>,
     pub temperature_sensors: Vec<String>,
+    /// Column each sensor reads (`T_<name>_C` or its `column`), same index.
+    pub sensor_columns: Vec<String>,
     pub force_channels: Vec<String>,
     pub strain_channels: Vec<String>,
 }
@@ -213,6 +215,7 @@ impl Compiled {
             force_source,
             term_names,
             temperature_sensors: spec.sensors.iter().map(|s| s.name.clone()).collect(),
+            sensor_columns: spec.sensors.iter().map(|s| s.column_name()).collect(),
             force_channels,
             strain_channels,
         }

@@ -157,6 +157,20 @@ impl MachineModel {
         &self.spec
     }
 
+    /// Whether any term depends on an axis position or direction (components, squareness,
+    /// position-scaled thermal terms, load terms). A model without one — e.g. a thermal-only
+    /// model found by `diagnose` — can be evaluated over a recording with no axis columns.
+    pub fn is_position_dependent(&self) -> bool {
+        let s = &self.spec;
+        !s.components.is_empty()
+            || !s.squareness.is_empty()
+            || !s.load.is_empty()
+            || s.thermal
+                .iter()
+                .any(|t| !matches!(t.kind, spec::ThermalKind::PolynomialDt { .. }))
+            || s.tools.iter().any(|t| t.offset_mm != [0.0; 3])
+    }
+
     /// Canonical TOML (µm, µrad, mm); reading it back gives an identical model.
     pub fn to_toml_string(&self) -> String {
         write::write_model(&self.spec)
@@ -174,6 +188,12 @@ impl MachineModel {
     /// Names as in `T_<name>_C` columns; index = position in [`ModelInput::temps_c`].
     pub fn temperature_sensors(&self) -> &[String] {
         &self.compiled.temperature_sensors
+    }
+
+    /// The column each sensor reads (`T_<name>_C`, or the sensor's `column`, e.g. `rpm`); index =
+    /// position in [`ModelInput::temps_c`].
+    pub fn sensor_columns(&self) -> &[String] {
+        &self.compiled.sensor_columns
     }
 
     /// Names as in `F_<name>_N` columns; index = position in [`ModelInput::forces_n`].

@@ -204,11 +204,21 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
                 format!("expected a time constant > 0 s, found {tau}"),
             );
         }
-        t.finish("name, reference_C, tau_s");
+        let column = t.str_opt("column");
+        if let Some(c) = &column
+            && (c.is_empty() || !c.chars().all(|ch| ch.is_ascii_alphanumeric() || ch == '_'))
+        {
+            t.err_key(
+                "column",
+                format!("expected a column name of letters, digits and _, found {c:?}"),
+            );
+        }
+        t.finish("name, reference_C, tau_s, column");
         sensors.push(SensorSpec {
             name,
             reference_c,
             tau_s,
+            column,
         });
     }
     let sensor_names: Vec<String> = sensors.iter().map(|s| s.name.clone()).collect();

@@ -57,6 +57,19 @@ pub struct SensorSpec {
     pub reference_c: f64,
     /// First-order lag time constant (term d); `None` = the sensor is used as read.
     pub tau_s: Option<f64>,
+    /// The recording/bus column read instead of `T_<name>_C`: a lag state driven by another
+    /// context signal (e.g. `rpm`: heat input ∝ spindle speed, no sensor near the source). Its
+    /// "ΔT" is then in that column's unit and the terms' per-K gains are per that unit.
+    pub column: Option<String>,
+}
+
+impl SensorSpec {
+    /// The column this sensor reads: `column`, else `T_<name>_C`.
+    pub fn column_name(&self) -> String {
+        self.column
+            .clone()
+            .unwrap_or_else(|| format!("T_{}_C", self.name))
+    }
 }
 
 /// How a term's value is computed. Coefficients are in the target's unit (µm or µrad) per K, per

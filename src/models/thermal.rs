@@ -363,6 +363,7 @@ mod tests {
             name: "s".into(),
             reference_c: 20.0,
             tau_s: tau,
+            column: None,
         }
     }
 

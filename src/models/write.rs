@@ -143,6 +143,9 @@ pub fn write_model(s: &ModelSpec) -> String {
         if let Some(tau) = x.tau_s {
             let _ = writeln!(o, "tau_s = {}", num(tau));
         }
+        if let Some(c) = &x.column {
+            let _ = writeln!(o, "column = {}", string(c));
+        }
     }
     for th in &s.thermal {
         let u = if th.target.is_rotation() {

@@ -170,6 +170,7 @@ pub fn add_thermal(
                     name: name.clone(),
                     reference_c: reference,
                     tau_s: tau,
+                    column: None,
                 });
                 e0 += term.coef * reference;
             }

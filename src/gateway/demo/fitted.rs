@@ -302,6 +302,7 @@ fn add_context_terms(
                 name: s.to_string(),
                 reference_c: reference(s),
                 tau_s: None,
+                column: None,
             });
         }
     };
