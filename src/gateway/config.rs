@@ -368,6 +368,10 @@ impl FieldConfig {
                 out.extend(src.channel.iter().map(|c| c.name.as_str()));
             }
         }
+        // A served register image takes the positions the controller writes into it (FC16).
+        if let Some(srv) = &self.sink.origin_shift_server {
+            out.extend(srv.map.positions.iter().map(|p| p.channel.as_str()));
+        }
         out
     }
 
