@@ -1,0 +1,179 @@
+//! A flood of ~1100 idle loopback clients against the status endpoint running in a child process
+//! whose descriptor limit is lowered (soft = hard = 160, as `prlimit --nofile=160:160` would):
+//! the server keeps answering a well-behaved request, stays within its descriptor budget, logs the
+//! refusal as one fault (not one line per client), and the process can still open the connection a
+//! controller link would need on reconnect (the descriptor reserve).
+//!
+//! The child is this test binary run again with `RETROCOMP_HTTP_FLOOD_CHILD=1` (it then serves
+//! and obeys stdin instead of flooding); everything is on 127.0.0.1 with ephemeral ports.
+
+use std::io::{BufRead, BufReader, Write};
+use std::net::SocketAddr;
+use std::os::unix::process::CommandExt;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+const CHILD_ENV: &str = "RETROCOMP_HTTP_FLOOD_CHILD";
+const NOFILE: u64 = 160;
+const CLIENTS: usize = 1100;
+
+fn set_nofile(soft: u64, hard: u64) -> std::io::Result<()> {
+    let lim = libc::rlimit {
+        rlim_cur: soft,
+        rlim_max: hard,
+    };
+    // SAFETY: setrlimit reads only the struct we pass.
+    if unsafe { libc::setrlimit(libc::RLIMIT_NOFILE, &lim) } == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
+}
+
+/// Child: serve on loopback, print the address, then answer `probe ADDR` lines by opening a TCP
+/// connection to ADDR (what a controller link does on reconnect) until stdin closes.
+fn child() {
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_max_level(tracing::Level::INFO)
+        .init();
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let (_tx, rx) = tokio::sync::watch::channel(None);
+        let (addr, _task) = retrocomp::gateway::http::serve(
+            "127.0.0.1:0".parse().unwrap(),
+            rx,
+            Default::default(),
+            retrocomp::gateway::http::Limits::default(),
+        )
+        .await
+        .unwrap();
+        println!("LISTEN {addr}");
+        let mut lines = tokio::io::AsyncBufReadExt::lines(tokio::io::BufReader::new(
+            tokio::io::stdin(),
+        ));
+        while let Ok(Some(line)) = lines.next_line().await {
+            if let Some(a) = line.strip_prefix("probe ") {
+                match tokio::net::TcpStream::connect(a).await {
+                    Ok(_) => println!("PROBE ok"),
+                    Err(e) => println!("PROBE err {e}"),
+                }
+            }
+        }
+    });
+}
+
+#[test]
+fn idle_flood_does_not_starve_answers_or_descriptors() {
+    if std::env::var_os(CHILD_ENV).is_some() {
+        return child();
+    }
+    // The flooding side needs ~1100 descriptors itself.
+    let mut lim = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit writes only the struct we pass.
+    assert_eq!(unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut lim) }, 0);
+    assert!(
+        lim.rlim_max >= 2 * CLIENTS as u64,
+        "hard RLIMIT_NOFILE {} too low for the flooding side (need {})",
+        lim.rlim_max,
+        2 * CLIENTS
+    );
+    set_nofile(lim.rlim_max, lim.rlim_max).unwrap();
+
+    let log_path = std::env::temp_dir().join(format!("http_flood_{}.log", std::process::id()));
+    let log = std::fs::File::create(&log_path).unwrap();
+    let mut cmd = Command::new(std::env::current_exe().unwrap());
+    cmd.args(["--exact", "idle_flood_does_not_starve_answers_or_descriptors", "--nocapture"])
+        .env(CHILD_ENV, "1")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(log);
+    // SAFETY: only setrlimit (async-signal-safe) between fork and exec.
+    unsafe {
+        cmd.pre_exec(|| set_nofile(NOFILE, NOFILE));
+    }
+    let mut child = cmd.spawn().unwrap();
+    let mut stdin = child.stdin.take().unwrap();
+    let mut out = BufReader::new(child.stdout.take().unwrap());
+    let mut read_tagged = |tag: &str| -> String {
+        let mut line = String::new();
+        loop {
+            line.clear();
+            assert!(out.read_line(&mut line).unwrap() > 0, "child exited; log {log_path:?}");
+            if let Some(rest) = line.trim().strip_prefix(tag) {
+                return rest.trim().to_string();
+            }
+        }
+    };
+    let addr: SocketAddr = read_tagged("LISTEN").parse().unwrap();
+
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let probe_listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let probe_addr = probe_listener.local_addr().unwrap();
+    rt.block_on(async {
+        // Open the idle clients; hold them all. Connects to loopback either land or are refused.
+        let mut idle = Vec::with_capacity(CLIENTS);
+        let mut connected = 0;
+        for _ in 0..CLIENTS {
+            match tokio::time::timeout(Duration::from_secs(5), tokio::net::TcpStream::connect(addr))
+                .await
+            {
+                Ok(Ok(s)) => {
+                    connected += 1;
+                    idle.push(s);
+                }
+                _ => {}
+            }
+        }
+        assert!(connected > NOFILE as usize, "only {connected} idle clients connected");
+
+        // While they are all held: the child's descriptors stay within its limit …
+        let fds = std::fs::read_dir(format!("/proc/{}/fd", child.id()))
+            .unwrap()
+            .count() as u64;
+        assert!(fds < NOFILE, "child holds {fds} descriptors of {NOFILE}");
+        // … and it can still open the connection a controller link would need.
+        writeln!(stdin, "probe {probe_addr}").unwrap();
+        stdin.flush().unwrap();
+        assert_eq!(read_tagged("PROBE"), "ok");
+
+        // A well-behaved request is answered by the application (not just refused with an empty
+        // 503) once the idle clients' header timeout frees slots. Bounded: 60 s of retries.
+        let t0 = Instant::now();
+        let mut last = None;
+        while t0.elapsed() < Duration::from_secs(60) {
+            let addr = addr.to_string();
+            match retrocomp::gateway::http::get(&addr, "/status", Duration::from_secs(5)).await {
+                Ok((503, body)) if body == "no cycle run yet\n" => {
+                    last = None;
+                    break;
+                }
+                other => last = Some(format!("{other:?}")),
+            }
+            tokio::time::sleep(Duration::from_millis(200)).await;
+        }
+        assert!(last.is_none(), "no application answer within 60 s; last {last:?}");
+        drop(idle);
+    });
+    drop(stdin);
+    let _ = child.wait();
+    let text = std::fs::read_to_string(&log_path).unwrap();
+    let faults = text.matches("status endpoint: fault,").count();
+    assert!(faults >= 1, "the refusals must be logged as a fault:\n{text}");
+    // One line per episode (start/clear), not one per refused client.
+    assert!(
+        faults < CLIENTS / 10,
+        "{faults} fault lines for {CLIENTS} clients: logging per client?"
+    );
+    assert!(!text.contains("panicked"), "{text}");
+}
