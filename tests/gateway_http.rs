@@ -57,15 +57,26 @@ async fn read_routes_without_snapshot_and_wrong_methods() {
             .unwrap();
         assert_eq!((code, body.as_str()), (503, "no cycle run yet\n"), "{path}");
     }
-    for (m, path) in [(Method::POST, "/status"), (Method::PUT, "/metrics"), (Method::DELETE, "/x")] {
+    for (m, path) in [
+        (Method::POST, "/status"),
+        (Method::PUT, "/metrics"),
+        (Method::DELETE, "/x"),
+    ] {
         let (code, _) = request(&addr, m.clone(), path, &[], Bytes::new(), T)
             .await
             .unwrap();
         assert_eq!(code, 405, "{m} {path}");
     }
-    let (code, _) = request(&addr, Method::GET, "/api/compensation", &[], Bytes::new(), T)
-        .await
-        .unwrap();
+    let (code, _) = request(
+        &addr,
+        Method::GET,
+        "/api/compensation",
+        &[],
+        Bytes::new(),
+        T,
+    )
+    .await
+    .unwrap();
     assert_eq!(code, 405, "GET on the action route");
 }
 
@@ -90,13 +101,24 @@ async fn action_needs_the_token_and_a_well_formed_body() {
     let (addr, _s) = start(api, Limits::default()).await;
     let good = format!("Bearer {TOKEN}");
     let wrong = format!("Bearer {TOKEN}x");
-    for auth in [None, Some("Bearer"), Some("Basic Zm9vOmJhcg=="), Some(wrong.as_str())] {
+    for auth in [
+        None,
+        Some("Bearer"),
+        Some("Basic Zm9vOmJhcg=="),
+        Some(wrong.as_str()),
+    ] {
         let (code, _) = post(&addr, auth, r#"{"enabled": false}"#).await;
         assert_eq!(code, 401, "auth {auth:?}");
     }
     assert!(rx.try_recv().is_err(), "refused requests change nothing");
 
-    for bad in ["", "not json", r#"{"enabled": "no"}"#, r#"{"enabled": false, "x": 1}"#, "[]"] {
+    for bad in [
+        "",
+        "not json",
+        r#"{"enabled": "no"}"#,
+        r#"{"enabled": false, "x": 1}"#,
+        "[]",
+    ] {
         let (code, _) = post(&addr, Some(&good), bad).await;
         assert!((400..500).contains(&code), "body {bad:?} → {code}");
     }
@@ -104,10 +126,16 @@ async fn action_needs_the_token_and_a_well_formed_body() {
 
     let (code, body) = post(&addr, Some(&good), r#"{"enabled": false}"#).await;
     assert_eq!(code, 200, "{body}");
-    assert_eq!(rx.try_recv().unwrap(), Control::SetCompensation { enabled: false });
+    assert_eq!(
+        rx.try_recv().unwrap(),
+        Control::SetCompensation { enabled: false }
+    );
     let (code, _) = post(&addr, Some(&good), r#"{"enabled": true}"#).await;
     assert_eq!(code, 200);
-    assert_eq!(rx.try_recv().unwrap(), Control::SetCompensation { enabled: true });
+    assert_eq!(
+        rx.try_recv().unwrap(),
+        Control::SetCompensation { enabled: true }
+    );
 }
 
 #[tokio::test]
@@ -122,12 +150,17 @@ async fn oversized_head_and_body_get_4xx() {
     let head = format!("GET /status HTTP/1.1\r\nHost: x\r\nX-Filler: {filler}\r\n\r\n");
     s.write_all(head.as_bytes()).await.unwrap();
     let mut resp = Vec::new();
-    let _ = tokio::time::timeout(T, s.read_to_end(&mut resp)).await.unwrap();
+    let _ = tokio::time::timeout(T, s.read_to_end(&mut resp))
+        .await
+        .unwrap();
     let resp = String::from_utf8_lossy(&resp);
     assert!(resp.starts_with("HTTP/1.1 431"), "got {resp:?}");
 
     // A body over the limit, with the right token: 413, nothing forwarded.
-    let body = format!(r#"{{"enabled": false, "pad": "{}"}}"#, "p".repeat(limits.max_body_bytes));
+    let body = format!(
+        r#"{{"enabled": false, "pad": "{}"}}"#,
+        "p".repeat(limits.max_body_bytes)
+    );
     let good = format!("Bearer {TOKEN}");
     let (code, _) = post(&addr, Some(&good), &body).await;
     assert_eq!(code, 413);
@@ -145,7 +178,9 @@ async fn slowloris_is_disconnected_within_the_header_timeout() {
     let (addr, _s) = start(Api::default(), limits).await;
     let mut s = TcpStream::connect(&addr).await.unwrap();
     let t0 = Instant::now();
-    let trickle = b"GET /status HTTP/1.1\r\nX-Slow: ".iter().chain(std::iter::repeat(&b'a'));
+    let trickle = b"GET /status HTTP/1.1\r\nX-Slow: "
+        .iter()
+        .chain(std::iter::repeat(&b'a'));
     let mut sent = 0usize;
     let mut buf = [0u8; 256];
     let mut closed = false;
@@ -165,10 +200,43 @@ async fn slowloris_is_disconnected_within_the_header_timeout() {
             Err(_) => {}
         }
     }
-    assert!(closed, "server still holding a slowloris after {sent} bytes");
+    assert!(
+        closed,
+        "server still holding a slowloris after {sent} bytes"
+    );
     assert!(
         t0.elapsed() >= limits.header_read_timeout,
         "cut before the header timeout: it must be the timeout doing it"
     );
     assert!(sent < 600 && sent < limits.max_head_bytes);
+}
+
+/// `[gateway] api_token` is read from the field config; a short one is refused at start, naming
+/// the key.
+#[test]
+fn api_token_comes_from_the_field_config() {
+    use retrocomp::gateway::config::FieldConfig;
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/field/mill-quadrature.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(
+        FieldConfig::parse(&text, &path)
+            .unwrap()
+            .gateway
+            .api_token
+            .is_none()
+    );
+    let with = |t: &str| {
+        text.replacen(
+            "[gateway]\n",
+            &format!("[gateway]\napi_token = \"{t}\"\n"),
+            1,
+        )
+    };
+    let cfg = FieldConfig::parse(&with(TOKEN), &path).unwrap();
+    assert_eq!(cfg.gateway.api_token.as_deref(), Some(TOKEN));
+    let msg = FieldConfig::parse(&with("short"), &path)
+        .unwrap_err()
+        .to_string();
+    assert!(msg.contains("gateway.api_token"), "{msg}");
 }

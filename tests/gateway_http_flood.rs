@@ -42,29 +42,26 @@ fn child() {
         .enable_all()
         .build()
         .unwrap();
-    rt.block_on(async {
-        let (_tx, rx) = tokio::sync::watch::channel(None);
-        let (addr, _task) = retrocomp::gateway::http::serve(
+    let (_tx, rx) = tokio::sync::watch::channel(None);
+    // The server runs on the runtime's workers; this thread answers stdin.
+    let (addr, _task) = rt
+        .block_on(retrocomp::gateway::http::serve(
             "127.0.0.1:0".parse().unwrap(),
             rx,
             Default::default(),
             retrocomp::gateway::http::Limits::default(),
-        )
-        .await
+        ))
         .unwrap();
-        println!("LISTEN {addr}");
-        let mut lines = tokio::io::AsyncBufReadExt::lines(tokio::io::BufReader::new(
-            tokio::io::stdin(),
-        ));
-        while let Ok(Some(line)) = lines.next_line().await {
-            if let Some(a) = line.strip_prefix("probe ") {
-                match tokio::net::TcpStream::connect(a).await {
-                    Ok(_) => println!("PROBE ok"),
-                    Err(e) => println!("PROBE err {e}"),
-                }
+    println!("LISTEN {addr}");
+    for line in std::io::stdin().lines() {
+        let Ok(line) = line else { break };
+        if let Some(a) = line.strip_prefix("probe ") {
+            match std::net::TcpStream::connect(a) {
+                Ok(_) => println!("PROBE ok"),
+                Err(e) => println!("PROBE err {e}"),
             }
         }
-    });
+    }
 }
 
 #[test]
@@ -90,11 +87,15 @@ fn idle_flood_does_not_starve_answers_or_descriptors() {
     let log_path = std::env::temp_dir().join(format!("http_flood_{}.log", std::process::id()));
     let log = std::fs::File::create(&log_path).unwrap();
     let mut cmd = Command::new(std::env::current_exe().unwrap());
-    cmd.args(["--exact", "idle_flood_does_not_starve_answers_or_descriptors", "--nocapture"])
-        .env(CHILD_ENV, "1")
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(log);
+    cmd.args([
+        "--exact",
+        "idle_flood_does_not_starve_answers_or_descriptors",
+        "--nocapture",
+    ])
+    .env(CHILD_ENV, "1")
+    .stdin(Stdio::piped())
+    .stdout(Stdio::piped())
+    .stderr(log);
     // SAFETY: only setrlimit (async-signal-safe) between fork and exec.
     unsafe {
         cmd.pre_exec(|| set_nofile(NOFILE, NOFILE));
@@ -106,7 +107,10 @@ fn idle_flood_does_not_starve_answers_or_descriptors() {
         let mut line = String::new();
         loop {
             line.clear();
-            assert!(out.read_line(&mut line).unwrap() > 0, "child exited; log {log_path:?}");
+            assert!(
+                out.read_line(&mut line).unwrap() > 0,
+                "child exited; log {log_path:?}"
+            );
             if let Some(rest) = line.trim().strip_prefix(tag) {
                 return rest.trim().to_string();
             }
@@ -135,7 +139,10 @@ fn idle_flood_does_not_starve_answers_or_descriptors() {
                 _ => {}
             }
         }
-        assert!(connected > NOFILE as usize, "only {connected} idle clients connected");
+        assert!(
+            connected > NOFILE as usize,
+            "only {connected} idle clients connected"
+        );
 
         // While they are all held: the child's descriptors stay within its limit …
         let fds = std::fs::read_dir(format!("/proc/{}/fd", child.id()))
@@ -162,14 +169,20 @@ fn idle_flood_does_not_starve_answers_or_descriptors() {
             }
             tokio::time::sleep(Duration::from_millis(200)).await;
         }
-        assert!(last.is_none(), "no application answer within 60 s; last {last:?}");
+        assert!(
+            last.is_none(),
+            "no application answer within 60 s; last {last:?}"
+        );
         drop(idle);
     });
     drop(stdin);
     let _ = child.wait();
     let text = std::fs::read_to_string(&log_path).unwrap();
     let faults = text.matches("status endpoint: fault,").count();
-    assert!(faults >= 1, "the refusals must be logged as a fault:\n{text}");
+    assert!(
+        faults >= 1,
+        "the refusals must be logged as a fault:\n{text}"
+    );
     // One line per episode (start/clear), not one per refused client.
     assert!(
         faults < CLIENTS / 10,

@@ -103,7 +103,13 @@ pub async fn serve(
         tracing::warn!(%addr, "status endpoint bound to a non-loopback address");
     }
     raise_nofile_soft_limit();
-    let app = router(AppState { rx, api: Arc::new(api) }, &limits);
+    let app = router(
+        AppState {
+            rx,
+            api: Arc::new(api),
+        },
+        &limits,
+    );
     Ok((addr, tokio::spawn(accept_loop(listener, app, limits))))
 }
 
@@ -269,11 +275,8 @@ async fn accept_loop(listener: TcpListener, app: Router, limits: Limits) {
         if now == refusing {
             return;
         }
-        match (refusing, now) {
-            (Some(was), _) => {
-                tracing::info!(reason = ?was, refused = *refused, "status endpoint: fault cleared");
-            }
-            (None, _) => {}
+        if let Some(was) = refusing {
+            tracing::info!(reason = ?was, refused = *refused, "status endpoint: fault cleared");
         }
         if let Some(r) = now {
             tracing::warn!(reason = ?r, "status endpoint: fault, refusing or delaying connections");
