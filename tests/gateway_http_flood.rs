@@ -13,6 +13,8 @@ use std::os::unix::process::CommandExt;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use retrocomp::gateway::http::Limits;
+
 const CHILD_ENV: &str = "RETROCOMP_HTTP_FLOOD_CHILD";
 const NOFILE: u64 = 160;
 const CLIENTS: usize = 1100;
@@ -32,10 +34,12 @@ fn set_nofile(soft: u64, hard: u64) -> std::io::Result<()> {
 
 /// Child: serve on loopback, print the address, then answer `probe ADDR` lines by opening a TCP
 /// connection to ADDR (what a controller link does on reconnect) until stdin closes.
-fn child() {
+fn child(mode: &str) {
+    let limits = child_limits(mode);
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
         .with_max_level(tracing::Level::INFO)
+        .with_ansi(false)
         .init();
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
@@ -49,7 +53,7 @@ fn child() {
             "127.0.0.1:0".parse().unwrap(),
             rx,
             Default::default(),
-            retrocomp::gateway::http::Limits::default(),
+            limits,
         ))
         .unwrap();
     println!("LISTEN {addr}");
@@ -64,11 +68,37 @@ fn child() {
     }
 }
 
-#[test]
-fn idle_flood_does_not_starve_answers_or_descriptors() {
-    if std::env::var_os(CHILD_ENV).is_some() {
-        return child();
+/// No connection cap to speak of (4 × the clients): the descriptor reserve alone must hold
+/// ("reserve"), or, with no reserve either, accept hits EMFILE and must back off ("emfile").
+fn child_limits(mode: &str) -> Limits {
+    let loose = Limits {
+        max_connections: 4 * CLIENTS,
+        header_read_timeout: Duration::from_secs(2),
+        ..Limits::default()
+    };
+    match mode {
+        "reserve" => loose,
+        "emfile" => Limits {
+            fd_reserve: 0,
+            ..loose
+        },
+        other => panic!("unknown child mode {other:?}"),
     }
+}
+
+struct Outcome {
+    /// What the child saw opening a new TCP connection while the flood was held.
+    probe: String,
+    child_fds: u64,
+    log: String,
+}
+
+/// Flood a child serving with `child_limits(mode)`; returns once a well-behaved request got an
+/// application answer (asserted, within 60 s of retries).
+fn flood(test_name: &str, mode: &str) -> Outcome {
+    // One flood at a time: each needs ~1100 descriptors and a CPU's worth of connects.
+    static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _serial = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     // The flooding side needs ~1100 descriptors itself.
     let mut lim = libc::rlimit {
         rlim_cur: 0,
@@ -84,18 +114,15 @@ fn idle_flood_does_not_starve_answers_or_descriptors() {
     );
     set_nofile(lim.rlim_max, lim.rlim_max).unwrap();
 
-    let log_path = std::env::temp_dir().join(format!("http_flood_{}.log", std::process::id()));
+    let log_path =
+        std::env::temp_dir().join(format!("http_flood_{mode}_{}.log", std::process::id()));
     let log = std::fs::File::create(&log_path).unwrap();
     let mut cmd = Command::new(std::env::current_exe().unwrap());
-    cmd.args([
-        "--exact",
-        "idle_flood_does_not_starve_answers_or_descriptors",
-        "--nocapture",
-    ])
-    .env(CHILD_ENV, "1")
-    .stdin(Stdio::piped())
-    .stdout(Stdio::piped())
-    .stderr(log);
+    cmd.args(["--exact", test_name, "--nocapture"])
+        .env(CHILD_ENV, mode)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(log);
     // SAFETY: only setrlimit (async-signal-safe) between fork and exec.
     unsafe {
         cmd.pre_exec(|| set_nofile(NOFILE, NOFILE));
@@ -124,7 +151,7 @@ fn idle_flood_does_not_starve_answers_or_descriptors() {
         .unwrap();
     let probe_listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let probe_addr = probe_listener.local_addr().unwrap();
-    rt.block_on(async {
+    let (probe, child_fds) = rt.block_on(async {
         // Open the idle clients; hold them all. Connects to loopback either land or are refused.
         let mut idle = Vec::with_capacity(CLIENTS);
         let mut connected = 0;
@@ -148,11 +175,10 @@ fn idle_flood_does_not_starve_answers_or_descriptors() {
         let fds = std::fs::read_dir(format!("/proc/{}/fd", child.id()))
             .unwrap()
             .count() as u64;
-        assert!(fds < NOFILE, "child holds {fds} descriptors of {NOFILE}");
-        // … and it can still open the connection a controller link would need.
+        // … and can it still open the connection a controller link would need?
         writeln!(stdin, "probe {probe_addr}").unwrap();
         stdin.flush().unwrap();
-        assert_eq!(read_tagged("PROBE"), "ok");
+        let probe = read_tagged("PROBE");
 
         // A well-behaved request is answered by the application (not just refused with an empty
         // 503) once the idle clients' header timeout frees slots. Bounded: 60 s of retries.
@@ -174,10 +200,31 @@ fn idle_flood_does_not_starve_answers_or_descriptors() {
             "no application answer within 60 s; last {last:?}"
         );
         drop(idle);
+        (probe, fds)
     });
     drop(stdin);
     let _ = child.wait();
-    let text = std::fs::read_to_string(&log_path).unwrap();
+    let log = std::fs::read_to_string(&log_path).unwrap();
+    let _ = std::fs::remove_file(&log_path);
+    Outcome {
+        probe,
+        child_fds,
+        log,
+    }
+}
+
+/// Refusals are one fault episode (start and clear lines), not one line per refused client.
+fn assert_logged_once(text: &str, reason: &str) {
+    assert!(
+        text.contains(&format!(
+            "fault, refusing or delaying connections reason={reason}"
+        )),
+        "no {reason} fault logged:\n{text}"
+    );
+    assert!(
+        text.contains(&format!("fault cleared reason={reason}")),
+        "{reason} fault never cleared:\n{text}"
+    );
     let faults = text.matches("status endpoint: fault,").count();
     assert!(
         faults >= 1,
@@ -189,4 +236,37 @@ fn idle_flood_does_not_starve_answers_or_descriptors() {
         "{faults} fault lines for {CLIENTS} clients: logging per client?"
     );
     assert!(!text.contains("panicked"), "{text}");
+}
+
+#[test]
+fn idle_flood_does_not_starve_answers_or_descriptors() {
+    if let Some(mode) = std::env::var_os(CHILD_ENV) {
+        return child(mode.to_str().unwrap());
+    }
+    let o = flood(
+        "idle_flood_does_not_starve_answers_or_descriptors",
+        "reserve",
+    );
+    assert!(
+        o.child_fds < NOFILE,
+        "child holds {} descriptors of {NOFILE}",
+        o.child_fds
+    );
+    assert_eq!(
+        o.probe, "ok",
+        "the reserve must leave a descriptor for the controller link"
+    );
+    assert_logged_once(&o.log, "FdReserve");
+}
+
+/// Without a reserve the flood exhausts the child's descriptors and accept fails with EMFILE:
+/// the loop backs off (one fault episode in the log) and recovers once idle clients time out.
+#[test]
+fn accept_emfile_backs_off_and_recovers() {
+    if let Some(mode) = std::env::var_os(CHILD_ENV) {
+        return child(mode.to_str().unwrap());
+    }
+    let o = flood("accept_emfile_backs_off_and_recovers", "emfile");
+    assert!(o.child_fds <= NOFILE, "child holds {} descriptors of {NOFILE}", o.child_fds);
+    assert_logged_once(&o.log, "AcceptError");
 }

@@ -63,7 +63,8 @@ pub struct Limits {
     pub connection_deadline: Duration,
     pub max_head_bytes: usize,
     pub max_body_bytes: usize,
-    /// Descriptors kept free for the controller link, sources and logs.
+    /// Descriptors kept free for the controller link, sources and logs (0: no reserve, only the
+    /// accept backoff when the process runs out).
     pub fd_reserve: u64,
 }
 
@@ -298,7 +299,8 @@ async fn accept_loop(listener: TcpListener, app: Router, limits: Limits) {
             }
         };
         backoff = Duration::from_millis(10);
-        if let (Some(open), Some(limit)) = (open_fds(), nofile_soft_limit())
+        if limits.fd_reserve > 0
+            && let (Some(open), Some(limit)) = (open_fds(), nofile_soft_limit())
             && open + limits.fd_reserve >= limit
         {
             set(Some(Refusing::FdReserve), &mut refused);
