@@ -154,18 +154,13 @@ fn flood(test_name: &str, mode: &str) -> Outcome {
     let (probe, child_fds) = rt.block_on(async {
         // Open the idle clients; hold them all. Connects to loopback either land or are refused.
         let mut idle = Vec::with_capacity(CLIENTS);
-        let mut connected = 0;
         for _ in 0..CLIENTS {
-            match tokio::time::timeout(Duration::from_secs(5), tokio::net::TcpStream::connect(addr))
-                .await
-            {
-                Ok(Ok(s)) => {
-                    connected += 1;
-                    idle.push(s);
-                }
-                _ => {}
+            let connect = tokio::net::TcpStream::connect(addr);
+            if let Ok(Ok(s)) = tokio::time::timeout(Duration::from_secs(5), connect).await {
+                idle.push(s);
             }
         }
+        let connected = idle.len();
         assert!(
             connected > NOFILE as usize,
             "only {connected} idle clients connected"
@@ -267,6 +262,10 @@ fn accept_emfile_backs_off_and_recovers() {
         return child(mode.to_str().unwrap());
     }
     let o = flood("accept_emfile_backs_off_and_recovers", "emfile");
-    assert!(o.child_fds <= NOFILE, "child holds {} descriptors of {NOFILE}", o.child_fds);
+    assert!(
+        o.child_fds <= NOFILE,
+        "child holds {} descriptors of {NOFILE}",
+        o.child_fds
+    );
     assert_logged_once(&o.log, "AcceptError");
 }

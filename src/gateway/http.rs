@@ -142,9 +142,10 @@ fn plain(code: StatusCode, body: &'static str) -> Response {
     (code, [(header::CONTENT_TYPE, "text/plain")], body).into_response()
 }
 
-fn snapshot(s: &AppState) -> Result<Arc<StatusSnapshot>, Response> {
+/// The latest snapshot, or the 503 every read route gives before the first cycle.
+fn snapshot(s: &AppState) -> Result<Arc<StatusSnapshot>, Box<Response>> {
     let snap = s.rx.borrow().clone();
-    snap.ok_or_else(|| plain(StatusCode::SERVICE_UNAVAILABLE, "no cycle run yet\n"))
+    snap.ok_or_else(|| Box::new(plain(StatusCode::SERVICE_UNAVAILABLE, "no cycle run yet\n")))
 }
 
 async fn status_json(State(s): State<AppState>) -> Response {
@@ -154,7 +155,7 @@ async fn status_json(State(s): State<AppState>) -> Response {
                 serde_json::to_string(&*snap).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"));
             ([(header::CONTENT_TYPE, "application/json")], body).into_response()
         }
-        Err(r) => r,
+        Err(r) => *r,
     }
 }
 
@@ -165,7 +166,7 @@ async fn metrics(State(s): State<AppState>) -> Response {
             snap.prometheus(),
         )
             .into_response(),
-        Err(r) => r,
+        Err(r) => *r,
     }
 }
 
@@ -176,7 +177,7 @@ async fn text(State(s): State<AppState>) -> Response {
             snap.render_text(),
         )
             .into_response(),
-        Err(r) => r,
+        Err(r) => *r,
     }
 }
 
@@ -189,7 +190,7 @@ async fn fallback(State(s): State<AppState>, method: Method) -> Response {
         return not_allowed().await;
     }
     if let Err(r) = snapshot(&s) {
-        return r;
+        return *r;
     }
     plain(
         StatusCode::NOT_FOUND,
