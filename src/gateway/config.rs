@@ -60,6 +60,10 @@ pub struct GatewaySection {
     /// Compensation enabled at start (can be toggled at run time).
     #[serde(default = "yes")]
     pub enabled: bool,
+    /// Bearer token for the endpoint's actions (`POST /api/compensation`); absent → every
+    /// action is refused (403). At least 16 characters. Never serialised (it is a secret).
+    #[serde(default, skip_serializing)]
+    pub api_token: Option<String>,
 }
 
 fn default_thermal_period_s() -> f64 {
@@ -412,6 +416,14 @@ impl FieldConfig {
             return Err((
                 "gateway.status_listen".into(),
                 format!("expected ip:port, got {:?}", g.status_listen),
+            ));
+        }
+        if let Some(t) = &g.api_token
+            && (t.trim().len() < 16 || t.trim() != t)
+        {
+            return Err((
+                "gateway.api_token".into(),
+                "expected at least 16 characters without surrounding spaces".into(),
             ));
         }
         self.safety

@@ -18,7 +18,7 @@ use tokio::time::MissedTickBehavior;
 
 use super::config::FieldConfig;
 use super::engine::{Engine, ErrorModel};
-use super::http::serve_status;
+use super::http::{Api, Control, Limits, serve};
 use super::origin_shift_sink::{SinkChannels, origin_shift_task};
 use super::status::{SinkStatus, StatusSnapshot};
 use super::supervise::SourceFeed;
@@ -63,7 +63,13 @@ pub async fn run(
         .status_listen
         .parse()
         .context("gateway.status_listen")?;
-    let (bound, http_task) = serve_status(listen, status_rx)
+    // Actions from the endpoint (token-guarded) reach the cycle loop through this channel.
+    let (control_tx, mut control_rx) = mpsc::channel::<Control>(8);
+    let api = Api {
+        token: cfg.gateway.api_token.clone(),
+        control_tx: Some(control_tx),
+    };
+    let (bound, http_task) = serve(listen, status_rx, api, Limits::default())
         .await
         .with_context(|| format!("binding status endpoint {listen}"))?;
     tracing::info!(%bound, "status endpoint: GET /status, /metrics");
@@ -159,6 +165,10 @@ pub async fn run(
             if let Err(e) = engine.reseed(&axis, held) {
                 tracing::error!(%e, axis, "cannot continue from the controller's value; holding");
             }
+        }
+        // Disabling ramps each axis to zero through the safety ramps (Engine::set_enabled).
+        while let Ok(Control::SetCompensation { enabled }) = control_rx.try_recv() {
+            engine.set_enabled(enabled);
         }
         let t0 = std::time::Instant::now();
         let outs = engine.cycle_in_place(epoch.elapsed().as_secs_f64(), model.as_mut());
