@@ -341,6 +341,9 @@ async fn serve_connection(stream: TcpStream, peer: SocketAddr, app: Router, limi
         .header_read_timeout(limits.header_read_timeout)
         .max_buf_size(limits.max_head_bytes.max(8192) + limits.max_body_bytes)
         .max_header_size(limits.max_head_bytes)
+        // A client that sends its request and then shuts its write side (`nc -N`, scripts) still
+        // gets the answer, as the hand-rolled server gave it.
+        .half_close(true)
         .keep_alive(false);
     let conn = b.serve_connection(TokioIo::new(stream), TowerToHyperService::new(svc));
     let _ = tokio::time::timeout(limits.connection_deadline, conn).await;

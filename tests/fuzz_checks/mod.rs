@@ -296,18 +296,26 @@ pub fn http_request(data: &[u8]) {
     }
     let text = String::from_utf8(resp).expect("answer is UTF-8");
     let (head, body) = text.split_once("\r\n\r\n").expect("answer has a head");
+    // HTTP/1.0 requests are answered in 1.0 (hyper); header names are case-insensitive.
     let code = head
         .strip_prefix("HTTP/1.1 ")
-        .expect("HTTP/1.1 status line");
+        .or_else(|| head.strip_prefix("HTTP/1.0 "))
+        .expect("HTTP/1.x status line");
     assert!(
-        ["200 ", "404 ", "405 ", "431 ", "503 "]
-            .iter()
-            .any(|c| code.starts_with(c)),
+        [
+            "200 ", "400 ", "401 ", "403 ", "404 ", "405 ", "408 ", "413 ", "415 ", "422 ", "431 ",
+            "503 ",
+        ]
+        .iter()
+        .any(|c| code.starts_with(c)),
         "unexpected status line {head:?}"
     );
     let len: usize = head
         .lines()
-        .find_map(|l| l.strip_prefix("Content-Length: "))
+        .find_map(|l| {
+            let (k, v) = l.split_once(':')?;
+            k.eq_ignore_ascii_case("content-length").then(|| v.trim())
+        })
         .expect("Content-Length")
         .parse()
         .unwrap();
