@@ -3,6 +3,7 @@
 //! thin async runtime that wires them to the buses.
 
 pub mod config;
+mod config_check;
 pub mod demo;
 pub mod direction;
 pub mod engine;
