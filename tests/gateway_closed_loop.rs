@@ -42,6 +42,8 @@ fn config(plc: std::net::SocketAddr) -> FieldConfig {
 [gateway]
 name = "loop"
 cycle_ms = 5
+# The restart below must continue from a non-zero value the PLC holds: no ramp-out on stop.
+on_stop = "hold"
 thermal_period_s = 0.05
 status_listen = "127.0.0.1:0"
 [safety]

@@ -192,6 +192,21 @@ pub struct PlcConfig {
     /// Optional strobe/acknowledge handshake: shifts are latched only while strobe = 1.
     #[serde(default)]
     pub handshake: Option<HandshakeConfig>,
+    /// Optional heartbeat watchdog: ramp the shifts out when the box's heartbeat stops.
+    #[serde(default)]
+    pub watchdog: Option<WatchdogConfig>,
+}
+
+/// The PLC's heartbeat watchdog rule (docs/gateway.md, "The controller's watchdog rule").
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct WatchdogConfig {
+    /// Register the box increments every write period (`heartbeat_address` in its map).
+    pub heartbeat_register: u16,
+    /// Trip when the heartbeat has not changed for this long (N box write periods), s.
+    pub timeout_s: f64,
+    /// While tripped, move each applied shift towards 0 at this rate, µm/s.
+    pub ramp_um_per_s: f64,
 }
 fn d_scan() -> f64 {
     0.010
@@ -214,6 +229,7 @@ impl Default for PlcConfig {
             lsb_um: d_lsb(),
             first_register: 0,
             handshake: None,
+            watchdog: None,
         }
     }
 }
@@ -395,6 +411,30 @@ impl SimConfig {
         let p = &self.plc;
         ensure!(p.scan_s > 0.0, "plc.scan_s must be > 0, got {}", p.scan_s);
         ensure!(p.lsb_um > 0.0, "plc.lsb_um must be > 0, got {}", p.lsb_um);
+        if let Some(w) = &p.watchdog {
+            ensure!(
+                w.timeout_s.is_finite() && w.timeout_s >= p.scan_s,
+                "plc.watchdog.timeout_s must be >= plc.scan_s ({} s), got {}",
+                p.scan_s,
+                w.timeout_s
+            );
+            ensure!(
+                w.ramp_um_per_s.is_finite() && w.ramp_um_per_s > 0.0,
+                "plc.watchdog.ramp_um_per_s must be > 0, got {}",
+                w.ramp_um_per_s
+            );
+            let words = if p.word == WordType::Int32 { 2 } else { 1 };
+            let shifts = p.first_register as u32..p.first_register as u32 + 3 * words;
+            let hb = w.heartbeat_register as u32;
+            let on_handshake = p
+                .handshake
+                .as_ref()
+                .is_some_and(|h| hb == h.strobe_register as u32 || hb == h.ack_register as u32);
+            ensure!(
+                !shifts.contains(&hb) && !on_handshake,
+                "plc.watchdog.heartbeat_register {hb} overlaps a shift, strobe or ack register"
+            );
+        }
         ensure!(self.record.every_s > 0.0, "record.every_s must be > 0");
         ensure!(
             self.truth.model_path.is_none()

@@ -64,6 +64,28 @@ pub struct GatewaySection {
     /// action is refused (403). At least 16 characters. Never serialised (it is a secret).
     #[serde(default, skip_serializing)]
     pub api_token: Option<String>,
+    /// On SIGTERM/SIGINT: ramp the origin-shift correction out (within the per-write cap) before
+    /// exiting, or hold it (the controller's watchdog rule then removes it).
+    #[serde(default)]
+    pub on_stop: OnStop,
+    /// Longest ramp-out on stop, s; then the box exits anyway (systemd's TimeoutStopSec must be longer).
+    #[serde(default = "default_stop_ramp_max_s")]
+    pub stop_ramp_max_s: f64,
+}
+
+/// What the box does with the correction when it is asked to stop.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum OnStop {
+    /// Write 0 (moving at most the per-write cap each period) until the controller holds 0.
+    #[default]
+    RampOut,
+    /// Leave the controller's value as it is.
+    Hold,
+}
+
+fn default_stop_ramp_max_s() -> f64 {
+    10.0
 }
 
 fn default_thermal_period_s() -> f64 {

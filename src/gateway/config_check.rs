@@ -32,6 +32,30 @@ fn in_range(
     ))
 }
 
+/// The client sink's heartbeat: `heartbeat_timeout_ms` (the controller's watchdog timeout) comes with
+/// `heartbeat_address` and leaves a live box at least three write periods per timeout.
+fn heartbeat_timeout(k: &str, os: &OriginShiftSink) -> Result<(), (String, String)> {
+    let key = format!("{k}.map.heartbeat_timeout_ms");
+    match (os.map.heartbeat_address, os.map.heartbeat_timeout_ms) {
+        (None, None) => Ok(()),
+        (None, Some(_)) => Err((
+            format!("{k}.map.heartbeat_address"),
+            "heartbeat_timeout_ms is set: expected the heartbeat register's address too".into(),
+        )),
+        (Some(_), None) => Err((
+            key,
+            "expected the controller's heartbeat timeout in ms (its watchdog rule's setting)"
+                .into(),
+        )),
+        (Some(_), Some(t)) => in_range(
+            &key,
+            t,
+            (3 * os.write_period_ms).max(1)..=60_000,
+            "ms (≥ 3 × write_period_ms)",
+        ),
+    }
+}
+
 /// Every [[axis]] appears exactly once among a sink's axis names.
 fn mapped_once<'a>(
     axes: &[AxisSection],
@@ -92,6 +116,13 @@ impl FieldConfig {
             return Err((
                 "gateway.cycle_ms".into(),
                 format!("expected 1..=1000 ms, got {}", g.cycle_ms),
+            ));
+        }
+        if !(g.stop_ramp_max_s.is_finite() && g.stop_ramp_max_s > 0.0 && g.stop_ramp_max_s <= 300.0)
+        {
+            return Err((
+                "gateway.stop_ramp_max_s".into(),
+                format!("expected 0 < s ≤ 300, got {}", g.stop_ramp_max_s),
             ));
         }
         if !(g.thermal_period_s.is_finite()
@@ -228,10 +259,16 @@ impl FieldConfig {
                     crate::origin_shift::MapError::Axis { index, .. } => {
                         format!("{k}.map.axis[{index}]")
                     }
+                    crate::origin_shift::MapError::Overlap { a, b, .. }
+                        if a == "heartbeat_address" || b == "heartbeat_address" =>
+                    {
+                        format!("{k}.map.heartbeat_address")
+                    }
                     _ => format!("{k}.map"),
                 };
                 (key, e.to_string())
             })?;
+            heartbeat_timeout(k, os)?;
         }
         if let Some(srv) = &self.sink.origin_shift_server {
             self.validate_server(srv)?;

@@ -11,6 +11,11 @@
 //! - `sink.origin_shift.<axis>` `WriteFailed`: the controller's value is uncertain (a foreign value
 //!   arrived while a write of ours was unconfirmed); that axis is not written this period.
 //!
+//! The heartbeat (`map.heartbeat_address`) goes out at the start of every period (`sink.rs`). On
+//! `stop` (SIGTERM/SIGINT with `[gateway] on_stop = "ramp_out"`) the task ramps every axis to 0
+//! within the per-write cap, then returns: once the controller holds 0, after `stop_ramp_max_s`, or
+//! at once when the controller cannot be reached (its watchdog rule then removes the correction).
+//!
 //! Units: µm.
 
 use std::collections::BTreeMap;
@@ -28,6 +33,8 @@ pub struct SinkChannels {
     pub out_rx: watch::Receiver<Vec<(String, f64)>>,
     pub reseed_tx: mpsc::Sender<(String, f64)>,
     pub status: watch::Sender<SinkStatus>,
+    /// `Some(max_s)`: ramp the correction out (for at most `max_s`), then return.
+    pub stop: watch::Receiver<Option<f64>>,
 }
 
 pub const SOURCE: &str = "sink.origin_shift";
@@ -85,6 +92,7 @@ pub async fn origin_shift_task(
         out_rx,
         reseed_tx,
         status,
+        stop,
     } = channels;
     let mut core = SinkCore::new(os.map.clone(), axes);
     let mut tick =
@@ -96,17 +104,43 @@ pub async fn origin_shift_task(
         ..Default::default()
     };
     let mut wants: Vec<(String, f64)> = Vec::new();
+    let mut stop_by: Option<std::time::Instant> = None;
     loop {
         tick.tick().await;
+        if let (None, Some(max_s)) = (stop_by, *stop.borrow()) {
+            stop_by = Some(std::time::Instant::now() + std::time::Duration::from_secs_f64(max_s));
+            core.begin_ramp_out();
+            tracing::info!(
+                max_s,
+                "stopping: ramping the correction out within the per-write cap"
+            );
+        }
         wants.clone_from(&out_rx.borrow());
-        if wants.is_empty() {
+        if wants.is_empty() && stop_by.is_none() {
             if out_rx.has_changed().is_err() {
                 return;
             }
             continue;
         }
         client.run_period(&mut core, &wants).await;
-        for (axis, held_um) in core.take_reseeds() {
+        if let Some(by) = stop_by {
+            let held: BTreeMap<&str, Option<f64>> = core.held_um().collect();
+            if core.is_ramped_out() {
+                tracing::info!(?held, "ramped out: the controller holds 0");
+                return;
+            }
+            if !client.is_connected() || std::time::Instant::now() >= by {
+                tracing::warn!(
+                    ?held,
+                    connected = client.is_connected(),
+                    "stopping before the correction is ramped out: the controller's watchdog rule must remove it"
+                );
+                return;
+            }
+        }
+        let reseeds = core.take_reseeds();
+        // Stopping: the engine no longer runs (nobody drains the channel).
+        for (axis, held_um) in reseeds.into_iter().filter(|_| stop_by.is_none()) {
             if reseed_tx.send((axis, held_um)).await.is_err() {
                 return;
             }

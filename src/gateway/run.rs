@@ -6,6 +6,9 @@
 //! engine continues from it (no jump after a gateway restart). The sink reads the controller again
 //! before every write (`origin_shift/sink.rs`); when the controller changed the value behind our back
 //! (it restarted, an operator cleared it) the engine is reseeded from what it holds.
+//!
+//! Stop: with `[gateway] on_stop = "ramp_out"` the origin-shift client sink ramps the correction out
+//! (`origin_shift_sink.rs`, bounded by `stop_ramp_max_s`) before `run` returns.
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
@@ -16,7 +19,7 @@ use anyhow::{Context as _, bail};
 use tokio::sync::{mpsc, watch};
 use tokio::time::MissedTickBehavior;
 
-use super::config::FieldConfig;
+use super::config::{FieldConfig, OnStop};
 use super::engine::{Engine, ErrorModel};
 use super::http::{Api, Control, Limits, serve};
 use super::origin_shift_sink::{SinkChannels, origin_shift_task};
@@ -81,6 +84,8 @@ pub async fn run(
     let (out_tx, out_rx) = watch::channel::<Outputs>(Vec::new());
     let (reseed_tx, mut reseed_rx) = mpsc::channel::<(String, f64)>(8);
     let (sink_status_tx, sink_status_rx) = watch::channel::<SinkStatus>(SinkStatus::default());
+    let (stop_tx, stop_rx) = watch::channel::<Option<f64>>(None);
+    let ramp_out = cfg.sink.origin_shift.is_some() && cfg.gateway.on_stop == OnStop::RampOut;
     let mut initial = BTreeMap::new();
     // Positions the controller writes into a served register image (origin-shift server).
     let (served_tx, mut served_rx) = mpsc::channel::<Sample>(1024);
@@ -123,6 +128,7 @@ pub async fn run(
                 out_rx,
                 reseed_tx,
                 status: sink_status_tx,
+                stop: stop_rx,
             },
             epoch,
         )))
@@ -193,7 +199,13 @@ pub async fn run(
         summary.cycles += 1;
         cycle_counter.set(summary.cycles);
     }
-    if let Some(t) = sink_task {
+    if let Some(mut t) = sink_task {
+        if ramp_out {
+            let max_s = cfg.gateway.stop_ramp_max_s;
+            let _ = stop_tx.send(Some(max_s));
+            // The task returns by itself within max_s (+ one period's requests).
+            let _ = tokio::time::timeout(Duration::from_secs_f64(max_s + 2.0), &mut t).await;
+        }
         t.abort();
     }
     http_task.abort();

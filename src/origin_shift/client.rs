@@ -246,7 +246,7 @@ impl OriginShiftClient {
                 reason: e.to_string(),
             };
         }
-        let mut action = core.begin(wants_um);
+        let mut action = core.begin_at(wants_um, self.now_s());
         loop {
             if let Action::Done(outcome) = action {
                 return outcome;

@@ -10,8 +10,14 @@
 //!   negative").
 //! - 32-bit values span two registers; `word_order = "high_first"` (ABCD) or `"low_first"` (CDAB).
 //!   Both words always go out in ONE FC16 request so the controller never sees half an update.
-//! - Allow-list: the only writable addresses are the value registers and the strobe register
-//!   configured here; [`RegisterMap::check_write`] refuses anything else.
+//! - Allow-list: the only writable addresses are the value registers, the strobe register and the
+//!   heartbeat register configured here; [`RegisterMap::check_write`] refuses anything else.
+//! - `heartbeat_address` (same key and rule as the server sink's map, `server_core.rs`): a u16 the box
+//!   writes at the start of every write period, +1 wrapping (the first period writes 1), so the
+//!   controller's watchdog rule can remove the correction when it stops changing (docs/gateway.md).
+//!   `heartbeat_timeout_ms` is the timeout the controller's rule is configured with: the box never
+//!   sends a value or strobe more than half of it after its period's heartbeat (so a box frozen
+//!   mid-period cannot land a stale value after the controller has ramped out).
 
 use serde::{Deserialize, Serialize};
 
@@ -84,6 +90,12 @@ pub struct RegisterMap {
     /// Read the values back after each write and compare.
     #[serde(default = "yes")]
     pub verify_readback: bool,
+    /// u16 register the box increments (wrapping) at the start of every write period.
+    #[serde(default)]
+    pub heartbeat_address: Option<u16>,
+    /// The controller's heartbeat timeout, ms (required with `heartbeat_address`).
+    #[serde(default)]
+    pub heartbeat_timeout_ms: Option<u64>,
 }
 
 fn yes() -> bool {
@@ -174,6 +186,9 @@ impl RegisterMap {
             ));
             spans.push((h.ack_address as u32, h.ack_address as u32 + 1, "ack".into()));
         }
+        if let Some(a) = self.heartbeat_address {
+            spans.push((a as u32, a as u32 + 1, "heartbeat_address".into()));
+        }
         for (i, a) in spans.iter().enumerate() {
             for b in &spans[i + 1..] {
                 if a.0 < b.1 && b.0 < a.1 {
@@ -205,6 +220,7 @@ impl RegisterMap {
                     .handshake
                     .as_ref()
                     .is_some_and(|h| a == h.strobe_address as u32)
+                || self.heartbeat_address.is_some_and(|h| a == h as u32)
         };
         if len == 0 || !(0..len as u32).all(|k| allowed(address as u32 + k)) {
             return Err(MapError::NotAllowed { address, len });
@@ -384,5 +400,29 @@ mod tests {
         let mut m = map();
         m.axes[1].address = 101;
         assert!(matches!(m.validate(), Err(MapError::Overlap { .. })));
+    }
+
+    #[test]
+    fn the_heartbeat_is_writable_and_must_not_overlap() {
+        let mut m = map();
+        assert!(m.check_write(112, 1).is_err(), "no heartbeat configured");
+        m.heartbeat_address = Some(112);
+        m.validate().unwrap();
+        assert!(m.check_write(112, 1).is_ok());
+        m.heartbeat_address = Some(103);
+        match m.validate() {
+            Err(MapError::Overlap { a, b, address }) => {
+                assert_eq!(
+                    (a.as_str(), b.as_str(), address),
+                    ("z", "heartbeat_address", 103)
+                )
+            }
+            other => panic!("{other:?}"),
+        }
+        m.heartbeat_address = Some(110);
+        assert!(
+            matches!(m.validate(), Err(MapError::Overlap { b, .. }) if b == "heartbeat_address"),
+            "on the strobe"
+        );
     }
 }

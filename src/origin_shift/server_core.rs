@@ -98,6 +98,8 @@ impl ServerMap {
             axes: self.axes.clone(),
             handshake: None,
             verify_readback: false,
+            heartbeat_address: None,
+            heartbeat_timeout_ms: None,
         }
     }
 

@@ -1,5 +1,10 @@
 //! The origin-shift sink's core, sans-IO: one write period is read → guard → write cycle.
 //!
+//! 0. With a `heartbeat_address`: write the heartbeat (+1 wrapping u16; the first period writes 1)
+//!    FIRST, so a controller whose watchdog rule has ramped the correction out re-arms before the
+//!    box reads what it now holds (no ramp step can fall between that read and the box's write).
+//!    No value or strobe goes out more than `heartbeat_timeout_ms / 2` after the period's heartbeat:
+//!    a box frozen mid-period (SIGSTOP, a stalled host) abandons the period and reads again.
 //! 1. Read what the controller holds: every value register, and with a handshake the strobe and ack
 //!    registers (adjacent registers in one FC03). Every period, so a controller restart, a foreign
 //!    write or a lost connection is seen before the next value goes out.
@@ -9,6 +14,10 @@
 //! 3. [`WriteGuard`] turns each wanted value into one within the clamp and the per-write cap of what
 //!    the controller may be applying, or refuses the axis (beyond the clamp, uncertain).
 //! 4. The accepted values go out through a [`WriteCycle`] (values, strobe, ack, read-back).
+//!
+//! Ramp-out ([`SinkCore::begin_ramp_out`], on SIGTERM/SIGINT with `on_stop = "ramp_out"`): from then
+//! on every axis wants 0, so the guard moves each by at most the per-write cap per period; done
+//! ([`SinkCore::is_ramped_out`]) once a period's read shows 0 on every axis with no latch pending.
 //!
 //! The shell (`client.rs` + the gateway's sink task) runs the [`Action`]s and feeds the replies back;
 //! time is passed in (s). Failures are reported as fault flags the shell turns into fault episodes.
@@ -40,6 +49,8 @@ pub struct SinkFaults {
 #[derive(Clone, Debug)]
 enum Phase {
     Idle,
+    /// Writing the heartbeat (the period's first request).
+    Heartbeat,
     /// Reading span `i` of `reads`.
     Reading(usize),
     Writing(Box<WriteCycle>),
@@ -62,6 +73,15 @@ pub struct SinkCore {
     planned: Vec<(usize, f64)>,
     reseeds: Vec<(String, f64)>,
     faults: SinkFaults,
+    /// Last heartbeat value written (0 before the first period).
+    heartbeat: u16,
+    /// When this period began (its heartbeat went out), s.
+    period_start_s: f64,
+    /// Longest time from a period's heartbeat to its last value/strobe write, s.
+    max_period_age_s: Option<f64>,
+    ramping_out: bool,
+    /// This period's read showed 0 on every axis and no pending latch.
+    at_zero: bool,
     pub writes_ok: u64,
     pub writes_failed: u64,
     pub last_error: Option<String>,
@@ -95,7 +115,16 @@ impl SinkCore {
             .collect::<Vec<_>>();
         let reads = read_spans(&map);
         let n = axes.len();
+        let max_period_age_s = match (map.heartbeat_address, map.heartbeat_timeout_ms) {
+            (Some(_), Some(t)) => Some(t as f64 / 2e3),
+            _ => None,
+        };
         Self {
+            heartbeat: 0,
+            period_start_s: 0.0,
+            max_period_age_s,
+            ramping_out: false,
+            at_zero: false,
             map,
             guard,
             reads,
@@ -142,18 +171,81 @@ impl SinkCore {
         std::mem::take(&mut self.reseeds)
     }
 
-    /// Start a write period for these wanted corrections (axis name, µm; axes not in the map are
-    /// ignored, map axes not given keep the controller's value). Returns the first request.
+    /// [`Self::begin_at`] at time 0 (for maps without a heartbeat, where the period's age is not
+    /// checked).
     pub fn begin(&mut self, wants_um: &[(String, f64)]) -> Action {
+        self.begin_at(wants_um, 0.0)
+    }
+
+    /// Start a write period at `now_s` for these wanted corrections (axis name, µm; axes not in the
+    /// map are ignored, map axes not given keep the controller's value; every axis wants 0 once
+    /// ramping out). Returns the first request: the heartbeat write, or the read.
+    pub fn begin_at(&mut self, wants_um: &[(String, f64)], now_s: f64) -> Action {
         for (i, a) in self.axes.iter().enumerate() {
-            self.wants[i] = wants_um
-                .iter()
-                .find(|(n, _)| *n == a.axis)
-                .map_or(f64::NAN, |(_, v)| *v);
+            self.wants[i] = if self.ramping_out {
+                0.0
+            } else {
+                wants_um
+                    .iter()
+                    .find(|(n, _)| *n == a.axis)
+                    .map_or(f64::NAN, |(_, v)| *v)
+            };
         }
         self.words.clear();
         self.planned.clear();
-        self.read(0, 0.0)
+        self.at_zero = false;
+        self.period_start_s = now_s;
+        if let Some(address) = self.map.heartbeat_address {
+            self.heartbeat = self.heartbeat.wrapping_add(1);
+            self.phase = Phase::Heartbeat;
+            return Action::Write(WriteBlock {
+                address,
+                words: vec![self.heartbeat],
+            });
+        }
+        self.read(0, now_s)
+    }
+
+    /// The last heartbeat value written (0 before the first period).
+    pub fn heartbeat(&self) -> u16 {
+        self.heartbeat
+    }
+
+    /// From now on every axis wants 0 (the stop ramp-out).
+    pub fn begin_ramp_out(&mut self) {
+        self.ramping_out = true;
+    }
+
+    pub fn is_ramping_out(&self) -> bool {
+        self.ramping_out
+    }
+
+    /// Ramping out and the last period's read showed 0 on every axis with no latch pending.
+    pub fn is_ramped_out(&self) -> bool {
+        self.ramping_out && self.at_zero
+    }
+
+    /// True when a value or strobe write would go out too long after the period's heartbeat: the
+    /// controller's watchdog may have ramped out since the read this period's values are based on.
+    fn too_late(&self, now_s: f64) -> bool {
+        self.max_period_age_s
+            .is_some_and(|max| now_s - self.period_start_s > max)
+    }
+
+    /// Abandon the period before a late write (the values already sent stay unconfirmed).
+    fn abandon_late(&mut self, now_s: f64) -> Action {
+        let o = Outcome::RequestFailed {
+            step: "late",
+            address: self.map.heartbeat_address.unwrap_or(0),
+            reason: format!(
+                "{:.0} ms after the period's heartbeat (limit {:.0} ms, half the controller's heartbeat timeout): not writing on a stale read",
+                (now_s - self.period_start_s) * 1e3,
+                self.max_period_age_s.unwrap_or(0.0) * 1e3
+            ),
+        };
+        self.phase = Phase::Idle;
+        self.finish_cycle(&o);
+        Action::Done(o)
     }
 
     /// The connection failed before any request of this period went out.
@@ -190,6 +282,22 @@ impl SinkCore {
     pub fn on_reply(&mut self, reply: Reply, now_s: f64) -> Action {
         match std::mem::replace(&mut self.phase, Phase::Idle) {
             Phase::Idle => Action::Done(Outcome::Ok),
+            Phase::Heartbeat => match reply {
+                Reply::Written => self.read(0, now_s),
+                other => {
+                    let reason = match other {
+                        Reply::Failed(r) => r,
+                        r => format!("unexpected reply {r:?}"),
+                    };
+                    let o = Outcome::RequestFailed {
+                        step: "heartbeat",
+                        address: self.map.heartbeat_address.unwrap_or(0),
+                        reason,
+                    };
+                    self.failed(format!("{o:?}"));
+                    Action::Done(o)
+                }
+            },
             Phase::Reading(i) => {
                 let (address, count) = self.reads[i];
                 match reply {
@@ -218,6 +326,9 @@ impl SinkCore {
             }
             Phase::Writing(mut cycle) => {
                 let next = cycle.on_reply(reply, now_s);
+                if matches!(next, Action::Write(_)) && self.too_late(now_s) {
+                    return self.abandon_late(now_s);
+                }
                 if let Action::Done(o) = &next {
                     self.finish_cycle(o);
                 } else {
@@ -263,6 +374,11 @@ impl SinkCore {
             }
             strobe = Some(WriteCycle::next_strobe(s.unwrap_or(0)));
         }
+        self.at_zero = (0..self.axes.len()).all(|i| {
+            self.guard
+                .read_um(i)
+                .is_some_and(|v| v.abs() < self.map.axes[i].lsb_um * 0.5)
+        });
         let mut values: Vec<(&str, f64)> = Vec::with_capacity(self.axes.len());
         for i in 0..self.axes.len() {
             let verdict = self.guard.check(i, self.wants[i]);
@@ -292,6 +408,10 @@ impl SinkCore {
                 });
             }
         };
+        if self.too_late(now_s) {
+            self.planned.clear(); // nothing of this period went out
+            return self.abandon_late(now_s);
+        }
         let (cycle, first) = WriteCycle::start_at(&self.map, blocks, strobe.unwrap_or(0), now_s);
         if let Action::Done(o) = &first {
             self.finish_cycle(o);
@@ -339,6 +459,10 @@ fn read_spans(map: &RegisterMap) -> Vec<Span> {
     }
     spans
 }
+
+#[cfg(test)]
+#[path = "sink_watchdog_tests.rs"]
+mod watchdog_tests;
 
 #[cfg(test)]
 mod tests {

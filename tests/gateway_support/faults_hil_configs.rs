@@ -231,6 +231,8 @@ stale_after_s = 0.1
 [gateway]
 name = "faults-hil"
 cycle_ms = 5
+# The SIGTERM restart must continue from what the PLC holds (gateway_watchdog_hil covers ramp-out).
+on_stop = "hold"
 thermal_period_s = 0.1
 status_listen = "127.0.0.1:0"
 

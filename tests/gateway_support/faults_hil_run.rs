@@ -94,6 +94,11 @@ impl Sim {
         found.into_iter().map(Option::unwrap).collect()
     }
 
+    /// Forget the lines printed so far (so a later [`Self::wait_for`] sees only what follows).
+    pub fn drain(&self) {
+        while self.lines.try_recv().is_ok() {}
+    }
+
     /// Seconds after `t0` at which the test read hil-sim's first line starting with `prefix`,
     /// among the lines not yet consumed (so edges printed in order are found in order).
     pub fn printed_at(&self, prefix: &str, t0: Instant) -> f64 {

@@ -9,8 +9,61 @@
 //! flip and copies the strobe into the ack), so a half-written pair is never applied and every flip is
 //! exactly one latch. (An earlier version latched on the rising edge only, so every other write of a
 //! toggling client was acknowledged without being applied: found by tests/gateway_faults_hil.rs.)
+//!
+//! Optional heartbeat watchdog (`[plc.watchdog]`, the rule of docs/gateway.md): armed once the
+//! heartbeat register has changed; when it then stays unchanged for `timeout_s` the PLC trips: it
+//! stops latching the client's words and moves each applied shift towards 0 at `ramp_um_per_s`
+//! (whole counts, rounded towards 0, so it never moves faster), writing what it applies back into the
+//! shift registers each scan so a client that comes back reads what the PLC holds. A heartbeat
+//! change re-arms it (checked first in the scan, before any latch). Every change of the applied
+//! shift and every trip / re-arm / at-zero edge is an [`PlcEvent`] for the observers' log.
 
 use crate::config::{PlcConfig, WordOrder, WordType};
+
+/// What changed in a scan (for `plc_latches.csv`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PlcEventKind {
+    /// The client's words were latched and the applied shift changed.
+    Latch,
+    /// The watchdog moved the applied shift towards 0.
+    Ramp,
+    /// The heartbeat stopped for `timeout_s`: the watchdog took over.
+    Trip,
+    /// The tripped watchdog has brought every shift to 0.
+    AtZero,
+    /// The heartbeat changed again: the client's words are latched again.
+    Rearm,
+}
+
+impl PlcEventKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            PlcEventKind::Latch => "latch",
+            PlcEventKind::Ramp => "ramp",
+            PlcEventKind::Trip => "trip",
+            PlcEventKind::AtZero => "at_zero",
+            PlcEventKind::Rearm => "rearm",
+        }
+    }
+}
+
+/// One event with the applied shifts after it (counts).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PlcEvent {
+    pub kind: PlcEventKind,
+    pub shift_counts: [i64; 3],
+}
+
+#[derive(Clone, Debug, Default)]
+struct Watchdog {
+    last_heartbeat: u16,
+    armed: bool,
+    unchanged_scans: u64,
+    tripped: bool,
+    /// The ramp's exact position per axis while tripped, µm.
+    ramp_um: [f64; 3],
+    at_zero_told: bool,
+}
 
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum RegisterError {
@@ -30,6 +83,8 @@ pub struct OriginShiftPlc {
     regs: Vec<u16>,
     shift_counts: [i64; 3],
     latches: u64,
+    watchdog: Watchdog,
+    events: Vec<PlcEvent>,
 }
 
 impl OriginShiftPlc {
@@ -41,11 +96,16 @@ impl OriginShiftPlc {
                 .max(h.strobe_register as usize + 1)
                 .max(h.ack_register as usize + 1);
         }
+        if let Some(w) = &cfg.watchdog {
+            top = top.max(w.heartbeat_register as usize + 1);
+        }
         Self {
             cfg,
             regs: vec![0; top],
             shift_counts: [0; 3],
             latches: 0,
+            watchdog: Watchdog::default(),
+            events: Vec::new(),
         }
     }
 
@@ -103,8 +163,11 @@ impl OriginShiftPlc {
         encode_shift(self.cfg.word, self.cfg.word_order, counts)
     }
 
-    /// One PLC scan: latch the shift words (subject to the handshake).
+    /// One PLC scan: the watchdog first, then latch the shift words (subject to the handshake).
     pub fn scan(&mut self) {
+        if self.watchdog_scan() {
+            return;
+        }
         let latch = match &self.cfg.handshake {
             None => true,
             Some(h) => {
@@ -121,13 +184,94 @@ impl OriginShiftPlc {
             }
         };
         if latch {
+            let before = self.shift_counts;
             for axis in 0..3 {
                 let a = self.shift_register(axis) as usize;
                 self.shift_counts[axis] =
                     decode_shift(self.cfg.word, self.cfg.word_order, &self.regs[a..]);
             }
             self.latches += 1;
+            if self.shift_counts != before {
+                self.event(PlcEventKind::Latch);
+            }
         }
+    }
+
+    fn event(&mut self, kind: PlcEventKind) {
+        self.events.push(PlcEvent {
+            kind,
+            shift_counts: self.shift_counts,
+        });
+    }
+
+    /// The watchdog's part of a scan; true while tripped (the scan latches nothing then).
+    fn watchdog_scan(&mut self) -> bool {
+        let Some(cfg) = self.cfg.watchdog.clone() else {
+            return false;
+        };
+        let hb = self.regs[cfg.heartbeat_register as usize];
+        let timeout_scans = (cfg.timeout_s / self.cfg.scan_s - 1e-9).ceil().max(1.0) as u64;
+        let w = &mut self.watchdog;
+        if hb != w.last_heartbeat {
+            w.last_heartbeat = hb;
+            w.armed = true;
+            w.unchanged_scans = 0;
+            if w.tripped {
+                w.tripped = false;
+                self.event(PlcEventKind::Rearm);
+            }
+            return false;
+        }
+        if !w.armed {
+            return false;
+        }
+        w.unchanged_scans += 1;
+        if !w.tripped {
+            if w.unchanged_scans < timeout_scans {
+                return false;
+            }
+            w.tripped = true;
+            w.at_zero_told = false;
+            w.ramp_um = self.shift_counts.map(|c| c as f64 * self.cfg.lsb_um);
+            self.event(PlcEventKind::Trip);
+        }
+        let step_um = cfg.ramp_um_per_s * self.cfg.scan_s;
+        let before = self.shift_counts;
+        for axis in 0..3 {
+            let r = &mut self.watchdog.ramp_um[axis];
+            *r = if r.abs() <= step_um {
+                0.0
+            } else {
+                *r - step_um * r.signum()
+            };
+            // Towards 0: the applied shift never runs ahead of the ramp.
+            self.shift_counts[axis] = (*r / self.cfg.lsb_um).trunc() as i64;
+        }
+        // The shift registers hold what is applied: a client that comes back reads it.
+        for axis in 0..3 {
+            let a = self.shift_register(axis) as usize;
+            let words = encode_shift(self.cfg.word, self.cfg.word_order, self.shift_counts[axis])
+                .expect("a ramp towards 0 stays in the register's range");
+            self.regs[a..a + words.len()].copy_from_slice(&words);
+        }
+        if self.shift_counts != before {
+            self.event(PlcEventKind::Ramp);
+        }
+        if self.shift_counts == [0; 3] && !self.watchdog.at_zero_told {
+            self.watchdog.at_zero_told = true;
+            self.event(PlcEventKind::AtZero);
+        }
+        true
+    }
+
+    /// True while the watchdog has taken the shifts over.
+    pub fn watchdog_tripped(&self) -> bool {
+        self.watchdog.tripped
+    }
+
+    /// The events since the last call.
+    pub fn take_events(&mut self) -> Vec<PlcEvent> {
+        std::mem::take(&mut self.events)
     }
 
     /// Applied (latched) shift of an axis.
@@ -254,6 +398,79 @@ mod tests {
             plc.write(16, &[0, 0]),
             Err(RegisterError::OutOfWindow { .. })
         ));
+    }
+
+    #[test]
+    fn the_watchdog_ramps_out_at_its_rate_and_rearms_on_a_heartbeat_change() {
+        use crate::config::WatchdogConfig;
+        // 10 ms scans, 0.5 µm counts, trip after 50 ms, ramp 20 µm/s = 0.2 µm per scan.
+        let cfg = PlcConfig {
+            word: WordType::Int32,
+            lsb_um: 0.5,
+            watchdog: Some(WatchdogConfig {
+                heartbeat_register: 6,
+                timeout_s: 0.05,
+                ramp_um_per_s: 20.0,
+            }),
+            ..Default::default()
+        };
+        let mut plc = OriginShiftPlc::new(cfg);
+        assert_eq!(plc.len(), 7);
+        for _ in 0..20 {
+            plc.scan();
+        }
+        assert!(
+            !plc.watchdog_tripped(),
+            "not armed before the first heartbeat"
+        );
+        plc.write(0, &plc.encode(20).unwrap()).unwrap(); // x = 10 µm
+        plc.write(4, &plc.encode(-3).unwrap()).unwrap(); // z = -1.5 µm
+        plc.write(6, &[1]).unwrap();
+        plc.scan();
+        assert_eq!(plc.shift_um(0), 10.0);
+        assert_eq!(plc.take_events()[0].kind, PlcEventKind::Latch);
+        for _ in 0..4 {
+            plc.scan();
+        }
+        assert!(!plc.watchdog_tripped(), "4 unchanged scans < 50 ms");
+        plc.scan();
+        assert!(plc.watchdog_tripped());
+        // A client write while tripped is not latched and is overwritten.
+        plc.write(0, &plc.encode(80).unwrap()).unwrap();
+        let mut scans = 1;
+        let mut last = plc.shift_um(0);
+        while plc.shift_counts() != [0; 3] {
+            plc.scan();
+            scans += 1;
+            let now = plc.shift_um(0);
+            assert!(now <= last && last - now <= 0.5, "{last} → {now}");
+            assert_eq!(
+                decode_shift(WordType::Int32, WordOrder::HiLo, plc.read(0, 2).unwrap()) as f64
+                    * 0.5,
+                now,
+                "registers hold what is applied"
+            );
+            last = now;
+            assert!(scans < 100);
+        }
+        // 10 µm at 0.2 µm per scan: below one count (0.5 µm) after 48 scans.
+        assert!((47..=49).contains(&scans), "{scans} scans");
+        let kinds: Vec<PlcEventKind> = plc.take_events().iter().map(|e| e.kind).collect();
+        assert_eq!(kinds.first(), Some(&PlcEventKind::Trip));
+        assert_eq!(kinds.last(), Some(&PlcEventKind::AtZero));
+        let ramps = kinds.iter().filter(|k| **k == PlcEventKind::Ramp).count();
+        assert!(
+            (20..=23).contains(&ramps),
+            "x alone steps 20 counts: {ramps}"
+        );
+        // The heartbeat changes: re-armed in that scan, and the words (now the PLC's 0) latched.
+        plc.write(6, &[2]).unwrap();
+        plc.write(0, &plc.encode(1).unwrap()).unwrap();
+        plc.scan();
+        assert!(!plc.watchdog_tripped());
+        assert_eq!(plc.take_events()[0].kind, PlcEventKind::Rearm);
+        plc.scan();
+        assert_eq!(plc.shift_um(0), 0.5);
     }
 
     #[test]

@@ -5,6 +5,12 @@
 //! goes down and comes back, the RTU slave goes mute and answers again ([`super::rtu_slave`]), a CAN
 //! node's frames are dropped, garbage goes on the weighing pty. Each
 //! fault's start and clear is printed once on stderr (`hil-sim: fault modbus_down started at t = 4.000 s`).
+//!
+//! The PLC's scan runs on the register image under its lock ([`RegisterBank::update_holding`]): client
+//! words in, step, the PLC's words (ack; the shifts while its watchdog has tripped) out, with no
+//! client write in between. Every change of the applied shift and every watchdog edge goes to
+//! `plc_latches.csv` (`t_s,event,x_um,y_um,z_um`: latch | ramp | trip | at_zero | rearm, shifts after
+//! it in µm); the watchdog's edges are also printed (`hil-sim: plc watchdog trip at t = …`).
 
 use super::plc_server::{PlcServer, SimClock, WriteEvent};
 use super::publish::Publisher;
@@ -119,6 +125,35 @@ async fn apply_transport_faults(
     Ok(())
 }
 
+/// Log the PLC's events of the last step (stamped with the simulated time after it); print the
+/// watchdog's edges.
+fn log_plc_events(
+    world: &mut World,
+    csv: Option<&mut std::io::BufWriter<std::fs::File>>,
+) -> anyhow::Result<()> {
+    use crate::controller::plc::PlcEventKind;
+    let events = world.plc_mut().take_events();
+    if events.is_empty() {
+        return Ok(());
+    }
+    let (t, lsb) = (world.t_s(), world.plc().config().lsb_um);
+    let mut csv = csv;
+    for e in events {
+        let [x, y, z] = e.shift_counts.map(|c| c as f64 * lsb);
+        if !matches!(e.kind, PlcEventKind::Latch | PlcEventKind::Ramp) {
+            eprintln!(
+                "hil-sim: plc watchdog {} at t = {t:.3} s, applied [{x}, {y}, {z}] µm",
+                e.kind.name()
+            );
+        }
+        if let Some(f) = csv.as_deref_mut() {
+            let row = format!("{t:.4},{},{x},{y},{z}\n", e.kind.name());
+            std::io::Write::write_all(f, row.as_bytes())?;
+        }
+    }
+    Ok(())
+}
+
 /// Start the simulation and its buses. `mem` is the in-process CAN bus for `backend = "mem"`;
 /// `out` optionally receives recording.csv + manifest.json.
 pub async fn start(
@@ -203,6 +238,15 @@ pub async fn start(
         None => None,
     };
     // Every client write to the PLC window, for observers (tests assert clamp/cap/no-jump on it).
+    let mut latches_csv = match out {
+        Some(dir) => {
+            let mut f =
+                std::io::BufWriter::new(std::fs::File::create(dir.join("plc_latches.csv"))?);
+            std::io::Write::write_all(&mut f, b"t_s,event,x_um,y_um,z_um\n")?;
+            Some(f)
+        }
+        None => None,
+    };
     let mut writes_csv = match (out, &tcp) {
         (Some(dir), Some(_)) => {
             let mut f = std::io::BufWriter::new(std::fs::File::create(dir.join("plc_writes.csv"))?);
@@ -233,23 +277,28 @@ pub async fn start(
                     continue;
                 }
                 for _ in 0..due.min(500) {
-                    // Client writes → PLC window (the ack register belongs to the PLC).
-                    if let Some(mut words) = bank.holding(0, n) {
+                    // Client writes → PLC window (the ack register belongs to the PLC), step, the
+                    // PLC's window → image: one critical section, like a PLC's scan.
+                    bank.update_holding(0, n, |words| -> anyhow::Result<()> {
                         if let Some(a) = ack {
                             words[a as usize] = world.plc().read(a, 1)?[0];
                         }
-                        world.plc_mut().write(0, &words)?;
-                    }
-                    world.tick();
+                        world.plc_mut().write(0, words)?;
+                        world.tick();
+                        words.copy_from_slice(world.plc().read(0, n as usize)?);
+                        Ok(())
+                    })
+                    .unwrap_or_else(|| {
+                        world.tick();
+                        Ok(())
+                    })?;
                     steps += 1;
                     clock.set(world.t_s());
+                    log_plc_events(&mut world, latches_csv.as_mut())?;
                     let (active, changes) = schedule.advance(world.t_s());
                     if !changes.is_empty() {
                         apply_transport_faults(&changes, &active, tcp.as_mut(), rtu_mute.as_ref())
                             .await?;
-                    }
-                    if let Some(a) = ack {
-                        bank.set_holding(a, world.plc().read(a, 1)?);
                     }
                     if let (Some(r), true) = (rec.as_mut(), world.sampled()) {
                         r.write(world.readings())?;
@@ -304,6 +353,9 @@ pub async fn start(
                 r.finish()?;
             }
             if let Some(mut f) = writes_csv {
+                std::io::Write::flush(&mut f)?;
+            }
+            if let Some(mut f) = latches_csv {
                 std::io::Write::flush(&mut f)?;
             }
             Ok(steps)

@@ -81,6 +81,23 @@ impl RegisterBank {
         read(&self.lock().holding, addr, count).ok()
     }
 
+    /// Read `count` holding registers, let `f` change them, write them back, all under one lock (a
+    /// device's scan: no client write lands between its read and its write-back).
+    pub fn update_holding<R>(
+        &self,
+        addr: u16,
+        count: u16,
+        f: impl FnOnce(&mut [u16]) -> R,
+    ) -> Option<R> {
+        let mut im = self.lock();
+        let mut words = read(&im.holding, addr, count).ok()?;
+        let r = f(&mut words);
+        for (i, w) in words.iter().enumerate() {
+            im.holding.insert(addr.wrapping_add(i as u16), *w);
+        }
+        Some(r)
+    }
+
     pub fn input(&self, addr: u16, count: u16) -> Option<Vec<u16>> {
         read(&self.lock().input, addr, count).ok()
     }
