@@ -203,8 +203,19 @@ pub async fn run(
         if ramp_out {
             let max_s = cfg.gateway.stop_ramp_max_s;
             let _ = stop_tx.send(Some(max_s));
-            // The task returns by itself within max_s (+ one period's requests).
-            let _ = tokio::time::timeout(Duration::from_secs_f64(max_s + 2.0), &mut t).await;
+            // The task returns by itself within max_s (+ one period's requests). Meanwhile the
+            // stop is progress: keep the service manager's watchdog fed (WatchdogSec < the ramp).
+            let until = tokio::time::sleep(Duration::from_secs_f64(max_s + 2.0));
+            tokio::pin!(until);
+            let mut alive = tokio::time::interval(Duration::from_millis(100));
+            let mut n = summary.cycles;
+            loop {
+                tokio::select! {
+                    _ = &mut t => break,
+                    _ = &mut until => break,
+                    _ = alive.tick() => { n += 1; cycle_counter.set(n); }
+                }
+            }
         }
         t.abort();
     }
