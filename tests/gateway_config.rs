@@ -186,6 +186,67 @@ fn unsafe_sink_configs_are_refused_with_file_line_and_key() {
 }
 
 #[test]
+fn the_client_heartbeat_is_checked_like_the_other_map_addresses() {
+    let map = |keys: &str| format!("[sink.origin_shift.map]\n{keys}\n{X_REG}");
+    let ok = with_sink(
+        "",
+        &map("heartbeat_address = 4\nheartbeat_timeout_ms = 500"),
+    );
+    let cfg = parse(&ok).unwrap();
+    let m = &cfg.sink.origin_shift.as_ref().unwrap().map;
+    assert_eq!(
+        (m.heartbeat_address, m.heartbeat_timeout_ms),
+        (Some(4), Some(500))
+    );
+
+    // Inside x's int32 (0..2): refused at the heartbeat's line, under its key.
+    let text = with_sink(
+        "",
+        &map("heartbeat_address = 1\nheartbeat_timeout_ms = 500"),
+    );
+    let msg = refused(&text);
+    let line = line_of(&text, "heartbeat_address");
+    assert!(
+        msg.starts_with(&format!(
+            "field.toml:{line}: key `sink.origin_shift.map.heartbeat_address`"
+        )) && msg.contains("overlap"),
+        "{msg}"
+    );
+    // The controller's timeout is required, and must leave a live box 3 write periods.
+    let msg = refused(&with_sink("", &map("heartbeat_address = 4")));
+    assert!(
+        msg.contains("`sink.origin_shift.map.heartbeat_timeout_ms`"),
+        "{msg}"
+    );
+    let text = with_sink(
+        "write_period_ms = 50",
+        &map("heartbeat_address = 4\nheartbeat_timeout_ms = 100"),
+    );
+    let msg = refused(&text);
+    assert!(
+        msg.contains("heartbeat_timeout_ms") && msg.contains("expected 150..=60000"),
+        "{msg}"
+    );
+
+    // The stop policy: ramp out by default, bounded.
+    assert_eq!(
+        cfg.gateway.on_stop,
+        retrocomp::gateway::config::OnStop::RampOut
+    );
+    let text = ok.replace(
+        "[gateway]\n",
+        "[gateway]\non_stop = \"hold\"\nstop_ramp_max_s = 0.0\n",
+    );
+    let msg = refused(&text);
+    let line = line_of(&text, "stop_ramp_max_s");
+    assert!(
+        msg.starts_with(&format!("field.toml:{line}: key `gateway.stop_ramp_max_s`")),
+        "{msg}"
+    );
+    assert!(parse(&ok.replace("[gateway]\n", "[gateway]\non_stop = \"sideways\"\n")).is_err());
+}
+
+#[test]
 fn absurd_limits_are_refused_with_their_key_and_line() {
     let text = BASE.replace("max_correction_um = 50.0", "max_correction_um = 50000.0");
     let msg = refused(&text);
