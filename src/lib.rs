@@ -4,6 +4,7 @@
 pub mod analysis;
 pub mod bus;
 pub mod cli;
+pub mod decimal;
 pub mod diagnose;
 pub mod gateway;
 pub mod models;

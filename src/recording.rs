@@ -353,6 +353,8 @@ pub struct RecordingWriter<W: Write> {
     last_t: f64,
     rows: u64,
     names: Vec<String>,
+    /// One cell's text, reused: no allocation per row.
+    cell: Vec<u8>,
 }
 
 impl<W: Write> RecordingWriter<W> {
@@ -373,6 +375,7 @@ impl<W: Write> RecordingWriter<W> {
             last_t: f64::NEG_INFINITY,
             rows: 0,
             names,
+            cell: Vec::with_capacity(32),
         })
     }
 
@@ -399,10 +402,13 @@ impl<W: Write> RecordingWriter<W> {
         }
         self.last_t = row[self.t_idx];
         // `{}` on f64 prints the shortest string that parses back to the same value: lossless round trip.
-        let cells: Vec<String> = row.iter().map(|v| format!("{v}")).collect();
-        self.w
-            .write_record(&cells)
-            .map_err(|e| RecordingError::Write(e.to_string()))?;
+        let err = |e: csv::Error| RecordingError::Write(e.to_string());
+        for v in row {
+            self.cell.clear();
+            write!(self.cell, "{v}").map_err(|e| RecordingError::Write(e.to_string()))?;
+            self.w.write_field(&self.cell).map_err(err)?;
+        }
+        self.w.write_record(None::<&[u8]>).map_err(err)?;
         self.rows += 1;
         Ok(())
     }

@@ -17,19 +17,25 @@ use std::io::Write;
 
 pub struct Recorder<W: Write> {
     csv: csv::Writer<W>,
-    run: Option<i64>,
+    cell: Vec<u8>,
+    /// The `run` label, formatted once: it is the same on every row.
+    run: Option<String>,
     shift_columns: bool,
     tool_mm: f64,
     columns: usize,
     rows: u64,
 }
 
-fn num(v: f64) -> String {
+/// One cell, formatted into `cell` (reused: no allocation per row). `NaN` for a NaN fault.
+fn num(cell: &mut Vec<u8>, v: f64) -> &[u8] {
+    cell.clear();
     if v.is_nan() {
-        "NaN".into()
+        cell.extend_from_slice(b"NaN");
     } else {
-        format!("{v}")
+        // Writing into a Vec cannot fail.
+        let _ = write!(cell, "{v}");
     }
+    cell
 }
 
 impl<W: Write> Recorder<W> {
@@ -67,7 +73,8 @@ impl<W: Write> Recorder<W> {
         csv.write_record(&h)?;
         Ok(Self {
             csv,
-            run: cfg.record.run,
+            cell: Vec::with_capacity(32),
+            run: cfg.record.run.map(|r| r.to_string()),
             shift_columns: cfg.record.shift_columns,
             tool_mm: cfg.program.tool_mm,
             columns: h.len(),
@@ -76,28 +83,49 @@ impl<W: Write> Recorder<W> {
     }
 
     pub fn write(&mut self, r: &Readings) -> anyhow::Result<()> {
-        let mut row = Vec::with_capacity(self.columns);
-        row.push(format!("{:.6}", r.t_s));
-        row.extend(r.nominal_mm.iter().map(|v| num(*v)));
-        row.extend(r.error_um.iter().map(|v| num(*v)));
-        row.extend(r.sim_error_um.iter().map(|v| num(*v)));
-        let cell = |v: Option<f64>| v.map(num).unwrap_or_default();
-        row.extend(r.temps.iter().map(|c| cell(c.value)));
-        row.push(num(r.rpm));
-        row.extend(r.force.iter().map(|c| cell(c.value)));
-        row.extend(r.strains.iter().map(|c| cell(c.value)));
-        row.push(num(self.tool_mm));
-        if let Some(run) = self.run {
-            row.push(run.to_string());
+        let (csv, cell) = (&mut self.csv, &mut self.cell);
+        let mut n = 0usize;
+        let mut put = |bytes: &[u8]| -> csv::Result<()> {
+            n += 1;
+            csv.write_field(bytes)
+        };
+        cell.clear();
+        write!(cell, "{:.6}", r.t_s)?;
+        put(cell)?;
+        let plain = r
+            .nominal_mm
+            .iter()
+            .chain(&r.error_um)
+            .chain(&r.sim_error_um);
+        for v in plain {
+            put(num(cell, *v))?;
+        }
+        // A dropped-out sensor is an empty cell.
+        let mut opt = |v: Option<f64>, put: &mut dyn FnMut(&[u8]) -> csv::Result<()>| match v {
+            Some(v) => put(num(cell, v)),
+            None => put(b""),
+        };
+        for c in &r.temps {
+            opt(c.value, &mut put)?;
+        }
+        opt(Some(r.rpm), &mut put)?;
+        for c in r.force.iter().chain(&r.strains) {
+            opt(c.value, &mut put)?;
+        }
+        opt(Some(self.tool_mm), &mut put)?;
+        if let Some(run) = &self.run {
+            put(run.as_bytes())?;
         }
         if self.shift_columns {
-            row.extend(r.correction_um.iter().map(|v| num(*v)));
+            for v in &r.correction_um {
+                opt(Some(*v), &mut put)?;
+            }
         }
         anyhow::ensure!(
-            row.len() == self.columns,
+            n == self.columns,
             "recording: channel layout changed mid-run"
         );
-        self.csv.write_record(&row)?;
+        self.csv.write_record(None::<&[u8]>)?;
         self.rows += 1;
         Ok(())
     }

@@ -1,0 +1,132 @@
+//! `retrocomp eval` streams (issue 14.5): memory stays bounded whatever the recording's length, and
+//! the streamed output is the model's evaluation row by row.
+//!
+//! The recording is the real FL_THERMAL file (`tests/data/fl_thermal/`, MIT) tiled with time
+//! continuing, evaluated by the fixed thermal model of the pandas side by side
+//! (`benches/data/eval_thermal_model.toml`: a ΔT polynomial plus a first-order lag, both on EZZ).
+//! Peak memory is the child's own `ru_maxrss` from `wait4`: it does not depend on how fast this
+//! machine is. Holding every row, as `eval` did, took ≈ 865 bytes a row (865 MB for 10⁶).
+
+use std::io::Write as _;
+use std::path::Path;
+use std::process::{Command, Stdio};
+
+use retrocomp::models::MachineModel;
+
+const MODEL: &str = "benches/data/eval_thermal_model.toml";
+const SOURCE: &str = "tests/data/fl_thermal/fl_thermal_dev.csv";
+
+/// `rows` rows of the FL recording repeated, `t_s` continuing at its 15 s step.
+fn tiled_recording(path: &Path, rows: usize) {
+    let text = std::fs::read_to_string(SOURCE).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap();
+    let body: Vec<&str> = lines.collect();
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    writeln!(out, "{header}").unwrap();
+    for i in 0..rows {
+        let line = body[i % body.len()];
+        let rest = &line[line.find(',').unwrap()..];
+        writeln!(out, "{}{rest}", i * 15).unwrap();
+    }
+    out.flush().unwrap();
+}
+
+/// Run `retrocomp eval` with stdout into `out`; return its exit status and peak RSS in MiB.
+fn eval_peak_rss_mib(input: &Path, out: &Path) -> (i32, f64) {
+    let child = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .args(["eval", "--model", MODEL, "--path"])
+        .arg(input)
+        .stdout(Stdio::from(std::fs::File::create(out).unwrap()))
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap();
+    let pid = child.id() as libc::pid_t;
+    let mut status = 0;
+    // SAFETY: plain FFI; `usage` is a valid out-pointer and the child is ours (std will not reap it:
+    // `child` is dropped without wait, which neither waits nor kills).
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let got = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+    assert_eq!(got, pid, "wait4: {}", std::io::Error::last_os_error());
+    drop(child);
+    let code = if libc::WIFEXITED(status) {
+        libc::WEXITSTATUS(status)
+    } else {
+        -1
+    };
+    (code, usage.ru_maxrss as f64 / 1024.0)
+}
+
+#[test]
+fn eval_of_200k_rows_streams_in_bounded_memory_and_matches_the_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let (input, out) = (dir.path().join("rec.csv"), dir.path().join("out.csv"));
+    let rows = 200_000;
+    tiled_recording(&input, rows);
+    let (code, rss_mib) = eval_peak_rss_mib(&input, &out);
+    assert_eq!(code, 0, "retrocomp eval failed");
+    println!("eval of {rows} rows: peak RSS {rss_mib:.1} MiB");
+    // Holding the rows would need ≈ 165 MiB here; streaming needs the binary and a few buffers.
+    assert!(
+        rss_mib < 64.0,
+        "peak RSS {rss_mib:.1} MiB for {rows} rows: eval is not streaming"
+    );
+
+    // Every row is there, and a sample of them equals the library's evaluation run forward in time
+    // (the lag state carries from row to row, so each checked row needs all rows before it).
+    let model = MachineModel::from_toml_path(Path::new(MODEL)).unwrap();
+    let mut rdr = csv::Reader::from_path(&out).unwrap();
+    let h = rdr.headers().unwrap().clone();
+    let col = |n: &str| h.iter().position(|c| c == n).unwrap();
+    let (ez, t, flags) = (col("ez_um"), col("t_s"), col("flags"));
+    let temps: Vec<usize> = model.sensor_columns().iter().map(|n| col(n)).collect();
+    let mut state = model.new_state();
+    let mut bd = model.new_breakdown();
+    let mut input_row = model.new_input();
+    let mut n = 0usize;
+    let mut worst = 0.0f64;
+    for rec in rdr.records() {
+        let rec = rec.unwrap();
+        input_row.t_s = rec[t].parse().unwrap();
+        for (i, c) in temps.iter().enumerate() {
+            input_row.temps_c[i] = rec[*c].parse().unwrap();
+        }
+        model.evaluate(&input_row, &mut state, &mut bd);
+        let streamed: f64 = rec[ez].parse().unwrap();
+        worst = worst.max((streamed - bd.total_um[2]).abs());
+        assert_eq!(&rec[flags], "", "no flag on a complete row");
+        n += 1;
+    }
+    assert_eq!(n, rows, "every input row is in the output");
+    assert!(
+        worst <= 5e-7,
+        "streamed ez_um differs from the model by {worst} µm"
+    );
+}
+
+#[test]
+fn a_bad_row_deep_in_the_file_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("rec.csv");
+    tiled_recording(&input, 20_000);
+    // Spoil one temperature on line 15 001 (row 15 000 after the header).
+    let text = std::fs::read_to_string(&input).unwrap();
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let cells: Vec<&str> = lines[15_000].split(',').collect();
+    let mut cells: Vec<String> = cells.into_iter().map(String::from).collect();
+    cells[5] = "warm".into(); // T_4_C, read by the model
+    lines[15_000] = cells.join(",");
+    std::fs::write(&input, lines.join("\n") + "\n").unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .args(["eval", "--model", MODEL, "--path"])
+        .arg(&input)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(o.stdout.is_empty(), "nothing is written when a row is bad");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains(":15001: column T_4_C: expected a finite number, found \"warm\""),
+        "{err}"
+    );
+}
