@@ -42,3 +42,35 @@ fn every_kept_input_passes_its_check() {
     }
     eprintln!("{} kept inputs replayed", ran.len());
 }
+
+/// The plane-model target parses in memory (no file per input): its seed must load through that
+/// path and give the same model as `retrocomp nc --plane-model`'s file loader on the same tables.
+#[test]
+fn plane_model_target_parses_like_the_file_loader() {
+    use retrocomp::analysis::nc::ErrorFunction;
+    use retrocomp::analysis::table::Direction;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let seed = std::fs::read(root.join("tests/fuzz_corpus/plane_model/asadullah")).unwrap();
+    let mem = fuzz_checks::plane_model_parse(&seed).expect("the seed loads from memory");
+    let text = String::from_utf8(seed).unwrap();
+    let parts: Vec<&str> = text.splitn(3, "\n%%\n").collect();
+    let dir = tempfile::tempdir().unwrap();
+    for (name, body) in ["plane.toml", "a.csv", "b.csv"].iter().zip(&parts) {
+        std::fs::write(dir.path().join(name), body).unwrap();
+    }
+    let file = retrocomp::cli::nc::load_plane_model(&dir.path().join("plane.toml")).unwrap();
+    let mut compared = 0;
+    for z in [0.0, 40.0, 170.0] {
+        for x in [0.0, 20.0, 85.0] {
+            for d in [Direction::Forward, Direction::Reverse] {
+                let a = mem.error_um([x, 0.0, z], [d; 3]);
+                assert_eq!(a, file.error_um([x, 0.0, z], [d; 3]), "x {x} z {z}");
+                compared += usize::from(a.is_some());
+            }
+        }
+    }
+    assert!(
+        compared > 0,
+        "the model must be defined somewhere on the grid"
+    );
+}

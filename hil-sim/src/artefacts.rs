@@ -47,9 +47,14 @@ impl Default for Metrology {
 }
 
 /// Where a plate goes: plate (0, 0) at `origin_mm`, holes `n[0]`×`n[1]` at `pitch_mm` along u, v.
+/// One measurement (one CSV); two measurements of one `placement` with different probes share the
+/// plate's pose and temperature (the plate stays put while the probe is changed), not the noise.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PlatePlacement {
+    /// The measurement's name (the CSV's stem).
     pub name: String,
+    /// The physical placement: its pose and temperatures are drawn from this name's stream.
+    pub placement: String,
     pub plane: Plane,
     pub origin_mm: [f64; 3],
     pub tool_mm: f64,
@@ -76,6 +81,7 @@ fn plate(
 ) -> PlatePlacement {
     PlatePlacement {
         name: name.into(),
+        placement: name.into(),
         plane,
         origin_mm: o,
         tool_mm: tool,
@@ -84,73 +90,51 @@ fn plate(
     }
 }
 
-/// Spaan's plan on an 800 × 500 × 500 mm mill: six identification plates, two per plane over the
-/// same footprint (x 130–670, y and z 50–410), each pair at two places across its plane and with
-/// two probe lengths (100/200 mm, Spaan's two probe configurations), so every rotation's Abbe arm
-/// changes while its axis moves; five verification plates at other places and with probe lengths
-/// outside the identification's (50 and 300 mm). (A pair at one place with two probes was tried:
-/// it leaves the table roll EAX and Y pitch EBY to a combination the plates cannot see, and the
-/// verification on plates elsewhere drops by up to 4 %.)
+/// The two probe configurations of the identification plates, mm along the tool axis.
+pub const ID_PROBES_MM: [f64; 2] = [50.0, 300.0];
+/// The probe lengths of the verification plates: a short and a long one, outside `ID_PROBES_MM`.
+pub const VERIFY_PROBES_MM: [f64; 2] = [25.0, 400.0];
+
+/// Spaan's plan on an 800 × 500 × 500 mm mill: six placements, two per plane over the same footprint
+/// (x 130–670, y and z 50–410) at two places across the plane, each probed with two probe
+/// configurations (50 and 300 mm: Spaan's "6 placements, 2 probe configurations", 20 min per plate
+/// and 4–6 h in all) — twelve measurements. Why both probes on every placement: a plate sees only
+/// what is not a rigid in-plane motion, and with one probe per placement a combination of linear
+/// table roll EAX, Y pitch EBY, Z pitch EBZ and squareness EB0Z stays rigid on all six (it is
+/// rigid on an XZ plate whose (y, probe length) lies on the line through the two identification
+/// XZ plates'); the model then guesses it and verification plates off that line with other probes
+/// fall behind the true model (0.04–0.2 in efficiency). Four (y, probe) pairs on XZ pin it. The
+/// second probe on every placement also quadruples the Z roll EAZ's Abbe signal on the YZ plates
+/// (250 mm arm difference instead of 100 mm): it was 3.6 µrad off with 100/200 mm probes, all of
+/// it noise (0.00 µrad without noise). Five verification plates at other places with probe lengths
+/// outside the identification's (25 and 400 mm), so the Abbe terms must extrapolate.
 pub fn spaan_plates() -> (Vec<PlatePlacement>, Vec<PlatePlacement>) {
     use Plane::*;
     let (wide, square) = ([10, 10], [10, 10]);
-    let id = vec![
-        plate(
-            "id_xy_low",
-            Xy,
-            [130.0, 50.0, 50.0],
-            100.0,
-            wide,
-            [60.0, 40.0],
-        ),
-        plate(
-            "id_xy_high",
-            Xy,
-            [130.0, 50.0, 300.0],
-            200.0,
-            wide,
-            [60.0, 40.0],
-        ),
-        plate(
-            "id_xz_front",
-            Xz,
-            [130.0, 100.0, 50.0],
-            100.0,
-            wide,
-            [60.0, 40.0],
-        ),
-        plate(
-            "id_xz_back",
-            Xz,
-            [130.0, 350.0, 50.0],
-            200.0,
-            wide,
-            [60.0, 40.0],
-        ),
-        plate(
-            "id_yz_left",
-            Yz,
-            [150.0, 50.0, 50.0],
-            100.0,
-            square,
-            [40.0, 40.0],
-        ),
-        plate(
-            "id_yz_right",
-            Yz,
-            [600.0, 50.0, 50.0],
-            200.0,
-            square,
-            [40.0, 40.0],
-        ),
+    let places = [
+        ("id_xy_low", Xy, [130.0, 50.0, 50.0], wide, [60.0, 40.0]),
+        ("id_xy_high", Xy, [130.0, 50.0, 300.0], wide, [60.0, 40.0]),
+        ("id_xz_front", Xz, [130.0, 100.0, 50.0], wide, [60.0, 40.0]),
+        ("id_xz_back", Xz, [130.0, 350.0, 50.0], wide, [60.0, 40.0]),
+        ("id_yz_left", Yz, [150.0, 50.0, 50.0], square, [40.0, 40.0]),
+        ("id_yz_right", Yz, [600.0, 50.0, 50.0], square, [40.0, 40.0]),
     ];
-    // Probe lengths outside the identification's 100/200 mm, so the Abbe terms must extrapolate.
+    let id = places
+        .iter()
+        .flat_map(|&(name, plane, o, n, pitch)| {
+            ID_PROBES_MM.map(|t| PlatePlacement {
+                name: format!("{name}_t{t:.0}"),
+                ..plate(name, plane, o, t, n, pitch)
+            })
+        })
+        .collect();
+    // Probe lengths outside the identification's, so the Abbe terms must extrapolate.
     let verify = vec![
         plate(
             "v_xy",
             Xy,
             [220.0, 50.0, 150.0],
-            300.0,
+            VERIFY_PROBES_MM[1],
             square,
             [40.0, 40.0],
         ),
@@ -158,7 +142,7 @@ pub fn spaan_plates() -> (Vec<PlatePlacement>, Vec<PlatePlacement>) {
             "v_xz_short",
             Xz,
             [300.0, 250.0, 120.0],
-            50.0,
+            VERIFY_PROBES_MM[0],
             square,
             [30.0, 30.0],
         ),
@@ -166,7 +150,7 @@ pub fn spaan_plates() -> (Vec<PlatePlacement>, Vec<PlatePlacement>) {
             "v_xz_long",
             Xz,
             [150.0, 200.0, 50.0],
-            300.0,
+            VERIFY_PROBES_MM[1],
             wide,
             [55.0, 40.0],
         ),
@@ -174,7 +158,7 @@ pub fn spaan_plates() -> (Vec<PlatePlacement>, Vec<PlatePlacement>) {
             "v_yz_left",
             Yz,
             [250.0, 50.0, 50.0],
-            300.0,
+            VERIFY_PROBES_MM[1],
             square,
             [40.0, 40.0],
         ),
@@ -182,7 +166,7 @@ pub fn spaan_plates() -> (Vec<PlatePlacement>, Vec<PlatePlacement>) {
             "v_yz_right",
             Yz,
             [650.0, 50.0, 50.0],
-            50.0,
+            VERIFY_PROBES_MM[0],
             square,
             [40.0, 40.0],
         ),
@@ -260,7 +244,7 @@ pub fn measure_plate(
     m: &Metrology,
     seed: u64,
 ) -> HolePlate {
-    let mut rng = Noise::new(seed, &format!("artefact/{}", pl.name));
+    let mut rng = Noise::new(seed, &format!("artefact/{}", pl.placement));
     let mut u = |lo: f64, hi: f64| lo + (hi - lo) * rng.uniform();
     let shift = [u(-2.0, 2.0), u(-2.0, 2.0)];
     let th = u(-3e-3, 3e-3);

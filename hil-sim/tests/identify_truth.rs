@@ -4,6 +4,9 @@
 //! Also: every identifiable component against the truth, and two crippled models (no rotation /
 //! Abbe terms; probe length ignored) that must miss the targets.
 //!
+//! The plan (`hil_sim::artefacts::spaan_plates`): six placements, two per plane, each probed with
+//! two probes (50 and 300 mm); verification plates with 25 and 400 mm probes.
+//!
 //! Deterministic (seeded hil-sim metrology); no timing. Run with `--nocapture` for the tables.
 
 use hil_sim::artefacts::{Measured, Metrology, measure_all};
@@ -141,9 +144,9 @@ fn check_machine(name: &str, plates: bool, seed: u64, opts: &Options) -> Outcome
     };
     let want = verify_all(&truth, &meas);
     let label = format!(
-        "{name} from {} (rotations {}, probe length {})",
+        "{name} from {} (seed {seed}, rotations {}, probe length {})",
         if plates {
-            "6 hole plates"
+            "12 hole-plate measurements"
         } else {
             "8 ball-bar spheres"
         },
@@ -182,21 +185,23 @@ fn hole_plates_on_the_old_machine() {
         o.shortfall
     );
     assert!(o.min_eff >= 0.90, "min efficiency {:.3} < 0.90", o.min_eff);
-    // Within 2 µm / 2 µrad, except Z roll EAZ: seen only through the probe length on the two YZ
-    // plates, it misses by 3.6 µrad (a known shortfall of this plan, reported in the README).
+    // Every identifiable component within 2 µm / 2 µrad of the truth (measured ≤ 0.6; the Z roll
+    // EAZ 0.5 µrad, 3.6 before every placement was probed with both probes).
     for (n, e, ok) in &o.errs {
-        let limit = if n == "EAZ" { 4.0 } else { 2.0 };
         if *ok {
-            assert!(*e <= limit, "{n} off the truth by {e:.2} (limit {limit})");
+            assert!(*e <= 2.0, "{n} off the truth by {e:.2} (limit 2)");
         }
     }
-    // ECY and ECZ have no Abbe arm with the tool along Z: named, not guessed.
-    for n in ["ECY", "ECZ"] {
-        assert!(
-            o.errs.iter().any(|(c, _, ok)| c == n && !ok),
-            "{n} must be unidentifiable"
-        );
-    }
+    // ECY and ECZ have no Abbe arm with the tool along Z: named, not guessed. Everything else —
+    // including table roll EAX, Y pitch EBY and Z pitch EBZ, which one probe per placement left to
+    // a combination the plates could not see — is identified.
+    let unseen: Vec<&str> = o
+        .errs
+        .iter()
+        .filter(|(_, _, ok)| !ok)
+        .map(|(n, _, _)| n.as_str())
+        .collect();
+    assert_eq!(unseen, ["ECY", "ECZ"], "components reported unidentifiable");
 }
 
 #[test]
@@ -215,7 +220,11 @@ fn hole_plates_on_the_small_error_vmc_match_the_true_model_across_x() {
     let (_, model) = run(&meas, true, &Options::default());
     let got = verify_all(&model, &meas);
     let want = verify_all(&truth, &meas);
-    table("vmc-3axis.toml from 6 hole plates", &got, &want);
+    table(
+        "vmc-3axis.toml from 12 hole-plate measurements",
+        &got,
+        &want,
+    );
     for (g, t) in got.iter().zip(&want) {
         if g.direction != 'x' {
             assert!(
@@ -230,33 +239,41 @@ fn hole_plates_on_the_small_error_vmc_match_the_true_model_across_x() {
     }
 }
 
+/// The issue: "a model without the rotation (Abbe) terms, or one that ignores the probe length,
+/// must fail these targets". On three seeds the full model meets both targets (≥ 90 %, within
+/// 0.03 of the true model) and each crippled model misses the 0.03 (measured on seeds 1–12: full
+/// 0.003–0.007, without rotations 0.051–0.069, probe length ignored 0.042–0.055).
 #[test]
-fn without_abbe_terms_or_probe_length_the_models_fall_behind() {
-    let full = check_machine("old-mill-3axis.toml", true, 7, &Options::default());
+fn without_abbe_terms_or_probe_length_the_models_fail_the_targets() {
     let no_rot = Options {
         rotations: false,
         ..Options::default()
     };
-    let o = check_machine("old-mill-3axis.toml", true, 7, &no_rot);
-    assert!(
-        o.shortfall > 0.03 && o.shortfall > full.shortfall + 0.01,
-        "a model without rotations must miss the target: shortfall {:.3} (full model {:.3})",
-        o.shortfall,
-        full.shortfall
-    );
     let no_tool = Options {
         use_tool_length: false,
         ..Options::default()
     };
-    let o = check_machine("old-mill-3axis.toml", true, 7, &no_tool);
-    // Measured: shortfall 0.025 against the full model's 0.014 — worse, but inside the 0.03
-    // target on this plan (README: the issue's "must fail" is not met for the probe length).
-    assert!(
-        o.shortfall > full.shortfall + 0.005,
-        "a model ignoring the probe length must fall behind: shortfall {:.3} (full {:.3})",
-        o.shortfall,
-        full.shortfall
-    );
+    for seed in [7, 8, 9] {
+        let full = check_machine("old-mill-3axis.toml", true, seed, &Options::default());
+        assert!(
+            full.shortfall <= 0.03 && full.min_eff >= 0.90,
+            "seed {seed}: the full model must meet the targets: shortfall {:.3}, min {:.3}",
+            full.shortfall,
+            full.min_eff
+        );
+        for (what, opts) in [
+            ("without rotations", &no_rot),
+            ("ignoring the probe length", &no_tool),
+        ] {
+            let o = check_machine("old-mill-3axis.toml", true, seed, opts);
+            assert!(
+                o.shortfall > 0.03,
+                "seed {seed}: a model {what} must miss the target: shortfall {:.3} (full {:.3})",
+                o.shortfall,
+                full.shortfall
+            );
+        }
+    }
 }
 
 /// Spaan's direct method on the same machine: each component read every 10 mm over the travel

@@ -116,9 +116,14 @@ struct ModelSpec {
     dzx: TableSpec,
 }
 
-fn load_table(base: &Path, s: &TableSpec) -> anyhow::Result<BidirectionalTable> {
+fn load_table(
+    base: &Path,
+    s: &TableSpec,
+    read_file: &mut dyn FnMut(&Path) -> std::io::Result<String>,
+) -> anyhow::Result<BidirectionalTable> {
     let path = base.join(&s.file);
-    let text = read(&path)?;
+    // The same message as `util::read`.
+    let text = read_file(&path).with_context(|| format!("cannot read {}", path.display()))?;
     Ok(parse_table_columns(
         &path.display().to_string(),
         &text,
@@ -129,8 +134,20 @@ fn load_table(base: &Path, s: &TableSpec) -> anyhow::Result<BidirectionalTable> 
     )?)
 }
 
+/// Loads the Z–X plane model from `path` and the table files it names (relative to its folder).
 pub fn load_plane_model(path: &Path) -> anyhow::Result<ZxPlaneModel> {
-    let spec: ModelSpec = toml::from_str(&read(path)?)
+    parse_plane_model(path, &read(path)?, &mut |p| std::fs::read_to_string(p))
+}
+
+/// The plane model from its TOML text (`path` names it in messages and is the base of the table
+/// files' names); each table file's text comes from `read_file` (the file system for
+/// `load_plane_model`, memory for the fuzz target), so both go through the same parsing.
+pub fn parse_plane_model(
+    path: &Path,
+    toml_text: &str,
+    read_file: &mut dyn FnMut(&Path) -> std::io::Result<String>,
+) -> anyhow::Result<ZxPlaneModel> {
+    let spec: ModelSpec = toml::from_str(toml_text)
         .with_context(|| format!("{}: invalid plane model", path.display()))?;
     let base = path.parent().unwrap_or(Path::new("."));
     let terms = match spec.terms.as_str() {
@@ -142,10 +159,10 @@ pub fn load_plane_model(path: &Path) -> anyhow::Result<ZxPlaneModel> {
         ),
     };
     Ok(ZxPlaneModel {
-        dzz: load_table(base, &spec.dzz)?,
-        dxz: load_table(base, &spec.dxz)?,
-        dxx: load_table(base, &spec.dxx)?,
-        dzx: load_table(base, &spec.dzx)?,
+        dzz: load_table(base, &spec.dzz, read_file)?,
+        dxz: load_table(base, &spec.dxz, read_file)?,
+        dxx: load_table(base, &spec.dxx, read_file)?,
+        dzx: load_table(base, &spec.dzx, read_file)?,
         szx_urad: spec.szx_urad,
         terms,
     })

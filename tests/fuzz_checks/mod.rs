@@ -8,7 +8,7 @@
 use std::collections::BTreeMap;
 use std::io::{Read, Write};
 use std::net::{Shutdown, SocketAddr, TcpStream};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
@@ -21,9 +21,10 @@ use retrocomp::analysis::laser_import::{parse_readings, parse_table_columns, rem
 use retrocomp::analysis::nc::ErrorFunction;
 use retrocomp::analysis::nc::parser::parse_program;
 use retrocomp::analysis::nc::rewrite::{RewriteConfig, rewrite};
+use retrocomp::analysis::plane_model::ZxPlaneModel;
 use retrocomp::analysis::table::Direction;
 use retrocomp::cli::circle::parse_traces;
-use retrocomp::cli::nc::load_plane_model;
+use retrocomp::cli::nc::parse_plane_model;
 use retrocomp::gateway::StatusSnapshot;
 use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::http::serve_status;
@@ -97,8 +98,10 @@ impl ErrorFunction for Ppm {
 }
 
 /// NC programs: the parser under both `;` rules (first byte's bit 0), the rewriter (bits 1, 2:
-/// diameter X, work offsets) against [`Ppm`]; a rewritten program must parse again. No split: an
-/// unbounded `--split-mm` of a huge move is a known open bug (issue 18.6), not a parser fault.
+/// diameter X, work offsets; bit 3: split moves, `--split-mm`, into pieces of 0.5, 1, 2.5 or 20 mm
+/// by bits 4–5) against [`Ppm`]; a rewritten program must parse again. Splitting is capped at 1000
+/// pieces a move (`--max-pieces`; a longer move is refused with `TooManyPieces`, which this also
+/// reaches) so one input cannot write millions of lines.
 pub fn nc_program(data: &[u8]) {
     let Some((&flags, rest)) = data.split_first() else {
         return;
@@ -118,6 +121,9 @@ pub fn nc_program(data: &[u8]) {
         } else {
             [None; 9]
         },
+        split_step_mm: (flags & 8 != 0)
+            .then(|| [0.5, 1.0, 2.5, 20.0][usize::from((flags >> 4) & 3)]),
+        max_pieces_per_move: 1000,
         ..RewriteConfig::default()
     };
     if let Ok((out, _)) = rewrite(&blocks, &Ppm, &cfg)
@@ -200,33 +206,35 @@ pub fn circle_traces(data: &[u8]) {
     let _ = analyse(&traces, &setup);
 }
 
-fn plane_dir() -> &'static PathBuf {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let d = std::env::temp_dir().join(format!("retrocomp-fuzz-plane-{}", std::process::id()));
-        std::fs::create_dir_all(&d).unwrap();
-        d
-    })
-}
-
-/// The Z–X plane model (`retrocomp nc --plane-model`) through the command's own loader, evaluated
-/// across and beyond its tables. Input: `TOML \n%%\n a.csv \n%%\n b.csv`, written to a private
-/// temporary folder so the TOML can name `a.csv` and `b.csv`.
-pub fn plane_model(data: &[u8]) {
-    let Ok(text) = std::str::from_utf8(data) else {
-        return;
-    };
+/// Input of the plane-model target: `TOML \n%%\n a.csv \n%%\n b.csv`, parsed by
+/// `parse_plane_model` (what `load_plane_model` runs after reading the files); the TOML's table
+/// files `a.csv` and `b.csv` are served from memory (any other name is a missing file), so no file
+/// is written per input. None where the input is refused.
+pub fn plane_model_parse(data: &[u8]) -> Option<ZxPlaneModel> {
+    let text = std::str::from_utf8(data).ok()?;
     let mut parts = text.splitn(3, "\n%%\n");
     let (toml, a, b) = (
         parts.next().unwrap_or(""),
         parts.next().unwrap_or(""),
         parts.next().unwrap_or(""),
     );
-    let d = plane_dir();
-    std::fs::write(d.join("plane.toml"), toml).unwrap();
-    std::fs::write(d.join("a.csv"), a).unwrap();
-    std::fs::write(d.join("b.csv"), b).unwrap();
-    let Ok(m) = load_plane_model(&d.join("plane.toml")) else {
+    let dir = Path::new("fuzz");
+    let mut files = |p: &Path| -> std::io::Result<String> {
+        if p == dir.join("a.csv") {
+            Ok(a.to_string())
+        } else if p == dir.join("b.csv") {
+            Ok(b.to_string())
+        } else {
+            Err(std::io::ErrorKind::NotFound.into())
+        }
+    };
+    parse_plane_model(&dir.join("plane.toml"), toml, &mut files).ok()
+}
+
+/// The Z–X plane model (`retrocomp nc --plane-model`) through the command's own parser, evaluated
+/// across and beyond its tables. Input: see [`plane_model_parse`].
+pub fn plane_model(data: &[u8]) {
+    let Some(m) = plane_model_parse(data) else {
         return;
     };
     for z in [-1e3, 0.0, 50.0, 170.0, 1e6] {
