@@ -64,6 +64,13 @@ pub struct GatewaySection {
     /// action is refused (403). At least 16 characters. Never serialised (it is a secret).
     #[serde(default, skip_serializing)]
     pub api_token: Option<String>,
+    /// `SCHED_FIFO` priority (1–99) for the cycle and sink threads; absent → normal scheduler.
+    /// Refused by the kernel → one WARN line and the normal scheduler (see `realtime.rs`).
+    #[serde(default)]
+    pub realtime_priority: Option<u8>,
+    /// Lock all pages in RAM (`mlockall`) at start; refused → one WARN line.
+    #[serde(default)]
+    pub lock_memory: bool,
 }
 
 fn default_thermal_period_s() -> f64 {

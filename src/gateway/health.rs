@@ -71,6 +71,12 @@ impl FaultKind {
     ];
 }
 
+/// How far every input together may lag the cycle's clock before staleness is judged on the wall
+/// clock again, s. Within it, "no new sample" is read as "our readers did not run" (a host pause),
+/// not as "the sensor is silent". Safe: stale inputs only hold the last output for `stale_hold_s`
+/// anyway, which is what frozen inputs give too.
+pub const INPUT_LAG_ALLOW_S: f64 = 0.5;
+
 /// A CAN `BusErrors` fault lasts this long after the last error frame, s: error frames come in
 /// bursts, and one episode per burst is what an operator wants to read.
 pub const BUS_ERROR_HOLD_S: f64 = 1.0;
@@ -188,6 +194,17 @@ impl ChannelMonitor {
 
     /// Status at `now_s` (staleness is judged here, so call it every cycle).
     pub fn status(&self, now_s: f64) -> ChannelStatus {
+        self.status_judged(now_s, now_s)
+    }
+
+    /// Status at `now_s` with staleness judged on the inputs' own clock: `inputs_s` is the newest
+    /// sample time the gateway has received from any source (≤ `now_s`). A value is stale when the
+    /// sources' clock shows this channel silent for `stale_after_s` (`inputs_s − t_last`), or when
+    /// even allowing [`INPUT_LAG_ALLOW_S`] for every input being late (the gateway's readers
+    /// starved by the host) it is older than `stale_after_s` on the wall clock. So a cycle that ran
+    /// late, or samples still sitting in a socket buffer, do not make a channel stale; a silent
+    /// channel among talking ones does, and a total silence does after the allowance.
+    pub fn status_judged(&self, now_s: f64, inputs_s: f64) -> ChannelStatus {
         let mut faults = Vec::new();
         if let Some(f) = self.sample_fault {
             faults.push(f);
@@ -195,9 +212,10 @@ impl ChannelMonitor {
         if self.stuck {
             faults.push(FaultKind::Stuck);
         }
+        let judge_s = inputs_s.min(now_s).max(now_s - INPUT_LAG_ALLOW_S);
         let fresh = self
             .last_good
-            .is_some_and(|(t, _)| now_s - t <= self.limits.stale_after_s);
+            .is_some_and(|(t, _)| judge_s - t <= self.limits.stale_after_s);
         if !fresh && !faults.contains(&FaultKind::Stale) {
             faults.push(FaultKind::Stale);
         }
