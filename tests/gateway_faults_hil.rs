@@ -206,8 +206,7 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
     // rounding) per write the PLC logged in between (+1 latched at the next scan): counted from the
     // controller's own write log, not assumed from the wall-clock write period, so a loaded host
     // that pauses hil-sim and the gateway unevenly cannot fail it while a jump still would.
-    let (latched_step, beyond) =
-        latched_steps_beyond_writes(&recording, &writes, CAP_UM + LSB_UM);
+    let (latched_step, beyond) = latched_steps_beyond_writes(&recording, &writes, CAP_UM + LSB_UM);
     assert!(
         beyond.is_empty(),
         "latched shift steps beyond what the logged writes allow (t_s, step µm, writes): {beyond:?}"

@@ -231,7 +231,11 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
     // is the right answer. Such a blip is accepted only with the poller's own evidence — its
     // timeout counter rose since the last healthy probe — and only briefly; a false Stale (no
     // timeout behind it) or a long one still fails.
-    assert!(before.len() > 20, "only {} probes before the fault", before.len());
+    assert!(
+        before.len() > 20,
+        "only {} probes before the fault",
+        before.len()
+    );
     let mut last_ok: Option<&Probe> = None;
     let mut unexplained = Vec::new();
     let mut blip_s = 0.0;
@@ -243,9 +247,8 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
         blip_s += RTU_PERIOD_S;
         let base = last_ok.map_or(0, |q| q.rtu_timeouts);
         let next = before.get(i + 1).map_or(p.rtu_timeouts, |q| q.rtu_timeouts);
-        let explained = p.health == "stale"
-            && p.faults == ["stale"]
-            && p.rtu_timeouts.max(next) > base;
+        let explained =
+            p.health == "stale" && p.faults == ["stale"] && p.rtu_timeouts.max(next) > base;
         if !explained {
             unexplained.push(p);
         }
@@ -315,7 +318,8 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
         .filter(|(s, _, started, t)| s == "T_spindle_C" && *started && !in_mute(*t))
     {
         assert!(
-            link.iter().any(|(_, _, started, t)| *started && (t - blip.3).abs() < 0.5),
+            link.iter()
+                .any(|(_, _, started, t)| *started && (t - blip.3).abs() < 0.5),
             "T_spindle_C went stale outside the mute with no reply timeout of its source: {blip:?}\n{late:?}"
         );
     }

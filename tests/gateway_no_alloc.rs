@@ -187,7 +187,14 @@ fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
     let done = Arc::new(AtomicU64::new(0));
     let (s2, d2) = (Arc::clone(&sent), Arc::clone(&done));
     let producer = std::thread::spawn(move || {
-        let names = ["x_mm", "y_mm", "z_mm", "T_spindle_C", "T_xscrew_C", "F_cut_N"];
+        let names = [
+            "x_mm",
+            "y_mm",
+            "z_mm",
+            "T_spindle_C",
+            "T_xscrew_C",
+            "F_cut_N",
+        ];
         for k in 1..=WARM + STEPS {
             let t = k as f64 * 1e-3;
             let values = [
@@ -236,7 +243,10 @@ fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
         (most - 2..=most).contains(&publishes),
         "{publishes} snapshots in {STEPS} cycles"
     );
-    let snap = status_rx.borrow().clone().expect("a snapshot was published");
+    let snap = status_rx
+        .borrow()
+        .clone()
+        .expect("a snapshot was published");
     assert!(snap.cycles > WARM && snap.axes.iter().all(|a| a.target_um.is_some()));
     let outs = outputs_rx.borrow().clone();
     assert!(

@@ -207,6 +207,19 @@ mod tests {
             .map(|k| line.find(&format!("\"{k}\":")).unwrap())
             .collect();
         assert!(at.windows(2).all(|w| w[0] < w[1]), "{line}");
-        assert_eq!(v.as_object().unwrap().len(), 4);
+        // Then `gateway` (how each compensated run kept up), also an addition, last.
+        let gw = line.find("\"gateway\":").unwrap();
+        assert!(gw > at[3], "{line}");
+        for mode in ["geometric", "full", "fitted"] {
+            assert!(
+                v["gateway"][mode]["not_compensating_s"].is_number(),
+                "{line}"
+            );
+            assert!(
+                v["gateway"][mode]["not_compensating_episodes"].is_u64(),
+                "{line}"
+            );
+        }
+        assert_eq!(v.as_object().unwrap().len(), 5);
     }
 }
