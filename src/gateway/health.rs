@@ -327,6 +327,32 @@ mod tests {
         assert_eq!(m.take_rejected().count(), 0, "reported once");
     }
 
+    #[test]
+    fn staleness_is_judged_on_the_inputs_clock_with_a_bounded_allowance() {
+        let mut m = ChannelMonitor::new(ChannelLimits {
+            min: -1e6,
+            max: 1e6,
+            stale_after_s: 0.1,
+            max_rate_per_s: None,
+            stuck_after_s: None,
+        });
+        m.observe(&sample(10.0, 1.0));
+        // A late cycle (now 10.3) while every input lags with it (newest sample 10.05): the readers
+        // did not run, the sensor was not silent — fresh.
+        assert_eq!(m.status_judged(10.3, 10.05).health, Health::Ok);
+        // On the wall clock alone the same moment is stale (what `status` does).
+        assert_eq!(m.status(10.3).faults, vec![FaultKind::Stale]);
+        // Other channels talked up to 10.2 while this one stayed silent: stale.
+        assert_eq!(m.status_judged(10.3, 10.2).faults, vec![FaultKind::Stale]);
+        // Everything silent for longer than the allowance: stale on the wall clock again.
+        let late = 10.0 + 0.1 + INPUT_LAG_ALLOW_S + 0.01;
+        assert_eq!(m.status_judged(late, 10.0).faults, vec![FaultKind::Stale]);
+        assert_eq!(
+            m.status_judged(10.0 + INPUT_LAG_ALLOW_S, 10.0).health,
+            Health::Ok
+        );
+    }
+
     fn limits() -> ChannelLimits {
         ChannelLimits {
             min: -20.0,
