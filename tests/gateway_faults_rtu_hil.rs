@@ -44,6 +44,8 @@ struct Probe {
     faults: Vec<String>,
     substituted: bool,
     value: Option<f64>,
+    /// The RTU source's own count of requests that got no reply in time (`/status` sources).
+    rtu_timeouts: u64,
 }
 
 fn probe(json: &str, at_s: f64) -> Option<Probe> {
@@ -60,6 +62,13 @@ fn probe(json: &str, at_s: f64) -> Option<Probe> {
             .collect(),
         substituted: c.get("substituted")?.as_bool()?,
         value: c.get("value").and_then(|x| x.as_f64()),
+        rtu_timeouts: v
+            .get("sources")?
+            .as_array()?
+            .iter()
+            .find(|s| s.get("name").and_then(|n| n.as_str()) == Some("modbus.pt100-rtu"))
+            .and_then(|s| s.get("modbus")?.get("timeouts")?.as_u64())
+            .unwrap_or(0),
     })
 }
 
@@ -217,9 +226,37 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
     let between = |a: f64, b: f64| probes.iter().filter(move |p| p.at_s >= a && p.at_s < b);
     let healthy = |p: &Probe| p.health == "ok" && p.faults.is_empty() && !p.substituted;
     let before: Vec<_> = between(3.0, down_wall).collect();
+    // Before the fault the channel is healthy, except where the slave really did not answer in time:
+    // on a loaded host hil-sim (the slave) can pause past the 200 ms reply timeout, and then `Stale`
+    // is the right answer. Such a blip is accepted only with the poller's own evidence — its
+    // timeout counter rose since the last healthy probe — and only briefly; a false Stale (no
+    // timeout behind it) or a long one still fails.
     assert!(
-        before.len() > 20 && before.iter().all(|p| healthy(p)),
-        "not healthy before the fault: {before:?}"
+        before.len() > 20,
+        "only {} probes before the fault",
+        before.len()
+    );
+    let mut last_ok: Option<&Probe> = None;
+    let mut unexplained = Vec::new();
+    let mut blip_s = 0.0;
+    for (i, p) in before.iter().enumerate() {
+        if healthy(p) {
+            last_ok = Some(p);
+            continue;
+        }
+        blip_s += RTU_PERIOD_S;
+        let base = last_ok.map_or(0, |q| q.rtu_timeouts);
+        let next = before.get(i + 1).map_or(p.rtu_timeouts, |q| q.rtu_timeouts);
+        let explained =
+            p.health == "stale" && p.faults == ["stale"] && p.rtu_timeouts.max(next) > base;
+        if !explained {
+            unexplained.push(p);
+        }
+    }
+    assert!(
+        unexplained.is_empty() && blip_s <= 1.0,
+        "not healthy before the fault (without a reply timeout behind it, or for {blip_s:.2} s): \
+         {unexplained:?}\n{before:?}"
     );
     // A reply timeout (0.2 s) after the mute the channel is Stale; allow a poll and a probe more.
     let stale_from = down_wall + RTU_TIMEOUT_S + RTU_PERIOD_S + 0.2;
@@ -260,12 +297,32 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
         .iter()
         .filter(|(_, _, _, t)| *t >= 2.0 && *t < end_s - 0.5)
         .collect();
-    let spindle: Vec<_> = late.iter().filter(|(s, ..)| s == "T_spindle_C").collect();
+    // The mute's episode: the one that starts within a second of it. Others can only be the brief
+    // reply-timeout blips accepted above, each also a link fault of the RTU source at that time.
+    let link: Vec<_> = late
+        .iter()
+        .filter(|(s, ..)| s == "modbus.pt100-rtu")
+        .collect();
+    let in_mute = |t: f64| t > RTU_DOWN.0 - 1.0 && t < RTU_DOWN.1 + RTU_HEALTHY_WITHIN_S;
+    let spindle: Vec<_> = late
+        .iter()
+        .filter(|(s, _, _, t)| s == "T_spindle_C" && in_mute(*t))
+        .collect();
     assert_eq!(
         spindle.len(),
         2,
         "T_spindle_C: one start and one clear, not one per poll: {spindle:?}"
     );
+    for blip in late
+        .iter()
+        .filter(|(s, _, started, t)| s == "T_spindle_C" && *started && !in_mute(*t))
+    {
+        assert!(
+            link.iter()
+                .any(|(_, _, started, t)| *started && (t - blip.3).abs() < 0.5),
+            "T_spindle_C went stale outside the mute with no reply timeout of its source: {blip:?}\n{late:?}"
+        );
+    }
     let (s0, s1) = (spindle[0], spindle[1]);
     assert!(
         s0.1 == "Stale" && s0.2 && s1.1 == "Stale" && !s1.2,
@@ -283,12 +340,9 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
         s1.3
     );
     // The RTU source reports its own link: one fault start while the slave is mute, one clear.
-    let link: Vec<_> = late
-        .iter()
-        .filter(|(s, ..)| s == "modbus.pt100-rtu")
-        .collect();
+    let link_mute: Vec<_> = link.iter().filter(|(.., t)| in_mute(*t)).collect();
     assert!(
-        link.len() == 2 && link[0].2 && !link[1].2,
+        link_mute.len() == 2 && link_mute[0].2 && !link_mute[1].2,
         "the RTU source's link fault must start once and clear once: {link:?}"
     );
     // The outage must not spill into the other sensor channels (the poll loop blocking the CAN
@@ -297,7 +351,13 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
     let others: Vec<_> = late
         .iter()
         // The RTU slave's own link fault (the source `modbus.pt100-rtu`) is the expected report.
-        .filter(|(s, ..)| s != "T_spindle_C" && s != "modbus.pt100-rtu" && !s.ends_with("_mm"))
+        // `compensation.<axis>` follows from a position channel's staleness (left out above).
+        .filter(|(s, ..)| {
+            s != "T_spindle_C"
+                && s != "modbus.pt100-rtu"
+                && !s.ends_with("_mm")
+                && !s.starts_with("compensation.")
+        })
         .collect();
     assert!(
         others.is_empty(),

@@ -2,7 +2,9 @@
 //! must be cheap and predictable): with the demo's full machine model (tables, squareness, thermal
 //! polynomial + expansion, cutting-force compliance) behind `MachineModelAdapter`, moving axes with
 //! reversals (so the F/R blend evaluates the model three times), changing temperatures and force,
-//! `Engine::ingest` + `Engine::cycle_in_place` make zero heap allocations per cycle. Counted by a
+//! `Engine::ingest` + `Engine::cycle_in_place` make zero heap allocations per cycle, and so does the
+//! real loop body (`CycleLoop::step`) on every cycle that does not publish a status snapshot (≤ 10 Hz).
+//! Counted by a
 //! global allocator wrapper, per thread (the test harness runs other tests on other threads).
 
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -142,4 +144,117 @@ fn steady_state_cycles_allocate_nothing() {
     );
     assert!(snap.axes[0].terms_um.len() >= 3, "{:?}", snap.axes[0]);
     assert_eq!(n, 0, "{n} heap allocations in 5000 steady-state cycles");
+}
+
+/// The real cycle loop body (`CycleLoop::step`: drain the sample channel, run the engine, hand the
+/// outputs to the sink's watch channel, count the cycle) allocates nothing on a cycle that does not
+/// publish a status snapshot, and publishes at most 10 Hz of cycle time. Samples come from another
+/// thread through the same tokio mpsc channel the sources use (only the cycle thread is counted).
+#[test]
+fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
+    use retrocomp::gateway::cycle::{CycleIo, CycleLoop, STATUS_PERIOD_S};
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicU64, Ordering};
+    use tokio::sync::{mpsc, watch};
+
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let model = MachineModel::from_toml_path(&root.join("deploy/demo/mill-full.toml")).unwrap();
+    let cfg = FieldConfig::parse(CFG, Path::new("no-alloc.toml")).unwrap();
+    let engine = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let (sample_tx, samples) = mpsc::channel(16_384);
+    let (_served_tx, served) = mpsc::channel(8);
+    let (_reseed_tx, reseed) = mpsc::channel(8);
+    let (_control_tx, control) = mpsc::channel(8);
+    let (outputs, outputs_rx) = watch::channel(Vec::new());
+    let (status, status_rx) = watch::channel(None);
+    let (_sink_tx, sink_status) = watch::channel(Default::default());
+    let io = CycleIo {
+        samples,
+        served,
+        reseed,
+        control,
+        outputs,
+        status,
+        sink_status,
+        board: Default::default(),
+        counter: Default::default(),
+    };
+    let mut lp = CycleLoop::new(engine, Box::new(MachineModelAdapter::new(model)), io);
+    const WARM: u64 = 2000;
+    const STEPS: u64 = 5000;
+    // Lock-step with the producer through two counters (no allocation to synchronise).
+    let sent = Arc::new(AtomicU64::new(0));
+    let done = Arc::new(AtomicU64::new(0));
+    let (s2, d2) = (Arc::clone(&sent), Arc::clone(&done));
+    let producer = std::thread::spawn(move || {
+        let names = [
+            "x_mm",
+            "y_mm",
+            "z_mm",
+            "T_spindle_C",
+            "T_xscrew_C",
+            "F_cut_N",
+        ];
+        for k in 1..=WARM + STEPS {
+            let t = k as f64 * 1e-3;
+            let values = [
+                100.0 + 50.0 * (t * 3.0).sin(),
+                60.0 + 40.0 * (t * 2.0).cos(),
+                10.0 + 5.0 * t.sin(),
+                25.0 + 3.0 * (t * 0.1).sin(),
+                22.0 + t * 0.01,
+                150.0 + 50.0 * (t * 5.0).sin(),
+            ];
+            for (ch, value) in names.iter().zip(values) {
+                let s = Sample {
+                    channel: ch.to_string(),
+                    t_s: t,
+                    value,
+                    health: Health::Ok,
+                };
+                sample_tx.try_send(s).unwrap();
+            }
+            s2.store(k, Ordering::Release);
+            while d2.load(Ordering::Acquire) < k {
+                std::thread::yield_now();
+            }
+        }
+    });
+    let (mut quiet_allocs, mut publishes) = (0u64, 0u64);
+    for k in 1..=WARM + STEPS {
+        while sent.load(Ordering::Acquire) < k {
+            std::thread::yield_now();
+        }
+        let before = allocs();
+        let published = lp.step(k as f64 * 1e-3);
+        if k > WARM {
+            if published {
+                publishes += 1;
+            } else {
+                quiet_allocs += allocs() - before;
+            }
+        }
+        done.store(k, Ordering::Release);
+    }
+    producer.join().unwrap();
+    // 5 s of cycle time at ≤ 10 Hz: 50 snapshots (one more at a boundary), not one per cycle.
+    let most = (STEPS as f64 * 1e-3 / STATUS_PERIOD_S).ceil() as u64 + 1;
+    assert!(
+        (most - 2..=most).contains(&publishes),
+        "{publishes} snapshots in {STEPS} cycles"
+    );
+    let snap = status_rx
+        .borrow()
+        .clone()
+        .expect("a snapshot was published");
+    assert!(snap.cycles > WARM && snap.axes.iter().all(|a| a.target_um.is_some()));
+    let outs = outputs_rx.borrow().clone();
+    assert!(
+        outs.len() == 3 && outs.iter().map(|o| o.1.abs()).sum::<f64>() > 1.0,
+        "{outs:?}"
+    );
+    assert_eq!(
+        quiet_allocs, 0,
+        "{quiet_allocs} heap allocations in the cycles between snapshots"
+    );
 }

@@ -6,7 +6,7 @@
 
 use std::path::PathBuf;
 
-use crate::gateway::demo::{DemoOptions, run_demo, sim_process::locate_hil_sim};
+use crate::gateway::demo::{DemoOptions, Mode, run_demo, sim_process::locate_hil_sim};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -79,6 +79,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             s.volumetric_max_um
         );
     }
+    print_gateway_health(&r.runs);
     println!(
         "max volumetric error falls {:.1} % with the full (truth) model, {:.1} % with the fitted model; {:.1} s wall; files in {}",
         r.stats.volumetric_reduction_pct(),
@@ -90,4 +91,30 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string(&r.stats)?);
     }
     Ok(())
+}
+
+/// One line per compensated run: did the gateway compensate the whole program? A run that dropped
+/// compensation (stale inputs under host load, a model fault) says so here, not only in a log.
+fn print_gateway_health(runs: &[crate::gateway::demo::RunResult]) {
+    for run in runs.iter().filter(|r| r.mode != Mode::Uncompensated) {
+        let g = &run.gateway;
+        if g.not_compensating_episodes > 0 {
+            println!(
+                "retrocomp demo: WARNING: the {} run did NOT compensate for {:.2} s in {} episode(s) \
+                 (stale inputs; {} late cycles, worst {:.1} ms): its figures include that time",
+                run.mode.key(),
+                g.not_compensating_s,
+                g.not_compensating_episodes,
+                g.late_cycles,
+                g.max_late_ms
+            );
+        } else {
+            println!(
+                "retrocomp demo: the {} run compensated throughout ({} late cycles, worst {:.1} ms)",
+                run.mode.key(),
+                g.late_cycles,
+                g.max_late_ms
+            );
+        }
+    }
 }

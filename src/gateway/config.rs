@@ -71,6 +71,13 @@ pub struct GatewaySection {
     /// Longest ramp-out on stop, s; then the box exits anyway (systemd's TimeoutStopSec must be longer).
     #[serde(default = "default_stop_ramp_max_s")]
     pub stop_ramp_max_s: f64,
+    /// `SCHED_FIFO` priority (1–99) for the cycle and sink threads; absent → normal scheduler.
+    /// Refused by the kernel → one WARN line and the normal scheduler (see `realtime.rs`).
+    #[serde(default)]
+    pub realtime_priority: Option<u8>,
+    /// Lock all pages in RAM (`mlockall`) at start; refused → one WARN line.
+    #[serde(default)]
+    pub lock_memory: bool,
 }
 
 /// What the box does with the correction when it is asked to stop.

@@ -134,6 +134,14 @@ impl FieldConfig {
                 format!("expected 0 < s ≤ 86400, got {}", g.thermal_period_s),
             ));
         }
+        if let Some(p) = g.realtime_priority
+            && !(1..=99).contains(&p)
+        {
+            return Err((
+                "gateway.realtime_priority".into(),
+                format!("expected a SCHED_FIFO priority 1..=99, got {p}"),
+            ));
+        }
         if g.status_listen.parse::<std::net::SocketAddr>().is_err() {
             return Err((
                 "gateway.status_listen".into(),

@@ -123,6 +123,10 @@ struct AxisRuntime {
     last_pos: Option<(f64, f64)>,
     target_um: Option<f64>,
     terms: Vec<(Arc<str>, f64)>,
+    /// Fault-log source of "enabled but not compensating" (`compensation.<axis>`), built once.
+    drop_source: String,
+    /// The axis had a fresh target at least once (before that it is starting, not dropped).
+    ever_tracked: bool,
 }
 
 struct Recovery {
@@ -151,6 +155,11 @@ pub struct Engine {
     now_s: f64,
     /// Per axis (configured order) the output of the last cycle, µm.
     outputs: Vec<(String, f64)>,
+    /// The newest sample time received from any source, s (the inputs' own clock; see
+    /// [`ChannelMonitor::status_judged`]).
+    newest_input_s: f64,
+    /// Enabled, and at least one axis that had compensated has no fresh target this cycle.
+    dropped: bool,
 }
 
 /// Limits for channels seen on a bus but not configured: anything finite, stale after 1 s.
@@ -225,6 +234,8 @@ impl Engine {
                 last_pos: None,
                 target_um: None,
                 terms: Vec::new(),
+                drop_source: format!("compensation.{}", a.name),
+                ever_tracked: false,
             });
         }
         let recoveries = cfg
@@ -261,6 +272,8 @@ impl Engine {
             cycles: 0,
             now_s: 0.0,
             outputs,
+            newest_input_s: f64::NEG_INFINITY,
+            dropped: false,
         })
     }
 
@@ -278,6 +291,9 @@ impl Engine {
     /// Take one decoded sample (any order; health is judged per channel). A known channel costs
     /// one name lookup and no allocation.
     pub fn ingest(&mut self, s: &Sample) {
+        if s.t_s > self.newest_input_s {
+            self.newest_input_s = s.t_s;
+        }
         let id = match self.ids.get(s.channel.as_str()) {
             Some(&id) => id,
             None => channel_id(&mut self.channels, &mut self.ids, &s.channel),
@@ -308,7 +324,7 @@ impl Engine {
                 c.status = None;
                 continue;
             };
-            let st = m.status(now_s);
+            let st = m.status_judged(now_s, self.newest_input_s);
             let mut gone = m
                 .take_rejected()
                 .filter(|k| !st.faults.contains(k))
@@ -476,7 +492,37 @@ impl Engine {
             };
             out.1 = a.safety.step(now_s, self.enabled, input);
         }
+        self.report_drops(now_s);
         &self.outputs
+    }
+
+    /// "Compensation dropped" per axis: enabled, the axis had compensated, and now has no fresh
+    /// target (stale inputs → holding, then ramping out; a model fault). A fault of source
+    /// `compensation.<axis>` (kind `stale`, or `decode` for a model fault), logged at start and
+    /// clear like every fault. Allocates only while such a fault is active.
+    fn report_drops(&mut self, now_s: f64) {
+        let mut any = false;
+        for a in &mut self.axes {
+            let fresh = a.target_um.is_some();
+            a.ever_tracked |= fresh && self.enabled;
+            let kind = if !self.enabled || fresh || !a.ever_tracked {
+                None
+            } else if self.model_error.is_some() {
+                Some(FaultKind::Decode)
+            } else {
+                Some(FaultKind::Stale)
+            };
+            any |= kind.is_some();
+            let kinds = kind.as_slice();
+            self.faults.update(&a.drop_source, kinds, now_s);
+        }
+        self.dropped = any;
+    }
+
+    /// True when, this cycle, compensation is enabled but some axis that had compensated is not
+    /// tracking its target (see `report_drops`).
+    pub fn compensation_dropped(&self) -> bool {
+        self.dropped
     }
 
     /// What `retrocomp status` and `/metrics` show.

@@ -71,6 +71,12 @@ impl FaultKind {
     ];
 }
 
+/// How far every input together may lag the cycle's clock before staleness is judged on the wall
+/// clock again, s. Within it, "no new sample" is read as "our readers did not run" (a host pause),
+/// not as "the sensor is silent". Safe: stale inputs only hold the last output for `stale_hold_s`
+/// anyway, which is what frozen inputs give too.
+pub const INPUT_LAG_ALLOW_S: f64 = 0.5;
+
 /// A CAN `BusErrors` fault lasts this long after the last error frame, s: error frames come in
 /// bursts, and one episode per burst is what an operator wants to read.
 pub const BUS_ERROR_HOLD_S: f64 = 1.0;
@@ -188,6 +194,17 @@ impl ChannelMonitor {
 
     /// Status at `now_s` (staleness is judged here, so call it every cycle).
     pub fn status(&self, now_s: f64) -> ChannelStatus {
+        self.status_judged(now_s, now_s)
+    }
+
+    /// Status at `now_s` with staleness judged on the inputs' own clock: `inputs_s` is the newest
+    /// sample time the gateway has received from any source (≤ `now_s`). A value is stale when the
+    /// sources' clock shows this channel silent for `stale_after_s` (`inputs_s − t_last`), or when
+    /// even allowing [`INPUT_LAG_ALLOW_S`] for every input being late (the gateway's readers
+    /// starved by the host) it is older than `stale_after_s` on the wall clock. So a cycle that ran
+    /// late, or samples still sitting in a socket buffer, do not make a channel stale; a silent
+    /// channel among talking ones does, and a total silence does after the allowance.
+    pub fn status_judged(&self, now_s: f64, inputs_s: f64) -> ChannelStatus {
         let mut faults = Vec::new();
         if let Some(f) = self.sample_fault {
             faults.push(f);
@@ -195,9 +212,10 @@ impl ChannelMonitor {
         if self.stuck {
             faults.push(FaultKind::Stuck);
         }
+        let judge_s = inputs_s.min(now_s).max(now_s - INPUT_LAG_ALLOW_S);
         let fresh = self
             .last_good
-            .is_some_and(|(t, _)| now_s - t <= self.limits.stale_after_s);
+            .is_some_and(|(t, _)| judge_s - t <= self.limits.stale_after_s);
         if !fresh && !faults.contains(&FaultKind::Stale) {
             faults.push(FaultKind::Stale);
         }
@@ -307,6 +325,32 @@ mod tests {
         let seen: Vec<FaultKind> = m.take_rejected().collect();
         assert_eq!(seen, [FaultKind::OutOfRange, FaultKind::NotFinite]);
         assert_eq!(m.take_rejected().count(), 0, "reported once");
+    }
+
+    #[test]
+    fn staleness_is_judged_on_the_inputs_clock_with_a_bounded_allowance() {
+        let mut m = ChannelMonitor::new(ChannelLimits {
+            min: -1e6,
+            max: 1e6,
+            stale_after_s: 0.1,
+            max_rate_per_s: None,
+            stuck_after_s: None,
+        });
+        m.observe(&sample(10.0, 1.0));
+        // A late cycle (now 10.3) while every input lags with it (newest sample 10.05): the readers
+        // did not run, the sensor was not silent — fresh.
+        assert_eq!(m.status_judged(10.3, 10.05).health, Health::Ok);
+        // On the wall clock alone the same moment is stale (what `status` does).
+        assert_eq!(m.status(10.3).faults, vec![FaultKind::Stale]);
+        // Other channels talked up to 10.2 while this one stayed silent: stale.
+        assert_eq!(m.status_judged(10.3, 10.2).faults, vec![FaultKind::Stale]);
+        // Everything silent for longer than the allowance: stale on the wall clock again.
+        let late = 10.0 + 0.1 + INPUT_LAG_ALLOW_S + 0.01;
+        assert_eq!(m.status_judged(late, 10.0).faults, vec![FaultKind::Stale]);
+        assert_eq!(
+            m.status_judged(10.0 + INPUT_LAG_ALLOW_S, 10.0).health,
+            Health::Ok
+        );
     }
 
     fn limits() -> ChannelLimits {

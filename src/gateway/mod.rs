@@ -4,6 +4,7 @@
 
 pub mod config;
 mod config_check;
+pub mod cycle;
 pub mod demo;
 pub mod direction;
 pub mod engine;
@@ -12,6 +13,7 @@ pub mod http;
 pub mod model_adapter;
 pub mod origin_shift_sink;
 pub mod quadrature_sink;
+pub mod realtime;
 pub mod recovery;
 pub mod run;
 pub mod safety;

@@ -1,6 +1,14 @@
-//! The async runtime shell around [`Engine`]: samples arrive on a channel (from the bus sources),
-//! the engine runs every `cycle_ms`, the latest status goes to the HTTP endpoint, and a separate sink
-//! task writes the outputs so a slow or dead controller never stalls the cycle.
+//! The runtime shell around [`Engine`]: samples arrive on a channel (from the bus sources), the
+//! cycle runs every `cycle_ms`, the latest status goes to the HTTP endpoint (at most 10 Hz), and a
+//! separate sink writes the outputs so a slow or dead controller never stalls the cycle.
+//!
+//! Threads (why: issue 18.5, compensation dropped under host load when the cycle and the sink were
+//! tokio tasks queued behind busy ones): the cycle runs on its own OS thread (`retrocomp-cycle`,
+//! [`CycleLoop`]) and the sink on another (`retrocomp-sink`, with its own current-thread tokio
+//! runtime, so its Modbus socket's wake-ups do not wait for the main runtime's workers). Both
+//! optionally get `SCHED_FIFO` (`gateway.realtime_priority`, see `realtime.rs`). This async
+//! function only starts them, then waits for shutdown, a dead source task, a sink that ended, or a
+//! cycle thread that died; it then stops the cycle (one more status snapshot) and the sink.
 //!
 //! Origin-shift start-up: the sink reads what the controller holds before the engine starts, and the
 //! engine continues from it (no jump after a gateway restart). The sink reads the controller again
@@ -11,20 +19,24 @@
 //! (`origin_shift_sink.rs`, bounded by `stop_ramp_max_s`) before `run` returns.
 
 use std::collections::BTreeMap;
+use std::future::Future;
 use std::net::SocketAddr;
+use std::pin::Pin;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::{Context as _, bail};
-use tokio::sync::{mpsc, watch};
-use tokio::time::MissedTickBehavior;
+use tokio::sync::{mpsc, oneshot, watch};
 
 use super::config::{FieldConfig, OnStop};
+use super::cycle::{CycleIo, CycleLoop, CycleReport, Outputs};
 use super::engine::{Engine, ErrorModel};
 use super::http::{Api, Control, Limits, serve};
 use super::origin_shift_sink::{SinkChannels, origin_shift_task};
+use super::realtime;
 use super::status::{SinkStatus, StatusSnapshot};
-use super::supervise::SourceFeed;
+use super::supervise::{CycleCounter, SourceFeed};
 use crate::bus::Sample;
 use crate::origin_shift::{OriginShiftClient, SinkAxis};
 
@@ -37,28 +49,33 @@ pub struct RunSummary {
     /// Engine compute time per cycle, µs (p50, p99) over the last 65 536 cycles.
     pub compute_us_p50: f64,
     pub compute_us_p99: f64,
+    /// Cycles that started more than one period late (host pauses), and the worst lateness, ms.
+    pub late_cycles: u64,
+    pub max_late_ms: f64,
+    /// How long compensation was enabled but not applied on some axis (stale inputs, model
+    /// fault), s, and in how many episodes (each also a `compensation.<axis>` fault).
+    pub not_compensating_s: f64,
+    pub not_compensating_episodes: u64,
 }
-
-type Outputs = Vec<(String, f64)>;
 
 /// Run until `shutdown` resolves. `epoch` is the clock the sources stamp samples with (`t_s` =
 /// seconds since it); the engine runs on the same clock so staleness is judged right.
 /// `status_addr` receives the bound status address (port 0 allowed).
 /// `sources` is the sample channel, or a [`SourceFeed`] from `spawn_sources` (then the sources'
-/// links show in the status, and the run stops with an error when a source or the sink task ends).
+/// links show in the status, and the run stops with an error when a source or the sink ends).
 pub async fn run(
     cfg: FieldConfig,
-    mut model: Box<dyn ErrorModel + Send>,
+    model: Box<dyn ErrorModel + Send>,
     sources: impl Into<SourceFeed>,
     epoch: std::time::Instant,
     shutdown: impl std::future::Future<Output = ()>,
     status_addr: Option<tokio::sync::oneshot::Sender<SocketAddr>>,
 ) -> anyhow::Result<RunSummary> {
     let SourceFeed {
-        mut samples,
-        board: source_board,
+        samples,
+        board,
         mut deaths,
-        cycles: cycle_counter,
+        cycles: counter,
     } = sources.into();
     let (status_tx, status_rx) = watch::channel::<Option<Arc<StatusSnapshot>>>(None);
     let listen: SocketAddr = cfg
@@ -67,7 +84,7 @@ pub async fn run(
         .parse()
         .context("gateway.status_listen")?;
     // Actions from the endpoint (token-guarded) reach the cycle loop through this channel.
-    let (control_tx, mut control_rx) = mpsc::channel::<Control>(8);
+    let (control_tx, control_rx) = mpsc::channel::<Control>(8);
     let api = Api {
         token: cfg.gateway.api_token.clone(),
         control_tx: Some(control_tx),
@@ -79,171 +96,260 @@ pub async fn run(
     if let Some(tx) = status_addr {
         let _ = tx.send(bound);
     }
+    if cfg.gateway.lock_memory {
+        realtime::lock_memory();
+    }
 
     // Sink first: origin shift must know what the controller holds before the engine starts.
     let (out_tx, out_rx) = watch::channel::<Outputs>(Vec::new());
-    let (reseed_tx, mut reseed_rx) = mpsc::channel::<(String, f64)>(8);
+    let (reseed_tx, reseed_rx) = mpsc::channel::<(String, f64)>(8);
     let (sink_status_tx, sink_status_rx) = watch::channel::<SinkStatus>(SinkStatus::default());
+    // Positions the controller writes into a served register image (origin-shift server).
+    let (served_tx, served_rx) = mpsc::channel::<Sample>(1024);
+    // `Some(max_s)` asks the origin-shift client sink to ramp the correction out, then return.
     let (stop_tx, stop_rx) = watch::channel::<Option<f64>>(None);
     let ramp_out = cfg.sink.origin_shift.is_some() && cfg.gateway.on_stop == OnStop::RampOut;
-    let mut initial = BTreeMap::new();
-    // Positions the controller writes into a served register image (origin-shift server).
-    let (served_tx, mut served_rx) = mpsc::channel::<Sample>(1024);
-    let mut sink_task = if let Some(srv) = cfg.sink.origin_shift_server.clone() {
-        let (task, held) =
-            start_origin_shift_server(&cfg, srv, out_rx, served_tx, sink_status_tx, epoch).await?;
-        initial = held;
-        Some(task)
-    } else if let Some(os) = cfg.sink.origin_shift.clone() {
-        let mut client =
-            OriginShiftClient::new(os.client(), os.map.clone()).context("sink.origin_shift.map")?;
-        initial = read_initial(&mut client).await;
-        // A value beyond the clamp is not a start value: the sink refuses to write that axis (a
-        // fault) until the controller's value is back in range, then the engine continues from it.
-        initial.retain(|axis, held_um| {
-            let max = cfg.safety_for(axis).max_correction_um;
-            let ok = held_um.is_finite() && held_um.abs() <= max;
-            if !ok {
-                tracing::error!(axis, held_um, max, "controller holds a correction beyond the clamp: not writing this axis until it is back in range");
-            }
-            ok
-        });
-        let axes = cfg
-            .axes
-            .iter()
-            .map(|a| {
-                let s = cfg.safety_for(&a.name);
-                SinkAxis {
-                    axis: a.name.clone(),
-                    max_correction_um: s.max_correction_um,
-                    max_change_um_per_write: s.max_change_um_per_cycle,
-                }
-            })
-            .collect();
-        Some(tokio::spawn(origin_shift_task(
-            os,
-            client,
-            axes,
-            SinkChannels {
-                out_rx,
-                reseed_tx,
-                status: sink_status_tx,
-                stop: stop_rx,
-            },
-            epoch,
-        )))
-    } else {
-        cfg.sink.quadrature.clone().map(|q| {
-            tokio::spawn(super::quadrature_sink::quadrature_task(
-                q,
-                out_rx,
-                sink_status_tx,
-            ))
-        })
+    let chans = SinkChannels {
+        out_rx,
+        reseed_tx,
+        status: sink_status_tx,
+        stop: stop_rx,
+    };
+    let mut sink = SinkThread::spawn(&cfg, chans, served_tx, epoch)?;
+    let initial = match sink.as_mut() {
+        Some(s) => s.initial().await?,
+        None => BTreeMap::new(),
     };
 
-    let mut engine = Engine::new(&cfg, &initial)?;
-    let mut tick = tokio::time::interval(Duration::from_millis(cfg.gateway.cycle_ms));
-    tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
-    // The last COMPUTE_WINDOW cycles' compute times, overwritten in a ring: a gateway runs for
-    // months, so an ever-growing log would be a leak (1 kHz × 8 B = 690 MB a day).
-    let mut compute_ns: Vec<u64> = Vec::with_capacity(COMPUTE_WINDOW);
-    let mut summary = RunSummary::default();
+    let engine = Engine::new(&cfg, &initial)?;
+    // Fed by the cycle; during a stop ramp-out (no cycle) by `ramp_out_before_stop`.
+    let watchdog = counter.clone();
+    let io = CycleIo {
+        samples,
+        served: served_rx,
+        reseed: reseed_rx,
+        control: control_rx,
+        outputs: out_tx,
+        status: status_tx,
+        sink_status: sink_status_rx.clone(),
+        board,
+        counter,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let (report_tx, mut report_rx) = oneshot::channel::<CycleReport>();
+    let period = Duration::from_millis(cfg.gateway.cycle_ms);
+    let stop_cycle = Arc::clone(&stop);
+    let cycle_thread = realtime::spawn_thread(
+        "retrocomp-cycle",
+        cfg.gateway.realtime_priority,
+        move || {
+            let report = CycleLoop::new(engine, model, io).run(epoch, period, &stop_cycle);
+            let _ = report_tx.send(report);
+        },
+    )
+    .context("starting the cycle thread")?;
+
     tokio::pin!(shutdown);
-    loop {
-        tokio::select! {
-            _ = &mut shutdown => break,
-            _ = tick.tick() => {}
-            why = deaths.next() => bail!("{why}: stopping the gateway"),
-            end = async { match sink_task.as_mut() { Some(t) => t.await, None => std::future::pending().await } } => {
-                let why = match end { Ok(()) => "returned".to_string(), Err(e) => e.to_string() };
-                tracing::error!(why, "the sink task ended; stopping so the service manager restarts the gateway");
-                bail!("the sink task ended ({why}): stopping the gateway");
-            }
+    let ended: anyhow::Result<()> = tokio::select! {
+        _ = &mut shutdown => Ok(()),
+        why = deaths.next() => Err(anyhow::anyhow!("{why}: stopping the gateway")),
+        why = async { match sink.as_mut() { Some(s) => s.ended().await, None => std::future::pending().await } } => {
+            tracing::error!(why, "the sink ended; stopping so the service manager restarts the gateway");
+            Err(anyhow::anyhow!("the sink task ended ({why}): stopping the gateway"))
         }
-        while let Ok(s) = samples.try_recv() {
-            engine.ingest(&s);
+        // The report comes only after `stop`: a cycle thread that ends earlier has panicked.
+        _ = &mut report_rx => Err(anyhow::anyhow!("the cycle thread died: stopping the gateway")),
+    };
+    // Stop the cycle (it publishes a last snapshot), then the sink and the endpoint.
+    stop.store(true, Ordering::Release);
+    let report = report_rx.await.ok();
+    let _ = tokio::task::spawn_blocking(move || cycle_thread.join()).await;
+    if let Some(mut s) = sink {
+        if ramp_out && ended.is_ok() {
+            ramp_out_before_stop(&mut s, &stop_tx, cfg.gateway.stop_ramp_max_s, &watchdog).await;
         }
-        while let Ok(s) = served_rx.try_recv() {
-            engine.ingest(&s);
-        }
-        while let Ok((axis, held)) = reseed_rx.try_recv() {
-            if let Err(e) = engine.reseed(&axis, held) {
-                tracing::error!(%e, axis, "cannot continue from the controller's value; holding");
-            }
-        }
-        // Disabling ramps each axis to zero through the safety ramps (Engine::set_enabled).
-        while let Ok(Control::SetCompensation { enabled }) = control_rx.try_recv() {
-            engine.set_enabled(enabled);
-        }
-        let t0 = std::time::Instant::now();
-        let outs = engine.cycle_in_place(epoch.elapsed().as_secs_f64(), model.as_mut());
-        let took_ns = t0.elapsed().as_nanos() as u64;
-        if compute_ns.len() < COMPUTE_WINDOW {
-            compute_ns.push(took_ns);
-        } else {
-            compute_ns[(summary.cycles as usize) % COMPUTE_WINDOW] = took_ns;
-        }
-        // Reuse the channel's buffer (String::clone_from keeps the axis names' allocations).
-        out_tx.send_modify(|held| copy_outputs(held, outs));
-        let mut snap = engine.snapshot();
-        let sink = sink_status_rx.borrow().clone();
-        snap.active_faults.extend(sink.faults.iter().cloned());
-        snap.sink = Some(sink);
-        source_board.copy_into(&mut snap.sources);
-        for src in &snap.sources {
-            let faults = src.faults.iter().map(|&(k, t)| (src.name.clone(), k, t));
-            snap.active_faults.extend(faults);
-        }
-        let _ = status_tx.send(Some(Arc::new(snap)));
-        summary.cycles += 1;
-        cycle_counter.set(summary.cycles);
-    }
-    if let Some(mut t) = sink_task {
-        if ramp_out {
-            let max_s = cfg.gateway.stop_ramp_max_s;
-            let _ = stop_tx.send(Some(max_s));
-            // The task returns by itself within max_s (+ one period's requests). Meanwhile the
-            // stop is progress: keep the service manager's watchdog fed (WatchdogSec < the ramp).
-            let until = tokio::time::sleep(Duration::from_secs_f64(max_s + 2.0));
-            tokio::pin!(until);
-            let mut alive = tokio::time::interval(Duration::from_millis(100));
-            let mut n = summary.cycles;
-            loop {
-                tokio::select! {
-                    _ = &mut t => break,
-                    _ = &mut until => break,
-                    _ = alive.tick() => { n += 1; cycle_counter.set(n); }
-                }
-            }
-        }
-        t.abort();
+        s.stop().await;
     }
     http_task.abort();
+    ended?;
+    let report = report.context("the cycle thread died")?;
     let st = sink_status_rx.borrow().clone();
-    summary.writes_ok = st.writes_ok;
-    summary.writes_failed = st.writes_failed;
-    compute_ns.sort_unstable();
-    let pct = |p: f64| {
-        compute_ns
-            .get(((compute_ns.len() as f64 - 1.0) * p) as usize)
-            .map_or(0.0, |n| *n as f64 / 1e3)
-    };
-    summary.compute_us_p50 = pct(0.5);
-    summary.compute_us_p99 = pct(0.99);
-    Ok(summary)
+    Ok(RunSummary {
+        cycles: report.cycles,
+        writes_ok: st.writes_ok,
+        writes_failed: st.writes_failed,
+        compute_us_p50: report.compute_us_p50,
+        compute_us_p99: report.compute_us_p99,
+        late_cycles: report.late_cycles,
+        max_late_ms: report.max_late_ms,
+        not_compensating_s: report.not_compensating_s,
+        not_compensating_episodes: report.not_compensating_episodes,
+    })
+}
+
+/// Ramp the origin-shift correction out before stopping (`on_stop = "ramp_out"`): the sink writes 0
+/// within the per-write cap until the controller holds 0 and then returns by itself, within `max_s`
+/// (+ one period's requests). The stop is progress: the service manager's watchdog is kept fed
+/// meanwhile (its WatchdogSec may be shorter than the ramp).
+async fn ramp_out_before_stop(
+    sink: &mut SinkThread,
+    stop_tx: &watch::Sender<Option<f64>>,
+    max_s: f64,
+    watchdog: &CycleCounter,
+) {
+    let _ = stop_tx.send(Some(max_s));
+    let until = tokio::time::sleep(Duration::from_secs_f64(max_s + 2.0));
+    tokio::pin!(until);
+    let mut alive = tokio::time::interval(Duration::from_millis(100));
+    let mut n = watchdog.get();
+    loop {
+        tokio::select! {
+            _ = sink.ended() => break,
+            _ = &mut until => break,
+            _ = alive.tick() => { n += 1; watchdog.set(n); }
+        }
+    }
+}
+
+type LocalFuture = Pin<Box<dyn Future<Output = ()>>>;
+
+/// The sink on its own thread and runtime: it reports the controller's start values once, then
+/// runs until it ends by itself (a failure: reported by [`SinkThread::ended`]) or is stopped.
+struct SinkThread {
+    initial: Option<oneshot::Receiver<anyhow::Result<BTreeMap<String, f64>>>>,
+    ended: oneshot::Receiver<String>,
+    stop: Option<oneshot::Sender<()>>,
+    join: std::thread::JoinHandle<()>,
+}
+
+impl SinkThread {
+    /// Start the configured sink (None: no sink configured, a dry run).
+    fn spawn(
+        cfg: &FieldConfig,
+        chans: SinkChannels,
+        served: mpsc::Sender<Sample>,
+        epoch: std::time::Instant,
+    ) -> anyhow::Result<Option<Self>> {
+        let s = &cfg.sink;
+        if s.origin_shift_server.is_none() && s.origin_shift.is_none() && s.quadrature.is_none() {
+            return Ok(None);
+        }
+        let (initial_tx, initial_rx) = oneshot::channel();
+        let (ended_tx, ended_rx) = oneshot::channel::<String>();
+        let (stop_tx, stop_rx) = oneshot::channel::<()>();
+        let cfg = cfg.clone();
+        let join = realtime::spawn_runtime_thread(
+            "retrocomp-sink",
+            cfg.gateway.realtime_priority,
+            move || async move {
+                let (initial, task) = match start_sink(&cfg, chans, served, epoch).await {
+                    Ok(started) => started,
+                    Err(e) => {
+                        let _ = initial_tx.send(Err(e));
+                        return;
+                    }
+                };
+                let _ = initial_tx.send(Ok(initial));
+                tokio::select! {
+                    () = task => { let _ = ended_tx.send("returned".into()); }
+                    _ = stop_rx => {}
+                }
+            },
+        )
+        .context("starting the sink thread")?;
+        Ok(Some(Self {
+            initial: Some(initial_rx),
+            ended: ended_rx,
+            stop: Some(stop_tx),
+            join,
+        }))
+    }
+
+    /// The values the controller holds at start (waits for the first successful read).
+    async fn initial(&mut self) -> anyhow::Result<BTreeMap<String, f64>> {
+        let rx = self
+            .initial
+            .take()
+            .context("the sink's start values were taken")?;
+        rx.await
+            .context("the sink thread ended before it started")?
+    }
+
+    /// Why the sink ended; pending while it runs.
+    async fn ended(&mut self) -> String {
+        match (&mut self.ended).await {
+            Ok(why) => why,
+            // The sender is dropped only when the thread ends without a reason: a panic.
+            Err(_) => "the sink thread died".into(),
+        }
+    }
+
+    async fn stop(mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        let join = self.join;
+        let _ = tokio::task::spawn_blocking(move || join.join()).await;
+    }
+}
+
+/// Build the configured sink on the sink thread: the controller's start values and the task.
+async fn start_sink(
+    cfg: &FieldConfig,
+    chans: SinkChannels,
+    served: mpsc::Sender<Sample>,
+    epoch: std::time::Instant,
+) -> anyhow::Result<(BTreeMap<String, f64>, LocalFuture)> {
+    if let Some(srv) = cfg.sink.origin_shift_server.clone() {
+        return start_origin_shift_server(cfg, srv, chans, served, epoch).await;
+    }
+    if let Some(q) = cfg.sink.quadrature.clone() {
+        let task = super::quadrature_sink::quadrature_task(q, chans.out_rx, chans.status);
+        return Ok((BTreeMap::new(), Box::pin(task)));
+    }
+    let os = cfg
+        .sink
+        .origin_shift
+        .clone()
+        .context("no sink configured")?;
+    let mut client =
+        OriginShiftClient::new(os.client(), os.map.clone()).context("sink.origin_shift.map")?;
+    let mut initial = read_initial(&mut client).await;
+    // A value beyond the clamp is not a start value: the sink refuses to write that axis (a
+    // fault) until the controller's value is back in range, then the engine continues from it.
+    initial.retain(|axis, held_um| {
+        let max = cfg.safety_for(axis).max_correction_um;
+        let ok = held_um.is_finite() && held_um.abs() <= max;
+        if !ok {
+            tracing::error!(axis, held_um, max, "controller holds a correction beyond the clamp: not writing this axis until it is back in range");
+        }
+        ok
+    });
+    let axes = cfg
+        .axes
+        .iter()
+        .map(|a| {
+            let s = cfg.safety_for(&a.name);
+            SinkAxis {
+                axis: a.name.clone(),
+                max_correction_um: s.max_correction_um,
+                max_change_um_per_write: s.max_change_um_per_cycle,
+            }
+        })
+        .collect();
+    let task = origin_shift_task(os, client, axes, chans, epoch);
+    Ok((initial, Box::pin(task)))
 }
 
 /// Start the origin-shift server, wait until the controller reports what it holds (the engine's
-/// start value), and spawn its update task.
+/// start value); returns it with the server's update task.
 async fn start_origin_shift_server(
     cfg: &FieldConfig,
     srv: crate::origin_shift::server::ServerConfig,
-    out_rx: watch::Receiver<Outputs>,
+    chans: SinkChannels,
     samples: mpsc::Sender<Sample>,
-    status: watch::Sender<SinkStatus>,
     epoch: std::time::Instant,
-) -> anyhow::Result<(tokio::task::JoinHandle<()>, BTreeMap<String, f64>)> {
+) -> anyhow::Result<(BTreeMap<String, f64>, LocalFuture)> {
     use crate::origin_shift::server::OriginShiftServer;
     use crate::origin_shift::server_core::Guard;
     let guards: Vec<(String, Guard)> = cfg
@@ -263,24 +369,8 @@ async fn start_origin_shift_server(
         .context("sink.origin_shift_server")?;
     let clock = move || epoch.elapsed().as_secs_f64();
     let held = server.wait_seeded(&samples, &clock).await;
-    let task = tokio::spawn(server.run(out_rx, samples, status, clock));
-    Ok((task, held))
-}
-
-/// How many recent cycles the compute-time percentiles of [`RunSummary`] cover.
-const COMPUTE_WINDOW: usize = 1 << 16;
-
-/// `dst = src` without allocating when the axes are the same as last cycle.
-fn copy_outputs(dst: &mut Outputs, src: &[(String, f64)]) {
-    if dst.len() != src.len() {
-        dst.clear();
-        dst.extend_from_slice(src);
-        return;
-    }
-    for ((dn, dv), (sn, sv)) in dst.iter_mut().zip(src) {
-        dn.clone_from(sn);
-        *dv = *sv;
-    }
+    let task = server.run(chans.out_rx, samples, chans.status, clock);
+    Ok((held, Box::pin(task)))
 }
 
 /// Read the controller's current values, retrying until it answers (without them the first write
@@ -318,20 +408,4 @@ pub fn require_sink(cfg: &FieldConfig) -> anyhow::Result<()> {
         );
     }
     super::quadrature_sink::check_buildable(cfg)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn outputs_are_copied_in_place_and_follow_a_changed_axis_set() {
-        let mut held: Outputs = vec![("x".into(), 1.0), ("z".into(), 2.0)];
-        let names_at = held[0].0.as_ptr();
-        copy_outputs(&mut held, &[("x".into(), -3.5), ("z".into(), 4.0)]);
-        assert_eq!(held, [("x".to_string(), -3.5), ("z".to_string(), 4.0)]);
-        assert_eq!(held[0].0.as_ptr(), names_at, "the name's buffer was reused");
-        copy_outputs(&mut held, &[("y".into(), 0.25)]);
-        assert_eq!(held, [("y".to_string(), 0.25)]);
-    }
 }

@@ -15,6 +15,11 @@
 //! interface that is still down), plus `bus_off` / `error_passive` / `bus_errors` from CAN error
 //! frames and `exception` while a Modbus device answers with exceptions. A source task that ends
 //! while the gateway runs is reported on the feed's `deaths` (the runtime then stops).
+//!
+//! Threads: the CAN and serial readers run on their own OS thread (`retrocomp-sources`, a
+//! current-thread tokio runtime that owns their sockets), each Modbus poller on its own thread; none
+//! shares a tokio worker with the status endpoint or whatever else the caller's runtime runs (the
+//! demo's in-process hubs), so a busy runtime does not leave frames and lines unread (issue 18.5).
 
 use std::time::{Duration, Instant};
 
@@ -48,6 +53,41 @@ pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> anyhow::Result<
     let (tx, rx) = mpsc::channel::<Sample>(16_384);
     let board = SourceBoard::default();
     let (notice, deaths) = TaskDeaths::new();
+    let (ready_tx, ready_rx) = tokio::sync::oneshot::channel::<anyhow::Result<()>>();
+    let (cfg, b, n) = (cfg.clone(), board.clone(), notice.clone());
+    super::realtime::spawn_runtime_thread("retrocomp-sources", None, move || async move {
+        match start_sources(&cfg, epoch, tx.clone(), b, n).await {
+            Ok(()) => {
+                let _ = ready_tx.send(Ok(()));
+                // The readers are tasks of this thread's runtime: keep it running until the
+                // gateway drops the sample channel.
+                tx.closed().await;
+            }
+            Err(e) => {
+                let _ = ready_tx.send(Err(e));
+            }
+        }
+    })
+    .context("starting the sources thread")?;
+    ready_rx
+        .await
+        .context("the sources thread ended while starting")??;
+    Ok(SourceFeed {
+        samples: rx,
+        board,
+        deaths,
+        cycles: CycleCounter::default(),
+    })
+}
+
+/// Open and spawn every source on the current (the sources thread's) runtime.
+async fn start_sources(
+    cfg: &FieldConfig,
+    epoch: Instant,
+    tx: mpsc::Sender<Sample>,
+    board: SourceBoard,
+    notice: DeathNotice,
+) -> anyhow::Result<()> {
     let clock = move || epoch.elapsed().as_secs_f64();
     if let (Some(can), Some(co)) = (cfg.can.clone(), cfg.canopen.clone()) {
         let bus = backend::open(&can, None)
@@ -97,12 +137,7 @@ pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> anyhow::Result<
             }
         });
     }
-    Ok(SourceFeed {
-        samples: rx,
-        board,
-        deaths,
-        cycles: CycleCounter::default(),
-    })
+    Ok(())
 }
 
 /// A batch sender whose batches are unpacked into `tx` by a forwarding task.

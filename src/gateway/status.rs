@@ -1,4 +1,4 @@
-//! "Is it working?": a status snapshot per cycle (per axis the applied correction, its breakdown by
+//! "Is it working?": a status snapshot (built by the cycle at ≤ 10 Hz, see `cycle.rs`; per axis the applied correction, its breakdown by
 //! term, the safety mode; every channel's health; the active faults) and its Prometheus text form.
 //! Units: µm for corrections, mm for positions, channel units for channel values.
 

@@ -256,7 +256,11 @@ pub async fn run_observed<B: CanBus>(
     let mut received = 0u64;
     observe(bus, received);
     loop {
+        // Frames first: after a host pause the socket holds frames that arrived while this task
+        // did not run; judging PDO freshness before reading them would report channels stale
+        // whose data is waiting right here. The tick is polled as soon as the socket is drained.
         tokio::select! {
+            biased;
             f = bus.recv() => match f {
                 Ok(f) => {
                     received += 1;

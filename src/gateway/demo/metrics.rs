@@ -111,6 +111,29 @@ pub struct DemoStats {
     pub full: RunStats,
     /// With the model fitted from the simulator's own measurement runs.
     pub fitted: RunStats,
+    /// How each compensated run's gateway kept up (an addition after the contract's keys).
+    #[serde(default)]
+    pub gateway: GatewayRuns,
+}
+
+/// Did the gateway compensate the whole run? From its [`crate::gateway::run::RunSummary`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct GatewayRun {
+    /// Time compensation was enabled but not applied on some axis (stale inputs, model fault), s.
+    pub not_compensating_s: f64,
+    /// Separate episodes of that (each a `compensation.<axis>` fault in the gateway's log).
+    pub not_compensating_episodes: u64,
+    /// Cycles that started more than one period late, and the worst lateness, ms.
+    pub late_cycles: u64,
+    pub max_late_ms: f64,
+}
+
+/// [`GatewayRun`] of the three compensated runs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct GatewayRuns {
+    pub geometric: GatewayRun,
+    pub full: GatewayRun,
+    pub fitted: GatewayRun,
 }
 
 impl DemoStats {
@@ -184,6 +207,19 @@ mod tests {
             .map(|k| line.find(&format!("\"{k}\":")).unwrap())
             .collect();
         assert!(at.windows(2).all(|w| w[0] < w[1]), "{line}");
-        assert_eq!(v.as_object().unwrap().len(), 4);
+        // Then `gateway` (how each compensated run kept up), also an addition, last.
+        let gw = line.find("\"gateway\":").unwrap();
+        assert!(gw > at[3], "{line}");
+        for mode in ["geometric", "full", "fitted"] {
+            assert!(
+                v["gateway"][mode]["not_compensating_s"].is_number(),
+                "{line}"
+            );
+            assert!(
+                v["gateway"][mode]["not_compensating_episodes"].is_u64(),
+                "{line}"
+            );
+        }
+        assert_eq!(v.as_object().unwrap().len(), 5);
     }
 }

@@ -31,7 +31,7 @@ use crate::gateway::model_adapter::MachineModelAdapter;
 use crate::gateway::sources::spawn_sources;
 use crate::models::MachineModel;
 use crate::recording::Recording;
-use metrics::{DemoStats, ErrorTrace, RunStats};
+use metrics::{DemoStats, ErrorTrace, GatewayRun, GatewayRuns, RunStats};
 
 /// The geometric-only model (also hil-sim's hidden truth geometry).
 pub const GEOMETRIC_MODEL: &str = include_str!("../../../deploy/demo/mill-geometric.toml");
@@ -84,6 +84,8 @@ pub struct RunResult {
     pub trace: ErrorTrace,
     pub gateway_cycles: u64,
     pub writes_ok: u64,
+    /// How the gateway kept up (zeros for the uncompensated run, which has none).
+    pub gateway: GatewayRun,
 }
 
 pub struct DemoResult {
@@ -127,6 +129,11 @@ pub async fn run_demo(opts: &DemoOptions) -> anyhow::Result<DemoResult> {
         geometric: runs[1].stats,
         full: runs[2].stats,
         fitted: runs[3].stats,
+        gateway: GatewayRuns {
+            geometric: runs[1].gateway,
+            full: runs[2].gateway,
+            fitted: runs[3].gateway,
+        },
     };
     plot::write_plots(&opts.out, &runs)?;
     std::fs::write(
@@ -233,6 +240,7 @@ async fn one_run(
     )?;
     let mut sim = sim_process::start(&opts.hil_sim, &sim_cfg, &dir).await?;
     let (mut cycles, mut writes_ok) = (0, 0);
+    let mut gateway = GatewayRun::default();
     let status = if let Some(model) = model {
         let text = field::field_toml(
             &format!("demo-{}", mode.key()),
@@ -264,6 +272,12 @@ async fn one_run(
             .with_context(|| format!("gateway ({})", mode.key()))?;
         cycles = summary.cycles;
         writes_ok = summary.writes_ok;
+        gateway = GatewayRun {
+            not_compensating_s: summary.not_compensating_s,
+            not_compensating_episodes: summary.not_compensating_episodes,
+            late_cycles: summary.late_cycles,
+            max_late_ms: summary.max_late_ms,
+        };
         status
     } else {
         sim.child.wait().await
@@ -285,5 +299,6 @@ async fn one_run(
         trace,
         gateway_cycles: cycles,
         writes_ok,
+        gateway,
     })
 }

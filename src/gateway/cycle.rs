@@ -1,0 +1,230 @@
+//! The cycle loop, on its own OS thread (see [`super::realtime`]): every `cycle_ms` it drains the
+//! samples, reseeds and actions that arrived, runs the [`Engine`], hands the outputs to the sink and,
+//! at most [`STATUS_PERIOD_S`] apart, publishes a status snapshot. The loop body ([`CycleLoop::step`])
+//! allocates nothing on a cycle that does not publish (tests/gateway_no_alloc.rs counts it).
+//!
+//! Timing: cycles are due at `start + k·period` on the gateway clock (`epoch`); a cycle that ran late
+//! (host pause) is not repeated to catch up — the next one is the next due time after now — and is
+//! counted in [`CycleReport`] (`late_cycles`, `max_late_ms`): the engine judges staleness from the
+//! samples' own times, so one late cycle does not by itself make any channel stale.
+//!
+//! Compensation dropped: whenever compensation is enabled but an axis is not tracking its target
+//! (inputs stale → holding or ramping out, model fault), the engine reports the fault
+//! `compensation.<axis>` (logged at start and clear, in status and metrics); this loop also sums the
+//! time, so a run's summary says how long compensation was off ([`CycleReport::not_compensating_s`]).
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use tokio::sync::{mpsc, watch};
+
+use super::engine::{Engine, ErrorModel};
+use super::http::Control;
+use super::source_health::SourceBoard;
+use super::status::{SinkStatus, StatusSnapshot};
+use super::supervise::CycleCounter;
+use crate::bus::Sample;
+
+/// Status snapshots are published at most this often (10 Hz), s: building one allocates (names,
+/// term maps), so never every cycle.
+pub const STATUS_PERIOD_S: f64 = 0.1;
+
+/// How many recent cycles the compute-time percentiles cover.
+pub const COMPUTE_WINDOW: usize = 1 << 16;
+
+/// Per-axis outputs handed to the sink: (axis, correction µm).
+pub type Outputs = Vec<(String, f64)>;
+
+/// The channels between the cycle and the rest of the runtime.
+pub struct CycleIo {
+    /// Samples from the bus sources.
+    pub samples: mpsc::Receiver<Sample>,
+    /// Positions the controller writes into a served register image (origin-shift server).
+    pub served: mpsc::Receiver<Sample>,
+    /// The sink found another value in the controller: continue from it.
+    pub reseed: mpsc::Receiver<(String, f64)>,
+    /// Token-guarded actions from the status endpoint.
+    pub control: mpsc::Receiver<Control>,
+    pub outputs: watch::Sender<Outputs>,
+    pub status: watch::Sender<Option<Arc<StatusSnapshot>>>,
+    pub sink_status: watch::Receiver<SinkStatus>,
+    pub board: SourceBoard,
+    pub counter: CycleCounter,
+}
+
+/// What the loop reports when it stops.
+#[derive(Clone, Debug, Default)]
+pub struct CycleReport {
+    pub cycles: u64,
+    /// Engine compute time per cycle, µs (p50, p99) over the last [`COMPUTE_WINDOW`] cycles.
+    pub compute_us_p50: f64,
+    pub compute_us_p99: f64,
+    /// Cycles that started more than one period after they were due, and the worst lateness.
+    pub late_cycles: u64,
+    pub max_late_ms: f64,
+    /// Time during which compensation was enabled but at least one axis did not track, s.
+    pub not_compensating_s: f64,
+    /// Separate episodes of that.
+    pub not_compensating_episodes: u64,
+}
+
+pub struct CycleLoop {
+    engine: Engine,
+    model: Box<dyn ErrorModel + Send>,
+    io: CycleIo,
+    compute_ns: Vec<u64>,
+    last_publish_s: Option<f64>,
+    last_step_s: Option<f64>,
+    dropped: bool,
+    report: CycleReport,
+}
+
+impl CycleLoop {
+    pub fn new(engine: Engine, model: Box<dyn ErrorModel + Send>, io: CycleIo) -> Self {
+        Self {
+            engine,
+            model,
+            io,
+            // The ring of compute times is allocated once: a gateway runs for months.
+            compute_ns: Vec::with_capacity(COMPUTE_WINDOW),
+            last_publish_s: None,
+            last_step_s: None,
+            dropped: false,
+            report: CycleReport::default(),
+        }
+    }
+
+    /// One cycle at `now_s` (gateway clock). Returns true when it published a status snapshot
+    /// (the only part that allocates).
+    pub fn step(&mut self, now_s: f64) -> bool {
+        let e = &mut self.engine;
+        while let Ok(s) = self.io.samples.try_recv() {
+            e.ingest(&s);
+        }
+        while let Ok(s) = self.io.served.try_recv() {
+            e.ingest(&s);
+        }
+        while let Ok((axis, held)) = self.io.reseed.try_recv() {
+            if let Err(err) = e.reseed(&axis, held) {
+                tracing::error!(%err, axis, "cannot continue from the controller's value; holding");
+            }
+        }
+        // Disabling ramps each axis to zero through the safety ramps (Engine::set_enabled).
+        while let Ok(Control::SetCompensation { enabled }) = self.io.control.try_recv() {
+            e.set_enabled(enabled);
+        }
+        let t0 = Instant::now();
+        let outs = e.cycle_in_place(now_s, self.model.as_mut());
+        let took_ns = t0.elapsed().as_nanos() as u64;
+        if self.compute_ns.len() < COMPUTE_WINDOW {
+            self.compute_ns.push(took_ns);
+        } else {
+            self.compute_ns[(self.report.cycles as usize) % COMPUTE_WINDOW] = took_ns;
+        }
+        // Reuse the channel's buffer (String::clone_from keeps the axis names' allocations).
+        self.io.outputs.send_modify(|held| copy_outputs(held, outs));
+        let dropped = self.engine.compensation_dropped();
+        if let Some(t) = self.last_step_s
+            && self.dropped
+        {
+            self.report.not_compensating_s += (now_s - t).max(0.0);
+        }
+        if dropped && !self.dropped {
+            self.report.not_compensating_episodes += 1;
+        }
+        self.dropped = dropped;
+        self.last_step_s = Some(now_s);
+        self.report.cycles += 1;
+        self.io.counter.set(self.report.cycles);
+        let due = self
+            .last_publish_s
+            .is_none_or(|t| now_s - t >= STATUS_PERIOD_S || now_s < t);
+        if due {
+            self.publish(now_s);
+        }
+        due
+    }
+
+    /// Build and publish the status snapshot now.
+    pub fn publish(&mut self, now_s: f64) {
+        let mut snap = self.engine.snapshot();
+        let sink = self.io.sink_status.borrow().clone();
+        snap.active_faults.extend(sink.faults.iter().cloned());
+        snap.sink = Some(sink);
+        self.io.board.copy_into(&mut snap.sources);
+        for src in &snap.sources {
+            let faults = src.faults.iter().map(|&(k, t)| (src.name.clone(), k, t));
+            snap.active_faults.extend(faults);
+        }
+        let _ = self.io.status.send(Some(Arc::new(snap)));
+        self.last_publish_s = Some(now_s);
+    }
+
+    /// Run every `period` on the gateway clock (`epoch`) until `stop` is set; then publish a last
+    /// snapshot and report.
+    pub fn run(mut self, epoch: Instant, period: Duration, stop: &AtomicBool) -> CycleReport {
+        let period_s = period.as_secs_f64();
+        let mut due = epoch.elapsed();
+        while !stop.load(Ordering::Acquire) {
+            let now = epoch.elapsed();
+            if now < due {
+                std::thread::sleep(due - now);
+                continue;
+            }
+            let late_s = (now - due).as_secs_f64();
+            if late_s > period_s {
+                self.report.late_cycles += 1;
+                self.report.max_late_ms = self.report.max_late_ms.max(late_s * 1e3);
+            }
+            self.step(now.as_secs_f64());
+            // Skip the missed due times: the next cycle is the first due time after now.
+            let behind = ((now - due).as_secs_f64() / period_s).floor() as u32;
+            due += period * (behind + 1);
+        }
+        self.publish(epoch.elapsed().as_secs_f64());
+        self.finish()
+    }
+
+    fn finish(mut self) -> CycleReport {
+        self.compute_ns.sort_unstable();
+        let n = self.compute_ns.len();
+        let pct = |p: f64| {
+            self.compute_ns
+                .get(((n as f64 - 1.0) * p) as usize)
+                .map_or(0.0, |ns| *ns as f64 / 1e3)
+        };
+        self.report.compute_us_p50 = pct(0.5);
+        self.report.compute_us_p99 = pct(0.99);
+        self.report
+    }
+}
+
+/// `dst = src` without allocating when the axes are the same as last cycle.
+fn copy_outputs(dst: &mut Outputs, src: &[(String, f64)]) {
+    if dst.len() != src.len() {
+        dst.clear();
+        dst.extend_from_slice(src);
+        return;
+    }
+    for ((dn, dv), (sn, sv)) in dst.iter_mut().zip(src) {
+        dn.clone_from(sn);
+        *dv = *sv;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outputs_are_copied_in_place_and_follow_a_changed_axis_set() {
+        let mut held: Outputs = vec![("x".into(), 1.0), ("z".into(), 2.0)];
+        let names_at = held[0].0.as_ptr();
+        copy_outputs(&mut held, &[("x".into(), -3.5), ("z".into(), 4.0)]);
+        assert_eq!(held, [("x".to_string(), -3.5), ("z".to_string(), 4.0)]);
+        assert_eq!(held[0].0.as_ptr(), names_at, "the name's buffer was reused");
+        copy_outputs(&mut held, &[("y".into(), 0.25)]);
+        assert_eq!(held, [("y".to_string(), 0.25)]);
+    }
+}
