@@ -137,6 +137,7 @@ pub async fn run(
     };
 
     let mut engine = Engine::new(&cfg, &initial)?;
+    let model_identity = model.identity();
     let mut tick = tokio::time::interval(Duration::from_millis(cfg.gateway.cycle_ms));
     tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
     // The last COMPUTE_WINDOW cycles' compute times, overwritten in a ring: a gateway runs for
@@ -184,6 +185,7 @@ pub async fn run(
         let sink = sink_status_rx.borrow().clone();
         snap.active_faults.extend(sink.faults.iter().cloned());
         snap.sink = Some(sink);
+        snap.model.clone_from(&model_identity);
         source_board.copy_into(&mut snap.sources);
         for src in &snap.sources {
             let faults = src.faults.iter().map(|&(k, t)| (src.name.clone(), k, t));
