@@ -62,7 +62,8 @@ impl Ring {
     /// it is in the same bucket, else appends (dropping the oldest beyond `cap`).
     fn put(&mut self, unix_s: f64, row: &[Option<f64>]) {
         while self.values.len() < row.len() {
-            self.values.push(self.t_unix_s.iter().map(|_| None).collect());
+            self.values
+                .push(self.t_unix_s.iter().map(|_| None).collect());
         }
         let bucket = (unix_s / self.step_s).floor();
         let same = self

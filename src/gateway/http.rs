@@ -237,7 +237,13 @@ pub(super) fn authorize(
         .and_then(|v| v.strip_prefix("Bearer "));
     if !presented.is_some_and(|t| same_secret(t.trim().as_bytes(), expected.as_bytes())) {
         tracing::warn!(%peer, action, "action refused: missing or wrong bearer token");
-        record(s, peer, "-", action, "refused: missing or wrong token (401)");
+        record(
+            s,
+            peer,
+            "-",
+            action,
+            "refused: missing or wrong token (401)",
+        );
         let mut r = plain(StatusCode::UNAUTHORIZED, "valid bearer token required\n");
         r.headers_mut()
             .insert(header::WWW_AUTHENTICATE, "Bearer".parse().expect("static"));
@@ -281,7 +287,13 @@ async fn set_compensation(
         );
     };
     if tx.try_send(Control::SetCompensation { enabled }).is_err() {
-        record(&s, peer, "api_token", &action, "refused: run loop busy (503)");
+        record(
+            &s,
+            peer,
+            "api_token",
+            &action,
+            "refused: run loop busy (503)",
+        );
         return plain(
             StatusCode::SERVICE_UNAVAILABLE,
             "run loop busy or stopped; retry\n",
@@ -295,7 +307,13 @@ async fn set_compensation(
         .and_then(|v| v.to_str().ok())
         .unwrap_or("-");
     tracing::info!(%peer, agent, unix_s, enabled, who = "api_token", "action accepted: POST /api/compensation");
-    record(&s, peer, "api_token", &action, "accepted (ramps through the safety layer)");
+    record(
+        &s,
+        peer,
+        "api_token",
+        &action,
+        "accepted (ramps through the safety layer)",
+    );
     Json(serde_json::json!({ "enabled": enabled })).into_response()
 }
 

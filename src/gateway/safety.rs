@@ -251,7 +251,11 @@ mod tests {
         assert_eq!(s.step(0.030, true, Input::Fresh(2.0)), 2.0);
         assert_eq!(s.hits(), (0, 1), "the 2 µm step was cut once by the cap");
         s.step(0.045, true, Input::Fresh(80.0));
-        assert_eq!(s.hits(), (1, 2), "80 µm is beyond the 50 µm clamp, then capped");
+        assert_eq!(
+            s.hits(),
+            (1, 2),
+            "80 µm is beyond the 50 µm clamp, then capped"
+        );
     }
 
     #[test]

@@ -46,7 +46,10 @@ pub(super) fn routes() -> Router<AppState> {
         .route("/", asset(INDEX_HTML, "text/html; charset=utf-8"))
         .route("/assets/app.js", asset(APP_JS, "text/javascript"))
         .route("/assets/app.css", asset(APP_CSS, "text/css"))
-        .route("/assets/uPlot.iife.min.js", asset(UPLOT_JS, "text/javascript"))
+        .route(
+            "/assets/uPlot.iife.min.js",
+            asset(UPLOT_JS, "text/javascript"),
+        )
         .route("/assets/uPlot.min.css", asset(UPLOT_CSS, "text/css"))
         .route("/assets/uPlot-LICENSE", asset(UPLOT_LICENSE, "text/plain"))
         .route("/api/history", get(history).fallback(not_allowed))
@@ -144,7 +147,13 @@ async fn ack(
         source.as_deref().unwrap_or("every source")
     );
     tracing::info!(%peer, who = "api_token", n, "action accepted: {action}");
-    record(&s, peer, "api_token", &action, &format!("accepted: {n} acknowledged"));
+    record(
+        &s,
+        peer,
+        "api_token",
+        &action,
+        &format!("accepted: {n} acknowledged"),
+    );
     json(serde_json::json!({ "acknowledged": n }))
 }
 
@@ -156,7 +165,13 @@ async fn switch_model(
     if let Err(r) = authorize(&s, peer, &headers, "POST /api/model") {
         return r;
     }
-    record(&s, peer, "api_token", "switch model", "refused: not supported (501)");
+    record(
+        &s,
+        peer,
+        "api_token",
+        "switch model",
+        "refused: not supported (501)",
+    );
     plain(
         StatusCode::NOT_IMPLEMENTED,
         "switching the model at run time is not supported: restart the gateway with the new [model] path\n",

@@ -108,7 +108,14 @@ impl Rig {
         let m = method.parse().unwrap();
         let body = body.to_string().into();
         self.rt
-            .block_on(request(&self.addr, m, path, &h, body, Duration::from_secs(5)))
+            .block_on(request(
+                &self.addr,
+                m,
+                path,
+                &h,
+                body,
+                Duration::from_secs(5),
+            ))
             .unwrap_or_else(|e| panic!("{method} {path}: {e}"))
     }
 
