@@ -223,13 +223,13 @@ pub(super) fn authorize(
     peer: SocketAddr,
     headers: &HeaderMap,
     action: &str,
-) -> Result<(), Response> {
+) -> Result<(), Box<Response>> {
     let Some(expected) = s.api.token.as_deref() else {
         record(s, peer, "-", action, "refused: no api_token configured");
-        return Err(plain(
+        return Err(Box::new(plain(
             StatusCode::FORBIDDEN,
             "actions disabled: no [gateway] api_token in the field config\n",
-        ));
+        )));
     };
     let presented = headers
         .get(header::AUTHORIZATION)
@@ -247,7 +247,7 @@ pub(super) fn authorize(
         let mut r = plain(StatusCode::UNAUTHORIZED, "valid bearer token required\n");
         r.headers_mut()
             .insert(header::WWW_AUTHENTICATE, "Bearer".parse().expect("static"));
-        return Err(r);
+        return Err(Box::new(r));
     }
     Ok(())
 }
@@ -272,7 +272,7 @@ async fn set_compensation(
     body: Result<Json<CompensationBody>, JsonRejection>,
 ) -> Response {
     if let Err(r) = authorize(&s, peer, &headers, "POST /api/compensation") {
-        return r;
+        return *r;
     }
     let Json(CompensationBody { enabled }) = match body {
         Ok(b) => b,

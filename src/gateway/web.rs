@@ -128,7 +128,7 @@ async fn ack(
     body: Result<Json<AckBody>, JsonRejection>,
 ) -> Response {
     if let Err(r) = authorize(&s, peer, &headers, "POST /api/faults/ack") {
-        return r;
+        return *r;
     }
     let Json(AckBody { source }) = match body {
         Ok(b) => b,
@@ -163,7 +163,7 @@ async fn switch_model(
     headers: HeaderMap,
 ) -> Response {
     if let Err(r) = authorize(&s, peer, &headers, "POST /api/model") {
-        return r;
+        return *r;
     }
     record(
         &s,
