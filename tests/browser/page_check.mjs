@@ -22,7 +22,11 @@ try {
   });
   const errors = [];
   page.on("pageerror", (e) => errors.push(String(e)));
-  page.on("console", (m) => { if (m.type() === "error") errors.push(m.text()); });
+  // The page has no favicon: the browser's own /favicon.ico probe (404) is not the page's error.
+  page.on("console", (m) => {
+    const at = m.location().url || "";
+    if (m.type() === "error" && !at.endsWith("/favicon.ico")) errors.push(`${m.text()} (${at})`);
+  });
   await page.goto(url);
   await page.waitForSelector("[data-axis] .applied", { timeout: 60000 });
   for (let i = 0; i < 6; i++) {
