@@ -8,6 +8,8 @@
 #        qemu-utils (e.g. from backports) `apt-get install qemu-system-x86` would remove it.
 # Never removes or downgrades a host package: every install is simulated first (apt-get -s) and
 # refused if the simulation removes or downgrades anything; the real install adds --no-remove.
+#   chromium (+ chromium-driver): the headless browser of tests/gateway_web_browser.rs, driven by
+#        playwright-core (PINNED in tests/browser/package-lock.json, `npm ci`; needs node + npm)
 #   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial)
 # Tests look for <repo>/.venv/bin/python and fail with "run scripts/setup-peers.sh" if it is missing.
 set -euo pipefail
@@ -24,6 +26,8 @@ APT_PACKAGES=(
   gzip
   xz-utils
   binutils
+  chromium
+  chromium-driver
 )
 
 PIP_PACKAGES=(
@@ -63,6 +67,13 @@ import can, pymodbus, serial
 print(f"setup-peers: python-can {can.__version__}, pymodbus {pymodbus.__version__}, "
       f"pyserial {serial.VERSION}")
 PYEOF
+if command -v npm >/dev/null 2>&1; then
+  echo "setup-peers: npm ci in tests/browser (playwright-core, no browser download)"
+  (cd "$REPO/tests/browser" && PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 npm ci --no-audit --no-fund --silent)
+else
+  echo "setup-peers: npm missing: install nodejs and npm (apt) for tests/gateway_web_browser.rs" >&2
+  exit 1
+fi
 sh "$REPO/scripts/vcan-qemu/fetch-qemu.sh"
 sh "$REPO/scripts/vcan-qemu/fetch-kernel.sh"
 bash "$REPO/scripts/setup-linuxcnc.sh"

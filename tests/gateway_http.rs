@@ -51,7 +51,7 @@ async fn post(addr: &str, auth: Option<&str>, body: &str) -> (u16, String) {
 #[tokio::test]
 async fn read_routes_without_snapshot_and_wrong_methods() {
     let (addr, _tx) = start(Api::default(), Limits::default()).await;
-    for path in ["/status", "/metrics", "/", "/nope"] {
+    for path in ["/status", "/metrics", "/text", "/nope"] {
         let (code, body) = request(&addr, Method::GET, path, &[], Bytes::new(), T)
             .await
             .unwrap();

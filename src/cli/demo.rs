@@ -1,4 +1,4 @@
-//! `retrocomp demo [--out DIR] [--json] [--seconds N] [--seed N]`: the main job on a machine with no hardware
+//! `retrocomp demo [--out DIR] [--json] [--seconds N] [--seed N] [--serve [ADDR]]`: the main job on a machine with no hardware
 //! (src/gateway/demo). Prints what the fit of the measurement runs found, then per axis the
 //! tool-tip error RMS and max (µm) of the four runs; with
 //! `--json` the last stdout line is the machine-readable summary (DESIGN-fixed keys, see
@@ -23,6 +23,10 @@ pub struct Args {
     /// Seed of the simulated machine's noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// After the runs, keep a live gateway (full model) running against hil-sim, its page at
+    /// http://ADDR/ (the shop-floor page, /status, /metrics), until Ctrl-C. Loopback by default.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8080")]
+    pub serve: Option<String>,
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
@@ -89,6 +93,26 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     );
     if args.json {
         println!("{}", serde_json::to_string(&r.stats)?);
+    }
+    if let Some(listen) = &args.serve {
+        // With --json the summary stays the last stdout line: the address goes to stderr then.
+        let json = args.json;
+        let live = crate::gateway::demo::serve_live(&opts, listen, move |addr| {
+            let line = format!(
+                "retrocomp demo: live page http://{addr}/ (JSON /status, Prometheus /metrics); Ctrl-C stops"
+            );
+            if json {
+                eprintln!("{line}");
+            } else {
+                println!("{line}");
+            }
+        });
+        rt.block_on(async {
+            tokio::select! {
+                r = live => r,
+                _ = tokio::signal::ctrl_c() => Ok(()),
+            }
+        })?;
     }
     Ok(())
 }

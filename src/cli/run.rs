@@ -107,6 +107,10 @@ impl<M: ErrorModel> ErrorModel for HangAfter<M> {
         self.inner.required_channels()
     }
 
+    fn identity(&self) -> Option<crate::gateway::status::ModelIdentity> {
+        self.inner.identity()
+    }
+
     fn axis_errors(&mut self, state: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
         if self.after == 0 {
             tracing::warn!("{HANG_HOOK}: the cycle now blocks forever (test hook)");

@@ -26,7 +26,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     } else if args.metrics {
         "/metrics"
     } else {
-        "/"
+        "/text"
     };
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()

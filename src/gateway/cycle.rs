@@ -72,6 +72,8 @@ pub struct CycleReport {
 pub struct CycleLoop {
     engine: Engine,
     model: Box<dyn ErrorModel + Send>,
+    /// Which model runs (name, hash, loaded when), copied into every snapshot.
+    model_identity: Option<super::status::ModelIdentity>,
     io: CycleIo,
     compute_ns: Vec<u64>,
     last_publish_s: Option<f64>,
@@ -84,6 +86,7 @@ impl CycleLoop {
     pub fn new(engine: Engine, model: Box<dyn ErrorModel + Send>, io: CycleIo) -> Self {
         Self {
             engine,
+            model_identity: model.identity(),
             model,
             io,
             // The ring of compute times is allocated once: a gateway runs for months.
@@ -152,6 +155,7 @@ impl CycleLoop {
         let sink = self.io.sink_status.borrow().clone();
         snap.active_faults.extend(sink.faults.iter().cloned());
         snap.sink = Some(sink);
+        snap.model.clone_from(&self.model_identity);
         self.io.board.copy_into(&mut snap.sources);
         for src in &snap.sources {
             let faults = src.faults.iter().map(|&(k, t)| (src.name.clone(), k, t));

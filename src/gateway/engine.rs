@@ -17,7 +17,7 @@ use super::direction::{Direction, DirectionLatch};
 use super::health::{ChannelLimits, ChannelMonitor, ChannelStatus, FaultKind, FaultLog};
 use super::recovery::NeighbourEstimate;
 use super::safety::{AxisSafety, Input, Mode, SafetyError};
-use super::status::{AxisStatus, StatusSnapshot};
+use super::status::{AxisStatus, ModelIdentity, StatusSnapshot};
 use crate::bus::{Health, Sample};
 
 /// The machine state the model sees. The engine updates the maps in place, so in steady state
@@ -97,6 +97,10 @@ pub trait ErrorModel {
     /// Push, per machine axis, its error terms at `state` into `out` (cleared by the caller).
     /// `&mut self`: models keep evaluation state (thermal lags, scratch buffers).
     fn axis_errors(&mut self, state: &MachineState, out: &mut AxisErrors) -> Result<(), String>;
+    /// Which model this is (name, content hash, when loaded), for the status page; None if unknown.
+    fn identity(&self) -> Option<ModelIdentity> {
+        None
+    }
 }
 
 /// Everything the engine knows about one channel, by channel id (index into `Engine::channels`).
@@ -543,6 +547,8 @@ impl Engine {
                     applied_um: a.safety.output_um(),
                     mode: a.safety.mode(),
                     terms_um: a.terms.iter().map(|(n, v)| (n.to_string(), *v)).collect(),
+                    clamp_hits: a.safety.hits().0,
+                    cap_hits: a.safety.hits().1,
                 })
                 .collect(),
             channels: self
@@ -561,6 +567,7 @@ impl Engine {
             model_error: self.model_error.clone(),
             sink: None,
             sources: Vec::new(),
+            model: None,
         }
     }
 

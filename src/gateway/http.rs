@@ -1,8 +1,10 @@
 //! The box's HTTP endpoint, on axum over hyper, bound to 127.0.0.1 by default:
-//! `GET /status` (JSON snapshot), `GET /metrics` (Prometheus text), `GET /` (text table), all
-//! read-only and open; `POST /api/compensation` (`{"enabled": bool}`), the first action, needs
+//! `GET /status` (JSON snapshot), `GET /metrics` (Prometheus text), `GET /text` (text table), all
+//! read-only and open; the live page `GET /` and its JSON (`super::web`, history in
+//! `super::history`); `POST /api/compensation` (`{"enabled": bool}`), the first action, needs
 //! `Authorization: Bearer <[gateway] api_token>` and is forwarded to the run loop as a [`Control`].
-//! Unknown path: 404; wrong method: 405; no cycle run yet: 503 on the read routes.
+//! Every action, accepted or refused, is logged (tracing) and kept in the page's action log with
+//! the peer address. Unknown path: 404; wrong method: 405; no cycle run yet: 503 on the read routes.
 //!
 //! Bounded everything (issue 18.6): at most [`Limits::max_connections`] connections (more are
 //! answered 503 and closed at once, never queued); one request per connection; the request head
@@ -104,10 +106,13 @@ pub async fn serve(
         tracing::warn!(%addr, "status endpoint bound to a non-loopback address");
     }
     raise_nofile_soft_limit();
+    // Fed from the watch channel at ≤ 10 Hz; ends when the run loop drops the sender.
+    let (history, _history_task) = super::history::spawn(rx.clone());
     let app = router(
         AppState {
             rx,
             api: Arc::new(api),
+            history,
         },
         &limits,
     );
@@ -115,17 +120,19 @@ pub async fn serve(
 }
 
 #[derive(Clone)]
-struct AppState {
-    rx: StatusRx,
-    api: Arc<Api>,
+pub(super) struct AppState {
+    pub(super) rx: StatusRx,
+    pub(super) api: Arc<Api>,
+    pub(super) history: super::history::SharedHistory,
 }
 
 fn router(state: AppState, limits: &Limits) -> Router {
     Router::new()
         .route("/status", get_route(status_json).fallback(not_allowed))
         .route("/metrics", get_route(metrics).fallback(not_allowed))
-        .route("/", get_route(text).fallback(not_allowed))
+        .route("/text", get_route(text).fallback(not_allowed))
         .route("/api/compensation", post(set_compensation))
+        .merge(super::web::routes())
         .fallback(fallback)
         .layer(DefaultBodyLimit::max(limits.max_body_bytes))
         .layer(tower_http::limit::RequestBodyLimitLayer::new(
@@ -138,7 +145,7 @@ fn router(state: AppState, limits: &Limits) -> Router {
         .with_state(state)
 }
 
-fn plain(code: StatusCode, body: &'static str) -> Response {
+pub(super) fn plain(code: StatusCode, body: &'static str) -> Response {
     (code, [(header::CONTENT_TYPE, "text/plain")], body).into_response()
 }
 
@@ -181,7 +188,7 @@ async fn text(State(s): State<AppState>) -> Response {
     }
 }
 
-async fn not_allowed() -> Response {
+pub(super) async fn not_allowed() -> Response {
     plain(StatusCode::METHOD_NOT_ALLOWED, "read-only: GET only\n")
 }
 
@@ -194,7 +201,7 @@ async fn fallback(State(s): State<AppState>, method: Method) -> Response {
     }
     plain(
         StatusCode::NOT_FOUND,
-        "not found: try /status, /metrics or /\n",
+        "not found: try /, /status, /metrics or /text\n",
     )
 }
 
@@ -209,41 +216,84 @@ fn same_secret(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
-async fn set_compensation(
-    State(s): State<AppState>,
-    ConnectInfo(peer): ConnectInfo<SocketAddr>,
-    headers: HeaderMap,
-    body: Result<Json<CompensationBody>, JsonRejection>,
-) -> Response {
-    // Authorise before looking at the body: an unauthorised caller learns nothing else.
+/// Check the bearer token of an action (before looking at its body: an unauthorised caller
+/// learns nothing else). Refusals are logged and kept in the action log.
+pub(super) fn authorize(
+    s: &AppState,
+    peer: SocketAddr,
+    headers: &HeaderMap,
+    action: &str,
+) -> Result<(), Box<Response>> {
     let Some(expected) = s.api.token.as_deref() else {
-        return plain(
+        record(s, peer, "-", action, "refused: no api_token configured");
+        return Err(Box::new(plain(
             StatusCode::FORBIDDEN,
             "actions disabled: no [gateway] api_token in the field config\n",
-        );
+        )));
     };
     let presented = headers
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.strip_prefix("Bearer "));
     if !presented.is_some_and(|t| same_secret(t.trim().as_bytes(), expected.as_bytes())) {
-        tracing::warn!(%peer, "POST /api/compensation refused: missing or wrong bearer token");
+        tracing::warn!(%peer, action, "action refused: missing or wrong bearer token");
+        record(
+            s,
+            peer,
+            "-",
+            action,
+            "refused: missing or wrong token (401)",
+        );
         let mut r = plain(StatusCode::UNAUTHORIZED, "valid bearer token required\n");
         r.headers_mut()
             .insert(header::WWW_AUTHENTICATE, "Bearer".parse().expect("static"));
-        return r;
+        return Err(Box::new(r));
+    }
+    Ok(())
+}
+
+/// Keep an action in the page's action log (who: `api_token` when authorised, `-` otherwise).
+pub(super) fn record(s: &AppState, peer: SocketAddr, who: &str, action: &str, result: &str) {
+    let ev = super::history::ActionEvent {
+        unix_s: super::history::unix_now_s(),
+        peer: peer.to_string(),
+        who: who.to_string(),
+        action: action.to_string(),
+        result: result.to_string(),
+    };
+    let mut h = s.history.lock().unwrap_or_else(|p| p.into_inner());
+    h.record_action(ev);
+}
+
+async fn set_compensation(
+    State(s): State<AppState>,
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    headers: HeaderMap,
+    body: Result<Json<CompensationBody>, JsonRejection>,
+) -> Response {
+    if let Err(r) = authorize(&s, peer, &headers, "POST /api/compensation") {
+        return *r;
     }
     let Json(CompensationBody { enabled }) = match body {
         Ok(b) => b,
         Err(e) => return (e.status(), format!("{}\n", e.body_text())).into_response(),
     };
+    let action = format!("compensation enabled={enabled}");
     let Some(tx) = s.api.control_tx.as_ref() else {
+        record(&s, peer, "api_token", &action, "refused: no run loop (503)");
         return plain(
             StatusCode::SERVICE_UNAVAILABLE,
             "no run loop takes actions\n",
         );
     };
     if tx.try_send(Control::SetCompensation { enabled }).is_err() {
+        record(
+            &s,
+            peer,
+            "api_token",
+            &action,
+            "refused: run loop busy (503)",
+        );
         return plain(
             StatusCode::SERVICE_UNAVAILABLE,
             "run loop busy or stopped; retry\n",
@@ -256,7 +306,14 @@ async fn set_compensation(
         .get(header::USER_AGENT)
         .and_then(|v| v.to_str().ok())
         .unwrap_or("-");
-    tracing::info!(%peer, agent, unix_s, enabled, "action accepted: POST /api/compensation");
+    tracing::info!(%peer, agent, unix_s, enabled, who = "api_token", "action accepted: POST /api/compensation");
+    record(
+        &s,
+        peer,
+        "api_token",
+        &action,
+        "accepted (ramps through the safety layer)",
+    );
     Json(serde_json::json!({ "enabled": enabled })).into_response()
 }
 

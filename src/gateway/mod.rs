@@ -9,6 +9,7 @@ pub mod demo;
 pub mod direction;
 pub mod engine;
 pub mod health;
+pub mod history;
 pub mod http;
 pub mod model_adapter;
 pub mod origin_shift_sink;
@@ -21,6 +22,7 @@ pub mod source_health;
 pub mod sources;
 pub mod status;
 pub mod supervise;
+pub mod web;
 
 pub use direction::{Direction, DirectionConfig, DirectionLatch};
 pub use engine::{AxisErrors, Engine, ErrorModel, MachineState, TermError};

@@ -9,6 +9,7 @@
 use std::sync::Arc;
 
 use super::engine::{AxisErrors, ErrorModel, MachineState};
+use super::status::ModelIdentity;
 use crate::models::{Axis, ErrorBreakdown, MachineModel, ModelInput, ModelState};
 
 /// Axis names as the gateway's state keys them, by [`Axis::index`].
@@ -30,6 +31,7 @@ pub struct MachineModelAdapter {
     term_names: Vec<Arc<str>>,
     /// Use the first-order closed form (cheaper) instead of the exact 4×4 chain.
     pub first_order: bool,
+    identity: ModelIdentity,
 }
 
 fn dir_of(w: f64) -> i8 {
@@ -44,7 +46,17 @@ fn dir_of(w: f64) -> i8 {
 
 impl MachineModelAdapter {
     pub fn new(model: MachineModel) -> Self {
+        use sha2::Digest as _;
+        let digest = sha2::Sha256::digest(model.to_toml_string().as_bytes());
+        let identity = ModelIdentity {
+            name: model.name().to_string(),
+            sha256: digest.iter().map(|b| format!("{b:02x}")).collect(),
+            loaded_unix_s: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64()),
+        };
         Self {
+            identity,
             state: model.new_state(),
             input: model.new_input(),
             main: model.new_breakdown(),
@@ -92,6 +104,10 @@ impl MachineModelAdapter {
 }
 
 impl ErrorModel for MachineModelAdapter {
+    fn identity(&self) -> Option<ModelIdentity> {
+        Some(self.identity.clone())
+    }
+
     fn required_channels(&self) -> Vec<String> {
         self.temp_channels
             .iter()

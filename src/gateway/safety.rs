@@ -114,6 +114,10 @@ pub struct AxisSafety {
     mode: Mode,
     stale_since_s: Option<f64>,
     last_t_s: Option<f64>,
+    /// Cycles whose model target was beyond `max_correction_um` (clamped), since start.
+    clamp_hits: u64,
+    /// Cycles whose step was limited by `max_change_um_per_cycle` (dosing cap), since start.
+    cap_hits: u64,
 }
 
 impl AxisSafety {
@@ -133,6 +137,8 @@ impl AxisSafety {
             mode: Mode::RampingIn,
             stale_since_s: None,
             last_t_s: None,
+            clamp_hits: 0,
+            cap_hits: 0,
         })
     }
 
@@ -148,6 +154,11 @@ impl AxisSafety {
         &self.cfg
     }
 
+    /// (clamp hits, dosing-cap hits) since start: how often the safety layer cut the model's wish.
+    pub fn hits(&self) -> (u64, u64) {
+        (self.clamp_hits, self.cap_hits)
+    }
+
     /// One cycle at time `now_s`. Returns the output to write (clamped, capped, ramped).
     pub fn step(&mut self, now_s: f64, enabled: bool, input: Input) -> f64 {
         let dt_s = match self.last_t_s {
@@ -159,6 +170,12 @@ impl AxisSafety {
         let ramp = (self.cfg.ramp_um_per_s * dt_s).min(cap);
         let max = self.cfg.max_correction_um;
 
+        if let Input::Fresh(v) = input
+            && v.is_finite()
+            && v.abs() > max
+        {
+            self.clamp_hits += 1;
+        }
         let fresh = match input {
             Input::Fresh(v) if v.is_finite() => Some(v.clamp(-max, max)),
             Input::Fresh(_) | Input::Fault => None,
@@ -190,6 +207,9 @@ impl AxisSafety {
         };
 
         let delta = (desired - self.output_um).clamp(-limit, limit);
+        if limit == cap && limit > 0.0 && (desired - self.output_um).abs() > cap {
+            self.cap_hits += 1;
+        }
         self.output_um = (self.output_um + delta).clamp(-max, max);
         self.mode = if mode == Mode::RampingIn
             && (desired - self.output_um).abs() <= f64::EPSILON * max.max(1.0)
@@ -229,6 +249,13 @@ mod tests {
         assert_eq!(s.mode(), Mode::Tracking);
         assert_eq!(s.step(0.015, true, Input::Fresh(2.0)), 1.0);
         assert_eq!(s.step(0.030, true, Input::Fresh(2.0)), 2.0);
+        assert_eq!(s.hits(), (0, 1), "the 2 µm step was cut once by the cap");
+        s.step(0.045, true, Input::Fresh(80.0));
+        assert_eq!(
+            s.hits(),
+            (1, 2),
+            "80 µm is beyond the 50 µm clamp, then capped"
+        );
     }
 
     #[test]

@@ -26,6 +26,19 @@ pub struct AxisStatus {
     pub mode: Mode,
     /// Breakdown of the target by model term (corrections, µm).
     pub terms_um: BTreeMap<String, f64>,
+    /// Cycles whose model target was beyond the clamp (`max_correction_um`), since start.
+    pub clamp_hits: u64,
+    /// Cycles whose step was cut by the dosing cap (`max_change_um_per_cycle`), since start.
+    pub cap_hits: u64,
+}
+
+/// The model in use: its name, the SHA-256 of its canonical TOML (the same model written by any
+/// tool gives the same hash) and when the gateway loaded it (Unix time, s).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ModelIdentity {
+    pub name: String,
+    pub sha256: String,
+    pub loaded_unix_s: f64,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Default)]
@@ -93,6 +106,8 @@ pub struct StatusSnapshot {
     pub sink: Option<SinkStatus>,
     /// Bus sources' links (filled by the runtime; empty when the samples come from elsewhere).
     pub sources: Vec<SourceStatus>,
+    /// The model in use (filled by the runtime from [`crate::gateway::engine::ErrorModel::identity`]).
+    pub model: Option<ModelIdentity>,
 }
 
 fn esc(label: &str) -> String {
@@ -196,6 +211,34 @@ impl StatusSnapshot {
                 "retrocomp_axis_tracking{{axis=\"{}\"}} {}",
                 esc(&a.axis),
                 (a.mode == Mode::Tracking) as u8
+            );
+        }
+        family(
+            &mut s,
+            "retrocomp_safety_clamp_hits_total",
+            "counter",
+            "Cycles whose model target was beyond the clamp, per axis.",
+        );
+        for a in &self.axes {
+            let _ = writeln!(
+                s,
+                "retrocomp_safety_clamp_hits_total{{axis=\"{}\"}} {}",
+                esc(&a.axis),
+                a.clamp_hits
+            );
+        }
+        family(
+            &mut s,
+            "retrocomp_safety_cap_hits_total",
+            "counter",
+            "Cycles whose step was cut by the dosing cap, per axis.",
+        );
+        for a in &self.axes {
+            let _ = writeln!(
+                s,
+                "retrocomp_safety_cap_hits_total{{axis=\"{}\"}} {}",
+                esc(&a.axis),
+                a.cap_hits
             );
         }
         family(

@@ -113,15 +113,22 @@ pub async fn run_demo(opts: &DemoOptions) -> anyhow::Result<DemoResult> {
     std::fs::write(models.join("fit-report.txt"), fit.report.join("\n") + "\n")?;
     let campaign_s = t0.elapsed().as_secs_f64();
     let (a, b, c, d) = tokio::join!(
-        one_run(opts, Mode::Uncompensated, &geo_path, None),
+        one_run(opts, Mode::Uncompensated, &geo_path, None, None),
         one_run(
             opts,
             Mode::Geometric,
             &geo_path,
-            Some(truth_model(Mode::Geometric)?)
+            Some(truth_model(Mode::Geometric)?),
+            None
         ),
-        one_run(opts, Mode::Full, &geo_path, Some(truth_model(Mode::Full)?)),
-        one_run(opts, Mode::Fitted, &geo_path, Some(fitted_model)),
+        one_run(
+            opts,
+            Mode::Full,
+            &geo_path,
+            Some(truth_model(Mode::Full)?),
+            None
+        ),
+        one_run(opts, Mode::Fitted, &geo_path, Some(fitted_model), None),
     );
     let runs = vec![a?, b?, c?, d?];
     let stats = DemoStats {
@@ -216,13 +223,66 @@ fn truth_model(mode: Mode) -> anyhow::Result<MachineModel> {
         .map_err(|e| anyhow::anyhow!("demo model ({}): {e}", mode.key()))
 }
 
+/// Where a live run serves its page: the address to bind (instead of the demo's ephemeral
+/// loopback port) and who to tell the bound address.
+struct Live {
+    listen: String,
+    bound: tokio::sync::oneshot::Sender<std::net::SocketAddr>,
+}
+
+/// `retrocomp demo --serve`: after the four runs, the full-model gateway runs against hil-sim
+/// again and again (each pass the warm-up and the part program, a fresh simulator), its live page
+/// and `/metrics` on `listen`; `on_bound` gets the address once the first pass is up. Returns only
+/// on error (the caller stops it with Ctrl-C).
+pub async fn serve_live(
+    opts: &DemoOptions,
+    listen: &str,
+    on_bound: impl FnOnce(std::net::SocketAddr),
+) -> anyhow::Result<()> {
+    let models = opts.out.join("models");
+    std::fs::create_dir_all(&models)?;
+    let geo_path = models.join("mill-geometric.toml");
+    std::fs::write(&geo_path, GEOMETRIC_MODEL)?;
+    let geo_path = std::fs::canonicalize(&geo_path)?;
+    let mut on_bound = Some(on_bound);
+    loop {
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        let live = Live {
+            listen: listen.to_string(),
+            bound: tx,
+        };
+        let run = one_run(
+            opts,
+            Mode::Full,
+            &geo_path,
+            Some(truth_model(Mode::Full)?),
+            Some(live),
+        );
+        tokio::pin!(run);
+        let mut rx = Some(rx);
+        loop {
+            tokio::select! {
+                r = &mut run => { r?; break; }
+                Ok(addr) = async { rx.as_mut().expect("polled once").await }, if rx.is_some() => {
+                    rx = None;
+                    if let Some(f) = on_bound.take() {
+                        f(addr);
+                    }
+                }
+            }
+        }
+    }
+}
+
 async fn one_run(
     opts: &DemoOptions,
     mode: Mode,
     truth: &Path,
     model: Option<MachineModel>,
+    live: Option<Live>,
 ) -> anyhow::Result<RunResult> {
-    let dir = std::path::absolute(opts.out.join(mode.key()))?;
+    let sub = if live.is_some() { "live" } else { mode.key() };
+    let dir = std::path::absolute(opts.out.join(sub))?;
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let hub = Hub::start_loopback()
         .await
@@ -248,6 +308,16 @@ async fn one_run(
             sim.modbus,
             &sim.weighing_pty,
         );
+        let (text, bound) = match live {
+            Some(l) => {
+                let listen = format!("status_listen = \"{}\"", l.listen);
+                (
+                    text.replacen("status_listen = \"127.0.0.1:0\"", &listen, 1),
+                    Some(l.bound),
+                )
+            }
+            None => (text, None),
+        };
         let field_path = dir.join("field.toml");
         std::fs::write(&field_path, &text)?;
         let cfg = FieldConfig::parse(&text, &field_path)?;
@@ -262,7 +332,7 @@ async fn one_run(
             async move {
                 let _ = stop_rx.await;
             },
-            None,
+            bound,
         ));
         let status = sim.child.wait().await;
         let _ = stop_tx.send(());

@@ -1,0 +1,71 @@
+// Drives Debian's chromium (playwright-core, no browser download) against the gateway's live page
+// for tests/gateway_web_browser.rs. Prints one JSON object per line on stdout; the Rust test makes
+// every assertion. Env: PAGE_URL, SHOT_DIR, FAULT_CHANNEL, CHROMIUM (default /usr/bin/chromium).
+import { chromium } from "playwright-core";
+
+const out = (o) => console.log(JSON.stringify(o));
+const url = process.env.PAGE_URL;
+const shots = process.env.SHOT_DIR;
+const channel = process.env.FAULT_CHANNEL;
+
+const browser = await chromium.launch({
+  executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
+  args: ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update"],
+});
+try {
+  const page = await browser.newPage({ viewport: { width: 1280, height: 1000 } });
+  const seen = new Map();
+  page.on("response", async (r) => {
+    if (new URL(r.url()).pathname === "/status" && r.ok()) {
+      try { const j = await r.json(); seen.set(j.cycles, j); } catch (e) { /* page navigated */ }
+    }
+  });
+  const errors = [];
+  page.on("pageerror", (e) => errors.push(String(e)));
+  // The page has no favicon: the browser's own /favicon.ico probe (404) is not the page's error.
+  page.on("console", (m) => {
+    const at = m.location().url || "";
+    if (m.type() === "error" && !at.endsWith("/favicon.ico")) errors.push(`${m.text()} (${at})`);
+  });
+  await page.goto(url);
+  await page.waitForSelector("[data-axis] .applied", { timeout: 60000 });
+  for (let i = 0; i < 6; i++) {
+    const shown = await page.evaluate(() => ({
+      cycles: Number(document.body.dataset.cycles),
+      banner: document.querySelector("#banner").textContent,
+      axes: [...document.querySelectorAll("[data-axis]")].map((c) => ({
+        axis: c.dataset.axis,
+        applied: c.querySelector(".applied").textContent,
+        target: c.querySelector(".target").textContent,
+      })),
+      channels: [...document.querySelectorAll("#sensors tr[data-channel]")].map((r) => ({
+        channel: r.dataset.channel, value: r.children[1].textContent, bad: r.classList.contains("bad"),
+      })),
+      model: document.querySelector("#model").textContent,
+    }));
+    await page.waitForTimeout(300);
+    out({ event: "shown", shown, status: seen.get(shown.cycles) ?? null });
+  }
+  // Let the charts collect a few points, then the healthy screenshot.
+  await page.waitForFunction(() => document.querySelectorAll(".uplot").length >= 2, null, { timeout: 30000 });
+  await page.waitForTimeout(3000);
+  await page.screenshot({ path: `${shots}/web-live.png` });
+  out({ event: "ready", unix_ms: Date.now() });
+
+  await page.waitForSelector(`tr[data-channel="${channel}"].bad`, { timeout: 120000 });
+  const shownMs = Date.now();
+  const banner = await page.textContent("#banner");
+  out({ event: "fault_shown", unix_ms: shownMs, banner });
+  await page.waitForTimeout(2500);
+  await page.screenshot({ path: `${shots}/web-fault.png`, fullPage: true });
+
+  await page.fill("#token", "");
+  await page.click("#act-disable");
+  await page.waitForSelector("#act-result.bad", { timeout: 20000 });
+  out({ event: "refused", text: await page.textContent("#act-result") });
+  await page.waitForFunction(() => /refused: missing or wrong token/.test(document.querySelector("#action-log").textContent), null, { timeout: 20000 });
+  out({ event: "action_logged", text: await page.textContent("#action-log") });
+  out({ event: "done", errors });
+} finally {
+  await browser.close();
+}
