@@ -4,7 +4,8 @@
 //! of the `/status` answers it received, that a sensor fault injected mid-run (hil-sim silences the
 //! temperature CAN node 10 at 20 s) appears on the page (an event wait; the latency from hil-sim's
 //! fault edge to the page is printed, not asserted: the machine is loaded), and that an action
-//! without the token is refused and changes nothing. Screenshots go to docs/img/.
+//! without the token is refused and changes nothing. Screenshots go to target/screenshots/
+//! (docs/img/ with RETROCOMP_UPDATE_SCREENSHOTS=1).
 //!
 //! Needs `node`, tests/browser/node_modules (`npm ci --prefix tests/browser`) and
 //! /usr/bin/chromium (apt `chromium`): `scripts/setup-peers.sh` installs all three.
@@ -110,7 +111,14 @@ fn live_page_in_headless_chromium_shows_status_faults_and_refuses_actions_withou
         Path::new(&chromium).is_file(),
         "{chromium} missing: bash scripts/apt-install-safe.sh chromium chromium-driver (or set RETROCOMP_CHROMIUM)"
     );
-    let shots = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/img");
+    // Into target/ so a test run leaves the work tree clean; RETROCOMP_UPDATE_SCREENSHOTS=1 writes
+    // the README's and docs/shopfloor.md's pictures in docs/img/ instead.
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let shots = if std::env::var_os("RETROCOMP_UPDATE_SCREENSHOTS").is_some() {
+        root.join("docs/img")
+    } else {
+        root.join("target/screenshots")
+    };
     std::fs::create_dir_all(&shots).unwrap();
 
     let mut rig = web_rig::start("gateway_web_browser", 12, FAULTS);
