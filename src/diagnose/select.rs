@@ -7,6 +7,9 @@
 //! nonlinear parameter is refined by golden-section on the profile RSS (linear gains solved inside:
 //! variable projection); it is kept only if block cross-validation (leave one run / time block out,
 //! or interleaved position cells for a forward + a reverse run: [`Context::blocks_for`]) improves.
+//! On thermal-only recordings the blocks are validated forward (rolling origin), each later block
+//! scored with lag states carried and restarted at its first row ([`restarted`]), as a new file
+//! fed to `retrocomp eval` would start them.
 //! Candidates of another family that explain the same residual almost as well and almost
 //! collinearly are recorded as ambiguous alternatives.
 //!

@@ -58,6 +58,9 @@ fn gain(
     (!u.is_empty()).then(|| (lsq::gain(&u, r0), u.len() + usize::from(c.is_nonlinear())))
 }
 
+/// Held-out RMS of the model made of a set of (candidate, θ) (and a constant).
+pub type HeldOut<'a> = dyn Fn(&[(&Candidate, f64)]) -> f64 + 'a;
+
 /// Every term but `terms[k]`, as (candidate, θ).
 fn kept(terms: &[Term], k: usize) -> Vec<(&Candidate, f64)> {
     terms
@@ -82,7 +85,7 @@ pub fn best_exchange(
     tried: usize,
     opts: &Options,
     cv_now: f64,
-    cv_of: &dyn Fn(&[(&Candidate, f64)]) -> f64,
+    cv_of: &HeldOut<'_>,
 ) -> Option<Exchange> {
     let n = r.len();
     let ln_n = n_eff.ln();
