@@ -195,6 +195,33 @@ pub fn cv_rss(cols: &[&[f64]], r: &[f64], block: &[usize], n_blocks: usize) -> f
 /// by the fit on blocks 0..k only, for k ≥ 1, so nothing is judged on data earlier than what
 /// chose it. Returns (RSS over the predicted rows, number of predicted rows).
 pub fn forward_rss(cols: &[&[f64]], r: &[f64], block: &[usize], n_blocks: usize) -> (f64, usize) {
+    forward_rss_pred(cols, cols, r, block, n_blocks)
+}
+
+/// [`forward_rss`] with the gains fitted on `cols` and block k predicted from `pred` (the same
+/// regressors as a NEW recording starting at block k would compute them: lag states restarted
+/// there, see `select::restarted`). `pred` has the layout of `cols`.
+pub fn forward_rss_pred(
+    cols: &[&[f64]],
+    pred: &[&[f64]],
+    r: &[f64],
+    block: &[usize],
+    n_blocks: usize,
+) -> (f64, usize) {
+    forward_block_rss(cols, pred, r, block, n_blocks)
+        .iter()
+        .fold((0.0, 0), |(s, m), b| (s + b.0, m + b.1))
+}
+
+/// Per block: (RSS, rows) of block k predicted by gains fitted on `cols` over blocks before k
+/// (block 0 is never predicted: (0, 0)); prediction from `pred` as in [`forward_rss_pred`].
+pub fn forward_block_rss(
+    cols: &[&[f64]],
+    pred: &[&[f64]],
+    r: &[f64],
+    block: &[usize],
+    n_blocks: usize,
+) -> Vec<(f64, usize)> {
     let p = cols.len();
     let mut per: Vec<(DMatrix<f64>, DVector<f64>)> = (0..n_blocks)
         .map(|_| (DMatrix::zeros(p, p), DVector::zeros(p)))
@@ -219,15 +246,15 @@ pub fn forward_rss(cols: &[&[f64]], r: &[f64], block: &[usize], n_blocks: usize)
         g += &per[k].0;
         h += &per[k].1;
     }
-    let (mut rss, mut m) = (0.0, 0usize);
+    let mut out = vec![(0.0, 0usize); n_blocks];
     for i in 0..r.len() {
         if let Some(b) = &betas[block[i]] {
-            let fit: f64 = (0..p).map(|a| b[a] * cols[a][i]).sum();
-            rss += (r[i] - fit).powi(2);
-            m += 1;
+            let fit: f64 = (0..p).map(|a| b[a] * pred[a][i]).sum();
+            out[block[i]].0 += (r[i] - fit).powi(2);
+            out[block[i]].1 += 1;
         }
     }
-    (rss, m)
+    out
 }
 
 #[cfg(test)]

@@ -58,6 +58,19 @@ fn gain(
     (!u.is_empty()).then(|| (lsq::gain(&u, r0), u.len() + usize::from(c.is_nonlinear())))
 }
 
+/// Held-out RMS of the model made of a set of (candidate, θ) (and a constant).
+pub type HeldOut<'a> = dyn Fn(&[(&Candidate, f64)]) -> f64 + 'a;
+
+/// Every term but `terms[k]`, as (candidate, θ).
+fn kept(terms: &[Term], k: usize) -> Vec<(&Candidate, f64)> {
+    terms
+        .iter()
+        .enumerate()
+        .filter(|(j, _)| *j != k)
+        .map(|(_, t)| (&t.cand, t.theta))
+        .collect()
+}
+
 /// Look for the best exchange: replace `terms[k]` by a candidate c, or by c plus one more
 /// candidate d (the effect the old term had been absorbing). `n_eff` is the effective sample size
 /// of the current residual; `tried` the number of candidate/grid pairs (Holm-corrected F-test);
@@ -72,7 +85,7 @@ pub fn best_exchange(
     tried: usize,
     opts: &Options,
     cv_now: f64,
-    cv_of: &dyn Fn(&[Vec<f64>]) -> f64,
+    cv_of: &HeldOut<'_>,
 ) -> Option<Exchange> {
     let n = r.len();
     let ln_n = n_eff.ln();
@@ -140,7 +153,7 @@ pub fn best_exchange(
         return None;
     }
     // Every new term must pass the forward bar as a partial test given all the others.
-    let mut base = others(terms, k, n);
+    let base = others(terms, k, n);
     let new_cols: Vec<Vec<Vec<f64>>> = set.iter().map(|(c, th)| c.columns(ctx, *th)).collect();
     let mut out = vec![];
     for (i, (c, th)) in set.iter().enumerate() {
@@ -165,9 +178,17 @@ pub fn best_exchange(
         if !(delta_bic > opts.min_delta_bic && p_value * (tried as f64) < opts.alpha) {
             return None;
         }
-        let cv_without = cv_of(&rest);
-        rest.extend(new_cols[i].iter().cloned());
-        let cv_after = cv_of(&rest);
+        // The same set as (candidate, θ) for the held-out score.
+        let mut rest_set: Vec<(&Candidate, f64)> = kept(terms, k);
+        rest_set.extend(
+            set.iter()
+                .enumerate()
+                .filter(|(j, _)| *j != i)
+                .map(|(_, (c, th))| (c, *th)),
+        );
+        let cv_without = cv_of(&rest_set);
+        rest_set.push((c, *th));
+        let cv_after = cv_of(&rest_set);
         out.push(Term {
             cand: c.clone(),
             theta: *th,
@@ -182,10 +203,9 @@ pub fn best_exchange(
             within_cells: false,
         });
     }
-    for cols in &new_cols {
-        base.extend(cols.iter().cloned());
-    }
-    let cv_after = cv_of(&base);
+    let mut all = kept(terms, k);
+    all.extend(set.iter().map(|(c, th)| (c, *th)));
+    let cv_after = cv_of(&all);
     if cv_after.is_nan() || cv_after > cv_now {
         return None;
     }
