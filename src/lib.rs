@@ -10,4 +10,5 @@ pub mod models;
 pub mod origin_shift;
 pub mod quadrature;
 pub mod recording;
+pub mod telemetry;
 pub mod units;

@@ -515,6 +515,7 @@ impl Engine {
             model_error: self.model_error.clone(),
             sink: None,
             sources: Vec::new(),
+            telemetry: None,
         }
     }
 

@@ -58,6 +58,8 @@ pub async fn run(
         cycles: cycle_counter,
     } = sources.into();
     let (status_tx, status_rx) = watch::channel::<Option<Arc<StatusSnapshot>>>(None);
+    // Sparkplug B publisher: its own tasks fed from the status watch (never slows the cycle).
+    let mut telemetry = crate::telemetry::publisher::start_for(&cfg, status_rx.clone())?;
     let listen: SocketAddr = cfg
         .gateway
         .status_listen
@@ -189,6 +191,9 @@ pub async fn run(
             let faults = src.faults.iter().map(|&(k, t)| (src.name.clone(), k, t));
             snap.active_faults.extend(faults);
         }
+        if let Some(p) = telemetry.as_mut() {
+            p.annotate(&mut snap);
+        }
         let _ = status_tx.send(Some(Arc::new(snap)));
         summary.cycles += 1;
         cycle_counter.set(summary.cycles);
@@ -197,6 +202,9 @@ pub async fn run(
         t.abort();
     }
     http_task.abort();
+    if let Some(p) = telemetry {
+        p.stop(Duration::from_secs(2)).await;
+    }
     let st = sink_status_rx.borrow().clone();
     summary.writes_ok = st.writes_ok;
     summary.writes_failed = st.writes_failed;

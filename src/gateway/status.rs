@@ -93,6 +93,9 @@ pub struct StatusSnapshot {
     pub sink: Option<SinkStatus>,
     /// Bus sources' links (filled by the runtime; empty when the samples come from elsewhere).
     pub sources: Vec<SourceStatus>,
+    /// The Sparkplug B publisher (`[telemetry.mqtt]`), when configured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub telemetry: Option<crate::telemetry::TelemetryStatus>,
 }
 
 fn esc(label: &str) -> String {
@@ -310,6 +313,9 @@ impl StatusSnapshot {
             }
         }
         self.prometheus_sources(&mut s);
+        if let Some(t) = &self.telemetry {
+            t.prometheus(&mut s);
+        }
         s
     }
 

@@ -259,6 +259,7 @@ fn status_server() -> SocketAddr {
                     model_error: None,
                     sink: None,
                     sources: vec![],
+                    telemetry: None,
                 };
                 let (keep, wrx) = tokio::sync::watch::channel(Some(Arc::new(snap)));
                 let (addr, task) = serve_status("127.0.0.1:0".parse().unwrap(), wrx)
