@@ -8,7 +8,9 @@
 #        qemu-utils (e.g. from backports) `apt-get install qemu-system-x86` would remove it.
 # Never removes or downgrades a host package: every install is simulated first (apt-get -s) and
 # refused if the simulation removes or downgrades anything; the real install adds --no-remove.
-#   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial)
+#   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial; paho-mqtt +
+#        mqtt-spb-wrapper, the Sparkplug B host of tests/telemetry_mqtt.rs; mosquitto is its broker,
+#        started by the test itself on a loopback port, never the system service)
 # Tests look for <repo>/.venv/bin/python and fail with "run scripts/setup-peers.sh" if it is missing.
 set -euo pipefail
 
@@ -24,12 +26,16 @@ APT_PACKAGES=(
   gzip
   xz-utils
   binutils
+  mosquitto
 )
 
 PIP_PACKAGES=(
   "python-can==4.6.1"
   "pymodbus[serial]==3.16.1"
   "pyserial==3.5"
+  "mqtt-spb-wrapper==2.1.2"
+  "paho-mqtt==1.6.1"
+  "protobuf==3.20.3"
 )
 
 SUDO=""

@@ -1,4 +1,4 @@
-//! `retrocomp demo [--out DIR] [--json] [--seconds N] [--seed N]`: the main job on a machine with no hardware
+//! `retrocomp demo [--out DIR] [--json] [--seconds N] [--seed N] [--mqtt HOST:PORT]`: the main job on a machine with no hardware
 //! (src/gateway/demo). Prints what the fit of the measurement runs found, then per axis the
 //! tool-tip error RMS and max (µm) of the four runs; with
 //! `--json` the last stdout line is the machine-readable summary (DESIGN-fixed keys, see
@@ -23,6 +23,10 @@ pub struct Args {
     /// Seed of the simulated machine's noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Publish each compensated run as Sparkplug B to this MQTT broker (HOST:PORT; group
+    /// `retrocomp-demo`, one edge node per run), for any Sparkplug client to watch.
+    #[arg(long, value_name = "HOST:PORT")]
+    pub mqtt: Option<String>,
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
@@ -40,12 +44,20 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         "--seconds {}: the warm-up must be between 0 and 60 s (the demo runs in real time)",
         args.seconds
     );
+    if let Some(b) = &args.mqtt {
+        crate::telemetry::config::demo_section(b, "check")
+            .mqtt
+            .as_ref()
+            .map_or(Ok(()), |m| m.check())
+            .map_err(|(key, what)| anyhow::anyhow!("--mqtt {b}: {key}: {what}"))?;
+    }
     let hil_sim = locate_hil_sim()?;
     let opts = DemoOptions {
         out: args.out.clone(),
         seed: args.seed,
         warmup_s: args.seconds,
         hil_sim,
+        mqtt: args.mqtt.clone(),
     };
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

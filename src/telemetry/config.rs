@@ -134,6 +134,18 @@ fn check_id(key: &str, v: &str) -> Result<(), (String, String)> {
     Ok(())
 }
 
+/// The `[telemetry]` of one `retrocomp demo` run: group `retrocomp-demo`, edge node
+/// `mill-<run>`, memory queue, 10 Hz.
+pub fn demo_section(broker: &str, run: &str) -> TelemetrySection {
+    TelemetrySection {
+        mqtt: Some(MqttConfig::new(
+            broker,
+            "retrocomp-demo",
+            &format!("mill-{run}"),
+        )),
+    }
+}
+
 impl MqttConfig {
     /// A config for `host:port` with defaults (the demo and the load bench).
     pub fn new(broker: &str, group_id: &str, edge_node_id: &str) -> Self {

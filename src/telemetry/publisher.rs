@@ -42,6 +42,8 @@ pub struct TelemetryStatus {
     pub queued_bytes: u64,
     /// Records dropped because the queue or the hand-over channel was full, since start.
     pub dropped_total: u64,
+    /// Records taken into the queue, since start.
+    pub records_total: u64,
     /// Records the broker acknowledged, since start.
     pub acked_total: u64,
     /// NBIRTHs sent (connects and rebirths), since start.
@@ -171,6 +173,7 @@ pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> anyhow::Result<Publish
             status: status_tx,
             handover_drops,
             current: Vec::new(),
+            records_total: 0,
             acked_total: 0,
             births_total: 0,
         }
@@ -288,6 +291,7 @@ struct Session {
     handover_drops: Arc<std::sync::atomic::AtomicU64>,
     /// Latest value of every metric (what an NBIRTH announces).
     current: Vec<NamedValue>,
+    records_total: u64,
     acked_total: u64,
     births_total: u64,
 }
@@ -366,6 +370,7 @@ impl Session {
             }
         }
         self.queue.push(queue::encode(&r));
+        self.records_total += 1;
     }
 
     fn publish_status(&self, connected: bool, last_error: Option<String>) {
@@ -378,6 +383,7 @@ impl Session {
                 + self
                     .handover_drops
                     .load(std::sync::atomic::Ordering::Relaxed),
+            records_total: self.records_total,
             acked_total: self.acked_total,
             births_total: self.births_total,
             last_error,

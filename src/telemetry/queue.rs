@@ -310,8 +310,7 @@ mod tests {
         let mut q = Queue::open(l).unwrap();
         assert_eq!(times(&q), [2, 3, 4]);
         assert!(!dir.path().join("q/00000000000000000099.tmp").exists());
-        let id = q.push(rec(5));
-        assert_eq!(id, 0);
+        assert_eq!(q.push(rec(5)), 0, "nothing dropped");
         assert_eq!(times(&q), [2, 3, 4, 5]);
         assert_eq!(q.first_from(q.next_id() - 1).map(|e| e.id), Some(4));
     }
