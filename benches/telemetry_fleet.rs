@@ -203,7 +203,10 @@ fn main() {
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         if a == "--seconds" {
-            seconds = args.next().and_then(|s| s.parse().ok()).expect("--seconds S");
+            seconds = args
+                .next()
+                .and_then(|s| s.parse().ok())
+                .expect("--seconds S");
         } else if let Some((b, r)) = a.split_once('x') {
             if let (Ok(b), Ok(r)) = (b.parse(), r.parse()) {
                 steps.push((b, r));
@@ -212,7 +215,13 @@ fn main() {
         // Other arguments (`--bench` from cargo) are ignored.
     }
     if steps.is_empty() {
-        steps = vec![(50, 10.0), (100, 10.0), (200, 10.0), (400, 10.0), (200, 20.0)];
+        steps = vec![
+            (50, 10.0),
+            (100, 10.0),
+            (200, 10.0),
+            (400, 10.0),
+            (200, 20.0),
+        ];
     }
     let dir = tempfile::tempdir().unwrap();
     let port = std::net::TcpListener::bind("127.0.0.1:0")
@@ -246,7 +255,16 @@ fn main() {
     println!("telemetry_fleet: one mosquitto, one subscriber, {seconds} s per step");
     println!(
         "{:>6} {:>7} {:>10} {:>10} {:>10} {:>8} {:>8} {:>6} {:>6} {:>10}",
-        "boxes", "rate_Hz", "records/s", "produced", "received", "lost", "dropped", "gaps", "nodes", "broker_cpu"
+        "boxes",
+        "rate_Hz",
+        "records/s",
+        "produced",
+        "received",
+        "lost",
+        "dropped",
+        "gaps",
+        "nodes",
+        "broker_cpu"
     );
     for (boxes, rate) in steps {
         rt.block_on(step(port, broker.id(), boxes, rate, seconds));

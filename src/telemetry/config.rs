@@ -179,9 +179,12 @@ impl MqttConfig {
             .broker
             .rsplit_once(':')
             .ok_or_else(|| format!("expected host:port, got {:?}", self.broker))?;
-        let port = p
-            .parse::<u16>()
-            .map_err(|_| format!("expected host:port with a port 1..=65535, got {:?}", self.broker))?;
+        let port = p.parse::<u16>().map_err(|_| {
+            format!(
+                "expected host:port with a port 1..=65535, got {:?}",
+                self.broker
+            )
+        })?;
         if h.is_empty() || port == 0 {
             return Err(format!("expected host:port, got {:?}", self.broker));
         }

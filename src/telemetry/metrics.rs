@@ -68,7 +68,10 @@ pub fn snapshot_metrics(snap: &StatusSnapshot, model_identity: &str) -> Vec<Name
             format!("Channel/{name}/value"),
             Value::Double(ch.value.unwrap_or(f64::NAN)),
         );
-        push(format!("Channel/{name}/health"), Value::String(snake(&ch.health)));
+        push(
+            format!("Channel/{name}/health"),
+            Value::String(snake(&ch.health)),
+        );
     }
     if let Some(s) = &snap.sink {
         push("Sink/kind".into(), Value::String(s.kind.clone()));

@@ -8,6 +8,7 @@
 //! the Unix epoch, taken when the snapshot was sampled.
 
 pub mod config;
+pub mod fleet;
 pub mod metrics;
 pub mod publisher;
 pub mod queue;

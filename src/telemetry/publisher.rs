@@ -116,7 +116,10 @@ impl Publisher {
         if let Some(s) = self.stop.take() {
             let _ = s.send(());
         }
-        if tokio::time::timeout(grace, &mut self.session).await.is_err() {
+        if tokio::time::timeout(grace, &mut self.session)
+            .await
+            .is_err()
+        {
             self.session.abort();
         }
     }
@@ -254,7 +257,9 @@ async fn sampler_task(
                     drops.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                     if !warned {
                         warned = true;
-                        tracing::warn!("telemetry: the session task is behind; dropping records (counted)");
+                        tracing::warn!(
+                            "telemetry: the session task is behind; dropping records (counted)"
+                        );
                     }
                 }
                 Err(mpsc::error::TrySendError::Closed(_)) => return,
@@ -338,7 +343,11 @@ impl Session {
             }
             if !down_logged {
                 // Fault start, once per outage; the clear is logged with the next NBIRTH.
-                tracing::error!(why, broker = self.cfg.broker, "telemetry: MQTT link down; queueing records");
+                tracing::error!(
+                    why,
+                    broker = self.cfg.broker,
+                    "telemetry: MQTT link down; queueing records"
+                );
                 down_logged = true;
             }
             self.publish_status(false, Some(why));
@@ -433,7 +442,11 @@ impl Session {
         let g = self.cfg.group_id.clone();
         let n = self.cfg.edge_node_id.clone();
         let ncmd = sparkplug::topic(&g, Kind::NCmd, &n);
-        let state = self.cfg.primary_host_id.as_deref().map(sparkplug::state_topic);
+        let state = self
+            .cfg
+            .primary_host_id
+            .as_deref()
+            .map(sparkplug::state_topic);
         loop {
             tokio::select! {
                 _ = &mut *stop => {
@@ -457,6 +470,7 @@ impl Session {
                     None => return End::Lost("event loop ended".into()),
                     Some(Err(e)) => return End::Lost(e.to_string()),
                     Some(Ok(Event::Incoming(Packet::ConnAck(_)))) => {
+                        self.edge.connected();
                         let _ = c.client.try_subscribe(ncmd.clone(), QoS::AtLeastOnce);
                         if let Some(t) = &state {
                             let _ = c.client.try_subscribe(t.clone(), QoS::AtLeastOnce);
@@ -518,7 +532,12 @@ impl Session {
             c.calls.push_back(None);
         }
         if c.phase != Phase::Born {
-            tracing::info!(bd_seq = self.edge.bd_seq(), queued = self.queue.len(), broker = self.cfg.broker, "telemetry: NBIRTH sent; MQTT link up");
+            tracing::info!(
+                bd_seq = self.edge.bd_seq(),
+                queued = self.queue.len(),
+                broker = self.cfg.broker,
+                "telemetry: NBIRTH sent; MQTT link up"
+            );
             // The first birth of this connection: everything still queued (never acknowledged)
             // is sent after it, what was queued before it as historical.
             c.next_send = 0;

@@ -198,7 +198,8 @@ impl Queue {
         self.next_id += 1;
         if let Some(dir) = &self.limits.dir {
             let tmp = dir.join(format!("{id:020}.tmp"));
-            let res = std::fs::write(&tmp, &bytes).and_then(|()| std::fs::rename(&tmp, file_of(dir, id)));
+            let res =
+                std::fs::write(&tmp, &bytes).and_then(|()| std::fs::rename(&tmp, file_of(dir, id)));
             if let Err(e) = res {
                 // Kept in memory: the record is still sent; only a restart during the outage
                 // would lose it. Logged once (a full disk would otherwise log every record).
@@ -256,7 +257,10 @@ mod tests {
     }
 
     fn times(q: &Queue) -> Vec<u64> {
-        q.entries.iter().map(|e| decode(&e.bytes).unwrap().t_ms).collect()
+        q.entries
+            .iter()
+            .map(|e| decode(&e.bytes).unwrap().t_ms)
+            .collect()
     }
 
     #[test]

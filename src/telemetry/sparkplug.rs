@@ -5,8 +5,10 @@
 //! (bdSeq, seq) as a sans-IO machine. Timestamps are ms since the Unix epoch (UTC), as the spec says.
 //!
 //! Sequence rules (spec §6.4.18–6.4.25, tck-ids in the comments):
-//! - bdSeq (0–255, wraps) advances on every MQTT CONNECT; the NDEATH registered as the CONNECT's
-//!   will and the NBIRTH that follows carry the same value (`payloads-nbirth-bdseq-repeat`).
+//! - bdSeq (0–255, wraps) advances on every MQTT CONNECT after one the broker accepted (a refused
+//!   or unanswered attempt registered no will, so its number is reused); the NDEATH registered as
+//!   the CONNECT's will and the NBIRTH that follows carry the same value
+//!   (`payloads-nbirth-bdseq-repeat`).
 //! - seq (0–255, wraps): the NBIRTH carries 0, each NDATA one more than the previous message.
 //! - NDEATH carries no seq; NCMD `Node Control/Rebirth` = true asks for a new NBIRTH (same bdSeq,
 //!   seq back to 0).
@@ -161,7 +163,8 @@ pub struct EdgeNode {
     /// Metric names in alias order (alias = index + 1; 0 is left out so an absent alias is never
     /// mistaken for the first metric by a careless decoder).
     names: Vec<String>,
-    started: bool,
+    /// The broker accepted the CONNECT carrying the current bdSeq: the next one is a new number.
+    used: bool,
 }
 
 impl EdgeNode {
@@ -171,17 +174,22 @@ impl EdgeNode {
             bd_seq: first_bd_seq,
             seq: 0,
             names: Vec::new(),
-            started: false,
+            used: false,
         }
     }
 
-    /// The bdSeq for a new MQTT CONNECT (advances it, except for the very first connect).
+    /// The bdSeq for a new MQTT CONNECT: advanced if the broker accepted the previous one.
     pub fn next_connect(&mut self) -> u8 {
-        if self.started {
+        if self.used {
             self.bd_seq = self.bd_seq.wrapping_add(1);
+            self.used = false;
         }
-        self.started = true;
         self.bd_seq
+    }
+
+    /// The broker accepted the CONNECT (CONNACK): its will, our NDEATH, is registered.
+    pub fn connected(&mut self) {
+        self.used = true;
     }
 
     pub fn bd_seq(&self) -> u8 {
@@ -290,8 +298,19 @@ mod tests {
     #[test]
     fn bd_seq_advances_per_connect_and_wraps_and_death_matches_birth() {
         let mut n = EdgeNode::new(254);
-        assert_eq!(n.next_connect(), 254, "the first connect uses the stored value");
+        assert_eq!(
+            n.next_connect(),
+            254,
+            "the first connect uses the stored value"
+        );
+        assert_eq!(
+            n.next_connect(),
+            254,
+            "a refused connect registered no will: reused"
+        );
+        n.connected();
         assert_eq!(n.next_connect(), 255);
+        n.connected();
         assert_eq!(n.next_connect(), 0, "bdSeq wraps 255 → 0");
         let death = Payload::decode(n.death(5).as_slice()).unwrap();
         let birth = Payload::decode(n.birth(&vals(), 6).as_slice()).unwrap();
@@ -337,8 +356,12 @@ mod tests {
                 .and_then(|m| m.alias)
         };
         let d = Payload::decode(
-            n.data(&[("Gateway/enabled".into(), Value::Boolean(false))], 7, true)
-                .as_slice(),
+            n.data(
+                &[("Gateway/enabled".into(), Value::Boolean(false))],
+                7,
+                true,
+            )
+            .as_slice(),
         )
         .unwrap();
         assert_eq!(d.timestamp, Some(7));
@@ -363,14 +386,8 @@ mod tests {
         };
         assert!(is_rebirth_request(&cmd.encode_to_vec()));
         assert!(!is_rebirth_request(b"\xff\xff"));
-        assert_eq!(
-            host_online(br#"{"online":true,"timestamp":1}"#),
-            Some(true)
-        );
+        assert_eq!(host_online(br#"{"online":true,"timestamp":1}"#), Some(true));
         assert_eq!(host_online(b"nonsense"), None);
-        assert_eq!(
-            topic("g", Kind::NData, "box-1"),
-            "spBv1.0/g/NDATA/box-1"
-        );
+        assert_eq!(topic("g", Kind::NData, "box-1"), "spBv1.0/g/NDATA/box-1");
     }
 }

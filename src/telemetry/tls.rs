@@ -13,7 +13,8 @@ pub fn client_config(t: &TlsConfig) -> anyhow::Result<rustls::ClientConfig> {
     let cas = CertificateDer::pem_file_iter(&t.ca_file)
         .with_context(|| format!("telemetry.mqtt.tls.ca_file {}", t.ca_file.display()))?;
     for ca in cas {
-        let ca = ca.with_context(|| format!("telemetry.mqtt.tls.ca_file {}", t.ca_file.display()))?;
+        let ca =
+            ca.with_context(|| format!("telemetry.mqtt.tls.ca_file {}", t.ca_file.display()))?;
         roots
             .add(ca)
             .with_context(|| format!("telemetry.mqtt.tls.ca_file {}", t.ca_file.display()))?;
