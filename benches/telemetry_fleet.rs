@@ -207,10 +207,10 @@ fn main() {
                 .next()
                 .and_then(|s| s.parse().ok())
                 .expect("--seconds S");
-        } else if let Some((b, r)) = a.split_once('x') {
-            if let (Ok(b), Ok(r)) = (b.parse(), r.parse()) {
-                steps.push((b, r));
-            }
+        } else if let Some((b, r)) = a.split_once('x')
+            && let (Ok(b), Ok(r)) = (b.parse(), r.parse())
+        {
+            steps.push((b, r));
         }
         // Other arguments (`--bench` from cargo) are ignored.
     }

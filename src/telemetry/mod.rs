@@ -3,7 +3,8 @@
 //! decoder). Layout: [`sparkplug`] (the protobuf payload, topics, bdSeq/seq: sans-IO),
 //! [`metrics`] (a gateway status snapshot as named metrics, report by exception), [`queue`]
 //! (bounded store-and-forward queue, on disk), [`config`] (`[telemetry.mqtt]`), [`publisher`] (the
-//! rumqttc shell fed from the gateway's status watch; it can never block the cycle). Units as in
+//! rumqttc shell fed from the gateway's status watch; it can never block the cycle), [`fleet`] (the
+//! host side: per box alive/compensating/degraded from its messages, for `retrocomp fleet`). Units as in
 //! the status: µm for corrections (correction = −error), mm for positions; timestamps ms since
 //! the Unix epoch, taken when the snapshot was sampled.
 
@@ -13,6 +14,7 @@ pub mod metrics;
 pub mod publisher;
 pub mod queue;
 pub mod sparkplug;
+pub mod status;
 mod tls;
 
 pub use config::{MqttConfig, TelemetrySection};

@@ -22,34 +22,14 @@ use anyhow::Context as _;
 use rumqttc::{
     AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet, QoS,
 };
-use serde::Serialize;
 use tokio::sync::{mpsc, watch};
 
 use super::config::MqttConfig;
 use super::metrics::{Record, Sampler, snapshot_metrics};
 use super::queue::{self, Queue, QueueLimits};
 use super::sparkplug::{self, EdgeNode, Kind, NamedValue};
+pub use super::status::TelemetryStatus;
 use crate::gateway::status::StatusSnapshot;
-
-/// The publisher's state, for `/status` and `/metrics` (`retrocomp_telemetry_*`).
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct TelemetryStatus {
-    /// Connected and born (NBIRTH sent): data flows.
-    pub connected: bool,
-    pub bd_seq: u8,
-    /// Records waiting in the store-and-forward queue (including those in flight).
-    pub queued: u64,
-    pub queued_bytes: u64,
-    /// Records dropped because the queue or the hand-over channel was full, since start.
-    pub dropped_total: u64,
-    /// Records taken into the queue, since start.
-    pub records_total: u64,
-    /// Records the broker acknowledged, since start.
-    pub acked_total: u64,
-    /// NBIRTHs sent (connects and rebirths), since start.
-    pub births_total: u64,
-    pub last_error: Option<String>,
-}
 
 /// What the publisher needs besides its config.
 pub struct PublisherInputs {
@@ -614,51 +594,5 @@ async fn pump_events(mut el: EventLoop, tx: mpsc::Sender<Result<Event, Connectio
         if tx.send(ev).await.is_err() || failed {
             return;
         }
-    }
-}
-
-impl TelemetryStatus {
-    /// `retrocomp_telemetry_*` in the Prometheus text format (appended to the gateway's).
-    pub fn prometheus(&self, s: &mut String) {
-        use std::fmt::Write as _;
-        let mut one = |name: &str, kind: &str, help: &str, v: u64| {
-            let _ = writeln!(s, "# HELP {name} {help}\n# TYPE {name} {kind}\n{name} {v}");
-        };
-        one(
-            "retrocomp_telemetry_connected",
-            "gauge",
-            "1 when the MQTT link is up and NBIRTH was sent.",
-            self.connected as u64,
-        );
-        one(
-            "retrocomp_telemetry_queued",
-            "gauge",
-            "Telemetry records waiting for the broker's acknowledgement.",
-            self.queued,
-        );
-        one(
-            "retrocomp_telemetry_queued_bytes",
-            "gauge",
-            "Bytes of the queued telemetry records.",
-            self.queued_bytes,
-        );
-        one(
-            "retrocomp_telemetry_dropped_total",
-            "counter",
-            "Telemetry records dropped (queue full, by the drop policy).",
-            self.dropped_total,
-        );
-        one(
-            "retrocomp_telemetry_acked_total",
-            "counter",
-            "Telemetry records acknowledged by the broker.",
-            self.acked_total,
-        );
-        one(
-            "retrocomp_telemetry_births_total",
-            "counter",
-            "Sparkplug NBIRTHs sent (connects and rebirths).",
-            self.births_total,
-        );
     }
 }
