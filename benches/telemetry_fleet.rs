@@ -162,7 +162,10 @@ async fn step(port: u16, broker_pid: u32, boxes: usize, rate_hz: f64, seconds: f
     }
     let window_s = t0.elapsed().as_secs_f64();
     let cpu_s = (cpu_ticks(broker_pid) - cpu0) as f64 / 100.0;
-    // Drain: until every publisher's queue is empty and the subscriber has caught up (≤ 60 s).
+    // Each sampler takes the last snapshot at its next tick: let that happen (a late last
+    // record would otherwise count as lost), then drain until every queue is empty and the
+    // subscriber has caught up (≤ 60 s).
+    tokio::time::sleep(Duration::from_secs_f64(3.0 / rate_hz)).await;
     let produced = |pubs: &[telemetry::Publisher]| -> u64 {
         pubs.iter().map(|p| p.status.borrow().records_total).sum()
     };
@@ -175,6 +178,7 @@ async fn step(port: u16, broker_pid: u32, boxes: usize, rate_hz: f64, seconds: f
         }
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
+    let drain_s = t0.elapsed().as_secs_f64() - window_s;
     let produced = produced(&pubs);
     let dropped: u64 = pubs.iter().map(|p| p.status.borrow().dropped_total).sum();
     let (received, gaps, nodes) = {
@@ -186,7 +190,7 @@ async fn step(port: u16, broker_pid: u32, boxes: usize, rate_hz: f64, seconds: f
         )
     };
     println!(
-        "{boxes:>6} {rate_hz:>7.1} {:>10.0} {produced:>10} {received:>10} {:>8} {dropped:>8} {gaps:>6} {nodes:>6} {:>9.0}%",
+        "{boxes:>6} {rate_hz:>7.1} {:>10.0} {produced:>10} {received:>10} {:>8} {dropped:>8} {gaps:>6} {nodes:>6} {:>9.0}% {drain_s:>7.1}",
         produced as f64 / window_s,
         produced.saturating_sub(received),
         100.0 * cpu_s / window_s,
@@ -254,7 +258,7 @@ fn main() {
         .unwrap();
     println!("telemetry_fleet: one mosquitto, one subscriber, {seconds} s per step");
     println!(
-        "{:>6} {:>7} {:>10} {:>10} {:>10} {:>8} {:>8} {:>6} {:>6} {:>10}",
+        "{:>6} {:>7} {:>10} {:>10} {:>10} {:>8} {:>8} {:>6} {:>6} {:>10} {:>7}",
         "boxes",
         "rate_Hz",
         "records/s",
@@ -264,7 +268,8 @@ fn main() {
         "dropped",
         "gaps",
         "nodes",
-        "broker_cpu"
+        "broker_cpu",
+        "drain_s"
     );
     for (boxes, rate) in steps {
         rt.block_on(step(port, broker.id(), boxes, rate, seconds));

@@ -581,10 +581,16 @@ async fn fleet_shows_boxes_compensating_degraded_and_offline_by_death_and_will()
             .get(&("hall".to_string(), n.to_string()))
             .map(|x| x.verdict())
     };
-    fleet_until(&mut fleet, "two boxes born", |f| {
-        verdict(f, "mill-a").is_some() && verdict(f, "mill-b").is_some()
+    fleet_until(&mut fleet, "mill-a compensating, mill-b degraded", |f| {
+        verdict(f, "mill-a") == Some(Verdict::Compensating)
+            && verdict(f, "mill-b") == Some(Verdict::Degraded)
     })
     .await;
+    let b_node = &fleet.view.nodes[&("hall".to_string(), "mill-b".to_string())];
+    assert_eq!(
+        b_node.births, 1,
+        "the NBIRTH already carried the fault: no rebirth needed"
+    );
     assert_eq!(verdict(&fleet, "mill-a"), Some(Verdict::Compensating));
     assert_eq!(
         verdict(&fleet, "mill-b"),
@@ -601,4 +607,71 @@ async fn fleet_shows_boxes_compensating_degraded_and_offline_by_death_and_will()
     })
     .await;
     assert!(fleet.view.table().contains("offline"));
+}
+
+#[test]
+fn telemetry_config_errors_name_file_line_and_key() {
+    use retrocomp::gateway::config::FieldConfig;
+    let base = r#"[gateway]
+name = "t"
+cycle_ms = 5
+[safety]
+max_correction_um = 50.0
+max_change_um_per_cycle = 0.5
+ramp_um_per_s = 10.0
+stale_hold_s = 1.0
+[direction]
+deadband_mm = 0.005
+switch_time_s = 0.05
+[[axis]]
+name = "x"
+position_channel = "x_mm"
+[telemetry.mqtt]
+group_id = "shop"
+edge_node_id = "mill-1"
+"#;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("field.toml");
+    let err = |extra: &str| {
+        let text = format!("{base}{extra}");
+        std::fs::write(&path, &text).unwrap();
+        FieldConfig::load(&path).unwrap_err().to_string()
+    };
+    // Line 18 is the first line after `base` (17 lines).
+    let e = err("broker = \"no-port\"\n");
+    assert!(
+        e.contains("field.toml:18")
+            && e.contains("telemetry.mqtt.broker")
+            && e.contains("host:port"),
+        "{e}"
+    );
+    let e = err("broker = \"127.0.0.1:1883\"\nrate_hz = 0.0\n");
+    assert!(
+        e.contains(":19") && e.contains("telemetry.mqtt.rate_hz"),
+        "{e}"
+    );
+    let e =
+        err("broker = \"127.0.0.1:1883\"\nusername = \"box\"\npassword_file = \"missing.pw\"\n");
+    assert!(
+        e.contains(":20") && e.contains("telemetry.mqtt.password_file") && e.contains("missing.pw"),
+        "{e}"
+    );
+    let e = err("broker = \"127.0.0.1:1883\"\n[telemetry.mqtt.tls]\nca_file = \"ca.pem\"\n");
+    assert!(
+        e.contains("telemetry.mqtt.tls.ca_file") && e.contains("cannot read"),
+        "{e}"
+    );
+    let e = err("broker = \"127.0.0.1:1883\"\nqos = 1\n");
+    assert!(e.contains("qos"), "unknown keys are refused: {e}");
+    // A good one: the password file is found relative to the config file.
+    std::fs::write(dir.path().join("pw"), "secret\n").unwrap();
+    std::fs::write(
+        &path,
+        format!("{base}broker = \"127.0.0.1:1883\"\nusername = \"box\"\npassword_file = \"pw\"\n[telemetry.mqtt.queue]\ndir = \"q\"\ndrop_policy = \"drop_newest\"\n"),
+    )
+    .unwrap();
+    let cfg = FieldConfig::load(&path).unwrap();
+    let m = cfg.telemetry.unwrap().mqtt.unwrap();
+    assert_eq!(m.password_file.unwrap(), dir.path().join("pw"));
+    assert_eq!(m.queue.dir.unwrap(), dir.path().join("q"));
 }

@@ -255,6 +255,9 @@ enum Phase {
     Connecting,
     /// Connected; waiting for the primary host's STATE online before NBIRTH.
     WaitingHost,
+    /// Connected (and the host online); waiting for the first snapshot: an NBIRTH must announce
+    /// every metric with its value.
+    WaitingData,
     /// NBIRTH sent: data flows.
     Born,
 }
@@ -437,7 +440,8 @@ impl Session {
                 }
                 r = self.records.recv() => match r {
                     Some(r) => {
-                        let rebirth = c.phase == Phase::Born && !self.edge.knows_all(&r.values);
+                        let rebirth = (c.phase == Phase::Born && !self.edge.knows_all(&r.values))
+                            || c.phase == Phase::WaitingData;
                         self.enqueue(r);
                         if rebirth {
                             // A metric the NBIRTH did not announce: announce it first.
@@ -456,7 +460,7 @@ impl Session {
                             let _ = c.client.try_subscribe(t.clone(), QoS::AtLeastOnce);
                             c.phase = Phase::WaitingHost;
                         } else {
-                            self.birth(c);
+                            self.birth_when_data(c);
                         }
                     }
                     Some(Ok(Event::Incoming(Packet::Publish(p)))) => {
@@ -467,7 +471,7 @@ impl Session {
                             }
                         } else if state.as_deref() == Some(p.topic.as_str()) {
                             match sparkplug::host_online(&p.payload) {
-                                Some(true) if c.phase == Phase::WaitingHost => self.birth(c),
+                                Some(true) if c.phase == Phase::WaitingHost => self.birth_when_data(c),
                                 Some(false) if c.phase == Phase::Born => {
                                     // Spec: NDEATH, disconnect, and start over.
                                     self.say_goodbye(c).await;
@@ -496,6 +500,15 @@ impl Session {
             }
             let last_error = (c.phase != Phase::Born).then(|| "connecting".to_string());
             self.publish_status(c.phase == Phase::Born, last_error);
+        }
+    }
+
+    /// NBIRTH now if there is a snapshot to announce, else at the first one.
+    fn birth_when_data(&mut self, c: &mut Conn) {
+        if self.current.is_empty() {
+            c.phase = Phase::WaitingData;
+        } else {
+            self.birth(c);
         }
     }
 
