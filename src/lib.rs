@@ -11,4 +11,5 @@ pub mod models;
 pub mod origin_shift;
 pub mod quadrature;
 pub mod recording;
+pub mod telemetry;
 pub mod units;

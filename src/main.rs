@@ -24,6 +24,8 @@ enum Command {
     Run(cli::run::Args),
     /// The main job with no hardware: hil-sim + the gateway over loopback, three runs compared.
     Demo(cli::demo::Args),
+    /// Watch a shop of boxes over MQTT Sparkplug B: alive, compensating, degraded (docs/fleet.md).
+    Fleet(cli::fleet::Args),
     /// A socketcand-protocol CAN hub on TCP, for `hil-sim serve` and `retrocomp run` without hardware.
     Hub(cli::hub::Args),
     /// Show a running gateway's per-axis corrections, term breakdown and sensor health.
@@ -55,6 +57,7 @@ fn main() -> std::process::ExitCode {
         Command::Eval(a) => cli::eval::run(&a),
         Command::Run(a) => cli::run::run(&a),
         Command::Demo(a) => cli::demo::run(&a),
+        Command::Fleet(a) => cli::fleet::run(&a),
         Command::Status(a) => cli::status::run(&a),
         Command::Hub(a) => cli::hub::run(&a),
         Command::Iso230_2(a) => cli::iso230_2::run(&a),

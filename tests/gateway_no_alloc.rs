@@ -178,6 +178,7 @@ fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
         sink_status,
         board: Default::default(),
         counter: Default::default(),
+        telemetry: None,
     };
     let mut lp = CycleLoop::new(engine, Box::new(MachineModelAdapter::new(model)), io);
     const WARM: u64 = 2000;

@@ -1,4 +1,4 @@
-//! `retrocomp demo [--out DIR] [--json] [--seconds N] [--seed N] [--serve [ADDR]]`: the main job on a machine with no hardware
+//! `retrocomp demo [--out DIR] [--json] [--seconds N] [--seed N] [--serve [ADDR]] [--mqtt HOST:PORT]`: the main job on a machine with no hardware
 //! (src/gateway/demo). Prints what the fit of the measurement runs found, then per axis the
 //! tool-tip error RMS and max (µm) of the four runs; with
 //! `--json` the last stdout line is the machine-readable summary (DESIGN-fixed keys, see
@@ -27,6 +27,10 @@ pub struct Args {
     /// http://ADDR/ (the shop-floor page, /status, /metrics), until Ctrl-C. Loopback by default.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8080")]
     pub serve: Option<String>,
+    /// Publish each compensated run as Sparkplug B to this MQTT broker (HOST:PORT; group
+    /// `retrocomp-demo`, one edge node per run), for any Sparkplug client to watch.
+    #[arg(long, value_name = "HOST:PORT")]
+    pub mqtt: Option<String>,
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
@@ -44,12 +48,20 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         "--seconds {}: the warm-up must be between 0 and 60 s (the demo runs in real time)",
         args.seconds
     );
+    if let Some(b) = &args.mqtt {
+        crate::telemetry::config::demo_section(b, "check")
+            .mqtt
+            .as_ref()
+            .map_or(Ok(()), |m| m.check())
+            .map_err(|(key, what)| anyhow::anyhow!("--mqtt {b}: {key}: {what}"))?;
+    }
     let hil_sim = locate_hil_sim()?;
     let opts = DemoOptions {
         out: args.out.clone(),
         seed: args.seed,
         warmup_s: args.seconds,
         hil_sim,
+        mqtt: args.mqtt.clone(),
     };
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

@@ -8,6 +8,7 @@ pub mod diagnose;
 pub mod eval;
 pub mod export;
 pub mod fit;
+pub mod fleet;
 pub mod hub;
 pub mod identify;
 pub mod import;

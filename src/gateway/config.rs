@@ -43,6 +43,9 @@ pub struct FieldConfig {
     pub recoveries: Vec<NeighbourEstimate>,
     #[serde(default)]
     pub sink: SinkSection,
+    /// Sparkplug B over MQTT to the plant (`[telemetry.mqtt]`, src/telemetry).
+    #[serde(default)]
+    pub telemetry: Option<crate::telemetry::TelemetrySection>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -298,10 +301,13 @@ impl FieldConfig {
 
     /// Parse and validate; `path` is only used in messages and to resolve relative paths.
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
-        let cfg: FieldConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+        let mut cfg: FieldConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
             path: path.into(),
             source: Box::new(e),
         })?;
+        if let Some(m) = cfg.telemetry.as_mut().and_then(|t| t.mqtt.as_mut()) {
+            m.resolve_paths(path.parent().unwrap_or(Path::new(".")));
+        }
         cfg.validate()
             .map_err(|(key, what)| ConfigError::invalid(path, text, key, what))?;
         Ok(cfg)

@@ -111,6 +111,9 @@ impl FieldConfig {
     }
 
     pub(super) fn validate(&self) -> Result<(), (String, String)> {
+        if let Some(m) = self.telemetry.as_ref().and_then(|t| t.mqtt.as_ref()) {
+            m.check()?;
+        }
         let g = &self.gateway;
         if !(1..=1000).contains(&g.cycle_ms) {
             return Err((

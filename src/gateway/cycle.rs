@@ -51,6 +51,8 @@ pub struct CycleIo {
     pub sink_status: watch::Receiver<SinkStatus>,
     pub board: SourceBoard,
     pub counter: CycleCounter,
+    /// The Sparkplug B publisher's state for the snapshots (`[telemetry.mqtt]`), if configured.
+    pub telemetry: Option<crate::telemetry::publisher::TelemetryAnnotator>,
 }
 
 /// What the loop reports when it stops.
@@ -156,6 +158,9 @@ impl CycleLoop {
         snap.active_faults.extend(sink.faults.iter().cloned());
         snap.sink = Some(sink);
         snap.model.clone_from(&self.model_identity);
+        if let Some(t) = self.io.telemetry.as_mut() {
+            t.annotate(&mut snap);
+        }
         self.io.board.copy_into(&mut snap.sources);
         for src in &snap.sources {
             let faults = src.faults.iter().map(|&(k, t)| (src.name.clone(), k, t));

@@ -568,6 +568,7 @@ impl Engine {
             sink: None,
             sources: Vec::new(),
             model: None,
+            telemetry: None,
         }
     }
 

@@ -78,6 +78,8 @@ pub async fn run(
         cycles: counter,
     } = sources.into();
     let (status_tx, status_rx) = watch::channel::<Option<Arc<StatusSnapshot>>>(None);
+    // Sparkplug B publisher: its own tasks fed from the status watch (never slows the cycle).
+    let telemetry = crate::telemetry::publisher::start_for(&cfg, status_rx.clone())?;
     let listen: SocketAddr = cfg
         .gateway
         .status_listen
@@ -134,6 +136,7 @@ pub async fn run(
         sink_status: sink_status_rx.clone(),
         board,
         counter,
+        telemetry: telemetry.as_ref().map(|p| p.annotator()),
     };
     let stop = Arc::new(AtomicBool::new(false));
     let (report_tx, mut report_rx) = oneshot::channel::<CycleReport>();
@@ -171,6 +174,9 @@ pub async fn run(
         s.stop().await;
     }
     http_task.abort();
+    if let Some(p) = telemetry {
+        p.stop(Duration::from_secs(2)).await;
+    }
     ended?;
     let report = report.context("the cycle thread died")?;
     let st = sink_status_rx.borrow().clone();

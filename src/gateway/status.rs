@@ -108,6 +108,9 @@ pub struct StatusSnapshot {
     pub sources: Vec<SourceStatus>,
     /// The model in use (filled by the runtime from [`crate::gateway::engine::ErrorModel::identity`]).
     pub model: Option<ModelIdentity>,
+    /// The Sparkplug B publisher (`[telemetry.mqtt]`), when configured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub telemetry: Option<crate::telemetry::TelemetryStatus>,
 }
 
 fn esc(label: &str) -> String {
@@ -353,6 +356,9 @@ impl StatusSnapshot {
             }
         }
         self.prometheus_sources(&mut s);
+        if let Some(t) = &self.telemetry {
+            t.prometheus(&mut s);
+        }
         s
     }
 

@@ -75,6 +75,9 @@ pub struct DemoOptions {
     /// Length of the accelerated warm-up (X strokes with the spindle on), simulated s.
     pub warmup_s: f64,
     pub hil_sim: PathBuf,
+    /// `host:port` of an MQTT broker: each compensated run publishes Sparkplug B there (group
+    /// `retrocomp-demo`, edge node `mill-<run>`), through the same publisher as `run`.
+    pub mqtt: Option<String>,
 }
 
 /// One finished run.
@@ -320,7 +323,10 @@ async fn one_run(
         };
         let field_path = dir.join("field.toml");
         std::fs::write(&field_path, &text)?;
-        let cfg = FieldConfig::parse(&text, &field_path)?;
+        let mut cfg = FieldConfig::parse(&text, &field_path)?;
+        if let Some(broker) = &opts.mqtt {
+            cfg.telemetry = Some(crate::telemetry::config::demo_section(broker, mode.key()));
+        }
         let epoch = Instant::now();
         let rx = spawn_sources(&cfg, epoch).await?;
         let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();

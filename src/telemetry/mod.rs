@@ -1,0 +1,21 @@
+//! Telemetry of a box to the plant: Sparkplug B (Eclipse Sparkplug 3.0) over MQTT, so a shop of
+//! retrofitted machines shows up in any Sparkplug host (Ignition, a `retrocomp fleet`, a stock
+//! decoder). Layout: [`sparkplug`] (the protobuf payload, topics, bdSeq/seq: sans-IO),
+//! [`metrics`] (a gateway status snapshot as named metrics, report by exception), [`queue`]
+//! (bounded store-and-forward queue, on disk), [`config`] (`[telemetry.mqtt]`), [`publisher`] (the
+//! rumqttc shell fed from the gateway's status watch; it can never block the cycle), [`fleet`] (the
+//! host side: per box alive/compensating/degraded from its messages, for `retrocomp fleet`). Units as in
+//! the status: µm for corrections (correction = −error), mm for positions; timestamps ms since
+//! the Unix epoch, taken when the snapshot was sampled.
+
+pub mod config;
+pub mod fleet;
+pub mod metrics;
+pub mod publisher;
+pub mod queue;
+pub mod sparkplug;
+pub mod status;
+mod tls;
+
+pub use config::{MqttConfig, TelemetrySection};
+pub use publisher::{Publisher, PublisherInputs, TelemetryStatus, spawn};

@@ -1,0 +1,626 @@
+//! The I/O shell of the Sparkplug B edge node: two tasks fed from the gateway's status watch.
+//!
+//! - the **sampler** reads the latest snapshot (cloning an `Arc`, never holding the watch's lock,
+//!   so the cycle's `send` never waits on us), builds records at `rate_hz` (and at once on a
+//!   state change), and hands them on over a bounded channel with `try_send`: a full channel
+//!   counts a drop, it never waits. The compensation cycle cannot be slowed by anything below.
+//! - the **session** task owns the MQTT connection (rumqttc), the Sparkplug numbers
+//!   ([`EdgeNode`]) and the store-and-forward [`Queue`]: every record goes into the queue first
+//!   and leaves it when the broker acknowledged it (QoS 1). Each connection is a fresh rumqttc
+//!   client whose will is the NDEATH of a new bdSeq; after CONNACK (and, with a primary host,
+//!   once its STATE says online) it publishes NBIRTH, then the queue in order (records older
+//!   than this NBIRTH flagged `is_historical`, each with its source timestamp), then live data.
+//!   A broken link drops the client (rumqttc would otherwise replay its own pending publishes
+//!   before our NBIRTH); what was not acknowledged is still queued and goes again after the next
+//!   NBIRTH. An NCMD `Node Control/Rebirth` = true is answered with a new NBIRTH.
+
+use std::collections::{HashMap, VecDeque};
+use std::sync::Arc;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use anyhow::Context as _;
+use rumqttc::{
+    AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet, QoS,
+};
+use tokio::sync::{mpsc, watch};
+
+use super::config::MqttConfig;
+use super::metrics::{Record, Sampler, snapshot_metrics};
+use super::queue::{self, Queue, QueueLimits};
+use super::sparkplug::{self, EdgeNode, Kind, NamedValue};
+pub use super::status::TelemetryStatus;
+use crate::gateway::status::StatusSnapshot;
+
+/// What the publisher needs besides its config.
+pub struct PublisherInputs {
+    pub status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
+    /// Model identity published as `Model/identity` (file name, fit date...).
+    pub model_identity: String,
+}
+
+/// The running publisher: its status, and a stop that sends NDEATH and disconnects.
+pub struct Publisher {
+    pub status: watch::Receiver<TelemetryStatus>,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    session: tokio::task::JoinHandle<()>,
+    sampler: tokio::task::JoinHandle<()>,
+}
+
+/// The publisher of a field config's `[telemetry.mqtt]`, if any (`gateway::run` calls this).
+pub fn start_for(
+    cfg: &crate::gateway::config::FieldConfig,
+    status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
+) -> anyhow::Result<Option<Publisher>> {
+    let Some(m) = cfg.telemetry.as_ref().and_then(|t| t.mqtt.clone()) else {
+        return Ok(None);
+    };
+    let model = cfg
+        .model
+        .as_ref()
+        .map_or_else(|| "inline".to_string(), |m| m.path.display().to_string());
+    let model_identity = format!("{}:{model}", cfg.gateway.name);
+    spawn(
+        m,
+        PublisherInputs {
+            status,
+            model_identity,
+        },
+    )
+    .map(Some)
+}
+
+/// Copies the publisher's state into each status snapshot; owned by the cycle loop (which builds
+/// the snapshots, at ≤ 10 Hz), so it only reads a watch channel.
+pub struct TelemetryAnnotator {
+    status: watch::Receiver<TelemetryStatus>,
+    /// Since when (status `t_s`) the link is not up: the `Disconnected` fault's start.
+    down_since_s: Option<f64>,
+}
+
+impl TelemetryAnnotator {
+    /// Put the publisher's state into a status snapshot: `telemetry`, and a `Disconnected`
+    /// fault of source `telemetry.mqtt` while the link is not up.
+    pub fn annotate(&mut self, snap: &mut StatusSnapshot) {
+        let st = self.status.borrow().clone();
+        if st.connected {
+            self.down_since_s = None;
+        } else {
+            let since = *self.down_since_s.get_or_insert(snap.t_s);
+            snap.active_faults.push((
+                "telemetry.mqtt".into(),
+                crate::gateway::health::FaultKind::Disconnected,
+                since,
+            ));
+        }
+        snap.telemetry = Some(st);
+    }
+}
+
+impl Publisher {
+    /// What the cycle loop uses to show this publisher in the status snapshots.
+    pub fn annotator(&self) -> TelemetryAnnotator {
+        TelemetryAnnotator {
+            status: self.status.clone(),
+            down_since_s: None,
+        }
+    }
+
+    /// Stop: the sampler ends, the session sends NDEATH (if connected) and disconnects; waits at
+    /// most `grace` for that.
+    pub async fn stop(mut self, grace: Duration) {
+        self.sampler.abort();
+        if let Some(s) = self.stop.take() {
+            let _ = s.send(());
+        }
+        if tokio::time::timeout(grace, &mut self.session)
+            .await
+            .is_err()
+        {
+            self.session.abort();
+        }
+    }
+}
+
+impl Drop for Publisher {
+    fn drop(&mut self) {
+        self.sampler.abort();
+        if self.stop.is_some() {
+            self.session.abort();
+        }
+    }
+}
+
+fn now_ms() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
+}
+
+/// Hand-over channel between sampler and session, records.
+const HANDOVER: usize = 1024;
+/// Records published and not yet acknowledged, at most.
+const WINDOW: usize = 64;
+
+/// Start the publisher (spawns its tasks on the current runtime). Fails only on what the config
+/// check cannot see: an unreadable queue directory, a bad certificate.
+pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> anyhow::Result<Publisher> {
+    let queue = Queue::open(QueueLimits {
+        dir: cfg.queue.dir.clone(),
+        max_records: cfg.queue.max_records,
+        max_bytes: cfg.queue.max_bytes,
+        policy: cfg.queue.drop_policy,
+    })
+    .context("telemetry.mqtt.queue.dir")?;
+    let base = base_options(&cfg)?;
+    let (rec_tx, rec_rx) = mpsc::channel::<Record>(HANDOVER);
+    let (status_tx, status_rx) = watch::channel(TelemetryStatus::default());
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel();
+    let handover_drops = Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let sampler = tokio::spawn(sampler_task(
+        inputs,
+        cfg.rate_hz,
+        rec_tx,
+        handover_drops.clone(),
+    ));
+    let session = tokio::spawn(
+        Session {
+            cfg,
+            base,
+            queue,
+            edge: EdgeNode::new(0),
+            records: rec_rx,
+            status: status_tx,
+            handover_drops,
+            current: Vec::new(),
+            records_total: 0,
+            acked_total: 0,
+            births_total: 0,
+        }
+        .run(stop_rx),
+    );
+    Ok(Publisher {
+        status: status_rx,
+        stop: Some(stop_tx),
+        session,
+        sampler,
+    })
+}
+
+fn base_options(cfg: &MqttConfig) -> anyhow::Result<MqttOptions> {
+    let (host, port) = cfg
+        .host_port()
+        .map_err(|e| anyhow::anyhow!("telemetry.mqtt.broker: {e}"))?;
+    let mut o = MqttOptions::new(cfg.client_id(), host, port);
+    o.set_keep_alive(Duration::from_secs(cfg.keep_alive_s));
+    // Sparkplug: a clean session per connection (`principles-persistence-clean-session`).
+    o.set_clean_session(true);
+    o.set_max_packet_size(1 << 20, 1 << 20);
+    o.set_request_channel_capacity(4 * WINDOW);
+    if let Some(user) = &cfg.username {
+        let pw = match &cfg.password_file {
+            Some(p) => std::fs::read_to_string(p)
+                .with_context(|| format!("telemetry.mqtt.password_file {}", p.display()))?
+                .lines()
+                .next()
+                .unwrap_or_default()
+                .to_string(),
+            None => String::new(),
+        };
+        o.set_credentials(user.clone(), pw);
+    }
+    if let Some(t) = &cfg.tls {
+        o.set_transport(rumqttc::Transport::tls_with_config(
+            rumqttc::TlsConfiguration::Rustls(Arc::new(super::tls::client_config(t)?)),
+        ));
+    }
+    Ok(o)
+}
+
+/// Snapshot → records. Never waits on the session: a full hand-over channel is a counted drop.
+async fn sampler_task(
+    mut inputs: PublisherInputs,
+    rate_hz: f64,
+    tx: mpsc::Sender<Record>,
+    drops: Arc<std::sync::atomic::AtomicU64>,
+) {
+    let mut sampler = Sampler::default();
+    let mut tick = tokio::time::interval(Duration::from_secs_f64(1.0 / rate_hz));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut warned = false;
+    loop {
+        let due = tokio::select! {
+            _ = tick.tick() => true,
+            ch = inputs.status.changed() => {
+                if ch.is_err() {
+                    return;
+                }
+                false
+            }
+        };
+        // Clone the Arc and let go of the watch at once (the cycle's send takes its write lock).
+        let Some(snap) = inputs.status.borrow_and_update().clone() else {
+            continue;
+        };
+        let now = snapshot_metrics(&snap, &inputs.model_identity);
+        if !due && !sampler.state_changed(&now) {
+            continue;
+        }
+        if let Some(rec) = sampler.record(now, now_ms()) {
+            match tx.try_send(rec) {
+                Ok(()) => warned = false,
+                Err(mpsc::error::TrySendError::Full(_)) => {
+                    drops.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    if !warned {
+                        warned = true;
+                        tracing::warn!(
+                            "telemetry: the session task is behind; dropping records (counted)"
+                        );
+                    }
+                }
+                Err(mpsc::error::TrySendError::Closed(_)) => return,
+            }
+        }
+    }
+}
+
+/// A connection's progress.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    /// CONNECT sent, no CONNACK yet.
+    Connecting,
+    /// Connected; waiting for the primary host's STATE online before NBIRTH.
+    WaitingHost,
+    /// Connected (and the host online); waiting for the first snapshot: an NBIRTH must announce
+    /// every metric with its value.
+    WaitingData,
+    /// NBIRTH sent: data flows.
+    Born,
+}
+
+/// Why a connection ended.
+enum End {
+    Lost(String),
+    Stop,
+    HostOffline,
+}
+
+struct Session {
+    cfg: MqttConfig,
+    base: MqttOptions,
+    queue: Queue,
+    edge: EdgeNode,
+    records: mpsc::Receiver<Record>,
+    status: watch::Sender<TelemetryStatus>,
+    handover_drops: Arc<std::sync::atomic::AtomicU64>,
+    /// Latest value of every metric (what an NBIRTH announces).
+    current: Vec<NamedValue>,
+    records_total: u64,
+    acked_total: u64,
+    births_total: u64,
+}
+
+/// One connection's bookkeeping.
+struct Conn {
+    client: AsyncClient,
+    events: mpsc::Receiver<Result<Event, ConnectionError>>,
+    pump: tokio::task::JoinHandle<()>,
+    phase: Phase,
+    /// Our publishes in call order (queue id, or None for NBIRTH/NDEATH), matched to the packet
+    /// ids rumqttc reports as they go out.
+    calls: VecDeque<Option<u64>>,
+    /// Packet id → queue id of records awaiting PUBACK.
+    inflight: HashMap<u16, u64>,
+    /// The next queue id to send.
+    next_send: u64,
+    /// Queue ids below this were queued before the NBIRTH: sent as historical.
+    live_from: u64,
+}
+
+impl Drop for Conn {
+    fn drop(&mut self) {
+        self.pump.abort();
+    }
+}
+
+impl Session {
+    async fn run(mut self, mut stop: tokio::sync::oneshot::Receiver<()>) {
+        let mut backoff = Duration::from_millis(self.cfg.reconnect_min_ms);
+        let max = Duration::from_millis(self.cfg.reconnect_max_ms);
+        let mut down_logged = false;
+        loop {
+            let (end, was_born) = self.connection(&mut stop).await;
+            let why = match end {
+                End::Stop => return,
+                End::HostOffline => "primary host went offline".to_string(),
+                End::Lost(e) => e,
+            };
+            if was_born {
+                // The link had been up: a new outage (logged again), back-off from the start.
+                down_logged = false;
+                backoff = Duration::from_millis(self.cfg.reconnect_min_ms);
+            }
+            if !down_logged {
+                // Fault start, once per outage; the clear is logged with the next NBIRTH.
+                tracing::error!(
+                    why,
+                    broker = self.cfg.broker,
+                    "telemetry: MQTT link down; queueing records"
+                );
+                down_logged = true;
+            }
+            self.publish_status(false, Some(why));
+            // Back off, still taking records into the queue.
+            let wake = tokio::time::sleep(backoff);
+            tokio::pin!(wake);
+            loop {
+                tokio::select! {
+                    _ = &mut wake => break,
+                    _ = &mut stop => return,
+                    r = self.records.recv() => match r {
+                        Some(r) => {
+                            self.enqueue(r);
+                            self.publish_status(false, None);
+                        }
+                        None => return,
+                    },
+                }
+            }
+            backoff = (backoff * 2).min(max);
+        }
+    }
+
+    fn enqueue(&mut self, r: Record) {
+        for (n, v) in &r.values {
+            match self.current.iter_mut().find(|(m, _)| m == n) {
+                Some(slot) => slot.1 = v.clone(),
+                None => self.current.push((n.clone(), v.clone())),
+            }
+        }
+        self.queue.push(queue::encode(&r));
+        self.records_total += 1;
+    }
+
+    fn publish_status(&self, connected: bool, last_error: Option<String>) {
+        let st = TelemetryStatus {
+            connected,
+            bd_seq: self.edge.bd_seq(),
+            queued: self.queue.len() as u64,
+            queued_bytes: self.queue.bytes(),
+            dropped_total: self.queue.dropped_total()
+                + self
+                    .handover_drops
+                    .load(std::sync::atomic::Ordering::Relaxed),
+            records_total: self.records_total,
+            acked_total: self.acked_total,
+            births_total: self.births_total,
+            last_error,
+        };
+        self.status.send_if_modified(|old| {
+            let changed = *old != st;
+            *old = st;
+            changed
+        });
+    }
+
+    fn open(&mut self) -> Conn {
+        self.edge.next_connect();
+        let mut o = self.base.clone();
+        let g = &self.cfg.group_id;
+        let n = &self.cfg.edge_node_id;
+        // NDEATH as the will: QoS 1, not retained (`payloads-ndeath-will-message-qos/-retain`).
+        o.set_last_will(LastWill::new(
+            sparkplug::topic(g, Kind::NDeath, n),
+            self.edge.death(now_ms()),
+            QoS::AtLeastOnce,
+            false,
+        ));
+        let (client, eventloop) = AsyncClient::new(o, 4 * WINDOW);
+        let (tx, events) = mpsc::channel(4 * WINDOW);
+        let pump = tokio::spawn(pump_events(eventloop, tx));
+        Conn {
+            client,
+            events,
+            pump,
+            phase: Phase::Connecting,
+            calls: VecDeque::new(),
+            inflight: HashMap::new(),
+            next_send: 0,
+            live_from: u64::MAX,
+        }
+    }
+
+    /// One MQTT connection, until it ends; also says whether it got as far as NBIRTH.
+    async fn connection(&mut self, stop: &mut tokio::sync::oneshot::Receiver<()>) -> (End, bool) {
+        let mut c = self.open();
+        let end = self.drive(&mut c, stop).await;
+        (end, c.live_from != u64::MAX)
+    }
+
+    async fn drive(&mut self, c: &mut Conn, stop: &mut tokio::sync::oneshot::Receiver<()>) -> End {
+        let g = self.cfg.group_id.clone();
+        let n = self.cfg.edge_node_id.clone();
+        let ncmd = sparkplug::topic(&g, Kind::NCmd, &n);
+        let state = self
+            .cfg
+            .primary_host_id
+            .as_deref()
+            .map(sparkplug::state_topic);
+        loop {
+            tokio::select! {
+                _ = &mut *stop => {
+                    if c.phase == Phase::Born {
+                        self.say_goodbye(c).await;
+                    }
+                    return End::Stop;
+                }
+                r = self.records.recv() => match r {
+                    Some(r) => {
+                        let rebirth = (c.phase == Phase::Born && !self.edge.knows_all(&r.values))
+                            || c.phase == Phase::WaitingData;
+                        self.enqueue(r);
+                        if rebirth {
+                            // A metric the NBIRTH did not announce: announce it first.
+                            self.birth(c);
+                        }
+                    }
+                    None => return End::Stop,
+                },
+                ev = c.events.recv() => match ev {
+                    None => return End::Lost("event loop ended".into()),
+                    Some(Err(e)) => return End::Lost(e.to_string()),
+                    Some(Ok(Event::Incoming(Packet::ConnAck(_)))) => {
+                        self.edge.connected();
+                        let _ = c.client.try_subscribe(ncmd.clone(), QoS::AtLeastOnce);
+                        if let Some(t) = &state {
+                            let _ = c.client.try_subscribe(t.clone(), QoS::AtLeastOnce);
+                            c.phase = Phase::WaitingHost;
+                        } else {
+                            self.birth_when_data(c);
+                        }
+                    }
+                    Some(Ok(Event::Incoming(Packet::Publish(p)))) => {
+                        if p.topic == ncmd && sparkplug::is_rebirth_request(&p.payload) {
+                            tracing::info!("telemetry: rebirth requested by NCMD");
+                            if c.phase == Phase::Born {
+                                self.birth(c);
+                            }
+                        } else if state.as_deref() == Some(p.topic.as_str()) {
+                            match sparkplug::host_online(&p.payload) {
+                                Some(true) if c.phase == Phase::WaitingHost => self.birth_when_data(c),
+                                Some(false) if c.phase == Phase::Born => {
+                                    // Spec: NDEATH, disconnect, and start over.
+                                    self.say_goodbye(c).await;
+                                    return End::HostOffline;
+                                }
+                                _ => {}
+                            }
+                        }
+                    }
+                    Some(Ok(Event::Outgoing(Outgoing::Publish(pkid)))) => {
+                        if let Some(Some(id)) = c.calls.pop_front() {
+                            c.inflight.insert(pkid, id);
+                        }
+                    }
+                    Some(Ok(Event::Incoming(Packet::PubAck(a)))) => {
+                        if let Some(id) = c.inflight.remove(&a.pkid) {
+                            self.queue.remove(id);
+                            self.acked_total += 1;
+                        }
+                    }
+                    Some(Ok(_)) => {}
+                },
+            }
+            if c.phase == Phase::Born {
+                self.send_queued(c);
+            }
+            let last_error = (c.phase != Phase::Born).then(|| "connecting".to_string());
+            self.publish_status(c.phase == Phase::Born, last_error);
+        }
+    }
+
+    /// NBIRTH now if there is a snapshot to announce, else at the first one.
+    fn birth_when_data(&mut self, c: &mut Conn) {
+        if self.current.is_empty() {
+            c.phase = Phase::WaitingData;
+        } else {
+            self.birth(c);
+        }
+    }
+
+    /// NBIRTH with every metric's latest value; seq restarts at 0; the queue is sent (again)
+    /// from its start after it, what was queued before flagged historical.
+    fn birth(&mut self, c: &mut Conn) {
+        let payload = self.edge.birth(&self.current, now_ms());
+        let topic = sparkplug::topic(&self.cfg.group_id, Kind::NBirth, &self.cfg.edge_node_id);
+        // QoS 0, not retained (`payloads-nbirth-qos/-retain`).
+        if c.client
+            .try_publish(topic, QoS::AtMostOnce, false, payload)
+            .is_ok()
+        {
+            c.calls.push_back(None);
+        }
+        if c.phase != Phase::Born {
+            tracing::info!(
+                bd_seq = self.edge.bd_seq(),
+                queued = self.queue.len(),
+                broker = self.cfg.broker,
+                "telemetry: NBIRTH sent; MQTT link up"
+            );
+            // The first birth of this connection: everything still queued (never acknowledged)
+            // is sent after it, what was queued before it as historical.
+            c.next_send = 0;
+            c.live_from = self.queue.next_id();
+        }
+        // A rebirth keeps its place in the queue: in-flight records are acknowledged as usual,
+        // the rest follow the new NBIRTH with the new seq.
+        self.births_total += 1;
+        c.phase = Phase::Born;
+    }
+
+    fn send_queued(&mut self, c: &mut Conn) {
+        let qos = if self.cfg.ndata_qos == 0 {
+            QoS::AtMostOnce
+        } else {
+            QoS::AtLeastOnce
+        };
+        let topic = sparkplug::topic(&self.cfg.group_id, Kind::NData, &self.cfg.edge_node_id);
+        while c.inflight.len() + c.calls.len() < WINDOW {
+            let Some(e) = self.queue.first_from(c.next_send) else {
+                break;
+            };
+            let id = e.id;
+            let Some(rec) = queue::decode(&e.bytes) else {
+                // Unreadable (a file damaged on disk): counted as dropped by removing it.
+                self.queue.remove(id);
+                continue;
+            };
+            let payload = self.edge.data(&rec.values, rec.t_ms, id < c.live_from);
+            if c.client
+                .try_publish(topic.clone(), qos, false, payload)
+                .is_err()
+            {
+                break;
+            }
+            c.next_send = id + 1;
+            if qos == QoS::AtMostOnce {
+                // Nothing will acknowledge it: sent is as far as QoS 0 goes.
+                c.calls.push_back(None);
+                self.queue.remove(id);
+                self.acked_total += 1;
+            } else {
+                c.calls.push_back(Some(id));
+            }
+        }
+    }
+
+    /// NDEATH before an intentional disconnect (`payloads-ndeath-will-message-publisher`).
+    async fn say_goodbye(&mut self, c: &mut Conn) {
+        let topic = sparkplug::topic(&self.cfg.group_id, Kind::NDeath, &self.cfg.edge_node_id);
+        let _ = c
+            .client
+            .try_publish(topic, QoS::AtLeastOnce, false, self.edge.death(now_ms()));
+        let _ = c.client.try_disconnect();
+        // Let the event loop flush both (bounded: a dead broker never answers).
+        let _ = tokio::time::timeout(Duration::from_secs(2), async {
+            while let Some(Ok(ev)) = c.events.recv().await {
+                if matches!(ev, Event::Outgoing(Outgoing::Disconnect)) {
+                    break;
+                }
+            }
+        })
+        .await;
+        self.publish_status(false, Some("stopped".into()));
+    }
+}
+
+/// Drive a rumqttc event loop until its first error, forwarding events. It is not polled again
+/// after an error, so it never reconnects on its own (the session opens a new client).
+async fn pump_events(mut el: EventLoop, tx: mpsc::Sender<Result<Event, ConnectionError>>) {
+    loop {
+        let ev = el.poll().await;
+        let failed = ev.is_err();
+        if tx.send(ev).await.is_err() || failed {
+            return;
+        }
+    }
+}

@@ -1,0 +1,70 @@
+//! The publisher's own state as the gateway shows it: `telemetry` in `/status`, and
+//! `retrocomp_telemetry_*` in `/metrics` (counts of records; no units).
+
+use serde::Serialize;
+
+/// The publisher's state, for `/status` and `/metrics` (`retrocomp_telemetry_*`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct TelemetryStatus {
+    /// Connected and born (NBIRTH sent): data flows.
+    pub connected: bool,
+    pub bd_seq: u8,
+    /// Records waiting in the store-and-forward queue (including those in flight).
+    pub queued: u64,
+    pub queued_bytes: u64,
+    /// Records dropped because the queue or the hand-over channel was full, since start.
+    pub dropped_total: u64,
+    /// Records taken into the queue, since start.
+    pub records_total: u64,
+    /// Records the broker acknowledged, since start.
+    pub acked_total: u64,
+    /// NBIRTHs sent (connects and rebirths), since start.
+    pub births_total: u64,
+    pub last_error: Option<String>,
+}
+
+impl TelemetryStatus {
+    /// `retrocomp_telemetry_*` in the Prometheus text format (appended to the gateway's).
+    pub fn prometheus(&self, s: &mut String) {
+        use std::fmt::Write as _;
+        let mut one = |name: &str, kind: &str, help: &str, v: u64| {
+            let _ = writeln!(s, "# HELP {name} {help}\n# TYPE {name} {kind}\n{name} {v}");
+        };
+        one(
+            "retrocomp_telemetry_connected",
+            "gauge",
+            "1 when the MQTT link is up and NBIRTH was sent.",
+            self.connected as u64,
+        );
+        one(
+            "retrocomp_telemetry_queued",
+            "gauge",
+            "Telemetry records waiting for the broker's acknowledgement.",
+            self.queued,
+        );
+        one(
+            "retrocomp_telemetry_queued_bytes",
+            "gauge",
+            "Bytes of the queued telemetry records.",
+            self.queued_bytes,
+        );
+        one(
+            "retrocomp_telemetry_dropped_total",
+            "counter",
+            "Telemetry records dropped (queue full, by the drop policy).",
+            self.dropped_total,
+        );
+        one(
+            "retrocomp_telemetry_acked_total",
+            "counter",
+            "Telemetry records acknowledged by the broker.",
+            self.acked_total,
+        );
+        one(
+            "retrocomp_telemetry_births_total",
+            "counter",
+            "Sparkplug NBIRTHs sent (connects and rebirths).",
+            self.births_total,
+        );
+    }
+}
