@@ -12,6 +12,10 @@ use crate::recording::AXES;
 /// Number of equal zones of a `reversal_profile` over the axis' travel.
 pub const REVERSAL_ZONES: usize = 4;
 
+/// Fewest rows with the axis moving for `servo_lag` to be a candidate (a handful of moving rows
+/// cannot separate a velocity term from the direction or position terms).
+pub const MIN_MOVING_ROWS: usize = 8;
+
 #[derive(Clone, Debug, PartialEq)]
 pub enum Kind {
     Scale,
@@ -326,7 +330,11 @@ pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
         if ctx.tool_mm.as_ref().is_some_and(|t| varies(t)) {
             out.push(lin(Kind::Abbe));
         }
-        out.push(lin(Kind::ServoLag));
+        // Servo lag is a candidate only where the axis moves: its column (velocity) is zero at every
+        // standstill row, so a step-and-dwell recording read at standstill offers none.
+        if f.vel_mm_s.iter().filter(|v| **v != 0.0).count() >= MIN_MOVING_ROWS {
+            out.push(lin(Kind::ServoLag));
+        }
         out.push(Candidate {
             axis: a,
             kind: Kind::ReversalSpike,
