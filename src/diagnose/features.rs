@@ -252,31 +252,39 @@ fn axis_features(t_s: &[f64], pos: &[f64], run: Option<&[f64]>) -> AxisFeatures 
     }
 }
 
-/// Pass boundaries of a readings-only bidirectional run (one row per visit of a target, as a laser
-/// table F then R with no overshoot row: Asad Ullah's Table 6.2): when the position never repeats
-/// from one row to the next except at turnarounds, and there exactly once, the repeated reading at
-/// a turnaround is the first reading of the next pass (it was approached from the other side
-/// after the overshoot the table does not list). Returns the index of each such row (empty for
-/// any other recording: a sampled trajectory holds a dwell over many rows, and then a dwell keeps
-/// its approach direction as the latch says).
+/// Pass boundaries of a readings-only bidirectional run (only the readings at the targets are
+/// recorded, the same number `m` at every visit, as a laser table F then R with no overshoot row:
+/// Asad Ullah's Table 6.2 has m = 1): when every dwell (rows at one position) holds exactly `m`
+/// rows except at turnarounds, which hold exactly `2m`, the second half of a turnaround dwell is
+/// the first visit of the next pass (approached from the other side after an overshoot the
+/// recording does not list). Returns the first row of each such second half; empty for any other
+/// recording (a sampled trajectory dwells over varying numbers of rows, and a dwell keeps the
+/// direction of its approach, as the latch says).
 fn pass_starts(pos: &[f64]) -> Vec<usize> {
-    let still = |i: usize| (pos[i] - pos[i - 1]).abs() <= DIRECTION_DEADBAND_MM;
     let n = pos.len();
+    // Dwells: (first row, row count).
+    let mut dwells: Vec<(usize, usize)> = vec![];
+    for i in 0..n {
+        match dwells.last_mut() {
+            Some((s, c)) if (pos[i] - pos[*s]).abs() <= DIRECTION_DEADBAND_MM => *c += 1,
+            _ => dwells.push((i, 1)),
+        }
+    }
+    if dwells.len() < 3 {
+        return vec![];
+    }
+    let m = dwells[0].1;
     let mut out = vec![];
-    for i in 1..n {
-        if !still(i) {
-            continue;
+    for k in 0..dwells.len() {
+        let (s, c) = dwells[k];
+        let turnaround = k > 0
+            && k + 1 < dwells.len()
+            && (pos[s] - pos[dwells[k - 1].0]).signum() != (pos[dwells[k + 1].0] - pos[s]).signum();
+        match (turnaround, c) {
+            (true, c) if c == 2 * m => out.push(s + m),
+            (false, c) if c == m => {}
+            _ => return vec![],
         }
-        // A turnaround repeat: one move into it, one move out of it, in opposite directions.
-        let turnaround = i >= 2
-            && i + 1 < n
-            && !still(i - 1)
-            && !still(i + 1)
-            && (pos[i - 1] - pos[i - 2]).signum() != (pos[i + 1] - pos[i]).signum();
-        if !turnaround {
-            return vec![];
-        }
-        out.push(i);
     }
     out
 }
@@ -381,6 +389,12 @@ mod tests {
         let x = [0.0, 10.0, 20.0, 30.0, 30.0, 30.0, 20.0, 10.0];
         let f = axis_features(&t, &x, None);
         assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, -1.0]);
+        // Two readings per visit, four at the turnaround: split two and two.
+        let x = [0.0, 0.0, 10.0, 10.0, 20.0, 20.0, 20.0, 20.0, 10.0, 10.0];
+        let t: Vec<f64> = (0..x.len()).map(|i| 10.0 * i as f64).collect();
+        let f = axis_features(&t, &x, None);
+        assert_eq!(&f.dir[4..8], &[1.0, 1.0, -1.0, -1.0]);
+        assert!(f.vel_mm_s.iter().all(|v| *v == 0.0), "{:?}", f.vel_mm_s);
     }
 
     #[test]
