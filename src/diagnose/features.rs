@@ -302,13 +302,13 @@ fn latch(t_s: &[f64], pos: &[f64]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let mut dir = vec![0.0; n];
     let mut dist = vec![0.0; n];
     let same = |a: usize, b: usize| (pos[a] - pos[b]).abs() <= DIRECTION_DEADBAND_MM;
-    for i in 0..n {
+    for (i, v) in vel.iter_mut().enumerate() {
         let lo = i.saturating_sub(1);
         let hi = (i + 1).min(n - 1);
         let still = (lo < i && same(lo, i)) || (hi > i && same(i, hi));
         let dt = t_s[hi] - t_s[lo];
         if !still && hi > lo && dt > 0.0 {
-            vel[i] = (pos[hi] - pos[lo]) / dt;
+            *v = (pos[hi] - pos[lo]) / dt;
         }
     }
     let mut l = ApproachLatch::new(DIRECTION_DEADBAND_MM);
