@@ -2,6 +2,7 @@
 //! the correction back to its controller. See README.md for the pipeline and the conventions.
 
 pub mod analysis;
+pub mod approach;
 pub mod bus;
 pub mod cli;
 pub mod decimal;

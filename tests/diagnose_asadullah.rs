@@ -13,6 +13,10 @@
 //!   `reversal_profile`: ≈ 9.5 µm over 0–127.5 mm and ≈ 2 µm beyond — the thesis' F−R is 8.2–9.8 µm
 //!   over 0–130 mm and collapses beyond 140 mm (digest §5, "X-axis reversal").
 //!
+//! Both are diagnosed with and without the `run` column (issue 12.8): a readings-only F/R table
+//! reverses at its repeated turnaround reading (`features::pass_starts`), so the reverse pass is
+//! read as reverse whether or not it carries its own `run` label.
+//!
 //! docs/diagnose.md records both in words.
 
 use std::path::Path;
@@ -27,6 +31,50 @@ fn rec(name: &str) -> Recording {
             .join(name),
     )
     .unwrap()
+}
+
+/// The same recording without its `run` column (one run: F then R in one block).
+fn without_run(r: &Recording) -> Recording {
+    let cols = r
+        .names()
+        .iter()
+        .filter(|n| *n != "run")
+        .map(|n| (n.clone(), r.col(n).unwrap().to_vec()))
+        .collect();
+    let out = Recording::from_columns(cols).unwrap();
+    assert_eq!(out.names().len() + 1, r.names().len(), "had a run column");
+    out
+}
+
+#[test]
+fn the_fade_beyond_130_mm_is_found_with_and_without_run_labels() {
+    for name in [
+        "asadullah_table_6_2_x.csv",
+        "asadullah_table_6_2_x_meansim.csv",
+    ] {
+        let labelled = rec(name);
+        for (how, r) in [
+            ("run labels", labelled.clone()),
+            ("one run", without_run(&labelled)),
+        ] {
+            let d = diagnose(&r, &Options::default()).unwrap();
+            let rep = &d.report;
+            assert_eq!(rep.verdict, "found", "{name}, {how}: {}", rep.to_text());
+            let f = &rep.findings[0];
+            assert_eq!(
+                f.effect,
+                "reversal_profile",
+                "{name}, {how}: {}",
+                rep.to_text()
+            );
+            let b = zone_b(f);
+            assert_eq!(b.len(), 4, "{name}, {how}: {b:?}");
+            // Issue 12.8: the last zone within 1 µm of the data's ≈ 2.2 µm (mean F−R of the
+            // 127.5–170 mm readings: 2.1 µm); the first three zones as Table 6.2.
+            assert!((b[3] - 2.1).abs() < 1.0, "{name}, {how}: {b:?}");
+            assert_table_6_2_reversal(&b);
+        }
+    }
 }
 
 #[test]

@@ -6,7 +6,7 @@ use anyhow::{Context as _, bail};
 
 use crate::diagnose::scoring::{self, CaseScore};
 use crate::diagnose::{self, output, select::Options};
-use crate::recording::Recording;
+use crate::recording::{BadRow, Recording};
 
 #[derive(clap::Args, Debug)]
 pub struct DiagnoseArgs {
@@ -23,7 +23,8 @@ pub struct DiagnoseArgs {
     /// Print the DESIGN §5 JSON object instead of the text report.
     #[arg(long)]
     pub json: bool,
-    /// Keep going past bad rows (they are listed on stderr), instead of refusing the file.
+    /// Keep going past bad rows (each listed on stderr, and under `skipped_rows` in the JSON and
+    /// report.json), instead of refusing the file.
     #[arg(long)]
     pub skip_bad_rows: bool,
     /// With --out: also write the joint refit's constant offset into model.toml (for a simulation
@@ -32,20 +33,30 @@ pub struct DiagnoseArgs {
     pub fit_offset: bool,
 }
 
-pub fn read_recording(path: &Path, lenient: bool) -> anyhow::Result<Recording> {
+/// Read a recording; `lenient` (`--skip-bad-rows`) keeps going past bad rows, prints every one on
+/// stderr (file, line, column, why) and returns them for the JSON output.
+pub fn read_recording(path: &Path, lenient: bool) -> anyhow::Result<(Recording, Vec<BadRow>)> {
     if !lenient {
-        return Ok(Recording::read_path(path)?);
+        return Ok((Recording::read_path(path)?, vec![]));
     }
     let f = std::fs::File::open(path).with_context(|| format!("opening {}", path.display()))?;
     let (rec, bad) = Recording::read_lenient(f, &path.display().to_string())?;
     for b in &bad {
         eprintln!("{}: skipped {b}", path.display());
     }
-    Ok(rec)
+    Ok((rec, bad))
+}
+
+/// The skipped rows as a JSON list (`[{"line", "column", "reason"}]`), the `skipped_rows` key that
+/// `--skip-bad-rows` adds to the JSON object (DESIGN §5's keys are unchanged).
+pub fn skipped_rows_json(bad: &[BadRow]) -> serde_json::Value {
+    bad.iter()
+        .map(|b| serde_json::json!({ "line": b.line, "column": b.column, "reason": b.reason }))
+        .collect()
 }
 
 pub fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
-    let rec = read_recording(&a.recording, a.skip_bad_rows)?;
+    let (rec, bad) = read_recording(&a.recording, a.skip_bad_rows)?;
     let base = match &a.model {
         Some(m) => Some(
             crate::models::MachineModel::from_toml_path(m).map_err(|e| anyhow::anyhow!("{e}"))?,
@@ -61,13 +72,21 @@ pub fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
         _ => diagnose::diagnose(&rec, &Options::default()),
     }
     .with_context(|| a.recording.display().to_string())?;
+    let mut report = serde_json::to_value(&d.report)?;
+    if a.skip_bad_rows {
+        report["skipped_rows"] = skipped_rows_json(&bad);
+    }
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&d.report)?);
+        println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         print!("{}", d.report.to_text());
     }
     if let Some(dir) = &a.out {
         let (files, m) = output::write_outputs_opts(&d, &rec, base.as_ref(), dir, a.fit_offset)?;
+        if a.skip_bad_rows {
+            // report.json (files[0]) carries the skipped rows too.
+            std::fs::write(&files[0], serde_json::to_string_pretty(&report)?)?;
+        }
         // Nothing the model cannot hold is dropped silently: with --json it goes to stderr.
         let mut text = format!("\nmachine model {}: {}\n", files[1].display(), m.base);
         for l in &m.added {

@@ -49,6 +49,10 @@ pub struct Common {
     pub json: bool,
     #[arg(long)]
     pub svg: Option<PathBuf>,
+    /// fit thermal / load: keep going past bad rows of the recording (each listed on stderr, and
+    /// under `skipped_rows` with --json) instead of refusing the file.
+    #[arg(long)]
+    pub skip_bad_rows: bool,
 }
 
 #[derive(Debug, clap::Subcommand)]
@@ -275,6 +279,10 @@ pub fn run(a: &Args) -> anyhow::Result<()> {
             common,
         } => {
             let id = component(comp)?;
+            anyhow::ensure!(
+                !common.skip_bad_rows,
+                "--skip-bad-rows applies to recordings (fit thermal, fit load); the ISO 230-2 runs file is read strictly"
+            );
             let (rs, slope) = super::iso230_2::load(runs, *remove_drift)?;
             let fit = fit_axis(&rs, *knot_step_mm, *alpha, *holdout_run)?;
             let targets: Vec<f64> = rs.iter().map(|r| r.target_mm).collect();
@@ -415,7 +423,7 @@ fn run_context(
         Some(t) => component(t)?,
         None => default_target(signal)?,
     };
-    let rec = Recording::read_path(recording)?;
+    let (rec, bad) = super::diagnose::read_recording(recording, common.skip_bad_rows)?;
     let crit = match criterion {
         Crit::Bic => Criterion::Bic,
         Crit::Cp => Criterion::Cp,
@@ -440,6 +448,15 @@ fn run_context(
     if let Some(p) = &common.svg {
         context_svg(p, &rec, &f)?;
     }
-    let json = serde_json::json!({ "target": id.iso_name(), "fit": f });
-    finish(common, &toml, context_text(&f), json)
+    let mut json = serde_json::json!({ "target": id.iso_name(), "fit": f });
+    let mut text = context_text(&f);
+    if common.skip_bad_rows {
+        json["skipped_rows"] = super::diagnose::skipped_rows_json(&bad);
+        text.push_str(&format!(
+            "skipped {} bad row(s) of {} (listed on stderr)\n",
+            bad.len(),
+            recording.display()
+        ));
+    }
+    finish(common, &toml, text, json)
 }

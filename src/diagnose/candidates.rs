@@ -12,6 +12,10 @@ use crate::recording::AXES;
 /// Number of equal zones of a `reversal_profile` over the axis' travel.
 pub const REVERSAL_ZONES: usize = 4;
 
+/// Fewest rows with the axis moving for `servo_lag` to be a candidate (a handful of moving rows
+/// cannot separate a velocity term from the direction or position terms).
+pub const MIN_MOVING_ROWS: usize = 8;
+
 #[derive(Clone, Debug, PartialEq)]
 pub enum Kind {
     Scale,
@@ -195,6 +199,50 @@ impl Candidate {
         }
     }
 
+    /// [`Candidate::columns`] at every θ of `thetas`, in order, handed to `f`. For a cyclic
+    /// candidate on a grid uniform in frequency ([`period_grid`]) the sin/cos pair of the next
+    /// period is the previous one rotated by a fixed angle per distinct position (one complex
+    /// multiply instead of two transcendental calls: the period grid's sin/cos were most of the
+    /// time of a 1M-row diagnosis); other candidates and other grids call `columns`.
+    pub fn columns_sweep(
+        &self,
+        ctx: &Context,
+        thetas: &[f64],
+        mut f: impl FnMut(f64, Vec<Vec<f64>>),
+    ) {
+        let w: Vec<f64> = thetas.iter().map(|p| TAU / p).collect();
+        let dw = if w.len() >= 3 { w[1] - w[0] } else { 0.0 };
+        let uniform = self.kind == Kind::Cyclic
+            && dw != 0.0
+            && w.windows(2)
+                .all(|p| ((p[1] - p[0]) - dw).abs() <= 1e-9 * w[0].abs());
+        if !uniform {
+            thetas.iter().for_each(|&t| f(t, self.columns(ctx, t)));
+            return;
+        }
+        let fa = ctx
+            .axis(self.axis)
+            .expect("library only lists candidates whose inputs exist");
+        let exact = |wk: f64| -> (Vec<f64>, Vec<f64>) {
+            fa.distinct_mm.iter().map(|&x| (wk * x).sin_cos()).unzip()
+        };
+        let (rs, rc) = exact(dw);
+        let (mut sv, mut cv) = (vec![], vec![]);
+        for (j, &t) in thetas.iter().enumerate() {
+            if j % REANCHOR_EVERY == 0 {
+                (sv, cv) = exact(w[j]);
+            } else {
+                for k in 0..sv.len() {
+                    let (s0, c0) = (sv[k], cv[k]);
+                    sv[k] = s0 * rc[k] + c0 * rs[k];
+                    cv[k] = c0 * rc[k] - s0 * rs[k];
+                }
+            }
+            let gather = |v: &[f64]| fa.distinct_idx.iter().map(|&k| v[k as usize]).collect();
+            f(t, vec![gather(&sv), gather(&cv)]);
+        }
+    }
+
     /// The effect model for fitted column coefficients `c` (µm per column unit) at `theta`.
     pub fn to_model(&self, c: &[f64], theta: f64) -> EffectModel {
         match &self.kind {
@@ -270,20 +318,23 @@ pub fn log_grid(lo: f64, hi: f64, r: f64) -> Vec<f64> {
     g
 }
 
-/// Period grid for cyclic error: spacing Δp = p²/(3L) keeps the phase drift over the travel L
-/// below a third of a cycle between neighbours, so the profile cannot step over a true period.
+/// Period grid for cyclic error: uniform in frequency, Δ(1/p) = 1/(3L) (neighbouring periods differ
+/// by p·p'/(3L) ≈ p²/(3L)), which keeps the phase drift over the travel L at a third of a cycle
+/// between neighbours, so the profile cannot step over a true period. Uniform frequency steps also
+/// let [`Candidate::columns_sweep`] rotate phasors instead of evaluating sin/cos at every period.
 fn period_grid(travel_mm: f64, min_period_mm: f64) -> Vec<f64> {
     // Lead-screw pitches and scale periods that matter at the µm level are ≥ 2 mm.
     let lo = min_period_mm.max(2.0).max(travel_mm / 200.0);
     let hi = travel_mm / 1.5;
-    let mut g = vec![];
-    let mut p = lo;
-    while p <= hi {
-        g.push(p);
-        p += (p * p / (3.0 * travel_mm)).max(1e-3);
-    }
-    g
+    let step = 1.0 / (3.0 * travel_mm);
+    (0..)
+        .map(|k| 1.0 / (1.0 / lo - k as f64 * step))
+        .take_while(|p| *p > 0.0 && *p <= hi)
+        .collect()
 }
+
+/// Phasors are recomputed exactly every this many rotations (rounding drift stays ≤ 1e-14).
+const REANCHOR_EVERY: usize = 32;
 
 /// Every candidate for the error signal of axis `a` that the context supports.
 pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
@@ -326,7 +377,11 @@ pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
         if ctx.tool_mm.as_ref().is_some_and(|t| varies(t)) {
             out.push(lin(Kind::Abbe));
         }
-        out.push(lin(Kind::ServoLag));
+        // Servo lag is a candidate only where the axis moves: its column (velocity) is zero at every
+        // standstill row, so a step-and-dwell recording read at standstill offers none.
+        if f.vel_mm_s.iter().filter(|v| **v != 0.0).count() >= MIN_MOVING_ROWS {
+            out.push(lin(Kind::ServoLag));
+        }
         out.push(Candidate {
             axis: a,
             kind: Kind::ReversalSpike,

@@ -311,8 +311,9 @@ mod tests {
             ev(EffectModel::TimeDrift { um_per_h: 3.0 }),
             vec![0.0, 3.0, 6.0]
         );
+        // 2 ms × 100 mm / 3600 s (row 0 moves: one-sided difference at the run's start) in µm.
         assert_eq!(
-            ev(EffectModel::ServoLag { ms: 2.0 })[1],
+            ev(EffectModel::ServoLag { ms: 2.0 })[0],
             -2.0 * 100.0 / 3600.0
         );
         let miss = EffectModel::Abbe { urad_per_mm: 1.0 }

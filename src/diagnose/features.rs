@@ -3,13 +3,17 @@
 //! distance travelled since the last reversal (mm), temperatures and their first-order low-pass over
 //! any τ (°C), force/strain channels, spindle speed, tool length (mm), time (s) and `run` blocks.
 //!
-//! Direction is latched from position changes larger than a deadband, so dwells (v = 0) keep the
-//! direction of the approach, as in ISO 230-2 step-and-dwell runs.
+//! Motion features come from the commanded positions (`<a>_mm`, DESIGN §4): direction is latched by
+//! the definition shared with the gateway ([`crate::approach`], deadband
+//! [`DIRECTION_DEADBAND_MM`]), so dwells keep the direction of their approach, as in ISO 230-2
+//! step-and-dwell runs; velocity is zero at every standstill row (see [`latch`]).
 
+use crate::approach::ApproachLatch;
 use crate::recording::{AXES, Recording};
 
-/// Position change (mm) between samples below which the direction latch does not change.
-pub const DIRECTION_DEADBAND_MM: f64 = 1e-4;
+/// Travel back from the extreme (mm) below which the direction latch does not change; also the
+/// position change below which two rows are at the same place (standstill).
+pub const DIRECTION_DEADBAND_MM: f64 = crate::approach::RECORDED_DEADBAND_MM;
 
 #[derive(Clone, Debug)]
 pub struct AxisFeatures {
@@ -206,6 +210,7 @@ impl Context {
 /// Axis features; the direction latch restarts at every change of `run` (a new run is a new
 /// approach: its first samples take the direction of its own first move, like the first samples of
 /// the recording), so a reverse laser run that starts where the forward run ended is read as reverse.
+/// A readings-only recording (see [`pass_starts`]) restarts it at each inferred pass as well.
 fn axis_features(t_s: &[f64], pos: &[f64], run: Option<&[f64]>) -> AxisFeatures {
     let n = pos.len();
     let mut starts = vec![0];
@@ -213,8 +218,14 @@ fn axis_features(t_s: &[f64], pos: &[f64], run: Option<&[f64]>) -> AxisFeatures 
         starts.extend((1..n).filter(|&i| r[i] != r[i - 1]));
     }
     starts.push(n);
-    let (mut vel, mut dir, mut dist) = (vec![], vec![], vec![]);
+    let mut bounds = vec![0];
     for w in starts.windows(2) {
+        bounds.extend(pass_starts(&pos[w[0]..w[1]]).into_iter().map(|k| w[0] + k));
+        bounds.push(w[1]);
+    }
+    bounds.dedup();
+    let (mut vel, mut dir, mut dist) = (vec![], vec![], vec![]);
+    for w in bounds.windows(2) {
         let (v, d, s) = latch(&t_s[w[0]..w[1]], &pos[w[0]..w[1]]);
         vel.extend(v);
         dir.extend(d);
@@ -241,29 +252,79 @@ fn axis_features(t_s: &[f64], pos: &[f64], run: Option<&[f64]>) -> AxisFeatures 
     }
 }
 
-/// Velocity, latched direction and distance since reversal of one run.
+/// Pass boundaries of a readings-only bidirectional run (only the readings at the targets are
+/// recorded, the same number `m` at every visit, as a laser table F then R with no overshoot row:
+/// Asad Ullah's Table 6.2 has m = 1): when every dwell (rows at one position) holds exactly `m`
+/// rows except at turnarounds, which hold exactly `2m`, the second half of a turnaround dwell is
+/// the first visit of the next pass (approached from the other side after an overshoot the
+/// recording does not list). Returns the first row of each such second half; empty for any other
+/// recording (a sampled trajectory dwells over varying numbers of rows, and a dwell keeps the
+/// direction of its approach, as the latch says).
+fn pass_starts(pos: &[f64]) -> Vec<usize> {
+    let n = pos.len();
+    // Dwells: (first row, row count).
+    let mut dwells: Vec<(usize, usize)> = vec![];
+    for i in 0..n {
+        match dwells.last_mut() {
+            Some((s, c)) if (pos[i] - pos[*s]).abs() <= DIRECTION_DEADBAND_MM => *c += 1,
+            _ => dwells.push((i, 1)),
+        }
+    }
+    if dwells.len() < 3 {
+        return vec![];
+    }
+    let m = dwells[0].1;
+    let mut out = vec![];
+    for k in 0..dwells.len() {
+        let (s, c) = dwells[k];
+        let turnaround = k > 0
+            && k + 1 < dwells.len()
+            && (pos[s] - pos[dwells[k - 1].0]).signum() != (pos[dwells[k + 1].0] - pos[s]).signum();
+        match (turnaround, c) {
+            (true, c) if c == 2 * m => out.push(s + m),
+            (false, c) if c == m => {}
+            _ => return vec![],
+        }
+    }
+    out
+}
+
+/// Velocity, latched direction (the shared definition of [`crate::approach`]) and distance since
+/// reversal of one run.
+///
+/// Velocity is of the commanded motion at the row: a row whose position equals that of a
+/// neighbouring row (within the deadband) is at standstill and has v = 0 (a step-and-dwell reading
+/// never gets a velocity from the step between two standstill readings); a moving row has the
+/// central difference (one-sided at the run's ends).
 fn latch(t_s: &[f64], pos: &[f64]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let n = pos.len();
     let mut vel = vec![0.0; n];
     let mut dir = vec![0.0; n];
     let mut dist = vec![0.0; n];
-    let mut d = 0.0;
+    let same = |a: usize, b: usize| (pos[a] - pos[b]).abs() <= DIRECTION_DEADBAND_MM;
+    for (i, v) in vel.iter_mut().enumerate() {
+        let lo = i.saturating_sub(1);
+        let hi = (i + 1).min(n - 1);
+        let still = (lo < i && same(lo, i)) || (hi > i && same(i, hi));
+        let dt = t_s[hi] - t_s[lo];
+        if !still && hi > lo && dt > 0.0 {
+            *v = (pos[hi] - pos[lo]) / dt;
+        }
+    }
+    let mut l = ApproachLatch::new(DIRECTION_DEADBAND_MM);
     let mut since = 1e9; // no reversal seen yet: "far from any reversal"
     for i in 0..n {
-        if i > 0 {
-            let dx = pos[i] - pos[i - 1];
-            let dt = t_s[i] - t_s[i - 1];
-            vel[i] = if dt > 0.0 { dx / dt } else { vel[i - 1] };
-            if dx.abs() > DIRECTION_DEADBAND_MM {
-                let s = dx.signum();
-                if d != 0.0 && s != d {
-                    since = 0.0;
-                }
-                d = s;
+        let was = l.dir();
+        if let Some(ext) = l.update(pos[i]) {
+            if was != 0 {
+                since = (pos[i] - ext).abs();
+            } else if i > 0 {
+                since += (pos[i] - pos[i - 1]).abs();
             }
-            since += dx.abs();
+        } else if i > 0 {
+            since += (pos[i] - pos[i - 1]).abs();
         }
-        dir[i] = d;
+        dir[i] = f64::from(l.dir());
         dist[i] = since;
     }
     // The first move's direction also applies to the samples before it (they were approached from
@@ -311,7 +372,29 @@ mod tests {
         let f = axis_features(&t, &x, None);
         assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0]);
         assert_eq!(&f.dist_since_rev_mm[4..], &[0.5, 0.5, 1.0]);
-        assert_eq!(f.vel_mm_s[3], 1.0);
+        // Rows 1, 2 and 4, 5 are dwells: no velocity from the steps into or out of them; row 3
+        // (the turnaround, moving in and out) has the central difference.
+        assert_eq!(f.vel_mm_s, vec![1.0, 0.0, 0.0, 0.25, 0.0, 0.0, -0.5]);
+    }
+
+    #[test]
+    fn a_readings_only_table_without_run_labels_reverses_at_the_repeated_turnaround_reading() {
+        // F then R, one reading per target, no overshoot row: the second reading at 30 mm is the
+        // first of the reverse pass.
+        let x = [0.0, 10.0, 20.0, 30.0, 30.0, 20.0, 10.0, 0.0];
+        let t: Vec<f64> = (0..x.len()).map(|i| 10.0 * i as f64).collect();
+        let f = axis_features(&t, &x, None);
+        assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0]);
+        // A sampled trajectory dwelling at its turnaround keeps the approach direction there.
+        let x = [0.0, 10.0, 20.0, 30.0, 30.0, 30.0, 20.0, 10.0];
+        let f = axis_features(&t, &x, None);
+        assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, -1.0]);
+        // Two readings per visit, four at the turnaround: split two and two.
+        let x = [0.0, 0.0, 10.0, 10.0, 20.0, 20.0, 20.0, 20.0, 10.0, 10.0];
+        let t: Vec<f64> = (0..x.len()).map(|i| 10.0 * i as f64).collect();
+        let f = axis_features(&t, &x, None);
+        assert_eq!(&f.dir[4..8], &[1.0, 1.0, -1.0, -1.0]);
+        assert!(f.vel_mm_s.iter().all(|v| *v == 0.0), "{:?}", f.vel_mm_s);
     }
 
     #[test]

@@ -43,6 +43,63 @@ pub fn gain(u: &[Vec<f64>], r0: &[f64]) -> f64 {
     u.iter().map(|c| dot(c, r0).powi(2)).sum()
 }
 
+/// The RSS drop [`orthonormalize`] + [`gain`] would give for `cols` against orthonormal `basis` and
+/// a residual `r0` orthogonal to it, from dot products only (XᵀX, BᵀX, Xᵀr0 in one pass over the
+/// rows, then a small Cholesky of XᵀX − (BᵀX)ᵀ(BᵀX)): no orthonormalised copies, half the
+/// arithmetic. A column whose part outside the basis is below 1e-5 of its norm is dropped (the
+/// subtraction cannot resolve less), so it is used only for candidates that are never nearly in
+/// the span of the basis (cyclic sin/cos pairs). Returns the drop and the number of columns kept.
+pub fn gram_gain(basis: &[Vec<f64>], cols: &[Vec<f64>], r0: &[f64]) -> (f64, usize) {
+    let (q, b) = (cols.len(), basis.len());
+    let mut g = vec![0.0; q * q];
+    let mut cb = vec![0.0; b * q];
+    let mut h = vec![0.0; q];
+    for (i, ri) in r0.iter().enumerate() {
+        for a in 0..q {
+            let xa = cols[a][i];
+            h[a] += xa * ri;
+            for a2 in 0..=a {
+                g[a * q + a2] += xa * cols[a2][i];
+            }
+            for k in 0..b {
+                cb[k * q + a] += basis[k][i] * xa;
+            }
+        }
+    }
+    // M = XᵀX − CᵀC (lower triangle), then Cholesky with dropping; y = L⁻¹h, gain = ‖y‖².
+    let m = |a: usize, a2: usize| {
+        g[a * q + a2] - (0..b).map(|k| cb[k * q + a] * cb[k * q + a2]).sum::<f64>()
+    };
+    let mut l = vec![0.0; q * q];
+    let mut kept: Vec<usize> = vec![];
+    let mut y = vec![0.0; q];
+    for j in 0..q {
+        let mut d = m(j, j);
+        for &k in &kept {
+            d -= l[j * q + k] * l[j * q + k];
+        }
+        if d.is_nan() || d <= 1e-10 * g[j * q + j] {
+            continue;
+        }
+        let djj = d.sqrt();
+        l[j * q + j] = djj;
+        for j2 in j + 1..q {
+            let mut v = m(j2, j);
+            for &k in &kept {
+                v -= l[j2 * q + k] * l[j * q + k];
+            }
+            l[j2 * q + j] = v / djj;
+        }
+        let mut v = h[j];
+        for &k in &kept {
+            v -= l[j * q + k] * y[k];
+        }
+        y[j] = v / djj;
+        kept.push(j);
+    }
+    (kept.iter().map(|&k| y[k] * y[k]).sum(), kept.len())
+}
+
 /// `r0` minus its projection on orthonormal `u`.
 pub fn deflate(u: &[Vec<f64>], r0: &[f64]) -> Vec<f64> {
     let mut r = r0.to_vec();
@@ -72,12 +129,42 @@ pub fn effective_n(r: &[f64]) -> f64 {
     }
     // Short records (tens of laser targets) cannot estimate long lags: cap L at n/10.
     let lags = ((4.0 * nf.cbrt()) as usize).min(n / 10).max(1);
+    // Long records: all L autocovariances from one FFT (O(n log n) instead of L·n: 400 lags of
+    // 10⁶ samples were a quarter of a 1M-row diagnosis); short ones keep the direct sums.
+    let acov = if n >= FFT_MIN_N {
+        autocovariances_fft(&c, lags)
+    } else {
+        (0..=lags).map(|k| dot(&c[..n - k], &c[k..])).collect()
+    };
     let mut factor = 1.0;
-    for k in 1..=lags {
-        let rho = dot(&c[..n - k], &c[k..]) / den;
+    for (k, a) in acov.iter().enumerate().skip(1) {
+        let rho = a / den;
         factor += 2.0 * (1.0 - k as f64 / (lags + 1) as f64) * rho;
     }
     (nf / factor.max(1.0)).max(nf.min(5.0))
+}
+
+/// Records at least this long get their autocovariances by FFT in [`effective_n`] (and cyclic
+/// candidates their screening gain from [`gram_gain`]); shorter ones keep the direct sums.
+pub const FFT_MIN_N: usize = 200_000;
+
+/// Σ_i c_i·c_{i+k} for k = 0…lags, by the Wiener–Khinchin route: zero-pad to ≥ n + lags (no
+/// wrap-around), |FFT|², inverse FFT.
+fn autocovariances_fft(c: &[f64], lags: usize) -> Vec<f64> {
+    use rustfft::{FftPlanner, num_complex::Complex};
+    let m = (c.len() + lags + 1).next_power_of_two();
+    let mut buf: Vec<Complex<f64>> = c
+        .iter()
+        .map(|&v| Complex::new(v, 0.0))
+        .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
+        .take(m)
+        .collect();
+    let mut planner = FftPlanner::new();
+    planner.plan_fft_forward(m).process(&mut buf);
+    buf.iter_mut()
+        .for_each(|z| *z = Complex::new(z.norm_sqr(), 0.0));
+    planner.plan_fft_inverse(m).process(&mut buf);
+    buf[..=lags].iter().map(|z| z.re / m as f64).collect()
 }
 
 fn gram(
@@ -125,6 +212,11 @@ pub struct Fit {
 }
 
 pub fn fit(cols: &[&[f64]], r: &[f64]) -> Fit {
+    fit_dof(cols, r, 0)
+}
+
+/// [`fit`] with `extra` nuisance parameters already removed from `cols` and `r`.
+fn fit_dof(cols: &[&[f64]], r: &[f64], extra: usize) -> Fit {
     let n = r.len();
     let (g, h) = gram(cols, r, 0..n);
     let (beta, inv) = pinv_solve(&g, &h);
@@ -139,7 +231,7 @@ pub fn fit(cols: &[&[f64]], r: &[f64]) -> Fit {
         .collect();
     let rss = dot(&resid, &resid);
     let n_eff = effective_n(&resid);
-    let dof = (n_eff - cols.len() as f64).max(1.0);
+    let dof = (n_eff - (cols.len() + extra) as f64).max(1.0);
     let sigma2 = rss / n as f64 * n_eff / dof; // per-sample variance, corrected for lost dof
     let inflate = n as f64 / n_eff;
     Fit {
@@ -149,6 +241,34 @@ pub fn fit(cols: &[&[f64]], r: &[f64]) -> Fit {
         rss,
         n_eff,
     }
+}
+
+/// [`fit`] of `r` on `cols` plus the means of the `k` cells (`cell` per sample), returning only the
+/// `cols` part: by Frisch–Waugh–Lovell the coefficients, residual and the `cols` block of the
+/// covariance equal those of the fit with one indicator column per cell, here computed on `cols`
+/// and `r` demeaned within cells (the cells count in the lost degrees of freedom). No dense
+/// indicator columns: 32 of them were 0.25 GB on a 1M-row recording.
+pub fn fit_within_cells(cols: &[&[f64]], r: &[f64], cell: &[usize], k: usize) -> Fit {
+    let demeaned = |v: &[f64]| {
+        let mut sum = vec![0.0; k];
+        let mut cnt = vec![0usize; k];
+        for (x, &c) in v.iter().zip(cell) {
+            sum[c] += x;
+            cnt[c] += 1;
+        }
+        for (m, &c) in sum.iter_mut().zip(&cnt) {
+            *m /= c.max(1) as f64;
+        }
+        v.iter()
+            .zip(cell)
+            .map(|(x, &c)| x - sum[c])
+            .collect::<Vec<f64>>()
+    };
+    let rd = demeaned(r);
+    let cd: Vec<Vec<f64>> = cols.iter().map(|c| demeaned(c)).collect();
+    let refs: Vec<&[f64]> = cd.iter().map(Vec::as_slice).collect();
+    // Every cell counts as a parameter, as its indicator column did (even an empty one).
+    fit_dof(&refs, &rd, k)
 }
 
 /// Held-out RSS: for each block, fit on the other blocks and predict this one.
@@ -259,6 +379,46 @@ pub fn forward_block_rss(
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn gram_gain_equals_the_gram_schmidt_gain() {
+        let n = 3000;
+        let col = |f: &dyn Fn(f64) -> f64| -> Vec<f64> { (0..n).map(|i| f(i as f64)).collect() };
+        let basis = orthonormalize(
+            &[],
+            vec![
+                col(&|_| 1.0),
+                col(&|t| t / 3000.0),
+                col(&|t| (t * 0.01).sin()),
+            ],
+            2,
+        );
+        let r = col(&|t| (t * 0.05).sin() * 2.0 + (t * 0.7).cos() + t / 1000.0);
+        let r0 = deflate(&basis, &r);
+        let cols = vec![col(&|t| (t * 0.05).sin()), col(&|t| (t * 0.05).cos())];
+        let want = gain(&orthonormalize(&basis, cols.clone(), 1), &r0);
+        let (got, q) = super::gram_gain(&basis, &cols, &r0);
+        assert_eq!(q, 2);
+        assert!((got - want).abs() < 1e-9 * want, "{got} vs {want}");
+        // A column inside the basis' span is dropped.
+        let (g1, q1) = super::gram_gain(&basis, &[col(&|t| 2.0 + t / 1500.0)], &r0);
+        assert_eq!((q1, g1), (0, 0.0));
+    }
+
+    #[test]
+    fn fft_autocovariances_equal_the_direct_sums() {
+        let c: Vec<f64> = (0..5000)
+            .map(|i| ((i as f64 * 0.37).sin() + (i as f64 * 1.91).cos() * 0.5).powi(3))
+            .collect();
+        let fft = super::autocovariances_fft(&c, 40);
+        for (k, a) in fft.iter().enumerate() {
+            let direct = dot(&c[..c.len() - k], &c[k..]);
+            assert!(
+                (a - direct).abs() < 1e-9 * direct.abs().max(1.0),
+                "lag {k}: {a} vs {direct}"
+            );
+        }
+    }
+
     use super::*;
 
     #[test]

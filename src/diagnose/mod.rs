@@ -300,20 +300,11 @@ fn joint_refit(ctx: &Context, r: &[f64], terms: &[Term]) -> Refit {
     // Backlash and reversal profile are tested within own-axis position cells (select.rs); their intervals come
     // from the same null: the joint fit with the cell means in place of the intercept. (With both
     // directions read at every position its estimates equal the plain fit's.)
-    let cell_cols: Vec<Vec<f64>> = terms
+    let fit_cells = terms
         .iter()
         .find(|t| t.within_cells)
         .and_then(|t| ctx.position_cells(t.cand.axis))
-        .map_or(vec![], |(cell, k)| {
-            (0..k)
-                .map(|c| cell.iter().map(|&i| f64::from(u8::from(i == c))).collect())
-                .collect()
-        });
-    let fit_cells = (!cell_cols.is_empty()).then(|| {
-        let mut fl: Vec<&[f64]> = cell_cols.iter().map(Vec::as_slice).collect();
-        fl.extend(flat[1..].iter().copied());
-        lsq::fit(&fl, r)
-    });
+        .map(|(cell, k)| lsq::fit_within_cells(&flat[1..], r, &cell, k));
     let mut models = vec![];
     let mut cis = vec![];
     for (k, t) in terms.iter().enumerate() {
@@ -323,7 +314,7 @@ fn joint_refit(ctx: &Context, r: &[f64], terms: &[Term]) -> Refit {
             Some(fc) if t.within_cells => sp
                 .clone()
                 .map(|i| {
-                    let j = i - 1 + cell_cols.len();
+                    let j = i - 1;
                     fc.cov[(j, j)].max(0.0).sqrt()
                 })
                 .collect(),

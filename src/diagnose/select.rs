@@ -140,36 +140,94 @@ pub fn within_cells(c: &Candidate) -> bool {
 
 /// The null a candidate is screened against: orthonormal basis, residual on it, its RSS, and the
 /// number of nuisance columns beyond the fitted terms.
-struct Null {
-    basis: Vec<Vec<f64>>,
+struct Null<'a> {
+    basis: std::borrow::Cow<'a, [Vec<f64>]>,
     r0: Vec<f64>,
     rss0: f64,
     extra: usize,
+    /// Own-axis position cell per sample and the cell count, when the null holds the cell means.
+    /// They are applied implicitly: a column is demeaned within cells, then projected on `basis`
+    /// (the fitted terms demeaned within cells). The same projection as with one-hot cell
+    /// columns in the basis, without the 32 dense columns per step (0.5 GB and much of the time
+    /// on a 1M-row recording).
+    cells: Option<(&'a [usize], usize)>,
 }
 
-impl Null {
-    fn new(basis: Vec<Vec<f64>>, r: &[f64], extra: usize) -> Null {
-        let r0 = lsq::deflate(&basis, r);
+impl<'a> Null<'a> {
+    /// The null of `basis` (orthonormal, holding the intercept) plus the cell means.
+    fn within_cells(basis: &[Vec<f64>], r: &[f64], cell: &'a [usize], k: usize) -> Null<'a> {
+        let demeaned = basis
+            .iter()
+            .map(|b| {
+                let mut v = b.clone();
+                demean_in_cells(&mut v, cell, k);
+                v
+            })
+            // Unit vectors of the basis inside the cells' span (the intercept, any function of
+            // the cell) are gone up to rounding: dropped as `orthonormalize` would.
+            .filter(|v: &Vec<f64>| dot(v, v).sqrt() >= 1e-7)
+            .collect();
+        let dense = lsq::orthonormalize(&[], demeaned, 2);
+        let mut occupied = vec![false; k];
+        cell.iter().for_each(|&c| occupied[c] = true);
+        let dim = occupied.iter().filter(|o| **o).count() + dense.len();
+        let mut rc = r.to_vec();
+        demean_in_cells(&mut rc, cell, k);
+        let r0 = lsq::deflate(&dense, &rc);
         let rss0 = dot(&r0, &r0);
         Null {
-            basis,
+            basis: dense.into(),
             r0,
             rss0,
-            extra,
+            extra: dim.saturating_sub(basis.len()),
+            cells: Some((cell, k)),
         }
     }
 }
 
+/// `v` minus its mean within each of the `k` cells.
+fn demean_in_cells(v: &mut [f64], cell: &[usize], k: usize) {
+    let mut sum = vec![0.0; k];
+    let mut cnt = vec![0usize; k];
+    for (x, &c) in v.iter().zip(cell) {
+        sum[c] += x;
+        cnt[c] += 1;
+    }
+    for (m, &c) in sum.iter_mut().zip(&cnt) {
+        *m /= c.max(1) as f64;
+    }
+    v.iter_mut().zip(cell).for_each(|(x, &c)| *x -= sum[c]);
+}
+
 /// Screen one candidate at one θ: RSS drop and parameter count (θ counts as one).
-fn score(
-    ctx: &Context,
-    c: &Candidate,
-    theta: f64,
-    basis: &[Vec<f64>],
-    r0: &[f64],
-    rss0: f64,
-) -> Option<(f64, usize)> {
-    let u = lsq::orthonormalize(basis, c.columns(ctx, theta), 1);
+fn score(ctx: &Context, c: &Candidate, theta: f64, nl: &Null<'_>) -> Option<(f64, usize)> {
+    score_cols(c, c.columns(ctx, theta), nl)
+}
+
+/// [`score`] on columns already computed (a candidate's grid sweep).
+fn score_cols(c: &Candidate, mut cols: Vec<Vec<f64>>, nl: &Null<'_>) -> Option<(f64, usize)> {
+    let (basis, r0, rss0) = (&nl.basis, &nl.r0, nl.rss0);
+    if let Some((cell, k)) = nl.cells {
+        // A column (numerically) inside the span of the cell means explains nothing new: the
+        // same 1e-7 relative cut as `orthonormalize`, against the column's own norm.
+        cols.retain_mut(|v| {
+            let n0 = dot(v, v).sqrt();
+            demean_in_cells(v, cell, k);
+            dot(v, v).sqrt() >= 1e-7 * n0
+        });
+    }
+    // Long recordings: a cyclic sin/cos pair (never nearly inside the basis' span) is scored from
+    // dot products, without orthonormalised copies (most of a 1M-row diagnosis' screening).
+    if nl.cells.is_none() && c.kind == Kind::Cyclic && r0.len() >= lsq::FFT_MIN_N {
+        let (g, q) = lsq::gram_gain(basis, &cols, r0);
+        return (q > 0).then(|| {
+            (
+                g.min(rss0 * (1.0 - 1e-12)),
+                q + usize::from(c.is_nonlinear()),
+            )
+        });
+    }
+    let u = lsq::orthonormalize(basis, cols, 1);
     if u.is_empty() {
         return None;
     }
@@ -304,12 +362,8 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             opts.cv_blocks
         },
     );
-    let cell_cols: Vec<Vec<f64>> = ctx.position_cells(axis).map_or(vec![], |(cell, k)| {
-        (0..k)
-            .map(|c| cell.iter().map(|&i| f64::from(u8::from(i == c))).collect())
-            .collect()
-    });
-    if !cell_cols.is_empty() {
+    let cell_of = ctx.position_cells(axis);
+    if cell_of.is_some() {
         tried += lib.iter().filter(|c| within_cells(c)).count();
     }
     let ones = vec![1.0; n];
@@ -379,19 +433,23 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 break;
             }
             let plain = Null {
-                basis: basis.clone(),
+                basis: basis.as_slice().into(),
                 r0: r0.clone(),
                 rss0,
                 extra: 0,
+                cells: None,
             };
-            let cells = {
-                let extra = lsq::orthonormalize(&basis, cell_cols.clone(), 2);
-                let k = extra.len();
-                let mut b = basis.clone();
-                b.extend(extra);
-                Null::new(b, r, k)
+            let cells = match &cell_of {
+                Some((cell, k)) => Null::within_cells(&basis, r, cell, *k),
+                None => Null {
+                    basis: vec![].into(),
+                    r0: vec![],
+                    rss0: 0.0,
+                    extra: 0,
+                    cells: None,
+                },
             };
-            let cells_ok = cells.extra > 0 && cells.rss0 > 0.0 && n > cells.basis.len() + 3;
+            let cells_ok = cells.extra > 0 && cells.rss0 > 0.0 && n > basis.len() + cells.extra + 3;
             let null_of = |blocked: bool| if blocked { &cells } else { &plain };
             // Profile every candidate over its grid (best θ by RSS drop: q is fixed within a candidate).
             let mut scored: Vec<Scored> = vec![];
@@ -410,8 +468,8 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                     }
                     let nl = null_of(blocked);
                     let mut best: Option<Scored> = None;
-                    for &th in &thetas {
-                        if let Some((g, q)) = score(ctx, c, th, &nl.basis, &nl.r0, nl.rss0)
+                    c.columns_sweep(ctx, &thetas, |th, cols| {
+                        if let Some((g, q)) = score_cols(c, cols, nl)
                             && best.as_ref().is_none_or(|b| g > b.gain)
                         {
                             best = Some(Scored {
@@ -423,7 +481,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                                 cells: blocked,
                             });
                         }
-                    }
+                    });
                     scored.extend(best);
                 }
             }
@@ -515,15 +573,12 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 let hi = g[(i + 1).min(g.len() - 1)];
                 if hi > lo {
                     let th = golden_refine(
-                        |t| {
-                            score(ctx, cand, t, &nl.basis, &nl.r0, nl.rss0)
-                                .map_or(f64::NEG_INFINITY, |s| s.0)
-                        },
+                        |t| score(ctx, cand, t, nl).map_or(f64::NEG_INFINITY, |s| s.0),
                         lo,
                         hi,
                         18,
                     );
-                    if let Some((g2, q)) = score(ctx, cand, th, &nl.basis, &nl.r0, nl.rss0)
+                    if let Some((g2, q)) = score(ctx, cand, th, nl)
                         && g2 >= win.gain
                     {
                         win = Scored {
@@ -550,7 +605,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 break;
             }
             // What the term explains of the residual as it is (no nuisance): its importance and RMS.
-            let plain_gain = score(ctx, cand, win.theta, &basis, &r0, rss0).map_or(0.0, |s| s.0);
+            let plain_gain = score(ctx, cand, win.theta, &plain).map_or(0.0, |s| s.0);
             let rss1 = rss0 - plain_gain;
             let new_cols = cand.columns(ctx, win.theta);
             let mut trial = set_of(&terms);

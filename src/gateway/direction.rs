@@ -1,4 +1,5 @@
-//! Direction latch with deadband and a ramped forward/reverse switch.
+//! Direction latch with deadband and a ramped forward/reverse switch. The direction itself is the
+//! shared definition of `crate::approach` (also used by diagnose); this file adds the blend.
 //!
 //! Bidirectional error functions (forward/reverse tables: Graves' Error File, Asad Ullah's F/R data)
 //! need the direction of travel. Noise around a standstill must not flip it, so the latch only
@@ -10,6 +11,8 @@
 //! Use: `value = w·forward + (1 − w)·reverse` with `w = weight_forward()`.
 
 use serde::{Deserialize, Serialize};
+
+use crate::approach::ApproachLatch;
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -31,9 +34,8 @@ pub enum Direction {
 #[derive(Clone, Debug)]
 pub struct DirectionLatch {
     cfg: DirectionConfig,
-    dir: Direction,
-    /// Extreme position reached in the current direction (or the first position seen).
-    extreme_mm: Option<f64>,
+    /// The shared definition of the direction of approach (`crate::approach`).
+    approach: ApproachLatch,
     /// Blend start: (time, weight at that time, target weight).
     blend: (f64, f64, f64),
     weight: f64,
@@ -43,15 +45,18 @@ impl DirectionLatch {
     pub fn new(cfg: DirectionConfig) -> Self {
         Self {
             cfg,
-            dir: Direction::Unknown,
-            extreme_mm: None,
+            approach: ApproachLatch::new(cfg.deadband_mm),
             blend: (0.0, 0.5, 0.5),
             weight: 0.5,
         }
     }
 
     pub fn direction(&self) -> Direction {
-        self.dir
+        match self.approach.dir() {
+            1 => Direction::Forward,
+            -1 => Direction::Reverse,
+            _ => Direction::Unknown,
+        }
     }
 
     pub fn weight_forward(&self) -> f64 {
@@ -60,31 +65,9 @@ impl DirectionLatch {
 
     /// Feed the (set-point or measured) position; returns the forward weight for this cycle.
     pub fn update(&mut self, pos_mm: f64, now_s: f64) -> f64 {
-        if pos_mm.is_finite() {
-            let db = self.cfg.deadband_mm.max(0.0);
-            let ext = *self.extreme_mm.get_or_insert(pos_mm);
-            let new_dir = match self.dir {
-                Direction::Forward if pos_mm < ext - db => Some(Direction::Reverse),
-                Direction::Reverse if pos_mm > ext + db => Some(Direction::Forward),
-                Direction::Unknown if pos_mm > ext + db => Some(Direction::Forward),
-                Direction::Unknown if pos_mm < ext - db => Some(Direction::Reverse),
-                _ => None,
-            };
-            match new_dir {
-                Some(d) => {
-                    self.dir = d;
-                    self.extreme_mm = Some(pos_mm);
-                    let target = if d == Direction::Forward { 1.0 } else { 0.0 };
-                    self.blend = (now_s, self.weight, target);
-                }
-                None => {
-                    self.extreme_mm = Some(match self.dir {
-                        Direction::Forward => ext.max(pos_mm),
-                        Direction::Reverse => ext.min(pos_mm),
-                        Direction::Unknown => ext,
-                    });
-                }
-            }
+        if self.approach.update(pos_mm).is_some() {
+            let target = if self.approach.dir() > 0 { 1.0 } else { 0.0 };
+            self.blend = (now_s, self.weight, target);
         }
         let (t0, w0, w1) = self.blend;
         let phase = if self.cfg.switch_time_s > 0.0 {

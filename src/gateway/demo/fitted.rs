@@ -28,6 +28,7 @@ use crate::analysis::fit::regression::{Candidate, Criterion, select};
 use crate::analysis::fit::to_model::{AxisForm, axis_component, put_component, to_checked_toml};
 use crate::analysis::fit::workflow::fit_axis;
 use crate::analysis::iso230_2::Reading;
+use crate::approach::{ApproachLatch, RECORDED_DEADBAND_MM};
 use crate::models::names::parse_component;
 use crate::models::spec::{ForceSpec, LoadKind, LoadSpec, SensorSpec, ThermalKind, ThermalSpec};
 use crate::models::{Axis, ComponentId, ErrorFunction, MachineModel, ModelSpec};
@@ -139,16 +140,20 @@ pub fn reference_temperatures(recs: &[&Recording]) -> Vec<(String, f64)> {
         .collect()
 }
 
-/// Direction latch per axis from the nominal motion (+1/−1; 0 until the axis first moves).
+/// Direction latch per axis from the nominal motion (+1/−1; 0 until the axis first moves): the
+/// shared definition of [`crate::approach`].
 fn latched_directions(pos: &[&[f64]]) -> Vec<[i8; 3]> {
     let n = pos[0].len();
+    let mut latches: Vec<ApproachLatch> = pos
+        .iter()
+        .map(|_| ApproachLatch::new(RECORDED_DEADBAND_MM))
+        .collect();
     let mut d = [0i8; 3];
     (0..n)
         .map(|i| {
             for (k, p) in pos.iter().enumerate() {
-                if i > 0 && p[i] != p[i - 1] {
-                    d[k] = if p[i] > p[i - 1] { 1 } else { -1 };
-                }
+                latches[k].update(p[i]);
+                d[k] = latches[k].dir();
             }
             d
         })
