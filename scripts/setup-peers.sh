@@ -8,7 +8,7 @@
 #        qemu-utils (e.g. from backports) `apt-get install qemu-system-x86` would remove it.
 # Never removes or downgrades a host package: every install is simulated first (apt-get -s) and
 # refused if the simulation removes or downgrades anything; the real install adds --no-remove.
-#   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial)
+#   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial, asyncua)
 # Tests look for <repo>/.venv/bin/python and fail with "run scripts/setup-peers.sh" if it is missing.
 set -euo pipefail
 
@@ -30,6 +30,7 @@ PIP_PACKAGES=(
   "python-can==4.6.1"
   "pymodbus[serial]==3.16.1"
   "pyserial==3.5"
+  "asyncua==2.1.0"
 )
 
 SUDO=""

@@ -97,6 +97,21 @@ pub trait ErrorModel {
     /// Push, per machine axis, its error terms at `state` into `out` (cleared by the caller).
     /// `&mut self`: models keep evaluation state (thermal lags, scratch buffers).
     fn axis_errors(&mut self, state: &MachineState, out: &mut AxisErrors) -> Result<(), String>;
+    /// Which model this is (shown by the OPC UA server); None for models without an identity.
+    fn identity(&self) -> Option<ModelIdentity> {
+        None
+    }
+}
+
+/// A model's name, content hash and the group (geometric/thermal/load) of each of its terms.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ModelIdentity {
+    pub name: String,
+    /// SHA-256 of the model's canonical TOML, hex: the same model gives the same hash however its
+    /// file is formatted.
+    pub sha256: String,
+    /// Term name → `geometric`, `thermal` or `load`.
+    pub term_groups: std::collections::BTreeMap<String, &'static str>,
 }
 
 /// Everything the engine knows about one channel, by channel id (index into `Engine::channels`).

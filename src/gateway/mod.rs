@@ -10,6 +10,7 @@ pub mod engine;
 pub mod health;
 pub mod http;
 pub mod model_adapter;
+pub mod opcua;
 pub mod origin_shift_sink;
 pub mod quadrature_sink;
 pub mod recovery;

@@ -8,7 +8,7 @@
 
 use std::sync::Arc;
 
-use super::engine::{AxisErrors, ErrorModel, MachineState};
+use super::engine::{AxisErrors, ErrorModel, MachineState, ModelIdentity};
 use crate::models::{Axis, ErrorBreakdown, MachineModel, ModelInput, ModelState};
 
 /// Axis names as the gateway's state keys them, by [`Axis::index`].
@@ -101,6 +101,10 @@ impl ErrorModel for MachineModelAdapter {
             .collect()
     }
 
+    fn identity(&self) -> Option<ModelIdentity> {
+        Some(identity_of(&self.model))
+    }
+
     fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
         self.input.t_s = s.t_s;
         let mut weights = [1.0f64; 3];
@@ -161,5 +165,34 @@ impl ErrorModel for MachineModelAdapter {
             }
         }
         Ok(())
+    }
+}
+
+/// Name, SHA-256 of the canonical TOML, and each term's group (components, squareness: geometric;
+/// `[[thermal]]` terms: thermal; `[[load]]` terms: load; the chain's cross terms: other).
+pub fn identity_of(model: &MachineModel) -> ModelIdentity {
+    use sha2::Digest as _;
+    let spec = model.spec();
+    let hash = sha2::Sha256::digest(model.to_toml_string().as_bytes());
+    let term_groups = model
+        .term_names()
+        .iter()
+        .map(|t| {
+            let group = if spec.thermal.iter().any(|s| &s.name == t) {
+                "thermal"
+            } else if spec.load.iter().any(|s| &s.name == t) {
+                "load"
+            } else if t == "higher_order" {
+                "other"
+            } else {
+                "geometric"
+            };
+            (t.clone(), group)
+        })
+        .collect();
+    ModelIdentity {
+        name: model.name().to_string(),
+        sha256: hash.iter().map(|b| format!("{b:02x}")).collect(),
+        term_groups,
     }
 }

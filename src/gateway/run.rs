@@ -69,6 +69,16 @@ pub async fn run(
         token: cfg.gateway.api_token.clone(),
         control_tx: Some(control_tx),
     };
+    // The OPC UA server (if configured) reads the same snapshots on its own tasks.
+    let opcua = match &cfg.opcua {
+        Some(o) => {
+            let rx = status_rx.clone();
+            let srv = super::opcua::start(o, &cfg.gateway.name, rx, model.identity()).await?;
+            tracing::info!("OPC UA endpoint {} (read-only)", srv.endpoint);
+            Some(srv)
+        }
+        None => None,
+    };
     let (bound, http_task) = serve(listen, status_rx, api, Limits::default())
         .await
         .with_context(|| format!("binding status endpoint {listen}"))?;
@@ -197,6 +207,9 @@ pub async fn run(
         t.abort();
     }
     http_task.abort();
+    if let Some(o) = opcua {
+        o.stop();
+    }
     let st = sink_status_rx.borrow().clone();
     summary.writes_ok = st.writes_ok;
     summary.writes_failed = st.writes_failed;

@@ -240,6 +240,15 @@ async fn one_run(
             sim.modbus,
             &sim.weighing_pty,
         );
+        // The plant's view while this run lasts: an OPC UA server on a free loopback port.
+        let opcua_port = std::net::TcpListener::bind("127.0.0.1:0")?
+            .local_addr()?
+            .port();
+        let text = format!("{text}\n[opcua]\nlisten = \"127.0.0.1:{opcua_port}\"\n");
+        eprintln!(
+            "retrocomp demo: {} run: OPC UA opc.tcp://127.0.0.1:{opcua_port}/ (read-only)",
+            mode.key()
+        );
         let field_path = dir.join("field.toml");
         std::fs::write(&field_path, &text)?;
         let cfg = FieldConfig::parse(&text, &field_path)?;
