@@ -146,3 +146,74 @@ fn asyncua_browses_reads_and_subscribes_to_the_gateway() {
     let log_text = std::fs::read_to_string(&log).unwrap();
     assert!(log_text.contains("(read-only)"), "{log_text}");
 }
+
+/// `[opcua]` with a user: anonymous stays on the unencrypted endpoint (`anonymous = true`), the
+/// password only on Basic256Sha256/SignAndEncrypt with the server's self-signed certificate created
+/// in `pki_dir` at start. No machine is needed for this: the gateway runs `--dry-run` on an empty
+/// CAN hub (its inputs are stale, the address space is there all the same).
+#[test]
+fn a_user_reads_over_the_encrypted_endpoint_and_a_wrong_password_is_refused() {
+    let py = python_with_asyncua();
+    let dir = run::run_dir("gateway_opcua_users");
+    let dir = dir.as_path();
+    let (_rt, hub) = run::loopback_hub();
+    let password = "opcua-test-password-1";
+    std::fs::write(dir.join("mes.pw"), format!("{password}\n")).unwrap();
+    let field = dir.join("field.toml");
+    let full = configs::field_toml(hub.local_addr().port(), "127.0.0.1:9", Path::new("-"));
+    // Without the serial source (there is no pty to open); the sink goes with --dry-run.
+    let (head, tail) = full.split_once("[serial]").unwrap();
+    let text = head.to_string()
+        + &tail[tail.find("[sink.origin_shift]").unwrap()..]
+        + "\n[opcua]\nlisten = \"127.0.0.1:0\"\nanonymous = true\npki_dir = \"pki\"\n\
+           trust_client_certs = true\nusers = [ { name = \"mes\", password_file = \"mes.pw\" } ]\n";
+    std::fs::write(&field, text).unwrap();
+    let log = dir.join("gateway.log");
+    let mut gw = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .args(["run", "--dry-run", "--config"])
+        .arg(&field)
+        .arg("--model")
+        .arg(run::demo_truth_model())
+        .env("RUST_LOG", "info")
+        .env("NO_COLOR", "1")
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .expect("starting retrocomp run");
+    let opc_url = from_log(&log, "OPC UA endpoint ", &mut gw);
+    let out = Command::new(&py)
+        .arg(peers::repo().join("tests/peers/asyncua_users.py"))
+        .args([opc_url.as_str(), "mes", password])
+        .arg(dir)
+        .output()
+        .expect("running the asyncua client");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    run::stop_gateway(&mut gw, &log);
+    assert!(
+        out.status.success(),
+        "asyncua client failed ({}):\n{stdout}\n{stderr}\ngateway log: {}",
+        out.status,
+        log.display()
+    );
+    let summary: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    eprintln!("asyncua summary: {summary}");
+    assert_eq!(
+        summary["endpoints"],
+        serde_json::json!([
+            ["Basic256Sha256", "SignAndEncrypt", "Anonymous,UserName"],
+            ["None", "None", "Anonymous"]
+        ]),
+        "{summary}"
+    );
+    assert!(summary["user_read_um"].as_f64().is_some(), "{summary}");
+    assert!(summary["user_write_refused"].as_str().is_some());
+    assert!(
+        dir.join("pki/own/cert.der").is_file(),
+        "no server certificate"
+    );
+    // The password is not in the log.
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert!(!log_text.contains(password), "{log_text}");
+}

@@ -181,6 +181,7 @@ struct Space {
     ns: u16,
     root: String,
     known: HashSet<String>,
+    failing: bool,
 }
 
 impl Space {
@@ -205,6 +206,7 @@ impl Space {
             ns,
             root,
             known: HashSet::new(),
+            failing: false,
         }
     }
 
@@ -220,27 +222,30 @@ impl Space {
             }
         }
         let now = opcua::types::DateTime::now();
-        let values: Vec<(NodeId, DataValue)> = pts
+        let ids: Vec<NodeId> = pts.iter().map(|p| self.id(&p.path)).collect();
+        let values = ids
             .iter()
-            .map(|p| (self.id(&p.path), data_value(&p.value, now)))
-            .collect();
-        if let Err(e) = self
-            .nm
-            .set_values(subs, values.iter().map(|(id, v)| (id, None, v.clone())))
-        {
-            tracing::warn!(%e, "opcua: setting values");
+            .zip(pts)
+            .map(|(id, p)| (id, None, data_value(&p.value, now)));
+        // Logged once when it starts failing and once when it works again.
+        let result = self.nm.set_values(subs, values);
+        match (&result, self.failing) {
+            (Err(e), false) => tracing::error!(%e, "opcua: cannot set values"),
+            (Ok(()), true) => tracing::info!("opcua: values set again"),
+            _ => {}
         }
+        self.failing = result.is_err();
     }
 
     /// The variable at `p.path` and every object above it that does not exist yet.
     fn create(&self, p: &Point) {
         let mut s = self.nm.address_space().write();
         let parts: Vec<&str> = p.path.split('/').collect();
+        let (name, objects) = parts.split_last().expect("split yields at least one part");
         let mut parent = NodeId::new(self.ns, self.root.clone());
-        for i in 0..parts.len() - 1 {
-            let id = self.id(&parts[..=i].join("/"));
+        for (i, &name) in objects.iter().enumerate() {
+            let id = self.id(&objects[..=i].join("/"));
             if !s.node_exists(&id) {
-                let name = parts[i];
                 let b = ObjectBuilder::new(&id, QualifiedName::new(self.ns, name), name)
                     .component_of(parent.clone());
                 let b = if FOLDERS.contains(&name) {
@@ -252,7 +257,7 @@ impl Space {
             }
             parent = id;
         }
-        let name = parts[parts.len() - 1];
+        let name = *name;
         let id = self.id(&p.path);
         let (data_type, rank) = match &p.value {
             Value::F64(_) => (DataTypeId::Double, -1),
