@@ -37,6 +37,8 @@ fn snapshot(k: u64) -> StatusSnapshot {
                 ("geometric".to_string(), -(k as f64 % 30.0)),
                 ("thermal".to_string(), -(k as f64 % 20.0)),
             ]),
+            clamp_hits: 0,
+            cap_hits: 0,
         })
         .collect();
     StatusSnapshot {
@@ -49,6 +51,7 @@ fn snapshot(k: u64) -> StatusSnapshot {
         model_error: None,
         sink: None,
         sources: vec![],
+        model: None,
         telemetry: None,
     }
 }

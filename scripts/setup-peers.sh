@@ -10,7 +10,8 @@
 # refused if the simulation removes or downgrades anything; the real install adds --no-remove.
 #   chromium (+ chromium-driver): the headless browser of tests/gateway_web_browser.rs, driven by
 #        playwright-core (PINNED in tests/browser/package-lock.json, `npm ci`; needs node + npm)
-#   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial; paho-mqtt +
+#   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial; asyncua, the OPC UA client of
+#        tests/gateway_opcua.rs; paho-mqtt +
 #        mqtt-spb-wrapper, the Sparkplug B host of tests/telemetry_mqtt.rs; mosquitto is its broker,
 #        started by the test itself on a loopback port, never the system service)
 # Tests look for <repo>/.venv/bin/python and fail with "run scripts/setup-peers.sh" if it is missing.
@@ -40,6 +41,7 @@ PIP_PACKAGES=(
   "mqtt-spb-wrapper==2.1.2"
   "paho-mqtt==1.6.1"
   "protobuf==3.20.3"
+  "asyncua==2.1.0"
 )
 
 SUDO=""

@@ -88,12 +88,15 @@ fn snapshot(k: u64) -> StatusSnapshot {
             applied_um: -(k as f64) * 0.1,
             mode: Mode::Tracking,
             terms_um: BTreeMap::from([("thermal".to_string(), -(k as f64) * 0.1)]),
+            clamp_hits: 0,
+            cap_hits: 0,
         }],
         channels: BTreeMap::new(),
         active_faults: vec![],
         model_error: None,
         sink: None,
         sources: vec![],
+        model: None,
         telemetry: None,
     }
 }

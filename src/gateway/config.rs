@@ -46,6 +46,9 @@ pub struct FieldConfig {
     /// Sparkplug B over MQTT to the plant (`[telemetry.mqtt]`, src/telemetry).
     #[serde(default)]
     pub telemetry: Option<crate::telemetry::TelemetrySection>,
+    /// OPC UA server for the plant's systems (`src/gateway/opcua`); absent → none.
+    #[serde(default)]
+    pub opcua: Option<super::opcua::OpcUaSection>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -317,8 +320,10 @@ impl FieldConfig {
     /// position source among the configured buses. (Tests feed samples themselves, so `parse`
     /// does not require sources.)
     pub fn load_for_run(path: &Path) -> Result<Self, ConfigError> {
-        let cfg = Self::load(path)?;
-        if let Err((key, what)) = cfg.check_position_sources() {
+        let mut cfg = Self::load(path)?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        let opcua = cfg.opcua.as_mut().map_or(Ok(()), |o| o.resolve(base));
+        if let Err((key, what)) = opcua.and_then(|()| cfg.check_position_sources()) {
             let text = std::fs::read_to_string(path).unwrap_or_default();
             return Err(ConfigError::invalid(path, &text, key, what));
         }

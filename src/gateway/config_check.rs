@@ -162,6 +162,9 @@ impl FieldConfig {
         self.safety
             .validate()
             .map_err(|e| (safety_key("safety", &e), e.to_string()))?;
+        if let Some(o) = &self.opcua {
+            o.validate()?;
+        }
         if self.axes.is_empty() {
             return Err(("axis".into(), "at least one [[axis]] is required".into()));
         }

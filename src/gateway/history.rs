@@ -374,6 +374,7 @@ mod tests {
             sink: None,
             sources: vec![],
             model: None,
+            telemetry: None,
         }
     }
 

@@ -46,15 +46,7 @@ fn dir_of(w: f64) -> i8 {
 
 impl MachineModelAdapter {
     pub fn new(model: MachineModel) -> Self {
-        use sha2::Digest as _;
-        let digest = sha2::Sha256::digest(model.to_toml_string().as_bytes());
-        let identity = ModelIdentity {
-            name: model.name().to_string(),
-            sha256: digest.iter().map(|b| format!("{b:02x}")).collect(),
-            loaded_unix_s: std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(0.0, |d| d.as_secs_f64()),
-        };
+        let identity = identity_of(&model);
         Self {
             identity,
             state: model.new_state(),
@@ -177,5 +169,38 @@ impl ErrorModel for MachineModelAdapter {
             }
         }
         Ok(())
+    }
+}
+
+/// Name, SHA-256 of the canonical TOML, when it was loaded (now), and each term's group
+/// (components, squareness: geometric; `[[thermal]]` terms: thermal; `[[load]]` terms: load; the
+/// chain's cross terms: other).
+pub fn identity_of(model: &MachineModel) -> ModelIdentity {
+    use sha2::Digest as _;
+    let spec = model.spec();
+    let hash = sha2::Sha256::digest(model.to_toml_string().as_bytes());
+    let term_groups = model
+        .term_names()
+        .iter()
+        .map(|t| {
+            let group = if spec.thermal.iter().any(|s| &s.name == t) {
+                "thermal"
+            } else if spec.load.iter().any(|s| &s.name == t) {
+                "load"
+            } else if t == "higher_order" {
+                "other"
+            } else {
+                "geometric"
+            };
+            (t.clone(), group)
+        })
+        .collect();
+    ModelIdentity {
+        name: model.name().to_string(),
+        sha256: hash.iter().map(|b| format!("{b:02x}")).collect(),
+        loaded_unix_s: std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64()),
+        term_groups,
     }
 }

@@ -91,6 +91,16 @@ pub async fn run(
         token: cfg.gateway.api_token.clone(),
         control_tx: Some(control_tx),
     };
+    // The OPC UA server (if configured) reads the same snapshots on its own tasks.
+    let opcua = match &cfg.opcua {
+        Some(o) => {
+            let rx = status_rx.clone();
+            let srv = super::opcua::start(o, &cfg.gateway.name, rx, model.identity()).await?;
+            tracing::info!("OPC UA endpoint {} (read-only)", srv.endpoint);
+            Some(srv)
+        }
+        None => None,
+    };
     let (bound, http_task) = serve(listen, status_rx, api, Limits::default())
         .await
         .with_context(|| format!("binding status endpoint {listen}"))?;
@@ -174,6 +184,9 @@ pub async fn run(
         s.stop().await;
     }
     http_task.abort();
+    if let Some(o) = opcua {
+        o.stop();
+    }
     if let Some(p) = telemetry {
         p.stop(Duration::from_secs(2)).await;
     }

@@ -34,11 +34,13 @@ pub struct AxisStatus {
 
 /// The model in use: its name, the SHA-256 of its canonical TOML (the same model written by any
 /// tool gives the same hash) and when the gateway loaded it (Unix time, s).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct ModelIdentity {
     pub name: String,
     pub sha256: String,
     pub loaded_unix_s: f64,
+    /// Term name → `geometric`, `thermal`, `load` or `other` (the OPC UA space groups terms by it).
+    pub term_groups: std::collections::BTreeMap<String, &'static str>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Default)]

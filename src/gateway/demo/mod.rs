@@ -321,6 +321,19 @@ async fn one_run(
             }
             None => (text, None),
         };
+        // The plant's view of the live gateway (`--serve`): an OPC UA server on a free loopback
+        // port, printed beside the page's address.
+        let text = if bound.is_some() {
+            let opcua_port = std::net::TcpListener::bind("127.0.0.1:0")?
+                .local_addr()?
+                .port();
+            eprintln!(
+                "retrocomp demo: live gateway: OPC UA opc.tcp://127.0.0.1:{opcua_port}/ (read-only)"
+            );
+            format!("{text}\n[opcua]\nlisten = \"127.0.0.1:{opcua_port}\"\n")
+        } else {
+            text
+        };
         let field_path = dir.join("field.toml");
         std::fs::write(&field_path, &text)?;
         let mut cfg = FieldConfig::parse(&text, &field_path)?;

@@ -1,0 +1,219 @@
+//! The gateway's OPC UA server (issue 16 point 4) against a third-party client: the real
+//! `hil-sim serve` (the demo mill, real time) and the real `retrocomp run` binary with `[opcua]`
+//! on loopback, and Python `asyncua` (pinned in scripts/setup-peers.sh) as the plant's client:
+//! it browses `Objects/Machines/<box>`, checks each axis' `Correction` against `/status`, reads
+//! the EngineeringUnits (µm = UNECE "4H", °C = "CEL"), receives ≥ 3 data changes on a
+//! subscription, and has an anonymous write refused (tests/peers/asyncua_client.py).
+
+#[path = "gateway_support/faults_hil_configs.rs"]
+mod configs;
+#[path = "gateway_support/hil_sim.rs"]
+mod hil_sim;
+mod peers;
+#[path = "gateway_support/faults_hil_run.rs"]
+mod run;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+/// The venv's python (RETROCOMP_PYTHON overrides), failing with how to install asyncua.
+fn python_with_asyncua() -> PathBuf {
+    let py = std::env::var_os("RETROCOMP_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(peers::python);
+    let ok = Command::new(&py)
+        .args(["-c", "import asyncua"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    assert!(
+        ok,
+        "{} cannot import asyncua: {}",
+        py.display(),
+        peers::INSTALL
+    );
+    py
+}
+
+/// The value after `prefix` on the first log line that has it (≤ 60 s).
+fn from_log(log: &Path, prefix: &str, gw: &mut std::process::Child) -> String {
+    let t = Instant::now();
+    loop {
+        let text = std::fs::read_to_string(log).unwrap_or_default();
+        if let Some(rest) = text
+            .lines()
+            .find_map(|l| l.split_once(prefix).map(|(_, r)| r))
+        {
+            return rest.split_whitespace().next().unwrap_or("").to_string();
+        }
+        if let Some(st) = gw.try_wait().unwrap() {
+            panic!("the gateway exited ({st}):\n{text}");
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "no {prefix:?} in the gateway log:\n{text}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn asyncua_browses_reads_and_subscribes_to_the_gateway() {
+    let py = python_with_asyncua();
+    let hil_sim = hil_sim::hil_sim_next_to_retrocomp();
+    let dir = run::run_dir("gateway_opcua");
+    let dir = dir.as_path();
+    let (_rt, hub) = run::loopback_hub();
+    let truth = run::demo_truth_model();
+    let port = hub.local_addr().port();
+    let sim_cfg = dir.join("sim.toml");
+    let pty_link = dir.join("weighing-pty");
+    // Ten out-and-back strokes (≈ 31 s): the axes move while the client reads.
+    let sim = configs::sim_machine_toml(10, &truth) + &configs::sim_io_toml(port, &pty_link, None);
+    std::fs::write(&sim_cfg, sim).unwrap();
+    let mut sim = run::Sim::spawn(&hil_sim, &sim_cfg, &dir.join("out"));
+    let [plc, pty] = <[String; 2]>::try_from(
+        sim.wait_for(&["hil-sim: modbus tcp on ", "hil-sim: weighing lines on "]),
+    )
+    .unwrap();
+    let field = dir.join("field.toml");
+    let text =
+        configs::field_toml(port, &plc, Path::new(&pty)) + "\n[opcua]\nlisten = \"127.0.0.1:0\"\n";
+    std::fs::write(&field, text).unwrap();
+    let (mut gw, log) = run::start_gateway(dir, "gateway.log", &field, &truth);
+    let opc_url = from_log(&log, "OPC UA endpoint ", &mut gw);
+    let status_addr = from_log(&log, "bound=", &mut gw);
+    assert!(opc_url.starts_with("opc.tcp://127.0.0.1:"), "{opc_url}");
+
+    let out = Command::new(&py)
+        .arg(peers::repo().join("tests/peers/asyncua_client.py"))
+        .arg(&opc_url)
+        .arg(format!("http://{status_addr}/status"))
+        .output()
+        .expect("running the asyncua client");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let alive = gw.try_wait().unwrap().is_none();
+    run::stop_gateway(&mut gw, &log);
+    let _ = sim.child.kill();
+    let _ = sim.child.wait();
+    assert!(alive, "the gateway died during the client's session");
+    assert!(
+        out.status.success(),
+        "asyncua client failed ({}):\n{stdout}\n{stderr}\ngateway log: {}",
+        out.status,
+        log.display()
+    );
+    let summary: serde_json::Value = serde_json::from_str(
+        stdout
+            .lines()
+            .last()
+            .unwrap_or_else(|| panic!("no summary from the client:\n{stderr}")),
+    )
+    .unwrap_or_else(|e| panic!("{e}: {stdout}"));
+    eprintln!("asyncua summary: {summary}");
+
+    assert_eq!(summary["box"], "faults-hil", "{summary}");
+    assert_eq!(summary["axes"], serde_json::json!(["X", "Y", "Z"]));
+    let ident = &summary["identification"];
+    assert_eq!(ident["ModelName"].as_str().map(str::is_empty), Some(false));
+    let hash = ident["ModelSha256"].as_str().unwrap();
+    assert!(
+        hash.len() == 64 && hash.bytes().all(|b| b.is_ascii_hexdigit()),
+        "{hash}"
+    );
+    assert!(summary["matched"].as_u64() >= Some(3), "{summary}");
+    // The machine moves: some correction differs from zero while the values were compared.
+    assert!(
+        summary["max_abs_correction_um"].as_f64() > Some(0.1),
+        "{summary}"
+    );
+    let units = summary["units"].as_object().unwrap();
+    assert_eq!(units["Monitoring/Axes/X/Correction"]["unit_id"], 13384);
+    assert_eq!(units["Monitoring/Axes/X/Correction"]["symbol"], "µm");
+    let celsius = units
+        .iter()
+        .filter(|(k, _)| k.starts_with("Monitoring/Sensors/T_"))
+        .collect::<Vec<_>>();
+    assert!(!celsius.is_empty(), "no temperature channel: {summary}");
+    for (k, u) in celsius {
+        assert_eq!(u["unit_id"], 4408652, "{k}");
+        assert_eq!(u["symbol"], "°C", "{k}");
+    }
+    assert!(summary["cycle_changes"].as_u64() >= Some(3), "{summary}");
+    assert!(summary["write_refused"].as_str().is_some(), "{summary}");
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert!(log_text.contains("(read-only)"), "{log_text}");
+}
+
+/// `[opcua]` with a user: anonymous stays on the unencrypted endpoint (`anonymous = true`), the
+/// password only on Basic256Sha256/SignAndEncrypt with the server's self-signed certificate created
+/// in `pki_dir` at start. No machine is needed for this: the gateway runs `--dry-run` on an empty
+/// CAN hub (its inputs are stale, the address space is there all the same).
+#[test]
+fn a_user_reads_over_the_encrypted_endpoint_and_a_wrong_password_is_refused() {
+    let py = python_with_asyncua();
+    let dir = run::run_dir("gateway_opcua_users");
+    let dir = dir.as_path();
+    let (_rt, hub) = run::loopback_hub();
+    let password = "opcua-test-password-1";
+    std::fs::write(dir.join("mes.pw"), format!("{password}\n")).unwrap();
+    let field = dir.join("field.toml");
+    let full = configs::field_toml(hub.local_addr().port(), "127.0.0.1:9", Path::new("-"));
+    // Without the serial source (there is no pty to open); the sink goes with --dry-run.
+    let (head, tail) = full.split_once("[serial]").unwrap();
+    let text = head.to_string()
+        + &tail[tail.find("[sink.origin_shift]").unwrap()..]
+        + "\n[opcua]\nlisten = \"127.0.0.1:0\"\nanonymous = true\npki_dir = \"pki\"\n\
+           trust_client_certs = true\nusers = [ { name = \"mes\", password_file = \"mes.pw\" } ]\n";
+    std::fs::write(&field, text).unwrap();
+    let log = dir.join("gateway.log");
+    let mut gw = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .args(["run", "--dry-run", "--config"])
+        .arg(&field)
+        .arg("--model")
+        .arg(run::demo_truth_model())
+        .env("RUST_LOG", "info")
+        .env("NO_COLOR", "1")
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .expect("starting retrocomp run");
+    let opc_url = from_log(&log, "OPC UA endpoint ", &mut gw);
+    let out = Command::new(&py)
+        .arg(peers::repo().join("tests/peers/asyncua_users.py"))
+        .args([opc_url.as_str(), "mes", password])
+        .arg(dir)
+        .output()
+        .expect("running the asyncua client");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    run::stop_gateway(&mut gw, &log);
+    assert!(
+        out.status.success(),
+        "asyncua client failed ({}):\n{stdout}\n{stderr}\ngateway log: {}",
+        out.status,
+        log.display()
+    );
+    let summary: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    eprintln!("asyncua summary: {summary}");
+    // asyncua spells MessageSecurityMode.None as `None_` (None is a Python keyword).
+    assert_eq!(
+        summary["endpoints"],
+        serde_json::json!([
+            ["Basic256Sha256", "SignAndEncrypt", "Anonymous,UserName"],
+            ["None", "None_", "Anonymous"]
+        ]),
+        "{summary}"
+    );
+    assert!(summary["user_read_um"].as_f64().is_some(), "{summary}");
+    assert!(summary["user_write_refused"].as_str().is_some());
+    assert!(
+        dir.join("pki/own/cert.der").is_file(),
+        "no server certificate"
+    );
+    // The password is not in the log.
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert!(!log_text.contains(password), "{log_text}");
+}
