@@ -187,20 +187,26 @@ fn live_page_in_headless_chromium_shows_status_faults_and_refuses_actions_withou
         "only {matched} renderings matched to their /status answer: {events:?}"
     );
 
-    // The fault: the page was up before it, and shows it (event wait, generous timeout).
+    // The fault: the page shows it (event wait, generous timeout). The latency from hil-sim's fault
+    // edge is measured only when the browser was up before the edge: on a loaded machine Chromium
+    // may take longer to start than hil-sim takes to reach it, and the page must show the fault then
+    // too (the node stays silent).
     let ready = ev("ready")["unix_ms"].as_f64().unwrap();
     let edge = edge_ms.expect("hil-sim printed the fault edge");
-    assert!(
-        ready < edge,
-        "the browser became ready only after the fault started at {FAULT_FROM_S} s: nothing to measure"
-    );
     let shown = ev("fault_shown");
-    let latency_ms = shown["unix_ms"].as_f64().unwrap() - edge;
     assert!(
         shown["banner"].as_str().unwrap().contains("FAULT"),
         "{shown}"
     );
-    eprintln!("MEASURED: sensor fault edge (hil-sim) → shown on the page: {latency_ms:.0} ms");
+    if ready < edge {
+        let latency_ms = shown["unix_ms"].as_f64().unwrap() - edge;
+        eprintln!("MEASURED: sensor fault edge (hil-sim) → shown on the page: {latency_ms:.0} ms");
+    } else {
+        eprintln!(
+            "NOT MEASURED: the browser became ready {:.0} ms after the fault edge at {FAULT_FROM_S} s (loaded machine); the page shows the fault",
+            ready - edge
+        );
+    }
     let st = rig.status().unwrap();
     let faults = st["channels"]["T_spindle_C"]["faults"].as_array().unwrap();
     assert!(!faults.is_empty(), "/status agrees: {st}");
