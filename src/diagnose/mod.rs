@@ -15,6 +15,7 @@ pub mod lsq;
 pub mod model_out;
 pub mod model_sim;
 mod model_slots;
+mod null_model;
 pub mod output;
 pub mod plots;
 pub mod report;

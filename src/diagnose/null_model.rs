@@ -1,0 +1,197 @@
+//! The null model a candidate is screened against in forward selection (`select.rs`): the fitted
+//! terms as an orthonormal basis, optionally with own-axis position-cell means as a nuisance, and
+//! the RSS drop (µm²) a candidate's columns give on top of it; ΔBIC on the effective sample size,
+//! the golden-section refinement of a nonlinear parameter, a candidate's explained part.
+//! Residuals are measured − sim, µm.
+
+use super::candidates::{Candidate, Kind};
+use super::features::Context;
+use super::lsq::{self, dot};
+
+/// Whether candidate `c` is tested within own-axis position cells (see the module comment).
+pub(super) fn within_cells(c: &Candidate) -> bool {
+    matches!(c.kind, Kind::Backlash | Kind::ReversalProfile { .. })
+}
+
+/// The null a candidate is screened against: orthonormal basis, residual on it, its RSS, and the
+/// number of nuisance columns beyond the fitted terms.
+pub(super) struct Null<'a> {
+    pub(super) basis: std::borrow::Cow<'a, [Vec<f64>]>,
+    pub(super) r0: Vec<f64>,
+    pub(super) rss0: f64,
+    pub(super) extra: usize,
+    /// Own-axis position cell per sample and the cell count, when the null holds the cell means.
+    /// They are applied implicitly: a column is demeaned within cells, then projected on `basis`
+    /// (the fitted terms demeaned within cells). The same projection as with one-hot cell
+    /// columns in the basis, without the 32 dense columns per step (0.5 GB and much of the time
+    /// on a 1M-row recording).
+    pub(super) cells: Option<(&'a [usize], usize)>,
+}
+
+impl<'a> Null<'a> {
+    /// The null of `basis` (orthonormal, holding the intercept) plus the cell means.
+    pub(super) fn within_cells(
+        basis: &[Vec<f64>],
+        r: &[f64],
+        cell: &'a [usize],
+        k: usize,
+    ) -> Null<'a> {
+        let demeaned = basis
+            .iter()
+            .map(|b| {
+                let mut v = b.clone();
+                demean_in_cells(&mut v, cell, k);
+                v
+            })
+            // Unit vectors of the basis inside the cells' span (the intercept, any function of
+            // the cell) are gone up to rounding: dropped as `orthonormalize` would.
+            .filter(|v: &Vec<f64>| dot(v, v).sqrt() >= 1e-7)
+            .collect();
+        let dense = lsq::orthonormalize(&[], demeaned, 2);
+        let mut occupied = vec![false; k];
+        cell.iter().for_each(|&c| occupied[c] = true);
+        let dim = occupied.iter().filter(|o| **o).count() + dense.len();
+        let mut rc = r.to_vec();
+        demean_in_cells(&mut rc, cell, k);
+        let r0 = lsq::deflate(&dense, &rc);
+        let rss0 = dot(&r0, &r0);
+        Null {
+            basis: dense.into(),
+            r0,
+            rss0,
+            extra: dim.saturating_sub(basis.len()),
+            cells: Some((cell, k)),
+        }
+    }
+}
+
+/// `v` minus its mean within each of the `k` cells.
+pub(super) fn demean_in_cells(v: &mut [f64], cell: &[usize], k: usize) {
+    let mut sum = vec![0.0; k];
+    let mut cnt = vec![0usize; k];
+    for (x, &c) in v.iter().zip(cell) {
+        sum[c] += x;
+        cnt[c] += 1;
+    }
+    for (m, &c) in sum.iter_mut().zip(&cnt) {
+        *m /= c.max(1) as f64;
+    }
+    v.iter_mut().zip(cell).for_each(|(x, &c)| *x -= sum[c]);
+}
+
+/// Screen one candidate at one θ: RSS drop and parameter count (θ counts as one).
+pub(super) fn score(
+    ctx: &Context,
+    c: &Candidate,
+    theta: f64,
+    nl: &Null<'_>,
+) -> Option<(f64, usize)> {
+    score_cols(c, c.columns(ctx, theta), nl)
+}
+
+/// [`score`] on columns already computed (a candidate's grid sweep).
+pub(super) fn score_cols(
+    c: &Candidate,
+    mut cols: Vec<Vec<f64>>,
+    nl: &Null<'_>,
+) -> Option<(f64, usize)> {
+    let (basis, r0, rss0) = (&nl.basis, &nl.r0, nl.rss0);
+    if let Some((cell, k)) = nl.cells {
+        // A column (numerically) inside the span of the cell means explains nothing new: the
+        // same 1e-7 relative cut as `orthonormalize`, against the column's own norm.
+        cols.retain_mut(|v| {
+            let n0 = dot(v, v).sqrt();
+            demean_in_cells(v, cell, k);
+            dot(v, v).sqrt() >= 1e-7 * n0
+        });
+    }
+    // Long recordings: a cyclic sin/cos pair (never nearly inside the basis' span) is scored from
+    // dot products, without orthonormalised copies (most of a 1M-row diagnosis' screening).
+    if nl.cells.is_none() && c.kind == Kind::Cyclic && r0.len() >= lsq::FFT_MIN_N {
+        let (g, q) = lsq::gram_gain(basis, &cols, r0);
+        return (q > 0).then(|| {
+            (
+                g.min(rss0 * (1.0 - 1e-12)),
+                q + usize::from(c.is_nonlinear()),
+            )
+        });
+    }
+    let u = lsq::orthonormalize(basis, cols, 1);
+    if u.is_empty() {
+        return None;
+    }
+    let g = lsq::gain(&u, r0).min(rss0 * (1.0 - 1e-12));
+    Some((g, u.len() + usize::from(c.is_nonlinear())))
+}
+
+/// The part of `r0` a candidate explains (for collinearity between candidates).
+pub(super) fn contribution(
+    ctx: &Context,
+    c: &Candidate,
+    theta: f64,
+    basis: &[Vec<f64>],
+    r0: &[f64],
+) -> Vec<f64> {
+    let u = lsq::orthonormalize(basis, c.columns(ctx, theta), 1);
+    let r1 = lsq::deflate(&u, r0);
+    r0.iter().zip(&r1).map(|(a, b)| a - b).collect()
+}
+
+pub(super) fn delta_bic(n_eff: f64, rss0: f64, gain: f64, q: usize) -> f64 {
+    n_eff * (rss0 / (rss0 - gain)).ln() - q as f64 * n_eff.ln()
+}
+
+pub(super) fn golden_refine(f: impl Fn(f64) -> f64, lo: f64, hi: f64, iters: usize) -> f64 {
+    // Maximise f over log θ in [lo, hi].
+    let (mut a, mut b) = (lo.ln(), hi.ln());
+    let k = (5f64.sqrt() - 1.0) / 2.0;
+    let mut c = b - k * (b - a);
+    let mut d = a + k * (b - a);
+    let (mut fc, mut fd) = (f(c.exp()), f(d.exp()));
+    for _ in 0..iters {
+        if fc > fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - k * (b - a);
+            fc = f(c.exp());
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + k * (b - a);
+            fd = f(d.exp());
+        }
+    }
+    ((a + b) / 2.0).exp()
+}
+
+/// `r` minus its mean in each (own-axis position bin × direction) cell. The effective sample size
+/// is estimated on this, so structure that is a function of position and direction (what the
+/// library is looking for, or a smooth positioning error no candidate names) is not mistaken for
+/// slowly correlated noise — which would make every test blind on short laser records.
+pub(super) fn without_cell_means(ctx: &Context, axis: char, r: &[f64]) -> Vec<f64> {
+    const BINS: usize = 8;
+    let Some(f) = ctx.axis(axis) else {
+        return r.to_vec();
+    };
+    let lo = f.pos_mm.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = f.pos_mm.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if hi - lo <= 1e-9 {
+        return r.to_vec();
+    }
+    let cell = |i: usize| {
+        let b = (((f.pos_mm[i] - lo) / (hi - lo) * BINS as f64) as usize).min(BINS - 1);
+        2 * b + usize::from(f.dir[i] > 0.0)
+    };
+    let mut sum = [0.0; 2 * BINS];
+    let mut cnt = [0usize; 2 * BINS];
+    for (i, v) in r.iter().enumerate() {
+        sum[cell(i)] += v;
+        cnt[cell(i)] += 1;
+    }
+    r.iter()
+        .enumerate()
+        .map(|(i, v)| v - sum[cell(i)] / cnt[cell(i)] as f64)
+        .collect()
+}
