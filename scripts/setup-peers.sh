@@ -64,6 +64,11 @@ else
 fi
 
 PY="${PYTHON:-python3}"
+# A venv whose creation was interrupted has a python but no pip: make it again.
+if [ -x "$REPO/.venv/bin/python" ] && ! "$REPO/.venv/bin/python" -m pip --version >/dev/null 2>&1; then
+  echo "setup-peers: $REPO/.venv has no pip (interrupted creation?): recreating it"
+  "$PY" -m venv --clear "$REPO/.venv"
+fi
 if [ ! -x "$REPO/.venv/bin/python" ]; then
   echo "setup-peers: creating $REPO/.venv with $($PY --version)"
   "$PY" -m venv "$REPO/.venv"
