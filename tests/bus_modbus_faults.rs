@@ -53,9 +53,11 @@ channel = [{{ channel = "T_spindle_C", kind = "input", address = 0, type = "int1
     std::fs::write(&cfg, field_toml(status_port, &sources)).unwrap();
     let mut gw = Gateway::start(&cfg, status_port, &[]);
 
-    // No device yet: every poll fails.
+    // No device yet: every poll fails. The fault can be in the status before the first failed
+    // connect is counted (a loaded host): wait for both.
     let st = gw.wait_status("the Modbus source down", |s| {
         has_fault(s, SRC, "disconnected")
+            && source(s, SRC)["modbus"]["connect_failures"].as_u64() > Some(0)
     });
     assert_eq!(source(&st, SRC)["connected"], false, "{st:#}");
     assert!(
