@@ -1,23 +1,26 @@
 //! Fleet load benchmark (not criterion: a capacity search, not a latency estimate): N simulated
 //! boxes publish Sparkplug B through the same publisher as `retrocomp run` (src/telemetry) to one
-//! Mosquitto on loopback, and one subscriber (rumqttc, QoS 1) counts every NDATA per edge node and
-//! checks its seq. A box is lightweight: a task that updates a status snapshot at twice the
-//! telemetry rate (so every sampler tick has a change to send) instead of a whole gateway.
-//! For each (boxes, rate) step it reports records produced (the publishers' own counters),
-//! received, lost (produced − received after a drain), seq gaps, and the broker's CPU share.
+//! Mosquitto on loopback, and one `retrocomp fleet` host (its MQTT client and view,
+//! `retrocomp::cli::fleet::FleetClient`, QoS 1) counts every NDATA per edge node and its seq gaps.
+//! A box is lightweight: a task that updates a status snapshot at twice the telemetry rate (so
+//! every sampler tick has a change to send) instead of a whole gateway.
+//! For each (boxes, rate) step: after the window every publisher *finishes* (sends its queue until
+//! the broker acknowledged all of it, then NDEATH), so "produced" is final; then the fleet must
+//! have every record and every NDEATH (≤ 60 s). Reported: records produced, received, lost
+//! (produced − received), dropped (counted by the publishers), left (still queued at the end),
+//! seq gaps, nodes seen, the broker's CPU share and the drain time.
 //!
-//! Run: `cargo bench --bench telemetry_fleet` (release; add `-- 50x10 200x10 400x10` for other
-//! steps, `--seconds S` for the window). Needs mosquitto (scripts/setup-peers.sh).
+//! Run: `cargo bench --profile test --bench telemetry_fleet -- 200x10 400x10 --seconds 15`
+//! (needs mosquitto: scripts/setup-peers.sh).
 
-use std::collections::{BTreeMap, HashMap};
-use std::sync::{Arc, Mutex};
+use std::collections::BTreeMap;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use retrocomp::cli::fleet::FleetClient;
 use retrocomp::gateway::status::{AxisStatus, StatusSnapshot};
 use retrocomp::gateway::{Direction, Mode};
-use retrocomp::telemetry::sparkplug::Payload;
 use retrocomp::telemetry::{self, MqttConfig, PublisherInputs};
-use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use tokio::sync::watch;
 
 const GROUP: &str = "fleet";
@@ -56,14 +59,6 @@ fn snapshot(k: u64) -> StatusSnapshot {
     }
 }
 
-/// Per edge node: NDATA received, seq gaps seen.
-#[derive(Default)]
-struct Seen {
-    ndata: u64,
-    gaps: u64,
-    last_seq: Option<u64>,
-}
-
 fn cpu_ticks(pid: u32) -> u64 {
     // utime + stime of /proc/<pid>/stat (fields 14, 15), clock ticks.
     std::fs::read_to_string(format!("/proc/{pid}/stat"))
@@ -76,60 +71,46 @@ fn cpu_ticks(pid: u32) -> u64 {
         .unwrap_or(0)
 }
 
-async fn step(port: u16, broker_pid: u32, boxes: usize, rate_hz: f64, seconds: f64) {
-    let seen: Arc<Mutex<HashMap<String, Seen>>> = Arc::default();
-    // The subscriber (a stand-in for `retrocomp fleet` / a SCADA host).
-    let mut o = MqttOptions::new(format!("fleet-sub-{boxes}-{rate_hz}"), "127.0.0.1", port);
-    o.set_keep_alive(Duration::from_secs(30));
-    o.set_max_packet_size(1 << 20, 1 << 20);
-    let (sub, mut el) = AsyncClient::new(o, 1024);
-    sub.subscribe(format!("spBv1.0/{GROUP}/+/+"), QoS::AtLeastOnce)
-        .await
-        .unwrap();
-    let sink = seen.clone();
-    let (subscribed_tx, subscribed_rx) = tokio::sync::oneshot::channel();
-    let sub_task = tokio::spawn(async move {
-        let mut subscribed = Some(subscribed_tx);
+/// What the fleet host has seen so far: NDATA received, seq gaps, nodes, nodes offline.
+#[derive(Clone, Copy, Default)]
+struct Seen {
+    ndata: u64,
+    gaps: u64,
+    nodes: usize,
+    offline: usize,
+}
+
+/// The fleet host of `retrocomp fleet` (its MQTT client and view), reporting its totals.
+fn spawn_fleet(port: u16) -> (watch::Receiver<Option<Seen>>, tokio::task::JoinHandle<()>) {
+    let (tx, rx) = watch::channel(None);
+    let task = tokio::spawn(async move {
+        let mut fc = FleetClient::new(&format!("127.0.0.1:{port}"), Some(GROUP)).unwrap();
+        let mut every = tokio::time::interval(Duration::from_millis(100));
         loop {
-            match el.poll().await {
-                Ok(Event::Incoming(Packet::SubAck(_))) => {
-                    if let Some(tx) = subscribed.take() {
-                        let _ = tx.send(());
-                    }
-                }
-                Ok(Event::Incoming(Packet::Publish(p))) => {
-                    let mut parts = p.topic.split('/').skip(2);
-                    let (Some(kind), Some(node)) = (parts.next(), parts.next()) else {
+            tokio::select! {
+                r = fc.poll() => if let Err(e) = r { eprintln!("fleet: {e}") },
+                _ = every.tick() => {
+                    if !fc.subscribed {
                         continue;
-                    };
-                    let seq = <Payload as prost::Message>::decode(p.payload.as_ref())
-                        .ok()
-                        .and_then(|pl| pl.seq);
-                    let mut m = sink.lock().unwrap();
-                    let s = m.entry(node.to_string()).or_default();
-                    match kind {
-                        "NBIRTH" => s.last_seq = seq,
-                        "NDATA" => {
-                            s.ndata += 1;
-                            if let (Some(l), Some(q)) = (s.last_seq, seq)
-                                && q != (l + 1) % 256
-                            {
-                                s.gaps += 1;
-                            }
-                            s.last_seq = seq;
-                        }
-                        _ => {}
                     }
-                }
-                Ok(_) => {}
-                Err(e) => {
-                    eprintln!("subscriber: {e}");
-                    tokio::time::sleep(Duration::from_millis(100)).await;
+                    let n = fc.view.nodes.values();
+                    let seen = Seen {
+                        ndata: n.clone().map(|n| n.ndata).sum(),
+                        gaps: n.clone().map(|n| n.seq_gaps).sum(),
+                        nodes: n.clone().count(),
+                        offline: n.filter(|n| !n.alive).count(),
+                    };
+                    tx.send_replace(Some(seen));
                 }
             }
         }
     });
-    let _ = subscribed_rx.await;
+    (rx, task)
+}
+
+async fn step(port: u16, broker_pid: u32, boxes: usize, rate_hz: f64, seconds: f64) {
+    let (mut seen, fleet) = spawn_fleet(port);
+    let _ = seen.wait_for(Option::is_some).await;
 
     let mut pubs = Vec::new();
     let mut feeders = Vec::new();
@@ -165,51 +146,53 @@ async fn step(port: u16, broker_pid: u32, boxes: usize, rate_hz: f64, seconds: f
     }
     let window_s = t0.elapsed().as_secs_f64();
     let cpu_s = (cpu_ticks(broker_pid) - cpu0) as f64 / 100.0;
-    // Each sampler takes the last snapshot at its next tick: let that happen (a late last
-    // record would otherwise count as lost), then drain until every queue is empty and the
-    // subscriber has caught up (≤ 60 s).
-    tokio::time::sleep(Duration::from_secs_f64(3.0 / rate_hz)).await;
-    let produced = |pubs: &[telemetry::Publisher]| -> u64 {
-        pubs.iter().map(|p| p.status.borrow().records_total).sum()
-    };
-    let deadline = Instant::now() + Duration::from_secs(60);
-    loop {
-        let queued: u64 = pubs.iter().map(|p| p.status.borrow().queued).sum();
-        let received: u64 = seen.lock().unwrap().values().map(|s| s.ndata).sum();
-        if (queued == 0 && received >= produced(&pubs)) || Instant::now() > deadline {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(100)).await;
+    // End of run: every publisher finishes (its sampler stops; the session sends what is queued
+    // until the broker acknowledged all of it, then NDEATH), so its counters are final before
+    // they are compared with what the fleet host received. Reading `records_total` while records
+    // were still in the sampler → session hand-over was what made the first version of this
+    // bench report a few "lost" records per run.
+    let mut finishing = tokio::task::JoinSet::new();
+    for p in pubs {
+        finishing.spawn(p.finish(Duration::from_secs(60)));
+    }
+    let (mut produced, mut dropped, mut left) = (0, 0, 0);
+    while let Some(st) = finishing.join_next().await {
+        let st = st.unwrap();
+        produced += st.records_total;
+        dropped += st.dropped_total;
+        left += st.queued;
+    }
+    // Then the fleet host must have every record and every NDEATH (≤ 60 s).
+    let deadline = tokio::time::sleep(Duration::from_secs(60));
+    tokio::pin!(deadline);
+    tokio::select! {
+        _ = seen.wait_for(|s| s.is_some_and(|s| s.ndata >= produced && s.offline == boxes)) => {}
+        _ = &mut deadline => {}
     }
     let drain_s = t0.elapsed().as_secs_f64() - window_s;
-    let produced = produced(&pubs);
-    let dropped: u64 = pubs.iter().map(|p| p.status.borrow().dropped_total).sum();
-    let (received, gaps, nodes) = {
-        let m = seen.lock().unwrap();
-        (
-            m.values().map(|s| s.ndata).sum::<u64>(),
-            m.values().map(|s| s.gaps).sum::<u64>(),
-            m.len(),
-        )
-    };
+    let s = seen.borrow().unwrap_or_default();
     println!(
-        "{boxes:>6} {rate_hz:>7.1} {:>10.0} {produced:>10} {received:>10} {:>8} {dropped:>8} {gaps:>6} {nodes:>6} {:>9.0}% {drain_s:>7.1}",
+        "{boxes:>6} {rate_hz:>7.1} {:>10.0} {produced:>10} {:>10} {:>8} {dropped:>8} {left:>6} {:>6} {:>6} {:>9.0}% {drain_s:>7.1}",
         produced as f64 / window_s,
-        produced.saturating_sub(received),
+        s.ndata,
+        produced as i64 - s.ndata as i64,
+        s.gaps,
+        s.nodes,
         100.0 * cpu_s / window_s,
     );
-    for p in pubs {
-        p.stop(Duration::from_secs(2)).await;
-    }
-    sub_task.abort();
+    fleet.abort();
 }
 
 fn main() {
     let mut steps: Vec<(usize, f64)> = Vec::new();
     let mut seconds = 20.0;
+    // Mosquitto's per-client queue bound; None: its default (1000).
+    let mut max_queued: Option<u64> = None;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
-        if a == "--seconds" {
+        if a == "--max-queued" {
+            max_queued = args.next().and_then(|s| s.parse().ok());
+        } else if a == "--seconds" {
             seconds = args
                 .next()
                 .and_then(|s| s.parse().ok())
@@ -239,7 +222,10 @@ fn main() {
     let conf = dir.path().join("mosquitto.conf");
     std::fs::write(
         &conf,
-        format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\nlog_dest none\nmax_queued_messages 100000\n"),
+        format!(
+            "listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\nlog_dest none\n{}",
+            max_queued.map_or(String::new(), |n| format!("max_queued_messages {n}\n"))
+        ),
     )
     .unwrap();
     let exe = ["/usr/sbin/mosquitto", "/usr/bin/mosquitto"]
@@ -259,9 +245,12 @@ fn main() {
         .enable_all()
         .build()
         .unwrap();
-    println!("telemetry_fleet: one mosquitto, one subscriber, {seconds} s per step");
     println!(
-        "{:>6} {:>7} {:>10} {:>10} {:>10} {:>8} {:>8} {:>6} {:>6} {:>10} {:>7}",
+        "telemetry_fleet: one mosquitto (max_queued_messages {}), one fleet host, {seconds} s per step",
+        max_queued.map_or("default".to_string(), |n| n.to_string())
+    );
+    println!(
+        "{:>6} {:>7} {:>10} {:>10} {:>10} {:>8} {:>8} {:>6} {:>6} {:>6} {:>10} {:>7}",
         "boxes",
         "rate_Hz",
         "records/s",
@@ -269,6 +258,7 @@ fn main() {
         "received",
         "lost",
         "dropped",
+        "left",
         "gaps",
         "nodes",
         "broker_cpu",

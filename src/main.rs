@@ -26,6 +26,8 @@ enum Command {
     Demo(cli::demo::Args),
     /// Watch a shop of boxes over MQTT Sparkplug B: alive, compensating, degraded (docs/fleet.md).
     Fleet(cli::fleet::Args),
+    /// Send a recording to the fleet: MQTT (chunked, resumable) or a directory (docs/fleet.md).
+    ShipRecording(cli::ship::Args),
     /// A socketcand-protocol CAN hub on TCP, for `hil-sim serve` and `retrocomp run` without hardware.
     Hub(cli::hub::Args),
     /// Show a running gateway's per-axis corrections, term breakdown and sensor health.
@@ -58,6 +60,7 @@ fn main() -> std::process::ExitCode {
         Command::Run(a) => cli::run::run(&a),
         Command::Demo(a) => cli::demo::run(&a),
         Command::Fleet(a) => cli::fleet::run(&a),
+        Command::ShipRecording(a) => cli::ship::run(&a),
         Command::Status(a) => cli::status::run(&a),
         Command::Hub(a) => cli::hub::run(&a),
         Command::Iso230_2(a) => cli::iso230_2::run(&a),

@@ -2,13 +2,20 @@
 //! Sparkplug B host that shows every box's health (alive, compensating, degraded, idle) from its
 //! NBIRTH/NDATA/NDEATH (src/telemetry/fleet.rs). Prints the table every `--every-s`; with
 //! `--seconds` it stops after that long (with `--json`: one JSON array of the nodes on stdout).
+//! With `--collect-dir` it also collects the machines' recordings (src/telemetry/recordings.rs);
+//! with `--models` it diagnoses each machine's latest recording against its own model every
+//! `--diagnose-every-s` and flags model drift (src/telemetry/drift.rs).
 
+use std::collections::BTreeMap;
+use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context as _;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 
+use crate::telemetry::drift::{self, DriftState, MachineDrift};
 use crate::telemetry::fleet::FleetView;
+use crate::telemetry::recordings::{Collector, Took};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -27,6 +34,26 @@ pub struct Args {
     /// At the end, print the nodes as one JSON array instead of the table.
     #[arg(long)]
     pub json: bool,
+    /// Collect the machines' recordings into DIR/<group>/<edge node>/ (from MQTT, and what
+    /// `ship-recording --to-dir DIR` wrote there).
+    #[arg(long)]
+    pub collect_dir: Option<PathBuf>,
+    /// MQTT topic filter of the recordings.
+    #[arg(long, default_value = "retrocomp/recordings/#")]
+    pub recordings_topic: String,
+    /// Machine models, DIR/<edge node>.toml: with --collect-dir, diagnose every machine's latest
+    /// recording against its own model on a schedule and flag model drift.
+    #[arg(long)]
+    pub models: Option<PathBuf>,
+    /// Diagnose schedule, s.
+    #[arg(long, default_value_t = 3600.0)]
+    pub diagnose_every_s: f64,
+    /// Residual against the model (µm RMS) from which an explained residual is model drift.
+    #[arg(long, default_value_t = 2.0)]
+    pub drift_um: f64,
+    /// Stop once this many machines have been diagnosed (for scripts and tests).
+    #[arg(long)]
+    pub stop_after_diagnosed: Option<usize>,
 }
 
 /// The MQTT shell around [`FleetView`]: one subscription to `spBv1.0/<group>/+/+` (QoS 1),
@@ -36,8 +63,11 @@ pub struct FleetClient {
     events: rumqttc::EventLoop,
     topic: String,
     pub view: FleetView,
+    /// Recordings collected from `recordings_topic`, when collecting.
+    pub collector: Option<(Collector, String)>,
     /// The broker acknowledged the subscription (messages from now on are seen).
     pub subscribed: bool,
+    subacks: u32,
 }
 
 impl FleetClient {
@@ -57,8 +87,15 @@ impl FleetClient {
             events,
             topic: format!("spBv1.0/{}/+/+", group.unwrap_or("+")),
             view: FleetView::default(),
+            collector: None,
             subscribed: false,
+            subacks: 0,
         })
+    }
+
+    /// Also collect recordings published on `topic` (a filter) into `dir`.
+    pub fn collect(&mut self, dir: PathBuf, topic: &str) {
+        self.collector = Some((Collector::new(dir), topic.to_string()));
     }
 
     /// Wait for the next event; true when a Sparkplug message changed the view. A link error
@@ -67,17 +104,37 @@ impl FleetClient {
         match self.events.poll().await {
             Ok(Event::Incoming(Packet::ConnAck(_))) => {
                 self.subscribed = false;
+                self.subacks = 0;
                 self.client
                     .try_subscribe(self.topic.clone(), QoS::AtLeastOnce)?;
+                if let Some((_, t)) = &self.collector {
+                    self.client.try_subscribe(t.clone(), QoS::AtLeastOnce)?;
+                }
                 Ok(false)
             }
             Ok(Event::Incoming(Packet::SubAck(_))) => {
-                self.subscribed = true;
+                // Subscribed once every SUBACK is in (one or two subscriptions).
+                self.subscribed = self.collector.is_none() || self.pending_subacks_done();
                 Ok(false)
             }
-            Ok(Event::Incoming(Packet::Publish(p))) => {
+            Ok(Event::Incoming(Packet::Publish(p))) if p.topic.starts_with("spBv1.0/") => {
                 self.view.ingest(&p.topic, &p.payload);
                 Ok(true)
+            }
+            Ok(Event::Incoming(Packet::Publish(p))) => {
+                if let Some((c, _)) = &mut self.collector {
+                    match c.ingest(&p.payload) {
+                        Ok(Took::Written(Some(path))) => {
+                            tracing::info!(path = %path.display(), "fleet: recording collected");
+                        }
+                        Ok(Took::Refused(why)) => {
+                            tracing::warn!(topic = p.topic, why, "fleet: recording chunk refused");
+                        }
+                        Ok(_) => {}
+                        Err(e) => tracing::error!(%e, "fleet: cannot write a recording"),
+                    }
+                }
+                Ok(false)
             }
             Ok(_) => Ok(false),
             Err(e) => {
@@ -88,6 +145,40 @@ impl FleetClient {
     }
 }
 
+impl FleetClient {
+    /// Counts SUBACKs since the last CONNACK: true at the second (telemetry + recordings).
+    fn pending_subacks_done(&mut self) -> bool {
+        self.subacks += 1;
+        self.subacks >= 2
+    }
+}
+
+/// Diagnose every machine that has a recording and a model; `prev` keeps each machine's history.
+fn diagnose_all(
+    collect: &std::path::Path,
+    models: &std::path::Path,
+    drift_um: f64,
+    prev: &BTreeMap<(String, String), MachineDrift>,
+) -> BTreeMap<(String, String), MachineDrift> {
+    let mut out = prev.clone();
+    for (g, n) in drift::machines(collect) {
+        let Some(rec) = drift::latest_recording(collect, &g, &n) else {
+            continue;
+        };
+        let model = models.join(format!("{n}.toml"));
+        let p = prev.get(&(g.clone(), n.clone()));
+        let d = match drift::diagnose_against(&rec, &model) {
+            Ok(r) => drift::judge(&r, &rec, &model, drift_um, p),
+            Err(e) => drift::failed(&rec, &model, format!("{e:#}"), p),
+        };
+        if d.state == DriftState::Drifted && p.is_none_or(|p| p.state != DriftState::Drifted) {
+            tracing::warn!(group = g, edge_node = n, rms_um = d.rms_um, effect = ?d.finding.as_ref().map(|f| &f.effect), "fleet: model drift");
+        }
+        out.insert((g, n), d);
+    }
+    out
+}
+
 pub fn run(args: &Args) -> anyhow::Result<()> {
     anyhow::ensure!(
         args.every_s.is_finite() && args.every_s > 0.0,
@@ -96,18 +187,57 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
+    anyhow::ensure!(
+        args.diagnose_every_s.is_finite() && args.diagnose_every_s > 0.0,
+        "--diagnose-every-s must be > 0"
+    );
+    anyhow::ensure!(
+        args.models.is_none() || args.collect_dir.is_some(),
+        "--models needs --collect-dir (the recordings to diagnose)"
+    );
     rt.block_on(async {
         let mut fc = FleetClient::new(&args.broker, args.group.as_deref())?;
+        if let Some(d) = &args.collect_dir {
+            std::fs::create_dir_all(d).with_context(|| d.display().to_string())?;
+            fc.collect(d.clone(), &args.recordings_topic);
+        }
         let mut every = tokio::time::interval(Duration::from_secs_f64(args.every_s));
+        let mut diag_every =
+            tokio::time::interval(Duration::from_secs_f64(args.diagnose_every_s));
         let end = tokio::time::sleep(Duration::from_secs_f64(args.seconds.unwrap_or(1e9)));
         tokio::pin!(end);
         let mut warned = false;
+        let mut said_subscribed = false;
+        let mut drifts: BTreeMap<(String, String), MachineDrift> = BTreeMap::new();
+        let mut diag: Option<tokio::task::JoinHandle<BTreeMap<(String, String), MachineDrift>>> =
+            None;
         loop {
             tokio::select! {
                 _ = &mut end => break,
-                _ = every.tick() => if !args.json { print!("{}", fc.view.table()) },
+                _ = every.tick() => if !args.json { print!("{}", table(&fc.view, &drifts)) },
+                _ = diag_every.tick(), if diag.is_none() => {
+                    if let (Some(c), Some(m)) = (&args.collect_dir, &args.models) {
+                        let (c, m, prev, um) = (c.clone(), m.clone(), drifts.clone(), args.drift_um);
+                        // diagnose is CPU work: off the MQTT loop.
+                        diag = Some(tokio::task::spawn_blocking(move || diagnose_all(&c, &m, um, &prev)));
+                    }
+                }
+                r = async { diag.as_mut().expect("guarded").await }, if diag.is_some() => {
+                    diag = None;
+                    drifts = r?;
+                    let done = drifts.values().filter(|d| d.state != DriftState::Error).count();
+                    if args.stop_after_diagnosed.is_some_and(|n| done >= n) {
+                        break;
+                    }
+                }
                 r = fc.poll() => match r {
-                    Ok(_) => warned = false,
+                    Ok(_) => {
+                        warned = false;
+                        if fc.subscribed && !said_subscribed {
+                            said_subscribed = true;
+                            eprintln!("retrocomp fleet: subscribed at {}", args.broker);
+                        }
+                    }
                     Err(e) => {
                         if !warned {
                             eprintln!("retrocomp fleet: {}: {e}; retrying", args.broker);
@@ -118,16 +248,60 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             }
         }
         if args.json {
-            let mut nodes = Vec::new();
-            for n in fc.view.nodes.values() {
-                let mut v = serde_json::to_value(n)?;
-                v["verdict"] = serde_json::to_value(n.verdict())?;
-                nodes.push(v);
-            }
-            println!("{}", serde_json::Value::Array(nodes));
+            println!("{}", json(&fc.view, &drifts)?);
         } else {
-            print!("{}", fc.view.table());
+            print!("{}", table(&fc.view, &drifts));
         }
         Ok(())
     })
+}
+
+/// The nodes (and machines known only by their recordings) as one JSON array; each with its
+/// `verdict` and, once diagnosed, `drift`.
+pub fn json(
+    view: &FleetView,
+    drifts: &BTreeMap<(String, String), MachineDrift>,
+) -> anyhow::Result<serde_json::Value> {
+    let mut nodes = Vec::new();
+    for (k, n) in &view.nodes {
+        let mut v = serde_json::to_value(n)?;
+        v["verdict"] = serde_json::to_value(n.verdict())?;
+        if let Some(d) = drifts.get(k) {
+            v["drift"] = serde_json::to_value(d)?;
+        }
+        nodes.push(v);
+    }
+    for ((g, n), d) in drifts {
+        if !view.nodes.contains_key(&(g.clone(), n.clone())) {
+            nodes.push(serde_json::json!({
+                "group": g, "edge_node": n, "verdict": "unknown", "drift": d,
+            }));
+        }
+    }
+    Ok(serde_json::Value::Array(nodes))
+}
+
+/// The health table, then one line per diagnosed machine (drift state, residual, finding).
+pub fn table(view: &FleetView, drifts: &BTreeMap<(String, String), MachineDrift>) -> String {
+    let mut s = view.table();
+    if !drifts.is_empty() {
+        s.push_str(&format!(
+            "{:<16} {:<20} {:<11} {:>9} {:>9}  finding\n",
+            "group", "edge node", "model", "rms_um", "base_um"
+        ));
+        for ((g, n), d) in drifts {
+            let what = match (&d.finding, &d.error) {
+                (Some(f), _) => format!("{} on {}: {}", f.effect, f.signal, f.explanation),
+                (None, Some(e)) => e.clone(),
+                _ => String::new(),
+            };
+            s.push_str(&format!(
+                "{g:<16} {n:<20} {:<11} {:>9.2} {:>9.2}  {what}\n",
+                format!("{:?}", d.state).to_lowercase(),
+                d.rms_um,
+                d.baseline_rms_um
+            ));
+        }
+    }
+    s
 }

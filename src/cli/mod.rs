@@ -15,5 +15,6 @@ pub mod import;
 pub mod iso230_2;
 pub mod nc;
 pub mod run;
+pub mod ship;
 pub mod status;
 pub mod util;

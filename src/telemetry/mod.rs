@@ -9,10 +9,13 @@
 //! the Unix epoch, taken when the snapshot was sampled.
 
 pub mod config;
+pub mod drift;
 pub mod fleet;
 pub mod metrics;
 pub mod publisher;
 pub mod queue;
+pub mod recordings;
+pub mod shipper;
 pub mod sparkplug;
 pub mod status;
 mod tls;

@@ -119,6 +119,32 @@ impl Publisher {
             self.session.abort();
         }
     }
+
+    /// Stop after sending what is left: the sampler ends (records it already handed over are
+    /// kept), the session sends the queue until the broker acknowledged every record, then
+    /// NDEATH and DISCONNECT. After `grace` it stops as [`Publisher::stop`] does (what is still
+    /// queued stays in the disk queue, if any). Returns the final status (counters complete:
+    /// `records_total` is every record the sampler produced and did not drop).
+    pub async fn finish(mut self, grace: Duration) -> TelemetryStatus {
+        self.sampler.abort();
+        let _ = (&mut self.sampler).await;
+        if tokio::time::timeout(grace, &mut self.session)
+            .await
+            .is_err()
+        {
+            if let Some(s) = self.stop.take() {
+                let _ = s.send(());
+            }
+            if tokio::time::timeout(Duration::from_secs(2), &mut self.session)
+                .await
+                .is_err()
+            {
+                self.session.abort();
+            }
+        }
+        self.stop = None;
+        self.status.borrow().clone()
+    }
 }
 
 impl Drop for Publisher {
@@ -171,6 +197,7 @@ pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> anyhow::Result<Publish
             records: rec_rx,
             status: status_tx,
             handover_drops,
+            records_open: true,
             current: Vec::new(),
             records_total: 0,
             acked_total: 0,
@@ -186,7 +213,7 @@ pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> anyhow::Result<Publish
     })
 }
 
-fn base_options(cfg: &MqttConfig) -> anyhow::Result<MqttOptions> {
+pub(crate) fn base_options(cfg: &MqttConfig) -> anyhow::Result<MqttOptions> {
     let (host, port) = cfg
         .host_port()
         .map_err(|e| anyhow::anyhow!("telemetry.mqtt.broker: {e}"))?;
@@ -292,6 +319,8 @@ struct Session {
     records: mpsc::Receiver<Record>,
     status: watch::Sender<TelemetryStatus>,
     handover_drops: Arc<std::sync::atomic::AtomicU64>,
+    /// False once the sampler ended (a finish): send what is queued, then NDEATH and stop.
+    records_open: bool,
     /// Latest value of every metric (what an NBIRTH announces).
     current: Vec<NamedValue>,
     records_total: u64,
@@ -356,12 +385,13 @@ impl Session {
                 tokio::select! {
                     _ = &mut wake => break,
                     _ = &mut stop => return,
-                    r = self.records.recv() => match r {
+                    r = self.records.recv(), if self.records_open => match r {
                         Some(r) => {
                             self.enqueue(r);
                             self.publish_status(false, None);
                         }
-                        None => return,
+                        // Finishing: what is queued still goes after the reconnect.
+                        None => self.records_open = false,
                     },
                 }
             }
@@ -453,7 +483,7 @@ impl Session {
                     }
                     return End::Stop;
                 }
-                r = self.records.recv() => match r {
+                r = self.records.recv(), if self.records_open => match r {
                     Some(r) => {
                         let rebirth = (c.phase == Phase::Born && !self.edge.knows_all(&r.values))
                             || c.phase == Phase::WaitingData;
@@ -463,7 +493,8 @@ impl Session {
                             self.birth(c);
                         }
                     }
-                    None => return End::Stop,
+                    // The sampler ended (a finish): drain the queue, then say goodbye.
+                    None => self.records_open = false,
                 },
                 ev = c.events.recv() => match ev {
                     None => return End::Lost("event loop ended".into()),
@@ -512,6 +543,14 @@ impl Session {
             }
             if c.phase == Phase::Born {
                 self.send_queued(c);
+            }
+            let nothing_left = self.queue.is_empty() && c.inflight.is_empty();
+            if !self.records_open && (nothing_left || c.phase == Phase::WaitingData) {
+                // Finished: every record acknowledged (or never any data to announce).
+                if c.phase == Phase::Born {
+                    self.say_goodbye(c).await;
+                }
+                return End::Stop;
             }
             let last_error = (c.phase != Phase::Born).then(|| "connecting".to_string());
             self.publish_status(c.phase == Phase::Born, last_error);
