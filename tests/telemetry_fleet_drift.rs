@@ -289,3 +289,93 @@ fn a_shipment_cut_short_by_a_dead_broker_resumes_from_its_disk_queue() {
         std::fs::read_to_string(&csv).unwrap()
     );
 }
+
+/// A status snapshot of one tracking axis at cycle `k`.
+fn snapshot(k: u64) -> retrocomp::gateway::status::StatusSnapshot {
+    use retrocomp::gateway::status::{AxisStatus, StatusSnapshot};
+    StatusSnapshot {
+        t_s: k as f64 * 0.01,
+        cycles: k,
+        enabled: true,
+        axes: vec![AxisStatus {
+            axis: "x".into(),
+            position_mm: Some(k as f64),
+            direction: retrocomp::gateway::Direction::Forward,
+            weight_forward: 1.0,
+            target_um: Some(-(k as f64) * 0.1),
+            applied_um: -(k as f64) * 0.1,
+            mode: retrocomp::gateway::Mode::Tracking,
+            terms_um: Default::default(),
+            clamp_hits: 0,
+            cap_hits: 0,
+        }],
+        channels: Default::default(),
+        active_faults: vec![],
+        model_error: None,
+        sink: None,
+        sources: vec![],
+        model: None,
+        telemetry: None,
+    }
+}
+
+/// `Publisher::finish` (what the load bench relies on for its final counts): every record the
+/// sampler produced is acknowledged before NDEATH, and the fleet host has each of them once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn finish_sends_every_record_before_ndeath() {
+    use retrocomp::cli::fleet::FleetClient;
+    use retrocomp::telemetry::{self, MqttConfig, PublisherInputs};
+    use std::sync::Arc;
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let _broker = Broker::start(dir.path(), port);
+    let broker = format!("127.0.0.1:{port}");
+    let mut fleet = FleetClient::new(&broker, Some("shop")).unwrap();
+    while !fleet.subscribed {
+        let _ = tokio::time::timeout(PATIENCE, fleet.poll()).await;
+    }
+    let (tx, rx) = tokio::sync::watch::channel(None);
+    let mut cfg = MqttConfig::new(&broker, "shop", "box-f");
+    cfg.rate_hz = 50.0;
+    let p = telemetry::spawn(
+        cfg,
+        PublisherInputs {
+            status: rx,
+            model_identity: "m".into(),
+        },
+    )
+    .unwrap();
+    // Feed changes until a few hundred records were produced (whatever the machine's speed).
+    let feeder = tokio::spawn({
+        let st = p.status.clone();
+        async move {
+            let mut k = 0;
+            while st.borrow().records_total < 200 {
+                k += 1;
+                tx.send_replace(Some(Arc::new(snapshot(k))));
+                tokio::time::sleep(Duration::from_millis(10)).await;
+            }
+        }
+    });
+    // The fleet keeps reading meanwhile (each NDATA ends a poll; a poll is never cut short).
+    let key = ("shop".to_string(), "box-f".to_string());
+    while !feeder.is_finished() {
+        let _ = fleet.poll().await;
+    }
+    let st = p.finish(PATIENCE).await;
+    assert!(st.records_total >= 200, "{st:?}");
+    assert_eq!(st.queued, 0, "{st:?}");
+    assert_eq!(st.acked_total, st.records_total, "{st:?}");
+    assert_eq!(st.dropped_total, 0, "{st:?}");
+    let deadline = Instant::now() + PATIENCE;
+    while fleet.view.nodes.get(&key).is_none_or(|n| n.alive) {
+        assert!(Instant::now() < deadline, "no NDEATH after finish");
+        let _ = tokio::time::timeout(PATIENCE, fleet.poll()).await;
+    }
+    let n = &fleet.view.nodes[&key];
+    assert_eq!(
+        n.ndata, st.records_total,
+        "every record once, before NDEATH"
+    );
+    assert_eq!(n.seq_gaps, 0);
+}

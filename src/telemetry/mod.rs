@@ -4,7 +4,9 @@
 //! [`metrics`] (a gateway status snapshot as named metrics, report by exception), [`queue`]
 //! (bounded store-and-forward queue, on disk), [`config`] (`[telemetry.mqtt]`), [`publisher`] (the
 //! rumqttc shell fed from the gateway's status watch; it can never block the cycle), [`fleet`] (the
-//! host side: per box alive/compensating/degraded from its messages, for `retrocomp fleet`). Units as in
+//! host side: per box alive/compensating/degraded from its messages, for `retrocomp fleet`),
+//! [`recordings`] + [`shipper`] (a box's recording CSV to the fleet, chunked through the same queue;
+//! collected per machine), [`drift`] (scheduled diagnose per machine against its own model). Units as in
 //! the status: µm for corrections (correction = −error), mm for positions; timestamps ms since
 //! the Unix epoch, taken when the snapshot was sampled.
 

@@ -28,7 +28,7 @@ use super::config::MqttConfig;
 use super::metrics::{Record, Sampler, snapshot_metrics};
 use super::queue::{self, Queue, QueueLimits};
 use super::sparkplug::{self, EdgeNode, Kind, NamedValue};
-pub use super::status::TelemetryStatus;
+pub use super::status::{TelemetryAnnotator, TelemetryStatus};
 use crate::gateway::status::StatusSnapshot;
 
 /// What the publisher needs besides its config.
@@ -69,40 +69,10 @@ pub fn start_for(
     .map(Some)
 }
 
-/// Copies the publisher's state into each status snapshot; owned by the cycle loop (which builds
-/// the snapshots, at ≤ 10 Hz), so it only reads a watch channel.
-pub struct TelemetryAnnotator {
-    status: watch::Receiver<TelemetryStatus>,
-    /// Since when (status `t_s`) the link is not up: the `Disconnected` fault's start.
-    down_since_s: Option<f64>,
-}
-
-impl TelemetryAnnotator {
-    /// Put the publisher's state into a status snapshot: `telemetry`, and a `Disconnected`
-    /// fault of source `telemetry.mqtt` while the link is not up.
-    pub fn annotate(&mut self, snap: &mut StatusSnapshot) {
-        let st = self.status.borrow().clone();
-        if st.connected {
-            self.down_since_s = None;
-        } else {
-            let since = *self.down_since_s.get_or_insert(snap.t_s);
-            snap.active_faults.push((
-                "telemetry.mqtt".into(),
-                crate::gateway::health::FaultKind::Disconnected,
-                since,
-            ));
-        }
-        snap.telemetry = Some(st);
-    }
-}
-
 impl Publisher {
     /// What the cycle loop uses to show this publisher in the status snapshots.
     pub fn annotator(&self) -> TelemetryAnnotator {
-        TelemetryAnnotator {
-            status: self.status.clone(),
-            down_since_s: None,
-        }
+        TelemetryAnnotator::new(self.status.clone())
     }
 
     /// Stop: the sampler ends, the session sends NDEATH (if connected) and disconnects; waits at
