@@ -330,3 +330,52 @@ forward_mm = [1.0, 1e306]
         .is_ok()
     );
 }
+
+/// Captures what the config loader logs (the WARN lines of `tracing`).
+#[derive(Clone, Default)]
+struct Captured(std::sync::Arc<std::sync::Mutex<Vec<u8>>>);
+
+impl std::io::Write for Captured {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap().extend_from_slice(b);
+        Ok(b.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+#[test]
+fn an_old_word_order_spelling_loads_with_a_warning_naming_file_and_line() {
+    let text = with_sink(
+        "write_period_ms = 20",
+        &X_REG.replace(
+            "kind = \"int32\"\n",
+            "kind = \"int32\"\nword_order = \"cdab\"\n",
+        ),
+    );
+    let log = Captured::default();
+    let writer = log.clone();
+    let subscriber = tracing_subscriber::fmt()
+        .with_writer(move || writer.clone())
+        .with_ansi(false)
+        .finish();
+    let cfg = tracing::subscriber::with_default(subscriber, || parse(&text)).unwrap();
+    let axis = &cfg.sink.origin_shift.as_ref().unwrap().map.axes[0];
+    assert_eq!(axis.word_order, retrocomp::bus::modbus::WordOrder::LowFirst);
+    let log = String::from_utf8(log.0.lock().unwrap().clone()).unwrap();
+    let line = line_of(&text, "word_order = \"cdab\"");
+    let want = format!(
+        "field.toml:{line}: key `sink.origin_shift.map.axis[0].word_order`: \"cdab\" is a deprecated spelling, write \"low_first\""
+    );
+    assert!(log.contains("WARN") && log.contains(&want), "{log}");
+    // The new spelling loads silently.
+    let log2 = Captured::default();
+    let writer = log2.clone();
+    let subscriber = tracing_subscriber::fmt()
+        .with_writer(move || writer.clone())
+        .finish();
+    let new = text.replace("\"cdab\"", "\"low_first\"");
+    tracing::subscriber::with_default(subscriber, || parse(&new)).unwrap();
+    assert!(log2.0.lock().unwrap().is_empty());
+}

@@ -130,6 +130,7 @@ pub fn parse(text: &str, file: &str) -> Result<FieldConfig, ConfigError> {
             message: e.message().trim().to_string(),
         }],
     })?;
+    super::modbus::words::warn_deprecated_spellings(text, file);
     let problems: Vec<Problem> = validate(&cfg)
         .into_iter()
         .map(|(key, message)| Problem {

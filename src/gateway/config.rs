@@ -308,6 +308,7 @@ impl FieldConfig {
             path: path.into(),
             source: Box::new(e),
         })?;
+        crate::bus::modbus::words::warn_deprecated_spellings(text, &path.display().to_string());
         if let Some(m) = cfg.telemetry.as_mut().and_then(|t| t.mqtt.as_mut()) {
             m.resolve_paths(path.parent().unwrap_or(Path::new(".")));
         }

@@ -23,6 +23,7 @@
 pub mod engine;
 pub mod function;
 pub mod kinematics;
+pub mod lag;
 mod lookup;
 pub mod names;
 pub mod parse;
