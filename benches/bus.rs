@@ -13,7 +13,7 @@ use retrocomp::bus::canopen::cia406::{Direction, EncoderChannel};
 use retrocomp::bus::canopen::source::{CanopenConfig, CanopenSource};
 use retrocomp::bus::modbus::poller::Parity;
 use retrocomp::bus::modbus::{
-    DataType, ModbusPoller, ModbusSourceConfig, RegisterBank, RegisterChannel, RegisterKind,
+    DataType, ModbusPoller, ModbusSourceConfig, RegisterBank, RegisterChannel, RegisterTable,
     TcpServer, TransportKind, WordOrder,
 };
 use std::hint::black_box;
@@ -155,10 +155,10 @@ fn modbus_poll(c: &mut Criterion) {
             channel: (0..16)
                 .map(|i| RegisterChannel {
                     channel: format!("T{i}_C"),
-                    kind: RegisterKind::Input,
+                    kind: RegisterTable::Input,
                     address: i,
                     data_type: DataType::Int16,
-                    word_order: WordOrder::Abcd,
+                    word_order: WordOrder::HighFirst,
                     scale: 0.1,
                     offset: 0.0,
                     min: None,

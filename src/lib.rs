@@ -5,6 +5,7 @@ pub mod analysis;
 pub mod approach;
 pub mod bus;
 pub mod cli;
+pub mod config_issue;
 pub mod decimal;
 pub mod diagnose;
 pub mod gateway;

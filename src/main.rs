@@ -22,7 +22,8 @@ enum Command {
     Eval(cli::eval::Args),
     /// Run the gateway: sources → model → safety → origin-shift / quadrature sinks.
     Run(cli::run::Args),
-    /// The main job with no hardware: hil-sim + the gateway over loopback, three runs compared.
+    /// The main job with no hardware: hil-sim + the gateway over loopback, four runs compared
+    /// (uncompensated, geometric truth, full truth, fitted from measurement runs).
     Demo(cli::demo::Args),
     /// Watch a shop of boxes over MQTT Sparkplug B: alive, compensating, degraded (docs/fleet.md).
     Fleet(cli::fleet::Args),

@@ -8,14 +8,14 @@ mod peers;
 use retrocomp::bus::Health;
 use retrocomp::bus::modbus::poller::Parity;
 use retrocomp::bus::modbus::{
-    DataType, ModbusPoller, ModbusSourceConfig, RegisterBank, RegisterChannel, RegisterKind,
+    DataType, ModbusPoller, ModbusSourceConfig, RegisterBank, RegisterChannel, RegisterTable,
     TcpServer, TransportKind, WordOrder,
 };
 use std::time::{Duration, Instant};
 
 fn chan(
     name: &str,
-    kind: RegisterKind,
+    kind: RegisterTable,
     address: u16,
     t: DataType,
     wo: WordOrder,
@@ -36,16 +36,16 @@ fn chan(
 
 fn pt100_channels() -> Vec<RegisterChannel> {
     use DataType::*;
-    use RegisterKind::*;
+    use RegisterTable::*;
     use WordOrder::*;
     let mut v: Vec<_> = (0..4)
-        .map(|i| chan(&format!("T{i}_C"), Input, i, Int16, Abcd, 0.1))
+        .map(|i| chan(&format!("T{i}_C"), Input, i, Int16, HighFirst, 0.1))
         .collect();
-    v.push(chan("T_f32_C", Holding, 0, Float32, Abcd, 1.0));
-    v.push(chan("T_cdab_C", Holding, 10, Float32, Cdab, 1.0));
-    v.push(chan("F_load_N", Holding, 20, Int32, Cdab, 0.01));
+    v.push(chan("T_f32_C", Holding, 0, Float32, HighFirst, 1.0));
+    v.push(chan("T_cdab_C", Holding, 10, Float32, LowFirst, 1.0));
+    v.push(chan("F_load_N", Holding, 20, Int32, LowFirst, 0.01));
     // Not mapped by the peer: the exception must come back as a value.
-    v.push(chan("T_missing_C", Holding, 500, Int16, Abcd, 1.0));
+    v.push(chan("T_missing_C", Holding, 500, Int16, HighFirst, 1.0));
     v
 }
 

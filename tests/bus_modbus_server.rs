@@ -9,7 +9,7 @@ use retrocomp::bus::Health;
 use retrocomp::bus::modbus::poller::Parity;
 use retrocomp::bus::modbus::server::spawn_rtu;
 use retrocomp::bus::modbus::{
-    DataType, ModbusPoller, ModbusSourceConfig, RegisterBank, RegisterChannel, RegisterKind,
+    DataType, ModbusPoller, ModbusSourceConfig, RegisterBank, RegisterChannel, RegisterTable,
     TcpServer, TransportKind, WordOrder,
 };
 use std::time::Duration;
@@ -125,10 +125,10 @@ async fn rtu_server_on_a_pty_answers_the_poller_and_mbpoll() {
         max_gap: 0,
         channel: vec![RegisterChannel {
             channel: "T_oil_C".into(),
-            kind: RegisterKind::Holding,
+            kind: RegisterTable::Holding,
             address: 4,
             data_type: DataType::Float32,
-            word_order: WordOrder::Cdab,
+            word_order: WordOrder::LowFirst,
             scale: 1.0,
             offset: 0.0,
             min: None,
@@ -191,10 +191,10 @@ async fn rtu_poller_keeps_the_inter_frame_silence() {
         .iter()
         .map(|&address| RegisterChannel {
             channel: format!("T{address}_C"),
-            kind: RegisterKind::Input,
+            kind: RegisterTable::Input,
             address,
             data_type: DataType::Uint16,
-            word_order: WordOrder::Abcd,
+            word_order: WordOrder::HighFirst,
             scale: 1.0,
             offset: 0.0,
             min: None,

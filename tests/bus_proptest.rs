@@ -11,7 +11,7 @@ use retrocomp::bus::canopen::nmt::{decode_heartbeat, decode_nmt};
 use retrocomp::bus::canopen::sdo::{SdoRequest, SdoResponse};
 use retrocomp::bus::modbus::poll_core::{PollCore, ReadOutcome};
 use retrocomp::bus::modbus::regmap::{
-    DataType, RegisterChannel, RegisterKind, WordOrder, decode_raw, encode_raw,
+    DataType, RegisterChannel, RegisterTable, WordOrder, decode_raw, encode_raw,
 };
 use retrocomp::bus::serial::formats::{
     GenericFormat, parse_generic, parse_heidenhain, parse_mitutoyo, parse_nd522, parse_weighing,
@@ -139,7 +139,7 @@ proptest! {
     #[test]
     fn modbus_register_decoding_never_panics(words in proptest::collection::vec(any::<u16>(), 0..6), t in 0usize..5, cdab in any::<bool>(), scale in -1e3f64..1e3, start in 0u16..8) {
         let dt = [DataType::Int16, DataType::Uint16, DataType::Int32, DataType::Uint32, DataType::Float32][t];
-        let wo = if cdab { WordOrder::Cdab } else { WordOrder::Abcd };
+        let wo = if cdab { WordOrder::LowFirst } else { WordOrder::HighFirst };
         if let Some(raw) = decode_raw(&words, dt, wo)
             && dt != DataType::Float32
         {
@@ -147,7 +147,7 @@ proptest! {
             prop_assert_eq!(&w[..n], &words[..]);
         }
         let chans: Vec<RegisterChannel> = (0..3).map(|i| RegisterChannel {
-            channel: format!("c{i}_C"), kind: RegisterKind::Input, address: start + 2 * i, data_type: dt,
+            channel: format!("c{i}_C"), kind: RegisterTable::Input, address: start + 2 * i, data_type: dt,
             word_order: wo, scale, offset: 0.5, min: Some(-10.0), max: Some(10.0),
         }).collect();
         let mut core = PollCore::new(chans, 125, 1);

@@ -63,16 +63,15 @@ fn errors_name_file_line_and_key() {
     // Typo in a key: the message names the file, the line and the unknown key.
     let bad = BASE.replace("cycle_ms = 5", "cycle_ms = 5\ncycle_time = 3");
     let msg = parse(&bad).unwrap_err().to_string();
-    assert!(msg.starts_with("field.toml:"), "{msg}");
     assert!(
-        msg.contains("line 5") && msg.contains("cycle_time"),
+        msg.starts_with("field.toml:5:") && msg.contains("cycle_time"),
         "{msg}"
     );
     // Wrong type.
     let msg = parse(&BASE.replace("cycle_ms = 5", "cycle_ms = \"fast\""))
         .unwrap_err()
         .to_string();
-    assert!(msg.contains("line 4"), "{msg}");
+    assert!(msg.starts_with("field.toml:4:"), "{msg}");
     // Semantic errors carry the key path.
     let msg = parse(&BASE.replace("\"x_mm\"", "\"x_um\""))
         .unwrap_err()
@@ -329,4 +328,53 @@ forward_mm = [1.0, 1e306]
         )
         .is_ok()
     );
+}
+
+/// Captures what the config loader logs (the WARN lines of `tracing`).
+#[derive(Clone, Default)]
+struct Captured(std::sync::Arc<std::sync::Mutex<Vec<u8>>>);
+
+impl std::io::Write for Captured {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap().extend_from_slice(b);
+        Ok(b.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+#[test]
+fn an_old_word_order_spelling_loads_with_a_warning_naming_file_and_line() {
+    let text = with_sink(
+        "write_period_ms = 20",
+        &X_REG.replace(
+            "kind = \"int32\"\n",
+            "kind = \"int32\"\nword_order = \"cdab\"\n",
+        ),
+    );
+    let log = Captured::default();
+    let writer = log.clone();
+    let subscriber = tracing_subscriber::fmt()
+        .with_writer(move || writer.clone())
+        .with_ansi(false)
+        .finish();
+    let cfg = tracing::subscriber::with_default(subscriber, || parse(&text)).unwrap();
+    let axis = &cfg.sink.origin_shift.as_ref().unwrap().map.axes[0];
+    assert_eq!(axis.word_order, retrocomp::bus::modbus::WordOrder::LowFirst);
+    let log = String::from_utf8(log.0.lock().unwrap().clone()).unwrap();
+    let line = line_of(&text, "word_order = \"cdab\"");
+    let want = format!(
+        "field.toml:{line}: key `sink.origin_shift.map.axis[0].word_order`: \"cdab\" is a deprecated spelling, write \"low_first\""
+    );
+    assert!(log.contains("WARN") && log.contains(&want), "{log}");
+    // The new spelling loads silently.
+    let log2 = Captured::default();
+    let writer = log2.clone();
+    let subscriber = tracing_subscriber::fmt()
+        .with_writer(move || writer.clone())
+        .finish();
+    let new = text.replace("\"cdab\"", "\"low_first\"");
+    tracing::subscriber::with_default(subscriber, || parse(&new)).unwrap();
+    assert!(log2.0.lock().unwrap().is_empty());
 }

@@ -40,7 +40,7 @@ impl Plc {
     fn value(&self, axis: usize) -> f64 {
         let r = &self.map.axes[axis];
         let a = r.address as usize;
-        decode_value(r, &self.regs[a..a + r.kind.words() as usize]).unwrap()
+        decode_value(r, &self.regs[a..a + r.data_type.words() as usize]).unwrap()
     }
 
     fn set(&mut self, axis: usize, um: f64) {
@@ -218,7 +218,7 @@ fn run(
                         })?;
                     // Every value written is within the clamp and the cap of what is applied.
                     for (axis, r) in core.map().axes.iter().enumerate() {
-                        let (a, n) = (r.address as usize, r.kind.words() as usize);
+                        let (a, n) = (r.address as usize, r.data_type.words() as usize);
                         let b0 = b.address as usize;
                         if a >= b0 && a + n <= b0 + b.words.len() {
                             let v = decode_value(r, &b.words[a - b0..a - b0 + n]).unwrap();

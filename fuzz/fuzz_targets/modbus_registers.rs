@@ -3,19 +3,19 @@
 
 use libfuzzer_sys::fuzz_target;
 use retrocomp::bus::modbus::poll_core::{PollCore, ReadOutcome};
-use retrocomp::bus::modbus::regmap::{DataType, RegisterChannel, RegisterKind, WordOrder, decode_raw};
+use retrocomp::bus::modbus::regmap::{DataType, RegisterChannel, RegisterTable, WordOrder, decode_raw};
 
 fuzz_target!(|data: &[u8]| {
     let Some((&sel, rest)) = data.split_first() else { return };
     let words: Vec<u16> = rest.chunks_exact(2).map(|c| u16::from_be_bytes([c[0], c[1]])).collect();
     let types = [DataType::Int16, DataType::Uint16, DataType::Int32, DataType::Uint32, DataType::Float32];
     let t = types[usize::from(sel % 5)];
-    let wo = if sel & 0x80 != 0 { WordOrder::Cdab } else { WordOrder::Abcd };
+    let wo = if sel & 0x80 != 0 { WordOrder::LowFirst } else { WordOrder::HighFirst };
     let _ = decode_raw(&words, t, wo);
     let chans: Vec<RegisterChannel> = (0..4u16)
         .map(|i| RegisterChannel {
             channel: format!("c{i}_C"),
-            kind: if i % 2 == 0 { RegisterKind::Input } else { RegisterKind::Holding },
+            kind: if i % 2 == 0 { RegisterTable::Input } else { RegisterTable::Holding },
             address: u16::from(sel >> 3) + 2 * i,
             data_type: t,
             word_order: wo,

@@ -155,22 +155,9 @@ impl Default for ServoConfig {
     }
 }
 
-#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
-#[serde(rename_all = "snake_case")]
-pub enum WordType {
-    Int16,
-    Int32,
-}
-
-/// Order of the two 16-bit words of an int32 register pair.
-#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
-#[serde(rename_all = "snake_case")]
-pub enum WordOrder {
-    /// High word at the lower address (ABCD).
-    HiLo,
-    /// Low word at the lower address (CDAB).
-    LoHi,
-}
+/// The register vocabulary of the PLC window is the workspace's one (`retrocomp::bus::modbus::words`):
+/// `word = "int16" | "int32" | ...`, `word_order = "high_first" | "low_first"`.
+pub use retrocomp::bus::modbus::{DataType, WordOrder};
 
 /// The PLC window through which origin shifts reach the controller (a PMC-like register block).
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -180,7 +167,7 @@ pub struct PlcConfig {
     #[serde(default = "d_scan")]
     pub scan_s: f64,
     #[serde(default = "d_word")]
-    pub word: WordType,
+    pub word: DataType,
     #[serde(default = "d_order")]
     pub word_order: WordOrder,
     /// Value of one register count.
@@ -211,11 +198,11 @@ pub struct WatchdogConfig {
 fn d_scan() -> f64 {
     0.010
 }
-fn d_word() -> WordType {
-    WordType::Int16
+fn d_word() -> DataType {
+    DataType::Int16
 }
 fn d_order() -> WordOrder {
-    WordOrder::HiLo
+    WordOrder::HighFirst
 }
 fn d_lsb() -> f64 {
     1.0
@@ -374,8 +361,13 @@ impl SimConfig {
     pub fn from_toml_path(path: &Path) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;
-        Self::from_toml_str(&text, path.parent())
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+        let cfg = Self::from_toml_str(&text, path.parent())
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        retrocomp::bus::modbus::words::warn_deprecated_spellings(
+            &text,
+            &path.display().to_string(),
+        );
+        Ok(cfg)
     }
 
     /// Range checks the parser cannot do. Each message names the key.
@@ -423,7 +415,7 @@ impl SimConfig {
                 "plc.watchdog.ramp_um_per_s must be > 0, got {}",
                 w.ramp_um_per_s
             );
-            let words = if p.word == WordType::Int32 { 2 } else { 1 };
+            let words = u32::from(p.word.words());
             let shifts = p.first_register as u32..p.first_register as u32 + 3 * words;
             let hb = w.heartbeat_register as u32;
             let on_handshake = p

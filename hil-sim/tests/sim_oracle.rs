@@ -74,7 +74,7 @@ fn oracle_drives_residual_to_quantization_level() {
     );
     for plc in [
         "[plc]\nscan_s = 0.010\nlsb_um = 1.0\n",
-        "[plc]\nscan_s = 0.016\nword = \"int32\"\nword_order = \"lo_hi\"\nlsb_um = 0.5\nfirst_register = 100\nhandshake = { strobe_register = 0, ack_register = 1 }\n",
+        "[plc]\nscan_s = 0.016\nword = \"int32\"\nword_order = \"low_first\"\nlsb_um = 0.5\nfirst_register = 100\nhandshake = { strobe_register = 0, ack_register = 1 }\n",
     ] {
         let toml = format!("{PROGRAM}{plc}");
         let lsb = if plc.contains("0.5") { 0.5 } else { 1.0 };

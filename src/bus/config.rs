@@ -75,76 +75,35 @@ pub struct FieldConfig {
     pub serial: SerialSection,
 }
 
-/// One problem in the file.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Problem {
-    /// 1-based line, when the key could be located.
-    pub line: Option<usize>,
-    /// Key path, e.g. `modbus.source[0].channel[2].scale`.
-    pub key: String,
-    pub message: String,
-}
-
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub struct ConfigError {
-    pub file: String,
-    pub problems: Vec<Problem>,
-}
-
-impl std::fmt::Display for ConfigError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        for (i, p) in self.problems.iter().enumerate() {
-            if i > 0 {
-                writeln!(f)?;
-            }
-            match p.line {
-                Some(l) => write!(f, "{}:{l}: {}: {}", self.file, p.key, p.message)?,
-                None => write!(f, "{}: {}: {}", self.file, p.key, p.message)?,
-            }
-        }
-        Ok(())
-    }
-}
+pub use crate::config_issue::{ConfigError, ConfigIssue};
 
 /// Read and validate a field TOML file.
 pub fn load(path: &Path) -> Result<FieldConfig, ConfigError> {
     let file = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
-        file: file.clone(),
-        problems: vec![Problem {
-            line: None,
-            key: String::new(),
-            message: format!("cannot read: {e}"),
-        }],
-    })?;
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| ConfigError::single(&file, "", format!("cannot read: {e}")))?;
     parse(&text, &file)
 }
 
 /// Parse and validate field TOML text; `file` names it in errors.
 pub fn parse(text: &str, file: &str) -> Result<FieldConfig, ConfigError> {
-    let cfg: FieldConfig = toml::from_str(text).map_err(|e| ConfigError {
-        file: file.to_string(),
-        problems: vec![Problem {
-            line: e.span().map(|s| line_of(text, s.start)),
-            key: String::new(),
-            message: e.message().trim().to_string(),
-        }],
-    })?;
-    let problems: Vec<Problem> = validate(&cfg)
+    let cfg: FieldConfig =
+        toml::from_str(text).map_err(|e| ConfigError::from_toml(file, text, &e))?;
+    super::modbus::words::warn_deprecated_spellings(text, file);
+    let issues: Vec<ConfigIssue> = validate(&cfg)
         .into_iter()
-        .map(|(key, message)| Problem {
-            line: locate(text, &key),
+        .map(|(key, message)| ConfigIssue {
+            file: file.to_string(),
+            line: locate(text, &key).unwrap_or(0),
+            column: 0,
             key,
             message,
         })
         .collect();
-    if problems.is_empty() {
+    if issues.is_empty() {
         Ok(cfg)
     } else {
-        Err(ConfigError {
-            file: file.to_string(),
-            problems,
-        })
+        Err(ConfigError { issues })
     }
 }
 
@@ -471,23 +430,23 @@ name = "z_mm"
             .replace("name = \"z_mm\"", "name = \"x_mm\"");
         let e = parse(&bad, "field.toml").unwrap_err();
         let text = e.to_string();
-        assert_eq!(e.problems.len(), 3, "{text}");
+        assert_eq!(e.issues.len(), 3, "{text}");
         let line = |s: &str| bad.lines().position(|l| l.contains(s)).unwrap() + 1;
         assert!(
             text.contains(&format!(
-                "field.toml:{}: canopen.encoder[1].counts_per_mm: must be > 0",
+                "field.toml:{}: key `canopen.encoder[1].counts_per_mm`: must be > 0",
                 line("counts_per_mm = 0.0")
             )),
             "{text}"
         );
         assert!(
             text.contains(&format!(
-                "field.toml:{}: modbus.source[0].channel[0].scale",
+                "field.toml:{}: key `modbus.source[0].channel[0].scale`",
                 line("scale = 0.0")
             )),
             "{text}"
         );
-        assert!(text.contains("serial.source[0].channel[0].name: channel `x_mm` is already defined at canopen.encoder[0].channel"), "{text}");
+        assert!(text.contains("serial.source[0].channel[0].name`: channel `x_mm` is already defined at canopen.encoder[0].channel"), "{text}");
     }
 
     #[test]
@@ -502,9 +461,9 @@ name = "z_mm"
             .position(|l| l.contains("counts_per_rev"))
             .unwrap()
             + 1;
-        assert_eq!(e.problems[0].line, Some(want), "{e}");
+        assert_eq!(e.issues[0].line, want, "{e}");
         assert!(e.to_string().contains("counts_per_rev"), "{e}");
         let e = parse("[canopen]\npdo_timeout_s = \"fast\"\n", "f.toml").unwrap_err();
-        assert_eq!(e.problems[0].line, Some(2), "{e}");
+        assert_eq!(e.issues[0].line, 2, "{e}");
     }
 }

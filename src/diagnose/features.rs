@@ -339,26 +339,7 @@ fn latch(t_s: &[f64], pos: &[f64]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
 /// First-order low-pass of `u` with time constant `tau_s`, exact for a signal held between samples
 /// (`y += (1 − e^{−Δt/τ})(u − y)`), started at the first value (the machine was at rest before).
 pub fn lowpass(t_s: &[f64], u: &[f64], tau_s: f64) -> Vec<f64> {
-    let mut y = Vec::with_capacity(u.len());
-    let mut acc = u.first().copied().unwrap_or(0.0);
-    let (mut last_dt, mut a) = (f64::NAN, 1.0);
-    for i in 0..u.len() {
-        if i > 0 {
-            let dt = t_s[i] - t_s[i - 1];
-            if dt != last_dt {
-                // Recomputed only when the sample period changes (usually never after the first).
-                a = if tau_s > 0.0 {
-                    1.0 - (-dt / tau_s).exp()
-                } else {
-                    1.0
-                };
-                last_dt = dt;
-            }
-            acc += a * (u[i - 1] - acc);
-        }
-        y.push(acc);
-    }
-    y
+    crate::models::lag::series(t_s, u, tau_s, u.first().copied().unwrap_or(0.0))
 }
 
 #[cfg(test)]

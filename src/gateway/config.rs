@@ -260,59 +260,32 @@ pub struct GpioLines {
     pub line_b: u32,
 }
 
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    #[error("{path}: cannot read: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("{path}: {source}")]
-    Parse {
-        path: PathBuf,
-        source: Box<toml::de::Error>,
-    },
-    #[error("{}{}: key `{key}`: {what}", path.display(), line.map(|l| format!(":{l}")).unwrap_or_default())]
-    Invalid {
-        path: PathBuf,
-        /// Line of the key in the file (the deepest part of the key path that exists there).
-        line: Option<usize>,
-        key: String,
-        what: String,
-    },
-}
+pub use crate::config_issue::ConfigError;
 
-impl ConfigError {
-    fn invalid(path: &Path, text: &str, key: String, what: String) -> Self {
-        ConfigError::Invalid {
-            path: path.into(),
-            line: crate::bus::config::locate(text, &key),
-            key,
-            what,
-        }
-    }
+/// A semantic problem at `key`, placed on the key's line of `text`.
+fn invalid(path: &Path, text: &str, key: String, what: String) -> ConfigError {
+    let line = crate::bus::config::locate(text, &key).unwrap_or(0);
+    ConfigError::single_at(&path.display().to_string(), line, &key, what)
 }
 
 impl FieldConfig {
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
-            path: path.into(),
-            source,
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            ConfigError::single(&path.display().to_string(), "", format!("cannot read: {e}"))
         })?;
         Self::parse(&text, path)
     }
 
     /// Parse and validate; `path` is only used in messages and to resolve relative paths.
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
-        let mut cfg: FieldConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
-            path: path.into(),
-            source: Box::new(e),
-        })?;
+        let mut cfg: FieldConfig = toml::from_str(text)
+            .map_err(|e| ConfigError::from_toml(&path.display().to_string(), text, &e))?;
+        crate::bus::modbus::words::warn_deprecated_spellings(text, &path.display().to_string());
         if let Some(m) = cfg.telemetry.as_mut().and_then(|t| t.mqtt.as_mut()) {
             m.resolve_paths(path.parent().unwrap_or(Path::new(".")));
         }
         cfg.validate()
-            .map_err(|(key, what)| ConfigError::invalid(path, text, key, what))?;
+            .map_err(|(key, what)| invalid(path, text, key, what))?;
         Ok(cfg)
     }
 
@@ -325,7 +298,7 @@ impl FieldConfig {
         let opcua = cfg.opcua.as_mut().map_or(Ok(()), |o| o.resolve(base));
         if let Err((key, what)) = opcua.and_then(|()| cfg.check_position_sources()) {
             let text = std::fs::read_to_string(path).unwrap_or_default();
-            return Err(ConfigError::invalid(path, &text, key, what));
+            return Err(invalid(path, &text, key, what));
         }
         Ok(cfg)
     }

@@ -20,14 +20,15 @@
 //!   Latching and ramping a reversal is the gateway's job; the model is a pure function of the input
 //!   plus the thermal lag state.
 
-pub mod engine;
 pub mod function;
 pub mod kinematics;
+pub mod lag;
 mod lookup;
 pub mod names;
 pub mod parse;
 pub mod parse_terms;
 mod plan;
+pub mod reference;
 pub mod spec;
 pub mod thermal;
 pub mod toml_reader;
@@ -40,8 +41,8 @@ pub use names::{Axis, ComponentId, Motion, Squareness};
 pub use spec::ModelSpec;
 pub use toml_reader::{ConfigError, ConfigIssue};
 
-use engine::Compiled;
 use plan::Plan;
+use reference::Compiled;
 use thermal::ThermalState;
 
 /// A loaded machine model. Cheap to share (`Clone + Send + Sync`); evaluation state lives in
@@ -268,7 +269,7 @@ impl MachineModel {
         }
     }
 
-    /// The straightforward evaluator (`engine.rs`) the fast plan is checked against: the same
+    /// The straightforward evaluator (`reference.rs`) the fast plan is checked against: the same
     /// results within rounding (`tests/models_fastpath.rs`), slower. `exact` picks the HTM chain.
     #[doc(hidden)]
     pub fn evaluate_reference(
@@ -278,7 +279,7 @@ impl MachineModel {
         out: &mut ErrorBreakdown,
         exact: bool,
     ) {
-        engine::run(&self.spec, &self.compiled, input, state, out, exact);
+        reference::run(&self.spec, &self.compiled, input, state, out, exact);
     }
 }
 

@@ -1,6 +1,6 @@
 //! The fast evaluator: a [`ModelSpec`] compiled once into a flat evaluation plan.
 //!
-//! Same conventions, terms and results as the straightforward evaluator in `engine.rs`, which stays
+//! Same conventions, terms and results as the straightforward evaluator in `reference.rs`, which stays
 //! as the oracle `tests/models_fastpath.rs` checks this one against (≤ 1e-9 µm; they differ only by
 //! the rounding of reordered products): error = actual − nominal, µm, machine X/Y/Z; every term's
 //! first-order contribution at the tool tip, and `higher_order` = exact − Σ first-order terms.
@@ -21,10 +21,10 @@
 
 use std::ops::Range;
 
-use super::engine::{Compiled, ForceSource};
 use super::function::{ErrorFunction, Interpolation, Table};
 use super::kinematics::{Elem, arms, cross, exact_tip, nominal_tip};
 use super::lookup::{Curve, Nodes, by_dir, dir_slot};
+use super::reference::{Compiled, ForceSource};
 use super::spec::{LoadKind, ModelSpec, ThermalKind};
 use super::thermal::LagPlan;
 use super::{ErrorBreakdown, EvalFlags, ModelInput, ModelState};

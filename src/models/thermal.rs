@@ -240,7 +240,7 @@ fn lag_alpha_inv(cache: &mut (f64, f64), dt: f64, tau: f64, inv_tau: f64) -> f64
         let x = d * inv_tau;
         alpha0 + (1.0 - alpha0) * (x * (1.0 - x * (0.5 - x * (1.0 / 6.0))))
     } else {
-        let alpha = 1.0 - (-dt / tau).exp();
+        let alpha = super::lag::alpha(dt, tau);
         *cache = (dt, alpha);
         alpha
     }
@@ -261,7 +261,7 @@ fn lag_alpha(cache: &mut (f64, f64), dt: f64, tau: f64) -> f64 {
         let x = d / tau;
         alpha0 + (1.0 - alpha0) * (x * (1.0 - x * (0.5 - x * (1.0 / 6.0))))
     } else {
-        let alpha = 1.0 - (-dt / tau).exp();
+        let alpha = super::lag::alpha(dt, tau);
         *cache = (dt, alpha);
         alpha
     }

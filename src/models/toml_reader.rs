@@ -3,71 +3,11 @@
 //! reports all problems it can find instead of stopping at the first.
 
 use std::cell::RefCell;
-use std::fmt;
 
 use toml::Spanned;
 use toml::de::{DeArray, DeTable, DeValue};
 
-/// One problem found in a model file.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ConfigIssue {
-    pub file: String,
-    /// 1-based; 0 when the problem has no place in the file (e.g. the file cannot be read).
-    pub line: usize,
-    pub column: usize,
-    /// Full key path, e.g. `components[2].forward_um[5]`.
-    pub key: String,
-    /// What is wrong and what was expected.
-    pub message: String,
-}
-
-impl fmt::Display for ConfigIssue {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        if self.line > 0 {
-            write!(f, "{}:{}:{}: ", self.file, self.line, self.column)?;
-        } else {
-            write!(f, "{}: ", self.file)?;
-        }
-        if !self.key.is_empty() {
-            write!(f, "key `{}`: ", self.key)?;
-        }
-        write!(f, "{}", self.message)
-    }
-}
-
-/// Why a model could not be loaded: every problem found, in file order.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ConfigError {
-    pub issues: Vec<ConfigIssue>,
-}
-
-impl fmt::Display for ConfigError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        for (i, issue) in self.issues.iter().enumerate() {
-            if i > 0 {
-                writeln!(f)?;
-            }
-            write!(f, "{issue}")?;
-        }
-        Ok(())
-    }
-}
-
-impl std::error::Error for ConfigError {}
-
-impl ConfigError {
-    pub fn single(file: &str, key: &str, message: impl Into<String>) -> Self {
-        ConfigError {
-            issues: vec![ConfigIssue {
-                file: file.into(),
-                line: 0,
-                column: 0,
-                key: key.into(),
-                message: message.into(),
-            }],
-        }
-    }
-}
+pub use crate::config_issue::{ConfigError, ConfigIssue};
 
 /// Collects issues while reading one file.
 pub struct Ctx<'t> {

@@ -217,7 +217,7 @@ impl OriginShiftClient {
         for r in self.map.axes.clone() {
             let action = Action::Read {
                 address: r.address,
-                count: r.kind.words(),
+                count: r.data_type.words(),
                 not_before_s: 0.0,
             };
             match self.request(&action).await {

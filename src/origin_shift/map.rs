@@ -8,7 +8,9 @@
 //!   register to its axis origin (the register then holds the correction = −error); `sign = -1` when the
 //!   PLC expects the error itself and subtracts it (Siemens: "positive compensation moves the axis
 //!   negative").
-//! - 32-bit values span two registers; `word_order = "high_first"` (ABCD) or `"low_first"` (CDAB).
+//! - `kind = "int16" | "int32"` (the data type; a correction is signed). 32-bit values span two
+//!   registers; `word_order = "high_first"` (ABCD) or `"low_first"` (CDAB). Types, word order and the
+//!   word split are the workspace's one Modbus vocabulary (`bus::modbus::words`).
 //!   Both words always go out in ONE FC16 request so the controller never sees half an update.
 //! - Allow-list: the only writable addresses are the value registers, the strobe register and the
 //!   heartbeat register configured here; [`RegisterMap::check_write`] refuses anything else.
@@ -21,31 +23,8 @@
 
 use serde::{Deserialize, Serialize};
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum RegisterKind {
-    Int16,
-    Int32,
-}
-
-impl RegisterKind {
-    pub fn words(self) -> u16 {
-        match self {
-            RegisterKind::Int16 => 1,
-            RegisterKind::Int32 => 2,
-        }
-    }
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum WordOrder {
-    /// ABCD: high word at the lower address.
-    #[default]
-    HighFirst,
-    /// CDAB: low word at the lower address.
-    LowFirst,
-}
+use crate::bus::modbus::regmap::{decode_raw, encode_raw};
+pub use crate::bus::modbus::{DataType, WordOrder};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -53,7 +32,9 @@ pub struct AxisRegister {
     /// Axis name (`x`, `y`, `z`).
     pub axis: String,
     pub address: u16,
-    pub kind: RegisterKind,
+    /// The data type (TOML key `kind`, as shipped).
+    #[serde(rename = "kind")]
+    pub data_type: DataType,
     #[serde(default)]
     pub word_order: WordOrder,
     /// µm per count.
@@ -124,7 +105,7 @@ pub enum MapError {
         value_um: f64,
         counts: f64,
         lsb_um: f64,
-        kind: RegisterKind,
+        kind: DataType,
     },
     #[error("origin_shift: write of {len} word(s) at {address} is outside the allow-list")]
     NotAllowed { address: u16, len: usize },
@@ -166,11 +147,18 @@ impl RegisterMap {
                 // controller value (the unused one's 0 read as the start: a 30 µm step).
                 return Err(err("axis mapped twice: expected each axis once".into()));
             }
+            if !matches!(r.data_type, DataType::Int16 | DataType::Int32) {
+                // A correction is signed and counted in whole LSBs.
+                return Err(err(format!(
+                    "kind must be int16 or int32, got {:?}",
+                    r.data_type
+                )));
+            }
             if r.sign != 1 && r.sign != -1 {
                 return Err(err(format!("sign must be 1 or -1, got {}", r.sign)));
             }
             let start = r.address as u32;
-            let end = start + r.kind.words() as u32;
+            let end = start + r.data_type.words() as u32;
             if end > 0x1_0000 {
                 return Err(err(format!(
                     "register runs past address 65535 (start {start})"
@@ -215,7 +203,7 @@ impl RegisterMap {
         let allowed = |a: u32| {
             self.axes
                 .iter()
-                .any(|r| a >= r.address as u32 && a < r.address as u32 + r.kind.words() as u32)
+                .any(|r| a >= r.address as u32 && a < r.address as u32 + r.data_type.words() as u32)
                 || self
                     .handshake
                     .as_ref()
@@ -271,50 +259,25 @@ pub fn encode_value(r: &AxisRegister, value_um: f64) -> Result<Vec<u16>, MapErro
         });
     }
     let counts = (r.sign as f64 * value_um / r.lsb_um).round();
-    let (lo, hi) = match r.kind {
-        RegisterKind::Int16 => (i16::MIN as f64, i16::MAX as f64),
-        RegisterKind::Int32 => (i32::MIN as f64, i32::MAX as f64),
-    };
-    if counts < lo || counts > hi {
-        return Err(MapError::OutOfRange {
+    let (words, n) =
+        encode_raw(counts, r.data_type, r.word_order).ok_or_else(|| MapError::OutOfRange {
             axis: r.axis.clone(),
             value_um,
             counts,
             lsb_um: r.lsb_um,
-            kind: r.kind,
-        });
-    }
-    Ok(match r.kind {
-        RegisterKind::Int16 => vec![counts as i16 as u16],
-        RegisterKind::Int32 => {
-            let v = counts as i32 as u32;
-            let (high, low) = ((v >> 16) as u16, v as u16);
-            match r.word_order {
-                WordOrder::HighFirst => vec![high, low],
-                WordOrder::LowFirst => vec![low, high],
-            }
-        }
-    })
+            kind: r.data_type,
+        })?;
+    Ok(words[..n].to_vec())
 }
 
 pub fn decode_value(r: &AxisRegister, words: &[u16]) -> Result<f64, MapError> {
-    if words.len() != r.kind.words() as usize {
-        return Err(MapError::WordCount {
+    let expected = usize::from(r.data_type.words());
+    let counts =
+        decode_raw(words, r.data_type, r.word_order).ok_or_else(|| MapError::WordCount {
             axis: r.axis.clone(),
-            expected: r.kind.words() as usize,
+            expected,
             got: words.len(),
-        });
-    }
-    let counts = match r.kind {
-        RegisterKind::Int16 => words[0] as i16 as f64,
-        RegisterKind::Int32 => {
-            let (high, low) = match r.word_order {
-                WordOrder::HighFirst => (words[0], words[1]),
-                WordOrder::LowFirst => (words[1], words[0]),
-            };
-            (((high as u32) << 16 | low as u32) as i32) as f64
-        }
-    };
+        })?;
     Ok(r.sign as f64 * counts * r.lsb_um)
 }
 
@@ -369,7 +332,7 @@ mod tests {
     #[test]
     fn range_nan_and_allow_list() {
         let mut m = map();
-        m.axes[0].kind = RegisterKind::Int16;
+        m.axes[0].data_type = DataType::Int16;
         // int16 at 0.1 µm holds ±3276.7 µm.
         assert!(m.encode(&[("x", 3276.7)]).is_ok());
         assert!(matches!(

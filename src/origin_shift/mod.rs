@@ -19,7 +19,5 @@ pub mod sink;
 pub use client::{ClientConfig, OriginShiftClient, Transport};
 pub use cycle::{Action, Outcome, Reply, WriteCycle};
 pub use guard::{GuardLimits, Verdict, WriteGuard};
-pub use map::{
-    AxisRegister, Handshake, MapError, RegisterKind, RegisterMap, WordOrder, WriteBlock,
-};
+pub use map::{AxisRegister, DataType, Handshake, MapError, RegisterMap, WordOrder, WriteBlock};
 pub use sink::{SinkAxis, SinkCore, SinkFaults};

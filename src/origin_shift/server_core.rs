@@ -23,7 +23,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::map::decode_value;
-use super::map::{AxisRegister, MapError, RegisterKind, RegisterMap, WordOrder, WriteBlock};
+use super::map::{AxisRegister, DataType, MapError, RegisterMap, WordOrder, WriteBlock};
 
 /// A register the controller writes an axis position into.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -32,7 +32,9 @@ pub struct PositionRegister {
     /// Channel the decoded position feeds (unit suffix `_mm`), e.g. the `[[axis]] position_channel`.
     pub channel: String,
     pub address: u16,
-    pub kind: RegisterKind,
+    /// The data type (TOML key `kind`, as in the axis registers).
+    #[serde(rename = "kind")]
+    pub data_type: DataType,
     #[serde(default)]
     pub word_order: WordOrder,
     /// µm per count.
@@ -117,7 +119,7 @@ impl ServerMap {
         AxisRegister {
             axis: p.channel.clone(),
             address: p.address,
-            kind: p.kind,
+            data_type: p.data_type,
             word_order: p.word_order,
             lsb_um: p.lsb_um,
             sign: 1,
@@ -130,7 +132,7 @@ impl ServerMap {
         for (i, a) in self.axes.iter().enumerate() {
             spans.push((
                 a.address as u32,
-                a.kind.words() as u32,
+                a.data_type.words() as u32,
                 format!("axis[{i}]"),
             ));
         }
@@ -138,12 +140,14 @@ impl ServerMap {
         for (i, p) in self.positions.iter().enumerate() {
             spans.push((
                 p.address as u32,
-                p.kind.words() as u32,
+                p.data_type.words() as u32,
                 format!("position[{i}]"),
             ));
         }
         for (i, h) in self.held.iter().enumerate() {
-            let words = self.held_register(h).map_or(1, |r| r.kind.words() as u32);
+            let words = self
+                .held_register(h)
+                .map_or(1, |r| r.data_type.words() as u32);
             spans.push((h.address as u32, words, format!("held[{i}]")));
         }
         if let Some(m) = &self.write_marker {
@@ -256,11 +260,11 @@ impl ServerMap {
         let mut w: Vec<(u16, u16)> = self
             .positions
             .iter()
-            .map(|p| (p.address, p.kind.words()))
+            .map(|p| (p.address, p.data_type.words()))
             .collect();
         for h in &self.held {
             if let Some(r) = self.held_register(h) {
-                w.push((r.address, r.kind.words()));
+                w.push((r.address, r.data_type.words()));
             }
         }
         w.extend(self.write_marker.as_ref().map(|m| (m.address, 1)));
@@ -414,7 +418,7 @@ impl ServerCore {
         }
         for a in &mut self.axes {
             if let Some(h) = &a.held
-                && let Some(words) = read(h.address, h.kind.words())
+                && let Some(words) = read(h.address, h.data_type.words())
                 && let Ok(v) = decode_value(h, &words)
             {
                 a.held_um = Some(v);
@@ -425,7 +429,7 @@ impl ServerCore {
             .iter()
             .filter_map(|p| {
                 let r = ServerMap::position_register(p);
-                let words = read(r.address, r.kind.words())?;
+                let words = read(r.address, r.data_type.words())?;
                 let um = decode_value(&r, &words).ok()?;
                 Some((p.channel.clone(), um / 1000.0))
             })

@@ -343,7 +343,7 @@ impl SinkCore {
     fn plan(&mut self, now_s: f64) -> Action {
         for i in 0..self.axes.len() {
             let r = &self.map.axes[i];
-            let words: Option<Vec<u16>> = (0..r.kind.words())
+            let words: Option<Vec<u16>> = (0..r.data_type.words())
                 .map(|k| self.word(r.address + k))
                 .collect();
             let Some(held) = words.and_then(|w| decode_value(r, &w).ok()) else {
@@ -443,7 +443,7 @@ fn read_spans(map: &RegisterMap) -> Vec<Span> {
     let mut regs: Vec<(u16, u16)> = map
         .axes
         .iter()
-        .map(|r| (r.address, r.kind.words()))
+        .map(|r| (r.address, r.data_type.words()))
         .collect();
     if let Some(h) = &map.handshake {
         regs.push((h.strobe_address, 1));

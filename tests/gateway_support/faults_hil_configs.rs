@@ -56,7 +56,7 @@ count_um = 1.0
 [plc]
 scan_s = 0.004
 word = "int32"
-word_order = "hi_lo"
+word_order = "high_first"
 lsb_um = {LSB_UM}
 first_register = 0
 handshake = {{ strobe_register = 10, ack_register = 11 }}

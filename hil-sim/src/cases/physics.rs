@@ -7,6 +7,7 @@
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use retrocomp::diagnose::features::lowpass;
+use retrocomp::models::lag;
 
 fn gauss(rng: &mut ChaCha8Rng) -> f64 {
     // Box–Muller: deterministic for a seeded ChaCha8Rng.
@@ -27,19 +28,6 @@ pub struct Thermal {
     pub spindle_c: Vec<f64>,
     pub structure_c: Vec<f64>,
     pub ambient_c: Vec<f64>,
-}
-
-fn first_order(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64) -> Vec<f64> {
-    let mut y = y0;
-    let mut out = Vec::with_capacity(u.len());
-    for i in 0..u.len() {
-        if i > 0 {
-            let a = 1.0 - (-(t_s[i] - t_s[i - 1]) / tau_s).exp();
-            y += a * (u[i - 1] - y);
-        }
-        out.push(y);
-    }
-    out
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -90,12 +78,12 @@ pub fn thermal_with_ambient(
         .zip(&ambient_c)
         .map(|(r, a)| a + k_c_per_krpm * r / 1000.0)
         .collect();
-    let spindle_c = first_order(t_s, &drive, tau_node_s, ambient_c[0]);
-    let motion = first_order(t_s, motion_speed_mm_s, 120.0, 0.0);
+    let spindle_c = lag::series(t_s, &drive, tau_node_s, ambient_c[0]);
+    let motion = lag::series(t_s, motion_speed_mm_s, 120.0, 0.0);
     let sdrive: Vec<f64> = (0..t_s.len())
         .map(|i| ambient_c[i] + spindle_share * (spindle_c[i] - ambient_c[i]) + 0.05 * motion[i])
         .collect();
-    let structure_c = first_order(t_s, &sdrive, tau_struct_s, ambient_c[0]);
+    let structure_c = lag::series(t_s, &sdrive, tau_struct_s, ambient_c[0]);
     Thermal {
         spindle_c,
         structure_c,

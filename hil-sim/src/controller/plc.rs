@@ -18,7 +18,8 @@
 //! change re-arms it (checked first in the scan, before any latch). Every change of the applied
 //! shift and every trip / re-arm / at-zero edge is an [`PlcEvent`] for the observers' log.
 
-use crate::config::{PlcConfig, WordOrder, WordType};
+use crate::config::{DataType, PlcConfig, WordOrder};
+use retrocomp::bus::modbus::regmap::{decode_raw, encode_raw};
 
 /// What changed in a scan (for `plc_latches.csv`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -74,7 +75,7 @@ pub enum RegisterError {
         size: usize,
     },
     #[error("shift {counts} does not fit the {word:?} register")]
-    Overflow { counts: i64, word: WordType },
+    Overflow { counts: i64, word: DataType },
 }
 
 #[derive(Clone, Debug)]
@@ -89,7 +90,7 @@ pub struct OriginShiftPlc {
 
 impl OriginShiftPlc {
     pub fn new(cfg: PlcConfig) -> Self {
-        let words = if cfg.word == WordType::Int32 { 2 } else { 1 };
+        let words = usize::from(cfg.word.words());
         let mut top = cfg.first_register as usize + 3 * words;
         if let Some(h) = &cfg.handshake {
             top = top
@@ -150,11 +151,7 @@ impl OriginShiftPlc {
 
     /// Address of an axis' shift word(s).
     pub fn shift_register(&self, axis: usize) -> u16 {
-        let words = if self.cfg.word == WordType::Int32 {
-            2
-        } else {
-            1
-        };
+        let words = usize::from(self.cfg.word.words());
         self.cfg.first_register + (axis * words) as u16
     }
 
@@ -289,39 +286,21 @@ impl OriginShiftPlc {
     }
 }
 
+/// The register words of a shift of `counts`, in the window's type and word order.
 pub fn encode_shift(
-    word: WordType,
+    word: DataType,
     order: WordOrder,
     counts: i64,
 ) -> Result<Vec<u16>, RegisterError> {
-    match word {
-        WordType::Int16 => {
-            let v = i16::try_from(counts).map_err(|_| RegisterError::Overflow { counts, word })?;
-            Ok(vec![v as u16])
-        }
-        WordType::Int32 => {
-            let v =
-                i32::try_from(counts).map_err(|_| RegisterError::Overflow { counts, word })? as u32;
-            let (hi, lo) = ((v >> 16) as u16, v as u16);
-            Ok(match order {
-                WordOrder::HiLo => vec![hi, lo],
-                WordOrder::LoHi => vec![lo, hi],
-            })
-        }
-    }
+    let (w, n) =
+        encode_raw(counts as f64, word, order).ok_or(RegisterError::Overflow { counts, word })?;
+    Ok(w[..n].to_vec())
 }
 
-pub fn decode_shift(word: WordType, order: WordOrder, regs: &[u16]) -> i64 {
-    match word {
-        WordType::Int16 => regs[0] as i16 as i64,
-        WordType::Int32 => {
-            let (hi, lo) = match order {
-                WordOrder::HiLo => (regs[0], regs[1]),
-                WordOrder::LoHi => (regs[1], regs[0]),
-            };
-            (((hi as u32) << 16) | lo as u32) as i32 as i64
-        }
-    }
+/// The shift counts held in `regs` (at least the type's word count).
+pub fn decode_shift(word: DataType, order: WordOrder, regs: &[u16]) -> i64 {
+    let n = usize::from(word.words());
+    decode_raw(&regs[..n], word, order).map_or(0, |v| v.round() as i64)
 }
 
 #[cfg(test)]
@@ -333,28 +312,28 @@ mod tests {
     proptest! {
         #[test]
         fn int32_words_round_trip_in_both_orders(v in any::<i32>(), lohi in any::<bool>()) {
-            let order = if lohi { WordOrder::LoHi } else { WordOrder::HiLo };
-            let w = encode_shift(WordType::Int32, order, v as i64).unwrap();
-            prop_assert_eq!(decode_shift(WordType::Int32, order, &w), v as i64);
+            let order = if lohi { WordOrder::LowFirst } else { WordOrder::HighFirst };
+            let w = encode_shift(DataType::Int32, order, v as i64).unwrap();
+            prop_assert_eq!(decode_shift(DataType::Int32, order, &w), v as i64);
         }
 
         #[test]
         fn int16_round_trips_and_refuses_overflow(v in -70000i64..70000) {
-            match encode_shift(WordType::Int16, WordOrder::HiLo, v) {
-                Ok(w) => prop_assert_eq!(decode_shift(WordType::Int16, WordOrder::HiLo, &w), v),
+            match encode_shift(DataType::Int16, WordOrder::HighFirst, v) {
+                Ok(w) => prop_assert_eq!(decode_shift(DataType::Int16, WordOrder::HighFirst, &w), v),
                 Err(_) => prop_assert!(!(-32768..=32767).contains(&v)),
             }
         }
     }
 
     #[test]
-    fn hi_lo_layout_is_abcd() {
+    fn high_first_layout_is_abcd() {
         assert_eq!(
-            encode_shift(WordType::Int32, WordOrder::HiLo, -2).unwrap(),
+            encode_shift(DataType::Int32, WordOrder::HighFirst, -2).unwrap(),
             vec![0xFFFF, 0xFFFE]
         );
         assert_eq!(
-            encode_shift(WordType::Int32, WordOrder::LoHi, 0x0001_0002).unwrap(),
+            encode_shift(DataType::Int32, WordOrder::LowFirst, 0x0001_0002).unwrap(),
             vec![2, 1]
         );
     }
@@ -362,7 +341,7 @@ mod tests {
     #[test]
     fn handshake_latches_once_per_strobe_flip_and_acknowledges() {
         let cfg = PlcConfig {
-            word: WordType::Int32,
+            word: DataType::Int32,
             first_register: 10,
             handshake: Some(HandshakeConfig {
                 strobe_register: 0,
@@ -405,7 +384,7 @@ mod tests {
         use crate::config::WatchdogConfig;
         // 10 ms scans, 0.5 µm counts, trip after 50 ms, ramp 20 µm/s = 0.2 µm per scan.
         let cfg = PlcConfig {
-            word: WordType::Int32,
+            word: DataType::Int32,
             lsb_um: 0.5,
             watchdog: Some(WatchdogConfig {
                 heartbeat_register: 6,
@@ -445,7 +424,11 @@ mod tests {
             let now = plc.shift_um(0);
             assert!(now <= last && last - now <= 0.5, "{last} → {now}");
             assert_eq!(
-                decode_shift(WordType::Int32, WordOrder::HiLo, plc.read(0, 2).unwrap()) as f64
+                decode_shift(
+                    DataType::Int32,
+                    WordOrder::HighFirst,
+                    plc.read(0, 2).unwrap()
+                ) as f64
                     * 0.5,
                 now,
                 "registers hold what is applied"

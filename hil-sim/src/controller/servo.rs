@@ -87,11 +87,7 @@ impl AxisServo {
                 return;
             }
         }
-        let a = if p.velocity_tau_s > 0.0 {
-            1.0 - (-dt_s / p.velocity_tau_s).exp()
-        } else {
-            1.0
-        };
+        let a = retrocomp::models::lag::alpha(dt_s, p.velocity_tau_s);
         self.vel_mm_s += (vcmd - self.vel_mm_s) * a;
         self.motor_mm += self.vel_mm_s * dt_s;
     }

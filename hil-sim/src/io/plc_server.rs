@@ -61,10 +61,7 @@ impl WriteEvent {
 
 /// The shift registers of a PLC window (words from address 0), µm.
 pub fn shifts_um(plc: &PlcConfig, window: &[u16]) -> [f64; 3] {
-    let words = match plc.word {
-        crate::config::WordType::Int16 => 1,
-        crate::config::WordType::Int32 => 2,
-    };
+    let words = usize::from(plc.word.words());
     std::array::from_fn(|axis| {
         let a = plc.first_register as usize + axis * words;
         window.get(a..a + words).map_or(f64::NAN, |r| {
@@ -216,13 +213,13 @@ impl Drop for PlcServer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::{WordOrder, WordType};
+    use crate::config::{DataType, WordOrder};
     use tokio_modbus::client::{Reader, Writer};
 
     fn plc() -> PlcConfig {
         PlcConfig {
-            word: WordType::Int32,
-            word_order: WordOrder::HiLo,
+            word: DataType::Int32,
+            word_order: WordOrder::HighFirst,
             lsb_um: 0.5,
             ..Default::default()
         }

@@ -55,7 +55,7 @@ pub fn int32_words(value: Option<f64>, lsb: f64) -> [u16; 2] {
             as i32,
         _ => i32::MIN,
     } as u32;
-    [(raw >> 16) as u16, raw as u16]
+    retrocomp::bus::modbus::words::split_u32(raw, retrocomp::bus::modbus::WordOrder::HighFirst)
 }
 
 /// A weighing-indicator line (A&D/CAS style) for a force in N; `None` on dropout.

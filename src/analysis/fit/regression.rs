@@ -20,15 +20,7 @@ pub fn first_order_lag(t_s: &[f64], x: &[f64], tau_s: f64) -> Vec<f64> {
     if tau_s <= 0.0 || x.is_empty() {
         return x.to_vec();
     }
-    let mut out = Vec::with_capacity(x.len());
-    let mut f = x[0];
-    out.push(f);
-    for i in 1..x.len() {
-        let a = 1.0 - (-(t_s[i] - t_s[i - 1]).max(0.0) / tau_s).exp();
-        f += a * (x[i - 1] - f);
-        out.push(f);
-    }
-    out
+    crate::models::lag::series(t_s, x, tau_s, x[0])
 }
 
 /// One candidate regressor: a source signal, possibly lagged.

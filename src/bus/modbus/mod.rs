@@ -1,4 +1,5 @@
-//! Modbus sources and server: the register map and its sans-IO conversion ([`regmap`]), the sans-IO
+//! Modbus sources and server: the register map and its sans-IO conversion ([`regmap`]), the register-word vocabulary shared by every
+//! Modbus map in the workspace ([`words`]), the sans-IO
 //! poll core ([`poll_core`]), the polling client over tokio-modbus TCP/RTU ([`poller`]), and a small
 //! register server ([`server`]).
 
@@ -6,7 +7,9 @@ pub mod poll_core;
 pub mod poller;
 pub mod regmap;
 pub mod server;
+pub mod words;
 
 pub use poller::{ModbusPoller, ModbusSourceConfig, TransportKind};
-pub use regmap::{DataType, RegisterChannel, RegisterKind, WordOrder};
+pub use regmap::{RegisterChannel, RegisterTable};
 pub use server::{RegisterBank, TcpServer};
+pub use words::{DataType, WordOrder};

@@ -135,16 +135,16 @@ pub fn rtu_silence_s(baud: u32) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bus::modbus::regmap::{DataType, RegisterKind, WordOrder};
+    use crate::bus::modbus::regmap::{DataType, RegisterTable, WordOrder};
 
     fn chans() -> Vec<RegisterChannel> {
         (0..3)
             .map(|i| RegisterChannel {
                 channel: format!("T{i}_C"),
-                kind: RegisterKind::Input,
+                kind: RegisterTable::Input,
                 address: i,
                 data_type: DataType::Int16,
-                word_order: WordOrder::Abcd,
+                word_order: WordOrder::HighFirst,
                 scale: 0.1,
                 offset: 0.0,
                 min: Some(-50.0),

@@ -6,7 +6,7 @@
 //! are values (→ `DecodeError` samples); on RTU a silence of t3.5 is kept between frames (#180).
 
 use super::poll_core::{PollCore, PollCounters, ReadOutcome, rtu_silence_s};
-use super::regmap::{RegisterChannel, RegisterKind};
+use super::regmap::{RegisterChannel, RegisterTable};
 use crate::bus::{Backoff, Sample};
 use std::time::Duration;
 use tokio::time::Instant;
@@ -205,8 +205,8 @@ impl ModbusPoller {
         ctx.set_slave(Slave(self.cfg.unit_id));
         let fut = async {
             match blk.kind {
-                RegisterKind::Holding => ctx.read_holding_registers(blk.start, blk.count).await,
-                RegisterKind::Input => ctx.read_input_registers(blk.start, blk.count).await,
+                RegisterTable::Holding => ctx.read_holding_registers(blk.start, blk.count).await,
+                RegisterTable::Input => ctx.read_input_registers(blk.start, blk.count).await,
             }
         };
         let r = tokio::time::timeout(secs(self.cfg.timeout_s), fut).await;

@@ -3,51 +3,24 @@
 //! Addresses are **0-based protocol addresses** (what goes on the wire; mbpoll's `-r` and the "4x0001"
 //! convention are 1-based, so holding register 40001 is address 0). FC03 reads holding registers, FC04
 //! input registers. Conversion: `value = raw · scale + offset`, in the channel's unit (`T_bed_C`).
-//! 32-bit types span two registers; `word_order = "abcd"` puts the high word first (Modbus big-endian,
-//! the default), `"cdab"` the low word first (word-swapped, common on PLCs). Bytes inside a word are
-//! always big-endian, as the protocol defines.
+//! 32-bit types span two registers; `word_order = "high_first"` (ABCD, Modbus big-endian, the
+//! default) or `"low_first"` (CDAB, word-swapped); the types and the word split are the workspace's one
+//! vocabulary in [`super::words`].
 
 use crate::bus::Health;
+
+pub use super::words::{DataType, WordOrder};
+use super::words::{join_u32, split_u32};
 
 #[derive(
     Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Deserialize, serde::Serialize,
 )]
 #[serde(rename_all = "snake_case")]
-pub enum RegisterKind {
+pub enum RegisterTable {
     /// Holding registers, FC03 (read), FC06/FC16 (write).
     Holding,
     /// Input registers, FC04.
     Input,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum DataType {
-    Int16,
-    Uint16,
-    Int32,
-    Uint32,
-    Float32,
-}
-
-impl DataType {
-    /// Registers the type spans.
-    pub fn words(self) -> u16 {
-        match self {
-            DataType::Int16 | DataType::Uint16 => 1,
-            DataType::Int32 | DataType::Uint32 | DataType::Float32 => 2,
-        }
-    }
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum WordOrder {
-    /// High word at the lower address.
-    #[default]
-    Abcd,
-    /// Low word at the lower address.
-    Cdab,
 }
 
 /// Combine 1 or 2 registers into the raw value. `None` if `words` has the wrong length.
@@ -55,10 +28,7 @@ pub fn decode_raw(words: &[u16], t: DataType, order: WordOrder) -> Option<f64> {
     if words.len() != usize::from(t.words()) {
         return None;
     }
-    let u32_of = |w: &[u16]| match order {
-        WordOrder::Abcd => (u32::from(w[0]) << 16) | u32::from(w[1]),
-        WordOrder::Cdab => (u32::from(w[1]) << 16) | u32::from(w[0]),
-    };
+    let u32_of = |w: &[u16]| join_u32([w[0], w[1]], order);
     Some(match t {
         DataType::Int16 => f64::from(words[0] as i16),
         DataType::Uint16 => f64::from(words[0]),
@@ -86,11 +56,7 @@ pub fn encode_raw(raw: f64, t: DataType, order: WordOrder) -> Option<([u16; 2], 
         DataType::Float32 if raw.abs() <= f64::from(f32::MAX) => (raw as f32).to_bits(),
         _ => return None,
     };
-    let (hi, lo) = ((bits >> 16) as u16, bits as u16);
-    Some(match order {
-        WordOrder::Abcd => ([hi, lo], 2),
-        WordOrder::Cdab => ([lo, hi], 2),
-    })
+    Some((split_u32(bits, order), 2))
 }
 
 fn unit_scale() -> f64 {
@@ -103,7 +69,7 @@ fn unit_scale() -> f64 {
 pub struct RegisterChannel {
     /// Channel name with unit suffix (`T_spindle_C`).
     pub channel: String,
-    pub kind: RegisterKind,
+    pub kind: RegisterTable,
     /// 0-based protocol address of the first register.
     pub address: u16,
     #[serde(rename = "type")]
@@ -157,7 +123,7 @@ impl RegisterChannel {
 /// One read request covering several channels.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ReadBlock {
-    pub kind: RegisterKind,
+    pub kind: RegisterTable,
     pub start: u16,
     pub count: u16,
     /// Indices into the channel list.
@@ -205,7 +171,7 @@ mod tests {
     fn ch(addr: u16, t: DataType, order: WordOrder) -> RegisterChannel {
         RegisterChannel {
             channel: format!("T{addr}_C"),
-            kind: RegisterKind::Input,
+            kind: RegisterTable::Input,
             address: addr,
             data_type: t,
             word_order: order,
@@ -221,7 +187,7 @@ mod tests {
         // PT100 modules report int16 in 0.1 °C (rust-stack.md §6: S+S Thermasgard, Phoenix RAD-PT100-4).
         let c = RegisterChannel {
             scale: 0.1,
-            ..ch(0, DataType::Int16, WordOrder::Abcd)
+            ..ch(0, DataType::Int16, WordOrder::HighFirst)
         };
         assert_eq!(c.decode(&[0xFF38]), (-20.0, Health::Ok)); // -200 → -20.0 °C
         assert!((c.decode(&[235]).0 - 23.5).abs() < 1e-12);
@@ -231,19 +197,23 @@ mod tests {
     #[test]
     fn word_orders_differ_only_in_word_swap() {
         // 123.456f32 = 0x42F6E979
-        let abcd = ch(0, DataType::Float32, WordOrder::Abcd);
-        let cdab = ch(0, DataType::Float32, WordOrder::Cdab);
+        let abcd = ch(0, DataType::Float32, WordOrder::HighFirst);
+        let cdab = ch(0, DataType::Float32, WordOrder::LowFirst);
         assert!((abcd.decode(&[0x42F6, 0xE979]).0 - 123.456).abs() < 1e-4);
         assert!((cdab.decode(&[0xE979, 0x42F6]).0 - 123.456).abs() < 1e-4);
-        let i = ch(0, DataType::Int32, WordOrder::Cdab);
+        let i = ch(0, DataType::Int32, WordOrder::LowFirst);
         assert_eq!(i.decode(&[0xFFFE, 0xFFFF]).0, -2.0);
         assert_eq!(i.encode(-2.0).unwrap(), vec![0xFFFE, 0xFFFF]);
         assert_eq!(
-            ch(0, DataType::Uint32, WordOrder::Abcd).decode(&[1, 0]).0,
+            ch(0, DataType::Uint32, WordOrder::HighFirst)
+                .decode(&[1, 0])
+                .0,
             65536.0
         );
         assert_eq!(
-            ch(0, DataType::Int16, WordOrder::Abcd).decode(&[1, 2]).1,
+            ch(0, DataType::Int16, WordOrder::HighFirst)
+                .decode(&[1, 2])
+                .1,
             Health::DecodeError
         );
     }
@@ -251,22 +221,22 @@ mod tests {
     #[test]
     fn encode_refuses_unrepresentable() {
         assert!(
-            ch(0, DataType::Int16, WordOrder::Abcd)
+            ch(0, DataType::Int16, WordOrder::HighFirst)
                 .encode(40000.0)
                 .is_none()
         );
         assert!(
-            ch(0, DataType::Uint16, WordOrder::Abcd)
+            ch(0, DataType::Uint16, WordOrder::HighFirst)
                 .encode(-1.0)
                 .is_none()
         );
         assert!(
-            ch(0, DataType::Int32, WordOrder::Abcd)
+            ch(0, DataType::Int32, WordOrder::HighFirst)
                 .encode(f64::NAN)
                 .is_none()
         );
         assert!(
-            ch(0, DataType::Float32, WordOrder::Abcd)
+            ch(0, DataType::Float32, WordOrder::HighFirst)
                 .encode(1e39)
                 .is_none()
         );
@@ -275,23 +245,23 @@ mod tests {
     #[test]
     fn plan_merges_contiguous_and_splits_kinds_and_gaps() {
         let mut chans: Vec<_> = (0..16)
-            .map(|i| ch(i, DataType::Int16, WordOrder::Abcd))
+            .map(|i| ch(i, DataType::Int16, WordOrder::HighFirst))
             .collect();
-        chans.push(ch(100, DataType::Float32, WordOrder::Abcd));
-        let mut h = ch(0, DataType::Int32, WordOrder::Abcd);
-        h.kind = RegisterKind::Holding;
+        chans.push(ch(100, DataType::Float32, WordOrder::HighFirst));
+        let mut h = ch(0, DataType::Int32, WordOrder::HighFirst);
+        h.kind = RegisterTable::Holding;
         chans.push(h);
         let p = plan_reads(&chans, 125, 0);
         assert_eq!(p.len(), 3, "{p:?}");
         assert_eq!(
             (p[0].kind, p[0].start, p[0].count),
-            (RegisterKind::Holding, 0, 2)
+            (RegisterTable::Holding, 0, 2)
         );
         assert_eq!((p[1].start, p[1].count, p[1].members.len()), (0, 16, 16));
         assert_eq!((p[2].start, p[2].count), (100, 2));
         let p = plan_reads(&chans, 8, 0);
         assert_eq!(
-            p.iter().filter(|b| b.kind == RegisterKind::Input).count(),
+            p.iter().filter(|b| b.kind == RegisterTable::Input).count(),
             3
         );
         assert!(p.iter().all(|b| b.count <= 8));

@@ -1,4 +1,4 @@
-//! The straightforward evaluator: a [`ModelSpec`] compiled into index arrays, evaluated term by
+//! The reference evaluator (straightforward): a [`ModelSpec`] compiled into index arrays, evaluated term by
 //! term. `MachineModel::evaluate` runs the faster flat plan (`plan.rs`) built from these arrays;
 //! this one stays as its oracle (`MachineModel::evaluate_reference`, `tests/models_fastpath.rs`).
 //!
