@@ -294,10 +294,7 @@ stale_after_s = 0.1
     let full = e.snapshot();
     let x_full = full.axes[0].terms_um.clone();
     // 0.004 µm/N × 500 N on X: correction −2 µm.
-    assert!(
-        (x_full["deflection_x"] + 2.0).abs() < 1e-6,
-        "{x_full:?}"
-    );
+    assert!((x_full["deflection_x"] + 2.0).abs() < 1e-6, "{x_full:?}");
     assert_eq!(e.axis_mode("x"), Some(Mode::Tracking));
     let target_full = full.axes[0].target_um.unwrap();
 
@@ -312,15 +309,28 @@ stale_after_s = 0.1
     // (The exact chain's cross term moves a little with the deflections: not compared.)
     let kept = |k: &&String| !k.starts_with("deflection") && *k != "higher_order";
     for (k, v) in x_full.iter().filter(|(k, _)| kept(k)) {
-        assert!((x_part[k] - v).abs() < 1e-9, "{k}: {v} → {:?}", x_part.get(k));
+        assert!(
+            (x_part[k] - v).abs() < 1e-9,
+            "{k}: {v} → {:?}",
+            x_part.get(k)
+        );
     }
     let target_part = snap.axes[0].target_um.unwrap();
     assert!((target_part - (target_full + 2.0)).abs() < 0.01);
-    assert_eq!(e.axis_mode("x"), Some(Mode::Tracking), "reached the new target");
+    assert_eq!(
+        e.axis_mode("x"),
+        Some(Mode::Tracking),
+        "reached the new target"
+    );
     assert!((outs.last().unwrap() - target_part).abs() < 1e-9);
     // Ramped at 20 µm/s (0.2 µm per cycle), not dosed at the 1 µm cap.
     for w in outs[n0 - 1..].windows(2) {
-        assert!((w[1] - w[0]).abs() <= 0.2 + 1e-9, "step {} → {}", w[0], w[1]);
+        assert!(
+            (w[1] - w[0]).abs() <= 0.2 + 1e-9,
+            "step {} → {}",
+            w[0],
+            w[1]
+        );
     }
     let faults: Vec<(String, FaultKind)> = snap
         .active_faults
@@ -330,7 +340,11 @@ stale_after_s = 0.1
     for axis in ["x", "y", "z"] {
         let partial = (format!("compensation.{axis}.partial"), FaultKind::Stale);
         assert!(faults.contains(&partial), "{faults:?}");
-        assert!(!faults.iter().any(|(s, _)| *s == format!("compensation.{axis}")));
+        assert!(
+            !faults
+                .iter()
+                .any(|(s, _)| *s == format!("compensation.{axis}"))
+        );
     }
     assert!(faults.contains(&("F_cut_N".to_string(), FaultKind::Stale)));
     assert!(e.compensation_partial() && !e.compensation_dropped());
@@ -341,7 +355,12 @@ stale_after_s = 0.1
         outs.push(step(&mut e, &mut t, true));
     }
     for w in outs[n1 - 1..].windows(2) {
-        assert!((w[1] - w[0]).abs() <= 0.2 + 1e-9, "step {} → {}", w[0], w[1]);
+        assert!(
+            (w[1] - w[0]).abs() <= 0.2 + 1e-9,
+            "step {} → {}",
+            w[0],
+            w[1]
+        );
     }
     assert!((outs.last().unwrap() - target_full).abs() < 1e-9);
     assert!(e.snapshot().active_faults.is_empty());

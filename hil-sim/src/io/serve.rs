@@ -165,18 +165,21 @@ async fn send_frames(
     frames: &[retrocomp::bus::can::Frame],
     active: &Active,
 ) -> anyhow::Result<()> {
-    let mut due = frames.iter().filter(|f| !silenced(f, active)).peekable();
-    if due.peek().is_none() {
+    let due: Vec<_> = frames
+        .iter()
+        .filter(|f| !silenced(f, active))
+        .copied()
+        .collect();
+    if due.is_empty() {
         return Ok(());
     }
     if let AnyCanBus::Socketcand(b) = bus {
-        let all: Vec<_> = due.copied().collect();
         return b
-            .send_all(&all)
+            .send_all(&due)
             .await
             .map_err(|e| anyhow::anyhow!("CAN send: {e}"));
     }
-    for f in due {
+    for f in &due {
         bus.send(f)
             .await
             .map_err(|e| anyhow::anyhow!("CAN send: {e}"))?;
@@ -390,7 +393,10 @@ pub async fn start(
                     }
                 }
                 if realtime {
-                    report_lag(lag.observe(pacer.elapsed_s(), steps as f64 * dt), world.t_s());
+                    report_lag(
+                        lag.observe(pacer.elapsed_s(), steps as f64 * dt),
+                        world.t_s(),
+                    );
                 }
                 let enc = std::array::from_fn(|k| world.encoder_counts(k));
                 status_tx.send_replace(Status {

@@ -76,7 +76,11 @@ pub fn sim_config(
 /// one does on its own hardware. `None`: unchanged.
 pub fn with_realtime_priority(sim_toml: &str, priority: Option<u8>) -> String {
     match priority {
-        Some(p) => sim_toml.replacen("[clock]\n", &format!("[clock]\nrealtime_priority = {p}\n"), 1),
+        Some(p) => sim_toml.replacen(
+            "[clock]\n",
+            &format!("[clock]\nrealtime_priority = {p}\n"),
+            1,
+        ),
         None => sim_toml.to_string(),
     }
 }
