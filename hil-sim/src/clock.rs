@@ -1,5 +1,6 @@
 //! The simulation clock: as fast as possible (tests, batch recordings) or paced to the wall clock
 //! (demos, live buses). The world itself never reads a clock; this shell decides when to step it.
+//! [`LagMeter`] says how far a paced run fell behind the wall clock.
 
 use std::time::{Duration, Instant};
 

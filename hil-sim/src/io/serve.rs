@@ -11,6 +11,10 @@
 //! client write in between. Every change of the applied shift and every watchdog edge goes to
 //! `plc_latches.csv` (`t_s,event,x_um,y_um,z_um`: latch | ramp | trip | at_zero | rearm, shifts after
 //! it in µm); the watchdog's edges are also printed (`hil-sim: plc watchdog trip at t = …`).
+//!
+//! Pace (issue 18.5): in real time the lag behind the wall clock is measured after every batch
+//! ([`LagMeter`]: "behind real time" episodes printed at start and clear) and, with the weighing
+//! lines that could not be written, printed once at the end and kept in [`Status`].
 
 use super::plc_server::{PlcServer, SimClock, WriteEvent};
 use super::publish::Publisher;
