@@ -95,7 +95,8 @@ mod tests {
     fn a_lag_episode_is_reported_once_at_start_and_once_at_clear() {
         let mut m = LagMeter::default();
         assert_eq!(m.observe(1.0, 0.999), None);
-        assert_eq!(m.observe(2.0, 1.8), Some(LagEdge::Started { lag_s: 0.2 }));
+        let started = m.observe(2.0, 1.75);
+        assert_eq!(started, Some(LagEdge::Started { lag_s: 0.25 }));
         assert_eq!(m.observe(2.5, 2.0), None);
         let cleared = m.observe(3.0, 3.0).unwrap();
         assert!(
