@@ -101,6 +101,18 @@ pub fn serve(args: &ServeArgs) -> anyhow::Result<()> {
         "{}: serve needs an [io.modbus], [io.can] or [io.weighing] section",
         args.config.display()
     );
+    // Before the runtime exists: its threads inherit the policy of the thread that creates them.
+    if let (true, Some(p)) = (cfg.clock.realtime, cfg.clock.realtime_priority) {
+        use retrocomp::gateway::realtime::{RtOutcome, set_current_thread_fifo};
+        match set_current_thread_fifo(p) {
+            RtOutcome::Granted { priority } => eprintln!("hil-sim: SCHED_FIFO {priority} granted"),
+            RtOutcome::Refused { priority, why } => eprintln!(
+                "hil-sim: clock.realtime_priority {priority}: SCHED_FIFO refused ({why}); \
+                 running under the normal scheduler"
+            ),
+            RtOutcome::NotRequested => {}
+        }
+    }
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;

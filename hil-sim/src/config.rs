@@ -45,6 +45,12 @@ pub struct ClockConfig {
     /// Hard stop even if the program has not reached M30 (a guard against endless scripts).
     #[serde(default = "d_max_duration_s")]
     pub max_duration_s: f64,
+    /// With `realtime`: run the simulator's threads under `SCHED_FIFO` at this priority (1–99), so
+    /// the simulated machine keeps its pace on a loaded host as a real one does on its own
+    /// hardware (`serve` only). Refused (no root, `CAP_SYS_NICE` or `RLIMIT_RTPRIO`) → one line
+    /// on stderr and the normal scheduler.
+    #[serde(default)]
+    pub realtime_priority: Option<u8>,
 }
 fn d_servo_hz() -> f64 {
     1000.0
@@ -58,6 +64,7 @@ impl Default for ClockConfig {
             servo_hz: d_servo_hz(),
             realtime: false,
             max_duration_s: d_max_duration_s(),
+            realtime_priority: None,
         }
     }
 }
@@ -380,6 +387,12 @@ impl SimConfig {
             c.servo_hz
         );
         ensure!(c.max_duration_s > 0.0, "clock.max_duration_s must be > 0");
+        if let Some(p) = c.realtime_priority {
+            ensure!(
+                (1..=99).contains(&p),
+                "clock.realtime_priority must be 1..=99, got {p}"
+            );
+        }
         let s = &self.servo;
         ensure!(
             s.kv_per_s > 0.0,

@@ -31,6 +31,11 @@ pub struct Args {
     /// `retrocomp-demo`, one edge node per run), for any Sparkplug client to watch.
     #[arg(long, value_name = "HOST:PORT")]
     pub mqtt: Option<String>,
+    /// `SCHED_FIFO` priority (1–99) for each run's simulated machine, CAN hub and the gateway's
+    /// cycle, sink and readers, so a busy host does not stall them (issue 18.5); 0 = the normal
+    /// scheduler. Refused (no root / CAP_SYS_NICE / RLIMIT_RTPRIO) → the normal scheduler.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u8).range(0..=99))]
+    pub realtime_priority: u8,
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
@@ -62,6 +67,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         warmup_s: args.seconds,
         hil_sim,
         mqtt: args.mqtt.clone(),
+        realtime_priority: (args.realtime_priority > 0).then_some(args.realtime_priority),
     };
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
@@ -150,6 +156,15 @@ fn print_gateway_health(runs: &[crate::gateway::demo::RunResult]) {
                 run.mode.key(),
                 g.late_cycles,
                 g.max_late_ms
+            );
+        }
+        if g.partial_episodes > 0 {
+            println!(
+                "retrocomp demo: WARNING: the {} run compensated WITHOUT its load terms (force \
+                 stale) for {:.2} s in {} episode(s)",
+                run.mode.key(),
+                g.partial_s,
+                g.partial_episodes
             );
         }
     }

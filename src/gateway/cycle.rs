@@ -69,6 +69,10 @@ pub struct CycleReport {
     pub not_compensating_s: f64,
     /// Separate episodes of that.
     pub not_compensating_episodes: u64,
+    /// Time during which compensation ran without the terms of an unusable optional channel
+    /// (e.g. the load terms while the force is stale), s, and its episodes.
+    pub partial_s: f64,
+    pub partial_episodes: u64,
 }
 
 pub struct CycleLoop {
@@ -81,6 +85,7 @@ pub struct CycleLoop {
     last_publish_s: Option<f64>,
     last_step_s: Option<f64>,
     dropped: bool,
+    partial: bool,
     report: CycleReport,
 }
 
@@ -96,6 +101,7 @@ impl CycleLoop {
             last_publish_s: None,
             last_step_s: None,
             dropped: false,
+            partial: false,
             report: CycleReport::default(),
         }
     }
@@ -139,6 +145,16 @@ impl CycleLoop {
             self.report.not_compensating_episodes += 1;
         }
         self.dropped = dropped;
+        let partial = self.engine.compensation_partial();
+        if let Some(t) = self.last_step_s
+            && self.partial
+        {
+            self.report.partial_s += (now_s - t).max(0.0);
+        }
+        if partial && !self.partial {
+            self.report.partial_episodes += 1;
+        }
+        self.partial = partial;
         self.last_step_s = Some(now_s);
         self.report.cycles += 1;
         self.io.counter.set(self.report.cycles);

@@ -94,6 +94,12 @@ pub trait ErrorModel {
     /// Channels the model reads (besides axis positions). Missing ones make the inputs stale.
     /// The engine resolves them once, at its first cycle: one model per engine.
     fn required_channels(&self) -> Vec<String>;
+    /// Those of [`ErrorModel::required_channels`] whose loss removes only the terms that use them
+    /// (the model is evaluated without them and those terms are zero), not the whole correction:
+    /// auxiliary inputs such as a cutting force. Default: none.
+    fn optional_channels(&self) -> Vec<String> {
+        Vec::new()
+    }
     /// Push, per machine axis, its error terms at `state` into `out` (cleared by the caller).
     /// `&mut self`: models keep evaluation state (thermal lags, scratch buffers).
     fn axis_errors(&mut self, state: &MachineState, out: &mut AxisErrors) -> Result<(), String>;
@@ -129,6 +135,9 @@ struct AxisRuntime {
     terms: Vec<(Arc<str>, f64)>,
     /// Fault-log source of "enabled but not compensating" (`compensation.<axis>`), built once.
     drop_source: String,
+    /// Fault-log source of "compensating without the terms of a lost auxiliary input"
+    /// (`compensation.<axis>.partial`), built once.
+    partial_source: String,
     /// The axis had a fresh target at least once (before that it is starting, not dropped).
     ever_tracked: bool,
 }
@@ -146,8 +155,12 @@ pub struct Engine {
     /// Channel id by name; iterated in name order (the order faults are logged in).
     ids: BTreeMap<String, usize>,
     recoveries: Vec<Recovery>,
-    /// The model's required channels, resolved at the first cycle.
+    /// The model's required channels, resolved at the first cycle, and which of them are optional
+    /// (their loss drops only their terms: [`ErrorModel::optional_channels`]).
     required: Option<Vec<usize>>,
+    optional: Vec<usize>,
+    /// Some optional channel was unusable at the last cycle (its terms were left out).
+    partial: bool,
     thermal_period_s: f64,
     last_slow_latch_s: Option<f64>,
     faults: FaultLog,
@@ -239,6 +252,7 @@ impl Engine {
                 target_um: None,
                 terms: Vec::new(),
                 drop_source: format!("compensation.{}", a.name),
+                partial_source: format!("compensation.{}.partial", a.name),
                 ever_tracked: false,
             });
         }
@@ -267,6 +281,8 @@ impl Engine {
             ids,
             recoveries,
             required: None,
+            optional: Vec::new(),
+            partial: false,
             thermal_period_s: cfg.gateway.thermal_period_s,
             last_slow_latch_s: None,
             faults: FaultLog::default(),
@@ -443,13 +459,29 @@ impl Engine {
                 .map(|n| channel_id(&mut self.channels, &mut self.ids, n))
                 .collect();
             self.required = Some(ids);
+            self.optional = model
+                .optional_channels()
+                .iter()
+                .map(|n| channel_id(&mut self.channels, &mut self.ids, n))
+                .collect();
         }
+        let optional = &self.optional;
         let inputs_ok = self
             .required
             .iter()
             .flatten()
+            .filter(|id| !optional.contains(id))
             .all(|&id| self.channels[id].value.is_some())
             && self.axes.iter().all(|a| a.position_ok);
+        // An unusable optional channel leaves its terms out (the model sees it missing). Either
+        // edge of that changes the target's make-up: every axis ramps to the new target.
+        let partial = inputs_ok && optional.iter().any(|&id| self.channels[id].value.is_none());
+        if partial != self.partial {
+            for a in &mut self.axes {
+                a.safety.ramp_to_next_target();
+            }
+            self.partial = partial;
+        }
         self.errors.clear();
         let model_result = if inputs_ok {
             model
@@ -519,8 +551,18 @@ impl Engine {
             any |= kind.is_some();
             let kinds = kind.as_slice();
             self.faults.update(&a.drop_source, kinds, now_s);
+            // Compensating, but without the terms of a lost auxiliary input.
+            let partial = self.enabled && fresh && self.partial;
+            let kinds: &[FaultKind] = if partial { &[FaultKind::Stale] } else { &[] };
+            self.faults.update(&a.partial_source, kinds, now_s);
         }
         self.dropped = any;
+    }
+
+    /// True when, this cycle, compensation is enabled and tracking without the terms of an unusable
+    /// optional channel ([`ErrorModel::optional_channels`]; fault `compensation.<axis>.partial`).
+    pub fn compensation_partial(&self) -> bool {
+        self.enabled && self.partial && self.axes.iter().any(|a| a.target_um.is_some())
     }
 
     /// True when, this cycle, compensation is enabled but some axis that had compensated is not

@@ -109,6 +109,17 @@ impl ErrorModel for MachineModelAdapter {
             .collect()
     }
 
+    /// Forces and strains feed only the `[[load]]` terms, which are linear in the force (compliance
+    /// × F, reference × F / F_ref): without them those terms are zero and the geometric and thermal
+    /// terms are unchanged, so a stale force drops only the load terms.
+    fn optional_channels(&self) -> Vec<String> {
+        self.force_channels
+            .iter()
+            .chain(&self.strain_channels)
+            .cloned()
+            .collect()
+    }
+
     fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
         self.input.t_s = s.t_s;
         let mut weights = [1.0f64; 3];
@@ -122,12 +133,13 @@ impl ErrorModel for MachineModelAdapter {
         for (k, ch) in self.temp_channels.iter().enumerate() {
             self.input.temps_c[k] = *s.channels.get(ch).ok_or_else(|| format!("missing {ch}"))?;
         }
+        // A missing force or strain (optional, see above) is NaN: the model then takes the force
+        // as absent and its load terms are zero.
         for (k, ch) in self.force_channels.iter().enumerate() {
-            self.input.forces_n[k] = *s.channels.get(ch).ok_or_else(|| format!("missing {ch}"))?;
+            self.input.forces_n[k] = s.channels.get(ch).copied().unwrap_or(f64::NAN);
         }
         for (k, ch) in self.strain_channels.iter().enumerate() {
-            self.input.strains_ue[k] =
-                *s.channels.get(ch).ok_or_else(|| format!("missing {ch}"))?;
+            self.input.strains_ue[k] = s.channels.get(ch).copied().unwrap_or(f64::NAN);
         }
         self.eval(0);
         if self.main.flags.invalid_input {

@@ -2,7 +2,7 @@
 //! tokio worker), so busy tokio tasks (status requests, source decoding, the in-process hubs of the
 //! demo) never delay a cycle or a controller write. Optionally, per `[gateway]`:
 //!
-//! - `realtime_priority = N` (1–99): those two threads ask for `SCHED_FIFO` priority N
+//! - `realtime_priority = N` (1–99): those threads ask for `SCHED_FIFO` priority N
 //!   (`pthread_setschedparam`). Needs root, `CAP_SYS_NICE`, or an `RLIMIT_RTPRIO` ≥ N (the systemd
 //!   unit sets `LimitRTPRIO`). Refused → one WARN line saying why and how to allow it; the gateway
 //!   runs on under the normal scheduler (never a start failure: compensation under load is better
@@ -10,8 +10,10 @@
 //! - `lock_memory = true`: `mlockall(MCL_CURRENT | MCL_FUTURE)` at start, so a page fault never
 //!   stalls a cycle (needs `CAP_IPC_LOCK` or `RLIMIT_MEMLOCK`; same WARN-and-continue policy).
 //!
-//! Only these two threads get the real-time policy: the tokio workers, the sources' readers and
-//! the status endpoint stay under the normal scheduler, so a runaway task cannot freeze the host.
+//! The sources' reader threads (`sources.rs`) get the same priority: they stamp each sample when
+//! they read it, so a starved reader makes fresh data look stale (issue 18.5). The tokio workers
+//! and the status endpoint stay under the normal scheduler; the kernel's real-time throttling
+//! (`sched_rt_runtime_us`, 95 % by default) leaves the host a share even if a real-time thread spun.
 
 use std::thread::JoinHandle;
 

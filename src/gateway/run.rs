@@ -56,6 +56,10 @@ pub struct RunSummary {
     /// fault), s, and in how many episodes (each also a `compensation.<axis>` fault).
     pub not_compensating_s: f64,
     pub not_compensating_episodes: u64,
+    /// How long compensation ran without the terms of a lost auxiliary input (the load terms
+    /// while the force is stale), s, and in how many episodes (`compensation.<axis>.partial`).
+    pub partial_s: f64,
+    pub partial_episodes: u64,
 }
 
 /// Run until `shutdown` resolves. `epoch` is the clock the sources stamp samples with (`t_s` =
@@ -203,6 +207,8 @@ pub async fn run(
         max_late_ms: report.max_late_ms,
         not_compensating_s: report.not_compensating_s,
         not_compensating_episodes: report.not_compensating_episodes,
+        partial_s: report.partial_s,
+        partial_episodes: report.partial_episodes,
     })
 }
 

@@ -154,6 +154,15 @@ impl AxisSafety {
         &self.cfg
     }
 
+    /// The target's make-up changed (an auxiliary input's terms dropped or came back, see the
+    /// engine): reach the new target at the ramp rate instead of the dosing cap, like a return
+    /// from stale inputs, so a dropped term is ramped out and a returning one ramped in.
+    pub fn ramp_to_next_target(&mut self) {
+        if self.mode == Mode::Tracking {
+            self.mode = Mode::RampingIn;
+        }
+    }
+
     /// (clamp hits, dosing-cap hits) since start: how often the safety layer cut the model's wish.
     pub fn hits(&self) -> (u64, u64) {
         (self.clamp_hits, self.cap_hits)

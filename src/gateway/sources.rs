@@ -17,7 +17,8 @@
 //! while the gateway runs is reported on the feed's `deaths` (the runtime then stops).
 //!
 //! Threads: the CAN and serial readers run on their own OS thread (`retrocomp-sources`, a
-//! current-thread tokio runtime that owns their sockets), each Modbus poller on its own thread; none
+//! current-thread tokio runtime that owns their sockets; `gateway.realtime_priority` applies to it
+//! and to the Modbus pollers' threads it starts), each Modbus poller on its own thread; none
 //! shares a tokio worker with the status endpoint or whatever else the caller's runtime runs (the
 //! demo's in-process hubs), so a busy runtime does not leave frames and lines unread (issue 18.5).
 
@@ -55,7 +56,11 @@ pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> anyhow::Result<
     let (notice, deaths) = TaskDeaths::new();
     let (ready_tx, ready_rx) = tokio::sync::oneshot::channel::<anyhow::Result<()>>();
     let (cfg, b, n) = (cfg.clone(), board.clone(), notice.clone());
-    super::realtime::spawn_runtime_thread("retrocomp-sources", None, move || async move {
+    // The readers stamp each sample when they read it: a starved reader makes fresh data look
+    // late, so they share the cycle's real-time priority (the Modbus pollers' threads, started
+    // from this one, inherit it).
+    let prio = cfg.gateway.realtime_priority;
+    super::realtime::spawn_runtime_thread("retrocomp-sources", prio, move || async move {
         match start_sources(&cfg, epoch, tx.clone(), b, n).await {
             Ok(()) => {
                 let _ = ready_tx.send(Ok(()));

@@ -22,15 +22,16 @@ pub fn run_dir(name: &str) -> PathBuf {
     dir
 }
 
-/// The test's own runtime (one worker: it only hosts the hub and the /status client) and the
-/// socketcand hub on loopback that hil-sim's CAN nodes and the gateway both connect to.
+/// The test's own runtime (one worker, for the /status client) and the socketcand hub on loopback
+/// that hil-sim's CAN nodes and the gateway both connect to: the bus, on its own thread under
+/// SCHED_FIFO 20 when allowed, like the machine and the gateway's real-time threads (issue 18.5).
 pub fn loopback_hub() -> (tokio::runtime::Runtime, Hub) {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
         .enable_all()
         .build()
         .unwrap();
-    let hub = rt.block_on(Hub::start_loopback()).unwrap();
+    let hub = Hub::start_on_thread(([127, 0, 0, 1], 0).into(), Some(20)).unwrap();
     (rt, hub)
 }
 

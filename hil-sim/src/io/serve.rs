@@ -11,12 +11,16 @@
 //! client write in between. Every change of the applied shift and every watchdog edge goes to
 //! `plc_latches.csv` (`t_s,event,x_um,y_um,z_um`: latch | ramp | trip | at_zero | rearm, shifts after
 //! it in µm); the watchdog's edges are also printed (`hil-sim: plc watchdog trip at t = …`).
+//!
+//! Pace (issue 18.5): in real time the lag behind the wall clock is measured after every batch
+//! ([`LagMeter`]: "behind real time" episodes printed at start and clear) and, with the weighing
+//! lines that could not be written, printed once at the end and kept in [`Status`].
 
 use super::plc_server::{PlcServer, SimClock, WriteEvent};
 use super::publish::Publisher;
 use super::rtu_slave::{self, RtuMute};
 use super::transport_faults::{Active, Garbage, Schedule, Transition, silenced};
-use crate::clock::RealtimePacer;
+use crate::clock::{LagEdge, LagMeter, RealtimePacer};
 use crate::recording::Recorder;
 use crate::{SimConfig, World};
 use retrocomp::bus::can::backend::{AnyCanBus, open as open_can};
@@ -41,6 +45,10 @@ pub struct Status {
     pub done: bool,
     /// Weighing lines not written because nobody read the pty.
     pub dropped_lines: u64,
+    /// Real-time pacing: how far the simulation runs behind the wall clock now and at worst, s
+    /// (0 when not paced; see [`LagMeter`]).
+    pub lag_s: f64,
+    pub max_lag_s: f64,
 }
 
 pub struct Running {
@@ -152,6 +160,54 @@ fn log_plc_events(
         }
     }
     Ok(())
+}
+
+/// One step's frames (those of silenced nodes left out); on socketcand in one write, not one
+/// syscall per frame.
+async fn send_frames(
+    bus: &mut AnyCanBus,
+    frames: &[retrocomp::bus::can::Frame],
+    active: &Active,
+) -> anyhow::Result<()> {
+    let due: Vec<_> = frames
+        .iter()
+        .filter(|f| !silenced(f, active))
+        .copied()
+        .collect();
+    if due.is_empty() {
+        return Ok(());
+    }
+    if let AnyCanBus::Socketcand(b) = bus {
+        return b
+            .send_all(&due)
+            .await
+            .map_err(|e| anyhow::anyhow!("CAN send: {e}"));
+    }
+    for f in &due {
+        bus.send(f)
+            .await
+            .map_err(|e| anyhow::anyhow!("CAN send: {e}"))?;
+    }
+    Ok(())
+}
+
+/// Print a "behind real time" episode's edges (once at start, once at clear).
+fn report_lag(edge: Option<LagEdge>, t_s: f64) {
+    match edge {
+        Some(LagEdge::Started { lag_s }) => eprintln!(
+            "hil-sim: behind real time started at t = {t_s:.3} s (lag {:.1} ms)",
+            lag_s * 1e3
+        ),
+        Some(LagEdge::Cleared {
+            lasted_s,
+            max_lag_s,
+        }) => eprintln!(
+            "hil-sim: behind real time cleared at t = {t_s:.3} s (lasted {lasted_s:.3} s; max lag \
+             so far {:.1} ms)",
+            max_lag_s * 1e3
+        ),
+        None => {}
+    }
 }
 
 /// Start the simulation and its buses. `mem` is the in-process CAN bus for `backend = "mem"`;
@@ -270,6 +326,7 @@ pub async fn start(
             let pacer = RealtimePacer::new(dt);
             let mut steps = 0u64;
             let mut dropped = 0u64;
+            let mut lag = LagMeter::default();
             while !world.done() {
                 let due = if realtime { pacer.steps_due(steps) } else { 50 };
                 if due == 0 {
@@ -305,11 +362,7 @@ pub async fn start(
                     }
                     let o = publisher.poll(&mut world);
                     if let Some(bus) = can.as_mut() {
-                        for f in o.frames.iter().filter(|f| !silenced(f, &active)) {
-                            bus.send(f)
-                                .await
-                                .map_err(|e| anyhow::anyhow!("CAN send: {e}"))?;
-                        }
+                        send_frames(bus, &o.frames, &active).await?;
                     }
                     for (a, w) in &o.input_regs {
                         bank.set_input(*a, w);
@@ -323,6 +376,13 @@ pub async fn start(
                                 p.write_all(bytes),
                             );
                             if !matches!(wr.await, Ok(Ok(()))) {
+                                if dropped == 0 {
+                                    eprintln!(
+                                        "hil-sim: weighing line not written at t = {:.3} s \
+                                         (nobody reads the pty?); counting them",
+                                        world.t_s()
+                                    );
+                                }
                                 dropped += 1;
                             }
                         }
@@ -336,6 +396,12 @@ pub async fn start(
                         break;
                     }
                 }
+                if realtime {
+                    report_lag(
+                        lag.observe(pacer.elapsed_s(), steps as f64 * dt),
+                        world.t_s(),
+                    );
+                }
                 let enc = std::array::from_fn(|k| world.encoder_counts(k));
                 status_tx.send_replace(Status {
                     t_s: world.t_s(),
@@ -344,10 +410,21 @@ pub async fn start(
                     setpoint_mm: world.setpoint().pos_mm,
                     done: world.done(),
                     dropped_lines: dropped,
+                    lag_s: lag.lag_s,
+                    max_lag_s: lag.max_lag_s,
                 });
                 if !realtime {
                     tokio::task::yield_now().await;
                 }
+            }
+            if realtime || dropped > 0 {
+                eprintln!(
+                    "hil-sim: real time: max lag {:.1} ms, {} episode(s) behind for {:.3} s; \
+                     weighing lines dropped: {dropped}",
+                    lag.max_lag_s * 1e3,
+                    lag.episodes,
+                    lag.behind_s
+                );
             }
             if let Some(r) = rec {
                 r.finish()?;

@@ -19,7 +19,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use tokio::io::{AsyncReadExt, AsyncWriteExt, BufWriter};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::broadcast;
-use tokio::task::JoinHandle;
+use tokio::task::AbortHandle;
 
 /// Frames a client may fall behind before it loses some.
 pub const HUB_QUEUE: usize = 8192;
@@ -47,7 +47,7 @@ struct Routed {
 pub struct Hub {
     addr: SocketAddr,
     stats: Arc<HubStats>,
-    task: JoinHandle<()>,
+    task: AbortHandle,
 }
 
 impl Hub {
@@ -57,8 +57,53 @@ impl Hub {
         let addr = listener.local_addr()?;
         let stats = Arc::new(HubStats::default());
         let (tx, _) = broadcast::channel::<Routed>(HUB_QUEUE);
-        let task = tokio::spawn(accept_loop(listener, tx, Arc::clone(&stats)));
+        let task = tokio::spawn(accept_loop(listener, tx, Arc::clone(&stats))).abort_handle();
         Ok(Hub { addr, stats, task })
+    }
+
+    /// Like [`Hub::start`], on a dedicated OS thread with its own current-thread runtime, so the
+    /// bus never waits behind the caller's busy tasks; `priority` asks `SCHED_FIFO` for that thread
+    /// (see `gateway::realtime`; refused → a WARN line and the normal scheduler). The thread ends
+    /// when the hub is dropped.
+    pub fn start_on_thread(addr: SocketAddr, priority: Option<u8>) -> std::io::Result<Hub> {
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()?;
+        crate::gateway::realtime::spawn_thread("socketcand-hub", priority, move || {
+            rt.block_on(async move {
+                let listener = match TcpListener::bind(addr).await {
+                    Ok(l) => l,
+                    Err(e) => {
+                        let _ = ready_tx.send(Err(e));
+                        return;
+                    }
+                };
+                let local = listener.local_addr();
+                let stats = Arc::new(HubStats::default());
+                let (tx, _) = broadcast::channel::<Routed>(HUB_QUEUE);
+                let task = tokio::spawn(accept_loop(listener, tx, Arc::clone(&stats)));
+                match local {
+                    Ok(addr) => {
+                        let abort = task.abort_handle();
+                        let _ = ready_tx.send(Ok(Hub {
+                            addr,
+                            stats,
+                            task: abort,
+                        }));
+                        // Runs until Hub::drop aborts it.
+                        let _ = task.await;
+                    }
+                    Err(e) => {
+                        task.abort();
+                        let _ = ready_tx.send(Err(e));
+                    }
+                }
+            });
+        })?;
+        ready_rx
+            .recv()
+            .map_err(|_| std::io::Error::other("the hub thread ended while starting"))?
     }
 
     /// Shorthand for a hub on an ephemeral loopback port.

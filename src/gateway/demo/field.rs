@@ -99,6 +99,19 @@ timeout_ms = 200
     )
 }
 
+/// `field` (from [`field_toml`]) with the gateway's cycle, sink and source readers under
+/// `SCHED_FIFO` at `priority` (`[gateway] realtime_priority`). `None`: unchanged.
+pub fn with_realtime_priority(field: &str, priority: Option<u8>) -> String {
+    match priority {
+        Some(p) => field.replacen(
+            "[gateway]\n",
+            &format!("[gateway]\nrealtime_priority = {p}\n"),
+            1,
+        ),
+        None => field.to_string(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -112,5 +125,8 @@ mod tests {
         assert_eq!(cfg.axes.len(), 3);
         crate::gateway::run::require_sink(&cfg).unwrap();
         assert!(cfg.serial.is_some(), "the force source is configured");
+        let rt = with_realtime_priority(&text, Some(20));
+        let cfg = FieldConfig::parse(&rt, std::path::Path::new("demo.toml")).unwrap();
+        assert_eq!(cfg.gateway.realtime_priority, Some(20));
     }
 }

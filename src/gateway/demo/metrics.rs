@@ -123,6 +123,12 @@ pub struct GatewayRun {
     pub not_compensating_s: f64,
     /// Separate episodes of that (each a `compensation.<axis>` fault in the gateway's log).
     pub not_compensating_episodes: u64,
+    /// Time compensated without the load terms because the force was stale, s, and episodes
+    /// (each a `compensation.<axis>.partial` fault).
+    #[serde(default)]
+    pub partial_s: f64,
+    #[serde(default)]
+    pub partial_episodes: u64,
     /// Cycles that started more than one period late, and the worst lateness, ms.
     pub late_cycles: u64,
     pub max_late_ms: f64,

@@ -78,6 +78,9 @@ pub struct DemoOptions {
     /// `host:port` of an MQTT broker: each compensated run publishes Sparkplug B there (group
     /// `retrocomp-demo`, edge node `mill-<run>`), through the same publisher as `run`.
     pub mqtt: Option<String>,
+    /// `SCHED_FIFO` priority for the real-time parts of each run: hil-sim's threads (the machine),
+    /// the socketcand hub (the bus), the gateway's cycle, sink and readers. None: normal scheduler.
+    pub realtime_priority: Option<u8>,
 }
 
 /// One finished run.
@@ -287,18 +290,20 @@ async fn one_run(
     let sub = if live.is_some() { "live" } else { mode.key() };
     let dir = std::path::absolute(opts.out.join(sub))?;
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-    let hub = Hub::start_loopback()
-        .await
+    let hub = Hub::start_on_thread(([127, 0, 0, 1], 0).into(), opts.realtime_priority)
         .context("starting the socketcand hub")?;
     let sim_cfg = dir.join("sim.toml");
     std::fs::write(
         &sim_cfg,
-        sim_process::sim_config(
-            opts.seed,
-            truth,
-            hub.local_addr().port(),
-            opts.warmup_s,
-            &dir.join("weighing-pty"),
+        sim_process::with_realtime_priority(
+            &sim_process::sim_config(
+                opts.seed,
+                truth,
+                hub.local_addr().port(),
+                opts.warmup_s,
+                &dir.join("weighing-pty"),
+            ),
+            opts.realtime_priority,
         ),
     )?;
     let mut sim = sim_process::start(&opts.hil_sim, &sim_cfg, &dir).await?;
@@ -311,6 +316,7 @@ async fn one_run(
             sim.modbus,
             &sim.weighing_pty,
         );
+        let text = field::with_realtime_priority(&text, opts.realtime_priority);
         let (text, bound) = match live {
             Some(l) => {
                 let listen = format!("status_listen = \"{}\"", l.listen);
@@ -364,6 +370,8 @@ async fn one_run(
         gateway = GatewayRun {
             not_compensating_s: summary.not_compensating_s,
             not_compensating_episodes: summary.not_compensating_episodes,
+            partial_s: summary.partial_s,
+            partial_episodes: summary.partial_episodes,
             late_cycles: summary.late_cycles,
             max_late_ms: summary.max_late_ms,
         };
@@ -372,6 +380,8 @@ async fn one_run(
         sim.child.wait().await
     }?;
     let log = sim.log.await.unwrap_or_default();
+    // Kept beside the recording: fault edges, the PLC watchdog and the real-time lag of the sim.
+    std::fs::write(dir.join("hil-sim.log"), &log)?;
     anyhow::ensure!(
         status.success(),
         "hil-sim ({}) failed: {status}\n{log}",

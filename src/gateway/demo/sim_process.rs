@@ -71,6 +71,20 @@ pub fn sim_config(
         .replace("@HUB_PORT@", &hub_port.to_string())
 }
 
+/// `sim_toml` (from [`sim_config`]) with the simulator's threads under `SCHED_FIFO` at `priority`
+/// (`[clock] realtime_priority`): the simulated machine keeps its pace on a busy host, as a real
+/// one does on its own hardware. `None`: unchanged.
+pub fn with_realtime_priority(sim_toml: &str, priority: Option<u8>) -> String {
+    match priority {
+        Some(p) => sim_toml.replacen(
+            "[clock]\n",
+            &format!("[clock]\nrealtime_priority = {p}\n"),
+            1,
+        ),
+        None => sim_toml.to_string(),
+    }
+}
+
 /// A running `hil-sim serve`.
 pub struct Sim {
     pub child: Child,
@@ -149,5 +163,8 @@ mod tests {
         assert!(s.contains("port = 4242") && s.contains("model_path = \"/m/t.toml\""));
         let v: toml::Table = toml::from_str(&s).unwrap();
         assert_eq!(v["seed"].as_integer(), Some(3));
+        let rt: toml::Table = toml::from_str(&with_realtime_priority(&s, Some(20))).unwrap();
+        assert_eq!(rt["clock"]["realtime_priority"].as_integer(), Some(20));
+        assert_eq!(with_realtime_priority(&s, None), s);
     }
 }
