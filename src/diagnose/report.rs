@@ -43,6 +43,24 @@ pub struct AlternativeOut {
     pub experiment: Option<String>,
 }
 
+/// A term selected but dropped by parsimony after the final joint refit (issue 12 point 3). Not a
+/// DESIGN §5 key: an added one (`dropped`, absent when nothing was dropped).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Dropped {
+    pub effect: String,
+    pub axis: String,
+    pub signal: String,
+    /// The candidate as selected, e.g. `thermal_lag(T_8_C)` or `thermal_lag(rpm)`.
+    pub term: String,
+    /// `ci_includes_zero` (the 95 % interval of its gain includes 0 once every term is refitted
+    /// jointly) or `no_heldout_gain` (removing it does not raise the held-out RMS by the
+    /// acceptance bar, `Options::cv_min_gain`).
+    pub reason: String,
+    /// Held-out RMS (µm; forward on thermal tests) with every kept term and this one, and without it.
+    pub heldout_rms_with_um: f64,
+    pub heldout_rms_without_um: f64,
+}
+
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct Report {
     pub verdict: String,
@@ -50,6 +68,8 @@ pub struct Report {
     pub mismatch: Vec<Mismatch>,
     pub findings: Vec<Finding>,
     pub alternatives: Vec<AlternativeOut>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub dropped: Vec<Dropped>,
 }
 
 /// What each effect means, in words (the report's "explanation").
@@ -136,6 +156,15 @@ impl Report {
             s.push_str("\nalternatives:\n");
             for a in &self.alternatives {
                 s.push_str(&format!("  {}: {}\n", a.effect, a.why_not));
+            }
+        }
+        if !self.dropped.is_empty() {
+            s.push_str("\ndropped after the final joint refit (parsimony):\n");
+            for d in &self.dropped {
+                s.push_str(&format!(
+                    "  {} on {}: {} (held-out RMS {:.3} µm with it, {:.3} µm without)\n",
+                    d.term, d.signal, d.reason, d.heldout_rms_with_um, d.heldout_rms_without_um
+                ));
             }
         }
         s

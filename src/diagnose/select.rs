@@ -29,6 +29,7 @@ use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
 use super::candidates::{Candidate, Kind, library};
 use super::features::Context;
+use super::heldout::Heldout;
 use super::lsq::{self, dot};
 use super::null_model::{
     Null, contribution, delta_bic, golden_refine, score, score_cols, within_cells,
@@ -138,60 +139,17 @@ struct Scored {
 }
 
 /// The accepted terms as (candidate, θ), for the held-out score.
-fn set_of(terms: &[Term]) -> Vec<(&Candidate, f64)> {
+pub fn set_of(terms: &[Term]) -> Vec<(&Candidate, f64)> {
     terms.iter().map(|t| (&t.cand, t.theta)).collect()
 }
 
-/// The columns of `c` as a NEW recording starting at each block would compute them: a first-order
-/// lag restarts at its first reading there (steady state, as `retrocomp eval` starts every lag),
-/// instead of carrying the state from the rows before. The reference (the fit's first reading)
-/// stays: it is the model's `reference_C`. The filter is linear, so the restarted lag differs from
-/// the carried one by the start-up difference decaying as e^(−(t − t_start)/τ). Columns of every
-/// other candidate have no state and are returned as they are.
-pub fn restarted(
-    ctx: &Context,
-    c: &Candidate,
-    tau_s: f64,
-    cols: &[Vec<f64>],
-    block: &[usize],
-) -> Vec<Vec<f64>> {
-    let (Kind::ThermalLag { sensor }, Some(y)) = (&c.kind, cols.first()) else {
-        return cols.to_vec();
-    };
-    let Some(u) = ctx.temp(sensor) else {
-        return cols.to_vec();
-    };
-    let mut start = 0;
-    vec![
-        (0..y.len())
-            .map(|i| {
-                if i > 0 && block[i] != block[i - 1] {
-                    start = i;
-                }
-                // Column = LPF(u) − u(0): restarted state u(start) − u(0) against the carried y(start).
-                let d0 = (u[start] - u[0]) - y[start];
-                y[i] + d0 * (-(ctx.t_s[i] - ctx.t_s[start]) / tau_s).exp()
-            })
-            .collect::<Vec<f64>>(),
-    ]
-}
+pub use super::heldout::restarted;
 
 /// Run forward selection on residual `r` of the signal of axis `axis`.
 pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSelection {
     let n = r.len();
     let lib = library(ctx, axis);
     let mut tried: usize = lib.iter().map(|c| c.grid.len().max(1)).sum();
-    // Thermal tests (no axis column) are validated forward over finer time blocks (see
-    // `Options::forward_blocks`).
-    let thermal_only = ctx.axes.iter().all(Option::is_none);
-    let (block, n_blocks) = ctx.blocks_for(
-        axis,
-        if thermal_only {
-            opts.forward_blocks
-        } else {
-            opts.cv_blocks
-        },
-    );
     let cell_of = ctx.position_cells(axis);
     if cell_of.is_some() {
         tried += lib.iter().filter(|c| within_cells(c)).count();
@@ -202,57 +160,10 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
     let mut terms: Vec<Term> = vec![];
     let mut runners_up = vec![];
     let mut used = vec![false; lib.len()];
-    // Folds that follow time (contiguous time blocks, or `run` blocks in recording order, each
-    // kept whole) are validated FORWARD: block k is predicted from blocks before it only, so a
-    // term stays only if it improves error on data later than what chose it. Interleaved folds
-    // (position cells of a forward + reverse laser run, runs out of order) keep leave-one-out.
-    // Restricted for now to recordings with no axis column (thermal tests): on the generated
-    // motion cases, forward folds reject real thermal lags whose warm-up fills the first block
-    // (hil-sim cases_model_out case 14); they keep leave-one-block-out until that is resolved.
-    let forward = n_blocks >= 3 && thermal_only && block.windows(2).all(|w| w[1] >= w[0]);
-    // Forward folds are scored the two ways a later recording may be fed to `retrocomp eval`:
-    // with the history before it (lag states carried) and alone (lag states restarted at its
-    // first row, as `eval` starts them). The mean square of both: a term that only predicts with
-    // history (a long lag whose state at a new file's start is unknown) does not earn its place.
-    let columns_of = |set: &[(&Candidate, f64)]| {
-        let mut cols = vec![vec![1.0; n]];
-        for (c, th) in set {
-            cols.extend(c.columns(ctx, *th));
-        }
-        cols
-    };
-    // Per forward block: (mean square error of both feeding modes, rows).
-    let forward_blocks = |set: &[(&Candidate, f64)]| {
-        let cols = columns_of(set);
-        let mut pred = vec![vec![1.0; n]];
-        let mut j = 1;
-        for (c, th) in set {
-            let q = c.columns(ctx, *th).len();
-            pred.extend(restarted(ctx, c, *th, &cols[j..j + q], &block));
-            j += q;
-        }
-        let refs: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
-        let prefs: Vec<&[f64]> = pred.iter().map(Vec::as_slice).collect();
-        let carried = lsq::forward_block_rss(&refs, &refs, r, &block, n_blocks);
-        let fresh = lsq::forward_block_rss(&refs, &prefs, r, &block, n_blocks);
-        carried
-            .iter()
-            .zip(&fresh)
-            .map(|(h, a)| ((h.0 + a.0) / 2.0, h.1))
-            .collect::<Vec<_>>()
-    };
-    let cv_of = |set: &[(&Candidate, f64)]| {
-        if forward {
-            let (rss, m) = forward_blocks(set)
-                .iter()
-                .fold((0.0, 0), |(s, m), b| (s + b.0, m + b.1));
-            (rss / m.max(1) as f64).sqrt()
-        } else {
-            let cols = columns_of(set);
-            let refs: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
-            (lsq::cv_rss(&refs, r, &block, n_blocks) / n as f64).sqrt()
-        }
-    };
+    // Held-out error (forward on thermal tests, both feeding modes): `heldout.rs`.
+    let heldout = Heldout::new(ctx, axis, r, opts);
+    let forward = heldout.forward;
+    let cv_of = |set: &[(&Candidate, f64)]| heldout.rms(set);
     let mut cv_before = cv_of(&[]);
     let mut exchanges = 0;
     loop {
