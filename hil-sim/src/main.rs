@@ -36,7 +36,7 @@ enum Cmd {
         /// Probing noise σ, µm.
         #[arg(long, default_value_t = 0.5)]
         noise_um: f64,
-        /// Identification plan: `six` (Spaan's six measurements) or `twelve`.
+        /// Identification plan: `six` (Spaan's six measurements, the default), `seven` or `twelve`.
         #[arg(long, value_enum, default_value = "six")]
         plan: hil_sim::artefacts::Plan,
         #[arg(long)]
