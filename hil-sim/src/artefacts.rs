@@ -114,6 +114,9 @@ pub enum Plan {
     Twelve,
 }
 
+/// A placement of a plan: name, plane, origin (mm), holes, pitch (mm).
+type Place = (&'static str, Plane, [f64; 3], [usize; 2], [f64; 2]);
+
 /// The identification plates of `plan` and the five verification plates.
 ///
 /// What a plate sees is only what is not a rigid in-plane motion. With the tool along Z, the
@@ -125,17 +128,18 @@ pub enum Plan {
 /// middle of the Y travel, which halves the largest lever of that guess; a seventh measurement, a
 /// second XZ placement elsewhere in Y, pins it (so does the twelve-measurement plan). Both probes
 /// on every placement also give the Z roll EAZ a 250 mm Abbe arm difference on the YZ plates (with
-/// 100/200 mm probes on separate placements it was 3.6 µrad off, all of it noise). Verification plates: five at other places
-/// with probe lengths outside the identification's (25 and 400 mm), so the Abbe terms extrapolate.
+/// 100/200 mm probes on separate placements it was 3.6 µrad off, all of it noise). Verification
+/// plates: five at other places with probe lengths outside the identification's (25 and 400 mm),
+/// so the Abbe terms extrapolate.
 pub fn spaan_plates_for(plan: Plan) -> (Vec<PlatePlacement>, Vec<PlatePlacement>) {
     use Plane::*;
     let (wide, square) = ([10, 10], [10, 10]);
-    let six: &[(&str, Plane, [f64; 3], [usize; 2], [f64; 2])] = &[
+    let six: &[Place] = &[
         ("id_xy", Xy, [130.0, 50.0, 150.0], wide, [60.0, 40.0]),
         ("id_xz", Xz, [130.0, 225.0, 50.0], wide, [60.0, 40.0]),
         ("id_yz", Yz, [375.0, 50.0, 50.0], square, [40.0, 40.0]),
     ];
-    let places: &[(&str, Plane, [f64; 3], [usize; 2], [f64; 2])] = match plan {
+    let places: &[Place] = match plan {
         Plan::Six | Plan::Seven => six,
         Plan::Twelve => &[
             ("id_xy_low", Xy, [130.0, 50.0, 50.0], wide, [60.0, 40.0]),
