@@ -95,31 +95,62 @@ pub const ID_PROBES_MM: [f64; 2] = [50.0, 300.0];
 /// The probe lengths of the verification plates: a short and a long one, outside `ID_PROBES_MM`.
 pub const VERIFY_PROBES_MM: [f64; 2] = [25.0, 400.0];
 
-/// Spaan's plan on an 800 × 500 × 500 mm mill: six placements, two per plane over the same footprint
-/// (x 130–670, y and z 50–410) at two places across the plane, each probed with two probe
-/// configurations (50 and 300 mm: Spaan's "6 placements, 2 probe configurations", 20 min per plate
-/// and 4–6 h in all) — twelve measurements. Why both probes on every placement: a plate sees only
-/// what is not a rigid in-plane motion, and with one probe per placement a combination of linear
-/// table roll EAX, Y pitch EBY, Z pitch EBZ and squareness EB0Z stays rigid on all six (it is
-/// rigid on an XZ plate whose (y, probe length) lies on the line through the two identification
-/// XZ plates'); the model then guesses it and verification plates off that line with other probes
-/// fall behind the true model (0.04–0.2 in efficiency). Four (y, probe) pairs on XZ pin it. The
-/// second probe on every placement also quadruples the Z roll EAZ's Abbe signal on the YZ plates
-/// (250 mm arm difference instead of 100 mm): it was 3.6 µrad off with 100/200 mm probes, all of
-/// it noise (0.00 µrad without noise). Five verification plates at other places with probe lengths
-/// outside the identification's (25 and 400 mm), so the Abbe terms must extrapolate.
-pub fn spaan_plates() -> (Vec<PlatePlacement>, Vec<PlatePlacement>) {
+/// Which identification plan `hil-sim artefacts` probes (both on an 800 × 500 × 500 mm mill, 10 × 10
+/// holes per plate).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Plan {
+    /// Spaan's six hole-plate measurements (Ch3: "three different locations … measured with two
+    /// different probe configurations"; "two in the XZ-plane, two in the XY-plane and two in the
+    /// YZ-plane"): one placement per plane, in the middle of the travel across the plane, each
+    /// probed with both probes (50 and 300 mm) — six measurements, about 2 h of probing.
+    #[default]
+    Six,
+    /// The six plus a seventh: a second XZ placement at the back of the Y travel (y = 400 mm,
+    /// 300 mm probe). Pins the one combination six measurements cannot see (see
+    /// [`spaan_plates_for`]).
+    Seven,
+    /// Twelve measurements: six placements, two per plane at two places across the plane, each
+    /// probed with both probes (the plan before six was the default). Pins it too.
+    Twelve,
+}
+
+/// A placement of a plan: name, plane, origin (mm), holes, pitch (mm).
+type Place = (&'static str, Plane, [f64; 3], [usize; 2], [f64; 2]);
+
+/// The identification plates of `plan` and the five verification plates.
+///
+/// What a plate sees is only what is not a rigid in-plane motion. With the tool along Z, the
+/// linear parts of table roll EAX and Y pitch EBY (equal), Z pitch EBZ and squareness EB0Z form
+/// one combination that is rigid on every XY and YZ plate, and rigid on an XZ plate whose
+/// (y, probe length) satisfies one linear equation: two XZ measurements — all that six
+/// measurements give — always satisfy it, so the combination stays unseen and XZ plates at other
+/// y / probe lengths see what the model guesses there. Six measurements put the XZ plate in the
+/// middle of the Y travel, which halves the largest lever of that guess; a seventh measurement, a
+/// second XZ placement elsewhere in Y, pins it (so does the twelve-measurement plan). Both probes
+/// on every placement also give the Z roll EAZ a 250 mm Abbe arm difference on the YZ plates (with
+/// 100/200 mm probes on separate placements it was 3.6 µrad off, all of it noise). Verification
+/// plates: five at other places with probe lengths outside the identification's (25 and 400 mm),
+/// so the Abbe terms extrapolate.
+pub fn spaan_plates_for(plan: Plan) -> (Vec<PlatePlacement>, Vec<PlatePlacement>) {
     use Plane::*;
     let (wide, square) = ([10, 10], [10, 10]);
-    let places = [
-        ("id_xy_low", Xy, [130.0, 50.0, 50.0], wide, [60.0, 40.0]),
-        ("id_xy_high", Xy, [130.0, 50.0, 300.0], wide, [60.0, 40.0]),
-        ("id_xz_front", Xz, [130.0, 100.0, 50.0], wide, [60.0, 40.0]),
-        ("id_xz_back", Xz, [130.0, 350.0, 50.0], wide, [60.0, 40.0]),
-        ("id_yz_left", Yz, [150.0, 50.0, 50.0], square, [40.0, 40.0]),
-        ("id_yz_right", Yz, [600.0, 50.0, 50.0], square, [40.0, 40.0]),
+    let six: &[Place] = &[
+        ("id_xy", Xy, [130.0, 50.0, 150.0], wide, [60.0, 40.0]),
+        ("id_xz", Xz, [130.0, 225.0, 50.0], wide, [60.0, 40.0]),
+        ("id_yz", Yz, [375.0, 50.0, 50.0], square, [40.0, 40.0]),
     ];
-    let id = places
+    let places: &[Place] = match plan {
+        Plan::Six | Plan::Seven => six,
+        Plan::Twelve => &[
+            ("id_xy_low", Xy, [130.0, 50.0, 50.0], wide, [60.0, 40.0]),
+            ("id_xy_high", Xy, [130.0, 50.0, 300.0], wide, [60.0, 40.0]),
+            ("id_xz_front", Xz, [130.0, 100.0, 50.0], wide, [60.0, 40.0]),
+            ("id_xz_back", Xz, [130.0, 350.0, 50.0], wide, [60.0, 40.0]),
+            ("id_yz_left", Yz, [150.0, 50.0, 50.0], square, [40.0, 40.0]),
+            ("id_yz_right", Yz, [600.0, 50.0, 50.0], square, [40.0, 40.0]),
+        ],
+    };
+    let mut id: Vec<PlatePlacement> = places
         .iter()
         .flat_map(|&(name, plane, o, n, pitch)| {
             ID_PROBES_MM.map(|t| PlatePlacement {
@@ -128,6 +159,19 @@ pub fn spaan_plates() -> (Vec<PlatePlacement>, Vec<PlatePlacement>) {
             })
         })
         .collect();
+    if plan == Plan::Seven {
+        id.push(PlatePlacement {
+            name: "id_xz_back_t300".into(),
+            ..plate(
+                "id_xz_back",
+                Xz,
+                [130.0, 400.0, 50.0],
+                ID_PROBES_MM[1],
+                wide,
+                [60.0, 40.0],
+            )
+        });
+    }
     // Probe lengths outside the identification's, so the Abbe terms must extrapolate.
     let verify = vec![
         plate(
@@ -172,6 +216,30 @@ pub fn spaan_plates() -> (Vec<PlatePlacement>, Vec<PlatePlacement>) {
         ),
     ];
     (id, verify)
+}
+
+/// Two more XZ plates, at the front and back ends of the Y travel (y = 30 and 460 mm, probes 25 and
+/// 400 mm): where the combination six measurements cannot see shows most (tests only; Spaan's
+/// five verification plates are `spaan_plates_for(..).1`).
+pub fn xz_edge_plates() -> Vec<PlatePlacement> {
+    [("v_xz_front_edge", 30.0, 0), ("v_xz_back_edge", 460.0, 1)]
+        .into_iter()
+        .map(|(name, y, k)| {
+            plate(
+                name,
+                Plane::Xz,
+                [150.0, y, 50.0],
+                VERIFY_PROBES_MM[k],
+                [10, 10],
+                [55.0, 40.0],
+            )
+        })
+        .collect()
+}
+
+/// The default plan's plates ([`Plan::Six`]).
+pub fn spaan_plates() -> (Vec<PlatePlacement>, Vec<PlatePlacement>) {
+    spaan_plates_for(Plan::default())
 }
 
 /// Eight spheres, radii 150–300 mm, two tool vectors (Spaan Table 3.1 scaled to the mill).
@@ -375,8 +443,14 @@ pub struct Measured {
     pub spheres: Vec<BallBar>,
 }
 
+/// Everything with the default plan ([`Plan::Six`]).
 pub fn measure_all(truth: &MachineModel, m: &Metrology, seed: u64) -> Measured {
-    let (id, v) = spaan_plates();
+    measure_plan(truth, m, seed, Plan::default())
+}
+
+/// Everything with `plan`'s identification plates.
+pub fn measure_plan(truth: &MachineModel, m: &Metrology, seed: u64, plan: Plan) -> Measured {
+    let (id, v) = spaan_plates_for(plan);
     let tr = travel(truth);
     Measured {
         plates: id

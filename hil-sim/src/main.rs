@@ -36,6 +36,9 @@ enum Cmd {
         /// Probing noise σ, µm.
         #[arg(long, default_value_t = 0.5)]
         noise_um: f64,
+        /// Identification plan: `six` (Spaan's six measurements, the default), `seven` or `twelve`.
+        #[arg(long, value_enum, default_value = "six")]
+        plan: hil_sim::artefacts::Plan,
         #[arg(long)]
         out: PathBuf,
     },
@@ -54,6 +57,7 @@ fn main() -> anyhow::Result<()> {
             seed,
             truth,
             noise_um,
+            plan,
             out,
         } => {
             let model = retrocomp::models::MachineModel::from_toml_path(&truth)
@@ -62,7 +66,7 @@ fn main() -> anyhow::Result<()> {
                 probing_noise_um: noise_um,
                 ..Default::default()
             };
-            let meas = hil_sim::artefacts::measure_all(&model, &m, seed);
+            let meas = hil_sim::artefacts::measure_plan(&model, &m, seed, plan);
             let n = hil_sim::artefacts::write_all(&meas, &out)?;
             println!("wrote {n} artefact set-ups to {}", out.display());
             Ok(())

@@ -149,7 +149,7 @@ pub fn components(id: &Identification) -> (Vec<ComponentReport>, Vec<SquarenessR
             identifiable,
             max_abs,
             max_se,
-            needs: (!identifiable).then(|| needs(id, b.id)),
+            needs: (!identifiable).then(|| needs(id, &moves, ib, b.id)),
         });
     }
     let sq = SQUARENESS
@@ -168,8 +168,35 @@ pub fn components(id: &Identification) -> (Vec<ComponentReport>, Vec<SquarenessR
     (out, sq)
 }
 
-/// The extra set-up that would make a component visible.
-fn needs(id: &Identification, c: crate::models::ComponentId) -> String {
+/// The extra set-up that would make a component visible. `moves`: [`null_moves`].
+fn needs(
+    id: &Identification,
+    moves: &[Vec<f64>],
+    ib: usize,
+    c: crate::models::ComponentId,
+) -> String {
+    // A null direction that moves this component and a squareness angle: the combination is rigid
+    // on every plate of that squareness' plane measured so far (two XZ measurements always are,
+    // whatever their place and probe): one more plate in that plane elsewhere pins it.
+    let n_comp = id.bases.len();
+    let sq = moves
+        .iter()
+        .filter(|m| m[ib] > NULL_LIMIT)
+        .flat_map(|m| (0..3).filter(move |&k| m[n_comp + k] > NULL_LIMIT))
+        .next();
+    if let Some(k) = sq {
+        let q = SQUARENESS[k];
+        let (a, b, across) = q.axes();
+        return format!(
+            "one more plate in the {}{} plane at another {} position (or probe length): with the \
+             plates so far, a combination of this component, others and the {} squareness is a \
+             rigid motion of every plate",
+            a.lower(),
+            b.lower(),
+            across.upper(),
+            q.iso_name()
+        );
+    }
     let tool_axis = id.geometry.spec.tool_axis.0;
     let tool_side = id
         .geometry
