@@ -196,9 +196,10 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
     if cell_of.is_some() {
         tried += lib.iter().filter(|c| within_cells(c)).count();
     }
-    let ones = vec![1.0; n];
-    let mut basis = lsq::orthonormalize(&[], vec![ones.clone()], 2);
-    let mut raw_cols: Vec<Vec<f64>> = vec![ones];
+    let mut basis = lsq::orthonormalize(&[], vec![vec![1.0; n]], 2);
+    // Raw columns fitted so far (intercept + every term's): only their count is needed (the
+    // columns themselves are in `terms`; a copy was 8 MB a column on a 1M-row recording).
+    let mut n_raw = 1;
     let mut terms: Vec<Term> = vec![];
     let mut runners_up = vec![];
     let mut used = vec![false; lib.len()];
@@ -256,7 +257,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
     let mut cv_before = cv_of(&[]);
     let mut exchanges = 0;
     loop {
-        while terms.len() < opts.max_terms && n > raw_cols.len() + 3 {
+        while terms.len() < opts.max_terms && n > n_raw + 3 {
             let r0 = lsq::deflate(&basis, r);
             let rss0 = dot(&r0, &r0);
             if rss0.is_nan() || rss0 <= 0.0 {
@@ -264,11 +265,12 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             }
             let plain = Null {
                 basis: basis.as_slice().into(),
-                r0: r0.clone(),
+                r0,
                 rss0,
                 extra: 0,
                 cells: None,
             };
+            let r0 = &plain.r0;
             let cells = match &cell_of {
                 Some((cell, k)) => Null::within_cells(&basis, r, cell, *k),
                 None => Null {
@@ -422,7 +424,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                     }
                 }
             }
-            let p_cols = (raw_cols.len() + nl.extra) as f64;
+            let p_cols = (n_raw + nl.extra) as f64;
             let df2 = n_eff - p_cols - win.q as f64;
             let p_value = if df2 >= 1.0 {
                 let rss1 = nl.rss0 - win.gain;
@@ -476,7 +478,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 }
             }
             basis.extend(lsq::orthonormalize(&basis, new_cols.clone(), 2));
-            raw_cols.extend(new_cols.iter().cloned());
+            n_raw += new_cols.len();
             terms.push(Term {
                 cand: cand.clone(),
                 theta: win.theta,
@@ -524,11 +526,12 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
         exchanges += 1;
         terms.remove(ex.k);
         terms.extend(ex.terms);
-        raw_cols = vec![vec![1.0; n]];
+        let mut raw_cols = vec![vec![1.0; n]];
         for t in &terms {
             raw_cols.extend(t.cols.iter().cloned());
         }
-        basis = lsq::orthonormalize(&[], raw_cols.clone(), 2);
+        n_raw = raw_cols.len();
+        basis = lsq::orthonormalize(&[], raw_cols, 2);
         cv_before = cv_of(&set_of(&terms));
         used = vec![false; lib.len()];
         for t in &terms {
