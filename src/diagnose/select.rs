@@ -498,11 +498,12 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
         if terms.is_empty() || exchanges >= 2 {
             break;
         }
-        let mut fitted = vec![vec![1.0; n]];
+        // The terms' own columns, borrowed (a copy of them was the peak of a 1M-row diagnosis).
+        let ones = vec![1.0; n];
+        let mut refs: Vec<&[f64]> = vec![&ones];
         for t in &terms {
-            fitted.extend(t.cols.iter().cloned());
+            refs.extend(t.cols.iter().map(Vec::as_slice));
         }
-        let refs: Vec<&[f64]> = fitted.iter().map(Vec::as_slice).collect();
         let resid = lsq::fit(&refs, r).resid;
         // Only where structure is left that no candidate explains (the same test as the report's
         // "unexplained structure"): a clean fit is not revisited, which keeps the cost where it helps.
