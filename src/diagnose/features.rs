@@ -386,7 +386,7 @@ mod tests {
     fn direction_latches_through_dwells_and_counts_distance_since_reversal() {
         let t: Vec<f64> = (0..7).map(f64::from).collect();
         let x = [0.0, 1.0, 1.0, 2.0, 1.5, 1.5, 1.0];
-        let f = axis_features(&t, &x, None);
+        let f = axis_features(&t, Arc::from(&x[..]), None);
         assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0]);
         assert_eq!(&f.dist_since_rev_mm[4..], &[0.5, 0.5, 1.0]);
         // Rows 1, 2 and 4, 5 are dwells: no velocity from the steps into or out of them; row 3
@@ -400,16 +400,16 @@ mod tests {
         // first of the reverse pass.
         let x = [0.0, 10.0, 20.0, 30.0, 30.0, 20.0, 10.0, 0.0];
         let t: Vec<f64> = (0..x.len()).map(|i| 10.0 * i as f64).collect();
-        let f = axis_features(&t, &x, None);
+        let f = axis_features(&t, Arc::from(&x[..]), None);
         assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0]);
         // A sampled trajectory dwelling at its turnaround keeps the approach direction there.
         let x = [0.0, 10.0, 20.0, 30.0, 30.0, 30.0, 20.0, 10.0];
-        let f = axis_features(&t, &x, None);
+        let f = axis_features(&t, Arc::from(&x[..]), None);
         assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, -1.0]);
         // Two readings per visit, four at the turnaround: split two and two.
         let x = [0.0, 0.0, 10.0, 10.0, 20.0, 20.0, 20.0, 20.0, 10.0, 10.0];
         let t: Vec<f64> = (0..x.len()).map(|i| 10.0 * i as f64).collect();
-        let f = axis_features(&t, &x, None);
+        let f = axis_features(&t, Arc::from(&x[..]), None);
         assert_eq!(&f.dir[4..8], &[1.0, 1.0, -1.0, -1.0]);
         assert!(f.vel_mm_s.iter().all(|v| *v == 0.0), "{:?}", f.vel_mm_s);
     }

@@ -327,7 +327,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 .iter()
                 .max_by(|a, b| share(a).total_cmp(&share(b)))
                 .expect("non-empty");
-            let top_contrib = contribution(ctx, &lib[top.idx], top.theta, &basis, &r0);
+            let top_contrib = contribution(ctx, &lib[top.idx], top.theta, &basis, r0);
             let r1_top: Vec<f64> = r0.iter().zip(&top_contrib).map(|(a, b)| a - b).collect();
             let n_eff = lsq::effective_n(&without_cell_means(ctx, axis, &r1_top));
             for s in &mut scored {
@@ -447,7 +447,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 break;
             }
             // Ambiguity: another family, nearly as good, explaining the same shape.
-            let win_contrib = contribution(ctx, cand, win.theta, &basis, &r0);
+            let win_contrib = contribution(ctx, cand, win.theta, &basis, r0);
             let wn = dot(&win_contrib, &win_contrib).sqrt();
             let ambiguous_with = scored
                 .iter()
@@ -457,7 +457,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                         && win.delta_bic - s.delta_bic < opts.ambiguity_bic
                 })
                 .filter_map(|s| {
-                    let sc = contribution(ctx, &lib[s.idx], s.theta, &basis, &r0);
+                    let sc = contribution(ctx, &lib[s.idx], s.theta, &basis, r0);
                     let corr = dot(&sc, &win_contrib) / (wn * dot(&sc, &sc).sqrt());
                     (corr > opts.ambiguity_corr).then(|| Alternative {
                         cand: lib[s.idx].clone(),
