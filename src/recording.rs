@@ -10,6 +10,7 @@
 use std::fmt;
 use std::io::{Read, Write};
 use std::path::Path;
+use std::sync::Arc;
 
 /// One rejected row: its 1-based line number in the file (the header is line 1) and why.
 #[derive(Clone, Debug, PartialEq)]
@@ -56,13 +57,16 @@ fn list_bad(bad: &[BadRow]) -> String {
     s
 }
 
-/// A recording held column-wise (every column has `n_rows()` values, all finite).
+/// A recording held column-wise (every column has `n_rows()` values, all finite). Columns are
+/// shared (`Arc`), so `diagnose`'s context reads them without a copy (a 1M-row recording's
+/// columns are 8 MB each; issue 12 item 10).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Recording {
     names: Vec<String>,
-    cols: Vec<Vec<f64>>,
-    /// 1-based file line of every kept row (for messages that point back into the file).
-    lines: Vec<u64>,
+    cols: Vec<Arc<[f64]>>,
+    /// 1-based file line of every kept row (for messages that point back into the file); `None`
+    /// when row i is on line i + 2 (no row skipped: the common case, 8 bytes a row saved).
+    lines: Option<Vec<u64>>,
 }
 
 /// The three Cartesian axes a recording may carry.
@@ -100,8 +104,8 @@ impl Recording {
         }
         Ok(Recording {
             names,
-            cols,
-            lines: (2..n as u64 + 2).collect(),
+            cols: cols.into_iter().map(Arc::from).collect(),
+            lines: None,
         })
     }
 
@@ -213,11 +217,17 @@ impl Recording {
             }
             lines.push(line);
         }
-        Ok((Recording { names, cols, lines }, bad))
+        let contiguous = lines.iter().zip(2u64..).all(|(l, k)| *l == k);
+        let rec = Recording {
+            names,
+            cols: cols.into_iter().map(Arc::from).collect(),
+            lines: (!contiguous).then_some(lines),
+        };
+        Ok((rec, bad))
     }
 
     pub fn n_rows(&self) -> usize {
-        self.lines.len()
+        self.cols.first().map_or(0, |c| c.len())
     }
     pub fn names(&self) -> &[String] {
         &self.names
@@ -226,10 +236,20 @@ impl Recording {
         self.names
             .iter()
             .position(|n| n == name)
-            .map(|i| self.cols[i].as_slice())
+            .map(|i| &*self.cols[i])
+    }
+    /// The column `name`, shared with the recording (no copy).
+    pub fn col_shared(&self, name: &str) -> Option<Arc<[f64]>> {
+        self.names
+            .iter()
+            .position(|n| n == name)
+            .map(|i| Arc::clone(&self.cols[i]))
     }
     pub fn line_of_row(&self, row: usize) -> u64 {
-        self.lines[row]
+        match &self.lines {
+            Some(l) => l[row],
+            None => row as u64 + 2,
+        }
     }
     pub fn t_s(&self) -> &[f64] {
         self.col("t_s").expect("t_s is validated at construction")

@@ -291,7 +291,7 @@ fn rpm_heat_source_has_no_temperature_channel_near_it() {
         levels.dedup();
         assert!(levels.len() >= 3, "{}: rpm levels {levels:?}", m.case);
         let mut ctx = Context::from_recording(&rec);
-        ctx.temps.push(("rpm".into(), rpm.to_vec()));
+        ctx.temps.push(("rpm".into(), rpm.into()));
         let term = h.model.evaluate('x', &ctx).unwrap();
         let (name, c) = best_temp_corr(&rec, &term);
         eprintln!(

@@ -57,7 +57,7 @@ fn exported_model_reproduces_the_finding_for_every_mappable_effect() {
                 .map(|k| meas[k] - sim_col[k] - added[k])
                 .collect();
             let got = centred_rms(&resid);
-            let claimed = centred_rms(s.residual_after.last().unwrap());
+            let claimed = centred_rms(s.residual_after(&d.context).last().unwrap());
             let before = centred_rms(&s.residual_before);
             assert!(
                 (got - claimed).abs() <= 0.02 * before + 0.02,

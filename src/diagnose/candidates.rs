@@ -159,7 +159,7 @@ impl Candidate {
                     own()
                         .pos_mm
                         .iter()
-                        .zip(tool)
+                        .zip(tool.iter())
                         .map(|(x, h)| x * h * 1e-3)
                         .collect(),
                 ]
@@ -178,7 +178,7 @@ impl Candidate {
             Kind::ThermalExpansion { sensor } => {
                 vec![
                     rise(sensor)
-                        .zip(&own().pos_mm)
+                        .zip(own().pos_mm.iter())
                         .map(|(d, x)| x * 1e-3 * d)
                         .collect(),
                 ]

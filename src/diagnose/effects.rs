@@ -209,7 +209,7 @@ impl EffectModel {
                 own()?
                     .pos_mm
                     .iter()
-                    .zip(tool)
+                    .zip(tool.iter())
                     .map(|(x, h)| urad_per_mm * x * h * 1e-3)
                     .collect()
             }
@@ -231,7 +231,7 @@ impl EffectModel {
             Self::ThermalExpansion { sensor, ppm_per_k } => {
                 let f = own()?;
                 rise(temp(sensor)?)
-                    .zip(&f.pos_mm)
+                    .zip(f.pos_mm.iter())
                     .map(|(d, x)| ppm_per_k * 1e-3 * x * d)
                     .collect()
             }

@@ -8,6 +8,8 @@
 //! [`DIRECTION_DEADBAND_MM`]), so dwells keep the direction of their approach, as in ISO 230-2
 //! step-and-dwell runs; velocity is zero at every standstill row (see [`latch`]).
 
+use std::sync::Arc;
+
 use crate::approach::ApproachLatch;
 use crate::recording::{AXES, Recording};
 
@@ -17,7 +19,8 @@ pub const DIRECTION_DEADBAND_MM: f64 = crate::approach::RECORDED_DEADBAND_MM;
 
 #[derive(Clone, Debug)]
 pub struct AxisFeatures {
-    pub pos_mm: Vec<f64>,
+    /// Shared with the recording (no copy), as every recorded column of [`Context`].
+    pub pos_mm: Arc<[f64]>,
     pub vel_mm_s: Vec<f64>,
     /// Latched direction of the last approach: +1, −1, 0 before the first move.
     pub dir: Vec<f64>,
@@ -41,20 +44,22 @@ impl AxisFeatures {
     }
 }
 
+/// Recorded columns are shared with the [`Recording`] (`Arc`, no copy: on a 1M-row recording each
+/// copy was 8 MB, issue 12 item 10); derived features (velocity, direction…) are owned.
 #[derive(Clone, Debug)]
 pub struct Context {
-    pub t_s: Vec<f64>,
+    pub t_s: Arc<[f64]>,
     pub axes: [Option<AxisFeatures>; 3],
     /// `T_<name>_C` channels.
-    pub temps: Vec<(String, Vec<f64>)>,
+    pub temps: Vec<(String, Arc<[f64]>)>,
     /// `F_<name>_N` and `strain_<name>_ue` channels.
-    pub loads: Vec<(String, Vec<f64>)>,
-    pub rpm: Option<Vec<f64>>,
-    pub tool_mm: Option<Vec<f64>>,
+    pub loads: Vec<(String, Arc<[f64]>)>,
+    pub rpm: Option<Arc<[f64]>>,
+    pub tool_mm: Option<Arc<[f64]>>,
     /// Block id per sample (the `run` column, else contiguous time blocks; see [`Context::blocks`]).
     pub run: Option<Vec<i64>>,
     /// Columns with no DESIGN §4 role (possible decoys).
-    pub others: Vec<(String, Vec<f64>)>,
+    pub others: Vec<(String, Arc<[f64]>)>,
 }
 
 pub fn axis_index(a: char) -> usize {
@@ -65,23 +70,28 @@ pub fn axis_index(a: char) -> usize {
 
 impl Context {
     pub fn from_recording(rec: &Recording) -> Self {
-        let t_s = rec.t_s().to_vec();
+        let t_s = rec
+            .col_shared("t_s")
+            .expect("t_s is validated at construction");
         let run = rec.col("run");
         let axes = AXES.map(|a| {
-            rec.col(&format!("{a}_mm"))
+            rec.col_shared(&format!("{a}_mm"))
                 .map(|p| axis_features(&t_s, p, run))
         });
-        let grab = |names: Vec<String>| -> Vec<(String, Vec<f64>)> {
+        let grab = |names: Vec<String>| -> Vec<(String, Arc<[f64]>)> {
             names
                 .into_iter()
-                .map(|n| (n.clone(), rec.col(&n).expect("listed").to_vec()))
+                .map(|n| {
+                    let c = rec.col_shared(&n).expect("listed");
+                    (n, c)
+                })
                 .collect()
         };
         Context {
             temps: grab(rec.temperature_channels()),
             loads: grab(rec.load_channels()),
-            rpm: rec.col("rpm").map(<[f64]>::to_vec),
-            tool_mm: rec.col("tool_mm").map(<[f64]>::to_vec),
+            rpm: rec.col_shared("rpm"),
+            tool_mm: rec.col_shared("tool_mm"),
             run: rec
                 .col("run")
                 .map(|r| r.iter().map(|v| v.round() as i64).collect()),
@@ -106,7 +116,7 @@ impl Context {
             .iter()
             .chain(&self.others)
             .find(|(n, _)| n == name)
-            .map(|(_, v)| v.as_slice())
+            .map(|(_, v)| &**v)
             .or_else(|| self.rpm.as_deref().filter(|_| name == "rpm"))
     }
 
@@ -115,8 +125,8 @@ impl Context {
     pub fn drivers(&self) -> Vec<(&str, &[f64])> {
         self.rpm
             .iter()
-            .map(|v| ("rpm", v.as_slice()))
-            .chain(self.others.iter().map(|(n, v)| (n.as_str(), v.as_slice())))
+            .map(|v| ("rpm", &**v))
+            .chain(self.others.iter().map(|(n, v)| (n.as_str(), &**v)))
             .collect()
     }
 
@@ -124,7 +134,7 @@ impl Context {
         self.loads
             .iter()
             .find(|(n, _)| n == name)
-            .map(|(_, v)| v.as_slice())
+            .map(|(_, v)| &**v)
     }
 
     /// Validation blocks: the distinct `run` ids when there are at least three, else `k` contiguous
@@ -211,7 +221,7 @@ impl Context {
 /// approach: its first samples take the direction of its own first move, like the first samples of
 /// the recording), so a reverse laser run that starts where the forward run ended is read as reverse.
 /// A readings-only recording (see [`pass_starts`]) restarts it at each inferred pass as well.
-fn axis_features(t_s: &[f64], pos: &[f64], run: Option<&[f64]>) -> AxisFeatures {
+fn axis_features(t_s: &[f64], pos: Arc<[f64]>, run: Option<&[f64]>) -> AxisFeatures {
     let n = pos.len();
     let mut starts = vec![0];
     if let Some(r) = run {
@@ -224,7 +234,11 @@ fn axis_features(t_s: &[f64], pos: &[f64], run: Option<&[f64]>) -> AxisFeatures 
         bounds.push(w[1]);
     }
     bounds.dedup();
-    let (mut vel, mut dir, mut dist) = (vec![], vec![], vec![]);
+    let (mut vel, mut dir, mut dist) = (
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+    );
     for w in bounds.windows(2) {
         let (v, d, s) = latch(&t_s[w[0]..w[1]], &pos[w[0]..w[1]]);
         vel.extend(v);
@@ -234,6 +248,9 @@ fn axis_features(t_s: &[f64], pos: &[f64], run: Option<&[f64]>) -> AxisFeatures 
     let mut distinct_mm = pos.to_vec();
     distinct_mm.sort_by(f64::total_cmp);
     distinct_mm.dedup();
+    // A handful of distinct positions would otherwise keep the capacity of n rows (8 MB per axis
+    // on a 1M-row recording).
+    distinct_mm.shrink_to_fit();
     let distinct_idx = pos
         .iter()
         .map(|x| {
@@ -243,7 +260,7 @@ fn axis_features(t_s: &[f64], pos: &[f64], run: Option<&[f64]>) -> AxisFeatures 
         })
         .collect();
     AxisFeatures {
-        pos_mm: pos.to_vec(),
+        pos_mm: pos,
         vel_mm_s: vel,
         dir,
         dist_since_rev_mm: dist,
@@ -350,7 +367,7 @@ mod tests {
     fn direction_latches_through_dwells_and_counts_distance_since_reversal() {
         let t: Vec<f64> = (0..7).map(f64::from).collect();
         let x = [0.0, 1.0, 1.0, 2.0, 1.5, 1.5, 1.0];
-        let f = axis_features(&t, &x, None);
+        let f = axis_features(&t, Arc::from(&x[..]), None);
         assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0]);
         assert_eq!(&f.dist_since_rev_mm[4..], &[0.5, 0.5, 1.0]);
         // Rows 1, 2 and 4, 5 are dwells: no velocity from the steps into or out of them; row 3
@@ -364,16 +381,16 @@ mod tests {
         // first of the reverse pass.
         let x = [0.0, 10.0, 20.0, 30.0, 30.0, 20.0, 10.0, 0.0];
         let t: Vec<f64> = (0..x.len()).map(|i| 10.0 * i as f64).collect();
-        let f = axis_features(&t, &x, None);
+        let f = axis_features(&t, Arc::from(&x[..]), None);
         assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0]);
         // A sampled trajectory dwelling at its turnaround keeps the approach direction there.
         let x = [0.0, 10.0, 20.0, 30.0, 30.0, 30.0, 20.0, 10.0];
-        let f = axis_features(&t, &x, None);
+        let f = axis_features(&t, Arc::from(&x[..]), None);
         assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, -1.0]);
         // Two readings per visit, four at the turnaround: split two and two.
         let x = [0.0, 0.0, 10.0, 10.0, 20.0, 20.0, 20.0, 20.0, 10.0, 10.0];
         let t: Vec<f64> = (0..x.len()).map(|i| 10.0 * i as f64).collect();
-        let f = axis_features(&t, &x, None);
+        let f = axis_features(&t, Arc::from(&x[..]), None);
         assert_eq!(&f.dir[4..8], &[1.0, 1.0, -1.0, -1.0]);
         assert!(f.vel_mm_s.iter().all(|v| *v == 0.0), "{:?}", f.vel_mm_s);
     }

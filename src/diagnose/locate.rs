@@ -173,10 +173,10 @@ pub fn unexplained(ctx: &Context, signal: &str, r: &[f64]) -> Vec<Mismatch> {
         .enumerate()
         .filter_map(|(k, f)| {
             f.as_ref()
-                .map(|f| (format!("{}_mm", ['x', 'y', 'z'][k]), f.pos_mm.as_slice()))
+                .map(|f| (format!("{}_mm", ['x', 'y', 'z'][k]), &f.pos_mm[..]))
         })
         .collect();
-    feats.push(("t_s".into(), &ctx.t_s));
+    feats.push(("t_s".into(), &ctx.t_s[..]));
     let mut out = vec![];
     for (name, v) in feats {
         let Some((lo, hi)) = bin_edges(v) else {

@@ -122,18 +122,26 @@ pub fn effective_n(r: &[f64]) -> f64 {
         return nf;
     }
     let mean = r.iter().sum::<f64>() / nf;
-    let c: Vec<f64> = r.iter().map(|v| v - mean).collect();
-    let den = dot(&c, &c);
+    // Σ (r − mean)², term by term as `dot` of the centred copy would sum it.
+    let den: f64 = r
+        .iter()
+        .map(|v| {
+            let d = v - mean;
+            d * d
+        })
+        .sum();
     if den.is_nan() || den <= 0.0 {
         return nf;
     }
     // Short records (tens of laser targets) cannot estimate long lags: cap L at n/10.
     let lags = ((4.0 * nf.cbrt()) as usize).min(n / 10).max(1);
     // Long records: all L autocovariances from one FFT (O(n log n) instead of L·n: 400 lags of
-    // 10⁶ samples were a quarter of a 1M-row diagnosis); short ones keep the direct sums.
+    // 10⁶ samples were a quarter of a 1M-row diagnosis), centred into the FFT buffer without a
+    // centred copy; short ones keep the direct sums.
     let acov = if n >= FFT_MIN_N {
-        autocovariances_fft(&c, lags)
+        autocovariances_fft(r, mean, lags)
     } else {
+        let c: Vec<f64> = r.iter().map(|v| v - mean).collect();
         (0..=lags).map(|k| dot(&c[..n - k], &c[k..])).collect()
     };
     let mut factor = 1.0;
@@ -148,14 +156,14 @@ pub fn effective_n(r: &[f64]) -> f64 {
 /// candidates their screening gain from [`gram_gain`]); shorter ones keep the direct sums.
 pub const FFT_MIN_N: usize = 200_000;
 
-/// Σ_i c_i·c_{i+k} for k = 0…lags, by the Wiener–Khinchin route: zero-pad to ≥ n + lags (no
-/// wrap-around), |FFT|², inverse FFT.
-fn autocovariances_fft(c: &[f64], lags: usize) -> Vec<f64> {
+/// Σ_i c_i·c_{i+k} for k = 0…lags of c = r − mean, by the Wiener–Khinchin route: zero-pad to
+/// ≥ n + lags (no wrap-around), |FFT|², inverse FFT.
+fn autocovariances_fft(r: &[f64], mean: f64, lags: usize) -> Vec<f64> {
     use rustfft::{FftPlanner, num_complex::Complex};
-    let m = (c.len() + lags + 1).next_power_of_two();
-    let mut buf: Vec<Complex<f64>> = c
+    let m = (r.len() + lags + 1).next_power_of_two();
+    let mut buf: Vec<Complex<f64>> = r
         .iter()
-        .map(|&v| Complex::new(v, 0.0))
+        .map(|&v| Complex::new(v - mean, 0.0))
         .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
         .take(m)
         .collect();
@@ -215,12 +223,15 @@ pub fn fit(cols: &[&[f64]], r: &[f64]) -> Fit {
     fit_dof(cols, r, 0)
 }
 
-/// [`fit`] with `extra` nuisance parameters already removed from `cols` and `r`.
-fn fit_dof(cols: &[&[f64]], r: &[f64], extra: usize) -> Fit {
-    let n = r.len();
-    let (g, h) = gram(cols, r, 0..n);
-    let (beta, inv) = pinv_solve(&g, &h);
-    let resid: Vec<f64> = (0..n)
+/// The coefficients of [`fit`] alone (no residual, covariance or n_eff).
+pub fn coef(cols: &[&[f64]], r: &[f64]) -> Vec<f64> {
+    let (g, h) = gram(cols, r, 0..r.len());
+    pinv_solve(&g, &h).0.iter().copied().collect()
+}
+
+/// `r − Σ_a beta_a·cols_a`, row by row: [`fit`]'s residual for its coefficients.
+pub fn residual(cols: &[&[f64]], beta: &[f64], r: &[f64]) -> Vec<f64> {
+    (0..r.len())
         .map(|i| {
             r[i] - cols
                 .iter()
@@ -228,14 +239,23 @@ fn fit_dof(cols: &[&[f64]], r: &[f64], extra: usize) -> Fit {
                 .map(|(a, c)| beta[a] * c[i])
                 .sum::<f64>()
         })
-        .collect();
+        .collect()
+}
+
+/// [`fit`] with `extra` nuisance parameters already removed from `cols` and `r`.
+fn fit_dof(cols: &[&[f64]], r: &[f64], extra: usize) -> Fit {
+    let n = r.len();
+    let (g, h) = gram(cols, r, 0..n);
+    let (beta, inv) = pinv_solve(&g, &h);
+    let coef: Vec<f64> = beta.iter().copied().collect();
+    let resid = residual(cols, &coef, r);
     let rss = dot(&resid, &resid);
     let n_eff = effective_n(&resid);
     let dof = (n_eff - (cols.len() + extra) as f64).max(1.0);
     let sigma2 = rss / n as f64 * n_eff / dof; // per-sample variance, corrected for lost dof
     let inflate = n as f64 / n_eff;
     Fit {
-        coef: beta.iter().copied().collect(),
+        coef,
         cov: inv * (sigma2 * inflate),
         resid,
         rss,
@@ -409,7 +429,7 @@ mod tests {
         let c: Vec<f64> = (0..5000)
             .map(|i| ((i as f64 * 0.37).sin() + (i as f64 * 1.91).cos() * 0.5).powi(3))
             .collect();
-        let fft = super::autocovariances_fft(&c, 40);
+        let fft = super::autocovariances_fft(&c, 0.0, 40);
         for (k, a) in fft.iter().enumerate() {
             let direct = dot(&c[..c.len() - k], &c[k..]);
             assert!(

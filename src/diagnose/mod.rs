@@ -27,7 +27,7 @@ pub mod swap;
 use serde_json::{Map, Value, json};
 
 use crate::recording::Recording;
-use candidates::separating_experiment;
+use candidates::{Candidate, separating_experiment};
 use effects::EffectModel;
 use features::Context;
 use heldout::Heldout;
@@ -48,9 +48,32 @@ pub struct SignalResult {
     pub signal: String,
     pub axis: char,
     pub residual_before: Vec<f64>,
-    /// Residual after each accepted term (cumulative, intercept removed), in acceptance order.
-    pub residual_after: Vec<Vec<f64>>,
+    /// Each accepted term's candidate at its refitted parameter, in acceptance order.
+    pub terms: Vec<(Candidate, f64)>,
+    /// Coefficients of the cumulative refits behind [`SignalResult::residual_after`]: entry k
+    /// holds those of the intercept and the columns of `terms[..=k]`.
+    pub after_coef: Vec<Vec<f64>>,
     pub models: Vec<EffectModel>,
+}
+
+impl SignalResult {
+    /// Residual after each accepted term (cumulative, intercept removed), in acceptance order,
+    /// recomputed from the context with the refits' coefficients (the same arithmetic as the
+    /// refit's own residual). Not held: one column per term is 8 MB on a 1M-row recording, and
+    /// only the plots and `--out` need them (issue 12 item 10).
+    pub fn residual_after(&self, ctx: &Context) -> Vec<Vec<f64>> {
+        let mut cols = vec![vec![1.0; self.residual_before.len()]];
+        for (c, th) in &self.terms {
+            cols.extend(c.columns(ctx, *th));
+        }
+        self.after_coef
+            .iter()
+            .map(|b| {
+                let upto: Vec<&[f64]> = cols[..b.len()].iter().map(Vec::as_slice).collect();
+                lsq::residual(&upto, b, &self.residual_before)
+            })
+            .collect()
+    }
 }
 
 pub struct Diagnosis {
@@ -61,6 +84,7 @@ pub struct Diagnosis {
 
 /// Diagnose a recording whose simulation is in its `sim_e*_um` columns.
 pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Diagnosis, DiagnoseError> {
+    // The recording's own columns, borrowed (not copied: 8 MB each on a 1M-row recording).
     let sims = rec
         .error_signals()
         .into_iter()
@@ -68,16 +92,25 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Diagnosis, DiagnoseEr
             let sim = rec
                 .col(&format!("sim_{s}"))
                 .ok_or(DiagnoseError::NoSimulation { signal: s.clone() })?;
-            Ok((s, sim.to_vec()))
+            Ok((s, sim))
         })
         .collect::<Result<Vec<_>, _>>()?;
-    diagnose_with_sim(rec, &sims, opts)
+    diagnose_sims(rec, &sims, opts)
 }
 
 /// Diagnose against an explicit simulation per signal (`(signal, sim_um per row)`).
 pub fn diagnose_with_sim(
     rec: &Recording,
     sims: &[(String, Vec<f64>)],
+    opts: &Options,
+) -> Result<Diagnosis, DiagnoseError> {
+    let sims: Vec<(String, &[f64])> = sims.iter().map(|(s, v)| (s.clone(), &v[..])).collect();
+    diagnose_sims(rec, &sims, opts)
+}
+
+fn diagnose_sims(
+    rec: &Recording,
+    sims: &[(String, &[f64])],
     opts: &Options,
 ) -> Result<Diagnosis, DiagnoseError> {
     if rec.n_rows() < 8 {
@@ -97,7 +130,7 @@ pub fn diagnose_with_sim(
         let meas = rec.col(signal).ok_or(DiagnoseError::NoSimulation {
             signal: signal.clone(),
         })?;
-        let r: Vec<f64> = meas.iter().zip(sim).map(|(m, s)| m - s).collect();
+        let r: Vec<f64> = meas.iter().zip(sim.iter()).map(|(m, s)| m - s).collect();
         all_sq += r.iter().map(|v| v * v).sum::<f64>();
         all_n += r.len();
         mismatch.extend(locate::locate(&ctx, signal, &r));
@@ -110,11 +143,11 @@ pub fn diagnose_with_sim(
         // The second test also catches pairs of near-collinear lags with opposite gains that fit
         // a difference of two sensors without predicting better than one of them.
         let heldout = Heldout::new(&ctx, axis, &r, opts);
-        let (models, cis, resid_after) = loop {
-            let (models, cis, resid_after) = joint_refit(&ctx, &r, &sel.terms);
+        let (models, cis, after_coef, refit_terms) = loop {
+            let (models, cis, after_coef, refit_terms) = joint_refit(&ctx, &r, &sel.terms);
             let Some((k, reason, with, without)) = parsimony_drop(&heldout, &sel.terms, &cis, opts)
             else {
-                break (models, cis, resid_after);
+                break (models, cis, after_coef, refit_terms);
             };
             let t = sel.terms.remove(k);
             let why = if reason == "ci_includes_zero" {
@@ -226,18 +259,23 @@ pub fn diagnose_with_sim(
                 experiment: None,
             });
         }
-        let final_resid = resid_after.last().cloned().unwrap_or_else(|| {
+        let mut result = SignalResult {
+            signal: signal.clone(),
+            axis,
+            residual_before: r,
+            terms: refit_terms,
+            after_coef,
+            models,
+        };
+        let final_resid = result.residual_after(&ctx).pop().unwrap_or_else(|| {
+            let r = &result.residual_before;
             let m = r.iter().sum::<f64>() / r.len() as f64;
             r.iter().map(|v| v - m).collect()
         });
         mismatch.extend(locate::unexplained(&ctx, signal, &final_resid));
-        signals.push(SignalResult {
-            signal: signal.clone(),
-            axis,
-            residual_before: r,
-            residual_after: resid_after,
-            models,
-        });
+        drop(final_resid);
+        result.after_coef.shrink_to_fit();
+        signals.push(result);
     }
     findings.sort_by(|a, b| b.0.total_cmp(&a.0));
     let findings: Vec<Finding> = findings.into_iter().map(|f| f.1).collect();
@@ -308,9 +346,16 @@ fn parsimony_drop(
 /// Refit all accepted terms jointly (one coordinate pass refining each nonlinear parameter with the
 /// others held), then give each term its model and 95 % intervals: linear gains from the covariance
 /// (inflated for correlated residuals), nonlinear ones by profile likelihood (n_eff·ln RSS ratio ≤ 3.84).
-/// Also returns the residual after each term, cumulatively (terms fitted jointly up to that one).
-/// Models, 95 % intervals and cumulative residuals of [`joint_refit`].
-type Refit = (Vec<EffectModel>, Vec<Map<String, Value>>, Vec<Vec<f64>>);
+/// Also returns the coefficients of the cumulative fits (terms fitted jointly up to each one) and
+/// the terms at their refitted parameters, from which [`SignalResult::residual_after`] recomputes
+/// the cumulative residuals.
+/// Models, 95 % intervals, cumulative-fit coefficients and refitted terms of [`joint_refit`].
+type Refit = (
+    Vec<EffectModel>,
+    Vec<Map<String, Value>>,
+    Vec<Vec<f64>>,
+    Vec<(Candidate, f64)>,
+);
 
 fn joint_refit(ctx: &Context, r: &[f64], terms: &[Term]) -> Refit {
     let n = r.len();
@@ -427,13 +472,16 @@ fn joint_refit(ctx: &Context, r: &[f64], terms: &[Term]) -> Refit {
         }
         cis.push(ci);
     }
-    // Cumulative residuals for plots: fit ones + terms[..=k].
-    let mut resid_after = vec![];
-    for k in 0..terms.len() {
-        let upto: Vec<&[f64]> = flat[..spans[k].end].to_vec();
-        resid_after.push(lsq::fit(&upto, r).resid);
-    }
-    (models, cis, resid_after)
+    // Cumulative fits for the plots' residuals: ones + terms[..=k].
+    let after_coef = (0..terms.len())
+        .map(|k| lsq::coef(&flat[..spans[k].end], r))
+        .collect();
+    let refit = terms
+        .iter()
+        .zip(&thetas)
+        .map(|(t, th)| (t.cand.clone(), *th))
+        .collect();
+    (models, cis, after_coef, refit)
 }
 
 fn refine_min(f: impl Fn(f64) -> f64, lo: f64, hi: f64) -> f64 {

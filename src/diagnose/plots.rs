@@ -73,17 +73,18 @@ pub fn write_plots(d: &Diagnosis, dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
         .enumerate()
         .filter_map(|(k, f)| {
             f.as_ref()
-                .map(|f| (format!("{}_mm", ['x', 'y', 'z'][k]), f.pos_mm.as_slice()))
+                .map(|f| (format!("{}_mm", ['x', 'y', 'z'][k]), &f.pos_mm[..]))
         })
         .collect();
-    feats.push(("t_s".into(), &ctx.t_s));
+    feats.push(("t_s".into(), &ctx.t_s[..]));
     if let Some((name, t)) = ctx.temps.first() {
-        feats.push((name.clone(), t));
+        feats.push((name.clone(), &t[..]));
     }
     let mut out = vec![];
     for s in &d.signals {
+        let after = s.residual_after(ctx);
         let mut series: Vec<(String, &[f64])> = vec![("before".into(), &s.residual_before)];
-        for (k, r) in s.residual_after.iter().enumerate() {
+        for (k, r) in after.iter().enumerate() {
             series.push((format!("after {}", s.models[k].id()), r));
         }
         for (name, x) in &feats {

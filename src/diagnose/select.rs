@@ -154,9 +154,10 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
     if cell_of.is_some() {
         tried += lib.iter().filter(|c| within_cells(c)).count();
     }
-    let ones = vec![1.0; n];
-    let mut basis = lsq::orthonormalize(&[], vec![ones.clone()], 2);
-    let mut raw_cols: Vec<Vec<f64>> = vec![ones];
+    let mut basis = lsq::orthonormalize(&[], vec![vec![1.0; n]], 2);
+    // Raw columns fitted so far (intercept + every term's): only their count is needed (the
+    // columns themselves are in `terms`; a copy was 8 MB a column on a 1M-row recording).
+    let mut n_raw = 1;
     let mut terms: Vec<Term> = vec![];
     let mut runners_up = vec![];
     let mut used = vec![false; lib.len()];
@@ -167,7 +168,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
     let mut cv_before = cv_of(&[]);
     let mut exchanges = 0;
     loop {
-        while terms.len() < opts.max_terms && n > raw_cols.len() + 3 {
+        while terms.len() < opts.max_terms && n > n_raw + 3 {
             let r0 = lsq::deflate(&basis, r);
             let rss0 = dot(&r0, &r0);
             if rss0.is_nan() || rss0 <= 0.0 {
@@ -175,11 +176,12 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             }
             let plain = Null {
                 basis: basis.as_slice().into(),
-                r0: r0.clone(),
+                r0,
                 rss0,
                 extra: 0,
                 cells: None,
             };
+            let r0 = &plain.r0;
             let cells = match &cell_of {
                 Some((cell, k)) => Null::within_cells(&basis, r, cell, *k),
                 None => Null {
@@ -236,7 +238,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 .iter()
                 .max_by(|a, b| share(a).total_cmp(&share(b)))
                 .expect("non-empty");
-            let top_contrib = contribution(ctx, &lib[top.idx], top.theta, &basis, &r0);
+            let top_contrib = contribution(ctx, &lib[top.idx], top.theta, &basis, r0);
             let r1_top: Vec<f64> = r0.iter().zip(&top_contrib).map(|(a, b)| a - b).collect();
             let n_eff = lsq::effective_n(&without_cell_means(ctx, axis, &r1_top));
             for s in &mut scored {
@@ -333,7 +335,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                     }
                 }
             }
-            let p_cols = (raw_cols.len() + nl.extra) as f64;
+            let p_cols = (n_raw + nl.extra) as f64;
             let df2 = n_eff - p_cols - win.q as f64;
             let p_value = if df2 >= 1.0 {
                 let rss1 = nl.rss0 - win.gain;
@@ -356,7 +358,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 break;
             }
             // Ambiguity: another family, nearly as good, explaining the same shape.
-            let win_contrib = contribution(ctx, cand, win.theta, &basis, &r0);
+            let win_contrib = contribution(ctx, cand, win.theta, &basis, r0);
             let wn = dot(&win_contrib, &win_contrib).sqrt();
             let ambiguous_with = scored
                 .iter()
@@ -366,7 +368,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                         && win.delta_bic - s.delta_bic < opts.ambiguity_bic
                 })
                 .filter_map(|s| {
-                    let sc = contribution(ctx, &lib[s.idx], s.theta, &basis, &r0);
+                    let sc = contribution(ctx, &lib[s.idx], s.theta, &basis, r0);
                     let corr = dot(&sc, &win_contrib) / (wn * dot(&sc, &sc).sqrt());
                     (corr > opts.ambiguity_corr).then(|| Alternative {
                         cand: lib[s.idx].clone(),
@@ -387,7 +389,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 }
             }
             basis.extend(lsq::orthonormalize(&basis, new_cols.clone(), 2));
-            raw_cols.extend(new_cols.iter().cloned());
+            n_raw += new_cols.len();
             terms.push(Term {
                 cand: cand.clone(),
                 theta: win.theta,
@@ -407,11 +409,12 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
         if terms.is_empty() || exchanges >= 2 {
             break;
         }
-        let mut fitted = vec![vec![1.0; n]];
+        // The terms' own columns, borrowed (a copy of them was the peak of a 1M-row diagnosis).
+        let ones = vec![1.0; n];
+        let mut refs: Vec<&[f64]> = vec![&ones];
         for t in &terms {
-            fitted.extend(t.cols.iter().cloned());
+            refs.extend(t.cols.iter().map(Vec::as_slice));
         }
-        let refs: Vec<&[f64]> = fitted.iter().map(Vec::as_slice).collect();
         let resid = lsq::fit(&refs, r).resid;
         // Only where structure is left that no candidate explains (the same test as the report's
         // "unexplained structure"): a clean fit is not revisited, which keeps the cost where it helps.
@@ -435,11 +438,12 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
         exchanges += 1;
         terms.remove(ex.k);
         terms.extend(ex.terms);
-        raw_cols = vec![vec![1.0; n]];
+        let mut raw_cols = vec![vec![1.0; n]];
         for t in &terms {
             raw_cols.extend(t.cols.iter().cloned());
         }
-        basis = lsq::orthonormalize(&[], raw_cols.clone(), 2);
+        n_raw = raw_cols.len();
+        basis = lsq::orthonormalize(&[], raw_cols, 2);
         cv_before = cv_of(&set_of(&terms));
         used = vec![false; lib.len()];
         for t in &terms {

@@ -162,6 +162,7 @@ mod tests {
             mismatch: vec![],
             findings: vec![],
             alternatives: vec![],
+            dropped: vec![],
         }
     }
 

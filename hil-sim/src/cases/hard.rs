@@ -172,7 +172,7 @@ pub fn generate_family_case(family: Family, seed: u64, index: usize) -> (Recordi
     .expect("generator columns are valid");
     let mut tctx = Context::from_recording(&truth_rec);
     // The rpm-driven lag is evaluated by the shared forward model with `rpm` as its driver.
-    tctx.temps.push(("rpm".into(), rpm.clone()));
+    tctx.temps.push(("rpm".into(), rpm.clone().into()));
     let x_range = (
         path.x_mm.iter().copied().fold(f64::INFINITY, f64::min),
         path.x_mm.iter().copied().fold(f64::NEG_INFINITY, f64::max),
