@@ -346,13 +346,18 @@ fn declared_models_must_load_at_start_and_have_plain_names() {
     let cfg = FieldConfig::load_for_run(&path).unwrap();
     assert_eq!(cfg.gateway.models["geo"], dir.path().join("geo.toml"));
     // A file that does not load (or is missing) is refused with file, line and key.
-    for (file, want) in [("broken.toml", "broken.toml"), ("missing.toml", "missing.toml")] {
-        let text = format!("{BASE}{source}[gateway.models]\ngeo = \"geo.toml\"\nbad = \"{file}\"\n");
+    for (file, want) in [
+        ("broken.toml", "broken.toml"),
+        ("missing.toml", "missing.toml"),
+    ] {
+        let text =
+            format!("{BASE}{source}[gateway.models]\ngeo = \"geo.toml\"\nbad = \"{file}\"\n");
         std::fs::write(&path, &text).unwrap();
         let msg = FieldConfig::load_for_run(&path).unwrap_err().to_string();
         let line = line_of(&text, "bad = ");
         assert!(
-            msg.contains(&format!("field.toml:{line}: key `gateway.models.bad`")) && msg.contains(want),
+            msg.contains(&format!("field.toml:{line}: key `gateway.models.bad`"))
+                && msg.contains(want),
             "{msg}"
         );
     }
@@ -360,5 +365,8 @@ fn declared_models_must_load_at_start_and_have_plain_names() {
     let msg = parse(&format!("{BASE}[gateway.models]\n\"a/b\" = \"geo.toml\"\n"))
         .unwrap_err()
         .to_string();
-    assert!(msg.contains("gateway.models.a/b") && msg.contains("letters, digits"), "{msg}");
+    assert!(
+        msg.contains("gateway.models.a/b") && msg.contains("letters, digits"),
+        "{msg}"
+    );
 }

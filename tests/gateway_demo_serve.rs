@@ -56,7 +56,9 @@ fn demo_serve_prints_the_page_and_the_opcua_endpoint_and_both_answer() {
         }
     };
     eprintln!("{line}");
-    let page = after(&line, "live page http://").unwrap().trim_end_matches('/');
+    let page = after(&line, "live page http://")
+        .unwrap()
+        .trim_end_matches('/');
     let opc = after(&line, "OPC UA ").unwrap().to_string();
     assert!(opc.starts_with("opc.tcp://127.0.0.1:"), "{line}");
 
@@ -112,5 +114,9 @@ fn demo_serve_prints_the_page_and_the_opcua_endpoint_and_both_answer() {
     );
     let ident: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
     assert_eq!(ident["box"], "demo-full", "{ident}");
-    assert_eq!(ident["sha256"], sha.as_str(), "OPC UA and /status show the same model");
+    assert_eq!(
+        ident["sha256"],
+        sha.as_str(),
+        "OPC UA and /status show the same model"
+    );
 }

@@ -163,7 +163,11 @@ fn a_declared_model_is_switched_in_through_the_ramps_and_bad_requests_change_not
         String::from_utf8_lossy(&out.stderr)
     );
     let ident: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
-    assert_eq!(ident["sha256"], geo_sha.as_str(), "OPC UA identification: {ident}");
+    assert_eq!(
+        ident["sha256"],
+        geo_sha.as_str(),
+        "OPC UA identification: {ident}"
+    );
     let actions = rig.call("GET", "/api/actions", None, "").1;
     assert!(actions.contains("accepted: ramping out"), "{actions}");
     let log = rig.log_text();

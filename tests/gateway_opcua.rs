@@ -233,8 +233,13 @@ fn a_certificate_user_reads_and_another_certificate_is_refused() {
     let dir = run::run_dir("gateway_opcua_certs");
     let dir = dir.as_path();
     let script = peers::repo().join("tests/peers/asyncua_certs.py");
-    let gen = Command::new(&py).arg(&script).arg("gen").arg(dir).output().unwrap();
-    assert!(gen.status.success(), "generating certificates: {gen:?}");
+    let made = Command::new(&py)
+        .arg(&script)
+        .arg("gen")
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(made.status.success(), "generating certificates: {made:?}");
     let (_rt, hub) = run::loopback_hub();
     let opcua = "\n[opcua]\nlisten = \"127.0.0.1:0\"\npki_dir = \"pki\"\ntrust_client_certs = true\n\
                  cert_users = [ { name = \"mes\", certificate = \"user-good.der\" } ]\n";

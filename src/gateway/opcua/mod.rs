@@ -131,14 +131,20 @@ impl OpcUaSection {
             if u.name.trim().is_empty() || u.name.trim() != u.name || taken {
                 return Err((
                     format!("opcua.cert_users[{i}].name"),
-                    format!("expected a new non-empty name without surrounding spaces, got {:?}", u.name),
+                    format!(
+                        "expected a new non-empty name without surrounding spaces, got {:?}",
+                        u.name
+                    ),
                 ));
             }
             let ext = u.certificate.extension().and_then(|e| e.to_str());
             if !matches!(ext, Some("der" | "pem")) {
                 return Err((
                     format!("opcua.cert_users[{i}].certificate"),
-                    format!("expected a .der or .pem file, got {}", u.certificate.display()),
+                    format!(
+                        "expected a .der or .pem file, got {}",
+                        u.certificate.display()
+                    ),
                 ));
             }
         }

@@ -87,7 +87,13 @@ pub async fn start(
         handle.subscriptions(),
     );
     let subs = handle.subscriptions().clone();
-    let updater = tokio::spawn(update_loop(space, status, model, box_name.to_string(), subs));
+    let updater = tokio::spawn(update_loop(
+        space,
+        status,
+        model,
+        box_name.to_string(),
+        subs,
+    ));
     let endpoint = format!("opc.tcp://{host}:{}/", bound.port());
     Ok(OpcUaServer {
         endpoint,
@@ -140,7 +146,10 @@ fn builder(
         // The server matches the token's certificate by thumbprint and checks its signature over
         // the server's certificate and nonce (async-opcua's X509IdentityToken handling).
         for u in &cfg.cert_users {
-            b = b.add_user_token(&u.name, ServerUserToken::x509(u.name.as_str(), &u.certificate));
+            b = b.add_user_token(
+                &u.name,
+                ServerUserToken::x509(u.name.as_str(), &u.certificate),
+            );
             ids.push(u.name.clone());
         }
         if cfg.anonymous() {
