@@ -378,3 +378,43 @@ fn an_old_word_order_spelling_loads_with_a_warning_naming_file_and_line() {
     tracing::subscriber::with_default(subscriber, || parse(&new)).unwrap();
     assert!(log2.0.lock().unwrap().is_empty());
 }
+
+#[test]
+fn declared_models_must_load_at_start_and_have_plain_names() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("field.toml");
+    let geo = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/demo/mill-geometric.toml");
+    std::fs::copy(&geo, dir.path().join("geo.toml")).unwrap();
+    std::fs::write(dir.path().join("broken.toml"), "schema = 1\n[machine\n").unwrap();
+    let source = "[[serial.source]]\nname = \"dro\"\ndevice = \"/dev/ttyUSB0\"\n\
+                  format = { kind = \"nd522\" }\nchannel = [ { name = \"x_mm\", key = \"X\" } ]\n";
+    // Good: relative to the field config, made absolute at start.
+    let text = format!("{BASE}{source}[gateway.models]\ngeo = \"geo.toml\"\n");
+    std::fs::write(&path, &text).unwrap();
+    let cfg = FieldConfig::load_for_run(&path).unwrap();
+    assert_eq!(cfg.gateway.models["geo"], dir.path().join("geo.toml"));
+    // A file that does not load (or is missing) is refused with file, line and key.
+    for (file, want) in [
+        ("broken.toml", "broken.toml"),
+        ("missing.toml", "missing.toml"),
+    ] {
+        let text =
+            format!("{BASE}{source}[gateway.models]\ngeo = \"geo.toml\"\nbad = \"{file}\"\n");
+        std::fs::write(&path, &text).unwrap();
+        let msg = FieldConfig::load_for_run(&path).unwrap_err().to_string();
+        let line = line_of(&text, "bad = ");
+        assert!(
+            msg.contains(&format!("field.toml:{line}: key `gateway.models.bad`"))
+                && msg.contains(want),
+            "{msg}"
+        );
+    }
+    // A name that could be mistaken for a path is refused by the plain parse already.
+    let msg = parse(&format!("{BASE}[gateway.models]\n\"a/b\" = \"geo.toml\"\n"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        msg.contains("gateway.models.a/b") && msg.contains("letters, digits"),
+        "{msg}"
+    );
+}

@@ -31,6 +31,7 @@ fn with_token() -> (Api, mpsc::Receiver<Control>) {
     let api = Api {
         token: Some(TOKEN.into()),
         control_tx: Some(tx),
+        models: None,
     };
     (api, rx)
 }
@@ -86,6 +87,7 @@ async fn action_refused_without_configured_token() {
     let api = Api {
         token: None,
         control_tx: Some(tx),
+        models: None,
     };
     let (addr, _s) = start(api, Limits::default()).await;
     let (code, _) = post(&addr, Some("Bearer anything"), r#"{"enabled": false}"#).await;

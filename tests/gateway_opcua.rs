@@ -158,28 +158,9 @@ fn a_user_reads_over_the_encrypted_endpoint_and_a_wrong_password_is_refused() {
     let (_rt, hub) = run::loopback_hub();
     let password = "opcua-test-password-1";
     std::fs::write(dir.join("mes.pw"), format!("{password}\n")).unwrap();
-    let field = dir.join("field.toml");
-    let full = configs::field_toml(hub.local_addr().port(), "127.0.0.1:9", Path::new("-"));
-    // Without the serial source (there is no pty to open); the sink goes with --dry-run.
-    let (head, tail) = full.split_once("[serial]").unwrap();
-    let text = head.to_string()
-        + &tail[tail.find("[sink.origin_shift]").unwrap()..]
-        + "\n[opcua]\nlisten = \"127.0.0.1:0\"\nanonymous = true\npki_dir = \"pki\"\n\
+    let opcua = "\n[opcua]\nlisten = \"127.0.0.1:0\"\nanonymous = true\npki_dir = \"pki\"\n\
            trust_client_certs = true\nusers = [ { name = \"mes\", password_file = \"mes.pw\" } ]\n";
-    std::fs::write(&field, text).unwrap();
-    let log = dir.join("gateway.log");
-    let mut gw = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .args(["run", "--dry-run", "--config"])
-        .arg(&field)
-        .arg("--model")
-        .arg(run::demo_truth_model())
-        .env("RUST_LOG", "info")
-        .env("NO_COLOR", "1")
-        .stdin(std::process::Stdio::null())
-        .stdout(std::process::Stdio::null())
-        .stderr(std::fs::File::create(&log).unwrap())
-        .spawn()
-        .expect("starting retrocomp run");
+    let (mut gw, log) = start_dry_run(dir, hub.local_addr().port(), opcua);
     let opc_url = from_log(&log, "OPC UA endpoint ", &mut gw);
     let out = Command::new(&py)
         .arg(peers::repo().join("tests/peers/asyncua_users.py"))
@@ -216,4 +197,78 @@ fn a_user_reads_over_the_encrypted_endpoint_and_a_wrong_password_is_refused() {
     // The password is not in the log.
     let log_text = std::fs::read_to_string(&log).unwrap();
     assert!(!log_text.contains(password), "{log_text}");
+}
+
+/// `retrocomp run --dry-run` with the test field config plus the `[opcua]` TOML `opcua`, on an empty
+/// CAN hub (its inputs are stale, the address space is there all the same); (child, log).
+fn start_dry_run(dir: &Path, hub_port: u16, opcua: &str) -> (std::process::Child, PathBuf) {
+    let field = dir.join("field.toml");
+    let full = configs::field_toml(hub_port, "127.0.0.1:9", Path::new("-"));
+    // Without the serial source (there is no pty to open); the sink goes with --dry-run.
+    let (head, tail) = full.split_once("[serial]").unwrap();
+    let text = head.to_string() + &tail[tail.find("[sink.origin_shift]").unwrap()..] + opcua;
+    std::fs::write(&field, text).unwrap();
+    let log = dir.join("gateway.log");
+    let gw = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .args(["run", "--dry-run", "--config"])
+        .arg(&field)
+        .arg("--model")
+        .arg(run::demo_truth_model())
+        .env("RUST_LOG", "info")
+        .env("NO_COLOR", "1")
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .expect("starting retrocomp run");
+    (gw, log)
+}
+
+/// `[[opcua.cert_users]]`: a user logs in with an X.509 certificate (X509IdentityToken) generated
+/// by the test with asyncua's own helper; another certificate, or the declared one signed with
+/// another key, is refused (tests/peers/asyncua_certs.py).
+#[test]
+fn a_certificate_user_reads_and_another_certificate_is_refused() {
+    let py = python_with_asyncua();
+    let dir = run::run_dir("gateway_opcua_certs");
+    let dir = dir.as_path();
+    let script = peers::repo().join("tests/peers/asyncua_certs.py");
+    let made = Command::new(&py)
+        .arg(&script)
+        .arg("gen")
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(made.status.success(), "generating certificates: {made:?}");
+    let (_rt, hub) = run::loopback_hub();
+    let opcua = "\n[opcua]\nlisten = \"127.0.0.1:0\"\npki_dir = \"pki\"\ntrust_client_certs = true\n\
+                 cert_users = [ { name = \"mes\", certificate = \"user-good.der\" } ]\n";
+    let (mut gw, log) = start_dry_run(dir, hub.local_addr().port(), opcua);
+    let opc_url = from_log(&log, "OPC UA endpoint ", &mut gw);
+    let out = Command::new(&py)
+        .arg(&script)
+        .args(["check", opc_url.as_str()])
+        .arg(dir)
+        .output()
+        .expect("running the asyncua client");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    run::stop_gateway(&mut gw, &log);
+    assert!(
+        out.status.success(),
+        "asyncua client failed ({}):\n{stdout}\n{stderr}\ngateway log: {}",
+        out.status,
+        log.display()
+    );
+    let summary: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    eprintln!("asyncua summary: {summary}");
+    // Certificates only: no anonymous endpoint, no password token.
+    assert_eq!(
+        summary["endpoints"],
+        serde_json::json!([["Basic256Sha256", "SignAndEncrypt", "Certificate"]]),
+        "{summary}"
+    );
+    assert!(summary["cert_user_read_um"].is_number(), "{summary}");
+    assert!(summary["other_certificate"].as_str().is_some(), "{summary}");
+    assert!(summary["wrong_key"].as_str().is_some(), "{summary}");
 }

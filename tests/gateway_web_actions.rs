@@ -3,8 +3,8 @@
 //! is 401 and nothing changes; with it `{"enabled": false}` takes the correction to 0 through the
 //! safety ramps, which hil-sim's own log of every PLC write shows (no step beyond the dosing cap,
 //! intermediate values on the way down, zero at the end). Also: acknowledging faults needs the token;
-//! switching the model is refused with 501 (not supported at run time); every action is in
-//! `/api/actions` with the peer address.
+//! switching to a model not declared in `[gateway.models]` is refused with 404 (the switch itself:
+//! `gateway_model_switch.rs`); every action is in `/api/actions` with the peer address.
 
 #[path = "gateway_support/faults_hil_configs.rs"]
 mod configs;
@@ -48,8 +48,8 @@ fn disabling_over_the_api_ramps_a_running_gateway_to_zero_and_needs_the_token() 
     }
     let (code, _) = rig.call("POST", "/api/faults/ack", None, "{}");
     assert_eq!(code, 401, "acknowledging needs the token");
-    let (code, body) = rig.call("POST", "/api/model", Some(TOKEN), "{}");
-    assert_eq!(code, 501, "switching the model is not supported: {body}");
+    let (code, body) = rig.call("POST", "/api/model", Some(TOKEN), r#"{"model": "other"}"#);
+    assert_eq!(code, 404, "no [gateway.models] declared here: {body}");
     let (code, body) = rig.call("POST", "/api/faults/ack", Some(TOKEN), "{}");
     assert_eq!(code, 200, "{body}");
     let (code, _) = rig.call("POST", "/api/compensation", Some(TOKEN), "{\"enabled\": 3}");
@@ -96,7 +96,12 @@ fn disabling_over_the_api_ramps_a_running_gateway_to_zero_and_needs_the_token() 
         refused, 3,
         "three refusals logged (2 compensation, 1 ack): {actions}"
     );
-    assert!(lines.iter().any(|l| l["action"] == "switch model" && l["result"].as_str().unwrap().contains("501")));
+    assert!(
+        lines
+            .iter()
+            .any(|l| l["action"] == "switch model to \"other\""
+                && l["result"].as_str().unwrap().contains("404"))
+    );
     let last = lines.last().unwrap();
     assert_eq!(last["action"], "compensation enabled=false", "{actions}");
     assert_eq!(last["who"], "api_token");

@@ -147,6 +147,7 @@ async function pollLogs() {
     const h = await getJson("/api/health");
     renderLog("#health-log", h.log, (e) => el("li", { class: e.health === "ok" && !e.faults.length ? "clear" : "start",
       text: `${when(e.unix_s)}  ${e.channel} ${e.health}${e.substituted ? " substituted" : ""}${e.faults.length ? " [" + e.faults.join(", ") + "]" : ""}` }));
+    await pollModels();
     const a = await getJson("/api/actions");
     renderLog("#action-log", a.log, (e) => el("li", { text: `${when(e.unix_s)}  ${e.action} from ${e.peer} (${e.who}): ${e.result}` }));
   } catch (e) { /* the banner shows a dead link */ }
@@ -203,6 +204,21 @@ async function action(path, body) {
 $("#act-enable").onclick = () => action("/api/compensation", { enabled: true });
 $("#act-disable").onclick = () => action("/api/compensation", { enabled: false });
 $("#act-ack").onclick = () => action("/api/faults/ack", {});
+$("#act-model").onclick = () => action("/api/model", { model: $("#model-select").value });
+
+// The models declared in [gateway.models]; a switch ramps out, swaps, ramps in (takes ~1 s).
+async function pollModels() {
+  const m = await getJson("/api/models");
+  const sel = $("#model-select");
+  const names = m.declared.join("\n");
+  if (sel.dataset.names !== names) {
+    sel.dataset.names = names;
+    sel.replaceChildren(...m.declared.map((n) => el("option", { value: n, text: n })));
+  }
+  $("#act-model").disabled = !m.declared.length;
+  $("#model-state").textContent = !m.declared.length ? "no [gateway.models] declared"
+    : m.switching_to ? `switching to ${m.switching_to.name} (${m.switching_to.sha256.slice(0, 12)}…)` : "";
+}
 for (const k of ["fine", "coarse"]) {
   $("#w-" + k).onclick = () => {
     windowKind = k;

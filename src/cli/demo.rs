@@ -115,9 +115,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     if let Some(listen) = &args.serve {
         // With --json the summary stays the last stdout line: the address goes to stderr then.
         let json = args.json;
-        let live = crate::gateway::demo::serve_live(&opts, listen, move |addr| {
+        let live = crate::gateway::demo::serve_live(&opts, listen, move |addr, opcua| {
             let line = format!(
-                "retrocomp demo: live page http://{addr}/ (JSON /status, Prometheus /metrics); Ctrl-C stops"
+                "retrocomp demo: live page http://{addr}/ (JSON /status, Prometheus /metrics); OPC UA {opcua} (read-only); Ctrl-C stops"
             );
             if json {
                 eprintln!("{line}");

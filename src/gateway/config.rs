@@ -84,6 +84,10 @@ pub struct GatewaySection {
     /// Lock all pages in RAM (`mlockall`) at start; refused → one WARN line.
     #[serde(default)]
     pub lock_memory: bool,
+    /// Models an operator may switch to at run time (`POST /api/model`, `model_switch.rs`):
+    /// `[gateway.models] name = "path"`, paths relative to this file. Each must load at start.
+    #[serde(default)]
+    pub models: std::collections::BTreeMap<String, PathBuf>,
 }
 
 /// What the box does with the correction when it is asked to stop.
@@ -296,7 +300,10 @@ impl FieldConfig {
         let mut cfg = Self::load(path)?;
         let base = path.parent().unwrap_or(Path::new("."));
         let opcua = cfg.opcua.as_mut().map_or(Ok(()), |o| o.resolve(base));
-        if let Err((key, what)) = opcua.and_then(|()| cfg.check_position_sources()) {
+        let checked = opcua
+            .and_then(|()| cfg.check_position_sources())
+            .and_then(|()| super::model_switch::resolve_models(&mut cfg.gateway.models, base));
+        if let Err((key, what)) = checked {
             let text = std::fs::read_to_string(path).unwrap_or_default();
             return Err(invalid(path, &text, key, what));
         }

@@ -159,6 +159,10 @@ impl FieldConfig {
                 "expected at least 16 characters without surrounding spaces".into(),
             ));
         }
+        for name in g.models.keys() {
+            super::model_switch::check_name(name)
+                .map_err(|what| (format!("gateway.models.{name}"), what))?;
+        }
         self.safety
             .validate()
             .map_err(|e| (safety_key("safety", &e), e.to_string()))?;

@@ -80,6 +80,8 @@ pub struct CycleLoop {
     model: Box<dyn ErrorModel + Send>,
     /// Which model runs (name, hash, loaded when), copied into every snapshot.
     model_identity: Option<super::status::ModelIdentity>,
+    /// A model switch in progress (`POST /api/model`).
+    switcher: super::model_switch::Switcher,
     io: CycleIo,
     compute_ns: Vec<u64>,
     last_publish_s: Option<f64>,
@@ -95,6 +97,7 @@ impl CycleLoop {
             engine,
             model_identity: model.identity(),
             model,
+            switcher: Default::default(),
             io,
             // The ring of compute times is allocated once: a gateway runs for months.
             compute_ns: Vec::with_capacity(COMPUTE_WINDOW),
@@ -121,9 +124,17 @@ impl CycleLoop {
                 tracing::error!(%err, axis, "cannot continue from the controller's value; holding");
             }
         }
-        // Disabling ramps each axis to zero through the safety ramps (Engine::set_enabled).
-        while let Ok(Control::SetCompensation { enabled }) = self.io.control.try_recv() {
-            e.set_enabled(enabled);
+        // Disabling ramps each axis to zero through the safety ramps (Engine::set_enabled); a
+        // model switch ramps out, swaps between two cycles, ramps in (model_switch.rs).
+        while let Ok(c) = self.io.control.try_recv() {
+            match c {
+                Control::SetCompensation { enabled } => self.switcher.set_enabled(enabled, e),
+                Control::SwitchModel(swap) => self.switcher.request(*swap, e),
+            }
+        }
+        if let Some(swap) = self.switcher.poll(e) {
+            self.model = swap.model;
+            self.model_identity = Some(swap.identity);
         }
         let t0 = Instant::now();
         let outs = e.cycle_in_place(now_s, self.model.as_mut());

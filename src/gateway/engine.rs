@@ -92,7 +92,7 @@ impl AxisErrors {
 /// What the gateway needs from a model (`model_adapter.rs` implements it for `src/models`).
 pub trait ErrorModel {
     /// Channels the model reads (besides axis positions). Missing ones make the inputs stale.
-    /// The engine resolves them once, at its first cycle: one model per engine.
+    /// The engine resolves them at its first cycle, and again after `Engine::model_replaced`.
     fn required_channels(&self) -> Vec<String>;
     /// Those of [`ErrorModel::required_channels`] whose loss removes only the terms that use them
     /// (the model is evaluated without them and those terms are zero), not the whole correction:
@@ -306,6 +306,24 @@ impl Engine {
             );
         }
         self.enabled = enabled;
+    }
+
+    pub fn enabled(&self) -> bool {
+        self.enabled
+    }
+
+    /// True when every axis' last output is exactly 0 µm (a model switch waits for it).
+    pub fn outputs_at_zero(&self) -> bool {
+        self.outputs.iter().all(|(_, v)| *v == 0.0)
+    }
+
+    /// The caller replaced the model (`model_switch.rs`): its channels are resolved again at the
+    /// next cycle and its terms replace the old ones.
+    pub fn model_replaced(&mut self) {
+        self.required = None;
+        for a in &mut self.axes {
+            a.terms.clear();
+        }
     }
 
     /// Take one decoded sample (any order; health is judged per channel). A known channel costs

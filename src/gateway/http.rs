@@ -41,18 +41,22 @@ pub type StatusRx = watch::Receiver<Option<Arc<StatusSnapshot>>>;
 
 /// A run-time action accepted on the authenticated API, for the run loop to apply. The engine
 /// applies `SetCompensation` with `Engine::set_enabled`, so disabling ramps the correction to zero
-/// through the same safety ramps as the `[gateway] enabled` switch.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// through the same safety ramps as the `[gateway] enabled` switch. `SwitchModel` carries a model
+/// already loaded and checked off the cycle thread (`model_switch.rs`: ramp out, swap, ramp in).
+#[derive(Debug, PartialEq)]
 pub enum Control {
     SetCompensation { enabled: bool },
+    SwitchModel(Box<super::model_switch::ModelSwap>),
 }
 
 /// What the action routes need: the token from the field config (`[gateway] api_token`; `None`
-/// → every action is refused with 403) and the channel to the run loop (`None` → 503).
+/// → every action is refused with 403), the channel to the run loop (`None` → 503) and the
+/// models that may be switched to (`[gateway.models]`; `None` → none).
 #[derive(Clone, Debug, Default)]
 pub struct Api {
     pub token: Option<String>,
     pub control_tx: Option<mpsc::Sender<Control>>,
+    pub models: Option<Arc<super::model_switch::Catalog>>,
 }
 
 /// Resource bounds of the endpoint; [`Limits::default`] is what `retrocomp run` uses.
@@ -113,6 +117,7 @@ pub async fn serve(
             rx,
             api: Arc::new(api),
             history,
+            model_request: Default::default(),
         },
         &limits,
     );
@@ -124,6 +129,8 @@ pub(super) struct AppState {
     pub(super) rx: StatusRx,
     pub(super) api: Arc<Api>,
     pub(super) history: super::history::SharedHistory,
+    /// The last model switch accepted (name, sha256), for `GET /api/models`.
+    pub(super) model_request: Arc<std::sync::Mutex<Option<(String, String)>>>,
 }
 
 fn router(state: AppState, limits: &Limits) -> Router {

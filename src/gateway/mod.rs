@@ -12,6 +12,7 @@ pub mod health;
 pub mod history;
 pub mod http;
 pub mod model_adapter;
+pub mod model_switch;
 pub mod opcua;
 pub mod origin_shift_sink;
 pub mod quadrature_sink;

@@ -94,6 +94,7 @@ pub async fn run(
     let api = Api {
         token: cfg.gateway.api_token.clone(),
         control_tx: Some(control_tx),
+        models: Some(Arc::new(super::model_switch::Catalog::from_config(&cfg))),
     };
     // The OPC UA server (if configured) reads the same snapshots on its own tasks.
     let opcua = match &cfg.opcua {

@@ -157,6 +157,30 @@ impl StatusSnapshot {
             "1 when compensation is enabled.",
         );
         let _ = writeln!(s, "retrocomp_enabled {}", self.enabled as u8);
+        if let Some(m) = &self.model {
+            family(
+                &mut s,
+                "retrocomp_model_info",
+                "gauge",
+                "The model in use (name, sha256 of its canonical TOML); loaded_unix_s below.",
+            );
+            let (name, sha) = (esc(&m.name), esc(&m.sha256));
+            let _ = writeln!(
+                s,
+                "retrocomp_model_info{{name=\"{name}\",sha256=\"{sha}\"}} 1"
+            );
+            family(
+                &mut s,
+                "retrocomp_model_loaded_unix_seconds",
+                "gauge",
+                "When the model in use was loaded (Unix time), s.",
+            );
+            let _ = writeln!(
+                s,
+                "retrocomp_model_loaded_unix_seconds {}",
+                num(m.loaded_unix_s)
+            );
+        }
         family(
             &mut s,
             "retrocomp_correction_applied_um",

@@ -7,8 +7,10 @@
 //! axis and term; see `history.rs`), `/api/faults` (active + start/clear log), `/api/health`
 //! (sensor health changes), `/api/actions` (who did what, when). Actions (token): `POST
 //! /api/faults/ack` (`{}` or `{"source": "..."}`: records that a person saw the faults; changes
-//! nothing on the machine) and `POST /api/model` (switching the model at run time is not supported:
-//! 501 with the reason, after the token check, so a client learns nothing without the token).
+//! nothing on the machine) and `POST /api/model` (`{"model": "<name>"}`: switch to a model declared
+//! in `[gateway.models]`, through the safety ramps, see `model_switch.rs`); `GET /api/models` (open)
+//! lists the declared ones, the one in use and a switch in progress. The token is checked before
+//! the body is read, so a client without it learns nothing.
 
 use std::net::SocketAddr;
 
@@ -20,7 +22,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 
 use super::history::{Ack, unix_now_s};
-use super::http::{AppState, authorize, not_allowed, plain, record};
+use super::http::{AppState, Control, authorize, not_allowed, plain, record};
 
 const INDEX_HTML: &str = include_str!("../../assets/web/index.html");
 const APP_JS: &str = include_str!("../../assets/web/app.js");
@@ -58,6 +60,7 @@ pub(super) fn routes() -> Router<AppState> {
         .route("/api/actions", get(actions).fallback(not_allowed))
         .route("/api/faults/ack", post(ack))
         .route("/api/model", post(switch_model))
+        .route("/api/models", get(models).fallback(not_allowed))
 }
 
 #[derive(Debug, serde::Deserialize)]
@@ -157,23 +160,122 @@ async fn ack(
     json(serde_json::json!({ "acknowledged": n }))
 }
 
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ModelBody {
+    model: String,
+}
+
+/// The declared models, the one in use and the last switch accepted (open, read-only).
+async fn models(State(s): State<AppState>) -> Response {
+    let declared = s.api.models.as_ref().map_or(Vec::new(), |c| c.names());
+    let current = s.rx.borrow().as_ref().and_then(|snap| snap.model.clone());
+    let requested = s
+        .model_request
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .clone();
+    let switching = requested
+        .as_ref()
+        .filter(|(_, sha)| current.as_ref().is_none_or(|c| &c.sha256 != sha));
+    json(serde_json::json!({
+        "declared": declared,
+        "current": current,
+        "switching_to": switching.map(|(n, sha)| serde_json::json!({"name": n, "sha256": sha})),
+    }))
+}
+
+/// `POST /api/model {"model": "<name in [gateway.models]>"}`: load and check the model here (off
+/// the cycle thread), then hand it to the cycle, which ramps out, swaps and ramps in
+/// (`model_switch.rs`). 202 when handed over; 404 for a name not declared; 422 when it does not
+/// load or check; 409 when it is the model already in use. A refusal changes nothing.
 async fn switch_model(
     State(s): State<AppState>,
     ConnectInfo(peer): ConnectInfo<SocketAddr>,
     headers: HeaderMap,
+    body: Result<Json<ModelBody>, JsonRejection>,
 ) -> Response {
     if let Err(r) = authorize(&s, peer, &headers, "POST /api/model") {
         return *r;
     }
+    let Json(ModelBody { model: name }) = match body {
+        Ok(b) => b,
+        Err(e) => return (e.status(), format!("{}\n", e.body_text())).into_response(),
+    };
+    let action = format!("switch model to {name:?}");
+    let refuse = |code: StatusCode, why: String| {
+        tracing::warn!(%peer, who = "api_token", "action refused: {action}: {why}");
+        record(
+            &s,
+            peer,
+            "api_token",
+            &action,
+            &format!("refused ({}): {why}", code.as_u16()),
+        );
+        (
+            code,
+            [(header::CONTENT_TYPE, "text/plain")],
+            format!("{why}\n"),
+        )
+            .into_response()
+    };
+    let (Some(catalog), Some(tx)) = (s.api.models.clone(), s.api.control_tx.as_ref()) else {
+        return refuse(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "no run loop takes actions".into(),
+        );
+    };
+    let snap = s.rx.borrow().clone();
+    let seen: Vec<String> = snap
+        .as_ref()
+        .map_or(Vec::new(), |s| s.channels.keys().cloned().collect());
+    let current = snap
+        .as_ref()
+        .and_then(|s| s.model.as_ref())
+        .map(|m| m.sha256.clone());
+    let loading = name.clone();
+    let loaded = tokio::task::spawn_blocking(move || catalog.load(&loading, &seen)).await;
+    let swap = match loaded {
+        Ok(Ok(swap)) => swap,
+        Ok(Err(e)) => {
+            let code = StatusCode::from_u16(e.http_status()).unwrap_or(StatusCode::BAD_REQUEST);
+            return refuse(code, e.to_string());
+        }
+        Err(e) => {
+            return refuse(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                format!("loading failed: {e}"),
+            );
+        }
+    };
+    if current.as_deref() == Some(swap.identity.sha256.as_str()) {
+        return refuse(
+            StatusCode::CONFLICT,
+            format!("model {name:?} is already in use"),
+        );
+    }
+    let target = serde_json::json!({
+        "name": swap.name, "model_name": swap.identity.name, "sha256": swap.identity.sha256,
+    });
+    let sha = swap.identity.sha256.clone();
+    if tx.try_send(Control::SwitchModel(Box::new(swap))).is_err() {
+        return refuse(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "run loop busy or stopped; retry".into(),
+        );
+    }
+    *s.model_request.lock().unwrap_or_else(|p| p.into_inner()) = Some((name.clone(), sha.clone()));
+    tracing::info!(%peer, who = "api_token", sha256 = sha, "action accepted: POST /api/model: {action}");
     record(
         &s,
         peer,
         "api_token",
-        "switch model",
-        "refused: not supported (501)",
+        &action,
+        &format!("accepted: ramping out, then {sha}"),
     );
-    plain(
-        StatusCode::NOT_IMPLEMENTED,
-        "switching the model at run time is not supported: restart the gateway with the new [model] path\n",
+    (
+        StatusCode::ACCEPTED,
+        json(serde_json::json!({ "switching_to": target })),
     )
+        .into_response()
 }

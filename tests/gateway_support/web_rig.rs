@@ -27,6 +27,12 @@ pub struct Rig {
 /// Starts hil-sim running `strokes` strokes (3 s each after 1 s of dwell) with the extra
 /// `[[io.faults]]` TOML `io_faults`, and the gateway on it; waits for its status address.
 pub fn start(name: &str, strokes: usize, io_faults: &str) -> Rig {
+    start_with(name, strokes, io_faults, "")
+}
+
+/// [`start`] with `field_extra` appended to the gateway's field config (e.g. `[gateway.models]`
+/// with absolute paths: the run folder is made anew by `start`).
+pub fn start_with(name: &str, strokes: usize, io_faults: &str, field_extra: &str) -> Rig {
     let hil_sim = super::hil_sim::hil_sim_next_to_retrocomp();
     let dir = run::run_dir(name);
     let (rt, hub) = run::loopback_hub();
@@ -51,6 +57,7 @@ pub fn start(name: &str, strokes: usize, io_faults: &str) -> Rig {
         1,
     );
     assert!(text.contains("api_token"), "field config has the token");
+    let text = text + field_extra;
     std::fs::write(&field, text).unwrap();
     let (gw, log) = run::start_gateway(&dir, "gateway.log", &field, &truth);
     let mut rig = Rig {

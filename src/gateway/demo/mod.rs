@@ -234,17 +234,24 @@ fn truth_model(mode: Mode) -> anyhow::Result<MachineModel> {
 struct Live {
     listen: String,
     bound: tokio::sync::oneshot::Sender<std::net::SocketAddr>,
+    /// The OPC UA server's loopback port, the same on every pass (clients keep their endpoint).
+    opcua_port: u16,
 }
 
 /// `retrocomp demo --serve`: after the four runs, the full-model gateway runs against hil-sim
 /// again and again (each pass the warm-up and the part program, a fresh simulator), its live page
-/// and `/metrics` on `listen`; `on_bound` gets the address once the first pass is up. Returns only
-/// on error (the caller stops it with Ctrl-C).
+/// and `/metrics` on `listen`, its OPC UA server on a loopback port chosen once; `on_bound` gets
+/// the page's address and the OPC UA endpoint (`opc.tcp://…/`) once the first pass is up. Returns
+/// only on error (the caller stops it with Ctrl-C).
 pub async fn serve_live(
     opts: &DemoOptions,
     listen: &str,
-    on_bound: impl FnOnce(std::net::SocketAddr),
+    on_bound: impl FnOnce(std::net::SocketAddr, String),
 ) -> anyhow::Result<()> {
+    // A free port now, bound again by each pass's OPC UA server (nothing else takes it between).
+    let opcua_port = std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port();
     let models = opts.out.join("models");
     std::fs::create_dir_all(&models)?;
     let geo_path = models.join("mill-geometric.toml");
@@ -256,6 +263,7 @@ pub async fn serve_live(
         let live = Live {
             listen: listen.to_string(),
             bound: tx,
+            opcua_port,
         };
         let run = one_run(
             opts,
@@ -272,7 +280,7 @@ pub async fn serve_live(
                 Ok(addr) = async { rx.as_mut().expect("polled once").await }, if rx.is_some() => {
                     rx = None;
                     if let Some(f) = on_bound.take() {
-                        f(addr);
+                        f(addr, format!("opc.tcp://127.0.0.1:{opcua_port}/"));
                     }
                 }
             }
@@ -317,28 +325,16 @@ async fn one_run(
             &sim.weighing_pty,
         );
         let text = field::with_realtime_priority(&text, opts.realtime_priority);
+        // The live gateway (`--serve`): the page on the asked address and, for the plant, an
+        // OPC UA server on the port `serve_live` chose (printed beside the page's address).
         let (text, bound) = match live {
             Some(l) => {
                 let listen = format!("status_listen = \"{}\"", l.listen);
-                (
-                    text.replacen("status_listen = \"127.0.0.1:0\"", &listen, 1),
-                    Some(l.bound),
-                )
+                let text = text.replacen("status_listen = \"127.0.0.1:0\"", &listen, 1);
+                let opcua = format!("\n[opcua]\nlisten = \"127.0.0.1:{}\"\n", l.opcua_port);
+                (text + &opcua, Some(l.bound))
             }
             None => (text, None),
-        };
-        // The plant's view of the live gateway (`--serve`): an OPC UA server on a free loopback
-        // port, printed beside the page's address.
-        let text = if bound.is_some() {
-            let opcua_port = std::net::TcpListener::bind("127.0.0.1:0")?
-                .local_addr()?
-                .port();
-            eprintln!(
-                "retrocomp demo: live gateway: OPC UA opc.tcp://127.0.0.1:{opcua_port}/ (read-only)"
-            );
-            format!("{text}\n[opcua]\nlisten = \"127.0.0.1:{opcua_port}\"\n")
-        } else {
-            text
         };
         let field_path = dir.join("field.toml");
         std::fs::write(&field_path, &text)?;

@@ -40,6 +40,10 @@ pub struct OpcUaSection {
     /// endpoint (Basic256Sha256, SignAndEncrypt), which needs `pki_dir`.
     #[serde(default)]
     pub users: Vec<OpcUaUser>,
+    /// Users who log in with an X.509 certificate (an OPC UA X509IdentityToken, signed with the
+    /// certificate's private key) instead of a password; same endpoint, same read-only rights.
+    #[serde(default)]
+    pub cert_users: Vec<OpcUaCertUser>,
     /// The server's certificate store (`own/`, `private/`, `trusted/`, `rejected/`); a self-signed
     /// certificate is created there at first start. Relative to the field config. Required with `users`.
     #[serde(default)]
@@ -58,13 +62,27 @@ pub struct OpcUaUser {
     pub password_file: PathBuf,
 }
 
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OpcUaCertUser {
+    pub name: String,
+    /// The user's certificate (`.der` or `.pem`), relative to the field config; a session whose
+    /// identity token carries any other certificate, or is not signed by its key, is refused.
+    pub certificate: PathBuf,
+}
+
 fn default_listen() -> String {
     "127.0.0.1:4840".into()
 }
 
 impl OpcUaSection {
     pub fn anonymous(&self) -> bool {
-        self.anonymous.unwrap_or(self.users.is_empty())
+        self.anonymous.unwrap_or(!self.has_users())
+    }
+
+    /// Any password or certificate user (they need the encrypted endpoint).
+    pub fn has_users(&self) -> bool {
+        !self.users.is_empty() || !self.cert_users.is_empty()
     }
 
     pub fn listen_addr(&self) -> SocketAddr {
@@ -87,7 +105,7 @@ impl OpcUaSection {
                 format!("expected a host name or IP without port or path, got {h:?}"),
             ));
         }
-        if !self.anonymous() && self.users.is_empty() {
+        if !self.anonymous() && !self.has_users() {
             return Err((
                 "opcua.anonymous".into(),
                 "anonymous = false without [opcua] users: nobody could connect".into(),
@@ -107,10 +125,33 @@ impl OpcUaSection {
                 ));
             }
         }
-        if !self.users.is_empty() && self.pki_dir.is_none() {
+        for (i, u) in self.cert_users.iter().enumerate() {
+            let taken = self.users.iter().any(|v| v.name == u.name)
+                || self.cert_users[..i].iter().any(|v| v.name == u.name);
+            if u.name.trim().is_empty() || u.name.trim() != u.name || taken {
+                return Err((
+                    format!("opcua.cert_users[{i}].name"),
+                    format!(
+                        "expected a new non-empty name without surrounding spaces, got {:?}",
+                        u.name
+                    ),
+                ));
+            }
+            let ext = u.certificate.extension().and_then(|e| e.to_str());
+            if !matches!(ext, Some("der" | "pem")) {
+                return Err((
+                    format!("opcua.cert_users[{i}].certificate"),
+                    format!(
+                        "expected a .der or .pem file, got {}",
+                        u.certificate.display()
+                    ),
+                ));
+            }
+        }
+        if self.has_users() && self.pki_dir.is_none() {
             return Err((
                 "opcua.pki_dir".into(),
-                "required with users: passwords only travel over the encrypted endpoint, which needs the server's certificate".into(),
+                "required with users: passwords and user certificates only travel over the encrypted endpoint, which needs the server's certificate".into(),
             ));
         }
         if addr.ip().is_unspecified() && self.host.is_none() {
@@ -124,8 +165,9 @@ impl OpcUaSection {
         Ok(())
     }
 
-    /// Resolve `pki_dir` and password files against the field config's folder and read each
-    /// password (first line, non-empty, at least 8 characters). `retrocomp run` calls this at start.
+    /// Resolve `pki_dir`, password and certificate files against the field config's folder, read
+    /// each password (first line, at least 8 characters) and each user certificate. `retrocomp run`
+    /// calls this at start.
     pub fn resolve(&mut self, base: &Path) -> Result<(), (String, String)> {
         if let Some(p) = &mut self.pki_dir {
             *p = base.join(&*p);
@@ -134,6 +176,15 @@ impl OpcUaSection {
             u.password_file = base.join(&u.password_file);
             read_password(&u.password_file)
                 .map_err(|what| (format!("opcua.users[{i}].password_file"), what))?;
+        }
+        for (i, u) in self.cert_users.iter_mut().enumerate() {
+            u.certificate = base.join(&u.certificate);
+            opcua::crypto::CertificateStore::read_cert(&u.certificate).map_err(|e| {
+                (
+                    format!("opcua.cert_users[{i}].certificate"),
+                    format!("expected an X.509 certificate: {e}"),
+                )
+            })?;
         }
         Ok(())
     }

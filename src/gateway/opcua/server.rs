@@ -87,7 +87,13 @@ pub async fn start(
         handle.subscriptions(),
     );
     let subs = handle.subscriptions().clone();
-    let updater = tokio::spawn(update_loop(space, status, model, subs));
+    let updater = tokio::spawn(update_loop(
+        space,
+        status,
+        model,
+        box_name.to_string(),
+        subs,
+    ));
     let endpoint = format!("opc.tcp://{host}:{}/", bound.port());
     Ok(OpcUaServer {
         endpoint,
@@ -115,7 +121,7 @@ fn builder(
         .host(host)
         .port(port)
         .pki_dir(pki)
-        .create_sample_keypair(!cfg.users.is_empty())
+        .create_sample_keypair(cfg.has_users())
         .trust_client_certs(cfg.trust_client_certs)
         .discovery_urls(vec!["/".to_owned()])
         .max_sessions(16)
@@ -130,11 +136,20 @@ fn builder(
         let ids = [ANONYMOUS_USER_TOKEN_ID.to_string()];
         b = b.add_endpoint("none", ServerEndpoint::new_none("/", &ids));
     }
-    if !cfg.users.is_empty() {
+    if cfg.has_users() {
         let mut ids = Vec::new();
         for u in &cfg.users {
             let pw = super::read_password(&u.password_file).map_err(anyhow::Error::msg)?;
             b = b.add_user_token(&u.name, ServerUserToken::user_pass(u.name.as_str(), &pw));
+            ids.push(u.name.clone());
+        }
+        // The server matches the token's certificate by thumbprint and checks its signature over
+        // the server's certificate and nonce (async-opcua's X509IdentityToken handling).
+        for u in &cfg.cert_users {
+            b = b.add_user_token(
+                &u.name,
+                ServerUserToken::x509(u.name.as_str(), &u.certificate),
+            );
             ids.push(u.name.clone());
         }
         if cfg.anonymous() {
@@ -153,10 +168,13 @@ fn builder(
     Ok(b)
 }
 
+/// `model`: the identity at start; a snapshot's own (after `POST /api/model`) replaces it, and
+/// the `Identification` variables follow.
 async fn update_loop(
     mut space: Space,
     mut status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
-    model: Option<ModelIdentity>,
+    mut model: Option<ModelIdentity>,
+    box_name: String,
     subs: Arc<SubscriptionCache>,
 ) {
     let mut tick = tokio::time::interval(UPDATE_PERIOD);
@@ -171,6 +189,10 @@ async fn update_loop(
         let Some(snap) = status.borrow_and_update().clone() else {
             continue;
         };
+        if snap.model.is_some() && snap.model != model {
+            model.clone_from(&snap.model);
+            space.update(&identification(&box_name, model.as_ref()), &subs);
+        }
         space.update(&points(&snap, model.as_ref()), &subs);
     }
 }

@@ -1,0 +1,31 @@
+"""asyncua (pinned in scripts/setup-peers.sh): print the box name and the model hash the gateway's
+OPC UA server shows (`Machines/<box>/Identification/ModelSha256`), as one JSON line. Run by
+tests/gateway_demo_serve.rs and tests/gateway_model_switch.rs.
+
+usage: asyncua_identification.py OPC_URL
+"""
+
+import asyncio
+import json
+import sys
+
+from asyncua import Client, ua
+
+
+async def main(url):
+    async with Client(url, timeout=30) as c:
+        box = None
+        for ch in await c.nodes.objects.get_children():
+            if (await ch.read_browse_name()).Name == "Machines":
+                box = (await ch.get_children())[0]
+        if box is None:
+            print("FAIL: no Machines folder", flush=True)
+            sys.exit(1)
+        name = (await box.read_browse_name()).Name
+        ns = box.nodeid.NamespaceIndex
+        node = c.get_node(ua.NodeId(f"Machines/{name}/Identification/ModelSha256", ns))
+        print(json.dumps({"box": name, "sha256": await node.read_value()}), flush=True)
+
+
+if __name__ == "__main__":
+    asyncio.run(main(sys.argv[1]))
