@@ -12,60 +12,21 @@
 //! Every wait ends on an event (a line, a process exit, a file), with deadlines only a broken
 //! implementation reaches.
 
+#[path = "peers/mosquitto.rs"]
+mod mosquitto;
 mod peers;
 
 use std::io::{BufRead, BufReader};
-use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use peers::{free_port, tool};
+use mosquitto::Broker;
+use peers::free_port;
 
 const PATIENCE: Duration = Duration::from_secs(300);
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-}
-
-/// Mosquitto on `port` (loopback only, anonymous, no persistence); killed on drop.
-struct Broker(Child);
-
-impl Broker {
-    fn start(dir: &Path, port: u16) -> Broker {
-        let conf = dir.join("mosquitto.conf");
-        std::fs::write(
-            &conf,
-            format!(
-                "listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\nlog_dest none\n"
-            ),
-        )
-        .unwrap();
-        let exe = if Path::new("/usr/sbin/mosquitto").is_file() {
-            "/usr/sbin/mosquitto".into()
-        } else {
-            tool("mosquitto")
-        };
-        let child = Command::new(exe)
-            .arg("-c")
-            .arg(&conf)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start mosquitto (scripts/setup-peers.sh installs it)");
-        let deadline = Instant::now() + PATIENCE;
-        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(Instant::now() < deadline, "mosquitto did not listen");
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        Broker(child)
-    }
-}
-
-impl Drop for Broker {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
 }
 
 /// A `retrocomp fleet` child; returns once it said it is subscribed (its stderr).

@@ -7,15 +7,18 @@
 //! telemetry pointed at a broker that accepts and never answers: the cycle keeps running.
 //! Every wait ends on an event, with a deadline only a broken publisher reaches.
 
+#[path = "peers/mosquitto.rs"]
+mod mosquitto;
 mod peers;
 
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use peers::{Peer, free_port, spawn_python, tool};
+use mosquitto::Broker;
+use peers::{Peer, free_port, spawn_python};
 use retrocomp::gateway::status::{AxisStatus, StatusSnapshot};
 use retrocomp::gateway::{Direction, Mode};
 use retrocomp::telemetry::{self, MqttConfig, PublisherInputs, TelemetryStatus};
@@ -23,56 +26,6 @@ use serde_json::Value;
 use tokio::sync::watch;
 
 const PATIENCE: Duration = Duration::from_secs(60);
-
-/// A Mosquitto child on `port` (loopback only, anonymous, no persistence); killed on drop.
-struct Broker(Child);
-
-impl Broker {
-    fn start(dir: &Path, port: u16) -> Broker {
-        let conf = dir.join("mosquitto.conf");
-        std::fs::write(
-            &conf,
-            format!(
-                "listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\nlog_dest none\n"
-            ),
-        )
-        .unwrap();
-        // Debian installs it in /usr/sbin, which a user's PATH may lack.
-        let exe = if Path::new("/usr/sbin/mosquitto").is_file() {
-            "/usr/sbin/mosquitto".into()
-        } else {
-            tool("mosquitto")
-        };
-        let child = Command::new(exe)
-            .arg("-c")
-            .arg(&conf)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start mosquitto (scripts/setup-peers.sh installs it)");
-        let deadline = Instant::now() + PATIENCE;
-        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(
-                Instant::now() < deadline,
-                "mosquitto did not listen on {port}"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        Broker(child)
-    }
-
-    fn kill(mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-impl Drop for Broker {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 fn snapshot(k: u64) -> StatusSnapshot {
     StatusSnapshot {
