@@ -177,18 +177,7 @@ fn a_declared_model_is_switched_in_through_the_ramps_and_bad_requests_change_not
     );
     assert!(log.contains("model switch: new model in use"), "{log}");
 
-    // hil-sim ends the program by itself; then its log of every PLC write is complete.
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while rig.sim.child.try_wait().unwrap().is_none() {
-        rig.assert_alive("while hil-sim finishes");
-        assert!(
-            Instant::now() < deadline,
-            "hil-sim did not finish:\n{}",
-            rig.sim.log_text()
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    let text = std::fs::read_to_string(rig.dir.join("out/plc_writes.csv")).unwrap();
+    let text = rig.plc_writes_after_sim_ends();
     let writes: Vec<_> = observe::parse_writes(&text)
         .into_iter()
         .filter(|w| w.address == 0)

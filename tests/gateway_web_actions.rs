@@ -114,18 +114,7 @@ fn disabling_over_the_api_ramps_a_running_gateway_to_zero_and_needs_the_token() 
             .contains("action accepted: POST /api/compensation")
     );
 
-    // hil-sim ends the program by itself; then its log of every PLC write is complete.
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while rig.sim.child.try_wait().unwrap().is_none() {
-        rig.assert_alive("while hil-sim finishes");
-        assert!(
-            Instant::now() < deadline,
-            "hil-sim did not finish:\n{}",
-            rig.sim.log_text()
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    let text = std::fs::read_to_string(rig.dir.join("out/plc_writes.csv")).unwrap();
+    let text = rig.plc_writes_after_sim_ends();
     let writes: Vec<_> = observe::parse_writes(&text)
         .into_iter()
         .filter(|w| w.address == 0)

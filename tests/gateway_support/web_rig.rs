@@ -104,6 +104,22 @@ impl Rig {
         }
     }
 
+    /// Waits for hil-sim to end the program by itself (then its log of every PLC write is
+    /// complete) and returns that log, `out/plc_writes.csv`.
+    pub fn plc_writes_after_sim_ends(&mut self) -> String {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while self.sim.child.try_wait().unwrap().is_none() {
+            self.assert_alive("while hil-sim finishes");
+            assert!(
+                Instant::now() < deadline,
+                "hil-sim did not finish:\n{}",
+                self.sim.log_text()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        std::fs::read_to_string(self.dir.join("out/plc_writes.csv")).unwrap()
+    }
+
     /// One request; (status code, body).
     pub fn call(&self, method: &str, path: &str, auth: Option<&str>, body: &str) -> (u16, String) {
         use retrocomp::gateway::http::request;
