@@ -340,6 +340,7 @@ fn with_model_the_out_model_is_the_input_model_plus_the_found_term() {
     // EXX now = 50 ppm·x ± b/2 by approach direction, on the base's own table span.
     let pts = [(0.0, 1), (150.0, 1), (150.0, -1), (300.0, -1)];
     let ex = eval_ex(&model, &pts, "z_mm", tmp.path());
+    assert_eq!(ex.len(), pts.len(), "one value per query point: {ex:?}");
     for ((x, d), v) in pts.iter().zip(&ex) {
         let want = 0.05 * x + f64::from(*d) * b / 2.0;
         assert!((v - want).abs() < 1e-6, "x {x} dir {d}: {v} vs {want}");

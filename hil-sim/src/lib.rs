@@ -18,6 +18,7 @@ pub mod clock;
 pub mod compensators;
 pub mod config;
 pub mod controller;
+pub mod harness;
 pub mod io;
 pub mod manifest;
 pub mod physics;

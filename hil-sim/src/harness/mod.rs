@@ -1,0 +1,343 @@
+//! A deterministic closed loop in one process, in the manner of quinn-proto's `Pair` tests: hil-sim's
+//! [`World`] ↔ the bus codecs ↔ retrocomp's `Engine` ↔ the origin-shift sink core ↔ the simulated
+//! PLC, all advanced by one [`ClosedLoop::step`] in virtual time. No threads, no sleeps, no sockets:
+//! the same configs give the same run, bit for bit, however busy the machine is.
+//!
+//! Per step (the world's servo period, 1 ms by default), in this fixed order:
+//! 1. the world steps (interpolator, PLC scan, servos, thermal, cutting, sensor faults);
+//! 2. the transport-fault schedule of the sim config (`[[io.faults]]`) moves to the new time;
+//! 3. the sim's own encoders ([`Publisher`]: CiA 406 / CiA 404 frames, weighing lines) produce what
+//!    is due; frames of a silent node are dropped ([`silenced`]), garbage bytes ([`Garbage`], seeded)
+//!    go on the serial line before the lines; the gateway decodes them with its own source cores;
+//! 4. on a cycle tick (`gateway.cycle_ms`) the engine runs;
+//! 5. the sink's request in flight (issued one step earlier: one step of latency) is answered from
+//!    the PLC's registers, or fails while the Modbus link is down; on a write-period tick
+//!    (`write_period_ms`, skipped while a period still runs, as tokio's `MissedTickBehavior::Skip`)
+//!    a new period begins.
+//!
+//! Every write that reaches the PLC is logged with what the PLC applied at that moment
+//! ([`PlcWrite`]), and every step's applied shift ([`StepTrace`]): the scenarios assert the clamp,
+//! the cap per write and "no jump" on these, against what the controller actually holds.
+//!
+//! Simplifications (documented in docs/hil-sim.md): the link reconnects at the first period after
+//! it is back (the real client waits out its backoff); every request takes exactly one step.
+//!
+//! Units: µm for shifts and corrections (register = correction; + moves the slide +), s for time.
+
+pub mod gateway;
+
+use std::collections::BTreeMap;
+
+use retrocomp::gateway::config::FieldConfig;
+use retrocomp::gateway::engine::ErrorModel;
+use retrocomp::origin_shift::{Action, Reply};
+
+use crate::io::publish::Publisher;
+use crate::io::transport_faults::{Garbage, Schedule, Transition, silenced};
+use crate::world::World;
+use crate::SimConfig;
+pub use gateway::{FaultEdge, Gateway};
+
+/// Builds a fresh model for each gateway start (a restart loads it again).
+pub type ModelFactory = Box<dyn Fn() -> Box<dyn ErrorModel>>;
+
+/// One write the sink made into the PLC window.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlcWrite {
+    pub t_s: f64,
+    pub address: u16,
+    pub words: Vec<u16>,
+    /// The shifts the PLC applied when the write arrived, µm (x, y, z).
+    pub applied_um: [f64; 3],
+    /// The shift registers after the write, µm.
+    pub registers_um: [f64; 3],
+    /// Which gateway start made it (0 = the first; +1 per restart).
+    pub generation: u32,
+}
+
+/// The loop's state after one step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepTrace {
+    pub t_s: f64,
+    /// The shifts the PLC applies, µm.
+    pub applied_um: [f64; 3],
+    /// The engine's outputs after its last cycle, µm (NaN while no gateway runs).
+    pub output_um: [f64; 3],
+}
+
+pub struct ClosedLoop {
+    world: World,
+    publisher: Publisher,
+    schedule: Schedule,
+    garbage: Garbage,
+    field: FieldConfig,
+    model: ModelFactory,
+    gateway: Option<Gateway>,
+    generation: u32,
+    cycle_ticks: u64,
+    write_ticks: u64,
+    /// Modbus link state after the last step (the schedule's `modbus_down`).
+    link_up: bool,
+    writes: Vec<PlcWrite>,
+    trace: Vec<StepTrace>,
+    edges: Vec<FaultEdge>,
+    transitions: Vec<Transition>,
+    /// Bytes put on the serial line so far (lines and garbage).
+    serial_bytes: u64,
+}
+
+/// Ticks of `period_ms` at `dt_s` per tick; the harness refuses periods that are not whole ticks.
+fn ticks(period_ms: u64, dt_s: f64, key: &str) -> anyhow::Result<u64> {
+    let n = period_ms as f64 / 1e3 / dt_s;
+    anyhow::ensure!(
+        n >= 1.0 && (n - n.round()).abs() < 1e-9,
+        "{key} = {period_ms} ms is not a whole number of {dt_s} s steps"
+    );
+    Ok(n.round() as u64)
+}
+
+impl ClosedLoop {
+    /// The world of `sim` and a gateway started from `field` (its `[sink.origin_shift]` map must
+    /// address the PLC window), with a fresh model from `model` at every start.
+    pub fn new(sim: SimConfig, field: FieldConfig, model: ModelFactory) -> anyhow::Result<Self> {
+        let world = World::new(sim)?;
+        let dt = world.config().dt_s();
+        let os = field
+            .sink
+            .origin_shift
+            .as_ref()
+            .ok_or_else(|| anyhow::anyhow!("the harness drives [sink.origin_shift]"))?;
+        let cycle_ticks = ticks(field.gateway.cycle_ms, dt, "gateway.cycle_ms")?;
+        let write_ticks = ticks(os.write_period_ms, dt, "sink.origin_shift.write_period_ms")?;
+        let io = world.config().io.clone();
+        let publisher = Publisher::new(io.clone(), &world);
+        // As `hil-sim serve`: mean 30 ms between bursts.
+        let garbage = Garbage::new(world.config().seed, 0.03);
+        let mut h = Self {
+            publisher,
+            schedule: Schedule::new(io.faults),
+            garbage,
+            field,
+            model,
+            gateway: None,
+            generation: 0,
+            cycle_ticks,
+            write_ticks,
+            link_up: true,
+            writes: Vec::new(),
+            trace: Vec::new(),
+            edges: Vec::new(),
+            transitions: Vec::new(),
+            serial_bytes: 0,
+            world,
+        };
+        h.start_gateway()?;
+        Ok(h)
+    }
+
+    /// Start a gateway as `retrocomp run` does: read what the PLC's registers hold, continue from it.
+    fn start_gateway(&mut self) -> anyhow::Result<()> {
+        let held = self.registers_held_um();
+        self.gateway = Some(Gateway::start(self.field.clone(), (self.model)(), &held)?);
+        Ok(())
+    }
+
+    /// The gateway process dies (SIGKILL: nothing more is sent) and starts again at once.
+    pub fn restart_gateway(&mut self) -> anyhow::Result<()> {
+        self.collect_edges();
+        self.gateway = None;
+        self.generation += 1;
+        self.start_gateway()
+    }
+
+    /// What the PLC's value registers hold per map axis, µm (decoded with the sink's own map).
+    pub fn registers_held_um(&self) -> BTreeMap<String, f64> {
+        let map = &self.field.sink.origin_shift.as_ref().expect("checked").map;
+        let plc = self.world.plc();
+        map.axes
+            .iter()
+            .filter_map(|r| {
+                let words = plc.read(r.address, r.data_type.words() as usize).ok()?;
+                Some((r.axis.clone(), map.decode(&r.axis, words).ok()?))
+            })
+            .collect()
+    }
+
+    /// Someone else (an operator, another writer) sets the shift of `axis` (0..3) to `um` and
+    /// strobes it in: the PLC applies it at its next scan.
+    pub fn foreign_write(&mut self, axis: usize, um: f64) -> anyhow::Result<()> {
+        let plc = self.world.plc_mut();
+        let counts = (um / plc.config().lsb_um).round() as i64;
+        let words = plc.encode(counts)?;
+        plc.write(plc.shift_register(axis), &words)?;
+        if let Some(h) = plc.config().handshake.clone() {
+            let strobe = plc.read(h.strobe_register, 1)?[0];
+            plc.write(h.strobe_register, &[u16::from(strobe == 0)])?;
+        }
+        Ok(())
+    }
+
+    /// Advance everything by one world step.
+    pub fn step(&mut self) {
+        self.world.tick();
+        let tick = self.world.ticks();
+        let t = self.world.t_s();
+        let (active, changes) = self.schedule.advance(t);
+        self.transitions.extend(changes);
+        self.link_up = !active.modbus_down;
+        let out = self.publisher.poll(&mut self.world);
+        let junk = self.garbage.poll(t, active.serial_garbage);
+        if let Some(gw) = self.gateway.as_mut() {
+            for f in out.frames.iter().filter(|f| !silenced(f, &active)) {
+                gw.on_frame(f, t);
+            }
+            self.serial_bytes += junk.len() as u64;
+            gw.on_serial(0, &junk, t);
+            for l in &out.lines {
+                self.serial_bytes += l.len() as u64;
+                gw.on_serial(0, l.as_bytes(), t);
+            }
+            if tick.is_multiple_of(self.cycle_ticks) {
+                gw.cycle(t);
+            }
+        }
+        self.run_sink(tick, t);
+        let output_um = self.gateway.as_ref().map_or([f64::NAN; 3], |gw| {
+            let o = gw.outputs();
+            std::array::from_fn(|k| o.get(k).map_or(f64::NAN, |(_, v)| *v))
+        });
+        self.trace.push(StepTrace {
+            t_s: t,
+            applied_um: self.applied_um(),
+            output_um,
+        });
+        self.collect_edges();
+    }
+
+    /// Step until the world's time reaches `t_s` (or the program ends).
+    pub fn run_until(&mut self, t_s: f64) {
+        while self.world.t_s() + 1e-9 < t_s && !self.world.done() {
+            self.step();
+        }
+    }
+
+    /// Step until the program ends (M30 or the duration guard).
+    pub fn run_to_end(&mut self) {
+        while !self.world.done() {
+            self.step();
+        }
+    }
+
+    fn collect_edges(&mut self) {
+        if let Some(gw) = self.gateway.as_mut() {
+            self.edges.extend(gw.take_edges());
+        }
+    }
+
+    /// Answer the request in flight from the PLC (or fail it: link down), or begin a period.
+    fn run_sink(&mut self, tick: u64, t: f64) {
+        let Some(gw) = self.gateway.as_mut() else {
+            return;
+        };
+        let link_up = self.link_up;
+        if let Some(a) = gw.pending().cloned() {
+            if let Action::Read { not_before_s, .. } = a
+                && not_before_s > t + 1e-9
+            {
+                return;
+            }
+            let reply = if link_up {
+                let plc = self.world.plc_mut();
+                match &a {
+                    Action::Write(b) => {
+                        let applied_um = std::array::from_fn(|k| plc.shift_um(k));
+                        match plc.write(b.address, &b.words) {
+                            Ok(()) => {
+                                let regs = crate::io::plc_server::shifts_um(
+                                    plc.config(),
+                                    plc.read(0, plc.len()).expect("whole window"),
+                                );
+                                self.writes.push(PlcWrite {
+                                    t_s: t,
+                                    address: b.address,
+                                    words: b.words.clone(),
+                                    applied_um,
+                                    registers_um: regs,
+                                    generation: self.generation,
+                                });
+                                Reply::Written
+                            }
+                            Err(e) => Reply::Failed(format!("Modbus exception: {e}")),
+                        }
+                    }
+                    Action::Read { address, count, .. } => {
+                        match plc.read(*address, *count as usize) {
+                            Ok(w) => Reply::Read(w.to_vec()),
+                            Err(e) => Reply::Failed(format!("Modbus exception: {e}")),
+                        }
+                    }
+                    Action::Done(_) => unreachable!("never pending"),
+                }
+            } else {
+                Reply::Failed("transport: connection lost (harness link down)".into())
+            };
+            gw.reply(reply, t, link_up);
+            return;
+        }
+        if tick.is_multiple_of(self.write_ticks) {
+            gw.begin_period(t, link_up);
+        }
+    }
+
+    /// The PLC's applied shifts, µm.
+    pub fn applied_um(&self) -> [f64; 3] {
+        std::array::from_fn(|k| self.world.plc().shift_um(k))
+    }
+
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+
+    pub fn world_mut(&mut self) -> &mut World {
+        &mut self.world
+    }
+
+    pub fn gateway(&self) -> Option<&Gateway> {
+        self.gateway.as_ref()
+    }
+
+    pub fn t_s(&self) -> f64 {
+        self.world.t_s()
+    }
+
+    /// Every write the sinks made into the PLC, in order.
+    pub fn writes(&self) -> &[PlcWrite] {
+        &self.writes
+    }
+
+    /// One row per step.
+    pub fn trace(&self) -> &[StepTrace] {
+        &self.trace
+    }
+
+    /// Every fault edge the gateways logged (engine and sink), in order.
+    pub fn fault_edges(&self) -> &[FaultEdge] {
+        &self.edges
+    }
+
+    /// Every transport-fault start and clear the schedule made.
+    pub fn transitions(&self) -> &[Transition] {
+        &self.transitions
+    }
+
+    /// Bytes put on the serial line so far.
+    pub fn serial_bytes(&self) -> u64 {
+        self.serial_bytes
+    }
+
+    /// The gateway's engine cycle period and the sink's write period, s.
+    pub fn periods_s(&self) -> (f64, f64) {
+        let dt = self.world.config().dt_s();
+        (self.cycle_ticks as f64 * dt, self.write_ticks as f64 * dt)
+    }
+}

@@ -1,0 +1,337 @@
+//! Fault scenarios of the closed loop, in virtual time (issue 14.4): hil-sim's world ↔ the bus codecs
+//! ↔ retrocomp's engine ↔ the origin-shift sink core ↔ the simulated PLC, stepped in one process by
+//! `hil_sim::harness::ClosedLoop` (no threads, sockets or sleeps: nothing here depends on how fast or
+//! busy the machine is). Every scenario asserts the clamp and the cap per write against what the PLC
+//! applied, that the applied shift never jumps, and recovery exactly: fault edges at the computed
+//! instants, and the number of writes back to the target, or bit-identity with the same run without
+//! the fault. The real-socket tests (`tests/gateway_faults_hil.rs` and friends) keep one run per
+//! transport for the shells.
+
+mod closed_loop_support;
+
+use closed_loop_support::*;
+use hil_sim::harness::{ClosedLoop, FaultEdge};
+use retrocomp::gateway::health::FaultKind;
+use retrocomp::gateway::safety::Mode;
+
+/// Edges of (source, kind) in order.
+fn edges<'a>(h: &'a ClosedLoop, source: &str, kind: FaultKind) -> Vec<&'a FaultEdge> {
+    h.fault_edges()
+        .iter()
+        .filter(|e| e.source == source && e.kind == kind)
+        .collect()
+}
+
+/// One start and one clear of (source, kind); returns their times.
+fn one_episode(h: &ClosedLoop, source: &str, kind: FaultKind) -> (f64, f64) {
+    let e = edges(h, source, kind);
+    assert_eq!(e.len(), 2, "{source} {kind:?}: {e:?}");
+    assert!(e[0].started && !e[1].started, "{e:?}");
+    (e[0].t_s, e[1].t_s)
+}
+
+fn assert_at(t: f64, expected: f64, what: &str) {
+    assert!(
+        (t - expected).abs() < 1e-9,
+        "{what} at {t} s, expected {expected} s"
+    );
+}
+
+/// Stationary phases: the spindle off, no sensor noise, no cut: while the machine dwells, the
+/// gateway's target is exactly constant, so recovery is a count of capped writes.
+const MOVES: &str = "G4 P0.5\nG1 X150 Y100 F3600\nG4 P3.0\nG1 X0 Y0\nG4 P6.0";
+/// The first dwell (X150 Y100) and the second (X0 Y0) of [`MOVES`], s.
+const DWELL1: (f64, f64) = (3.5, 6.5);
+const DWELL2: (f64, f64) = (9.5, 15.5);
+
+/// The number of writes of at most one cap that take `held` to `target` on every axis.
+fn capped_writes(held: [f64; 3], target: [f64; 3]) -> usize {
+    (0..3)
+        .map(|k| ((target[k] - held[k]).abs() / CAP_UM - 1e-9).ceil() as usize)
+        .max()
+        .unwrap()
+}
+
+/// The value writes from `t_s` on until the applied shift equals `target` (and stays there to
+/// the end of `until_s`); panics if it never does.
+fn writes_until_applied(h: &ClosedLoop, t_s: f64, until_s: f64, target: [f64; 3]) -> usize {
+    let reached = from(h.trace(), t_s)
+        .filter(|r| r.t_s <= until_s)
+        .find(|r| r.applied_um == target)
+        .unwrap_or_else(|| panic!("never reached {target:?}"))
+        .t_s;
+    for r in from(h.trace(), reached).filter(|r| r.t_s <= until_s) {
+        assert_eq!(r.applied_um, target, "left the target at {} s", r.t_s);
+    }
+    h.writes()
+        .iter()
+        .filter(|w| VALUE_REGISTERS.contains(&w.address) && w.t_s >= t_s && w.t_s < reached)
+        .count()
+}
+
+fn lsb_target(h: &ClosedLoop) -> [f64; 3] {
+    h.trace().last().unwrap().output_um.map(lsb_round)
+}
+
+#[test]
+fn transport_down_and_back_resumes_from_what_the_plc_holds_in_exactly_the_capped_writes() {
+    let (down, back) = (5.0, 11.0);
+    let faults = format!("[[io.faults]]\nkind = \"modbus_down\"\nfrom_s = {down}\nto_s = {back}\n");
+    let mut h = closed_loop(sim_config(MOVES, 0.0, &faults));
+    let (_, period) = h.periods_s();
+    h.run_until(down);
+    let before = lsb_target(&h);
+    assert_eq!(h.applied_um(), before, "converged in the first dwell");
+    h.run_until(back);
+    let held = h.applied_um();
+    assert_eq!(held, before, "the PLC kept its shift across the comms loss");
+    let target = lsb_target(&h);
+    assert!(
+        (0..3).any(|k| (target[k] - held[k]).abs() >= 3.0 * CAP_UM),
+        "the move changed too little to test: {held:?} → {target:?}"
+    );
+    h.run_until(DWELL2.1);
+    // Nothing reached the PLC while the link was down; the sink's fault is one episode from the
+    // first period after the loss to the first period after the return.
+    assert!(h.writes().iter().all(|w| w.t_s < down || w.t_s >= back));
+    let (start, clear) = one_episode(&h, "sink.origin_shift", FaultKind::Disconnected);
+    assert_at(start, period_at_or_after(down, period), "Disconnected start");
+    assert_at(clear, period_at_or_after(back, period), "Disconnected clear");
+    // Recovery: one cap per write from what the PLC held to the target.
+    let n = writes_until_applied(&h, back, DWELL2.1, target);
+    assert_eq!(n, capped_writes(held, target), "{held:?} → {target:?}");
+    assert_clamp_and_cap_per_write(h.writes());
+    assert_no_jump(h.trace(), &[]);
+}
+
+/// Engine cycle times (multiples of the cycle period) in `[a, b]`.
+fn cycles_in(h: &ClosedLoop, a: f64, b: f64) -> impl Iterator<Item = f64> {
+    let (cycle, _) = h.periods_s();
+    let first = (a / cycle - 1e-9).ceil() as u64;
+    (first..)
+        .map(move |k| k as f64 * cycle)
+        .take_while(move |t| *t <= b + 1e-9)
+}
+
+#[test]
+fn a_silent_encoder_node_holds_for_exactly_the_hold_time_ramps_out_and_comes_back_capped() {
+    let (silent, back) = (4.0, 5.5);
+    let faults = format!(
+        "[[io.faults]]\nkind = \"can_node_silent\"\nnode = 1\nfrom_s = {silent}\nto_s = {back}\n"
+    );
+    let mut h = closed_loop(sim_config(MOVES, 0.0, &faults));
+    let (cycle, _) = h.periods_s();
+    h.run_until(silent);
+    let target = lsb_target(&h);
+    assert_eq!(h.applied_um(), target, "converged in the first dwell");
+    let out_before = h.trace().last().unwrap().output_um;
+    h.run_until(DWELL1.1);
+    // The X encoder's last frame came at the last 2 ms tick before the silence: x_mm is stale at the
+    // first cycle more than `stale_after_s` (0.1 s) after it, on the inputs' own clock.
+    let last_frame = silent - 0.002;
+    let stale_at = cycles_in(&h, silent, back)
+        .find(|c| c - last_frame > 0.1)
+        .unwrap();
+    let (start, clear) = one_episode(&h, "x_mm", FaultKind::Stale);
+    assert_at(start, stale_at, "x_mm stale");
+    // Back with the first frame after the silence, at the cycle of the same step.
+    assert_at(clear, back, "x_mm fresh again");
+    for quiet in ["y_mm", "z_mm"] {
+        assert!(edges(&h, quiet, FaultKind::Stale).is_empty(), "{quiet}");
+    }
+    // Every axis drops (the model needs all positions): one episode each, same instants.
+    for axis in ["x", "y", "z"] {
+        let (s, c) = one_episode(&h, &format!("compensation.{axis}"), FaultKind::Stale);
+        assert_at(s, stale_at, "drop start");
+        assert_at(c, back, "drop clear");
+    }
+    // Hold exactly the last output for `stale_hold_s` (0.5 s), then ramp out to 0.
+    let ramp_at = cycles_in(&h, stale_at, back)
+        .find(|c| c - stale_at >= 0.5)
+        .unwrap();
+    for r in from(h.trace(), stale_at).filter(|r| r.t_s < ramp_at) {
+        assert_eq!(r.output_um, out_before, "held at {} s", r.t_s);
+    }
+    let after = from(h.trace(), ramp_at).next().unwrap();
+    assert_ne!(after.output_um, out_before, "ramping from {ramp_at} s");
+    let held = h
+        .trace()
+        .iter()
+        .find(|r| (r.t_s - back).abs() < 1e-9)
+        .unwrap()
+        .applied_um;
+    assert_eq!(held, [0.0; 3], "ramped out before the node came back");
+    // Back: from 0 to the target in exactly one cap per write (the sink's cap binds: the engine
+    // ramps at 1 µm per 5 ms cycle, the sink writes 1 µm per 10 ms).
+    let n = writes_until_applied(&h, back, DWELL1.1, target);
+    assert_eq!(n, capped_writes(held, target), "0 → {target:?}");
+    assert_eq!(cycle, 0.005);
+    assert_clamp_and_cap_per_write(h.writes());
+    assert_no_jump(h.trace(), &[]);
+}
+
+#[test]
+fn a_foreign_value_in_the_plc_is_continued_from_and_left_in_exactly_the_capped_writes() {
+    let mut h = closed_loop(sim_config(MOVES, 0.0, ""));
+    let (_, period) = h.periods_s();
+    h.run_until(4.006);
+    let target = lsb_target(&h);
+    assert_eq!(h.applied_um(), target, "converged in the first dwell");
+    // An operator sets X's shift 12 µm away from the target and strobes it in.
+    let foreign = target[0] + if target[0] > 0.0 { -12.0 } else { 12.0 };
+    h.foreign_write(0, foreign).unwrap();
+    h.run_until(DWELL1.1);
+    let latched = h
+        .trace()
+        .iter()
+        .find(|r| r.applied_um[0] == foreign)
+        .expect("the PLC applied the foreign value")
+        .t_s;
+    // The next period reads it and the engine continues from it: the next write is within one cap
+    // of the foreign value (asserted for every write below), never back at the old target.
+    let next = period_at_or_after(latched, period);
+    let first = h.writes().iter().find(|w| w.t_s >= next).unwrap();
+    assert!((first.registers_um[0] - foreign).abs() <= CAP_UM, "{first:?}");
+    let n = writes_until_applied(&h, latched, DWELL1.1, target);
+    assert_eq!(
+        n,
+        capped_writes([foreign, target[1], target[2]], target),
+        "{foreign} → {target:?}"
+    );
+    // Not a fault of the sink (the value is within the clamp and nothing of ours was pending).
+    assert!(
+        h.fault_edges().iter().all(|e| !e.source.starts_with("sink.")),
+        "{:?}",
+        h.fault_edges()
+    );
+    assert_clamp_and_cap_per_write(h.writes());
+    assert_no_jump(h.trace(), &[latched]);
+}
+
+#[test]
+fn a_restarted_gateway_continues_from_what_the_plc_holds_and_meets_the_unbroken_run() {
+    // Restart mid-move (the target changing under the dosing cap) and compare with the same run
+    // without the restart: both end the second dwell on the same shift.
+    let run = |restart: bool| {
+        let mut h = closed_loop(sim_config(MOVES, 0.0, ""));
+        h.run_until(7.5);
+        if restart {
+            let held = h.registers_held_um();
+            h.restart_gateway().unwrap();
+            h.step();
+            // The new engine's first output continues from the registers, within one dosing cap.
+            let out = h.trace().last().unwrap().output_um;
+            for (k, axis) in ["x", "y", "z"].iter().enumerate() {
+                assert!((out[k] - held[*axis]).abs() <= CAP_UM, "{axis}: {held:?} → {out:?}");
+            }
+        }
+        h.run_until(DWELL2.1);
+        h
+    };
+    let restarted = run(true);
+    let unbroken = run(false);
+    let gen1: Vec<_> = restarted
+        .writes()
+        .iter()
+        .filter(|w| w.generation == 1)
+        .collect();
+    assert!(gen1.first().is_some_and(|w| w.t_s < 7.52), "{:?}", gen1.first());
+    let target = lsb_target(&unbroken);
+    assert_eq!(unbroken.applied_um(), target);
+    assert_eq!(restarted.applied_um(), target, "met the unbroken run");
+    assert_eq!(lsb_target(&restarted), target);
+    assert_clamp_and_cap_per_write(restarted.writes());
+    assert_no_jump(restarted.trace(), &[]);
+}
+
+/// Spindle on, sensor noise on, strokes out and back: thermal and load terms move all the time.
+const STROKES: &str = "S3000 M3\nG4 P0.5\nG1 X150 Y100 F3600\nG1 X0 Y0\nG1 X150 Y100\nG1 X0 Y0\nM5";
+
+#[test]
+fn a_stuck_then_nan_spindle_sensor_is_replaced_by_its_neighbour_without_dropping_compensation() {
+    let faults = "[[faults]]\nchannel = \"T_spindle_C\"\nkind = \"stuck\"\nfrom_s = 3.0\nto_s = 5.0\n\
+                  [[faults]]\nchannel = \"T_spindle_C\"\nkind = \"nan\"\nfrom_s = 5.0\nto_s = 6.5\n";
+    let mut h = closed_loop(sim_config(STROKES, 0.08, faults));
+    let mut clean = closed_loop(sim_config(STROKES, 0.08, ""));
+    h.run_to_end();
+    clean.run_to_end();
+    let (stuck, _) = one_episode(&h, "T_spindle_C", FaultKind::Stuck);
+    // Judged stuck `stuck_after_s` (1 s) after the frozen value's first frame (a CiA 404 frame
+    // every 50 ms; the value froze at 3.0 s, or a frame earlier when that reading matched).
+    assert!((3.95..=4.05 + 1e-9).contains(&stuck), "stuck at {stuck}");
+    // NaN goes out as 0x7FFF (over range): out of range from the first frame at 5.0 s; clear with
+    // the first good frame at 6.5 s.
+    let (nan, ok) = one_episode(&h, "T_spindle_C", FaultKind::OutOfRange);
+    assert_at(nan, 5.0, "OutOfRange start");
+    assert_at(ok, 6.5, "OutOfRange clear");
+    // The neighbour's estimate stood in throughout: compensation never dropped.
+    assert!(
+        h.fault_edges()
+            .iter()
+            .all(|e| !e.source.starts_with("compensation")),
+        "{:?}",
+        h.fault_edges()
+    );
+    // Before the fault the two runs are the same run, bit for bit.
+    let n = h.trace().iter().take_while(|r| r.t_s < 3.0).count();
+    assert_eq!(h.trace()[..n], clean.trace()[..n]);
+    // While substituted, Z keeps its thermal term: within 1.5 µm of the clean run (the neighbour
+    // sits on the same node with a slower sensor lag and its own noise).
+    let worst = h
+        .trace()
+        .iter()
+        .zip(clean.trace())
+        .filter(|(r, _)| r.t_s >= 4.0 && r.t_s < 6.5)
+        .map(|(r, c)| (r.output_um[2] - c.output_um[2]).abs())
+        .fold(0.0, f64::max);
+    assert!(worst <= 1.5, "Z {worst} µm off the clean run");
+    assert_eq!(h.trace().len(), clean.trace().len());
+    assert_clamp_and_cap_per_write(h.writes());
+    assert_no_jump(h.trace(), &[]);
+}
+
+#[test]
+fn garbage_on_the_force_line_is_rejected_and_the_loop_rejoins_the_clean_run_bit_for_bit() {
+    let (g0, g1) = (2.0, 4.0);
+    let faults = format!("[[io.faults]]\nkind = \"serial_garbage\"\nfrom_s = {g0}\nto_s = {g1}\n");
+    let mut h = closed_loop(sim_config(STROKES, 0.08, &faults));
+    let mut clean = closed_loop(sim_config(STROKES, 0.08, ""));
+    h.run_to_end();
+    clean.run_to_end();
+    assert!(h.serial_bytes() > clean.serial_bytes(), "no garbage sent");
+    let garbage = h.gateway().unwrap().serial_garbage_lines();
+    assert!(garbage >= 10, "{garbage} garbage lines counted");
+    assert_eq!(clean.gateway().unwrap().serial_garbage_lines(), 0);
+    // The absurd 90 kN readings are rejected (out of range), never used.
+    let oor = edges(&h, "F_cut_N", FaultKind::OutOfRange);
+    assert!(!oor.is_empty());
+    assert!(oor.iter().all(|e| e.t_s >= g0 && e.t_s <= g1 + 0.02), "{oor:?}");
+    // Identical before the window; after it, from one step on identical to the end.
+    let n = h.trace().iter().take_while(|r| r.t_s < g0).count();
+    assert_eq!(h.trace()[..n], clean.trace()[..n]);
+    assert_eq!(h.trace().len(), clean.trace().len());
+    let diverged = h
+        .trace()
+        .iter()
+        .zip(clean.trace())
+        .rposition(|(a, b)| a != b)
+        .map_or(0.0, |i| h.trace()[i].t_s);
+    eprintln!("garbage: {garbage} lines; identical to the clean run again after {diverged} s");
+    assert!(diverged < g1 + 1.0, "still apart at {diverged} s");
+    assert_clamp_and_cap_per_write(h.writes());
+    assert_no_jump(h.trace(), &[]);
+}
+
+#[test]
+fn the_same_configs_give_the_same_run() {
+    let faults = "[[io.faults]]\nkind = \"modbus_down\"\nfrom_s = 2.0\nto_s = 2.5\n";
+    let run = || {
+        let mut h = closed_loop(sim_config(STROKES, 0.08, faults));
+        h.run_until(4.0);
+        h
+    };
+    let (a, b) = (run(), run());
+    assert_eq!(a.trace(), b.trace());
+    assert_eq!(a.writes(), b.writes());
+    assert_eq!(a.fault_edges(), b.fault_edges());
+}

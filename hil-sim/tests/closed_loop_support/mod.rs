@@ -1,0 +1,316 @@
+//! Configs and checks shared by the closed-loop harness tests (`closed_loop_*.rs`): the demo mill
+//! of `tests/gateway_faults_hil.rs` (hidden geometry from `deploy/demo/mill-full.toml`, thermal and
+//! cutting physics, a PLC window with strobe/ack handshake) and the gateway's field config with the
+//! same clamps, dosing cap and channel limits, on in-process links instead of sockets.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+use hil_sim::SimConfig;
+use hil_sim::harness::{ClosedLoop, ModelFactory, PlcWrite, StepTrace};
+use retrocomp::gateway::config::FieldConfig;
+use retrocomp::gateway::model_adapter::MachineModelAdapter;
+use retrocomp::models::MachineModel;
+
+pub const CLAMP_UM: f64 = 40.0;
+pub const CLAMP_Y_UM: f64 = 5.0;
+pub const CAP_UM: f64 = 1.0;
+pub const LSB_UM: f64 = 0.5;
+/// Registers of the shift words (x, y, z: int32 pairs at 0, 2, 4).
+pub const VALUE_REGISTERS: std::ops::Range<u16> = 0..6;
+
+pub fn truth_model() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/demo/mill-full.toml")
+}
+
+/// The sim config: `program` (G-code body between the header and M30), sensor noise `noise_C`,
+/// extra TOML (`[[faults]]`, `[[io.faults]]`) appended.
+pub fn sim_config(program: &str, noise_C: f64, extra: &str) -> SimConfig {
+    let text = format!(
+        r#"
+seed = 5
+[clock]
+max_duration_s = 60.0
+
+[program]
+tool_mm = 100.0
+start_mm = [0.0, 0.0, 5.0]
+gcode = """
+G90 G21
+{program}
+M30
+"""
+
+[servo]
+ideal = true
+count_um = 1.0
+
+[plc]
+scan_s = 0.004
+word = "int32"
+word_order = "high_first"
+lsb_um = {LSB_UM}
+first_register = 0
+handshake = {{ strobe_register = 10, ack_register = 11 }}
+
+[truth]
+model_path = "{truth}"
+
+[record]
+every_s = 0.01
+
+[hidden.thermal]
+ambient_C = 20.0
+ambient_drift_C_per_h = 0.0
+
+[[hidden.thermal.nodes]]
+name = "spindle"
+tau_s = 8.0
+rise_C_per_krpm = 2.0
+
+[[hidden.thermal.nodes]]
+name = "xscrew"
+tau_s = 5.0
+rise_C_per_mm_s = {{ x = 0.15 }}
+
+[[hidden.thermal.sensors]]
+name = "spindle"
+node = "spindle"
+tau_s = 0.2
+noise_C = {noise_C}
+
+[[hidden.thermal.sensors]]
+name = "xscrew"
+node = "xscrew"
+tau_s = 0.2
+noise_C = {noise_C}
+
+[[hidden.thermal.sensors]]
+name = "spindle2"
+node = "spindle"
+tau_s = 0.3
+noise_C = {noise_C}
+
+[[hidden.thermal.effects]]
+kind = "growth"
+node = "spindle"
+axis = "z"
+um_per_K = -6.0
+
+[[hidden.thermal.effects]]
+kind = "expansion"
+node = "xscrew"
+axis = "x"
+ppm_per_K = 11.5
+
+[hidden.cutting]
+stock_top_z_mm = 0.0
+kc_N_per_mm2 = 2000.0
+teeth = 2.0
+compliance_um_per_N = {{ x = 0.004, y = 0.003, z = -0.002 }}
+force_name = "cut"
+force_noise_N = 1.0
+
+[io.can]
+backend = "mem"
+encoder_nodes = [1, 2, 3]
+encoder_period_s = 0.002
+temp_node = 10
+temp_period_s = 0.05
+
+[io.weighing]
+pty_link = "unused-in-process"
+period_s = 0.02
+{extra}
+"#,
+        truth = truth_model().display(),
+    );
+    SimConfig::from_toml_str(&text, None).expect("sim config")
+}
+
+pub fn field_config() -> FieldConfig {
+    let axis = |name: &str, clamp: f64, lo: f64, hi: f64| {
+        format!(
+            r#"
+[[axis]]
+name = "{name}"
+position_channel = "{name}_mm"
+safety = {{ max_correction_um = {clamp}, max_change_um_per_cycle = {CAP_UM}, ramp_um_per_s = 400.0, stale_hold_s = 0.5 }}
+[[channel]]
+name = "{name}_mm"
+min = {lo}
+max = {hi}
+stale_after_s = 0.1
+"#
+        )
+    };
+    let axes = axis("x", CLAMP_UM, -10.0, 220.0)
+        + &axis("y", CLAMP_Y_UM, -10.0, 170.0)
+        + &axis("z", CLAMP_UM, -20.0, 70.0);
+    let text = format!(
+        r#"
+[gateway]
+name = "harness"
+cycle_ms = 5
+thermal_period_s = 0.1
+status_listen = "127.0.0.1:0"
+
+[safety]
+max_correction_um = {CLAMP_UM}
+max_change_um_per_cycle = {CAP_UM}
+ramp_um_per_s = 400.0
+stale_hold_s = 0.5
+
+[direction]
+deadband_mm = 0.005
+switch_time_s = 0.05
+{axes}
+[[channel]]
+name = "T_spindle_C"
+min = 5.0
+max = 80.0
+stale_after_s = 0.5
+stuck_after_s = 1.0
+
+[[channel]]
+name = "T_spindle2_C"
+min = 5.0
+max = 80.0
+stale_after_s = 0.5
+
+[[channel]]
+name = "T_xscrew_C"
+min = 5.0
+max = 80.0
+stale_after_s = 0.5
+
+[[channel]]
+name = "F_cut_N"
+min = -2000.0
+max = 2000.0
+stale_after_s = 0.5
+
+[[recovery]]
+target = "T_spindle_C"
+neighbours = ["T_spindle2_C"]
+coefficients = [0.0, 1.0]
+fit_rms = 0.1
+
+[can]
+backend = "mem"
+
+[canopen]
+pdo_timeout_s = 0.2
+encoder = [
+  {{ channel = "x_mm", node_id = 1, counts_per_mm = 1000.0 }},
+  {{ channel = "y_mm", node_id = 2, counts_per_mm = 1000.0 }},
+  {{ channel = "z_mm", node_id = 3, counts_per_mm = 1000.0 }},
+]
+analog = [
+  {{ channel = "T_spindle_C", node_id = 10, type = "int16", byte_offset = 0, decimal_digits = 1 }},
+  {{ channel = "T_xscrew_C", node_id = 10, type = "int16", byte_offset = 2, decimal_digits = 1 }},
+  {{ channel = "T_spindle2_C", node_id = 10, type = "int16", byte_offset = 4, decimal_digits = 1 }},
+]
+
+[serial]
+[[serial.source]]
+name = "scale"
+format = {{ kind = "weighing", unit = "N" }}
+channel = [ {{ name = "F_cut_N" }} ]
+
+[sink.origin_shift]
+transport = {{ kind = "tcp", address = "127.0.0.1:9" }}
+write_period_ms = 10
+
+[sink.origin_shift.map]
+[[sink.origin_shift.map.axis]]
+axis = "x"
+address = 0
+kind = "int32"
+lsb_um = {LSB_UM}
+sign = 1
+[[sink.origin_shift.map.axis]]
+axis = "y"
+address = 2
+kind = "int32"
+lsb_um = {LSB_UM}
+sign = 1
+[[sink.origin_shift.map.axis]]
+axis = "z"
+address = 4
+kind = "int32"
+lsb_um = {LSB_UM}
+sign = 1
+[sink.origin_shift.map.handshake]
+strobe_address = 10
+ack_address = 11
+timeout_ms = 200
+"#
+    );
+    FieldConfig::parse(&text, Path::new("harness-field.toml")).expect("field config")
+}
+
+/// The gateway's model: the demo mill's full model (hil-sim's visible truth plus the thermal and
+/// load terms), loaded afresh at every gateway start.
+pub fn model_factory() -> ModelFactory {
+    let model = MachineModel::from_toml_path(&truth_model()).expect("model");
+    Box::new(move || Box::new(MachineModelAdapter::new(model.clone())))
+}
+
+pub fn closed_loop(sim: SimConfig) -> ClosedLoop {
+    ClosedLoop::new(sim, field_config(), model_factory()).expect("harness")
+}
+
+pub fn clamp_of(axis: usize) -> f64 {
+    if axis == 1 { CLAMP_Y_UM } else { CLAMP_UM }
+}
+
+/// Clamp and cap per write, against what the PLC applied when the write arrived: every value
+/// register written is within the axis' clamp and within one cap of the applied shift.
+pub fn assert_clamp_and_cap_per_write(writes: &[PlcWrite]) {
+    let mut values = 0;
+    for w in writes
+        .iter()
+        .filter(|w| VALUE_REGISTERS.contains(&w.address))
+    {
+        values += 1;
+        for k in 0..3 {
+            let v = w.registers_um[k];
+            assert!(v.abs() <= clamp_of(k), "beyond the clamp: {w:?}");
+            assert!(
+                (v - w.applied_um[k]).abs() <= CAP_UM,
+                "a write more than the cap from what the PLC applies: {w:?}"
+            );
+        }
+    }
+    assert!(values > 100, "only {values} value writes");
+}
+
+/// No jump: the applied shift moves by at most one cap between consecutive steps, except at the
+/// steps listed in `foreign` (a foreign writer's latch).
+pub fn assert_no_jump(trace: &[StepTrace], foreign: &[f64]) {
+    for p in trace.windows(2) {
+        if foreign.iter().any(|t| (p[1].t_s - t).abs() < 1e-9) {
+            continue;
+        }
+        for k in 0..3 {
+            let d = (p[1].applied_um[k] - p[0].applied_um[k]).abs();
+            assert!(d <= CAP_UM, "applied shift jumped by {d} µm: {p:?}");
+        }
+    }
+}
+
+/// The first sink period at or after `t_s` (periods at whole multiples of `period_s`).
+pub fn period_at_or_after(t_s: f64, period_s: f64) -> f64 {
+    (t_s / period_s - 1e-9).ceil() * period_s
+}
+
+/// `v` rounded to the register's resolution, µm.
+pub fn lsb_round(v: f64) -> f64 {
+    (v / LSB_UM).round() * LSB_UM
+}
+
+/// Steps of the trace at or after `t_s`.
+pub fn from(trace: &[StepTrace], t_s: f64) -> impl Iterator<Item = &StepTrace> {
+    trace.iter().filter(move |r| r.t_s >= t_s - 1e-9)
+}
