@@ -225,7 +225,10 @@ impl Gateway {
     fn settle(&mut self, a: Action, now_s: f64, connected: bool) -> Option<&Action> {
         match a {
             Action::Done(o) => {
-                self.end_period(now_s, connected && !matches!(o, Outcome::RequestFailed { .. }));
+                self.end_period(
+                    now_s,
+                    connected && !matches!(o, Outcome::RequestFailed { .. }),
+                );
                 self.pending = None;
             }
             a => self.pending = Some(a),

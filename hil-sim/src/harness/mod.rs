@@ -32,10 +32,10 @@ use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::engine::ErrorModel;
 use retrocomp::origin_shift::{Action, Reply};
 
+use crate::SimConfig;
 use crate::io::publish::Publisher;
 use crate::io::transport_faults::{Garbage, Schedule, Transition, silenced};
 use crate::world::World;
-use crate::SimConfig;
 pub use gateway::{FaultEdge, Gateway};
 
 /// Builds a fresh model for each gateway start (a restart loads it again).
