@@ -7,6 +7,7 @@ pub mod bus;
 pub mod cli;
 pub mod config_issue;
 pub mod decimal;
+pub mod demo;
 pub mod diagnose;
 pub mod gateway;
 pub mod models;

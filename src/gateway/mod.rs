@@ -5,7 +5,6 @@
 pub mod config;
 mod config_check;
 pub mod cycle;
-pub mod demo;
 pub mod direction;
 pub mod engine;
 pub mod health;
@@ -14,8 +13,6 @@ pub mod http;
 pub mod model_adapter;
 pub mod model_switch;
 pub mod opcua;
-pub mod origin_shift_sink;
-pub mod quadrature_sink;
 pub mod realtime;
 pub mod recovery;
 pub mod run;

@@ -33,7 +33,7 @@ use super::config::{FieldConfig, OnStop};
 use super::cycle::{CycleIo, CycleLoop, CycleReport, Outputs};
 use super::engine::{Engine, ErrorModel};
 use super::http::{Api, Control, Limits, serve};
-use super::origin_shift_sink::{SinkChannels, origin_shift_task};
+use crate::origin_shift::sink_task::{SinkChannels, origin_shift_task};
 use super::realtime;
 use super::status::{SinkStatus, StatusSnapshot};
 use super::supervise::{CycleCounter, SourceFeed};
@@ -330,7 +330,7 @@ async fn start_sink(
         return start_origin_shift_server(cfg, srv, chans, served, epoch).await;
     }
     if let Some(q) = cfg.sink.quadrature.clone() {
-        let task = super::quadrature_sink::quadrature_task(q, chans.out_rx, chans.status);
+        let task = crate::quadrature::sink::quadrature_task(q, chans.out_rx, chans.status);
         return Ok((BTreeMap::new(), Box::pin(task)));
     }
     let os = cfg
@@ -433,5 +433,5 @@ pub fn require_sink(cfg: &FieldConfig) -> anyhow::Result<()> {
             "no [sink.origin_shift], [sink.origin_shift_server] or [sink.quadrature] in the config: nothing would be corrected"
         );
     }
-    super::quadrature_sink::check_buildable(cfg)
+    crate::quadrature::sink::check_buildable(cfg)
 }

@@ -25,6 +25,7 @@ pub mod gpio;
 pub mod gray;
 pub mod injector;
 pub mod scheduler;
+pub mod sink;
 
 pub use counts::CountQuantizer;
 pub use driver::QuadraturePins;

@@ -23,9 +23,9 @@ use std::collections::BTreeMap;
 use tokio::sync::{mpsc, watch};
 use tokio::time::MissedTickBehavior;
 
-use super::config::OriginShiftSink;
-use super::health::{FaultKind, FaultLog};
-use super::status::SinkStatus;
+use crate::gateway::config::OriginShiftSink;
+use crate::gateway::health::{FaultKind, FaultLog};
+use crate::gateway::status::SinkStatus;
 use crate::origin_shift::{OriginShiftClient, SinkAxis, SinkCore};
 
 /// The origin-shift sink's channels to the cycle: outputs in, reseeds back, status out.

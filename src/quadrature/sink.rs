@@ -10,8 +10,8 @@
 use anyhow::{Context as _, bail};
 use tokio::sync::watch;
 
-use super::config::{FieldConfig, QuadratureAxis, QuadratureSink};
-use super::status::SinkStatus;
+use crate::gateway::config::{FieldConfig, QuadratureAxis, QuadratureSink};
+use crate::gateway::status::SinkStatus;
 use crate::quadrature::{CountQuantizer, EdgeScheduler, SchedulerConfig, simulate};
 
 /// Refuse GPIO lines this build cannot drive.
