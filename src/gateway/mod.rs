@@ -13,7 +13,6 @@ pub mod http;
 pub mod model_adapter;
 pub mod model_switch;
 pub mod opcua;
-pub mod realtime;
 pub mod recovery;
 pub mod run;
 pub mod safety;

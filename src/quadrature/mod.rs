@@ -18,6 +18,7 @@
 //! [`injector`] (the real-time thread that writes owed edges when due), `gpio` (cargo feature `gpio`:
 //! the pins are Linux GPIO character-device lines).
 
+pub mod config;
 pub mod counts;
 pub mod driver;
 #[cfg(all(feature = "gpio", target_os = "linux"))]
