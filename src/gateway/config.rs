@@ -224,7 +224,7 @@ impl FieldConfig {
         let opcua = cfg.opcua.as_mut().map_or(Ok(()), |o| o.resolve(base));
         let checked = opcua
             .and_then(|()| cfg.check_position_sources())
-            .and_then(|()| super::model_switch::resolve_models(&mut cfg.gateway.models, base));
+            .and_then(|()| resolve_models(&mut cfg.gateway.models, base));
         if let Err((key, what)) = checked {
             let text = std::fs::read_to_string(path).unwrap_or_default();
             return Err(invalid(path, &text, key, what));
@@ -264,6 +264,26 @@ impl FieldConfig {
             .and_then(|a| a.safety)
             .unwrap_or(self.safety)
     }
+}
+
+/// At start (`FieldConfig::load_for_run`): make every declared path absolute (relative to the
+/// config's folder) and load each model once, so a model that cannot be used is refused now.
+fn resolve_models(
+    models: &mut std::collections::BTreeMap<String, PathBuf>,
+    base: &Path,
+) -> Result<(), (String, String)> {
+    for (name, path) in models.iter_mut() {
+        if path.is_relative() {
+            *path = base.join(&*path);
+        }
+        crate::models::MachineModel::from_toml_path(path).map_err(|e| {
+            (
+                format!("gateway.models.{name}"),
+                format!("expected a machine model TOML: {}: {e}", path.display()),
+            )
+        })?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -10,6 +10,7 @@ pub mod engine;
 pub mod health;
 pub mod history;
 pub mod http;
+mod http_state;
 pub mod model_adapter;
 pub mod model_switch;
 pub mod opcua;

@@ -89,7 +89,7 @@ pub async fn run(
     } = sources.into();
     let (status_tx, status_rx) = watch::channel::<Option<Arc<StatusSnapshot>>>(None);
     // Sparkplug B publisher: its own tasks fed from the status watch (never slows the cycle).
-    let telemetry = crate::telemetry::publisher::start_for(&cfg, status_rx.clone())?;
+    let telemetry = start_telemetry(&cfg, status_rx.clone())?;
     let listen: SocketAddr = cfg
         .gateway
         .status_listen
@@ -218,6 +218,29 @@ pub async fn run(
         partial_s: report.partial_s,
         partial_episodes: report.partial_episodes,
     })
+}
+
+/// The Sparkplug publisher of the field config's `[telemetry.mqtt]`, if any.
+fn start_telemetry(
+    cfg: &FieldConfig,
+    status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
+) -> anyhow::Result<Option<crate::telemetry::Publisher>> {
+    let Some(m) = cfg.telemetry.as_ref().and_then(|t| t.mqtt.clone()) else {
+        return Ok(None);
+    };
+    let model = cfg
+        .model
+        .as_ref()
+        .map_or_else(|| "inline".to_string(), |m| m.path.display().to_string());
+    let model_identity = format!("{}:{model}", cfg.gateway.name);
+    crate::telemetry::spawn(
+        m,
+        crate::telemetry::PublisherInputs {
+            status,
+            model_identity,
+        },
+    )
+    .map(Some)
 }
 
 /// Ramp the origin-shift correction out before stopping (`on_stop = "ramp_out"`): the sink writes 0

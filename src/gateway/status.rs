@@ -100,7 +100,7 @@ pub struct StatusSnapshot {
     pub model: Option<ModelIdentity>,
     /// The Sparkplug B publisher (`[telemetry.mqtt]`), when configured.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub telemetry: Option<crate::telemetry::TelemetryStatus>,
+    pub telemetry: Option<crate::telemetry::status::TelemetryStatus>,
 }
 
 fn esc(label: &str) -> String {
