@@ -1,6 +1,6 @@
 //! Direction of approach of one axis: the ONE definition used by the gateway's direction latch
 //! (`gateway::direction`, which adds the ramped forward/reverse blend on top), diagnose's motion
-//! features (`diagnose::features`) and the demo fit's bidirectional tables (`gateway::demo::fitted`).
+//! features (`diagnose::features`) and the demo fit's bidirectional tables (`demo::fitted`).
 //!
 //! Sign convention: +1 = forward = the axis reached its position moving towards +position; −1 =
 //! reverse; 0 = not known yet (the axis has not moved by more than the deadband since the latch

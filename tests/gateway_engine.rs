@@ -270,7 +270,7 @@ max = 5000.0
 stale_after_s = 0.1
 "#;
     let cfg = FieldConfig::parse(CFG3, Path::new("t.toml")).unwrap();
-    let model = MachineModel::from_toml_str(retrocomp::gateway::demo::FULL_MODEL, "full").unwrap();
+    let model = MachineModel::from_toml_str(retrocomp::demo::FULL_MODEL, "full").unwrap();
     let mut m = MachineModelAdapter::new(model);
     let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
     let dt = 0.01;

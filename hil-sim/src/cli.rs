@@ -103,7 +103,7 @@ pub fn serve(args: &ServeArgs) -> anyhow::Result<()> {
     );
     // Before the runtime exists: its threads inherit the policy of the thread that creates them.
     if let (true, Some(p)) = (cfg.clock.realtime, cfg.clock.realtime_priority) {
-        use retrocomp::gateway::realtime::{RtOutcome, set_current_thread_fifo};
+        use retrocomp::realtime::{RtOutcome, set_current_thread_fifo};
         match set_current_thread_fifo(p) {
             RtOutcome::Granted { priority } => eprintln!("hil-sim: SCHED_FIFO {priority} granted"),
             RtOutcome::Refused { priority, why } => eprintln!(

@@ -13,7 +13,8 @@ use super::safety::SafetyConfig;
 use crate::bus::can::backend::CanBackendConfig;
 use crate::bus::canopen::source::CanopenConfig;
 use crate::bus::config::{ModbusSection, SerialSection};
-use crate::origin_shift::{ClientConfig, RegisterMap, Transport};
+pub use crate::origin_shift::client::OriginShiftSink;
+pub use crate::quadrature::config::{GpioLines, QuadratureAxis, QuadratureSink};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -185,85 +186,6 @@ pub struct SinkSection {
     pub origin_shift_server: Option<crate::origin_shift::server::ServerConfig>,
 }
 
-/// Spelled out (no `flatten`) so unknown keys are rejected; [`OriginShiftSink::client`] builds the
-/// client settings.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct OriginShiftSink {
-    pub transport: Transport,
-    #[serde(default = "one")]
-    pub unit_id: u8,
-    #[serde(default = "default_timeout_ms")]
-    pub request_timeout_ms: u64,
-    #[serde(default = "default_backoff_min_ms")]
-    pub reconnect_min_ms: u64,
-    #[serde(default = "default_backoff_max_ms")]
-    pub reconnect_max_ms: u64,
-    /// Write period, ms (a PLC scan takes 10–100 ms; writing faster only loads the bus).
-    #[serde(default = "default_write_period_ms")]
-    pub write_period_ms: u64,
-    pub map: RegisterMap,
-}
-
-fn default_write_period_ms() -> u64 {
-    50
-}
-fn one() -> u8 {
-    1
-}
-fn default_timeout_ms() -> u64 {
-    200
-}
-fn default_backoff_min_ms() -> u64 {
-    100
-}
-fn default_backoff_max_ms() -> u64 {
-    5_000
-}
-
-impl OriginShiftSink {
-    pub fn client(&self) -> ClientConfig {
-        ClientConfig {
-            transport: self.transport.clone(),
-            unit_id: self.unit_id,
-            request_timeout_ms: self.request_timeout_ms,
-            reconnect_min_ms: self.reconnect_min_ms,
-            reconnect_max_ms: self.reconnect_max_ms,
-        }
-    }
-}
-
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct QuadratureSink {
-    #[serde(rename = "axis")]
-    pub axes: Vec<QuadratureAxis>,
-}
-
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct QuadratureAxis {
-    pub axis: String,
-    /// Slide travel per count (per A/B edge), µm.
-    pub resolution_um: f64,
-    /// +1 if the encoder counts up when the axis moves +.
-    pub count_sign: i8,
-    /// Receiver's minimum edge separation, ns (RS-422 at 400 kHz: 400).
-    pub min_edge_gap_ns: u64,
-    pub max_inject_rate_hz: f64,
-    /// GPIO lines (chip, A offset, B offset) for the `gpio` feature; None = simulated.
-    #[serde(default)]
-    pub gpio: Option<GpioLines>,
-}
-
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct GpioLines {
-    pub chip: String,
-    pub line_a: u32,
-    pub line_b: u32,
-}
-
 pub use crate::config_issue::ConfigError;
 
 /// A semantic problem at `key`, placed on the key's line of `text`.
@@ -302,7 +224,7 @@ impl FieldConfig {
         let opcua = cfg.opcua.as_mut().map_or(Ok(()), |o| o.resolve(base));
         let checked = opcua
             .and_then(|()| cfg.check_position_sources())
-            .and_then(|()| super::model_switch::resolve_models(&mut cfg.gateway.models, base));
+            .and_then(|()| resolve_models(&mut cfg.gateway.models, base));
         if let Err((key, what)) = checked {
             let text = std::fs::read_to_string(path).unwrap_or_default();
             return Err(invalid(path, &text, key, what));
@@ -342,6 +264,26 @@ impl FieldConfig {
             .and_then(|a| a.safety)
             .unwrap_or(self.safety)
     }
+}
+
+/// At start (`FieldConfig::load_for_run`): make every declared path absolute (relative to the
+/// config's folder) and load each model once, so a model that cannot be used is refused now.
+fn resolve_models(
+    models: &mut std::collections::BTreeMap<String, PathBuf>,
+    base: &Path,
+) -> Result<(), (String, String)> {
+    for (name, path) in models.iter_mut() {
+        if path.is_relative() {
+            *path = base.join(&*path);
+        }
+        crate::models::MachineModel::from_toml_path(path).map_err(|e| {
+            (
+                format!("gateway.models.{name}"),
+                format!("expected a machine model TOML: {}: {e}", path.display()),
+            )
+        })?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]

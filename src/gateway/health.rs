@@ -1,14 +1,14 @@
-//! Sensor health per channel: range, staleness, rate of change, stuck value; plus a fault log that
-//! reports each fault once when it starts and once when it clears (tracing), never every cycle.
+//! Sensor health per channel: range, staleness, rate of change, stuck value. The fault vocabulary and
+//! the log that reports each fault once when it starts and once when it clears live in
+//! `crate::fault` (shared with the sinks and telemetry) and are re-exported here.
 //!
 //! Units are the channel's own (its name carries them). Time is seconds on the gateway's clock.
 //! A rejected value is never used: the channel keeps its last good value and reports the fault.
 
-use std::collections::BTreeMap;
-
 use serde::{Deserialize, Serialize};
 
 use crate::bus::{Health, Sample};
+pub use crate::fault::{FaultEvent, FaultKind, FaultLog};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -25,50 +25,6 @@ pub struct ChannelLimits {
     /// Real ADC readings carry noise; a frozen one means a dead converter or a stuck gateway.
     #[serde(default)]
     pub stuck_after_s: Option<f64>,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum FaultKind {
-    Stale,
-    OutOfRange,
-    NotFinite,
-    RateOfChange,
-    Stuck,
-    Decode,
-    /// A link is down (transport closed, no reply, interface down): a sink's controller or a
-    /// source's bus, reported by that sink or source, not a channel.
-    Disconnected,
-    /// A CAN controller is bus-off (error frames `CAN_ERR_BUSOFF`).
-    BusOff,
-    /// A CAN controller is error-passive (its error counters passed 127).
-    ErrorPassive,
-    /// CAN error frames arrived within the last [`BUS_ERROR_HOLD_S`].
-    BusErrors,
-    /// A Modbus device answered a request with an exception.
-    Exception,
-    /// A sink's request was refused (Modbus exception), failed, or was not acknowledged/read back.
-    WriteFailed,
-    /// The controller holds a correction beyond the clamp: the sink does not write that axis.
-    BeyondClamp,
-}
-
-impl FaultKind {
-    pub const ALL: [FaultKind; 13] = [
-        FaultKind::Stale,
-        FaultKind::OutOfRange,
-        FaultKind::NotFinite,
-        FaultKind::RateOfChange,
-        FaultKind::Stuck,
-        FaultKind::Decode,
-        FaultKind::Disconnected,
-        FaultKind::BusOff,
-        FaultKind::ErrorPassive,
-        FaultKind::BusErrors,
-        FaultKind::Exception,
-        FaultKind::WriteFailed,
-        FaultKind::BeyondClamp,
-    ];
 }
 
 /// How far every input together may lag the cycle's clock before staleness is judged on the wall
@@ -232,67 +188,6 @@ impl ChannelMonitor {
             faults,
             substituted: false,
         }
-    }
-}
-
-/// Transition of one fault, for logs and tests.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct FaultEvent {
-    pub source: String,
-    pub kind: FaultKind,
-    pub started: bool,
-    pub t_s: f64,
-}
-
-/// Remembers which faults are active so each is logged once when it starts and once when it clears.
-#[derive(Clone, Debug, Default)]
-pub struct FaultLog {
-    active: BTreeMap<(String, FaultKind), f64>,
-}
-
-impl FaultLog {
-    /// Reconcile the faults of `source` with `now_faults`; returns (and logs) only the changes.
-    pub fn update(
-        &mut self,
-        source: &str,
-        now_faults: &[FaultKind],
-        now_s: f64,
-    ) -> Vec<FaultEvent> {
-        let mut events = Vec::new();
-        for &kind in now_faults {
-            let key = (source.to_string(), kind);
-            if let std::collections::btree_map::Entry::Vacant(slot) = self.active.entry(key) {
-                tracing::warn!(source, ?kind, t_s = now_s, "fault started");
-                slot.insert(now_s);
-                events.push(FaultEvent {
-                    source: source.to_string(),
-                    kind,
-                    started: true,
-                    t_s: now_s,
-                });
-            }
-        }
-        let cleared: Vec<(String, FaultKind)> = self
-            .active
-            .keys()
-            .filter(|(s, k)| s == source && !now_faults.contains(k))
-            .cloned()
-            .collect();
-        for key in cleared {
-            let since = self.active.remove(&key).unwrap_or(now_s);
-            tracing::info!(source, kind = ?key.1, t_s = now_s, lasted_s = now_s - since, "fault cleared");
-            events.push(FaultEvent {
-                source: key.0,
-                kind: key.1,
-                started: false,
-                t_s: now_s,
-            });
-        }
-        events
-    }
-
-    pub fn active(&self) -> impl Iterator<Item = (&str, FaultKind, f64)> {
-        self.active.iter().map(|((s, k), t)| (s.as_str(), *k, *t))
     }
 }
 

@@ -18,7 +18,7 @@
 //! Units: µm for the outputs (via the engine); times in the identity are Unix seconds.
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use super::config::FieldConfig;
 use super::engine::{Engine, ErrorModel};
@@ -39,26 +39,6 @@ pub fn check_name(name: &str) -> Result<(), String> {
             "expected a name of 1..=64 letters, digits, '_' or '-', got {name:?}"
         ))
     }
-}
-
-/// At start (`FieldConfig::load_for_run`): make every declared path absolute (relative to the
-/// config's folder) and load each model once, so a model that cannot be used is refused now.
-pub fn resolve_models(
-    models: &mut BTreeMap<String, PathBuf>,
-    base: &Path,
-) -> Result<(), (String, String)> {
-    for (name, path) in models.iter_mut() {
-        if path.is_relative() {
-            *path = base.join(&*path);
-        }
-        MachineModel::from_toml_path(path).map_err(|e| {
-            (
-                format!("gateway.models.{name}"),
-                format!("expected a machine model TOML: {}: {e}", path.display()),
-            )
-        })?;
-    }
-    Ok(())
 }
 
 /// Why a switch was refused; [`SwitchError::http_status`] maps it to a 4xx.

@@ -10,18 +10,20 @@
 //! function only starts them, then waits for shutdown, a dead source task, a sink that ended, or a
 //! cycle thread that died; it then stops the cycle (one more status snapshot) and the sink.
 //!
+//! Sinks: the configured output is a [`Sink`] (`src/sink.rs`; its shell lives with its core:
+//! `origin_shift/sink_task.rs`, `origin_shift/server.rs`, `quadrature/sink.rs`); this file only
+//! builds it from the field config (clamp and cap per axis) and drives it on the sink thread.
+//!
 //! Origin-shift start-up: the sink reads what the controller holds before the engine starts, and the
 //! engine continues from it (no jump after a gateway restart). The sink reads the controller again
 //! before every write (`origin_shift/sink.rs`); when the controller changed the value behind our back
 //! (it restarted, an operator cleared it) the engine is reseeded from what it holds.
 //!
 //! Stop: with `[gateway] on_stop = "ramp_out"` the origin-shift client sink ramps the correction out
-//! (`origin_shift_sink.rs`, bounded by `stop_ramp_max_s`) before `run` returns.
+//! (`origin_shift/sink_task.rs`, bounded by `stop_ramp_max_s`) before `run` returns.
 
 use std::collections::BTreeMap;
-use std::future::Future;
 use std::net::SocketAddr;
-use std::pin::Pin;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -33,12 +35,16 @@ use super::config::{FieldConfig, OnStop};
 use super::cycle::{CycleIo, CycleLoop, CycleReport, Outputs};
 use super::engine::{Engine, ErrorModel};
 use super::http::{Api, Control, Limits, serve};
-use super::origin_shift_sink::{SinkChannels, origin_shift_task};
-use super::realtime;
 use super::status::{SinkStatus, StatusSnapshot};
 use super::supervise::{CycleCounter, SourceFeed};
 use crate::bus::Sample;
-use crate::origin_shift::{OriginShiftClient, SinkAxis};
+use crate::origin_shift::SinkAxis;
+use crate::origin_shift::server::OriginShiftServerSink;
+use crate::origin_shift::server_core::Guard;
+use crate::origin_shift::sink_task::OriginShiftClientSink;
+use crate::quadrature::sink::QuadratureOutput;
+use crate::realtime;
+use crate::sink::{LocalFuture, Sink, SinkIo, StartValues};
 
 /// What a run reports when it stops.
 #[derive(Clone, Debug, Default)]
@@ -83,7 +89,7 @@ pub async fn run(
     } = sources.into();
     let (status_tx, status_rx) = watch::channel::<Option<Arc<StatusSnapshot>>>(None);
     // Sparkplug B publisher: its own tasks fed from the status watch (never slows the cycle).
-    let telemetry = crate::telemetry::publisher::start_for(&cfg, status_rx.clone())?;
+    let telemetry = start_telemetry(&cfg, status_rx.clone())?;
     let listen: SocketAddr = cfg
         .gateway
         .status_listen
@@ -126,13 +132,14 @@ pub async fn run(
     // `Some(max_s)` asks the origin-shift client sink to ramp the correction out, then return.
     let (stop_tx, stop_rx) = watch::channel::<Option<f64>>(None);
     let ramp_out = cfg.sink.origin_shift.is_some() && cfg.gateway.on_stop == OnStop::RampOut;
-    let chans = SinkChannels {
+    let io = SinkIo {
         out_rx,
         reseed_tx,
         status: sink_status_tx,
         stop: stop_rx,
+        served: served_tx,
     };
-    let mut sink = SinkThread::spawn(&cfg, chans, served_tx, epoch)?;
+    let mut sink = SinkThread::spawn(&cfg, io, epoch)?;
     let initial = match sink.as_mut() {
         Some(s) => s.initial().await?,
         None => BTreeMap::new(),
@@ -213,6 +220,29 @@ pub async fn run(
     })
 }
 
+/// The Sparkplug publisher of the field config's `[telemetry.mqtt]`, if any.
+fn start_telemetry(
+    cfg: &FieldConfig,
+    status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
+) -> anyhow::Result<Option<crate::telemetry::Publisher>> {
+    let Some(m) = cfg.telemetry.as_ref().and_then(|t| t.mqtt.clone()) else {
+        return Ok(None);
+    };
+    let model = cfg
+        .model
+        .as_ref()
+        .map_or_else(|| "inline".to_string(), |m| m.path.display().to_string());
+    let model_identity = format!("{}:{model}", cfg.gateway.name);
+    crate::telemetry::spawn(
+        m,
+        crate::telemetry::PublisherInputs {
+            status,
+            model_identity,
+        },
+    )
+    .map(Some)
+}
+
 /// Ramp the origin-shift correction out before stopping (`on_stop = "ramp_out"`): the sink writes 0
 /// within the per-write cap until the controller holds 0 and then returns by itself, within `max_s`
 /// (+ one period's requests). The stop is progress: the service manager's watchdog is kept fed
@@ -237,8 +267,6 @@ async fn ramp_out_before_stop(
     }
 }
 
-type LocalFuture = Pin<Box<dyn Future<Output = ()>>>;
-
 /// The sink on its own thread and runtime: it reports the controller's start values once, then
 /// runs until it ends by itself (a failure: reported by [`SinkThread::ended`]) or is stopped.
 struct SinkThread {
@@ -252,8 +280,7 @@ impl SinkThread {
     /// Start the configured sink (None: no sink configured, a dry run).
     fn spawn(
         cfg: &FieldConfig,
-        chans: SinkChannels,
-        served: mpsc::Sender<Sample>,
+        io: SinkIo,
         epoch: std::time::Instant,
     ) -> anyhow::Result<Option<Self>> {
         let s = &cfg.sink;
@@ -268,7 +295,7 @@ impl SinkThread {
             "retrocomp-sink",
             cfg.gateway.realtime_priority,
             move || async move {
-                let (initial, task) = match start_sink(&cfg, chans, served, epoch).await {
+                let (initial, task) = match start_sink(&cfg, io, epoch).await {
                     Ok(started) => started,
                     Err(e) => {
                         let _ = initial_tx.send(Err(e));
@@ -322,35 +349,39 @@ impl SinkThread {
 /// Build the configured sink on the sink thread: the controller's start values and the task.
 async fn start_sink(
     cfg: &FieldConfig,
-    chans: SinkChannels,
-    served: mpsc::Sender<Sample>,
+    io: SinkIo,
     epoch: std::time::Instant,
-) -> anyhow::Result<(BTreeMap<String, f64>, LocalFuture)> {
+) -> anyhow::Result<(StartValues, LocalFuture<'static, ()>)> {
+    let mut sink = build_sink(cfg, epoch)?;
+    let initial = sink.start(&io).await?;
+    Ok((initial, sink.run(io)))
+}
+
+/// The configured sink, its clamp and per-write cap per axis from the field config's safety.
+fn build_sink(cfg: &FieldConfig, epoch: std::time::Instant) -> anyhow::Result<Box<dyn Sink>> {
     if let Some(srv) = cfg.sink.origin_shift_server.clone() {
-        return start_origin_shift_server(cfg, srv, chans, served, epoch).await;
+        let guards: Vec<(String, Guard)> = cfg
+            .axes
+            .iter()
+            .map(|a| {
+                let s = cfg.safety_for(&a.name);
+                let g = Guard {
+                    max_correction_um: s.max_correction_um,
+                    max_change_um_per_update: s.max_change_um_per_cycle,
+                };
+                (a.name.clone(), g)
+            })
+            .collect();
+        return Ok(Box::new(OriginShiftServerSink::new(srv, guards, epoch)));
     }
     if let Some(q) = cfg.sink.quadrature.clone() {
-        let task = super::quadrature_sink::quadrature_task(q, chans.out_rx, chans.status);
-        return Ok((BTreeMap::new(), Box::pin(task)));
+        return Ok(Box::new(QuadratureOutput::new(q)));
     }
     let os = cfg
         .sink
         .origin_shift
         .clone()
         .context("no sink configured")?;
-    let mut client =
-        OriginShiftClient::new(os.client(), os.map.clone()).context("sink.origin_shift.map")?;
-    let mut initial = read_initial(&mut client).await;
-    // A value beyond the clamp is not a start value: the sink refuses to write that axis (a
-    // fault) until the controller's value is back in range, then the engine continues from it.
-    initial.retain(|axis, held_um| {
-        let max = cfg.safety_for(axis).max_correction_um;
-        let ok = held_um.is_finite() && held_um.abs() <= max;
-        if !ok {
-            tracing::error!(axis, held_um, max, "controller holds a correction beyond the clamp: not writing this axis until it is back in range");
-        }
-        ok
-    });
     let axes = cfg
         .axes
         .iter()
@@ -363,64 +394,8 @@ async fn start_sink(
             }
         })
         .collect();
-    let task = origin_shift_task(os, client, axes, chans, epoch);
-    Ok((initial, Box::pin(task)))
-}
-
-/// Start the origin-shift server, wait until the controller reports what it holds (the engine's
-/// start value); returns it with the server's update task.
-async fn start_origin_shift_server(
-    cfg: &FieldConfig,
-    srv: crate::origin_shift::server::ServerConfig,
-    chans: SinkChannels,
-    samples: mpsc::Sender<Sample>,
-    epoch: std::time::Instant,
-) -> anyhow::Result<(BTreeMap<String, f64>, LocalFuture)> {
-    use crate::origin_shift::server::OriginShiftServer;
-    use crate::origin_shift::server_core::Guard;
-    let guards: Vec<(String, Guard)> = cfg
-        .axes
-        .iter()
-        .map(|a| {
-            let s = cfg.safety_for(&a.name);
-            let g = Guard {
-                max_correction_um: s.max_correction_um,
-                max_change_um_per_update: s.max_change_um_per_cycle,
-            };
-            (a.name.clone(), g)
-        })
-        .collect();
-    let mut server = OriginShiftServer::start(srv, &guards)
-        .await
-        .context("sink.origin_shift_server")?;
-    let clock = move || epoch.elapsed().as_secs_f64();
-    let held = server.wait_seeded(&samples, &clock).await;
-    let task = server.run(chans.out_rx, samples, chans.status, clock);
-    Ok((held, Box::pin(task)))
-}
-
-/// Read the controller's current values, retrying until it answers (without them the first write
-/// could jump). Logs every 20th failure.
-async fn read_initial(client: &mut OriginShiftClient) -> BTreeMap<String, f64> {
-    let mut attempt = 0u64;
-    loop {
-        match client.read_current().await {
-            Ok(v) => {
-                tracing::info!(
-                    ?v,
-                    "controller holds these corrections; continuing from them"
-                );
-                return v.into_iter().collect();
-            }
-            Err(e) => {
-                if attempt.is_multiple_of(20) {
-                    tracing::warn!(%e, "waiting for the controller before starting");
-                }
-                attempt += 1;
-                tokio::time::sleep(Duration::from_millis(50)).await;
-            }
-        }
-    }
+    let sink = OriginShiftClientSink::new(os, axes, cfg.safety.max_correction_um, epoch)?;
+    Ok(Box::new(sink))
 }
 
 /// Refuse to run a config that would correct nothing in a field deployment.
@@ -433,5 +408,8 @@ pub fn require_sink(cfg: &FieldConfig) -> anyhow::Result<()> {
             "no [sink.origin_shift], [sink.origin_shift_server] or [sink.quadrature] in the config: nothing would be corrected"
         );
     }
-    super::quadrature_sink::check_buildable(cfg)
+    match &cfg.sink.quadrature {
+        Some(q) => crate::quadrature::sink::check_buildable(q),
+        None => Ok(()),
+    }
 }

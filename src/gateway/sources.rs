@@ -60,7 +60,7 @@ pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> anyhow::Result<
     // late, so they share the cycle's real-time priority (the Modbus pollers' threads, started
     // from this one, inherit it).
     let prio = cfg.gateway.realtime_priority;
-    super::realtime::spawn_runtime_thread("retrocomp-sources", prio, move || async move {
+    crate::realtime::spawn_runtime_thread("retrocomp-sources", prio, move || async move {
         match start_sources(&cfg, epoch, tx.clone(), b, n).await {
             Ok(()) => {
                 let _ = ready_tx.send(Ok(()));

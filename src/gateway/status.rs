@@ -12,6 +12,7 @@ use super::health::{ChannelStatus, FaultKind};
 use super::safety::Mode;
 use crate::bus::Health;
 use crate::bus::can::BusState;
+pub use crate::sink::SinkStatus;
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct AxisStatus {
@@ -41,19 +42,6 @@ pub struct ModelIdentity {
     pub loaded_unix_s: f64,
     /// Term name → `geometric`, `thermal`, `load` or `other` (the OPC UA space groups terms by it).
     pub term_groups: std::collections::BTreeMap<String, &'static str>,
-}
-
-#[derive(Clone, Debug, PartialEq, Serialize, Default)]
-pub struct SinkStatus {
-    pub kind: String,
-    pub connected: bool,
-    pub writes_ok: u64,
-    pub writes_failed: u64,
-    pub last_error: Option<String>,
-    /// What the controller's registers hold per axis, µm, as last read (origin shift only).
-    pub held_um: BTreeMap<String, f64>,
-    /// The sink's active faults: (source, fault, since t_s).
-    pub faults: Vec<(String, FaultKind, f64)>,
 }
 
 /// One bus source's link (the CAN backend, a Modbus poller, a serial line): what `/status` shows
@@ -112,7 +100,7 @@ pub struct StatusSnapshot {
     pub model: Option<ModelIdentity>,
     /// The Sparkplug B publisher (`[telemetry.mqtt]`), when configured.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub telemetry: Option<crate::telemetry::TelemetryStatus>,
+    pub telemetry: Option<crate::telemetry::status::TelemetryStatus>,
 }
 
 fn esc(label: &str) -> String {

@@ -22,7 +22,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 
 use super::history::{Ack, unix_now_s};
-use super::http::{AppState, Control, authorize, not_allowed, plain, record};
+use super::http_state::{AppState, Control, authorize, not_allowed, plain, record};
 
 const INDEX_HTML: &str = include_str!("../../assets/web/index.html");
 const APP_JS: &str = include_str!("../../assets/web/app.js");

@@ -41,6 +41,42 @@ pub struct ClientConfig {
     pub reconnect_max_ms: u64,
 }
 
+/// Spelled out (no `flatten`) so unknown keys are rejected; [`OriginShiftSink::client`] builds the
+/// client settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OriginShiftSink {
+    pub transport: Transport,
+    #[serde(default = "one")]
+    pub unit_id: u8,
+    #[serde(default = "default_timeout_ms")]
+    pub request_timeout_ms: u64,
+    #[serde(default = "default_backoff_min_ms")]
+    pub reconnect_min_ms: u64,
+    #[serde(default = "default_backoff_max_ms")]
+    pub reconnect_max_ms: u64,
+    /// Write period, ms (a PLC scan takes 10–100 ms; writing faster only loads the bus).
+    #[serde(default = "default_write_period_ms")]
+    pub write_period_ms: u64,
+    pub map: RegisterMap,
+}
+
+fn default_write_period_ms() -> u64 {
+    50
+}
+
+impl OriginShiftSink {
+    pub fn client(&self) -> ClientConfig {
+        ClientConfig {
+            transport: self.transport.clone(),
+            unit_id: self.unit_id,
+            request_timeout_ms: self.request_timeout_ms,
+            reconnect_min_ms: self.reconnect_min_ms,
+            reconnect_max_ms: self.reconnect_max_ms,
+        }
+    }
+}
+
 fn one() -> u8 {
     1
 }

@@ -15,6 +15,7 @@ pub mod map;
 pub mod server;
 pub mod server_core;
 pub mod sink;
+pub mod sink_task;
 
 pub use client::{ClientConfig, OriginShiftClient, Transport};
 pub use cycle::{Action, Outcome, Reply, WriteCycle};

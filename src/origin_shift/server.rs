@@ -8,6 +8,7 @@
 //! the controller has written what it holds (only when held registers are configured), which is the
 //! engine's start value; [`OriginShiftServer::run`] then updates the image every `update_period_ms`
 //! from the engine's outputs and turns each controller write into position samples (`x_mm`).
+//! [`OriginShiftServerSink`] is that flow as the run loop's [`Sink`].
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
@@ -21,8 +22,8 @@ use tokio::time::MissedTickBehavior;
 use super::server_core::{Guard, ServerCore, ServerMap};
 use crate::bus::modbus::server::{RegisterBank, TcpServer, spawn_rtu};
 use crate::bus::{Health, Sample};
-use crate::gateway::health::{FaultKind, FaultLog};
-use crate::gateway::status::SinkStatus;
+use crate::fault::{FaultKind, FaultLog};
+use crate::sink::{LocalFuture, Sink, SinkIo, SinkStatus, StartValues};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
@@ -218,6 +219,56 @@ impl Drop for OriginShiftServer {
     fn drop(&mut self) {
         if let Some(t) = self.rtu.take() {
             t.abort();
+        }
+    }
+}
+
+/// The origin-shift server as the run loop's [`Sink`]: [`Sink::start`] binds and waits until the
+/// controller reports what it holds (the engine's start value), [`Sink::run`] serves.
+pub struct OriginShiftServerSink {
+    cfg: ServerConfig,
+    /// Clamp and per-update cap per axis.
+    guards: Vec<(String, Guard)>,
+    /// The gateway's clock (sample and fault times are seconds since it).
+    epoch: std::time::Instant,
+    server: Option<OriginShiftServer>,
+}
+
+impl OriginShiftServerSink {
+    pub fn new(cfg: ServerConfig, guards: Vec<(String, Guard)>, epoch: std::time::Instant) -> Self {
+        Self {
+            cfg,
+            guards,
+            epoch,
+            server: None,
+        }
+    }
+}
+
+impl Sink for OriginShiftServerSink {
+    fn start<'a>(&'a mut self, io: &'a SinkIo) -> LocalFuture<'a, anyhow::Result<StartValues>> {
+        Box::pin(async move {
+            use anyhow::Context as _;
+            let mut server = OriginShiftServer::start(self.cfg.clone(), &self.guards)
+                .await
+                .context("sink.origin_shift_server")?;
+            let epoch = self.epoch;
+            let clock = move || epoch.elapsed().as_secs_f64();
+            let held = server.wait_seeded(&io.served, &clock).await;
+            self.server = Some(server);
+            Ok(held)
+        })
+    }
+
+    fn run(self: Box<Self>, io: SinkIo) -> LocalFuture<'static, ()> {
+        let epoch = self.epoch;
+        let clock = move || epoch.elapsed().as_secs_f64();
+        match self.server {
+            Some(server) => Box::pin(server.run(io.out_rx, io.served, io.status, clock)),
+            None => {
+                tracing::error!("origin-shift server run before it was started");
+                Box::pin(async {})
+            }
         }
     }
 }

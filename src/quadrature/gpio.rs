@@ -12,7 +12,7 @@ use anyhow::Context as _;
 use linux_embedded_hal::CdevPin;
 use linux_embedded_hal::gpio_cdev::{Chip, LineRequestFlags};
 
-use crate::gateway::config::GpioLines;
+use super::config::GpioLines;
 
 const CONSUMER: &str = "retrocomp-quadrature";
 

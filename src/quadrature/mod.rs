@@ -18,6 +18,7 @@
 //! [`injector`] (the real-time thread that writes owed edges when due), `gpio` (cargo feature `gpio`:
 //! the pins are Linux GPIO character-device lines).
 
+pub mod config;
 pub mod counts;
 pub mod driver;
 #[cfg(all(feature = "gpio", target_os = "linux"))]
@@ -25,6 +26,7 @@ pub mod gpio;
 pub mod gray;
 pub mod injector;
 pub mod scheduler;
+pub mod sink;
 
 pub use counts::CountQuantizer;
 pub use driver::QuadraturePins;

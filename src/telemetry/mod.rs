@@ -10,6 +10,7 @@
 //! the status: µm for corrections (correction = −error), mm for positions; timestamps ms since
 //! the Unix epoch, taken when the snapshot was sampled.
 
+pub mod annotate;
 pub mod config;
 pub mod drift;
 pub mod fleet;

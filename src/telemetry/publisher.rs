@@ -24,11 +24,12 @@ use rumqttc::{
 };
 use tokio::sync::{mpsc, watch};
 
+pub use super::annotate::TelemetryAnnotator;
 use super::config::MqttConfig;
 use super::metrics::{Record, Sampler, snapshot_metrics};
 use super::queue::{self, Queue, QueueLimits};
 use super::sparkplug::{self, EdgeNode, Kind, NamedValue};
-pub use super::status::{TelemetryAnnotator, TelemetryStatus};
+pub use super::status::TelemetryStatus;
 use crate::gateway::status::StatusSnapshot;
 
 /// What the publisher needs besides its config.
@@ -44,29 +45,6 @@ pub struct Publisher {
     stop: Option<tokio::sync::oneshot::Sender<()>>,
     session: tokio::task::JoinHandle<()>,
     sampler: tokio::task::JoinHandle<()>,
-}
-
-/// The publisher of a field config's `[telemetry.mqtt]`, if any (`gateway::run` calls this).
-pub fn start_for(
-    cfg: &crate::gateway::config::FieldConfig,
-    status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
-) -> anyhow::Result<Option<Publisher>> {
-    let Some(m) = cfg.telemetry.as_ref().and_then(|t| t.mqtt.clone()) else {
-        return Ok(None);
-    };
-    let model = cfg
-        .model
-        .as_ref()
-        .map_or_else(|| "inline".to_string(), |m| m.path.display().to_string());
-    let model_identity = format!("{}:{model}", cfg.gateway.name);
-    spawn(
-        m,
-        PublisherInputs {
-            status,
-            model_identity,
-        },
-    )
-    .map(Some)
 }
 
 impl Publisher {

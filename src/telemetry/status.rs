@@ -1,6 +1,6 @@
 //! The publisher's own state as the gateway shows it: `telemetry` in `/status`, and
-//! `retrocomp_telemetry_*` in `/metrics` (counts of records; no units), and the link-down fault
-//! in every status snapshot ([`TelemetryAnnotator`]).
+//! `retrocomp_telemetry_*` in `/metrics` (counts of records; no units). A leaf: the gateway's
+//! status embeds it; `annotate.rs` puts it (and the link-down fault) into each snapshot.
 
 use serde::Serialize;
 
@@ -67,39 +67,5 @@ impl TelemetryStatus {
             "Sparkplug NBIRTHs sent (connects and rebirths).",
             self.births_total,
         );
-    }
-}
-
-/// Copies the publisher's state into each status snapshot; owned by the cycle loop (which builds
-/// the snapshots, at ≤ 10 Hz), so it only reads a watch channel.
-pub struct TelemetryAnnotator {
-    status: tokio::sync::watch::Receiver<TelemetryStatus>,
-    /// Since when (status `t_s`) the link is not up: the `Disconnected` fault's start.
-    down_since_s: Option<f64>,
-}
-
-impl TelemetryAnnotator {
-    pub fn new(status: tokio::sync::watch::Receiver<TelemetryStatus>) -> Self {
-        TelemetryAnnotator {
-            status,
-            down_since_s: None,
-        }
-    }
-
-    /// Put the publisher's state into a status snapshot: `telemetry`, and a `Disconnected`
-    /// fault of source `telemetry.mqtt` while the link is not up.
-    pub fn annotate(&mut self, snap: &mut crate::gateway::status::StatusSnapshot) {
-        let st = self.status.borrow().clone();
-        if st.connected {
-            self.down_since_s = None;
-        } else {
-            let since = *self.down_since_s.get_or_insert(snap.t_s);
-            snap.active_faults.push((
-                "telemetry.mqtt".into(),
-                crate::gateway::health::FaultKind::Disconnected,
-                since,
-            ));
-        }
-        snap.telemetry = Some(st);
     }
 }

@@ -63,14 +63,14 @@ impl Hub {
 
     /// Like [`Hub::start`], on a dedicated OS thread with its own current-thread runtime, so the
     /// bus never waits behind the caller's busy tasks; `priority` asks `SCHED_FIFO` for that thread
-    /// (see `gateway::realtime`; refused → a WARN line and the normal scheduler). The thread ends
+    /// (see `crate::realtime`; refused → a WARN line and the normal scheduler). The thread ends
     /// when the hub is dropped.
     pub fn start_on_thread(addr: SocketAddr, priority: Option<u8>) -> std::io::Result<Hub> {
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();
         let rt = tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .build()?;
-        crate::gateway::realtime::spawn_thread("socketcand-hub", priority, move || {
+        crate::realtime::spawn_thread("socketcand-hub", priority, move || {
             rt.block_on(async move {
                 let listener = match TcpListener::bind(addr).await {
                     Ok(l) => l,

@@ -16,26 +16,21 @@
 //! within the per-write cap, then returns: once the controller holds 0, after `stop_ramp_max_s`, or
 //! at once when the controller cannot be reached (its watchdog rule then removes the correction).
 //!
+//! Start ([`OriginShiftClientSink`] as a [`Sink`]): the controller's current values are read first,
+//! retrying until it answers, and the engine continues from them (no jump after a gateway restart);
+//! a value beyond the clamp is not a start value (see [`OriginShiftClientSink`]).
+//!
 //! Units: µm.
 
 use std::collections::BTreeMap;
 
-use tokio::sync::{mpsc, watch};
+use anyhow::Context as _;
 use tokio::time::MissedTickBehavior;
 
-use super::config::OriginShiftSink;
-use super::health::{FaultKind, FaultLog};
-use super::status::SinkStatus;
-use crate::origin_shift::{OriginShiftClient, SinkAxis, SinkCore};
-
-/// The origin-shift sink's channels to the cycle: outputs in, reseeds back, status out.
-pub struct SinkChannels {
-    pub out_rx: watch::Receiver<Vec<(String, f64)>>,
-    pub reseed_tx: mpsc::Sender<(String, f64)>,
-    pub status: watch::Sender<SinkStatus>,
-    /// `Some(max_s)`: ramp the correction out (for at most `max_s`), then return.
-    pub stop: watch::Receiver<Option<f64>>,
-}
+use super::client::OriginShiftSink;
+use super::{OriginShiftClient, SinkAxis, SinkCore};
+use crate::fault::{FaultKind, FaultLog};
+use crate::sink::{LocalFuture, Sink, SinkIo, SinkStatus, StartValues};
 
 pub const SOURCE: &str = "sink.origin_shift";
 
@@ -85,14 +80,15 @@ pub async fn origin_shift_task(
     os: OriginShiftSink,
     mut client: OriginShiftClient,
     axes: Vec<SinkAxis>,
-    channels: SinkChannels,
+    channels: SinkIo,
     epoch: std::time::Instant,
 ) {
-    let SinkChannels {
+    let SinkIo {
         out_rx,
         reseed_tx,
         status,
         stop,
+        ..
     } = channels;
     let mut core = SinkCore::new(os.map.clone(), axes);
     let mut tick =
@@ -170,5 +166,97 @@ pub async fn origin_shift_task(
             .map(|(s, k, t)| (s.to_string(), k, t))
             .collect();
         let _ = status.send(st.clone());
+    }
+}
+
+/// The origin-shift client as the run loop's [`Sink`]: [`Sink::start`] reads what the controller
+/// holds, [`Sink::run`] is [`origin_shift_task`].
+pub struct OriginShiftClientSink {
+    os: OriginShiftSink,
+    client: OriginShiftClient,
+    axes: Vec<SinkAxis>,
+    /// The clamp of an axis the map names but `axes` does not (the gateway's default safety), µm.
+    default_max_correction_um: f64,
+    epoch: std::time::Instant,
+}
+
+impl OriginShiftClientSink {
+    /// `axes`: clamp and per-write cap per axis; `epoch`: the gateway's clock (fault times).
+    pub fn new(
+        os: OriginShiftSink,
+        axes: Vec<SinkAxis>,
+        default_max_correction_um: f64,
+        epoch: std::time::Instant,
+    ) -> anyhow::Result<Self> {
+        let client =
+            OriginShiftClient::new(os.client(), os.map.clone()).context("sink.origin_shift.map")?;
+        Ok(Self {
+            os,
+            client,
+            axes,
+            default_max_correction_um,
+            epoch,
+        })
+    }
+
+    fn max_correction_um(&self, axis: &str) -> f64 {
+        self.axes
+            .iter()
+            .find(|a| a.axis == axis)
+            .map_or(self.default_max_correction_um, |a| a.max_correction_um)
+    }
+}
+
+impl Sink for OriginShiftClientSink {
+    fn start<'a>(&'a mut self, _io: &'a SinkIo) -> LocalFuture<'a, anyhow::Result<StartValues>> {
+        Box::pin(async move {
+            let mut initial = read_initial(&mut self.client).await;
+            // A value beyond the clamp is not a start value: the sink refuses to write that axis (a
+            // fault) until the controller's value is back in range, then the engine continues from it.
+            initial.retain(|axis, held_um| {
+                let max = self.max_correction_um(axis);
+                let ok = held_um.is_finite() && held_um.abs() <= max;
+                if !ok {
+                    tracing::error!(axis, held_um, max, "controller holds a correction beyond the clamp: not writing this axis until it is back in range");
+                }
+                ok
+            });
+            Ok(initial)
+        })
+    }
+
+    fn run(self: Box<Self>, io: SinkIo) -> LocalFuture<'static, ()> {
+        let Self {
+            os,
+            client,
+            axes,
+            epoch,
+            ..
+        } = *self;
+        Box::pin(origin_shift_task(os, client, axes, io, epoch))
+    }
+}
+
+/// Read the controller's current values, retrying until it answers (without them the first write
+/// could jump). Logs every 20th failure.
+async fn read_initial(client: &mut OriginShiftClient) -> BTreeMap<String, f64> {
+    let mut attempt = 0u64;
+    loop {
+        match client.read_current().await {
+            Ok(v) => {
+                tracing::info!(
+                    ?v,
+                    "controller holds these corrections; continuing from them"
+                );
+                return v.into_iter().collect();
+            }
+            Err(e) => {
+                if attempt.is_multiple_of(20) {
+                    tracing::warn!(%e, "waiting for the controller before starting");
+                }
+                attempt += 1;
+                tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+            }
+        }
     }
 }

@@ -12,7 +12,7 @@ use tokio::process::{Child, Command};
 use tokio::task::JoinHandle;
 
 /// The sim config template (placeholders `@SEED@`, `@TRUTH_MODEL@`, `@HUB_PORT@`, `@WARMUP@`).
-pub const SIM_TEMPLATE: &str = include_str!("../../../deploy/demo/sim.toml");
+pub const SIM_TEMPLATE: &str = include_str!("../../deploy/demo/sim.toml");
 
 /// `hil-sim` next to the current executable, else `$HIL_SIM_BIN`.
 pub fn locate_hil_sim() -> anyhow::Result<PathBuf> {

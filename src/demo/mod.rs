@@ -34,11 +34,11 @@ use crate::recording::Recording;
 use metrics::{DemoStats, ErrorTrace, GatewayRun, GatewayRuns, RunStats};
 
 /// The geometric-only model (also hil-sim's hidden truth geometry).
-pub const GEOMETRIC_MODEL: &str = include_str!("../../../deploy/demo/mill-geometric.toml");
+pub const GEOMETRIC_MODEL: &str = include_str!("../../deploy/demo/mill-geometric.toml");
 /// Geometry + thermal + load terms of the simulated mill.
-pub const FULL_MODEL: &str = include_str!("../../../deploy/demo/mill-full.toml");
+pub const FULL_MODEL: &str = include_str!("../../deploy/demo/mill-full.toml");
 /// The machine without error terms (chain, travels, tool): the start of the fitted model.
-pub const BASE_MODEL: &str = include_str!("../../../deploy/demo/mill-base.toml");
+pub const BASE_MODEL: &str = include_str!("../../deploy/demo/mill-base.toml");
 
 /// Which model the gateway runs with.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -1,0 +1,36 @@
+//! The `[sink.quadrature]` section of the field file: per axis the count resolution and sign, the
+//! receiver's edge limits and, for the `gpio` feature, the two output lines. Units: µm per count,
+//! ns, Hz.
+
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QuadratureSink {
+    #[serde(rename = "axis")]
+    pub axes: Vec<QuadratureAxis>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QuadratureAxis {
+    pub axis: String,
+    /// Slide travel per count (per A/B edge), µm.
+    pub resolution_um: f64,
+    /// +1 if the encoder counts up when the axis moves +.
+    pub count_sign: i8,
+    /// Receiver's minimum edge separation, ns (RS-422 at 400 kHz: 400).
+    pub min_edge_gap_ns: u64,
+    pub max_inject_rate_hz: f64,
+    /// GPIO lines (chip, A offset, B offset) for the `gpio` feature; None = simulated.
+    #[serde(default)]
+    pub gpio: Option<GpioLines>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GpioLines {
+    pub chip: String,
+    pub line_a: u32,
+    pub line_b: u32,
+}
