@@ -323,7 +323,7 @@ async fn broker_killed_and_restarted_nothing_lost_in_order_with_births_and_death
 
 struct OneTerm;
 impl retrocomp::gateway::ErrorModel for OneTerm {
-    fn required_channels(&self) -> Vec<String> {
+    fn required_channels(&self) -> Vec<retrocomp::bus::ChannelId> {
         vec![]
     }
     fn axis_errors(
@@ -331,8 +331,8 @@ impl retrocomp::gateway::ErrorModel for OneTerm {
         s: &retrocomp::gateway::MachineState,
         out: &mut retrocomp::gateway::AxisErrors,
     ) -> Result<(), String> {
-        let x = s.positions_mm.get("x").copied().unwrap_or(0.0);
-        out.push("x", "scale".into(), 1e-3 * x);
+        let x = s.position_mm(retrocomp::models::Axis::X).unwrap_or(0.0);
+        out.push(retrocomp::models::Axis::X, "scale".into(), 1e-3 * x);
         Ok(())
     }
 }

@@ -26,12 +26,13 @@ use tokio::time::MissedTickBehavior;
 use super::config::OriginShiftSink;
 use super::health::{FaultKind, FaultLog};
 use super::status::SinkStatus;
+use crate::models::Axis;
 use crate::origin_shift::{OriginShiftClient, SinkAxis, SinkCore};
 
 /// The origin-shift sink's channels to the cycle: outputs in, reseeds back, status out.
 pub struct SinkChannels {
-    pub out_rx: watch::Receiver<Vec<(String, f64)>>,
-    pub reseed_tx: mpsc::Sender<(String, f64)>,
+    pub out_rx: watch::Receiver<Vec<(Axis, f64)>>,
+    pub reseed_tx: mpsc::Sender<(Axis, f64)>,
     pub status: watch::Sender<SinkStatus>,
     /// `Some(max_s)`: ramp the correction out (for at most `max_s`), then return.
     pub stop: watch::Receiver<Option<f64>>,
@@ -103,7 +104,7 @@ pub async fn origin_shift_task(
         kind: "origin_shift".into(),
         ..Default::default()
     };
-    let mut wants: Vec<(String, f64)> = Vec::new();
+    let mut wants: Vec<(Axis, f64)> = Vec::new();
     let mut stop_by: Option<std::time::Instant> = None;
     loop {
         tick.tick().await;

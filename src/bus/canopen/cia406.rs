@@ -13,7 +13,7 @@
 
 use super::tpdo_cob_id;
 use crate::bus::can::Frame;
-use crate::bus::{Health, Sample};
+use crate::bus::{ChannelId, Health, Sample};
 use embedded_can::Frame as _;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
@@ -110,6 +110,8 @@ impl EncoderChannel {
 #[derive(Debug, Clone)]
 pub struct PositionDecoder {
     pub cfg: EncoderChannel,
+    /// `cfg.channel`, resolved at construction.
+    channel: ChannelId,
     last_raw: Option<u64>,
     turns: i64,
     last_good_mm: f64,
@@ -122,6 +124,7 @@ pub struct PositionDecoder {
 impl PositionDecoder {
     pub fn new(cfg: EncoderChannel) -> Self {
         PositionDecoder {
+            channel: ChannelId::of(&cfg.channel),
             cfg,
             last_raw: None,
             turns: 0,
@@ -187,7 +190,7 @@ impl PositionDecoder {
 
     fn sample(&self, t_s: f64, value: f64, health: Health) -> Sample {
         Sample {
-            channel: self.cfg.channel.clone(),
+            channel: self.channel,
             t_s,
             value,
             health,
