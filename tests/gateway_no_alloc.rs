@@ -274,7 +274,7 @@ fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
 #[test]
 fn frames_to_register_words_allocate_nothing_per_cycle() {
     use retrocomp::bus::canopen::cia404::{AnalogChannel, AnalogType};
-    use retrocomp::bus::canopen::cia406::{Direction, EncoderChannel};
+    use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel};
     use retrocomp::bus::canopen::source::{CanopenConfig, CanopenSource};
     use retrocomp::origin_shift::{RegisterMap, WriteBlock};
     use retrocomp::quadrature::CountQuantizer;
@@ -290,7 +290,7 @@ fn frames_to_register_words_allocate_nothing_per_cycle() {
         tpdo: 1,
         byte_offset: 0,
         counts_per_mm: 1000.0,
-        direction: Direction::Positive,
+        direction: CountingDirection::Positive,
         offset_mm: 0.0,
         total_range_counts: None,
         cyclic_ms: None,

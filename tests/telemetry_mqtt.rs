@@ -19,8 +19,9 @@ use std::time::{Duration, Instant};
 
 use mosquitto::Broker;
 use peers::{Peer, free_port, spawn_python};
+use retrocomp::approach::Approach;
+use retrocomp::gateway::Mode;
 use retrocomp::gateway::status::{AxisStatus, StatusSnapshot};
-use retrocomp::gateway::{Direction, Mode};
 use retrocomp::telemetry::{self, MqttConfig, PublisherInputs, TelemetryStatus};
 use serde_json::Value;
 use tokio::sync::watch;
@@ -35,7 +36,7 @@ fn snapshot(k: u64) -> StatusSnapshot {
         axes: vec![AxisStatus {
             axis: "x".into(),
             position_mm: Some(k as f64),
-            direction: Direction::Forward,
+            direction: Some(Approach::Forward),
             weight_forward: 1.0,
             target_um: Some(-(k as f64) * 0.1),
             applied_um: -(k as f64) * 0.1,

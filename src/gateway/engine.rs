@@ -18,11 +18,12 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use super::config::{EngineConfig, FieldConfig};
-use super::direction::{Direction, DirectionLatch};
+use super::direction::DirectionLatch;
 use super::health::{ChannelLimits, ChannelMonitor, ChannelStatus, FaultKind, FaultLog};
 use super::recovery::NeighbourEstimate;
 use super::safety::{AxisSafety, Input, Mode, SafetyError};
 use super::status::{AxisStatus, ModelIdentity, StatusSnapshot};
+use crate::approach::Approach;
 use crate::bus::{ChannelId, Health, Sample};
 use crate::models::Axis;
 
@@ -722,10 +723,11 @@ impl Engine {
             .map(|a| a.safety.mode())
     }
 
-    pub fn axis_direction(&self, axis: Axis) -> Option<Direction> {
+    /// The latched direction of approach of `axis` (None: not latched yet, or not driven).
+    pub fn axis_direction(&self, axis: Axis) -> Option<Approach> {
         self.axes
             .iter()
             .find(|a| a.axis == axis)
-            .map(|a| a.latch.direction())
+            .and_then(|a| a.latch.direction())
     }
 }

@@ -284,7 +284,7 @@ pub async fn run_observed<B: CanBus>(
 #[cfg(test)]
 mod tests {
     use super::super::cia404::AnalogType;
-    use super::super::cia406::Direction;
+    use super::super::cia406::CountingDirection;
     use super::super::nmt::{NodeState, encode_heartbeat};
     use super::*;
 
@@ -296,7 +296,7 @@ mod tests {
                 tpdo: 1,
                 byte_offset: 0,
                 counts_per_mm: 1000.0,
-                direction: Direction::Positive,
+                direction: CountingDirection::Positive,
                 offset_mm: 0.0,
                 total_range_counts: None,
                 cyclic_ms: Some(10),
