@@ -9,7 +9,7 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use retrocomp::bus::can::{CanBus, Frame, Hub, SocketcandBus};
-use retrocomp::bus::canopen::cia406::{Direction, EncoderChannel};
+use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel};
 use retrocomp::bus::canopen::source::{CanopenConfig, CanopenSource};
 use retrocomp::bus::modbus::poller::Parity;
 use retrocomp::bus::modbus::{
@@ -26,7 +26,7 @@ fn encoder(name: &str, node: u8) -> EncoderChannel {
         tpdo: 1,
         byte_offset: 0,
         counts_per_mm: 1000.0,
-        direction: Direction::Positive,
+        direction: CountingDirection::Positive,
         offset_mm: 0.0,
         total_range_counts: Some(1 << 25),
         cyclic_ms: None,

@@ -16,7 +16,7 @@ use std::time::Instant;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use retrocomp::bus::can::frame::Frame;
-use retrocomp::bus::{Health, Sample};
+use retrocomp::bus::{ChannelId, Health, Sample};
 use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::{AxisErrors, Engine, ErrorModel, MachineState};
 use retrocomp::quadrature::{EdgeScheduler, Event, SchedulerConfig, Step, simulate};
@@ -37,7 +37,7 @@ impl BenchModel {
 }
 
 impl ErrorModel for BenchModel {
-    fn required_channels(&self) -> Vec<String> {
+    fn required_channels(&self) -> Vec<retrocomp::bus::ChannelId> {
         vec![
             "T_spindle_C".into(),
             "T_x_C".into(),
@@ -46,21 +46,20 @@ impl ErrorModel for BenchModel {
         ]
     }
     fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
-        let p = |a: &str| s.positions_mm.get(a).copied().unwrap_or(0.0);
-        let (x, y, z) = (p("x"), p("y"), p("z"));
-        let dt = s.channels["T_spindle_C"] - 20.0;
-        for (axis, own, other, tc) in [
-            ("x", x, y, "T_x_C"),
-            ("y", y, z, "T_y_C"),
-            ("z", z, x, "T_z_C"),
-        ] {
+        use retrocomp::models::Axis;
+        let p = |a: Axis| s.position_mm(a).unwrap_or(0.0);
+        let (x, y, z) = (p(Axis::X), p(Axis::Y), p(Axis::Z));
+        // Inputs in the order of required_channels: T_spindle_C, T_x_C, T_y_C, T_z_C.
+        let t = |k: usize| s.input(k).unwrap_or(20.0);
+        let dt = t(0) - 20.0;
+        for (axis, own, other, tc) in [(Axis::X, x, y, 1), (Axis::Y, y, z, 2), (Axis::Z, z, x, 3)] {
             let geo = 1e-3 * own + 2e-6 * own * own - 1e-9 * own * own * own;
             let sq = 20e-6 * other;
-            let th = 11.5e-6 * own * (s.channels[tc] - 20.0) * 1e3 * 1e-3 + 0.8 * dt;
+            let th = 11.5e-6 * own * (t(tc) - 20.0) * 1e3 * 1e-3 + 0.8 * dt;
             let [g, t, r] = &self.names;
             out.push(axis, g.clone(), geo + sq);
             out.push(axis, t.clone(), th);
-            out.push(axis, r.clone(), 3.0 * s.weight_forward[axis] - 1.5);
+            out.push(axis, r.clone(), 3.0 * s.forward_weight(axis) - 1.5);
         }
         Ok(())
     }
@@ -229,7 +228,10 @@ fn pipeline_frames(c: &mut Criterion) {
             Frame::standard(0x180 + node, &counts.to_le_bytes()).unwrap()
         })
         .collect();
-    let names = ["x_mm", "y_mm", "z_mm"];
+    // Channel ids resolved once, as the decoders do at construction.
+    let names = ["x_mm", "y_mm", "z_mm"].map(ChannelId::of);
+    let temps = ["T_x_C", "T_y_C", "T_z_C"].map(ChannelId::of);
+    let spindle = ChannelId::of("T_spindle_C");
     let mut e = engine();
     let mut m = BenchModel::new();
     let mut t = 0.0;
@@ -242,7 +244,7 @@ fn pipeline_frames(c: &mut Criterion) {
                 t += 1.0 / 90_000.0;
                 if let Some((node, mm)) = decode_encoder(f, 1000.0) {
                     e.ingest(&Sample {
-                        channel: names[node as usize - 1].to_string(),
+                        channel: names[node as usize - 1],
                         t_s: t,
                         value: mm,
                         health: Health::Ok,
@@ -251,14 +253,14 @@ fn pipeline_frames(c: &mut Criterion) {
                 if k % 90 == 89 {
                     // Slow channels keep arriving too (once per cycle here).
                     e.ingest(&Sample {
-                        channel: "T_spindle_C".into(),
+                        channel: spindle,
                         t_s: t,
                         value: 30.0,
                         health: Health::Ok,
                     });
-                    for ch in ["T_x_C", "T_y_C", "T_z_C"] {
+                    for ch in temps {
                         e.ingest(&Sample {
-                            channel: ch.into(),
+                            channel: ch,
                             t_s: t,
                             value: 24.0,
                             health: Health::Ok,

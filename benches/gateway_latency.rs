@@ -48,12 +48,12 @@ async fn within<T>(what: &str, f: impl Future<Output = T>) -> T {
 struct Linear(Arc<str>);
 
 impl ErrorModel for Linear {
-    fn required_channels(&self) -> Vec<String> {
+    fn required_channels(&self) -> Vec<retrocomp::bus::ChannelId> {
         Vec::new()
     }
     fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
-        let x = s.positions_mm.get("x").copied().unwrap_or(0.0);
-        out.push("x", self.0.clone(), x);
+        let x = s.position_mm(retrocomp::models::Axis::X).unwrap_or(0.0);
+        out.push(retrocomp::models::Axis::X, self.0.clone(), x);
         Ok(())
     }
 }

@@ -17,9 +17,10 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use retrocomp::approach::Approach;
 use retrocomp::cli::fleet::FleetClient;
+use retrocomp::gateway::Mode;
 use retrocomp::gateway::status::{AxisStatus, StatusSnapshot};
-use retrocomp::gateway::{Direction, Mode};
 use retrocomp::telemetry::{self, MqttConfig, PublisherInputs};
 use tokio::sync::watch;
 
@@ -31,7 +32,7 @@ fn snapshot(k: u64) -> StatusSnapshot {
         .map(|a| AxisStatus {
             axis: a.to_string(),
             position_mm: Some(k as f64 * 0.5),
-            direction: Direction::Forward,
+            direction: Some(Approach::Forward),
             weight_forward: 1.0,
             target_um: Some(-(k as f64 % 50.0)),
             applied_um: -(k as f64 % 50.0),

@@ -11,6 +11,64 @@
 //! it and a dwell keeps the direction of its approach (ISO 230-2 step-and-dwell readings). The first
 //! direction is latched once the axis has moved `deadband_mm` from the first position seen.
 
+use serde::{Deserialize, Serialize};
+
+/// Direction of approach of an axis (ISO 230-2 ↑ / ↓): the one type for the gateway's latch and
+/// status, the toolkit's bidirectional tables (`analysis::table`), diagnose and the demo fit.
+/// "Not known yet" is `Option::None`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum Approach {
+    /// Approach in the positive direction (`+`, ↑, "forward").
+    Forward,
+    /// Approach in the negative direction (`-`, ↓, "reverse").
+    Reverse,
+}
+
+impl Approach {
+    /// `+` / `-` as in the ISO 230-2 CSV.
+    pub fn symbol(self) -> char {
+        match self {
+            Approach::Forward => '+',
+            Approach::Reverse => '-',
+        }
+    }
+
+    /// +1 forward, −1 reverse.
+    pub fn sign(self) -> i8 {
+        match self {
+            Approach::Forward => 1,
+            Approach::Reverse => -1,
+        }
+    }
+
+    /// Forward for a positive sign, reverse for a negative one, None for 0.
+    pub fn from_sign(sign: i8) -> Option<Approach> {
+        match sign.signum() {
+            1 => Some(Approach::Forward),
+            -1 => Some(Approach::Reverse),
+            _ => None,
+        }
+    }
+}
+
+/// A latched approach as the gateway's status, metrics and OPC UA spell it: `unknown`, `forward`,
+/// `reverse`.
+pub fn latched_name(a: Option<Approach>) -> &'static str {
+    match a {
+        None => "unknown",
+        Some(Approach::Forward) => "forward",
+        Some(Approach::Reverse) => "reverse",
+    }
+}
+
+/// `#[serde(serialize_with)]` for a latched approach: [`latched_name`].
+pub fn serialize_latched<S: serde::Serializer>(
+    a: &Option<Approach>,
+    s: S,
+) -> Result<S::Ok, S::Error> {
+    s.serialize_str(latched_name(*a))
+}
+
 /// Deadband for recorded commanded positions (diagnose, offline fits): 0.1 µm, below the resolution
 /// of any recorded target, so every commanded step counts and rounding noise does not.
 pub const RECORDED_DEADBAND_MM: f64 = 1e-4;
@@ -37,6 +95,11 @@ impl ApproachLatch {
     /// +1 forward, −1 reverse, 0 before the first latch.
     pub fn dir(&self) -> i8 {
         self.dir
+    }
+
+    /// The latched approach (None before the first latch).
+    pub fn approach(&self) -> Option<Approach> {
+        Approach::from_sign(self.dir)
     }
 
     /// Feed the next position; returns `Some(extreme_mm)` when the direction changes (including the
@@ -78,8 +141,10 @@ mod tests {
         assert_eq!(l.update(0.0), None);
         assert_eq!(l.dir(), 0);
         assert_eq!(l.update(0.005), None, "inside the deadband: not latched");
+        assert_eq!(l.approach(), None);
         assert_eq!(l.update(1.0), Some(0.0));
         assert_eq!(l.dir(), 1);
+        assert_eq!(l.approach(), Some(Approach::Forward));
         // Creep back by less than the deadband from the extreme (1.2) never flips.
         for p in [1.2, 1.195, 1.199, 1.191] {
             assert_eq!(l.update(p), None);
@@ -87,6 +152,8 @@ mod tests {
         }
         assert_eq!(l.update(1.18), Some(1.2));
         assert_eq!(l.dir(), -1);
+        assert_eq!(l.approach(), Some(Approach::Reverse));
+        assert_eq!(latched_name(l.approach()), "reverse");
         assert_eq!(l.update(f64::NAN), None);
         assert_eq!(l.dir(), -1);
     }

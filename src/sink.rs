@@ -16,6 +16,7 @@ use tokio::sync::{mpsc, watch};
 
 use crate::bus::Sample;
 use crate::fault::FaultKind;
+use crate::models::Axis;
 
 /// A future run on the sink thread's current-thread runtime (not `Send`: it never leaves it).
 pub type LocalFuture<'a, T> = Pin<Box<dyn Future<Output = T> + 'a>>;
@@ -26,9 +27,9 @@ pub type StartValues = BTreeMap<String, f64>;
 /// The channels between the cycle and a sink.
 pub struct SinkIo {
     /// The cycle's outputs (axis, correction µm); dropped by the runtime when the run ends.
-    pub out_rx: watch::Receiver<Vec<(String, f64)>>,
+    pub out_rx: watch::Receiver<Vec<(Axis, f64)>>,
     /// What the controller holds when it changed behind our back (axis, µm): reseeds the engine.
-    pub reseed_tx: mpsc::Sender<(String, f64)>,
+    pub reseed_tx: mpsc::Sender<(Axis, f64)>,
     pub status: watch::Sender<SinkStatus>,
     /// `Some(max_s)`: ramp the correction out (for at most `max_s`), then return.
     pub stop: watch::Receiver<Option<f64>>,

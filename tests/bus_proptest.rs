@@ -6,7 +6,7 @@ use retrocomp::bus::Health;
 use retrocomp::bus::can::Frame;
 use retrocomp::bus::can::socketcand::{Decoder, Message, encode, parse_message};
 use retrocomp::bus::canopen::cia404::{AnalogChannel, AnalogType};
-use retrocomp::bus::canopen::cia406::{Direction, EncoderChannel, PositionDecoder};
+use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel, PositionDecoder};
 use retrocomp::bus::canopen::nmt::{decode_heartbeat, decode_nmt};
 use retrocomp::bus::canopen::sdo::{SdoRequest, SdoResponse};
 use retrocomp::bus::modbus::poll_core::{PollCore, ReadOutcome};
@@ -108,7 +108,7 @@ proptest! {
         }
         let enc = EncoderChannel {
             channel: "x_mm".into(), node_id: node, tpdo: 1, byte_offset: off.min(4), counts_per_mm: 1000.0,
-            direction: Direction::Negative, offset_mm: 1.0, total_range_counts: Some(range), cyclic_ms: None,
+            direction: CountingDirection::Negative, offset_mm: 1.0, total_range_counts: Some(range), cyclic_ms: None,
             min_mm: None, max_mm: None,
         };
         let mut dec = PositionDecoder::new(enc);
@@ -126,7 +126,7 @@ proptest! {
     fn cia406_position_round_trip(counts in -(1i64 << 30)..(1i64 << 30), neg in any::<bool>(), off in -1000.0f64..1000.0) {
         let enc = EncoderChannel {
             channel: "x_mm".into(), node_id: 5, tpdo: 1, byte_offset: 0, counts_per_mm: 1000.0,
-            direction: if neg { Direction::Negative } else { Direction::Positive }, offset_mm: off,
+            direction: if neg { CountingDirection::Negative } else { CountingDirection::Positive }, offset_mm: off,
             total_range_counts: None, cyclic_ms: None, min_mm: None, max_mm: None,
         };
         let mm = counts as f64 / 1000.0;

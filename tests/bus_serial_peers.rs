@@ -86,7 +86,7 @@ async fn parses_heidenhain_dro_lines_from_pyserial() {
         ],
     };
     let (got, counters, _w) = collect(cfg, "dro", 6).await;
-    let v: Vec<(&str, f64)> = got.iter().map(|s| (s.channel.as_str(), s.value)).collect();
+    let v: Vec<(&str, f64)> = got.iter().map(|s| (s.channel.name(), s.value)).collect();
     assert_eq!(
         v,
         vec![
@@ -127,7 +127,7 @@ async fn parses_weighing_indicator_lines_from_pyserial() {
         counters.garbage_lines >= 1,
         "`#####` is counted: {counters:?}"
     );
-    let v: Vec<(&str, Health)> = got.iter().map(|s| (s.channel.as_str(), s.health)).collect();
+    let v: Vec<(&str, Health)> = got.iter().map(|s| (s.channel.name(), s.health)).collect();
     assert_eq!(
         v,
         vec![

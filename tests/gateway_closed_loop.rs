@@ -23,12 +23,12 @@ use plc::{Plc, serve};
 
 struct ThermalModel;
 impl ErrorModel for ThermalModel {
-    fn required_channels(&self) -> Vec<String> {
+    fn required_channels(&self) -> Vec<retrocomp::bus::ChannelId> {
         vec!["T_spindle_C".into()]
     }
     fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
-        let e = 2.0 * (s.channels["T_spindle_C"] - 20.0);
-        out.push("x", "thermal".into(), e);
+        let e = 2.0 * (s.input(0).expect("inputs usable when the model runs") - 20.0);
+        out.push(retrocomp::models::Axis::X, "thermal".into(), e);
         Ok(())
     }
 }

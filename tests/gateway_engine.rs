@@ -6,23 +6,30 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use retrocomp::bus::{Health, Sample};
+use retrocomp::bus::{ChannelId, Health, Sample};
 use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::{AxisErrors, Engine, ErrorModel, FaultKind, MachineState, Mode};
+use retrocomp::models::Axis;
 
 /// x error: thermal growth 2 µm/K above 20 °C on T_spindle_C, plus a ±3 µm reversal (backlash).
 struct TestModel;
 
 impl ErrorModel for TestModel {
-    fn required_channels(&self) -> Vec<String> {
+    fn required_channels(&self) -> Vec<ChannelId> {
         vec!["T_spindle_C".into()]
     }
     fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
-        let t = s.channels["T_spindle_C"];
+        let t = s
+            .input(0)
+            .expect("the engine calls the model with its inputs usable");
         let thermal = 2.0 * (t - 20.0);
-        out.push("x", "thermal".into(), thermal);
+        out.push(Axis::X, "thermal".into(), thermal);
         // F/R blended with the latch weight: +3 forward, −3 reverse.
-        out.push("x", "backlash".into(), s.weight_forward["x"] * 6.0 - 3.0);
+        out.push(
+            Axis::X,
+            "backlash".into(),
+            s.forward_weight(Axis::X) * 6.0 - 3.0,
+        );
         Ok(())
     }
 }
@@ -115,7 +122,7 @@ fn closed_loop_core_behaviour() {
         last = *o;
     }
     assert!((last + 23.0).abs() < 1e-6, "tracks −error: {last}");
-    assert_eq!(e.axis_mode("x"), Some(Mode::Tracking));
+    assert_eq!(e.axis_mode(Axis::X), Some(Mode::Tracking));
     let snap = e.snapshot();
     assert!((snap.axes[0].terms_um["thermal"] + 20.0).abs() < 1e-9);
     assert!((snap.axes[0].terms_um["backlash"] + 3.0).abs() < 1e-9);
@@ -295,7 +302,7 @@ stale_after_s = 0.1
     let x_full = full.axes[0].terms_um.clone();
     // 0.004 µm/N × 500 N on X: correction −2 µm.
     assert!((x_full["deflection_x"] + 2.0).abs() < 1e-6, "{x_full:?}");
-    assert_eq!(e.axis_mode("x"), Some(Mode::Tracking));
+    assert_eq!(e.axis_mode(Axis::X), Some(Mode::Tracking));
     let target_full = full.axes[0].target_um.unwrap();
 
     // The force goes silent: after its 0.1 s the load terms leave, the rest stays.
@@ -318,7 +325,7 @@ stale_after_s = 0.1
     let target_part = snap.axes[0].target_um.unwrap();
     assert!((target_part - (target_full + 2.0)).abs() < 0.01);
     assert_eq!(
-        e.axis_mode("x"),
+        e.axis_mode(Axis::X),
         Some(Mode::Tracking),
         "reached the new target"
     );

@@ -161,10 +161,10 @@ async fn exercise(link: Vec<String>, transport: ServerTransport) {
         .unwrap();
     assert_eq!(held, BTreeMap::from([("x".to_string(), 12.3)]));
     let s = samples_rx.recv().await.unwrap();
-    assert_eq!((s.channel.as_str(), s.value), ("x_mm", 150.0));
+    assert_eq!((s.channel.name(), s.value), ("x_mm", 150.0));
 
     // The engine wants 20 µm; the controller still reports 12.3 µm: at most 13.3 µm is served.
-    let (out_tx, out_rx) = watch::channel(vec![("x".to_string(), 20.0)]);
+    let (out_tx, out_rx) = watch::channel(vec![(retrocomp::models::Axis::X, 20.0)]);
     let (status_tx, status_rx) = watch::channel(SinkStatus::default());
     let task = tokio::spawn(server.run(out_rx, samples_tx, status_tx, clock));
     let (c1, h1) = read_until(&link, |c| c == 133).await;

@@ -1,18 +1,26 @@
 //! The gateway cycle allocates nothing in steady state (issue 5 item 8: the compute part of a cycle
-//! must be cheap and predictable): with the demo's full machine model (tables, squareness, thermal
-//! polynomial + expansion, cutting-force compliance) behind `MachineModelAdapter`, moving axes with
-//! reversals (so the F/R blend evaluates the model three times), changing temperatures and force,
-//! `Engine::ingest` + `Engine::cycle_in_place` make zero heap allocations per cycle, and so does the
-//! real loop body (`CycleLoop::step`) on every cycle that does not publish a status snapshot (≤ 10 Hz).
-//! Counted by a
-//! global allocator wrapper, per thread (the test harness runs other tests on other threads).
+//! must be cheap and predictable; issue 14.1: including ingest and sink encoding). With the demo's
+//! full machine model (tables, squareness, thermal polynomial + expansion, cutting-force compliance)
+//! behind `MachineModelAdapter`, moving axes with reversals (so the F/R blend evaluates the model
+//! three times), changing temperatures and force:
+//! - `Engine::ingest` + `Engine::cycle_in_place` make zero heap allocations per cycle;
+//! - so does the real loop body (`CycleLoop::step`: samples from another thread through the
+//!   sources' mpsc channel, engine, outputs into the sinks' watch channel) on every cycle that does
+//!   not publish a status snapshot (≤ 10 Hz);
+//! - so does the whole per-cycle path from the wire to the controller's words: CAN frames decoded
+//!   by the CANopen source (CiA 406 encoders, CiA 404 analog inputs) → ingest → cycle → the
+//!   origin-shift register encoding (`RegisterMap::encode_into`) and the quadrature count
+//!   quantiser.
+//!
+//! Counted by a global allocator wrapper, per thread (the test harness runs other tests on other
+//! threads).
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use retrocomp::bus::{Health, Sample};
+use retrocomp::bus::{ChannelId, Health, Sample};
 use retrocomp::gateway::Engine;
 use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::model_adapter::MachineModelAdapter;
@@ -95,7 +103,7 @@ fn steady_state_cycles_allocate_nothing() {
     ]
     .iter()
     .map(|ch| Sample {
-        channel: ch.to_string(),
+        channel: ChannelId::of(ch),
         t_s: 0.0,
         value: 0.0,
         health: Health::Ok,
@@ -208,7 +216,7 @@ fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
             ];
             for (ch, value) in names.iter().zip(values) {
                 let s = Sample {
-                    channel: ch.to_string(),
+                    channel: ChannelId::of(ch),
                     t_s: t,
                     value,
                     health: Health::Ok,
@@ -257,5 +265,146 @@ fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
     assert_eq!(
         quiet_allocs, 0,
         "{quiet_allocs} heap allocations in the cycles between snapshots"
+    );
+}
+
+/// From CAN frames to register words and quadrature counts, one thread, every cycle counted: the
+/// CANopen source decodes the encoders' and analog nodes' TPDOs into a reused batch, the engine
+/// ingests them and runs the cycle, and both sinks' encodings consume the outputs.
+#[test]
+fn frames_to_register_words_allocate_nothing_per_cycle() {
+    use retrocomp::bus::canopen::cia404::{AnalogChannel, AnalogType};
+    use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel};
+    use retrocomp::bus::canopen::source::{CanopenConfig, CanopenSource};
+    use retrocomp::origin_shift::{RegisterMap, WriteBlock};
+    use retrocomp::quadrature::CountQuantizer;
+
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let model = MachineModel::from_toml_path(&root.join("deploy/demo/mill-full.toml")).unwrap();
+    let mut m = MachineModelAdapter::new(model);
+    let cfg = FieldConfig::parse(CFG, Path::new("no-alloc.toml")).unwrap();
+    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let encoder = |channel: &str, node_id: u8| EncoderChannel {
+        channel: channel.into(),
+        node_id,
+        tpdo: 1,
+        byte_offset: 0,
+        counts_per_mm: 1000.0,
+        direction: CountingDirection::Positive,
+        offset_mm: 0.0,
+        total_range_counts: None,
+        cyclic_ms: None,
+        min_mm: None,
+        max_mm: None,
+    };
+    let analog = |channel: &str, node_id: u8| AnalogChannel {
+        channel: channel.into(),
+        node_id,
+        tpdo: 1,
+        byte_offset: 0,
+        data_type: AnalogType::Int32,
+        decimal_digits: 3,
+        min: None,
+        max: None,
+    };
+    let can = CanopenConfig {
+        encoder: vec![encoder("x_mm", 1), encoder("y_mm", 2), encoder("z_mm", 3)],
+        analog: vec![
+            analog("T_spindle_C", 0x10),
+            analog("T_xscrew_C", 0x11),
+            analog("F_cut_N", 0x12),
+        ],
+        heartbeat_timeout_s: None,
+        pdo_timeout_s: 0.1,
+    };
+    let mut src = CanopenSource::new(can.clone());
+    let map: RegisterMap = toml::from_str(
+        r#"
+        [[axis]]
+        axis = "x"
+        address = 0
+        kind = "int32"
+        lsb_um = 0.1
+        sign = 1
+        [[axis]]
+        axis = "y"
+        address = 2
+        kind = "int32"
+        lsb_um = 0.1
+        sign = 1
+        [[axis]]
+        axis = "z"
+        address = 4
+        kind = "int32"
+        lsb_um = 0.1
+        sign = -1
+        "#,
+    )
+    .unwrap();
+    map.validate().unwrap();
+    let mut quantisers: Vec<CountQuantizer> = (0..3)
+        .map(|_| CountQuantizer::new(0.1, 1).unwrap())
+        .collect();
+    let mut batch = Vec::with_capacity(64);
+    let mut blocks: Vec<WriteBlock> = Vec::new();
+    let (mut counts, mut decoded) = (0i64, 0usize);
+    let mut t = 0.0f64;
+    let mut cycle = |e: &mut Engine, t: &mut f64| -> u64 {
+        *t += 1e-3;
+        let t = *t;
+        // The nodes' side (not counted): this cycle's TPDOs.
+        let positions = [
+            100.0 + 50.0 * (t * 3.0).sin(),
+            60.0 + 40.0 * (t * 2.0).cos(),
+            10.0 + 5.0 * t.sin(),
+        ];
+        let analogs = [
+            25.0 + 3.0 * (t * 0.1).sin(),
+            22.0 + t * 0.01,
+            150.0 + 50.0 * (t * 5.0).sin(),
+        ];
+        let mut frames = [None; 6];
+        for (k, (c, p)) in can.encoder.iter().zip(positions).enumerate() {
+            frames[k] = c.encode_position(p);
+        }
+        for (k, (c, v)) in can.analog.iter().zip(analogs).enumerate() {
+            frames[3 + k] = c.encode(v);
+        }
+        let before = allocs();
+        for f in frames.iter().flatten() {
+            src.on_frame(f, t, &mut batch);
+        }
+        decoded += batch.len();
+        for s in batch.drain(..) {
+            e.ingest(&s);
+        }
+        let outs = e.cycle_in_place(t, &mut m);
+        map.encode_into(outs, &mut blocks).unwrap();
+        for ((_, v), q) in outs.iter().zip(&mut quantisers) {
+            counts += q.delta_counts(*v).unwrap();
+        }
+        allocs() - before
+    };
+    for _ in 0..2000 {
+        cycle(&mut e, &mut t);
+    }
+    let mut n = 0;
+    for _ in 0..5000 {
+        n += cycle(&mut e, &mut t);
+    }
+    // Every frame decoded, the axes compensating, the words those of the last outputs.
+    assert_eq!(decoded, 7000 * 6);
+    let outs = e.outputs();
+    assert!(
+        outs.len() == 3 && outs.iter().map(|o| o.1.abs()).sum::<f64>() > 1.0,
+        "{outs:?}"
+    );
+    assert_eq!(blocks, map.encode(&outs).unwrap());
+    let emitted: i64 = quantisers.iter().map(CountQuantizer::emitted_counts).sum();
+    assert!(counts == emitted && counts != 0, "{counts} vs {emitted}");
+    assert!(e.snapshot().axes.iter().all(|a| a.target_um.is_some()));
+    assert_eq!(
+        n, 0,
+        "{n} heap allocations in 5000 cycles from frames to words"
     );
 }

@@ -7,6 +7,7 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use retrocomp::models::Axis;
 use retrocomp::origin_shift::{ClientConfig, OriginShiftClient, Outcome, RegisterMap, Transport};
 use tokio::net::TcpListener;
 
@@ -80,7 +81,7 @@ async fn reads_current_writes_one_fc16_handshakes_and_verifies() {
     assert!((current[0].1 - 12.3).abs() < 1e-9, "read {current:?}");
     assert_eq!(current[1], ("z".to_string(), 0.0));
 
-    let out = c.write(&[("x", 12.1), ("z", -3.0)]).await.unwrap();
+    let out = c.write(&[(Axis::X, 12.1), (Axis::Z, -3.0)]).await.unwrap();
     assert_eq!(out, Outcome::Ok);
     let p = plc.lock().unwrap();
     // x: 121 = 0x0079 low first; z: −30 = 0xFFFF_FFE2 high first; one FC16 for all four words.
@@ -103,7 +104,7 @@ async fn ack_timeout_is_reported() {
     let task = tokio::spawn(serve(listener, plc.clone()));
     let mut c = client(addr);
     let t0 = tokio::time::Instant::now();
-    let out = c.write(&[("x", 1.0)]).await.unwrap();
+    let out = c.write(&[(Axis::X, 1.0)]).await.unwrap();
     assert_eq!(
         out,
         Outcome::AckTimeout {
@@ -129,13 +130,13 @@ async fn server_killed_and_restarted_client_reconnects() {
     }));
     let task = tokio::spawn(serve(listener, plc.clone()));
     let mut c = client(addr);
-    assert_eq!(c.write(&[("x", 1.0)]).await.unwrap(), Outcome::Ok);
+    assert_eq!(c.write(&[(Axis::X, 1.0)]).await.unwrap(), Outcome::Ok);
 
     task.abort();
     let _ = task.await;
     // Dead server: the write fails fast with a reason instead of hanging.
     let t0 = tokio::time::Instant::now();
-    let r = c.write(&[("x", 2.0)]).await;
+    let r = c.write(&[(Axis::X, 2.0)]).await;
     assert!(t0.elapsed() < Duration::from_secs(1));
     match r {
         Ok(Outcome::RequestFailed { .. }) | Err(_) => {}
@@ -148,7 +149,7 @@ async fn server_killed_and_restarted_client_reconnects() {
     let task = tokio::spawn(serve(listener, plc.clone()));
     let mut ok = false;
     for _ in 0..40 {
-        if let Ok(Outcome::Ok) = c.write(&[("x", 3.0)]).await {
+        if let Ok(Outcome::Ok) = c.write(&[(Axis::X, 3.0)]).await {
             ok = true;
             break;
         }

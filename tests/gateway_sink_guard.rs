@@ -6,6 +6,7 @@
 //! controller applied at that moment. Units: µm.
 
 use proptest::prelude::*;
+use retrocomp::models::Axis;
 use retrocomp::origin_shift::map::decode_value;
 use retrocomp::origin_shift::{Action, RegisterMap, Reply, SinkAxis, SinkCore};
 
@@ -198,10 +199,7 @@ fn run(
             // least once per write period (the documented assumption).
             plc.scan()?;
         }
-        let wants = vec![
-            ("x".to_string(), p.want_um[0]),
-            ("y".to_string(), p.want_um[1]),
-        ];
+        let wants = vec![(Axis::X, p.want_um[0]), (Axis::Y, p.want_um[1])];
         let mut action = core.begin(&wants);
         while !matches!(action, Action::Done(_)) {
             let fate = p.fates[k % p.fates.len()];
@@ -286,7 +284,7 @@ proptest! {
 #[test]
 fn controller_beyond_the_clamp_after_reconnect_is_never_written_from() {
     let mut core = SinkCore::new(map(false), axes());
-    let wants = vec![("x".to_string(), 0.0), ("y".to_string(), 0.0)];
+    let wants = vec![(Axis::X, 0.0), (Axis::Y, 0.0)];
     let period = |core: &mut SinkCore, regs: &mut [u16; 5]| {
         let mut written = Vec::new();
         let mut a = core.begin(&wants);
@@ -323,7 +321,7 @@ fn controller_beyond_the_clamp_after_reconnect_is_never_written_from() {
     regs[1] = 590;
     let w = period(&mut core, &mut regs);
     assert_eq!(core.faults().beyond_clamp, vec![false, false]);
-    assert_eq!(core.take_reseeds(), vec![("x".to_string(), 59.0)]);
+    assert_eq!(core.take_reseeds(), vec![(Axis::X, 59.0)]);
     let x = w.iter().find(|b| b.address == 0).expect("x written again");
     assert_eq!(
         x.words[..2],

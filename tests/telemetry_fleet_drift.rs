@@ -261,7 +261,7 @@ fn snapshot(k: u64) -> retrocomp::gateway::status::StatusSnapshot {
         axes: vec![AxisStatus {
             axis: "x".into(),
             position_mm: Some(k as f64),
-            direction: retrocomp::gateway::Direction::Forward,
+            direction: Some(retrocomp::approach::Approach::Forward),
             weight_forward: 1.0,
             target_um: Some(-(k as f64) * 0.1),
             applied_um: -(k as f64) * 0.1,

@@ -19,8 +19,9 @@ use std::time::{Duration, Instant};
 
 use mosquitto::Broker;
 use peers::{Peer, free_port, spawn_python};
+use retrocomp::approach::Approach;
+use retrocomp::gateway::Mode;
 use retrocomp::gateway::status::{AxisStatus, StatusSnapshot};
-use retrocomp::gateway::{Direction, Mode};
 use retrocomp::telemetry::{self, MqttConfig, PublisherInputs, TelemetryStatus};
 use serde_json::Value;
 use tokio::sync::watch;
@@ -35,7 +36,7 @@ fn snapshot(k: u64) -> StatusSnapshot {
         axes: vec![AxisStatus {
             axis: "x".into(),
             position_mm: Some(k as f64),
-            direction: Direction::Forward,
+            direction: Some(Approach::Forward),
             weight_forward: 1.0,
             target_um: Some(-(k as f64) * 0.1),
             applied_um: -(k as f64) * 0.1,
@@ -323,7 +324,7 @@ async fn broker_killed_and_restarted_nothing_lost_in_order_with_births_and_death
 
 struct OneTerm;
 impl retrocomp::gateway::ErrorModel for OneTerm {
-    fn required_channels(&self) -> Vec<String> {
+    fn required_channels(&self) -> Vec<retrocomp::bus::ChannelId> {
         vec![]
     }
     fn axis_errors(
@@ -331,8 +332,8 @@ impl retrocomp::gateway::ErrorModel for OneTerm {
         s: &retrocomp::gateway::MachineState,
         out: &mut retrocomp::gateway::AxisErrors,
     ) -> Result<(), String> {
-        let x = s.positions_mm.get("x").copied().unwrap_or(0.0);
-        out.push("x", "scale".into(), 1e-3 * x);
+        let x = s.position_mm(retrocomp::models::Axis::X).unwrap_or(0.0);
+        out.push(retrocomp::models::Axis::X, "scale".into(), 1e-3 * x);
         Ok(())
     }
 }

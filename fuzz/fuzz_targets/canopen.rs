@@ -4,7 +4,7 @@
 use libfuzzer_sys::fuzz_target;
 use retrocomp::bus::can::Frame;
 use retrocomp::bus::canopen::cia404::{AnalogChannel, AnalogType};
-use retrocomp::bus::canopen::cia406::{Direction, EncoderChannel, PositionDecoder};
+use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel, PositionDecoder};
 use retrocomp::bus::canopen::nmt::{decode_heartbeat, decode_nmt};
 use retrocomp::bus::canopen::sdo::{SdoRequest, SdoResponse};
 
@@ -36,7 +36,7 @@ fuzz_target!(|data: &[u8]| {
         tpdo: 1 + (hdr[4] >> 6),
         byte_offset: (hdr[4] >> 1) & 3,
         counts_per_mm: 1000.0,
-        direction: Direction::Negative,
+        direction: CountingDirection::Negative,
         offset_mm: 0.0,
         total_range_counts: Some(u64::from(id).max(2)),
         cyclic_ms: None,

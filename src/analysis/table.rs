@@ -8,24 +8,9 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Approach direction of an axis (ISO 230-2 ↑ / ↓).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-pub enum Direction {
-    /// Approach in the positive direction (`+`, ↑, "forward").
-    Forward,
-    /// Approach in the negative direction (`-`, ↓, "reverse").
-    Reverse,
-}
-
-impl Direction {
-    /// `+` / `-` as in the ISO 230-2 CSV.
-    pub fn symbol(self) -> char {
-        match self {
-            Direction::Forward => '+',
-            Direction::Reverse => '-',
-        }
-    }
-}
+/// Direction of approach: the crate's one definition ([`crate::approach::Approach`]), under the
+/// name this module's callers use.
+pub use crate::approach::Approach as Direction;
 
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct BidirectionalTable {

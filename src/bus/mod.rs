@@ -15,4 +15,4 @@ pub mod sample;
 pub mod serial;
 
 pub use backoff::Backoff;
-pub use sample::{Health, Sample};
+pub use sample::{ChannelId, Health, Sample};

@@ -103,7 +103,7 @@ struct HangAfter<M> {
 }
 
 impl<M: ErrorModel> ErrorModel for HangAfter<M> {
-    fn required_channels(&self) -> Vec<String> {
+    fn required_channels(&self) -> Vec<crate::bus::ChannelId> {
         self.inner.required_channels()
     }
 

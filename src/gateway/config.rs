@@ -10,11 +10,13 @@ use super::direction::DirectionConfig;
 use super::health::ChannelLimits;
 use super::recovery::NeighbourEstimate;
 use super::safety::SafetyConfig;
+use crate::bus::ChannelId;
 use crate::bus::can::backend::CanBackendConfig;
 use crate::bus::canopen::source::CanopenConfig;
 use crate::bus::config::{ModbusSection, SerialSection};
 pub use crate::origin_shift::client::OriginShiftSink;
 pub use crate::quadrature::config::{GpioLines, QuadratureAxis, QuadratureSink};
+use crate::models::Axis;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -186,6 +188,31 @@ pub struct SinkSection {
     pub origin_shift_server: Option<crate::origin_shift::server::ServerConfig>,
 }
 
+/// What the engine is built from: the part of the field file about compensation (channels and
+/// their limits, axes with their position channel and safety, recoveries, direction latch, thermal
+/// period), with names resolved to [`Axis`] and [`ChannelId`]. Transports and sinks are not in it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EngineConfig {
+    pub axes: Vec<EngineAxis>,
+    pub channels: Vec<(ChannelId, ChannelLimits)>,
+    pub recoveries: Vec<NeighbourEstimate>,
+    pub direction: DirectionConfig,
+    /// Slow channels (`T_…`) are latched at this period, s.
+    pub thermal_period_s: f64,
+    /// Compensation enabled at start.
+    pub enabled: bool,
+}
+
+/// One driven axis of an [`EngineConfig`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EngineAxis {
+    pub axis: Axis,
+    /// The channel carrying its position, mm.
+    pub position: ChannelId,
+    /// Its safety settings (the axis' override or the global `[safety]`).
+    pub safety: SafetyConfig,
+}
+
 pub use crate::config_issue::ConfigError;
 
 /// A semantic problem at `key`, placed on the key's line of `text`.
@@ -254,6 +281,32 @@ impl FieldConfig {
             out.extend(srv.map.positions.iter().map(|p| p.channel.as_str()));
         }
         out
+    }
+
+    /// The engine's part of this file, names resolved. Panics on an axis name other than x, y or z,
+    /// which [`FieldConfig::parse`] refuses.
+    pub fn engine_config(&self) -> EngineConfig {
+        EngineConfig {
+            axes: self
+                .axes
+                .iter()
+                .map(|a| EngineAxis {
+                    axis: Axis::from_name(&a.name)
+                        .unwrap_or_else(|| panic!("axis {:?} is not x, y or z", a.name)),
+                    position: ChannelId::of(&a.position_channel),
+                    safety: a.safety.unwrap_or(self.safety),
+                })
+                .collect(),
+            channels: self
+                .channels
+                .iter()
+                .map(|c| (ChannelId::of(&c.name), c.limits()))
+                .collect(),
+            recoveries: self.recoveries.clone(),
+            direction: self.direction,
+            thermal_period_s: self.gateway.thermal_period_s,
+            enabled: self.gateway.enabled,
+        }
     }
 
     /// Safety settings for an axis (its override or the global one).

@@ -25,6 +25,7 @@ use super::source_health::SourceBoard;
 use super::status::{SinkStatus, StatusSnapshot};
 use super::supervise::CycleCounter;
 use crate::bus::Sample;
+use crate::models::Axis;
 
 /// Status snapshots are published at most this often (10 Hz), s: building one allocates (names,
 /// term maps), so never every cycle.
@@ -34,7 +35,7 @@ pub const STATUS_PERIOD_S: f64 = 0.1;
 pub const COMPUTE_WINDOW: usize = 1 << 16;
 
 /// Per-axis outputs handed to the sink: (axis, correction µm).
-pub type Outputs = Vec<(String, f64)>;
+pub type Outputs = Vec<(Axis, f64)>;
 
 /// The channels between the cycle and the rest of the runtime.
 pub struct CycleIo {
@@ -43,7 +44,7 @@ pub struct CycleIo {
     /// Positions the controller writes into a served register image (origin-shift server).
     pub served: mpsc::Receiver<Sample>,
     /// The sink found another value in the controller: continue from it.
-    pub reseed: mpsc::Receiver<(String, f64)>,
+    pub reseed: mpsc::Receiver<(Axis, f64)>,
     /// Token-guarded actions from the status endpoint.
     pub control: mpsc::Receiver<Control>,
     pub outputs: watch::Sender<Outputs>,
@@ -120,7 +121,8 @@ impl CycleLoop {
             e.ingest(&s);
         }
         while let Ok((axis, held)) = self.io.reseed.try_recv() {
-            if let Err(err) = e.reseed(&axis, held) {
+            if let Err(err) = e.reseed(axis, held) {
+                let axis = axis.name();
                 tracing::error!(%err, axis, "cannot continue from the controller's value; holding");
             }
         }
@@ -144,7 +146,7 @@ impl CycleLoop {
         } else {
             self.compute_ns[(self.report.cycles as usize) % COMPUTE_WINDOW] = took_ns;
         }
-        // Reuse the channel's buffer (String::clone_from keeps the axis names' allocations).
+        // Reuse the channel's buffer (same axes every cycle: no allocation).
         self.io.outputs.send_modify(|held| copy_outputs(held, outs));
         let dropped = self.engine.compensation_dropped();
         if let Some(t) = self.last_step_s
@@ -236,17 +238,10 @@ impl CycleLoop {
     }
 }
 
-/// `dst = src` without allocating when the axes are the same as last cycle.
-fn copy_outputs(dst: &mut Outputs, src: &[(String, f64)]) {
-    if dst.len() != src.len() {
-        dst.clear();
-        dst.extend_from_slice(src);
-        return;
-    }
-    for ((dn, dv), (sn, sv)) in dst.iter_mut().zip(src) {
-        dn.clone_from(sn);
-        *dv = *sv;
-    }
+/// `dst = src` without allocating when the axes are as many as last cycle.
+fn copy_outputs(dst: &mut Outputs, src: &[(Axis, f64)]) {
+    dst.clear();
+    dst.extend_from_slice(src);
 }
 
 #[cfg(test)]
@@ -255,12 +250,12 @@ mod tests {
 
     #[test]
     fn outputs_are_copied_in_place_and_follow_a_changed_axis_set() {
-        let mut held: Outputs = vec![("x".into(), 1.0), ("z".into(), 2.0)];
-        let names_at = held[0].0.as_ptr();
-        copy_outputs(&mut held, &[("x".into(), -3.5), ("z".into(), 4.0)]);
-        assert_eq!(held, [("x".to_string(), -3.5), ("z".to_string(), 4.0)]);
-        assert_eq!(held[0].0.as_ptr(), names_at, "the name's buffer was reused");
-        copy_outputs(&mut held, &[("y".into(), 0.25)]);
-        assert_eq!(held, [("y".to_string(), 0.25)]);
+        let mut held: Outputs = vec![(Axis::X, 1.0), (Axis::Z, 2.0)];
+        let buffer_at = held.as_ptr();
+        copy_outputs(&mut held, &[(Axis::X, -3.5), (Axis::Z, 4.0)]);
+        assert_eq!(held, [(Axis::X, -3.5), (Axis::Z, 4.0)]);
+        assert_eq!(held.as_ptr(), buffer_at, "the buffer was reused");
+        copy_outputs(&mut held, &[(Axis::Y, 0.25)]);
+        assert_eq!(held, [(Axis::Y, 0.25)]);
     }
 }

@@ -12,7 +12,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::approach::ApproachLatch;
+use crate::approach::{Approach, ApproachLatch};
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -21,14 +21,6 @@ pub struct DirectionConfig {
     pub deadband_mm: f64,
     /// Duration of the F/R blend after a reversal, s (0 = immediate, which jumps).
     pub switch_time_s: f64,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Direction {
-    Unknown,
-    Forward,
-    Reverse,
 }
 
 #[derive(Clone, Debug)]
@@ -51,12 +43,8 @@ impl DirectionLatch {
         }
     }
 
-    pub fn direction(&self) -> Direction {
-        match self.approach.dir() {
-            1 => Direction::Forward,
-            -1 => Direction::Reverse,
-            _ => Direction::Unknown,
-        }
+    pub fn direction(&self) -> Option<Approach> {
+        self.approach.approach()
     }
 
     pub fn weight_forward(&self) -> f64 {
@@ -93,13 +81,13 @@ mod tests {
         });
         l.update(0.0, 0.0);
         l.update(1.0, 0.1);
-        assert_eq!(l.direction(), Direction::Forward);
+        assert_eq!(l.direction(), Some(Approach::Forward));
         for (k, p) in [0.995, 1.0, 0.992, 0.999].iter().enumerate() {
             l.update(*p, 0.2 + k as f64 * 0.01);
-            assert_eq!(l.direction(), Direction::Forward, "flipped at {p}");
+            assert_eq!(l.direction(), Some(Approach::Forward), "flipped at {p}");
         }
         l.update(0.98, 0.3);
-        assert_eq!(l.direction(), Direction::Reverse);
+        assert_eq!(l.direction(), Some(Approach::Reverse));
     }
 
     #[test]
@@ -126,7 +114,7 @@ mod tests {
             }
             last = Some(v);
         }
-        assert_eq!(l.direction(), Direction::Reverse);
+        assert_eq!(l.direction(), Some(Approach::Reverse));
         // sin² over 50 cycles: max slope π/2 · 6 µm / 50 ≈ 0.19 µm per cycle.
         assert!(worst < 0.2 && worst > 0.05, "largest step {worst} µm");
     }

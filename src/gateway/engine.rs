@@ -4,6 +4,11 @@
 //! per-axis outputs and a status snapshot. No sockets, no clock: the async shell (`run.rs`) feeds
 //! samples and time.
 //!
+//! Identities: axes are [`Axis`], channels [`ChannelId`] (resolved from their names when the config
+//! loads, `crate::bus::sample`). No name is looked up and no `String` built on the per-sample or
+//! per-cycle path; names appear only in [`Engine::snapshot`] (status, metrics) and fault sources,
+//! which are built once.
+//!
 //! Signs: the model returns errors (actual − nominal, µm); the engine outputs corrections (= −error).
 //! Channels whose name starts with `T_` are slow (temperatures): their value is latched every
 //! `thermal_period_s` so the thermal terms change in steps of that period, and the safety dosing cap
@@ -12,30 +17,63 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use super::config::FieldConfig;
-use super::direction::{Direction, DirectionLatch};
+use super::config::{EngineConfig, FieldConfig};
+use super::direction::DirectionLatch;
 use super::health::{ChannelLimits, ChannelMonitor, ChannelStatus, FaultKind, FaultLog};
 use super::recovery::NeighbourEstimate;
 use super::safety::{AxisSafety, Input, Mode, SafetyError};
 use super::status::{AxisStatus, ModelIdentity, StatusSnapshot};
-use crate::bus::{Health, Sample};
+use crate::approach::Approach;
+use crate::bus::{ChannelId, Health, Sample};
+use crate::models::Axis;
 
-/// The machine state the model sees. The engine updates the maps in place, so in steady state
-/// (the same channels usable every cycle) they allocate nothing.
-#[derive(Clone, Debug, Default)]
+/// The machine state the model sees, indexed by [`Axis::index`] and by the position of a channel in
+/// [`ErrorModel::required_channels`]. Updated in place: a cycle allocates nothing.
+#[derive(Clone, Debug)]
 pub struct MachineState {
-    /// Axis positions, mm, by axis name (`x`).
-    pub positions_mm: BTreeMap<String, f64>,
-    /// Axis velocities, mm/s, by axis name.
-    pub velocities_mm_per_s: BTreeMap<String, f64>,
-    /// Every usable channel value by channel name (slow ones latched), channel units.
-    pub channels: BTreeMap<String, f64>,
-    /// Per axis, the forward weight of the direction latch: 1 forward, 0 reverse, ½ unknown, in
-    /// between while a reversal is being blended (sin² over `switch_time_s`). The model blends its
-    /// forward/reverse tables with it: e = w·e_forward + (1 − w)·e_reverse.
-    pub weight_forward: BTreeMap<String, f64>,
+    /// Axis positions, mm (None: the axis is not driven or its position is unusable).
+    pub positions_mm: [Option<f64>; 3],
+    /// Axis velocities, mm/s.
+    pub velocities_mm_per_s: [Option<f64>; 3],
+    /// Per axis, the forward weight of the direction latch: 1 forward, 0 reverse, ½ unknown (also
+    /// for an axis that never had a position), in between while a reversal is being blended (sin²
+    /// over `switch_time_s`). The model blends its forward/reverse tables with it:
+    /// e = w·e_forward + (1 − w)·e_reverse.
+    pub weight_forward: [f64; 3],
+    /// The values of the model's [`ErrorModel::required_channels`], in that order (slow ones
+    /// latched), channel units; None while unusable.
+    pub inputs: Vec<Option<f64>>,
     /// Time of this cycle, s (steps thermal lags in the model).
     pub t_s: f64,
+}
+
+impl Default for MachineState {
+    fn default() -> Self {
+        Self {
+            positions_mm: [None; 3],
+            velocities_mm_per_s: [None; 3],
+            weight_forward: [0.5; 3],
+            inputs: Vec::new(),
+            t_s: 0.0,
+        }
+    }
+}
+
+impl MachineState {
+    /// Position of `axis`, mm.
+    pub fn position_mm(&self, axis: Axis) -> Option<f64> {
+        self.positions_mm[axis.index()]
+    }
+
+    /// Forward weight of `axis` (see [`MachineState::weight_forward`]).
+    pub fn forward_weight(&self, axis: Axis) -> f64 {
+        self.weight_forward[axis.index()]
+    }
+
+    /// Value of the `k`-th required channel (None if unusable or out of range).
+    pub fn input(&self, k: usize) -> Option<f64> {
+        self.inputs.get(k).copied().flatten()
+    }
 }
 
 /// One error term's contribution along one machine axis, µm (actual − nominal), already blended
@@ -48,31 +86,33 @@ pub struct TermError {
 }
 
 /// Error terms per machine axis, filled by [`ErrorModel::axis_errors`]. Holds one term list per
-/// axis the engine drives; the lists keep their capacity across cycles.
+/// axis the engine drives (indexed by [`Axis::index`]); the lists keep their capacity across cycles.
 #[derive(Clone, Debug, Default)]
 pub struct AxisErrors {
-    axes: Vec<(String, Vec<TermError>)>,
+    axes: [Option<Vec<TermError>>; 3],
 }
 
 impl AxisErrors {
-    /// Term lists for the named axes (in this order).
-    pub fn with_axes<S: Into<String>>(axes: impl IntoIterator<Item = S>) -> Self {
-        Self {
-            axes: axes.into_iter().map(|a| (a.into(), Vec::new())).collect(),
+    /// Term lists for these axes.
+    pub fn with_axes(axes: impl IntoIterator<Item = Axis>) -> Self {
+        let mut e = Self::default();
+        for a in axes {
+            e.axes[a.index()] = Some(Vec::new());
         }
+        e
     }
 
     /// Empties every axis' list (keeps the capacity).
     pub fn clear(&mut self) {
-        for (_, t) in &mut self.axes {
+        for t in self.axes.iter_mut().flatten() {
             t.clear();
         }
     }
 
-    /// Adds one term to `axis`; returns false (and drops it) when there is no such axis.
-    pub fn push(&mut self, axis: &str, term: Arc<str>, error_um: f64) -> bool {
-        match self.axes.iter_mut().find(|(a, _)| a == axis) {
-            Some((_, t)) => {
+    /// Adds one term to `axis`; returns false (and drops it) when the engine does not drive it.
+    pub fn push(&mut self, axis: Axis, term: Arc<str>, error_um: f64) -> bool {
+        match &mut self.axes[axis.index()] {
+            Some(t) => {
                 t.push(TermError { term, error_um });
                 true
             }
@@ -80,24 +120,22 @@ impl AxisErrors {
         }
     }
 
-    /// The terms of `axis` (empty for an unknown axis or one the model left out).
-    pub fn axis(&self, axis: &str) -> &[TermError] {
-        self.axes
-            .iter()
-            .find(|(a, _)| a == axis)
-            .map_or(&[], |(_, t)| t.as_slice())
+    /// The terms of `axis` (empty for an axis not driven or one the model left out).
+    pub fn axis(&self, axis: Axis) -> &[TermError] {
+        self.axes[axis.index()].as_deref().unwrap_or(&[])
     }
 }
 
 /// What the gateway needs from a model (`model_adapter.rs` implements it for `src/models`).
 pub trait ErrorModel {
-    /// Channels the model reads (besides axis positions). Missing ones make the inputs stale.
-    /// The engine resolves them at its first cycle, and again after `Engine::model_replaced`.
-    fn required_channels(&self) -> Vec<String>;
+    /// Channels the model reads (besides axis positions); their values reach the model as
+    /// [`MachineState::inputs`], in this order. Missing ones make the inputs stale. Called at the
+    /// engine's first cycle, and again after `Engine::model_replaced` (never per cycle).
+    fn required_channels(&self) -> Vec<ChannelId>;
     /// Those of [`ErrorModel::required_channels`] whose loss removes only the terms that use them
     /// (the model is evaluated without them and those terms are zero), not the whole correction:
     /// auxiliary inputs such as a cutting force. Default: none.
-    fn optional_channels(&self) -> Vec<String> {
+    fn optional_channels(&self) -> Vec<ChannelId> {
         Vec::new()
     }
     /// Push, per machine axis, its error terms at `state` into `out` (cleared by the caller).
@@ -109,9 +147,10 @@ pub trait ErrorModel {
     }
 }
 
-/// Everything the engine knows about one channel, by channel id (index into `Engine::channels`).
+/// Everything the engine knows about one channel, by slot (index into `Engine::channels`).
 struct Channel {
-    name: String,
+    /// The configured name, for fault sources and the status (resolved once).
+    name: &'static str,
     /// None until the first sample of a channel that is not configured (it is then judged with
     /// [`default_limits`]); such a channel has no status and no value.
     monitor: Option<ChannelMonitor>,
@@ -124,8 +163,8 @@ struct Channel {
 }
 
 struct AxisRuntime {
-    name: String,
-    /// Channel id of the position.
+    axis: Axis,
+    /// Slot of the position channel.
     position: usize,
     position_ok: bool,
     latch: DirectionLatch,
@@ -152,8 +191,8 @@ struct Recovery {
 pub struct Engine {
     axes: Vec<AxisRuntime>,
     channels: Vec<Channel>,
-    /// Channel id by name; iterated in name order (the order faults are logged in).
-    ids: BTreeMap<String, usize>,
+    /// Channel slots, by [`ChannelId::index`] and in name order (the order faults are logged in).
+    slots: Slots,
     recoveries: Vec<Recovery>,
     /// The model's required channels, resolved at the first cycle, and which of them are optional
     /// (their loss drops only their terms: [`ErrorModel::optional_channels`]).
@@ -171,7 +210,7 @@ pub struct Engine {
     cycles: u64,
     now_s: f64,
     /// Per axis (configured order) the output of the last cycle, µm.
-    outputs: Vec<(String, f64)>,
+    outputs: Vec<(Axis, f64)>,
     /// The newest sample time received from any source, s (the inputs' own clock; see
     /// [`ChannelMonitor::status_judged`]).
     newest_input_s: f64,
@@ -194,65 +233,87 @@ fn is_slow(channel: &str) -> bool {
     channel.starts_with("T_")
 }
 
-/// Sets or removes `name` in `map`; allocates a key only when the name was absent.
-fn put(map: &mut BTreeMap<String, f64>, name: &str, value: Option<f64>) {
-    match (value, map.get_mut(name)) {
-        (Some(v), Some(slot)) => *slot = v,
-        (Some(v), None) => {
-            map.insert(name.to_string(), v);
-        }
-        (None, Some(_)) => {
-            map.remove(name);
-        }
-        (None, None) => {}
-    }
+/// Where each channel the engine knows lives in `Engine::channels`.
+#[derive(Default)]
+struct Slots {
+    /// Slot by [`ChannelId::index`] (`usize::MAX`: not known to this engine).
+    by_id: Vec<usize>,
+    /// Slots in channel-name order.
+    by_name: Vec<usize>,
 }
 
-/// The channel id of `name`, adding a channel without monitor when it is new.
-fn channel_id(channels: &mut Vec<Channel>, ids: &mut BTreeMap<String, usize>, name: &str) -> usize {
-    if let Some(&id) = ids.get(name) {
-        return id;
+impl Slots {
+    /// The slot of `id`, adding a channel without monitor when it is new (the only allocation).
+    fn get_or_add(&mut self, channels: &mut Vec<Channel>, id: ChannelId) -> usize {
+        if let Some(&slot) = self.by_id.get(id.index())
+            && slot != usize::MAX
+        {
+            return slot;
+        }
+        if self.by_id.len() <= id.index() {
+            self.by_id.resize(id.index() + 1, usize::MAX);
+        }
+        let slot = channels.len();
+        let name = id.name();
+        channels.push(Channel {
+            name,
+            monitor: None,
+            status: None,
+            slow: is_slow(name),
+            latched: None,
+            value: None,
+        });
+        self.by_id[id.index()] = slot;
+        let at = self.by_name.partition_point(|&s| channels[s].name < name);
+        self.by_name.insert(at, slot);
+        slot
     }
-    let id = channels.len();
-    channels.push(Channel {
-        name: name.to_string(),
-        monitor: None,
-        status: None,
-        slow: is_slow(name),
-        latched: None,
-        value: None,
-    });
-    ids.insert(name.to_string(), id);
-    id
 }
 
 impl Engine {
-    /// `initial_outputs_um`: what each axis' sink holds now (origin-shift registers read at start;
-    /// 0 for quadrature), so the first outputs continue from there.
+    /// Convenience for setup code and tests: the engine of a parsed field file, with the values
+    /// each axis' sink holds now by axis name (origin-shift registers read at start; 0 for
+    /// quadrature). Names resolve here, once.
     pub fn new(
         cfg: &FieldConfig,
         initial_outputs_um: &BTreeMap<String, f64>,
     ) -> Result<Self, SafetyError> {
+        let initial: Vec<(Axis, f64)> = initial_outputs_um
+            .iter()
+            .filter_map(|(n, v)| Some((Axis::from_name(n)?, *v)))
+            .collect();
+        Self::from_config(&cfg.engine_config(), &initial)
+    }
+
+    /// The engine of `cfg`; `initial_outputs_um`: what each axis' sink holds now, so the first
+    /// outputs continue from there (axes not given start at 0).
+    pub fn from_config(
+        cfg: &EngineConfig,
+        initial_outputs_um: &[(Axis, f64)],
+    ) -> Result<Self, SafetyError> {
         let mut channels = Vec::new();
-        let mut ids = BTreeMap::new();
-        for c in &cfg.channels {
-            let id = channel_id(&mut channels, &mut ids, &c.name);
-            channels[id].monitor = Some(ChannelMonitor::new(c.limits()));
+        let mut slots = Slots::default();
+        for (id, limits) in &cfg.channels {
+            let slot = slots.get_or_add(&mut channels, *id);
+            channels[slot].monitor = Some(ChannelMonitor::new(limits.clone()));
         }
         let mut axes = Vec::new();
         for a in &cfg.axes {
-            let initial = initial_outputs_um.get(&a.name).copied().unwrap_or(0.0);
+            let initial = initial_outputs_um
+                .iter()
+                .find(|(x, _)| *x == a.axis)
+                .map_or(0.0, |(_, v)| *v);
             axes.push(AxisRuntime {
-                name: a.name.clone(),
-                position: channel_id(&mut channels, &mut ids, &a.position_channel),
+                axis: a.axis,
+                position: slots.get_or_add(&mut channels, a.position),
                 position_ok: false,
                 latch: DirectionLatch::new(cfg.direction),
-                safety: AxisSafety::new(cfg.safety_for(&a.name), initial)?,
+                safety: AxisSafety::new(a.safety, initial)?,
                 last_pos: None,
                 target_um: None,
                 terms: Vec::new(),
-                drop_source: format!("compensation.{}", a.name),
-                partial_source: format!("compensation.{}.partial", a.name),
+                drop_source: format!("compensation.{}", a.axis),
+                partial_source: format!("compensation.{}.partial", a.axis),
                 ever_tracked: false,
             });
         }
@@ -260,11 +321,11 @@ impl Engine {
             .recoveries
             .iter()
             .map(|r| Recovery {
-                target: channel_id(&mut channels, &mut ids, &r.target),
+                target: slots.get_or_add(&mut channels, ChannelId::of(&r.target)),
                 neighbours: r
                     .neighbours
                     .iter()
-                    .map(|n| channel_id(&mut channels, &mut ids, n))
+                    .map(|n| slots.get_or_add(&mut channels, ChannelId::of(n)))
                     .collect(),
                 values: Vec::with_capacity(r.neighbours.len()),
                 estimate: r.clone(),
@@ -272,21 +333,21 @@ impl Engine {
             .collect();
         let outputs = axes
             .iter()
-            .map(|a| (a.name.clone(), a.safety.output_um()))
+            .map(|a| (a.axis, a.safety.output_um()))
             .collect();
         Ok(Self {
-            errors: AxisErrors::with_axes(axes.iter().map(|a| a.name.clone())),
+            errors: AxisErrors::with_axes(axes.iter().map(|a| a.axis)),
             axes,
             channels,
-            ids,
+            slots,
             recoveries,
             required: None,
             optional: Vec::new(),
             partial: false,
-            thermal_period_s: cfg.gateway.thermal_period_s,
+            thermal_period_s: cfg.thermal_period_s,
             last_slow_latch_s: None,
             faults: FaultLog::default(),
-            enabled: cfg.gateway.enabled,
+            enabled: cfg.enabled,
             state: MachineState::default(),
             model_error: None,
             cycles: 0,
@@ -327,16 +388,13 @@ impl Engine {
     }
 
     /// Take one decoded sample (any order; health is judged per channel). A known channel costs
-    /// one name lookup and no allocation.
+    /// one index and no allocation.
     pub fn ingest(&mut self, s: &Sample) {
         if s.t_s > self.newest_input_s {
             self.newest_input_s = s.t_s;
         }
-        let id = match self.ids.get(s.channel.as_str()) {
-            Some(&id) => id,
-            None => channel_id(&mut self.channels, &mut self.ids, &s.channel),
-        };
-        self.channels[id]
+        let slot = self.slots.get_or_add(&mut self.channels, s.channel);
+        self.channels[slot]
             .monitor
             .get_or_insert_with(|| ChannelMonitor::new(default_limits()))
             .observe(s);
@@ -345,19 +403,19 @@ impl Engine {
     /// Run one cycle at `now_s`; returns the per-axis outputs (µm, in configured axis order) as a
     /// new vector, for callers that hand them to another task. [`Engine::cycle_in_place`] is the
     /// same without the copy.
-    pub fn cycle(&mut self, now_s: f64, model: &mut dyn ErrorModel) -> Vec<(String, f64)> {
+    pub fn cycle(&mut self, now_s: f64, model: &mut dyn ErrorModel) -> Vec<(Axis, f64)> {
         self.cycle_in_place(now_s, model).to_vec()
     }
 
     /// Run one cycle at `now_s`; the per-axis outputs (µm, in configured axis order) are borrowed
     /// from the engine. In steady state (same channels healthy, model terms unchanged) this
     /// allocates nothing: channels are ids resolved at start, buffers are reused.
-    pub fn cycle_in_place(&mut self, now_s: f64, model: &mut dyn ErrorModel) -> &[(String, f64)] {
+    pub fn cycle_in_place(&mut self, now_s: f64, model: &mut dyn ErrorModel) -> &[(Axis, f64)] {
         self.now_s = now_s;
         self.cycles += 1;
         // 1. Health of every channel, with fault transitions logged once (in name order).
-        for &id in self.ids.values() {
-            let c = &mut self.channels[id];
+        for &slot in &self.slots.by_name {
+            let c = &mut self.channels[slot];
             let Some(m) = c.monitor.as_mut() else {
                 c.status = None;
                 continue;
@@ -373,9 +431,9 @@ impl Engine {
                 let mut seen = st.faults.clone();
                 seen.extend(gone);
                 seen.sort();
-                self.faults.update(&c.name, &seen, now_s);
+                self.faults.update(c.name, &seen, now_s);
             } else {
-                self.faults.update(&c.name, &st.faults, now_s);
+                self.faults.update(c.name, &st.faults, now_s);
             }
             c.status = Some(st);
         }
@@ -440,49 +498,49 @@ impl Engine {
             } else {
                 usable
             };
-            put(&mut self.state.channels, &c.name, c.value);
         }
         for a in &mut self.axes {
             let pos = self.channels[a.position].value;
+            let i = a.axis.index();
             if let Some(p) = pos {
                 if let Some((t0, p0)) = a.last_pos
                     && now_s > t0
                 {
-                    put(
-                        &mut self.state.velocities_mm_per_s,
-                        &a.name,
-                        Some((p - p0) / (now_s - t0)),
-                    );
+                    self.state.velocities_mm_per_s[i] = Some((p - p0) / (now_s - t0));
                 }
                 a.last_pos = Some((now_s, p));
                 a.latch.update(p, now_s);
-                put(&mut self.state.positions_mm, &a.name, Some(p));
-                put(
-                    &mut self.state.weight_forward,
-                    &a.name,
-                    Some(a.latch.weight_forward()),
-                );
+                self.state.positions_mm[i] = Some(p);
+                self.state.weight_forward[i] = a.latch.weight_forward();
             } else {
-                put(&mut self.state.positions_mm, &a.name, None);
-                put(&mut self.state.velocities_mm_per_s, &a.name, None);
+                self.state.positions_mm[i] = None;
+                self.state.velocities_mm_per_s[i] = None;
             }
             a.position_ok = pos.is_some();
         }
         self.state.t_s = now_s;
-        // 4. Model.
+        // 4. Model: its channels resolved to slots once (first cycle, model replaced), their values
+        // handed over in its order.
         if self.required.is_none() {
-            let ids = model
+            let slots = model
                 .required_channels()
-                .iter()
-                .map(|n| channel_id(&mut self.channels, &mut self.ids, n))
+                .into_iter()
+                .map(|id| self.slots.get_or_add(&mut self.channels, id))
                 .collect();
-            self.required = Some(ids);
+            self.required = Some(slots);
             self.optional = model
                 .optional_channels()
-                .iter()
-                .map(|n| channel_id(&mut self.channels, &mut self.ids, n))
+                .into_iter()
+                .map(|id| self.slots.get_or_add(&mut self.channels, id))
                 .collect();
         }
+        self.state.inputs.clear();
+        let values = self
+            .required
+            .iter()
+            .flatten()
+            .map(|&s| self.channels[s].value);
+        self.state.inputs.extend(values);
         let optional = &self.optional;
         let inputs_ok = self
             .required
@@ -536,7 +594,7 @@ impl Engine {
             } else {
                 a.terms.clear();
                 let mut total = 0.0;
-                for t in self.errors.axis(&a.name) {
+                for t in self.errors.axis(a.axis) {
                     let corr = -t.error_um;
                     total += corr;
                     a.terms.push((t.term.clone(), corr));
@@ -590,6 +648,8 @@ impl Engine {
     }
 
     /// What `retrocomp status` and `/metrics` show.
+    /// Built on demand (it allocates: names, term lists); the cycle loop publishes one at most
+    /// every `cycle::STATUS_PERIOD_S`.
     pub fn snapshot(&self) -> StatusSnapshot {
         StatusSnapshot {
             t_s: self.now_s,
@@ -599,8 +659,8 @@ impl Engine {
                 .axes
                 .iter()
                 .map(|a| AxisStatus {
-                    axis: a.name.clone(),
-                    position_mm: self.state.positions_mm.get(&a.name).copied(),
+                    axis: a.axis.to_string(),
+                    position_mm: self.state.position_mm(a.axis),
                     direction: a.latch.direction(),
                     weight_forward: a.latch.weight_forward(),
                     target_um: a.target_um,
@@ -612,11 +672,12 @@ impl Engine {
                 })
                 .collect(),
             channels: self
-                .ids
+                .slots
+                .by_name
                 .iter()
-                .filter_map(|(name, &id)| {
-                    let st = self.channels[id].status.clone()?;
-                    Some((name.clone(), st))
+                .filter_map(|&slot| {
+                    let c = &self.channels[slot];
+                    Some((c.name.to_string(), c.status.clone()?))
                 })
                 .collect(),
             active_faults: self
@@ -634,12 +695,12 @@ impl Engine {
 
     /// The sink found a different value in the controller than we last wrote (controller restarted,
     /// operator cleared it): continue from that value instead of jumping back to ours.
-    pub fn reseed(&mut self, axis: &str, held_um: f64) -> Result<(), SafetyError> {
-        if let Some(a) = self.axes.iter_mut().find(|a| a.name == axis) {
+    pub fn reseed(&mut self, axis: Axis, held_um: f64) -> Result<(), SafetyError> {
+        if let Some(a) = self.axes.iter_mut().find(|a| a.axis == axis) {
             let cfg = *a.safety.config();
             a.safety = AxisSafety::new(cfg, held_um)?;
             tracing::warn!(
-                axis,
+                axis = axis.name(),
                 held_um,
                 "controller holds a different value: continuing from it"
             );
@@ -648,24 +709,25 @@ impl Engine {
     }
 
     /// Current outputs without running a cycle.
-    pub fn outputs(&self) -> Vec<(String, f64)> {
+    pub fn outputs(&self) -> Vec<(Axis, f64)> {
         self.axes
             .iter()
-            .map(|a| (a.name.clone(), a.safety.output_um()))
+            .map(|a| (a.axis, a.safety.output_um()))
             .collect()
     }
 
-    pub fn axis_mode(&self, axis: &str) -> Option<Mode> {
+    pub fn axis_mode(&self, axis: Axis) -> Option<Mode> {
         self.axes
             .iter()
-            .find(|a| a.name == axis)
+            .find(|a| a.axis == axis)
             .map(|a| a.safety.mode())
     }
 
-    pub fn axis_direction(&self, axis: &str) -> Option<Direction> {
+    /// The latched direction of approach of `axis` (None: not latched yet, or not driven).
+    pub fn axis_direction(&self, axis: Axis) -> Option<Approach> {
         self.axes
             .iter()
-            .find(|a| a.name == axis)
-            .map(|a| a.latch.direction())
+            .find(|a| a.axis == axis)
+            .and_then(|a| a.latch.direction())
     }
 }

@@ -356,7 +356,7 @@ mod tests {
             axes: vec![AxisStatus {
                 axis: "x".into(),
                 position_mm: Some(1.0),
-                direction: crate::gateway::direction::Direction::Forward,
+                direction: Some(crate::approach::Approach::Forward),
                 weight_forward: 1.0,
                 target_um: Some(applied_um),
                 applied_um,

@@ -23,7 +23,7 @@ pub mod status;
 pub mod supervise;
 pub mod web;
 
-pub use direction::{Direction, DirectionConfig, DirectionLatch};
+pub use direction::{DirectionConfig, DirectionLatch};
 pub use engine::{AxisErrors, Engine, ErrorModel, MachineState, TermError};
 pub use health::{ChannelLimits, ChannelMonitor, ChannelStatus, FaultEvent, FaultKind, FaultLog};
 pub use recovery::NeighbourEstimate;

@@ -10,10 +10,8 @@ use std::sync::Arc;
 
 use super::engine::{AxisErrors, ErrorModel, MachineState};
 use super::status::ModelIdentity;
+use crate::bus::ChannelId;
 use crate::models::{Axis, ErrorBreakdown, MachineModel, ModelInput, ModelState};
-
-/// Axis names as the gateway's state keys them, by [`Axis::index`].
-const AXIS_NAMES: [&str; 3] = ["x", "y", "z"];
 
 pub struct MachineModelAdapter {
     model: MachineModel,
@@ -24,9 +22,11 @@ pub struct MachineModelAdapter {
     minus: ErrorBreakdown,
     /// Per-term errors after the reversal blend, µm.
     acc: Vec<[f64; 3]>,
-    temp_channels: Vec<String>,
-    force_channels: Vec<String>,
-    strain_channels: Vec<String>,
+    /// The model's channels, resolved once; [`ErrorModel::required_channels`] lists them in this
+    /// order (temperatures, forces, strains), so `MachineState::inputs` follows it too.
+    temp_channels: Vec<ChannelId>,
+    force_channels: Vec<ChannelId>,
+    strain_channels: Vec<ChannelId>,
     /// The model's term names, shared with the engine's per-axis breakdown (no allocation per cycle).
     term_names: Vec<Arc<str>>,
     /// Use the first-order closed form (cheaper) instead of the exact 4×4 chain.
@@ -55,16 +55,16 @@ impl MachineModelAdapter {
             plus: model.new_breakdown(),
             minus: model.new_breakdown(),
             acc: Vec::new(),
-            temp_channels: model.sensor_columns().to_vec(),
+            temp_channels: model.sensor_columns().iter().map(ChannelId::from).collect(),
             force_channels: model
                 .force_channels()
                 .iter()
-                .map(|s| format!("F_{s}_N"))
+                .map(|s| ChannelId::of(&format!("F_{s}_N")))
                 .collect(),
             strain_channels: model
                 .strain_channels()
                 .iter()
-                .map(|s| format!("strain_{s}_ue"))
+                .map(|s| ChannelId::of(&format!("strain_{s}_ue")))
                 .collect(),
             term_names: model
                 .term_names()
@@ -100,23 +100,23 @@ impl ErrorModel for MachineModelAdapter {
         Some(self.identity.clone())
     }
 
-    fn required_channels(&self) -> Vec<String> {
+    fn required_channels(&self) -> Vec<ChannelId> {
         self.temp_channels
             .iter()
             .chain(&self.force_channels)
             .chain(&self.strain_channels)
-            .cloned()
+            .copied()
             .collect()
     }
 
     /// Forces and strains feed only the `[[load]]` terms, which are linear in the force (compliance
     /// × F, reference × F / F_ref): without them those terms are zero and the geometric and thermal
     /// terms are unchanged, so a stale force drops only the load terms.
-    fn optional_channels(&self) -> Vec<String> {
+    fn optional_channels(&self) -> Vec<ChannelId> {
         self.force_channels
             .iter()
             .chain(&self.strain_channels)
-            .cloned()
+            .copied()
             .collect()
     }
 
@@ -125,21 +125,22 @@ impl ErrorModel for MachineModelAdapter {
         let mut weights = [1.0f64; 3];
         for ax in Axis::ALL {
             let i = ax.index();
-            let name = AXIS_NAMES[i];
-            self.input.pos_mm[i] = s.positions_mm.get(name).copied().unwrap_or(0.0);
-            weights[i] = s.weight_forward.get(name).copied().unwrap_or(0.5);
+            self.input.pos_mm[i] = s.position_mm(ax).unwrap_or(0.0);
+            weights[i] = s.forward_weight(ax);
             self.input.dir[i] = dir_of(weights[i]);
         }
+        // `s.inputs` follows `required_channels`: temperatures, then forces, then strains.
+        let (nt, nf) = (self.temp_channels.len(), self.force_channels.len());
         for (k, ch) in self.temp_channels.iter().enumerate() {
-            self.input.temps_c[k] = *s.channels.get(ch).ok_or_else(|| format!("missing {ch}"))?;
+            self.input.temps_c[k] = s.input(k).ok_or_else(|| format!("missing {ch}"))?;
         }
         // A missing force or strain (optional, see above) is NaN: the model then takes the force
         // as absent and its load terms are zero.
-        for (k, ch) in self.force_channels.iter().enumerate() {
-            self.input.forces_n[k] = s.channels.get(ch).copied().unwrap_or(f64::NAN);
+        for k in 0..nf {
+            self.input.forces_n[k] = s.input(nt + k).unwrap_or(f64::NAN);
         }
-        for (k, ch) in self.strain_channels.iter().enumerate() {
-            self.input.strains_ue[k] = s.channels.get(ch).copied().unwrap_or(f64::NAN);
+        for k in 0..self.strain_channels.len() {
+            self.input.strains_ue[k] = s.input(nt + nf + k).unwrap_or(f64::NAN);
         }
         self.eval(0);
         if self.main.flags.invalid_input {
@@ -170,13 +171,12 @@ impl ErrorModel for MachineModelAdapter {
         }
         for ax in Axis::ALL {
             let i = ax.index();
-            let name = AXIS_NAMES[i];
-            if !s.positions_mm.contains_key(name) {
+            if s.position_mm(ax).is_none() {
                 continue;
             }
             for (v, n) in self.acc.iter().zip(&self.term_names) {
                 if v[i] != 0.0 {
-                    out.push(name, n.clone(), v[i]);
+                    out.push(ax, n.clone(), v[i]);
                 }
             }
         }

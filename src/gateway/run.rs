@@ -125,7 +125,7 @@ pub async fn run(
 
     // Sink first: origin shift must know what the controller holds before the engine starts.
     let (out_tx, out_rx) = watch::channel::<Outputs>(Vec::new());
-    let (reseed_tx, reseed_rx) = mpsc::channel::<(String, f64)>(8);
+    let (reseed_tx, reseed_rx) = mpsc::channel::<(crate::models::Axis, f64)>(8);
     let (sink_status_tx, sink_status_rx) = watch::channel::<SinkStatus>(SinkStatus::default());
     // Positions the controller writes into a served register image (origin-shift server).
     let (served_tx, served_rx) = mpsc::channel::<Sample>(1024);

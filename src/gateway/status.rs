@@ -7,9 +7,9 @@ use std::fmt::Write as _;
 
 use serde::Serialize;
 
-use super::direction::Direction;
 use super::health::{ChannelStatus, FaultKind};
 use super::safety::Mode;
+use crate::approach::Approach;
 use crate::bus::Health;
 use crate::bus::can::BusState;
 pub use crate::sink::SinkStatus;
@@ -18,7 +18,9 @@ pub use crate::sink::SinkStatus;
 pub struct AxisStatus {
     pub axis: String,
     pub position_mm: Option<f64>,
-    pub direction: Direction,
+    /// Latched direction of approach; serialised `unknown` / `forward` / `reverse`.
+    #[serde(serialize_with = "crate::approach::serialize_latched")]
+    pub direction: Option<Approach>,
     pub weight_forward: f64,
     /// Correction the model asks for (before safety), µm; None while inputs are stale/faulty.
     pub target_um: Option<f64>,
@@ -510,7 +512,7 @@ impl StatusSnapshot {
                 "{:<4} {:>12} {:>9} {:>12} {:>12.3}  {:<11} {}",
                 a.axis,
                 a.position_mm.map_or("-".into(), |p| format!("{p:.4}")),
-                format!("{:?}", a.direction).to_lowercase(),
+                crate::approach::latched_name(a.direction),
                 a.target_um.map_or("-".into(), |t| format!("{t:.3}")),
                 a.applied_um,
                 format!("{:?}", a.mode).to_lowercase(),

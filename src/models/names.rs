@@ -46,6 +46,21 @@ impl Axis {
         }
     }
 
+    /// The axis named exactly `x`, `y` or `z` (the spelling of field files, status and sinks).
+    pub fn from_name(name: &str) -> Option<Axis> {
+        match name {
+            "x" => Some(Axis::X),
+            "y" => Some(Axis::Y),
+            "z" => Some(Axis::Z),
+            _ => None,
+        }
+    }
+
+    /// `"x"`, `"y"`, `"z"`: the name as field files, status JSON, metrics and logs spell it.
+    pub fn name(self) -> &'static str {
+        ["x", "y", "z"][self.index()]
+    }
+
     pub fn lower(self) -> char {
         ['x', 'y', 'z'][self.index()]
     }
@@ -62,7 +77,19 @@ impl Axis {
 
 impl fmt::Display for Axis {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}", self.lower())
+        f.write_str(self.name())
+    }
+}
+
+impl PartialEq<str> for Axis {
+    fn eq(&self, other: &str) -> bool {
+        self.name() == other
+    }
+}
+
+impl PartialEq<&str> for Axis {
+    fn eq(&self, other: &&str) -> bool {
+        self.name() == *other
     }
 }
 

@@ -15,6 +15,7 @@ use tokio_modbus::prelude::Slave;
 use super::cycle::{Action, Outcome, Reply, WriteCycle};
 use super::map::{MapError, RegisterMap};
 use super::sink::SinkCore;
+use crate::models::Axis;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
@@ -273,7 +274,7 @@ impl OriginShiftClient {
     /// One write period of the sink core (read what the controller holds, guard, write cycle) for
     /// these wanted corrections (µm). The gateway's sink uses this; every value it sends passed the
     /// core's [`super::WriteGuard`].
-    pub async fn run_period(&mut self, core: &mut SinkCore, wants_um: &[(String, f64)]) -> Outcome {
+    pub async fn run_period(&mut self, core: &mut SinkCore, wants_um: &[(Axis, f64)]) -> Outcome {
         if let Err(e) = self.ensure_connected().await {
             core.not_connected(&e.to_string());
             return Outcome::RequestFailed {
@@ -295,7 +296,7 @@ impl OriginShiftClient {
     /// Encode and write one set of corrections (µm), with handshake and read-back as configured.
     /// Unguarded and with a remembered strobe: for tests and tools; the gateway uses
     /// [`Self::run_period`].
-    pub async fn write(&mut self, corrections_um: &[(&str, f64)]) -> Result<Outcome, ClientError> {
+    pub async fn write(&mut self, corrections_um: &[(Axis, f64)]) -> Result<Outcome, ClientError> {
         let blocks = self.map.encode(corrections_um)?;
         self.ensure_connected().await?;
         let strobe = WriteCycle::next_strobe(self.strobe);

@@ -220,6 +220,7 @@ impl WriteCycle {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::models::Axis;
     use crate::origin_shift::map::RegisterMap;
 
     fn map(handshake: bool) -> RegisterMap {
@@ -236,7 +237,7 @@ mod tests {
     #[test]
     fn full_cycle_with_handshake_and_readback() {
         let m = map(true);
-        let blocks = m.encode(&[("x", 1.5), ("y", -2.0)]).unwrap();
+        let blocks = m.encode(&[(Axis::X, 1.5), (Axis::Y, -2.0)]).unwrap();
         let (mut c, a) = WriteCycle::start(&m, blocks.clone(), 1);
         assert_eq!(a, Action::Write(blocks[0].clone()));
         assert_eq!(
@@ -292,7 +293,7 @@ mod tests {
     #[test]
     fn ack_timeout_and_readback_mismatch_are_reported() {
         let m = map(true);
-        let blocks = m.encode(&[("y", 3.0)]).unwrap();
+        let blocks = m.encode(&[(Axis::Y, 3.0)]).unwrap();
         let (mut c, _) = WriteCycle::start(&m, blocks.clone(), 0);
         c.on_reply(Reply::Written, 0.0);
         c.on_reply(Reply::Written, 0.0);
@@ -322,7 +323,7 @@ mod tests {
             c.on_reply(Reply::Read(vec![4]), 0.0),
             Action::Done(Outcome::ReadbackMismatch { address: 20, .. })
         ));
-        let (mut c, _) = WriteCycle::start(&m, m.encode(&[("y", 3.0)]).unwrap(), 0);
+        let (mut c, _) = WriteCycle::start(&m, m.encode(&[(Axis::Y, 3.0)]).unwrap(), 0);
         assert!(matches!(
             c.on_reply(Reply::Failed("timeout".into()), 0.0),
             Action::Done(Outcome::RequestFailed {

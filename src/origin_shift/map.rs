@@ -25,6 +25,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::bus::modbus::regmap::{decode_raw, encode_raw};
 pub use crate::bus::modbus::{DataType, WordOrder};
+use crate::models::Axis;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -218,29 +219,78 @@ impl RegisterMap {
 
     /// Encode per-axis corrections (µm) into FC16 blocks: contiguous registers are merged into one
     /// request (so several axes also change together), never splitting a 32-bit value.
-    pub fn encode(&self, corrections_um: &[(&str, f64)]) -> Result<Vec<WriteBlock>, MapError> {
-        let mut regs: Vec<(u16, Vec<u16>)> = Vec::new();
-        for (axis, value_um) in corrections_um {
-            let r = self.axis(axis)?;
-            regs.push((r.address, encode_value(r, *value_um)?));
+    pub fn encode(&self, corrections_um: &[(Axis, f64)]) -> Result<Vec<WriteBlock>, MapError> {
+        let mut out = Vec::new();
+        self.encode_into(corrections_um, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`Self::encode`] into `out`, reusing its blocks and their word buffers: allocates nothing
+    /// once `out` has held as many blocks and words (the per-write path of a sink). On error `out`
+    /// holds no usable blocks.
+    pub fn encode_into(
+        &self,
+        corrections_um: &[(Axis, f64)],
+        out: &mut Vec<WriteBlock>,
+    ) -> Result<(), MapError> {
+        let r = self.fill_blocks(corrections_um, out);
+        if r.is_err() {
+            out.clear();
         }
-        regs.sort_by_key(|r| r.0);
-        let mut blocks: Vec<WriteBlock> = Vec::new();
-        for (address, words) in regs {
-            match blocks.last_mut() {
-                Some(b)
-                    if b.address as usize + b.words.len() == address as usize
-                        && b.words.len() + words.len() <= MAX_FC16_WORDS =>
-                {
-                    b.words.extend(words)
+        r
+    }
+
+    fn fill_blocks(
+        &self,
+        corrections_um: &[(Axis, f64)],
+        out: &mut Vec<WriteBlock>,
+    ) -> Result<(), MapError> {
+        let mut used: usize = 0;
+        let mut last: Option<u16> = None;
+        loop {
+            // The next register by address: a map has a handful of axes, so picking the next one
+            // beats sorting into a buffer (and allocates nothing).
+            let mut next: Option<(&AxisRegister, f64)> = None;
+            for (axis, value_um) in corrections_um {
+                let r = self.axis(axis.name())?;
+                if last.is_some_and(|l| r.address <= l) {
+                    continue;
                 }
-                _ => blocks.push(WriteBlock { address, words }),
+                if next.is_none_or(|(n, _)| r.address < n.address) {
+                    next = Some((r, *value_um));
+                }
+            }
+            let Some((r, value_um)) = next else { break };
+            last = Some(r.address);
+            let (words, n) = encode_words(r, value_um)?;
+            let words = &words[..n];
+            match used.checked_sub(1).map(|i| &mut out[i]) {
+                Some(b)
+                    if b.address as usize + b.words.len() == r.address as usize
+                        && b.words.len() + n <= MAX_FC16_WORDS =>
+                {
+                    b.words.extend_from_slice(words)
+                }
+                _ => {
+                    if let Some(b) = out.get_mut(used) {
+                        b.address = r.address;
+                        b.words.clear();
+                        b.words.extend_from_slice(words);
+                    } else {
+                        out.push(WriteBlock {
+                            address: r.address,
+                            words: words.to_vec(),
+                        });
+                    }
+                    used += 1;
+                }
             }
         }
-        for b in &blocks {
+        out.truncate(used);
+        for b in out.iter() {
             self.check_write(b.address, b.words.len())?;
         }
-        Ok(blocks)
+        Ok(())
     }
 
     /// Decode the words read from an axis' register back into its correction, µm.
@@ -252,6 +302,12 @@ impl RegisterMap {
 
 /// Register words for one axis' correction.
 pub fn encode_value(r: &AxisRegister, value_um: f64) -> Result<Vec<u16>, MapError> {
+    let (words, n) = encode_words(r, value_um)?;
+    Ok(words[..n].to_vec())
+}
+
+/// [`encode_value`] without allocating: the words (1 or 2 used) and how many.
+fn encode_words(r: &AxisRegister, value_um: f64) -> Result<([u16; 2], usize), MapError> {
     if !value_um.is_finite() {
         return Err(MapError::NotFinite {
             axis: r.axis.clone(),
@@ -267,7 +323,7 @@ pub fn encode_value(r: &AxisRegister, value_um: f64) -> Result<Vec<u16>, MapErro
             lsb_um: r.lsb_um,
             kind: r.data_type,
         })?;
-    Ok(words[..n].to_vec())
+    Ok((words, n))
 }
 
 pub fn decode_value(r: &AxisRegister, words: &[u16]) -> Result<f64, MapError> {
@@ -312,11 +368,33 @@ mod tests {
     }
 
     #[test]
+    fn encode_into_reuses_the_blocks_and_matches_encode() {
+        let m = map();
+        let mut out = Vec::new();
+        m.encode_into(&[(Axis::X, 1.0), (Axis::Z, 2.0)], &mut out)
+            .unwrap();
+        let words_at = out[0].words.as_ptr();
+        let wants = [(Axis::Z, -7.5), (Axis::X, 3.2)];
+        m.encode_into(&wants, &mut out).unwrap();
+        assert_eq!(out, m.encode(&wants).unwrap());
+        assert_eq!(
+            out[0].words.as_ptr(),
+            words_at,
+            "the word buffer was reused"
+        );
+        // Only z: one block at its own address; an unknown axis refuses and leaves nothing.
+        m.encode_into(&[(Axis::Z, 1.0)], &mut out).unwrap();
+        assert_eq!((out.len(), out[0].address), (1, 102));
+        assert!(m.encode_into(&[(Axis::Y, 1.0)], &mut out).is_err());
+        assert!(out.is_empty());
+    }
+
+    #[test]
     fn int32_words_in_configured_order_and_one_block() {
         let m = map();
         m.validate().unwrap();
         // −12.3 µm at 0.1 µm → −123 = 0xFFFF_FF85; CDAB puts the low word first.
-        let blocks = m.encode(&[("z", 70_000.0), ("x", -12.3)]).unwrap();
+        let blocks = m.encode(&[(Axis::Z, 70_000.0), (Axis::X, -12.3)]).unwrap();
         assert_eq!(
             blocks.len(),
             1,
@@ -334,13 +412,13 @@ mod tests {
         let mut m = map();
         m.axes[0].data_type = DataType::Int16;
         // int16 at 0.1 µm holds ±3276.7 µm.
-        assert!(m.encode(&[("x", 3276.7)]).is_ok());
+        assert!(m.encode(&[(Axis::X, 3276.7)]).is_ok());
         assert!(matches!(
-            m.encode(&[("x", 3276.8)]),
+            m.encode(&[(Axis::X, 3276.8)]),
             Err(MapError::OutOfRange { .. })
         ));
         assert!(matches!(
-            m.encode(&[("x", f64::NAN)]),
+            m.encode(&[(Axis::X, f64::NAN)]),
             Err(MapError::NotFinite { .. })
         ));
         assert!(m.check_write(110, 1).is_ok(), "strobe is writable");
@@ -353,7 +431,7 @@ mod tests {
             "101 is not configured once x is int16"
         );
         assert!(matches!(
-            m.encode(&[("y", 1.0)]),
+            m.encode(&[(Axis::Y, 1.0)]),
             Err(MapError::UnknownAxis(_))
         ));
     }

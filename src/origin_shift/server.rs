@@ -21,7 +21,7 @@ use tokio::time::MissedTickBehavior;
 
 use super::server_core::{Guard, ServerCore, ServerMap};
 use crate::bus::modbus::server::{RegisterBank, TcpServer, spawn_rtu};
-use crate::bus::{Health, Sample};
+use crate::bus::{ChannelId, Health, Sample};
 use crate::fault::{FaultKind, FaultLog};
 use crate::sink::{LocalFuture, Sink, SinkIo, SinkStatus, StartValues};
 
@@ -61,7 +61,7 @@ fn default_controller_timeout_ms() -> u64 {
     1_000
 }
 
-type Outputs = Vec<(String, f64)>;
+type Outputs = Vec<(crate::models::Axis, f64)>;
 
 /// The running server (listener or RTU task) and its core.
 pub struct OriginShiftServer {
@@ -121,7 +121,7 @@ impl OriginShiftServer {
         let positions = self.core.handle_controller_write(|a, n| bank.holding(a, n));
         for (channel, value) in positions {
             let s = Sample {
-                channel,
+                channel: ChannelId::of(&channel),
                 t_s,
                 value,
                 health: Health::Ok,

@@ -24,6 +24,7 @@ use serde::{Deserialize, Serialize};
 
 use super::map::decode_value;
 use super::map::{AxisRegister, DataType, MapError, RegisterMap, WordOrder, WriteBlock};
+use crate::models::Axis;
 
 /// A register the controller writes an axis position into.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -438,7 +439,7 @@ impl ServerCore {
 
     /// One update from the engine's outputs (axis, correction µm). None until seeded. Axes missing
     /// from `targets` keep their exposed value.
-    pub fn poll_update(&mut self, targets: &[(String, f64)]) -> Option<Update> {
+    pub fn poll_update(&mut self, targets: &[(Axis, f64)]) -> Option<Update> {
         if !self.is_seeded() {
             return None;
         }
@@ -447,7 +448,7 @@ impl ServerCore {
             let start = a.exposed_um.or(a.held_um).unwrap_or(0.0);
             let target = targets
                 .iter()
-                .find(|(n, _)| *n == a.reg.axis)
+                .find(|(n, _)| *n == a.reg.axis.as_str())
                 .map_or(start, |t| t.1);
             let mut refs: Vec<f64> = Vec::with_capacity(2);
             refs.extend(a.exposed_um);
@@ -461,7 +462,10 @@ impl ServerCore {
             a.exposed_um = Some(v);
             values.push((a.reg.axis.clone(), v));
         }
-        let pairs: Vec<(&str, f64)> = values.iter().map(|(a, v)| (a.as_str(), *v)).collect();
+        let pairs: Vec<(Axis, f64)> = values
+            .iter()
+            .filter_map(|(a, v)| Some((Axis::from_name(a)?, *v)))
+            .collect();
         let mut blocks = match self.map.correction_map().encode(&pairs) {
             Ok(b) => b,
             // Only reachable when the clamp exceeds the register range: expose nothing new.
@@ -559,16 +563,14 @@ mod tests {
     #[test]
     fn nothing_served_until_the_controller_reports_then_ramps_from_its_value() {
         let mut c = ServerCore::new(map(), &guards());
-        assert!(c.poll_update(&[("x".into(), 20.0)]).is_none());
+        assert!(c.poll_update(&[(Axis::X, 20.0)]).is_none());
         // The controller writes x held = 12.3 µm (123 counts), z held = 0, position x = 150.00 mm.
         let image: BTreeMap<u16, u16> = [(30, 123), (31, 0), (32, 0), (20, 15000)].into();
         let read = |a: u16, n: u16| (a..a + n).map(|k| image.get(&k).copied()).collect();
         let pos = c.handle_controller_write(read);
         assert_eq!(pos, vec![("x_mm".to_string(), 150.0)]);
         assert!(c.is_seeded());
-        let u = c
-            .poll_update(&[("x".into(), 20.0), ("z".into(), -3.0)])
-            .unwrap();
+        let u = c.poll_update(&[(Axis::X, 20.0), (Axis::Z, -3.0)]).unwrap();
         // x: 12.3 → 13.3 (cap 1 µm); z: 0 → −1.0; heartbeat 1.
         assert_eq!(u.exposed_um[0].0, "x");
         assert!((u.exposed_um[0].1 - 13.3).abs() < 1e-9, "{u:?}");
@@ -615,9 +617,7 @@ mod tests {
         let image: BTreeMap<u16, u16> = [(30, 0), (31, 0), (32, 0)].into();
         c.handle_controller_write(|a, n| (a..a + n).map(|k| image.get(&k).copied()).collect());
         for _ in 0..100 {
-            let u = c
-                .poll_update(&[("x".into(), 40.0), ("z".into(), 40.0)])
-                .unwrap();
+            let u = c.poll_update(&[(Axis::X, 40.0), (Axis::Z, 40.0)]).unwrap();
             assert!(
                 u.exposed_um.iter().all(|(_, v)| v.abs() <= 1.0 + 1e-9),
                 "{u:?}"

@@ -26,6 +26,7 @@
 use super::cycle::{Action, Outcome, Reply, WriteCycle};
 use super::guard::{GuardLimits, Verdict, WriteGuard};
 use super::map::{RegisterMap, WriteBlock, decode_value};
+use crate::models::Axis;
 
 /// What the sink core needs per axis, in the map's axis order.
 #[derive(Clone, Debug)]
@@ -71,7 +72,10 @@ pub struct SinkCore {
     wants: Vec<f64>,
     /// Axis index and value of the writes in the running cycle.
     planned: Vec<(usize, f64)>,
-    reseeds: Vec<(String, f64)>,
+    reseeds: Vec<(Axis, f64)>,
+    /// Each map axis' identity (map order), resolved at construction; None for a name that is not
+    /// x, y or z (never wanted, never reseeded).
+    ids: Vec<Option<Axis>>,
     faults: SinkFaults,
     /// Last heartbeat value written (0 before the first period).
     heartbeat: u16,
@@ -138,6 +142,7 @@ impl SinkCore {
                 beyond_clamp: vec![false; n],
                 uncertain: vec![false; n],
             },
+            ids: axes.iter().map(|a| Axis::from_name(&a.axis)).collect(),
             axes,
             writes_ok: 0,
             writes_failed: 0,
@@ -167,27 +172,27 @@ impl SinkCore {
 
     /// Values the controller changed behind the box's back (restart, operator, another writer)
     /// since the last call: the engine should continue from them (only in-clamp values are given).
-    pub fn take_reseeds(&mut self) -> Vec<(String, f64)> {
+    pub fn take_reseeds(&mut self) -> Vec<(Axis, f64)> {
         std::mem::take(&mut self.reseeds)
     }
 
     /// [`Self::begin_at`] at time 0 (for maps without a heartbeat, where the period's age is not
     /// checked).
-    pub fn begin(&mut self, wants_um: &[(String, f64)]) -> Action {
+    pub fn begin(&mut self, wants_um: &[(Axis, f64)]) -> Action {
         self.begin_at(wants_um, 0.0)
     }
 
     /// Start a write period at `now_s` for these wanted corrections (axis name, µm; axes not in the
     /// map are ignored, map axes not given keep the controller's value; every axis wants 0 once
     /// ramping out). Returns the first request: the heartbeat write, or the read.
-    pub fn begin_at(&mut self, wants_um: &[(String, f64)], now_s: f64) -> Action {
-        for (i, a) in self.axes.iter().enumerate() {
+    pub fn begin_at(&mut self, wants_um: &[(Axis, f64)], now_s: f64) -> Action {
+        for (i, id) in self.ids.iter().enumerate() {
             self.wants[i] = if self.ramping_out {
                 0.0
             } else {
                 wants_um
                     .iter()
-                    .find(|(n, _)| *n == a.axis)
+                    .find(|(a, _)| Some(*a) == *id)
                     .map_or(f64::NAN, |(_, v)| *v)
             };
         }
@@ -356,8 +361,9 @@ impl SinkCore {
             let max = self.axes[i].max_correction_um;
             if before.is_some_and(|(lo, hi)| held < lo - r.lsb_um || held > hi + r.lsb_um)
                 && held.abs() <= max + r.lsb_um * 0.5
+                && let Some(axis) = self.ids[i]
             {
-                self.reseeds.push((r.axis.clone(), held.clamp(-max, max)));
+                self.reseeds.push((axis, held.clamp(-max, max)));
             }
         }
         let mut strobe = None;
@@ -379,7 +385,7 @@ impl SinkCore {
                 .read_um(i)
                 .is_some_and(|v| v.abs() < self.map.axes[i].lsb_um * 0.5)
         });
-        let mut values: Vec<(&str, f64)> = Vec::with_capacity(self.axes.len());
+        let mut values: Vec<(Axis, f64)> = Vec::with_capacity(self.axes.len());
         for i in 0..self.axes.len() {
             let verdict = self.guard.check(i, self.wants[i]);
             self.faults.beyond_clamp[i] = matches!(verdict, Verdict::BeyondClamp { .. });
@@ -387,7 +393,9 @@ impl SinkCore {
             match verdict {
                 Verdict::Write(v) => {
                     self.planned.push((i, v));
-                    values.push((self.axes[i].axis.as_str(), v));
+                    if let Some(axis) = self.ids[i] {
+                        values.push((axis, v));
+                    }
                 }
                 Verdict::Uncertain { .. } => self.guard.forget_unconfirmed(i),
                 Verdict::Unknown | Verdict::BeyondClamp { .. } => {}
@@ -486,8 +494,8 @@ mod tests {
         SinkCore::new(map(), vec![ax("x"), ax("y")])
     }
 
-    fn wants(x: f64, y: f64) -> Vec<(String, f64)> {
-        vec![("x".into(), x), ("y".into(), y)]
+    fn wants(x: f64, y: f64) -> Vec<(Axis, f64)> {
+        vec![(Axis::X, x), (Axis::Y, y)]
     }
 
     #[test]

@@ -30,6 +30,7 @@ use tokio::time::MissedTickBehavior;
 use super::client::OriginShiftSink;
 use super::{OriginShiftClient, SinkAxis, SinkCore};
 use crate::fault::{FaultKind, FaultLog};
+use crate::models::Axis;
 use crate::sink::{LocalFuture, Sink, SinkIo, SinkStatus, StartValues};
 
 pub const SOURCE: &str = "sink.origin_shift";
@@ -99,7 +100,7 @@ pub async fn origin_shift_task(
         kind: "origin_shift".into(),
         ..Default::default()
     };
-    let mut wants: Vec<(String, f64)> = Vec::new();
+    let mut wants: Vec<(Axis, f64)> = Vec::new();
     let mut stop_by: Option<std::time::Instant> = None;
     loop {
         tick.tick().await;

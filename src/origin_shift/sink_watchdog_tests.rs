@@ -68,7 +68,7 @@ impl Controller {
     }
 
     /// One period at `now_s` (every reply at the same instant): the outcome.
-    fn period(&mut self, c: &mut SinkCore, wants: &[(String, f64)], now_s: f64) -> Outcome {
+    fn period(&mut self, c: &mut SinkCore, wants: &[(Axis, f64)], now_s: f64) -> Outcome {
         let mut a = c.begin_at(wants, now_s);
         loop {
             if let Action::Done(o) = a {
@@ -80,8 +80,8 @@ impl Controller {
     }
 }
 
-fn wants(x: f64, y: f64) -> Vec<(String, f64)> {
-    vec![("x".into(), x), ("y".into(), y)]
+fn wants(x: f64, y: f64) -> Vec<(Axis, f64)> {
+    vec![(Axis::X, x), (Axis::Y, y)]
 }
 
 #[test]

@@ -7,6 +7,7 @@
 //! ([`check_buildable`]) rather than silently simulated: the technician would otherwise see a
 //! healthy status while nothing reaches the controller.
 
+use crate::models::Axis;
 use anyhow::{Context as _, bail};
 use tokio::sync::watch;
 
@@ -137,7 +138,7 @@ impl Sink for QuadratureOutput {
 /// Follow the cycle's outputs until the runtime drops its sender.
 pub async fn quadrature_task(
     q: QuadratureSink,
-    mut out_rx: watch::Receiver<Vec<(String, f64)>>,
+    mut out_rx: watch::Receiver<Vec<(Axis, f64)>>,
     status: watch::Sender<SinkStatus>,
 ) {
     let mut axes = Vec::new();
@@ -146,7 +147,11 @@ pub async fn quadrature_task(
             .map_err(anyhow::Error::from)
             .and_then(|quant| Ok((quant, AxisInjector::open(a)?)));
         match opened {
-            Ok((quant, inj)) => axes.push((a.axis.clone(), quant, inj)),
+            // Axis names are validated (x, y or z, each an [[axis]]) when the config loads.
+            Ok((quant, inj)) => match Axis::from_name(&a.axis) {
+                Some(axis) => axes.push((axis, quant, inj)),
+                None => tracing::error!(axis = a.axis, "not an axis (x, y or z): never driven"),
+            },
             Err(e) => {
                 tracing::error!(axis = a.axis, "{e:#}");
                 let _ = status.send(SinkStatus {
@@ -182,6 +187,7 @@ pub async fn quadrature_task(
                 }
             }
             if inj.owed() != 0 {
+                let axis = axis.name();
                 tracing::debug!(axis, owed = inj.owed(), "counts still owed to the lines");
             }
         }

@@ -19,8 +19,9 @@ use retrocomp::bus::serial::source::LineSource;
 use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::engine::{Engine, ErrorModel};
 use retrocomp::gateway::health::{FaultKind, FaultLog};
-use retrocomp::gateway::origin_shift_sink::update_faults;
+use retrocomp::origin_shift::sink_task::update_faults;
 use retrocomp::gateway::safety::Mode;
+use retrocomp::models::Axis;
 use retrocomp::origin_shift::{Action, Outcome, Reply, SinkAxis, SinkCore};
 
 /// One fault edge as the gateway logs it (source, kind, started or cleared, gateway time).
@@ -45,7 +46,7 @@ pub struct Gateway {
     /// The sink's request in flight (answered at the next harness step), if a period runs.
     pending: Option<Action>,
     /// The outputs of the last cycle: what the sink writes at its next period (the shell's watch).
-    outputs: Vec<(String, f64)>,
+    outputs: Vec<(Axis, f64)>,
     /// Engine faults active after the last cycle (to turn the snapshot into edges).
     engine_active: BTreeMap<(String, FaultKind), f64>,
     /// Fault edges since the last [`Gateway::take_edges`].
@@ -131,7 +132,7 @@ impl Gateway {
 
     /// One engine cycle at `now_s`: the sources' freshness checks, every sample in arrival order,
     /// the cycle, and the fault edges of the engine. Returns the outputs (µm, axis order).
-    pub fn cycle(&mut self, now_s: f64) -> &[(String, f64)] {
+    pub fn cycle(&mut self, now_s: f64) -> &[(Axis, f64)] {
         if let Some(c) = self.canopen.as_mut() {
             c.poll(now_s, &mut self.samples);
         }
@@ -175,13 +176,13 @@ impl Gateway {
     }
 
     /// The engine's outputs after the last cycle, µm (axis order).
-    pub fn outputs(&self) -> &[(String, f64)] {
+    pub fn outputs(&self) -> &[(Axis, f64)] {
         &self.outputs
     }
 
     /// The engine's mode of `axis`.
     pub fn mode(&self, axis: &str) -> Option<Mode> {
-        self.engine.axis_mode(axis)
+        self.engine.axis_mode(Axis::from_name(axis)?)
     }
 
     /// The value the engine's state holds for `channel` this cycle (None: unusable).
@@ -241,7 +242,7 @@ impl Gateway {
         for (axis, held) in self.sink.take_reseeds() {
             // An in-clamp value always gives a valid safety state; a refusal is a harness bug.
             self.engine
-                .reseed(&axis, held)
+                .reseed(axis, held)
                 .expect("reseed with an in-clamp value");
         }
         let before: Vec<(String, FaultKind)> = self

@@ -5,7 +5,7 @@ use super::{EncoderSource, IoConfig};
 use crate::world::World;
 use retrocomp::bus::can::Frame;
 use retrocomp::bus::canopen::cia404::{AnalogChannel, AnalogType};
-use retrocomp::bus::canopen::cia406::{Direction, EncoderChannel};
+use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel};
 use retrocomp::bus::canopen::nmt::{NodeState, encode_heartbeat};
 
 /// PT100 register for a missing (dropped-out) sensor: "sensor break", as PT100 modules report it.
@@ -82,7 +82,7 @@ impl Publisher {
                         tpdo: 1,
                         byte_offset: 0,
                         counts_per_mm,
-                        direction: Direction::Positive,
+                        direction: CountingDirection::Positive,
                         offset_mm: 0.0,
                         total_range_counts: None,
                         cyclic_ms: None,

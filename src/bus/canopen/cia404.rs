@@ -5,7 +5,7 @@
 
 use super::tpdo_cob_id;
 use crate::bus::can::Frame;
-use crate::bus::{Health, Sample};
+use crate::bus::{ChannelId, Health, Sample};
 use embedded_can::Frame as _;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
@@ -112,8 +112,14 @@ impl AnalogChannel {
         Frame::standard(self.cob_id(), &d[..n])
     }
 
-    /// `None` if the frame is not this channel's PDO.
+    /// `None` if the frame is not this channel's PDO. Resolves the channel name on every call:
+    /// for tests and tools; a source resolves it once and calls [`AnalogChannel::decode_as`].
     pub fn decode(&self, f: &Frame, t_s: f64) -> Option<Sample> {
+        self.decode_as(ChannelId::of(&self.channel), f, t_s)
+    }
+
+    /// [`AnalogChannel::decode`] with the channel's id resolved by the caller.
+    pub fn decode_as(&self, channel: ChannelId, f: &Frame, t_s: f64) -> Option<Sample> {
         if f.is_extended() || f.is_remote_frame() || f.raw_id() != u32::from(self.cob_id()) {
             return None;
         }
@@ -129,7 +135,7 @@ impl AnalogChannel {
             Some(v) => (v, Health::Ok),
         };
         Some(Sample {
-            channel: self.channel.clone(),
+            channel,
             t_s,
             value,
             health,

@@ -13,12 +13,14 @@
 
 use super::tpdo_cob_id;
 use crate::bus::can::Frame;
-use crate::bus::{Health, Sample};
+use crate::bus::{ChannelId, Health, Sample};
 use embedded_can::Frame as _;
 
+/// CiA 406 counting direction (object 6000h bit 0): how the encoder's counts relate to the axis'
+/// positive direction. Not the direction of approach (`crate::approach::Approach`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
-pub enum Direction {
+pub enum CountingDirection {
     /// Counts increase with the axis' positive direction.
     #[default]
     Positive,
@@ -26,11 +28,11 @@ pub enum Direction {
     Negative,
 }
 
-impl Direction {
+impl CountingDirection {
     pub fn sign(self) -> f64 {
         match self {
-            Direction::Positive => 1.0,
-            Direction::Negative => -1.0,
+            CountingDirection::Positive => 1.0,
+            CountingDirection::Negative => -1.0,
         }
     }
 }
@@ -54,7 +56,7 @@ pub struct EncoderChannel {
     pub byte_offset: u8,
     pub counts_per_mm: f64,
     #[serde(default)]
-    pub direction: Direction,
+    pub direction: CountingDirection,
     #[serde(default)]
     pub offset_mm: f64,
     /// Raw value wraps at this count (6002h total measuring range). `None` = 2^32.
@@ -110,6 +112,8 @@ impl EncoderChannel {
 #[derive(Debug, Clone)]
 pub struct PositionDecoder {
     pub cfg: EncoderChannel,
+    /// `cfg.channel`, resolved at construction.
+    channel: ChannelId,
     last_raw: Option<u64>,
     turns: i64,
     last_good_mm: f64,
@@ -122,6 +126,7 @@ pub struct PositionDecoder {
 impl PositionDecoder {
     pub fn new(cfg: EncoderChannel) -> Self {
         PositionDecoder {
+            channel: ChannelId::of(&cfg.channel),
             cfg,
             last_raw: None,
             turns: 0,
@@ -187,7 +192,7 @@ impl PositionDecoder {
 
     fn sample(&self, t_s: f64, value: f64, health: Health) -> Sample {
         Sample {
-            channel: self.cfg.channel.clone(),
+            channel: self.channel,
             t_s,
             value,
             health,
@@ -206,7 +211,7 @@ mod tests {
             tpdo: 1,
             byte_offset: 0,
             counts_per_mm: 1000.0,
-            direction: Direction::Positive,
+            direction: CountingDirection::Positive,
             offset_mm: 0.0,
             total_range_counts: None,
             cyclic_ms: None,
@@ -234,7 +239,7 @@ mod tests {
     #[test]
     fn direction_offset_and_encode_are_inverse() {
         let cfg = EncoderChannel {
-            direction: Direction::Negative,
+            direction: CountingDirection::Negative,
             offset_mm: 500.0,
             counts_per_mm: 2048.0 / 5.0, // 2048 counts/rev on a 5 mm pitch screw
             total_range_counts: Some(2048 * 4096),

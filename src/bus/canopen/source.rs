@@ -11,7 +11,7 @@ use super::cia406::{EncoderChannel, PositionDecoder};
 use super::nmt::{HeartbeatMonitor, NmtCommand, encode_nmt};
 use super::sdo::{CYCLIC_TIMER_6200, SdoRequest, SdoResponse};
 use crate::bus::can::{CanBus, CanError, Frame};
-use crate::bus::{Health, Sample};
+use crate::bus::{ChannelId, Health, Sample};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 fn default_pdo_timeout_s() -> f64 {
@@ -55,6 +55,8 @@ enum Target {
 
 #[derive(Debug, Clone)]
 struct Freshness {
+    /// The channel's id, resolved at construction.
+    channel: ChannelId,
     node: u8,
     last_pdo_s: Option<f64>,
     last_value: f64,
@@ -81,6 +83,7 @@ impl CanopenSource {
                 .or_default()
                 .push(Target::Encoder(i));
             fresh.push(Freshness {
+                channel: ChannelId::of(&e.channel),
                 node: e.node_id,
                 last_pdo_s: None,
                 last_value: f64::NAN,
@@ -92,6 +95,7 @@ impl CanopenSource {
                 .or_default()
                 .push(Target::Analog(i));
             fresh.push(Freshness {
+                channel: ChannelId::of(&a.channel),
                 node: a.node_id,
                 last_pdo_s: None,
                 last_value: f64::NAN,
@@ -160,7 +164,9 @@ impl CanopenSource {
                 let (slot, s) = match *t {
                     Target::Encoder(i) => (i, self.encoders[i].decode(f, t_s)),
                     Target::Analog(i) => {
-                        (self.encoders.len() + i, self.cfg.analog[i].decode(f, t_s))
+                        let slot = self.encoders.len() + i;
+                        let id = self.fresh[slot].channel;
+                        (slot, self.cfg.analog[i].decode_as(id, f, t_s))
                     }
                 };
                 let Some(s) = s else { continue };
@@ -202,19 +208,13 @@ impl CanopenSource {
             }
             self.counters.heartbeat_timeouts += m.timeouts - before;
         }
-        let names = self
-            .cfg
-            .encoder
-            .iter()
-            .map(|e| &e.channel)
-            .chain(self.cfg.analog.iter().map(|a| &a.channel));
-        for (f, name) in self.fresh.iter().zip(names) {
+        for f in &self.fresh {
             let pdo_old = f
                 .last_pdo_s
                 .is_none_or(|t| t_s - t > self.cfg.pdo_timeout_s);
             if pdo_old || hb_stale.contains(&f.node) {
                 out.push(Sample {
-                    channel: name.clone(),
+                    channel: f.channel,
                     t_s,
                     value: f.last_value,
                     health: Health::Stale,
@@ -284,7 +284,7 @@ pub async fn run_observed<B: CanBus>(
 #[cfg(test)]
 mod tests {
     use super::super::cia404::AnalogType;
-    use super::super::cia406::Direction;
+    use super::super::cia406::CountingDirection;
     use super::super::nmt::{NodeState, encode_heartbeat};
     use super::*;
 
@@ -296,7 +296,7 @@ mod tests {
                 tpdo: 1,
                 byte_offset: 0,
                 counts_per_mm: 1000.0,
-                direction: Direction::Positive,
+                direction: CountingDirection::Positive,
                 offset_mm: 0.0,
                 total_range_counts: None,
                 cyclic_ms: Some(10),
@@ -356,11 +356,8 @@ mod tests {
         src.on_frame(&c.analog[0].encode(21.5).unwrap(), 0.01, &mut out);
         src.on_frame(&Frame::standard(0x123, &[]).unwrap(), 0.01, &mut out);
         assert_eq!(out.len(), 2);
-        assert_eq!((out[0].channel.as_str(), out[0].value), ("x_mm", 12.5));
-        assert_eq!(
-            (out[1].channel.as_str(), out[1].value),
-            ("T_spindle_C", 21.5)
-        );
+        assert_eq!((out[0].channel.name(), out[0].value), ("x_mm", 12.5));
+        assert_eq!((out[1].channel.name(), out[1].value), ("T_spindle_C", 21.5));
         assert_eq!(src.counters.unmatched, 1);
         out.clear();
         src.poll(0.05, &mut out);
@@ -412,7 +409,7 @@ mod tests {
                 break s;
             }
         };
-        assert_eq!((got.channel.as_str(), got.value), ("x_mm", -3.25));
+        assert_eq!((got.channel.name(), got.value), ("x_mm", -3.25));
         task.abort();
     }
 }

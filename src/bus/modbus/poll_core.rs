@@ -6,7 +6,7 @@
 //! with the channel's last good value (NaN if none).
 
 use super::regmap::{ReadBlock, RegisterChannel, plan_reads};
-use crate::bus::{Health, Sample};
+use crate::bus::{ChannelId, Health, Sample};
 use tokio_modbus::ExceptionCode;
 
 /// What one read request produced.
@@ -36,6 +36,8 @@ pub struct PollCounters {
 pub struct PollCore {
     pub channels: Vec<RegisterChannel>,
     pub plan: Vec<ReadBlock>,
+    /// Each channel's id, resolved at construction (no name on the per-read path).
+    ids: Vec<ChannelId>,
     last_good: Vec<f64>,
     pub counters: PollCounters,
 }
@@ -45,6 +47,7 @@ impl PollCore {
         let plan = plan_reads(&channels, max_count, max_gap);
         PollCore {
             last_good: vec![f64::NAN; channels.len()],
+            ids: channels.iter().map(|c| ChannelId::of(&c.channel)).collect(),
             channels,
             plan,
             counters: PollCounters::default(),
@@ -75,18 +78,13 @@ impl PollCore {
                         Health::OutOfRange => self.counters.out_of_range += 1,
                         _ => {}
                     }
-                    out.push(sample(c, t_s, value, health));
+                    out.push(sample(self.ids[i], t_s, value, health));
                 }
             }
             ReadOutcome::Exception(_) => {
                 self.counters.exceptions += 1;
                 for &i in &block.members {
-                    out.push(sample(
-                        &self.channels[i],
-                        t_s,
-                        f64::NAN,
-                        Health::DecodeError,
-                    ));
+                    out.push(sample(self.ids[i], t_s, f64::NAN, Health::DecodeError));
                 }
             }
             ReadOutcome::Timeout | ReadOutcome::Transport(_) => {
@@ -103,19 +101,14 @@ impl PollCore {
     /// `Stale` samples for every channel of block `b` (no read was possible).
     pub fn stale_block(&self, b: usize, t_s: f64, out: &mut Vec<Sample>) {
         for &i in &self.plan[b].members {
-            out.push(sample(
-                &self.channels[i],
-                t_s,
-                self.last_good[i],
-                Health::Stale,
-            ));
+            out.push(sample(self.ids[i], t_s, self.last_good[i], Health::Stale));
         }
     }
 }
 
-fn sample(c: &RegisterChannel, t_s: f64, value: f64, health: Health) -> Sample {
+fn sample(channel: ChannelId, t_s: f64, value: f64, health: Health) -> Sample {
     Sample {
-        channel: c.channel.clone(),
+        channel,
         t_s,
         value,
         health,

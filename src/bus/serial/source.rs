@@ -10,7 +10,7 @@ use super::formats::{
     parse_nd522, parse_weighing,
 };
 use super::framer::{DEFAULT_MAX_LINE, LineFramer};
-use crate::bus::{Health, Sample};
+use crate::bus::{ChannelId, Health, Sample};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 
 #[derive(Debug, Clone, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
@@ -141,6 +141,8 @@ pub struct LineSource {
     framer: LineFramer,
     /// Next channel for order-assigned (heidenhain) readings.
     seq: usize,
+    /// Each channel's id, resolved at construction.
+    ids: Vec<ChannelId>,
     last: Vec<(Option<f64>, f64)>,
     counters: SerialCounters,
 }
@@ -151,6 +153,7 @@ impl LineSource {
             framer: LineFramer::new(cfg.max_line),
             seq: 0,
             last: vec![(None, f64::NAN); cfg.channel.len()],
+            ids: cfg.channel.iter().map(|c| ChannelId::of(&c.name)).collect(),
             cfg,
             counters: SerialCounters::default(),
         }
@@ -230,7 +233,7 @@ impl LineSource {
                 self.last[i].1 = v;
             }
             out.push(Sample {
-                channel: c.name.clone(),
+                channel: self.ids[i],
                 t_s,
                 value: v,
                 health,
@@ -240,10 +243,10 @@ impl LineSource {
 
     /// `Stale` samples (last good value) for channels silent for more than `timeout_s`.
     pub fn poll(&self, t_s: f64, out: &mut Vec<Sample>) {
-        for (c, (seen, v)) in self.cfg.channel.iter().zip(&self.last) {
+        for (&channel, (seen, v)) in self.ids.iter().zip(&self.last) {
             if seen.is_none_or(|t| t_s - t > self.cfg.timeout_s) {
                 out.push(Sample {
-                    channel: c.name.clone(),
+                    channel,
                     t_s,
                     value: *v,
                     health: Health::Stale,
@@ -338,7 +341,7 @@ mod tests {
             &mut out,
         );
         s.push(b"010000\r\n", 1.01, &mut out);
-        let got: Vec<_> = out.iter().map(|s| (s.channel.as_str(), s.value)).collect();
+        let got: Vec<_> = out.iter().map(|s| (s.channel.name(), s.value)).collect();
         assert_eq!(got, vec![("x_mm", 123.45), ("y_mm", -0.01), ("z_mm", 1.0)]);
         assert_eq!(s.counters().garbage_lines, 1);
         s.on_request();
@@ -350,7 +353,7 @@ mod tests {
         );
         out.clear();
         s.poll(1.6, &mut out);
-        let stale: Vec<_> = out.iter().map(|s| s.channel.as_str()).collect();
+        let stale: Vec<_> = out.iter().map(|s| s.channel.name()).collect();
         assert_eq!(stale, vec!["y_mm", "z_mm"]);
         assert!(out.iter().all(|s| s.health == Health::Stale));
     }
@@ -404,7 +407,7 @@ mod tests {
             let b = rx.recv().await.unwrap();
             got.extend(b.into_iter().filter(|s| s.health == Health::Ok));
         }
-        let v: Vec<_> = got.iter().map(|s| (s.channel.as_str(), s.value)).collect();
+        let v: Vec<_> = got.iter().map(|s| (s.channel.name(), s.value)).collect();
         assert_eq!(v, vec![("x_mm", 10.0), ("y_mm", 20.0), ("z_mm", -30.0)]);
         drop(device); // EOF ends the source with its counters
         let c = task.await.unwrap().unwrap();

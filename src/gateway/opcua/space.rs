@@ -162,7 +162,11 @@ pub fn points(snap: &StatusSnapshot, model: Option<&ModelIdentity>) -> Vec<Point
             Some(MILLIMETRE),
         ));
         out.push(p(ax("Mode"), Value::Str(snake(&a.mode)), None));
-        out.push(p(ax("Direction"), Value::Str(snake(&a.direction)), None));
+        out.push(p(
+            ax("Direction"),
+            Value::Str(crate::approach::latched_name(a.direction).into()),
+            None,
+        ));
         for (term, v) in &a.terms_um {
             let path = ax(&format!("Terms/{}/{term}", group_folder(model, term)));
             out.push(p(path, Value::F64(Some(*v)), um));
@@ -212,7 +216,7 @@ mod tests {
     use std::collections::BTreeMap;
 
     use super::*;
-    use crate::gateway::direction::Direction;
+    use crate::approach::Approach;
     use crate::gateway::health::ChannelStatus;
     use crate::gateway::safety::Mode;
     use crate::gateway::status::{AxisStatus, SinkStatus};
@@ -239,7 +243,7 @@ mod tests {
             axes: vec![AxisStatus {
                 axis: "x".into(),
                 position_mm: Some(100.0),
-                direction: Direction::Forward,
+                direction: Some(Approach::Forward),
                 weight_forward: 1.0,
                 target_um: None,
                 applied_um: -2.5,
