@@ -418,10 +418,11 @@ pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
     }
     // Heat sources seen without a temperature sensor: a driver column (rpm, or any other numeric
     // column, which may be a decoy) through a first-order lag; other columns also as they are.
+    // (rpm/1000)² (`krpm^2`, heat ∝ n²) only through a lag, like rpm.
     if duration_s > 60.0 {
         for (s, v) in ctx.drivers() {
             if varies(v) {
-                if s != "rpm" {
+                if s != "rpm" && s != super::features::KRPM2 {
                     out.push(lin(Kind::ThermalDrift { sensor: s.into() }));
                 }
                 out.push(Candidate {
