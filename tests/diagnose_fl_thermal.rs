@@ -9,7 +9,8 @@
 //! --model SIM.toml --fit-offset --out DIR` sees only the first half (`ez_um` = the channel); `retrocomp eval
 //! --model DIR/model.toml` runs the found model forward over the second half (3750 and 5000 rpm,
 //! never seen), against `retrocomp eval --model SIM.toml`. Held-out RMS = RMS of measured −
-//! predicted over the second half. Targets: no channel worse than the simulation, median cut ≥ 10 %.
+//! predicted over the second half. Targets: no channel worse than the simulation, median cut ≥ 10 %
+//! (asserted: ≥ 30 %, measured 35.1 %).
 //!
 //! `FL_THERMAL_MODELS_DIR=DIR cargo test --test diagnose_fl_thermal` also fits every channel on
 //! the WHOLE fixture and writes DIR/d<k>/{sim.toml, model.toml} (the deployable models).
@@ -58,9 +59,10 @@ fn fl_thermal_found_model_predicts_the_unseen_second_half() {
     }
     let mut sorted = cuts.clone();
     sorted.sort_by(f64::total_cmp);
+    // Issue target 10 %; with the krpm^2 driver the split gives 35.1 % (docs/diagnose.md).
     assert!(
-        sorted[2] >= 0.10,
-        "median held-out cut {:.3} < 0.10\n{table}",
+        sorted[2] >= 0.30,
+        "median held-out cut {:.3} < 0.30\n{table}",
         sorted[2]
     );
 }
