@@ -524,7 +524,13 @@ mod tests {
         assert!(!one.iter().any(|l| l.contains("krpm^2")), "{one:?}");
         // 0, 1250, 2500 rpm: offered, as a lag only (like rpm).
         let three = thermal_lib(|i| [1250.0, 0.0, 2500.0, 0.0][i / 100]);
-        assert!(three.contains(&"thermal_lag(krpm^2)".to_string()), "{three:?}");
-        assert!(!three.contains(&"thermal_drift(krpm^2)".to_string()), "{three:?}");
+        assert!(
+            three.contains(&"thermal_lag(krpm^2)".to_string()),
+            "{three:?}"
+        );
+        assert!(
+            !three.contains(&"thermal_drift(krpm^2)".to_string()),
+            "{three:?}"
+        );
     }
 }
