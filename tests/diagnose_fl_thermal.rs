@@ -83,6 +83,25 @@ fn fl_thermal_models_fitted_on_everything_run_forward() {
         let dir = root.join(ch.trim_end_matches("_um"));
         let (sim, model, report) = fit_channel(&d, ch, 0..n, &dir);
         std::fs::write(dir.join("report.txt"), &report).unwrap();
+        // Terms the exchange step replaced are reported (issue 12 point 3): on this file d1 and
+        // d5 each lose a first-step term to an exchange, which must be listed under `dropped`.
+        if ch == "d1_um" || ch == "d5_um" {
+            let json: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap())
+                    .unwrap();
+            let exchanged: Vec<&serde_json::Value> = json["dropped"]
+                .as_array()
+                .map(|a| a.iter().filter(|d| d["reason"] == "exchanged").collect())
+                .unwrap_or_default();
+            assert!(
+                !exchanged.is_empty()
+                    && exchanged
+                        .iter()
+                        .all(|d| { d["replaced_by"].as_array().is_some_and(|b| !b.is_empty()) }),
+                "{ch}: no exchanged term under `dropped`:\n{report}"
+            );
+            assert!(report.contains("exchanged by"), "{ch}: {report}");
+        }
         let meas = d.col(ch);
         let r_sim = centred(
             meas.iter()
