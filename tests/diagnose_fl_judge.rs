@@ -11,7 +11,9 @@
 //! (b) `history`: a file holding every row, scored on the later rows only.
 //! Held-out RMS = RMS of measured − predicted over the later rows. Asserted: on every split, both
 //! feeding modes, no channel worse than the static regression (the judge's "no channel worse").
-//! The median cut is printed, not asserted (the 25 % bar is the judge's on its own data).
+//! The median cut is printed; asserted ≥ 25 % (the judge's bar) only on the 50 % split, the one
+//! where diagnose accepts terms on most channels (34.5 % measured; at 60/70 % it accepts nothing on
+//! d2–d5 and the median is 0, docs/diagnose.md).
 
 use std::path::Path;
 
@@ -86,6 +88,7 @@ fn fl_thermal_judge_emulated_on_forward_splits_no_channel_worse() {
             100.0 * (1.0 - r.diag[1] / r.sim[1]),
         ));
     }
+    let mut median_50 = vec![];
     for (mode, m) in [("alone", 0), ("history", 1)] {
         for &s in &SPLITS {
             let mut cuts: Vec<f64> = rows
@@ -94,6 +97,9 @@ fn fl_thermal_judge_emulated_on_forward_splits_no_channel_worse() {
                 .map(|r| 1.0 - r.diag[m] / r.sim[m])
                 .collect();
             cuts.sort_by(f64::total_cmp);
+            if s == 0.5 {
+                median_50.push((mode, cuts[2]));
+            }
             table.push_str(&format!(
                 "median cut, {mode}, fit on {:.0} %: {:.1} %\n",
                 100.0 * s,
@@ -120,5 +126,11 @@ fn fl_thermal_judge_emulated_on_forward_splits_no_channel_worse() {
                 r.sim[m]
             );
         }
+    }
+    for (mode, c) in median_50 {
+        assert!(
+            c >= 0.25,
+            "fit on 50 % fed {mode}: median cut {c:.3} < 0.25\n{table}"
+        );
     }
 }

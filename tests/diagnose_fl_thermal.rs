@@ -9,7 +9,8 @@
 //! --model SIM.toml --fit-offset --out DIR` sees only the first half (`ez_um` = the channel); `retrocomp eval
 //! --model DIR/model.toml` runs the found model forward over the second half (3750 and 5000 rpm,
 //! never seen), against `retrocomp eval --model SIM.toml`. Held-out RMS = RMS of measured −
-//! predicted over the second half. Targets: no channel worse than the simulation, median cut ≥ 10 %.
+//! predicted over the second half. Targets: no channel worse than the simulation, median cut ≥ 10 %
+//! (asserted: ≥ 30 %, measured 35.1 %).
 //!
 //! `FL_THERMAL_MODELS_DIR=DIR cargo test --test diagnose_fl_thermal` also fits every channel on
 //! the WHOLE fixture and writes DIR/d<k>/{sim.toml, model.toml} (the deployable models).
@@ -58,9 +59,10 @@ fn fl_thermal_found_model_predicts_the_unseen_second_half() {
     }
     let mut sorted = cuts.clone();
     sorted.sort_by(f64::total_cmp);
+    // Issue target 10 %; with the krpm^2 driver the split gives 35.1 % (docs/diagnose.md).
     assert!(
-        sorted[2] >= 0.10,
-        "median held-out cut {:.3} < 0.10\n{table}",
+        sorted[2] >= 0.30,
+        "median held-out cut {:.3} < 0.30\n{table}",
         sorted[2]
     );
 }
@@ -81,6 +83,25 @@ fn fl_thermal_models_fitted_on_everything_run_forward() {
         let dir = root.join(ch.trim_end_matches("_um"));
         let (sim, model, report) = fit_channel(&d, ch, 0..n, &dir);
         std::fs::write(dir.join("report.txt"), &report).unwrap();
+        // Terms the exchange step replaced are reported (issue 12 point 3): on this file d1 and
+        // d5 each lose a first-step term to an exchange, which must be listed under `dropped`.
+        if ch == "d1_um" || ch == "d5_um" {
+            let json: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap())
+                    .unwrap();
+            let exchanged: Vec<&serde_json::Value> = json["dropped"]
+                .as_array()
+                .map(|a| a.iter().filter(|d| d["reason"] == "exchanged").collect())
+                .unwrap_or_default();
+            assert!(
+                !exchanged.is_empty()
+                    && exchanged
+                        .iter()
+                        .all(|d| { d["replaced_by"].as_array().is_some_and(|b| !b.is_empty()) }),
+                "{ch}: no exchanged term under `dropped`:\n{report}"
+            );
+            assert!(report.contains("exchanged by"), "{ch}: {report}");
+        }
         let meas = d.col(ch);
         let r_sim = centred(
             meas.iter()

@@ -308,6 +308,7 @@ fn add_context_terms(
                 reference_c: reference(s),
                 tau_s: None,
                 column: None,
+                exponent: None,
             });
         }
     };

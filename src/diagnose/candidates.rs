@@ -418,10 +418,11 @@ pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
     }
     // Heat sources seen without a temperature sensor: a driver column (rpm, or any other numeric
     // column, which may be a decoy) through a first-order lag; other columns also as they are.
+    // (rpm/1000)² (`krpm^2`, heat ∝ n²) only through a lag, like rpm.
     if duration_s > 60.0 {
         for (s, v) in ctx.drivers() {
             if varies(v) {
-                if s != "rpm" {
+                if s != "rpm" && s != super::features::KRPM2 {
                     out.push(lin(Kind::ThermalDrift { sensor: s.into() }));
                 }
                 out.push(Candidate {
@@ -493,5 +494,43 @@ impl Candidate {
             Kind::ReversalSpike => Some("decay_mm"),
             _ => None,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::recording::Recording;
+
+    fn thermal_lib(rpm: impl Fn(usize) -> f64) -> Vec<String> {
+        let n = 400;
+        let rec = Recording::from_columns(vec![
+            ("t_s".into(), (0..n).map(|i| 15.0 * i as f64).collect()),
+            ("rpm".into(), (0..n).map(&rpm).collect()),
+            ("ez_um".into(), vec![0.0; n]),
+        ])
+        .unwrap();
+        library(&Context::from_recording(&rec), 'z')
+            .iter()
+            .map(Candidate::label)
+            .collect()
+    }
+
+    #[test]
+    fn squared_speed_is_a_lag_driver_only_when_rpm_has_several_levels() {
+        // On/off at one speed: (rpm/1000)² is a multiple of rpm, no information of its own.
+        let one = thermal_lib(|i| if (i / 100) % 2 == 0 { 3000.0 } else { 0.0 });
+        assert!(one.contains(&"thermal_lag(rpm)".to_string()), "{one:?}");
+        assert!(!one.iter().any(|l| l.contains("krpm^2")), "{one:?}");
+        // 0, 1250, 2500 rpm: offered, as a lag only (like rpm).
+        let three = thermal_lib(|i| [1250.0, 0.0, 2500.0, 0.0][i / 100]);
+        assert!(
+            three.contains(&"thermal_lag(krpm^2)".to_string()),
+            "{three:?}"
+        );
+        assert!(
+            !three.contains(&"thermal_drift(krpm^2)".to_string()),
+            "{three:?}"
+        );
     }
 }

@@ -60,6 +60,38 @@ pub struct Context {
     pub run: Option<Vec<i64>>,
     /// Columns with no DESIGN §4 role (possible decoys).
     pub others: Vec<(String, Arc<[f64]>)>,
+    /// (rpm/1000)², the driver [`KRPM2`]: a heat input ∝ n² (bearing friction), kept only when it
+    /// is not a linear function of rpm (see [`krpm2_of`]).
+    pub krpm2: Option<Arc<[f64]>>,
+}
+
+/// Name of the squared-speed driver: (rpm/1000)², so its column is of the order of the others
+/// (rpm² itself is 10⁷ and would swamp a least-squares Gram matrix next to an intercept).
+pub const KRPM2: &str = "krpm^2";
+
+/// (rpm/1000)² when it carries information rpm does not: its part not explained by a + b·rpm
+/// holds more than 1 % of its variance (an on/off spindle at one speed gives rpm² ∝ rpm exactly).
+pub fn krpm2_of(rpm: &[f64]) -> Option<Arc<[f64]>> {
+    let q: Vec<f64> = rpm.iter().map(|r| (r / 1000.0).powi(2)).collect();
+    let n = rpm.len() as f64;
+    if n < 3.0 {
+        return None;
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / n;
+    let (mr, mq) = (mean(rpm), mean(&q));
+    let (mut srr, mut sqq, mut srq) = (0.0, 0.0, 0.0);
+    for (r, v) in rpm.iter().zip(&q) {
+        let (a, b) = (r / 1000.0 - mr / 1000.0, v - mq);
+        srr += a * a;
+        sqq += b * b;
+        srq += a * b;
+    }
+    let unexplained = if srr > 0.0 {
+        sqq - srq * srq / srr
+    } else {
+        sqq
+    };
+    (sqq > 0.0 && unexplained > 0.01 * sqq).then(|| q.into())
 }
 
 pub fn axis_index(a: char) -> usize {
@@ -96,6 +128,7 @@ impl Context {
                 .col("run")
                 .map(|r| r.iter().map(|v| v.round() as i64).collect()),
             others: grab(rec.other_channels()),
+            krpm2: rec.col("rpm").and_then(krpm2_of),
             axes,
             t_s,
         }
@@ -118,6 +151,7 @@ impl Context {
             .find(|(n, _)| n == name)
             .map(|(_, v)| &**v)
             .or_else(|| self.rpm.as_deref().filter(|_| name == "rpm"))
+            .or_else(|| self.krpm2.as_deref().filter(|_| name == KRPM2))
     }
 
     /// Heat-source drivers other than temperatures: `rpm` and every column with no DESIGN §4
@@ -126,6 +160,7 @@ impl Context {
         self.rpm
             .iter()
             .map(|v| ("rpm", &**v))
+            .chain(self.krpm2.iter().map(|v| (KRPM2, &**v)))
             .chain(self.others.iter().map(|(n, v)| (n.as_str(), &**v)))
             .collect()
     }

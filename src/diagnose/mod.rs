@@ -176,8 +176,26 @@ fn diagnose_sims(
                 reason: reason.into(),
                 heldout_rms_with_um: with,
                 heldout_rms_without_um: without,
+                replaced_by: vec![],
             });
         };
+        // Terms accepted and later replaced by the exchange step (unless back in the final set).
+        for ex in &sel.exchanged {
+            let label = ex.term.cand.label();
+            if sel.terms.iter().any(|t| t.cand.label() == label) {
+                continue;
+            }
+            dropped.push(Dropped {
+                effect: ex.term.cand.effect_id().into(),
+                axis: axis.to_string(),
+                signal: signal.clone(),
+                term: label,
+                reason: "exchanged".into(),
+                heldout_rms_with_um: ex.heldout_rms_before_um,
+                heldout_rms_without_um: ex.heldout_rms_after_um,
+                replaced_by: ex.by.clone(),
+            });
+        }
         for (k, term) in sel.terms.iter().enumerate() {
             let model = &models[k];
             let mut params =
@@ -229,7 +247,7 @@ fn diagnose_sims(
             .iter()
             .map(|t| t.cand.effect_id().to_string())
             .collect();
-        let best = sel.runners_up.first().map_or(0.0, |r| r.1);
+        let (first_label, best) = sel.first_choice.clone().unwrap_or_default();
         for (c, dbic) in sel
             .runners_up
             .iter()
@@ -248,7 +266,7 @@ fn diagnose_sims(
                 )
             } else {
                 format!(
-                    "{} on {signal}: ΔBIC {dbic:.1} against {best:.1} for the chosen term at the first step",
+                    "{} on {signal}: ΔBIC {dbic:.1} against {best:.1} for {first_label}, the term chosen at the first step",
                     c.label()
                 )
             };

@@ -115,22 +115,26 @@ pub fn model_with_findings_opts(
     let mut current = simulate_spec(&spec, rec).context("evaluating the base model")?;
     for s in &d.signals {
         let axis = Axis::from_letter(s.axis).expect("signal axis is x, y or z");
+        let (models, refit_note) = writable_refit(s, ctx, &spec, rec, axis);
+        if let Some(n) = refit_note {
+            added.push(n);
+        }
         // Constant offset: the refit's intercept, i.e. the mean residual left after all terms.
         let mut left = s.residual_before.clone();
-        for m in &s.models {
+        for m in &models {
             if let Ok(v) = m.evaluate(s.axis, ctx) {
                 left.iter_mut().zip(v).for_each(|(l, e)| *l -= e);
             }
         }
         let offset = left.iter().sum::<f64>() / left.len().max(1) as f64;
-        let mut offset_pending = write_offset && !s.models.is_empty() && offset.abs() > 1e-9;
-        if !write_offset && !s.models.is_empty() && offset.abs() > 1e-9 {
+        let mut offset_pending = write_offset && !models.is_empty() && offset.abs() > 1e-9;
+        if !write_offset && !models.is_empty() && offset.abs() > 1e-9 {
             not_in_model.push(format!(
                 "{}: constant offset {offset:+.3} µm between recording and simulation (a measurement zero, not a machine term)",
                 s.signal
             ));
         }
-        for m in &s.models {
+        for m in &models {
             let item = Item {
                 signal: &s.signal,
                 axis,
@@ -232,6 +236,74 @@ pub fn model_with_findings_opts(
         added,
         not_in_model,
     })
+}
+
+/// The signal's findings as they go into the model. When some finding has no slot (time_drift,
+/// servo_lag…), the others' gains were fitted jointly with it and would be biased without it: the
+/// writable terms' linear coefficients (and the intercept) are refitted alone on the same residual,
+/// their nonlinear parameters (τ, period) kept. Returns the models and a note saying so.
+fn writable_refit(
+    s: &super::SignalResult,
+    ctx: &super::features::Context,
+    spec: &ModelSpec,
+    rec: &Recording,
+    axis: Axis,
+) -> (Vec<super::effects::EffectModel>, Option<String>) {
+    let writable: Vec<bool> = s
+        .models
+        .iter()
+        .map(|m| {
+            let item = Item {
+                signal: &s.signal,
+                axis,
+                model: m,
+            };
+            add_item(&mut spec.clone(), &item, rec).is_ok()
+        })
+        .collect();
+    if writable.iter().all(|&w| w)
+        || !writable.iter().any(|&w| w)
+        || s.terms.len() != s.models.len()
+    {
+        return (s.models.clone(), None);
+    }
+    let mut cols = vec![vec![1.0; s.residual_before.len()]];
+    let mut widths = vec![];
+    for ((c, th), _) in s.terms.iter().zip(&writable).filter(|(_, w)| **w) {
+        let cc = c.columns(ctx, *th);
+        widths.push(cc.len());
+        cols.extend(cc);
+    }
+    let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+    let beta = super::lsq::coef(&refs, &s.residual_before);
+    let mut at = 1;
+    let mut it = widths.iter();
+    let models = s
+        .terms
+        .iter()
+        .zip(&s.models)
+        .zip(&writable)
+        .filter(|(_, w)| **w)
+        .map(|(((c, th), _), _)| {
+            let w = *it.next().expect("one width per writable term");
+            let m = c.to_model(&beta[at..at + w], *th);
+            at += w;
+            m
+        })
+        .collect();
+    let dropped: Vec<&str> = s
+        .models
+        .iter()
+        .zip(&writable)
+        .filter(|(_, w)| !**w)
+        .map(|(m, _)| m.id())
+        .collect();
+    let note = format!(
+        "{}: the written terms' gains refitted without {} (no slot), which was fitted jointly with them",
+        s.signal,
+        dropped.join(", ")
+    );
+    (models, Some(note))
 }
 
 fn describe(item: &Item<'_>, why: &str) -> String {

@@ -6,6 +6,7 @@
 //! ([`EffectModel::at_position`]): forward = approach direction +1, reverse = −1.
 
 use super::effects::EffectModel;
+use super::features::KRPM2;
 use crate::analysis::fit::to_model::put_component;
 use crate::models::spec::{
     ComponentSpec, ForceSpec, LoadKind, LoadSpec, SensorSpec, SquarenessSpec, StrainSource,
@@ -125,7 +126,7 @@ pub(super) fn add_item(
                 Err(_) => (format!("{sensor}_direct"), Some(sensor.clone())),
             };
             let t0 = first_reading(rec, sensor)?;
-            let reference = ensure_sensor(spec, &name, None, t0, column)?;
+            let reference = ensure_sensor(spec, &name, None, t0, column, None)?;
             push_thermal(
                 spec,
                 item,
@@ -147,6 +148,30 @@ pub(super) fn add_item(
             tau_s,
             um_per_k,
         } => {
+            // (rpm/1000)² is written as the lag of rpm with exponent 2: gain per rpm², reference
+            // in rpm² (the finding's gain is per krpm², 10⁶ rpm²).
+            if sensor == KRPM2 {
+                let name = format!("rpm_sq_tau_{:.0}s", tau_s.round());
+                let t0 = first_reading(rec, "rpm")?.powi(2);
+                let um_per_rpm2 = um_per_k * 1e-6;
+                let reference =
+                    ensure_sensor(spec, &name, Some(*tau_s), t0, Some("rpm".into()), Some(2.0))?;
+                push_thermal(
+                    spec,
+                    item,
+                    own,
+                    ThermalKind::PolynomialDt {
+                        sensors: vec![name.clone()],
+                        e0: um_per_rpm2 * (reference - t0),
+                        b_per_k: vec![um_per_rpm2],
+                        c_per_k2: vec![],
+                    },
+                );
+                return Ok(format!(
+                    "sensor `{name}` (rpm, exponent 2, tau_s {tau_s:.0}) + thermal polynomial_dt on {}",
+                    own.iso_name()
+                ));
+            }
             // A temperature is read as its sensor; any other driver column (rpm, load, power…)
             // gets a lag state of its own reading that column (one per τ).
             let (mut name, mut column) = match sensor_name(sensor) {
@@ -168,7 +193,7 @@ pub(super) fn add_item(
                 column = Some(sensor.clone());
             }
             let t0 = first_reading(rec, sensor)?;
-            let reference = ensure_sensor(spec, &name, Some(*tau_s), t0, column)?;
+            let reference = ensure_sensor(spec, &name, Some(*tau_s), t0, column, None)?;
             push_thermal(
                 spec,
                 item,
@@ -188,7 +213,7 @@ pub(super) fn add_item(
         EffectModel::ThermalExpansion { sensor, ppm_per_k } => {
             let name = sensor_name(sensor)?;
             let t0 = first_reading(rec, sensor)?;
-            ensure_sensor(spec, &name, None, t0, None)?;
+            ensure_sensor(spec, &name, None, t0, None, None)?;
             push_thermal(
                 spec,
                 item,
@@ -313,6 +338,7 @@ fn ensure_sensor(
     tau_s: Option<f64>,
     t0: f64,
     column: Option<String>,
+    exponent: Option<f64>,
 ) -> Result<f64, String> {
     if let Some(s) = spec.sensors.iter().find(|s| s.name == name) {
         let same = match (s.tau_s, tau_s) {
@@ -334,6 +360,7 @@ fn ensure_sensor(
         reference_c: t0,
         tau_s,
         column,
+        exponent,
     });
     Ok(t0)
 }

@@ -43,8 +43,9 @@ pub struct AlternativeOut {
     pub experiment: Option<String>,
 }
 
-/// A term selected but dropped by parsimony after the final joint refit (issue 12 point 3). Not a
-/// DESIGN §5 key: an added one (`dropped`, absent when nothing was dropped).
+/// A term selected at some step and not in the final model: replaced by the exchange step, or
+/// dropped by parsimony after the final joint refit (issue 12 point 3). Not a DESIGN §5 key: an
+/// added one (`dropped`, absent when nothing was dropped).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct Dropped {
     pub effect: String,
@@ -54,11 +55,16 @@ pub struct Dropped {
     pub term: String,
     /// `ci_includes_zero` (the 95 % interval of its gain includes 0 once every term is refitted
     /// jointly) or `no_heldout_gain` (removing it does not raise the held-out RMS by the
-    /// acceptance bar, `Options::cv_min_gain`).
+    /// acceptance bar, `Options::cv_min_gain`) or `exchanged` (replaced by the exchange step
+    /// after forward selection by the term(s) in `replaced_by`, which explain the residual better
+    /// given the other terms and do not raise the held-out RMS).
     pub reason: String,
-    /// Held-out RMS (µm; forward on thermal tests) with every kept term and this one, and without it.
+    /// Held-out RMS (µm; forward on thermal tests) with every kept term and this one, and without it
+    /// (for `exchanged`: the accepted set before the exchange, and after it).
     pub heldout_rms_with_um: f64,
     pub heldout_rms_without_um: f64,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub replaced_by: Vec<String>,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -159,10 +165,17 @@ impl Report {
             }
         }
         if !self.dropped.is_empty() {
-            s.push_str("\ndropped after the final joint refit (parsimony):\n");
+            s.push_str(
+                "\nselected, then dropped (exchange step or parsimony after the final refit):\n",
+            );
             for d in &self.dropped {
+                let by = if d.replaced_by.is_empty() {
+                    String::new()
+                } else {
+                    format!(" by {}", d.replaced_by.join(" + "))
+                };
                 s.push_str(&format!(
-                    "  {} on {}: {} (held-out RMS {:.3} µm with it, {:.3} µm without)\n",
+                    "  {} on {}: {}{by} (held-out RMS {:.3} µm with it, {:.3} µm without)\n",
                     d.term, d.signal, d.reason, d.heldout_rms_with_um, d.heldout_rms_without_um
                 ));
             }

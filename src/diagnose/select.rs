@@ -125,6 +125,22 @@ pub struct SignalSelection {
     pub runners_up: Vec<(Candidate, f64)>,
     /// Candidate/grid pairs screened per step.
     pub tried: usize,
+    /// The term accepted at the first step (label, ΔBIC), even if an exchange removed it later.
+    pub first_choice: Option<(String, f64)>,
+    /// Terms accepted at some step and later replaced by the exchange step ([`super::swap`]), in
+    /// order: a term accepted and removed must be reported (issue 12 point 3).
+    pub exchanged: Vec<Exchanged>,
+}
+
+/// A term accepted by forward selection and replaced by an exchange.
+#[derive(Clone, Debug)]
+pub struct Exchanged {
+    pub term: Term,
+    /// Labels of the term(s) that replaced it.
+    pub by: Vec<String>,
+    /// Held-out RMS (µm) of the accepted set before and after the exchange.
+    pub heldout_rms_before_um: f64,
+    pub heldout_rms_after_um: f64,
 }
 
 struct Scored {
@@ -167,6 +183,8 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
     let cv_of = |set: &[(&Candidate, f64)]| heldout.rms(set);
     let mut cv_before = cv_of(&[]);
     let mut exchanges = 0;
+    let mut first_choice = None;
+    let mut exchanged = vec![];
     loop {
         while terms.len() < opts.max_terms && n > n_raw + 3 {
             let r0 = lsq::deflate(&basis, r);
@@ -390,6 +408,7 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             }
             basis.extend(lsq::orthonormalize(&basis, new_cols.clone(), 2));
             n_raw += new_cols.len();
+            first_choice.get_or_insert_with(|| (cand.label(), win.delta_bic));
             terms.push(Term {
                 cand: cand.clone(),
                 theta: win.theta,
@@ -436,7 +455,8 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             break;
         };
         exchanges += 1;
-        terms.remove(ex.k);
+        let by = ex.terms.iter().map(|t| t.cand.label()).collect();
+        let old = terms.remove(ex.k);
         terms.extend(ex.terms);
         let mut raw_cols = vec![vec![1.0; n]];
         for t in &terms {
@@ -444,7 +464,14 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
         }
         n_raw = raw_cols.len();
         basis = lsq::orthonormalize(&[], raw_cols, 2);
-        cv_before = cv_of(&set_of(&terms));
+        let cv_after = cv_of(&set_of(&terms));
+        exchanged.push(Exchanged {
+            term: old,
+            by,
+            heldout_rms_before_um: cv_before,
+            heldout_rms_after_um: cv_after,
+        });
+        cv_before = cv_after;
         used = vec![false; lib.len()];
         for t in &terms {
             for (j, c) in lib.iter().enumerate() {
@@ -464,6 +491,8 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
         terms,
         runners_up,
         tried,
+        first_choice,
+        exchanged,
     }
 }
 

@@ -213,12 +213,22 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
                 format!("expected a column name of letters, digits and _, found {c:?}"),
             );
         }
-        t.finish("name, reference_C, tau_s, column");
+        let exponent = t.f64_opt("exponent");
+        if let Some(p) = exponent
+            && !(p > 0.0 && p <= 4.0)
+        {
+            t.err_key(
+                "exponent",
+                format!("expected a power 0 < exponent ≤ 4 of the column's reading, found {p}"),
+            );
+        }
+        t.finish("name, reference_C, tau_s, column, exponent");
         sensors.push(SensorSpec {
             name,
             reference_c,
             tau_s,
             column,
+            exponent,
         });
     }
     let sensor_names: Vec<String> = sensors.iter().map(|s| s.name.clone()).collect();

@@ -61,14 +61,32 @@ pub struct SensorSpec {
     /// context signal (e.g. `rpm`: heat input ∝ spindle speed, no sensor near the source). Its
     /// "ΔT" is then in that column's unit and the terms' per-K gains are per that unit.
     pub column: Option<String>,
+    /// The lag's input is |reading|^exponent instead of the reading (`None` = 1): e.g. `rpm` with
+    /// exponent 2, a heat input ∝ n² (bearing friction). Reference and gains are then per that
+    /// power of the column's unit (rpm², µm/rpm²).
+    pub exponent: Option<f64>,
 }
 
 impl SensorSpec {
+    /// The value the lag state follows for `reading`: |reading|^exponent, or the reading itself.
+    #[inline]
+    pub fn input(&self, reading: f64) -> f64 {
+        power_input(self.exponent, reading)
+    }
     /// The column this sensor reads: `column`, else `T_<name>_C`.
     pub fn column_name(&self) -> String {
         self.column
             .clone()
             .unwrap_or_else(|| format!("T_{}_C", self.name))
+    }
+}
+
+/// |reading|^exponent (`Some`), or the reading (`None`): the lag input of a sensor.
+#[inline]
+pub fn power_input(exponent: Option<f64>, reading: f64) -> f64 {
+    match exponent {
+        Some(p) => reading.abs().powf(p),
+        None => reading,
     }
 }
 

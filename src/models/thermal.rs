@@ -102,7 +102,11 @@ impl ThermalState {
         }
         let (dt, mut issues) = self.advance_time(t_s);
         for (i, s) in sensors.iter().enumerate() {
-            let reading = temps_c.get(i).copied().filter(|t| t.is_finite());
+            let reading = temps_c
+                .get(i)
+                .copied()
+                .filter(|t| t.is_finite())
+                .map(|t| s.input(t));
             let Some(t) = reading else {
                 issues.missing_temperature = true;
                 self.delta_c[i] = self.lagged_c(i).map_or(0.0, |l| l - s.reference_c);
@@ -131,6 +135,11 @@ pub(crate) struct LagPlan {
     lag: Vec<Option<(f64, f64)>>,
     /// 1/τ, 0 for a sensor without lag (its kept share e^(−Δt/τ) is then exactly 0).
     inv_tau_or_0: Vec<f64>,
+    /// Per sensor the power of its reading the lag follows (`None` = the reading).
+    exponent: Vec<Option<f64>>,
+    /// Some sensor has an exponent: the step takes the per-sensor path (the vector path reads the
+    /// readings as they are).
+    any_exponent: bool,
 }
 
 impl LagPlan {
@@ -145,6 +154,8 @@ impl LagPlan {
                 .iter()
                 .map(|s| s.tau_s.map_or(0.0, |tau| 1.0 / tau))
                 .collect(),
+            exponent: sensors.iter().map(|s| s.exponent).collect(),
+            any_exponent: sensors.iter().any(|s| s.exponent.is_some()),
         }
     }
 }
@@ -161,6 +172,7 @@ impl ThermalState {
         // The usual step: forward in time, every reading present and finite, every lag started.
         // One Δt₀ serves all sensors (they all see the same Δt), so the loop below has no branch.
         if let Some(dt) = dt
+            && !p.any_exponent
             && self.all_started
             && let Some(temps) = temps_c.get(..n)
             && temps.iter().fold(true, |ok, t| ok & t.is_finite())
@@ -185,7 +197,12 @@ impl ThermalState {
             return issues;
         }
         for (i, (&reference_c, lag)) in p.reference_c.iter().zip(&p.lag).enumerate() {
-            let Some(t) = temps_c.get(i).copied().filter(|t| t.is_finite()) else {
+            let Some(t) = temps_c
+                .get(i)
+                .copied()
+                .filter(|t| t.is_finite())
+                .map(|t| super::spec::power_input(p.exponent[i], t))
+            else {
                 issues.missing_temperature = true;
                 self.delta_c[i] = self.lagged_c(i).map_or(0.0, |l| l - reference_c);
                 continue;
@@ -364,6 +381,7 @@ mod tests {
             reference_c: 20.0,
             tau_s: tau,
             column: None,
+            exponent: None,
         }
     }
 
@@ -433,5 +451,32 @@ mod tests {
             (0.5 * 14.0 + 0.5 * 18.0, false)
         );
         assert_eq!(thermal_value(&k, &[0], &dt, 0.0, 0.0, 400.0), (18.0, true));
+    }
+
+    #[test]
+    fn an_exponent_lags_the_power_of_the_reading_on_both_step_paths() {
+        // rpm² heat input: the lag follows |n|², reference and ΔT in rpm².
+        let mut s = sensor(Some(600.0));
+        s.column = Some("rpm".into());
+        s.exponent = Some(2.0);
+        s.reference_c = 0.0;
+        let specs = [s];
+        let plan = LagPlan::new(&specs);
+        let (mut a, mut b) = (ThermalState::new(1), ThermalState::new(1));
+        let rpm = |t: f64| if t < 3600.0 { 1000.0 } else { -2000.0 };
+        for k in 0..=720 {
+            let t = 15.0 * f64::from(k);
+            a.step(&specs, &[rpm(t)], t);
+            b.step_planned(&plan, &[rpm(t)], t);
+            assert!((a.delta_c[0] - b.delta_c[0]).abs() <= 1e-9 * a.delta_c[0].abs());
+        }
+        // Started at 1000² and held there; a reading applies over the interval that ends at it, so
+        // (−2000)² drives the state from 3585 s to 10800 s (7215 s).
+        let want = 4e6 + (1e6 - 4e6) * (-7215.0f64 / 600.0).exp();
+        assert!(
+            (a.delta_c[0] - want).abs() < 1e-6 * want,
+            "{}",
+            a.delta_c[0]
+        );
     }
 }

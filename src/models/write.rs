@@ -146,6 +146,9 @@ pub fn write_model(s: &ModelSpec) -> String {
         if let Some(c) = &x.column {
             let _ = writeln!(o, "column = {}", string(c));
         }
+        if let Some(p) = x.exponent {
+            let _ = writeln!(o, "exponent = {}", num(p));
+        }
     }
     for th in &s.thermal {
         let u = if th.target.is_rotation() {

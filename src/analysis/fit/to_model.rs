@@ -171,6 +171,7 @@ pub fn add_thermal(
                     reference_c: reference,
                     tau_s: tau,
                     column: None,
+                    exponent: None,
                 });
                 e0 += term.coef * reference;
             }
