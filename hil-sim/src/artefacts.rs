@@ -571,32 +571,6 @@ pub fn write_all(meas: &Measured, out: &Path) -> anyhow::Result<usize> {
     Ok(n)
 }
 
-/// Low-pass of values sampled every `step_mm`: a Gaussian whose response is 1/2 at
-/// `wavelength_mm` (σ = λ·√(ln 2 / 2) / π ≈ 0.19 λ), weights renormalised at the ends. Shorter
-/// waves are removed (a 21 mm wave through a 120 mm cut keeps e⁻²² of its amplitude), longer ones
-/// kept (240 mm: 84 %).
-pub fn low_pass(values: &[f64], step_mm: f64, wavelength_mm: f64) -> Vec<f64> {
-    let sigma = wavelength_mm * (std::f64::consts::LN_2 / 2.0).sqrt() / std::f64::consts::PI;
-    let half = (3.0 * sigma / step_mm).ceil() as isize;
-    let w: Vec<f64> = (-half..=half)
-        .map(|k| (-0.5 * (k as f64 * step_mm / sigma).powi(2)).exp())
-        .collect();
-    let n = values.len() as isize;
-    (0..n)
-        .map(|i| {
-            let (mut s, mut ws) = (0.0, 0.0);
-            for (k, wk) in (-half..=half).zip(&w) {
-                let j = i + k;
-                if (0..n).contains(&j) {
-                    s += wk * values[j as usize];
-                    ws += wk;
-                }
-            }
-            s / ws
-        })
-        .collect()
-}
-
 /// The truth as a set of artefacts sampled it: every component replaced by the linear
 /// interpolation of its values at `positions_mm[axis]` (the probed positions along that axis;
 /// positions within 5 mm are merged, as one hole row probed from several placements), held

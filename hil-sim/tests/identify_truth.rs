@@ -13,8 +13,8 @@
 //! Deterministic (seeded hil-sim metrology); no timing. Run with `--nocapture` for the tables.
 
 use hil_sim::artefacts::{
-    Measured, Metrology, Plan, SpherePlan, low_pass, measure_plan, measure_plate, measure_spheres,
-    resampled, xz_edge_plates,
+    Measured, Metrology, Plan, SpherePlan, measure_plan, measure_plate, measure_spheres, resampled,
+    xz_edge_plates,
 };
 use retrocomp::analysis::identify::design::Geometry;
 use retrocomp::analysis::identify::report::{DirVerify, components, to_spec, verify};
@@ -364,6 +364,32 @@ fn ten_dense_ball_bar_spheres_match_the_true_model() {
             o.min_eff
         );
     }
+}
+
+/// Low-pass of values sampled every `step_mm`: a Gaussian whose response is 1/2 at
+/// `wavelength_mm` (σ = λ·√(ln 2 / 2) / π ≈ 0.19 λ), weights renormalised at the ends. Shorter
+/// waves are removed (a 21 mm wave through a 120 mm cut keeps e⁻²² of its amplitude), longer ones
+/// kept (240 mm: 84 %).
+fn low_pass(values: &[f64], step_mm: f64, wavelength_mm: f64) -> Vec<f64> {
+    let sigma = wavelength_mm * (std::f64::consts::LN_2 / 2.0).sqrt() / std::f64::consts::PI;
+    let half = (3.0 * sigma / step_mm).ceil() as isize;
+    let w: Vec<f64> = (-half..=half)
+        .map(|k| (-0.5 * (k as f64 * step_mm / sigma).powi(2)).exp())
+        .collect();
+    let n = values.len() as isize;
+    (0..n)
+        .map(|i| {
+            let (mut s, mut ws) = (0.0, 0.0);
+            for (k, wk) in (-half..=half).zip(&w) {
+                let j = i + k;
+                if (0..n).contains(&j) {
+                    s += wk * values[j as usize];
+                    ws += wk;
+                }
+            }
+            s / ws
+        })
+        .collect()
 }
 
 /// vmc-3axis' EXX table (100 points, 8.08 mm apart) samples a ±1.2 µm sine of 13/21 mm period:
