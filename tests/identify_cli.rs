@@ -91,6 +91,13 @@ fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
             .any(|l| l.starts_with("ECZ") && l.contains("NO") && l.contains("second tool vector")),
         "ECZ must be named as unidentifiable with its remedy:\n{text}"
     );
+    assert!(
+        text.lines().any(
+            |l| l.starts_with("resolution: shortest wavelength identified: X ")
+                && l.contains("retrocomp fit")
+        ),
+        "the resolution and its remedy must be stated:\n{text}"
+    );
     assert_eq!(
         std::fs::read_dir(&svg).unwrap().count(),
         10,
@@ -136,6 +143,13 @@ fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
     assert_eq!(j["verification"].as_array().unwrap().len(), 10);
     assert_eq!(j["setups"].as_array().unwrap().len(), 8);
     assert!(j["sigma_um"].as_f64().unwrap() > 0.0);
+    let axes = j["resolution"]["axes"].as_array().unwrap();
+    assert_eq!(axes.len(), 3);
+    assert!(
+        axes.iter()
+            .all(|a| a["shortest_wavelength_mm"].as_f64().unwrap() > 0.0),
+        "{axes:?}"
+    );
 }
 
 #[test]

@@ -262,6 +262,57 @@ pub fn spaan_spheres() -> Vec<SpherePlacement> {
     ]
 }
 
+/// Which ball-bar set-ups `hil-sim artefacts --spheres` probes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum SpherePlan {
+    /// Spaan's eight spheres ([`spaan_spheres`]) on the default 15° grid (~1000 points).
+    #[default]
+    Eight,
+    /// The eight plus two spheres centred below the travel ([`low_spheres`]) that reach the
+    /// bottom of Z, each on a 7.5° grid of 48 points per ring (~5000 points): with knots every
+    /// 30 mm (`retrocomp identify --knot-step-mm 30 --max-knots 16`) within 0.03 of the true
+    /// model on Spaan's plates (hil-sim/tests/identify_truth.rs).
+    Ten,
+}
+
+/// Two spheres (R 250 mm) centred 100 mm below the Z travel, tools 110 and 245 mm: their lower
+/// rings reach z ≈ 0–60 mm, where Spaan's eight (centres at z ≥ 0, upper hemispheres) read Z
+/// only at grazing angles — the Z directions of plates at the bottom of Z were what eight missed.
+pub fn low_spheres() -> Vec<SpherePlacement> {
+    [("bb_low_110", 110.0), ("bb_low_245", 245.0)]
+        .into_iter()
+        .map(|(n, t)| SpherePlacement {
+            name: n.into(),
+            r_nom_mm: 250.0,
+            centre_mm: [400.0, 250.0, -100.0],
+            tool_mm: t,
+        })
+        .collect()
+}
+
+/// The dense grid of [`SpherePlan::Ten`]: 7.5° rings of 48 points.
+pub const DENSE_GRID: SphereGrid = SphereGrid {
+    polar_step_deg: 7.5,
+    azimuths: 48,
+};
+
+/// The spheres of `plan`, probed on `truth`.
+pub fn measure_spheres(
+    truth: &MachineModel,
+    m: &Metrology,
+    seed: u64,
+    plan: SpherePlan,
+) -> Vec<BallBar> {
+    let tr = travel(truth);
+    let (set, grid) = match plan {
+        SpherePlan::Eight => (spaan_spheres(), SphereGrid::default()),
+        SpherePlan::Ten => ([spaan_spheres(), low_spheres()].concat(), DENSE_GRID),
+    };
+    set.iter()
+        .map(|s| measure_sphere_on(truth, s, tr, m, seed, grid))
+        .collect()
+}
+
 /// The hidden machine, evaluated exactly at reference temperatures.
 pub struct Probe<'a> {
     model: &'a MachineModel,
@@ -373,13 +424,44 @@ pub fn measure_plate(
     }
 }
 
-/// Probes one ball-bar sphere; points outside `travel_mm` are skipped.
+/// Probes one ball-bar sphere on the default grid ([`SphereGrid::default`]); points outside
+/// `travel_mm` are skipped.
 pub fn measure_sphere(
     truth: &MachineModel,
     sp: &SpherePlacement,
     travel_mm: [(f64, f64); 3],
     m: &Metrology,
     seed: u64,
+) -> BallBar {
+    measure_sphere_on(truth, sp, travel_mm, m, seed, SphereGrid::default())
+}
+
+/// The points of a sphere: rings every `polar_step_deg` from the pole down to the equator, each
+/// ring `azimuths` points (the pole one).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SphereGrid {
+    pub polar_step_deg: f64,
+    pub azimuths: usize,
+}
+
+impl Default for SphereGrid {
+    /// 15° rings, 24 points each: ~150 points per sphere, ~1000 for eight.
+    fn default() -> Self {
+        SphereGrid {
+            polar_step_deg: 15.0,
+            azimuths: 24,
+        }
+    }
+}
+
+/// Probes one ball-bar sphere on `grid`; points outside `travel_mm` are skipped.
+pub fn measure_sphere_on(
+    truth: &MachineModel,
+    sp: &SpherePlacement,
+    travel_mm: [(f64, f64); 3],
+    m: &Metrology,
+    seed: u64,
+    grid: SphereGrid,
 ) -> BallBar {
     let mut rng = Noise::new(seed, &format!("artefact/{}", sp.name));
     let mut u = |lo: f64, hi: f64| lo + (hi - lo) * rng.uniform();
@@ -390,9 +472,10 @@ pub fn measure_sphere(
     let mut rng = Noise::new(seed, &format!("artefact/{}/noise", sp.name));
     let mut probe = Probe::new(truth);
     let mut points = Vec::new();
-    for ring in 0..=6 {
-        let polar = (ring as f64) * 15f64.to_radians();
-        let n_az = if ring == 0 { 1 } else { 24 };
+    let rings = (90.0 / grid.polar_step_deg).round() as usize;
+    for ring in 0..=rings {
+        let polar = (ring as f64 * grid.polar_step_deg).to_radians();
+        let n_az = if ring == 0 { 1 } else { grid.azimuths };
         for k in 0..n_az {
             let az = std::f64::consts::TAU * k as f64 / n_az as f64;
             let n = [polar.sin() * az.cos(), polar.sin() * az.sin(), polar.cos()];
@@ -486,4 +569,43 @@ pub fn write_all(meas: &Measured, out: &Path) -> anyhow::Result<usize> {
         put("ballbar", &s.name, s.to_texts())?;
     }
     Ok(n)
+}
+
+/// The truth as a set of artefacts sampled it: every component replaced by the linear
+/// interpolation of its values at `positions_mm[axis]` (the probed positions along that axis;
+/// positions within 5 mm are merged, as one hole row probed from several placements), held
+/// constant outside. What an identification from those artefacts can at best be: content shorter
+/// than twice the spacing is not followed, and what of it the samples caught is aliased into
+/// longer waves, as it is in the fit. Squareness and thermal terms unchanged.
+pub fn resampled(truth: &MachineModel, positions_mm: &[Vec<f64>; 3]) -> MachineModel {
+    use retrocomp::models::{ErrorFunction, Interpolation, Table};
+    let nodes: Vec<Vec<f64>> = positions_mm
+        .iter()
+        .map(|p| {
+            let mut p = p.clone();
+            p.sort_by(f64::total_cmp);
+            let mut groups: Vec<Vec<f64>> = Vec::new();
+            for q in p {
+                match groups.last_mut() {
+                    Some(g) if q - g[0] <= 5.0 => g.push(q),
+                    _ => groups.push(vec![q]),
+                }
+            }
+            groups
+                .iter()
+                .map(|g| g.iter().sum::<f64>() / g.len() as f64)
+                .collect()
+        })
+        .collect();
+    let mut spec = truth.spec().clone();
+    for c in &mut spec.components {
+        let q = nodes[c.id.axis.index()].clone();
+        if q.len() < 2 {
+            continue;
+        }
+        let at = |dir: i8| -> Vec<f64> { q.iter().map(|&x| c.function.eval(x, dir).0).collect() };
+        let (fwd, rev) = (at(1), at(-1));
+        c.function = ErrorFunction::Table(Table::new(q, fwd, rev, Interpolation::Linear));
+    }
+    MachineModel::from_spec(spec)
 }

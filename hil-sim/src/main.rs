@@ -39,6 +39,10 @@ enum Cmd {
         /// Identification plan: `six` (Spaan's six measurements, the default), `seven` or `twelve`.
         #[arg(long, value_enum, default_value = "six")]
         plan: hil_sim::artefacts::Plan,
+        /// Ball-bar set-ups: `eight` (Spaan Table 3.1, the default) or `ten` (plus two low
+        /// spheres, dense grid; identify with `--knot-step-mm 30 --max-knots 16`).
+        #[arg(long, value_enum, default_value = "eight")]
+        spheres: hil_sim::artefacts::SpherePlan,
         #[arg(long)]
         out: PathBuf,
     },
@@ -58,6 +62,7 @@ fn main() -> anyhow::Result<()> {
             truth,
             noise_um,
             plan,
+            spheres,
             out,
         } => {
             let model = retrocomp::models::MachineModel::from_toml_path(&truth)
@@ -66,7 +71,8 @@ fn main() -> anyhow::Result<()> {
                 probing_noise_um: noise_um,
                 ..Default::default()
             };
-            let meas = hil_sim::artefacts::measure_plan(&model, &m, seed, plan);
+            let mut meas = hil_sim::artefacts::measure_plan(&model, &m, seed, plan);
+            meas.spheres = hil_sim::artefacts::measure_spheres(&model, &m, seed, spheres);
             let n = hil_sim::artefacts::write_all(&meas, &out)?;
             println!("wrote {n} artefact set-ups to {}", out.display());
             Ok(())

@@ -41,6 +41,9 @@ pub struct Args {
     /// Spacing of candidate knots, mm (Spaan 50 mm).
     #[arg(long, default_value_t = 50.0)]
     pub knot_step_mm: f64,
+    /// At most this many candidate knots per axis (ball bars: 16 at 30 mm, docs/identify.md).
+    #[arg(long, default_value_t = 6)]
+    pub max_knots: usize,
     /// Significance level of a knot (Spaan 99.99 % → 1e-4).
     #[arg(long, default_value_t = 1e-4)]
     pub alpha: f64,
@@ -94,6 +97,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     let opts = Options {
         knot_step_mm: args.knot_step_mm,
+        max_knots: args.max_knots,
         alpha: args.alpha,
         ..Options::default()
     };
@@ -131,6 +135,7 @@ fn json(id: &Identification, ver: &[DirVerify], out: &Path) -> serde_json::Value
         "rank": id.solve.rank,
         "sigma_um": id.solve.sigma_um,
         "range_mm": id.range_mm,
+        "resolution": id.resolution,
         "components": comp,
         "squareness": sq,
         "setups": id.setups.iter().map(|s| serde_json::json!({
@@ -200,6 +205,7 @@ fn text_report(id: &Identification, ver: &[DirVerify], out: &Path) -> String {
             }
         );
     }
+    let _ = writeln!(s, "resolution: {}", id.resolution.note);
     for (a, h, r) in &id.outliers {
         let _ = writeln!(
             s,

@@ -13,16 +13,18 @@
 //! - [`design`]: the chain's first-order design rows.
 //! - [`estimate`]: the solve, knot elimination, outliers, F/t, null space.
 //! - [`report`]: the fitted model, per-component significance and identifiability, verification.
+//! - [`resolution`]: the shortest wavelength identified per axis, and lack of fit beyond it.
 
 pub mod contracts;
 pub mod design;
 pub mod estimate;
 pub mod observe;
 pub mod report;
+pub mod resolution;
 
 use contracts::{BallBar, HolePlate};
 use design::{CompBasis, Geometry, Obs, component_bases};
-use estimate::{EstimateError, Solve, duplicate_outliers, eliminate_knots, solve};
+use estimate::{EstimateError, Solve, beta_len, duplicate_outliers, eliminate_knots, solve};
 use observe::{Setup, ballbar_obs, plate_obs};
 
 /// Options of the fit.
@@ -70,6 +72,8 @@ pub struct Identification {
     /// Observations dropped as duplicate-probing outliers: (artefact name, hole, repeat).
     pub outliers: Vec<(String, String, u32)>,
     pub range_mm: [(f64, f64); 3],
+    /// Shortest wavelength identified per axis, and lack of fit beyond it.
+    pub resolution: resolution::Resolution,
 }
 
 /// The joint fit of all artefacts.
@@ -79,6 +83,95 @@ pub fn identify(
     bars: &[BallBar],
     opts: &Options,
 ) -> Result<Identification, EstimateError> {
+    let (mut obs, mut setups, n_setup) = observations(plates, bars, opts);
+    if obs.is_empty() {
+        return Err(EstimateError::TooFew { rows: 0, cols: 1 });
+    }
+    let range_mm: [(f64, f64); 3] = std::array::from_fn(|k| {
+        obs.iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), o| {
+                (a.min(o.pos_mm[k]), b.max(o.pos_mm[k]))
+            })
+    });
+    let mut bases = component_bases(range_mm, opts.knot_step_mm, opts.max_knots);
+    if !opts.rotations {
+        bases.retain(|b| !b.id.is_rotation());
+    }
+    // A sphere's readings are linear in its centre only to first order: a centre δC off the
+    // nominal adds (|δC|² − (n·δC)²)/2R, 2.5 µm for 0.87 mm on a 150 mm bar — more than the
+    // machine's errors seen radially. So the centres are re-linearised about their estimates
+    // (Gauss–Newton; two steps leave < 1 nm) before the fit proper.
+    let mut moved = bars.to_vec();
+    let mut shift_um = vec![[0.0; 3]; bars.len()];
+    let steps = if bars.is_empty() {
+        0
+    } else {
+        RELINEARISE_STEPS
+    };
+    for _ in 0..steps {
+        let s = solve(geo, &bases, &obs, n_setup, opts.rank_tol)?;
+        let beta = beta_len(&bases);
+        for (k, bar) in moved.iter_mut().enumerate() {
+            let first = setups[plates.len() + k].first;
+            for (i, c) in bar.centre_mm.iter_mut().enumerate() {
+                let d = s.coef[beta + first + i];
+                *c += d * 1e-3;
+                shift_um[k][i] += d;
+            }
+        }
+        (obs, setups, _) = observations(plates, &moved, opts);
+    }
+    // Outliers first, with every candidate knot, so a pulse cannot buy itself a knot.
+    let s0 = solve(geo, &bases, &obs, n_setup, opts.rank_tol)?;
+    let limit = outlier_limit_um(&obs);
+    let drop = duplicate_outliers(&obs, &s0.residual_um, limit);
+    let mut outliers: Vec<(String, String, u32)> = Vec::new();
+    for &i in &drop {
+        let o = &obs[i];
+        let e = (setups[o.artefact].name.clone(), o.key.clone(), o.repeat);
+        if !outliers.contains(&e) {
+            outliers.push(e);
+        }
+    }
+    let obs: Vec<Obs> = obs
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| drop.binary_search(i).is_err())
+        .map(|(_, o)| o)
+        .collect();
+    let mut solve = eliminate_knots(geo, &mut bases, &obs, n_setup, opts.alpha, opts.rank_tol)?;
+    // Report each centre against the side file's nominal: add back what re-linearising moved.
+    let beta = beta_len(&bases);
+    for (k, d) in shift_um.iter().enumerate() {
+        let s = &mut setups[plates.len() + k];
+        s.nominal = bars[k].centre_mm.to_vec();
+        for (i, d) in d.iter().enumerate() {
+            solve.coef[beta + s.first + i] += d;
+        }
+    }
+    let mut id = Identification {
+        geometry: geo.clone(),
+        bases,
+        setups,
+        solve,
+        obs,
+        outliers,
+        range_mm,
+        resolution: resolution::Resolution::default(),
+    };
+    id.resolution = resolution::resolution(&id, opts.knot_step_mm, opts.max_knots);
+    Ok(id)
+}
+
+/// Gauss–Newton steps on the sphere centres before the fit.
+const RELINEARISE_STEPS: usize = 2;
+
+/// Observations and set-ups of all artefacts, γ columns numbered plates first, then spheres.
+fn observations(
+    plates: &[HolePlate],
+    bars: &[BallBar],
+    opts: &Options,
+) -> (Vec<Obs>, Vec<Setup>, usize) {
     let mut obs = Vec::new();
     let mut setups = Vec::new();
     let mut first = 0;
@@ -99,48 +192,7 @@ pub fn identify(
             o.tool_mm = 0.0;
         }
     }
-    let range_mm: [(f64, f64); 3] = std::array::from_fn(|k| {
-        obs.iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), o| {
-                (a.min(o.pos_mm[k]), b.max(o.pos_mm[k]))
-            })
-    });
-    if obs.is_empty() {
-        return Err(EstimateError::TooFew { rows: 0, cols: 1 });
-    }
-    let mut bases = component_bases(range_mm, opts.knot_step_mm, opts.max_knots);
-    if !opts.rotations {
-        bases.retain(|b| !b.id.is_rotation());
-    }
-    let n_setup = first;
-    // Outliers first, with every candidate knot, so a pulse cannot buy itself a knot.
-    let s0 = solve(geo, &bases, &obs, n_setup, opts.rank_tol)?;
-    let limit = outlier_limit_um(&obs);
-    let drop = duplicate_outliers(&obs, &s0.residual_um, limit);
-    let mut outliers: Vec<(String, String, u32)> = Vec::new();
-    for &i in &drop {
-        let o = &obs[i];
-        let e = (setups[o.artefact].name.clone(), o.key.clone(), o.repeat);
-        if !outliers.contains(&e) {
-            outliers.push(e);
-        }
-    }
-    let obs: Vec<Obs> = obs
-        .into_iter()
-        .enumerate()
-        .filter(|(i, _)| drop.binary_search(i).is_err())
-        .map(|(_, o)| o)
-        .collect();
-    let solve = eliminate_knots(geo, &mut bases, &obs, n_setup, opts.alpha, opts.rank_tol)?;
-    Ok(Identification {
-        geometry: geo.clone(),
-        bases,
-        setups,
-        solve,
-        obs,
-        outliers,
-        range_mm,
-    })
+    (obs, setups, first)
 }
 
 /// Disagreement of two probings of one hole beyond which one is an outlier: six robust σ of the
