@@ -4,9 +4,9 @@
 use std::fmt::Write;
 use std::path::PathBuf;
 
-use crate::models::function::ErrorFunction;
-use crate::models::spec::{Branch, ThermalKind};
-use crate::models::{MachineModel, ModelSpec};
+use retrocomp::models::function::ErrorFunction;
+use retrocomp::models::spec::{Branch, ThermalKind};
+use retrocomp::models::{MachineModel, ModelSpec};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

@@ -1,12 +1,12 @@
-//! `retrocomp diagnose` and `retrocomp diagnose-bench`: thin shells over [`crate::diagnose`].
+//! `retrocomp diagnose` and `retrocomp diagnose-bench`: thin shells over [`retrocomp::diagnose`].
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context as _, bail};
 
-use crate::diagnose::scoring::{self, CaseScore};
-use crate::diagnose::{self, output, select::Options};
-use crate::recording::{BadRow, Recording};
+use retrocomp::diagnose::scoring::{self, CaseScore};
+use retrocomp::diagnose::{self, output, select::Options};
+use retrocomp::recording::{BadRow, Recording};
 
 #[derive(clap::Args, Debug)]
 pub struct DiagnoseArgs {
@@ -59,7 +59,8 @@ pub fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
     let (rec, bad) = read_recording(&a.recording, a.skip_bad_rows)?;
     let base = match &a.model {
         Some(m) => Some(
-            crate::models::MachineModel::from_toml_path(m).map_err(|e| anyhow::anyhow!("{e}"))?,
+            retrocomp::models::MachineModel::from_toml_path(m)
+                .map_err(|e| anyhow::anyhow!("{e}"))?,
         ),
         None => None,
     };

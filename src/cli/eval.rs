@@ -14,7 +14,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 
-use crate::models::{EvalFlags, MachineModel, ModelInput};
+use retrocomp::models::{EvalFlags, MachineModel, ModelInput};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -204,7 +204,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         // Fixed 6 decimals (1 pm).
         for v in out.total_um.iter().chain(out.terms_um.iter().flatten()) {
             line.push(b',');
-            crate::decimal::push_fixed6(&mut line, *v);
+            retrocomp::decimal::push_fixed6(&mut line, *v);
         }
         line.push(b',');
         write_flags(&mut line, &out.flags)?;

@@ -4,8 +4,8 @@
 
 use std::path::PathBuf;
 
-use crate::analysis::export::{fanuc, isg, linuxcnc};
-use crate::analysis::report::{Series, xy_svg};
+use retrocomp::analysis::export::{fanuc, isg, linuxcnc};
+use retrocomp::analysis::report::{Series, xy_svg};
 
 use super::util::{emit, read_table, write};
 

@@ -7,17 +7,17 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 
 use super::util::write;
-use crate::analysis::fit::regression::Criterion;
-use crate::analysis::fit::to_model::{
+use retrocomp::analysis::fit::regression::Criterion;
+use retrocomp::analysis::fit::to_model::{
     AxisForm, add_load, add_thermal, axis_component, put_component, single_axis_spec,
     to_checked_toml,
 };
-use crate::analysis::fit::workflow::{ContextFit, fit_axis, fit_context};
-use crate::analysis::report::{Series, xy_svg};
-use crate::analysis::table::Direction;
-use crate::models::names::parse_component;
-use crate::models::{ComponentId, MachineModel, ModelSpec};
-use crate::recording::Recording;
+use retrocomp::analysis::fit::workflow::{ContextFit, fit_axis, fit_context};
+use retrocomp::analysis::report::{Series, xy_svg};
+use retrocomp::analysis::table::Direction;
+use retrocomp::models::names::parse_component;
+use retrocomp::models::{ComponentId, MachineModel, ModelSpec};
+use retrocomp::recording::Recording;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

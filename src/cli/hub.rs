@@ -12,7 +12,7 @@ use std::sync::atomic::Ordering;
 
 use anyhow::Context;
 
-use crate::bus::can::hub::{Hub, HubStats};
+use retrocomp::bus::can::hub::{Hub, HubStats};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

@@ -6,11 +6,11 @@
 
 use std::path::PathBuf;
 
-use crate::analysis::export::{fanuc, isg, linuxcnc};
-use crate::analysis::iso230_2::{self, runs_per_direction};
-use crate::analysis::report::{Series, xy_svg};
-use crate::analysis::table::BidirectionalTable;
 use anyhow::Context;
+use retrocomp::analysis::export::{fanuc, isg, linuxcnc};
+use retrocomp::analysis::iso230_2::{self, runs_per_direction};
+use retrocomp::analysis::report::{Series, xy_svg};
+use retrocomp::analysis::table::BidirectionalTable;
 
 use super::util::{emit, read, table_csv, write};
 

@@ -2,10 +2,10 @@
 
 use std::path::PathBuf;
 
-use crate::analysis::iso230_2::{self, Reading};
-use crate::analysis::laser_import::{parse_readings, remove_linear_drift};
-use crate::analysis::report::{Series, xy_svg};
-use crate::analysis::table::Direction;
+use retrocomp::analysis::iso230_2::{self, Reading};
+use retrocomp::analysis::laser_import::{parse_readings, remove_linear_drift};
+use retrocomp::analysis::report::{Series, xy_svg};
+use retrocomp::analysis::table::Direction;
 
 use super::util::{read, write};
 

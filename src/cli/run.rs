@@ -6,13 +6,13 @@ use std::path::PathBuf;
 
 use anyhow::bail;
 
-use crate::gateway::config::FieldConfig;
-use crate::gateway::engine::{AxisErrors, ErrorModel, MachineState};
-use crate::gateway::model_adapter::MachineModelAdapter;
-use crate::gateway::run::{require_sink, run as run_gateway};
-use crate::gateway::sources::spawn_sources;
-use crate::gateway::supervise::{exit_on_panic, spawn_watchdog};
-use crate::models::MachineModel;
+use retrocomp::gateway::config::FieldConfig;
+use retrocomp::gateway::engine::{AxisErrors, ErrorModel, MachineState};
+use retrocomp::gateway::model_adapter::MachineModelAdapter;
+use retrocomp::gateway::run::{require_sink, run as run_gateway};
+use retrocomp::gateway::sources::spawn_sources;
+use retrocomp::gateway::supervise::{exit_on_panic, spawn_watchdog};
+use retrocomp::models::MachineModel;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -107,7 +107,7 @@ impl<M: ErrorModel> ErrorModel for HangAfter<M> {
         self.inner.required_channels()
     }
 
-    fn identity(&self) -> Option<crate::gateway::status::ModelIdentity> {
+    fn identity(&self) -> Option<retrocomp::gateway::status::ModelIdentity> {
         self.inner.identity()
     }
 

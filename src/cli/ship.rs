@@ -9,9 +9,9 @@ use std::time::Duration;
 
 use anyhow::Context as _;
 
-use crate::telemetry::MqttConfig;
-use crate::telemetry::recordings::{chunk_csv, ship_to_dir};
-use crate::telemetry::shipper::{Shipment, default_topic, ship};
+use retrocomp::telemetry::MqttConfig;
+use retrocomp::telemetry::recordings::{chunk_csv, ship_to_dir};
+use retrocomp::telemetry::shipper::{Shipment, default_topic, ship};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -52,8 +52,8 @@ pub struct Args {
 fn mqtt_config(a: &Args) -> anyhow::Result<MqttConfig> {
     let mut m = match &a.config {
         Some(p) => {
-            let cfg =
-                crate::gateway::config::FieldConfig::load(p).map_err(|e| anyhow::anyhow!("{e}"))?;
+            let cfg = retrocomp::gateway::config::FieldConfig::load(p)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
             cfg.telemetry
                 .and_then(|t| t.mqtt)
                 .with_context(|| format!("{}: no [telemetry.mqtt]", p.display()))?

@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use anyhow::{Context, bail};
 
-use crate::gateway::http::get;
+use retrocomp::gateway::http::get;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

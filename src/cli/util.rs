@@ -3,9 +3,9 @@
 
 use std::path::Path;
 
-use crate::analysis::laser_import::parse_table_columns;
-use crate::analysis::table::BidirectionalTable;
 use anyhow::Context;
+use retrocomp::analysis::laser_import::parse_table_columns;
+use retrocomp::analysis::table::BidirectionalTable;
 
 pub fn read(path: &Path) -> anyhow::Result<String> {
     std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))

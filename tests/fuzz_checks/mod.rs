@@ -12,6 +12,7 @@ use std::path::Path;
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
+use retrocomp::analysis::circular::parse_traces;
 use retrocomp::analysis::circular::{CircleSetup, analyse};
 use retrocomp::analysis::export::fanuc::{read_tape, write_tape};
 use retrocomp::analysis::export::isg::{read_isg, write_isg};
@@ -22,9 +23,8 @@ use retrocomp::analysis::nc::ErrorFunction;
 use retrocomp::analysis::nc::parser::parse_program;
 use retrocomp::analysis::nc::rewrite::{RewriteConfig, rewrite};
 use retrocomp::analysis::plane_model::ZxPlaneModel;
+use retrocomp::analysis::plane_model::parse_plane_model;
 use retrocomp::analysis::table::Direction;
-use retrocomp::cli::circle::parse_traces;
-use retrocomp::cli::nc::parse_plane_model;
 use retrocomp::gateway::StatusSnapshot;
 use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::http::serve_status;
