@@ -29,6 +29,7 @@ use super::metrics::{Record, Sampler, snapshot_metrics};
 use super::queue::{self, Queue, QueueLimits};
 use super::sparkplug::{self, EdgeNode, Kind, NamedValue};
 pub use super::status::{TelemetryAnnotator, TelemetryStatus};
+use crate::bus::Backoff;
 use crate::gateway::status::StatusSnapshot;
 
 /// What the publisher needs besides its config.
@@ -323,8 +324,8 @@ impl Drop for Conn {
 
 impl Session {
     async fn run(mut self, mut stop: tokio::sync::oneshot::Receiver<()>) {
-        let mut backoff = Duration::from_millis(self.cfg.reconnect_min_ms);
-        let max = Duration::from_millis(self.cfg.reconnect_max_ms);
+        let mut backoff =
+            Backoff::from_millis(self.cfg.reconnect_min_ms, self.cfg.reconnect_max_ms);
         let mut down_logged = false;
         loop {
             let (end, was_born) = self.connection(&mut stop).await;
@@ -336,7 +337,7 @@ impl Session {
             if was_born {
                 // The link had been up: a new outage (logged again), back-off from the start.
                 down_logged = false;
-                backoff = Duration::from_millis(self.cfg.reconnect_min_ms);
+                backoff.reset();
             }
             if !down_logged {
                 // Fault start, once per outage; the clear is logged with the next NBIRTH.
@@ -349,7 +350,7 @@ impl Session {
             }
             self.publish_status(false, Some(why));
             // Back off, still taking records into the queue.
-            let wake = tokio::time::sleep(backoff);
+            let wake = tokio::time::sleep(backoff.next_delay());
             tokio::pin!(wake);
             loop {
                 tokio::select! {
@@ -365,7 +366,6 @@ impl Session {
                     },
                 }
             }
-            backoff = (backoff * 2).min(max);
         }
     }
 

@@ -16,6 +16,7 @@ use rumqttc::{AsyncClient, Event, Outgoing, Packet, QoS};
 use super::config::MqttConfig;
 use super::queue::{DropPolicy, Queue, QueueLimits};
 use super::recordings::Chunk;
+use crate::bus::Backoff;
 
 /// Default topic of a machine's recordings: `retrocomp/recordings/<group>/<edge node>`.
 pub fn default_topic(group: &str, edge_node: &str) -> String {
@@ -64,7 +65,7 @@ pub async fn ship(
     let mut report = ShipReport::default();
     let end = tokio::time::sleep(deadline);
     tokio::pin!(end);
-    let mut backoff = Duration::from_millis(s.mqtt.reconnect_min_ms);
+    let mut backoff = Backoff::from_millis(s.mqtt.reconnect_min_ms, s.mqtt.reconnect_max_ms);
     while !q.is_empty() {
         report.connections += 1;
         let (client, mut el) = AsyncClient::new(base.clone(), 2 * WINDOW);
@@ -110,7 +111,7 @@ pub async fn ship(
                 ev = el.poll() => match ev {
                     Ok(Event::Incoming(Packet::ConnAck(_))) => {
                         up = true;
-                        backoff = Duration::from_millis(s.mqtt.reconnect_min_ms);
+                        backoff.reset();
                     }
                     Ok(Event::Outgoing(Outgoing::Publish(pkid))) => {
                         if let Some(id) = calls.pop_front() {
@@ -137,9 +138,8 @@ pub async fn ship(
                 report.left = q.len() as u64;
                 return Ok(report);
             }
-            _ = tokio::time::sleep(backoff) => {}
+            _ = tokio::time::sleep(backoff.next_delay()) => {}
         }
-        backoff = (backoff * 2).min(Duration::from_millis(s.mqtt.reconnect_max_ms));
     }
     Ok(report)
 }
