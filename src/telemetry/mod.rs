@@ -13,6 +13,7 @@
 
 pub mod config;
 pub mod drift;
+mod error;
 pub mod fleet;
 pub mod fleet_client;
 pub mod metrics;
@@ -25,4 +26,5 @@ pub mod status;
 mod tls;
 
 pub use config::{MqttConfig, TelemetrySection};
+pub use error::TelemetryError;
 pub use publisher::{Publisher, PublisherInputs, TelemetryStatus, spawn};

@@ -18,12 +18,12 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use anyhow::Context as _;
 use rumqttc::{
     AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet, QoS,
 };
 use tokio::sync::{mpsc, watch};
 
+use super::TelemetryError;
 use super::config::MqttConfig;
 use super::metrics::{Record, Sampler, snapshot_metrics};
 use super::queue::{self, Queue, QueueLimits};
@@ -51,7 +51,7 @@ pub struct Publisher {
 pub fn start_for(
     cfg: &crate::gateway::config::FieldConfig,
     status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
-) -> anyhow::Result<Option<Publisher>> {
+) -> Result<Option<Publisher>, TelemetryError> {
     let Some(m) = cfg.telemetry.as_ref().and_then(|t| t.mqtt.clone()) else {
         return Ok(None);
     };
@@ -140,14 +140,14 @@ const WINDOW: usize = 64;
 
 /// Start the publisher (spawns its tasks on the current runtime). Fails only on what the config
 /// check cannot see: an unreadable queue directory, a bad certificate.
-pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> anyhow::Result<Publisher> {
+pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> Result<Publisher, TelemetryError> {
     let queue = Queue::open(QueueLimits {
         dir: cfg.queue.dir.clone(),
         max_records: cfg.queue.max_records,
         max_bytes: cfg.queue.max_bytes,
         policy: cfg.queue.drop_policy,
     })
-    .context("telemetry.mqtt.queue.dir")?;
+    .map_err(TelemetryError::setup("telemetry.mqtt.queue.dir"))?;
     let base = base_options(&cfg)?;
     let (rec_tx, rec_rx) = mpsc::channel::<Record>(HANDOVER);
     let (status_tx, status_rx) = watch::channel(TelemetryStatus::default());
@@ -184,10 +184,10 @@ pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> anyhow::Result<Publish
     })
 }
 
-pub(crate) fn base_options(cfg: &MqttConfig) -> anyhow::Result<MqttOptions> {
+pub(crate) fn base_options(cfg: &MqttConfig) -> Result<MqttOptions, TelemetryError> {
     let (host, port) = cfg
         .host_port()
-        .map_err(|e| anyhow::anyhow!("telemetry.mqtt.broker: {e}"))?;
+        .map_err(|e| TelemetryError::Invalid(format!("telemetry.mqtt.broker: {e}")))?;
     let mut o = MqttOptions::new(cfg.client_id(), host, port);
     o.set_keep_alive(Duration::from_secs(cfg.keep_alive_s));
     // Sparkplug: a clean session per connection (`principles-persistence-clean-session`).
@@ -197,7 +197,10 @@ pub(crate) fn base_options(cfg: &MqttConfig) -> anyhow::Result<MqttOptions> {
     if let Some(user) = &cfg.username {
         let pw = match &cfg.password_file {
             Some(p) => std::fs::read_to_string(p)
-                .with_context(|| format!("telemetry.mqtt.password_file {}", p.display()))?
+                .map_err(TelemetryError::setup(format!(
+                    "telemetry.mqtt.password_file {}",
+                    p.display()
+                )))?
                 .lines()
                 .next()
                 .unwrap_or_default()

@@ -13,6 +13,7 @@ use std::time::Duration;
 
 use rumqttc::{AsyncClient, Event, Outgoing, Packet, QoS};
 
+use super::TelemetryError;
 use super::config::MqttConfig;
 use super::queue::{DropPolicy, Queue, QueueLimits};
 use super::recordings::Chunk;
@@ -50,13 +51,14 @@ pub async fn ship(
     s: &Shipment,
     chunks: &[Chunk],
     deadline: Duration,
-) -> anyhow::Result<ShipReport> {
+) -> Result<ShipReport, TelemetryError> {
     let mut q = Queue::open(QueueLimits {
         dir: s.queue_dir.clone(),
         max_records: usize::MAX,
         max_bytes: u64::MAX,
         policy: DropPolicy::DropNewest,
-    })?;
+    })
+    .map_err(TelemetryError::setup("recording shipment queue"))?;
     for c in chunks {
         q.push(c.encode());
     }
