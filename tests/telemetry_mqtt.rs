@@ -485,9 +485,9 @@ drop_policy = "drop_oldest"
 }
 
 async fn fleet_until(
-    f: &mut retrocomp::telemetry::fleet_client::FleetClient,
+    f: &mut telemetry::fleet_client::FleetClient,
     what: &str,
-    pred: impl Fn(&retrocomp::telemetry::fleet_client::FleetClient) -> bool,
+    pred: impl Fn(&telemetry::fleet_client::FleetClient) -> bool,
 ) {
     let deadline = Instant::now() + PATIENCE;
     while !pred(f) {

@@ -11,7 +11,7 @@ use retrocomp::analysis::report::{Series, xy_svg};
 use super::util::{read, write};
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     pub file: PathBuf,
     #[arg(long)]
     pub radius_mm: f64,
@@ -27,7 +27,7 @@ pub struct Args {
     pub svg: Option<PathBuf>,
 }
 
-pub fn run(a: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
     let name = a.file.display().to_string();
     let traces = parse_traces(&name, &read(&a.file)?)?;
     let setup = CircleSetup {

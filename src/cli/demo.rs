@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use retrocomp::gateway::demo::{DemoOptions, Mode, run_demo, sim_process::locate_hil_sim};
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Output folder: recordings, configs, models, SVG plots.
     #[arg(long, default_value = "out/demo")]
     pub out: PathBuf,
@@ -38,7 +38,7 @@ pub struct Args {
     pub realtime_priority: u8,
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     // Quiet by default: the table and the JSON line are the output (RUST_LOG overrides). The CAN
     // source reports "bus closed" when hil-sim ends its program and leaves the hub: expected here.
     let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {

@@ -17,7 +17,7 @@ use anyhow::{Context, bail};
 use retrocomp::models::{EvalFlags, MachineModel, ModelInput};
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Machine model TOML file.
     #[arg(long)]
     pub model: PathBuf,
@@ -44,7 +44,7 @@ fn find(headers: &csv::StringRecord, name: &str) -> Option<usize> {
     headers.iter().position(|h| h.trim() == name)
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     let model = MachineModel::from_toml_path(&args.model).map_err(|e| anyhow::anyhow!("{e}"))?;
     let file = args.path.display().to_string();
     let headers = open(&args.path, &file)?

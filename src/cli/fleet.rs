@@ -17,7 +17,7 @@ use retrocomp::telemetry::fleet::FleetView;
 use retrocomp::telemetry::fleet_client::FleetClient;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// MQTT broker, HOST:PORT.
     #[arg(long)]
     pub broker: String,
@@ -81,7 +81,7 @@ fn diagnose_all(
     out
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     anyhow::ensure!(
         args.every_s.is_finite() && args.every_s > 0.0,
         "--every-s must be > 0"
@@ -160,7 +160,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
 
 /// The nodes (and machines known only by their recordings) as one JSON array; each with its
 /// `verdict` and, once diagnosed, `drift`.
-pub fn json(
+pub(crate) fn json(
     view: &FleetView,
     drifts: &BTreeMap<(String, String), MachineDrift>,
 ) -> anyhow::Result<serde_json::Value> {
@@ -184,7 +184,7 @@ pub fn json(
 }
 
 /// The health table, then one line per diagnosed machine (drift state, residual, finding).
-pub fn table(view: &FleetView, drifts: &BTreeMap<(String, String), MachineDrift>) -> String {
+pub(crate) fn table(view: &FleetView, drifts: &BTreeMap<(String, String), MachineDrift>) -> String {
     let mut s = view.table();
     if !drifts.is_empty() {
         s.push_str(&format!(

@@ -17,7 +17,7 @@ use retrocomp::analysis::report::{Series, xy_svg};
 use retrocomp::models::MachineModel;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Kinematic chain, workpiece → tool, F = frame (e.g. "X F Y Z").
     #[arg(long)]
     pub chain: String,
@@ -72,7 +72,7 @@ fn read_bar(p: &Path) -> anyhow::Result<BallBar> {
     )?)
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     let geo = Geometry::from_chain(&args.chain)?;
     let plates: Vec<HolePlate> = args
         .hole_plate

@@ -38,7 +38,7 @@ use retrocomp::models::MachineModel;
 use super::util::write;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     pub program: PathBuf,
     /// Machine model TOML (the error function to compensate).
     #[arg(
@@ -201,7 +201,7 @@ fn rewrite_to(
     Ok((stats, sink.svg))
 }
 
-pub fn run(a: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
     if let Some(s) = a.split_mm
         && !(s.is_finite() && s > 0.0)
     {

@@ -15,7 +15,7 @@ use retrocomp::gateway::supervise::{exit_on_panic, spawn_watchdog};
 use retrocomp::models::MachineModel;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Field configuration TOML (see deploy/field/).
     #[arg(long)]
     pub config: PathBuf,
@@ -27,7 +27,7 @@ pub struct Args {
     pub dry_run: bool,
 }
 
-pub fn init_tracing() {
+pub(crate) fn init_tracing() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
     let _ = tracing_subscriber::fmt()
@@ -36,7 +36,7 @@ pub fn init_tracing() {
         .try_init();
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     init_tracing();
     exit_on_panic();
     let cfg = FieldConfig::load_for_run(&args.config)?;

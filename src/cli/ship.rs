@@ -14,7 +14,7 @@ use retrocomp::telemetry::recordings::{chunk_csv, ship_to_dir};
 use retrocomp::telemetry::shipper::{Shipment, default_topic, ship};
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// The recording CSV to send. Without it, only what an interrupted shipment left in
     /// `--queue-dir` is sent.
     #[arg(long)]
@@ -78,7 +78,7 @@ fn mqtt_config(a: &Args) -> anyhow::Result<MqttConfig> {
     Ok(m)
 }
 
-pub fn run(a: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
     let m = mqtt_config(a)?;
     let rec = match &a.recording {
         Some(p) => {

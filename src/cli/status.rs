@@ -8,7 +8,7 @@ use anyhow::{Context, bail};
 use retrocomp::gateway::http::get;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Address of the gateway's status endpoint (`[gateway] status_listen`).
     #[arg(long, default_value = "127.0.0.1:9184")]
     pub addr: String,
@@ -20,7 +20,7 @@ pub struct Args {
     pub metrics: bool,
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     let path = if args.json {
         "/status"
     } else if args.metrics {

@@ -73,7 +73,7 @@ pub async fn run(
     sources: impl Into<SourceFeed>,
     epoch: std::time::Instant,
     shutdown: impl std::future::Future<Output = ()>,
-    status_addr: Option<tokio::sync::oneshot::Sender<SocketAddr>>,
+    status_addr: Option<oneshot::Sender<SocketAddr>>,
 ) -> anyhow::Result<RunSummary> {
     let SourceFeed {
         samples,

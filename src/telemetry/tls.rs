@@ -8,7 +8,7 @@ use rustls::pki_types::{CertificateDer, PrivateKeyDer};
 use super::TelemetryError;
 use super::config::TlsConfig;
 
-pub fn client_config(t: &TlsConfig) -> Result<rustls::ClientConfig, TelemetryError> {
+pub(crate) fn client_config(t: &TlsConfig) -> Result<rustls::ClientConfig, TelemetryError> {
     let ca_key = || format!("telemetry.mqtt.tls.ca_file {}", t.ca_file.display());
     let mut roots = rustls::RootCertStore::empty();
     let cas = CertificateDer::pem_file_iter(&t.ca_file).map_err(TelemetryError::setup(ca_key()))?;
