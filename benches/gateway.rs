@@ -37,7 +37,7 @@ impl BenchModel {
 }
 
 impl ErrorModel for BenchModel {
-    fn required_channels(&self) -> Vec<retrocomp::bus::ChannelId> {
+    fn required_channels(&self) -> Vec<ChannelId> {
         vec![
             "T_spindle_C".into(),
             "T_x_C".into(),

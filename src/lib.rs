@@ -4,7 +4,6 @@
 pub mod analysis;
 pub mod approach;
 pub mod bus;
-pub mod cli;
 pub mod config_issue;
 pub mod decimal;
 pub mod demo;

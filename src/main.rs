@@ -1,7 +1,8 @@
 //! The `retrocomp` command line: one subcommand per module in `src/cli/`.
 
 use clap::{Parser, Subcommand};
-use retrocomp::cli;
+
+mod cli;
 
 #[derive(Parser)]
 #[command(

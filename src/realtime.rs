@@ -113,7 +113,7 @@ pub fn spawn_runtime_thread<F, T>(
     make: impl FnOnce() -> F + Send + 'static,
 ) -> std::io::Result<JoinHandle<T>>
 where
-    F: std::future::Future<Output = T>,
+    F: Future<Output = T>,
     T: Send + 'static,
 {
     let rt = tokio::runtime::Builder::new_current_thread()

@@ -58,7 +58,8 @@ fn plane_model_target_parses_like_the_file_loader() {
     for (name, body) in ["plane.toml", "a.csv", "b.csv"].iter().zip(&parts) {
         std::fs::write(dir.path().join(name), body).unwrap();
     }
-    let file = retrocomp::cli::nc::load_plane_model(&dir.path().join("plane.toml")).unwrap();
+    let file =
+        retrocomp::analysis::plane_model::load_plane_model(&dir.path().join("plane.toml")).unwrap();
     let mut compared = 0;
     for z in [0.0, 40.0, 170.0] {
         for x in [0.0, 20.0, 85.0] {

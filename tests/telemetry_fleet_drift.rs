@@ -284,7 +284,7 @@ fn snapshot(k: u64) -> retrocomp::gateway::status::StatusSnapshot {
 /// sampler produced is acknowledged before NDEATH, and the fleet host has each of them once.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn finish_sends_every_record_before_ndeath() {
-    use retrocomp::cli::fleet::FleetClient;
+    use retrocomp::telemetry::fleet_client::FleetClient;
     use retrocomp::telemetry::{self, MqttConfig, PublisherInputs};
     use std::sync::Arc;
     let dir = tempfile::tempdir().unwrap();

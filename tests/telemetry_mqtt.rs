@@ -486,9 +486,9 @@ drop_policy = "drop_oldest"
 }
 
 async fn fleet_until(
-    f: &mut retrocomp::cli::fleet::FleetClient,
+    f: &mut telemetry::fleet_client::FleetClient,
     what: &str,
-    pred: impl Fn(&retrocomp::cli::fleet::FleetClient) -> bool,
+    pred: impl Fn(&telemetry::fleet_client::FleetClient) -> bool,
 ) {
     let deadline = Instant::now() + PATIENCE;
     while !pred(f) {
@@ -502,8 +502,8 @@ async fn fleet_until(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn fleet_shows_boxes_compensating_degraded_and_offline_by_death_and_will() {
-    use retrocomp::cli::fleet::FleetClient;
     use retrocomp::telemetry::fleet::Verdict;
+    use retrocomp::telemetry::fleet_client::FleetClient;
     let dir = tempfile::tempdir().unwrap();
     let port = free_port();
     let _broker = Broker::start(dir.path(), port);

@@ -38,19 +38,30 @@ const PALETTE: [RGBColor; 6] = [
     BLACK,
 ];
 
+/// Why a chart could not be rendered.
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    #[error("nothing to plot for `{0}`")]
+    Empty(String),
+    #[error("non-finite value in plot `{0}`")]
+    NonFinite(String),
+    #[error("cannot draw plot `{0}`")]
+    Draw(String, #[source] Box<dyn std::error::Error + Send + Sync>),
+}
+
 /// Renders an x–y chart to an SVG string. Empty or non-finite data is an error, not a blank plot.
 pub fn xy_svg(
     title: &str,
     x_label: &str,
     y_label: &str,
     series: &[Series],
-) -> anyhow::Result<String> {
+) -> Result<String, PlotError> {
     let pts = || series.iter().flat_map(|s| s.points.iter());
     if pts().next().is_none() {
-        anyhow::bail!("nothing to plot for `{title}`");
+        return Err(PlotError::Empty(title.to_string()));
     }
     if pts().any(|(x, y)| !x.is_finite() || !y.is_finite()) {
-        anyhow::bail!("non-finite value in plot `{title}`");
+        return Err(PlotError::NonFinite(title.to_string()));
     }
     let (mut x0, mut x1, mut y0, mut y1) = (
         f64::INFINITY,
@@ -73,7 +84,7 @@ pub fn xy_svg(
     };
     let (px, py) = (pad(x0, x1), pad(y0, y1));
     let mut svg = String::new();
-    {
+    let mut draw = || -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
         let root = SVGBackend::with_string(&mut svg, (900, 540)).into_drawing_area();
         root.fill(&WHITE)?;
         let mut chart = ChartBuilder::on(&root)
@@ -109,7 +120,9 @@ pub fn xy_svg(
             .border_style(BLACK)
             .draw()?;
         root.present()?;
-    }
+        Ok(())
+    };
+    draw().map_err(|e| PlotError::Draw(title.to_string(), e))?;
     Ok(svg)
 }
 

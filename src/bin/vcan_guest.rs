@@ -28,7 +28,7 @@ mod guest {
     const STEP_TIMEOUT: Duration = Duration::from_secs(10);
 
     /// Every check the host test expects to see passed, in run order.
-    pub const CHECKS: &[&str] = &[
+    pub(crate) const CHECKS: &[&str] = &[
         "open_missing_interface_is_not_found",
         "open_non_can_interface_is_not_found",
         "cansend_cia406_tpdo_to_retrocomp",
@@ -48,7 +48,7 @@ mod guest {
         "gateway_can_source_reconnects_after_interface_down",
     ];
 
-    pub async fn run() -> bool {
+    pub(crate) async fn run() -> bool {
         let mut failed = 0usize;
         for &name in CHECKS {
             let result = match name {

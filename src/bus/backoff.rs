@@ -1,5 +1,6 @@
 //! The one reconnect backoff of the workspace: every source (CAN backends, Modbus pollers, serial
-//! lines) and every sink (origin-shift client) that retries a lost link waits by this type.
+//! lines), every sink (origin-shift client), the MQTT telemetry publisher and recording shipper,
+//! and the status endpoint's accept loop retry a lost link (or a failed accept) by this type.
 //!
 //! Sans-IO: it never sleeps and never reads a clock. After each failed attempt the shell asks
 //! [`Backoff::next_delay`] (or [`Backoff::retry_at`] with its own `now`) how long to wait; after a

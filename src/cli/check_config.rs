@@ -4,17 +4,17 @@
 use std::fmt::Write;
 use std::path::PathBuf;
 
-use crate::models::function::ErrorFunction;
-use crate::models::spec::{Branch, ThermalKind};
-use crate::models::{MachineModel, ModelSpec};
+use retrocomp::models::function::ErrorFunction;
+use retrocomp::models::spec::{Branch, ThermalKind};
+use retrocomp::models::{MachineModel, ModelSpec};
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Machine model TOML file.
     pub file: PathBuf,
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     let model = MachineModel::from_toml_path(&args.file).map_err(|e| anyhow::anyhow!("{e}"))?;
     print!("{}", summary(&model));
     Ok(())
@@ -50,7 +50,7 @@ fn function_summary(f: &ErrorFunction) -> String {
 }
 
 /// The text printed by `check-config` for a valid model.
-pub fn summary(model: &MachineModel) -> String {
+pub(crate) fn summary(model: &MachineModel) -> String {
     let s: &ModelSpec = model.spec();
     let mut o = String::new();
     let _ = writeln!(

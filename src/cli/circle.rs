@@ -5,14 +5,13 @@
 
 use std::path::PathBuf;
 
-use crate::analysis::circular::{self, CircleSetup, CircleTrace, Rotation};
-use crate::analysis::import_error::ErrorSink;
-use crate::analysis::report::{Series, xy_svg};
+use retrocomp::analysis::circular::{self, CircleSetup, parse_traces};
+use retrocomp::analysis::report::{Series, xy_svg};
 
 use super::util::{read, write};
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     pub file: PathBuf,
     #[arg(long)]
     pub radius_mm: f64,
@@ -28,78 +27,7 @@ pub struct Args {
     pub svg: Option<PathBuf>,
 }
 
-pub fn parse_traces(
-    file: &str,
-    text: &str,
-) -> Result<Vec<CircleTrace>, crate::analysis::import_error::ImportErrors> {
-    let mut sink = ErrorSink::new(file);
-    let mut ccw = CircleTrace {
-        rotation: Rotation::Ccw,
-        angle_rad: vec![],
-        dr_um: vec![],
-    };
-    let mut cw = CircleTrace {
-        rotation: Rotation::Cw,
-        angle_rad: vec![],
-        dr_um: vec![],
-    };
-    let mut header_seen = false;
-    for (i, raw) in text.lines().enumerate() {
-        let line = i as u64 + 1;
-        let body = raw.split('#').next().unwrap_or("").trim();
-        if body.is_empty() {
-            continue;
-        }
-        let f: Vec<&str> = body.split(',').map(str::trim).collect();
-        if !header_seen {
-            if f != ["angle_deg", "dr_um", "direction"] {
-                sink.push(
-                    line,
-                    None,
-                    format!("expected header `angle_deg,dr_um,direction`, found `{body}`"),
-                );
-                return sink.finish(vec![]);
-            }
-            header_seen = true;
-            continue;
-        }
-        if f.len() != 3 {
-            sink.push(line, None, format!("expected 3 fields, found {}", f.len()));
-            continue;
-        }
-        let a = sink.parse_f64(line, "angle_deg", f[0]);
-        let d = sink.parse_f64(line, "dr_um", f[1]);
-        let t = match f[2] {
-            "ccw" | "CCW" => Some(&mut ccw),
-            "cw" | "CW" => Some(&mut cw),
-            other => {
-                sink.push(
-                    line,
-                    Some("direction"),
-                    format!("expected `ccw` or `cw`, found `{other}`"),
-                );
-                None
-            }
-        };
-        if let (Some(a), Some(d), Some(t)) = (a, d, t) {
-            t.angle_rad.push(a.to_radians());
-            t.dr_um.push(d);
-        }
-    }
-    if !header_seen {
-        sink.push(0, None, "empty file");
-    }
-    let traces: Vec<CircleTrace> = [ccw, cw]
-        .into_iter()
-        .filter(|t| !t.angle_rad.is_empty())
-        .collect();
-    if traces.is_empty() && sink.is_empty() {
-        sink.push(0, None, "no data rows");
-    }
-    sink.finish(traces)
-}
-
-pub fn run(a: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
     let name = a.file.display().to_string();
     let traces = parse_traces(&name, &read(&a.file)?)?;
     let setup = CircleSetup {

@@ -6,10 +6,10 @@
 
 use std::path::PathBuf;
 
-use crate::demo::{DemoOptions, Mode, run_demo, sim_process::locate_hil_sim};
+use retrocomp::demo::{DemoOptions, Mode, run_demo, sim_process::locate_hil_sim};
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Output folder: recordings, configs, models, SVG plots.
     #[arg(long, default_value = "out/demo")]
     pub out: PathBuf,
@@ -38,7 +38,7 @@ pub struct Args {
     pub realtime_priority: u8,
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     // Quiet by default: the table and the JSON line are the output (RUST_LOG overrides). The CAN
     // source reports "bus closed" when hil-sim ends its program and leaves the hub: expected here.
     let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
@@ -54,7 +54,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         args.seconds
     );
     if let Some(b) = &args.mqtt {
-        crate::telemetry::config::demo_section(b, "check")
+        retrocomp::telemetry::config::demo_section(b, "check")
             .mqtt
             .as_ref()
             .map_or(Ok(()), |m| m.check())
@@ -115,7 +115,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     if let Some(listen) = &args.serve {
         // With --json the summary stays the last stdout line: the address goes to stderr then.
         let json = args.json;
-        let live = crate::demo::serve_live(&opts, listen, move |addr, opcua| {
+        let live = retrocomp::demo::serve_live(&opts, listen, move |addr, opcua| {
             let line = format!(
                 "retrocomp demo: live page http://{addr}/ (JSON /status, Prometheus /metrics); OPC UA {opcua} (read-only); Ctrl-C stops"
             );
@@ -137,7 +137,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
 
 /// One line per compensated run: did the gateway compensate the whole program? A run that dropped
 /// compensation (stale inputs under host load, a model fault) says so here, not only in a log.
-fn print_gateway_health(runs: &[crate::demo::RunResult]) {
+fn print_gateway_health(runs: &[retrocomp::demo::RunResult]) {
     for run in runs.iter().filter(|r| r.mode != Mode::Uncompensated) {
         let g = &run.gateway;
         if g.not_compensating_episodes > 0 {

@@ -1,15 +1,15 @@
-//! `retrocomp diagnose` and `retrocomp diagnose-bench`: thin shells over [`crate::diagnose`].
+//! `retrocomp diagnose` and `retrocomp diagnose-bench`: thin shells over [`retrocomp::diagnose`].
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context as _, bail};
 
-use crate::diagnose::scoring::{self, CaseScore};
-use crate::diagnose::{self, output, select::Options};
-use crate::recording::{BadRow, Recording};
+use retrocomp::diagnose::scoring::{self, CaseScore};
+use retrocomp::diagnose::{self, output, select::Options};
+use retrocomp::recording::{BadRow, Recording};
 
 #[derive(clap::Args, Debug)]
-pub struct DiagnoseArgs {
+pub(crate) struct DiagnoseArgs {
     /// Recording CSV (DESIGN §4).
     #[arg(long)]
     pub recording: PathBuf,
@@ -35,7 +35,10 @@ pub struct DiagnoseArgs {
 
 /// Read a recording; `lenient` (`--skip-bad-rows`) keeps going past bad rows, prints every one on
 /// stderr (file, line, column, why) and returns them for the JSON output.
-pub fn read_recording(path: &Path, lenient: bool) -> anyhow::Result<(Recording, Vec<BadRow>)> {
+pub(crate) fn read_recording(
+    path: &Path,
+    lenient: bool,
+) -> anyhow::Result<(Recording, Vec<BadRow>)> {
     if !lenient {
         return Ok((Recording::read_path(path)?, vec![]));
     }
@@ -49,17 +52,18 @@ pub fn read_recording(path: &Path, lenient: bool) -> anyhow::Result<(Recording, 
 
 /// The skipped rows as a JSON list (`[{"line", "column", "reason"}]`), the `skipped_rows` key that
 /// `--skip-bad-rows` adds to the JSON object (DESIGN §5's keys are unchanged).
-pub fn skipped_rows_json(bad: &[BadRow]) -> serde_json::Value {
+pub(crate) fn skipped_rows_json(bad: &[BadRow]) -> serde_json::Value {
     bad.iter()
         .map(|b| serde_json::json!({ "line": b.line, "column": b.column, "reason": b.reason }))
         .collect()
 }
 
-pub fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
+pub(crate) fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
     let (rec, bad) = read_recording(&a.recording, a.skip_bad_rows)?;
     let base = match &a.model {
         Some(m) => Some(
-            crate::models::MachineModel::from_toml_path(m).map_err(|e| anyhow::anyhow!("{e}"))?,
+            retrocomp::models::MachineModel::from_toml_path(m)
+                .map_err(|e| anyhow::anyhow!("{e}"))?,
         ),
         None => None,
     };
@@ -106,7 +110,7 @@ pub fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
 }
 
 #[derive(clap::Args, Debug)]
-pub struct BenchArgs {
+pub(crate) struct BenchArgs {
     /// Directory written by `hil-sim gen-cases` (case_NNNN.csv + case_NNNN.json).
     #[arg(long)]
     pub cases: PathBuf,
@@ -120,14 +124,14 @@ pub struct BenchArgs {
 }
 
 /// Diagnose one case file pair and score it against its manifest.
-pub fn score_file(csv: &Path) -> anyhow::Result<CaseScore> {
+pub(crate) fn score_file(csv: &Path) -> anyhow::Result<CaseScore> {
     let m = scoring::read_manifest(&csv.with_extension("json"))?;
     let rec = Recording::read_path(csv)?;
     let d = diagnose::diagnose(&rec, &Options::default())?;
     Ok(scoring::score_case(&m, &rec, &d.report))
 }
 
-pub fn run_bench(a: &BenchArgs) -> anyhow::Result<()> {
+pub(crate) fn run_bench(a: &BenchArgs) -> anyhow::Result<()> {
     let mut csvs: Vec<PathBuf> = std::fs::read_dir(&a.cases)
         .with_context(|| a.cases.display().to_string())?
         .filter_map(|e| e.ok().map(|e| e.path()))

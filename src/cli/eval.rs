@@ -14,10 +14,10 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 
-use crate::models::{EvalFlags, MachineModel, ModelInput};
+use retrocomp::models::{EvalFlags, MachineModel, ModelInput};
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Machine model TOML file.
     #[arg(long)]
     pub model: PathBuf,
@@ -44,7 +44,7 @@ fn find(headers: &csv::StringRecord, name: &str) -> Option<usize> {
     headers.iter().position(|h| h.trim() == name)
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     let model = MachineModel::from_toml_path(&args.model).map_err(|e| anyhow::anyhow!("{e}"))?;
     let file = args.path.display().to_string();
     let headers = open(&args.path, &file)?
@@ -204,7 +204,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         // Fixed 6 decimals (1 pm).
         for v in out.total_um.iter().chain(out.terms_um.iter().flatten()) {
             line.push(b',');
-            crate::decimal::push_fixed6(&mut line, *v);
+            retrocomp::decimal::push_fixed6(&mut line, *v);
         }
         line.push(b',');
         write_flags(&mut line, &out.flags)?;

@@ -4,20 +4,20 @@
 
 use std::path::PathBuf;
 
-use crate::analysis::export::{fanuc, isg, linuxcnc};
-use crate::analysis::report::{Series, xy_svg};
+use retrocomp::analysis::export::{fanuc, isg, linuxcnc};
+use retrocomp::analysis::report::{Series, xy_svg};
 
 use super::util::{emit, read_table, write};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Format {
+pub(crate) enum Format {
     Fanuc,
     Linuxcnc,
     Isg,
 }
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     pub table: PathBuf,
     #[arg(long, value_enum)]
     pub format: Format,
@@ -55,7 +55,7 @@ pub struct Args {
     pub svg: Option<PathBuf>,
 }
 
-pub fn run(a: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
     let t = read_table(&a.table)?;
     let mut summary =
         serde_json::json!({ "table": a.table.display().to_string(), "points_in": t.len() });

@@ -7,38 +7,38 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 
 use super::util::write;
-use crate::analysis::fit::regression::Criterion;
-use crate::analysis::fit::to_model::{
+use retrocomp::analysis::fit::regression::Criterion;
+use retrocomp::analysis::fit::to_model::{
     AxisForm, add_load, add_thermal, axis_component, put_component, single_axis_spec,
     to_checked_toml,
 };
-use crate::analysis::fit::workflow::{ContextFit, fit_axis, fit_context};
-use crate::analysis::report::{Series, xy_svg};
-use crate::analysis::table::Direction;
-use crate::models::names::parse_component;
-use crate::models::{ComponentId, MachineModel, ModelSpec};
-use crate::recording::Recording;
+use retrocomp::analysis::fit::workflow::{ContextFit, fit_axis, fit_context};
+use retrocomp::analysis::report::{Series, xy_svg};
+use retrocomp::analysis::table::Direction;
+use retrocomp::models::names::parse_component;
+use retrocomp::models::{ComponentId, MachineModel, ModelSpec};
+use retrocomp::recording::Recording;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     #[command(subcommand)]
     pub what: What,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Form {
+pub(crate) enum Form {
     Table,
     Piecewise,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Crit {
+pub(crate) enum Crit {
     Bic,
     Cp,
 }
 
 #[derive(Debug, clap::Args)]
-pub struct Common {
+pub(crate) struct Common {
     /// Model to extend; without it (axis fits only) a one-axis model is written.
     #[arg(long)]
     pub base_model: Option<PathBuf>,
@@ -56,7 +56,7 @@ pub struct Common {
 }
 
 #[derive(Debug, clap::Subcommand)]
-pub enum What {
+pub(crate) enum What {
     /// Piecewise-quadratic forward/reverse tables of one component from laser runs (ISO 230-2 CSV).
     Axis {
         runs: PathBuf,
@@ -266,7 +266,7 @@ fn training_mean(rec: &Recording, f: &ContextFit) -> impl Fn(&str) -> f64 {
     }
 }
 
-pub fn run(a: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
     match &a.what {
         What::Axis {
             runs,

@@ -11,14 +11,13 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context as _;
-use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 
-use crate::telemetry::drift::{self, DriftState, MachineDrift};
-use crate::telemetry::fleet::FleetView;
-use crate::telemetry::recordings::{Collector, Took};
+use retrocomp::telemetry::drift::{self, DriftState, MachineDrift};
+use retrocomp::telemetry::fleet::FleetView;
+use retrocomp::telemetry::fleet_client::FleetClient;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// MQTT broker, HOST:PORT.
     #[arg(long)]
     pub broker: String,
@@ -56,103 +55,6 @@ pub struct Args {
     pub stop_after_diagnosed: Option<usize>,
 }
 
-/// The MQTT shell around [`FleetView`]: one subscription to `spBv1.0/<group>/+/+` (QoS 1),
-/// renewed on every reconnect.
-pub struct FleetClient {
-    client: AsyncClient,
-    events: rumqttc::EventLoop,
-    topic: String,
-    pub view: FleetView,
-    /// Recordings collected from `recordings_topic`, when collecting.
-    pub collector: Option<(Collector, String)>,
-    /// The broker acknowledged the subscription (messages from now on are seen).
-    pub subscribed: bool,
-    subacks: u32,
-}
-
-impl FleetClient {
-    /// `broker` is HOST:PORT; `group` None watches every group.
-    pub fn new(broker: &str, group: Option<&str>) -> anyhow::Result<Self> {
-        let (host, port) = broker
-            .rsplit_once(':')
-            .and_then(|(h, p)| Some((h.to_string(), p.parse::<u16>().ok()?)))
-            .with_context(|| format!("--broker {broker}: expected HOST:PORT"))?;
-        let id = format!("retrocomp-fleet-{}-{port}", std::process::id());
-        let mut o = MqttOptions::new(id, host, port);
-        o.set_keep_alive(Duration::from_secs(10));
-        o.set_max_packet_size(1 << 20, 1 << 20);
-        let (client, events) = AsyncClient::new(o, 64);
-        Ok(FleetClient {
-            client,
-            events,
-            topic: format!("spBv1.0/{}/+/+", group.unwrap_or("+")),
-            view: FleetView::default(),
-            collector: None,
-            subscribed: false,
-            subacks: 0,
-        })
-    }
-
-    /// Also collect recordings published on `topic` (a filter) into `dir`.
-    pub fn collect(&mut self, dir: PathBuf, topic: &str) {
-        self.collector = Some((Collector::new(dir), topic.to_string()));
-    }
-
-    /// Wait for the next event; true when a Sparkplug message changed the view. A link error
-    /// is returned after a 500 ms pause (the next call reconnects).
-    pub async fn poll(&mut self) -> anyhow::Result<bool> {
-        match self.events.poll().await {
-            Ok(Event::Incoming(Packet::ConnAck(_))) => {
-                self.subscribed = false;
-                self.subacks = 0;
-                self.client
-                    .try_subscribe(self.topic.clone(), QoS::AtLeastOnce)?;
-                if let Some((_, t)) = &self.collector {
-                    self.client.try_subscribe(t.clone(), QoS::AtLeastOnce)?;
-                }
-                Ok(false)
-            }
-            Ok(Event::Incoming(Packet::SubAck(_))) => {
-                // Subscribed once every SUBACK is in (one or two subscriptions).
-                self.subscribed = self.collector.is_none() || self.pending_subacks_done();
-                Ok(false)
-            }
-            Ok(Event::Incoming(Packet::Publish(p))) if p.topic.starts_with("spBv1.0/") => {
-                self.view.ingest(&p.topic, &p.payload);
-                Ok(true)
-            }
-            Ok(Event::Incoming(Packet::Publish(p))) => {
-                if let Some((c, _)) = &mut self.collector {
-                    match c.ingest(&p.payload) {
-                        Ok(Took::Written(Some(path))) => {
-                            tracing::info!(path = %path.display(), "fleet: recording collected");
-                        }
-                        Ok(Took::Refused(why)) => {
-                            tracing::warn!(topic = p.topic, why, "fleet: recording chunk refused");
-                        }
-                        Ok(_) => {}
-                        Err(e) => tracing::error!(%e, "fleet: cannot write a recording"),
-                    }
-                }
-                Ok(false)
-            }
-            Ok(_) => Ok(false),
-            Err(e) => {
-                tokio::time::sleep(Duration::from_millis(500)).await;
-                Err(e.into())
-            }
-        }
-    }
-}
-
-impl FleetClient {
-    /// Counts SUBACKs since the last CONNACK: true at the second (telemetry + recordings).
-    fn pending_subacks_done(&mut self) -> bool {
-        self.subacks += 1;
-        self.subacks >= 2
-    }
-}
-
 /// Diagnose every machine that has a recording and a model; `prev` keeps each machine's history.
 fn diagnose_all(
     collect: &std::path::Path,
@@ -179,7 +81,7 @@ fn diagnose_all(
     out
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     anyhow::ensure!(
         args.every_s.is_finite() && args.every_s > 0.0,
         "--every-s must be > 0"
@@ -258,7 +160,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
 
 /// The nodes (and machines known only by their recordings) as one JSON array; each with its
 /// `verdict` and, once diagnosed, `drift`.
-pub fn json(
+pub(crate) fn json(
     view: &FleetView,
     drifts: &BTreeMap<(String, String), MachineDrift>,
 ) -> anyhow::Result<serde_json::Value> {
@@ -282,7 +184,7 @@ pub fn json(
 }
 
 /// The health table, then one line per diagnosed machine (drift state, residual, finding).
-pub fn table(view: &FleetView, drifts: &BTreeMap<(String, String), MachineDrift>) -> String {
+pub(crate) fn table(view: &FleetView, drifts: &BTreeMap<(String, String), MachineDrift>) -> String {
     let mut s = view.table();
     if !drifts.is_empty() {
         s.push_str(&format!(

@@ -12,10 +12,10 @@ use std::sync::atomic::Ordering;
 
 use anyhow::Context;
 
-use crate::bus::can::hub::{Hub, HubStats};
+use retrocomp::bus::can::hub::{Hub, HubStats};
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Address to listen on. Keep it on loopback: the socketcand protocol has no authentication.
     #[arg(long, default_value = "127.0.0.1:29536")]
     pub listen: SocketAddr,
@@ -32,7 +32,7 @@ fn counters(s: &HubStats) -> String {
     )
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     super::run::init_tracing();
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

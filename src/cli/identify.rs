@@ -9,15 +9,15 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 
 use super::util::{read, write};
-use crate::analysis::identify::contracts::{BallBar, HolePlate, read_ballbar, read_hole_plate};
-use crate::analysis::identify::design::Geometry;
-use crate::analysis::identify::report::{DirVerify, components, to_spec, verify};
-use crate::analysis::identify::{Identification, Options, identify};
-use crate::analysis::report::{Series, xy_svg};
-use crate::models::MachineModel;
+use retrocomp::analysis::identify::contracts::{BallBar, HolePlate, read_ballbar, read_hole_plate};
+use retrocomp::analysis::identify::design::Geometry;
+use retrocomp::analysis::identify::report::{DirVerify, components, to_spec, verify};
+use retrocomp::analysis::identify::{Identification, Options, identify};
+use retrocomp::analysis::report::{Series, xy_svg};
+use retrocomp::models::MachineModel;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Kinematic chain, workpiece → tool, F = frame (e.g. "X F Y Z").
     #[arg(long)]
     pub chain: String,
@@ -75,7 +75,7 @@ fn read_bar(p: &Path) -> anyhow::Result<BallBar> {
     )?)
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     let geo = Geometry::from_chain(&args.chain)?;
     let plates: Vec<HolePlate> = args
         .hole_plate

@@ -6,16 +6,16 @@
 
 use std::path::PathBuf;
 
-use crate::analysis::export::{fanuc, isg, linuxcnc};
-use crate::analysis::iso230_2::{self, runs_per_direction};
-use crate::analysis::report::{Series, xy_svg};
-use crate::analysis::table::BidirectionalTable;
 use anyhow::Context;
+use retrocomp::analysis::export::{fanuc, isg, linuxcnc};
+use retrocomp::analysis::iso230_2::{self, runs_per_direction};
+use retrocomp::analysis::report::{Series, xy_svg};
+use retrocomp::analysis::table::BidirectionalTable;
 
 use super::util::{emit, read, table_csv, write};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Format {
+pub(crate) enum Format {
     Laser,
     Fanuc,
     Linuxcnc,
@@ -23,7 +23,7 @@ pub enum Format {
 }
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     pub file: PathBuf,
     #[arg(long, value_enum, default_value = "laser")]
     pub format: Format,
@@ -51,7 +51,7 @@ pub struct Args {
     pub svg: Option<PathBuf>,
 }
 
-pub fn run(a: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
     let name = a.file.display().to_string();
     let text = read(&a.file)?;
     let mut summary =

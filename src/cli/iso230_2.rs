@@ -2,15 +2,15 @@
 
 use std::path::PathBuf;
 
-use crate::analysis::iso230_2::{self, Reading};
-use crate::analysis::laser_import::{parse_readings, remove_linear_drift};
-use crate::analysis::report::{Series, xy_svg};
-use crate::analysis::table::Direction;
+use retrocomp::analysis::iso230_2::{self, Reading};
+use retrocomp::analysis::laser_import::{parse_readings, remove_linear_drift};
+use retrocomp::analysis::report::{Series, xy_svg};
+use retrocomp::analysis::table::Direction;
 
 use super::util::{read, write};
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Laser runs: `target_mm,run,direction,deviation_um` or `target_mm,run1_fwd_um,run1_rev_um,…`.
     pub file: PathBuf,
     /// Print the report as one JSON object.
@@ -24,7 +24,10 @@ pub struct Args {
     pub remove_drift: bool,
 }
 
-pub fn load(file: &std::path::Path, remove_drift: bool) -> anyhow::Result<(Vec<Reading>, f64)> {
+pub(crate) fn load(
+    file: &std::path::Path,
+    remove_drift: bool,
+) -> anyhow::Result<(Vec<Reading>, f64)> {
     let text = read(file)?;
     let mut rs = parse_readings(&file.display().to_string(), &text)?;
     let slope = if remove_drift {
@@ -35,7 +38,7 @@ pub fn load(file: &std::path::Path, remove_drift: bool) -> anyhow::Result<(Vec<R
     Ok((rs, slope))
 }
 
-pub fn run(a: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
     let (rs, slope) = load(&a.file, a.remove_drift)?;
     let rep = iso230_2::evaluate(&rs)?;
     if a.json {

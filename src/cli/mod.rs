@@ -1,20 +1,20 @@
 //! Command-line front ends. Each subcommand lives in its own module with a clap `Args` struct and a
 //! `run` function; `src/main.rs` only lists them.
 
-pub mod check_config;
-pub mod circle;
-pub mod demo;
-pub mod diagnose;
-pub mod eval;
-pub mod export;
-pub mod fit;
-pub mod fleet;
-pub mod hub;
-pub mod identify;
-pub mod import;
-pub mod iso230_2;
-pub mod nc;
-pub mod run;
-pub mod ship;
-pub mod status;
-pub mod util;
+pub(crate) mod check_config;
+pub(crate) mod circle;
+pub(crate) mod demo;
+pub(crate) mod diagnose;
+pub(crate) mod eval;
+pub(crate) mod export;
+pub(crate) mod fit;
+pub(crate) mod fleet;
+pub(crate) mod hub;
+pub(crate) mod identify;
+pub(crate) mod import;
+pub(crate) mod iso230_2;
+pub(crate) mod nc;
+pub(crate) mod run;
+pub(crate) mod ship;
+pub(crate) mod status;
+pub(crate) mod util;

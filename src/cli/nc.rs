@@ -22,25 +22,23 @@
 //! ```
 
 use std::io::{BufReader, BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use crate::analysis::laser_import::parse_table_columns;
-use crate::analysis::nc::ErrorFunction;
-use crate::analysis::nc::model_errors::ModelErrors;
-use crate::analysis::nc::rewrite::{
+use anyhow::Context;
+use retrocomp::analysis::nc::ErrorFunction;
+use retrocomp::analysis::nc::model_errors::ModelErrors;
+use retrocomp::analysis::nc::rewrite::{
     POINTS_HEADER, Point, RewriteConfig, RewriteSink, RewriteStats, rewrite_stream,
 };
-use crate::analysis::plane_model::{PlaneTerms, ZxPlaneModel};
-use crate::analysis::report::{Series, xy_svg};
-use crate::analysis::table::{BidirectionalTable, Direction};
-use crate::models::MachineModel;
-use anyhow::Context;
-use serde::Deserialize;
+use retrocomp::analysis::plane_model::load_plane_model;
+use retrocomp::analysis::report::{Series, xy_svg};
+use retrocomp::analysis::table::Direction;
+use retrocomp::models::MachineModel;
 
-use super::util::{read, write};
+use super::util::write;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     pub program: PathBuf,
     /// Machine model TOML (the error function to compensate).
     #[arg(
@@ -88,84 +86,6 @@ pub struct Args {
     pub json: bool,
     #[arg(long)]
     pub svg: Option<PathBuf>,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct TableSpec {
-    file: PathBuf,
-    position: String,
-    forward: String,
-    reverse: String,
-    #[serde(default = "one")]
-    to_um: f64,
-}
-
-fn one() -> f64 {
-    1.0
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ModelSpec {
-    terms: String,
-    szx_urad: f64,
-    dzz: TableSpec,
-    dxz: TableSpec,
-    dxx: TableSpec,
-    dzx: TableSpec,
-}
-
-fn load_table(
-    base: &Path,
-    s: &TableSpec,
-    read_file: &mut dyn FnMut(&Path) -> std::io::Result<String>,
-) -> anyhow::Result<BidirectionalTable> {
-    let path = base.join(&s.file);
-    // The same message as `util::read`.
-    let text = read_file(&path).with_context(|| format!("cannot read {}", path.display()))?;
-    Ok(parse_table_columns(
-        &path.display().to_string(),
-        &text,
-        &s.position,
-        &s.forward,
-        &s.reverse,
-        s.to_um,
-    )?)
-}
-
-/// Loads the Z–X plane model from `path` and the table files it names (relative to its folder).
-pub fn load_plane_model(path: &Path) -> anyhow::Result<ZxPlaneModel> {
-    parse_plane_model(path, &read(path)?, &mut |p| std::fs::read_to_string(p))
-}
-
-/// The plane model from its TOML text (`path` names it in messages and is the base of the table
-/// files' names); each table file's text comes from `read_file` (the file system for
-/// `load_plane_model`, memory for the fuzz target), so both go through the same parsing.
-pub fn parse_plane_model(
-    path: &Path,
-    toml_text: &str,
-    read_file: &mut dyn FnMut(&Path) -> std::io::Result<String>,
-) -> anyhow::Result<ZxPlaneModel> {
-    let spec: ModelSpec = toml::from_str(toml_text)
-        .with_context(|| format!("{}: invalid plane model", path.display()))?;
-    let base = path.parent().unwrap_or(Path::new("."));
-    let terms = match spec.terms.as_str() {
-        "geometric" => PlaneTerms::Geometric,
-        "positional" => PlaneTerms::Positional,
-        t => anyhow::bail!(
-            "{}: key `terms`: expected \"geometric\" or \"positional\", found \"{t}\"",
-            path.display()
-        ),
-    };
-    Ok(ZxPlaneModel {
-        dzz: load_table(base, &spec.dzz, read_file)?,
-        dxz: load_table(base, &spec.dxz, read_file)?,
-        dxx: load_table(base, &spec.dxx, read_file)?,
-        dzx: load_table(base, &spec.dzx, read_file)?,
-        szx_urad: spec.szx_urad,
-        terms,
-    })
 }
 
 fn parse_xyz(s: &str) -> Result<[f64; 3], String> {
@@ -281,7 +201,7 @@ fn rewrite_to(
     Ok((stats, sink.svg))
 }
 
-pub fn run(a: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
     if let Some(s) = a.split_mm
         && !(s.is_finite() && s > 0.0)
     {

@@ -6,16 +6,16 @@ use std::path::PathBuf;
 
 use anyhow::bail;
 
-use crate::gateway::config::FieldConfig;
-use crate::gateway::engine::{AxisErrors, ErrorModel, MachineState};
-use crate::gateway::model_adapter::MachineModelAdapter;
-use crate::gateway::run::{require_sink, run as run_gateway};
-use crate::gateway::sources::spawn_sources;
-use crate::gateway::supervise::{exit_on_panic, spawn_watchdog};
-use crate::models::MachineModel;
+use retrocomp::gateway::config::FieldConfig;
+use retrocomp::gateway::engine::{AxisErrors, ErrorModel, MachineState};
+use retrocomp::gateway::model_adapter::MachineModelAdapter;
+use retrocomp::gateway::run::{require_sink, run as run_gateway};
+use retrocomp::gateway::sources::spawn_sources;
+use retrocomp::gateway::supervise::{exit_on_panic, spawn_watchdog};
+use retrocomp::models::MachineModel;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Field configuration TOML (see deploy/field/).
     #[arg(long)]
     pub config: PathBuf,
@@ -27,7 +27,7 @@ pub struct Args {
     pub dry_run: bool,
 }
 
-pub fn init_tracing() {
+pub(crate) fn init_tracing() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
     let _ = tracing_subscriber::fmt()
@@ -36,7 +36,7 @@ pub fn init_tracing() {
         .try_init();
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     init_tracing();
     exit_on_panic();
     let cfg = FieldConfig::load_for_run(&args.config)?;
@@ -103,11 +103,11 @@ struct HangAfter<M> {
 }
 
 impl<M: ErrorModel> ErrorModel for HangAfter<M> {
-    fn required_channels(&self) -> Vec<crate::bus::ChannelId> {
+    fn required_channels(&self) -> Vec<retrocomp::bus::ChannelId> {
         self.inner.required_channels()
     }
 
-    fn identity(&self) -> Option<crate::gateway::status::ModelIdentity> {
+    fn identity(&self) -> Option<retrocomp::gateway::status::ModelIdentity> {
         self.inner.identity()
     }
 

@@ -9,12 +9,12 @@ use std::time::Duration;
 
 use anyhow::Context as _;
 
-use crate::telemetry::MqttConfig;
-use crate::telemetry::recordings::{chunk_csv, ship_to_dir};
-use crate::telemetry::shipper::{Shipment, default_topic, ship};
+use retrocomp::telemetry::MqttConfig;
+use retrocomp::telemetry::recordings::{chunk_csv, ship_to_dir};
+use retrocomp::telemetry::shipper::{Shipment, default_topic, ship};
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// The recording CSV to send. Without it, only what an interrupted shipment left in
     /// `--queue-dir` is sent.
     #[arg(long)]
@@ -52,8 +52,8 @@ pub struct Args {
 fn mqtt_config(a: &Args) -> anyhow::Result<MqttConfig> {
     let mut m = match &a.config {
         Some(p) => {
-            let cfg =
-                crate::gateway::config::FieldConfig::load(p).map_err(|e| anyhow::anyhow!("{e}"))?;
+            let cfg = retrocomp::gateway::config::FieldConfig::load(p)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
             cfg.telemetry
                 .and_then(|t| t.mqtt)
                 .with_context(|| format!("{}: no [telemetry.mqtt]", p.display()))?
@@ -78,7 +78,7 @@ fn mqtt_config(a: &Args) -> anyhow::Result<MqttConfig> {
     Ok(m)
 }
 
-pub fn run(a: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
     let m = mqtt_config(a)?;
     let rec = match &a.recording {
         Some(p) => {

@@ -5,10 +5,10 @@ use std::time::Duration;
 
 use anyhow::{Context, bail};
 
-use crate::gateway::http::get;
+use retrocomp::gateway::http::get;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Address of the gateway's status endpoint (`[gateway] status_listen`).
     #[arg(long, default_value = "127.0.0.1:9184")]
     pub addr: String,
@@ -20,7 +20,7 @@ pub struct Args {
     pub metrics: bool,
 }
 
-pub fn run(args: &Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     let path = if args.json {
         "/status"
     } else if args.metrics {

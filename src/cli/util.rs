@@ -3,20 +3,20 @@
 
 use std::path::Path;
 
-use crate::analysis::laser_import::parse_table_columns;
-use crate::analysis::table::BidirectionalTable;
 use anyhow::Context;
+use retrocomp::analysis::laser_import::parse_table_columns;
+use retrocomp::analysis::table::BidirectionalTable;
 
-pub fn read(path: &Path) -> anyhow::Result<String> {
+pub(crate) fn read(path: &Path) -> anyhow::Result<String> {
     std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))
 }
 
-pub fn write(path: &Path, text: &str) -> anyhow::Result<()> {
+pub(crate) fn write(path: &Path, text: &str) -> anyhow::Result<()> {
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// Writes `text` to `out` or stdout.
-pub fn emit(out: Option<&Path>, text: &str) -> anyhow::Result<()> {
+pub(crate) fn emit(out: Option<&Path>, text: &str) -> anyhow::Result<()> {
     match out {
         Some(p) => write(p, text),
         None => {
@@ -27,7 +27,7 @@ pub fn emit(out: Option<&Path>, text: &str) -> anyhow::Result<()> {
 }
 
 /// The toolkit's table CSV: `position_mm,forward_um,reverse_um` (error = actual − nominal).
-pub fn read_table(path: &Path) -> anyhow::Result<BidirectionalTable> {
+pub(crate) fn read_table(path: &Path) -> anyhow::Result<BidirectionalTable> {
     let text = read(path)?;
     Ok(parse_table_columns(
         &path.display().to_string(),
@@ -39,7 +39,7 @@ pub fn read_table(path: &Path) -> anyhow::Result<BidirectionalTable> {
     )?)
 }
 
-pub fn table_csv(t: &BidirectionalTable) -> String {
+pub(crate) fn table_csv(t: &BidirectionalTable) -> String {
     let mut s = String::from(
         "# error = actual - nominal; forward = approached in +, reverse = approached in -\nposition_mm,forward_um,reverse_um\n",
     );

@@ -121,12 +121,12 @@ mod tests {
     fn field_config_parses_and_has_a_sink() {
         let a: SocketAddr = "127.0.0.1:29536".parse().unwrap();
         let text = field_toml("demo-full", a, a, Path::new("/dev/pts/9"));
-        let cfg = FieldConfig::parse(&text, std::path::Path::new("demo.toml")).unwrap();
+        let cfg = FieldConfig::parse(&text, Path::new("demo.toml")).unwrap();
         assert_eq!(cfg.axes.len(), 3);
         crate::gateway::run::require_sink(&cfg).unwrap();
         assert!(cfg.serial.is_some(), "the force source is configured");
         let rt = with_realtime_priority(&text, Some(20));
-        let cfg = FieldConfig::parse(&rt, std::path::Path::new("demo.toml")).unwrap();
+        let cfg = FieldConfig::parse(&rt, Path::new("demo.toml")).unwrap();
         assert_eq!(cfg.gateway.realtime_priority, Some(20));
     }
 }

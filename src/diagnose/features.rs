@@ -438,7 +438,7 @@ mod tests {
             .map(|k| 10.0 * k as f64)
             .collect();
         let n = x.len();
-        let rec = crate::recording::Recording::from_columns(vec![
+        let rec = Recording::from_columns(vec![
             ("t_s".into(), (0..n).map(|i| 10.0 * i as f64).collect()),
             ("x_mm".into(), x),
             ("ex_um".into(), vec![0.0; n]),
@@ -467,7 +467,7 @@ mod tests {
             assert!(d.contains(&1.0) && d.contains(&-1.0), "fold {b}: {d:?}");
         }
         // With ≥ 3 runs the runs stay the folds.
-        let rec3 = crate::recording::Recording::from_columns(vec![
+        let rec3 = Recording::from_columns(vec![
             ("t_s".into(), (0..n).map(|i| i as f64).collect()),
             ("x_mm".into(), rec.col("x_mm").unwrap().to_vec()),
             ("ex_um".into(), vec![0.0; n]),

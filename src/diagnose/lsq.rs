@@ -416,11 +416,11 @@ mod tests {
         let r0 = deflate(&basis, &r);
         let cols = vec![col(&|t| (t * 0.05).sin()), col(&|t| (t * 0.05).cos())];
         let want = gain(&orthonormalize(&basis, cols.clone(), 1), &r0);
-        let (got, q) = super::gram_gain(&basis, &cols, &r0);
+        let (got, q) = gram_gain(&basis, &cols, &r0);
         assert_eq!(q, 2);
         assert!((got - want).abs() < 1e-9 * want, "{got} vs {want}");
         // A column inside the basis' span is dropped.
-        let (g1, q1) = super::gram_gain(&basis, &[col(&|t| 2.0 + t / 1500.0)], &r0);
+        let (g1, q1) = gram_gain(&basis, &[col(&|t| 2.0 + t / 1500.0)], &r0);
         assert_eq!((q1, g1), (0, 0.0));
     }
 
@@ -429,7 +429,7 @@ mod tests {
         let c: Vec<f64> = (0..5000)
             .map(|i| ((i as f64 * 0.37).sin() + (i as f64 * 1.91).cos() * 0.5).powi(3))
             .collect();
-        let fft = super::autocovariances_fft(&c, 0.0, 40);
+        let fft = autocovariances_fft(&c, 0.0, 40);
         for (k, a) in fft.iter().enumerate() {
             let direct = dot(&c[..c.len() - k], &c[k..]);
             assert!(

@@ -14,9 +14,9 @@ use crate::bus::ChannelId;
 use crate::bus::can::backend::CanBackendConfig;
 use crate::bus::canopen::source::CanopenConfig;
 use crate::bus::config::{ModbusSection, SerialSection};
+use crate::models::Axis;
 pub use crate::origin_shift::client::OriginShiftSink;
 pub use crate::quadrature::config::{GpioLines, QuadratureAxis, QuadratureSink};
-use crate::models::Axis;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

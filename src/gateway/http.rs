@@ -38,6 +38,7 @@ use tower::ServiceExt;
 pub use super::http_state::{Api, Control, StatusRx};
 use super::http_state::{AppState, authorize, not_allowed, plain, record};
 use super::status::StatusSnapshot;
+use crate::bus::Backoff;
 
 /// Resource bounds of the endpoint; [`Limits::default`] is what `retrocomp run` uses.
 #[derive(Clone, Copy, Debug)]
@@ -241,11 +242,16 @@ enum Refusing {
     FdReserve,
 }
 
+/// Retry delays after a failed accept (e.g. out of file descriptors): doubling from the min, reset by
+/// the next accepted connection.
+const ACCEPT_RETRY_MIN: Duration = Duration::from_millis(10);
+const ACCEPT_RETRY_MAX: Duration = Duration::from_secs(1);
+
 async fn accept_loop(listener: TcpListener, app: Router, limits: Limits) {
     let permits = Arc::new(Semaphore::new(limits.max_connections));
     let mut refusing: Option<Refusing> = None;
     let mut refused = 0u64;
-    let mut backoff = Duration::from_millis(10);
+    let mut backoff = Backoff::new(ACCEPT_RETRY_MIN, ACCEPT_RETRY_MAX);
     let mut set = |now: Option<Refusing>, refused: &mut u64| {
         if now == refusing {
             return;
@@ -266,13 +272,13 @@ async fn accept_loop(listener: TcpListener, app: Router, limits: Limits) {
             Err(e) if e.kind() == std::io::ErrorKind::ConnectionAborted => continue,
             Err(e) => {
                 set(Some(Refusing::AcceptError), &mut refused);
-                tracing::debug!(error = %e, ?backoff, "accept failed");
-                tokio::time::sleep(backoff).await;
-                backoff = (backoff * 2).min(Duration::from_secs(1));
+                let delay = backoff.next_delay();
+                tracing::debug!(error = %e, backoff = ?delay, "accept failed");
+                tokio::time::sleep(delay).await;
                 continue;
             }
         };
-        backoff = Duration::from_millis(10);
+        backoff.reset();
         if limits.fd_reserve > 0
             && let (Some(open), Some(limit)) = (open_fds(), nofile_soft_limit())
             && open + limits.fd_reserve >= limit

@@ -78,8 +78,8 @@ pub async fn run(
     model: Box<dyn ErrorModel + Send>,
     sources: impl Into<SourceFeed>,
     epoch: std::time::Instant,
-    shutdown: impl std::future::Future<Output = ()>,
-    status_addr: Option<tokio::sync::oneshot::Sender<SocketAddr>>,
+    shutdown: impl Future<Output = ()>,
+    status_addr: Option<oneshot::Sender<SocketAddr>>,
 ) -> anyhow::Result<RunSummary> {
     let SourceFeed {
         samples,
@@ -241,6 +241,7 @@ fn start_telemetry(
         },
     )
     .map(Some)
+    .map_err(anyhow::Error::from)
 }
 
 /// Ramp the origin-shift correction out before stopping (`on_stop = "ramp_out"`): the sink writes 0

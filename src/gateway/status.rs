@@ -43,7 +43,7 @@ pub struct ModelIdentity {
     pub sha256: String,
     pub loaded_unix_s: f64,
     /// Term name → `geometric`, `thermal`, `load` or `other` (the OPC UA space groups terms by it).
-    pub term_groups: std::collections::BTreeMap<String, &'static str>,
+    pub term_groups: BTreeMap<String, &'static str>,
 }
 
 /// One bus source's link (the CAN backend, a Modbus poller, a serial line): what `/status` shows

@@ -20,7 +20,7 @@ pub(crate) struct Nodes {
 }
 
 impl Nodes {
-    pub fn new(x: &[f64]) -> Nodes {
+    pub(crate) fn new(x: &[f64]) -> Nodes {
         let n = x.len();
         Nodes {
             x: x.to_vec(),
@@ -33,7 +33,7 @@ impl Nodes {
     /// fraction as `Table::locate`: segment i with x_i ≤ q < x_{i+1} (the last one up to its end);
     /// outside the span (or NaN) both nodes are the end node and f = 0.
     #[inline(always)]
-    pub fn locate(&self, q: f64) -> (usize, usize, f64, bool) {
+    pub(crate) fn locate(&self, q: f64) -> (usize, usize, f64, bool) {
         let x = &self.x[..];
         let n = x.len();
         if q.is_nan() || q < x[0] {
@@ -99,7 +99,7 @@ pub(crate) enum Curve {
 }
 
 impl Curve {
-    pub fn new(f: &ErrorFunction) -> Curve {
+    pub(crate) fn new(f: &ErrorFunction) -> Curve {
         let t = match f {
             ErrorFunction::Table(t) => t,
             ErrorFunction::Polynomial {
@@ -148,7 +148,7 @@ impl Curve {
 
     /// (value, clamped) at `q` for approach direction `dir`: `ErrorFunction::eval` to rounding.
     #[inline]
-    pub fn eval(&self, q: f64, dir: i8) -> (f64, bool) {
+    pub(crate) fn eval(&self, q: f64, dir: i8) -> (f64, bool) {
         match self {
             Curve::Table {
                 nodes,

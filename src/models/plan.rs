@@ -145,7 +145,7 @@ pub(crate) struct Plan {
 }
 
 impl Plan {
-    pub fn new(spec: &ModelSpec, c: &Compiled) -> Plan {
+    pub(crate) fn new(spec: &ModelSpec, c: &Compiled) -> Plan {
         let n_comp = spec.components.len();
         let mut groups: Vec<Group> = Vec::new();
         let mut singles = Vec::new();
@@ -358,7 +358,7 @@ impl Plan {
 
     /// One evaluation (exact HTM chain or first order); steps the lag states to `input.t_s`.
     #[inline]
-    pub fn run(
+    pub(crate) fn run(
         &self,
         input: &ModelInput,
         state: &mut ModelState,

@@ -54,7 +54,7 @@ pub(crate) enum ForceSource {
 }
 
 impl Compiled {
-    pub fn new(spec: &ModelSpec) -> Compiled {
+    pub(crate) fn new(spec: &ModelSpec) -> Compiled {
         let mut elem_of_axis = [None; 3];
         let mut elems: Vec<Elem> = spec
             .axes

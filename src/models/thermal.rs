@@ -143,7 +143,7 @@ pub(crate) struct LagPlan {
 }
 
 impl LagPlan {
-    pub fn new(sensors: &[SensorSpec]) -> Self {
+    pub(crate) fn new(sensors: &[SensorSpec]) -> Self {
         LagPlan {
             reference_c: sensors.iter().map(|s| s.reference_c).collect(),
             lag: sensors

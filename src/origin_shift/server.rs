@@ -73,9 +73,22 @@ pub struct OriginShiftServer {
     rtu: Option<JoinHandle<std::io::Result<()>>>,
 }
 
+/// Why the origin-shift server could not start (the messages as the serving code reports them).
+#[derive(Debug, thiserror::Error)]
+pub enum ServerStartError {
+    #[error(transparent)]
+    Listen(#[from] std::net::AddrParseError),
+    /// The TCP listener could not be bound or the serial device opened.
+    #[error(transparent)]
+    Open(std::io::Error),
+}
+
 impl OriginShiftServer {
     /// Bind the TCP listener or open the serial device. `guards`: clamp and per-update cap per axis.
-    pub async fn start(cfg: ServerConfig, guards: &[(String, Guard)]) -> anyhow::Result<Self> {
+    pub async fn start(
+        cfg: ServerConfig,
+        guards: &[(String, Guard)],
+    ) -> Result<Self, ServerStartError> {
         let bank = RegisterBank::new();
         for (address, count) in cfg.map.writable() {
             bank.allow_writes(address, count);
@@ -85,12 +98,15 @@ impl OriginShiftServer {
         match &cfg.transport {
             ServerTransport::Tcp { listen } => {
                 let addr: SocketAddr = listen.parse()?;
-                let s = TcpServer::start(addr, bank.clone()).await?;
+                let s = TcpServer::start(addr, bank.clone())
+                    .await
+                    .map_err(ServerStartError::Open)?;
                 tracing::info!(addr = %s.local_addr(), "origin-shift server listening (Modbus TCP)");
                 tcp = Some(s);
             }
             ServerTransport::Rtu { path, baud } => {
-                let port = tokio_serial::SerialStream::open(&tokio_serial::new(path, *baud))?;
+                let port = tokio_serial::SerialStream::open(&tokio_serial::new(path, *baud))
+                    .map_err(|e| ServerStartError::Open(e.into()))?;
                 tracing::info!(
                     path,
                     baud,

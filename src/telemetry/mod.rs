@@ -4,7 +4,8 @@
 //! [`metrics`] (a gateway status snapshot as named metrics, report by exception), [`queue`]
 //! (bounded store-and-forward queue, on disk), [`config`] (`[telemetry.mqtt]`), [`publisher`] (the
 //! rumqttc shell fed from the gateway's status watch; it can never block the cycle), [`fleet`] (the
-//! host side: per box alive/compensating/degraded from its messages, for `retrocomp fleet`),
+//! host side: per box alive/compensating/degraded from its messages, for `retrocomp fleet`;
+//! [`fleet_client`] is its MQTT shell),
 //! [`recordings`] + [`shipper`] (a box's recording CSV to the fleet, chunked through the same queue;
 //! collected per machine), [`drift`] (scheduled diagnose per machine against its own model). Units as in
 //! the status: µm for corrections (correction = −error), mm for positions; timestamps ms since
@@ -13,7 +14,9 @@
 pub mod annotate;
 pub mod config;
 pub mod drift;
+mod error;
 pub mod fleet;
+pub mod fleet_client;
 pub mod metrics;
 pub mod publisher;
 pub mod queue;
@@ -24,4 +27,5 @@ pub mod status;
 mod tls;
 
 pub use config::{MqttConfig, TelemetrySection};
+pub use error::TelemetryError;
 pub use publisher::{Publisher, PublisherInputs, TelemetryStatus, spawn};

@@ -18,18 +18,19 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use anyhow::Context as _;
 use rumqttc::{
     AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet, QoS,
 };
 use tokio::sync::{mpsc, watch};
 
+use super::TelemetryError;
 pub use super::annotate::TelemetryAnnotator;
 use super::config::MqttConfig;
 use super::metrics::{Record, Sampler, snapshot_metrics};
 use super::queue::{self, Queue, QueueLimits};
 use super::sparkplug::{self, EdgeNode, Kind, NamedValue};
 pub use super::status::TelemetryStatus;
+use crate::bus::Backoff;
 use crate::gateway::status::StatusSnapshot;
 
 /// What the publisher needs besides its config.
@@ -117,14 +118,14 @@ const WINDOW: usize = 64;
 
 /// Start the publisher (spawns its tasks on the current runtime). Fails only on what the config
 /// check cannot see: an unreadable queue directory, a bad certificate.
-pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> anyhow::Result<Publisher> {
+pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> Result<Publisher, TelemetryError> {
     let queue = Queue::open(QueueLimits {
         dir: cfg.queue.dir.clone(),
         max_records: cfg.queue.max_records,
         max_bytes: cfg.queue.max_bytes,
         policy: cfg.queue.drop_policy,
     })
-    .context("telemetry.mqtt.queue.dir")?;
+    .map_err(TelemetryError::setup("telemetry.mqtt.queue.dir"))?;
     let base = base_options(&cfg)?;
     let (rec_tx, rec_rx) = mpsc::channel::<Record>(HANDOVER);
     let (status_tx, status_rx) = watch::channel(TelemetryStatus::default());
@@ -161,10 +162,10 @@ pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> anyhow::Result<Publish
     })
 }
 
-pub(crate) fn base_options(cfg: &MqttConfig) -> anyhow::Result<MqttOptions> {
+pub(crate) fn base_options(cfg: &MqttConfig) -> Result<MqttOptions, TelemetryError> {
     let (host, port) = cfg
         .host_port()
-        .map_err(|e| anyhow::anyhow!("telemetry.mqtt.broker: {e}"))?;
+        .map_err(|e| TelemetryError::Invalid(format!("telemetry.mqtt.broker: {e}")))?;
     let mut o = MqttOptions::new(cfg.client_id(), host, port);
     o.set_keep_alive(Duration::from_secs(cfg.keep_alive_s));
     // Sparkplug: a clean session per connection (`principles-persistence-clean-session`).
@@ -174,7 +175,10 @@ pub(crate) fn base_options(cfg: &MqttConfig) -> anyhow::Result<MqttOptions> {
     if let Some(user) = &cfg.username {
         let pw = match &cfg.password_file {
             Some(p) => std::fs::read_to_string(p)
-                .with_context(|| format!("telemetry.mqtt.password_file {}", p.display()))?
+                .map_err(TelemetryError::setup(format!(
+                    "telemetry.mqtt.password_file {}",
+                    p.display()
+                )))?
                 .lines()
                 .next()
                 .unwrap_or_default()
@@ -301,8 +305,8 @@ impl Drop for Conn {
 
 impl Session {
     async fn run(mut self, mut stop: tokio::sync::oneshot::Receiver<()>) {
-        let mut backoff = Duration::from_millis(self.cfg.reconnect_min_ms);
-        let max = Duration::from_millis(self.cfg.reconnect_max_ms);
+        let mut backoff =
+            Backoff::from_millis(self.cfg.reconnect_min_ms, self.cfg.reconnect_max_ms);
         let mut down_logged = false;
         loop {
             let (end, was_born) = self.connection(&mut stop).await;
@@ -314,7 +318,7 @@ impl Session {
             if was_born {
                 // The link had been up: a new outage (logged again), back-off from the start.
                 down_logged = false;
-                backoff = Duration::from_millis(self.cfg.reconnect_min_ms);
+                backoff.reset();
             }
             if !down_logged {
                 // Fault start, once per outage; the clear is logged with the next NBIRTH.
@@ -327,7 +331,7 @@ impl Session {
             }
             self.publish_status(false, Some(why));
             // Back off, still taking records into the queue.
-            let wake = tokio::time::sleep(backoff);
+            let wake = tokio::time::sleep(backoff.next_delay());
             tokio::pin!(wake);
             loop {
                 tokio::select! {
@@ -343,7 +347,6 @@ impl Session {
                     },
                 }
             }
-            backoff = (backoff * 2).min(max);
         }
     }
 

@@ -16,6 +16,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use super::TelemetryError;
+
 /// One piece of a recording on the wire.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Chunk {
@@ -56,19 +58,21 @@ pub fn chunk_csv(
     name: &str,
     csv: &str,
     rows_per_chunk: usize,
-) -> anyhow::Result<Vec<Chunk>> {
-    anyhow::ensure!(
-        valid_name(name),
-        "recording name {name:?}: use [A-Za-z0-9._-]"
-    );
-    anyhow::ensure!(
-        valid_name(group) && valid_name(edge_node),
-        "group/edge node {group:?}/{edge_node:?}: use [A-Za-z0-9._-]"
-    );
+) -> Result<Vec<Chunk>, TelemetryError> {
+    if !valid_name(name) {
+        return Err(TelemetryError::Invalid(format!(
+            "recording name {name:?}: use [A-Za-z0-9._-]"
+        )));
+    }
+    if !(valid_name(group) && valid_name(edge_node)) {
+        return Err(TelemetryError::Invalid(format!(
+            "group/edge node {group:?}/{edge_node:?}: use [A-Za-z0-9._-]"
+        )));
+    }
     let mut lines = csv.lines().filter(|l| !l.trim().is_empty());
     let header = lines
         .next()
-        .ok_or_else(|| anyhow::anyhow!("recording {name}: empty, no header"))?;
+        .ok_or_else(|| TelemetryError::Invalid(format!("recording {name}: empty, no header")))?;
     let rows: Vec<&str> = lines.collect();
     let per = rows_per_chunk.max(1);
     let pieces: Vec<&[&str]> = if rows.is_empty() {
@@ -220,14 +224,15 @@ pub fn ship_to_dir(
     edge_node: &str,
     name: &str,
     csv: &str,
-) -> anyhow::Result<PathBuf> {
+) -> Result<PathBuf, TelemetryError> {
     // Same checks as for MQTT (names, a header).
     chunk_csv(group, edge_node, name, csv, usize::MAX)?;
     let p = path_of(dir, group, edge_node, name);
-    std::fs::create_dir_all(p.parent().expect("has a parent"))?;
+    let io = |e: std::io::Error| TelemetryError::setup(dir.display().to_string())(e);
+    std::fs::create_dir_all(p.parent().expect("has a parent")).map_err(io)?;
     let tmp = p.with_file_name(format!("{name}.part"));
-    std::fs::write(&tmp, csv)?;
-    std::fs::rename(&tmp, &p)?;
+    std::fs::write(&tmp, csv).map_err(io)?;
+    std::fs::rename(&tmp, &p).map_err(io)?;
     Ok(p)
 }
 

@@ -13,9 +13,11 @@ use std::time::Duration;
 
 use rumqttc::{AsyncClient, Event, Outgoing, Packet, QoS};
 
+use super::TelemetryError;
 use super::config::MqttConfig;
 use super::queue::{DropPolicy, Queue, QueueLimits};
 use super::recordings::Chunk;
+use crate::bus::Backoff;
 
 /// Default topic of a machine's recordings: `retrocomp/recordings/<group>/<edge node>`.
 pub fn default_topic(group: &str, edge_node: &str) -> String {
@@ -49,13 +51,14 @@ pub async fn ship(
     s: &Shipment,
     chunks: &[Chunk],
     deadline: Duration,
-) -> anyhow::Result<ShipReport> {
+) -> Result<ShipReport, TelemetryError> {
     let mut q = Queue::open(QueueLimits {
         dir: s.queue_dir.clone(),
         max_records: usize::MAX,
         max_bytes: u64::MAX,
         policy: DropPolicy::DropNewest,
-    })?;
+    })
+    .map_err(TelemetryError::setup("recording shipment queue"))?;
     for c in chunks {
         q.push(c.encode());
     }
@@ -64,7 +67,7 @@ pub async fn ship(
     let mut report = ShipReport::default();
     let end = tokio::time::sleep(deadline);
     tokio::pin!(end);
-    let mut backoff = Duration::from_millis(s.mqtt.reconnect_min_ms);
+    let mut backoff = Backoff::from_millis(s.mqtt.reconnect_min_ms, s.mqtt.reconnect_max_ms);
     while !q.is_empty() {
         report.connections += 1;
         let (client, mut el) = AsyncClient::new(base.clone(), 2 * WINDOW);
@@ -110,7 +113,7 @@ pub async fn ship(
                 ev = el.poll() => match ev {
                     Ok(Event::Incoming(Packet::ConnAck(_))) => {
                         up = true;
-                        backoff = Duration::from_millis(s.mqtt.reconnect_min_ms);
+                        backoff.reset();
                     }
                     Ok(Event::Outgoing(Outgoing::Publish(pkid))) => {
                         if let Some(id) = calls.pop_front() {
@@ -137,9 +140,8 @@ pub async fn ship(
                 report.left = q.len() as u64;
                 return Ok(report);
             }
-            _ = tokio::time::sleep(backoff) => {}
+            _ = tokio::time::sleep(backoff.next_delay()) => {}
         }
-        backoff = (backoff * 2).min(Duration::from_millis(s.mqtt.reconnect_max_ms));
     }
     Ok(report)
 }

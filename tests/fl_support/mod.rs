@@ -8,18 +8,18 @@ use std::process::Command;
 
 use retrocomp::diagnose::lsq;
 
-pub const DATA: &str = concat!(
+pub(crate) const DATA: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
     "/tests/data/fl_thermal/fl_thermal_dev.csv"
 );
 
-pub struct Data {
+pub(crate) struct Data {
     pub names: Vec<String>,
     pub cols: Vec<Vec<f64>>,
 }
 
 impl Data {
-    pub fn load() -> Data {
+    pub(crate) fn load() -> Data {
         let text = std::fs::read_to_string(DATA).expect("fixture present");
         let mut lines = text.lines();
         let names: Vec<String> = lines
@@ -36,14 +36,14 @@ impl Data {
         }
         Data { names, cols }
     }
-    pub fn col(&self, name: &str) -> &[f64] {
+    pub(crate) fn col(&self, name: &str) -> &[f64] {
         let k = self.names.iter().position(|n| n == name).expect(name);
         &self.cols[k]
     }
-    pub fn n(&self) -> usize {
+    pub(crate) fn n(&self) -> usize {
         self.cols[0].len()
     }
-    pub fn temps(&self) -> Vec<&str> {
+    pub(crate) fn temps(&self) -> Vec<&str> {
         self.names
             .iter()
             .filter(|n| n.starts_with("T_"))
@@ -51,7 +51,7 @@ impl Data {
             .collect()
     }
     /// `t_s, rpm, T_*` (+ `ez_um` = channel `ch`) over `rows`.
-    pub fn write(&self, path: &Path, rows: std::ops::Range<usize>, ch: Option<&str>) {
+    pub(crate) fn write(&self, path: &Path, rows: std::ops::Range<usize>, ch: Option<&str>) {
         let mut names = vec!["t_s", "rpm"];
         names.extend(self.temps());
         let mut out = names.join(",");
@@ -71,7 +71,7 @@ impl Data {
     }
 }
 
-pub fn corr(a: &[f64], b: &[f64]) -> f64 {
+pub(crate) fn corr(a: &[f64], b: &[f64]) -> f64 {
     let n = a.len() as f64;
     let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
     let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
@@ -85,7 +85,7 @@ pub fn corr(a: &[f64], b: &[f64]) -> f64 {
 
 /// The simulation: static regression of channel `ch` on its 3 best-correlated temperatures over
 /// `rows`, as a machine model TOML (reference 0 °C, e0 = intercept).
-pub fn sim_model(d: &Data, ch: &str, rows: std::ops::Range<usize>) -> (String, Vec<String>) {
+pub(crate) fn sim_model(d: &Data, ch: &str, rows: std::ops::Range<usize>) -> (String, Vec<String>) {
     let y = &d.col(ch)[rows.clone()];
     let mut ranked: Vec<(f64, &str)> = d
         .temps()
@@ -130,12 +130,12 @@ pub fn sim_model(d: &Data, ch: &str, rows: std::ops::Range<usize>) -> (String, V
     (toml, chosen.iter().map(|s| s.to_string()).collect())
 }
 
-pub fn bin() -> Command {
+pub(crate) fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_retrocomp"))
 }
 
 /// `retrocomp eval` over `path`: the model's ez_um per row.
-pub fn eval(model: &Path, path: &Path) -> Vec<f64> {
+pub(crate) fn eval(model: &Path, path: &Path) -> Vec<f64> {
     let out = bin()
         .args(["eval", "--model"])
         .arg(model)
@@ -161,14 +161,14 @@ pub fn eval(model: &Path, path: &Path) -> Vec<f64> {
         .collect()
 }
 
-pub fn rms(v: impl Iterator<Item = f64>) -> f64 {
+pub(crate) fn rms(v: impl Iterator<Item = f64>) -> f64 {
     let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
     (s / n as f64).sqrt()
 }
 
 /// Fit sim + diagnose on `fit` rows of channel `ch` into `dir`; returns (sim.toml, model.toml,
 /// diagnose's text report).
-pub fn fit_channel(
+pub(crate) fn fit_channel(
     d: &Data,
     ch: &str,
     fit: std::ops::Range<usize>,

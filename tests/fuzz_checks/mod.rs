@@ -12,6 +12,7 @@ use std::path::Path;
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
+use retrocomp::analysis::circular::parse_traces;
 use retrocomp::analysis::circular::{CircleSetup, analyse};
 use retrocomp::analysis::export::fanuc::{read_tape, write_tape};
 use retrocomp::analysis::export::isg::{read_isg, write_isg};
@@ -22,9 +23,8 @@ use retrocomp::analysis::nc::ErrorFunction;
 use retrocomp::analysis::nc::parser::parse_program;
 use retrocomp::analysis::nc::rewrite::{RewriteConfig, rewrite};
 use retrocomp::analysis::plane_model::ZxPlaneModel;
+use retrocomp::analysis::plane_model::parse_plane_model;
 use retrocomp::analysis::table::Direction;
-use retrocomp::cli::circle::parse_traces;
-use retrocomp::cli::nc::parse_plane_model;
 use retrocomp::gateway::StatusSnapshot;
 use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::http::serve_status;
@@ -32,10 +32,10 @@ use retrocomp::models::MachineModel;
 use retrocomp::recording::Recording;
 
 /// A target's check: panics on a fault, returns on anything else.
-pub type Check = fn(&[u8]);
+pub(crate) type Check = fn(&[u8]);
 
 /// Every target, by the name of its fuzz target and corpus folder.
-pub const TARGETS: [(&str, Check); 10] = [
+pub(crate) const TARGETS: [(&str, Check); 10] = [
     ("field_toml", field_toml),
     ("gateway_config", gateway_config),
     ("model_toml", model_toml),
@@ -49,14 +49,14 @@ pub const TARGETS: [(&str, Check); 10] = [
 ];
 
 /// The bus layer's field TOML loader.
-pub fn field_toml(data: &[u8]) {
+pub(crate) fn field_toml(data: &[u8]) {
     if let Ok(text) = std::str::from_utf8(data) {
         let _ = retrocomp::bus::config::parse(text, "fuzz.toml");
     }
 }
 
 /// The whole field config (`retrocomp run --config`).
-pub fn gateway_config(data: &[u8]) {
+pub(crate) fn gateway_config(data: &[u8]) {
     if let Ok(text) = std::str::from_utf8(data) {
         let _ = FieldConfig::parse(text, Path::new("fuzz.toml"));
     }
@@ -64,7 +64,7 @@ pub fn gateway_config(data: &[u8]) {
 
 /// The machine model TOML and its writer: whatever reads must write, read back as the same spec,
 /// and write the same text again (the round trip `fit` and `diagnose` rely on).
-pub fn model_toml(data: &[u8]) {
+pub(crate) fn model_toml(data: &[u8]) {
     let Ok(text) = std::str::from_utf8(data) else {
         return;
     };
@@ -102,7 +102,7 @@ impl ErrorFunction for Ppm {
 /// by bits 4–5) against [`Ppm`]; a rewritten program must parse again. Splitting is capped at 1000
 /// pieces a move (`--max-pieces`; a longer move is refused with `TooManyPieces`, which this also
 /// reaches) so one input cannot write millions of lines.
-pub fn nc_program(data: &[u8]) {
+pub(crate) fn nc_program(data: &[u8]) {
     let Some((&flags, rest)) = data.split_first() else {
         return;
     };
@@ -134,7 +134,7 @@ pub fn nc_program(data: &[u8]) {
 }
 
 /// Recording CSV (DESIGN §4), strict and lenient.
-pub fn recording_csv(data: &[u8]) {
+pub(crate) fn recording_csv(data: &[u8]) {
     let _ = Recording::read_strict(data, "fuzz.csv");
     if let Ok((rec, _bad)) = Recording::read_lenient(data, "fuzz.csv") {
         let _ = rec.load_channels();
@@ -142,7 +142,7 @@ pub fn recording_csv(data: &[u8]) {
 }
 
 /// Laser runs (both layouts) and the ISO 230-2 evaluation of what they give; the table CSV reader.
-pub fn laser_iso230_2(data: &[u8]) {
+pub(crate) fn laser_iso230_2(data: &[u8]) {
     let Ok(text) = std::str::from_utf8(data) else {
         return;
     };
@@ -163,7 +163,7 @@ pub fn laser_iso230_2(data: &[u8]) {
 
 /// Controller tables: Fanuc pitch tape, ISG CSV, LinuxCNC comp files of both kinds; where a reader
 /// succeeds, its writer's output must read back.
-pub fn controller_tables(data: &[u8]) {
+pub(crate) fn controller_tables(data: &[u8]) {
     let Ok(text) = std::str::from_utf8(data) else {
         return;
     };
@@ -190,7 +190,7 @@ pub fn controller_tables(data: &[u8]) {
 }
 
 /// Circular-test traces and the ISO 230-4 analysis of whatever the reader accepts.
-pub fn circle_traces(data: &[u8]) {
+pub(crate) fn circle_traces(data: &[u8]) {
     let Ok(text) = std::str::from_utf8(data) else {
         return;
     };
@@ -210,7 +210,7 @@ pub fn circle_traces(data: &[u8]) {
 /// `parse_plane_model` (what `load_plane_model` runs after reading the files); the TOML's table
 /// files `a.csv` and `b.csv` are served from memory (any other name is a missing file), so no file
 /// is written per input. None where the input is refused.
-pub fn plane_model_parse(data: &[u8]) -> Option<ZxPlaneModel> {
+pub(crate) fn plane_model_parse(data: &[u8]) -> Option<ZxPlaneModel> {
     let text = std::str::from_utf8(data).ok()?;
     let mut parts = text.splitn(3, "\n%%\n");
     let (toml, a, b) = (
@@ -233,7 +233,7 @@ pub fn plane_model_parse(data: &[u8]) -> Option<ZxPlaneModel> {
 
 /// The Z–X plane model (`retrocomp nc --plane-model`) through the command's own parser, evaluated
 /// across and beyond its tables. Input: see [`plane_model_parse`].
-pub fn plane_model(data: &[u8]) {
+pub(crate) fn plane_model(data: &[u8]) {
     let Some(m) = plane_model_parse(data) else {
         return;
     };
@@ -287,7 +287,7 @@ fn status_server() -> SocketAddr {
 /// port: any bytes as a request give no answer (head never completed) or a well-formed HTTP/1.1
 /// answer with a known code and an exact Content-Length, and never take the server down (every
 /// input connects to the same server).
-pub fn http_request(data: &[u8]) {
+pub(crate) fn http_request(data: &[u8]) {
     let mut s = TcpStream::connect(status_server()).expect("the status server is down");
     s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
     // The server may answer and close before reading everything (a 405): a failed write is fine.

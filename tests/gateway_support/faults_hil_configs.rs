@@ -5,30 +5,30 @@
 
 use std::path::Path;
 
-pub const CLAMP_UM: f64 = 40.0;
-pub const CLAMP_Y_UM: f64 = 5.0;
-pub const CAP_UM: f64 = 1.0;
-pub const LSB_UM: f64 = 0.5;
+pub(crate) const CLAMP_UM: f64 = 40.0;
+pub(crate) const CLAMP_Y_UM: f64 = 5.0;
+pub(crate) const CAP_UM: f64 = 1.0;
+pub(crate) const LSB_UM: f64 = 0.5;
 /// How close the applied correction must come back to the ideal one after a fault clears, µm.
-pub const TOL_UM: f64 = 5.0;
+pub(crate) const TOL_UM: f64 = 5.0;
 /// Time allowed to come back after a fault clears (ramp at the dosing cap, PLC scan), s.
-pub const SETTLE_S: f64 = 1.0;
+pub(crate) const SETTLE_S: f64 = 1.0;
 
-pub const MODBUS_DOWN: (f64, f64) = (5.0, 7.0);
-pub const CAN_SILENT: (f64, f64) = (9.0, 10.5);
-pub const T_STUCK: (f64, f64) = (12.0, 14.0);
-pub const T_NAN: (f64, f64) = (14.0, 15.5);
-pub const GARBAGE: (f64, f64) = (17.5, 20.0);
-pub const KILL_AT_S: f64 = 22.0;
-pub const TERM_AT_S: f64 = 25.5;
+pub(crate) const MODBUS_DOWN: (f64, f64) = (5.0, 7.0);
+pub(crate) const CAN_SILENT: (f64, f64) = (9.0, 10.5);
+pub(crate) const T_STUCK: (f64, f64) = (12.0, 14.0);
+pub(crate) const T_NAN: (f64, f64) = (14.0, 15.5);
+pub(crate) const GARBAGE: (f64, f64) = (17.5, 20.0);
+pub(crate) const KILL_AT_S: f64 = 22.0;
+pub(crate) const TERM_AT_S: f64 = 25.5;
 
-pub fn sim_toml(hub_port: u16, pty_link: &Path, truth: &Path) -> String {
+pub(crate) fn sim_toml(hub_port: u16, pty_link: &Path, truth: &Path) -> String {
     sim_machine_toml(5, truth) + &sim_faults_and_io_toml(hub_port, pty_link)
 }
 
 /// The simulated machine (clock, program of `strokes` out-and-back strokes of 3 s each after a 1 s
 /// dwell, PLC, truth model, hidden thermal and cutting physics), without sensor faults or I/O.
-pub fn sim_machine_toml(strokes: usize, truth: &Path) -> String {
+pub(crate) fn sim_machine_toml(strokes: usize, truth: &Path) -> String {
     let strokes = "G1 X150 Y100\nG1 X0 Y0\n".repeat(strokes);
     format!(
         r#"
@@ -174,7 +174,7 @@ to_s = {g1}
 /// the PT100 block on node 10), the PLC on Modbus TCP (an ephemeral port hil-sim prints), weighing
 /// lines on the pty `weigh_link`, and, with `rtu_link`, the PT100 block also as input registers
 /// 0.. of RTU slave 1 on that pty.
-pub fn sim_io_toml(hub_port: u16, weigh_link: &Path, rtu_link: Option<&Path>) -> String {
+pub(crate) fn sim_io_toml(hub_port: u16, weigh_link: &Path, rtu_link: Option<&Path>) -> String {
     let rtu = rtu_link.map_or(String::new(), |l| {
         format!(
             "rtu_pty_link = \"{}\"\nrtu_slave = 1\ntemps_first_input = 0\n",
@@ -208,7 +208,7 @@ period_s = 0.02
     )
 }
 
-pub fn field_toml(hub_port: u16, plc: &str, pty: &Path) -> String {
+pub(crate) fn field_toml(hub_port: u16, plc: &str, pty: &Path) -> String {
     let pty = pty.display();
     let axis = |name: &str, clamp: f64, lo: f64, hi: f64| {
         format!(

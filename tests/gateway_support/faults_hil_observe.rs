@@ -9,7 +9,7 @@ use crate::configs::{CAP_UM, CLAMP_UM, CLAMP_Y_UM, LSB_UM};
 
 /// One row of plc_writes.csv.
 #[derive(Debug, Clone, Copy)]
-pub struct Write {
+pub(crate) struct Write {
     pub t_s: f64,
     pub address: u16,
     pub um: [f64; 3],
@@ -17,7 +17,7 @@ pub struct Write {
     pub port: u16,
 }
 
-pub fn parse_writes(text: &str) -> Vec<Write> {
+pub(crate) fn parse_writes(text: &str) -> Vec<Write> {
     let mut lines = text.lines();
     assert_eq!(
         lines.next(),
@@ -42,7 +42,7 @@ pub fn parse_writes(text: &str) -> Vec<Write> {
 /// written, every value is within its axis' clamp, and no change between consecutive values exceeds
 /// the dosing cap (the sink doses in µm; encoding adds up to one register LSB of rounding).
 /// Returns (max |value| per axis, max change), µm.
-pub fn assert_clamp_and_cap(writes: &[Write]) -> ([f64; 3], f64) {
+pub(crate) fn assert_clamp_and_cap(writes: &[Write]) -> ([f64; 3], f64) {
     let clamp = [CLAMP_UM, CLAMP_Y_UM, CLAMP_UM];
     let mut max_abs = [0.0f64; 3];
     for w in writes {
@@ -71,7 +71,7 @@ pub fn assert_clamp_and_cap(writes: &[Write]) -> ([f64; 3], f64) {
 /// (t_s, deviation of the applied correction from the ideal one per axis, µm). Ideal = −(error
 /// without correction), clamped; the recording's error includes the applied shift, so the error
 /// without it is `e − shift` (register + moves the slide +).
-pub fn deviations(recording: &str) -> Vec<(f64, [f64; 3])> {
+pub(crate) fn deviations(recording: &str) -> Vec<(f64, [f64; 3])> {
     let mut rdr = csv::Reader::from_reader(recording.as_bytes());
     let h = rdr.headers().unwrap().clone();
     let col = |n: &str| {
@@ -102,7 +102,7 @@ pub fn deviations(recording: &str) -> Vec<(f64, [f64; 3])> {
 /// next scan). Counting the writes instead of assuming "two per 10 ms row" keeps this exact when the
 /// simulation and the gateway are paused unevenly by a loaded host (three writes can then fall
 /// between two rows). Returns (largest step µm, the rows that exceed their bound: (t_s, step, writes)).
-pub fn latched_steps_beyond_writes(
+pub(crate) fn latched_steps_beyond_writes(
     recording: &str,
     writes: &[Write],
     per_write_um: f64,
@@ -146,7 +146,7 @@ pub fn latched_steps_beyond_writes(
 /// Share of the distinct values written to the shift registers (in write order, repeats collapsed)
 /// that the recording shows as the applied (latched) shift at some row. A value is missed only when
 /// it was latched and replaced between two recording rows.
-pub fn applied_share(writes: &[Write], recording: &str) -> f64 {
+pub(crate) fn applied_share(writes: &[Write], recording: &str) -> f64 {
     let mut rdr = csv::Reader::from_reader(recording.as_bytes());
     let h = rdr.headers().unwrap().clone();
     let cols: Vec<usize> = ["shift_x_um", "shift_y_um", "shift_z_um"]
@@ -171,7 +171,7 @@ pub fn applied_share(writes: &[Write], recording: &str) -> f64 {
     seen as f64 / written.len().max(1) as f64
 }
 
-pub fn max_dev(devs: &[(f64, [f64; 3])], from_s: f64, to_s: f64, axes: &[usize]) -> f64 {
+pub(crate) fn max_dev(devs: &[(f64, [f64; 3])], from_s: f64, to_s: f64, axes: &[usize]) -> f64 {
     let rows: Vec<_> = devs
         .iter()
         .filter(|(t, _)| *t >= from_s && *t < to_s)
@@ -183,7 +183,7 @@ pub fn max_dev(devs: &[(f64, [f64; 3])], from_s: f64, to_s: f64, axes: &[usize])
 }
 
 /// Fault log lines of one gateway process: (source, kind, started, t_s).
-pub fn fault_events(log: &str) -> Vec<(String, String, bool, f64)> {
+pub(crate) fn fault_events(log: &str) -> Vec<(String, String, bool, f64)> {
     let field = |line: &str, key: &str| -> Option<String> {
         let i = line.find(&format!(" {key}="))? + key.len() + 2;
         let rest = &line[i..];
@@ -211,7 +211,9 @@ pub fn fault_events(log: &str) -> Vec<(String, String, bool, f64)> {
 
 /// Each fault logged once at start and once at clear: per (source, kind) the events alternate,
 /// starting with a start. Returns the start times per (source, kind).
-pub fn episodes(events: &[(String, String, bool, f64)]) -> BTreeMap<(String, String), Vec<f64>> {
+pub(crate) fn episodes(
+    events: &[(String, String, bool, f64)],
+) -> BTreeMap<(String, String), Vec<f64>> {
     let mut last: BTreeMap<(String, String), bool> = BTreeMap::new();
     let mut starts: BTreeMap<(String, String), Vec<f64>> = BTreeMap::new();
     for (s, k, started, t) in events {

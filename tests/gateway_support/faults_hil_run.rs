@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use retrocomp::bus::can::hub::Hub;
 
 /// A fresh, empty run folder `name` under the target dir's tmp.
-pub fn run_dir(name: &str) -> PathBuf {
+pub(crate) fn run_dir(name: &str) -> PathBuf {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
@@ -25,7 +25,7 @@ pub fn run_dir(name: &str) -> PathBuf {
 /// The test's own runtime (one worker, for the /status client) and the socketcand hub on loopback
 /// that hil-sim's CAN nodes and the gateway both connect to: the bus, on its own thread under
 /// SCHED_FIFO 20 when allowed, like the machine and the gateway's real-time threads (issue 18.5).
-pub fn loopback_hub() -> (tokio::runtime::Runtime, Hub) {
+pub(crate) fn loopback_hub() -> (tokio::runtime::Runtime, Hub) {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
         .enable_all()
@@ -36,19 +36,19 @@ pub fn loopback_hub() -> (tokio::runtime::Runtime, Hub) {
 }
 
 /// The demo mill's full model: hil-sim's hidden truth and the gateway's model in both tests.
-pub fn demo_truth_model() -> PathBuf {
+pub(crate) fn demo_truth_model() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/demo/mill-full.toml")
 }
 
 /// A running `hil-sim serve`.
-pub struct Sim {
+pub(crate) struct Sim {
     pub child: Child,
     log: Arc<Mutex<String>>,
     lines: mpsc::Receiver<(Instant, String)>,
 }
 
 impl Sim {
-    pub fn spawn(hil_sim: &Path, config: &Path, out: &Path) -> Sim {
+    pub(crate) fn spawn(hil_sim: &Path, config: &Path, out: &Path) -> Sim {
         let mut child = Command::new(hil_sim)
             .args(["serve", "--config"])
             .arg(config)
@@ -73,13 +73,13 @@ impl Sim {
     }
 
     /// Everything hil-sim printed so far.
-    pub fn log_text(&self) -> String {
+    pub(crate) fn log_text(&self) -> String {
         self.log.lock().unwrap().clone()
     }
 
     /// Waits (≤ 20 s) until hil-sim has printed a line starting with each prefix, in any order;
     /// returns the rest of each line, trimmed, in the order of `prefixes`.
-    pub fn wait_for(&self, prefixes: &[&str]) -> Vec<String> {
+    pub(crate) fn wait_for(&self, prefixes: &[&str]) -> Vec<String> {
         let mut found: Vec<Option<String>> = vec![None; prefixes.len()];
         while found.iter().any(Option::is_none) {
             let (_, l) = self
@@ -96,13 +96,13 @@ impl Sim {
     }
 
     /// Forget the lines printed so far (so a later [`Self::wait_for`] sees only what follows).
-    pub fn drain(&self) {
+    pub(crate) fn drain(&self) {
         while self.lines.try_recv().is_ok() {}
     }
 
     /// Seconds after `t0` at which the test read hil-sim's first line starting with `prefix`,
     /// among the lines not yet consumed (so edges printed in order are found in order).
-    pub fn printed_at(&self, prefix: &str, t0: Instant) -> f64 {
+    pub(crate) fn printed_at(&self, prefix: &str, t0: Instant) -> f64 {
         self.lines
             .try_iter()
             .find(|(_, l)| l.starts_with(prefix))
@@ -112,7 +112,12 @@ impl Sim {
 }
 
 /// `retrocomp run --config field --model model`, info log into `dir/log_name`.
-pub fn start_gateway(dir: &Path, log_name: &str, field: &Path, model: &Path) -> (Child, PathBuf) {
+pub(crate) fn start_gateway(
+    dir: &Path,
+    log_name: &str,
+    field: &Path,
+    model: &Path,
+) -> (Child, PathBuf) {
     let log = dir.join(log_name);
     let child = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
         .arg("run")
@@ -131,7 +136,7 @@ pub fn start_gateway(dir: &Path, log_name: &str, field: &Path, model: &Path) -> 
     (child, log)
 }
 
-pub fn signal(gw: &Child, sig: &str) {
+pub(crate) fn signal(gw: &Child, sig: &str) {
     let st = Command::new("kill")
         .args([sig, &gw.id().to_string()])
         .status()
@@ -140,7 +145,7 @@ pub fn signal(gw: &Child, sig: &str) {
 }
 
 /// SIGTERM, wait up to 5 s, assert a clean exit.
-pub fn stop_gateway(gw: &mut Child, log: &Path) {
+pub(crate) fn stop_gateway(gw: &mut Child, log: &Path) {
     signal(gw, "-TERM");
     let t = Instant::now();
     while t.elapsed() < Duration::from_secs(5) {

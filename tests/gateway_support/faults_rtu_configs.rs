@@ -9,20 +9,20 @@ use std::path::Path;
 use crate::configs::{field_toml, sim_io_toml, sim_machine_toml};
 
 /// Out-and-back strokes of 3 s each after the 1 s dwell: the program ends (M30) at ≈ 19.5 s.
-pub const STROKES: usize = 3;
+pub(crate) const STROKES: usize = 3;
 /// The RTU slave mute: the spindle has warmed by ≈ 3.5 °C (Z ≈ −20 µm thermal) and keeps warming.
-pub const RTU_DOWN: (f64, f64) = (7.0, 10.0);
+pub(crate) const RTU_DOWN: (f64, f64) = (7.0, 10.0);
 /// The poller: a poll every 50 ms, 200 ms reply timeout, 100–400 ms before the port is reopened.
-pub const RTU_PERIOD_S: f64 = 0.05;
-pub const RTU_TIMEOUT_S: f64 = 0.2;
-pub const RTU_BACKOFF_S: (f64, f64) = (0.1, 0.4);
+pub(crate) const RTU_PERIOD_S: f64 = 0.05;
+pub(crate) const RTU_TIMEOUT_S: f64 = 0.2;
+pub(crate) const RTU_BACKOFF_S: (f64, f64) = (0.1, 0.4);
 /// Bound on "healthy again" after the slave answers: backoff max + one poll + one reply timeout
 /// + a thermal latch period and scheduling slack, s.
-pub const RTU_HEALTHY_WITHIN_S: f64 = 1.0;
+pub(crate) const RTU_HEALTHY_WITHIN_S: f64 = 1.0;
 
 /// hil-sim: the machine of `gateway_faults_hil` plus Modbus RTU (the PT100 block as input registers
 /// 0.. in sensor order: spindle, xscrew, spindle2; int16, 0.1 °C) and the `modbus_rtu_down` window.
-pub fn sim_toml(hub_port: u16, weigh_link: &Path, rtu_link: &Path, truth: &Path) -> String {
+pub(crate) fn sim_toml(hub_port: u16, weigh_link: &Path, rtu_link: &Path, truth: &Path) -> String {
     sim_machine_toml(STROKES, truth)
         + &format!(
             r#"
@@ -41,7 +41,7 @@ to_s = {d1}
 /// The gateway: `gateway_faults_hil`'s field config with `T_spindle_C` moved from the CiA 404 PDO
 /// to a `[[modbus.source]]` on the RTU pty (its neighbour `T_spindle2_C` stays on CAN, so the
 /// `[[recovery]]` estimate can stand in while the slave is mute).
-pub fn field_toml_rtu(hub_port: u16, plc: &str, weigh_pty: &Path, rtu_dev: &Path) -> String {
+pub(crate) fn field_toml_rtu(hub_port: u16, plc: &str, weigh_pty: &Path, rtu_dev: &Path) -> String {
     let base = field_toml(hub_port, plc, weigh_pty);
     let can_line = "  { channel = \"T_spindle_C\", node_id = 10, type = \"int16\", byte_offset = 0, decimal_digits = 1 },\n";
     assert!(

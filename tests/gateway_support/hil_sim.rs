@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-pub fn hil_sim_next_to_retrocomp() -> PathBuf {
+pub(crate) fn hil_sim_next_to_retrocomp() -> PathBuf {
     let exe = Path::new(env!("CARGO_BIN_EXE_retrocomp"));
     let bin_dir = exe.parent().unwrap();
     let target_dir = bin_dir.parent().unwrap();

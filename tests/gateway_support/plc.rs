@@ -11,7 +11,7 @@ use tokio_modbus::prelude::*;
 use tokio_modbus::server::tcp::{Server, accept_tcp_connection};
 
 #[derive(Default)]
-pub struct Plc {
+pub(crate) struct Plc {
     pub regs: HashMap<u16, u16>,
     /// Every write request: (address, words).
     pub writes: Vec<(u16, Vec<u16>)>,
@@ -21,11 +21,11 @@ pub struct Plc {
     pub auto_ack: bool,
 }
 
-pub const STROBE: u16 = 110;
-pub const ACK: u16 = 111;
+pub(crate) const STROBE: u16 = 110;
+pub(crate) const ACK: u16 = 111;
 
 #[derive(Clone)]
-pub struct Svc(pub Arc<Mutex<Plc>>);
+pub(crate) struct Svc(pub Arc<Mutex<Plc>>);
 
 impl tokio_modbus::server::Service for Svc {
     type Request = Request<'static>;
@@ -62,7 +62,7 @@ impl tokio_modbus::server::Service for Svc {
     }
 }
 
-pub async fn serve(listener: TcpListener, plc: Arc<Mutex<Plc>>) {
+pub(crate) async fn serve(listener: TcpListener, plc: Arc<Mutex<Plc>>) {
     let server = Server::new(listener);
     let on_connected = move |stream, addr| {
         let svc = Svc(plc.clone());

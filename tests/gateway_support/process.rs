@@ -5,7 +5,7 @@ use std::time::Duration;
 
 /// Send SIGTERM, wait up to 5 s for a clean exit (killing it and failing otherwise), assert the exit
 /// status is success, and return what the gateway wrote to stderr.
-pub fn stop_with_sigterm(child: &mut Child) -> String {
+pub(crate) fn stop_with_sigterm(child: &mut Child) -> String {
     Command::new("kill")
         .args(["-TERM", &child.id().to_string()])
         .status()

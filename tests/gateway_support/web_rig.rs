@@ -11,9 +11,9 @@ use std::time::{Duration, Instant};
 use super::configs::{field_toml, sim_io_toml, sim_machine_toml};
 use super::run;
 
-pub const TOKEN: &str = "shopfloor-test-token-0123";
+pub(crate) const TOKEN: &str = "shopfloor-test-token-0123";
 
-pub struct Rig {
+pub(crate) struct Rig {
     pub dir: PathBuf,
     pub sim: run::Sim,
     pub gw: Child,
@@ -26,13 +26,13 @@ pub struct Rig {
 
 /// Starts hil-sim running `strokes` strokes (3 s each after 1 s of dwell) with the extra
 /// `[[io.faults]]` TOML `io_faults`, and the gateway on it; waits for its status address.
-pub fn start(name: &str, strokes: usize, io_faults: &str) -> Rig {
+pub(crate) fn start(name: &str, strokes: usize, io_faults: &str) -> Rig {
     start_with(name, strokes, io_faults, "")
 }
 
 /// [`start`] with `field_extra` appended to the gateway's field config (e.g. `[gateway.models]`
 /// with absolute paths: the run folder is made anew by `start`).
-pub fn start_with(name: &str, strokes: usize, io_faults: &str, field_extra: &str) -> Rig {
+pub(crate) fn start_with(name: &str, strokes: usize, io_faults: &str, field_extra: &str) -> Rig {
     let hil_sim = super::hil_sim::hil_sim_next_to_retrocomp();
     let dir = run::run_dir(name);
     let (rt, hub) = run::loopback_hub();
@@ -94,11 +94,11 @@ fn log_value(log: &Path, key: &str) -> Option<String> {
 }
 
 impl Rig {
-    pub fn log_text(&self) -> String {
+    pub(crate) fn log_text(&self) -> String {
         std::fs::read_to_string(&self.log).unwrap_or_default()
     }
 
-    pub fn assert_alive(&mut self, when: &str) {
+    pub(crate) fn assert_alive(&mut self, when: &str) {
         if let Some(st) = self.gw.try_wait().unwrap() {
             panic!("the gateway died {when} ({st}):\n{}", self.log_text());
         }
@@ -106,7 +106,7 @@ impl Rig {
 
     /// Waits for hil-sim to end the program by itself (then its log of every PLC write is
     /// complete) and returns that log, `out/plc_writes.csv`.
-    pub fn plc_writes_after_sim_ends(&mut self) -> String {
+    pub(crate) fn plc_writes_after_sim_ends(&mut self) -> String {
         let deadline = Instant::now() + Duration::from_secs(60);
         while self.sim.child.try_wait().unwrap().is_none() {
             self.assert_alive("while hil-sim finishes");
@@ -121,7 +121,13 @@ impl Rig {
     }
 
     /// One request; (status code, body).
-    pub fn call(&self, method: &str, path: &str, auth: Option<&str>, body: &str) -> (u16, String) {
+    pub(crate) fn call(
+        &self,
+        method: &str,
+        path: &str,
+        auth: Option<&str>,
+        body: &str,
+    ) -> (u16, String) {
         use retrocomp::gateway::http::request;
         let bearer = auth.map(|t| format!("Bearer {t}"));
         let mut h = vec![("content-type", "application/json")];
@@ -143,13 +149,13 @@ impl Rig {
     }
 
     /// `/status` as JSON (None before the first cycle or when the answer is not 200).
-    pub fn status(&self) -> Option<serde_json::Value> {
+    pub(crate) fn status(&self) -> Option<serde_json::Value> {
         let (code, body) = self.call("GET", "/status", None, "");
         (code == 200).then(|| serde_json::from_str(&body).unwrap())
     }
 
     /// Polls `/status` every 20 ms until `pred` holds (a generous `within`, not a measurement).
-    pub fn wait_status(
+    pub(crate) fn wait_status(
         &mut self,
         what: &str,
         within: Duration,
@@ -183,7 +189,7 @@ impl Drop for Rig {
 }
 
 /// Applied correction of every axis, µm, from a `/status` body.
-pub fn applied(s: &serde_json::Value) -> Vec<(String, f64)> {
+pub(crate) fn applied(s: &serde_json::Value) -> Vec<(String, f64)> {
     s["axes"]
         .as_array()
         .unwrap()

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// Per-joint INI lines added to `[JOINT_n]` (e.g. `COMP_FILE = …`).
-pub struct Config {
+pub(crate) struct Config {
     pub joint_extra: [Vec<String>; 3],
     /// HAL pins read after every MDI line.
     pub pins: Vec<String>,
@@ -102,7 +102,7 @@ fn is_root() -> bool {
 
 /// Runs LinuxCNC in `dir` (created, world-writable) with the MDI lines; returns per line the
 /// pin values in `cfg.pins` order.
-pub fn run_mdi(dir: &Path, cfg: &Config, mdi: &[String]) -> Vec<(String, Vec<f64>)> {
+pub(crate) fn run_mdi(dir: &Path, cfg: &Config, mdi: &[String]) -> Vec<(String, Vec<f64>)> {
     super::require("linuxcnc");
     super::require("halcmd");
     assert!(

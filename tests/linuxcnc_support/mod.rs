@@ -7,15 +7,15 @@
 
 #![allow(dead_code)]
 
-pub mod headless;
+pub(crate) mod headless;
 
 use std::path::Path;
 use std::process::Command;
 
-pub const INSTALL_HINT: &str = "LinuxCNC 2.9 is not installed: run scripts/setup-linuxcnc.sh (apt-get install --no-install-recommends linuxcnc-uspace)";
+pub(crate) const INSTALL_HINT: &str = "LinuxCNC 2.9 is not installed: run scripts/setup-linuxcnc.sh (apt-get install --no-install-recommends linuxcnc-uspace)";
 
 /// Fails the test (with the install hint) when `prog` is not on PATH.
-pub fn require(prog: &str) {
+pub(crate) fn require(prog: &str) {
     let found = std::env::var_os("PATH")
         .map(|p| std::env::split_paths(&p).any(|d| d.join(prog).is_file()))
         .unwrap_or(false);
@@ -25,14 +25,14 @@ pub fn require(prog: &str) {
 /// One canonical motion: end point (machine coordinates, X Y Z) and, for arcs, the centre in the
 /// plane `(first, second)` axis indices and the rotation (+ counter-clockwise).
 #[derive(Debug, Clone, PartialEq)]
-pub struct CanonMotion {
+pub(crate) struct CanonMotion {
     pub end_mm: [f64; 3],
     pub arc: Option<CanonArc>,
     pub rapid: bool,
 }
 
 #[derive(Debug, Clone, PartialEq)]
-pub struct CanonArc {
+pub(crate) struct CanonArc {
     pub plane: (usize, usize),
     /// Centre, machine coordinates (only the plane components are meaningful).
     pub centre_mm: [f64; 3],
@@ -40,7 +40,7 @@ pub struct CanonArc {
 }
 
 /// Runs `rs274 -g program` and returns its canonical motions, or the interpreter's error text.
-pub fn rs274(program: &Path) -> Result<Vec<CanonMotion>, String> {
+pub(crate) fn rs274(program: &Path) -> Result<Vec<CanonMotion>, String> {
     require("rs274");
     // Two rs274 at once crash (SIGBUS, seen on 2.9.0~pre1): one at a time per test binary.
     static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
@@ -88,7 +88,7 @@ fn num(s: &str) -> f64 {
     s.parse().unwrap_or_else(|_| panic!("canon number `{s}`"))
 }
 
-pub fn parse_canon(text: &str) -> Vec<CanonMotion> {
+pub(crate) fn parse_canon(text: &str) -> Vec<CanonMotion> {
     let mut plane = (0, 1);
     let mut off = [0.0; 3];
     let mut g92 = [0.0; 3];

@@ -11,11 +11,11 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// Deadline of every wait: far beyond what a loaded machine needs, reached only when it is broken.
-pub const PATIENCE: Duration = Duration::from_secs(60);
+pub(crate) const PATIENCE: Duration = Duration::from_secs(60);
 
 /// A field config for `retrocomp run --dry-run`: axis z from a CiA 406 encoder (node 1, TPDO1,
 /// 1000 counts/mm) over `can_section`, the Studer S-36 model, status on `status_port`.
-pub fn field_toml(status_port: u16, can_section: &str) -> String {
+pub(crate) fn field_toml(status_port: u16, can_section: &str) -> String {
     let root = env!("CARGO_MANIFEST_DIR");
     format!(
         r#"
@@ -44,7 +44,7 @@ encoder = [{{ channel = "z_mm", node_id = 1, counts_per_mm = 1000.0 }}]
     )
 }
 
-pub struct Gateway {
+pub(crate) struct Gateway {
     child: Child,
     log: Arc<Mutex<Vec<String>>>,
     pub status_port: u16,
@@ -52,7 +52,7 @@ pub struct Gateway {
 
 impl Gateway {
     /// `retrocomp run --dry-run --config <cfg>` with `RUST_LOG=info` and `envs`.
-    pub fn start(cfg: &Path, status_port: u16, envs: &[(&str, &str)]) -> Gateway {
+    pub(crate) fn start(cfg: &Path, status_port: u16, envs: &[(&str, &str)]) -> Gateway {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_retrocomp"));
         cmd.args(["run", "--dry-run", "--config"])
             .arg(cfg)
@@ -78,12 +78,12 @@ impl Gateway {
         }
     }
 
-    pub fn log(&self) -> Vec<String> {
+    pub(crate) fn log(&self) -> Vec<String> {
         self.log.lock().unwrap().clone()
     }
 
     /// Lines of the log containing every one of `needles`.
-    pub fn log_lines(&self, needles: &[&str]) -> Vec<String> {
+    pub(crate) fn log_lines(&self, needles: &[&str]) -> Vec<String> {
         self.log()
             .into_iter()
             .filter(|l| needles.iter().all(|n| l.contains(n)))
@@ -91,7 +91,7 @@ impl Gateway {
     }
 
     /// `GET path` on the status endpoint; None while it is not up.
-    pub fn get(&self, path: &str) -> Option<String> {
+    pub(crate) fn get(&self, path: &str) -> Option<String> {
         let mut s = std::net::TcpStream::connect(("127.0.0.1", self.status_port)).ok()?;
         s.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
         write!(
@@ -105,12 +105,12 @@ impl Gateway {
         head.starts_with("HTTP/1.1 200").then(|| body.to_string())
     }
 
-    pub fn status(&self) -> Option<serde_json::Value> {
+    pub(crate) fn status(&self) -> Option<serde_json::Value> {
         serde_json::from_str(&self.get("/status")?).ok()
     }
 
     /// Poll `/status` until `pred` holds; panics (with the last status and the log) at [`PATIENCE`].
-    pub fn wait_status(
+    pub(crate) fn wait_status(
         &mut self,
         what: &str,
         pred: impl Fn(&serde_json::Value) -> bool,
@@ -139,7 +139,7 @@ impl Gateway {
     }
 
     /// Wait for the process to exit by itself (≤ [`PATIENCE`]).
-    pub fn wait_exit(&mut self) -> ExitStatus {
+    pub(crate) fn wait_exit(&mut self) -> ExitStatus {
         let t0 = Instant::now();
         while t0.elapsed() < PATIENCE {
             if let Some(st) = self.child.try_wait().unwrap() {
@@ -156,7 +156,7 @@ impl Gateway {
     }
 
     /// SIGTERM and wait for the exit.
-    pub fn stop(&mut self) -> ExitStatus {
+    pub(crate) fn stop(&mut self) -> ExitStatus {
         Command::new("kill")
             .args(["-TERM", &self.child.id().to_string()])
             .status()
@@ -191,7 +191,7 @@ fn strip_ansi(l: &str) -> String {
 }
 
 /// The source named `name` in a status JSON.
-pub fn source<'a>(st: &'a serde_json::Value, name: &str) -> &'a serde_json::Value {
+pub(crate) fn source<'a>(st: &'a serde_json::Value, name: &str) -> &'a serde_json::Value {
     st["sources"]
         .as_array()
         .and_then(|a| a.iter().find(|s| s["name"] == name))
@@ -199,7 +199,7 @@ pub fn source<'a>(st: &'a serde_json::Value, name: &str) -> &'a serde_json::Valu
 }
 
 /// Whether `source` has the fault `kind` active (in its own list and in `active_faults`).
-pub fn has_fault(st: &serde_json::Value, source_name: &str, kind: &str) -> bool {
+pub(crate) fn has_fault(st: &serde_json::Value, source_name: &str, kind: &str) -> bool {
     let own = source(st, source_name)["faults"]
         .as_array()
         .is_some_and(|f| f.iter().any(|f| f[0] == kind));
@@ -214,7 +214,7 @@ pub fn has_fault(st: &serde_json::Value, source_name: &str, kind: &str) -> bool 
 }
 
 /// A metric's value for `series` (e.g. `retrocomp_can_bus_state{source="can"}`).
-pub fn metric(text: &str, series: &str) -> Option<f64> {
+pub(crate) fn metric(text: &str, series: &str) -> Option<f64> {
     text.lines()
         .find_map(|l| l.strip_prefix(series)?.trim().parse().ok())
 }

@@ -7,21 +7,21 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-pub const INSTALL: &str = "run scripts/setup-peers.sh";
+pub(crate) const INSTALL: &str = "run scripts/setup-peers.sh";
 
-pub fn repo() -> PathBuf {
+pub(crate) fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
 /// `<repo>/.venv/bin/python`, or a panic that says how to create it.
-pub fn python() -> PathBuf {
+pub(crate) fn python() -> PathBuf {
     let p = repo().join(".venv/bin/python");
     assert!(p.exists(), "{} is missing: {INSTALL}", p.display());
     p
 }
 
 /// A program on PATH, or a panic that says how to install it.
-pub fn tool(name: &str) -> PathBuf {
+pub(crate) fn tool(name: &str) -> PathBuf {
     std::env::var_os("PATH")
         .and_then(|paths| {
             std::env::split_paths(&paths)
@@ -32,7 +32,7 @@ pub fn tool(name: &str) -> PathBuf {
 }
 
 /// A child process killed on drop.
-pub struct Peer {
+pub(crate) struct Peer {
     pub child: Child,
     pub name: String,
     /// stdout lines printed after `READY`.
@@ -41,7 +41,7 @@ pub struct Peer {
 
 impl Peer {
     /// Next stdout line, waiting up to `secs`.
-    pub fn line(&self, secs: u64) -> String {
+    pub(crate) fn line(&self, secs: u64) -> String {
         let rx = self.lines.as_ref().expect("peer has no stdout");
         rx.recv_timeout(Duration::from_secs(secs))
             .unwrap_or_else(|_| panic!("{}: no output line within {secs} s", self.name))
@@ -50,7 +50,7 @@ impl Peer {
 
 impl Peer {
     /// Write one command line to the peer's stdin.
-    pub fn send(&mut self, line: &str) {
+    pub(crate) fn send(&mut self, line: &str) {
         use std::io::Write;
         let stdin = self.child.stdin.as_mut().expect("peer has no stdin");
         writeln!(stdin, "{line}")
@@ -59,7 +59,7 @@ impl Peer {
     }
 
     /// Read lines until one equals `want` (≤ `secs` each); returns the lines skipped on the way.
-    pub fn expect(&self, want: &str, secs: u64) -> Vec<String> {
+    pub(crate) fn expect(&self, want: &str, secs: u64) -> Vec<String> {
         let mut skipped = Vec::new();
         loop {
             let l = self.line(secs);
@@ -79,7 +79,7 @@ impl Drop for Peer {
 }
 
 /// Start `tests/peers/<script>` with the venv python and wait (≤ 20 s) for it to print `READY`.
-pub fn spawn_python(script: &str, args: &[&str]) -> Peer {
+pub(crate) fn spawn_python(script: &str, args: &[&str]) -> Peer {
     let mut child = Command::new(python())
         .arg(repo().join("tests/peers").join(script))
         .args(args)
@@ -126,7 +126,7 @@ pub fn spawn_python(script: &str, args: &[&str]) -> Peer {
 }
 
 /// An unused loopback TCP port (bound and released; the peer binds it right after).
-pub fn free_port() -> u16 {
+pub(crate) fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -135,7 +135,7 @@ pub fn free_port() -> u16 {
 }
 
 /// A socat pty pair `dir/ttyA` ↔ `dir/ttyB` (raw, no echo), waiting for both links.
-pub fn socat_pair(dir: &Path) -> (Peer, PathBuf, PathBuf) {
+pub(crate) fn socat_pair(dir: &Path) -> (Peer, PathBuf, PathBuf) {
     let (a, b) = (dir.join("ttyA"), dir.join("ttyB"));
     let child = Command::new(tool("socat"))
         .arg(format!("pty,raw,echo=0,link={}", a.display()))

@@ -13,10 +13,10 @@ use crate::peers::tool;
 /// How long a starting broker may take to listen; only a broken install reaches it.
 const LISTEN_PATIENCE: Duration = Duration::from_secs(120);
 
-pub struct Broker(Child);
+pub(crate) struct Broker(Child);
 
 impl Broker {
-    pub fn start(dir: &Path, port: u16) -> Broker {
+    pub(crate) fn start(dir: &Path, port: u16) -> Broker {
         let conf = dir.join("mosquitto.conf");
         std::fs::write(
             &conf,
@@ -50,7 +50,7 @@ impl Broker {
     }
 
     /// Kills the broker now (a broker outage mid-run).
-    pub fn kill(mut self) {
+    pub(crate) fn kill(mut self) {
         let _ = self.0.kill();
         let _ = self.0.wait();
     }

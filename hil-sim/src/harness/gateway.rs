@@ -19,9 +19,9 @@ use retrocomp::bus::serial::source::LineSource;
 use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::engine::{Engine, ErrorModel};
 use retrocomp::gateway::health::{FaultKind, FaultLog};
-use retrocomp::origin_shift::sink_task::update_faults;
 use retrocomp::gateway::safety::Mode;
 use retrocomp::models::Axis;
+use retrocomp::origin_shift::sink_task::update_faults;
 use retrocomp::origin_shift::{Action, Outcome, Reply, SinkAxis, SinkCore};
 
 /// One fault edge as the gateway logs it (source, kind, started or cleared, gateway time).

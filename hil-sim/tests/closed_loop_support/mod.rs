@@ -12,21 +12,21 @@ use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::model_adapter::MachineModelAdapter;
 use retrocomp::models::MachineModel;
 
-pub const CLAMP_UM: f64 = 40.0;
-pub const CLAMP_Y_UM: f64 = 5.0;
-pub const CAP_UM: f64 = 1.0;
-pub const LSB_UM: f64 = 0.5;
+pub(crate) const CLAMP_UM: f64 = 40.0;
+pub(crate) const CLAMP_Y_UM: f64 = 5.0;
+pub(crate) const CAP_UM: f64 = 1.0;
+pub(crate) const LSB_UM: f64 = 0.5;
 /// Registers of the shift words (x, y, z: int32 pairs at 0, 2, 4).
-pub const VALUE_REGISTERS: std::ops::Range<u16> = 0..6;
+pub(crate) const VALUE_REGISTERS: std::ops::Range<u16> = 0..6;
 
-pub fn truth_model() -> PathBuf {
+pub(crate) fn truth_model() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/demo/mill-full.toml")
 }
 
 /// The sim config: `program` (G-code body between the header and M30), extra TOML (`[[faults]]`,
 /// `[[io.faults]]`) appended. `quiet`: no sensor or force noise and no screw heating, so while the machine
 /// dwells with the spindle off every input of the gateway, and so its target, is exactly constant.
-pub fn sim_config(program: &str, quiet: bool, extra: &str) -> SimConfig {
+pub(crate) fn sim_config(program: &str, quiet: bool, extra: &str) -> SimConfig {
     // Sensor noise of 0.08 °C on 0.1 °C CAN steps: a healthy reading never stays bit-identical for
     // 1 s (the stuck detector's time).
     let (sensor_noise, screw_rise, force_noise) = if quiet {
@@ -136,7 +136,7 @@ period_s = 0.02
     SimConfig::from_toml_str(&text, None).expect("sim config")
 }
 
-pub fn field_config() -> FieldConfig {
+pub(crate) fn field_config() -> FieldConfig {
     let axis = |name: &str, clamp: f64, lo: f64, hi: f64| {
         format!(
             r#"
@@ -261,22 +261,22 @@ timeout_ms = 200
 
 /// The gateway's model: the demo mill's full model (hil-sim's visible truth plus the thermal and
 /// load terms), loaded afresh at every gateway start.
-pub fn model_factory() -> ModelFactory {
+pub(crate) fn model_factory() -> ModelFactory {
     let model = MachineModel::from_toml_path(&truth_model()).expect("model");
     Box::new(move || Box::new(MachineModelAdapter::new(model.clone())))
 }
 
-pub fn closed_loop(sim: SimConfig) -> ClosedLoop {
+pub(crate) fn closed_loop(sim: SimConfig) -> ClosedLoop {
     ClosedLoop::new(sim, field_config(), model_factory()).expect("harness")
 }
 
-pub fn clamp_of(axis: usize) -> f64 {
+pub(crate) fn clamp_of(axis: usize) -> f64 {
     if axis == 1 { CLAMP_Y_UM } else { CLAMP_UM }
 }
 
 /// Clamp and cap per write, against what the PLC applied when the write arrived: every value
 /// register written is within the axis' clamp and within one cap of the applied shift.
-pub fn assert_clamp_and_cap_per_write(writes: &[PlcWrite]) {
+pub(crate) fn assert_clamp_and_cap_per_write(writes: &[PlcWrite]) {
     let mut values = 0;
     for w in writes
         .iter()
@@ -297,7 +297,7 @@ pub fn assert_clamp_and_cap_per_write(writes: &[PlcWrite]) {
 
 /// No jump: the applied shift moves by at most one cap between consecutive steps, except at the
 /// steps listed in `foreign` (a foreign writer's latch).
-pub fn assert_no_jump(trace: &[StepTrace], foreign: &[f64]) {
+pub(crate) fn assert_no_jump(trace: &[StepTrace], foreign: &[f64]) {
     for p in trace.windows(2) {
         if foreign.iter().any(|t| (p[1].t_s - t).abs() < 1e-9) {
             continue;
@@ -310,16 +310,16 @@ pub fn assert_no_jump(trace: &[StepTrace], foreign: &[f64]) {
 }
 
 /// The first sink period at or after `t_s` (periods at whole multiples of `period_s`).
-pub fn period_at_or_after(t_s: f64, period_s: f64) -> f64 {
+pub(crate) fn period_at_or_after(t_s: f64, period_s: f64) -> f64 {
     (t_s / period_s - 1e-9).ceil() * period_s
 }
 
 /// `v` rounded to the register's resolution, µm.
-pub fn lsb_round(v: f64) -> f64 {
+pub(crate) fn lsb_round(v: f64) -> f64 {
     (v / LSB_UM).round() * LSB_UM
 }
 
 /// Steps of the trace at or after `t_s`.
-pub fn from(trace: &[StepTrace], t_s: f64) -> impl Iterator<Item = &StepTrace> {
+pub(crate) fn from(trace: &[StepTrace], t_s: f64) -> impl Iterator<Item = &StepTrace> {
     trace.iter().filter(move |r| r.t_s >= t_s - 1e-9)
 }

@@ -4,12 +4,12 @@
 use hil_sim::SimConfig;
 
 /// Parse a TOML config given inline.
-pub fn cfg(toml: &str) -> SimConfig {
+pub(crate) fn cfg(toml: &str) -> SimConfig {
     SimConfig::from_toml_str(toml, None).expect("test config parses")
 }
 
 /// Read a recording CSV into (header, rows of cells).
-pub fn read_csv(bytes: &[u8]) -> (Vec<String>, Vec<Vec<String>>) {
+pub(crate) fn read_csv(bytes: &[u8]) -> (Vec<String>, Vec<Vec<String>>) {
     let mut r = csv::Reader::from_reader(bytes);
     let h = r.headers().unwrap().iter().map(String::from).collect();
     let rows = r
@@ -19,7 +19,7 @@ pub fn read_csv(bytes: &[u8]) -> (Vec<String>, Vec<Vec<String>>) {
     (h, rows)
 }
 
-pub fn col(h: &[String], name: &str) -> usize {
+pub(crate) fn col(h: &[String], name: &str) -> usize {
     h.iter()
         .position(|c| c == name)
         .unwrap_or_else(|| panic!("column {name} missing in {h:?}"))

@@ -199,15 +199,15 @@ pub(super) struct State {
 }
 
 impl State {
-    pub fn offset_mm(&self) -> [f64; 3] {
+    pub(crate) fn offset_mm(&self) -> [f64; 3] {
         self.offsets_mm[self.wcs].unwrap_or([0.0; 3])
     }
     /// Program (work) value of axis `k` as written: X doubled in diameter mode.
-    pub fn machine_to_program(&self, k: usize, machine_mm: f64) -> f64 {
+    pub(crate) fn machine_to_program(&self, k: usize, machine_mm: f64) -> f64 {
         let v = machine_mm - self.offset_mm()[k];
         if k == 0 && self.diameter { 2.0 * v } else { v }
     }
-    pub fn program_to_machine(&self, k: usize, program: f64) -> f64 {
+    pub(crate) fn program_to_machine(&self, k: usize, program: f64) -> f64 {
         let v = if k == 0 && self.diameter {
             program / 2.0
         } else {

@@ -29,9 +29,9 @@ use crate::gateway::status::ModelIdentity;
 use crate::gateway::status::StatusSnapshot;
 
 /// The box's namespace.
-pub const NAMESPACE_URI: &str = "urn:retrocomp:gateway";
+pub(crate) const NAMESPACE_URI: &str = "urn:retrocomp:gateway";
 /// Snapshots reach the address space at most this often (10 Hz).
-pub const UPDATE_PERIOD: Duration = Duration::from_millis(100);
+pub(crate) const UPDATE_PERIOD: Duration = Duration::from_millis(100);
 /// UNECE units in `EUInformation.namespaceUri` (OPC UA Part 8 §5.6.3).
 const UNECE_URI: &str = "http://www.opcfoundation.org/UA/units/un/cefact";
 
