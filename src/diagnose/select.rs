@@ -32,8 +32,8 @@ use super::features::Context;
 use super::heldout::Heldout;
 use super::lsq::{self, dot};
 use super::null_model::{
-    Null, contribution, delta_bic, golden_refine, score, score_cols, within_cells,
-    without_cell_means,
+    Null, contribution, delta_bic, golden_refine, prewhitened_test, score, score_cols,
+    within_cells, without_cell_means,
 };
 
 /// Share of the best thermal ΔBIC a driver-column lag needs to be preferred over a sensor.
@@ -345,6 +345,13 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 1.0
             };
             if !(win.delta_bic > opts.min_delta_bic && p_value * (tried as f64) < opts.alpha) {
+                break;
+            }
+            // The same bar under an AR(1) error model (slow noise: null_model::prewhitened_test).
+            let whitened = prewhitened_test(ctx, cand, win.theta, axis, nl, n_raw + nl.extra);
+            if !whitened.is_some_and(|(_, dbic, p)| {
+                dbic > opts.min_delta_bic && p * (tried as f64) < opts.alpha
+            }) {
                 break;
             }
             // What the term explains of the residual as it is (no nuisance): its importance and RMS.
