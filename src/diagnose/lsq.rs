@@ -134,7 +134,7 @@ pub fn effective_n(r: &[f64]) -> f64 {
         return nf;
     }
     // Short records (tens of laser targets) cannot estimate long lags: cap L at n/10.
-    let lags = ((4.0 * nf.cbrt()) as usize).min(n / 10).max(1);
+    let lags = newey_west_lags(n);
     // Long records: all L autocovariances from one FFT (O(n log n) instead of L·n: 400 lags of
     // 10⁶ samples were a quarter of a 1M-row diagnosis), centred into the FFT buffer without a
     // centred copy; short ones keep the direct sums.
@@ -150,6 +150,42 @@ pub fn effective_n(r: &[f64]) -> f64 {
         factor += 2.0 * (1.0 - k as f64 / (lags + 1) as f64) * rho;
     }
     (nf / factor.max(1.0)).max(nf.min(5.0))
+}
+
+/// Lag-1 autoregression coefficient of `r` (least-squares slope of r_t on r_{t−1} after removing
+/// the mean), clamped to [0, 1]: the ρ of an AR(1) error model for the Cochrane–Orcutt transform
+/// ([`quasi_difference`]). Negative ρ is taken as 0 (no transform), since overdifferencing would
+/// only add noise; a random walk gives ρ ≈ 1 (the transform is then the first difference).
+pub fn ar1_coefficient(r: &[f64]) -> f64 {
+    let n = r.len();
+    if n < 3 {
+        return 0.0;
+    }
+    let mean = r.iter().sum::<f64>() / n as f64;
+    let (mut num, mut den) = (0.0, 0.0);
+    for w in r.windows(2) {
+        let (a, b) = (w[0] - mean, w[1] - mean);
+        num += a * b;
+        den += a * a;
+    }
+    if den.is_nan() || den <= 0.0 {
+        return 0.0;
+    }
+    (num / den).clamp(0.0, 1.0)
+}
+
+/// v_t − ρ·v_{t−1} for t ≥ 1 (one row fewer): the Cochrane–Orcutt quasi-difference. Applied to a
+/// residual and to the columns explaining it, it turns an AR(1) error with coefficient ρ into white
+/// innovations, so an F-test or criterion on the transformed rows counts independent samples
+/// (generalised least squares); ρ = 1 is the first difference (random-walk errors).
+pub fn quasi_difference(v: &[f64], rho: f64) -> Vec<f64> {
+    v.windows(2).map(|w| w[1] - rho * w[0]).collect()
+}
+
+/// The Newey–West window of [`effective_n`]: L = 4·n^{1/3} lags, at most n/10 (short records
+/// cannot estimate long lags), at least 1.
+pub fn newey_west_lags(n: usize) -> usize {
+    ((4.0 * (n as f64).cbrt()) as usize).min(n / 10).max(1)
 }
 
 /// Records at least this long get their autocovariances by FFT in [`effective_n`] (and cyclic
@@ -478,6 +514,31 @@ mod tests {
         );
         // A column already in the span is dropped.
         assert!(orthonormalize(&basis, vec![vec![2.0; 50]], 2).is_empty());
+    }
+
+    #[test]
+    fn ar1_coefficient_and_quasi_difference_whiten_an_ar1() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut a = 0.0;
+        let r: Vec<f64> = (0..20_000)
+            .map(|_| {
+                a = 0.95 * a + rng.random_range(-1.0..1.0);
+                a
+            })
+            .collect();
+        let rho = ar1_coefficient(&r);
+        assert!((rho - 0.95).abs() < 0.01, "rho {rho}");
+        let w = quasi_difference(&r, rho);
+        assert_eq!(w.len(), r.len() - 1);
+        assert!(
+            ar1_coefficient(&w) < 0.05,
+            "the transform leaves white innovations: {}",
+            ar1_coefficient(&w)
+        );
+        assert!(effective_n(&w) > 0.8 * w.len() as f64);
+        assert!(effective_n(&r) < 0.1 * r.len() as f64);
+        assert_eq!(quasi_difference(&[1.0, 3.0, 6.0], 1.0), vec![2.0, 3.0]);
     }
 
     #[test]

@@ -137,6 +137,64 @@ pub(super) fn contribution(
     r0.iter().zip(&r1).map(|(a, b)| a - b).collect()
 }
 
+/// The winner's test repeated under an AR(1) error model (Cochrane–Orcutt, one step): ρ is
+/// estimated from the residual the candidate leaves (`r0` minus its part: under the alternative
+/// that residual is the noise; cell means removed), then the null's residual and the candidate's
+/// new columns (its part outside the null's span) are quasi-differenced and the partial F-test and ΔBIC are taken on the
+/// transformed rows, on the effective sample size of the transformed residual.
+///
+/// Why on top of the Newey–West n_eff: with errors of very long memory (AR(0.99), a random walk)
+/// the Newey–West window (4·n^{1/3} lags) sees only part of the long-run variance, so any smooth
+/// column (a drift, a lagged temperature, a decoy random walk) looks significant. After the
+/// transform a smooth column keeps only its increments, which must stand out against the noise's
+/// innovations; a direction-odd step (backlash) or a cyclic term keeps most of its power. With
+/// short-memory noise ρ is small and the test is the usual one. Returns (ρ, ΔBIC, p-value).
+pub(super) fn prewhitened_test(
+    ctx: &Context,
+    c: &Candidate,
+    theta: f64,
+    axis: char,
+    nl: &Null<'_>,
+    p_cols: usize,
+) -> Option<(f64, f64, f64)> {
+    use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+    let mut cols = c.columns(ctx, theta);
+    if let Some((cell, k)) = nl.cells {
+        cols.iter_mut().for_each(|v| demean_in_cells(v, cell, k));
+    }
+    let u = lsq::orthonormalize(&nl.basis, cols, 1);
+    if u.is_empty() {
+        return None;
+    }
+    let r1 = lsq::deflate(&u, &nl.r0);
+    // ρ of what is left once the cell means are out, as for n_eff (`select.rs`): structure that is a
+    // function of position and direction (an unmodelled reversal) is not slow noise.
+    let rho = lsq::ar1_coefficient(&without_cell_means(ctx, axis, &r1));
+    drop(r1);
+    let q = u.len() + usize::from(c.is_nonlinear());
+    let test = |rho: f64| -> Option<(f64, f64)> {
+        let wr0 = lsq::quasi_difference(&nl.r0, rho);
+        let wu: Vec<Vec<f64>> = u.iter().map(|v| lsq::quasi_difference(v, rho)).collect();
+        let wu = lsq::orthonormalize(&[], wu, 2);
+        if wu.is_empty() {
+            return None;
+        }
+        let rss0 = dot(&wr0, &wr0);
+        let gain = lsq::gain(&wu, &wr0).min(rss0 * (1.0 - 1e-12));
+        let n_eff = lsq::effective_n(&lsq::deflate(&wu, &wr0));
+        let df2 = n_eff - (p_cols + q) as f64;
+        let p = if df2 >= 1.0 && rss0 > 0.0 {
+            let f = (gain / q as f64) / ((rss0 - gain) / df2);
+            FisherSnedecor::new(q as f64, df2).map_or(1.0, |d| d.sf(f))
+        } else {
+            1.0
+        };
+        Some((delta_bic(n_eff, rss0, gain, q), p))
+    };
+    let (dbic, p) = test(rho)?;
+    Some((rho, dbic, p))
+}
+
 pub(super) fn delta_bic(n_eff: f64, rss0: f64, gain: f64, q: usize) -> f64 {
     n_eff * (rss0 / (rss0 - gain)).ln() - q as f64 * n_eff.ln()
 }

@@ -32,8 +32,8 @@ use super::features::Context;
 use super::heldout::Heldout;
 use super::lsq::{self, dot};
 use super::null_model::{
-    Null, contribution, delta_bic, golden_refine, score, score_cols, within_cells,
-    without_cell_means,
+    Null, contribution, delta_bic, golden_refine, prewhitened_test, score, score_cols,
+    within_cells, without_cell_means,
 };
 
 /// Share of the best thermal ΔBIC a driver-column lag needs to be preferred over a sensor.
@@ -364,6 +364,18 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             };
             if !(win.delta_bic > opts.min_delta_bic && p_value * (tried as f64) < opts.alpha) {
                 break;
+            }
+            // The same bar under an AR(1) error model (slow noise: null_model::prewhitened_test),
+            // where the held-out check is leave-one-block-out (it rewards a smooth term tracking
+            // smooth noise); forward-validated (thermal-only) recordings keep the forward test as
+            // their guard (on FL_THERMAL the extra test dropped every d3/d4 finding).
+            if !forward {
+                let whitened = prewhitened_test(ctx, cand, win.theta, axis, nl, n_raw + nl.extra);
+                if !whitened.is_some_and(|(_, dbic, p)| {
+                    dbic > opts.min_delta_bic && p * (tried as f64) < opts.alpha
+                }) {
+                    break;
+                }
             }
             // What the term explains of the residual as it is (no nuisance): its importance and RMS.
             let plain_gain = score(ctx, cand, win.theta, &plain).map_or(0.0, |s| s.0);
