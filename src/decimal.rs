@@ -38,12 +38,25 @@ pub fn push_fixed6(out: &mut Vec<u8>, v: f64) {
 /// Append `v` as `format!("{v}")` would: the shortest digits that parse back to the same `f64`,
 /// laid out without an exponent (`1`, `0.0000001`, `100000000000000000000`, `-0`, `NaN`, `inf`).
 ///
-/// Why `ryu`: its shortest digits are the same as `core::fmt`'s (both pick the shortest string that
-/// round-trips, the nearest one on a tie; checked against `format!` on edge cases and ≥ 10⁶ random
-/// values and bit patterns below) at a fraction of the cost; only its layout (`1.0`, `1e-7`) differs,
-/// so the digits and decimal exponent are read back from its text and laid out as `core::fmt` does.
+/// Why `ryu`: its shortest digits are `core::fmt`'s (both pick the shortest string that round-trips,
+/// the nearest one if several) at a fraction of the cost, except on exact ties, which only values
+/// with a short exact expansion can hit and which go to `core::fmt`; its layout (`1.0`, `1e-7`)
+/// differs, so the digits and decimal exponent are read back from its text and laid out as
+/// `core::fmt` does. Checked against `format!` on edge cases, ties and ≥ 10⁶ random values and bit
+/// patterns below.
 pub fn push_shortest(out: &mut Vec<u8>, v: f64) {
-    if !v.is_finite() {
+    // v = m·2^e exactly. When its exact decimal expansion is short (≤ 18 significant digits: only
+    // if e ≥ −26 once m's trailing zero bits are moved into e, as 5^26 alone has 19 digits), v can
+    // lie exactly half-way between the two nearest shortest candidates; ryu breaks that tie to
+    // even, core::fmt upwards (2^50 + 0.25 differs), so such values, zero and non-finite ones
+    // take core::fmt. Recorded measurements (full mantissas) take the fast path.
+    let bits = v.to_bits();
+    let (biased, frac) = (((bits >> 52) & 0x7ff) as i32, bits & ((1u64 << 52) - 1));
+    let (m, e) = match biased {
+        0 => (frac, -1074),
+        _ => (frac | (1u64 << 52), biased - 1075),
+    };
+    if !v.is_finite() || m == 0 || e + m.trailing_zeros() as i32 >= -26 {
         // Writing into a Vec cannot fail.
         let _ = write!(out, "{v}");
         return;
@@ -197,6 +210,9 @@ mod tests {
             f64::MAX,
             f64::MIN,
             f64::EPSILON,
+            1658206780088562.25,
+            1125899906842624.25,
+            4503599627370497.5,
             f64::NAN,
             f64::INFINITY,
             f64::NEG_INFINITY,
@@ -214,8 +230,12 @@ mod tests {
             let v = rng.random_range(-1.0..1.0) * mag;
             same_shortest(v);
             same_shortest((v * 1e3).round() / 1e3);
-            // … and any bit pattern (every exponent, subnormals).
-            same_shortest(f64::from_bits(rng.random::<u64>()));
+            // … any bit pattern (every exponent, subnormals) …
+            let bits = rng.random::<u64>();
+            same_shortest(f64::from_bits(bits));
+            // … and short binary fractions, where exact ties live (a few mantissa bits kept).
+            let keep = rng.random_range(1..53u32);
+            same_shortest(f64::from_bits(bits & !((1u64 << (52 - keep)) - 1)));
         }
     }
 }
