@@ -210,9 +210,10 @@ mod tests {
             f64::MAX,
             f64::MIN,
             f64::EPSILON,
-            1658206780088562.25,
-            1125899906842624.25,
-            4503599627370497.5,
+            // Exact ties at 17 digits (the first found by the random test below).
+            1_658_206_780_088_562.0 + 0.25,
+            2f64.powi(50) + 0.25,
+            2f64.powi(51) + 0.5,
             f64::NAN,
             f64::INFINITY,
             f64::NEG_INFINITY,
