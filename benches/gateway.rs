@@ -5,6 +5,11 @@
 //!   100 000 individually timed cycles are printed.
 //! - `pipeline_frames`: CAN encoder frames (TPDO1, CiA 406 position U32) → decode → sample → engine,
 //!   one cycle per 90 frames (1 ms cycle at 90k frames/s). Target ≥ 90k frames/s on one core.
+//!   What it is not: the decode is this file's `decode_encoder` (not the gateway's
+//!   `PositionDecoder`), the model is the synthetic `BenchModel` below (not a shipped model
+//!   through the adapter), and no sink encodes registers: it measures engine ingest + cycle
+//!   (health, state, model, safety) under a frame stream, not the whole decode → sink path
+//!   (`gateway_latency` runs that path end to end over loopback).
 //! - `edge_scheduler`: quadrature edges merged per second.
 //!
 //! Run: `cargo bench -p retrocomp --bench gateway`.

@@ -421,11 +421,12 @@ impl<W: Write> RecordingWriter<W> {
             )));
         }
         self.last_t = row[self.t_idx];
-        // `{}` on f64 prints the shortest string that parses back to the same value: lossless round trip.
+        // The shortest string that parses back to the same value (byte for byte `{}` on f64, without
+        // `core::fmt`): lossless round trip.
         let err = |e: csv::Error| RecordingError::Write(e.to_string());
         for v in row {
             self.cell.clear();
-            write!(self.cell, "{v}").map_err(|e| RecordingError::Write(e.to_string()))?;
+            crate::decimal::push_shortest(&mut self.cell, *v);
             self.w.write_field(&self.cell).map_err(err)?;
         }
         self.w.write_record(None::<&[u8]>).map_err(err)?;

@@ -1,9 +1,13 @@
 //! Simulation speed: 10 s of simulated time at a 1 kHz servo rate, 3 axes moving, thermal network
 //! with 3 nodes and 3 sensors, cutting force, noise on (built-in geometry, then the project's
-//! volumetric model). Real-time factor = 10 s / measured time.
+//! volumetric model). Real-time factor = 10 s / measured time. `program_to_end_recorded` is
+//! `hil-sim run`'s loop: the same world run to the program's end with every sample written as a
+//! recording row (DESIGN §4 CSV) into a sink; `program_to_end` is the same without the recording, so
+//! the difference is the writer's cost.
 //! Run: `cargo bench -p hil-sim --bench world`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use hil_sim::recording::run_to_end;
 use hil_sim::{SimConfig, World};
 
 const CFG: &str = r#"
@@ -62,6 +66,24 @@ fn bench(c: &mut Criterion) {
             }
             assert!(w.t_s() > 9.99);
             w.readings().error_um
+        })
+    });
+    // The whole program, without and with the recording: the difference is the writer's cost.
+    g.bench_function("program_to_end", |b| {
+        b.iter(|| {
+            let mut w = World::new(cfg.clone()).unwrap();
+            while !w.done() {
+                w.tick();
+            }
+            w.readings().error_um
+        })
+    });
+    g.bench_function("program_to_end_recorded", |b| {
+        b.iter(|| {
+            let mut w = World::new(cfg.clone()).unwrap();
+            let (_, rows) = run_to_end(&mut w, std::io::sink(), |_| {}).unwrap();
+            assert!(rows > 1000);
+            rows
         })
     });
     // Same world with the project's exact (4×4 HTM) volumetric model as the geometry truth

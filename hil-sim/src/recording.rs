@@ -6,7 +6,8 @@
 //! tool-tip errors (actual − nominal, including whatever correction the controller received); `sim_e*`
 //! are the visible model's prediction at the nominal position plus the received correction.
 //! A dropped-out sensor leaves its cell empty; a NaN fault writes `NaN` (diagnose must report both).
-//! Numbers are written with Rust's shortest round-trip formatting, so output is byte-reproducible.
+//! Numbers are written with Rust's shortest round-trip text (`t_s` with 6 decimals), formatted without
+//! allocating by `retrocomp::decimal` (byte for byte `{}` / `{:.6}`), so output is byte-reproducible.
 //! Why not `retrocomp::recording::RecordingWriter`: that writer refuses non-finite and missing cells,
 //! and the simulator must be able to produce sensor faults on demand. Fault-free recordings read back
 //! with `retrocomp::recording::Recording::read_strict`; with faults, `read_lenient` reports exactly
@@ -16,33 +17,34 @@ use crate::world::{Readings, World};
 use std::io::Write;
 
 pub struct Recorder<W: Write> {
-    csv: csv::Writer<W>,
-    cell: Vec<u8>,
+    out: W,
+    /// Rows assembled here and handed to `out` in blocks of about [`Recorder::BLOCK`] bytes (the
+    /// csv writer this replaces buffered as much): no allocation per row, bounded memory.
+    buf: Vec<u8>,
     /// The `run` label, formatted once: it is the same on every row.
-    run: Option<String>,
+    run: Option<Vec<u8>>,
     shift_columns: bool,
     tool_mm: f64,
     columns: usize,
     rows: u64,
 }
 
-/// One cell, formatted into `cell` (reused: no allocation per row). `NaN` for a NaN fault.
-fn num(cell: &mut Vec<u8>, v: f64) -> &[u8] {
-    cell.clear();
+/// One cell: `NaN` for a NaN fault, else the shortest text that parses back to the same value
+/// (`retrocomp::decimal::push_shortest`, byte for byte `format!("{v}")`). Numbers never need quoting.
+fn num(buf: &mut Vec<u8>, v: f64) {
     if v.is_nan() {
-        cell.extend_from_slice(b"NaN");
+        buf.extend_from_slice(b"NaN");
     } else {
-        // Writing into a Vec cannot fail.
-        let _ = write!(cell, "{v}");
+        retrocomp::decimal::push_shortest(buf, v);
     }
-    cell
 }
 
 impl<W: Write> Recorder<W> {
+    const BLOCK: usize = 8 << 10;
+
     /// Writes the header for `world`'s channel layout.
-    pub fn new(out: W, world: &World) -> anyhow::Result<Self> {
+    pub fn new(mut out: W, world: &World) -> anyhow::Result<Self> {
         let cfg = world.config();
-        let mut csv = csv::WriterBuilder::new().from_writer(out);
         let r = world.readings();
         let mut h: Vec<String> = [
             "t_s",
@@ -70,11 +72,20 @@ impl<W: Write> Recorder<W> {
         if cfg.record.shift_columns {
             h.extend(["shift_x_um", "shift_y_um", "shift_z_um"].map(String::from));
         }
-        csv.write_record(&h)?;
+        // The header goes through the csv crate (channel names may need quoting).
+        let mut head = csv::Writer::from_writer(Vec::new());
+        head.write_record(&h)?;
+        out.write_all(
+            &head
+                .into_inner()
+                .map_err(|e| anyhow::anyhow!("{}", e.error()))?,
+        )?;
+        // An integer label: never quoted.
+        let run = cfg.record.run.map(|r| r.to_string().into_bytes());
         Ok(Self {
-            csv,
-            cell: Vec::with_capacity(32),
-            run: cfg.record.run.map(|r| r.to_string()),
+            out,
+            buf: Vec::with_capacity(Self::BLOCK + 1024),
+            run,
             shift_columns: cfg.record.shift_columns,
             tool_mm: cfg.program.tool_mm,
             columns: h.len(),
@@ -83,50 +94,60 @@ impl<W: Write> Recorder<W> {
     }
 
     pub fn write(&mut self, r: &Readings) -> anyhow::Result<()> {
-        let (csv, cell) = (&mut self.csv, &mut self.cell);
+        let row_start = self.buf.len();
+        let buf = &mut self.buf;
         let mut n = 0usize;
-        let mut put = |bytes: &[u8]| -> csv::Result<()> {
+        // Separator before every cell but the first.
+        let mut sep = |buf: &mut Vec<u8>| {
+            if n > 0 {
+                buf.push(b',');
+            }
             n += 1;
-            csv.write_field(bytes)
         };
-        cell.clear();
-        write!(cell, "{:.6}", r.t_s)?;
-        put(cell)?;
+        sep(buf);
+        retrocomp::decimal::push_fixed6(buf, r.t_s);
         let plain = r
             .nominal_mm
             .iter()
             .chain(&r.error_um)
             .chain(&r.sim_error_um);
         for v in plain {
-            put(num(cell, *v))?;
+            sep(buf);
+            num(buf, *v);
         }
         // A dropped-out sensor is an empty cell.
-        let mut opt = |v: Option<f64>, put: &mut dyn FnMut(&[u8]) -> csv::Result<()>| match v {
-            Some(v) => put(num(cell, v)),
-            None => put(b""),
-        };
-        for c in &r.temps {
-            opt(c.value, &mut put)?;
+        let temps = r.temps.iter().map(|c| c.value);
+        let rest = r.force.iter().chain(&r.strains).map(|c| c.value);
+        let opt = temps
+            .chain([Some(r.rpm)])
+            .chain(rest)
+            .chain([Some(self.tool_mm)]);
+        for v in opt {
+            sep(buf);
+            if let Some(v) = v {
+                num(buf, v);
+            }
         }
-        opt(Some(r.rpm), &mut put)?;
-        for c in r.force.iter().chain(&r.strains) {
-            opt(c.value, &mut put)?;
-        }
-        opt(Some(self.tool_mm), &mut put)?;
         if let Some(run) = &self.run {
-            put(run.as_bytes())?;
+            sep(buf);
+            buf.extend_from_slice(run);
         }
         if self.shift_columns {
             for v in &r.correction_um {
-                opt(Some(*v), &mut put)?;
+                sep(buf);
+                num(buf, *v);
             }
         }
-        anyhow::ensure!(
-            n == self.columns,
-            "recording: channel layout changed mid-run"
-        );
-        self.csv.write_record(None::<&[u8]>)?;
+        if n != self.columns {
+            self.buf.truncate(row_start);
+            anyhow::bail!("recording: channel layout changed mid-run");
+        }
+        self.buf.push(b'\n');
         self.rows += 1;
+        if self.buf.len() >= Self::BLOCK {
+            self.out.write_all(&self.buf)?;
+            self.buf.clear();
+        }
         Ok(())
     }
 
@@ -135,10 +156,9 @@ impl<W: Write> Recorder<W> {
     }
 
     pub fn finish(mut self) -> anyhow::Result<W> {
-        self.csv.flush()?;
-        self.csv
-            .into_inner()
-            .map_err(|e| anyhow::anyhow!("recording: {}", e.error()))
+        self.out.write_all(&self.buf)?;
+        self.out.flush()?;
+        Ok(self.out)
     }
 }
 

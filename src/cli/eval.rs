@@ -6,8 +6,10 @@
 //! are passed through. A model with no position-dependent term needs no axis column. Output (stdout): the input columns, then
 //! `ex_um`, `ey_um`, `ez_um`, then `term_<name>_ex_um`, `term_<name>_ey_um`, `term_<name>_ez_um`
 //! per term, and `flags` (empty when nothing was assumed). Every bad row is reported with its line
-//! number and nothing is written. Streams: the file is read twice (check, then evaluate and write),
-//! so memory stays bounded for any length; the output's numbers are formatted into one reused buffer.
+//! number and nothing is written. Streams in one pass (each row checked as it is evaluated; the
+//! output is held in a spool, memory then an unlinked temporary file, and copied to stdout once every
+//! row was good), so memory stays bounded for any length; each output line is assembled in one
+//! reused buffer (`decimal::push_fixed6` for the numbers).
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -128,19 +130,41 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         "the strain is taken as 0",
     );
 
-    // Pass 1 checks every row (nothing is written when one is bad); pass 2 re-reads the file and
-    // streams the output. Two passes keep memory bounded whatever the file's length, where holding
-    // the rows took 865 MB for 10⁶ of them.
+    // One pass: every row is checked as it is evaluated, and the output goes to a spool (memory,
+    // then an unlinked temporary file past `Spool::IN_MEMORY`) that reaches stdout only when every
+    // row was good, so a bad row anywhere still means nothing is written. Memory stays bounded
+    // whatever the file's length (holding the rows took 865 MB for 10⁶ of them); the spool's copy
+    // to stdout is a kernel copy. Reading and tokenising the file once instead of twice (check,
+    // then evaluate) was the largest remaining cost.
     let rows = RowReader {
         file: &file,
         headers: &headers,
         cols: &cols,
         held_mm,
     };
+    let mut spool = Spool::default();
+    let mut header: Vec<String> = headers.iter().map(|s| s.to_string()).collect();
+    header.extend(["ex_um", "ey_um", "ez_um"].map(String::from));
+    for n in model.term_names() {
+        for d in ["ex", "ey", "ez"] {
+            header.push(format!("term_{n}_{d}_um"));
+        }
+    }
+    header.push("flags".into());
+    {
+        let mut hw = csv::Writer::from_writer(&mut spool);
+        hw.write_record(&header)?;
+        hw.flush()?;
+    }
     let mut input = model.new_input();
+    let mut state = model.new_state();
+    let mut out = model.new_breakdown();
     let mut problems = Problems::default();
     let mut rdr = open(&args.path, &file)?;
     let mut rec = csv::ByteRecord::new();
+    // One output line, reused: no allocation per row. Rows are assembled here rather than through
+    // csv::Writer, whose per-field state machine was a fifth of the command's CPU on 10⁶ rows.
+    let mut line: Vec<u8> = Vec::with_capacity(1024);
     let mut last_t = None;
     loop {
         match rdr.read_byte_record(&mut rec) {
@@ -151,44 +175,10 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
                 problems.push(format!("{file}:{line}: {e}"));
             }
         }
-    }
-    if problems.count > 0 {
-        let n = problems.count;
-        let more = if n > problems.shown.len() {
-            format!("\n… and {} more", n - problems.shown.len())
-        } else {
-            String::new()
-        };
-        bail!(
-            "{n} bad row(s) in the path file, nothing evaluated:\n{}{more}",
-            problems.shown.join("\n")
-        );
-    }
-
-    let stdout = std::io::stdout();
-    let mut w = std::io::BufWriter::with_capacity(1 << 16, stdout.lock());
-    let mut header: Vec<String> = headers.iter().map(|s| s.to_string()).collect();
-    header.extend(["ex_um", "ey_um", "ez_um"].map(String::from));
-    for n in model.term_names() {
-        for d in ["ex", "ey", "ez"] {
-            header.push(format!("term_{n}_{d}_um"));
+        // After the first bad row nothing will be written: only the checking goes on.
+        if problems.count > 0 {
+            continue;
         }
-    }
-    header.push("flags".into());
-    {
-        let mut hw = csv::Writer::from_writer(&mut w);
-        hw.write_record(&header)?;
-        hw.flush()?;
-    }
-    let mut state = model.new_state();
-    let mut out = model.new_breakdown();
-    let mut rdr = open(&args.path, &file)?;
-    // One output line, reused: no allocation per row. Rows are assembled here rather than through
-    // csv::Writer, whose per-field state machine was a fifth of the command's CPU on 10⁶ rows.
-    let mut line: Vec<u8> = Vec::with_capacity(1024);
-    let mut last_t = None;
-    while rdr.read_byte_record(&mut rec)? {
-        rows.parse(&rec, &mut input, &mut last_t, &mut problems);
         if args.first_order {
             model.evaluate_first_order(&input, &mut state, &mut out);
         } else {
@@ -209,15 +199,107 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         line.push(b',');
         write_flags(&mut line, &out.flags)?;
         line.push(b'\n');
-        w.write_all(&line)?;
+        spool.write_all(&line)?;
     }
-    anyhow::ensure!(
-        problems.count == 0,
-        "{file}: changed while it was being evaluated ({})",
-        problems.shown.join("; ")
-    );
-    w.flush()?;
-    Ok(())
+    if problems.count > 0 {
+        let n = problems.count;
+        let more = if n > problems.shown.len() {
+            format!("\n… and {} more", n - problems.shown.len())
+        } else {
+            String::new()
+        };
+        bail!(
+            "{n} bad row(s) in the path file, nothing evaluated:\n{}{more}",
+            problems.shown.join("\n")
+        );
+    }
+    spool.copy_to_stdout()
+}
+
+/// Output held back until every row has been checked: in memory up to [`Spool::IN_MEMORY`]
+/// bytes, then in an unlinked temporary file (removed by the OS however the process ends), so
+/// memory stays bounded for any length of input.
+#[derive(Default)]
+struct Spool {
+    mem: Vec<u8>,
+    file: Option<std::io::BufWriter<std::fs::File>>,
+}
+
+impl Spool {
+    const IN_MEMORY: usize = 4 << 20;
+
+    fn copy_to_stdout(self) -> anyhow::Result<()> {
+        let stdout = std::io::stdout();
+        let mut w = stdout.lock();
+        match self.file {
+            None => w.write_all(&self.mem)?,
+            Some(f) => {
+                use std::io::Seek as _;
+                let mut f = f.into_inner().map_err(|e| e.into_error())?;
+                f.rewind()?;
+                // File → stdout: std uses copy_file_range/sendfile/splice here, no user-space copy.
+                std::io::copy(&mut f, &mut w)?;
+            }
+        }
+        w.flush()?;
+        Ok(())
+    }
+}
+
+/// A new file in `std::env::temp_dir()`, removed from its directory at once: it lives while open.
+/// (The `tempfile` crate does the same; it is only a dev-dependency here, and making it a normal
+/// one changed the dependency features of the whole release build.)
+fn unlinked_temp_file() -> std::io::Result<std::fs::File> {
+    let dir = std::env::temp_dir();
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos());
+    let mut last = None;
+    for attempt in 0..16u32 {
+        let path = dir.join(format!(
+            ".retrocomp-eval-{}-{nanos}-{attempt}",
+            std::process::id()
+        ));
+        match std::fs::File::options()
+            .read(true)
+            .write(true)
+            .create_new(true)
+            .open(&path)
+        {
+            Ok(f) => {
+                std::fs::remove_file(&path)?;
+                return Ok(f);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last = Some(e),
+            Err(e) => return Err(e),
+        }
+    }
+    Err(last.unwrap_or_else(|| std::io::Error::other("no free temporary file name")))
+}
+
+impl Write for Spool {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        if self.file.is_none() && self.mem.len() + buf.len() > Self::IN_MEMORY {
+            let f = unlinked_temp_file().map_err(|e| {
+                std::io::Error::new(e.kind(), format!("cannot create a temporary file: {e}"))
+            })?;
+            let mut f = std::io::BufWriter::with_capacity(1 << 16, f);
+            f.write_all(&self.mem)?;
+            self.mem = Vec::new();
+            self.file = Some(f);
+        }
+        match &mut self.file {
+            Some(f) => f.write(buf),
+            None => {
+                self.mem.extend_from_slice(buf);
+                Ok(buf.len())
+            }
+        }
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
 }
 
 /// A passed-through field as the csv crate writes one (its `QuoteStyle::Necessary`): as is, or
