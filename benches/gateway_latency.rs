@@ -181,7 +181,9 @@ struct Rig {
     seen: watch::Receiver<Seen>,
     x_mm: f64,
     stop: Option<oneshot::Sender<()>>,
-    gateway: tokio::task::JoinHandle<anyhow::Result<retrocomp::gateway::run::RunSummary>>,
+    gateway: tokio::task::JoinHandle<
+        Result<retrocomp::gateway::run::RunSummary, retrocomp::gateway::error::GatewayError>,
+    >,
     _hub: Hub,
 }
 

@@ -8,6 +8,7 @@ pub mod config_issue;
 pub mod decimal;
 pub mod demo;
 pub mod diagnose;
+pub mod error;
 pub mod fault;
 pub mod gateway;
 pub mod models;

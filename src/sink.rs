@@ -44,10 +44,36 @@ pub struct SinkIo {
 pub trait Sink {
     /// Connect and return what the controller holds per axis (empty when the sink holds no state
     /// the engine must continue from). Waits for the controller as long as it takes.
-    fn start<'a>(&'a mut self, io: &'a SinkIo) -> LocalFuture<'a, anyhow::Result<StartValues>>;
+    fn start<'a>(&'a mut self, io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>>;
 
     /// Follow the cycle's outputs until the runtime drops them, a stop ramp ends, or the sink fails.
     fn run(self: Box<Self>, io: SinkIo) -> LocalFuture<'static, ()>;
+}
+
+/// Why a sink could not be built or started: the sinks' one error type at this seam. Display is the
+/// config key or axis that failed (the cause is its `source()`), or the whole message.
+#[derive(Debug, thiserror::Error)]
+pub enum SinkError {
+    /// What `what` names (a config key, an axis, a thread) could not be set up.
+    #[error("{what}")]
+    Setup {
+        what: String,
+        #[source]
+        source: crate::error::BoxError,
+    },
+    /// Refused as configured (the message says what to change).
+    #[error("{0}")]
+    Refused(String),
+}
+
+impl SinkError {
+    /// The failure of what `what` names, caused by `source`.
+    pub fn setup(what: impl Into<String>, source: impl Into<crate::error::BoxError>) -> Self {
+        SinkError::Setup {
+            what: what.into(),
+            source: source.into(),
+        }
+    }
 }
 
 /// A sink's state as `/status` and `/metrics` show it (one per gateway).

@@ -11,6 +11,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context as _;
+use retrocomp::error::Chain;
 
 use retrocomp::telemetry::drift::{self, DriftState, MachineDrift};
 use retrocomp::telemetry::fleet::FleetView;
@@ -71,7 +72,7 @@ fn diagnose_all(
         let p = prev.get(&(g.clone(), n.clone()));
         let d = match drift::diagnose_against(&rec, &model) {
             Ok(r) => drift::judge(&r, &rec, &model, drift_um, p),
-            Err(e) => drift::failed(&rec, &model, format!("{e:#}"), p),
+            Err(e) => drift::failed(&rec, &model, Chain(&e).to_string(), p),
         };
         if d.state == DriftState::Drifted && p.is_none_or(|p| p.state != DriftState::Drifted) {
             tracing::warn!(group = g, edge_node = n, rms_um = d.rms_um, effect = ?d.finding.as_ref().map(|f| &f.effect), "fleet: model drift");

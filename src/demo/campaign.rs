@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::Duration;
 
-use anyhow::{Context, bail};
+use super::error::{Context as _, DemoError};
 
 use crate::analysis::table::Direction;
 use crate::models::Axis;
@@ -162,7 +162,7 @@ pub fn measurement_config(
     gcode: &str,
     every_s: f64,
     what: &str,
-) -> anyhow::Result<String> {
+) -> Result<String, DemoError> {
     let mut t: toml::Table =
         toml::from_str(sim_toml).context("the demo's sim template does not parse")?;
     t.remove("io");
@@ -191,7 +191,11 @@ pub fn measurement_config(
 }
 
 /// Runs `hil-sim run --config CONFIG --out DIR` and returns DIR/recording.csv.
-pub async fn run_measurement(hil_sim: &Path, config: &Path, out: &Path) -> anyhow::Result<PathBuf> {
+pub async fn run_measurement(
+    hil_sim: &Path,
+    config: &Path,
+    out: &Path,
+) -> Result<PathBuf, DemoError> {
     let child = tokio::process::Command::new(hil_sim)
         .arg("run")
         .arg("--config")
@@ -214,12 +218,12 @@ pub async fn run_measurement(hil_sim: &Path, config: &Path, out: &Path) -> anyho
             )
         })??;
     if !done.status.success() {
-        bail!(
+        return Err(DemoError::Failed(format!(
             "hil-sim run --config {} failed ({}):\n{}",
             config.display(),
             done.status,
             String::from_utf8_lossy(&done.stderr)
-        );
+        )));
     }
     Ok(out.join("recording.csv"))
 }

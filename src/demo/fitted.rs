@@ -19,7 +19,7 @@
 
 use std::fmt::Write as _;
 
-use anyhow::{Context, bail};
+use super::error::{Context as _, DemoError};
 
 use super::campaign::{AxisPlan, REFERENCE_MM};
 use super::readings::{ERR, readings, readings_csv};
@@ -50,19 +50,21 @@ pub struct FitOutcome {
     pub readings_csv: Vec<(String, String)>,
 }
 
-fn component(name: &str) -> anyhow::Result<ComponentId> {
+fn component(name: &str) -> Result<ComponentId, DemoError> {
     parse_component(name).with_context(|| format!("`{name}` is not a component name"))
 }
 
 /// Subtracts the mean reading at the reference coordinate (both directions, all runs).
-fn zero_at_reference(r: &mut [Reading], reference_mm: f64) -> anyhow::Result<()> {
+fn zero_at_reference(r: &mut [Reading], reference_mm: f64) -> Result<(), DemoError> {
     let at: Vec<f64> = r
         .iter()
         .filter(|x| (x.target_mm - reference_mm).abs() < 1e-9)
         .map(|x| x.deviation_um)
         .collect();
     if at.is_empty() {
-        bail!("no reading at the reference {reference_mm} mm");
+        return Err(DemoError::Failed(format!(
+            "no reading at the reference {reference_mm} mm"
+        )));
     }
     let mean = at.iter().sum::<f64>() / at.len() as f64;
     for x in r {
@@ -76,7 +78,7 @@ pub fn fit_geometry(
     spec: &mut ModelSpec,
     runs: &[(&AxisPlan, &Recording, &str)],
     out: &mut FitOutcome,
-) -> anyhow::Result<()> {
+) -> Result<(), DemoError> {
     for (plan, rec, what) in runs {
         let k = plan.axis;
         let step = plan.targets_mm[1] - plan.targets_mm[0];
@@ -88,7 +90,7 @@ pub fn fit_geometry(
                     .with_context(|| format!("{what}: {name}"))?;
             }
             let fit = fit_axis(&r, step, KNOT_ALPHA, Some(plan.runs))
-                .map_err(|e| anyhow::anyhow!("{what}: fit of {name}: {e}"))?;
+                .map_err(|e| DemoError::Failed(format!("{what}: fit of {name}: {e}")))?;
             let c = axis_component(&fit, component(&name)?, AxisForm::Table, &plan.targets_mm)?;
             put_component(spec, c)?;
             let held = fit
@@ -180,7 +182,7 @@ pub fn fit_context_terms(
     t_ref: &[(String, f64)],
     what: &str,
     out: &mut FitOutcome,
-) -> anyhow::Result<()> {
+) -> Result<(), DemoError> {
     let t = rec.t_s();
     let n = t.len();
     let pos: Vec<&[f64]> = ["x_mm", "y_mm", "z_mm"]
@@ -189,7 +191,7 @@ pub fn fit_context_terms(
             rec.col(c)
                 .with_context(|| format!("{what}: no column `{c}`"))
         })
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<Result<_, DemoError>>()?;
     let dirs = latched_directions(&pos);
     let mut input = geometric.new_input();
     let (mut state, mut bd) = (geometric.new_state(), geometric.new_breakdown());
@@ -253,7 +255,7 @@ pub fn fit_context_terms(
             })
             .collect();
         let sel = select(&y[..n_train], &train, MAX_CONTEXT_TERMS, Criterion::Bic)
-            .map_err(|e| anyhow::anyhow!("{what}: context fit of {signal}: {e}"))?;
+            .map_err(|e| DemoError::Failed(format!("{what}: context fit of {signal}: {e}")))?;
         let mut pred = vec![sel.model.intercept_um; n];
         for term in &sel.model.terms {
             let c = mine
@@ -288,7 +290,7 @@ fn add_context_terms(
     ct: &ContextTerms,
     t_ref: &[(String, f64)],
     out: &mut FitOutcome,
-) -> anyhow::Result<()> {
+) -> Result<(), DemoError> {
     let target = component(&format!("E{0}{0}", axis.upper()))?;
     let short = signal.trim_end_matches("_um");
     let mut line = format!("{signal}: intercept {:+.3} µm", ct.intercept_um);
@@ -353,7 +355,9 @@ fn add_context_terms(
             });
             let _ = write!(line, ", {coef:+.4} µm/N × {name}");
         } else {
-            bail!("unexpected context term `{name}`");
+            return Err(DemoError::Failed(format!(
+                "unexpected context term `{name}`"
+            )));
         }
     }
     if poly_sensors.is_empty() {
@@ -389,7 +393,7 @@ pub fn fit_model(
     base: &ModelSpec,
     geometry: &[(&AxisPlan, &Recording, &str)],
     context: (&Recording, &str),
-) -> anyhow::Result<(MachineModel, FitOutcome)> {
+) -> Result<(MachineModel, FitOutcome), DemoError> {
     let mut out = FitOutcome::default();
     let mut spec = base.clone();
     fit_geometry(&mut spec, geometry, &mut out)?;

@@ -2,7 +2,7 @@
 //! `ex_um`, `ey_um`, `ez_um`). Sans-IO: takes the CSV text. Error = actual − nominal, µm; "max" is
 //! the largest |error|, "volumetric" the largest Euclidean length of (ex, ey, ez) over the run.
 
-use anyhow::{Context, bail};
+use super::error::{Context as _, DemoError};
 use serde::{Deserialize, Serialize};
 
 /// RMS and max |error| of one axis, µm.
@@ -29,7 +29,7 @@ pub struct ErrorTrace {
 }
 
 /// Parse the `t_s` and `e*_um` columns of a recording. `what` names the file in errors.
-pub fn parse_recording(csv_text: &str, what: &str) -> anyhow::Result<ErrorTrace> {
+pub fn parse_recording(csv_text: &str, what: &str) -> Result<ErrorTrace, DemoError> {
     let mut rdr = csv::ReaderBuilder::new()
         .has_headers(true)
         .from_reader(csv_text.as_bytes());
@@ -49,13 +49,15 @@ pub fn parse_recording(csv_text: &str, what: &str) -> anyhow::Result<ErrorTrace>
         // Line 1 is the header.
         let line = i + 2;
         let rec = rec.with_context(|| format!("{what}:{line}"))?;
-        let num = |k: usize, name: &str| -> anyhow::Result<f64> {
+        let num = |k: usize, name: &str| -> Result<f64, DemoError> {
             let s = rec.get(k).unwrap_or("");
             let v: f64 = s.trim().parse().with_context(|| {
                 format!("{what}:{line}: column `{name}`: `{s}` is not a number")
             })?;
             if !v.is_finite() {
-                bail!("{what}:{line}: column `{name}`: {v} is not finite");
+                return Err(DemoError::Failed(format!(
+                    "{what}:{line}: column `{name}`: {v} is not finite"
+                )));
             }
             Ok(v)
         };
@@ -65,13 +67,13 @@ pub fn parse_recording(csv_text: &str, what: &str) -> anyhow::Result<ErrorTrace>
             .push([num(ix, "ex_um")?, num(iy, "ey_um")?, num(iz, "ez_um")?]);
     }
     if trace.t_s.is_empty() {
-        bail!("{what}: no data rows");
+        return Err(DemoError::Failed(format!("{what}: no data rows")));
     }
     Ok(trace)
 }
 
 /// RMS and max per axis, and the volumetric max, over every sample with `t_s >= from_s`.
-pub fn stats(trace: &ErrorTrace, from_s: f64) -> anyhow::Result<RunStats> {
+pub fn stats(trace: &ErrorTrace, from_s: f64) -> Result<RunStats, DemoError> {
     let mut sq = [0.0; 3];
     let mut max = [0.0f64; 3];
     let mut vol = 0.0f64;
@@ -88,7 +90,9 @@ pub fn stats(trace: &ErrorTrace, from_s: f64) -> anyhow::Result<RunStats> {
         vol = vol.max((e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt());
     }
     if n == 0 {
-        bail!("no samples at or after t = {from_s} s");
+        return Err(DemoError::Failed(format!(
+            "no samples at or after t = {from_s} s"
+        )));
     }
     let axis = |k: usize| AxisStats {
         rms_um: (sq[k] / n as f64).sqrt(),
@@ -161,6 +165,7 @@ impl DemoStats {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::Chain;
 
     const CSV: &str =
         "t_s,x_mm,ex_um,ey_um,ez_um\n0.0,0,100,100,100\n1.0,0,3,-4,0\n2.0,0,0,0,-12\n";
@@ -183,15 +188,12 @@ mod tests {
     #[test]
     fn bad_cell_names_file_line_and_column() {
         let bad = "t_s,ex_um,ey_um,ez_um\n0,1,2,3\n0.1,1,oops,3\n";
-        let e = format!("{:#}", parse_recording(bad, "r.csv").unwrap_err());
+        let e = Chain(&parse_recording(bad, "r.csv").unwrap_err()).to_string();
         assert!(
             e.contains("r.csv:3") && e.contains("ey_um") && e.contains("oops"),
             "{e}"
         );
-        let missing = format!(
-            "{:#}",
-            parse_recording("t_s,ex_um\n0,1\n", "r.csv").unwrap_err()
-        );
+        let missing = Chain(&parse_recording("t_s,ex_um\n0,1\n", "r.csv").unwrap_err()).to_string();
         assert!(missing.contains("ey_um"), "{missing}");
         assert!(stats(&parse_recording(CSV, "r").unwrap(), 9.0).is_err());
     }

@@ -13,6 +13,7 @@
 //! independent processes and sockets, with the same seed.
 
 pub mod campaign;
+pub mod error;
 pub mod field;
 pub mod fitted;
 pub mod metrics;
@@ -23,7 +24,7 @@ pub mod sim_process;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::Context;
+use error::Context as _;
 
 use crate::bus::can::hub::Hub;
 use crate::gateway::config::FieldConfig;
@@ -31,6 +32,7 @@ use crate::gateway::model_adapter::MachineModelAdapter;
 use crate::gateway::sources::spawn_sources;
 use crate::models::MachineModel;
 use crate::recording::Recording;
+pub use error::DemoError;
 use metrics::{DemoStats, ErrorTrace, GatewayRun, GatewayRuns, RunStats};
 
 /// The geometric-only model (also hil-sim's hidden truth geometry).
@@ -106,7 +108,7 @@ pub struct DemoResult {
 
 /// Measure, fit, then run the four modes; write recordings, configs, models and plots under
 /// `opts.out`.
-pub async fn run_demo(opts: &DemoOptions) -> anyhow::Result<DemoResult> {
+pub async fn run_demo(opts: &DemoOptions) -> Result<DemoResult, DemoError> {
     let t0 = Instant::now();
     let models = opts.out.join("models");
     std::fs::create_dir_all(&models).with_context(|| format!("creating {}", models.display()))?;
@@ -167,7 +169,7 @@ pub async fn run_demo(opts: &DemoOptions) -> anyhow::Result<DemoResult> {
 async fn measure_and_fit(
     opts: &DemoOptions,
     truth: &Path,
-) -> anyhow::Result<(MachineModel, fitted::FitOutcome)> {
+) -> Result<(MachineModel, fitted::FitOutcome), DemoError> {
     let dir = std::path::absolute(opts.out.join("campaign"))?;
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     // The demo's machine; the buses are dropped, so the port and pty are placeholders.
@@ -197,17 +199,17 @@ async fn measure_and_fit(
     while let Some(r) = set.join_next().await {
         r.context("measurement task")??;
     }
-    let read = |name: &str| -> anyhow::Result<(Recording, String)> {
+    let read = |name: &str| -> Result<(Recording, String), DemoError> {
         let p = dir.join(name).join("recording.csv");
         Ok((Recording::read_path(&p)?, p.display().to_string()))
     };
     let geo: Vec<(Recording, String)> = plans
         .iter()
         .map(|p| read(&format!("geometry-{}", p.axis.lower())))
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<Result<_, DemoError>>()?;
     let (ctx, ctx_name) = read("context")?;
     let base = MachineModel::from_toml_str(BASE_MODEL, "deploy/demo/mill-base.toml")
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+        .map_err(|e| DemoError::Failed(format!("{e}")))?;
     let geometry: Vec<(&campaign::AxisPlan, &Recording, &str)> = plans
         .iter()
         .zip(&geo)
@@ -220,13 +222,13 @@ async fn measure_and_fit(
     Ok((model, fit))
 }
 
-fn truth_model(mode: Mode) -> anyhow::Result<MachineModel> {
+fn truth_model(mode: Mode) -> Result<MachineModel, DemoError> {
     let text = match mode {
         Mode::Geometric => GEOMETRIC_MODEL,
         _ => FULL_MODEL,
     };
     MachineModel::from_toml_str(text, &format!("deploy/demo ({})", mode.key()))
-        .map_err(|e| anyhow::anyhow!("demo model ({}): {e}", mode.key()))
+        .map_err(|e| DemoError::Failed(format!("demo model ({}): {e}", mode.key())))
 }
 
 /// Where a live run serves its page: the address to bind (instead of the demo's ephemeral
@@ -247,7 +249,7 @@ pub async fn serve_live(
     opts: &DemoOptions,
     listen: &str,
     on_bound: impl FnOnce(std::net::SocketAddr, String),
-) -> anyhow::Result<()> {
+) -> Result<(), DemoError> {
     // A free port now, bound again by each pass's OPC UA server (nothing else takes it between).
     let opcua_port = std::net::TcpListener::bind("127.0.0.1:0")?
         .local_addr()?
@@ -294,7 +296,7 @@ async fn one_run(
     truth: &Path,
     model: Option<MachineModel>,
     live: Option<Live>,
-) -> anyhow::Result<RunResult> {
+) -> Result<RunResult, DemoError> {
     let sub = if live.is_some() { "live" } else { mode.key() };
     let dir = std::path::absolute(opts.out.join(sub))?;
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -378,11 +380,12 @@ async fn one_run(
     let log = sim.log.await.unwrap_or_default();
     // Kept beside the recording: fault edges, the PLC watchdog and the real-time lag of the sim.
     std::fs::write(dir.join("hil-sim.log"), &log)?;
-    anyhow::ensure!(
-        status.success(),
-        "hil-sim ({}) failed: {status}\n{log}",
-        mode.key()
-    );
+    if !status.success() {
+        return Err(DemoError::Failed(format!(
+            "hil-sim ({}) failed: {status}\n{log}",
+            mode.key()
+        )));
+    }
     let rec = dir.join("recording.csv");
     let text = std::fs::read_to_string(&rec).with_context(|| format!("{}", rec.display()))?;
     let trace = metrics::parse_recording(&text, &rec.display().to_string())?;

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use anyhow::Context;
+use super::error::{Context as _, DemoError};
 use plotters::prelude::*;
 
 use super::RunResult;
@@ -11,7 +11,7 @@ use super::RunResult;
 const COLOURS: [RGBColor; 4] = [RED, BLUE, RGBColor(0, 140, 0), RGBColor(230, 140, 0)];
 
 /// Writes `error_x.svg`, `error_y.svg`, `error_z.svg` and `volumetric.svg` into `out`.
-pub fn write_plots(out: &Path, runs: &[RunResult]) -> anyhow::Result<()> {
+pub fn write_plots(out: &Path, runs: &[RunResult]) -> Result<(), DemoError> {
     for (k, axis) in ["x", "y", "z"].iter().enumerate() {
         let series: Vec<(&str, Vec<(f64, f64)>)> = runs
             .iter()
@@ -42,7 +42,7 @@ pub fn write_plots(out: &Path, runs: &[RunResult]) -> anyhow::Result<()> {
         .with_context(|| format!("plot {}", path.display()))
 }
 
-fn chart(path: &Path, title: &str, series: &[(&str, Vec<(f64, f64)>)]) -> anyhow::Result<()> {
+fn chart(path: &Path, title: &str, series: &[(&str, Vec<(f64, f64)>)]) -> Result<(), DemoError> {
     let pts = series.iter().flat_map(|(_, v)| v.iter());
     let (mut t_max, mut lo, mut hi) = (1e-9f64, 0.0f64, 0.0f64);
     for (t, v) in pts {
@@ -52,23 +52,24 @@ fn chart(path: &Path, title: &str, series: &[(&str, Vec<(f64, f64)>)]) -> anyhow
     }
     let pad = ((hi - lo) * 0.05).max(1.0);
     let root = SVGBackend::new(path, (900, 450)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
+    root.fill(&WHITE)
+        .map_err(|e| DemoError::Failed(format!("{e}")))?;
     let mut c = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 20))
         .margin(10)
         .x_label_area_size(40)
         .y_label_area_size(60)
         .build_cartesian_2d(0.0..t_max, (lo - pad)..(hi + pad))
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+        .map_err(|e| DemoError::Failed(format!("{e}")))?;
     c.configure_mesh()
         .x_desc("t (s)")
         .y_desc("µm")
         .draw()
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+        .map_err(|e| DemoError::Failed(format!("{e}")))?;
     for (i, (name, v)) in series.iter().enumerate() {
         let col = COLOURS[i % COLOURS.len()];
         c.draw_series(LineSeries::new(v.iter().copied(), col))
-            .map_err(|e| anyhow::anyhow!("{e}"))?
+            .map_err(|e| DemoError::Failed(format!("{e}")))?
             .label(*name)
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], col));
     }
@@ -76,7 +77,8 @@ fn chart(path: &Path, title: &str, series: &[(&str, Vec<(f64, f64)>)]) -> anyhow
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK)
         .draw()
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+        .map_err(|e| DemoError::Failed(format!("{e}")))?;
+    root.present()
+        .map_err(|e| DemoError::Failed(format!("{e}")))?;
     Ok(())
 }

@@ -7,7 +7,7 @@
 
 use std::fmt::Write as _;
 
-use anyhow::{Context, bail};
+use super::error::{Context as _, DemoError};
 
 use super::campaign::{AxisPlan, READ_WINDOW_S, REFERENCE_MM};
 use crate::analysis::iso230_2::Reading;
@@ -19,22 +19,26 @@ pub const ERR: [&str; 3] = ["ex_um", "ey_um", "ez_um"];
 /// Nominal positions closer than this are "on target", mm.
 const ON_TARGET_MM: f64 = 1e-3;
 
-fn col<'a>(rec: &'a Recording, name: &str, what: &str) -> anyhow::Result<&'a [f64]> {
+fn col<'a>(rec: &'a Recording, name: &str, what: &str) -> Result<&'a [f64], DemoError> {
     rec.col(name)
         .with_context(|| format!("{what}: no column `{name}`"))
 }
 
 /// The readings of `plan` in `rec`, per error signal (index 0 = ex_um, 1 = ey_um, 2 = ez_um).
-pub fn readings(plan: &AxisPlan, rec: &Recording, what: &str) -> anyhow::Result<[Vec<Reading>; 3]> {
+pub fn readings(
+    plan: &AxisPlan,
+    rec: &Recording,
+    what: &str,
+) -> Result<[Vec<Reading>; 3], DemoError> {
     let t = rec.t_s();
     let pos: Vec<&[f64]> = POS
         .iter()
         .map(|n| col(rec, n, what))
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<Result<_, DemoError>>()?;
     let err: Vec<&[f64]> = ERR
         .iter()
         .map(|n| col(rec, n, what))
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<Result<_, DemoError>>()?;
     let same = |i: usize, j: usize| pos.iter().all(|p| p[i] == p[j]);
     // Still periods [start, end] (row indices, inclusive).
     let mut stills: Vec<(usize, usize)> = Vec::new();
@@ -49,13 +53,13 @@ pub fn readings(plan: &AxisPlan, rec: &Recording, what: &str) -> anyhow::Result<
     }
     let expected = plan.expected();
     if stills.len() != expected.len() {
-        bail!(
+        return Err(DemoError::Failed(format!(
             "{what}: found {} dwells of ≥ {:.1} s, the {} program has {} readings",
             stills.len(),
             0.8 * plan.dwell_s,
             plan.axis.upper(),
             expected.len()
-        );
+        )));
     }
     let k = plan.axis.index();
     let mut out: [Vec<Reading>; 3] = Default::default();
@@ -63,14 +67,14 @@ pub fn readings(plan: &AxisPlan, rec: &Recording, what: &str) -> anyhow::Result<
         for (i, p) in pos.iter().enumerate() {
             let want = if i == k { e.target_mm } else { REFERENCE_MM[i] };
             if (p[b] - want).abs() > ON_TARGET_MM {
-                bail!(
+                return Err(DemoError::Failed(format!(
                     "{what}:{}: dwell at {} = {} mm, expected {want} mm (run {}, {:?})",
                     rec.line_of_row(b),
                     POS[i],
                     p[b],
                     e.run,
                     e.direction
-                );
+                )));
             }
         }
         let rows = (a..=b).filter(|&i| t[i] >= t[b] - READ_WINDOW_S);
@@ -104,6 +108,7 @@ pub fn readings_csv(readings: &[Reading], comment: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::Chain;
     use crate::models::Axis;
 
     fn plan() -> AxisPlan {
@@ -168,17 +173,15 @@ mod tests {
     #[test]
     fn a_dwell_off_target_or_a_missing_dwell_is_an_error() {
         let e = readings(&plan(), &rec(&[0.0, 10.0, 9.0, 0.0]), "g.csv").unwrap_err();
-        let msg = format!("{e:#}");
+        let msg = Chain(&e).to_string();
         assert!(
             msg.contains("g.csv:") && msg.contains("expected 10 mm"),
             "{msg}"
         );
         let mut p = plan();
         p.runs = 2;
-        let msg = format!(
-            "{:#}",
-            readings(&p, &rec(&[0.0, 10.0, 10.0, 0.0]), "g.csv").unwrap_err()
-        );
+        let e = readings(&p, &rec(&[0.0, 10.0, 10.0, 0.0]), "g.csv").unwrap_err();
+        let msg = Chain(&e).to_string();
         assert!(
             msg.contains("found 4 dwells") && msg.contains("8 readings"),
             "{msg}"

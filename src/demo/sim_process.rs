@@ -6,7 +6,7 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
 
-use anyhow::{Context, bail};
+use super::error::{Context as _, DemoError};
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, Command};
 use tokio::task::JoinHandle;
@@ -15,7 +15,7 @@ use tokio::task::JoinHandle;
 pub const SIM_TEMPLATE: &str = include_str!("../../deploy/demo/sim.toml");
 
 /// `hil-sim` next to the current executable, else `$HIL_SIM_BIN`.
-pub fn locate_hil_sim() -> anyhow::Result<PathBuf> {
+pub fn locate_hil_sim() -> Result<PathBuf, DemoError> {
     let exe = std::env::current_exe().context("current executable")?;
     let mut tried = Vec::new();
     if let Some(dir) = exe.parent() {
@@ -33,9 +33,12 @@ pub fn locate_hil_sim() -> anyhow::Result<PathBuf> {
         if p.is_file() {
             return Ok(p);
         }
-        bail!("$HIL_SIM_BIN = {} is not a file", p.display());
+        return Err(DemoError::Failed(format!(
+            "$HIL_SIM_BIN = {} is not a file",
+            p.display()
+        )));
     }
-    bail!(
+    Err(DemoError::Failed(format!(
         "the hil-sim binary was not found (tried {}; $HIL_SIM_BIN unset). Build it with \
          `cargo build --release --workspace` (the demo looks next to the retrocomp executable) \
          or set HIL_SIM_BIN",
@@ -44,7 +47,7 @@ pub fn locate_hil_sim() -> anyhow::Result<PathBuf> {
             .map(|p| p.display().to_string())
             .collect::<Vec<_>>()
             .join(", ")
-    )
+    )))
 }
 
 /// One X stroke pair (150 mm out and back at 60 mm/s, with acceleration) takes about this long.
@@ -97,7 +100,7 @@ pub struct Sim {
 
 /// Start `hil-sim serve --config CONFIG --out OUT` and wait for its Modbus TCP address and the
 /// weighing pty (hil-sim prints both before the program starts).
-pub async fn start(bin: &Path, config: &Path, out: &Path) -> anyhow::Result<Sim> {
+pub async fn start(bin: &Path, config: &Path, out: &Path) -> Result<Sim, DemoError> {
     let mut child = Command::new(bin)
         .arg("serve")
         .arg("--config")
@@ -119,7 +122,9 @@ pub async fn start(bin: &Path, config: &Path, out: &Path) -> anyhow::Result<Sim>
             .context("hil-sim did not report its Modbus address and pty within 20 s")??;
         let Some(line) = line else {
             let status = child.wait().await?;
-            bail!("hil-sim exited ({status}) before serving:\n{log}");
+            return Err(DemoError::Failed(format!(
+                "hil-sim exited ({status}) before serving:\n{log}"
+            )));
         };
         log.push_str(&line);
         log.push('\n');

@@ -7,6 +7,7 @@ mod config_check;
 pub mod cycle;
 pub mod direction;
 pub mod engine;
+pub mod error;
 pub mod error_model;
 pub mod health;
 pub mod history;

@@ -28,12 +28,12 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use anyhow::{Context as _, bail};
 use tokio::sync::{mpsc, oneshot, watch};
 
 use super::config::{FieldConfig, OnStop};
 use super::cycle::{CycleIo, CycleLoop, CycleReport, Outputs};
 use super::engine::{Engine, ErrorModel};
+use super::error::GatewayError;
 use super::http::{Api, Control, Limits, serve};
 use super::status::{SinkStatus, StatusSnapshot};
 use super::supervise::{CycleCounter, SourceFeed};
@@ -80,7 +80,7 @@ pub async fn run(
     epoch: std::time::Instant,
     shutdown: impl Future<Output = ()>,
     status_addr: Option<oneshot::Sender<SocketAddr>>,
-) -> anyhow::Result<RunSummary> {
+) -> Result<RunSummary, GatewayError> {
     let SourceFeed {
         samples,
         board,
@@ -94,7 +94,7 @@ pub async fn run(
         .gateway
         .status_listen
         .parse()
-        .context("gateway.status_listen")?;
+        .map_err(|e| GatewayError::setup("gateway.status_listen", e))?;
     // Actions from the endpoint (token-guarded) reach the cycle loop through this channel.
     let (control_tx, control_rx) = mpsc::channel::<Control>(8);
     let api = Api {
@@ -114,7 +114,7 @@ pub async fn run(
     };
     let (bound, http_task) = serve(listen, status_rx, api, Limits::default())
         .await
-        .with_context(|| format!("binding status endpoint {listen}"))?;
+        .map_err(|e| GatewayError::setup(format!("binding status endpoint {listen}"), e))?;
     tracing::info!(%bound, "status endpoint: GET /status, /metrics");
     if let Some(tx) = status_addr {
         let _ = tx.send(bound);
@@ -172,18 +172,18 @@ pub async fn run(
             let _ = report_tx.send(report);
         },
     )
-    .context("starting the cycle thread")?;
+    .map_err(|e| GatewayError::setup("starting the cycle thread", e))?;
 
     tokio::pin!(shutdown);
-    let ended: anyhow::Result<()> = tokio::select! {
+    let ended: Result<(), GatewayError> = tokio::select! {
         _ = &mut shutdown => Ok(()),
-        why = deaths.next() => Err(anyhow::anyhow!("{why}: stopping the gateway")),
+        why = deaths.next() => Err(GatewayError::Stopped(format!("{why}: stopping the gateway"))),
         why = async { match sink.as_mut() { Some(s) => s.ended().await, None => std::future::pending().await } } => {
             tracing::error!(why, "the sink ended; stopping so the service manager restarts the gateway");
-            Err(anyhow::anyhow!("the sink task ended ({why}): stopping the gateway"))
+            Err(GatewayError::Stopped(format!("the sink task ended ({why}): stopping the gateway")))
         }
         // The report comes only after `stop`: a cycle thread that ends earlier has panicked.
-        _ = &mut report_rx => Err(anyhow::anyhow!("the cycle thread died: stopping the gateway")),
+        _ = &mut report_rx => Err(GatewayError::Stopped("the cycle thread died: stopping the gateway".into())),
     };
     // Stop the cycle (it publishes a last snapshot), then the sink and the endpoint.
     stop.store(true, Ordering::Release);
@@ -203,7 +203,7 @@ pub async fn run(
         p.stop(Duration::from_secs(2)).await;
     }
     ended?;
-    let report = report.context("the cycle thread died")?;
+    let report = report.ok_or_else(|| GatewayError::Stopped("the cycle thread died".into()))?;
     let st = sink_status_rx.borrow().clone();
     Ok(RunSummary {
         cycles: report.cycles,
@@ -224,7 +224,7 @@ pub async fn run(
 fn start_telemetry(
     cfg: &FieldConfig,
     status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
-) -> anyhow::Result<Option<crate::telemetry::Publisher>> {
+) -> Result<Option<crate::telemetry::Publisher>, GatewayError> {
     let Some(m) = cfg.telemetry.as_ref().and_then(|t| t.mqtt.clone()) else {
         return Ok(None);
     };
@@ -241,7 +241,7 @@ fn start_telemetry(
         },
     )
     .map(Some)
-    .map_err(anyhow::Error::from)
+    .map_err(GatewayError::from)
 }
 
 /// Ramp the origin-shift correction out before stopping (`on_stop = "ramp_out"`): the sink writes 0
@@ -271,7 +271,7 @@ async fn ramp_out_before_stop(
 /// The sink on its own thread and runtime: it reports the controller's start values once, then
 /// runs until it ends by itself (a failure: reported by [`SinkThread::ended`]) or is stopped.
 struct SinkThread {
-    initial: Option<oneshot::Receiver<anyhow::Result<BTreeMap<String, f64>>>>,
+    initial: Option<oneshot::Receiver<Result<BTreeMap<String, f64>, GatewayError>>>,
     ended: oneshot::Receiver<String>,
     stop: Option<oneshot::Sender<()>>,
     join: std::thread::JoinHandle<()>,
@@ -283,7 +283,7 @@ impl SinkThread {
         cfg: &FieldConfig,
         io: SinkIo,
         epoch: std::time::Instant,
-    ) -> anyhow::Result<Option<Self>> {
+    ) -> Result<Option<Self>, GatewayError> {
         let s = &cfg.sink;
         if s.origin_shift_server.is_none() && s.origin_shift.is_none() && s.quadrature.is_none() {
             return Ok(None);
@@ -310,7 +310,7 @@ impl SinkThread {
                 }
             },
         )
-        .context("starting the sink thread")?;
+        .map_err(|e| GatewayError::setup("starting the sink thread", e))?;
         Ok(Some(Self {
             initial: Some(initial_rx),
             ended: ended_rx,
@@ -320,13 +320,13 @@ impl SinkThread {
     }
 
     /// The values the controller holds at start (waits for the first successful read).
-    async fn initial(&mut self) -> anyhow::Result<BTreeMap<String, f64>> {
+    async fn initial(&mut self) -> Result<BTreeMap<String, f64>, GatewayError> {
         let rx = self
             .initial
             .take()
-            .context("the sink's start values were taken")?;
+            .ok_or_else(|| GatewayError::Refused("the sink's start values were taken".into()))?;
         rx.await
-            .context("the sink thread ended before it started")?
+            .map_err(|e| GatewayError::setup("the sink thread ended before it started", e))?
     }
 
     /// Why the sink ended; pending while it runs.
@@ -352,14 +352,14 @@ async fn start_sink(
     cfg: &FieldConfig,
     io: SinkIo,
     epoch: std::time::Instant,
-) -> anyhow::Result<(StartValues, LocalFuture<'static, ()>)> {
+) -> Result<(StartValues, LocalFuture<'static, ()>), GatewayError> {
     let mut sink = build_sink(cfg, epoch)?;
     let initial = sink.start(&io).await?;
     Ok((initial, sink.run(io)))
 }
 
 /// The configured sink, its clamp and per-write cap per axis from the field config's safety.
-fn build_sink(cfg: &FieldConfig, epoch: std::time::Instant) -> anyhow::Result<Box<dyn Sink>> {
+fn build_sink(cfg: &FieldConfig, epoch: std::time::Instant) -> Result<Box<dyn Sink>, GatewayError> {
     if let Some(srv) = cfg.sink.origin_shift_server.clone() {
         let guards: Vec<(String, Guard)> = cfg
             .axes
@@ -382,7 +382,7 @@ fn build_sink(cfg: &FieldConfig, epoch: std::time::Instant) -> anyhow::Result<Bo
         .sink
         .origin_shift
         .clone()
-        .context("no sink configured")?;
+        .ok_or_else(|| GatewayError::Refused("no sink configured".into()))?;
     let axes = cfg
         .axes
         .iter()
@@ -400,17 +400,17 @@ fn build_sink(cfg: &FieldConfig, epoch: std::time::Instant) -> anyhow::Result<Bo
 }
 
 /// Refuse to run a config that would correct nothing in a field deployment.
-pub fn require_sink(cfg: &FieldConfig) -> anyhow::Result<()> {
+pub fn require_sink(cfg: &FieldConfig) -> Result<(), GatewayError> {
     if cfg.sink.origin_shift.is_none()
         && cfg.sink.quadrature.is_none()
         && cfg.sink.origin_shift_server.is_none()
     {
-        bail!(
-            "no [sink.origin_shift], [sink.origin_shift_server] or [sink.quadrature] in the config: nothing would be corrected"
-        );
+        return Err(GatewayError::Refused(
+            "no [sink.origin_shift], [sink.origin_shift_server] or [sink.quadrature] in the config: nothing would be corrected".into(),
+        ));
     }
     match &cfg.sink.quadrature {
-        Some(q) => crate::quadrature::sink::check_buildable(q),
+        Some(q) => Ok(crate::quadrature::sink::check_buildable(q)?),
         None => Ok(()),
     }
 }

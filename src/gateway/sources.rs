@@ -24,10 +24,10 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::Context;
 use tokio::sync::mpsc;
 
 use super::config::FieldConfig;
+use super::error::GatewayError;
 use super::source_health::{SourceBoard, SourceReporter};
 use super::supervise::{CycleCounter, DeathNotice, SourceFeed, TaskDeaths};
 use crate::bus::can::backend::{self, AnyCanBus, CanBackendConfig};
@@ -50,11 +50,11 @@ const KILL_HOOK: &str = "RETROCOMP_TEST_KILL_SOURCE";
 /// Spawn every configured source; samples (timestamped on `epoch`) arrive on the returned feed.
 /// Fails at start (naming the source) if a CAN backend or a serial device cannot be opened; a Modbus
 /// peer that is down at start is retried by its poller.
-pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> anyhow::Result<SourceFeed> {
+pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> Result<SourceFeed, GatewayError> {
     let (tx, rx) = mpsc::channel::<Sample>(16_384);
     let board = SourceBoard::default();
     let (notice, deaths) = TaskDeaths::new();
-    let (ready_tx, ready_rx) = tokio::sync::oneshot::channel::<anyhow::Result<()>>();
+    let (ready_tx, ready_rx) = tokio::sync::oneshot::channel::<Result<(), GatewayError>>();
     let (cfg, b, n) = (cfg.clone(), board.clone(), notice.clone());
     // The readers stamp each sample when they read it: a starved reader makes fresh data look
     // late, so they share the cycle's real-time priority (the Modbus pollers' threads, started
@@ -73,10 +73,10 @@ pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> anyhow::Result<
             }
         }
     })
-    .context("starting the sources thread")?;
+    .map_err(|e| GatewayError::setup("starting the sources thread", e))?;
     ready_rx
         .await
-        .context("the sources thread ended while starting")??;
+        .map_err(|e| GatewayError::setup("the sources thread ended while starting", e))??;
     Ok(SourceFeed {
         samples: rx,
         board,
@@ -92,12 +92,12 @@ async fn start_sources(
     tx: mpsc::Sender<Sample>,
     board: SourceBoard,
     notice: DeathNotice,
-) -> anyhow::Result<()> {
+) -> Result<(), GatewayError> {
     let clock = move || epoch.elapsed().as_secs_f64();
     if let (Some(can), Some(co)) = (cfg.can.clone(), cfg.canopen.clone()) {
         let bus = backend::open(&can, None)
             .await
-            .with_context(|| format!("opening CAN backend {can:?}"))?;
+            .map_err(|e| GatewayError::setup(format!("opening CAN backend {can:?}"), e))?;
         let rep = SourceReporter::new("can", true, board.clone());
         let btx = forward(tx.clone(), "can", notice.clone());
         let n = notice.clone();
@@ -120,16 +120,22 @@ async fn start_sources(
             rep,
             notice.clone(),
         )
-        .with_context(|| format!("modbus source {:?}: cannot start its thread", m.name))?;
+        .map_err(|e| {
+            GatewayError::setup(
+                format!("modbus source {:?}: cannot start its thread", m.name),
+                e,
+            )
+        })?;
     }
     for s in cfg.serial.iter().flat_map(|s| &s.source) {
-        let port = serial::open(s).with_context(|| {
-            format!(
+        let port = serial::open(s).map_err(|e| {
+            let what = format!(
                 "serial source {:?}: cannot open device {:?} at {} baud",
                 s.name,
                 s.device.as_deref().unwrap_or(""),
                 s.baud
-            )
+            );
+            GatewayError::setup(what, e)
         })?;
         let name = format!("serial.{}", s.name);
         let btx = forward(tx.clone(), &name, notice.clone());

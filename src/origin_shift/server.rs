@@ -23,7 +23,7 @@ use super::server_core::{Guard, ServerCore, ServerMap};
 use crate::bus::modbus::server::{RegisterBank, TcpServer, spawn_rtu};
 use crate::bus::{ChannelId, Health, Sample};
 use crate::fault::{FaultKind, FaultLog};
-use crate::sink::{LocalFuture, Sink, SinkIo, SinkStatus, StartValues};
+use crate::sink::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
@@ -262,12 +262,11 @@ impl OriginShiftServerSink {
 }
 
 impl Sink for OriginShiftServerSink {
-    fn start<'a>(&'a mut self, io: &'a SinkIo) -> LocalFuture<'a, anyhow::Result<StartValues>> {
+    fn start<'a>(&'a mut self, io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>> {
         Box::pin(async move {
-            use anyhow::Context as _;
             let mut server = OriginShiftServer::start(self.cfg.clone(), &self.guards)
                 .await
-                .context("sink.origin_shift_server")?;
+                .map_err(|e| SinkError::setup("sink.origin_shift_server", e))?;
             let epoch = self.epoch;
             let clock = move || epoch.elapsed().as_secs_f64();
             let held = server.wait_seeded(&io.served, &clock).await;

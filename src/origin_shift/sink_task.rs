@@ -24,14 +24,13 @@
 
 use std::collections::BTreeMap;
 
-use anyhow::Context as _;
 use tokio::time::MissedTickBehavior;
 
 use super::client::OriginShiftSink;
 use super::{OriginShiftClient, SinkAxis, SinkCore};
 use crate::fault::{FaultKind, FaultLog};
 use crate::models::Axis;
-use crate::sink::{LocalFuture, Sink, SinkIo, SinkStatus, StartValues};
+use crate::sink::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
 
 pub const SOURCE: &str = "sink.origin_shift";
 
@@ -188,9 +187,9 @@ impl OriginShiftClientSink {
         axes: Vec<SinkAxis>,
         default_max_correction_um: f64,
         epoch: std::time::Instant,
-    ) -> anyhow::Result<Self> {
-        let client =
-            OriginShiftClient::new(os.client(), os.map.clone()).context("sink.origin_shift.map")?;
+    ) -> Result<Self, SinkError> {
+        let client = OriginShiftClient::new(os.client(), os.map.clone())
+            .map_err(|e| SinkError::setup("sink.origin_shift.map", e))?;
         Ok(Self {
             os,
             client,
@@ -209,7 +208,7 @@ impl OriginShiftClientSink {
 }
 
 impl Sink for OriginShiftClientSink {
-    fn start<'a>(&'a mut self, _io: &'a SinkIo) -> LocalFuture<'a, anyhow::Result<StartValues>> {
+    fn start<'a>(&'a mut self, _io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>> {
         Box::pin(async move {
             let mut initial = read_initial(&mut self.client).await;
             // A value beyond the clamp is not a start value: the sink refuses to write that axis (a

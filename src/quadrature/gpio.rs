@@ -8,11 +8,11 @@
 //! reference). Pins are held by the injector thread for the whole run; the kernel releases them when
 //! the process ends.
 
-use anyhow::Context as _;
 use linux_embedded_hal::CdevPin;
 use linux_embedded_hal::gpio_cdev::{Chip, LineRequestFlags};
 
 use super::config::GpioLines;
+use crate::sink::SinkError;
 
 const CONSUMER: &str = "retrocomp-quadrature";
 
@@ -20,25 +20,32 @@ const CONSUMER: &str = "retrocomp-quadrature";
 pub fn open_output_pins(
     lines: &GpioLines,
     levels: (bool, bool),
-) -> anyhow::Result<(CdevPin, CdevPin)> {
-    let mut chip = Chip::new(&lines.chip).with_context(|| {
-        format!(
-            "GPIO chip {}: cannot open (is the path right, and may this user open it?)",
-            lines.chip
+) -> Result<(CdevPin, CdevPin), SinkError> {
+    let mut chip = Chip::new(&lines.chip).map_err(|e| {
+        SinkError::setup(
+            format!(
+                "GPIO chip {}: cannot open (is the path right, and may this user open it?)",
+                lines.chip
+            ),
+            e,
         )
     })?;
-    let mut request = |offset: u32, name: char, high: bool| -> anyhow::Result<CdevPin> {
+    let mut request = |offset: u32, name: char, high: bool| -> Result<CdevPin, SinkError> {
         let handle = chip
             .get_line(offset)
             .and_then(|l| l.request(LineRequestFlags::OUTPUT, u8::from(high), CONSUMER))
-            .with_context(|| {
-                format!(
-                    "GPIO {} line {offset} (quadrature {name}): cannot request it as an output",
-                    lines.chip
+            .map_err(|e| {
+                SinkError::setup(
+                    format!(
+                        "GPIO {} line {offset} (quadrature {name}): cannot request it as an output",
+                        lines.chip
+                    ),
+                    e,
                 )
             })?;
-        CdevPin::new(handle)
-            .with_context(|| format!("GPIO {} line {offset}: line info", lines.chip))
+        CdevPin::new(handle).map_err(|e| {
+            SinkError::setup(format!("GPIO {} line {offset}: line info", lines.chip), e)
+        })
     };
     let a = request(lines.line_a, 'A', levels.0)?;
     let b = request(lines.line_b, 'B', levels.1)?;
@@ -59,7 +66,7 @@ mod tests {
         let Err(err) = open_output_pins(&lines, (false, false)) else {
             panic!("opening an absent chip succeeded");
         };
-        let err = format!("{err:#}");
+        let err = crate::error::Chain(&err).to_string();
         assert!(err.contains("/dev/gpiochip-retrocomp-test-absent"), "{err}");
         assert!(err.contains("cannot open"), "{err}");
     }

@@ -8,23 +8,23 @@
 //! healthy status while nothing reaches the controller.
 
 use crate::models::Axis;
-use anyhow::{Context as _, bail};
 use tokio::sync::watch;
 
 use super::config::{QuadratureAxis, QuadratureSink};
+use crate::error::Chain;
 use crate::quadrature::{CountQuantizer, EdgeScheduler, SchedulerConfig, simulate};
-use crate::sink::{LocalFuture, Sink, SinkIo, SinkStatus, StartValues};
+use crate::sink::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
 
 /// Refuse GPIO lines this build cannot drive.
-pub fn check_buildable(q: &QuadratureSink) -> anyhow::Result<()> {
+pub fn check_buildable(q: &QuadratureSink) -> Result<(), SinkError> {
     for a in &q.axes {
         if a.gpio.is_some() && !cfg!(all(feature = "gpio", target_os = "linux")) {
-            bail!(
+            return Err(SinkError::Refused(format!(
                 "sink.quadrature axis {}: `gpio` lines are configured but this build has no GPIO \
                  support; rebuild with `cargo build --release --features gpio` (Linux), or remove \
                  `gpio = …` to run the injector in simulation",
                 a.axis
-            );
+            )));
         }
     }
     Ok(())
@@ -41,22 +41,23 @@ enum AxisInjector {
 }
 
 impl AxisInjector {
-    fn open(a: &QuadratureAxis) -> anyhow::Result<Self> {
+    fn open(a: &QuadratureAxis) -> Result<Self, SinkError> {
         let sched = EdgeScheduler::new(SchedulerConfig {
             min_edge_gap_ns: a.min_edge_gap_ns,
             max_inject_rate_hz: a.max_inject_rate_hz,
         })
-        .with_context(|| format!("sink.quadrature axis {}", a.axis))?;
+        .map_err(|e| SinkError::setup(format!("sink.quadrature axis {}", a.axis), e))?;
         match &a.gpio {
             None => Ok(Self::Simulated(sched)),
             #[cfg(all(feature = "gpio", target_os = "linux"))]
             Some(lines) => {
                 use crate::quadrature::{Injector, InjectorCounts, run_injector};
                 let (pin_a, pin_b) =
-                    crate::quadrature::gpio::open_output_pins(lines, sched.levels())
-                        .with_context(|| format!("sink.quadrature axis {}", a.axis))?;
+                    crate::quadrature::gpio::open_output_pins(lines, sched.levels()).map_err(
+                        |e| SinkError::setup(format!("sink.quadrature axis {}", a.axis), e),
+                    )?;
                 let inj = Injector::new(sched, pin_a, pin_b)
-                    .map_err(|e| anyhow::anyhow!("axis {}: {e}", a.axis))?;
+                    .map_err(|e| SinkError::Refused(format!("axis {}: {e}", a.axis)))?;
                 let (tx, rx) = std::sync::mpsc::channel();
                 let counts = std::sync::Arc::new(std::sync::Mutex::new(InjectorCounts::default()));
                 let shared = counts.clone();
@@ -69,16 +70,14 @@ impl AxisInjector {
                             tracing::error!(axis, %e, "GPIO injector stopped");
                         }
                     })
-                    .context("spawning the injector thread")?;
+                    .map_err(|e| SinkError::setup("spawning the injector thread", e))?;
                 Ok(Self::Gpio { deltas: tx, counts })
             }
             #[cfg(not(all(feature = "gpio", target_os = "linux")))]
-            Some(_) => {
-                bail!(
-                    "sink.quadrature axis {}: this build has no GPIO support (feature `gpio`)",
-                    a.axis
-                )
-            }
+            Some(_) => Err(SinkError::Refused(format!(
+                "sink.quadrature axis {}: this build has no GPIO support (feature `gpio`)",
+                a.axis
+            ))),
         }
     }
 
@@ -126,7 +125,7 @@ impl QuadratureOutput {
 }
 
 impl Sink for QuadratureOutput {
-    fn start<'a>(&'a mut self, _io: &'a SinkIo) -> LocalFuture<'a, anyhow::Result<StartValues>> {
+    fn start<'a>(&'a mut self, _io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>> {
         Box::pin(async { Ok(StartValues::new()) })
     }
 
@@ -144,7 +143,7 @@ pub async fn quadrature_task(
     let mut axes = Vec::new();
     for a in &q.axes {
         let opened = CountQuantizer::new(a.resolution_um, a.count_sign)
-            .map_err(anyhow::Error::from)
+            .map_err(|e| SinkError::Refused(e.to_string()))
             .and_then(|quant| Ok((quant, AxisInjector::open(a)?)));
         match opened {
             // Axis names are validated (x, y or z, each an [[axis]]) when the config loads.
@@ -153,10 +152,10 @@ pub async fn quadrature_task(
                 None => tracing::error!(axis = a.axis, "not an axis (x, y or z): never driven"),
             },
             Err(e) => {
-                tracing::error!(axis = a.axis, "{e:#}");
+                tracing::error!(axis = a.axis, "{}", Chain(&e));
                 let _ = status.send(SinkStatus {
                     kind: "quadrature".into(),
-                    last_error: Some(format!("{e:#}")),
+                    last_error: Some(Chain(&e).to_string()),
                     ..Default::default()
                 });
                 return;

@@ -15,21 +15,23 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use super::TelemetryError;
 use crate::diagnose::report::{Finding, Report};
 use crate::diagnose::{self, select::Options};
 use crate::models::MachineModel;
 use crate::recording::Recording;
 
 /// Diagnose a recording against a machine model (what `retrocomp diagnose --model` does).
-pub fn diagnose_against(recording: &Path, model: &Path) -> anyhow::Result<Report> {
-    use anyhow::Context as _;
-    let rec = Recording::read_path(recording).with_context(|| recording.display().to_string())?;
+/// Errors name the recording or the model file; the cause is their `source()`.
+pub fn diagnose_against(recording: &Path, model: &Path) -> Result<Report, TelemetryError> {
+    let rec = Recording::read_path(recording)
+        .map_err(TelemetryError::setup(recording.display().to_string()))?;
     let m = MachineModel::from_toml_path(model)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", model.display()))?;
-    let sims =
-        diagnose::model_sim::simulate(&m, &rec).with_context(|| model.display().to_string())?;
+        .map_err(|e| TelemetryError::Invalid(format!("{}: {e}", model.display())))?;
+    let sims = diagnose::model_sim::simulate(&m, &rec)
+        .map_err(TelemetryError::setup(model.display().to_string()))?;
     let d = diagnose::diagnose_with_sim(&rec, &sims, &Options::default())
-        .with_context(|| recording.display().to_string())?;
+        .map_err(TelemetryError::setup(recording.display().to_string()))?;
     Ok(d.report)
 }
 

@@ -7,7 +7,6 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::Context as _;
 use opcua::crypto::SecurityPolicy;
 use opcua::server::address_space::{AccessLevel, ObjectBuilder, VariableBuilder};
 use opcua::server::diagnostics::NamespaceMetadata;
@@ -25,6 +24,7 @@ use tokio::task::JoinHandle;
 
 use super::OpcUaSection;
 use super::space::{FOLDERS, Point, Unit, Value, identification, points, unece_unit_id};
+use crate::gateway::error::GatewayError;
 use crate::gateway::status::ModelIdentity;
 use crate::gateway::status::StatusSnapshot;
 
@@ -59,16 +59,16 @@ pub async fn start(
     box_name: &str,
     status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
     model: Option<ModelIdentity>,
-) -> anyhow::Result<OpcUaServer> {
+) -> Result<OpcUaServer, GatewayError> {
     let listen = cfg.listen_addr();
     let listener = tokio::net::TcpListener::bind(listen)
         .await
-        .with_context(|| format!("opcua.listen: binding {listen}"))?;
+        .map_err(|e| GatewayError::setup(format!("opcua.listen: binding {listen}"), e))?;
     let bound = listener.local_addr()?;
     let host = cfg.host.clone().unwrap_or_else(|| bound.ip().to_string());
     let (server, handle) = builder(cfg, box_name, &host, bound.port())?
         .build()
-        .map_err(|e| anyhow::anyhow!("opcua: {e}"))?;
+        .map_err(|e| GatewayError::Refused(format!("opcua: {e}")))?;
     let server = tokio::spawn(async move {
         if let Err(e) = server.run_with(listener).await {
             tracing::error!(%e, "the OPC UA server stopped");
@@ -77,10 +77,12 @@ pub async fn start(
     let nm = handle
         .node_managers()
         .get_of_type::<SimpleNodeManager>()
-        .context("opcua: no node manager for the box's namespace")?;
+        .ok_or_else(|| {
+            GatewayError::Refused("opcua: no node manager for the box's namespace".into())
+        })?;
     let ns = handle
         .get_namespace_index(NAMESPACE_URI)
-        .context("opcua: namespace not registered")?;
+        .ok_or_else(|| GatewayError::Refused("opcua: namespace not registered".into()))?;
     let mut space = Space::new(nm, ns, box_name);
     space.update(
         &identification(box_name, model.as_ref()),
@@ -109,7 +111,7 @@ fn builder(
     box_name: &str,
     host: &str,
     port: u16,
-) -> anyhow::Result<ServerBuilder> {
+) -> Result<ServerBuilder, GatewayError> {
     let pki = cfg.pki_dir.clone().unwrap_or_else(|| {
         // Anonymous only: no certificate is used, but the store wants a folder.
         std::env::temp_dir().join(format!("retrocomp-opcua-pki-{}", std::process::id()))
@@ -139,7 +141,7 @@ fn builder(
     if cfg.has_users() {
         let mut ids = Vec::new();
         for u in &cfg.users {
-            let pw = super::read_password(&u.password_file).map_err(anyhow::Error::msg)?;
+            let pw = super::read_password(&u.password_file).map_err(GatewayError::Refused)?;
             b = b.add_user_token(&u.name, ServerUserToken::user_pass(u.name.as_str(), &pw));
             ids.push(u.name.clone());
         }
