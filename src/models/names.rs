@@ -289,6 +289,11 @@ pub fn parse_squareness(name: &str) -> Option<Squareness> {
     }
 }
 
+/// The axes' lower-case names (`x`, `y`, `z`), for messages that list what a key may name.
+pub(super) fn lower_names(axes: &[Axis]) -> Vec<String> {
+    axes.iter().map(|a| a.lower().to_string()).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

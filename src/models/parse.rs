@@ -4,11 +4,10 @@
 
 use std::collections::HashSet;
 
-use super::names::{Axis, ComponentId, parse_component};
-use super::parse_terms::{read_function, read_load, read_squareness, read_thermal};
+use super::names::{Axis, ComponentId, lower_names, parse_component};
+use super::parse_terms::{read_function, read_load, read_squareness, read_thermal, value_units};
 use super::spec::*;
 use super::toml_reader::{ConfigError, Ctx, Tbl};
-use crate::units::{AngleUnit, LengthUnit};
 
 const TOP_KEYS: &str =
     "schema, machine, axes, tools, components, squareness, sensors, thermal, forces, load";
@@ -26,38 +25,6 @@ pub fn parse_model(text: &str, origin: &str) -> Result<ModelSpec, ConfigError> {
     match spec {
         Some(s) if !ctx.has_errors() => Ok(s),
         _ => Err(ctx.into_error()),
-    }
-}
-
-pub(super) fn unit_list_translation() -> Vec<(String, f64)> {
-    LengthUnit::SUFFIXES
-        .iter()
-        .map(|s| {
-            (
-                s.to_string(),
-                LengthUnit::from_suffix(s).unwrap().to_um_factor(),
-            )
-        })
-        .collect()
-}
-
-pub(super) fn unit_list_rotation() -> Vec<(String, f64)> {
-    AngleUnit::SUFFIXES
-        .iter()
-        .map(|s| {
-            (
-                s.to_string(),
-                AngleUnit::from_suffix(s).unwrap().to_urad_factor(),
-            )
-        })
-        .collect()
-}
-
-pub(super) fn value_units(target: ComponentId) -> Vec<(String, f64)> {
-    if target.is_rotation() {
-        unit_list_rotation()
-    } else {
-        unit_list_translation()
     }
 }
 
@@ -333,10 +300,6 @@ const THERMAL_KEYS: &str = "name, target, kind, sensors, sensor, e0_<u>, b_<u>_p
 s_<u>_per_m_K, d_<u>_per_m_K2, alpha_ppm_per_K, origin_mm, reference_C, along, stations_mm (<u> = um or urad)";
 const LOAD_KEYS: &str = "name, target, kind, shape, force, reference_force_N, lever_mm, load_height_mm, positions_mm, \
 forward_<unit>, reverse_<unit>, interpolation, coefficients_<unit>, knots_mm, knot_coefficients_<unit>, range_mm";
-
-pub(super) fn lower_names(axes: &[Axis]) -> Vec<String> {
-    axes.iter().map(|a| a.lower().to_string()).collect()
-}
 
 fn parse_signed_axis(s: &str) -> Option<(Axis, f64)> {
     let s = s.trim();

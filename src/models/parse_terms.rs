@@ -2,10 +2,10 @@
 //! piecewise quadratics), squareness, thermal and load terms. Units are converted here, once.
 
 use super::function::{ErrorFunction, Interpolation, Table};
-use super::names::{Axis, ComponentId, parse_squareness};
-use super::parse::{lower_names, unit_list_rotation, value_units};
+use super::names::{Axis, ComponentId, lower_names, parse_squareness};
 use super::spec::*;
 use super::toml_reader::Tbl;
+use crate::units::{AngleUnit, LengthUnit};
 
 /// Read the one `{prefix}_{unit}` key, converted by the unit's factor.
 fn read_scaled_vec(
@@ -563,5 +563,38 @@ pub(super) fn read_load(
             );
             None
         }
+    }
+}
+
+// Unit suffixes of term values (`_um`, `_mm`, `_urad`, …) and their factors to internal units.
+pub(super) fn unit_list_translation() -> Vec<(String, f64)> {
+    LengthUnit::SUFFIXES
+        .iter()
+        .map(|s| {
+            (
+                s.to_string(),
+                LengthUnit::from_suffix(s).unwrap().to_um_factor(),
+            )
+        })
+        .collect()
+}
+
+pub(super) fn unit_list_rotation() -> Vec<(String, f64)> {
+    AngleUnit::SUFFIXES
+        .iter()
+        .map(|s| {
+            (
+                s.to_string(),
+                AngleUnit::from_suffix(s).unwrap().to_urad_factor(),
+            )
+        })
+        .collect()
+}
+
+pub(super) fn value_units(target: ComponentId) -> Vec<(String, f64)> {
+    if target.is_rotation() {
+        unit_list_rotation()
+    } else {
+        unit_list_translation()
     }
 }

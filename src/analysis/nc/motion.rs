@@ -38,7 +38,7 @@ fn round4(v: f64) -> f64 {
 }
 
 /// mm with 4 decimals (0.1 µm), `-0.0000` printed as `0.0000`.
-pub fn fmt_mm(v: f64) -> String {
+fn fmt_mm(v: f64) -> String {
     let s = format!("{v:.4}");
     if s == "-0.0000" {
         "0.0000".to_string()

@@ -30,8 +30,6 @@ use super::parser::{Block, Word, parse_line};
 use crate::analysis::import_error::ImportErrors;
 use crate::analysis::table::Direction;
 
-pub use super::motion::fmt_mm;
-
 #[derive(Debug, Clone, PartialEq)]
 pub struct RewriteConfig {
     /// X words are diameters at program start (Fanuc lathe, cylindrical grinder); G7/G8 switch.
