@@ -366,6 +366,7 @@ fn validate_header(names: &[String]) -> Result<(), String> {
 
 /// Streaming writer of the recording CSV. Rejects a row with the wrong width, a non-finite value or
 /// time going backwards, so the simulator and gateway cannot produce a file the reader would refuse.
+#[derive(Debug)]
 pub struct RecordingWriter<W: Write> {
     w: csv::Writer<W>,
     width: usize,

@@ -25,6 +25,7 @@ pub type LocalFuture<'a, T> = Pin<Box<dyn Future<Output = T> + 'a>>;
 pub type StartValues = BTreeMap<String, f64>;
 
 /// The channels between the cycle and a sink.
+#[derive(Debug)]
 pub struct SinkIo {
     /// The cycle's outputs (axis, correction µm); dropped by the runtime when the run ends.
     pub out_rx: watch::Receiver<Vec<(Axis, f64)>>,

@@ -314,6 +314,7 @@ pub fn measure_spheres(
 }
 
 /// The hidden machine, evaluated exactly at reference temperatures.
+#[derive(Debug)]
 pub struct Probe<'a> {
     model: &'a MachineModel,
     state: ModelState,
@@ -520,6 +521,7 @@ pub fn travel(truth: &MachineModel) -> [(f64, f64); 3] {
 }
 
 /// Everything Spaan's way: identification plates, verification plates, spheres.
+#[derive(Debug)]
 pub struct Measured {
     pub plates: Vec<HolePlate>,
     pub verify: Vec<HolePlate>,

@@ -5,6 +5,7 @@
 use std::time::{Duration, Instant};
 
 /// Paces steps of `dt_s` against the wall clock, in batches so timer jitter does not accumulate.
+#[derive(Debug)]
 pub struct RealtimePacer {
     start: Instant,
     dt_s: f64,

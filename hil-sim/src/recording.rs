@@ -16,6 +16,7 @@
 use crate::world::{Readings, World};
 use std::io::Write;
 
+#[derive(Debug)]
 pub struct Recorder<W: Write> {
     out: W,
     /// Rows assembled here and handed to `out` in blocks of about [`Recorder::BLOCK`] bytes (the

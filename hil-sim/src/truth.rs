@@ -66,6 +66,7 @@ impl TruthModel for BuiltinGeometry {
 /// The project's volumetric model (`retrocomp::models::MachineModel`, exact 4×4 evaluation) as the
 /// true machine's geometry. Temperatures, forces and strains stay at the model's references: the
 /// hidden physics adds those effects itself.
+#[derive(Debug)]
 pub struct VolumetricTruth {
     path: String,
     model: retrocomp::models::MachineModel,

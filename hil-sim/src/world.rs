@@ -88,6 +88,18 @@ pub struct World {
     dir: [i8; 3],
 }
 
+// By hand: the truth model is a trait object (and the machine's state is long).
+impl std::fmt::Debug for World {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("World")
+            .field("t_s", &self.t_s)
+            .field("ticks", &self.ticks)
+            .field("force_N", &self.force_N)
+            .field("dir", &self.dir)
+            .finish_non_exhaustive()
+    }
+}
+
 impl World {
     /// A world whose visible geometry is the config's `truth.model_path` model, or its built-in one.
     pub fn new(cfg: SimConfig) -> anyhow::Result<Self> {

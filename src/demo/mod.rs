@@ -86,6 +86,7 @@ pub struct DemoOptions {
 }
 
 /// One finished run.
+#[derive(Debug)]
 pub struct RunResult {
     pub mode: Mode,
     pub stats: RunStats,
@@ -96,6 +97,7 @@ pub struct RunResult {
     pub gateway: GatewayRun,
 }
 
+#[derive(Debug)]
 pub struct DemoResult {
     pub stats: DemoStats,
     pub runs: Vec<RunResult>,

@@ -89,6 +89,7 @@ pub fn with_realtime_priority(sim_toml: &str, priority: Option<u8>) -> String {
 }
 
 /// A running `hil-sim serve`.
+#[derive(Debug)]
 pub struct Sim {
     pub child: Child,
     pub modbus: SocketAddr,

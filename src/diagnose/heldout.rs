@@ -17,6 +17,7 @@ use super::lsq;
 use super::select::Options;
 
 /// The validation folds of one signal and how they are scored.
+#[derive(Debug)]
 pub struct Heldout<'a> {
     ctx: &'a Context,
     r: &'a [f64],

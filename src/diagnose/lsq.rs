@@ -247,6 +247,7 @@ fn pinv_solve(g: &DMatrix<f64>, h: &DVector<f64>) -> (DVector<f64>, DMatrix<f64>
 
 /// Least-squares fit of `r` on `cols`: coefficients, their covariance (σ² scaled by n/n_eff for
 /// correlated residuals), the residual and n_eff of the residual.
+#[derive(Debug)]
 pub struct Fit {
     pub coef: Vec<f64>,
     pub cov: DMatrix<f64>,

@@ -76,6 +76,7 @@ impl SignalResult {
     }
 }
 
+#[derive(Debug)]
 pub struct Diagnosis {
     pub report: Report,
     pub signals: Vec<SignalResult>,

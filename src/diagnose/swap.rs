@@ -31,6 +31,7 @@ const TOP_REPLACEMENTS: usize = 4;
 type Choice = (f64, usize, Vec<(Candidate, f64)>);
 
 /// The best exchange found: replace `terms[k]` with these terms (one or two).
+#[derive(Debug)]
 pub struct Exchange {
     pub k: usize,
     pub terms: Vec<Term>,

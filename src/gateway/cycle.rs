@@ -38,6 +38,7 @@ pub const COMPUTE_WINDOW: usize = 1 << 16;
 pub type Outputs = Vec<(Axis, f64)>;
 
 /// The channels between the cycle and the rest of the runtime.
+#[derive(Debug)]
 pub struct CycleIo {
     /// Samples from the bus sources.
     pub samples: mpsc::Receiver<Sample>,
@@ -90,6 +91,17 @@ pub struct CycleLoop {
     dropped: bool,
     partial: bool,
     report: CycleReport,
+}
+
+// By hand: the model is a trait object.
+impl std::fmt::Debug for CycleLoop {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CycleLoop")
+            .field("engine", &self.engine)
+            .field("model_identity", &self.model_identity)
+            .field("report", &self.report)
+            .finish_non_exhaustive()
+    }
 }
 
 impl CycleLoop {

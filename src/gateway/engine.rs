@@ -100,6 +100,21 @@ pub struct Engine {
     dropped: bool,
 }
 
+// By hand: the per-axis and per-channel runtime is internal; this is what a log line needs.
+impl std::fmt::Debug for Engine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Engine")
+            .field("axes", &self.axes.len())
+            .field("channels", &self.channels.len())
+            .field("enabled", &self.enabled)
+            .field("partial", &self.partial)
+            .field("cycles", &self.cycles)
+            .field("now_s", &self.now_s)
+            .field("model_error", &self.model_error)
+            .finish_non_exhaustive()
+    }
+}
+
 /// Limits for channels seen on a bus but not configured: anything finite, stale after 1 s.
 fn default_limits() -> ChannelLimits {
     ChannelLimits {

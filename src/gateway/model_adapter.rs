@@ -13,6 +13,7 @@ use super::status::ModelIdentity;
 use crate::bus::ChannelId;
 use crate::models::{Axis, ErrorBreakdown, MachineModel, ModelInput, ModelState};
 
+#[derive(Debug)]
 pub struct MachineModelAdapter {
     model: MachineModel,
     state: ModelState,

@@ -10,6 +10,7 @@ use toml::de::{DeArray, DeTable, DeValue};
 pub use crate::config_issue::{ConfigError, ConfigIssue};
 
 /// Collects issues while reading one file.
+#[derive(Debug)]
 pub struct Ctx<'t> {
     file: String,
     text: &'t str,
@@ -70,6 +71,7 @@ impl<'t> Ctx<'t> {
 pub type Val<'t> = Spanned<DeValue<'t>>;
 
 /// A table being read. Keys that are never asked for are reported by [`Tbl::finish`].
+#[derive(Debug)]
 pub struct Tbl<'a, 't> {
     pub ctx: &'a Ctx<'t>,
     pub table: &'a DeTable<'t>,

@@ -118,6 +118,17 @@ pub struct OriginShiftClient {
     pub connects: u64,
 }
 
+// By hand: tokio-modbus' client context has no Debug.
+impl std::fmt::Debug for OriginShiftClient {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("OriginShiftClient")
+            .field("cfg", &self.cfg)
+            .field("connected", &self.ctx.is_some())
+            .field("last_error", &self.last_error)
+            .finish_non_exhaustive()
+    }
+}
+
 impl OriginShiftClient {
     pub fn new(cfg: ClientConfig, map: RegisterMap) -> Result<Self, MapError> {
         map.validate()?;

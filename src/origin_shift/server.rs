@@ -64,6 +64,7 @@ fn default_controller_timeout_ms() -> u64 {
 type Outputs = Vec<(crate::models::Axis, f64)>;
 
 /// The running server (listener or RTU task) and its core.
+#[derive(Debug)]
 pub struct OriginShiftServer {
     cfg: ServerConfig,
     core: ServerCore,
@@ -241,6 +242,7 @@ impl Drop for OriginShiftServer {
 
 /// The origin-shift server as the run loop's [`Sink`]: [`Sink::start`] binds and waits until the
 /// controller reports what it holds (the engine's start value), [`Sink::run`] serves.
+#[derive(Debug)]
 pub struct OriginShiftServerSink {
     cfg: ServerConfig,
     /// Clamp and per-update cap per axis.

@@ -171,6 +171,7 @@ pub async fn origin_shift_task(
 
 /// The origin-shift client as the run loop's [`Sink`]: [`Sink::start`] reads what the controller
 /// holds, [`Sink::run`] is [`origin_shift_task`].
+#[derive(Debug)]
 pub struct OriginShiftClientSink {
     os: OriginShiftSink,
     client: OriginShiftClient,

@@ -16,6 +16,7 @@ pub enum PinError<E: core::fmt::Debug> {
 }
 
 /// The two output lines and the levels last written to them.
+#[derive(Debug)]
 pub struct QuadraturePins<A, B> {
     a: A,
     b: B,

@@ -38,6 +38,7 @@ pub struct InjectorCounts {
 }
 
 /// Scheduler + pins: the sans-clock part of the loop, driven by [`run_injector`] or a test clock.
+#[derive(Debug)]
 pub struct Injector<A, B> {
     sched: EdgeScheduler,
     pins: QuadraturePins<A, B>,

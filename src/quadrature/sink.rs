@@ -114,6 +114,7 @@ impl AxisInjector {
 
 /// The quadrature injector as the run loop's [`Sink`]: it holds no state the engine continues from
 /// (empty start values); [`Sink::run`] is [`quadrature_task`].
+#[derive(Debug)]
 pub struct QuadratureOutput {
     cfg: QuadratureSink,
 }

@@ -7,6 +7,7 @@ use crate::gateway::status::StatusSnapshot;
 
 /// Copies the publisher's state into each status snapshot; owned by the cycle loop (which builds
 /// the snapshots, at ≤ 10 Hz), so it only reads a watch channel.
+#[derive(Debug)]
 pub struct TelemetryAnnotator {
     status: tokio::sync::watch::Receiver<TelemetryStatus>,
     /// Since when (status `t_s`) the link is not up: the `Disconnected` fault's start.

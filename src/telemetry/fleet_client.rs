@@ -39,6 +39,16 @@ pub struct FleetClient {
     subacks: u32,
 }
 
+// By hand: rumqttc's event loop has no Debug.
+impl std::fmt::Debug for FleetClient {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FleetClient")
+            .field("topic", &self.topic)
+            .field("subscribed", &self.subscribed)
+            .finish_non_exhaustive()
+    }
+}
+
 impl FleetClient {
     /// `broker` is HOST:PORT; `group` None watches every group.
     pub fn new(broker: &str, group: Option<&str>) -> Result<Self, FleetClientError> {

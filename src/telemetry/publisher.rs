@@ -34,6 +34,7 @@ use crate::bus::Backoff;
 use crate::gateway::status::StatusSnapshot;
 
 /// What the publisher needs besides its config.
+#[derive(Debug)]
 pub struct PublisherInputs {
     pub status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
     /// Model identity published as `Model/identity` (file name, fit date...).
@@ -41,6 +42,7 @@ pub struct PublisherInputs {
 }
 
 /// The running publisher: its status, and a stop that sends NDEATH and disconnects.
+#[derive(Debug)]
 pub struct Publisher {
     pub status: watch::Receiver<TelemetryStatus>,
     stop: Option<tokio::sync::oneshot::Sender<()>>,

@@ -27,6 +27,7 @@ pub fn default_topic(group: &str, edge_node: &str) -> String {
 /// Chunks published and not yet acknowledged, at most.
 const WINDOW: usize = 16;
 
+#[derive(Debug)]
 pub struct Shipment {
     pub mqtt: MqttConfig,
     pub topic: String,

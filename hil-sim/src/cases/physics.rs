@@ -24,6 +24,7 @@ pub fn quantize(v: f64, lsb: f64) -> f64 {
 /// by spindle speed (`k_c_per_krpm`, time constant `tau_node_s`); `structure` by a share of the
 /// spindle heat AND by axis-motion friction (`motion_speed_mm_s`, 0.05 °C per mm/s), with its own
 /// time constant `tau_struct_s` — so it is not a pure lag of the spindle node; ambient drifts slowly.
+#[derive(Debug)]
 pub struct Thermal {
     pub spindle_c: Vec<f64>,
     pub structure_c: Vec<f64>,

@@ -53,6 +53,18 @@ pub struct Gateway {
     edges: Vec<FaultEdge>,
 }
 
+// By hand: the model is a trait object.
+impl std::fmt::Debug for Gateway {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Gateway")
+            .field("engine", &self.engine)
+            .field("pending", &self.pending)
+            .field("outputs", &self.outputs)
+            .field("edges", &self.edges)
+            .finish_non_exhaustive()
+    }
+}
+
 impl Gateway {
     /// Start as `retrocomp run` does: the sink reads what the controller holds first (`held_um`,
     /// per axis; values beyond the clamp are not start values) and the engine continues from it.

@@ -86,6 +86,19 @@ pub struct ClosedLoop {
     serial_bytes: u64,
 }
 
+// By hand: the model factory is a closure.
+impl std::fmt::Debug for ClosedLoop {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ClosedLoop")
+            .field("world", &self.world)
+            .field("gateway", &self.gateway)
+            .field("generation", &self.generation)
+            .field("link_up", &self.link_up)
+            .field("serial_bytes", &self.serial_bytes)
+            .finish_non_exhaustive()
+    }
+}
+
 /// Ticks of `period_ms` at `dt_s` per tick; the harness refuses periods that are not whole ticks.
 fn ticks(period_ms: u64, dt_s: f64, key: &str) -> anyhow::Result<u64> {
     let n = period_ms as f64 / 1e3 / dt_s;

@@ -115,6 +115,16 @@ pub struct PlcServer {
     task: Option<JoinHandle<()>>,
 }
 
+// By hand: the register service is internal.
+impl std::fmt::Debug for PlcServer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PlcServer")
+            .field("addr", &self.addr)
+            .field("running", &self.task.is_some())
+            .finish_non_exhaustive()
+    }
+}
+
 impl PlcServer {
     /// Listen on `bind` (port 0 picks one; a restart reuses the port that was picked). Accepted
     /// writes go to `log`.

@@ -22,6 +22,7 @@ pub struct Outputs {
     pub lines: Vec<String>,
 }
 
+#[derive(Debug)]
 pub struct Publisher {
     cfg: IoConfig,
     encoders: Vec<EncoderChannel>,

@@ -51,6 +51,7 @@ pub struct Status {
     pub max_lag_s: f64,
 }
 
+#[derive(Debug)]
 pub struct Running {
     pub modbus_tcp: Option<SocketAddr>,
     /// Device path of the RTU pty (open it with any serial client, 8N1; baud is ignored on a pty).

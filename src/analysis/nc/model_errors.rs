@@ -9,6 +9,7 @@ use super::ErrorFunction;
 use crate::analysis::table::Direction;
 use crate::models::{ErrorBreakdown, MachineModel, ModelInput, ModelState};
 
+#[derive(Debug)]
 pub struct ModelErrors<'a> {
     model: &'a MachineModel,
     /// Exact 4×4 evaluation (true) or the first-order closed form.

@@ -223,6 +223,16 @@ pub struct Rewriter<'a> {
     pub(super) stats: RewriteStats,
 }
 
+// By hand: the error function is a trait object, the modal state is internal.
+impl std::fmt::Debug for Rewriter<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Rewriter")
+            .field("cfg", &self.cfg)
+            .field("stats", &self.stats)
+            .finish_non_exhaustive()
+    }
+}
+
 impl<'a> Rewriter<'a> {
     pub fn new(model: &'a dyn ErrorFunction, cfg: &RewriteConfig) -> Self {
         let mut offsets = cfg.work_offsets_mm;

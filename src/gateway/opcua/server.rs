@@ -45,6 +45,16 @@ pub struct OpcUaServer {
     updater: JoinHandle<()>,
 }
 
+// By hand: async-opcua's server handle has no Debug.
+impl std::fmt::Debug for OpcUaServer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("OpcUaServer")
+            .field("endpoint", &self.endpoint)
+            .field("bound", &self.bound)
+            .finish_non_exhaustive()
+    }
+}
+
 impl OpcUaServer {
     pub fn stop(self) {
         self.handle.cancel();
