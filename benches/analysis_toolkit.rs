@@ -27,7 +27,7 @@ fn iso(c: &mut Criterion) {
         }
     }
     c.bench_function("iso230_2_evaluate_410_readings", |b| {
-        b.iter(|| evaluate(std::hint::black_box(&rs)).unwrap())
+        b.iter(|| evaluate(std::hint::black_box(&rs)).unwrap());
     });
 }
 
@@ -63,7 +63,7 @@ fn nc(c: &mut Criterion) {
                 &cfg,
             )
             .unwrap()
-        })
+        });
     });
 }
 
@@ -85,7 +85,7 @@ fn circle(c: &mut Criterion) {
         cyclic_period_y_mm: None,
     };
     c.bench_function("circle_analyse_2x720_points", |b| {
-        b.iter(|| analyse(std::hint::black_box(&traces), &setup).unwrap())
+        b.iter(|| analyse(std::hint::black_box(&traces), &setup).unwrap());
     });
 }
 

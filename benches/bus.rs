@@ -54,7 +54,7 @@ fn pdo_decode(c: &mut Criterion) {
                 src.on_frame(black_box(f), i as f64 * 1e-4, &mut out);
             }
             black_box(out.len())
-        })
+        });
     });
     g.finish();
 }
@@ -98,8 +98,8 @@ fn hub_loopback(c: &mut Criterion) {
                     }
                 };
                 tokio::join!(send, recv);
-            })
-        })
+            });
+        });
     });
     g.finish();
     // Per-frame sends (one write each), for comparison.
@@ -120,8 +120,8 @@ fn hub_loopback(c: &mut Criterion) {
                     }
                 };
                 tokio::join!(send, recv);
-            })
-        })
+            });
+        });
     });
     g.finish();
 }
@@ -176,7 +176,7 @@ fn modbus_poll(c: &mut Criterion) {
                 poller.poll_once(0.0, &mut out).await;
             });
             assert_eq!(out.len(), 16);
-        })
+        });
     });
     // Latency distribution (criterion reports central estimates, not tails).
     let mut d: Vec<Duration> = (0..2000)

@@ -106,7 +106,7 @@ fn bench(c: &mut Criterion) {
             let d = diagnose(std::hint::black_box(&rec), &Options::default()).unwrap();
             assert!(d.report.findings.iter().any(|f| f.effect == "backlash"));
             d
-        })
+        });
     });
     g.finish();
 }

@@ -155,7 +155,7 @@ fn cycle_compute(c: &mut Criterion) {
             t += 1e-3;
             feed(&mut e, t);
             black_box(e.cycle_in_place(t, &mut m)[0].1)
-        })
+        });
     });
 }
 
@@ -209,7 +209,7 @@ fn cycle_compute_studer(c: &mut Criterion) {
             t += 1e-3;
             feed2(&mut e, t);
             black_box(e.cycle_in_place(t, &mut m)[0].1)
-        })
+        });
     });
 }
 
@@ -274,7 +274,7 @@ fn pipeline_frames(c: &mut Criterion) {
                     black_box(e.cycle_in_place(t, &mut m));
                 }
             }
-        })
+        });
     });
     g.finish();
 }
@@ -298,7 +298,7 @@ fn edge_scheduler(c: &mut Criterion) {
             })
             .unwrap();
             black_box(simulate(&mut s, &events).len())
-        })
+        });
     });
     g.finish();
 }

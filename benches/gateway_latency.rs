@@ -339,7 +339,7 @@ fn frame_to_register_write(c: &mut Criterion) {
                 }
                 total
             })
-        })
+        });
     });
     g.finish();
     rt.block_on(rig.stop());

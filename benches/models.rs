@@ -117,7 +117,7 @@ fn bench<M: Measurement>(c: &mut Criterion<M>, clock: &str) {
             input.t_s = t;
             m.evaluate(black_box(&*input), &mut state, &mut out);
             black_box(out.total_um)
-        })
+        });
     });
     g.bench_function("evaluate_first_order_one", |b| {
         b.iter(|| {
@@ -127,7 +127,7 @@ fn bench<M: Measurement>(c: &mut Criterion<M>, clock: &str) {
             input.t_s = t;
             m.evaluate_first_order(black_box(&*input), &mut state, &mut out);
             black_box(out.total_um)
-        })
+        });
     });
     // Breakdown: the same points through the geometric part only (no sensors, thermal, load).
     let mut geo_spec = m.spec().clone();
@@ -151,7 +151,7 @@ fn bench<M: Measurement>(c: &mut Criterion<M>, clock: &str) {
             i += 1;
             geo.evaluate(black_box(input), &mut gs, &mut go);
             black_box(go.total_um)
-        })
+        });
     });
     // Breakdown: the 18 component functions alone (the table lookups).
     let funcs: Vec<_> = m
@@ -169,7 +169,7 @@ fn bench<M: Measurement>(c: &mut Criterion<M>, clock: &str) {
                 acc += f.eval(input.pos_mm[*a], input.dir[*a]).0;
             }
             black_box(acc)
-        })
+        });
     });
     g.finish();
 
@@ -192,7 +192,7 @@ fn bench<M: Measurement>(c: &mut Criterion<M>, clock: &str) {
                 acc += out.total_um[0];
             }
             black_box(acc)
-        })
+        });
     });
     // The same through the batch API (one reused breakdown; `black_box` makes every term count as
     // read).
@@ -204,7 +204,7 @@ fn bench<M: Measurement>(c: &mut Criterion<M>, clock: &str) {
                 acc += black_box(o).total_um[0];
             });
             black_box(acc)
-        })
+        });
     });
     g.finish();
 }

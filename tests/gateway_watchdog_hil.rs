@@ -84,7 +84,7 @@ fn wait_plc_holds(rt: &tokio::runtime::Runtime, plc: SocketAddr, um: f64, what: 
             tokio::time::sleep(Duration::from_millis(50)).await;
         }
         panic!("{what}: the PLC never held {um} µm (last {last:?})");
-    })
+    });
 }
 
 fn wait_exit(gw: &mut Child, within: Duration, log: &Path) -> std::process::ExitStatus {

@@ -33,7 +33,7 @@ fn bench(c: &mut Criterion) {
             b.iter(|| {
                 let id = identify(&geo, &plates, &[], &Options::default()).unwrap();
                 MachineModel::from_spec(to_spec(&id, "bench")).to_toml_string()
-            })
+            });
         });
     }
 }

@@ -66,7 +66,7 @@ fn bench(c: &mut Criterion) {
             }
             assert!(w.t_s() > 9.99);
             w.readings().error_um
-        })
+        });
     });
     // The whole program, without and with the recording: the difference is the writer's cost.
     g.bench_function("program_to_end", |b| {
@@ -76,7 +76,7 @@ fn bench(c: &mut Criterion) {
                 w.tick();
             }
             w.readings().error_um
-        })
+        });
     });
     g.bench_function("program_to_end_recorded", |b| {
         b.iter(|| {
@@ -84,7 +84,7 @@ fn bench(c: &mut Criterion) {
             let (_, rows) = run_to_end(&mut w, std::io::sink(), |_| {}).unwrap();
             assert!(rows > 1000);
             rows
-        })
+        });
     });
     // Same world with the project's exact (4×4 HTM) volumetric model as the geometry truth
     // (Studer S-36, all tables bidirectional), evaluated at every sample and for every truth query.
@@ -101,7 +101,7 @@ fn bench(c: &mut Criterion) {
             }
             assert!(w.t_s() > 9.99);
             w.readings().error_um
-        })
+        });
     });
     g.finish();
 }

@@ -270,10 +270,10 @@ pub fn validate(cfg: &FieldConfig) -> Vec<(String, String)> {
         let k = format!("modbus.source[{i}]");
         match s.transport {
             TransportKind::Tcp if s.host.is_none() => {
-                p.push((format!("{k}.transport"), "tcp needs `host`".into()))
+                p.push((format!("{k}.transport"), "tcp needs `host`".into()));
             }
             TransportKind::Rtu if s.device.is_none() => {
-                p.push((format!("{k}.transport"), "rtu needs `device`".into()))
+                p.push((format!("{k}.transport"), "rtu needs `device`".into()));
             }
             _ => {}
         }

@@ -391,7 +391,7 @@ impl<'a, 't> Tbl<'a, 't> {
         for (i, item) in arr.iter().enumerate() {
             match item.get_ref() {
                 DeValue::Table(t) => {
-                    out.push(Tbl::new(self.ctx, t, format!("{path}[{i}]"), item.span()))
+                    out.push(Tbl::new(self.ctx, t, format!("{path}[{i}]"), item.span()));
                 }
                 other => self.ctx.err(
                     item.span(),

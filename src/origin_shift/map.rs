@@ -269,7 +269,7 @@ impl RegisterMap {
                     if b.address as usize + b.words.len() == r.address as usize
                         && b.words.len() + n <= MAX_FC16_WORDS =>
                 {
-                    b.words.extend_from_slice(words)
+                    b.words.extend_from_slice(words);
                 }
                 _ => {
                     if let Some(b) = out.get_mut(used) {
@@ -456,7 +456,7 @@ mod tests {
                 assert_eq!(
                     (a.as_str(), b.as_str(), address),
                     ("z", "heartbeat_address", 103)
-                )
+                );
             }
             other => panic!("{other:?}"),
         }

@@ -91,9 +91,9 @@ impl Path {
         let (x0, y0) = self.last();
         let go = |p: &mut Path, v: f64| {
             if on_y {
-                p.move_to(x0, v, feed, false, run, tool)
+                p.move_to(x0, v, feed, false, run, tool);
             } else {
-                p.move_to(v, y0, feed, false, run, tool)
+                p.move_to(v, y0, feed, false, run, tool);
             }
         };
         go(self, lo - 2.0);

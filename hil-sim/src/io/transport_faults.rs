@@ -302,9 +302,9 @@ mod tests {
             let (_, ch) = s.advance(k as f64 * 0.001);
             for c in ch {
                 if c.started {
-                    starts += 1
+                    starts += 1;
                 } else {
-                    clears += 1
+                    clears += 1;
                 }
                 seen.push((c.kind, c.started, (c.t_s * 1000.0).round() as i64));
             }

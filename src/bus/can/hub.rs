@@ -229,7 +229,7 @@ async fn serve_client(
                         match rx.try_recv() {
                             Ok(f) => next = Some(Ok(f)),
                             Err(broadcast::error::TryRecvError::Lagged(n)) => {
-                                next = Some(Err(broadcast::error::RecvError::Lagged(n)))
+                                next = Some(Err(broadcast::error::RecvError::Lagged(n)));
                             }
                             Err(_) => {}
                         }

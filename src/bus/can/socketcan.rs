@@ -446,7 +446,7 @@ mod tests {
         for bad in ["", "abcdefghijklmnop", "a/b", "vcan 0", "a\0b"] {
             match SocketCanBus::open(bad) {
                 Err(CanError::Io(e)) => {
-                    assert_eq!(e.kind(), io::ErrorKind::InvalidInput, "{bad:?}: {e}")
+                    assert_eq!(e.kind(), io::ErrorKind::InvalidInput, "{bad:?}: {e}");
                 }
                 other => panic!("{bad:?}: expected InvalidInput, got {other:?}"),
             }
@@ -469,10 +469,10 @@ mod tests {
                     assert!(
                         msg.contains("no SocketCAN") && msg.contains(ifname),
                         "{msg}"
-                    )
+                    );
                 }
                 (true, false, Err(CanError::Io(e))) => {
-                    assert_eq!(e.kind(), io::ErrorKind::NotFound, "{e}")
+                    assert_eq!(e.kind(), io::ErrorKind::NotFound, "{e}");
                 }
                 (true, true, Ok(bus)) => assert_eq!(bus.ifname(), ifname),
                 (have_can, have_if, other) => panic!(

@@ -115,7 +115,7 @@ impl SocketcandBus {
                     return Ok((frame, t_s));
                 }
                 Message::ErrorFrame { class, .. } => {
-                    self.errors.on_error_frame(&ErrorFrame::class_only(class))
+                    self.errors.on_error_frame(&ErrorFrame::class_only(class));
                 }
                 Message::Error(_) => self.server_errors += 1,
                 _ => {}

@@ -240,7 +240,7 @@ impl ModbusPoller {
 
     /// Poll every `period_s` until `out` is closed.
     pub async fn run(self, clock_s: impl Fn() -> f64, out: tokio::sync::mpsc::Sender<Vec<Sample>>) {
-        self.run_observed(clock_s, out, |_, _, _| {}).await
+        self.run_observed(clock_s, out, |_, _, _| {}).await;
     }
 
     /// [`Self::run`], calling `observe(before, after, connected)` with the counters around every

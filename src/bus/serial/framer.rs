@@ -72,7 +72,7 @@ mod tests {
         f.push(b"01A+0000.1", |l| got.push(l.to_vec()));
         assert!(got.is_empty());
         f.push(b"\r\nab\ncd\r\r\n0123456789abc\nok\r", |l| {
-            got.push(l.to_vec())
+            got.push(l.to_vec());
         });
         // `01A+0000.1` and `0123456789abc` exceed 8 bytes: dropped whole, not cut.
         assert_eq!(got, vec![b"ab".to_vec(), b"cd".to_vec(), b"ok".to_vec()]);
