@@ -29,10 +29,10 @@ fn recording() -> Recording {
     ];
     let mut temps = vec![];
     for k in 0..12 {
-        let tau = 600.0 + 300.0 * k as f64;
+        let tau = 600.0 + 300.0 * f64::from(k);
         let drive: Vec<f64> = t
             .iter()
-            .map(|s| 20.0 + 5.0 * (s / (3000.0 + 500.0 * k as f64)).sin().abs())
+            .map(|s| 20.0 + 5.0 * (s / (3000.0 + 500.0 * f64::from(k))).sin().abs())
             .collect();
         let tk = lowpass(&t, &drive, tau);
         temps.push(tk.clone());

@@ -221,7 +221,7 @@ fn decode_encoder(f: &Frame, counts_per_mm: f64) -> Option<(u8, f64)> {
         return None;
     }
     let counts = u32::from_le_bytes([d[0], d[1], d[2], d[3]]) as i32;
-    Some(((id - 0x180) as u8, counts as f64 / counts_per_mm))
+    Some(((id - 0x180) as u8, f64::from(counts) / counts_per_mm))
 }
 
 fn pipeline_frames(c: &mut Criterion) {

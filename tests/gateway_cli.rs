@@ -158,7 +158,7 @@ sign = 1
         let p = plc.lock().unwrap();
         [*p.regs.get(&0).unwrap_or(&0), *p.regs.get(&1).unwrap_or(&0)]
     };
-    let held_um = (((words[0] as u32) << 16 | words[1] as u32) as i32) as f64 * 0.1;
+    let held_um = f64::from((u32::from(words[0]) << 16 | u32::from(words[1])) as i32) * 0.1;
     assert!(
         (held_um - applied).abs() <= 0.1,
         "PLC holds {held_um} µm, gateway applied {applied} µm"

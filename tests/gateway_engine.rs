@@ -183,7 +183,7 @@ fn temperatures_are_latched_at_the_thermal_period() {
     let mut targets = Vec::new();
     for k in 0..250 {
         t += 0.01;
-        e.ingest(&s("x_mm", t, 10.0 + k as f64 * 0.1));
+        e.ingest(&s("x_mm", t, 10.0 + f64::from(k) * 0.1));
         // Temperature rises 0.5 °C/s (within the 1 °C/s rate limit).
         e.ingest(&s("T_spindle_C", t, 25.0 + 0.5 * t));
         e.ingest(&s("T_bed_C", t, 25.0));

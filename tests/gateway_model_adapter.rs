@@ -54,7 +54,7 @@ fn studer_table_6_1_through_the_gateway() {
     };
     // Forward from 400 to 510 mm, then dwell: the z correction includes −EZZ_forward(510) = +9.6 µm.
     for k in 0..=110 {
-        step(&mut e, 400.0 + k as f64);
+        step(&mut e, 400.0 + f64::from(k));
     }
     for _ in 0..50 {
         step(&mut e, 510.0);
@@ -75,7 +75,7 @@ fn studer_table_6_1_through_the_gateway() {
     let mut last = ezz_of(&snap);
     let mut worst = 0.0f64;
     for k in 1..=40 {
-        step(&mut e, 510.0 - 0.001 * k.min(20) as f64);
+        step(&mut e, 510.0 - 0.001 * f64::from(k.min(20)));
         let snap = e.snapshot();
         let v = ezz_of(&snap);
         worst = worst.max((v - last).abs());

@@ -74,7 +74,7 @@ fn wait_plc_holds(rt: &tokio::runtime::Runtime, plc: SocketAddr, um: f64, what: 
             if let Ok(Ok(w)) = ctx.read_holding_registers(0, 6).await {
                 let v: Vec<f64> = w
                     .chunks(2)
-                    .map(|p| ((p[0] as u32) << 16 | p[1] as u32) as i32 as f64 * LSB_UM)
+                    .map(|p| f64::from((u32::from(p[0]) << 16 | u32::from(p[1])) as i32) * LSB_UM)
                     .collect();
                 if v.iter().any(|x| x.abs() >= um) {
                     return;

@@ -45,8 +45,8 @@ fn graves_eqs_3_25_and_3_26_from_the_generic_chain() {
     let mut rng = ChaCha8Rng::seed_from_u64(1995);
     for case in 0..20 {
         // Graves §4: X 22 in stroke in 1 in steps, Z 12 in in 0.5 in steps; constants per machine.
-        let xs: Vec<f64> = (0..=22).map(|i| i as f64 * 25.4).collect();
-        let zs: Vec<f64> = (0..=24).map(|i| i as f64 * 12.7).collect();
+        let xs: Vec<f64> = (0..=22).map(|i| f64::from(i) * 25.4).collect();
+        let zs: Vec<f64> = (0..=24).map(|i| f64::from(i) * 12.7).collect();
         let (x1, z1, x2) = (
             rng.random_range(-300.0..300.0),
             rng.random_range(-600.0..-100.0),

@@ -38,7 +38,7 @@ fn examples_write_and_read_back_identically() {
         let (mut s1, mut s2) = (m.new_state(), back.new_state());
         let (mut o1, mut o2) = (m.new_breakdown(), back.new_breakdown());
         for k in 0..200 {
-            let f = k as f64;
+            let f = f64::from(k);
             let mut input = m.new_input();
             input.pos_mm = [(f * 7.3) % 500.0, (f * 3.1) % 400.0, -((f * 5.7) % 300.0)];
             input.dir = [if k % 2 == 0 { 1 } else { -1 }, 1, -1];

@@ -90,8 +90,8 @@ fn recording(um_per_k: f64) -> String {
     let mut s = String::from("t_s,x_mm,z_mm,T_spindle_C,ex_um\n");
     let mut seed: u64 = 0x2545_f491_4f6c_dd1d;
     for i in 0..1200 {
-        let t = i as f64 * 2.0;
-        let x = ((i * 37) % 300) as f64;
+        let t = f64::from(i) * 2.0;
+        let x = f64::from((i * 37) % 300);
         let temp = 20.0
             + 3.0 * (t * std::f64::consts::TAU / 1500.0).sin()
             + 1.5 * (t * std::f64::consts::TAU / 470.0).sin();

@@ -429,12 +429,11 @@ impl SimConfig {
                 w.ramp_um_per_s
             );
             let words = u32::from(p.word.words());
-            let shifts = p.first_register as u32..p.first_register as u32 + 3 * words;
-            let hb = w.heartbeat_register as u32;
-            let on_handshake = p
-                .handshake
-                .as_ref()
-                .is_some_and(|h| hb == h.strobe_register as u32 || hb == h.ack_register as u32);
+            let shifts = u32::from(p.first_register)..u32::from(p.first_register) + 3 * words;
+            let hb = u32::from(w.heartbeat_register);
+            let on_handshake = p.handshake.as_ref().is_some_and(|h| {
+                hb == u32::from(h.strobe_register) || hb == u32::from(h.ack_register)
+            });
             ensure!(
                 !shifts.contains(&hb) && !on_handshake,
                 "plc.watchdog.heartbeat_register {hb} overlaps a shift, strobe or ack register"

@@ -14,7 +14,7 @@ pub struct Noise {
 pub fn stream_id(name: &str) -> u64 {
     // FNV-1a: stable across runs and platforms (std's hasher is randomly keyed).
     name.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
-        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
     })
 }
 

@@ -73,7 +73,7 @@ async fn modbus_tcp_serves_temperatures_and_takes_origin_shift_with_handshake() 
         .unwrap()
         .unwrap()
         .unwrap();
-    let force_n = (((f[0] as u32) << 16) | f[1] as u32) as i32 as f64 * 0.1;
+    let force_n = f64::from(((u32::from(f[0]) << 16) | u32::from(f[1])) as i32) * 0.1;
     assert!(
         force_n > 10.0,
         "in cut the force register carries the load: {force_n} N"
@@ -84,7 +84,7 @@ async fn modbus_tcp_serves_temperatures_and_takes_origin_shift_with_handshake() 
         .unwrap()
         .unwrap()
         .unwrap();
-    let int32 = |hi: u16, lo: u16| (((hi as u32) << 16) | lo as u32) as i32 as f64;
+    let int32 = |hi: u16, lo: u16| f64::from(((u32::from(hi) << 16) | u32::from(lo)) as i32);
     let (f, strain) = (force_n, int32(st[0], st[1]) * 0.01);
     assert!(
         (strain - 0.1 * f).abs() < 0.02,

@@ -45,7 +45,7 @@ fn table_with_step(
     hysteresis_um: f64,
     reversal_um: f64,
 ) -> TableCompensator {
-    let fwd: Vec<f64> = (0..=20).map(|i| step_um * i as f64).collect();
+    let fwd: Vec<f64> = (0..=20).map(|i| step_um * f64::from(i)).collect();
     let rev: Vec<f64> = fwd.iter().map(|v| v + reversal_um).collect();
     TableCompensator::new(
         0,

@@ -432,7 +432,7 @@ mod tests {
         .map(|n| (n.to_string(), Vec::new()))
         .collect();
         for i in 0..n {
-            let t = i as f64 * 0.05;
+            let t = f64::from(i) * 0.05;
             let x = 75.0 + 75.0 * (0.3 * t).sin();
             let y = 50.0 + 50.0 * (0.17 * t).sin();
             let z = 25.0 + 25.0 * (0.11 * t).sin();
@@ -443,7 +443,7 @@ mod tests {
             } else {
                 0.0
             };
-            let noise = |k: f64| 0.05 * (7.3 * i as f64 + k).sin();
+            let noise = |k: f64| 0.05 * (7.3 * f64::from(i) + k).sin();
             let ex = 0.0115 * x * (tx - 20.0) + 0.004 * f + noise(0.0);
             let ey = 0.003 * f + noise(1.0);
             let ez = -6.0 * (ts - 20.0) - 0.002 * f + noise(2.0);

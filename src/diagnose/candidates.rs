@@ -328,7 +328,7 @@ fn period_grid(travel_mm: f64, min_period_mm: f64) -> Vec<f64> {
     let hi = travel_mm / 1.5;
     let step = 1.0 / (3.0 * travel_mm);
     (0..)
-        .map(|k| 1.0 / (1.0 / lo - k as f64 * step))
+        .map(|k| 1.0 / (1.0 / lo - f64::from(k) * step))
         .take_while(|p| *p > 0.0 && *p <= hi)
         .collect()
 }

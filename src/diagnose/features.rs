@@ -435,7 +435,7 @@ mod tests {
         // One reading per target, 0..170 mm forward (run 0) then back (run 1), as Table 6.2.
         let x: Vec<f64> = (0..18)
             .chain((0..18).rev())
-            .map(|k| 10.0 * k as f64)
+            .map(|k| 10.0 * f64::from(k))
             .collect();
         let n = x.len();
         let rec = Recording::from_columns(vec![
@@ -479,7 +479,7 @@ mod tests {
 
     #[test]
     fn lowpass_step_response_reaches_63_percent_at_tau() {
-        let t: Vec<f64> = (0..=1000).map(|i| i as f64).collect();
+        let t: Vec<f64> = (0..=1000).map(f64::from).collect();
         let u: Vec<f64> = t
             .iter()
             .map(|&ti| if ti > 0.0 { 1.0 } else { 0.0 })

@@ -439,7 +439,8 @@ mod tests {
     #[test]
     fn gram_gain_equals_the_gram_schmidt_gain() {
         let n = 3000;
-        let col = |f: &dyn Fn(f64) -> f64| -> Vec<f64> { (0..n).map(|i| f(i as f64)).collect() };
+        let col =
+            |f: &dyn Fn(f64) -> f64| -> Vec<f64> { (0..n).map(|i| f(f64::from(i))).collect() };
         let basis = orthonormalize(
             &[],
             vec![
@@ -464,7 +465,7 @@ mod tests {
     #[test]
     fn fft_autocovariances_equal_the_direct_sums() {
         let c: Vec<f64> = (0..5000)
-            .map(|i| ((i as f64 * 0.37).sin() + (i as f64 * 1.91).cos() * 0.5).powi(3))
+            .map(|i| ((f64::from(i) * 0.37).sin() + (f64::from(i) * 1.91).cos() * 0.5).powi(3))
             .collect();
         let fft = autocovariances_fft(&c, 0.0, 40);
         for (k, a) in fft.iter().enumerate() {
@@ -496,7 +497,7 @@ mod tests {
 
     #[test]
     fn fit_recovers_exact_coefficients_and_projection_matches_fit() {
-        let x: Vec<f64> = (0..50).map(|i| i as f64).collect();
+        let x: Vec<f64> = (0..50).map(f64::from).collect();
         let one = vec![1.0; 50];
         let r: Vec<f64> = x
             .iter()
@@ -549,7 +550,10 @@ mod tests {
         let n = 20_000;
         let white: Vec<f64> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
         let ne = effective_n(&white);
-        assert!(ne > 0.85 * n as f64, "white noise keeps n_eff ≈ n: {ne}");
+        assert!(
+            ne > 0.85 * f64::from(n),
+            "white noise keeps n_eff ≈ n: {ne}"
+        );
         // AR(1) with ρ = 0.9: long-run variance factor (1+ρ)/(1−ρ) = 19 → n_eff ≈ 1053. Bartlett
         // weights bias it up a little at L = 4·n^{1/3} ≈ 108.
         let mut a = 0.0;

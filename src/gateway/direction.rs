@@ -103,8 +103,8 @@ mod tests {
         let mut t = 0.0;
         let mut worst = 0.0f64;
         let path = (0..=100)
-            .map(|k| k as f64 * 0.1)
-            .chain((0..100).map(|k| 10.0 - k as f64 * 0.1));
+            .map(|k| f64::from(k) * 0.1)
+            .chain((0..100).map(|k| 10.0 - f64::from(k) * 0.1));
         for p in path {
             t += 0.001;
             let w = l.update(p, t);

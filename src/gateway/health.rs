@@ -291,7 +291,7 @@ mod tests {
         // Stuck: the same bits for 30 s.
         let mut m = ChannelMonitor::new(limits());
         for k in 0..=31 {
-            m.observe(&sample(k as f64, 22.5));
+            m.observe(&sample(f64::from(k), 22.5));
         }
         assert_eq!(m.status(31.0).faults.first(), Some(&FaultKind::Stuck));
         m.observe(&sample(32.0, 22.6));
@@ -312,14 +312,14 @@ mod tests {
         });
         for k in 0..=10 {
             m.observe(&sample(
-                k as f64 * 0.1,
+                f64::from(k) * 0.1,
                 if k % 2 == 0 { 22.4 } else { 22.5 },
             ));
         }
         for k in 11..40 {
             m.observe(&Sample {
                 health: Health::Stale,
-                ..sample(k as f64 * 0.1, 22.4)
+                ..sample(f64::from(k) * 0.1, 22.4)
             });
         }
         assert_eq!(m.status(3.9).faults, vec![FaultKind::Stale]);
@@ -332,7 +332,7 @@ mod tests {
         assert!(m.status(6.0).faults.is_empty());
         // A real stuck reading is still caught, and stays stuck across a later gap.
         for k in 61..=72 {
-            m.observe(&sample(k as f64 * 0.1, 22.5));
+            m.observe(&sample(f64::from(k) * 0.1, 22.5));
         }
         assert_eq!(m.status(7.2).faults, vec![FaultKind::Stuck]);
         m.observe(&sample(10.0, 22.5));
@@ -355,7 +355,7 @@ mod tests {
             } else {
                 &[]
             };
-            for e in log.update("T_spindle_C", faults, k as f64) {
+            for e in log.update("T_spindle_C", faults, f64::from(k)) {
                 if e.started { starts += 1 } else { clears += 1 }
             }
         }

@@ -383,7 +383,7 @@ mod tests {
         let mut h = History::default();
         // 10 observations per second for 20 min: the fine ring keeps the last 900 s, 1 point each.
         for i in 0..12_000 {
-            let t = i as f64 * 0.1;
+            let t = f64::from(i) * 0.1;
             h.observe(&snap(t, t, &[]), 1000.0 + t);
         }
         let j = h.history_json(false);

@@ -151,7 +151,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(27);
         let rows: Vec<Vec<f64>> = (0..400)
             .map(|k| {
-                let t = k as f64 * 30.0;
+                let t = f64::from(k) * 30.0;
                 let t26 = 20.0 + 8.0 * (1.0 - (-t / 3600.0).exp());
                 let t29 = 20.0 + 5.0 * (1.0 - (-t / 1200.0).exp());
                 let t27 = 1.0 + 0.6 * t26 + 0.35 * t29 + rng.random_range(-0.02..0.02);
@@ -167,7 +167,7 @@ mod tests {
 
     #[test]
     fn constant_neighbour_is_rejected_with_reason() {
-        let rows: Vec<Vec<f64>> = (0..10).map(|k| vec![k as f64, 20.0]).collect();
+        let rows: Vec<Vec<f64>> = (0..10).map(|k| vec![f64::from(k), 20.0]).collect();
         assert!(matches!(
             NeighbourEstimate::fit("T1_C", &["T2_C"], &rows),
             Err(RecoveryError::RankDeficient { .. })

@@ -226,7 +226,7 @@ mod tests {
         let mut events = Vec::new();
         for k in 0..50 {
             r.on_link_down("CAN bus closed");
-            events.extend(r.publish(1.0 + k as f64 * 0.1));
+            events.extend(r.publish(1.0 + f64::from(k) * 0.1));
         }
         assert_eq!(starts(&events), [(FaultKind::Disconnected, true)]);
         assert!(!board.snapshot()[0].connected);

@@ -146,7 +146,7 @@ impl StatusSnapshot {
             "gauge",
             "1 when compensation is enabled.",
         );
-        let _ = writeln!(s, "retrocomp_enabled {}", self.enabled as u8);
+        let _ = writeln!(s, "retrocomp_enabled {}", u8::from(self.enabled));
         if let Some(m) = &self.model {
             family(
                 &mut s,
@@ -229,7 +229,7 @@ impl StatusSnapshot {
                 s,
                 "retrocomp_axis_tracking{{axis=\"{}\"}} {}",
                 esc(&a.axis),
-                (a.mode == Mode::Tracking) as u8
+                u8::from(a.mode == Mode::Tracking)
             );
         }
         family(
@@ -271,7 +271,7 @@ impl StatusSnapshot {
                 s,
                 "retrocomp_channel_healthy{{channel=\"{}\"}} {}",
                 esc(name),
-                (c.health == Health::Ok) as u8
+                u8::from(c.health == Health::Ok)
             );
         }
         family(
@@ -285,7 +285,7 @@ impl StatusSnapshot {
                 s,
                 "retrocomp_channel_substituted{{channel=\"{}\"}} {}",
                 esc(name),
-                c.substituted as u8
+                u8::from(c.substituted)
             );
         }
         family(
@@ -322,7 +322,7 @@ impl StatusSnapshot {
                 s,
                 "retrocomp_sink_connected{{sink=\"{}\"}} {}",
                 esc(&k.kind),
-                k.connected as u8
+                u8::from(k.connected)
             );
             family(
                 &mut s,
@@ -400,7 +400,7 @@ impl StatusSnapshot {
             "1 when the source's link is up.",
         );
         each(s, "retrocomp_source_connected", &|x| {
-            Some((x.connected as u8).to_string())
+            Some(u8::from(x.connected).to_string())
         });
         family(
             s,

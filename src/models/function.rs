@@ -389,21 +389,21 @@ mod tests {
         assert!(d(5.0) > 0.0);
         // Between 20 (3.0) and 40 (2.0) the curve stays inside [2, 3].
         for k in 0..=100 {
-            let v = t.eval(20.0 + 0.2 * k as f64, 1).0;
+            let v = t.eval(20.0 + 0.2 * f64::from(k), 1).0;
             assert!((2.0 - 1e-12..=3.0 + 1e-12).contains(&v), "overshoot {v}");
         }
     }
 
     #[test]
     fn lookup_finds_the_right_segment_for_even_rounded_and_uneven_tables() {
-        let even: Vec<f64> = (0..100).map(|i| i as f64 * 800.0 / 99.0).collect();
+        let even: Vec<f64> = (0..100).map(|i| f64::from(i) * 800.0 / 99.0).collect();
         let rounded: Vec<f64> = even.iter().map(|x| (x * 1e4).round() / 1e4).collect();
-        let uneven: Vec<f64> = (0..40).map(|i| (i as f64).powi(2) * 0.7).collect();
+        let uneven: Vec<f64> = (0..40).map(|i| f64::from(i).powi(2) * 0.7).collect();
         for xs in [even, rounded, uneven] {
             let t = Table::new(xs.clone(), xs.clone(), xs.clone(), Interpolation::Linear);
             let (lo, hi) = (xs[0], xs[xs.len() - 1]);
             for k in 0..=5000 {
-                let q = lo + (hi - lo) * k as f64 / 5000.0;
+                let q = lo + (hi - lo) * f64::from(k) / 5000.0;
                 let i = t.segment(q);
                 assert!(xs[i] <= q && (q <= xs[i + 1]), "q {q} got segment {i}");
                 // The table is the identity function: interpolation must return q itself.

@@ -231,7 +231,7 @@ mod tests {
     #[test]
     fn series_sin_cos_matches_libm() {
         for k in -100..=100 {
-            let th = k as f64 * 1e-4;
+            let th = f64::from(k) * 1e-4;
             let (s, c) = sin_cos(th);
             assert!(
                 (s - th.sin()).abs() <= 2e-18_f64.max(th.sin().abs() * 2e-16),

@@ -185,7 +185,7 @@ mod tests {
     fn assert_same(f: &ErrorFunction, lo: f64, hi: f64) {
         let c = Curve::new(f);
         let mut qs: Vec<f64> = (0..=400)
-            .map(|k| lo + (hi - lo) * k as f64 / 400.0)
+            .map(|k| lo + (hi - lo) * f64::from(k) / 400.0)
             .collect();
         qs.extend([
             lo - 7.0,
@@ -221,7 +221,7 @@ mod tests {
             assert_same(&ErrorFunction::Table(t), 0.0, 500.0);
         }
         // Even positions (the usual case: the guess is right or one off).
-        let x: Vec<f64> = (0..100).map(|k| k as f64 * 8.08).collect();
+        let x: Vec<f64> = (0..100).map(|k| f64::from(k) * 8.08).collect();
         let fwd: Vec<f64> = x.iter().map(|q| (q * 0.03).sin() * 5.0).collect();
         let rev: Vec<f64> = fwd.iter().map(|v| v - 1.5).collect();
         for interp in [Interpolation::Linear, Interpolation::C1] {

@@ -408,7 +408,9 @@ mod tests {
         let tau = 180.0;
         let mut cache = (f64::NAN, 0.0);
         // Fixed-rate sample times at t ≈ 1000 s: Δt jitters by float rounding around 1 ms.
-        let ts: Vec<f64> = (1_000_000..1_000_200).map(|k| k as f64 * 1e-3).collect();
+        let ts: Vec<f64> = (1_000_000..1_000_200)
+            .map(|k| f64::from(k) * 1e-3)
+            .collect();
         let mut steps: Vec<f64> = ts.windows(2).map(|w| w[1] - w[0]).collect();
         steps.extend([0.002, 0.002 * (1.0 + 5e-7), 0.0, 0.5, 1e-3]);
         assert!(steps.iter().any(|&d| d != 1e-3), "the fixture must jitter");

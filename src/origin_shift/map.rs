@@ -158,8 +158,8 @@ impl RegisterMap {
             if r.sign != 1 && r.sign != -1 {
                 return Err(err(format!("sign must be 1 or -1, got {}", r.sign)));
             }
-            let start = r.address as u32;
-            let end = start + r.data_type.words() as u32;
+            let start = u32::from(r.address);
+            let end = start + u32::from(r.data_type.words());
             if end > 0x1_0000 {
                 return Err(err(format!(
                     "register runs past address 65535 (start {start})"
@@ -169,14 +169,18 @@ impl RegisterMap {
         }
         if let Some(h) = &self.handshake {
             spans.push((
-                h.strobe_address as u32,
-                h.strobe_address as u32 + 1,
+                u32::from(h.strobe_address),
+                u32::from(h.strobe_address) + 1,
                 "strobe".into(),
             ));
-            spans.push((h.ack_address as u32, h.ack_address as u32 + 1, "ack".into()));
+            spans.push((
+                u32::from(h.ack_address),
+                u32::from(h.ack_address) + 1,
+                "ack".into(),
+            ));
         }
         if let Some(a) = self.heartbeat_address {
-            spans.push((a as u32, a as u32 + 1, "heartbeat_address".into()));
+            spans.push((u32::from(a), u32::from(a) + 1, "heartbeat_address".into()));
         }
         for (i, a) in spans.iter().enumerate() {
             for b in &spans[i + 1..] {
@@ -202,16 +206,16 @@ impl RegisterMap {
     /// The allow-list check: every word of the write must fall inside a value register or the strobe.
     pub fn check_write(&self, address: u16, len: usize) -> Result<(), MapError> {
         let allowed = |a: u32| {
-            self.axes
-                .iter()
-                .any(|r| a >= r.address as u32 && a < r.address as u32 + r.data_type.words() as u32)
-                || self
-                    .handshake
-                    .as_ref()
-                    .is_some_and(|h| a == h.strobe_address as u32)
-                || self.heartbeat_address.is_some_and(|h| a == h as u32)
+            self.axes.iter().any(|r| {
+                a >= u32::from(r.address)
+                    && a < u32::from(r.address) + u32::from(r.data_type.words())
+            }) || self
+                .handshake
+                .as_ref()
+                .is_some_and(|h| a == u32::from(h.strobe_address))
+                || self.heartbeat_address.is_some_and(|h| a == u32::from(h))
         };
-        if len == 0 || !(0..len as u32).all(|k| allowed(address as u32 + k)) {
+        if len == 0 || !(0..len as u32).all(|k| allowed(u32::from(address) + k)) {
             return Err(MapError::NotAllowed { address, len });
         }
         Ok(())
@@ -314,7 +318,7 @@ fn encode_words(r: &AxisRegister, value_um: f64) -> Result<([u16; 2], usize), Ma
             value_um,
         });
     }
-    let counts = (r.sign as f64 * value_um / r.lsb_um).round();
+    let counts = (f64::from(r.sign) * value_um / r.lsb_um).round();
     let (words, n) =
         encode_raw(counts, r.data_type, r.word_order).ok_or_else(|| MapError::OutOfRange {
             axis: r.axis.clone(),
@@ -334,7 +338,7 @@ pub fn decode_value(r: &AxisRegister, words: &[u16]) -> Result<f64, MapError> {
             expected,
             got: words.len(),
         })?;
-    Ok(r.sign as f64 * counts * r.lsb_um)
+    Ok(f64::from(r.sign) * counts * r.lsb_um)
 }
 
 #[cfg(test)]

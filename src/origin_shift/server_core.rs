@@ -132,27 +132,31 @@ impl ServerMap {
         let mut spans = Vec::new();
         for (i, a) in self.axes.iter().enumerate() {
             spans.push((
-                a.address as u32,
-                a.data_type.words() as u32,
+                u32::from(a.address),
+                u32::from(a.data_type.words()),
                 format!("axis[{i}]"),
             ));
         }
-        spans.push((self.heartbeat_address as u32, 1, "heartbeat_address".into()));
+        spans.push((
+            u32::from(self.heartbeat_address),
+            1,
+            "heartbeat_address".into(),
+        ));
         for (i, p) in self.positions.iter().enumerate() {
             spans.push((
-                p.address as u32,
-                p.data_type.words() as u32,
+                u32::from(p.address),
+                u32::from(p.data_type.words()),
                 format!("position[{i}]"),
             ));
         }
         for (i, h) in self.held.iter().enumerate() {
             let words = self
                 .held_register(h)
-                .map_or(1, |r| r.data_type.words() as u32);
-            spans.push((h.address as u32, words, format!("held[{i}]")));
+                .map_or(1, |r| u32::from(r.data_type.words()));
+            spans.push((u32::from(h.address), words, format!("held[{i}]")));
         }
         if let Some(m) = &self.write_marker {
-            spans.push((m.address as u32, 1, "write_marker".into()));
+            spans.push((u32::from(m.address), 1, "write_marker".into()));
         }
         spans
     }

@@ -461,7 +461,9 @@ fn read_spans(map: &RegisterMap) -> Vec<Span> {
     let mut spans: Vec<Span> = Vec::new();
     for (a, n) in regs {
         match spans.last_mut() {
-            Some((sa, sn)) if *sa as u32 + *sn as u32 == a as u32 && *sn + n <= 125 => *sn += n,
+            Some((sa, sn)) if u32::from(*sa) + u32::from(*sn) == u32::from(a) && *sn + n <= 125 => {
+                *sn += n;
+            }
             _ => spans.push((a, n)),
         }
     }

@@ -91,7 +91,7 @@ fn the_heartbeat_goes_out_first_every_period_and_counts_up() {
     for k in 1..=3u16 {
         let before = plc.writes.len();
         assert_eq!(
-            plc.period(&mut c, &wants(1.0, 1.0), k as f64 * 0.05),
+            plc.period(&mut c, &wants(1.0, 1.0), f64::from(k) * 0.05),
             Outcome::Ok
         );
         assert_eq!(
@@ -119,7 +119,7 @@ fn the_heartbeat_wraps() {
     };
     let mut c = SinkCore::new(m, vec![ax("x"), ax("y")]);
     let mut plc = Controller::holding(0.0, 0.0);
-    for _ in 0..=u16::MAX as u32 {
+    for _ in 0..=u32::from(u16::MAX) {
         plc.period(&mut c, &wants(0.0, 0.0), 0.0);
     }
     assert_eq!(plc.regs[6], 0, "65 536 periods: back to 0");
@@ -174,7 +174,7 @@ fn ramp_out_moves_every_axis_to_zero_within_the_cap_then_reports_done() {
     while !c.is_ramped_out() {
         // The engine still asks for a correction: ignored while ramping out.
         assert_eq!(
-            plc.period(&mut c, &wants(30.0, 30.0), 0.05 * periods as f64),
+            plc.period(&mut c, &wants(30.0, 30.0), 0.05 * f64::from(periods)),
             Outcome::Ok
         );
         let now = [plc.um(0), plc.um(1)];

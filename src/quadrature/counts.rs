@@ -83,7 +83,7 @@ mod tests {
         let mut q = CountQuantizer::new(0.5, 1).unwrap();
         let mut sum = 0;
         for k in 1..=20 {
-            let c = k as f64 * 0.1;
+            let c = f64::from(k) * 0.1;
             sum += q.delta_counts(c).unwrap();
             assert!(
                 q.residual_um(c).abs() <= 0.25 + 1e-9,

@@ -112,7 +112,7 @@ mod tests {
         for p in -8..8 {
             let (a0, b0) = levels_of_phase(p);
             let (a1, b1) = levels_of_phase(p + 1);
-            assert_eq!((a0 != a1) as u8 + (b0 != b1) as u8, 1, "phase {p}");
+            assert_eq!(u8::from(a0 != a1) + u8::from(b0 != b1), 1, "phase {p}");
         }
     }
 

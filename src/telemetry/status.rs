@@ -35,7 +35,7 @@ impl TelemetryStatus {
             "retrocomp_telemetry_connected",
             "gauge",
             "1 when the MQTT link is up and NBIRTH was sent.",
-            self.connected as u64,
+            u64::from(self.connected),
         );
         one(
             "retrocomp_telemetry_queued",

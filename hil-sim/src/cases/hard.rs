@@ -86,7 +86,7 @@ impl Family {
     /// Seed-stream salt: distinct per family so families are independent draws.
     fn salt(self) -> u64 {
         let h = self.name().bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
-            (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+            (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
         });
         h.rotate_left(17)
     }

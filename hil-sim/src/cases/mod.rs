@@ -107,10 +107,12 @@ pub(crate) fn draw_effect(rng: &mut ChaCha8Rng, id: &str, x_range: (f64, f64)) -
         }),
         "reversal_profile" => {
             let (lo, hi) = x_range;
-            let edges_mm = (0..=4).map(|k| lo + (hi - lo) * k as f64 / 4.0).collect();
+            let edges_mm = (0..=4)
+                .map(|k| lo + (hi - lo) * f64::from(k) / 4.0)
+                .collect();
             let start = uniform(rng, 8.0, 14.0);
             let b_um = (0..4)
-                .map(|k| start * (1.0 - 0.25 * k as f64) + uniform(rng, -0.5, 0.5))
+                .map(|k| start * (1.0 - 0.25 * f64::from(k)) + uniform(rng, -0.5, 0.5))
                 .collect();
             ex(EffectModel::ReversalProfile { edges_mm, b_um })
         }

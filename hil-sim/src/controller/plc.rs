@@ -313,8 +313,8 @@ mod tests {
         #[test]
         fn int32_words_round_trip_in_both_orders(v in any::<i32>(), lohi in any::<bool>()) {
             let order = if lohi { WordOrder::LowFirst } else { WordOrder::HighFirst };
-            let w = encode_shift(DataType::Int32, order, v as i64).unwrap();
-            prop_assert_eq!(decode_shift(DataType::Int32, order, &w), v as i64);
+            let w = encode_shift(DataType::Int32, order, i64::from(v)).unwrap();
+            prop_assert_eq!(decode_shift(DataType::Int32, order, &w), i64::from(v));
         }
 
         #[test]

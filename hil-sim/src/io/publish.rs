@@ -52,7 +52,7 @@ pub fn int32_words(value: Option<f64>, lsb: f64) -> [u16; 2] {
     let raw = match value {
         Some(v) if v.is_finite() => (v / lsb)
             .round()
-            .clamp(i32::MIN as f64 + 1.0, i32::MAX as f64)
+            .clamp(f64::from(i32::MIN) + 1.0, f64::from(i32::MAX))
             as i32,
         _ => i32::MIN,
     } as u32;

@@ -299,7 +299,7 @@ mod tests {
         let mut clears = 0;
         let mut seen = Vec::new();
         for k in 0..5000 {
-            let (_, ch) = s.advance(k as f64 * 0.001);
+            let (_, ch) = s.advance(f64::from(k) * 0.001);
             for c in ch {
                 if c.started {
                     starts += 1;
@@ -344,7 +344,7 @@ mod tests {
         let mut answering = Vec::new();
         let mut edges = Vec::new();
         for k in 0..8000 {
-            let t = k as f64 * 0.001;
+            let t = f64::from(k) * 0.001;
             let (active, ch) = s.advance(t);
             if answering.last().map(|(_, a)| *a) != Some(active.rtu_answers()) {
                 answering.push((k, active.rtu_answers()));
@@ -478,7 +478,7 @@ mod tests {
         let mut g = Garbage::new(7, 0.03);
         let mut bursts = 0;
         for k in 0..3000 {
-            let t = k as f64 * 0.001;
+            let t = f64::from(k) * 0.001;
             let b = g.poll(t, (1.0..2.0).contains(&t));
             if !(1.0..2.0).contains(&t) {
                 assert!(b.is_empty());

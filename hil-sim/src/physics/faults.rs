@@ -93,7 +93,7 @@ mod tests {
         assert!(n.apply(1.5, Some(3.0)).unwrap().is_nan());
         let mut sp = Fault::new(cfg(FaultKind::Spike), 1, 0);
         let spikes = (0..1000)
-            .filter(|i| sp.apply(1.0 + *i as f64 * 0.001, Some(0.0)) == Some(50.0))
+            .filter(|i| sp.apply(1.0 + f64::from(*i) * 0.001, Some(0.0)) == Some(50.0))
             .count();
         // 1 s window, one spike per 0.1 s on average: Poisson(10), far from 0 and from 1000.
         assert!((2..40).contains(&spikes), "{spikes} spikes");

@@ -89,7 +89,7 @@ impl EncoderChannel {
         if !counts.is_finite() || counts.abs() > 9.0e18 {
             return None;
         }
-        let r = self.range_counts() as i128;
+        let r = i128::from(self.range_counts());
         Some((counts as i128).rem_euclid(r) as u32)
     }
 
@@ -257,7 +257,7 @@ mod tests {
         // Moving +1 mm decreases the raw count for a negative-direction encoder.
         let a = cfg.raw_counts_for(10.0).unwrap();
         let b = cfg.raw_counts_for(11.0).unwrap();
-        assert_eq!(a as i64 - b as i64, 410);
+        assert_eq!(i64::from(a) - i64::from(b), 410);
     }
 
     #[test]
@@ -282,7 +282,7 @@ mod tests {
         let step_mm = ((1u64 << 24) / 3) as f64 / 1000.0;
         let mut last = 0.0;
         for k in 0..=9 {
-            let f = cfg.encode_position(k as f64 * step_mm).unwrap();
+            let f = cfg.encode_position(f64::from(k) * step_mm).unwrap();
             last = far.decode(&f, 0.0).unwrap().value;
         }
         assert!((last - 9.0 * step_mm).abs() < 1e-9, "{last}");
