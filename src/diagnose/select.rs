@@ -32,7 +32,7 @@ use super::features::Context;
 use super::heldout::Heldout;
 use super::lsq::{self, dot};
 use super::null_model::{
-    Null, contribution, delta_bic, golden_refine, prewhitened_test, score, score_cols,
+    NoiseModel, Null, contribution, delta_bic, golden_refine, prewhitened_test, score, score_cols,
     within_cells, without_cell_means,
 };
 
@@ -258,7 +258,12 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 .expect("non-empty");
             let top_contrib = contribution(ctx, &lib[top.idx], top.theta, &basis, r0);
             let r1_top: Vec<f64> = r0.iter().zip(&top_contrib).map(|(a, b)| a - b).collect();
-            let n_eff = lsq::effective_n(&without_cell_means(ctx, axis, &r1_top));
+            let noise_top = without_cell_means(ctx, axis, &r1_top);
+            let n_eff = lsq::effective_n(&noise_top);
+            // The error model of the prewhitened test, once per step (see `NoiseModel`).
+            let noise_model =
+                (!forward).then(|| NoiseModel::of(&without_cell_means(ctx, axis, r0), &noise_top));
+            drop(noise_top);
             for s in &mut scored {
                 s.delta_bic = delta_bic(n_eff, null_of(s.cells).rss0, s.gain, s.q);
             }
@@ -307,10 +312,24 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                 && !is_driver(ctx, &lib[scored[0].idx])
             {
                 let top = scored[0].delta_bic;
-                let passes_heldout = |s: &Scored| {
+                let cv_with = |s: &Scored| {
                     let mut trial = set_of(&terms);
                     trial.push((&lib[s.idx], s.theta));
-                    cv_of(&trial) < cv_before * (1.0 - opts.cv_min_gain)
+                    cv_of(&trial)
+                };
+                // Validated leave-one-block-out (recordings with axes), the driver must also
+                // predict the held-out blocks no worse than the sensor: a measured temperature
+                // that is the true input (a node heated by friction as well as by the spindle)
+                // is not replaced by a lag of rpm that only resembles it. Forward-validated
+                // recordings chose the winner by forward error already.
+                let sensor_cv = if forward {
+                    f64::INFINITY
+                } else {
+                    cv_with(&scored[0])
+                };
+                let passes_heldout = |s: &Scored| {
+                    let cv = cv_with(s);
+                    cv < cv_before * (1.0 - opts.cv_min_gain) && cv <= sensor_cv
                 };
                 if let Some(j) = scored.iter().position(|s| {
                     is_driver(ctx, &lib[s.idx])
@@ -322,6 +341,29 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
                     let s = scored.remove(j);
                     scored.insert(0, s);
                 }
+            }
+            // Slow noise where the held-out check is leave-one-block-out (see below): the
+            // strongest candidate that also passes the bar under the noise model
+            // (null_model::prewhitened_test) is the step's winner, so a spurious smooth term
+            // ranked above a real effect does not end the step.
+            if let Some(model) = &noise_model {
+                let passes = |s: &Scored| {
+                    let nl = null_of(s.cells);
+                    prewhitened_test(ctx, &lib[s.idx], s.theta, nl, n_raw + nl.extra, model)
+                        .is_some_and(|(dbic, p)| {
+                            dbic > opts.min_delta_bic && p * (tried as f64) < opts.alpha
+                        })
+                };
+                let Some(j) = scored
+                    .iter()
+                    .take(FORWARD_CHOICES)
+                    .take_while(|s| s.delta_bic > opts.min_delta_bic)
+                    .position(passes)
+                else {
+                    break;
+                };
+                let s = scored.remove(j);
+                scored.insert(0, s);
             }
             // Refine the winner's nonlinear parameter between its grid neighbours.
             let mut win = scored.remove(0);
@@ -369,9 +411,9 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             // where the held-out check is leave-one-block-out (it rewards a smooth term tracking
             // smooth noise); forward-validated (thermal-only) recordings keep the forward test as
             // their guard (on FL_THERMAL the extra test dropped every d3/d4 finding).
-            if !forward {
-                let whitened = prewhitened_test(ctx, cand, win.theta, axis, nl, n_raw + nl.extra);
-                if !whitened.is_some_and(|(_, dbic, p)| {
+            if let Some(model) = &noise_model {
+                let whitened = prewhitened_test(ctx, cand, win.theta, nl, n_raw + nl.extra, model);
+                if !whitened.is_some_and(|(dbic, p)| {
                     dbic > opts.min_delta_bic && p * (tried as f64) < opts.alpha
                 }) {
                     break;
