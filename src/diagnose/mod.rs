@@ -34,12 +34,57 @@ use heldout::Heldout;
 use report::{AlternativeOut, Dropped, Evidence, Finding, Report};
 use select::{Options, Term};
 
+/// Everything diagnose and its outputs (`--out`, `--model`, the benchmark's manifests) can fail
+/// with. Messages are the user's: the CLI prints them with their source chain (`{:#}`).
 #[derive(Debug, thiserror::Error)]
 pub enum DiagnoseError {
     #[error("signal `{signal}` has no simulation: add a `sim_{signal}` column or give --model")]
     NoSimulation { signal: String },
     #[error("the recording has only {0} rows; diagnose needs at least 8")]
     TooShort(usize),
+    /// `--model` or the written model needs a column the recording lacks.
+    #[error("the model needs column `{0}`, which the recording does not have")]
+    MissingColumn(String),
+    /// The machine model flagged an input row (invalid input or time going backwards).
+    #[error("model evaluation failed at recording line {line}: {flags:?}")]
+    ModelEvaluation {
+        line: u64,
+        flags: crate::models::EvalFlags,
+    },
+    /// The base model of `--out` (the input model or the default chain) could not be evaluated.
+    #[error("evaluating the base model")]
+    BaseModel(#[source] Box<DiagnoseError>),
+    /// The model with the found terms does not make a valid model file.
+    #[error(transparent)]
+    Model(#[from] crate::analysis::fit::to_model::ToModelError),
+    #[error(transparent)]
+    Recording(#[from] crate::recording::RecordingError),
+    /// Creating the output directory or writing report.json / found_terms.toml.
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+    /// Writing a named file (the message is the path, the source the I/O error).
+    #[error("{path}")]
+    Write {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    /// Drawing an SVG plot (plotters' message).
+    #[error("{0}")]
+    Plot(String),
+    /// A case manifest (`case_NNNN.json`) that cannot be read.
+    #[error("{}: {err}", path.display())]
+    ReadManifest {
+        path: std::path::PathBuf,
+        err: std::io::Error,
+    },
+    #[error("{}: not a case manifest: {err}", path.display())]
+    BadManifest {
+        path: std::path::PathBuf,
+        err: serde_json::Error,
+    },
 }
 
 /// One signal's result, kept for plots and the found-terms TOML.
@@ -94,7 +139,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Diagnosis, DiagnoseEr
                 .ok_or(DiagnoseError::NoSimulation { signal: s.clone() })?;
             Ok((s, sim))
         })
-        .collect::<Result<Vec<_>, _>>()?;
+        .collect::<Result<Vec<_>, DiagnoseError>>()?;
     diagnose_sims(rec, &sims, opts)
 }
 
