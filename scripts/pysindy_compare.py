@@ -34,6 +34,7 @@ import glob
 import json
 import math
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -228,7 +229,7 @@ def run_pysindy(paths, alphas, thresholds):
     results = []
     start = time.perf_counter()
     for p in paths:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         m = json.load(open(p[:-4] + ".json"))
         rec = read_recording(p)
         found = defaultdict(set)
@@ -239,6 +240,7 @@ def run_pysindy(paths, alphas, thresholds):
             for key, (eff, _, _) in sweep.items():
                 found[key] |= {(e, sig[1], d) for e, d in eff}
         m["_pysindy_s"] = time.perf_counter() - t0
+        m["_pysindy_cpu_s"] = time.process_time() - c0
         results.append((m, found))
         short = lambda f: sorted({(e, ax) for e, ax, _ in f})
         print(f"{m['case']}: cv {short(found['cv'])} bic {short(found['bic'])}", file=sys.stderr, flush=True)
@@ -285,8 +287,9 @@ def family_of(csv_path):
 
 def retrocomp_bench(binary, paths):
     """`retrocomp diagnose-bench --json` once per family (a directory of links to that family's
-    case pairs), so each family has its own wall-clock time. Returns {family: (summary, time_s)}
-    and the per-case scores of every family."""
+    case pairs), so each family has its own time. Returns {family: (summary, (wall_s, cpu_s))}
+    and the per-case scores of every family. CPU time (user + system of the child) is the figure
+    that compares on a loaded machine; wall time there is mostly waiting for a core."""
     by_family = defaultdict(list)
     for p in paths:
         by_family[family_of(p)].append(p)
@@ -296,13 +299,14 @@ def retrocomp_bench(binary, paths):
             for p in ps_:
                 for q in (p, p[:-4] + ".json"):
                     os.symlink(os.path.abspath(q), os.path.join(d, os.path.basename(q)))
-            start = time.perf_counter()
+            start, ru0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
             res = subprocess.run([binary, "diagnose-bench", "--cases", d, "--json"], capture_output=True, text=True, check=True).stdout
-            dt = time.perf_counter() - start
+            ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            dt = (time.perf_counter() - start, ru1.ru_utime - ru0.ru_utime + ru1.ru_stime - ru0.ru_stime)
         bench = json.loads(res)
         out[fam] = (bench["overall"], dt)
         cases.extend(bench["cases"])
-        print(f"retrocomp {fam}: {len(ps_)} cases in {dt:.1f} s", file=sys.stderr, flush=True)
+        print(f"retrocomp {fam}: {len(ps_)} cases in {dt[0]:.1f} s wall, {dt[1]:.1f} s CPU", file=sys.stderr, flush=True)
     return out, cases
 
 
@@ -318,7 +322,9 @@ def pooled(summaries):
 
 
 def pysindy_time(results, family=None):
-    return sum(m["_pysindy_s"] for m, _ in results if family is None or m.get("family", "standard") == family)
+    """(wall, CPU) seconds of PySINDy's cases of `family` (None: all)."""
+    ms = [m for m, _ in results if family is None or m.get("family", "standard") == family]
+    return sum(m["_pysindy_s"] for m in ms), sum(m["_pysindy_cpu_s"] for m in ms)
 
 
 def main():
@@ -333,25 +339,29 @@ def main():
     paths = sorted(glob.glob(os.path.join(a.cases, "*.csv")))
     paths = [p for p in paths if os.path.exists(p[:-4] + ".json")]
     rc_families, rc_cases = retrocomp_bench(a.retrocomp, paths)
-    r_time = sum(dt for _, dt in rc_families.values())
+    r_time = sum(dt[0] for _, dt in rc_families.values())
+    r_cpu = sum(dt[1] for _, dt in rc_families.values())
     results, s_time = run_pysindy(paths, alphas, thresholds)
     families = sorted({m.get("family", "standard") for m, _ in results}, key=lambda f: (f != "standard", f))
     hard = [f for f in families if f != "standard"]
     n_cases = lambda fams: sum(m.get("family", "standard") in fams for m, _ in results)
     print(f"pysindy {ps.__version__}; {len(paths)} cases in {a.cases}; alphas {alphas} (× n), thresholds {thresholds} (× σ_r)\n")
-    print("| family | method | recall (effect/noise ≥ 1) | FPR on nulls | spurious terms per effect case | effects / nulls | time (s) |")
-    print("|---|---|---|---|---|---|---|")
+    print("| family | method | recall (effect/noise ≥ 1) | FPR on nulls | spurious terms per effect case | effects / nulls | CPU time (s) | wall time (s) |")
+    print("|---|---|---|---|---|---|---|---|")
     groups = [(f, [f]) for f in families] + ([("hard families", hard)] if hard else []) + [("all", families)]
     for name, fams in groups:
         rb = pooled([rc_families[f][0] for f in fams if f in rc_families])
-        rt = sum(rc_families[f][1] for f in fams if f in rc_families)
-        print(f"| {name} | retrocomp diagnose | {rb['recall']:.3f} | {rb['fpr']:.3f} | {retrocomp_spurious(rc_cases, fams):.2f} | {rb['effects_scored']} / {rb['nulls']} | {rt:.1f} |")
-        st = sum(pysindy_time(results, f) for f in fams)
+        rt = sum(rc_families[f][1][0] for f in fams if f in rc_families)
+        rc = sum(rc_families[f][1][1] for f in fams if f in rc_families)
+        print(f"| {name} | retrocomp diagnose | {rb['recall']:.3f} | {rb['fpr']:.3f} | {retrocomp_spurious(rc_cases, fams):.2f} | {rb['effects_scored']} / {rb['nulls']} | {rc:.1f} | {rt:.1f} |")
+        st = sum(pysindy_time(results, f)[0] for f in fams)
+        sc = sum(pysindy_time(results, f)[1] for f in fams)
         for rule, label in (("cv", "PySINDy ridge STLSQ, (a, threshold) by leave-one-run-out CV"), ("bic", "PySINDy ridge STLSQ, (a, threshold) by BIC")):
             rec, fpr, tot, nul, spu = score(results, rule, fams)
             # Both rules share the same fits: the time is the sweep's, once.
-            print(f"| {name} | {label} | {rec:.3f} | {fpr:.3f} | {spu:.2f} | {tot} / {nul} | {st:.1f} (shared) |")
-    print(f"\nruntime ({n_cases(families)} cases): retrocomp diagnose-bench {r_time:.1f} s (incl. reading and scoring); PySINDy sweep + both selections {s_time:.1f} s\n")
+            print(f"| {name} | {label} | {rec:.3f} | {fpr:.3f} | {spu:.2f} | {tot} / {nul} | {sc:.1f} (shared) | {st:.1f} (shared) |")
+    p_cpu = pysindy_time(results)[1]
+    print(f"\nruntime ({n_cases(families)} cases; CPU / wall): retrocomp diagnose-bench {r_cpu:.1f} / {r_time:.1f} s (incl. reading and scoring); PySINDy sweep + both selections {p_cpu:.1f} / {s_time:.1f} s (one BLAS thread)\n")
     print("Fixed-setting sweep (one (a, threshold) for every case; all families):\n")
     print("| a (alpha / n) | threshold (× σ_r) | recall | FPR | spurious per effect case |")
     print("|---|---|---|---|---|")

@@ -22,8 +22,8 @@
 //! constant offset between recording and simulation (a measurement zero, not physics) are listed in
 //! a comment block at the top of the TOML and in the report — never silently dropped.
 
-use super::{DiagnoseError, Diagnosis};
 use super::model_slots::{Item, add_item};
+use super::{DiagnoseError, Diagnosis};
 use crate::analysis::fit::to_model::to_checked_toml;
 use crate::models::spec::{AxisSpec, Branch, ToolSpec};
 use crate::models::{Axis, MachineModel, ModelSpec};

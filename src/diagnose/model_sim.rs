@@ -70,7 +70,7 @@ pub fn simulate_axes(
         for (k, f) in ctx.axes.iter().enumerate() {
             if let Some(f) = f {
                 input.pos_mm[k] = f.pos_mm[i];
-                input.dir[k] = f.dir[i] as i8;
+                input.dir[k] = f.dir[i];
             }
         }
         input.t_s = ctx.t_s[i];

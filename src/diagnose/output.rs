@@ -7,8 +7,8 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use super::{DiagnoseError, Diagnosis};
 use super::model_out::{ModelOut, write_model};
+use super::{DiagnoseError, Diagnosis};
 use crate::models::MachineModel;
 use crate::recording::Recording;
 
