@@ -154,3 +154,17 @@ fn a_scan_has_velocity_only_while_moving() {
     }
     assert!(library(&ctx, 'x').iter().any(|c| c.kind == Kind::ServoLag));
 }
+
+#[test]
+fn diagnose_owned_gives_the_report_of_diagnose() {
+    // `retrocomp diagnose` without --out hands the recording over, so the error and sim columns
+    // are freed once the residuals are formed (issue 12 item 10): the report must not change.
+    let (rec, _) = step_and_dwell();
+    let a = diagnose(&rec, &Options::default()).unwrap();
+    let b = retrocomp::diagnose::diagnose_owned(rec, &Options::default()).unwrap();
+    assert!(!a.report.findings.is_empty());
+    assert_eq!(
+        serde_json::to_string(&a.report).unwrap(),
+        serde_json::to_string(&b.report).unwrap()
+    );
+}
