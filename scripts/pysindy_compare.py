@@ -34,8 +34,10 @@ import glob
 import json
 import math
 import os
+import resource
 import subprocess
 import sys
+import tempfile
 import time
 import warnings
 from collections import defaultdict
@@ -71,9 +73,17 @@ def lowpass(t, u, tau):
 
 
 def axis_features(t, x):
+    """Velocity, latched direction and distance since reversal, as retrocomp's features::latch:
+    velocity is the central difference of the commanded position, zero at every standstill row (a
+    row at the position of a neighbour), so a step between two dwell readings gives no velocity."""
     dx = np.diff(x, prepend=x[0])
-    dt = np.diff(t, prepend=t[0] - 1.0)
-    v = np.where(dt > 0, dx / np.where(dt > 0, dt, 1.0), 0.0)
+    n = len(x)
+    lo, hi = np.maximum(np.arange(n) - 1, 0), np.minimum(np.arange(n) + 1, n - 1)
+    db = 1e-4  # approach::RECORDED_DEADBAND_MM
+    idx = np.arange(n)
+    still = ((lo < idx) & (np.abs(x[lo] - x) <= db)) | ((hi > idx) & (np.abs(x[hi] - x) <= db))
+    dt = t[hi] - t[lo]
+    v = np.where(~still & (dt > 0), (x[hi] - x[lo]) / np.where(dt > 0, dt, 1.0), 0.0)
     d = np.zeros_like(x)
     since = np.zeros_like(x)
     cur, s = 0.0, 1e9
@@ -214,10 +224,12 @@ def pick(sweep, null, rule):
 
 
 def run_pysindy(paths, alphas, thresholds):
-    """Per case: the manifest and, per rule/setting, the set of (effect, axis) found."""
+    """Per case: the manifest, per rule/setting the set of (effect, axis) found, and the case's
+    wall-clock time (reading the CSV, building the library, the whole sweep and both selections)."""
     results = []
     start = time.perf_counter()
     for p in paths:
+        t0, c0 = time.perf_counter(), time.process_time()
         m = json.load(open(p[:-4] + ".json"))
         rec = read_recording(p)
         found = defaultdict(set)
@@ -227,6 +239,8 @@ def run_pysindy(paths, alphas, thresholds):
                 found[rule] |= {(e, sig[1], d) for e, d in pick(sweep, null, rule)}
             for key, (eff, _, _) in sweep.items():
                 found[key] |= {(e, sig[1], d) for e, d in eff}
+        m["_pysindy_s"] = time.perf_counter() - t0
+        m["_pysindy_cpu_s"] = time.process_time() - c0
         results.append((m, found))
         short = lambda f: sorted({(e, ax) for e, ax, _ in f})
         print(f"{m['case']}: cv {short(found['cv'])} bic {short(found['bic'])}", file=sys.stderr, flush=True)
@@ -240,12 +254,13 @@ def names(h, e, ax, d):
     return e == h["effect"] and ax == h["axis"] and (not rpm_truth or d == "rpm")
 
 
-def score(results, key, family=None):
+def score(results, key, families=None):
     """Recall, FPR, effects scored, nulls, and the mean number of spurious (effect, axis) pairs
-    named per scored effect case (what a method that names everything pays for its recall)."""
+    named per scored effect case (what a method that names everything pays for its recall), over
+    the cases of `families` (None: all)."""
     hits = total = nulls = fps = spurious = cases = 0
     for m, found in results:
-        if family and m.get("family", "standard") != family:
+        if families is not None and m.get("family", "standard") not in families:
             continue
         f = found[key]
         if not m["hidden"]:
@@ -260,16 +275,56 @@ def score(results, key, family=None):
     return hits / max(total, 1), fps / max(nulls, 1), total, nulls, spurious / max(cases, 1)
 
 
-def retrocomp_spurious(bench, family=None):
-    cs = [c for c in bench["cases"] if c["n_hidden"] > 0 and c["identifiable"] and c["snr"] is not None and c["snr"] >= 1.0
-          and (family is None or c["family"] == family)]
+def retrocomp_spurious(cases, families):
+    cs = [c for c in cases if c["n_hidden"] > 0 and c["identifiable"] and c["snr"] is not None and c["snr"] >= 1.0
+          and c["family"] in families]
     return sum(c["spurious"] for c in cs) / max(len(cs), 1)
 
 
-def retrocomp_bench(binary, cases_dir):
-    start = time.perf_counter()
-    out = subprocess.run([binary, "diagnose-bench", "--cases", cases_dir, "--json"], capture_output=True, text=True, check=True).stdout
-    return json.loads(out), time.perf_counter() - start
+def family_of(csv_path):
+    return json.load(open(csv_path[:-4] + ".json")).get("family", "standard")
+
+
+def retrocomp_bench(binary, paths):
+    """`retrocomp diagnose-bench --json` once per family (a directory of links to that family's
+    case pairs), so each family has its own time. Returns {family: (summary, (wall_s, cpu_s))}
+    and the per-case scores of every family. CPU time (user + system of the child) is the figure
+    that compares on a loaded machine; wall time there is mostly waiting for a core."""
+    by_family = defaultdict(list)
+    for p in paths:
+        by_family[family_of(p)].append(p)
+    out, cases = {}, []
+    for fam, ps_ in sorted(by_family.items()):
+        with tempfile.TemporaryDirectory(prefix=f"pysindy_cmp_{fam}_") as d:
+            for p in ps_:
+                for q in (p, p[:-4] + ".json"):
+                    os.symlink(os.path.abspath(q), os.path.join(d, os.path.basename(q)))
+            start, ru0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
+            res = subprocess.run([binary, "diagnose-bench", "--cases", d, "--json"], capture_output=True, text=True, check=True).stdout
+            ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            dt = (time.perf_counter() - start, ru1.ru_utime - ru0.ru_utime + ru1.ru_stime - ru0.ru_stime)
+        bench = json.loads(res)
+        out[fam] = (bench["overall"], dt)
+        cases.extend(bench["cases"])
+        print(f"retrocomp {fam}: {len(ps_)} cases in {dt[0]:.1f} s wall, {dt[1]:.1f} s CPU", file=sys.stderr, flush=True)
+    return out, cases
+
+
+def pooled(summaries):
+    """Recall and FPR over several families' summaries (recall = hits / effects scored and
+    FPR = false alarms / nulls, so the pooled ratios are the count-weighted means)."""
+    eff = sum(s["effects_scored"] for s in summaries)
+    nul = sum(s["nulls"] for s in summaries)
+    # A family with no nulls (or no scored effect) has a NaN ratio, serialised as null.
+    rec = sum((s["recall"] or 0.0) * s["effects_scored"] for s in summaries) / max(eff, 1)
+    fpr = sum((s["fpr"] or 0.0) * s["nulls"] for s in summaries) / max(nul, 1)
+    return {"recall": rec, "fpr": fpr, "effects_scored": eff, "nulls": nul}
+
+
+def pysindy_time(results, family=None):
+    """(wall, CPU) seconds of PySINDy's cases of `family` (None: all)."""
+    ms = [m for m, _ in results if family is None or m.get("family", "standard") == family]
+    return sum(m["_pysindy_s"] for m in ms), sum(m["_pysindy_cpu_s"] for m in ms)
 
 
 def main():
@@ -283,22 +338,30 @@ def main():
     thresholds = [float(s) for s in a.thresholds.split(",")]
     paths = sorted(glob.glob(os.path.join(a.cases, "*.csv")))
     paths = [p for p in paths if os.path.exists(p[:-4] + ".json")]
-    bench, r_time = retrocomp_bench(a.retrocomp, a.cases)
+    rc_families, rc_cases = retrocomp_bench(a.retrocomp, paths)
+    r_time = sum(dt[0] for _, dt in rc_families.values())
+    r_cpu = sum(dt[1] for _, dt in rc_families.values())
     results, s_time = run_pysindy(paths, alphas, thresholds)
     families = sorted({m.get("family", "standard") for m, _ in results}, key=lambda f: (f != "standard", f))
-    fam_bench = {f["family"]: f for f in bench["families"]}
+    hard = [f for f in families if f != "standard"]
+    n_cases = lambda fams: sum(m.get("family", "standard") in fams for m, _ in results)
     print(f"pysindy {ps.__version__}; {len(paths)} cases in {a.cases}; alphas {alphas} (× n), thresholds {thresholds} (× σ_r)\n")
-    print("| family | method | recall (effect/noise ≥ 1) | FPR on nulls | spurious terms per effect case | effects / nulls |")
-    print("|---|---|---|---|---|---|")
-    for fam in families + [None]:
-        name = fam or "all"
-        rb = fam_bench.get(fam) if fam else bench["overall"]
-        if rb:
-            print(f"| {name} | retrocomp diagnose | {rb['recall']:.3f} | {rb['fpr']:.3f} | {retrocomp_spurious(bench, fam):.2f} | {rb['effects_scored']} / {rb['nulls']} |")
+    print("| family | method | recall (effect/noise ≥ 1) | FPR on nulls | spurious terms per effect case | effects / nulls | CPU time (s) | wall time (s) |")
+    print("|---|---|---|---|---|---|---|---|")
+    groups = [(f, [f]) for f in families] + ([("hard families", hard)] if hard else []) + [("all", families)]
+    for name, fams in groups:
+        rb = pooled([rc_families[f][0] for f in fams if f in rc_families])
+        rt = sum(rc_families[f][1][0] for f in fams if f in rc_families)
+        rc = sum(rc_families[f][1][1] for f in fams if f in rc_families)
+        print(f"| {name} | retrocomp diagnose | {rb['recall']:.3f} | {rb['fpr']:.3f} | {retrocomp_spurious(rc_cases, fams):.2f} | {rb['effects_scored']} / {rb['nulls']} | {rc:.1f} | {rt:.1f} |")
+        st = sum(pysindy_time(results, f)[0] for f in fams)
+        sc = sum(pysindy_time(results, f)[1] for f in fams)
         for rule, label in (("cv", "PySINDy ridge STLSQ, (a, threshold) by leave-one-run-out CV"), ("bic", "PySINDy ridge STLSQ, (a, threshold) by BIC")):
-            rec, fpr, tot, nul, spu = score(results, rule, fam)
-            print(f"| {name} | {label} | {rec:.3f} | {fpr:.3f} | {spu:.2f} | {tot} / {nul} |")
-    print(f"\nruntime: retrocomp diagnose-bench {r_time:.1f} s; PySINDy sweep + both selections {s_time:.1f} s ({len(paths)} cases)\n")
+            rec, fpr, tot, nul, spu = score(results, rule, fams)
+            # Both rules share the same fits: the time is the sweep's, once.
+            print(f"| {name} | {label} | {rec:.3f} | {fpr:.3f} | {spu:.2f} | {tot} / {nul} | {sc:.1f} (shared) | {st:.1f} (shared) |")
+    p_cpu = pysindy_time(results)[1]
+    print(f"\nruntime ({n_cases(families)} cases; CPU / wall): retrocomp diagnose-bench {r_cpu:.1f} / {r_time:.1f} s (incl. reading and scoring); PySINDy sweep + both selections {p_cpu:.1f} / {s_time:.1f} s (one BLAS thread)\n")
     print("Fixed-setting sweep (one (a, threshold) for every case; all families):\n")
     print("| a (alpha / n) | threshold (× σ_r) | recall | FPR | spurious per effect case |")
     print("|---|---|---|---|---|")

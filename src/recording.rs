@@ -232,6 +232,17 @@ impl Recording {
     pub fn names(&self) -> &[String] {
         &self.names
     }
+    /// Drop every column but `t_s` that `keep` rejects (its memory is freed unless a context
+    /// still shares it): `diagnose` drops the error and sim columns once it has the residuals.
+    pub fn retain_columns(&mut self, mut keep: impl FnMut(&str) -> bool) {
+        let mask: Vec<bool> = self.names.iter().map(|n| n == "t_s" || keep(n)).collect();
+        let mut m = mask.iter();
+        self.cols
+            .retain(|_| *m.next().expect("one flag per column"));
+        let mut m = mask.iter();
+        self.names
+            .retain(|_| *m.next().expect("one flag per column"));
+    }
     pub fn col(&self, name: &str) -> Option<&[f64]> {
         self.names
             .iter()

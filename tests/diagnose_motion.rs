@@ -85,13 +85,13 @@ fn step_and_dwell_readings_have_no_velocity_and_the_latch_reads_every_approach()
     let ctx = Context::from_recording(&rec);
     let f = ctx.axis('x').unwrap();
     assert!(
-        f.vel_mm_s.iter().all(|v| *v == 0.0),
+        f.vel_mm_s().iter().all(|v| *v == 0.0),
         "standstill readings got a velocity"
     );
     // The approach direction of every reading, including the second visit of each turnaround
     // target (read right after the first, with the overshoot in between not recorded).
     let wrong: Vec<usize> = (0..truth_dir.len())
-        .filter(|&i| f.dir[i] != truth_dir[i])
+        .filter(|&i| f.dir_f64(i) != truth_dir[i])
         .collect();
     assert!(wrong.is_empty(), "rows with the wrong direction: {wrong:?}");
     assert!(
@@ -142,18 +142,29 @@ fn a_scan_has_velocity_only_while_moving() {
     .unwrap();
     let ctx = Context::from_recording(&rec);
     let f = ctx.axis('x').unwrap();
+    let vel = f.vel_mm_s();
     for i in 0..n {
         let still = (i > 0 && x[i] == x[i - 1]) || (i + 1 < n && x[i] == x[i + 1]);
         if still {
-            assert_eq!(f.vel_mm_s[i], 0.0, "row {i} at standstill");
+            assert_eq!(vel[i], 0.0, "row {i} at standstill");
         } else {
             let want = if i < 20 { 1.0 } else { -2.0 };
-            assert!(
-                (f.vel_mm_s[i] - want).abs() < 1e-9,
-                "row {i}: {}",
-                f.vel_mm_s[i]
-            );
+            assert!((vel[i] - want).abs() < 1e-9, "row {i}: {}", vel[i]);
         }
     }
     assert!(library(&ctx, 'x').iter().any(|c| c.kind == Kind::ServoLag));
+}
+
+#[test]
+fn diagnose_owned_gives_the_report_of_diagnose() {
+    // `retrocomp diagnose` without --out hands the recording over, so the error and sim columns
+    // are freed once the residuals are formed (issue 12 item 10): the report must not change.
+    let (rec, _) = step_and_dwell();
+    let a = diagnose(&rec, &Options::default()).unwrap();
+    let b = retrocomp::diagnose::diagnose_owned(rec, &Options::default()).unwrap();
+    assert!(!a.report.findings.is_empty());
+    assert_eq!(
+        serde_json::to_string(&a.report).unwrap(),
+        serde_json::to_string(&b.report).unwrap()
+    );
 }

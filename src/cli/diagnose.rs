@@ -67,13 +67,20 @@ pub(crate) fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
         ),
         None => None,
     };
+    // Without --out nothing needs the recording afterwards: diagnose takes it and drops the
+    // error and sim columns once it has the residuals (the 1M-row memory bound).
+    let mut rec = Some(rec);
     let d = match (&base, &a.model) {
         (Some(model), Some(m)) => {
-            let sims = diagnose::model_sim::simulate(model, &rec)
+            let rec = rec.as_ref().expect("kept");
+            let sims = diagnose::model_sim::simulate(model, rec)
                 .with_context(|| m.display().to_string())?;
-            diagnose::diagnose_with_sim(&rec, &sims, &Options::default())
+            diagnose::diagnose_with_sim(rec, &sims, &Options::default())
         }
-        _ => diagnose::diagnose(&rec, &Options::default()),
+        _ if a.out.is_none() => {
+            diagnose::diagnose_owned(rec.take().expect("not taken yet"), &Options::default())
+        }
+        _ => diagnose::diagnose(rec.as_ref().expect("kept"), &Options::default()),
     }
     .with_context(|| a.recording.display().to_string())?;
     let mut report = serde_json::to_value(&d.report)?;
@@ -86,7 +93,8 @@ pub(crate) fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
         print!("{}", d.report.to_text());
     }
     if let Some(dir) = &a.out {
-        let (files, m) = output::write_outputs_opts(&d, &rec, base.as_ref(), dir, a.fit_offset)?;
+        let rec = rec.as_ref().expect("kept with --out");
+        let (files, m) = output::write_outputs_opts(&d, rec, base.as_ref(), dir, a.fit_offset)?;
         if a.skip_bad_rows {
             // report.json (files[0]) carries the skipped rows too.
             std::fs::write(&files[0], serde_json::to_string_pretty(&report)?)?;

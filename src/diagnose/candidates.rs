@@ -92,7 +92,7 @@ impl Candidate {
         };
         match &self.kind {
             Kind::Scale => vec![own().pos_mm.iter().map(|x| x * 1e-3).collect()],
-            Kind::Backlash => vec![own().dir.iter().map(|d| d / 2.0).collect()],
+            Kind::Backlash => vec![own().dir.iter().map(|&d| f64::from(d) / 2.0).collect()],
             Kind::ReversalProfile { edges_mm } => {
                 let f = own();
                 (0..REVERSAL_ZONES)
@@ -102,7 +102,7 @@ impl Candidate {
                             .zip(&f.dir)
                             .map(|(x, d)| {
                                 if super::effects::zone_of(edges_mm, *x) == Some(k) {
-                                    d / 2.0
+                                    f64::from(*d) / 2.0
                                 } else {
                                     0.0
                                 }
@@ -184,14 +184,14 @@ impl Candidate {
                 ]
             }
             Kind::Force { channel } => vec![ctx.load(channel).expect("listed").to_vec()],
-            Kind::ServoLag => vec![own().vel_mm_s.iter().map(|v| -v).collect()],
+            Kind::ServoLag => vec![own().vel_mm_s().iter().map(|v| -v).collect()],
             Kind::ReversalSpike => {
                 let f = own();
                 vec![
                     f.dir
                         .iter()
-                        .zip(&f.dist_since_rev_mm)
-                        .map(|(d, s)| d * (-s / theta).exp())
+                        .zip(&f.dist_since_rev_mm())
+                        .map(|(&d, s)| f64::from(d) * (-s / theta).exp())
                         .collect(),
                 ]
             }
@@ -379,7 +379,7 @@ pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
         }
         // Servo lag is a candidate only where the axis moves: its column (velocity) is zero at every
         // standstill row, so a step-and-dwell recording read at standstill offers none.
-        if f.vel_mm_s.iter().filter(|v| **v != 0.0).count() >= MIN_MOVING_ROWS {
+        if f.vel_mm_s().iter().filter(|v| **v != 0.0).count() >= MIN_MOVING_ROWS {
             out.push(lin(Kind::ServoLag));
         }
         out.push(Candidate {

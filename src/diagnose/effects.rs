@@ -192,7 +192,10 @@ impl EffectModel {
                 f.pos_mm
                     .iter()
                     .zip(&f.dir)
-                    .map(|(x, d)| self.at_position(*x, *d).expect("positional effect"))
+                    .map(|(x, &d)| {
+                        self.at_position(*x, f64::from(d))
+                            .expect("positional effect")
+                    })
                     .collect()
             }
             Self::Squareness { other_axis, urad } => {
@@ -241,7 +244,7 @@ impl EffectModel {
                 .iter()
                 .map(|f| um_per_n * f)
                 .collect(),
-            Self::ServoLag { ms } => own()?.vel_mm_s.iter().map(|v| -ms * v).collect(),
+            Self::ServoLag { ms } => own()?.vel_mm_s().iter().map(|v| -ms * v).collect(),
             Self::ReversalSpike {
                 amplitude_um,
                 decay_mm,
@@ -249,8 +252,8 @@ impl EffectModel {
                 let f = own()?;
                 f.dir
                     .iter()
-                    .zip(&f.dist_since_rev_mm)
-                    .map(|(d, s)| amplitude_um * d * (-s / decay_mm).exp())
+                    .zip(&f.dist_since_rev_mm())
+                    .map(|(&d, s)| amplitude_um * f64::from(d) * (-s / decay_mm).exp())
                     .collect()
             }
             Self::TimeDrift { um_per_h } => ctx.t_s.iter().map(|t| um_per_h * t / 3600.0).collect(),

@@ -6,7 +6,7 @@
 //! Motion features come from the commanded positions (`<a>_mm`, DESIGN §4): direction is latched by
 //! the definition shared with the gateway ([`crate::approach`], deadband
 //! [`DIRECTION_DEADBAND_MM`]), so dwells keep the direction of their approach, as in ISO 230-2
-//! step-and-dwell runs; velocity is zero at every standstill row (see [`latch`]).
+//! step-and-dwell runs; velocity is zero at every standstill row (see [`velocity`]).
 
 use std::sync::Arc;
 
@@ -17,15 +17,22 @@ use crate::recording::{AXES, Recording};
 /// position change below which two rows are at the same place (standstill).
 pub const DIRECTION_DEADBAND_MM: f64 = crate::approach::RECORDED_DEADBAND_MM;
 
+/// Velocity and distance since reversal are not held: each is a function of the positions (and
+/// times) that only one candidate reads, recomputed on demand by [`AxisFeatures::vel_mm_s`] and
+/// [`AxisFeatures::dist_since_rev_mm`] with the same arithmetic (16 MB an axis on a 1M-row
+/// recording, issue 12 item 10).
 #[derive(Clone, Debug)]
 pub struct AxisFeatures {
     /// Shared with the recording (no copy), as every recorded column of [`Context`].
     pub pos_mm: Arc<[f64]>,
-    pub vel_mm_s: Vec<f64>,
-    /// Latched direction of the last approach: +1, −1, 0 before the first move.
-    pub dir: Vec<f64>,
-    /// Distance travelled since the direction last flipped (mm); large before the first reversal.
-    pub dist_since_rev_mm: Vec<f64>,
+    /// The recording's `t_s` (shared), for the velocity.
+    t_s: Arc<[f64]>,
+    /// Latched direction of the last approach: +1, −1, 0 before the first move (`i8`: exact, an
+    /// eighth of an f64 column).
+    pub dir: Vec<i8>,
+    /// Rows where the latch restarts (each `run` and inferred pass), with 0 and n: the passes are
+    /// `bounds[k]..bounds[k + 1]`.
+    bounds: Vec<usize>,
     /// Distinct positions (sorted) and each sample's index into them: functions of position alone
     /// (sin/cos of a cyclic candidate) are computed once per distinct position, a large saving on
     /// step-and-dwell recordings.
@@ -34,6 +41,29 @@ pub struct AxisFeatures {
 }
 
 impl AxisFeatures {
+    /// Velocity of the commanded motion (mm/s), zero at standstill rows (see [`velocity`]).
+    pub fn vel_mm_s(&self) -> Vec<f64> {
+        let mut vel = Vec::with_capacity(self.pos_mm.len());
+        for w in self.bounds.windows(2) {
+            vel.extend(velocity(&self.t_s[w[0]..w[1]], &self.pos_mm[w[0]..w[1]]));
+        }
+        vel
+    }
+
+    /// Distance travelled since the direction last flipped (mm); large before the first reversal.
+    pub fn dist_since_rev_mm(&self) -> Vec<f64> {
+        let mut dist = Vec::with_capacity(self.pos_mm.len());
+        for w in self.bounds.windows(2) {
+            dist.extend(latch(&self.pos_mm[w[0]..w[1]]).1);
+        }
+        dist
+    }
+
+    /// The latched direction of row `i` as a number (±1, 0).
+    pub fn dir_f64(&self, i: usize) -> f64 {
+        f64::from(self.dir[i])
+    }
+
     /// `f(pos)` for every sample, evaluating `f` once per distinct position.
     pub fn map_pos(&self, f: impl Fn(f64) -> f64) -> Vec<f64> {
         let vals: Vec<f64> = self.distinct_mm.iter().map(|&x| f(x)).collect();
@@ -108,7 +138,7 @@ impl Context {
         let run = rec.col("run");
         let axes = AXES.map(|a| {
             rec.col_shared(&format!("{a}_mm"))
-                .map(|p| axis_features(&t_s, p, run))
+                .map(|p| axis_features(Arc::clone(&t_s), p, run))
         });
         let grab = |names: Vec<String>| -> Vec<(String, Arc<[f64]>)> {
             names
@@ -243,9 +273,9 @@ impl Context {
         if runs >= 3 || n_cells < 2 * k {
             return (block, nb);
         }
-        let has = |b: usize, d: f64| (0..f.dir.len()).any(|i| block[i] == b && f.dir[i] == d);
-        let both = f.dir.contains(&1.0) && f.dir.contains(&-1.0);
-        if !both || (0..nb).all(|b| has(b, 1.0) && has(b, -1.0)) {
+        let has = |b: usize, d: i8| (0..f.dir.len()).any(|i| block[i] == b && f.dir[i] == d);
+        let both = f.dir.contains(&1) && f.dir.contains(&-1);
+        if !both || (0..nb).all(|b| has(b, 1) && has(b, -1)) {
             return (block, nb);
         }
         (cell.iter().map(|c| c % k).collect(), k)
@@ -256,7 +286,7 @@ impl Context {
 /// approach: its first samples take the direction of its own first move, like the first samples of
 /// the recording), so a reverse laser run that starts where the forward run ended is read as reverse.
 /// A readings-only recording (see [`pass_starts`]) restarts it at each inferred pass as well.
-fn axis_features(t_s: &[f64], pos: Arc<[f64]>, run: Option<&[f64]>) -> AxisFeatures {
+fn axis_features(t_s: Arc<[f64]>, pos: Arc<[f64]>, run: Option<&[f64]>) -> AxisFeatures {
     let n = pos.len();
     let mut starts = vec![0];
     if let Some(r) = run {
@@ -269,16 +299,10 @@ fn axis_features(t_s: &[f64], pos: Arc<[f64]>, run: Option<&[f64]>) -> AxisFeatu
         bounds.push(w[1]);
     }
     bounds.dedup();
-    let (mut vel, mut dir, mut dist) = (
-        Vec::with_capacity(n),
-        Vec::with_capacity(n),
-        Vec::with_capacity(n),
-    );
+    bounds.shrink_to_fit();
+    let mut dir = Vec::with_capacity(n);
     for w in bounds.windows(2) {
-        let (v, d, s) = latch(&t_s[w[0]..w[1]], &pos[w[0]..w[1]]);
-        vel.extend(v);
-        dir.extend(d);
-        dist.extend(s);
+        dir.extend(latch(&pos[w[0]..w[1]]).0);
     }
     let mut distinct_mm = pos.to_vec();
     distinct_mm.sort_by(f64::total_cmp);
@@ -296,9 +320,9 @@ fn axis_features(t_s: &[f64], pos: Arc<[f64]>, run: Option<&[f64]>) -> AxisFeatu
         .collect();
     AxisFeatures {
         pos_mm: pos,
-        vel_mm_s: vel,
+        t_s,
         dir,
-        dist_since_rev_mm: dist,
+        bounds,
         distinct_mm,
         distinct_idx,
     }
@@ -341,18 +365,13 @@ fn pass_starts(pos: &[f64]) -> Vec<usize> {
     out
 }
 
-/// Velocity, latched direction (the shared definition of [`crate::approach`]) and distance since
-/// reversal of one run.
-///
-/// Velocity is of the commanded motion at the row: a row whose position equals that of a
+/// Velocity of one run's commanded motion at each row: a row whose position equals that of a
 /// neighbouring row (within the deadband) is at standstill and has v = 0 (a step-and-dwell reading
 /// never gets a velocity from the step between two standstill readings); a moving row has the
 /// central difference (one-sided at the run's ends).
-fn latch(t_s: &[f64], pos: &[f64]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+fn velocity(t_s: &[f64], pos: &[f64]) -> Vec<f64> {
     let n = pos.len();
     let mut vel = vec![0.0; n];
-    let mut dir = vec![0.0; n];
-    let mut dist = vec![0.0; n];
     let same = |a: usize, b: usize| (pos[a] - pos[b]).abs() <= DIRECTION_DEADBAND_MM;
     for (i, v) in vel.iter_mut().enumerate() {
         let lo = i.saturating_sub(1);
@@ -363,6 +382,15 @@ fn latch(t_s: &[f64], pos: &[f64]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
             *v = (pos[hi] - pos[lo]) / dt;
         }
     }
+    vel
+}
+
+/// Latched direction (the shared definition of [`crate::approach`]) and distance since reversal
+/// of one run.
+fn latch(pos: &[f64]) -> (Vec<i8>, Vec<f64>) {
+    let n = pos.len();
+    let mut dir = vec![0i8; n];
+    let mut dist = vec![0.0; n];
     let mut l = ApproachLatch::new(DIRECTION_DEADBAND_MM);
     let mut since = 1e9; // no reversal seen yet: "far from any reversal"
     for i in 0..n {
@@ -376,16 +404,16 @@ fn latch(t_s: &[f64], pos: &[f64]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
         } else if i > 0 {
             since += (pos[i] - pos[i - 1]).abs();
         }
-        dir[i] = f64::from(l.dir());
+        dir[i] = l.dir();
         dist[i] = since;
     }
     // The first move's direction also applies to the samples before it (they were approached from
     // somewhere; the best guess is the same side), so the latch never has to invent a zero level.
-    if let Some(first) = dir.iter().position(|&v| v != 0.0) {
+    if let Some(first) = dir.iter().position(|&v| v != 0) {
         let d0 = dir[first];
         dir[..first].iter_mut().for_each(|v| *v = d0);
     }
-    (vel, dir, dist)
+    (dir, dist)
 }
 
 /// First-order low-pass of `u` with time constant `tau_s`, exact for a signal held between samples
@@ -402,12 +430,12 @@ mod tests {
     fn direction_latches_through_dwells_and_counts_distance_since_reversal() {
         let t: Vec<f64> = (0..7).map(f64::from).collect();
         let x = [0.0, 1.0, 1.0, 2.0, 1.5, 1.5, 1.0];
-        let f = axis_features(&t, Arc::from(&x[..]), None);
-        assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0]);
-        assert_eq!(&f.dist_since_rev_mm[4..], &[0.5, 0.5, 1.0]);
+        let f = axis_features(Arc::from(&t[..]), Arc::from(&x[..]), None);
+        assert_eq!(f.dir, vec![1, 1, 1, 1, -1, -1, -1]);
+        assert_eq!(&f.dist_since_rev_mm()[4..], &[0.5, 0.5, 1.0]);
         // Rows 1, 2 and 4, 5 are dwells: no velocity from the steps into or out of them; row 3
         // (the turnaround, moving in and out) has the central difference.
-        assert_eq!(f.vel_mm_s, vec![1.0, 0.0, 0.0, 0.25, 0.0, 0.0, -0.5]);
+        assert_eq!(f.vel_mm_s(), vec![1.0, 0.0, 0.0, 0.25, 0.0, 0.0, -0.5]);
     }
 
     #[test]
@@ -416,18 +444,18 @@ mod tests {
         // first of the reverse pass.
         let x = [0.0, 10.0, 20.0, 30.0, 30.0, 20.0, 10.0, 0.0];
         let t: Vec<f64> = (0..x.len()).map(|i| 10.0 * i as f64).collect();
-        let f = axis_features(&t, Arc::from(&x[..]), None);
-        assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0]);
+        let f = axis_features(Arc::from(&t[..]), Arc::from(&x[..]), None);
+        assert_eq!(f.dir, vec![1, 1, 1, 1, -1, -1, -1, -1]);
         // A sampled trajectory dwelling at its turnaround keeps the approach direction there.
         let x = [0.0, 10.0, 20.0, 30.0, 30.0, 30.0, 20.0, 10.0];
-        let f = axis_features(&t, Arc::from(&x[..]), None);
-        assert_eq!(f.dir, vec![1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, -1.0]);
+        let f = axis_features(Arc::from(&t[..]), Arc::from(&x[..]), None);
+        assert_eq!(f.dir, vec![1, 1, 1, 1, 1, 1, -1, -1]);
         // Two readings per visit, four at the turnaround: split two and two.
         let x = [0.0, 0.0, 10.0, 10.0, 20.0, 20.0, 20.0, 20.0, 10.0, 10.0];
         let t: Vec<f64> = (0..x.len()).map(|i| 10.0 * i as f64).collect();
-        let f = axis_features(&t, Arc::from(&x[..]), None);
-        assert_eq!(&f.dir[4..8], &[1.0, 1.0, -1.0, -1.0]);
-        assert!(f.vel_mm_s.iter().all(|v| *v == 0.0), "{:?}", f.vel_mm_s);
+        let f = axis_features(Arc::from(&t[..]), Arc::from(&x[..]), None);
+        assert_eq!(&f.dir[4..8], &[1, 1, -1, -1]);
+        assert!(f.vel_mm_s().iter().all(|v| *v == 0.0), "{:?}", f.vel_mm_s());
     }
 
     #[test]
@@ -452,19 +480,15 @@ mod tests {
         let dir = &ctx.axis('x').unwrap().dir;
         // Contiguous time blocks would put each direction in different folds.
         let (time_blocks, _) = ctx.blocks(5);
-        assert!(
-            (0..n)
-                .filter(|&i| time_blocks[i] == 0)
-                .all(|i| dir[i] == 1.0)
-        );
+        assert!((0..n).filter(|&i| time_blocks[i] == 0).all(|i| dir[i] == 1));
         let (cells, k) = ctx.position_cells('x').unwrap();
         assert_eq!(k, 18, "one cell per target");
         assert_eq!(cells[0], cells[n - 1]);
         let (fold, nf) = ctx.blocks_for('x', 5);
         assert_eq!(nf, 5);
         for b in 0..nf {
-            let d: Vec<f64> = (0..n).filter(|&i| fold[i] == b).map(|i| dir[i]).collect();
-            assert!(d.contains(&1.0) && d.contains(&-1.0), "fold {b}: {d:?}");
+            let d: Vec<i8> = (0..n).filter(|&i| fold[i] == b).map(|i| dir[i]).collect();
+            assert!(d.contains(&1) && d.contains(&-1), "fold {b}: {d:?}");
         }
         // With ≥ 3 runs the runs stay the folds.
         let rec3 = Recording::from_columns(vec![

@@ -37,7 +37,7 @@ fn regimes(ctx: &Context) -> Vec<(String, Vec<bool>)> {
         };
         let w = (hi - lo) / BINS as f64;
         for b in 0..BINS {
-            for (dname, dv) in [("forward", 1.0), ("reverse", -1.0)] {
+            for (dname, dv) in [("forward", 1), ("reverse", -1)] {
                 let m: Vec<bool> = (0..n)
                     .map(|i| bin_of(f.pos_mm[i], lo, hi) == b && f.dir[i] == dv)
                     .collect();

@@ -34,12 +34,57 @@ use heldout::Heldout;
 use report::{AlternativeOut, Dropped, Evidence, Finding, Report};
 use select::{Options, Term};
 
+/// Everything diagnose and its outputs (`--out`, `--model`, the benchmark's manifests) can fail
+/// with. Messages are the user's: the CLI prints them with their source chain (`{:#}`).
 #[derive(Debug, thiserror::Error)]
 pub enum DiagnoseError {
     #[error("signal `{signal}` has no simulation: add a `sim_{signal}` column or give --model")]
     NoSimulation { signal: String },
     #[error("the recording has only {0} rows; diagnose needs at least 8")]
     TooShort(usize),
+    /// `--model` or the written model needs a column the recording lacks.
+    #[error("the model needs column `{0}`, which the recording does not have")]
+    MissingColumn(String),
+    /// The machine model flagged an input row (invalid input or time going backwards).
+    #[error("model evaluation failed at recording line {line}: {flags:?}")]
+    ModelEvaluation {
+        line: u64,
+        flags: crate::models::EvalFlags,
+    },
+    /// The base model of `--out` (the input model or the default chain) could not be evaluated.
+    #[error("evaluating the base model")]
+    BaseModel(#[source] Box<DiagnoseError>),
+    /// The model with the found terms does not make a valid model file.
+    #[error(transparent)]
+    Model(#[from] crate::analysis::fit::to_model::ToModelError),
+    #[error(transparent)]
+    Recording(#[from] crate::recording::RecordingError),
+    /// Creating the output directory or writing report.json / found_terms.toml.
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+    /// Writing a named file (the message is the path, the source the I/O error).
+    #[error("{path}")]
+    Write {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    /// Drawing an SVG plot (plotters' message).
+    #[error("{0}")]
+    Plot(String),
+    /// A case manifest (`case_NNNN.json`) that cannot be read.
+    #[error("{}: {err}", path.display())]
+    ReadManifest {
+        path: std::path::PathBuf,
+        err: std::io::Error,
+    },
+    #[error("{}: not a case manifest: {err}", path.display())]
+    BadManifest {
+        path: std::path::PathBuf,
+        err: serde_json::Error,
+    },
 }
 
 /// One signal's result, kept for plots and the found-terms TOML.
@@ -95,8 +140,29 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Diagnosis, DiagnoseEr
                 .ok_or(DiagnoseError::NoSimulation { signal: s.clone() })?;
             Ok((s, sim))
         })
-        .collect::<Result<Vec<_>, _>>()?;
+        .collect::<Result<Vec<_>, DiagnoseError>>()?;
     diagnose_sims(rec, &sims, opts)
+}
+
+/// As [`diagnose`], taking the recording: the residuals are formed first and the error and sim
+/// columns dropped before the search (6 of a recording's columns, 50 MB at 10⁶ rows: issue 12
+/// item 10). The same arithmetic, so the same result as [`diagnose`].
+pub fn diagnose_owned(mut rec: Recording, opts: &Options) -> Result<Diagnosis, DiagnoseError> {
+    let mut residuals = vec![];
+    for s in rec.error_signals() {
+        let sim = rec
+            .col(&format!("sim_{s}"))
+            .ok_or(DiagnoseError::NoSimulation { signal: s.clone() })?;
+        let meas = rec.col(&s).expect("listed");
+        let r: Vec<f64> = meas.iter().zip(sim).map(|(m, s)| m - s).collect();
+        residuals.push((s, r));
+    }
+    rec.retain_columns(|n| {
+        !residuals
+            .iter()
+            .any(|(s, _)| n == s || n.strip_prefix("sim_") == Some(s.as_str()))
+    });
+    diagnose_residuals(&rec, residuals.into_iter().map(Ok), opts)
 }
 
 /// Diagnose against an explicit simulation per signal (`(signal, sim_um per row)`).
@@ -114,6 +180,23 @@ fn diagnose_sims(
     sims: &[(String, &[f64])],
     opts: &Options,
 ) -> Result<Diagnosis, DiagnoseError> {
+    // Each residual formed when its signal's turn comes (not all at once).
+    let residuals = sims.iter().map(|(signal, sim)| {
+        let meas = rec.col(signal).ok_or(DiagnoseError::NoSimulation {
+            signal: signal.clone(),
+        })?;
+        let r: Vec<f64> = meas.iter().zip(sim.iter()).map(|(m, s)| m - s).collect();
+        Ok((signal.clone(), r))
+    });
+    diagnose_residuals(rec, residuals, opts)
+}
+
+/// The diagnosis of residuals r = measured − simulated, one `(signal, r)` per error signal.
+fn diagnose_residuals(
+    rec: &Recording,
+    residuals: impl Iterator<Item = Result<(String, Vec<f64>), DiagnoseError>>,
+    opts: &Options,
+) -> Result<Diagnosis, DiagnoseError> {
     if rec.n_rows() < 8 {
         return Err(DiagnoseError::TooShort(rec.n_rows()));
     }
@@ -126,12 +209,10 @@ fn diagnose_sims(
     let mut ambiguous = false;
     let mut all_sq = 0.0;
     let mut all_n = 0usize;
-    for (signal, sim) in sims {
+    for res in residuals {
+        let (signal, r) = res?;
+        let signal = &signal;
         let axis = signal.chars().nth(1).expect("e<axis>_um");
-        let meas = rec.col(signal).ok_or(DiagnoseError::NoSimulation {
-            signal: signal.clone(),
-        })?;
-        let r: Vec<f64> = meas.iter().zip(sim.iter()).map(|(m, s)| m - s).collect();
         all_sq += r.iter().map(|v| v * v).sum::<f64>();
         all_n += r.len();
         mismatch.extend(locate::locate(&ctx, signal, &r));

@@ -22,10 +22,8 @@
 //! constant offset between recording and simulation (a measurement zero, not physics) are listed in
 //! a comment block at the top of the TOML and in the report — never silently dropped.
 
-use anyhow::Context as _;
-
-use super::Diagnosis;
 use super::model_slots::{Item, add_item};
+use super::{DiagnoseError, Diagnosis};
 use crate::analysis::fit::to_model::to_checked_toml;
 use crate::models::spec::{AxisSpec, Branch, ToolSpec};
 use crate::models::{Axis, MachineModel, ModelSpec};
@@ -54,7 +52,7 @@ pub fn model_with_findings(
     d: &Diagnosis,
     rec: &Recording,
     base: Option<&MachineModel>,
-) -> anyhow::Result<ModelOut> {
+) -> Result<ModelOut, DiagnoseError> {
     model_with_findings_opts(d, rec, base, false)
 }
 
@@ -67,7 +65,7 @@ pub fn model_with_findings_opts(
     rec: &Recording,
     base: Option<&MachineModel>,
     write_offset: bool,
-) -> anyhow::Result<ModelOut> {
+) -> Result<ModelOut, DiagnoseError> {
     let mut spec = match base {
         Some(m) => m.spec().clone(),
         None => default_spec(rec)?,
@@ -112,7 +110,8 @@ pub fn model_with_findings_opts(
     let ctx = &d.context;
     let mut added = vec![];
     let mut not_in_model = vec![];
-    let mut current = simulate_spec(&spec, rec).context("evaluating the base model")?;
+    let mut current =
+        simulate_spec(&spec, rec).map_err(|e| DiagnoseError::BaseModel(Box::new(e)))?;
     for s in &d.signals {
         let axis = Axis::from_letter(s.axis).expect("signal axis is x, y or z");
         let (models, refit_note) = writable_refit(s, ctx, &spec, rec, axis);
@@ -206,7 +205,7 @@ pub fn model_with_findings_opts(
             ));
         }
     }
-    let (text, model) = to_checked_toml(spec).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let (text, model) = to_checked_toml(spec)?;
     let mut head = String::new();
     head.push_str("# Machine model written by `retrocomp diagnose --out`.\n");
     head.push_str(&format!("# Base: {base_line}.\n"));
@@ -328,7 +327,7 @@ fn describe(item: &Item<'_>, why: &str) -> String {
 /// A chain of the recording's axes (X F Y Z order: the first axis on the workpiece side), no tool
 /// offset, tool along −z. Two axes at least (the model format needs 2–3): a one-axis recording
 /// gets a placeholder second axis, which the recording must then carry as a column.
-fn default_spec(rec: &Recording) -> anyhow::Result<ModelSpec> {
+fn default_spec(rec: &Recording) -> Result<ModelSpec, DiagnoseError> {
     let mut axes: Vec<Axis> = AXES
         .iter()
         .filter(|a| rec.col(&format!("{a}_mm")).is_some())
@@ -390,7 +389,7 @@ fn default_spec(rec: &Recording) -> anyhow::Result<ModelSpec> {
 }
 
 /// The spec evaluated on the recording: error per machine axis x/y/z, µm, per row.
-fn simulate_spec(spec: &ModelSpec, rec: &Recording) -> anyhow::Result<[Vec<f64>; 3]> {
+fn simulate_spec(spec: &ModelSpec, rec: &Recording) -> Result<[Vec<f64>; 3], DiagnoseError> {
     let model = MachineModel::from_spec(spec.clone());
     super::model_sim::simulate_axes(&model, rec)
 }
@@ -415,8 +414,14 @@ fn fmt_value(v: &serde_json::Value) -> String {
 }
 
 /// Write `model.toml` into `dir`.
-pub fn write_model(out: &ModelOut, dir: &std::path::Path) -> anyhow::Result<std::path::PathBuf> {
+pub fn write_model(
+    out: &ModelOut,
+    dir: &std::path::Path,
+) -> Result<std::path::PathBuf, DiagnoseError> {
     let p = dir.join("model.toml");
-    std::fs::write(&p, &out.toml).with_context(|| p.display().to_string())?;
+    std::fs::write(&p, &out.toml).map_err(|source| DiagnoseError::Write {
+        path: p.display().to_string(),
+        source,
+    })?;
     Ok(p)
 }

@@ -6,11 +6,15 @@
 use crate::models::MachineModel;
 use crate::recording::{AXES, Recording};
 
+use super::DiagnoseError;
 use super::features::Context;
 
 /// Evaluate `model` (exact HTM form) at every row; returns `(signal, sim_um)` for each error signal
 /// of the recording. A channel the model needs but the recording lacks is an error naming it.
-pub fn simulate(model: &MachineModel, rec: &Recording) -> anyhow::Result<Vec<(String, Vec<f64>)>> {
+pub fn simulate(
+    model: &MachineModel,
+    rec: &Recording,
+) -> Result<Vec<(String, Vec<f64>)>, DiagnoseError> {
     let sim = simulate_axes(model, rec)?;
     Ok(rec
         .error_signals()
@@ -26,12 +30,13 @@ pub fn simulate(model: &MachineModel, rec: &Recording) -> anyhow::Result<Vec<(St
 }
 
 /// The model's error along machine x, y, z (µm) at every row.
-pub fn simulate_axes(model: &MachineModel, rec: &Recording) -> anyhow::Result<[Vec<f64>; 3]> {
+pub fn simulate_axes(
+    model: &MachineModel,
+    rec: &Recording,
+) -> Result<[Vec<f64>; 3], DiagnoseError> {
     let ctx = Context::from_recording(rec);
-    let need = |name: String| -> anyhow::Result<&[f64]> {
-        rec.col(&name).ok_or_else(|| {
-            anyhow::anyhow!("the model needs column `{name}`, which the recording does not have")
-        })
+    let need = |name: String| -> Result<&[f64], DiagnoseError> {
+        rec.col(&name).ok_or(DiagnoseError::MissingColumn(name))
     };
     // A model with no position-dependent term needs no axis column (a thermal-only recording):
     // missing axes stay at the input's 0 mm, which no term reads.
@@ -44,17 +49,17 @@ pub fn simulate_axes(model: &MachineModel, rec: &Recording) -> anyhow::Result<[V
         .sensor_columns()
         .iter()
         .map(|n| need(n.clone()))
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<Result<_, _>>()?;
     let forces: Vec<&[f64]> = model
         .force_channels()
         .iter()
         .map(|n| need(format!("F_{n}_N")))
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<Result<_, _>>()?;
     let strains: Vec<&[f64]> = model
         .strain_channels()
         .iter()
         .map(|n| need(format!("strain_{n}_ue")))
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<Result<_, _>>()?;
     let tool = rec.col("tool_mm");
     let mut state = model.new_state();
     let mut out = model.new_breakdown();
@@ -65,7 +70,7 @@ pub fn simulate_axes(model: &MachineModel, rec: &Recording) -> anyhow::Result<[V
         for (k, f) in ctx.axes.iter().enumerate() {
             if let Some(f) = f {
                 input.pos_mm[k] = f.pos_mm[i];
-                input.dir[k] = f.dir[i] as i8;
+                input.dir[k] = f.dir[i];
             }
         }
         input.t_s = ctx.t_s[i];
@@ -81,11 +86,10 @@ pub fn simulate_axes(model: &MachineModel, rec: &Recording) -> anyhow::Result<[V
         input.tool_mm = tool.map(|t| t[i]);
         model.evaluate(&input, &mut state, &mut out);
         if out.flags.invalid_input || out.flags.time_backwards {
-            anyhow::bail!(
-                "model evaluation failed at recording line {}: {:?}",
-                rec.line_of_row(i),
-                out.flags
-            );
+            return Err(DiagnoseError::ModelEvaluation {
+                line: rec.line_of_row(i),
+                flags: out.flags,
+            });
         }
         for (s, v) in sim.iter_mut().zip(out.total_um) {
             s[i] = v;

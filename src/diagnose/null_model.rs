@@ -376,7 +376,7 @@ pub(super) fn without_cell_means(ctx: &Context, axis: char, r: &[f64]) -> Vec<f6
     }
     let cell = |i: usize| {
         let b = (((f.pos_mm[i] - lo) / (hi - lo) * BINS as f64) as usize).min(BINS - 1);
-        2 * b + usize::from(f.dir[i] > 0.0)
+        2 * b + usize::from(f.dir[i] > 0)
     };
     let mut sum = [0.0; 2 * BINS];
     let mut cnt = [0usize; 2 * BINS];

@@ -7,8 +7,8 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use super::Diagnosis;
 use super::model_out::{ModelOut, write_model};
+use super::{DiagnoseError, Diagnosis};
 use crate::models::MachineModel;
 use crate::recording::Recording;
 
@@ -55,7 +55,7 @@ pub fn write_outputs(
     rec: &Recording,
     base: Option<&MachineModel>,
     dir: &Path,
-) -> anyhow::Result<(Vec<std::path::PathBuf>, ModelOut)> {
+) -> Result<(Vec<std::path::PathBuf>, ModelOut), DiagnoseError> {
     write_outputs_opts(d, rec, base, dir, false)
 }
 
@@ -66,7 +66,7 @@ pub fn write_outputs_opts(
     base: Option<&MachineModel>,
     dir: &Path,
     write_offset: bool,
-) -> anyhow::Result<(Vec<std::path::PathBuf>, ModelOut)> {
+) -> Result<(Vec<std::path::PathBuf>, ModelOut), DiagnoseError> {
     std::fs::create_dir_all(dir)?;
     let mut written = vec![];
     let p = dir.join("report.json");

@@ -5,7 +5,12 @@ use std::path::{Path, PathBuf};
 
 use plotters::prelude::*;
 
-use super::Diagnosis;
+use super::{DiagnoseError, Diagnosis};
+
+/// plotters' errors carry no source: their message is the whole story.
+fn plot_err(e: impl std::fmt::Display) -> DiagnoseError {
+    DiagnoseError::Plot(e.to_string())
+}
 
 fn minmax(v: &[f64]) -> (f64, f64) {
     let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
@@ -25,9 +30,9 @@ fn scatter(
     x_name: &str,
     x: &[f64],
     series: &[(String, &[f64])],
-) -> anyhow::Result<()> {
+) -> Result<(), DiagnoseError> {
     let root = SVGBackend::new(path, (900, 540)).into_drawing_area();
-    root.fill(&WHITE)?;
+    root.fill(&WHITE).map_err(plot_err)?;
     let (x0, x1) = minmax(x);
     let all: Vec<f64> = series.iter().flat_map(|(_, v)| v.iter().copied()).collect();
     let (y0, y1) = minmax(&all);
@@ -36,12 +41,14 @@ fn scatter(
         .margin(10)
         .x_label_area_size(40)
         .y_label_area_size(60)
-        .build_cartesian_2d(x0..x1, y0..y1)?;
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(plot_err)?;
     chart
         .configure_mesh()
         .x_desc(x_name)
         .y_desc("residual (µm)")
-        .draw()?;
+        .draw()
+        .map_err(plot_err)?;
     let stride = (x.len() / 4000).max(1);
     let colors = [RGBColor(150, 150, 150), BLUE, RED, GREEN, MAGENTA];
     for (k, (label, v)) in series.iter().enumerate() {
@@ -52,7 +59,8 @@ fn scatter(
                     .zip(v.iter())
                     .step_by(stride)
                     .map(|(a, b)| Circle::new((*a, *b), 2, c.filled())),
-            )?
+            )
+            .map_err(plot_err)?
             .label(label.as_str())
             .legend(move |(px, py)| Circle::new((px + 8, py), 3, c.filled()));
     }
@@ -60,12 +68,13 @@ fn scatter(
         .configure_series_labels()
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK)
-        .draw()?;
-    root.present()?;
+        .draw()
+        .map_err(plot_err)?;
+    root.present().map_err(plot_err)?;
     Ok(())
 }
 
-pub fn write_plots(d: &Diagnosis, dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+pub fn write_plots(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, DiagnoseError> {
     let ctx = &d.context;
     let mut feats: Vec<(String, &[f64])> = ctx
         .axes

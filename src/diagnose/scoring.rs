@@ -417,11 +417,15 @@ impl Summary {
 }
 
 /// Read a case manifest (`case_NNNN.json`).
-pub fn read_manifest(path: &std::path::Path) -> anyhow::Result<CaseManifest> {
-    let text =
-        std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    serde_json::from_str(&text)
-        .map_err(|e| anyhow::anyhow!("{}: not a case manifest: {e}", path.display()))
+pub fn read_manifest(path: &std::path::Path) -> Result<CaseManifest, super::DiagnoseError> {
+    let text = std::fs::read_to_string(path).map_err(|err| super::DiagnoseError::ReadManifest {
+        path: path.to_path_buf(),
+        err,
+    })?;
+    serde_json::from_str(&text).map_err(|err| super::DiagnoseError::BadManifest {
+        path: path.to_path_buf(),
+        err,
+    })
 }
 
 #[cfg(test)]

@@ -495,6 +495,10 @@ pub fn select(ctx: &Context, axis: char, r: &[f64], opts: &Options) -> SignalSel
             break;
         }
         let n_eff = lsq::effective_n(&without_cell_means(ctx, axis, &resid));
+        drop(resid);
+        // The running basis is rebuilt after an exchange and not read without one: freed while
+        // the exchange search builds its own (75 MB each on a 1M-row recording).
+        drop(std::mem::take(&mut basis));
         let Some(ex) = super::swap::best_exchange(
             ctx,
             r,
@@ -578,7 +582,11 @@ mod tests {
         .unwrap();
         let ctx = Context::from_recording(&rec);
         let dir = &ctx.axis('x').unwrap().dir;
-        let r: Vec<f64> = dir.iter().zip(&noise).map(|(d, e)| 3.0 * d + e).collect();
+        let r: Vec<f64> = dir
+            .iter()
+            .zip(&noise)
+            .map(|(&d, e)| 3.0 * f64::from(d) + e)
+            .collect();
         let s = select(&ctx, 'x', &r, &Options::default());
         assert_eq!(
             s.terms.len(),
