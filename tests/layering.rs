@@ -357,18 +357,6 @@ fn only_the_binary_uses_anyhow() {
         if rel.starts_with("cli/") || rel.starts_with("bin/") || rel == "main.rs" {
             continue;
         }
-        // Helper diag6's branch converts these (issue 14.6); delete once it is merged.
-        if [
-            "diagnose/output.rs",
-            "diagnose/plots.rs",
-            "diagnose/model_out.rs",
-            "diagnose/model_sim.rs",
-            "diagnose/scoring.rs",
-        ]
-        .contains(&rel.as_str())
-        {
-            continue;
-        }
         let text = std::fs::read_to_string(&f).unwrap();
         for (n, l) in text.lines().enumerate() {
             if !l.trim_start().starts_with("//") && l.contains("anyhow") {
