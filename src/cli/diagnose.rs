@@ -71,7 +71,8 @@ pub(crate) fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
         (Some(model), Some(m)) => {
             let sims = diagnose::model_sim::simulate(model, &rec)
                 .with_context(|| m.display().to_string())?;
-            diagnose::diagnose_with_sim(&rec, &sims, &Options::default())
+            let inputs = diagnose::model_sim::regressors(model, &rec);
+            diagnose::diagnose_with_model_sim(&rec, &sims, &inputs, &Options::default())
         }
         _ => diagnose::diagnose(&rec, &Options::default()),
     }
