@@ -119,11 +119,8 @@ fn fl_thermal_judge_emulated_by_leaving_one_spindle_block_out() {
         ));
     }
     for rpm in [2500.0, 3750.0] {
-        let diag = |r: &Row, m: usize| r.diag[m];
-        let shape = |r: &Row, m: usize| r.shape[m];
-        let whats: [(&str, &dyn Fn(&Row, usize) -> f64); 2] =
-            [("diagnose", &diag), ("shipped shape", &shape)];
-        for (what, pick) in whats {
+        for (what, shipped) in [("diagnose", false), ("shipped shape", true)] {
+            let pick = |r: &Row, m: usize| if shipped { r.shape[m] } else { r.diag[m] };
             for (mode, m) in [("alone", 0), ("history", 1)] {
                 let mut cuts: Vec<f64> = rows
                     .iter()
