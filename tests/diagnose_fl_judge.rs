@@ -45,7 +45,7 @@ fn judge_split(d: &Data, split: f64, tmp: &Path) -> Vec<Row> {
         .iter()
         .map(|&ch| {
             let dir = tmp.join(format!("{k}_{ch}"));
-            let (sim, model, report) = fit_channel(d, ch, 0..k, &dir);
+            let (sim, model, report) = fit_channel(d, ch, &(0..k).collect::<Vec<_>>(), &dir);
             std::fs::write(dir.join("report.txt"), report).unwrap();
             let meas = &d.col(ch)[k..n];
             let score = |m: &Path| {

@@ -32,7 +32,7 @@ fn fl_thermal_found_model_predicts_the_unseen_second_half() {
     let mut table = String::new();
     for ch in ["d1_um", "d2_um", "d3_um", "d4_um", "d5_um"] {
         let dir = tmp.path().join(ch);
-        let (sim, model, report) = fit_channel(&d, ch, 0..h, &dir);
+        let (sim, model, report) = fit_channel(&d, ch, &(0..h).collect::<Vec<_>>(), &dir);
         let meas = &d.col(ch)[h..n];
         let p_sim = eval(&sim, &next);
         let p_diag = eval(&model, &next);
@@ -81,7 +81,7 @@ fn fl_thermal_models_fitted_on_everything_run_forward() {
     let centred = |v: Vec<f64>| rms(v.into_iter());
     for ch in ["d1_um", "d2_um", "d3_um", "d4_um", "d5_um"] {
         let dir = root.join(ch.trim_end_matches("_um"));
-        let (sim, model, report) = fit_channel(&d, ch, 0..n, &dir);
+        let (sim, model, report) = fit_channel(&d, ch, &(0..n).collect::<Vec<_>>(), &dir);
         std::fs::write(dir.join("report.txt"), &report).unwrap();
         // Terms the exchange step replaced are reported (issue 12 point 3): on this file d1 and
         // d5 each lose a first-step term to an exchange, which must be listed under `dropped`.

@@ -75,7 +75,8 @@ pub(crate) fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
             let rec = rec.as_ref().expect("kept");
             let sims = diagnose::model_sim::simulate(model, rec)
                 .with_context(|| m.display().to_string())?;
-            diagnose::diagnose_with_sim(rec, &sims, &Options::default())
+            let inputs = diagnose::model_sim::regressors(model, rec);
+            diagnose::diagnose_with_model_sim(rec, &sims, &inputs, &Options::default())
         }
         _ if a.out.is_none() => {
             diagnose::diagnose_owned(rec.take().expect("not taken yet"), &Options::default())

@@ -141,7 +141,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Diagnosis, DiagnoseEr
             Ok((s, sim))
         })
         .collect::<Result<Vec<_>, DiagnoseError>>()?;
-    diagnose_sims(rec, &sims, opts)
+    diagnose_sims(rec, &sims, &[], opts)
 }
 
 /// As [`diagnose`], taking the recording: the residuals are formed first and the error and sim
@@ -162,7 +162,7 @@ pub fn diagnose_owned(mut rec: Recording, opts: &Options) -> Result<Diagnosis, D
             .iter()
             .any(|(s, _)| n == s || n.strip_prefix("sim_") == Some(s.as_str()))
     });
-    diagnose_residuals(&rec, residuals.into_iter().map(Ok), opts)
+    diagnose_residuals(&rec, residuals.into_iter().map(Ok), &[], opts)
 }
 
 /// Diagnose against an explicit simulation per signal (`(signal, sim_um per row)`).
@@ -171,13 +171,26 @@ pub fn diagnose_with_sim(
     sims: &[(String, Vec<f64>)],
     opts: &Options,
 ) -> Result<Diagnosis, DiagnoseError> {
+    diagnose_with_model_sim(rec, sims, &[], opts)
+}
+
+/// [`diagnose_with_sim`] for a simulation that is a machine model, with its thermal inputs
+/// (`model_sim::regressors`): forward validation then refits the simulation's gains per fold
+/// (`heldout.rs`), so a term is judged against the simulation's own extrapolation error.
+pub fn diagnose_with_model_sim(
+    rec: &Recording,
+    sims: &[(String, Vec<f64>)],
+    sim_inputs: &[Vec<f64>],
+    opts: &Options,
+) -> Result<Diagnosis, DiagnoseError> {
     let sims: Vec<(String, &[f64])> = sims.iter().map(|(s, v)| (s.clone(), &v[..])).collect();
-    diagnose_sims(rec, &sims, opts)
+    diagnose_sims(rec, &sims, sim_inputs, opts)
 }
 
 fn diagnose_sims(
     rec: &Recording,
     sims: &[(String, &[f64])],
+    sim_inputs: &[Vec<f64>],
     opts: &Options,
 ) -> Result<Diagnosis, DiagnoseError> {
     // Each residual formed when its signal's turn comes (not all at once).
@@ -188,13 +201,14 @@ fn diagnose_sims(
         let r: Vec<f64> = meas.iter().zip(sim.iter()).map(|(m, s)| m - s).collect();
         Ok((signal.clone(), r))
     });
-    diagnose_residuals(rec, residuals, opts)
+    diagnose_residuals(rec, residuals, sim_inputs, opts)
 }
 
 /// The diagnosis of residuals r = measured − simulated, one `(signal, r)` per error signal.
 fn diagnose_residuals(
     rec: &Recording,
     residuals: impl Iterator<Item = Result<(String, Vec<f64>), DiagnoseError>>,
+    sim_inputs: &[Vec<f64>],
     opts: &Options,
 ) -> Result<Diagnosis, DiagnoseError> {
     if rec.n_rows() < 8 {
@@ -216,7 +230,7 @@ fn diagnose_residuals(
         all_sq += r.iter().map(|v| v * v).sum::<f64>();
         all_n += r.len();
         mismatch.extend(locate::locate(&ctx, signal, &r));
-        let mut sel = select::select(&ctx, axis, &r, opts);
+        let mut sel = select::select(&ctx, axis, &r, sim_inputs, opts);
         // Parsimony after the final refit (issue 12 point 3), one term at a time, the rest refitted
         // jointly after each drop: first a term whose 95 % interval of its gain includes 0 once
         // every term is fitted jointly (the weakest first); then a term whose removal does not
@@ -224,7 +238,7 @@ fn diagnose_residuals(
         // to enter (`cv_min_gain`), the one whose removal leaves the lowest held-out RMS first.
         // The second test also catches pairs of near-collinear lags with opposite gains that fit
         // a difference of two sensors without predicting better than one of them.
-        let heldout = Heldout::new(&ctx, axis, &r, opts);
+        let heldout = Heldout::new(&ctx, axis, &r, sim_inputs, opts);
         let (models, cis, after_coef, refit_terms) = loop {
             let (models, cis, after_coef, refit_terms) = joint_refit(&ctx, &r, &sel.terms);
             let Some((k, reason, with, without)) = parsimony_drop(&heldout, &sel.terms, &cis, opts)
@@ -655,7 +669,7 @@ mod tests {
             within_cells: false,
         };
         let opts = Options::default();
-        let heldout = Heldout::new(&ctx, 'z', &r, &opts);
+        let heldout = Heldout::new(&ctx, 'z', &r, &[], &opts);
         assert!(
             heldout.forward,
             "a thermal-only recording is validated forward"

@@ -97,3 +97,32 @@ pub fn simulate_axes(
     }
     Ok(sim)
 }
+
+/// The simulation's thermal inputs, one column per sensor the model reads: the reading (or
+/// |reading|^exponent) through the sensor's first-order lag when it has one (started at steady
+/// state on the first row, as the model starts it), minus its reference. A polynomial_dt term is
+/// linear in these, so a forward fold can refit the simulation's thermal gains on them
+/// ([`super::heldout`]). Sensors whose column the recording lacks are left out (the simulation
+/// would have failed on them).
+pub fn regressors(model: &MachineModel, rec: &Recording) -> Vec<Vec<f64>> {
+    let Some(t) = rec.col("t_s") else {
+        return vec![];
+    };
+    model
+        .spec()
+        .sensors
+        .iter()
+        .filter_map(|s| {
+            let u: Vec<f64> = rec
+                .col(&s.column_name())?
+                .iter()
+                .map(|&v| s.input(v))
+                .collect();
+            let y = match s.tau_s {
+                Some(tau) => crate::models::lag::series(t, &u, tau, u[0]),
+                None => u,
+            };
+            Some(y.into_iter().map(|v| v - s.reference_c).collect())
+        })
+        .collect()
+}

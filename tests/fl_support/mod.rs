@@ -50,8 +50,14 @@ impl Data {
             .map(String::as_str)
             .collect()
     }
-    /// `t_s, rpm, T_*` (+ `ez_um` = channel `ch`) over `rows`.
-    pub(crate) fn write(&self, path: &Path, rows: std::ops::Range<usize>, ch: Option<&str>) {
+    /// `t_s, rpm, T_*` (+ `ez_um` = channel `ch`) over `rows` (row indices, in order; a set with
+    /// a gap in time, e.g. one spindle block left out, is written as one file).
+    pub(crate) fn write(
+        &self,
+        path: &Path,
+        rows: impl IntoIterator<Item = usize>,
+        ch: Option<&str>,
+    ) {
         let mut names = vec!["t_s", "rpm"];
         names.extend(self.temps());
         let mut out = names.join(",");
@@ -83,21 +89,40 @@ pub(crate) fn corr(a: &[f64], b: &[f64]) -> f64 {
     sab / (saa * sbb).sqrt()
 }
 
-/// The simulation: static regression of channel `ch` on its 3 best-correlated temperatures over
-/// `rows`, as a machine model TOML (reference 0 °C, e0 = intercept).
-pub(crate) fn sim_model(d: &Data, ch: &str, rows: std::ops::Range<usize>) -> (String, Vec<String>) {
-    let y = &d.col(ch)[rows.clone()];
-    let mut ranked: Vec<(f64, &str)> = d
+/// The values of column `name` at `rows`.
+pub(crate) fn pick(v: &[f64], rows: &[usize]) -> Vec<f64> {
+    rows.iter().map(|&i| v[i]).collect()
+}
+
+/// The simulation's fit: channel `ch` regressed on its 3 temperatures best correlated over `rows`
+/// (intercept first in `coef`).
+pub(crate) fn sim_fit(d: &Data, ch: &str, rows: &[usize]) -> (Vec<String>, Vec<f64>) {
+    let y = &pick(d.col(ch), rows);
+    let temps: Vec<(&str, Vec<f64>)> = d
         .temps()
         .into_iter()
-        .map(|t| (corr(&d.col(t)[rows.clone()], y).abs(), t))
+        .map(|t| (t, pick(d.col(t), rows)))
         .collect();
+    let mut ranked: Vec<(f64, &str)> = temps.iter().map(|(t, v)| (corr(v, y).abs(), *t)).collect();
     ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
     let chosen: Vec<&str> = ranked.iter().take(3).map(|r| r.1).collect();
     let ones = vec![1.0; y.len()];
     let mut cols: Vec<&[f64]> = vec![&ones];
-    cols.extend(chosen.iter().map(|t| &d.col(t)[rows.clone()]));
+    let of = |t: &str| {
+        &temps
+            .iter()
+            .find(|(n, _)| *n == t)
+            .expect("a temperature")
+            .1[..]
+    };
+    cols.extend(chosen.iter().map(|t| of(t)));
     let fit = lsq::fit(&cols, y);
+    (chosen.iter().map(|s| s.to_string()).collect(), fit.coef)
+}
+
+/// The simulation of [`sim_fit`] as a machine model TOML (reference 0 °C, e0 = intercept).
+pub(crate) fn sim_model(d: &Data, ch: &str, rows: &[usize]) -> (String, Vec<String>) {
+    let (chosen, coef) = sim_fit(d, ch, rows);
     let sensor = |t: &str| {
         t.trim_start_matches("T_")
             .trim_end_matches("_C")
@@ -120,14 +145,114 @@ pub(crate) fn sim_model(d: &Data, ch: &str, rows: std::ops::Range<usize>) -> (St
             .map(|t| format!("\"{}\"", sensor(t)))
             .collect::<Vec<_>>()
             .join(", "),
-        fit.coef[0],
-        fit.coef[1..]
+        coef[0],
+        coef[1..]
             .iter()
             .map(f64::to_string)
             .collect::<Vec<_>>()
             .join(", ")
     ));
-    (toml, chosen.iter().map(|s| s.to_string()).collect())
+    (toml, chosen)
+}
+
+/// One term of a found model's structure: what it reads (`T_<n>_C`, `rpm` or `krpm^2`) and its
+/// lag (`None`: read as is, a `thermal_drift`).
+#[derive(Clone, Debug)]
+pub(crate) struct Shape {
+    pub sensor: String,
+    pub tau_s: Option<f64>,
+}
+
+/// The structure of a `found_terms.toml` (thermal drift / lag terms only).
+pub(crate) fn shapes_of(found_terms: &Path) -> Vec<Shape> {
+    let text = std::fs::read_to_string(found_terms).unwrap();
+    let v: toml::Value = toml::from_str(&text).unwrap();
+    v.get("term")
+        .and_then(toml::Value::as_array)
+        .map(|a| {
+            a.iter()
+                .map(|t| {
+                    let p = &t["params"];
+                    let tau_s = match t["effect"].as_str() {
+                        Some("thermal_lag") => Some(p["tau_s"].as_float().unwrap()),
+                        Some("thermal_drift") => None,
+                        e => panic!("{}: unexpected effect {e:?}", found_terms.display()),
+                    };
+                    Shape {
+                        sensor: p["sensor"].as_str().unwrap().to_string(),
+                        tau_s,
+                    }
+                })
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// The shapes' gains refitted on `rows` on top of the simulation fitted there (as diagnose with
+/// `--fit-offset` writes them: the simulation first, the terms and an offset on its residual), as a
+/// machine model TOML (the simulation's with the terms added). Lags are computed over `rows` as
+/// one file (started at steady state on the first row), as diagnose sees a fit file.
+pub(crate) fn refit_shapes(d: &Data, ch: &str, rows: &[usize], shapes: &[Shape]) -> String {
+    let (chosen, coef) = sim_fit(d, ch, rows);
+    let (mut toml, _) = sim_model(d, ch, rows);
+    let y = pick(d.col(ch), rows);
+    let r: Vec<f64> = (0..rows.len())
+        .map(|i| {
+            let s: f64 = chosen
+                .iter()
+                .zip(&coef[1..])
+                .map(|(t, c)| c * d.col(t)[rows[i]])
+                .sum();
+            y[i] - coef[0] - s
+        })
+        .collect();
+    let t = pick(d.col("t_s"), rows);
+    // krpm^2 is fitted per krpm² (so the Gram matrix stays well scaled) and written per rpm².
+    let input = |s: &Shape| -> (Vec<f64>, f64) {
+        match s.sensor.as_str() {
+            "krpm^2" => (
+                pick(d.col("rpm"), rows)
+                    .iter()
+                    .map(|v| (v / 1e3).powi(2))
+                    .collect(),
+                1e-6,
+            ),
+            name => (pick(d.col(name), rows), 1.0),
+        }
+    };
+    let mut cols = vec![vec![1.0; rows.len()]];
+    for s in shapes {
+        let (u, _) = input(s);
+        cols.push(match s.tau_s {
+            Some(tau) => retrocomp::models::lag::series(&t, &u, tau, u[0]),
+            None => u,
+        });
+    }
+    let refs: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
+    let fit = lsq::fit(&refs, &r);
+    for (j, s) in shapes.iter().enumerate() {
+        let (_, unit) = input(s);
+        let column = match s.sensor.as_str() {
+            "krpm^2" => "column = \"rpm\"\nexponent = 2\n".to_string(),
+            name => format!("column = \"{name}\"\n"),
+        };
+        let tau = s.tau_s.map_or(String::new(), |t| format!("tau_s = {t}\n"));
+        toml.push_str(&format!(
+            "[[sensors]]\nname = \"shape{j}\"\nreference_C = 0.0\n{tau}{column}\
+             [[thermal]]\nname = \"shape{j}\"\ntarget = \"EZZ\"\nkind = \"polynomial_dt\"\n\
+             sensors = [\"shape{j}\"]\ne0_um = {}\nb_um_per_K = [{}]\n",
+            if j == 0 { fit.coef[0] } else { 0.0 },
+            fit.coef[j + 1] * unit
+        ));
+    }
+    if shapes.is_empty() {
+        toml = toml.replacen(
+            &format!("e0_um = {}\n", coef[0]),
+            &format!("e0_um = {}\n", coef[0] + fit.coef[0]),
+            1,
+        );
+    }
+    toml
 }
 
 pub(crate) fn bin() -> Command {
@@ -171,15 +296,15 @@ pub(crate) fn rms(v: impl Iterator<Item = f64>) -> f64 {
 pub(crate) fn fit_channel(
     d: &Data,
     ch: &str,
-    fit: std::ops::Range<usize>,
+    fit: &[usize],
     dir: &Path,
 ) -> (PathBuf, PathBuf, String) {
     std::fs::create_dir_all(dir).unwrap();
-    let (toml, _) = sim_model(d, ch, fit.clone());
+    let (toml, _) = sim_model(d, ch, fit);
     let sim = dir.join("sim.toml");
     std::fs::write(&sim, toml).unwrap();
     let rec = dir.join("fit.csv");
-    d.write(&rec, fit, Some(ch));
+    d.write(&rec, fit.iter().copied(), Some(ch));
     // --fit-offset: the simulation's intercept was fitted on this same data without the found
     // terms, so the joint refit's constant offset belongs to the model.
     let out = bin()
