@@ -49,6 +49,18 @@ pub struct ChannelStatus {
     pub substituted: bool,
 }
 
+impl ChannelStatus {
+    /// No value yet, stale.
+    pub fn unknown() -> Self {
+        ChannelStatus {
+            value: None,
+            health: Health::Stale,
+            faults: Vec::new(),
+            substituted: false,
+        }
+    }
+}
+
 #[derive(Clone, Debug)]
 pub struct ChannelMonitor {
     limits: ChannelLimits,
@@ -161,7 +173,16 @@ impl ChannelMonitor {
     /// late, or samples still sitting in a socket buffer, do not make a channel stale; a silent
     /// channel among talking ones does, and a total silence does after the allowance.
     pub fn status_judged(&self, now_s: f64, inputs_s: f64) -> ChannelStatus {
-        let mut faults = Vec::new();
+        let mut st = ChannelStatus::unknown();
+        self.status_judged_into(now_s, inputs_s, &mut st);
+        st
+    }
+
+    /// [`Self::status_judged`] into `st`, reusing its fault list (the engine's per-cycle path:
+    /// nothing is allocated while the same faults stay active).
+    pub fn status_judged_into(&self, now_s: f64, inputs_s: f64, st: &mut ChannelStatus) {
+        let faults = &mut st.faults;
+        faults.clear();
         if let Some(f) = self.sample_fault {
             faults.push(f);
         }
@@ -182,12 +203,9 @@ impl ChannelMonitor {
             Some(FaultKind::Stale) if faults.len() == 1 => Health::Stale,
             Some(_) => Health::OutOfRange,
         };
-        ChannelStatus {
-            value: self.last_good.map(|(_, v)| v),
-            health,
-            faults,
-            substituted: false,
-        }
+        st.value = self.last_good.map(|(_, v)| v);
+        st.health = health;
+        st.substituted = false;
     }
 }
 
@@ -355,7 +373,8 @@ mod tests {
             } else {
                 &[]
             };
-            for e in log.update("T_spindle_C", faults, k as f64) {
+            let source = crate::fault::FaultSource::named("T_spindle_C");
+            for e in log.update(&source, faults, k as f64) {
                 if e.started { starts += 1 } else { clears += 1 }
             }
         }
