@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::bus::{Health, Sample};
 pub use crate::fault::{FaultEvent, FaultKind, FaultLog};
+pub use crate::status::ChannelStatus;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -36,30 +37,6 @@ pub const INPUT_LAG_ALLOW_S: f64 = 0.5;
 /// A CAN `BusErrors` fault lasts this long after the last error frame, s: error frames come in
 /// bursts, and one episode per burst is what an operator wants to read.
 pub const BUS_ERROR_HOLD_S: f64 = 1.0;
-
-/// Health of one channel now.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct ChannelStatus {
-    /// Last good value (what the model may use), channel units.
-    pub value: Option<f64>,
-    pub health: Health,
-    /// The active faults (empty when healthy).
-    pub faults: Vec<FaultKind>,
-    /// True when `value` is an estimate from correlated neighbours (see `recovery`).
-    pub substituted: bool,
-}
-
-impl ChannelStatus {
-    /// No value yet, stale.
-    pub fn unknown() -> Self {
-        ChannelStatus {
-            value: None,
-            health: Health::Stale,
-            faults: Vec::new(),
-            substituted: false,
-        }
-    }
-}
 
 #[derive(Clone, Debug)]
 pub struct ChannelMonitor {
