@@ -516,3 +516,112 @@ fn frames_to_register_words_allocate_nothing_per_cycle() {
         "{n} heap allocations in 5000 cycles from frames to words"
     );
 }
+
+/// One origin-shift write period through the real sans-IO sink core (`SinkCore` and its
+/// `WriteCycle`) allocates nothing: heartbeat → read of the value, strobe and ack registers (one
+/// FC03) → the guard against what the controller holds (clamp, per-write cap) → encode → FC16 →
+/// strobe → ack → read-back, plus the sink's fault bookkeeping (`update_faults_of`). The
+/// controller is an in-memory register image that latches on the strobe; only the core's thread
+/// is counted, and the image's replies carry their words inline as the transport's would.
+#[test]
+fn an_origin_shift_write_period_allocates_nothing() {
+    use retrocomp::fault::FaultLog;
+    use retrocomp::origin_shift::sink_task::{SinkSources, update_faults_of};
+    use retrocomp::origin_shift::{Action, Outcome, RegisterMap, Reply, SinkAxis, SinkCore, Words};
+
+    let map: RegisterMap = toml::from_str(
+        r#"
+        heartbeat_address = 10
+        heartbeat_timeout_ms = 60000
+        [[axis]]
+        axis = "x"
+        address = 0
+        kind = "int32"
+        lsb_um = 0.1
+        sign = 1
+        [[axis]]
+        axis = "y"
+        address = 2
+        kind = "int32"
+        lsb_um = 0.1
+        sign = 1
+        [[axis]]
+        axis = "z"
+        address = 4
+        kind = "int32"
+        lsb_um = 0.1
+        sign = -1
+        [handshake]
+        strobe_address = 6
+        ack_address = 7
+        timeout_ms = 100
+        poll_ms = 1
+        "#,
+    )
+    .unwrap();
+    map.validate().unwrap();
+    let axes = ["x", "y", "z"]
+        .map(|a| SinkAxis {
+            axis: a.into(),
+            max_correction_um: 100.0,
+            max_change_um_per_write: 0.5,
+        })
+        .to_vec();
+    let mut core = SinkCore::new(map.clone(), axes);
+    let sources = SinkSources::of(&core);
+    let mut log = FaultLog::default();
+    let mut regs = [0u16; 16];
+    let (mut t, mut requests) = (0.0f64, 0u64);
+    let mut wants = vec![(Axis::X, 0.0), (Axis::Y, 0.0), (Axis::Z, 0.0)];
+    let mut period = |core: &mut SinkCore, log: &mut FaultLog, k: u64| -> Outcome {
+        let ts = k as f64 * 0.01;
+        wants[0].1 = 40.0 * (ts * 0.5).sin();
+        wants[1].1 = -25.0 + 10.0 * (ts * 0.3).cos();
+        wants[2].1 = 15.0 * (ts * 0.7).sin();
+        let mut action = core.begin_at(&wants, t);
+        let outcome = loop {
+            let reply = match &action {
+                Action::Done(o) => break o.clone(),
+                Action::Write(b) => {
+                    let a = b.address as usize;
+                    regs[a..a + b.words.len()].copy_from_slice(&b.words);
+                    if b.address == 6 {
+                        regs[7] = regs[6]; // the PLC latches and acknowledges
+                    }
+                    Reply::Written
+                }
+                Action::Read { address, count, .. } => {
+                    let a = *address as usize;
+                    Reply::Read(Words::from_slice(&regs[a..a + *count as usize]))
+                }
+            };
+            requests += 1;
+            t += 1e-4;
+            action = core.on_reply(reply, t);
+        };
+        assert!(core.take_reseeds().is_empty());
+        update_faults_of(log, &sources, core, true, t);
+        outcome
+    };
+    for k in 0..200 {
+        assert_eq!(period(&mut core, &mut log, k), Outcome::Ok);
+    }
+    let ok_before = core.writes_ok;
+    let before = allocs();
+    let mut n_ok = 0;
+    for k in 200..1200 {
+        n_ok += (period(&mut core, &mut log, k) == Outcome::Ok) as u64;
+    }
+    let n = allocs() - before;
+    assert_eq!(n_ok, 1000);
+    assert_eq!(core.writes_ok - ok_before, 1000, "every period wrote");
+    assert!(requests > 1200 * 6, "{requests} requests");
+    assert_eq!(log.active().count(), 0);
+    // The controller holds the last guarded values: within one cap of what was wanted.
+    let held: Vec<f64> = core.held_um().map(|(_, v)| v.unwrap()).collect();
+    assert!(held.iter().any(|v| v.abs() > 1.0), "{held:?}");
+    let x = map.decode("x", &regs[0..2]).unwrap();
+    assert!((x - wants[0].1).abs() <= 0.5 + 0.1, "{x} vs {:?}", wants);
+    assert_eq!(regs[10], 1200, "one heartbeat per period");
+    assert_eq!(n, 0, "{n} heap allocations in 1000 write periods");
+}
