@@ -10,6 +10,17 @@
 //!   through the adapter), and no sink encodes registers: it measures engine ingest + cycle
 //!   (health, state, model, safety) under a frame stream, not the whole decode → sink path
 //!   (`gateway_latency` runs that path end to end over loopback).
+//! - `pipeline_gateway`: the gateway's real per-cycle path from CAN frames to the controller's
+//!   register words, one 1 ms cycle per iteration: the cycle's TPDOs (3 CiA 406 encoders, U32
+//!   counts; one CiA 404 analog node per input channel the model reads — the 14 temperatures of
+//!   `deploy/examples/vmc-3axis.toml`, int32 at 0.001 °C) decoded by the gateway's `CanopenSource`
+//!   into samples → `Engine::ingest` → `Engine::cycle_in_place` (health, state, direction latch,
+//!   the shipped model `deploy/examples/vmc-3axis.toml` through `MachineModelAdapter`: 21 ISO 230-1
+//!   tables with F/R blend, squareness, thermal lags; correction = −error; safety clamp and
+//!   dosing cap) → the origin-shift `RegisterMap::encode_into` (3 int32 axes, one FC16 block).
+//!   The frames are made beforehand (the nodes' side, not measured); no I/O, no sink period
+//!   (the guard against what the controller holds runs per write period, not per cycle).
+//!   Throughput is in frames.
 //! - `edge_scheduler`: quadrature edges merged per second.
 //!
 //! Run: `cargo bench -p retrocomp --bench gateway`.
@@ -279,6 +290,127 @@ fn pipeline_frames(c: &mut Criterion) {
     g.finish();
 }
 
+/// See the top comment (`pipeline_gateway`).
+fn pipeline_gateway(c: &mut Criterion) {
+    use retrocomp::bus::canopen::cia404::{AnalogChannel, AnalogType};
+    use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel};
+    use retrocomp::bus::canopen::source::{CanopenConfig, CanopenSource};
+    use retrocomp::gateway::model_adapter::MachineModelAdapter;
+    use retrocomp::models::MachineModel;
+    use retrocomp::origin_shift::{RegisterMap, WriteBlock};
+
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let model = MachineModel::from_toml_path(&root.join("deploy/examples/vmc-3axis.toml")).unwrap();
+    let mut m = MachineModelAdapter::new(model);
+    let inputs = m.required_channels();
+    assert!(inputs.len() >= 10, "the model reads {inputs:?}");
+    let axes = CFG.split("[[axis]]").next().unwrap().to_string()
+        + "[[axis]]\nname = \"x\"\nposition_channel = \"x_mm\"\n\
+           [[axis]]\nname = \"y\"\nposition_channel = \"y_mm\"\n\
+           [[axis]]\nname = \"z\"\nposition_channel = \"z_mm\"\n";
+    let cfg = FieldConfig::parse(&axes, Path::new("bench.toml")).unwrap();
+    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let encoder = |channel: &str, node_id: u8| EncoderChannel {
+        channel: channel.into(),
+        node_id,
+        tpdo: 1,
+        byte_offset: 0,
+        counts_per_mm: 1000.0,
+        direction: CountingDirection::Positive,
+        offset_mm: 0.0,
+        total_range_counts: None,
+        cyclic_ms: None,
+        min_mm: None,
+        max_mm: None,
+    };
+    let can = CanopenConfig {
+        encoder: vec![encoder("x_mm", 1), encoder("y_mm", 2), encoder("z_mm", 3)],
+        analog: inputs
+            .iter()
+            .enumerate()
+            .map(|(k, id)| AnalogChannel {
+                channel: id.name().into(),
+                node_id: 0x10 + k as u8,
+                tpdo: 1,
+                byte_offset: 0,
+                data_type: AnalogType::Int32,
+                decimal_digits: 3,
+                min: None,
+                max: None,
+            })
+            .collect(),
+        heartbeat_timeout_s: None,
+        pdo_timeout_s: 0.1,
+    };
+    let mut src = CanopenSource::new(can.clone());
+    let map: RegisterMap = toml::from_str(
+        "[[axis]]\naxis = \"x\"\naddress = 0\nkind = \"int32\"\nlsb_um = 0.1\nsign = 1\n\
+         [[axis]]\naxis = \"y\"\naddress = 2\nkind = \"int32\"\nlsb_um = 0.1\nsign = 1\n\
+         [[axis]]\naxis = \"z\"\naddress = 4\nkind = \"int32\"\nlsb_um = 0.1\nsign = -1\n",
+    )
+    .unwrap();
+    map.validate().unwrap();
+    // 2 s of cycles (the axes sweep their travel and reverse; temperatures drift), replayed.
+    const CYCLES: usize = 2000;
+    let frames: Vec<Vec<Frame>> = (0..CYCLES)
+        .map(|k| {
+            let t = k as f64 * 1e-3;
+            let pos = [
+                400.0 + 350.0 * (t * 3.0).sin(),
+                250.0 + 200.0 * (t * 2.0).cos(),
+                250.0 + 200.0 * (t * 1.3).sin(),
+            ];
+            let mut f: Vec<Frame> = can
+                .encoder
+                .iter()
+                .zip(pos)
+                .filter_map(|(c, p)| c.encode_position(p))
+                .collect();
+            f.extend(
+                can.analog
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, c)| c.encode(22.0 + 0.2 * i as f64 + 0.5 * (t * 0.7).sin())),
+            );
+            f
+        })
+        .collect();
+    let per_cycle = frames[0].len();
+    assert_eq!(per_cycle, 3 + inputs.len(), "every frame encodes");
+    let mut batch = Vec::with_capacity(64);
+    let mut blocks: Vec<WriteBlock> = Vec::new();
+    let mut k = 0usize;
+    let mut t = 0.0f64;
+    let mut one_cycle = |e: &mut Engine| {
+        t += 1e-3;
+        for f in &frames[k % CYCLES] {
+            src.on_frame(f, t, &mut batch);
+        }
+        k += 1;
+        for s in batch.drain(..) {
+            e.ingest(&s);
+        }
+        let outs = e.cycle_in_place(t, &mut m);
+        map.encode_into(outs, &mut blocks).unwrap();
+        blocks[0].words[1]
+    };
+    // Warm-up: channels appear, the safety ramps in; then the axes must be compensating.
+    for _ in 0..3000 {
+        one_cycle(&mut e);
+    }
+    let snap = e.snapshot();
+    assert!(
+        snap.axes.iter().all(|a| a.target_um.is_some()) && snap.active_faults.is_empty(),
+        "{snap:?}"
+    );
+    let mut g = c.benchmark_group("pipeline");
+    g.throughput(Throughput::Elements(per_cycle as u64));
+    g.bench_function("pipeline_gateway", |b| {
+        b.iter(|| black_box(one_cycle(&mut e)))
+    });
+    g.finish();
+}
+
 fn edge_scheduler(c: &mut Criterion) {
     // 10 000 native edges at 1 µs with injected corrections interleaved.
     let mut events: Vec<(u64, Event)> = (0..10_000u64)
@@ -306,6 +438,6 @@ fn edge_scheduler(c: &mut Criterion) {
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(30).measurement_time(std::time::Duration::from_secs(3));
-    targets = cycle_compute, cycle_compute_studer, pipeline_frames, edge_scheduler
+    targets = cycle_compute, cycle_compute_studer, pipeline_frames, pipeline_gateway, edge_scheduler
 }
 criterion_main!(benches);

@@ -17,5 +17,6 @@ pub mod quadrature;
 pub mod realtime;
 pub mod recording;
 pub mod sink;
+pub mod status;
 pub mod telemetry;
 pub mod units;

@@ -6,7 +6,8 @@
 //! - `Engine::ingest` + `Engine::cycle_in_place` make zero heap allocations per cycle;
 //! - so does the real loop body (`CycleLoop::step`: samples from another thread through the
 //!   sources' mpsc channel, engine, outputs into the sinks' watch channel) on every cycle that does
-//!   not publish a status snapshot (≤ 10 Hz);
+//!   not publish a status snapshot (≤ 10 Hz), also while faults stay active (a NaN sensor, a
+//!   silent one, compensation dropped);
 //! - so does the whole per-cycle path from the wire to the controller's words: CAN frames decoded
 //!   by the CANopen source (CiA 406 encoders, CiA 404 analog inputs) → ingest → cycle → the
 //!   origin-shift register encoding (`RegisterMap::encode_into`) and the quadrature count
@@ -21,9 +22,13 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use retrocomp::bus::{ChannelId, Health, Sample};
+use retrocomp::fault::FaultKind;
 use retrocomp::gateway::Engine;
 use retrocomp::gateway::config::FieldConfig;
+use retrocomp::gateway::cycle::STATUS_PERIOD_S;
 use retrocomp::gateway::model_adapter::MachineModelAdapter;
+use retrocomp::gateway::status::StatusSnapshot;
+use retrocomp::models::Axis;
 use retrocomp::models::MachineModel;
 
 struct Counting;
@@ -154,13 +159,26 @@ fn steady_state_cycles_allocate_nothing() {
     assert_eq!(n, 0, "{n} heap allocations in 5000 steady-state cycles");
 }
 
-/// The real cycle loop body (`CycleLoop::step`: drain the sample channel, run the engine, hand the
-/// outputs to the sink's watch channel, count the cycle) allocates nothing on a cycle that does not
-/// publish a status snapshot, and publishes at most 10 Hz of cycle time. Samples come from another
-/// thread through the same tokio mpsc channel the sources use (only the cycle thread is counted).
-#[test]
-fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
-    use retrocomp::gateway::cycle::{CycleIo, CycleLoop, STATUS_PERIOD_S};
+/// What one run of the real cycle loop showed.
+struct LoopRun {
+    /// Heap allocations on the cycle thread in the counted cycles that did not publish.
+    quiet_allocs: u64,
+    /// Snapshots published in the counted cycles.
+    publishes: u64,
+    snap: StatusSnapshot,
+    outs: Vec<(Axis, f64)>,
+}
+
+/// Drive the real cycle loop body (`CycleLoop::step`) for `steps` cycles of 1 ms with the samples
+/// `samples(k, t_s)` gives for cycle `k` (a channel not given is silent that cycle); count the
+/// cycle thread's allocations from cycle `count_from` on. The samples come from another thread
+/// through the same tokio mpsc channel the sources use, in lock-step with the loop.
+fn drive_cycle_loop(
+    steps: u64,
+    count_from: u64,
+    samples: fn(u64, f64) -> Vec<(&'static str, f64)>,
+) -> LoopRun {
+    use retrocomp::gateway::cycle::{CycleIo, CycleLoop};
     use std::sync::Arc;
     use std::sync::atomic::{AtomicU64, Ordering};
     use tokio::sync::{mpsc, watch};
@@ -169,7 +187,7 @@ fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
     let model = MachineModel::from_toml_path(&root.join("deploy/demo/mill-full.toml")).unwrap();
     let cfg = FieldConfig::parse(CFG, Path::new("no-alloc.toml")).unwrap();
     let engine = Engine::new(&cfg, &BTreeMap::new()).unwrap();
-    let (sample_tx, samples) = mpsc::channel(16_384);
+    let (sample_tx, sample_rx) = mpsc::channel(16_384);
     let (_served_tx, served) = mpsc::channel(8);
     let (_reseed_tx, reseed) = mpsc::channel(8);
     let (_control_tx, control) = mpsc::channel(8);
@@ -177,7 +195,7 @@ fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
     let (status, status_rx) = watch::channel(None);
     let (_sink_tx, sink_status) = watch::channel(Default::default());
     let io = CycleIo {
-        samples,
+        samples: sample_rx,
         served,
         reseed,
         control,
@@ -189,32 +207,14 @@ fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
         telemetry: None,
     };
     let mut lp = CycleLoop::new(engine, Box::new(MachineModelAdapter::new(model)), io);
-    const WARM: u64 = 2000;
-    const STEPS: u64 = 5000;
     // Lock-step with the producer through two counters (no allocation to synchronise).
     let sent = Arc::new(AtomicU64::new(0));
     let done = Arc::new(AtomicU64::new(0));
     let (s2, d2) = (Arc::clone(&sent), Arc::clone(&done));
     let producer = std::thread::spawn(move || {
-        let names = [
-            "x_mm",
-            "y_mm",
-            "z_mm",
-            "T_spindle_C",
-            "T_xscrew_C",
-            "F_cut_N",
-        ];
-        for k in 1..=WARM + STEPS {
+        for k in 1..=steps {
             let t = k as f64 * 1e-3;
-            let values = [
-                100.0 + 50.0 * (t * 3.0).sin(),
-                60.0 + 40.0 * (t * 2.0).cos(),
-                10.0 + 5.0 * t.sin(),
-                25.0 + 3.0 * (t * 0.1).sin(),
-                22.0 + t * 0.01,
-                150.0 + 50.0 * (t * 5.0).sin(),
-            ];
-            for (ch, value) in names.iter().zip(values) {
+            for (ch, value) in samples(k, t) {
                 let s = Sample {
                     channel: ChannelId::of(ch),
                     t_s: t,
@@ -230,13 +230,13 @@ fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
         }
     });
     let (mut quiet_allocs, mut publishes) = (0u64, 0u64);
-    for k in 1..=WARM + STEPS {
+    for k in 1..=steps {
         while sent.load(Ordering::Acquire) < k {
             std::thread::yield_now();
         }
         let before = allocs();
         let published = lp.step(k as f64 * 1e-3);
-        if k > WARM {
+        if k > count_from {
             if published {
                 publishes += 1;
             } else {
@@ -246,25 +246,133 @@ fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
         done.store(k, Ordering::Release);
     }
     producer.join().unwrap();
-    // 5 s of cycle time at ≤ 10 Hz: 50 snapshots (one more at a boundary), not one per cycle.
-    let most = (STEPS as f64 * 1e-3 / STATUS_PERIOD_S).ceil() as u64 + 1;
-    assert!(
-        (most - 2..=most).contains(&publishes),
-        "{publishes} snapshots in {STEPS} cycles"
-    );
     let snap = status_rx
         .borrow()
         .clone()
         .expect("a snapshot was published");
-    assert!(snap.cycles > WARM && snap.axes.iter().all(|a| a.target_um.is_some()));
     let outs = outputs_rx.borrow().clone();
+    LoopRun {
+        quiet_allocs,
+        publishes,
+        snap: (*snap).clone(),
+        outs,
+    }
+}
+
+/// The channels of the healthy run at cycle time `t` (s): X and Y reverse every ≈ 1 s and 1.6 s
+/// (F/R blend), temperatures and force drift; `T_cabinet_C` is read but not in the model.
+fn healthy(t: f64) -> Vec<(&'static str, f64)> {
+    vec![
+        ("x_mm", 100.0 + 50.0 * (t * 3.0).sin()),
+        ("y_mm", 60.0 + 40.0 * (t * 2.0).cos()),
+        ("z_mm", 10.0 + 5.0 * t.sin()),
+        ("T_spindle_C", 25.0 + 3.0 * (t * 0.1).sin()),
+        ("T_xscrew_C", 22.0 + t * 0.01),
+        ("F_cut_N", 150.0 + 50.0 * (t * 5.0).sin()),
+        ("T_cabinet_C", 30.0 + (t * 0.3).sin()),
+    ]
+}
+
+fn has_fault(snap: &StatusSnapshot, source: &str, kind: FaultKind) -> bool {
+    snap.active_faults
+        .iter()
+        .any(|(s, k, _)| s == source && *k == kind)
+}
+
+/// The real cycle loop body (`CycleLoop::step`: drain the sample channel, run the engine, hand the
+/// outputs to the sink's watch channel, count the cycle) allocates nothing on a cycle that does not
+/// publish a status snapshot, and publishes at most 10 Hz of cycle time.
+#[test]
+fn the_real_cycle_loop_allocates_nothing_between_status_snapshots() {
+    const WARM: u64 = 2000;
+    const STEPS: u64 = 5000;
+    let run = drive_cycle_loop(WARM + STEPS, WARM, |_, t| healthy(t));
+    // 5 s of cycle time at ≤ 10 Hz: 50 snapshots (one more at a boundary), not one per cycle.
+    let most = (STEPS as f64 * 1e-3 / STATUS_PERIOD_S).ceil() as u64 + 1;
     assert!(
-        outs.len() == 3 && outs.iter().map(|o| o.1.abs()).sum::<f64>() > 1.0,
-        "{outs:?}"
+        (most - 2..=most).contains(&run.publishes),
+        "{} snapshots in {STEPS} cycles",
+        run.publishes
+    );
+    let snap = &run.snap;
+    assert!(snap.cycles > WARM && snap.axes.iter().all(|a| a.target_um.is_some()));
+    assert!(snap.active_faults.is_empty(), "{:?}", snap.active_faults);
+    assert!(
+        run.outs.len() == 3 && run.outs.iter().map(|o| o.1.abs()).sum::<f64>() > 1.0,
+        "{:?}",
+        run.outs
     );
     assert_eq!(
-        quiet_allocs, 0,
-        "{quiet_allocs} heap allocations in the cycles between snapshots"
+        run.quiet_allocs, 0,
+        "{} heap allocations in the cycles between snapshots",
+        run.quiet_allocs
+    );
+}
+
+/// While faults stay active the cycle allocates nothing either (issue 14.1: the fault log is keyed
+/// by typed sources). From cycle 2000 on the force sensor reads NaN (an optional input: the axes
+/// compensate without its terms, `compensation.<axis>.partial`) and `T_cabinet_C` falls silent
+/// (stale after 1 s); counted from cycle 4000, after every episode started.
+#[test]
+fn the_cycle_loop_allocates_nothing_while_a_sensor_is_nan_and_another_stale() {
+    let run = drive_cycle_loop(9000, 4000, |k, t| {
+        let mut s = healthy(t);
+        if k > 2000 {
+            s.retain(|(ch, _)| *ch != "T_cabinet_C");
+            s.iter_mut()
+                .filter(|(ch, _)| *ch == "F_cut_N")
+                .for_each(|(_, v)| *v = f64::NAN);
+        }
+        s
+    });
+    let snap = &run.snap;
+    for (source, kind) in [
+        ("F_cut_N", FaultKind::NotFinite),
+        ("T_cabinet_C", FaultKind::Stale),
+        ("compensation.x.partial", FaultKind::Stale),
+    ] {
+        assert!(
+            has_fault(snap, source, kind),
+            "{source} {kind:?} not in {:?}",
+            snap.active_faults
+        );
+    }
+    // Still compensating (without the force terms): the model ran every cycle.
+    assert!(
+        snap.axes.iter().all(|a| a.target_um.is_some()),
+        "{:?}",
+        snap.axes
+    );
+    assert!(run.publishes >= 45, "{} snapshots", run.publishes);
+    assert_eq!(
+        run.quiet_allocs, 0,
+        "{} heap allocations in 5000 cycles with active faults",
+        run.quiet_allocs
+    );
+}
+
+/// A required input stale: compensation drops on every axis (`compensation.<axis>`, holding then
+/// ramping out) and the cycle still allocates nothing.
+#[test]
+fn the_cycle_loop_allocates_nothing_while_compensation_is_dropped() {
+    let run = drive_cycle_loop(9000, 4000, |k, t| {
+        let mut s = healthy(t);
+        if k > 2000 {
+            s.retain(|(ch, _)| *ch != "T_xscrew_C");
+        }
+        s
+    });
+    let snap = &run.snap;
+    assert!(has_fault(snap, "T_xscrew_C", FaultKind::Stale), "{snap:?}");
+    for axis in ["x", "y", "z"] {
+        let source = format!("compensation.{axis}");
+        assert!(has_fault(snap, &source, FaultKind::Stale), "{snap:?}");
+    }
+    assert!(snap.axes.iter().all(|a| a.target_um.is_none()));
+    assert_eq!(
+        run.quiet_allocs, 0,
+        "{} heap allocations in 5000 cycles with compensation dropped",
+        run.quiet_allocs
     );
 }
 
@@ -407,4 +515,113 @@ fn frames_to_register_words_allocate_nothing_per_cycle() {
         n, 0,
         "{n} heap allocations in 5000 cycles from frames to words"
     );
+}
+
+/// One origin-shift write period through the real sans-IO sink core (`SinkCore` and its
+/// `WriteCycle`) allocates nothing: heartbeat → read of the value, strobe and ack registers (one
+/// FC03) → the guard against what the controller holds (clamp, per-write cap) → encode → FC16 →
+/// strobe → ack → read-back, plus the sink's fault bookkeeping (`update_faults_of`). The
+/// controller is an in-memory register image that latches on the strobe; only the core's thread
+/// is counted, and the image's replies carry their words inline as the transport's would.
+#[test]
+fn an_origin_shift_write_period_allocates_nothing() {
+    use retrocomp::fault::FaultLog;
+    use retrocomp::origin_shift::sink_task::{SinkSources, update_faults_of};
+    use retrocomp::origin_shift::{Action, Outcome, RegisterMap, Reply, SinkAxis, SinkCore, Words};
+
+    let map: RegisterMap = toml::from_str(
+        r#"
+        heartbeat_address = 10
+        heartbeat_timeout_ms = 60000
+        [[axis]]
+        axis = "x"
+        address = 0
+        kind = "int32"
+        lsb_um = 0.1
+        sign = 1
+        [[axis]]
+        axis = "y"
+        address = 2
+        kind = "int32"
+        lsb_um = 0.1
+        sign = 1
+        [[axis]]
+        axis = "z"
+        address = 4
+        kind = "int32"
+        lsb_um = 0.1
+        sign = -1
+        [handshake]
+        strobe_address = 6
+        ack_address = 7
+        timeout_ms = 100
+        poll_ms = 1
+        "#,
+    )
+    .unwrap();
+    map.validate().unwrap();
+    let axes = ["x", "y", "z"]
+        .map(|a| SinkAxis {
+            axis: a.into(),
+            max_correction_um: 100.0,
+            max_change_um_per_write: 0.5,
+        })
+        .to_vec();
+    let mut core = SinkCore::new(map.clone(), axes);
+    let sources = SinkSources::of(&core);
+    let mut log = FaultLog::default();
+    let mut regs = [0u16; 16];
+    let (mut t, mut requests) = (0.0f64, 0u64);
+    let mut wants = vec![(Axis::X, 0.0), (Axis::Y, 0.0), (Axis::Z, 0.0)];
+    let mut period = |core: &mut SinkCore, log: &mut FaultLog, k: u64| -> Outcome {
+        let ts = k as f64 * 0.01;
+        wants[0].1 = 40.0 * (ts * 0.5).sin();
+        wants[1].1 = -25.0 + 10.0 * (ts * 0.3).cos();
+        wants[2].1 = 15.0 * (ts * 0.7).sin();
+        let mut action = core.begin_at(&wants, t);
+        let outcome = loop {
+            let reply = match &action {
+                Action::Done(o) => break o.clone(),
+                Action::Write(b) => {
+                    let a = b.address as usize;
+                    regs[a..a + b.words.len()].copy_from_slice(&b.words);
+                    if b.address == 6 {
+                        regs[7] = regs[6]; // the PLC latches and acknowledges
+                    }
+                    Reply::Written
+                }
+                Action::Read { address, count, .. } => {
+                    let a = *address as usize;
+                    Reply::Read(Words::from_slice(&regs[a..a + *count as usize]))
+                }
+            };
+            requests += 1;
+            t += 1e-4;
+            action = core.on_reply(reply, t);
+        };
+        assert!(core.take_reseeds().is_empty());
+        update_faults_of(log, &sources, core, true, t);
+        outcome
+    };
+    for k in 0..200 {
+        assert_eq!(period(&mut core, &mut log, k), Outcome::Ok);
+    }
+    let ok_before = core.writes_ok;
+    let before = allocs();
+    let mut n_ok = 0;
+    for k in 200..1200 {
+        n_ok += (period(&mut core, &mut log, k) == Outcome::Ok) as u64;
+    }
+    let n = allocs() - before;
+    assert_eq!(n_ok, 1000);
+    assert_eq!(core.writes_ok - ok_before, 1000, "every period wrote");
+    assert!(requests > 1200 * 6, "{requests} requests");
+    assert_eq!(log.active().count(), 0);
+    // The controller holds the last guarded values: within one cap of what was wanted.
+    let held: Vec<f64> = core.held_um().map(|(_, v)| v.unwrap()).collect();
+    assert!(held.iter().any(|v| v.abs() > 1.0), "{held:?}");
+    let x = map.decode("x", &regs[0..2]).unwrap();
+    assert!((x - wants[0].1).abs() <= 0.5 + 0.1, "{x} vs {:?}", wants);
+    assert_eq!(regs[10], 1200, "one heartbeat per period");
+    assert_eq!(n, 0, "{n} heap allocations in 1000 write periods");
 }

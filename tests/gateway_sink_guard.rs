@@ -236,7 +236,7 @@ fn run(
                 }
                 Action::Read { address, count, .. } => {
                     let a = *address as usize;
-                    Reply::Read(plc.regs[a..a + *count as usize].to_vec())
+                    Reply::Read(plc.regs[a..a + *count as usize].to_vec().into())
                 }
                 Action::Done(_) => unreachable!(),
             };
@@ -292,7 +292,7 @@ fn controller_beyond_the_clamp_after_reconnect_is_never_written_from() {
             let reply = match &a {
                 Action::Read { address, count, .. } => {
                     let s = *address as usize;
-                    Reply::Read(regs[s..s + *count as usize].to_vec())
+                    Reply::Read(regs[s..s + *count as usize].to_vec().into())
                 }
                 Action::Write(b) => {
                     let s = b.address as usize;

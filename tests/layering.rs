@@ -1,8 +1,11 @@
 //! The folder list is the architecture (issue 14.2), locked by reading the sources:
 //!
-//! - the sinks (`origin_shift/`, `quadrature/`), the buses (`bus/`) and the shared vocabulary below
-//!   the gateway (`fault.rs`, `sink.rs`, `realtime.rs`) never import `crate::gateway`, the demo or
-//!   the CLI; `telemetry/` reads only the gateway's status snapshot (`crate::gateway::status`);
+//! - the sinks (`origin_shift/`, `quadrature/`), the buses (`bus/`), `telemetry/` and the shared
+//!   vocabulary below the gateway (`fault.rs`, `sink.rs`, `status.rs`, `realtime.rs`) never import
+//!   `crate::gateway`, the demo or the CLI;
+//! - telemetry ↔ gateway is one-way: the gateway's runtime starts the publisher and hands it the
+//!   status snapshot (`crate::status`, below both); nothing below the gateway but `telemetry/`
+//!   itself imports `crate::telemetry` (the snapshot embeds no telemetry type from there);
 //! - the gateway never imports the demo application or the CLI;
 //! - the files of `src/gateway/` import each other without a cycle.
 //!
@@ -43,11 +46,16 @@ fn code_lines(path: &Path) -> Vec<(usize, String)> {
         .collect()
 }
 
-/// Every `path:line: text` in `dirs` that names one of `forbidden` and none of `allowed`.
+/// Every `path:line: text` in `dirs` (under `src/`) that names one of `forbidden` and none of
+/// `allowed`.
 fn offenders(dirs: &[&str], forbidden: &[&str], allowed: &[&str]) -> Vec<String> {
+    offenders_in(&src(), dirs, forbidden, allowed)
+}
+
+fn offenders_in(root: &Path, dirs: &[&str], forbidden: &[&str], allowed: &[&str]) -> Vec<String> {
     let mut out = Vec::new();
     for d in dirs {
-        for f in rust_files(&src().join(d)) {
+        for f in rust_files(&root.join(d)) {
             for (n, l) in code_lines(&f) {
                 let bad = forbidden.iter().any(|p| l.contains(p));
                 if bad && !allowed.iter().any(|p| l.contains(p)) {
@@ -67,20 +75,69 @@ fn the_layers_below_the_gateway_do_not_import_it() {
             "origin_shift",
             "quadrature",
             "bus",
+            "telemetry",
             "fault.rs",
             "sink.rs",
+            "status.rs",
             "realtime.rs",
         ],
         &up,
         &[],
     );
     assert!(found.is_empty(), "upward imports:\n{}", found.join("\n"));
-    let found = offenders(&["telemetry"], &up, &["crate::gateway::status::"]);
+}
+
+/// The layers below telemetry: what it reads (the snapshot, the fault vocabulary, the buses, the
+/// models) never imports it back.
+const BELOW_TELEMETRY: [&str; 7] = [
+    "origin_shift",
+    "quadrature",
+    "bus",
+    "fault.rs",
+    "sink.rs",
+    "status.rs",
+    "realtime.rs",
+];
+
+#[test]
+fn telemetry_and_the_gateway_import_one_way() {
+    let found = offenders(&BELOW_TELEMETRY, &["crate::telemetry"], &[]);
     assert!(
         found.is_empty(),
-        "telemetry may read only the status snapshot:\n{}",
+        "imports of telemetry from below it:\n{}",
         found.join("\n")
     );
+    // The check can fail: telemetry reads the snapshot from `crate::status`, and the gateway's
+    // runtime does import telemetry (it starts the publisher).
+    assert!(!offenders(&["telemetry"], &["crate::status::"], &[]).is_empty());
+    assert!(!offenders(&["gateway"], &["crate::telemetry"], &[]).is_empty());
+}
+
+/// The detector flags an injected upward import (a copy of `src/` with one line added), and only
+/// in code: the same line as a comment passes.
+#[test]
+fn an_injected_upward_import_is_caught() {
+    let dir = tempfile::tempdir().unwrap();
+    let tel = dir.path().join("telemetry");
+    std::fs::create_dir_all(&tel).unwrap();
+    let original = std::fs::read_to_string(src().join("telemetry/metrics.rs")).unwrap();
+    let up = ["crate::gateway", "crate::demo", "crate::cli"];
+    std::fs::write(tel.join("metrics.rs"), &original).unwrap();
+    assert!(offenders_in(dir.path(), &["telemetry"], &up, &[]).is_empty());
+    std::fs::write(
+        tel.join("metrics.rs"),
+        format!("// use crate::gateway::status::StatusSnapshot;\n{original}"),
+    )
+    .unwrap();
+    assert!(offenders_in(dir.path(), &["telemetry"], &up, &[]).is_empty());
+    std::fs::write(
+        tel.join("metrics.rs"),
+        format!("use crate::gateway::status::StatusSnapshot;\n{original}"),
+    )
+    .unwrap();
+    let found = offenders_in(dir.path(), &["telemetry"], &up, &[]);
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert!(found[0].ends_with("metrics.rs:1: use crate::gateway::status::StatusSnapshot;"));
 }
 
 #[test]

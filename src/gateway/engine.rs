@@ -6,8 +6,8 @@
 //!
 //! Identities: axes are [`Axis`], channels [`ChannelId`] (resolved from their names when the config
 //! loads, `crate::bus::sample`). No name is looked up and no `String` built on the per-sample or
-//! per-cycle path; names appear only in [`Engine::snapshot`] (status, metrics) and fault sources,
-//! which are built once.
+//! per-cycle path; names appear only in [`Engine::snapshot`] (status, metrics) and in the log lines
+//! of a fault that starts or clears (fault sources are typed: [`FaultSource`]).
 //!
 //! Signs: the model returns errors (actual − nominal, µm); the engine outputs corrections (= −error).
 //! Channels whose name starts with `T_` are slow (temperatures): their value is latched every
@@ -25,13 +25,16 @@ use super::safety::{AxisSafety, Input, Mode, SafetyError};
 use super::status::{AxisStatus, StatusSnapshot};
 use crate::approach::Approach;
 use crate::bus::{ChannelId, Health, Sample};
+use crate::fault::FaultSource;
 use crate::models::Axis;
 
 pub use super::error_model::{AxisErrors, ErrorModel, MachineState, TermError};
 
 /// Everything the engine knows about one channel, by slot (index into `Engine::channels`).
 struct Channel {
-    /// The configured name, for fault sources and the status (resolved once).
+    /// Its identity: the fault source of its health faults.
+    id: ChannelId,
+    /// The configured name, for the status (resolved once).
     name: &'static str,
     /// None until the first sample of a channel that is not configured (it is then judged with
     /// [`default_limits`]); such a channel has no status and no value.
@@ -54,11 +57,6 @@ struct AxisRuntime {
     last_pos: Option<(f64, f64)>,
     target_um: Option<f64>,
     terms: Vec<(Arc<str>, f64)>,
-    /// Fault-log source of "enabled but not compensating" (`compensation.<axis>`), built once.
-    drop_source: String,
-    /// Fault-log source of "compensating without the terms of a lost auxiliary input"
-    /// (`compensation.<axis>.partial`), built once.
-    partial_source: String,
     /// The axis had a fresh target at least once (before that it is starting, not dropped).
     ever_tracked: bool,
 }
@@ -153,6 +151,7 @@ impl Slots {
         let slot = channels.len();
         let name = id.name();
         channels.push(Channel {
+            id,
             name,
             monitor: None,
             status: None,
@@ -209,8 +208,6 @@ impl Engine {
                 last_pos: None,
                 target_um: None,
                 terms: Vec::new(),
-                drop_source: format!("compensation.{}", a.axis),
-                partial_source: format!("compensation.{}.partial", a.axis),
                 ever_tracked: false,
             });
         }
@@ -317,22 +314,32 @@ impl Engine {
                 c.status = None;
                 continue;
             };
-            let st = m.status_judged(now_s, self.newest_input_s);
+            // Judged into last cycle's status: its fault list is reused (no allocation while a
+            // fault stays active).
+            let st = c.status.get_or_insert_with(ChannelStatus::unknown);
+            m.status_judged_into(now_s, self.newest_input_s, st);
+            let source = FaultSource::Channel(c.id);
             let mut gone = m
                 .take_rejected()
                 .filter(|k| !st.faults.contains(k))
                 .peekable();
             if gone.peek().is_some() {
                 // Rejected readings that a good one replaced before this cycle: never used, but
-                // logged — started now, cleared next cycle.
-                let mut seen = st.faults.clone();
-                seen.extend(gone);
-                seen.sort();
-                self.faults.update(c.name, &seen, now_s);
+                // logged — started now, cleared next cycle. (At most one of each kind: on the
+                // stack.)
+                let mut seen = [FaultKind::Stale; FaultKind::ALL.len()];
+                let mut n = 0;
+                for k in st.faults.iter().copied().chain(gone) {
+                    if n < seen.len() && !seen[..n].contains(&k) {
+                        seen[n] = k;
+                        n += 1;
+                    }
+                }
+                seen[..n].sort();
+                self.faults.update(&source, &seen[..n], now_s);
             } else {
-                self.faults.update(c.name, &st.faults, now_s);
+                self.faults.update(&source, &st.faults, now_s);
             }
-            c.status = Some(st);
         }
         // 2. Substitute failed channels from their neighbours (Ni's recovery).
         for r in &mut self.recoveries {
@@ -465,7 +472,7 @@ impl Engine {
         };
         let model_fault = model_result.as_ref().err();
         self.faults.update(
-            "model",
+            &FaultSource::Model,
             if model_fault.is_some() {
                 &[FaultKind::Decode]
             } else {
@@ -523,11 +530,13 @@ impl Engine {
             };
             any |= kind.is_some();
             let kinds = kind.as_slice();
-            self.faults.update(&a.drop_source, kinds, now_s);
+            self.faults
+                .update(&FaultSource::Compensation(a.axis), kinds, now_s);
             // Compensating, but without the terms of a lost auxiliary input.
             let partial = self.enabled && fresh && self.partial;
             let kinds: &[FaultKind] = if partial { &[FaultKind::Stale] } else { &[] };
-            self.faults.update(&a.partial_source, kinds, now_s);
+            self.faults
+                .update(&FaultSource::CompensationPartial(a.axis), kinds, now_s);
         }
         self.dropped = any;
     }
@@ -577,11 +586,7 @@ impl Engine {
                     Some((c.name.to_string(), c.status.clone()?))
                 })
                 .collect(),
-            active_faults: self
-                .faults
-                .active()
-                .map(|(s, k, t)| (s.to_string(), k, t))
-                .collect(),
+            active_faults: self.faults.active_by_name(),
             model_error: self.model_error.clone(),
             sink: None,
             sources: Vec::new(),

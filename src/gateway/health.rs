@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::bus::{Health, Sample};
 pub use crate::fault::{FaultEvent, FaultKind, FaultLog};
+pub use crate::status::ChannelStatus;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -36,18 +37,6 @@ pub const INPUT_LAG_ALLOW_S: f64 = 0.5;
 /// A CAN `BusErrors` fault lasts this long after the last error frame, s: error frames come in
 /// bursts, and one episode per burst is what an operator wants to read.
 pub const BUS_ERROR_HOLD_S: f64 = 1.0;
-
-/// Health of one channel now.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct ChannelStatus {
-    /// Last good value (what the model may use), channel units.
-    pub value: Option<f64>,
-    pub health: Health,
-    /// The active faults (empty when healthy).
-    pub faults: Vec<FaultKind>,
-    /// True when `value` is an estimate from correlated neighbours (see `recovery`).
-    pub substituted: bool,
-}
 
 #[derive(Clone, Debug)]
 pub struct ChannelMonitor {
@@ -161,7 +150,16 @@ impl ChannelMonitor {
     /// late, or samples still sitting in a socket buffer, do not make a channel stale; a silent
     /// channel among talking ones does, and a total silence does after the allowance.
     pub fn status_judged(&self, now_s: f64, inputs_s: f64) -> ChannelStatus {
-        let mut faults = Vec::new();
+        let mut st = ChannelStatus::unknown();
+        self.status_judged_into(now_s, inputs_s, &mut st);
+        st
+    }
+
+    /// [`Self::status_judged`] into `st`, reusing its fault list (the engine's per-cycle path:
+    /// nothing is allocated while the same faults stay active).
+    pub fn status_judged_into(&self, now_s: f64, inputs_s: f64, st: &mut ChannelStatus) {
+        let faults = &mut st.faults;
+        faults.clear();
         if let Some(f) = self.sample_fault {
             faults.push(f);
         }
@@ -182,12 +180,9 @@ impl ChannelMonitor {
             Some(FaultKind::Stale) if faults.len() == 1 => Health::Stale,
             Some(_) => Health::OutOfRange,
         };
-        ChannelStatus {
-            value: self.last_good.map(|(_, v)| v),
-            health,
-            faults,
-            substituted: false,
-        }
+        st.value = self.last_good.map(|(_, v)| v);
+        st.health = health;
+        st.substituted = false;
     }
 }
 
@@ -355,7 +350,8 @@ mod tests {
             } else {
                 &[]
             };
-            for e in log.update("T_spindle_C", faults, f64::from(k)) {
+            let source = crate::fault::FaultSource::named("T_spindle_C");
+            for e in log.update(&source, faults, f64::from(k)) {
                 if e.started { starts += 1 } else { clears += 1 }
             }
         }

@@ -94,18 +94,7 @@ pub enum Input {
     Fault,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Mode {
-    /// Following the target within the dosing cap.
-    Tracking,
-    /// Ramping towards the target after start, enable, or a recovered fault/stale input.
-    RampingIn,
-    /// Inputs stale: holding the last output.
-    Holding,
-    /// Ramping to zero (disabled, fault, or stale beyond the hold time).
-    RampingOut,
-}
+pub use crate::status::Mode;
 
 #[derive(Clone, Debug)]
 pub struct AxisSafety {

@@ -14,6 +14,7 @@ use super::health::{BUS_ERROR_HOLD_S, FaultEvent, FaultKind, FaultLog};
 use super::status::{CanBusStatus, ModbusCounters, SourceStatus};
 use crate::bus::can::{BusErrors, BusState};
 use crate::bus::modbus::poll_core::PollCounters;
+use crate::fault::FaultSource;
 
 /// Every source's latest status, shared between the source tasks (writers) and the cycle (reader).
 #[derive(Clone, Debug, Default)]
@@ -58,6 +59,8 @@ impl SourceBoard {
 pub struct SourceReporter {
     status: SourceStatus,
     published: Option<SourceStatus>,
+    /// `status.name` as the fault log's source (built once).
+    source: FaultSource,
     log: FaultLog,
     board: SourceBoard,
     /// Error-frame count at the last check and when it last grew (gateway clock, s).
@@ -79,6 +82,7 @@ impl SourceReporter {
                 ..Default::default()
             },
             published: None,
+            source: FaultSource::named(name),
             log: FaultLog::default(),
             board,
             error_frames_seen: 0,
@@ -193,7 +197,7 @@ impl SourceReporter {
         let events = if same {
             Vec::new()
         } else {
-            let ev = self.log.update(&self.status.name, &faults, now_s);
+            let ev = self.log.update(&self.source, &faults, now_s);
             self.status.faults = self.log.active().map(|(_, k, t)| (k, t)).collect();
             ev
         };

@@ -1,109 +1,17 @@
-//! "Is it working?": a status snapshot (built by the cycle at ≤ 10 Hz, see `cycle.rs`; per axis the applied correction, its breakdown by
-//! term, the safety mode; every channel's health; the active faults) and its Prometheus text form.
+//! The status snapshot's Prometheus text form (`/metrics`). The snapshot itself (built by the cycle
+//! at ≤ 10 Hz, see `cycle.rs`) lives below the gateway in `crate::status`, re-exported here, so
+//! `telemetry` reads it without importing the gateway.
 //! Units: µm for corrections, mm for positions, channel units for channel values.
 
-use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
-use serde::Serialize;
-
-use super::health::{ChannelStatus, FaultKind};
-use super::safety::Mode;
-use crate::approach::Approach;
 use crate::bus::Health;
-use crate::bus::can::BusState;
-pub use crate::sink::SinkStatus;
+use crate::status::Mode;
 
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct AxisStatus {
-    pub axis: String,
-    pub position_mm: Option<f64>,
-    /// Latched direction of approach; serialised `unknown` / `forward` / `reverse`.
-    #[serde(serialize_with = "crate::approach::serialize_latched")]
-    pub direction: Option<Approach>,
-    pub weight_forward: f64,
-    /// Correction the model asks for (before safety), µm; None while inputs are stale/faulty.
-    pub target_um: Option<f64>,
-    /// Correction actually applied (after clamp, dosing and ramps), µm.
-    pub applied_um: f64,
-    pub mode: Mode,
-    /// Breakdown of the target by model term (corrections, µm).
-    pub terms_um: BTreeMap<String, f64>,
-    /// Cycles whose model target was beyond the clamp (`max_correction_um`), since start.
-    pub clamp_hits: u64,
-    /// Cycles whose step was cut by the dosing cap (`max_change_um_per_cycle`), since start.
-    pub cap_hits: u64,
-}
-
-/// The model in use: its name, the SHA-256 of its canonical TOML (the same model written by any
-/// tool gives the same hash) and when the gateway loaded it (Unix time, s).
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct ModelIdentity {
-    pub name: String,
-    pub sha256: String,
-    pub loaded_unix_s: f64,
-    /// Term name → `geometric`, `thermal`, `load` or `other` (the OPC UA space groups terms by it).
-    pub term_groups: BTreeMap<String, &'static str>,
-}
-
-/// One bus source's link (the CAN backend, a Modbus poller, a serial line): what `/status` shows
-/// under `sources` and `/metrics` as `retrocomp_source_*`. `name` is also its fault-log source.
-#[derive(Clone, Debug, PartialEq, Serialize, Default)]
-pub struct SourceStatus {
-    /// `can`, `modbus.<name>` or `serial.<name>`.
-    pub name: String,
-    pub connected: bool,
-    /// Links re-established after a loss.
-    pub reconnects: u64,
-    /// Active source-level faults (`disconnected`, `bus_off`, `error_passive`, `bus_errors`,
-    /// `exception`), each with the time it started, s.
-    pub faults: Vec<(FaultKind, f64)>,
-    pub last_error: Option<String>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub can: Option<CanBusStatus>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub modbus: Option<ModbusCounters>,
-}
-
-/// CAN controller state from error frames (see `bus::can::bus_state`).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Default)]
-pub struct CanBusStatus {
-    pub state: BusState,
-    pub error_frames: u64,
-    pub bus_off_events: u64,
-    pub tx_error_count: Option<u8>,
-    pub rx_error_count: Option<u8>,
-}
-
-/// A Modbus poller's request outcomes since start.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Default)]
-pub struct ModbusCounters {
-    pub requests: u64,
-    pub exceptions: u64,
-    pub timeouts: u64,
-    pub transport_errors: u64,
-    pub connect_failures: u64,
-}
-
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct StatusSnapshot {
-    pub t_s: f64,
-    pub cycles: u64,
-    pub enabled: bool,
-    pub axes: Vec<AxisStatus>,
-    pub channels: BTreeMap<String, ChannelStatus>,
-    /// (source, fault, since t_s).
-    pub active_faults: Vec<(String, FaultKind, f64)>,
-    pub model_error: Option<String>,
-    pub sink: Option<SinkStatus>,
-    /// Bus sources' links (filled by the runtime; empty when the samples come from elsewhere).
-    pub sources: Vec<SourceStatus>,
-    /// The model in use (filled by the runtime from [`crate::gateway::engine::ErrorModel::identity`]).
-    pub model: Option<ModelIdentity>,
-    /// The Sparkplug B publisher (`[telemetry.mqtt]`), when configured.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub telemetry: Option<crate::telemetry::status::TelemetryStatus>,
-}
+pub use crate::status::{
+    AxisStatus, CanBusStatus, ModbusCounters, ModelIdentity, SinkStatus, SourceStatus,
+    StatusSnapshot,
+};
 
 fn esc(label: &str) -> String {
     label

@@ -234,7 +234,7 @@ impl OriginShiftClient {
                 tokio::time::sleep_until(at).await;
                 tokio::time::timeout(timeout, ctx.read_holding_registers(*address, *count))
                     .await
-                    .map(|r| r.map(|r| r.map(Reply::Read)))
+                    .map(|r| r.map(|r| r.map(|w| Reply::Read(w.into()))))
             }
             Action::Done(_) => return Reply::Failed("no request for Done".into()),
         };

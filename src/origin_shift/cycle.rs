@@ -4,8 +4,10 @@
 //! Sequence: write each value block (one FC16 each) → [toggle the strobe, poll the ack until it equals
 //! the strobe or `timeout_ms` passes] → [read every block back and compare] → done.
 //! Time is seconds on the caller's clock. Any error ends the cycle with an [`Outcome`] that says where.
+//! Requests and replies carry their words inline ([`Words`]): a cycle allocates nothing but the
+//! text of a failure.
 
-use super::map::{RegisterMap, WriteBlock};
+use super::map::{RegisterMap, Words, WriteBlock};
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum Action {
@@ -43,7 +45,8 @@ pub enum Outcome {
 #[derive(Clone, Debug)]
 pub enum Reply {
     Written,
-    Read(Vec<u16>),
+    /// The words read (inline up to 8: no allocation for a sink's reads).
+    Read(Words),
     Failed(String),
 }
 
@@ -105,6 +108,11 @@ impl WriteCycle {
         self.strobe_value
     }
 
+    /// The blocks back, for the next cycle to reuse (their buffers: no allocation per write).
+    pub fn into_blocks(self) -> Vec<WriteBlock> {
+        self.blocks
+    }
+
     fn after_writes_from(&mut self, i: usize, now_s: f64) -> Action {
         if let Some(b) = self.blocks.get(i) {
             self.state = State::Writing(i);
@@ -114,7 +122,7 @@ impl WriteCycle {
             self.state = State::Strobing;
             return Action::Write(WriteBlock {
                 address: strobe,
-                words: vec![self.strobe_value],
+                words: Words::from_slice(&[self.strobe_value]),
             });
         }
         self.verify_from(0, now_s)
@@ -180,8 +188,8 @@ impl WriteCycle {
                 if words != b.words {
                     let o = Outcome::ReadbackMismatch {
                         address: b.address,
-                        wrote: b.words.clone(),
-                        read: words,
+                        wrote: b.words.to_vec(),
+                        read: words.to_vec(),
                     };
                     return self.finish(o);
                 }
@@ -248,7 +256,7 @@ mod tests {
             c.on_reply(Reply::Written, 0.0),
             Action::Write(WriteBlock {
                 address: 30,
-                words: vec![1]
+                words: vec![1].into()
             })
         );
         assert_eq!(
@@ -261,7 +269,7 @@ mod tests {
         );
         // Controller not yet acked: poll again 10 ms later.
         assert_eq!(
-            c.on_reply(Reply::Read(vec![0]), 0.001),
+            c.on_reply(Reply::Read(vec![0].into()), 0.001),
             Action::Read {
                 address: 31,
                 count: 1,
@@ -269,7 +277,7 @@ mod tests {
             }
         );
         assert_eq!(
-            c.on_reply(Reply::Read(vec![1]), 0.011),
+            c.on_reply(Reply::Read(vec![1].into()), 0.011),
             Action::Read {
                 address: 10,
                 count: 2,
@@ -300,7 +308,7 @@ mod tests {
         let mut t = 0.0;
         let out = loop {
             t += 0.01;
-            if let Action::Done(o) = c.on_reply(Reply::Read(vec![1]), t) {
+            if let Action::Done(o) = c.on_reply(Reply::Read(vec![1].into()), t) {
                 break o;
             }
         };
@@ -320,7 +328,7 @@ mod tests {
             Action::Read { address: 20, .. }
         ));
         assert!(matches!(
-            c.on_reply(Reply::Read(vec![4]), 0.0),
+            c.on_reply(Reply::Read(vec![4].into()), 0.0),
             Action::Done(Outcome::ReadbackMismatch { address: 20, .. })
         ));
         let (mut c, _) = WriteCycle::start(&m, m.encode(&[(Axis::Y, 3.0)]).unwrap(), 0);

@@ -118,11 +118,16 @@ pub enum MapError {
     },
 }
 
+/// Register words of one request or reply, inline up to 8 (every write of x, y, z: at most 6
+/// words; a read of three int32 axes with the strobe and ack), so the sink's write period
+/// allocates nothing; longer runs spill to the heap.
+pub type Words = smallvec::SmallVec<[u16; 8]>;
+
 /// One FC16 request: contiguous words starting at `address`.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct WriteBlock {
     pub address: u16,
-    pub words: Vec<u16>,
+    pub words: Words,
 }
 
 /// FC16 carries at most 123 registers.
@@ -283,7 +288,7 @@ impl RegisterMap {
                     } else {
                         out.push(WriteBlock {
                             address: r.address,
-                            words: words.to_vec(),
+                            words: Words::from_slice(words),
                         });
                     }
                     used += 1;
@@ -406,7 +411,7 @@ mod tests {
         );
         assert_eq!(blocks[0].address, 100);
         // z: sign −1 → −700000 counts = 0xFFF5_51A0, ABCD.
-        assert_eq!(blocks[0].words, vec![0xFF85, 0xFFFF, 0xFFF5, 0x51A0]);
+        assert_eq!(blocks[0].words[..], [0xFF85, 0xFFFF, 0xFFF5, 0x51A0]);
         assert!((m.decode("x", &blocks[0].words[0..2]).unwrap() + 12.3).abs() < 1e-9);
         assert!((m.decode("z", &blocks[0].words[2..4]).unwrap() - 70_000.0).abs() < 1e-6);
     }

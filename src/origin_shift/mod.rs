@@ -20,5 +20,7 @@ pub mod sink_task;
 pub use client::{ClientConfig, OriginShiftClient, Transport};
 pub use cycle::{Action, Outcome, Reply, WriteCycle};
 pub use guard::{GuardLimits, Verdict, WriteGuard};
-pub use map::{AxisRegister, DataType, Handshake, MapError, RegisterMap, WordOrder, WriteBlock};
+pub use map::{
+    AxisRegister, DataType, Handshake, MapError, RegisterMap, WordOrder, Words, WriteBlock,
+};
 pub use sink::{SinkAxis, SinkCore, SinkFaults};

@@ -22,7 +22,7 @@ use tokio::time::MissedTickBehavior;
 use super::server_core::{Guard, ServerCore, ServerMap};
 use crate::bus::modbus::server::{RegisterBank, TcpServer, spawn_rtu};
 use crate::bus::{ChannelId, Health, Sample};
-use crate::fault::{FaultKind, FaultLog};
+use crate::fault::{FaultKind, FaultLog, FaultSource};
 use crate::sink::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -190,6 +190,7 @@ impl OriginShiftServer {
         let timeout_s = self.cfg.controller_timeout_ms as f64 / 1e3;
         let mut last_write_s = clock();
         let mut faults = FaultLog::default();
+        let source = FaultSource::named("sink.origin_shift_server");
         let mut st = SinkStatus {
             kind: "origin_shift_server".into(),
             connected: true,
@@ -219,7 +220,7 @@ impl OriginShiftServer {
             } else {
                 &[]
             };
-            faults.update("sink.origin_shift_server", kinds, now);
+            faults.update(&source, kinds, now);
             st.connected = !gone;
             st.last_error = gone.then(|| {
                 format!(

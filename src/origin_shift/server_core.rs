@@ -23,7 +23,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::map::decode_value;
-use super::map::{AxisRegister, DataType, MapError, RegisterMap, WordOrder, WriteBlock};
+use super::map::{AxisRegister, DataType, MapError, RegisterMap, WordOrder, Words, WriteBlock};
 use crate::models::Axis;
 
 /// A register the controller writes an axis position into.
@@ -482,7 +482,7 @@ impl ServerCore {
         self.updates += 1;
         blocks.push(WriteBlock {
             address: self.map.heartbeat_address,
-            words: vec![self.heartbeat],
+            words: Words::from_slice(&[self.heartbeat]),
         });
         Some(Update {
             blocks,
@@ -581,15 +581,15 @@ mod tests {
         assert!((u.exposed_um[1].1 + 1.0).abs() < 1e-9, "{u:?}");
         // x int16 at 0 and z int32 (CDAB, sign −1 → +10 counts) at 1..3: one block, then heartbeat.
         assert_eq!(u.blocks[0].address, 0);
-        assert_eq!(u.blocks[0].words, vec![133, 10, 0]);
+        assert_eq!(u.blocks[0].words[..], [133, 10, 0]);
         assert_eq!(
             u.blocks[1],
             WriteBlock {
                 address: 10,
-                words: vec![1]
+                words: vec![1].into()
             }
         );
-        assert_eq!(c.poll_update(&[]).unwrap().blocks[1].words, vec![2]);
+        assert_eq!(c.poll_update(&[]).unwrap().blocks[1].words[..], [2]);
     }
 
     #[test]

@@ -25,7 +25,7 @@
 
 use super::cycle::{Action, Outcome, Reply, WriteCycle};
 use super::guard::{GuardLimits, Verdict, WriteGuard};
-use super::map::{RegisterMap, WriteBlock, decode_value};
+use super::map::{RegisterMap, Words, WriteBlock, decode_value};
 use crate::models::Axis;
 
 /// What the sink core needs per axis, in the map's axis order.
@@ -54,7 +54,7 @@ enum Phase {
     Heartbeat,
     /// Reading span `i` of `reads`.
     Reading(usize),
-    Writing(Box<WriteCycle>),
+    Writing(WriteCycle),
 }
 
 /// One FC03 span: address, count.
@@ -72,6 +72,10 @@ pub struct SinkCore {
     wants: Vec<f64>,
     /// Axis index and value of the writes in the running cycle.
     planned: Vec<(usize, f64)>,
+    /// This period's guarded values and their register blocks: buffers kept across periods (the
+    /// blocks go into the write cycle and come back), so a period allocates nothing.
+    values: Vec<(Axis, f64)>,
+    blocks: Vec<WriteBlock>,
     reseeds: Vec<(Axis, f64)>,
     /// Each map axis' identity (map order), resolved at construction; None for a name that is not
     /// x, y or z (never wanted, never reseeded).
@@ -118,6 +122,7 @@ impl SinkCore {
             })
             .collect::<Vec<_>>();
         let reads = read_spans(&map);
+        let read_words = reads.iter().map(|r| r.1 as usize).sum();
         let n = axes.len();
         let max_period_age_s = match (map.heartbeat_address, map.heartbeat_timeout_ms) {
             (Some(_), Some(t)) => Some(t as f64 / 2e3),
@@ -132,10 +137,12 @@ impl SinkCore {
             map,
             guard,
             reads,
-            words: Vec::new(),
+            words: Vec::with_capacity(read_words),
             phase: Phase::Idle,
             wants: vec![0.0; n],
-            planned: Vec::new(),
+            planned: Vec::with_capacity(n),
+            values: Vec::with_capacity(n),
+            blocks: Vec::new(),
             reseeds: Vec::new(),
             faults: SinkFaults {
                 write_failed: false,
@@ -205,7 +212,7 @@ impl SinkCore {
             self.phase = Phase::Heartbeat;
             return Action::Write(WriteBlock {
                 address,
-                words: vec![self.heartbeat],
+                words: Words::from_slice(&[self.heartbeat]),
             });
         }
         self.read(0, now_s)
@@ -332,9 +339,11 @@ impl SinkCore {
             Phase::Writing(mut cycle) => {
                 let next = cycle.on_reply(reply, now_s);
                 if matches!(next, Action::Write(_)) && self.too_late(now_s) {
+                    self.blocks = cycle.into_blocks();
                     return self.abandon_late(now_s);
                 }
                 if let Action::Done(o) = &next {
+                    self.blocks = cycle.into_blocks();
                     self.finish_cycle(o);
                 } else {
                     self.phase = Phase::Writing(cycle);
@@ -348,10 +357,14 @@ impl SinkCore {
     fn plan(&mut self, now_s: f64) -> Action {
         for i in 0..self.axes.len() {
             let r = &self.map.axes[i];
-            let words: Option<Vec<u16>> = (0..r.data_type.words())
-                .map(|k| self.word(r.address + k))
-                .collect();
-            let Some(held) = words.and_then(|w| decode_value(r, &w).ok()) else {
+            let mut words = Words::new();
+            for k in 0..r.data_type.words() {
+                words.extend(self.word(r.address + k));
+            }
+            if words.len() != r.data_type.words() as usize {
+                continue;
+            }
+            let Ok(held) = decode_value(r, &words) else {
                 continue;
             };
             let before = self.guard.may_hold(i);
@@ -385,7 +398,7 @@ impl SinkCore {
                 .read_um(i)
                 .is_some_and(|v| v.abs() < self.map.axes[i].lsb_um * 0.5)
         });
-        let mut values: Vec<(Axis, f64)> = Vec::with_capacity(self.axes.len());
+        self.values.clear();
         for i in 0..self.axes.len() {
             let verdict = self.guard.check(i, self.wants[i]);
             self.faults.beyond_clamp[i] = matches!(verdict, Verdict::BeyondClamp { .. });
@@ -394,37 +407,38 @@ impl SinkCore {
                 Verdict::Write(v) => {
                     self.planned.push((i, v));
                     if let Some(axis) = self.ids[i] {
-                        values.push((axis, v));
+                        self.values.push((axis, v));
                     }
                 }
                 Verdict::Uncertain { .. } => self.guard.forget_unconfirmed(i),
                 Verdict::Unknown | Verdict::BeyondClamp { .. } => {}
             }
         }
-        if values.is_empty() {
+        if self.values.is_empty() {
             return Action::Done(Outcome::Ok);
         }
-        let blocks: Vec<WriteBlock> = match self.map.encode(&values) {
-            Ok(b) => b,
-            Err(e) => {
-                self.planned.clear();
-                self.failed(e.to_string());
-                return Action::Done(Outcome::RequestFailed {
-                    step: "encode",
-                    address: 0,
-                    reason: e.to_string(),
-                });
-            }
-        };
+        let mut blocks = std::mem::take(&mut self.blocks);
+        if let Err(e) = self.map.encode_into(&self.values, &mut blocks) {
+            self.blocks = blocks;
+            self.planned.clear();
+            self.failed(e.to_string());
+            return Action::Done(Outcome::RequestFailed {
+                step: "encode",
+                address: 0,
+                reason: e.to_string(),
+            });
+        }
         if self.too_late(now_s) {
+            self.blocks = blocks;
             self.planned.clear(); // nothing of this period went out
             return self.abandon_late(now_s);
         }
         let (cycle, first) = WriteCycle::start_at(&self.map, blocks, strobe.unwrap_or(0), now_s);
         if let Action::Done(o) = &first {
+            self.blocks = cycle.into_blocks();
             self.finish_cycle(o);
         } else {
-            self.phase = Phase::Writing(Box::new(cycle));
+            self.phase = Phase::Writing(cycle);
         }
         first
     }
@@ -512,15 +526,15 @@ mod tests {
             }
         );
         // x holds 1.0 µm (10 counts), y 0; strobe = ack = 1: the next flip is to 0.
-        let a = c.on_reply(Reply::Read(vec![0, 10, 0, 0, 1, 1]), 0.0);
+        let a = c.on_reply(Reply::Read(vec![0, 10, 0, 0, 1, 1].into()), 0.0);
         let Action::Write(b) = a else { panic!("{a:?}") };
         assert_eq!(b.address, 0);
-        assert_eq!(b.words, vec![0, 15, 0xFFFF, 0xFFFB], "1.5 and -0.5 µm");
+        assert_eq!(b.words[..], [0, 15, 0xFFFF, 0xFFFB], "1.5 and -0.5 µm");
         assert_eq!(
             c.on_reply(Reply::Written, 0.0),
             Action::Write(WriteBlock {
                 address: 4,
-                words: vec![0]
+                words: vec![0].into()
             })
         );
     }
@@ -530,7 +544,7 @@ mod tests {
         let mut c = core();
         c.begin(&wants(0.0, 0.0));
         // x holds 100 µm (1000 counts): beyond the 60 µm clamp; y is written.
-        let a = c.on_reply(Reply::Read(vec![0, 1000, 0, 0, 0, 0]), 0.0);
+        let a = c.on_reply(Reply::Read(vec![0, 1000, 0, 0, 0, 0].into()), 0.0);
         let Action::Write(b) = a else { panic!("{a:?}") };
         assert_eq!(b.address, 2, "only y");
         assert_eq!(c.faults().beyond_clamp, vec![true, false]);
@@ -541,7 +555,7 @@ mod tests {
     fn a_pending_latch_means_no_write() {
         let mut c = core();
         c.begin(&wants(0.0, 0.0));
-        let a = c.on_reply(Reply::Read(vec![0, 0, 0, 0, 1, 0]), 0.0);
+        let a = c.on_reply(Reply::Read(vec![0, 0, 0, 0, 1, 0].into()), 0.0);
         assert!(
             matches!(a, Action::Done(Outcome::AckTimeout { .. })),
             "{a:?}"

@@ -28,20 +28,58 @@ use tokio::time::MissedTickBehavior;
 
 use super::client::OriginShiftSink;
 use super::{OriginShiftClient, SinkAxis, SinkCore};
-use crate::fault::{FaultKind, FaultLog};
+use crate::fault::{FaultEvent, FaultKind, FaultLog, FaultSource};
 use crate::models::Axis;
-use crate::sink::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
+use crate::sink::{LocalFuture, Sink, SinkError, SinkIo, StartValues};
 
 pub const SOURCE: &str = "sink.origin_shift";
 
+/// The sink's fault sources, named once: the link (`sink.origin_shift`) and each map axis
+/// (`sink.origin_shift.<axis>`, map order).
+#[derive(Clone, Debug)]
+pub struct SinkSources {
+    link: FaultSource,
+    axes: Vec<FaultSource>,
+}
+
+impl SinkSources {
+    pub fn of(core: &SinkCore) -> Self {
+        SinkSources {
+            link: FaultSource::named(SOURCE),
+            axes: core
+                .axes()
+                .iter()
+                .map(|a| FaultSource::named(&format!("{SOURCE}.{}", a.axis)))
+                .collect(),
+        }
+    }
+}
+
 /// The sink's fault episodes from the core's flags after a period (sans-IO; `now_s` on the
-/// gateway clock). Returns the reason to log with each fault that started.
+/// gateway clock). Returns the faults that started (source, kind), to log with their reason.
+/// Names its sources on every call: the sink task uses [`update_faults_of`].
 pub fn update_faults(
     log: &mut FaultLog,
     core: &SinkCore,
     connected: bool,
     now_s: f64,
 ) -> Vec<(String, FaultKind)> {
+    update_faults_of(log, &SinkSources::of(core), core, connected, now_s)
+        .into_iter()
+        .filter(|e| e.started)
+        .map(|e| (e.source, e.kind))
+        .collect()
+}
+
+/// [`update_faults`] with the sources named once; returns every start and clear. Allocates only
+/// when a fault starts or clears.
+pub fn update_faults_of(
+    log: &mut FaultLog,
+    sources: &SinkSources,
+    core: &SinkCore,
+    connected: bool,
+    now_s: f64,
+) -> Vec<FaultEvent> {
     let f = core.faults();
     let link: &[FaultKind] = if !connected {
         &[FaultKind::Disconnected]
@@ -50,29 +88,24 @@ pub fn update_faults(
     } else {
         &[]
     };
-    let mut started: Vec<(String, FaultKind)> = log
-        .update(SOURCE, link, now_s)
-        .into_iter()
-        .filter(|e| e.started)
-        .map(|e| (e.source, e.kind))
-        .collect();
-    for (i, a) in core.axes().iter().enumerate() {
-        let mut kinds = Vec::new();
+    let mut events = log.update(&sources.link, link, now_s);
+    for (i, source) in sources.axes.iter().enumerate() {
+        let mut kinds = [FaultKind::BeyondClamp; 2];
+        let mut n = 0;
         if f.beyond_clamp.get(i) == Some(&true) {
-            kinds.push(FaultKind::BeyondClamp);
+            kinds[n] = FaultKind::BeyondClamp;
+            n += 1;
         }
         if f.uncertain.get(i) == Some(&true) {
-            kinds.push(FaultKind::WriteFailed);
+            kinds[n] = FaultKind::WriteFailed;
+            n += 1;
         }
-        let source = format!("{SOURCE}.{}", a.axis);
-        started.extend(
-            log.update(&source, &kinds, now_s)
-                .into_iter()
-                .filter(|e| e.started)
-                .map(|e| (e.source, e.kind)),
-        );
+        let ev = log.update(source, &kinds[..n], now_s);
+        if !ev.is_empty() {
+            events.extend(ev);
+        }
     }
-    started
+    events
 }
 
 /// Write the engine's outputs every `write_period_ms` until the runtime drops the output channel.
@@ -95,10 +128,7 @@ pub async fn origin_shift_task(
         tokio::time::interval(std::time::Duration::from_millis(os.write_period_ms.max(1)));
     tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
     let mut faults = FaultLog::default();
-    let mut st = SinkStatus {
-        kind: "origin_shift".into(),
-        ..Default::default()
-    };
+    let sources = SinkSources::of(&core);
     let mut wants: Vec<(Axis, f64)> = Vec::new();
     let mut stop_by: Option<std::time::Instant> = None;
     loop {
@@ -143,29 +173,43 @@ pub async fn origin_shift_task(
         }
         let connected = client.is_connected();
         let now_s = epoch.elapsed().as_secs_f64();
-        for (source, kind) in update_faults(&mut faults, &core, connected, now_s) {
+        let events = update_faults_of(&mut faults, &sources, &core, connected, now_s);
+        for e in events.iter().filter(|e| e.started) {
             let held: BTreeMap<&str, Option<f64>> = core.held_um().collect();
             tracing::warn!(
-                source,
-                ?kind,
+                source = e.source.as_str(),
+                kind = ?e.kind,
                 reason = core.last_error.as_deref().unwrap_or(""),
                 ?held,
                 "origin-shift sink fault"
             );
         }
-        st.connected = connected;
-        st.writes_ok = core.writes_ok;
-        st.writes_failed = core.writes_failed;
-        st.last_error.clone_from(&core.last_error);
-        st.held_um = core
-            .held_um()
-            .filter_map(|(a, v)| Some((a.to_string(), v?)))
-            .collect();
-        st.faults = faults
-            .active()
-            .map(|(s, k, t)| (s.to_string(), k, t))
-            .collect();
-        let _ = status.send(st.clone());
+        // The status in place (no copy per period; the cycle reads it at ≤ 10 Hz): steady state
+        // allocates nothing.
+        status.send_modify(|st| {
+            if st.kind.is_empty() {
+                st.kind = "origin_shift".into();
+            }
+            st.connected = connected;
+            st.writes_ok = core.writes_ok;
+            st.writes_failed = core.writes_failed;
+            st.last_error.clone_from(&core.last_error);
+            for (a, v) in core.held_um() {
+                match (st.held_um.get_mut(a), v) {
+                    (Some(held), Some(v)) => *held = v,
+                    (None, Some(v)) => {
+                        st.held_um.insert(a.to_string(), v);
+                    }
+                    (Some(_), None) => {
+                        st.held_um.remove(a);
+                    }
+                    (None, None) => {}
+                }
+            }
+            if !events.is_empty() {
+                st.faults = faults.active_by_name();
+            }
+        });
     }
 }
 

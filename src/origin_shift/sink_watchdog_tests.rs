@@ -56,12 +56,12 @@ impl Controller {
                 if b.address == 4 {
                     self.regs[5] = self.regs[4];
                 }
-                self.writes.push((b.address, b.words.clone()));
+                self.writes.push((b.address, b.words.to_vec()));
                 Reply::Written
             }
             Action::Read { address, count, .. } => {
                 let at = *address as usize;
-                Reply::Read(self.regs[at..at + *count as usize].to_vec())
+                Reply::Read(self.regs[at..at + *count as usize].to_vec().into())
             }
             Action::Done(_) => unreachable!(),
         }

@@ -3,7 +3,7 @@
 
 use super::status::TelemetryStatus;
 use crate::fault::FaultKind;
-use crate::gateway::status::StatusSnapshot;
+use crate::status::StatusSnapshot;
 
 /// Copies the publisher's state into each status snapshot; owned by the cycle loop (which builds
 /// the snapshots, at ≤ 10 Hz), so it only reads a watch channel.

@@ -12,7 +12,7 @@
 use serde::Serialize;
 
 use super::sparkplug::{NamedValue, Value};
-use crate::gateway::status::StatusSnapshot;
+use crate::status::StatusSnapshot;
 
 fn snake<T: Serialize>(t: &T) -> String {
     match serde_json::to_value(t) {

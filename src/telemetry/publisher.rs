@@ -31,7 +31,7 @@ use super::queue::{self, Queue, QueueLimits};
 use super::sparkplug::{self, EdgeNode, Kind, NamedValue};
 pub use super::status::TelemetryStatus;
 use crate::bus::Backoff;
-use crate::gateway::status::StatusSnapshot;
+use crate::status::StatusSnapshot;
 
 /// What the publisher needs besides its config.
 #[derive(Debug)]

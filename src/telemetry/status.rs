@@ -1,28 +1,9 @@
 //! The publisher's own state as the gateway shows it: `telemetry` in `/status`, and
-//! `retrocomp_telemetry_*` in `/metrics` (counts of records; no units). A leaf: the gateway's
-//! status embeds it; `annotate.rs` puts it (and the link-down fault) into each snapshot.
+//! `retrocomp_telemetry_*` in `/metrics` (counts of records; no units). The type lives with the
+//! status snapshot (`crate::status`), which embeds it; `annotate.rs` puts it (and the link-down
+//! fault) into each snapshot; its Prometheus form is here.
 
-use serde::Serialize;
-
-/// The publisher's state, for `/status` and `/metrics` (`retrocomp_telemetry_*`).
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct TelemetryStatus {
-    /// Connected and born (NBIRTH sent): data flows.
-    pub connected: bool,
-    pub bd_seq: u8,
-    /// Records waiting in the store-and-forward queue (including those in flight).
-    pub queued: u64,
-    pub queued_bytes: u64,
-    /// Records dropped because the queue or the hand-over channel was full, since start.
-    pub dropped_total: u64,
-    /// Records taken into the queue, since start.
-    pub records_total: u64,
-    /// Records the broker acknowledged, since start.
-    pub acked_total: u64,
-    /// NBIRTHs sent (connects and rebirths), since start.
-    pub births_total: u64,
-    pub last_error: Option<String>,
-}
+pub use crate::status::TelemetryStatus;
 
 impl TelemetryStatus {
     /// `retrocomp_telemetry_*` in the Prometheus text format (appended to the gateway's).

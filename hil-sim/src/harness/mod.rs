@@ -273,7 +273,7 @@ impl ClosedLoop {
                                 self.writes.push(PlcWrite {
                                     t_s: t,
                                     address: b.address,
-                                    words: b.words.clone(),
+                                    words: b.words.to_vec(),
                                     applied_um,
                                     registers_um: regs,
                                     generation: self.generation,
@@ -285,7 +285,7 @@ impl ClosedLoop {
                     }
                     Action::Read { address, count, .. } => {
                         match plc.read(*address, *count as usize) {
-                            Ok(w) => Reply::Read(w.to_vec()),
+                            Ok(w) => Reply::Read(w.to_vec().into()),
                             Err(e) => Reply::Failed(format!("Modbus exception: {e}")),
                         }
                     }

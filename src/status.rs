@@ -1,0 +1,170 @@
+//! The status snapshot: what the gateway's runtime publishes at ≤ 10 Hz and every consumer reads
+//! (`/status` and `/metrics` in `gateway::http`, the live page, OPC UA, the Sparkplug publisher in
+//! `telemetry`). Per axis the applied correction, its breakdown by term and the safety mode; every
+//! channel's health; the active faults; the sink's, the sources' and the publisher's state.
+//!
+//! Plain data, below the gateway and `telemetry`: the engine builds it (`gateway::engine`), the
+//! Prometheus text form is `gateway::status`, and `telemetry` reads it without importing the
+//! gateway (imports go one way: gateway → telemetry → this).
+//!
+//! Units: µm for corrections (correction = −error), mm for positions, channel units for channel
+//! values, s for times on the gateway's clock.
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use crate::approach::Approach;
+use crate::bus::Health;
+use crate::bus::can::BusState;
+use crate::fault::FaultKind;
+pub use crate::sink::SinkStatus;
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct AxisStatus {
+    pub axis: String,
+    pub position_mm: Option<f64>,
+    /// Latched direction of approach; serialised `unknown` / `forward` / `reverse`.
+    #[serde(serialize_with = "crate::approach::serialize_latched")]
+    pub direction: Option<Approach>,
+    pub weight_forward: f64,
+    /// Correction the model asks for (before safety), µm; None while inputs are stale/faulty.
+    pub target_um: Option<f64>,
+    /// Correction actually applied (after clamp, dosing and ramps), µm.
+    pub applied_um: f64,
+    pub mode: Mode,
+    /// Breakdown of the target by model term (corrections, µm).
+    pub terms_um: BTreeMap<String, f64>,
+    /// Cycles whose model target was beyond the clamp (`max_correction_um`), since start.
+    pub clamp_hits: u64,
+    /// Cycles whose step was cut by the dosing cap (`max_change_um_per_cycle`), since start.
+    pub cap_hits: u64,
+}
+
+/// The model in use: its name, the SHA-256 of its canonical TOML (the same model written by any
+/// tool gives the same hash) and when the gateway loaded it (Unix time, s).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct ModelIdentity {
+    pub name: String,
+    pub sha256: String,
+    pub loaded_unix_s: f64,
+    /// Term name → `geometric`, `thermal`, `load` or `other` (the OPC UA space groups terms by it).
+    pub term_groups: BTreeMap<String, &'static str>,
+}
+
+/// One bus source's link (the CAN backend, a Modbus poller, a serial line): what `/status` shows
+/// under `sources` and `/metrics` as `retrocomp_source_*`. `name` is also its fault-log source.
+#[derive(Clone, Debug, PartialEq, Serialize, Default)]
+pub struct SourceStatus {
+    /// `can`, `modbus.<name>` or `serial.<name>`.
+    pub name: String,
+    pub connected: bool,
+    /// Links re-established after a loss.
+    pub reconnects: u64,
+    /// Active source-level faults (`disconnected`, `bus_off`, `error_passive`, `bus_errors`,
+    /// `exception`), each with the time it started, s.
+    pub faults: Vec<(FaultKind, f64)>,
+    pub last_error: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub can: Option<CanBusStatus>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub modbus: Option<ModbusCounters>,
+}
+
+/// CAN controller state from error frames (see `bus::can::bus_state`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Default)]
+pub struct CanBusStatus {
+    pub state: BusState,
+    pub error_frames: u64,
+    pub bus_off_events: u64,
+    pub tx_error_count: Option<u8>,
+    pub rx_error_count: Option<u8>,
+}
+
+/// A Modbus poller's request outcomes since start.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Default)]
+pub struct ModbusCounters {
+    pub requests: u64,
+    pub exceptions: u64,
+    pub timeouts: u64,
+    pub transport_errors: u64,
+    pub connect_failures: u64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StatusSnapshot {
+    pub t_s: f64,
+    pub cycles: u64,
+    pub enabled: bool,
+    pub axes: Vec<AxisStatus>,
+    pub channels: BTreeMap<String, ChannelStatus>,
+    /// (source, fault, since t_s).
+    pub active_faults: Vec<(String, FaultKind, f64)>,
+    pub model_error: Option<String>,
+    pub sink: Option<SinkStatus>,
+    /// Bus sources' links (filled by the runtime; empty when the samples come from elsewhere).
+    pub sources: Vec<SourceStatus>,
+    /// The model in use (filled by the runtime from `ErrorModel::identity`).
+    pub model: Option<ModelIdentity>,
+    /// The Sparkplug B publisher (`[telemetry.mqtt]`), when configured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub telemetry: Option<TelemetryStatus>,
+}
+
+/// Health of one channel now.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ChannelStatus {
+    /// Last good value (what the model may use), channel units.
+    pub value: Option<f64>,
+    pub health: Health,
+    /// The active faults (empty when healthy).
+    pub faults: Vec<FaultKind>,
+    /// True when `value` is an estimate from correlated neighbours (see `recovery`).
+    pub substituted: bool,
+}
+
+impl ChannelStatus {
+    /// No value yet, stale.
+    pub fn unknown() -> Self {
+        ChannelStatus {
+            value: None,
+            health: Health::Stale,
+            faults: Vec::new(),
+            substituted: false,
+        }
+    }
+}
+
+/// The safety mode of one axis (`gateway::safety`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    /// Following the target within the dosing cap.
+    Tracking,
+    /// Ramping towards the target after start, enable, or a recovered fault/stale input.
+    RampingIn,
+    /// Inputs stale: holding the last output.
+    Holding,
+    /// Ramping to zero (disabled, fault, or stale beyond the hold time).
+    RampingOut,
+}
+
+/// The publisher's state, for `/status` and `/metrics` (`retrocomp_telemetry_*`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct TelemetryStatus {
+    /// Connected and born (NBIRTH sent): data flows.
+    pub connected: bool,
+    pub bd_seq: u8,
+    /// Records waiting in the store-and-forward queue (including those in flight).
+    pub queued: u64,
+    pub queued_bytes: u64,
+    /// Records dropped because the queue or the hand-over channel was full, since start.
+    pub dropped_total: u64,
+    /// Records taken into the queue, since start.
+    pub records_total: u64,
+    /// Records the broker acknowledged, since start.
+    pub acked_total: u64,
+    /// NBIRTHs sent (connects and rebirths), since start.
+    pub births_total: u64,
+    pub last_error: Option<String>,
+}
