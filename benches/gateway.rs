@@ -406,7 +406,7 @@ fn pipeline_gateway(c: &mut Criterion) {
     let mut g = c.benchmark_group("pipeline");
     g.throughput(Throughput::Elements(per_cycle as u64));
     g.bench_function("pipeline_gateway", |b| {
-        b.iter(|| black_box(one_cycle(&mut e)))
+        b.iter(|| black_box(one_cycle(&mut e)));
     });
     g.finish();
 }

@@ -610,7 +610,7 @@ fn an_origin_shift_write_period_allocates_nothing() {
     let before = allocs();
     let mut n_ok = 0;
     for k in 200..1200 {
-        n_ok += (period(&mut core, &mut log, k) == Outcome::Ok) as u64;
+        n_ok += u64::from(period(&mut core, &mut log, k) == Outcome::Ok);
     }
     let n = allocs() - before;
     assert_eq!(n_ok, 1000);
@@ -621,7 +621,7 @@ fn an_origin_shift_write_period_allocates_nothing() {
     let held: Vec<f64> = core.held_um().map(|(_, v)| v.unwrap()).collect();
     assert!(held.iter().any(|v| v.abs() > 1.0), "{held:?}");
     let x = map.decode("x", &regs[0..2]).unwrap();
-    assert!((x - wants[0].1).abs() <= 0.5 + 0.1, "{x} vs {:?}", wants);
+    assert!((x - wants[0].1).abs() <= 0.5 + 0.1, "{x} vs {wants:?}");
     assert_eq!(regs[10], 1200, "one heartbeat per period");
     assert_eq!(n, 0, "{n} heap allocations in 1000 write periods");
 }
