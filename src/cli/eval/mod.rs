@@ -19,6 +19,8 @@ use anyhow::{Context, bail};
 
 use retrocomp::models::{EvalFlags, MachineModel, ModelInput};
 
+mod plain;
+
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
     /// Machine model TOML file.
@@ -192,13 +194,75 @@ fn evaluate_rows(
     let mut state = model.new_state();
     let mut out = model.new_breakdown();
     let mut problems = Problems::default();
-    let mut rec = csv::ByteRecord::new();
     // Rows are assembled straight into one reused chunk (no allocation per row) rather than through
     // csv::Writer, whose per-field state machine was a fifth of the command's CPU on 10⁶ rows; the
     // chunk goes out in one write when it is full.
     let mut chunk: Vec<u8> = Vec::with_capacity(CHUNK + 4096);
     chunk.extend_from_slice(header);
     let mut last_t = None;
+    let mut evaluate = |chunk: &mut Vec<u8>, input: &ModelInput| -> std::io::Result<()> {
+        if args.first_order {
+            model.evaluate_first_order(input, &mut state, &mut out);
+        } else {
+            model.evaluate(input, &mut state, &mut out);
+        }
+        // Fixed 6 decimals (1 pm).
+        for v in out.total_um.iter().chain(out.terms_um.iter().flatten()) {
+            chunk.push(b',');
+            retrocomp::decimal::push_fixed6(chunk, *v);
+        }
+        chunk.push(b',');
+        write_flags(chunk, &out.flags)?;
+        chunk.push(b'\n');
+        if chunk.len() >= CHUNK {
+            output.write_all(chunk)?;
+            chunk.clear();
+        }
+        Ok(())
+    };
+
+    // Plain lines first (`plain.rs`): a plain line is its own passed-through columns.
+    let p = rdr.position().clone();
+    let at = plain::At {
+        byte: p.byte(),
+        line: p.line(),
+        record: p.record(),
+    };
+    let mut src =
+        std::fs::File::open(&args.path).with_context(|| format!("{file}: cannot open"))?;
+    std::io::Seek::seek(&mut src, std::io::SeekFrom::Start(at.byte))?;
+    let mut lines = plain::PlainLines::new(src, at, rows.headers.len());
+    loop {
+        match lines
+            .next_line()
+            .with_context(|| format!("{file}: cannot read"))?
+        {
+            plain::Next::Plain(l) => {
+                rows.parse(&l, &mut input, &mut last_t, &mut problems);
+                if problems.count == 0 {
+                    chunk.extend_from_slice(l.text);
+                    evaluate(&mut chunk, &input)?;
+                }
+            }
+            plain::Next::HandOver(at) => {
+                let mut pos = csv::Position::new();
+                pos.set_byte(at.byte)
+                    .set_line(at.line)
+                    .set_record(at.record);
+                rdr.seek_raw(std::io::SeekFrom::Start(at.byte), pos)?;
+                break;
+            }
+            plain::Next::End => {
+                if problems.count == 0 {
+                    output.write_all(&chunk)?;
+                }
+                return Ok(problems);
+            }
+        }
+    }
+
+    // The rest, from the first line that is not plain, through the csv crate.
+    let mut rec = csv::ByteRecord::new();
     loop {
         match rdr.read_byte_record(&mut rec) {
             Ok(true) => rows.parse(&rec, &mut input, &mut last_t, &mut problems),
@@ -212,29 +276,13 @@ fn evaluate_rows(
         if problems.count > 0 {
             continue;
         }
-        if args.first_order {
-            model.evaluate_first_order(&input, &mut state, &mut out);
-        } else {
-            model.evaluate(&input, &mut state, &mut out);
-        }
         for (i, field) in rec.iter().enumerate() {
             if i > 0 {
                 chunk.push(b',');
             }
             push_csv_field(&mut chunk, field);
         }
-        // Fixed 6 decimals (1 pm).
-        for v in out.total_um.iter().chain(out.terms_um.iter().flatten()) {
-            chunk.push(b',');
-            retrocomp::decimal::push_fixed6(&mut chunk, *v);
-        }
-        chunk.push(b',');
-        write_flags(&mut chunk, &out.flags)?;
-        chunk.push(b'\n');
-        if chunk.len() >= CHUNK {
-            output.write_all(&chunk)?;
-            chunk.clear();
-        }
+        evaluate(&mut chunk, &input)?;
     }
     if problems.count == 0 {
         output.write_all(&chunk)?;
@@ -370,6 +418,31 @@ impl Problems {
     }
 }
 
+/// One input row, read by the csv crate or split as a plain line.
+trait Row {
+    fn field(&self, i: usize) -> &[u8];
+    /// Its line in the file (1-based), for messages.
+    fn line(&self) -> u64;
+}
+
+impl Row for csv::ByteRecord {
+    fn field(&self, i: usize) -> &[u8] {
+        &self[i]
+    }
+    fn line(&self) -> u64 {
+        self.position().map_or(0, |p| p.line())
+    }
+}
+
+impl Row for plain::PlainLine<'_> {
+    fn field(&self, i: usize) -> &[u8] {
+        plain::PlainLine::field(self, i)
+    }
+    fn line(&self) -> u64 {
+        self.line
+    }
+}
+
 /// Turns one CSV row into a [`ModelInput`] (reused), noting every bad cell with its line.
 struct RowReader<'a> {
     file: &'a str,
@@ -381,16 +454,16 @@ struct RowReader<'a> {
 impl RowReader<'_> {
     fn parse(
         &self,
-        rec: &csv::ByteRecord,
+        rec: &impl Row,
         input: &mut ModelInput,
         last_t: &mut Option<f64>,
         problems: &mut Problems,
     ) {
         let (file, cols) = (self.file, self.cols);
-        let line = rec.position().map_or(0, |p| p.line());
-        let text = |col: usize| String::from_utf8_lossy(&rec[col]).trim().to_string();
+        let line = rec.line();
+        let text = |col: usize| String::from_utf8_lossy(rec.field(col)).trim().to_string();
         let mut num = |col: usize| -> Option<f64> {
-            let v = std::str::from_utf8(&rec[col])
+            let v = std::str::from_utf8(rec.field(col))
                 .ok()
                 .and_then(|s| s.trim().parse::<f64>().ok());
             match v {
@@ -441,7 +514,7 @@ impl RowReader<'_> {
         }
         for (a, c) in cols.dir.iter().enumerate() {
             let Some(c) = *c else { continue };
-            match rec[c].trim_ascii() {
+            match rec.field(c).trim_ascii() {
                 b"1" | b"+1" | b"1.0" => input.dir[a] = 1,
                 b"-1" | b"-1.0" => input.dir[a] = -1,
                 b"0" | b"0.0" | b"" => input.dir[a] = 0,
