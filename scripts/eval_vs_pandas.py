@@ -15,7 +15,8 @@ two really computed the same thing.
 
 Prints wall time, CPU time and peak RSS of each side (retrocomp's from GNU time, `/usr/bin/time`,
 Debian package `time`; pandas' from this process's own getrusage, pyarrow's threads included). On a
-loaded machine compare CPU times: wall times then say more about the load than about the programs. Tiles tests/data/fl_thermal/fl_thermal_dev.csv
+loaded machine compare CPU times: wall times then say more about the load than about the programs.
+retrocomp's stdout is the output file itself (as `> out.csv`), or with --pipe a pipe into `cat`. Tiles tests/data/fl_thermal/fl_thermal_dev.csv
 (MIT, see its LICENSE) with time continuing, so the recording is real data repeated.
 """
 import argparse, os, resource, subprocess, sys, time, tomllib
@@ -81,6 +82,9 @@ def main():
     ap.add_argument("--rows", type=int, default=1_000_000)
     ap.add_argument("--retrocomp", default=os.path.join(REPO, "target/release/retrocomp"))
     ap.add_argument("--dir", default="/tmp/eval_vs_pandas")
+    ap.add_argument("--pipe", action="store_true",
+                    help="retrocomp's stdout into a pipe (`| cat > file`) instead of the file itself: "
+                         "eval then spools its output (memory, then a temporary file) until every row was good")
     a = ap.parse_args()
     os.makedirs(a.dir, exist_ok=True)
     inp = os.path.join(a.dir, f"rec_{a.rows}.csv")
@@ -91,9 +95,13 @@ def main():
     # GNU time reports the child's own peak RSS and CPU; spawned from this (large) Python process
     # directly, the child's ru_maxrss would include Python's pages (vfork/exec keeps the high-water).
     t0 = time.perf_counter()
-    with open(rc_out, "wb") as f:
-        p = subprocess.run(["/usr/bin/time", "-f", "%M %U %S", a.retrocomp, "eval", "--model", MODEL,
-                            "--path", inp], stdout=f, stderr=subprocess.PIPE, check=True, text=True)
+    timed = ["/usr/bin/time", "-f", "%M %U %S", a.retrocomp, "eval", "--model", MODEL, "--path", inp]
+    if a.pipe:
+        p = subprocess.run(["sh", "-c", '"$@" | cat > "$0"', rc_out, *timed],
+                           stderr=subprocess.PIPE, check=True, text=True)
+    else:
+        with open(rc_out, "wb") as f:
+            p = subprocess.run(timed, stdout=f, stderr=subprocess.PIPE, check=True, text=True)
     rc_s = time.perf_counter() - t0
     kb, u, sy = p.stderr.strip().splitlines()[-1].split()
     rc_rss, rc_cpu = int(kb) / 1024, float(u) + float(sy)
@@ -112,7 +120,7 @@ def main():
     worst = max(float(np.max(np.abs(r[c].to_numpy() - p[c].to_numpy())))
                 for c in r.columns if c.endswith("_um") and c.startswith(("e", "term_")))
     assert worst <= 1e-5, f"outputs differ by {worst} µm"
-    print(f"rows {a.rows}: retrocomp eval {rc_s:.2f} s wall, {rc_cpu:.2f} s CPU, peak RSS {rc_rss:.1f} MB; "
+    print(f"rows {a.rows}: retrocomp eval{' (into a pipe)' if a.pipe else ''} {rc_s:.2f} s wall, {rc_cpu:.2f} s CPU, peak RSS {rc_rss:.1f} MB; "
           f"pandas+pyarrow {pd_s:.2f} s wall, {pd_cpu:.2f} s CPU, peak RSS {pd_rss:.0f} MB (whole process); "
           f"speed-up {pd_s / rc_s:.1f}× wall, {pd_cpu / rc_cpu:.1f}× CPU; outputs agree to {worst:.1e} µm")
 

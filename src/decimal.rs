@@ -13,26 +13,44 @@ use std::io::Write as _;
 
 /// Append `v` with exactly six decimals, as `format!("{v:.6}")` would.
 pub fn push_fixed6(out: &mut Vec<u8>, v: f64) {
-    let scaled = v * 1e6;
+    let scaled = (v * 1e6).abs();
     // |scaled| < 2^40 keeps the product's error below 2^-12 of a unit, far from the ±1e-3 band
-    // around a half-way point that goes to the exact path.
-    if scaled.abs() < 1_099_511_627_776.0 {
-        let frac = (scaled - scaled.trunc()).abs();
+    // around a half-way point that goes to the exact path. In that range the integer conversion is
+    // `trunc` exactly, and inline (`f64::trunc`/`round` are calls into libm without SSE4.1).
+    if scaled < 1_099_511_627_776.0 {
+        let whole = scaled as u64;
+        let frac = scaled - whole as f64;
         if (frac - 0.5).abs() > 1e-3 {
-            let units = scaled.abs().round() as u64;
+            let units = whole + u64::from(frac > 0.5);
             if v.is_sign_negative() {
                 out.push(b'-');
             }
             let mut buf = itoa::Buffer::new();
             out.extend_from_slice(buf.format(units / 1_000_000).as_bytes());
             out.push(b'.');
-            let frac = buf.format(units % 1_000_000 + 1_000_000).as_bytes();
-            out.extend_from_slice(&frac[1..]);
+            push_6_digits(out, (units % 1_000_000) as u32);
             return;
         }
     }
     // Writing into a Vec cannot fail.
     let _ = write!(out, "{v:.6}");
+}
+
+/// Append `n` < 10⁶ as exactly six digits (leading zeros kept), two at a time.
+fn push_6_digits(out: &mut Vec<u8>, n: u32) {
+    const PAIRS: &[u8; 200] = b"0001020304050607080910111213141516171819\
+        2021222324252627282930313233343536373839\
+        4041424344454647484950515253545556575859\
+        6061626364656667686970717273747576777879\
+        8081828384858687888990919293949596979899";
+    let pair = |k: u32| {
+        let k = 2 * k as usize;
+        [PAIRS[k], PAIRS[k + 1]]
+    };
+    let [a, b] = pair(n / 10_000);
+    let [c, d] = pair(n / 100 % 100);
+    let [e, f] = pair(n % 100);
+    out.extend_from_slice(&[a, b, c, d, e, f]);
 }
 
 /// Append `v` as `format!("{v}")` would: the shortest digits that parse back to the same `f64`,

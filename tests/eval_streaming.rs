@@ -130,3 +130,62 @@ fn a_bad_row_deep_in_the_file_writes_nothing() {
         "{err}"
     );
 }
+
+/// A recording whose line 15 001 holds a temperature the model reads that is not a number.
+fn recording_with_a_bad_row(path: &Path) {
+    tiled_recording(path, 20_000);
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let mut cells: Vec<String> = lines[15_000].split(',').map(String::from).collect();
+    cells[5] = "warm".into(); // T_4_C, read by the model
+    lines[15_000] = cells.join(",");
+    std::fs::write(path, lines.join("\n") + "\n").unwrap();
+}
+
+#[test]
+fn into_a_file_a_bad_row_leaves_the_file_as_it_was() {
+    // stdout a regular file positioned at its end: rows go straight into it (≈ 4 MB before the bad
+    // row, far past one write chunk), then are taken back, and what was there before stays.
+    let dir = tempfile::tempdir().unwrap();
+    let (input, out) = (dir.path().join("rec.csv"), dir.path().join("out.csv"));
+    recording_with_a_bad_row(&input);
+    let before = b"an earlier result\n";
+    let mut f = std::fs::File::create(&out).unwrap();
+    f.write_all(before).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .args(["eval", "--model", MODEL, "--path"])
+        .arg(&input)
+        .stdout(Stdio::from(f))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains(":15001: column T_4_C: expected a finite number"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(&out).unwrap(),
+        before,
+        "the file holds what it held"
+    );
+}
+
+#[test]
+fn into_a_pipe_the_output_is_the_same_as_into_a_file() {
+    // 20 000 rows ≈ 5.8 MB: past the spool's 4 MiB in memory, so it goes through its temporary file.
+    let dir = tempfile::tempdir().unwrap();
+    let (input, out) = (dir.path().join("rec.csv"), dir.path().join("out.csv"));
+    tiled_recording(&input, 20_000);
+    let (code, _) = eval_peak_rss_mib(&input, &out);
+    assert_eq!(code, 0);
+    let piped = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .args(["eval", "--model", MODEL, "--path"])
+        .arg(&input)
+        .output()
+        .unwrap();
+    assert!(piped.status.success());
+    let filed = std::fs::read(&out).unwrap();
+    assert!(filed.len() > 5 << 20, "{} bytes", filed.len());
+    assert!(piped.stdout == filed, "piped and filed outputs differ");
+}

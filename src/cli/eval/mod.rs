@@ -6,10 +6,11 @@
 //! are passed through. A model with no position-dependent term needs no axis column. Output (stdout): the input columns, then
 //! `ex_um`, `ey_um`, `ez_um`, then `term_<name>_ex_um`, `term_<name>_ey_um`, `term_<name>_ez_um`
 //! per term, and `flags` (empty when nothing was assumed). Every bad row is reported with its line
-//! number and nothing is written. Streams in one pass (each row checked as it is evaluated; the
-//! output is held in a spool, memory then an unlinked temporary file, and copied to stdout once every
-//! row was good), so memory stays bounded for any length; each output line is assembled in one
-//! reused buffer (`decimal::push_fixed6` for the numbers).
+//! number and nothing is written. Streams in one pass (each row checked as it is evaluated), so
+//! memory stays bounded for any length: into stdout directly when it is a regular file (truncated
+//! back to where it was if a row turns out bad), otherwise into a spool (memory, then an unlinked
+//! temporary file) copied to stdout once every row was good. Rows are assembled in one reused chunk
+//! (`decimal::push_fixed6` for the numbers).
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -17,6 +18,8 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 
 use retrocomp::models::{EvalFlags, MachineModel, ModelInput};
+
+mod plain;
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
@@ -130,19 +133,17 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         "the strain is taken as 0",
     );
 
-    // One pass: every row is checked as it is evaluated, and the output goes to a spool (memory,
-    // then an unlinked temporary file past `Spool::IN_MEMORY`) that reaches stdout only when every
-    // row was good, so a bad row anywhere still means nothing is written. Memory stays bounded
-    // whatever the file's length (holding the rows took 865 MB for 10⁶ of them); the spool's copy
-    // to stdout is a kernel copy. Reading and tokenising the file once instead of twice (check,
-    // then evaluate) was the largest remaining cost.
+    // One pass: every row is checked as it is evaluated, and the output goes where it can be taken
+    // back or held (`Output`), so a bad row anywhere still means nothing is written. Memory stays
+    // bounded whatever the file's length (holding the rows took 865 MB for 10⁶ of them). Reading
+    // and tokenising the file once instead of twice (check, then evaluate) was the largest cost
+    // after the output's own.
     let rows = RowReader {
         file: &file,
         headers: &headers,
         cols: &cols,
         held_mm,
     };
-    let mut spool = Spool::default();
     let mut header: Vec<String> = headers.iter().map(|s| s.to_string()).collect();
     header.extend(["ex_um", "ey_um", "ez_um"].map(String::from));
     for n in model.term_names() {
@@ -151,21 +152,117 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         }
     }
     header.push("flags".into());
-    {
-        let mut hw = csv::Writer::from_writer(&mut spool);
-        hw.write_record(&header)?;
-        hw.flush()?;
+    let mut hw = csv::Writer::from_writer(Vec::new());
+    hw.write_record(&header)?;
+    let header = hw.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut output = Output::for_stdout();
+    let rdr = open(&args.path, &file)?;
+    match evaluate_rows(args, &model, &rows, rdr, &header, &mut output) {
+        Ok(problems) if problems.count == 0 => output.finish(),
+        Ok(problems) => {
+            output.discard()?;
+            let n = problems.count;
+            let more = if n > problems.shown.len() {
+                format!("\n… and {} more", n - problems.shown.len())
+            } else {
+                String::new()
+            };
+            bail!(
+                "{n} bad row(s) in the path file, nothing evaluated:\n{}{more}",
+                problems.shown.join("\n")
+            );
+        }
+        Err(e) => {
+            // The error (e.g. a full disk) is what is reported; nothing is left written either way.
+            let _ = output.discard();
+            Err(e)
+        }
     }
+}
+
+/// Every row checked and evaluated, in order; rows reach `output` only until the first problem.
+fn evaluate_rows(
+    args: &Args,
+    model: &MachineModel,
+    rows: &RowReader<'_>,
+    mut rdr: csv::Reader<std::fs::File>,
+    header: &[u8],
+    output: &mut Output,
+) -> anyhow::Result<Problems> {
+    let file = rows.file;
     let mut input = model.new_input();
     let mut state = model.new_state();
     let mut out = model.new_breakdown();
     let mut problems = Problems::default();
-    let mut rdr = open(&args.path, &file)?;
-    let mut rec = csv::ByteRecord::new();
-    // One output line, reused: no allocation per row. Rows are assembled here rather than through
-    // csv::Writer, whose per-field state machine was a fifth of the command's CPU on 10⁶ rows.
-    let mut line: Vec<u8> = Vec::with_capacity(1024);
+    // Rows are assembled straight into one reused chunk (no allocation per row) rather than through
+    // csv::Writer, whose per-field state machine was a fifth of the command's CPU on 10⁶ rows; the
+    // chunk goes out in one write when it is full.
+    let mut chunk: Vec<u8> = Vec::with_capacity(CHUNK + 4096);
+    chunk.extend_from_slice(header);
     let mut last_t = None;
+    let mut evaluate = |chunk: &mut Vec<u8>, input: &ModelInput| -> std::io::Result<()> {
+        if args.first_order {
+            model.evaluate_first_order(input, &mut state, &mut out);
+        } else {
+            model.evaluate(input, &mut state, &mut out);
+        }
+        // Fixed 6 decimals (1 pm).
+        for v in out.total_um.iter().chain(out.terms_um.iter().flatten()) {
+            chunk.push(b',');
+            retrocomp::decimal::push_fixed6(chunk, *v);
+        }
+        chunk.push(b',');
+        write_flags(chunk, &out.flags)?;
+        chunk.push(b'\n');
+        if chunk.len() >= CHUNK {
+            output.write_all(chunk)?;
+            chunk.clear();
+        }
+        Ok(())
+    };
+
+    // Plain lines first (`plain.rs`): a plain line is its own passed-through columns.
+    let p = rdr.position().clone();
+    let at = plain::At {
+        byte: p.byte(),
+        line: p.line(),
+        record: p.record(),
+    };
+    let mut src =
+        std::fs::File::open(&args.path).with_context(|| format!("{file}: cannot open"))?;
+    std::io::Seek::seek(&mut src, std::io::SeekFrom::Start(at.byte))?;
+    let mut lines = plain::PlainLines::new(src, at, rows.headers.len());
+    loop {
+        match lines
+            .next_line()
+            .with_context(|| format!("{file}: cannot read"))?
+        {
+            plain::Next::Plain(l) => {
+                rows.parse(&l, &mut input, &mut last_t, &mut problems);
+                if problems.count == 0 {
+                    chunk.extend_from_slice(l.text);
+                    evaluate(&mut chunk, &input)?;
+                }
+            }
+            plain::Next::HandOver(at) => {
+                let mut pos = csv::Position::new();
+                pos.set_byte(at.byte)
+                    .set_line(at.line)
+                    .set_record(at.record);
+                rdr.seek_raw(std::io::SeekFrom::Start(at.byte), pos)?;
+                break;
+            }
+            plain::Next::End => {
+                if problems.count == 0 {
+                    output.write_all(&chunk)?;
+                }
+                return Ok(problems);
+            }
+        }
+    }
+
+    // The rest, from the first line that is not plain, through the csv crate.
+    let mut rec = csv::ByteRecord::new();
     loop {
         match rdr.read_byte_record(&mut rec) {
             Ok(true) => rows.parse(&rec, &mut input, &mut last_t, &mut problems),
@@ -179,125 +276,95 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         if problems.count > 0 {
             continue;
         }
-        if args.first_order {
-            model.evaluate_first_order(&input, &mut state, &mut out);
-        } else {
-            model.evaluate(&input, &mut state, &mut out);
-        }
-        line.clear();
         for (i, field) in rec.iter().enumerate() {
             if i > 0 {
-                line.push(b',');
+                chunk.push(b',');
             }
-            push_csv_field(&mut line, field);
+            push_csv_field(&mut chunk, field);
         }
-        // Fixed 6 decimals (1 pm).
-        for v in out.total_um.iter().chain(out.terms_um.iter().flatten()) {
-            line.push(b',');
-            retrocomp::decimal::push_fixed6(&mut line, *v);
-        }
-        line.push(b',');
-        write_flags(&mut line, &out.flags)?;
-        line.push(b'\n');
-        spool.write_all(&line)?;
+        evaluate(&mut chunk, &input)?;
     }
-    if problems.count > 0 {
-        let n = problems.count;
-        let more = if n > problems.shown.len() {
-            format!("\n… and {} more", n - problems.shown.len())
-        } else {
-            String::new()
-        };
-        bail!(
-            "{n} bad row(s) in the path file, nothing evaluated:\n{}{more}",
-            problems.shown.join("\n")
-        );
+    if problems.count == 0 {
+        output.write_all(&chunk)?;
     }
-    spool.copy_to_stdout()
+    Ok(problems)
 }
 
-/// Output held back until every row has been checked: in memory up to [`Spool::IN_MEMORY`]
-/// bytes, then in an unlinked temporary file (removed by the OS however the process ends), so
-/// memory stays bounded for any length of input.
-#[derive(Default)]
-struct Spool {
-    mem: Vec<u8>,
-    file: Option<std::io::BufWriter<std::fs::File>>,
+/// Output is written in chunks of about this many bytes.
+const CHUNK: usize = 1 << 18;
+
+/// Where the output goes while rows are still being checked: a bad row anywhere means nothing is
+/// written, so either the output can be taken back, or it is held until the end.
+enum Output {
+    /// stdout is a regular file positioned at its end (`> out.csv`): rows go straight into it, and
+    /// a bad row truncates it back to `start`, the length it had, so it then holds what it held
+    /// before. Writing the rows once instead of twice (spool, then copy) halved the command's CPU
+    /// time on 10⁶ rows: the kernel's copies of the ≈ 290 MB were half of it.
+    Direct { file: std::fs::File, start: u64 },
+    /// Anything else (a pipe, a terminal, a file opened for appending or rewriting in place): held
+    /// in memory up to [`Output::IN_MEMORY`], then in an unlinked temporary file (removed by the OS
+    /// however the process ends), and copied to stdout once every row was good.
+    Spool(tempfile::SpooledTempFile),
 }
 
-impl Spool {
+impl Output {
     const IN_MEMORY: usize = 4 << 20;
 
-    fn copy_to_stdout(self) -> anyhow::Result<()> {
+    fn for_stdout() -> Self {
+        use std::io::Seek as _;
+        use std::os::fd::AsFd as _;
+        let direct = std::io::stdout()
+            .as_fd()
+            .try_clone_to_owned()
+            .ok()
+            .map(std::fs::File::from)
+            .and_then(|mut file| {
+                let meta = file.metadata().ok()?;
+                // Taking rows back is exact only when nothing follows them: position = length.
+                // (`>>` opens with the position at 0, so a non-empty appended file is spooled.)
+                let start = file.stream_position().ok()?;
+                (meta.is_file() && start == meta.len()).then_some(Output::Direct { file, start })
+            });
+        direct.unwrap_or_else(|| Output::Spool(tempfile::SpooledTempFile::new(Self::IN_MEMORY)))
+    }
+
+    fn write_all(&mut self, buf: &[u8]) -> std::io::Result<()> {
+        match self {
+            Output::Direct { file, .. } => file.write_all(buf),
+            Output::Spool(s) => s.write_all(buf).map_err(|e| {
+                std::io::Error::new(e.kind(), format!("cannot spool the output: {e}"))
+            }),
+        }
+    }
+
+    /// Every row was good: make the output final.
+    fn finish(self) -> anyhow::Result<()> {
+        use std::io::Seek as _;
+        let Output::Spool(mut s) = self else {
+            return Ok(());
+        };
         let stdout = std::io::stdout();
         let mut w = stdout.lock();
-        match self.file {
-            None => w.write_all(&self.mem)?,
-            Some(f) => {
-                use std::io::Seek as _;
-                let mut f = f.into_inner().map_err(|e| e.into_error())?;
-                f.rewind()?;
-                // File → stdout: std uses copy_file_range/sendfile/splice here, no user-space copy.
+        s.rewind()?;
+        match s.into_inner() {
+            tempfile::SpooledData::InMemory(c) => w.write_all(c.get_ref())?,
+            // File → stdout: std uses copy_file_range/sendfile/splice here, no user-space copy.
+            tempfile::SpooledData::OnDisk(mut f) => {
                 std::io::copy(&mut f, &mut w)?;
             }
         }
         w.flush()?;
         Ok(())
     }
-}
 
-/// A new file in `std::env::temp_dir()`, removed from its directory at once: it lives while open.
-/// (The `tempfile` crate does the same; it is only a dev-dependency here, and making it a normal
-/// one changed the dependency features of the whole release build.)
-fn unlinked_temp_file() -> std::io::Result<std::fs::File> {
-    let dir = std::env::temp_dir();
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.subsec_nanos());
-    let mut last = None;
-    for attempt in 0..16u32 {
-        let path = dir.join(format!(
-            ".retrocomp-eval-{}-{nanos}-{attempt}",
-            std::process::id()
-        ));
-        match std::fs::File::options()
-            .read(true)
-            .write(true)
-            .create_new(true)
-            .open(&path)
-        {
-            Ok(f) => {
-                std::fs::remove_file(&path)?;
-                return Ok(f);
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last = Some(e),
-            Err(e) => return Err(e),
+    /// A row was bad: take back what was written.
+    fn discard(self) -> std::io::Result<()> {
+        use std::io::Seek as _;
+        if let Output::Direct { mut file, start } = self {
+            file.set_len(start)?;
+            // The position is shared with the shell's descriptor (and stderr's, with `2>&1`).
+            file.seek(std::io::SeekFrom::Start(start))?;
         }
-    }
-    Err(last.unwrap_or_else(|| std::io::Error::other("no free temporary file name")))
-}
-
-impl Write for Spool {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        if self.file.is_none() && self.mem.len() + buf.len() > Self::IN_MEMORY {
-            let f = unlinked_temp_file().map_err(|e| {
-                std::io::Error::new(e.kind(), format!("cannot create a temporary file: {e}"))
-            })?;
-            let mut f = std::io::BufWriter::with_capacity(1 << 16, f);
-            f.write_all(&self.mem)?;
-            self.mem = Vec::new();
-            self.file = Some(f);
-        }
-        match &mut self.file {
-            Some(f) => f.write(buf),
-            None => {
-                self.mem.extend_from_slice(buf);
-                Ok(buf.len())
-            }
-        }
-    }
-
-    fn flush(&mut self) -> std::io::Result<()> {
         Ok(())
     }
 }
@@ -351,6 +418,31 @@ impl Problems {
     }
 }
 
+/// One input row, read by the csv crate or split as a plain line.
+trait Row {
+    fn field(&self, i: usize) -> &[u8];
+    /// Its line in the file (1-based), for messages.
+    fn line(&self) -> u64;
+}
+
+impl Row for csv::ByteRecord {
+    fn field(&self, i: usize) -> &[u8] {
+        &self[i]
+    }
+    fn line(&self) -> u64 {
+        self.position().map_or(0, |p| p.line())
+    }
+}
+
+impl Row for plain::PlainLine<'_> {
+    fn field(&self, i: usize) -> &[u8] {
+        plain::PlainLine::field(self, i)
+    }
+    fn line(&self) -> u64 {
+        self.line
+    }
+}
+
 /// Turns one CSV row into a [`ModelInput`] (reused), noting every bad cell with its line.
 struct RowReader<'a> {
     file: &'a str,
@@ -362,16 +454,16 @@ struct RowReader<'a> {
 impl RowReader<'_> {
     fn parse(
         &self,
-        rec: &csv::ByteRecord,
+        rec: &impl Row,
         input: &mut ModelInput,
         last_t: &mut Option<f64>,
         problems: &mut Problems,
     ) {
         let (file, cols) = (self.file, self.cols);
-        let line = rec.position().map_or(0, |p| p.line());
-        let text = |col: usize| String::from_utf8_lossy(&rec[col]).trim().to_string();
+        let line = rec.line();
+        let text = |col: usize| String::from_utf8_lossy(rec.field(col)).trim().to_string();
         let mut num = |col: usize| -> Option<f64> {
-            let v = std::str::from_utf8(&rec[col])
+            let v = std::str::from_utf8(rec.field(col))
                 .ok()
                 .and_then(|s| s.trim().parse::<f64>().ok());
             match v {
@@ -422,7 +514,7 @@ impl RowReader<'_> {
         }
         for (a, c) in cols.dir.iter().enumerate() {
             let Some(c) = *c else { continue };
-            match rec[c].trim_ascii() {
+            match rec.field(c).trim_ascii() {
                 b"1" | b"+1" | b"1.0" => input.dir[a] = 1,
                 b"-1" | b"-1.0" => input.dir[a] = -1,
                 b"0" | b"0.0" | b"" => input.dir[a] = 0,
