@@ -234,19 +234,25 @@ fn a_foreign_value_in_the_plc_is_continued_from_and_left_in_exactly_the_capped_w
         .filter(|w| w.address == 0 && w.t_s >= latched && w.t_s < latched + 0.2)
         .map(|w| w.registers_um[0])
         .collect();
-    // One write more than the cap alone needs: the period that read the foreign value already
-    // wrote one cap towards the target, but the engine, reseeded with the value as read, does not
-    // move at its first cycle (a fresh safety state has no previous cycle to ramp from), so the
-    // next period writes the same value again.
-    assert_eq!(
-        xs[0],
-        foreign - CAP_UM * (foreign - target[0]).signum(),
-        "{xs:?}"
-    );
-    assert_eq!(xs[1], xs[0], "{xs:?}");
+    // Every write from the foreign value on moves one cap towards the target: the period that read
+    // it wrote one cap towards the target (the last-step guard against what the PLC holds), and the
+    // engine, reseeded with the value as read, ramps on from it at its next cycle (the reseed keeps
+    // the safety state's cycle clock: no period stands still), so X takes exactly the capped writes.
+    let step = CAP_UM * (target[0] - foreign).signum();
+    let expected: Vec<f64> = (1..=xs.len())
+        .map(|k| {
+            let v = foreign + k as f64 * step;
+            if step > 0.0 {
+                v.min(target[0])
+            } else {
+                v.max(target[0])
+            }
+        })
+        .collect();
+    assert_eq!(xs, expected, "x written after the foreign {foreign} µm");
     assert_eq!(
         n,
-        capped_writes([foreign, target[1], target[2]], target) + 1,
+        capped_writes([foreign, target[1], target[2]], target),
         "{foreign} → {target:?}: x written {xs:?}"
     );
     // Not a fault of the sink (the value is within the clamp and nothing of ours was pending).
