@@ -95,23 +95,48 @@ fn transport_down_and_back_resumes_from_what_the_plc_holds_in_exactly_the_capped
         (0..3).any(|k| (target[k] - held[k]).abs() >= 3.0 * CAP_UM),
         "the move changed too little to test: {held:?} → {target:?}"
     );
-    // Nothing reached the PLC while the link was down; the sink's fault is one episode from the
-    // first period after the loss to the first period after the return.
-    assert!(h.writes().iter().all(|w| w.t_s < down || w.t_s >= back));
+    // The client learns of the loss when its request in flight fails (the period before `down`
+    // still waits for the PLC's ack: its next read goes out at `down` and fails), and tries again
+    // on the real `bus::Backoff` schedule (reconnect_min_ms 100 doubling to reconnect_max_ms
+    // 5000), at the first write period at or after each due instant: 5.0 + 0.1 → 5.1, + 0.2 → 5.3,
+    // + 0.4 → 5.7, + 0.8 → 6.5, + 1.6 → 8.1, + 3.2 → 11.3, the first attempt after the link is
+    // back at 11 s.
+    let failed_at = step_time(&h, down);
+    let expected = [
+        (5.1, false),
+        (5.3, false),
+        (5.7, false),
+        (6.5, false),
+        (8.1, false),
+        (11.3, true),
+    ];
+    let attempts = h.connect_attempts();
+    assert_eq!(attempts.len(), expected.len(), "{attempts:?}");
+    for (a, (t, ok)) in attempts.iter().zip(expected) {
+        assert_at(a.t_s, step_time(&h, t), "connect attempt");
+        assert_eq!(a.ok, ok, "{a:?}");
+    }
+    // The same instants from the backoff itself, so the literal list above is the real schedule.
+    let mut backoff = retrocomp::bus::Backoff::from_millis(100, 5000);
+    let mut due = failed_at;
+    for (t, _) in expected {
+        due = period_at_or_after(due + backoff.next_delay().as_secs_f64(), period);
+        assert!((due - t).abs() < 1e-6, "backoff due {due}, listed {t}");
+    }
+    let resumed = step_time(&h, 11.3);
+    // Nothing reached the PLC from the loss until the reconnect (not even after the link was back
+    // at 11 s: the client waits out its backoff); the sink's fault is one episode from the failed
+    // request to the first period after the reconnect.
+    assert!(h.writes().iter().all(|w| w.t_s < down || w.t_s >= resumed));
     let (start, clear) = one_episode(&h, "sink.origin_shift", FaultKind::Disconnected);
-    assert_at(
-        start,
-        period_at_or_after(down, period),
-        "Disconnected start",
-    );
-    // The first period after the return reads twice (values 0–5, then strobe/ack 10–11: one step
-    // each), writes the values at the next step, and clears the fault when it completes (strobe,
-    // ack, read-back: waiting for the PLC's ack it may outlast one period, whose tick is skipped).
-    let resumed = period_at_or_after(back, period);
+    assert_at(start, failed_at, "Disconnected start");
+    // The period of the reconnect reads twice (values 0–5, then strobe/ack 10–11: one step each),
+    // writes the values at the next step, and clears the fault when it completes (strobe, ack,
+    // read-back: waiting for the PLC's ack it may outlast one period, whose tick is skipped).
     let first = h.writes().iter().find(|w| w.t_s >= back).unwrap();
     assert_at(
         first.t_s,
-        step_time(&h, resumed + 0.003),
+        step_time(&h, 11.3 + 0.003),
         "first write after the return",
     );
     assert!(

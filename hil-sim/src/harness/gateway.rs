@@ -22,7 +22,7 @@ use retrocomp::gateway::health::{FaultKind, FaultLog};
 use retrocomp::gateway::safety::Mode;
 use retrocomp::models::Axis;
 use retrocomp::origin_shift::sink_task::update_faults;
-use retrocomp::origin_shift::{Action, Outcome, Reply, SinkAxis, SinkCore};
+use retrocomp::origin_shift::{Action, Reply, SinkAxis, SinkCore};
 
 /// One fault edge as the gateway logs it (source, kind, started or cleared, gateway time).
 #[derive(Clone, Debug, PartialEq)]
@@ -198,8 +198,8 @@ impl Gateway {
         self.engine.compensation_dropped()
     }
 
-    /// Start a sink write period at `now_s`. `connected`: the link to the controller is up (else
-    /// the period fails at once, as the client's connect does). Returns the first request.
+    /// Start a sink write period at `now_s`. `connected`: the client is connected (else the period
+    /// fails at once, as the client's `ensure_connected` does). Returns the first request.
     pub fn begin_period(&mut self, now_s: f64, connected: bool) -> Option<&Action> {
         if !connected {
             self.sink.not_connected("link down (harness)");
@@ -216,7 +216,8 @@ impl Gateway {
         self.pending.as_ref()
     }
 
-    /// The controller's reply to the request in flight; returns the next request, if any.
+    /// The controller's reply to the request in flight; `connected`: the client's connection after
+    /// it (a transport failure drops it, a Modbus exception does not). Returns the next request.
     pub fn reply(&mut self, reply: Reply, now_s: f64, connected: bool) -> Option<&Action> {
         self.pending = None;
         let a = self.sink.on_reply(reply, now_s);
@@ -225,11 +226,9 @@ impl Gateway {
 
     fn settle(&mut self, a: Action, now_s: f64, connected: bool) -> Option<&Action> {
         match a {
-            Action::Done(o) => {
-                self.end_period(
-                    now_s,
-                    connected && !matches!(o, Outcome::RequestFailed { .. }),
-                );
+            Action::Done(_) => {
+                // The shell's fault update after the period: `client.is_connected()`.
+                self.end_period(now_s, connected);
                 self.pending = None;
             }
             a => self.pending = Some(a),

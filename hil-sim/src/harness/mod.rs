@@ -11,20 +11,23 @@
 //!    go on the serial line before the lines; the gateway decodes them with its own source cores;
 //! 4. on a cycle tick (`gateway.cycle_ms`) the engine runs;
 //! 5. the sink's request in flight (issued one step earlier: one step of latency) is answered from
-//!    the PLC's registers, or fails while the Modbus link is down; on a write-period tick
+//!    the PLC's registers, or fails while the Modbus link is down (the client drops the connection
+//!    and waits out its [`retrocomp::bus::Backoff`], [`link`]); on a write-period tick
 //!    (`write_period_ms`, skipped while a period still runs, as tokio's `MissedTickBehavior::Skip`)
-//!    a new period begins.
+//!    a new period begins: at once when connected, else only once the backoff's next attempt is due
+//!    and the link is up.
 //!
 //! Every write that reaches the PLC is logged with what the PLC applied at that moment
 //! ([`PlcWrite`]), and every step's applied shift ([`StepTrace`]): the scenarios assert the clamp,
 //! the cap per write and "no jump" on these, against what the controller actually holds.
 //!
-//! Simplifications (documented in docs/hil-sim.md): the link reconnects at the first period after
-//! it is back (the real client waits out its backoff); every request takes exactly one step.
+//! Simplifications (documented in docs/hil-sim.md): every request and every connect takes exactly
+//! one step (a real timeout or refused connect takes longer, which only shifts the attempts).
 //!
 //! Units: µm for shifts and corrections (register = correction; + moves the slide +), s for time.
 
 pub mod gateway;
+pub mod link;
 
 use std::collections::BTreeMap;
 
@@ -37,6 +40,7 @@ use crate::io::publish::Publisher;
 use crate::io::transport_faults::{Garbage, Schedule, Transition, silenced};
 use crate::world::World;
 pub use gateway::{FaultEdge, Gateway};
+pub use link::{ClientLink, ConnectAttempt};
 
 /// Builds a fresh model for each gateway start (a restart loads it again).
 pub type ModelFactory = Box<dyn Fn() -> Box<dyn ErrorModel>>;
@@ -78,6 +82,11 @@ pub struct ClosedLoop {
     write_ticks: u64,
     /// Modbus link state after the last step (the schedule's `modbus_down`).
     link_up: bool,
+    /// The sink's client connection (one per gateway start) and the attempts of earlier starts.
+    client: ClientLink,
+    attempts: Vec<ConnectAttempt>,
+    /// One world step, ns (the harness clock is whole steps).
+    dt_ns: u64,
     writes: Vec<PlcWrite>,
     trace: Vec<StepTrace>,
     edges: Vec<FaultEdge>,
@@ -109,6 +118,7 @@ impl ClosedLoop {
             .ok_or_else(|| anyhow::anyhow!("the harness drives [sink.origin_shift]"))?;
         let cycle_ticks = ticks(field.gateway.cycle_ms, dt, "gateway.cycle_ms")?;
         let write_ticks = ticks(os.write_period_ms, dt, "sink.origin_shift.write_period_ms")?;
+        let client = ClientLink::connected(os.reconnect_min_ms, os.reconnect_max_ms);
         let io = world.config().io.clone();
         let publisher = Publisher::new(io.clone(), &world);
         // As `hil-sim serve`: mean 30 ms between bursts.
@@ -124,6 +134,9 @@ impl ClosedLoop {
             cycle_ticks,
             write_ticks,
             link_up: true,
+            client,
+            attempts: Vec::new(),
+            dt_ns: (dt * 1e9).round() as u64,
             writes: Vec::new(),
             trace: Vec::new(),
             edges: Vec::new(),
@@ -138,6 +151,10 @@ impl ClosedLoop {
     /// Start a gateway as `retrocomp run` does: read what the PLC's registers hold, continue from it.
     fn start_gateway(&mut self) -> anyhow::Result<()> {
         let held = self.registers_held_um();
+        let os = self.field.sink.origin_shift.as_ref().expect("checked");
+        let fresh = ClientLink::connected(os.reconnect_min_ms, os.reconnect_max_ms);
+        let old = std::mem::replace(&mut self.client, fresh);
+        self.attempts.extend_from_slice(old.attempts());
         self.gateway = Some(Gateway::start(self.field.clone(), (self.model)(), &held)?);
         Ok(())
     }
@@ -240,6 +257,7 @@ impl ClosedLoop {
             return;
         };
         let link_up = self.link_up;
+        let now = std::time::Duration::from_nanos(tick * self.dt_ns);
         if let Some(a) = gw.pending().cloned() {
             if let Action::Read { not_before_s, .. } = a
                 && not_before_s > t + 1e-9
@@ -279,13 +297,15 @@ impl ClosedLoop {
                     Action::Done(_) => unreachable!("never pending"),
                 }
             } else {
+                self.client.failed(now);
                 Reply::Failed("transport: connection lost (harness link down)".into())
             };
-            gw.reply(reply, t, link_up);
+            gw.reply(reply, t, self.client.is_connected());
             return;
         }
         if tick.is_multiple_of(self.write_ticks) {
-            gw.begin_period(t, link_up);
+            let connected = self.client.ensure_connected(now, t, link_up);
+            gw.begin_period(t, connected);
         }
     }
 
@@ -323,6 +343,14 @@ impl ClosedLoop {
     /// Every fault edge the gateways logged (engine and sink), in order.
     pub fn fault_edges(&self) -> &[FaultEdge] {
         &self.edges
+    }
+
+    /// Every connection attempt of the sink's client after a lost link (all gateway starts), in
+    /// order.
+    pub fn connect_attempts(&self) -> Vec<ConnectAttempt> {
+        let mut all = self.attempts.clone();
+        all.extend_from_slice(self.client.attempts());
+        all
     }
 
     /// Every transport-fault start and clear the schedule made.
