@@ -345,19 +345,99 @@ fn a_stuck_then_nan_spindle_sensor_is_replaced_by_its_neighbour_without_dropping
                   [[faults]]\nchannel = \"T_spindle_C\"\nkind = \"nan\"\nfrom_s = 5.0\nto_s = 6.5\n";
     let mut h = closed_loop(sim_config(STROKES, false, faults));
     let mut clean = closed_loop(sim_config(STROKES, false, ""));
-    h.run_to_end();
+    for g in [&mut h, &mut clean] {
+        g.gateway_mut().unwrap().record_samples("T_spindle_C");
+    }
+    // The value the engine uses for the spindle sensor and for its neighbour, every step.
+    let mut used = Vec::new();
+    while !h.world().done() {
+        h.step();
+        let gw = h.gateway().unwrap();
+        used.push((
+            h.t_s(),
+            gw.channel_value("T_spindle_C"),
+            gw.channel_value("T_spindle2_C"),
+        ));
+    }
     clean.run_to_end();
     let (stuck, _) = one_episode(&h, "T_spindle_C", FaultKind::Stuck);
-    // Judged stuck `stuck_after_s` (1 s) after the frozen value's first frame (a CiA 404 frame
-    // every 50 ms; the value froze at 3.0 s, or a frame earlier when that reading matched).
-    assert!((3.95..=4.05 + 1e-9).contains(&stuck), "stuck at {stuck}");
+    // Judged stuck by the detector's rule on the readings the gateway received (a CiA 404 frame
+    // every 50 ms, decoded by the gateway's own source core): the first reading at least
+    // `stuck_after_s` (1 s) after the first of the bit-identical run that holds the frozen value
+    // (the reading at 3.0 s, or an earlier one when it matched).
+    let samples = h.gateway().unwrap().recorded_samples();
+    let k = samples.iter().position(|s| s.t_s >= 3.0 - 1e-9).unwrap();
+    let frozen = samples[k].value;
+    let first = (0..=k)
+        .rev()
+        .take_while(|&j| samples[j].value.to_bits() == frozen.to_bits())
+        .last()
+        .unwrap();
+    let since = samples[first].t_s;
+    let judged = samples[k..]
+        .iter()
+        .find(|s| s.t_s - since >= 1.0)
+        .unwrap()
+        .t_s;
+    assert_at(stuck, judged, "Stuck start");
+    for s in samples.iter().filter(|s| s.t_s >= since && s.t_s <= judged) {
+        assert_eq!(
+            s.value.to_bits(),
+            frozen.to_bits(),
+            "frozen from {since} s: {s:?}"
+        );
+    }
+    // Up to the frozen frame the readings are the clean run's, bit for bit; the clean run's next
+    // reading differs (noise 0.08 °C on 0.1 °C steps), so the runs part exactly there.
+    let clean_samples = clean.gateway().unwrap().recorded_samples();
+    assert_eq!(samples[..=k], clean_samples[..=k]);
+    let parted = (k + 1..samples.len())
+        .find(|&j| samples[j] != clean_samples[j])
+        .unwrap();
+    eprintln!(
+        "stuck: frozen {frozen} °C from {since} s (fault at 3.0 s), judged at {judged} s; \
+         readings part from the clean run at {} s",
+        samples[parted].t_s
+    );
+    let n = h
+        .trace()
+        .iter()
+        .take_while(|r| r.t_s < samples[parted].t_s - 1e-9)
+        .count();
+    assert_eq!(
+        h.trace()[..n],
+        clean.trace()[..n],
+        "identical until the readings part"
+    );
     // NaN goes out as 0x7FFF (over range): out of range from the first frame at 5.0 s; clear with
-    // the first good frame at 6.5 s.
-    // (A sensor fault's window includes its end, `physics/faults.rs`: the first good reading is on
-    // the next CiA 404 frame, 50 ms after 6.5 s.)
+    // the first good frame (a sensor fault's window includes its end, `physics/faults.rs`: the
+    // first good reading is on the next CiA 404 frame, 50 ms after 6.5 s).
     let (nan, ok) = one_episode(&h, "T_spindle_C", FaultKind::OutOfRange);
     assert_at(nan, 5.0, "OutOfRange start");
     assert_at(ok, step_time(&h, 6.55), "OutOfRange clear");
+    // From the stuck judgement to the first good reading, the engine uses exactly the
+    // neighbour's estimate (coefficients [0, 1]: T_spindle2_C itself), at every step; before the
+    // judgement the frozen reading, after the clear the sensor's own.
+    let mut replaced = 0;
+    for (t, v, v2) in &used {
+        if *t >= stuck - 1e-9 && *t < ok - 1e-9 {
+            assert_eq!(
+                *v, *v2,
+                "at {t} s the spindle sensor is not its neighbour's estimate"
+            );
+            assert!(v.is_some(), "no value at {t} s");
+            replaced += 1;
+        } else if *t >= since - 1e-9 && *t < stuck - 1e-9 {
+            assert_eq!(*v, Some(frozen), "at {t} s");
+        }
+    }
+    assert_eq!(
+        replaced,
+        h.trace()
+            .iter()
+            .filter(|r| r.t_s >= stuck - 1e-9 && r.t_s < ok - 1e-9)
+            .count()
+    );
     // The neighbour's estimate stood in throughout: compensation never dropped.
     assert!(
         h.fault_edges()
@@ -366,17 +446,14 @@ fn a_stuck_then_nan_spindle_sensor_is_replaced_by_its_neighbour_without_dropping
         "{:?}",
         h.fault_edges()
     );
-    // Before the fault the two runs are the same run, bit for bit.
-    let n = h.trace().iter().take_while(|r| r.t_s < 3.0).count();
-    assert_eq!(h.trace()[..n], clean.trace()[..n]);
-    // Once judged stuck, Z keeps its thermal term from the neighbour: within 3 µm of the clean run
-    // (the neighbour sits on the same node with a slower sensor lag and its own noise; the model's
-    // thermal lag carries what the frozen reading fed it for 1 s).
+    // What the substitution costs Z (a model error, not a timing window: the neighbour sits on
+    // the same node with a slower sensor lag and its own noise, and the model's thermal lag
+    // carries what the frozen reading fed it for 1 s): within 3 µm of the clean run.
     let worst = h
         .trace()
         .iter()
         .zip(clean.trace())
-        .filter(|(r, _)| r.t_s >= stuck && r.t_s < 6.5)
+        .filter(|(r, _)| r.t_s >= stuck && r.t_s < ok)
         .map(|(r, c)| (r.output_um[2] - c.output_um[2]).abs())
         .fold(0.0, f64::max);
     eprintln!("substituted Z: at most {worst:.2} µm off the clean run");

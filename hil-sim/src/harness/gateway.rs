@@ -12,10 +12,10 @@
 
 use std::collections::BTreeMap;
 
-use retrocomp::bus::Sample;
 use retrocomp::bus::can::Frame;
 use retrocomp::bus::canopen::source::CanopenSource;
 use retrocomp::bus::serial::source::LineSource;
+use retrocomp::bus::{ChannelId, Sample};
 use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::engine::{Engine, ErrorModel};
 use retrocomp::gateway::health::{FaultKind, FaultLog};
@@ -51,6 +51,9 @@ pub struct Gateway {
     engine_active: BTreeMap<(String, FaultKind), f64>,
     /// Fault edges since the last [`Gateway::take_edges`].
     edges: Vec<FaultEdge>,
+    /// Channels whose samples are kept ([`Gateway::record_samples`]), and those samples.
+    recorded: Vec<ChannelId>,
+    sample_log: Vec<Sample>,
 }
 
 impl Gateway {
@@ -104,6 +107,8 @@ impl Gateway {
             pending: None,
             engine_active: BTreeMap::new(),
             edges: Vec::new(),
+            recorded: Vec::new(),
+            sample_log: Vec::new(),
         })
     }
 
@@ -125,6 +130,16 @@ impl Gateway {
         }
     }
 
+    /// Keep every sample of `channel` the engine ingests from now on (in arrival order).
+    pub fn record_samples(&mut self, channel: &str) {
+        self.recorded.push(ChannelId::of(channel));
+    }
+
+    /// The samples of the recorded channels, in the order the engine ingested them.
+    pub fn recorded_samples(&self) -> &[Sample] {
+        &self.sample_log
+    }
+
     /// Garbage lines the serial sources counted so far.
     pub fn serial_garbage_lines(&self) -> u64 {
         self.serial.iter().map(|s| s.counters().garbage_lines).sum()
@@ -140,6 +155,9 @@ impl Gateway {
             s.poll(now_s, &mut self.samples);
         }
         for s in self.samples.drain(..) {
+            if self.recorded.contains(&s.channel) {
+                self.sample_log.push(s);
+            }
             self.engine.ingest(&s);
         }
         let outs = self.engine.cycle_in_place(now_s, self.model.as_mut());

@@ -326,6 +326,10 @@ impl ClosedLoop {
         self.gateway.as_ref()
     }
 
+    pub fn gateway_mut(&mut self) -> Option<&mut Gateway> {
+        self.gateway.as_mut()
+    }
+
     pub fn t_s(&self) -> f64 {
         self.world.t_s()
     }
