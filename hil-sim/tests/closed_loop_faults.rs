@@ -10,31 +10,8 @@
 mod closed_loop_support;
 
 use closed_loop_support::*;
-use hil_sim::harness::{ClosedLoop, FaultEdge};
+use hil_sim::harness::ClosedLoop;
 use retrocomp::gateway::health::FaultKind;
-
-/// Edges of (source, kind) in order.
-fn edges<'a>(h: &'a ClosedLoop, source: &str, kind: FaultKind) -> Vec<&'a FaultEdge> {
-    h.fault_edges()
-        .iter()
-        .filter(|e| e.source == source && e.kind == kind)
-        .collect()
-}
-
-/// One start and one clear of (source, kind); returns their times.
-fn one_episode(h: &ClosedLoop, source: &str, kind: FaultKind) -> (f64, f64) {
-    let e = edges(h, source, kind);
-    assert_eq!(e.len(), 2, "{source} {kind:?}: {e:?}");
-    assert!(e[0].started && !e[1].started, "{e:?}");
-    (e[0].t_s, e[1].t_s)
-}
-
-fn assert_at(t: f64, expected: f64, what: &str) {
-    assert!(
-        (t - expected).abs() < 1e-9,
-        "{what} at {t} s, expected {expected} s"
-    );
-}
 
 /// Stationary phases: the spindle off, no sensor noise, no screw heating, no cut: while the machine dwells, the
 /// gateway's target is exactly constant, so recovery is a count of capped writes.
@@ -148,28 +125,6 @@ fn transport_down_and_back_resumes_from_what_the_plc_holds_in_exactly_the_capped
     assert_eq!(n, capped_writes(held, target), "{held:?} → {target:?}");
     assert_clamp_and_cap_per_write(h.writes());
     assert_no_jump(h.trace(), &[]);
-}
-
-/// Engine cycle times in `[a, b]`, as the world's clock gives them (every `cycle_ms` of steps).
-fn cycles_in(h: &ClosedLoop, a: f64, b: f64) -> impl Iterator<Item = f64> {
-    let (cycle, _) = h.periods_s();
-    let dt = h.world().config().dt_s();
-    let every = (cycle / dt).round() as usize;
-    h.trace()
-        .iter()
-        .enumerate()
-        .filter(move |(i, _)| (i + 1) % every == 0)
-        .map(|(_, r)| r.t_s)
-        .filter(move |t| *t >= a - 1e-9 && *t <= b + 1e-9)
-}
-
-/// The world's time at the step closest to `t_s` (the exact float the gateway saw).
-fn step_time(h: &ClosedLoop, t_s: f64) -> f64 {
-    h.trace()
-        .iter()
-        .map(|r| r.t_s)
-        .min_by(|a, b| (a - t_s).abs().total_cmp(&(b - t_s).abs()))
-        .unwrap()
 }
 
 #[test]

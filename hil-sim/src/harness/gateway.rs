@@ -4,8 +4,9 @@
 //!
 //! What it holds is what `retrocomp run` holds, minus the threads and sockets: the CANopen source
 //! core (CiA 406 encoders, CiA 404 temperatures), the serial line source core (weighing lines), the
-//! [`Engine`] with the machine model, and the origin-shift [`SinkCore`] (read → last-step guard →
-//! write cycle), with the sink's fault episodes from the real shell's `update_faults`. Time is the
+//! [`Engine`] with the machine model, and either the origin-shift [`SinkCore`] (read → last-step
+//! guard → write cycle, with the sink's fault episodes from the real shell's `update_faults`) or
+//! the quadrature box ([`QuadratureBox`]: counts and edges). Time is the
 //! harness' virtual time (s), passed in.
 //!
 //! Units: µm for corrections (correction = −error), mm for positions, s for time.
@@ -24,6 +25,8 @@ use retrocomp::models::Axis;
 use retrocomp::origin_shift::sink_task::update_faults;
 use retrocomp::origin_shift::{Action, Reply, SinkAxis, SinkCore};
 
+use super::quadrature::QuadratureBox;
+
 /// One fault edge as the gateway logs it (source, kind, started or cleared, gateway time).
 #[derive(Clone, Debug, PartialEq)]
 pub struct FaultEdge {
@@ -40,7 +43,9 @@ pub struct Gateway {
     model: Box<dyn ErrorModel>,
     canopen: Option<CanopenSource>,
     serial: Vec<LineSource>,
-    sink: SinkCore,
+    /// The origin-shift sink core, or (`[sink.quadrature]`) the quadrature box.
+    sink: Option<SinkCore>,
+    quadrature: Option<QuadratureBox>,
     sink_faults: FaultLog,
     samples: Vec<Sample>,
     /// The sink's request in flight (answered at the next harness step), if a period runs.
@@ -64,11 +69,17 @@ impl Gateway {
         model: Box<dyn ErrorModel>,
         held_um: &BTreeMap<String, f64>,
     ) -> anyhow::Result<Self> {
-        let os = cfg
+        let quadrature = cfg
             .sink
-            .origin_shift
-            .clone()
-            .ok_or_else(|| anyhow::anyhow!("the harness drives [sink.origin_shift]"))?;
+            .quadrature
+            .as_ref()
+            .map(QuadratureBox::new)
+            .transpose()?;
+        let map = match (&cfg.sink.origin_shift, &quadrature) {
+            (Some(os), None) => Some(os.map.clone()),
+            (None, Some(_)) => None,
+            _ => anyhow::bail!("the harness drives [sink.origin_shift] or [sink.quadrature]"),
+        };
         let initial: BTreeMap<String, f64> = held_um
             .iter()
             .filter(|(axis, v)| v.is_finite() && v.abs() <= cfg.safety_for(axis).max_correction_um)
@@ -96,7 +107,8 @@ impl Gateway {
             .collect();
         Ok(Self {
             outputs: engine.outputs(),
-            sink: SinkCore::new(os.map, axes),
+            sink: map.map(|m| SinkCore::new(m, axes)),
+            quadrature,
             cfg,
             engine,
             model,
@@ -220,12 +232,12 @@ impl Gateway {
     /// fails at once, as the client's `ensure_connected` does). Returns the first request.
     pub fn begin_period(&mut self, now_s: f64, connected: bool) -> Option<&Action> {
         if !connected {
-            self.sink.not_connected("link down (harness)");
+            self.sink.as_mut()?.not_connected("link down (harness)");
             self.pending = None;
             self.end_period(now_s, false);
             return None;
         }
-        let a = self.sink.begin_at(&self.outputs, now_s);
+        let a = self.sink.as_mut()?.begin_at(&self.outputs, now_s);
         self.settle(a, now_s, connected)
     }
 
@@ -238,7 +250,7 @@ impl Gateway {
     /// it (a transport failure drops it, a Modbus exception does not). Returns the next request.
     pub fn reply(&mut self, reply: Reply, now_s: f64, connected: bool) -> Option<&Action> {
         self.pending = None;
-        let a = self.sink.on_reply(reply, now_s);
+        let a = self.sink.as_mut()?.on_reply(reply, now_s);
         self.settle(a, now_s, connected)
     }
 
@@ -256,7 +268,10 @@ impl Gateway {
 
     /// The end of a period: reseeds back to the engine (as the shell sends them), fault edges.
     fn end_period(&mut self, now_s: f64, connected: bool) {
-        for (axis, held) in self.sink.take_reseeds() {
+        let Some(sink) = self.sink.as_mut() else {
+            return;
+        };
+        for (axis, held) in sink.take_reseeds() {
             // An in-clamp value always gives a valid safety state; a refusal is a harness bug.
             self.engine
                 .reseed(axis, held)
@@ -267,7 +282,7 @@ impl Gateway {
             .active()
             .map(|(s, k, _)| (s.to_string(), k))
             .collect();
-        update_faults(&mut self.sink_faults, &self.sink, connected, now_s);
+        update_faults(&mut self.sink_faults, sink, connected, now_s);
         let after: Vec<(String, FaultKind)> = self
             .sink_faults
             .active()
@@ -297,7 +312,18 @@ impl Gateway {
 
     /// The sink core's writes so far (ok, failed).
     pub fn sink_writes(&self) -> (u64, u64) {
-        (self.sink.writes_ok, self.sink.writes_failed)
+        self.sink
+            .as_ref()
+            .map_or((0, 0), |s| (s.writes_ok, s.writes_failed))
+    }
+
+    /// The quadrature box (`[sink.quadrature]`), if that is the sink.
+    pub fn quadrature_mut(&mut self) -> Option<&mut QuadratureBox> {
+        self.quadrature.as_mut()
+    }
+
+    pub fn quadrature(&self) -> Option<&QuadratureBox> {
+        self.quadrature.as_ref()
     }
 
     /// Fault edges (engine and sink) since the last call.

@@ -7,8 +7,9 @@
 use std::path::{Path, PathBuf};
 
 use hil_sim::SimConfig;
-use hil_sim::harness::{ClosedLoop, ModelFactory, PlcWrite, StepTrace};
+use hil_sim::harness::{ClosedLoop, FaultEdge, ModelFactory, PlcWrite, StepTrace};
 use retrocomp::gateway::config::FieldConfig;
+use retrocomp::gateway::health::FaultKind;
 use retrocomp::gateway::model_adapter::MachineModelAdapter;
 use retrocomp::models::MachineModel;
 
@@ -136,7 +137,59 @@ period_s = 0.02
     SimConfig::from_toml_str(&text, None).expect("sim config")
 }
 
+/// The origin-shift sink of [`field_config`]: the PLC window of the sim, strobe/ack handshake.
+const ORIGIN_SHIFT_SINK: &str = r#"
+[sink.origin_shift]
+transport = { kind = "tcp", address = "127.0.0.1:9" }
+write_period_ms = 10
+reconnect_min_ms = 100
+reconnect_max_ms = 5000
+
+[sink.origin_shift.map]
+[[sink.origin_shift.map.axis]]
+axis = "x"
+address = 0
+kind = "int32"
+lsb_um = 0.5
+sign = 1
+[[sink.origin_shift.map.axis]]
+axis = "y"
+address = 2
+kind = "int32"
+lsb_um = 0.5
+sign = 1
+[[sink.origin_shift.map.axis]]
+axis = "z"
+address = 4
+kind = "int32"
+lsb_um = 0.5
+sign = 1
+[sink.origin_shift.map.handshake]
+strobe_address = 10
+ack_address = 11
+timeout_ms = 200
+"#;
+
+/// The quadrature sink: one count = the sim's feedback count (1 µm), RS-422 edge gap, 100 kHz.
+const QUADRATURE_SINK: &str = r#"
+[sink.quadrature]
+axis = [
+  { axis = "x", resolution_um = 1.0, count_sign = 1, min_edge_gap_ns = 400, max_inject_rate_hz = 100000.0 },
+  { axis = "y", resolution_um = 1.0, count_sign = 1, min_edge_gap_ns = 400, max_inject_rate_hz = 100000.0 },
+  { axis = "z", resolution_um = 1.0, count_sign = 1, min_edge_gap_ns = 400, max_inject_rate_hz = 100000.0 },
+]
+"#;
+
 pub(crate) fn field_config() -> FieldConfig {
+    field_config_with(ORIGIN_SHIFT_SINK)
+}
+
+/// The same gateway with the quadrature sink instead of the origin shift.
+pub(crate) fn field_config_quadrature() -> FieldConfig {
+    field_config_with(QUADRATURE_SINK)
+}
+
+fn field_config_with(sink: &str) -> FieldConfig {
     let axis = |name: &str, clamp: f64, lo: f64, hi: f64| {
         format!(
             r#"
@@ -227,33 +280,7 @@ device = "in-process"
 format = {{ kind = "weighing", unit = "N" }}
 channel = [ {{ name = "F_cut_N" }} ]
 
-[sink.origin_shift]
-transport = {{ kind = "tcp", address = "127.0.0.1:9" }}
-write_period_ms = 10
-
-[sink.origin_shift.map]
-[[sink.origin_shift.map.axis]]
-axis = "x"
-address = 0
-kind = "int32"
-lsb_um = {LSB_UM}
-sign = 1
-[[sink.origin_shift.map.axis]]
-axis = "y"
-address = 2
-kind = "int32"
-lsb_um = {LSB_UM}
-sign = 1
-[[sink.origin_shift.map.axis]]
-axis = "z"
-address = 4
-kind = "int32"
-lsb_um = {LSB_UM}
-sign = 1
-[sink.origin_shift.map.handshake]
-strobe_address = 10
-ack_address = 11
-timeout_ms = 200
+{sink}
 "#
     );
     FieldConfig::parse(&text, Path::new("harness-field.toml")).expect("field config")
@@ -268,6 +295,11 @@ pub(crate) fn model_factory() -> ModelFactory {
 
 pub(crate) fn closed_loop(sim: SimConfig) -> ClosedLoop {
     ClosedLoop::new(sim, field_config(), model_factory()).expect("harness")
+}
+
+/// The loop with the quadrature box between the engine and the controller's feedback.
+pub(crate) fn closed_loop_quadrature(sim: SimConfig) -> ClosedLoop {
+    ClosedLoop::new(sim, field_config_quadrature(), model_factory()).expect("harness")
 }
 
 pub(crate) fn clamp_of(axis: usize) -> f64 {
@@ -322,4 +354,49 @@ pub(crate) fn lsb_round(v: f64) -> f64 {
 /// Steps of the trace at or after `t_s`.
 pub(crate) fn from(trace: &[StepTrace], t_s: f64) -> impl Iterator<Item = &StepTrace> {
     trace.iter().filter(move |r| r.t_s >= t_s - 1e-9)
+}
+
+/// Edges of (source, kind) in order.
+pub(crate) fn edges<'a>(h: &'a ClosedLoop, source: &str, kind: FaultKind) -> Vec<&'a FaultEdge> {
+    h.fault_edges()
+        .iter()
+        .filter(|e| e.source == source && e.kind == kind)
+        .collect()
+}
+
+/// One start and one clear of (source, kind); returns their times.
+pub(crate) fn one_episode(h: &ClosedLoop, source: &str, kind: FaultKind) -> (f64, f64) {
+    let e = edges(h, source, kind);
+    assert_eq!(e.len(), 2, "{source} {kind:?}: {e:?}");
+    assert!(e[0].started && !e[1].started, "{e:?}");
+    (e[0].t_s, e[1].t_s)
+}
+
+pub(crate) fn assert_at(t: f64, expected: f64, what: &str) {
+    assert!(
+        (t - expected).abs() < 1e-9,
+        "{what} at {t} s, expected {expected} s"
+    );
+}
+
+/// Engine cycle times in `[a, b]`, as the world's clock gives them (every `cycle_ms` of steps).
+pub(crate) fn cycles_in(h: &ClosedLoop, a: f64, b: f64) -> impl Iterator<Item = f64> {
+    let (cycle, _) = h.periods_s();
+    let dt = h.world().config().dt_s();
+    let every = (cycle / dt).round() as usize;
+    h.trace()
+        .iter()
+        .enumerate()
+        .filter(move |(i, _)| (i + 1) % every == 0)
+        .map(|(_, r)| r.t_s)
+        .filter(move |t| *t >= a - 1e-9 && *t <= b + 1e-9)
+}
+
+/// The world's time at the step closest to `t_s` (the exact float the gateway saw).
+pub(crate) fn step_time(h: &ClosedLoop, t_s: f64) -> f64 {
+    h.trace()
+        .iter()
+        .map(|r| r.t_s)
+        .min_by(|a, b| (a - t_s).abs().total_cmp(&(b - t_s).abs()))
+        .unwrap()
 }

@@ -1,0 +1,187 @@
+//! The closed loop with the quadrature sink, in virtual time (issue 14.4): hil-sim's world ↔ the
+//! bus codecs ↔ retrocomp's engine ↔ the real quadrature core (`CountQuantizer` → `EdgeScheduler`,
+//! A/B edges under the 400 ns gap and the 100 kHz rate) ↔ the simulated controller's ×4 receiver
+//! (`QuadDecoder`), whose counts go into the servo's feedback (`World::inject_counts`). One count
+//! is the sim's 1 µm feedback count; +n counts move the slide −n µm, so the controller applies
+//! `−received` µm. Asserted against what the controller's receiver took: the clamp, the cap per
+//! cycle (one count per 5 ms cycle at most), no jump, no illegal transition, and recovery exactly
+//! (the receiver holds the engine's output rounded to whole counts at every step).
+
+mod closed_loop_support;
+
+use closed_loop_support::*;
+use hil_sim::harness::{ClosedLoop, Pulse};
+use retrocomp::gateway::health::FaultKind;
+
+const MOVES: &str = "G4 P0.5\nG1 X150 Y100 F3600\nG4 P3.0\nG1 X40 Y30\nG4 P6.0";
+const DWELL1_END: f64 = 6.5;
+const STROKES: &str = "S3000 M3\nG4 P0.5\nG1 X150 Y100 F3600\nG1 X0 Y0\nG1 X150 Y100\nG1 X0 Y0\nM5";
+
+/// The box quantizes half away from zero (`CountQuantizer`): the controller holds this, µm.
+fn counts_of(output_um: f64) -> f64 {
+    output_um.round()
+}
+
+/// At every step the controller holds exactly the engine's output in whole counts (the box owes
+/// nothing at a step's end: at most one count per cycle, 10 µs apart at 100 kHz), within the
+/// clamp; consecutive steps differ by at most one cap; every edge was a legal single step.
+fn assert_counts_follow_the_output(h: &ClosedLoop) {
+    for r in h.trace() {
+        for k in 0..3 {
+            assert_eq!(
+                r.applied_um[k],
+                counts_of(r.output_um[k]),
+                "axis {k} at {} s: the controller holds something else than the output: {r:?}",
+                r.t_s
+            );
+            assert!(
+                r.applied_um[k].abs() <= clamp_of(k),
+                "beyond the clamp: {r:?}"
+            );
+        }
+    }
+    assert_no_jump(h.trace(), &[]);
+    let bad: Vec<&Pulse> = h.pulses().iter().filter(|p| p.step.is_err()).collect();
+    assert!(bad.is_empty(), "illegal transitions: {bad:?}");
+    // Cap per cycle: no two edges of one axis within one 5 ms cycle.
+    for axis in retrocomp::models::Axis::ALL {
+        let of_axis: Vec<&Pulse> = h.pulses().iter().filter(|p| p.axis == axis).collect();
+        for w in of_axis.windows(2) {
+            assert!(
+                w[1].t_ns - w[0].t_ns >= 5_000_000,
+                "two counts within one cycle: {w:?}"
+            );
+        }
+    }
+    assert!(h.pulses().len() > 20, "only {} edges", h.pulses().len());
+}
+
+fn nonzero(v: [f64; 3]) -> bool {
+    v.iter().any(|x| *x != 0.0)
+}
+
+#[test]
+fn a_silent_encoder_node_ramps_the_counts_out_and_back_one_count_per_cycle() {
+    let (silent, back) = (4.0, 5.5);
+    let faults = format!(
+        "[[io.faults]]\nkind = \"can_node_silent\"\nnode = 1\nfrom_s = {silent}\nto_s = {back}\n"
+    );
+    let mut h = closed_loop_quadrature(sim_config(MOVES, true, &faults));
+    h.run_until(silent);
+    let held = h.applied_um();
+    assert!(nonzero(held), "a correction to lose: {held:?}");
+    assert_eq!(held, h.trace().last().unwrap().output_um.map(counts_of));
+    h.run_until(DWELL1_END);
+    // The same fault instants as with the origin shift (the engine does not know the sink).
+    let (start, clear) = one_episode(&h, "x_mm", FaultKind::Stale);
+    assert_at(clear, back, "x_mm fresh again");
+    let at_back = h
+        .trace()
+        .iter()
+        .find(|r| (r.t_s - (back - 0.001)).abs() < 1e-9)
+        .unwrap()
+        .applied_um;
+    assert_eq!(
+        at_back, [0.0; 3],
+        "ramped out to zero counts before the node came back"
+    );
+    // Back: from 0 to the target, one count per cycle, never away from it: the edges after the
+    // return net exactly the target and all go one way per axis.
+    let target = h.trace().last().unwrap().output_um.map(counts_of);
+    assert_eq!(h.applied_um(), target);
+    for (k, axis) in retrocomp::models::Axis::ALL.into_iter().enumerate() {
+        let steps: Vec<i64> = h
+            .pulses()
+            .iter()
+            .filter(|p| p.axis == axis && p.t_ns as f64 >= back * 1e9)
+            .map(|p| p.step.clone().unwrap())
+            .collect();
+        assert_eq!(
+            steps.iter().sum::<i64>() as f64,
+            -target[k],
+            "axis {k}: {steps:?}"
+        );
+        assert!(
+            steps.windows(2).all(|w| w[0] == w[1]),
+            "axis {k} turned back: {steps:?}"
+        );
+    }
+    eprintln!("quadrature silent node: stale {start} s, back {clear} s, {held:?} → 0 → {target:?}");
+    assert_counts_follow_the_output(&h);
+}
+
+#[test]
+fn a_stuck_then_nan_spindle_sensor_keeps_the_counts_on_the_output_without_dropping() {
+    let faults = "[[faults]]\nchannel = \"T_spindle_C\"\nkind = \"stuck\"\nfrom_s = 3.0\nto_s = 5.0\n\
+                  [[faults]]\nchannel = \"T_spindle_C\"\nkind = \"nan\"\nfrom_s = 5.0\nto_s = 6.5\n";
+    let mut h = closed_loop_quadrature(sim_config(STROKES, false, faults));
+    let mut clean = closed_loop_quadrature(sim_config(STROKES, false, ""));
+    h.run_to_end();
+    clean.run_to_end();
+    let (stuck, _) = one_episode(&h, "T_spindle_C", FaultKind::Stuck);
+    let (nan, ok) = one_episode(&h, "T_spindle_C", FaultKind::OutOfRange);
+    assert_at(nan, 5.0, "OutOfRange start");
+    assert_at(ok, step_time(&h, 6.55), "OutOfRange clear");
+    assert!(stuck < nan, "stuck at {stuck} s");
+    assert!(
+        h.fault_edges()
+            .iter()
+            .all(|e| !e.source.starts_with("compensation")),
+        "{:?}",
+        h.fault_edges()
+    );
+    // Before the fault the two runs are the same run, bit for bit (edges included).
+    let n = h.trace().iter().take_while(|r| r.t_s < 3.0).count();
+    assert_eq!(h.trace()[..n], clean.trace()[..n]);
+    let before = |p: &&Pulse| (p.t_ns as f64) < 3.0e9;
+    assert_eq!(
+        h.pulses().iter().filter(before).collect::<Vec<_>>(),
+        clean.pulses().iter().filter(before).collect::<Vec<_>>()
+    );
+    assert_counts_follow_the_output(&h);
+    assert_counts_follow_the_output(&clean);
+}
+
+#[test]
+fn a_restarted_box_starts_from_zero_counts_while_the_controller_keeps_the_old_ones() {
+    // The documented limitation (docs/gateway.md, "Not done yet"), pinned exactly: pulses have no
+    // read-back, so a restarted box starts at zero counts and phase 0 while the controller's
+    // receiver still holds what the old box injected; the new engine ramps in from 0 and the box
+    // injects the whole correction again, on top.
+    let mut h = closed_loop_quadrature(sim_config(MOVES, true, ""));
+    h.run_until(DWELL1_END - 1.0);
+    let old = h.received_counts().unwrap();
+    let held = h.applied_um();
+    assert!(nonzero(held), "{held:?}");
+    h.restart_gateway().unwrap();
+    // Taking the lines at phase 0: the receiver sees the change from the old box's last levels —
+    // none (old count ≡ 0 mod 4), one count back to phase 0 (≡ ±1), or both lines at once (≡ 2:
+    // an illegal transition, a count lost for the controller).
+    let glitch: Vec<&Pulse> = h.pulses().iter().filter(|p| p.generation == 1).collect();
+    for (k, axis) in retrocomp::models::Axis::ALL.into_iter().enumerate() {
+        let g: Vec<_> = glitch.iter().filter(|p| p.axis == axis).collect();
+        match old[k].rem_euclid(4) {
+            0 => assert!(g.is_empty(), "{g:?}"),
+            1 => assert_eq!(g.iter().map(|p| p.step.clone()).next(), Some(Ok(-1))),
+            3 => assert_eq!(g.iter().map(|p| p.step.clone()).next(), Some(Ok(1))),
+            _ => assert!(g.first().is_some_and(|p| p.step.is_err()), "{g:?}"),
+        }
+    }
+    let after_glitch = h.received_counts().unwrap();
+    h.run_until(DWELL1_END);
+    let out = h.trace().last().unwrap().output_um.map(counts_of);
+    let now = h.received_counts().unwrap();
+    for k in 0..3 {
+        // The new box injected the whole output again, on top of what the controller held.
+        assert_eq!(
+            (now[k] - after_glitch[k]) as f64,
+            -out[k],
+            "axis {k}: old {old:?}, after {now:?}"
+        );
+    }
+    eprintln!(
+        "quadrature restart: controller held {held:?} µm, the new box added {out:?} µm: \
+         now {:?} µm",
+        h.applied_um()
+    );
+}
