@@ -13,9 +13,6 @@ use closed_loop_support::*;
 use hil_sim::harness::ClosedLoop;
 use retrocomp::gateway::health::FaultKind;
 
-/// Stationary phases: the spindle off, no sensor noise, no screw heating, no cut: while the machine dwells, the
-/// gateway's target is exactly constant, so recovery is a count of capped writes.
-const MOVES: &str = "G4 P0.5\nG1 X150 Y100 F3600\nG4 P3.0\nG1 X40 Y30\nG4 P6.0";
 /// The first dwell (X150 Y100) and the second (X40 Y30, 130 mm later at 60 mm/s) of [`MOVES`], s.
 const DWELL1: (f64, f64) = (3.5, 6.5);
 const DWELL2: (f64, f64) = (8.7, 14.6);
@@ -130,9 +127,7 @@ fn transport_down_and_back_resumes_from_what_the_plc_holds_in_exactly_the_capped
 #[test]
 fn a_silent_encoder_node_holds_for_exactly_the_hold_time_ramps_out_and_comes_back_capped() {
     let (silent, back) = (4.0, 5.5);
-    let faults = format!(
-        "[[io.faults]]\nkind = \"can_node_silent\"\nnode = 1\nfrom_s = {silent}\nto_s = {back}\n"
-    );
+    let faults = node_silent(1, silent, back);
     let mut h = closed_loop(sim_config(MOVES, true, &faults));
     h.run_until(silent);
     let target = lsb_target(&h);
@@ -291,13 +286,9 @@ fn a_restarted_gateway_continues_from_what_the_plc_holds_and_meets_the_unbroken_
     assert_no_jump(restarted.trace(), &[]);
 }
 
-/// Spindle on, sensor noise on, strokes out and back: thermal and load terms move all the time.
-const STROKES: &str = "S3000 M3\nG4 P0.5\nG1 X150 Y100 F3600\nG1 X0 Y0\nG1 X150 Y100\nG1 X0 Y0\nM5";
-
 #[test]
 fn a_stuck_then_nan_spindle_sensor_is_replaced_by_its_neighbour_without_dropping_compensation() {
-    let faults = "[[faults]]\nchannel = \"T_spindle_C\"\nkind = \"stuck\"\nfrom_s = 3.0\nto_s = 5.0\n\
-                  [[faults]]\nchannel = \"T_spindle_C\"\nkind = \"nan\"\nfrom_s = 5.0\nto_s = 6.5\n";
+    let faults = STUCK_THEN_NAN;
     let mut h = closed_loop(sim_config(STROKES, false, faults));
     let mut clean = closed_loop(sim_config(STROKES, false, ""));
     for g in [&mut h, &mut clean] {
@@ -394,13 +385,7 @@ fn a_stuck_then_nan_spindle_sensor_is_replaced_by_its_neighbour_without_dropping
             .count()
     );
     // The neighbour's estimate stood in throughout: compensation never dropped.
-    assert!(
-        h.fault_edges()
-            .iter()
-            .all(|e| !e.source.starts_with("compensation")),
-        "{:?}",
-        h.fault_edges()
-    );
+    assert_compensation_never_dropped(&h);
     // What the substitution costs Z (a model error, not a timing window: the neighbour sits on
     // the same node with a slower sensor lag and its own noise, and the model's thermal lag
     // carries what the frozen reading fed it for 1 s): within 3 µm of the clean run.

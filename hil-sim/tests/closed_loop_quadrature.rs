@@ -13,9 +13,7 @@ use closed_loop_support::*;
 use hil_sim::harness::{ClosedLoop, Pulse};
 use retrocomp::gateway::health::FaultKind;
 
-const MOVES: &str = "G4 P0.5\nG1 X150 Y100 F3600\nG4 P3.0\nG1 X40 Y30\nG4 P6.0";
 const DWELL1_END: f64 = 6.5;
-const STROKES: &str = "S3000 M3\nG4 P0.5\nG1 X150 Y100 F3600\nG1 X0 Y0\nG1 X150 Y100\nG1 X0 Y0\nM5";
 
 /// The box quantizes half away from zero (`CountQuantizer`): the controller holds this, µm.
 fn counts_of(output_um: f64) -> f64 {
@@ -63,9 +61,7 @@ fn nonzero(v: [f64; 3]) -> bool {
 #[test]
 fn a_silent_encoder_node_ramps_the_counts_out_and_back_one_count_per_cycle() {
     let (silent, back) = (4.0, 5.5);
-    let faults = format!(
-        "[[io.faults]]\nkind = \"can_node_silent\"\nnode = 1\nfrom_s = {silent}\nto_s = {back}\n"
-    );
+    let faults = node_silent(1, silent, back);
     let mut h = closed_loop_quadrature(sim_config(MOVES, true, &faults));
     h.run_until(silent);
     let held = h.applied_um();
@@ -94,7 +90,7 @@ fn a_silent_encoder_node_ramps_the_counts_out_and_back_one_count_per_cycle() {
             .pulses()
             .iter()
             .filter(|p| p.axis == axis && p.t_ns as f64 >= back * 1e9)
-            .map(|p| p.step.clone().unwrap())
+            .map(|p| p.step.unwrap())
             .collect();
         assert_eq!(
             steps.iter().sum::<i64>() as f64,
@@ -112,8 +108,7 @@ fn a_silent_encoder_node_ramps_the_counts_out_and_back_one_count_per_cycle() {
 
 #[test]
 fn a_stuck_then_nan_spindle_sensor_keeps_the_counts_on_the_output_without_dropping() {
-    let faults = "[[faults]]\nchannel = \"T_spindle_C\"\nkind = \"stuck\"\nfrom_s = 3.0\nto_s = 5.0\n\
-                  [[faults]]\nchannel = \"T_spindle_C\"\nkind = \"nan\"\nfrom_s = 5.0\nto_s = 6.5\n";
+    let faults = STUCK_THEN_NAN;
     let mut h = closed_loop_quadrature(sim_config(STROKES, false, faults));
     let mut clean = closed_loop_quadrature(sim_config(STROKES, false, ""));
     h.run_to_end();
@@ -123,13 +118,7 @@ fn a_stuck_then_nan_spindle_sensor_keeps_the_counts_on_the_output_without_droppi
     assert_at(nan, 5.0, "OutOfRange start");
     assert_at(ok, step_time(&h, 6.55), "OutOfRange clear");
     assert!(stuck < nan, "stuck at {stuck} s");
-    assert!(
-        h.fault_edges()
-            .iter()
-            .all(|e| !e.source.starts_with("compensation")),
-        "{:?}",
-        h.fault_edges()
-    );
+    assert_compensation_never_dropped(&h);
     // Before the fault the two runs are the same run, bit for bit (edges included).
     let n = h.trace().iter().take_while(|r| r.t_s < 3.0).count();
     assert_eq!(h.trace()[..n], clean.trace()[..n]);
@@ -162,8 +151,8 @@ fn a_restarted_box_starts_from_zero_counts_while_the_controller_keeps_the_old_on
         let g: Vec<_> = glitch.iter().filter(|p| p.axis == axis).collect();
         match old[k].rem_euclid(4) {
             0 => assert!(g.is_empty(), "{g:?}"),
-            1 => assert_eq!(g.iter().map(|p| p.step.clone()).next(), Some(Ok(-1))),
-            3 => assert_eq!(g.iter().map(|p| p.step.clone()).next(), Some(Ok(1))),
+            1 => assert_eq!(g.iter().map(|p| p.step).next(), Some(Ok(-1))),
+            3 => assert_eq!(g.iter().map(|p| p.step).next(), Some(Ok(1))),
             _ => assert!(g.first().is_some_and(|p| p.step.is_err()), "{g:?}"),
         }
     }
