@@ -25,7 +25,7 @@ use retrocomp::models::Axis;
 use retrocomp::origin_shift::sink_task::update_faults;
 use retrocomp::origin_shift::{Action, Reply, SinkAxis, SinkCore};
 
-use super::quadrature::QuadratureBox;
+use super::quadrature::{MemoryHeld, QuadratureBox};
 
 /// One fault edge as the gateway logs it (source, kind, started or cleared, gateway time).
 #[derive(Clone, Debug, PartialEq)]
@@ -68,13 +68,17 @@ impl Gateway {
         cfg: FieldConfig,
         model: Box<dyn ErrorModel>,
         held_um: &BTreeMap<String, f64>,
+        held_counts: MemoryHeld,
     ) -> anyhow::Result<Self> {
-        let quadrature = cfg
-            .sink
-            .quadrature
-            .as_ref()
-            .map(QuadratureBox::new)
-            .transpose()?;
+        let mut held_um = held_um.clone();
+        let quadrature = match cfg.sink.quadrature.as_ref() {
+            Some(q) => {
+                let (b, start) = QuadratureBox::new(q, held_counts)?;
+                held_um.extend(start);
+                Some(b)
+            }
+            None => None,
+        };
         let map = match (&cfg.sink.origin_shift, &quadrature) {
             (Some(os), None) => Some(os.map.clone()),
             (None, Some(_)) => None,

@@ -135,6 +135,8 @@ pub struct ClosedLoop {
     /// `[sink.quadrature]`: the controller's ×4 receiver per axis (x, y, z), and every edge seen.
     receivers: Option<[Receiver; 3]>,
     pulses: Vec<Pulse>,
+    /// `[sink.quadrature]`: the box's held-counts store, surviving its restarts (the state file).
+    held_counts: quadrature::MemoryHeld,
 }
 
 /// Ticks of `period_ms` at `dt_s` per tick; the harness refuses periods that are not whole ticks.
@@ -208,6 +210,7 @@ impl ClosedLoop {
             serial_bytes: 0,
             receivers,
             pulses: Vec::new(),
+            held_counts: Default::default(),
             world,
         };
         h.start_gateway()?;
@@ -222,9 +225,14 @@ impl ClosedLoop {
             let old = std::mem::replace(&mut self.client, fresh);
             self.attempts.extend_from_slice(old.attempts());
         }
-        let gw = Gateway::start(self.field.clone(), (self.model)(), &held)?;
-        // A new box takes the lines at its scheduler's levels (phase 0): the controller's receiver
-        // sees whatever change that is from the levels the old box left.
+        let gw = Gateway::start(
+            self.field.clone(),
+            (self.model)(),
+            &held,
+            self.held_counts.clone(),
+        )?;
+        // A new box takes the lines at its scheduler's levels (the held count's phase): the
+        // controller's receiver sees whatever change that is from the levels the old box left.
         if let Some(q) = gw.quadrature() {
             let t_ns = self.world.ticks() * self.dt_ns;
             let levels: Vec<_> = Axis::ALL
@@ -235,6 +243,11 @@ impl ClosedLoop {
         }
         self.gateway = Some(gw);
         Ok(())
+    }
+
+    /// `[sink.quadrature]`: the box's persisted held counts (its state file, in memory).
+    pub fn held_counts(&self) -> &quadrature::MemoryHeld {
+        &self.held_counts
     }
 
     /// The gateway process dies (SIGKILL: nothing more is sent) and starts again at once.

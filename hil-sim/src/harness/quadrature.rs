@@ -5,17 +5,53 @@
 //! the edges into the servo's feedback) is in `super` ([`crate::harness::ClosedLoop`]).
 //!
 //! Like the real shell, the box hands the counts of every changed engine output to the scheduler at
-//! once; edges are emitted when due (never before the cycle that asked for them). It holds no state
-//! the engine continues from: a restarted box starts at zero counts and phase 0 (see
-//! docs/gateway.md "Not done yet").
+//! once; edges are emitted when due (never before the cycle that asked for them). As the shell, it
+//! persists what the controller holds ahead of every step (`retrocomp::quadrature::held`), here in
+//! memory ([`MemoryHeld`], kept by the harness across restarts): a restarted box continues from
+//! the held counts, takes the lines at their phase and seeds the engine with what they realise.
 //!
 //! Sign (src/quadrature/mod.rs): injecting +n counts makes the controller believe the slide moved
 //! +n, so its servo moves the slide −n counts; a correction `c_um` injects `−c_um / resolution_um`
 //! counts (× `count_sign`).
 
+use std::cell::RefCell;
+use std::collections::BTreeMap;
+use std::rc::Rc;
+
 use retrocomp::gateway::config::QuadratureSink;
 use retrocomp::models::Axis;
+use retrocomp::quadrature::held::{HeldCounts, write_ahead};
+use retrocomp::quadrature::sink::held_at_start;
 use retrocomp::quadrature::{CountQuantizer, EdgeScheduler, SchedulerConfig, Transition};
+use retrocomp::sink::StartValues;
+
+/// The held-counts store in memory: the harness keeps one across gateway restarts (the file of the
+/// real shell); clones share it. Every save is logged so tests can check it came before the edges.
+#[derive(Clone, Default)]
+pub struct MemoryHeld {
+    counts: Rc<RefCell<Option<BTreeMap<String, i64>>>>,
+}
+
+impl MemoryHeld {
+    /// What is persisted for `axis` (None: nothing yet).
+    pub fn get(&self, axis: &str) -> Option<i64> {
+        self.counts.borrow().as_ref()?.get(axis).copied()
+    }
+}
+
+impl HeldCounts for MemoryHeld {
+    fn load(&mut self) -> anyhow::Result<Option<BTreeMap<String, i64>>> {
+        Ok(self.counts.borrow().clone())
+    }
+
+    fn save(&mut self, axis: &str, count: i64) -> anyhow::Result<()> {
+        self.counts
+            .borrow_mut()
+            .get_or_insert_default()
+            .insert(axis.to_string(), count);
+        Ok(())
+    }
+}
 
 struct BoxAxis {
     axis: Axis,
@@ -28,10 +64,15 @@ struct BoxAxis {
 /// The in-process quadrature box: one quantizer and one edge scheduler per configured axis.
 pub struct QuadratureBox {
     axes: Vec<BoxAxis>,
+    store: MemoryHeld,
 }
 
 impl QuadratureBox {
-    pub fn new(cfg: &QuadratureSink) -> anyhow::Result<Self> {
+    /// Start as the shell does: read the held counts from `store`, continue from them; returns the
+    /// box and the start values (µm the controller holds) the engine continues from.
+    pub fn new(cfg: &QuadratureSink, store: MemoryHeld) -> anyhow::Result<(Self, StartValues)> {
+        let mut store = store;
+        let (held, start) = held_at_start(cfg, &mut store)?;
         let axes = cfg
             .axes
             .iter()
@@ -39,18 +80,20 @@ impl QuadratureBox {
                 let axis = Axis::from_name(&a.axis)
                     .ok_or_else(|| anyhow::anyhow!("sink.quadrature: axis {}", a.axis))?;
                 anyhow::ensure!(a.gpio.is_none(), "the harness drives simulated lines only");
+                let n = held[&a.axis];
                 Ok(BoxAxis {
                     axis,
-                    quant: CountQuantizer::new(a.resolution_um, a.count_sign)?,
+                    quant: CountQuantizer::continuing_from(a.resolution_um, a.count_sign, n)?,
                     sched: EdgeScheduler::new(SchedulerConfig {
                         min_edge_gap_ns: a.min_edge_gap_ns,
                         max_inject_rate_hz: a.max_inject_rate_hz,
-                    })?,
+                    })?
+                    .starting_at(n),
                     not_before_ns: 0,
                 })
             })
             .collect::<anyhow::Result<_>>()?;
-        Ok(Self { axes })
+        Ok((Self { axes, store }, start))
     }
 
     /// The engine's outputs of a cycle at `now_ns` (µm): each axis's count delta goes to its
@@ -61,8 +104,10 @@ impl QuadratureBox {
             let Some((_, v)) = outs.iter().find(|(x, _)| *x == a.axis) else {
                 continue;
             };
-            // The safety layer hands out finite values only; a NaN here is a harness bug.
-            let d = a.quant.delta_counts(*v).expect("finite correction");
+            // The safety layer hands out finite values only and the memory store cannot fail: an
+            // error here is a harness bug.
+            let d = write_ahead(&mut self.store, a.axis.name(), &mut a.quant, *v)
+                .expect("finite correction, infallible store");
             if d != 0 {
                 a.sched.add_inject_counts(d);
                 a.not_before_ns = a.not_before_ns.max(now_ns);
