@@ -418,3 +418,35 @@ fn declared_models_must_load_at_start_and_have_plain_names() {
         "{msg}"
     );
 }
+
+/// `[sink.quadrature] state_file` (the held counts, persisted before every step): made absolute
+/// against the config's directory at start, and refused with file, line and key when its
+/// directory is not writable.
+#[test]
+fn the_quadrature_state_file_must_be_writable() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("field.toml");
+    let source = "[[serial.source]]\nname = \"dro\"\ndevice = \"/dev/ttyUSB0\"\n\
+                  format = { kind = \"nd522\" }\nchannel = [ { name = \"x_mm\", key = \"X\" } ]\n";
+    let quad = |file: &str| {
+        format!(
+            "{BASE}{source}[sink.quadrature]\nstate_file = \"{file}\"\n[[sink.quadrature.axis]]\n\
+             axis = \"x\"\nresolution_um = 0.5\ncount_sign = 1\nmin_edge_gap_ns = 400\n\
+             max_inject_rate_hz = 200000.0\n"
+        )
+    };
+    std::fs::write(&path, quad("held.toml")).unwrap();
+    let cfg = FieldConfig::load_for_run(&path).unwrap();
+    let q = cfg.sink.quadrature.unwrap();
+    assert_eq!(q.state_file, Some(dir.path().join("held.toml")));
+    let text = quad("no/such/dir/held.toml");
+    std::fs::write(&path, &text).unwrap();
+    let msg = FieldConfig::load_for_run(&path).unwrap_err().to_string();
+    let line = line_of(&text, "state_file = ");
+    assert!(
+        msg.contains(&format!(
+            "field.toml:{line}: key `sink.quadrature.state_file`"
+        )) && msg.contains("not writable"),
+        "{msg}"
+    );
+}

@@ -10,35 +10,9 @@
 mod closed_loop_support;
 
 use closed_loop_support::*;
-use hil_sim::harness::{ClosedLoop, FaultEdge};
+use hil_sim::harness::ClosedLoop;
 use retrocomp::gateway::health::FaultKind;
 
-/// Edges of (source, kind) in order.
-fn edges<'a>(h: &'a ClosedLoop, source: &str, kind: FaultKind) -> Vec<&'a FaultEdge> {
-    h.fault_edges()
-        .iter()
-        .filter(|e| e.source == source && e.kind == kind)
-        .collect()
-}
-
-/// One start and one clear of (source, kind); returns their times.
-fn one_episode(h: &ClosedLoop, source: &str, kind: FaultKind) -> (f64, f64) {
-    let e = edges(h, source, kind);
-    assert_eq!(e.len(), 2, "{source} {kind:?}: {e:?}");
-    assert!(e[0].started && !e[1].started, "{e:?}");
-    (e[0].t_s, e[1].t_s)
-}
-
-fn assert_at(t: f64, expected: f64, what: &str) {
-    assert!(
-        (t - expected).abs() < 1e-9,
-        "{what} at {t} s, expected {expected} s"
-    );
-}
-
-/// Stationary phases: the spindle off, no sensor noise, no screw heating, no cut: while the machine dwells, the
-/// gateway's target is exactly constant, so recovery is a count of capped writes.
-const MOVES: &str = "G4 P0.5\nG1 X150 Y100 F3600\nG4 P3.0\nG1 X40 Y30\nG4 P6.0";
 /// The first dwell (X150 Y100) and the second (X40 Y30, 130 mm later at 60 mm/s) of [`MOVES`], s.
 const DWELL1: (f64, f64) = (3.5, 6.5);
 const DWELL2: (f64, f64) = (8.7, 14.6);
@@ -95,23 +69,48 @@ fn transport_down_and_back_resumes_from_what_the_plc_holds_in_exactly_the_capped
         (0..3).any(|k| (target[k] - held[k]).abs() >= 3.0 * CAP_UM),
         "the move changed too little to test: {held:?} → {target:?}"
     );
-    // Nothing reached the PLC while the link was down; the sink's fault is one episode from the
-    // first period after the loss to the first period after the return.
-    assert!(h.writes().iter().all(|w| w.t_s < down || w.t_s >= back));
+    // The client learns of the loss when its request in flight fails (the period before `down`
+    // still waits for the PLC's ack: its next read goes out at `down` and fails), and tries again
+    // on the real `bus::Backoff` schedule (reconnect_min_ms 100 doubling to reconnect_max_ms
+    // 5000), at the first write period at or after each due instant: 5.0 + 0.1 → 5.1, + 0.2 → 5.3,
+    // + 0.4 → 5.7, + 0.8 → 6.5, + 1.6 → 8.1, + 3.2 → 11.3, the first attempt after the link is
+    // back at 11 s.
+    let failed_at = step_time(&h, down);
+    let expected = [
+        (5.1, false),
+        (5.3, false),
+        (5.7, false),
+        (6.5, false),
+        (8.1, false),
+        (11.3, true),
+    ];
+    let attempts = h.connect_attempts();
+    assert_eq!(attempts.len(), expected.len(), "{attempts:?}");
+    for (a, (t, ok)) in attempts.iter().zip(expected) {
+        assert_at(a.t_s, step_time(&h, t), "connect attempt");
+        assert_eq!(a.ok, ok, "{a:?}");
+    }
+    // The same instants from the backoff itself, so the literal list above is the real schedule.
+    let mut backoff = retrocomp::bus::Backoff::from_millis(100, 5000);
+    let mut due = failed_at;
+    for (t, _) in expected {
+        due = period_at_or_after(due + backoff.next_delay().as_secs_f64(), period);
+        assert!((due - t).abs() < 1e-6, "backoff due {due}, listed {t}");
+    }
+    let resumed = step_time(&h, 11.3);
+    // Nothing reached the PLC from the loss until the reconnect (not even after the link was back
+    // at 11 s: the client waits out its backoff); the sink's fault is one episode from the failed
+    // request to the first period after the reconnect.
+    assert!(h.writes().iter().all(|w| w.t_s < down || w.t_s >= resumed));
     let (start, clear) = one_episode(&h, "sink.origin_shift", FaultKind::Disconnected);
-    assert_at(
-        start,
-        period_at_or_after(down, period),
-        "Disconnected start",
-    );
-    // The first period after the return reads twice (values 0–5, then strobe/ack 10–11: one step
-    // each), writes the values at the next step, and clears the fault when it completes (strobe,
-    // ack, read-back: waiting for the PLC's ack it may outlast one period, whose tick is skipped).
-    let resumed = period_at_or_after(back, period);
+    assert_at(start, failed_at, "Disconnected start");
+    // The period of the reconnect reads twice (values 0–5, then strobe/ack 10–11: one step each),
+    // writes the values at the next step, and clears the fault when it completes (strobe, ack,
+    // read-back: waiting for the PLC's ack it may outlast one period, whose tick is skipped).
     let first = h.writes().iter().find(|w| w.t_s >= back).unwrap();
     assert_at(
         first.t_s,
-        step_time(&h, resumed + 0.003),
+        step_time(&h, 11.3 + 0.003),
         "first write after the return",
     );
     assert!(
@@ -125,34 +124,10 @@ fn transport_down_and_back_resumes_from_what_the_plc_holds_in_exactly_the_capped
     assert_no_jump(h.trace(), &[]);
 }
 
-/// Engine cycle times in `[a, b]`, as the world's clock gives them (every `cycle_ms` of steps).
-fn cycles_in(h: &ClosedLoop, a: f64, b: f64) -> impl Iterator<Item = f64> {
-    let (cycle, _) = h.periods_s();
-    let dt = h.world().config().dt_s();
-    let every = (cycle / dt).round() as usize;
-    h.trace()
-        .iter()
-        .enumerate()
-        .filter(move |(i, _)| (i + 1) % every == 0)
-        .map(|(_, r)| r.t_s)
-        .filter(move |t| *t >= a - 1e-9 && *t <= b + 1e-9)
-}
-
-/// The world's time at the step closest to `t_s` (the exact float the gateway saw).
-fn step_time(h: &ClosedLoop, t_s: f64) -> f64 {
-    h.trace()
-        .iter()
-        .map(|r| r.t_s)
-        .min_by(|a, b| (a - t_s).abs().total_cmp(&(b - t_s).abs()))
-        .unwrap()
-}
-
 #[test]
 fn a_silent_encoder_node_holds_for_exactly_the_hold_time_ramps_out_and_comes_back_capped() {
     let (silent, back) = (4.0, 5.5);
-    let faults = format!(
-        "[[io.faults]]\nkind = \"can_node_silent\"\nnode = 1\nfrom_s = {silent}\nto_s = {back}\n"
-    );
+    let faults = node_silent(1, silent, back);
     let mut h = closed_loop(sim_config(MOVES, true, &faults));
     h.run_until(silent);
     let target = lsb_target(&h);
@@ -234,19 +209,25 @@ fn a_foreign_value_in_the_plc_is_continued_from_and_left_in_exactly_the_capped_w
         .filter(|w| w.address == 0 && w.t_s >= latched && w.t_s < latched + 0.2)
         .map(|w| w.registers_um[0])
         .collect();
-    // One write more than the cap alone needs: the period that read the foreign value already
-    // wrote one cap towards the target, but the engine, reseeded with the value as read, does not
-    // move at its first cycle (a fresh safety state has no previous cycle to ramp from), so the
-    // next period writes the same value again.
-    assert_eq!(
-        xs[0],
-        foreign - CAP_UM * (foreign - target[0]).signum(),
-        "{xs:?}"
-    );
-    assert_eq!(xs[1], xs[0], "{xs:?}");
+    // Every write from the foreign value on moves one cap towards the target: the period that read
+    // it wrote one cap towards the target (the last-step guard against what the PLC holds), and the
+    // engine, reseeded with the value as read, ramps on from it at its next cycle (the reseed keeps
+    // the safety state's cycle clock: no period stands still), so X takes exactly the capped writes.
+    let step = CAP_UM * (target[0] - foreign).signum();
+    let expected: Vec<f64> = (1..=xs.len())
+        .map(|k| {
+            let v = foreign + k as f64 * step;
+            if step > 0.0 {
+                v.min(target[0])
+            } else {
+                v.max(target[0])
+            }
+        })
+        .collect();
+    assert_eq!(xs, expected, "x written after the foreign {foreign} µm");
     assert_eq!(
         n,
-        capped_writes([foreign, target[1], target[2]], target) + 1,
+        capped_writes([foreign, target[1], target[2]], target),
         "{foreign} → {target:?}: x written {xs:?}"
     );
     // Not a fault of the sink (the value is within the clamp and nothing of ours was pending).
@@ -305,47 +286,114 @@ fn a_restarted_gateway_continues_from_what_the_plc_holds_and_meets_the_unbroken_
     assert_no_jump(restarted.trace(), &[]);
 }
 
-/// Spindle on, sensor noise on, strokes out and back: thermal and load terms move all the time.
-const STROKES: &str = "S3000 M3\nG4 P0.5\nG1 X150 Y100 F3600\nG1 X0 Y0\nG1 X150 Y100\nG1 X0 Y0\nM5";
-
 #[test]
 fn a_stuck_then_nan_spindle_sensor_is_replaced_by_its_neighbour_without_dropping_compensation() {
-    let faults = "[[faults]]\nchannel = \"T_spindle_C\"\nkind = \"stuck\"\nfrom_s = 3.0\nto_s = 5.0\n\
-                  [[faults]]\nchannel = \"T_spindle_C\"\nkind = \"nan\"\nfrom_s = 5.0\nto_s = 6.5\n";
+    let faults = STUCK_THEN_NAN;
     let mut h = closed_loop(sim_config(STROKES, false, faults));
     let mut clean = closed_loop(sim_config(STROKES, false, ""));
-    h.run_to_end();
+    for g in [&mut h, &mut clean] {
+        g.gateway_mut().unwrap().record_samples("T_spindle_C");
+    }
+    // The value the engine uses for the spindle sensor and for its neighbour, every step.
+    let mut used = Vec::new();
+    while !h.world().done() {
+        h.step();
+        let gw = h.gateway().unwrap();
+        used.push((
+            h.t_s(),
+            gw.channel_value("T_spindle_C"),
+            gw.channel_value("T_spindle2_C"),
+        ));
+    }
     clean.run_to_end();
     let (stuck, _) = one_episode(&h, "T_spindle_C", FaultKind::Stuck);
-    // Judged stuck `stuck_after_s` (1 s) after the frozen value's first frame (a CiA 404 frame
-    // every 50 ms; the value froze at 3.0 s, or a frame earlier when that reading matched).
-    assert!((3.95..=4.05 + 1e-9).contains(&stuck), "stuck at {stuck}");
+    // Judged stuck by the detector's rule on the readings the gateway received (a CiA 404 frame
+    // every 50 ms, decoded by the gateway's own source core): the first reading at least
+    // `stuck_after_s` (1 s) after the first of the bit-identical run that holds the frozen value
+    // (the reading at 3.0 s, or an earlier one when it matched).
+    let samples = h.gateway().unwrap().recorded_samples();
+    let k = samples.iter().position(|s| s.t_s >= 3.0 - 1e-9).unwrap();
+    let frozen = samples[k].value;
+    let first = (0..=k)
+        .rev()
+        .take_while(|&j| samples[j].value.to_bits() == frozen.to_bits())
+        .last()
+        .unwrap();
+    let since = samples[first].t_s;
+    let judged = samples[k..]
+        .iter()
+        .find(|s| s.t_s - since >= 1.0)
+        .unwrap()
+        .t_s;
+    assert_at(stuck, judged, "Stuck start");
+    for s in samples.iter().filter(|s| s.t_s >= since && s.t_s <= judged) {
+        assert_eq!(
+            s.value.to_bits(),
+            frozen.to_bits(),
+            "frozen from {since} s: {s:?}"
+        );
+    }
+    // Up to the frozen frame the readings are the clean run's, bit for bit; the clean run's next
+    // reading differs (noise 0.08 °C on 0.1 °C steps), so the runs part exactly there.
+    let clean_samples = clean.gateway().unwrap().recorded_samples();
+    assert_eq!(samples[..=k], clean_samples[..=k]);
+    let parted = (k + 1..samples.len())
+        .find(|&j| samples[j] != clean_samples[j])
+        .unwrap();
+    eprintln!(
+        "stuck: frozen {frozen} °C from {since} s (fault at 3.0 s), judged at {judged} s; \
+         readings part from the clean run at {} s",
+        samples[parted].t_s
+    );
+    let n = h
+        .trace()
+        .iter()
+        .take_while(|r| r.t_s < samples[parted].t_s - 1e-9)
+        .count();
+    assert_eq!(
+        h.trace()[..n],
+        clean.trace()[..n],
+        "identical until the readings part"
+    );
     // NaN goes out as 0x7FFF (over range): out of range from the first frame at 5.0 s; clear with
-    // the first good frame at 6.5 s.
-    // (A sensor fault's window includes its end, `physics/faults.rs`: the first good reading is on
-    // the next CiA 404 frame, 50 ms after 6.5 s.)
+    // the first good frame (a sensor fault's window includes its end, `physics/faults.rs`: the
+    // first good reading is on the next CiA 404 frame, 50 ms after 6.5 s).
     let (nan, ok) = one_episode(&h, "T_spindle_C", FaultKind::OutOfRange);
     assert_at(nan, 5.0, "OutOfRange start");
     assert_at(ok, step_time(&h, 6.55), "OutOfRange clear");
-    // The neighbour's estimate stood in throughout: compensation never dropped.
-    assert!(
-        h.fault_edges()
+    // From the stuck judgement to the first good reading, the engine uses exactly the
+    // neighbour's estimate (coefficients [0, 1]: T_spindle2_C itself), at every step; before the
+    // judgement the frozen reading, after the clear the sensor's own.
+    let mut replaced = 0;
+    for (t, v, v2) in &used {
+        if *t >= stuck - 1e-9 && *t < ok - 1e-9 {
+            assert_eq!(
+                *v, *v2,
+                "at {t} s the spindle sensor is not its neighbour's estimate"
+            );
+            assert!(v.is_some(), "no value at {t} s");
+            replaced += 1;
+        } else if *t >= since - 1e-9 && *t < stuck - 1e-9 {
+            assert_eq!(*v, Some(frozen), "at {t} s");
+        }
+    }
+    assert_eq!(
+        replaced,
+        h.trace()
             .iter()
-            .all(|e| !e.source.starts_with("compensation")),
-        "{:?}",
-        h.fault_edges()
+            .filter(|r| r.t_s >= stuck - 1e-9 && r.t_s < ok - 1e-9)
+            .count()
     );
-    // Before the fault the two runs are the same run, bit for bit.
-    let n = h.trace().iter().take_while(|r| r.t_s < 3.0).count();
-    assert_eq!(h.trace()[..n], clean.trace()[..n]);
-    // Once judged stuck, Z keeps its thermal term from the neighbour: within 3 µm of the clean run
-    // (the neighbour sits on the same node with a slower sensor lag and its own noise; the model's
-    // thermal lag carries what the frozen reading fed it for 1 s).
+    // The neighbour's estimate stood in throughout: compensation never dropped.
+    assert_compensation_never_dropped(&h);
+    // What the substitution costs Z (a model error, not a timing window: the neighbour sits on
+    // the same node with a slower sensor lag and its own noise, and the model's thermal lag
+    // carries what the frozen reading fed it for 1 s): within 3 µm of the clean run.
     let worst = h
         .trace()
         .iter()
         .zip(clean.trace())
-        .filter(|(r, _)| r.t_s >= stuck && r.t_s < 6.5)
+        .filter(|(r, _)| r.t_s >= stuck && r.t_s < ok)
         .map(|(r, c)| (r.output_um[2] - c.output_um[2]).abs())
         .fold(0.0, f64::max);
     eprintln!("substituted Z: at most {worst:.2} µm off the clean run");

@@ -242,6 +242,19 @@ impl FieldConfig {
         Ok(cfg)
     }
 
+    /// `[sink.quadrature] state_file`: made absolute against the config's directory, and its
+    /// directory must be writable (the held counts are persisted there before every step).
+    fn resolve_quadrature_state(&mut self, base: &Path) -> Result<(), (String, String)> {
+        let Some(q) = self.sink.quadrature.as_mut() else {
+            return Ok(());
+        };
+        let path = q.state_path(base);
+        crate::quadrature::held::check_writable(&path)
+            .map_err(|what| ("sink.quadrature.state_file".to_string(), what))?;
+        q.state_file = Some(path);
+        Ok(())
+    }
+
     /// [`Self::load`] plus the checks only a deployment needs (`retrocomp run`): every axis has a
     /// position source among the configured buses. (Tests feed samples themselves, so `parse`
     /// does not require sources.)
@@ -251,6 +264,7 @@ impl FieldConfig {
         let opcua = cfg.opcua.as_mut().map_or(Ok(()), |o| o.resolve(base));
         let checked = opcua
             .and_then(|()| cfg.check_position_sources())
+            .and_then(|()| cfg.resolve_quadrature_state(base))
             .and_then(|()| resolve_models(&mut cfg.gateway.models, base));
         if let Err((key, what)) = checked {
             let text = std::fs::read_to_string(path).unwrap_or_default();

@@ -599,8 +599,7 @@ impl Engine {
     /// operator cleared it): continue from that value instead of jumping back to ours.
     pub fn reseed(&mut self, axis: Axis, held_um: f64) -> Result<(), SafetyError> {
         if let Some(a) = self.axes.iter_mut().find(|a| a.axis == axis) {
-            let cfg = *a.safety.config();
-            a.safety = AxisSafety::new(cfg, held_um)?;
+            a.safety.reseed(held_um)?;
             tracing::warn!(
                 axis = axis.name(),
                 held_um,

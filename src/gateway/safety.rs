@@ -131,6 +131,22 @@ impl AxisSafety {
         })
     }
 
+    /// Continue from `held_um`, the value the controller holds now (a foreign write: an operator, a
+    /// controller restart), keeping the clock of the last cycle: the next cycle ramps from it by
+    /// `ramp_um_per_s × dt` (≤ the dosing cap), as after a start. A fresh state ([`Self::new`]) has
+    /// no earlier cycle, so its first step has `dt = 0` and does not move: after a reseed that
+    /// would cost one write period standing still. Refuses a value beyond the clamp (unchanged).
+    pub fn reseed(&mut self, held_um: f64) -> Result<(), SafetyError> {
+        let fresh = Self::new(self.cfg, held_um)?;
+        *self = Self {
+            last_t_s: self.last_t_s,
+            clamp_hits: self.clamp_hits,
+            cap_hits: self.cap_hits,
+            ..fresh
+        };
+        Ok(())
+    }
+
     pub fn output_um(&self) -> f64 {
         self.output_um
     }
@@ -301,6 +317,25 @@ mod tests {
         let o = s.step(t + 0.01, true, Input::Fresh(10.0));
         assert!(o <= 0.2 + 1e-9);
         assert_eq!(s.mode(), Mode::RampingIn);
+    }
+
+    #[test]
+    fn a_reseed_keeps_the_cycle_clock_so_its_first_cycle_moves_by_at_most_the_cap() {
+        // Tracking at 10 µm, 10 ms cycles; a foreign 22 µm arrives, the target stays 10 µm.
+        let mut s = AxisSafety::new(cfg(), 10.0).unwrap();
+        s.step(0.0, true, Input::Fresh(10.0));
+        s.step(0.01, true, Input::Fresh(10.0));
+        s.reseed(22.0).unwrap();
+        assert_eq!((s.output_um(), s.mode()), (22.0, Mode::RampingIn));
+        // The first cycle after the reseed ramps 20 µm/s × 10 ms = 0.2 µm (≤ the 1 µm cap) from
+        // the held value, towards the target: not standing still, not jumping back.
+        let o = s.step(0.02, true, Input::Fresh(10.0));
+        assert!((o - 21.8).abs() < 1e-9, "{o}");
+        assert!(s.reseed(60.0).is_err(), "beyond the clamp");
+        assert!(
+            (s.output_um() - 21.8).abs() < 1e-9,
+            "a refused reseed changes nothing"
+        );
     }
 
     #[test]

@@ -1,14 +1,33 @@
 //! The `[sink.quadrature]` section of the field file: per axis the count resolution and sign, the
 //! receiver's edge limits and, for the `gpio` feature, the two output lines. Units: µm per count,
-//! ns, Hz.
+//! ns, Hz. `state_file`: where the counts the controller holds are persisted ([`super::held`]).
 
 use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Where the held counts are persisted when `state_file` is not given.
+pub const DEFAULT_STATE_FILE: &str = "/var/lib/retrocomp/quadrature-held.toml";
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct QuadratureSink {
     #[serde(rename = "axis")]
     pub axes: Vec<QuadratureAxis>,
+    /// The held-counts file (relative paths: to the config file's directory once resolved);
+    /// default [`DEFAULT_STATE_FILE`]. Delete it after homing or power-cycling the controller.
+    #[serde(default)]
+    pub state_file: Option<PathBuf>,
+}
+
+impl QuadratureSink {
+    /// The held-counts file, relative paths taken against `base` (the config's directory).
+    pub fn state_path(&self, base: &Path) -> PathBuf {
+        let p = self
+            .state_file
+            .clone()
+            .unwrap_or_else(|| PathBuf::from(DEFAULT_STATE_FILE));
+        if p.is_relative() { base.join(p) } else { p }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -35,6 +35,23 @@ impl CountQuantizer {
         })
     }
 
+    /// A quantizer that continues from `held_counts` already emitted (what the controller holds,
+    /// persisted by [`super::held`]): the next delta is taken against them, not against 0.
+    pub fn continuing_from(
+        resolution_um: f64,
+        count_sign: i8,
+        held_counts: i64,
+    ) -> Result<Self, CountError> {
+        let mut q = Self::new(resolution_um, count_sign)?;
+        q.emitted_counts = held_counts;
+        Ok(q)
+    }
+
+    /// The correction (µm) that `counts` injected counts realise (the inverse of the rounding).
+    pub fn correction_um_of(&self, counts: i64) -> f64 {
+        -(counts as f64) * self.resolution_um * self.count_sign
+    }
+
     /// Total injected counts that realise `correction_um` (rounded half away from zero).
     pub fn target_counts(&self, correction_um: f64) -> Result<i64, CountError> {
         if !correction_um.is_finite() {

@@ -44,7 +44,7 @@ fn phase_of_levels(a: bool, b: bool) -> i64 {
     }
 }
 
-#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, thiserror::Error, PartialEq, Eq)]
 pub enum DecodeError {
     /// Both lines changed at once: a count was lost (edges too close for the receiver, or noise).
     #[error(

@@ -24,6 +24,7 @@ pub mod driver;
 #[cfg(all(feature = "gpio", target_os = "linux"))]
 pub mod gpio;
 pub mod gray;
+pub mod held;
 pub mod injector;
 pub mod scheduler;
 pub mod sink;

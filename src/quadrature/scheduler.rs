@@ -97,6 +97,14 @@ impl EdgeScheduler {
         })
     }
 
+    /// Start at output position `held_counts` (what the controller's receiver holds from an earlier
+    /// box, [`super::held`]): the lines then start at its phase's levels, so taking them over shows
+    /// the receiver no edge. Injection totals still count from this box's start.
+    pub fn starting_at(mut self, held_counts: i64) -> Self {
+        self.position = held_counts;
+        self
+    }
+
     pub fn config(&self) -> SchedulerConfig {
         self.cfg
     }

@@ -3,14 +3,23 @@
 //! thread (`gpio` lines configured, cargo feature `gpio`) or the scheduler run in simulation (no
 //! lines configured: counts and edges are planned exactly as for GPIO, without pins).
 //!
+//! Restart (pulses have no read-back): the counts the controller holds are persisted per axis in
+//! `state_file` ([`super::held`]), written ahead of every step's edges. [`Sink::start`] reads them:
+//! the quantizer continues from them, the lines start at their phase (no edge at takeover) and the
+//! engine is seeded with the correction they realise. No file = first start (all 0, one INFO line);
+//! a corrupt or unreadable file refuses the start (nothing is injected until it is fixed); a failed
+//! write-ahead is a fault of the sink and that step injects nothing.
+//!
 //! A config that names GPIO lines on a build without the `gpio` feature is refused at start
 //! ([`check_buildable`]) rather than silently simulated: the technician would otherwise see a
 //! healthy status while nothing reaches the controller.
 
 use crate::models::Axis;
+use std::collections::BTreeMap;
 use tokio::sync::watch;
 
 use super::config::{QuadratureAxis, QuadratureSink};
+use super::held::{FileHeldCounts, HeldCounts, HeldError, write_ahead};
 use crate::error::Chain;
 use crate::quadrature::{CountQuantizer, EdgeScheduler, SchedulerConfig, simulate};
 use crate::sink::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
@@ -41,12 +50,14 @@ enum AxisInjector {
 }
 
 impl AxisInjector {
-    fn open(a: &QuadratureAxis) -> Result<Self, SinkError> {
+    /// Open at `held` counts: the lines start at that phase's levels.
+    fn open(a: &QuadratureAxis, held: i64) -> Result<Self, SinkError> {
         let sched = EdgeScheduler::new(SchedulerConfig {
             min_edge_gap_ns: a.min_edge_gap_ns,
             max_inject_rate_hz: a.max_inject_rate_hz,
         })
-        .map_err(|e| SinkError::setup(format!("sink.quadrature axis {}", a.axis), e))?;
+        .map_err(|e| SinkError::setup(format!("sink.quadrature axis {}", a.axis), e))?
+        .starting_at(held);
         match &a.gpio {
             None => Ok(Self::Simulated(sched)),
             #[cfg(all(feature = "gpio", target_os = "linux"))]
@@ -112,40 +123,95 @@ impl AxisInjector {
     }
 }
 
-/// The quadrature injector as the run loop's [`Sink`]: it holds no state the engine continues from
-/// (empty start values); [`Sink::run`] is [`quadrature_task`].
-#[derive(Debug)]
+/// Read the persisted counts: per configured axis the held count (0 when none is persisted) and
+/// the start values (µm the controller holds) the engine continues from.
+pub fn held_at_start(
+    q: &QuadratureSink,
+    store: &mut dyn HeldCounts,
+) -> Result<(BTreeMap<String, i64>, StartValues), HeldError> {
+    let persisted = store.load()?;
+    if persisted.is_none() {
+        tracing::info!(
+            "sink.quadrature: no held-counts file, first start: the controller holds 0 counts \
+             (delete the file after homing or power-cycling the controller)"
+        );
+    }
+    let persisted = persisted.unwrap_or_default();
+    let mut held = BTreeMap::new();
+    let mut start = StartValues::new();
+    for a in &q.axes {
+        let n = persisted.get(&a.axis).copied().unwrap_or(0);
+        let quant = CountQuantizer::continuing_from(a.resolution_um, a.count_sign, n)?;
+        held.insert(a.axis.clone(), n);
+        start.insert(a.axis.clone(), quant.correction_um_of(n));
+    }
+    Ok((held, start))
+}
+
+/// The quadrature injector as the run loop's [`Sink`]: [`Sink::start`] reads the persisted held
+/// counts ([`held_at_start`]); [`Sink::run`] is [`quadrature_task`].
 pub struct QuadratureOutput {
     cfg: QuadratureSink,
+    held: BTreeMap<String, i64>,
 }
 
 impl QuadratureOutput {
     pub fn new(cfg: QuadratureSink) -> Self {
-        Self { cfg }
+        Self {
+            cfg,
+            held: BTreeMap::new(),
+        }
+    }
+
+    fn store(&self) -> FileHeldCounts {
+        FileHeldCounts::new(self.cfg.state_path(std::path::Path::new(".")))
     }
 }
 
 impl Sink for QuadratureOutput {
     fn start<'a>(&'a mut self, _io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>> {
-        Box::pin(async { Ok(StartValues::new()) })
+        Box::pin(async move {
+            let (held, start) = held_at_start(&self.cfg, &mut self.store()).map_err(|e| {
+                SinkError::setup(
+                    "sink.quadrature state_file (nothing is injected until it is fixed)",
+                    e,
+                )
+            })?;
+            self.held = held;
+            Ok(start)
+        })
     }
 
     fn run(self: Box<Self>, io: SinkIo) -> LocalFuture<'static, ()> {
-        Box::pin(quadrature_task(self.cfg, io.out_rx, io.status))
+        let mut store = self.store();
+        // `load` fills the store's map, so a save rewrites every axis, not only the changed one.
+        if let Err(e) = store.load() {
+            tracing::error!("{}", Chain(&e));
+        }
+        Box::pin(quadrature_task(
+            self.cfg,
+            self.held,
+            Box::new(store),
+            io.out_rx,
+            io.status,
+        ))
     }
 }
 
 /// Follow the cycle's outputs until the runtime drops its sender.
 pub async fn quadrature_task(
     q: QuadratureSink,
+    held: BTreeMap<String, i64>,
+    mut store: Box<dyn HeldCounts>,
     mut out_rx: watch::Receiver<Vec<(Axis, f64)>>,
     status: watch::Sender<SinkStatus>,
 ) {
     let mut axes = Vec::new();
     for a in &q.axes {
-        let opened = CountQuantizer::new(a.resolution_um, a.count_sign)
+        let n = held.get(&a.axis).copied().unwrap_or(0);
+        let opened = CountQuantizer::continuing_from(a.resolution_um, a.count_sign, n)
             .map_err(|e| SinkError::Refused(e.to_string()))
-            .and_then(|quant| Ok((quant, AxisInjector::open(a)?)));
+            .and_then(|quant| Ok((quant, AxisInjector::open(a, n)?)));
         match opened {
             // Axis names are validated (x, y or z, each an [[axis]]) when the config loads.
             Ok((quant, inj)) => match Axis::from_name(&a.axis) {
@@ -174,7 +240,7 @@ pub async fn quadrature_task(
             let Some((_, v)) = outs.iter().find(|(a, _)| a == axis) else {
                 continue;
             };
-            match quant.delta_counts(*v) {
+            match write_ahead(store.as_mut(), axis.name(), quant, *v) {
                 Ok(d) if inj.inject(d) => st.writes_ok += 1,
                 Ok(_) => {
                     st.writes_failed += 1;
@@ -183,7 +249,7 @@ pub async fn quadrature_task(
                 }
                 Err(e) => {
                     st.writes_failed += 1;
-                    st.last_error = Some(format!("axis {axis}: {e}"));
+                    st.last_error = Some(format!("axis {axis}: {}", Chain(&e)));
                 }
             }
             if inj.owed() != 0 {

@@ -22,6 +22,12 @@ pub(crate) const GARBAGE: (f64, f64) = (17.5, 20.0);
 pub(crate) const KILL_AT_S: f64 = 22.0;
 pub(crate) const TERM_AT_S: f64 = 25.5;
 
+/// The demo mill's machine, the gateway's limits and the PLC window, shared with hil-sim's
+/// in-process harness (`hil-sim/tests/closed_loop_support`): one copy, in `tests/fixtures/faults_hil`.
+pub(crate) const FIXTURE_SIM: &str = include_str!("../fixtures/faults_hil/sim.toml");
+pub(crate) const FIXTURE_FIELD: &str = include_str!("../fixtures/faults_hil/field.toml");
+pub(crate) const FIXTURE_MAP: &str = include_str!("../fixtures/faults_hil/origin_shift_map.toml");
+
 pub(crate) fn sim_toml(hub_port: u16, pty_link: &Path, truth: &Path) -> String {
     sim_machine_toml(5, truth) + &sim_faults_and_io_toml(hub_port, pty_link)
 }
@@ -51,75 +57,9 @@ G1 F3600
 M30
 """
 
-[servo]
-ideal = true
-count_um = 1.0
-
-[plc]
-scan_s = 0.004
-word = "int32"
-word_order = "high_first"
-lsb_um = {LSB_UM}
-first_register = 0
-handshake = {{ strobe_register = 10, ack_register = 11 }}
-
 [truth]
 model_path = "{truth}"
-
-[hidden.thermal]
-ambient_C = 20.0
-ambient_drift_C_per_h = 0.0
-
-[[hidden.thermal.nodes]]
-name = "spindle"
-tau_s = 8.0
-rise_C_per_krpm = 2.0
-
-[[hidden.thermal.nodes]]
-name = "xscrew"
-tau_s = 5.0
-rise_C_per_mm_s = {{ x = 0.15 }}
-
-# Sensor noise of 0.08 °C on 0.1 °C CAN steps: a healthy reading never stays bit-identical for 1 s.
-[[hidden.thermal.sensors]]
-name = "spindle"
-node = "spindle"
-tau_s = 0.2
-noise_C = 0.08
-
-[[hidden.thermal.sensors]]
-name = "xscrew"
-node = "xscrew"
-tau_s = 0.2
-noise_C = 0.08
-
-# A second sensor on the spindle housing: the neighbour that stands in for the first (Ni's recovery).
-[[hidden.thermal.sensors]]
-name = "spindle2"
-node = "spindle"
-tau_s = 0.3
-noise_C = 0.08
-
-[[hidden.thermal.effects]]
-kind = "growth"
-node = "spindle"
-axis = "z"
-um_per_K = -6.0
-
-[[hidden.thermal.effects]]
-kind = "expansion"
-node = "xscrew"
-axis = "x"
-ppm_per_K = 11.5
-
-[hidden.cutting]
-stock_top_z_mm = 0.0
-kc_N_per_mm2 = 2000.0
-teeth = 2.0
-compliance_um_per_N = {{ x = 0.004, y = 0.003, z = -0.002 }}
-force_name = "cut"
-force_noise_N = 1.0
-"#,
+{FIXTURE_SIM}"#,
         truth = truth.display(),
     )
 }
@@ -210,24 +150,6 @@ period_s = 0.02
 
 pub(crate) fn field_toml(hub_port: u16, plc: &str, pty: &Path) -> String {
     let pty = pty.display();
-    let axis = |name: &str, clamp: f64, lo: f64, hi: f64| {
-        format!(
-            r#"
-[[axis]]
-name = "{name}"
-position_channel = "{name}_mm"
-safety = {{ max_correction_um = {clamp}, max_change_um_per_cycle = {CAP_UM}, ramp_um_per_s = 400.0, stale_hold_s = 0.5 }}
-[[channel]]
-name = "{name}_mm"
-min = {lo}
-max = {hi}
-stale_after_s = 0.1
-"#
-        )
-    };
-    let axes = axis("x", CLAMP_UM, -10.0, 220.0)
-        + &axis("y", CLAMP_Y_UM, -10.0, 170.0)
-        + &axis("z", CLAMP_UM, -20.0, 70.0);
     format!(
         r#"
 [gateway]
@@ -240,66 +162,12 @@ on_stop = "hold"
 thermal_period_s = 0.1
 status_listen = "127.0.0.1:0"
 
-[safety]
-max_correction_um = {CLAMP_UM}
-max_change_um_per_cycle = {CAP_UM}
-ramp_um_per_s = 400.0
-stale_hold_s = 0.5
-
-[direction]
-deadband_mm = 0.005
-switch_time_s = 0.05
-{axes}
-[[channel]]
-name = "T_spindle_C"
-min = 5.0
-max = 80.0
-stale_after_s = 0.5
-stuck_after_s = 1.0
-
-[[channel]]
-name = "T_spindle2_C"
-min = 5.0
-max = 80.0
-stale_after_s = 0.5
-
-[[channel]]
-name = "T_xscrew_C"
-min = 5.0
-max = 80.0
-stale_after_s = 0.5
-
-[[channel]]
-name = "F_cut_N"
-min = -2000.0
-max = 2000.0
-stale_after_s = 0.5
-
-# Both sensors sit on the spindle housing node: the estimate is the neighbour itself.
-[[recovery]]
-target = "T_spindle_C"
-neighbours = ["T_spindle2_C"]
-coefficients = [0.0, 1.0]
-fit_rms = 0.1
-
+{FIXTURE_FIELD}
 [can]
 backend = "socketcand"
 host = "127.0.0.1"
 port = {hub_port}
 channel = "can0"
-
-[canopen]
-pdo_timeout_s = 0.2
-encoder = [
-  {{ channel = "x_mm", node_id = 1, counts_per_mm = 1000.0 }},
-  {{ channel = "y_mm", node_id = 2, counts_per_mm = 1000.0 }},
-  {{ channel = "z_mm", node_id = 3, counts_per_mm = 1000.0 }},
-]
-analog = [
-  {{ channel = "T_spindle_C", node_id = 10, type = "int16", byte_offset = 0, decimal_digits = 1 }},
-  {{ channel = "T_xscrew_C", node_id = 10, type = "int16", byte_offset = 2, decimal_digits = 1 }},
-  {{ channel = "T_spindle2_C", node_id = 10, type = "int16", byte_offset = 4, decimal_digits = 1 }},
-]
 
 [serial]
 [[serial.source]]
@@ -316,29 +184,6 @@ reconnect_min_ms = 20
 reconnect_max_ms = 200
 write_period_ms = 10
 
-[sink.origin_shift.map]
-[[sink.origin_shift.map.axis]]
-axis = "x"
-address = 0
-kind = "int32"
-lsb_um = {LSB_UM}
-sign = 1
-[[sink.origin_shift.map.axis]]
-axis = "y"
-address = 2
-kind = "int32"
-lsb_um = {LSB_UM}
-sign = 1
-[[sink.origin_shift.map.axis]]
-axis = "z"
-address = 4
-kind = "int32"
-lsb_um = {LSB_UM}
-sign = 1
-[sink.origin_shift.map.handshake]
-strobe_address = 10
-ack_address = 11
-timeout_ms = 200
-"#
+{FIXTURE_MAP}"#
     )
 }

@@ -16,9 +16,6 @@ pub(crate) const RTU_DOWN: (f64, f64) = (7.0, 10.0);
 pub(crate) const RTU_PERIOD_S: f64 = 0.05;
 pub(crate) const RTU_TIMEOUT_S: f64 = 0.2;
 pub(crate) const RTU_BACKOFF_S: (f64, f64) = (0.1, 0.4);
-/// Bound on "healthy again" after the slave answers: backoff max + one poll + one reply timeout
-/// + a thermal latch period and scheduling slack, s.
-pub(crate) const RTU_HEALTHY_WITHIN_S: f64 = 1.0;
 
 /// hil-sim: the machine of `gateway_faults_hil` plus Modbus RTU (the PT100 block as input registers
 /// 0.. in sensor order: spindle, xscrew, spindle2; int16, 0.1 °C) and the `modbus_rtu_down` window.

@@ -4,25 +4,28 @@
 //!
 //! What it holds is what `retrocomp run` holds, minus the threads and sockets: the CANopen source
 //! core (CiA 406 encoders, CiA 404 temperatures), the serial line source core (weighing lines), the
-//! [`Engine`] with the machine model, and the origin-shift [`SinkCore`] (read → last-step guard →
-//! write cycle), with the sink's fault episodes from the real shell's `update_faults`. Time is the
+//! [`Engine`] with the machine model, and either the origin-shift [`SinkCore`] (read → last-step
+//! guard → write cycle, with the sink's fault episodes from the real shell's `update_faults`) or
+//! the quadrature box ([`QuadratureBox`]: counts and edges). Time is the
 //! harness' virtual time (s), passed in.
 //!
 //! Units: µm for corrections (correction = −error), mm for positions, s for time.
 
 use std::collections::BTreeMap;
 
-use retrocomp::bus::Sample;
 use retrocomp::bus::can::Frame;
 use retrocomp::bus::canopen::source::CanopenSource;
 use retrocomp::bus::serial::source::LineSource;
+use retrocomp::bus::{ChannelId, Sample};
 use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::engine::{Engine, ErrorModel};
 use retrocomp::gateway::health::{FaultKind, FaultLog};
 use retrocomp::gateway::safety::Mode;
 use retrocomp::models::Axis;
 use retrocomp::origin_shift::sink_task::update_faults;
-use retrocomp::origin_shift::{Action, Outcome, Reply, SinkAxis, SinkCore};
+use retrocomp::origin_shift::{Action, Reply, SinkAxis, SinkCore};
+
+use super::quadrature::{MemoryHeld, QuadratureBox};
 
 /// One fault edge as the gateway logs it (source, kind, started or cleared, gateway time).
 #[derive(Clone, Debug, PartialEq)]
@@ -40,7 +43,9 @@ pub struct Gateway {
     model: Box<dyn ErrorModel>,
     canopen: Option<CanopenSource>,
     serial: Vec<LineSource>,
-    sink: SinkCore,
+    /// The origin-shift sink core, or (`[sink.quadrature]`) the quadrature box.
+    sink: Option<SinkCore>,
+    quadrature: Option<QuadratureBox>,
     sink_faults: FaultLog,
     samples: Vec<Sample>,
     /// The sink's request in flight (answered at the next harness step), if a period runs.
@@ -51,6 +56,9 @@ pub struct Gateway {
     engine_active: BTreeMap<(String, FaultKind), f64>,
     /// Fault edges since the last [`Gateway::take_edges`].
     edges: Vec<FaultEdge>,
+    /// Channels whose samples are kept ([`Gateway::record_samples`]), and those samples.
+    recorded: Vec<ChannelId>,
+    sample_log: Vec<Sample>,
 }
 
 // By hand: the model is a trait object.
@@ -72,12 +80,22 @@ impl Gateway {
         cfg: FieldConfig,
         model: Box<dyn ErrorModel>,
         held_um: &BTreeMap<String, f64>,
+        held_counts: MemoryHeld,
     ) -> anyhow::Result<Self> {
-        let os = cfg
-            .sink
-            .origin_shift
-            .clone()
-            .ok_or_else(|| anyhow::anyhow!("the harness drives [sink.origin_shift]"))?;
+        let mut held_um = held_um.clone();
+        let quadrature = match cfg.sink.quadrature.as_ref() {
+            Some(q) => {
+                let (b, start) = QuadratureBox::new(q, held_counts)?;
+                held_um.extend(start);
+                Some(b)
+            }
+            None => None,
+        };
+        let map = match (&cfg.sink.origin_shift, &quadrature) {
+            (Some(os), None) => Some(os.map.clone()),
+            (None, Some(_)) => None,
+            _ => anyhow::bail!("the harness drives [sink.origin_shift] or [sink.quadrature]"),
+        };
         let initial: BTreeMap<String, f64> = held_um
             .iter()
             .filter(|(axis, v)| v.is_finite() && v.abs() <= cfg.safety_for(axis).max_correction_um)
@@ -105,7 +123,8 @@ impl Gateway {
             .collect();
         Ok(Self {
             outputs: engine.outputs(),
-            sink: SinkCore::new(os.map, axes),
+            sink: map.map(|m| SinkCore::new(m, axes)),
+            quadrature,
             cfg,
             engine,
             model,
@@ -116,6 +135,8 @@ impl Gateway {
             pending: None,
             engine_active: BTreeMap::new(),
             edges: Vec::new(),
+            recorded: Vec::new(),
+            sample_log: Vec::new(),
         })
     }
 
@@ -137,6 +158,16 @@ impl Gateway {
         }
     }
 
+    /// Keep every sample of `channel` the engine ingests from now on (in arrival order).
+    pub fn record_samples(&mut self, channel: &str) {
+        self.recorded.push(ChannelId::of(channel));
+    }
+
+    /// The samples of the recorded channels, in the order the engine ingested them.
+    pub fn recorded_samples(&self) -> &[Sample] {
+        &self.sample_log
+    }
+
     /// Garbage lines the serial sources counted so far.
     pub fn serial_garbage_lines(&self) -> u64 {
         self.serial.iter().map(|s| s.counters().garbage_lines).sum()
@@ -152,6 +183,9 @@ impl Gateway {
             s.poll(now_s, &mut self.samples);
         }
         for s in self.samples.drain(..) {
+            if self.recorded.contains(&s.channel) {
+                self.sample_log.push(s);
+            }
             self.engine.ingest(&s);
         }
         let outs = self.engine.cycle_in_place(now_s, self.model.as_mut());
@@ -210,16 +244,16 @@ impl Gateway {
         self.engine.compensation_dropped()
     }
 
-    /// Start a sink write period at `now_s`. `connected`: the link to the controller is up (else
-    /// the period fails at once, as the client's connect does). Returns the first request.
+    /// Start a sink write period at `now_s`. `connected`: the client is connected (else the period
+    /// fails at once, as the client's `ensure_connected` does). Returns the first request.
     pub fn begin_period(&mut self, now_s: f64, connected: bool) -> Option<&Action> {
         if !connected {
-            self.sink.not_connected("link down (harness)");
+            self.sink.as_mut()?.not_connected("link down (harness)");
             self.pending = None;
             self.end_period(now_s, false);
             return None;
         }
-        let a = self.sink.begin_at(&self.outputs, now_s);
+        let a = self.sink.as_mut()?.begin_at(&self.outputs, now_s);
         self.settle(a, now_s, connected)
     }
 
@@ -228,20 +262,19 @@ impl Gateway {
         self.pending.as_ref()
     }
 
-    /// The controller's reply to the request in flight; returns the next request, if any.
+    /// The controller's reply to the request in flight; `connected`: the client's connection after
+    /// it (a transport failure drops it, a Modbus exception does not). Returns the next request.
     pub fn reply(&mut self, reply: Reply, now_s: f64, connected: bool) -> Option<&Action> {
         self.pending = None;
-        let a = self.sink.on_reply(reply, now_s);
+        let a = self.sink.as_mut()?.on_reply(reply, now_s);
         self.settle(a, now_s, connected)
     }
 
     fn settle(&mut self, a: Action, now_s: f64, connected: bool) -> Option<&Action> {
         match a {
-            Action::Done(o) => {
-                self.end_period(
-                    now_s,
-                    connected && !matches!(o, Outcome::RequestFailed { .. }),
-                );
+            Action::Done(_) => {
+                // The shell's fault update after the period: `client.is_connected()`.
+                self.end_period(now_s, connected);
                 self.pending = None;
             }
             a => self.pending = Some(a),
@@ -251,7 +284,10 @@ impl Gateway {
 
     /// The end of a period: reseeds back to the engine (as the shell sends them), fault edges.
     fn end_period(&mut self, now_s: f64, connected: bool) {
-        for (axis, held) in self.sink.take_reseeds() {
+        let Some(sink) = self.sink.as_mut() else {
+            return;
+        };
+        for (axis, held) in sink.take_reseeds() {
             // An in-clamp value always gives a valid safety state; a refusal is a harness bug.
             self.engine
                 .reseed(axis, held)
@@ -262,7 +298,7 @@ impl Gateway {
             .active()
             .map(|(s, k, _)| (s.to_string(), k))
             .collect();
-        update_faults(&mut self.sink_faults, &self.sink, connected, now_s);
+        update_faults(&mut self.sink_faults, sink, connected, now_s);
         let after: Vec<(String, FaultKind)> = self
             .sink_faults
             .active()
@@ -292,7 +328,18 @@ impl Gateway {
 
     /// The sink core's writes so far (ok, failed).
     pub fn sink_writes(&self) -> (u64, u64) {
-        (self.sink.writes_ok, self.sink.writes_failed)
+        self.sink
+            .as_ref()
+            .map_or((0, 0), |s| (s.writes_ok, s.writes_failed))
+    }
+
+    /// The quadrature box (`[sink.quadrature]`), if that is the sink.
+    pub fn quadrature_mut(&mut self) -> Option<&mut QuadratureBox> {
+        self.quadrature.as_mut()
+    }
+
+    pub fn quadrature(&self) -> Option<&QuadratureBox> {
+        self.quadrature.as_ref()
     }
 
     /// Fault edges (engine and sink) since the last call.

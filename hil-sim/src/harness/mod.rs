@@ -11,35 +11,78 @@
 //!    go on the serial line before the lines; the gateway decodes them with its own source cores;
 //! 4. on a cycle tick (`gateway.cycle_ms`) the engine runs;
 //! 5. the sink's request in flight (issued one step earlier: one step of latency) is answered from
-//!    the PLC's registers, or fails while the Modbus link is down; on a write-period tick
+//!    the PLC's registers, or fails while the Modbus link is down (the client drops the connection
+//!    and waits out its [`retrocomp::bus::Backoff`], [`link`]); on a write-period tick
 //!    (`write_period_ms`, skipped while a period still runs, as tokio's `MissedTickBehavior::Skip`)
-//!    a new period begins.
+//!    a new period begins: at once when connected, else only once the backoff's next attempt is due
+//!    and the link is up.
 //!
 //! Every write that reaches the PLC is logged with what the PLC applied at that moment
 //! ([`PlcWrite`]), and every step's applied shift ([`StepTrace`]): the scenarios assert the clamp,
 //! the cap per write and "no jump" on these, against what the controller actually holds.
 //!
-//! Simplifications (documented in docs/hil-sim.md): the link reconnects at the first period after
-//! it is back (the real client waits out its backoff); every request takes exactly one step.
+//! Simplifications (documented in docs/hil-sim.md): every request and every connect takes exactly
+//! one step (a real timeout or refused connect takes longer, which only shifts the attempts).
 //!
 //! Units: µm for shifts and corrections (register = correction; + moves the slide +), s for time.
 
 pub mod gateway;
+pub mod link;
+pub mod quadrature;
 
 use std::collections::BTreeMap;
 
 use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::engine::ErrorModel;
+use retrocomp::models::Axis;
 use retrocomp::origin_shift::{Action, Reply};
+use retrocomp::quadrature::{DecodeError, QuadDecoder};
 
 use crate::SimConfig;
 use crate::io::publish::Publisher;
 use crate::io::transport_faults::{Garbage, Schedule, Transition, silenced};
 use crate::world::World;
 pub use gateway::{FaultEdge, Gateway};
+pub use link::{ClientLink, ConnectAttempt};
 
 /// Builds a fresh model for each gateway start (a restart loads it again).
 pub type ModelFactory = Box<dyn Fn() -> Box<dyn ErrorModel>>;
+
+/// One A/B edge the controller's quadrature receiver saw (`[sink.quadrature]`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Pulse {
+    pub t_ns: u64,
+    pub axis: Axis,
+    /// +1 / −1 count into the servo's feedback, or the receiver's error (both lines changed).
+    pub step: Result<i64, DecodeError>,
+    /// Which gateway start's box drove the lines (0 = the first; +1 per restart).
+    pub generation: u32,
+}
+
+/// The controller's ×4 quadrature receiver of one axis: the counts it took into the feedback.
+#[derive(Clone, Debug)]
+struct Receiver {
+    decoder: QuadDecoder,
+    count: i64,
+}
+
+impl Receiver {
+    /// The lines now show (a, b): the count this adds (±1), nothing, or the receiver's error
+    /// (both lines changed: the receiver resyncs to the lines, a count is lost).
+    fn see(&mut self, a: bool, b: bool) -> Option<Result<i64, DecodeError>> {
+        match self.decoder.update(a, b) {
+            Ok(None) => None,
+            Ok(Some(s)) => {
+                self.count += s.sign();
+                Some(Ok(s.sign()))
+            }
+            Err(e) => {
+                self.decoder = QuadDecoder::new(a, b);
+                Some(Err(e))
+            }
+        }
+    }
+}
 
 /// One write the sink made into the PLC window.
 #[derive(Clone, Debug, PartialEq)]
@@ -78,12 +121,22 @@ pub struct ClosedLoop {
     write_ticks: u64,
     /// Modbus link state after the last step (the schedule's `modbus_down`).
     link_up: bool,
+    /// The sink's client connection (one per gateway start) and the attempts of earlier starts.
+    client: ClientLink,
+    attempts: Vec<ConnectAttempt>,
+    /// One world step, ns (the harness clock is whole steps).
+    dt_ns: u64,
     writes: Vec<PlcWrite>,
     trace: Vec<StepTrace>,
     edges: Vec<FaultEdge>,
     transitions: Vec<Transition>,
     /// Bytes put on the serial line so far (lines and garbage).
     serial_bytes: u64,
+    /// `[sink.quadrature]`: the controller's ×4 receiver per axis (x, y, z), and every edge seen.
+    receivers: Option<[Receiver; 3]>,
+    pulses: Vec<Pulse>,
+    /// `[sink.quadrature]`: the box's held-counts store, surviving its restarts (the state file).
+    held_counts: quadrature::MemoryHeld,
 }
 
 // By hand: the model factory is a closure.
@@ -115,13 +168,36 @@ impl ClosedLoop {
     pub fn new(sim: SimConfig, field: FieldConfig, model: ModelFactory) -> anyhow::Result<Self> {
         let world = World::new(sim)?;
         let dt = world.config().dt_s();
-        let os = field
-            .sink
-            .origin_shift
-            .as_ref()
-            .ok_or_else(|| anyhow::anyhow!("the harness drives [sink.origin_shift]"))?;
         let cycle_ticks = ticks(field.gateway.cycle_ms, dt, "gateway.cycle_ms")?;
-        let write_ticks = ticks(os.write_period_ms, dt, "sink.origin_shift.write_period_ms")?;
+        let (write_ticks, client) = match &field.sink.origin_shift {
+            Some(os) => (
+                ticks(os.write_period_ms, dt, "sink.origin_shift.write_period_ms")?,
+                ClientLink::connected(os.reconnect_min_ms, os.reconnect_max_ms),
+            ),
+            None => (0, ClientLink::connected(0, 0)),
+        };
+        // One injected count is one count of the controller's feedback (`servo.count_um`).
+        let receivers = match &field.sink.quadrature {
+            Some(q) => {
+                let count = world.config().servo.count_um;
+                for a in &q.axes {
+                    anyhow::ensure!(
+                        (a.resolution_um - count).abs() < 1e-12 && a.count_sign == 1,
+                        "sink.quadrature axis {}: resolution_um {} and count_sign {} must be the \
+                         sim's servo.count_um {count} and +1",
+                        a.axis,
+                        a.resolution_um,
+                        a.count_sign
+                    );
+                }
+                // The box starts at phase 0: both lines low.
+                Some(std::array::from_fn(|_| Receiver {
+                    decoder: QuadDecoder::new(false, false),
+                    count: 0,
+                }))
+            }
+            None => None,
+        };
         let io = world.config().io.clone();
         let publisher = Publisher::new(io.clone(), &world);
         // As `hil-sim serve`: mean 30 ms between bursts.
@@ -137,11 +213,17 @@ impl ClosedLoop {
             cycle_ticks,
             write_ticks,
             link_up: true,
+            client,
+            attempts: Vec::new(),
+            dt_ns: (dt * 1e9).round() as u64,
             writes: Vec::new(),
             trace: Vec::new(),
             edges: Vec::new(),
             transitions: Vec::new(),
             serial_bytes: 0,
+            receivers,
+            pulses: Vec::new(),
+            held_counts: Default::default(),
             world,
         };
         h.start_gateway()?;
@@ -151,8 +233,34 @@ impl ClosedLoop {
     /// Start a gateway as `retrocomp run` does: read what the PLC's registers hold, continue from it.
     fn start_gateway(&mut self) -> anyhow::Result<()> {
         let held = self.registers_held_um();
-        self.gateway = Some(Gateway::start(self.field.clone(), (self.model)(), &held)?);
+        if let Some(os) = &self.field.sink.origin_shift {
+            let fresh = ClientLink::connected(os.reconnect_min_ms, os.reconnect_max_ms);
+            let old = std::mem::replace(&mut self.client, fresh);
+            self.attempts.extend_from_slice(old.attempts());
+        }
+        let gw = Gateway::start(
+            self.field.clone(),
+            (self.model)(),
+            &held,
+            self.held_counts.clone(),
+        )?;
+        // A new box takes the lines at its scheduler's levels (the held count's phase): the
+        // controller's receiver sees whatever change that is from the levels the old box left.
+        if let Some(q) = gw.quadrature() {
+            let t_ns = self.world.ticks() * self.dt_ns;
+            let levels: Vec<_> = Axis::ALL
+                .into_iter()
+                .filter_map(|axis| Some((axis, t_ns, q.levels(axis)?)))
+                .collect();
+            self.receive(&levels);
+        }
+        self.gateway = Some(gw);
         Ok(())
+    }
+
+    /// `[sink.quadrature]`: the box's persisted held counts (its state file, in memory).
+    pub fn held_counts(&self) -> &quadrature::MemoryHeld {
+        &self.held_counts
     }
 
     /// The gateway process dies (SIGKILL: nothing more is sent) and starts again at once.
@@ -165,7 +273,10 @@ impl ClosedLoop {
 
     /// What the PLC's value registers hold per map axis, µm (decoded with the sink's own map).
     pub fn registers_held_um(&self) -> BTreeMap<String, f64> {
-        let map = &self.field.sink.origin_shift.as_ref().expect("checked").map;
+        let Some(os) = self.field.sink.origin_shift.as_ref() else {
+            return BTreeMap::new();
+        };
+        let map = &os.map;
         let plc = self.world.plc();
         map.axes
             .iter()
@@ -214,7 +325,11 @@ impl ClosedLoop {
                 gw.cycle(t);
             }
         }
-        self.run_sink(tick, t);
+        if self.receivers.is_some() {
+            self.run_quadrature(tick);
+        } else {
+            self.run_sink(tick, t);
+        }
         let output_um = self.gateway.as_ref().map_or([f64::NAN; 3], |gw| {
             let o = gw.outputs();
             std::array::from_fn(|k| o.get(k).map_or(f64::NAN, |(_, v)| *v))
@@ -247,12 +362,56 @@ impl ClosedLoop {
         }
     }
 
+    /// The box takes the cycle's outputs (on a cycle tick) and puts the edges due by now on the
+    /// lines; the controller's receiver counts them into the servo's feedback.
+    fn run_quadrature(&mut self, tick: u64) {
+        let Some(gw) = self.gateway.as_mut() else {
+            return;
+        };
+        let now_ns = tick * self.dt_ns;
+        let outs = gw.outputs().to_vec();
+        let Some(q) = gw.quadrature_mut() else {
+            return;
+        };
+        if tick.is_multiple_of(self.cycle_ticks) {
+            q.on_outputs(&outs, now_ns);
+        }
+        let edges: Vec<_> = q
+            .edges_until(now_ns)
+            .into_iter()
+            .map(|(axis, tr)| (axis, tr.t_ns, (tr.a, tr.b)))
+            .collect();
+        self.receive(&edges);
+    }
+
+    /// The receivers see these line levels (axis, time, (A, B)); their counts go to the servos.
+    fn receive(&mut self, levels: &[(Axis, u64, (bool, bool))]) {
+        let Some(rx) = self.receivers.as_mut() else {
+            return;
+        };
+        for &(axis, t_ns, (a, b)) in levels {
+            let Some(step) = rx[axis.index()].see(a, b) else {
+                continue;
+            };
+            if let Ok(n) = step {
+                self.world.inject_counts(axis.index(), n);
+            }
+            self.pulses.push(Pulse {
+                t_ns,
+                axis,
+                step,
+                generation: self.generation,
+            });
+        }
+    }
+
     /// Answer the request in flight from the PLC (or fail it: link down), or begin a period.
     fn run_sink(&mut self, tick: u64, t: f64) {
         let Some(gw) = self.gateway.as_mut() else {
             return;
         };
         let link_up = self.link_up;
+        let now = std::time::Duration::from_nanos(tick * self.dt_ns);
         if let Some(a) = gw.pending().cloned() {
             if let Action::Read { not_before_s, .. } = a
                 && not_before_s > t + 1e-9
@@ -292,19 +451,40 @@ impl ClosedLoop {
                     Action::Done(_) => unreachable!("never pending"),
                 }
             } else {
+                self.client.failed(now);
                 Reply::Failed("transport: connection lost (harness link down)".into())
             };
-            gw.reply(reply, t, link_up);
+            gw.reply(reply, t, self.client.is_connected());
             return;
         }
         if tick.is_multiple_of(self.write_ticks) {
-            gw.begin_period(t, link_up);
+            let connected = self.client.ensure_connected(now, t, link_up);
+            gw.begin_period(t, connected);
         }
     }
 
-    /// The PLC's applied shifts, µm.
+    /// The correction the controller applies, µm: the PLC's shifts (origin shift), or the counts
+    /// its quadrature receiver took (`[sink.quadrature]`: +n counts move the slide −n counts).
     pub fn applied_um(&self) -> [f64; 3] {
-        std::array::from_fn(|k| self.world.plc().shift_um(k))
+        match &self.receivers {
+            Some(rx) => {
+                let count = self.world.config().servo.count_um;
+                std::array::from_fn(|k| -(rx[k].count as f64) * count)
+            }
+            None => std::array::from_fn(|k| self.world.plc().shift_um(k)),
+        }
+    }
+
+    /// Every edge the controller's quadrature receivers saw, in order (`[sink.quadrature]`).
+    pub fn pulses(&self) -> &[Pulse] {
+        &self.pulses
+    }
+
+    /// The counts each receiver took so far (x, y, z), if the sink is `[sink.quadrature]`.
+    pub fn received_counts(&self) -> Option<[i64; 3]> {
+        self.receivers
+            .as_ref()
+            .map(|rx| std::array::from_fn(|k| rx[k].count))
     }
 
     pub fn world(&self) -> &World {
@@ -317,6 +497,10 @@ impl ClosedLoop {
 
     pub fn gateway(&self) -> Option<&Gateway> {
         self.gateway.as_ref()
+    }
+
+    pub fn gateway_mut(&mut self) -> Option<&mut Gateway> {
+        self.gateway.as_mut()
     }
 
     pub fn t_s(&self) -> f64 {
@@ -336,6 +520,14 @@ impl ClosedLoop {
     /// Every fault edge the gateways logged (engine and sink), in order.
     pub fn fault_edges(&self) -> &[FaultEdge] {
         &self.edges
+    }
+
+    /// Every connection attempt of the sink's client after a lost link (all gateway starts), in
+    /// order.
+    pub fn connect_attempts(&self) -> Vec<ConnectAttempt> {
+        let mut all = self.attempts.clone();
+        all.extend_from_slice(self.client.attempts());
+        all
     }
 
     /// Every transport-fault start and clear the schedule made.

@@ -1,14 +1,16 @@
 //! Configs and checks shared by the closed-loop harness tests (`closed_loop_*.rs`): the demo mill
 //! of `tests/gateway_faults_hil.rs` (hidden geometry from `deploy/demo/mill-full.toml`, thermal and
 //! cutting physics, a PLC window with strobe/ack handshake) and the gateway's field config with the
-//! same clamps, dosing cap and channel limits, on in-process links instead of sockets.
+//! same clamps, dosing cap and channel limits (one copy: `tests/fixtures/faults_hil/`), on in-process
+//! links instead of sockets.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 
 use hil_sim::SimConfig;
-use hil_sim::harness::{ClosedLoop, ModelFactory, PlcWrite, StepTrace};
+use hil_sim::harness::{ClosedLoop, FaultEdge, ModelFactory, PlcWrite, StepTrace};
 use retrocomp::gateway::config::FieldConfig;
+use retrocomp::gateway::health::FaultKind;
 use retrocomp::gateway::model_adapter::MachineModelAdapter;
 use retrocomp::models::MachineModel;
 
@@ -23,17 +25,36 @@ pub(crate) fn truth_model() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/demo/mill-full.toml")
 }
 
+/// The demo mill's machine, the gateway's limits and the PLC window: the one copy shared with the
+/// real-socket fault runs (`tests/gateway_support/faults_hil_configs.rs`).
+const FIXTURE_SIM: &str = include_str!("../../../tests/fixtures/faults_hil/sim.toml");
+const FIXTURE_FIELD: &str = include_str!("../../../tests/fixtures/faults_hil/field.toml");
+const FIXTURE_MAP: &str = include_str!("../../../tests/fixtures/faults_hil/origin_shift_map.toml");
+
 /// The sim config: `program` (G-code body between the header and M30), extra TOML (`[[faults]]`,
-/// `[[io.faults]]`) appended. `quiet`: no sensor or force noise and no screw heating, so while the machine
-/// dwells with the spindle off every input of the gateway, and so its target, is exactly constant.
+/// `[[io.faults]]`) appended. `quiet`: no sensor or force noise and no screw heating, so while the
+/// machine dwells with the spindle off every input of the gateway, and so its target, is exactly
+/// constant.
 pub(crate) fn sim_config(program: &str, quiet: bool, extra: &str) -> SimConfig {
-    // Sensor noise of 0.08 °C on 0.1 °C CAN steps: a healthy reading never stays bit-identical for
-    // 1 s (the stuck detector's time).
-    let (sensor_noise, screw_rise, force_noise) = if quiet {
-        (0.0, 0.0, 0.0)
-    } else {
-        (0.08, 0.15, 1.0)
-    };
+    let mut machine = FIXTURE_SIM.to_string();
+    if quiet {
+        for (noisy, still, n) in [
+            ("noise_C = 0.08", "noise_C = 0.0", 3),
+            (
+                "rise_C_per_mm_s = { x = 0.15 }",
+                "rise_C_per_mm_s = { x = 0.0 }",
+                1,
+            ),
+            ("force_noise_N = 1.0", "force_noise_N = 0.0", 1),
+        ] {
+            assert_eq!(
+                machine.matches(noisy).count(),
+                n,
+                "fixture changed: {noisy}"
+            );
+            machine = machine.replace(noisy, still);
+        }
+    }
     let text = format!(
         r#"
 seed = 5
@@ -49,76 +70,12 @@ G90 G21
 M30
 """
 
-[servo]
-ideal = true
-count_um = 1.0
-
-[plc]
-scan_s = 0.004
-word = "int32"
-word_order = "high_first"
-lsb_um = {LSB_UM}
-first_register = 0
-handshake = {{ strobe_register = 10, ack_register = 11 }}
-
 [truth]
 model_path = "{truth}"
 
 [record]
 every_s = 0.01
-
-[hidden.thermal]
-ambient_C = 20.0
-ambient_drift_C_per_h = 0.0
-
-[[hidden.thermal.nodes]]
-name = "spindle"
-tau_s = 8.0
-rise_C_per_krpm = 2.0
-
-[[hidden.thermal.nodes]]
-name = "xscrew"
-tau_s = 5.0
-rise_C_per_mm_s = {{ x = {screw_rise} }}
-
-[[hidden.thermal.sensors]]
-name = "spindle"
-node = "spindle"
-tau_s = 0.2
-noise_C = {sensor_noise}
-
-[[hidden.thermal.sensors]]
-name = "xscrew"
-node = "xscrew"
-tau_s = 0.2
-noise_C = {sensor_noise}
-
-[[hidden.thermal.sensors]]
-name = "spindle2"
-node = "spindle"
-tau_s = 0.3
-noise_C = {sensor_noise}
-
-[[hidden.thermal.effects]]
-kind = "growth"
-node = "spindle"
-axis = "z"
-um_per_K = -6.0
-
-[[hidden.thermal.effects]]
-kind = "expansion"
-node = "xscrew"
-axis = "x"
-ppm_per_K = 11.5
-
-[hidden.cutting]
-stock_top_z_mm = 0.0
-kc_N_per_mm2 = 2000.0
-teeth = 2.0
-compliance_um_per_N = {{ x = 0.004, y = 0.003, z = -0.002 }}
-force_name = "cut"
-force_noise_N = {force_noise}
-
+{machine}
 [io.can]
 backend = "mem"
 encoder_nodes = [1, 2, 3]
@@ -136,25 +93,35 @@ period_s = 0.02
     SimConfig::from_toml_str(&text, None).expect("sim config")
 }
 
+/// The origin-shift sink of [`field_config`]: the PLC window of the sim, strobe/ack handshake.
+const ORIGIN_SHIFT_SINK: &str = r#"
+[sink.origin_shift]
+transport = { kind = "tcp", address = "127.0.0.1:9" }
+write_period_ms = 10
+reconnect_min_ms = 100
+reconnect_max_ms = 5000
+"#;
+
+/// The quadrature sink: one count = the sim's feedback count (1 µm), RS-422 edge gap, 100 kHz.
+const QUADRATURE_SINK: &str = r#"
+[sink.quadrature]
+axis = [
+  { axis = "x", resolution_um = 1.0, count_sign = 1, min_edge_gap_ns = 400, max_inject_rate_hz = 100000.0 },
+  { axis = "y", resolution_um = 1.0, count_sign = 1, min_edge_gap_ns = 400, max_inject_rate_hz = 100000.0 },
+  { axis = "z", resolution_um = 1.0, count_sign = 1, min_edge_gap_ns = 400, max_inject_rate_hz = 100000.0 },
+]
+"#;
+
 pub(crate) fn field_config() -> FieldConfig {
-    let axis = |name: &str, clamp: f64, lo: f64, hi: f64| {
-        format!(
-            r#"
-[[axis]]
-name = "{name}"
-position_channel = "{name}_mm"
-safety = {{ max_correction_um = {clamp}, max_change_um_per_cycle = {CAP_UM}, ramp_um_per_s = 400.0, stale_hold_s = 0.5 }}
-[[channel]]
-name = "{name}_mm"
-min = {lo}
-max = {hi}
-stale_after_s = 0.1
-"#
-        )
-    };
-    let axes = axis("x", CLAMP_UM, -10.0, 220.0)
-        + &axis("y", CLAMP_Y_UM, -10.0, 170.0)
-        + &axis("z", CLAMP_UM, -20.0, 70.0);
+    field_config_with(&format!("{ORIGIN_SHIFT_SINK}\n{FIXTURE_MAP}"))
+}
+
+/// The same gateway with the quadrature sink instead of the origin shift.
+pub(crate) fn field_config_quadrature() -> FieldConfig {
+    field_config_with(QUADRATURE_SINK)
+}
+
+fn field_config_with(sink: &str) -> FieldConfig {
     let text = format!(
         r#"
 [gateway]
@@ -162,63 +129,9 @@ name = "harness"
 cycle_ms = 5
 thermal_period_s = 0.1
 status_listen = "127.0.0.1:0"
-
-[safety]
-max_correction_um = {CLAMP_UM}
-max_change_um_per_cycle = {CAP_UM}
-ramp_um_per_s = 400.0
-stale_hold_s = 0.5
-
-[direction]
-deadband_mm = 0.005
-switch_time_s = 0.05
-{axes}
-[[channel]]
-name = "T_spindle_C"
-min = 5.0
-max = 80.0
-stale_after_s = 0.5
-stuck_after_s = 1.0
-
-[[channel]]
-name = "T_spindle2_C"
-min = 5.0
-max = 80.0
-stale_after_s = 0.5
-
-[[channel]]
-name = "T_xscrew_C"
-min = 5.0
-max = 80.0
-stale_after_s = 0.5
-
-[[channel]]
-name = "F_cut_N"
-min = -2000.0
-max = 2000.0
-stale_after_s = 0.5
-
-[[recovery]]
-target = "T_spindle_C"
-neighbours = ["T_spindle2_C"]
-coefficients = [0.0, 1.0]
-fit_rms = 0.1
-
+{FIXTURE_FIELD}
 [can]
 backend = "mem"
-
-[canopen]
-pdo_timeout_s = 0.2
-encoder = [
-  {{ channel = "x_mm", node_id = 1, counts_per_mm = 1000.0 }},
-  {{ channel = "y_mm", node_id = 2, counts_per_mm = 1000.0 }},
-  {{ channel = "z_mm", node_id = 3, counts_per_mm = 1000.0 }},
-]
-analog = [
-  {{ channel = "T_spindle_C", node_id = 10, type = "int16", byte_offset = 0, decimal_digits = 1 }},
-  {{ channel = "T_xscrew_C", node_id = 10, type = "int16", byte_offset = 2, decimal_digits = 1 }},
-  {{ channel = "T_spindle2_C", node_id = 10, type = "int16", byte_offset = 4, decimal_digits = 1 }},
-]
 
 [serial]
 [[serial.source]]
@@ -226,37 +139,25 @@ name = "scale"
 device = "in-process"
 format = {{ kind = "weighing", unit = "N" }}
 channel = [ {{ name = "F_cut_N" }} ]
-
-[sink.origin_shift]
-transport = {{ kind = "tcp", address = "127.0.0.1:9" }}
-write_period_ms = 10
-
-[sink.origin_shift.map]
-[[sink.origin_shift.map.axis]]
-axis = "x"
-address = 0
-kind = "int32"
-lsb_um = {LSB_UM}
-sign = 1
-[[sink.origin_shift.map.axis]]
-axis = "y"
-address = 2
-kind = "int32"
-lsb_um = {LSB_UM}
-sign = 1
-[[sink.origin_shift.map.axis]]
-axis = "z"
-address = 4
-kind = "int32"
-lsb_um = {LSB_UM}
-sign = 1
-[sink.origin_shift.map.handshake]
-strobe_address = 10
-ack_address = 11
-timeout_ms = 200
+{sink}
 "#
     );
-    FieldConfig::parse(&text, Path::new("harness-field.toml")).expect("field config")
+    let cfg = FieldConfig::parse(&text, Path::new("harness-field.toml")).expect("field config");
+    // The constants the scenarios assert with are the fixture's numbers.
+    for a in &cfg.axes {
+        let s = cfg.safety_for(&a.name);
+        let clamp = if a.name == "y" { CLAMP_Y_UM } else { CLAMP_UM };
+        assert_eq!(
+            (s.max_correction_um, s.max_change_um_per_cycle),
+            (clamp, CAP_UM),
+            "{}",
+            a.name
+        );
+    }
+    if let Some(os) = &cfg.sink.origin_shift {
+        assert!(os.map.axes.iter().all(|r| r.lsb_um == LSB_UM));
+    }
+    cfg
 }
 
 /// The gateway's model: the demo mill's full model (hil-sim's visible truth plus the thermal and
@@ -268,6 +169,11 @@ pub(crate) fn model_factory() -> ModelFactory {
 
 pub(crate) fn closed_loop(sim: SimConfig) -> ClosedLoop {
     ClosedLoop::new(sim, field_config(), model_factory()).expect("harness")
+}
+
+/// The loop with the quadrature box between the engine and the controller's feedback.
+pub(crate) fn closed_loop_quadrature(sim: SimConfig) -> ClosedLoop {
+    ClosedLoop::new(sim, field_config_quadrature(), model_factory()).expect("harness")
 }
 
 pub(crate) fn clamp_of(axis: usize) -> f64 {
@@ -322,4 +228,77 @@ pub(crate) fn lsb_round(v: f64) -> f64 {
 /// Steps of the trace at or after `t_s`.
 pub(crate) fn from(trace: &[StepTrace], t_s: f64) -> impl Iterator<Item = &StepTrace> {
     trace.iter().filter(move |r| r.t_s >= t_s - 1e-9)
+}
+
+/// Edges of (source, kind) in order.
+pub(crate) fn edges<'a>(h: &'a ClosedLoop, source: &str, kind: FaultKind) -> Vec<&'a FaultEdge> {
+    h.fault_edges()
+        .iter()
+        .filter(|e| e.source == source && e.kind == kind)
+        .collect()
+}
+
+/// One start and one clear of (source, kind); returns their times.
+pub(crate) fn one_episode(h: &ClosedLoop, source: &str, kind: FaultKind) -> (f64, f64) {
+    let e = edges(h, source, kind);
+    assert_eq!(e.len(), 2, "{source} {kind:?}: {e:?}");
+    assert!(e[0].started && !e[1].started, "{e:?}");
+    (e[0].t_s, e[1].t_s)
+}
+
+pub(crate) fn assert_at(t: f64, expected: f64, what: &str) {
+    assert!(
+        (t - expected).abs() < 1e-9,
+        "{what} at {t} s, expected {expected} s"
+    );
+}
+
+/// Engine cycle times in `[a, b]`, as the world's clock gives them (every `cycle_ms` of steps).
+pub(crate) fn cycles_in(h: &ClosedLoop, a: f64, b: f64) -> impl Iterator<Item = f64> {
+    let (cycle, _) = h.periods_s();
+    let dt = h.world().config().dt_s();
+    let every = (cycle / dt).round() as usize;
+    h.trace()
+        .iter()
+        .enumerate()
+        .filter(move |(i, _)| (i + 1) % every == 0)
+        .map(|(_, r)| r.t_s)
+        .filter(move |t| *t >= a - 1e-9 && *t <= b + 1e-9)
+}
+
+/// The world's time at the step closest to `t_s` (the exact float the gateway saw).
+pub(crate) fn step_time(h: &ClosedLoop, t_s: f64) -> f64 {
+    h.trace()
+        .iter()
+        .map(|r| r.t_s)
+        .min_by(|a, b| (a - t_s).abs().total_cmp(&(b - t_s).abs()))
+        .unwrap()
+}
+
+/// Stationary phases: the spindle off, while the machine dwells (quiet config) the gateway's target
+/// is exactly constant, so recovery is a count of capped writes.
+pub(crate) const MOVES: &str = "G4 P0.5\nG1 X150 Y100 F3600\nG4 P3.0\nG1 X40 Y30\nG4 P6.0";
+/// Spindle on, sensor noise on, strokes out and back: thermal and load terms move all the time.
+pub(crate) const STROKES: &str =
+    "S3000 M3\nG4 P0.5\nG1 X150 Y100 F3600\nG1 X0 Y0\nG1 X150 Y100\nG1 X0 Y0\nM5";
+/// The spindle sensor stuck from 3.0 to 5.0 s, then NaN to 6.5 s.
+pub(crate) const STUCK_THEN_NAN: &str = "[[faults]]\nchannel = \"T_spindle_C\"\nkind = \"stuck\"\nfrom_s = 3.0\nto_s = 5.0\n\
+     [[faults]]\nchannel = \"T_spindle_C\"\nkind = \"nan\"\nfrom_s = 5.0\nto_s = 6.5\n";
+
+/// CAN node `node` silent from `from_s` to `to_s`.
+pub(crate) fn node_silent(node: u8, from_s: f64, to_s: f64) -> String {
+    format!(
+        "[[io.faults]]\nkind = \"can_node_silent\"\nnode = {node}\nfrom_s = {from_s}\nto_s = {to_s}\n"
+    )
+}
+
+/// No compensation fault (dropped axis) was ever logged.
+pub(crate) fn assert_compensation_never_dropped(h: &ClosedLoop) {
+    assert!(
+        h.fault_edges()
+            .iter()
+            .all(|e| !e.source.starts_with("compensation")),
+        "{:?}",
+        h.fault_edges()
+    );
 }
