@@ -406,8 +406,7 @@ fn eight_ball_bar_spheres_match_the_true_model() {
                 assert!(
                     !c.identified,
                     "seed 7: {name} off the truth by {:.1} but called identified (±{:.1})",
-                    c.err,
-                    c.uncertainty
+                    c.err, c.uncertainty
                 );
             }
         }
