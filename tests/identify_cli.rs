@@ -87,6 +87,10 @@ fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
     let text = ok(&cmd.output().unwrap(), "retrocomp identify");
     assert!(text.contains("verification"), "{text}");
     assert!(
+        text.contains("candidate knots every 50 mm, at most 6 per axis"),
+        "hole plates keep Spaan's knots by default:\n{text}"
+    );
+    assert!(
         text.lines()
             .any(|l| l.starts_with("ECZ") && l.contains("NO") && l.contains("second tool vector")),
         "ECZ must be named as unidentifiable with its remedy:\n{text}"
@@ -130,6 +134,9 @@ fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
     );
     assert!(ev.lines().count() >= 3 && ev.contains("ex_um"), "{ev}");
 
+    // The command line for ball bars, no knot flags: the defaults for spheres only
+    // (30 mm, at most 16 per axis) must give the ball-bar result (≥ 80 % on every
+    // verification plate and direction).
     let mut cmd = retrocomp();
     cmd.args(["identify", "--chain", "X F Y Z", "--json", "--ballbar"])
         .args(csvs(&art.join("ballbar")))
@@ -139,7 +146,37 @@ fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
         .arg(dir.path().join("bb.toml"));
     let j: serde_json::Value =
         serde_json::from_str(&ok(&cmd.output().unwrap(), "identify --json")).unwrap();
-    assert_eq!(j["components"].as_array().unwrap().len(), 18);
+    assert_eq!(
+        (
+            j["candidate_knots"]["step_mm"].as_f64(),
+            j["candidate_knots"]["max_per_axis"].as_u64()
+        ),
+        (Some(30.0), Some(16)),
+        "spheres only: 30 mm knots, at most 16 per axis"
+    );
+    for v in j["verification"].as_array().unwrap() {
+        let e = v["efficiency"].as_f64().unwrap();
+        assert!(
+            e >= 0.80,
+            "ball bars with the default knots: {} {} at {e:.3}",
+            v["plate"],
+            v["direction"]
+        );
+    }
+    let comps = j["components"].as_array().unwrap();
+    assert_eq!(comps.len(), 18);
+    // "Identified" (to 2 µm/µrad) means identifiable with an uncertainty within 2; each one
+    // that is not carries its remedy.
+    for c in comps {
+        let u = c["uncertainty"].as_f64().unwrap();
+        let identified = c["identified"].as_bool().unwrap();
+        assert_eq!(
+            identified,
+            c["identifiable"].as_bool().unwrap() && u <= 2.0,
+            "{c}"
+        );
+        assert_eq!(identified, c["needs"].is_null(), "{c}");
+    }
     assert_eq!(j["verification"].as_array().unwrap().len(), 10);
     assert_eq!(j["setups"].as_array().unwrap().len(), 8);
     assert!(j["sigma_um"].as_f64().unwrap() > 0.0);

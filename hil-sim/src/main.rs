@@ -40,7 +40,7 @@ enum Cmd {
         #[arg(long, value_enum, default_value = "six")]
         plan: hil_sim::artefacts::Plan,
         /// Ball-bar set-ups: `eight` (Spaan Table 3.1, the default) or `ten` (plus two low
-        /// spheres, dense grid; identify with `--knot-step-mm 30 --max-knots 16`).
+        /// spheres, dense grid); identify either with `--knot-step-mm 30 --max-knots 16`.
         #[arg(long, value_enum, default_value = "eight")]
         spheres: hil_sim::artefacts::SpherePlan,
         #[arg(long)]

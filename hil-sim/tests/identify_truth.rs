@@ -93,7 +93,7 @@ fn component_errors(
     id: &Identification,
     model: &MachineModel,
     truth: &MachineModel,
-) -> Vec<(String, f64, bool)> {
+) -> Vec<CompErr> {
     let (rep, _) = components(id);
     let mut out = Vec::new();
     for r in rep {
@@ -128,9 +128,26 @@ fn component_errors(
             .zip(&d)
             .map(|(q, d)| (d - md - slope * (q - mq)).abs())
             .fold(0.0, f64::max);
-        out.push((r.name, err, r.identifiable));
+        out.push(CompErr {
+            name: r.name,
+            err,
+            identifiable: r.identifiable,
+            identified: r.identified,
+            uncertainty: r.uncertainty,
+        });
     }
     out
+}
+
+/// One component against the truth, with `identify`'s verdict.
+struct CompErr {
+    name: String,
+    /// Largest deviation from the truth over the range (µm / µrad), as in [`component_errors`].
+    err: f64,
+    identifiable: bool,
+    identified: bool,
+    /// `identify`'s expanded uncertainty (3 σ).
+    uncertainty: f64,
 }
 
 struct Outcome {
@@ -140,7 +157,7 @@ struct Outcome {
     shortfall: f64,
     /// The same on the two XZ plates at the ends of the Y travel.
     edge_shortfall: f64,
-    errs: Vec<(String, f64, bool)>,
+    errs: Vec<CompErr>,
     /// Squareness angles reported not identifiable.
     unseen_squareness: Vec<&'static str>,
 }
@@ -149,16 +166,45 @@ impl Outcome {
     fn unseen(&self) -> Vec<&str> {
         self.errs
             .iter()
-            .filter(|(_, _, ok)| !ok)
-            .map(|(n, _, _)| n.as_str())
+            .filter(|c| !c.identifiable)
+            .map(|c| c.name.as_str())
+            .collect()
+    }
+
+    /// Identifiable, but not identified to 2 µm / µrad (too uncertain).
+    fn loose(&self) -> Vec<&str> {
+        self.errs
+            .iter()
+            .filter(|c| c.identifiable && !c.identified)
+            .map(|c| c.name.as_str())
             .collect()
     }
 
     /// Every identifiable component within 2 µm / 2 µrad of the truth (issue 15, point 4).
     fn assert_components_within_2(&self, what: &str) {
-        for (n, e, ok) in &self.errs {
-            if *ok {
-                assert!(*e <= 2.0, "{what}: {n} off the truth by {e:.2} (limit 2)");
+        for c in &self.errs {
+            if c.identifiable {
+                assert!(
+                    c.err <= 2.0,
+                    "{what}: {} off the truth by {:.2} (limit 2)",
+                    c.name,
+                    c.err
+                );
+            }
+        }
+    }
+
+    /// Every component `identify` calls identified (to 2 µm / µrad) is within 2 of the truth.
+    fn assert_identified_within_2(&self, what: &str) {
+        for c in &self.errs {
+            if c.identified {
+                assert!(
+                    c.err <= 2.0,
+                    "{what}: {} called identified (±{:.2}) but off the truth by {:.2}",
+                    c.name,
+                    c.uncertainty,
+                    c.err
+                );
             }
         }
     }
@@ -229,7 +275,16 @@ fn check_with(
     let errs = component_errors(&id, &model, &truth);
     let line: Vec<String> = errs
         .iter()
-        .map(|(n, e, ok)| format!("{n} {e:.2}{}", if *ok { "" } else { " (n.i.)" }))
+        .map(|c| {
+            let tag = if !c.identifiable {
+                " (n.i.)"
+            } else if !c.identified {
+                " (loose)"
+            } else {
+                ""
+            };
+            format!("{} {:.2} ±{:.2}{tag}", c.name, c.err, c.uncertainty)
+        })
         .collect();
     eprintln!("  component error (µm | µrad): {}", line.join(", "));
     eprintln!(
@@ -285,6 +340,7 @@ fn six_hole_plates_on_the_old_machine() {
     );
     assert!(o.min_eff >= 0.90, "min efficiency {:.3} < 0.90", o.min_eff);
     o.assert_components_within_2("six");
+    o.assert_identified_within_2("six");
     assert_eq!(
         o.unseen(),
         ["EAX", "EBY", "ECY", "ECZ"],
@@ -316,38 +372,55 @@ fn seven_or_twelve_hole_plates_identify_everything_but_the_z_rotations() {
         );
         assert!(o.min_eff >= 0.90, "{what}: min efficiency {:.3}", o.min_eff);
         o.assert_components_within_2(&what);
+        o.assert_identified_within_2(&what);
         assert_eq!(o.unseen(), ["ECY", "ECZ"], "{what}: unidentifiable");
         assert!(o.unseen_squareness.is_empty(), "{what}");
     }
 }
 
-/// Spaan's eight spheres (Table 3.1 scaled, ~1000 points) meet the issue's ≥ 80 % but trail the
-/// true model by 0.04 (seed 7; 0.086 before the sphere centres were re-linearised about their
-/// estimates, Spaan's "all measurement data are recalculated for this new centre point").
+/// Spaan's eight spheres (Table 3.1 scaled; 10° rings of 36 points down to 20° below the equator,
+/// ~2700 points), identified with knots every 30 mm: on seeds 7–9 every one of Spaan's verification
+/// plates and directions within 0.03 of the true model (0.014 / 0.016 / 0.013 measured) and
+/// ≥ 80 %. Both halves matter: the rings below the equator read Z at the bottom of the Z travel
+/// at 20° rather than grazing (to the equator only: 0.032–0.047), the 30 mm knots follow the
+/// 200–300 mm pitch wave of X (the default 50 mm, at most 6: 0.038–0.052).
 #[test]
-fn ball_bars_on_the_old_machine() {
-    let o = check_machine(
-        "old-mill-3axis.toml",
-        false,
-        7,
-        &Options::default(),
-        Plan::Six,
-    );
-    assert!(o.min_eff >= 0.80, "min efficiency {:.3} < 0.80", o.min_eff);
+fn eight_ball_bar_spheres_match_the_true_model() {
+    // The defaults for spheres only (30 mm, at most 16 per axis), as `retrocomp identify` uses.
+    let opts = Options::for_artefacts(0, 8);
+    for seed in [7, 8, 9] {
+        let o = check_machine("old-mill-3axis.toml", false, seed, &opts, Plan::Six);
+        assert!(
+            o.shortfall <= 0.03 && o.min_eff >= 0.80,
+            "seed {seed}: eight spheres {:.3} behind the true model, min efficiency {:.3}",
+            o.shortfall,
+            o.min_eff
+        );
+        o.assert_identified_within_2(&format!("eight spheres, seed {seed}"));
+        if seed == 7 {
+            // EAX / EBX are 77 / 30 µrad off the truth here, moved by combinations the spheres
+            // barely see (standard errors 10 / 4 µrad): identifiable by the null-space test,
+            // but not identified to 2 µrad, and `identify` must say so.
+            for name in ["EAX", "EBX"] {
+                let c = o.errs.iter().find(|c| c.name == name).unwrap();
+                assert!(
+                    !c.identified,
+                    "seed 7: {name} off the truth by {:.1} but called identified (±{:.1})",
+                    c.err, c.uncertainty
+                );
+            }
+        }
+    }
 }
 
-/// What closes the ball-bar gap (point 4's "within 0.03 of the true model" for spheres too): the
-/// eight spheres leave the bottom of Z read only at grazing angles and, at 0.5 µm noise, the
-/// sparse grid too noisy for knots every 30 mm. Ten spheres (two more centred below the Z travel)
-/// on a 7.5° × 48 grid, with candidate knots every 30 mm (at most 16 per axis), reach every one
-/// of Spaan's plates within 0.03 of the true model on seeds 7–9 (0.011 / 0.021 / 0.013 measured).
+/// The other way to reach the bottom of Z (before the eight spheres' rings went below the
+/// equator): ten spheres (two more centred below the Z travel) on a 7.5° × 48 grid to the equator,
+/// with candidate knots every 30 mm (at most 16 per axis), reach every one of Spaan's plates
+/// within 0.03 of the true model on seeds 7–9 (0.011 / 0.021 / 0.013 measured).
 #[test]
 fn ten_dense_ball_bar_spheres_match_the_true_model() {
-    let opts = Options {
-        knot_step_mm: 30.0,
-        max_knots: 16,
-        ..Options::default()
-    };
+    // The defaults for spheres only (30 mm, at most 16 per axis), as `retrocomp identify` uses.
+    let opts = Options::for_artefacts(0, 10);
     for seed in [7, 8, 9] {
         let o = check_with(
             "old-mill-3axis.toml",

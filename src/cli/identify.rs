@@ -38,12 +38,14 @@ pub(crate) struct Args {
     /// Folder for SVG plots: measured vs residual per hole of each verification plate.
     #[arg(long)]
     pub svg: Option<PathBuf>,
-    /// Spacing of candidate knots, mm (Spaan 50 mm).
-    #[arg(long, default_value_t = 50.0)]
-    pub knot_step_mm: f64,
-    /// At most this many candidate knots per axis (ball bars: 16 at 30 mm, docs/identify.md).
-    #[arg(long, default_value_t = 6)]
-    pub max_knots: usize,
+    /// Spacing of candidate knots, mm [default: 50 with any hole plate (Spaan); 30 with ball-bar
+    /// spheres only, which sample positions continuously (docs/identify.md)].
+    #[arg(long)]
+    pub knot_step_mm: Option<f64>,
+    /// At most this many candidate knots per axis [default: 6 with any hole plate; 16 with
+    /// ball-bar spheres only].
+    #[arg(long)]
+    pub max_knots: Option<usize>,
     /// Significance level of a knot (Spaan 99.99 % → 1e-4).
     #[arg(long, default_value_t = 1e-4)]
     pub alpha: f64,
@@ -95,12 +97,20 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     if plates.is_empty() && bars.is_empty() {
         anyhow::bail!("give at least one --hole-plate or --ballbar");
     }
+    // Knot defaults depend on the artefacts; an explicit flag wins.
+    let base = Options::for_artefacts(plates.len(), bars.len());
     let opts = Options {
-        knot_step_mm: args.knot_step_mm,
-        max_knots: args.max_knots,
+        knot_step_mm: args.knot_step_mm.unwrap_or(base.knot_step_mm),
+        max_knots: args.max_knots.unwrap_or(base.max_knots),
         alpha: args.alpha,
-        ..Options::default()
+        ..base
     };
+    if !(opts.knot_step_mm.is_finite() && opts.knot_step_mm > 0.0) {
+        anyhow::bail!(
+            "--knot-step-mm {}: expected a positive spacing in mm",
+            opts.knot_step_mm
+        );
+    }
     let id = identify(&geo, &plates, &bars, &opts)?;
     let name = args
         .out
@@ -118,15 +128,15 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     if args.json {
         println!(
             "{}",
-            serde_json::to_string_pretty(&json(&id, &ver, &args.out))?
+            serde_json::to_string_pretty(&json(&id, &opts, &ver, &args.out))?
         );
     } else {
-        print!("{}", text_report(&id, &ver, &args.out));
+        print!("{}", text_report(&id, &opts, &ver, &args.out));
     }
     Ok(())
 }
 
-fn json(id: &Identification, ver: &[DirVerify], out: &Path) -> serde_json::Value {
+fn json(id: &Identification, opts: &Options, ver: &[DirVerify], out: &Path) -> serde_json::Value {
     let (comp, sq) = components(id);
     serde_json::json!({
         "model": out.display().to_string(),
@@ -135,6 +145,7 @@ fn json(id: &Identification, ver: &[DirVerify], out: &Path) -> serde_json::Value
         "rank": id.solve.rank,
         "sigma_um": id.solve.sigma_um,
         "range_mm": id.range_mm,
+        "candidate_knots": { "step_mm": opts.knot_step_mm, "max_per_axis": opts.max_knots },
         "resolution": id.resolution,
         "components": comp,
         "squareness": sq,
@@ -154,7 +165,7 @@ fn total_setup(id: &Identification) -> usize {
     id.setups.iter().map(|s| s.names.len()).sum()
 }
 
-fn text_report(id: &Identification, ver: &[DirVerify], out: &Path) -> String {
+fn text_report(id: &Identification, opts: &Options, ver: &[DirVerify], out: &Path) -> String {
     use std::fmt::Write as _;
     let (comp, sq) = components(id);
     let mut s = String::new();
@@ -170,7 +181,12 @@ fn text_report(id: &Identification, ver: &[DirVerify], out: &Path) -> String {
     );
     let _ = writeln!(
         s,
-        "component  range_mm        knots  F        p         max     ±se    identifiable"
+        "candidate knots every {} mm, at most {} per axis",
+        opts.knot_step_mm, opts.max_knots
+    );
+    let _ = writeln!(
+        s,
+        "component  range_mm        knots  F        p         max     ±se    identified (to 2 µm/µrad, 3 σ)"
     );
     for c in &comp {
         let _ = writeln!(
@@ -184,8 +200,10 @@ fn text_report(id: &Identification, ver: &[DirVerify], out: &Path) -> String {
             c.p_value.map_or("-".into(), |p| format!("{p:.1e}")),
             c.max_abs,
             c.max_se,
-            if c.identifiable {
+            if c.identified {
                 "yes".to_string()
+            } else if c.identifiable {
+                format!("NO — {}", c.needs.clone().unwrap_or_default())
             } else {
                 format!("NO — needs {}", c.needs.clone().unwrap_or_default())
             }
@@ -198,8 +216,10 @@ fn text_report(id: &Identification, ver: &[DirVerify], out: &Path) -> String {
             q.name,
             q.value_urad,
             q.se_urad,
-            if q.identifiable {
+            if q.identified {
                 ""
+            } else if q.identifiable {
+                "  (not identified to 2 µrad)"
             } else {
                 "  (not identifiable)"
             }

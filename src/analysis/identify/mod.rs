@@ -61,6 +61,28 @@ impl Default for Options {
     }
 }
 
+impl Options {
+    /// The defaults for the artefacts given. Hole plates (any): Spaan's candidate knots every
+    /// 50 mm, at most 6 per axis — plates sample each axis only at their hole rows (40–60 mm
+    /// pitch), so closer knots would be guesses between rows. Ball-bar spheres only: every 30 mm,
+    /// at most 16 per axis — a sphere samples its positions continuously (~2700 points for
+    /// Spaan's eight), and the 200–300 mm pitch wave of an old mill's X needs knots closer than
+    /// 50 mm spread as 6 (114 mm on 800 mm): with the default knots eight spheres trail the true
+    /// model by 0.038–0.052, with these by 0.013–0.016 (docs/identify.md,
+    /// hil-sim/tests/identify_truth.rs).
+    pub fn for_artefacts(n_plates: usize, n_bars: usize) -> Options {
+        if n_plates == 0 && n_bars > 0 {
+            Options {
+                knot_step_mm: 30.0,
+                max_knots: 16,
+                ..Options::default()
+            }
+        } else {
+            Options::default()
+        }
+    }
+}
+
 /// Everything a fit produced.
 #[derive(Debug, Clone)]
 pub struct Identification {

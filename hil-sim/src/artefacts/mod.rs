@@ -8,20 +8,22 @@
 //!   offset (±2 mm) and rotation (±3 mrad) and a small tilt (±0.3 mrad); at a plate temperature
 //!   20 ± 1.5 °C (α = 11.5 ppm/K) and scale temperatures 20 ± 1 °C (α = 10 ppm/K); each hole probed
 //!   twice (`repeat` 0/1) with probing noise; occasionally one probing gets a 13–15 µm pulse.
-//! - ball bar: sphere centre off its nominal by ±0.5 mm, bar at 20 ± 1 °C (α = 11.5 ppm/K), points
-//!   on the reachable upper hemisphere inside the travel, dr with probing noise.
+//! - ball bar (`spheres.rs`): sphere centre off its nominal by ±0.5 mm, bar at 20 ± 1 °C
+//!   (α = 11.5 ppm/K), points on rings from the pole to 20° below the equator inside the travel,
+//!   dr with probing noise.
 //!
 //! The machine reads r where the tool tip r + e(r) sits on the hole (e = actual − nominal, exact
 //! model, approach direction unknown = mean of the two directions), solved by fixed-point iteration.
 
 use std::path::Path;
 
-use retrocomp::analysis::identify::contracts::{
-    BallBar, BallPoint, HolePlate, HoleProbe, Plane, REFERENCE_C,
-};
+use retrocomp::analysis::identify::contracts::{BallBar, HolePlate, HoleProbe, Plane, REFERENCE_C};
 use retrocomp::models::{MachineModel, ModelInput, ModelState};
 
 use crate::rng::Noise;
+
+mod spheres;
+pub use spheres::*;
 
 /// Noise and misalignment of the simulated metrology.
 #[derive(Debug, Clone, PartialEq)]
@@ -60,15 +62,6 @@ pub struct PlatePlacement {
     pub tool_mm: f64,
     pub n: [usize; 2],
     pub pitch_mm: [f64; 2],
-}
-
-/// One ball-bar set-up (Spaan Table 3.1 style).
-#[derive(Debug, Clone, PartialEq)]
-pub struct SpherePlacement {
-    pub name: String,
-    pub r_nom_mm: f64,
-    pub centre_mm: [f64; 3],
-    pub tool_mm: f64,
 }
 
 fn plate(
@@ -242,77 +235,6 @@ pub fn spaan_plates() -> (Vec<PlatePlacement>, Vec<PlatePlacement>) {
     spaan_plates_for(Plan::default())
 }
 
-/// Eight spheres, radii 150–300 mm, two tool vectors (Spaan Table 3.1 scaled to the mill).
-pub fn spaan_spheres() -> Vec<SpherePlacement> {
-    let s = |n: &str, r: f64, c: [f64; 3], t: f64| SpherePlacement {
-        name: n.into(),
-        r_nom_mm: r,
-        centre_mm: c,
-        tool_mm: t,
-    };
-    vec![
-        s("bb_4", 300.0, [400.0, 250.0, 150.0], 110.0),
-        s("bb_14", 150.0, [400.0, 250.0, 150.0], 110.0),
-        s("bb_27", 300.0, [300.0, 200.0, 100.0], 110.0),
-        s("bb_29", 250.0, [500.0, 250.0, 100.0], 110.0),
-        s("bb_89", 300.0, [450.0, 300.0, 50.0], 110.0),
-        s("bb_99", 150.0, [250.0, 150.0, 200.0], 245.0),
-        s("bb_105", 300.0, [500.0, 200.0, 150.0], 245.0),
-        s("bb_137", 300.0, [400.0, 250.0, 0.0], 245.0),
-    ]
-}
-
-/// Which ball-bar set-ups `hil-sim artefacts --spheres` probes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
-pub enum SpherePlan {
-    /// Spaan's eight spheres ([`spaan_spheres`]) on the default 15° grid (~1000 points).
-    #[default]
-    Eight,
-    /// The eight plus two spheres centred below the travel ([`low_spheres`]) that reach the
-    /// bottom of Z, each on a 7.5° grid of 48 points per ring (~5000 points): with knots every
-    /// 30 mm (`retrocomp identify --knot-step-mm 30 --max-knots 16`) within 0.03 of the true
-    /// model on Spaan's plates (hil-sim/tests/identify_truth.rs).
-    Ten,
-}
-
-/// Two spheres (R 250 mm) centred 100 mm below the Z travel, tools 110 and 245 mm: their lower
-/// rings reach z ≈ 0–60 mm, where Spaan's eight (centres at z ≥ 0, upper hemispheres) read Z
-/// only at grazing angles — the Z directions of plates at the bottom of Z were what eight missed.
-pub fn low_spheres() -> Vec<SpherePlacement> {
-    [("bb_low_110", 110.0), ("bb_low_245", 245.0)]
-        .into_iter()
-        .map(|(n, t)| SpherePlacement {
-            name: n.into(),
-            r_nom_mm: 250.0,
-            centre_mm: [400.0, 250.0, -100.0],
-            tool_mm: t,
-        })
-        .collect()
-}
-
-/// The dense grid of [`SpherePlan::Ten`]: 7.5° rings of 48 points.
-pub const DENSE_GRID: SphereGrid = SphereGrid {
-    polar_step_deg: 7.5,
-    azimuths: 48,
-};
-
-/// The spheres of `plan`, probed on `truth`.
-pub fn measure_spheres(
-    truth: &MachineModel,
-    m: &Metrology,
-    seed: u64,
-    plan: SpherePlan,
-) -> Vec<BallBar> {
-    let tr = travel(truth);
-    let (set, grid) = match plan {
-        SpherePlan::Eight => (spaan_spheres(), SphereGrid::default()),
-        SpherePlan::Ten => ([spaan_spheres(), low_spheres()].concat(), DENSE_GRID),
-    };
-    set.iter()
-        .map(|s| measure_sphere_on(truth, s, tr, m, seed, grid))
-        .collect()
-}
-
 /// The hidden machine, evaluated exactly at reference temperatures.
 #[derive(Debug)]
 pub struct Probe<'a> {
@@ -353,7 +275,7 @@ impl<'a> Probe<'a> {
     }
 }
 
-fn scale_reading(r: [f64; 3], t: [f64; 3], alpha: f64) -> [f64; 3] {
+pub(crate) fn scale_reading(r: [f64; 3], t: [f64; 3], alpha: f64) -> [f64; 3] {
     std::array::from_fn(|k| r[k] / (1.0 + alpha * 1e-6 * (t[k] - REFERENCE_C)))
 }
 
@@ -422,90 +344,6 @@ pub fn measure_plate(
         certificate_uncertainty_um: m.certificate_uncertainty_um,
         scale_alpha_ppm_per_k: Some(m.scale_alpha_ppm_per_k),
         probes,
-    }
-}
-
-/// Probes one ball-bar sphere on the default grid ([`SphereGrid::default`]); points outside
-/// `travel_mm` are skipped.
-pub fn measure_sphere(
-    truth: &MachineModel,
-    sp: &SpherePlacement,
-    travel_mm: [(f64, f64); 3],
-    m: &Metrology,
-    seed: u64,
-) -> BallBar {
-    measure_sphere_on(truth, sp, travel_mm, m, seed, SphereGrid::default())
-}
-
-/// The points of a sphere: rings every `polar_step_deg` from the pole down to the equator, each
-/// ring `azimuths` points (the pole one).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SphereGrid {
-    pub polar_step_deg: f64,
-    pub azimuths: usize,
-}
-
-impl Default for SphereGrid {
-    /// 15° rings, 24 points each: ~150 points per sphere, ~1000 for eight.
-    fn default() -> Self {
-        SphereGrid {
-            polar_step_deg: 15.0,
-            azimuths: 24,
-        }
-    }
-}
-
-/// Probes one ball-bar sphere on `grid`; points outside `travel_mm` are skipped.
-pub fn measure_sphere_on(
-    truth: &MachineModel,
-    sp: &SpherePlacement,
-    travel_mm: [(f64, f64); 3],
-    m: &Metrology,
-    seed: u64,
-    grid: SphereGrid,
-) -> BallBar {
-    let mut rng = Noise::new(seed, &format!("artefact/{}", sp.name));
-    let mut u = |lo: f64, hi: f64| lo + (hi - lo) * rng.uniform();
-    let centre = sp.centre_mm.map(|c| c + u(-0.5, 0.5));
-    let t_bar = REFERENCE_C + u(-1.0, 1.0);
-    let t_scale = [0; 3].map(|_| REFERENCE_C + u(-1.0, 1.0));
-    let bar_mm = sp.r_nom_mm * (1.0 + m.plate_alpha_ppm_per_k * 1e-6 * (t_bar - REFERENCE_C));
-    let mut rng = Noise::new(seed, &format!("artefact/{}/noise", sp.name));
-    let mut probe = Probe::new(truth);
-    let mut points = Vec::new();
-    let rings = (90.0 / grid.polar_step_deg).round() as usize;
-    for ring in 0..=rings {
-        let polar = (ring as f64 * grid.polar_step_deg).to_radians();
-        let n_az = if ring == 0 { 1 } else { grid.azimuths };
-        for k in 0..n_az {
-            let az = std::f64::consts::TAU * k as f64 / n_az as f64;
-            let n = [polar.sin() * az.cos(), polar.sin() * az.sin(), polar.cos()];
-            // The machine is sent to the nominal point on the nominal sphere.
-            let r: [f64; 3] = std::array::from_fn(|i| sp.centre_mm[i] + sp.r_nom_mm * n[i]);
-            if (0..3).any(|i| r[i] < travel_mm[i].0 || r[i] > travel_mm[i].1) {
-                continue;
-            }
-            let e = probe.error_um(r, sp.tool_mm);
-            let tip: [f64; 3] = std::array::from_fn(|i| r[i] + e[i] * 1e-3 - centre[i]);
-            let len = (tip[0] * tip[0] + tip[1] * tip[1] + tip[2] * tip[2]).sqrt();
-            points.push(BallPoint {
-                point: format!("p{ring}_{k}"),
-                pos_mm: scale_reading(r, t_scale, m.scale_alpha_ppm_per_k),
-                dr_um: (len - bar_mm) * 1e3 + rng.gauss(m.probing_noise_um),
-                tool_mm: sp.tool_mm,
-                t_bar_c: Some(t_bar),
-                t_scale_c: t_scale.map(Some),
-                line: 0,
-            });
-        }
-    }
-    BallBar {
-        name: sp.name.clone(),
-        r_nom_mm: sp.r_nom_mm,
-        centre_mm: sp.centre_mm,
-        alpha_ppm_per_k: m.plate_alpha_ppm_per_k,
-        scale_alpha_ppm_per_k: Some(m.scale_alpha_ppm_per_k),
-        points,
     }
 }
 
