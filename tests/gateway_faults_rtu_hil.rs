@@ -198,7 +198,7 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
     // Writes every 10 ms (≈ 300 in the 3 s window): the sink kept writing in every second of the
     // mute (how many depends on how the host schedules the gateway, so only that it did).
     for k in 0..3 {
-        let second = RTU_DOWN.0 + k as f64;
+        let second = RTU_DOWN.0 + f64::from(k);
         assert!(
             in_fault
                 .iter()

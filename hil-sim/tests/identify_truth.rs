@@ -171,15 +171,6 @@ impl Outcome {
             .collect()
     }
 
-    /// Identifiable, but not identified to 2 µm / µrad (too uncertain).
-    fn loose(&self) -> Vec<&str> {
-        self.errs
-            .iter()
-            .filter(|c| c.identifiable && !c.identified)
-            .map(|c| c.name.as_str())
-            .collect()
-    }
-
     /// Every identifiable component within 2 µm / 2 µrad of the truth (issue 15, point 4).
     fn assert_components_within_2(&self, what: &str) {
         for c in &self.errs {

@@ -102,7 +102,7 @@ fn vmc_positioning_waves_are_a_5_mm_lead_aliased_by_their_own_tables() {
     ] {
         let f = positioning(&vmc, axis);
         let step = len / 99.0;
-        let nodes: Vec<f64> = (0..100).map(|k| k as f64 * step).collect();
+        let nodes: Vec<f64> = (0..100).map(|k| f64::from(k) * step).collect();
         // At its nodes the table is a smooth part plus exactly the 5 mm lead wave.
         let (a, worst, smooth) = fit_lead(&f, &nodes, len);
         assert!(

@@ -74,6 +74,7 @@ pub fn write_ahead(
 }
 
 /// The gateway's store: one TOML file per sink (`x = -6`), replaced atomically on every change.
+#[derive(Debug)]
 pub struct FileHeldCounts {
     path: PathBuf,
     counts: BTreeMap<String, i64>,

@@ -150,6 +150,7 @@ pub fn held_at_start(
 
 /// The quadrature injector as the run loop's [`Sink`]: [`Sink::start`] reads the persisted held
 /// counts ([`held_at_start`]); [`Sink::run`] is [`quadrature_task`].
+#[derive(Debug)]
 pub struct QuadratureOutput {
     cfg: QuadratureSink,
     held: BTreeMap<String, i64>,

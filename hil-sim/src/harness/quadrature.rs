@@ -27,7 +27,7 @@ use retrocomp::sink::StartValues;
 
 /// The held-counts store in memory: the harness keeps one across gateway restarts (the file of the
 /// real shell); clones share it. Every save is logged so tests can check it came before the edges.
-#[derive(Clone, Default)]
+#[derive(Clone, Debug, Default)]
 pub struct MemoryHeld {
     counts: Rc<RefCell<Option<BTreeMap<String, i64>>>>,
 }
@@ -53,6 +53,7 @@ impl HeldCounts for MemoryHeld {
     }
 }
 
+#[derive(Debug)]
 struct BoxAxis {
     axis: Axis,
     quant: CountQuantizer,
@@ -62,6 +63,7 @@ struct BoxAxis {
 }
 
 /// The in-process quadrature box: one quantizer and one edge scheduler per configured axis.
+#[derive(Debug)]
 pub struct QuadratureBox {
     axes: Vec<BoxAxis>,
     store: MemoryHeld,

@@ -150,7 +150,7 @@ mod tests {
             loop {
                 match rdr.read_byte_record(&mut rec) {
                     Ok(true) => {
-                        out.push(format!("{:?} line {}", rec, rec.position().unwrap().line()))
+                        out.push(format!("{:?} line {}", rec, rec.position().unwrap().line()));
                     }
                     Ok(false) => break,
                     Err(e) => {
