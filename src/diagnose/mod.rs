@@ -19,20 +19,22 @@ mod model_slots;
 mod null_model;
 pub mod output;
 pub mod plots;
+mod refit;
 pub mod report;
 pub mod scoring;
 pub mod select;
 pub mod swap;
 
-use serde_json::{Map, Value, json};
+use serde_json::{Map, Value};
 
 use crate::recording::Recording;
 use candidates::{Candidate, separating_experiment};
 use effects::EffectModel;
 use features::Context;
 use heldout::Heldout;
+use refit::{joint_refit, parsimony_drop};
 use report::{AlternativeOut, Dropped, Evidence, Finding, Report};
-use select::{Options, Term};
+use select::Options;
 
 /// Everything diagnose and its outputs (`--out`, `--model`, the benchmark's manifests) can fail
 /// with. Messages are the user's: the CLI prints them with their source chain (`{:#}`).
@@ -415,208 +417,12 @@ fn diagnose_residuals(
     })
 }
 
-/// The term parsimony drops next, if any: (index, reason, held-out RMS with it, without it).
-/// Reasons: `ci_includes_zero` (its gain's 95 % interval `cis[k]` includes 0; the weakest by
-/// |centre| / width first), else `no_heldout_gain` (removing it leaves the held-out RMS below
-/// `with / (1 − cv_min_gain)`; the removal leaving the lowest RMS first). The held-out score uses
-/// the nonlinear parameters as selected (the joint refit moves them little).
-fn parsimony_drop(
-    heldout: &Heldout<'_>,
-    terms: &[Term],
-    cis: &[Map<String, Value>],
-    opts: &Options,
-) -> Option<(usize, &'static str, f64, f64)> {
-    if terms.is_empty() {
-        return None;
-    }
-    let set = select::set_of(terms);
-    let with = heldout.rms(&set);
-    let without = |k: usize| {
-        let mut s = set.clone();
-        s.remove(k);
-        heldout.rms(&s)
-    };
-    let weakest = terms
-        .iter()
-        .enumerate()
-        .filter_map(|(k, t)| {
-            let iv = cis[k].get(t.cand.coef_key())?.as_array()?;
-            let (lo, hi) = (iv.first()?.as_f64()?, iv.get(1)?.as_f64()?);
-            // Terms with one interval (a zone table's per-zone intervals are not judged here).
-            (lo <= 0.0 && hi >= 0.0).then(|| (k, (lo + hi).abs() / (hi - lo).max(1e-300)))
-        })
-        .min_by(|a, b| a.1.total_cmp(&b.1))
-        .map(|(k, _)| k);
-    if let Some(k) = weakest {
-        return Some((k, "ci_includes_zero", with, without(k)));
-    }
-    (0..terms.len())
-        .map(|k| (k, without(k)))
-        .filter(|(_, w)| w.is_finite() && with >= w * (1.0 - opts.cv_min_gain))
-        .min_by(|a, b| a.1.total_cmp(&b.1))
-        .map(|(k, w)| (k, "no_heldout_gain", with, w))
-}
-
-/// Refit all accepted terms jointly (one coordinate pass refining each nonlinear parameter with the
-/// others held), then give each term its model and 95 % intervals: linear gains from the covariance
-/// (inflated for correlated residuals), nonlinear ones by profile likelihood (n_eff·ln RSS ratio ≤ 3.84).
-/// Also returns the coefficients of the cumulative fits (terms fitted jointly up to each one) and
-/// the terms at their refitted parameters, from which [`SignalResult::residual_after`] recomputes
-/// the cumulative residuals.
-/// Models, 95 % intervals, cumulative-fit coefficients and refitted terms of [`joint_refit`].
-type Refit = (
-    Vec<EffectModel>,
-    Vec<Map<String, Value>>,
-    Vec<Vec<f64>>,
-    Vec<(Candidate, f64)>,
-);
-
-fn joint_refit(ctx: &Context, r: &[f64], terms: &[Term]) -> Refit {
-    let n = r.len();
-    let ones = vec![1.0; n];
-    let mut thetas: Vec<f64> = terms.iter().map(|t| t.theta).collect();
-    let mut cols: Vec<Vec<Vec<f64>>> = terms.iter().map(|t| t.cols.clone()).collect();
-    let others_basis = |cols: &[Vec<Vec<f64>>], skip: usize| {
-        let mut v = vec![ones.clone()];
-        for (j, c) in cols.iter().enumerate() {
-            if j != skip {
-                v.extend(c.iter().cloned());
-            }
-        }
-        let b = lsq::orthonormalize(&[], v, 2);
-        let r0 = lsq::deflate(&b, r);
-        (b, r0)
-    };
-    let rss_at = |b: &[Vec<f64>], r0: &[f64], t: &Term, th: f64| {
-        let u = lsq::orthonormalize(b, t.cand.columns(ctx, th), 1);
-        lsq::dot(r0, r0) - lsq::gain(&u, r0)
-    };
-    for (k, t) in terms.iter().enumerate() {
-        if t.cand.is_nonlinear() && terms.len() > 1 {
-            let (b, r0) = others_basis(&cols, k);
-            let th = refine_min(
-                |th| rss_at(&b, &r0, t, th),
-                thetas[k] / 1.3,
-                thetas[k] * 1.3,
-            );
-            if rss_at(&b, &r0, t, th) <= rss_at(&b, &r0, t, thetas[k]) {
-                thetas[k] = th;
-                cols[k] = t.cand.columns(ctx, th);
-            }
-        }
-    }
-    let mut flat: Vec<&[f64]> = vec![&ones];
-    let mut spans = vec![];
-    for c in &cols {
-        let s = flat.len();
-        flat.extend(c.iter().map(Vec::as_slice));
-        spans.push(s..flat.len());
-    }
-    let fit = lsq::fit(&flat, r);
-    // Backlash and reversal profile are tested within own-axis position cells (select.rs); their intervals come
-    // from the same null: the joint fit with the cell means in place of the intercept. (With both
-    // directions read at every position its estimates equal the plain fit's.)
-    let fit_cells = terms
-        .iter()
-        .find(|t| t.within_cells)
-        .and_then(|t| ctx.position_cells(t.cand.axis))
-        .map(|(cell, k)| lsq::fit_within_cells(&flat[1..], r, &cell, k));
-    let mut models = vec![];
-    let mut cis = vec![];
-    for (k, t) in terms.iter().enumerate() {
-        let sp = spans[k].clone();
-        let c: Vec<f64> = fit.coef[sp.clone()].to_vec();
-        let se: Vec<f64> = match &fit_cells {
-            Some(fc) if t.within_cells => sp
-                .clone()
-                .map(|i| {
-                    let j = i - 1;
-                    fc.cov[(j, j)].max(0.0).sqrt()
-                })
-                .collect(),
-            _ => sp
-                .clone()
-                .map(|i| fit.cov[(i, i)].max(0.0).sqrt())
-                .collect(),
-        };
-        models.push(t.cand.to_model(&c, thetas[k]));
-        let mut ci = Map::new();
-        let iv = |v: f64, s: f64| json!([v - 1.96 * s, v + 1.96 * s]);
-        match t.cand.kind {
-            candidates::Kind::ReversalProfile { .. } => {
-                ci.insert(
-                    "b_um".into(),
-                    Value::Array(c.iter().zip(&se).map(|(v, s)| iv(*v, *s)).collect()),
-                );
-            }
-            candidates::Kind::Cyclic => {
-                let (a, b) = (c[0], c[1]);
-                let amp = a.hypot(b).max(1e-300);
-                let (i0, i1) = (sp.start, sp.start + 1);
-                let var = (a * a * fit.cov[(i0, i0)]
-                    + b * b * fit.cov[(i1, i1)]
-                    + 2.0 * a * b * fit.cov[(i0, i1)])
-                    / (amp * amp);
-                ci.insert("amplitude_um".into(), iv(amp, var.max(0.0).sqrt()));
-            }
-            _ => {
-                ci.insert(t.cand.coef_key().into(), iv(c[0], se[0]));
-            }
-        }
-        if let Some(key) = t.cand.theta_key() {
-            let (b, r0) = others_basis(&cols, k);
-            let best = rss_at(&b, &r0, t, thetas[k]);
-            let ok = |th: f64| fit.n_eff * (rss_at(&b, &r0, t, th) / best).ln() <= 3.84;
-            let step = 1.01f64;
-            let mut lo = thetas[k];
-            let mut hi = thetas[k];
-            for _ in 0..120 {
-                if !ok(lo / step) {
-                    break;
-                }
-                lo /= step;
-            }
-            for _ in 0..120 {
-                if !ok(hi * step) {
-                    break;
-                }
-                hi *= step;
-            }
-            ci.insert(key.into(), json!([lo, hi]));
-        }
-        cis.push(ci);
-    }
-    // Cumulative fits for the plots' residuals: ones + terms[..=k].
-    let after_coef = (0..terms.len())
-        .map(|k| lsq::coef(&flat[..spans[k].end], r))
-        .collect();
-    let refit = terms
-        .iter()
-        .zip(&thetas)
-        .map(|(t, th)| (t.cand.clone(), *th))
-        .collect();
-    (models, cis, after_coef, refit)
-}
-
-fn refine_min(f: impl Fn(f64) -> f64, lo: f64, hi: f64) -> f64 {
-    let (mut a, mut b) = (lo.ln(), hi.ln());
-    let k = (5f64.sqrt() - 1.0) / 2.0;
-    for _ in 0..24 {
-        let c = b - k * (b - a);
-        let d = a + k * (b - a);
-        if f(c.exp()) < f(d.exp()) {
-            b = d;
-        } else {
-            a = c;
-        }
-    }
-    ((a + b) / 2.0).exp()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use candidates::{Candidate, Kind};
+    use select::Term;
+    use serde_json::json;
 
     /// Parsimony's removal test: of two lags of near-identical sensors (the second a copy of the
     /// first plus a little noise), whose gains' intervals both exclude 0, one does not improve
