@@ -205,45 +205,8 @@ fn the_gateway_files_import_each_other_without_a_cycle() {
         to.remove(name);
         edges.insert(name.clone(), to);
     }
-    // Depth-first search; a back edge closes a cycle.
-    fn visit(
-        n: &str,
-        edges: &BTreeMap<String, BTreeSet<String>>,
-        state: &mut BTreeMap<String, u8>,
-        path: &mut Vec<String>,
-    ) -> Option<Vec<String>> {
-        state.insert(n.to_string(), 1);
-        path.push(n.to_string());
-        for m in &edges[n] {
-            match state.get(m.as_str()).copied().unwrap_or(0) {
-                1 => {
-                    let start = path.iter().position(|p| p == m).unwrap();
-                    let mut cycle = path[start..].to_vec();
-                    cycle.push(m.clone());
-                    return Some(cycle);
-                }
-                0 => {
-                    if let Some(c) = visit(m, edges, state, path) {
-                        return Some(c);
-                    }
-                }
-                _ => {}
-            }
-        }
-        path.pop();
-        state.insert(n.to_string(), 2);
-        None
-    }
-    let mut state = BTreeMap::new();
-    for n in edges.keys() {
-        if state.get(n.as_str()).copied().unwrap_or(0) == 0 {
-            let cycle = visit(n, &edges, &mut state, &mut Vec::new());
-            assert!(
-                cycle.is_none(),
-                "import cycle: {}",
-                cycle.unwrap().join(" → ")
-            );
-        }
+    if let Some(c) = first_cycle(&edges) {
+        panic!("import cycle: {c}");
     }
     // The check can fail: the runtime does import the engine.
     assert!(edges["run"].contains("engine"), "{edges:?}");
