@@ -205,8 +205,9 @@ fn start_dry_run(dir: &Path, hub_port: u16, opcua: &str) -> (std::process::Child
     let field = dir.join("field.toml");
     let full = configs::field_toml(hub_port, "127.0.0.1:9", Path::new("-"));
     // Without the serial source (there is no pty to open); the sink goes with --dry-run.
-    let (head, tail) = full.split_once("[serial]").unwrap();
-    let text = head.to_string() + &tail[tail.find("[sink.origin_shift]").unwrap()..] + opcua;
+    // Section headers at the start of a line (the shared fixture's comments name them too).
+    let (head, tail) = full.split_once("\n[serial]\n").unwrap();
+    let text = head.to_string() + &tail[tail.find("\n[sink.origin_shift]\n").unwrap()..] + opcua;
     std::fs::write(&field, text).unwrap();
     let log = dir.join("gateway.log");
     let gw = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
