@@ -293,7 +293,7 @@ fn pipeline_frames(c: &mut Criterion) {
 /// See the top comment (`pipeline_gateway`).
 fn pipeline_gateway(c: &mut Criterion) {
     use retrocomp::bus::canopen::cia404::{AnalogChannel, AnalogType};
-    use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel};
+    use retrocomp::bus::canopen::cia406::EncoderChannel;
     use retrocomp::bus::canopen::source::{CanopenConfig, CanopenSource};
     use retrocomp::gateway::model_adapter::MachineModelAdapter;
     use retrocomp::models::MachineModel;
@@ -310,33 +310,15 @@ fn pipeline_gateway(c: &mut Criterion) {
            [[axis]]\nname = \"z\"\nposition_channel = \"z_mm\"\n";
     let cfg = FieldConfig::parse(&axes, Path::new("bench.toml")).unwrap();
     let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
-    let encoder = |channel: &str, node_id: u8| EncoderChannel {
-        channel: channel.into(),
-        node_id,
-        tpdo: 1,
-        byte_offset: 0,
-        counts_per_mm: 1000.0,
-        direction: CountingDirection::Positive,
-        offset_mm: 0.0,
-        total_range_counts: None,
-        cyclic_ms: None,
-        min_mm: None,
-        max_mm: None,
-    };
+    let encoder = |channel: &str, node_id: u8| EncoderChannel::new(channel, node_id, 1000.0);
     let can = CanopenConfig {
         encoder: vec![encoder("x_mm", 1), encoder("y_mm", 2), encoder("z_mm", 3)],
         analog: inputs
             .iter()
             .enumerate()
             .map(|(k, id)| AnalogChannel {
-                channel: id.name().into(),
-                node_id: 0x10 + k as u8,
-                tpdo: 1,
-                byte_offset: 0,
-                data_type: AnalogType::Int32,
                 decimal_digits: 3,
-                min: None,
-                max: None,
+                ..AnalogChannel::new(id.name(), 0x10 + k as u8, AnalogType::Int32)
             })
             .collect(),
         heartbeat_timeout_s: None,

@@ -8,7 +8,7 @@ mod peers;
 
 use retrocomp::bus::Health;
 use retrocomp::bus::can::{CanBus, Frame, Hub, SocketcandBus};
-use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel, PositionDecoder};
+use retrocomp::bus::canopen::cia406::{EncoderChannel, PositionDecoder};
 use retrocomp::bus::canopen::nmt::{HeartbeatMonitor, NmtCommand, encode_nmt};
 use retrocomp::bus::canopen::sdo::{CYCLIC_TIMER_6200, SdoRequest};
 use std::time::Duration;
@@ -28,17 +28,8 @@ async fn python_can_and_retrocomp_exchange_frames_through_the_hub() {
 
     // python-can → retrocomp
     let enc = EncoderChannel {
-        channel: "x_mm".into(),
-        node_id: 1,
-        tpdo: 1,
-        byte_offset: 0,
-        counts_per_mm: 1000.0,
-        direction: CountingDirection::Positive,
-        offset_mm: 0.0,
-        total_range_counts: None,
         cyclic_ms: Some(10),
-        min_mm: None,
-        max_mm: None,
+        ..EncoderChannel::new("x_mm", 1, 1000.0)
     };
     let mut dec = PositionDecoder::new(enc);
     let mut hb = HeartbeatMonitor::new(1, 1.0);

@@ -67,6 +67,29 @@ fn allocs() -> u64 {
     ALLOCS.with(Cell::get)
 }
 
+/// The origin-shift register map both sink tests encode into: three int32 axes of 0.1 µm, z's
+/// register counting the other way (`sign = -1`).
+const AXES_MAP: &str = r#"
+[[axis]]
+axis = "x"
+address = 0
+kind = "int32"
+lsb_um = 0.1
+sign = 1
+[[axis]]
+axis = "y"
+address = 2
+kind = "int32"
+lsb_um = 0.1
+sign = 1
+[[axis]]
+axis = "z"
+address = 4
+kind = "int32"
+lsb_um = 0.1
+sign = -1
+"#;
+
 const CFG: &str = r#"
 [gateway]
 name = "no-alloc"
@@ -382,7 +405,7 @@ fn the_cycle_loop_allocates_nothing_while_compensation_is_dropped() {
 #[test]
 fn frames_to_register_words_allocate_nothing_per_cycle() {
     use retrocomp::bus::canopen::cia404::{AnalogChannel, AnalogType};
-    use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel};
+    use retrocomp::bus::canopen::cia406::EncoderChannel;
     use retrocomp::bus::canopen::source::{CanopenConfig, CanopenSource};
     use retrocomp::origin_shift::{RegisterMap, WriteBlock};
     use retrocomp::quadrature::CountQuantizer;
@@ -392,28 +415,10 @@ fn frames_to_register_words_allocate_nothing_per_cycle() {
     let mut m = MachineModelAdapter::new(model);
     let cfg = FieldConfig::parse(CFG, Path::new("no-alloc.toml")).unwrap();
     let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
-    let encoder = |channel: &str, node_id: u8| EncoderChannel {
-        channel: channel.into(),
-        node_id,
-        tpdo: 1,
-        byte_offset: 0,
-        counts_per_mm: 1000.0,
-        direction: CountingDirection::Positive,
-        offset_mm: 0.0,
-        total_range_counts: None,
-        cyclic_ms: None,
-        min_mm: None,
-        max_mm: None,
-    };
+    let encoder = |channel: &str, node_id: u8| EncoderChannel::new(channel, node_id, 1000.0);
     let analog = |channel: &str, node_id: u8| AnalogChannel {
-        channel: channel.into(),
-        node_id,
-        tpdo: 1,
-        byte_offset: 0,
-        data_type: AnalogType::Int32,
         decimal_digits: 3,
-        min: None,
-        max: None,
+        ..AnalogChannel::new(channel, node_id, AnalogType::Int32)
     };
     let can = CanopenConfig {
         encoder: vec![encoder("x_mm", 1), encoder("y_mm", 2), encoder("z_mm", 3)],
@@ -426,29 +431,7 @@ fn frames_to_register_words_allocate_nothing_per_cycle() {
         pdo_timeout_s: 0.1,
     };
     let mut src = CanopenSource::new(can.clone());
-    let map: RegisterMap = toml::from_str(
-        r#"
-        [[axis]]
-        axis = "x"
-        address = 0
-        kind = "int32"
-        lsb_um = 0.1
-        sign = 1
-        [[axis]]
-        axis = "y"
-        address = 2
-        kind = "int32"
-        lsb_um = 0.1
-        sign = 1
-        [[axis]]
-        axis = "z"
-        address = 4
-        kind = "int32"
-        lsb_um = 0.1
-        sign = -1
-        "#,
-    )
-    .unwrap();
+    let map: RegisterMap = toml::from_str(AXES_MAP).unwrap();
     map.validate().unwrap();
     let mut quantisers: Vec<CountQuantizer> = (0..3)
         .map(|_| CountQuantizer::new(0.1, 1).unwrap())
@@ -529,35 +512,10 @@ fn an_origin_shift_write_period_allocates_nothing() {
     use retrocomp::origin_shift::sink_task::{SinkSources, update_faults_of};
     use retrocomp::origin_shift::{Action, Outcome, RegisterMap, Reply, SinkAxis, SinkCore, Words};
 
-    let map: RegisterMap = toml::from_str(
-        r#"
-        heartbeat_address = 10
-        heartbeat_timeout_ms = 60000
-        [[axis]]
-        axis = "x"
-        address = 0
-        kind = "int32"
-        lsb_um = 0.1
-        sign = 1
-        [[axis]]
-        axis = "y"
-        address = 2
-        kind = "int32"
-        lsb_um = 0.1
-        sign = 1
-        [[axis]]
-        axis = "z"
-        address = 4
-        kind = "int32"
-        lsb_um = 0.1
-        sign = -1
-        [handshake]
-        strobe_address = 6
-        ack_address = 7
-        timeout_ms = 100
-        poll_ms = 1
-        "#,
-    )
+    let map: RegisterMap = toml::from_str(&format!(
+        "heartbeat_address = 10\nheartbeat_timeout_ms = 60000\n{AXES_MAP}\
+         [handshake]\nstrobe_address = 6\nack_address = 7\ntimeout_ms = 100\npoll_ms = 1\n"
+    ))
     .unwrap();
     map.validate().unwrap();
     let axes = ["x", "y", "z"]

@@ -50,6 +50,21 @@ pub struct AnalogChannel {
 }
 
 impl AnalogChannel {
+    /// The channel a minimal `[[canopen.analog]]` entry gives (`channel`, `node_id`, `type`, every
+    /// other key at its TOML default: TPDO 1, byte 0, no decimal digits, no limits).
+    pub fn new(channel: &str, node_id: u8, data_type: AnalogType) -> Self {
+        Self {
+            channel: channel.into(),
+            node_id,
+            tpdo: 1,
+            byte_offset: 0,
+            data_type,
+            decimal_digits: 0,
+            min: None,
+            max: None,
+        }
+    }
+
     pub fn cob_id(&self) -> u16 {
         tpdo_cob_id(self.tpdo, self.node_id)
     }

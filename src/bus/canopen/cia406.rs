@@ -73,6 +73,25 @@ pub struct EncoderChannel {
 }
 
 impl EncoderChannel {
+    /// The channel a minimal `[[canopen.encoder]]` entry gives (`channel`, `node_id`,
+    /// `counts_per_mm`, every other key at its TOML default: TPDO 1, byte 0, positive counting,
+    /// no offset, 2^32 range, no limits); the serde defaults above and this agree (tested).
+    pub fn new(channel: &str, node_id: u8, counts_per_mm: f64) -> Self {
+        Self {
+            channel: channel.into(),
+            node_id,
+            tpdo: 1,
+            byte_offset: 0,
+            counts_per_mm,
+            direction: CountingDirection::Positive,
+            offset_mm: 0.0,
+            total_range_counts: None,
+            cyclic_ms: None,
+            min_mm: None,
+            max_mm: None,
+        }
+    }
+
     pub fn cob_id(&self) -> u16 {
         tpdo_cob_id(self.tpdo, self.node_id)
     }
@@ -205,19 +224,14 @@ mod tests {
     use super::*;
 
     pub(crate) fn x_encoder() -> EncoderChannel {
-        EncoderChannel {
-            channel: "x_mm".into(),
-            node_id: 1,
-            tpdo: 1,
-            byte_offset: 0,
-            counts_per_mm: 1000.0,
-            direction: CountingDirection::Positive,
-            offset_mm: 0.0,
-            total_range_counts: None,
-            cyclic_ms: None,
-            min_mm: None,
-            max_mm: None,
-        }
+        EncoderChannel::new("x_mm", 1, 1000.0)
+    }
+
+    #[test]
+    fn new_is_a_minimal_toml_entry() {
+        let parsed: EncoderChannel =
+            toml::from_str("channel = \"x_mm\"\nnode_id = 1\ncounts_per_mm = 1000.0\n").unwrap();
+        assert_eq!(parsed, x_encoder());
     }
 
     #[test]

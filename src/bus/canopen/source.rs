@@ -284,34 +284,18 @@ pub async fn run_observed<B: CanBus>(
 #[cfg(test)]
 mod tests {
     use super::super::cia404::AnalogType;
-    use super::super::cia406::CountingDirection;
     use super::super::nmt::{NodeState, encode_heartbeat};
     use super::*;
 
     pub(crate) fn cfg() -> CanopenConfig {
         CanopenConfig {
             encoder: vec![EncoderChannel {
-                channel: "x_mm".into(),
-                node_id: 1,
-                tpdo: 1,
-                byte_offset: 0,
-                counts_per_mm: 1000.0,
-                direction: CountingDirection::Positive,
-                offset_mm: 0.0,
-                total_range_counts: None,
                 cyclic_ms: Some(10),
-                min_mm: None,
-                max_mm: None,
+                ..EncoderChannel::new("x_mm", 1, 1000.0)
             }],
             analog: vec![AnalogChannel {
-                channel: "T_spindle_C".into(),
-                node_id: 0x10,
-                tpdo: 1,
-                byte_offset: 0,
-                data_type: AnalogType::Int16,
                 decimal_digits: 1,
-                min: None,
-                max: None,
+                ..AnalogChannel::new("T_spindle_C", 0x10, AnalogType::Int16)
             }],
             heartbeat_timeout_s: Some(0.3),
             pdo_timeout_s: 0.1,
