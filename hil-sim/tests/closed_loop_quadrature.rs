@@ -193,3 +193,17 @@ fn a_restarted_box_continues_from_the_persisted_counts_without_an_edge_at_takeov
     assert_counts_follow_the_output(&h, 10);
     eprintln!("quadrature restart: controller held {held:?} µm (counts {old:?}), now {out:?} µm");
 }
+
+#[test]
+fn a_persisted_count_beyond_the_clamp_refuses_the_restart() {
+    // What the store says the controller holds is a start value the engine must accept as it is:
+    // beyond the clamp (a file from another machine, a bad edit) the box refuses to start rather
+    // than clip it and inject the difference, as `retrocomp run` does.
+    use retrocomp::quadrature::held::HeldCounts;
+    let mut h = closed_loop_quadrature(sim_config(MOVES, true, ""));
+    h.run_until(1.0);
+    let beyond = (clamp_of(0) + 10.0).round() as i64;
+    h.held_counts().clone().save("x", beyond).unwrap();
+    let e = h.restart_gateway().unwrap_err();
+    assert!(format!("{e:#}").contains("clamp"), "{e:#}");
+}

@@ -75,18 +75,27 @@ impl std::fmt::Debug for Gateway {
 
 impl Gateway {
     /// Start as `retrocomp run` does: the sink reads what the controller holds first (`held_um`,
-    /// per axis; values beyond the clamp are not start values) and the engine continues from it.
+    /// per axis, origin shift: values beyond the clamp are not start values; `held_counts`,
+    /// quadrature: a count beyond the clamp refuses the start) and the engine continues from it.
     pub fn start(
         cfg: FieldConfig,
         model: Box<dyn ErrorModel>,
         held_um: &BTreeMap<String, f64>,
         held_counts: MemoryHeld,
     ) -> anyhow::Result<Self> {
-        let mut held_um = held_um.clone();
+        // The controller's registers: a value beyond the clamp is not a start value (the real
+        // origin-shift sink reports it as a fault and ramps from the clamp side).
+        let mut initial: BTreeMap<String, f64> = held_um
+            .iter()
+            .filter(|(axis, v)| v.is_finite() && v.abs() <= cfg.safety_for(axis).max_correction_um)
+            .map(|(a, v)| (a.clone(), *v))
+            .collect();
+        // The persisted quadrature counts go in as they are: beyond the clamp, `Engine::new`
+        // refuses the start, as `retrocomp run` does.
         let quadrature = match cfg.sink.quadrature.as_ref() {
             Some(q) => {
                 let (b, start) = QuadratureBox::new(q, held_counts)?;
-                held_um.extend(start);
+                initial.extend(start);
                 Some(b)
             }
             None => None,
@@ -96,11 +105,6 @@ impl Gateway {
             (None, Some(_)) => None,
             _ => anyhow::bail!("the harness drives [sink.origin_shift] or [sink.quadrature]"),
         };
-        let initial: BTreeMap<String, f64> = held_um
-            .iter()
-            .filter(|(axis, v)| v.is_finite() && v.abs() <= cfg.safety_for(axis).max_correction_um)
-            .map(|(a, v)| (a.clone(), *v))
-            .collect();
         let engine = Engine::new(&cfg, &initial)?;
         let axes = cfg
             .axes
