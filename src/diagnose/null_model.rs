@@ -389,3 +389,74 @@ pub(super) fn without_cell_means(ctx: &Context, axis: char, r: &[f64]) -> Vec<f6
         .map(|(i, v)| v - sum[cell(i)] / cnt[cell(i)] as f64)
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    /// A standard normal draw by Box–Muller (no extra crate for a test).
+    fn normal(rng: &mut rand_chacha::ChaCha8Rng) -> f64 {
+        use rand::Rng;
+        let (u1, u2): (f64, f64) = (rng.random_range(1e-12..1.0), rng.random());
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+
+    /// The unit-root test separates a random walk (τ above the 1 % critical value −3.43) from
+    /// white noise and from AR(0.5) (τ far below it) on the same innovations.
+    #[test]
+    fn adf_tells_a_random_walk_from_stationary_noise() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let e: Vec<f64> = (0..2000).map(|_| normal(&mut rng)).collect();
+        let walk: Vec<f64> = e
+            .iter()
+            .scan(0.0, |s, v| {
+                *s += v;
+                Some(*s)
+            })
+            .collect();
+        let ar: Vec<f64> = e
+            .iter()
+            .scan(0.0, |s, v| {
+                *s = 0.5 * *s + v;
+                Some(*s)
+            })
+            .collect();
+        let p = adf_lags(e.len());
+        assert!(adf_tau(&walk, p) > -3.43, "walk τ {}", adf_tau(&walk, p));
+        assert!(adf_tau(&e, p) < -10.0, "white τ {}", adf_tau(&e, p));
+        assert!(adf_tau(&ar, p) < -10.0, "AR(0.5) τ {}", adf_tau(&ar, p));
+        assert_eq!(
+            adf_tau(&walk[..10], 0),
+            f64::INFINITY,
+            "too short: integrated"
+        );
+    }
+
+    /// θ of a simulated MA(1) comes back, and the inverse filter whitens it (lag-1
+    /// autocorrelation of the filtered series near 0, of the series itself near −θ/(1+θ²)).
+    #[test]
+    fn ma1_theta_and_its_inverse_filter_whiten_an_ma1() {
+        let lag1 = |d: &[f64]| {
+            let m = d.iter().sum::<f64>() / d.len() as f64;
+            let den: f64 = d.iter().map(|v| (v - m).powi(2)).sum();
+            d.windows(2).map(|w| (w[0] - m) * (w[1] - m)).sum::<f64>() / den
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let u: Vec<f64> = (0..20_000).map(|_| normal(&mut rng)).collect();
+        let theta = 0.6;
+        let d: Vec<f64> = (0..u.len())
+            .map(|t| u[t] - if t > 0 { theta * u[t - 1] } else { 0.0 })
+            .collect();
+        let r1 = lag1(&d);
+        assert!((r1 + theta / (1.0 + theta * theta)).abs() < 0.03, "r1 {r1}");
+        let est = ma1_theta(&d);
+        assert!((est - theta).abs() < 0.05, "θ̂ {est}");
+        let w = inverse_ma1(d.clone(), est);
+        assert!(lag1(&w).abs() < 0.03, "filtered r1 {}", lag1(&w));
+        // Positive lag-1 correlation has no invertible MA(1) of this sign: θ = 0, no filtering.
+        let smooth: Vec<f64> = u.windows(2).map(|w| w[0] + w[1]).collect();
+        assert_eq!(ma1_theta(&smooth), 0.0);
+        assert_eq!(inverse_ma1(smooth.clone(), 0.0), smooth);
+    }
+}
