@@ -17,6 +17,9 @@ cd "$(dirname "$0")/.."
 
 bash scripts/setup-peers.sh || { echo "test.sh: scripts/setup-peers.sh failed" >&2; exit 1; }
 export RETROCOMP_PYTHON="$PWD/.venv/bin/python"
+# No incremental compilation state: a run on a fresh clone never reuses it, and it was ≈ 3 GB of
+# target/ (a CI run ran out of disk writing it). Set CARGO_INCREMENTAL=1 to keep it between local runs.
+export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 
 log=$(mktemp "${TMPDIR:-/tmp}/retrocomp-test.XXXXXX")
 trap 'rm -f "$log"' EXIT
