@@ -25,7 +25,7 @@
 use super::candidates::{Candidate, Kind};
 use super::features::Context;
 use super::lsq;
-use super::select::Options;
+use super::selection::Options;
 
 /// The validation folds of one signal and how they are scored.
 #[derive(Debug)]

@@ -23,6 +23,7 @@ mod refit;
 pub mod report;
 pub mod scoring;
 pub mod select;
+pub mod selection;
 pub mod swap;
 
 use serde_json::{Map, Value};
@@ -34,7 +35,7 @@ use features::Context;
 use heldout::Heldout;
 use refit::{joint_refit, parsimony_drop};
 use report::{AlternativeOut, Dropped, Evidence, Finding, Report};
-use select::Options;
+use selection::Options;
 
 /// Everything diagnose and its outputs (`--out`, `--model`, the benchmark's manifests) can fail
 /// with. Messages are the user's: the CLI prints them with their source chain (`{:#}`).
@@ -421,7 +422,7 @@ fn diagnose_residuals(
 mod tests {
     use super::*;
     use candidates::{Candidate, Kind};
-    use select::Term;
+    use selection::Term;
     use serde_json::json;
 
     /// Parsimony's removal test: of two lags of near-identical sensors (the second a copy of the

@@ -9,7 +9,7 @@ use super::effects::EffectModel;
 use super::features::Context;
 use super::heldout::Heldout;
 use super::lsq;
-use super::select::{self, Options, Term};
+use super::selection::{self, Options, Term};
 
 /// The term parsimony drops next, if any: (index, reason, held-out RMS with it, without it).
 /// Reasons: `ci_includes_zero` (its gain's 95 % interval `cis[k]` includes 0; the weakest by
@@ -25,7 +25,7 @@ pub(super) fn parsimony_drop(
     if terms.is_empty() {
         return None;
     }
-    let set = select::set_of(terms);
+    let set = selection::set_of(terms);
     let with = heldout.rms(&set);
     let without = |k: usize| {
         let mut s = set.clone();

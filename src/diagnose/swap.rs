@@ -18,7 +18,7 @@ use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 use super::candidates::Candidate;
 use super::features::Context;
 use super::lsq::{self, dot};
-use super::select::{Options, Term};
+use super::selection::{Options, Term};
 
 /// ΔBIC by which a replacement must beat the term it replaces ("positive" evidence).
 pub const MIN_GAIN_BIC: f64 = 6.0;
