@@ -584,3 +584,74 @@ fn an_origin_shift_write_period_allocates_nothing() {
     assert_eq!(regs[10], 1200, "one heartbeat per period");
     assert_eq!(n, 0, "{n} heap allocations in 1000 write periods");
 }
+
+/// The origin-shift *server*'s update (clamp and cap against the exposed value and what the
+/// controller reports holding, encode, heartbeat) reuses one `Update`: nothing per update once
+/// the first has sized it. The controller writes back what it holds every 10th update (that
+/// write's decoding still allocates and is not counted: only `poll_update_into` is).
+#[test]
+fn an_origin_shift_server_update_allocates_nothing() {
+    use retrocomp::origin_shift::server_core::{Guard, ServerCore, ServerMap, Update};
+
+    let map: ServerMap = toml::from_str(&format!(
+        "heartbeat_address = 10\n{AXES_MAP}\
+         [[held]]\naxis = \"x\"\naddress = 20\n[[held]]\naxis = \"y\"\naddress = 22\n\
+         [[held]]\naxis = \"z\"\naddress = 24\n"
+    ))
+    .unwrap();
+    map.validate(&["x", "y", "z"]).unwrap();
+    let guard = Guard {
+        max_correction_um: 30.0,
+        max_change_um_per_update: 0.5,
+    };
+    let guards = ["x", "y", "z"].map(|a| (a.to_string(), guard)).to_vec();
+    let mut core = ServerCore::new(map, &guards);
+    let mut image = [0u16; 32];
+    let mut update = Update::default();
+    let mut wants = [(Axis::X, 0.0), (Axis::Y, 0.0), (Axis::Z, 0.0)];
+    // (served, allocations inside `poll_update_into`)
+    let mut step = |core: &mut ServerCore, update: &mut Update, k: u64| -> (bool, u64) {
+        let ts = k as f64 * 0.01;
+        wants[0].1 = 40.0 * (ts * 0.5).sin();
+        wants[1].1 = -25.0 + 10.0 * (ts * 0.3).cos();
+        wants[2].1 = 15.0 * (ts * 0.7).sin();
+        if k.is_multiple_of(10) {
+            // The controller applies what is served: it copies the corrections into its held registers.
+            let (served, held) = image.split_at_mut(20);
+            held[..6].copy_from_slice(&served[..6]);
+            let read = |a: u16, n: u16| Some(image[a as usize..(a + n) as usize].to_vec());
+            assert!(core.handle_controller_write(read).is_empty());
+        }
+        let before = allocs();
+        let ok = core.poll_update_into(&wants, update);
+        let n = allocs() - before;
+        for b in &update.blocks {
+            let a = b.address as usize;
+            image[a..a + b.words.len()].copy_from_slice(&b.words);
+        }
+        (ok, n)
+    };
+    assert!(
+        !step(&mut core, &mut update, 1).0,
+        "served before the controller reported"
+    );
+    for k in 0..200 {
+        assert!(step(&mut core, &mut update, k).0);
+    }
+    let (mut n_ok, mut n) = (0, 0);
+    for k in 200..1200 {
+        let (ok, allocs) = step(&mut core, &mut update, k);
+        n_ok += u64::from(ok);
+        n += allocs;
+    }
+    assert_eq!(n_ok, 1000);
+    assert_eq!(image[10], 1200, "one heartbeat per update");
+    for (axis, v) in &update.exposed_um {
+        assert!(v.abs() <= 30.0 + 1e-9, "{axis:?} beyond the clamp: {v}");
+    }
+    assert!(
+        update.exposed_um.iter().any(|(_, v)| v.abs() > 10.0),
+        "{update:?}"
+    );
+    assert_eq!(n, 0, "{n} heap allocations in 1000 server updates");
+}

@@ -19,7 +19,7 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::MissedTickBehavior;
 
-use super::server_core::{Guard, ServerCore, ServerMap};
+use super::server_core::{Guard, ServerCore, ServerMap, Update};
 use crate::bus::modbus::server::{RegisterBank, TcpServer, spawn_rtu};
 use crate::bus::{ChannelId, Health, Sample};
 use crate::fault::{FaultKind, FaultLog, FaultSource};
@@ -191,11 +191,14 @@ impl OriginShiftServer {
         let mut last_write_s = clock();
         let mut faults = FaultLog::default();
         let source = FaultSource::named("sink.origin_shift_server");
-        let mut st = SinkStatus {
+        status.send_replace(SinkStatus {
             kind: "origin_shift_server".into(),
             connected: true,
             ..Default::default()
-        };
+        });
+        // Reused every update: a steady server allocates nothing per tick (the status is edited in
+        // place; only the "has not written" text is formatted, while that fault lasts).
+        let mut update = Update::default();
         loop {
             tokio::select! {
                 _ = tick.tick() => {}
@@ -206,12 +209,12 @@ impl OriginShiftServer {
                     continue;
                 }
             }
-            let outs = out_rx.borrow().clone();
-            if let Some(u) = self.core.poll_update(&outs) {
-                for b in &u.blocks {
+            // The borrow (a read lock on the engine's outputs) ends before the next await.
+            let updated = self.core.poll_update_into(&out_rx.borrow(), &mut update);
+            if updated {
+                for b in &update.blocks {
                     self.bank.set_holding(b.address, &b.words);
                 }
-                st.writes_ok = self.core.updates();
             }
             let now = clock();
             let gone = listens_to_controller && now - last_write_s > timeout_s;
@@ -221,14 +224,17 @@ impl OriginShiftServer {
                 &[]
             };
             faults.update(&source, kinds, now);
-            st.connected = !gone;
-            st.last_error = gone.then(|| {
-                format!(
-                    "the controller has not written for {:.1} s",
-                    now - last_write_s
-                )
+            let writes_ok = self.core.updates();
+            status.send_modify(|st| {
+                st.writes_ok = writes_ok;
+                st.connected = !gone;
+                st.last_error = gone.then(|| {
+                    format!(
+                        "the controller has not written for {:.1} s",
+                        now - last_write_s
+                    )
+                });
             });
-            let _ = status.send(st.clone());
         }
     }
 }

@@ -319,6 +319,8 @@ pub fn guarded_counts(target_um: f64, references_um: &[f64], guard: Guard, lsb_u
 #[derive(Clone, Debug)]
 struct AxisState {
     reg: AxisRegister,
+    /// `reg.axis` resolved once (a valid map names only corrected axes).
+    axis: Option<Axis>,
     held: Option<AxisRegister>,
     guard: Guard,
     /// Last exposed value, µm (None before the first update).
@@ -331,18 +333,21 @@ struct AxisState {
 #[derive(Clone, Debug)]
 pub struct ServerCore {
     map: ServerMap,
+    /// `map`'s correction registers as a register map, built once (encoding reuses it).
+    correction_map: RegisterMap,
     axes: Vec<AxisState>,
     heartbeat: u16,
     updates: u64,
 }
 
-/// One update to apply to the register image.
-#[derive(Clone, Debug, PartialEq)]
+/// One update's register writes. Reused across updates by [`ServerCore::poll_update_into`]: its
+/// buffers keep their capacity, so a steady server allocates nothing per update.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Update {
     /// Blocks to set (corrections merged per contiguous run, then the heartbeat).
     pub blocks: Vec<WriteBlock>,
     /// Exposed correction per axis, µm.
-    pub exposed_um: Vec<(String, f64)>,
+    pub exposed_um: Vec<(Axis, f64)>,
 }
 
 impl ServerCore {
@@ -366,6 +371,7 @@ impl ServerCore {
                     .find(|h| h.axis == reg.axis)
                     .and_then(|h| map.held_register(h));
                 AxisState {
+                    axis: Axis::from_name(&reg.axis),
                     reg: reg.clone(),
                     held,
                     guard,
@@ -375,6 +381,7 @@ impl ServerCore {
             })
             .collect();
         Self {
+            correction_map: map.correction_map(),
             map,
             axes,
             heartbeat: 0,
@@ -442,52 +449,59 @@ impl ServerCore {
     }
 
     /// One update from the engine's outputs (axis, correction µm). None until seeded. Axes missing
-    /// from `targets` keep their exposed value.
+    /// from `targets` keep their exposed value. Allocates; the server loop uses
+    /// [`Self::poll_update_into`].
     pub fn poll_update(&mut self, targets: &[(Axis, f64)]) -> Option<Update> {
+        let mut u = Update::default();
+        self.poll_update_into(targets, &mut u).then_some(u)
+    }
+
+    /// [`Self::poll_update`] into `out`, reusing its buffers: false (and `out` unspecified) when
+    /// nothing is to be written. No allocation once `out` has held one update.
+    pub fn poll_update_into(&mut self, targets: &[(Axis, f64)], out: &mut Update) -> bool {
         if !self.is_seeded() {
-            return None;
+            return false;
         }
-        let mut values: Vec<(String, f64)> = Vec::with_capacity(self.axes.len());
+        out.exposed_um.clear();
         for a in &mut self.axes {
             let start = a.exposed_um.or(a.held_um).unwrap_or(0.0);
             let target = targets
                 .iter()
-                .find(|(n, _)| *n == a.reg.axis.as_str())
+                .find(|(n, _)| Some(*n) == a.axis)
                 .map_or(start, |t| t.1);
-            let mut refs: Vec<f64> = Vec::with_capacity(2);
-            refs.extend(a.exposed_um);
-            refs.extend(a.held_um);
-            if refs.is_empty() {
-                refs.push(0.0);
+            // The cap holds from the last exposed value AND from what the controller holds.
+            let refs: [Option<f64>; 2] = [a.exposed_um, a.held_um];
+            let mut buf = [0.0; 2];
+            let mut n = 0;
+            for r in refs.into_iter().flatten() {
+                buf[n] = r;
+                n += 1;
             }
+            let refs = if n == 0 { &[0.0][..] } else { &buf[..n] };
             let lsb = a.reg.lsb_um;
-            let counts = guarded_counts(target, &refs, a.guard, lsb);
+            let counts = guarded_counts(target, refs, a.guard, lsb);
             let v = counts as f64 * lsb;
             a.exposed_um = Some(v);
-            values.push((a.reg.axis.clone(), v));
-        }
-        let pairs: Vec<(Axis, f64)> = values
-            .iter()
-            .filter_map(|(a, v)| Some((Axis::from_name(a)?, *v)))
-            .collect();
-        let mut blocks = match self.map.correction_map().encode(&pairs) {
-            Ok(b) => b,
-            // Only reachable when the clamp exceeds the register range: expose nothing new.
-            Err(e) => {
-                tracing::error!(%e, "origin-shift server: cannot encode; keeping the last values");
-                return None;
+            if let Some(axis) = a.axis {
+                out.exposed_um.push((axis, v));
             }
-        };
+        }
+        if let Err(e) = self
+            .correction_map
+            .encode_into(&out.exposed_um, &mut out.blocks)
+        {
+            // Only reachable when the clamp exceeds the register range: expose nothing new.
+            tracing::error!(%e, "origin-shift server: cannot encode; keeping the last values");
+            return false;
+        }
         self.heartbeat = self.heartbeat.wrapping_add(1);
         self.updates += 1;
-        blocks.push(WriteBlock {
+        let heartbeat = [self.heartbeat];
+        out.blocks.push(WriteBlock {
             address: self.map.heartbeat_address,
-            words: Words::from_slice(&[self.heartbeat]),
+            words: Words::from_slice(&heartbeat),
         });
-        Some(Update {
-            blocks,
-            exposed_um: values,
-        })
+        true
     }
 }
 
@@ -576,7 +590,7 @@ mod tests {
         assert!(c.is_seeded());
         let u = c.poll_update(&[(Axis::X, 20.0), (Axis::Z, -3.0)]).unwrap();
         // x: 12.3 → 13.3 (cap 1 µm); z: 0 → −1.0; heartbeat 1.
-        assert_eq!(u.exposed_um[0].0, "x");
+        assert_eq!(u.exposed_um[0].0, Axis::X);
         assert!((u.exposed_um[0].1 - 13.3).abs() < 1e-9, "{u:?}");
         assert!((u.exposed_um[1].1 + 1.0).abs() < 1e-9, "{u:?}");
         // x int16 at 0 and z int32 (CDAB, sign −1 → +10 counts) at 1..3: one block, then heartbeat.
