@@ -585,18 +585,22 @@ fn an_origin_shift_write_period_allocates_nothing() {
     assert_eq!(n, 0, "{n} heap allocations in 1000 write periods");
 }
 
-/// The origin-shift *server*'s update (clamp and cap against the exposed value and what the
-/// controller reports holding, encode, heartbeat) reuses one `Update`: nothing per update once
-/// the first has sized it. The controller writes back what it holds every 10th update (that
-/// write's decoding still allocates and is not counted: only `poll_update_into` is).
+/// The origin-shift *server*: an update (clamp and cap against the exposed value and what the
+/// controller reports holding, encode, heartbeat) reuses one `Update`, and a controller write
+/// (held values and an axis position decoded from the image) reuses one positions buffer: nothing
+/// per update or per write once the first of each has sized them. The controller writes back
+/// what it holds, and its X position, every 10th update.
 #[test]
 fn an_origin_shift_server_update_allocates_nothing() {
+    use retrocomp::bus::ChannelId;
+    use retrocomp::origin_shift::Words;
     use retrocomp::origin_shift::server_core::{Guard, ServerCore, ServerMap, Update};
 
     let map: ServerMap = toml::from_str(&format!(
         "heartbeat_address = 10\n{AXES_MAP}\
          [[held]]\naxis = \"x\"\naddress = 20\n[[held]]\naxis = \"y\"\naddress = 22\n\
-         [[held]]\naxis = \"z\"\naddress = 24\n"
+         [[held]]\naxis = \"z\"\naddress = 24\n\
+         [[position]]\nchannel = \"x_mm\"\naddress = 28\nkind = \"int32\"\nlsb_um = 1.0\n"
     ))
     .unwrap();
     map.validate(&["x", "y", "z"]).unwrap();
@@ -608,44 +612,59 @@ fn an_origin_shift_server_update_allocates_nothing() {
     let mut core = ServerCore::new(map, &guards);
     let mut image = [0u16; 32];
     let mut update = Update::default();
+    let mut positions: Vec<(ChannelId, f64)> = Vec::new();
     let mut wants = [(Axis::X, 0.0), (Axis::Y, 0.0), (Axis::Z, 0.0)];
-    // (served, allocations inside `poll_update_into`)
-    let mut step = |core: &mut ServerCore, update: &mut Update, k: u64| -> (bool, u64) {
+    let mut step = |core: &mut ServerCore,
+                    update: &mut Update,
+                    positions: &mut Vec<(ChannelId, f64)>,
+                    k: u64|
+     -> bool {
         let ts = k as f64 * 0.01;
         wants[0].1 = 40.0 * (ts * 0.5).sin();
         wants[1].1 = -25.0 + 10.0 * (ts * 0.3).cos();
         wants[2].1 = 15.0 * (ts * 0.7).sin();
         if k.is_multiple_of(10) {
-            // The controller applies what is served: it copies the corrections into its held registers.
+            // The controller applies what is served (copies it into its held registers) and
+            // writes its X position in µm, high word first (the default word order).
             let (served, held) = image.split_at_mut(20);
             held[..6].copy_from_slice(&served[..6]);
-            let read = |a: u16, n: u16| Some(image[a as usize..(a + n) as usize].to_vec());
-            assert!(core.handle_controller_write(read).is_empty());
+            let x_um = (k as i32) * 7;
+            held[8] = (x_um >> 16) as u16;
+            held[9] = x_um as u16;
+            let read = |a: u16, n: u16| {
+                let a = usize::from(a);
+                image.get(a..a + usize::from(n)).map(Words::from_slice)
+            };
+            core.handle_controller_write_into(read, positions);
+            assert_eq!(positions.len(), 1, "{positions:?}");
+            assert_eq!(positions[0].0, ChannelId::of("x_mm"));
         }
-        let before = allocs();
         let ok = core.poll_update_into(&wants, update);
-        let n = allocs() - before;
         for b in &update.blocks {
             let a = b.address as usize;
             image[a..a + b.words.len()].copy_from_slice(&b.words);
         }
-        (ok, n)
+        ok
     };
     assert!(
-        !step(&mut core, &mut update, 1).0,
+        !step(&mut core, &mut update, &mut positions, 1),
         "served before the controller reported"
     );
     for k in 0..200 {
-        assert!(step(&mut core, &mut update, k).0);
+        assert!(step(&mut core, &mut update, &mut positions, k));
     }
-    let (mut n_ok, mut n) = (0, 0);
+    let before = allocs();
+    let mut n_ok = 0;
     for k in 200..1200 {
-        let (ok, allocs) = step(&mut core, &mut update, k);
-        n_ok += u64::from(ok);
-        n += allocs;
+        n_ok += u64::from(step(&mut core, &mut update, &mut positions, k));
     }
+    let n = allocs() - before;
     assert_eq!(n_ok, 1000);
     assert_eq!(image[10], 1200, "one heartbeat per update");
+    assert!(
+        (positions[0].1 - 1190.0 * 7.0 / 1000.0).abs() < 1e-9,
+        "the last position written, mm: {positions:?}"
+    );
     for (axis, v) in &update.exposed_um {
         assert!(v.abs() <= 30.0 + 1e-9, "{axis:?} beyond the clamp: {v}");
     }
@@ -653,5 +672,8 @@ fn an_origin_shift_server_update_allocates_nothing() {
         update.exposed_um.iter().any(|(_, v)| v.abs() > 10.0),
         "{update:?}"
     );
-    assert_eq!(n, 0, "{n} heap allocations in 1000 server updates");
+    assert_eq!(
+        n, 0,
+        "{n} heap allocations in 1000 server updates and 100 controller writes"
+    );
 }

@@ -19,6 +19,7 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::MissedTickBehavior;
 
+use super::map::Words;
 use super::server_core::{Guard, ServerCore, ServerMap, Update};
 use crate::bus::modbus::server::{RegisterBank, TcpServer, spawn_rtu};
 use crate::bus::{ChannelId, Health, Sample};
@@ -72,6 +73,8 @@ pub struct OriginShiftServer {
     writes: watch::Receiver<u64>,
     tcp: Option<TcpServer>,
     rtu: Option<JoinHandle<std::io::Result<()>>>,
+    /// The last controller write's positions (channel, mm), reused: no allocation per write.
+    positions: Vec<(ChannelId, f64)>,
 }
 
 /// Why the origin-shift server could not start (the messages as the serving code reports them).
@@ -124,6 +127,7 @@ impl OriginShiftServer {
             writes,
             tcp,
             rtu,
+            positions: Vec::new(),
         })
     }
 
@@ -134,11 +138,16 @@ impl OriginShiftServer {
 
     /// Handle one controller write: positions out as samples, held values into the core.
     async fn on_write(&mut self, samples: &mpsc::Sender<Sample>, t_s: f64) {
-        let bank = self.bank.clone();
-        let positions = self.core.handle_controller_write(|a, n| bank.holding(a, n));
-        for (channel, value) in positions {
+        let bank = &self.bank;
+        let read = |a: u16, n: u16| {
+            let mut w = Words::from_elem(0, usize::from(n));
+            bank.holding_into(a, &mut w).then_some(w)
+        };
+        self.core
+            .handle_controller_write_into(read, &mut self.positions);
+        for &(channel, value) in &self.positions {
             let s = Sample {
-                channel: ChannelId::of(&channel),
+                channel,
                 t_s,
                 value,
                 health: Health::Ok,

@@ -24,6 +24,7 @@ use serde::{Deserialize, Serialize};
 
 use super::map::decode_value;
 use super::map::{AxisRegister, DataType, MapError, RegisterMap, WordOrder, Words, WriteBlock};
+use crate::bus::ChannelId;
 use crate::models::Axis;
 
 /// A register the controller writes an axis position into.
@@ -335,6 +336,8 @@ pub struct ServerCore {
     map: ServerMap,
     /// `map`'s correction registers as a register map, built once (encoding reuses it).
     correction_map: RegisterMap,
+    /// The position registers with their channels, resolved once.
+    positions: Vec<(ChannelId, AxisRegister)>,
     axes: Vec<AxisState>,
     heartbeat: u16,
     updates: u64,
@@ -382,6 +385,11 @@ impl ServerCore {
             .collect();
         Self {
             correction_map: map.correction_map(),
+            positions: map
+                .positions
+                .iter()
+                .map(|p| (ChannelId::of(&p.channel), ServerMap::position_register(p)))
+                .collect(),
             map,
             axes,
             heartbeat: 0,
@@ -418,15 +426,32 @@ impl ServerCore {
     }
 
     /// The controller wrote registers: decode positions (channel, mm) and held values from the
-    /// image. `read(address, count)` returns the image's words.
+    /// image. `read(address, count)` returns the image's words. Allocates; the server uses
+    /// [`Self::handle_controller_write_into`].
     pub fn handle_controller_write(
         &mut self,
         read: impl Fn(u16, u16) -> Option<Vec<u16>>,
     ) -> Vec<(String, f64)> {
+        let mut out = Vec::new();
+        self.handle_controller_write_into(|a, n| read(a, n).map(Words::from_vec), &mut out);
+        out.into_iter()
+            .map(|(c, mm)| (c.name().to_string(), mm))
+            .collect()
+    }
+
+    /// [`Self::handle_controller_write`] with the positions into `out` (cleared first) as channel
+    /// ids resolved when the core was built: no allocation once `out` has held them (a position
+    /// or held register is at most two words, inline in [`Words`]).
+    pub fn handle_controller_write_into(
+        &mut self,
+        read: impl Fn(u16, u16) -> Option<Words>,
+        out: &mut Vec<(ChannelId, f64)>,
+    ) {
+        out.clear();
         if let Some(m) = &self.map.write_marker
-            && read(m.address, 1) != Some(vec![m.value])
+            && read(m.address, 1).as_deref() != Some(&[m.value][..])
         {
-            return Vec::new();
+            return;
         }
         for a in &mut self.axes {
             if let Some(h) = &a.held
@@ -436,16 +461,13 @@ impl ServerCore {
                 a.held_um = Some(v);
             }
         }
-        self.map
-            .positions
-            .iter()
-            .filter_map(|p| {
-                let r = ServerMap::position_register(p);
-                let words = read(r.address, r.data_type.words())?;
-                let um = decode_value(&r, &words).ok()?;
-                Some((p.channel.clone(), um / 1000.0))
-            })
-            .collect()
+        for (channel, r) in &self.positions {
+            if let Some(words) = read(r.address, r.data_type.words())
+                && let Ok(um) = decode_value(r, &words)
+            {
+                out.push((*channel, um / 1000.0));
+            }
+        }
     }
 
     /// One update from the engine's outputs (axis, correction µm). None until seeded. Axes missing

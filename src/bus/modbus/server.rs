@@ -81,6 +81,23 @@ impl RegisterBank {
         read(&self.lock().holding, addr, count).ok()
     }
 
+    /// [`Self::holding`] into `out` (`out.len()` registers from `addr`) without allocating; false
+    /// when any of them does not exist.
+    pub fn holding_into(&self, addr: u16, out: &mut [u16]) -> bool {
+        let im = self.lock();
+        for (i, w) in out.iter_mut().enumerate() {
+            let Some(v) = u16::try_from(i)
+                .ok()
+                .and_then(|i| addr.checked_add(i))
+                .and_then(|a| im.holding.get(&a))
+            else {
+                return false;
+            };
+            *w = *v;
+        }
+        true
+    }
+
     /// Read `count` holding registers, let `f` change them, write them back, all under one lock (a
     /// device's scan: no client write lands between its read and its write-back).
     pub fn update_holding<R>(
@@ -274,6 +291,12 @@ mod tests {
         let w = Request::WriteMultipleRegisters(101, Cow::Owned(vec![1, 2]));
         assert_eq!(b.handle(&w), Err(ExceptionCode::IllegalDataAddress));
         assert_eq!(b.holding(100, 2), Some(vec![0xFFFF, 0xFFFE]));
+        // The allocation-free read gives the same words, and false past the last register.
+        let mut two = [0u16; 2];
+        assert!(b.holding_into(100, &mut two));
+        assert_eq!(two, [0xFFFF, 0xFFFE]);
+        assert!(!b.holding_into(101, &mut two));
+        assert_eq!(b.holding(101, 2), None);
         assert_eq!(*b.subscribe_writes().borrow(), 1);
         assert_eq!(
             b.handle(&Request::ReadCoils(0, 1)),
