@@ -14,6 +14,7 @@ pub mod guard;
 pub mod map;
 pub mod server;
 pub mod server_core;
+pub mod server_map;
 pub mod sink;
 pub mod sink_task;
 
