@@ -5,7 +5,7 @@ use super::{EncoderSource, IoConfig};
 use crate::world::World;
 use retrocomp::bus::can::Frame;
 use retrocomp::bus::canopen::cia404::{AnalogChannel, AnalogType};
-use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel};
+use retrocomp::bus::canopen::cia406::EncoderChannel;
 use retrocomp::bus::canopen::nmt::{NodeState, encode_heartbeat};
 
 /// PT100 register for a missing (dropped-out) sensor: "sensor break", as PT100 modules report it.
@@ -77,18 +77,9 @@ impl Publisher {
             .as_ref()
             .map(|c| {
                 (0..3)
-                    .map(|k| EncoderChannel {
-                        channel: format!("{}_mm", ["x", "y", "z"][k]),
-                        node_id: c.encoder_nodes[k],
-                        tpdo: 1,
-                        byte_offset: 0,
-                        counts_per_mm,
-                        direction: CountingDirection::Positive,
-                        offset_mm: 0.0,
-                        total_range_counts: None,
-                        cyclic_ms: None,
-                        min_mm: None,
-                        max_mm: None,
+                    .map(|k| {
+                        let channel = format!("{}_mm", ["x", "y", "z"][k]);
+                        EncoderChannel::new(&channel, c.encoder_nodes[k], counts_per_mm)
                     })
                     .collect()
             })
