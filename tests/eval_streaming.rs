@@ -72,11 +72,22 @@ fn eval_of_200k_rows_streams_in_bounded_memory_and_matches_the_model() {
         "peak RSS {rss_mib:.1} MiB for {rows} rows: eval is not streaming"
     );
 
-    // Every row is there, and a sample of them equals the library's evaluation run forward in time
-    // (the lag state carries from row to row, so each checked row needs all rows before it).
+    assert_is_the_model_run_forward(&out, &input, rows);
+}
+
+/// `out` holds every row of `input`, in order, its passed-through columns as the csv crate reads
+/// them, and `ez_um` equal to the library's evaluation run forward in time (the lag state carries
+/// from row to row, so each row checks every row before it).
+fn assert_is_the_model_run_forward(out: &Path, input: &Path, rows: usize) {
     let model = MachineModel::from_toml_path(Path::new(MODEL)).unwrap();
-    let mut rdr = csv::Reader::from_path(&out).unwrap();
+    let mut rdr = csv::Reader::from_path(out).unwrap();
+    let mut inp = csv::Reader::from_path(input).unwrap();
     let h = rdr.headers().unwrap().clone();
+    let passed = inp.headers().unwrap().len();
+    assert_eq!(
+        &h.iter().take(passed).collect::<Vec<_>>(),
+        &inp.headers().unwrap().iter().collect::<Vec<_>>()
+    );
     let col = |n: &str| h.iter().position(|c| c == n).unwrap();
     let (ez, t, flags) = (col("ez_um"), col("t_s"), col("flags"));
     let temps: Vec<usize> = model.sensor_columns().iter().map(|n| col(n)).collect();
@@ -85,8 +96,13 @@ fn eval_of_200k_rows_streams_in_bounded_memory_and_matches_the_model() {
     let mut input_row = model.new_input();
     let mut n = 0usize;
     let mut worst = 0.0f64;
-    for rec in rdr.records() {
-        let rec = rec.unwrap();
+    for (rec, given) in rdr.records().zip(inp.records()) {
+        let (rec, given) = (rec.unwrap(), given.unwrap());
+        assert_eq!(
+            rec.iter().take(passed).collect::<Vec<_>>(),
+            given.iter().collect::<Vec<_>>(),
+            "row {n}: the passed-through columns"
+        );
         input_row.t_s = rec[t].parse().unwrap();
         for (i, c) in temps.iter().enumerate() {
             input_row.temps_c[i] = rec[*c].parse().unwrap();
@@ -102,6 +118,34 @@ fn eval_of_200k_rows_streams_in_bounded_memory_and_matches_the_model() {
         worst <= 5e-7,
         "streamed ez_um differs from the model by {worst} µm"
     );
+}
+
+#[test]
+fn rows_across_batches_and_the_csv_hand_over_come_out_in_order() {
+    // 3.5 batches of rows (4096 each) read and evaluated on two threads; from row 6000 on, a
+    // passed-through cell is quoted, so the plain-line reader hands the rest to the csv crate in
+    // the middle of a batch, and the quoted cell is written back unquoted (nothing needs quoting).
+    let dir = tempfile::tempdir().unwrap();
+    let (plain, input, out) = (
+        dir.path().join("plain.csv"),
+        dir.path().join("rec.csv"),
+        dir.path().join("out.csv"),
+    );
+    let rows = 14_500;
+    tiled_recording(&plain, rows);
+    let text = std::fs::read_to_string(&plain).unwrap();
+    let mut quoted = String::with_capacity(text.len() + rows * 2);
+    for (i, line) in text.lines().enumerate() {
+        match line.rsplit_once(',') {
+            // The last column (a displacement the model does not read) quoted, CRLF endings.
+            Some((head, last)) if i > 6000 => quoted.push_str(&format!("{head},\"{last}\"\r\n")),
+            _ => quoted.push_str(&format!("{line}\n")),
+        }
+    }
+    std::fs::write(&input, quoted).unwrap();
+    let (code, _) = eval_peak_rss_mib(&input, &out);
+    assert_eq!(code, 0, "retrocomp eval failed");
+    assert_is_the_model_run_forward(&out, &input, rows);
 }
 
 #[test]
