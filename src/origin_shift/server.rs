@@ -11,6 +11,7 @@
 //! [`OriginShiftServerSink`] is that flow as the run loop's [`Sink`].
 
 use std::collections::BTreeMap;
+use std::fmt::Write as _;
 use std::net::SocketAddr;
 use std::time::Duration;
 
@@ -205,8 +206,8 @@ impl OriginShiftServer {
             connected: true,
             ..Default::default()
         });
-        // Reused every update: a steady server allocates nothing per tick (the status is edited in
-        // place; only the "has not written" text is formatted, while that fault lasts).
+        // Reused every update: a server allocates nothing per tick, steady or faulted (the status,
+        // its "has not written" text included, is edited in place).
         let mut update = Update::default();
         loop {
             tokio::select! {
@@ -237,12 +238,18 @@ impl OriginShiftServer {
             status.send_modify(|st| {
                 st.writes_ok = writes_ok;
                 st.connected = !gone;
-                st.last_error = gone.then(|| {
-                    format!(
+                if gone {
+                    // Rewritten in place: the text allocates once per fault, not per tick.
+                    let text = st.last_error.get_or_insert_with(String::new);
+                    text.clear();
+                    let _ = write!(
+                        text,
                         "the controller has not written for {:.1} s",
                         now - last_write_s
-                    )
-                });
+                    );
+                } else {
+                    st.last_error = None;
+                }
             });
         }
     }
