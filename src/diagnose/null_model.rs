@@ -263,40 +263,57 @@ pub(super) fn adf_lags(n: usize) -> usize {
 }
 
 /// Augmented Dickey–Fuller t-statistic (with a constant) of Δy_t = a + γ·y_{t−1} + Σ_{j≤p}
-/// β_j·Δy_{t−j} + e_t: γ̂ / se(γ̂), by Frisch–Waugh (y_{t−1} and Δy_t projected off the constant
-/// and the lagged differences). Very negative: no unit root (stationary); near 0 or positive:
-/// integrated. +∞ when the record is too short to tell (the integrated model is the safe one).
+/// β_j·Δy_{t−j} + e_t: γ̂ / se(γ̂). Very negative: no unit root (stationary); near 0 or positive:
+/// integrated. +∞ when the record is too short (or too degenerate) to tell: the integrated model
+/// is the safe one.
+///
+/// The regression's k = p + 2 columns are never held: their cross-products (the normal equations)
+/// are accumulated in one pass and solved by Cholesky, so the test takes O(k²) memory instead of k
+/// columns of n rows (≈ 130 MB at 10⁶ rows and p = 12: the peak of a 1M-row diagnosis). y is
+/// centred first (the constant absorbs it), so the level column is of the size of the walk, not of
+/// its offset, and the cross-products stay well conditioned.
 pub(super) fn adf_tau(y: &[f64], p: usize) -> f64 {
     let n = y.len();
     if n < p + 12 {
         return f64::INFINITY;
     }
-    let rows = p + 1..n;
-    let m = rows.len();
-    let d = |t: usize| y[t] - y[t - 1];
-    let mut nuisance = vec![vec![1.0; m]];
-    for j in 1..=p {
-        nuisance.push(rows.clone().map(|t| d(t - j)).collect());
+    let k = p + 2;
+    let mean = y.iter().sum::<f64>() / n as f64;
+    let mut xtx = nalgebra::DMatrix::<f64>::zeros(k, k);
+    let mut xty = nalgebra::DVector::<f64>::zeros(k);
+    let mut yty = 0.0;
+    // Row t: [1, y_{t−1} − ȳ, Δy_{t−1}, …, Δy_{t−p}], response Δy_t.
+    let mut x = vec![0.0; k];
+    for t in p + 1..n {
+        x[0] = 1.0;
+        x[1] = y[t - 1] - mean;
+        for j in 1..=p {
+            x[1 + j] = y[t - j] - y[t - j - 1];
+        }
+        let dy = y[t] - y[t - 1];
+        for a in 0..k {
+            xty[a] += x[a] * dy;
+            for b in 0..=a {
+                xtx[(a, b)] += x[a] * x[b];
+            }
+        }
+        yty += dy * dy;
     }
-    let basis = lsq::orthonormalize(&[], nuisance, 2);
-    let lag = lsq::deflate(&basis, &rows.clone().map(|t| y[t - 1]).collect::<Vec<_>>());
-    let dy = lsq::deflate(&basis, &rows.map(d).collect::<Vec<_>>());
-    let sxx = dot(&lag, &lag);
-    if sxx.is_nan() || sxx <= 0.0 {
+    xtx.fill_upper_triangle_with_lower_triangle();
+    let Some(chol) = xtx.cholesky() else {
         return f64::INFINITY;
-    }
-    let gamma = dot(&lag, &dy) / sxx;
-    let rss: f64 = dy
-        .iter()
-        .zip(&lag)
-        .map(|(e, x)| (e - gamma * x).powi(2))
-        .sum();
-    let dof = m as f64 - basis.len() as f64 - 1.0;
-    let se = (rss / dof / sxx).sqrt();
+    };
+    let beta = chol.solve(&xty);
+    let mut e1 = nalgebra::DVector::<f64>::zeros(k);
+    e1[1] = 1.0;
+    let inv11 = chol.solve(&e1)[1];
+    let m = (n - p - 1) as f64;
+    let rss = (yty - beta.dot(&xty)).max(0.0);
+    let se = (rss / (m - k as f64) * inv11).sqrt();
     if se.is_nan() || se <= 0.0 {
         return f64::INFINITY;
     }
-    gamma / se
+    beta[1] / se
 }
 
 /// θ of an MA(1) d_t = u_t − θ·u_{t−1} from the lag-1 autocorrelation r₁ = −θ/(1 + θ²) of `d`
@@ -400,6 +417,54 @@ mod tests {
         use rand::Rng;
         let (u1, u2): (f64, f64) = (rng.random_range(1e-12..1.0), rng.random());
         (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+
+    /// The ADF statistic the direct way (columns held, Frisch–Waugh with Gram–Schmidt): what
+    /// `adf_tau`'s one-pass normal equations must reproduce.
+    fn adf_tau_direct(y: &[f64], p: usize) -> f64 {
+        let rows = p + 1..y.len();
+        let d = |t: usize| y[t] - y[t - 1];
+        let mut nuisance = vec![vec![1.0; rows.len()]];
+        for j in 1..=p {
+            nuisance.push(rows.clone().map(|t| d(t - j)).collect());
+        }
+        let basis = lsq::orthonormalize(&[], nuisance, 2);
+        let lag = lsq::deflate(&basis, &rows.clone().map(|t| y[t - 1]).collect::<Vec<_>>());
+        let dy = lsq::deflate(&basis, &rows.clone().map(d).collect::<Vec<_>>());
+        let sxx = dot(&lag, &lag);
+        let gamma = dot(&lag, &dy) / sxx;
+        let rss: f64 = dy
+            .iter()
+            .zip(&lag)
+            .map(|(e, x)| (e - gamma * x).powi(2))
+            .sum();
+        let dof = rows.len() as f64 - basis.len() as f64 - 1.0;
+        gamma / (rss / dof / sxx).sqrt()
+    }
+
+    #[test]
+    fn adf_in_one_pass_is_the_direct_least_squares_statistic() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        for (rho, offset_um, p) in [
+            (1.0, 250.0, 12),
+            (0.99, -40.0, 8),
+            (0.5, 3.0, 4),
+            (0.0, 0.0, 0),
+        ] {
+            let mut level = 0.0;
+            // Readings quantised to 0.05 µm, as a laser's are, on top of the process.
+            let y: Vec<f64> = (0..20_000)
+                .map(|_| {
+                    level = rho * level + normal(&mut rng);
+                    ((offset_um + 0.3 * level) / 0.05).round() * 0.05
+                })
+                .collect();
+            let (ours, direct) = (adf_tau(&y, p), adf_tau_direct(&y, p));
+            assert!(
+                (ours - direct).abs() <= 1e-8 * direct.abs().max(1.0),
+                "ρ {rho}, p {p}: one pass τ {ours}, direct {direct}"
+            );
+        }
     }
 
     /// The unit-root test separates a random walk (τ above the 1 % critical value −3.43) from
