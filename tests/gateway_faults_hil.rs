@@ -154,7 +154,8 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
         0,
         "writes while the server was down"
     );
-    assert!(between(MODBUS_DOWN.1, MODBUS_DOWN.1 + SETTLE_S).count() > 20);
+    // Resumed before the next fault (how soon is the recovery check's business, below).
+    assert!(between(MODBUS_DOWN.1, CAN_SILENT.0).count() > 20);
     // Every new connection (the reconnect after `modbus_down`, each restarted gateway) continues
     // from what the PLC held, which is far from zero then, so a restart from zero would show.
     let changes: Vec<(&Write, &Write)> = writes
@@ -162,22 +163,22 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
         .filter(|p| p[0].port != p[1].port)
         .map(|p| (&p[0], &p[1]))
         .collect();
-    let near = |at: f64| changes.iter().any(|(_, b)| (b.t_s - at).abs() < 0.5);
-    assert!(
-        near(MODBUS_DOWN.1),
-        "no reconnect after modbus_down: {changes:?}"
-    );
-    assert!(
-        near(KILL_AT_S - lag_s),
-        "no new gateway after SIGKILL: {changes:?}"
-    );
-    assert!(
-        near(TERM_AT_S - lag_s),
-        "no new gateway after SIGTERM: {changes:?}"
-    );
+    // Each new connection is looked for between its cause and the next scheduled event, not in a
+    // window around the cause: how soon it comes depends on how the host schedules the processes.
+    let reconnects = [
+        ("after modbus_down", MODBUS_DOWN.1 - 0.5, CAN_SILENT.0),
+        ("after SIGKILL", KILL_AT_S - lag_s - 0.5, TERM_AT_S - lag_s),
+        ("after SIGTERM", TERM_AT_S - lag_s - 0.5, f64::INFINITY),
+    ];
+    let in_window = |t_s: f64| reconnects.iter().any(|(_, a, b)| t_s >= *a && t_s < *b);
+    for (what, a, b) in reconnects {
+        assert!(
+            changes.iter().any(|(_, w)| w.t_s >= a && w.t_s < b),
+            "no new connection {what} (between {a:.1} and {b:.1} s): {changes:?}"
+        );
+    }
     for (held, first) in &changes {
-        let expected = [MODBUS_DOWN.1, KILL_AT_S - lag_s, TERM_AT_S - lag_s];
-        if expected.iter().any(|at| (first.t_s - at).abs() < 0.5) {
+        if in_window(first.t_s) {
             let held_max = held.um.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             assert!(held_max > 3.0, "the PLC held only {:?}", held.um);
         }
