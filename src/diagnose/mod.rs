@@ -165,7 +165,9 @@ pub fn diagnose_owned(mut rec: Recording, opts: &Options) -> Result<Diagnosis, D
             .iter()
             .any(|(s, _)| n == s || n.strip_prefix("sim_") == Some(s.as_str()))
     });
-    diagnose_residuals(&rec, residuals.into_iter().map(Ok), &[], opts)
+    // Cloned one at a time at its turn (the pooled noise pass reads them first).
+    let each = residuals.iter().map(|(s, r)| Ok((s.clone(), r.clone())));
+    diagnose_residuals(&rec, each, &[], opts)
 }
 
 /// Diagnose against an explicit simulation per signal (`(signal, sim_um per row)`).
@@ -210,7 +212,7 @@ fn diagnose_sims(
 /// The diagnosis of residuals r = measured − simulated, one `(signal, r)` per error signal.
 fn diagnose_residuals(
     rec: &Recording,
-    residuals: impl Iterator<Item = Result<(String, Vec<f64>), DiagnoseError>>,
+    residuals: impl Iterator<Item = Result<(String, Vec<f64>), DiagnoseError>> + Clone,
     sim_inputs: &[Vec<f64>],
     opts: &Options,
 ) -> Result<Diagnosis, DiagnoseError> {
@@ -218,6 +220,15 @@ fn diagnose_residuals(
         return Err(DiagnoseError::TooShort(rec.n_rows()));
     }
     let ctx = Context::from_recording(rec);
+    // The recording's noise statistic (`NoiseModel::of`): every signal's residual before any
+    // term, read once ahead of the selection.
+    let mut taus = vec![];
+    for res in residuals.clone() {
+        let (signal, r) = res?;
+        let axis = signal.chars().nth(1).expect("e<axis>_um");
+        taus.push(null_model::signal_tau(&ctx, axis, &r));
+    }
+    let pooled_tau = (taus.len() >= 2).then(|| taus.iter().copied().fold(f64::INFINITY, f64::min));
     let mut findings: Vec<(f64, Finding)> = vec![];
     let mut alternatives = vec![];
     let mut dropped = vec![];
@@ -233,7 +244,7 @@ fn diagnose_residuals(
         all_sq += r.iter().map(|v| v * v).sum::<f64>();
         all_n += r.len();
         mismatch.extend(locate::locate(&ctx, signal, &r));
-        let mut sel = select::select(&ctx, axis, &r, sim_inputs, opts);
+        let mut sel = select::select_pooled(&ctx, axis, &r, sim_inputs, opts, pooled_tau);
         // Parsimony after the final refit (issue 12 point 3), one term at a time, the rest refitted
         // jointly after each drop: first a term whose 95 % interval of its gain includes 0 once
         // every term is fitted jointly (the weakest first); then a term whose removal does not

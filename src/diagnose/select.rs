@@ -80,6 +80,18 @@ pub fn select(
     sim_inputs: &[Vec<f64>],
     opts: &Options,
 ) -> SignalSelection {
+    select_pooled(ctx, axis, r, sim_inputs, opts, None)
+}
+
+/// [`select`] with the recording's pooled noise statistic (`null_model::recording_tau`).
+pub fn select_pooled(
+    ctx: &Context,
+    axis: char,
+    r: &[f64],
+    sim_inputs: &[Vec<f64>],
+    opts: &Options,
+    pooled_tau: Option<f64>,
+) -> SignalSelection {
     let n = r.len();
     let lib = library(ctx, axis);
     let mut tried: usize = lib.iter().map(|c| c.grid.len().max(1)).sum();
@@ -188,8 +200,9 @@ pub fn select(
             let noise_top = without_cell_means(ctx, axis, &r1_top);
             let n_eff = lsq::effective_n(&noise_top);
             // The error model of the prewhitened test, once per step (see `NoiseModel`).
-            let noise_model =
-                (!forward).then(|| NoiseModel::of(&without_cell_means(ctx, axis, r0), &noise_top));
+            let noise_model = (!forward).then(|| {
+                NoiseModel::of(&without_cell_means(ctx, axis, r0), &noise_top, pooled_tau)
+            });
             drop(noise_top);
             for s in &mut scored {
                 s.delta_bic = delta_bic(n_eff, null_of(s.cells).rss0, s.gain, s.q);
