@@ -23,6 +23,7 @@ mod refit;
 pub mod report;
 pub mod scoring;
 pub mod select;
+mod select_step;
 pub mod selection;
 pub mod swap;
 
