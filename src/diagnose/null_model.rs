@@ -414,11 +414,10 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
 
-    /// A standard normal draw by Box–Muller (no extra crate for a test).
+    /// A standard normal draw.
     fn normal(rng: &mut rand_chacha::ChaCha8Rng) -> f64 {
         use rand::Rng;
-        let (u1, u2): (f64, f64) = (rng.random_range(1e-12..1.0), rng.random());
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        rng.sample(rand_distr::StandardNormal)
     }
 
     /// The unit-root test separates a random walk (τ above the 1 % critical value −3.43) from
