@@ -5,31 +5,19 @@
 //! not recorded), and the turnaround target read three times per pass (two visits in a row). The
 //! error is a hidden backlash of 4.98 µm (e = ±b/2 by the approach direction: error = actual −
 //! nominal), a modelled scale error of 30 ppm that the simulation holds, and white noise of 0.3 µm
-//! (a fixed xorshift stream, so the test is deterministic). Before issue 12.4 the velocity taken
+//! (a fixed ChaCha8 stream, so the test is deterministic). Before issue 12.4 the velocity taken
 //! between two standstill readings (step / 6 s, signed like the approach) made `servo_lag` a near
 //! copy of `backlash` (corr 0.975; one backlash came back 1.23 µm, truth 4.98).
 
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
 use retrocomp::diagnose::candidates::{Kind, library};
 use retrocomp::diagnose::features::Context;
 use retrocomp::diagnose::{diagnose, select::Options};
 use retrocomp::recording::Recording;
 
 const B_UM: f64 = 4.98;
-
-/// Deterministic standard normal draws (xorshift64 + Box–Muller).
-struct Noise(u64);
-impl Noise {
-    fn uniform(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    }
-    fn normal(&mut self) -> f64 {
-        let (u, v) = (self.uniform(), self.uniform());
-        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-    }
-}
 
 /// The recording and, per row, the true approach direction (+1 / −1).
 fn step_and_dwell() -> (Recording, Vec<f64>) {
@@ -43,7 +31,7 @@ fn step_and_dwell() -> (Recording, Vec<f64>) {
             25.0 * i as f64 + jitter
         })
         .collect();
-    let mut noise = Noise(0x5eed_1234_abcd_0001);
+    let mut noise = ChaCha8Rng::seed_from_u64(0x5eed_1234_abcd_0001);
     let (mut t, mut x, mut e, mut sim, mut run, mut truth_dir) =
         (vec![], vec![], vec![], vec![], vec![], vec![]);
     let mut now = 0.0;
@@ -59,7 +47,9 @@ fn step_and_dwell() -> (Recording, Vec<f64>) {
                     let scale_um = 30e-6 * p * 1e3;
                     t.push(now);
                     x.push(p);
-                    e.push(scale_um + B_UM / 2.0 * dir + 0.3 * noise.normal());
+                    e.push(
+                        scale_um + B_UM / 2.0 * dir + 0.3 * noise.sample::<f64, _>(StandardNormal),
+                    );
                     sim.push(scale_um);
                     run.push(f64::from(cycle));
                     truth_dir.push(dir);

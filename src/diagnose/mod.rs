@@ -23,6 +23,7 @@ mod refit;
 pub mod report;
 pub mod scoring;
 pub mod select;
+mod select_step;
 pub mod selection;
 pub mod swap;
 
@@ -165,7 +166,9 @@ pub fn diagnose_owned(mut rec: Recording, opts: &Options) -> Result<Diagnosis, D
             .iter()
             .any(|(s, _)| n == s || n.strip_prefix("sim_") == Some(s.as_str()))
     });
-    diagnose_residuals(&rec, residuals.into_iter().map(Ok), &[], opts)
+    // Cloned one at a time at its turn (the pooled noise pass reads them first).
+    let each = residuals.iter().map(|(s, r)| Ok((s.clone(), r.clone())));
+    diagnose_residuals(&rec, each, &[], opts)
 }
 
 /// Diagnose against an explicit simulation per signal (`(signal, sim_um per row)`).
@@ -210,7 +213,7 @@ fn diagnose_sims(
 /// The diagnosis of residuals r = measured − simulated, one `(signal, r)` per error signal.
 fn diagnose_residuals(
     rec: &Recording,
-    residuals: impl Iterator<Item = Result<(String, Vec<f64>), DiagnoseError>>,
+    residuals: impl Iterator<Item = Result<(String, Vec<f64>), DiagnoseError>> + Clone,
     sim_inputs: &[Vec<f64>],
     opts: &Options,
 ) -> Result<Diagnosis, DiagnoseError> {
@@ -218,35 +221,89 @@ fn diagnose_residuals(
         return Err(DiagnoseError::TooShort(rec.n_rows()));
     }
     let ctx = Context::from_recording(rec);
-    let mut findings: Vec<(f64, Finding)> = vec![];
-    let mut alternatives = vec![];
-    let mut dropped = vec![];
-    let mut mismatch = vec![];
-    let mut signals = vec![];
-    let mut ambiguous = false;
-    let mut all_sq = 0.0;
-    let mut all_n = 0usize;
+    // The recording's noise statistic (`NoiseModel::of`): every signal's residual before any
+    // term, read once ahead of the selection.
+    let mut taus = vec![];
+    for res in residuals.clone() {
+        let (signal, r) = res?;
+        let axis = signal.chars().nth(1).expect("e<axis>_um");
+        taus.push(null_model::signal_tau(&ctx, axis, &r));
+    }
+    let pooled_tau = (taus.len() >= 2).then(|| taus.iter().copied().fold(f64::INFINITY, f64::min));
+    let mut out = Assembly::default();
     for res in residuals {
         let (signal, r) = res?;
         let signal = &signal;
         let axis = signal.chars().nth(1).expect("e<axis>_um");
-        all_sq += r.iter().map(|v| v * v).sum::<f64>();
-        all_n += r.len();
-        mismatch.extend(locate::locate(&ctx, signal, &r));
-        let mut sel = select::select(&ctx, axis, &r, sim_inputs, opts);
-        // Parsimony after the final refit (issue 12 point 3), one term at a time, the rest refitted
-        // jointly after each drop: first a term whose 95 % interval of its gain includes 0 once
-        // every term is fitted jointly (the weakest first); then a term whose removal does not
-        // raise the held-out RMS (forward on thermal tests: `heldout.rs`) by the bar a term needs
-        // to enter (`cv_min_gain`), the one whose removal leaves the lowest held-out RMS first.
-        // The second test also catches pairs of near-collinear lags with opposite gains that fit
-        // a difference of two sensors without predicting better than one of them.
-        let heldout = Heldout::new(&ctx, axis, &r, sim_inputs, opts);
-        let (models, cis, after_coef, refit_terms) = loop {
-            let (models, cis, after_coef, refit_terms) = joint_refit(&ctx, &r, &sel.terms);
+        out.all_sq += r.iter().map(|v| v * v).sum::<f64>();
+        out.all_n += r.len();
+        out.mismatch.extend(locate::locate(&ctx, signal, &r));
+        let mut sel = select::select_pooled(&ctx, axis, &r, sim_inputs, opts, pooled_tau);
+        let (models, cis, after_coef, refit_terms) =
+            out.parsimony(&ctx, &r, &mut sel, signal, sim_inputs, opts);
+        out.exchanged(&sel, signal);
+        out.findings(&sel, &models, &cis, signal);
+        out.runners_up(&sel, signal, opts);
+        let mut result = SignalResult {
+            signal: signal.clone(),
+            axis,
+            residual_before: r,
+            terms: refit_terms,
+            after_coef,
+            models,
+        };
+        let final_resid = result.residual_after(&ctx).pop().unwrap_or_else(|| {
+            let r = &result.residual_before;
+            let m = r.iter().sum::<f64>() / r.len() as f64;
+            r.iter().map(|v| v - m).collect()
+        });
+        out.mismatch
+            .extend(locate::unexplained(&ctx, signal, &final_resid));
+        drop(final_resid);
+        result.after_coef.shrink_to_fit();
+        out.signals.push(result);
+    }
+    Ok(out.finish(ctx))
+}
+
+/// The report as it is assembled from each signal's selection ([`diagnose_residuals`]).
+#[derive(Default)]
+struct Assembly {
+    /// Each finding with its RSS gain (the report lists the largest first).
+    findings: Vec<(f64, Finding)>,
+    alternatives: Vec<AlternativeOut>,
+    dropped: Vec<Dropped>,
+    mismatch: Vec<report::Mismatch>,
+    signals: Vec<SignalResult>,
+    ambiguous: bool,
+    all_sq: f64,
+    all_n: usize,
+}
+
+impl Assembly {
+    /// Parsimony after the final refit (issue 12 point 3), one term at a time, the rest refitted
+    /// jointly after each drop: first a term whose 95 % interval of its gain includes 0 once
+    /// every term is fitted jointly (the weakest first); then a term whose removal does not
+    /// raise the held-out RMS (forward on thermal tests: `heldout.rs`) by the bar a term needs
+    /// to enter (`cv_min_gain`), the one whose removal leaves the lowest held-out RMS first.
+    /// The second test also catches pairs of near-collinear lags with opposite gains that fit
+    /// a difference of two sensors without predicting better than one of them.
+    fn parsimony(
+        &mut self,
+        ctx: &Context,
+        r: &[f64],
+        sel: &mut select::SignalSelection,
+        signal: &str,
+        sim_inputs: &[Vec<f64>],
+        opts: &Options,
+    ) -> refit::Refit {
+        let axis = sel.axis;
+        let heldout = Heldout::new(ctx, axis, r, sim_inputs, opts);
+        loop {
+            let (models, cis, after_coef, refit_terms) = joint_refit(ctx, r, &sel.terms);
             let Some((k, reason, with, without)) = parsimony_drop(&heldout, &sel.terms, &cis, opts)
             else {
-                break (models, cis, after_coef, refit_terms);
+                return (models, cis, after_coef, refit_terms);
             };
             let t = sel.terms.remove(k);
             let why = if reason == "ci_includes_zero" {
@@ -257,7 +314,7 @@ fn diagnose_residuals(
                     100.0 * opts.cv_min_gain
                 )
             };
-            alternatives.push(AlternativeOut {
+            self.alternatives.push(AlternativeOut {
                 effect: t.cand.effect_id().into(),
                 axis: Some(axis.to_string()),
                 why_not: format!(
@@ -267,27 +324,31 @@ fn diagnose_residuals(
                 ),
                 experiment: None,
             });
-            dropped.push(Dropped {
+            self.dropped.push(Dropped {
                 effect: t.cand.effect_id().into(),
                 axis: axis.to_string(),
-                signal: signal.clone(),
+                signal: signal.to_string(),
                 term: t.cand.label(),
                 reason: reason.into(),
                 heldout_rms_with_um: with,
                 heldout_rms_without_um: without,
                 replaced_by: vec![],
             });
-        };
-        // Terms accepted and later replaced by the exchange step (unless back in the final set).
+        }
+    }
+
+    /// Terms accepted and later replaced by the exchange step (unless back in the final set).
+    fn exchanged(&mut self, sel: &select::SignalSelection, signal: &str) {
+        let axis = sel.axis;
         for ex in &sel.exchanged {
             let label = ex.term.cand.label();
             if sel.terms.iter().any(|t| t.cand.label() == label) {
                 continue;
             }
-            dropped.push(Dropped {
+            self.dropped.push(Dropped {
                 effect: ex.term.cand.effect_id().into(),
                 axis: axis.to_string(),
-                signal: signal.clone(),
+                signal: signal.to_string(),
                 term: label,
                 reason: "exchanged".into(),
                 heldout_rms_with_um: ex.heldout_rms_before_um,
@@ -295,6 +356,17 @@ fn diagnose_residuals(
                 replaced_by: ex.by.clone(),
             });
         }
+    }
+
+    /// The final terms as findings, and their ambiguous alternatives.
+    fn findings(
+        &mut self,
+        sel: &select::SignalSelection,
+        models: &[EffectModel],
+        cis: &[Map<String, Value>],
+        signal: &str,
+    ) {
+        let axis = sel.axis;
         for (k, term) in sel.terms.iter().enumerate() {
             let model = &models[k];
             let mut params =
@@ -303,12 +375,12 @@ fn diagnose_residuals(
                     _ => Map::new(),
                 };
             params.retain(|_, v| !v.is_null());
-            findings.push((
+            self.findings.push((
                 term.gain_rss,
                 Finding {
                     effect: model.id().into(),
                     axis: axis.to_string(),
-                    signal: signal.clone(),
+                    signal: signal.to_string(),
                     explanation: report::explanation(model.id()).into(),
                     equation: model.equation(axis),
                     params,
@@ -323,9 +395,9 @@ fn diagnose_residuals(
                 },
             ));
             for alt in &term.ambiguous_with {
-                ambiguous = true;
+                self.ambiguous = true;
                 let exp = separating_experiment(term.cand.effect_id(), alt.cand.effect_id());
-                alternatives.push(AlternativeOut {
+                self.alternatives.push(AlternativeOut {
                     effect: alt.cand.effect_id().into(),
                     axis: Some(axis.to_string()),
                     why_not: format!(
@@ -340,7 +412,11 @@ fn diagnose_residuals(
                 });
             }
         }
-        // Runners-up of the first step that were not taken: why not.
+    }
+
+    /// Runners-up of the first step that were not taken: why not.
+    fn runners_up(&mut self, sel: &select::SignalSelection, signal: &str, opts: &Options) {
+        let axis = sel.axis;
         let chosen: Vec<String> = sel
             .terms
             .iter()
@@ -353,7 +429,7 @@ fn diagnose_residuals(
             .filter(|(c, _)| !chosen.iter().any(|e| e == c.effect_id()))
             .take(2)
         {
-            if alternatives.iter().any(|a: &AlternativeOut| {
+            if self.alternatives.iter().any(|a: &AlternativeOut| {
                 a.effect == c.effect_id() && a.axis.as_deref() == Some(&axis.to_string())
             }) {
                 continue;
@@ -369,53 +445,50 @@ fn diagnose_residuals(
                     c.label()
                 )
             };
-            alternatives.push(AlternativeOut {
+            self.alternatives.push(AlternativeOut {
                 effect: c.effect_id().into(),
                 axis: Some(axis.to_string()),
                 why_not: why,
                 experiment: None,
             });
         }
-        let mut result = SignalResult {
-            signal: signal.clone(),
-            axis,
-            residual_before: r,
-            terms: refit_terms,
-            after_coef,
-            models,
-        };
-        let final_resid = result.residual_after(&ctx).pop().unwrap_or_else(|| {
-            let r = &result.residual_before;
-            let m = r.iter().sum::<f64>() / r.len() as f64;
-            r.iter().map(|v| v - m).collect()
-        });
-        mismatch.extend(locate::unexplained(&ctx, signal, &final_resid));
-        drop(final_resid);
-        result.after_coef.shrink_to_fit();
-        signals.push(result);
     }
-    findings.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let findings: Vec<Finding> = findings.into_iter().map(|f| f.1).collect();
-    let verdict = if findings.is_empty() {
-        "none"
-    } else if ambiguous {
-        "ambiguous"
-    } else {
-        "found"
-    };
-    let report = Report {
-        verdict: verdict.into(),
-        rms_before_um: (all_sq / all_n.max(1) as f64).sqrt(),
-        mismatch,
-        findings,
-        alternatives,
-        dropped,
-    };
-    Ok(Diagnosis {
-        report,
-        signals,
-        context: ctx,
-    })
+
+    /// The report (findings by RSS gain, the verdict) and the diagnosis.
+    fn finish(self, ctx: Context) -> Diagnosis {
+        let Assembly {
+            mut findings,
+            alternatives,
+            dropped,
+            mismatch,
+            signals,
+            ambiguous,
+            all_sq,
+            all_n,
+        } = self;
+        findings.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let findings: Vec<Finding> = findings.into_iter().map(|f| f.1).collect();
+        let verdict = if findings.is_empty() {
+            "none"
+        } else if ambiguous {
+            "ambiguous"
+        } else {
+            "found"
+        };
+        let report = Report {
+            verdict: verdict.into(),
+            rms_before_um: (all_sq / all_n.max(1) as f64).sqrt(),
+            mismatch,
+            findings,
+            alternatives,
+            dropped,
+        };
+        Diagnosis {
+            report,
+            signals,
+            context: ctx,
+        }
+    }
 }
 
 #[cfg(test)]

@@ -152,8 +152,15 @@ pub(super) struct NoiseModel {
 impl NoiseModel {
     /// `null_noise`: the step's null residual; `alt_noise`: the residual the step's strongest
     /// candidate (by RSS share) leaves; both with the cell means removed, as for n_eff.
+    /// `pooled_tau`: the recording's noise statistic when it has two or more error signals (the
+    /// smallest [`signal_tau`] over them, see there), else `None`.
     ///
-    /// * **Stationary** when an augmented Dickey–Fuller test ([`adf_tau`]) rejects a unit root
+    /// * **Integrated** whenever `pooled_tau` does not reject a unit root at 1 %
+    ///   ([`ADF_CRITICAL`]): every error channel is read by the same instrument, so the noise
+    ///   type is the recording's, and a channel without a large smooth effect shows it. When
+    ///   not even the most stationary-looking channel rejects a unit root, the step's own test
+    ///   below (which a spurious smooth fit to a walk can pass) is not asked.
+    /// * **Stationary**, else, when an augmented Dickey–Fuller test ([`adf_tau`]) rejects a unit root
     ///   at 1 % on the null residual ([`ADF_CRITICAL`]), or on the strongest candidate's residual
     ///   with the residual-based critical value ([`ADF_CRITICAL_FITTED`]: a fitted smooth column
     ///   absorbs part of a walk and pulls its residual towards stationarity, so the plain value
@@ -171,10 +178,11 @@ impl NoiseModel {
     ///   regression (Granger–Newbold) of any smooth column over thousands of rows. Differencing
     ///   alone would leave the quantisation noise doubled at every frequency; the MA(1) filter
     ///   weights the low frequencies, where slow physics lives, by the walk's innovations only.
-    pub(super) fn of(null_noise: &[f64], alt_noise: &[f64]) -> NoiseModel {
+    pub(super) fn of(null_noise: &[f64], alt_noise: &[f64], pooled_tau: Option<f64>) -> NoiseModel {
         let lags = adf_lags(null_noise.len());
-        let stationary = adf_tau(null_noise, lags) <= ADF_CRITICAL
-            || adf_tau(alt_noise, lags) <= ADF_CRITICAL_FITTED;
+        let stationary = pooled_tau.is_none_or(|t| t <= ADF_CRITICAL)
+            && (adf_tau(null_noise, lags) <= ADF_CRITICAL
+                || adf_tau(alt_noise, lags) <= ADF_CRITICAL_FITTED);
         if stationary {
             NoiseModel {
                 rho: lsq::ar1_coefficient(alt_noise),
@@ -253,6 +261,17 @@ pub(super) const ADF_CRITICAL: f64 = -3.43;
 /// least-squares fit of its column(s) and, for a lag, a fitted time constant, chosen as the best
 /// of the library.
 pub(super) const ADF_CRITICAL_FITTED: f64 = -4.29;
+
+/// ADF τ ([`adf_tau`]) of a signal's residual before any term (cell means removed as for n_eff).
+/// The recording's pooled statistic ([`NoiseModel::of`]) is the smallest over its signals: an
+/// effect-free channel shows the instrument's noise; a large smooth effect pushes its channel's τ
+/// up (towards "integrated"), a step, cyclic or position-shaped effect pushes it down (so the
+/// pooled statistic only vetoes "stationary", it never forces it: measured, forcing it put a
+/// walk channel under the stationary model whenever the other channel carried such an effect).
+pub(super) fn signal_tau(ctx: &Context, axis: char, r: &[f64]) -> f64 {
+    let v = without_cell_means(ctx, axis, r);
+    adf_tau(&v, adf_lags(v.len()))
+}
 
 /// Lagged differences in the augmented Dickey–Fuller regression: Schwert's 4·(n/100)^{1/4}, at
 /// most 12 and n/20 (short records).
@@ -412,11 +431,10 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
 
-    /// A standard normal draw by Box–Muller (no extra crate for a test).
+    /// A standard normal draw.
     fn normal(rng: &mut rand_chacha::ChaCha8Rng) -> f64 {
         use rand::Rng;
-        let (u1, u2): (f64, f64) = (rng.random_range(1e-12..1.0), rng.random());
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        rng.sample(rand_distr::StandardNormal)
     }
 
     /// The ADF statistic the direct way (columns held, Frisch–Waugh with Gram–Schmidt): what
@@ -500,6 +518,22 @@ mod tests {
 
     /// θ of a simulated MA(1) comes back, and the inverse filter whitens it (lag-1
     /// autocorrelation of the filtered series near 0, of the series itself near −θ/(1+θ²)).
+    /// The recording's pooled statistic vetoes the stationary model: white noise is called
+    /// stationary on its own (ρ < 1) and with a pooled τ that rejects a unit root, integrated
+    /// (ρ = 1) when the pooled τ does not.
+    #[test]
+    fn pooled_tau_vetoes_the_stationary_model() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
+        let e: Vec<f64> = (0..2000).map(|_| normal(&mut rng)).collect();
+        assert!(NoiseModel::of(&e, &e, None).rho < 0.5);
+        assert!(NoiseModel::of(&e, &e, Some(-5.0)).rho < 0.5);
+        let vetoed = NoiseModel::of(&e, &e, Some(-2.0));
+        assert_eq!(
+            vetoed.rho, 1.0,
+            "integrated when no channel rejects a unit root"
+        );
+    }
+
     #[test]
     fn ma1_theta_and_its_inverse_filter_whiten_an_ma1() {
         let lag1 = |d: &[f64]| {

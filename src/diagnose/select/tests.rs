@@ -1,6 +1,7 @@
 //! Unit tests of [`super`] (selection on small synthetic recordings).
 
 use super::*;
+use crate::diagnose::candidates::Kind;
 use crate::recording::Recording;
 
 #[test]

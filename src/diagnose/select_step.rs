@@ -1,0 +1,549 @@
+//! One signal's forward selection as named steps on its state ([`Selector`], driven by
+//! [`super::select::select`], whose module comment describes the method): screen every candidate
+//! against the step's nulls, put them on one scale (n_eff, the slow-noise model), choose and
+//! refine the winner, test it, append it. The exchange step is in `select.rs`.
+//! Residuals are measured − sim, µm.
+
+use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+
+use super::candidates::{Candidate, Kind, library};
+use super::features::Context;
+use super::heldout::Heldout;
+use super::lsq::{self, dot};
+use super::null_model::{
+    NoiseModel, Null, contribution, delta_bic, golden_refine, prewhitened_test, score, score_cols,
+    within_cells, without_cell_means,
+};
+use super::selection::{Alternative, Exchanged, Options, Term, set_of};
+
+/// Share of the best thermal ΔBIC a driver-column lag needs to be preferred over a sensor.
+const DRIVER_SHARE: f64 = 0.0;
+
+/// A thermal candidate read from a driver column (`rpm`, a column with no DESIGN §4 role), not a
+/// temperature sensor.
+fn is_driver(ctx: &Context, c: &Candidate) -> bool {
+    match &c.kind {
+        Kind::ThermalLag { sensor } | Kind::ThermalDrift { sensor } => {
+            ctx.drivers().iter().any(|(n, _)| n == sensor)
+        }
+        _ => false,
+    }
+}
+
+/// How many of a step's strongest candidates compete on forward held-out error.
+const FORWARD_CHOICES: usize = 8;
+
+struct Scored {
+    idx: usize,
+    theta: f64,
+    /// RSS drop against the candidate's null (within position cells for the reversal family).
+    gain: f64,
+    q: usize,
+    delta_bic: f64,
+    /// Screened within own-axis position cells (else against the plain null).
+    cells: bool,
+}
+
+/// The state of one signal's selection between steps.
+pub(super) struct Selector<'a> {
+    pub(super) ctx: &'a Context,
+    pub(super) axis: char,
+    pub(super) r: &'a [f64],
+    pub(super) opts: &'a Options,
+    pub(super) lib: Vec<Candidate>,
+    /// (candidate, grid value) pairs tried per step: the Holm factor.
+    pub(super) tried: usize,
+    cell_of: Option<(Vec<usize>, usize)>,
+    /// Held-out error (forward on thermal tests, both feeding modes): `heldout.rs`.
+    heldout: Heldout<'a>,
+    pooled_tau: Option<f64>,
+    pub(super) basis: Vec<Vec<f64>>,
+    /// Raw columns fitted so far (intercept + every term's): only their count is needed (the
+    /// columns themselves are in `terms`; a copy was 8 MB a column on a 1M-row recording).
+    pub(super) n_raw: usize,
+    pub(super) terms: Vec<Term>,
+    pub(super) runners_up: Vec<(Candidate, f64)>,
+    pub(super) used: Vec<bool>,
+    pub(super) cv_before: f64,
+    /// The in-sample guard's score of the terms so far ([`Selector::guard_ok`]).
+    pub(super) guard_before: f64,
+    pub(super) exchanges: usize,
+    pub(super) first_choice: Option<(String, f64)>,
+    pub(super) exchanged: Vec<Exchanged>,
+}
+
+/// A step's two nulls: plain, and with the own-axis position-cell means (`cells_ok`: usable).
+struct Nulls<'b> {
+    plain: Null<'b>,
+    cells: Null<'b>,
+    cells_ok: bool,
+}
+
+impl<'b> Nulls<'b> {
+    fn of(&self, blocked: bool) -> &Null<'b> {
+        if blocked { &self.cells } else { &self.plain }
+    }
+}
+
+/// A step's winner that passed every test, ready to be appended.
+struct Accepted {
+    win: Scored,
+    p_value: f64,
+    plain_gain: f64,
+    rss1: f64,
+    cv_after: f64,
+    ambiguous_with: Vec<Alternative>,
+}
+
+impl<'a> Selector<'a> {
+    pub(super) fn new(
+        ctx: &'a Context,
+        axis: char,
+        r: &'a [f64],
+        sim_inputs: &'a [Vec<f64>],
+        opts: &'a Options,
+        pooled_tau: Option<f64>,
+    ) -> Self {
+        let lib = library(ctx, axis);
+        let mut tried: usize = lib.iter().map(|c| c.grid.len().max(1)).sum();
+        let cell_of = ctx.position_cells(axis);
+        if cell_of.is_some() {
+            tried += lib.iter().filter(|c| within_cells(c)).count();
+        }
+        let heldout = Heldout::new(ctx, axis, r, sim_inputs, opts);
+        let used = vec![false; lib.len()];
+        let mut s = Selector {
+            ctx,
+            axis,
+            r,
+            opts,
+            lib,
+            tried,
+            cell_of,
+            heldout,
+            pooled_tau,
+            basis: lsq::orthonormalize(&[], vec![vec![1.0; r.len()]], 2),
+            n_raw: 1,
+            terms: vec![],
+            runners_up: vec![],
+            used,
+            cv_before: 0.0,
+            guard_before: 0.0,
+            exchanges: 0,
+            first_choice: None,
+            exchanged: vec![],
+        };
+        s.cv_before = s.cv(&[]);
+        s.guard_before = s.in_sample(&[]);
+        s
+    }
+
+    pub(super) fn cv(&self, set: &[(&Candidate, f64)]) -> f64 {
+        self.heldout.rms(set)
+    }
+
+    pub(super) fn in_sample(&self, set: &[(&Candidate, f64)]) -> f64 {
+        self.heldout.rms_in_sample(set)
+    }
+
+    /// The guard when the simulation is refitted per fold: the written model keeps the
+    /// simulation's gains as given (fitted on every row) and adds the term's gain fitted on that
+    /// residual, so a term must not make THAT model predict later blocks worse. A term can win the
+    /// refitted score by standing in for a change of the simulation's gains (a sensor collinear
+    /// with the simulation's, e.g. FL_THERMAL's T_8 on d1/d2): the model as written does not get
+    /// that change, only the term. Without simulation inputs both scores are the same.
+    pub(super) fn guard_ok(&self, set: &[(&Candidate, f64)], before: f64) -> bool {
+        !self.heldout.refits_sim() || self.in_sample(set) <= before
+    }
+
+    /// The terms so far plus scored candidate `s`.
+    fn trial(&self, s: &Scored) -> Vec<(&Candidate, f64)> {
+        let mut trial = set_of(&self.terms);
+        trial.push((&self.lib[s.idx], s.theta));
+        trial
+    }
+
+    /// One forward-selection step; false when no term passes (selection goes to the exchange).
+    pub(super) fn step(&mut self) -> bool {
+        let r0 = lsq::deflate(&self.basis, self.r);
+        let rss0 = dot(&r0, &r0);
+        if rss0.is_nan() || rss0 <= 0.0 {
+            return false;
+        }
+        let nulls = self.nulls(r0, rss0);
+        let mut scored = self.screen(&nulls);
+        if scored.is_empty() {
+            return false;
+        }
+        let (n_eff, noise_model) = self.scale(&scored, &nulls);
+        for s in &mut scored {
+            s.delta_bic = delta_bic(n_eff, nulls.of(s.cells).rss0, s.gain, s.q);
+        }
+        scored.sort_by(|a, b| b.delta_bic.total_cmp(&a.delta_bic));
+        // A candidate screened under both nulls keeps its better one.
+        let mut seen = vec![false; self.lib.len()];
+        scored.retain(|s| !std::mem::replace(&mut seen[s.idx], true));
+        let runners_up = self.terms.is_empty().then(|| {
+            scored
+                .iter()
+                .map(|s| (self.lib[s.idx].clone(), s.delta_bic))
+                .collect()
+        });
+        let acc = self.choose(scored, &nulls, n_eff, noise_model.as_ref());
+        drop(nulls);
+        if let Some(runners_up) = runners_up {
+            self.runners_up = runners_up;
+        }
+        let Some(acc) = acc else {
+            return false;
+        };
+        self.accept(acc);
+        true
+    }
+
+    /// The step's nulls: the fitted terms, and the same plus the position-cell means.
+    fn nulls(&self, r0: Vec<f64>, rss0: f64) -> Nulls<'_> {
+        let basis = &self.basis;
+        let plain = Null {
+            basis: basis.as_slice().into(),
+            r0,
+            rss0,
+            extra: 0,
+            cells: None,
+        };
+        let cells = match &self.cell_of {
+            Some((cell, k)) => Null::within_cells(basis, self.r, cell, *k),
+            None => Null {
+                basis: vec![].into(),
+                r0: vec![],
+                rss0: 0.0,
+                extra: 0,
+                cells: None,
+            },
+        };
+        let cells_ok =
+            cells.extra > 0 && cells.rss0 > 0.0 && self.r.len() > basis.len() + cells.extra + 3;
+        Nulls {
+            plain,
+            cells,
+            cells_ok,
+        }
+    }
+
+    /// Profile every unused candidate over its grid (best θ by RSS drop: q is fixed within a
+    /// candidate), under the plain null and, for the reversal family, within cells.
+    fn screen(&self, nulls: &Nulls<'_>) -> Vec<Scored> {
+        let mut scored: Vec<Scored> = vec![];
+        for (idx, c) in self.lib.iter().enumerate() {
+            if self.used[idx] {
+                continue;
+            }
+            let thetas: Vec<f64> = if c.grid.is_empty() {
+                vec![f64::NAN]
+            } else {
+                c.grid.clone()
+            };
+            for blocked in [false, true] {
+                if blocked && !(nulls.cells_ok && within_cells(c)) {
+                    continue;
+                }
+                let nl = nulls.of(blocked);
+                let mut best: Option<Scored> = None;
+                c.columns_sweep(self.ctx, &thetas, |th, cols| {
+                    if let Some((g, q)) = score_cols(c, cols, nl)
+                        && best.as_ref().is_none_or(|b| g > b.gain)
+                    {
+                        best = Some(Scored {
+                            idx,
+                            theta: th,
+                            gain: g,
+                            q,
+                            delta_bic: 0.0,
+                            cells: blocked,
+                        });
+                    }
+                });
+                scored.extend(best);
+            }
+        }
+        scored
+    }
+
+    /// One effective sample size for the whole step (from the residual left by the candidate that
+    /// explains the largest share of its null's RSS), so candidates are ranked on the same scale;
+    /// and the error model of the prewhitened test, once per step (see `NoiseModel`).
+    fn scale(&self, scored: &[Scored], nulls: &Nulls<'_>) -> (f64, Option<NoiseModel>) {
+        let (ctx, axis, r0) = (self.ctx, self.axis, &nulls.plain.r0);
+        let share = |s: &Scored| s.gain / nulls.of(s.cells).rss0;
+        let top = scored
+            .iter()
+            .max_by(|a, b| share(a).total_cmp(&share(b)))
+            .expect("non-empty");
+        let top_contrib = contribution(ctx, &self.lib[top.idx], top.theta, &self.basis, r0);
+        let r1_top: Vec<f64> = r0.iter().zip(&top_contrib).map(|(a, b)| a - b).collect();
+        let noise_top = without_cell_means(ctx, axis, &r1_top);
+        let n_eff = lsq::effective_n(&noise_top);
+        let noise_model = (!self.heldout.forward).then(|| {
+            NoiseModel::of(
+                &without_cell_means(ctx, axis, r0),
+                &noise_top,
+                self.pooled_tau,
+            )
+        });
+        (n_eff, noise_model)
+    }
+
+    /// The step's winner among the ranked `scored`, refined and tested; `None` ends the forward
+    /// selection.
+    fn choose(
+        &self,
+        mut scored: Vec<Scored>,
+        nulls: &Nulls<'_>,
+        n_eff: f64,
+        noise_model: Option<&NoiseModel>,
+    ) -> Option<Accepted> {
+        let opts = self.opts;
+        if self.heldout.forward {
+            self.forward_choice(&mut scored);
+        }
+        self.prefer_driver(&mut scored);
+        // Slow noise where the held-out check is leave-one-block-out (see below): the
+        // strongest candidate that also passes the bar under the noise model
+        // (null_model::prewhitened_test) is the step's winner, so a spurious smooth term
+        // ranked above a real effect does not end the step.
+        if let Some(model) = noise_model {
+            let j = scored
+                .iter()
+                .take(FORWARD_CHOICES)
+                .take_while(|s| s.delta_bic > opts.min_delta_bic)
+                .position(|s| self.passes_whitened(s, nulls.of(s.cells), model))?;
+            let s = scored.remove(j);
+            scored.insert(0, s);
+        }
+        let win = scored.remove(0);
+        let nl = nulls.of(win.cells);
+        let win = self.refine(win, nl, n_eff);
+        let cand = &self.lib[win.idx];
+        let p_cols = (self.n_raw + nl.extra) as f64;
+        let df2 = n_eff - p_cols - win.q as f64;
+        let p_value = if df2 >= 1.0 {
+            let rss1 = nl.rss0 - win.gain;
+            let f = (win.gain / win.q as f64) / (rss1 / df2);
+            FisherSnedecor::new(win.q as f64, df2).map_or(1.0, |d| d.sf(f))
+        } else {
+            1.0
+        };
+        if !(win.delta_bic > opts.min_delta_bic && p_value * (self.tried as f64) < opts.alpha) {
+            return None;
+        }
+        // The same bar under an AR(1) error model (slow noise: null_model::prewhitened_test),
+        // where the held-out check is leave-one-block-out (it rewards a smooth term tracking
+        // smooth noise); forward-validated (thermal-only) recordings keep the forward test as
+        // their guard (on FL_THERMAL the extra test dropped every d3/d4 finding).
+        if let Some(model) = noise_model
+            && !self.passes_whitened(&win, nl, model)
+        {
+            return None;
+        }
+        // What the term explains of the residual as it is (no nuisance): its importance and RMS.
+        let plain_gain = score(self.ctx, cand, win.theta, &nulls.plain).map_or(0.0, |s| s.0);
+        let rss1 = nulls.plain.rss0 - plain_gain;
+        let trial = self.trial(&win);
+        let cv_after = self.cv(&trial);
+        if cv_after.is_nan()
+            || cv_after >= self.cv_before * (1.0 - opts.cv_min_gain)
+            || !self.guard_ok(&trial, self.guard_before)
+        {
+            return None;
+        }
+        let ambiguous_with = self.ambiguous_with(&win, &scored, &nulls.plain.r0);
+        Some(Accepted {
+            win,
+            p_value,
+            plain_gain,
+            rss1,
+            cv_after,
+            ambiguous_with,
+        })
+    }
+
+    /// The bar (ΔBIC and the Holm-corrected F-test) under the step's noise model.
+    fn passes_whitened(&self, s: &Scored, nl: &Null<'_>, model: &NoiseModel) -> bool {
+        let c = &self.lib[s.idx];
+        prewhitened_test(self.ctx, c, s.theta, nl, self.n_raw + nl.extra, model).is_some_and(
+            |(dbic, p)| dbic > self.opts.min_delta_bic && p * (self.tried as f64) < self.opts.alpha,
+        )
+    }
+
+    /// With forward folds, the strong candidates (ΔBIC above the bar, at most FORWARD_CHOICES of
+    /// them) compete on forward held-out error: the one that best predicts later blocks from
+    /// earlier ones wins, not the best in-sample fit (a sensor with a large gain fits a warm-up
+    /// well and extrapolates badly).
+    fn forward_choice(&self, scored: &mut Vec<Scored>) {
+        let k = scored
+            .iter()
+            .take(FORWARD_CHOICES)
+            .take_while(|s| s.delta_bic > self.opts.min_delta_bic)
+            .count();
+        let cv_with = |s: &Scored| {
+            let trial = self.trial(s);
+            if self.guard_ok(&trial, self.guard_before) {
+                self.cv(&trial)
+            } else {
+                f64::NAN
+            }
+        };
+        if let Some(best) = (0..k)
+            .map(|i| (i, cv_with(&scored[i])))
+            .filter(|(_, v)| v.is_finite())
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(i, _)| i)
+        {
+            let s = scored.remove(best);
+            scored.insert(0, s);
+        }
+    }
+
+    /// Heat source before its symptoms: when the winner is a thermal term read from a
+    /// temperature sensor and a driver column (rpm, or a named heat source) explains the
+    /// same family with strong evidence of its own (ΔBIC above the bar), the driver's lag
+    /// is taken. A sensor is itself a lagged response of the source; the source term
+    /// extrapolates to regimes the fit never saw (another spindle speed), a re-weighted
+    /// sensor with a large gain does not. The sensor stays a candidate for what is left.
+    fn prefer_driver(&self, scored: &mut Vec<Scored>) {
+        let (ctx, lib, opts) = (self.ctx, &self.lib, self.opts);
+        if lib[scored[0].idx].family() != "thermal_offset" || is_driver(ctx, &lib[scored[0].idx]) {
+            return;
+        }
+        let top = scored[0].delta_bic;
+        // Validated leave-one-block-out (recordings with axes), the driver must also
+        // predict the held-out blocks no worse than the sensor: a measured temperature
+        // that is the true input (a node heated by friction as well as by the spindle)
+        // is not replaced by a lag of rpm that only resembles it. Forward-validated
+        // recordings chose the winner by forward error already.
+        let sensor_cv = if self.heldout.forward {
+            f64::INFINITY
+        } else {
+            self.cv(&self.trial(&scored[0]))
+        };
+        let passes_heldout = |s: &Scored| {
+            let trial = self.trial(s);
+            let cv = self.cv(&trial);
+            cv < self.cv_before * (1.0 - opts.cv_min_gain)
+                && cv <= sensor_cv
+                && self.guard_ok(&trial, self.guard_before)
+        };
+        if let Some(j) = scored.iter().position(|s| {
+            is_driver(ctx, &lib[s.idx])
+                && s.delta_bic > opts.min_delta_bic
+                && s.delta_bic >= DRIVER_SHARE * top
+                && passes_heldout(s)
+        }) {
+            let s = scored.remove(j);
+            scored.insert(0, s);
+        }
+    }
+
+    /// Refine the winner's nonlinear parameter between its grid neighbours (golden section on
+    /// the profile RSS drop); kept when it does not explain less.
+    fn refine(&self, win: Scored, nl: &Null<'_>, n_eff: f64) -> Scored {
+        let cand = &self.lib[win.idx];
+        if !cand.is_nonlinear() {
+            return win;
+        }
+        let g = &cand.grid;
+        let i = g.iter().position(|&v| v == win.theta).unwrap_or(0);
+        let lo = g[i.saturating_sub(1)];
+        let hi = g[(i + 1).min(g.len() - 1)];
+        if hi <= lo {
+            return win;
+        }
+        let ctx = self.ctx;
+        let th = golden_refine(
+            |t| score(ctx, cand, t, nl).map_or(f64::NEG_INFINITY, |s| s.0),
+            lo,
+            hi,
+            18,
+        );
+        match score(ctx, cand, th, nl) {
+            Some((g2, q)) if g2 >= win.gain => Scored {
+                idx: win.idx,
+                theta: th,
+                gain: g2,
+                q,
+                delta_bic: delta_bic(n_eff, nl.rss0, g2, q),
+                cells: win.cells,
+            },
+            _ => win,
+        }
+    }
+
+    /// Ambiguity: another family, nearly as good, explaining the same shape.
+    fn ambiguous_with(&self, win: &Scored, scored: &[Scored], r0: &[f64]) -> Vec<Alternative> {
+        let (ctx, lib, opts) = (self.ctx, &self.lib, self.opts);
+        let cand = &lib[win.idx];
+        let win_contrib = contribution(ctx, cand, win.theta, &self.basis, r0);
+        let wn = dot(&win_contrib, &win_contrib).sqrt();
+        scored
+            .iter()
+            .filter(|s| lib[s.idx].family() != cand.family())
+            .filter(|s| {
+                s.delta_bic > opts.min_delta_bic && win.delta_bic - s.delta_bic < opts.ambiguity_bic
+            })
+            .filter_map(|s| {
+                let sc = contribution(ctx, &lib[s.idx], s.theta, &self.basis, r0);
+                let corr = dot(&sc, &win_contrib) / (wn * dot(&sc, &sc).sqrt());
+                (corr > opts.ambiguity_corr).then(|| Alternative {
+                    cand: lib[s.idx].clone(),
+                    theta: s.theta,
+                    delta_bic: s.delta_bic,
+                    corr,
+                })
+            })
+            .collect()
+    }
+
+    /// Append the step's winner: mark its family used, extend the basis, record the term.
+    fn accept(&mut self, acc: Accepted) {
+        let Accepted {
+            win,
+            p_value,
+            plain_gain,
+            rss1,
+            cv_after,
+            ambiguous_with,
+        } = acc;
+        let cand = self.lib[win.idx].clone();
+        let new_cols = cand.columns(self.ctx, win.theta);
+        self.used[win.idx] = true;
+        // Nested forms of the same family are not tried again once one is in.
+        for (j, c) in self.lib.iter().enumerate() {
+            if c.family() == cand.family()
+                && c.effect_id() != "reversal_spike"
+                && cand.effect_id() != "reversal_spike"
+            {
+                self.used[j] = true;
+            }
+        }
+        let more = lsq::orthonormalize(&self.basis, new_cols.clone(), 2);
+        self.basis.extend(more);
+        self.n_raw += new_cols.len();
+        self.first_choice
+            .get_or_insert_with(|| (cand.label(), win.delta_bic));
+        self.terms.push(Term {
+            cand,
+            theta: win.theta,
+            cols: new_cols,
+            delta_bic: win.delta_bic,
+            p_value,
+            gain_rss: plain_gain,
+            rms_after_um: (rss1 / self.r.len() as f64).sqrt(),
+            heldout_rms_before_um: self.cv_before,
+            heldout_rms_after_um: cv_after,
+            ambiguous_with,
+            within_cells: win.cells,
+        });
+        self.cv_before = cv_after;
+        self.guard_before = self.in_sample(&set_of(&self.terms));
+    }
+}
