@@ -61,6 +61,11 @@ impl FaultKind {
         FaultKind::WriteFailed,
         FaultKind::BeyondClamp,
     ];
+
+    /// Its position in [`FaultKind::ALL`] (declaration order, which is also its `Ord`).
+    pub const fn index(self) -> usize {
+        self as usize
+    }
 }
 
 /// Who reports a fault. Prints as its name in status, metrics and logs.
@@ -117,70 +122,87 @@ pub struct FaultEvent {
 /// Remembers which faults are active so each is logged once when it starts and once when it clears.
 #[derive(Clone, Debug, Default)]
 pub struct FaultLog {
-    active: BTreeMap<(FaultSource, FaultKind), f64>,
+    /// Per source with at least one active fault: when each kind started (by [`FaultKind::index`]).
+    /// One entry per source, so reconciling a source whose faults did not change is one lookup
+    /// and a comparison (the cycle path does it per channel per cycle).
+    active: BTreeMap<FaultSource, [Option<f64>; FaultKind::ALL.len()]>,
 }
 
 impl FaultLog {
-    /// Reconcile the faults of `source` with `now_faults`; returns (and logs) only the changes.
-    /// Allocates only for a change (a fault starting or clearing).
+    /// Reconcile the faults of `source` with `now_faults`; returns (and logs) only the changes:
+    /// starts in the order of `now_faults`, then clears in kind order. Allocates only for a
+    /// change (a fault starting or clearing).
     pub fn update(
         &mut self,
         source: &FaultSource,
         now_faults: &[FaultKind],
         now_s: f64,
     ) -> Vec<FaultEvent> {
-        let mut events = Vec::new();
-        for &kind in now_faults {
+        let mut now = [false; FaultKind::ALL.len()];
+        for k in now_faults {
+            now[k.index()] = true;
+        }
+        let since = match self.active.get_mut(source) {
+            // No change: the steady state of every cycle, faulted or not.
+            None if now_faults.is_empty() => return Vec::new(),
+            Some(since) if since.iter().zip(&now).all(|(s, n)| s.is_some() == *n) => {
+                return Vec::new();
+            }
+            Some(since) => since,
             // Cloning the source is a copy or a reference count, never an allocation.
-            if let std::collections::btree_map::Entry::Vacant(slot) =
-                self.active.entry((source.clone(), kind))
-            {
-                slot.insert(now_s);
-                let name = source.to_string();
+            None => self
+                .active
+                .entry(source.clone())
+                .or_insert([None; FaultKind::ALL.len()]),
+        };
+        let mut events = Vec::new();
+        let name = source.to_string();
+        for &kind in now_faults {
+            let slot = &mut since[kind.index()];
+            if slot.is_none() {
+                *slot = Some(now_s);
                 tracing::warn!(source = name.as_str(), ?kind, t_s = now_s, "fault started");
                 events.push(FaultEvent {
-                    source: name,
+                    source: name.clone(),
                     kind,
                     started: true,
                     t_s: now_s,
                 });
             }
         }
-        // This source's active kinds that are no longer reported (at most one per kind, on the
-        // stack).
-        let mut cleared = [None; FaultKind::ALL.len()];
-        let first = (source.clone(), FaultKind::ALL[0]);
-        let last = (source.clone(), FaultKind::ALL[FaultKind::ALL.len() - 1]);
-        for (slot, ((_, kind), _)) in cleared.iter_mut().zip(
-            self.active
-                .range(first..=last)
-                .filter(|((_, k), _)| !now_faults.contains(k)),
-        ) {
-            *slot = Some(*kind);
+        for kind in FaultKind::ALL {
+            if now[kind.index()] {
+                continue;
+            }
+            if let Some(from_s) = since[kind.index()].take() {
+                tracing::info!(
+                    source = name.as_str(),
+                    ?kind,
+                    t_s = now_s,
+                    lasted_s = now_s - from_s,
+                    "fault cleared"
+                );
+                events.push(FaultEvent {
+                    source: name.clone(),
+                    kind,
+                    started: false,
+                    t_s: now_s,
+                });
+            }
         }
-        for kind in cleared.into_iter().flatten() {
-            let since = self.active.remove(&(source.clone(), kind)).unwrap_or(now_s);
-            let name = source.to_string();
-            tracing::info!(
-                source = name.as_str(),
-                ?kind,
-                t_s = now_s,
-                lasted_s = now_s - since,
-                "fault cleared"
-            );
-            events.push(FaultEvent {
-                source: name,
-                kind,
-                started: false,
-                t_s: now_s,
-            });
+        if since.iter().all(Option::is_none) {
+            self.active.remove(source);
         }
         events
     }
 
     /// The active faults: (source, kind, since t_s), ordered by source identity then kind.
     pub fn active(&self) -> impl Iterator<Item = (&FaultSource, FaultKind, f64)> {
-        self.active.iter().map(|((s, k), t)| (s, *k, *t))
+        self.active.iter().flat_map(|(s, since)| {
+            FaultKind::ALL
+                .into_iter()
+                .filter_map(move |k| since[k.index()].map(|t| (s, k, t)))
+        })
     }
 
     /// The active faults by source name (then kind), names printed: for status and metrics.
@@ -191,5 +213,55 @@ impl FaultLog {
             .collect();
         out.sort_by(|a, b| (&a.0, a.1).cmp(&(&b.0, b.1)));
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn edges(ev: &[FaultEvent]) -> Vec<(String, FaultKind, bool)> {
+        ev.iter()
+            .map(|e| (e.source.clone(), e.kind, e.started))
+            .collect()
+    }
+
+    #[test]
+    fn kinds_index_all_in_order() {
+        for (i, k) in FaultKind::ALL.into_iter().enumerate() {
+            assert_eq!(k.index(), i, "{k:?}");
+        }
+    }
+
+    #[test]
+    fn each_fault_is_reported_once_when_it_starts_and_once_when_it_clears() {
+        use FaultKind::*;
+        let (a, b) = (FaultSource::named("a"), FaultSource::Model);
+        let mut log = FaultLog::default();
+        assert!(log.update(&a, &[], 0.0).is_empty());
+        let ev = log.update(&a, &[Stuck, Stale, Stale], 1.0);
+        let s = |k, on| ("a".to_string(), k, on);
+        assert_eq!(edges(&ev), [s(Stuck, true), s(Stale, true)]);
+        assert!(log.update(&a, &[Stale, Stuck], 2.0).is_empty(), "no change");
+        assert_eq!(edges(&log.update(&b, &[Decode], 2.5)).len(), 1);
+        // Stuck clears, out of range starts: the start first, then the clear.
+        let ev = log.update(&a, &[OutOfRange, Stale], 3.0);
+        assert_eq!(edges(&ev), [s(OutOfRange, true), s(Stuck, false)]);
+        assert_eq!(
+            log.active()
+                .map(|(s, k, t)| (s.to_string(), k, t))
+                .collect::<Vec<_>>(),
+            [
+                ("model".to_string(), Decode, 2.5),
+                ("a".to_string(), Stale, 1.0),
+                ("a".to_string(), OutOfRange, 3.0),
+            ],
+            "by source identity (Model before Named), then kind; each since it started"
+        );
+        let ev = log.update(&a, &[], 4.0);
+        assert_eq!(edges(&ev), [s(Stale, false), s(OutOfRange, false)]);
+        assert_eq!(ev[0].t_s, 4.0);
+        assert_eq!(log.active().count(), 1, "only the model's fault is left");
+        assert!(log.update(&a, &[], 5.0).is_empty());
     }
 }
