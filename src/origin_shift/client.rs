@@ -231,7 +231,12 @@ impl OriginShiftClient {
                 not_before_s,
             } => {
                 let at = self.epoch + Duration::from_secs_f64(not_before_s.max(0.0));
-                tokio::time::sleep_until(at).await;
+                // Only a deadline still ahead is waited for: tokio's timer rounds a deadline up to
+                // its next 1 ms tick, so sleeping until "now" (the read of what the controller
+                // holds, before every write) cost up to a whole millisecond per write period.
+                if at > Instant::now() {
+                    tokio::time::sleep_until(at).await;
+                }
                 tokio::time::timeout(timeout, ctx.read_holding_registers(*address, *count))
                     .await
                     .map(|r| r.map(|r| r.map(|w| Reply::Read(w.into()))))
