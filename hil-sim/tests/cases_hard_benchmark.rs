@@ -4,8 +4,9 @@
 //! families): recall ≥ 0.9, FPR on nulls ≤ 0.05, median relative parameter error ≤ 15 %.
 //!
 //! Written before the algorithm that is meant to pass it (forward validation, autocorrelation-aware
-//! criteria, rpm as a heat driver): with diagnose as of commit c8d149a it FAILS, by design — see
-//! the per-family table it prints and docs/diagnose.md "Hard families".
+//! criteria, rpm as a heat driver): with diagnose as of commit c8d149a it failed on five of six
+//! families. Four now meet every target and are asserted in CI; the two random-walk families stay
+//! `#[ignore]`d — see the per-family table it prints and docs/diagnose.md "Hard families".
 
 use hil_sim::cases::{Family, generate_family_case};
 use retrocomp::diagnose::scoring::{families_markdown, score_case, summarize_by_family};
@@ -15,11 +16,11 @@ use retrocomp::diagnose::{diagnose, select::Options};
 /// that cycle through them).
 const PER_FAMILY: usize = 20;
 
-#[test]
-#[ignore = "issue 12 (open): the hard-family targets are not met yet (random-walk recall 0.71 / 0.79, regime recall 0.64; FPR 0 on the seed-2026 random-walk nulls since diag7); run with --ignored to see the current figures"]
-fn issue_12_targets_on_every_hard_family() {
+/// Diagnose cases 0..PER_FAMILY of seed 2026 in `families`; print the per-family table and return
+/// the families that miss a target, with their figures.
+fn failing_targets(families: &[Family]) -> Vec<String> {
     let mut scores = vec![];
-    for fam in Family::HARD {
+    for &fam in families {
         for i in 0..PER_FAMILY {
             let (rec, m) = generate_family_case(fam, 2026, i);
             let d = diagnose(&rec, &Options::default())
@@ -29,9 +30,12 @@ fn issue_12_targets_on_every_hard_family() {
     }
     let fams = summarize_by_family(&scores);
     eprintln!("{}", families_markdown(&fams));
-    assert_eq!(fams.len(), Family::HARD.len());
-    let failing: Vec<String> = fams
-        .iter()
+    assert_eq!(fams.len(), families.len());
+    for (f, s) in &fams {
+        assert_eq!(s.nulls, 6, "{f}");
+        assert_eq!(s.effects_scored, 14, "{f}");
+    }
+    fams.iter()
         .filter(|(_, s)| !s.meets_targets())
         .map(|(f, s)| {
             format!(
@@ -39,11 +43,30 @@ fn issue_12_targets_on_every_hard_family() {
                 s.recall, s.fpr, s.median_param_error
             )
         })
-        .collect();
-    for (f, s) in &fams {
-        assert_eq!(s.nulls, 6, "{f}");
-        assert_eq!(s.effects_scored, 14, "{f}");
-    }
+        .collect()
+}
+
+/// The four hard families that meet every target (since session 11, `regime` too) are held to
+/// them in CI.
+#[test]
+fn issue_12_targets_on_ar099_rpm_heat_ambient_drift_and_regime() {
+    let failing = failing_targets(&[
+        Family::Ar099,
+        Family::RpmHeat,
+        Family::AmbientDrift,
+        Family::Regime,
+    ]);
+    assert!(
+        failing.is_empty(),
+        "issue 12 targets not met:\n{}",
+        failing.join("\n")
+    );
+}
+
+#[test]
+#[ignore = "issue 12 (open): random_walk (recall 0.71) and rw_decoy (0.79) miss the 0.9 target; their slow-effect misses are below the best-case GLS evidence (scripts/rw_gls_bound.py, docs/diagnose.md); run with --ignored to see the current figures"]
+fn issue_12_targets_on_the_random_walk_families() {
+    let failing = failing_targets(&[Family::RandomWalk, Family::RwDecoy]);
     assert!(
         failing.is_empty(),
         "issue 12 targets not met:\n{}",
@@ -54,7 +77,7 @@ fn issue_12_targets_on_every_hard_family() {
 /// Development aid: the hard families named in `HARD_FAMILIES` (comma-separated, default all),
 /// cases `HARD_FROM`..`HARD_TO` (default 0..20) of seed `HARD_SEED` (default 2026), one line per
 /// case (verdict, what was recalled, false alarm, spurious findings) and the per-family table.
-/// Asserts only that every case was diagnosed: the targets are asserted by the test above.
+/// Asserts only that every case was diagnosed: the targets are asserted by the tests above.
 #[test]
 #[ignore = "development aid: HARD_FAMILIES=random_walk,ar099 cargo test -p hil-sim --test cases_hard_benchmark -- --ignored subset --nocapture"]
 fn subset() {

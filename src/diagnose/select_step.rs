@@ -307,6 +307,7 @@ impl<'a> Selector<'a> {
             self.forward_choice(&mut scored);
         }
         self.prefer_driver(&mut scored);
+        self.prefer_simpler(&mut scored);
         // Slow noise where the held-out check is leave-one-block-out (see below): the
         // strongest candidate that also passes the bar under the noise model
         // (null_model::prewhitened_test) is the step's winner, so a spurious smooth term
@@ -430,7 +431,7 @@ impl<'a> Selector<'a> {
             let trial = self.trial(s);
             let cv = self.cv(&trial);
             cv < self.cv_before * (1.0 - opts.cv_min_gain)
-                && cv <= sensor_cv
+                && cv < sensor_cv * (1.0 - opts.cv_min_gain)
                 && self.guard_ok(&trial, self.guard_before)
         };
         if let Some(j) = scored.iter().position(|s| {
@@ -438,6 +439,34 @@ impl<'a> Selector<'a> {
                 && s.delta_bic > opts.min_delta_bic
                 && s.delta_bic >= DRIVER_SHARE * top
                 && passes_heldout(s)
+        }) {
+            let s = scored.remove(j);
+            scored.insert(0, s);
+        }
+    }
+
+    /// Parsimony between the two thermal forms: when the winner is a lag (gain and τ) and a
+    /// reading taken as it is (`thermal_drift`, gain only) is nearly as strong (ΔBIC within the
+    /// ambiguity margin) and predicts the held-out data as well (within `cv_min_gain`), the
+    /// drift is taken. A lag that wins in-sample by smoothing a sensor's own 0.1 °C steps or its
+    /// few seconds of lag, or a lag of `rpm` that equals a measured temperature, is not evidence
+    /// that the error lags that temperature.
+    fn prefer_simpler(&self, scored: &mut Vec<Scored>) {
+        let (lib, opts) = (&self.lib, self.opts);
+        if !matches!(lib[scored[0].idx].kind, Kind::ThermalLag { .. }) {
+            return;
+        }
+        let top = scored[0].delta_bic;
+        let top_cv = self.cv(&self.trial(&scored[0]));
+        if let Some(j) = scored.iter().position(|s| {
+            matches!(lib[s.idx].kind, Kind::ThermalDrift { .. })
+                && s.delta_bic > opts.min_delta_bic
+                && top - s.delta_bic < opts.ambiguity_bic
+                && {
+                    let trial = self.trial(s);
+                    self.cv(&trial) <= top_cv * (1.0 + opts.cv_min_gain)
+                        && self.guard_ok(&trial, self.guard_before)
+                }
         }) {
             let s = scored.remove(j);
             scored.insert(0, s);
