@@ -12,7 +12,11 @@ increments) — more than `diagnose` knows. The printed z is therefore an upper 
 any method has for that term in that recording; `diagnose`'s bar (ΔBIC > 10 and a Holm-corrected
 F-test over a few hundred tried terms) needs |z| ≳ 4.3.
 
-Usage: scripts/rw_gls_bound.py DIR CASE [CASE ...]   (needs numpy and scipy: .venv-bench)
+With --nulls, each case (meant: the null cases) is scored the other way round: the largest |z|, per
+error signal, over a small set of slow shapes (time; every T_*, rpm, aux_V and strain column through
+lags of 120, 300, 900 and 1800 s) — how strong a slow term looks in a recording that has none.
+
+Usage: scripts/rw_gls_bound.py [--nulls] DIR CASE [CASE ...]   (needs numpy and scipy: .venv-bench)
 """
 
 import csv
@@ -33,6 +37,50 @@ def lowpass(v, tau_s, dt_s=1.0):
     return out
 
 
+def whitener(r):
+    """GLS whitening of the increments of r under random walk + white noise (see the top)."""
+    d = np.diff(r)
+    dc = d - d.mean()
+    g0, g1 = np.mean(dc * dc), np.mean(dc[1:] * dc[:-1])
+    se2 = max(-g1, 1e-12)
+    sw2 = max(g0 - 2.0 * se2, 1e-12)
+    n = len(d)
+    band = np.zeros((2, n))
+    band[0, 1:] = -se2
+    band[1, :] = sw2 + 2.0 * se2
+    upper = sl.cholesky_banded(band)
+    lower = np.vstack([upper[1], np.r_[upper[0, 1:], 0.0]])
+    return lambda v: sl.solve_banded((1, 0), lower, v), d
+
+
+def gls_z(whiten, d, shape):
+    """(gain, z) of shape's increments against d's, both whitened."""
+    a, b = whiten(d), whiten(np.diff(shape))
+    k = (b @ a) / (b @ b)
+    res = a - k * b
+    s = np.sqrt(res @ res / (len(a) - 1))
+    return k, k / (s / np.sqrt(b @ b))
+
+
+def null_max(case_dir, case):
+    rows = list(csv.DictReader(open(case_dir / f"{case}.csv")))
+    t_s = np.array([float(x["t_s"]) for x in rows])
+    shapes = {"time": t_s / 3600.0}
+    for c in rows[0]:
+        if c.startswith("T_") or c in ("rpm", "aux_V", "strain_col_ue"):
+            v = np.array([float(x[c]) for x in rows])
+            for tau in (120.0, 300.0, 900.0, 1800.0):
+                shapes[f"{c} lag {tau:.0f} s"] = lowpass(v, tau)
+    out = []
+    for sig in ("ex", "ey"):
+        r = np.array([float(x[f"{sig}_um"]) - float(x[f"sim_{sig}_um"]) for x in rows])
+        whiten, d = whitener(r)
+        zs = {k: gls_z(whiten, d, s)[1] for k, s in shapes.items() if np.ptp(s) > 0}
+        best = max(zs, key=lambda k: abs(zs[k]))
+        out.append(f"{sig}_um max |z| {abs(zs[best]):.2f} ({best}, of {len(zs)} shapes)")
+    return f"{case}: " + "; ".join(out)
+
+
 def bound(case_dir, case):
     rows = list(csv.DictReader(open(case_dir / f"{case}.csv")))
     manifest = json.load(open(case_dir / f"{case}.json"))
@@ -48,26 +96,8 @@ def bound(case_dir, case):
         truth = p["um_per_K"]
     else:
         return f"{case}: {hidden['effect']} is not a slow effect; no bound computed"
-    d, dh = np.diff(r), np.diff(shape)
-    dc = d - d.mean()
-    g0, g1 = np.mean(dc * dc), np.mean(dc[1:] * dc[:-1])
-    se2 = max(-g1, 1e-12)
-    sw2 = max(g0 - 2.0 * se2, 1e-12)
-    n = len(d)
-    band = np.zeros((2, n))
-    band[0, 1:] = -se2
-    band[1, :] = sw2 + 2.0 * se2
-    upper = sl.cholesky_banded(band)
-    lower = np.vstack([upper[1], np.r_[upper[0, 1:], 0.0]])
-
-    def whiten(v):
-        return sl.solve_banded((1, 0), lower, v)
-
-    a, b = whiten(d), whiten(dh)
-    k = (b @ a) / (b @ b)
-    res = a - k * b
-    s = np.sqrt(res @ res / (n - 1))
-    z = k / (s / np.sqrt(b @ b))
+    whiten, d = whitener(r)
+    k, z = gls_z(whiten, d, shape)
     return (
         f"{case}: {hidden['effect']} effect/noise {manifest['snr']:.2f}, n {len(r)}: "
         f"GLS gain {k:.3f} (truth {truth:.3f}), z {z:+.2f}"
@@ -75,11 +105,14 @@ def bound(case_dir, case):
 
 
 def main():
-    if len(sys.argv) < 3:
+    args = sys.argv[1:]
+    nulls = bool(args) and args[0] == "--nulls"
+    args = args[1:] if nulls else args
+    if len(args) < 2:
         sys.exit(__doc__)
-    case_dir = Path(sys.argv[1])
-    for case in sys.argv[2:]:
-        print(bound(case_dir, case))
+    case_dir = Path(args[0])
+    for case in args[1:]:
+        print(null_max(case_dir, case) if nulls else bound(case_dir, case))
 
 
 if __name__ == "__main__":
