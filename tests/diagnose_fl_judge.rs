@@ -6,9 +6,10 @@
 //! Here the shared rows play both parts: for each forward split (fit on the first 50 %, 60 %,
 //! 70 % of the rows, predict the rest), the simulation and diagnose see only the fit rows, and the
 //! found `model.toml` is run over the later rows fed BOTH ways the judge may feed them:
-//! (a) `alone`: a file holding only the later rows (it starts mid-run; every lag state starts at
-//!     steady state with its first reading, see docs/diagnose.md), and
+//! (a) `alone`: a file holding only the later rows (it starts mid-run, after the fit rows end), and
 //! (b) `history`: a file holding every row, scored on the later rows only.
+//! The found model stores where its lags stood at the last fit row (`[lag_state]`), so (a) and (b)
+//! agree (asserted, to 10⁻⁴ µm).
 //! Held-out RMS = RMS of measured − predicted over the later rows. Asserted: on every split, both
 //! feeding modes, no channel worse than the static regression (the judge's "no channel worse").
 //! The median cut is printed; asserted ≥ 25 % (the judge's bar) only on the 50 % split, the one
@@ -142,6 +143,19 @@ fn fl_thermal_judge_emulated_on_forward_splits_no_channel_worse() {
         assert!(
             (r.sim[0] - r.sim[1]).abs() <= 1e-6 * r.sim[0].max(1.0),
             "static simulation differs between feeding modes\n{table}"
+        );
+    }
+    // `diagnose --out` stores where the lags stood at the last fit row (`[lag_state]`), so the
+    // found model run over the later rows alone continues the recording as if fed from its start.
+    for r in &rows {
+        assert!(
+            (r.diag[0] - r.diag[1]).abs() <= 1e-4,
+            "{} fit on {:.0} %: alone {:.6} µm, history {:.6} µm: the stored lag state did not \
+             carry over\n{table}",
+            r.ch,
+            100.0 * r.split,
+            r.diag[0],
+            r.diag[1]
         );
     }
     for r in &rows {

@@ -205,6 +205,10 @@ pub fn model_with_findings_opts(
             ));
         }
     }
+    // The lags at the recording's last row, so `eval` can continue this recording (`[lag_state]`).
+    spec.lag_state = None;
+    spec.lag_state =
+        super::model_sim::final_lag_state(&MachineModel::from_spec(spec.clone()), rec)?;
     let (text, model) = to_checked_toml(spec)?;
     let mut head = String::new();
     head.push_str("# Machine model written by `retrocomp diagnose --out`.\n");
@@ -385,6 +389,7 @@ fn default_spec(rec: &Recording) -> Result<ModelSpec, DiagnoseError> {
         thermal: vec![],
         forces: vec![],
         load: vec![],
+        lag_state: None,
     })
 }
 

@@ -3,7 +3,7 @@
 //! `t_s`, `T_<sensor>_C`, `F_<name>_N`, `strain_<name>_ue` and `tool_mm`. Output: sim error per
 //! signal, µm, actual − nominal (the model's sign convention is the recording's).
 
-use crate::models::MachineModel;
+use crate::models::{LagState, MachineModel, ModelState};
 use crate::recording::{AXES, Recording};
 
 use super::DiagnoseError;
@@ -34,6 +34,34 @@ pub fn simulate_axes(
     model: &MachineModel,
     rec: &Recording,
 ) -> Result<[Vec<f64>; 3], DiagnoseError> {
+    Ok(run(model, rec)?.0)
+}
+
+/// Where the model's lags stand after the recording's last row (`[lag_state]`, for `retrocomp
+/// eval` to continue this recording): `None` when the recording has no `t_s` column or the model
+/// no lag.
+pub fn final_lag_state(
+    model: &MachineModel,
+    rec: &Recording,
+) -> Result<Option<LagState>, DiagnoseError> {
+    let (Some(t), true) = (
+        rec.col("t_s"),
+        model.spec().sensors.iter().any(|s| s.tau_s.is_some()),
+    ) else {
+        return Ok(None);
+    };
+    let Some(&last) = t.last() else {
+        return Ok(None);
+    };
+    let (_, state) = run(model, rec)?;
+    Ok(Some(model.lag_state_of(&state, last)))
+}
+
+/// Every row through the model: the error along x, y, z (µm) and the state after the last row.
+fn run(
+    model: &MachineModel,
+    rec: &Recording,
+) -> Result<([Vec<f64>; 3], ModelState), DiagnoseError> {
     let ctx = Context::from_recording(rec);
     let need = |name: String| -> Result<&[f64], DiagnoseError> {
         rec.col(&name).ok_or(DiagnoseError::MissingColumn(name))
@@ -95,7 +123,7 @@ pub fn simulate_axes(
             s[i] = v;
         }
     }
-    Ok(sim)
+    Ok((sim, state))
 }
 
 /// The simulation's thermal inputs, one column per sensor the model reads: the reading (or

@@ -38,7 +38,7 @@ use std::path::Path;
 
 pub use function::{ErrorFunction, Interpolation, Table};
 pub use names::{Axis, ComponentId, Motion, Squareness};
-pub use spec::ModelSpec;
+pub use spec::{LagState, ModelSpec};
 pub use toml_reader::{ConfigError, ConfigIssue};
 
 use plan::Plan;
@@ -119,6 +119,17 @@ impl ErrorBreakdown {
         self.terms_um.resize(n_terms, [0.0; 3]);
         self.flags = EvalFlags::default();
     }
+}
+
+/// How [`MachineModel::new_state_at`] started the lags.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LagStart {
+    /// The model stores no `[lag_state]`: every lag starts at its first reading.
+    FirstReading,
+    /// The stored states are of a time not before the recording's first row: not used.
+    StoredNotBefore { stored_t_s: f64 },
+    /// `sensors` lags continue from the states stored at `stored_t_s`.
+    Resumed { stored_t_s: f64, sensors: usize },
 }
 
 /// Evaluation state: thermal lags and scratch space.
@@ -210,6 +221,49 @@ impl MachineModel {
     /// One name per contribution; index = term id in [`ErrorBreakdown::terms_um`].
     pub fn term_names(&self) -> &[String] {
         &self.compiled.term_names
+    }
+
+    /// Where each lag of `state` stands, as `[lag_state]` stores it: `state` was last stepped at
+    /// recording time `t_s`. Sensors without a lag, or never read, are left out.
+    pub fn lag_state_of(&self, state: &ModelState, t_s: f64) -> LagState {
+        let lagged = self
+            .spec
+            .sensors
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s.tau_s.is_some())
+            .filter_map(|(i, s)| Some((s.name.clone(), state.thermal.lagged_c(i)?)))
+            .collect();
+        LagState { t_s, lagged }
+    }
+
+    /// A fresh state for a recording whose first row is at `first_t_s`: each lag the model's
+    /// `[lag_state]` names starts from its stored value when the recording begins after the stored
+    /// time (a continuation of the recording the model was fitted on); otherwise every lag starts
+    /// at its first reading, as [`Self::new_state`].
+    pub fn new_state_at(&self, first_t_s: f64) -> (ModelState, LagStart) {
+        let mut state = self.new_state();
+        let Some(ls) = &self.spec.lag_state else {
+            return (state, LagStart::FirstReading);
+        };
+        // NaN (no time) counts as not after.
+        if first_t_s.partial_cmp(&ls.t_s) != Some(std::cmp::Ordering::Greater) {
+            return (state, LagStart::StoredNotBefore { stored_t_s: ls.t_s });
+        }
+        let mut n = 0;
+        for (name, v) in &ls.lagged {
+            if let Some(i) = self.spec.sensors.iter().position(|s| &s.name == name) {
+                state.thermal.resume(i, *v, ls.t_s);
+                n += 1;
+            }
+        }
+        (
+            state,
+            LagStart::Resumed {
+                stored_t_s: ls.t_s,
+                sensors: n,
+            },
+        )
     }
 
     pub fn new_state(&self) -> ModelState {

@@ -9,8 +9,8 @@ use super::parse_terms::{read_function, read_load, read_squareness, read_thermal
 use super::spec::*;
 use super::toml_reader::{ConfigError, Ctx, Tbl};
 
-const TOP_KEYS: &str =
-    "schema, machine, axes, tools, components, squareness, sensors, thermal, forces, load";
+const TOP_KEYS: &str = "schema, machine, axes, tools, components, squareness, sensors, thermal, forces, load, \
+lag_state";
 
 /// Parse and validate a model file's text. `origin` names the file in messages.
 pub fn parse_model(text: &str, origin: &str) -> Result<ModelSpec, ConfigError> {
@@ -273,6 +273,9 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
         }
         t.finish(LOAD_KEYS);
     }
+    let lag_state = top
+        .table_opt("lag_state")
+        .and_then(|t| read_lag_state(&t, &sensors));
     top.finish(TOP_KEYS);
 
     if ctx.has_errors() {
@@ -291,7 +294,39 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
         thermal,
         forces,
         load,
+        lag_state,
     })
+}
+
+/// `[lag_state]`: `t_s` and `lagged = { <sensor> = <lagged input> }`, each a sensor with `tau_s`.
+fn read_lag_state(t: &Tbl<'_, '_>, sensors: &[SensorSpec]) -> Option<LagState> {
+    let t_s = t.f64_req("t_s", "the recording time of the stored lag states, s");
+    let mut lagged = Vec::new();
+    if let Some(l) = t.table_opt("lagged") {
+        let keys = l.keys();
+        for k in &keys {
+            let Some(v) = l.f64_opt(k) else { continue };
+            match sensors.iter().find(|s| &s.name == k) {
+                Some(s) if s.tau_s.is_some() && v.is_finite() => lagged.push((k.clone(), v)),
+                Some(s) if s.tau_s.is_some() => {
+                    l.err_key(k, format!("expected a finite lagged value, found {v}"));
+                }
+                Some(_) => l.err_key(k, "sensor has no tau_s: there is no lag state to store"),
+                None => l.err_key(
+                    k,
+                    format!(
+                        "unknown sensor; defined: {:?}",
+                        sensors.iter().map(|s| &s.name).collect::<Vec<_>>()
+                    ),
+                ),
+            }
+        }
+        l.finish(&keys.join(", "));
+    } else {
+        t.err_here("missing table lagged = { <sensor> = <lagged value> }");
+    }
+    t.finish("t_s, lagged");
+    Some(LagState { t_s: t_s?, lagged })
 }
 
 const COMPONENT_KEYS: &str = "name, kind, positions_mm, forward_<unit>, reverse_<unit>, interpolation, \

@@ -196,6 +196,22 @@ pub struct ModelSpec {
     pub thermal: Vec<ThermalSpec>,
     pub forces: Vec<ForceSpec>,
     pub load: Vec<LoadSpec>,
+    /// Where the lags stood at the last row of the recording the model was fitted on (written by
+    /// `diagnose --out`); read only by `retrocomp eval`, to continue that recording.
+    pub lag_state: Option<LagState>,
+}
+
+/// The lag states at one time of a recording (`[lag_state]`): `retrocomp eval` starts each named
+/// sensor's lag from its stored value when the new recording begins after `t_s` (the same
+/// recording continued, or a later one: the first row's reading is held over the gap, so a gap
+/// of many τ ends at that reading, as a fresh start would). The gateway starts from the readings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LagState {
+    /// Recording time of the stored states, s.
+    pub t_s: f64,
+    /// (sensor name, lagged input) for sensors with a lag, in the sensor's input unit (°C, or the
+    /// column's unit to its `exponent`).
+    pub lagged: Vec<(String, f64)>,
 }
 
 impl ModelSpec {

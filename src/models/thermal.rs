@@ -77,6 +77,16 @@ impl ThermalState {
         }
     }
 
+    /// Start sensor `i`'s lag from `lagged` (its input unit) as of recording time `t_s`: the next
+    /// step advances it from there with Δt = t − `t_s`, the step's reading held over that span.
+    /// Sets the time of the last step for every sensor; sensors not resumed start at their first
+    /// reading as usual.
+    pub fn resume(&mut self, i: usize, lagged: f64, t_s: f64) {
+        self.set_lagged(i, lagged);
+        self.delta_c[i] = 0.0;
+        self.last_t_s = Some(t_s);
+    }
+
     /// (Δt since the last step or `None`, issues); records `t_s` unless time went backwards.
     fn advance_time(&mut self, t_s: f64) -> (Option<f64>, StepIssues) {
         let mut issues = StepIssues::default();

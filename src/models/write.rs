@@ -283,5 +283,20 @@ pub fn write_model(s: &ModelSpec) -> String {
             }
         }
     }
+    if let Some(ls) = &s.lag_state {
+        let _ = writeln!(
+            o,
+            "\n# The lags at the last row of the recording this model was fitted on: `retrocomp eval`\n\
+             # continues from them when a recording starts after t_s (the gateway ignores them).\n\
+             [lag_state]\nt_s = {}",
+            num(ls.t_s)
+        );
+        let items: Vec<String> = ls
+            .lagged
+            .iter()
+            .map(|(n, v)| format!("{} = {}", string(n), num(*v)))
+            .collect();
+        let _ = writeln!(o, "lagged = {{ {} }}", items.join(", "));
+    }
     o
 }

@@ -245,6 +245,24 @@ pub(crate) fn refit_shapes(d: &Data, ch: &str, rows: &[usize], shapes: &[Shape])
             fit.coef[j + 1] * unit
         ));
     }
+    // Where the lags stand at the last fit row (as `diagnose --out` writes it): `eval` continues
+    // from there over rows that follow.
+    let lagged: Vec<String> = shapes
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s.tau_s.is_some())
+        .map(|(j, s)| {
+            let last = *cols[j + 1].last().expect("fit rows");
+            format!("shape{j} = {}", last / input(s).1)
+        })
+        .collect();
+    if !lagged.is_empty() {
+        toml.push_str(&format!(
+            "[lag_state]\nt_s = {}\nlagged = {{ {} }}\n",
+            t.last().expect("fit rows"),
+            lagged.join(", ")
+        ));
+    }
     if shapes.is_empty() {
         toml = toml.replacen(
             &format!("e0_um = {}\n", coef[0]),

@@ -128,6 +128,7 @@ pub fn single_axis_spec(name: &str, axis: Axis, travel_mm: (f64, f64)) -> ModelS
         thermal: vec![],
         forces: vec![],
         load: vec![],
+        lag_state: None,
     }
 }
 

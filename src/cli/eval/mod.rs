@@ -19,7 +19,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 
-use retrocomp::models::{EvalFlags, MachineModel};
+use retrocomp::models::{EvalFlags, LagStart, MachineModel, ModelState};
 
 mod output;
 mod plain;
@@ -220,7 +220,8 @@ fn evaluate_rows(
             .context("cannot start the reading thread")?;
         // On an error here `full_rx` is dropped with the function's frame, so the reader stops at
         // its next batch instead of reading the file to its end.
-        let written = evaluate_batches(args, model, header, full_rx, empty_tx, output);
+        let has_t = rows.cols.t.is_some();
+        let written = evaluate_batches(args, model, has_t, header, full_rx, empty_tx, output);
         let problems = match reader.join() {
             Ok(problems) => problems?,
             Err(panic) => std::panic::resume_unwind(panic),
@@ -235,12 +236,15 @@ fn evaluate_rows(
 fn evaluate_batches(
     args: &Args,
     model: &MachineModel,
+    has_t: bool,
     header: &[u8],
     full: std::sync::mpsc::Receiver<Batch>,
     empty: std::sync::mpsc::Sender<Batch>,
     output: &mut Output,
 ) -> std::io::Result<()> {
-    let mut state = model.new_state();
+    // The lags start at the first row: from the model's `[lag_state]` when the recording continues
+    // the one the model was fitted on (`MachineModel::new_state_at`), else at their first readings.
+    let mut state: Option<ModelState> = None;
     let mut out = model.new_breakdown();
     // Rows are assembled straight into one reused chunk (no allocation per row) rather than through
     // csv::Writer, whose per-field state machine was a fifth of the command's CPU on 10⁶ rows.
@@ -249,10 +253,11 @@ fn evaluate_batches(
     // Ends when the reader drops its sender: after the last row, or at the first bad row.
     for batch in full.iter() {
         for (text, input) in batch.rows() {
+            let state = state.get_or_insert_with(|| first_state(model, has_t, input.t_s));
             if args.first_order {
-                model.evaluate_first_order(input, &mut state, &mut out);
+                model.evaluate_first_order(input, state, &mut out);
             } else {
-                model.evaluate(input, &mut state, &mut out);
+                model.evaluate(input, state, &mut out);
             }
             chunk.extend_from_slice(text);
             // Fixed 6 decimals (1 pm).
@@ -273,6 +278,33 @@ fn evaluate_batches(
     }
     // Written even if a later row turned out bad: the caller then takes the output back.
     output.write_all(&chunk)
+}
+
+/// The state for a recording whose first row is at `first_t_s`, saying on stderr how the lags
+/// start when the model stores lag states.
+fn first_state(model: &MachineModel, has_t: bool, first_t_s: f64) -> ModelState {
+    if !has_t {
+        if model.spec().lag_state.is_some() {
+            eprintln!(
+                "note: no t_s column: the model's [lag_state] is not used; lags start at their first readings"
+            );
+        }
+        return model.new_state();
+    }
+    let (state, start) = model.new_state_at(first_t_s);
+    match start {
+        LagStart::FirstReading => {}
+        LagStart::StoredNotBefore { stored_t_s } => eprintln!(
+            "note: the model's [lag_state] is of t_s = {stored_t_s}, not before this recording's first row (t_s = {first_t_s}): lags start at their first readings"
+        ),
+        LagStart::Resumed {
+            stored_t_s,
+            sensors,
+        } => eprintln!(
+            "note: {sensors} lag(s) continue from the model's [lag_state] at t_s = {stored_t_s} (first row t_s = {first_t_s})"
+        ),
+    }
+    state
 }
 
 /// Output is written in chunks of about this many bytes.
