@@ -47,7 +47,6 @@ fn judge_split(d: &Data, split: f64, tmp: &Path) -> Vec<Row> {
     let history = tmp.join(format!("history_{k}.csv"));
     d.write(&alone, k..n, None);
     d.write(&history, 0..n, None);
-    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/models/fl_thermal");
     let fit: Vec<usize> = (0..k).collect();
     CHANNELS
         .iter()
@@ -55,13 +54,7 @@ fn judge_split(d: &Data, split: f64, tmp: &Path) -> Vec<Row> {
             let dir = tmp.join(format!("{k}_{ch}"));
             let (sim, model, report) = fit_channel(d, ch, &fit, &dir);
             std::fs::write(dir.join("report.txt"), report).unwrap();
-            let shapes = shapes_of(
-                &shipped
-                    .join(ch.trim_end_matches("_um"))
-                    .join("found_terms.toml"),
-            );
-            let shape = dir.join("shape.toml");
-            std::fs::write(&shape, refit_shapes(d, ch, &fit, &shapes)).unwrap();
+            let shape = shipped_shape(d, ch, &fit, &dir);
             let meas = &d.col(ch)[k..n];
             let score = |m: &Path| {
                 [

@@ -50,20 +50,13 @@ fn leave_out(d: &Data, rpm: f64, tmp: &Path) -> Vec<Row> {
     let history = tmp.join("history.csv");
     d.write(&alone, out.clone(), None);
     d.write(&history, 0..n, None);
-    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/models/fl_thermal");
     CHANNELS
         .iter()
         .map(|&ch| {
             let dir = tmp.join(format!("{tag}_{ch}"));
             let (sim, model, report) = fit_channel(d, ch, &fit, &dir);
             std::fs::write(dir.join("report.txt"), report).unwrap();
-            let shapes = shapes_of(
-                &shipped
-                    .join(ch.trim_end_matches("_um"))
-                    .join("found_terms.toml"),
-            );
-            let shape = dir.join("shape.toml");
-            std::fs::write(&shape, refit_shapes(d, ch, &fit, &shapes)).unwrap();
+            let shape = shipped_shape(d, ch, &fit, &dir);
             let meas = &d.col(ch)[out.clone()];
             let score = |m: &Path| {
                 let rms_of = |p: &[f64]| rms(meas.iter().zip(p).map(|(a, b)| a - b));

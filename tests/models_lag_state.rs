@@ -115,17 +115,19 @@ fn a_stored_lag_state_continues_the_recording_as_if_it_had_been_fed_from_the_sta
     );
 }
 
+/// The model without a stored state, and with the state after rows 0..k stored.
+fn stored_after(k: usize) -> (MachineModel, MachineModel) {
+    let m0 = MachineModel::from_toml_str(MODEL, "lagged").unwrap();
+    let mut state = m0.new_state();
+    run(&m0, &mut state, 0..k);
+    let mut spec = m0.spec().clone();
+    spec.lag_state = Some(m0.lag_state_of(&state, row(k - 1).0));
+    (m0, MachineModel::from_spec(spec))
+}
+
 #[test]
 fn a_stored_state_is_not_used_for_a_recording_that_starts_at_or_before_it() {
-    let mut spec = MachineModel::from_toml_str(MODEL, "lagged")
-        .unwrap()
-        .spec()
-        .clone();
-    let m0 = MachineModel::from_spec(spec.clone());
-    let mut state = m0.new_state();
-    run(&m0, &mut state, 0..900);
-    spec.lag_state = Some(m0.lag_state_of(&state, row(899).0));
-    let m = MachineModel::from_spec(spec);
+    let (m0, m) = stored_after(900);
     for first in [0usize, 899] {
         let (mut s, start) = m.new_state_at(row(first).0);
         assert_eq!(
@@ -143,15 +145,7 @@ fn a_stored_state_is_not_used_for_a_recording_that_starts_at_or_before_it() {
 
 #[test]
 fn after_a_gap_of_many_time_constants_the_stored_state_has_decayed_to_the_reading() {
-    let mut spec = MachineModel::from_toml_str(MODEL, "lagged")
-        .unwrap()
-        .spec()
-        .clone();
-    let m0 = MachineModel::from_spec(spec.clone());
-    let mut state = m0.new_state();
-    run(&m0, &mut state, 0..600);
-    spec.lag_state = Some(m0.lag_state_of(&state, row(599).0));
-    let m = MachineModel::from_spec(spec);
+    let (m0, m) = stored_after(600);
     // 40 000 s later: 44 τ of the column, 27 τ of the spindle lag.
     let first = 599 + 40_000 / 15;
     let (mut s, start) = m.new_state_at(row(first).0);

@@ -273,6 +273,21 @@ pub(crate) fn refit_shapes(d: &Data, ch: &str, rows: &[usize], shapes: &[Shape])
     toml
 }
 
+/// The shipped whole-file model's structure for channel `ch` (`deploy/models/fl_thermal/d<k>/
+/// found_terms.toml`: sensors and τ kept) with gains and offset refitted on `rows`, written as
+/// `dir/shape.toml`; returns its path.
+pub(crate) fn shipped_shape(d: &Data, ch: &str, rows: &[usize], dir: &Path) -> PathBuf {
+    let shapes = shapes_of(
+        &Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("deploy/models/fl_thermal")
+            .join(ch.trim_end_matches("_um"))
+            .join("found_terms.toml"),
+    );
+    let shape = dir.join("shape.toml");
+    std::fs::write(&shape, refit_shapes(d, ch, rows, &shapes)).unwrap();
+    shape
+}
+
 pub(crate) fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_retrocomp"))
 }
