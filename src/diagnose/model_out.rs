@@ -205,8 +205,8 @@ pub fn model_with_findings_opts(
             ));
         }
     }
-    // The lags at the recording's last row, so `eval` can continue this recording (`[lag_state]`).
-    spec.lag_state = None;
+    // The lags at the recording's last row, so `eval` can continue this recording (`[lag_state]`;
+    // replaces any state the base model carried, `None` without `t_s` or lags).
     spec.lag_state =
         super::model_sim::final_lag_state(&MachineModel::from_spec(spec.clone()), rec)?;
     let (text, model) = to_checked_toml(spec)?;

@@ -156,6 +156,14 @@ impl<'a> Selector<'a> {
         !self.heldout.refits_sim() || self.in_sample(set) <= before
     }
 
+    /// Held-out RMS (µm) of the terms so far plus `s`, or `None` when adding `s` fails the
+    /// in-sample guard.
+    fn guarded_cv(&self, s: &Scored) -> Option<f64> {
+        let trial = self.trial(s);
+        self.guard_ok(&trial, self.guard_before)
+            .then(|| self.cv(&trial))
+    }
+
     /// The terms so far plus scored candidate `s`.
     fn trial(&self, s: &Scored) -> Vec<(&Candidate, f64)> {
         let mut trial = set_of(&self.terms);
@@ -349,14 +357,9 @@ impl<'a> Selector<'a> {
         // What the term explains of the residual as it is (no nuisance): its importance and RMS.
         let plain_gain = score(self.ctx, cand, win.theta, &nulls.plain).map_or(0.0, |s| s.0);
         let rss1 = nulls.plain.rss0 - plain_gain;
-        let trial = self.trial(&win);
-        let cv_after = self.cv(&trial);
-        if cv_after.is_nan()
-            || cv_after >= self.cv_before * (1.0 - opts.cv_min_gain)
-            || !self.guard_ok(&trial, self.guard_before)
-        {
-            return None;
-        }
+        let cv_after = self
+            .guarded_cv(&win)
+            .filter(|cv| *cv < self.cv_before * (1.0 - opts.cv_min_gain))?;
         let ambiguous_with = self.ambiguous_with(&win, &scored, &nulls.plain.r0);
         Some(Accepted {
             win,
@@ -386,16 +389,8 @@ impl<'a> Selector<'a> {
             .take(FORWARD_CHOICES)
             .take_while(|s| s.delta_bic > self.opts.min_delta_bic)
             .count();
-        let cv_with = |s: &Scored| {
-            let trial = self.trial(s);
-            if self.guard_ok(&trial, self.guard_before) {
-                self.cv(&trial)
-            } else {
-                f64::NAN
-            }
-        };
         if let Some(best) = (0..k)
-            .map(|i| (i, cv_with(&scored[i])))
+            .filter_map(|i| Some((i, self.guarded_cv(&scored[i])?)))
             .filter(|(_, v)| v.is_finite())
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .map(|(i, _)| i)
@@ -428,11 +423,10 @@ impl<'a> Selector<'a> {
             self.cv(&self.trial(&scored[0]))
         };
         let passes_heldout = |s: &Scored| {
-            let trial = self.trial(s);
-            let cv = self.cv(&trial);
-            cv < self.cv_before * (1.0 - opts.cv_min_gain)
-                && cv < sensor_cv * (1.0 - opts.cv_min_gain)
-                && self.guard_ok(&trial, self.guard_before)
+            self.guarded_cv(s).is_some_and(|cv| {
+                cv < self.cv_before * (1.0 - opts.cv_min_gain)
+                    && cv < sensor_cv * (1.0 - opts.cv_min_gain)
+            })
         };
         if let Some(j) = scored.iter().position(|s| {
             is_driver(ctx, &lib[s.idx])
@@ -457,16 +451,21 @@ impl<'a> Selector<'a> {
             return;
         }
         let top = scored[0].delta_bic;
-        let top_cv = self.cv(&self.trial(&scored[0]));
-        if let Some(j) = scored.iter().position(|s| {
+        let near = |s: &Scored| {
             matches!(lib[s.idx].kind, Kind::ThermalDrift { .. })
                 && s.delta_bic > opts.min_delta_bic
                 && top - s.delta_bic < opts.ambiguity_bic
-                && {
-                    let trial = self.trial(s);
-                    self.cv(&trial) <= top_cv * (1.0 + opts.cv_min_gain)
-                        && self.guard_ok(&trial, self.guard_before)
-                }
+        };
+        // The winner's held-out error only when some drift is near enough to need it.
+        if !scored.iter().any(near) {
+            return;
+        }
+        let top_cv = self.cv(&self.trial(&scored[0]));
+        if let Some(j) = scored.iter().position(|s| {
+            near(s)
+                && self
+                    .guarded_cv(s)
+                    .is_some_and(|cv| cv <= top_cv * (1.0 + opts.cv_min_gain))
         }) {
             let s = scored.remove(j);
             scored.insert(0, s);

@@ -83,7 +83,6 @@ impl ThermalState {
     /// reading as usual.
     pub fn resume(&mut self, i: usize, lagged: f64, t_s: f64) {
         self.set_lagged(i, lagged);
-        self.delta_c[i] = 0.0;
         self.last_t_s = Some(t_s);
     }
 
