@@ -533,14 +533,7 @@ impl<'a> Selector<'a> {
 
     /// Append the step's winner: mark its family used, extend the basis, record the term.
     fn accept(&mut self, acc: Accepted) {
-        let Accepted {
-            win,
-            p_value,
-            plain_gain,
-            rss1,
-            cv_after,
-            ambiguous_with,
-        } = acc;
+        let win = &acc.win;
         let cand = self.lib[win.idx].clone();
         let new_cols = cand.columns(self.ctx, win.theta);
         self.used[win.idx] = true;
@@ -563,15 +556,15 @@ impl<'a> Selector<'a> {
             theta: win.theta,
             cols: new_cols,
             delta_bic: win.delta_bic,
-            p_value,
-            gain_rss: plain_gain,
-            rms_after_um: (rss1 / self.r.len() as f64).sqrt(),
+            p_value: acc.p_value,
+            gain_rss: acc.plain_gain,
+            rms_after_um: (acc.rss1 / self.r.len() as f64).sqrt(),
             heldout_rms_before_um: self.cv_before,
-            heldout_rms_after_um: cv_after,
-            ambiguous_with,
+            heldout_rms_after_um: acc.cv_after,
             within_cells: win.cells,
+            ambiguous_with: acc.ambiguous_with,
         });
-        self.cv_before = cv_after;
+        self.cv_before = acc.cv_after;
         self.guard_before = self.in_sample(&set_of(&self.terms));
     }
 }
