@@ -184,6 +184,18 @@ impl Context {
             .or_else(|| self.krpm2.as_deref().filter(|_| name == KRPM2))
     }
 
+    /// The resolution of column `name` (its unit): the smallest non-zero step between
+    /// consecutive rows, e.g. 0.1 °C for a sensor read in tenths. `None` for a constant column.
+    pub fn resolution(&self, name: &str) -> Option<f64> {
+        let q = self
+            .temp(name)?
+            .windows(2)
+            .map(|w| (w[1] - w[0]).abs())
+            .filter(|d| *d > 0.0)
+            .fold(f64::INFINITY, f64::min);
+        q.is_finite().then_some(q)
+    }
+
     /// Heat-source drivers other than temperatures: `rpm` and every column with no DESIGN §4
     /// role (spindle load, power, coolant, ambient… or a decoy), name and values.
     pub fn drivers(&self) -> Vec<(&str, &[f64])> {
@@ -499,6 +511,32 @@ mod tests {
         ])
         .unwrap();
         assert_eq!(Context::from_recording(&rec3).blocks_for('x', 5).1, 3);
+    }
+
+    #[test]
+    fn resolution_is_the_smallest_step_of_a_reading() {
+        let n = 50;
+        let t: Vec<f64> = (0..n).map(|i| i as f64).collect();
+        // Read in tenths: steps of 0.1 and 0.2 °C, and rows with no change.
+        let tq: Vec<f64> = (0..n)
+            .map(|i| 20.0 + 0.1 * (i / 3 + i / 10) as f64)
+            .collect();
+        let rec = Recording::from_columns(vec![
+            ("t_s".into(), t),
+            ("T_a_C".into(), tq),
+            ("T_b_C".into(), vec![21.0; n]),
+            ("ez_um".into(), vec![0.0; n]),
+        ])
+        .unwrap();
+        let ctx = Context::from_recording(&rec);
+        let q = ctx.resolution("T_a_C").unwrap();
+        assert!((q - 0.1).abs() < 1e-9, "{q}");
+        assert_eq!(
+            ctx.resolution("T_b_C"),
+            None,
+            "a constant reading has no step"
+        );
+        assert_eq!(ctx.resolution("T_none_C"), None);
     }
 
     #[test]

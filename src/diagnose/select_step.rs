@@ -444,17 +444,23 @@ impl<'a> Selector<'a> {
     /// ambiguity margin) and predicts the held-out data as well (within `cv_min_gain`), the
     /// drift is taken. A lag that wins in-sample by smoothing a sensor's own 0.1 °C steps or its
     /// few seconds of lag, or a lag of `rpm` that equals a measured temperature, is not evidence
-    /// that the error lags that temperature.
+    /// that the error lags that temperature. When the lag stays within the reading's resolution
+    /// ([`within_resolution`]) the two are the same term as far as the sensor can tell: the drift
+    /// of that reading is taken whenever it passes the bar itself (ΔBIC; the held-out gate
+    /// follows in `choose`), with no margin. The lag's edge there is the smoothing of the steps
+    /// (a regressor read with error), worth a few % of held-out error, not a time constant.
     fn prefer_simpler(&self, scored: &mut Vec<Scored>) {
         let (lib, opts) = (&self.lib, self.opts);
         if !matches!(lib[scored[0].idx].kind, Kind::ThermalLag { .. }) {
             return;
         }
         let top = scored[0].delta_bic;
+        let same_reading = within_resolution(self.ctx, &lib[scored[0].idx], scored[0].theta);
+        let same = |s: &Scored| matches!(&lib[s.idx].kind, Kind::ThermalDrift { sensor } if Some(sensor) == same_reading);
         let near = |s: &Scored| {
             matches!(lib[s.idx].kind, Kind::ThermalDrift { .. })
                 && s.delta_bic > opts.min_delta_bic
-                && top - s.delta_bic < opts.ambiguity_bic
+                && (top - s.delta_bic < opts.ambiguity_bic || same(s))
         };
         // The winner's held-out error only when some drift is near enough to need it.
         if !scored.iter().any(near) {
@@ -465,7 +471,7 @@ impl<'a> Selector<'a> {
             near(s)
                 && self
                     .guarded_cv(s)
-                    .is_some_and(|cv| cv <= top_cv * (1.0 + opts.cv_min_gain))
+                    .is_some_and(|cv| same(s) || cv <= top_cv * (1.0 + opts.cv_min_gain))
         }) {
             let s = scored.remove(j);
             scored.insert(0, s);
@@ -567,4 +573,22 @@ impl<'a> Selector<'a> {
         self.cv_before = acc.cv_after;
         self.guard_before = self.in_sample(&set_of(&self.terms));
     }
+}
+
+/// The reading `c` lags, when the lag (τ = `tau_s`) departs from the reading itself by less than
+/// the reading's resolution (RMS over the record below its smallest step, e.g. 0.1 °C): such a
+/// lag cannot be told from the reading by this sensor. `None` for any other candidate.
+fn within_resolution<'c>(ctx: &Context, c: &'c Candidate, tau_s: f64) -> Option<&'c String> {
+    let Kind::ThermalLag { sensor } = &c.kind else {
+        return None;
+    };
+    let (u, q) = (ctx.temp(sensor)?, ctx.resolution(sensor)?);
+    // The lag's column is LPF(u) − u(0), the drift's u − u(0).
+    let lag = c.columns(ctx, tau_s).swap_remove(0);
+    let ss: f64 = lag
+        .iter()
+        .zip(u)
+        .map(|(y, v)| (y - (v - u[0])).powi(2))
+        .sum();
+    ((ss / u.len() as f64).sqrt() < q).then_some(sensor)
 }
