@@ -68,8 +68,9 @@ fn asyncua_browses_reads_and_subscribes_to_the_gateway() {
     let port = hub.local_addr().port();
     let sim_cfg = dir.join("sim.toml");
     let pty_link = dir.join("weighing-pty");
-    // Ten out-and-back strokes (≈ 31 s): the axes move while the client reads.
-    let sim = configs::sim_machine_toml(10, &truth) + &configs::sim_io_toml(port, &pty_link, None);
+    // Twenty out-and-back strokes (to the sim's 60 s cap): the axes move while the client reads
+    // (it compares until it has caught them moving; the sim is stopped when the client is done).
+    let sim = configs::sim_machine_toml(20, &truth) + &configs::sim_io_toml(port, &pty_link, None);
     std::fs::write(&sim_cfg, sim).unwrap();
     let mut sim = run::Sim::spawn(&hil_sim, &sim_cfg, &dir.join("out"));
     let [plc, pty] = <[String; 2]>::try_from(
@@ -125,7 +126,7 @@ fn asyncua_browses_reads_and_subscribes_to_the_gateway() {
     assert!(summary["matched"].as_u64() >= Some(3), "{summary}");
     // The machine moves: some correction differs from zero while the values were compared.
     assert!(
-        summary["max_abs_correction_um"].as_f64() > Some(0.1),
+        summary["max_abs_correction_um"].as_f64() >= Some(0.1),
         "{summary}"
     );
     let units = summary["units"].as_object().unwrap();

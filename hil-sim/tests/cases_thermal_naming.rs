@@ -14,10 +14,19 @@
 
 use hil_sim::cases::{Family, generate_family_case};
 use retrocomp::diagnose::effects::EffectModel;
+use retrocomp::diagnose::report::Finding;
 use retrocomp::diagnose::{diagnose, select::Options};
 
-fn param(f: &retrocomp::diagnose::report::Finding, key: &str) -> Option<serde_json::Value> {
+fn param(f: &Finding, key: &str) -> Option<serde_json::Value> {
     f.params.get(key).cloned()
+}
+
+/// Each finding as `effect(Some(sensor))`, for the failure messages.
+fn named(findings: &[Finding]) -> Vec<String> {
+    findings
+        .iter()
+        .map(|f| format!("{}({:?})", f.effect, param(f, "sensor")))
+        .collect()
 }
 
 #[test]
@@ -42,12 +51,7 @@ fn a_drift_on_a_measured_temperature_is_named_as_that_drift_not_as_the_lag_it_eq
             );
         };
         let d = diagnose(&rec, &Options::default()).unwrap();
-        let found: Vec<String> = d
-            .report
-            .findings
-            .iter()
-            .map(|f| format!("{}({:?})", f.effect, param(f, "sensor")))
-            .collect();
+        let found = named(&d.report.findings);
         let f = d
             .report
             .findings
@@ -113,12 +117,7 @@ fn a_true_lag_of_a_sensor_is_still_named_as_that_lag() {
             continue;
         }
         let d = diagnose(&rec, &Options::default()).unwrap();
-        let found: Vec<String> = d
-            .report
-            .findings
-            .iter()
-            .map(|f| format!("{}({:?})", f.effect, param(f, "sensor")))
-            .collect();
+        let found = named(&d.report.findings);
         assert!(
             d.report.findings.iter().any(|f| f.effect == "thermal_lag"
                 && param(f, "sensor").and_then(|v| v.as_str().map(str::to_string))
