@@ -7,7 +7,7 @@
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
 use super::candidates::{Candidate, Kind, library};
-use super::features::Context;
+use super::features::{Context, lowpass};
 use super::heldout::Heldout;
 use super::lsq::{self, dot};
 use super::null_model::{
@@ -451,12 +451,18 @@ impl<'a> Selector<'a> {
     /// (a regressor read with error), worth a few % of held-out error, not a time constant.
     fn prefer_simpler(&self, scored: &mut Vec<Scored>) {
         let (lib, opts) = (&self.lib, self.opts);
-        if !matches!(lib[scored[0].idx].kind, Kind::ThermalLag { .. }) {
+        let Kind::ThermalLag { sensor: lagged } = &lib[scored[0].idx].kind else {
             return;
-        }
+        };
         let top = scored[0].delta_bic;
-        let same_reading = within_resolution(self.ctx, &lib[scored[0].idx], scored[0].theta);
-        let same = |s: &Scored| matches!(&lib[s.idx].kind, Kind::ThermalDrift { sensor } if Some(sensor) == same_reading);
+        let drift_of_lagged = |s: &Scored| {
+            matches!(&lib[s.idx].kind, Kind::ThermalDrift { sensor } if sensor == lagged)
+                && s.delta_bic > opts.min_delta_bic
+        };
+        // The lag's column is computed only when the same reading's drift passes the bar.
+        let same_reading = scored.iter().any(drift_of_lagged)
+            && within_resolution(self.ctx, lagged, scored[0].theta);
+        let same = |s: &Scored| same_reading && drift_of_lagged(s);
         let near = |s: &Scored| {
             matches!(lib[s.idx].kind, Kind::ThermalDrift { .. })
                 && s.delta_bic > opts.min_delta_bic
@@ -575,20 +581,17 @@ impl<'a> Selector<'a> {
     }
 }
 
-/// The reading `c` lags, when the lag (τ = `tau_s`) departs from the reading itself by less than
-/// the reading's resolution (RMS over the record below its smallest step, e.g. 0.1 °C): such a
-/// lag cannot be told from the reading by this sensor. `None` for any other candidate.
-fn within_resolution<'c>(ctx: &Context, c: &'c Candidate, tau_s: f64) -> Option<&'c String> {
-    let Kind::ThermalLag { sensor } = &c.kind else {
-        return None;
+/// Whether a first-order lag (τ = `tau_s`) of column `sensor` departs from the reading itself by
+/// less than the reading's resolution (RMS over the record below its smallest step, e.g. 0.1 °C):
+/// such a lag cannot be told from the reading by this sensor.
+fn within_resolution(ctx: &Context, sensor: &str, tau_s: f64) -> bool {
+    let (Some(u), Some(q)) = (ctx.temp(sensor), ctx.resolution(sensor)) else {
+        return false;
     };
-    let (u, q) = (ctx.temp(sensor)?, ctx.resolution(sensor)?);
-    // The lag's column is LPF(u) − u(0), the drift's u − u(0).
-    let lag = c.columns(ctx, tau_s).swap_remove(0);
-    let ss: f64 = lag
+    let ss: f64 = lowpass(&ctx.t_s, u, tau_s)
         .iter()
         .zip(u)
-        .map(|(y, v)| (y - (v - u[0])).powi(2))
+        .map(|(y, v)| (y - v).powi(2))
         .sum();
-    ((ss / u.len() as f64).sqrt() < q).then_some(sensor)
+    (ss / u.len() as f64).sqrt() < q
 }
