@@ -10,6 +10,7 @@
 pub mod candidates;
 pub mod effects;
 pub mod features;
+pub mod forward_check;
 pub mod heldout;
 pub mod locate;
 pub mod lsq;
@@ -35,7 +36,7 @@ use effects::EffectModel;
 use features::Context;
 use heldout::Heldout;
 use refit::{joint_refit, parsimony_drop};
-use report::{AlternativeOut, Dropped, Evidence, Finding, Report};
+use report::{AlternativeOut, Dropped, Evidence, Finding, ForwardCheck, Report};
 use selection::Options;
 
 /// Everything diagnose and its outputs (`--out`, `--model`, the benchmark's manifests) can fail
@@ -260,6 +261,8 @@ fn diagnose_residuals(
         out.mismatch
             .extend(locate::unexplained(&ctx, signal, &final_resid));
         drop(final_resid);
+        out.forward_check
+            .extend(forward_check::forward_check(&ctx, &result));
         result.after_coef.shrink_to_fit();
         out.signals.push(result);
     }
@@ -273,6 +276,7 @@ struct Assembly {
     findings: Vec<(f64, Finding)>,
     alternatives: Vec<AlternativeOut>,
     dropped: Vec<Dropped>,
+    forward_check: Vec<ForwardCheck>,
     mismatch: Vec<report::Mismatch>,
     signals: Vec<SignalResult>,
     ambiguous: bool,
@@ -460,6 +464,7 @@ impl Assembly {
             mut findings,
             alternatives,
             dropped,
+            forward_check,
             mismatch,
             signals,
             ambiguous,
@@ -482,6 +487,7 @@ impl Assembly {
             findings,
             alternatives,
             dropped,
+            forward_check,
         };
         Diagnosis {
             report,

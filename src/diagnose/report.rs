@@ -46,6 +46,19 @@ pub struct AlternativeOut {
 /// A term selected at some step and not in the final model: replaced by the exchange step, or
 /// dropped by parsimony after the final joint refit (issue 12 point 3). Not a DESIGN §5 key: an
 /// added one (`dropped`, absent when nothing was dropped).
+/// The final model of one signal run forward once (`forward_check.rs`): gains and offset fitted
+/// on the first `fit_rows` rows, RMS (µm) of measured − sim on the `scored_rows` after them with
+/// the offset alone (`rms_sim_um`) and with the found terms (`rms_model_um`). Not a DESIGN §5
+/// key: an added one (`forward_check`, absent without findings).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct ForwardCheck {
+    pub signal: String,
+    pub fit_rows: usize,
+    pub scored_rows: usize,
+    pub rms_sim_um: f64,
+    pub rms_model_um: f64,
+}
+
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct Dropped {
     pub effect: String,
@@ -76,6 +89,8 @@ pub struct Report {
     pub alternatives: Vec<AlternativeOut>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub dropped: Vec<Dropped>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub forward_check: Vec<ForwardCheck>,
 }
 
 /// What each effect means, in words (the report's "explanation").
@@ -157,6 +172,15 @@ impl Report {
                 "   evidence: ΔBIC {:.1}, p {:.2e}; RMS after {:.3} µm; held-out RMS {:.3} → {:.3} µm\n",
                 f.evidence.delta_bic, f.evidence.p_value, f.rms_after_um, f.heldout_rms_before_um, f.heldout_rms_after_um
             ));
+        }
+        if !self.forward_check.is_empty() {
+            s.push_str("\nforward check (the found terms' gains and the offset refitted on the first rows):\n");
+            for f in &self.forward_check {
+                s.push_str(&format!(
+                    "  {}: fitted on the first {} rows, RMS on the {} after them: {:.3} µm with the offset alone, {:.3} µm with the found terms\n",
+                    f.signal, f.fit_rows, f.scored_rows, f.rms_sim_um, f.rms_model_um
+                ));
+            }
         }
         if !self.alternatives.is_empty() {
             s.push_str("\nalternatives:\n");

@@ -60,8 +60,8 @@ fn standard_family() -> String {
     "standard".into()
 }
 
-/// Fraction of the rows the forward held-out gains are fitted on (the rest is predicted).
-pub const FORWARD_FIT_FRACTION: f64 = 0.6;
+pub use super::forward_check::FORWARD_FIT_FRACTION;
+use super::forward_check::forward_rms;
 
 #[derive(Clone, Debug, Serialize)]
 pub struct CaseScore {
@@ -205,16 +205,6 @@ enum Validation {
     Blocks,
     /// Fit on the first [`FORWARD_FIT_FRACTION`] of the rows, predict the rest.
     Forward,
-}
-
-fn forward_rms(cols: &[Vec<f64>], r: &[f64]) -> f64 {
-    let split = (r.len() as f64 * FORWARD_FIT_FRACTION) as usize;
-    let early: Vec<&[f64]> = cols.iter().map(|c| &c[..split]).collect();
-    let coef = lsq::fit(&early, &r[..split]).coef;
-    let rss: f64 = (split..r.len())
-        .map(|i| (r[i] - cols.iter().zip(&coef).map(|(c, b)| b * c[i]).sum::<f64>()).powi(2))
-        .sum();
-    (rss / (r.len() - split).max(1) as f64).sqrt()
 }
 
 /// The recording's context with `rpm` also available as a thermal driver (a heat source seen only

@@ -165,6 +165,7 @@ mod tests {
             findings: vec![],
             alternatives: vec![],
             dropped: vec![],
+            forward_check: vec![],
         }
     }
 
