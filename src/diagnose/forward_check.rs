@@ -35,17 +35,20 @@ fn fit_rows(n: usize) -> usize {
 /// The forward check of one signal's final model; `None` without terms, or when either side of
 /// the split is too short to say anything (fewer rows than columns to fit, or none to score).
 pub(super) fn forward_check(ctx: &Context, s: &SignalResult) -> Option<ForwardCheck> {
+    if s.terms.is_empty() {
+        return None;
+    }
     let r = &s.residual_before;
     let n = r.len();
     let (fit, scored) = (fit_rows(n), n - fit_rows(n));
-    if s.terms.is_empty() || fit <= s.terms.len() + 1 || scored == 0 {
-        return None;
-    }
     let mut cols = vec![vec![1.0; n]];
-    let rms_sim_um = forward_rms(&cols, r);
     for (c, theta) in &s.terms {
         cols.extend(c.columns(ctx, *theta));
     }
+    if fit <= cols.len() || scored == 0 {
+        return None;
+    }
+    let rms_sim_um = forward_rms(&cols[..1], r);
     let rms_model_um = forward_rms(&cols, r);
     (rms_sim_um.is_finite() && rms_model_um.is_finite()).then(|| ForwardCheck {
         signal: s.signal.clone(),

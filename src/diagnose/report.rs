@@ -43,9 +43,6 @@ pub struct AlternativeOut {
     pub experiment: Option<String>,
 }
 
-/// A term selected at some step and not in the final model: replaced by the exchange step, or
-/// dropped by parsimony after the final joint refit (issue 12 point 3). Not a DESIGN §5 key: an
-/// added one (`dropped`, absent when nothing was dropped).
 /// The final model of one signal run forward once (`forward_check.rs`): gains and offset fitted
 /// on the first `fit_rows` rows, RMS (µm) of measured − sim on the `scored_rows` after them with
 /// the offset alone (`rms_sim_um`) and with the found terms (`rms_model_um`). Not a DESIGN §5
@@ -59,6 +56,9 @@ pub struct ForwardCheck {
     pub rms_model_um: f64,
 }
 
+/// A term selected at some step and not in the final model: replaced by the exchange step, or
+/// dropped by parsimony after the final joint refit (issue 12 point 3). Not a DESIGN §5 key: an
+/// added one (`dropped`, absent when nothing was dropped).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct Dropped {
     pub effect: String,

@@ -60,7 +60,6 @@ fn standard_family() -> String {
     "standard".into()
 }
 
-pub use super::forward_check::FORWARD_FIT_FRACTION;
 use super::forward_check::forward_rms;
 
 #[derive(Clone, Debug, Serialize)]
@@ -203,7 +202,8 @@ fn names(h: &TruthEffect, f: &super::report::Finding) -> bool {
 enum Validation {
     /// Leave-one-block-out ([`Context::blocks`]).
     Blocks,
-    /// Fit on the first [`FORWARD_FIT_FRACTION`] of the rows, predict the rest.
+    /// Fit on the first [`FORWARD_FIT_FRACTION`](super::forward_check::FORWARD_FIT_FRACTION) of the
+    /// rows, predict the rest.
     Forward,
 }
 
