@@ -18,12 +18,15 @@ pub const FORWARD_FIT_FRACTION: f64 = 0.6;
 
 /// RMS (µm) on the rows after the split of `r` − the least-squares fit of `cols` on the rows before
 /// it. `cols` must hold the intercept when an offset is meant.
-pub fn forward_rms(cols: &[Vec<f64>], r: &[f64]) -> f64 {
+pub fn forward_rms<C: AsRef<[f64]>>(cols: &[C], r: &[f64]) -> f64 {
     let split = fit_rows(r.len());
-    let early: Vec<&[f64]> = cols.iter().map(|c| &c[..split]).collect();
+    let early: Vec<&[f64]> = cols.iter().map(|c| &c.as_ref()[..split]).collect();
     let coef = lsq::coef(&early, &r[..split]);
     let rss: f64 = (split..r.len())
-        .map(|i| (r[i] - cols.iter().zip(&coef).map(|(c, b)| b * c[i]).sum::<f64>()).powi(2))
+        .map(|i| {
+            let fit: f64 = cols.iter().zip(&coef).map(|(c, b)| b * c.as_ref()[i]).sum();
+            (r[i] - fit).powi(2)
+        })
         .sum();
     (rss / (r.len() - split).max(1) as f64).sqrt()
 }

@@ -305,13 +305,19 @@ impl Assembly {
         let heldout = Heldout::new(ctx, axis, r, sim_inputs, opts);
         loop {
             let (models, cis, after_coef, refit_terms) = joint_refit(ctx, r, &sel.terms);
-            let Some((k, reason, with, without)) = parsimony_drop(&heldout, &sel.terms, &cis, opts)
+            let Some((k, reason, with, without)) =
+                parsimony_drop(&heldout, r, &sel.terms, &cis, opts)
             else {
                 return (models, cis, after_coef, refit_terms);
             };
             let t = sel.terms.remove(k);
             let why = if reason == "ci_includes_zero" {
                 "the 95 % interval of its gain includes 0".to_string()
+            } else if reason == "no_forward_gain" {
+                format!(
+                    "removing it lowers the forward-check RMS by more than {:.0} %, and by more than it raises the held-out RMS ({with:.3} → {without:.3} µm forward)",
+                    100.0 * opts.cv_min_gain
+                )
             } else {
                 format!(
                     "removing it does not raise the held-out RMS by {:.0} % ({with:.3} → {without:.3} µm)",
@@ -567,8 +573,8 @@ mod tests {
             m
         };
         let both = [term(&ca), term(&cb)];
-        let (k, reason, with, without) =
-            parsimony_drop(&heldout, &both, &[ci(), ci()], &opts).expect("one of the pair goes");
+        let (k, reason, with, without) = parsimony_drop(&heldout, &r, &both, &[ci(), ci()], &opts)
+            .expect("one of the pair goes");
         assert_eq!(reason, "no_heldout_gain");
         assert!(
             k < 2 && without <= with / (1.0 - opts.cv_min_gain),
@@ -576,13 +582,13 @@ mod tests {
         );
         let one = [term(&ca)];
         assert!(
-            parsimony_drop(&heldout, &one, &[ci()], &opts).is_none(),
+            parsimony_drop(&heldout, &r, &one, &[ci()], &opts).is_none(),
             "the lag that explains the residual stays"
         );
         // The interval test comes first.
         let mut zero = Map::new();
         zero.insert("um_per_K".into(), json!([-0.1, 3.0]));
-        let (k, reason, ..) = parsimony_drop(&heldout, &both, &[ci(), zero], &opts).unwrap();
+        let (k, reason, ..) = parsimony_drop(&heldout, &r, &both, &[ci(), zero], &opts).unwrap();
         assert_eq!((k, reason), (1, "ci_includes_zero"));
     }
 }
