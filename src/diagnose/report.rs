@@ -70,12 +70,13 @@ pub struct Dropped {
     /// jointly) or `no_heldout_gain` (removing it does not raise the held-out RMS by the
     /// acceptance bar, `Options::cv_min_gain`) or `no_forward_gain` (recordings with axes:
     /// removing it lowers the forward check's RMS by more than that bar and by more, relatively,
-    /// than it raises the held-out RMS; the two RMS fields are then the forward check's) or `exchanged` (replaced by the exchange step
-    /// after forward selection by the term(s) in `replaced_by`, which explain the residual better
-    /// given the other terms and do not raise the held-out RMS).
+    /// than it raises the held-out RMS) or `exchanged` (replaced by the exchange step after
+    /// forward selection by the term(s) in `replaced_by`, which explain the residual better given
+    /// the other terms and do not raise the held-out RMS).
     pub reason: String,
     /// Held-out RMS (µm; forward on thermal tests) with every kept term and this one, and without it
-    /// (for `exchanged`: the accepted set before the exchange, and after it).
+    /// (for `exchanged`: the accepted set before the exchange, and after it; for
+    /// `no_forward_gain`: the forward check's RMS, `forward_check.rs`).
     pub heldout_rms_with_um: f64,
     pub heldout_rms_without_um: f64,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -200,8 +201,14 @@ impl Report {
                 } else {
                     format!(" by {}", d.replaced_by.join(" + "))
                 };
+                // A `no_forward_gain` drop carries the forward check's RMS in these fields.
+                let score = if d.reason == "no_forward_gain" {
+                    "forward-check"
+                } else {
+                    "held-out"
+                };
                 s.push_str(&format!(
-                    "  {} on {}: {}{by} (held-out RMS {:.3} µm with it, {:.3} µm without)\n",
+                    "  {} on {}: {}{by} ({score} RMS {:.3} µm with it, {:.3} µm without)\n",
                     d.term, d.signal, d.reason, d.heldout_rms_with_um, d.heldout_rms_without_um
                 ));
             }
