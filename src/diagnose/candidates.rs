@@ -75,6 +75,22 @@ impl Candidate {
         }
     }
 
+    /// Whether its columns follow a context column that changes over the recording (a
+    /// temperature, `rpm`, a force, time itself) rather than position and direction alone. Only
+    /// such a term can be judged by how it predicts later rows from earlier ones: a geometric
+    /// term is estimable from the early rows only if they visit its positions and directions
+    /// (a forward pass recorded before the reverse one does not).
+    pub fn follows_context(&self) -> bool {
+        matches!(
+            self.kind,
+            Kind::ThermalDrift { .. }
+                | Kind::ThermalLag { .. }
+                | Kind::ThermalExpansion { .. }
+                | Kind::Force { .. }
+                | Kind::TimeDrift
+        )
+    }
+
     pub fn is_nonlinear(&self) -> bool {
         !self.grid.is_empty()
     }

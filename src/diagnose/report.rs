@@ -68,8 +68,8 @@ pub struct Dropped {
     pub term: String,
     /// `ci_includes_zero` (the 95 % interval of its gain includes 0 once every term is refitted
     /// jointly) or `no_heldout_gain` (removing it does not raise the held-out RMS by the
-    /// acceptance bar, `Options::cv_min_gain`) or `no_forward_gain` (recordings with axes:
-    /// removing it lowers the forward check's RMS by more than that bar and by more, relatively,
+    /// acceptance bar, `Options::cv_min_gain`) or `no_forward_gain` (recordings with axes, a term
+    /// that follows a changing context column: removing it lowers the forward check's RMS by more than that bar and by more, relatively,
     /// than it raises the held-out RMS) or `exchanged` (replaced by the exchange step after
     /// forward selection by the term(s) in `replaced_by`, which explain the residual better given
     /// the other terms and do not raise the held-out RMS).
