@@ -228,9 +228,9 @@ fn diagnose_residuals(
     for res in residuals.clone() {
         let (signal, r) = res?;
         let axis = signal.chars().nth(1).expect("e<axis>_um");
-        taus.push(null_model::signal_tau(&ctx, axis, &r));
+        taus.extend(select::unit_root_taus(&ctx, axis, &r, sim_inputs, opts));
     }
-    let pooled_tau = (taus.len() >= 2).then(|| taus.iter().copied().fold(f64::INFINITY, f64::min));
+    let recording_rejects = null_model::recording_rejects_unit_root(&taus);
     let mut out = Assembly::default();
     for res in residuals {
         let (signal, r) = res?;
@@ -239,7 +239,7 @@ fn diagnose_residuals(
         out.all_sq += r.iter().map(|v| v * v).sum::<f64>();
         out.all_n += r.len();
         out.mismatch.extend(locate::locate(&ctx, signal, &r));
-        let mut sel = select::select_pooled(&ctx, axis, &r, sim_inputs, opts, pooled_tau);
+        let mut sel = select::select_pooled(&ctx, axis, &r, sim_inputs, opts, recording_rejects);
         let (models, cis, after_coef, refit_terms) =
             out.parsimony(&ctx, &r, &mut sel, signal, sim_inputs, opts);
         out.exchanged(&sel, signal);

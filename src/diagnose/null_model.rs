@@ -152,14 +152,18 @@ pub(super) struct NoiseModel {
 impl NoiseModel {
     /// `null_noise`: the step's null residual; `alt_noise`: the residual the step's strongest
     /// candidate (by RSS share) leaves; both with the cell means removed, as for n_eff.
-    /// `pooled_tau`: the recording's noise statistic when it has two or more error signals (the
-    /// smallest [`signal_tau`] over them, see there), else `None`.
+    /// `recording_rejects`: with two or more error signals, whether the recording rejects a unit
+    /// root before any term ([`recording_rejects_unit_root`]), else `None`.
     ///
-    /// * **Integrated** whenever `pooled_tau` does not reject a unit root at 1 %
-    ///   ([`ADF_CRITICAL`]): every error channel is read by the same instrument, so the noise
-    ///   type is the recording's, and a channel without a large smooth effect shows it. When
-    ///   not even the most stationary-looking channel rejects a unit root, the step's own test
-    ///   below (which a spurious smooth fit to a walk can pass) is not asked.
+    /// * **Integrated** unless the recording rejects a unit root: every error channel is read by
+    ///   the same instrument, so the noise type is the recording's. A channel without a large
+    ///   smooth effect shows it, and a channel whose noise is a walk says so whatever the other
+    ///   shows; each channel is judged by the same two-way test as the step below, so one whose
+    ///   large smooth effect hides stationary noise still rejects once its strongest candidate is
+    ///   taken out. Until session 14 only the smallest null-residual τ over the signals was asked:
+    ///   a walk channel that looks stationary by chance (ADF's 1 % tail; 4 of 60 walk nulls at
+    ///   five seeds, τ −3.6 to −4.1) then decided for the recording although the other channel
+    ///   read τ −1.4 to −2.3 — the two null false alarms of `rw_decoy` (seeds 12 and 13).
     /// * **Stationary**, else, when an augmented Dickey–Fuller test ([`adf_tau`]) rejects a unit root
     ///   at 1 % on the null residual ([`ADF_CRITICAL`]), or on the strongest candidate's residual
     ///   with the residual-based critical value ([`ADF_CRITICAL_FITTED`]: a fitted smooth column
@@ -178,11 +182,14 @@ impl NoiseModel {
     ///   regression (Granger–Newbold) of any smooth column over thousands of rows. Differencing
     ///   alone would leave the quantisation noise doubled at every frequency; the MA(1) filter
     ///   weights the low frequencies, where slow physics lives, by the walk's innovations only.
-    pub(super) fn of(null_noise: &[f64], alt_noise: &[f64], pooled_tau: Option<f64>) -> NoiseModel {
+    pub(super) fn of(
+        null_noise: &[f64],
+        alt_noise: &[f64],
+        recording_rejects: Option<bool>,
+    ) -> NoiseModel {
         let lags = adf_lags(null_noise.len());
-        let stationary = pooled_tau.is_none_or(|t| t <= ADF_CRITICAL)
-            && (adf_tau(null_noise, lags) <= ADF_CRITICAL
-                || adf_tau(alt_noise, lags) <= ADF_CRITICAL_FITTED);
+        let stationary = recording_rejects.unwrap_or(true)
+            && rejects_unit_root(adf_tau(null_noise, lags), adf_tau(alt_noise, lags));
         if stationary {
             NoiseModel {
                 rho: lsq::ar1_coefficient(alt_noise),
@@ -262,15 +269,26 @@ pub(super) const ADF_CRITICAL: f64 = -3.43;
 /// of the library.
 pub(super) const ADF_CRITICAL_FITTED: f64 = -4.29;
 
-/// ADF τ ([`adf_tau`]) of a signal's residual before any term (cell means removed as for n_eff).
-/// The recording's pooled statistic ([`NoiseModel::of`]) is the smallest over its signals: an
-/// effect-free channel shows the instrument's noise; a large smooth effect pushes its channel's τ
-/// up (towards "integrated"), a step, cyclic or position-shaped effect pushes it down (so the
-/// pooled statistic only vetoes "stationary", it never forces it: measured, forcing it put a
-/// walk channel under the stationary model whenever the other channel carried such an effect).
-pub(super) fn signal_tau(ctx: &Context, axis: char, r: &[f64]) -> f64 {
-    let v = without_cell_means(ctx, axis, r);
-    adf_tau(&v, adf_lags(v.len()))
+/// The step's unit-root test ([`NoiseModel::of`]): ADF τ of the null residual at 1 %
+/// ([`ADF_CRITICAL`]), or of the residual the strongest candidate leaves at the residual-based 1 %
+/// ([`ADF_CRITICAL_FITTED`]).
+pub(super) fn rejects_unit_root(null_tau: f64, alt_tau: f64) -> bool {
+    null_tau <= ADF_CRITICAL || alt_tau <= ADF_CRITICAL_FITTED
+}
+
+/// The recording's verdict from its signals' (null τ, alt τ) before any term
+/// ([`NoiseModel::of`]): `None` with fewer than two signals; else a unit root is rejected only
+/// when the most stationary-looking signal rejects it on its own residual at 1 % (no fitted
+/// column to pull it there) AND every signal rejects it by [`rejects_unit_root`]. The first
+/// alone let a walk channel that looks stationary by chance decide for the recording; the second
+/// alone let a strongest candidate of a few hundred, fitted to each walk channel, make both
+/// residuals look stationary (seed 2026 `random_walk_0000`, null: τ −1.2 on both channels, −4.3
+/// and −4.5 after the fit).
+pub(super) fn recording_rejects_unit_root(taus: &[(f64, f64)]) -> Option<bool> {
+    let most_stationary = taus.iter().map(|t| t.0).fold(f64::INFINITY, f64::min);
+    (taus.len() >= 2).then(|| {
+        most_stationary <= ADF_CRITICAL && taus.iter().all(|&(n, a)| rejects_unit_root(n, a))
+    })
 }
 
 /// Lagged differences in the augmented Dickey–Fuller regression: Schwert's 4·(n/100)^{1/4}, at
@@ -518,19 +536,43 @@ mod tests {
 
     /// θ of a simulated MA(1) comes back, and the inverse filter whitens it (lag-1
     /// autocorrelation of the filtered series near 0, of the series itself near −θ/(1+θ²)).
-    /// The recording's pooled statistic vetoes the stationary model: white noise is called
-    /// stationary on its own (ρ < 1) and with a pooled τ that rejects a unit root, integrated
-    /// (ρ = 1) when the pooled τ does not.
+    /// A signal that does not reject a unit root vetoes the stationary model: white noise is
+    /// called stationary on its own (ρ < 1) and when every signal rejects, integrated (ρ = 1)
+    /// when one does not.
     #[test]
-    fn pooled_tau_vetoes_the_stationary_model() {
+    fn one_walk_signal_vetoes_the_stationary_model() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
         let e: Vec<f64> = (0..2000).map(|_| normal(&mut rng)).collect();
         assert!(NoiseModel::of(&e, &e, None).rho < 0.5);
-        assert!(NoiseModel::of(&e, &e, Some(-5.0)).rho < 0.5);
-        let vetoed = NoiseModel::of(&e, &e, Some(-2.0));
+        assert!(NoiseModel::of(&e, &e, Some(true)).rho < 0.5);
+        let vetoed = NoiseModel::of(&e, &e, Some(false));
         assert_eq!(
             vetoed.rho, 1.0,
             "integrated when no channel rejects a unit root"
+        );
+    }
+
+    /// (null τ, alt τ) pairs measured on generated cases (`hil-sim gen-cases`, x then y).
+    #[test]
+    fn the_recording_rejects_a_unit_root_only_when_every_signal_does() {
+        // One signal: no pooled verdict.
+        assert_eq!(recording_rejects_unit_root(&[(-5.0, -6.0)]), None);
+        // rw_decoy seed 13 case 1, a walk null: y looks stationary by chance, x does not.
+        assert_eq!(
+            recording_rejects_unit_root(&[(-1.44, -3.21), (-4.06, -5.11)]),
+            Some(false)
+        );
+        // random_walk seed 2026 case 0, a walk null: a fitted candidate pulls both residuals
+        // past the residual-based value, but neither channel rejects on its own residual.
+        assert_eq!(
+            recording_rejects_unit_root(&[(-1.22, -4.34), (-1.17, -4.50)]),
+            Some(false)
+        );
+        // ar099 seed 7 case 19: x carries a smooth effect (rejects only once it is taken out),
+        // y shows the stationary noise.
+        assert_eq!(
+            recording_rejects_unit_root(&[(-2.39, -4.88), (-4.05, -4.14)]),
+            Some(true)
         );
     }
 

@@ -50,17 +50,32 @@ pub fn select(
     select_pooled(ctx, axis, r, sim_inputs, opts, None)
 }
 
-/// [`select`] with the recording's pooled noise statistic (the smallest `null_model::signal_tau`
-/// over its signals; `None` for a single signal).
+/// The unit-root statistics of one signal's residual `r` before any term (ADF τ of `r`, and of
+/// what its first step's strongest candidate leaves: `null_model::recording_rejects_unit_root`);
+/// `None` when the slow-noise model does not apply (thermal-only recordings, validated forward)
+/// or nothing can be screened.
+pub fn unit_root_taus(
+    ctx: &Context,
+    axis: char,
+    r: &[f64],
+    sim_inputs: &[Vec<f64>],
+    opts: &Options,
+) -> Option<(f64, f64)> {
+    Selector::new(ctx, axis, r, sim_inputs, opts, None).unit_root_taus()
+}
+
+/// [`select`] with the recording's noise statistic: whether it rejects a unit root
+/// (`null_model::recording_rejects_unit_root` over its signals' [`unit_root_taus`]; `None` for a
+/// single signal).
 pub fn select_pooled(
     ctx: &Context,
     axis: char,
     r: &[f64],
     sim_inputs: &[Vec<f64>],
     opts: &Options,
-    pooled_tau: Option<f64>,
+    recording_rejects: Option<bool>,
 ) -> SignalSelection {
-    let mut s = Selector::new(ctx, axis, r, sim_inputs, opts, pooled_tau);
+    let mut s = Selector::new(ctx, axis, r, sim_inputs, opts, recording_rejects);
     loop {
         while s.terms.len() < opts.max_terms && r.len() > s.n_raw + 3 {
             if !s.step() {

@@ -12,9 +12,11 @@ use super::heldout::Heldout;
 use super::lsq::{self, dot};
 use super::null_model::{
     NoiseModel, Null, contribution, delta_bic, golden_refine, prewhitened_test, score, score_cols,
-    within_cells, without_cell_means,
+    within_cells,
 };
 use super::selection::{Alternative, Exchanged, Options, Term, set_of};
+
+mod noise;
 
 /// Share of the best thermal ΔBIC a driver-column lag needs to be preferred over a sensor.
 const DRIVER_SHARE: f64 = 0.0;
@@ -56,7 +58,8 @@ pub(super) struct Selector<'a> {
     cell_of: Option<(Vec<usize>, usize)>,
     /// Held-out error (forward on thermal tests, both feeding modes): `heldout.rs`.
     heldout: Heldout<'a>,
-    pooled_tau: Option<f64>,
+    /// Whether the recording as a whole rejects a unit root (`NoiseModel::of`).
+    recording_rejects: Option<bool>,
     pub(super) basis: Vec<Vec<f64>>,
     /// Raw columns fitted so far (intercept + every term's): only their count is needed (the
     /// columns themselves are in `terms`; a copy was 8 MB a column on a 1M-row recording).
@@ -102,7 +105,7 @@ impl<'a> Selector<'a> {
         r: &'a [f64],
         sim_inputs: &'a [Vec<f64>],
         opts: &'a Options,
-        pooled_tau: Option<f64>,
+        recording_rejects: Option<bool>,
     ) -> Self {
         let lib = library(ctx, axis);
         let mut tried: usize = lib.iter().map(|c| c.grid.len().max(1)).sum();
@@ -121,7 +124,7 @@ impl<'a> Selector<'a> {
             tried,
             cell_of,
             heldout,
-            pooled_tau,
+            recording_rejects,
             basis: lsq::orthonormalize(&[], vec![vec![1.0; r.len()]], 2),
             n_raw: 1,
             terms: vec![],
@@ -275,30 +278,6 @@ impl<'a> Selector<'a> {
             }
         }
         scored
-    }
-
-    /// One effective sample size for the whole step (from the residual left by the candidate that
-    /// explains the largest share of its null's RSS), so candidates are ranked on the same scale;
-    /// and the error model of the prewhitened test, once per step (see `NoiseModel`).
-    fn scale(&self, scored: &[Scored], nulls: &Nulls<'_>) -> (f64, Option<NoiseModel>) {
-        let (ctx, axis, r0) = (self.ctx, self.axis, &nulls.plain.r0);
-        let share = |s: &Scored| s.gain / nulls.of(s.cells).rss0;
-        let top = scored
-            .iter()
-            .max_by(|a, b| share(a).total_cmp(&share(b)))
-            .expect("non-empty");
-        let top_contrib = contribution(ctx, &self.lib[top.idx], top.theta, &self.basis, r0);
-        let r1_top: Vec<f64> = r0.iter().zip(&top_contrib).map(|(a, b)| a - b).collect();
-        let noise_top = without_cell_means(ctx, axis, &r1_top);
-        let n_eff = lsq::effective_n(&noise_top);
-        let noise_model = (!self.heldout.forward).then(|| {
-            NoiseModel::of(
-                &without_cell_means(ctx, axis, r0),
-                &noise_top,
-                self.pooled_tau,
-            )
-        });
-        (n_eff, noise_model)
     }
 
     /// The step's winner among the ranked `scored`, refined and tested; `None` ends the forward
