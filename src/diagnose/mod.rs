@@ -547,19 +547,7 @@ mod tests {
             .iter()
             .map(|v| 2.0 * v + rng.random_range(-0.3..0.3))
             .collect();
-        let term = |c: &Candidate| Term {
-            cand: c.clone(),
-            theta: 900.0,
-            cols: c.columns(&ctx, 900.0),
-            delta_bic: 100.0,
-            p_value: 0.0,
-            gain_rss: 0.0,
-            rms_after_um: 0.0,
-            heldout_rms_before_um: 0.0,
-            heldout_rms_after_um: 0.0,
-            ambiguous_with: vec![],
-            within_cells: false,
-        };
+        let term = |c: &Candidate| Term::accepted(c.clone(), 900.0, c.columns(&ctx, 900.0));
         let opts = Options::default();
         let heldout = Heldout::new(&ctx, 'z', &r, &[], &opts);
         assert!(

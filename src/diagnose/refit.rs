@@ -272,23 +272,12 @@ mod tests {
     use crate::diagnose::candidates::Kind;
 
     fn term(kind: Kind, col: Vec<f64>) -> Term {
-        Term {
-            cand: Candidate {
-                axis: 'z',
-                kind,
-                grid: vec![],
-            },
-            theta: 0.0,
-            cols: vec![col],
-            delta_bic: 100.0,
-            p_value: 0.0,
-            gain_rss: 0.0,
-            rms_after_um: 0.0,
-            heldout_rms_before_um: 0.0,
-            heldout_rms_after_um: 0.0,
-            ambiguous_with: vec![],
-            within_cells: false,
-        }
+        let cand = Candidate {
+            axis: 'z',
+            kind,
+            grid: vec![],
+        };
+        Term::accepted(cand, 0.0, vec![col])
     }
 
     /// A ramp that soaks up a drift of the early rows only extrapolates into the later ones: the

@@ -75,6 +75,26 @@ pub struct Term {
     pub within_cells: bool,
 }
 
+#[cfg(test)]
+impl Term {
+    /// A term as if accepted with ΔBIC 100 (parsimony tests judge only its columns).
+    pub(super) fn accepted(cand: Candidate, theta: f64, cols: Vec<Vec<f64>>) -> Term {
+        Term {
+            cand,
+            theta,
+            cols,
+            delta_bic: 100.0,
+            p_value: 0.0,
+            gain_rss: 0.0,
+            rms_after_um: 0.0,
+            heldout_rms_before_um: 0.0,
+            heldout_rms_after_um: 0.0,
+            ambiguous_with: vec![],
+            within_cells: false,
+        }
+    }
+}
+
 #[derive(Clone, Debug)]
 pub struct SignalSelection {
     pub axis: char,
