@@ -97,11 +97,9 @@ fn forward_drop(
     };
     let with = forward_rms(&cols_without(None), r);
     (0..terms.len())
+        .filter(|&k| terms[k].cand.follows_context())
         .map(|k| (k, forward_rms(&cols_without(Some(k)), r)))
         .filter(|(k, w)| {
-            if !terms[*k].cand.follows_context() {
-                return false;
-            }
             let forward_gain = 1.0 - w / with;
             let lobo_loss = lobo_without[*k] / lobo_with - 1.0;
             w.is_finite() && forward_gain > opts.cv_min_gain && lobo_loss < forward_gain
