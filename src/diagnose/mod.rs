@@ -224,22 +224,33 @@ fn diagnose_residuals(
     let ctx = Context::from_recording(rec);
     // The recording's noise statistic (`NoiseModel::of`): every signal's residual before any
     // term, read once ahead of the selection.
-    let mut taus = vec![];
+    // Each signal's first screening is kept for its selection (one screening, not two).
+    let (mut taus, mut first_screens) = (vec![], vec![]);
     for res in residuals.clone() {
         let (signal, r) = res?;
         let axis = signal.chars().nth(1).expect("e<axis>_um");
-        taus.extend(select::unit_root_taus(&ctx, axis, &r, sim_inputs, opts));
+        let pre = select::unit_root_taus(&ctx, axis, &r, sim_inputs, opts);
+        taus.extend(pre.as_ref().map(|(t, _)| *t));
+        first_screens.push(pre.map(|(_, first)| first));
     }
     let recording_rejects = null_model::recording_rejects_unit_root(&taus);
     let mut out = Assembly::default();
-    for res in residuals {
+    for (res, first_screen) in residuals.zip(first_screens) {
         let (signal, r) = res?;
         let signal = &signal;
         let axis = signal.chars().nth(1).expect("e<axis>_um");
         out.all_sq += r.iter().map(|v| v * v).sum::<f64>();
         out.all_n += r.len();
         out.mismatch.extend(locate::locate(&ctx, signal, &r));
-        let mut sel = select::select_pooled(&ctx, axis, &r, sim_inputs, opts, recording_rejects);
+        let mut sel = select::select_pooled(
+            &ctx,
+            axis,
+            &r,
+            sim_inputs,
+            opts,
+            recording_rejects,
+            first_screen,
+        );
         let (models, cis, after_coef, refit_terms) =
             out.parsimony(&ctx, &r, &mut sel, signal, sim_inputs, opts);
         out.exchanged(&sel, signal);

@@ -31,6 +31,8 @@ use super::lsq;
 use super::null_model::without_cell_means;
 use super::select_step::Selector;
 
+pub use super::select_step::FirstScreen;
+
 pub use super::heldout::restarted;
 pub use super::selection::{Alternative, Exchanged, Options, SignalSelection, Term, set_of};
 
@@ -47,26 +49,26 @@ pub fn select(
     sim_inputs: &[Vec<f64>],
     opts: &Options,
 ) -> SignalSelection {
-    select_pooled(ctx, axis, r, sim_inputs, opts, None)
+    select_pooled(ctx, axis, r, sim_inputs, opts, None, None)
 }
 
 /// The unit-root statistics of one signal's residual `r` before any term (ADF τ of `r`, and of
-/// what its first step's strongest candidate leaves: `null_model::recording_rejects_unit_root`);
-/// `None` when the slow-noise model does not apply (thermal-only recordings, validated forward)
-/// or nothing can be screened.
+/// what its first step's strongest candidate leaves: `null_model::recording_rejects_unit_root`),
+/// with that first step's screening for [`select_pooled`] to reuse; `None` when the slow-noise
+/// model does not apply (thermal-only recordings, validated forward) or nothing can be screened.
 pub fn unit_root_taus(
     ctx: &Context,
     axis: char,
     r: &[f64],
     sim_inputs: &[Vec<f64>],
     opts: &Options,
-) -> Option<(f64, f64)> {
-    Selector::new(ctx, axis, r, sim_inputs, opts, None).unit_root_taus()
+) -> Option<((f64, f64), FirstScreen)> {
+    Selector::new(ctx, axis, r, sim_inputs, opts, None, None).unit_root_taus()
 }
 
 /// [`select`] with the recording's noise statistic: whether it rejects a unit root
 /// (`null_model::recording_rejects_unit_root` over its signals' [`unit_root_taus`]; `None` for a
-/// single signal).
+/// single signal), and the first step's screening that pre-pass did on this same `r`.
 pub fn select_pooled(
     ctx: &Context,
     axis: char,
@@ -74,8 +76,17 @@ pub fn select_pooled(
     sim_inputs: &[Vec<f64>],
     opts: &Options,
     recording_rejects: Option<bool>,
+    first_screen: Option<FirstScreen>,
 ) -> SignalSelection {
-    let mut s = Selector::new(ctx, axis, r, sim_inputs, opts, recording_rejects);
+    let mut s = Selector::new(
+        ctx,
+        axis,
+        r,
+        sim_inputs,
+        opts,
+        recording_rejects,
+        first_screen,
+    );
     loop {
         while s.terms.len() < opts.max_terms && r.len() > s.n_raw + 3 {
             if !s.step() {

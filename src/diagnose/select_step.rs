@@ -35,6 +35,13 @@ fn is_driver(ctx: &Context, c: &Candidate) -> bool {
 /// How many of a step's strongest candidates compete on forward held-out error.
 const FORWARD_CHOICES: usize = 8;
 
+/// The first step's screening of one signal (every candidate against the intercept alone), kept
+/// from the unit-root pre-pass (`select::unit_root_taus`) so selection does not screen again: the
+/// screening is most of a step's cost (9 s of a 1M-row diagnosis).
+#[derive(Debug)]
+pub struct FirstScreen(Vec<Scored>);
+
+#[derive(Debug)]
 struct Scored {
     idx: usize,
     theta: f64,
@@ -60,6 +67,8 @@ pub(super) struct Selector<'a> {
     heldout: Heldout<'a>,
     /// Whether the recording as a whole rejects a unit root (`NoiseModel::of`).
     recording_rejects: Option<bool>,
+    /// The first step's screening, done once by the unit-root pre-pass ([`FirstScreen`]).
+    first_screen: Option<Vec<Scored>>,
     pub(super) basis: Vec<Vec<f64>>,
     /// Raw columns fitted so far (intercept + every term's): only their count is needed (the
     /// columns themselves are in `terms`; a copy was 8 MB a column on a 1M-row recording).
@@ -106,6 +115,7 @@ impl<'a> Selector<'a> {
         sim_inputs: &'a [Vec<f64>],
         opts: &'a Options,
         recording_rejects: Option<bool>,
+        first_screen: Option<FirstScreen>,
     ) -> Self {
         let lib = library(ctx, axis);
         let mut tried: usize = lib.iter().map(|c| c.grid.len().max(1)).sum();
@@ -125,6 +135,7 @@ impl<'a> Selector<'a> {
             cell_of,
             heldout,
             recording_rejects,
+            first_screen: first_screen.map(|f| f.0),
             basis: lsq::orthonormalize(&[], vec![vec![1.0; r.len()]], 2),
             n_raw: 1,
             terms: vec![],
@@ -181,8 +192,10 @@ impl<'a> Selector<'a> {
         if rss0.is_nan() || rss0 <= 0.0 {
             return false;
         }
+        // The pre-pass screened against the same null (intercept alone, nothing used).
+        let first = self.first_screen.take().filter(|_| self.terms.is_empty());
         let nulls = self.nulls(r0, rss0);
-        let mut scored = self.screen(&nulls);
+        let mut scored = first.unwrap_or_else(|| self.screen(&nulls));
         if scored.is_empty() {
             return false;
         }

@@ -5,7 +5,7 @@
 
 use super::super::lsq::{self, dot};
 use super::super::null_model::{NoiseModel, adf_lags, adf_tau, contribution, without_cell_means};
-use super::{Nulls, Scored, Selector};
+use super::{FirstScreen, Nulls, Scored, Selector};
 
 impl Selector<'_> {
     /// The residual the step's strongest candidate (the largest share of its null's RSS) leaves,
@@ -39,9 +39,10 @@ impl Selector<'_> {
     }
 
     /// This signal's unit-root statistics before any term: ADF τ of its residual, and of the
-    /// residual its first step's strongest candidate leaves (cell means removed); `None` where the
-    /// slow-noise model is not used (forward validation) or there is nothing to screen.
-    pub(in crate::diagnose) fn unit_root_taus(&self) -> Option<(f64, f64)> {
+    /// residual its first step's strongest candidate leaves (cell means removed), with that
+    /// step's screening for selection to reuse; `None` where the slow-noise model is not used
+    /// (forward validation) or there is nothing to screen.
+    pub(in crate::diagnose) fn unit_root_taus(&self) -> Option<((f64, f64), FirstScreen)> {
         let r0 = lsq::deflate(&self.basis, self.r);
         let rss0 = dot(&r0, &r0);
         if self.heldout.forward || rss0.is_nan() || rss0 <= 0.0 {
@@ -55,6 +56,7 @@ impl Selector<'_> {
         let null_noise = without_cell_means(self.ctx, self.axis, &nulls.plain.r0);
         let lags = adf_lags(null_noise.len());
         let alt_noise = self.top_noise(&scored, &nulls);
-        Some((adf_tau(&null_noise, lags), adf_tau(&alt_noise, lags)))
+        let taus = (adf_tau(&null_noise, lags), adf_tau(&alt_noise, lags));
+        Some((taus, FirstScreen(scored)))
     }
 }
