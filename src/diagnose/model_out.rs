@@ -70,43 +70,14 @@ pub fn model_with_findings_opts(
         Some(m) => m.spec().clone(),
         None => default_spec(rec)?,
     };
-    // On the default chain, axes the recording lacks (the placeholder of a one-axis recording, or
-    // every axis of a thermal-only one) are evaluated at 0 mm.
-    let padded;
-    let missing: Vec<String> = spec
-        .axes
-        .iter()
-        .map(|a| format!("{}_mm", a.axis.lower()))
-        .filter(|n| rec.col(n).is_none())
-        .collect();
-    let placeholder = (base.is_none() && !missing.is_empty()).then(|| missing.join(", "));
-    let rec = if placeholder.is_some() {
-        let mut cols: Vec<(String, Vec<f64>)> = rec
-            .names()
-            .iter()
-            .map(|n| (n.clone(), rec.col(n).expect("listed").to_vec()))
-            .collect();
-        cols.extend(missing.iter().map(|n| (n.clone(), vec![0.0; rec.n_rows()])));
-        padded = Recording::from_columns(cols)?;
-        &padded
+    let padded = if base.is_none() {
+        with_placeholder_axes(&spec, rec)?
     } else {
-        rec
+        None
     };
-    let mut base_line = match base {
-        Some(m) => format!(
-            "the input model `{}` (--model) with the found terms added",
-            m.name()
-        ),
-        None => format!(
-            "no --model given (simulation = the recording's sim_e*_um columns): a default chain \"{}\" holding ONLY the found terms; add them to your own model or rerun with --model",
-            spec.chain_string()
-        ),
-    };
-    if let Some(p) = &placeholder {
-        base_line.push_str(&format!(
-            " ({p}: placeholder axis, held at 0; a model with no position-dependent term runs without it)"
-        ));
-    }
+    let placeholder = padded.as_ref().map(|(_, p)| p.clone());
+    let rec = padded.as_ref().map_or(rec, |(r, _)| r);
+    let base_line = base_line(base, &spec, placeholder.as_deref());
     let ctx = &d.context;
     let mut added = vec![];
     let mut not_in_model = vec![];
@@ -151,22 +122,7 @@ pub fn model_with_findings_opts(
             let sim = simulate_spec(&trial, rec);
             let check = match (&sim, &expected) {
                 (Ok(sim), Some(exp)) => {
-                    let k = axis.index();
-                    let (mut dev, mut norm) = (0.0, 0.0);
-                    for i in 0..exp.len() {
-                        let got = sim[k][i] - current[k][i];
-                        dev += (got - exp[i]).powi(2);
-                        norm += exp[i].powi(2);
-                    }
-                    let n = exp.len().max(1) as f64;
-                    let (dev, norm) = ((dev / n).sqrt(), (norm / n).sqrt());
-                    if dev <= CHECK_REL * norm + CHECK_ABS_UM {
-                        Ok(())
-                    } else {
-                        Err(format!(
-                            "the model form {slot} does not reproduce it on this recording (deviation {dev:.3} µm RMS of {norm:.3} µm)"
-                        ))
-                    }
+                    reproduces(&sim[axis.index()], &current[axis.index()], exp, &slot)
                 }
                 (Err(e), _) => Err(format!("{slot}: the model does not evaluate: {e:#}")),
                 (_, None) => Err("the recording lacks an input it needs".into()),
@@ -180,23 +136,10 @@ pub fn model_with_findings_opts(
                 Err(why) => not_in_model.push(describe(&item, &why)),
             }
         }
-        if offset_pending {
-            let stem = format!("diag_{}_", s.signal.trim_end_matches("_um"));
-            if let Some(th) = spec
-                .thermal
-                .iter_mut()
-                .rev()
-                .find(|t| t.name.starts_with(&stem))
-                && let crate::models::spec::ThermalKind::PolynomialDt { e0, .. } = &mut th.kind
-            {
-                *e0 += offset;
-                added.push(format!(
-                    "{}: constant offset {offset:+.3} µm of the joint refit → e0 of `{}` (--fit-offset)",
-                    s.signal, th.name
-                ));
-                offset_pending = false;
-                current = simulate_spec(&spec, rec)?;
-            }
+        if offset_pending && let Some(note) = offset_into_e0(&mut spec, &s.signal, offset) {
+            added.push(note);
+            offset_pending = false;
+            current = simulate_spec(&spec, rec)?;
         }
         if offset_pending {
             not_in_model.push(format!(
@@ -210,28 +153,7 @@ pub fn model_with_findings_opts(
     spec.lag_state =
         super::model_sim::final_lag_state(&MachineModel::from_spec(spec.clone()), rec)?;
     let (text, model) = to_checked_toml(spec)?;
-    let mut head = String::new();
-    head.push_str("# Machine model written by `retrocomp diagnose --out`.\n");
-    head.push_str(&format!("# Base: {base_line}.\n"));
-    head.push_str("# Sign: error = actual - nominal (um); correction = -error.\n");
-    if let Some(p) = &placeholder {
-        head.push_str(&format!(
-            "# The recording lacks {p}: placeholder axes (the model format needs 2-3 axes), held at 0.\n"
-        ));
-    }
-    if !added.is_empty() {
-        head.push_str("# Added (each checked against the finding on the recording):\n");
-        for a in &added {
-            head.push_str(&format!("#   {a}\n"));
-        }
-    }
-    if !not_in_model.is_empty() {
-        head.push_str("# NOT in this model (no slot in the model schema, or the form did not reproduce the finding):\n");
-        for a in &not_in_model {
-            head.push_str(&format!("#   {a}\n"));
-        }
-    }
-    head.push('\n');
+    let head = header(&base_line, placeholder.as_deref(), &added, &not_in_model);
     Ok(ModelOut {
         toml: head + &text,
         model,
@@ -239,6 +161,123 @@ pub fn model_with_findings_opts(
         added,
         not_in_model,
     })
+}
+
+/// What the written model is based on (the header's "Base:" line and `ModelOut::base`).
+fn base_line(base: Option<&MachineModel>, spec: &ModelSpec, placeholder: Option<&str>) -> String {
+    let mut line = match base {
+        Some(m) => format!(
+            "the input model `{}` (--model) with the found terms added",
+            m.name()
+        ),
+        None => format!(
+            "no --model given (simulation = the recording's sim_e*_um columns): a default chain \"{}\" holding ONLY the found terms; add them to your own model or rerun with --model",
+            spec.chain_string()
+        ),
+    };
+    if let Some(p) = &placeholder {
+        line.push_str(&format!(
+            " ({p}: placeholder axis, held at 0; a model with no position-dependent term runs without it)"
+        ));
+    }
+    line
+}
+
+/// On the default chain, the axes the recording lacks (the placeholder of a one-axis recording,
+/// or every axis of a thermal-only one) are evaluated at 0 mm: the recording with those columns
+/// added, and their names; `None` when it has every axis.
+fn with_placeholder_axes(
+    spec: &ModelSpec,
+    rec: &Recording,
+) -> Result<Option<(Recording, String)>, DiagnoseError> {
+    let missing: Vec<String> = spec
+        .axes
+        .iter()
+        .map(|a| format!("{}_mm", a.axis.lower()))
+        .filter(|n| rec.col(n).is_none())
+        .collect();
+    if missing.is_empty() {
+        return Ok(None);
+    }
+    let mut cols: Vec<(String, Vec<f64>)> = rec
+        .names()
+        .iter()
+        .map(|n| (n.clone(), rec.col(n).expect("listed").to_vec()))
+        .collect();
+    cols.extend(missing.iter().map(|n| (n.clone(), vec![0.0; rec.n_rows()])));
+    Ok(Some((Recording::from_columns(cols)?, missing.join(", "))))
+}
+
+/// Whether the model with a finding added (`with`, µm per row on the signal's axis) differs from
+/// the model before it (`before`) by the finding's own prediction (`expected`), within
+/// CHECK_REL of its RMS + CHECK_ABS_UM.
+fn reproduces(with: &[f64], before: &[f64], expected: &[f64], slot: &str) -> Result<(), String> {
+    let (mut dev, mut norm) = (0.0, 0.0);
+    for ((w, b), e) in with.iter().zip(before).zip(expected) {
+        dev += (w - b - e).powi(2);
+        norm += e.powi(2);
+    }
+    let n = expected.len().max(1) as f64;
+    let (dev, norm) = ((dev / n).sqrt(), (norm / n).sqrt());
+    if dev <= CHECK_REL * norm + CHECK_ABS_UM {
+        Ok(())
+    } else {
+        Err(format!(
+            "the model form {slot} does not reproduce it on this recording (deviation {dev:.3} µm RMS of {norm:.3} µm)"
+        ))
+    }
+}
+
+/// `--fit-offset`: the joint refit's constant offset (µm) into e0 of the signal's last
+/// `polynomial_dt` term; the note for the header, or `None` when the signal has no such term.
+fn offset_into_e0(spec: &mut ModelSpec, signal: &str, offset: f64) -> Option<String> {
+    let stem = format!("diag_{}_", signal.trim_end_matches("_um"));
+    let th = spec
+        .thermal
+        .iter_mut()
+        .rev()
+        .find(|t| t.name.starts_with(&stem))?;
+    let crate::models::spec::ThermalKind::PolynomialDt { e0, .. } = &mut th.kind else {
+        return None;
+    };
+    *e0 += offset;
+    Some(format!(
+        "{signal}: constant offset {offset:+.3} µm of the joint refit → e0 of `{}` (--fit-offset)",
+        th.name
+    ))
+}
+
+/// The comment block at the top of the written model: its base, sign, placeholder axes, what
+/// was added and what is not in it.
+fn header(
+    base_line: &str,
+    placeholder: Option<&str>,
+    added: &[String],
+    not_in_model: &[String],
+) -> String {
+    let mut head = String::new();
+    head.push_str("# Machine model written by `retrocomp diagnose --out`.\n");
+    head.push_str(&format!("# Base: {base_line}.\n"));
+    head.push_str("# Sign: error = actual - nominal (um); correction = -error.\n");
+    if let Some(p) = placeholder {
+        head.push_str(&format!(
+            "# The recording lacks {p}: placeholder axes (the model format needs 2-3 axes), held at 0.\n"
+        ));
+    }
+    if !added.is_empty() {
+        head.push_str("# Added (each checked against the finding on the recording):\n");
+        for a in added {
+            head.push_str(&format!("#   {a}\n"));
+        }
+    }
+    if !not_in_model.is_empty() {
+        head.push_str("# NOT in this model (no slot in the model schema, or the form did not reproduce the finding):\n");
+        for a in not_in_model {
+            head.push_str(&format!("#   {a}\n"));
+        }
+    }
+    head.push('\n');
+    head
 }
 
 /// The signal's findings as they go into the model. When some finding has no slot (time_drift,

@@ -40,10 +40,7 @@ pub(super) fn add_item(
         axis: a,
         motion: Motion::Translation(a),
     };
-    let in_chain = |x: Axis| spec.axes.iter().any(|s| s.axis == x);
-    if !in_chain(a) {
-        return Err(format!("axis {} is not in the model's chain", a.upper()));
-    }
+    in_chain(spec, a)?;
     match item.model {
         EffectModel::ScaleError { .. }
         | EffectModel::Backlash { .. }
@@ -53,10 +50,7 @@ pub(super) fn add_item(
             Ok(format!("{} table", own.iso_name()))
         }
         EffectModel::Straightness { along_axis, .. } => {
-            let o = Axis::from_letter(*along_axis).ok_or("bad axis")?;
-            if !in_chain(o) {
-                return Err(format!("axis {} is not in the model's chain", o.upper()));
-            }
+            let o = other_axis_in_chain(spec, *along_axis)?;
             let id = ComponentId {
                 axis: o,
                 motion: Motion::Translation(a),
@@ -65,61 +59,9 @@ pub(super) fn add_item(
             Ok(format!("{} table", id.iso_name()))
         }
         EffectModel::Squareness { other_axis, urad } => {
-            let o = Axis::from_letter(*other_axis).ok_or("bad axis")?;
-            if !in_chain(o) {
-                return Err(format!("axis {} is not in the model's chain", o.upper()));
-            }
-            // docs/model.md: EC0Y on x: ey = −S·x, on y: ex = −S·y; EB0Z: ex = +S·z, ez = +S·x;
-            // EA0Z: ey = −S·z, ez = −S·y. The finding is e_a += urad·1e-3·q_o.
-            let (kind, sign) = match (a.lower().min(o.lower()), a.lower().max(o.lower())) {
-                ('x', 'y') => (Squareness::EC0Y, -1.0),
-                ('x', 'z') => (Squareness::EB0Z, 1.0),
-                ('y', 'z') => (Squareness::EA0Z, -1.0),
-                _ => return Err("squareness needs two different axes".into()),
-            };
-            let value = sign * urad;
-            match spec
-                .squareness
-                .iter_mut()
-                .find(|s| s.kind == kind && s.on_axis == o)
-            {
-                Some(s) => s.value_urad += value,
-                None => spec.squareness.push(SquarenessSpec {
-                    kind,
-                    on_axis: o,
-                    value_urad: value,
-                }),
-            }
-            Ok(format!("squareness {} on {}", kind.iso_name(), o.lower()))
+            add_squareness(spec, a, other_axis_in_chain(spec, *other_axis)?, *urad)
         }
-        EffectModel::Abbe { urad_per_mm } => {
-            // e_a = (ε × arm)_a·1e-3 with arm ∋ s·tool_mm·û_t: a rotation about the third axis r
-            // gives ε_r·s·h·lc(r, t, a); the finding is urad_per_mm·q_a·h·1e-3.
-            let (t, s) = spec.tool_axis;
-            if t == a {
-                return Err(format!(
-                    "the tool length lies along {}: no rotation gives an Abbe error along it",
-                    a.lower()
-                ));
-            }
-            let r = Axis::ALL
-                .iter()
-                .copied()
-                .find(|x| *x != a && *x != t)
-                .expect("three axes");
-            let lc = levi_civita(r.index(), t.index(), a.index());
-            let k = urad_per_mm / (s * lc);
-            let id = ComponentId {
-                axis: a,
-                motion: Motion::Rotation(r),
-            };
-            let m = EffectModel::ScaleError { ppm: k * 1e3 };
-            add_to_table(spec, id, a, &m, rec)?;
-            Ok(format!(
-                "{} table (µrad, Abbe arm = tool length)",
-                id.iso_name()
-            ))
-        }
+        EffectModel::Abbe { urad_per_mm } => add_abbe(spec, a, *urad_per_mm, rec),
         EffectModel::ThermalDrift { sensor, um_per_k } => {
             let (name, column) = match sensor_name(sensor) {
                 Ok(n) => (n, None),
@@ -127,17 +69,7 @@ pub(super) fn add_item(
             };
             let t0 = first_reading(rec, sensor)?;
             let reference = ensure_sensor(spec, &name, None, t0, column, None)?;
-            push_thermal(
-                spec,
-                item,
-                own,
-                ThermalKind::PolynomialDt {
-                    sensors: vec![name.clone()],
-                    e0: um_per_k * (reference - t0),
-                    b_per_k: vec![*um_per_k],
-                    c_per_k2: vec![],
-                },
-            );
+            push_linear_dt(spec, item, own, &name, *um_per_k, reference - t0);
             Ok(format!(
                 "sensor `{name}` + thermal polynomial_dt on {}",
                 own.iso_name()
@@ -147,69 +79,7 @@ pub(super) fn add_item(
             sensor,
             tau_s,
             um_per_k,
-        } => {
-            // (rpm/1000)² is written as the lag of rpm with exponent 2: gain per rpm², reference
-            // in rpm² (the finding's gain is per krpm², 10⁶ rpm²).
-            if sensor == KRPM2 {
-                let name = format!("rpm_sq_tau_{:.0}s", tau_s.round());
-                let t0 = first_reading(rec, "rpm")?.powi(2);
-                let um_per_rpm2 = um_per_k * 1e-6;
-                let reference =
-                    ensure_sensor(spec, &name, Some(*tau_s), t0, Some("rpm".into()), Some(2.0))?;
-                push_thermal(
-                    spec,
-                    item,
-                    own,
-                    ThermalKind::PolynomialDt {
-                        sensors: vec![name.clone()],
-                        e0: um_per_rpm2 * (reference - t0),
-                        b_per_k: vec![um_per_rpm2],
-                        c_per_k2: vec![],
-                    },
-                );
-                return Ok(format!(
-                    "sensor `{name}` (rpm, exponent 2, tau_s {tau_s:.0}) + thermal polynomial_dt on {}",
-                    own.iso_name()
-                ));
-            }
-            // A temperature is read as its sensor; any other driver column (rpm, load, power…)
-            // gets a lag state of its own reading that column (one per τ).
-            let (mut name, mut column) = match sensor_name(sensor) {
-                Ok(n) => (n, None),
-                Err(_) => (
-                    format!("{sensor}_tau_{:.0}s", tau_s.round()),
-                    Some(sensor.clone()),
-                ),
-            };
-            // A temperature already read with another lag (e.g. as read, by the base model)
-            // gets a second lag state of its own on the same column.
-            if column.is_none()
-                && spec
-                    .sensors
-                    .iter()
-                    .any(|s| s.name == name && s.tau_s != Some(*tau_s))
-            {
-                name = format!("{name}_tau_{:.0}s", tau_s.round());
-                column = Some(sensor.clone());
-            }
-            let t0 = first_reading(rec, sensor)?;
-            let reference = ensure_sensor(spec, &name, Some(*tau_s), t0, column, None)?;
-            push_thermal(
-                spec,
-                item,
-                own,
-                ThermalKind::PolynomialDt {
-                    sensors: vec![name.clone()],
-                    e0: um_per_k * (reference - t0),
-                    b_per_k: vec![*um_per_k],
-                    c_per_k2: vec![],
-                },
-            );
-            Ok(format!(
-                "sensor `{name}` (tau_s {tau_s:.0}) + thermal polynomial_dt on {}",
-                own.iso_name()
-            ))
-        }
+        } => add_thermal_lag(spec, item, own, (sensor, *tau_s, *um_per_k), rec),
         EffectModel::ThermalExpansion { sensor, ppm_per_k } => {
             let name = sensor_name(sensor)?;
             let t0 = first_reading(rec, sensor)?;
@@ -228,56 +98,7 @@ pub(super) fn add_item(
             Ok(format!("thermal expansion on {} ({name})", own.iso_name()))
         }
         EffectModel::ForceDeflection { channel, um_per_n } => {
-            let force = if let Some(n) = strip(channel, "F_", "_N") {
-                match spec.forces.iter().find(|f| f.name == n) {
-                    Some(f) if f.from_strain.is_some() => {
-                        return Err(format!(
-                            "force `{n}` is derived from a strain in the model, not read from {channel}"
-                        ));
-                    }
-                    Some(_) => {}
-                    None => spec.forces.push(ForceSpec {
-                        name: n.clone(),
-                        from_strain: None,
-                    }),
-                }
-                n
-            } else if let Some(sname) = strip(channel, "strain_", "_ue") {
-                let n = format!("diag_{sname}");
-                spec.forces.retain(|f| f.name != n);
-                spec.forces.push(ForceSpec {
-                    name: n.clone(),
-                    from_strain: Some(StrainSource {
-                        strain: sname,
-                        gain_n_per_ue: 1.0,
-                        offset_ue: 0.0,
-                    }),
-                });
-                n
-            } else {
-                return Err(format!(
-                    "`{channel}` is neither F_<name>_N nor strain_<name>_ue"
-                ));
-            };
-            let name = unique(
-                &format!("diag_{}_{force}", signal_stem(item.signal)),
-                spec.load.iter().map(|l| l.name.as_str()),
-            );
-            spec.load.push(LoadSpec {
-                name,
-                target: own,
-                kind: LoadKind::Compliance {
-                    force: force.clone(),
-                    compliance: ErrorFunction::Polynomial {
-                        coefficients: vec![*um_per_n],
-                        range_mm: None,
-                    },
-                },
-            });
-            Ok(format!(
-                "force {force} + constant compliance on {}",
-                own.iso_name()
-            ))
+            add_force_deflection(spec, item, own, channel, *um_per_n)
         }
         EffectModel::ServoLag { .. } => {
             Err("no slot: the model is a function of position, not of velocity".into())
@@ -289,6 +110,219 @@ pub(super) fn add_item(
             Err("no slot: the model has no term in time without a measured cause".into())
         }
     }
+}
+
+fn in_chain(spec: &ModelSpec, x: Axis) -> Result<(), String> {
+    if spec.axes.iter().any(|s| s.axis == x) {
+        Ok(())
+    } else {
+        Err(format!("axis {} is not in the model's chain", x.upper()))
+    }
+}
+
+/// The second axis a finding names (`along_axis`, `other_axis`), which must be in the chain.
+fn other_axis_in_chain(spec: &ModelSpec, letter: char) -> Result<Axis, String> {
+    let o = Axis::from_letter(letter).ok_or("bad axis")?;
+    in_chain(spec, o)?;
+    Ok(o)
+}
+
+/// Squareness `urad` between the finding's axis `a` and `o`, added to the pair's entry.
+fn add_squareness(spec: &mut ModelSpec, a: Axis, o: Axis, urad: f64) -> Result<String, String> {
+    // docs/model.md: EC0Y on x: ey = −S·x, on y: ex = −S·y; EB0Z: ex = +S·z, ez = +S·x;
+    // EA0Z: ey = −S·z, ez = −S·y. The finding is e_a += urad·1e-3·q_o.
+    let (kind, sign) = match (a.lower().min(o.lower()), a.lower().max(o.lower())) {
+        ('x', 'y') => (Squareness::EC0Y, -1.0),
+        ('x', 'z') => (Squareness::EB0Z, 1.0),
+        ('y', 'z') => (Squareness::EA0Z, -1.0),
+        _ => return Err("squareness needs two different axes".into()),
+    };
+    let value = sign * urad;
+    match spec
+        .squareness
+        .iter_mut()
+        .find(|s| s.kind == kind && s.on_axis == o)
+    {
+        Some(s) => s.value_urad += value,
+        None => spec.squareness.push(SquarenessSpec {
+            kind,
+            on_axis: o,
+            value_urad: value,
+        }),
+    }
+    Ok(format!("squareness {} on {}", kind.iso_name(), o.lower()))
+}
+
+/// An Abbe error along `a` (µrad per mm of tool length) as the angular table of the rotation
+/// that gives it.
+fn add_abbe(
+    spec: &mut ModelSpec,
+    a: Axis,
+    urad_per_mm: f64,
+    rec: &Recording,
+) -> Result<String, String> {
+    // e_a = (ε × arm)_a·1e-3 with arm ∋ s·tool_mm·û_t: a rotation about the third axis r
+    // gives ε_r·s·h·lc(r, t, a); the finding is urad_per_mm·q_a·h·1e-3.
+    let (t, s) = spec.tool_axis;
+    if t == a {
+        return Err(format!(
+            "the tool length lies along {}: no rotation gives an Abbe error along it",
+            a.lower()
+        ));
+    }
+    let r = Axis::ALL
+        .iter()
+        .copied()
+        .find(|x| *x != a && *x != t)
+        .expect("three axes");
+    let lc = levi_civita(r.index(), t.index(), a.index());
+    let k = urad_per_mm / (s * lc);
+    let id = ComponentId {
+        axis: a,
+        motion: Motion::Rotation(r),
+    };
+    let m = EffectModel::ScaleError { ppm: k * 1e3 };
+    add_to_table(spec, id, a, &m, rec)?;
+    Ok(format!(
+        "{} table (µrad, Abbe arm = tool length)",
+        id.iso_name()
+    ))
+}
+
+/// A lag (sensor or driver column, τ s, gain per unit of the lagged reading) as a lag state and
+/// a linear `polynomial_dt` on `own`.
+fn add_thermal_lag(
+    spec: &mut ModelSpec,
+    item: &Item<'_>,
+    own: ComponentId,
+    (sensor, tau_s, um_per_k): (&str, f64, f64),
+    rec: &Recording,
+) -> Result<String, String> {
+    // (rpm/1000)² is written as the lag of rpm with exponent 2: gain per rpm², reference
+    // in rpm² (the finding's gain is per krpm², 10⁶ rpm²).
+    if sensor == KRPM2 {
+        let name = format!("rpm_sq_tau_{:.0}s", tau_s.round());
+        let t0 = first_reading(rec, "rpm")?.powi(2);
+        let um_per_rpm2 = um_per_k * 1e-6;
+        let reference = ensure_sensor(spec, &name, Some(tau_s), t0, Some("rpm".into()), Some(2.0))?;
+        push_linear_dt(spec, item, own, &name, um_per_rpm2, reference - t0);
+        return Ok(format!(
+            "sensor `{name}` (rpm, exponent 2, tau_s {tau_s:.0}) + thermal polynomial_dt on {}",
+            own.iso_name()
+        ));
+    }
+    // A temperature is read as its sensor; any other driver column (rpm, load, power…)
+    // gets a lag state of its own reading that column (one per τ).
+    let (mut name, mut column) = match sensor_name(sensor) {
+        Ok(n) => (n, None),
+        Err(_) => (
+            format!("{sensor}_tau_{:.0}s", tau_s.round()),
+            Some(sensor.to_string()),
+        ),
+    };
+    // A temperature already read with another lag (e.g. as read, by the base model)
+    // gets a second lag state of its own on the same column.
+    if column.is_none()
+        && spec
+            .sensors
+            .iter()
+            .any(|s| s.name == name && s.tau_s != Some(tau_s))
+    {
+        name = format!("{name}_tau_{:.0}s", tau_s.round());
+        column = Some(sensor.to_string());
+    }
+    let t0 = first_reading(rec, sensor)?;
+    let reference = ensure_sensor(spec, &name, Some(tau_s), t0, column, None)?;
+    push_linear_dt(spec, item, own, &name, um_per_k, reference - t0);
+    Ok(format!(
+        "sensor `{name}` (tau_s {tau_s:.0}) + thermal polynomial_dt on {}",
+        own.iso_name()
+    ))
+}
+
+/// A deflection proportional to a force read as `F_<name>_N` or derived from `strain_<name>_ue`
+/// (µm per N), as a constant compliance on `own`.
+fn add_force_deflection(
+    spec: &mut ModelSpec,
+    item: &Item<'_>,
+    own: ComponentId,
+    channel: &str,
+    um_per_n: f64,
+) -> Result<String, String> {
+    let force = if let Some(n) = strip(channel, "F_", "_N") {
+        match spec.forces.iter().find(|f| f.name == n) {
+            Some(f) if f.from_strain.is_some() => {
+                return Err(format!(
+                    "force `{n}` is derived from a strain in the model, not read from {channel}"
+                ));
+            }
+            Some(_) => {}
+            None => spec.forces.push(ForceSpec {
+                name: n.clone(),
+                from_strain: None,
+            }),
+        }
+        n
+    } else if let Some(sname) = strip(channel, "strain_", "_ue") {
+        let n = format!("diag_{sname}");
+        spec.forces.retain(|f| f.name != n);
+        spec.forces.push(ForceSpec {
+            name: n.clone(),
+            from_strain: Some(StrainSource {
+                strain: sname,
+                gain_n_per_ue: 1.0,
+                offset_ue: 0.0,
+            }),
+        });
+        n
+    } else {
+        return Err(format!(
+            "`{channel}` is neither F_<name>_N nor strain_<name>_ue"
+        ));
+    };
+    let name = unique(
+        &format!("diag_{}_{force}", signal_stem(item.signal)),
+        spec.load.iter().map(|l| l.name.as_str()),
+    );
+    spec.load.push(LoadSpec {
+        name,
+        target: own,
+        kind: LoadKind::Compliance {
+            force: force.clone(),
+            compliance: ErrorFunction::Polynomial {
+                coefficients: vec![um_per_n],
+                range_mm: None,
+            },
+        },
+    });
+    Ok(format!(
+        "force {force} + constant compliance on {}",
+        own.iso_name()
+    ))
+}
+
+/// A term linear in one sensor's reading: `gain` per unit of sensor `name`, zero at the
+/// recording's first reading (`reference_minus_first` = the sensor's reference − that reading,
+/// so e0 = gain × it).
+fn push_linear_dt(
+    spec: &mut ModelSpec,
+    item: &Item<'_>,
+    own: ComponentId,
+    name: &str,
+    gain: f64,
+    reference_minus_first: f64,
+) {
+    push_thermal(
+        spec,
+        item,
+        own,
+        ThermalKind::PolynomialDt {
+            sensors: vec![name.to_string()],
+            e0: gain * reference_minus_first,
+            b_per_k: vec![gain],
+            c_per_k2: vec![],
+        },
+    );
 }
 
 fn levi_civita(i: usize, j: usize, k: usize) -> f64 {
