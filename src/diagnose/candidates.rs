@@ -6,7 +6,7 @@
 use std::f64::consts::TAU;
 
 use super::effects::EffectModel;
-use super::features::{Context, lowpass};
+use super::features::{AxisFeatures, Context, lowpass};
 use crate::recording::AXES;
 
 /// Number of equal zones of a `reversal_profile` over the axis' travel.
@@ -109,46 +109,8 @@ impl Candidate {
         match &self.kind {
             Kind::Scale => vec![own().pos_mm.iter().map(|x| x * 1e-3).collect()],
             Kind::Backlash => vec![own().dir.iter().map(|&d| f64::from(d) / 2.0).collect()],
-            Kind::ReversalProfile { edges_mm } => {
-                let f = own();
-                (0..REVERSAL_ZONES)
-                    .map(|k| {
-                        f.pos_mm
-                            .iter()
-                            .zip(&f.dir)
-                            .map(|(x, d)| {
-                                if super::effects::zone_of(edges_mm, *x) == Some(k) {
-                                    f64::from(*d) / 2.0
-                                } else {
-                                    0.0
-                                }
-                            })
-                            .collect()
-                    })
-                    .collect()
-            }
-            Kind::Cyclic => {
-                let f = own();
-                let w = TAU / theta;
-                // One transcendental per distinct position: sin from cos with the half-cycle sign.
-                let (mut sv, mut cv) = (
-                    Vec::with_capacity(f.distinct_mm.len()),
-                    Vec::with_capacity(f.distinct_mm.len()),
-                );
-                for &x in &f.distinct_mm {
-                    let ph = (w * x).rem_euclid(TAU);
-                    let c = ph.cos();
-                    cv.push(c);
-                    sv.push(
-                        (1.0 - c * c).max(0.0).sqrt()
-                            * if ph < std::f64::consts::PI { 1.0 } else { -1.0 },
-                    );
-                }
-                vec![
-                    f.distinct_idx.iter().map(|&k| sv[k as usize]).collect(),
-                    f.distinct_idx.iter().map(|&k| cv[k as usize]).collect(),
-                ]
-            }
+            Kind::ReversalProfile { edges_mm } => reversal_zone_columns(own(), edges_mm),
+            Kind::Cyclic => cyclic_columns(own(), theta),
             Kind::Squareness { other } => {
                 vec![
                     ctx.axis(*other)
@@ -363,51 +325,7 @@ pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
     let duration_s =
         ctx.t_s.last().copied().unwrap_or(0.0) - ctx.t_s.first().copied().unwrap_or(0.0);
     if let Some(f) = ctx.axis(a).filter(|f| varies(&f.pos_mm)) {
-        let (lo, hi) = range(&f.pos_mm);
-        let travel = hi - lo;
-        out.push(lin(Kind::Scale));
-        out.push(lin(Kind::Backlash));
-        let edges_mm = (0..=REVERSAL_ZONES)
-            .map(|k| lo + travel * k as f64 / REVERSAL_ZONES as f64)
-            .collect();
-        out.push(lin(Kind::ReversalProfile { edges_mm }));
-        let min_step = f
-            .pos_mm
-            .windows(2)
-            .map(|w| (w[1] - w[0]).abs())
-            .filter(|d| *d > 1e-6)
-            .fold(f64::INFINITY, f64::min);
-        // With readings only at a few targets, a period shorter than twice their spacing aliases.
-        let distinct = f.distinct_mm.len();
-        let min_period = if distinct < 200 {
-            2.5 * travel / distinct as f64
-        } else {
-            // Densely sampled positions: a period must span ≥ 4 sample steps to be seen.
-            4.0 * min_step
-        };
-        out.push(Candidate {
-            axis: a,
-            kind: Kind::Cyclic,
-            grid: period_grid(travel, min_period),
-        });
-        if ctx.tool_mm.as_ref().is_some_and(|t| varies(t)) {
-            out.push(lin(Kind::Abbe));
-        }
-        // Servo lag is a candidate only where the axis moves: its column (velocity) is zero at every
-        // standstill row, so a step-and-dwell recording read at standstill offers none.
-        if f.vel_mm_s().iter().filter(|v| **v != 0.0).count() >= MIN_MOVING_ROWS {
-            out.push(lin(Kind::ServoLag));
-        }
-        out.push(Candidate {
-            axis: a,
-            kind: Kind::ReversalSpike,
-            grid: log_grid(travel / 500.0, travel / 5.0, 1.25),
-        });
-        for (s, t) in &ctx.temps {
-            if varies(t) {
-                out.push(lin(Kind::ThermalExpansion { sensor: s.clone() }));
-            }
-        }
+        out.extend(own_axis_candidates(ctx, a, f));
     }
     for o in AXES.iter().copied().filter(|&o| o != a) {
         if let Some(f) = ctx.axis(o).filter(|f| varies(&f.pos_mm)) {
@@ -456,6 +374,63 @@ pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
     }
     if duration_s > 0.0 {
         out.push(lin(Kind::TimeDrift));
+    }
+    out
+}
+
+/// The candidates of the signal's own axis `a` (moving: `f` its features): scale, backlash,
+/// reversal profile, cyclic error, Abbe, servo lag, reversal spike, thermal expansion.
+fn own_axis_candidates(ctx: &Context, a: char, f: &AxisFeatures) -> Vec<Candidate> {
+    let lin = |kind| Candidate {
+        axis: a,
+        kind,
+        grid: vec![],
+    };
+    let mut out = vec![];
+    let (lo, hi) = range(&f.pos_mm);
+    let travel = hi - lo;
+    out.push(lin(Kind::Scale));
+    out.push(lin(Kind::Backlash));
+    let edges_mm = (0..=REVERSAL_ZONES)
+        .map(|k| lo + travel * k as f64 / REVERSAL_ZONES as f64)
+        .collect();
+    out.push(lin(Kind::ReversalProfile { edges_mm }));
+    let min_step = f
+        .pos_mm
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .filter(|d| *d > 1e-6)
+        .fold(f64::INFINITY, f64::min);
+    // With readings only at a few targets, a period shorter than twice their spacing aliases.
+    let distinct = f.distinct_mm.len();
+    let min_period = if distinct < 200 {
+        2.5 * travel / distinct as f64
+    } else {
+        // Densely sampled positions: a period must span ≥ 4 sample steps to be seen.
+        4.0 * min_step
+    };
+    out.push(Candidate {
+        axis: a,
+        kind: Kind::Cyclic,
+        grid: period_grid(travel, min_period),
+    });
+    if ctx.tool_mm.as_ref().is_some_and(|t| varies(t)) {
+        out.push(lin(Kind::Abbe));
+    }
+    // Servo lag is a candidate only where the axis moves: its column (velocity) is zero at every
+    // standstill row, so a step-and-dwell recording read at standstill offers none.
+    if f.vel_mm_s().iter().filter(|v| **v != 0.0).count() >= MIN_MOVING_ROWS {
+        out.push(lin(Kind::ServoLag));
+    }
+    out.push(Candidate {
+        axis: a,
+        kind: Kind::ReversalSpike,
+        grid: log_grid(travel / 500.0, travel / 5.0, 1.25),
+    });
+    for (s, t) in &ctx.temps {
+        if varies(t) {
+            out.push(lin(Kind::ThermalExpansion { sensor: s.clone() }));
+        }
     }
     out
 }
@@ -511,6 +486,46 @@ impl Candidate {
             _ => None,
         }
     }
+}
+
+/// Reversal profile: per position zone (`edges_mm`), half the latched direction (±½) inside the
+/// zone, 0 outside.
+fn reversal_zone_columns(f: &AxisFeatures, edges_mm: &[f64]) -> Vec<Vec<f64>> {
+    (0..REVERSAL_ZONES)
+        .map(|k| {
+            f.pos_mm
+                .iter()
+                .zip(&f.dir)
+                .map(|(x, d)| {
+                    if super::effects::zone_of(edges_mm, *x) == Some(k) {
+                        f64::from(*d) / 2.0
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// The sin/cos pair of period `period_mm` in position.
+fn cyclic_columns(f: &AxisFeatures, period_mm: f64) -> Vec<Vec<f64>> {
+    let w = TAU / period_mm;
+    // One transcendental per distinct position: sin from cos with the half-cycle sign.
+    let (mut sv, mut cv) = (
+        Vec::with_capacity(f.distinct_mm.len()),
+        Vec::with_capacity(f.distinct_mm.len()),
+    );
+    for &x in &f.distinct_mm {
+        let ph = (w * x).rem_euclid(TAU);
+        let c = ph.cos();
+        cv.push(c);
+        sv.push((1.0 - c * c).max(0.0).sqrt() * if ph < std::f64::consts::PI { 1.0 } else { -1.0 });
+    }
+    vec![
+        f.distinct_idx.iter().map(|&k| sv[k as usize]).collect(),
+        f.distinct_idx.iter().map(|&k| cv[k as usize]).collect(),
+    ]
 }
 
 #[cfg(test)]

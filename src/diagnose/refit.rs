@@ -108,12 +108,6 @@ fn forward_drop(
         .map(|(k, w)| (k, "no_forward_gain", with, w))
 }
 
-/// Refit all accepted terms jointly (one coordinate pass refining each nonlinear parameter with the
-/// others held), then give each term its model and 95 % intervals: linear gains from the covariance
-/// (inflated for correlated residuals), nonlinear ones by profile likelihood (n_eff·ln RSS ratio ≤ 3.84).
-/// Also returns the coefficients of the cumulative fits (terms fitted jointly up to each one) and
-/// the terms at their refitted parameters, from which [`SignalResult::residual_after`] recomputes
-/// the cumulative residuals.
 /// Models, 95 % intervals, cumulative-fit coefficients and refitted terms of [`joint_refit`].
 pub(super) type Refit = (
     Vec<EffectModel>,
@@ -122,40 +116,15 @@ pub(super) type Refit = (
     Vec<(Candidate, f64)>,
 );
 
+/// Refit all accepted terms jointly (one coordinate pass refining each nonlinear parameter with the
+/// others held), then give each term its model and 95 % intervals: linear gains from the covariance
+/// (inflated for correlated residuals), nonlinear ones by profile likelihood (n_eff·ln RSS ratio ≤ 3.84).
+/// Also returns the coefficients of the cumulative fits (terms fitted jointly up to each one) and
+/// the terms at their refitted parameters, from which [`SignalResult::residual_after`] recomputes
+/// the cumulative residuals.
 pub(super) fn joint_refit(ctx: &Context, r: &[f64], terms: &[Term]) -> Refit {
-    let n = r.len();
-    let ones = vec![1.0; n];
-    let mut thetas: Vec<f64> = terms.iter().map(|t| t.theta).collect();
-    let mut cols: Vec<Vec<Vec<f64>>> = terms.iter().map(|t| t.cols.clone()).collect();
-    let others_basis = |cols: &[Vec<Vec<f64>>], skip: usize| {
-        let mut v = vec![ones.clone()];
-        for (j, c) in cols.iter().enumerate() {
-            if j != skip {
-                v.extend(c.iter().cloned());
-            }
-        }
-        let b = lsq::orthonormalize(&[], v, 2);
-        let r0 = lsq::deflate(&b, r);
-        (b, r0)
-    };
-    let rss_at = |b: &[Vec<f64>], r0: &[f64], t: &Term, th: f64| {
-        let u = lsq::orthonormalize(b, t.cand.columns(ctx, th), 1);
-        lsq::dot(r0, r0) - lsq::gain(&u, r0)
-    };
-    for (k, t) in terms.iter().enumerate() {
-        if t.cand.is_nonlinear() && terms.len() > 1 {
-            let (b, r0) = others_basis(&cols, k);
-            let th = refine_min(
-                |th| rss_at(&b, &r0, t, th),
-                thetas[k] / 1.3,
-                thetas[k] * 1.3,
-            );
-            if rss_at(&b, &r0, t, th) <= rss_at(&b, &r0, t, thetas[k]) {
-                thetas[k] = th;
-                cols[k] = t.cand.columns(ctx, th);
-            }
-        }
-    }
+    let ones = vec![1.0; r.len()];
+    let (thetas, cols) = refine_jointly(ctx, r, terms, &ones);
     let mut flat: Vec<&[f64]> = vec![&ones];
     let mut spans = vec![];
     for c in &cols {
@@ -191,48 +160,10 @@ pub(super) fn joint_refit(ctx: &Context, r: &[f64], terms: &[Term]) -> Refit {
                 .collect(),
         };
         models.push(t.cand.to_model(&c, thetas[k]));
-        let mut ci = Map::new();
-        let iv = |v: f64, s: f64| json!([v - 1.96 * s, v + 1.96 * s]);
-        match t.cand.kind {
-            candidates::Kind::ReversalProfile { .. } => {
-                ci.insert(
-                    "b_um".into(),
-                    Value::Array(c.iter().zip(&se).map(|(v, s)| iv(*v, *s)).collect()),
-                );
-            }
-            candidates::Kind::Cyclic => {
-                let (a, b) = (c[0], c[1]);
-                let amp = a.hypot(b).max(1e-300);
-                let (i0, i1) = (sp.start, sp.start + 1);
-                let var = (a * a * fit.cov[(i0, i0)]
-                    + b * b * fit.cov[(i1, i1)]
-                    + 2.0 * a * b * fit.cov[(i0, i1)])
-                    / (amp * amp);
-                ci.insert("amplitude_um".into(), iv(amp, var.max(0.0).sqrt()));
-            }
-            _ => {
-                ci.insert(t.cand.coef_key().into(), iv(c[0], se[0]));
-            }
-        }
+        let mut ci = gain_intervals(t, &c, &se, &fit.cov, sp.start);
         if let Some(key) = t.cand.theta_key() {
-            let (b, r0) = others_basis(&cols, k);
-            let best = rss_at(&b, &r0, t, thetas[k]);
-            let ok = |th: f64| fit.n_eff * (rss_at(&b, &r0, t, th) / best).ln() <= 3.84;
-            let step = 1.01f64;
-            let mut lo = thetas[k];
-            let mut hi = thetas[k];
-            for _ in 0..120 {
-                if !ok(lo / step) {
-                    break;
-                }
-                lo /= step;
-            }
-            for _ in 0..120 {
-                if !ok(hi * step) {
-                    break;
-                }
-                hi *= step;
-            }
+            let (b, r0) = others_basis(&ones, &cols, k, r);
+            let (lo, hi) = theta_interval(ctx, &b, &r0, t, thetas[k], fit.n_eff);
             ci.insert(key.into(), json!([lo, hi]));
         }
         cis.push(ci);
@@ -247,6 +178,122 @@ pub(super) fn joint_refit(ctx: &Context, r: &[f64], terms: &[Term]) -> Refit {
         .map(|(t, th)| (t.cand.clone(), *th))
         .collect();
     (models, cis, after_coef, refit)
+}
+
+/// The orthonormal basis of the intercept and every term's columns but term `skip`'s, and `r`
+/// deflated by it.
+fn others_basis(
+    ones: &[f64],
+    cols: &[Vec<Vec<f64>>],
+    skip: usize,
+    r: &[f64],
+) -> (Vec<Vec<f64>>, Vec<f64>) {
+    let mut v = vec![ones.to_vec()];
+    for (j, c) in cols.iter().enumerate() {
+        if j != skip {
+            v.extend(c.iter().cloned());
+        }
+    }
+    let b = lsq::orthonormalize(&[], v, 2);
+    let r0 = lsq::deflate(&b, r);
+    (b, r0)
+}
+
+/// RSS of `r0` (already deflated by basis `b`) after term `t` at parameter `th` is fitted too.
+fn rss_at(ctx: &Context, b: &[Vec<f64>], r0: &[f64], t: &Term, th: f64) -> f64 {
+    let u = lsq::orthonormalize(b, t.cand.columns(ctx, th), 1);
+    lsq::dot(r0, r0) - lsq::gain(&u, r0)
+}
+
+/// One coordinate pass: each nonlinear parameter refined within ×/÷ 1.3 with the other terms
+/// held (kept only when it does not raise the RSS); the parameters and the terms' columns.
+fn refine_jointly(
+    ctx: &Context,
+    r: &[f64],
+    terms: &[Term],
+    ones: &[f64],
+) -> (Vec<f64>, Vec<Vec<Vec<f64>>>) {
+    let mut thetas: Vec<f64> = terms.iter().map(|t| t.theta).collect();
+    let mut cols: Vec<Vec<Vec<f64>>> = terms.iter().map(|t| t.cols.clone()).collect();
+    for (k, t) in terms.iter().enumerate() {
+        if t.cand.is_nonlinear() && terms.len() > 1 {
+            let (b, r0) = others_basis(ones, &cols, k, r);
+            let th = refine_min(
+                |th| rss_at(ctx, &b, &r0, t, th),
+                thetas[k] / 1.3,
+                thetas[k] * 1.3,
+            );
+            if rss_at(ctx, &b, &r0, t, th) <= rss_at(ctx, &b, &r0, t, thetas[k]) {
+                thetas[k] = th;
+                cols[k] = t.cand.columns(ctx, th);
+            }
+        }
+    }
+    (thetas, cols)
+}
+
+/// 95 % intervals of term `t`'s linear coefficients `c` (standard errors `se`; `cov` the joint
+/// fit's covariance, the term's first column at `start`): per bin for a reversal profile, of the
+/// amplitude for a cyclic pair (delta method), else of the one gain.
+fn gain_intervals(
+    t: &Term,
+    c: &[f64],
+    se: &[f64],
+    cov: &nalgebra::DMatrix<f64>,
+    start: usize,
+) -> Map<String, Value> {
+    let mut ci = Map::new();
+    let iv = |v: f64, s: f64| json!([v - 1.96 * s, v + 1.96 * s]);
+    match t.cand.kind {
+        candidates::Kind::ReversalProfile { .. } => {
+            ci.insert(
+                "b_um".into(),
+                Value::Array(c.iter().zip(se).map(|(v, s)| iv(*v, *s)).collect()),
+            );
+        }
+        candidates::Kind::Cyclic => {
+            let (a, b) = (c[0], c[1]);
+            let amp = a.hypot(b).max(1e-300);
+            let (i0, i1) = (start, start + 1);
+            let var = (a * a * cov[(i0, i0)] + b * b * cov[(i1, i1)] + 2.0 * a * b * cov[(i0, i1)])
+                / (amp * amp);
+            ci.insert("amplitude_um".into(), iv(amp, var.max(0.0).sqrt()));
+        }
+        _ => {
+            ci.insert(t.cand.coef_key().into(), iv(c[0], se[0]));
+        }
+    }
+    ci
+}
+
+/// Profile-likelihood 95 % interval of term `t`'s nonlinear parameter around `theta`: steps of
+/// 1 % (at most 120 each way) while n_eff·ln(RSS / RSS at theta) ≤ 3.84.
+fn theta_interval(
+    ctx: &Context,
+    b: &[Vec<f64>],
+    r0: &[f64],
+    t: &Term,
+    theta: f64,
+    n_eff: f64,
+) -> (f64, f64) {
+    let best = rss_at(ctx, b, r0, t, theta);
+    let ok = |th: f64| n_eff * (rss_at(ctx, b, r0, t, th) / best).ln() <= 3.84;
+    let step = 1.01f64;
+    let mut lo = theta;
+    let mut hi = theta;
+    for _ in 0..120 {
+        if !ok(lo / step) {
+            break;
+        }
+        lo /= step;
+    }
+    for _ in 0..120 {
+        if !ok(hi * step) {
+            break;
+        }
+        hi *= step;
+    }
+    (lo, hi)
 }
 
 fn refine_min(f: impl Fn(f64) -> f64, lo: f64, hi: f64) -> f64 {

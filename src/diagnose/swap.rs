@@ -88,6 +88,31 @@ pub fn best_exchange(
     cv_now: f64,
     cv_of: &HeldOut<'_>,
 ) -> Option<Exchange> {
+    let (_, k, set) = best_choice(ctx, r, lib, terms, n_eff)?;
+    if terms.len() - 1 + set.len() > opts.max_terms {
+        return None;
+    }
+    let bar = Bar { n_eff, tried, opts };
+    let out = confirmed(ctx, r, terms, k, &set, &bar, cv_of)?;
+    let mut all = kept(terms, k);
+    all.extend(set.iter().map(|(c, th)| (c, *th)));
+    let cv_after = cv_of(&all);
+    if cv_after.is_nan() || cv_after > cv_now {
+        return None;
+    }
+    Some(Exchange { k, terms: out })
+}
+
+/// The exchange that improves BIC most: for each term k, the best single replacement among the
+/// TOP_REPLACEMENTS strongest candidates on the others' residual, and the best pair starting
+/// with one of them; `None` when none gains MIN_GAIN_BIC.
+fn best_choice(
+    ctx: &Context,
+    r: &[f64],
+    lib: &[Candidate],
+    terms: &[Term],
+    n_eff: f64,
+) -> Option<Choice> {
     let n = r.len();
     let ln_n = n_eff.ln();
     let taken = |c: &Candidate| {
@@ -153,10 +178,30 @@ pub fn best_exchange(
             basis.truncate(m);
         }
     }
-    let (_, k, set) = best?;
-    if terms.len() - 1 + set.len() > opts.max_terms {
-        return None;
-    }
+    best
+}
+
+/// The forward bar of selection (ΔBIC, Holm-corrected F-test on n_eff).
+struct Bar<'a> {
+    n_eff: f64,
+    tried: usize,
+    opts: &'a Options,
+}
+
+/// The exchange's new terms, each tested as a partial term given all the others (the kept terms
+/// and the rest of `set`); `None` when one fails the bar.
+fn confirmed(
+    ctx: &Context,
+    r: &[f64],
+    terms: &[Term],
+    k: usize,
+    set: &[(Candidate, f64)],
+    bar: &Bar<'_>,
+    cv_of: &HeldOut<'_>,
+) -> Option<Vec<Term>> {
+    let Bar { n_eff, tried, opts } = *bar;
+    let n = r.len();
+    let ln_n = n_eff.ln();
     // Every new term must pass the forward bar as a partial test given all the others.
     let new_cols: Vec<Vec<Vec<f64>>> = set.iter().map(|(c, th)| c.columns(ctx, *th)).collect();
     let mut out = vec![];
@@ -210,11 +255,5 @@ pub fn best_exchange(
             within_cells: false,
         });
     }
-    let mut all = kept(terms, k);
-    all.extend(set.iter().map(|(c, th)| (c, *th)));
-    let cv_after = cv_of(&all);
-    if cv_after.is_nan() || cv_after > cv_now {
-        return None;
-    }
-    Some(Exchange { k, terms: out })
+    Some(out)
 }
