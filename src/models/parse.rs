@@ -32,6 +32,35 @@ fn is_identifier(s: &str) -> bool {
     !s.is_empty() && s.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
 }
 
+/// What `[machine]` gives: the chain (with the tool axis) every later table is checked against.
+struct Machine {
+    name: Option<String>,
+    description: String,
+    synthetic: bool,
+    axes: Vec<AxisSpec>,
+    tool_axis: (Axis, f64),
+}
+
+/// Term names seen so far: each becomes a CSV column, so two terms may not share one.
+struct TermNames(HashSet<String>);
+
+impl TermNames {
+    fn new() -> TermNames {
+        let mut term_names: HashSet<String> = HashSet::new();
+        term_names.insert("higher_order".into());
+        TermNames(term_names)
+    }
+
+    /// Report `name` (at `key` of `t`) when it is not column-safe or is already taken.
+    fn claim(&mut self, t: &Tbl<'_, '_>, key: &str, name: &str) {
+        if !is_identifier(name) {
+            t.err_key(key, format!("term name {name:?} must use only letters, digits and _ (it becomes a CSV column)"));
+        } else if !self.0.insert(name.to_string()) {
+            t.err_key(key, format!("term name {name:?} is used twice (names must be unique; `higher_order` is reserved)"));
+        }
+    }
+}
+
 fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
     if let Some(v) = top.int_opt("schema")
         && v != 1
@@ -41,6 +70,53 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
             format!("unsupported schema {v}; this retrocomp reads schema = 1"),
         );
     }
+    let Machine {
+        name,
+        description,
+        synthetic,
+        mut axes,
+        tool_axis,
+    } = read_machine(top)?;
+    let in_chain: Vec<Axis> = axes.iter().map(|a| a.axis).collect();
+    read_axes(top, &mut axes, &in_chain);
+    let tools = read_tools(top);
+
+    let mut term_names = TermNames::new();
+    let components = read_components(top, &in_chain, &mut term_names);
+    let squareness = read_squareness_tables(top, &in_chain, &mut term_names);
+    let sensors = read_sensors(top);
+    let sensor_names: Vec<String> = sensors.iter().map(|s| s.name.clone()).collect();
+    let thermal = read_thermal_terms(top, &in_chain, &sensor_names, &mut term_names);
+    let forces = read_forces(top);
+    let force_names: Vec<String> = forces.iter().map(|f| f.name.clone()).collect();
+    let load = read_load_terms(top, &in_chain, &force_names, &mut term_names);
+    let lag_state = top
+        .table_opt("lag_state")
+        .and_then(|t| read_lag_state(&t, &sensors));
+    top.finish(TOP_KEYS);
+
+    if ctx.has_errors() {
+        return None;
+    }
+    Some(ModelSpec {
+        name: name?,
+        description,
+        synthetic,
+        axes,
+        tool_axis,
+        tools,
+        components,
+        squareness,
+        sensors,
+        thermal,
+        forces,
+        load,
+        lag_state,
+    })
+}
+
+/// `[machine]`; `None` when there is no usable chain, since every later table is checked against it.
+fn read_machine(top: &Tbl<'_, '_>) -> Option<Machine> {
     let Some(machine) = top.table_opt("machine") else {
         top.err_here("missing table [machine] (name, chain)");
         return None;
@@ -55,7 +131,7 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
     let tool_axis_s = machine.str_opt("tool_axis");
     machine.finish("name, description, synthetic, chain, tool_axis");
 
-    let mut axes = chain.and_then(|c| parse_chain(&machine, &c))?;
+    let axes = chain.and_then(|c| parse_chain(&machine, &c))?;
     let tool_axis = match tool_axis_s {
         None => (Axis::Z, -1.0),
         Some(s) => parse_signed_axis(&s).unwrap_or_else(|| {
@@ -66,8 +142,17 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
             (Axis::Z, -1.0)
         }),
     };
-    let in_chain: Vec<Axis> = axes.iter().map(|a| a.axis).collect();
+    Some(Machine {
+        name,
+        description,
+        synthetic,
+        axes,
+        tool_axis,
+    })
+}
 
+/// `[axes.<a>]`: per chain axis its offset and travel.
+fn read_axes(top: &Tbl<'_, '_>, axes: &mut [AxisSpec], in_chain: &[Axis]) {
     if let Some(at) = top.table_opt("axes") {
         for key in at.keys() {
             let axis = key
@@ -80,7 +165,7 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
                     &key,
                     format!(
                         "not an axis of the chain; expected one of {:?}",
-                        lower_names(&in_chain)
+                        lower_names(in_chain)
                     ),
                 ),
                 Some(spec) => {
@@ -101,7 +186,10 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
             }
         }
     }
+}
 
+/// `[[tools]]`: at least one, each with its tip offset (the Abbe arm).
+fn read_tools(top: &Tbl<'_, '_>) -> Vec<ToolSpec> {
     let mut tools = Vec::new();
     for t in top.tables("tools") {
         let name = t.str_req("name", "tool name").unwrap_or_default();
@@ -116,41 +204,51 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
     if tools.is_empty() {
         top.err_here("at least one [[tools]] entry is needed (name, offset_mm); use offset_mm = [0, 0, 0] when there is no Abbe arm");
     }
+    tools
+}
 
-    let mut term_names: HashSet<String> = HashSet::new();
-    term_names.insert("higher_order".into());
-    let mut unique_term = |t: &Tbl<'_, '_>, key: &str, name: &str| {
-        if !is_identifier(name) {
-            t.err_key(key, format!("term name {name:?} must use only letters, digits and _ (it becomes a CSV column)"));
-        } else if !term_names.insert(name.to_string()) {
-            t.err_key(key, format!("term name {name:?} is used twice (names must be unique; `higher_order` is reserved)"));
-        }
-    };
-
+/// `[[components]]`: the ISO 230-1 geometric errors, one function each.
+fn read_components(
+    top: &Tbl<'_, '_>,
+    in_chain: &[Axis],
+    term_names: &mut TermNames,
+) -> Vec<ComponentSpec> {
     let mut components = Vec::new();
     for t in top.tables("components") {
-        let Some(id) = read_target(&t, "name", &in_chain) else {
+        let Some(id) = read_target(&t, "name", in_chain) else {
             t.finish(COMPONENT_KEYS);
             continue;
         };
-        unique_term(&t, "name", &id.iso_name());
+        term_names.claim(&t, "name", &id.iso_name());
         let units = value_units(id);
         if let Some(function) = read_function(&t, "kind", &units) {
             components.push(ComponentSpec { id, function });
         }
         t.finish(COMPONENT_KEYS);
     }
+    components
+}
 
+/// `[[squareness]]`: one angle per pair of axes.
+fn read_squareness_tables(
+    top: &Tbl<'_, '_>,
+    in_chain: &[Axis],
+    term_names: &mut TermNames,
+) -> Vec<SquarenessSpec> {
     let mut squareness: Vec<SquarenessSpec> = Vec::new();
     for t in top.tables("squareness") {
-        let sq = read_squareness(&t, &in_chain);
+        let sq = read_squareness(&t, in_chain);
         t.finish("name, on_axis, value_urad, value_rad, value_arcsec, value_mm_per_m, value_um_per_m, deviation_mm, over_mm");
         if let Some(s) = sq {
-            unique_term(&t, "name", &ModelSpec::squareness_term_name(&s));
+            term_names.claim(&t, "name", &ModelSpec::squareness_term_name(&s));
             squareness.push(s);
         }
     }
+    squareness
+}
 
+/// `[[sensors]]`: the temperature inputs thermal terms and `[lag_state]` refer to by name.
+fn read_sensors(top: &Tbl<'_, '_>) -> Vec<SensorSpec> {
     let mut sensors: Vec<SensorSpec> = Vec::new();
     for t in top.tables("sensors") {
         let name = t
@@ -198,16 +296,24 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
             exponent,
         });
     }
-    let sensor_names: Vec<String> = sensors.iter().map(|s| s.name.clone()).collect();
+    sensors
+}
 
+/// `[[thermal]]`: terms driven by the sensors, read by kind in `parse_terms.rs`.
+fn read_thermal_terms(
+    top: &Tbl<'_, '_>,
+    in_chain: &[Axis],
+    sensor_names: &[String],
+    term_names: &mut TermNames,
+) -> Vec<ThermalSpec> {
     let mut thermal = Vec::new();
     for t in top.tables("thermal") {
         let name = t.str_req("name", "term name").unwrap_or_default();
-        unique_term(&t, "name", &name);
-        let target = read_target(&t, "target", &in_chain);
+        term_names.claim(&t, "name", &name);
+        let target = read_target(&t, "target", in_chain);
         let kind = t.str_req("kind", "polynomial_dt, slope, expansion or stations");
         if let (Some(target), Some(kind)) = (target, kind)
-            && let Some(k) = read_thermal(&t, &kind, target, &sensor_names, &in_chain)
+            && let Some(k) = read_thermal(&t, &kind, target, sensor_names, in_chain)
         {
             thermal.push(ThermalSpec {
                 name,
@@ -217,7 +323,11 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
         }
         t.finish(THERMAL_KEYS);
     }
+    thermal
+}
 
+/// `[[forces]]`: the force inputs load terms refer to, read directly or from a strain column.
+fn read_forces(top: &Tbl<'_, '_>) -> Vec<ForceSpec> {
     let mut forces: Vec<ForceSpec> = Vec::new();
     for t in top.tables("forces") {
         let name = t
@@ -245,13 +355,21 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
         t.finish("name, strain, gain_N_per_ue, offset_ue");
         forces.push(ForceSpec { name, from_strain });
     }
-    let force_names: Vec<String> = forces.iter().map(|f| f.name.clone()).collect();
+    forces
+}
 
+/// `[[load]]`: terms driven by a force channel, read by kind in `parse_terms.rs`.
+fn read_load_terms(
+    top: &Tbl<'_, '_>,
+    in_chain: &[Axis],
+    force_names: &[String],
+    term_names: &mut TermNames,
+) -> Vec<LoadSpec> {
     let mut load = Vec::new();
     for t in top.tables("load") {
         let name = t.str_req("name", "term name").unwrap_or_default();
-        unique_term(&t, "name", &name);
-        let target = read_target(&t, "target", &in_chain);
+        term_names.claim(&t, "name", &name);
+        let target = read_target(&t, "target", in_chain);
         let kind = t.str_req("kind", "compliance or weight_angular");
         let force = t.str_req("force", "a [[forces]] name");
         if let Some(f) = &force
@@ -273,29 +391,7 @@ fn read_doc(ctx: &Ctx<'_>, top: &Tbl<'_, '_>) -> Option<ModelSpec> {
         }
         t.finish(LOAD_KEYS);
     }
-    let lag_state = top
-        .table_opt("lag_state")
-        .and_then(|t| read_lag_state(&t, &sensors));
-    top.finish(TOP_KEYS);
-
-    if ctx.has_errors() {
-        return None;
-    }
-    Some(ModelSpec {
-        name: name?,
-        description,
-        synthetic,
-        axes,
-        tool_axis,
-        tools,
-        components,
-        squareness,
-        sensors,
-        thermal,
-        forces,
-        load,
-        lag_state,
-    })
+    load
 }
 
 /// `[lag_state]`: `t_s` and `lagged = { <sensor> = <lagged input> }`, each a sensor with `tau_s`.

@@ -1,11 +1,14 @@
 //! Readers for the parts of a model file that carry values: error functions (tables, polynomials,
 //! piecewise quadratics), squareness, thermal and load terms. Units are converted here, once.
 
-use super::function::{ErrorFunction, Interpolation, Table};
+use super::function::ErrorFunction;
 use super::names::{Axis, ComponentId, lower_names, parse_squareness};
 use super::spec::*;
 use super::toml_reader::Tbl;
 use crate::units::{AngleUnit, LengthUnit};
+
+mod shapes;
+mod thermal_kinds;
 
 /// Read the one `{prefix}_{unit}` key, converted by the unit's factor.
 fn read_scaled_vec(
@@ -76,149 +79,9 @@ pub(super) fn read_function(
         }
     });
     match kind.as_str() {
-        "table" => {
-            let Some(positions) = t.vec_opt("positions_mm") else {
-                if !t.has("positions_mm") {
-                    t.err_here("a table needs `positions_mm` (strictly increasing, ≥ 2 points)");
-                }
-                return None;
-            };
-            let fwd = read_scaled_vec(t, "forward", units);
-            if fwd.is_none() && !t.keys().iter().any(|k| k.starts_with("forward_")) {
-                t.err_here(format!(
-                    "a table needs `forward_<unit>` with unit one of {suffix_hint}"
-                ));
-            }
-            let rev = read_scaled_vec(t, "reverse", units);
-            let interpolation = match t.str_opt("interpolation").as_deref() {
-                None | Some("linear") => Interpolation::Linear,
-                Some("c1") => Interpolation::C1,
-                Some(other) => {
-                    t.err_key(
-                        "interpolation",
-                        format!("expected \"linear\" or \"c1\", found {other:?}"),
-                    );
-                    Interpolation::Linear
-                }
-            };
-            if positions.len() < 2 {
-                t.err_key(
-                    "positions_mm",
-                    format!("expected at least 2 points, found {}", positions.len()),
-                );
-                return None;
-            }
-            if let Some(i) = positions.windows(2).position(|w| w[1] <= w[0]) {
-                t.err_key(
-                    "positions_mm",
-                    format!(
-                        "positions must increase strictly: [{}] = {} is not above [{}] = {}",
-                        i + 1,
-                        positions[i + 1],
-                        i,
-                        positions[i]
-                    ),
-                );
-                return None;
-            }
-            let (fwd, fwd_unit) = fwd?;
-            if fwd.len() != positions.len() {
-                t.err_key(
-                    &format!("forward_{fwd_unit}"),
-                    format!(
-                        "expected {} values (one per position), found {}",
-                        positions.len(),
-                        fwd.len()
-                    ),
-                );
-                return None;
-            }
-            let rev = match rev {
-                None => fwd.clone(),
-                Some((r, ru)) => {
-                    if r.len() != positions.len() {
-                        t.err_key(
-                            &format!("reverse_{ru}"),
-                            format!(
-                                "expected {} values (one per position), found {}",
-                                positions.len(),
-                                r.len()
-                            ),
-                        );
-                        return None;
-                    }
-                    r
-                }
-            };
-            if range_mm.is_some() {
-                t.err_key(
-                    "range_mm",
-                    "a table's range is its positions; range_mm is for polynomials",
-                );
-            }
-            Some(ErrorFunction::Table(Table::new(
-                positions,
-                fwd,
-                rev,
-                interpolation,
-            )))
-        }
-        "polynomial" => {
-            let Some((coefficients, _)) = read_scaled_vec(t, "coefficients", units) else {
-                if t.keys().iter().any(|k| k.starts_with("coefficients_")) {
-                    return None;
-                }
-                t.err_here(format!("a polynomial needs `coefficients_<unit>` = [a0, a1, …] (value = Σ a_i·q^i, q in mm), unit one of {suffix_hint}"));
-                return None;
-            };
-            if coefficients.is_empty() {
-                t.err_here("polynomial coefficients are empty");
-                return None;
-            }
-            Some(ErrorFunction::Polynomial {
-                coefficients,
-                range_mm,
-            })
-        }
-        "piecewise_quadratic" => {
-            let base = read_scaled_vec(t, "coefficients", units);
-            let knots = t.vec_opt("knots_mm").unwrap_or_default();
-            let kc = read_scaled_vec(t, "knot_coefficients", units)
-                .map(|v| v.0)
-                .unwrap_or_default();
-            let Some((base, _)) = base else {
-                t.err_here(format!("a piecewise_quadratic needs `coefficients_<unit>` = [b0, b1, b2], unit one of {suffix_hint}"));
-                return None;
-            };
-            if base.len() != 3 {
-                t.err_here(format!(
-                    "piecewise_quadratic coefficients: expected 3 values [b0, b1, b2], found {}",
-                    base.len()
-                ));
-                return None;
-            }
-            if knots.len() != kc.len() {
-                t.err_key(
-                    "knots_mm",
-                    format!(
-                        "expected one knot coefficient per knot: {} knots, {} coefficients",
-                        knots.len(),
-                        kc.len()
-                    ),
-                );
-                return None;
-            }
-            if knots.windows(2).any(|w| w[1] <= w[0]) {
-                t.err_key("knots_mm", "knots must increase strictly");
-                return None;
-            }
-            Some(ErrorFunction::PiecewiseQuadratic {
-                base: [base[0], base[1], base[2]],
-                knots_mm: knots,
-                knot_coefficients: kc,
-                range_mm,
-            })
-        }
+        "table" => shapes::read_table(t, units, range_mm, &suffix_hint),
+        "polynomial" => shapes::read_polynomial(t, units, range_mm, &suffix_hint),
+        "piecewise_quadratic" => shapes::read_piecewise_quadratic(t, units, range_mm, &suffix_hint),
         other => {
             t.err_key(kind_key, format!("unknown function shape {other:?}; expected table, polynomial or piecewise_quadratic"));
             None
@@ -382,134 +245,10 @@ pub(super) fn read_thermal(
         return None;
     }
     match kind {
-        "polynomial_dt" => {
-            let s = read_sensor_list(t, sensors)?;
-            let e0 = t.f64_opt(&format!("e0_{u}")).unwrap_or(0.0);
-            let b = t.vec_opt(&format!("b_{u}_per_K")).unwrap_or_default();
-            if b.len() != s.len() {
-                t.err_key(
-                    &format!("b_{u}_per_K"),
-                    format!(
-                        "expected {} values (one per sensor), found {}",
-                        s.len(),
-                        b.len()
-                    ),
-                );
-                return None;
-            }
-            let c = read_square(t, &format!("c_{u}_per_K2"), s.len())?;
-            Some(ThermalKind::PolynomialDt {
-                sensors: s,
-                e0,
-                b_per_k: b,
-                c_per_k2: c,
-            })
-        }
-        "slope" => {
-            let s = read_sensor_list(t, sensors)?;
-            let s0 = t.f64_opt(&format!("s0_{u}_per_m")).unwrap_or(0.0);
-            let sv = t.vec_opt(&format!("s_{u}_per_m_K")).unwrap_or_default();
-            if sv.len() != s.len() {
-                t.err_key(
-                    &format!("s_{u}_per_m_K"),
-                    format!(
-                        "expected {} values (one per sensor), found {}",
-                        s.len(),
-                        sv.len()
-                    ),
-                );
-                return None;
-            }
-            let d = read_square(t, &format!("d_{u}_per_m_K2"), s.len())?;
-            Some(ThermalKind::Slope {
-                sensors: s,
-                s0_per_mm: s0,
-                s_per_mm_k: sv,
-                d_per_mm_k2: d,
-            })
-        }
-        "expansion" => {
-            if target.is_rotation() {
-                t.err_key("target", "expansion needs a translation target (e.g. EXX)");
-                return None;
-            }
-            let sensor = t.str_req("sensor", "the [[sensors]] name of the scale temperature")?;
-            if !sensors.contains(&sensor) {
-                t.err_key(
-                    "sensor",
-                    format!("unknown sensor {sensor:?}; defined: {sensors:?}"),
-                );
-                return None;
-            }
-            let alpha = t.f64_req(
-                "alpha_ppm_per_K",
-                "expansion coefficient, e.g. 11.5 for steel",
-            )?;
-            let origin = t.f64_opt("origin_mm").unwrap_or(0.0);
-            let reference = t.f64_opt("reference_C").unwrap_or(20.0);
-            Some(ThermalKind::Expansion {
-                sensor,
-                alpha_ppm_per_k: alpha,
-                origin_mm: origin,
-                reference_c: reference,
-            })
-        }
-        "stations" => {
-            let s = read_sensor_list(t, sensors)?;
-            let along = t.str_req("along", "the axis the stations lie on")?;
-            let Some(along) = along
-                .chars()
-                .next()
-                .and_then(Axis::from_letter)
-                .filter(|a| along.len() == 1 && in_chain.contains(a))
-            else {
-                t.err_key(
-                    "along",
-                    format!(
-                        "expected an axis of the chain {:?}, found {along:?}",
-                        lower_names(in_chain)
-                    ),
-                );
-                return None;
-            };
-            let st = t.vec_opt("stations_mm")?;
-            if st.len() < 2 || st.windows(2).any(|w| w[1] <= w[0]) {
-                t.err_key("stations_mm", "expected ≥ 2 strictly increasing positions");
-                return None;
-            }
-            let e0 = if t.has(&format!("e0_{u}")) {
-                t.vec_opt(&format!("e0_{u}"))?
-            } else {
-                vec![0.0; st.len()]
-            };
-            if e0.len() != st.len() {
-                t.err_key(
-                    &format!("e0_{u}"),
-                    format!("expected {} values (one per station)", st.len()),
-                );
-                return None;
-            }
-            let key = format!("b_{u}_per_K");
-            let b = t.matrix_opt(&key).unwrap_or_default();
-            if b.len() != st.len() || b.iter().any(|r| r.len() != s.len()) {
-                t.err_key(
-                    &key,
-                    format!(
-                        "expected {} rows (stations) of {} values (sensors)",
-                        st.len(),
-                        s.len()
-                    ),
-                );
-                return None;
-            }
-            Some(ThermalKind::Stations {
-                along,
-                sensors: s,
-                stations_mm: st,
-                e0,
-                b_per_k: b,
-            })
-        }
+        "polynomial_dt" => thermal_kinds::read_polynomial_dt(t, u, sensors),
+        "slope" => thermal_kinds::read_slope(t, u, sensors),
+        "expansion" => thermal_kinds::read_expansion(t, target, sensors),
+        "stations" => thermal_kinds::read_stations(t, u, sensors, in_chain),
         other => {
             t.err_key("kind", format!("unknown thermal kind {other:?}; expected polynomial_dt, slope, expansion or stations"));
             None

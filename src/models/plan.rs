@@ -21,13 +21,14 @@
 
 use std::ops::Range;
 
-use super::function::{ErrorFunction, Interpolation, Table};
 use super::kinematics::{Elem, arms, cross, exact_tip, nominal_tip};
-use super::lookup::{Curve, Nodes, by_dir, dir_slot};
+use super::lookup::{Curve, Nodes, dir_slot};
 use super::reference::{Compiled, ForceSource};
-use super::spec::{LoadKind, ModelSpec, ThermalKind};
+use super::spec::ModelSpec;
 use super::thermal::LagPlan;
 use super::{ErrorBreakdown, EvalFlags, ModelInput, ModelState};
+
+mod build;
 
 /// Where a term's value goes: its breakdown index, chain element and slot (0..3 δ x/y/z in µm,
 /// 3..6 ε a/b/c in µrad).
@@ -147,63 +148,8 @@ pub(crate) struct Plan {
 impl Plan {
     pub(crate) fn new(spec: &ModelSpec, c: &Compiled) -> Plan {
         let n_comp = spec.components.len();
-        let mut groups: Vec<Group> = Vec::new();
-        let mut singles = Vec::new();
-        for (k, (cs, s)) in spec.components.iter().zip(&c.components).enumerate() {
-            let target = Target::new(k, s.elem, s.slot);
-            match &cs.function {
-                ErrorFunction::Table(tb) if tb.interpolation == Interpolation::Linear => {
-                    let g = match groups
-                        .iter_mut()
-                        .position(|g| g.elem == s.elem && g.nodes.x == tb.positions_mm)
-                    {
-                        Some(i) => &mut groups[i],
-                        None => {
-                            groups.push(Group {
-                                elem: s.elem,
-                                nodes: Nodes::new(&tb.positions_mm),
-                                rows: Default::default(),
-                                members: Vec::new(),
-                                full_from_term: None,
-                            });
-                            groups.last_mut().expect("just pushed")
-                        }
-                    };
-                    g.members.push(target);
-                }
-                f => singles.push(Single {
-                    target,
-                    curve: Curve::new(f),
-                }),
-            }
-        }
-        // Interleave the members' values per node now that each group's members are known.
-        for g in &mut groups {
-            let t0 = g.members[0].term;
-            let full = g.members.len() == 6
-                && g.members
-                    .iter()
-                    .enumerate()
-                    .all(|(s, m)| m.at == g.elem * 6 + s && m.term == t0 + s && m.elem == g.elem);
-            g.full_from_term = full.then_some(t0);
-            let tables: Vec<&Table> = g
-                .members
-                .iter()
-                .map(|m| match &spec.components[m.term].function {
-                    ErrorFunction::Table(t) => t,
-                    _ => unreachable!("groups hold tables only"),
-                })
-                .collect();
-            let per_table: Vec<[Vec<f64>; 3]> = tables
-                .iter()
-                .map(|t| by_dir(&t.forward, &t.reverse))
-                .collect();
-            for (slot, rows) in g.rows.iter_mut().enumerate() {
-                for i in 0..g.nodes.x.len() {
-                    rows.extend(per_table.iter().map(|v| v[slot][i]));
-                }
-            }
-        }
+        let (mut groups, singles) = build::group_components(spec, c);
+        build::fill_group_rows(&mut groups, spec);
 
         let n_sq = spec.squareness.len();
         let squareness = c
@@ -215,116 +161,10 @@ impl Plan {
 
         let mut linear = Vec::new();
         let mut quadratic = Vec::new();
-        let mut push_linear = |b: &[f64], idx: &[usize]| {
-            let start = linear.len();
-            linear.extend(
-                b.iter()
-                    .zip(idx)
-                    .filter(|(b, _)| **b != 0.0)
-                    .map(|(&b, &i)| (i, b)),
-            );
-            start..linear.len()
-        };
-        let mut push_quadratic = |cm: &[Vec<f64>], idx: &[usize]| {
-            let start = quadratic.len();
-            for (i, row) in cm.iter().enumerate() {
-                for (j, &cij) in row.iter().enumerate() {
-                    if cij != 0.0 {
-                        quadratic.push((idx[i], idx[j], cij));
-                    }
-                }
-            }
-            start..quadratic.len()
-        };
-        let thermal = spec
-            .thermal
-            .iter()
-            .zip(&c.thermal)
-            .enumerate()
-            .map(|(i, (th, (s, idx, along)))| {
-                let op = match &th.kind {
-                    ThermalKind::PolynomialDt {
-                        e0,
-                        b_per_k,
-                        c_per_k2,
-                        ..
-                    } => ThermalOp::Polynomial {
-                        e0: *e0,
-                        linear: push_linear(b_per_k, idx),
-                        quadratic: push_quadratic(c_per_k2, idx),
-                    },
-                    ThermalKind::Slope {
-                        s0_per_mm,
-                        s_per_mm_k,
-                        d_per_mm_k2,
-                        ..
-                    } => ThermalOp::Slope {
-                        s0: *s0_per_mm,
-                        linear: push_linear(s_per_mm_k, idx),
-                        quadratic: push_quadratic(d_per_mm_k2, idx),
-                    },
-                    ThermalKind::Expansion {
-                        alpha_ppm_per_k,
-                        origin_mm,
-                        reference_c,
-                        ..
-                    } => ThermalOp::Expansion {
-                        sensor: idx[0],
-                        alpha_ppm_per_k: *alpha_ppm_per_k,
-                        origin_mm: *origin_mm,
-                        reference_c: *reference_c,
-                    },
-                    ThermalKind::Stations {
-                        stations_mm,
-                        e0,
-                        b_per_k,
-                        ..
-                    } => ThermalOp::Stations {
-                        along: *along,
-                        inv_gap: stations_mm
-                            .windows(2)
-                            .map(|w| 1.0 / (w[1] - w[0]))
-                            .collect(),
-                        stations_mm: stations_mm.clone(),
-                        e0: e0.clone(),
-                        linear: b_per_k.iter().map(|b| push_linear(b, idx)).collect(),
-                    },
-                };
-                ThermalTerm {
-                    target: Target::new(n_comp + n_sq + i, s.elem, s.slot),
-                    op,
-                }
-            })
-            .collect();
+        let thermal = build::thermal_terms(spec, c, n_comp + n_sq, &mut linear, &mut quadratic);
 
         let n_th = spec.thermal.len();
-        let load = spec
-            .load
-            .iter()
-            .zip(&c.load)
-            .enumerate()
-            .map(|(i, (l, (s, fi)))| {
-                let (function, scale) = match &l.kind {
-                    LoadKind::Compliance { compliance, .. } => (compliance.clone(), 1.0),
-                    LoadKind::WeightAngular {
-                        reference,
-                        reference_force_n,
-                        lever_mm,
-                        load_height_mm,
-                        ..
-                    } => (
-                        reference.clone(),
-                        (lever_mm - load_height_mm) / lever_mm / reference_force_n,
-                    ),
-                };
-                LoadTerm {
-                    target: Target::new(n_comp + n_sq + n_th + i, s.elem, s.slot),
-                    force: *fi,
-                    curve: Curve::new(&function),
-                    scale,
-                }
-            })
-            .collect();
+        let load = build::load_terms(spec, c, n_comp + n_sq + n_th);
 
         Plan {
             elems: c.elems.clone(),

@@ -55,28 +55,8 @@ pub(crate) enum ForceSource {
 
 impl Compiled {
     pub(crate) fn new(spec: &ModelSpec) -> Compiled {
-        let mut elem_of_axis = [None; 3];
-        let mut elems: Vec<Elem> = spec
-            .axes
-            .iter()
-            .enumerate()
-            .map(|(j, a)| {
-                elem_of_axis[a.axis.index()] = Some(j);
-                let mut u = [0.0; 3];
-                u[a.axis.index()] = 1.0;
-                Elem {
-                    axis: a.axis,
-                    workpiece_side: a.branch == Branch::Workpiece,
-                    offset_mm: a.offset_mm,
-                    u,
-                    u_tilted: u,
-                }
-            })
-            .collect();
-        let slot = |axis: Axis, s: usize| Slot {
-            elem: elem_of_axis[axis.index()].expect("validated: axis in chain"),
-            slot: s,
-        };
+        let (mut elems, elem_of_axis) = chain_elems(spec);
+        let slot = |axis: Axis, s: usize| slot_of(&elem_of_axis, axis, s);
 
         let mut term_names = Vec::new();
         let components = spec
@@ -87,121 +67,11 @@ impl Compiled {
                 slot(c.id.axis, c.id.slot())
             })
             .collect();
-
-        let shares_location = (0..spec.components.len())
-            .map(|k| {
-                k > 0 && {
-                    let (prev, cur) = (&spec.components[k - 1], &spec.components[k]);
-                    match (&prev.function, &cur.function) {
-                        (ErrorFunction::Table(a), ErrorFunction::Table(b)) => {
-                            prev.id.axis == cur.id.axis && a.same_positions(b)
-                        }
-                        _ => false,
-                    }
-                }
-            })
-            .collect();
-
-        let mut squareness = Vec::new();
-        for s in &spec.squareness {
-            let (_reference, rotated, about) = s.kind.axes();
-            // On the axis ISO rotates the angle is +S; on the reference axis −S keeps the same angle
-            // between the two axes (see names::Squareness for the sign of each kind).
-            let theta_rad = if s.on_axis == rotated {
-                s.value_urad
-            } else {
-                -s.value_urad
-            } * 1e-6;
-            let e = elem_of_axis[s.on_axis.index()].expect("validated: squareness axis in chain");
-            let mut r_hat = [0.0; 3];
-            r_hat[about.index()] = 1.0;
-            let d = cross(r_hat, elems[e].u);
-            squareness.push((
-                e,
-                [
-                    theta_rad * d[0] * 1e3,
-                    theta_rad * d[1] * 1e3,
-                    theta_rad * d[2] * 1e3,
-                ],
-            ));
-            let m = rotation_about(about, theta_rad);
-            let u = elems[e].u_tilted;
-            let v = m * nalgebra::Vector3::new(u[0], u[1], u[2]);
-            elems[e].u_tilted = [v[0], v[1], v[2]];
-            term_names.push(ModelSpec::squareness_term_name(s));
-        }
-
-        let sensor_index = |n: &String| {
-            spec.sensors
-                .iter()
-                .position(|s| &s.name == n)
-                .expect("validated: sensor exists")
-        };
-        let thermal = spec
-            .thermal
-            .iter()
-            .map(|t| {
-                term_names.push(t.name.clone());
-                let (idx, along) = match &t.kind {
-                    super::spec::ThermalKind::PolynomialDt { sensors, .. }
-                    | super::spec::ThermalKind::Slope { sensors, .. } => {
-                        (sensors.iter().map(sensor_index).collect(), None)
-                    }
-                    super::spec::ThermalKind::Expansion { sensor, .. } => {
-                        (vec![sensor_index(sensor)], None)
-                    }
-                    super::spec::ThermalKind::Stations { sensors, along, .. } => (
-                        sensors.iter().map(sensor_index).collect(),
-                        elem_of_axis[along.index()],
-                    ),
-                };
-                (slot(t.target.axis, t.target.slot()), idx, along)
-            })
-            .collect();
-
-        let mut force_channels = Vec::new();
-        let mut strain_channels: Vec<String> = Vec::new();
-        let force_source = spec
-            .forces
-            .iter()
-            .map(|f| match &f.from_strain {
-                None => {
-                    force_channels.push(f.name.clone());
-                    ForceSource::Direct(force_channels.len() - 1)
-                }
-                Some(src) => {
-                    let index = strain_channels
-                        .iter()
-                        .position(|s| s == &src.strain)
-                        .unwrap_or_else(|| {
-                            strain_channels.push(src.strain.clone());
-                            strain_channels.len() - 1
-                        });
-                    ForceSource::Strain {
-                        index,
-                        gain_n_per_ue: src.gain_n_per_ue,
-                        offset_ue: src.offset_ue,
-                    }
-                }
-            })
-            .collect();
-        let load =
-            spec.load
-                .iter()
-                .map(|l| {
-                    term_names.push(l.name.clone());
-                    let force = match &l.kind {
-                        LoadKind::Compliance { force, .. }
-                        | LoadKind::WeightAngular { force, .. } => force,
-                    };
-                    let fi = spec
-                        .forces
-                        .iter()
-                        .position(|f| &f.name == force)
-                        .expect("validated: force exists");
-                    (slot(l.target.axis, l.target.slot()), fi)
-                })
-                .collect();
+        let shares_location = shares_location(spec);
+        let squareness = squareness_shifts(spec, &elem_of_axis, &mut elems, &mut term_names);
+        let thermal = thermal_slots(spec, &elem_of_axis, &mut term_names);
+        let (force_source, force_channels, strain_channels) = force_sources(spec);
+        let load = load_slots(spec, &elem_of_axis, &mut term_names);
         term_names.push("higher_order".into());
 
         Compiled {
@@ -220,6 +90,184 @@ impl Compiled {
             strain_channels,
         }
     }
+}
+
+/// The chain's elements in file order, untilted, and per axis (X/Y/Z index) its element index.
+fn chain_elems(spec: &ModelSpec) -> (Vec<Elem>, [Option<usize>; 3]) {
+    let mut elem_of_axis = [None; 3];
+    let elems: Vec<Elem> = spec
+        .axes
+        .iter()
+        .enumerate()
+        .map(|(j, a)| {
+            elem_of_axis[a.axis.index()] = Some(j);
+            let mut u = [0.0; 3];
+            u[a.axis.index()] = 1.0;
+            Elem {
+                axis: a.axis,
+                workpiece_side: a.branch == Branch::Workpiece,
+                offset_mm: a.offset_mm,
+                u,
+                u_tilted: u,
+            }
+        })
+        .collect();
+    (elems, elem_of_axis)
+}
+
+/// Where a value of `axis` in `s` (0..6) lands: its chain element and slot.
+fn slot_of(elem_of_axis: &[Option<usize>; 3], axis: Axis, s: usize) -> Slot {
+    Slot {
+        elem: elem_of_axis[axis.index()].expect("validated: axis in chain"),
+        slot: s,
+    }
+}
+
+/// Per component: whether it may reuse the previous component's table lookup.
+fn shares_location(spec: &ModelSpec) -> Vec<bool> {
+    (0..spec.components.len())
+        .map(|k| {
+            k > 0 && {
+                let (prev, cur) = (&spec.components[k - 1], &spec.components[k]);
+                match (&prev.function, &cur.function) {
+                    (ErrorFunction::Table(a), ErrorFunction::Table(b)) => {
+                        prev.id.axis == cur.id.axis && a.same_positions(b)
+                    }
+                    _ => false,
+                }
+            }
+        })
+        .collect()
+}
+
+/// Per squareness entry its first-order tip shift; also tilts the carrying element's axis for the
+/// exact chain, and names the term.
+fn squareness_shifts(
+    spec: &ModelSpec,
+    elem_of_axis: &[Option<usize>; 3],
+    elems: &mut [Elem],
+    term_names: &mut Vec<String>,
+) -> Vec<(usize, [f64; 3])> {
+    let mut squareness = Vec::new();
+    for s in &spec.squareness {
+        let (_reference, rotated, about) = s.kind.axes();
+        // On the axis ISO rotates the angle is +S; on the reference axis −S keeps the same angle
+        // between the two axes (see names::Squareness for the sign of each kind).
+        let theta_rad = if s.on_axis == rotated {
+            s.value_urad
+        } else {
+            -s.value_urad
+        } * 1e-6;
+        let e = elem_of_axis[s.on_axis.index()].expect("validated: squareness axis in chain");
+        let mut r_hat = [0.0; 3];
+        r_hat[about.index()] = 1.0;
+        let d = cross(r_hat, elems[e].u);
+        squareness.push((
+            e,
+            [
+                theta_rad * d[0] * 1e3,
+                theta_rad * d[1] * 1e3,
+                theta_rad * d[2] * 1e3,
+            ],
+        ));
+        let m = rotation_about(about, theta_rad);
+        let u = elems[e].u_tilted;
+        let v = m * nalgebra::Vector3::new(u[0], u[1], u[2]);
+        elems[e].u_tilted = [v[0], v[1], v[2]];
+        term_names.push(ModelSpec::squareness_term_name(s));
+    }
+    squareness
+}
+
+/// Per thermal term its slot, its sensors' indices and (stations) the element they lie along.
+fn thermal_slots(
+    spec: &ModelSpec,
+    elem_of_axis: &[Option<usize>; 3],
+    term_names: &mut Vec<String>,
+) -> Vec<(Slot, Vec<usize>, Option<usize>)> {
+    let slot = |axis: Axis, s: usize| slot_of(elem_of_axis, axis, s);
+    let sensor_index = |n: &String| {
+        spec.sensors
+            .iter()
+            .position(|s| &s.name == n)
+            .expect("validated: sensor exists")
+    };
+    spec.thermal
+        .iter()
+        .map(|t| {
+            term_names.push(t.name.clone());
+            let (idx, along) = match &t.kind {
+                super::spec::ThermalKind::PolynomialDt { sensors, .. }
+                | super::spec::ThermalKind::Slope { sensors, .. } => {
+                    (sensors.iter().map(sensor_index).collect(), None)
+                }
+                super::spec::ThermalKind::Expansion { sensor, .. } => {
+                    (vec![sensor_index(sensor)], None)
+                }
+                super::spec::ThermalKind::Stations { sensors, along, .. } => (
+                    sensors.iter().map(sensor_index).collect(),
+                    elem_of_axis[along.index()],
+                ),
+            };
+            (slot(t.target.axis, t.target.slot()), idx, along)
+        })
+        .collect()
+}
+
+/// Per force channel where its value comes from, with the direct force and strain input names
+/// (a strain column shared by several channels is read once).
+fn force_sources(spec: &ModelSpec) -> (Vec<ForceSource>, Vec<String>, Vec<String>) {
+    let mut force_channels = Vec::new();
+    let mut strain_channels: Vec<String> = Vec::new();
+    let force_source = spec
+        .forces
+        .iter()
+        .map(|f| match &f.from_strain {
+            None => {
+                force_channels.push(f.name.clone());
+                ForceSource::Direct(force_channels.len() - 1)
+            }
+            Some(src) => {
+                let index = strain_channels
+                    .iter()
+                    .position(|s| s == &src.strain)
+                    .unwrap_or_else(|| {
+                        strain_channels.push(src.strain.clone());
+                        strain_channels.len() - 1
+                    });
+                ForceSource::Strain {
+                    index,
+                    gain_n_per_ue: src.gain_n_per_ue,
+                    offset_ue: src.offset_ue,
+                }
+            }
+        })
+        .collect();
+    (force_source, force_channels, strain_channels)
+}
+
+/// Per load term its slot and the index of its force channel.
+fn load_slots(
+    spec: &ModelSpec,
+    elem_of_axis: &[Option<usize>; 3],
+    term_names: &mut Vec<String>,
+) -> Vec<(Slot, usize)> {
+    let slot = |axis: Axis, s: usize| slot_of(elem_of_axis, axis, s);
+    spec.load
+        .iter()
+        .map(|l| {
+            term_names.push(l.name.clone());
+            let force = match &l.kind {
+                LoadKind::Compliance { force, .. } | LoadKind::WeightAngular { force, .. } => force,
+            };
+            let fi = spec
+                .forces
+                .iter()
+                .position(|f| &f.name == force)
+                .expect("validated: force exists");
+            (slot(l.target.axis, l.target.slot()), fi)
+        })
+        .collect()
 }
 
 /// First-order tip contribution (µm) of value `v` in `slot` of an element with Abbe arm `arm_mm`.

@@ -1,0 +1,170 @@
+//! The function shapes `read_function` dispatches to: a table, a polynomial, a piecewise quadratic.
+//! Each checks its own keys; `range_mm` is read once by the caller and handed in.
+
+use super::read_scaled_vec;
+use crate::models::function::{ErrorFunction, Interpolation, Table};
+use crate::models::toml_reader::Tbl;
+
+/// `kind = "table"`: positions with forward (and optional reverse) values, linear or C¹.
+pub(super) fn read_table(
+    t: &Tbl<'_, '_>,
+    units: &[(String, f64)],
+    range_mm: Option<(f64, f64)>,
+    suffix_hint: &str,
+) -> Option<ErrorFunction> {
+    let Some(positions) = t.vec_opt("positions_mm") else {
+        if !t.has("positions_mm") {
+            t.err_here("a table needs `positions_mm` (strictly increasing, ≥ 2 points)");
+        }
+        return None;
+    };
+    let fwd = read_scaled_vec(t, "forward", units);
+    if fwd.is_none() && !t.keys().iter().any(|k| k.starts_with("forward_")) {
+        t.err_here(format!(
+            "a table needs `forward_<unit>` with unit one of {suffix_hint}"
+        ));
+    }
+    let rev = read_scaled_vec(t, "reverse", units);
+    let interpolation = match t.str_opt("interpolation").as_deref() {
+        None | Some("linear") => Interpolation::Linear,
+        Some("c1") => Interpolation::C1,
+        Some(other) => {
+            t.err_key(
+                "interpolation",
+                format!("expected \"linear\" or \"c1\", found {other:?}"),
+            );
+            Interpolation::Linear
+        }
+    };
+    if positions.len() < 2 {
+        t.err_key(
+            "positions_mm",
+            format!("expected at least 2 points, found {}", positions.len()),
+        );
+        return None;
+    }
+    if let Some(i) = positions.windows(2).position(|w| w[1] <= w[0]) {
+        t.err_key(
+            "positions_mm",
+            format!(
+                "positions must increase strictly: [{}] = {} is not above [{}] = {}",
+                i + 1,
+                positions[i + 1],
+                i,
+                positions[i]
+            ),
+        );
+        return None;
+    }
+    let (fwd, fwd_unit) = fwd?;
+    if fwd.len() != positions.len() {
+        t.err_key(
+            &format!("forward_{fwd_unit}"),
+            format!(
+                "expected {} values (one per position), found {}",
+                positions.len(),
+                fwd.len()
+            ),
+        );
+        return None;
+    }
+    let rev = match rev {
+        None => fwd.clone(),
+        Some((r, ru)) => {
+            if r.len() != positions.len() {
+                t.err_key(
+                    &format!("reverse_{ru}"),
+                    format!(
+                        "expected {} values (one per position), found {}",
+                        positions.len(),
+                        r.len()
+                    ),
+                );
+                return None;
+            }
+            r
+        }
+    };
+    if range_mm.is_some() {
+        t.err_key(
+            "range_mm",
+            "a table's range is its positions; range_mm is for polynomials",
+        );
+    }
+    Some(ErrorFunction::Table(Table::new(
+        positions,
+        fwd,
+        rev,
+        interpolation,
+    )))
+}
+
+/// `kind = "polynomial"`: Σ a_i·q^i, optionally limited to `range_mm`.
+pub(super) fn read_polynomial(
+    t: &Tbl<'_, '_>,
+    units: &[(String, f64)],
+    range_mm: Option<(f64, f64)>,
+    suffix_hint: &str,
+) -> Option<ErrorFunction> {
+    let Some((coefficients, _)) = read_scaled_vec(t, "coefficients", units) else {
+        if t.keys().iter().any(|k| k.starts_with("coefficients_")) {
+            return None;
+        }
+        t.err_here(format!("a polynomial needs `coefficients_<unit>` = [a0, a1, …] (value = Σ a_i·q^i, q in mm), unit one of {suffix_hint}"));
+        return None;
+    };
+    if coefficients.is_empty() {
+        t.err_here("polynomial coefficients are empty");
+        return None;
+    }
+    Some(ErrorFunction::Polynomial {
+        coefficients,
+        range_mm,
+    })
+}
+
+/// `kind = "piecewise_quadratic"`: a quadratic base plus one coefficient per knot.
+pub(super) fn read_piecewise_quadratic(
+    t: &Tbl<'_, '_>,
+    units: &[(String, f64)],
+    range_mm: Option<(f64, f64)>,
+    suffix_hint: &str,
+) -> Option<ErrorFunction> {
+    let base = read_scaled_vec(t, "coefficients", units);
+    let knots = t.vec_opt("knots_mm").unwrap_or_default();
+    let kc = read_scaled_vec(t, "knot_coefficients", units)
+        .map(|v| v.0)
+        .unwrap_or_default();
+    let Some((base, _)) = base else {
+        t.err_here(format!("a piecewise_quadratic needs `coefficients_<unit>` = [b0, b1, b2], unit one of {suffix_hint}"));
+        return None;
+    };
+    if base.len() != 3 {
+        t.err_here(format!(
+            "piecewise_quadratic coefficients: expected 3 values [b0, b1, b2], found {}",
+            base.len()
+        ));
+        return None;
+    }
+    if knots.len() != kc.len() {
+        t.err_key(
+            "knots_mm",
+            format!(
+                "expected one knot coefficient per knot: {} knots, {} coefficients",
+                knots.len(),
+                kc.len()
+            ),
+        );
+        return None;
+    }
+    if knots.windows(2).any(|w| w[1] <= w[0]) {
+        t.err_key("knots_mm", "knots must increase strictly");
+        return None;
+    }
+    Some(ErrorFunction::PiecewiseQuadratic {
+        base: [base[0], base[1], base[2]],
+        knots_mm: knots,
+        knot_coefficients: kc,
+        range_mm,
+    })
+}
