@@ -53,7 +53,8 @@ fn read_scaled_vec(
     Some((v, unit))
 }
 
-/// One error function from the keys of `t`; `prefix` is prepended to value keys (unused: "").
+/// One error function from the keys of `t`: its shape from `kind_key` (or from which keys are
+/// present), its values in one of `units` (name, factor to the model unit).
 pub(super) fn read_function(
     t: &Tbl<'_, '_>,
     kind_key: &str,
