@@ -39,7 +39,8 @@
 //! and the key path (`canopen.encoder[1].counts_per_mm`), and all problems are reported at once.
 
 use super::can::CanBackendConfig;
-use super::canopen::cia404::AnalogType;
+use super::canopen::cia404::{AnalogChannel, AnalogType};
+use super::canopen::cia406::EncoderChannel;
 use super::canopen::source::CanopenConfig;
 use super::modbus::poller::{ModbusSourceConfig, TransportKind};
 use super::serial::{LineFormat, SerialSourceConfig};
@@ -158,209 +159,269 @@ fn pos(x: f64) -> bool {
     x.is_finite() && x > 0.0
 }
 
+type Problems = Vec<(String, String)>;
+
+/// A channel name must carry a unit suffix and be defined once across all buses; `names` maps each
+/// name to the key that defined it first.
+fn check_channel_name(
+    p: &mut Problems,
+    names: &mut BTreeMap<String, String>,
+    key: String,
+    n: &str,
+) {
+    if !is_channel_name(n) {
+        p.push((
+            key.clone(),
+            format!("`{n}` is not a channel name with a unit suffix (e.g. x_mm, T_bed_C)"),
+        ));
+    }
+    if let Some(first) = names.insert(n.to_string(), key.clone()) {
+        p.push((key, format!("channel `{n}` is already defined at {first}")));
+    }
+}
+
+/// Optional physical limits must leave a range (min below max).
+fn check_limits(p: &mut Problems, key: &str, min: Option<f64>, max: Option<f64>) {
+    if let (Some(a), Some(b)) = (min, max)
+        && a >= b
+    {
+        p.push((
+            format!("{key}.min"),
+            format!("min {a} must be below max {b}"),
+        ));
+    }
+}
+
 /// Semantic checks; returns (key path, message) for each problem.
 pub fn validate(cfg: &FieldConfig) -> Vec<(String, String)> {
     let mut p: Vec<(String, String)> = Vec::new();
     let mut names: BTreeMap<String, String> = BTreeMap::new();
-    let mut name = |p: &mut Vec<(String, String)>, key: String, n: &str| {
-        if !is_channel_name(n) {
-            p.push((
-                key.clone(),
-                format!("`{n}` is not a channel name with a unit suffix (e.g. x_mm, T_bed_C)"),
-            ));
-        }
-        if let Some(first) = names.insert(n.to_string(), key.clone()) {
-            p.push((key, format!("channel `{n}` is already defined at {first}")));
-        }
-    };
-    let limits = |p: &mut Vec<(String, String)>, key: &str, min: Option<f64>, max: Option<f64>| {
-        if let (Some(a), Some(b)) = (min, max)
-            && a >= b
-        {
-            p.push((
-                format!("{key}.min"),
-                format!("min {a} must be below max {b}"),
-            ));
-        }
-    };
     if let Some(co) = &cfg.canopen {
-        if co.heartbeat_timeout_s.is_some_and(|t| !pos(t)) {
-            p.push(("canopen.heartbeat_timeout_s".into(), "must be > 0 s".into()));
-        }
-        if !pos(co.pdo_timeout_s) {
-            p.push(("canopen.pdo_timeout_s".into(), "must be > 0 s".into()));
-        }
-        for (i, e) in co.encoder.iter().enumerate() {
-            let k = format!("canopen.encoder[{i}]");
-            name(&mut p, format!("{k}.channel"), &e.channel);
-            if !(1..=127).contains(&e.node_id) {
-                p.push((
-                    format!("{k}.node_id"),
-                    format!("{} is outside 1..=127", e.node_id),
-                ));
-            }
-            if !(1..=4).contains(&e.tpdo) {
-                p.push((format!("{k}.tpdo"), format!("{} is outside 1..=4", e.tpdo)));
-            }
-            if e.byte_offset > 4 {
-                p.push((
-                    format!("{k}.byte_offset"),
-                    "6004h (4 bytes) must fit in 8 bytes: at most 4".into(),
-                ));
-            }
-            if !pos(e.counts_per_mm) {
-                p.push((
-                    format!("{k}.counts_per_mm"),
-                    format!(
-                        "must be > 0 (got {}); use direction for the sign",
-                        e.counts_per_mm
-                    ),
-                ));
-            }
-            if e.total_range_counts
-                .is_some_and(|r| !(2..=1 << 32).contains(&r))
-            {
-                p.push((
-                    format!("{k}.total_range_counts"),
-                    "must be in 2..=2^32".into(),
-                ));
-            }
-            if !e.offset_mm.is_finite() {
-                p.push((format!("{k}.offset_mm"), "must be finite".into()));
-            }
-            if e.cyclic_ms == Some(0) {
-                p.push((
-                    format!("{k}.cyclic_ms"),
-                    "0 disables the TPDO timer; omit the key instead".into(),
-                ));
-            }
-            limits(&mut p, &k, e.min_mm, e.max_mm);
-        }
-        for (i, a) in co.analog.iter().enumerate() {
-            let k = format!("canopen.analog[{i}]");
-            name(&mut p, format!("{k}.channel"), &a.channel);
-            if !(1..=127).contains(&a.node_id) {
-                p.push((
-                    format!("{k}.node_id"),
-                    format!("{} is outside 1..=127", a.node_id),
-                ));
-            }
-            if !(1..=4).contains(&a.tpdo) {
-                p.push((format!("{k}.tpdo"), format!("{} is outside 1..=4", a.tpdo)));
-            }
-            if usize::from(a.byte_offset) + a.data_type.size() > 8 {
-                p.push((
-                    format!("{k}.byte_offset"),
-                    "value must fit in the 8-byte PDO".into(),
-                ));
-            }
-            if a.decimal_digits > 9 {
-                p.push((format!("{k}.decimal_digits"), "at most 9".into()));
-            }
-            if a.data_type == AnalogType::Real32 && a.decimal_digits != 0 {
-                p.push((
-                    format!("{k}.decimal_digits"),
-                    "REAL32 values are not scaled by decimal digits".into(),
-                ));
-            }
-            limits(&mut p, &k, a.min, a.max);
-        }
+        validate_canopen(co, &mut p, &mut names);
     }
     for (i, s) in cfg.modbus.source.iter().enumerate() {
-        let k = format!("modbus.source[{i}]");
-        match s.transport {
-            TransportKind::Tcp if s.host.is_none() => {
-                p.push((format!("{k}.transport"), "tcp needs `host`".into()));
-            }
-            TransportKind::Rtu if s.device.is_none() => {
-                p.push((format!("{k}.transport"), "rtu needs `device`".into()));
-            }
-            _ => {}
-        }
-        if s.baud == 0 {
-            p.push((format!("{k}.baud"), "must be > 0".into()));
-        }
-        if !(1..=247).contains(&s.unit_id) {
-            p.push((
-                format!("{k}.unit_id"),
-                format!("{} is outside 1..=247", s.unit_id),
-            ));
-        }
-        for (key, v) in [
-            ("period_s", s.period_s),
-            ("timeout_s", s.timeout_s),
-            ("backoff_min_s", s.backoff_min_s),
-            ("backoff_max_s", s.backoff_max_s),
-        ] {
-            if !pos(v) {
-                p.push((format!("{k}.{key}"), format!("must be > 0 s (got {v})")));
-            }
-        }
-        if s.backoff_min_s > s.backoff_max_s {
-            p.push((
-                format!("{k}.backoff_min_s"),
-                "must not exceed backoff_max_s".into(),
-            ));
-        }
-        if s.channel.is_empty() {
-            p.push((k.clone(), "has no [[modbus.source.channel]]".into()));
-        }
-        for (j, c) in s.channel.iter().enumerate() {
-            let kc = format!("{k}.channel[{j}]");
-            name(&mut p, format!("{kc}.channel"), &c.channel);
-            if c.last_address() > 0xFFFF {
-                p.push((
-                    format!("{kc}.address"),
-                    "the value runs past register 65535".into(),
-                ));
-            }
-            if !c.scale.is_finite() || c.scale == 0.0 {
-                p.push((format!("{kc}.scale"), "must be finite and non-zero".into()));
-            }
-            if !c.offset.is_finite() {
-                p.push((format!("{kc}.offset"), "must be finite".into()));
-            }
-            limits(&mut p, &kc, c.min, c.max);
-        }
+        validate_modbus_source(i, s, &mut p, &mut names);
     }
     for (i, s) in cfg.serial.source.iter().enumerate() {
-        let k = format!("serial.source[{i}]");
-        if s.device.is_none() {
-            p.push((format!("{k}.device"), "missing (e.g. /dev/ttyUSB0)".into()));
-        }
-        if s.baud == 0 {
-            p.push((format!("{k}.baud"), "must be > 0".into()));
-        }
-        if !pos(s.period_s) || !pos(s.timeout_s) {
-            p.push((
-                format!("{k}.timeout_s"),
-                "period_s and timeout_s must be > 0 s".into(),
-            ));
-        }
-        if s.max_line < 16 {
-            p.push((format!("{k}.max_line"), "at least 16 bytes".into()));
-        }
-        if let LineFormat::Heidenhain { decimals } = s.format
-            && decimals > 9
-        {
-            p.push((
-                format!("{k}.format"),
-                "heidenhain decimals: at most 9".into(),
-            ));
-        }
-        if s.channel.is_empty() {
-            p.push((k.clone(), "has no [[serial.source.channel]]".into()));
-        }
-        for (j, c) in s.channel.iter().enumerate() {
-            let kc = format!("{k}.channel[{j}]");
-            name(&mut p, format!("{kc}.name"), &c.name);
-            if !c.scale.is_finite() || c.scale == 0.0 {
-                p.push((format!("{kc}.scale"), "must be finite and non-zero".into()));
-            }
-            limits(&mut p, &kc, c.min, c.max);
-        }
+        validate_serial_source(i, s, &mut p, &mut names);
     }
     p
+}
+
+/// `[canopen]`: positive timeouts, then each CiA 406 encoder and CiA 404 analog channel.
+fn validate_canopen(co: &CanopenConfig, p: &mut Problems, names: &mut BTreeMap<String, String>) {
+    if co.heartbeat_timeout_s.is_some_and(|t| !pos(t)) {
+        p.push(("canopen.heartbeat_timeout_s".into(), "must be > 0 s".into()));
+    }
+    if !pos(co.pdo_timeout_s) {
+        p.push(("canopen.pdo_timeout_s".into(), "must be > 0 s".into()));
+    }
+    for (i, e) in co.encoder.iter().enumerate() {
+        validate_encoder(i, e, p, names);
+    }
+    for (i, a) in co.analog.iter().enumerate() {
+        validate_analog(i, a, p, names);
+    }
+}
+
+/// `[[canopen.encoder]]`: node and TPDO numbers, the position's place in the PDO, the scale, range
+/// and offset that turn counts into mm, the TPDO timer, and the limits.
+fn validate_encoder(
+    i: usize,
+    e: &EncoderChannel,
+    p: &mut Problems,
+    names: &mut BTreeMap<String, String>,
+) {
+    let k = format!("canopen.encoder[{i}]");
+    check_channel_name(p, names, format!("{k}.channel"), &e.channel);
+    if !(1..=127).contains(&e.node_id) {
+        p.push((
+            format!("{k}.node_id"),
+            format!("{} is outside 1..=127", e.node_id),
+        ));
+    }
+    if !(1..=4).contains(&e.tpdo) {
+        p.push((format!("{k}.tpdo"), format!("{} is outside 1..=4", e.tpdo)));
+    }
+    if e.byte_offset > 4 {
+        p.push((
+            format!("{k}.byte_offset"),
+            "6004h (4 bytes) must fit in 8 bytes: at most 4".into(),
+        ));
+    }
+    if !pos(e.counts_per_mm) {
+        p.push((
+            format!("{k}.counts_per_mm"),
+            format!(
+                "must be > 0 (got {}); use direction for the sign",
+                e.counts_per_mm
+            ),
+        ));
+    }
+    if e.total_range_counts
+        .is_some_and(|r| !(2..=1 << 32).contains(&r))
+    {
+        p.push((
+            format!("{k}.total_range_counts"),
+            "must be in 2..=2^32".into(),
+        ));
+    }
+    if !e.offset_mm.is_finite() {
+        p.push((format!("{k}.offset_mm"), "must be finite".into()));
+    }
+    if e.cyclic_ms == Some(0) {
+        p.push((
+            format!("{k}.cyclic_ms"),
+            "0 disables the TPDO timer; omit the key instead".into(),
+        ));
+    }
+    check_limits(p, &k, e.min_mm, e.max_mm);
+}
+
+/// `[[canopen.analog]]`: node and TPDO numbers, the value's place in the PDO, its decimal
+/// scaling, and the limits.
+fn validate_analog(
+    i: usize,
+    a: &AnalogChannel,
+    p: &mut Problems,
+    names: &mut BTreeMap<String, String>,
+) {
+    let k = format!("canopen.analog[{i}]");
+    check_channel_name(p, names, format!("{k}.channel"), &a.channel);
+    if !(1..=127).contains(&a.node_id) {
+        p.push((
+            format!("{k}.node_id"),
+            format!("{} is outside 1..=127", a.node_id),
+        ));
+    }
+    if !(1..=4).contains(&a.tpdo) {
+        p.push((format!("{k}.tpdo"), format!("{} is outside 1..=4", a.tpdo)));
+    }
+    if usize::from(a.byte_offset) + a.data_type.size() > 8 {
+        p.push((
+            format!("{k}.byte_offset"),
+            "value must fit in the 8-byte PDO".into(),
+        ));
+    }
+    if a.decimal_digits > 9 {
+        p.push((format!("{k}.decimal_digits"), "at most 9".into()));
+    }
+    if a.data_type == AnalogType::Real32 && a.decimal_digits != 0 {
+        p.push((
+            format!("{k}.decimal_digits"),
+            "REAL32 values are not scaled by decimal digits".into(),
+        ));
+    }
+    check_limits(p, &k, a.min, a.max);
+}
+
+/// `[[modbus.source]]`: a transport with its endpoint, the unit id and timing, and each register
+/// channel.
+fn validate_modbus_source(
+    i: usize,
+    s: &ModbusSourceConfig,
+    p: &mut Problems,
+    names: &mut BTreeMap<String, String>,
+) {
+    let k = format!("modbus.source[{i}]");
+    match s.transport {
+        TransportKind::Tcp if s.host.is_none() => {
+            p.push((format!("{k}.transport"), "tcp needs `host`".into()));
+        }
+        TransportKind::Rtu if s.device.is_none() => {
+            p.push((format!("{k}.transport"), "rtu needs `device`".into()));
+        }
+        _ => {}
+    }
+    if s.baud == 0 {
+        p.push((format!("{k}.baud"), "must be > 0".into()));
+    }
+    if !(1..=247).contains(&s.unit_id) {
+        p.push((
+            format!("{k}.unit_id"),
+            format!("{} is outside 1..=247", s.unit_id),
+        ));
+    }
+    for (key, v) in [
+        ("period_s", s.period_s),
+        ("timeout_s", s.timeout_s),
+        ("backoff_min_s", s.backoff_min_s),
+        ("backoff_max_s", s.backoff_max_s),
+    ] {
+        if !pos(v) {
+            p.push((format!("{k}.{key}"), format!("must be > 0 s (got {v})")));
+        }
+    }
+    if s.backoff_min_s > s.backoff_max_s {
+        p.push((
+            format!("{k}.backoff_min_s"),
+            "must not exceed backoff_max_s".into(),
+        ));
+    }
+    if s.channel.is_empty() {
+        p.push((k.clone(), "has no [[modbus.source.channel]]".into()));
+    }
+    for (j, c) in s.channel.iter().enumerate() {
+        let kc = format!("{k}.channel[{j}]");
+        check_channel_name(p, names, format!("{kc}.channel"), &c.channel);
+        if c.last_address() > 0xFFFF {
+            p.push((
+                format!("{kc}.address"),
+                "the value runs past register 65535".into(),
+            ));
+        }
+        if !c.scale.is_finite() || c.scale == 0.0 {
+            p.push((format!("{kc}.scale"), "must be finite and non-zero".into()));
+        }
+        if !c.offset.is_finite() {
+            p.push((format!("{kc}.offset"), "must be finite".into()));
+        }
+        check_limits(p, &kc, c.min, c.max);
+    }
+}
+
+/// `[[serial.source]]`: a device, line timing and length, the line format, and each channel.
+fn validate_serial_source(
+    i: usize,
+    s: &SerialSourceConfig,
+    p: &mut Problems,
+    names: &mut BTreeMap<String, String>,
+) {
+    let k = format!("serial.source[{i}]");
+    if s.device.is_none() {
+        p.push((format!("{k}.device"), "missing (e.g. /dev/ttyUSB0)".into()));
+    }
+    if s.baud == 0 {
+        p.push((format!("{k}.baud"), "must be > 0".into()));
+    }
+    if !pos(s.period_s) || !pos(s.timeout_s) {
+        p.push((
+            format!("{k}.timeout_s"),
+            "period_s and timeout_s must be > 0 s".into(),
+        ));
+    }
+    if s.max_line < 16 {
+        p.push((format!("{k}.max_line"), "at least 16 bytes".into()));
+    }
+    if let LineFormat::Heidenhain { decimals } = s.format
+        && decimals > 9
+    {
+        p.push((
+            format!("{k}.format"),
+            "heidenhain decimals: at most 9".into(),
+        ));
+    }
+    if s.channel.is_empty() {
+        p.push((k.clone(), "has no [[serial.source.channel]]".into()));
+    }
+    for (j, c) in s.channel.iter().enumerate() {
+        let kc = format!("{k}.channel[{j}]");
+        check_channel_name(p, names, format!("{kc}.name"), &c.name);
+        if !c.scale.is_finite() || c.scale == 0.0 {
+            p.push((format!("{kc}.scale"), "must be finite and non-zero".into()));
+        }
+        check_limits(p, &kc, c.min, c.max);
+    }
 }
 
 #[cfg(test)]

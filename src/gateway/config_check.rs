@@ -93,6 +93,59 @@ fn mapped_once<'a>(
     Ok(())
 }
 
+/// `[gateway]`: cycle and timing ranges, the realtime priority, the status address, the API
+/// token, and the names of switchable models.
+fn validate_gateway(g: &GatewaySection) -> Result<(), (String, String)> {
+    if !(1..=1000).contains(&g.cycle_ms) {
+        return Err((
+            "gateway.cycle_ms".into(),
+            format!("expected 1..=1000 ms, got {}", g.cycle_ms),
+        ));
+    }
+    if !(g.stop_ramp_max_s.is_finite() && g.stop_ramp_max_s > 0.0 && g.stop_ramp_max_s <= 300.0) {
+        return Err((
+            "gateway.stop_ramp_max_s".into(),
+            format!("expected 0 < s ≤ 300, got {}", g.stop_ramp_max_s),
+        ));
+    }
+    if !(g.thermal_period_s.is_finite()
+        && g.thermal_period_s > 0.0
+        && g.thermal_period_s <= 86_400.0)
+    {
+        return Err((
+            "gateway.thermal_period_s".into(),
+            format!("expected 0 < s ≤ 86400, got {}", g.thermal_period_s),
+        ));
+    }
+    if let Some(p) = g.realtime_priority
+        && !(1..=99).contains(&p)
+    {
+        return Err((
+            "gateway.realtime_priority".into(),
+            format!("expected a SCHED_FIFO priority 1..=99, got {p}"),
+        ));
+    }
+    if g.status_listen.parse::<std::net::SocketAddr>().is_err() {
+        return Err((
+            "gateway.status_listen".into(),
+            format!("expected ip:port, got {:?}", g.status_listen),
+        ));
+    }
+    if let Some(t) = &g.api_token
+        && (t.trim().len() < 16 || t.trim() != t)
+    {
+        return Err((
+            "gateway.api_token".into(),
+            "expected at least 16 characters without surrounding spaces".into(),
+        ));
+    }
+    for name in g.models.keys() {
+        super::model_switch::check_name(name)
+            .map_err(|what| (format!("gateway.models.{name}"), what))?;
+    }
+    Ok(())
+}
+
 impl FieldConfig {
     pub(super) fn check_position_sources(&self) -> Result<(), (String, String)> {
         let have = self.source_channels();
@@ -114,61 +167,40 @@ impl FieldConfig {
         if let Some(m) = self.telemetry.as_ref().and_then(|t| t.mqtt.as_ref()) {
             m.check()?;
         }
-        let g = &self.gateway;
-        if !(1..=1000).contains(&g.cycle_ms) {
-            return Err((
-                "gateway.cycle_ms".into(),
-                format!("expected 1..=1000 ms, got {}", g.cycle_ms),
-            ));
-        }
-        if !(g.stop_ramp_max_s.is_finite() && g.stop_ramp_max_s > 0.0 && g.stop_ramp_max_s <= 300.0)
-        {
-            return Err((
-                "gateway.stop_ramp_max_s".into(),
-                format!("expected 0 < s ≤ 300, got {}", g.stop_ramp_max_s),
-            ));
-        }
-        if !(g.thermal_period_s.is_finite()
-            && g.thermal_period_s > 0.0
-            && g.thermal_period_s <= 86_400.0)
-        {
-            return Err((
-                "gateway.thermal_period_s".into(),
-                format!("expected 0 < s ≤ 86400, got {}", g.thermal_period_s),
-            ));
-        }
-        if let Some(p) = g.realtime_priority
-            && !(1..=99).contains(&p)
-        {
-            return Err((
-                "gateway.realtime_priority".into(),
-                format!("expected a SCHED_FIFO priority 1..=99, got {p}"),
-            ));
-        }
-        if g.status_listen.parse::<std::net::SocketAddr>().is_err() {
-            return Err((
-                "gateway.status_listen".into(),
-                format!("expected ip:port, got {:?}", g.status_listen),
-            ));
-        }
-        if let Some(t) = &g.api_token
-            && (t.trim().len() < 16 || t.trim() != t)
-        {
-            return Err((
-                "gateway.api_token".into(),
-                "expected at least 16 characters without surrounding spaces".into(),
-            ));
-        }
-        for name in g.models.keys() {
-            super::model_switch::check_name(name)
-                .map_err(|what| (format!("gateway.models.{name}"), what))?;
-        }
+        validate_gateway(&self.gateway)?;
         self.safety
             .validate()
             .map_err(|e| (safety_key("safety", &e), e.to_string()))?;
         if let Some(o) = &self.opcua {
             o.validate()?;
         }
+        self.validate_axes()?;
+        self.validate_channels()?;
+        self.validate_recoveries()?;
+        if let Some(os) = &self.sink.origin_shift {
+            self.validate_origin_shift(os)?;
+        }
+        if let Some(srv) = &self.sink.origin_shift_server {
+            self.validate_server(srv)?;
+        }
+        if let Some(q) = &self.sink.quadrature {
+            self.validate_quadrature(q)?;
+        }
+        self.validate_buses()?;
+        if self.sink.origin_shift.is_none()
+            && self.sink.quadrature.is_none()
+            && self.sink.origin_shift_server.is_none()
+        {
+            tracing::warn!(
+                "no [sink] configured: the gateway computes and reports, but corrects nothing"
+            );
+        }
+        Ok(())
+    }
+
+    /// `[[axis]]`: at least one, each of x/y/z once, a position channel in mm, and its own safety
+    /// override (if any) valid.
+    fn validate_axes(&self) -> Result<(), (String, String)> {
         if self.axes.is_empty() {
             return Err(("axis".into(), "at least one [[axis]] is required".into()));
         }
@@ -199,6 +231,11 @@ impl FieldConfig {
                     .map_err(|e| (safety_key(&format!("axis[{i}].safety"), &e), e.to_string()))?;
             }
         }
+        Ok(())
+    }
+
+    /// `[[channel]]`: a usable range and a staleness timeout.
+    fn validate_channels(&self) -> Result<(), (String, String)> {
         for (i, c) in self.channels.iter().enumerate() {
             let l = c.limits();
             if !(l.min.is_finite() && l.max.is_finite() && l.min < l.max) {
@@ -215,6 +252,11 @@ impl FieldConfig {
                 ));
             }
         }
+        Ok(())
+    }
+
+    /// `[[recovery]]`: one coefficient per neighbour plus the intercept.
+    fn validate_recoveries(&self) -> Result<(), (String, String)> {
         for (i, r) in self.recoveries.iter().enumerate() {
             if r.coefficients.len() != r.neighbours.len() + 1 {
                 return Err((
@@ -227,93 +269,102 @@ impl FieldConfig {
                 ));
             }
         }
-        if let Some(os) = &self.sink.origin_shift {
-            let k = "sink.origin_shift";
+        Ok(())
+    }
+
+    /// `[sink.origin_shift]`: timing in range, every axis mapped once, a consistent register map,
+    /// and heartbeat settings that fit the write period.
+    fn validate_origin_shift(&self, os: &OriginShiftSink) -> Result<(), (String, String)> {
+        let k = "sink.origin_shift";
+        in_range(
+            &format!("{k}.write_period_ms"),
+            os.write_period_ms,
+            1..=10_000,
+            "ms",
+        )?;
+        in_range(
+            &format!("{k}.request_timeout_ms"),
+            os.request_timeout_ms,
+            1..=60_000,
+            "ms",
+        )?;
+        in_range(
+            &format!("{k}.reconnect_min_ms"),
+            os.reconnect_min_ms,
+            1..=60_000,
+            "ms",
+        )?;
+        in_range(
+            &format!("{k}.reconnect_max_ms"),
+            os.reconnect_max_ms,
+            os.reconnect_min_ms..=600_000,
+            "ms (≥ reconnect_min_ms)",
+        )?;
+        if let Some(h) = &os.map.handshake {
             in_range(
-                &format!("{k}.write_period_ms"),
-                os.write_period_ms,
-                1..=10_000,
-                "ms",
-            )?;
-            in_range(
-                &format!("{k}.request_timeout_ms"),
-                os.request_timeout_ms,
+                &format!("{k}.map.handshake.timeout_ms"),
+                h.timeout_ms,
                 1..=60_000,
                 "ms",
             )?;
             in_range(
-                &format!("{k}.reconnect_min_ms"),
-                os.reconnect_min_ms,
-                1..=60_000,
-                "ms",
+                &format!("{k}.map.handshake.poll_ms"),
+                h.poll_ms,
+                1..=h.timeout_ms,
+                "ms (≤ timeout_ms)",
             )?;
-            in_range(
-                &format!("{k}.reconnect_max_ms"),
-                os.reconnect_max_ms,
-                os.reconnect_min_ms..=600_000,
-                "ms (≥ reconnect_min_ms)",
-            )?;
-            if let Some(h) = &os.map.handshake {
-                in_range(
-                    &format!("{k}.map.handshake.timeout_ms"),
-                    h.timeout_ms,
-                    1..=60_000,
-                    "ms",
-                )?;
-                in_range(
-                    &format!("{k}.map.handshake.poll_ms"),
-                    h.poll_ms,
-                    1..=h.timeout_ms,
-                    "ms (≤ timeout_ms)",
-                )?;
-            }
-            mapped_once(
-                &self.axes,
-                &format!("{k}.map"),
-                os.map.axes.iter().map(|r| r.axis.as_str()),
-            )?;
-            os.map.validate().map_err(|e| {
-                let key = match &e {
-                    crate::origin_shift::MapError::Axis { index, .. } => {
-                        format!("{k}.map.axis[{index}]")
-                    }
-                    crate::origin_shift::MapError::Overlap { a, b, .. }
-                        if a == "heartbeat_address" || b == "heartbeat_address" =>
-                    {
-                        format!("{k}.map.heartbeat_address")
-                    }
-                    _ => format!("{k}.map"),
-                };
-                (key, e.to_string())
+        }
+        mapped_once(
+            &self.axes,
+            &format!("{k}.map"),
+            os.map.axes.iter().map(|r| r.axis.as_str()),
+        )?;
+        os.map.validate().map_err(|e| {
+            let key = match &e {
+                crate::origin_shift::MapError::Axis { index, .. } => {
+                    format!("{k}.map.axis[{index}]")
+                }
+                crate::origin_shift::MapError::Overlap { a, b, .. }
+                    if a == "heartbeat_address" || b == "heartbeat_address" =>
+                {
+                    format!("{k}.map.heartbeat_address")
+                }
+                _ => format!("{k}.map"),
+            };
+            (key, e.to_string())
+        })?;
+        heartbeat_timeout(k, os)?;
+        Ok(())
+    }
+
+    /// `[sink.quadrature]`: every axis mapped once, each with valid edge timing (the injection
+    /// scheduler's) and a usable count resolution.
+    fn validate_quadrature(&self, q: &QuadratureSink) -> Result<(), (String, String)> {
+        mapped_once(
+            &self.axes,
+            "sink.quadrature",
+            q.axes.iter().map(|a| a.axis.as_str()),
+        )?;
+        for (i, a) in q.axes.iter().enumerate() {
+            let sc = crate::quadrature::SchedulerConfig {
+                min_edge_gap_ns: a.min_edge_gap_ns,
+                max_inject_rate_hz: a.max_inject_rate_hz,
+            };
+            sc.validate()
+                .map_err(|e| (format!("sink.quadrature.axis[{i}]"), e.to_string()))?;
+            crate::quadrature::CountQuantizer::new(a.resolution_um, a.count_sign).map_err(|e| {
+                (
+                    format!("sink.quadrature.axis[{i}].resolution_um"),
+                    e.to_string(),
+                )
             })?;
-            heartbeat_timeout(k, os)?;
         }
-        if let Some(srv) = &self.sink.origin_shift_server {
-            self.validate_server(srv)?;
-        }
-        if let Some(q) = &self.sink.quadrature {
-            mapped_once(
-                &self.axes,
-                "sink.quadrature",
-                q.axes.iter().map(|a| a.axis.as_str()),
-            )?;
-            for (i, a) in q.axes.iter().enumerate() {
-                let sc = crate::quadrature::SchedulerConfig {
-                    min_edge_gap_ns: a.min_edge_gap_ns,
-                    max_inject_rate_hz: a.max_inject_rate_hz,
-                };
-                sc.validate()
-                    .map_err(|e| (format!("sink.quadrature.axis[{i}]"), e.to_string()))?;
-                crate::quadrature::CountQuantizer::new(a.resolution_um, a.count_sign).map_err(
-                    |e| {
-                        (
-                            format!("sink.quadrature.axis[{i}].resolution_um"),
-                            e.to_string(),
-                        )
-                    },
-                )?;
-            }
-        }
+        Ok(())
+    }
+
+    /// The bus sections: CANopen needs a CAN backend, then the bus module's own checks with every
+    /// problem in one message.
+    fn validate_buses(&self) -> Result<(), (String, String)> {
         if self.canopen.is_some() && self.can.is_none() {
             return Err((
                 "canopen".into(),
@@ -336,14 +387,6 @@ impl FieldConfig {
                 what.push_str(&format!("; also `{k}`: {m}"));
             }
             return Err((key.clone(), what));
-        }
-        if self.sink.origin_shift.is_none()
-            && self.sink.quadrature.is_none()
-            && self.sink.origin_shift_server.is_none()
-        {
-            tracing::warn!(
-                "no [sink] configured: the gateway computes and reports, but corrects nothing"
-            );
         }
         Ok(())
     }

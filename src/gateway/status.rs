@@ -34,13 +34,78 @@ fn num(v: f64) -> String {
     }
 }
 
+/// `# HELP` and `# TYPE` lines opening a metric family.
+fn family(s: &mut String, name: &str, kind: &str, help: &str) {
+    let _ = writeln!(s, "# HELP {name} {help}\n# TYPE {name} {kind}");
+}
+
+/// `retrocomp_sink_*`: the output sink's link, write counts, what the controller holds, and its
+/// faults.
+fn prometheus_sink(s: &mut String, k: &SinkStatus) {
+    family(
+        s,
+        "retrocomp_sink_connected",
+        "gauge",
+        "1 when the output sink is connected.",
+    );
+    let _ = writeln!(
+        s,
+        "retrocomp_sink_connected{{sink=\"{}\"}} {}",
+        esc(&k.kind),
+        u8::from(k.connected)
+    );
+    family(
+        s,
+        "retrocomp_sink_writes_total",
+        "counter",
+        "Sink write cycles by result.",
+    );
+    let _ = writeln!(
+        s,
+        "retrocomp_sink_writes_total{{sink=\"{}\",result=\"ok\"}} {}",
+        esc(&k.kind),
+        k.writes_ok
+    );
+    let _ = writeln!(
+        s,
+        "retrocomp_sink_writes_total{{sink=\"{}\",result=\"failed\"}} {}",
+        esc(&k.kind),
+        k.writes_failed
+    );
+    family(
+        s,
+        "retrocomp_sink_held_um",
+        "gauge",
+        "Correction the controller's registers hold per axis (read back), um.",
+    );
+    for (axis, v) in &k.held_um {
+        let _ = writeln!(
+            s,
+            "retrocomp_sink_held_um{{sink=\"{}\",axis=\"{}\"}} {}",
+            esc(&k.kind),
+            esc(axis),
+            num(*v)
+        );
+    }
+    family(
+        s,
+        "retrocomp_sink_fault_active",
+        "gauge",
+        "1 per active sink fault (source, kind).",
+    );
+    for (source, kind, _) in &k.faults {
+        let _ = writeln!(
+            s,
+            "retrocomp_sink_fault_active{{source=\"{}\",kind=\"{kind:?}\"}} 1",
+            esc(source)
+        );
+    }
+}
+
 impl StatusSnapshot {
     /// Prometheus text exposition format 0.0.4.
     pub fn prometheus(&self) -> String {
         let mut s = String::with_capacity(2048);
-        let family = |s: &mut String, name: &str, kind: &str, help: &str| {
-            let _ = writeln!(s, "# HELP {name} {help}\n# TYPE {name} {kind}");
-        };
         family(
             &mut s,
             "retrocomp_cycles_total",
@@ -55,32 +120,61 @@ impl StatusSnapshot {
             "1 when compensation is enabled.",
         );
         let _ = writeln!(s, "retrocomp_enabled {}", u8::from(self.enabled));
-        if let Some(m) = &self.model {
-            family(
-                &mut s,
-                "retrocomp_model_info",
-                "gauge",
-                "The model in use (name, sha256 of its canonical TOML); loaded_unix_s below.",
-            );
-            let (name, sha) = (esc(&m.name), esc(&m.sha256));
-            let _ = writeln!(
-                s,
-                "retrocomp_model_info{{name=\"{name}\",sha256=\"{sha}\"}} 1"
-            );
-            family(
-                &mut s,
-                "retrocomp_model_loaded_unix_seconds",
-                "gauge",
-                "When the model in use was loaded (Unix time), s.",
-            );
-            let _ = writeln!(
-                s,
-                "retrocomp_model_loaded_unix_seconds {}",
-                num(m.loaded_unix_s)
-            );
-        }
+        self.prometheus_model(&mut s);
+        self.prometheus_corrections(&mut s);
+        self.prometheus_axis_safety(&mut s);
+        self.prometheus_channels(&mut s);
         family(
             &mut s,
+            "retrocomp_faults_active",
+            "gauge",
+            "Faults active now.",
+        );
+        let _ = writeln!(s, "retrocomp_faults_active {}", self.active_faults.len());
+        if let Some(k) = &self.sink {
+            prometheus_sink(&mut s, k);
+        }
+        self.prometheus_sources(&mut s);
+        if let Some(t) = &self.telemetry {
+            t.prometheus(&mut s);
+        }
+        s
+    }
+
+    /// `retrocomp_model_*`: which model is in use and since when (absent without a model).
+    fn prometheus_model(&self, s: &mut String) {
+        let Some(m) = &self.model else {
+            return;
+        };
+        family(
+            s,
+            "retrocomp_model_info",
+            "gauge",
+            "The model in use (name, sha256 of its canonical TOML); loaded_unix_s below.",
+        );
+        let (name, sha) = (esc(&m.name), esc(&m.sha256));
+        let _ = writeln!(
+            s,
+            "retrocomp_model_info{{name=\"{name}\",sha256=\"{sha}\"}} 1"
+        );
+        family(
+            s,
+            "retrocomp_model_loaded_unix_seconds",
+            "gauge",
+            "When the model in use was loaded (Unix time), s.",
+        );
+        let _ = writeln!(
+            s,
+            "retrocomp_model_loaded_unix_seconds {}",
+            num(m.loaded_unix_s)
+        );
+    }
+
+    /// `retrocomp_correction_*`: per axis, what was applied, what the model asked for, and its
+    /// terms.
+    fn prometheus_corrections(&self, s: &mut String) {
+        family(
+            s,
             "retrocomp_correction_applied_um",
             "gauge",
             "Correction applied per axis after safety, um.",
@@ -94,7 +188,7 @@ impl StatusSnapshot {
             );
         }
         family(
-            &mut s,
+            s,
             "retrocomp_correction_target_um",
             "gauge",
             "Correction requested by the model per axis, um.",
@@ -110,7 +204,7 @@ impl StatusSnapshot {
             }
         }
         family(
-            &mut s,
+            s,
             "retrocomp_correction_term_um",
             "gauge",
             "Correction per axis and model term, um.",
@@ -126,8 +220,12 @@ impl StatusSnapshot {
                 );
             }
         }
+    }
+
+    /// The safety layer per axis: tracking or not, and how often the clamp and the dosing cap cut.
+    fn prometheus_axis_safety(&self, s: &mut String) {
         family(
-            &mut s,
+            s,
             "retrocomp_axis_tracking",
             "gauge",
             "1 when the axis output tracks the model (no ramp/hold).",
@@ -141,7 +239,7 @@ impl StatusSnapshot {
             );
         }
         family(
-            &mut s,
+            s,
             "retrocomp_safety_clamp_hits_total",
             "counter",
             "Cycles whose model target was beyond the clamp, per axis.",
@@ -155,7 +253,7 @@ impl StatusSnapshot {
             );
         }
         family(
-            &mut s,
+            s,
             "retrocomp_safety_cap_hits_total",
             "counter",
             "Cycles whose step was cut by the dosing cap, per axis.",
@@ -168,8 +266,12 @@ impl StatusSnapshot {
                 a.cap_hits
             );
         }
+    }
+
+    /// `retrocomp_channel_*`: per input channel, its health, substitution, and last value.
+    fn prometheus_channels(&self, s: &mut String) {
         family(
-            &mut s,
+            s,
             "retrocomp_channel_healthy",
             "gauge",
             "1 when the channel's latest value is healthy.",
@@ -183,7 +285,7 @@ impl StatusSnapshot {
             );
         }
         family(
-            &mut s,
+            s,
             "retrocomp_channel_substituted",
             "gauge",
             "1 when the channel is replaced by its neighbour estimate.",
@@ -197,7 +299,7 @@ impl StatusSnapshot {
             );
         }
         family(
-            &mut s,
+            s,
             "retrocomp_channel_value",
             "gauge",
             "Last good (or substituted) channel value, channel units.",
@@ -212,78 +314,6 @@ impl StatusSnapshot {
                 );
             }
         }
-        family(
-            &mut s,
-            "retrocomp_faults_active",
-            "gauge",
-            "Faults active now.",
-        );
-        let _ = writeln!(s, "retrocomp_faults_active {}", self.active_faults.len());
-        if let Some(k) = &self.sink {
-            family(
-                &mut s,
-                "retrocomp_sink_connected",
-                "gauge",
-                "1 when the output sink is connected.",
-            );
-            let _ = writeln!(
-                s,
-                "retrocomp_sink_connected{{sink=\"{}\"}} {}",
-                esc(&k.kind),
-                u8::from(k.connected)
-            );
-            family(
-                &mut s,
-                "retrocomp_sink_writes_total",
-                "counter",
-                "Sink write cycles by result.",
-            );
-            let _ = writeln!(
-                s,
-                "retrocomp_sink_writes_total{{sink=\"{}\",result=\"ok\"}} {}",
-                esc(&k.kind),
-                k.writes_ok
-            );
-            let _ = writeln!(
-                s,
-                "retrocomp_sink_writes_total{{sink=\"{}\",result=\"failed\"}} {}",
-                esc(&k.kind),
-                k.writes_failed
-            );
-            family(
-                &mut s,
-                "retrocomp_sink_held_um",
-                "gauge",
-                "Correction the controller's registers hold per axis (read back), um.",
-            );
-            for (axis, v) in &k.held_um {
-                let _ = writeln!(
-                    s,
-                    "retrocomp_sink_held_um{{sink=\"{}\",axis=\"{}\"}} {}",
-                    esc(&k.kind),
-                    esc(axis),
-                    num(*v)
-                );
-            }
-            family(
-                &mut s,
-                "retrocomp_sink_fault_active",
-                "gauge",
-                "1 per active sink fault (source, kind).",
-            );
-            for (source, kind, _) in &k.faults {
-                let _ = writeln!(
-                    s,
-                    "retrocomp_sink_fault_active{{source=\"{}\",kind=\"{kind:?}\"}} 1",
-                    esc(source)
-                );
-            }
-        }
-        self.prometheus_sources(&mut s);
-        if let Some(t) = &self.telemetry {
-            t.prometheus(&mut s);
-        }
-        s
     }
 
     /// `retrocomp_source_*` and the CAN/Modbus link counters.
@@ -291,23 +321,29 @@ impl StatusSnapshot {
         if self.sources.is_empty() {
             return;
         }
-        let family = |s: &mut String, name: &str, kind: &str, help: &str| {
-            let _ = writeln!(s, "# HELP {name} {help}\n# TYPE {name} {kind}");
-        };
-        let each = |s: &mut String, name: &str, v: &dyn Fn(&SourceStatus) -> Option<String>| {
-            for src in &self.sources {
-                if let Some(v) = v(src) {
-                    let _ = writeln!(s, "{name}{{source=\"{}\"}} {v}", esc(&src.name));
-                }
+        self.prometheus_source_links(s);
+        self.prometheus_can(s);
+        self.prometheus_modbus(s);
+    }
+
+    /// One line per source that has a value for `name` (labelled with the source's name).
+    fn each_source(&self, s: &mut String, name: &str, v: &dyn Fn(&SourceStatus) -> Option<String>) {
+        for src in &self.sources {
+            if let Some(v) = v(src) {
+                let _ = writeln!(s, "{name}{{source=\"{}\"}} {v}", esc(&src.name));
             }
-        };
+        }
+    }
+
+    /// `retrocomp_source_*`: every source's link state, reconnects, and active faults.
+    fn prometheus_source_links(&self, s: &mut String) {
         family(
             s,
             "retrocomp_source_connected",
             "gauge",
             "1 when the source's link is up.",
         );
-        each(s, "retrocomp_source_connected", &|x| {
+        self.each_source(s, "retrocomp_source_connected", &|x| {
             Some(u8::from(x.connected).to_string())
         });
         family(
@@ -316,7 +352,7 @@ impl StatusSnapshot {
             "counter",
             "Links re-established after a loss.",
         );
-        each(s, "retrocomp_source_reconnects_total", &|x| {
+        self.each_source(s, "retrocomp_source_reconnects_total", &|x| {
             Some(x.reconnects.to_string())
         });
         family(
@@ -325,16 +361,21 @@ impl StatusSnapshot {
             "gauge",
             "Source-level faults active now.",
         );
-        each(s, "retrocomp_source_faults_active", &|x| {
+        self.each_source(s, "retrocomp_source_faults_active", &|x| {
             Some(x.faults.len().to_string())
         });
+    }
+
+    /// `retrocomp_can_*`: controller state and error counters of the CAN sources (family headers
+    /// even when no source is on CAN).
+    fn prometheus_can(&self, s: &mut String) {
         family(
             s,
             "retrocomp_can_bus_state",
             "gauge",
             "CAN controller state: 0 error-active, 1 warning, 2 error-passive, 3 bus-off.",
         );
-        each(s, "retrocomp_can_bus_state", &|x| {
+        self.each_source(s, "retrocomp_can_bus_state", &|x| {
             x.can.map(|c| (c.state as u8).to_string())
         });
         family(
@@ -343,7 +384,7 @@ impl StatusSnapshot {
             "counter",
             "CAN error frames received.",
         );
-        each(s, "retrocomp_can_error_frames_total", &|x| {
+        self.each_source(s, "retrocomp_can_error_frames_total", &|x| {
             x.can.map(|c| c.error_frames.to_string())
         });
         family(
@@ -352,7 +393,7 @@ impl StatusSnapshot {
             "counter",
             "Times the CAN controller went bus-off.",
         );
-        each(s, "retrocomp_can_bus_off_total", &|x| {
+        self.each_source(s, "retrocomp_can_bus_off_total", &|x| {
             x.can.map(|c| c.bus_off_events.to_string())
         });
         family(
@@ -361,7 +402,7 @@ impl StatusSnapshot {
             "gauge",
             "CAN transmit error counter (TEC).",
         );
-        each(s, "retrocomp_can_tx_error_count", &|x| {
+        self.each_source(s, "retrocomp_can_tx_error_count", &|x| {
             x.can.and_then(|c| c.tx_error_count).map(|v| v.to_string())
         });
         family(
@@ -370,16 +411,20 @@ impl StatusSnapshot {
             "gauge",
             "CAN receive error counter (REC).",
         );
-        each(s, "retrocomp_can_rx_error_count", &|x| {
+        self.each_source(s, "retrocomp_can_rx_error_count", &|x| {
             x.can.and_then(|c| c.rx_error_count).map(|v| v.to_string())
         });
+    }
+
+    /// `retrocomp_modbus_*`: exception replies and unanswered requests of the Modbus sources.
+    fn prometheus_modbus(&self, s: &mut String) {
         family(
             s,
             "retrocomp_modbus_exceptions_total",
             "counter",
             "Modbus exception replies.",
         );
-        each(s, "retrocomp_modbus_exceptions_total", &|x| {
+        self.each_source(s, "retrocomp_modbus_exceptions_total", &|x| {
             x.modbus.map(|m| m.exceptions.to_string())
         });
         family(
@@ -388,7 +433,7 @@ impl StatusSnapshot {
             "counter",
             "Modbus requests without an answer (timeout or transport error).",
         );
-        each(s, "retrocomp_modbus_failed_requests_total", &|x| {
+        self.each_source(s, "retrocomp_modbus_failed_requests_total", &|x| {
             x.modbus
                 .map(|m| (m.timeouts + m.transport_errors).to_string())
         });
@@ -404,6 +449,20 @@ impl StatusSnapshot {
             self.cycles,
             if self.enabled { "ENABLED" } else { "disabled" }
         );
+        self.render_axes(&mut s);
+        self.render_channels(&mut s);
+        self.render_sources(&mut s);
+        if let Some(e) = &self.model_error {
+            let _ = writeln!(s, "model error: {e}");
+        }
+        if let Some(k) = &self.sink {
+            render_sink(&mut s, k);
+        }
+        s
+    }
+
+    /// The axis table: header, then one row per axis with its terms.
+    fn render_axes(&self, s: &mut String) {
         let _ = writeln!(
             s,
             "{:<4} {:>12} {:>9} {:>12} {:>12}  {:<11} terms (µm)",
@@ -427,6 +486,10 @@ impl StatusSnapshot {
                 terms.join(" ")
             );
         }
+    }
+
+    /// `channels:` and one line per channel (the heading even without channels).
+    fn render_channels(&self, s: &mut String) {
         let _ = writeln!(s, "channels:");
         for (name, c) in &self.channels {
             let _ = writeln!(
@@ -447,6 +510,10 @@ impl StatusSnapshot {
                 }
             );
         }
+    }
+
+    /// `sources:` and one line per source, only when there are sources.
+    fn render_sources(&self, s: &mut String) {
         if !self.sources.is_empty() {
             let _ = writeln!(s, "sources:");
         }
@@ -474,32 +541,30 @@ impl StatusSnapshot {
                     .unwrap_or_default(),
             );
         }
-        if let Some(e) = &self.model_error {
-            let _ = writeln!(s, "model error: {e}");
-        }
-        if let Some(k) = &self.sink {
-            let held: Vec<String> = k
-                .held_um
-                .iter()
-                .map(|(a, v)| format!("{a}={v:+.3}"))
-                .collect();
-            let _ = writeln!(
-                s,
-                "sink {}: {}, {} writes ok, {} failed; controller holds (µm) {}",
-                k.kind,
-                if k.connected {
-                    "connected"
-                } else {
-                    "DISCONNECTED"
-                },
-                k.writes_ok,
-                k.writes_failed,
-                held.join(" ")
-            );
-            for (source, kind, since) in &k.faults {
-                let _ = writeln!(s, "  fault {source} {kind:?} since {since:.3} s");
-            }
-        }
-        s
+    }
+}
+
+/// The sink's line (link, writes, what the controller holds) and its active faults.
+fn render_sink(s: &mut String, k: &SinkStatus) {
+    let held: Vec<String> = k
+        .held_um
+        .iter()
+        .map(|(a, v)| format!("{a}={v:+.3}"))
+        .collect();
+    let _ = writeln!(
+        s,
+        "sink {}: {}, {} writes ok, {} failed; controller holds (µm) {}",
+        k.kind,
+        if k.connected {
+            "connected"
+        } else {
+            "DISCONNECTED"
+        },
+        k.writes_ok,
+        k.writes_failed,
+        held.join(" ")
+    );
+    for (source, kind, since) in &k.faults {
+        let _ = writeln!(s, "  fault {source} {kind:?} since {since:.3} s");
     }
 }
