@@ -35,6 +35,7 @@ use super::cycle::{CycleIo, CycleLoop, CycleReport, Outputs};
 use super::engine::{Engine, ErrorModel};
 use super::error::GatewayError;
 use super::http::{Api, Control, Limits, serve};
+use super::opcua::OpcUaServer;
 use super::status::{SinkStatus, StatusSnapshot};
 use super::supervise::{CycleCounter, SourceFeed};
 use crate::bus::Sample;
@@ -45,6 +46,7 @@ use crate::origin_shift::sink_task::OriginShiftClientSink;
 use crate::quadrature::sink::QuadratureOutput;
 use crate::realtime;
 use crate::sink::{LocalFuture, Sink, SinkIo, StartValues};
+use crate::status::ModelIdentity;
 
 /// What a run reports when it stops.
 #[derive(Clone, Debug, Default)]
@@ -90,35 +92,12 @@ pub async fn run(
     let (status_tx, status_rx) = watch::channel::<Option<Arc<StatusSnapshot>>>(None);
     // Sparkplug B publisher: its own tasks fed from the status watch (never slows the cycle).
     let telemetry = start_telemetry(&cfg, status_rx.clone())?;
-    let listen: SocketAddr = cfg
-        .gateway
-        .status_listen
-        .parse()
-        .map_err(|e| GatewayError::setup("gateway.status_listen", e))?;
     // Actions from the endpoint (token-guarded) reach the cycle loop through this channel.
     let (control_tx, control_rx) = mpsc::channel::<Control>(8);
-    let api = Api {
-        token: cfg.gateway.api_token.clone(),
-        control_tx: Some(control_tx),
-        models: Some(Arc::new(super::model_switch::Catalog::from_config(&cfg))),
-    };
-    // The OPC UA server (if configured) reads the same snapshots on its own tasks.
-    let opcua = match &cfg.opcua {
-        Some(o) => {
-            let rx = status_rx.clone();
-            let srv = super::opcua::start(o, &cfg.gateway.name, rx, model.identity()).await?;
-            tracing::info!("OPC UA endpoint {} (read-only)", srv.endpoint);
-            Some(srv)
-        }
-        None => None,
-    };
-    let (bound, http_task) = serve(listen, status_rx, api, Limits::default())
-        .await
-        .map_err(|e| GatewayError::setup(format!("binding status endpoint {listen}"), e))?;
-    tracing::info!(%bound, "status endpoint: GET /status, /metrics");
-    if let Some(tx) = status_addr {
-        let _ = tx.send(bound);
-    }
+    // The OPC UA server names the model; read here, the model is not shared across threads.
+    let identity = cfg.opcua.as_ref().and_then(|_| model.identity());
+    let (opcua, http_task) =
+        start_endpoints(&cfg, status_rx, control_tx, identity, status_addr).await?;
     if cfg.gateway.lock_memory {
         realtime::lock_memory();
     }
@@ -205,19 +184,65 @@ pub async fn run(
     ended?;
     let report = report.ok_or_else(|| GatewayError::Stopped("the cycle thread died".into()))?;
     let st = sink_status_rx.borrow().clone();
-    Ok(RunSummary {
-        cycles: report.cycles,
-        writes_ok: st.writes_ok,
-        writes_failed: st.writes_failed,
-        compute_us_p50: report.compute_us_p50,
-        compute_us_p99: report.compute_us_p99,
-        late_cycles: report.late_cycles,
-        max_late_ms: report.max_late_ms,
-        not_compensating_s: report.not_compensating_s,
-        not_compensating_episodes: report.not_compensating_episodes,
-        partial_s: report.partial_s,
-        partial_episodes: report.partial_episodes,
-    })
+    Ok(RunSummary::of(&report, &st))
+}
+
+impl RunSummary {
+    fn of(report: &CycleReport, st: &SinkStatus) -> Self {
+        RunSummary {
+            cycles: report.cycles,
+            writes_ok: st.writes_ok,
+            writes_failed: st.writes_failed,
+            compute_us_p50: report.compute_us_p50,
+            compute_us_p99: report.compute_us_p99,
+            late_cycles: report.late_cycles,
+            max_late_ms: report.max_late_ms,
+            not_compensating_s: report.not_compensating_s,
+            not_compensating_episodes: report.not_compensating_episodes,
+            partial_s: report.partial_s,
+            partial_episodes: report.partial_episodes,
+        }
+    }
+}
+
+/// The status endpoint (GET /status, /metrics and the token-guarded actions, which reach the
+/// cycle through `control_tx`) and, if configured, the OPC UA server; both read the status
+/// snapshots on their own tasks (OPC UA names the model by `identity`). The bound status address
+/// goes to `status_addr`.
+async fn start_endpoints(
+    cfg: &FieldConfig,
+    status_rx: watch::Receiver<Option<Arc<StatusSnapshot>>>,
+    control_tx: mpsc::Sender<Control>,
+    identity: Option<ModelIdentity>,
+    status_addr: Option<oneshot::Sender<SocketAddr>>,
+) -> Result<(Option<OpcUaServer>, tokio::task::JoinHandle<()>), GatewayError> {
+    let listen: SocketAddr = cfg
+        .gateway
+        .status_listen
+        .parse()
+        .map_err(|e| GatewayError::setup("gateway.status_listen", e))?;
+    let api = Api {
+        token: cfg.gateway.api_token.clone(),
+        control_tx: Some(control_tx),
+        models: Some(Arc::new(super::model_switch::Catalog::from_config(cfg))),
+    };
+    let opcua = match &cfg.opcua {
+        Some(o) => {
+            let rx = status_rx.clone();
+            let srv = super::opcua::start(o, &cfg.gateway.name, rx, identity).await?;
+            tracing::info!("OPC UA endpoint {} (read-only)", srv.endpoint);
+            Some(srv)
+        }
+        None => None,
+    };
+    let (bound, http_task) = serve(listen, status_rx, api, Limits::default())
+        .await
+        .map_err(|e| GatewayError::setup(format!("binding status endpoint {listen}"), e))?;
+    tracing::info!(%bound, "status endpoint: GET /status, /metrics");
+    if let Some(tx) = status_addr {
+        let _ = tx.send(bound);
+    }
+    Ok((opcua, http_task))
 }
 
 /// The Sparkplug publisher of the field config's `[telemetry.mqtt]`, if any.
