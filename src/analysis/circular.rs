@@ -30,6 +30,10 @@ use serde::Serialize;
 use super::fit::lsq::{LsqError, lstsq};
 use super::import_error::{ErrorSink, ImportErrors};
 
+mod terms;
+
+use terms::{Fitted, path_terms, reversal_terms};
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Rotation {
@@ -209,6 +213,44 @@ fn band_about_lsq_centre(angles: &[f64], dr: &[f64]) -> Result<f64, LsqError> {
 
 /// Analyses the traces. Spike decay length is chosen by least squares over a log grid 0.2–20 mm.
 pub fn analyse(traces: &[CircleTrace], setup: &CircleSetup) -> Result<CircleReport, CircleError> {
+    check_input(traces, setup)?;
+    // ISO 230-4.
+    let (iso, all_dr) = iso230_4(traces)?;
+
+    // Diagnosis: pick the spike decay by SSE over a grid, then fit all terms.
+    let best = best_decay(traces, setup, &all_dr)?;
+    let fit = Fitted {
+        cols: &best.cols,
+        beta: &best.beta,
+        n: all_dr.len(),
+    };
+    let mut terms = reversal_terms(&fit, best.decay);
+    terms.extend(path_terms(&fit, setup));
+    let total: f64 = terms.iter().map(|t| t.contribution_um).sum();
+    for t in &mut terms {
+        t.share_pct = if total > 0.0 {
+            100.0 * t.contribution_um / total
+        } else {
+            0.0
+        };
+    }
+    terms.sort_by(|a, b| b.contribution_um.total_cmp(&a.contribution_um));
+    Ok(CircleReport {
+        standard: "ISO 230-4:2005",
+        radius_mm: setup.radius_mm,
+        feed_mm_per_min: setup.feed_mm_per_min,
+        iso230_4: iso,
+        radius_error_um: fit.c("radius"),
+        centre_x_um: fit.c("centre_x"),
+        centre_y_um: fit.c("centre_y"),
+        terms,
+        residual_rms_um: (best.sse / all_dr.len() as f64).sqrt(),
+    })
+}
+
+/// Rejects what the fit cannot take (no trace, a bad setup, ragged or non-finite traces) before
+/// any work, in the order the errors are reported.
+fn check_input(traces: &[CircleTrace], setup: &CircleSetup) -> Result<(), CircleError> {
     if traces.is_empty() {
         return Err(CircleError::Empty);
     }
@@ -227,7 +269,11 @@ pub fn analyse(traces: &[CircleTrace], setup: &CircleSetup) -> Result<CircleRepo
             return Err(CircleError::NonFinite { index: i });
         }
     }
-    // ISO 230-4.
+    Ok(())
+}
+
+/// The ISO 230-4 figures, and every trace's deviations in one series (the diagnosis fits it).
+fn iso230_4(traces: &[CircleTrace]) -> Result<(Iso230_4, Vec<f64>), CircleError> {
     let mut g_um = BTreeMap::new();
     for t in traces {
         let key = format!("{:?}", t.rotation).to_lowercase();
@@ -255,156 +301,40 @@ pub fn analyse(traces: &[CircleTrace], setup: &CircleSetup) -> Result<CircleRepo
         f_min_um: all_dr.iter().cloned().fold(f64::INFINITY, f64::min),
         centre_method: "least squares",
     };
+    Ok((iso, all_dr))
+}
 
-    // Diagnosis: pick the spike decay by SSE over a grid, then fit all terms.
-    let y = DVector::from_column_slice(&all_dr);
-    let mut best: Option<(f64, Vec<Column>, DVector<f64>, f64)> = None;
+/// The least-squares fit at the spike decay with the lowest SSE.
+struct DecayFit {
+    decay: f64,
+    cols: Vec<Column>,
+    beta: DVector<f64>,
+    sse: f64,
+}
+
+/// Fits every term at each decay of the grid and keeps the best (the first of equals).
+fn best_decay(
+    traces: &[CircleTrace],
+    setup: &CircleSetup,
+    all_dr: &[f64],
+) -> Result<DecayFit, CircleError> {
+    let y = DVector::from_column_slice(all_dr);
+    let mut best: Option<DecayFit> = None;
     for k in 0..=40 {
         let decay = 0.2 * 100f64.powf(f64::from(k) / 40.0);
         let cols = columns(traces, setup, decay);
         let x = DMatrix::from_fn(all_dr.len(), cols.len(), |i, j| cols[j].values[i]);
         let f = lstsq(&x, &y)?;
-        if best.as_ref().is_none_or(|b| f.sse < b.3) {
-            best = Some((decay, cols, f.beta, f.sse));
+        if best.as_ref().is_none_or(|b| f.sse < b.sse) {
+            best = Some(DecayFit {
+                decay,
+                cols,
+                beta: f.beta,
+                sse: f.sse,
+            });
         }
     }
-    let (decay, cols, beta, sse) = best.expect("grid is not empty");
-    let coef = |name: &str| cols.iter().position(|c| c.effect == name).map(|j| beta[j]);
-    let contrib = |names: &[&str]| -> f64 {
-        let v: Vec<f64> = (0..all_dr.len())
-            .map(|i| {
-                names
-                    .iter()
-                    .filter_map(|n| {
-                        cols.iter()
-                            .position(|c| c.effect == *n)
-                            .map(|j| cols[j].values[i] * beta[j])
-                    })
-                    .sum()
-            })
-            .collect();
-        p2v(&v)
-    };
-    let r = setup.radius_mm;
-    let feed_mm_s = setup.feed_mm_per_min / 60.0;
-    let mut terms: Vec<TermFit> = Vec::new();
-    let mut push = |effect: &str, params: Vec<(&str, f64)>, names: &[&str]| {
-        terms.push(TermFit {
-            effect: effect.to_string(),
-            params: params
-                .into_iter()
-                .map(|(k, v)| (k.to_string(), v))
-                .collect(),
-            contribution_um: contrib(names),
-            share_pct: 0.0,
-        });
-    };
-    let c = |n: &str| coef(n).unwrap_or(0.0);
-    push(
-        "backlash_x",
-        vec![("b_um", -2.0 * c("backlash_x"))],
-        &["backlash_x"],
-    );
-    push(
-        "backlash_y",
-        vec![("b_um", -2.0 * c("backlash_y"))],
-        &["backlash_y"],
-    );
-    push(
-        "lateral_play_x",
-        vec![("p_um", 2.0 * c("lateral_play_x"))],
-        &["lateral_play_x"],
-    );
-    push(
-        "lateral_play_y",
-        vec![("p_um", 2.0 * c("lateral_play_y"))],
-        &["lateral_play_y"],
-    );
-    push(
-        "reversal_spike_x",
-        vec![
-            ("amplitude_um", -c("reversal_spike_x")),
-            ("decay_mm", decay),
-        ],
-        &["reversal_spike_x"],
-    );
-    push(
-        "reversal_spike_y",
-        vec![
-            ("amplitude_um", -c("reversal_spike_y")),
-            ("decay_mm", decay),
-        ],
-        &["reversal_spike_y"],
-    );
-    if let Some(p) = setup.cyclic_period_x_mm {
-        push(
-            "cyclic_x",
-            vec![
-                ("amplitude_um", c("cyclic_x_sin").hypot(c("cyclic_x_cos"))),
-                ("period_mm", p),
-            ],
-            &["cyclic_x_sin", "cyclic_x_cos"],
-        );
-    }
-    if let Some(p) = setup.cyclic_period_y_mm {
-        push(
-            "cyclic_y",
-            vec![
-                ("amplitude_um", c("cyclic_y_sin").hypot(c("cyclic_y_cos"))),
-                ("period_mm", p),
-            ],
-            &["cyclic_y_sin", "cyclic_y_cos"],
-        );
-    }
-    // Δr = d·(F·Δτ/2)·sin2θ with F in mm/s and Δτ in s → µm = F·Δτ·1000/2; Δτ in ms = 2β/F.
-    if coef("servo_mismatch").is_some() {
-        push(
-            "servo_mismatch",
-            vec![("ms", 2.0 * c("servo_mismatch") / feed_mm_s)],
-            &["servo_mismatch"],
-        );
-    }
-    // (R α / 2)·sin2θ: α [µrad] = 2β [µm] / R [mm] × 1000.
-    push(
-        "squareness",
-        vec![("urad", 2.0 * c("squareness") / r * 1000.0)],
-        &["squareness"],
-    );
-    push(
-        "straightness_x",
-        vec![("bow_um", c("straightness_x"))],
-        &["straightness_x"],
-    );
-    push(
-        "straightness_y",
-        vec![("bow_um", c("straightness_y"))],
-        &["straightness_y"],
-    );
-    push(
-        "scale_mismatch",
-        vec![("ppm", 2.0 * c("scale_mismatch") / r * 1000.0)],
-        &["scale_mismatch"],
-    );
-    let total: f64 = terms.iter().map(|t| t.contribution_um).sum();
-    for t in &mut terms {
-        t.share_pct = if total > 0.0 {
-            100.0 * t.contribution_um / total
-        } else {
-            0.0
-        };
-    }
-    terms.sort_by(|a, b| b.contribution_um.total_cmp(&a.contribution_um));
-    Ok(CircleReport {
-        standard: "ISO 230-4:2005",
-        radius_mm: r,
-        feed_mm_per_min: setup.feed_mm_per_min,
-        iso230_4: iso,
-        radius_error_um: c("radius"),
-        centre_x_um: c("centre_x"),
-        centre_y_um: c("centre_y"),
-        terms,
-        residual_rms_um: (sse / all_dr.len() as f64).sqrt(),
-    })
+    Ok(best.expect("grid is not empty"))
 }
 
 /// Text form.

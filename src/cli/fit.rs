@@ -12,7 +12,8 @@ use retrocomp::analysis::fit::to_model::{
     AxisForm, add_load, add_thermal, axis_component, put_component, single_axis_spec,
     to_checked_toml,
 };
-use retrocomp::analysis::fit::workflow::{ContextFit, fit_axis, fit_context};
+use retrocomp::analysis::fit::workflow::{AxisFit, ContextFit, fit_axis, fit_context};
+use retrocomp::analysis::iso230_2::Reading;
 use retrocomp::analysis::report::{Series, xy_svg};
 use retrocomp::analysis::table::Direction;
 use retrocomp::models::names::parse_component;
@@ -266,6 +267,78 @@ fn training_mean(rec: &Recording, f: &ContextFit) -> impl Fn(&str) -> f64 {
     }
 }
 
+/// The axis fit's text report: the knots, the fit and the drift, then δ on the held-out run.
+fn axis_text(id: ComponentId, fit: &AxisFit, slope: f64, holdout_run: Option<u32>) -> String {
+    let mut text = format!(
+        "{}: forward knots {:?}, reverse knots {:?}, fit rms {:.3} µm, drift removed {:.3} µm/run\n",
+        id.iso_name(),
+        fit.forward.knots_mm,
+        fit.reverse.knots_mm,
+        fit.fit_rms_um,
+        slope
+    );
+    match &fit.heldout {
+        Some(h) => text.push_str(&format!(
+            "held-out run {}: δ = {:.1} %, max residual {:.2} µm\n",
+            holdout_run.unwrap_or(0),
+            100.0 * h.delta,
+            h.max_residual_um
+        )),
+        None => text.push_str("no held-out run (--holdout-run): δ not computed\n"),
+    }
+    text
+}
+
+/// `--svg` of an axis fit: the measured deviations of each direction as markers and the fitted
+/// curve across the measured targets.
+fn axis_svg(
+    p: &Path,
+    id: ComponentId,
+    rs: &[Reading],
+    fit: &AxisFit,
+    targets: &[f64],
+) -> anyhow::Result<()> {
+    let mut series = Vec::new();
+    for (d, name) in [
+        (Direction::Forward, "forward"),
+        (Direction::Reverse, "reverse"),
+    ] {
+        series.push(Series::markers(
+            &format!("measured {name}"),
+            rs.iter()
+                .filter(|r| r.direction == d)
+                .map(|r| (r.target_mm, r.deviation_um))
+                .collect(),
+        ));
+        let pq = if d == Direction::Forward {
+            &fit.forward
+        } else {
+            &fit.reverse
+        };
+        let (lo, hi) = (
+            targets.iter().cloned().fold(f64::INFINITY, f64::min),
+            targets.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+        );
+        series.push(Series::line(
+            &format!("fit {name}"),
+            (0..=200)
+                .map(|i| lo + (hi - lo) * f64::from(i) / 200.0)
+                .map(|x| (x, pq.eval(x)))
+                .collect(),
+        ));
+    }
+    write(
+        p,
+        &xy_svg(
+            &format!("{} fit", id.iso_name()),
+            "position_mm",
+            "error_um",
+            &series,
+        )?,
+    )?;
+    Ok(())
+}
+
 pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
     match &a.what {
         What::Axis {
@@ -301,62 +374,9 @@ pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
             };
             put_component(&mut spec, c)?;
             let (toml, _) = to_checked_toml(spec)?;
-            let mut text = format!(
-                "{}: forward knots {:?}, reverse knots {:?}, fit rms {:.3} µm, drift removed {:.3} µm/run\n",
-                id.iso_name(),
-                fit.forward.knots_mm,
-                fit.reverse.knots_mm,
-                fit.fit_rms_um,
-                slope
-            );
-            match &fit.heldout {
-                Some(h) => text.push_str(&format!(
-                    "held-out run {}: δ = {:.1} %, max residual {:.2} µm\n",
-                    holdout_run.unwrap_or(0),
-                    100.0 * h.delta,
-                    h.max_residual_um
-                )),
-                None => text.push_str("no held-out run (--holdout-run): δ not computed\n"),
-            }
+            let text = axis_text(id, &fit, slope, *holdout_run);
             if let Some(p) = &common.svg {
-                let mut series = Vec::new();
-                for (d, name) in [
-                    (Direction::Forward, "forward"),
-                    (Direction::Reverse, "reverse"),
-                ] {
-                    series.push(Series::markers(
-                        &format!("measured {name}"),
-                        rs.iter()
-                            .filter(|r| r.direction == d)
-                            .map(|r| (r.target_mm, r.deviation_um))
-                            .collect(),
-                    ));
-                    let pq = if d == Direction::Forward {
-                        &fit.forward
-                    } else {
-                        &fit.reverse
-                    };
-                    let (lo, hi) = (
-                        targets.iter().cloned().fold(f64::INFINITY, f64::min),
-                        targets.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
-                    );
-                    series.push(Series::line(
-                        &format!("fit {name}"),
-                        (0..=200)
-                            .map(|i| lo + (hi - lo) * f64::from(i) / 200.0)
-                            .map(|x| (x, pq.eval(x)))
-                            .collect(),
-                    ));
-                }
-                write(
-                    p,
-                    &xy_svg(
-                        &format!("{} fit", id.iso_name()),
-                        "position_mm",
-                        "error_um",
-                        &series,
-                    )?,
-                )?;
+                axis_svg(p, id, &rs, &fit, &targets)?;
             }
             let json = serde_json::json!({ "component": id.iso_name(), "fit": fit, "drift_removed_um_per_run": slope });
             finish(common, &toml, text, json)

@@ -162,6 +162,60 @@ fn latched_directions(pos: &[&[f64]]) -> Vec<[i8; 3]> {
         .collect()
 }
 
+/// The fitted geometry's error along the recording's nominal path (what the context terms are
+/// fitted on top of), per sample.
+fn geometric_errors(geometric: &MachineModel, pos: &[&[f64]], t: &[f64]) -> Vec<[f64; 3]> {
+    let n = t.len();
+    let dirs = latched_directions(pos);
+    let mut input = geometric.new_input();
+    let (mut state, mut bd) = (geometric.new_state(), geometric.new_breakdown());
+    let mut geo = Vec::with_capacity(n);
+    for i in 0..n {
+        input.pos_mm = [pos[0][i], pos[1][i], pos[2][i]];
+        input.dir = dirs[i];
+        input.t_s = t[i];
+        geometric.evaluate(&input, &mut state, &mut bd);
+        geo.push(bd.total_um);
+    }
+    geo
+}
+
+/// A context regressor: name, values, and the axis whose signal it may explain (`usize::MAX`:
+/// any).
+type ContextCandidate = (String, Vec<f64>, usize);
+
+/// Every context regressor of the recording: per cold-referenced sensor ΔT and q·ΔT for each axis
+/// q, then each force channel.
+fn context_candidates(
+    rec: &Recording,
+    t_ref: &[(String, f64)],
+    pos: &[&[f64]],
+) -> Vec<ContextCandidate> {
+    let mut cands: Vec<ContextCandidate> = Vec::new();
+    for (ch, tr) in t_ref {
+        let Some(v) = rec.col(ch) else { continue };
+        let dt: Vec<f64> = v.iter().map(|x| x - tr).collect();
+        for (k, p) in pos.iter().enumerate() {
+            let q = Axis::ALL[k].lower();
+            let prod = dt.iter().zip(*p).map(|(d, q)| d * q).collect();
+            cands.push((format!("{q}·dT_{}", sensor_of(ch)), prod, k));
+        }
+        cands.push((format!("dT_{}", sensor_of(ch)), dt, usize::MAX));
+    }
+    for ch in rec
+        .load_channels()
+        .into_iter()
+        .filter(|c| c.starts_with("F_"))
+    {
+        cands.push((
+            ch.clone(),
+            rec.col(&ch).expect("listed").to_vec(),
+            usize::MAX,
+        ));
+    }
+    cands
+}
+
 /// Per error signal, the context residual fit's outcome.
 struct ContextTerms {
     intercept_um: f64,
@@ -192,40 +246,9 @@ pub fn fit_context_terms(
                 .with_context(|| format!("{what}: no column `{c}`"))
         })
         .collect::<Result<_, DemoError>>()?;
-    let dirs = latched_directions(&pos);
-    let mut input = geometric.new_input();
-    let (mut state, mut bd) = (geometric.new_state(), geometric.new_breakdown());
-    let mut geo = Vec::with_capacity(n);
-    for i in 0..n {
-        input.pos_mm = [pos[0][i], pos[1][i], pos[2][i]];
-        input.dir = dirs[i];
-        input.t_s = t[i];
-        geometric.evaluate(&input, &mut state, &mut bd);
-        geo.push(bd.total_um);
-    }
+    let geo = geometric_errors(geometric, &pos, t);
     let n_train = n * 7 / 10;
-    let mut cands: Vec<(String, Vec<f64>, usize)> = Vec::new(); // name, values, axis (usize::MAX = any)
-    for (ch, tr) in t_ref {
-        let Some(v) = rec.col(ch) else { continue };
-        let dt: Vec<f64> = v.iter().map(|x| x - tr).collect();
-        for (k, p) in pos.iter().enumerate() {
-            let q = Axis::ALL[k].lower();
-            let prod = dt.iter().zip(*p).map(|(d, q)| d * q).collect();
-            cands.push((format!("{q}·dT_{}", sensor_of(ch)), prod, k));
-        }
-        cands.push((format!("dT_{}", sensor_of(ch)), dt, usize::MAX));
-    }
-    for ch in rec
-        .load_channels()
-        .into_iter()
-        .filter(|c| c.starts_with("F_"))
-    {
-        cands.push((
-            ch.clone(),
-            rec.col(&ch).expect("listed").to_vec(),
-            usize::MAX,
-        ));
-    }
+    let cands = context_candidates(rec, t_ref, &pos);
     // A candidate that does not move on the training part cannot be told from the intercept.
     let moves = |v: &[f64]| {
         let tr = &v[..n_train];
@@ -237,7 +260,7 @@ pub fn fit_context_terms(
             .col(signal)
             .with_context(|| format!("{what}: no column `{signal}`"))?;
         let y: Vec<f64> = e.iter().zip(&geo).map(|(e, g)| e - g[j]).collect();
-        let mine: Vec<&(String, Vec<f64>, usize)> = cands
+        let mine: Vec<&ContextCandidate> = cands
             .iter()
             .filter(|c| (c.2 == usize::MAX || c.2 == j) && moves(&c.1))
             .collect();
@@ -296,32 +319,14 @@ fn add_context_terms(
     let mut line = format!("{signal}: intercept {:+.3} µm", ct.intercept_um);
     let mut poly_sensors = Vec::new();
     let mut poly_b = Vec::new();
-    let reference = |s: &str| {
-        t_ref
-            .iter()
-            .find(|(ch, _)| sensor_of(ch) == s)
-            .map(|x| x.1)
-            .expect("candidates come from t_ref")
-    };
-    let add_sensor = |spec: &mut ModelSpec, s: &str| {
-        if !spec.sensors.iter().any(|x| x.name == s) {
-            spec.sensors.push(SensorSpec {
-                name: s.to_string(),
-                reference_c: reference(s),
-                tau_s: None,
-                column: None,
-                exponent: None,
-            });
-        }
-    };
     for (name, coef) in &ct.terms {
         if let Some(s) = name.strip_prefix("dT_") {
-            add_sensor(spec, s);
+            add_sensor(spec, t_ref, s);
             poly_sensors.push(s.to_string());
             poly_b.push(*coef);
             let _ = write!(line, ", {coef:+.3} µm/K × ΔT_{s}");
         } else if let Some((_, s)) = name.split_once("·dT_") {
-            add_sensor(spec, s);
+            add_sensor(spec, t_ref, s);
             // coef in µm/(mm·K); 1 ppm/K = 1e-3 µm/(mm·K).
             let alpha = coef * 1e3;
             spec.thermal.push(ThermalSpec {
@@ -331,28 +336,12 @@ fn add_context_terms(
                     sensor: s.to_string(),
                     alpha_ppm_per_k: alpha,
                     origin_mm: 0.0,
-                    reference_c: reference(s),
+                    reference_c: reference(t_ref, s),
                 },
             });
             let _ = write!(line, ", {alpha:+.2} ppm/K × {} × ΔT_{s}", axis.lower());
         } else if let Some(f) = name.strip_prefix("F_").and_then(|f| f.strip_suffix("_N")) {
-            if !spec.forces.iter().any(|x| x.name == f) {
-                spec.forces.push(ForceSpec {
-                    name: f.to_string(),
-                    from_strain: None,
-                });
-            }
-            spec.load.push(LoadSpec {
-                name: format!("fit_{short}_{f}"),
-                target,
-                kind: LoadKind::Compliance {
-                    force: f.to_string(),
-                    compliance: ErrorFunction::Polynomial {
-                        coefficients: vec![*coef],
-                        range_mm: None,
-                    },
-                },
-            });
+            add_compliance(spec, target, short, f, *coef);
             let _ = write!(line, ", {coef:+.4} µm/N × {name}");
         } else {
             return Err(DemoError::Failed(format!(
@@ -386,6 +375,49 @@ fn add_context_terms(
     );
     out.report.push(line);
     Ok(())
+}
+
+/// The cold reference temperature of sensor `s`.
+fn reference(t_ref: &[(String, f64)], s: &str) -> f64 {
+    t_ref
+        .iter()
+        .find(|(ch, _)| sensor_of(ch) == s)
+        .map(|x| x.1)
+        .expect("candidates come from t_ref")
+}
+
+/// Declares sensor `s` (at its cold reference) unless `spec` has it already.
+fn add_sensor(spec: &mut ModelSpec, t_ref: &[(String, f64)], s: &str) {
+    if !spec.sensors.iter().any(|x| x.name == s) {
+        spec.sensors.push(SensorSpec {
+            name: s.to_string(),
+            reference_c: reference(t_ref, s),
+            tau_s: None,
+            column: None,
+            exponent: None,
+        });
+    }
+}
+
+/// A compliance load term of force `f` (µm/N) on `target`, declaring the force if it is new.
+fn add_compliance(spec: &mut ModelSpec, target: ComponentId, short: &str, f: &str, coef: f64) {
+    if !spec.forces.iter().any(|x| x.name == f) {
+        spec.forces.push(ForceSpec {
+            name: f.to_string(),
+            from_strain: None,
+        });
+    }
+    spec.load.push(LoadSpec {
+        name: format!("fit_{short}_{f}"),
+        target,
+        kind: LoadKind::Compliance {
+            force: f.to_string(),
+            compliance: ErrorFunction::Polynomial {
+                coefficients: vec![coef],
+                range_mm: None,
+            },
+        },
+    });
 }
 
 /// The whole fit: geometry, then context on top of it. `base` is the machine without error terms.

@@ -322,24 +322,7 @@ async fn one_run(
     let (mut cycles, mut writes_ok) = (0, 0);
     let mut gateway = GatewayRun::default();
     let status = if let Some(model) = model {
-        let text = field::field_toml(
-            &format!("demo-{}", mode.key()),
-            hub.local_addr(),
-            sim.modbus,
-            &sim.weighing_pty,
-        );
-        let text = field::with_realtime_priority(&text, opts.realtime_priority);
-        // The live gateway (`--serve`): the page on the asked address and, for the plant, an
-        // OPC UA server on the port `serve_live` chose (printed beside the page's address).
-        let (text, bound) = match live {
-            Some(l) => {
-                let listen = format!("status_listen = \"{}\"", l.listen);
-                let text = text.replacen("status_listen = \"127.0.0.1:0\"", &listen, 1);
-                let opcua = format!("\n[opcua]\nlisten = \"127.0.0.1:{}\"\n", l.opcua_port);
-                (text + &opcua, Some(l.bound))
-            }
-            None => (text, None),
-        };
+        let (text, bound) = field_text(opts, mode, hub.local_addr(), &sim, live);
         let field_path = dir.join("field.toml");
         std::fs::write(&field_path, &text)?;
         let mut cfg = FieldConfig::parse(&text, &field_path)?;
@@ -367,14 +350,7 @@ async fn one_run(
             .with_context(|| format!("gateway ({})", mode.key()))?;
         cycles = summary.cycles;
         writes_ok = summary.writes_ok;
-        gateway = GatewayRun {
-            not_compensating_s: summary.not_compensating_s,
-            not_compensating_episodes: summary.not_compensating_episodes,
-            partial_s: summary.partial_s,
-            partial_episodes: summary.partial_episodes,
-            late_cycles: summary.late_cycles,
-            max_late_ms: summary.max_late_ms,
-        };
+        gateway = gateway_run(&summary);
         status
     } else {
         sim.child.wait().await
@@ -401,4 +377,48 @@ async fn one_run(
         writes_ok,
         gateway,
     })
+}
+
+/// The gateway's field config for one run: the hub, the sim's Modbus server and weighing pty;
+/// for a live run also its page's address and OPC UA section, with who to tell the bound address.
+fn field_text(
+    opts: &DemoOptions,
+    mode: Mode,
+    hub: std::net::SocketAddr,
+    sim: &sim_process::Sim,
+    live: Option<Live>,
+) -> (
+    String,
+    Option<tokio::sync::oneshot::Sender<std::net::SocketAddr>>,
+) {
+    let text = field::field_toml(
+        &format!("demo-{}", mode.key()),
+        hub,
+        sim.modbus,
+        &sim.weighing_pty,
+    );
+    let text = field::with_realtime_priority(&text, opts.realtime_priority);
+    // The live gateway (`--serve`): the page on the asked address and, for the plant, an
+    // OPC UA server on the port `serve_live` chose (printed beside the page's address).
+    match live {
+        Some(l) => {
+            let listen = format!("status_listen = \"{}\"", l.listen);
+            let text = text.replacen("status_listen = \"127.0.0.1:0\"", &listen, 1);
+            let opcua = format!("\n[opcua]\nlisten = \"127.0.0.1:{}\"\n", l.opcua_port);
+            (text + &opcua, Some(l.bound))
+        }
+        None => (text, None),
+    }
+}
+
+/// The gateway's availability and timing figures of one run, as the demo reports them.
+fn gateway_run(summary: &crate::gateway::run::RunSummary) -> GatewayRun {
+    GatewayRun {
+        not_compensating_s: summary.not_compensating_s,
+        not_compensating_episodes: summary.not_compensating_episodes,
+        partial_s: summary.partial_s,
+        partial_episodes: summary.partial_episodes,
+        late_cycles: summary.late_cycles,
+        max_late_ms: summary.max_late_ms,
+    }
 }

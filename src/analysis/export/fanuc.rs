@@ -272,60 +272,7 @@ pub fn read_tape(file: &str, text: &str) -> Result<Vec<FanucAxis>, ImportErrors>
     let mut params: BTreeMap<(u32, u8), (i64, u64)> = BTreeMap::new();
     let mut pitch: Vec<(u32, i64, u64)> = Vec::new();
     for (i, raw) in text.lines().enumerate() {
-        let line_no = i as u64 + 1;
-        let line = raw.split(['(', '#']).next().unwrap_or("").trim();
-        if line.is_empty() || line == "%" {
-            continue;
-        }
-        let mut words = line.split_whitespace();
-        let n_word = words.next().unwrap_or("");
-        let Some(param) = n_word.strip_prefix('N').and_then(|v| v.parse::<u32>().ok()) else {
-            sink.push(line_no, Some(n_word), "expected `N<parameter number>`");
-            continue;
-        };
-        let rest: Vec<&str> = words.collect();
-        if param >= PITCH_BASE {
-            match rest.as_slice() {
-                [p] if p.starts_with('P') => match p[1..].parse::<i64>() {
-                    Ok(v) => pitch.push((param - PITCH_BASE, v, line_no)),
-                    Err(_) => sink.push(line_no, Some(p), "expected `P<integer>`"),
-                },
-                _ => sink.push(
-                    line_no,
-                    Some(n_word),
-                    "pitch data needs exactly one `P<integer>` word",
-                ),
-            }
-            continue;
-        }
-        if ![1850, 1851, 3620, 3621, 3622, 3623, 3624].contains(&param) {
-            sink.push(
-                line_no,
-                Some(n_word),
-                "unsupported parameter (expected 1850, 1851, 3620–3624 or pitch data ≥ 10000)",
-            );
-            continue;
-        }
-        if rest.is_empty() || !rest.len().is_multiple_of(2) {
-            sink.push(line_no, Some(n_word), "expected `A<axis> P<value>` pairs");
-            continue;
-        }
-        for pair in rest.chunks(2) {
-            let a = pair[0].strip_prefix('A').and_then(|v| v.parse::<u8>().ok());
-            let p = pair[1]
-                .strip_prefix('P')
-                .and_then(|v| v.parse::<i64>().ok());
-            match (a, p) {
-                (Some(a), Some(p)) => {
-                    params.insert((param, a), (p, line_no));
-                }
-                _ => sink.push(
-                    line_no,
-                    Some(&format!("{} {}", pair[0], pair[1])),
-                    "expected `A<axis> P<integer>`",
-                ),
-            }
-        }
+        read_tape_line(&mut sink, i as u64 + 1, raw, &mut params, &mut pitch);
     }
     let axis_ids: std::collections::BTreeSet<u8> = params.keys().map(|(_, a)| *a).collect();
     // An empty tape (or one of comments only) would import as "no axes" and export as a tape of
@@ -339,39 +286,9 @@ pub fn read_tape(file: &str, text: &str) -> Result<Vec<FanucAxis>, ImportErrors>
     }
     let mut axes = Vec::new();
     for a in axis_ids {
-        let mut get = |p: u32| -> Option<i64> {
-            let v = params.get(&(p, a)).map(|v| v.0);
-            if v.is_none() {
-                sink.push(
-                    0,
-                    Some(&format!("N{p} A{a}")),
-                    "parameter missing for this axis",
-                );
-            }
-            v
-        };
-        let (Some(b), Some(r), Some(lo), Some(hi), Some(m), Some(iv)) = (
-            get(1851),
-            get(3620),
-            get(3621),
-            get(3622),
-            get(3623),
-            get(3624),
-        ) else {
-            continue;
-        };
-        axes.push(FanucAxis {
-            axis: a,
-            p3620_ref_point: r as u32,
-            p3621_min_point: lo as u32,
-            p3622_max_point: hi as u32,
-            p3623_magnification: m as u32,
-            p3624_interval_units: iv,
-            p1851_backlash_units: b,
-            // Optional: a tape without it has no reference-point shift.
-            p1850_ref_shift_units: params.get(&(1850, a)).map_or(0, |v| v.0),
-            values: BTreeMap::new(),
-        });
+        if let Some(axis) = tape_axis(&mut sink, &params, a) {
+            axes.push(axis);
+        }
     }
     for (n, v, line) in pitch {
         match axes
@@ -395,6 +312,112 @@ pub fn read_tape(file: &str, text: &str) -> Result<Vec<FanucAxis>, ImportErrors>
         }
     }
     sink.finish(axes)
+}
+
+/// One tape line into `params` ((parameter, axis) → (value, line)) or `pitch` (point, value,
+/// line); a line that is neither goes to `sink` with what was expected.
+fn read_tape_line(
+    sink: &mut ErrorSink,
+    line_no: u64,
+    raw: &str,
+    params: &mut BTreeMap<(u32, u8), (i64, u64)>,
+    pitch: &mut Vec<(u32, i64, u64)>,
+) {
+    let line = raw.split(['(', '#']).next().unwrap_or("").trim();
+    if line.is_empty() || line == "%" {
+        return;
+    }
+    let mut words = line.split_whitespace();
+    let n_word = words.next().unwrap_or("");
+    let Some(param) = n_word.strip_prefix('N').and_then(|v| v.parse::<u32>().ok()) else {
+        sink.push(line_no, Some(n_word), "expected `N<parameter number>`");
+        return;
+    };
+    let rest: Vec<&str> = words.collect();
+    if param >= PITCH_BASE {
+        match rest.as_slice() {
+            [p] if p.starts_with('P') => match p[1..].parse::<i64>() {
+                Ok(v) => pitch.push((param - PITCH_BASE, v, line_no)),
+                Err(_) => sink.push(line_no, Some(p), "expected `P<integer>`"),
+            },
+            _ => sink.push(
+                line_no,
+                Some(n_word),
+                "pitch data needs exactly one `P<integer>` word",
+            ),
+        }
+        return;
+    }
+    if ![1850, 1851, 3620, 3621, 3622, 3623, 3624].contains(&param) {
+        sink.push(
+            line_no,
+            Some(n_word),
+            "unsupported parameter (expected 1850, 1851, 3620–3624 or pitch data ≥ 10000)",
+        );
+        return;
+    }
+    if rest.is_empty() || !rest.len().is_multiple_of(2) {
+        sink.push(line_no, Some(n_word), "expected `A<axis> P<value>` pairs");
+        return;
+    }
+    for pair in rest.chunks(2) {
+        let a = pair[0].strip_prefix('A').and_then(|v| v.parse::<u8>().ok());
+        let p = pair[1]
+            .strip_prefix('P')
+            .and_then(|v| v.parse::<i64>().ok());
+        match (a, p) {
+            (Some(a), Some(p)) => {
+                params.insert((param, a), (p, line_no));
+            }
+            _ => sink.push(
+                line_no,
+                Some(&format!("{} {}", pair[0], pair[1])),
+                "expected `A<axis> P<integer>`",
+            ),
+        }
+    }
+}
+
+/// Axis `a` from its parameters, with no pitch values yet; `None` when a required parameter is
+/// missing (each missing one reported, in parameter order).
+fn tape_axis(
+    sink: &mut ErrorSink,
+    params: &BTreeMap<(u32, u8), (i64, u64)>,
+    a: u8,
+) -> Option<FanucAxis> {
+    let mut get = |p: u32| -> Option<i64> {
+        let v = params.get(&(p, a)).map(|v| v.0);
+        if v.is_none() {
+            sink.push(
+                0,
+                Some(&format!("N{p} A{a}")),
+                "parameter missing for this axis",
+            );
+        }
+        v
+    };
+    let (Some(b), Some(r), Some(lo), Some(hi), Some(m), Some(iv)) = (
+        get(1851),
+        get(3620),
+        get(3621),
+        get(3622),
+        get(3623),
+        get(3624),
+    ) else {
+        return None;
+    };
+    Some(FanucAxis {
+        axis: a,
+        p3620_ref_point: r as u32,
+        p3621_min_point: lo as u32,
+        p3622_max_point: hi as u32,
+        p3623_magnification: m as u32,
+        p3624_interval_units: iv,
+        p1851_backlash_units: b,
+        // Optional: a tape without it has no reference-point shift.
+        p1850_ref_shift_units: params.get(&(1850, a)).map_or(0, |v| v.0),
+        values: BTreeMap::new(),
+    })
 }
 
 #[cfg(test)]

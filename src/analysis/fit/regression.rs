@@ -142,80 +142,11 @@ pub fn select(
                 .collect()
         })
         .collect();
-    let lags = per_signal.iter().map(Vec::len).max().unwrap_or(1);
     let kmax = max_terms.min(g).min(n.saturating_sub(3));
 
-    let mut path: Vec<(Vec<usize>, f64)> = Vec::new();
-    let (sse0, _) = fit_subset(&yv, cands, &[])?;
-    path.push((vec![], sse0));
-    for k in 1..=kmax {
-        let cost = binom(g, k) * (lags as f64).powi(k as i32);
-        let best = if cost <= 20_000.0 {
-            let mut best: Option<(Vec<usize>, f64)> = None;
-            let mut chosen = Vec::new();
-            enumerate(&per_signal, 0, k, &mut chosen, &mut |idx| {
-                if let Ok((s, _)) = fit_subset(&yv, cands, idx)
-                    && best.as_ref().is_none_or(|b| s < b.1)
-                {
-                    best = Some((idx.to_vec(), s));
-                }
-            });
-            best
-        } else {
-            let prev = path.last().expect("size 0 present").0.clone();
-            let used: Vec<&str> = prev.iter().map(|&i| cands[i].signal.as_str()).collect();
-            let mut best: Option<(Vec<usize>, f64)> = None;
-            for (i, c) in cands.iter().enumerate() {
-                if used.contains(&c.signal.as_str()) {
-                    continue;
-                }
-                let mut idx = prev.clone();
-                idx.push(i);
-                let (s, _) = fit_subset(&yv, cands, &idx)?;
-                if best.as_ref().is_none_or(|b| s < b.1) {
-                    best = Some((idx, s));
-                }
-            }
-            best
-        };
-        match best {
-            Some(b) => path.push(b),
-            None => break,
-        }
-    }
-    let nf = n as f64;
-    let steps: Vec<SizeStep> = path
-        .iter()
-        .map(|(idx, s)| {
-            let p = idx.len() + 1;
-            SizeStep {
-                p,
-                signals: idx.iter().map(|&i| label(&cands[i])).collect(),
-                sse: *s,
-                cp: s / mse_full + 2.0 * p as f64 - nf,
-                bic: nf * (s.max(1e-300) / nf).ln() + p as f64 * nf.ln(),
-            }
-        })
-        .collect();
-    let pick = match criterion {
-        Criterion::Bic => steps
-            .iter()
-            .enumerate()
-            .min_by(|a, b| a.1.bic.total_cmp(&b.1.bic))
-            .map(|(i, _)| i)
-            .unwrap_or(0),
-        Criterion::Cp => steps
-            .iter()
-            .position(|s| s.cp <= s.p as f64)
-            .unwrap_or_else(|| {
-                steps
-                    .iter()
-                    .enumerate()
-                    .min_by(|a, b| a.1.cp.total_cmp(&b.1.cp))
-                    .map(|(i, _)| i)
-                    .unwrap_or(0)
-            }),
-    };
+    let path = best_subsets(&yv, cands, &per_signal, kmax)?;
+    let steps = size_steps(&path, cands, mse_full, n);
+    let pick = pick_size(&steps, criterion);
     let idx = &path[pick].0;
     let (_, beta) = fit_subset(&yv, cands, idx)?;
     let model = LinearModel {
@@ -236,6 +167,109 @@ pub fn select(
         path: steps,
         model,
     })
+}
+
+/// A subset of candidate indices and its SSE.
+type Subset = (Vec<usize>, f64);
+
+/// The best subset of each size 0..=`kmax` (fewer when no subset of a size fits): exhaustive
+/// while that is cheap, else the best of the size below extended greedily.
+fn best_subsets(
+    yv: &DVector<f64>,
+    cands: &[Candidate],
+    per_signal: &[Vec<usize>],
+    kmax: usize,
+) -> Result<Vec<Subset>, RegressionError> {
+    let g = per_signal.len();
+    let lags = per_signal.iter().map(Vec::len).max().unwrap_or(1);
+    let mut path: Vec<Subset> = Vec::new();
+    let (sse0, _) = fit_subset(yv, cands, &[])?;
+    path.push((vec![], sse0));
+    for k in 1..=kmax {
+        let cost = binom(g, k) * (lags as f64).powi(k as i32);
+        let best = if cost <= 20_000.0 {
+            let mut best: Option<Subset> = None;
+            let mut chosen = Vec::new();
+            enumerate(per_signal, 0, k, &mut chosen, &mut |idx| {
+                if let Ok((s, _)) = fit_subset(yv, cands, idx)
+                    && best.as_ref().is_none_or(|b| s < b.1)
+                {
+                    best = Some((idx.to_vec(), s));
+                }
+            });
+            best
+        } else {
+            extend_greedily(yv, cands, &path.last().expect("size 0 present").0)?
+        };
+        match best {
+            Some(b) => path.push(b),
+            None => break,
+        }
+    }
+    Ok(path)
+}
+
+/// `prev` plus the one candidate of a signal not in it that lowers the SSE most (the first of
+/// equals); `None` when every signal is in already.
+fn extend_greedily(
+    yv: &DVector<f64>,
+    cands: &[Candidate],
+    prev: &[usize],
+) -> Result<Option<Subset>, RegressionError> {
+    let used: Vec<&str> = prev.iter().map(|&i| cands[i].signal.as_str()).collect();
+    let mut best: Option<Subset> = None;
+    for (i, c) in cands.iter().enumerate() {
+        if used.contains(&c.signal.as_str()) {
+            continue;
+        }
+        let mut idx = prev.to_vec();
+        idx.push(i);
+        let (s, _) = fit_subset(yv, cands, &idx)?;
+        if best.as_ref().is_none_or(|b| s < b.1) {
+            best = Some((idx, s));
+        }
+    }
+    Ok(best)
+}
+
+/// Cp and BIC of each size's best subset, for choosing the size and for the report.
+fn size_steps(path: &[Subset], cands: &[Candidate], mse_full: f64, n: usize) -> Vec<SizeStep> {
+    let nf = n as f64;
+    path.iter()
+        .map(|(idx, s)| {
+            let p = idx.len() + 1;
+            SizeStep {
+                p,
+                signals: idx.iter().map(|&i| label(&cands[i])).collect(),
+                sse: *s,
+                cp: s / mse_full + 2.0 * p as f64 - nf,
+                bic: nf * (s.max(1e-300) / nf).ln() + p as f64 * nf.ln(),
+            }
+        })
+        .collect()
+}
+
+/// The chosen step: lowest BIC, or the smallest size whose Cp ≤ p (else the lowest Cp).
+fn pick_size(steps: &[SizeStep], criterion: Criterion) -> usize {
+    match criterion {
+        Criterion::Bic => steps
+            .iter()
+            .enumerate()
+            .min_by(|a, b| a.1.bic.total_cmp(&b.1.bic))
+            .map(|(i, _)| i)
+            .unwrap_or(0),
+        Criterion::Cp => steps
+            .iter()
+            .position(|s| s.cp <= s.p as f64)
+            .unwrap_or_else(|| {
+                steps
+                    .iter()
+                    .enumerate()
+                    .min_by(|a, b| a.1.cp.total_cmp(&b.1.cp))
+                    .map(|(i, _)| i)
+                    .unwrap_or(0)
+            }),
+    }
 }
 
 fn label(c: &Candidate) -> String {

@@ -288,39 +288,47 @@ fn cell_f64(
 
 const SCALE_COLS: [&str; 3] = ["T_scale_x_C", "T_scale_y_C", "T_scale_z_C"];
 
+/// The hole-plate side file's keys: plane, expansion, certificate uncertainty and the scales'
+/// expansion, each problem reported in `iss` (the defaults stand in for what is missing).
+fn hole_plate_side(s: &Side, iss: &mut Issues) -> (Plane, f64, f64, Option<f64>) {
+    let mut plane = Plane::Xy;
+    s.check_keys(
+        &[
+            "kind",
+            "plane",
+            "alpha_ppm_per_K",
+            "certificate_uncertainty_um",
+            "scale_alpha_ppm_per_K",
+        ],
+        iss,
+    );
+    s.kind("hole_plate", iss);
+    match s.table.get("plane").and_then(|v| v.as_str()) {
+        Some(p) => match Plane::parse(p) {
+            Some(p) => plane = p,
+            None => iss.at(
+                s.line("plane"),
+                format!("key `plane`: \"{p}\", expected \"xy\", \"xz\" or \"yz\""),
+            ),
+        },
+        None => iss.at(1, "key `plane` missing: expected \"xy\", \"xz\" or \"yz\""),
+    }
+    let alpha = s.num("alpha_ppm_per_K", true, iss).unwrap_or(0.0);
+    let unc = s
+        .num("certificate_uncertainty_um", true, iss)
+        .unwrap_or(0.0);
+    let scale_alpha = s.num("scale_alpha_ppm_per_K", false, iss);
+    (plane, alpha, unc, scale_alpha)
+}
+
 /// Reads one hole-plate placement: CSV text and side-file text, `name` for messages (the stem).
 pub fn read_hole_plate(name: &str, csv: &str, side: &str) -> Result<HolePlate, ContractError> {
     let mut iss = Issues::new(&format!("{name}.toml"));
     let s = Side::parse(side, &mut iss);
-    let (mut plane, mut alpha, mut unc, mut scale_alpha) = (Plane::Xy, 0.0, 0.0, None);
-    if let Some(s) = &s {
-        s.check_keys(
-            &[
-                "kind",
-                "plane",
-                "alpha_ppm_per_K",
-                "certificate_uncertainty_um",
-                "scale_alpha_ppm_per_K",
-            ],
-            &mut iss,
-        );
-        s.kind("hole_plate", &mut iss);
-        match s.table.get("plane").and_then(|v| v.as_str()) {
-            Some(p) => match Plane::parse(p) {
-                Some(p) => plane = p,
-                None => iss.at(
-                    s.line("plane"),
-                    format!("key `plane`: \"{p}\", expected \"xy\", \"xz\" or \"yz\""),
-                ),
-            },
-            None => iss.at(1, "key `plane` missing: expected \"xy\", \"xz\" or \"yz\""),
-        }
-        alpha = s.num("alpha_ppm_per_K", true, &mut iss).unwrap_or(0.0);
-        unc = s
-            .num("certificate_uncertainty_um", true, &mut iss)
-            .unwrap_or(0.0);
-        scale_alpha = s.num("scale_alpha_ppm_per_K", false, &mut iss);
-    }
+    let (plane, alpha, unc, scale_alpha) = match &s {
+        Some(s) => hole_plate_side(s, &mut iss),
+        None => (Plane::Xy, 0.0, 0.0, None),
+    };
     let side_issues = iss.list;
     let mut iss = Issues::new(&format!("{name}.csv"));
     iss.list = side_issues;

@@ -52,32 +52,7 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         .headers()
         .with_context(|| format!("{file}:1: cannot read the header row"))?
         .clone();
-    let axis_col = |a: char| find(&headers, &format!("{a}_mm"));
-    let cols = Columns {
-        pos: [axis_col('x'), axis_col('y'), axis_col('z')],
-        dir: [
-            find(&headers, "dir_x"),
-            find(&headers, "dir_y"),
-            find(&headers, "dir_z"),
-        ],
-        t: find(&headers, "t_s"),
-        tool: find(&headers, "tool_mm"),
-        temps: model
-            .sensor_columns()
-            .iter()
-            .map(|n| find(&headers, n))
-            .collect(),
-        forces: model
-            .force_channels()
-            .iter()
-            .map(|n| find(&headers, &format!("F_{n}_N")))
-            .collect(),
-        strains: model
-            .strain_channels()
-            .iter()
-            .map(|n| find(&headers, &format!("strain_{n}_ue")))
-            .collect(),
-    };
+    let cols = columns(&headers, &model);
     let missing_axes: Vec<String> = model
         .axes()
         .iter()
@@ -87,7 +62,85 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     // A model with no position-dependent term (e.g. thermal-only, from `diagnose --out` on an
     // ISO 230-3 recording) runs over a recording without axis columns: missing axes are held at
     // the start of their travel (0 mm without one), which no term reads.
-    let held_mm: [f64; 3] = std::array::from_fn(|a| {
+    let held_mm = held_axes_mm(&model);
+    if !missing_axes.is_empty() && model.is_position_dependent() {
+        bail!(
+            "{file}:1: missing column(s) {} (the model's axes need them)",
+            missing_axes.join(", ")
+        );
+    }
+    warn_missing_columns(&file, &model, &cols);
+
+    // One pass: every row is checked as it is evaluated, and the output goes where it can be taken
+    // back or held (`Output`), so a bad row anywhere still means nothing is written. Memory stays
+    // bounded whatever the file's length (holding the rows took 865 MB for 10⁶ of them). Reading
+    // and tokenising the file once instead of twice (check, then evaluate) was the largest cost
+    // after the output's own.
+    let rows = RowReader {
+        file: &file,
+        headers: &headers,
+        cols: &cols,
+        held_mm,
+    };
+    let header = output_header(&headers, &model)?;
+    let mut output = Output::for_stdout();
+    let rdr = open(&args.path, &file)?;
+    match evaluate_rows(args, &model, &rows, rdr, &header, &mut output) {
+        Ok(problems) if problems.count == 0 => output.finish(),
+        Ok(problems) => {
+            output.discard()?;
+            let n = problems.count;
+            let more = if n > problems.shown.len() {
+                format!("\n… and {} more", n - problems.shown.len())
+            } else {
+                String::new()
+            };
+            bail!(
+                "{n} bad row(s) in the path file, nothing evaluated:\n{}{more}",
+                problems.shown.join("\n")
+            );
+        }
+        Err(e) => {
+            // The error (e.g. a full disk) is what is reported; nothing is left written either way.
+            let _ = output.discard();
+            Err(e)
+        }
+    }
+}
+
+/// Where each input the model reads sits in the header (`None`: the column is absent).
+fn columns(headers: &csv::StringRecord, model: &MachineModel) -> Columns {
+    let axis_col = |a: char| find(headers, &format!("{a}_mm"));
+    Columns {
+        pos: [axis_col('x'), axis_col('y'), axis_col('z')],
+        dir: [
+            find(headers, "dir_x"),
+            find(headers, "dir_y"),
+            find(headers, "dir_z"),
+        ],
+        t: find(headers, "t_s"),
+        tool: find(headers, "tool_mm"),
+        temps: model
+            .sensor_columns()
+            .iter()
+            .map(|n| find(headers, n))
+            .collect(),
+        forces: model
+            .force_channels()
+            .iter()
+            .map(|n| find(headers, &format!("F_{n}_N")))
+            .collect(),
+        strains: model
+            .strain_channels()
+            .iter()
+            .map(|n| find(headers, &format!("strain_{n}_ue")))
+            .collect(),
+    }
+}
+
+/// Where a missing axis is held: the start of its travel, 0 mm for an axis without one.
+fn held_axes_mm(model: &MachineModel) -> [f64; 3] {
+    std::array::from_fn(|a| {
         model
             .spec()
             .axes
@@ -95,13 +148,12 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
             .find(|s| s.axis.index() == a)
             .and_then(|s| s.travel_mm)
             .map_or(0.0, |t| t.0)
-    });
-    if !missing_axes.is_empty() && model.is_position_dependent() {
-        bail!(
-            "{file}:1: missing column(s) {} (the model's axes need them)",
-            missing_axes.join(", ")
-        );
-    }
+    })
+}
+
+/// One stderr warning per sensor, force or strain input of the model that has no column, saying
+/// what the evaluation assumes instead.
+fn warn_missing_columns(file: &str, model: &MachineModel, cols: &Columns) {
     let warn_missing =
         |names: &[String], c: &[Option<usize>], fmt: &dyn Fn(&str) -> String, what: &str| {
             for (n, c) in names.iter().zip(c) {
@@ -128,18 +180,11 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         &|n| format!("strain_{n}_ue"),
         "the strain is taken as 0",
     );
+}
 
-    // One pass: every row is checked as it is evaluated, and the output goes where it can be taken
-    // back or held (`Output`), so a bad row anywhere still means nothing is written. Memory stays
-    // bounded whatever the file's length (holding the rows took 865 MB for 10⁶ of them). Reading
-    // and tokenising the file once instead of twice (check, then evaluate) was the largest cost
-    // after the output's own.
-    let rows = RowReader {
-        file: &file,
-        headers: &headers,
-        cols: &cols,
-        held_mm,
-    };
+/// The output's header row as CSV bytes: the input's columns, the totals, each term's three
+/// components and `flags`.
+fn output_header(headers: &csv::StringRecord, model: &MachineModel) -> anyhow::Result<Vec<u8>> {
     let mut header: Vec<String> = headers.iter().map(|s| s.to_string()).collect();
     header.extend(["ex_um", "ey_um", "ez_um"].map(String::from));
     for n in model.term_names() {
@@ -150,30 +195,7 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     header.push("flags".into());
     let mut hw = csv::Writer::from_writer(Vec::new());
     hw.write_record(&header)?;
-    let header = hw.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
-    let mut output = Output::for_stdout();
-    let rdr = open(&args.path, &file)?;
-    match evaluate_rows(args, &model, &rows, rdr, &header, &mut output) {
-        Ok(problems) if problems.count == 0 => output.finish(),
-        Ok(problems) => {
-            output.discard()?;
-            let n = problems.count;
-            let more = if n > problems.shown.len() {
-                format!("\n… and {} more", n - problems.shown.len())
-            } else {
-                String::new()
-            };
-            bail!(
-                "{n} bad row(s) in the path file, nothing evaluated:\n{}{more}",
-                problems.shown.join("\n")
-            );
-        }
-        Err(e) => {
-            // The error (e.g. a full disk) is what is reported; nothing is left written either way.
-            let _ = output.discard();
-            Err(e)
-        }
-    }
+    hw.into_inner().map_err(|e| anyhow::anyhow!("{e}"))
 }
 
 /// Space-separated flag words, e.g. `clamped_x missing_input`, written into `out`.
