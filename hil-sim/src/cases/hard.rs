@@ -26,7 +26,11 @@ use retrocomp::recording::Recording;
 
 use super::physics::*;
 use super::trajectory::uniform;
-use super::{DT_S, Program, build_path, draw_effect, rms_centered, signed};
+use super::{
+    Drive, Errors, Program, build_path, contribution, draw_effect, error_columns,
+    large_modelled_terms, path_speed, quantized_errors, rms_centered, schedule_slot, signed,
+    time_axis, truth_columns, x_range,
+};
 
 /// A family of cases; `Standard` is [`super::generate_case`] (unchanged output for old seeds).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -100,132 +104,32 @@ pub fn generate_family_case(family: Family, seed: u64, index: usize) -> (Recordi
     let mut rng = ChaCha8Rng::seed_from_u64(
         seed ^ family.salt() ^ (index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
     );
-    let is_null = index % 10 < 3;
-    let j = index - (index / 10) * 3 - (index % 10).min(3);
+    let (is_null, j) = schedule_slot(index);
     let id = match family {
         Family::RpmHeat => "rpm_lag",
         Family::Regime => ["thermal_lag", "thermal_drift", "thermal_expansion"][j % 3],
         _ => EFFECT_IDS[j % EFFECT_IDS.len()],
     };
     let mut fp: BTreeMap<String, f64> = BTreeMap::new();
-    let path = build_path(&mut rng, Program::Standard);
-    let n = path.len();
-    let t_s: Vec<f64> = (0..n).map(|i| i as f64 * DT_S).collect();
-    let duration = t_s[n - 1];
-    let rpm = match family {
-        Family::RpmHeat => rpm_steps(&mut rng, &t_s, (1500.0, 8000.0), None, &mut fp),
-        Family::Regime => rpm_steps(
-            &mut rng,
-            &t_s,
-            (1000.0, 3000.0),
-            Some((0.6, (4500.0, 8000.0))),
-            &mut fp,
-        ),
-        _ => {
-            // The standard profile: warm-up at one speed, then cool-down.
-            let t_off = duration * uniform(&mut rng, 0.55, 0.7);
-            let level = uniform(&mut rng, 4000.0, 8000.0);
-            t_s.iter()
-                .map(|&t| if t < t_off { level } else { 0.0 })
-                .collect()
-        }
-    };
-    let ambient_c = ambient(&mut rng, family, &t_s, &mut fp);
-    let speed: Vec<f64> = (0..n)
-        .map(|i| {
-            if i == 0 {
-                0.0
-            } else {
-                (path.x_mm[i] - path.x_mm[i - 1]).hypot(path.y_mm[i] - path.y_mm[i - 1]) / DT_S
-            }
-        })
-        .collect();
-    let tau_node = uniform(&mut rng, 300.0, 700.0);
-    let k_heat = uniform(&mut rng, 0.8, 1.2);
-    // rpm_heat: the column node gets no spindle heat (no temperature sensor near the source).
-    let spindle_share = if family == Family::RpmHeat { 0.0 } else { 0.4 };
-    let th = thermal_with_ambient(
-        &t_s,
-        ambient_c,
-        &rpm,
-        &speed,
-        k_heat,
-        tau_node,
-        1500.0,
-        spindle_share,
-    );
-    let force_level_n = uniform(&mut rng, 150.0, 500.0);
-    let force = cutting_force(&mut rng, &path.cut, force_level_n);
-    let run: Vec<f64> = path.run.iter().map(|&r| r as f64).collect();
-    let truth_rec = Recording::from_columns(vec![
-        ("t_s".into(), t_s.clone()),
-        ("x_mm".into(), path.x_mm.clone()),
-        ("y_mm".into(), path.y_mm.clone()),
-        ("ex_um".into(), vec![0.0; n]),
-        ("T_spindle_C".into(), th.spindle_c.clone()),
-        ("T_column_C".into(), th.structure_c.clone()),
-        ("F_cut_N".into(), force.clone()),
-        ("tool_mm".into(), path.tool_mm.clone()),
-        ("run".into(), run.clone()),
-        ("rpm".into(), rpm.clone()),
-    ])
-    .expect("generator columns are valid");
+    let d = family_drive(&mut rng, family, &mut fp);
+    let n = d.t_s.len();
+    let mut truth_cols = truth_columns(&d);
+    truth_cols.push(("rpm".into(), d.rpm.clone()));
+    let truth_rec = Recording::from_columns(truth_cols).expect("generator columns are valid");
     let mut tctx = Context::from_recording(&truth_rec);
     // The rpm-driven lag is evaluated by the shared forward model with `rpm` as its driver.
-    tctx.temps.push(("rpm".into(), rpm.clone().into()));
-    let x_range = (
-        path.x_mm.iter().copied().fold(f64::INFINITY, f64::min),
-        path.x_mm.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-    );
+    tctx.temps.push(("rpm".into(), d.rpm.clone().into()));
+    let x_range = x_range(&d.path);
     let mut hidden = vec![];
     if !is_null {
-        hidden.push(match id {
-            "rpm_lag" => {
-                let tau_s = uniform(&mut rng, 300.0, 1200.0);
-                fp.insert("rpm_tau_s".into(), tau_s);
-                TruthEffect {
-                    signal: "ex_um".into(),
-                    axis: "x".into(),
-                    model: EffectModel::ThermalLag {
-                        sensor: "rpm".into(),
-                        tau_s,
-                        // µm per rpm (0.5–3 µm per 1000 rpm).
-                        um_per_k: signed(&mut rng, 0.5, 3.0) * 1e-3,
-                    },
-                }
-            }
-            id => draw_effect(&mut rng, id, x_range),
-        });
+        hidden.push(family_effect(&mut rng, id, x_range, &mut fp));
     }
-    let mut modelled = vec![];
-    if is_null && rng.random_bool(0.5) {
-        modelled.push(TruthEffect {
-            signal: "ex_um".into(),
-            axis: "x".into(),
-            model: EffectModel::ScaleError {
-                ppm: uniform(&mut rng, 40.0, 80.0),
-            },
-        });
-        modelled.push(TruthEffect {
-            signal: "ey_um".into(),
-            axis: "y".into(),
-            model: EffectModel::Squareness {
-                other_axis: 'x',
-                urad: uniform(&mut rng, 20.0, 60.0),
-            },
-        });
-    }
-    let contrib = |effs: &[TruthEffect], sig: &str| -> Vec<f64> {
-        let mut v = vec![0.0; n];
-        for e in effs.iter().filter(|e| e.signal == sig) {
-            let c = e
-                .model
-                .evaluate(e.axis.chars().next().expect("axis"), &tctx)
-                .expect("truth inputs exist");
-            v.iter_mut().zip(c).for_each(|(a, b)| *a += b);
-        }
-        v
+    let modelled = if is_null && rng.random_bool(0.5) {
+        large_modelled_terms(&mut rng)
+    } else {
+        vec![]
     };
+    let contrib = |effs: &[TruthEffect], sig: &str| contribution(effs, sig, n, &tctx);
     let (hx, hy) = (contrib(&hidden, "ex_um"), contrib(&hidden, "ey_um"));
     let (mx, my) = (contrib(&modelled, "ex_um"), contrib(&modelled, "ey_um"));
     let effect_rms = hidden
@@ -238,54 +142,13 @@ pub fn generate_family_case(family: Family, seed: u64, index: usize) -> (Recordi
         Some(s) => effect_rms / s,
     };
     let (nx, ny, noise_desc) = noise(&mut rng, family, n, noise_um, &mut fp);
-    let ex_um: Vec<f64> = (0..n)
-        .map(|i| quantize(hx[i] + mx[i] + nx[i], 0.05))
-        .collect();
-    let ey_um: Vec<f64> = (0..n)
-        .map(|i| quantize(hy[i] + my[i] + ny[i], 0.05))
-        .collect();
-    let t_column = temp_sensor(&mut rng, &t_s, &th.structure_c, 30.0, 0.02);
-    let t_amb = temp_sensor(&mut rng, &t_s, &th.ambient_c, 60.0, 0.02);
-    let (t_decoy, aux) = if family == Family::RwDecoy {
-        let (d, cx) = correlated_walk_decoy(&mut rng, &nx, 21.0, 0.01, 20);
-        let (a, cy) = correlated_walk_decoy(&mut rng, &ny, 0.0, 0.05, 20);
-        fp.insert("decoy_corr_ex".into(), cx);
-        fp.insert("aux_corr_ey".into(), cy);
-        (d, a)
-    } else {
-        (
-            random_walk(&mut rng, n, 21.0, 0.01),
-            random_walk(&mut rng, n, 0.0, 0.05),
-        )
+    let errors = Errors {
+        ex_um: quantized_errors(&hx, &mx, &nx),
+        ey_um: quantized_errors(&hy, &my, &ny),
+        sim_ex_um: mx,
+        sim_ey_um: my,
     };
-    let f_cut = load_cell(&mut rng, &force, 2.0);
-    let strain = strain_gauge(&mut rng, &force, &t_column, 0.05, 2.0);
-    let mut cols = vec![
-        ("t_s".to_string(), t_s.clone()),
-        ("x_mm".into(), path.x_mm.clone()),
-        ("y_mm".into(), path.y_mm.clone()),
-        ("ex_um".into(), ex_um),
-        ("ey_um".into(), ey_um),
-        ("sim_ex_um".into(), mx),
-        ("sim_ey_um".into(), my),
-    ];
-    if family != Family::RpmHeat {
-        cols.push((
-            "T_spindle_C".into(),
-            temp_sensor(&mut rng, &t_s, &th.spindle_c, 15.0, 0.02),
-        ));
-    }
-    cols.extend([
-        ("T_column_C".into(), t_column),
-        ("T_amb_C".into(), t_amb),
-        ("T_decoy_C".into(), t_decoy),
-        ("rpm".into(), rpm),
-        ("F_cut_N".into(), f_cut),
-        ("strain_col_ue".into(), strain),
-        ("tool_mm".into(), path.tool_mm.clone()),
-        ("aux_V".into(), aux),
-        ("run".into(), run),
-    ]);
+    let cols = family_columns(&mut rng, family, d, errors, (&nx, &ny), &mut fp);
     let rec = Recording::from_columns(cols).expect("generated recording is valid");
     let notes = format!(
         "family {}; program Standard; thermal truth on node temperatures (sensors lag 15/30/60 s, \
@@ -308,6 +171,136 @@ pub fn generate_family_case(family: Family, seed: u64, index: usize) -> (Recordi
         notes,
     };
     (rec, manifest)
+}
+
+/// The family's motion, spindle, ambient, thermal and force draws, in the generator's fixed order:
+/// the standard program, with the family's rpm profile, ambient and spindle-to-column heat share.
+fn family_drive(rng: &mut ChaCha8Rng, family: Family, fp: &mut BTreeMap<String, f64>) -> Drive {
+    let path = build_path(rng, Program::Standard);
+    let n = path.len();
+    let t_s = time_axis(n);
+    let duration = t_s[n - 1];
+    let rpm = match family {
+        Family::RpmHeat => rpm_steps(rng, &t_s, (1500.0, 8000.0), None, fp),
+        Family::Regime => rpm_steps(
+            rng,
+            &t_s,
+            (1000.0, 3000.0),
+            Some((0.6, (4500.0, 8000.0))),
+            fp,
+        ),
+        _ => {
+            // The standard profile: warm-up at one speed, then cool-down.
+            let t_off = duration * uniform(rng, 0.55, 0.7);
+            let level = uniform(rng, 4000.0, 8000.0);
+            t_s.iter()
+                .map(|&t| if t < t_off { level } else { 0.0 })
+                .collect()
+        }
+    };
+    let ambient_c = ambient(rng, family, &t_s, fp);
+    let speed = path_speed(&path);
+    let tau_node = uniform(rng, 300.0, 700.0);
+    let k_heat = uniform(rng, 0.8, 1.2);
+    // rpm_heat: the column node gets no spindle heat (no temperature sensor near the source).
+    let spindle_share = if family == Family::RpmHeat { 0.0 } else { 0.4 };
+    let th = thermal_with_ambient(
+        &t_s,
+        ambient_c,
+        &rpm,
+        &speed,
+        k_heat,
+        tau_node,
+        1500.0,
+        spindle_share,
+    );
+    let force_level_n = uniform(rng, 150.0, 500.0);
+    let force = cutting_force(rng, &path.cut, force_level_n);
+    let run = path.run.iter().map(|&r| r as f64).collect();
+    Drive {
+        path,
+        t_s,
+        rpm,
+        th,
+        force,
+        run,
+    }
+}
+
+/// The hidden effect of an effect case: `rpm_lag` (the rpm_heat family's heat source seen only
+/// through `rpm`, its lag recorded in `fp`), otherwise a standard effect of id `id`.
+fn family_effect(
+    rng: &mut ChaCha8Rng,
+    id: &str,
+    x_range: (f64, f64),
+    fp: &mut BTreeMap<String, f64>,
+) -> TruthEffect {
+    match id {
+        "rpm_lag" => {
+            let tau_s = uniform(rng, 300.0, 1200.0);
+            fp.insert("rpm_tau_s".into(), tau_s);
+            TruthEffect {
+                signal: "ex_um".into(),
+                axis: "x".into(),
+                model: EffectModel::ThermalLag {
+                    sensor: "rpm".into(),
+                    tau_s,
+                    // µm per rpm (0.5–3 µm per 1000 rpm).
+                    um_per_k: signed(rng, 0.5, 3.0) * 1e-3,
+                },
+            }
+        }
+        id => draw_effect(rng, id, x_range),
+    }
+}
+
+/// The family's recorded columns, sensors drawn in the generator's fixed order: `rw_decoy` picks
+/// its decoys for correlation with the error noise `(nx, ny)`; `rpm_heat` records no spindle
+/// temperature.
+fn family_columns(
+    rng: &mut ChaCha8Rng,
+    family: Family,
+    d: Drive,
+    errors: Errors,
+    (nx, ny): (&[f64], &[f64]),
+    fp: &mut BTreeMap<String, f64>,
+) -> Vec<(String, Vec<f64>)> {
+    let n = d.t_s.len();
+    let t_column = temp_sensor(rng, &d.t_s, &d.th.structure_c, 30.0, 0.02);
+    let t_amb = temp_sensor(rng, &d.t_s, &d.th.ambient_c, 60.0, 0.02);
+    let (t_decoy, aux) = if family == Family::RwDecoy {
+        let (decoy, cx) = correlated_walk_decoy(rng, nx, 21.0, 0.01, 20);
+        let (a, cy) = correlated_walk_decoy(rng, ny, 0.0, 0.05, 20);
+        fp.insert("decoy_corr_ex".into(), cx);
+        fp.insert("aux_corr_ey".into(), cy);
+        (decoy, a)
+    } else {
+        (
+            random_walk(rng, n, 21.0, 0.01),
+            random_walk(rng, n, 0.0, 0.05),
+        )
+    };
+    let f_cut = load_cell(rng, &d.force, 2.0);
+    let strain = strain_gauge(rng, &d.force, &t_column, 0.05, 2.0);
+    let mut cols = error_columns(d.t_s.clone(), &d.path, errors);
+    if family != Family::RpmHeat {
+        cols.push((
+            "T_spindle_C".into(),
+            temp_sensor(rng, &d.t_s, &d.th.spindle_c, 15.0, 0.02),
+        ));
+    }
+    cols.extend([
+        ("T_column_C".into(), t_column),
+        ("T_amb_C".into(), t_amb),
+        ("T_decoy_C".into(), t_decoy),
+        ("rpm".into(), d.rpm),
+        ("F_cut_N".into(), f_cut),
+        ("strain_col_ue".into(), strain),
+        ("tool_mm".into(), d.path.tool_mm),
+        ("aux_V".into(), aux),
+        ("run".into(), d.run),
+    ]);
+    cols
 }
 
 /// Spindle speed in steps: idle for the first 5–10 min (the machine starts cold), then segments of
