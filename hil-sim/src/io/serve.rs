@@ -219,8 +219,54 @@ pub async fn start(
     out: Option<&Path>,
 ) -> anyhow::Result<Running> {
     let io = cfg.io.clone();
-    let mut world = World::new(cfg)?;
+    let world = World::new(cfg)?;
     let bank = RegisterBank::new();
+    let (n, ack) = serve_plc_window(&world, &bank)?;
+    let clock = SimClock::default();
+    let (write_log_tx, write_log) = tokio::sync::mpsc::unbounded_channel::<WriteEvent>();
+    let tr = open_transports(&io, &world, &bank, n, &clock, &write_log_tx, mem.as_ref()).await?;
+    let outputs = open_outputs(out, &world, tr.tcp.is_some())?;
+    drop(write_log_tx);
+    let modbus_tcp = tr.tcp.as_ref().map(|srv| srv.local_addr());
+    let schedule = Schedule::new(io.faults.clone());
+    // Mean 30 ms between bursts: about one and a half per weighing line at 50 lines/s.
+    let garbage = Garbage::new(world.config().seed, 0.03);
+    let publisher = Publisher::new(io, &world);
+    let (status_tx, status) = watch::channel(Status::default());
+    let sim = SimTask {
+        world,
+        bank: bank.clone(),
+        n,
+        ack,
+        clock,
+        tcp: tr.tcp,
+        rtu_mute: tr.rtu_mute,
+        can: tr.can,
+        weigh: tr.weigh,
+        outputs,
+        write_log,
+        schedule,
+        garbage,
+        publisher,
+        status_tx,
+        dropped: 0,
+    };
+    let task = tokio::spawn(sim.run());
+    Ok(Running {
+        modbus_tcp,
+        rtu_pty: tr.rtu_pty,
+        weighing_pty: tr.weighing_pty,
+        bank,
+        status,
+        task,
+        _rtu: tr.rtu,
+        _keep_open: tr.keep,
+    })
+}
+
+/// Serve the PLC window as the holding block: its current words, client-writable except the ack
+/// register (which belongs to the PLC). Returns the window length and the ack register.
+fn serve_plc_window(world: &World, bank: &RegisterBank) -> anyhow::Result<(u16, Option<u16>)> {
     let n = world.plc().len() as u16;
     let ack = world
         .plc()
@@ -234,10 +280,34 @@ pub async fn start(
             bank.allow_writes(a, 1);
         }
     }
+    Ok((n, ack))
+}
+
+/// The configured transports, open: what the simulation task feeds and what [`Running`] keeps.
+struct Transports {
+    tcp: Option<PlcServer>,
+    rtu: Option<JoinHandle<std::io::Result<()>>>,
+    rtu_mute: Option<RtuMute>,
+    rtu_pty: Option<PathBuf>,
+    weigh: Option<SerialStream>,
+    weighing_pty: Option<PathBuf>,
+    can: Option<AnyCanBus>,
+    /// The pty slaves, kept open so the ptys stay up while no client has them open.
+    keep: Vec<SerialStream>,
+}
+
+/// Open the transports of `io`, in order: Modbus TCP, the RTU pty, the weighing pty, CAN.
+async fn open_transports(
+    io: &crate::io::IoConfig,
+    world: &World,
+    bank: &RegisterBank,
+    n: u16,
+    clock: &SimClock,
+    write_log_tx: &tokio::sync::mpsc::UnboundedSender<WriteEvent>,
+    mem: Option<&MemBus>,
+) -> anyhow::Result<Transports> {
     let (mut tcp, mut rtu, mut rtu_pty, mut keep) = (None, None, None, Vec::new());
     let mut rtu_mute = None;
-    let clock = SimClock::default();
-    let (write_log_tx, mut write_log) = tokio::sync::mpsc::unbounded_channel::<WriteEvent>();
     if let Some(mb) = &io.modbus {
         if let Some(b) = &mb.tcp_bind {
             let addr: SocketAddr = b
@@ -272,15 +342,37 @@ pub async fn start(
         keep.push(slave);
         weighing_pty = Some(dev);
     }
-    let mut can: Option<AnyCanBus> = match &io.can {
+    let can: Option<AnyCanBus> = match &io.can {
         Some(c) => Some(
-            open_can(&c.backend, mem.as_ref())
+            open_can(&c.backend, mem)
                 .await
                 .map_err(|e| anyhow::anyhow!("io.can: {e}"))?,
         ),
         None => None,
     };
-    let mut rec = match out {
+    Ok(Transports {
+        tcp,
+        rtu,
+        rtu_mute,
+        rtu_pty,
+        weigh,
+        weighing_pty,
+        can,
+        keep,
+    })
+}
+
+/// The files written into `out`: the recording (after manifest.json), the PLC's latch log and,
+/// with a Modbus TCP server, its client-write log.
+struct Outputs {
+    rec: Option<Recorder<std::io::BufWriter<std::fs::File>>>,
+    latches_csv: Option<std::io::BufWriter<std::fs::File>>,
+    writes_csv: Option<std::io::BufWriter<std::fs::File>>,
+}
+
+/// Create the output files in `out` (nothing without it) with their headers and first rows.
+fn open_outputs(out: Option<&Path>, world: &World, has_tcp: bool) -> anyhow::Result<Outputs> {
+    let rec = match out {
         Some(dir) => {
             std::fs::create_dir_all(dir)?;
             std::fs::write(
@@ -288,14 +380,13 @@ pub async fn start(
                 serde_json::to_string_pretty(&world.manifest())? + "\n",
             )?;
             let f = std::io::BufWriter::new(std::fs::File::create(dir.join("recording.csv"))?);
-            let mut r = Recorder::new(f, &world)?;
+            let mut r = Recorder::new(f, world)?;
             r.write(world.readings())?;
             Some(r)
         }
         None => None,
     };
-    // Every client write to the PLC window, for observers (tests assert clamp/cap/no-jump on it).
-    let mut latches_csv = match out {
+    let latches_csv = match out {
         Some(dir) => {
             let mut f =
                 std::io::BufWriter::new(std::fs::File::create(dir.join("plc_latches.csv"))?);
@@ -304,149 +395,189 @@ pub async fn start(
         }
         None => None,
     };
-    let mut writes_csv = match (out, &tcp) {
-        (Some(dir), Some(_)) => {
+    // Every client write to the PLC window, for observers (tests assert clamp/cap/no-jump on it).
+    let writes_csv = match (out, has_tcp) {
+        (Some(dir), true) => {
             let mut f = std::io::BufWriter::new(std::fs::File::create(dir.join("plc_writes.csv"))?);
             std::io::Write::write_all(&mut f, WriteEvent::CSV_HEADER.as_bytes())?;
             Some(f)
         }
         _ => None,
     };
-    drop(write_log_tx);
-    let modbus_tcp = tcp.as_ref().map(|t| t.local_addr());
-    let mut schedule = Schedule::new(io.faults.clone());
-    // Mean 30 ms between bursts: about one and a half per weighing line at 50 lines/s.
-    let mut garbage = Garbage::new(world.config().seed, 0.03);
-    let mut publisher = Publisher::new(io, &world);
-    let (status_tx, status) = watch::channel(Status::default());
-    let task = tokio::spawn({
-        let bank = bank.clone();
-        async move {
-            let dt = world.config().dt_s();
-            let realtime = world.config().clock.realtime;
-            let pacer = RealtimePacer::new(dt);
-            let mut steps = 0u64;
-            let mut dropped = 0u64;
-            let mut lag = LagMeter::default();
-            while !world.done() {
-                let due = if realtime { pacer.steps_due(steps) } else { 50 };
-                if due == 0 {
-                    tokio::time::sleep(pacer.until_next(steps)).await;
-                    continue;
-                }
-                for _ in 0..due.min(500) {
-                    // Client writes → PLC window (the ack register belongs to the PLC), step, the
-                    // PLC's window → image: one critical section, like a PLC's scan.
-                    bank.update_holding(0, n, |words| -> anyhow::Result<()> {
-                        if let Some(a) = ack {
-                            words[a as usize] = world.plc().read(a, 1)?[0];
-                        }
-                        world.plc_mut().write(0, words)?;
-                        world.tick();
-                        words.copy_from_slice(world.plc().read(0, n as usize)?);
-                        Ok(())
-                    })
-                    .unwrap_or_else(|| {
-                        world.tick();
-                        Ok(())
-                    })?;
-                    steps += 1;
-                    clock.set(world.t_s());
-                    log_plc_events(&mut world, latches_csv.as_mut())?;
-                    let (active, changes) = schedule.advance(world.t_s());
-                    if !changes.is_empty() {
-                        apply_transport_faults(&changes, &active, tcp.as_mut(), rtu_mute.as_ref())
-                            .await?;
-                    }
-                    if let (Some(r), true) = (rec.as_mut(), world.sampled()) {
-                        r.write(world.readings())?;
-                    }
-                    let o = publisher.poll(&mut world);
-                    if let Some(bus) = can.as_mut() {
-                        send_frames(bus, &o.frames, &active).await?;
-                    }
-                    for (a, w) in &o.input_regs {
-                        bank.set_input(*a, w);
-                    }
-                    if let Some(p) = weigh.as_mut() {
-                        let mut chunks = vec![garbage.poll(world.t_s(), active.serial_garbage)];
-                        chunks.extend(o.lines.iter().map(|l| l.as_bytes().to_vec()));
-                        for bytes in chunks.iter().filter(|b| !b.is_empty()) {
-                            let wr = tokio::time::timeout(
-                                std::time::Duration::from_millis(2),
-                                p.write_all(bytes),
-                            );
-                            if !matches!(wr.await, Ok(Ok(()))) {
-                                if dropped == 0 {
-                                    eprintln!(
-                                        "hil-sim: weighing line not written at t = {:.3} s \
-                                         (nobody reads the pty?); counting them",
-                                        world.t_s()
-                                    );
-                                }
-                                dropped += 1;
-                            }
-                        }
-                    }
-                    while let Ok(ev) = write_log.try_recv() {
-                        if let Some(f) = writes_csv.as_mut() {
-                            std::io::Write::write_all(f, ev.csv_row().as_bytes())?;
-                        }
-                    }
-                    if world.done() {
-                        break;
-                    }
-                }
-                if realtime {
-                    report_lag(
-                        lag.observe(pacer.elapsed_s(), steps as f64 * dt),
-                        world.t_s(),
-                    );
-                }
-                let enc = std::array::from_fn(|k| world.encoder_counts(k));
-                status_tx.send_replace(Status {
-                    t_s: world.t_s(),
-                    shift_counts: world.plc().shift_counts(),
-                    encoder_counts: enc,
-                    setpoint_mm: world.setpoint().pos_mm,
-                    done: world.done(),
-                    dropped_lines: dropped,
-                    lag_s: lag.lag_s,
-                    max_lag_s: lag.max_lag_s,
-                });
-                if !realtime {
-                    tokio::task::yield_now().await;
+    Ok(Outputs {
+        rec,
+        latches_csv,
+        writes_csv,
+    })
+}
+
+/// The simulation task: owns the world and everything it feeds each step.
+struct SimTask {
+    world: World,
+    bank: RegisterBank,
+    /// Length of the PLC window (the holding block).
+    n: u16,
+    ack: Option<u16>,
+    clock: SimClock,
+    tcp: Option<PlcServer>,
+    rtu_mute: Option<RtuMute>,
+    can: Option<AnyCanBus>,
+    weigh: Option<SerialStream>,
+    outputs: Outputs,
+    write_log: tokio::sync::mpsc::UnboundedReceiver<WriteEvent>,
+    schedule: Schedule,
+    garbage: Garbage,
+    publisher: Publisher,
+    status_tx: watch::Sender<Status>,
+    /// Weighing lines not written because nobody read the pty.
+    dropped: u64,
+}
+
+impl SimTask {
+    /// Run the program to its end, paced to the wall clock or in batches of 50 steps; returns the
+    /// number of steps.
+    async fn run(mut self) -> anyhow::Result<u64> {
+        let dt = self.world.config().dt_s();
+        let realtime = self.world.config().clock.realtime;
+        let pacer = RealtimePacer::new(dt);
+        let mut steps = 0u64;
+        let mut lag = LagMeter::default();
+        while !self.world.done() {
+            let due = if realtime { pacer.steps_due(steps) } else { 50 };
+            if due == 0 {
+                tokio::time::sleep(pacer.until_next(steps)).await;
+                continue;
+            }
+            for _ in 0..due.min(500) {
+                self.scan()?;
+                steps += 1;
+                self.after_step().await?;
+                if self.world.done() {
+                    break;
                 }
             }
-            if realtime || dropped > 0 {
-                eprintln!(
-                    "hil-sim: real time: max lag {:.1} ms, {} episode(s) behind for {:.3} s; \
-                     weighing lines dropped: {dropped}",
-                    lag.max_lag_s * 1e3,
-                    lag.episodes,
-                    lag.behind_s
+            if realtime {
+                report_lag(
+                    lag.observe(pacer.elapsed_s(), steps as f64 * dt),
+                    self.world.t_s(),
                 );
             }
-            if let Some(r) = rec {
-                r.finish()?;
+            self.publish_status(&lag);
+            if !realtime {
+                tokio::task::yield_now().await;
             }
-            if let Some(mut f) = writes_csv {
-                std::io::Write::flush(&mut f)?;
-            }
-            if let Some(mut f) = latches_csv {
-                std::io::Write::flush(&mut f)?;
-            }
-            Ok(steps)
         }
-    });
-    Ok(Running {
-        modbus_tcp,
-        rtu_pty,
-        weighing_pty,
-        bank,
-        status,
-        task,
-        _rtu: rtu,
-        _keep_open: keep,
-    })
+        self.finish(realtime, &lag)?;
+        Ok(steps)
+    }
+
+    /// Client writes → PLC window (the ack register belongs to the PLC), step, the PLC's window →
+    /// image: one critical section, like a PLC's scan.
+    fn scan(&mut self) -> anyhow::Result<()> {
+        let (world, n, ack) = (&mut self.world, self.n, self.ack);
+        self.bank
+            .update_holding(0, n, |words| -> anyhow::Result<()> {
+                if let Some(a) = ack {
+                    words[a as usize] = world.plc().read(a, 1)?[0];
+                }
+                world.plc_mut().write(0, words)?;
+                world.tick();
+                words.copy_from_slice(world.plc().read(0, n as usize)?);
+                Ok(())
+            })
+            .unwrap_or_else(|| {
+                world.tick();
+                Ok(())
+            })
+    }
+
+    /// Everything that follows a step: the clock, PLC events, transport faults, the recording, the
+    /// published frames, registers and weighing lines, the client-write log.
+    async fn after_step(&mut self) -> anyhow::Result<()> {
+        self.clock.set(self.world.t_s());
+        log_plc_events(&mut self.world, self.outputs.latches_csv.as_mut())?;
+        let (active, changes) = self.schedule.advance(self.world.t_s());
+        if !changes.is_empty() {
+            apply_transport_faults(&changes, &active, self.tcp.as_mut(), self.rtu_mute.as_ref())
+                .await?;
+        }
+        if let (Some(r), true) = (self.outputs.rec.as_mut(), self.world.sampled()) {
+            r.write(self.world.readings())?;
+        }
+        let o = self.publisher.poll(&mut self.world);
+        if let Some(bus) = self.can.as_mut() {
+            send_frames(bus, &o.frames, &active).await?;
+        }
+        for (a, w) in &o.input_regs {
+            self.bank.set_input(*a, w);
+        }
+        if let Some(p) = self.weigh.as_mut() {
+            let mut chunks = vec![self.garbage.poll(self.world.t_s(), active.serial_garbage)];
+            chunks.extend(o.lines.iter().map(|l| l.as_bytes().to_vec()));
+            write_weighing(p, &chunks, self.world.t_s(), &mut self.dropped).await;
+        }
+        while let Ok(ev) = self.write_log.try_recv() {
+            if let Some(f) = self.outputs.writes_csv.as_mut() {
+                std::io::Write::write_all(f, ev.csv_row().as_bytes())?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Publish the live state to the observers (once per batch).
+    fn publish_status(&self, lag: &LagMeter) {
+        let world = &self.world;
+        let enc = std::array::from_fn(|k| world.encoder_counts(k));
+        self.status_tx.send_replace(Status {
+            t_s: world.t_s(),
+            shift_counts: world.plc().shift_counts(),
+            encoder_counts: enc,
+            setpoint_mm: world.setpoint().pos_mm,
+            done: world.done(),
+            dropped_lines: self.dropped,
+            lag_s: lag.lag_s,
+            max_lag_s: lag.max_lag_s,
+        });
+    }
+
+    /// Print the pace summary (paced or lines dropped) and finish and flush the output files.
+    fn finish(self, realtime: bool, lag: &LagMeter) -> anyhow::Result<()> {
+        let dropped = self.dropped;
+        if realtime || dropped > 0 {
+            eprintln!(
+                "hil-sim: real time: max lag {:.1} ms, {} episode(s) behind for {:.3} s; \
+                 weighing lines dropped: {dropped}",
+                lag.max_lag_s * 1e3,
+                lag.episodes,
+                lag.behind_s
+            );
+        }
+        if let Some(r) = self.outputs.rec {
+            r.finish()?;
+        }
+        if let Some(mut f) = self.outputs.writes_csv {
+            std::io::Write::flush(&mut f)?;
+        }
+        if let Some(mut f) = self.outputs.latches_csv {
+            std::io::Write::flush(&mut f)?;
+        }
+        Ok(())
+    }
+}
+
+/// Write one step's chunks (a garbage burst, the weighing lines) onto the weighing pty, empty ones
+/// skipped; a chunk nobody takes within 2 ms is dropped and counted (the first drop is reported).
+async fn write_weighing(p: &mut SerialStream, chunks: &[Vec<u8>], t_s: f64, dropped: &mut u64) {
+    for bytes in chunks.iter().filter(|b| !b.is_empty()) {
+        let wr = tokio::time::timeout(std::time::Duration::from_millis(2), p.write_all(bytes));
+        if !matches!(wr.await, Ok(Ok(()))) {
+            if *dropped == 0 {
+                eprintln!(
+                    "hil-sim: weighing line not written at t = {t_s:.3} s \
+                     (nobody reads the pty?); counting them",
+                );
+            }
+            *dropped += 1;
+        }
+    }
 }
