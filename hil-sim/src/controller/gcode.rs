@@ -49,161 +49,226 @@ pub struct GcodeError {
 /// Parse a program starting at `start_mm`. `rapid_mm_min` is the feed used for G0 blocks.
 pub fn parse(text: &str, start_mm: [f64; 3], rapid_mm_min: f64) -> Result<Vec<Block>, GcodeError> {
     let mut blocks = Vec::new();
-    let mut pos = start_mm;
-    let mut absolute = true;
-    let mut modal_motion: Option<u32> = None;
-    let mut feed = 0.0f64;
-    let mut rpm = 0.0f64;
-    let mut spindle_on = false;
+    let mut st = Modal {
+        pos: start_mm,
+        absolute: true,
+        motion: None,
+        feed: 0.0,
+        rpm: 0.0,
+        spindle_on: false,
+    };
     for (idx, raw) in text.lines().enumerate() {
         let line = idx + 1;
         let err = |msg: String| GcodeError { line, msg };
         let words = tokenize(raw).map_err(err)?;
-        let mut motion_word: Option<u32> = None;
-        let mut dwell = false;
-        let mut axes: [Option<f64>; 3] = [None; 3];
-        let (mut i, mut j, mut r, mut p) = (None, None, None, None);
-        let mut new_spindle: Option<bool> = None;
-        let mut end = false;
-        let mut s_word = None;
-        for (letter, value) in words {
-            match letter {
-                'G' => match value_code(value)
-                    .ok_or_else(|| err(format!("G{value} is not an integer code")))?
-                {
-                    c @ 0..=3 => motion_word = Some(c),
-                    4 => dwell = true,
-                    17 | 21 | 40 | 49 | 80 | 94 => {}
-                    20 => {
-                        return Err(err(
-                            "G20 (inch) is not supported: the simulator works in mm".into(),
-                        ));
-                    }
-                    90 => absolute = true,
-                    91 => absolute = false,
-                    c => {
-                        return Err(err(format!(
-                            "G{c} is not in the supported subset (G0-G4, G17, G21, G90, G91)"
-                        )));
-                    }
-                },
-                'M' => match value_code(value)
-                    .ok_or_else(|| err(format!("M{value} is not an integer code")))?
-                {
-                    3 => new_spindle = Some(true),
-                    5 => new_spindle = Some(false),
-                    30 | 2 => end = true,
-                    c => {
-                        return Err(err(format!(
-                            "M{c} is not in the supported subset (M2, M3, M5, M30)"
-                        )));
-                    }
-                },
-                'X' => axes[0] = Some(value),
-                'Y' => axes[1] = Some(value),
-                'Z' => axes[2] = Some(value),
-                'I' => i = Some(value),
-                'J' => j = Some(value),
-                'R' => r = Some(value),
-                'P' => p = Some(value),
-                'F' => {
-                    if value <= 0.0 {
-                        return Err(err(format!("F{value}: feed must be > 0 mm/min")));
-                    }
-                    feed = value;
-                }
-                'S' => {
-                    if value < 0.0 {
-                        return Err(err(format!("S{value}: spindle speed must be >= 0 rpm")));
-                    }
-                    s_word = Some(value);
-                }
-                'N' => {}
-                other => return Err(err(format!("word '{other}' is not supported"))),
+        let w = read_words(words, &mut st, line)?;
+        if let Some(s) = w.s_word {
+            st.rpm = s;
+            if st.spindle_on {
+                blocks.push(Block::Spindle { rpm: st.rpm, line });
             }
         }
-        if let Some(s) = s_word {
-            rpm = s;
-            if spindle_on {
-                blocks.push(Block::Spindle { rpm, line });
-            }
-        }
-        if let Some(on) = new_spindle {
-            spindle_on = on;
+        if let Some(on) = w.new_spindle {
+            st.spindle_on = on;
             blocks.push(Block::Spindle {
-                rpm: if on { rpm } else { 0.0 },
+                rpm: if on { st.rpm } else { 0.0 },
                 line,
             });
         }
-        if dwell {
-            let s = p.ok_or_else(|| err("G4 needs P<seconds>".into()))?;
+        if w.dwell {
+            let s = w.p.ok_or_else(|| err("G4 needs P<seconds>".into()))?;
             if s < 0.0 {
                 return Err(err(format!("G4 P{s}: dwell must be >= 0 s")));
             }
             blocks.push(Block::Dwell { s, line });
         }
-        if motion_word.is_some() {
-            modal_motion = motion_word;
+        if w.motion.is_some() {
+            st.motion = w.motion;
         }
-        if axes.iter().any(Option::is_some) {
-            let code = modal_motion
-                .ok_or_else(|| err("axis words without a motion mode (G0/G1/G2/G3)".into()))?;
-            let mut to = pos;
-            for k in 0..3 {
-                if let Some(v) = axes[k] {
-                    to[k] = if absolute { v } else { pos[k] + v };
-                }
-            }
-            let motion = match code {
-                0 => Motion::Rapid,
-                1 => Motion::Linear,
-                _ => {
-                    let clockwise = code == 2;
-                    let center = match (i, j, r) {
-                        (_, _, Some(r)) => {
-                            arc_center_from_radius(pos, to, r, clockwise).map_err(err)?
-                        }
-                        (None, None, None) => return Err(err("G2/G3 needs I/J or R".into())),
-                        _ => [pos[0] + i.unwrap_or(0.0), pos[1] + j.unwrap_or(0.0)],
-                    };
-                    let r0 = (pos[0] - center[0]).hypot(pos[1] - center[1]);
-                    let r1 = (to[0] - center[0]).hypot(to[1] - center[1]);
-                    if r0 < 1e-9 {
-                        return Err(err("arc radius is zero".into()));
-                    }
-                    if (r0 - r1).abs() > 1e-3 * r0.max(1.0) {
-                        return Err(err(format!(
-                            "arc end point is not on the circle (radius {r0:.4} vs {r1:.4} mm)"
-                        )));
-                    }
-                    Motion::Arc {
-                        center_xy_mm: center,
-                        clockwise,
-                    }
-                }
-            };
-            let feed_mm_min = if motion == Motion::Rapid {
-                rapid_mm_min
-            } else if feed > 0.0 {
-                feed
-            } else {
-                return Err(err("feed move before any F word".into()));
-            };
-            blocks.push(Block::Move {
-                motion,
-                from_mm: pos,
-                to_mm: to,
-                feed_mm_min,
-                line,
-            });
-            pos = to;
+        if w.axes.iter().any(Option::is_some) {
+            blocks.push(move_block(&w, &mut st, rapid_mm_min, line)?);
         }
-        if end {
+        if w.end {
             blocks.push(Block::End { line });
             break;
         }
     }
     Ok(blocks)
+}
+
+/// The modal state carried from line to line.
+struct Modal {
+    pos: [f64; 3],
+    absolute: bool,
+    /// Last motion code (G0–G3), for axis words without one.
+    motion: Option<u32>,
+    feed: f64,
+    rpm: f64,
+    spindle_on: bool,
+}
+
+/// What one line asks for, once its words are read (G90/G91 and F are modal and go straight into
+/// [`Modal`]).
+struct LineWords {
+    motion: Option<u32>,
+    dwell: bool,
+    axes: [Option<f64>; 3],
+    i: Option<f64>,
+    j: Option<f64>,
+    r: Option<f64>,
+    p: Option<f64>,
+    new_spindle: Option<bool>,
+    end: bool,
+    s_word: Option<f64>,
+}
+
+/// Read the words of line `line` in order, refusing codes and words outside the subset.
+fn read_words(
+    words: Vec<(char, f64)>,
+    st: &mut Modal,
+    line: usize,
+) -> Result<LineWords, GcodeError> {
+    let err = |msg: String| GcodeError { line, msg };
+    let mut w = LineWords {
+        motion: None,
+        dwell: false,
+        axes: [None; 3],
+        i: None,
+        j: None,
+        r: None,
+        p: None,
+        new_spindle: None,
+        end: false,
+        s_word: None,
+    };
+    for (letter, value) in words {
+        match letter {
+            'G' => match value_code(value)
+                .ok_or_else(|| err(format!("G{value} is not an integer code")))?
+            {
+                c @ 0..=3 => w.motion = Some(c),
+                4 => w.dwell = true,
+                17 | 21 | 40 | 49 | 80 | 94 => {}
+                20 => {
+                    return Err(err(
+                        "G20 (inch) is not supported: the simulator works in mm".into(),
+                    ));
+                }
+                90 => st.absolute = true,
+                91 => st.absolute = false,
+                c => {
+                    return Err(err(format!(
+                        "G{c} is not in the supported subset (G0-G4, G17, G21, G90, G91)"
+                    )));
+                }
+            },
+            'M' => match value_code(value)
+                .ok_or_else(|| err(format!("M{value} is not an integer code")))?
+            {
+                3 => w.new_spindle = Some(true),
+                5 => w.new_spindle = Some(false),
+                30 | 2 => w.end = true,
+                c => {
+                    return Err(err(format!(
+                        "M{c} is not in the supported subset (M2, M3, M5, M30)"
+                    )));
+                }
+            },
+            'X' => w.axes[0] = Some(value),
+            'Y' => w.axes[1] = Some(value),
+            'Z' => w.axes[2] = Some(value),
+            'I' => w.i = Some(value),
+            'J' => w.j = Some(value),
+            'R' => w.r = Some(value),
+            'P' => w.p = Some(value),
+            'F' => {
+                if value <= 0.0 {
+                    return Err(err(format!("F{value}: feed must be > 0 mm/min")));
+                }
+                st.feed = value;
+            }
+            'S' => {
+                if value < 0.0 {
+                    return Err(err(format!("S{value}: spindle speed must be >= 0 rpm")));
+                }
+                w.s_word = Some(value);
+            }
+            'N' => {}
+            other => return Err(err(format!("word '{other}' is not supported"))),
+        }
+    }
+    Ok(w)
+}
+
+/// The move of a line with axis words, in the modal motion mode; advances `st.pos` to its end.
+fn move_block(
+    w: &LineWords,
+    st: &mut Modal,
+    rapid_mm_min: f64,
+    line: usize,
+) -> Result<Block, GcodeError> {
+    let err = |msg: String| GcodeError { line, msg };
+    let pos = st.pos;
+    let code = st
+        .motion
+        .ok_or_else(|| err("axis words without a motion mode (G0/G1/G2/G3)".into()))?;
+    let mut to = pos;
+    for k in 0..3 {
+        if let Some(v) = w.axes[k] {
+            to[k] = if st.absolute { v } else { pos[k] + v };
+        }
+    }
+    let motion = match code {
+        0 => Motion::Rapid,
+        1 => Motion::Linear,
+        _ => arc_motion(pos, to, code == 2, (w.i, w.j, w.r), line)?,
+    };
+    let feed_mm_min = if motion == Motion::Rapid {
+        rapid_mm_min
+    } else if st.feed > 0.0 {
+        st.feed
+    } else {
+        return Err(err("feed move before any F word".into()));
+    };
+    st.pos = to;
+    Ok(Block::Move {
+        motion,
+        from_mm: pos,
+        to_mm: to,
+        feed_mm_min,
+        line,
+    })
+}
+
+/// A G2/G3 arc from `pos` to `to`, its centre from `I J` offsets or from `R`; refuses a zero
+/// radius and an end point off the circle.
+fn arc_motion(
+    pos: [f64; 3],
+    to: [f64; 3],
+    clockwise: bool,
+    (i, j, r): (Option<f64>, Option<f64>, Option<f64>),
+    line: usize,
+) -> Result<Motion, GcodeError> {
+    let err = |msg: String| GcodeError { line, msg };
+    let center = match (i, j, r) {
+        (_, _, Some(r)) => arc_center_from_radius(pos, to, r, clockwise).map_err(err)?,
+        (None, None, None) => return Err(err("G2/G3 needs I/J or R".into())),
+        _ => [pos[0] + i.unwrap_or(0.0), pos[1] + j.unwrap_or(0.0)],
+    };
+    let r0 = (pos[0] - center[0]).hypot(pos[1] - center[1]);
+    let r1 = (to[0] - center[0]).hypot(to[1] - center[1]);
+    if r0 < 1e-9 {
+        return Err(err("arc radius is zero".into()));
+    }
+    if (r0 - r1).abs() > 1e-3 * r0.max(1.0) {
+        return Err(err(format!(
+            "arc end point is not on the circle (radius {r0:.4} vs {r1:.4} mm)"
+        )));
+    }
+    Ok(Motion::Arc {
+        center_xy_mm: center,
+        clockwise,
+    })
 }
 
 fn value_code(v: f64) -> Option<u32> {
