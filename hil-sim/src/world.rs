@@ -113,31 +113,7 @@ impl World {
     /// A world with any geometric truth model (e.g. the project's `VolumetricModel`).
     pub fn with_truth(cfg: SimConfig, truth: Box<dyn TruthModel>) -> anyhow::Result<Self> {
         cfg.validate()?;
-        let start = cfg.program.start_mm;
-        let traj = if !cfg.program.script.is_empty() {
-            Trajectory::Script(ScriptRunner::new(cfg.program.script.clone()))
-        } else {
-            let text = match (&cfg.program.gcode, &cfg.program.gcode_path) {
-                (Some(t), _) => t.clone(),
-                (None, Some(p)) => std::fs::read_to_string(p)
-                    .map_err(|e| anyhow::anyhow!("program.gcode_path {}: {e}", p.display()))?,
-                _ => unreachable!("validated"),
-            };
-            let source = match &cfg.program.gcode_path {
-                Some(p) => format!("program.gcode_path {}", p.display()),
-                None => "program.gcode".to_string(),
-            };
-            let blocks = gcode::parse(&text, start, cfg.servo.rapid_mm_min)
-                .map_err(|e| anyhow::anyhow!("{source}: {e}"))?;
-            Trajectory::Program(ProgramRunner::new(blocks, start))
-        };
-        let start_pos = match &traj {
-            Trajectory::Script(_) => {
-                let p = &cfg.program.script[0];
-                [p.x_mm, p.y_mm, p.z_mm]
-            }
-            Trajectory::Program(_) => start,
-        };
+        let (traj, start_pos) = trajectory(&cfg)?;
         let servos = start_pos.map(AxisServo::new);
         let backlash = std::array::from_fn(|k| {
             cfg.hidden
@@ -148,27 +124,7 @@ impl World {
         let cyclic = std::array::from_fn(|k| cfg.hidden.cyclic.get(k).cloned());
         let thermal = cfg.hidden.thermal.clone().map(ThermalNet::new);
         let seed = cfg.seed;
-        let temp_noise = thermal
-            .as_ref()
-            .map(|t| {
-                t.config()
-                    .sensors
-                    .iter()
-                    .map(|s| Noise::new(seed, &format!("T_{}_C", s.name)))
-                    .collect()
-            })
-            .unwrap_or_default();
-        let strain_noise = cfg
-            .hidden
-            .cutting
-            .as_ref()
-            .map(|c| {
-                c.gauges
-                    .iter()
-                    .map(|g| Noise::new(seed, &format!("strain_{}_ue", g.name)))
-                    .collect()
-            })
-            .unwrap_or_default();
+        let (temp_noise, strain_noise) = sensor_noises(&cfg, thermal.as_ref());
         let faults = cfg
             .faults
             .iter()
@@ -205,8 +161,14 @@ impl World {
             cfg,
         };
         w.sample();
-        let names = w.channel_names();
-        for (i, f) in w.cfg.faults.iter().enumerate() {
+        w.check_fault_channels()?;
+        Ok(w)
+    }
+
+    /// Every sensor fault must name a channel the world records (known only once it is built).
+    fn check_fault_channels(&self) -> anyhow::Result<()> {
+        let names = self.channel_names();
+        for (i, f) in self.cfg.faults.iter().enumerate() {
             anyhow::ensure!(
                 names.contains(&f.channel),
                 "faults[{i}]: unknown channel `{}` (known: {})",
@@ -214,7 +176,7 @@ impl World {
                 names.join(", ")
             );
         }
-        Ok(w)
+        Ok(())
     }
 
     pub fn config(&self) -> &SimConfig {
@@ -523,4 +485,62 @@ impl World {
     pub fn manifest(&self) -> serde_json::Value {
         crate::manifest::build(&self.cfg, &*self.truth)
     }
+}
+
+/// The program to run (a script, or G-code parsed from the config or its file) and where the axes
+/// start: a script's first point, or the program's `start_mm`.
+fn trajectory(cfg: &SimConfig) -> anyhow::Result<(Trajectory, [f64; 3])> {
+    let start = cfg.program.start_mm;
+    let traj = if !cfg.program.script.is_empty() {
+        Trajectory::Script(ScriptRunner::new(cfg.program.script.clone()))
+    } else {
+        let text = match (&cfg.program.gcode, &cfg.program.gcode_path) {
+            (Some(t), _) => t.clone(),
+            (None, Some(p)) => std::fs::read_to_string(p)
+                .map_err(|e| anyhow::anyhow!("program.gcode_path {}: {e}", p.display()))?,
+            _ => unreachable!("validated"),
+        };
+        let source = match &cfg.program.gcode_path {
+            Some(p) => format!("program.gcode_path {}", p.display()),
+            None => "program.gcode".to_string(),
+        };
+        let blocks = gcode::parse(&text, start, cfg.servo.rapid_mm_min)
+            .map_err(|e| anyhow::anyhow!("{source}: {e}"))?;
+        Trajectory::Program(ProgramRunner::new(blocks, start))
+    };
+    let start_pos = match &traj {
+        Trajectory::Script(_) => {
+            let p = &cfg.program.script[0];
+            [p.x_mm, p.y_mm, p.z_mm]
+        }
+        Trajectory::Program(_) => start,
+    };
+    Ok((traj, start_pos))
+}
+
+/// Noise streams of the temperature sensors and strain gauges, one per channel name (so adding a
+/// channel leaves the others' noise unchanged).
+fn sensor_noises(cfg: &SimConfig, thermal: Option<&ThermalNet>) -> (Vec<Noise>, Vec<Noise>) {
+    let seed = cfg.seed;
+    let temp_noise = thermal
+        .map(|t| {
+            t.config()
+                .sensors
+                .iter()
+                .map(|s| Noise::new(seed, &format!("T_{}_C", s.name)))
+                .collect()
+        })
+        .unwrap_or_default();
+    let strain_noise = cfg
+        .hidden
+        .cutting
+        .as_ref()
+        .map(|c| {
+            c.gauges
+                .iter()
+                .map(|g| Noise::new(seed, &format!("strain_{}_ue", g.name)))
+                .collect()
+        })
+        .unwrap_or_default();
+    (temp_noise, strain_noise)
 }
