@@ -214,17 +214,7 @@ fn family_drive(rng: &mut ChaCha8Rng, family: Family, fp: &mut BTreeMap<String, 
         1500.0,
         spindle_share,
     );
-    let force_level_n = uniform(rng, 150.0, 500.0);
-    let force = cutting_force(rng, &path.cut, force_level_n);
-    let run = path.run.iter().map(|&r| r as f64).collect();
-    Drive {
-        path,
-        t_s,
-        rpm,
-        th,
-        force,
-        run,
-    }
+    Drive::with_force(rng, path, t_s, rpm, th)
 }
 
 /// The hidden effect of an effect case: `rpm_lag` (the rpm_heat family's heat source seen only

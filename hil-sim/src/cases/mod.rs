@@ -287,6 +287,30 @@ struct Drive {
     run: Vec<f64>,
 }
 
+impl Drive {
+    /// The last draws of every drive, in the generator's order: the cutting-force level and the
+    /// force along the path's cuts; and the path's run column.
+    fn with_force(
+        rng: &mut ChaCha8Rng,
+        path: MotionPath,
+        t_s: Vec<f64>,
+        rpm: Vec<f64>,
+        th: Thermal,
+    ) -> Drive {
+        let force_level_n = uniform(rng, 150.0, 500.0);
+        let force = cutting_force(rng, &path.cut, force_level_n);
+        let run = path.run.iter().map(|&r| r as f64).collect();
+        Drive {
+            path,
+            t_s,
+            rpm,
+            th,
+            force,
+            run,
+        }
+    }
+}
+
 /// The standard family's motion, spindle, thermal and force draws, in the generator's fixed order.
 fn standard_drive(rng: &mut ChaCha8Rng, program: Program) -> Drive {
     let path = build_path(rng, program);
@@ -318,17 +342,7 @@ fn standard_drive(rng: &mut ChaCha8Rng, program: Program) -> Drive {
         0.3,
         4.0 * duration,
     );
-    let force_level_n = uniform(rng, 150.0, 500.0);
-    let force = cutting_force(rng, &path.cut, force_level_n);
-    let run = path.run.iter().map(|&r| r as f64).collect();
-    Drive {
-        path,
-        t_s,
-        rpm,
-        th,
-        force,
-        run,
-    }
+    Drive::with_force(rng, path, t_s, rpm, th)
 }
 
 /// Sample times of an `n`-sample recording.
