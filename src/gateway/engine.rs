@@ -304,6 +304,8 @@ impl Engine {
     /// Run one cycle at `now_s`; the per-axis outputs (µm, in configured axis order) are borrowed
     /// from the engine. In steady state (same channels healthy, model terms unchanged) this
     /// allocates nothing: channels are ids resolved at start, buffers are reused.
+    /// Kept as one function over the ~100-line rule: its five numbered steps are the cycle's
+    /// order (health, substitution, state, model, correction and safety last), read top to bottom.
     pub fn cycle_in_place(&mut self, now_s: f64, model: &mut dyn ErrorModel) -> &[(Axis, f64)] {
         self.now_s = now_s;
         self.cycles += 1;

@@ -197,6 +197,9 @@ impl Plan {
     }
 
     /// One evaluation (exact HTM chain or first order); steps the lag states to `input.t_s`.
+    /// Kept as one function over the ~100-line rule: it is the per-evaluation hot path (`cargo
+    /// bench --bench gateway -- cycle_compute`) and its stages share the chain's positions, tool
+    /// vector and flags as locals.
     #[inline]
     pub(crate) fn run(
         &self,

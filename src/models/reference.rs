@@ -321,6 +321,8 @@ fn eval_fn(f: &ErrorFunction, q: f64, dir: i8) -> (f64, bool) {
     f.eval(q, dir)
 }
 
+/// The reference evaluation: one straight pass along the chain, kept whole (over the ~100-line
+/// rule) so it reads against docs/model.md's formulas; `plan.rs` is tested equal to it.
 pub(crate) fn run(
     spec: &ModelSpec,
     c: &Compiled,
