@@ -34,6 +34,10 @@ fn an_rpm_lag_that_extrapolates_to_tens_of_micrometres_is_dropped_and_the_abbe_t
         .find(|d| d.reason == "no_forward_gain")
         .unwrap_or_else(|| panic!("no no_forward_gain drop: {:?}", r.dropped));
     assert_eq!(d.term, "thermal_lag(rpm)");
+    assert_eq!(
+        d.score, "forward_check",
+        "the JSON says which RMS it carries"
+    );
     assert!(
         d.heldout_rms_with_um > 10.0 * d.heldout_rms_without_um,
         "forward RMS with it {} µm, without {} µm",

@@ -353,6 +353,12 @@ impl Assembly {
                 reason: reason.into(),
                 heldout_rms_with_um: with,
                 heldout_rms_without_um: without,
+                score: if reason == "no_forward_gain" {
+                    "forward_check"
+                } else {
+                    "heldout"
+                }
+                .into(),
                 replaced_by: vec![],
             });
         }
@@ -374,6 +380,7 @@ impl Assembly {
                 reason: "exchanged".into(),
                 heldout_rms_with_um: ex.heldout_rms_before_um,
                 heldout_rms_without_um: ex.heldout_rms_after_um,
+                score: "heldout".into(),
                 replaced_by: ex.by.clone(),
             });
         }

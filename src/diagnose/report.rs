@@ -79,8 +79,18 @@ pub struct Dropped {
     /// `no_forward_gain`: the forward check's RMS, `forward_check.rs`).
     pub heldout_rms_with_um: f64,
     pub heldout_rms_without_um: f64,
+    /// Which error the two RMS fields hold: `heldout` (the selection's held-out error:
+    /// leave-one-block-out, or forward on thermal tests) or `forward_check` (the forward check's,
+    /// for `no_forward_gain`). The field names predate the second; a reader should not have to
+    /// know the reason to read them.
+    #[serde(default = "heldout_score")]
+    pub score: String,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub replaced_by: Vec<String>,
+}
+
+fn heldout_score() -> String {
+    "heldout".into()
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -201,8 +211,7 @@ impl Report {
                 } else {
                     format!(" by {}", d.replaced_by.join(" + "))
                 };
-                // A `no_forward_gain` drop carries the forward check's RMS in these fields.
-                let score = if d.reason == "no_forward_gain" {
+                let score = if d.score == "forward_check" {
                     "forward-check"
                 } else {
                     "held-out"
