@@ -301,15 +301,15 @@ fn add_force_deflection(
     ))
 }
 
-/// A term linear in one sensor's reading: `gain` per unit of sensor `name`, zero at the
-/// recording's first reading (`reference_minus_first` = the sensor's reference − that reading,
-/// so e0 = gain × it).
+/// A term linear in one sensor's reading: `um_per_unit` µm per unit of sensor `name` (K, or rpm²
+/// for a squared-speed lag), zero at the recording's first reading (`reference_minus_first` = the
+/// sensor's reference − that reading, so e0 = um_per_unit × it).
 fn push_linear_dt(
     spec: &mut ModelSpec,
     item: &Item<'_>,
     own: ComponentId,
     name: &str,
-    gain: f64,
+    um_per_unit: f64,
     reference_minus_first: f64,
 ) {
     push_thermal(
@@ -318,8 +318,8 @@ fn push_linear_dt(
         own,
         ThermalKind::PolynomialDt {
             sensors: vec![name.to_string()],
-            e0: gain * reference_minus_first,
-            b_per_k: vec![gain],
+            e0: um_per_unit * reference_minus_first,
+            b_per_k: vec![um_per_unit],
             c_per_k2: vec![],
         },
     );

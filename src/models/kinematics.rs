@@ -21,6 +21,7 @@ use nalgebra::Vector3;
 use nalgebra::{Matrix3, Matrix4};
 
 use super::names::Axis;
+use super::spec::{AxisSpec, Branch};
 
 /// sin and cos; exact to double precision. Small angles (all error motions) use a Taylor series
 /// whose truncation error is below 1e-17 for |θ| ≤ 1e-2 rad; larger angles use libm. Up to 1e-4 rad
@@ -131,6 +132,19 @@ pub struct Elem {
 }
 
 impl Elem {
+    /// Axis `a` as the model file places it, before any squareness tilt (`u_tilted` = `u`).
+    pub fn untilted(a: &AxisSpec) -> Elem {
+        let mut u = [0.0; 3];
+        u[a.axis.index()] = 1.0;
+        Elem {
+            axis: a.axis,
+            workpiece_side: a.branch == Branch::Workpiece,
+            offset_mm: a.offset_mm,
+            u,
+            u_tilted: u,
+        }
+    }
+
     /// Nominal translation of this element in the relative chain for axis position `q_mm`.
     #[inline]
     pub fn nominal(&self, q_mm: f64) -> [f64; 3] {

@@ -9,7 +9,7 @@
 use super::function::{ErrorFunction, Location};
 use super::kinematics::{Elem, arms, cross, exact_tip, nominal_tip, rotation_about};
 use super::names::Axis;
-use super::spec::{Branch, LoadKind, ModelSpec};
+use super::spec::{LoadKind, ModelSpec};
 use super::thermal::{ThermalState, thermal_value};
 use super::{ErrorBreakdown, ModelInput, ModelState};
 
@@ -101,15 +101,7 @@ fn chain_elems(spec: &ModelSpec) -> (Vec<Elem>, [Option<usize>; 3]) {
         .enumerate()
         .map(|(j, a)| {
             elem_of_axis[a.axis.index()] = Some(j);
-            let mut u = [0.0; 3];
-            u[a.axis.index()] = 1.0;
-            Elem {
-                axis: a.axis,
-                workpiece_side: a.branch == Branch::Workpiece,
-                offset_mm: a.offset_mm,
-                u,
-                u_tilted: u,
-            }
+            Elem::untilted(a)
         })
         .collect();
     (elems, elem_of_axis)

@@ -14,7 +14,6 @@
 //! 1e-3 µm.
 
 use crate::models::kinematics::{Elem, arms, cross};
-use crate::models::spec::Branch;
 use crate::models::{Axis, ComponentId, MachineModel, ModelSpec, Motion};
 
 /// Which kind of basis a component gets.
@@ -128,21 +127,7 @@ impl Geometry {
                 "artefact identification needs the three axes X, Y, Z".into(),
             ));
         }
-        let elems = spec
-            .axes
-            .iter()
-            .map(|a| {
-                let mut u = [0.0; 3];
-                u[a.axis.index()] = 1.0;
-                Elem {
-                    axis: a.axis,
-                    workpiece_side: a.branch == Branch::Workpiece,
-                    offset_mm: a.offset_mm,
-                    u,
-                    u_tilted: u,
-                }
-            })
-            .collect();
+        let elems = spec.axes.iter().map(Elem::untilted).collect();
         let mut tool_dir = [0.0; 3];
         tool_dir[spec.tool_axis.0.index()] = spec.tool_axis.1;
         Ok(Geometry {
