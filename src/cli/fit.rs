@@ -12,10 +12,13 @@ use retrocomp::analysis::fit::to_model::{
     AxisForm, add_load, add_thermal, axis_component, put_component, single_axis_spec,
     to_checked_toml,
 };
-use retrocomp::analysis::fit::workflow::{AxisFit, ContextFit, fit_axis, fit_context};
+use retrocomp::analysis::fit::workflow::{
+    AxisFit, ContextFit, ContextOptions, Driver, fit_axis, fit_context_with, source_values,
+};
 use retrocomp::analysis::iso230_2::Reading;
 use retrocomp::analysis::report::{Series, xy_svg};
 use retrocomp::analysis::table::Direction;
+use retrocomp::diagnose::model_sim::{final_lag_state, simulate_axes};
 use retrocomp::models::names::parse_component;
 use retrocomp::models::{ComponentId, MachineModel, ModelSpec};
 use retrocomp::recording::Recording;
@@ -36,6 +39,9 @@ pub(crate) enum Form {
 pub(crate) enum Crit {
     Bic,
     Cp,
+    /// The mean of the fits of every size 1…max-terms (for prediction beyond the recording's
+    /// regimes; docs/diagnose.md "Compensation model").
+    Average,
 }
 
 #[derive(Debug, clap::Args)]
@@ -97,6 +103,19 @@ pub(crate) enum What {
         /// Values of the `run` column held out for δ (default: last 30 % of samples).
         #[arg(long, value_delimiter = ',')]
         holdout_runs: Vec<u32>,
+        /// Context columns that heat the machine with no sensor on them, as COLUMN or
+        /// COLUMN^POWER (e.g. `rpm^2`: heat ∝ n²), each entered through the lags of --lags-s > 0.
+        #[arg(long, value_delimiter = ',')]
+        drivers: Vec<String>,
+        /// Fit what the base model leaves (the signal minus the base model's error along the
+        /// target's axis, evaluated on the recording), so the written model does not count the
+        /// base model's part twice.
+        #[arg(long, requires = "base_model")]
+        residual: bool,
+        /// After scoring δ on the held-out rows, choose and fit again on every row (the written
+        /// model; δ still describes the training fit).
+        #[arg(long)]
+        refit_all: bool,
         #[command(flatten)]
         common: Common,
     },
@@ -183,9 +202,18 @@ fn context_text(f: &ContextFit) -> String {
             st.signals.join(", ")
         ));
     }
+    let how = match (f.selection.criterion, f.model_rows.as_str()) {
+        (Criterion::Average, "all") => "mean of sizes 1…max, chosen again on every row",
+        (Criterion::Average, _) => "mean of sizes 1…max",
+        (_, "all") => "chosen again on every row",
+        _ => "",
+    };
     s.push_str(&format!(
-        "chosen p = {}: intercept {:.3} µm",
-        f.selection.chosen_p, f.model.intercept_um
+        "chosen p = {}{}{how}{}: intercept {:.3} µm",
+        f.selection.chosen_p,
+        if how.is_empty() { "" } else { " (" },
+        if how.is_empty() { "" } else { ")" },
+        f.model.intercept_um
     ));
     for t in &f.model.terms {
         s.push_str(&format!(
@@ -209,18 +237,29 @@ fn context_text(f: &ContextFit) -> String {
     s
 }
 
-fn context_svg(p: &Path, rec: &Recording, f: &ContextFit) -> anyhow::Result<()> {
+/// Measured (less the base model's prediction with --residual) against the fitted terms.
+fn context_svg(
+    p: &Path,
+    rec: &Recording,
+    f: &ContextFit,
+    base_um: Option<&[f64]>,
+) -> anyhow::Result<()> {
     let t = rec.t_s();
-    let y = rec.col(&f.signal).context("signal")?;
+    let mut y = rec.col(&f.signal).context("signal")?.to_vec();
+    if let Some(b) = base_um {
+        y.iter_mut().zip(b).for_each(|(y, b)| *y -= b);
+    }
     let pred = f
         .model
-        .predict(t, &|n: &str| rec.col(n).map(<[f64]>::to_vec))
+        .predict(t, &|n: &str| source_values(rec, n))
         .context("prediction")?;
+    let label = if base_um.is_some() {
+        "measured − base model"
+    } else {
+        "measured"
+    };
     let series = [
-        Series::line(
-            "measured",
-            t.iter().cloned().zip(y.iter().cloned()).collect(),
-        ),
+        Series::line(label, t.iter().cloned().zip(y).collect()),
         Series::line("model", t.iter().cloned().zip(pred).collect()),
     ];
     write(
@@ -236,35 +275,6 @@ fn context_svg(p: &Path, rec: &Recording, f: &ContextFit) -> anyhow::Result<()> 
             &series,
         )?,
     )
-}
-
-fn training_mean(rec: &Recording, f: &ContextFit) -> impl Fn(&str) -> f64 {
-    let n = rec.n_rows();
-    let test: Vec<bool> = match (rec.col("run"), f.heldout_rule.starts_with("runs")) {
-        (Some(run), true) => {
-            let held: Vec<f64> = f
-                .heldout_rule
-                .trim_start_matches("runs ")
-                .trim_matches(['[', ']'])
-                .split(',')
-                .filter_map(|v| v.trim().parse().ok())
-                .collect();
-            run.iter().map(|r| held.contains(r)).collect()
-        }
-        _ => (0..n).map(|i| i >= n * 7 / 10).collect(),
-    };
-    let rec = rec.clone();
-    move |name: &str| {
-        let v = rec
-            .col(name)
-            .expect("a selected signal is a recording column");
-        let (s, k) = v
-            .iter()
-            .zip(&test)
-            .filter(|(_, t)| !**t)
-            .fold((0.0, 0usize), |(s, k), (x, _)| (s + x, k + 1));
-        s / k.max(1) as f64
-    }
 }
 
 /// The axis fit's text report: the knots, the fit and the drift, then δ on the held-out run.
@@ -389,18 +399,32 @@ pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
             max_terms,
             criterion,
             holdout_runs,
+            drivers,
+            residual,
+            refit_all,
             common,
-        } => run_context(
-            true,
-            recording,
-            signal,
-            target.as_deref(),
-            lags_s,
-            *max_terms,
-            *criterion,
-            holdout_runs,
-            common,
-        ),
+        } => {
+            let drivers = drivers
+                .iter()
+                .map(|d| parse_driver(d))
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            run_context(
+                true,
+                recording,
+                signal,
+                target.as_deref(),
+                &Extra {
+                    lags: lags_s,
+                    max_terms: *max_terms,
+                    criterion: *criterion,
+                    holdout_runs,
+                    drivers: &drivers,
+                    residual: *residual,
+                    refit_all: *refit_all,
+                },
+                common,
+            )
+        }
         What::Load {
             recording,
             signal,
@@ -414,25 +438,58 @@ pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
             recording,
             signal,
             target.as_deref(),
-            &[0.0],
-            *max_terms,
-            *criterion,
-            holdout_runs,
+            &Extra {
+                lags: &[0.0],
+                max_terms: *max_terms,
+                criterion: *criterion,
+                holdout_runs,
+                drivers: &[],
+                residual: false,
+                refit_all: false,
+            },
             common,
         ),
     }
 }
 
-#[allow(clippy::too_many_arguments)]
+/// The context fit's settings beyond the signal (`fit load` uses only the first four).
+struct Extra<'a> {
+    lags: &'a [f64],
+    max_terms: usize,
+    criterion: Crit,
+    holdout_runs: &'a [u32],
+    drivers: &'a [Driver],
+    residual: bool,
+    refit_all: bool,
+}
+
+/// `rpm^2` → rpm with exponent 2; `load` → exponent 1.
+fn parse_driver(d: &str) -> anyhow::Result<Driver> {
+    let (column, exponent) = match d.split_once('^') {
+        Some((c, p)) => (
+            c,
+            p.parse::<f64>()
+                .ok()
+                .filter(|p| *p > 0.0 && *p <= 4.0)
+                .with_context(|| {
+                    format!("--drivers `{d}`: the power must be a number in (0, 4]")
+                })?,
+        ),
+        None => (d, 1.0),
+    };
+    anyhow::ensure!(!column.is_empty(), "--drivers `{d}`: no column name");
+    Ok(Driver {
+        column: column.to_string(),
+        exponent,
+    })
+}
+
 fn run_context(
     thermal: bool,
     recording: &Path,
     signal: &str,
     target: Option<&str>,
-    lags: &[f64],
-    max_terms: usize,
-    criterion: Crit,
-    holdout_runs: &[u32],
+    x: &Extra<'_>,
     common: &Common,
 ) -> anyhow::Result<()> {
     let base = common
@@ -444,29 +501,50 @@ fn run_context(
         None => default_target(signal)?,
     };
     let (rec, bad) = super::diagnose::read_recording(recording, common.skip_bad_rows)?;
-    let crit = match criterion {
+    let criterion = match x.criterion {
         Crit::Bic => Criterion::Bic,
         Crit::Cp => Criterion::Cp,
+        Crit::Average => Criterion::Average,
     };
-    let f = fit_context(
+    let base_model = MachineModel::from_toml_path(base)?;
+    // The base model's error along the target component's axis (EZZ → z), whatever the signal
+    // is called.
+    let base_um = match x.residual {
+        true => Some(simulate_axes(&base_model, &rec)?[id.axis.index()].clone()),
+        false => None,
+    };
+    let f = fit_context_with(
         &rec,
         signal,
-        thermal,
-        !thermal,
-        lags,
-        max_terms,
-        crit,
-        holdout_runs,
+        &ContextOptions {
+            use_temperatures: thermal,
+            use_strains: !thermal,
+            lags_s: x.lags,
+            max_terms: x.max_terms,
+            criterion,
+            heldout_runs: x.holdout_runs,
+            drivers: x.drivers,
+            base_um: base_um.as_deref(),
+            refit_all: x.refit_all,
+        },
     )?;
-    let mut spec = base_spec(base)?;
+    let mut spec = base_model.spec().clone();
     if thermal {
-        add_thermal(&mut spec, &f, id, &training_mean(&rec, &f))?;
+        let mean = |name: &str| {
+            f.means
+                .iter()
+                .find(|(s, _)| s == name)
+                .map_or(0.0, |(_, m)| *m)
+        };
+        add_thermal(&mut spec, &f, id, &mean)?;
+        // Where the lags stand at the recording's last row, so `eval` continues this recording.
+        spec.lag_state = final_lag_state(&MachineModel::from_spec(spec.clone()), &rec)?;
     } else {
         add_load(&mut spec, &f, id)?;
     }
     let (toml, _) = to_checked_toml(spec)?;
     if let Some(p) = &common.svg {
-        context_svg(p, &rec, &f)?;
+        context_svg(p, &rec, &f, base_um.as_deref())?;
     }
     let mut json = serde_json::json!({ "target": id.iso_name(), "fit": f });
     let mut text = context_text(&f);

@@ -361,3 +361,56 @@ pub(crate) fn fit_channel(
         String::from_utf8_lossy(&out.stdout).into_owned(),
     )
 }
+
+/// The compensation fit of `docs/diagnose.md` ("Compensation model") on `fit` rows of channel
+/// `ch`, written to `dir`: the static simulation (`sim.toml`) and `retrocomp fit thermal
+/// --residual` on it (`compensation.toml`, with its JSON report `compensation.json`).
+pub(crate) fn fit_compensation(
+    d: &Data,
+    ch: &str,
+    fit: &[usize],
+    dir: &Path,
+) -> (PathBuf, PathBuf) {
+    std::fs::create_dir_all(dir).unwrap();
+    let (toml, _) = sim_model(d, ch, fit);
+    let sim = dir.join("sim.toml");
+    std::fs::write(&sim, toml).unwrap();
+    let rec = dir.join("fit.csv");
+    d.write(&rec, fit.iter().copied(), Some(ch));
+    let comp = dir.join("compensation.toml");
+    let out = bin()
+        .args(["fit", "thermal"])
+        .arg(&rec)
+        .args(COMPENSATION_ARGS)
+        .arg("--base-model")
+        .arg(&sim)
+        .arg("--out")
+        .arg(&comp)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "fit thermal {ch}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::fs::write(dir.join("compensation.json"), &out.stdout).unwrap();
+    std::fs::remove_file(&rec).unwrap();
+    (sim, comp)
+}
+
+/// The compensation fit's settings (docs/diagnose.md, "Compensation model"; README).
+pub(crate) const COMPENSATION_ARGS: [&str; 12] = [
+    "--signal",
+    "ez_um",
+    "--residual",
+    "--refit-all",
+    "--criterion",
+    "average",
+    "--max-terms",
+    "6",
+    "--lags-s",
+    "0,300,1200,4800",
+    "--drivers",
+    "rpm^2",
+];

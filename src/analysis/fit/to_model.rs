@@ -30,8 +30,6 @@ pub enum AxisForm {
 pub enum ToModelError {
     #[error("component {0} is on axis {1}, which the base model does not have")]
     NoAxis(String, char),
-    #[error("sensor `{0}` is already in the base model with a different lag")]
-    SensorConflict(String),
     #[error("the fitted model does not validate: {0}")]
     Invalid(String),
     #[error("a table needs at least 2 targets")]
@@ -142,7 +140,12 @@ pub fn put_component(spec: &mut ModelSpec, c: ComponentSpec) -> Result<(), ToMod
     Ok(())
 }
 
-/// Adds the thermal term of a context fit. `means` gives each selected signal's training mean.
+/// Adds the thermal term of a context fit. `means` gives each selected signal's mean over the
+/// rows the model was fitted on (the sensor's reference).
+///
+/// Sensors are named as `diagnose` names its lag states: `T_<name>_C` is sensor `<name>`; a column
+/// the model already reads at another lag gets a lag state of its own, `<name>_tau_<τ>s` reading
+/// `T_<name>_C`; a driver `rpm^2` is `rpm_sq_tau_<τ>s` (rpm, exponent 2, gain per rpm²).
 pub fn add_thermal(
     spec: &mut ModelSpec,
     fit: &ContextFit,
@@ -156,28 +159,25 @@ pub fn add_thermal(
     let mut b = Vec::new();
     let mut e0 = fit.model.intercept_um;
     for term in &fit.model.terms {
-        let name = term
-            .signal
-            .trim_start_matches("T_")
-            .trim_end_matches("_C")
-            .to_string();
-        let reference = means(&term.signal);
         let tau = (term.tau_s > 0.0).then_some(term.tau_s);
-        match spec.sensors.iter().find(|s| s.name == name) {
-            Some(s) if s.tau_s != tau => return Err(ToModelError::SensorConflict(name)),
+        let mut want = sensor_for(&term.signal, tau);
+        if spec
+            .sensors
+            .iter()
+            .any(|s| s.name == want.name && (s.tau_s != tau || s.column != want.column))
+        {
+            want.name = format!("{}_tau_{:.0}s", want.name, term.tau_s.round());
+            want.column.get_or_insert_with(|| term.signal.clone());
+        }
+        match spec.sensors.iter().find(|s| s.name == want.name) {
             Some(s) => e0 += term.coef * s.reference_c,
             None => {
-                spec.sensors.push(SensorSpec {
-                    name: name.clone(),
-                    reference_c: reference,
-                    tau_s: tau,
-                    column: None,
-                    exponent: None,
-                });
-                e0 += term.coef * reference;
+                want.reference_c = means(&term.signal);
+                e0 += term.coef * want.reference_c;
+                spec.sensors.push(want.clone());
             }
         }
-        sensors.push(name);
+        sensors.push(want.name);
         b.push(term.coef);
     }
     let name = format!("fit_{}", fit.signal.trim_end_matches("_um"));
@@ -193,6 +193,42 @@ pub fn add_thermal(
         },
     });
     Ok(())
+}
+
+/// The sensor a regressor reads: `T_<name>_C` → `<name>`; `col^p` → `<col>_sq_tau_<τ>s` (p = 2)
+/// or `<col>_p<p>_tau_<τ>s`, reading `col` raised to p. Reference 0 until the caller sets it.
+fn sensor_for(signal: &str, tau_s: Option<f64>) -> SensorSpec {
+    let t = tau_s.unwrap_or(0.0).round();
+    let (name, column, exponent) = match signal.split_once('^') {
+        Some((col, p)) => {
+            let p: f64 = p.parse().unwrap_or(1.0);
+            let power = if p == 2.0 {
+                "sq".to_string()
+            } else {
+                format!("p{p}")
+            };
+            (
+                format!("{col}_{power}_tau_{t:.0}s"),
+                Some(col.to_string()),
+                Some(p),
+            )
+        }
+        None => (
+            signal
+                .trim_start_matches("T_")
+                .trim_end_matches("_C")
+                .to_string(),
+            None,
+            None,
+        ),
+    };
+    SensorSpec {
+        name,
+        reference_c: 0.0,
+        tau_s,
+        column,
+        exponent,
+    }
 }
 
 /// Adds the load terms of a context fit on strains.

@@ -115,7 +115,57 @@ pub struct ContextFit {
     pub model: LinearModel,
     /// How the held-out data was chosen.
     pub heldout_rule: String,
+    /// δ of the fit on the training rows, scored on the held-out rows (also with `refit_all`: it
+    /// then says how well the procedure predicted, while `model` is chosen again on every row).
     pub heldout: Efficiency,
+    /// Rows `model` was chosen and fitted on: "training" or "all".
+    pub model_rows: String,
+    /// Mean of each of the model's source signals over those rows (a sensor's reference).
+    pub means: Vec<(String, f64)>,
+}
+
+/// A context signal that heats the machine with no sensor on it (issue 12 point 2): `column`
+/// raised to `exponent` (rpm² for bearing friction) enters only through first-order lags.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Driver {
+    pub column: String,
+    pub exponent: f64,
+}
+
+impl Driver {
+    /// "rpm^2": the candidate's signal name, read back by [`source_values`].
+    pub fn signal(&self) -> String {
+        format!("{}^{}", self.column, self.exponent)
+    }
+}
+
+/// A regressor's raw values: a recording column, or for a driver signal `col^p`, |col|^p.
+pub fn source_values(rec: &Recording, signal: &str) -> Option<Vec<f64>> {
+    match signal.split_once('^') {
+        Some((col, p)) => {
+            let p: f64 = p.parse().ok()?;
+            Some(rec.col(col)?.iter().map(|x| x.abs().powf(p)).collect())
+        }
+        None => rec.col(signal).map(<[f64]>::to_vec),
+    }
+}
+
+/// What [`fit_context_with`] fits on and how.
+#[derive(Debug, Clone)]
+pub struct ContextOptions<'a> {
+    pub use_temperatures: bool,
+    pub use_strains: bool,
+    pub lags_s: &'a [f64],
+    pub max_terms: usize,
+    pub criterion: Criterion,
+    pub heldout_runs: &'a [u32],
+    /// Lagged drivers (each lag of `lags_s` above 0 s).
+    pub drivers: &'a [Driver],
+    /// Subtracted from the signal before fitting: a base model's prediction (µm), so the fit
+    /// adds to the model it extends instead of counting its part twice.
+    pub base_um: Option<&'a [f64]>,
+    /// After scoring the training fit on the held-out rows, choose and fit again on every row.
+    pub refit_all: bool,
 }
 
 /// Fits `signal` on the recording's temperatures (`use_temperatures`, with the given lag grid)
@@ -131,19 +181,88 @@ pub fn fit_context(
     criterion: Criterion,
     heldout_runs: &[u32],
 ) -> Result<ContextFit, FitError> {
+    fit_context_with(
+        rec,
+        signal,
+        &ContextOptions {
+            use_temperatures,
+            use_strains,
+            lags_s,
+            max_terms,
+            criterion,
+            heldout_runs,
+            drivers: &[],
+            base_um: None,
+            refit_all: false,
+        },
+    )
+}
+
+/// Every candidate regressor of the options over the whole recording.
+fn candidates(
+    rec: &Recording,
+    o: &ContextOptions<'_>,
+    t: &[f64],
+) -> Result<Vec<Candidate>, FitError> {
+    let mut full: Vec<Candidate> = Vec::new();
+    if o.use_temperatures {
+        for name in rec.temperature_channels() {
+            let values = rec.col(&name).expect("listed by the recording");
+            for &tau in o.lags_s {
+                full.push(Candidate {
+                    signal: name.clone(),
+                    tau_s: tau,
+                    values: first_order_lag(t, values, tau),
+                });
+            }
+        }
+    }
+    for d in o.drivers {
+        let signal = d.signal();
+        let values = source_values(rec, &signal).ok_or(FitError::NoColumn(d.column.clone()))?;
+        for &tau in o.lags_s.iter().filter(|tau| **tau > 0.0) {
+            full.push(Candidate {
+                signal: signal.clone(),
+                tau_s: tau,
+                values: first_order_lag(t, &values, tau),
+            });
+        }
+    }
+    if o.use_strains {
+        for name in rec.strain_channels() {
+            full.push(Candidate {
+                values: rec.col(&name).expect("listed by the recording").to_vec(),
+                signal: name,
+                tau_s: 0.0,
+            });
+        }
+    }
+    Ok(full)
+}
+
+/// [`fit_context`] with drivers, a base model's prediction and a final fit on every row.
+pub fn fit_context_with(
+    rec: &Recording,
+    signal: &str,
+    o: &ContextOptions<'_>,
+) -> Result<ContextFit, FitError> {
     let y = rec
         .col(signal)
         .ok_or_else(|| FitError::NoColumn(signal.to_string()))?;
+    let y: Vec<f64> = match o.base_um {
+        Some(b) => y.iter().zip(b).map(|(y, b)| y - b).collect(),
+        None => y.to_vec(),
+    };
     let t = rec
         .col("t_s")
         .ok_or_else(|| FitError::NoColumn("t_s".into()))?;
     let n = y.len();
-    let (test, rule): (Vec<bool>, String) = match (rec.col("run"), heldout_runs.is_empty()) {
+    let (test, rule): (Vec<bool>, String) = match (rec.col("run"), o.heldout_runs.is_empty()) {
         (Some(run), false) => (
             run.iter()
-                .map(|r| heldout_runs.iter().any(|h| f64::from(*h) == *r))
+                .map(|r| o.heldout_runs.iter().any(|h| f64::from(*h) == *r))
                 .collect(),
-            format!("runs {heldout_runs:?}"),
+            format!("runs {:?}", o.heldout_runs),
         ),
         _ => (
             (0..n).map(|i| i >= n * 7 / 10).collect(),
@@ -153,28 +272,7 @@ pub fn fit_context(
     if !test.iter().any(|b| *b) {
         return Err(FitError::NoHeldout);
     }
-    let mut full: Vec<Candidate> = Vec::new();
-    if use_temperatures {
-        for name in rec.temperature_channels() {
-            let values = rec.col(&name).expect("listed by the recording");
-            for &tau in lags_s {
-                full.push(Candidate {
-                    signal: name.clone(),
-                    tau_s: tau,
-                    values: first_order_lag(t, values, tau),
-                });
-            }
-        }
-    }
-    if use_strains {
-        for name in rec.strain_channels() {
-            full.push(Candidate {
-                values: rec.col(&name).expect("listed by the recording").to_vec(),
-                signal: name,
-                tau_s: 0.0,
-            });
-        }
-    }
+    let full = candidates(rec, o, t)?;
     // Samples of the training (`heldout = false`) or held-out (`true`) part.
     let pick = |v: &[f64], heldout: bool| -> Vec<f64> {
         v.iter()
@@ -190,17 +288,40 @@ pub fn fit_context(
             ..c.clone()
         })
         .collect();
-    let selection = select(&pick(y, false), &train_c, max_terms, criterion)?;
-    let model = selection.model.clone();
-    let predicted = model
-        .predict(t, &|name: &str| rec.col(name).map(<[f64]>::to_vec))
+    let selection = select(&pick(&y, false), &train_c, o.max_terms, o.criterion)?;
+    let source = |name: &str| source_values(rec, name);
+    let predicted = selection
+        .model
+        .predict(t, &source)
         .ok_or_else(|| FitError::NoColumn("a selected signal".into()))?;
-    let heldout = efficiency(&pick(y, true), &pick(&predicted, true)).ok_or(FitError::NoHeldout)?;
+    let heldout =
+        efficiency(&pick(&y, true), &pick(&predicted, true)).ok_or(FitError::NoHeldout)?;
+    let (selection, rows) = if o.refit_all {
+        (select(&y, &full, o.max_terms, o.criterion)?, vec![true; n])
+    } else {
+        (selection, test.iter().map(|h| !h).collect())
+    };
+    let model = selection.model.clone();
+    let means = model
+        .terms
+        .iter()
+        .map(|term| {
+            let v = source(&term.signal).expect("a selected signal is in the recording");
+            let (s, k) = v
+                .iter()
+                .zip(&rows)
+                .filter(|(_, r)| **r)
+                .fold((0.0, 0usize), |(s, k), (x, _)| (s + x, k + 1));
+            (term.signal.clone(), s / k.max(1) as f64)
+        })
+        .collect();
     Ok(ContextFit {
         signal: signal.to_string(),
         selection,
         model,
         heldout_rule: rule,
         heldout,
+        model_rows: if o.refit_all { "all" } else { "training" }.to_string(),
+        means,
     })
 }
