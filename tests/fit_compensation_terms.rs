@@ -164,42 +164,26 @@ fn residual_fit_with_an_rpm_driver_evaluates_like_the_regression() {
     }
 }
 
+/// `retrocomp fit thermal ARGS…` must fail before reading anything; its stderr.
+fn refused(args: &[&str]) -> String {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .args(["fit", "thermal", "none.csv", "--signal", "ex_um"])
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(!out.status.success(), "{args:?} was accepted");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
 /// The CLI refuses what it cannot honour, before reading anything: `--residual` without a base
 /// model, a driver power outside (0, 4].
 #[test]
 fn cli_refuses_a_residual_without_base_and_a_bad_driver_power() {
-    let bin = env!("CARGO_BIN_EXE_retrocomp");
-    let out = std::process::Command::new(bin)
-        .args([
-            "fit",
-            "thermal",
-            "none.csv",
-            "--signal",
-            "ex_um",
-            "--residual",
-        ])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = refused(&["--residual"]);
+    assert!(err.contains("--base-model"), "{err}");
+    let err = refused(&["--drivers", "rpm^9"]);
     assert!(
-        !out.status.success() && err.contains("--base-model"),
-        "{err}"
-    );
-    let out = std::process::Command::new(bin)
-        .args([
-            "fit",
-            "thermal",
-            "none.csv",
-            "--signal",
-            "ex_um",
-            "--drivers",
-            "rpm^9",
-        ])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        !out.status.success() && err.contains("`rpm^9`: the power must be a number in (0, 4]"),
+        err.contains("`rpm^9`: the power must be a number in (0, 4]"),
         "{err}"
     );
 }

@@ -324,6 +324,18 @@ pub(crate) fn rms(v: impl Iterator<Item = f64>) -> f64 {
     (s / n as f64).sqrt()
 }
 
+/// `dir/sim.toml` (the static simulation of `fit` rows of `ch`) and `dir/fit.csv` (those rows,
+/// `ez_um` = the channel).
+fn sim_and_fit_file(d: &Data, ch: &str, fit: &[usize], dir: &Path) -> (PathBuf, PathBuf) {
+    std::fs::create_dir_all(dir).unwrap();
+    let (toml, _) = sim_model(d, ch, fit);
+    let sim = dir.join("sim.toml");
+    std::fs::write(&sim, toml).unwrap();
+    let rec = dir.join("fit.csv");
+    d.write(&rec, fit.iter().copied(), Some(ch));
+    (sim, rec)
+}
+
 /// Fit sim + diagnose on `fit` rows of channel `ch` into `dir`; returns (sim.toml, model.toml,
 /// diagnose's text report).
 pub(crate) fn fit_channel(
@@ -332,12 +344,7 @@ pub(crate) fn fit_channel(
     fit: &[usize],
     dir: &Path,
 ) -> (PathBuf, PathBuf, String) {
-    std::fs::create_dir_all(dir).unwrap();
-    let (toml, _) = sim_model(d, ch, fit);
-    let sim = dir.join("sim.toml");
-    std::fs::write(&sim, toml).unwrap();
-    let rec = dir.join("fit.csv");
-    d.write(&rec, fit.iter().copied(), Some(ch));
+    let (sim, rec) = sim_and_fit_file(d, ch, fit, dir);
     // --fit-offset: the simulation's intercept was fitted on this same data without the found
     // terms, so the joint refit's constant offset belongs to the model.
     let out = bin()
@@ -371,12 +378,7 @@ pub(crate) fn fit_compensation(
     fit: &[usize],
     dir: &Path,
 ) -> (PathBuf, PathBuf) {
-    std::fs::create_dir_all(dir).unwrap();
-    let (toml, _) = sim_model(d, ch, fit);
-    let sim = dir.join("sim.toml");
-    std::fs::write(&sim, toml).unwrap();
-    let rec = dir.join("fit.csv");
-    d.write(&rec, fit.iter().copied(), Some(ch));
+    let (sim, rec) = sim_and_fit_file(d, ch, fit, dir);
     let comp = dir.join("compensation.toml");
     let out = bin()
         .args(["fit", "thermal"])
