@@ -403,28 +403,22 @@ pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
             residual,
             refit_all,
             common,
-        } => {
-            let drivers = drivers
-                .iter()
-                .map(|d| parse_driver(d))
-                .collect::<anyhow::Result<Vec<_>>>()?;
-            run_context(
-                true,
-                recording,
-                signal,
-                target.as_deref(),
-                &Extra {
-                    lags: lags_s,
-                    max_terms: *max_terms,
-                    criterion: *criterion,
-                    holdout_runs,
-                    drivers: &drivers,
-                    residual: *residual,
-                    refit_all: *refit_all,
-                },
-                common,
-            )
-        }
+        } => run_context(
+            true,
+            recording,
+            signal,
+            target.as_deref(),
+            &Extra {
+                lags: lags_s,
+                max_terms: *max_terms,
+                criterion: *criterion,
+                holdout_runs,
+                drivers,
+                residual: *residual,
+                refit_all: *refit_all,
+            },
+            common,
+        ),
         What::Load {
             recording,
             signal,
@@ -458,7 +452,8 @@ struct Extra<'a> {
     max_terms: usize,
     criterion: Crit,
     holdout_runs: &'a [u32],
-    drivers: &'a [Driver],
+    /// As given: `rpm^2`, `load`.
+    drivers: &'a [String],
     residual: bool,
     refit_all: bool,
 }
@@ -492,6 +487,11 @@ fn run_context(
     x: &Extra<'_>,
     common: &Common,
 ) -> anyhow::Result<()> {
+    let drivers = x
+        .drivers
+        .iter()
+        .map(|d| parse_driver(d))
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let base = common
         .base_model
         .as_ref()
@@ -523,7 +523,7 @@ fn run_context(
             max_terms: x.max_terms,
             criterion,
             heldout_runs: x.holdout_runs,
-            drivers: x.drivers,
+            drivers: &drivers,
             base_um: base_um.as_deref(),
             refit_all: x.refit_all,
         },
