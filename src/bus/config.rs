@@ -180,6 +180,19 @@ fn check_channel_name(
     }
 }
 
+/// A CANopen node id (1..=127) and the TPDO number it sends on (1..=4), under `key`.
+fn check_node_and_tpdo(p: &mut Problems, key: &str, node_id: u8, tpdo: u8) {
+    if !(1..=127).contains(&node_id) {
+        p.push((
+            format!("{key}.node_id"),
+            format!("{node_id} is outside 1..=127"),
+        ));
+    }
+    if !(1..=4).contains(&tpdo) {
+        p.push((format!("{key}.tpdo"), format!("{tpdo} is outside 1..=4")));
+    }
+}
+
 /// Optional physical limits must leave a range (min below max).
 fn check_limits(p: &mut Problems, key: &str, min: Option<f64>, max: Option<f64>) {
     if let (Some(a), Some(b)) = (min, max)
@@ -234,15 +247,7 @@ fn validate_encoder(
 ) {
     let k = format!("canopen.encoder[{i}]");
     check_channel_name(p, names, format!("{k}.channel"), &e.channel);
-    if !(1..=127).contains(&e.node_id) {
-        p.push((
-            format!("{k}.node_id"),
-            format!("{} is outside 1..=127", e.node_id),
-        ));
-    }
-    if !(1..=4).contains(&e.tpdo) {
-        p.push((format!("{k}.tpdo"), format!("{} is outside 1..=4", e.tpdo)));
-    }
+    check_node_and_tpdo(p, &k, e.node_id, e.tpdo);
     if e.byte_offset > 4 {
         p.push((
             format!("{k}.byte_offset"),
@@ -288,15 +293,7 @@ fn validate_analog(
 ) {
     let k = format!("canopen.analog[{i}]");
     check_channel_name(p, names, format!("{k}.channel"), &a.channel);
-    if !(1..=127).contains(&a.node_id) {
-        p.push((
-            format!("{k}.node_id"),
-            format!("{} is outside 1..=127", a.node_id),
-        ));
-    }
-    if !(1..=4).contains(&a.tpdo) {
-        p.push((format!("{k}.tpdo"), format!("{} is outside 1..=4", a.tpdo)));
-    }
+    check_node_and_tpdo(p, &k, a.node_id, a.tpdo);
     if usize::from(a.byte_offset) + a.data_type.size() > 8 {
         p.push((
             format!("{k}.byte_offset"),

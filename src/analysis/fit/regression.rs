@@ -51,7 +51,8 @@ pub enum Criterion {
 pub struct Term {
     pub signal: String,
     pub tau_s: f64,
-    /// µm per unit of the signal (per K for temperatures, per µm/m for strain).
+    /// µm per unit of the signal: per K for temperatures, per µm/m for strain, per column unit to
+    /// the power for a driver (`rpm^2`: µm per rpm²).
     pub coef: f64,
 }
 
@@ -317,8 +318,8 @@ fn pick_size(steps: &[SizeStep], criterion: Criterion) -> usize {
             .min_by(|a, b| a.1.bic.total_cmp(&b.1.bic))
             .map(|(i, _)| i)
             .unwrap_or(0),
-        // The mean of every size is built in `select`; as a size, the largest stands for it.
-        Criterion::Average => steps.len() - 1,
+        // `select` builds the mean of every size and returns before choosing one.
+        Criterion::Average => unreachable!("no single size is chosen for Criterion::Average"),
         Criterion::Cp => steps
             .iter()
             .position(|s| s.cp <= s.p as f64)
