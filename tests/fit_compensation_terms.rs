@@ -13,11 +13,6 @@ use retrocomp::models::MachineModel;
 use retrocomp::models::names::parse_component;
 use retrocomp::recording::Recording;
 
-/// `models::lag::series` started at `y0` (the fit's kernel).
-fn first_order_lag_from(t: &[f64], u: &[f64], tau_s: f64, y0: f64) -> Vec<f64> {
-    retrocomp::models::lag::series(t, u, tau_s, y0)
-}
-
 /// Base: EXX = 2 µm/K · (T_a − 20). Truth adds 3e-7 µm/rpm² through a 600 s lag of rpm² and
 /// 1.5 µm/K through a 1200 s lag of T_a.
 const BASE: &str = "schema = 1\n[machine]\nname = \"base\"\nchain = \"X F Y Z\"\ntool_axis = \"-z\"\n\
@@ -116,20 +111,13 @@ fn residual_fit_with_an_rpm_driver_evaluates_like_the_regression() {
         let (_, model) = to_checked_toml(spec).unwrap();
         assert!(model.spec().lag_state.is_some());
         let written = simulate_axes(&model, &rec).unwrap()[0].clone();
-        // The model's lag takes each reading as it arrives (y += α·(u[i] − y)); the fit's
-        // regressors hold the previous one over the interval (`models::lag::series`), one
-        // sample's step apart (≤ 0.12 µm here, right after a speed change). So the written model
-        // is compared with the regression's terms run through the model's own convention.
+        // The regression's own terms, built from the fit's own regressor (`first_order_lag`):
+        // the box's lag and the fit's are one convention (`models::lag`), so no shift is allowed.
         let t = rec.t_s();
         let mut regression = vec![fit.model.intercept_um; t.len()];
         for term in &fit.model.terms {
             let u = source_values(&rec, &term.signal).unwrap();
-            let v = if term.tau_s > 0.0 {
-                let ahead: Vec<f64> = u[1..].iter().chain(u.last()).copied().collect();
-                first_order_lag_from(t, &ahead, term.tau_s, u[0])
-            } else {
-                u
-            };
+            let v = first_order_lag(t, &u, term.tau_s);
             regression
                 .iter_mut()
                 .zip(v)

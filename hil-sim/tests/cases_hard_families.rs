@@ -100,13 +100,17 @@ fn fnv1a(bytes: &[u8]) -> u64 {
 
 #[test]
 fn standard_family_output_is_unchanged_and_hard_families_are_deterministic() {
-    // FNV-1a of the CSVs `hil-sim gen-cases --seed 1` wrote before the families existed (commit
-    // c8d149a): the standard cases, and so the published figures, are the same recordings.
+    // FNV-1a of the CSVs `hil-sim gen-cases --seed 1` writes: the standard cases, and so the
+    // published figures, are these recordings. They were unchanged from commit c8d149a until
+    // session 17, when the lag kernel's convention for readings (`models::lag::series`, each
+    // reading held over the interval it ends, as the gateway runs it) moved the sensors' and the
+    // effects' lags by one sample; the benchmark was measured again on the new recordings (seed 1
+    // and 2: recall 0.985, FPR 0, unchanged; README).
     for (i, h) in [
-        (0, 0x72a3_113d_de35_ed9f_u64),
-        (3, 0x48cd_6cb5_5e50_e3af),
-        (47, 0x87b0_c479_ff9c_7b52),
-        (99, 0x5911_cdc1_1655_bfba),
+        (0, 0xe4a5_e22d_f136_7500_u64),
+        (3, 0xfd2b_1d07_6beb_6f87),
+        (47, 0x3e28_4e7d_10ec_dd2c),
+        (99, 0x46cd_5609_5d45_ba1f),
     ] {
         let (rec, m) = generate_family_case(Family::Standard, 1, i);
         assert_eq!(fnv1a(&csv_bytes(&rec)), h, "standard case {i} changed");

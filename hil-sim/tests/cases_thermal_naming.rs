@@ -33,16 +33,12 @@ fn named(findings: &[Finding]) -> Vec<String> {
 fn a_drift_on_a_measured_temperature_is_named_as_that_drift_not_as_the_lag_it_equals() {
     // Regime cases whose truth is `thermal_drift` and that came back `thermal_lag`: seed 2026 (of
     // rpm: 4, 7, 19; of the sensor itself, τ 46 s: 13) before the parsimony rule; seed 7 (of the
-    // sensor itself, τ 30 s on the grid, within its 0.1 °C steps: 7, 13) before the resolution
-    // rule.
-    for (seed, i) in [
-        (2026, 4),
-        (2026, 7),
-        (2026, 13),
-        (2026, 19),
-        (7, 7),
-        (7, 13),
-    ] {
+    // sensor itself, τ 30 s on the grid, within its 0.1 °C steps: 13) before the resolution
+    // rule. Seed 7 case 7 was the resolution rule's other case until session 17: with the lag's
+    // reading taken as it arrives (`models::lag`) the winning lag has τ 169 s (CI 51–379 s),
+    // ΔBIC 28.8 above the drift and 2 % better held out, beyond the sensor's resolution, so the
+    // rule rightly does not apply and the case is a counted miss (docs/diagnose.md).
+    for (seed, i) in [(2026, 4), (2026, 7), (2026, 13), (2026, 19), (7, 13)] {
         let (rec, m) = generate_family_case(Family::Regime, seed, i);
         let EffectModel::ThermalDrift { sensor, um_per_k } = &m.hidden[0].model else {
             panic!(

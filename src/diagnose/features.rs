@@ -547,11 +547,12 @@ mod tests {
             .map(|&ti| if ti > 0.0 { 1.0 } else { 0.0 })
             .collect();
         let y = lowpass(&t, &u, 100.0);
-        // Input steps between sample 0 and 1 (held); after τ = 100 s from the step, 1 − 1/e.
+        // The reading 1 at t = 1 s is held over the interval it ends (the gateway's rule,
+        // `models::lag`), so the step acts from t = 0: 1 − 1/e at t = τ = 100 s.
         assert!(
-            (y[101] - (1.0 - (-1.0f64).exp())).abs() < 1e-9,
+            (y[100] - (1.0 - (-1.0f64).exp())).abs() < 1e-9,
             "{}",
-            y[101]
+            y[100]
         );
     }
 }

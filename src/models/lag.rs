@@ -3,6 +3,13 @@
 //! y ← y + α·(u − y) with α = 1 − e^(−Δt/τ). Used by the model's thermal terms ([`super::thermal`]),
 //! the fit's lagged regressors (`analysis::fit`), diagnose's features and hil-sim's physics.
 //!
+//! Which reading is held: the one that arrives at the end of the interval (u[i] over
+//! t[i−1]…t[i]), as the gateway's [`super::thermal::ThermalState::step`] applies a reading the
+//! moment it comes in. [`series`] follows the same rule so that a lag fitted offline is, to
+//! rounding, the lag the box runs; before, `series` held the previous reading (u[i−1]) and a
+//! written model differed from its fit by one sample's step after every jump of the input
+//! (0.12 µm on a synthetic rpm step). `tests` lock the two together.
+//!
 //! Units: Δt, τ and the sample times in seconds; the signal in its own unit. τ ≤ 0 means "no lag"
 //! (α = 1: the output takes the previous input). A negative Δt (times out of order) counts as 0.
 
@@ -17,8 +24,24 @@ pub fn alpha(dt_s: f64, tau_s: f64) -> f64 {
 }
 
 /// The lagged series of `u` sampled at `t_s`, started at `y0`: y[0] = y0 and
-/// y[i] = y[i−1] + α(t[i] − t[i−1])·(u[i−1] − y[i−1]) (the input held over each interval).
+/// y[i] = y[i−1] + α(t[i] − t[i−1])·(u[i] − y[i−1]) (each reading held over the interval it ends,
+/// as [`super::thermal::ThermalState::step`] does). For readings: the fit's and diagnose's
+/// regressors, and the evaluation of a model over a recording.
 pub fn series(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64) -> Vec<f64> {
+    run(t_s, u, tau_s, y0, 0)
+}
+
+/// A plant's response to an input *schedule*: the value set at t[i−1] acts until t[i]
+/// (y[i] = y[i−1] + α·(u[i−1] − y[i−1])), the exact solution for a commanded speed or an ambient
+/// held between its set points. hil-sim's physics drives its simulated machine with it; a model
+/// reading sensors uses [`series`], so the two differ by one sample the way a real machine and its
+/// sampled model do.
+pub fn plant_series(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64) -> Vec<f64> {
+    run(t_s, u, tau_s, y0, 1)
+}
+
+/// y[i] = y[i−1] + α·(u[i − back] − y[i−1]) for i ≥ 1.
+fn run(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64, back: usize) -> Vec<f64> {
     let mut out = Vec::with_capacity(u.len());
     let mut y = y0;
     // α recomputed only when the sample period changes (usually never after the first step).
@@ -30,7 +53,7 @@ pub fn series(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64) -> Vec<f64> {
                 a = alpha(dt, tau_s);
                 last_dt = dt;
             }
-            y += a * (u[i - 1] - y);
+            y += a * (u[i - back] - y);
         }
         out.push(y);
     }
@@ -61,6 +84,10 @@ mod tests {
         assert_eq!(alpha(-1.0, 10.0), 0.0);
         assert_eq!(
             series(&[0.0, 1.0, 2.0], &[5.0, 6.0, 7.0], 0.0, 5.0),
+            [5.0, 6.0, 7.0]
+        );
+        assert_eq!(
+            plant_series(&[0.0, 1.0, 2.0], &[5.0, 6.0, 7.0], 0.0, 5.0),
             [5.0, 5.0, 6.0]
         );
         assert!(series(&[], &[], 1.0, 0.0).is_empty());

@@ -413,6 +413,37 @@ mod tests {
     }
 
     #[test]
+    fn the_gateway_lag_is_the_offline_lag_series() {
+        // A fitted lag (`models::lag::series`, used by `fit`, `diagnose` and their written models'
+        // evaluation) must be the lag the box runs, reading by reading: a speed step, a ramp and
+        // an irregular sample period, started settled at the first reading as both start.
+        let t: Vec<f64> = (0..400)
+            .map(|i| f64::from(i) * 15.0 + if i % 7 == 3 { 2.5 } else { 0.0 })
+            .collect();
+        let u: Vec<f64> = (0..400)
+            .map(|i| match i {
+                0..=99 => 20.0,
+                100..=199 => 26.0,
+                _ => 26.0 - 0.02 * f64::from(i - 200),
+            })
+            .collect();
+        let offline = crate::models::lag::series(&t, &u, 300.0, u[0]);
+        let s = [sensor(Some(300.0))];
+        let mut st = ThermalState::new(1);
+        for (i, (&ti, &ui)) in t.iter().zip(&u).enumerate() {
+            st.step(&s, &[ui], ti);
+            let online = st.delta_c[0] + s[0].reference_c;
+            assert!(
+                (online - offline[i]).abs() < 1e-9,
+                "row {i}: box {online} vs offline {}",
+                offline[i]
+            );
+        }
+        // The step is seen on the row it arrives, not one row later.
+        assert!(offline[100] > 20.0 + 1e-3, "{}", offline[100]);
+    }
+
+    #[test]
     fn cached_lag_step_matches_exp_for_jittered_and_changed_steps() {
         let tau = 180.0;
         let mut cache = (f64::NAN, 0.0);

@@ -79,12 +79,12 @@ pub fn thermal_with_ambient(
         .zip(&ambient_c)
         .map(|(r, a)| a + k_c_per_krpm * r / 1000.0)
         .collect();
-    let spindle_c = lag::series(t_s, &drive, tau_node_s, ambient_c[0]);
-    let motion = lag::series(t_s, motion_speed_mm_s, 120.0, 0.0);
+    let spindle_c = lag::plant_series(t_s, &drive, tau_node_s, ambient_c[0]);
+    let motion = lag::plant_series(t_s, motion_speed_mm_s, 120.0, 0.0);
     let sdrive: Vec<f64> = (0..t_s.len())
         .map(|i| ambient_c[i] + spindle_share * (spindle_c[i] - ambient_c[i]) + 0.05 * motion[i])
         .collect();
-    let structure_c = lag::series(t_s, &sdrive, tau_struct_s, ambient_c[0]);
+    let structure_c = lag::plant_series(t_s, &sdrive, tau_struct_s, ambient_c[0]);
     Thermal {
         spindle_c,
         structure_c,

@@ -397,10 +397,12 @@ mod tests {
             .map(|&ti| if ti > 0.0 { 1.0 } else { 0.0 })
             .collect();
         let f = first_order_lag(&t, &x, 100.0);
+        // The reading 1 at t = 1 s is held over the interval it ends (the gateway's rule,
+        // `models::lag`), so the step acts from t = 0: 1 − 1/e at t = τ = 100 s.
         assert!(
-            (f[101] - (1.0 - (-1.0f64).exp())).abs() < 1e-9,
+            (f[100] - (1.0 - (-1.0f64).exp())).abs() < 1e-9,
             "{}",
-            f[101]
+            f[100]
         );
         assert_eq!(first_order_lag(&t, &x, 0.0), x);
     }
