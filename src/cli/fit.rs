@@ -458,27 +458,6 @@ struct Extra<'a> {
     refit_all: bool,
 }
 
-/// `rpm^2` → rpm with exponent 2; `load` → exponent 1.
-fn parse_driver(d: &str) -> anyhow::Result<Driver> {
-    let (column, exponent) = match d.split_once('^') {
-        Some((c, p)) => (
-            c,
-            p.parse::<f64>()
-                .ok()
-                .filter(|p| *p > 0.0 && *p <= 4.0)
-                .with_context(|| {
-                    format!("--drivers `{d}`: the power must be a number in (0, 4]")
-                })?,
-        ),
-        None => (d, 1.0),
-    };
-    anyhow::ensure!(!column.is_empty(), "--drivers `{d}`: no column name");
-    Ok(Driver {
-        column: column.to_string(),
-        exponent,
-    })
-}
-
 fn run_context(
     thermal: bool,
     recording: &Path,
@@ -490,7 +469,7 @@ fn run_context(
     let drivers = x
         .drivers
         .iter()
-        .map(|d| parse_driver(d))
+        .map(|d| Driver::parse(d).map_err(|e| anyhow::anyhow!("--drivers: {e}")))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let base = common
         .base_model

@@ -11,7 +11,7 @@
 //!   compliance, so v = β·(strain − offset); the first term's offset carries the intercept.
 
 use crate::analysis::fit::piecewise::PiecewiseQuadratic;
-use crate::analysis::fit::workflow::{AxisFit, ContextFit};
+use crate::analysis::fit::workflow::{AxisFit, ContextFit, Driver};
 use crate::models::spec::{
     AxisSpec, Branch, ComponentSpec, ForceSpec, LoadKind, LoadSpec, SensorSpec, StrainSource,
     ThermalKind, ThermalSpec, ToolSpec,
@@ -195,22 +195,22 @@ pub fn add_thermal(
     Ok(())
 }
 
-/// The sensor a regressor reads: `T_<name>_C` → `<name>`; `col^p` → `<col>_sq_tau_<τ>s` (p = 2)
-/// or `<col>_p<p>_tau_<τ>s`, reading `col` raised to p. Reference 0 until the caller sets it.
+/// The sensor a regressor reads: `T_<name>_C` → `<name>`; a driver `col^p` → `<col>_sq_tau_<τ>s`
+/// (p = 2) or `<col>_p<p>_tau_<τ>s`, reading `col` raised to p. Reference 0 until the caller sets
+/// it.
 fn sensor_for(signal: &str, tau_s: Option<f64>) -> SensorSpec {
     let t = tau_s.unwrap_or(0.0).round();
-    let (name, column, exponent) = match signal.split_once('^') {
-        Some((col, p)) => {
-            let p: f64 = p.parse().unwrap_or(1.0);
-            let power = if p == 2.0 {
+    let (name, column, exponent) = match Driver::of_signal(signal) {
+        Some(Driver { column, exponent }) => {
+            let power = if exponent == 2.0 {
                 "sq".to_string()
             } else {
-                format!("p{p}")
+                format!("p{exponent}")
             };
             (
-                format!("{col}_{power}_tau_{t:.0}s"),
-                Some(col.to_string()),
-                Some(p),
+                format!("{column}_{power}_tau_{t:.0}s"),
+                Some(column),
+                Some(exponent),
             )
         }
         None => (

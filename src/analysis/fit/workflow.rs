@@ -126,26 +126,83 @@ pub struct ContextFit {
 
 /// A context signal that heats the machine with no sensor on it (issue 12 point 2): `column`
 /// raised to `exponent` (rpm² for bearing friction) enters only through first-order lags.
+///
+/// Its identity in a fit's terms and JSON is the signal name `col^p` ([`Driver::signal`]);
+/// [`Driver::of_signal`] is the one reader of that name (values, model sensor, CLI).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Driver {
     pub column: String,
     pub exponent: f64,
 }
 
+/// A `--drivers` entry that is not `COLUMN` or `COLUMN^POWER` with a power in (0, 4].
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("driver `{given}`: {why}")]
+pub struct DriverError {
+    pub given: String,
+    pub why: &'static str,
+}
+
 impl Driver {
-    /// "rpm^2": the candidate's signal name, read back by [`source_values`].
+    /// The largest power accepted: rpm² is the physics (bearing friction ∝ n²); above 4 the
+    /// regressor is dominated by the top speed alone.
+    pub const MAX_EXPONENT: f64 = 4.0;
+
+    /// `rpm^2` → rpm to the power 2; `load` → power 1.
+    pub fn parse(given: &str) -> Result<Driver, DriverError> {
+        let bad = |why| DriverError {
+            given: given.to_string(),
+            why,
+        };
+        let (column, exponent) = match given.split_once('^') {
+            Some((c, p)) => (
+                c,
+                p.parse::<f64>()
+                    .ok()
+                    .filter(|p| *p > 0.0 && *p <= Self::MAX_EXPONENT)
+                    .ok_or_else(|| bad("the power must be a number in (0, 4]"))?,
+            ),
+            None => (given, 1.0),
+        };
+        if column.is_empty() {
+            return Err(bad("no column name"));
+        }
+        Ok(Driver {
+            column: column.to_string(),
+            exponent,
+        })
+    }
+
+    /// The driver a term's signal names, if it names one (`rpm^2`); `None` for a recording
+    /// column (`T_4_C`, `strain_1_um_per_m`).
+    pub fn of_signal(signal: &str) -> Option<Driver> {
+        signal
+            .contains('^')
+            .then(|| Driver::parse(signal).ok())
+            .flatten()
+    }
+
+    /// "rpm^2": the candidate's signal name, read back by [`Driver::of_signal`].
     pub fn signal(&self) -> String {
         format!("{}^{}", self.column, self.exponent)
+    }
+
+    /// |column|^exponent on every row, `None` when the recording lacks the column.
+    pub fn values(&self, rec: &Recording) -> Option<Vec<f64>> {
+        let p = self.exponent;
+        Some(
+            rec.col(&self.column)?
+                .iter()
+                .map(|x| x.abs().powf(p))
+                .collect(),
+        )
     }
 }
 
 /// A regressor's raw values: a recording column, or for a driver signal `col^p`, |col|^p.
 pub fn source_values(rec: &Recording, signal: &str) -> Option<Vec<f64>> {
-    match signal.split_once('^') {
-        Some((col, p)) => {
-            let p: f64 = p.parse().ok()?;
-            Some(rec.col(col)?.iter().map(|x| x.abs().powf(p)).collect())
-        }
+    match Driver::of_signal(signal) {
+        Some(d) => d.values(rec),
         None => rec.col(signal).map(<[f64]>::to_vec),
     }
 }
@@ -219,7 +276,7 @@ fn candidates(
     }
     for d in o.drivers {
         let signal = d.signal();
-        let values = source_values(rec, &signal).ok_or(FitError::NoColumn(d.column.clone()))?;
+        let values = d.values(rec).ok_or(FitError::NoColumn(d.column.clone()))?;
         for &tau in o.lags_s.iter().filter(|tau| **tau > 0.0) {
             full.push(Candidate {
                 signal: signal.clone(),
@@ -324,4 +381,24 @@ pub fn fit_context_with(
         model_rows: if o.refit_all { "all" } else { "training" }.to_string(),
         means,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_driver_is_read_back_from_its_signal_name_and_columns_are_not_drivers() {
+        let rpm2 = Driver::parse("rpm^2").unwrap();
+        assert_eq!((rpm2.column.as_str(), rpm2.exponent), ("rpm", 2.0));
+        assert_eq!(Driver::of_signal(&rpm2.signal()), Some(rpm2));
+        let load = Driver::parse("spindle_load").unwrap();
+        assert_eq!(load.signal(), "spindle_load^1");
+        assert_eq!(Driver::of_signal(&load.signal()), Some(load));
+        assert_eq!(Driver::of_signal("T_4_C"), None);
+        assert_eq!(Driver::of_signal("strain_1_um_per_m"), None);
+        for bad in ["rpm^9", "rpm^0", "rpm^x", "^2"] {
+            assert!(Driver::parse(bad).is_err(), "{bad}");
+        }
+    }
 }
