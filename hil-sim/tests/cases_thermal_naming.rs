@@ -6,11 +6,12 @@
 //! of the drift and predicts held-out blocks no better. Before the parsimony rule
 //! (`select_step.rs`, `prefer_simpler`; and the driver rule needing a held-out gain of its own)
 //! these cases came back as lags: regime recall 0.643 on seed 2026. A lag of the sensor with a τ
-//! so short that it stays within the reading's 0.1 °C resolution (τ 30 s: seed 7 cases 7, 13)
-//! also predicts 1–2 % better by smoothing the steps; that is the same term as far as the sensor
-//! can tell, so the drift is named (`within_resolution`, session 12). The opposite cases must not
-//! break: where the heat source is seen ONLY through `rpm` (`rpm_heat`), the lag of rpm is the
-//! physics and must still be named; a true lag of a sensor is still named as that lag.
+//! so short that it stays within the reading's 0.1 °C resolution (τ 30 s: seed 7 case 13; case 7
+//! until session 17, see below) also predicts 1–2 % better by smoothing the steps; that is the
+//! same term as far as the sensor can tell, so the drift is named (`within_resolution`, session
+//! 12). The opposite cases must not break: where the heat source is seen ONLY through `rpm`
+//! (`rpm_heat`), the lag of rpm is the physics and must still be named; a true lag of a sensor is
+//! still named as that lag.
 
 use hil_sim::cases::{Family, generate_family_case};
 use retrocomp::diagnose::effects::EffectModel;
