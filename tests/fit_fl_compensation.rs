@@ -24,54 +24,44 @@ struct Split {
 
 fn splits(d: &Data) -> Vec<Split> {
     let n = d.n();
+    let rpm = d.col("rpm");
+    // Fit on rows 0..k, predict k..n.
+    let forward = |name: String, k: usize| Split {
+        name,
+        fit: (0..k).collect(),
+        held: k..n,
+    };
+    let at = |f: f64| (f * n as f64).round() as usize;
     let mut v: Vec<Split> = [0.5, 0.6, 0.7]
         .iter()
-        .map(|f| {
-            let k = (f * n as f64).round() as usize;
-            Split {
-                name: format!("forward {:.0} %", 100.0 * f),
-                fit: (0..k).collect(),
-                held: k..n,
-            }
-        })
+        .map(|&f| forward(format!("forward {:.0} %", 100.0 * f), at(f)))
         .collect();
-    // Checks added after the settings were chosen on the six splits above: the last block (5000
-    // rpm, the highest speed, never seen by the fit: forward from its first row) and 80 %.
-    let s = d.col("rpm");
-    let k = s
-        .iter()
-        .position(|&v| v == 5000.0)
-        .expect("the 5000 rpm block");
-    v.push(Split {
-        name: "5000 rpm out".into(),
-        fit: (0..k).collect(),
-        held: k..n,
-    });
-    let k = (0.8 * n as f64).round() as usize;
-    v.push(Split {
-        name: "forward 80 %".into(),
-        fit: (0..k).collect(),
-        held: k..n,
-    });
-    for rpm in [1250.0, 2500.0, 3750.0] {
-        let s = d.col("rpm");
-        let start = s.iter().position(|&v| v == rpm).expect("the block");
+    for block in [1250.0, 2500.0, 3750.0] {
+        let start = rpm.iter().position(|&v| v == block).expect("the block");
         let run_end = start
-            + s[start..]
+            + rpm[start..]
                 .iter()
-                .position(|&v| v != rpm)
+                .position(|&v| v != block)
                 .expect("block ends");
         let end = run_end
-            + s[run_end..]
+            + rpm[run_end..]
                 .iter()
                 .position(|&v| v != 0.0)
                 .unwrap_or(n - run_end);
         v.push(Split {
-            name: format!("{rpm:.0} rpm out"),
+            name: format!("{block:.0} rpm out"),
             fit: (0..n).filter(|i| !(start..end).contains(i)).collect(),
             held: start..end,
         });
     }
+    // Checks added after the settings were chosen on the six splits above: forward 80 %, and the
+    // last block (5000 rpm, the highest speed, never seen by the fit) forward from its first row.
+    v.push(forward("forward 80 %".into(), at(0.8)));
+    let k = rpm
+        .iter()
+        .position(|&v| v == 5000.0)
+        .expect("the 5000 rpm block");
+    v.push(forward("5000 rpm out".into(), k));
     v
 }
 

@@ -8,10 +8,13 @@
 //! moment it comes in. [`series`] follows the same rule so that a lag fitted offline is, to
 //! rounding, the lag the box runs; before, `series` held the previous reading (u[i−1]) and a
 //! written model differed from its fit by one sample's step after every jump of the input
-//! (0.12 µm on a synthetic rpm step). `tests` lock the two together.
+//! (0.12 µm on a synthetic rpm step), and across a gap in the rows carried the reading from before
+//! it. `thermal::tests::the_gateway_lag_is_the_offline_lag_series` locks the two together on both
+//! of the gateway's step paths. [`plant_series`] is the other rule, for a simulated plant.
 //!
 //! Units: Δt, τ and the sample times in seconds; the signal in its own unit. τ ≤ 0 means "no lag"
-//! (α = 1: the output takes the previous input). A negative Δt (times out of order) counts as 0.
+//! (α = 1: [`series`] takes the reading itself, [`plant_series`] the previous set point). A
+//! negative Δt (times out of order) counts as 0.
 
 /// α = 1 − e^(−Δt/τ), the weight of the new input for a step of `dt_s`; 1 when τ ≤ 0.
 #[inline]

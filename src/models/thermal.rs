@@ -429,15 +429,21 @@ mod tests {
             .collect();
         let offline = crate::models::lag::series(&t, &u, 300.0, u[0]);
         let s = [sensor(Some(300.0))];
-        let mut st = ThermalState::new(1);
+        // Both paths: `step` (the reference evaluator) and `step_planned` (the compiled plan the
+        // gateway's cycle runs, `models::plan`).
+        let plan = LagPlan::new(&s);
+        let (mut reference, mut planned) = (ThermalState::new(1), ThermalState::new(1));
         for (i, (&ti, &ui)) in t.iter().zip(&u).enumerate() {
-            st.step(&s, &[ui], ti);
-            let online = st.delta_c[0] + s[0].reference_c;
-            assert!(
-                (online - offline[i]).abs() < 1e-9,
-                "row {i}: box {online} vs offline {}",
-                offline[i]
-            );
+            reference.step(&s, &[ui], ti);
+            planned.step_planned(&plan, &[ui], ti);
+            for (path, st) in [("step", &reference), ("step_planned", &planned)] {
+                let online = st.delta_c[0] + s[0].reference_c;
+                assert!(
+                    (online - offline[i]).abs() < 1e-9,
+                    "row {i}: {path} {online} vs offline {}",
+                    offline[i]
+                );
+            }
         }
         // The step is seen on the row it arrives, not one row later.
         assert!(offline[100] > 20.0 + 1e-3, "{}", offline[100]);

@@ -140,7 +140,7 @@ pub struct Driver {
 #[error("driver `{given}`: {why}")]
 pub struct DriverError {
     pub given: String,
-    pub why: &'static str,
+    pub why: String,
 }
 
 impl Driver {
@@ -150,7 +150,7 @@ impl Driver {
 
     /// `rpm^2` → rpm to the power 2; `load` → power 1.
     pub fn parse(given: &str) -> Result<Driver, DriverError> {
-        let bad = |why| DriverError {
+        let bad = |why: String| DriverError {
             given: given.to_string(),
             why,
         };
@@ -160,12 +160,17 @@ impl Driver {
                 p.parse::<f64>()
                     .ok()
                     .filter(|p| *p > 0.0 && *p <= Self::MAX_EXPONENT)
-                    .ok_or_else(|| bad("the power must be a number in (0, 4]"))?,
+                    .ok_or_else(|| {
+                        bad(format!(
+                            "the power must be a number in (0, {}]",
+                            Self::MAX_EXPONENT
+                        ))
+                    })?,
             ),
             None => (given, 1.0),
         };
         if column.is_empty() {
-            return Err(bad("no column name"));
+            return Err(bad("no column name".into()));
         }
         Ok(Driver {
             column: column.to_string(),
@@ -397,6 +402,10 @@ mod tests {
         assert_eq!(Driver::of_signal(&load.signal()), Some(load));
         assert_eq!(Driver::of_signal("T_4_C"), None);
         assert_eq!(Driver::of_signal("strain_1_um_per_m"), None);
+        assert_eq!(
+            Driver::parse("rpm^9").unwrap_err().to_string(),
+            "driver `rpm^9`: the power must be a number in (0, 4]"
+        );
         for bad in ["rpm^9", "rpm^0", "rpm^x", "^2"] {
             assert!(Driver::parse(bad).is_err(), "{bad}");
         }
