@@ -152,7 +152,9 @@ impl WriteGuard {
         let tol = a.limits.lsb_um;
         a.may_hold = match (a.may_hold, a.unconfirmed) {
             // Our own unconfirmed write may or may not be applied: both stay in the set.
-            (Some((lo, hi)), true) if !a.trust_next && held_um >= lo - tol && held_um <= hi + tol => {
+            (Some((lo, hi)), true)
+                if !a.trust_next && held_um >= lo - tol && held_um <= hi + tol =>
+            {
                 Some((lo.min(held_um), hi.max(held_um)))
             }
             // Nothing of ours pending, or a value none of ours could explain (controller restart,

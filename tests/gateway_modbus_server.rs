@@ -15,8 +15,8 @@ use std::time::{Duration, Instant};
 use retrocomp::bus::Sample;
 use retrocomp::gateway::SinkStatus;
 use retrocomp::gateway::config::FieldConfig;
-use retrocomp::origin_shift::server::{OriginShiftServer, ServerConfig, ServerTransport};
 use retrocomp::guard::AxisLimits;
+use retrocomp::origin_shift::server::{OriginShiftServer, ServerConfig, ServerTransport};
 use tokio::sync::{mpsc, watch};
 
 #[path = "peers/mod.rs"]

@@ -593,8 +593,8 @@ fn an_origin_shift_write_period_allocates_nothing() {
 #[test]
 fn an_origin_shift_server_update_allocates_nothing() {
     use retrocomp::bus::ChannelId;
-    use retrocomp::origin_shift::Words;
     use retrocomp::guard::AxisLimits;
+    use retrocomp::origin_shift::Words;
     use retrocomp::origin_shift::server_core::{ServerCore, ServerMap, Update};
 
     let map: ServerMap = toml::from_str(&format!(

@@ -17,9 +17,9 @@ pub mod server_map;
 pub mod sink;
 pub mod sink_task;
 
+pub use crate::guard::{GuardLimits, Verdict, WriteGuard};
 pub use client::{ClientConfig, OriginShiftClient, Transport};
 pub use cycle::{Action, Outcome, Reply, WriteCycle};
-pub use crate::guard::{GuardLimits, Verdict, WriteGuard};
 pub use map::{
     AxisRegister, DataType, Handshake, MapError, RegisterMap, WordOrder, Words, WriteBlock,
 };

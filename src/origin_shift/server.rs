@@ -99,10 +99,7 @@ pub enum ServerStartError {
 
 impl OriginShiftServer {
     /// Bind the TCP listener or open the serial device. `limits`: clamp and per-update cap per axis.
-    pub async fn start(
-        cfg: ServerConfig,
-        limits: &[AxisLimits],
-    ) -> Result<Self, ServerStartError> {
+    pub async fn start(cfg: ServerConfig, limits: &[AxisLimits]) -> Result<Self, ServerStartError> {
         let bank = RegisterBank::new();
         for (address, count) in cfg.map.writable() {
             bank.allow_writes(address, count);
@@ -263,8 +260,7 @@ impl OriginShiftServer {
                 return;
             }
             let gone = listens_to_controller && now - last_write_s > timeout_s;
-            let events =
-                update_sink_faults(&mut faults, &sources, self.core.faults(), !gone, now);
+            let events = update_sink_faults(&mut faults, &sources, self.core.faults(), !gone, now);
             for e in events.iter().filter(|e| e.started) {
                 let held: BTreeMap<&str, f64> = self.core.held_um().collect();
                 tracing::warn!(

@@ -157,10 +157,7 @@ impl ServerCore {
             .enumerate()
             .filter(|(i, a)| {
                 a.held.is_some()
-                    && !matches!(
-                        self.guard.check(*i, f64::NAN),
-                        Verdict::BeyondClamp { .. }
-                    )
+                    && !matches!(self.guard.check(*i, f64::NAN), Verdict::BeyondClamp { .. })
             })
             .filter_map(|(i, a)| Some((a.reg.axis.clone(), self.guard.read_um(i)?)))
             .collect()

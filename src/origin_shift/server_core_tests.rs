@@ -45,7 +45,10 @@ fn a_rogue_held_value_beyond_the_clamp_is_never_served_from() {
         assert_eq!(c.faults().beyond_clamp, vec![true]);
     }
     let (_, held_um) = c.held_um().next().unwrap();
-    assert!((held_um - 3276.7).abs() < 1e-9, "status shows the held value: {held_um}");
+    assert!(
+        (held_um - 3276.7).abs() < 1e-9,
+        "status shows the held value: {held_um}"
+    );
     // The controller's own report (the −1.0 µm it applies) is the truth again.
     report(&mut c, (-10i16) as u16);
     let u = c.poll_update(&[(Axis::X, -34.5)]).unwrap();
@@ -59,11 +62,17 @@ fn a_report_far_from_the_served_value_is_uncertain_then_the_next_is_the_truth() 
     report(&mut c, 200); // 20 µm
     c.poll_update(&[(Axis::X, 25.0)]).unwrap();
     report(&mut c, 210);
-    assert_eq!(c.poll_update(&[(Axis::X, 25.0)]).unwrap().exposed_um[0].1, 22.0);
+    assert_eq!(
+        c.poll_update(&[(Axis::X, 25.0)]).unwrap().exposed_um[0].1,
+        22.0
+    );
     // The controller restarted and reports 0: it may hold 0 or 21 µm; nothing is served.
     report(&mut c, 0);
     let u = c.poll_update(&[(Axis::X, 25.0)]).unwrap();
-    assert!(u.exposed_um.is_empty() && c.faults().uncertain == vec![true], "{u:?}");
+    assert!(
+        u.exposed_um.is_empty() && c.faults().uncertain == vec![true],
+        "{u:?}"
+    );
     report(&mut c, 0);
     let u = c.poll_update(&[(Axis::X, 25.0)]).unwrap();
     assert_eq!(u.exposed_um, vec![(Axis::X, 1.0)]);
@@ -78,7 +87,10 @@ fn stop_ramps_out_within_the_cap_until_the_controller_reports_zero() {
     for _ in 0..10 {
         let u = c.poll_update(&[(Axis::X, 40.0)]).unwrap();
         let v = u.exposed_um[0].1;
-        assert!((v - served).abs() <= 1.0 + 1e-9 && v.abs() <= served.abs(), "{v}");
+        assert!(
+            (v - served).abs() <= 1.0 + 1e-9 && v.abs() <= served.abs(),
+            "{v}"
+        );
         served = v;
         report(&mut c, (v * 10.0).round() as i16 as u16);
         if c.is_ramped_out() {

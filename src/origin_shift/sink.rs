@@ -24,9 +24,9 @@
 //! Units: µm.
 
 use super::cycle::{Action, Outcome, Reply, WriteCycle};
+use super::map::{RegisterMap, Words, WriteBlock, decode_value};
 pub use crate::guard::SinkFaults;
 use crate::guard::{GuardLimits, Verdict, WriteGuard};
-use super::map::{RegisterMap, Words, WriteBlock, decode_value};
 use crate::models::Axis;
 
 /// What the sink core needs per axis (clamp and per-write cap), in the map's axis order.

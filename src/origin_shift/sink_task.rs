@@ -28,8 +28,8 @@ use tokio::time::MissedTickBehavior;
 
 use super::client::OriginShiftSink;
 use super::{OriginShiftClient, SinkAxis, SinkCore};
-use crate::guard::SinkFaults;
 use crate::fault::{FaultEvent, FaultKind, FaultLog, FaultSource};
+use crate::guard::SinkFaults;
 use crate::models::Axis;
 use crate::sink::{LocalFuture, Sink, SinkError, SinkIo, StartValues};
 

@@ -14,10 +14,10 @@
 
 use std::collections::BTreeMap;
 
+use super::CountQuantizer;
 use super::config::QuadratureSink;
 use super::counts::CountError;
 use super::held::{HeldCounts, HeldError, write_ahead};
-use super::CountQuantizer;
 use crate::guard::{AxisLimits, SinkFaults, Verdict, WriteGuard};
 use crate::models::Axis;
 use crate::sink::StartValues;
@@ -211,7 +211,10 @@ mod tests {
             total += d;
             c.settled(0);
         }
-        assert_eq!(total, -100, "50 µm = 100 counts, sign: correction + → counts −");
+        assert_eq!(
+            total, -100,
+            "50 µm = 100 counts, sign: correction + → counts −"
+        );
         assert_eq!(store.0["x"], -100);
         c.begin_ramp_out();
         for _ in 0..60 {

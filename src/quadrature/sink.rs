@@ -311,9 +311,13 @@ pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
                 return;
             }
             if let Some(max_s) = *stop.borrow() {
-                stop_by = Some(std::time::Instant::now() + std::time::Duration::from_secs_f64(max_s));
+                stop_by =
+                    Some(std::time::Instant::now() + std::time::Duration::from_secs_f64(max_s));
                 core.begin_ramp_out();
-                tracing::info!(max_s, "stopping: ramping the counts out within the per-write cap");
+                tracing::info!(
+                    max_s,
+                    "stopping: ramping the counts out within the per-write cap"
+                );
             }
         }
         let outs = out_rx.borrow().clone();
@@ -339,7 +343,11 @@ pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
             if inj.owed() == 0 {
                 core.settled(i);
             } else {
-                tracing::debug!(axis = axis.name(), owed = inj.owed(), "counts still owed to the lines");
+                tracing::debug!(
+                    axis = axis.name(),
+                    owed = inj.owed(),
+                    "counts still owed to the lines"
+                );
             }
         }
         for (i, name) in core.axis_names().enumerate() {
