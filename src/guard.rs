@@ -235,7 +235,8 @@ impl WriteGuard {
         let max_c = (max / lsb + EPS).floor();
         let from = ((hi - cap) / lsb - EPS).ceil().max(-max_c);
         let to = ((lo + cap) / lsb + EPS).floor().min(max_c);
-        if !(from <= to) {
+        // NaN limits (never from a valid config) refuse too.
+        if from.partial_cmp(&to).is_none_or(std::cmp::Ordering::is_gt) {
             return Verdict::Uncertain {
                 lo_um: lo,
                 hi_um: hi,
