@@ -74,6 +74,17 @@ pub struct SinkFaults {
     pub uncertain: Vec<bool>,
 }
 
+impl SinkFaults {
+    /// No fault on any of `axes` axes.
+    pub fn none(axes: usize) -> Self {
+        SinkFaults {
+            write_failed: false,
+            beyond_clamp: vec![false; axes],
+            uncertain: vec![false; axes],
+        }
+    }
+}
+
 /// Limits of one axis at the last step.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GuardLimits {

@@ -403,7 +403,7 @@ fn build_sink(cfg: &FieldConfig, epoch: std::time::Instant) -> Result<Box<dyn Si
         return Ok(Box::new(OriginShiftServerSink::new(srv, limits, epoch)));
     }
     if let Some(q) = cfg.sink.quadrature.clone() {
-        return Ok(Box::new(QuadratureOutput::new(q, limits)));
+        return Ok(Box::new(QuadratureOutput::new(q, limits, epoch)));
     }
     let os = cfg
         .sink

@@ -112,11 +112,7 @@ impl ServerCore {
             map,
             axes,
             guard,
-            faults: SinkFaults {
-                write_failed: false,
-                beyond_clamp: vec![false; n],
-                uncertain: vec![false; n],
-            },
+            faults: SinkFaults::none(n),
             ramping_out: false,
             heartbeat: 0,
             updates: 0,

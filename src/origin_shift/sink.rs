@@ -129,11 +129,7 @@ impl SinkCore {
             values: Vec::with_capacity(n),
             blocks: Vec::new(),
             reseeds: Vec::new(),
-            faults: SinkFaults {
-                write_failed: false,
-                beyond_clamp: vec![false; n],
-                uncertain: vec![false; n],
-            },
+            faults: SinkFaults::none(n),
             ids: axes.iter().map(|a| Axis::from_name(&a.axis)).collect(),
             axes,
             writes_ok: 0,

@@ -66,11 +66,7 @@ impl QuadratureCore {
         Ok(Self {
             axes,
             guard,
-            faults: SinkFaults {
-                write_failed: false,
-                beyond_clamp: vec![false; n],
-                uncertain: vec![false; n],
-            },
+            faults: SinkFaults::none(n),
             ramping_out: false,
         })
     }

@@ -170,15 +170,17 @@ pub struct QuadratureOutput {
     cfg: QuadratureSink,
     limits: Vec<AxisLimits>,
     held: BTreeMap<String, i64>,
+    epoch: std::time::Instant,
 }
 
 impl QuadratureOutput {
-    /// `limits`: clamp and per-write cap per axis.
-    pub fn new(cfg: QuadratureSink, limits: Vec<AxisLimits>) -> Self {
+    /// `limits`: clamp and per-write cap per axis; `epoch`: the gateway's clock (fault times).
+    pub fn new(cfg: QuadratureSink, limits: Vec<AxisLimits>, epoch: std::time::Instant) -> Self {
         Self {
             cfg,
             limits,
             held: BTreeMap::new(),
+            epoch,
         }
     }
 
@@ -222,6 +224,7 @@ impl Sink for QuadratureOutput {
                 limits: self.limits,
                 held: self.held,
                 store: Box::new(store),
+                epoch: self.epoch,
             },
             io,
         ))
@@ -236,6 +239,8 @@ pub struct QuadratureSetup {
     /// Counts the controller holds per axis.
     pub held: BTreeMap<String, i64>,
     pub store: Box<dyn HeldCounts>,
+    /// The gateway's clock (fault times are seconds since it).
+    pub epoch: std::time::Instant,
 }
 
 impl std::fmt::Debug for QuadratureSetup {
@@ -255,6 +260,7 @@ pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
         limits,
         held,
         mut store,
+        epoch,
     } = setup;
     let SinkIo {
         mut out_rx,
@@ -280,7 +286,6 @@ pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
     };
     let sources = SinkSources::named(SOURCE, core.axis_names());
     let mut faults = FaultLog::default();
-    let epoch = std::time::Instant::now();
     let mut stop_by: Option<std::time::Instant> = None;
     let mut ramp = tokio::time::interval(std::time::Duration::from_millis(RAMP_PERIOD_MS));
     loop {
@@ -321,43 +326,14 @@ pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
             }
         }
         let outs = out_rx.borrow().clone();
-        for (i, inj) in injectors.iter_mut().enumerate() {
-            let Some(axis) = core.axis(i) else { continue };
-            let want = match outs.iter().find(|(a, _)| *a == axis) {
-                Some((_, v)) => *v,
-                None if stop_by.is_some() => 0.0,
-                None => continue,
-            };
-            match core.step(i, want, store.as_mut()) {
-                Ok(d) if inj.inject(d) => st.writes_ok += 1,
-                Ok(_) => {
-                    st.writes_failed += 1;
-                    st.connected = false;
-                    st.last_error = Some(format!("axis {axis}: injector stopped"));
-                }
-                Err(e) => {
-                    st.writes_failed += 1;
-                    st.last_error = Some(format!("axis {axis}: {}", Chain(&e)));
-                }
-            }
-            if inj.owed() == 0 {
-                core.settled(i);
-            } else {
-                tracing::debug!(
-                    axis = axis.name(),
-                    owed = inj.owed(),
-                    "counts still owed to the lines"
-                );
-            }
-        }
-        for (i, name) in core.axis_names().enumerate() {
-            match st.held_um.get_mut(name) {
-                Some(v) => *v = core.held_um(i),
-                None => {
-                    st.held_um.insert(name.to_string(), core.held_um(i));
-                }
-            }
-        }
+        step_axes(
+            &mut core,
+            &mut injectors,
+            &outs,
+            stop_by.is_some(),
+            store.as_mut(),
+            &mut st,
+        );
         let now_s = epoch.elapsed().as_secs_f64();
         let events = update_sink_faults(&mut faults, &sources, core.faults(), st.connected, now_s);
         for e in events.iter().filter(|e| e.started) {
@@ -367,6 +343,55 @@ pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
             st.faults = faults.active_by_name();
         }
         let _ = status.send(st.clone());
+    }
+}
+
+/// One update of every axis: the wanted correction through the guard to the injector (0 for an
+/// axis without an output while stopping), then the status and the axes' held values.
+fn step_axes(
+    core: &mut QuadratureCore,
+    injectors: &mut [AxisInjector],
+    outs: &[(crate::models::Axis, f64)],
+    stopping: bool,
+    store: &mut dyn HeldCounts,
+    st: &mut SinkStatus,
+) {
+    for (i, inj) in injectors.iter_mut().enumerate() {
+        let Some(axis) = core.axis(i) else { continue };
+        let want = match outs.iter().find(|(a, _)| *a == axis) {
+            Some((_, v)) => *v,
+            None if stopping => 0.0,
+            None => continue,
+        };
+        match core.step(i, want, store) {
+            Ok(d) if inj.inject(d) => st.writes_ok += 1,
+            Ok(_) => {
+                st.writes_failed += 1;
+                st.connected = false;
+                st.last_error = Some(format!("axis {axis}: injector stopped"));
+            }
+            Err(e) => {
+                st.writes_failed += 1;
+                st.last_error = Some(format!("axis {axis}: {}", Chain(&e)));
+            }
+        }
+        if inj.owed() == 0 {
+            core.settled(i);
+        } else {
+            tracing::debug!(
+                axis = axis.name(),
+                owed = inj.owed(),
+                "counts still owed to the lines"
+            );
+        }
+    }
+    for (i, name) in core.axis_names().enumerate() {
+        match st.held_um.get_mut(name) {
+            Some(v) => *v = core.held_um(i),
+            None => {
+                st.held_um.insert(name.to_string(), core.held_um(i));
+            }
+        }
     }
 }
 
