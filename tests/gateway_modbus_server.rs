@@ -15,8 +15,8 @@ use std::time::{Duration, Instant};
 use retrocomp::bus::Sample;
 use retrocomp::gateway::SinkStatus;
 use retrocomp::gateway::config::FieldConfig;
+use retrocomp::guard::AxisLimits;
 use retrocomp::origin_shift::server::{OriginShiftServer, ServerConfig, ServerTransport};
-use retrocomp::origin_shift::server_core::Guard;
 use tokio::sync::{mpsc, watch};
 
 #[path = "peers/mod.rs"]
@@ -29,14 +29,12 @@ position = [ { channel = "x_mm", address = 10, kind = "int16", lsb_um = 10.0 } ]
 held = [ { axis = "x", address = 11 } ]
 "#;
 
-fn guards() -> Vec<(String, Guard)> {
-    vec![(
-        "x".into(),
-        Guard {
-            max_correction_um: 50.0,
-            max_change_um_per_update: 1.0,
-        },
-    )]
+fn guards() -> Vec<AxisLimits> {
+    vec![AxisLimits {
+        axis: "x".into(),
+        max_correction_um: 50.0,
+        max_change_um_per_write: 1.0,
+    }]
 }
 
 fn config(transport: ServerTransport) -> ServerConfig {
@@ -166,7 +164,8 @@ async fn exercise(link: Vec<String>, transport: ServerTransport) {
     // The engine wants 20 µm; the controller still reports 12.3 µm: at most 13.3 µm is served.
     let (out_tx, out_rx) = watch::channel(vec![(retrocomp::models::Axis::X, 20.0)]);
     let (status_tx, status_rx) = watch::channel(SinkStatus::default());
-    let task = tokio::spawn(server.run(out_rx, samples_tx, status_tx, clock));
+    let (_stop_tx, stop_rx) = watch::channel(None);
+    let task = tokio::spawn(server.run(out_rx, samples_tx, status_tx, stop_rx, clock));
     let (c1, h1) = read_until(&link, |c| c == 133).await;
     // Many updates later it has not run ahead of what the controller holds.
     let (c2, h2) = read_until(&link, |_| true).await;

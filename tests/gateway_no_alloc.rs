@@ -593,8 +593,9 @@ fn an_origin_shift_write_period_allocates_nothing() {
 #[test]
 fn an_origin_shift_server_update_allocates_nothing() {
     use retrocomp::bus::ChannelId;
+    use retrocomp::guard::AxisLimits;
     use retrocomp::origin_shift::Words;
-    use retrocomp::origin_shift::server_core::{Guard, ServerCore, ServerMap, Update};
+    use retrocomp::origin_shift::server_core::{ServerCore, ServerMap, Update};
 
     let map: ServerMap = toml::from_str(&format!(
         "heartbeat_address = 10\n{AXES_MAP}\
@@ -604,11 +605,13 @@ fn an_origin_shift_server_update_allocates_nothing() {
     ))
     .unwrap();
     map.validate(&["x", "y", "z"]).unwrap();
-    let guard = Guard {
-        max_correction_um: 30.0,
-        max_change_um_per_update: 0.5,
-    };
-    let guards = ["x", "y", "z"].map(|a| (a.to_string(), guard)).to_vec();
+    let guards = ["x", "y", "z"]
+        .map(|a| AxisLimits {
+            axis: a.to_string(),
+            max_correction_um: 30.0,
+            max_change_um_per_write: 0.5,
+        })
+        .to_vec();
     let mut core = ServerCore::new(map, &guards);
     let mut image = [0u16; 32];
     let mut update = Update::default();

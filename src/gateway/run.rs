@@ -19,8 +19,9 @@
 //! before every write (`origin_shift/sink.rs`); when the controller changed the value behind our back
 //! (it restarted, an operator cleared it) the engine is reseeded from what it holds.
 //!
-//! Stop: with `[gateway] on_stop = "ramp_out"` the origin-shift client sink ramps the correction out
-//! (`origin_shift/sink_task.rs`, bounded by `stop_ramp_max_s`) before `run` returns.
+//! Stop: with `[gateway] on_stop = "ramp_out"` the sink ramps the correction out within the cap
+//! (client writes, served registers, quadrature counts; bounded by `stop_ramp_max_s`) before `run`
+//! returns.
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
@@ -39,9 +40,8 @@ use super::opcua::OpcUaServer;
 use super::status::{SinkStatus, StatusSnapshot};
 use super::supervise::{CycleCounter, SourceFeed};
 use crate::bus::Sample;
-use crate::origin_shift::SinkAxis;
+use crate::guard::AxisLimits;
 use crate::origin_shift::server::OriginShiftServerSink;
-use crate::origin_shift::server_core::Guard;
 use crate::origin_shift::sink_task::OriginShiftClientSink;
 use crate::quadrature::sink::QuadratureOutput;
 use crate::realtime;
@@ -108,9 +108,10 @@ pub async fn run(
     let (sink_status_tx, sink_status_rx) = watch::channel::<SinkStatus>(SinkStatus::default());
     // Positions the controller writes into a served register image (origin-shift server).
     let (served_tx, served_rx) = mpsc::channel::<Sample>(1024);
-    // `Some(max_s)` asks the origin-shift client sink to ramp the correction out, then return.
+    // `Some(max_s)` asks the sink to ramp the correction out, then return.
     let (stop_tx, stop_rx) = watch::channel::<Option<f64>>(None);
-    let ramp_out = cfg.sink.origin_shift.is_some() && cfg.gateway.on_stop == OnStop::RampOut;
+    // Every sink ramps out through its guard (client writes, served registers, quadrature counts).
+    let ramp_out = cfg.gateway.on_stop == OnStop::RampOut;
     let io = SinkIo {
         out_rx,
         reseed_tx,
@@ -269,7 +270,7 @@ fn start_telemetry(
     .map_err(GatewayError::from)
 }
 
-/// Ramp the origin-shift correction out before stopping (`on_stop = "ramp_out"`): the sink writes 0
+/// Ramp the correction out before stopping (`on_stop = "ramp_out"`): the sink writes 0
 /// within the per-write cap until the controller holds 0 and then returns by itself, within `max_s`
 /// (+ one period's requests). The stop is progress: the service manager's watchdog is kept fed
 /// meanwhile (its WatchdogSec may be shorter than the ramp).
@@ -383,44 +384,33 @@ async fn start_sink(
     Ok((initial, sink.run(io)))
 }
 
-/// The configured sink, its clamp and per-write cap per axis from the field config's safety.
+/// The configured sink, its clamp and per-write cap per axis from the field config's safety (the
+/// limits of the one last-step guard every sink passes its outputs through, `src/guard.rs`).
 fn build_sink(cfg: &FieldConfig, epoch: std::time::Instant) -> Result<Box<dyn Sink>, GatewayError> {
-    if let Some(srv) = cfg.sink.origin_shift_server.clone() {
-        let guards: Vec<(String, Guard)> = cfg
-            .axes
-            .iter()
-            .map(|a| {
-                let s = cfg.safety_for(&a.name);
-                let g = Guard {
-                    max_correction_um: s.max_correction_um,
-                    max_change_um_per_update: s.max_change_um_per_cycle,
-                };
-                (a.name.clone(), g)
-            })
-            .collect();
-        return Ok(Box::new(OriginShiftServerSink::new(srv, guards, epoch)));
-    }
-    if let Some(q) = cfg.sink.quadrature.clone() {
-        return Ok(Box::new(QuadratureOutput::new(q)));
-    }
-    let os = cfg
-        .sink
-        .origin_shift
-        .clone()
-        .ok_or_else(|| GatewayError::Refused("no sink configured".into()))?;
-    let axes = cfg
+    let limits: Vec<AxisLimits> = cfg
         .axes
         .iter()
         .map(|a| {
             let s = cfg.safety_for(&a.name);
-            SinkAxis {
+            AxisLimits {
                 axis: a.name.clone(),
                 max_correction_um: s.max_correction_um,
                 max_change_um_per_write: s.max_change_um_per_cycle,
             }
         })
         .collect();
-    let sink = OriginShiftClientSink::new(os, axes, cfg.safety.max_correction_um, epoch)?;
+    if let Some(srv) = cfg.sink.origin_shift_server.clone() {
+        return Ok(Box::new(OriginShiftServerSink::new(srv, limits, epoch)));
+    }
+    if let Some(q) = cfg.sink.quadrature.clone() {
+        return Ok(Box::new(QuadratureOutput::new(q, limits, epoch)));
+    }
+    let os = cfg
+        .sink
+        .origin_shift
+        .clone()
+        .ok_or_else(|| GatewayError::Refused("no sink configured".into()))?;
+    let sink = OriginShiftClientSink::new(os, limits, cfg.safety.max_correction_um, epoch)?;
     Ok(Box::new(sink))
 }
 

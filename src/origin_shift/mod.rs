@@ -2,7 +2,7 @@
 //! per-axis corrections written to the controller's offset registers over Modbus TCP or RTU.
 //!
 //! [`map`] (TOML register map, encoding, allow-list), [`cycle`] (sans-IO write/strobe/ack/read-back
-//! state machine), [`guard`] (the last-step check of every value against what the controller holds),
+//! state machine), [`crate::guard`] (the last-step check every output of the box passes),
 //! [`sink`] (one write period: read, guard, write cycle; sans-IO), [`client`] (tokio-modbus shell:
 //! per-request timeout, reconnect with backoff, start by reading the current values); or served:
 //! [`server`] (tokio-modbus TCP/RTU server shell) around [`server_core`] (sans-IO register image,
@@ -10,7 +10,6 @@
 
 pub mod client;
 pub mod cycle;
-pub mod guard;
 pub mod map;
 pub mod server;
 pub mod server_core;
@@ -18,9 +17,9 @@ pub mod server_map;
 pub mod sink;
 pub mod sink_task;
 
+pub use crate::guard::{GuardLimits, Verdict, WriteGuard};
 pub use client::{ClientConfig, OriginShiftClient, Transport};
 pub use cycle::{Action, Outcome, Reply, WriteCycle};
-pub use guard::{GuardLimits, Verdict, WriteGuard};
 pub use map::{
     AxisRegister, DataType, Handshake, MapError, RegisterMap, WordOrder, Words, WriteBlock,
 };

@@ -9,6 +9,13 @@
 //! engine's start value; [`OriginShiftServer::run`] then updates the image every `update_period_ms`
 //! from the engine's outputs and turns each controller write into position samples (`x_mm`).
 //! [`OriginShiftServerSink`] is that flow as the run loop's [`Sink`].
+//!
+//! Faults (one log line at start and clear, in status and metrics, as the client sink's):
+//! `sink.origin_shift_server` `Disconnected` (the controller has not written for
+//! `controller_timeout_ms`); `sink.origin_shift_server.<axis>` `BeyondClamp` (a held value beyond
+//! the clamp was reported: the axis is withdrawn) or `WriteFailed` (a report too far from what was
+//! served). Stop (`[gateway] on_stop = "ramp_out"`): a ramp to 0 within the cap is served until
+//! the controller reports holding 0, for at most `stop_ramp_max_s`; the outcome is logged.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -21,10 +28,12 @@ use tokio::task::JoinHandle;
 use tokio::time::MissedTickBehavior;
 
 use super::map::Words;
-use super::server_core::{Guard, ServerCore, ServerMap, Update};
+use super::server_core::{ServerCore, ServerMap, Update};
+use super::sink_task::{SinkSources, update_sink_faults};
 use crate::bus::modbus::server::{RegisterBank, TcpServer, spawn_rtu};
 use crate::bus::{ChannelId, Health, Sample};
-use crate::fault::{FaultKind, FaultLog, FaultSource};
+use crate::fault::FaultLog;
+use crate::guard::AxisLimits;
 use crate::sink::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -89,11 +98,8 @@ pub enum ServerStartError {
 }
 
 impl OriginShiftServer {
-    /// Bind the TCP listener or open the serial device. `guards`: clamp and per-update cap per axis.
-    pub async fn start(
-        cfg: ServerConfig,
-        guards: &[(String, Guard)],
-    ) -> Result<Self, ServerStartError> {
+    /// Bind the TCP listener or open the serial device. `limits`: clamp and per-update cap per axis.
+    pub async fn start(cfg: ServerConfig, limits: &[AxisLimits]) -> Result<Self, ServerStartError> {
         let bank = RegisterBank::new();
         for (address, count) in cfg.map.writable() {
             bank.allow_writes(address, count);
@@ -122,7 +128,7 @@ impl OriginShiftServer {
             }
         }
         Ok(Self {
-            core: ServerCore::new(cfg.map.clone(), guards),
+            core: ServerCore::new(cfg.map.clone(), limits),
             cfg,
             bank,
             writes,
@@ -178,7 +184,14 @@ impl OriginShiftServer {
                 }
             }
         }
-        let held: BTreeMap<String, f64> = self.core.held_um().into_iter().collect();
+        let reported: BTreeMap<&str, f64> = self.core.held_um().collect();
+        let held: BTreeMap<String, f64> = self.core.start_values().into_iter().collect();
+        if held.len() < reported.len() {
+            tracing::error!(
+                ?reported,
+                "the controller reports a correction beyond the clamp: that axis is not served until its value is back in range"
+            );
+        }
         tracing::info!(
             ?held,
             "controller holds these corrections; continuing from them"
@@ -186,12 +199,14 @@ impl OriginShiftServer {
         held
     }
 
-    /// Serve until aborted: update the image every period, forward controller writes as samples.
+    /// Serve until aborted, or until a stop ramp-out (`stop` set to `Some(max_s)`) has ended:
+    /// update the image every period, forward controller writes as samples.
     pub async fn run(
         mut self,
         out_rx: watch::Receiver<Outputs>,
         samples: mpsc::Sender<Sample>,
         status: watch::Sender<SinkStatus>,
+        stop: watch::Receiver<Option<f64>>,
         clock: impl Fn() -> f64,
     ) {
         let mut tick = tokio::time::interval(Duration::from_millis(self.cfg.update_period_ms));
@@ -200,7 +215,8 @@ impl OriginShiftServer {
         let timeout_s = self.cfg.controller_timeout_ms as f64 / 1e3;
         let mut last_write_s = clock();
         let mut faults = FaultLog::default();
-        let source = FaultSource::named("sink.origin_shift_server");
+        let sources = SinkSources::named(SOURCE, self.core.axis_names());
+        let mut stop_by: Option<f64> = None;
         status.send_replace(SinkStatus {
             kind: "origin_shift_server".into(),
             connected: true,
@@ -219,22 +235,43 @@ impl OriginShiftServer {
                     continue;
                 }
             }
+            if let (None, Some(max_s)) = (stop_by, *stop.borrow()) {
+                stop_by = Some(clock() + max_s);
+                self.core.begin_ramp_out();
+                tracing::info!(
+                    max_s,
+                    "stopping: serving a ramp to 0 within the per-update cap until the controller reports holding 0"
+                );
+            }
             // The borrow (a read lock on the engine's outputs) ends before the next await.
             let updated = self.core.poll_update_into(&out_rx.borrow(), &mut update);
             if updated {
+                for &(address, count) in &update.withdrawn {
+                    self.bank.clear_holding(address, count);
+                }
                 for b in &update.blocks {
                     self.bank.set_holding(b.address, &b.words);
                 }
             }
             let now = clock();
+            if let Some(by) = stop_by
+                && self.stopped(by, now)
+            {
+                return;
+            }
             let gone = listens_to_controller && now - last_write_s > timeout_s;
-            let kinds: &[FaultKind] = if gone {
-                &[FaultKind::Disconnected]
-            } else {
-                &[]
-            };
-            faults.update(&source, kinds, now);
+            let events = update_sink_faults(&mut faults, &sources, self.core.faults(), !gone, now);
+            for e in events.iter().filter(|e| e.started) {
+                let held: BTreeMap<&str, f64> = self.core.held_um().collect();
+                tracing::warn!(
+                    source = e.source.as_str(),
+                    kind = ?e.kind,
+                    ?held,
+                    "origin-shift server fault"
+                );
+            }
             let writes_ok = self.core.updates();
+            let core = &self.core;
             status.send_modify(|st| {
                 st.writes_ok = writes_ok;
                 st.connected = !gone;
@@ -250,10 +287,42 @@ impl OriginShiftServer {
                 } else {
                     st.last_error = None;
                 }
+                for (a, v) in core.held_um() {
+                    match st.held_um.get_mut(a) {
+                        Some(held) => *held = v,
+                        None => {
+                            st.held_um.insert(a.to_string(), v);
+                        }
+                    }
+                }
+                if !events.is_empty() {
+                    st.faults = faults.active_by_name();
+                }
             });
         }
     }
+
+    /// During a stop ramp-out: true (logged) once the controller reports holding 0 on every axis,
+    /// or at `by_s`.
+    fn stopped(&self, by_s: f64, now_s: f64) -> bool {
+        let held: BTreeMap<&str, f64> = self.core.held_um().collect();
+        if self.core.is_ramped_out() {
+            tracing::info!(?held, "ramped out: the controller reports holding 0");
+            return true;
+        }
+        if now_s >= by_s {
+            tracing::warn!(
+                ?held,
+                "stopping before the correction is ramped out: the controller's watchdog rule must remove it"
+            );
+            return true;
+        }
+        false
+    }
 }
+
+/// The server's fault source (`<SOURCE>.<axis>` per axis).
+pub const SOURCE: &str = "sink.origin_shift_server";
 
 impl Drop for OriginShiftServer {
     fn drop(&mut self) {
@@ -269,17 +338,17 @@ impl Drop for OriginShiftServer {
 pub struct OriginShiftServerSink {
     cfg: ServerConfig,
     /// Clamp and per-update cap per axis.
-    guards: Vec<(String, Guard)>,
+    limits: Vec<AxisLimits>,
     /// The gateway's clock (sample and fault times are seconds since it).
     epoch: std::time::Instant,
     server: Option<OriginShiftServer>,
 }
 
 impl OriginShiftServerSink {
-    pub fn new(cfg: ServerConfig, guards: Vec<(String, Guard)>, epoch: std::time::Instant) -> Self {
+    pub fn new(cfg: ServerConfig, limits: Vec<AxisLimits>, epoch: std::time::Instant) -> Self {
         Self {
             cfg,
-            guards,
+            limits,
             epoch,
             server: None,
         }
@@ -289,7 +358,7 @@ impl OriginShiftServerSink {
 impl Sink for OriginShiftServerSink {
     fn start<'a>(&'a mut self, io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>> {
         Box::pin(async move {
-            let mut server = OriginShiftServer::start(self.cfg.clone(), &self.guards)
+            let mut server = OriginShiftServer::start(self.cfg.clone(), &self.limits)
                 .await
                 .map_err(|e| SinkError::setup("sink.origin_shift_server", e))?;
             let epoch = self.epoch;
@@ -304,7 +373,7 @@ impl Sink for OriginShiftServerSink {
         let epoch = self.epoch;
         let clock = move || epoch.elapsed().as_secs_f64();
         match self.server {
-            Some(server) => Box::pin(server.run(io.out_rx, io.served, io.status, clock)),
+            Some(server) => Box::pin(server.run(io.out_rx, io.served, io.status, io.stop, clock)),
             None => {
                 tracing::error!("origin-shift server run before it was started");
                 Box::pin(async {})

@@ -11,13 +11,19 @@
 //! - optional held registers the controller writes back the correction it actually applies (same
 //!   encoding as the axis' correction register).
 //!
-//! Safety at the last step (every update, per axis, µm): the exposed value is the engine's output
-//! clamped to ±`max_correction_um`, quantised to whole counts, and moved at most
-//! `max_change_um_per_cycle` from the last exposed value AND from what the controller reports holding
-//! (when held registers are configured). Before the controller has reported what it holds, no
-//! correction register exists (reads get exception 02): after a box restart it resumes from the
-//! controller's value instead of jumping from zero. Hold-then-ramp on stale input is the engine's
-//! ([`crate::gateway::safety`]); this core only guarantees clamp and per-update cap.
+//! Safety at the last step: every served value passes the box's one guard ([`crate::guard`]),
+//! whose evidence is what the controller reports holding (the held registers, from any writer):
+//! never beyond the clamp, never a step beyond `max_change_um_per_cycle` from any value the
+//! controller may be applying (the reported value and every value served since it), in whole
+//! counts. A reported value beyond the clamp is a `BeyondClamp` fault, a report too far from what
+//! was served an `Uncertain` one: that axis' correction registers are withdrawn (reads get
+//! exception 02, so the controller keeps what it applies) and the next report is the truth again.
+//! Before the controller has reported what it holds, no correction register exists: after a box
+//! restart it resumes from the controller's value instead of jumping from zero. Without held
+//! registers the box takes what it served as applied (the config check refuses such maps where
+//! it must). Stop ([`ServerCore::begin_ramp_out`]): every axis wants 0, within the cap per update,
+//! until the controller reports holding 0. Hold-then-ramp on stale input is the engine's
+//! ([`crate::gateway::safety`]).
 //! Sign: register = `sign × correction_um / lsb_um`; correction = −error.
 
 use super::map::decode_value;
@@ -26,45 +32,8 @@ pub use super::server_map::{
     HeldRegister, PositionRegister, ServerMap, ServerMapError, WriteMarker,
 };
 use crate::bus::ChannelId;
+use crate::guard::{AxisLimits, SinkFaults, Verdict, WriteGuard};
 use crate::models::Axis;
-
-/// Clamp and per-update cap of one axis (from the axis' [`crate::gateway::safety::SafetyConfig`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Guard {
-    pub max_correction_um: f64,
-    pub max_change_um_per_update: f64,
-}
-
-/// The value to expose: as close to `target_um` as the clamp and the cap around every reference
-/// allow, in whole counts of `lsb_um`. References are values the controller may hold (the last
-/// exposed value, the held value it reported). When the references are further apart than allows a
-/// common window, the LAST reference wins (callers put the controller's reported value last).
-pub fn guarded_counts(target_um: f64, references_um: &[f64], guard: Guard, lsb_um: f64) -> i64 {
-    let max_counts = (guard.max_correction_um / lsb_um).floor();
-    let cap_counts = (guard.max_change_um_per_update / lsb_um).floor();
-    let mut lo = -max_counts;
-    let mut hi = max_counts;
-    for (k, r) in references_um.iter().enumerate().rev() {
-        // References are whole counts already (they came from registers or from this function).
-        let rc = (r / lsb_um).round();
-        let (l, h) = (rc - cap_counts, rc + cap_counts);
-        if k == references_um.len() - 1 {
-            // The controller's own value: always honour its window (even beyond the clamp: then
-            // move towards the clamp by at most the cap).
-            lo = lo.max(l).min(h);
-            hi = hi.min(h).max(l);
-        } else if l.max(lo) <= h.min(hi) {
-            lo = lo.max(l);
-            hi = hi.min(h);
-        }
-    }
-    let want = if target_um.is_finite() {
-        (target_um / lsb_um).round()
-    } else {
-        0.0
-    };
-    want.clamp(lo, hi) as i64
-}
 
 /// One axis of the core.
 #[derive(Clone, Debug)]
@@ -73,11 +42,6 @@ struct AxisState {
     /// `reg.axis` resolved once (a valid map names only corrected axes).
     axis: Option<Axis>,
     held: Option<AxisRegister>,
-    guard: Guard,
-    /// Last exposed value, µm (None before the first update).
-    exposed_um: Option<f64>,
-    /// What the controller last reported holding, µm.
-    held_um: Option<f64>,
 }
 
 /// The server's state: which values are exposed, the heartbeat, what the controller reported.
@@ -89,6 +53,10 @@ pub struct ServerCore {
     /// The position registers with their channels, resolved once.
     positions: Vec<(ChannelId, AxisRegister)>,
     axes: Vec<AxisState>,
+    /// The last step of every served value, axes in map order.
+    guard: WriteGuard,
+    faults: SinkFaults,
+    ramping_out: bool,
     heartbeat: u16,
     updates: u64,
 }
@@ -99,40 +67,41 @@ pub struct ServerCore {
 pub struct Update {
     /// Blocks to set (corrections merged per contiguous run, then the heartbeat).
     pub blocks: Vec<WriteBlock>,
-    /// Exposed correction per axis, µm.
+    /// Exposed correction per served axis, µm.
     pub exposed_um: Vec<(Axis, f64)>,
+    /// Correction registers to withdraw (address, count): axes the guard refused this update.
+    pub withdrawn: Vec<(u16, u16)>,
 }
 
 impl ServerCore {
-    /// `guards`: per corrected axis. The map must be valid.
-    pub fn new(map: ServerMap, guards: &[(String, Guard)]) -> Self {
-        let axes = map
+    /// `limits`: clamp and per-update cap per corrected axis. The map must be valid.
+    pub fn new(map: ServerMap, limits: &[AxisLimits]) -> Self {
+        let mut guard = WriteGuard::new(
+            map.axes
+                .iter()
+                .map(|r| AxisLimits::of(limits, &r.axis, r.lsb_um)),
+        );
+        let axes: Vec<AxisState> = map
             .axes
             .iter()
-            .map(|reg| {
-                let guard = guards
-                    .iter()
-                    .find(|(a, _)| *a == reg.axis)
-                    .map(|g| g.1)
-                    .unwrap_or(Guard {
-                        max_correction_um: 0.0,
-                        max_change_um_per_update: 0.0,
-                    });
-                let held = map
+            .map(|reg| AxisState {
+                axis: Axis::from_name(&reg.axis),
+                held: map
                     .held
                     .iter()
                     .find(|h| h.axis == reg.axis)
-                    .and_then(|h| map.held_register(h));
-                AxisState {
-                    axis: Axis::from_name(&reg.axis),
-                    reg: reg.clone(),
-                    held,
-                    guard,
-                    exposed_um: None,
-                    held_um: None,
-                }
+                    .and_then(|h| map.held_register(h)),
+                reg: reg.clone(),
             })
             .collect();
+        for (i, a) in axes.iter().enumerate() {
+            // Nothing will report this axis: the box starts it from 0 and takes what it serves as
+            // applied (a map without held registers is refused where that is unsafe).
+            if a.held.is_none() {
+                guard.observe_read(i, 0.0);
+            }
+        }
+        let n = axes.len();
         Self {
             correction_map: map.correction_map(),
             positions: map
@@ -142,6 +111,9 @@ impl ServerCore {
                 .collect(),
             map,
             axes,
+            guard,
+            faults: SinkFaults::none(n),
+            ramping_out: false,
             heartbeat: 0,
             updates: 0,
         }
@@ -162,17 +134,49 @@ impl ServerCore {
     /// True once corrections may be served: without held registers at once; with them once the
     /// controller has reported what it holds for every axis.
     pub fn is_seeded(&self) -> bool {
-        self.axes
-            .iter()
-            .all(|a| a.held.is_none() || a.held_um.is_some())
+        (0..self.axes.len()).all(|i| self.guard.read_um(i).is_some())
     }
 
-    /// What the controller reported holding per axis, µm (for the engine's start value).
-    pub fn held_um(&self) -> Vec<(String, f64)> {
+    /// What the controller last reported holding per axis with a held register, µm (status).
+    pub fn held_um(&self) -> impl Iterator<Item = (&str, f64)> {
+        self.axes.iter().enumerate().filter_map(|(i, a)| {
+            a.held.as_ref()?;
+            Some((a.reg.axis.as_str(), self.guard.read_um(i)?))
+        })
+    }
+
+    /// The engine's start values: the reported values within the clamp (an axis beyond it is not
+    /// served, a fault, until its value is back in range; the engine then starts it from 0).
+    pub fn start_values(&self) -> Vec<(String, f64)> {
         self.axes
             .iter()
-            .filter_map(|a| a.held_um.map(|v| (a.reg.axis.clone(), v)))
+            .enumerate()
+            .filter(|(i, a)| {
+                a.held.is_some()
+                    && !matches!(self.guard.check(*i, f64::NAN), Verdict::BeyondClamp { .. })
+            })
+            .filter_map(|(i, a)| Some((a.reg.axis.clone(), self.guard.read_um(i)?)))
             .collect()
+    }
+
+    /// The guard's refusals of the last update, per axis (map order).
+    pub fn faults(&self) -> &SinkFaults {
+        &self.faults
+    }
+
+    /// The corrected axes' names, map order.
+    pub fn axis_names(&self) -> impl Iterator<Item = &str> {
+        self.axes.iter().map(|a| a.reg.axis.as_str())
+    }
+
+    /// From now on every axis wants 0 (the stop ramp-out), within the cap per update.
+    pub fn begin_ramp_out(&mut self) {
+        self.ramping_out = true;
+    }
+
+    /// Ramping out, and the controller reports holding the 0 served on every axis.
+    pub fn is_ramped_out(&self) -> bool {
+        self.ramping_out && (0..self.axes.len()).all(|i| self.guard.holds_zero(i))
     }
 
     /// The controller wrote registers: decode positions (channel, mm) and held values from the
@@ -203,12 +207,12 @@ impl ServerCore {
         {
             return;
         }
-        for a in &mut self.axes {
+        for (i, a) in self.axes.iter().enumerate() {
             if let Some(h) = &a.held
                 && let Some(words) = read(h.address, h.data_type.words())
                 && let Ok(v) = decode_value(h, &words)
             {
-                a.held_um = Some(v);
+                self.guard.observe_report(i, v);
             }
         }
         for (channel, r) in &self.positions {
@@ -235,27 +239,36 @@ impl ServerCore {
             return false;
         }
         out.exposed_um.clear();
-        for a in &mut self.axes {
-            let start = a.exposed_um.or(a.held_um).unwrap_or(0.0);
-            let target = targets
-                .iter()
-                .find(|(n, _)| Some(*n) == a.axis)
-                .map_or(start, |t| t.1);
-            // The cap holds from the last exposed value AND from what the controller holds.
-            let refs: [Option<f64>; 2] = [a.exposed_um, a.held_um];
-            let mut buf = [0.0; 2];
-            let mut n = 0;
-            for r in refs.into_iter().flatten() {
-                buf[n] = r;
-                n += 1;
-            }
-            let refs = if n == 0 { &[0.0][..] } else { &buf[..n] };
-            let lsb = a.reg.lsb_um;
-            let counts = guarded_counts(target, refs, a.guard, lsb);
-            let v = counts as f64 * lsb;
-            a.exposed_um = Some(v);
-            if let Some(axis) = a.axis {
-                out.exposed_um.push((axis, v));
+        out.withdrawn.clear();
+        for (i, a) in self.axes.iter().enumerate() {
+            // An axis the engine does not drive stays where the controller is (the guard's
+            // answer to NaN).
+            let want = if self.ramping_out {
+                0.0
+            } else {
+                targets
+                    .iter()
+                    .find(|(n, _)| Some(*n) == a.axis)
+                    .map_or(f64::NAN, |t| t.1)
+            };
+            let verdict = self.guard.check(i, want);
+            self.faults.beyond_clamp[i] = matches!(verdict, Verdict::BeyondClamp { .. });
+            self.faults.uncertain[i] = matches!(verdict, Verdict::Uncertain { .. });
+            match (verdict, a.axis) {
+                (Verdict::Write(v), Some(axis)) => {
+                    // Applied only once the controller reports it (taken as applied without held
+                    // registers).
+                    self.guard.wrote(i, v, a.held.is_none());
+                    out.exposed_um.push((axis, v));
+                }
+                (Verdict::Write(_), None) | (Verdict::Unknown, _) => {
+                    out.withdrawn.push((a.reg.address, a.reg.data_type.words()));
+                }
+                (Verdict::BeyondClamp { .. } | Verdict::Uncertain { .. }, _) => {
+                    out.withdrawn.push((a.reg.address, a.reg.data_type.words()));
+                    // The controller's next report is the truth.
+                    self.guard.forget_unconfirmed(i);
+                }
             }
         }
         if let Err(e) = self
@@ -315,12 +328,13 @@ mod tests {
         .unwrap()
     }
 
-    fn guards() -> Vec<(String, Guard)> {
-        let g = Guard {
+    fn guards() -> Vec<AxisLimits> {
+        let g = |axis: &str| AxisLimits {
+            axis: axis.into(),
             max_correction_um: 50.0,
-            max_change_um_per_update: 1.0,
+            max_change_um_per_write: 1.0,
         };
-        vec![("x".into(), g), ("z".into(), g)]
+        vec![g("x"), g("z")]
     }
 
     #[test]
@@ -396,7 +410,7 @@ mod tests {
         let pos =
             c.handle_controller_write(|a, n| (a..a + n).map(|k| good.get(&k).copied()).collect());
         assert_eq!(pos, vec![("x_mm".to_string(), 1.0)]);
-        assert_eq!(c.held_um()[0], ("x".to_string(), 0.5));
+        assert_eq!(c.held_um().next(), Some(("x", 0.5)));
     }
 
     #[test]
@@ -417,35 +431,5 @@ mod tests {
 }
 
 #[cfg(test)]
-mod proptests {
-    use super::*;
-    use proptest::prelude::*;
-
-    proptest! {
-        /// Whatever the target (NaN, huge) and references, the exposed value is within the clamp
-        /// (when the controller's value is) and within one cap of the controller's value, in counts.
-        #[test]
-        fn clamp_and_cap_hold(
-            target in prop_oneof![Just(f64::NAN), Just(f64::INFINITY), -1e6f64..1e6],
-            last in -50.0f64..50.0,
-            held in -50.0f64..50.0,
-            max in 1.0f64..100.0,
-            cap in 0.1f64..5.0,
-            lsb in prop_oneof![Just(0.1f64), Just(0.05), Just(1.0)],
-        ) {
-            let q = |v: f64| (v / lsb).round() * lsb;
-            let (last, held) = (q(last.clamp(-max, max)), q(held.clamp(-max, max)));
-            let g = Guard { max_correction_um: max, max_change_um_per_update: cap };
-            let v = guarded_counts(target, &[last, held], g, lsb) as f64 * lsb;
-            prop_assert!(v.abs() <= max + 1e-9 || (v - held).abs() <= cap + 1e-9);
-            prop_assert!((v - held).abs() <= cap + 1e-9, "v {v} held {held}");
-            if (last - held).abs() <= cap {
-                prop_assert!((v - last).abs() <= cap + 1e-9, "v {v} last {last}");
-            }
-            if target.is_finite() && target.abs() <= max && (target - held).abs() <= cap
-                && (target - last).abs() <= cap {
-                prop_assert!((v - target).abs() <= lsb + 1e-9);
-            }
-        }
-    }
-}
+#[path = "server_core_tests.rs"]
+mod guard_tests;

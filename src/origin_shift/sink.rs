@@ -24,28 +24,13 @@
 //! Units: µm.
 
 use super::cycle::{Action, Outcome, Reply, WriteCycle};
-use super::guard::{GuardLimits, Verdict, WriteGuard};
 use super::map::{RegisterMap, Words, WriteBlock, decode_value};
+pub use crate::guard::SinkFaults;
+use crate::guard::{GuardLimits, Verdict, WriteGuard};
 use crate::models::Axis;
 
-/// What the sink core needs per axis, in the map's axis order.
-#[derive(Clone, Debug)]
-pub struct SinkAxis {
-    pub axis: String,
-    pub max_correction_um: f64,
-    pub max_change_um_per_write: f64,
-}
-
-/// Faults the last period left active (the shell logs their edges).
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct SinkFaults {
-    /// A request failed, was refused (Modbus exception) or was not acknowledged / read back.
-    pub write_failed: bool,
-    /// Per axis (map order): the controller holds a value beyond the clamp.
-    pub beyond_clamp: Vec<bool>,
-    /// Per axis: a foreign value arrived while a write of ours was unconfirmed.
-    pub uncertain: Vec<bool>,
-}
+/// What the sink core needs per axis (clamp and per-write cap), in the map's axis order.
+pub use crate::guard::AxisLimits as SinkAxis;
 
 #[derive(Clone, Debug)]
 enum Phase {
@@ -144,11 +129,7 @@ impl SinkCore {
             values: Vec::with_capacity(n),
             blocks: Vec::new(),
             reseeds: Vec::new(),
-            faults: SinkFaults {
-                write_failed: false,
-                beyond_clamp: vec![false; n],
-                uncertain: vec![false; n],
-            },
+            faults: SinkFaults::none(n),
             ids: axes.iter().map(|a| Axis::from_name(&a.axis)).collect(),
             axes,
             writes_ok: 0,

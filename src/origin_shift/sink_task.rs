@@ -29,6 +29,7 @@ use tokio::time::MissedTickBehavior;
 use super::client::OriginShiftSink;
 use super::{OriginShiftClient, SinkAxis, SinkCore};
 use crate::fault::{FaultEvent, FaultKind, FaultLog, FaultSource};
+use crate::guard::SinkFaults;
 use crate::models::Axis;
 use crate::sink::{LocalFuture, Sink, SinkError, SinkIo, StartValues};
 
@@ -44,12 +45,16 @@ pub struct SinkSources {
 
 impl SinkSources {
     pub fn of(core: &SinkCore) -> Self {
+        Self::named(SOURCE, core.axes().iter().map(|a| a.axis.as_str()))
+    }
+
+    /// A sink's sources: `link` and `<link>.<axis>` per axis (the sink's axis order).
+    pub fn named<'a>(link: &str, axes: impl IntoIterator<Item = &'a str>) -> Self {
         SinkSources {
-            link: FaultSource::named(SOURCE),
-            axes: core
-                .axes()
-                .iter()
-                .map(|a| FaultSource::named(&format!("{SOURCE}.{}", a.axis)))
+            link: FaultSource::named(link),
+            axes: axes
+                .into_iter()
+                .map(|a| FaultSource::named(&format!("{link}.{a}")))
                 .collect(),
         }
     }
@@ -80,7 +85,18 @@ pub fn update_faults_of(
     connected: bool,
     now_s: f64,
 ) -> Vec<FaultEvent> {
-    let f = core.faults();
+    update_sink_faults(log, sources, core.faults(), connected, now_s)
+}
+
+/// The fault episodes of any sink from its guard's flags (`f`) and its link: the one mapping every
+/// sink shares (`BeyondClamp` and `Uncertain` per axis, `Disconnected`/`WriteFailed` for the link).
+pub fn update_sink_faults(
+    log: &mut FaultLog,
+    sources: &SinkSources,
+    f: &SinkFaults,
+    connected: bool,
+    now_s: f64,
+) -> Vec<FaultEvent> {
     let link: &[FaultKind] = if !connected {
         &[FaultKind::Disconnected]
     } else if f.write_failed {

@@ -19,6 +19,7 @@
 //! the pins are Linux GPIO character-device lines).
 
 pub mod config;
+pub mod core;
 pub mod counts;
 pub mod driver;
 #[cfg(all(feature = "gpio", target_os = "linux"))]

@@ -10,19 +10,34 @@
 //! a corrupt or unreadable file refuses the start (nothing is injected until it is fixed); a failed
 //! write-ahead is a fault of the sink and that step injects nothing.
 //!
+//! Every count passes the box's one last-step guard first ([`super::core`]): within the clamp, one
+//! cap per step from what the controller may hold; held counts beyond the clamp are a
+//! `sink.quadrature.<axis>` `BeyondClamp` fault (nothing injected on that axis, status shows the
+//! held value). Stop (`[gateway] on_stop = "ramp_out"`): counts back to 0 within the cap per step,
+//! every [`RAMP_PERIOD_MS`], for at most `stop_ramp_max_s`; the outcome is logged.
+//!
 //! A config that names GPIO lines on a build without the `gpio` feature is refused at start
 //! ([`check_buildable`]) rather than silently simulated: the technician would otherwise see a
 //! healthy status while nothing reaches the controller.
 
-use crate::models::Axis;
 use std::collections::BTreeMap;
 use tokio::sync::watch;
 
 use super::config::{QuadratureAxis, QuadratureSink};
-use super::held::{FileHeldCounts, HeldCounts, HeldError, write_ahead};
+use super::core::QuadratureCore;
+use super::held::{FileHeldCounts, HeldCounts, HeldError};
 use crate::error::Chain;
+use crate::fault::FaultLog;
+use crate::guard::AxisLimits;
+use crate::origin_shift::sink_task::{SinkSources, update_sink_faults};
 use crate::quadrature::{CountQuantizer, EdgeScheduler, SchedulerConfig, simulate};
 use crate::sink::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
+
+/// Period of the stop ramp-out's steps (no cycle runs then), ms.
+pub const RAMP_PERIOD_MS: u64 = 10;
+
+/// The sink's fault source (`<SOURCE>.<axis>` per axis).
+pub const SOURCE: &str = "sink.quadrature";
 
 /// Refuse GPIO lines this build cannot drive.
 pub fn check_buildable(q: &QuadratureSink) -> Result<(), SinkError> {
@@ -153,14 +168,19 @@ pub fn held_at_start(
 #[derive(Debug)]
 pub struct QuadratureOutput {
     cfg: QuadratureSink,
+    limits: Vec<AxisLimits>,
     held: BTreeMap<String, i64>,
+    epoch: std::time::Instant,
 }
 
 impl QuadratureOutput {
-    pub fn new(cfg: QuadratureSink) -> Self {
+    /// `limits`: clamp and per-write cap per axis; `epoch`: the gateway's clock (fault times).
+    pub fn new(cfg: QuadratureSink, limits: Vec<AxisLimits>, epoch: std::time::Instant) -> Self {
         Self {
             cfg,
+            limits,
             held: BTreeMap::new(),
+            epoch,
         }
     }
 
@@ -172,12 +192,21 @@ impl QuadratureOutput {
 impl Sink for QuadratureOutput {
     fn start<'a>(&'a mut self, _io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>> {
         Box::pin(async move {
-            let (held, start) = held_at_start(&self.cfg, &mut self.store()).map_err(|e| {
+            let (held, _) = held_at_start(&self.cfg, &mut self.store()).map_err(|e| {
                 SinkError::setup(
                     "sink.quadrature state_file (nothing is injected until it is fixed)",
                     e,
                 )
             })?;
+            let core = QuadratureCore::new(&self.cfg, &self.limits, &held)
+                .map_err(|e| SinkError::setup("sink.quadrature", e))?;
+            let start = core.start_values();
+            if start.len() < core.len() {
+                tracing::error!(
+                    ?held,
+                    "sink.quadrature: the held counts realise a correction beyond the clamp: that axis is not injected until the file is fixed"
+                );
+            }
             self.held = held;
             Ok(start)
         })
@@ -190,76 +219,190 @@ impl Sink for QuadratureOutput {
             tracing::error!("{}", Chain(&e));
         }
         Box::pin(quadrature_task(
-            self.cfg,
-            self.held,
-            Box::new(store),
-            io.out_rx,
-            io.status,
+            QuadratureSetup {
+                cfg: self.cfg,
+                limits: self.limits,
+                held: self.held,
+                store: Box::new(store),
+                epoch: self.epoch,
+            },
+            io,
         ))
     }
 }
 
-/// Follow the cycle's outputs until the runtime drops its sender.
-pub async fn quadrature_task(
-    q: QuadratureSink,
-    held: BTreeMap<String, i64>,
-    mut store: Box<dyn HeldCounts>,
-    mut out_rx: watch::Receiver<Vec<(Axis, f64)>>,
-    status: watch::Sender<SinkStatus>,
-) {
-    let mut axes = Vec::new();
+/// What [`quadrature_task`] starts from.
+pub struct QuadratureSetup {
+    pub cfg: QuadratureSink,
+    /// Clamp and per-write cap per axis.
+    pub limits: Vec<AxisLimits>,
+    /// Counts the controller holds per axis.
+    pub held: BTreeMap<String, i64>,
+    pub store: Box<dyn HeldCounts>,
+    /// The gateway's clock (fault times are seconds since it).
+    pub epoch: std::time::Instant,
+}
+
+impl std::fmt::Debug for QuadratureSetup {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("QuadratureSetup")
+            .field("cfg", &self.cfg)
+            .field("limits", &self.limits)
+            .field("held", &self.held)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Follow the cycle's outputs until the runtime drops its sender, or ramp out on `io.stop`.
+pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
+    let QuadratureSetup {
+        cfg: q,
+        limits,
+        held,
+        mut store,
+        epoch,
+    } = setup;
+    let SinkIo {
+        mut out_rx,
+        status,
+        mut stop,
+        ..
+    } = io;
+    let mut core = match QuadratureCore::new(&q, &limits, &held) {
+        Ok(c) => c,
+        Err(e) => return refuse(&status, &e),
+    };
+    let mut injectors = Vec::new();
     for a in &q.axes {
-        let n = held.get(&a.axis).copied().unwrap_or(0);
-        let opened = CountQuantizer::continuing_from(a.resolution_um, a.count_sign, n)
-            .map_err(|e| SinkError::Refused(e.to_string()))
-            .and_then(|quant| Ok((quant, AxisInjector::open(a, n)?)));
-        match opened {
-            // Axis names are validated (x, y or z, each an [[axis]]) when the config loads.
-            Ok((quant, inj)) => match Axis::from_name(&a.axis) {
-                Some(axis) => axes.push((axis, quant, inj)),
-                None => tracing::error!(axis = a.axis, "not an axis (x, y or z): never driven"),
-            },
-            Err(e) => {
-                tracing::error!(axis = a.axis, "{}", Chain(&e));
-                let _ = status.send(SinkStatus {
-                    kind: "quadrature".into(),
-                    last_error: Some(Chain(&e).to_string()),
-                    ..Default::default()
-                });
-                return;
-            }
+        match AxisInjector::open(a, held.get(&a.axis).copied().unwrap_or(0)) {
+            Ok(inj) => injectors.push(inj),
+            Err(e) => return refuse(&status, &e),
         }
     }
     let mut st = SinkStatus {
-        kind: axes.first().map_or("quadrature", |a| a.2.kind()).into(),
+        kind: injectors.first().map_or("quadrature", |i| i.kind()).into(),
         connected: true,
         ..Default::default()
     };
-    while out_rx.changed().await.is_ok() {
-        let outs = out_rx.borrow().clone();
-        for (axis, quant, inj) in &mut axes {
-            let Some((_, v)) = outs.iter().find(|(a, _)| a == axis) else {
-                continue;
+    let sources = SinkSources::named(SOURCE, core.axis_names());
+    let mut faults = FaultLog::default();
+    let mut stop_by: Option<std::time::Instant> = None;
+    let mut ramp = tokio::time::interval(std::time::Duration::from_millis(RAMP_PERIOD_MS));
+    loop {
+        if let Some(by) = stop_by {
+            ramp.tick().await;
+            if core.is_ramped_out() {
+                tracing::info!("ramped out: the controller holds 0 counts on every axis");
+                return;
+            }
+            if std::time::Instant::now() >= by {
+                let held: Vec<(&str, i64)> = core
+                    .axis_names()
+                    .zip((0..core.len()).map(|i| core.held_counts(i)))
+                    .collect();
+                tracing::warn!(
+                    ?held,
+                    "stopping before the counts are ramped out: the controller keeps these"
+                );
+                return;
+            }
+        } else {
+            let closed = tokio::select! {
+                r = out_rx.changed() => r.is_err(),
+                r = stop.wait_for(Option::is_some) => if r.is_err() { return } else { false },
             };
-            match write_ahead(store.as_mut(), axis.name(), quant, *v) {
-                Ok(d) if inj.inject(d) => st.writes_ok += 1,
-                Ok(_) => {
-                    st.writes_failed += 1;
-                    st.connected = false;
-                    st.last_error = Some(format!("axis {axis}: injector stopped"));
-                }
-                Err(e) => {
-                    st.writes_failed += 1;
-                    st.last_error = Some(format!("axis {axis}: {}", Chain(&e)));
-                }
+            // The run is ending: ramp out if asked to, else end here.
+            if closed && stop.wait_for(Option::is_some).await.is_err() {
+                return;
             }
-            if inj.owed() != 0 {
-                let axis = axis.name();
-                tracing::debug!(axis, owed = inj.owed(), "counts still owed to the lines");
+            if let Some(max_s) = *stop.borrow() {
+                stop_by =
+                    Some(std::time::Instant::now() + std::time::Duration::from_secs_f64(max_s));
+                core.begin_ramp_out();
+                tracing::info!(
+                    max_s,
+                    "stopping: ramping the counts out within the per-write cap"
+                );
             }
+        }
+        let outs = out_rx.borrow().clone();
+        step_axes(
+            &mut core,
+            &mut injectors,
+            &outs,
+            stop_by.is_some(),
+            store.as_mut(),
+            &mut st,
+        );
+        let now_s = epoch.elapsed().as_secs_f64();
+        let events = update_sink_faults(&mut faults, &sources, core.faults(), st.connected, now_s);
+        for e in events.iter().filter(|e| e.started) {
+            tracing::warn!(source = e.source.as_str(), kind = ?e.kind, held_um = ?st.held_um, "quadrature sink fault");
+        }
+        if !events.is_empty() {
+            st.faults = faults.active_by_name();
         }
         let _ = status.send(st.clone());
     }
+}
+
+/// One update of every axis: the wanted correction through the guard to the injector (0 for an
+/// axis without an output while stopping), then the status and the axes' held values.
+fn step_axes(
+    core: &mut QuadratureCore,
+    injectors: &mut [AxisInjector],
+    outs: &[(crate::models::Axis, f64)],
+    stopping: bool,
+    store: &mut dyn HeldCounts,
+    st: &mut SinkStatus,
+) {
+    for (i, inj) in injectors.iter_mut().enumerate() {
+        let Some(axis) = core.axis(i) else { continue };
+        let want = match outs.iter().find(|(a, _)| *a == axis) {
+            Some((_, v)) => *v,
+            None if stopping => 0.0,
+            None => continue,
+        };
+        match core.step(i, want, store) {
+            Ok(d) if inj.inject(d) => st.writes_ok += 1,
+            Ok(_) => {
+                st.writes_failed += 1;
+                st.connected = false;
+                st.last_error = Some(format!("axis {axis}: injector stopped"));
+            }
+            Err(e) => {
+                st.writes_failed += 1;
+                st.last_error = Some(format!("axis {axis}: {}", Chain(&e)));
+            }
+        }
+        if inj.owed() == 0 {
+            core.settled(i);
+        } else {
+            tracing::debug!(
+                axis = axis.name(),
+                owed = inj.owed(),
+                "counts still owed to the lines"
+            );
+        }
+    }
+    for (i, name) in core.axis_names().enumerate() {
+        match st.held_um.get_mut(name) {
+            Some(v) => *v = core.held_um(i),
+            None => {
+                st.held_um.insert(name.to_string(), core.held_um(i));
+            }
+        }
+    }
+}
+
+/// The task cannot drive its axes: say why in the status.
+fn refuse(status: &watch::Sender<SinkStatus>, e: &(dyn std::error::Error + 'static)) {
+    tracing::error!("sink.quadrature: {}", Chain(e));
+    let _ = status.send(SinkStatus {
+        kind: "quadrature".into(),
+        last_error: Some(Chain(e).to_string()),
+        ..Default::default()
+    });
 }
 
 #[cfg(test)]

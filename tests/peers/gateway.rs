@@ -53,8 +53,18 @@ pub(crate) struct Gateway {
 impl Gateway {
     /// `retrocomp run --dry-run --config <cfg>` with `RUST_LOG=info` and `envs`.
     pub(crate) fn start(cfg: &Path, status_port: u16, envs: &[(&str, &str)]) -> Gateway {
+        Self::start_args(&["run", "--dry-run", "--config"], cfg, status_port, envs)
+    }
+
+    /// `retrocomp <args> <cfg>` (e.g. `run --config`, the sink included) as [`Self::start`].
+    pub(crate) fn start_args(
+        args: &[&str],
+        cfg: &Path,
+        status_port: u16,
+        envs: &[(&str, &str)],
+    ) -> Gateway {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_retrocomp"));
-        cmd.args(["run", "--dry-run", "--config"])
+        cmd.args(args)
             .arg(cfg)
             .env("RUST_LOG", "info")
             .env_remove("NOTIFY_SOCKET")

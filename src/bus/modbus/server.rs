@@ -61,6 +61,15 @@ impl RegisterBank {
         }
     }
 
+    /// Remove `count` holding registers from `addr` on: reads of them get exception 02 again (a
+    /// served value the device withdraws).
+    pub fn clear_holding(&self, addr: u16, count: u16) {
+        let mut im = self.lock();
+        for i in 0..count {
+            im.holding.remove(&addr.wrapping_add(i));
+        }
+    }
+
     pub fn set_input(&self, addr: u16, words: &[u16]) {
         let mut im = self.lock();
         for (i, w) in words.iter().enumerate() {
