@@ -233,11 +233,12 @@ fn an_unmapped_corrected_axis_is_refused_with_its_key() {
         "/deploy/linuxcnc/retrocomp-linuxcnc.toml"
     )))
     .unwrap();
-    let two_axes = base.replace(
-        "[[channel]]",
-        "[[axis]]\nname = \"z\"\nposition_channel = \"z_mm\"\n\n[[channel]]",
+    let z_unmapped = base.replace(
+        "  { axis = \"z\", address = 2, kind = \"int16\", lsb_um = 0.1, sign = 1 },\n",
+        "",
     );
-    let e = FieldConfig::parse(&two_axes, Path::new("sim.toml"))
+    assert_ne!(z_unmapped, base);
+    let e = FieldConfig::parse(&z_unmapped, Path::new("sim.toml"))
         .unwrap_err()
         .to_string();
     assert!(
@@ -246,7 +247,7 @@ fn an_unmapped_corrected_axis_is_refused_with_its_key() {
             && e.contains("z"),
         "{e}"
     );
-    let overlap = base.replace("address = 11 }", "address = 10 }");
+    let overlap = base.replace("address = 13 }", "address = 10 }");
     let e = FieldConfig::parse(&overlap, Path::new("sim.toml"))
         .unwrap_err()
         .to_string();

@@ -1,11 +1,15 @@
 #!/usr/bin/python3
 """Headless "display" for retrocomp-sim.ini: machine on, home, run part.ngc. At every M0 pause it
 writes the HAL pins the closed-loop test checks to pause-K.jsonl (one line every 0.1 s) and waits
-for the file resume-K before resuming (and stops if the file abort appears). Writes done.json at the end; LinuxCNC stops when this exits.
+for the file resume-K before resuming (and stops if the file abort appears). From start to end a
+thread writes the same pins with the wall-clock time to trace.jsonl (one line every 20 ms; the
+test compares them with the times it killed and restarted the box). Writes done.json at the end;
+LinuxCNC stops when this exits.
 Uses Debian's python3 (the linuxcnc and hal modules are not in a venv)."""
 import json
 import os
 import sys
+import threading
 import time
 
 import hal
@@ -18,9 +22,11 @@ comp = hal.component("rc-drive")
 comp.ready()
 s = linuxcnc.stat()
 c = linuxcnc.command()
-PINS = ["axis.x.pos-cmd", "axis.x.eoffset", "axis.x.eoffset-counts", "rc-alive",
-        "rc-x-step-max.max", "rc-heartbeat", "motion.eoffset-active",
-        "rc-watch.restarts"]
+PINS = ["axis.%s.%s" % (a, p) for a in "xyz" for p in ("pos-cmd", "eoffset", "eoffset-counts")]
+PINS += ["rc-%s-step-max.max" % a for a in "xyz"]
+PINS += ["rc-alive", "rc-heartbeat", "rc-trips.count", "rc-watch.restarts", "rc-watch.pass",
+         "rc-hb-fresh.time-left", "motion.current-vel", "motion.feed-hold", "motion.eoffset-active",
+         "motion.eoffset-limited"]
 
 
 def log(msg):
@@ -58,6 +64,17 @@ def pins():
     return {p: value(p) for p in PINS}
 
 
+def trace():
+    with open(os.path.join(here, "trace.jsonl"), "a") as f:
+        while True:
+            row = pins()
+            row["t"] = time.time()
+            f.write(json.dumps(row) + "\n")
+            f.flush()
+            time.sleep(0.02)
+
+
+threading.Thread(target=trace, daemon=True).start()
 c.state(linuxcnc.STATE_ESTOP_RESET)
 c.state(linuxcnc.STATE_ON)
 wait("machine on", lambda: s.task_state == linuxcnc.STATE_ON)
