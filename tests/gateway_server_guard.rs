@@ -3,8 +3,9 @@
 //! with the LinuxCNC sim kit's field config (`deploy/linuxcnc/sim/retrocomp-sim.toml`: clamp 50 µm
 //! = 500 counts, cap 1 µm = 10 counts per update) on loopback ports:
 //!
-//! 1. one client writes positions/held/marker with FC16 at register 10 (`[15000, 0, 21930]`), a
-//!    second client sends FC06 register 11 = 0x7FFF (3276.7 µm held): every FC03 read of the
+//! 1. one client writes positions/held/marker with FC16 at registers 10–16 (X/Y/Z positions in
+//!    25 µm counts, X/Y/Z held, the marker 0x55AA), a second client sends FC06 to X's held
+//!    register 13 = 0x7FFF (3276.7 µm held): every FC03 read of the
 //!    correction register before and after is an exception or within 500 counts, and `/status`
 //!    and `/metrics` show the `BeyondClamp` fault of `sink.origin_shift_server.x` with the held
 //!    value;
@@ -38,7 +39,7 @@ def read():
         print("read exc", flush=True); return None
     v = r.registers[0] - 65536 if r.registers[0] >= 32768 else r.registers[0]
     print(f"read {v}", flush=True); return v
-r = a.write_registers(10, [15000, 0, 21930])
+r = a.write_registers(10, [6000, 4000, 4000, 0, 0, 0, 21930])
 assert not r.isError(), r
 deadline = time.time() + 60
 while read() is None:
@@ -46,7 +47,7 @@ while read() is None:
     time.sleep(0.02)
 for _ in range(10):
     read(); time.sleep(0.02)
-r = b.write_register(11, 0x7FFF)
+r = b.write_register(13, 0x7FFF)
 assert not r.isError(), r
 print("rogue", flush=True)
 for _ in range(40):
@@ -60,17 +61,20 @@ import sys, time
 from pymodbus.client import ModbusTcpClient
 port = int(sys.argv[1])
 a = ModbusTcpClient("127.0.0.1", port=port, retries=0); assert a.connect()
-applied = 0
+applied = [0, 0, 0]
 while True:
     try:
-        r = a.read_holding_registers(0, count=1)
-        if r.isError():
-            print("read exc", flush=True)
-        else:
+        for k in range(3):
+            r = a.read_holding_registers(k, count=1)
+            if r.isError():
+                if k == 0:
+                    print("read exc", flush=True)
+                continue
             v = r.registers[0]
-            applied = v - 65536 if v >= 32768 else v
-            print(f"read {applied}", flush=True)
-        w = a.write_registers(10, [15000, applied & 0xFFFF, 21930])
+            applied[k] = v - 65536 if v >= 32768 else v
+            if k == 0:
+                print(f"read {applied[0]}", flush=True)
+        w = a.write_registers(10, [6000, 4000, 4000] + [v & 0xFFFF for v in applied] + [21930])
         if w.isError():
             print("write exc", flush=True)
     except Exception as e:
@@ -93,9 +97,10 @@ fn config(modbus_port: u16, status_port: u16) -> String {
         .replace("127.0.0.1:1502", &format!("127.0.0.1:{modbus_port}"))
         .replace("127.0.0.1:9184", &format!("127.0.0.1:{status_port}"))
         .replace(
-            "path = \"linuxcnc-demo-model.toml\"",
-            &format!("path = \"{root}/deploy/linuxcnc/sim/linuxcnc-demo-model.toml\""),
+            "path = \"../../field/vmc-geometry.toml\"",
+            &format!("path = \"{root}/deploy/field/vmc-geometry.toml\""),
         );
+    assert!(cfg.contains(&format!("{root}/deploy/field/vmc-geometry.toml")), "{cfg}");
     assert!(cfg.contains(&format!("127.0.0.1:{modbus_port}")), "{cfg}");
     cfg
 }
