@@ -110,11 +110,7 @@ fn print_pdf(html: &Path, pdf: &Path, tmp: &Path) -> (usize, String, String) {
     assert_eq!(pngs, pages, "pdftoppm rendered every page");
     let pdftotext = tool("pdftotext", "RETROCOMP_PDFTOTEXT", "poppler-utils");
     let text = ok(
-        Command::new(pdftotext)
-            .arg(pdf)
-            .arg("-")
-            .output()
-            .unwrap(),
+        Command::new(pdftotext).arg(pdf).arg("-").output().unwrap(),
         "pdftotext",
     );
     (pages, info, text)
@@ -131,11 +127,16 @@ fn assert_legend_clear(svg: &str, what: &str) {
         g.covered()
     );
     let right = g.data_points.iter().map(|p| p.0).fold(f64::MIN, f64::max);
-    assert!(right < g.legend_boxes[0][0], "{what}: legend outside the data");
+    assert!(
+        right < g.legend_boxes[0][0],
+        "{what}: legend outside the data"
+    );
 }
 
 fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/analysis").join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/analysis")
+        .join(name)
 }
 
 #[test]
@@ -177,11 +178,19 @@ fn iso230_2_report_of_asad_ullahs_x_axis_prints_to_a4_with_the_figures_numbers()
     };
     let crossing = (140..=170)
         .step_by(5)
-        .map(|t| t as f64)
-        .filter(|t| json["targets"].as_array().unwrap().iter().any(|x| x["target_mm"].as_f64() == Some(*t)))
+        .map(f64::from)
+        .filter(|t| {
+            json["targets"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|x| x["target_mm"].as_f64() == Some(*t))
+        })
         .collect::<Vec<_>>();
     assert!(
-        crossing.windows(2).any(|w| bi(w[0]).signum() != bi(w[1]).signum()),
+        crossing
+            .windows(2)
+            .any(|w| bi(w[0]).signum() != bi(w[1]).signum()),
         "Bi changes sign around 145–160 mm: {crossing:?}"
     );
     let e = json["axis"]["E_um"].as_f64().unwrap();
@@ -203,7 +212,10 @@ fn iso230_2_report_of_asad_ullahs_x_axis_prints_to_a4_with_the_figures_numbers()
     let (pages, info, text) = print_pdf(&html, &pdf, dir.path());
     assert!((1..=3).contains(&pages), "{pages} pages:\n{info}");
     assert!(info.contains("(A4)"), "A4 pages:\n{info}");
-    for n in numbers.iter().chain([&"thesis mill".to_string(), &"SHA-256".to_string()]) {
+    for n in numbers
+        .iter()
+        .chain([&"thesis mill".to_string(), &"SHA-256".to_string()])
+    {
         assert!(text.contains(n.as_str()), "PDF text lacks {n}:\n{text}");
     }
 }
@@ -213,7 +225,7 @@ fn circle_csv(path: &Path) {
     let mut s = String::from("angle_deg,dr_um,direction\n");
     for dir in ["ccw", "cw"] {
         for i in 0..360 {
-            let a = if dir == "ccw" { i } else { 360 - i } as f64;
+            let a = f64::from(if dir == "ccw" { i } else { 360 - i });
             let r = a.to_radians();
             let rev = if dir == "ccw" { 1.0 } else { -1.0 };
             let dr = 3.0 * r.cos() + 1.5 * (2.0 * r).sin() + rev * 2.0 * r.sin().signum();
@@ -238,7 +250,14 @@ fn circle_report_has_the_polar_plot_and_prints_its_numbers() {
         retrocomp()
             .arg("circle")
             .arg(&csv)
-            .args(["--radius-mm", "150", "--feed-mm-min", "1000", "--json", "--svg"])
+            .args([
+                "--radius-mm",
+                "150",
+                "--feed-mm-min",
+                "1000",
+                "--json",
+                "--svg",
+            ])
             .arg(&polar)
             .arg("--svg-angle")
             .arg(&angle)
@@ -264,7 +283,10 @@ fn circle_report_has_the_polar_plot_and_prints_its_numbers() {
         assert!(polar_text.contains(n.as_str()), "polar plot lacks {n}");
     }
     // The step of ±2 µm in sin θ's sign makes CCW and CW differ by up to 4 µm.
-    assert!(polar_text.contains("H (circular hysteresis) = 4.00 µm"), "H");
+    assert!(
+        polar_text.contains("H (circular hysteresis) = 4.00 µm"),
+        "H"
+    );
     let (pages, info, text) = print_pdf(&html, &pdf, dir.path());
     assert!((1..=4).contains(&pages), "{pages} pages:\n{info}");
     for n in numbers.iter().take(2) {

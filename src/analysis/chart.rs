@@ -320,7 +320,12 @@ where
         y += 4;
     }
     let (px, py) = panel.get_pixel_range();
-    Ok([px.start + 4, py.start + 8, px.start + w as i32 - 6, py.start + bottom])
+    Ok([
+        px.start + 4,
+        py.start + 8,
+        px.start + w as i32 - 6,
+        py.start + bottom,
+    ])
 }
 
 #[cfg(test)]

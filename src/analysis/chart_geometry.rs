@@ -51,17 +51,14 @@ pub fn parse(svg: &str) -> SvgGeometry {
         let tag = piece.split('>').next().unwrap_or("");
         let name = tag.split_whitespace().next().unwrap_or("");
         match name {
-            "rect" => {
-                let stroke = attr(tag, "stroke").unwrap_or("");
-                if stroke.eq_ignore_ascii_case(&frame) {
-                    if let (Some(x), Some(y), Some(w), Some(h)) = (
-                        num(tag, "x"),
-                        num(tag, "y"),
-                        num(tag, "width"),
-                        num(tag, "height"),
-                    ) {
-                        g.legend_boxes.push([x, y, x + w, y + h]);
-                    }
+            "rect" if attr(tag, "stroke").is_some_and(|s| s.eq_ignore_ascii_case(&frame)) => {
+                if let (Some(x), Some(y), Some(w), Some(h)) = (
+                    num(tag, "x"),
+                    num(tag, "y"),
+                    num(tag, "width"),
+                    num(tag, "height"),
+                ) {
+                    g.legend_boxes.push([x, y, x + w, y + h]);
                 }
             }
             "circle" => {

@@ -4,7 +4,9 @@ use crate::analysis::chart_geometry::parse;
 #[test]
 fn robust_limits_ignore_a_few_outliers_but_keep_ordinary_data_whole() {
     // 1000 readings within ±50 µm and five servo-lag spikes at −2700 µm.
-    let mut v: Vec<f64> = (0..1000).map(|i| 50.0 * (i as f64 * 0.37).sin()).collect();
+    let mut v: Vec<f64> = (0..1000)
+        .map(|i| 50.0 * (f64::from(i) * 0.37).sin())
+        .collect();
     v.extend([-2700.0; 5]);
     let (lo, hi) = robust_limits(&v);
     assert!(lo > -130.0 && lo < -50.0, "lo {lo}");
@@ -18,7 +20,7 @@ fn robust_limits_ignore_a_few_outliers_but_keep_ordinary_data_whole() {
 /// Data crowded into the top-right corner, where plotters puts its legend by default.
 fn crowded() -> Vec<Series> {
     let mut pts: Vec<(f64, f64)> = (0..200)
-        .map(|i| (i as f64, (i as f64 / 20.0).powi(2)))
+        .map(|i| (f64::from(i), (f64::from(i) / 20.0).powi(2)))
         .collect();
     pts.push((150.0, -5000.0));
     vec![

@@ -36,9 +36,12 @@ pub fn notes(rep: &Iso230_2Report) -> Vec<String> {
         .targets
         .iter()
         .max_by(|p, q| p.reversal_um.abs().total_cmp(&q.reversal_um.abs()));
-    let (n_up, n_down) = rep.targets.iter().fold((usize::MAX, usize::MAX), |(u, d), t| {
-        (u.min(t.n_up), d.min(t.n_down))
-    });
+    let (n_up, n_down) = rep
+        .targets
+        .iter()
+        .fold((usize::MAX, usize::MAX), |(u, d), t| {
+            (u.min(t.n_up), d.min(t.n_down))
+        });
     vec![
         format!(
             "E = {:.2} µm (E↑ {:.2}, E↓ {:.2})",
@@ -90,9 +93,8 @@ pub fn svg(
     let line = |f: fn(&super::iso230_2::TargetStats) -> f64| {
         t.iter().map(|x| (x.target_mm, f(x))).collect::<Vec<_>>()
     };
-    series.push(
-        Series::line_markers("x̄↑ forward mean", line(|x| x.mean_up_um)).with_colour(FORWARD),
-    );
+    series
+        .push(Series::line_markers("x̄↑ forward mean", line(|x| x.mean_up_um)).with_colour(FORWARD));
     series.push(
         Series::line_markers("x̄↓ reverse mean", line(|x| x.mean_down_um)).with_colour(REVERSE),
     );
@@ -158,11 +160,23 @@ pub fn sections(rep: &Iso230_2Report, figure_svg: String, assumed: Vec<String>) 
         .collect();
     let a = &rep.axis;
     let axis_rows = vec![
-        vec!["E (E↑, E↓)".into(), format!("{:.2} ({:.2}, {:.2})", a.e_um, a.e_up_um, a.e_down_um)],
+        vec![
+            "E (E↑, E↓)".into(),
+            format!("{:.2} ({:.2}, {:.2})", a.e_um, a.e_up_um, a.e_down_um),
+        ],
         vec!["M".into(), format!("{:.2}", a.m_um)],
-        vec!["B (B̄)".into(), format!("{:.2} ({:.2})", a.b_um, a.b_mean_um)],
-        vec!["R (R↑, R↓)".into(), format!("{} ({}, {})", opt(a.r_um), opt(a.r_up_um), opt(a.r_down_um))],
-        vec!["A (A↑, A↓)".into(), format!("{} ({}, {})", opt(a.a_um), opt(a.a_up_um), opt(a.a_down_um))],
+        vec![
+            "B (B̄)".into(),
+            format!("{:.2} ({:.2})", a.b_um, a.b_mean_um),
+        ],
+        vec![
+            "R (R↑, R↓)".into(),
+            format!("{} ({}, {})", opt(a.r_um), opt(a.r_up_um), opt(a.r_down_um)),
+        ],
+        vec![
+            "A (A↑, A↓)".into(),
+            format!("{} ({}, {})", opt(a.a_um), opt(a.a_up_um), opt(a.a_down_um)),
+        ],
     ];
     let mut assumed = assumed;
     assumed.extend(rep.note.clone());

@@ -8,7 +8,7 @@ use std::f64::consts::TAU;
 
 use plotters::prelude::*;
 
-use super::chart::{LEGEND_FRAME, PANEL_PX, PALETTE, wrap};
+use super::chart::{LEGEND_FRAME, PALETTE, PANEL_PX, wrap};
 use super::circular::{CircleReport, CircleTrace, Rotation};
 use super::report::PlotError;
 
@@ -138,12 +138,14 @@ fn draw(
     let lim = 1.0 + 4.6 * RING_UNITS;
     let mut chart = ChartBuilder::on(&area).build_cartesian_2d(-lim..lim, -lim..lim)?;
     let grey = RGBColor(200, 200, 200);
-    let circle = |r: f64| (0..=180).map(move |i| {
-        let a = TAU * i as f64 / 180.0;
-        (r * a.cos(), r * a.sin())
-    });
+    let circle = |r: f64| {
+        (0..=180).map(move |i| {
+            let a = TAU * f64::from(i) / 180.0;
+            (r * a.cos(), r * a.sin())
+        })
+    };
     for ring in -4..=4 {
-        let r = 1.0 + ring as f64 * RING_UNITS;
+        let r = 1.0 + f64::from(ring) * RING_UNITS;
         let style = if ring == 0 {
             RGBColor(90, 90, 90).stroke_width(2)
         } else {
@@ -156,14 +158,16 @@ fn draw(
         if ring != 0 && ring % 2 == 0 {
             let a = 100f64.to_radians();
             chart.draw_series(std::iter::once(Text::new(
-                format!("{:+} µm", ring as f64 * ring_um),
+                format!("{:+} µm", f64::from(ring) * ring_um),
                 (r * a.cos(), r * a.sin()),
-                ("sans-serif", 11).into_font().color(&RGBColor(110, 110, 110)),
+                ("sans-serif", 11)
+                    .into_font()
+                    .color(&RGBColor(110, 110, 110)),
             )))?;
         }
     }
     for deg in (0..360).step_by(30) {
-        let a = (deg as f64).to_radians();
+        let a = f64::from(deg).to_radians();
         let (r0, r1) = (1.0 - 4.0 * RING_UNITS, lim * 0.97);
         chart.draw_series(std::iter::once(PathElement::new(
             vec![(r0 * a.cos(), r0 * a.sin()), (r1 * a.cos(), r1 * a.sin())],
@@ -172,7 +176,9 @@ fn draw(
         chart.draw_series(std::iter::once(Text::new(
             format!("{deg}°"),
             (0.5 * a.cos() - 0.05, 0.5 * a.sin()),
-            ("sans-serif", 11).into_font().color(&RGBColor(110, 110, 110)),
+            ("sans-serif", 11)
+                .into_font()
+                .color(&RGBColor(110, 110, 110)),
         )))?;
     }
     for t in traces {
@@ -208,10 +214,18 @@ where
         let c = colour(t.rotation);
         let name = format!("{:?}", t.rotation).to_uppercase();
         panel.draw(&Rectangle::new([(12, y - 1), (34, y + 2)], c.filled()))?;
-        panel.draw(&Text::new(format!("{name} path"), (40, y - 7), font.clone()))?;
+        panel.draw(&Text::new(
+            format!("{name} path"),
+            (40, y - 7),
+            font.clone(),
+        ))?;
         y += 20;
         panel.draw(&Rectangle::new([(19, y - 4), (27, y + 4)], c.filled()))?;
-        panel.draw(&Text::new(format!("{name} start"), (40, y - 7), font.clone()))?;
+        panel.draw(&Text::new(
+            format!("{name} start"),
+            (40, y - 7),
+            font.clone(),
+        ))?;
         y += 20;
     }
     panel.draw(&Rectangle::new(
@@ -234,7 +248,7 @@ mod tests {
     use super::*;
 
     fn trace(rotation: Rotation, f: impl Fn(f64) -> f64) -> CircleTrace {
-        let angle_rad: Vec<f64> = (0..360).map(|i| (i as f64).to_radians()).collect();
+        let angle_rad: Vec<f64> = (0..360).map(|i| f64::from(i).to_radians()).collect();
         let dr_um = angle_rad.iter().map(|a| f(*a)).collect();
         CircleTrace {
             rotation,

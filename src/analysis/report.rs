@@ -2,8 +2,8 @@
 //! no TrueType fonts needed: the SVG backend writes `<text>` elements and the viewer renders them).
 //! The drawing itself is [`super::chart`]; this is the short form most commands call.
 
-pub use super::chart::{Series, Style};
 use super::chart::{Chart, render};
+pub use super::chart::{Series, Style};
 
 /// Why a chart could not be rendered.
 #[derive(Debug, thiserror::Error)]

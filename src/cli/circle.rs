@@ -97,7 +97,11 @@ fn sections(rep: &CircleReport, traces: &[CircleTrace]) -> anyhow::Result<Vec<Se
         .terms
         .iter()
         .map(|t| {
-            let p: Vec<String> = t.params.iter().map(|(k, v)| format!("{k} = {v:.3}")).collect();
+            let p: Vec<String> = t
+                .params
+                .iter()
+                .map(|(k, v)| format!("{k} = {v:.3}"))
+                .collect();
             vec![
                 t.effect.clone(),
                 format!("{:.2}", t.contribution_um),
@@ -148,7 +152,8 @@ fn sections(rep: &CircleReport, traces: &[CircleTrace]) -> anyhow::Result<Vec<Se
         Section {
             heading: "What was assumed".into(),
             blocks: vec![Block::List(vec![
-                "Δr = measured − nominal radius (µm), about the nominal centre (ballbar pivot)".into(),
+                "Δr = measured − nominal radius (µm), about the nominal centre (ballbar pivot)"
+                    .into(),
                 "angle from +X towards +Y; X reverses at 0°/180°, Y at 90°/270°".into(),
                 "G about the least-squares centre; F about the nominal centre and radius".into(),
                 "H: largest CCW − CW radial difference at the same angle (CW interpolated)".into(),

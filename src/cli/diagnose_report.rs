@@ -52,8 +52,11 @@ fn figures(d: &Diagnosis) -> anyhow::Result<Vec<Block>> {
             .chain(own);
         for (x_label, x) in xs {
             let series = [
-                Series::markers("residual before the findings", thinned(x, &s.residual_before))
-                    .with_colour(PALETTE[7]),
+                Series::markers(
+                    "residual before the findings",
+                    thinned(x, &s.residual_before),
+                )
+                .with_colour(PALETTE[7]),
                 Series::markers("residual after all findings", thinned(x, last))
                     .with_colour(PALETTE[0]),
             ];

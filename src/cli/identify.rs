@@ -138,7 +138,12 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         print!("{}", text_report(&id, &opts, &ver, &args.out));
     }
     let mut inputs: Vec<PathBuf> = vec![];
-    for p in args.hole_plate.iter().chain(&args.ballbar).chain(&args.verify) {
+    for p in args
+        .hole_plate
+        .iter()
+        .chain(&args.ballbar)
+        .chain(&args.verify)
+    {
         inputs.push(p.clone());
         inputs.push(p.with_extension("toml"));
     }
@@ -203,7 +208,10 @@ fn html_sections(
         Section {
             heading: "What was assumed".into(),
             blocks: vec![Block::List(vec![
-                format!("kinematic chain as given; candidate knots every {} mm, at most {} per axis, significance {}", opts.knot_step_mm, opts.max_knots, opts.alpha),
+                format!(
+                    "kinematic chain as given; candidate knots every {} mm, at most {} per axis, significance {}",
+                    opts.knot_step_mm, opts.max_knots, opts.alpha
+                ),
                 "each plate's rigid pose is fitted out; deviations are actual − nominal, µm".into(),
                 "efficiency δ as Spaan (2010) Tables 3.2–3.4".into(),
             ])],
@@ -328,7 +336,11 @@ fn text_report(id: &Identification, opts: &Options, ver: &[DirVerify], out: &Pat
 /// One verification plate's direction: measured and residual deviation against machine position.
 fn plate_svg(v: &DirVerify) -> anyhow::Result<String> {
     let at = |f: fn(&(String, f64, f64)) -> f64| -> Vec<(f64, f64)> {
-        v.pos_mm.iter().zip(&v.holes).map(|(x, h)| (*x, f(h))).collect()
+        v.pos_mm
+            .iter()
+            .zip(&v.holes)
+            .map(|(x, h)| (*x, f(h)))
+            .collect()
     };
     let notes = vec![
         format!("largest |Δm| = {:.2} µm", v.meas_um),
@@ -338,7 +350,12 @@ fn plate_svg(v: &DirVerify) -> anyhow::Result<String> {
         "rigid pose of the plate fitted out".to_string(),
     ];
     Ok(xy_svg_notes(
-        &format!("{} {}: efficiency {:.1} %", v.plate, v.direction, 100.0 * v.efficiency),
+        &format!(
+            "{} {}: efficiency {:.1} %",
+            v.plate,
+            v.direction,
+            100.0 * v.efficiency
+        ),
         &format!("machine position {} / mm", v.direction),
         &format!("deviation e{} / µm", v.direction),
         &[

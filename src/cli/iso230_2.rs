@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 
 use retrocomp::analysis::iso230_2::{self, Reading};
-use retrocomp::analysis::laser_import::{parse_readings, remove_linear_drift};
 use retrocomp::analysis::iso230_2_figure;
+use retrocomp::analysis::laser_import::{parse_readings, remove_linear_drift};
 
 use super::report_args::ReportArgs;
 use super::util::{read, write};

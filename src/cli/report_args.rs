@@ -57,12 +57,8 @@ impl ReportArgs {
             ),
         ];
         for p in inputs {
-            let bytes =
-                std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?;
-            h.push((
-                format!("Input {} SHA-256", p.display()),
-                sha256_hex(&bytes),
-            ));
+            let bytes = std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?;
+            h.push((format!("Input {} SHA-256", p.display()), sha256_hex(&bytes)));
         }
         Ok(h)
     }
