@@ -8,6 +8,8 @@
 #        qemu-utils (e.g. from backports) `apt-get install qemu-system-x86` would remove it.
 # Never removes or downgrades a host package: every install is simulated first (apt-get -s) and
 # refused if the simulation removes or downgrades anything; the real install adds --no-remove.
+#   poppler-utils: pdftoppm/pdftotext, which tests/report_html_pdf.rs uses to read the PDF Chromium
+#        prints from a report
 #   chromium (+ chromium-driver): the headless browser of tests/gateway_web_browser.rs, driven by
 #        playwright-core (PINNED in tests/browser/package-lock.json, `npm ci`; needs node + npm)
 #   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial; asyncua, the OPC UA client of
@@ -32,6 +34,7 @@ APT_PACKAGES=(
   chromium
   chromium-driver
   mosquitto
+  poppler-utils
 )
 
 PIP_PACKAGES=(

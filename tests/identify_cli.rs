@@ -83,7 +83,9 @@ fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
         .arg("--out")
         .arg(&model)
         .arg("--svg")
-        .arg(&svg);
+        .arg(&svg)
+        .arg("--html")
+        .arg(dir.path().join("identify.html"));
     let text = ok(&cmd.output().unwrap(), "retrocomp identify");
     assert!(text.contains("verification"), "{text}");
     assert!(
@@ -107,6 +109,27 @@ fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
         10,
         "2 directions × 5 plates"
     );
+    // Each plot: deviation against machine position (mm, not the probing index), and the legend
+    // box (read back from the SVG) holds no data point.
+    for e in std::fs::read_dir(&svg).unwrap() {
+        let p = e.unwrap().path();
+        let s = std::fs::read_to_string(&p).unwrap();
+        assert!(
+            s.contains("machine position") && s.contains("/ mm"),
+            "{}",
+            p.display()
+        );
+        let g = retrocomp::analysis::chart_geometry::parse(&s);
+        assert_eq!(g.legend_boxes.len(), 1, "{}", p.display());
+        assert!(g.covered().is_empty(), "{}: {:?}", p.display(), g.covered());
+    }
+    let html = std::fs::read_to_string(dir.path().join("identify.html")).unwrap();
+    assert_eq!(
+        html.matches("<svg").count(),
+        10,
+        "one figure per plate and direction"
+    );
+    assert!(html.contains("SHA-256") && html.contains("Verification on held-out plates"));
 
     ok(
         &retrocomp()

@@ -10,14 +10,19 @@
 //! Every importer reports file, line and column of each bad row and never drops one silently
 //! ([`import_error::ImportErrors`]).
 
+pub mod chart;
+pub mod chart_geometry;
 pub mod circular;
 pub mod export;
 pub mod fit;
+pub mod html;
 pub mod identify;
 pub mod import_error;
 pub mod iso230_2;
+pub mod iso230_2_figure;
 pub mod laser_import;
 pub mod nc;
 pub mod plane_model;
+pub mod polar;
 pub mod report;
 pub mod table;

@@ -31,6 +31,8 @@ pub(crate) struct DiagnoseArgs {
     /// fitted on this same recording, whose intercept was fitted without the found terms).
     #[arg(long)]
     pub fit_offset: bool,
+    #[command(flatten)]
+    pub report: super::report_args::ReportArgs,
 }
 
 /// Read a recording; `lenient` (`--skip-bad-rows`) keeps going past bad rows, prints every one on
@@ -115,7 +117,11 @@ pub(crate) fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
             println!("wrote {} files to {}", files.len(), dir.display());
         }
     }
-    Ok(())
+    let mut inputs = vec![a.recording.as_path()];
+    inputs.extend(a.model.as_deref());
+    a.report.write("Diagnosis of a recording", &inputs, || {
+        super::diagnose_report::sections(&d)
+    })
 }
 
 #[derive(clap::Args, Debug)]

@@ -8,12 +8,14 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
+use super::report_args::ReportArgs;
 use super::util::{read, write};
+use retrocomp::analysis::html::{Block, Section};
 use retrocomp::analysis::identify::contracts::{BallBar, HolePlate, read_ballbar, read_hole_plate};
 use retrocomp::analysis::identify::design::Geometry;
 use retrocomp::analysis::identify::report::{DirVerify, components, to_spec, verify};
 use retrocomp::analysis::identify::{Identification, Options, identify};
-use retrocomp::analysis::report::{Series, xy_svg};
+use retrocomp::analysis::report::{Series, xy_svg_notes};
 use retrocomp::models::MachineModel;
 
 #[derive(Debug, clap::Args)]
@@ -49,6 +51,8 @@ pub(crate) struct Args {
     /// Significance level of a knot (Spaan 99.99 % → 1e-4).
     #[arg(long, default_value_t = 1e-4)]
     pub alpha: f64,
+    #[command(flatten)]
+    pub report: ReportArgs,
 }
 
 /// The CSV's text and its side file's (same stem, `.toml`).
@@ -133,7 +137,86 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     } else {
         print!("{}", text_report(&id, &opts, &ver, &args.out));
     }
-    Ok(())
+    let mut inputs: Vec<PathBuf> = vec![];
+    for p in args
+        .hole_plate
+        .iter()
+        .chain(&args.ballbar)
+        .chain(&args.verify)
+    {
+        inputs.push(p.clone());
+        inputs.push(p.with_extension("toml"));
+    }
+    let inputs: Vec<&Path> = inputs.iter().map(|p| p.as_path()).collect();
+    args.report
+        .write("Machine identification from artefacts", &inputs, || {
+            html_sections(&id, &opts, &ver, &args.out)
+        })
+}
+
+/// The report: the identification's text report, the verification table and one figure per
+/// verification plate and direction.
+fn html_sections(
+    id: &Identification,
+    opts: &Options,
+    ver: &[DirVerify],
+    out: &Path,
+) -> anyhow::Result<Vec<Section>> {
+    let rows = ver
+        .iter()
+        .map(|v| {
+            vec![
+                v.plate.clone(),
+                v.direction.to_string(),
+                format!("{:.1}", v.meas_um),
+                format!("{:.1}", v.res_um),
+                format!("{:.2}", v.sigma_um),
+                format!("{:.1}", 100.0 * v.efficiency),
+            ]
+        })
+        .collect();
+    let figures = ver
+        .iter()
+        .map(|v| {
+            Ok(Block::Figure {
+                svg: plate_svg(v)?,
+                caption: format!(
+                    "{} {}: measured deviation Δm and residual after the model, per probing",
+                    v.plate, v.direction
+                ),
+            })
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(vec![
+        Section {
+            heading: "Identification".into(),
+            blocks: vec![Block::Pre(text_report(id, opts, ver, out))],
+        },
+        Section {
+            heading: "Verification on held-out plates".into(),
+            blocks: vec![Block::Table {
+                head: ["plate", "dir", "meas / µm", "res / µm", "σ / µm", "δ / %"]
+                    .map(String::from)
+                    .to_vec(),
+                rows,
+            }],
+        },
+        Section {
+            heading: "Figures".into(),
+            blocks: figures,
+        },
+        Section {
+            heading: "What was assumed".into(),
+            blocks: vec![Block::List(vec![
+                format!(
+                    "kinematic chain as given; candidate knots every {} mm, at most {} per axis, significance {}",
+                    opts.knot_step_mm, opts.max_knots, opts.alpha
+                ),
+                "each plate's rigid pose is fitted out; deviations are actual − nominal, µm".into(),
+                "efficiency δ as Spaan (2010) Tables 3.2–3.4".into(),
+            ])],
+        },
+    ])
 }
 
 fn json(id: &Identification, opts: &Options, ver: &[DirVerify], out: &Path) -> serde_json::Value {
@@ -250,36 +333,43 @@ fn text_report(id: &Identification, opts: &Options, ver: &[DirVerify], out: &Pat
     s
 }
 
+/// One verification plate's direction: measured and residual deviation against machine position.
+fn plate_svg(v: &DirVerify) -> anyhow::Result<String> {
+    let at = |f: fn(&(String, f64, f64)) -> f64| -> Vec<(f64, f64)> {
+        v.pos_mm
+            .iter()
+            .zip(&v.holes)
+            .map(|(x, h)| (*x, f(h)))
+            .collect()
+    };
+    let notes = vec![
+        format!("largest |Δm| = {:.2} µm", v.meas_um),
+        format!("largest |Δm − Δs| = {:.2} µm", v.res_um),
+        format!("σ of the residual = {:.2} µm", v.sigma_um),
+        format!("efficiency δ = {:.1} %", 100.0 * v.efficiency),
+        "rigid pose of the plate fitted out".to_string(),
+    ];
+    Ok(xy_svg_notes(
+        &format!(
+            "{} {}: efficiency {:.1} %",
+            v.plate,
+            v.direction,
+            100.0 * v.efficiency
+        ),
+        &format!("machine position {} / mm", v.direction),
+        &format!("deviation e{} / µm", v.direction),
+        &[
+            Series::markers("measured Δm", at(|h| h.1)),
+            Series::markers("residual Δm − Δs (after the model)", at(|h| h.2)),
+        ],
+        &notes,
+    )?)
+}
+
 fn plots(dir: &Path, ver: &[DirVerify]) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     for v in ver {
-        let m: Vec<(f64, f64)> = v
-            .holes
-            .iter()
-            .enumerate()
-            .map(|(i, h)| (i as f64, h.1))
-            .collect();
-        let r: Vec<(f64, f64)> = v
-            .holes
-            .iter()
-            .enumerate()
-            .map(|(i, h)| (i as f64, h.2))
-            .collect();
-        let mut sm = Series::line("measured Δm", m);
-        sm.markers = true;
-        let mut sr = Series::line("residual Δm − Δs", r);
-        sr.markers = true;
-        let svg = xy_svg(
-            &format!(
-                "{} {}: efficiency {:.1} %",
-                v.plate,
-                v.direction,
-                100.0 * v.efficiency
-            ),
-            "probing",
-            &format!("e{} µm", v.direction),
-            &[sm, sr],
-        )?;
+        let svg = plate_svg(v)?;
         let stem = Path::new(&v.plate)
             .file_name()
             .and_then(|s| s.to_str())

@@ -1,12 +1,12 @@
-//! `retrocomp iso230-2 FILE.csv [--json] [--svg OUT] [--remove-drift]`
+//! `retrocomp iso230-2 FILE.csv [--json] [--svg OUT] [--html OUT …] [--remove-drift]`
 
 use std::path::PathBuf;
 
 use retrocomp::analysis::iso230_2::{self, Reading};
+use retrocomp::analysis::iso230_2_figure;
 use retrocomp::analysis::laser_import::{parse_readings, remove_linear_drift};
-use retrocomp::analysis::report::{Series, xy_svg};
-use retrocomp::analysis::table::Direction;
 
+use super::report_args::ReportArgs;
 use super::util::{read, write};
 
 #[derive(Debug, clap::Args)]
@@ -16,9 +16,17 @@ pub(crate) struct Args {
     /// Print the report as one JSON object.
     #[arg(long)]
     pub json: bool,
-    /// Write an SVG plot of the mean deviations and ±2s bands.
+    /// Write the ISO 230-2 figure as SVG: forward and reverse mean deviations x̄↑, x̄↓ per target
+    /// with their x̄ ± 2s bands (when every target has two or more runs per direction), the
+    /// bidirectional mean x̄, every reading, and E, M, B, R, A with their values beside the plot;
+    /// axes "target position / mm" and "deviation (actual − target) / µm".
     #[arg(long)]
     pub svg: Option<PathBuf>,
+    /// Title of the figure and the report (e.g. the machine and axis).
+    #[arg(long, default_value = "positioning accuracy")]
+    pub title: String,
+    #[command(flatten)]
+    pub report: ReportArgs,
     /// Remove a linear drift across runs (cycles) before evaluating (Spaan Ch3).
     #[arg(long)]
     pub remove_drift: bool,
@@ -51,48 +59,27 @@ pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
             println!("drift removed: {slope:.3} µm per run");
         }
     }
-    if let Some(p) = &a.svg {
-        let mut series = vec![
-            Series::line(
-                "x̄↑ (forward)",
-                rep.targets
-                    .iter()
-                    .map(|t| (t.target_mm, t.mean_up_um))
-                    .collect(),
-            ),
-            Series::line(
-                "x̄↓ (reverse)",
-                rep.targets
-                    .iter()
-                    .map(|t| (t.target_mm, t.mean_down_um))
-                    .collect(),
-            ),
-        ];
-        for (name, dir) in [
-            ("readings ↑", Direction::Forward),
-            ("readings ↓", Direction::Reverse),
-        ] {
-            series.push(Series::markers(
-                name,
-                rs.iter()
-                    .filter(|r| r.direction == dir)
-                    .map(|r| (r.target_mm, r.deviation_um))
-                    .collect(),
-            ));
-        }
-        let title = format!(
-            "{}: E = {:.2} µm, B = {:.2} µm",
-            rep.standard, rep.axis.e_um, rep.axis.b_um
-        );
-        write(
-            p,
-            &xy_svg(
-                &title,
-                "target_mm",
-                "deviation_um (actual − target)",
-                &series,
-            )?,
-        )?;
+    if a.svg.is_none() && a.report.html.is_none() {
+        return Ok(());
     }
-    Ok(())
+    let (svg, _) = iso230_2_figure::svg(&a.title, &rep, &rs)?;
+    if let Some(p) = &a.svg {
+        write(p, &svg)?;
+    }
+    a.report.write(
+        &format!("{} — {}", a.title, rep.standard),
+        &[a.file.as_path()],
+        || {
+            let mut assumed = vec![
+                "deviation = actual − target position (µm); ↑ = approached in the positive direction".into(),
+                format!("definitions of {} (s with n − 1; R, A need two runs per direction)", rep.standard),
+            ];
+            assumed.push(if a.remove_drift {
+                format!("a linear drift across runs was removed: {slope:.3} µm per run")
+            } else {
+                "no drift removed (readings as measured)".into()
+            });
+            Ok(iso230_2_figure::sections(&rep, svg, assumed))
+        },
+    )
 }

@@ -339,6 +339,8 @@ pub struct DirVerify {
     pub efficiency: f64,
     /// Per probing: (hole, Δm, Δm − Δs), for plots.
     pub holes: Vec<(String, f64, f64)>,
+    /// Per probing (same order): machine position along `direction`, mm (the plots' x axis).
+    pub pos_mm: Vec<f64>,
 }
 
 /// In-plane deviations of a plate after its rigid pose is fitted out, µm, for readings `r`.
@@ -461,6 +463,7 @@ fn verify_all_probings(model: &MachineModel, plate: &HolePlate) -> Vec<DirVerify
                     .zip(m.iter().zip(&rr))
                     .map(|(p, (m, r))| (p.hole.clone(), *m, *r))
                     .collect(),
+                pos_mm: r.iter().map(|v| v[k]).collect(),
             }
         })
         .collect()

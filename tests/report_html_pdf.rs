@@ -1,0 +1,295 @@
+//! One report per job, printed as a customer gets it: `retrocomp iso230-2` and `retrocomp circle`
+//! write their figure SVGs and an HTML report; the SVGs are checked from their own geometry (no data
+//! point in the legend box), the HTML is printed to A4 PDF by headless Chromium (the peer of
+//! tests/gateway_web_browser.rs), and poppler's pdfinfo/pdftoppm/pdftotext check the page count,
+//! the page size and that the figures' numbers are in the PDF's text.
+//! Peers: chromium and poppler-utils (scripts/setup-peers.sh).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use retrocomp::analysis::chart_geometry;
+
+fn retrocomp() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+}
+
+fn ok(out: Output, what: &str) -> String {
+    assert!(
+        out.status.success(),
+        "{what} failed: {}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn tool(name: &str, env: &str, package: &str) -> PathBuf {
+    let p = PathBuf::from(std::env::var(env).unwrap_or(format!("/usr/bin/{name}")));
+    assert!(
+        p.exists(),
+        "{} missing: bash scripts/setup-peers.sh (apt package {package}) or set {env}",
+        p.display()
+    );
+    p
+}
+
+/// Runs `cmd`, killing it if it hangs (a guard against a stuck browser, not a speed check).
+fn run_guarded(mut cmd: Command, what: &str) -> Output {
+    let mut child = cmd
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("{what}: {e}"));
+    let start = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > Duration::from_secs(300) {
+            child.kill().unwrap();
+            panic!("{what} did not finish in 300 s");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// Prints `html` to `pdf` with headless Chromium; returns (pages, pdfinfo text, pdftotext text).
+fn print_pdf(html: &Path, pdf: &Path, tmp: &Path) -> (usize, String, String) {
+    let chromium = tool("chromium", "RETROCOMP_CHROMIUM", "chromium");
+    let profile = tmp.join("chromium-profile");
+    let mut cmd = Command::new(chromium);
+    cmd.args([
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-pdf-header-footer",
+    ])
+    .arg(format!("--user-data-dir={}", profile.display()))
+    .arg(format!("--print-to-pdf={}", pdf.display()))
+    .arg(format!("file://{}", html.display()));
+    let out = run_guarded(cmd, "chromium --print-to-pdf");
+    assert!(
+        pdf.exists(),
+        "chromium wrote no PDF: {}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let pdfinfo = tool("pdfinfo", "RETROCOMP_PDFINFO", "poppler-utils");
+    let info = ok(Command::new(pdfinfo).arg(pdf).output().unwrap(), "pdfinfo");
+    let pages: usize = info
+        .lines()
+        .find_map(|l| l.strip_prefix("Pages:"))
+        .unwrap_or_else(|| panic!("no page count in {info}"))
+        .trim()
+        .parse()
+        .unwrap();
+    // Every page renders (pdftoppm writes one PNG per page).
+    let pdftoppm = tool("pdftoppm", "RETROCOMP_PDFTOPPM", "poppler-utils");
+    let prefix = tmp.join("page");
+    ok(
+        Command::new(pdftoppm)
+            .args(["-r", "40", "-png"])
+            .arg(pdf)
+            .arg(&prefix)
+            .output()
+            .unwrap(),
+        "pdftoppm",
+    );
+    let pngs = std::fs::read_dir(tmp)
+        .unwrap()
+        .filter(|e| {
+            let n = e.as_ref().unwrap().file_name();
+            let n = n.to_string_lossy();
+            n.starts_with("page") && n.ends_with(".png")
+        })
+        .count();
+    assert_eq!(pngs, pages, "pdftoppm rendered every page");
+    let pdftotext = tool("pdftotext", "RETROCOMP_PDFTOTEXT", "poppler-utils");
+    let text = ok(
+        Command::new(pdftotext).arg(pdf).arg("-").output().unwrap(),
+        "pdftotext",
+    );
+    (pages, info, text)
+}
+
+/// The SVG's legend box holds no data point and lies right of every data point.
+fn assert_legend_clear(svg: &str, what: &str) {
+    let g = chart_geometry::parse(svg);
+    assert_eq!(g.legend_boxes.len(), 1, "{what}: one legend box");
+    assert!(g.data_points.len() > 10, "{what}: data drawn");
+    assert!(
+        g.covered().is_empty(),
+        "{what}: legend covers {:?}",
+        g.covered()
+    );
+    let right = g.data_points.iter().map(|p| p.0).fold(f64::MIN, f64::max);
+    assert!(
+        right < g.legend_boxes[0][0],
+        "{what}: legend outside the data"
+    );
+}
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/analysis")
+        .join(name)
+}
+
+#[test]
+fn iso230_2_report_of_asad_ullahs_x_axis_prints_to_a4_with_the_figures_numbers() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = fixture("asadullah_x_iso230_2.csv");
+    let (svg, html, pdf) = (
+        dir.path().join("x.svg"),
+        dir.path().join("x.html"),
+        dir.path().join("x.pdf"),
+    );
+    let json: serde_json::Value = serde_json::from_str(&ok(
+        retrocomp()
+            .arg("iso230-2")
+            .arg(&csv)
+            .args(["--json", "--title", "Asad Ullah 2013 X axis", "--svg"])
+            .arg(&svg)
+            .arg("--html")
+            .arg(&html)
+            .args(["--machine", "thesis mill", "--report-axis", "X"])
+            .output()
+            .unwrap(),
+        "retrocomp iso230-2",
+    ))
+    .unwrap();
+    let svg_text = std::fs::read_to_string(&svg).unwrap();
+    assert_legend_clear(&svg_text, "iso230-2");
+    // Asad Ullah's X: the forward and reverse means cross between 145 and 160 mm (Bi changes
+    // sign), the place the old opaque legend hid.
+    let bi = |t: f64| {
+        json["targets"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|x| x["target_mm"].as_f64() == Some(t))
+            .unwrap()["B_i_um"]
+            .as_f64()
+            .unwrap()
+    };
+    let crossing = (140..=170)
+        .step_by(5)
+        .map(f64::from)
+        .filter(|t| {
+            json["targets"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|x| x["target_mm"].as_f64() == Some(*t))
+        })
+        .collect::<Vec<_>>();
+    assert!(
+        crossing
+            .windows(2)
+            .any(|w| bi(w[0]).signum() != bi(w[1]).signum()),
+        "Bi changes sign around 145–160 mm: {crossing:?}"
+    );
+    let e = json["axis"]["E_um"].as_f64().unwrap();
+    let m = json["axis"]["M_um"].as_f64().unwrap();
+    let b = json["axis"]["B_um"].as_f64().unwrap();
+    let numbers = [
+        format!("E = {e:.2} µm"),
+        format!("M = {m:.2} µm"),
+        format!("B = {b:.2} µm"),
+        "R: n/a".to_string(),
+        "A: n/a".to_string(),
+    ];
+    for n in &numbers {
+        assert!(svg_text.contains(n.as_str()), "figure lacks {n}");
+    }
+    for label in ["target position / mm", "deviation (actual − target) / µm"] {
+        assert!(svg_text.contains(label), "axis label {label}");
+    }
+    let (pages, info, text) = print_pdf(&html, &pdf, dir.path());
+    assert!((1..=3).contains(&pages), "{pages} pages:\n{info}");
+    assert!(info.contains("(A4)"), "A4 pages:\n{info}");
+    for n in numbers
+        .iter()
+        .chain([&"thesis mill".to_string(), &"SHA-256".to_string()])
+    {
+        assert!(text.contains(n.as_str()), "PDF text lacks {n}:\n{text}");
+    }
+}
+
+/// Two runs of a 150 mm circle: CCW and CW differ by a backlash-like step, so H > 0.
+fn circle_csv(path: &Path) {
+    let mut s = String::from("angle_deg,dr_um,direction\n");
+    for dir in ["ccw", "cw"] {
+        for i in 0..360 {
+            let a = f64::from(if dir == "ccw" { i } else { 360 - i });
+            let r = a.to_radians();
+            let rev = if dir == "ccw" { 1.0 } else { -1.0 };
+            let dr = 3.0 * r.cos() + 1.5 * (2.0 * r).sin() + rev * 2.0 * r.sin().signum();
+            s.push_str(&format!("{a},{dr:.3},{dir}\n"));
+        }
+    }
+    std::fs::write(path, s).unwrap();
+}
+
+#[test]
+fn circle_report_has_the_polar_plot_and_prints_its_numbers() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("circle.csv");
+    circle_csv(&csv);
+    let (polar, angle, html, pdf) = (
+        dir.path().join("polar.svg"),
+        dir.path().join("angle.svg"),
+        dir.path().join("c.html"),
+        dir.path().join("c.pdf"),
+    );
+    let json: serde_json::Value = serde_json::from_str(&ok(
+        retrocomp()
+            .arg("circle")
+            .arg(&csv)
+            .args([
+                "--radius-mm",
+                "150",
+                "--feed-mm-min",
+                "1000",
+                "--json",
+                "--svg",
+            ])
+            .arg(&polar)
+            .arg("--svg-angle")
+            .arg(&angle)
+            .arg("--html")
+            .arg(&html)
+            .output()
+            .unwrap(),
+        "retrocomp circle",
+    ))
+    .unwrap();
+    let polar_text = std::fs::read_to_string(&polar).unwrap();
+    let angle_text = std::fs::read_to_string(&angle).unwrap();
+    assert_legend_clear(&polar_text, "polar");
+    assert_legend_clear(&angle_text, "angle");
+    let g_b = json["iso230_4"]["g_bidirectional_um"].as_f64().unwrap();
+    let numbers = [
+        format!("G(b) = {g_b:.2} µm"),
+        "R = 150 mm, F = 1000 mm/min".to_string(),
+        "H (circular hysteresis) =".to_string(),
+        "magnification ×".to_string(),
+    ];
+    for n in &numbers {
+        assert!(polar_text.contains(n.as_str()), "polar plot lacks {n}");
+    }
+    // The step of ±2 µm in sin θ's sign makes CCW and CW differ by up to 4 µm.
+    assert!(
+        polar_text.contains("H (circular hysteresis) = 4.00 µm"),
+        "H"
+    );
+    let (pages, info, text) = print_pdf(&html, &pdf, dir.path());
+    assert!((1..=4).contains(&pages), "{pages} pages:\n{info}");
+    for n in numbers.iter().take(2) {
+        assert!(text.contains(n.as_str()), "PDF text lacks {n}:\n{text}");
+    }
+}
