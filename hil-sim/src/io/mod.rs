@@ -15,6 +15,7 @@
 
 pub mod plc_server;
 pub mod publish;
+mod pty_link;
 pub mod rtu_slave;
 pub mod serve;
 pub mod transport_faults;
