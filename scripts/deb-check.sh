@@ -47,7 +47,7 @@ deb=$(ls "$out"/retrocomp_*_amd64.deb 2>/dev/null | head -n 1)
 [ -n "$deb" ] || { bad "no retrocomp_*_amd64.deb in $out"; finish; }
 echo "deb-check: $deb"
 
-lint=$(lintian --no-tag-display-limit "$deb" 2>&1)
+lint=$(lintian --tag-display-limit 0 "$deb" 2>&1)
 echo "$lint" | sed 's/^/deb-check: lintian: /'
 if echo "$lint" | grep -q '^E: '; then bad "lintian reports errors"; else ok "lintian: no error"; fi
 
@@ -60,7 +60,7 @@ check_unpacked() {
     root=$(mktemp -d "${TMPDIR:-/tmp}/retrocomp-deb.XXXXXX")
     dpkg -x "$pkg" "$root" || { bad "dpkg -x $pkg"; return; }
     local f
-    for f in usr/bin/retrocomp lib/systemd/system/retrocomp.service \
+    for f in usr/bin/retrocomp usr/lib/systemd/system/retrocomp.service \
         etc/systemd/system/retrocomp.service.d/network.conf etc/retrocomp/field.toml \
         etc/retrocomp/vmc-machine.toml lib/udev/rules.d/60-retrocomp-gpio.rules \
         usr/share/doc/retrocomp/install.md usr/share/doc/retrocomp/copyright; do
@@ -69,14 +69,14 @@ check_unpacked() {
     local listing
     listing=$(dpkg-deb -c "$pkg")
     for f in field.toml vmc-machine.toml; do
-        if echo "$listing" | grep -E "^-rw-r----- root/root .* \./etc/retrocomp/$f\$" >/dev/null; then
+        if echo "$listing" | grep -E "^-rw-r----- .* \./etc/retrocomp/$f\$" >/dev/null; then
             ok "/etc/retrocomp/$f is 0640 in the package"
         else
             bad "/etc/retrocomp/$f is not 0640: $(echo "$listing" | grep "etc/retrocomp/$f")"
         fi
     done
     local docs
-    docs=$(sed -n 's|^Documentation=file://||p' "$root/lib/systemd/system/retrocomp.service" 2>/dev/null)
+    docs=$(sed -n 's|^Documentation=file://||p' "$root/usr/lib/systemd/system/retrocomp.service" 2>/dev/null)
     [ -n "$docs" ] || bad "the unit names no Documentation= file"
     for f in $docs; do
         if [ -f "$root$f" ]; then ok "Documentation= $f is in the package"; else bad "Documentation= $f is not in the package"; fi

@@ -78,7 +78,10 @@ fn a_gateway_started_before_its_hub_serial_line_and_controller_waits_for_them() 
     // The first answer of the status endpoint is already a snapshot with the three faults.
     let first = loop {
         if let Some(st) = gw.exited() {
-            panic!("the gateway exited at start ({st}):\n{}", gw.log().join("\n"));
+            panic!(
+                "the gateway exited at start ({st}):\n{}",
+                gw.log().join("\n")
+            );
         }
         if let Some(answer) = gw.get_any("/status") {
             break answer;
@@ -104,8 +107,13 @@ fn a_gateway_started_before_its_hub_serial_line_and_controller_waits_for_them() 
     assert!(has_fault(&st, "serial.scale", "disconnected"), "{st:#}");
     assert!(sink_disconnected(&st), "{st:#}");
     assert_eq!(st["sink"]["connected"], false, "{st:#}");
-    assert_eq!(st["cycles"], 0, "no cycle before the controller answered: {st:#}");
-    let metrics = gw.get("/metrics").expect("/metrics answers before the first cycle");
+    assert_eq!(
+        st["cycles"], 0,
+        "no cycle before the controller answered: {st:#}"
+    );
+    let metrics = gw
+        .get("/metrics")
+        .expect("/metrics answers before the first cycle");
     assert!(
         metrics.contains("retrocomp_"),
         "no retrocomp series in /metrics:\n{metrics}"

@@ -319,10 +319,7 @@ impl StartingStatus<'_> {
     const PERIOD: Duration = Duration::from_millis(200);
 
     /// The sink's start values; a start-up snapshot every [`Self::PERIOD`] until they come.
-    async fn wait_for(
-        self,
-        sink: &mut SinkThread,
-    ) -> Result<BTreeMap<String, f64>, GatewayError> {
+    async fn wait_for(self, sink: &mut SinkThread) -> Result<BTreeMap<String, f64>, GatewayError> {
         let initial = sink.initial();
         tokio::pin!(initial);
         let mut tick = tokio::time::interval(Self::PERIOD);

@@ -56,7 +56,11 @@ impl UnitNetwork {
         if let Some(srv) = &cfg.sink.origin_shift_server
             && let ServerTransport::Tcp { listen } = &srv.transport
         {
-            n.listener("[sink.origin_shift_server] transport.listen", listen, "the controller");
+            n.listener(
+                "[sink.origin_shift_server] transport.listen",
+                listen,
+                "the controller",
+            );
         }
         if let Some(o) = &cfg.opcua {
             n.listener("[opcua] listen", &o.listen, "the OPC UA clients");
@@ -158,9 +162,16 @@ mod tests {
         n.peer_with_port("[sink.origin_shift] transport.address", "[fd00::7]:502");
         n.listener("[opcua] listen", "0.0.0.0:4840", "the OPC UA clients");
         n.listener("[gateway] status_listen", "127.0.0.1:9184", "browsers");
-        assert_eq!(n.allow.iter().map(IpAddr::to_string).collect::<Vec<_>>(), ["fd00::7"]);
+        assert_eq!(
+            n.allow.iter().map(IpAddr::to_string).collect::<Vec<_>>(),
+            ["fd00::7"]
+        );
         assert_eq!(n.notes.len(), 3, "{:?}", n.notes);
-        assert!(n.notes[0].contains("\"canbox.local\" is a host name"), "{:?}", n.notes);
+        assert!(
+            n.notes[0].contains("\"canbox.local\" is a host name"),
+            "{:?}",
+            n.notes
+        );
         assert!(n.notes[1].contains("\"plc\""), "{:?}", n.notes);
         assert!(n.notes[2].contains("0.0.0.0:4840"), "{:?}", n.notes);
     }

@@ -14,8 +14,8 @@
 //!   ([`plc_server`], `plc_writes.csv`).
 
 pub mod plc_server;
-pub mod publish;
 mod pty_link;
+pub mod publish;
 pub mod rtu_slave;
 pub mod serve;
 pub mod transport_faults;

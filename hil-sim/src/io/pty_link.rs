@@ -95,7 +95,10 @@ mod tests {
         let (_m, _s, ours) = pty_pair(&link).unwrap();
         assert_eq!(std::fs::read_link(&link).unwrap(), ours.dev);
         drop(ours);
-        assert!(std::fs::symlink_metadata(&link).is_err(), "our link outlived us");
+        assert!(
+            std::fs::symlink_metadata(&link).is_err(),
+            "our link outlived us"
+        );
         let (_m2, _s2, ours) = pty_pair(&link).unwrap();
         std::fs::remove_file(&link).unwrap();
         std::os::unix::fs::symlink(&other, &link).unwrap();

@@ -16,8 +16,8 @@
 //! ([`LagMeter`]: "behind real time" episodes printed at start and clear) and, with the weighing
 //! lines that could not be written, printed once at the end and kept in [`Status`].
 
-use super::pty_link::{PtyLink, pty_pair};
 use super::plc_server::{PlcServer, SimClock, WriteEvent};
+use super::pty_link::{PtyLink, pty_pair};
 use super::publish::Publisher;
 use super::rtu_slave::{self, RtuMute};
 use super::transport_faults::{Active, Garbage, Schedule, Transition, silenced};
@@ -93,7 +93,6 @@ impl Drop for Running {
         }
     }
 }
-
 
 /// Log each fault edge once, bring the Modbus TCP server down or up and mute or unmute the RTU
 /// slave to match the schedule (idempotent, so overlapping windows are one outage).
