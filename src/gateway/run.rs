@@ -318,11 +318,15 @@ impl StartingStatus<'_> {
     /// How often the start-up snapshot is published (the cycle's status period is 0.1 s).
     const PERIOD: Duration = Duration::from_millis(200);
 
-    /// The sink's start values; a start-up snapshot every [`Self::PERIOD`] until they come.
+    /// The sink's start values; a start-up snapshot every [`Self::PERIOD`] until they come (the
+    /// first after one period).
     async fn wait_for(self, sink: &mut SinkThread) -> Result<BTreeMap<String, f64>, GatewayError> {
         let initial = sink.initial();
         tokio::pin!(initial);
-        let mut tick = tokio::time::interval(Self::PERIOD);
+        // The first one after one period: a controller that answers at once publishes none (the
+        // first cycle's snapshot is then the first, as before).
+        let first = tokio::time::Instant::now() + Self::PERIOD;
+        let mut tick = tokio::time::interval_at(first, Self::PERIOD);
         loop {
             tokio::select! {
                 r = &mut initial => return r,
