@@ -70,8 +70,9 @@ pub(crate) fn pty_pair(link: &Path) -> anyhow::Result<(SerialStream, SerialStrea
 mod tests {
     use super::*;
 
-    #[test]
-    fn a_dead_link_is_replaced_a_live_one_refused_and_ours_removed_on_drop() {
+    // A tokio runtime: the pty pair registers with its reactor.
+    #[tokio::test]
+    async fn a_dead_link_is_replaced_a_live_one_refused_and_ours_removed_on_drop() {
         let dir = tempfile::tempdir().unwrap();
         let link = dir.path().join("pty");
         // A killed run's link: its pty is gone.
