@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Cross-build retrocomp for an aarch64 Linux box (Raspberry Pi 4/5, industrial ARM PCs).
 # Needs: rustup, and the Debian cross linker: sudo apt-get install gcc-aarch64-linux-gnu libc6-dev-arm64-cross
-# Usage: deploy/cross-build.sh [extra cargo args]   → target/aarch64-unknown-linux-gnu/release/retrocomp
+# Usage: deploy/cross-build.sh [extra cargo args]   → target/aarch64-unknown-linux-gnu/dist/retrocomp
+# (the dist profile: fat LTO, as shipped; pass --profile release for a lighter build).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 TARGET=aarch64-unknown-linux-gnu
@@ -15,7 +16,16 @@ if ! rustup target list --installed | grep -qx "$TARGET"; then
 fi
 export CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc
 export CC_aarch64_unknown_linux_gnu=aarch64-linux-gnu-gcc
-cargo build --release --locked --target "$TARGET" -p retrocomp "$@"
-BIN="${CARGO_TARGET_DIR:-target}/$TARGET/release/retrocomp"
+# The profile the caller chose (--release, --profile P, --profile=P), else dist.
+PROFILE=""
+prev=""
+for a in "$@"; do
+    case "$a" in --release) PROFILE=release ;; --profile=*) PROFILE="${a#--profile=}" ;; esac
+    [ "$prev" = "--profile" ] && PROFILE="$a"
+    prev="$a"
+done
+if [ -z "$PROFILE" ]; then PROFILE=dist; set -- --profile dist "$@"; fi
+cargo build --locked --target "$TARGET" -p retrocomp "$@"
+BIN="${CARGO_TARGET_DIR:-target}/$TARGET/$PROFILE/retrocomp"
 file "$BIN" 2>/dev/null || true
 echo "built $BIN"

@@ -11,7 +11,9 @@
 #   poppler-utils: pdftoppm/pdftotext, which tests/report_html_pdf.rs uses to read the PDF Chromium
 #        prints from a report
 #   chromium (+ chromium-driver): the headless browser of tests/gateway_web_browser.rs, driven by
-#        playwright-core (PINNED in tests/browser/package-lock.json, `npm ci`; needs node + npm)
+#        playwright-core (PINNED in tests/browser/package-lock.json, `npm ci` with Debian's nodejs + npm)
+#   procps: `kill` (tests signal the gateway and hil-sim); python3-venv: the .venv below
+#   lintian: checks the Debian package scripts/test.sh builds (scripts/deb-check.sh)
 #   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial; asyncua, the OPC UA client of
 #        tests/gateway_opcua.rs; paho-mqtt +
 #        mqtt-spb-wrapper, the Sparkplug B host of tests/telemetry_mqtt.rs; mosquitto is its broker,
@@ -35,6 +37,9 @@ APT_PACKAGES=(
   chromium-driver
   mosquitto
   poppler-utils
+  procps
+  python3-venv
+  lintian
 )
 
 PIP_PACKAGES=(
@@ -49,6 +54,10 @@ PIP_PACKAGES=(
 
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+
+# Debian's nodejs + npm only where no npm is on PATH: a host with its own node (e.g. NodeSource's,
+# which bundles npm) keeps it; Debian's npm would want Debian's older nodejs (a downgrade, refused).
+if ! command -v npm >/dev/null 2>&1; then APT_PACKAGES+=(nodejs npm); fi
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
@@ -83,12 +92,16 @@ import can, pymodbus, serial
 print(f"setup-peers: python-can {can.__version__}, pymodbus {pymodbus.__version__}, "
       f"pyserial {serial.VERSION}")
 PYEOF
-if command -v npm >/dev/null 2>&1; then
-  echo "setup-peers: npm ci in tests/browser (playwright-core, no browser download)"
-  (cd "$REPO/tests/browser" && PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 npm ci --no-audit --no-fund --silent)
-else
-  echo "setup-peers: npm missing: install nodejs and npm (apt) for tests/gateway_web_browser.rs" >&2
-  exit 1
+# npm comes from APT_PACKAGES above (Debian's nodejs + npm); a host with its own node keeps it.
+command -v npm >/dev/null 2>&1 || { echo "setup-peers: npm missing after the apt step" >&2; exit 1; }
+echo "setup-peers: npm ci in tests/browser (playwright-core, no browser download)"
+(cd "$REPO/tests/browser" && PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 npm ci --no-audit --no-fund --silent)
+# cargo-deb (crates.io, pinned): builds the Debian package scripts/deb-check.sh checks (≈ 2 min of
+# CPU to compile, once per machine; ~/.cargo/bin).
+CARGO_DEB_VERSION=3.8.0
+if [ "$(cargo deb --version 2>/dev/null)" != "cargo-deb $CARGO_DEB_VERSION" ]; then
+  echo "setup-peers: cargo install cargo-deb $CARGO_DEB_VERSION"
+  cargo install --locked --quiet cargo-deb --version "$CARGO_DEB_VERSION"
 fi
 sh "$REPO/scripts/vcan-qemu/fetch-qemu.sh"
 sh "$REPO/scripts/vcan-qemu/fetch-kernel.sh"

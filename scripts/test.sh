@@ -9,6 +9,8 @@
 #    against real kernel vcan;
 # 4. the quadrature injector with the `gpio` feature (real Linux GPIO character-device lines; no GPIO
 #    chip exists here, so its test checks the clear error for a missing chip).
+# 5. the Debian package of the binary step 3 built (scripts/deb-check.sh: cargo deb, lintian, the
+#    unpacked package's files, modes and `check-config` answers).
 # Ends with ONE line `N passed, N failed` (the sum of every `test result:` line) and exits non-zero
 # if any test failed, a test binary did not build or run, or fmt/clippy complained.
 # Needs root or sudo for apt (step 1). Takes ≈ 10 min on an idle 2-core VM, much more under load.
@@ -30,6 +32,8 @@ cargo test --workspace --locked --no-fail-fast 2>&1 | tee -a "$log"
 [ "${PIPESTATUS[0]}" -eq 0 ] || problems+=("cargo test --workspace")
 cargo test --locked -p retrocomp --features gpio --lib quadrature 2>&1 | tee -a "$log"
 [ "${PIPESTATUS[0]}" -eq 0 ] || problems+=("cargo test --features gpio")
+bash scripts/deb-check.sh 2>&1 | tee -a "$log"
+[ "${PIPESTATUS[0]}" -eq 0 ] || problems+=("scripts/deb-check.sh")
 
 # `test result: ok. 12 passed; 0 failed; 1 ignored; …` — one per test binary and doc-test run.
 read -r passed failed < <(awk '/^test result: / {

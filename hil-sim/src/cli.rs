@@ -128,9 +128,12 @@ pub fn serve(args: &ServeArgs) -> anyhow::Result<()> {
         if let Some(p) = &running.weighing_pty {
             eprintln!("hil-sim: weighing lines on {}", p.display());
         }
+        // SIGTERM as Ctrl-C: `running` is dropped on the way out, which removes the pty links.
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
         tokio::select! {
             r = running.join() => { let steps = r?; eprintln!("hil-sim: program ended after {steps} steps"); }
             _ = tokio::signal::ctrl_c() => eprintln!("hil-sim: interrupted"),
+            _ = term.recv() => eprintln!("hil-sim: terminated"),
         }
         Ok(())
     })

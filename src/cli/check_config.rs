@@ -11,12 +11,33 @@ use retrocomp::models::{MachineModel, ModelSpec};
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
     /// Machine model TOML file.
-    pub file: PathBuf,
+    #[arg(required_unless_present = "field")]
+    pub file: Option<PathBuf>,
+    /// Field file: print the systemd drop-in (`IPAddressAllow=`) its peers need under the shipped
+    /// unit (docs/install.md, "The unit's network").
+    #[arg(long, value_name = "FIELD_FILE")]
+    pub field: Option<PathBuf>,
 }
 
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
-    let model = MachineModel::from_toml_path(&args.file).map_err(|e| anyhow::anyhow!("{e}"))?;
+    if let Some(field) = &args.field {
+        print_unit_network(field)?;
+    }
+    let Some(file) = &args.file else {
+        return Ok(());
+    };
+    let model = MachineModel::from_toml_path(file).map_err(|e| anyhow::anyhow!("{e}"))?;
     print!("{}", summary(&model));
+    Ok(())
+}
+
+/// The drop-in the field file's peers need under the shipped unit (its `IPAddressAllow=` line).
+fn print_unit_network(field: &std::path::Path) -> anyhow::Result<()> {
+    let cfg = retrocomp::gateway::config::FieldConfig::load(field)?;
+    print!(
+        "{}",
+        retrocomp::gateway::unit_network::UnitNetwork::of(&cfg).drop_in()
+    );
     Ok(())
 }
 

@@ -195,18 +195,11 @@ impl CycleLoop {
     /// Build and publish the status snapshot now.
     pub fn publish(&mut self, now_s: f64) {
         let mut snap = self.engine.snapshot();
-        let sink = self.io.sink_status.borrow().clone();
-        snap.active_faults.extend(sink.faults.iter().cloned());
-        snap.sink = Some(sink);
         snap.model.clone_from(&self.model_identity);
         if let Some(t) = self.io.telemetry.as_mut() {
             t.annotate(&mut snap);
         }
-        self.io.board.copy_into(&mut snap.sources);
-        for src in &snap.sources {
-            let faults = src.faults.iter().map(|&(k, t)| (src.name.clone(), k, t));
-            snap.active_faults.extend(faults);
-        }
+        add_links(&mut snap, &self.io.sink_status.borrow(), &self.io.board);
         let _ = self.io.status.send(Some(Arc::new(snap)));
         self.last_publish_s = Some(now_s);
     }
@@ -254,6 +247,21 @@ impl CycleLoop {
 fn copy_outputs(dst: &mut Outputs, src: &[(Axis, f64)]) {
     dst.clear();
     dst.extend_from_slice(src);
+}
+
+/// The sink's status and every source's link into `snap`, their faults added to its active ones:
+/// the cycle's snapshots and the runtime's start-up ones (before the first cycle) alike.
+pub(crate) fn add_links(snap: &mut StatusSnapshot, sink: &SinkStatus, board: &SourceBoard) {
+    snap.active_faults.extend(sink.faults.iter().cloned());
+    match &mut snap.sink {
+        Some(s) => s.clone_from(sink),
+        None => snap.sink = Some(sink.clone()),
+    }
+    board.copy_into(&mut snap.sources);
+    for src in &snap.sources {
+        let faults = src.faults.iter().map(|&(k, t)| (src.name.clone(), k, t));
+        snap.active_faults.extend(faults);
+    }
 }
 
 #[cfg(test)]

@@ -23,6 +23,7 @@ pub mod source_health;
 pub mod sources;
 pub mod status;
 pub mod supervise;
+pub mod unit_network;
 pub mod web;
 
 pub use direction::{DirectionConfig, DirectionLatch};

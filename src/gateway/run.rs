@@ -121,7 +121,16 @@ pub async fn run(
     };
     let mut sink = SinkThread::spawn(&cfg, io, epoch)?;
     let initial = match sink.as_mut() {
-        Some(s) => s.initial().await?,
+        Some(s) => {
+            let starting = StartingStatus {
+                template: Engine::new(&cfg, &BTreeMap::new())?.snapshot(),
+                status: &status_tx,
+                sink: &sink_status_rx,
+                board: &board,
+                epoch,
+            };
+            starting.wait_for(s).await?
+        }
         None => BTreeMap::new(),
     };
 
@@ -290,6 +299,45 @@ async fn ramp_out_before_stop(
             _ = sink.ended() => break,
             _ = &mut until => break,
             _ = alive.tick() => { n += 1; watchdog.set(n); }
+        }
+    }
+}
+
+/// What `/status`, `/metrics` and `/api/faults` show before the first cycle, while the sink waits
+/// for the controller's start values (an unreachable controller is a `disconnected` fault of the
+/// sink from its first failed read, and the sources' links show as in a cycle's snapshot).
+struct StartingStatus<'a> {
+    /// An engine's snapshot before any cycle: the axes and channels, nothing applied.
+    template: StatusSnapshot,
+    status: &'a watch::Sender<Option<Arc<StatusSnapshot>>>,
+    sink: &'a watch::Receiver<SinkStatus>,
+    board: &'a super::source_health::SourceBoard,
+    epoch: std::time::Instant,
+}
+
+impl StartingStatus<'_> {
+    /// How often the start-up snapshot is published (the cycle's status period is 0.1 s).
+    const PERIOD: Duration = Duration::from_millis(200);
+
+    /// The sink's start values; a start-up snapshot every [`Self::PERIOD`] until they come (the
+    /// first after one period).
+    async fn wait_for(self, sink: &mut SinkThread) -> Result<BTreeMap<String, f64>, GatewayError> {
+        let initial = sink.initial();
+        tokio::pin!(initial);
+        // The first one after one period: a controller that answers at once publishes none (the
+        // first cycle's snapshot is then the first, as before).
+        let first = tokio::time::Instant::now() + Self::PERIOD;
+        let mut tick = tokio::time::interval_at(first, Self::PERIOD);
+        loop {
+            tokio::select! {
+                r = &mut initial => return r,
+                _ = tick.tick() => {
+                    let mut snap = self.template.clone();
+                    snap.t_s = self.epoch.elapsed().as_secs_f64();
+                    super::cycle::add_links(&mut snap, &self.sink.borrow(), self.board);
+                    let _ = self.status.send(Some(Arc::new(snap)));
+                }
+            }
         }
     }
 }

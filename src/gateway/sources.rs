@@ -31,15 +31,18 @@ use super::error::GatewayError;
 use super::source_health::{SourceBoard, SourceReporter};
 use super::supervise::{CycleCounter, DeathNotice, SourceFeed, TaskDeaths};
 use crate::bus::can::backend::{self, AnyCanBus, CanBackendConfig};
-use crate::bus::can::{BusErrors, CanBus};
+use crate::bus::can::{BusErrors, CanBus, CanError};
 use crate::bus::canopen::source::{self as canopen, CanopenConfig, CanopenSource};
 use crate::bus::modbus::poller::ModbusPoller;
 use crate::bus::serial::source::{self as serial, LineSource, SerialSourceConfig};
 use crate::bus::{Backoff, Sample};
 
-/// Reopen delays of a CAN backend or a serial port that closed or failed (doubling up to the max).
+/// Reopen delays of a CAN backend or a serial port that closed, failed or could not be opened at
+/// start (doubling up to the max). The max is 1 s so a peripheral that comes up late (a CAN daemon,
+/// a USB serial adapter) is in use within ≈ 1 s of appearing; opening a local socket or device once
+/// a second costs nothing.
 const REOPEN_MIN: Duration = Duration::from_millis(200);
-const REOPEN_MAX: Duration = Duration::from_secs(5);
+const REOPEN_MAX: Duration = Duration::from_secs(1);
 /// How often the CANopen loop checks PDO/heartbeat freshness and reports the bus state.
 const CAN_POLL: Duration = Duration::from_millis(10);
 
@@ -48,8 +51,10 @@ const CAN_POLL: Duration = Duration::from_millis(10);
 const KILL_HOOK: &str = "RETROCOMP_TEST_KILL_SOURCE";
 
 /// Spawn every configured source; samples (timestamped on `epoch`) arrive on the returned feed.
-/// Fails at start (naming the source) if a CAN backend or a serial device cannot be opened; a Modbus
-/// peer that is down at start is retried by its poller.
+/// A CAN backend, serial device or Modbus peer that cannot be opened yet is not an error: its source
+/// starts `disconnected` (a fault in `/status` from the first snapshot) and is retried with the
+/// backoff, as after a loss. Fails at start only for what no retry can fix (a CAN backend this
+/// binary does not have, a serial setting the device refuses).
 pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> Result<SourceFeed, GatewayError> {
     let (tx, rx) = mpsc::channel::<Sample>(16_384);
     let board = SourceBoard::default();
@@ -95,10 +100,18 @@ async fn start_sources(
 ) -> Result<(), GatewayError> {
     let clock = move || epoch.elapsed().as_secs_f64();
     if let (Some(can), Some(co)) = (cfg.can.clone(), cfg.canopen.clone()) {
-        let bus = backend::open(&can, None)
-            .await
-            .map_err(|e| GatewayError::setup(format!("opening CAN backend {can:?}"), e))?;
-        let rep = SourceReporter::new("can", true, board.clone());
+        let opened = backend::open(&can, None).await;
+        let mut rep = SourceReporter::new("can", opened.is_ok(), board.clone());
+        let bus = match opened {
+            Ok(bus) => Some(bus),
+            Err(e @ CanError::Unsupported(_)) => {
+                return Err(GatewayError::setup(format!("opening CAN backend {can}"), e));
+            }
+            Err(e) => {
+                not_yet_open(&mut rep, &format!("opening CAN backend {can}: {e}"));
+                None
+            }
+        };
         let btx = forward(tx.clone(), "can", notice.clone());
         let n = notice.clone();
         tokio::spawn(async move {
@@ -128,18 +141,26 @@ async fn start_sources(
         })?;
     }
     for s in cfg.serial.iter().flat_map(|s| &s.source) {
-        let port = serial::open(s).map_err(|e| {
-            let what = format!(
-                "serial source {:?}: cannot open device {:?} at {} baud",
-                s.name,
-                s.device.as_deref().unwrap_or(""),
-                s.baud
-            );
-            GatewayError::setup(what, e)
-        })?;
         let name = format!("serial.{}", s.name);
+        let what = format!(
+            "serial source {:?}: cannot open device {:?} at {} baud",
+            s.name,
+            s.device.as_deref().unwrap_or(""),
+            s.baud
+        );
+        let opened = serial::open(s);
+        let mut rep = SourceReporter::new(&name, opened.is_ok(), board.clone());
+        let port = match opened {
+            Ok(port) => Some(port),
+            Err(e) if e.kind == tokio_serial::ErrorKind::InvalidInput => {
+                return Err(GatewayError::setup(what, e));
+            }
+            Err(e) => {
+                not_yet_open(&mut rep, &format!("{what}: {e}"));
+                None
+            }
+        };
         let btx = forward(tx.clone(), &name, notice.clone());
-        let rep = SourceReporter::new(&name, true, board.clone());
         let (cfg, n) = (s.clone(), notice.clone());
         tokio::spawn(async move {
             serial_loop(cfg, port, clock, btx.clone(), rep).await;
@@ -149,6 +170,16 @@ async fn start_sources(
         });
     }
     Ok(())
+}
+
+/// A source whose link cannot be opened at start: one WARN line now (the fault log adds the
+/// `disconnected` fault at the source's first publish), then its loop retries with the backoff.
+fn not_yet_open(rep: &mut SourceReporter, why: &str) {
+    tracing::warn!(
+        source = rep.name(),
+        "{why}; retrying (the source is a `disconnected` fault until it opens)"
+    );
+    rep.on_link_down(why);
 }
 
 /// A batch sender whose batches are unpacked into `tx` by a forwarding task.
@@ -192,13 +223,13 @@ fn forward(
 async fn can_loop(
     can: CanBackendConfig,
     co: CanopenConfig,
-    first: AnyCanBus,
+    first: Option<AnyCanBus>,
     clock: impl Fn() -> f64 + Copy,
     out: mpsc::Sender<Vec<Sample>>,
     mut rep: SourceReporter,
 ) {
     let mut src = CanopenSource::new(co);
-    let mut bus = Some(first);
+    let mut bus = first;
     let mut backoff = Backoff::new(REOPEN_MIN, REOPEN_MAX);
     // Error-frame totals of the backends closed so far (a reopened backend counts from zero).
     let mut base = BusErrors::default();
@@ -243,7 +274,7 @@ async fn can_loop(
         tokio::time::sleep(backoff.next_delay()).await;
         match backend::open(&can, None).await {
             Ok(b) => {
-                tracing::debug!(backend = ?can, "CAN backend reopened; waiting for frames");
+                tracing::debug!(backend = %can, "CAN backend reopened; waiting for frames");
                 bus = Some(b);
             }
             Err(e) => {
@@ -291,12 +322,12 @@ fn spawn_modbus(
 /// backoff. Meanwhile its channels get no samples and go `Stale` in the runtime.
 async fn serial_loop(
     cfg: SerialSourceConfig,
-    first: tokio_serial::SerialStream,
+    first: Option<tokio_serial::SerialStream>,
     clock: impl Fn() -> f64 + Copy,
     out: mpsc::Sender<Vec<Sample>>,
     mut rep: SourceReporter,
 ) {
-    let mut port = Some(first);
+    let mut port = first;
     let mut backoff = Backoff::new(REOPEN_MIN, REOPEN_MAX);
     rep.publish(clock());
     loop {
@@ -317,7 +348,11 @@ async fn serial_loop(
         tokio::time::sleep(backoff.next_delay()).await;
         match serial::open(&cfg) {
             Ok(p) => port = Some(p),
-            Err(e) => tracing::debug!(source = %cfg.name, %e, "serial reopen failed"),
+            Err(e) => {
+                tracing::debug!(source = %cfg.name, %e, "serial reopen failed");
+                rep.on_link_down(&format!("cannot open device: {e}"));
+                rep.publish(clock());
+            }
         }
     }
 }

@@ -269,9 +269,9 @@ impl OriginShiftClientSink {
 }
 
 impl Sink for OriginShiftClientSink {
-    fn start<'a>(&'a mut self, _io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>> {
+    fn start<'a>(&'a mut self, io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>> {
         Box::pin(async move {
-            let mut initial = read_initial(&mut self.client).await;
+            let mut initial = read_initial(&mut self.client, &io.status, self.epoch).await;
             // A value beyond the clamp is not a start value: the sink refuses to write that axis (a
             // fault) until the controller's value is back in range, then the engine continues from it.
             initial.retain(|axis, held_um| {
@@ -299,9 +299,17 @@ impl Sink for OriginShiftClientSink {
 }
 
 /// Read the controller's current values, retrying until it answers (without them the first write
-/// could jump). Logs every 20th failure.
-async fn read_initial(client: &mut OriginShiftClient) -> BTreeMap<String, f64> {
+/// could jump). Logs every 20th failure. Meanwhile the sink's status says so: not connected, the
+/// last error, and a `disconnected` fault of `sink.origin_shift` from the first failed read (the
+/// runtime publishes it before the first cycle); the fault clears when the controller answers.
+async fn read_initial(
+    client: &mut OriginShiftClient,
+    status: &tokio::sync::watch::Sender<crate::sink::SinkStatus>,
+    epoch: std::time::Instant,
+) -> BTreeMap<String, f64> {
     let mut attempt = 0u64;
+    let mut faults = FaultLog::default();
+    let link = FaultSource::named(SOURCE);
     loop {
         match client.read_current().await {
             Ok(v) => {
@@ -309,12 +317,32 @@ async fn read_initial(client: &mut OriginShiftClient) -> BTreeMap<String, f64> {
                     ?v,
                     "controller holds these corrections; continuing from them"
                 );
+                faults.update(&link, &[], epoch.elapsed().as_secs_f64());
+                status.send_modify(|st| {
+                    st.connected = true;
+                    st.last_error = None;
+                    st.faults.clear();
+                });
                 return v.into_iter().collect();
             }
             Err(e) => {
                 if attempt.is_multiple_of(20) {
                     tracing::warn!(%e, "waiting for the controller before starting");
                 }
+                let now_s = epoch.elapsed().as_secs_f64();
+                let started = !faults
+                    .update(&link, &[FaultKind::Disconnected], now_s)
+                    .is_empty();
+                status.send_modify(|st| {
+                    if st.kind.is_empty() {
+                        st.kind = "origin_shift".into();
+                    }
+                    st.connected = false;
+                    st.last_error = Some(e.to_string());
+                    if started {
+                        st.faults = faults.active_by_name();
+                    }
+                });
                 attempt += 1;
                 tokio::time::sleep(std::time::Duration::from_millis(50)).await;
             }

@@ -64,15 +64,20 @@ impl Gateway {
         envs: &[(&str, &str)],
     ) -> Gateway {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_retrocomp"));
-        cmd.args(args)
-            .arg(cfg)
-            .env("RUST_LOG", "info")
-            .env_remove("NOTIFY_SOCKET")
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped());
+        cmd.args(args).arg(cfg);
         for (k, v) in envs {
             cmd.env(k, v);
         }
+        Self::spawn(cmd, status_port)
+    }
+
+    /// `retrocomp` as `cmd` says (its arguments and environment), with `RUST_LOG=info`, no
+    /// service-manager socket and its stderr collected; its status endpoint on `status_port`.
+    pub(crate) fn spawn(mut cmd: Command, status_port: u16) -> Gateway {
+        cmd.env("RUST_LOG", "info")
+            .env_remove("NOTIFY_SOCKET")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped());
         let mut child = cmd.spawn().expect("start retrocomp run");
         let log = Arc::new(Mutex::new(Vec::new()));
         let (err, sink) = (child.stderr.take().unwrap(), log.clone());
@@ -100,8 +105,14 @@ impl Gateway {
             .collect()
     }
 
-    /// `GET path` on the status endpoint; None while it is not up.
+    /// `GET path` on the status endpoint; None while it is not up or when the answer is not 200.
     pub(crate) fn get(&self, path: &str) -> Option<String> {
+        self.get_any(path)
+            .and_then(|(code, body)| (code == 200).then_some(body))
+    }
+
+    /// `GET path` on the status endpoint: the status code and the body; None while it is not up.
+    pub(crate) fn get_any(&self, path: &str) -> Option<(u16, String)> {
         let mut s = std::net::TcpStream::connect(("127.0.0.1", self.status_port)).ok()?;
         s.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
         write!(
@@ -112,7 +123,13 @@ impl Gateway {
         let mut body = String::new();
         s.read_to_string(&mut body).ok()?;
         let (head, body) = body.split_once("\r\n\r\n")?;
-        head.starts_with("HTTP/1.1 200").then(|| body.to_string())
+        let code = head.strip_prefix("HTTP/1.1 ")?.get(..3)?.parse().ok()?;
+        Some((code, body.to_string()))
+    }
+
+    /// Whether the process has exited (its status then).
+    pub(crate) fn exited(&mut self) -> Option<ExitStatus> {
+        self.child.try_wait().unwrap()
     }
 
     pub(crate) fn status(&self) -> Option<serde_json::Value> {

@@ -14,6 +14,7 @@
 //!   ([`plc_server`], `plc_writes.csv`).
 
 pub mod plc_server;
+mod pty_link;
 pub mod publish;
 pub mod rtu_slave;
 pub mod serve;

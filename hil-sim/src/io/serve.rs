@@ -17,6 +17,7 @@
 //! lines that could not be written, printed once at the end and kept in [`Status`].
 
 use super::plc_server::{PlcServer, SimClock, WriteEvent};
+use super::pty_link::{PtyLink, pty_pair};
 use super::publish::Publisher;
 use super::rtu_slave::{self, RtuMute};
 use super::transport_faults::{Active, Garbage, Schedule, Transition, silenced};
@@ -63,6 +64,8 @@ pub struct Running {
     task: JoinHandle<anyhow::Result<u64>>,
     _rtu: Option<JoinHandle<std::io::Result<()>>>,
     _keep_open: Vec<SerialStream>,
+    /// Dropped after the ptys' users: the links go when the simulation does.
+    _links: Vec<PtyLink>,
 }
 
 impl Running {
@@ -89,18 +92,6 @@ impl Drop for Running {
             h.abort();
         }
     }
-}
-
-fn pty_pair(link: &Path) -> anyhow::Result<(SerialStream, SerialStream, PathBuf)> {
-    let (master, slave) = SerialStream::pair().map_err(|e| anyhow::anyhow!("pty: {e}"))?;
-    let dev = PathBuf::from(
-        tokio_serial::SerialPort::name(&slave)
-            .ok_or_else(|| anyhow::anyhow!("pty: slave has no device name"))?,
-    );
-    let _ = std::fs::remove_file(link);
-    std::os::unix::fs::symlink(&dev, link)
-        .map_err(|e| anyhow::anyhow!("pty link {}: {e}", link.display()))?;
-    Ok((master, slave, dev))
 }
 
 /// Log each fault edge once, bring the Modbus TCP server down or up and mute or unmute the RTU
@@ -261,6 +252,7 @@ pub async fn start(
         task,
         _rtu: tr.rtu,
         _keep_open: tr.keep,
+        _links: tr.links,
     })
 }
 
@@ -294,6 +286,8 @@ struct Transports {
     can: Option<AnyCanBus>,
     /// The pty slaves, kept open so the ptys stay up while no client has them open.
     keep: Vec<SerialStream>,
+    /// The ptys' symlinks, removed with them.
+    links: Vec<PtyLink>,
 }
 
 /// Open the transports of `io`, in order: Modbus TCP, the RTU pty, the weighing pty, CAN.
@@ -307,6 +301,7 @@ async fn open_transports(
     mem: Option<&MemBus>,
 ) -> anyhow::Result<Transports> {
     let (mut tcp, mut rtu, mut rtu_pty, mut keep) = (None, None, None, Vec::new());
+    let mut links = Vec::new();
     let mut rtu_mute = None;
     if let Some(mb) = &io.modbus {
         if let Some(b) = &mb.tcp_bind {
@@ -327,20 +322,22 @@ async fn open_transports(
             );
         }
         if let Some(link) = &mb.rtu_pty_link {
-            let (master, slave, dev) = pty_pair(link)?;
+            let (master, slave, link) = pty_pair(link)?;
             let (task, mute) = rtu_slave::spawn(master, bank.clone(), mb.rtu_slave);
             rtu = Some(task);
             rtu_mute = Some(mute);
             keep.push(slave);
-            rtu_pty = Some(dev);
+            rtu_pty = Some(link.dev.clone());
+            links.push(link);
         }
     }
     let (mut weigh, mut weighing_pty) = (None, None);
     if let Some(w) = &io.weighing {
-        let (master, slave, dev) = pty_pair(&w.pty_link)?;
+        let (master, slave, link) = pty_pair(&w.pty_link)?;
         weigh = Some(master);
         keep.push(slave);
-        weighing_pty = Some(dev);
+        weighing_pty = Some(link.dev.clone());
+        links.push(link);
     }
     let can: Option<AnyCanBus> = match &io.can {
         Some(c) => Some(
@@ -359,6 +356,7 @@ async fn open_transports(
         weighing_pty,
         can,
         keep,
+        links,
     })
 }
 

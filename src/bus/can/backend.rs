@@ -37,6 +37,21 @@ pub enum CanBackendConfig {
     Mem,
 }
 
+/// How error messages name a backend: `socketcand 127.0.0.1:29536 channel can0`.
+impl std::fmt::Display for CanBackendConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            CanBackendConfig::Socketcan { interface } => write!(f, "socketcan {interface}"),
+            CanBackendConfig::Socketcand {
+                host,
+                port,
+                channel,
+            } => write!(f, "socketcand {host}:{port} channel {channel}"),
+            CanBackendConfig::Mem => f.write_str("mem"),
+        }
+    }
+}
+
 /// Any configured backend, behind one `CanBus` impl.
 #[derive(Debug)]
 pub enum AnyCanBus {

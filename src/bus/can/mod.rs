@@ -31,8 +31,16 @@ pub enum CanError {
     Overrun(u64),
     #[error("CAN protocol error: {0}")]
     Protocol(String),
+    /// The I/O error is shown in the message and is not also the `source()`, so an error chain
+    /// (`{:#}`) prints it once.
     #[error("CAN I/O error: {0}")]
-    Io(#[from] std::io::Error),
+    Io(std::io::Error),
+}
+
+impl From<std::io::Error> for CanError {
+    fn from(e: std::io::Error) -> Self {
+        CanError::Io(e)
+    }
 }
 
 /// An async CAN bus: the one interface the gateway, the simulator and the tests use.
