@@ -108,9 +108,12 @@ pub fn syntax_place(text: &str, at: usize, msg: &str) -> ((usize, usize), String
     let whole_line = text[line_start..].lines().next().unwrap_or("").trim_start();
     let starts_key_or_header = whole_line.starts_with('[')
         && whole_line[1..].starts_with(|c: char| c == '[' || c.is_ascii_alphabetic())
-        || whole_line
-            .split_once('=')
-            .is_some_and(|(k, _)| !k.trim().is_empty() && k.trim().chars().all(|c| c.is_ascii_alphanumeric() || "_-.\"' ".contains(c)));
+        || whole_line.split_once('=').is_some_and(|(k, _)| {
+            !k.trim().is_empty()
+                && k.trim()
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "_-.\"' ".contains(c))
+        });
     if opened.0 < here.0 && (starts_key_or_header || line_text.trim().is_empty()) {
         let bracket = &text[open..open + 1];
         return (

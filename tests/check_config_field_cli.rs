@@ -81,15 +81,18 @@ fn a_field_file_is_checked_with_its_model_offline_both_spellings() {
             out.contains("field config") && out.contains(": OK"),
             "{args:?}: {out}"
         );
-        assert!(out.contains("sources deliver: x_mm, z_mm, T_spindle_C"), "{out}");
         assert!(
-            out.contains("model \"lathe-machine\"") && out.contains("sensor T_bed_C"),
+            out.contains("sources deliver: T_spindle_C, T_bed_C, T_carriage_C, x_mm, z_mm"),
+            "{out}"
+        );
+        assert!(
+            out.contains("model \"excello-921\"") && out.contains("sensor T_bed_C"),
             "{out}"
         );
     }
     // A model file still checks as before.
     let o = bin().arg("check-config").arg(&model).output().unwrap();
-    assert!(o.status.success() && text(&o).0.starts_with("model \"lathe-machine\""));
+    assert!(o.status.success() && text(&o).0.starts_with("model \"excello-921\""));
     // The shipped field files check too (their models beside them).
     for name in ["lathe-origin-shift-rtu.toml", "mill-quadrature.toml"] {
         let o = bin()
@@ -98,7 +101,10 @@ fn a_field_file_is_checked_with_its_model_offline_both_spellings() {
             .output()
             .unwrap();
         let (out, err) = text(&o);
-        assert!(o.status.success() && out.contains(": OK"), "{name}: {err}{out}");
+        assert!(
+            o.status.success() && out.contains(": OK"),
+            "{name}: {err}{out}"
+        );
     }
 }
 
@@ -111,7 +117,11 @@ fn a_missing_model_or_input_names_the_field_file_line_and_key() {
     let o = bin().arg("check-config").arg(&f).output().unwrap();
     let (_, err) = text(&o);
     assert!(!o.status.success());
-    let want = format!("{}:{}: key `model.path`", f.display(), line_of(&t, "path ="));
+    let want = format!(
+        "{}:{}: key `model.path`",
+        f.display(),
+        line_of(&t, "path =")
+    );
     assert!(err.contains(&want), "want {want}: {err}");
     assert!(err.contains("no-such-model.toml: cannot read"), "{err}");
 
@@ -149,7 +159,11 @@ fn an_unclosed_bracket_is_reported_on_its_own_line() {
     );
     // Model file: the same mistake in a table row.
     let m = std::fs::read_to_string(&model).unwrap();
-    let bad = m.replacen("reference_C = 20.0\ntau_s = 240.0", "reference_C = 20.0\ntau_s = [240.0\n", 1);
+    let bad = m.replacen(
+        "reference_C = 20.0\ntau_s = 240.0",
+        "reference_C = 20.0\ntau_s = [240.0\n",
+        1,
+    );
     assert_ne!(bad, m);
     let p = dir.path().join("model.toml");
     std::fs::write(&p, &bad).unwrap();
@@ -168,7 +182,13 @@ fn bad_recording_rows_name_the_flag_that_skips_them() {
     let rec = dir.path().join("rec.csv");
     let mut s = String::from("t_s,x_mm,T_a_C,ex_um\n");
     for i in 0..50 {
-        s.push_str(&format!("{},{},{},{}\n", i * 10, i % 5, 20.0 + f64::from(i) * 0.1, 0.5));
+        s.push_str(&format!(
+            "{},{},{},{}\n",
+            i * 10,
+            i % 5,
+            20.0 + f64::from(i) * 0.1,
+            0.5
+        ));
     }
     s.push_str("500,1,oops,0.5\n");
     std::fs::write(&rec, s).unwrap();

@@ -54,7 +54,12 @@ fn assert_refused(text: &str, needle: &str, key: &str, expected: &str) {
 fn direction_latch_settings_must_be_real() {
     assert!(FieldConfig::parse(BASE, Path::new("field.toml")).is_ok());
     let t = edited("deadband_mm = 0.005", "deadband_mm = -1", "");
-    assert_refused(&t, "deadband_mm", "direction.deadband_mm", "expected 0 ≤ mm ≤ 1");
+    assert_refused(
+        &t,
+        "deadband_mm",
+        "direction.deadband_mm",
+        "expected 0 ≤ mm ≤ 1",
+    );
     let t = edited("switch_time_s = 0.1", "switch_time_s = nan", "");
     assert_refused(&t, "switch_time_s", "direction.switch_time_s", "got NaN");
     let t = edited("switch_time_s = 0.1", "switch_time_s = inf", "");
@@ -68,7 +73,11 @@ const CLIENT: &str = "[sink.origin_shift]\ntransport = { kind = \"tcp\", address
 fn a_client_register_must_hold_the_clamp() {
     // 50 µm in int16 at 0.1 µm: fine.
     assert!(FieldConfig::parse(&edited("", "", CLIENT), Path::new("f.toml")).is_ok());
-    let t = edited("max_correction_um = 50.0", "max_correction_um = 5000.0", CLIENT);
+    let t = edited(
+        "max_correction_um = 50.0",
+        "max_correction_um = 5000.0",
+        CLIENT,
+    );
     assert_refused(
         &t,
         "kind = \"int16\"",
@@ -173,7 +182,10 @@ fn table_values_are_checked_against_their_unit() {
         "{msg}"
     );
     // A plausible `_mm` table (Studer S-36 style, 0.0075 mm) loads.
-    let plausible = MODEL.replace("forward_um = [0.0, 4.0, 7.5]", "forward_mm = [0.0, 0.004, 0.0075]");
+    let plausible = MODEL.replace(
+        "forward_um = [0.0, 4.0, 7.5]",
+        "forward_mm = [0.0, 0.004, 0.0075]",
+    );
     assert!(MachineModel::from_toml_str(&plausible, "m.toml").is_ok());
     // A reverse table and a rotation in rad where µrad was meant.
     let rev = MODEL.replace("7.5]\n", "7.5]\nreverse_mm = [0.0, 4.0, 2.0]\n");
@@ -202,7 +214,7 @@ fn field_with(channels: &str, model: &str) -> String {
 fn a_model_input_no_source_delivers_is_refused_at_the_model_key() {
     let dir = tempfile::tempdir().unwrap();
     let thermal = format!(
-        "{MODEL}[[sensors]]\nname = \"spindle\"\nreference_C = 20.0\n[[thermal]]\nname = \"grow\"\ntarget = \"EXX\"\nkind = \"expansion\"\nsensor = \"spindle\"\nalpha_ppm_per_K = 11.5\n"
+        "{MODEL}[[sensors]]\nname = \"spindle\"\nreference_C = 20.0\n[[thermal]]\nname = \"grow\"\ntarget = \"EXX\"\nkind = \"expansion\"\nsensor = \"spindle\"\nalpha_ppm_per_K = 11.5\norigin_mm = 0.0\n"
     );
     write(dir.path(), "model.toml", &thermal);
     let text = field_with("{ name = \"x_mm\" }", "model.toml");
@@ -219,7 +231,10 @@ fn a_model_input_no_source_delivers_is_refused_at_the_model_key() {
         "{msg}"
     );
     // Delivered by the DRO line: accepted, with the model ready.
-    let text = field_with("{ name = \"x_mm\" }, { name = \"T_spindle_C\" }", "model.toml");
+    let text = field_with(
+        "{ name = \"x_mm\" }, { name = \"T_spindle_C\" }",
+        "model.toml",
+    );
     let f = write(dir.path(), "field.toml", &text);
     let c = check_field(&f, None).unwrap_or_else(|e| panic!("{e}"));
     assert!(c.optional_missing.is_empty());

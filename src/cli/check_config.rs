@@ -27,8 +27,9 @@ pub(crate) struct Args {
 /// A field file has a `[gateway]` table; a model never does.
 fn is_field_file(path: &Path) -> bool {
     std::fs::read_to_string(path).is_ok_and(|t| {
-        t.lines()
-            .any(|l| l.trim_start().starts_with("[gateway]") || l.trim_start().starts_with("[gateway."))
+        t.lines().any(|l| {
+            l.trim_start().starts_with("[gateway]") || l.trim_start().starts_with("[gateway.")
+        })
     })
 }
 
@@ -44,7 +45,9 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         return Ok(());
     }
     if args.model.is_some() {
-        anyhow::bail!("--model goes with a field file (check-config --field FIELD.toml --model MODEL.toml)");
+        anyhow::bail!(
+            "--model goes with a field file (check-config --field FIELD.toml --model MODEL.toml)"
+        );
     }
     let file = args.file.as_ref().expect("clap requires FILE or --field");
     let model = MachineModel::from_toml_path(file).map_err(|e| anyhow::anyhow!("{e}"))?;

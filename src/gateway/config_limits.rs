@@ -36,7 +36,12 @@ pub(super) fn check(cfg: &FieldConfig) -> Checked {
 fn check_direction(cfg: &FieldConfig) -> Checked {
     let d = &cfg.direction;
     for (key, v, max, unit) in [
-        ("direction.deadband_mm", d.deadband_mm, MAX_DEADBAND_MM, "mm"),
+        (
+            "direction.deadband_mm",
+            d.deadband_mm,
+            MAX_DEADBAND_MM,
+            "mm",
+        ),
         (
             "direction.switch_time_s",
             d.switch_time_s,

@@ -43,7 +43,10 @@ fn at_key(field: &Path, key: &str, what: String) -> ConfigIssue {
 /// Load `field` for a run and its model (`model_override` is `--model`), and check that every
 /// channel the model requires is delivered by a source (or estimated from delivered ones by a
 /// `[[recovery]]`). Opens no source, sink or listener.
-pub fn check_field(field: &Path, model_override: Option<&Path>) -> Result<CheckedField, ConfigError> {
+pub fn check_field(
+    field: &Path,
+    model_override: Option<&Path>,
+) -> Result<CheckedField, ConfigError> {
     let cfg = FieldConfig::load_for_run(field)?;
     let base = field.parent().unwrap_or(Path::new("."));
     let model_path = match (model_override, &cfg.model) {
@@ -54,7 +57,8 @@ pub fn check_field(field: &Path, model_override: Option<&Path>) -> Result<Checke
                 issues: vec![at_key(
                     field,
                     "model",
-                    "expected [model] path = \"MODEL.toml\" (relative to this file), or --model".into(),
+                    "expected [model] path = \"MODEL.toml\" (relative to this file), or --model"
+                        .into(),
                 )],
             });
         }
@@ -83,7 +87,11 @@ pub fn check_field(field: &Path, model_override: Option<&Path>) -> Result<Checke
     })?;
     let model = MachineModelAdapter::new(model);
     let optional_missing = check_channels(&cfg, &model).map_err(|what| {
-        let key = if model_override.is_some() { "" } else { MODEL_KEY };
+        let key = if model_override.is_some() {
+            ""
+        } else {
+            MODEL_KEY
+        };
         let mut issue = at_key(field, key, what);
         if model_override.is_some() {
             issue.key = "--model".into();

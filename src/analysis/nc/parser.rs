@@ -1,7 +1,8 @@
 //! G-code block parser (ISO 6983 / Fanuc dialect): words `<letter><number>`, `( … )` comments,
 //! `%` tape marks, and `;` as end of block (Fanuc EOB; set `semicolon_is_eob = false` for
 //! LinuxCNC, where `;` starts a comment). Letters are case-insensitive (upper-cased).
-//! Bad words are reported with line and column; nothing is skipped.
+//! Bad words are reported with line and column; nothing is skipped. O-words, `#` parameters and
+//! `[ … ]` expressions are refused as not supported (the rewriter works on plain numbered words).
 
 use crate::analysis::import_error::{ErrorSink, ImportErrors};
 
@@ -173,8 +174,39 @@ pub fn split_blocks(raw: &str, semicolon_is_eob: bool) -> Vec<&str> {
     out
 }
 
+/// The first `#` parameter or `[ … ]` expression outside comments, refused before any word: the
+/// rewriter works on numbers only.
+fn refuse_parameters(sink: &mut ErrorSink, line: u64, chars: &[char]) -> bool {
+    let mut in_comment = false;
+    for (i, &c) in chars.iter().enumerate() {
+        let what = match c {
+            '(' => {
+                in_comment = true;
+                continue;
+            }
+            ')' => {
+                in_comment = false;
+                continue;
+            }
+            '#' if !in_comment => {
+                "`#` parameters (variables) are not supported by the rewriter: expand them to numbers first"
+            }
+            '[' if !in_comment => {
+                "`[ … ]` expressions are not supported by the rewriter: expand them to numbers first"
+            }
+            _ => continue,
+        };
+        sink.push(line, Some(&format!("char {}", i + 1)), what);
+        return true;
+    }
+    false
+}
+
 fn parse_words(sink: &mut ErrorSink, line: u64, src: &str) -> Option<Vec<Word>> {
     let chars: Vec<char> = src.chars().collect();
+    if refuse_parameters(sink, line, &chars) {
+        return None;
+    }
     let mut words = Vec::new();
     let mut ok = true;
     let mut i = 0;
@@ -194,15 +226,12 @@ fn parse_words(sink: &mut ErrorSink, line: u64, src: &str) -> Option<Vec<Word>> 
                     return None;
                 }
             }
-        } else if matches!(c, '#' | '[') || c.eq_ignore_ascii_case(&'o') {
-            let what = if c == '#' {
-                "`#` parameters (variables) are not supported by the rewriter: expand them to numbers first"
-            } else if c == '[' {
-                "`[ … ]` expressions are not supported by the rewriter: expand them to numbers first"
-            } else {
-                "O-words (subprograms, program numbers, o-word control flow) are not supported by the rewriter: expand subprograms inline and remove the O-words first"
-            };
-            sink.push(line, Some(&format!("char {}", i + 1)), what);
+        } else if c.eq_ignore_ascii_case(&'o') {
+            sink.push(
+                line,
+                Some(&format!("char {}", i + 1)),
+                "O-words (subprograms, program numbers, o-word control flow) are not supported by the rewriter: expand subprograms inline and remove the O-words first",
+            );
             return None;
         } else if c.is_ascii_alphabetic() {
             let letter = c.to_ascii_uppercase();

@@ -118,13 +118,7 @@ const TABLE_LIMIT_MM: f64 = 1.0;
 /// rotation (µrad) table beyond [`TABLE_LIMIT_INTERNAL`], or an `_mm` table beyond
 /// [`TABLE_LIMIT_MM`], is refused at its key. Other quantities (compliance per N) pass. `values`
 /// are already in internal units.
-fn plausible(
-    t: &Tbl<'_, '_>,
-    prefix: &str,
-    unit: &str,
-    values: &[f64],
-    suffix_hint: &str,
-) -> bool {
+fn plausible(t: &Tbl<'_, '_>, prefix: &str, unit: &str, values: &[f64], suffix_hint: &str) -> bool {
     let internal = if crate::units::LengthUnit::from_suffix(unit).is_some() {
         "µm"
     } else if crate::units::AngleUnit::from_suffix(unit).is_some() {
@@ -154,7 +148,7 @@ fn plausible(
         t.err_key(
             &key,
             format!(
-                "value [{i}] is {v} {internal} after conversion from {unit}: expected |value| ≤ {TABLE_LIMIT_INTERNAL} {internal} (check the unit suffix, one of {suffix_hint})"
+                "value [{i}] is {v:e} {internal} after conversion from {unit}: expected |value| ≤ {TABLE_LIMIT_INTERNAL} {internal} (check the unit suffix, one of {suffix_hint})"
             ),
         );
         return false;
