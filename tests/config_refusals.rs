@@ -10,21 +10,9 @@ use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::field_check::check_field;
 use retrocomp::models::MachineModel;
 
-const BASE: &str = r#"[gateway]
-name = "t"
-cycle_ms = 5
-[safety]
-max_correction_um = 50.0
-max_change_um_per_cycle = 0.5
-ramp_um_per_s = 10.0
-stale_hold_s = 1.0
-[direction]
-deadband_mm = 0.005
-switch_time_s = 0.1
-[[axis]]
-name = "x"
-position_channel = "x_mm"
-"#;
+#[path = "gateway_support/base_field.rs"]
+mod base_field;
+use base_field::BASE;
 
 /// BASE with `from` replaced by `to` (which must occur), plus `extra`.
 fn edited(from: &str, to: &str, extra: &str) -> String {
