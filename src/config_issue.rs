@@ -115,7 +115,7 @@ pub fn syntax_place(text: &str, at: usize, msg: &str) -> ((usize, usize), String
                     .all(|c| c.is_ascii_alphanumeric() || "_-.\"' ".contains(c))
         });
     if opened.0 < here.0 && (starts_key_or_header || line_text.trim().is_empty()) {
-        let bracket = &text[open..open + 1];
+        let bracket = &text[open..=open];
         return (
             opened,
             format!(
