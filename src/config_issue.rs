@@ -74,19 +74,95 @@ impl ConfigError {
         Self::single_at(file, 0, key, message)
     }
 
-    /// A TOML syntax or schema error of `text`, placed at its span.
+    /// A TOML syntax or schema error of `text`, placed at its span (or at the bracket it found
+    /// unclosed: [`syntax_place`]).
     pub fn from_toml(file: &str, text: &str, e: &toml::de::Error) -> Self {
-        let (line, column) = e.span().map_or((0, 0), |s| line_col(text, s.start));
+        let msg = e.message().trim();
+        let ((line, column), message) = match e.span() {
+            None => ((0, 0), msg.to_string()),
+            Some(s) => syntax_place(text, s.start, msg),
+        };
         ConfigError {
             issues: vec![ConfigIssue {
                 file: file.into(),
                 line,
                 column,
                 key: String::new(),
-                message: e.message().trim().to_string(),
+                message,
             }],
         }
     }
+}
+
+/// Where a TOML syntax error at byte `at` belongs, and its message. The parser notices an array or
+/// inline table left open only where the next key or table header starts (lines later); the
+/// mistake is the bracket, so the error is placed on it, with the parser's own words kept.
+pub fn syntax_place(text: &str, at: usize, msg: &str) -> ((usize, usize), String) {
+    let here = line_col(text, at);
+    let Some(open) = unclosed_bracket(text, at) else {
+        return (here, msg.to_string());
+    };
+    let opened = line_col(text, open);
+    let line_text = text.get(at..).unwrap_or("");
+    let line_start = text[..at.min(text.len())].rfind('\n').map_or(0, |i| i + 1);
+    let whole_line = text[line_start..].lines().next().unwrap_or("").trim_start();
+    let starts_key_or_header = whole_line.starts_with('[')
+        && whole_line[1..].starts_with(|c: char| c == '[' || c.is_ascii_alphabetic())
+        || whole_line.split_once('=').is_some_and(|(k, _)| {
+            !k.trim().is_empty()
+                && k.trim()
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "_-.\"' ".contains(c))
+        });
+    if opened.0 < here.0 && (starts_key_or_header || line_text.trim().is_empty()) {
+        let bracket = &text[open..=open];
+        return (
+            opened,
+            format!(
+                "`{bracket}` is not closed (the parser noticed at line {}: {msg})",
+                here.0
+            ),
+        );
+    }
+    (here, msg.to_string())
+}
+
+/// Byte offset of the outermost `[` or `{` opened in a value (after `=`) before `byte` and not
+/// closed by then; strings and comments are skipped.
+fn unclosed_bracket(text: &str, byte: usize) -> Option<usize> {
+    let b = text.as_bytes();
+    let end = byte.min(b.len());
+    let mut stack: Vec<usize> = Vec::new();
+    let mut in_value = false;
+    let mut i = 0;
+    while i < end {
+        match b[i] {
+            b'#' => {
+                while i < end && b[i] != b'\n' {
+                    i += 1;
+                }
+                continue;
+            }
+            q @ (b'"' | b'\'') => {
+                i += 1;
+                while i < end && b[i] != q && b[i] != b'\n' {
+                    if q == b'"' && b[i] == b'\\' {
+                        i += 1;
+                    }
+                    i += 1;
+                }
+            }
+            b'=' if stack.is_empty() => in_value = true,
+            b'\n' if stack.is_empty() => in_value = false,
+            b'[' | b'{' if in_value || !stack.is_empty() => stack.push(i),
+            b']' | b'}' => {
+                stack.pop();
+            }
+            _ => {}
+        }
+        i += 1;
+    }
+    stack.first().copied()
 }
 
 /// 1-based line and column (in characters) of byte offset `byte` of `text`.

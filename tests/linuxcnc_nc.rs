@@ -452,6 +452,88 @@ fn g91_move_past_the_travel_end_does_not_double_the_next_correction() {
     );
 }
 
+/// Issue 33 (6): a G90 move past the travel end naming X only ends with Y and Z on their nominal
+/// points (they carried the previous move's correction: Y stayed 3.5 µm off).
+#[test]
+fn g90_move_past_the_travel_end_puts_every_axis_on_its_nominal_point() {
+    let rep = check(
+        &data("mill_outside_g90.ngc"),
+        &["--model", MILL, "--semicolon-comment"],
+        "outside90",
+    );
+    assert!(
+        rep.stdout.contains("1 moves outside the model"),
+        "{}",
+        rep.stdout
+    );
+}
+
+/// Issue 33 (6): `%` tape marks and comments, `(MSG, …)` in the middle of a motion block
+/// included, are kept where they were; rs274 reads the rewrite.
+#[test]
+fn tape_marks_and_comments_are_kept() {
+    let p = write_prog(
+        "keep",
+        "%\n(header)\nG21 G90 G17\nG0 X10 Y10 (MSG, rapid in) Z10 ; tail\nG1 X50 F300 (MSG, cutting)\nM2\n%\n",
+    );
+    let rep = check(&p, &["--model", MILL, "--semicolon-comment"], "keep");
+    assert!(rep.stdout.contains("2 moves compensated"), "{}", rep.stdout);
+    let out = std::env::temp_dir()
+        .join(format!("retrocomp-lcnc-nc-{}-keep", std::process::id()))
+        .join("rewritten.ngc");
+    let out = std::fs::read_to_string(out).unwrap();
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!((lines[0], *lines.last().unwrap()), ("%", "%"), "{out}");
+    let with = |s: &str| lines.iter().find(|l| l.contains(s)).copied().unwrap_or("");
+    assert!(with("(header)").starts_with("(header)"), "{out}");
+    assert!(
+        with("(MSG, rapid in)").starts_with("G0 X") && with("; tail").contains("(MSG, rapid in)"),
+        "{out}"
+    );
+    assert!(with("(MSG, cutting)").starts_with("G1 X"), "{out}");
+}
+
+/// Issue 33 (6): subprograms (M98 … O1000 … M99, o-word subs), `#` parameters and expressions
+/// are refused naming the line and saying they are not supported, never passed uninterpreted.
+#[test]
+fn subprograms_and_parameters_are_refused_naming_the_line() {
+    for (prog, line, what) in [
+        (
+            "G21 G90\nG0 X10 Y10 Z10\nM98 P1000\nG91 G1 X5 F300\nM30\nO1000\nG91 G1 Y5\nM99\n",
+            "line 3",
+            "M98 (subprogram call) is not supported",
+        ),
+        (
+            "G21 G90\no100 sub\nG1 X5 F300\no100 endsub\no100 call\nM2\n",
+            ":2:",
+            "O-words (subprograms, program numbers, o-word control flow) are not supported",
+        ),
+        (
+            "G21 G90\n#1 = 5\nG1 X#1 F300\nM2\n",
+            ":2:",
+            "`#` parameters (variables) are not supported",
+        ),
+        (
+            "G21 G90\nG0 X[1+2] Y0 Z0\nM2\n",
+            ":2:",
+            "expressions are not supported",
+        ),
+        (
+            "G21 G90\nG65 P9010 A1\nM2\n",
+            "line 2",
+            "macro calls are not supported",
+        ),
+    ] {
+        let p = write_prog("sub", prog);
+        let out = retrocomp(&["nc", p.to_str().unwrap(), "--model", MILL], &data(""));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains(line) && err.contains(what),
+            "{prog}: {err}"
+        );
+    }
+}
+
 /// Issue 13 (7): the CAM header with G54, G61.1, G90.1 and every work system G54–G59.3.
 #[test]
 fn work_offsets_g54_to_g59_3_and_cam_header() {

@@ -1,44 +1,96 @@
-//! `retrocomp check-config FILE`: load a machine model and print a summary, or every problem found
-//! (file:line:column, key, what was expected).
+//! `retrocomp check-config FILE`: check a machine model, or a field file and the model it names,
+//! without opening any source, sink or listener; print a summary, or every problem found
+//! (file:line:column, key, what was expected). A file with a `[gateway]` table is a field file;
+//! `--field FILE` says so explicitly.
 
 use std::fmt::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
+use retrocomp::gateway::field_check::{CheckedField, check_field};
 use retrocomp::models::function::ErrorFunction;
 use retrocomp::models::spec::{Branch, ThermalKind};
 use retrocomp::models::{MachineModel, ModelSpec};
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
-    /// Machine model TOML file.
-    #[arg(required_unless_present = "field")]
+    /// Machine model TOML, or a field file (one with a `[gateway]` table).
+    #[arg(required_unless_present = "field", conflicts_with = "field")]
     pub file: Option<PathBuf>,
-    /// Field file: print the systemd drop-in (`IPAddressAllow=`) its peers need under the shipped
-    /// unit (docs/install.md, "The unit's network").
-    #[arg(long, value_name = "FIELD_FILE")]
+    /// Field file (`retrocomp run --config`): checked with the model it names.
+    #[arg(long, value_name = "FIELD.toml")]
     pub field: Option<PathBuf>,
+    /// With a field file: check this model instead of its `[model] path` (as `run --model`).
+    #[arg(long, value_name = "MODEL.toml")]
+    pub model: Option<PathBuf>,
+}
+
+/// A field file has a `[gateway]` table; a model never does.
+fn is_field_file(path: &Path) -> bool {
+    std::fs::read_to_string(path).is_ok_and(|t| {
+        t.lines().any(|l| {
+            l.trim_start().starts_with("[gateway]") || l.trim_start().starts_with("[gateway.")
+        })
+    })
 }
 
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
-    if let Some(field) = &args.field {
-        print_unit_network(field)?;
-    }
-    let Some(file) = &args.file else {
-        return Ok(());
+    let field = match (&args.field, &args.file) {
+        (Some(f), _) => Some(f.clone()),
+        (None, Some(f)) if is_field_file(f) => Some(f.clone()),
+        _ => None,
     };
+    if let Some(f) = field {
+        let checked = check_field(&f, args.model.as_deref()).map_err(|e| anyhow::anyhow!("{e}"))?;
+        print!("{}", field_summary(&f, &checked));
+        return Ok(());
+    }
+    if args.model.is_some() {
+        anyhow::bail!(
+            "--model goes with a field file (check-config --field FIELD.toml --model MODEL.toml)"
+        );
+    }
+    let file = args.file.as_ref().expect("clap requires FILE or --field");
     let model = MachineModel::from_toml_path(file).map_err(|e| anyhow::anyhow!("{e}"))?;
     print!("{}", summary(&model));
     Ok(())
 }
 
-/// The drop-in the field file's peers need under the shipped unit (its `IPAddressAllow=` line).
-fn print_unit_network(field: &std::path::Path) -> anyhow::Result<()> {
-    let cfg = retrocomp::gateway::config::FieldConfig::load(field)?;
-    print!(
-        "{}",
-        retrocomp::gateway::unit_network::UnitNetwork::of(&cfg).drop_in()
+/// The text printed by `check-config` for a valid field file: what it runs, then its model.
+pub(crate) fn field_summary(path: &Path, c: &CheckedField) -> String {
+    let cfg = &c.cfg;
+    let mut o = String::new();
+    let _ = writeln!(o, "field config {}: OK", path.display());
+    let axes: Vec<&str> = cfg.axes.iter().map(|a| a.name.as_str()).collect();
+    let _ = writeln!(
+        o,
+        "  gateway {:?}: cycle {} ms, axes {}",
+        cfg.gateway.name,
+        cfg.gateway.cycle_ms,
+        axes.join(", ")
     );
-    Ok(())
+    let _ = writeln!(o, "  sources deliver: {}", cfg.source_channels().join(", "));
+    let sink = match (
+        &cfg.sink.origin_shift,
+        &cfg.sink.origin_shift_server,
+        &cfg.sink.quadrature,
+    ) {
+        (Some(_), _, _) => "origin shift (Modbus client)",
+        (_, Some(_), _) => "origin shift served (Modbus server)",
+        (_, _, Some(_)) => "quadrature counts",
+        _ => "none (computes and reports only)",
+    };
+    let _ = writeln!(o, "  sink: {sink}");
+    for ch in &c.optional_missing {
+        let _ = writeln!(
+            o,
+            "  warning: no source delivers {ch} (optional): its load terms stay out"
+        );
+    }
+    let _ = writeln!(o, "model file {}:", c.model_path.display());
+    o.push_str(&summary(c.model.model()));
+    // The drop-in its peers need under the shipped unit (docs/install.md, "The unit's network").
+    o.push_str(&retrocomp::gateway::unit_network::UnitNetwork::of(cfg).drop_in());
+    o
 }
 
 fn function_summary(f: &ErrorFunction) -> String {

@@ -42,7 +42,13 @@ pub(crate) fn read_recording(
     lenient: bool,
 ) -> anyhow::Result<(Recording, Vec<BadRow>)> {
     if !lenient {
-        return Ok((Recording::read_path(path)?, vec![]));
+        return match Recording::read_path(path) {
+            Ok(rec) => Ok((rec, vec![])),
+            Err(e @ retrocomp::recording::RecordingError::BadRows { .. }) => Err(anyhow::anyhow!(
+                "{e}to skip these rows and use the rest, run again with --skip-bad-rows (each skipped row is listed)"
+            )),
+            Err(e) => Err(e.into()),
+        };
     }
     let f = std::fs::File::open(path).with_context(|| format!("opening {}", path.display()))?;
     let (rec, bad) = Recording::read_lenient(f, &path.display().to_string())?;

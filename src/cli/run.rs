@@ -4,15 +4,11 @@
 
 use std::path::PathBuf;
 
-use anyhow::bail;
-
-use retrocomp::gateway::config::FieldConfig;
 use retrocomp::gateway::engine::{AxisErrors, ErrorModel, MachineState};
-use retrocomp::gateway::model_adapter::MachineModelAdapter;
+use retrocomp::gateway::field_check::check_field;
 use retrocomp::gateway::run::{require_sink, run as run_gateway};
 use retrocomp::gateway::sources::spawn_sources;
 use retrocomp::gateway::supervise::{exit_on_panic, spawn_watchdog};
-use retrocomp::models::MachineModel;
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
@@ -39,23 +35,13 @@ pub(crate) fn init_tracing() {
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     init_tracing();
     exit_on_panic();
-    let cfg = FieldConfig::load_for_run(&args.config)?;
+    // Field file and model checked together, offline (the same checks as `check-config`).
+    let checked = check_field(&args.config, args.model.as_deref())?;
+    let cfg = checked.cfg;
     if !args.dry_run {
         require_sink(&cfg)?;
     }
-    let model_path = match (&args.model, &cfg.model) {
-        (Some(p), _) => p.clone(),
-        (None, Some(m)) => args
-            .config
-            .parent()
-            .unwrap_or(std::path::Path::new("."))
-            .join(&m.path),
-        (None, None) => bail!(
-            "{}: no [model] path and no --model given",
-            args.config.display()
-        ),
-    };
-    let model = MachineModel::from_toml_path(&model_path).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let model = checked.model;
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -77,8 +63,8 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
             tracing::info!("stopping");
         };
         let model: Box<dyn ErrorModel + Send> = match hang_hook() {
-            Some(after) => Box::new(HangAfter { inner: MachineModelAdapter::new(model), after }),
-            None => Box::new(MachineModelAdapter::new(model)),
+            Some(after) => Box::new(HangAfter { inner: model, after }),
+            None => Box::new(model),
         };
         let summary = run_gateway(cfg, model, feed, epoch, shutdown, None).await?;
         eprintln!(

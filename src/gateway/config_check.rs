@@ -187,6 +187,7 @@ impl FieldConfig {
             self.validate_quadrature(q)?;
         }
         self.validate_buses()?;
+        super::config_limits::check(self)?;
         if self.sink.origin_shift.is_none()
             && self.sink.quadrature.is_none()
             && self.sink.origin_shift_server.is_none()

@@ -4,11 +4,13 @@
 
 pub mod config;
 mod config_check;
+mod config_limits;
 pub mod cycle;
 pub mod direction;
 pub mod engine;
 pub mod error;
 pub mod error_model;
+pub mod field_check;
 pub mod health;
 pub mod history;
 pub mod http;

@@ -59,9 +59,16 @@ impl<'t> Ctx<'t> {
         match DeTable::parse(self.text) {
             Ok(t) => Some(t),
             Err(e) => {
-                let span = e.span().unwrap_or(0..0);
-                let msg = e.message().trim().to_string();
-                self.err(span, "", format!("TOML syntax error: {msg}"));
+                let at = e.span().map_or(0, |s| s.start);
+                let ((line, column), msg) =
+                    crate::config_issue::syntax_place(self.text, at, e.message().trim());
+                self.issues.borrow_mut().push(ConfigIssue {
+                    file: self.file.clone(),
+                    line,
+                    column,
+                    key: String::new(),
+                    message: format!("TOML syntax error: {msg}"),
+                });
                 None
             }
         }

@@ -181,7 +181,9 @@ impl Rewriter<'_> {
     }
 
     /// A line written so it ends on its nominal end point (as programmed): the source itself in
-    /// G90, recomputed increments in G91 (the previous point may have been compensated).
+    /// G90 when every known axis already stands on its nominal position, else (G91, or an axis
+    /// the block does not name still carrying the previous point's correction) every known axis
+    /// written at its nominal position.
     fn keep_line(
         &mut self,
         b: &Block,
@@ -190,7 +192,13 @@ impl Rewriter<'_> {
         present: [bool; 3],
         sink: &mut dyn RewriteSink,
     ) -> Result<(), RewriteError> {
-        if self.st.absolute {
+        let off_nominal = (0..3).any(|k| {
+            known[k]
+                && !present[k]
+                && self.st.commanded_mm[k]
+                    .is_some_and(|c| (round4(c) - round4(e[k])).abs() > 0.5e-4)
+        });
+        if self.st.absolute && !off_nominal {
             sink.line(&format!("{};", b.source))?;
             for k in (0..3).filter(|&k| present[k]) {
                 self.st.nominal_mm[k] = Some(e[k]);
@@ -455,6 +463,7 @@ impl Rewriter<'_> {
             }) {
                 word_text(&mut text, w.letter, &w.text);
             }
+            text.push_str(&super::parser::comments(&b.source));
         }
         sink.line(&format!("{};", text.trim_end()))?;
         self.stats.points_emitted += 1;

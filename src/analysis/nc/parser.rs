@@ -1,7 +1,8 @@
 //! G-code block parser (ISO 6983 / Fanuc dialect): words `<letter><number>`, `( … )` comments,
 //! `%` tape marks, and `;` as end of block (Fanuc EOB; set `semicolon_is_eob = false` for
 //! LinuxCNC, where `;` starts a comment). Letters are case-insensitive (upper-cased).
-//! Bad words are reported with line and column; nothing is skipped.
+//! Bad words are reported with line and column; nothing is skipped. O-words, `#` parameters and
+//! `[ … ]` expressions are refused as not supported (the rewriter works on plain numbered words).
 
 use crate::analysis::import_error::{ErrorSink, ImportErrors};
 
@@ -40,8 +41,8 @@ impl Block {
     }
 }
 
-/// Parses a program into blocks. Empty blocks and tape marks are dropped (they carry nothing);
-/// comment-only blocks are kept with no words so they are re-emitted. Every bad word is reported.
+/// Parses a program into blocks. Empty blocks are dropped; tape marks (`%`) and comment-only
+/// blocks are kept with no words so they are re-emitted. Every bad word is reported.
 pub fn parse_program(
     file: &str,
     text: &str,
@@ -75,9 +76,18 @@ fn parse_line_into(
     semicolon_is_eob: bool,
     blocks: &mut Vec<Block>,
 ) {
+    let first = blocks.len();
     for piece in split_blocks(raw, semicolon_is_eob) {
         let source = piece.trim();
-        if source.is_empty() || source == "%" {
+        if source.is_empty() {
+            continue;
+        }
+        if source == "%" {
+            blocks.push(Block {
+                line,
+                words: Vec::new(),
+                source: source.to_string(),
+            });
             continue;
         }
         if let Some(words) = parse_words(sink, line, source) {
@@ -88,6 +98,55 @@ fn parse_line_into(
             });
         }
     }
+    // LinuxCNC's `; comment` runs to the end of the line: it stays with the line's block (or is a
+    // comment-only block of its own), so the rewrite keeps it.
+    if let Some(tail) = semicolon_comment(raw, semicolon_is_eob) {
+        match blocks.get_mut(first..).and_then(|b| b.last_mut()) {
+            Some(b) => {
+                b.source.push(' ');
+                b.source.push_str(tail);
+            }
+            None => blocks.push(Block {
+                line,
+                words: Vec::new(),
+                source: tail.to_string(),
+            }),
+        }
+    }
+}
+
+/// The `; …` comment of a LinuxCNC line (outside `( … )`), if any.
+fn semicolon_comment(raw: &str, semicolon_is_eob: bool) -> Option<&str> {
+    if semicolon_is_eob {
+        return None;
+    }
+    let pieces = split_blocks(raw, false);
+    let before = pieces.first()?.len();
+    (before < raw.len()).then(|| raw[before..].trim_end())
+}
+
+/// The comments of a block's source (`( … )` and a LinuxCNC `; …` tail), space-separated, for
+/// blocks whose words are written anew: a `(MSG, …)` or `(DEBUG, …)` stays with its block.
+pub fn comments(source: &str) -> String {
+    let mut out = String::new();
+    let mut depth_start: Option<usize> = None;
+    for (i, c) in source.char_indices() {
+        match c {
+            '(' if depth_start.is_none() => depth_start = Some(i),
+            ')' => {
+                if let Some(s) = depth_start.take() {
+                    out.push_str(&source[s..=i]);
+                    out.push(' ');
+                }
+            }
+            ';' if depth_start.is_none() => {
+                out.push_str(&source[i..]);
+                break;
+            }
+            _ => {}
+        }
+    }
+    out.trim_end().to_string()
 }
 
 /// The one lexical rule for `;`: inside a `( … )` comment it is text; outside, it ends the block
@@ -115,8 +174,39 @@ pub fn split_blocks(raw: &str, semicolon_is_eob: bool) -> Vec<&str> {
     out
 }
 
+/// The first `#` parameter or `[ … ]` expression outside comments, refused before any word: the
+/// rewriter works on numbers only.
+fn refuse_parameters(sink: &mut ErrorSink, line: u64, chars: &[char]) -> bool {
+    let mut in_comment = false;
+    for (i, &c) in chars.iter().enumerate() {
+        let what = match c {
+            '(' => {
+                in_comment = true;
+                continue;
+            }
+            ')' => {
+                in_comment = false;
+                continue;
+            }
+            '#' if !in_comment => {
+                "`#` parameters (variables) are not supported by the rewriter: expand them to numbers first"
+            }
+            '[' if !in_comment => {
+                "`[ … ]` expressions are not supported by the rewriter: expand them to numbers first"
+            }
+            _ => continue,
+        };
+        sink.push(line, Some(&format!("char {}", i + 1)), what);
+        return true;
+    }
+    false
+}
+
 fn parse_words(sink: &mut ErrorSink, line: u64, src: &str) -> Option<Vec<Word>> {
     let chars: Vec<char> = src.chars().collect();
+    if refuse_parameters(sink, line, &chars) {
+        return None;
+    }
     let mut words = Vec::new();
     let mut ok = true;
     let mut i = 0;
@@ -136,6 +226,13 @@ fn parse_words(sink: &mut ErrorSink, line: u64, src: &str) -> Option<Vec<Word>> 
                     return None;
                 }
             }
+        } else if c.eq_ignore_ascii_case(&'o') {
+            sink.push(
+                line,
+                Some(&format!("char {}", i + 1)),
+                "O-words (subprograms, program numbers, o-word control flow) are not supported by the rewriter: expand subprograms inline and remove the O-words first",
+            );
+            return None;
         } else if c.is_ascii_alphabetic() {
             let letter = c.to_ascii_uppercase();
             let mut j = i + 1;
@@ -190,11 +287,12 @@ mod tests {
             true,
         )
         .unwrap();
-        assert_eq!(b.len(), 3);
+        assert_eq!(b.len(), 4);
         assert_eq!(b[0].get('Z').unwrap().value, -1.5);
         assert!(b[0].has_g(1.0));
         assert_eq!(b[1].source, "G04 X5 (dwell; 5 s)");
-        assert_eq!(b[2].line, 3);
+        assert_eq!((b[2].source.as_str(), b[2].words.len()), ("%", 0));
+        assert_eq!(b[3].line, 3);
     }
 
     #[test]
@@ -203,7 +301,8 @@ mod tests {
         let b = parse_program("c.ngc", "G1 X1 (a; b) Y2 ; tail (x\nG0 Z3", false).unwrap();
         assert_eq!(b.len(), 2);
         assert_eq!(b[0].get('Y').unwrap().value, 2.0);
-        assert_eq!(b[0].source, "G1 X1 (a; b) Y2");
+        assert_eq!(b[0].source, "G1 X1 (a; b) Y2 ; tail (x");
+        assert_eq!(comments(&b[0].source), "(a; b) ; tail (x");
         let b = parse_program("c.nc", "G1 X1 (a; b) Y2; Z4", true).unwrap();
         assert_eq!(b.len(), 2);
         assert_eq!(b[1].get('Z').unwrap().value, 4.0);

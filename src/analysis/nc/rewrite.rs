@@ -21,8 +21,11 @@
 //! - A move is never guessed from an unknown start: a split or arc move whose start is unknown
 //!   (nothing programmed yet, no `start_mm`) is refused; an unsplit line ending where a model axis
 //!   is still unknown is kept as programmed and counted.
-//! - Blocks without motion (dwells, M codes, comments, G10 L2) and lines ending outside the error
-//!   function's domain are written as programmed. Output resolution is 0.1 µm (4 decimals in mm).
+//! - Blocks without motion (dwells, M codes, comments, G10 L2), `%` tape marks and lines ending
+//!   outside the error function's domain are written as programmed (the latter with every axis on
+//!   its nominal point); comments of a motion block stay on its first written line.
+//! - Subprograms (M97/M98/M99/M198, G65/G66 macro calls, O-words) and `#` parameters are refused
+//!   with the line, never passed through uninterpreted. Output resolution is 0.1 µm (4 decimals in mm).
 //!   A correction larger than `max_correction_um` or not finite stops the rewrite with the line.
 
 use super::ErrorFunction;
@@ -272,10 +275,16 @@ impl<'a> Rewriter<'a> {
     /// Interprets one block and writes its output.
     pub fn block(&mut self, b: &Block, sink: &mut dyn RewriteSink) -> Result<(), RewriteError> {
         self.stats.blocks_in += 1;
+        if b.words.is_empty() && b.source == "%" {
+            // A tape mark stays alone on its line (LinuxCNC: the program runs between two).
+            sink.line("%")?;
+            return Ok(());
+        }
         if self.st.ended {
             sink.line(&format!("{};", b.source))?;
             return Ok(());
         }
+        refuse_subprograms(b)?;
         let has_axis = b.words.iter().any(|w| super::AXES.contains(&w.letter));
         let non_motion = self.modal(b, has_axis)?;
         if b.get('M')
@@ -344,6 +353,12 @@ impl<'a> Rewriter<'a> {
                     self.st.wcs = i;
                 }
                 200 => return Err(unsupported(g, "inch programs: convert to mm first")),
+                650 | 660 | 661 | 670 => {
+                    return Err(unsupported(
+                        g,
+                        "macro calls are not supported: expand them inline first",
+                    ));
+                }
                 500 | 520 | 530 | 920..=923 => {
                     return Err(unsupported(
                         g,
@@ -434,6 +449,28 @@ impl<'a> Rewriter<'a> {
             self.st.nominal_mm[k].map(|n| n + v)
         }
     }
+}
+
+/// Subprogram calls and returns move the program through blocks the rewriter would not have
+/// interpreted in that order (a `G91` move after a call would start from the wrong place), so they
+/// are refused; the parser refuses O-words and `#` parameters the same way.
+fn refuse_subprograms(b: &Block) -> Result<(), RewriteError> {
+    for w in b.words.iter().filter(|w| w.letter == 'M') {
+        let what = match w.value {
+            97.0 => "M97 (local subprogram call)",
+            98.0 => "M98 (subprogram call)",
+            99.0 => "M99 (subprogram return / program repeat)",
+            198.0 => "M198 (external subprogram call)",
+            _ => continue,
+        };
+        return Err(RewriteError::Refused {
+            line: b.line,
+            why: format!(
+                "{what} is not supported by the rewriter: expand the subprogram inline first"
+            ),
+        });
+    }
+    Ok(())
 }
 
 /// Rewrites parsed `blocks` into a string (small programs, tests).

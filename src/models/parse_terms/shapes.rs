@@ -57,6 +57,9 @@ pub(super) fn read_table(
         return None;
     }
     let (fwd, fwd_unit) = fwd?;
+    if !plausible(t, "forward", &fwd_unit, &fwd, suffix_hint) {
+        return None;
+    }
     if fwd.len() != positions.len() {
         t.err_key(
             &format!("forward_{fwd_unit}"),
@@ -71,6 +74,9 @@ pub(super) fn read_table(
     let rev = match rev {
         None => fwd.clone(),
         Some((r, ru)) => {
+            if !plausible(t, "reverse", &ru, &r, suffix_hint) {
+                return None;
+            }
             if r.len() != positions.len() {
                 t.err_key(
                     &format!("reverse_{ru}"),
@@ -97,6 +103,57 @@ pub(super) fn read_table(
         rev,
         interpolation,
     )))
+}
+
+/// Largest |value| a geometric error table may hold, in internal units (µm, µrad): 10 mm, or
+/// 10 mm over a metre. Beyond it the unit is wrong, not the machine (the sink's clamp cannot be set
+/// above 10 mm either: `gateway::safety::MAX_CORRECTION_LIMIT_UM`).
+const TABLE_LIMIT_INTERNAL: f64 = 10_000.0;
+
+/// Largest |value| written in the coarse length unit `_mm`, mm: a geometric error of more than
+/// 1 mm on a machine that is compensated at all is almost surely µm written under `_mm`.
+const TABLE_LIMIT_MM: f64 = 1.0;
+
+/// The unit suffix of a table's values checked against their magnitude: a translation (µm) or
+/// rotation (µrad) table beyond [`TABLE_LIMIT_INTERNAL`], or an `_mm` table beyond
+/// [`TABLE_LIMIT_MM`], is refused at its key. Other quantities (compliance per N) pass. `values`
+/// are already in internal units.
+fn plausible(t: &Tbl<'_, '_>, prefix: &str, unit: &str, values: &[f64], suffix_hint: &str) -> bool {
+    let internal = if crate::units::LengthUnit::from_suffix(unit).is_some() {
+        "µm"
+    } else if crate::units::AngleUnit::from_suffix(unit).is_some() {
+        "µrad"
+    } else {
+        return true;
+    };
+    let Some((i, &v)) = values
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+    else {
+        return true;
+    };
+    let key = format!("{prefix}_{unit}");
+    if unit == "mm" && v.abs() > TABLE_LIMIT_MM * 1e3 {
+        t.err_key(
+            &key,
+            format!(
+                "value [{i}] is {} mm ({v} µm): expected |value| ≤ {TABLE_LIMIT_MM} mm for a geometric error; if these numbers are µm, write {prefix}_um",
+                v / 1e3
+            ),
+        );
+        return false;
+    }
+    if v.abs() > TABLE_LIMIT_INTERNAL {
+        t.err_key(
+            &key,
+            format!(
+                "value [{i}] is {v:e} {internal} after conversion from {unit}: expected |value| ≤ {TABLE_LIMIT_INTERNAL} {internal} (check the unit suffix, one of {suffix_hint})"
+            ),
+        );
+        return false;
+    }
+    true
 }
 
 /// `kind = "polynomial"`: Σ a_i·q^i, optionally limited to `range_mm`.
