@@ -11,6 +11,7 @@ pub mod diagnose;
 pub mod error;
 pub mod fault;
 pub mod gateway;
+pub mod listen;
 pub mod models;
 pub mod origin_shift;
 pub mod quadrature;

@@ -50,6 +50,11 @@ pub struct ServerConfig {
     /// when position or held registers are configured.
     #[serde(default = "default_controller_timeout_ms")]
     pub controller_timeout_ms: u64,
+    /// TCP: the listener policy (`crate::listen`). Its `allow_writes_from` names the controller:
+    /// position, held and marker writes from any other peer get exception 01 and a fault naming
+    /// the peer (default: loopback only).
+    #[serde(default)]
+    pub listen_policy: crate::listen::ListenPolicy,
     pub map: ServerMap,
 }
 
@@ -103,10 +108,14 @@ impl OriginShiftServer {
         match &cfg.transport {
             ServerTransport::Tcp { listen } => {
                 let addr: SocketAddr = listen.parse()?;
-                let s = TcpServer::start(addr, bank.clone())
+                let s = TcpServer::start_with(addr, bank.clone(), cfg.listen_policy.clone())
                     .await
                     .map_err(ServerStartError::Open)?;
-                tracing::info!(addr = %s.local_addr(), "origin-shift server listening (Modbus TCP)");
+                tracing::info!(
+                    addr = %s.local_addr(),
+                    allow_writes_from = ?cfg.listen_policy.allow_writes_from,
+                    "origin-shift server listening (Modbus TCP)"
+                );
                 tcp = Some(s);
             }
             ServerTransport::Rtu { path, baud } => {
@@ -235,8 +244,17 @@ impl OriginShiftServer {
             };
             faults.update(&source, kinds, now);
             let writes_ok = self.core.updates();
+            // Empty (no allocation) unless the listener has a fault: a refused peer, a flood.
+            let listener_faults = self
+                .tcp
+                .as_ref()
+                .map(|t| t.health().faults())
+                .unwrap_or_default();
             status.send_modify(|st| {
                 st.writes_ok = writes_ok;
+                // Only the listener's own entries are replaced; the sink's faults stay.
+                st.faults.retain(|f| !f.0.starts_with("listener."));
+                st.faults.extend(listener_faults.iter().cloned());
                 st.connected = !gone;
                 if gone {
                     // Rewritten in place: the text allocates once per fault, not per tick.
