@@ -123,7 +123,7 @@ pub async fn serve(
         addr,
         tokio::spawn(async move {
             let _listening = l;
-            std::future::pending::<()>().await
+            std::future::pending::<()>().await;
         }),
     ))
 }

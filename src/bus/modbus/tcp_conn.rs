@@ -57,7 +57,9 @@ pub fn answer(
                 bank.handle(&req)
             }
         }
-        Err(_) => Err(ExceptionCode::IllegalDataValue),
+        // A function we serve, malformed: 03; any other function: 01 (as the bank answers it).
+        Err(_) if matches!(fc, 3 | 4 | 6 | 0x10) => Err(ExceptionCode::IllegalDataValue),
+        Err(_) => Err(ExceptionCode::IllegalFunction),
     };
     out.clear();
     out.extend_from_slice(&head[..4]);
@@ -153,9 +155,11 @@ mod tests {
             Outcome::Answered
         );
         assert_eq!(out, [0x12, 0x34, 0, 0, 0, 6, 5, 0x10, 0, 10, 0, 2]);
-        // Unknown function, not-Modbus headers.
+        // Unknown function, a malformed known one, not-Modbus headers.
         answer(&bank, true, &head(2), &[0x2B], &mut out);
         assert_eq!(&out[7..], [0xAB, 1]);
+        answer(&bank, true, &head(3), &[3, 0], &mut out);
+        assert_eq!(&out[7..], [0x83, 3]);
         assert_eq!(pdu_len(&[0, 0, 0, 1, 0, 6, 1]), None);
         assert_eq!(pdu_len(&head(1)), None);
         assert_eq!(pdu_len(&head(255)), None);
