@@ -43,10 +43,16 @@ pub enum FaultKind {
     WriteFailed,
     /// The controller holds a correction beyond the clamp: the sink does not write that axis.
     BeyondClamp,
+    /// A listener refuses or delays connections (connection caps, descriptor reserve, accept errors).
+    Overloaded,
+    /// A listener failed and is being restarted (cleared once it serves again).
+    ListenerFailed,
+    /// A peer not on the listener's `allow_writes_from` tried to write or act.
+    Unauthorized,
 }
 
 impl FaultKind {
-    pub const ALL: [FaultKind; 13] = [
+    pub const ALL: [FaultKind; 16] = [
         FaultKind::Stale,
         FaultKind::OutOfRange,
         FaultKind::NotFinite,
@@ -60,6 +66,9 @@ impl FaultKind {
         FaultKind::Exception,
         FaultKind::WriteFailed,
         FaultKind::BeyondClamp,
+        FaultKind::Overloaded,
+        FaultKind::ListenerFailed,
+        FaultKind::Unauthorized,
     ];
 
     /// Its position in [`FaultKind::ALL`] (declaration order, which is also its `Ord`).

@@ -12,6 +12,7 @@ pub mod error;
 pub mod fault;
 pub mod gateway;
 pub mod guard;
+pub mod listen;
 pub mod models;
 pub mod origin_shift;
 pub mod quadrature;

@@ -144,7 +144,7 @@ async fn action_needs_the_token_and_a_well_formed_body() {
 async fn oversized_head_and_body_get_4xx() {
     let (api, mut rx) = with_token();
     let limits = Limits::default();
-    let (addr, _s) = start(api, limits).await;
+    let (addr, _s) = start(api, limits.clone()).await;
 
     // A head over the limit (but within what the server buffers, so it reads it all and answers).
     let mut s = TcpStream::connect(&addr).await.unwrap();
@@ -177,7 +177,7 @@ async fn slowloris_is_disconnected_within_the_header_timeout() {
         header_read_timeout: Duration::from_secs(1),
         ..Limits::default()
     };
-    let (addr, _s) = start(Api::default(), limits).await;
+    let (addr, _s) = start(Api::default(), limits.clone()).await;
     let mut s = TcpStream::connect(&addr).await.unwrap();
     let t0 = Instant::now();
     let trickle = b"GET /status HTTP/1.1\r\nX-Slow: "

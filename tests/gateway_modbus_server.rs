@@ -43,6 +43,7 @@ fn config(transport: ServerTransport) -> ServerConfig {
         unit_id: 3,
         update_period_ms: 10,
         controller_timeout_ms: 1000,
+        listen_policy: Default::default(),
         map: toml::from_str(MAP).unwrap(),
     }
 }

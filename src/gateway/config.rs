@@ -66,6 +66,10 @@ pub struct GatewaySection {
     /// Read-only status HTTP endpoint; 127.0.0.1 unless you mean otherwise.
     #[serde(default = "default_status_listen")]
     pub status_listen: String,
+    /// The status endpoint's listener policy (`crate::listen`): connection caps, idle timeout,
+    /// descriptor reserve, and `allow_writes_from`, the peers whose actions are accepted.
+    #[serde(default)]
+    pub listen_policy: crate::listen::ListenPolicy,
     /// Compensation enabled at start (can be toggled at run time).
     #[serde(default = "yes")]
     pub enabled: bool,

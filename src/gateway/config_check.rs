@@ -139,6 +139,7 @@ fn validate_gateway(g: &GatewaySection) -> Result<(), (String, String)> {
             "expected at least 16 characters without surrounding spaces".into(),
         ));
     }
+    g.listen_policy.check("gateway")?;
     for name in g.models.keys() {
         super::model_switch::check_name(name)
             .map_err(|what| (format!("gateway.models.{name}"), what))?;
@@ -399,6 +400,7 @@ impl FieldConfig {
         srv: &crate::origin_shift::server::ServerConfig,
     ) -> Result<(), (String, String)> {
         const KEY: &str = "sink.origin_shift_server";
+        srv.listen_policy.check(KEY)?;
         if self.sink.origin_shift.is_some() || self.sink.quadrature.is_some() {
             return Err((
                 KEY.into(),

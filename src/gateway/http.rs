@@ -6,16 +6,16 @@
 //! Every action, accepted or refused, is logged (tracing) and kept in the page's action log with
 //! the peer address. Unknown path: 404; wrong method: 405; no cycle run yet: 503 on the read routes.
 //!
-//! Bounded everything (issue 18.6): at most [`Limits::max_connections`] connections (more are
-//! answered 503 and closed at once, never queued); one request per connection; the request head
-//! must arrive within [`Limits::header_read_timeout`] (a client trickling one byte a second is cut
-//! off), the head is capped at [`Limits::max_head_bytes`] (431) and the body at
-//! [`Limits::max_body_bytes`] (413); the whole connection lives at most
-//! [`Limits::connection_deadline`]. Accept errors (EMFILE, ENFILE, ENOMEM…) back off exponentially
-//! to 1 s, logged once at start and once at clear. Descriptors: at start the soft RLIMIT_NOFILE is
-//! raised to the hard limit, and a new connection is refused while the process's open descriptors
-//! (counted in /proc/self/fd) are within [`Limits::fd_reserve`] of that limit, so a flood of
-//! clients can never take the descriptors the controller link and the sources need to reconnect.
+//! Actions are taken only from peers on `[gateway.listen_policy] allow_writes_from` (others: 403
+//! and a fault naming the peer), then only with the token.
+//!
+//! Bounded everything: connections are kept by the listener policy every server of the box keeps
+//! (`crate::listen`: connection and per-peer caps, refused ones answered 503 and closed at once,
+//! never queued; idle timeout; descriptor reserve; accept backoff logged once per episode; restart);
+//! one request per connection; the request head must arrive within [`Limits::header_read_timeout`]
+//! (a client trickling one byte a second is cut off), the head is capped at
+//! [`Limits::max_head_bytes`] (431) and the body at [`Limits::max_body_bytes`] (413); the whole
+//! connection lives at most [`Limits::connection_deadline`].
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -31,40 +31,37 @@ use axum::routing::{get as get_route, post};
 use http_body_util::BodyExt;
 use hyper_util::rt::{TokioIo, TokioTimer};
 use hyper_util::service::TowerToHyperService;
-use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::Semaphore;
+use tokio::net::TcpStream;
 use tower::ServiceExt;
 
 pub use super::http_state::{Api, Control, StatusRx};
 use super::http_state::{AppState, authorize, not_allowed, plain, record};
 use super::status::StatusSnapshot;
-use crate::bus::Backoff;
+use crate::listen::{Conn, IdleStream, ListenPolicy, ListenerHealth, Spec, listen_with};
 
-/// Resource bounds of the endpoint; [`Limits::default`] is what `retrocomp run` uses.
-#[derive(Clone, Copy, Debug)]
+/// Resource bounds of the endpoint; [`Limits::default`] is what `retrocomp run` uses (with the
+/// field config's `[gateway.listen_policy]`).
+#[derive(Clone, Debug)]
 pub struct Limits {
-    pub max_connections: usize,
+    /// Connection caps, idle timeout, descriptor reserve, who may act (`crate::listen`).
+    pub policy: ListenPolicy,
     pub header_read_timeout: Duration,
     /// A handler that has not answered by then gets 503.
     pub request_timeout: Duration,
     pub connection_deadline: Duration,
     pub max_head_bytes: usize,
     pub max_body_bytes: usize,
-    /// Descriptors kept free for the controller link, sources and logs (0: no reserve, only the
-    /// accept backoff when the process runs out).
-    pub fd_reserve: u64,
 }
 
 impl Default for Limits {
     fn default() -> Self {
         Limits {
-            max_connections: 64,
+            policy: ListenPolicy::default(),
             header_read_timeout: Duration::from_secs(5),
             request_timeout: Duration::from_secs(5),
             connection_deadline: Duration::from_secs(15),
             max_head_bytes: 8192,
             max_body_bytes: 4096,
-            fd_reserve: 128,
         }
     }
 }
@@ -85,12 +82,7 @@ pub async fn serve(
     api: Api,
     limits: Limits,
 ) -> std::io::Result<(SocketAddr, tokio::task::JoinHandle<()>)> {
-    let listener = TcpListener::bind(listen).await?;
-    let addr = listener.local_addr()?;
-    if !addr.ip().is_loopback() {
-        tracing::warn!(%addr, "status endpoint bound to a non-loopback address");
-    }
-    raise_nofile_soft_limit();
+    let health = ListenerHealth::new("http");
     // Fed from the watch channel at ≤ 10 Hz; ends when the run loop drops the sender.
     let (history, _history_task) = super::history::spawn(rx.clone());
     let app = router(
@@ -99,10 +91,41 @@ pub async fn serve(
             api: Arc::new(api),
             history,
             model_request: Default::default(),
+            policy: Arc::new(limits.policy.clone()),
+            listener: health.clone(),
         },
         &limits,
     );
-    Ok((addr, tokio::spawn(accept_loop(listener, app, limits))))
+    let spec = Spec {
+        name: "http",
+        policy: limits.policy.clone(),
+        refusal:
+            b"HTTP/1.1 503 Service Unavailable\r\ncontent-length: 0\r\nconnection: close\r\n\r\n",
+        handler: Arc::new({
+            let app = app.clone();
+            move |conn: Conn| {
+                Box::pin(serve_connection(
+                    conn.stream,
+                    conn.peer,
+                    app.clone(),
+                    limits.clone(),
+                ))
+            }
+        }),
+    };
+    let l = listen_with(listen, spec, health).await?;
+    let addr = l.addr;
+    if !addr.ip().is_loopback() {
+        tracing::warn!(%addr, "status endpoint bound to a non-loopback address");
+    }
+    // Aborting this task (the caller's way to stop the endpoint) drops the listener with it.
+    Ok((
+        addr,
+        tokio::spawn(async move {
+            let _listening = l;
+            std::future::pending::<()>().await;
+        }),
+    ))
 }
 
 fn router(state: AppState, limits: &Limits) -> Router {
@@ -234,83 +257,12 @@ async fn set_compensation(
     Json(serde_json::json!({ "enabled": enabled })).into_response()
 }
 
-/// Why new connections are being refused right now (logged at start and clear).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Refusing {
-    AcceptError,
-    Busy,
-    FdReserve,
-}
-
-/// Retry delays after a failed accept (e.g. out of file descriptors): doubling from the min, reset by
-/// the next accepted connection.
-const ACCEPT_RETRY_MIN: Duration = Duration::from_millis(10);
-const ACCEPT_RETRY_MAX: Duration = Duration::from_secs(1);
-
-async fn accept_loop(listener: TcpListener, app: Router, limits: Limits) {
-    let permits = Arc::new(Semaphore::new(limits.max_connections));
-    let mut refusing: Option<Refusing> = None;
-    let mut refused = 0u64;
-    let mut backoff = Backoff::new(ACCEPT_RETRY_MIN, ACCEPT_RETRY_MAX);
-    let mut set = |now: Option<Refusing>, refused: &mut u64| {
-        if now == refusing {
-            return;
-        }
-        if let Some(was) = refusing {
-            tracing::info!(reason = ?was, refused = *refused, "status endpoint: fault cleared");
-        }
-        if let Some(r) = now {
-            tracing::warn!(reason = ?r, "status endpoint: fault, refusing or delaying connections");
-        }
-        *refused = 0;
-        refusing = now;
-    };
-    loop {
-        let (stream, peer) = match listener.accept().await {
-            Ok(x) => x,
-            // The peer gave up before we accepted: nothing wrong on our side.
-            Err(e) if e.kind() == std::io::ErrorKind::ConnectionAborted => continue,
-            Err(e) => {
-                set(Some(Refusing::AcceptError), &mut refused);
-                let delay = backoff.next_delay();
-                tracing::debug!(error = %e, backoff = ?delay, "accept failed");
-                tokio::time::sleep(delay).await;
-                continue;
-            }
-        };
-        backoff.reset();
-        if limits.fd_reserve > 0
-            && let (Some(open), Some(limit)) = (open_fds(), nofile_soft_limit())
-            && open + limits.fd_reserve >= limit
-        {
-            set(Some(Refusing::FdReserve), &mut refused);
-            refused += 1;
-            refuse(stream);
-            continue;
-        }
-        let Ok(permit) = Arc::clone(&permits).try_acquire_owned() else {
-            set(Some(Refusing::Busy), &mut refused);
-            refused += 1;
-            refuse(stream);
-            continue;
-        };
-        set(None, &mut refused);
-        let app = app.clone();
-        tokio::spawn(async move {
-            serve_connection(stream, peer, app, limits).await;
-            drop(permit);
-        });
-    }
-}
-
-/// Best effort 503 without waiting on the peer, then close.
-fn refuse(stream: TcpStream) {
-    let _ = stream.try_write(
-        b"HTTP/1.1 503 Service Unavailable\r\ncontent-length: 0\r\nconnection: close\r\n\r\n",
-    );
-}
-
-async fn serve_connection(stream: TcpStream, peer: SocketAddr, app: Router, limits: Limits) {
+async fn serve_connection(
+    stream: IdleStream<TcpStream>,
+    peer: SocketAddr,
+    app: Router,
+    limits: Limits,
+) {
     let svc = app.map_request(move |mut req: Request<hyper::body::Incoming>| {
         req.extensions_mut().insert(ConnectInfo(peer));
         req
@@ -326,45 +278,6 @@ async fn serve_connection(stream: TcpStream, peer: SocketAddr, app: Router, limi
         .keep_alive(false);
     let conn = b.serve_connection(TokioIo::new(stream), TowerToHyperService::new(svc));
     let _ = tokio::time::timeout(limits.connection_deadline, conn).await;
-}
-
-/// Open descriptors of this process (Linux: entries of /proc/self/fd, minus the one read_dir uses).
-fn open_fds() -> Option<u64> {
-    let n = std::fs::read_dir("/proc/self/fd").ok()?.count() as u64;
-    Some(n.saturating_sub(1))
-}
-
-fn nofile_soft_limit() -> Option<u64> {
-    let mut lim = libc::rlimit {
-        rlim_cur: 0,
-        rlim_max: 0,
-    };
-    // SAFETY: getrlimit writes into the struct we pass and nothing else.
-    let rc = unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut lim) };
-    (rc == 0 && lim.rlim_cur != libc::RLIM_INFINITY).then_some(lim.rlim_cur)
-}
-
-/// Raise the soft descriptor limit to the hard one (many distributions start services at 1024
-/// soft with a much higher hard limit); the connection cap stays far below either.
-fn raise_nofile_soft_limit() {
-    let mut lim = libc::rlimit {
-        rlim_cur: 0,
-        rlim_max: 0,
-    };
-    // SAFETY: getrlimit/setrlimit read and write only the struct we pass.
-    unsafe {
-        if libc::getrlimit(libc::RLIMIT_NOFILE, &mut lim) == 0 && lim.rlim_cur < lim.rlim_max {
-            let was = lim.rlim_cur;
-            lim.rlim_cur = lim.rlim_max;
-            if libc::setrlimit(libc::RLIMIT_NOFILE, &lim) == 0 {
-                tracing::info!(
-                    from = was,
-                    to = lim.rlim_max,
-                    "raised soft RLIMIT_NOFILE to the hard limit"
-                );
-            }
-        }
-    }
 }
 
 /// Minimal client for `retrocomp status`: GET `path` from `addr`, return (status code, body).

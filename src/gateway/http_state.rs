@@ -42,6 +42,9 @@ pub(super) struct AppState {
     pub(super) history: super::history::SharedHistory,
     /// The last model switch accepted (name, sha256), for `GET /api/models`.
     pub(super) model_request: Arc<std::sync::Mutex<Option<(String, String)>>>,
+    /// The endpoint's listener policy (`allow_writes_from` decides who may act) and faults.
+    pub(super) policy: Arc<crate::listen::ListenPolicy>,
+    pub(super) listener: crate::listen::ListenerHealth,
 }
 
 pub(super) fn plain(code: StatusCode, body: &'static str) -> Response {
@@ -65,6 +68,20 @@ pub(super) fn authorize(
     headers: &HeaderMap,
     action: &str,
 ) -> Result<(), Box<Response>> {
+    if !s.policy.may_write(peer.ip()) {
+        s.listener.refused_write(peer.ip());
+        record(
+            s,
+            peer,
+            "-",
+            action,
+            "refused: peer not on allow_writes_from (403)",
+        );
+        return Err(Box::new(plain(
+            StatusCode::FORBIDDEN,
+            "actions refused from this address: not on [gateway.listen_policy] allow_writes_from\n",
+        )));
+    }
     let Some(expected) = s.api.token.as_deref() else {
         record(s, peer, "-", action, "refused: no api_token configured");
         return Err(Box::new(plain(

@@ -245,7 +245,11 @@ async fn start_endpoints(
         }
         None => None,
     };
-    let (bound, http_task) = serve(listen, status_rx, api, Limits::default())
+    let limits = Limits {
+        policy: cfg.gateway.listen_policy.clone(),
+        ..Limits::default()
+    };
+    let (bound, http_task) = serve(listen, status_rx, api, limits)
         .await
         .map_err(|e| GatewayError::setup(format!("binding status endpoint {listen}"), e))?;
     tracing::info!(%bound, "status endpoint: GET /status, /metrics");

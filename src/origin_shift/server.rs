@@ -59,6 +59,11 @@ pub struct ServerConfig {
     /// when position or held registers are configured.
     #[serde(default = "default_controller_timeout_ms")]
     pub controller_timeout_ms: u64,
+    /// TCP: the listener policy (`crate::listen`). Its `allow_writes_from` names the controller:
+    /// position, held and marker writes from any other peer get exception 01 and a fault naming
+    /// the peer (default: loopback only).
+    #[serde(default)]
+    pub listen_policy: crate::listen::ListenPolicy,
     pub map: ServerMap,
 }
 
@@ -109,10 +114,14 @@ impl OriginShiftServer {
         match &cfg.transport {
             ServerTransport::Tcp { listen } => {
                 let addr: SocketAddr = listen.parse()?;
-                let s = TcpServer::start(addr, bank.clone())
+                let s = TcpServer::start_with(addr, bank.clone(), cfg.listen_policy.clone())
                     .await
                     .map_err(ServerStartError::Open)?;
-                tracing::info!(addr = %s.local_addr(), "origin-shift server listening (Modbus TCP)");
+                tracing::info!(
+                    addr = %s.local_addr(),
+                    allow_writes_from = ?cfg.listen_policy.allow_writes_from,
+                    "origin-shift server listening (Modbus TCP)"
+                );
                 tcp = Some(s);
             }
             ServerTransport::Rtu { path, baud } => {
@@ -272,6 +281,12 @@ impl OriginShiftServer {
             }
             let writes_ok = self.core.updates();
             let core = &self.core;
+            // Empty (no allocation) unless the listener has a fault: a refused peer, a flood.
+            let listener_faults = self
+                .tcp
+                .as_ref()
+                .map(|t| t.health().faults())
+                .unwrap_or_default();
             status.send_modify(|st| {
                 st.writes_ok = writes_ok;
                 st.connected = !gone;
@@ -295,9 +310,14 @@ impl OriginShiftServer {
                         }
                     }
                 }
-                if !events.is_empty() {
+                // The sink's faults are rebuilt on an edge; the listener's own entries (a refused
+                // peer, a flood) are replaced every tick.
+                if events.is_empty() {
+                    st.faults.retain(|f| !f.0.starts_with("listener."));
+                } else {
                     st.faults = faults.active_by_name();
                 }
+                st.faults.extend(listener_faults.iter().cloned());
             });
         }
     }

@@ -9,6 +9,9 @@
 //! socketcand writes kernel timestamps. A client that falls more than [`HUB_QUEUE`] frames behind loses
 //! the oldest ones; the loss is counted in [`HubStats::frames_dropped`] and reported to that client as
 //! `< error lagged N >`.
+//!
+//! Connections are kept by the listener policy (`crate::listen`, [`hub_policy`]): caps, idle
+//! timeout, descriptor reserve, accept backoff, restart.
 
 use super::Frame;
 use super::socketcand::{Decoder, Message, encode_into};
@@ -16,10 +19,12 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{SystemTime, UNIX_EPOCH};
-use tokio::io::{AsyncReadExt, AsyncWriteExt, BufWriter};
-use tokio::net::{TcpListener, TcpStream};
+use tokio::io::{AsyncReadExt, AsyncWriteExt, BufWriter, WriteHalf};
+use tokio::net::TcpStream;
 use tokio::sync::broadcast;
 use tokio::task::AbortHandle;
+
+use crate::listen::{Conn, Handler, IdleStream, ListenPolicy, ListenerHealth, Spec, listen};
 
 /// Frames a client may fall behind before it loses some.
 pub const HUB_QUEUE: usize = 8192;
@@ -47,18 +52,34 @@ struct Routed {
 pub struct Hub {
     addr: SocketAddr,
     stats: Arc<HubStats>,
+    health: ListenerHealth,
     task: AbortHandle,
+}
+
+/// The hub's listener policy: everything local, so the per-peer cap is the whole cap, and a long
+/// idle time (a CAN bus may carry nothing for minutes, and socketcand has no keep-alive).
+pub fn hub_policy() -> ListenPolicy {
+    ListenPolicy {
+        max_connections: 64,
+        max_connections_per_peer: 64,
+        idle_timeout_s: 600.0,
+        ..ListenPolicy::default()
+    }
 }
 
 impl Hub {
     /// Listen on `addr` (tests use `127.0.0.1:0`) and serve until dropped.
     pub async fn start(addr: SocketAddr) -> std::io::Result<Hub> {
-        let listener = TcpListener::bind(addr).await?;
-        let addr = listener.local_addr()?;
         let stats = Arc::new(HubStats::default());
-        let (tx, _) = broadcast::channel::<Routed>(HUB_QUEUE);
-        let task = tokio::spawn(accept_loop(listener, tx, Arc::clone(&stats))).abort_handle();
-        Ok(Hub { addr, stats, task })
+        let l = listen(addr, spec(Arc::clone(&stats))).await?;
+        let (addr, health) = (l.addr, l.health.clone());
+        let task = l.into_task().abort_handle();
+        Ok(Hub {
+            addr,
+            stats,
+            health,
+            task,
+        })
     }
 
     /// Like [`Hub::start`], on a dedicated OS thread with its own current-thread runtime, so the
@@ -72,30 +93,21 @@ impl Hub {
             .build()?;
         crate::realtime::spawn_thread("socketcand-hub", priority, move || {
             rt.block_on(async move {
-                let listener = match TcpListener::bind(addr).await {
-                    Ok(l) => l,
-                    Err(e) => {
-                        let _ = ready_tx.send(Err(e));
-                        return;
-                    }
-                };
-                let local = listener.local_addr();
                 let stats = Arc::new(HubStats::default());
-                let (tx, _) = broadcast::channel::<Routed>(HUB_QUEUE);
-                let task = tokio::spawn(accept_loop(listener, tx, Arc::clone(&stats)));
-                match local {
-                    Ok(addr) => {
-                        let abort = task.abort_handle();
+                match listen(addr, spec(Arc::clone(&stats))).await {
+                    Ok(l) => {
+                        let (addr, health) = (l.addr, l.health.clone());
+                        let task = l.into_task();
                         let _ = ready_tx.send(Ok(Hub {
                             addr,
                             stats,
-                            task: abort,
+                            health,
+                            task: task.abort_handle(),
                         }));
                         // Runs until Hub::drop aborts it.
                         let _ = task.await;
                     }
                     Err(e) => {
-                        task.abort();
                         let _ = ready_tx.send(Err(e));
                     }
                 }
@@ -118,6 +130,11 @@ impl Hub {
     pub fn stats(&self) -> &HubStats {
         &self.stats
     }
+
+    /// The listener's faults (refusals, restarts).
+    pub fn health(&self) -> &ListenerHealth {
+        &self.health
+    }
 }
 
 impl Drop for Hub {
@@ -126,26 +143,25 @@ impl Drop for Hub {
     }
 }
 
-async fn accept_loop(listener: TcpListener, tx: broadcast::Sender<Routed>, stats: Arc<HubStats>) {
-    // Client tasks live in the JoinSet, so aborting this task (Hub::drop) disconnects them all.
-    let mut clients = tokio::task::JoinSet::new();
-    let mut next_id = 0u64;
-    loop {
-        tokio::select! {
-            accepted = listener.accept() => {
-                let Ok((stream, peer)) = accepted else { continue };
-                next_id += 1;
-                stats.clients_connected.fetch_add(1, Ordering::Relaxed);
-                let (tx, stats) = (tx.clone(), Arc::clone(&stats));
-                let id = next_id;
-                clients.spawn(async move {
-                    if let Err(e) = serve_client(stream, id, tx, &stats).await {
-                        tracing::debug!(%peer, "socketcand hub client ended: {e}");
-                    }
-                });
+fn spec(stats: Arc<HubStats>) -> Spec {
+    let (tx, _) = broadcast::channel::<Routed>(HUB_QUEUE);
+    let next_id = Arc::new(AtomicU64::new(0));
+    let handler: Handler = Arc::new(move |conn: Conn| {
+        let id = next_id.fetch_add(1, Ordering::Relaxed) + 1;
+        stats.clients_connected.fetch_add(1, Ordering::Relaxed);
+        let (tx, stats) = (tx.clone(), Arc::clone(&stats));
+        Box::pin(async move {
+            let peer = conn.peer;
+            if let Err(e) = serve_client(conn.stream, id, tx, &stats).await {
+                tracing::debug!(%peer, "socketcand hub client ended: {e}");
             }
-            Some(_) = clients.join_next() => {}
-        }
+        })
+    });
+    Spec {
+        name: "socketcand_hub",
+        policy: hub_policy(),
+        refusal: b"< error too many clients >",
+        handler,
     }
 }
 
@@ -162,14 +178,16 @@ enum Phase {
     Raw(Arc<str>, broadcast::Receiver<Routed>),
 }
 
+type Writer = BufWriter<WriteHalf<IdleStream<TcpStream>>>;
+
 async fn serve_client(
-    stream: TcpStream,
+    stream: IdleStream<TcpStream>,
     id: u64,
     tx: broadcast::Sender<Routed>,
     stats: &HubStats,
 ) -> std::io::Result<()> {
-    stream.set_nodelay(true)?;
-    let (mut rd, wr) = stream.into_split();
+    stream.get_ref().set_nodelay(true)?;
+    let (mut rd, wr) = tokio::io::split(stream);
     let mut wr = BufWriter::with_capacity(64 * 1024, wr);
     let mut out = String::with_capacity(4096);
     // python-can compares each handshake reply to one recv(): every reply is its own flushed write.
@@ -242,11 +260,7 @@ async fn serve_client(
     }
 }
 
-async fn reply(
-    wr: &mut BufWriter<tokio::net::tcp::OwnedWriteHalf>,
-    out: &mut String,
-    msg: &Message,
-) -> std::io::Result<()> {
+async fn reply(wr: &mut Writer, out: &mut String, msg: &Message) -> std::io::Result<()> {
     out.clear();
     encode_into(out, msg);
     wr.write_all(out.as_bytes()).await?;
@@ -259,7 +273,7 @@ async fn handle(
     id: u64,
     tx: &broadcast::Sender<Routed>,
     stats: &HubStats,
-    wr: &mut BufWriter<tokio::net::tcp::OwnedWriteHalf>,
+    wr: &mut Writer,
     out: &mut String,
 ) -> std::io::Result<Phase> {
     Ok(match (msg, phase) {

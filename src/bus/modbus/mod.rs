@@ -7,6 +7,7 @@ pub mod poll_core;
 pub mod poller;
 pub mod regmap;
 pub mod server;
+pub mod tcp_conn;
 pub mod words;
 
 pub use poller::{ModbusPoller, ModbusSourceConfig, TransportKind};

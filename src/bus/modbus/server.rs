@@ -4,17 +4,21 @@
 //! Supports FC03, FC04, FC06 and FC16. Writes are allowed only to holding registers in the write
 //! allow-list, and a multi-register write is applied all-or-nothing under one lock, so a reader never
 //! sees half of a 32-bit offset. Unmapped addresses give exception 02 (illegal data address), other
-//! function codes exception 01. On TCP every unit id is answered; on RTU only the configured slave id
+//! function codes exception 01. On TCP every unit id is answered (connections kept by the listener
+//! policy, `crate::listen`, framed in `tcp_conn.rs`: writes only from `allow_writes_from`, others get
+//! exception 01); on RTU only the configured slave id
 //! (others are silent, as on a multi-drop line). Addresses are 0-based protocol addresses.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex, MutexGuard};
-use tokio::net::TcpListener;
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use tokio_modbus::prelude::{ExceptionCode, Request, Response, SlaveRequest};
 use tokio_modbus::server::Service;
+
+use super::tcp_conn;
+use crate::listen::{Handler, ListenPolicy, ListenerHealth, Listening, Spec, listen};
 
 #[derive(Debug, Default)]
 struct Image {
@@ -214,47 +218,45 @@ impl Service for RegisterService {
     }
 }
 
-/// A running Modbus TCP server; dropping it stops the listener and every connection.
+/// A running Modbus TCP server on the listener policy (`crate::listen`): connection caps, idle
+/// timeout, descriptor reserve, accept backoff, restart; writes only from `allow_writes_from`.
+/// Dropping it stops the listener and every connection.
 #[derive(Debug)]
 pub struct TcpServer {
-    addr: SocketAddr,
-    task: JoinHandle<()>,
+    listening: Listening,
 }
 
 impl TcpServer {
-    /// Serve `bank` on `addr` (tests: `127.0.0.1:0`).
+    /// Serve `bank` on `addr` (tests: `127.0.0.1:0`) with the default policy (writes from loopback).
     pub async fn start(addr: SocketAddr, bank: RegisterBank) -> std::io::Result<TcpServer> {
-        let listener = TcpListener::bind(addr).await?;
-        let addr = listener.local_addr()?;
-        let server = tokio_modbus::server::tcp::Server::new(listener);
-        let task = tokio::spawn(async move {
-            let on_connected = |stream, peer| {
-                let svc = RegisterService {
-                    bank: bank.clone(),
-                    slave: None,
-                };
-                async move {
-                    tokio_modbus::server::tcp::accept_tcp_connection(stream, peer, |_| {
-                        Ok(Some(svc.clone()))
-                    })
-                }
-            };
-            let on_err = |e| tracing::debug!("modbus tcp connection: {e}");
-            if let Err(e) = server.serve(&on_connected, on_err).await {
-                tracing::warn!("modbus tcp server stopped: {e}");
-            }
-        });
-        Ok(TcpServer { addr, task })
+        Self::start_with(addr, bank, ListenPolicy::default()).await
+    }
+
+    /// Serve `bank` on `addr` with `policy`.
+    pub async fn start_with(
+        addr: SocketAddr,
+        bank: RegisterBank,
+        policy: ListenPolicy,
+    ) -> std::io::Result<TcpServer> {
+        let handler: Handler = Arc::new(move |conn| Box::pin(tcp_conn::serve(conn, bank.clone())));
+        let spec = Spec {
+            name: "modbus_server",
+            policy,
+            refusal: b"",
+            handler,
+        };
+        Ok(TcpServer {
+            listening: listen(addr, spec).await?,
+        })
     }
 
     pub fn local_addr(&self) -> SocketAddr {
-        self.addr
+        self.listening.addr
     }
-}
 
-impl Drop for TcpServer {
-    fn drop(&mut self) {
-        self.task.abort();
+    /// The listener's faults (refusals, restarts, writes refused from peers).
+    pub fn health(&self) -> &ListenerHealth {
+        &self.listening.health
     }
 }
 

@@ -52,6 +52,10 @@ pub struct OpcUaSection {
     /// must be moved from `pki_dir/rejected` to `pki_dir/trusted` once).
     #[serde(default)]
     pub trust_client_certs: bool,
+    /// The listener policy (`crate::listen`): connection caps, idle timeout, descriptor reserve.
+    /// Nothing is writable over OPC UA, so `allow_writes_from` has nothing to allow here.
+    #[serde(default)]
+    pub listen_policy: crate::listen::ListenPolicy,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -97,6 +101,7 @@ impl OpcUaSection {
                 format!("expected ip:port, got {:?}", self.listen),
             )
         })?;
+        self.listen_policy.check("opcua")?;
         if let Some(h) = &self.host
             && (h.is_empty() || h.contains(['/', ':', ' ']))
         {

@@ -40,6 +40,8 @@ pub struct OpcUaServer {
     /// `opc.tcp://host:port/`, what clients connect to.
     pub endpoint: String,
     pub bound: SocketAddr,
+    /// The public listener (relaying to async-opcua's loopback port).
+    public: crate::listen::Listening,
     handle: ServerHandle,
     server: JoinHandle<()>,
     updater: JoinHandle<()>,
@@ -56,6 +58,11 @@ impl std::fmt::Debug for OpcUaServer {
 }
 
 impl OpcUaServer {
+    /// The public listener's faults (refusals, restarts).
+    pub fn health(&self) -> &crate::listen::ListenerHealth {
+        &self.public.health
+    }
+
     pub fn stop(self) {
         self.handle.cancel();
         self.updater.abort();
@@ -71,19 +78,29 @@ pub async fn start(
     model: Option<ModelIdentity>,
 ) -> Result<OpcUaServer, GatewayError> {
     let listen = cfg.listen_addr();
-    let listener = tokio::net::TcpListener::bind(listen)
+    // async-opcua owns its accept loop (no cap; an accept error is logged and retried at once, so
+    // EMFILE spins). It listens on a private loopback port instead, and the public address is a
+    // listener on the box's policy (`crate::listen`) that relays each admitted connection there.
+    let inner = tokio::net::TcpListener::bind((std::net::Ipv4Addr::LOCALHOST, 0))
+        .await
+        .map_err(|e| {
+            GatewayError::setup("opcua: binding its loopback relay port".to_string(), e)
+        })?;
+    let inner_addr = inner.local_addr()?;
+    let public = crate::listen::listen(listen, relay_spec(cfg, inner_addr))
         .await
         .map_err(|e| GatewayError::setup(format!("opcua.listen: binding {listen}"), e))?;
-    let bound = listener.local_addr()?;
+    let bound = public.addr;
     let host = cfg.host.clone().unwrap_or_else(|| bound.ip().to_string());
     let (server, handle) = builder(cfg, box_name, &host, bound.port())?
         .build()
         .map_err(|e| GatewayError::Refused(format!("opcua: {e}")))?;
     let server = tokio::spawn(async move {
-        if let Err(e) = server.run_with(listener).await {
+        if let Err(e) = server.run_with(inner).await {
             tracing::error!(%e, "the OPC UA server stopped");
         }
     });
+    advertise_public_port(&handle, inner_addr.port(), bound.port()).await;
     let nm = handle
         .node_managers()
         .get_of_type::<SimpleNodeManager>()
@@ -110,10 +127,50 @@ pub async fn start(
     Ok(OpcUaServer {
         endpoint,
         bound,
+        public,
         handle,
         server,
         updater,
     })
+}
+
+/// The public listener: each admitted connection is relayed byte for byte to `inner`.
+fn relay_spec(cfg: &OpcUaSection, inner: SocketAddr) -> crate::listen::Spec {
+    crate::listen::Spec {
+        name: "opcua",
+        policy: cfg.listen_policy.clone(),
+        refusal: b"",
+        handler: Arc::new(move |mut conn: crate::listen::Conn| {
+            Box::pin(async move {
+                let Ok(mut up) = tokio::net::TcpStream::connect(inner).await else {
+                    tracing::debug!(peer = %conn.peer, "opcua relay: loopback port refused");
+                    return;
+                };
+                let _ = up.set_nodelay(true);
+                let _ = conn.stream.get_ref().set_nodelay(true);
+                let _ = tokio::io::copy_bidirectional(&mut conn.stream, &mut up).await;
+            })
+        }),
+    }
+}
+
+/// async-opcua builds endpoint URLs from the port it listens on (the loopback relay port): once
+/// `run_with` has recorded that port, put the public one in its place. Bounded: 5 s.
+async fn advertise_public_port(handle: &ServerHandle, inner: u16, public: u16) {
+    use std::sync::atomic::Ordering;
+    let port = &handle.info().port;
+    for _ in 0..500 {
+        if port.load(Ordering::Relaxed) == inner {
+            port.store(public, Ordering::Relaxed);
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    tracing::warn!(
+        inner,
+        public,
+        "opcua: the server never recorded its port; endpoint URLs may name the relay port"
+    );
 }
 
 fn builder(
