@@ -104,9 +104,15 @@ fn tokio_modbus_still_panics_on_the_skipped_requests() {
     }
     // FC15 at 0: 9 coils in 1 data byte.
     let fc15 = decode(&[0x0F, 0, 0, 0, 9, 1, 0xFF]);
-    assert!(fc15.is_err(), "FC15 with 9 coils in 1 byte decodes without a panic now");
+    assert!(
+        fc15.is_err(),
+        "FC15 with 9 coils in 1 byte decodes without a panic now"
+    );
     // What the skip lets through still decodes (or is refused) without a panic.
-    for ok in [&[0x0F, 0, 0, 0, 8, 1, 0xFF][..], &[0x10, 0, 0, 0, 1, 2, 0, 7]] {
+    for ok in [
+        &[0x0F, 0, 0, 0, 8, 1, 0xFF][..],
+        &[0x10, 0, 0, 0, 1, 2, 0, 7],
+    ] {
         assert!(!fuzz_checks::net::panics_tokio_modbus(ok));
         assert!(Request::try_from(Bytes::copy_from_slice(ok)).is_ok());
     }

@@ -140,7 +140,10 @@ pub(crate) fn modbus_server(data: &[u8]) {
 /// one task per connection), on RTU the whole serving task. `tests/fuzz_regressions.rs` fails once
 /// a tokio-modbus release stops panicking on either, so the skip can go.
 pub(crate) fn panics_tokio_modbus(pdu: &[u8]) -> bool {
-    let be = |at: usize| pdu.get(at..at + 2).map(|b| u16::from_be_bytes([b[0], b[1]]));
+    let be = |at: usize| {
+        pdu.get(at..at + 2)
+            .map(|b| u16::from_be_bytes([b[0], b[1]]))
+    };
     match pdu.first() {
         Some(0x10) => be(3).is_some_and(|q| q >= 0x8000),
         Some(0x17) => be(7).is_some_and(|q| q >= 0x8000),
