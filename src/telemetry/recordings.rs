@@ -182,6 +182,15 @@ impl Collector {
             self.duplicates += 1;
             return Ok(Took::Duplicate);
         }
+        if a.complete {
+            // Beyond its last chunk: the `.part` file is renamed already (a new chunk 0 starts
+            // the name over, above).
+            self.refused += 1;
+            return Ok(Took::Refused(format!(
+                "{}: chunk {} after its last chunk",
+                c.name, c.index
+            )));
+        }
         if c.index > a.next {
             if a.early.len() >= MAX_HELD_CHUNKS {
                 self.refused += 1;
@@ -330,5 +339,23 @@ mod tests {
         // The held ones are still released by the chunk they waited for.
         assert_eq!(col.ingest(&c0.encode()).unwrap(), Took::Written(None));
         assert_eq!(col.refused, 2);
+        // A chunk after the last one (its part file renamed) is refused, not an I/O error.
+        let mut col = Collector::new(dir.path().join("after"));
+        let two = chunk_csv("g", "m", "r.csv", CSV, 3).unwrap();
+        col.ingest(&two[0].encode()).unwrap();
+        assert!(matches!(
+            col.ingest(&two[1].encode()).unwrap(),
+            Took::Written(Some(_))
+        ));
+        let late = Chunk {
+            index: 2,
+            ..two[1].clone()
+        };
+        assert!(matches!(
+            col.ingest(&late.encode()).unwrap(),
+            Took::Refused(_)
+        ));
+        // A chunk 0 still starts the name over.
+        assert_eq!(col.ingest(&two[0].encode()).unwrap(), Took::Written(None));
     }
 }
