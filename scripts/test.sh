@@ -3,7 +3,8 @@
 # 1. installs the third-party peers (scripts/setup-peers.sh: apt socat, mbpoll, can-utils…, never
 #    removing or downgrading a host package; QEMU and the guest kernel downloaded into a cache, not
 #    installed; LinuxCNC; a .venv with pinned python-can, pymodbus, pyserial) — quick when present;
-# 2. `cargo fmt --check` and `cargo clippy --workspace --all-targets -- -D warnings`;
+# 2. `cargo fmt --check` and `cargo clippy --workspace --all-targets -- -D warnings`; `cargo audit`
+#    (scripts/audit.sh) where an advisory database is on the machine, else one line saying it did not run;
 # 3. the whole cargo test suite with --no-fail-fast (every test binary runs even after a failure),
 #    including the real-peer integration tests and the QEMU guest that runs the socketcan backend
 #    against real kernel vcan;
@@ -28,6 +29,7 @@ trap 'rm -f "$log"' EXIT
 problems=()
 cargo fmt --all -- --check || problems+=("cargo fmt --check")
 cargo clippy --workspace --all-targets --locked -- -D warnings || problems+=("cargo clippy")
+bash scripts/audit.sh || problems+=("cargo audit")
 cargo test --workspace --locked --no-fail-fast 2>&1 | tee -a "$log"
 [ "${PIPESTATUS[0]}" -eq 0 ] || problems+=("cargo test --workspace")
 cargo test --locked -p retrocomp --features gpio --lib quadrature 2>&1 | tee -a "$log"

@@ -9,12 +9,14 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 use tokio::time::Instant;
-use tokio_modbus::client::{Context, Reader, Writer};
+use tokio_modbus::client::{Context, Writer};
 use tokio_modbus::prelude::Slave;
 
 use super::cycle::{Action, Outcome, Reply, WriteCycle};
 use super::map::{MapError, RegisterMap};
 use super::sink::SinkCore;
+use crate::bus::modbus::RegisterTable;
+use crate::bus::modbus::read::read_registers;
 use crate::models::Axis;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -237,7 +239,8 @@ impl OriginShiftClient {
                 if at > Instant::now() {
                     tokio::time::sleep_until(at).await;
                 }
-                tokio::time::timeout(timeout, ctx.read_holding_registers(*address, *count))
+                let read = read_registers(ctx, RegisterTable::Holding, *address, *count);
+                tokio::time::timeout(timeout, read)
                     .await
                     .map(|r| r.map(|r| r.map(|w| Reply::Read(w.into()))))
             }

@@ -140,8 +140,10 @@ impl FleetView {
             }
             _ => {
                 node.ndata += 1;
+                // seq comes off the wire: any u64, u64::MAX included (2^64 is a multiple of 256,
+                // so the wrapping sum is the right residue).
                 if let (Some(l), Some(s)) = (node.last_seq, p.seq)
-                    && s != (l + 1) % 256
+                    && s != l.wrapping_add(1) % 256
                 {
                     node.seq_gaps += 1;
                 }

@@ -50,6 +50,17 @@ pub fn valid_name(s: &str) -> bool {
             .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'))
 }
 
+/// A recording's file name: a [`valid_name`] that is not the `.part` name another recording is
+/// written under while incomplete (chunk 0 of `r` would truncate a received `r.part`).
+pub fn valid_recording_name(s: &str) -> bool {
+    valid_name(s) && !s.ends_with(".part")
+}
+
+/// Chunks a recording may have waiting for the gap before them. The shipper never drops a chunk
+/// and sends in order, so chunks arrive early only when reordered; without a bound, a peer sending
+/// far indices would make the collector hold them all in memory.
+pub const MAX_HELD_CHUNKS: usize = 1024;
+
 /// Cut a recording's CSV text into chunks of at most `rows_per_chunk` rows (≥ 1), each carrying
 /// the header. A recording without rows is one chunk with the header only.
 pub fn chunk_csv(
@@ -59,9 +70,9 @@ pub fn chunk_csv(
     csv: &str,
     rows_per_chunk: usize,
 ) -> Result<Vec<Chunk>, TelemetryError> {
-    if !valid_name(name) {
+    if !valid_recording_name(name) {
         return Err(TelemetryError::Invalid(format!(
-            "recording name {name:?}: use [A-Za-z0-9._-]"
+            "recording name {name:?}: use [A-Za-z0-9._-], not ending in .part"
         )));
     }
     if !(valid_name(group) && valid_name(edge_node)) {
@@ -157,7 +168,7 @@ impl Collector {
             self.refused += 1;
             return Ok(Took::Refused("not a recording chunk".into()));
         };
-        if !(valid_name(&c.group) && valid_name(&c.edge_node) && valid_name(&c.name)) {
+        if !(valid_name(&c.group) && valid_name(&c.edge_node) && valid_recording_name(&c.name)) {
             self.refused += 1;
             return Ok(Took::Refused(format!("bad names in {c:?}")));
         }
@@ -171,7 +182,23 @@ impl Collector {
             self.duplicates += 1;
             return Ok(Took::Duplicate);
         }
+        if a.complete {
+            // Beyond its last chunk: the `.part` file is renamed already (a new chunk 0 starts
+            // the name over, above).
+            self.refused += 1;
+            return Ok(Took::Refused(format!(
+                "{}: chunk {} after its last chunk",
+                c.name, c.index
+            )));
+        }
         if c.index > a.next {
+            if a.early.len() >= MAX_HELD_CHUNKS {
+                self.refused += 1;
+                return Ok(Took::Refused(format!(
+                    "{}: chunk {} while {MAX_HELD_CHUNKS} wait for chunk {}",
+                    c.name, c.index, a.next
+                )));
+            }
             a.early.insert(c.index, c);
             return Ok(Took::Held);
         }
@@ -278,5 +305,57 @@ mod tests {
             col.ingest(&evil.encode()).unwrap(),
             Took::Refused(_)
         ));
+    }
+
+    #[test]
+    fn a_part_name_and_chunks_held_beyond_the_bound_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut col = Collector::new(dir.path().to_path_buf());
+        // `r.part` is where `r` is written while incomplete: refused on both sides.
+        assert!(chunk_csv("g", "m", "r.part", CSV, 3).is_err());
+        let mut part = chunk_csv("g", "m", "r.csv", CSV, 9).unwrap().remove(0);
+        part.name = "r.csv.part".into();
+        assert!(matches!(
+            col.ingest(&part.encode()).unwrap(),
+            Took::Refused(_)
+        ));
+        let c0 = chunk_csv("g", "m", "r.csv", CSV, 1).unwrap().remove(0);
+        for i in 1..=MAX_HELD_CHUNKS as u64 {
+            let c = Chunk {
+                index: i,
+                last: false,
+                ..c0.clone()
+            };
+            assert_eq!(col.ingest(&c.encode()).unwrap(), Took::Held);
+        }
+        let far = Chunk {
+            index: u64::MAX,
+            ..c0.clone()
+        };
+        assert!(matches!(
+            col.ingest(&far.encode()).unwrap(),
+            Took::Refused(_)
+        ));
+        // The held ones are still released by the chunk they waited for.
+        assert_eq!(col.ingest(&c0.encode()).unwrap(), Took::Written(None));
+        assert_eq!(col.refused, 2);
+        // A chunk after the last one (its part file renamed) is refused, not an I/O error.
+        let mut col = Collector::new(dir.path().join("after"));
+        let two = chunk_csv("g", "m", "r.csv", CSV, 3).unwrap();
+        col.ingest(&two[0].encode()).unwrap();
+        assert!(matches!(
+            col.ingest(&two[1].encode()).unwrap(),
+            Took::Written(Some(_))
+        ));
+        let late = Chunk {
+            index: 2,
+            ..two[1].clone()
+        };
+        assert!(matches!(
+            col.ingest(&late.encode()).unwrap(),
+            Took::Refused(_)
+        ));
+        // A chunk 0 still starts the name over.
+        assert_eq!(col.ingest(&two[0].encode()).unwrap(), Took::Written(None));
     }
 }

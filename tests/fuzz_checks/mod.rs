@@ -2,8 +2,14 @@
 //! (`fuzz/fuzz_targets/*.rs` include this file) and the normal suite (`tests/fuzz_regressions.rs`
 //! runs every input kept in `tests/fuzz_corpus/<target>/` through the same function). Each takes
 //! raw bytes and panics only on a real fault: a parser panic, or a writer whose output does not read
-//! back. Errors for bad input are the expected outcome, not a failure.
+//! back. Errors for bad input are the expected outcome, not a failure. The targets fed from the
+//! network (Modbus server and client, Sparkplug, fleet host) are in `net.rs`.
 #![allow(dead_code)]
+
+pub(crate) mod net;
+pub(crate) use net::{
+    fleet_view, modbus_client_reply, modbus_server, recording_chunks, sparkplug_commands,
+};
 
 use std::collections::BTreeMap;
 use std::io::{Read, Write};
@@ -35,7 +41,7 @@ use retrocomp::recording::Recording;
 pub(crate) type Check = fn(&[u8]);
 
 /// Every target, by the name of its fuzz target and corpus folder.
-pub(crate) const TARGETS: [(&str, Check); 10] = [
+pub(crate) const TARGETS: [(&str, Check); 15] = [
     ("field_toml", field_toml),
     ("gateway_config", gateway_config),
     ("model_toml", model_toml),
@@ -46,6 +52,11 @@ pub(crate) const TARGETS: [(&str, Check); 10] = [
     ("circle_traces", circle_traces),
     ("plane_model", plane_model),
     ("http_request", http_request),
+    ("modbus_server", modbus_server),
+    ("modbus_client_reply", modbus_client_reply),
+    ("sparkplug_commands", sparkplug_commands),
+    ("fleet_view", fleet_view),
+    ("recording_chunks", recording_chunks),
 ];
 
 /// The bus layer's field TOML loader.
@@ -283,6 +294,21 @@ fn status_server() -> SocketAddr {
     })
 }
 
+/// `data` without the empty lines before a request line, which a server ignores (RFC 9112 §2.2;
+/// hyper's parser skips any run of `\r\n` and `\n`): only blank lines are not a request, and a
+/// server rightly leaves them unanswered.
+pub(crate) fn skip_empty_lines(mut data: &[u8]) -> &[u8] {
+    loop {
+        if let Some(rest) = data.strip_prefix(b"\r\n") {
+            data = rest;
+        } else if let Some(rest) = data.strip_prefix(b"\n") {
+            data = rest;
+        } else {
+            return data;
+        }
+    }
+}
+
 /// The status endpoint (src/gateway/http.rs) through the real server on an ephemeral loopback
 /// port: any bytes as a request give no answer (head never completed) or a well-formed HTTP/1.1
 /// answer with a known code and an exact Content-Length, and never take the server down (every
@@ -299,7 +325,7 @@ pub(crate) fn http_request(data: &[u8]) {
     }
     if resp.is_empty() {
         assert!(
-            !data.windows(4).any(|w| w == b"\r\n\r\n"),
+            !skip_empty_lines(data).windows(4).any(|w| w == b"\r\n\r\n"),
             "a complete request head got no answer"
         );
         return;

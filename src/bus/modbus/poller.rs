@@ -6,11 +6,11 @@
 //! are values (→ `DecodeError` samples); on RTU a silence of t3.5 is kept between frames (#180).
 
 use super::poll_core::{PollCore, PollCounters, ReadOutcome, rtu_silence_s};
-use super::regmap::{RegisterChannel, RegisterTable};
+use super::regmap::RegisterChannel;
 use crate::bus::{Backoff, Sample};
 use std::time::Duration;
 use tokio::time::Instant;
-use tokio_modbus::client::{Context, Reader};
+use tokio_modbus::client::Context;
 use tokio_modbus::prelude::{Slave, SlaveContext};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
@@ -203,12 +203,7 @@ impl ModbusPoller {
         }
         let blk = &self.core.plan[b];
         ctx.set_slave(Slave(self.cfg.unit_id));
-        let fut = async {
-            match blk.kind {
-                RegisterTable::Holding => ctx.read_holding_registers(blk.start, blk.count).await,
-                RegisterTable::Input => ctx.read_input_registers(blk.start, blk.count).await,
-            }
-        };
+        let fut = async { super::read::read_registers(ctx, blk.kind, blk.start, blk.count).await };
         let r = tokio::time::timeout(secs(self.cfg.timeout_s), fut).await;
         self.last_io = Some(Instant::now());
         match r {

@@ -1,0 +1,9 @@
+//! The fleet host's recording collector (chunks as JSON, written to a temporary directory).
+//! The check lives in tests/fuzz_checks/net.rs, shared with the regression suite
+//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/recording_chunks/ through it).
+#![no_main]
+
+#[path = "../../tests/fuzz_checks/mod.rs"]
+mod checks;
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| checks::recording_chunks(data));
