@@ -14,6 +14,8 @@
 #        tests/gateway_opcua.rs; paho-mqtt +
 #        mqtt-spb-wrapper, the Sparkplug B host of tests/telemetry_mqtt.rs; mosquitto is its broker,
 #        started by the test itself on a loopback port, never the system service)
+#   prometheus: promtool and a Prometheus server for tests/gateway_prometheus.rs (the test starts its
+#        own on a loopback port with its own data folder, never the system service)
 # Tests look for <repo>/.venv/bin/python and fail with "run scripts/setup-peers.sh" if it is missing.
 set -euo pipefail
 
@@ -32,6 +34,7 @@ APT_PACKAGES=(
   chromium
   chromium-driver
   mosquitto
+  prometheus
 )
 
 PIP_PACKAGES=(
