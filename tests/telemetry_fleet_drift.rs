@@ -277,6 +277,7 @@ fn snapshot(k: u64) -> retrocomp::gateway::status::StatusSnapshot {
         sources: vec![],
         model: None,
         telemetry: None,
+        timing: Default::default(),
     }
 }
 

@@ -52,6 +52,7 @@ fn snapshot(k: u64) -> StatusSnapshot {
         sources: vec![],
         model: None,
         telemetry: None,
+        timing: Default::default(),
     }
 }
 

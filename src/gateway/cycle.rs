@@ -91,6 +91,8 @@ pub struct CycleLoop {
     dropped: bool,
     partial: bool,
     report: CycleReport,
+    /// Compute-time histogram and late cycles, copied into every snapshot (`/metrics`).
+    timing: crate::status::CycleTiming,
 }
 
 // By hand: the model is a trait object.
@@ -119,6 +121,7 @@ impl CycleLoop {
             dropped: false,
             partial: false,
             report: CycleReport::default(),
+            timing: Default::default(),
         }
     }
 
@@ -152,7 +155,9 @@ impl CycleLoop {
         }
         let t0 = Instant::now();
         let outs = e.cycle_in_place(now_s, self.model.as_mut());
-        let took_ns = t0.elapsed().as_nanos() as u64;
+        let took = t0.elapsed();
+        self.timing.observe(took.as_secs_f64());
+        let took_ns = u64::try_from(took.as_nanos()).unwrap_or(u64::MAX);
         if self.compute_ns.len() < COMPUTE_WINDOW {
             self.compute_ns.push(took_ns);
         } else {
@@ -196,6 +201,7 @@ impl CycleLoop {
     pub fn publish(&mut self, now_s: f64) {
         let mut snap = self.engine.snapshot();
         snap.model.clone_from(&self.model_identity);
+        snap.timing = self.timing;
         if let Some(t) = self.io.telemetry.as_mut() {
             t.annotate(&mut snap);
         }
@@ -218,6 +224,7 @@ impl CycleLoop {
             let late_s = (now - due).as_secs_f64();
             if late_s > period_s {
                 self.report.late_cycles += 1;
+                self.timing.late_cycles += 1;
                 self.report.max_late_ms = self.report.max_late_ms.max(late_s * 1e3);
             }
             self.step(now.as_secs_f64());

@@ -594,6 +594,7 @@ impl Engine {
             sources: Vec::new(),
             model: None,
             telemetry: None,
+            timing: Default::default(),
         }
     }
 

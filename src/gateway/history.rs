@@ -375,6 +375,7 @@ mod tests {
             sources: vec![],
             model: None,
             telemetry: None,
+            timing: Default::default(),
         }
     }
 

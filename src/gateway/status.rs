@@ -1,12 +1,19 @@
 //! The status snapshot's Prometheus text form (`/metrics`). The snapshot itself (built by the cycle
 //! at ≤ 10 Hz, see `cycle.rs`) lives below the gateway in `crate::status`, re-exported here, so
 //! `telemetry` reads it without importing the gateway.
-//! Units: µm for corrections, mm for positions, channel units for channel values.
+//! Prometheus conventions: base units (lengths in metres, times in seconds, temperatures in °C,
+//! forces in N, speeds in Hz), one metric per quantity, `_total` on counters only
+//! (`promtool check metrics` passes on it: `tests/gateway_prometheus.rs`). Internally the box keeps
+//! µm and mm; the factors are applied here, once.
 
 use std::fmt::Write as _;
 
 use crate::bus::Health;
-use crate::status::Mode;
+use crate::status::{CYCLE_BUCKETS_S, CycleTiming, Mode};
+
+/// µm per m: values are divided by it (a division is exact where the decimal value is, e.g.
+/// −12.5 µm → −1.25e-5 m; a product with 1e-6 is not).
+const UM_PER_M: f64 = 1e6;
 
 pub use crate::status::{
     AxisStatus, CanBusStatus, ModbusCounters, ModelIdentity, SinkStatus, SourceStatus,
@@ -74,17 +81,17 @@ fn prometheus_sink(s: &mut String, k: &SinkStatus) {
     );
     family(
         s,
-        "retrocomp_sink_held_um",
+        "retrocomp_sink_held_meters",
         "gauge",
-        "Correction the controller's registers hold per axis (read back), um.",
+        "Correction the controller's registers hold per axis (read back), m.",
     );
     for (axis, v) in &k.held_um {
         let _ = writeln!(
             s,
-            "retrocomp_sink_held_um{{sink=\"{}\",axis=\"{}\"}} {}",
+            "retrocomp_sink_held_meters{{sink=\"{}\",axis=\"{}\"}} {}",
             esc(&k.kind),
             esc(axis),
-            num(*v)
+            num(*v / UM_PER_M)
         );
     }
     family(
@@ -99,6 +106,123 @@ fn prometheus_sink(s: &mut String, k: &SinkStatus) {
             "retrocomp_sink_fault_active{{source=\"{}\",kind=\"{kind:?}\"}} 1",
             esc(source)
         );
+    }
+}
+
+/// `retrocomp_cycle_duration_seconds` (histogram of the engine's compute time per cycle) and
+/// `retrocomp_cycles_late_total`.
+fn prometheus_timing(s: &mut String, t: &CycleTiming) {
+    family(
+        s,
+        "retrocomp_cycle_duration_seconds",
+        "histogram",
+        "Engine compute time per cycle, s.",
+    );
+    let mut cumulative = 0;
+    for (bound, n) in CYCLE_BUCKETS_S.iter().zip(&t.compute_buckets) {
+        cumulative += n;
+        let _ = writeln!(
+            s,
+            "retrocomp_cycle_duration_seconds_bucket{{le=\"{bound:e}\"}} {cumulative}"
+        );
+    }
+    let count = t.cycles();
+    let _ = writeln!(
+        s,
+        "retrocomp_cycle_duration_seconds_bucket{{le=\"+Inf\"}} {count}"
+    );
+    let _ = writeln!(
+        s,
+        "retrocomp_cycle_duration_seconds_sum {}",
+        num(t.compute_sum_s)
+    );
+    let _ = writeln!(s, "retrocomp_cycle_duration_seconds_count {count}");
+    family(
+        s,
+        "retrocomp_cycles_late_total",
+        "counter",
+        "Cycles that started more than one period after they were due.",
+    );
+    let _ = writeln!(s, "retrocomp_cycles_late_total {}", t.late_cycles);
+}
+
+/// What a channel measures, from its name's unit suffix (`T_<s>_C`, `F_<f>_N`, `<a>_mm`,
+/// `strain_<g>_ue`, `rpm`): one Prometheus metric per quantity, in base units.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum ChannelQuantity {
+    Temperature,
+    Force,
+    Position,
+    Displacement,
+    Strain,
+    SpindleSpeed,
+    Other,
+}
+
+impl ChannelQuantity {
+    const ALL: [Self; 7] = [
+        Self::Temperature,
+        Self::Force,
+        Self::Position,
+        Self::Displacement,
+        Self::Strain,
+        Self::SpindleSpeed,
+        Self::Other,
+    ];
+
+    fn of(name: &str) -> Self {
+        if name == "rpm" {
+            return Self::SpindleSpeed;
+        }
+        match name.rsplit_once('_').map(|(_, suffix)| suffix) {
+            Some("C") => Self::Temperature,
+            Some("N") => Self::Force,
+            Some("mm") => Self::Position,
+            Some("um") => Self::Displacement,
+            Some("ue") => Self::Strain,
+            _ => Self::Other,
+        }
+    }
+
+    /// (metric, help, channel units per base unit: the value is divided by it).
+    fn metric(self) -> (&'static str, &'static str, f64) {
+        match self {
+            Self::Temperature => (
+                "retrocomp_channel_temperature_celsius",
+                "Last good (or substituted) temperature per channel, degrees Celsius.",
+                1.0,
+            ),
+            Self::Force => (
+                "retrocomp_channel_force_newtons",
+                "Last good (or substituted) force per channel, N.",
+                1.0,
+            ),
+            Self::Position => (
+                "retrocomp_channel_position_meters",
+                "Last good axis position per channel, m.",
+                1e3,
+            ),
+            Self::Displacement => (
+                "retrocomp_channel_displacement_meters",
+                "Last good displacement per channel, m.",
+                UM_PER_M,
+            ),
+            Self::Strain => (
+                "retrocomp_channel_strain_ratio",
+                "Last good strain per channel, as a ratio (1 = 1 m/m).",
+                1e6,
+            ),
+            Self::SpindleSpeed => (
+                "retrocomp_channel_rotation_hertz",
+                "Last good spindle speed, revolutions per second.",
+                60.0,
+            ),
+            Self::Other => (
+                "retrocomp_channel_other_value",
+                "Last good value of a channel without a known unit suffix, in its own unit.",
+                1.0,
+            ),
+        }
     }
 }
 
@@ -120,6 +244,18 @@ impl StatusSnapshot {
             "1 when compensation is enabled.",
         );
         let _ = writeln!(s, "retrocomp_enabled {}", u8::from(self.enabled));
+        family(
+            &mut s,
+            "retrocomp_build_info",
+            "gauge",
+            "The running build (version label); always 1.",
+        );
+        let _ = writeln!(
+            s,
+            "retrocomp_build_info{{version=\"{}\"}} 1",
+            env!("CARGO_PKG_VERSION")
+        );
+        prometheus_timing(&mut s, &self.timing);
         self.prometheus_model(&mut s);
         self.prometheus_corrections(&mut s);
         self.prometheus_axis_safety(&mut s);
@@ -150,7 +286,7 @@ impl StatusSnapshot {
             s,
             "retrocomp_model_info",
             "gauge",
-            "The model in use (name, sha256 of its canonical TOML); loaded_unix_s below.",
+            "The model in use (name, sha256 of its canonical TOML); always 1.",
         );
         let (name, sha) = (esc(&m.name), esc(&m.sha256));
         let _ = writeln!(
@@ -159,13 +295,13 @@ impl StatusSnapshot {
         );
         family(
             s,
-            "retrocomp_model_loaded_unix_seconds",
+            "retrocomp_model_loaded_timestamp_seconds",
             "gauge",
-            "When the model in use was loaded (Unix time), s.",
+            "When the model in use was loaded, Unix time in s.",
         );
         let _ = writeln!(
             s,
-            "retrocomp_model_loaded_unix_seconds {}",
+            "retrocomp_model_loaded_timestamp_seconds {}",
             num(m.loaded_unix_s)
         );
     }
@@ -175,48 +311,48 @@ impl StatusSnapshot {
     fn prometheus_corrections(&self, s: &mut String) {
         family(
             s,
-            "retrocomp_correction_applied_um",
+            "retrocomp_correction_applied_meters",
             "gauge",
-            "Correction applied per axis after safety, um.",
+            "Correction applied per axis after safety, m.",
         );
         for a in &self.axes {
             let _ = writeln!(
                 s,
-                "retrocomp_correction_applied_um{{axis=\"{}\"}} {}",
+                "retrocomp_correction_applied_meters{{axis=\"{}\"}} {}",
                 esc(&a.axis),
-                num(a.applied_um)
+                num(a.applied_um / UM_PER_M)
             );
         }
         family(
             s,
-            "retrocomp_correction_target_um",
+            "retrocomp_correction_target_meters",
             "gauge",
-            "Correction requested by the model per axis, um.",
+            "Correction requested by the model per axis, m.",
         );
         for a in &self.axes {
             if let Some(t) = a.target_um {
                 let _ = writeln!(
                     s,
-                    "retrocomp_correction_target_um{{axis=\"{}\"}} {}",
+                    "retrocomp_correction_target_meters{{axis=\"{}\"}} {}",
                     esc(&a.axis),
-                    num(t)
+                    num(t / UM_PER_M)
                 );
             }
         }
         family(
             s,
-            "retrocomp_correction_term_um",
+            "retrocomp_correction_term_meters",
             "gauge",
-            "Correction per axis and model term, um.",
+            "Correction per axis and model term, m.",
         );
         for a in &self.axes {
             for (term, v) in &a.terms_um {
                 let _ = writeln!(
                     s,
-                    "retrocomp_correction_term_um{{axis=\"{}\",term=\"{}\"}} {}",
+                    "retrocomp_correction_term_meters{{axis=\"{}\",term=\"{}\"}} {}",
                     esc(&a.axis),
                     esc(term),
-                    num(*v)
+                    num(*v / UM_PER_M)
                 );
             }
         }
@@ -298,19 +434,24 @@ impl StatusSnapshot {
                 u8::from(c.substituted)
             );
         }
-        family(
-            s,
-            "retrocomp_channel_value",
-            "gauge",
-            "Last good (or substituted) channel value, channel units.",
-        );
-        for (name, c) in &self.channels {
-            if let Some(v) = c.value {
+        for q in ChannelQuantity::ALL {
+            let mut members = self
+                .channels
+                .iter()
+                .filter(|(name, _)| ChannelQuantity::of(name) == q)
+                .filter_map(|(name, c)| Some((name, c.value?)))
+                .peekable();
+            if members.peek().is_none() {
+                continue;
+            }
+            let (metric, help, divisor) = q.metric();
+            family(s, metric, "gauge", help);
+            for (name, v) in members {
                 let _ = writeln!(
                     s,
-                    "retrocomp_channel_value{{channel=\"{}\"}} {}",
+                    "{metric}{{channel=\"{}\"}} {}",
                     esc(name),
-                    num(v)
+                    num(v / divisor)
                 );
             }
         }
@@ -398,20 +539,20 @@ impl StatusSnapshot {
         });
         family(
             s,
-            "retrocomp_can_tx_error_count",
+            "retrocomp_can_transmit_error_counter",
             "gauge",
-            "CAN transmit error counter (TEC).",
+            "The CAN controller's transmit error counter (TEC, 0-255).",
         );
-        self.each_source(s, "retrocomp_can_tx_error_count", &|x| {
+        self.each_source(s, "retrocomp_can_transmit_error_counter", &|x| {
             x.can.and_then(|c| c.tx_error_count).map(|v| v.to_string())
         });
         family(
             s,
-            "retrocomp_can_rx_error_count",
+            "retrocomp_can_receive_error_counter",
             "gauge",
-            "CAN receive error counter (REC).",
+            "The CAN controller's receive error counter (REC, 0-255).",
         );
-        self.each_source(s, "retrocomp_can_rx_error_count", &|x| {
+        self.each_source(s, "retrocomp_can_receive_error_counter", &|x| {
             x.can.and_then(|c| c.rx_error_count).map(|v| v.to_string())
         });
     }
@@ -566,5 +707,136 @@ fn render_sink(s: &mut String, k: &SinkStatus) {
     );
     for (source, kind, since) in &k.faults {
         let _ = writeln!(s, "  fault {source} {kind:?} since {since:.3} s");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One X axis, nothing else.
+    fn snapshot() -> StatusSnapshot {
+        StatusSnapshot {
+            t_s: 1.0,
+            cycles: 10,
+            enabled: true,
+            axes: vec![AxisStatus {
+                axis: "x".into(),
+                position_mm: Some(10.0),
+                direction: None,
+                weight_forward: 1.0,
+                target_um: None,
+                applied_um: 0.0,
+                mode: Mode::Tracking,
+                terms_um: Default::default(),
+                clamp_hits: 0,
+                cap_hits: 0,
+            }],
+            channels: Default::default(),
+            active_faults: vec![],
+            model_error: None,
+            sink: None,
+            sources: vec![],
+            model: None,
+            telemetry: None,
+            timing: Default::default(),
+        }
+    }
+
+    fn line<'a>(text: &'a str, prefix: &str) -> &'a str {
+        text.lines()
+            .find(|l| l.starts_with(prefix))
+            .unwrap_or_else(|| panic!("no `{prefix}` line in:\n{text}"))
+    }
+
+    #[test]
+    fn corrections_are_in_metres_and_channels_in_their_own_base_unit() {
+        let mut snap = snapshot();
+        snap.axes[0].applied_um = -12.5;
+        snap.axes[0].target_um = Some(-12.5);
+        snap.axes[0].terms_um.insert("EXX".into(), -12.5);
+        let ch = |v| crate::status::ChannelStatus {
+            value: Some(v),
+            ..crate::status::ChannelStatus::unknown()
+        };
+        snap.channels.insert("T_spindle_C".into(), ch(24.5));
+        snap.channels.insert("x_mm".into(), ch(250.0));
+        snap.channels.insert("rpm".into(), ch(3000.0));
+        snap.channels.insert("strain_col_ue".into(), ch(40.0));
+        let text = snap.prometheus();
+        let value = |prefix| -> f64 {
+            line(&text, prefix)
+                .rsplit(' ')
+                .next()
+                .unwrap()
+                .parse()
+                .unwrap()
+        };
+        assert_eq!(
+            value("retrocomp_correction_applied_meters{axis=\"x\"}"),
+            -12.5e-6
+        );
+        assert_eq!(
+            value("retrocomp_correction_target_meters{axis=\"x\"}"),
+            -12.5e-6
+        );
+        assert_eq!(
+            value("retrocomp_correction_term_meters{axis=\"x\",term=\"EXX\"}"),
+            -12.5e-6
+        );
+        assert_eq!(
+            value("retrocomp_channel_temperature_celsius{channel=\"T_spindle_C\"}"),
+            24.5
+        );
+        assert_eq!(
+            value("retrocomp_channel_position_meters{channel=\"x_mm\"}"),
+            0.25
+        );
+        assert_eq!(
+            value("retrocomp_channel_rotation_hertz{channel=\"rpm\"}"),
+            50.0
+        );
+        assert!(
+            (value("retrocomp_channel_strain_ratio{channel=\"strain_col_ue\"}") - 40e-6).abs()
+                < 1e-18
+        );
+        assert!(!text.contains("_um{") && !text.contains("_um "), "{text}");
+    }
+
+    #[test]
+    fn the_cycle_histogram_is_cumulative_and_counts_every_cycle() {
+        let mut snap = snapshot();
+        for took_s in [0.5e-6, 0.7e-6, 3e-6, 2e-3] {
+            snap.timing.observe(took_s);
+        }
+        snap.timing.late_cycles = 7;
+        let text = snap.prometheus();
+        let value = |prefix| -> u64 {
+            line(&text, prefix)
+                .rsplit(' ')
+                .next()
+                .unwrap()
+                .parse()
+                .unwrap()
+        };
+        assert_eq!(
+            value("retrocomp_cycle_duration_seconds_bucket{le=\"1e-6\"}"),
+            2
+        );
+        assert_eq!(
+            value("retrocomp_cycle_duration_seconds_bucket{le=\"5e-6\"}"),
+            3
+        );
+        assert_eq!(
+            value("retrocomp_cycle_duration_seconds_bucket{le=\"1e-3\"}"),
+            3
+        );
+        assert_eq!(
+            value("retrocomp_cycle_duration_seconds_bucket{le=\"+Inf\"}"),
+            4
+        );
+        assert_eq!(value("retrocomp_cycle_duration_seconds_count"), 4);
+        assert_eq!(value("retrocomp_cycles_late_total"), 7);
+        assert!(line(&text, "retrocomp_build_info{").ends_with("} 1"));
     }
 }

@@ -280,6 +280,7 @@ fn status_server() -> SocketAddr {
                     sources: vec![],
                     model: None,
                     telemetry: None,
+                    timing: Default::default(),
                 };
                 let (keep, wrx) = tokio::sync::watch::channel(Some(Arc::new(snap)));
                 let (addr, task) = serve_status("127.0.0.1:0".parse().unwrap(), wrx)

@@ -263,6 +263,7 @@ mod tests {
             sources: vec![],
             model: None,
             telemetry: None,
+            timing: Default::default(),
         }
     }
 
