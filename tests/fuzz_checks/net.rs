@@ -12,7 +12,8 @@ use retrocomp::bus::modbus::read::read_registers;
 use retrocomp::bus::modbus::regmap::decode_raw;
 use retrocomp::bus::modbus::server::RegisterService;
 use retrocomp::bus::modbus::{DataType, WordOrder};
-use retrocomp::origin_shift::server_core::{Guard, ServerCore, ServerMap};
+use retrocomp::guard::AxisLimits;
+use retrocomp::origin_shift::server_core::{ServerCore, ServerMap};
 use retrocomp::telemetry::fleet::FleetView;
 use retrocomp::telemetry::recordings::{Collector, Took};
 use retrocomp::telemetry::sparkplug::{self, EdgeNode, Payload};
@@ -63,12 +64,14 @@ pub(crate) fn modbus_server(data: &[u8]) {
         bank.allow_writes(a, n);
     }
     let may_write = |a: u16| writable.iter().any(|&(s, n)| a >= s && a - s < n);
-    let guard = Guard {
-        max_correction_um: 50.0,
-        max_change_um_per_update: 1.0,
-    };
-    let guards: Vec<(String, Guard)> = ["x", "y", "z"].map(|a| (a.to_string(), guard)).into();
-    let mut core = ServerCore::new(map, &guards);
+    let limits: Vec<AxisLimits> = ["x", "y", "z"]
+        .map(|a| AxisLimits {
+            axis: a.to_string(),
+            max_correction_um: 50.0,
+            max_change_um_per_write: 1.0,
+        })
+        .into();
+    let mut core = ServerCore::new(map, &limits);
     let service = RegisterService {
         bank: bank.clone(),
         slave: None,
