@@ -100,7 +100,10 @@ fn config(modbus_port: u16, status_port: u16) -> String {
             "path = \"../../field/vmc-geometry.toml\"",
             &format!("path = \"{root}/deploy/field/vmc-geometry.toml\""),
         );
-    assert!(cfg.contains(&format!("{root}/deploy/field/vmc-geometry.toml")), "{cfg}");
+    assert!(
+        cfg.contains(&format!("{root}/deploy/field/vmc-geometry.toml")),
+        "{cfg}"
+    );
     assert!(cfg.contains(&format!("127.0.0.1:{modbus_port}")), "{cfg}");
     cfg
 }
