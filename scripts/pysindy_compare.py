@@ -9,7 +9,7 @@ Usage (a separate, optional venv: not part of CI):
     .venv-bench/bin/python scripts/pysindy_compare.py --cases /tmp/cases [--retrocomp target/release/retrocomp]
 
 What PySINDy gets: the SAME residual r = e − sim per error signal and an equivalent candidate
-library built from the same context features (DESIGN §5 effect ids; nonlinear parameters on fixed
+library built from the same context features (docs/diagnose-json.md effect ids; nonlinear parameters on fixed
 grids — thermal τ, cyclic period, reversal-spike decay — because SINDy is linear in its library;
 `rpm` enters as a heat driver through the same τ grid as the temperatures, which retrocomp's
 library did not have when this was written), columns standardised, fitted with PySINDy's STLSQ

@@ -49,7 +49,7 @@ enum Command {
     Fit(cli::fit::Args),
     /// Identify the 21 geometric components from hole plates / static ball bars (Spaan Ch3).
     Identify(cli::identify::Args),
-    /// Find where simulation and recording disagree, name the missing physics, fit it (DESIGN §5).
+    /// Find where simulation and recording disagree, name the missing physics, fit it (docs/diagnose-json.md).
     Diagnose(cli::diagnose::DiagnoseArgs),
     /// Run diagnose over `hil-sim gen-cases` output and score it against the truth manifests.
     DiagnoseBench(cli::diagnose::BenchArgs),

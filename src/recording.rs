@@ -1,4 +1,4 @@
-//! Reader and writer of the recording CSV (DESIGN §4): one header row, one sample per row, every column
+//! Reader and writer of the recording CSV (docs/recording-csv.md): one header row, one sample per row, every column
 //! numeric, the unit in the column name (`t_s`, `x_mm`, `ex_um`, `sim_ex_um`, `T_<name>_C`, `rpm`,
 //! `F_<name>_N`, `strain_<name>_ue`, `tool_mm`, `run`). Errors are actual − nominal in µm.
 //!
@@ -306,7 +306,7 @@ impl Recording {
             .cloned()
             .collect()
     }
-    /// Columns with no role in DESIGN §4: candidate context signals (possibly decoys).
+    /// Columns with no role in docs/recording-csv.md: candidate context signals (possibly decoys).
     pub fn other_channels(&self) -> Vec<String> {
         let known = self
             .temperature_channels()
@@ -320,7 +320,7 @@ impl Recording {
             .collect()
     }
 
-    /// Write the whole recording as DESIGN §4 CSV.
+    /// Write the whole recording as docs/recording-csv.md CSV.
     pub fn write_csv<W: Write>(&self, w: W) -> Result<(), RecordingError> {
         let names: Vec<&str> = self.names.iter().map(String::as_str).collect();
         let mut wr = RecordingWriter::new(w, &names)?;
@@ -335,7 +335,7 @@ impl Recording {
     }
 }
 
-/// Fixed roles of DESIGN §4 (not temperatures/forces, which are matched by prefix/suffix).
+/// Fixed roles of docs/recording-csv.md (not temperatures/forces, which are matched by prefix/suffix).
 fn column_role(name: &str) -> Option<&'static str> {
     match name {
         "t_s" => Some("time"),

@@ -1,7 +1,7 @@
 //! Asad Ullah (2013) fixtures: regenerate Table 6.3 (compensated diagonal program values) from the
 //! Studer S-36 model built from Tables 6.1/6.2 and Szx (`deploy/examples/studer-s36*.toml`).
 //!
-//! Table 6.3 (thesis p. 6-x, reproduced in shared/notes/asadullah.md §3.3): columns nominal Z,
+//! Table 6.3 (thesis, chapter 6): columns nominal Z,
 //! nominal X Ø, then Geo F Z, Geo F X, Geo R Z, Geo R X, Pos F Z, Pos F X, Pos R Z, Pos R X (mm).
 //! Programmed value = nominal − error; X is programmed in diameter, so X_Ø = X_Ø,nom − 2·ex.
 

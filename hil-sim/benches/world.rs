@@ -2,7 +2,7 @@
 //! with 3 nodes and 3 sensors, cutting force, noise on (built-in geometry, then the project's
 //! volumetric model). Real-time factor = 10 s / measured time. `program_to_end_recorded` is
 //! `hil-sim run`'s loop: the same world run to the program's end with every sample written as a
-//! recording row (DESIGN §4 CSV) into a sink; `program_to_end` is the same without the recording, so
+//! recording row (docs/recording-csv.md CSV) into a sink; `program_to_end` is the same without the recording, so
 //! the difference is the writer's cost.
 //! Run: `cargo bench -p hil-sim --bench world`.
 

@@ -1,5 +1,5 @@
 //! The JSON manifest of hidden truth written next to every recording: which effects the true machine
-//! has, named with the effect ids of DESIGN §5 and their parameters in that table's units and sign
+//! has, named with the effect ids of docs/diagnose-json.md and their parameters in that table's units and sign
 //! conventions, plus the raw config so nothing is lost in translation.
 
 use crate::config::SimConfig;

@@ -1,4 +1,4 @@
-//! Recording writer: the CSV of DESIGN §4 (one row per sample) and the JSON manifest of hidden truth.
+//! Recording writer: the CSV of docs/recording-csv.md (one row per sample) and the JSON manifest of hidden truth.
 //!
 //! Columns: `t_s, x_mm, y_mm, z_mm, ex_um, ey_um, ez_um, sim_ex_um, sim_ey_um, sim_ez_um`, then
 //! `T_<name>_C…`, `rpm`, `F_<name>_N`, `strain_<name>_ue…`, `tool_mm`, optional `run` and

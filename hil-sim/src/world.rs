@@ -480,7 +480,7 @@ impl World {
         Ok(())
     }
 
-    /// Manifest of the hidden truth: effect ids and parameters in DESIGN §5 conventions, plus the raw
+    /// Manifest of the hidden truth: effect ids and parameters in docs/diagnose-json.md conventions, plus the raw
     /// config of every hidden effect.
     pub fn manifest(&self) -> serde_json::Value {
         crate::manifest::build(&self.cfg, &*self.truth)

@@ -39,7 +39,7 @@ fn generator_is_deterministic_and_covers_every_effect_id() {
         .filter(|&i| generate_case(1, i).1.hidden.is_empty())
         .count();
     assert_eq!(nulls, 30);
-    // Decoys and the DESIGN §4 columns are present.
+    // Decoys and the docs/recording-csv.md columns are present.
     for col in [
         "t_s",
         "x_mm",

@@ -1,5 +1,5 @@
 //! `hil-sim gen-cases --seed N --count K --out DIR`: writes one recording + one manifest per case;
-//! every recording reads back strictly (DESIGN §4) and every manifest parses with the truth types.
+//! every recording reads back strictly (docs/recording-csv.md) and every manifest parses with the truth types.
 
 use std::process::Command;
 

@@ -1,6 +1,6 @@
 //! Item 2 (sensor faults on demand) and item 6 (manifest): each fault kind shows up where a consumer
 //! sees it — recording cells, Modbus PT100 words, CAN silence — only inside its window; the manifest
-//! names the hidden effects with DESIGN §5 ids and parameters.
+//! names the hidden effects with docs/diagnose-json.md ids and parameters.
 
 mod sim_common;
 use embedded_can::Frame as _;

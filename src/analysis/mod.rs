@@ -1,7 +1,7 @@
 //! Offline tools of the compensation engineer: ISO 230-2 positioning analysis, laser-data import,
 //! circular (ballbar) test analysis, model fitting, controller-table export and NC-program rewriting.
 //!
-//! Conventions used throughout this module tree (DESIGN §3):
+//! Conventions used throughout this module tree (docs/model.md, Conventions):
 //! - positions in mm (`_mm`), errors in µm (`_um`), angles in µrad (`_urad`);
 //! - **error = actual − nominal** (ISO 230-2); **correction = −error**;
 //! - "forward" / "up" (`+`) = approach in the positive axis direction, "reverse" / "down" (`-`) the

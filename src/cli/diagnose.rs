@@ -10,7 +10,7 @@ use retrocomp::recording::{BadRow, Recording};
 
 #[derive(clap::Args, Debug)]
 pub(crate) struct DiagnoseArgs {
-    /// Recording CSV (DESIGN §4).
+    /// Recording CSV (docs/recording-csv.md).
     #[arg(long)]
     pub recording: PathBuf,
     /// Machine model TOML to evaluate as the simulation (instead of the `sim_e*_um` columns).
@@ -20,7 +20,7 @@ pub(crate) struct DiagnoseArgs {
     /// found_terms.toml and SVG plots.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Print the DESIGN §5 JSON object instead of the text report.
+    /// Print the docs/diagnose-json.md JSON object instead of the text report.
     #[arg(long)]
     pub json: bool,
     /// Keep going past bad rows (each listed on stderr, and under `skipped_rows` in the JSON and
@@ -59,7 +59,7 @@ pub(crate) fn read_recording(
 }
 
 /// The skipped rows as a JSON list (`[{"line", "column", "reason"}]`), the `skipped_rows` key that
-/// `--skip-bad-rows` adds to the JSON object (DESIGN §5's keys are unchanged).
+/// `--skip-bad-rows` adds to the JSON object (docs/diagnose-json.md's keys are unchanged).
 pub(crate) fn skipped_rows_json(bad: &[BadRow]) -> serde_json::Value {
     bad.iter()
         .map(|b| serde_json::json!({ "line": b.line, "column": b.column, "reason": b.reason }))

@@ -133,7 +133,7 @@ pub(crate) fn sections(d: &Diagnosis) -> anyhow::Result<Vec<Section>> {
         Section {
             heading: "What was assumed".into(),
             blocks: vec![Block::List(vec![
-                "residual = measured − simulated error, µm (DESIGN §4 recording)".into(),
+                "residual = measured − simulated error, µm (docs/recording-csv.md recording)".into(),
                 "default selection options (significance, held-out blocks) of `diagnose`".into(),
             ])],
         },

@@ -1,4 +1,4 @@
-//! Tool-tip error statistics of one demo run, from a hil-sim recording (DESIGN §4 columns `t_s`,
+//! Tool-tip error statistics of one demo run, from a hil-sim recording (docs/recording-csv.md columns `t_s`,
 //! `ex_um`, `ey_um`, `ez_um`). Sans-IO: takes the CSV text. Error = actual − nominal, µm; "max" is
 //! the largest |error|, "volumetric" the largest Euclidean length of (ex, ey, ez) over the run.
 

@@ -1,4 +1,4 @@
-//! The candidate library: for one error signal (axis `a`), every effect id of DESIGN §5 that the
+//! The candidate library: for one error signal (axis `a`), every effect id of docs/diagnose-json.md that the
 //! recording's channels allow, as regressor columns whose least-squares coefficients ARE the effect's
 //! linear parameters in contract units (µm per column unit). Nonlinear parameters (τ, period, decay
 //! length) are a scalar `theta` searched on `grid` (profile) and then refined.

@@ -1,15 +1,15 @@
-//! The effect library of DESIGN §5: one forward model per effect id, shared by `diagnose` (as its
+//! The effect library of docs/diagnose-json.md: one forward model per effect id, shared by `diagnose` (as its
 //! candidate terms) and by `hil-sim gen-cases` (as the hidden physics of its cases).
 //!
 //! Every model returns its contribution to ONE error signal (`e<axis>_um`, actual − nominal, µm) per
 //! sample of a [`Context`]. `axis` is the axis of that signal; "own position" is that axis' position.
-//! Parameter names and units are those of DESIGN §5 and are the serde names (the JSON contract).
+//! Parameter names and units are those of docs/diagnose-json.md and are the serde names (the JSON contract).
 
 use serde::{Deserialize, Serialize};
 
 use super::features::{Context, lowpass};
 
-/// Effect ids of DESIGN §5, in the contract's order.
+/// Effect ids of docs/diagnose-json.md, in the contract's order.
 pub const EFFECT_IDS: [&str; 14] = [
     "scale_error",
     "backlash",

@@ -3,7 +3,7 @@
 //! distance travelled since the last reversal (mm), temperatures and their first-order low-pass over
 //! any τ (°C), force/strain channels, spindle speed, tool length (mm), time (s) and `run` blocks.
 //!
-//! Motion features come from the commanded positions (`<a>_mm`, DESIGN §4): direction is latched by
+//! Motion features come from the commanded positions (`<a>_mm`, docs/recording-csv.md): direction is latched by
 //! the definition shared with the gateway ([`crate::approach`], deadband
 //! [`DIRECTION_DEADBAND_MM`]), so dwells keep the direction of their approach, as in ISO 230-2
 //! step-and-dwell runs; velocity is zero at every standstill row (see [`velocity`]).
@@ -88,7 +88,7 @@ pub struct Context {
     pub tool_mm: Option<Arc<[f64]>>,
     /// Block id per sample (the `run` column, else contiguous time blocks; see [`Context::blocks`]).
     pub run: Option<Vec<i64>>,
-    /// Columns with no DESIGN §4 role (possible decoys).
+    /// Columns with no docs/recording-csv.md role (possible decoys).
     pub others: Vec<(String, Arc<[f64]>)>,
     /// (rpm/1000)², the driver [`KRPM2`]: a heat input ∝ n² (bearing friction), kept only when it
     /// is not a linear function of rpm (see [`krpm2_of`]).
@@ -172,7 +172,7 @@ impl Context {
         self.axes[axis_index(a)].as_ref()
     }
 
-    /// A temperature channel, or any other driver column (`rpm`, columns with no DESIGN §4 role):
+    /// A temperature channel, or any other driver column (`rpm`, columns with no docs/recording-csv.md role):
     /// thermal candidates read their driver through this.
     pub fn temp(&self, name: &str) -> Option<&[f64]> {
         self.temps
@@ -196,7 +196,7 @@ impl Context {
         q.is_finite().then_some(q)
     }
 
-    /// Heat-source drivers other than temperatures: `rpm` and every column with no DESIGN §4
+    /// Heat-source drivers other than temperatures: `rpm` and every column with no docs/recording-csv.md
     /// role (spindle load, power, coolant, ambient… or a decoy), name and values.
     pub fn drivers(&self) -> Vec<(&str, &[f64])> {
         self.rpm

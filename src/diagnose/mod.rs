@@ -1,11 +1,11 @@
 //! `retrocomp diagnose`: find where a simulation and a recording disagree, name the missing physics
-//! from the effect library of DESIGN §5, fit it, and prove the fit improves on held-out blocks.
+//! from the effect library of docs/diagnose-json.md, fit it, and prove the fit improves on held-out blocks.
 //!
 //! Residual r = measured − simulated, per error signal (`ex_um` …, µm, actual − nominal). Every
-//! finding's parameters are in DESIGN §5 units; adding the finding's term to the simulation reduces r.
+//! finding's parameters are in docs/diagnose-json.md units; adding the finding's term to the simulation reduces r.
 //! Pipeline: [`features`] (context per sample) → [`locate`] (where/when) → [`select`] (screen, select,
 //! refine, validate, detect ambiguity over [`candidates`]) → joint refit with confidence intervals
-//! (this file) → [`report`] (DESIGN §5 JSON / text), [`plots`] and the found-terms TOML ([`output`]).
+//! (this file) → [`report`] (docs/diagnose-json.md JSON / text), [`plots`] and the found-terms TOML ([`output`]).
 
 pub mod candidates;
 pub mod effects;

@@ -1,4 +1,4 @@
-//! Files written by `diagnose --out DIR`: the DESIGN §5 report as JSON (`report.json`), the machine
+//! Files written by `diagnose --out DIR`: the docs/diagnose-json.md report as JSON (`report.json`), the machine
 //! model with the found terms added (`model.toml`, see [`super::model_out`]), the found terms as a
 //! plain list (`found_terms.toml`: one `[[term]]` per finding, params in contract units, for people
 //! and scripts; not a model file), and the SVG plots of [`super::plots`].

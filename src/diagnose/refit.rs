@@ -1,6 +1,6 @@
 //! The last stage of `diagnose` for one signal: the joint refit of the accepted terms (models and
 //! 95 % intervals, cumulative fits) and parsimony after it (which term to drop next, and why).
-//! Units as in [`super`]: residuals and gains in DESIGN §5 units, µm for the signal.
+//! Units as in [`super`]: residuals and gains in docs/diagnose-json.md units, µm for the signal.
 
 use serde_json::{Map, Value, json};
 

@@ -1,4 +1,4 @@
-//! The diagnose report: the JSON object of DESIGN §5 (keys fixed: outside tools score it) and its
+//! The diagnose report: the JSON object of docs/diagnose-json.md (keys fixed: outside tools score it) and its
 //! plain-text rendering for people.
 
 use serde::{Deserialize, Serialize};
@@ -45,7 +45,7 @@ pub struct AlternativeOut {
 
 /// The final model of one signal run forward once (`forward_check.rs`): gains and offset fitted
 /// on the first `fit_rows` rows, RMS (µm) of measured − sim on the `scored_rows` after them with
-/// the offset alone (`rms_sim_um`) and with the found terms (`rms_model_um`). Not a DESIGN §5
+/// the offset alone (`rms_sim_um`) and with the found terms (`rms_model_um`). Not a docs/diagnose-json.md
 /// key: an added one (`forward_check`, absent without findings).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct ForwardCheck {
@@ -57,7 +57,7 @@ pub struct ForwardCheck {
 }
 
 /// A term selected at some step and not in the final model: replaced by the exchange step, or
-/// dropped by parsimony after the final joint refit (issue 12 point 3). Not a DESIGN §5 key: an
+/// dropped by parsimony after the final joint refit (issue 12 point 3). Not a docs/diagnose-json.md key: an
 /// added one (`dropped`, absent when nothing was dropped).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct Dropped {

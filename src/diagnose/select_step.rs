@@ -21,7 +21,7 @@ mod noise;
 /// Share of the best thermal ΔBIC a driver-column lag needs to be preferred over a sensor.
 const DRIVER_SHARE: f64 = 0.0;
 
-/// A thermal candidate read from a driver column (`rpm`, a column with no DESIGN §4 role), not a
+/// A thermal candidate read from a driver column (`rpm`, a column with no docs/recording-csv.md role), not a
 /// temperature sensor.
 fn is_driver(ctx: &Context, c: &Candidate) -> bool {
     match &c.kind {

@@ -1,6 +1,6 @@
 //! Adapter from the machine model (`src/models`, [`MachineModel`]) to the gateway's [`ErrorModel`].
 //!
-//! Channel names follow DESIGN §4: temperature sensor `s` is channel `T_<s>_C`, force `F_<f>_N`,
+//! Channel names follow docs/recording-csv.md: temperature sensor `s` is channel `T_<s>_C`, force `F_<f>_N`,
 //! strain `strain_<g>_ue`. Direction: the model picks forward/reverse tables by `dir` (+1/−1, 0 = mean).
 //! The gateway latches each axis' direction and blends a reversal over time; for an axis mid-blend
 //! (0 < w < 1) the model is evaluated with that axis forward and reverse and the results mixed

@@ -3,7 +3,7 @@
 //! machine's own model, and flags the machine whose residual against its model has grown.
 //!
 //! A machine's model was identified on that machine, so its residual (measured − model, µm, over
-//! every error signal: DESIGN §5 `rms_before_um`) starts at the measurement noise. The machine is
+//! every error signal: docs/diagnose-json.md `rms_before_um`) starts at the measurement noise. The machine is
 //! flagged **drifted** when that residual reaches `min_residual_um` *and* diagnose names the
 //! physics that explains it (verdict `found` or `ambiguous`; the first finding is shown): a large
 //! residual nobody can explain is reported as `unexplained`, not as drift of a known effect. The
@@ -88,7 +88,7 @@ pub struct MachineDrift {
     pub state: DriftState,
     pub recording: String,
     pub model: String,
-    /// Residual against the model, µm RMS over the error signals (DESIGN §5 `rms_before_um`).
+    /// Residual against the model, µm RMS over the error signals (docs/diagnose-json.md `rms_before_um`).
     pub rms_um: f64,
     /// The first diagnosis' residual of this machine, µm.
     pub baseline_rms_um: f64,

@@ -1,5 +1,5 @@
 //! Recordings of every machine, shipped to the fleet (sans-IO; issue 17 point 3). A box cuts a
-//! recording CSV (the DESIGN §4 contract, unchanged: header with units in the column names, one
+//! recording CSV (the docs/recording-csv.md contract, unchanged: header with units in the column names, one
 //! sample per row) into **chunks** of whole rows; every chunk repeats the header, so each is itself
 //! a valid recording CSV. A chunk travels as a small JSON envelope naming the machine (Sparkplug
 //! group + edge node), the recording's file name, its index and whether it is the last one. The

@@ -2,7 +2,7 @@
 //! varying along the axis) and cyclic lead-screw error. Both are in µm, slide − motor.
 //!
 //! Backlash: the slide trails the screw by half the play, so after a move in +direction the slide is
-//! b/2 short (error −b/2), after a move in −direction it is b/2 beyond (+b/2). In DESIGN §5 terms:
+//! b/2 short (error −b/2), after a move in −direction it is b/2 beyond (+b/2). In docs/diagnose-json.md terms:
 //! `e += b_um/2 · sign(v)` with `b_um = −b` (the manifest reports it that way).
 
 use serde::{Deserialize, Serialize};

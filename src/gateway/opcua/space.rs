@@ -63,7 +63,7 @@ pub fn unece_unit_id(code: &str) -> i32 {
     code.bytes().fold(0i32, |acc, b| (acc << 8) | i32::from(b))
 }
 
-/// The unit of a channel, from the suffix of its name (DESIGN §4: `_mm`, `_um`, `_C`, `_N`, ...).
+/// The unit of a channel, from the suffix of its name (docs/recording-csv.md: `_mm`, `_um`, `_C`, `_N`, ...).
 /// None for channels without a unit the UNECE list covers (e.g. strain `_ue`).
 pub fn unit_of_channel(name: &str) -> Option<Unit> {
     let (_, suffix) = name.rsplit_once('_')?;
