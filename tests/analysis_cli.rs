@@ -51,7 +51,7 @@ fn iso230_2_text_json_and_svg() {
     assert!((json["axis"]["E_um"].as_f64().unwrap() - 31.8).abs() < 0.05);
     assert!(json["axis"]["A_um"].is_null());
     let s = std::fs::read_to_string(&svg).unwrap();
-    assert!(s.contains("E = 11.60 µm") && s.contains("target_mm"));
+    assert!(s.contains("E = 11.60 µm") && s.contains("target position / mm"));
 }
 
 #[test]

@@ -58,7 +58,7 @@ fn axis_fit_recovers_the_curve_and_validates_on_a_held_out_run() {
     assert!(fit_axis(&rs, 50.0, 1e-4, Some(9)).is_err());
 }
 
-/// A recording (DESIGN §4 columns) with six temperature sensors, two strains, and an X error
+/// A recording (docs/recording-csv.md columns) with six temperature sensors, two strains, and an X error
 /// that follows T_spindle through a 600 s lag and T_column directly.
 fn recording(seed: u64) -> String {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);

@@ -1,4 +1,4 @@
-//! `retrocomp diagnose` end to end: the DESIGN §5 JSON keys, `--out` files (SVG plots whose text
+//! `retrocomp diagnose` end to end: the docs/diagnose-json.md JSON keys, `--out` files (SVG plots whose text
 //! renders, found-terms TOML, and `model.toml`, which `check-config` accepts and `eval` evaluates to
 //! the found term — with and without `--model`), `--model` as the simulation, and a bad recording
 //! refused with its line.

@@ -1,4 +1,4 @@
-//! One-term models lock the sign of every component (DESIGN §3: error = actual − nominal; a table
+//! One-term models lock the sign of every component (docs/model.md, Conventions: error = actual − nominal; a table
 //! states its sign and a test locks it). Each case is a model with a single constant term; the
 //! expected tool-tip error is written out by hand from the convention in `src/models/mod.rs`.
 

@@ -84,7 +84,7 @@ const MODEL: &str = "schema = 1\n[machine]\nname = \"t\"\nchain = \"Z X\"\ntool_
     [[tools]]\nname = \"t\"\noffset_mm = [0.0, 0.0, 0.0]\n\
     [[components]]\nname = \"EXX\"\npositions_mm = [0, 300]\nforward_mm = [0.0, 0.015]\n";
 
-/// A recording per DESIGN §4: X sweeps, a spindle temperature that rises and falls (not in step
+/// A recording per docs/recording-csv.md: X sweeps, a spindle temperature that rises and falls (not in step
 /// with time or X), ex = 50 ppm of X + 0.2 µm noise (+ `um_per_k` × (T − 20 °C)).
 fn recording(um_per_k: f64) -> String {
     let mut s = String::from("t_s,x_mm,z_mm,T_spindle_C,ex_um\n");

@@ -144,7 +144,7 @@ pub(crate) fn nc_program(data: &[u8]) {
     }
 }
 
-/// Recording CSV (DESIGN §4), strict and lenient.
+/// Recording CSV (docs/recording-csv.md), strict and lenient.
 pub(crate) fn recording_csv(data: &[u8]) {
     let _ = Recording::read_strict(data, "fuzz.csv");
     if let Ok((rec, _bad)) = Recording::read_lenient(data, "fuzz.csv") {
