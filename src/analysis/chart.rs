@@ -11,7 +11,16 @@
 
 use plotters::prelude::*;
 
-use super::report::PlotError;
+/// Why a chart could not be rendered.
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    #[error("nothing to plot for `{0}`")]
+    Empty(String),
+    #[error("non-finite value in plot `{0}`")]
+    NonFinite(String),
+    #[error("cannot draw plot `{0}`")]
+    Draw(String, #[source] Box<dyn std::error::Error + Send + Sync>),
+}
 
 /// Size of the whole figure and of the legend panel, px.
 pub const WIDTH_PX: u32 = 960;

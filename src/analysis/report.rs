@@ -3,18 +3,7 @@
 //! The drawing itself is [`super::chart`]; this is the short form most commands call.
 
 use super::chart::{Chart, render};
-pub use super::chart::{Series, Style};
-
-/// Why a chart could not be rendered.
-#[derive(Debug, thiserror::Error)]
-pub enum PlotError {
-    #[error("nothing to plot for `{0}`")]
-    Empty(String),
-    #[error("non-finite value in plot `{0}`")]
-    NonFinite(String),
-    #[error("cannot draw plot `{0}`")]
-    Draw(String, #[source] Box<dyn std::error::Error + Send + Sync>),
-}
+pub use super::chart::{PlotError, Series, Style};
 
 /// Renders an x–y chart to an SVG string ([`super::chart`]: legend and notes beside the plot area,
 /// robust y-limits). Empty or non-finite data is an error, not a blank plot.
