@@ -1,4 +1,4 @@
-//! Recording CSV (DESIGN §4), strict and lenient readers.
+//! Recording CSV (docs/recording-csv.md), strict and lenient readers.
 //! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
 //! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/recording_csv/ through it).
 #![no_main]

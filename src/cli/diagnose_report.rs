@@ -133,7 +133,8 @@ pub(crate) fn sections(d: &Diagnosis) -> anyhow::Result<Vec<Section>> {
         Section {
             heading: "What was assumed".into(),
             blocks: vec![Block::List(vec![
-                "residual = measured − simulated error, µm (docs/recording-csv.md recording)".into(),
+                "residual = measured − simulated error, µm (recording CSV: docs/recording-csv.md)"
+                    .into(),
                 "default selection options (significance, held-out blocks) of `diagnose`".into(),
             ])],
         },
