@@ -166,6 +166,7 @@ mod tests {
             alternatives: vec![],
             dropped: vec![],
             forward_check: vec![],
+            regime_forward: vec![],
         }
     }
 
