@@ -98,6 +98,7 @@ fn driver_of<'a>(ctx: &'a Context, t: &'a Term) -> Option<(&'a str, &'a [f64])> 
 /// The rolling-origin folds of one residual: per scored regime, the residual after the
 /// simulation's inputs were refitted on the regimes before it (the residual as given without
 /// inputs). Built once, reused for every set of terms.
+#[derive(Debug)]
 pub struct Folds<'a> {
     r_fold: Vec<Vec<f64>>,
     regimes: &'a [Range<usize>],
@@ -150,7 +151,8 @@ impl<'a> Folds<'a> {
                 let ss: f64 = pred
                     .clone()
                     .map(|i| {
-                        let p: f64 = b[0] + cols.iter().zip(&b[1..]).map(|(c, g)| g * c[i]).sum::<f64>();
+                        let p: f64 =
+                            b[0] + cols.iter().zip(&b[1..]).map(|(c, g)| g * c[i]).sum::<f64>();
                         (r[i] - p).powi(2)
                     })
                     .sum();
@@ -334,6 +336,7 @@ mod tests {
             ("rpm".into(), rpm),
             ("T_a_C".into(), temp.clone()),
             ("T_b_C".into(), decoy.clone()),
+            ("ez_um".into(), r.clone()),
         ])
         .unwrap();
         (Context::from_recording(&rec), r, temp, decoy)
@@ -355,7 +358,11 @@ mod tests {
         let (ctx, ..) = recording();
         let g = regimes(&ctx).expect("six regimes");
         assert_eq!(g.len(), 6);
-        assert_eq!(g[0], 0..203, "the 3 rows at rest before the first regime join it");
+        assert_eq!(
+            g[0],
+            0..203,
+            "the 3 rows at rest before the first regime join it"
+        );
         assert_eq!(g[5], 1003..1203);
     }
 
@@ -375,7 +382,10 @@ mod tests {
         assert!(regime_drop(&folds, &terms[..1]).is_none());
         let s = scores(&ctx, "ez_um", &r, &[], &terms[..1]);
         assert_eq!(s.len(), 4);
-        assert!(s.iter().all(|g| g.rms_model_um < 0.1 * g.rms_sim_um), "{s:?}");
+        assert!(
+            s.iter().all(|g| g.rms_model_um < 0.1 * g.rms_sim_um),
+            "{s:?}"
+        );
         let last = &s[3].drivers[0];
         assert!(last.outside && last.seen[1] > last.fitted[1], "{last:?}");
         assert!(to_text(&s).contains("T_a_C driven outside its fitted range"));
@@ -389,8 +399,16 @@ mod tests {
         let (ctx, r, temp, _) = recording();
         let g = regimes(&ctx).unwrap();
         let refit = Folds::new(&g, &r, std::slice::from_ref(&temp));
-        assert!(refit.rms(&[]).iter().all(|v| *v < 0.05), "{:?}", refit.rms(&[]));
+        assert!(
+            refit.rms(&[]).iter().all(|v| *v < 0.05),
+            "{:?}",
+            refit.rms(&[])
+        );
         let given = Folds::new(&g, &r, &[]);
-        assert!(given.rms(&[]).iter().all(|v| *v > 0.5), "{:?}", given.rms(&[]));
+        assert!(
+            given.rms(&[]).iter().all(|v| *v > 0.5),
+            "{:?}",
+            given.rms(&[])
+        );
     }
 }
