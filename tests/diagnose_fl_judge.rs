@@ -26,7 +26,7 @@ mod fl_support;
 use fl_support::*;
 
 const CHANNELS: [&str; 5] = ["d1_um", "d2_um", "d3_um", "d4_um", "d5_um"];
-const SPLITS: [f64; 4] = [0.5, 0.6, 0.7, 0.8];
+const SPLITS: [f64; 3] = [0.5, 0.6, 0.7];
 
 struct Row {
     split: f64,

@@ -21,7 +21,6 @@ mod null_model;
 pub mod output;
 pub mod plots;
 mod refit;
-pub mod regime_forward;
 pub mod report;
 pub mod scoring;
 pub mod select;
@@ -257,9 +256,6 @@ fn diagnose_residuals(
         out.exchanged(&sel, signal);
         out.findings(&sel, &models, &cis, signal);
         out.runners_up(&sel, signal, opts);
-        out.regime_forward.extend(regime_forward::scores(
-            &ctx, signal, &r, sim_inputs, &sel.terms,
-        ));
         let mut result = SignalResult {
             signal: signal.clone(),
             axis,
@@ -292,7 +288,6 @@ struct Assembly {
     alternatives: Vec<AlternativeOut>,
     dropped: Vec<Dropped>,
     forward_check: Vec<ForwardCheck>,
-    regime_forward: Vec<regime_forward::RegimeScore>,
     mismatch: Vec<report::Mismatch>,
     signals: Vec<SignalResult>,
     ambiguous: bool,
@@ -319,28 +314,16 @@ impl Assembly {
     ) -> refit::Refit {
         let axis = sel.axis;
         let heldout = Heldout::new(ctx, axis, r, sim_inputs, opts);
-        let regimes = regime_forward::regimes(ctx);
-        let folds = regimes
-            .as_deref()
-            .map(|g| regime_forward::Folds::new(g, r, sim_inputs));
         loop {
             let (models, cis, after_coef, refit_terms) = joint_refit(ctx, r, &sel.terms);
             let Some((k, reason, with, without)) =
-                parsimony_drop(&heldout, r, &sel.terms, &cis, opts).or_else(|| {
-                    let f = folds.as_ref()?;
-                    let (k, w, wo) = regime_forward::regime_drop(f, &sel.terms)?;
-                    Some((k, "no_regime_forward_gain", w, wo))
-                })
+                parsimony_drop(&heldout, r, &sel.terms, &cis, opts)
             else {
                 return (models, cis, after_coef, refit_terms);
             };
             let t = sel.terms.remove(k);
             let why = if reason == "ci_includes_zero" {
                 "the 95 % interval of its gain includes 0".to_string()
-            } else if reason == "no_regime_forward_gain" {
-                format!(
-                    "removing it lowers the forward RMS on at least one later spindle-speed regime (fitted on the regimes before it; pooled {with:.3} → {without:.3} µm)"
-                )
             } else if reason == "no_forward_gain" {
                 format!(
                     "removing it lowers the forward-check RMS by more than {:.0} %, and by more than it raises the held-out RMS ({with:.3} → {without:.3} µm forward)",
@@ -372,8 +355,6 @@ impl Assembly {
                 heldout_rms_without_um: without,
                 score: if reason == "no_forward_gain" {
                     "forward_check"
-                } else if reason == "no_regime_forward_gain" {
-                    "regime_forward"
                 } else {
                     "heldout"
                 }
@@ -508,7 +489,6 @@ impl Assembly {
             alternatives,
             dropped,
             forward_check,
-            regime_forward,
             mismatch,
             signals,
             ambiguous,
@@ -532,7 +512,6 @@ impl Assembly {
             alternatives,
             dropped,
             forward_check,
-            regime_forward,
         };
         Diagnosis {
             report,

@@ -104,10 +104,6 @@ pub struct Report {
     pub dropped: Vec<Dropped>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub forward_check: Vec<ForwardCheck>,
-    /// The final model by rolling origin over the recording's spindle-speed regimes
-    /// (`regime_forward.rs`; thermal tests with an `rpm` column). Absent otherwise.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub regime_forward: Vec<super::regime_forward::RegimeScore>,
 }
 
 /// What each effect means, in words (the report's "explanation").
@@ -199,7 +195,6 @@ impl Report {
                 ));
             }
         }
-        s.push_str(&super::regime_forward::to_text(&self.regime_forward));
         if !self.alternatives.is_empty() {
             s.push_str("\nalternatives:\n");
             for a in &self.alternatives {
@@ -218,8 +213,6 @@ impl Report {
                 };
                 let score = if d.score == "forward_check" {
                     "forward-check"
-                } else if d.score == "regime_forward" {
-                    "regime-forward"
                 } else {
                     "held-out"
                 };

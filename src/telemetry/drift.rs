@@ -166,7 +166,6 @@ mod tests {
             alternatives: vec![],
             dropped: vec![],
             forward_check: vec![],
-            regime_forward: vec![],
         }
     }
 
