@@ -18,6 +18,7 @@ mod http_state;
 pub mod model_adapter;
 pub mod model_switch;
 pub mod opcua;
+mod prometheus_text;
 pub mod recovery;
 pub mod run;
 pub mod safety;
