@@ -597,6 +597,19 @@ mod tests {
         }
     }
 
+    /// The sample value of the line starting with `prefix`.
+    fn value_of<T: std::str::FromStr>(text: &str, prefix: &str) -> T
+    where
+        T::Err: std::fmt::Debug,
+    {
+        line(text, prefix)
+            .rsplit(' ')
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
+    }
+
     fn line<'a>(text: &'a str, prefix: &str) -> &'a str {
         text.lines()
             .find(|l| l.starts_with(prefix))
@@ -618,14 +631,7 @@ mod tests {
         snap.channels.insert("rpm".into(), ch(3000.0));
         snap.channels.insert("strain_col_ue".into(), ch(40.0));
         let text = snap.prometheus();
-        let value = |prefix| -> f64 {
-            line(&text, prefix)
-                .rsplit(' ')
-                .next()
-                .unwrap()
-                .parse()
-                .unwrap()
-        };
+        let value = |prefix| -> f64 { value_of(&text, prefix) };
         assert_eq!(
             value("retrocomp_correction_applied_meters{axis=\"x\"}"),
             -12.5e-6
@@ -665,14 +671,7 @@ mod tests {
         }
         snap.timing.late_cycles = 7;
         let text = snap.prometheus();
-        let value = |prefix| -> u64 {
-            line(&text, prefix)
-                .rsplit(' ')
-                .next()
-                .unwrap()
-                .parse()
-                .unwrap()
-        };
+        let value = |prefix| -> u64 { value_of(&text, prefix) };
         assert_eq!(
             value("retrocomp_cycle_duration_seconds_bucket{le=\"1e-6\"}"),
             2
