@@ -6,7 +6,7 @@ MODBUS_ERROR_RECOVERY_LINK, so after a box restart every transaction fails until
 Loaded from retrocomp.hal: loadusr -Wn rc-watch /usr/bin/python3 mb2hal-watch.py MB2HAL_INI [DEAD_S]
 
 This script is not the safety stop: retrocomp.hal's box watch (servo thread) holds the feed whenever
-the heartbeat is silent for rc-hb-fresh.width, whatever this script does. This script only brings
+the heartbeat is silent for RC_DEAD_S (rc-stale.in0), whatever this script does. This script only brings
 the link back, and keeps a re-link from looking like life:
 
 - When the signal rc-heartbeat has not changed for DEAD_S seconds (default 3) it sets rc-watch.pass
