@@ -49,10 +49,13 @@ pub enum FaultKind {
     ListenerFailed,
     /// A peer not on the listener's `allow_writes_from` tried to write or act.
     Unauthorized,
+    /// An optional model input that no configured source delivers: its terms stay out for as long
+    /// as the box runs (a required one is refused at start instead).
+    NoSource,
 }
 
 impl FaultKind {
-    pub const ALL: [FaultKind; 16] = [
+    pub const ALL: [FaultKind; 17] = [
         FaultKind::Stale,
         FaultKind::OutOfRange,
         FaultKind::NotFinite,
@@ -69,6 +72,7 @@ impl FaultKind {
         FaultKind::Overloaded,
         FaultKind::ListenerFailed,
         FaultKind::Unauthorized,
+        FaultKind::NoSource,
     ];
 
     /// Its position in [`FaultKind::ALL`] (declaration order, which is also its `Ord`).

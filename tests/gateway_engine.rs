@@ -239,16 +239,8 @@ fn a_bad_reading_replaced_before_the_cycle_is_logged_once_and_never_used() {
     );
 }
 
-/// Issue 18.5: a stale auxiliary input (the cutting force) drops only the terms that use it. With
-/// the demo's full model (geometry + thermal + load) through the real adapter: the load terms leave
-/// the breakdown, the axes keep tracking the geometric and thermal terms, the change is ramped
-/// (the ramp rate, below the dosing cap), the episode is the fault `compensation.<axis>.partial`
-/// (not `compensation.<axis>`), and the force's return ramps the terms back in.
-#[test]
-fn a_stale_force_drops_only_the_load_terms_ramped() {
-    use retrocomp::gateway::model_adapter::MachineModelAdapter;
-    use retrocomp::models::MachineModel;
-    const CFG3: &str = r#"
+/// Three axes and a cutting-force channel: the field config of the load-term tests.
+const CFG3: &str = r#"
 [gateway]
 name = "t"
 cycle_ms = 10
@@ -276,6 +268,16 @@ min = -5000.0
 max = 5000.0
 stale_after_s = 0.1
 "#;
+
+/// Issue 18.5: a stale auxiliary input (the cutting force) drops only the terms that use it. With
+/// the demo's full model (geometry + thermal + load) through the real adapter: the load terms leave
+/// the breakdown, the axes keep tracking the geometric and thermal terms, the change is ramped
+/// (the ramp rate, below the dosing cap), the episode is the fault `compensation.<axis>.partial`
+/// (not `compensation.<axis>`), and the force's return ramps the terms back in.
+#[test]
+fn a_stale_force_drops_only_the_load_terms_ramped() {
+    use retrocomp::gateway::model_adapter::MachineModelAdapter;
+    use retrocomp::models::MachineModel;
     let cfg = FieldConfig::parse(CFG3, Path::new("t.toml")).unwrap();
     let model = MachineModel::from_toml_str(retrocomp::demo::FULL_MODEL, "full").unwrap();
     let mut m = MachineModelAdapter::new(model);
@@ -372,4 +374,47 @@ stale_after_s = 0.1
     assert!((outs.last().unwrap() - target_full).abs() < 1e-9);
     assert!(e.snapshot().active_faults.is_empty());
     assert!(!e.compensation_partial());
+}
+
+/// An optional input no source delivers (the field check's list, handed to the engine at start)
+/// is a `no_source` fault on that channel from the first cycle, and it stays active while the box
+/// compensates with the other terms: the model's load terms are not left out silently.
+#[test]
+fn an_undelivered_optional_input_is_a_lasting_fault_naming_it() {
+    use retrocomp::gateway::model_adapter::MachineModelAdapter;
+    use retrocomp::models::MachineModel;
+    let cfg = FieldConfig::parse(CFG3, Path::new("t.toml")).unwrap();
+    let model = MachineModel::from_toml_str(retrocomp::demo::FULL_MODEL, "full").unwrap();
+    let mut m = MachineModelAdapter::new(model);
+    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    e.report_undelivered(&[ChannelId::of("F_cut_N")]);
+    let no_source = ("F_cut_N".to_string(), FaultKind::NoSource);
+    let mut t = 0.0;
+    for k in 0..300 {
+        t += 0.01;
+        for (ch, v) in [("x_mm", 120.0), ("y_mm", 80.0), ("z_mm", -0.5)] {
+            e.ingest(&s(ch, t, v));
+        }
+        e.ingest(&s("T_spindle_C", t, 25.0));
+        e.ingest(&s("T_xscrew_C", t, 24.0));
+        e.cycle(t, &mut m);
+        let snap = e.snapshot();
+        let faults: Vec<(String, FaultKind)> = snap
+            .active_faults
+            .iter()
+            .map(|(s, k, _)| (s.clone(), *k))
+            .collect();
+        assert!(faults.contains(&no_source), "cycle {k}: {faults:?}");
+    }
+    // Compensating all the while, without the load terms.
+    assert_eq!(e.axis_mode(Axis::X), Some(Mode::Tracking));
+    assert!(!e.snapshot().axes[0].terms_um.contains_key("deflection_x"));
+    // One episode: started at the first cycle, never cleared.
+    let snap = e.snapshot();
+    let since = snap
+        .active_faults
+        .iter()
+        .find(|(s, k, _)| *s == "F_cut_N" && *k == FaultKind::NoSource)
+        .map(|f| f.2);
+    assert!(since.is_some_and(|s| s <= 0.01 + 1e-9), "{since:?}");
 }

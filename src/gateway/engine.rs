@@ -78,6 +78,9 @@ pub struct Engine {
     /// (their loss drops only their terms: [`ErrorModel::optional_channels`]).
     required: Option<Vec<usize>>,
     optional: Vec<usize>,
+    /// Optional model inputs no configured source delivers ([`Engine::report_undelivered`]): a
+    /// `no_source` fault each, active for the whole run.
+    undelivered: Vec<ChannelId>,
     /// Some optional channel was unusable at the last cycle (its terms were left out).
     partial: bool,
     thermal_period_s: f64,
@@ -237,6 +240,7 @@ impl Engine {
             recoveries,
             required: None,
             optional: Vec::new(),
+            undelivered: Vec::new(),
             partial: false,
             thermal_period_s: cfg.thermal_period_s,
             last_slow_latch_s: None,
@@ -320,6 +324,9 @@ impl Engine {
             // fault stays active).
             let st = c.status.get_or_insert_with(ChannelStatus::unknown);
             m.status_judged_into(now_s, self.newest_input_s, st);
+            if self.undelivered.contains(&c.id) {
+                st.faults.push(FaultKind::NoSource);
+            }
             let source = FaultSource::Channel(c.id);
             let mut gone = m
                 .take_rejected()
@@ -519,6 +526,20 @@ impl Engine {
     /// `compensation.<axis>` (kind `stale`, or `decode` for a model fault), logged at start and
     /// clear like every fault. Allocates only while such a fault is active.
     fn report_drops(&mut self, now_s: f64) {
+        // A channel with limits reports it with its health (step 1); one without, here. Steady
+        // state: an unchanged active fault is not logged again and allocates nothing.
+        for id in &self.undelivered {
+            let monitored = self
+                .slots
+                .by_id
+                .get(id.index())
+                .and_then(|&slot| self.channels.get(slot))
+                .is_some_and(|c| c.monitor.is_some());
+            if !monitored {
+                self.faults
+                    .update(&FaultSource::Channel(*id), &[FaultKind::NoSource], now_s);
+            }
+        }
         let mut any = false;
         for a in &mut self.axes {
             let fresh = a.target_um.is_some();
@@ -541,6 +562,13 @@ impl Engine {
                 .update(&FaultSource::CompensationPartial(a.axis), kinds, now_s);
         }
         self.dropped = any;
+    }
+
+    /// Optional model inputs that no configured source delivers (the field check's list): each is
+    /// a `no_source` fault on its channel from the next cycle on, for as long as the box runs, so a
+    /// model that leaves its load terms out says which input is missing.
+    pub fn report_undelivered(&mut self, channels: &[ChannelId]) {
+        self.undelivered = channels.to_vec();
     }
 
     /// True when, this cycle, compensation is enabled and tracking without the terms of an unusable

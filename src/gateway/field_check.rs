@@ -102,7 +102,7 @@ pub fn check_field(
     })?;
     for ch in &optional_missing {
         tracing::warn!(
-            "no source delivers {ch}, an optional input of the model: its load terms stay out (fault compensation.<axis>.partial)"
+            "no source delivers {ch}, an optional input of the model: its load terms stay out (fault {ch} no_source for as long as the box runs)"
         );
     }
     Ok(CheckedField {
@@ -113,11 +113,14 @@ pub fn check_field(
     })
 }
 
+/// The optional inputs of `model` that no source of `cfg` delivers (each a `no_source` fault while
+/// the box runs). A required one missing is the start-up refusal of [`check_field`], not listed.
+pub fn undelivered_optional(cfg: &FieldConfig, model: &dyn ErrorModel) -> Vec<ChannelId> {
+    check_channels(cfg, model).unwrap_or_default()
+}
+
 /// Every required channel of `model` delivered; returns the optional ones that are not.
-fn check_channels(
-    cfg: &FieldConfig,
-    model: &MachineModelAdapter,
-) -> Result<Vec<ChannelId>, String> {
+fn check_channels(cfg: &FieldConfig, model: &dyn ErrorModel) -> Result<Vec<ChannelId>, String> {
     let mut have: Vec<&str> = cfg.source_channels();
     // A recovery estimates its target from neighbours: delivered when they all are.
     for r in &cfg.recoveries {

@@ -49,7 +49,8 @@ pub struct ChannelMonitor {
     sample_fault: Option<FaultKind>,
     /// Kinds of every sample rejected since the last [`ChannelMonitor::take_rejected`] (bit per
     /// kind), so a bad reading that a good one replaces before the next cycle is still logged.
-    rejected: u16,
+    /// One bit per [`FaultKind::ALL`] entry (a compile-time check keeps them within the width).
+    rejected: u32,
     stuck: bool,
 }
 
@@ -78,6 +79,7 @@ impl ChannelMonitor {
     }
 
     fn reject(&mut self, kind: FaultKind) {
+        const _: () = assert!(FaultKind::ALL.len() <= u32::BITS as usize);
         self.sample_fault = Some(kind);
         if let Some(i) = FaultKind::ALL.iter().position(|k| *k == kind) {
             self.rejected |= 1 << i;

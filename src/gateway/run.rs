@@ -134,7 +134,11 @@ pub async fn run(
         None => BTreeMap::new(),
     };
 
-    let engine = Engine::new(&cfg, &initial)?;
+    let mut engine = Engine::new(&cfg, &initial)?;
+    engine.report_undelivered(&super::field_check::undelivered_optional(
+        &cfg,
+        model.as_ref(),
+    ));
     // Fed by the cycle; during a stop ramp-out (no cycle) by `ramp_out_before_stop`.
     let watchdog = counter.clone();
     let io = CycleIo {
