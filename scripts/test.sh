@@ -4,7 +4,7 @@
 #    removing or downgrading a host package; QEMU and the guest kernel downloaded into a cache, not
 #    installed; LinuxCNC; a .venv with pinned python-can, pymodbus, pyserial) — quick when present;
 # 2. `cargo fmt --check` and `cargo clippy --workspace --all-targets -- -D warnings`; `cargo audit`
-#    (scripts/audit.sh) where an advisory database is on the machine, else one line saying it did not run;
+#    (scripts/audit.sh) against the committed RustSec snapshot, or a newer clone on the machine;
 # 3. the whole cargo test suite with --no-fail-fast (every test binary runs even after a failure),
 #    including the real-peer integration tests and the QEMU guest that runs the socketcan backend
 #    against real kernel vcan;
