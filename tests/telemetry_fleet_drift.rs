@@ -59,7 +59,7 @@ impl Fleet {
         Fleet(child)
     }
 
-    /// Wait for the fleet to stop by itself; its JSON.
+    /// Wait for the fleet to stop by itself; its nodes (the last JSON line).
     fn json(mut self) -> serde_json::Value {
         let deadline = Instant::now() + PATIENCE;
         while self.0.try_wait().unwrap().is_none() {
@@ -68,7 +68,11 @@ impl Fleet {
         }
         let mut out = String::new();
         std::io::Read::read_to_string(self.0.stdout.as_mut().unwrap(), &mut out).unwrap();
-        serde_json::from_str(&out).unwrap_or_else(|e| panic!("{e}: {out}"))
+        // One JSON object per update, one per line: the last is the final state.
+        let last = out.lines().last().unwrap_or_default();
+        let v: serde_json::Value =
+            serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {out}"));
+        v["nodes"].clone()
     }
 }
 
