@@ -35,6 +35,7 @@ pub(crate) struct Args {
     /// Where to write the model TOML.
     #[arg(long)]
     pub out: PathBuf,
+    /// Print one JSON object (components, residuals, δ) instead of the text report.
     #[arg(long)]
     pub json: bool,
     /// Folder for SVG plots: measured vs residual per hole of each verification plate.
