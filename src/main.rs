@@ -78,7 +78,9 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            // One line, every cause once (src/error.rs).
+            let e: &(dyn std::error::Error + 'static) = e.as_ref();
+            eprintln!("error: {}", retrocomp::error::Chain(e));
             std::process::ExitCode::FAILURE
         }
     }

@@ -387,8 +387,10 @@ pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
                 !common.skip_bad_rows,
                 "--skip-bad-rows applies to recordings (fit thermal, fit load); the ISO 230-2 runs file is read strictly"
             );
+            let progress = super::term::Progress::spinner("fit: fitting the axis tables");
             let (rs, slope) = super::iso230_2::load(runs, *remove_drift)?;
             let fit = fit_axis(&rs, *knot_step_mm, *alpha, *holdout_run)?;
+            progress.finish();
             let targets: Vec<f64> = rs.iter().map(|r| r.target_mm).collect();
             let f = match form {
                 Form::Table => AxisForm::Table,
@@ -500,7 +502,9 @@ fn run_context(
         Some(t) => component(t)?,
         None => default_target(signal)?,
     };
+    let progress = super::term::Progress::spinner("fit: reading the recording");
     let (rec, bad) = super::diagnose::read_recording(recording, common.skip_bad_rows)?;
+    progress.stage("fit: choosing and fitting the terms");
     let criterion = match x.criterion {
         Crit::Bic => Criterion::Bic,
         Crit::Cp => Criterion::Cp,
@@ -543,6 +547,7 @@ fn run_context(
         add_load(&mut spec, &f, id)?;
     }
     let (toml, _) = to_checked_toml(spec)?;
+    progress.finish();
     if let Some(p) = &common.svg {
         context_svg(p, &rec, &f, base_um.as_deref())?;
     }

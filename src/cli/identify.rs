@@ -116,7 +116,9 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
             opts.knot_step_mm
         );
     }
+    let progress = super::term::Progress::spinner("identify: fitting the 21 components");
     let id = identify(&geo, &plates, &bars, &opts)?;
+    progress.finish();
     let name = args
         .out
         .file_stem()
