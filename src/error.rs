@@ -10,19 +10,25 @@ use std::fmt;
 /// A boxed cause, as the seams' error enums hold it.
 pub type BoxError = Box<dyn Error + Send + Sync + 'static>;
 
-/// Displays an error and every `source()` under it, joined by `: ` (as `anyhow`'s `{:#}` does).
+/// Displays an error and every `source()` under it, joined by `: ` (as `anyhow`'s `{:#}` does),
+/// each cause once: a cause whose text the layers above already printed (an error whose message
+/// embeds its source, common in third-party crates) is skipped, its own causes are not.
 #[derive(Clone, Copy, Debug)]
 pub struct Chain<'a>(pub &'a (dyn Error + 'static));
 
 impl fmt::Display for Chain<'_> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}", self.0)?;
+        let mut text = self.0.to_string();
         let mut cause = self.0.source();
         while let Some(c) = cause {
-            write!(f, ": {c}")?;
+            let layer = c.to_string();
+            if !layer.is_empty() && !text.contains(&layer) {
+                text.push_str(": ");
+                text.push_str(&layer);
+            }
             cause = c.source();
         }
-        Ok(())
+        f.write_str(&text)
     }
 }
 
@@ -46,5 +52,30 @@ mod tests {
         };
         assert_eq!(e.to_string(), "opening f.toml");
         assert_eq!(Chain(&e).to_string(), "opening f.toml: denied");
+    }
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("connecting: {0}")]
+    struct Embeds(#[source] Outer);
+
+    #[test]
+    fn a_cause_the_message_already_shows_is_printed_once() {
+        let e = Embeds(Outer {
+            what: "f.toml",
+            source: std::io::Error::other("denied"),
+        });
+        // `Embeds` shows `Outer` in its own message: Outer is skipped, Outer's cause is not.
+        assert_eq!(Chain(&e).to_string(), "connecting: opening f.toml: denied");
+        let anyhow_e = anyhow::Error::new(e).context("start-up");
+        let dyn_e: &(dyn Error + 'static) = anyhow_e.as_ref();
+        assert_eq!(
+            Chain(dyn_e).to_string(),
+            "start-up: connecting: opening f.toml: denied"
+        );
+        assert_eq!(
+            format!("{anyhow_e:#}"),
+            "start-up: connecting: opening f.toml: opening f.toml: denied",
+            "what main printed before"
+        );
     }
 }

@@ -78,8 +78,53 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            // One line, every cause once (src/error.rs).
+            let e: &(dyn std::error::Error + 'static) = e.as_ref();
+            eprintln!("error: {}", retrocomp::error::Chain(e));
             std::process::ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory as _;
+
+    /// Every subcommand, flag and argument of the whole tree with no help text, by path.
+    fn missing_help(c: &clap::Command, path: &str, out: &mut Vec<String>) {
+        let path = format!("{path} {}", c.get_name());
+        if c.get_about()
+            .is_none_or(|a| a.to_string().trim().is_empty())
+        {
+            out.push(format!("{path} (the command)"));
+        }
+        for a in c.get_arguments() {
+            let id = a.get_id().as_str();
+            if matches!(id, "help" | "version") {
+                continue;
+            }
+            if a.get_help().is_none_or(|h| h.to_string().trim().is_empty()) {
+                out.push(format!("{path} {id}"));
+            }
+        }
+        for s in c.get_subcommands() {
+            missing_help(s, &path, out);
+        }
+    }
+
+    #[test]
+    fn every_command_flag_and_argument_has_help_text() {
+        let cli = super::Cli::command();
+        cli.clone().debug_assert();
+        let mut missing = Vec::new();
+        missing_help(&cli, "", &mut missing);
+        assert!(missing.is_empty(), "no help text:\n{}", missing.join("\n"));
+        // The walk sees the whole tree (a subcommand's own subcommands included).
+        assert!(cli.get_subcommands().count() >= 17);
+        let fit = cli.find_subcommand("fit").expect("fit");
+        assert!(
+            fit.get_subcommands().count() >= 2,
+            "fit's subcommands are walked too"
+        );
     }
 }

@@ -56,6 +56,12 @@ fn json_output_follows_the_contract_and_out_dir_has_plots_and_terms() {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // stderr is a pipe here: no progress line, no colour (src/cli/term.rs).
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !err.contains('\x1b') && !err.contains("diagnose: reading") && !err.contains('\r'),
+        "{err}"
+    );
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     for k in [
         "verdict",

@@ -15,6 +15,8 @@
 #[path = "peers/mosquitto.rs"]
 mod mosquitto;
 mod peers;
+#[path = "peers/snapshot.rs"]
+mod snapshot;
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
@@ -22,6 +24,7 @@ use std::time::{Duration, Instant};
 
 use mosquitto::Broker;
 use peers::free_port;
+use snapshot::snapshot;
 
 const PATIENCE: Duration = Duration::from_secs(300);
 
@@ -59,7 +62,7 @@ impl Fleet {
         Fleet(child)
     }
 
-    /// Wait for the fleet to stop by itself; its JSON.
+    /// Wait for the fleet to stop by itself; its nodes (the last JSON line).
     fn json(mut self) -> serde_json::Value {
         let deadline = Instant::now() + PATIENCE;
         while self.0.try_wait().unwrap().is_none() {
@@ -68,7 +71,11 @@ impl Fleet {
         }
         let mut out = String::new();
         std::io::Read::read_to_string(self.0.stdout.as_mut().unwrap(), &mut out).unwrap();
-        serde_json::from_str(&out).unwrap_or_else(|e| panic!("{e}: {out}"))
+        // One JSON object per update, one per line: the last is the final state.
+        let last = out.lines().last().unwrap_or_default();
+        let v: serde_json::Value =
+            serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {out}"));
+        v["nodes"].clone()
     }
 }
 
@@ -249,36 +256,6 @@ fn a_shipment_cut_short_by_a_dead_broker_resumes_from_its_disk_queue() {
         std::fs::read_to_string(&out).unwrap(),
         std::fs::read_to_string(&csv).unwrap()
     );
-}
-
-/// A status snapshot of one tracking axis at cycle `k`.
-fn snapshot(k: u64) -> retrocomp::gateway::status::StatusSnapshot {
-    use retrocomp::gateway::status::{AxisStatus, StatusSnapshot};
-    StatusSnapshot {
-        t_s: k as f64 * 0.01,
-        cycles: k,
-        enabled: true,
-        axes: vec![AxisStatus {
-            axis: "x".into(),
-            position_mm: Some(k as f64),
-            direction: Some(retrocomp::approach::Approach::Forward),
-            weight_forward: 1.0,
-            target_um: Some(-(k as f64) * 0.1),
-            applied_um: -(k as f64) * 0.1,
-            mode: retrocomp::gateway::Mode::Tracking,
-            terms_um: Default::default(),
-            clamp_hits: 0,
-            cap_hits: 0,
-        }],
-        channels: Default::default(),
-        active_faults: vec![],
-        model_error: None,
-        sink: None,
-        sources: vec![],
-        model: None,
-        telemetry: None,
-        timing: Default::default(),
-    }
 }
 
 /// `Publisher::finish` (what the load bench relies on for its final counts): every record the

@@ -10,6 +10,8 @@
 #[path = "peers/mosquitto.rs"]
 mod mosquitto;
 mod peers;
+#[path = "peers/snapshot.rs"]
+mod snapshot;
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -19,42 +21,13 @@ use std::time::{Duration, Instant};
 
 use mosquitto::Broker;
 use peers::{Peer, free_port, spawn_python};
-use retrocomp::approach::Approach;
-use retrocomp::gateway::Mode;
-use retrocomp::gateway::status::{AxisStatus, StatusSnapshot};
+use retrocomp::gateway::status::StatusSnapshot;
 use retrocomp::telemetry::{self, MqttConfig, PublisherInputs, TelemetryStatus};
 use serde_json::Value;
+use snapshot::snapshot;
 use tokio::sync::watch;
 
 const PATIENCE: Duration = Duration::from_secs(60);
-
-fn snapshot(k: u64) -> StatusSnapshot {
-    StatusSnapshot {
-        t_s: k as f64 * 0.01,
-        cycles: k,
-        enabled: true,
-        axes: vec![AxisStatus {
-            axis: "x".into(),
-            position_mm: Some(k as f64),
-            direction: Some(Approach::Forward),
-            weight_forward: 1.0,
-            target_um: Some(-(k as f64) * 0.1),
-            applied_um: -(k as f64) * 0.1,
-            mode: Mode::Tracking,
-            terms_um: BTreeMap::from([("thermal".to_string(), -(k as f64) * 0.1)]),
-            clamp_hits: 0,
-            cap_hits: 0,
-        }],
-        channels: BTreeMap::new(),
-        active_faults: vec![],
-        model_error: None,
-        sink: None,
-        sources: vec![],
-        model: None,
-        telemetry: None,
-        timing: Default::default(),
-    }
-}
 
 /// Collects the host's decoded messages.
 struct Host {
@@ -569,7 +542,7 @@ async fn fleet_shows_boxes_compensating_degraded_and_offline_by_death_and_will()
             && verdict(f, "mill-b") == Some(Verdict::Offline)
     })
     .await;
-    assert!(fleet.view.table().contains("offline"));
+    assert!(fleet.view.table(0).contains("offline"));
 }
 
 #[test]

@@ -17,15 +17,22 @@ use super::util::{read, write};
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
+    /// Ballbar CSV: `angle_deg,dr_um,direction` (direction ccw or cw; dr = measured − nominal
+    /// radius), rows in sampling order.
     pub file: PathBuf,
+    /// Nominal radius of the circle, mm.
     #[arg(long)]
     pub radius_mm: f64,
+    /// Feed of the test, mm/min.
     #[arg(long)]
     pub feed_mm_min: f64,
+    /// Also look for a cyclic error of X with this period (e.g. the ball screw lead), mm.
     #[arg(long)]
     pub cyclic_period_x_mm: Option<f64>,
+    /// Also look for a cyclic error of Y with this period (e.g. the ball screw lead), mm.
     #[arg(long)]
     pub cyclic_period_y_mm: Option<f64>,
+    /// Print the report as JSON instead of text.
     #[arg(long)]
     pub json: bool,
     /// Write the ISO 230-4 polar plot as SVG: each direction's measured path on a polar grid with

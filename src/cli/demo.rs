@@ -41,13 +41,7 @@ pub(crate) struct Args {
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     // Quiet by default: the table and the JSON line are the output (RUST_LOG overrides). The CAN
     // source reports "bus closed" when hil-sim ends its program and leaves the hub: expected here.
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-        tracing_subscriber::EnvFilter::new("error,retrocomp::gateway::sources=off")
-    });
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .try_init();
+    super::term::init_tracing("error,retrocomp::gateway::sources=off");
     anyhow::ensure!(
         args.seconds.is_finite() && (0.0..=60.0).contains(&args.seconds),
         "--seconds {}: the warm-up must be between 0 and 60 s (the demo runs in real time)",
@@ -76,7 +70,11 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         .worker_threads(2)
         .enable_all()
         .build()?;
+    let progress = super::term::Progress::spinner(
+        "demo: four runs of the program (uncompensated, geometric truth, full truth, fitted)",
+    );
     let r = rt.block_on(run_demo(&opts))?;
+    progress.finish();
     println!(
         "retrocomp demo: model fitted from hil-sim measurement runs ({:.1} s; {}/models/mill-fitted.toml):",
         r.campaign_s,

@@ -67,7 +67,9 @@ pub(crate) fn skipped_rows_json(bad: &[BadRow]) -> serde_json::Value {
 }
 
 pub(crate) fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
+    let progress = super::term::Progress::spinner("diagnose: reading the recording");
     let (rec, bad) = read_recording(&a.recording, a.skip_bad_rows)?;
+    progress.stage("diagnose: finding what simulation and recording disagree on");
     let base = match &a.model {
         Some(m) => Some(
             retrocomp::models::MachineModel::from_toml_path(m)
@@ -92,6 +94,7 @@ pub(crate) fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
         _ => diagnose::diagnose(rec.as_ref().expect("kept"), &Options::default()),
     }
     .with_context(|| a.recording.display().to_string())?;
+    progress.finish();
     let mut report = serde_json::to_value(&d.report)?;
     if a.skip_bad_rows {
         report["skipped_rows"] = skipped_rows_json(&bad);
@@ -167,10 +170,12 @@ pub(crate) fn run_bench(a: &BenchArgs) -> anyhow::Result<()> {
     }
     let start = std::time::Instant::now();
     let mut scores = vec![];
+    let progress = super::term::Progress::bar(csvs.len() as u64, "diagnose-bench: cases");
     for c in &csvs {
         let s = score_file(c)?;
+        progress.inc(1);
         if a.verbose && !a.json {
-            println!(
+            progress.suspend(|| println!(
                 "{} {:<13} {:<10} snr {:>6.2} verdict {:<9} recalled {}/{} spurious {} perr {:?} heldout {:?} forward {:?}",
                 s.case,
                 s.family,
@@ -183,10 +188,11 @@ pub(crate) fn run_bench(a: &BenchArgs) -> anyhow::Result<()> {
                 s.param_errors,
                 s.heldout_gain_ratio,
                 s.forward_gain_ratio
-            );
+            ));
         }
         scores.push(s);
     }
+    progress.finish();
     let sum = scoring::summarize(&scores);
     let fams = scoring::summarize_by_family(&scores);
     let elapsed_s = start.elapsed().as_secs_f64();

@@ -18,7 +18,9 @@ pub(crate) enum Format {
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
+    /// The toolkit table CSV (position_mm,forward_um,reverse_um; error = actual − nominal).
     pub table: PathBuf,
+    /// The controller's format to write.
     #[arg(long, value_enum)]
     pub format: Format,
     /// Fanuc: axis number in the tape.
@@ -33,6 +35,7 @@ pub(crate) struct Args {
     /// Fanuc: point interval, mm.
     #[arg(long, default_value_t = 20.0)]
     pub interval_mm: f64,
+    /// Fanuc: detection unit in µm (one tape count).
     #[arg(long, default_value_t = 1.0)]
     pub detection_unit_um: f64,
     /// Fanuc 3623.
@@ -47,10 +50,13 @@ pub(crate) struct Args {
     /// ISG: moving axis letter.
     #[arg(long, default_value = "X")]
     pub axis: char,
+    /// Write the controller file here (default: stdout).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Print a JSON summary (with the file's text) instead of the file.
     #[arg(long)]
     pub json: bool,
+    /// Write the correction the controller will apply, per direction against position, as SVG.
     #[arg(long)]
     pub svg: Option<PathBuf>,
 }

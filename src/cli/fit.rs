@@ -31,13 +31,17 @@ pub(crate) struct Args {
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub(crate) enum Form {
+    /// Forward and reverse tables at the measured targets (keeps the reversal error).
     Table,
+    /// One piecewise quadratic, the mean of both directions (reversal dropped).
     Piecewise,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub(crate) enum Crit {
+    /// Bayesian information criterion (the smallest model that explains the data).
     Bic,
+    /// Mallows' Cp (expected prediction error).
     Cp,
     /// The mean of the fits of every size 1…max-terms (for prediction beyond the recording's
     /// regimes; docs/diagnose.md "Compensation model").
@@ -52,8 +56,10 @@ pub(crate) struct Common {
     /// Where to write the model TOML (default: stdout in text mode).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Print one JSON object (fit, δ, residuals, the model TOML) instead of the text report.
     #[arg(long)]
     pub json: bool,
+    /// Write the measured values against the fitted model as an SVG chart.
     #[arg(long)]
     pub svg: Option<PathBuf>,
     /// fit thermal / load: keep going past bad rows of the recording (each listed on stderr, and
@@ -66,10 +72,12 @@ pub(crate) struct Common {
 pub(crate) enum What {
     /// Piecewise-quadratic forward/reverse tables of one component from laser runs (ISO 230-2 CSV).
     Axis {
+        /// Laser runs of the axis (CSV, long or wide layout as `retrocomp iso230-2` reads).
         runs: PathBuf,
         /// ISO 230-1 component, e.g. EXX.
         #[arg(long)]
         component: String,
+        /// Spacing of the candidate knots across the travel, mm.
         #[arg(long, default_value_t = 50.0)]
         knot_step_mm: f64,
         /// Significance level of a knot (Spaan: 99.99 % → 1e-4).
@@ -78,8 +86,10 @@ pub(crate) enum What {
         /// Run left out of the fit and used for δ.
         #[arg(long)]
         holdout_run: Option<u32>,
+        /// How the fit goes into the model.
         #[arg(long, value_enum, default_value = "table")]
         form: Form,
+        /// Remove linear drift across runs before fitting.
         #[arg(long)]
         remove_drift: bool,
         #[command(flatten)]
@@ -87,7 +97,9 @@ pub(crate) enum What {
     },
     /// Thermal regression of an error signal on `T_<name>_C` columns of a recording.
     Thermal {
+        /// Recording CSV (docs/recording-csv.md) with the error signal and `T_<name>_C` columns.
         recording: PathBuf,
+        /// The error column to explain, e.g. ex_um.
         #[arg(long)]
         signal: String,
         /// Component the term adds to (default from the signal: ex_um → EXX).
@@ -96,8 +108,10 @@ pub(crate) enum What {
         /// Lag time constants to try, s (0 = no lag).
         #[arg(long, value_delimiter = ',', default_value = "0")]
         lags_s: Vec<f64>,
+        /// Most terms (sensors × lags) the model may use.
         #[arg(long, default_value_t = 4)]
         max_terms: usize,
+        /// How the number of terms is chosen.
         #[arg(long, value_enum, default_value = "bic")]
         criterion: Crit,
         /// Values of the `run` column held out for δ (default: last 30 % of samples).
@@ -121,15 +135,22 @@ pub(crate) enum What {
     },
     /// Load regression of an error signal on `strain_<name>_ue` columns of a recording.
     Load {
+        /// Recording CSV (docs/recording-csv.md) with the error signal and `strain_<name>_ue`
+        /// columns.
         recording: PathBuf,
+        /// The error column to explain, e.g. ez_um.
         #[arg(long)]
         signal: String,
+        /// Component the term adds to (default from the signal: ez_um → EZZ).
         #[arg(long)]
         target: Option<String>,
+        /// Most terms (strain gauges) the model may use.
         #[arg(long, default_value_t = 2)]
         max_terms: usize,
+        /// How the number of terms is chosen.
         #[arg(long, value_enum, default_value = "bic")]
         criterion: Crit,
+        /// Values of the `run` column held out for δ (default: last 30 % of samples).
         #[arg(long, value_delimiter = ',')]
         holdout_runs: Vec<u32>,
         #[command(flatten)]
@@ -366,8 +387,10 @@ pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
                 !common.skip_bad_rows,
                 "--skip-bad-rows applies to recordings (fit thermal, fit load); the ISO 230-2 runs file is read strictly"
             );
+            let progress = super::term::Progress::spinner("fit: fitting the axis tables");
             let (rs, slope) = super::iso230_2::load(runs, *remove_drift)?;
             let fit = fit_axis(&rs, *knot_step_mm, *alpha, *holdout_run)?;
+            progress.finish();
             let targets: Vec<f64> = rs.iter().map(|r| r.target_mm).collect();
             let f = match form {
                 Form::Table => AxisForm::Table,
@@ -479,7 +502,9 @@ fn run_context(
         Some(t) => component(t)?,
         None => default_target(signal)?,
     };
+    let progress = super::term::Progress::spinner("fit: reading the recording");
     let (rec, bad) = super::diagnose::read_recording(recording, common.skip_bad_rows)?;
+    progress.stage("fit: choosing and fitting the terms");
     let criterion = match x.criterion {
         Crit::Bic => Criterion::Bic,
         Crit::Cp => Criterion::Cp,
@@ -522,6 +547,7 @@ fn run_context(
         add_load(&mut spec, &f, id)?;
     }
     let (toml, _) = to_checked_toml(spec)?;
+    progress.finish();
     if let Some(p) = &common.svg {
         context_svg(p, &rec, &f, base_um.as_deref())?;
     }

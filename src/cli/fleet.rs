@@ -1,7 +1,10 @@
 //! `retrocomp fleet --broker HOST:PORT [--group G] [--every-s S] [--seconds N] [--json]`: a
 //! Sparkplug B host that shows every box's health (alive, compensating, degraded, idle) from its
-//! NBIRTH/NDATA/NDEATH (src/telemetry/fleet.rs). Prints the table every `--every-s`; with
-//! `--seconds` it stops after that long (with `--json`: one JSON array of the nodes on stdout).
+//! NBIRTH/NDATA/NDEATH (src/telemetry/fleet.rs), asking boxes it has no birth for to rebirth.
+//! Prints the table (headed by the time it was drawn) every `--every-s`; with `--json` it streams
+//! instead one JSON object per update, one line each: `{"drawn_at", "drawn_ms", "nodes": [...]}`,
+//! at most one per `--every-s` and only when something changed, plus a last one at the end.
+//! With `--seconds` it stops after that long.
 //! With `--collect-dir` it also collects the machines' recordings (src/telemetry/recordings.rs);
 //! with `--models` it diagnoses each machine's latest recording against its own model every
 //! `--diagnose-every-s` and flags model drift (src/telemetry/drift.rs).
@@ -16,6 +19,7 @@ use retrocomp::error::Chain;
 use retrocomp::telemetry::drift::{self, DriftState, MachineDrift};
 use retrocomp::telemetry::fleet::FleetView;
 use retrocomp::telemetry::fleet_client::FleetClient;
+use retrocomp::telemetry::publisher::now_ms;
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
@@ -31,9 +35,12 @@ pub(crate) struct Args {
     /// Stop after this many seconds (default: run until interrupted).
     #[arg(long)]
     pub seconds: Option<f64>,
-    /// At the end, print the nodes as one JSON array instead of the table.
+    /// Stream JSON instead of the table: one object per update, one line each.
     #[arg(long)]
     pub json: bool,
+    /// Ask a box it has no birth for to rebirth at most this often, s.
+    #[arg(long, default_value_t = 5.0)]
+    pub rebirth_every_s: f64,
     /// Collect the machines' recordings into DIR/<group>/<edge node>/ (from MQTT, and what
     /// `ship-recording --to-dir DIR` wrote there).
     #[arg(long)]
@@ -95,11 +102,18 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         "--diagnose-every-s must be > 0"
     );
     anyhow::ensure!(
+        args.rebirth_every_s.is_finite() && args.rebirth_every_s >= 0.0,
+        "--rebirth-every-s must be >= 0"
+    );
+    anyhow::ensure!(
         args.models.is_none() || args.collect_dir.is_some(),
         "--models needs --collect-dir (the recordings to diagnose)"
     );
     rt.block_on(async {
         let mut fc = FleetClient::new(&args.broker, args.group.as_deref())?;
+        fc.view = FleetView::new((args.rebirth_every_s * 1000.0) as u64);
+        // Something changed since the last JSON line.
+        let mut changed = true;
         if let Some(d) = &args.collect_dir {
             std::fs::create_dir_all(d).with_context(|| d.display().to_string())?;
             fc.collect(d.clone(), &args.recordings_topic);
@@ -117,7 +131,14 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         loop {
             tokio::select! {
                 _ = &mut end => break,
-                _ = every.tick() => if !args.json { print!("{}", table(&fc.view, &drifts)) },
+                _ = every.tick() => {
+                    if !args.json {
+                        print!("{}", table(&fc.view, &drifts));
+                    } else if changed {
+                        println!("{}", json(&fc.view, &drifts)?);
+                        changed = false;
+                    }
+                }
                 _ = diag_every.tick(), if diag.is_none() => {
                     if let (Some(c), Some(m)) = (&args.collect_dir, &args.models) {
                         let (c, m, prev, um) = (c.clone(), m.clone(), drifts.clone(), args.drift_um);
@@ -128,13 +149,15 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
                 r = async { diag.as_mut().expect("guarded").await }, if diag.is_some() => {
                     diag = None;
                     drifts = r?;
+                    changed = true;
                     let done = drifts.values().filter(|d| d.state != DriftState::Error).count();
                     if args.stop_after_diagnosed.is_some_and(|n| done >= n) {
                         break;
                     }
                 }
                 r = fc.poll() => match r {
-                    Ok(_) => {
+                    Ok(c) => {
+                        changed |= c;
                         warned = false;
                         if fc.subscribed && !said_subscribed {
                             said_subscribed = true;
@@ -159,16 +182,23 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     })
 }
 
-/// The nodes (and machines known only by their recordings) as one JSON array; each with its
-/// `verdict` and, once diagnosed, `drift`.
+/// When a table or JSON line is drawn: (ms since the Unix epoch, ISO 8601 UTC to the second).
+fn drawn_now() -> (u64, String) {
+    let ms = now_ms();
+    let at = chrono::DateTime::from_timestamp_millis(ms as i64)
+        .map_or_else(String::new, |t| t.format("%Y-%m-%dT%H:%M:%SZ").to_string());
+    (ms, at)
+}
+
+/// One update: when it was drawn and the nodes (and machines known only by their recordings),
+/// each with its `verdict`, `faults`, `applied_um` and, once diagnosed, `drift`.
 pub(crate) fn json(
     view: &FleetView,
     drifts: &BTreeMap<(String, String), MachineDrift>,
 ) -> anyhow::Result<serde_json::Value> {
     let mut nodes = Vec::new();
     for (k, n) in &view.nodes {
-        let mut v = serde_json::to_value(n)?;
-        v["verdict"] = serde_json::to_value(n.verdict())?;
+        let mut v = n.to_json();
         if let Some(d) = drifts.get(k) {
             v["drift"] = serde_json::to_value(d)?;
         }
@@ -181,12 +211,15 @@ pub(crate) fn json(
             }));
         }
     }
-    Ok(serde_json::Value::Array(nodes))
+    let (ms, at) = drawn_now();
+    Ok(serde_json::json!({ "drawn_at": at, "drawn_ms": ms, "nodes": nodes }))
 }
 
 /// The health table, then one line per diagnosed machine (drift state, residual, finding).
 pub(crate) fn table(view: &FleetView, drifts: &BTreeMap<(String, String), MachineDrift>) -> String {
-    let mut s = view.table();
+    let (ms, at) = drawn_now();
+    let mut s = format!("fleet at {at}, {} nodes\n", view.nodes.len());
+    s.push_str(&view.table(ms));
     if !drifts.is_empty() {
         s.push_str(&format!(
             "{:<16} {:<20} {:<11} {:>9} {:>9}  finding\n",

@@ -33,7 +33,7 @@ fn counters(s: &HubStats) -> String {
 }
 
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
-    super::run::init_tracing();
+    super::term::init_tracing("info");
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

@@ -35,6 +35,7 @@ pub(crate) struct Args {
     /// Where to write the model TOML.
     #[arg(long)]
     pub out: PathBuf,
+    /// Print one JSON object (components, residuals, δ) instead of the text report.
     #[arg(long)]
     pub json: bool,
     /// Folder for SVG plots: measured vs residual per hole of each verification plate.
@@ -115,7 +116,9 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
             opts.knot_step_mm
         );
     }
+    let progress = super::term::Progress::spinner("identify: fitting the 21 components");
     let id = identify(&geo, &plates, &bars, &opts)?;
+    progress.finish();
     let name = args
         .out
         .file_stem()

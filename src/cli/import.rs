@@ -24,7 +24,9 @@ pub(crate) enum Format {
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
+    /// The file to read: laser runs CSV, Fanuc pitch tape, LinuxCNC comp file or ISG table.
     pub file: PathBuf,
+    /// What FILE is.
     #[arg(long, value_enum, default_value = "laser")]
     pub format: Format,
     /// Remove linear drift across runs (laser format).
@@ -42,11 +44,13 @@ pub(crate) struct Args {
     /// LinuxCNC: COMP_FILE_TYPE (0 = actual positions, 1 = nominal − actual).
     #[arg(long, default_value_t = 0)]
     pub comp_type: u8,
+    /// Write the table CSV (position_mm,forward_um,reverse_um) here (default: stdout).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Print a JSON summary (and the table) instead of the CSV.
     #[arg(long)]
     pub json: bool,
+    /// Write the imported table (error per direction against position) as an SVG chart.
     #[arg(long)]
     pub svg: Option<PathBuf>,
 }

@@ -19,4 +19,5 @@ pub(crate) mod report_args;
 pub(crate) mod run;
 pub(crate) mod ship;
 pub(crate) mod status;
+pub(crate) mod term;
 pub(crate) mod util;

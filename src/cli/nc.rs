@@ -39,6 +39,7 @@ use super::util::write;
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
+    /// The NC program to rewrite (G-code, ISO/Fanuc or LinuxCNC dialect).
     pub program: PathBuf,
     /// Machine model TOML (the error function to compensate).
     #[arg(
@@ -80,10 +81,13 @@ pub(crate) struct Args {
     /// `;` starts a comment (LinuxCNC) instead of ending a block (Fanuc/ISO).
     #[arg(long)]
     pub semicolon_comment: bool,
+    /// Write the rewritten program here (written whole or not at all; default: stdout).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Print a JSON summary (counts, largest correction; the program too without --out).
     #[arg(long)]
     pub json: bool,
+    /// Write the nominal position of every motion point as an SVG chart.
     #[arg(long)]
     pub svg: Option<PathBuf>,
 }

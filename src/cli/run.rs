@@ -23,17 +23,8 @@ pub(crate) struct Args {
     pub dry_run: bool,
 }
 
-pub(crate) fn init_tracing() {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .try_init();
-}
-
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
-    init_tracing();
+    super::term::init_tracing("info");
     exit_on_panic();
     // Field file and model checked together, offline (the same checks as `check-config`).
     let checked = check_field(&args.config, args.model.as_deref())?;

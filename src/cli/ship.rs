@@ -28,8 +28,10 @@ pub(crate) struct Args {
     /// MQTT broker HOST:PORT (instead of --config).
     #[arg(long)]
     pub broker: Option<String>,
+    /// Sparkplug group of this box (instead of --config).
     #[arg(long)]
     pub group: Option<String>,
+    /// Sparkplug edge node id of this box (instead of --config).
     #[arg(long)]
     pub edge_node: Option<String>,
     /// Topic (default `retrocomp/recordings/<group>/<edge node>`).

@@ -59,6 +59,11 @@ pub struct MqttConfig {
     /// record in flight when the link breaks is lost.
     #[serde(default = "one")]
     pub ndata_qos: u8,
+    /// NCMD `Node Control/Rebirth` requests are answered with at most one NBIRTH per this many
+    /// seconds (a request inside the interval is answered at its end), so a host's rebirth storm
+    /// cannot flood the broker with births.
+    #[serde(default = "default_rebirth_min_interval_s")]
+    pub rebirth_min_interval_s: f64,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -119,6 +124,9 @@ fn default_max_records() -> usize {
 fn default_max_bytes() -> u64 {
     256 << 20
 }
+fn default_rebirth_min_interval_s() -> f64 {
+    1.0
+}
 fn one() -> u8 {
     1
 }
@@ -164,6 +172,7 @@ impl MqttConfig {
             tls: None,
             queue: QueueConfig::default(),
             ndata_qos: 1,
+            rebirth_min_interval_s: default_rebirth_min_interval_s(),
         }
     }
 
@@ -226,6 +235,13 @@ impl MqttConfig {
             return Err((
                 k("ndata_qos"),
                 format!("expected 0 or 1, got {}", self.ndata_qos),
+            ));
+        }
+        let r = self.rebirth_min_interval_s;
+        if !(r.is_finite() && (0.0..=3600.0).contains(&r)) {
+            return Err((
+                k("rebirth_min_interval_s"),
+                format!("expected 0..=3600 s, got {r}"),
             ));
         }
         if self.password_file.is_some() && self.username.is_none() {

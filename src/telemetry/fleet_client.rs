@@ -1,6 +1,7 @@
 //! The MQTT shell of a Sparkplug B host around the sans-IO [`FleetView`] (src/telemetry/fleet.rs):
-//! one subscription to `spBv1.0/<group>/+/+` (QoS 1), renewed on every reconnect, and optionally
-//! the recordings topic fed to a [`Collector`]. Used by `retrocomp fleet`, the MQTT tests and the
+//! one subscription to `spBv1.0/<group>/+/+` (QoS 1), renewed on every reconnect, the view's
+//! rebirth requests published as NCMD (QoS 0, not retained, as Sparkplug 3.0 says for NCMD), and
+//! optionally the recordings topic fed to a [`Collector`]. Used by `retrocomp fleet`, the MQTT tests and the
 //! fleet bench. Units as in [`FleetView`].
 
 use std::path::PathBuf;
@@ -9,6 +10,7 @@ use std::time::Duration;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 
 use crate::telemetry::fleet::FleetView;
+use crate::telemetry::publisher::now_ms;
 use crate::telemetry::recordings::{Collector, Took};
 
 /// Why the fleet client could not be built or lost its link.
@@ -77,10 +79,41 @@ impl FleetClient {
         self.collector = Some((Collector::new(dir), topic.to_string()));
     }
 
-    /// Wait for the next event; true when a Sparkplug message changed the view. A link error
-    /// is returned after a 500 ms pause (the next call reconnects).
+    /// Wait for the next event (or a deferred rebirth request falling due); true when a
+    /// Sparkplug message changed the view. A link error is returned after a 500 ms pause (the
+    /// next call reconnects).
     pub async fn poll(&mut self) -> Result<bool, FleetClientError> {
-        match self.events.poll().await {
+        let wait = self
+            .view
+            .poll_timeout()
+            .map(|due| Duration::from_millis(due.saturating_sub(now_ms())));
+        let ev = tokio::select! {
+            ev = self.events.poll() => ev,
+            _ = tokio::time::sleep(wait.unwrap_or_default()), if wait.is_some() => {
+                self.send_ncmds()?;
+                return Ok(false);
+            }
+        };
+        let r = self.handle(ev).await;
+        self.send_ncmds()?;
+        r
+    }
+
+    /// Publish the view's pending NCMDs (a full request queue leaves them for the next poll).
+    fn send_ncmds(&mut self) -> Result<(), FleetClientError> {
+        while let Some((topic, payload)) = self.view.poll_transmit(now_ms()) {
+            tracing::debug!(topic, "fleet: rebirth requested");
+            self.client
+                .try_publish(topic, QoS::AtMostOnce, false, payload)?;
+        }
+        Ok(())
+    }
+
+    async fn handle(
+        &mut self,
+        ev: Result<Event, rumqttc::ConnectionError>,
+    ) -> Result<bool, FleetClientError> {
+        match ev {
             Ok(Event::Incoming(Packet::ConnAck(_))) => {
                 self.subscribed = false;
                 self.subacks = 0;
@@ -97,8 +130,7 @@ impl FleetClient {
                 Ok(false)
             }
             Ok(Event::Incoming(Packet::Publish(p))) if p.topic.starts_with("spBv1.0/") => {
-                self.view.ingest(&p.topic, &p.payload);
-                Ok(true)
+                Ok(self.view.handle_message(&p.topic, &p.payload, now_ms()))
             }
             Ok(Event::Incoming(Packet::Publish(p))) => {
                 if let Some((c, _)) = &mut self.collector {

@@ -5,7 +5,7 @@
 //! (bounded store-and-forward queue, on disk), [`config`] (`[telemetry.mqtt]`), [`publisher`] (the
 //! rumqttc shell fed from the gateway's status watch; it can never block the cycle), [`fleet`] (the
 //! host side: per box alive/compensating/degraded from its messages, for `retrocomp fleet`;
-//! [`fleet_client`] is its MQTT shell),
+//! [`fleet_client`] is its MQTT shell), [`rebirth`] (the rate limit of rebirths, both sides),
 //! [`recordings`] + [`shipper`] (a box's recording CSV to the fleet, chunked through the same queue;
 //! collected per machine), [`drift`] (scheduled diagnose per machine against its own model). Units as in
 //! the status: µm for corrections (correction = −error), mm for positions; timestamps ms since
@@ -20,6 +20,7 @@ pub mod fleet_client;
 pub mod metrics;
 pub mod publisher;
 pub mod queue;
+pub mod rebirth;
 pub mod recordings;
 pub mod shipper;
 pub mod sparkplug;

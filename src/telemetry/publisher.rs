@@ -12,7 +12,8 @@
 //!   than this NBIRTH flagged `is_historical`, each with its source timestamp), then live data.
 //!   A broken link drops the client (rumqttc would otherwise replay its own pending publishes
 //!   before our NBIRTH); what was not acknowledged is still queued and goes again after the next
-//!   NBIRTH. An NCMD `Node Control/Rebirth` = true is answered with a new NBIRTH.
+//!   NBIRTH. An NCMD `Node Control/Rebirth` = true is answered with a new NBIRTH, at most one per
+//!   `rebirth_min_interval_s` ([`RebirthLimiter`]; a request inside it is answered at its end).
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
@@ -28,6 +29,7 @@ pub use super::annotate::TelemetryAnnotator;
 use super::config::MqttConfig;
 use super::metrics::{Record, Sampler, snapshot_metrics};
 use super::queue::{self, Queue, QueueLimits};
+use super::rebirth::RebirthLimiter;
 use super::sparkplug::{self, EdgeNode, Kind, NamedValue};
 pub use super::status::TelemetryStatus;
 use crate::bus::Backoff;
@@ -107,7 +109,8 @@ impl Drop for Publisher {
     }
 }
 
-fn now_ms() -> u64 {
+/// The wall clock, ms since the Unix epoch (Sparkplug timestamps; the fleet host's last-seen).
+pub fn now_ms() -> u64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_millis() as u64)
@@ -139,12 +142,15 @@ pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> Result<Publisher, Tele
         rec_tx,
         handover_drops.clone(),
     ));
+    let rebirths = RebirthLimiter::new((cfg.rebirth_min_interval_s * 1000.0) as u64);
     let session = tokio::spawn(
         Session {
             cfg,
             base,
             queue,
             edge: EdgeNode::new(0),
+            rebirths,
+            clock: tokio::time::Instant::now(),
             records: rec_rx,
             status: status_tx,
             handover_drops,
@@ -270,6 +276,9 @@ struct Session {
     base: MqttOptions,
     queue: Queue,
     edge: EdgeNode,
+    /// NCMD rebirths honoured at most once per interval (ms since `clock`).
+    rebirths: RebirthLimiter,
+    clock: tokio::time::Instant,
     records: mpsc::Receiver<Record>,
     status: watch::Sender<TelemetryStatus>,
     handover_drops: Arc<std::sync::atomic::AtomicU64>,
@@ -429,7 +438,17 @@ impl Session {
             .as_deref()
             .map(sparkplug::state_topic);
         loop {
+            let rebirth_due = self
+                .rebirths
+                .due_ms()
+                .map(|ms| self.clock + Duration::from_millis(ms));
             tokio::select! {
+                _ = tokio::time::sleep_until(rebirth_due.unwrap_or(self.clock)), if rebirth_due.is_some() => {
+                    let now = self.clock_ms();
+                    if self.rebirths.poll(now) && c.phase == Phase::Born {
+                        self.birth(c);
+                    }
+                }
                 _ = &mut *stop => {
                     if c.phase == Phase::Born {
                         self.say_goodbye(c).await;
@@ -464,8 +483,9 @@ impl Session {
                     }
                     Some(Ok(Event::Incoming(Packet::Publish(p)))) => {
                         if p.topic == ncmd && sparkplug::is_rebirth_request(&p.payload) {
-                            tracing::info!("telemetry: rebirth requested by NCMD");
-                            if c.phase == Phase::Born {
+                            tracing::debug!("telemetry: rebirth requested by NCMD");
+                            let now = self.clock_ms();
+                            if c.phase == Phase::Born && self.rebirths.request(now) {
                                 self.birth(c);
                             }
                         } else if state.as_deref() == Some(p.topic.as_str()) {
@@ -546,7 +566,13 @@ impl Session {
         // A rebirth keeps its place in the queue: in-flight records are acknowledged as usual,
         // the rest follow the new NBIRTH with the new seq.
         self.births_total += 1;
+        let now = self.clock_ms();
+        self.rebirths.born(now);
         c.phase = Phase::Born;
+    }
+
+    fn clock_ms(&self) -> u64 {
+        self.clock.elapsed().as_millis() as u64
     }
 
     fn send_queued(&mut self, c: &mut Conn) {

@@ -256,18 +256,25 @@ pub(crate) fn sparkplug_commands(data: &[u8]) {
 
 /// The fleet host's Sparkplug view: messages of `[kind][node][len: u16 BE][payload]` (kind % 4:
 /// NBIRTH, NDATA, NDEATH, or a topic it ignores; node % 2: one of two edge nodes) into one
-/// [`FleetView`]; counts follow the messages taken, and the table has a line per node.
+/// [`FleetView`] at 1 ms apart; counts follow the messages taken, every outgoing message is an
+/// NCMD rebirth request to a node seen, and the table has a line per node.
 pub(crate) fn fleet_view(data: &[u8]) {
     let mut view = FleetView::default();
     let mut rest = data;
+    let mut now_ms = 0;
     while let [kind, node, l0, l1, tail @ ..] = rest {
+        now_ms += 1;
         let len = usize::from(u16::from_be_bytes([*l0, *l1])).min(tail.len());
         let (payload, tail) = tail.split_at(len);
         rest = tail;
         let kind = ["NBIRTH", "NDATA", "NDEATH", "NCMD"][usize::from(kind % 4)];
         let topic = format!("spBv1.0/shop/{kind}/mill-{}", node % 2);
         let before: u64 = view.nodes.values().map(|n| n.births + n.ndata).sum();
-        view.ingest(&topic, payload);
+        view.handle_message(&topic, payload, now_ms);
+        while let Some((t, p)) = view.poll_transmit(now_ms) {
+            assert!(t.starts_with("spBv1.0/shop/NCMD/mill-"), "{t}");
+            assert!(sparkplug::is_rebirth_request(&p));
+        }
         let after: u64 = view.nodes.values().map(|n| n.births + n.ndata).sum();
         let taken = matches!(kind, "NBIRTH" | "NDATA") && Payload::decode(payload).is_ok();
         assert_eq!(after, before + u64::from(taken), "{topic}");
@@ -276,7 +283,7 @@ pub(crate) fn fleet_view(data: &[u8]) {
             assert!(n.seq_gaps <= n.ndata);
         }
     }
-    assert_eq!(view.table().lines().count(), view.nodes.len() + 1);
+    assert_eq!(view.table(now_ms).lines().count(), view.nodes.len() + 1);
 }
 
 /// The fleet host's recording collector: chunks (JSON, split at 0xFF) into a fresh directory. Every

@@ -272,9 +272,12 @@ fn evaluate_batches(
     // csv::Writer, whose per-field state machine was a fifth of the command's CPU on 10⁶ rows.
     let mut chunk: Vec<u8> = Vec::with_capacity(CHUNK + (1 << 20));
     chunk.extend_from_slice(header);
+    let progress = super::term::Progress::counter("eval: rows evaluated");
     // Ends when the reader drops its sender: after the last row, or at the first bad row.
     for batch in full.iter() {
+        let mut n = 0;
         for (text, input) in batch.rows() {
+            n += 1;
             let state = state.get_or_insert_with(|| first_state(model, has_t, input.t_s));
             if args.first_order {
                 model.evaluate_first_order(input, state, &mut out);
@@ -291,6 +294,7 @@ fn evaluate_batches(
             write_flags(&mut chunk, &out.flags)?;
             chunk.push(b'\n');
         }
+        progress.inc(n);
         // The reader may already have gone (the file is read): then the batch is simply dropped.
         let _ = empty.send(batch);
         if chunk.len() >= CHUNK {

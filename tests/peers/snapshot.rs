@@ -1,0 +1,38 @@
+//! A gateway status snapshot for the Sparkplug tests: one axis `x` tracking, its correction and
+//! position moving with the cycle count `k` (so every snapshot differs and NDATA keeps flowing).
+//! Shared by `telemetry_mqtt.rs`, `telemetry_fleet_drift.rs` and `telemetry_fleet_host.rs` (each includes it with `#[path]`).
+#![allow(dead_code)]
+
+use std::collections::BTreeMap;
+
+use retrocomp::approach::Approach;
+use retrocomp::gateway::Mode;
+use retrocomp::gateway::status::{AxisStatus, StatusSnapshot};
+
+pub(crate) fn snapshot(k: u64) -> StatusSnapshot {
+    StatusSnapshot {
+        t_s: k as f64 * 0.01,
+        cycles: k,
+        enabled: true,
+        axes: vec![AxisStatus {
+            axis: "x".into(),
+            position_mm: Some(k as f64),
+            direction: Some(Approach::Forward),
+            weight_forward: 1.0,
+            target_um: Some(-(k as f64) * 0.1),
+            applied_um: -(k as f64) * 0.1,
+            mode: Mode::Tracking,
+            terms_um: BTreeMap::from([("thermal".to_string(), -(k as f64) * 0.1)]),
+            clamp_hits: 0,
+            cap_hits: 0,
+        }],
+        channels: BTreeMap::new(),
+        active_faults: vec![],
+        model_error: None,
+        sink: None,
+        sources: vec![],
+        model: None,
+        telemetry: None,
+        timing: Default::default(),
+    }
+}
