@@ -39,8 +39,10 @@ need lintian "apt-get install lintian (scripts/setup-peers.sh does)"
 need dpkg-deb "a Debian host"
 
 # package ARCH DIR [--target TRIPLE]: packages DIR/debug/retrocomp (copied to DIR/deb-test/) into
-# $TARGET_DIR/debian-test/, prints the .deb's path.
+# $TARGET_DIR/debian-test/; sets `deb` to the .deb's path (not printed: the counters of ok/bad
+# would be lost in a command substitution's subshell).
 package() {
+    deb=""
     local arch="$1" dir="$2"
     shift 2
     mkdir -p "$dir/deb-test"
@@ -56,18 +58,19 @@ package() {
         bad "cargo deb ($arch)"
         return 1
     fi
-    local deb
     deb=$(ls "$out"/retrocomp_*_"$arch".deb 2>/dev/null | head -n 1)
     [ -n "$deb" ] || { bad "no retrocomp_*_$arch.deb in $out"; return 1; }
-    echo "deb-check: $deb" >&2
-    echo "$deb"
+    echo "deb-check: $deb"
 }
 
+# lint DEB: no error (lintian's exit status is 0 with warnings only, 1 on an error, 2 when it could
+# not check the file).
 lint() {
-    local lint
+    local lint rc
     lint=$(lintian --tag-display-limit 0 "$1" 2>&1)
+    rc=$?
     echo "$lint" | sed 's/^/deb-check: lintian: /'
-    if echo "$lint" | grep -q '^E: '; then
+    if [ "$rc" -ne 0 ] || echo "$lint" | grep -q '^E: '; then
         bad "lintian reports errors in $(basename "$1")"
     else
         ok "lintian: no error in $(basename "$1")"
@@ -121,7 +124,7 @@ check_unpacked() {
 }
 bin="$TARGET_DIR/debug/retrocomp"
 [ -x "$bin" ] || cargo build --locked --profile test --bin retrocomp || { bad "building $bin"; finish; }
-if deb=$(package amd64 "$TARGET_DIR"); then
+if package amd64 "$TARGET_DIR"; then
     lint "$deb"
     check_unpacked "$deb"
 fi
@@ -150,8 +153,7 @@ arm64() {
         return
     }
     ok "cross-built $TARGET_DIR/$cross/debug/retrocomp"
-    local deb
-    deb=$(package arm64 "$TARGET_DIR/$cross" --target "$cross") || return
+    package arm64 "$TARGET_DIR/$cross" --target "$cross" || return
     lint "$deb"
     check_unpacked "$deb" "$qemu" -L "$sysroot"
 }
