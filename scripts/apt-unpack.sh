@@ -35,6 +35,19 @@ apt_unpack_deps() {
         --no-enhances "$1" 2>/dev/null | sed -n 's/^ *|\{0,1\}Depends: \([a-z0-9][^ <>]*\)$/\1/p'
 }
 
+# apt_unpack_ready CACHE TREE: prints TREE and succeeds when it is complete (.unpacked); else takes
+# CACHE's lock (held until this process exits: parallel test runs share the cache) and checks again,
+# so the caller that goes on to unpack is alone.
+apt_unpack_ready() {
+    [ -f "$2/.unpacked" ] && echo "$2" && return 0
+    if command -v flock >/dev/null 2>&1; then
+        exec 9>"$1/.lock"
+        flock 9
+        [ -f "$2/.unpacked" ] && echo "$2" && return 0
+    fi
+    return 1
+}
+
 apt_unpack() {
     _cache=$1
     _name=$2
@@ -51,18 +64,7 @@ apt_unpack() {
         apt_unpack_fail "no candidate for $1 in the apt lists: run 'apt-get update'"
     fi
     _tree="$_cache/$_name-$(echo "$_ver" | tr ':+~' '___')"
-    if [ -f "$_tree/.unpacked" ]; then
-        echo "$_tree"
-        return 0
-    fi
-    if command -v flock >/dev/null 2>&1; then
-        exec 9>"$_cache/.lock"
-        flock 9
-        if [ -f "$_tree/.unpacked" ]; then
-            echo "$_tree"
-            return 0
-        fi
-    fi
+    apt_unpack_ready "$_cache" "$_tree" && return 0
     _want="$*"
     _seen=" $* ${APT_UNPACK_SEEN:-} "
     _queue=""
