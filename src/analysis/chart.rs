@@ -32,6 +32,9 @@ pub const HEIGHT_PX: u32 = 540;
 pub const PANEL_PX: u32 = 260;
 /// Stroke of the legend box (the test finds the box by it).
 pub const LEGEND_FRAME: RGBColor = RGBColor(0x55, 0x55, 0x55);
+/// Lines of more points than this are drawn 1 px wide, not 2: at 2 px thousands of noisy samples
+/// make a solid band that hides the curve drawn under it.
+const DENSE_LINE_POINTS: usize = 1000;
 /// Markers drawn per series at most (evenly thinned beyond), so an SVG of 10⁶ rows stays small.
 const MAX_MARKERS: usize = 5000;
 
@@ -435,7 +438,12 @@ fn draw_series(
         let col = colour(s);
         if matches!(s.style, Style::Line | Style::LineMarkers) {
             let pts: Vec<(f64, f64)> = s.points.iter().map(clamp).collect();
-            chart.draw_series(LineSeries::new(pts, col.stroke_width(2)))?;
+            let width = if s.points.len() > DENSE_LINE_POINTS {
+                1
+            } else {
+                2
+            };
+            chart.draw_series(LineSeries::new(pts, col.stroke_width(width)))?;
         }
         if matches!(s.style, Style::Markers | Style::LineMarkers) {
             let stride = s.points.len().div_ceil(MAX_MARKERS).max(1);
