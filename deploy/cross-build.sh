@@ -3,7 +3,8 @@
 # Needs: rustup, and the Debian cross linker: sudo apt-get install gcc-aarch64-linux-gnu libc6-dev-arm64-cross
 # Usage: deploy/cross-build.sh [extra cargo args]   → target/aarch64-unknown-linux-gnu/dist/retrocomp
 # (the dist profile: fat LTO, as shipped; pass --profile release for a lighter build, or
-# --profile test for the unoptimised binary scripts/deb-check.sh packages and runs under qemu-aarch64).
+# --profile test (opt-level 1, no LTO) for the binary scripts/deb-check.sh packages and runs
+# under qemu-aarch64).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 TARGET=aarch64-unknown-linux-gnu
