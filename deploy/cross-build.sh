@@ -2,7 +2,9 @@
 # Cross-build retrocomp for an aarch64 Linux box (Raspberry Pi 4/5, industrial ARM PCs).
 # Needs: rustup, and the Debian cross linker: sudo apt-get install gcc-aarch64-linux-gnu libc6-dev-arm64-cross
 # Usage: deploy/cross-build.sh [extra cargo args]   → target/aarch64-unknown-linux-gnu/dist/retrocomp
-# (the dist profile: fat LTO, as shipped; pass --profile release for a lighter build).
+# (the dist profile: fat LTO, as shipped; pass --profile release for a lighter build, or
+# --profile test (opt-level 1, no LTO) for the binary scripts/deb-check.sh packages and runs
+# under qemu-aarch64).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 TARGET=aarch64-unknown-linux-gnu
@@ -26,6 +28,9 @@ for a in "$@"; do
 done
 if [ -z "$PROFILE" ]; then PROFILE=dist; set -- --profile dist "$@"; fi
 cargo build --locked --target "$TARGET" -p retrocomp "$@"
-BIN="${CARGO_TARGET_DIR:-target}/$TARGET/$PROFILE/retrocomp"
+# cargo's directory of a profile: dev and test build into debug/, bench into release/, any other
+# profile into its own name.
+case "$PROFILE" in dev | test) DIR=debug ;; bench) DIR=release ;; *) DIR="$PROFILE" ;; esac
+BIN="${CARGO_TARGET_DIR:-target}/$TARGET/$DIR/retrocomp"
 file "$BIN" 2>/dev/null || true
 echo "built $BIN"

@@ -1,16 +1,24 @@
 #!/usr/bin/env bash
-# Builds the Debian package from the binary the test suite just built and checks it (docs/install.md,
+# Builds the Debian packages from the binaries of the test profile and checks them (docs/install.md,
 # "Building the package"):
-#   1. `cargo deb --no-build --profile deb-test`: the test profile's target/debug/retrocomp copied to
-#      target/deb-test/ (cargo-deb reads `target/release/` in the assets as the profile's directory).
-#      The shipped package is `cargo deb --profile dist`; building that here would compile the whole
-#      dependency tree a second time (≈ 9 min of CPU on 2 cores).
-#   2. lintian: no error (warnings are printed, not fatal);
-#   3. the package unpacked into a scratch root (`dpkg -x`, no maintainer script runs): the files
-#      the unit and the docs promise are there, /etc/retrocomp/* is 0640 in the package, the unit's
-#      Documentation= files exist, and the unpacked binary runs `--version`, `check-config` on the
-#      unpacked model and `check-config --field` on the unpacked field file;
-# Prints `deb-check: N passed, N failed` and exits non-zero on any failure.
+#   1. amd64: `cargo deb --no-build --profile deb-test`: the test profile's target/debug/retrocomp
+#      (the binary the test suite just built) copied to target/deb-test/ (cargo-deb reads
+#      `target/release/` in the assets as the profile's directory). The shipped package is
+#      `cargo deb --profile dist`; building that here would compile the whole dependency tree a
+#      second time with fat LTO (≈ 9 min of CPU on 2 cores).
+#   2. arm64: the same binary cross-built (deploy/cross-build.sh --profile test: the Debian cross
+#      linker, rustup's aarch64 std; the host's build scripts and proc macros of step 1 are reused)
+#      into target/aarch64-unknown-linux-gnu/debug/, copied to …/deb-test/ and packaged with
+#      `cargo deb --no-build --profile deb-test --target aarch64-unknown-linux-gnu`.
+#   Each package: lintian reports no error (warnings are printed, not fatal); it is unpacked into a
+#   scratch root (`dpkg -x`, no maintainer script runs): the files the unit and the docs promise are
+#   there, /etc/retrocomp/* is 0640 in the package, the unit's Documentation= files exist, and the
+#   unpacked binary runs `--version`, `check-config` on the unpacked model and `check-config
+#   --field` on the unpacked field file: arm64's under qemu-aarch64 (scripts/fetch-qemu-user.sh:
+#   Debian's qemu-user-static unpacked into a cache, never installed) with `-L /usr/aarch64-linux-gnu`
+#   (the loader and libc of libc6-arm64-cross), as the dynamically linked binary the package ships.
+# Prints `deb-check: N passed, N failed` and exits non-zero on any failure; a missing tool or Rust
+# target is a failure that says how to install it.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 TARGET_DIR="${CARGO_TARGET_DIR:-target}"
@@ -30,26 +38,44 @@ need cargo-deb "cargo install --locked cargo-deb (scripts/setup-peers.sh does)"
 need lintian "apt-get install lintian (scripts/setup-peers.sh does)"
 need dpkg-deb "a Debian host"
 
-bin="$TARGET_DIR/debug/retrocomp"
-[ -x "$bin" ] || cargo build --locked --profile test --bin retrocomp || { bad "building $bin"; finish; }
-mkdir -p "$TARGET_DIR/deb-test"
-cp -f "$bin" "$TARGET_DIR/deb-test/retrocomp"
-out="$TARGET_DIR/debian-test"
-rm -rf "$out"
-if cargo deb --no-build --profile deb-test --locked -p retrocomp -o "$out/" >"$out.log" 2>&1; then
-    ok "cargo deb"
-else
-    cat "$out.log" >&2
-    bad "cargo deb"
-    finish
-fi
-deb=$(ls "$out"/retrocomp_*_amd64.deb 2>/dev/null | head -n 1)
-[ -n "$deb" ] || { bad "no retrocomp_*_amd64.deb in $out"; finish; }
-echo "deb-check: $deb"
+# package ARCH DIR [--target TRIPLE]: packages DIR/debug/retrocomp (copied to DIR/deb-test/) into
+# $TARGET_DIR/debian-test/; sets `deb` to the .deb's path (not printed: the counters of ok/bad
+# would be lost in a command substitution's subshell).
+package() {
+    deb=""
+    local arch="$1" dir="$2"
+    shift 2
+    mkdir -p "$dir/deb-test"
+    cp -f "$dir/debug/retrocomp" "$dir/deb-test/retrocomp"
+    local out="$TARGET_DIR/debian-test"
+    mkdir -p "$out"
+    rm -f "$out"/retrocomp_*_"$arch".deb
+    if cargo deb --no-build --profile deb-test --locked -p retrocomp "$@" -o "$out/" \
+        >"$out.$arch.log" 2>&1; then
+        ok "cargo deb ($arch)"
+    else
+        cat "$out.$arch.log" >&2
+        bad "cargo deb ($arch)"
+        return 1
+    fi
+    deb=$(ls "$out"/retrocomp_*_"$arch".deb 2>/dev/null | head -n 1)
+    [ -n "$deb" ] || { bad "no retrocomp_*_$arch.deb in $out"; return 1; }
+    echo "deb-check: $deb"
+}
 
-lint=$(lintian --tag-display-limit 0 "$deb" 2>&1)
-echo "$lint" | sed 's/^/deb-check: lintian: /'
-if echo "$lint" | grep -q '^E: '; then bad "lintian reports errors"; else ok "lintian: no error"; fi
+# lint DEB: no error (lintian's exit status is 0 with warnings only, 1 on an error, 2 when it could
+# not check the file).
+lint() {
+    local lint rc
+    lint=$(lintian --tag-display-limit 0 "$1" 2>&1)
+    rc=$?
+    echo "$lint" | sed 's/^/deb-check: lintian: /'
+    if [ "$rc" -ne 0 ] || echo "$lint" | grep -q '^E: '; then
+        bad "lintian reports errors in $(basename "$1")"
+    else
+        ok "lintian: no error in $(basename "$1")"
+    fi
+}
 
 # check_unpacked DEB [RUNNER...]: the unpacked package's files, modes and the binary's answers (a
 # RUNNER such as qemu-aarch64 runs a foreign binary).
@@ -96,6 +122,41 @@ check_unpacked() {
     fi
     rm -rf "$root"
 }
-check_unpacked "$deb"
+bin="$TARGET_DIR/debug/retrocomp"
+[ -x "$bin" ] || cargo build --locked --profile test --bin retrocomp || { bad "building $bin"; finish; }
+if package amd64 "$TARGET_DIR"; then
+    lint "$deb"
+    check_unpacked "$deb"
+fi
+
+# arm64: every prerequisite is checked before the (long) cross build; a missing one fails with how
+# to install it, never skips.
+cross=aarch64-unknown-linux-gnu
+sysroot=/usr/aarch64-linux-gnu
+arm64() {
+    command -v aarch64-linux-gnu-gcc >/dev/null 2>&1 && [ -e "$sysroot/lib/ld-linux-aarch64.so.1" ] || {
+        bad "the Debian cross toolchain is missing: apt-get install gcc-aarch64-linux-gnu libc6-dev-arm64-cross (scripts/setup-peers.sh does)"
+        return
+    }
+    rustup target list --installed 2>/dev/null | grep -qx "$cross" || {
+        bad "the Rust standard library for $cross is missing: rustup target add $cross"
+        return
+    }
+    local qemu
+    qemu=$(sh scripts/fetch-qemu-user.sh) || {
+        bad "no qemu-aarch64: scripts/fetch-qemu-user.sh failed (apt lists? run apt-get update)"
+        return
+    }
+    bash deploy/cross-build.sh --profile test --bin retrocomp >"$TARGET_DIR/cross-build-test.log" 2>&1 || {
+        tail -n 30 "$TARGET_DIR/cross-build-test.log" >&2
+        bad "deploy/cross-build.sh --profile test --bin retrocomp (log: $TARGET_DIR/cross-build-test.log)"
+        return
+    }
+    ok "cross-built $TARGET_DIR/$cross/debug/retrocomp"
+    package arm64 "$TARGET_DIR/$cross" --target "$cross" || return
+    lint "$deb"
+    check_unpacked "$deb" "$qemu" -L "$sysroot"
+}
+arm64
 
 finish

@@ -14,6 +14,11 @@
 #        playwright-core (PINNED in tests/browser/package-lock.json, `npm ci` with Debian's nodejs + npm)
 #   procps: `kill` (tests signal the gateway and hil-sim); python3-venv: the .venv below
 #   lintian: checks the Debian package scripts/test.sh builds (scripts/deb-check.sh)
+#   gcc-aarch64-linux-gnu + libc6-dev-arm64-cross: the cross linker and sysroot of the arm64
+#        package (deploy/cross-build.sh); qemu-user-static DOWNLOADED and unpacked into a cache
+#        (scripts/fetch-qemu-user.sh), never installed (its binfmt handlers would take over every
+#        aarch64 binary on the host), runs that package's binary. The Rust side, rustup's
+#        aarch64-unknown-linux-gnu std, is the user's (`rustup target add`): deb-check says so if absent.
 #   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial; asyncua, the OPC UA client of
 #        tests/gateway_opcua.rs; paho-mqtt +
 #        mqtt-spb-wrapper, the Sparkplug B host of tests/telemetry_mqtt.rs; mosquitto is its broker,
@@ -44,6 +49,8 @@ APT_PACKAGES=(
   python3-venv
   lintian
   prometheus
+  gcc-aarch64-linux-gnu
+  libc6-dev-arm64-cross
 )
 
 PIP_PACKAGES=(
@@ -110,5 +117,6 @@ if [ "$(cargo deb --version 2>/dev/null)" != "cargo-deb $CARGO_DEB_VERSION" ]; t
 fi
 sh "$REPO/scripts/vcan-qemu/fetch-qemu.sh"
 sh "$REPO/scripts/vcan-qemu/fetch-kernel.sh"
+sh "$REPO/scripts/fetch-qemu-user.sh"
 bash "$REPO/scripts/setup-linuxcnc.sh"
 echo "setup-peers: done"

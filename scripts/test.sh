@@ -10,8 +10,10 @@
 #    against real kernel vcan;
 # 4. the quadrature injector with the `gpio` feature (real Linux GPIO character-device lines; no GPIO
 #    chip exists here, so its test checks the clear error for a missing chip).
-# 5. the Debian package of the binary step 3 built (scripts/deb-check.sh: cargo deb, lintian, the
-#    unpacked package's files, modes and `check-config` answers).
+# 5. the Debian packages (scripts/deb-check.sh): amd64 of the binary step 3 built, arm64 of the same
+#    code cross-built with the test profile (≈ 8 min of CPU more on a cold target/, ≈ 1 GB of disk);
+#    cargo deb, lintian, the unpacked package's files, modes and `check-config` answers (arm64's
+#    under qemu-aarch64, unpacked into a cache, never installed).
 # Ends with ONE line `N passed, N failed` (the sum of every `test result:` line) and exits non-zero
 # if any test failed, a test binary did not build or run, or fmt/clippy complained.
 # Needs root or sudo for apt (step 1). Takes ≈ 10 min on an idle 2-core VM, much more under load.

@@ -127,6 +127,11 @@ fn demo_json_full_model_cuts_volumetric_error_by_80_percent() {
             text.contains("<polyline") && text.contains("uncompensated") && text.contains("fitted"),
             "{svg}: no curves or legend"
         );
+        // The second panel (full and fitted on their own scale) and the phases found in the
+        // recording (src/demo/plot_tests.rs checks their geometry).
+        for label in ["(full, fitted)", "warm-up", "cut", "cool-down"] {
+            assert!(text.contains(label), "{svg}: no `{label}`");
+        }
     }
 }
 

@@ -36,21 +36,10 @@ if [ -z "$kpkg" ]; then
 fi
 
 tree="$cache/$kpkg"
-if [ -f "$tree/.unpacked" ]; then
-    echo "$tree"
-    exit 0
-fi
-
-# Parallel test runs (several target dirs) share the cache: serialize the download, and unpack into
-# a private directory that is renamed into place only when complete.
-if command -v flock >/dev/null 2>&1; then
-    exec 9>"$cache/.lock"
-    flock 9
-    if [ -f "$tree/.unpacked" ]; then
-        echo "$tree"
-        exit 0
-    fi
-fi
+# A complete tree is reused; else, alone under the cache's lock, unpack into a private directory
+# that is renamed into place only when complete.
+. "$(dirname "$0")/../apt-unpack.sh"
+apt_unpack_ready "$cache" "$tree" && exit 0
 work=$(mktemp -d "$cache/.unpack.XXXXXX")
 trap 'rm -rf "$work"' EXIT
 # apt-get download writes into the current directory; as root it warns about the _apt sandbox.

@@ -3,7 +3,7 @@
 #
 # Why: on a Debian 12 host that carries a newer qemu-utils from backports, `apt-get install
 # qemu-system-x86` (7.2 from bookworm) would REMOVE or downgrade that qemu-utils. So, like
-# fetch-kernel.sh does for the kernel, we `apt-get download` qemu-system-x86, its BIOS (seabios,
+# fetch-kernel.sh does for the kernel, we (scripts/apt-unpack.sh) `apt-get download` qemu-system-x86, its BIOS (seabios,
 # qemu-system-data) and every shared-library package of its dependency tree that is not installed
 # on the host, and `dpkg -x` them into a cache. A wrapper script there runs the binary with
 # LD_LIBRARY_PATH and -L pointing into the cache. No dpkg database change, no root needed.
@@ -21,100 +21,37 @@ if [ -z "${RETROCOMP_QEMU_FORCE_CACHE:-}" ] && host=$(command -v qemu-system-x86
 fi
 
 cache="${1:-${RETROCOMP_VCAN_CACHE:-$HOME/.cache/retrocomp-vcan}}"
-mkdir -p "$cache"
-fail() {
-    echo "fetch-qemu.sh: $*" >&2
-    exit 2
-}
-command -v apt-cache >/dev/null 2>&1 || fail "apt-cache not found; this needs a Debian-like host (see docs/vcan.md)"
+. "$(dirname "$0")/../apt-unpack.sh"
 
-ver=$(apt-cache policy qemu-system-x86 2>/dev/null | sed -n 's/^ *Candidate: //p' | head -n 1)
-if [ -z "$ver" ] || [ "$ver" = "(none)" ]; then
-    cached=$(ls -d "$cache"/qemu-* 2>/dev/null | tail -n 1 || true)
-    if [ -n "$cached" ] && [ -f "$cached/.unpacked" ]; then
-        echo "$cached/qemu-system-x86_64"
-        exit 0
-    fi
-    fail "no candidate for qemu-system-x86 in the apt lists: run 'apt-get update'"
-fi
-# "2": the cache layout (bump when the unpacked set changes, so old caches are replaced).
-tree="$cache/qemu-2-$(echo "$ver" | tr ':+~' '___')"
-if [ -f "$tree/.unpacked" ]; then
-    echo "$tree/qemu-system-x86_64"
-    exit 0
-fi
-
-installed() {
-    [ "$(dpkg-query -W -f='${db:Status-Status}' "$1" 2>/dev/null)" = installed ]
-}
-# Direct hard dependencies of a package (first alternative of OR groups included; virtuals skipped).
-deps() {
-    apt-cache depends --no-recommends --no-suggests --no-conflicts --no-breaks --no-replaces \
-        --no-enhances "$1" 2>/dev/null | sed -n 's/^ *|\{0,1\}Depends: \([a-z0-9][^ <>]*\)$/\1/p'
-}
-
-if command -v flock >/dev/null 2>&1; then
-    exec 9>"$cache/.lock"
-    flock 9
-    if [ -f "$tree/.unpacked" ]; then
-        echo "$tree/qemu-system-x86_64"
-        exit 0
-    fi
-fi
-
-# Breadth-first over the dependency tree, keeping only packages the host lacks. ipxe-qemu (network
-# boot ROMs) is not needed (the guest runs with -nic none); qemu-system-common is unpacked for its
-# accelerator module (accel-tcg-x86_64.so, loaded at start) but its own dependencies (audio, spice,
-# USB, GL: the UI modules of a -nographic guest never load) are not walked.
-want="qemu-system-x86 qemu-system-common qemu-system-data seabios"
-queue=$(deps qemu-system-x86)
-seen=" qemu-system-x86 qemu-system-data seabios ipxe-qemu qemu-system-common "
-while [ -n "$queue" ]; do
-    next=""
-    for p in $queue; do
-        case "$seen" in *" $p "*) continue ;; esac
-        seen="$seen$p "
-        installed "$p" && continue
-        want="$want $p"
-        next="$next $(deps "$p")"
-    done
-    queue=$next
-done
-
-work=$(mktemp -d "$cache/.qemu.XXXXXX")
-trap 'rm -rf "$work"' EXIT
-echo "fetch-qemu.sh: apt-get download $want" >&2
-# shellcheck disable=SC2086
-(cd "$work" && apt-get download $want >&2) || fail "'apt-get download' failed (network? stale apt lists? run 'apt-get update')"
-mkdir -p "$work/root"
-for deb in "$work"/*.deb; do dpkg -x "$deb" "$work/root"; done
-rm -f "$work"/*.deb
-
-bin="$work/root/usr/bin/qemu-system-x86_64"
-[ -x "$bin" ] || fail "the qemu-system-x86 package holds no usr/bin/qemu-system-x86_64"
-libdirs="$tree/root/usr/lib/x86_64-linux-gnu:$tree/root/lib/x86_64-linux-gnu"
-libs_now="$work/root/usr/lib/x86_64-linux-gnu:$work/root/lib/x86_64-linux-gnu"
-missing=$(LD_LIBRARY_PATH="$libs_now" ldd "$bin" | sed -n 's/^[[:space:]]*\([^ ]*\) => not found$/\1/p' | tr '\n' ' ')
-[ -z "$missing" ] || fail "after unpacking, qemu still misses shared libraries: $missing"
-
-# The wrapper: the cache's libraries (only those the host lacks), its module directory and the BIOS
-# directories. The
+# The wrapper, written into the unpacked tree before it is marked complete (apt_unpack's hook): the
+# cache's libraries (only those the host lacks), its module directory and the BIOS directories. The
 # cache's usr/share/qemu holds absolute symlinks into /usr/share/seabios, so seabios's own
 # directory is given too (QEMU searches every -L in order).
-cat >"$work/qemu-system-x86_64" <<EOF
+write_wrapper() {
+    work=$1
+    tree=$2
+    ver=$3
+    bin="$work/root/usr/bin/qemu-system-x86_64"
+    [ -x "$bin" ] || apt_unpack_fail "the qemu-system-x86 package holds no usr/bin/qemu-system-x86_64"
+    libdirs="$tree/root/usr/lib/x86_64-linux-gnu:$tree/root/lib/x86_64-linux-gnu"
+    libs_now="$work/root/usr/lib/x86_64-linux-gnu:$work/root/lib/x86_64-linux-gnu"
+    missing=$(LD_LIBRARY_PATH="$libs_now" ldd "$bin" | sed -n 's/^[[:space:]]*\([^ ]*\) => not found$/\1/p' | tr '\n' ' ')
+    [ -z "$missing" ] || apt_unpack_fail "after unpacking, qemu still misses shared libraries: $missing"
+    cat >"$work/qemu-system-x86_64" <<EOF
 #!/bin/sh
 # Generated by scripts/vcan-qemu/fetch-qemu.sh: qemu-system-x86 $ver unpacked here, not installed.
 LD_LIBRARY_PATH="$libdirs\${LD_LIBRARY_PATH:+:\$LD_LIBRARY_PATH}" \\
 QEMU_MODULE_DIR="$tree/root/usr/lib/x86_64-linux-gnu/qemu" \\
     exec "$tree/root/usr/bin/qemu-system-x86_64" -L "$tree/root/usr/share/seabios" -L "$tree/root/usr/share/qemu" "\$@"
 EOF
-chmod +x "$work/qemu-system-x86_64"
-echo "$ver $want" >"$work/.unpacked"
-rm -rf "$tree"
-mv "$work" "$tree"
-trap - EXIT
-for old in "$cache"/qemu-*; do
-    [ "$old" = "$tree" ] || rm -rf "$old"
-done
-"$tree/qemu-system-x86_64" --version >&2 || fail "$tree/qemu-system-x86_64 --version failed"
+    chmod +x "$work/qemu-system-x86_64"
+}
+
+# ipxe-qemu (network boot ROMs) is not needed (the guest runs with -nic none); qemu-system-common is
+# unpacked for its accelerator module (accel-tcg-x86_64.so, loaded at start) but its own
+# dependencies (audio, spice, USB, GL: the UI modules of a -nographic guest never load) are not
+# walked. "qemu-2": the cache layout (bump when the unpacked set changes, so old caches are replaced).
+tree=$(APT_UNPACK_WALK=qemu-system-x86 APT_UNPACK_SEEN=ipxe-qemu APT_UNPACK_HOOK=write_wrapper \
+    apt_unpack "$cache" qemu-2 qemu-system-x86 qemu-system-common qemu-system-data seabios)
+"$tree/qemu-system-x86_64" --version >&2 || apt_unpack_fail "$tree/qemu-system-x86_64 --version failed"
 echo "$tree/qemu-system-x86_64"

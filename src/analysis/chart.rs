@@ -5,11 +5,15 @@
 //! - robust y-limits ([`robust_limits`]): the scale follows the 1 %–99 % quantiles widened by half
 //!   their span, so a few outliers (servo-lag spikes) do not flatten the rest; points beyond the
 //!   scale are drawn as triangles at the edge and counted in a note;
-//! - one colour per series (a ten-colour palette, or the colour a series asks for).
+//! - one colour per series (a ten-colour palette, or the colour a series asks for);
+//! - [`render_figure`]: several panels, each with its own y scale, stacked on one x scale (a
+//!   detail panel scaled to the series that matter beside an overview), with x spans (phases)
+//!   shaded on every panel and named in a strip above them.
 //!
 //! Axis labels are the caller's, in words with their unit ("target position / mm").
 
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 /// Why a chart could not be rendered.
 #[derive(Debug, thiserror::Error)]
@@ -28,6 +32,9 @@ pub const HEIGHT_PX: u32 = 540;
 pub const PANEL_PX: u32 = 260;
 /// Stroke of the legend box (the test finds the box by it).
 pub const LEGEND_FRAME: RGBColor = RGBColor(0x55, 0x55, 0x55);
+/// Lines of more points than this are drawn 1 px wide, not 2: at 2 px thousands of noisy samples
+/// make a solid band that hides the curve drawn under it.
+const DENSE_LINE_POINTS: usize = 1000;
 /// Markers drawn per series at most (evenly thinned beyond), so an SVG of 10⁶ rows stays small.
 const MAX_MARKERS: usize = 5000;
 
@@ -118,6 +125,63 @@ pub struct Layout {
     pub beyond_scale: usize,
 }
 
+/// A stretch of x marked on every panel of a [`Figure`] (a phase of a program): a light band behind
+/// the data, its name in a strip above the top panel, never over data.
+#[derive(Debug, Clone, PartialEq)]
+pub struct XSpan {
+    pub name: String,
+    pub x0: f64,
+    pub x1: f64,
+}
+
+/// One panel of a [`Figure`]: its own series and y scale.
+#[derive(Debug, Clone, Copy)]
+pub struct Panel<'a> {
+    pub y_label: &'a str,
+    pub series: &'a [Series],
+    /// Robust y-limits (quantiles) instead of the full range.
+    pub robust_y: bool,
+}
+
+/// Panels stacked on one x scale (the x label under the bottom one), one legend (each series name
+/// once: a name keeps its colour on every panel) and the notes in the side panel.
+#[derive(Debug, Clone, Copy)]
+pub struct Figure<'a> {
+    pub title: &'a str,
+    pub x_label: &'a str,
+    pub panels: &'a [Panel<'a>],
+    pub spans: &'a [XSpan],
+    pub notes: &'a [String],
+}
+
+/// Where one panel of a [`Figure`] landed, px, and its y scale.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PanelLayout {
+    pub plot_px: [i32; 4],
+    pub y_range: (f64, f64),
+    pub beyond_scale: usize,
+}
+
+/// Where a [`Figure`]'s parts landed, px in the SVG's coordinates: `[left, top, right, bottom]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FigureLayout {
+    pub panels: Vec<PanelLayout>,
+    pub legend_px: [i32; 4],
+    pub x_range: (f64, f64),
+    /// Each span's band, from the top of its name's strip to the bottom of the last panel.
+    pub spans_px: Vec<[i32; 4]>,
+}
+
+/// Height each panel after the first adds to a [`Figure`], and of the span names' strip, px.
+pub const PANEL_HEIGHT_PX: u32 = 330;
+const STRIP_PX: u32 = 22;
+/// Backgrounds of successive spans (light orange, grey, blue): told apart, data still readable.
+const SPAN_SHADES: [RGBColor; 3] = [
+    RGBColor(0xFD, 0xEB, 0xD3),
+    RGBColor(0xE8, 0xE8, 0xE8),
+    RGBColor(0xDC, 0xEB, 0xF7),
+];
+
 /// Quantile `p` of sorted values (nearest rank).
 fn quantile(sorted: &[f64], p: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * p).round() as usize]
@@ -177,84 +241,209 @@ type DrawResult<T> = Result<T, Box<dyn std::error::Error + Send + Sync>>;
 
 /// Renders `c` to an SVG string and says where the plot area and the legend landed.
 pub fn render(c: &Chart<'_>) -> Result<(String, Layout), PlotError> {
-    let all = || {
-        c.series
-            .iter()
-            .flat_map(|s| s.points.iter().chain(s.lower.iter()))
-    };
-    if all().next().is_none() {
-        return Err(PlotError::Empty(c.title.to_string()));
-    }
-    if all().any(|(x, y)| !x.is_finite() || !y.is_finite()) {
-        return Err(PlotError::NonFinite(c.title.to_string()));
-    }
-    let (x0, x1) = full_limits(all().map(|p| p.0));
-    let (y0, y1) = if c.robust_y {
-        robust_limits(&all().map(|p| p.1).collect::<Vec<_>>())
-    } else {
-        full_limits(all().map(|p| p.1))
-    };
-    let beyond_scale = all().filter(|p| p.1 < y0 || p.1 > y1).count();
-    let mut notes: Vec<String> = c.notes.to_vec();
-    if beyond_scale > 0 {
-        notes.push(format!(
-            "△ {beyond_scale} point(s) beyond the scale, drawn at its edge"
-        ));
-    }
-    let mut svg = String::new();
-    let layout = draw(&mut svg, c, (x0, x1), (y0, y1), &notes)
-        .map_err(|e| PlotError::Draw(c.title.to_string(), e))?;
+    let panel = [Panel {
+        y_label: c.y_label,
+        series: c.series,
+        robust_y: c.robust_y,
+    }];
+    let (svg, f) = render_figure(&Figure {
+        title: c.title,
+        x_label: c.x_label,
+        panels: &panel,
+        spans: &[],
+        notes: c.notes,
+    })?;
+    let p = &f.panels[0];
     Ok((
         svg,
         Layout {
-            beyond_scale,
-            ..layout
+            plot_px: p.plot_px,
+            legend_px: f.legend_px,
+            y_range: p.y_range,
+            beyond_scale: p.beyond_scale,
         },
     ))
 }
 
-fn colour_of(c: &Chart<'_>, i: usize) -> RGBColor {
-    c.series[i].colour.unwrap_or(PALETTE[i % PALETTE.len()])
+/// Renders the panels of `f` stacked on one x scale, with one legend and the notes beside them.
+pub fn render_figure(f: &Figure<'_>) -> Result<(String, FigureLayout), PlotError> {
+    let points = |p: &Panel<'_>| {
+        p.series
+            .iter()
+            .flat_map(|s| s.points.iter().chain(s.lower.iter()))
+            .copied()
+            .collect::<Vec<_>>()
+    };
+    let per_panel: Vec<Vec<(f64, f64)>> = f.panels.iter().map(points).collect();
+    if per_panel.is_empty() || per_panel.iter().any(Vec::is_empty) {
+        return Err(PlotError::Empty(f.title.to_string()));
+    }
+    let spans_finite = f.spans.iter().all(|s| s.x0.is_finite() && s.x1.is_finite());
+    if !spans_finite
+        || per_panel
+            .iter()
+            .flatten()
+            .any(|(x, y)| !x.is_finite() || !y.is_finite())
+    {
+        return Err(PlotError::NonFinite(f.title.to_string()));
+    }
+    let x_range = full_limits(per_panel.iter().flatten().map(|p| p.0));
+    let mut panels = vec![];
+    for (p, pts) in f.panels.iter().zip(&per_panel) {
+        let (y0, y1) = if p.robust_y {
+            robust_limits(&pts.iter().map(|p| p.1).collect::<Vec<_>>())
+        } else {
+            full_limits(pts.iter().map(|p| p.1))
+        };
+        panels.push(PanelLayout {
+            plot_px: [0; 4],
+            y_range: (y0, y1),
+            beyond_scale: pts.iter().filter(|p| p.1 < y0 || p.1 > y1).count(),
+        });
+    }
+    let mut notes: Vec<String> = f.notes.to_vec();
+    let beyond: usize = panels.iter().map(|p| p.beyond_scale).sum();
+    if beyond > 0 {
+        notes.push(format!(
+            "△ {beyond} point(s) beyond the scale, drawn at its edge"
+        ));
+    }
+    let mut svg = String::new();
+    let mut layout = FigureLayout {
+        panels,
+        legend_px: [0; 4],
+        x_range,
+        spans_px: vec![],
+    };
+    draw(&mut svg, f, &mut layout, &notes).map_err(|e| PlotError::Draw(f.title.to_string(), e))?;
+    Ok((svg, layout))
 }
+
+/// Each distinct series name once (first seen first) with its colour: the series' own, else the
+/// palette's by legend position, so a name keeps its colour on every panel.
+fn legend_entries<'a>(f: &Figure<'a>) -> Vec<(&'a Series, RGBColor)> {
+    let mut out: Vec<(&Series, RGBColor)> = vec![];
+    for s in f.panels.iter().flat_map(|p| p.series.iter()) {
+        if !out.iter().any(|(e, _)| e.name == s.name) {
+            let c = s.colour.unwrap_or(PALETTE[out.len() % PALETTE.len()]);
+            out.push((s, c));
+        }
+    }
+    out
+}
+
+type Plot<'a, 'b> = ChartContext<
+    'a,
+    SVGBackend<'b>,
+    Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+>;
 
 fn draw(
     svg: &mut String,
-    c: &Chart<'_>,
-    (x0, x1): (f64, f64),
-    (y0, y1): (f64, f64),
+    f: &Figure<'_>,
+    layout: &mut FigureLayout,
     notes: &[String],
-) -> DrawResult<Layout> {
-    let root = SVGBackend::with_string(svg, (WIDTH_PX, HEIGHT_PX)).into_drawing_area();
+) -> DrawResult<()> {
+    let n = f.panels.len() as u32;
+    let height = HEIGHT_PX + (n - 1) * PANEL_HEIGHT_PX;
+    let root = SVGBackend::with_string(svg, (WIDTH_PX, height)).into_drawing_area();
     root.fill(&WHITE)?;
-    let root = root.titled(c.title, ("sans-serif", 18))?;
-    let (left, panel) = root.split_horizontally(WIDTH_PX - PANEL_PX);
-    let mut chart = ChartBuilder::on(&left)
-        .margin(12)
-        .x_label_area_size(45)
-        .y_label_area_size(70)
-        .build_cartesian_2d(x0..x1, y0..y1)?;
-    chart
-        .configure_mesh()
-        .x_desc(c.x_label)
-        .y_desc(c.y_label)
-        .label_style(("sans-serif", 13))
-        .draw()?;
-    let clamp = |p: &(f64, f64)| (p.0, p.1.clamp(y0, y1));
-    let beyond = |p: &&(f64, f64)| p.1 < y0 || p.1 > y1;
-    // Bands first (under everything), then lines, then markers.
-    for (i, s) in c.series.iter().enumerate() {
-        if s.style == Style::Band {
-            let col = colour_of(c, i);
-            let mut poly: Vec<(f64, f64)> = s.points.iter().map(clamp).collect();
-            poly.extend(s.lower.iter().rev().map(clamp));
-            chart.draw_series(std::iter::once(Polygon::new(poly, col.mix(0.18).filled())))?;
+    let root = root.titled(f.title, ("sans-serif", 18))?;
+    let (left, side) = root.split_horizontally(WIDTH_PX - PANEL_PX);
+    // The spans' names go in a strip above the top panel, where no data is drawn.
+    let (strip, stack) = if f.spans.is_empty() {
+        (None, left)
+    } else {
+        let (s, rest) = left.split_vertically(STRIP_PX);
+        (Some(s), rest)
+    };
+    let legend = legend_entries(f);
+    let colour = |s: &Series| {
+        legend
+            .iter()
+            .find(|(e, _)| e.name == s.name)
+            .map_or(PALETTE[0], |(_, c)| *c)
+    };
+    let (x0, x1) = layout.x_range;
+    let mut spans_px: Vec<[i32; 4]> = vec![];
+    for (k, area) in stack.split_evenly((n as usize, 1)).iter().enumerate() {
+        let p = &f.panels[k];
+        let (y0, y1) = layout.panels[k].y_range;
+        let last = k + 1 == n as usize;
+        let mut chart = ChartBuilder::on(area)
+            .margin(12)
+            .x_label_area_size(if last { 45 } else { 28 })
+            .y_label_area_size(70)
+            .build_cartesian_2d(x0..x1, y0..y1)?;
+        let mut mesh = chart.configure_mesh();
+        mesh.y_desc(p.y_label).label_style(("sans-serif", 13));
+        if last {
+            mesh.x_desc(f.x_label);
+        }
+        mesh.draw()?;
+        for (i, s) in f.spans.iter().enumerate() {
+            let (a, b) = (s.x0.clamp(x0, x1), s.x1.clamp(x0, x1));
+            let shade = SPAN_SHADES[i % SPAN_SHADES.len()].filled();
+            chart.draw_series(std::iter::once(Rectangle::new([(a, y0), (b, y1)], shade)))?;
+            let (l, t) = chart.backend_coord(&(a, y1));
+            let (r, bottom) = chart.backend_coord(&(b, y0));
+            match spans_px.get_mut(i) {
+                Some(px) => px[3] = bottom,
+                None => spans_px.push([l, t, r, bottom]),
+            }
+        }
+        draw_series(&mut chart, p.series, &colour, (y0, y1))?;
+        let plot = chart.plotting_area().get_pixel_range();
+        layout.panels[k].plot_px = [plot.0.start, plot.1.start, plot.0.end, plot.1.end];
+    }
+    if let Some(strip) = strip {
+        let (sx, sy) = strip.get_pixel_range();
+        let style = ("sans-serif", 13)
+            .into_font()
+            .into_text_style(&strip)
+            .pos(Pos::new(HPos::Center, VPos::Center));
+        for (s, px) in f.spans.iter().zip(spans_px.iter_mut()) {
+            let centre = (px[0] + px[2]) / 2 - sx.start;
+            strip.draw(&Text::new(
+                s.name.clone(),
+                (centre, STRIP_PX as i32 / 2),
+                style.clone(),
+            ))?;
+            px[1] = sy.start;
         }
     }
-    for (i, s) in c.series.iter().enumerate() {
-        let col = colour_of(c, i);
+    layout.spans_px = spans_px;
+    layout.legend_px = draw_legend(&side, &legend, notes)?;
+    root.present()?;
+    Ok(())
+}
+
+/// Bands first (under everything), then lines, then markers; points beyond the y scale as
+/// triangles at its edge.
+fn draw_series(
+    chart: &mut Plot<'_, '_>,
+    series: &[Series],
+    colour: &dyn Fn(&Series) -> RGBColor,
+    (y0, y1): (f64, f64),
+) -> DrawResult<()> {
+    let clamp = |p: &(f64, f64)| (p.0, p.1.clamp(y0, y1));
+    let beyond = |p: &&(f64, f64)| p.1 < y0 || p.1 > y1;
+    for s in series.iter().filter(|s| s.style == Style::Band) {
+        let mut poly: Vec<(f64, f64)> = s.points.iter().map(clamp).collect();
+        poly.extend(s.lower.iter().rev().map(clamp));
+        let fill = colour(s).mix(0.18).filled();
+        chart.draw_series(std::iter::once(Polygon::new(poly, fill)))?;
+    }
+    for s in series {
+        let col = colour(s);
         if matches!(s.style, Style::Line | Style::LineMarkers) {
             let pts: Vec<(f64, f64)> = s.points.iter().map(clamp).collect();
-            chart.draw_series(LineSeries::new(pts, col.stroke_width(2)))?;
+            let width = if s.points.len() > DENSE_LINE_POINTS {
+                1
+            } else {
+                2
+            };
+            chart.draw_series(LineSeries::new(pts, col.stroke_width(width)))?;
         }
         if matches!(s.style, Style::Markers | Style::LineMarkers) {
             let stride = s.points.len().div_ceil(MAX_MARKERS).max(1);
@@ -270,21 +459,13 @@ fn draw(
             .map(|p| TriangleMarker::new(clamp(p), 6, col.filled()));
         chart.draw_series(edge)?;
     }
-    let plot = chart.plotting_area().get_pixel_range();
-    let legend = draw_legend(&panel, c, notes)?;
-    root.present()?;
-    Ok(Layout {
-        plot_px: [plot.0.start, plot.1.start, plot.0.end, plot.1.end],
-        legend_px: legend,
-        y_range: (y0, y1),
-        beyond_scale: 0,
-    })
+    Ok(())
 }
 
 /// Legend (swatch + name per series) and notes in the side panel; returns the legend box.
 fn draw_legend<DB: DrawingBackend>(
     panel: &DrawingArea<DB, plotters::coord::Shift>,
-    c: &Chart<'_>,
+    entries: &[(&Series, RGBColor)],
     notes: &[String],
 ) -> DrawResult<[i32; 4]>
 where
@@ -294,8 +475,8 @@ where
     let (w, _) = panel.dim_in_pixel();
     let row = 20;
     let mut y = 24;
-    for (i, s) in c.series.iter().enumerate() {
-        let col = colour_of(c, i);
+    for (s, col) in entries {
+        let col = *col;
         let swatch = match s.style {
             Style::Line => Rectangle::new([(12, y - 1), (34, y + 2)], col.filled()),
             Style::Markers => Rectangle::new([(19, y - 4), (27, y + 4)], col.filled()),

@@ -26,6 +26,42 @@ pub struct RunStats {
 pub struct ErrorTrace {
     pub t_s: Vec<f64>,
     pub e_um: Vec<[f64; 3]>,
+    /// The program's phases found in the recording ([`phases`]); empty when it has no `z_mm` and
+    /// `rpm` columns or no cut.
+    pub phases: Vec<Phase>,
+}
+
+/// A phase of the demo's program, s from the recording's start.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Phase {
+    pub name: &'static str,
+    pub from_s: f64,
+    pub to_s: f64,
+}
+
+/// The demo program's phases from what the machine did (deploy/demo/sim.toml): **warm-up** from
+/// the spindle's start to the cut, **cut** while the tool is below the stock top (z < 0 mm, the
+/// spindle on), **cool-down** from the spindle's stop after the cut to the end. No cut: none.
+pub fn phases(t_s: &[f64], z_mm: &[f64], rpm: &[f64]) -> Vec<Phase> {
+    let n = t_s.len().min(z_mm.len()).min(rpm.len());
+    let cutting = |i: &usize| z_mm[*i] < 0.0 && rpm[*i] > 0.0;
+    let (Some(c0), Some(c1)) = ((0..n).find(cutting), (0..n).rev().find(cutting)) else {
+        return vec![];
+    };
+    let phase = |name, a: usize, b: usize| Phase {
+        name,
+        from_s: t_s[a],
+        to_s: t_s[b],
+    };
+    let mut out = vec![];
+    if let Some(w) = (0..c0).find(|i| rpm[*i] > 0.0) {
+        out.push(phase("warm-up", w, c0));
+    }
+    out.push(phase("cut", c0, c1));
+    if let Some(c) = (c1..n).find(|i| rpm[*i] <= 0.0) {
+        out.push(phase("cool-down", c, n - 1));
+    }
+    out
 }
 
 /// Parse the `t_s` and `e*_um` columns of a recording. `what` names the file in errors.
@@ -44,6 +80,9 @@ pub fn parse_recording(csv_text: &str, what: &str) -> Result<ErrorTrace, DemoErr
             .with_context(|| format!("{what}: no column `{name}` in the header"))
     };
     let (it, ix, iy, iz) = (col("t_s")?, col("ex_um")?, col("ey_um")?, col("ez_um")?);
+    // Only for the phases: a recording without them is still a trace.
+    let (iz_mm, irpm) = (col("z_mm").ok(), col("rpm").ok());
+    let (mut z_mm, mut rpm) = (vec![], vec![]);
     let mut trace = ErrorTrace::default();
     for (i, rec) in rdr.records().enumerate() {
         // Line 1 is the header.
@@ -65,7 +104,12 @@ pub fn parse_recording(csv_text: &str, what: &str) -> Result<ErrorTrace, DemoErr
         trace
             .e_um
             .push([num(ix, "ex_um")?, num(iy, "ey_um")?, num(iz, "ez_um")?]);
+        if let (Some(a), Some(b)) = (iz_mm, irpm) {
+            z_mm.push(num(a, "z_mm")?);
+            rpm.push(num(b, "rpm")?);
+        }
     }
+    trace.phases = phases(&trace.t_s, &z_mm, &rpm);
     if trace.t_s.is_empty() {
         return Err(DemoError::Failed(format!("{what}: no data rows")));
     }
@@ -183,6 +227,30 @@ mod tests {
         assert_eq!(s.volumetric_max_um, 12.0);
         // The first sample counts from t = 0.
         assert_eq!(stats(&tr, 0.0).unwrap().x.max_um, 100.0);
+    }
+
+    #[test]
+    fn phases_follow_the_spindle_and_the_tool_below_the_stock_top() {
+        // Idle, spindle on (warm-up), below z = 0 (cut), retract, spindle off (cool-down).
+        let csv = "t_s,z_mm,rpm,ex_um,ey_um,ez_um\n0,5,0,0,0,0\n1,5,4000,0,0,0\n2,5,4000,0,0,0\n\
+                   3,-0.5,4000,0,0,0\n4,-0.5,4000,0,0,0\n5,30,4000,0,0,0\n6,30,0,0,0,0\n7,5,0,0,0,0\n";
+        let tr = parse_recording(csv, "r.csv").unwrap();
+        let got: Vec<(&str, f64, f64)> = tr
+            .phases
+            .iter()
+            .map(|p| (p.name, p.from_s, p.to_s))
+            .collect();
+        assert_eq!(
+            got,
+            vec![
+                ("warm-up", 1.0, 3.0),
+                ("cut", 3.0, 4.0),
+                ("cool-down", 6.0, 7.0)
+            ]
+        );
+        // No cut (or no such columns): no phases.
+        assert!(phases(&[0.0, 1.0], &[5.0, 5.0], &[4000.0, 0.0]).is_empty());
+        assert!(parse_recording(CSV, "r.csv").unwrap().phases.is_empty());
     }
 
     #[test]

@@ -1,84 +1,119 @@
-//! SVG plots of the demo (plotters, svg backend): per axis, the tool-tip error over time of the
-//! four runs, and the volumetric error |e| over time. Error = actual − nominal, µm.
+//! SVG plots of the demo, drawn by the project's chart module ([`crate::analysis::chart`]): per
+//! axis the tool-tip error over time of the four runs, and the volumetric error |e| over time.
+//! Each figure has two panels on one time scale: every run (the uncompensated error sets the
+//! scale), then the full and fitted runs alone on their own scale: the headline, which on the
+//! first panel is a flat line at 0–2 µm under a 0–55 µm scale. The program's phases (warm-up, cut,
+//! cool-down, found in the uncompensated run's recording) are shaded on both panels; the legend and
+//! each run's largest |value| sit beside the plot, never over it. Error = actual − nominal, µm.
 
 use std::path::Path;
 
 use super::error::{Context as _, DemoError};
-use plotters::prelude::*;
+use super::{Mode, RunResult};
+use crate::analysis::chart::{Figure, FigureLayout, PALETTE, Panel, Series, XSpan, render_figure};
 
-use super::RunResult;
-
-const COLOURS: [RGBColor; 4] = [RED, BLUE, RGBColor(0, 140, 0), RGBColor(230, 140, 0)];
+/// The runs of the second panel: the models that compensate geometry, heat and load.
+pub const DETAIL_RUNS: [Mode; 2] = [Mode::Full, Mode::Fitted];
 
 /// Writes `error_x.svg`, `error_y.svg`, `error_z.svg` and `volumetric.svg` into `out`.
 pub fn write_plots(out: &Path, runs: &[RunResult]) -> Result<(), DemoError> {
-    for (k, axis) in ["x", "y", "z"].iter().enumerate() {
-        let series: Vec<(&str, Vec<(f64, f64)>)> = runs
-            .iter()
-            .map(|r| {
-                let pts = r
-                    .trace
-                    .t_s
-                    .iter()
-                    .zip(&r.trace.e_um)
-                    .map(|(t, e)| (*t, e[k]));
-                (r.mode.key(), pts.collect())
-            })
-            .collect();
-        let path = out.join(format!("error_{axis}.svg"));
-        chart(&path, &format!("tool-tip error e{axis} (µm)"), &series)
-            .with_context(|| format!("plot {}", path.display()))?;
+    for (file, svg, _) in figures(runs)? {
+        let path = out.join(&file);
+        std::fs::write(&path, svg).with_context(|| format!("plot {}", path.display()))?;
     }
-    let series: Vec<(&str, Vec<(f64, f64)>)> = runs
-        .iter()
-        .map(|r| {
-            let pts = r.trace.t_s.iter().zip(&r.trace.e_um);
-            let v = pts.map(|(t, e)| (*t, (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt()));
-            (r.mode.key(), v.collect())
-        })
-        .collect();
-    let path = out.join("volumetric.svg");
-    chart(&path, "volumetric error |e| (µm)", &series)
-        .with_context(|| format!("plot {}", path.display()))
-}
-
-fn chart(path: &Path, title: &str, series: &[(&str, Vec<(f64, f64)>)]) -> Result<(), DemoError> {
-    let pts = series.iter().flat_map(|(_, v)| v.iter());
-    let (mut t_max, mut lo, mut hi) = (1e-9f64, 0.0f64, 0.0f64);
-    for (t, v) in pts {
-        t_max = t_max.max(*t);
-        lo = lo.min(*v);
-        hi = hi.max(*v);
-    }
-    let pad = ((hi - lo) * 0.05).max(1.0);
-    let root = SVGBackend::new(path, (900, 450)).into_drawing_area();
-    root.fill(&WHITE)
-        .map_err(|e| DemoError::Failed(format!("{e}")))?;
-    let mut c = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 20))
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.0..t_max, (lo - pad)..(hi + pad))
-        .map_err(|e| DemoError::Failed(format!("{e}")))?;
-    c.configure_mesh()
-        .x_desc("t (s)")
-        .y_desc("µm")
-        .draw()
-        .map_err(|e| DemoError::Failed(format!("{e}")))?;
-    for (i, (name, v)) in series.iter().enumerate() {
-        let col = COLOURS[i % COLOURS.len()];
-        c.draw_series(LineSeries::new(v.iter().copied(), col))
-            .map_err(|e| DemoError::Failed(format!("{e}")))?
-            .label(*name)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], col));
-    }
-    c.configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| DemoError::Failed(format!("{e}")))?;
-    root.present()
-        .map_err(|e| DemoError::Failed(format!("{e}")))?;
     Ok(())
 }
+
+/// The four figures: file name, SVG text and where the chart put its panels and phase bands.
+pub fn figures(runs: &[RunResult]) -> Result<Vec<(String, String, FigureLayout)>, DemoError> {
+    let mut out = vec![];
+    for (k, axis) in ["x", "y", "z"].iter().enumerate() {
+        let title = format!("tool-tip error e{axis} (actual − nominal)");
+        let (svg, layout) = figure(runs, &title, &format!("e{axis} / µm"), |e| e[k])?;
+        out.push((format!("error_{axis}.svg"), svg, layout));
+    }
+    let norm = |e: &[f64; 3]| (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt();
+    let (svg, layout) = figure(runs, "volumetric error |e|", "|e| / µm", norm)?;
+    out.push(("volumetric.svg".to_string(), svg, layout));
+    Ok(out)
+}
+
+fn colour(mode: Mode) -> plotters::style::RGBColor {
+    match mode {
+        Mode::Uncompensated => PALETTE[1],
+        Mode::Geometric => PALETTE[0],
+        Mode::Full => PALETTE[2],
+        Mode::Fitted => PALETTE[4],
+    }
+}
+
+fn figure(
+    runs: &[RunResult],
+    title: &str,
+    y: &str,
+    value: impl Fn(&[f64; 3]) -> f64,
+) -> Result<(String, FigureLayout), DemoError> {
+    let series = |r: &RunResult| {
+        let pts = r.trace.t_s.iter().zip(&r.trace.e_um);
+        Series::line(r.mode.key(), pts.map(|(t, e)| (*t, value(e))).collect())
+            .with_colour(colour(r.mode))
+    };
+    let all: Vec<Series> = runs.iter().map(series).collect();
+    let detail: Vec<Series> = runs
+        .iter()
+        .filter(|r| DETAIL_RUNS.contains(&r.mode))
+        .map(series)
+        .collect();
+    let mut notes: Vec<String> = all
+        .iter()
+        .map(|s| {
+            let max = s.points.iter().fold(0.0f64, |m, p| m.max(p.1.abs()));
+            format!("{}: largest |value| {max:.2} µm", s.name)
+        })
+        .collect();
+    // Every run plays the same program: the uncompensated run's recording dates the phases.
+    let spans: Vec<XSpan> = runs
+        .iter()
+        .find(|r| r.mode == Mode::Uncompensated)
+        .or(runs.first())
+        .map(|r| &r.trace.phases[..])
+        .unwrap_or_default()
+        .iter()
+        .map(|p| XSpan {
+            name: p.name.to_string(),
+            x0: p.from_s,
+            x1: p.to_s,
+        })
+        .collect();
+    if !spans.is_empty() {
+        notes.push(
+            "shaded: warm-up (spindle on), cut (tool below the stock top), cool-down (spindle off)"
+                .to_string(),
+        );
+    }
+    let detail_y = format!("{y} (full, fitted)");
+    let mut panels = vec![Panel {
+        y_label: y,
+        series: &all,
+        robust_y: false,
+    }];
+    if !detail.is_empty() {
+        panels.push(Panel {
+            y_label: &detail_y,
+            series: &detail,
+            robust_y: false,
+        });
+    }
+    render_figure(&Figure {
+        title,
+        x_label: "time / s",
+        panels: &panels,
+        spans: &spans,
+        notes: &notes,
+    })
+    .context("drawing the demo's plots")
+}
+
+#[cfg(test)]
+#[path = "plot_tests.rs"]
+mod tests;
