@@ -13,6 +13,8 @@ use retrocomp::analysis::chart_geometry;
 
 #[path = "gateway_support/hil_sim.rs"]
 mod hil_sim;
+#[path = "figure_support/pixels.rs"]
+mod pixels;
 
 fn retrocomp() -> Command {
     Command::new(env!("CARGO_BIN_EXE_retrocomp"))
@@ -119,9 +121,11 @@ fn print_pdf(html: &Path, pdf: &Path, tmp: &Path) -> (usize, String, String) {
     (pages, info, text)
 }
 
-/// The SVG's legend box holds no data point and lies right of every data point.
-fn assert_legend_clear(svg: &str, what: &str) {
-    let g = chart_geometry::parse(svg);
+/// The SVG's legend box holds no data point and lies right of every data point; rendered to PNG,
+/// it holds no pixel of a series colour (figure_support/pixels.rs).
+fn assert_legend_clear(path: &Path, what: &str) {
+    pixels::assert_legend_clear_in_pixels(path, what);
+    let g = chart_geometry::parse(&std::fs::read_to_string(path).unwrap());
     assert_eq!(g.legend_boxes.len(), 1, "{what}: one legend box");
     assert!(g.data_points.len() > 10, "{what}: data drawn");
     assert!(
@@ -166,7 +170,9 @@ fn iso230_2_report_of_asad_ullahs_x_axis_prints_to_a4_with_the_figures_numbers()
     ))
     .unwrap();
     let svg_text = std::fs::read_to_string(&svg).unwrap();
-    assert_legend_clear(&svg_text, "iso230-2");
+    assert_legend_clear(&svg, "iso230-2");
+    // The pixel check is not blind: a marker put into the legend box is found.
+    pixels::assert_an_injected_overlap_is_seen(&svg);
     // Asad Ullah's X: the forward and reverse means cross between 145 and 160 mm (Bi changes
     // sign), the place the old opaque legend hid.
     let bi = |t: f64| {
@@ -272,9 +278,8 @@ fn circle_report_has_the_polar_plot_and_prints_its_numbers() {
     ))
     .unwrap();
     let polar_text = std::fs::read_to_string(&polar).unwrap();
-    let angle_text = std::fs::read_to_string(&angle).unwrap();
-    assert_legend_clear(&polar_text, "polar");
-    assert_legend_clear(&angle_text, "angle");
+    assert_legend_clear(&polar, "polar");
+    assert_legend_clear(&angle, "angle");
     let g_b = json["iso230_4"]["g_bidirectional_um"].as_f64().unwrap();
     let numbers = [
         format!("G(b) = {g_b:.2} µm"),
@@ -349,7 +354,7 @@ fn fit_axis_report_prints_the_fit_table_figure_and_model() {
     ))
     .unwrap();
     let svg_text = std::fs::read_to_string(&svg).unwrap();
-    assert_legend_clear(&svg_text, "fit axis");
+    assert_legend_clear(&svg, "fit axis");
     let fit = &json["fit"];
     let numbers = [
         format!("fit rms = {:.3} µm", fit["fit_rms_um"].as_f64().unwrap()),
@@ -422,7 +427,7 @@ fn demo_report_prints_the_four_runs_table_and_figures() {
         "error_z.svg",
         "volumetric.svg",
     ] {
-        assert_legend_clear(&std::fs::read_to_string(out.join(f)).unwrap(), f);
+        assert_legend_clear(&out.join(f), f);
     }
     for n in &numbers {
         assert!(vol_svg.contains(n.as_str()), "volumetric figure lacks {n}");

@@ -44,18 +44,23 @@ pub fn before_after_svg(
             }
         ),
     ];
-    let series = [
+    let mut series = vec![
         Series::markers(
             "residual before the findings",
             chart::thinned(x, &s.residual_before, MAX_POINTS),
         )
         .with_colour(PALETTE[7]),
-        Series::markers(
-            "residual after all findings",
-            chart::thinned(x, last, MAX_POINTS),
-        )
-        .with_colour(PALETTE[0]),
     ];
+    // Nothing found: "after" would be "before" drawn over it.
+    if !after.is_empty() {
+        series.push(
+            Series::markers(
+                "residual after all findings",
+                chart::thinned(x, last, MAX_POINTS),
+            )
+            .with_colour(PALETTE[0]),
+        );
+    }
     xy_svg_notes(
         &format!("{} residual (measured − simulated)", s.signal),
         x_label,
