@@ -54,20 +54,25 @@ fn backlash_recording_with(dir: &std::path::Path, spikes: &[(usize, f64)]) -> st
     p
 }
 
+/// `diagnose --json --recording REC --out OUT`: its JSON.
+fn diagnose_json_out(rec: &std::path::Path, out: &std::path::Path) -> serde_json::Value {
+    let o = bin()
+        .args(["diagnose", "--json", "--recording"])
+        .arg(rec)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
 #[test]
 fn json_output_follows_the_contract_and_out_dir_has_plots_and_terms() {
     let tmp = tempfile::tempdir().unwrap();
     let rec = backlash_recording(tmp.path());
     let out = tmp.path().join("out");
-    let o = bin()
-        .args(["diagnose", "--json", "--recording"])
-        .arg(&rec)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let j = diagnose_json_out(&rec, &out);
     for k in [
         "verdict",
         "rms_before_um",
@@ -383,16 +388,8 @@ fn out_figures_keep_the_residual_scale_under_servo_lag_spikes() {
     let spikes: Vec<(usize, f64)> = [101, 413, 725].map(|i| (i, -300.0)).to_vec();
     let rec = backlash_recording_with(tmp.path(), &spikes);
     let out = tmp.path().join("out");
-    let o = bin()
-        .args(["diagnose", "--json", "--recording"])
-        .arg(&rec)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j = diagnose_json_out(&rec, &out);
     let svgs = assert_figures_clear(&out);
-    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(
         j["findings"][0]["effect"], "backlash",
         "found despite the spikes"

@@ -15,6 +15,8 @@ use retrocomp::analysis::chart_geometry;
 mod hil_sim;
 #[path = "figure_support/pixels.rs"]
 mod pixels;
+#[path = "analysis_support/runs.rs"]
+mod runs;
 
 fn retrocomp() -> Command {
     Command::new(env!("CARGO_BIN_EXE_retrocomp"))
@@ -302,28 +304,11 @@ fn circle_report_has_the_polar_plot_and_prints_its_numbers() {
     }
 }
 
-/// Three runs of a bowed X axis with a 3 µm reversal: the fit keeps a curve per direction.
-fn runs_csv(path: &Path) {
-    let mut s = String::from("target_mm,run,direction,deviation_um\n");
-    for run in 1..=3 {
-        for i in 0..=20 {
-            let x = 25.0 * f64::from(i);
-            let e = 0.03 * x - 4e-5 * x * x + 0.05 * f64::from(run % 2);
-            s.push_str(&format!(
-                "{x},{run},+,{:.3}\n{x},{run},-,{:.3}\n",
-                e + 1.5,
-                e - 1.5
-            ));
-        }
-    }
-    std::fs::write(path, s).unwrap();
-}
-
 #[test]
 fn fit_axis_report_prints_the_fit_table_figure_and_model() {
     let dir = tempfile::tempdir().unwrap();
     let runs = dir.path().join("runs.csv");
-    runs_csv(&runs);
+    runs::bowed_runs_csv(&runs);
     let (svg, html, pdf, model) = (
         dir.path().join("fit.svg"),
         dir.path().join("fit.html"),

@@ -67,7 +67,9 @@ impl Rgba {
                 let (r, g, b, a) = self.at(x, y);
                 if a > 200
                     && colours.iter().any(|c| {
-                        c.0.abs_diff(r) as u32 + c.1.abs_diff(g) as u32 + c.2.abs_diff(b) as u32
+                        u32::from(c.0.abs_diff(r))
+                            + u32::from(c.1.abs_diff(g))
+                            + u32::from(c.2.abs_diff(b))
                             <= 40
                     })
                 {
