@@ -67,9 +67,12 @@ fn identification(extra_xz_y_mm: Option<f64>) -> Vec<PlatePlacement> {
     out
 }
 
+/// A place: name, plane, origin (mm), holes, pitch (mm).
+type Place = (&'static str, Plane, [f64; 3], [usize; 2], [f64; 2]);
+
 /// Six verification places (Spaan's five and the XZ plate at y = 330 mm), every probe.
 fn verification() -> Vec<PlatePlacement> {
-    let places: [(&str, Plane, [f64; 3], [usize; 2], [f64; 2]); 6] = [
+    let places: [Place; 6] = [
         (
             "v_xy",
             Plane::Xy,

@@ -109,7 +109,7 @@ pub(crate) fn axis_sections(
             .join(", ")
     };
     let mut rows = vec![
-        vec!["component".into(), id.iso_name().to_string()],
+        vec!["component".into(), id.iso_name()],
         vec!["forward knots / mm".into(), knots(&fit.forward.knots_mm)],
         vec!["reverse knots / mm".into(), knots(&fit.reverse.knots_mm)],
         vec!["fit rms / µm".into(), format!("{:.3}", fit.fit_rms_um)],
