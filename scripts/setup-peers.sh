@@ -10,6 +10,8 @@
 # refused if the simulation removes or downgrades anything; the real install adds --no-remove.
 #   poppler-utils: pdftoppm/pdftotext, which tests/report_html_pdf.rs uses to read the PDF Chromium
 #        prints from a report
+#   librsvg2-bin: rsvg-convert, which renders every figure a test writes to PNG to check on its
+#        pixels that no legend box covers data (tests/figure_support/pixels.rs)
 #   chromium (+ chromium-driver): the headless browser of tests/gateway_web_browser.rs, driven by
 #        playwright-core (PINNED in tests/browser/package-lock.json, `npm ci` with Debian's nodejs + npm)
 #   procps: `kill` (tests signal the gateway and hil-sim); python3-venv: the .venv below
@@ -45,6 +47,7 @@ APT_PACKAGES=(
   chromium-driver
   mosquitto
   poppler-utils
+  librsvg2-bin
   procps
   python3-venv
   lintian

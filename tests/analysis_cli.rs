@@ -4,6 +4,9 @@
 use std::path::PathBuf;
 use std::process::Command;
 
+#[path = "analysis_support/runs.rs"]
+mod runs;
+
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_retrocomp"))
 }
@@ -201,19 +204,7 @@ fn circle_reports_g_and_terms() {
 fn fit_axis_writes_a_model_that_check_config_accepts() {
     let dir = tempfile::tempdir().unwrap();
     let runs = dir.path().join("runs.csv");
-    let mut s = String::from("target_mm,run,direction,deviation_um\n");
-    for run in 1..=3 {
-        for i in 0..=20 {
-            let x = 25.0 * f64::from(i);
-            let e = 0.03 * x - 4e-5 * x * x + 0.05 * f64::from(run % 2);
-            s.push_str(&format!(
-                "{x},{run},+,{:.3}\n{x},{run},-,{:.3}\n",
-                e + 1.5,
-                e - 1.5
-            ));
-        }
-    }
-    std::fs::write(&runs, s).unwrap();
+    runs::bowed_runs_csv(&runs);
     let model = dir.path().join("m.toml");
     let svg = dir.path().join("fit.svg");
     let text = run_ok(

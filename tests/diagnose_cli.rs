@@ -5,6 +5,9 @@
 
 use std::process::Command;
 
+#[path = "figure_support/pixels.rs"]
+mod pixels;
+
 use retrocomp::recording::Recording;
 
 fn bin() -> Command {
@@ -13,6 +16,11 @@ fn bin() -> Command {
 
 /// A small step-and-dwell recording with a 6 µm backlash on X and white-ish noise.
 fn backlash_recording(dir: &std::path::Path) -> std::path::PathBuf {
+    backlash_recording_with(dir, &[])
+}
+
+/// [`backlash_recording`] with `spikes` (row, µm) added to the error: servo-lag outliers.
+fn backlash_recording_with(dir: &std::path::Path, spikes: &[(usize, f64)]) -> std::path::PathBuf {
     let n = 800;
     let t: Vec<f64> = (0..n).map(|i| i as f64).collect();
     let x: Vec<f64> = (0..n)
@@ -31,6 +39,9 @@ fn backlash_recording(dir: &std::path::Path) -> std::path::PathBuf {
         let noise = 0.4 * ((i as f64 * 12.9898).sin() * 43758.5453).fract();
         ex.push(3.0 * dir_latch + noise);
     }
+    for (i, v) in spikes {
+        ex[*i] += v;
+    }
     let rec = Recording::from_columns(vec![
         ("t_s".into(), t),
         ("x_mm".into(), x),
@@ -43,16 +54,13 @@ fn backlash_recording(dir: &std::path::Path) -> std::path::PathBuf {
     p
 }
 
-#[test]
-fn json_output_follows_the_contract_and_out_dir_has_plots_and_terms() {
-    let tmp = tempfile::tempdir().unwrap();
-    let rec = backlash_recording(tmp.path());
-    let out = tmp.path().join("out");
+/// `diagnose --json --recording REC --out OUT`: its JSON.
+fn diagnose_json_out(rec: &std::path::Path, out: &std::path::Path) -> serde_json::Value {
     let o = bin()
         .args(["diagnose", "--json", "--recording"])
-        .arg(&rec)
+        .arg(rec)
         .arg("--out")
-        .arg(&out)
+        .arg(out)
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -62,7 +70,15 @@ fn json_output_follows_the_contract_and_out_dir_has_plots_and_terms() {
         !err.contains('\x1b') && !err.contains("diagnose: reading") && !err.contains('\r'),
         "{err}"
     );
-    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
+#[test]
+fn json_output_follows_the_contract_and_out_dir_has_plots_and_terms() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = backlash_recording(tmp.path());
+    let out = tmp.path().join("out");
+    let j = diagnose_json_out(&rec, &out);
     for k in [
         "verdict",
         "rms_before_um",
@@ -99,6 +115,7 @@ fn json_output_follows_the_contract_and_out_dir_has_plots_and_terms() {
         "plot text must render"
     );
     assert!(svg.contains("<circle"), "plot has points");
+    assert_figures_clear(&out);
     let toml_text = std::fs::read_to_string(out.join("found_terms.toml")).unwrap();
     let v: toml::Value = toml::from_str(&toml_text).unwrap();
     assert_eq!(v["term"][0]["effect"].as_str(), Some("backlash"));
@@ -351,4 +368,56 @@ fn with_model_the_out_model_is_the_input_model_plus_the_found_term() {
         let want = 0.05 * x + f64::from(*d) * b / 2.0;
         assert!((v - want).abs() < 1e-6, "x {x} dir {d}: {v} vs {want}");
     }
+}
+
+/// Every SVG of `--out`: no data point under the legend, in its geometry and on its rendering.
+fn assert_figures_clear(out: &std::path::Path) -> Vec<std::path::PathBuf> {
+    let mut svgs: Vec<_> = std::fs::read_dir(out)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "svg"))
+        .collect();
+    svgs.sort();
+    assert!(!svgs.is_empty(), "--out wrote figures");
+    for p in &svgs {
+        pixels::assert_legend_clear_in_pixels(p, &p.display().to_string());
+    }
+    svgs
+}
+
+/// Three servo-lag spikes of −300 µm among ±3 µm: the residual's scale follows the residual (the
+/// spikes are marked at the edge and counted), and the residual after the findings gets a figure
+/// on its own scale.
+#[test]
+fn out_figures_keep_the_residual_scale_under_servo_lag_spikes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let spikes: Vec<(usize, f64)> = [101, 413, 725].map(|i| (i, -300.0)).to_vec();
+    let rec = backlash_recording_with(tmp.path(), &spikes);
+    let out = tmp.path().join("out");
+    let j = diagnose_json_out(&rec, &out);
+    let svgs = assert_figures_clear(&out);
+    assert_eq!(
+        j["findings"][0]["effect"], "backlash",
+        "found despite the spikes"
+    );
+    let before = std::fs::read_to_string(out.join("residual_ex_um_vs_t_s.svg")).unwrap();
+    assert!(
+        before.contains("point(s) beyond the scale"),
+        "the spikes are counted at the edge, not stretching the scale"
+    );
+    assert!(before.contains("x position / mm") || before.contains("time / s"));
+    // The y tick labels stay within µm of the residual: no tick near −300.
+    for tick in [">-300.0<", ">-250.0<", ">-200.0<", ">-100.0<"] {
+        assert!(!before.contains(tick), "scale set by the spikes: {tick}");
+    }
+    let after = out.join("residual_after_ex_um_vs_t_s.svg");
+    assert!(
+        svgs.contains(&after),
+        "the residual after the findings on its own scale"
+    );
+    let a = std::fs::read_to_string(&after).unwrap();
+    assert!(
+        a.contains("after backlash: rms"),
+        "per-finding rms beside it"
+    );
 }

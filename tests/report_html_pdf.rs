@@ -1,5 +1,5 @@
-//! One report per job, printed as a customer gets it: `retrocomp iso230-2` and `retrocomp circle`
-//! write their figure SVGs and an HTML report; the SVGs are checked from their own geometry (no data
+//! One report per job, printed as a customer gets it: `retrocomp iso230-2`, `circle`, `fit axis`
+//! and `demo` write their figure SVGs and an HTML report; the SVGs are checked from their own geometry (no data
 //! point in the legend box), the HTML is printed to A4 PDF by headless Chromium (the peer of
 //! tests/gateway_web_browser.rs), and poppler's pdfinfo/pdftoppm/pdftotext check the page count,
 //! the page size and that the figures' numbers are in the PDF's text.
@@ -10,6 +10,13 @@ use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use retrocomp::analysis::chart_geometry;
+
+#[path = "gateway_support/hil_sim.rs"]
+mod hil_sim;
+#[path = "figure_support/pixels.rs"]
+mod pixels;
+#[path = "analysis_support/runs.rs"]
+mod runs;
 
 fn retrocomp() -> Command {
     Command::new(env!("CARGO_BIN_EXE_retrocomp"))
@@ -116,9 +123,11 @@ fn print_pdf(html: &Path, pdf: &Path, tmp: &Path) -> (usize, String, String) {
     (pages, info, text)
 }
 
-/// The SVG's legend box holds no data point and lies right of every data point.
-fn assert_legend_clear(svg: &str, what: &str) {
-    let g = chart_geometry::parse(svg);
+/// The SVG's legend box holds no data point and lies right of every data point; rendered to PNG,
+/// it holds no pixel of a series colour (figure_support/pixels.rs).
+fn assert_legend_clear(path: &Path, what: &str) {
+    pixels::assert_legend_clear_in_pixels(path, what);
+    let g = chart_geometry::parse(&std::fs::read_to_string(path).unwrap());
     assert_eq!(g.legend_boxes.len(), 1, "{what}: one legend box");
     assert!(g.data_points.len() > 10, "{what}: data drawn");
     assert!(
@@ -163,7 +172,9 @@ fn iso230_2_report_of_asad_ullahs_x_axis_prints_to_a4_with_the_figures_numbers()
     ))
     .unwrap();
     let svg_text = std::fs::read_to_string(&svg).unwrap();
-    assert_legend_clear(&svg_text, "iso230-2");
+    assert_legend_clear(&svg, "iso230-2");
+    // The pixel check is not blind: a marker put into the legend box is found.
+    pixels::assert_an_injected_overlap_is_seen(&svg);
     // Asad Ullah's X: the forward and reverse means cross between 145 and 160 mm (Bi changes
     // sign), the place the old opaque legend hid.
     let bi = |t: f64| {
@@ -269,9 +280,8 @@ fn circle_report_has_the_polar_plot_and_prints_its_numbers() {
     ))
     .unwrap();
     let polar_text = std::fs::read_to_string(&polar).unwrap();
-    let angle_text = std::fs::read_to_string(&angle).unwrap();
-    assert_legend_clear(&polar_text, "polar");
-    assert_legend_clear(&angle_text, "angle");
+    assert_legend_clear(&polar, "polar");
+    assert_legend_clear(&angle, "angle");
     let g_b = json["iso230_4"]["g_bidirectional_um"].as_f64().unwrap();
     let numbers = [
         format!("G(b) = {g_b:.2} µm"),
@@ -291,5 +301,131 @@ fn circle_report_has_the_polar_plot_and_prints_its_numbers() {
     assert!((1..=4).contains(&pages), "{pages} pages:\n{info}");
     for n in numbers.iter().take(2) {
         assert!(text.contains(n.as_str()), "PDF text lacks {n}:\n{text}");
+    }
+}
+
+#[test]
+fn fit_axis_report_prints_the_fit_table_figure_and_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path().join("runs.csv");
+    runs::bowed_runs_csv(&runs);
+    let (svg, html, pdf, model) = (
+        dir.path().join("fit.svg"),
+        dir.path().join("fit.html"),
+        dir.path().join("fit.pdf"),
+        dir.path().join("m.toml"),
+    );
+    let json: serde_json::Value = serde_json::from_str(&ok(
+        retrocomp()
+            .args(["fit", "axis"])
+            .arg(&runs)
+            .args([
+                "--component",
+                "EXX",
+                "--holdout-run",
+                "3",
+                "--json",
+                "--out",
+            ])
+            .arg(&model)
+            .arg("--svg")
+            .arg(&svg)
+            .arg("--html")
+            .arg(&html)
+            .args(["--machine", "bench mill", "--instrument", "XL-80 laser"])
+            .output()
+            .unwrap(),
+        "retrocomp fit axis",
+    ))
+    .unwrap();
+    let svg_text = std::fs::read_to_string(&svg).unwrap();
+    assert_legend_clear(&svg, "fit axis");
+    let fit = &json["fit"];
+    let numbers = [
+        format!("fit rms = {:.3} µm", fit["fit_rms_um"].as_f64().unwrap()),
+        format!(
+            "held-out δ = {:.1} %",
+            100.0 * fit["heldout"]["delta"].as_f64().unwrap()
+        ),
+        format!(
+            "max residual = {:.2} µm",
+            fit["heldout"]["max_residual_um"].as_f64().unwrap()
+        ),
+    ];
+    for n in &numbers {
+        assert!(svg_text.contains(n.as_str()), "figure lacks {n}");
+    }
+    let html_text = std::fs::read_to_string(&html).unwrap();
+    let toml = std::fs::read_to_string(&model).unwrap();
+    let first_model_line = toml.lines().find(|l| !l.trim().is_empty()).unwrap();
+    assert!(
+        html_text.contains(first_model_line),
+        "the report holds the model written"
+    );
+    let (pages, info, text) = print_pdf(&html, &pdf, dir.path());
+    assert!((1..=4).contains(&pages), "{pages} pages:\n{info}");
+    assert!(info.contains("(A4)"), "A4 pages:\n{info}");
+    for n in numbers.iter().map(String::as_str).chain([
+        "bench mill",
+        "XL-80 laser",
+        "SHA-256",
+        "What was assumed",
+    ]) {
+        assert!(text.contains(n), "PDF text lacks {n}:\n{text}");
+    }
+}
+
+#[test]
+fn demo_report_prints_the_four_runs_table_and_figures() {
+    let hil_sim = hil_sim::hil_sim_next_to_retrocomp();
+    let dir = tempfile::tempdir().unwrap();
+    let (out, html, pdf) = (
+        dir.path().join("demo"),
+        dir.path().join("demo.html"),
+        dir.path().join("demo.pdf"),
+    );
+    let stdout = ok(
+        run_guarded(
+            {
+                let mut c = retrocomp();
+                c.args(["demo", "--json", "--seconds", "0", "--out"])
+                    .arg(&out)
+                    .arg("--html")
+                    .arg(&html)
+                    .env("HIL_SIM_BIN", &hil_sim);
+                c
+            },
+            "retrocomp demo",
+        ),
+        "retrocomp demo",
+    );
+    let v: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    let mut numbers = vec![];
+    for mode in ["uncompensated", "geometric", "full", "fitted"] {
+        let vol = v[mode]["volumetric_max_um"].as_f64().unwrap();
+        numbers.push(format!("{mode} {vol:.2} µm"));
+    }
+    let vol_svg = std::fs::read_to_string(out.join("volumetric.svg")).unwrap();
+    for f in [
+        "error_x.svg",
+        "error_y.svg",
+        "error_z.svg",
+        "volumetric.svg",
+    ] {
+        assert_legend_clear(&out.join(f), f);
+    }
+    for n in &numbers {
+        assert!(vol_svg.contains(n.as_str()), "volumetric figure lacks {n}");
+    }
+    let (pages, info, text) = print_pdf(&html, &pdf, dir.path());
+    assert!((2..=8).contains(&pages), "{pages} pages:\n{info}");
+    assert!(info.contains("(A4)"), "A4 pages:\n{info}");
+    for n in numbers
+        .iter()
+        .map(String::as_str)
+        // pdftotext may break the path at its hyphen ("mill-fitted" reads "millfitted").
+        .chain(["fitted.toml SHA-256", "What was assumed"])
+    {
+        assert!(text.contains(n), "PDF text lacks {n}:\n{text}");
     }
 }

@@ -182,6 +182,17 @@ const SPAN_SHADES: [RGBColor; 3] = [
     RGBColor(0xDC, 0xEB, 0xF7),
 ];
 
+/// At most `max` evenly spaced (x, y) pairs of `x` and `y` (every k-th pair), so a figure of 10⁶
+/// rows stays a readable, printable page.
+pub fn thinned(x: &[f64], y: &[f64], max: usize) -> Vec<(f64, f64)> {
+    let stride = x.len().div_ceil(max.max(1)).max(1);
+    x.iter()
+        .zip(y)
+        .step_by(stride)
+        .map(|(a, b)| (*a, *b))
+        .collect()
+}
+
 /// Quantile `p` of sorted values (nearest rank).
 fn quantile(sorted: &[f64], p: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * p).round() as usize]

@@ -2,6 +2,8 @@
 //! check from the figure itself that no legend box covers data: the legend box is the `<rect>`
 //! stroked [`super::chart::LEGEND_FRAME`]; data are `<circle>` centres and the vertices of
 //! `<polyline>` and `<polygon>` elements (legend swatches are `<rect>`s, grid lines `<line>`s).
+//! It also lists the legend's swatches and the colours the data were drawn in (black axes and
+//! white excluded), so a test can look for those colours in a rendering of the legend box.
 
 /// An axis-aligned box, px: `[left, top, right, bottom]`.
 pub type BoxPx = [f64; 4];
@@ -12,6 +14,10 @@ pub struct SvgGeometry {
     pub legend_boxes: Vec<BoxPx>,
     /// Circle centres and polyline/polygon vertices.
     pub data_points: Vec<(f64, f64)>,
+    /// Filled `<rect>`s inside a legend box (one swatch per series).
+    pub swatches: Vec<BoxPx>,
+    /// Fill or stroke colours of the data elements (RGB), without black and white.
+    pub data_colours: Vec<(u8, u8, u8)>,
 }
 
 impl SvgGeometry {
@@ -40,6 +46,18 @@ fn num(tag: &str, name: &str) -> Option<f64> {
     attr(tag, name)?.trim().parse().ok()
 }
 
+/// `#RRGGBB` → (r, g, b).
+fn rgb(hex: &str) -> Option<(u8, u8, u8)> {
+    let h = hex.strip_prefix('#').filter(|h| h.len() == 6)?;
+    let c = |i: usize| u8::from_str_radix(&h[i..i + 2], 16).ok();
+    Some((c(0)?, c(2)?, c(4)?))
+}
+
+fn rect_box(tag: &str) -> Option<BoxPx> {
+    let (x, y) = (num(tag, "x")?, num(tag, "y")?);
+    Some([x, y, x + num(tag, "width")?, y + num(tag, "height")?])
+}
+
 /// Parses the elements of `svg` that [`SvgGeometry`] needs; unknown elements are ignored.
 pub fn parse(svg: &str) -> SvgGeometry {
     let frame = {
@@ -47,24 +65,31 @@ pub fn parse(svg: &str) -> SvgGeometry {
         format!("#{:02X}{:02X}{:02X}", c.0, c.1, c.2)
     };
     let mut g = SvgGeometry::default();
+    let mut filled_rects = vec![];
+    let colour = |tag: &str, key: &str, g: &mut SvgGeometry| {
+        if let Some(c) = attr(tag, key).and_then(rgb)
+            && c != (0, 0, 0)
+            && c != (255, 255, 255)
+            && !g.data_colours.contains(&c)
+        {
+            g.data_colours.push(c);
+        }
+    };
     for piece in svg.split('<').skip(1) {
         let tag = piece.split('>').next().unwrap_or("");
         let name = tag.split_whitespace().next().unwrap_or("");
         match name {
             "rect" if attr(tag, "stroke").is_some_and(|s| s.eq_ignore_ascii_case(&frame)) => {
-                if let (Some(x), Some(y), Some(w), Some(h)) = (
-                    num(tag, "x"),
-                    num(tag, "y"),
-                    num(tag, "width"),
-                    num(tag, "height"),
-                ) {
-                    g.legend_boxes.push([x, y, x + w, y + h]);
-                }
+                g.legend_boxes.extend(rect_box(tag));
+            }
+            "rect" if attr(tag, "fill").is_some_and(|f| f != "none") => {
+                filled_rects.extend(rect_box(tag));
             }
             "circle" => {
                 if let (Some(x), Some(y)) = (num(tag, "cx"), num(tag, "cy")) {
                     g.data_points.push((x, y));
                 }
+                colour(tag, "fill", &mut g);
             }
             "polyline" | "polygon" => {
                 for xy in attr(tag, "points").unwrap_or("").split_whitespace() {
@@ -73,9 +98,22 @@ pub fn parse(svg: &str) -> SvgGeometry {
                         g.data_points.push((x, y));
                     }
                 }
+                colour(
+                    tag,
+                    if name == "polygon" { "fill" } else { "stroke" },
+                    &mut g,
+                );
             }
             _ => {}
         }
     }
+    g.swatches = filled_rects
+        .into_iter()
+        .filter(|r| {
+            g.legend_boxes
+                .iter()
+                .any(|b| r[0] >= b[0] && r[2] <= b[2] && r[1] >= b[1] && r[3] <= b[3])
+        })
+        .collect();
     g
 }

@@ -8,6 +8,8 @@ use std::path::PathBuf;
 
 use retrocomp::demo::{DemoOptions, Mode, run_demo, sim_process::locate_hil_sim};
 
+use super::report_args::ReportArgs;
+
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
     /// Output folder: recordings, configs, models, SVG plots.
@@ -36,6 +38,9 @@ pub(crate) struct Args {
     /// scheduler. Refused (no root / CAP_SYS_NICE / RLIMIT_RTPRIO) → the normal scheduler.
     #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u8).range(0..=99))]
     pub realtime_priority: u8,
+    /// The report's header hashes the models the demo wrote (truth geometry, full, fitted).
+    #[command(flatten)]
+    pub report: ReportArgs,
 }
 
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
@@ -110,6 +115,14 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         r.wall_s,
         args.out.display()
     );
+    let models = args.out.join("models");
+    let inputs =
+        ["mill-geometric.toml", "mill-full.toml", "mill-fitted.toml"].map(|f| models.join(f));
+    args.report.write(
+        "retrocomp demo: compensation on a simulated mill",
+        &inputs.iter().map(|p| p.as_path()).collect::<Vec<_>>(),
+        || Ok(super::demo_report::sections(&r, args.seed, args.seconds)),
+    )?;
     if args.json {
         println!("{}", serde_json::to_string(&r.stats)?);
     }

@@ -1,72 +1,23 @@
 //! `retrocomp diagnose --html OUT`: the diagnosis as one self-contained report. Consumes
 //! [`retrocomp::diagnose::Diagnosis`] only (its report and per-signal residuals); the figures are
-//! drawn with the shared chart (robust y-limits, legend beside the plot), residual before the
-//! findings and after all of them, against time and against the signal's own axis position.
+//! those of `diagnose --out` ([`retrocomp::diagnose::plots`]): residual before the findings and
+//! after all of them, against time and against the signal's own axis position.
 
-use retrocomp::analysis::chart::PALETTE;
 use retrocomp::analysis::html::{Block, Section};
-use retrocomp::analysis::report::{Series, xy_svg_notes};
-use retrocomp::diagnose::Diagnosis;
-
-/// Points per series in a report figure at most (evenly thinned): a 10⁶-row recording stays a
-/// readable, printable page.
-const MAX_POINTS: usize = 3000;
-
-fn thinned(x: &[f64], y: &[f64]) -> Vec<(f64, f64)> {
-    let stride = x.len().div_ceil(MAX_POINTS).max(1);
-    x.iter()
-        .zip(y)
-        .step_by(stride)
-        .map(|(a, b)| (*a, *b))
-        .collect()
-}
-
-fn rms(v: &[f64]) -> f64 {
-    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
-}
+use retrocomp::diagnose::{Diagnosis, plots};
 
 fn figures(d: &Diagnosis) -> anyhow::Result<Vec<Block>> {
     let ctx = &d.context;
     let mut out = vec![];
     for s in &d.signals {
         let after = s.residual_after(ctx);
-        let last = after.last().unwrap_or(&s.residual_before);
-        let names: Vec<String> = s.models.iter().map(|m| m.id().to_string()).collect();
-        let notes = vec![
-            format!("rms before = {:.2} µm", rms(&s.residual_before)),
-            format!("rms after = {:.2} µm", rms(last)),
-            format!(
-                "findings: {}",
-                if names.is_empty() {
-                    "none".into()
-                } else {
-                    names.join(", ")
-                }
-            ),
-        ];
-        let own = ctx.axes[(s.axis as u8).saturating_sub(b'x').min(2) as usize]
-            .as_ref()
-            .map(|f| (format!("{} position / mm", s.axis), &f.pos_mm[..]));
-        let xs = [("time / s".to_string(), &ctx.t_s[..])]
+        // Against time and against the signal's own axis position.
+        let own = format!("{} position / mm", s.axis);
+        for (_, x_label, x) in plots::features(d)
             .into_iter()
-            .chain(own);
-        for (x_label, x) in xs {
-            let series = [
-                Series::markers(
-                    "residual before the findings",
-                    thinned(x, &s.residual_before),
-                )
-                .with_colour(PALETTE[7]),
-                Series::markers("residual after all findings", thinned(x, last))
-                    .with_colour(PALETTE[0]),
-            ];
-            let svg = xy_svg_notes(
-                &format!("{} residual (measured − simulated)", s.signal),
-                &x_label,
-                "residual / µm",
-                &series,
-                &notes,
-            )?;
+            .filter(|(_, l, _)| l == "time / s" || *l == own)
+        {
+            let svg = plots::before_after_svg(s, &after, &x_label, x)?;
             out.push(Block::Figure {
                 svg,
                 caption: format!(

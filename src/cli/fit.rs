@@ -6,6 +6,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
+use super::fit_report;
+use super::report_args::ReportArgs;
 use super::util::write;
 use retrocomp::analysis::fit::regression::Criterion;
 use retrocomp::analysis::fit::to_model::{
@@ -13,15 +15,11 @@ use retrocomp::analysis::fit::to_model::{
     to_checked_toml,
 };
 use retrocomp::analysis::fit::workflow::{
-    AxisFit, ContextFit, ContextOptions, Driver, fit_axis, fit_context_with, source_values,
+    AxisFit, ContextFit, ContextOptions, Driver, fit_axis, fit_context_with,
 };
-use retrocomp::analysis::iso230_2::Reading;
-use retrocomp::analysis::report::{Series, xy_svg};
-use retrocomp::analysis::table::Direction;
 use retrocomp::diagnose::model_sim::{final_lag_state, simulate_axes};
 use retrocomp::models::names::parse_component;
 use retrocomp::models::{ComponentId, MachineModel, ModelSpec};
-use retrocomp::recording::Recording;
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
@@ -59,9 +57,11 @@ pub(crate) struct Common {
     /// Print one JSON object (fit, δ, residuals, the model TOML) instead of the text report.
     #[arg(long)]
     pub json: bool,
-    /// Write the measured values against the fitted model as an SVG chart.
+    /// Write the measured-vs-model figure as SVG (numbers beside the plot).
     #[arg(long)]
     pub svg: Option<PathBuf>,
+    #[command(flatten)]
+    pub report: ReportArgs,
     /// fit thermal / load: keep going past bad rows of the recording (each listed on stderr, and
     /// under `skipped_rows` with --json) instead of refusing the file.
     #[arg(long)]
@@ -258,46 +258,6 @@ fn context_text(f: &ContextFit) -> String {
     s
 }
 
-/// Measured (less the base model's prediction with --residual) against the fitted terms.
-fn context_svg(
-    p: &Path,
-    rec: &Recording,
-    f: &ContextFit,
-    base_um: Option<&[f64]>,
-) -> anyhow::Result<()> {
-    let t = rec.t_s();
-    let mut y = rec.col(&f.signal).context("signal")?.to_vec();
-    if let Some(b) = base_um {
-        y.iter_mut().zip(b).for_each(|(y, b)| *y -= b);
-    }
-    let pred = f
-        .model
-        .predict(t, &|n: &str| source_values(rec, n))
-        .context("prediction")?;
-    let label = if base_um.is_some() {
-        "measured − base model"
-    } else {
-        "measured"
-    };
-    let series = [
-        Series::line(label, t.iter().cloned().zip(y).collect()),
-        Series::line("model", t.iter().cloned().zip(pred).collect()),
-    ];
-    write(
-        p,
-        &xy_svg(
-            &format!(
-                "{}: held-out δ = {:.1} %",
-                f.signal,
-                100.0 * f.heldout.delta
-            ),
-            "t_s",
-            "error_um",
-            &series,
-        )?,
-    )
-}
-
 /// The axis fit's text report: the knots, the fit and the drift, then δ on the held-out run.
 fn axis_text(id: ComponentId, fit: &AxisFit, slope: f64, holdout_run: Option<u32>) -> String {
     let mut text = format!(
@@ -318,56 +278,6 @@ fn axis_text(id: ComponentId, fit: &AxisFit, slope: f64, holdout_run: Option<u32
         None => text.push_str("no held-out run (--holdout-run): δ not computed\n"),
     }
     text
-}
-
-/// `--svg` of an axis fit: the measured deviations of each direction as markers and the fitted
-/// curve across the measured targets.
-fn axis_svg(
-    p: &Path,
-    id: ComponentId,
-    rs: &[Reading],
-    fit: &AxisFit,
-    targets: &[f64],
-) -> anyhow::Result<()> {
-    let mut series = Vec::new();
-    for (d, name) in [
-        (Direction::Forward, "forward"),
-        (Direction::Reverse, "reverse"),
-    ] {
-        series.push(Series::markers(
-            &format!("measured {name}"),
-            rs.iter()
-                .filter(|r| r.direction == d)
-                .map(|r| (r.target_mm, r.deviation_um))
-                .collect(),
-        ));
-        let pq = if d == Direction::Forward {
-            &fit.forward
-        } else {
-            &fit.reverse
-        };
-        let (lo, hi) = (
-            targets.iter().cloned().fold(f64::INFINITY, f64::min),
-            targets.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
-        );
-        series.push(Series::line(
-            &format!("fit {name}"),
-            (0..=200)
-                .map(|i| lo + (hi - lo) * f64::from(i) / 200.0)
-                .map(|x| (x, pq.eval(x)))
-                .collect(),
-        ));
-    }
-    write(
-        p,
-        &xy_svg(
-            &format!("{} fit", id.iso_name()),
-            "position_mm",
-            "error_um",
-            &series,
-        )?,
-    )?;
-    Ok(())
 }
 
 pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
@@ -408,8 +318,17 @@ pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
             put_component(&mut spec, c)?;
             let (toml, _) = to_checked_toml(spec)?;
             let text = axis_text(id, &fit, slope, *holdout_run);
-            if let Some(p) = &common.svg {
-                axis_svg(p, id, &rs, &fit, &targets)?;
+            if common.svg.is_some() || common.report.html.is_some() {
+                let svg = fit_report::axis_svg(id, &rs, &fit, &targets)?;
+                if let Some(p) = &common.svg {
+                    write(p, &svg)?;
+                }
+                let inputs = fit_report::inputs(runs, common.base_model.as_deref());
+                common.report.write(
+                    &format!("Axis fit of {} from laser runs", id.iso_name()),
+                    &inputs,
+                    || Ok(fit_report::axis_sections(id, &fit, slope, svg, &toml)),
+                )?;
             }
             let json = serde_json::json!({ "component": id.iso_name(), "fit": fit, "drift_removed_um_per_run": slope });
             finish(common, &toml, text, json)
@@ -548,8 +467,17 @@ fn run_context(
     }
     let (toml, _) = to_checked_toml(spec)?;
     progress.finish();
-    if let Some(p) = &common.svg {
-        context_svg(p, &rec, &f, base_um.as_deref())?;
+    if common.svg.is_some() || common.report.html.is_some() {
+        let svg = fit_report::context_svg(&rec, &f, base_um.as_deref())?;
+        if let Some(p) = &common.svg {
+            write(p, &svg)?;
+        }
+        let kind = if thermal { "Thermal" } else { "Load" };
+        common.report.write(
+            &format!("{kind} fit of {} → {}", f.signal, id.iso_name()),
+            &fit_report::inputs(recording, Some(base)),
+            || Ok(fit_report::context_sections(&f, x.residual, svg, &toml)),
+        )?;
     }
     let mut json = serde_json::json!({ "target": id.iso_name(), "fit": f });
     let mut text = context_text(&f);

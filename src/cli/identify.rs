@@ -14,6 +14,7 @@ use retrocomp::analysis::html::{Block, Section};
 use retrocomp::analysis::identify::contracts::{BallBar, HolePlate, read_ballbar, read_hole_plate};
 use retrocomp::analysis::identify::design::Geometry;
 use retrocomp::analysis::identify::report::{DirVerify, components, to_spec, verify};
+use retrocomp::analysis::identify::vouch::vouch;
 use retrocomp::analysis::identify::{Identification, Options, identify};
 use retrocomp::analysis::report::{Series, xy_svg_notes};
 use retrocomp::models::MachineModel;
@@ -233,6 +234,7 @@ fn json(id: &Identification, opts: &Options, ver: &[DirVerify], out: &Path) -> s
         "range_mm": id.range_mm,
         "candidate_knots": { "step_mm": opts.knot_step_mm, "max_per_axis": opts.max_knots },
         "resolution": id.resolution,
+        "vouch": vouch(id, &sq),
         "components": comp,
         "squareness": sq,
         "setups": id.setups.iter().map(|s| serde_json::json!({
@@ -312,6 +314,11 @@ fn text_report(id: &Identification, opts: &Options, ver: &[DirVerify], out: &Pat
         );
     }
     let _ = writeln!(s, "resolution: {}", id.resolution.note);
+    let v = vouch(id, &sq);
+    let _ = writeln!(s, "{}", v.statement);
+    for w in &v.widen {
+        let _ = writeln!(s, "widen: {w}");
+    }
     for (a, h, r) in &id.outliers {
         let _ = writeln!(
             s,

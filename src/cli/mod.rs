@@ -4,11 +4,13 @@
 pub(crate) mod check_config;
 pub(crate) mod circle;
 pub(crate) mod demo;
+pub(crate) mod demo_report;
 pub(crate) mod diagnose;
 pub(crate) mod diagnose_report;
 pub(crate) mod eval;
 pub(crate) mod export;
 pub(crate) mod fit;
+pub(crate) mod fit_report;
 pub(crate) mod fleet;
 pub(crate) mod hub;
 pub(crate) mod identify;

@@ -106,6 +106,8 @@ pub struct DemoResult {
     /// Wall time of the measurement runs and the fit, s.
     pub campaign_s: f64,
     pub wall_s: f64,
+    /// The figures written into the output folder (error per axis, volumetric).
+    pub figures: Vec<plot::DemoFigure>,
 }
 
 /// Measure, fit, then run the four modes; write recordings, configs, models and plots under
@@ -152,7 +154,7 @@ pub async fn run_demo(opts: &DemoOptions) -> Result<DemoResult, DemoError> {
             fitted: runs[3].gateway,
         },
     };
-    plot::write_plots(&opts.out, &runs)?;
+    let figures = plot::write_plots(&opts.out, &runs)?;
     std::fs::write(
         opts.out.join("summary.json"),
         serde_json::to_string_pretty(&stats)? + "\n",
@@ -163,6 +165,7 @@ pub async fn run_demo(opts: &DemoOptions) -> Result<DemoResult, DemoError> {
         fit_report: fit.report,
         campaign_s,
         wall_s: t0.elapsed().as_secs_f64(),
+        figures,
     })
 }
 

@@ -110,7 +110,7 @@ fn second_panel_follows_the_full_and_fitted_runs_and_phases_are_marked() {
             "cut",
             "cool-down",
             "(full, fitted)",
-            "fitted: largest",
+            "largest |value| per run",
         ] {
             assert!(svg.contains(label), "{name}: no {label}");
         }

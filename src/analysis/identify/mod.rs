@@ -14,6 +14,7 @@
 //! - [`estimate`]: the solve, knot elimination, outliers, F/t, null space.
 //! - [`report`]: the fitted model, per-component significance and identifiability, verification.
 //! - [`resolution`]: the shortest wavelength identified per axis, and lack of fit beyond it.
+//! - [`vouch`]: the probe range and plate positions the model vouches for, and what would widen them.
 
 pub mod contracts;
 pub mod design;
@@ -21,6 +22,7 @@ pub mod estimate;
 pub mod observe;
 pub mod report;
 pub mod resolution;
+pub mod vouch;
 
 use contracts::{BallBar, HolePlate};
 use design::{CompBasis, Geometry, Obs, component_bases};
