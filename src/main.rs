@@ -90,6 +90,39 @@ fn main() -> std::process::ExitCode {
 mod tests {
     use clap::CommandFactory as _;
 
+    #[derive(Debug, thiserror::Error)]
+    #[error("opening {what}")]
+    struct Outer {
+        what: &'static str,
+        #[source]
+        source: std::io::Error,
+    }
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("connecting: {0}")]
+    struct Embeds(#[source] Outer);
+
+    /// What `main` prints for a start-up error in an anyhow context: each cause once (anyhow's own
+    /// `{:#}` repeats a cause whose text the layer above already embeds).
+    #[test]
+    fn start_up_errors_print_each_cause_once() {
+        let e = Embeds(Outer {
+            what: "f.toml",
+            source: std::io::Error::other("denied"),
+        });
+        let anyhow_e = anyhow::Error::new(e).context("start-up");
+        let dyn_e: &(dyn std::error::Error + 'static) = anyhow_e.as_ref();
+        assert_eq!(
+            retrocomp::error::Chain(dyn_e).to_string(),
+            "start-up: connecting: opening f.toml: denied"
+        );
+        assert_eq!(
+            format!("{anyhow_e:#}"),
+            "start-up: connecting: opening f.toml: opening f.toml: denied",
+            "what main printed before"
+        );
+    }
+
     /// Every subcommand, flag and argument of the whole tree with no help text, by path.
     fn missing_help(c: &clap::Command, path: &str, out: &mut Vec<String>) {
         let path = format!("{path} {}", c.get_name());
