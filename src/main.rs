@@ -90,27 +90,14 @@ fn main() -> std::process::ExitCode {
 mod tests {
     use clap::CommandFactory as _;
 
-    #[derive(Debug, thiserror::Error)]
-    #[error("opening {what}")]
-    struct Outer {
-        what: &'static str,
-        #[source]
-        source: std::io::Error,
-    }
-
-    #[derive(Debug, thiserror::Error)]
-    #[error("connecting: {0}")]
-    struct Embeds(#[source] Outer);
-
     /// What `main` prints for a start-up error in an anyhow context: each cause once (anyhow's own
     /// `{:#}` repeats a cause whose text the layer above already embeds).
     #[test]
     fn start_up_errors_print_each_cause_once() {
-        let e = Embeds(Outer {
-            what: "f.toml",
-            source: std::io::Error::other("denied"),
-        });
-        let anyhow_e = anyhow::Error::new(e).context("start-up");
+        // A layer whose message embeds its cause's text, as many third-party errors do.
+        let opening = anyhow::Error::new(std::io::Error::other("denied")).context("opening f.toml");
+        let connecting = format!("connecting: {opening}");
+        let anyhow_e = opening.context(connecting).context("start-up");
         let dyn_e: &(dyn std::error::Error + 'static) = anyhow_e.as_ref();
         assert_eq!(
             retrocomp::error::Chain(dyn_e).to_string(),
