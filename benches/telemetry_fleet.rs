@@ -50,14 +50,7 @@ fn snapshot(k: u64) -> StatusSnapshot {
         cycles: k,
         enabled: true,
         axes,
-        channels: BTreeMap::new(),
-        active_faults: vec![],
-        model_error: None,
-        sink: None,
-        sources: vec![],
-        model: None,
-        telemetry: None,
-        timing: Default::default(),
+        ..Default::default()
     }
 }
 

@@ -91,7 +91,9 @@ pub struct ModbusCounters {
     pub connect_failures: u64,
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize)]
+/// `Default` is the empty snapshot (no cycle yet, nothing configured): tests and benches build
+/// theirs with `..Default::default()`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct StatusSnapshot {
     pub t_s: f64,
     pub cycles: u64,

@@ -370,12 +370,7 @@ mod tests {
                 .iter()
                 .map(|(s, k, t)| (s.to_string(), *k, *t))
                 .collect(),
-            model_error: None,
-            sink: None,
-            sources: vec![],
-            model: None,
-            telemetry: None,
-            timing: Default::default(),
+            ..Default::default()
         }
     }
 

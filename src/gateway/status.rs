@@ -586,14 +586,7 @@ mod tests {
                 clamp_hits: 0,
                 cap_hits: 0,
             }],
-            channels: Default::default(),
-            active_faults: vec![],
-            model_error: None,
-            sink: None,
-            sources: vec![],
-            model: None,
-            telemetry: None,
-            timing: Default::default(),
+            ..Default::default()
         }
     }
 

@@ -11,7 +11,6 @@ pub(crate) use net::{
     fleet_view, modbus_client_reply, modbus_server, recording_chunks, sparkplug_commands,
 };
 
-use std::collections::BTreeMap;
 use std::io::{Read, Write};
 use std::net::{Shutdown, SocketAddr, TcpStream};
 use std::path::Path;
@@ -273,14 +272,7 @@ fn status_server() -> SocketAddr {
                     cycles: 1,
                     enabled: true,
                     axes: vec![],
-                    channels: BTreeMap::new(),
-                    active_faults: vec![],
-                    model_error: None,
-                    sink: None,
-                    sources: vec![],
-                    model: None,
-                    telemetry: None,
-                    timing: Default::default(),
+                    ..Default::default()
                 };
                 let (keep, wrx) = tokio::sync::watch::channel(Some(Arc::new(snap)));
                 let (addr, task) = serve_status("127.0.0.1:0".parse().unwrap(), wrx)

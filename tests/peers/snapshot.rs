@@ -26,13 +26,6 @@ pub(crate) fn snapshot(k: u64) -> StatusSnapshot {
             clamp_hits: 0,
             cap_hits: 0,
         }],
-        channels: BTreeMap::new(),
-        active_faults: vec![],
-        model_error: None,
-        sink: None,
-        sources: vec![],
-        model: None,
-        telemetry: None,
-        timing: Default::default(),
+        ..Default::default()
     }
 }
