@@ -2,13 +2,13 @@
 //! rewriting of a long program against the machine model, and the ballbar diagnosis.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use retrocomp::analysis::circular::{CircleSetup, CircleTrace, Rotation, analyse};
-use retrocomp::analysis::iso230_2::{Reading, evaluate};
-use retrocomp::analysis::nc::model_errors::ModelErrors;
-use retrocomp::analysis::nc::parser::parse_program;
-use retrocomp::analysis::nc::rewrite::{RewriteConfig, rewrite};
-use retrocomp::analysis::table::Direction;
-use retrocomp::models::MachineModel;
+use retrocomp_analysis::circular::{CircleSetup, CircleTrace, Rotation, analyse};
+use retrocomp_analysis::iso230_2::{Reading, evaluate};
+use retrocomp_analysis::nc::model_errors::ModelErrors;
+use retrocomp_analysis::nc::parser::parse_program;
+use retrocomp_analysis::nc::rewrite::{RewriteConfig, rewrite};
+use retrocomp_analysis::table::Direction;
+use retrocomp_model::MachineModel;
 
 fn iso(c: &mut Criterion) {
     // 41 targets × 5 runs × 2 directions (ISO 230-2 standard cycle on a 1 m axis).

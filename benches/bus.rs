@@ -8,11 +8,11 @@
 //! Run: `cargo bench --bench bus`.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use retrocomp::bus::can::{CanBus, Frame, Hub, SocketcandBus};
-use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel};
-use retrocomp::bus::canopen::source::{CanopenConfig, CanopenSource};
-use retrocomp::bus::modbus::poller::Parity;
-use retrocomp::bus::modbus::{
+use retrocomp_bus::can::{CanBus, Frame, Hub, SocketcandBus};
+use retrocomp_bus::canopen::cia406::{CountingDirection, EncoderChannel};
+use retrocomp_bus::canopen::source::{CanopenConfig, CanopenSource};
+use retrocomp_bus::modbus::poller::Parity;
+use retrocomp_bus::modbus::{
     DataType, ModbusPoller, ModbusSourceConfig, RegisterBank, RegisterChannel, RegisterTable,
     TcpServer, TransportKind, WordOrder,
 };

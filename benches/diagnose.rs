@@ -4,9 +4,9 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use rand::{Rng, SeedableRng};
-use retrocomp::diagnose::features::lowpass;
-use retrocomp::diagnose::{diagnose, select::Options};
-use retrocomp::recording::Recording;
+use retrocomp_analysis::diagnose::features::lowpass;
+use retrocomp_analysis::diagnose::{diagnose, select::Options};
+use retrocomp_model::recording::Recording;
 
 /// 100k samples at 10 Hz (2.8 h): X/Y step-and-dwell with scans, 12 temperatures (one drives a
 /// thermal lag of 900 s), 2 forces, 2 strains, rpm, tool, 2 decoys = 20 context channels beside

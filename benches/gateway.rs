@@ -31,11 +31,11 @@ use std::path::Path;
 use std::time::Instant;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use retrocomp::bus::can::frame::Frame;
-use retrocomp::bus::{ChannelId, Health, Sample};
-use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::{AxisErrors, Engine, ErrorModel, MachineState};
-use retrocomp::quadrature::{EdgeScheduler, Event, SchedulerConfig, Step, simulate};
+use retrocomp_bus::can::frame::Frame;
+use retrocomp_bus::{ChannelId, Health, Sample};
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::quadrature::{EdgeScheduler, Event, SchedulerConfig, Step, simulate};
+use retrocomp_gateway::{AxisErrors, Engine, ErrorModel, MachineState};
 
 /// Per axis: a cubic in its own position (EXX-like), squareness × other axis, thermal growth ∝
 /// position × ΔT, and a direction-dependent reversal term. Term names made once (as the machine
@@ -62,7 +62,7 @@ impl ErrorModel for BenchModel {
         ]
     }
     fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
-        use retrocomp::models::Axis;
+        use retrocomp_model::Axis;
         let p = |a: Axis| s.position_mm(a).unwrap_or(0.0);
         let (x, y, z) = (p(Axis::X), p(Axis::Y), p(Axis::Z));
         // Inputs in the order of required_channels: T_spindle_C, T_x_C, T_y_C, T_z_C.
@@ -173,8 +173,8 @@ fn cycle_compute(c: &mut Criterion) {
 /// The real model path: Studer S-36 (seed 004 tables, exact 4×4 HTM chain) through the adapter,
 /// 2 axes; p50/p99 of individually timed cycles printed, criterion estimate with ingest.
 fn cycle_compute_studer(c: &mut Criterion) {
-    use retrocomp::gateway::model_adapter::MachineModelAdapter;
-    use retrocomp::models::MachineModel;
+    use retrocomp_gateway::model_adapter::MachineModelAdapter;
+    use retrocomp_model::MachineModel;
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let model =
         MachineModel::from_toml_path(&root.join("deploy/examples/studer-s36.toml")).unwrap();
@@ -292,12 +292,12 @@ fn pipeline_frames(c: &mut Criterion) {
 
 /// See the top comment (`pipeline_gateway`).
 fn pipeline_gateway(c: &mut Criterion) {
-    use retrocomp::bus::canopen::cia404::{AnalogChannel, AnalogType};
-    use retrocomp::bus::canopen::cia406::EncoderChannel;
-    use retrocomp::bus::canopen::source::{CanopenConfig, CanopenSource};
-    use retrocomp::gateway::model_adapter::MachineModelAdapter;
-    use retrocomp::models::MachineModel;
-    use retrocomp::origin_shift::{RegisterMap, WriteBlock};
+    use retrocomp_bus::canopen::cia404::{AnalogChannel, AnalogType};
+    use retrocomp_bus::canopen::cia406::EncoderChannel;
+    use retrocomp_bus::canopen::source::{CanopenConfig, CanopenSource};
+    use retrocomp_gateway::model_adapter::MachineModelAdapter;
+    use retrocomp_gateway::origin_shift::{RegisterMap, WriteBlock};
+    use retrocomp_model::MachineModel;
 
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let model = MachineModel::from_toml_path(&root.join("deploy/examples/vmc-3axis.toml")).unwrap();

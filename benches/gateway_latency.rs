@@ -22,11 +22,11 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use retrocomp::bus::can::socketcand_bus::SocketcandBus;
-use retrocomp::bus::can::{CanBus, Frame, Hub};
-use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::sources::spawn_sources;
-use retrocomp::gateway::{AxisErrors, ErrorModel, MachineState};
+use retrocomp_bus::can::socketcand_bus::SocketcandBus;
+use retrocomp_bus::can::{CanBus, Frame, Hub};
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::sources::spawn_sources;
+use retrocomp_gateway::{AxisErrors, ErrorModel, MachineState};
 use tokio::net::TcpListener;
 use tokio::runtime::Runtime;
 use tokio::sync::{oneshot, watch};
@@ -48,12 +48,12 @@ async fn within<T>(what: &str, f: impl Future<Output = T>) -> T {
 struct Linear(Arc<str>);
 
 impl ErrorModel for Linear {
-    fn required_channels(&self) -> Vec<retrocomp::bus::ChannelId> {
+    fn required_channels(&self) -> Vec<retrocomp_bus::ChannelId> {
         Vec::new()
     }
     fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
-        let x = s.position_mm(retrocomp::models::Axis::X).unwrap_or(0.0);
-        out.push(retrocomp::models::Axis::X, self.0.clone(), x);
+        let x = s.position_mm(retrocomp_model::Axis::X).unwrap_or(0.0);
+        out.push(retrocomp_model::Axis::X, self.0.clone(), x);
         Ok(())
     }
 }
@@ -182,7 +182,7 @@ struct Rig {
     x_mm: f64,
     stop: Option<oneshot::Sender<()>>,
     gateway: tokio::task::JoinHandle<
-        Result<retrocomp::gateway::run::RunSummary, retrocomp::gateway::error::GatewayError>,
+        Result<retrocomp_gateway::run::RunSummary, retrocomp_gateway::error::GatewayError>,
     >,
     _hub: Hub,
 }
@@ -196,7 +196,7 @@ impl Rig {
         let epoch = Instant::now();
         let rx = within("sources", spawn_sources(&cfg, epoch)).await.unwrap();
         let (stop, stop_rx) = oneshot::channel::<()>();
-        let gateway = tokio::spawn(retrocomp::gateway::run::run(
+        let gateway = tokio::spawn(retrocomp_gateway::run::run(
             cfg,
             Box::new(Linear("linear".into())),
             rx,

@@ -13,7 +13,7 @@ use std::path::Path;
 
 use criterion::measurement::{Measurement, ValueFormatter, WallTime};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use retrocomp::models::{MachineModel, ModelInput};
+use retrocomp_model::{MachineModel, ModelInput};
 
 fn model() -> MachineModel {
     let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/examples/vmc-3axis.toml");

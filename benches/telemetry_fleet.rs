@@ -1,7 +1,7 @@
 //! Fleet load benchmark (not criterion: a capacity search, not a latency estimate): N simulated
 //! boxes publish Sparkplug B through the same publisher as `retrocomp run` (src/telemetry) to one
 //! Mosquitto on loopback, and one `retrocomp fleet` host (its MQTT client and view,
-//! `retrocomp::telemetry::fleet_client::FleetClient`, QoS 1) counts every NDATA per edge node and its seq gaps.
+//! `retrocomp_fleet::fleet_client::FleetClient`, QoS 1) counts every NDATA per edge node and its seq gaps.
 //! A box is lightweight: a task that updates a status snapshot at twice the telemetry rate (so
 //! every sampler tick has a change to send) instead of a whole gateway.
 //! For each (boxes, rate) step: after the window every publisher *finishes* (sends its queue until
@@ -17,11 +17,11 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use retrocomp::approach::Approach;
-use retrocomp::gateway::Mode;
-use retrocomp::gateway::status::{AxisStatus, StatusSnapshot};
-use retrocomp::telemetry::fleet_client::FleetClient;
-use retrocomp::telemetry::{self, MqttConfig, PublisherInputs};
+use retrocomp_fleet::fleet_client::FleetClient;
+use retrocomp_gateway::Mode;
+use retrocomp_gateway::prometheus::{AxisStatus, StatusSnapshot};
+use retrocomp_gateway::telemetry::{self, MqttConfig, PublisherInputs};
+use retrocomp_model::approach::Approach;
 use tokio::sync::watch;
 
 const GROUP: &str = "fleet";

@@ -1,24 +1,5 @@
-//! retrocomp: a fieldbus gateway that computes the volumetric error of a legacy CNC machine and feeds
-//! the correction back to its controller. See README.md for the pipeline and the conventions.
+//! retrocomp's demo application (`retrocomp demo`): a simulated mill, three runs, the figures and the
+//! report. The binary (`src/main.rs`, the command line in `src/cli/`) is the only other part of
+//! this package; the gateway, the toolkit and the model are the crates under `crates/`.
 
-pub mod analysis;
-pub mod approach;
-pub mod bus;
-pub mod config_issue;
-pub mod decimal;
 pub mod demo;
-pub mod diagnose;
-pub mod error;
-pub mod fault;
-pub mod gateway;
-pub mod guard;
-pub mod listen;
-pub mod models;
-pub mod origin_shift;
-pub mod quadrature;
-pub mod realtime;
-pub mod recording;
-pub mod sink;
-pub mod status;
-pub mod telemetry;
-pub mod units;

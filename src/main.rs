@@ -80,7 +80,7 @@ fn main() -> std::process::ExitCode {
         Err(e) => {
             // One line, every cause once (src/error.rs).
             let e: &(dyn std::error::Error + 'static) = e.as_ref();
-            eprintln!("error: {}", retrocomp::error::Chain(e));
+            eprintln!("error: {}", retrocomp_model::error::Chain(e));
             std::process::ExitCode::FAILURE
         }
     }
@@ -100,7 +100,7 @@ mod tests {
         let anyhow_e = opening.context(connecting).context("start-up");
         let dyn_e: &(dyn std::error::Error + 'static) = anyhow_e.as_ref();
         assert_eq!(
-            retrocomp::error::Chain(dyn_e).to_string(),
+            retrocomp_model::error::Chain(dyn_e).to_string(),
             "start-up: connecting: opening f.toml: denied"
         );
         assert_eq!(

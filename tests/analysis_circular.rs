@@ -6,7 +6,7 @@ use std::f64::consts::{PI, TAU};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use retrocomp::analysis::circular::{CircleReport, CircleSetup, CircleTrace, Rotation, analyse};
+use retrocomp_analysis::circular::{CircleReport, CircleSetup, CircleTrace, Rotation, analyse};
 
 const R: f64 = 100.0;
 const FEED: f64 = 1000.0;

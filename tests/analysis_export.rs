@@ -2,12 +2,12 @@
 //! files and ISG CSV; round trips and located errors.
 
 use proptest::prelude::*;
-use retrocomp::analysis::export::fanuc::{
+use retrocomp_analysis::export::fanuc::{
     FanucAxisConfig, cumulative_sum, from_fanuc, read_tape, to_fanuc, write_tape,
 };
-use retrocomp::analysis::export::isg::{AxisErrorMotions, read_isg, write_isg};
-use retrocomp::analysis::export::linuxcnc::{CompFileType, read_comp, write_comp};
-use retrocomp::analysis::table::{BidirectionalTable, Direction};
+use retrocomp_analysis::export::isg::{AxisErrorMotions, read_isg, write_isg};
+use retrocomp_analysis::export::linuxcnc::{CompFileType, read_comp, write_comp};
+use retrocomp_analysis::table::{BidirectionalTable, Direction};
 
 fn fixture(name: &str) -> (String, String) {
     let path = format!(

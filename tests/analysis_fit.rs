@@ -4,11 +4,11 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use retrocomp::analysis::fit::regression::{Criterion, first_order_lag};
-use retrocomp::analysis::fit::workflow::{fit_axis, fit_context};
-use retrocomp::analysis::iso230_2::Reading;
-use retrocomp::analysis::table::Direction;
-use retrocomp::recording::Recording;
+use retrocomp_analysis::fit::regression::{Criterion, first_order_lag};
+use retrocomp_analysis::fit::workflow::{fit_axis, fit_context};
+use retrocomp_analysis::iso230_2::Reading;
+use retrocomp_analysis::table::Direction;
+use retrocomp_model::recording::Recording;
 
 fn truth_axis(x: f64, d: Direction) -> f64 {
     let b = if d == Direction::Forward { 2.0 } else { -2.0 };
@@ -201,12 +201,12 @@ fn recording_errors_are_located() {
 
 mod to_model {
     use super::*;
-    use retrocomp::analysis::fit::to_model::{
+    use retrocomp_analysis::fit::to_model::{
         AxisForm, add_load, add_thermal, axis_component, put_component, single_axis_spec,
         to_checked_toml,
     };
-    use retrocomp::models::names::parse_component;
-    use retrocomp::models::{Axis, MachineModel};
+    use retrocomp_model::names::parse_component;
+    use retrocomp_model::{Axis, MachineModel};
 
     fn runs() -> Vec<Reading> {
         let mut rng = ChaCha8Rng::seed_from_u64(11);
@@ -234,7 +234,7 @@ mod to_model {
         temps: &[f64],
         strains: &[f64],
         t_s: f64,
-        state: &mut retrocomp::models::ModelState,
+        state: &mut retrocomp_model::ModelState,
     ) -> [f64; 3] {
         let mut input = m.new_input();
         input.pos_mm = [x, 0.0, 0.0];

@@ -2,9 +2,9 @@
 //! and property tests of the bidirectional invariants.
 
 use proptest::prelude::*;
-use retrocomp::analysis::iso230_2::{Reading, evaluate};
-use retrocomp::analysis::laser_import::parse_readings;
-use retrocomp::analysis::table::Direction;
+use retrocomp_analysis::iso230_2::{Reading, evaluate};
+use retrocomp_analysis::laser_import::parse_readings;
+use retrocomp_analysis::table::Direction;
 
 fn fixture(name: &str) -> Vec<Reading> {
     let path = format!(

@@ -1,12 +1,12 @@
 //! NC rewrite: Asad Ullah (2013) diagonal program + Tables 6.1/6.2 → Table 6.3, plus modal-state,
 //! splitting, arc, G91 and refusal behaviour on a synthetic error function.
 
-use retrocomp::analysis::laser_import::parse_table_columns;
-use retrocomp::analysis::nc::ErrorFunction;
-use retrocomp::analysis::nc::parser::parse_program;
-use retrocomp::analysis::nc::rewrite::{RewriteConfig, RewriteError, rewrite};
-use retrocomp::analysis::plane_model::{PlaneTerms, ZxPlaneModel};
-use retrocomp::analysis::table::Direction;
+use retrocomp_analysis::laser_import::parse_table_columns;
+use retrocomp_analysis::nc::ErrorFunction;
+use retrocomp_analysis::nc::parser::parse_program;
+use retrocomp_analysis::nc::rewrite::{RewriteConfig, RewriteError, rewrite};
+use retrocomp_analysis::plane_model::{PlaneTerms, ZxPlaneModel};
+use retrocomp_analysis::table::Direction;
 
 fn fixture(name: &str) -> (String, String) {
     let path = format!(
@@ -238,8 +238,8 @@ fn unsupported_codes_and_limits_are_refused_with_the_line() {
 
 mod with_machine_model {
     use super::*;
-    use retrocomp::analysis::nc::model_errors::ModelErrors;
-    use retrocomp::models::{Axis, ComponentId, MachineModel, Motion};
+    use retrocomp_analysis::nc::model_errors::ModelErrors;
+    use retrocomp_model::{Axis, ComponentId, MachineModel, Motion};
 
     fn example(name: &str) -> MachineModel {
         let p = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))

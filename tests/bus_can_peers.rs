@@ -6,11 +6,11 @@
 #[path = "peers/mod.rs"]
 mod peers;
 
-use retrocomp::bus::Health;
-use retrocomp::bus::can::{CanBus, Frame, Hub, SocketcandBus};
-use retrocomp::bus::canopen::cia406::{EncoderChannel, PositionDecoder};
-use retrocomp::bus::canopen::nmt::{HeartbeatMonitor, NmtCommand, encode_nmt};
-use retrocomp::bus::canopen::sdo::{CYCLIC_TIMER_6200, SdoRequest};
+use retrocomp_bus::Health;
+use retrocomp_bus::can::{CanBus, Frame, Hub, SocketcandBus};
+use retrocomp_bus::canopen::cia406::{EncoderChannel, PositionDecoder};
+use retrocomp_bus::canopen::nmt::{HeartbeatMonitor, NmtCommand, encode_nmt};
+use retrocomp_bus::canopen::sdo::{CYCLIC_TIMER_6200, SdoRequest};
 use std::time::Duration;
 use tokio::time::timeout;
 

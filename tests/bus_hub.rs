@@ -1,7 +1,7 @@
 //! The socketcand hub with Rust clients: fan-out to every other client of the same bus, no echo,
 //! bus isolation by name, and the handshake replies a strict client (python-can) expects.
 
-use retrocomp::bus::can::{CanBus, Frame, Hub, SocketcandBus};
+use retrocomp_bus::can::{CanBus, Frame, Hub, SocketcandBus};
 use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::time::timeout;
@@ -86,8 +86,8 @@ async fn client_reports_refused_handshake() {
 
 #[tokio::test]
 async fn backends_from_toml_talk_to_each_other() {
-    use retrocomp::bus::can::MemBus;
-    use retrocomp::bus::can::backend::{CanBackendConfig, open};
+    use retrocomp_bus::can::MemBus;
+    use retrocomp_bus::can::backend::{CanBackendConfig, open};
     #[derive(serde::Deserialize)]
     struct Doc {
         can: CanBackendConfig,
@@ -124,8 +124,7 @@ async fn backends_from_toml_talk_to_each_other() {
         Err(e) => assert!(
             matches!(
                 e,
-                retrocomp::bus::can::CanError::Unsupported(_)
-                    | retrocomp::bus::can::CanError::Io(_)
+                retrocomp_bus::can::CanError::Unsupported(_) | retrocomp_bus::can::CanError::Io(_)
             ),
             "{e}"
         ),

@@ -5,9 +5,9 @@
 #[path = "peers/mod.rs"]
 mod peers;
 
-use retrocomp::bus::Health;
-use retrocomp::bus::modbus::poller::Parity;
-use retrocomp::bus::modbus::{
+use retrocomp_bus::Health;
+use retrocomp_bus::modbus::poller::Parity;
+use retrocomp_bus::modbus::{
     DataType, ModbusPoller, ModbusSourceConfig, RegisterBank, RegisterChannel, RegisterTable,
     TcpServer, TransportKind, WordOrder,
 };
@@ -69,7 +69,7 @@ fn config(transport: TransportKind) -> ModbusSourceConfig {
 }
 
 /// Poll until every channel has been answered (connect may take a few tries while the peer starts).
-async fn poll_until_answered(p: &mut ModbusPoller) -> Vec<retrocomp::bus::Sample> {
+async fn poll_until_answered(p: &mut ModbusPoller) -> Vec<retrocomp_bus::Sample> {
     let deadline = Instant::now() + Duration::from_secs(15);
     loop {
         let mut out = Vec::new();
@@ -85,7 +85,7 @@ async fn poll_until_answered(p: &mut ModbusPoller) -> Vec<retrocomp::bus::Sample
     }
 }
 
-fn check_pt100(out: &[retrocomp::bus::Sample]) {
+fn check_pt100(out: &[retrocomp_bus::Sample]) {
     let get = |n: &str| {
         out.iter()
             .find(|s| s.channel == n)

@@ -5,10 +5,10 @@
 #[path = "peers/mod.rs"]
 mod peers;
 
-use retrocomp::bus::Health;
-use retrocomp::bus::modbus::poller::Parity;
-use retrocomp::bus::modbus::server::spawn_rtu;
-use retrocomp::bus::modbus::{
+use retrocomp_bus::Health;
+use retrocomp_bus::modbus::poller::Parity;
+use retrocomp_bus::modbus::server::spawn_rtu;
+use retrocomp_bus::modbus::{
     DataType, ModbusPoller, ModbusSourceConfig, RegisterBank, RegisterChannel, RegisterTable,
     TcpServer, TransportKind, WordOrder,
 };

@@ -2,21 +2,21 @@
 //! round trips where an encoder exists.
 
 use proptest::prelude::*;
-use retrocomp::bus::Health;
-use retrocomp::bus::can::Frame;
-use retrocomp::bus::can::socketcand::{Decoder, Message, encode, parse_message};
-use retrocomp::bus::canopen::cia404::{AnalogChannel, AnalogType};
-use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel, PositionDecoder};
-use retrocomp::bus::canopen::nmt::{decode_heartbeat, decode_nmt};
-use retrocomp::bus::canopen::sdo::{SdoRequest, SdoResponse};
-use retrocomp::bus::modbus::poll_core::{PollCore, ReadOutcome};
-use retrocomp::bus::modbus::regmap::{
+use retrocomp_bus::Health;
+use retrocomp_bus::can::Frame;
+use retrocomp_bus::can::socketcand::{Decoder, Message, encode, parse_message};
+use retrocomp_bus::canopen::cia404::{AnalogChannel, AnalogType};
+use retrocomp_bus::canopen::cia406::{CountingDirection, EncoderChannel, PositionDecoder};
+use retrocomp_bus::canopen::nmt::{decode_heartbeat, decode_nmt};
+use retrocomp_bus::canopen::sdo::{SdoRequest, SdoResponse};
+use retrocomp_bus::modbus::poll_core::{PollCore, ReadOutcome};
+use retrocomp_bus::modbus::regmap::{
     DataType, RegisterChannel, RegisterTable, WordOrder, decode_raw, encode_raw,
 };
-use retrocomp::bus::serial::formats::{
+use retrocomp_bus::serial::formats::{
     GenericFormat, parse_generic, parse_heidenhain, parse_mitutoyo, parse_nd522, parse_weighing,
 };
-use retrocomp::bus::serial::framer::LineFramer;
+use retrocomp_bus::serial::framer::LineFramer;
 
 const CASES: u32 = 100_000;
 
@@ -84,7 +84,7 @@ proptest! {
                     }
                 }
             }
-            prop_assert!(d.pending() <= retrocomp::bus::can::socketcand::MAX_MESSAGE_LEN + 2 + c.len());
+            prop_assert!(d.pending() <= retrocomp_bus::can::socketcand::MAX_MESSAGE_LEN + 2 + c.len());
         }
     }
 

@@ -5,9 +5,9 @@
 #[path = "peers/mod.rs"]
 mod peers;
 
-use retrocomp::bus::serial::source::{SerialCounters, open, run};
-use retrocomp::bus::serial::{LineFormat, LineSource, SerialChannel, SerialSourceConfig};
-use retrocomp::bus::{Health, Sample};
+use retrocomp_bus::serial::source::{SerialCounters, open, run};
+use retrocomp_bus::serial::{LineFormat, LineSource, SerialChannel, SerialSourceConfig};
+use retrocomp_bus::{Health, Sample};
 use std::time::Duration;
 
 fn ch(name: &str, key: Option<&str>, scale: f64) -> SerialChannel {

@@ -6,9 +6,9 @@
 
 use std::path::{Path, PathBuf};
 
-use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::field_check::check_field;
-use retrocomp::models::MachineModel;
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::field_check::check_field;
+use retrocomp_model::MachineModel;
 
 #[path = "gateway_support/base_field.rs"]
 mod base_field;

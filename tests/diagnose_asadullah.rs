@@ -21,8 +21,8 @@
 
 use std::path::Path;
 
-use retrocomp::diagnose::{diagnose, select::Options};
-use retrocomp::recording::Recording;
+use retrocomp_analysis::diagnose::{diagnose, select::Options};
+use retrocomp_model::recording::Recording;
 
 fn rec(name: &str) -> Recording {
     Recording::read_path(
@@ -90,7 +90,7 @@ fn fixture_is_table_6_2_with_a_linear_simulation() {
 }
 
 /// b_um per zone of a `reversal_profile` finding.
-fn zone_b(f: &retrocomp::diagnose::report::Finding) -> Vec<f64> {
+fn zone_b(f: &retrocomp_analysis::diagnose::report::Finding) -> Vec<f64> {
     f.params["b_um"]
         .as_array()
         .unwrap()

@@ -8,7 +8,7 @@ use std::process::Command;
 #[path = "figure_support/pixels.rs"]
 mod pixels;
 
-use retrocomp::recording::Recording;
+use retrocomp_model::recording::Recording;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_retrocomp"))
@@ -353,7 +353,7 @@ fn with_model_the_out_model_is_the_input_model_plus_the_found_term() {
     let text = std::fs::read_to_string(&model).unwrap();
     assert!(text.contains("# Base: the input model `lathe`"), "{text}");
     check_config(&model);
-    let m = retrocomp::models::MachineModel::from_toml_str(&text, "model.toml").unwrap();
+    let m = retrocomp_model::MachineModel::from_toml_str(&text, "model.toml").unwrap();
     assert_eq!(
         m.spec().chain_string(),
         "F Z X",

@@ -12,10 +12,10 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
-use retrocomp::diagnose::candidates::{Kind, library};
-use retrocomp::diagnose::features::Context;
-use retrocomp::diagnose::{diagnose, select::Options};
-use retrocomp::recording::Recording;
+use retrocomp_analysis::diagnose::candidates::{Kind, library};
+use retrocomp_analysis::diagnose::features::Context;
+use retrocomp_analysis::diagnose::{diagnose, select::Options};
+use retrocomp_model::recording::Recording;
 
 const B_UM: f64 = 4.98;
 
@@ -151,7 +151,7 @@ fn diagnose_owned_gives_the_report_of_diagnose() {
     // are freed once the residuals are formed (issue 12 item 10): the report must not change.
     let (rec, _) = step_and_dwell();
     let a = diagnose(&rec, &Options::default()).unwrap();
-    let b = retrocomp::diagnose::diagnose_owned(rec, &Options::default()).unwrap();
+    let b = retrocomp_analysis::diagnose::diagnose_owned(rec, &Options::default()).unwrap();
     assert!(!a.report.findings.is_empty());
     assert_eq!(
         serde_json::to_string(&a.report).unwrap(),

@@ -11,7 +11,7 @@ use std::io::Write as _;
 use std::path::Path;
 use std::process::{Command, Stdio};
 
-use retrocomp::models::MachineModel;
+use retrocomp_model::MachineModel;
 
 const MODEL: &str = "benches/data/eval_thermal_model.toml";
 const SOURCE: &str = "tests/data/fl_thermal/fl_thermal_dev.csv";

@@ -5,13 +5,13 @@
 //! evaluated by the same code the gateway and `diagnose --model` use, must predict what the
 //! regression predicts, and the written model must carry where its lags stood at the last row.
 
-use retrocomp::analysis::fit::regression::{Criterion, first_order_lag};
-use retrocomp::analysis::fit::to_model::{add_thermal, to_checked_toml};
-use retrocomp::analysis::fit::workflow::{ContextOptions, Driver, fit_context_with, source_values};
-use retrocomp::diagnose::model_sim::{final_lag_state, simulate_axes};
-use retrocomp::models::MachineModel;
-use retrocomp::models::names::parse_component;
-use retrocomp::recording::Recording;
+use retrocomp_analysis::diagnose::model_sim::{final_lag_state, simulate_axes};
+use retrocomp_analysis::fit::regression::{Criterion, first_order_lag};
+use retrocomp_analysis::fit::to_model::{add_thermal, to_checked_toml};
+use retrocomp_analysis::fit::workflow::{ContextOptions, Driver, fit_context_with, source_values};
+use retrocomp_model::MachineModel;
+use retrocomp_model::names::parse_component;
+use retrocomp_model::recording::Recording;
 
 /// Base: EXX = 2 µm/K · (T_a − 20). Truth adds 3e-7 µm/rpm² through a 600 s lag of rpm² and
 /// 1.5 µm/K through a 1200 s lag of T_a.

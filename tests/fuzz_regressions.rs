@@ -47,8 +47,8 @@ fn every_kept_input_passes_its_check() {
 /// path and give the same model as `retrocomp nc --plane-model`'s file loader on the same tables.
 #[test]
 fn plane_model_target_parses_like_the_file_loader() {
-    use retrocomp::analysis::nc::ErrorFunction;
-    use retrocomp::analysis::table::Direction;
+    use retrocomp_analysis::nc::ErrorFunction;
+    use retrocomp_analysis::table::Direction;
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let seed = std::fs::read(root.join("tests/fuzz_corpus/plane_model/asadullah")).unwrap();
     let mem = fuzz_checks::plane_model_parse(&seed).expect("the seed loads from memory");
@@ -59,7 +59,7 @@ fn plane_model_target_parses_like_the_file_loader() {
         std::fs::write(dir.path().join(name), body).unwrap();
     }
     let file =
-        retrocomp::analysis::plane_model::load_plane_model(&dir.path().join("plane.toml")).unwrap();
+        retrocomp_analysis::plane_model::load_plane_model(&dir.path().join("plane.toml")).unwrap();
     let mut compared = 0;
     for z in [0.0, 40.0, 170.0] {
         for x in [0.0, 20.0, 85.0] {

@@ -6,10 +6,10 @@ use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use retrocomp::bus::can::CanBus;
-use retrocomp::bus::can::hub::Hub;
-use retrocomp::bus::can::socketcand_bus::SocketcandBus;
-use retrocomp::bus::canopen::cia406::EncoderChannel;
+use retrocomp_bus::can::CanBus;
+use retrocomp_bus::can::hub::Hub;
+use retrocomp_bus::can::socketcand_bus::SocketcandBus;
+use retrocomp_bus::canopen::cia406::EncoderChannel;
 use tokio::net::TcpListener;
 
 #[path = "gateway_support/plc.rs"]

@@ -9,11 +9,11 @@ use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use retrocomp::bus::{Health, Sample};
-use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::run::run;
-use retrocomp::gateway::{AxisErrors, ErrorModel, MachineState};
-use retrocomp::origin_shift::RegisterMap;
+use retrocomp_bus::{Health, Sample};
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::origin_shift::RegisterMap;
+use retrocomp_gateway::run::run;
+use retrocomp_gateway::{AxisErrors, ErrorModel, MachineState};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, oneshot};
 
@@ -23,12 +23,12 @@ use plc::{Plc, serve};
 
 struct ThermalModel;
 impl ErrorModel for ThermalModel {
-    fn required_channels(&self) -> Vec<retrocomp::bus::ChannelId> {
+    fn required_channels(&self) -> Vec<retrocomp_bus::ChannelId> {
         vec!["T_spindle_C".into()]
     }
     fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
         let e = 2.0 * (s.input(0).expect("inputs usable when the model runs") - 20.0);
-        out.push(retrocomp::models::Axis::X, "thermal".into(), e);
+        out.push(retrocomp_model::Axis::X, "thermal".into(), e);
         Ok(())
     }
 }
@@ -205,7 +205,7 @@ async fn wait_until(
 async fn poll_status(addr: &str, pred: impl Fn(&str) -> bool) -> String {
     let t0 = std::time::Instant::now();
     loop {
-        let (_, body) = retrocomp::gateway::http::get(addr, "/status", Duration::from_secs(2))
+        let (_, body) = retrocomp_gateway::http::get(addr, "/status", Duration::from_secs(2))
             .await
             .unwrap();
         if pred(&body) || t0.elapsed() > GENEROUS {
@@ -252,7 +252,7 @@ async fn gateway_survives_faults_and_never_jumps() {
 
     // Status endpoint, read-only, on loopback.
     let (code, body) =
-        retrocomp::gateway::http::get(&status_addr, "/status", Duration::from_secs(2))
+        retrocomp_gateway::http::get(&status_addr, "/status", Duration::from_secs(2))
             .await
             .unwrap();
     assert_eq!(code, 200);
@@ -262,7 +262,7 @@ async fn gateway_survives_faults_and_never_jumps() {
         "{body}"
     );
     let (code, metrics) =
-        retrocomp::gateway::http::get(&status_addr, "/metrics", Duration::from_secs(2))
+        retrocomp_gateway::http::get(&status_addr, "/metrics", Duration::from_secs(2))
             .await
             .unwrap();
     assert_eq!(code, 200);

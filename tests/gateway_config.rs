@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use retrocomp::gateway::config::{ConfigError, FieldConfig};
+use retrocomp_gateway::config::{ConfigError, FieldConfig};
 
 fn field(name: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -230,7 +230,7 @@ fn the_client_heartbeat_is_checked_like_the_other_map_addresses() {
     // The stop policy: ramp out by default, bounded.
     assert_eq!(
         cfg.gateway.on_stop,
-        retrocomp::gateway::config::OnStop::RampOut
+        retrocomp_gateway::config::OnStop::RampOut
     );
     let text = ok.replace(
         "[gateway]\n",
@@ -312,7 +312,7 @@ name = "EXX"
 positions_mm = [0.0, 10.0]
 forward_mm = [1.0, 1e306]
 "#;
-    let err = retrocomp::models::MachineModel::from_toml_str(text, "huge.toml").unwrap_err();
+    let err = retrocomp_model::MachineModel::from_toml_str(text, "huge.toml").unwrap_err();
     let msg = err.to_string();
     assert!(
         msg.contains("huge.toml") && msg.contains("forward_mm"),
@@ -322,7 +322,7 @@ forward_mm = [1.0, 1e306]
     assert_eq!(err.issues[0].line, 11, "{msg}");
     // The same value in µm is fine.
     assert!(
-        retrocomp::models::MachineModel::from_toml_str(
+        retrocomp_model::MachineModel::from_toml_str(
             &text.replace("forward_mm = [1.0, 1e306]", "forward_mm = [0.001, 0.002]"),
             "ok.toml"
         )
@@ -361,7 +361,7 @@ fn an_old_word_order_spelling_loads_with_a_warning_naming_file_and_line() {
         .finish();
     let cfg = tracing::subscriber::with_default(subscriber, || parse(&text)).unwrap();
     let axis = &cfg.sink.origin_shift.as_ref().unwrap().map.axes[0];
-    assert_eq!(axis.word_order, retrocomp::bus::modbus::WordOrder::LowFirst);
+    assert_eq!(axis.word_order, retrocomp_bus::modbus::WordOrder::LowFirst);
     let log = String::from_utf8(log.0.lock().unwrap().clone()).unwrap();
     let line = line_of(&text, "word_order = \"cdab\"");
     let want = format!(

@@ -73,10 +73,10 @@ fn demo_json_full_model_cuts_volumetric_error_by_80_percent() {
     // The fit found the dominant hidden physics from the measurement runs alone: the spindle's
     // thermal growth on Z (hidden: −6 µm/K, deploy/demo/sim.toml) …
     let fitted_toml = std::fs::read_to_string(out_dir.join("models/mill-fitted.toml")).unwrap();
-    let model = retrocomp::models::MachineModel::from_toml_str(&fitted_toml, "mill-fitted.toml")
+    let model = retrocomp_model::MachineModel::from_toml_str(&fitted_toml, "mill-fitted.toml")
         .unwrap_or_else(|e| panic!("{e}\n{fitted_toml}"));
     let growth = model.spec().thermal.iter().find_map(|t| match &t.kind {
-        retrocomp::models::spec::ThermalKind::PolynomialDt {
+        retrocomp_model::spec::ThermalKind::PolynomialDt {
             sensors, b_per_k, ..
         } if t.target.iso_name() == "EZZ" => sensors
             .iter()

@@ -6,10 +6,10 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use retrocomp::bus::{ChannelId, Health, Sample};
-use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::{AxisErrors, Engine, ErrorModel, FaultKind, MachineState, Mode};
-use retrocomp::models::Axis;
+use retrocomp_bus::{ChannelId, Health, Sample};
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::{AxisErrors, Engine, ErrorModel, FaultKind, MachineState, Mode};
+use retrocomp_model::Axis;
 
 /// x error: thermal growth 2 µm/K above 20 °C on T_spindle_C, plus a ±3 µm reversal (backlash).
 struct TestModel;
@@ -276,8 +276,8 @@ stale_after_s = 0.1
 /// (not `compensation.<axis>`), and the force's return ramps the terms back in.
 #[test]
 fn a_stale_force_drops_only_the_load_terms_ramped() {
-    use retrocomp::gateway::model_adapter::MachineModelAdapter;
-    use retrocomp::models::MachineModel;
+    use retrocomp_gateway::model_adapter::MachineModelAdapter;
+    use retrocomp_model::MachineModel;
     let cfg = FieldConfig::parse(CFG3, Path::new("t.toml")).unwrap();
     let model = MachineModel::from_toml_str(retrocomp::demo::FULL_MODEL, "full").unwrap();
     let mut m = MachineModelAdapter::new(model);
@@ -381,8 +381,8 @@ fn a_stale_force_drops_only_the_load_terms_ramped() {
 /// compensates with the other terms: the model's load terms are not left out silently.
 #[test]
 fn an_undelivered_optional_input_is_a_lasting_fault_naming_it() {
-    use retrocomp::gateway::model_adapter::MachineModelAdapter;
-    use retrocomp::models::MachineModel;
+    use retrocomp_gateway::model_adapter::MachineModelAdapter;
+    use retrocomp_model::MachineModel;
     let cfg = FieldConfig::parse(CFG3, Path::new("t.toml")).unwrap();
     let model = MachineModel::from_toml_str(retrocomp::demo::FULL_MODEL, "full").unwrap();
     let mut m = MachineModelAdapter::new(model);

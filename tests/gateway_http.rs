@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 
 use axum::body::Bytes;
 use axum::http::Method;
-use retrocomp::gateway::http::{Api, Control, Limits, StatusRx, request, serve};
-use retrocomp::gateway::status::StatusSnapshot;
+use retrocomp_gateway::http::{Api, Control, Limits, StatusRx, request, serve};
+use retrocomp_gateway::prometheus::StatusSnapshot;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::sync::{mpsc, watch};
@@ -217,7 +217,7 @@ async fn slowloris_is_disconnected_within_the_header_timeout() {
 /// the key.
 #[test]
 fn api_token_comes_from_the_field_config() {
-    use retrocomp::gateway::config::FieldConfig;
+    use retrocomp_gateway::config::FieldConfig;
     let path =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/field/mill-quadrature.toml");
     let text = std::fs::read_to_string(&path).unwrap();

@@ -12,11 +12,11 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use retrocomp::bus::Sample;
-use retrocomp::gateway::SinkStatus;
-use retrocomp::gateway::config::FieldConfig;
-use retrocomp::guard::AxisLimits;
-use retrocomp::origin_shift::server::{OriginShiftServer, ServerConfig, ServerTransport};
+use retrocomp_bus::Sample;
+use retrocomp_gateway::SinkStatus;
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::guard::AxisLimits;
+use retrocomp_gateway::origin_shift::server::{OriginShiftServer, ServerConfig, ServerTransport};
 use tokio::sync::{mpsc, watch};
 
 #[path = "peers/mod.rs"]
@@ -163,7 +163,7 @@ async fn exercise(link: Vec<String>, transport: ServerTransport) {
     assert_eq!((s.channel.name(), s.value), ("x_mm", 150.0));
 
     // The engine wants 20 µm; the controller still reports 12.3 µm: at most 13.3 µm is served.
-    let (out_tx, out_rx) = watch::channel(vec![(retrocomp::models::Axis::X, 20.0)]);
+    let (out_tx, out_rx) = watch::channel(vec![(retrocomp_model::Axis::X, 20.0)]);
     let (status_tx, status_rx) = watch::channel(SinkStatus::default());
     let (_stop_tx, stop_rx) = watch::channel(None);
     let task = tokio::spawn(server.run(out_rx, samples_tx, status_tx, stop_rx, clock));

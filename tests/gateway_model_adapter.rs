@@ -5,11 +5,11 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use retrocomp::bus::{Health, Sample};
-use retrocomp::gateway::Engine;
-use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::model_adapter::MachineModelAdapter;
-use retrocomp::models::MachineModel;
+use retrocomp_bus::{Health, Sample};
+use retrocomp_gateway::Engine;
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::model_adapter::MachineModelAdapter;
+use retrocomp_model::MachineModel;
 
 const CFG: &str = r#"
 [gateway]
@@ -88,7 +88,7 @@ fn studer_table_6_1_through_the_gateway() {
     );
 }
 
-fn ezz_of(snap: &retrocomp::gateway::StatusSnapshot) -> f64 {
+fn ezz_of(snap: &retrocomp_gateway::StatusSnapshot) -> f64 {
     let z = snap.axes.iter().find(|a| a.axis == "z").unwrap();
     *z.terms_um
         .iter()

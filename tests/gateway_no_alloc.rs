@@ -21,15 +21,15 @@ use std::cell::Cell;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use retrocomp::bus::{ChannelId, Health, Sample};
-use retrocomp::fault::FaultKind;
-use retrocomp::gateway::Engine;
-use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::cycle::STATUS_PERIOD_S;
-use retrocomp::gateway::model_adapter::MachineModelAdapter;
-use retrocomp::gateway::status::StatusSnapshot;
-use retrocomp::models::Axis;
-use retrocomp::models::MachineModel;
+use retrocomp_bus::fault::FaultKind;
+use retrocomp_bus::{ChannelId, Health, Sample};
+use retrocomp_gateway::Engine;
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::cycle::STATUS_PERIOD_S;
+use retrocomp_gateway::model_adapter::MachineModelAdapter;
+use retrocomp_gateway::prometheus::StatusSnapshot;
+use retrocomp_model::Axis;
+use retrocomp_model::MachineModel;
 
 struct Counting;
 
@@ -201,7 +201,7 @@ fn drive_cycle_loop(
     count_from: u64,
     samples: fn(u64, f64) -> Vec<(&'static str, f64)>,
 ) -> LoopRun {
-    use retrocomp::gateway::cycle::{CycleIo, CycleLoop};
+    use retrocomp_gateway::cycle::{CycleIo, CycleLoop};
     use std::sync::Arc;
     use std::sync::atomic::{AtomicU64, Ordering};
     use tokio::sync::{mpsc, watch};
@@ -404,11 +404,11 @@ fn the_cycle_loop_allocates_nothing_while_compensation_is_dropped() {
 /// ingests them and runs the cycle, and both sinks' encodings consume the outputs.
 #[test]
 fn frames_to_register_words_allocate_nothing_per_cycle() {
-    use retrocomp::bus::canopen::cia404::{AnalogChannel, AnalogType};
-    use retrocomp::bus::canopen::cia406::EncoderChannel;
-    use retrocomp::bus::canopen::source::{CanopenConfig, CanopenSource};
-    use retrocomp::origin_shift::{RegisterMap, WriteBlock};
-    use retrocomp::quadrature::CountQuantizer;
+    use retrocomp_bus::canopen::cia404::{AnalogChannel, AnalogType};
+    use retrocomp_bus::canopen::cia406::EncoderChannel;
+    use retrocomp_bus::canopen::source::{CanopenConfig, CanopenSource};
+    use retrocomp_gateway::origin_shift::{RegisterMap, WriteBlock};
+    use retrocomp_gateway::quadrature::CountQuantizer;
 
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let model = MachineModel::from_toml_path(&root.join("deploy/demo/mill-full.toml")).unwrap();
@@ -508,9 +508,11 @@ fn frames_to_register_words_allocate_nothing_per_cycle() {
 /// is counted, and the image's replies carry their words inline as the transport's would.
 #[test]
 fn an_origin_shift_write_period_allocates_nothing() {
-    use retrocomp::fault::FaultLog;
-    use retrocomp::origin_shift::sink_task::{SinkSources, update_faults_of};
-    use retrocomp::origin_shift::{Action, Outcome, RegisterMap, Reply, SinkAxis, SinkCore, Words};
+    use retrocomp_bus::fault::FaultLog;
+    use retrocomp_gateway::origin_shift::sink_task::{SinkSources, update_faults_of};
+    use retrocomp_gateway::origin_shift::{
+        Action, Outcome, RegisterMap, Reply, SinkAxis, SinkCore, Words,
+    };
 
     let map: RegisterMap = toml::from_str(&format!(
         "heartbeat_address = 10\nheartbeat_timeout_ms = 60000\n{AXES_MAP}\
@@ -592,10 +594,10 @@ fn an_origin_shift_write_period_allocates_nothing() {
 /// what it holds, and its X position, every 10th update.
 #[test]
 fn an_origin_shift_server_update_allocates_nothing() {
-    use retrocomp::bus::ChannelId;
-    use retrocomp::guard::AxisLimits;
-    use retrocomp::origin_shift::Words;
-    use retrocomp::origin_shift::server_core::{ServerCore, ServerMap, Update};
+    use retrocomp_bus::ChannelId;
+    use retrocomp_gateway::guard::AxisLimits;
+    use retrocomp_gateway::origin_shift::Words;
+    use retrocomp_gateway::origin_shift::server_core::{ServerCore, ServerMap, Update};
 
     let map: ServerMap = toml::from_str(&format!(
         "heartbeat_address = 10\n{AXES_MAP}\

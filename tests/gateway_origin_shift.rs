@@ -7,8 +7,10 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use retrocomp::models::Axis;
-use retrocomp::origin_shift::{ClientConfig, OriginShiftClient, Outcome, RegisterMap, Transport};
+use retrocomp_gateway::origin_shift::{
+    ClientConfig, OriginShiftClient, Outcome, RegisterMap, Transport,
+};
+use retrocomp_model::Axis;
 use tokio::net::TcpListener;
 
 #[path = "gateway_support/plc.rs"]

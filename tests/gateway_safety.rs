@@ -3,7 +3,7 @@
 //! changes faster than the ramp rate.
 
 use proptest::prelude::*;
-use retrocomp::gateway::{AxisSafety, Input, Mode, SafetyConfig};
+use retrocomp_gateway::{AxisSafety, Input, Mode, SafetyConfig};
 
 fn input() -> impl Strategy<Value = Input> {
     prop_oneof![

@@ -21,11 +21,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use retrocomp::bus::modbus::server::{RegisterBank, TcpServer};
-use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::engine::ErrorModel;
-use retrocomp::gateway::model_adapter::MachineModelAdapter;
-use retrocomp::models::MachineModel;
+use retrocomp_bus::modbus::server::{RegisterBank, TcpServer};
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::engine::ErrorModel;
+use retrocomp_gateway::model_adapter::MachineModelAdapter;
+use retrocomp_model::MachineModel;
 
 fn status(port: u16) -> Option<serde_json::Value> {
     let out = Command::new(env!("CARGO_BIN_EXE_retrocomp"))

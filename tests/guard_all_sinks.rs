@@ -33,13 +33,13 @@ use std::collections::BTreeMap;
 
 use proptest::prelude::*;
 use proptest::test_runner::TestCaseError;
-use retrocomp::guard::AxisLimits;
-use retrocomp::models::Axis;
-use retrocomp::origin_shift::server_core::{ServerCore, ServerMap, Update};
-use retrocomp::origin_shift::{Action, RegisterMap, Reply, SinkCore};
-use retrocomp::quadrature::config::{QuadratureAxis, QuadratureSink};
-use retrocomp::quadrature::core::QuadratureCore;
-use retrocomp::quadrature::held::{HeldCounts, HeldError};
+use retrocomp_gateway::guard::AxisLimits;
+use retrocomp_gateway::origin_shift::server_core::{ServerCore, ServerMap, Update};
+use retrocomp_gateway::origin_shift::{Action, RegisterMap, Reply, SinkCore};
+use retrocomp_gateway::quadrature::config::{QuadratureAxis, QuadratureSink};
+use retrocomp_gateway::quadrature::core::QuadratureCore;
+use retrocomp_gateway::quadrature::held::{HeldCounts, HeldError};
+use retrocomp_model::Axis;
 
 const MAX_UM: f64 = 50.0;
 const CAP_UM: f64 = 1.0;

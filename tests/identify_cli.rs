@@ -125,7 +125,7 @@ fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
             "{}",
             p.display()
         );
-        let g = retrocomp::analysis::chart_geometry::parse(&s);
+        let g = retrocomp_analysis::chart_geometry::parse(&s);
         assert_eq!(g.legend_boxes.len(), 1, "{}", p.display());
         pixels::assert_legend_clear_in_pixels(p, &p.display().to_string());
     }

@@ -1,7 +1,7 @@
 //! The artefact input contracts of `retrocomp identify` (docs/identify.md): readers accept what the
 //! docs state, report every problem with file and line, and the writers round-trip.
 
-use retrocomp::analysis::identify::contracts::{Plane, read_ballbar, read_hole_plate};
+use retrocomp_analysis::identify::contracts::{Plane, read_ballbar, read_hole_plate};
 
 const PLATE_SIDE: &str = "kind = \"hole_plate\"\nplane = \"xz\"\nalpha_ppm_per_K = 11.5\ncertificate_uncertainty_um = 0.1\n";
 

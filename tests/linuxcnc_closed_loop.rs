@@ -35,7 +35,7 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use kit::{AXES, BusyCores, Pins, Run, diagnostics, lines_of, now_s, start_box, start_linuxcnc};
-use retrocomp::models::MachineModel;
+use retrocomp_model::MachineModel;
 
 const CLAMP_UM: f64 = 50.0;
 const CAP_UM: f64 = 1.0;
@@ -69,7 +69,7 @@ static ONE_RUN: Mutex<()> = Mutex::new(());
 
 /// −error of the model at the stop, clamped: what the box must serve per axis, µm.
 fn expected_um(model: &MachineModel, pos_mm: [f64; 3], dir: [i8; 3]) -> [f64; 3] {
-    let input = retrocomp::models::ModelInput {
+    let input = retrocomp_model::ModelInput {
         pos_mm,
         dir,
         ..model.new_input()

@@ -9,10 +9,10 @@ mod peers;
 
 use std::net::SocketAddr;
 
-use retrocomp::bus::modbus::server::{RegisterBank, TcpServer};
-use retrocomp::fault::FaultKind;
-use retrocomp::gateway::http::{Api, Limits, request, serve};
-use retrocomp::listen::ListenPolicy;
+use retrocomp_bus::fault::FaultKind;
+use retrocomp_bus::listen::ListenPolicy;
+use retrocomp_bus::modbus::server::{RegisterBank, TcpServer};
+use retrocomp_gateway::http::{Api, Limits, request, serve};
 
 fn only(ip: &str) -> ListenPolicy {
     ListenPolicy {
@@ -100,7 +100,7 @@ async fn http_actions_only_from_the_list() {
     assert_eq!(code, 403, "{body}");
     assert!(body.contains("allow_writes_from"), "{body}");
     // The read routes stay open to every peer.
-    let (code, _) = retrocomp::gateway::http::get(
+    let (code, _) = retrocomp_gateway::http::get(
         &addr.to_string(),
         "/status",
         std::time::Duration::from_secs(10),

@@ -1,4 +1,4 @@
-//! The listener policy (`retrocomp::listen`) under a flood, on every server of the box: the Modbus
+//! The listener policy (`retrocomp_bus::listen`) under a flood, on every server of the box: the Modbus
 //! TCP server, the HTTP endpoint, OPC UA and the socketcand hub run in one child process whose
 //! descriptor limit is 1024 (soft = hard, as `LimitNOFILE=1024` or `prlimit --nofile=1024:1024`).
 //! A controller (tokio-modbus client, 127.0.0.1) writes and reads the Modbus server all along;
@@ -57,28 +57,24 @@ fn child() {
         .unwrap();
     let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
     let (modbus, http, ua, hub, _status_tx) = rt.block_on(async {
-        let bank = retrocomp::bus::modbus::server::RegisterBank::new();
+        let bank = retrocomp_bus::modbus::server::RegisterBank::new();
         bank.set_holding(0, &[1, 2]);
         bank.allow_writes(10, 3);
-        let modbus = retrocomp::bus::modbus::server::TcpServer::start(any, bank)
+        let modbus = retrocomp_bus::modbus::server::TcpServer::start(any, bank)
             .await
             .unwrap();
         // Kept to the end: the endpoint's history task ends when the sender goes.
         let (tx, rx) = tokio::sync::watch::channel(None);
-        let (http, _task) = retrocomp::gateway::http::serve(
-            any,
-            rx.clone(),
-            Default::default(),
-            Default::default(),
-        )
-        .await
-        .unwrap();
-        let section: retrocomp::gateway::opcua::OpcUaSection =
+        let (http, _task) =
+            retrocomp_gateway::http::serve(any, rx.clone(), Default::default(), Default::default())
+                .await
+                .unwrap();
+        let section: retrocomp_gateway::opcua::OpcUaSection =
             toml::from_str("listen = \"127.0.0.1:0\"").unwrap();
-        let ua = retrocomp::gateway::opcua::start(&section, "flood", rx, None)
+        let ua = retrocomp_gateway::opcua::start(&section, "flood", rx, None)
             .await
             .unwrap();
-        let hub = retrocomp::bus::can::hub::Hub::start_loopback()
+        let hub = retrocomp_bus::can::hub::Hub::start_loopback()
             .await
             .unwrap();
         (modbus, http, ua, hub, tx)

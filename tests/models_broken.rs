@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use retrocomp::models::MachineModel;
+use retrocomp_model::MachineModel;
 
 fn header<'a>(text: &'a str, field: &str) -> &'a str {
     let tag = format!("# {field}: ");

@@ -14,7 +14,7 @@
 use proptest::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use retrocomp::models::{Interpolation, MachineModel, ModelInput, Table};
+use retrocomp_model::{Interpolation, MachineModel, ModelInput, Table};
 
 fn arr(v: &[f64]) -> String {
     format!(

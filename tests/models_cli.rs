@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use retrocomp::models::MachineModel;
+use retrocomp_model::MachineModel;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_retrocomp"))
@@ -117,7 +117,7 @@ fn eval_writes_inputs_errors_and_terms_matching_the_library() {
         .iter()
         .zip([(0.0, 0.0, 1i8), (85.0, 255.0, -1), (170.0, 510.0, 0)])
     {
-        let input = retrocomp::models::ModelInput {
+        let input = retrocomp_model::ModelInput {
             pos_mm: [x, 0.0, z],
             dir: [d, 0, d],
             ..m.new_input()

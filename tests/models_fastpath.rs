@@ -10,7 +10,7 @@ use std::path::Path;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use retrocomp::models::{
+use retrocomp_model::{
     ErrorBreakdown, ErrorFunction, Interpolation, MachineModel, ModelInput, ModelState, Table,
 };
 

@@ -3,7 +3,7 @@
 //! eval`), reads and writes back unchanged, and is ignored when the new recording does not start
 //! after the stored time. Temperatures °C, rpm, errors µm.
 
-use retrocomp::models::{LagStart, MachineModel, ModelState};
+use retrocomp_model::{LagStart, MachineModel, ModelState};
 
 const MODEL: &str = r#"
 schema = 1

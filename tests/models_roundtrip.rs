@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use retrocomp::models::MachineModel;
+use retrocomp_model::MachineModel;
 
 const EXAMPLES: [&str; 4] = [
     "studer-s36.toml",

@@ -2,7 +2,7 @@
 //! states its sign and a test locks it). Each case is a model with a single constant term; the
 //! expected tool-tip error is written out by hand from the convention in `src/models/mod.rs`.
 
-use retrocomp::models::{MachineModel, ModelInput};
+use retrocomp_model::{MachineModel, ModelInput};
 
 const MILL: &str = r#"
 schema = 1

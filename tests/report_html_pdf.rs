@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use retrocomp::analysis::chart_geometry;
+use retrocomp_analysis::chart_geometry;
 
 #[path = "gateway_support/hil_sim.rs"]
 mod hil_sim;

@@ -262,8 +262,8 @@ fn a_shipment_cut_short_by_a_dead_broker_resumes_from_its_disk_queue() {
 /// sampler produced is acknowledged before NDEATH, and the fleet host has each of them once.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn finish_sends_every_record_before_ndeath() {
-    use retrocomp::telemetry::fleet_client::FleetClient;
-    use retrocomp::telemetry::{self, MqttConfig, PublisherInputs};
+    use retrocomp_fleet::fleet_client::FleetClient;
+    use retrocomp_gateway::telemetry::{self, MqttConfig, PublisherInputs};
     use std::sync::Arc;
     let dir = tempfile::tempdir().unwrap();
     let port = free_port();

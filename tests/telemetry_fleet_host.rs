@@ -30,9 +30,9 @@ use std::time::{Duration, Instant};
 use mosquitto::Broker;
 use peers::free_port;
 use prost::Message as _;
-use retrocomp::gateway::status::StatusSnapshot;
-use retrocomp::telemetry::sparkplug::Payload;
-use retrocomp::telemetry::{self, MqttConfig, Publisher, PublisherInputs};
+use retrocomp_gateway::prometheus::StatusSnapshot;
+use retrocomp_gateway::telemetry::sparkplug::Payload;
+use retrocomp_gateway::telemetry::{self, MqttConfig, Publisher, PublisherInputs};
 use serde_json::Value;
 use snapshot::snapshot;
 use tokio::sync::watch;
@@ -244,7 +244,7 @@ async fn a_rebirth_storm_yields_at_most_one_nbirth_per_interval() {
     for i in 0..200u64 {
         // Taken before the request goes: whatever birth answers it is stamped no earlier.
         last_request_ms = telemetry::publisher::now_ms();
-        let req = telemetry::fleet::rebirth_request(i);
+        let req = retrocomp_fleet::fleet::rebirth_request(i);
         watcher
             .publish(ncmd, QoS::AtMostOnce, false, req)
             .await

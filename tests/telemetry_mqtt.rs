@@ -21,8 +21,8 @@ use std::time::{Duration, Instant};
 
 use mosquitto::Broker;
 use peers::{Peer, free_port, spawn_python};
-use retrocomp::gateway::status::StatusSnapshot;
-use retrocomp::telemetry::{self, MqttConfig, PublisherInputs, TelemetryStatus};
+use retrocomp_gateway::prometheus::StatusSnapshot;
+use retrocomp_gateway::telemetry::{self, MqttConfig, PublisherInputs, TelemetryStatus};
 use serde_json::Value;
 use snapshot::snapshot;
 use tokio::sync::watch;
@@ -297,17 +297,17 @@ async fn broker_killed_and_restarted_nothing_lost_in_order_with_births_and_death
 }
 
 struct OneTerm;
-impl retrocomp::gateway::ErrorModel for OneTerm {
-    fn required_channels(&self) -> Vec<retrocomp::bus::ChannelId> {
+impl retrocomp_gateway::ErrorModel for OneTerm {
+    fn required_channels(&self) -> Vec<retrocomp_bus::ChannelId> {
         vec![]
     }
     fn axis_errors(
         &mut self,
-        s: &retrocomp::gateway::MachineState,
-        out: &mut retrocomp::gateway::AxisErrors,
+        s: &retrocomp_gateway::MachineState,
+        out: &mut retrocomp_gateway::AxisErrors,
     ) -> Result<(), String> {
-        let x = s.position_mm(retrocomp::models::Axis::X).unwrap_or(0.0);
-        out.push(retrocomp::models::Axis::X, "scale".into(), 1e-3 * x);
+        let x = s.position_mm(retrocomp_model::Axis::X).unwrap_or(0.0);
+        out.push(retrocomp_model::Axis::X, "scale".into(), 1e-3 * x);
         Ok(())
     }
 }
@@ -315,7 +315,7 @@ impl retrocomp::gateway::ErrorModel for OneTerm {
 /// `/status`, or None while the gateway answers 503 "no cycle run yet" (its first cycle may come
 /// late on a loaded machine: a CI run with both cores busy saw it); any other answer fails.
 async fn status(addr: &str) -> Option<Value> {
-    let (code, body) = retrocomp::gateway::http::get(addr, "/status", Duration::from_secs(10))
+    let (code, body) = retrocomp_gateway::http::get(addr, "/status", Duration::from_secs(10))
         .await
         .unwrap();
     if code == 503 && body.contains("no cycle run yet") {
@@ -343,7 +343,7 @@ async fn status_where(addr: &str, what: &str, pred: impl Fn(&Value) -> bool) -> 
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_broker_that_never_answers_does_not_hold_up_the_cycle() {
-    use retrocomp::bus::{Health, Sample};
+    use retrocomp_bus::{Health, Sample};
     // Accepts connections and never reads or answers (a hung broker, a black-holed network).
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let port = listener.local_addr().unwrap().port();
@@ -387,8 +387,7 @@ max_records = 50
 drop_policy = "drop_oldest"
 "#
     );
-    let cfg =
-        retrocomp::gateway::config::FieldConfig::parse(&text, Path::new("dead.toml")).unwrap();
+    let cfg = retrocomp_gateway::config::FieldConfig::parse(&text, Path::new("dead.toml")).unwrap();
     let (tx, rx) = tokio::sync::mpsc::channel(4096);
     let epoch = Instant::now();
     let feeder = tokio::spawn(async move {
@@ -408,7 +407,7 @@ drop_policy = "drop_oldest"
     });
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let (addr_tx, addr_rx) = tokio::sync::oneshot::channel();
-    let gw = tokio::spawn(retrocomp::gateway::run::run(
+    let gw = tokio::spawn(retrocomp_gateway::run::run(
         cfg,
         Box::new(OneTerm),
         rx,
@@ -442,7 +441,7 @@ drop_policy = "drop_oldest"
     })
     .await;
     assert_eq!(js["axes"][0]["mode"], "tracking", "{js}");
-    let (_, metrics) = retrocomp::gateway::http::get(&addr, "/metrics", Duration::from_secs(10))
+    let (_, metrics) = retrocomp_gateway::http::get(&addr, "/metrics", Duration::from_secs(10))
         .await
         .unwrap();
     assert!(
@@ -465,9 +464,9 @@ drop_policy = "drop_oldest"
 }
 
 async fn fleet_until(
-    f: &mut telemetry::fleet_client::FleetClient,
+    f: &mut retrocomp_fleet::fleet_client::FleetClient,
     what: &str,
-    pred: impl Fn(&telemetry::fleet_client::FleetClient) -> bool,
+    pred: impl Fn(&retrocomp_fleet::fleet_client::FleetClient) -> bool,
 ) {
     let deadline = Instant::now() + PATIENCE;
     while !pred(f) {
@@ -481,8 +480,8 @@ async fn fleet_until(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn fleet_shows_boxes_compensating_degraded_and_offline_by_death_and_will() {
-    use retrocomp::telemetry::fleet::Verdict;
-    use retrocomp::telemetry::fleet_client::FleetClient;
+    use retrocomp_fleet::fleet::Verdict;
+    use retrocomp_fleet::fleet_client::FleetClient;
     let dir = tempfile::tempdir().unwrap();
     let port = free_port();
     let _broker = Broker::start(dir.path(), port);
@@ -496,7 +495,7 @@ async fn fleet_shows_boxes_compensating_degraded_and_offline_by_death_and_will()
         let mut snap = snapshot(1);
         if faulty {
             snap.active_faults
-                .push(("can".into(), retrocomp::gateway::FaultKind::Stale, 0.5));
+                .push(("can".into(), retrocomp_gateway::FaultKind::Stale, 0.5));
         }
         let (tx, rx) = watch::channel(Some(Arc::new(snap)));
         let p = telemetry::spawn(
@@ -547,7 +546,7 @@ async fn fleet_shows_boxes_compensating_degraded_and_offline_by_death_and_will()
 
 #[test]
 fn telemetry_config_errors_name_file_line_and_key() {
-    use retrocomp::gateway::config::FieldConfig;
+    use retrocomp_gateway::config::FieldConfig;
     let base = r#"[gateway]
 name = "t"
 cycle_ms = 5

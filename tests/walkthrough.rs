@@ -58,10 +58,10 @@ fn python_can_clients_talk_through_the_hub_command() {
 #[test]
 fn walkthrough_field_config_and_its_model_load() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/walkthrough");
-    let cfg = retrocomp::gateway::config::FieldConfig::load(&dir.join("field.toml"))
+    let cfg = retrocomp_gateway::config::FieldConfig::load(&dir.join("field.toml"))
         .unwrap_or_else(|e| panic!("{e}"));
-    retrocomp::gateway::run::require_sink(&cfg).unwrap();
+    retrocomp_gateway::run::require_sink(&cfg).unwrap();
     let model = cfg.model.as_ref().expect("[model] path");
-    retrocomp::models::MachineModel::from_toml_path(&dir.join(&model.path))
+    retrocomp_model::MachineModel::from_toml_path(&dir.join(&model.path))
         .unwrap_or_else(|e| panic!("{e}"));
 }

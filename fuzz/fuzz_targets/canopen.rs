@@ -2,11 +2,11 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use retrocomp::bus::can::Frame;
-use retrocomp::bus::canopen::cia404::{AnalogChannel, AnalogType};
-use retrocomp::bus::canopen::cia406::{CountingDirection, EncoderChannel, PositionDecoder};
-use retrocomp::bus::canopen::nmt::{decode_heartbeat, decode_nmt};
-use retrocomp::bus::canopen::sdo::{SdoRequest, SdoResponse};
+use retrocomp_bus::can::Frame;
+use retrocomp_bus::canopen::cia404::{AnalogChannel, AnalogType};
+use retrocomp_bus::canopen::cia406::{CountingDirection, EncoderChannel, PositionDecoder};
+use retrocomp_bus::canopen::nmt::{decode_heartbeat, decode_nmt};
+use retrocomp_bus::canopen::sdo::{SdoRequest, SdoResponse};
 
 fuzz_target!(|data: &[u8]| {
     if data.len() < 6 {

@@ -2,8 +2,8 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use retrocomp::bus::modbus::poll_core::{PollCore, ReadOutcome};
-use retrocomp::bus::modbus::regmap::{DataType, RegisterChannel, RegisterTable, WordOrder, decode_raw};
+use retrocomp_bus::modbus::poll_core::{PollCore, ReadOutcome};
+use retrocomp_bus::modbus::regmap::{DataType, RegisterChannel, RegisterTable, WordOrder, decode_raw};
 
 fuzz_target!(|data: &[u8]| {
     let Some((&sel, rest)) = data.split_first() else { return };

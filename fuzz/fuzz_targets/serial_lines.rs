@@ -2,7 +2,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use retrocomp::bus::serial::{LineFormat, LineSource, SerialChannel, SerialSourceConfig};
+use retrocomp_bus::serial::{LineFormat, LineSource, SerialChannel, SerialSourceConfig};
 
 fuzz_target!(|data: &[u8]| {
     let formats = [
@@ -28,7 +28,7 @@ fuzz_target!(|data: &[u8]| {
         let mut out = Vec::new();
         src.push(data, 0.0, &mut out);
         for s in &out {
-            assert!(s.health != retrocomp::bus::Health::Ok || s.value.is_finite());
+            assert!(s.health != retrocomp_bus::Health::Ok || s.value.is_finite());
         }
     }
 });

@@ -3,7 +3,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use retrocomp::bus::can::socketcand::{Decoder, Message, encode, parse_message};
+use retrocomp_bus::can::socketcand::{Decoder, Message, encode, parse_message};
 
 fuzz_target!(|data: &[u8]| {
     let split = data.first().map_or(0, |b| usize::from(*b)).min(data.len());

@@ -8,10 +8,10 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use hil_sim::artefacts::{Metrology, Plan, measure_plan};
-use retrocomp::analysis::identify::design::Geometry;
-use retrocomp::analysis::identify::report::to_spec;
-use retrocomp::analysis::identify::{Options, identify};
-use retrocomp::models::MachineModel;
+use retrocomp_analysis::identify::design::Geometry;
+use retrocomp_analysis::identify::report::to_spec;
+use retrocomp_analysis::identify::{Options, identify};
+use retrocomp_model::MachineModel;
 
 fn bench(c: &mut Criterion) {
     let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -103,7 +103,7 @@ pub fn serve(args: &ServeArgs) -> anyhow::Result<()> {
     );
     // Before the runtime exists: its threads inherit the policy of the thread that creates them.
     if let (true, Some(p)) = (cfg.clock.realtime, cfg.clock.realtime_priority) {
-        use retrocomp::realtime::{RtOutcome, set_current_thread_fifo};
+        use retrocomp_bus::realtime::{RtOutcome, set_current_thread_fifo};
         match set_current_thread_fifo(p) {
             RtOutcome::Granted { priority } => eprintln!("hil-sim: SCHED_FIFO {priority} granted"),
             RtOutcome::Refused { priority, why } => eprintln!(
@@ -117,7 +117,7 @@ pub fn serve(args: &ServeArgs) -> anyhow::Result<()> {
         .enable_all()
         .build()?;
     rt.block_on(async {
-        let mem = retrocomp::bus::can::MemBus::default();
+        let mem = retrocomp_bus::can::MemBus::default();
         let running = crate::io::serve::start(cfg, Some(mem), args.out.as_deref()).await?;
         if let Some(a) = running.modbus_tcp {
             eprintln!("hil-sim: modbus tcp on {a}");

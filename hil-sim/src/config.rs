@@ -162,9 +162,9 @@ impl Default for ServoConfig {
     }
 }
 
-/// The register vocabulary of the PLC window is the workspace's one (`retrocomp::bus::modbus::words`):
+/// The register vocabulary of the PLC window is the workspace's one (`retrocomp_bus::modbus::words`):
 /// `word = "int16" | "int32" | ...`, `word_order = "high_first" | "low_first"`.
-pub use retrocomp::bus::modbus::{DataType, WordOrder};
+pub use retrocomp_bus::modbus::{DataType, WordOrder};
 
 /// The PLC window through which origin shifts reach the controller (a PMC-like register block).
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -239,7 +239,7 @@ pub struct HandshakeConfig {
 #[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct TruthConfig {
-    /// The project's machine model (TOML, `retrocomp::models`); relative paths resolve against the
+    /// The project's machine model (TOML, `retrocomp_model`); relative paths resolve against the
     /// config file's folder. When given, `builtin` must be empty.
     #[serde(default)]
     pub model_path: Option<PathBuf>,
@@ -370,10 +370,7 @@ impl SimConfig {
             .map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;
         let cfg = Self::from_toml_str(&text, path.parent())
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        retrocomp::bus::modbus::words::warn_deprecated_spellings(
-            &text,
-            &path.display().to_string(),
-        );
+        retrocomp_bus::modbus::words::warn_deprecated_spellings(&text, &path.display().to_string());
         Ok(cfg)
     }
 

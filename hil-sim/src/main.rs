@@ -65,7 +65,7 @@ fn main() -> anyhow::Result<()> {
             spheres,
             out,
         } => {
-            let model = retrocomp::models::MachineModel::from_toml_path(&truth)
+            let model = retrocomp_model::MachineModel::from_toml_path(&truth)
                 .map_err(|e| anyhow::anyhow!("--truth: {e}"))?;
             let m = hil_sim::artefacts::Metrology {
                 probing_noise_um: noise_um,

@@ -7,10 +7,10 @@
 //! are the visible model's prediction at the nominal position plus the received correction.
 //! A dropped-out sensor leaves its cell empty; a NaN fault writes `NaN` (diagnose must report both).
 //! Numbers are written with Rust's shortest round-trip text (`t_s` with 6 decimals), formatted without
-//! allocating by `retrocomp::decimal` (byte for byte `{}` / `{:.6}`), so output is byte-reproducible.
-//! Why not `retrocomp::recording::RecordingWriter`: that writer refuses non-finite and missing cells,
+//! allocating by `retrocomp_model::decimal` (byte for byte `{}` / `{:.6}`), so output is byte-reproducible.
+//! Why not `retrocomp_model::recording::RecordingWriter`: that writer refuses non-finite and missing cells,
 //! and the simulator must be able to produce sensor faults on demand. Fault-free recordings read back
-//! with `retrocomp::recording::Recording::read_strict`; with faults, `read_lenient` reports exactly
+//! with `retrocomp_model::recording::Recording::read_strict`; with faults, `read_lenient` reports exactly
 //! the faulted rows (tested in `tests/sim_faults.rs`).
 
 use crate::world::{Readings, World};
@@ -31,12 +31,12 @@ pub struct Recorder<W: Write> {
 }
 
 /// One cell: `NaN` for a NaN fault, else the shortest text that parses back to the same value
-/// (`retrocomp::decimal::push_shortest`, byte for byte `format!("{v}")`). Numbers never need quoting.
+/// (`retrocomp_model::decimal::push_shortest`, byte for byte `format!("{v}")`). Numbers never need quoting.
 fn num(buf: &mut Vec<u8>, v: f64) {
     if v.is_nan() {
         buf.extend_from_slice(b"NaN");
     } else {
-        retrocomp::decimal::push_shortest(buf, v);
+        retrocomp_model::decimal::push_shortest(buf, v);
     }
 }
 
@@ -106,7 +106,7 @@ impl<W: Write> Recorder<W> {
             n += 1;
         };
         sep(buf);
-        retrocomp::decimal::push_fixed6(buf, r.t_s);
+        retrocomp_model::decimal::push_fixed6(buf, r.t_s);
         let plain = r
             .nominal_mm
             .iter()

@@ -63,26 +63,26 @@ impl TruthModel for BuiltinGeometry {
     }
 }
 
-/// The project's volumetric model (`retrocomp::models::MachineModel`, exact 4×4 evaluation) as the
+/// The project's volumetric model (`retrocomp_model::MachineModel`, exact 4×4 evaluation) as the
 /// true machine's geometry. Temperatures, forces and strains stay at the model's references: the
 /// hidden physics adds those effects itself.
 #[derive(Debug)]
 pub struct VolumetricTruth {
     path: String,
-    model: retrocomp::models::MachineModel,
-    state: retrocomp::models::ModelState,
-    input: retrocomp::models::ModelInput,
-    out: retrocomp::models::ErrorBreakdown,
+    model: retrocomp_model::MachineModel,
+    state: retrocomp_model::ModelState,
+    input: retrocomp_model::ModelInput,
+    out: retrocomp_model::ErrorBreakdown,
 }
 
 impl VolumetricTruth {
     pub fn from_toml_path(path: &std::path::Path) -> anyhow::Result<Self> {
-        let model = retrocomp::models::MachineModel::from_toml_path(path)
+        let model = retrocomp_model::MachineModel::from_toml_path(path)
             .map_err(|e| anyhow::anyhow!("truth.model_path: {e}"))?;
         Ok(Self::new(model, path.display().to_string()))
     }
 
-    pub fn new(model: retrocomp::models::MachineModel, origin: String) -> Self {
+    pub fn new(model: retrocomp_model::MachineModel, origin: String) -> Self {
         Self {
             path: origin,
             state: model.new_state(),

@@ -5,9 +5,9 @@
 //! low-SNR, two-effect and confounded cases) is produced by `retrocomp diagnose-bench` (docs/diagnose.md).
 
 use hil_sim::cases::generate_case;
-use retrocomp::diagnose::effects::EFFECT_IDS;
-use retrocomp::diagnose::scoring::{score_case, summarize};
-use retrocomp::diagnose::{diagnose, select::Options};
+use retrocomp_analysis::diagnose::effects::EFFECT_IDS;
+use retrocomp_analysis::diagnose::scoring::{score_case, summarize};
+use retrocomp_analysis::diagnose::{diagnose, select::Options};
 
 #[test]
 fn generator_is_deterministic_and_covers_every_effect_id() {

@@ -3,8 +3,8 @@
 
 use std::process::Command;
 
-use retrocomp::diagnose::scoring::read_manifest;
-use retrocomp::recording::Recording;
+use retrocomp_analysis::diagnose::scoring::read_manifest;
+use retrocomp_model::recording::Recording;
 
 #[test]
 fn gen_cases_writes_readable_recordings_and_manifests() {

@@ -5,8 +5,8 @@
 //! generated random-walk cases, where the forward check alone also flagged true terms.
 
 use hil_sim::cases::{Family, generate_family_case};
-use retrocomp::diagnose::report::Report;
-use retrocomp::diagnose::{diagnose, select::Options};
+use retrocomp_analysis::diagnose::report::Report;
+use retrocomp_analysis::diagnose::{diagnose, select::Options};
 
 fn report(seed: u64, index: usize) -> Report {
     let (rec, _) = generate_family_case(Family::RandomWalk, seed, index);

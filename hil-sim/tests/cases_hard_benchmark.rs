@@ -9,8 +9,8 @@
 //! `#[ignore]`d — see the per-family table it prints and docs/diagnose.md "Hard families".
 
 use hil_sim::cases::{Family, generate_family_case};
-use retrocomp::diagnose::scoring::{families_markdown, score_case, summarize_by_family};
-use retrocomp::diagnose::{diagnose, select::Options};
+use retrocomp_analysis::diagnose::scoring::{families_markdown, score_case, summarize_by_family};
+use retrocomp_analysis::diagnose::{diagnose, select::Options};
 
 /// Cases per family: indices 0–19 (6 nulls, 14 effect cases: every effect id once in the families
 /// that cycle through them).

@@ -10,10 +10,10 @@
 use std::process::Command;
 
 use hil_sim::cases::{Family, generate_case, generate_family_case};
-use retrocomp::diagnose::effects::EffectModel;
-use retrocomp::diagnose::features::{Context, lowpass};
-use retrocomp::diagnose::scoring::read_manifest;
-use retrocomp::recording::Recording;
+use retrocomp_analysis::diagnose::effects::EffectModel;
+use retrocomp_analysis::diagnose::features::{Context, lowpass};
+use retrocomp_analysis::diagnose::scoring::read_manifest;
+use retrocomp_model::recording::Recording;
 
 const NULLS: [usize; 6] = [0, 1, 2, 10, 11, 12];
 

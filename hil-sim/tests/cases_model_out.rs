@@ -6,10 +6,10 @@
 //! in the schema are named with their parameters in the TOML's comment block.
 
 use hil_sim::cases::generate_case;
-use retrocomp::diagnose::model_out::model_with_findings;
-use retrocomp::diagnose::model_sim::simulate;
-use retrocomp::diagnose::{diagnose, select::Options};
-use retrocomp::models::MachineModel;
+use retrocomp_analysis::diagnose::model_out::model_with_findings;
+use retrocomp_analysis::diagnose::model_sim::simulate;
+use retrocomp_analysis::diagnose::{diagnose, select::Options};
+use retrocomp_model::MachineModel;
 
 fn centred_rms(v: &[f64]) -> f64 {
     let m = v.iter().sum::<f64>() / v.len() as f64;

@@ -14,9 +14,9 @@
 //! still named as that lag.
 
 use hil_sim::cases::{Family, generate_family_case};
-use retrocomp::diagnose::effects::EffectModel;
-use retrocomp::diagnose::report::Finding;
-use retrocomp::diagnose::{diagnose, select::Options};
+use retrocomp_analysis::diagnose::effects::EffectModel;
+use retrocomp_analysis::diagnose::report::Finding;
+use retrocomp_analysis::diagnose::{diagnose, select::Options};
 
 fn param(f: &Finding, key: &str) -> Option<serde_json::Value> {
     f.params.get(key).cloned()

@@ -1,4 +1,4 @@
-//! The exchange step after forward selection (`retrocomp::diagnose::swap`), on the two-effect case
+//! The exchange step after forward selection (`retrocomp_analysis::diagnose::swap`), on the two-effect case
 //! greedy selection got wrong: seed 1, case 73 hides a thermal drift on the column sensor plus a
 //! time drift. Forward selection takes one lagged spindle temperature that absorbs parts of both
 //! and leaves structure vs time unexplained (before the exchange step: 0 of 2 effects recalled).
@@ -6,7 +6,7 @@
 //! could not have reached this set.
 
 use hil_sim::cases::generate_case;
-use retrocomp::diagnose::{diagnose, select::Options};
+use retrocomp_analysis::diagnose::{diagnose, select::Options};
 
 #[test]
 fn exchange_step_recovers_the_time_drift_hidden_under_a_thermal_term() {
@@ -29,7 +29,7 @@ fn exchange_step_recovers_the_time_drift_hidden_under_a_thermal_term() {
         .unwrap();
     let truth = m.hidden[1].model.clone();
     let want = match truth {
-        retrocomp::diagnose::effects::EffectModel::TimeDrift { um_per_h } => um_per_h,
+        retrocomp_analysis::diagnose::effects::EffectModel::TimeDrift { um_per_h } => um_per_h,
         _ => unreachable!(),
     };
     let got = f.params["um_per_h"].as_f64().unwrap();

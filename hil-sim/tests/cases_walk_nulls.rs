@@ -6,7 +6,7 @@
 //! time drift), the family's only false alarms at five seeds.
 
 use hil_sim::cases::{Family, generate_family_case};
-use retrocomp::diagnose::{diagnose, select::Options};
+use retrocomp_analysis::diagnose::{diagnose, select::Options};
 
 #[test]
 fn walk_nulls_with_one_stationary_looking_channel_come_back_none() {

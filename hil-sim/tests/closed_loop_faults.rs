@@ -11,7 +11,7 @@ mod closed_loop_support;
 
 use closed_loop_support::*;
 use hil_sim::harness::ClosedLoop;
-use retrocomp::gateway::health::FaultKind;
+use retrocomp_gateway::health::FaultKind;
 
 /// The first dwell (X150 Y100) and the second (X40 Y30, 130 mm later at 60 mm/s) of [`MOVES`], s.
 const DWELL1: (f64, f64) = (3.5, 6.5);
@@ -91,7 +91,7 @@ fn transport_down_and_back_resumes_from_what_the_plc_holds_in_exactly_the_capped
         assert_eq!(a.ok, ok, "{a:?}");
     }
     // The same instants from the backoff itself, so the literal list above is the real schedule.
-    let mut backoff = retrocomp::bus::Backoff::from_millis(100, 5000);
+    let mut backoff = retrocomp_bus::Backoff::from_millis(100, 5000);
     let mut due = failed_at;
     for (t, _) in expected {
         due = period_at_or_after(due + backoff.next_delay().as_secs_f64(), period);

@@ -12,7 +12,7 @@ mod closed_loop_support;
 
 use closed_loop_support::*;
 use hil_sim::harness::{ClosedLoop, Pulse};
-use retrocomp::gateway::health::FaultKind;
+use retrocomp_gateway::health::FaultKind;
 
 const DWELL1_END: f64 = 6.5;
 
@@ -43,7 +43,7 @@ fn assert_counts_follow_the_output(h: &ClosedLoop, min_edges: usize) {
     let bad: Vec<&Pulse> = h.pulses().iter().filter(|p| p.step.is_err()).collect();
     assert!(bad.is_empty(), "illegal transitions: {bad:?}");
     // Cap per cycle: no two edges of one axis within one 5 ms cycle.
-    for axis in retrocomp::models::Axis::ALL {
+    for axis in retrocomp_model::Axis::ALL {
         let of_axis: Vec<&Pulse> = h.pulses().iter().filter(|p| p.axis == axis).collect();
         for w in of_axis.windows(2) {
             assert!(
@@ -90,7 +90,7 @@ fn a_silent_encoder_node_ramps_the_counts_out_and_back_one_count_per_cycle() {
     // return net exactly the target and all go one way per axis.
     let target = h.trace().last().unwrap().output_um.map(counts_of);
     assert_eq!(h.applied_um(), target);
-    for (k, axis) in retrocomp::models::Axis::ALL.into_iter().enumerate() {
+    for (k, axis) in retrocomp_model::Axis::ALL.into_iter().enumerate() {
         let steps: Vec<i64> = h
             .pulses()
             .iter()
@@ -139,7 +139,7 @@ fn a_stuck_then_nan_spindle_sensor_keeps_the_counts_on_the_output_without_droppi
 #[test]
 fn a_restarted_box_continues_from_the_persisted_counts_without_an_edge_at_takeover() {
     // Pulses have no read-back: the box persists the count the controller holds ahead of every
-    // step (retrocomp::quadrature::held, here the harness's in-memory store). A restarted box reads
+    // step (retrocomp_gateway::quadrature::held, here the harness's in-memory store). A restarted box reads
     // it back: it drives the lines at that count's phase (the receiver sees no edge), continues
     // its counts from it and the engine is seeded with what it realises, so the controller holds
     // exactly the engine's output afterwards — never the old counts plus a second correction.
@@ -150,7 +150,7 @@ fn a_restarted_box_continues_from_the_persisted_counts_without_an_edge_at_takeov
     assert!(nonzero(held), "{held:?}");
     // The takeover is only a test of the phase when some count is not ≡ 0 mod 4.
     assert!(old.iter().any(|c| c.rem_euclid(4) != 0), "{old:?}");
-    for (k, axis) in retrocomp::models::Axis::ALL.into_iter().enumerate() {
+    for (k, axis) in retrocomp_model::Axis::ALL.into_iter().enumerate() {
         assert_eq!(
             h.held_counts().get(axis.name()),
             Some(old[k]),
@@ -199,7 +199,7 @@ fn a_persisted_count_beyond_the_clamp_refuses_the_restart() {
     // What the store says the controller holds is a start value the engine must accept as it is:
     // beyond the clamp (a file from another machine, a bad edit) the box refuses to start rather
     // than clip it and inject the difference, as `retrocomp run` does.
-    use retrocomp::quadrature::held::HeldCounts;
+    use retrocomp_gateway::quadrature::held::HeldCounts;
     let mut h = closed_loop_quadrature(sim_config(MOVES, true, ""));
     h.run_until(1.0);
     let beyond = (clamp_of(0) + 10.0).round() as i64;

@@ -8,12 +8,12 @@
 //! docs/identify-results.md quotes.
 
 use hil_sim::artefacts::{Metrology, PlatePlacement, measure_plate};
-use retrocomp::analysis::identify::contracts::{HolePlate, Plane};
-use retrocomp::analysis::identify::design::Geometry;
-use retrocomp::analysis::identify::report::{DirVerify, components, to_spec, verify};
-use retrocomp::analysis::identify::vouch::{Vouch, vouch};
-use retrocomp::analysis::identify::{Identification, Options, identify};
-use retrocomp::models::MachineModel;
+use retrocomp_analysis::identify::contracts::{HolePlate, Plane};
+use retrocomp_analysis::identify::design::Geometry;
+use retrocomp_analysis::identify::report::{DirVerify, components, to_spec, verify};
+use retrocomp_analysis::identify::vouch::{Vouch, vouch};
+use retrocomp_analysis::identify::{Identification, Options, identify};
+use retrocomp_model::MachineModel;
 
 const ID_PROBES_MM: [f64; 2] = [100.0, 250.0];
 const VERIFY_PROBES_MM: [f64; 6] = [30.0, 50.0, 100.0, 175.0, 250.0, 350.0];

@@ -16,10 +16,10 @@ use hil_sim::artefacts::{
     Measured, Metrology, Plan, SpherePlan, measure_plan, measure_plate, measure_spheres, resampled,
     xz_edge_plates,
 };
-use retrocomp::analysis::identify::design::Geometry;
-use retrocomp::analysis::identify::report::{DirVerify, components, to_spec, verify};
-use retrocomp::analysis::identify::{Identification, Options, identify};
-use retrocomp::models::{ErrorFunction, MachineModel};
+use retrocomp_analysis::identify::design::Geometry;
+use retrocomp_analysis::identify::report::{DirVerify, components, to_spec, verify};
+use retrocomp_analysis::identify::{Identification, Options, identify};
+use retrocomp_model::{ErrorFunction, MachineModel};
 
 fn load(name: &str) -> MachineModel {
     let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -114,7 +114,7 @@ fn component_errors(
         let n = d.len() as f64;
         let mq = qs.iter().sum::<f64>() / n;
         let md = d.iter().sum::<f64>() / n;
-        let slope = if r.shape == retrocomp::analysis::identify::design::Shape::Straightness {
+        let slope = if r.shape == retrocomp_analysis::identify::design::Shape::Straightness {
             qs.iter()
                 .zip(&d)
                 .map(|(q, d)| (q - mq) * (d - md))
@@ -598,8 +598,8 @@ fn without_abbe_terms_or_probe_length_the_models_fail_the_targets() {
 /// squareness from a square (±2 µrad); verified on the same five plates.
 #[test]
 fn direct_method_on_the_old_machine() {
-    use retrocomp::analysis::fit::piecewise::fit_stepwise;
-    use retrocomp::models::spec::ComponentSpec;
+    use retrocomp_analysis::fit::piecewise::fit_stepwise;
+    use retrocomp_model::spec::ComponentSpec;
     let truth = load("old-mill-3axis.toml");
     let meas = measure(&truth, 7, Plan::Six);
     let mut noise = hil_sim::rng::Noise::new(7, "direct");
@@ -609,7 +609,7 @@ fn direct_method_on_the_old_machine() {
         .components
         .iter()
         .map(|c| {
-            let hi = if c.id.axis == retrocomp::models::Axis::X {
+            let hi = if c.id.axis == retrocomp_model::Axis::X {
                 800.0
             } else {
                 500.0

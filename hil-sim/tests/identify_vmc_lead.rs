@@ -7,7 +7,7 @@
 //! the same 5 mm wave tabulated every 5.05 mm (1.01 leads): aliased into a 500 mm wave, long enough
 //! for the plates. µm, mm.
 
-use retrocomp::models::{Axis, ComponentId, MachineModel, Motion};
+use retrocomp_model::{Axis, ComponentId, MachineModel, Motion};
 
 const LEAD_MM: f64 = 5.0;
 

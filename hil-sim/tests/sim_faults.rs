@@ -172,7 +172,7 @@ fn manifest_names_effects_with_design_ids_and_params() {
 
 #[test]
 fn recordings_read_back_with_the_projects_reader_and_fault_rows_are_reported() {
-    use retrocomp::recording::Recording;
+    use retrocomp_model::recording::Recording;
     // Faults on: exactly the faulted rows are bad (with their line and column), none silently lost.
     let mut w = World::new(cfg(FAULTS)).unwrap();
     let (bytes, rows) = run_to_end(&mut w, Vec::new(), |_| {}).unwrap();

@@ -5,7 +5,7 @@
 
 use hil_sim::SimConfig;
 use hil_sim::io::serve::start;
-use retrocomp::bus::can::Hub;
+use retrocomp_bus::can::Hub;
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Command, Stdio};

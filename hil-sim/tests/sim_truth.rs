@@ -209,7 +209,7 @@ model_path = "{}"
 "#,
         model_path.display()
     );
-    let model = retrocomp::models::MachineModel::from_toml_path(&model_path).unwrap();
+    let model = retrocomp_model::MachineModel::from_toml_path(&model_path).unwrap();
     let (mut state, mut input, mut out) =
         (model.new_state(), model.new_input(), model.new_breakdown());
     let mut w = World::new(cfg(&toml)).unwrap();

@@ -1,4 +1,4 @@
-//! Issue 6 item 3 on simulator output: the circular-test diagnosis (`retrocomp::analysis::circular`)
+//! Issue 6 item 3 on simulator output: the circular-test diagnosis (`retrocomp_analysis::circular`)
 //! recovers the hidden errors injected into hil-sim, each within 10 %, from CW and CCW circles
 //! recorded like a ballbar would see them, and the terms that were not injected come out near zero.
 //!
@@ -23,7 +23,7 @@ use std::f64::consts::{PI, TAU};
 
 use hil_sim::World;
 use hil_sim::recording::run_to_end;
-use retrocomp::analysis::circular::{CircleReport, CircleSetup, CircleTrace, Rotation, analyse};
+use retrocomp_analysis::circular::{CircleReport, CircleSetup, CircleTrace, Rotation, analyse};
 use sim_common::{cfg, col, read_csv};
 
 const R_MM: f64 = 50.0;
@@ -159,7 +159,7 @@ fn run(backlash: bool, geometry: bool, cyclic: bool) -> CircleReport {
         cyclic_period_y_mm: Some(CYCLIC_PERIOD_MM),
     };
     let rep = analyse(&traces(&config(backlash, geometry, cyclic)), &setup).unwrap();
-    eprintln!("{}", retrocomp::analysis::circular::to_text(&rep));
+    eprintln!("{}", retrocomp_analysis::circular::to_text(&rep));
     rep
 }
 

@@ -1,4 +1,4 @@
-//! Issue 6 item 6 on simulator output: `retrocomp::analysis::fit` on hil-sim recordings with known
+//! Issue 6 item 6 on simulator output: `retrocomp_analysis::fit` on hil-sim recordings with known
 //! truth, validated on data held out from the fit.
 //!
 //! - Thermal: a warm-up / cool-down cycle (spindle at two speeds, X shuttling at other times, ambient
@@ -17,11 +17,11 @@ use std::fmt::Write;
 
 use hil_sim::World;
 use hil_sim::recording::run_to_end;
-use retrocomp::analysis::fit::regression::Criterion;
-use retrocomp::analysis::fit::workflow::{fit_axis, fit_context};
-use retrocomp::analysis::iso230_2::Reading;
-use retrocomp::analysis::table::Direction;
-use retrocomp::recording::Recording;
+use retrocomp_analysis::fit::regression::Criterion;
+use retrocomp_analysis::fit::workflow::{fit_axis, fit_context};
+use retrocomp_analysis::iso230_2::Reading;
+use retrocomp_analysis::table::Direction;
+use retrocomp_model::recording::Recording;
 use sim_common::{cfg, col, read_csv};
 
 /// Appends `n` X round trips 0 → 200 → 0 mm at 3000 mm/min (8 s each).
@@ -134,7 +134,7 @@ fn thermal_run(sensor_tau_s: f64) -> ThermalRun {
     ThermalRun { rec, truth }
 }
 
-fn chosen(fit: &retrocomp::analysis::fit::workflow::ContextFit) -> Vec<String> {
+fn chosen(fit: &retrocomp_analysis::fit::workflow::ContextFit) -> Vec<String> {
     let mut c: Vec<String> = fit.model.terms.iter().map(|t| t.signal.clone()).collect();
     c.sort();
     c

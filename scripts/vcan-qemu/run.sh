@@ -7,7 +7,7 @@ here=$(cd "$(dirname "$0")" && pwd)
 repo=$(cd "$here/../.." && pwd)
 target="${CARGO_TARGET_DIR:-$repo/target}"
 # The test profile (opt-level 1) as `cargo test` uses: at opt-level 0 the guest runs ~5x slower under TCG.
-(cd "$repo" && cargo build --profile test --bin vcan_guest)
+(cd "$repo" && cargo build --profile test -p vcan-guest --bin vcan_guest)
 tree=$(sh "$here/fetch-kernel.sh" | tail -n 1)
 initrd=$(sh "$here/build-initramfs.sh" "$tree" "$target/debug/vcan_guest" "$target/vcan-qemu/initramfs.cpio.gz")
 qemu=$(sh "$here/fetch-qemu.sh" | tail -n 1)

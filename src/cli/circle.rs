@@ -6,11 +6,11 @@
 
 use std::path::PathBuf;
 
-use retrocomp::analysis::chart::PALETTE;
-use retrocomp::analysis::circular::{self, CircleReport, CircleSetup, CircleTrace, parse_traces};
-use retrocomp::analysis::html::{Block, Section};
-use retrocomp::analysis::polar;
-use retrocomp::analysis::report::{Series, xy_svg_notes};
+use retrocomp_analysis::chart::PALETTE;
+use retrocomp_analysis::circular::{self, CircleReport, CircleSetup, CircleTrace, parse_traces};
+use retrocomp_analysis::html::{Block, Section};
+use retrocomp_analysis::polar;
+use retrocomp_analysis::report::{Series, xy_svg_notes};
 
 use super::report_args::ReportArgs;
 use super::util::{read, write};

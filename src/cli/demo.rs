@@ -46,14 +46,14 @@ pub(crate) struct Args {
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     // Quiet by default: the table and the JSON line are the output (RUST_LOG overrides). The CAN
     // source reports "bus closed" when hil-sim ends its program and leaves the hub: expected here.
-    super::term::init_tracing("error,retrocomp::gateway::sources=off");
+    super::term::init_tracing("error,retrocomp_gateway::sources=off");
     anyhow::ensure!(
         args.seconds.is_finite() && (0.0..=60.0).contains(&args.seconds),
         "--seconds {}: the warm-up must be between 0 and 60 s (the demo runs in real time)",
         args.seconds
     );
     if let Some(b) = &args.mqtt {
-        retrocomp::telemetry::config::demo_section(b, "check")
+        retrocomp_gateway::telemetry::config::demo_section(b, "check")
             .mqtt
             .as_ref()
             .map_or(Ok(()), |m| m.check())
@@ -189,8 +189,9 @@ fn print_gateway_health(runs: &[retrocomp::demo::RunResult]) {
 /// runs come out worse (the fitted run measured 4.10 µm instead of 2.57). Say so here, once, with
 /// what to do; probed on a throwaway thread so this one keeps its policy.
 fn warn_if_fifo_refused(priority: u8) {
-    let probe = std::thread::spawn(move || retrocomp::realtime::set_current_thread_fifo(priority));
-    if let Ok(retrocomp::realtime::RtOutcome::Refused { why, .. }) = probe.join() {
+    let probe =
+        std::thread::spawn(move || retrocomp_bus::realtime::set_current_thread_fifo(priority));
+    if let Ok(retrocomp_bus::realtime::RtOutcome::Refused { why, .. }) = probe.join() {
         eprintln!(
             "retrocomp demo: SCHED_FIFO {priority} refused ({why}): the simulated machine, the hub \
              and the gateway run under the normal scheduler, so on a busy host the compensated runs \

@@ -2,8 +2,8 @@
 //! measurement runs found, the tool-tip error table of the four runs (µm, actual − nominal, over
 //! the whole program), how the gateway kept up, the four figures and what was assumed.
 
-use retrocomp::analysis::html::{Block, Section};
 use retrocomp::demo::{DemoResult, Mode};
+use retrocomp_analysis::html::{Block, Section};
 
 fn error_table(r: &DemoResult) -> Block {
     let rows = r

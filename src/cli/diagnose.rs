@@ -1,12 +1,12 @@
-//! `retrocomp diagnose` and `retrocomp diagnose-bench`: thin shells over [`retrocomp::diagnose`].
+//! `retrocomp diagnose` and `retrocomp diagnose-bench`: thin shells over [`retrocomp_analysis::diagnose`].
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context as _, bail};
 
-use retrocomp::diagnose::scoring::{self, CaseScore};
-use retrocomp::diagnose::{self, output, select::Options};
-use retrocomp::recording::{BadRow, Recording};
+use retrocomp_analysis::diagnose::scoring::{self, CaseScore};
+use retrocomp_analysis::diagnose::{self, output, select::Options};
+use retrocomp_model::recording::{BadRow, Recording};
 
 #[derive(clap::Args, Debug)]
 pub(crate) struct DiagnoseArgs {
@@ -44,9 +44,11 @@ pub(crate) fn read_recording(
     if !lenient {
         return match Recording::read_path(path) {
             Ok(rec) => Ok((rec, vec![])),
-            Err(e @ retrocomp::recording::RecordingError::BadRows { .. }) => Err(anyhow::anyhow!(
-                "{e}to skip these rows and use the rest, run again with --skip-bad-rows (each skipped row is listed)"
-            )),
+            Err(e @ retrocomp_model::recording::RecordingError::BadRows { .. }) => {
+                Err(anyhow::anyhow!(
+                    "{e}to skip these rows and use the rest, run again with --skip-bad-rows (each skipped row is listed)"
+                ))
+            }
             Err(e) => Err(e.into()),
         };
     }
@@ -72,8 +74,7 @@ pub(crate) fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
     progress.stage("diagnose: finding what simulation and recording disagree on");
     let base = match &a.model {
         Some(m) => Some(
-            retrocomp::models::MachineModel::from_toml_path(m)
-                .map_err(|e| anyhow::anyhow!("{e}"))?,
+            retrocomp_model::MachineModel::from_toml_path(m).map_err(|e| anyhow::anyhow!("{e}"))?,
         ),
         None => None,
     };

@@ -1,10 +1,10 @@
 //! `retrocomp diagnose --html OUT`: the diagnosis as one self-contained report. Consumes
-//! [`retrocomp::diagnose::Diagnosis`] only (its report and per-signal residuals); the figures are
-//! those of `diagnose --out` ([`retrocomp::diagnose::plots`]): residual before the findings and
+//! [`retrocomp_analysis::diagnose::Diagnosis`] only (its report and per-signal residuals); the figures are
+//! those of `diagnose --out` ([`retrocomp_analysis::diagnose::plots`]): residual before the findings and
 //! after all of them, against time and against the signal's own axis position.
 
-use retrocomp::analysis::html::{Block, Section};
-use retrocomp::diagnose::{Diagnosis, plots};
+use retrocomp_analysis::diagnose::{Diagnosis, plots};
+use retrocomp_analysis::html::{Block, Section};
 
 fn figures(d: &Diagnosis) -> anyhow::Result<Vec<Block>> {
     let ctx = &d.context;

@@ -4,8 +4,8 @@
 
 use std::path::PathBuf;
 
-use retrocomp::analysis::export::{fanuc, isg, linuxcnc};
-use retrocomp::analysis::report::{Series, xy_svg};
+use retrocomp_analysis::export::{fanuc, isg, linuxcnc};
+use retrocomp_analysis::report::{Series, xy_svg};
 
 use super::util::{emit, read_table, write};
 

@@ -9,17 +9,17 @@ use anyhow::Context;
 use super::fit_report;
 use super::report_args::ReportArgs;
 use super::util::write;
-use retrocomp::analysis::fit::regression::Criterion;
-use retrocomp::analysis::fit::to_model::{
+use retrocomp_analysis::diagnose::model_sim::{final_lag_state, simulate_axes};
+use retrocomp_analysis::fit::regression::Criterion;
+use retrocomp_analysis::fit::to_model::{
     AxisForm, add_load, add_thermal, axis_component, put_component, single_axis_spec,
     to_checked_toml,
 };
-use retrocomp::analysis::fit::workflow::{
+use retrocomp_analysis::fit::workflow::{
     AxisFit, ContextFit, ContextOptions, Driver, fit_axis, fit_context_with,
 };
-use retrocomp::diagnose::model_sim::{final_lag_state, simulate_axes};
-use retrocomp::models::names::parse_component;
-use retrocomp::models::{ComponentId, MachineModel, ModelSpec};
+use retrocomp_model::names::parse_component;
+use retrocomp_model::{ComponentId, MachineModel, ModelSpec};
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {

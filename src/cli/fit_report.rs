@@ -6,14 +6,14 @@
 use std::path::Path;
 
 use anyhow::Context;
-use retrocomp::analysis::chart::{self, PALETTE};
-use retrocomp::analysis::fit::workflow::{AxisFit, ContextFit, source_values};
-use retrocomp::analysis::html::{Block, Section};
-use retrocomp::analysis::iso230_2::Reading;
-use retrocomp::analysis::report::{Series, xy_svg_notes};
-use retrocomp::analysis::table::Direction;
-use retrocomp::models::ComponentId;
-use retrocomp::recording::Recording;
+use retrocomp_analysis::chart::{self, PALETTE};
+use retrocomp_analysis::fit::workflow::{AxisFit, ContextFit, source_values};
+use retrocomp_analysis::html::{Block, Section};
+use retrocomp_analysis::iso230_2::Reading;
+use retrocomp_analysis::report::{Series, xy_svg_notes};
+use retrocomp_analysis::table::Direction;
+use retrocomp_model::ComponentId;
+use retrocomp_model::recording::Recording;
 
 /// Points per series of a time plot at most.
 const MAX_POINTS: usize = 3000;

@@ -14,12 +14,12 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context as _;
-use retrocomp::error::Chain;
+use retrocomp_model::error::Chain;
 
-use retrocomp::telemetry::drift::{self, DriftState, MachineDrift};
-use retrocomp::telemetry::fleet::FleetView;
-use retrocomp::telemetry::fleet_client::FleetClient;
-use retrocomp::telemetry::publisher::now_ms;
+use retrocomp_fleet::drift::{self, DriftState, MachineDrift};
+use retrocomp_fleet::fleet::FleetView;
+use retrocomp_fleet::fleet_client::FleetClient;
+use retrocomp_gateway::telemetry::publisher::now_ms;
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {

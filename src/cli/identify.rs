@@ -10,14 +10,14 @@ use anyhow::Context;
 
 use super::report_args::ReportArgs;
 use super::util::{read, write};
-use retrocomp::analysis::html::{Block, Section};
-use retrocomp::analysis::identify::contracts::{BallBar, HolePlate, read_ballbar, read_hole_plate};
-use retrocomp::analysis::identify::design::Geometry;
-use retrocomp::analysis::identify::report::{DirVerify, components, to_spec, verify};
-use retrocomp::analysis::identify::vouch::vouch;
-use retrocomp::analysis::identify::{Identification, Options, identify};
-use retrocomp::analysis::report::{Series, xy_svg_notes};
-use retrocomp::models::MachineModel;
+use retrocomp_analysis::html::{Block, Section};
+use retrocomp_analysis::identify::contracts::{BallBar, HolePlate, read_ballbar, read_hole_plate};
+use retrocomp_analysis::identify::design::Geometry;
+use retrocomp_analysis::identify::report::{DirVerify, components, to_spec, verify};
+use retrocomp_analysis::identify::vouch::vouch;
+use retrocomp_analysis::identify::{Identification, Options, identify};
+use retrocomp_analysis::report::{Series, xy_svg_notes};
+use retrocomp_model::MachineModel;
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {

@@ -7,10 +7,10 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use retrocomp::analysis::export::{fanuc, isg, linuxcnc};
-use retrocomp::analysis::iso230_2::{self, runs_per_direction};
-use retrocomp::analysis::report::{Series, xy_svg};
-use retrocomp::analysis::table::BidirectionalTable;
+use retrocomp_analysis::export::{fanuc, isg, linuxcnc};
+use retrocomp_analysis::iso230_2::{self, runs_per_direction};
+use retrocomp_analysis::report::{Series, xy_svg};
+use retrocomp_analysis::table::BidirectionalTable;
 
 use super::util::{emit, read, table_csv, write};
 

@@ -2,9 +2,9 @@
 
 use std::path::PathBuf;
 
-use retrocomp::analysis::iso230_2::{self, Reading};
-use retrocomp::analysis::iso230_2_figure;
-use retrocomp::analysis::laser_import::{parse_readings, remove_linear_drift};
+use retrocomp_analysis::iso230_2::{self, Reading};
+use retrocomp_analysis::iso230_2_figure;
+use retrocomp_analysis::laser_import::{parse_readings, remove_linear_drift};
 
 use super::report_args::ReportArgs;
 use super::util::{read, write};

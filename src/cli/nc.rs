@@ -25,15 +25,15 @@ use std::io::{BufReader, BufWriter, Write};
 use std::path::PathBuf;
 
 use anyhow::Context;
-use retrocomp::analysis::nc::ErrorFunction;
-use retrocomp::analysis::nc::model_errors::ModelErrors;
-use retrocomp::analysis::nc::rewrite::{
+use retrocomp_analysis::nc::ErrorFunction;
+use retrocomp_analysis::nc::model_errors::ModelErrors;
+use retrocomp_analysis::nc::rewrite::{
     POINTS_HEADER, Point, RewriteConfig, RewriteSink, RewriteStats, rewrite_stream,
 };
-use retrocomp::analysis::plane_model::load_plane_model;
-use retrocomp::analysis::report::{Series, xy_svg};
-use retrocomp::analysis::table::Direction;
-use retrocomp::models::MachineModel;
+use retrocomp_analysis::plane_model::load_plane_model;
+use retrocomp_analysis::report::{Series, xy_svg};
+use retrocomp_analysis::table::Direction;
+use retrocomp_model::MachineModel;
 
 use super::util::write;
 

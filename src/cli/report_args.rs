@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use retrocomp::analysis::html::{HtmlReport, Section, render, sha256_hex, utc_datetime};
+use retrocomp_analysis::html::{HtmlReport, Section, render, sha256_hex, utc_datetime};
 
 use super::util::write;
 

@@ -4,11 +4,11 @@
 
 use std::path::PathBuf;
 
-use retrocomp::gateway::engine::{AxisErrors, ErrorModel, MachineState};
-use retrocomp::gateway::field_check::check_field;
-use retrocomp::gateway::run::{require_sink, run as run_gateway};
-use retrocomp::gateway::sources::spawn_sources;
-use retrocomp::gateway::supervise::{exit_on_panic, spawn_watchdog};
+use retrocomp_gateway::engine::{AxisErrors, ErrorModel, MachineState};
+use retrocomp_gateway::field_check::check_field;
+use retrocomp_gateway::run::{require_sink, run as run_gateway};
+use retrocomp_gateway::sources::spawn_sources;
+use retrocomp_gateway::supervise::{exit_on_panic, spawn_watchdog};
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
@@ -80,11 +80,11 @@ struct HangAfter<M> {
 }
 
 impl<M: ErrorModel> ErrorModel for HangAfter<M> {
-    fn required_channels(&self) -> Vec<retrocomp::bus::ChannelId> {
+    fn required_channels(&self) -> Vec<retrocomp_bus::ChannelId> {
         self.inner.required_channels()
     }
 
-    fn identity(&self) -> Option<retrocomp::gateway::status::ModelIdentity> {
+    fn identity(&self) -> Option<retrocomp_gateway::prometheus::ModelIdentity> {
         self.inner.identity()
     }
 

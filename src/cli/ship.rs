@@ -9,9 +9,9 @@ use std::time::Duration;
 
 use anyhow::Context as _;
 
-use retrocomp::telemetry::MqttConfig;
-use retrocomp::telemetry::recordings::{chunk_csv, ship_to_dir};
-use retrocomp::telemetry::shipper::{Shipment, default_topic, ship};
+use retrocomp_gateway::telemetry::MqttConfig;
+use retrocomp_gateway::telemetry::recordings::{chunk_csv, ship_to_dir};
+use retrocomp_gateway::telemetry::shipper::{Shipment, default_topic, ship};
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
@@ -54,7 +54,7 @@ pub(crate) struct Args {
 fn mqtt_config(a: &Args) -> anyhow::Result<MqttConfig> {
     let mut m = match &a.config {
         Some(p) => {
-            let cfg = retrocomp::gateway::config::FieldConfig::load(p)
+            let cfg = retrocomp_gateway::config::FieldConfig::load(p)
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
             cfg.telemetry
                 .and_then(|t| t.mqtt)

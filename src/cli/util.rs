@@ -4,8 +4,8 @@
 use std::path::Path;
 
 use anyhow::Context;
-use retrocomp::analysis::laser_import::parse_table_columns;
-use retrocomp::analysis::table::BidirectionalTable;
+use retrocomp_analysis::laser_import::parse_table_columns;
+use retrocomp_analysis::table::BidirectionalTable;
 
 pub(crate) fn read(path: &Path) -> anyhow::Result<String> {
     std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))

@@ -22,8 +22,8 @@ use std::time::Duration;
 
 use super::error::{Context as _, DemoError};
 
-use crate::analysis::table::Direction;
-use crate::models::Axis;
+use retrocomp_analysis::table::Direction;
+use retrocomp_model::Axis;
 
 /// Where the axes sit while another axis is measured; every axis' targets include its coordinate,
 /// so the Y and Z tables can be zeroed there (see [`super::fitted`]).

@@ -3,7 +3,7 @@
 //! step, file or run that failed); the cause is its `source()`, so `retrocomp demo` prints
 //! `gateway (full): binding status endpoint 127.0.0.1:0: …` as before.
 
-use crate::error::BoxError;
+use retrocomp_model::error::BoxError;
 
 /// Why the demo (a measurement run, the fit, one of the four runs, the plots) failed.
 #[derive(Debug, thiserror::Error)]
@@ -23,16 +23,16 @@ pub enum DemoError {
     #[error(transparent)]
     Json(#[from] serde_json::Error),
     #[error(transparent)]
-    Recording(#[from] crate::recording::RecordingError),
+    Recording(#[from] retrocomp_model::recording::RecordingError),
     #[error(transparent)]
-    Config(#[from] crate::config_issue::ConfigError),
+    Config(#[from] retrocomp_model::config_issue::ConfigError),
     #[error(transparent)]
     Toml(#[from] toml::ser::Error),
     /// The fitted terms do not make a model.
     #[error(transparent)]
-    Fit(#[from] crate::analysis::fit::to_model::ToModelError),
+    Fit(#[from] retrocomp_analysis::fit::to_model::ToModelError),
     #[error(transparent)]
-    Gateway(#[from] crate::gateway::error::GatewayError),
+    Gateway(#[from] retrocomp_gateway::error::GatewayError),
 }
 
 /// Name what failed: `Result` errors become the source of a [`DemoError::Context`], an empty
@@ -68,7 +68,7 @@ impl<T> Context<T> for Option<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::error::Chain;
+    use retrocomp_model::error::Chain;
 
     #[test]
     fn context_keeps_the_cause_as_source() {

@@ -115,7 +115,7 @@ pub fn with_realtime_priority(field: &str, priority: Option<u8>) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gateway::config::FieldConfig;
+    use retrocomp_gateway::config::FieldConfig;
 
     #[test]
     fn field_config_parses_and_has_a_sink() {
@@ -123,7 +123,7 @@ mod tests {
         let text = field_toml("demo-full", a, a, Path::new("/dev/pts/9"));
         let cfg = FieldConfig::parse(&text, Path::new("demo.toml")).unwrap();
         assert_eq!(cfg.axes.len(), 3);
-        crate::gateway::run::require_sink(&cfg).unwrap();
+        retrocomp_gateway::run::require_sink(&cfg).unwrap();
         assert!(cfg.serial.is_some(), "the force source is configured");
         let rt = with_realtime_priority(&text, Some(20));
         let cfg = FieldConfig::parse(&rt, Path::new("demo.toml")).unwrap();

@@ -23,16 +23,16 @@ use super::error::{Context as _, DemoError};
 
 use super::campaign::{AxisPlan, REFERENCE_MM};
 use super::readings::{ERR, readings, readings_csv};
-use crate::analysis::fit::efficiency::{Efficiency, efficiency};
-use crate::analysis::fit::regression::{Candidate, Criterion, select};
-use crate::analysis::fit::to_model::{AxisForm, axis_component, put_component, to_checked_toml};
-use crate::analysis::fit::workflow::fit_axis;
-use crate::analysis::iso230_2::Reading;
-use crate::approach::{ApproachLatch, RECORDED_DEADBAND_MM};
-use crate::models::names::parse_component;
-use crate::models::spec::{ForceSpec, LoadKind, LoadSpec, SensorSpec, ThermalKind, ThermalSpec};
-use crate::models::{Axis, ComponentId, ErrorFunction, MachineModel, ModelSpec};
-use crate::recording::Recording;
+use retrocomp_analysis::fit::efficiency::{Efficiency, efficiency};
+use retrocomp_analysis::fit::regression::{Candidate, Criterion, select};
+use retrocomp_analysis::fit::to_model::{AxisForm, axis_component, put_component, to_checked_toml};
+use retrocomp_analysis::fit::workflow::fit_axis;
+use retrocomp_analysis::iso230_2::Reading;
+use retrocomp_model::approach::{ApproachLatch, RECORDED_DEADBAND_MM};
+use retrocomp_model::names::parse_component;
+use retrocomp_model::recording::Recording;
+use retrocomp_model::spec::{ForceSpec, LoadKind, LoadSpec, SensorSpec, ThermalKind, ThermalSpec};
+use retrocomp_model::{Axis, ComponentId, ErrorFunction, MachineModel, ModelSpec};
 
 /// Significance of a knot (Spaan: 99.99 %).
 const KNOT_ALPHA: f64 = 1e-4;
@@ -143,7 +143,7 @@ pub fn reference_temperatures(recs: &[&Recording]) -> Vec<(String, f64)> {
 }
 
 /// Direction latch per axis from the nominal motion (+1/−1; 0 until the axis first moves): the
-/// shared definition of [`crate::approach`].
+/// shared definition of [`retrocomp_model::approach`].
 fn latched_directions(pos: &[&[f64]]) -> Vec<[i8; 3]> {
     let n = pos[0].len();
     let mut latches: Vec<ApproachLatch> = pos
@@ -570,7 +570,7 @@ mod tests {
             .map(|&(t, v)| Reading {
                 target_mm: t,
                 run: 1,
-                direction: crate::analysis::table::Direction::Forward,
+                direction: retrocomp_analysis::table::Direction::Forward,
                 deviation_um: v,
             })
             .collect();

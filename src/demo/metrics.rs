@@ -164,7 +164,7 @@ pub struct DemoStats {
     pub gateway: GatewayRuns,
 }
 
-/// Did the gateway compensate the whole run? From its [`crate::gateway::run::RunSummary`].
+/// Did the gateway compensate the whole run? From its [`retrocomp_gateway::run::RunSummary`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct GatewayRun {
     /// Time compensation was enabled but not applied on some axis (stale inputs, model fault), s.
@@ -209,7 +209,7 @@ impl DemoStats {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::error::Chain;
+    use retrocomp_model::error::Chain;
 
     const CSV: &str =
         "t_s,x_mm,ex_um,ey_um,ez_um\n0.0,0,100,100,100\n1.0,0,3,-4,0\n2.0,0,0,0,-12\n";

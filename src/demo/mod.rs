@@ -26,14 +26,14 @@ use std::time::Instant;
 
 use error::Context as _;
 
-use crate::bus::can::hub::Hub;
-use crate::gateway::config::FieldConfig;
-use crate::gateway::model_adapter::MachineModelAdapter;
-use crate::gateway::sources::spawn_sources;
-use crate::models::MachineModel;
-use crate::recording::Recording;
 pub use error::DemoError;
 use metrics::{DemoStats, ErrorTrace, GatewayRun, GatewayRuns, RunStats};
+use retrocomp_bus::can::hub::Hub;
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::model_adapter::MachineModelAdapter;
+use retrocomp_gateway::sources::spawn_sources;
+use retrocomp_model::MachineModel;
+use retrocomp_model::recording::Recording;
 
 /// The geometric-only model (also hil-sim's hidden truth geometry).
 pub const GEOMETRIC_MODEL: &str = include_str!("../../deploy/demo/mill-geometric.toml");
@@ -330,12 +330,15 @@ async fn one_run(
         std::fs::write(&field_path, &text)?;
         let mut cfg = FieldConfig::parse(&text, &field_path)?;
         if let Some(broker) = &opts.mqtt {
-            cfg.telemetry = Some(crate::telemetry::config::demo_section(broker, mode.key()));
+            cfg.telemetry = Some(retrocomp_gateway::telemetry::config::demo_section(
+                broker,
+                mode.key(),
+            ));
         }
         let epoch = Instant::now();
         let rx = spawn_sources(&cfg, epoch).await?;
         let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-        let gw = tokio::spawn(crate::gateway::run::run(
+        let gw = tokio::spawn(retrocomp_gateway::run::run(
             cfg,
             Box::new(MachineModelAdapter::new(model)),
             rx,
@@ -415,7 +418,7 @@ fn field_text(
 }
 
 /// The gateway's availability and timing figures of one run, as the demo reports them.
-fn gateway_run(summary: &crate::gateway::run::RunSummary) -> GatewayRun {
+fn gateway_run(summary: &retrocomp_gateway::run::RunSummary) -> GatewayRun {
     GatewayRun {
         not_compensating_s: summary.not_compensating_s,
         not_compensating_episodes: summary.not_compensating_episodes,

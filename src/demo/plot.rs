@@ -1,4 +1,4 @@
-//! SVG plots of the demo, drawn by the project's chart module ([`crate::analysis::chart`]): per
+//! SVG plots of the demo, drawn by the project's chart module ([`retrocomp_analysis::chart`]): per
 //! axis the tool-tip error over time of the four runs, and the volumetric error |e| over time.
 //! Each figure has two panels on one time scale: every run (the uncompensated error sets the
 //! scale), then the full and fitted runs alone on their own scale: the headline, which on the
@@ -12,7 +12,7 @@ use std::path::Path;
 
 use super::error::{Context as _, DemoError};
 use super::{Mode, RunResult};
-use crate::analysis::chart::{
+use retrocomp_analysis::chart::{
     self, Figure, FigureLayout, PALETTE, Panel, Series, XSpan, render_figure,
 };
 

@@ -1,6 +1,6 @@
 use super::*;
-use crate::analysis::chart_geometry::parse;
 use crate::demo::metrics::{ErrorTrace, Phase};
+use retrocomp_analysis::chart_geometry::parse;
 
 /// A run of `mode` over 40 s at 20 ms: the uncompensated error climbs to ≈ 55 µm, the geometric
 /// one to ≈ 48, the full and fitted ones stay within 0.3–2.6 µm (the shape of a real demo run).

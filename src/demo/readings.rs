@@ -10,9 +10,9 @@ use std::fmt::Write as _;
 use super::error::{Context as _, DemoError};
 
 use super::campaign::{AxisPlan, READ_WINDOW_S, REFERENCE_MM};
-use crate::analysis::iso230_2::Reading;
-use crate::analysis::table::Direction;
-use crate::recording::Recording;
+use retrocomp_analysis::iso230_2::Reading;
+use retrocomp_analysis::table::Direction;
+use retrocomp_model::recording::Recording;
 
 const POS: [&str; 3] = ["x_mm", "y_mm", "z_mm"];
 pub const ERR: [&str; 3] = ["ex_um", "ey_um", "ez_um"];
@@ -108,8 +108,8 @@ pub fn readings_csv(readings: &[Reading], comment: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::error::Chain;
-    use crate::models::Axis;
+    use retrocomp_model::Axis;
+    use retrocomp_model::error::Chain;
 
     fn plan() -> AxisPlan {
         AxisPlan {

@@ -10,7 +10,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use retrocomp::analysis::chart_geometry::{self, BoxPx, SvgGeometry};
+use retrocomp_analysis::chart_geometry::{self, BoxPx, SvgGeometry};
 
 fn rsvg_convert() -> PathBuf {
     let p = PathBuf::from(

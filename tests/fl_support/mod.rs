@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use retrocomp::diagnose::lsq;
+use retrocomp_analysis::diagnose::lsq;
 
 pub(crate) const DATA: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
@@ -224,7 +224,7 @@ pub(crate) fn refit_shapes(d: &Data, ch: &str, rows: &[usize], shapes: &[Shape])
     for s in shapes {
         let (u, _) = input(s);
         cols.push(match s.tau_s {
-            Some(tau) => retrocomp::models::lag::series(&t, &u, tau, u[0]),
+            Some(tau) => retrocomp_model::lag::series(&t, &u, tau, u[0]),
             None => u,
         });
     }

@@ -17,24 +17,24 @@ use std::path::Path;
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
-use retrocomp::analysis::circular::parse_traces;
-use retrocomp::analysis::circular::{CircleSetup, analyse};
-use retrocomp::analysis::export::fanuc::{read_tape, write_tape};
-use retrocomp::analysis::export::isg::{read_isg, write_isg};
-use retrocomp::analysis::export::linuxcnc::{CompFileType, read_comp, write_comp};
-use retrocomp::analysis::iso230_2::evaluate;
-use retrocomp::analysis::laser_import::{parse_readings, parse_table_columns, remove_linear_drift};
-use retrocomp::analysis::nc::ErrorFunction;
-use retrocomp::analysis::nc::parser::parse_program;
-use retrocomp::analysis::nc::rewrite::{RewriteConfig, rewrite};
-use retrocomp::analysis::plane_model::ZxPlaneModel;
-use retrocomp::analysis::plane_model::parse_plane_model;
-use retrocomp::analysis::table::Direction;
-use retrocomp::gateway::StatusSnapshot;
-use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::http::serve_status;
-use retrocomp::models::MachineModel;
-use retrocomp::recording::Recording;
+use retrocomp_analysis::circular::parse_traces;
+use retrocomp_analysis::circular::{CircleSetup, analyse};
+use retrocomp_analysis::export::fanuc::{read_tape, write_tape};
+use retrocomp_analysis::export::isg::{read_isg, write_isg};
+use retrocomp_analysis::export::linuxcnc::{CompFileType, read_comp, write_comp};
+use retrocomp_analysis::iso230_2::evaluate;
+use retrocomp_analysis::laser_import::{parse_readings, parse_table_columns, remove_linear_drift};
+use retrocomp_analysis::nc::ErrorFunction;
+use retrocomp_analysis::nc::parser::parse_program;
+use retrocomp_analysis::nc::rewrite::{RewriteConfig, rewrite};
+use retrocomp_analysis::plane_model::ZxPlaneModel;
+use retrocomp_analysis::plane_model::parse_plane_model;
+use retrocomp_analysis::table::Direction;
+use retrocomp_gateway::StatusSnapshot;
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::http::serve_status;
+use retrocomp_model::MachineModel;
+use retrocomp_model::recording::Recording;
 
 /// A target's check: panics on a fault, returns on anything else.
 pub(crate) type Check = fn(&[u8]);
@@ -61,7 +61,7 @@ pub(crate) const TARGETS: [(&str, Check); 15] = [
 /// The bus layer's field TOML loader.
 pub(crate) fn field_toml(data: &[u8]) {
     if let Ok(text) = std::str::from_utf8(data) {
-        let _ = retrocomp::bus::config::parse(text, "fuzz.toml");
+        let _ = retrocomp_bus::config::parse(text, "fuzz.toml");
     }
 }
 

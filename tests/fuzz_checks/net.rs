@@ -6,17 +6,17 @@
 use std::sync::OnceLock;
 
 use prost::Message as _;
-use retrocomp::bus::modbus::RegisterBank;
-use retrocomp::bus::modbus::RegisterTable;
-use retrocomp::bus::modbus::read::read_registers;
-use retrocomp::bus::modbus::regmap::decode_raw;
-use retrocomp::bus::modbus::server::RegisterService;
-use retrocomp::bus::modbus::{DataType, WordOrder};
-use retrocomp::guard::AxisLimits;
-use retrocomp::origin_shift::server_core::{ServerCore, ServerMap};
-use retrocomp::telemetry::fleet::FleetView;
-use retrocomp::telemetry::recordings::{Collector, Took};
-use retrocomp::telemetry::sparkplug::{self, EdgeNode, Payload};
+use retrocomp_bus::modbus::RegisterBank;
+use retrocomp_bus::modbus::RegisterTable;
+use retrocomp_bus::modbus::read::read_registers;
+use retrocomp_bus::modbus::regmap::decode_raw;
+use retrocomp_bus::modbus::server::RegisterService;
+use retrocomp_bus::modbus::{DataType, WordOrder};
+use retrocomp_fleet::fleet::FleetView;
+use retrocomp_gateway::guard::AxisLimits;
+use retrocomp_gateway::origin_shift::server_core::{ServerCore, ServerMap};
+use retrocomp_gateway::telemetry::recordings::{Collector, Took};
+use retrocomp_gateway::telemetry::sparkplug::{self, EdgeNode, Payload};
 use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
 use tokio_modbus::bytes::Bytes;
 use tokio_modbus::prelude::{Request, Response, SlaveRequest};
@@ -294,7 +294,7 @@ pub(crate) fn recording_chunks(data: &[u8]) {
     let mut col = Collector::new(dir.path().to_path_buf());
     let mut headers = std::collections::HashMap::new();
     for payload in data.split(|&b| b == 0xFF) {
-        let chunk = retrocomp::telemetry::recordings::Chunk::decode(payload);
+        let chunk = retrocomp_gateway::telemetry::recordings::Chunk::decode(payload);
         let took = col
             .ingest(payload)
             .unwrap_or_else(|e| panic!("I/O error on {:?}: {e}", String::from_utf8_lossy(payload)));

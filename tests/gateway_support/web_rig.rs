@@ -20,7 +20,7 @@ pub(crate) struct Rig {
     pub log: PathBuf,
     pub addr: String,
     pub rt: tokio::runtime::Runtime,
-    _hub: retrocomp::bus::can::hub::Hub,
+    _hub: retrocomp_bus::can::hub::Hub,
     pub t0: Instant,
 }
 
@@ -128,7 +128,7 @@ impl Rig {
         auth: Option<&str>,
         body: &str,
     ) -> (u16, String) {
-        use retrocomp::gateway::http::request;
+        use retrocomp_gateway::http::request;
         let bearer = auth.map(|t| format!("Bearer {t}"));
         let mut h = vec![("content-type", "application/json")];
         if let Some(b) = &bearer {

@@ -5,9 +5,9 @@
 
 use std::collections::BTreeMap;
 
-use retrocomp::approach::Approach;
-use retrocomp::gateway::Mode;
-use retrocomp::gateway::status::{AxisStatus, StatusSnapshot};
+use retrocomp_gateway::Mode;
+use retrocomp_gateway::prometheus::{AxisStatus, StatusSnapshot};
+use retrocomp_model::approach::Approach;
 
 pub(crate) fn snapshot(k: u64) -> StatusSnapshot {
     StatusSnapshot {

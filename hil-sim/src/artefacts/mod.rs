@@ -17,8 +17,8 @@
 
 use std::path::Path;
 
-use retrocomp::analysis::identify::contracts::{BallBar, HolePlate, HoleProbe, Plane, REFERENCE_C};
-use retrocomp::models::{MachineModel, ModelInput, ModelState};
+use retrocomp_analysis::identify::contracts::{BallBar, HolePlate, HoleProbe, Plane, REFERENCE_C};
+use retrocomp_model::{MachineModel, ModelInput, ModelState};
 
 use crate::rng::Noise;
 
@@ -241,7 +241,7 @@ pub struct Probe<'a> {
     model: &'a MachineModel,
     state: ModelState,
     input: ModelInput,
-    out: retrocomp::models::ErrorBreakdown,
+    out: retrocomp_model::ErrorBreakdown,
 }
 
 impl<'a> Probe<'a> {
@@ -418,7 +418,7 @@ pub fn write_all(meas: &Measured, out: &Path) -> anyhow::Result<usize> {
 /// than twice the spacing is not followed, and what of it the samples caught is aliased into
 /// longer waves, as it is in the fit. Squareness and thermal terms unchanged.
 pub fn resampled(truth: &MachineModel, positions_mm: &[Vec<f64>; 3]) -> MachineModel {
-    use retrocomp::models::{ErrorFunction, Interpolation, Table};
+    use retrocomp_model::{ErrorFunction, Interpolation, Table};
     let nodes: Vec<Vec<f64>> = positions_mm
         .iter()
         .map(|p| {

@@ -3,8 +3,8 @@
 //! metrology). The bar reads its length from a centre ball on the table to the ball at the tool tip;
 //! dr = bar length − nominal, µm; positions mm.
 
-use retrocomp::analysis::identify::contracts::{BallBar, BallPoint, REFERENCE_C};
-use retrocomp::models::MachineModel;
+use retrocomp_analysis::identify::contracts::{BallBar, BallPoint, REFERENCE_C};
+use retrocomp_model::MachineModel;
 
 use super::{Metrology, Probe, scale_reading, travel};
 use crate::rng::Noise;

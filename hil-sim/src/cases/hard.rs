@@ -19,10 +19,10 @@ use std::collections::BTreeMap;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use retrocomp::diagnose::effects::{EFFECT_IDS, EffectModel};
-use retrocomp::diagnose::features::Context;
-use retrocomp::diagnose::scoring::{CaseManifest, TruthEffect};
-use retrocomp::recording::Recording;
+use retrocomp_analysis::diagnose::effects::{EFFECT_IDS, EffectModel};
+use retrocomp_analysis::diagnose::features::Context;
+use retrocomp_analysis::diagnose::scoring::{CaseManifest, TruthEffect};
+use retrocomp_model::recording::Recording;
 
 use super::physics::*;
 use super::trajectory::uniform;

@@ -1,6 +1,6 @@
 //! `hil-sim gen-cases`: the concealed-effect benchmark. Each case is a recording (docs/recording-csv.md) whose
 //! `sim_e*_um` columns come from a model that omits zero, one or two hidden effects, plus a JSON
-//! manifest of the truth ([`retrocomp::diagnose::scoring::CaseManifest`], params in docs/diagnose-json.md units).
+//! manifest of the truth ([`retrocomp_analysis::diagnose::scoring::CaseManifest`], params in docs/diagnose-json.md units).
 //!
 //! Deterministic: case `i` of seed `s` depends only on (s, i) through a ChaCha8 stream. The schedule
 //! cycles so every effect id appears in every variant: case i with i mod 10 < 3 is a null (30 %);
@@ -24,10 +24,10 @@ use std::path::{Path, PathBuf};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use retrocomp::diagnose::effects::{EFFECT_IDS, EffectModel};
-use retrocomp::diagnose::features::Context;
-use retrocomp::diagnose::scoring::{CaseManifest, TruthEffect};
-use retrocomp::recording::Recording;
+use retrocomp_analysis::diagnose::effects::{EFFECT_IDS, EffectModel};
+use retrocomp_analysis::diagnose::features::Context;
+use retrocomp_analysis::diagnose::scoring::{CaseManifest, TruthEffect};
+use retrocomp_model::recording::Recording;
 
 use physics::*;
 use trajectory::{Path as MotionPath, uniform};

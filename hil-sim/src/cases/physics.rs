@@ -6,8 +6,8 @@
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
-use retrocomp::diagnose::features::lowpass;
-use retrocomp::models::lag;
+use retrocomp_analysis::diagnose::features::lowpass;
+use retrocomp_model::lag;
 
 fn gauss(rng: &mut ChaCha8Rng) -> f64 {
     // Box–Muller: deterministic for a seeded ChaCha8Rng.

@@ -279,7 +279,7 @@ fn value_code(v: f64) -> Option<u32> {
 /// with LinuxCNC's rule for `;`: a comment to the end of the line, except inside `( … )`.
 fn tokenize(raw: &str) -> Result<Vec<(char, f64)>, String> {
     let blocks =
-        retrocomp::analysis::nc::parser::parse_line("program", 0, raw, false).map_err(|e| {
+        retrocomp_analysis::nc::parser::parse_line("program", 0, raw, false).map_err(|e| {
             e.0.iter()
                 .map(|x| x.message.clone())
                 .collect::<Vec<_>>()

@@ -87,7 +87,7 @@ impl AxisServo {
                 return;
             }
         }
-        let a = retrocomp::models::lag::alpha(dt_s, p.velocity_tau_s);
+        let a = retrocomp_model::lag::alpha(dt_s, p.velocity_tau_s);
         self.vel_mm_s += (vcmd - self.vel_mm_s) * a;
         self.motor_mm += self.vel_mm_s * dt_s;
     }

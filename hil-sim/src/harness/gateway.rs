@@ -13,17 +13,17 @@
 
 use std::collections::BTreeMap;
 
-use retrocomp::bus::can::Frame;
-use retrocomp::bus::canopen::source::CanopenSource;
-use retrocomp::bus::serial::source::LineSource;
-use retrocomp::bus::{ChannelId, Sample};
-use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::engine::{Engine, ErrorModel};
-use retrocomp::gateway::health::{FaultKind, FaultLog};
-use retrocomp::gateway::safety::Mode;
-use retrocomp::models::Axis;
-use retrocomp::origin_shift::sink_task::update_faults;
-use retrocomp::origin_shift::{Action, Reply, SinkAxis, SinkCore};
+use retrocomp_bus::can::Frame;
+use retrocomp_bus::canopen::source::CanopenSource;
+use retrocomp_bus::serial::source::LineSource;
+use retrocomp_bus::{ChannelId, Sample};
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::engine::{Engine, ErrorModel};
+use retrocomp_gateway::health::{FaultKind, FaultLog};
+use retrocomp_gateway::origin_shift::sink_task::update_faults;
+use retrocomp_gateway::origin_shift::{Action, Reply, SinkAxis, SinkCore};
+use retrocomp_gateway::safety::Mode;
+use retrocomp_model::Axis;
 
 use super::quadrature::{MemoryHeld, QuadratureBox};
 
@@ -239,7 +239,7 @@ impl Gateway {
     pub fn channel_value(&self, channel: &str) -> Option<f64> {
         let snap = self.engine.snapshot();
         let st = snap.channels.iter().find(|(n, _)| *n == channel)?;
-        let usable = st.1.health == retrocomp::bus::Health::Ok || st.1.substituted;
+        let usable = st.1.health == retrocomp_bus::Health::Ok || st.1.substituted;
         st.1.value.filter(|_| usable)
     }
 

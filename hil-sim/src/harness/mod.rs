@@ -12,7 +12,7 @@
 //! 4. on a cycle tick (`gateway.cycle_ms`) the engine runs;
 //! 5. the sink's request in flight (issued one step earlier: one step of latency) is answered from
 //!    the PLC's registers, or fails while the Modbus link is down (the client drops the connection
-//!    and waits out its [`retrocomp::bus::Backoff`], [`link`]); on a write-period tick
+//!    and waits out its [`retrocomp_bus::Backoff`], [`link`]); on a write-period tick
 //!    (`write_period_ms`, skipped while a period still runs, as tokio's `MissedTickBehavior::Skip`)
 //!    a new period begins: at once when connected, else only once the backoff's next attempt is due
 //!    and the link is up.
@@ -32,11 +32,11 @@ pub mod quadrature;
 
 use std::collections::BTreeMap;
 
-use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::engine::ErrorModel;
-use retrocomp::models::Axis;
-use retrocomp::origin_shift::{Action, Reply};
-use retrocomp::quadrature::{DecodeError, QuadDecoder};
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::engine::ErrorModel;
+use retrocomp_gateway::origin_shift::{Action, Reply};
+use retrocomp_gateway::quadrature::{DecodeError, QuadDecoder};
+use retrocomp_model::Axis;
 
 use crate::SimConfig;
 use crate::io::publish::Publisher;

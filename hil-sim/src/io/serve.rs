@@ -24,9 +24,9 @@ use super::transport_faults::{Active, Garbage, Schedule, Transition, silenced};
 use crate::clock::{LagEdge, LagMeter, RealtimePacer};
 use crate::recording::Recorder;
 use crate::{SimConfig, World};
-use retrocomp::bus::can::backend::{AnyCanBus, open as open_can};
-use retrocomp::bus::can::{CanBus, MemBus};
-use retrocomp::bus::modbus::server::RegisterBank;
+use retrocomp_bus::can::backend::{AnyCanBus, open as open_can};
+use retrocomp_bus::can::{CanBus, MemBus};
+use retrocomp_bus::modbus::server::RegisterBank;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -158,7 +158,7 @@ fn log_plc_events(
 /// syscall per frame.
 async fn send_frames(
     bus: &mut AnyCanBus,
-    frames: &[retrocomp::bus::can::Frame],
+    frames: &[retrocomp_bus::can::Frame],
     active: &Active,
 ) -> anyhow::Result<()> {
     let due: Vec<_> = frames

@@ -16,7 +16,7 @@
 //! A window is `from_s ≤ t < to_s` (simulated seconds).
 
 use crate::rng::Noise;
-use retrocomp::bus::can::Frame;
+use retrocomp_bus::can::Frame;
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
@@ -446,7 +446,7 @@ mod tests {
 
     #[test]
     fn garbage_is_seeded_and_never_a_valid_plausible_reading() {
-        use retrocomp::bus::serial::framer::LineFramer;
+        use retrocomp_bus::serial::framer::LineFramer;
         let (mut a, mut b) = (Garbage::new(7, 0.03), Garbage::new(7, 0.03));
         let mut kinds = std::collections::BTreeMap::new();
         for _ in 0..2000 {
@@ -463,7 +463,7 @@ mod tests {
             // Whatever parses as a weighing reading is the absurd one (a range check catches it).
             let mut parsed = Vec::new();
             LineFramer::new(256).push(&ba, |line| {
-                if let Ok(r) = retrocomp::bus::serial::formats::parse_weighing(line, Some("N")) {
+                if let Ok(r) = retrocomp_bus::serial::formats::parse_weighing(line, Some("N")) {
                     parsed.push(r.value);
                 }
             });

@@ -9,10 +9,10 @@ use std::path::{Path, PathBuf};
 
 use hil_sim::SimConfig;
 use hil_sim::harness::{ClosedLoop, FaultEdge, ModelFactory, PlcWrite, StepTrace};
-use retrocomp::gateway::config::FieldConfig;
-use retrocomp::gateway::health::FaultKind;
-use retrocomp::gateway::model_adapter::MachineModelAdapter;
-use retrocomp::models::MachineModel;
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::health::FaultKind;
+use retrocomp_gateway::model_adapter::MachineModelAdapter;
+use retrocomp_model::MachineModel;
 
 pub(crate) const CLAMP_UM: f64 = 40.0;
 pub(crate) const CLAMP_Y_UM: f64 = 5.0;

@@ -19,7 +19,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 
-use retrocomp::models::{EvalFlags, LagStart, MachineModel, ModelState};
+use retrocomp_model::{EvalFlags, LagStart, MachineModel, ModelState};
 
 mod output;
 mod plain;
@@ -288,7 +288,7 @@ fn evaluate_batches(
             // Fixed 6 decimals (1 pm).
             for v in out.total_um.iter().chain(out.terms_um.iter().flatten()) {
                 chunk.push(b',');
-                retrocomp::decimal::push_fixed6(&mut chunk, *v);
+                retrocomp_model::decimal::push_fixed6(&mut chunk, *v);
             }
             chunk.push(b',');
             write_flags(&mut chunk, &out.flags)?;

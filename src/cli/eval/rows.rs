@@ -8,7 +8,7 @@ use std::sync::mpsc::{Receiver, SyncSender};
 
 use anyhow::Context;
 
-use retrocomp::models::ModelInput;
+use retrocomp_model::ModelInput;
 
 use super::plain;
 

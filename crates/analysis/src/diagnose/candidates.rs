@@ -1,0 +1,567 @@
+//! The candidate library: for one error signal (axis `a`), every effect id of docs/diagnose-json.md that the
+//! recording's channels allow, as regressor columns whose least-squares coefficients ARE the effect's
+//! linear parameters in contract units (µm per column unit). Nonlinear parameters (τ, period, decay
+//! length) are a scalar `theta` searched on `grid` (profile) and then refined.
+
+use std::f64::consts::TAU;
+
+use super::effects::EffectModel;
+use super::features::{AxisFeatures, Context, lowpass};
+use retrocomp_model::recording::AXES;
+
+/// Number of equal zones of a `reversal_profile` over the axis' travel.
+pub const REVERSAL_ZONES: usize = 4;
+
+/// Fewest rows with the axis moving for `servo_lag` to be a candidate (a handful of moving rows
+/// cannot separate a velocity term from the direction or position terms).
+pub const MIN_MOVING_ROWS: usize = 8;
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum Kind {
+    Scale,
+    Backlash,
+    ReversalProfile { edges_mm: Vec<f64> },
+    Cyclic,
+    Squareness { other: char },
+    Straightness { along: char, mid_mm: f64 },
+    Abbe,
+    ThermalDrift { sensor: String },
+    ThermalLag { sensor: String },
+    ThermalExpansion { sensor: String },
+    Force { channel: String },
+    ServoLag,
+    ReversalSpike,
+    TimeDrift,
+}
+
+#[derive(Clone, Debug)]
+pub struct Candidate {
+    /// Axis of the error signal this candidate explains.
+    pub axis: char,
+    pub kind: Kind,
+    /// Profile grid of the nonlinear parameter (empty: the candidate is linear).
+    pub grid: Vec<f64>,
+}
+
+impl Candidate {
+    pub fn effect_id(&self) -> &'static str {
+        self.to_model(&[0.0; REVERSAL_ZONES], 1.0).id()
+    }
+
+    /// A short human label, e.g. `thermal_lag(T_spindle_C)`.
+    pub fn label(&self) -> String {
+        let id = self.effect_id();
+        match &self.kind {
+            Kind::ThermalDrift { sensor }
+            | Kind::ThermalLag { sensor }
+            | Kind::ThermalExpansion { sensor } => {
+                format!("{id}({sensor})")
+            }
+            Kind::Force { channel } => format!("{id}({channel})"),
+            Kind::Squareness { other } => format!("{id}(vs {other})"),
+            Kind::Straightness { along, .. } => format!("{id}(along {along})"),
+            _ => id.to_string(),
+        }
+    }
+
+    /// Ambiguity is only reported between candidates of different families: a reversal family
+    /// (backlash ⊂ reversal_profile, reversal_spike) and a thermal-offset family (drift = lag with τ→0)
+    /// are nested forms of one physics, ranked by ΔBIC instead.
+    pub fn family(&self) -> &'static str {
+        match self.kind {
+            Kind::Backlash | Kind::ReversalProfile { .. } | Kind::ReversalSpike => "reversal",
+            Kind::ThermalDrift { .. } | Kind::ThermalLag { .. } => "thermal_offset",
+            _ => self.effect_id(),
+        }
+    }
+
+    /// Whether its columns follow a context column that changes over the recording (a
+    /// temperature, `rpm`, a force, time itself) rather than position and direction alone. Only
+    /// such a term can be judged by how it predicts later rows from earlier ones: a geometric
+    /// term is estimable from the early rows only if they visit its positions and directions
+    /// (a forward pass recorded before the reverse one does not).
+    pub fn follows_context(&self) -> bool {
+        matches!(
+            self.kind,
+            Kind::ThermalDrift { .. }
+                | Kind::ThermalLag { .. }
+                | Kind::ThermalExpansion { .. }
+                | Kind::Force { .. }
+                | Kind::TimeDrift
+        )
+    }
+
+    pub fn is_nonlinear(&self) -> bool {
+        !self.grid.is_empty()
+    }
+
+    /// Regressor columns at nonlinear parameter `theta` (ignored by linear candidates).
+    pub fn columns(&self, ctx: &Context, theta: f64) -> Vec<Vec<f64>> {
+        let own = || {
+            ctx.axis(self.axis)
+                .expect("library only lists candidates whose inputs exist")
+        };
+        let rise = |s: &str| {
+            let t = ctx.temp(s).expect("listed");
+            let t0 = t[0];
+            t.iter().map(move |v| v - t0)
+        };
+        match &self.kind {
+            Kind::Scale => vec![own().pos_mm.iter().map(|x| x * 1e-3).collect()],
+            Kind::Backlash => vec![own().dir.iter().map(|&d| f64::from(d) / 2.0).collect()],
+            Kind::ReversalProfile { edges_mm } => reversal_zone_columns(own(), edges_mm),
+            Kind::Cyclic => cyclic_columns(own(), theta),
+            Kind::Squareness { other } => {
+                vec![
+                    ctx.axis(*other)
+                        .expect("listed")
+                        .pos_mm
+                        .iter()
+                        .map(|y| y * 1e-3)
+                        .collect(),
+                ]
+            }
+            Kind::Straightness { along, mid_mm } => {
+                vec![
+                    ctx.axis(*along)
+                        .expect("listed")
+                        .pos_mm
+                        .iter()
+                        .map(|y| (y - mid_mm).powi(2))
+                        .collect(),
+                ]
+            }
+            Kind::Abbe => {
+                let tool = ctx.tool_mm.as_ref().expect("listed");
+                vec![
+                    own()
+                        .pos_mm
+                        .iter()
+                        .zip(tool.iter())
+                        .map(|(x, h)| x * h * 1e-3)
+                        .collect(),
+                ]
+            }
+            Kind::ThermalDrift { sensor } => vec![rise(sensor).collect()],
+            Kind::ThermalLag { sensor } => {
+                let t = ctx.temp(sensor).expect("listed");
+                let t0 = t[0];
+                vec![
+                    lowpass(&ctx.t_s, t, theta)
+                        .into_iter()
+                        .map(|v| v - t0)
+                        .collect(),
+                ]
+            }
+            Kind::ThermalExpansion { sensor } => {
+                vec![
+                    rise(sensor)
+                        .zip(own().pos_mm.iter())
+                        .map(|(d, x)| x * 1e-3 * d)
+                        .collect(),
+                ]
+            }
+            Kind::Force { channel } => vec![ctx.load(channel).expect("listed").to_vec()],
+            Kind::ServoLag => vec![own().vel_mm_s().iter().map(|v| -v).collect()],
+            Kind::ReversalSpike => {
+                let f = own();
+                vec![
+                    f.dir
+                        .iter()
+                        .zip(&f.dist_since_rev_mm())
+                        .map(|(&d, s)| f64::from(d) * (-s / theta).exp())
+                        .collect(),
+                ]
+            }
+            Kind::TimeDrift => vec![ctx.t_s.iter().map(|t| t / 3600.0).collect()],
+        }
+    }
+
+    /// [`Candidate::columns`] at every θ of `thetas`, in order, handed to `f`. For a cyclic
+    /// candidate on a grid uniform in frequency ([`period_grid`]) the sin/cos pair of the next
+    /// period is the previous one rotated by a fixed angle per distinct position (one complex
+    /// multiply instead of two transcendental calls: the period grid's sin/cos were most of the
+    /// time of a 1M-row diagnosis); other candidates and other grids call `columns`.
+    pub fn columns_sweep(
+        &self,
+        ctx: &Context,
+        thetas: &[f64],
+        mut f: impl FnMut(f64, Vec<Vec<f64>>),
+    ) {
+        let w: Vec<f64> = thetas.iter().map(|p| TAU / p).collect();
+        let dw = if w.len() >= 3 { w[1] - w[0] } else { 0.0 };
+        let uniform = self.kind == Kind::Cyclic
+            && dw != 0.0
+            && w.windows(2)
+                .all(|p| ((p[1] - p[0]) - dw).abs() <= 1e-9 * w[0].abs());
+        if !uniform {
+            thetas.iter().for_each(|&t| f(t, self.columns(ctx, t)));
+            return;
+        }
+        let fa = ctx
+            .axis(self.axis)
+            .expect("library only lists candidates whose inputs exist");
+        let exact = |wk: f64| -> (Vec<f64>, Vec<f64>) {
+            fa.distinct_mm.iter().map(|&x| (wk * x).sin_cos()).unzip()
+        };
+        let (rs, rc) = exact(dw);
+        let (mut sv, mut cv) = (vec![], vec![]);
+        for (j, &t) in thetas.iter().enumerate() {
+            if j % REANCHOR_EVERY == 0 {
+                (sv, cv) = exact(w[j]);
+            } else {
+                for k in 0..sv.len() {
+                    let (s0, c0) = (sv[k], cv[k]);
+                    sv[k] = s0 * rc[k] + c0 * rs[k];
+                    cv[k] = c0 * rc[k] - s0 * rs[k];
+                }
+            }
+            let gather = |v: &[f64]| fa.distinct_idx.iter().map(|&k| v[k as usize]).collect();
+            f(t, vec![gather(&sv), gather(&cv)]);
+        }
+    }
+
+    /// The effect model for fitted column coefficients `c` (µm per column unit) at `theta`.
+    pub fn to_model(&self, c: &[f64], theta: f64) -> EffectModel {
+        match &self.kind {
+            Kind::Scale => EffectModel::ScaleError { ppm: c[0] },
+            Kind::Backlash => EffectModel::Backlash { b_um: c[0] },
+            Kind::ReversalProfile { edges_mm } => EffectModel::ReversalProfile {
+                edges_mm: edges_mm.clone(),
+                b_um: c[..REVERSAL_ZONES].to_vec(),
+            },
+            Kind::Cyclic => EffectModel::CyclicError {
+                period_mm: theta,
+                amplitude_um: c[0].hypot(c[1]),
+                // a·sin + b·cos = A·sin(· + φ) with A·cos φ = a, A·sin φ = b.
+                phase_rad: c[1].atan2(c[0]),
+            },
+            Kind::Squareness { other } => EffectModel::Squareness {
+                other_axis: *other,
+                urad: c[0],
+            },
+            Kind::Straightness { along, mid_mm } => EffectModel::Straightness {
+                along_axis: *along,
+                mid_mm: *mid_mm,
+                c2_um_per_mm2: c[0],
+            },
+            Kind::Abbe => EffectModel::Abbe { urad_per_mm: c[0] },
+            Kind::ThermalDrift { sensor } => EffectModel::ThermalDrift {
+                sensor: sensor.clone(),
+                um_per_k: c[0],
+            },
+            Kind::ThermalLag { sensor } => EffectModel::ThermalLag {
+                sensor: sensor.clone(),
+                tau_s: theta,
+                um_per_k: c[0],
+            },
+            Kind::ThermalExpansion { sensor } => EffectModel::ThermalExpansion {
+                sensor: sensor.clone(),
+                ppm_per_k: c[0],
+            },
+            Kind::Force { channel } => EffectModel::ForceDeflection {
+                channel: channel.clone(),
+                um_per_n: c[0],
+            },
+            Kind::ServoLag => EffectModel::ServoLag { ms: c[0] },
+            Kind::ReversalSpike => EffectModel::ReversalSpike {
+                amplitude_um: c[0],
+                decay_mm: theta,
+            },
+            Kind::TimeDrift => EffectModel::TimeDrift { um_per_h: c[0] },
+        }
+    }
+}
+
+fn range(v: &[f64]) -> (f64, f64) {
+    v.iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+            (lo.min(x), hi.max(x))
+        })
+}
+
+fn varies(v: &[f64]) -> bool {
+    let (lo, hi) = range(v);
+    hi - lo > 1e-9
+}
+
+/// Log-spaced grid from `lo` to `hi` with ratio `r` between neighbours.
+pub fn log_grid(lo: f64, hi: f64, r: f64) -> Vec<f64> {
+    let mut g = vec![];
+    let mut v = lo;
+    while v <= hi * (1.0 + 1e-12) {
+        g.push(v);
+        v *= r;
+    }
+    g
+}
+
+/// Period grid for cyclic error: uniform in frequency, Δ(1/p) = 1/(3L) (neighbouring periods differ
+/// by p·p'/(3L) ≈ p²/(3L)), which keeps the phase drift over the travel L at a third of a cycle
+/// between neighbours, so the profile cannot step over a true period. Uniform frequency steps also
+/// let [`Candidate::columns_sweep`] rotate phasors instead of evaluating sin/cos at every period.
+fn period_grid(travel_mm: f64, min_period_mm: f64) -> Vec<f64> {
+    // Lead-screw pitches and scale periods that matter at the µm level are ≥ 2 mm.
+    let lo = min_period_mm.max(2.0).max(travel_mm / 200.0);
+    let hi = travel_mm / 1.5;
+    let step = 1.0 / (3.0 * travel_mm);
+    (0..)
+        .map(|k| 1.0 / (1.0 / lo - f64::from(k) * step))
+        .take_while(|p| *p > 0.0 && *p <= hi)
+        .collect()
+}
+
+/// Phasors are recomputed exactly every this many rotations (rounding drift stays ≤ 1e-14).
+const REANCHOR_EVERY: usize = 32;
+
+/// Every candidate for the error signal of axis `a` that the context supports.
+pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
+    let lin = |kind| Candidate {
+        axis: a,
+        kind,
+        grid: vec![],
+    };
+    let mut out = vec![];
+    let duration_s =
+        ctx.t_s.last().copied().unwrap_or(0.0) - ctx.t_s.first().copied().unwrap_or(0.0);
+    if let Some(f) = ctx.axis(a).filter(|f| varies(&f.pos_mm)) {
+        out.extend(own_axis_candidates(ctx, a, f));
+    }
+    for o in AXES.iter().copied().filter(|&o| o != a) {
+        if let Some(f) = ctx.axis(o).filter(|f| varies(&f.pos_mm)) {
+            let (lo, hi) = range(&f.pos_mm);
+            out.push(lin(Kind::Squareness { other: o }));
+            out.push(lin(Kind::Straightness {
+                along: o,
+                mid_mm: 0.5 * (lo + hi),
+            }));
+        }
+    }
+    for (s, t) in &ctx.temps {
+        if varies(t) {
+            out.push(lin(Kind::ThermalDrift { sensor: s.clone() }));
+            if duration_s > 60.0 {
+                let g = log_grid(30.0, (duration_s / 2.0).max(60.0), 1.3);
+                out.push(Candidate {
+                    axis: a,
+                    kind: Kind::ThermalLag { sensor: s.clone() },
+                    grid: g,
+                });
+            }
+        }
+    }
+    // Heat sources seen without a temperature sensor: a driver column (rpm, or any other numeric
+    // column, which may be a decoy) through a first-order lag; other columns also as they are.
+    // (rpm/1000)² (`krpm^2`, heat ∝ n²) only through a lag, like rpm.
+    if duration_s > 60.0 {
+        for (s, v) in ctx.drivers() {
+            if varies(v) {
+                if s != "rpm" && s != super::features::KRPM2 {
+                    out.push(lin(Kind::ThermalDrift { sensor: s.into() }));
+                }
+                out.push(Candidate {
+                    axis: a,
+                    kind: Kind::ThermalLag { sensor: s.into() },
+                    grid: log_grid(30.0, (duration_s / 2.0).max(60.0), 1.3),
+                });
+            }
+        }
+    }
+    for (c, v) in &ctx.loads {
+        if varies(v) {
+            out.push(lin(Kind::Force { channel: c.clone() }));
+        }
+    }
+    if duration_s > 0.0 {
+        out.push(lin(Kind::TimeDrift));
+    }
+    out
+}
+
+/// The candidates of the signal's own axis `a` (moving: `f` its features): scale, backlash,
+/// reversal profile, cyclic error, Abbe, servo lag, reversal spike, thermal expansion.
+fn own_axis_candidates(ctx: &Context, a: char, f: &AxisFeatures) -> Vec<Candidate> {
+    let lin = |kind| Candidate {
+        axis: a,
+        kind,
+        grid: vec![],
+    };
+    let mut out = vec![];
+    let (lo, hi) = range(&f.pos_mm);
+    let travel = hi - lo;
+    out.push(lin(Kind::Scale));
+    out.push(lin(Kind::Backlash));
+    let edges_mm = (0..=REVERSAL_ZONES)
+        .map(|k| lo + travel * k as f64 / REVERSAL_ZONES as f64)
+        .collect();
+    out.push(lin(Kind::ReversalProfile { edges_mm }));
+    let min_step = f
+        .pos_mm
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .filter(|d| *d > 1e-6)
+        .fold(f64::INFINITY, f64::min);
+    // With readings only at a few targets, a period shorter than twice their spacing aliases.
+    let distinct = f.distinct_mm.len();
+    let min_period = if distinct < 200 {
+        2.5 * travel / distinct as f64
+    } else {
+        // Densely sampled positions: a period must span ≥ 4 sample steps to be seen.
+        4.0 * min_step
+    };
+    out.push(Candidate {
+        axis: a,
+        kind: Kind::Cyclic,
+        grid: period_grid(travel, min_period),
+    });
+    if ctx.tool_mm.as_ref().is_some_and(|t| varies(t)) {
+        out.push(lin(Kind::Abbe));
+    }
+    // Servo lag is a candidate only where the axis moves: its column (velocity) is zero at every
+    // standstill row, so a step-and-dwell recording read at standstill offers none.
+    if f.vel_mm_s().iter().filter(|v| **v != 0.0).count() >= MIN_MOVING_ROWS {
+        out.push(lin(Kind::ServoLag));
+    }
+    out.push(Candidate {
+        axis: a,
+        kind: Kind::ReversalSpike,
+        grid: log_grid(travel / 500.0, travel / 5.0, 1.25),
+    });
+    for (s, t) in &ctx.temps {
+        if varies(t) {
+            out.push(lin(Kind::ThermalExpansion { sensor: s.clone() }));
+        }
+    }
+    out
+}
+
+/// The experiment that would separate two candidate families the data cannot tell apart.
+pub fn separating_experiment(a: &str, b: &str) -> String {
+    let has = |x: &str| a.contains(x) || b.contains(x);
+    if has("abbe") {
+        "repeat the run with a second tool length (different Abbe arm)".into()
+    } else if has("thermal")
+        && (has("scale_error") || has("time_drift") || has("thermal_expansion"))
+    {
+        "a cool-down run: stop the heat source and repeat the bidirectional travel while the temperature falls".into()
+    } else if has("scale_error") && has("thermal_expansion") {
+        "measure the axis at two clearly different temperatures (cold start and warm)".into()
+    } else if has("servo_lag") {
+        "a step-and-dwell run with readings at standstill, or the same run at a second feed rate"
+            .into()
+    } else if has("reversal") || has("backlash") {
+        "a bidirectional run with reversals spread over the whole travel".into()
+    } else if has("force") {
+        "an air-cut pass (same path without load) next to the loaded pass".into()
+    } else {
+        "a run that moves each axis over its full travel at a different time and temperature".into()
+    }
+}
+
+impl Candidate {
+    /// Contract name of the parameter each linear coefficient estimates (`b_um` for every zone of a
+    /// reversal profile; cyclic coefficients are the sin/cos parts of `amplitude_um`).
+    pub fn coef_key(&self) -> &'static str {
+        match self.kind {
+            Kind::Scale => "ppm",
+            Kind::Backlash | Kind::ReversalProfile { .. } => "b_um",
+            Kind::Cyclic | Kind::ReversalSpike => "amplitude_um",
+            Kind::Squareness { .. } => "urad",
+            Kind::Straightness { .. } => "c2_um_per_mm2",
+            Kind::Abbe => "urad_per_mm",
+            Kind::ThermalDrift { .. } | Kind::ThermalLag { .. } => "um_per_K",
+            Kind::ThermalExpansion { .. } => "ppm_per_K",
+            Kind::Force { .. } => "um_per_N",
+            Kind::ServoLag => "ms",
+            Kind::TimeDrift => "um_per_h",
+        }
+    }
+
+    /// Contract name of the nonlinear parameter, if any.
+    pub fn theta_key(&self) -> Option<&'static str> {
+        match self.kind {
+            Kind::Cyclic => Some("period_mm"),
+            Kind::ThermalLag { .. } => Some("tau_s"),
+            Kind::ReversalSpike => Some("decay_mm"),
+            _ => None,
+        }
+    }
+}
+
+/// Reversal profile: per position zone (`edges_mm`), half the latched direction (±½) inside the
+/// zone, 0 outside.
+fn reversal_zone_columns(f: &AxisFeatures, edges_mm: &[f64]) -> Vec<Vec<f64>> {
+    (0..REVERSAL_ZONES)
+        .map(|k| {
+            f.pos_mm
+                .iter()
+                .zip(&f.dir)
+                .map(|(x, d)| {
+                    if super::effects::zone_of(edges_mm, *x) == Some(k) {
+                        f64::from(*d) / 2.0
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// The sin/cos pair of period `period_mm` in position.
+fn cyclic_columns(f: &AxisFeatures, period_mm: f64) -> Vec<Vec<f64>> {
+    let w = TAU / period_mm;
+    // One transcendental per distinct position: sin from cos with the half-cycle sign.
+    let (mut sv, mut cv) = (
+        Vec::with_capacity(f.distinct_mm.len()),
+        Vec::with_capacity(f.distinct_mm.len()),
+    );
+    for &x in &f.distinct_mm {
+        let ph = (w * x).rem_euclid(TAU);
+        let c = ph.cos();
+        cv.push(c);
+        sv.push((1.0 - c * c).max(0.0).sqrt() * if ph < std::f64::consts::PI { 1.0 } else { -1.0 });
+    }
+    vec![
+        f.distinct_idx.iter().map(|&k| sv[k as usize]).collect(),
+        f.distinct_idx.iter().map(|&k| cv[k as usize]).collect(),
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use retrocomp_model::recording::Recording;
+
+    fn thermal_lib(rpm: impl Fn(usize) -> f64) -> Vec<String> {
+        let n = 400;
+        let rec = Recording::from_columns(vec![
+            ("t_s".into(), (0..n).map(|i| 15.0 * i as f64).collect()),
+            ("rpm".into(), (0..n).map(&rpm).collect()),
+            ("ez_um".into(), vec![0.0; n]),
+        ])
+        .unwrap();
+        library(&Context::from_recording(&rec), 'z')
+            .iter()
+            .map(Candidate::label)
+            .collect()
+    }
+
+    #[test]
+    fn squared_speed_is_a_lag_driver_only_when_rpm_has_several_levels() {
+        // On/off at one speed: (rpm/1000)² is a multiple of rpm, no information of its own.
+        let one = thermal_lib(|i| if (i / 100) % 2 == 0 { 3000.0 } else { 0.0 });
+        assert!(one.contains(&"thermal_lag(rpm)".to_string()), "{one:?}");
+        assert!(!one.iter().any(|l| l.contains("krpm^2")), "{one:?}");
+        // 0, 1250, 2500 rpm: offered, as a lag only (like rpm).
+        let three = thermal_lib(|i| [1250.0, 0.0, 2500.0, 0.0][i / 100]);
+        assert!(
+            three.contains(&"thermal_lag(krpm^2)".to_string()),
+            "{three:?}"
+        );
+        assert!(
+            !three.contains(&"thermal_drift(krpm^2)".to_string()),
+            "{three:?}"
+        );
+    }
+}

@@ -1,0 +1,97 @@
+//! Unit tests of [`super`] (selection on small synthetic recordings).
+
+use super::*;
+use crate::diagnose::candidates::Kind;
+use retrocomp_model::recording::Recording;
+
+#[test]
+fn finds_a_backlash_and_nothing_in_pure_noise() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let n = 2000;
+    let t: Vec<f64> = (0..n).map(|i| i as f64).collect();
+    // Step-and-dwell up and down over 0..200 mm: 10 mm steps, 10 samples per dwell, so velocity
+    // (servo lag) and latched direction (backlash) are not collinear.
+    let x: Vec<f64> = (0..n)
+        .map(|i| {
+            let k = (i / 10) % 40;
+            10.0 * if k < 20 { k as f64 } else { (40 - k) as f64 }
+        })
+        .collect();
+    let noise: Vec<f64> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let rec = Recording::from_columns(vec![
+        ("t_s".into(), t),
+        ("x_mm".into(), x),
+        ("ex_um".into(), vec![0.0; n]),
+    ])
+    .unwrap();
+    let ctx = Context::from_recording(&rec);
+    let dir = &ctx.axis('x').unwrap().dir;
+    let r: Vec<f64> = dir
+        .iter()
+        .zip(&noise)
+        .map(|(&d, e)| 3.0 * f64::from(d) + e)
+        .collect();
+    let s = select(&ctx, 'x', &r, &[], &Options::default());
+    assert_eq!(
+        s.terms.len(),
+        1,
+        "{:?}",
+        s.terms.iter().map(|t| t.cand.label()).collect::<Vec<_>>()
+    );
+    assert_eq!(s.terms[0].cand.effect_id(), "backlash");
+    let none = select(&ctx, 'x', &noise, &[], &Options::default());
+    assert!(
+        none.terms.is_empty(),
+        "{:?}",
+        none.terms
+            .iter()
+            .map(|t| t.cand.label())
+            .collect::<Vec<_>>()
+    );
+}
+
+#[test]
+fn restarted_lag_is_a_lag_started_fresh_at_each_block() {
+    // What `retrocomp eval` computes on a new file starting at each block: the lag starts at
+    // the block's first reading; the fit's reference (first reading of the whole record) stays.
+    let n = 200;
+    let t: Vec<f64> = (0..n).map(|i| 15.0 * i as f64).collect();
+    let u: Vec<f64> = (0..n)
+        .map(|i| if (i / 30) % 2 == 0 { 20.0 } else { 30.0 } + 0.01 * i as f64)
+        .collect();
+    let rec = Recording::from_columns(vec![
+        ("t_s".into(), t.clone()),
+        ("T_a_C".into(), u.clone()),
+        ("ez_um".into(), vec![0.0; n]),
+    ])
+    .unwrap();
+    let ctx = Context::from_recording(&rec);
+    let c = Candidate {
+        axis: 'z',
+        kind: Kind::ThermalLag {
+            sensor: "T_a_C".into(),
+        },
+        grid: vec![300.0, 900.0],
+    };
+    let tau = 900.0;
+    let cols = c.columns(&ctx, tau);
+    let block: Vec<usize> = (0..n).map(|i| i / 50).collect();
+    let r = restarted(&ctx, &c, tau, &cols, &block);
+    let mut moved = 0.0f64;
+    for b in 0..4 {
+        let s = 50 * b;
+        let fresh = super::super::features::lowpass(&t[s..s + 50], &u[s..s + 50], tau);
+        for i in 0..50 {
+            assert!(
+                (r[0][s + i] - (fresh[i] - u[0])).abs() < 1e-9,
+                "block {b} row {i}: {} vs {}",
+                r[0][s + i],
+                fresh[i] - u[0]
+            );
+            moved = moved.max((r[0][s + i] - cols[0][s + i]).abs());
+        }
+    }
+    // The restart matters here (the carried state differs at block starts).
+    assert!(moved > 1.0, "{moved}");
+}

@@ -1,0 +1,29 @@
+//! retrocomp's analysis crate. Offline tools of the compensation engineer: ISO 230-2 positioning analysis, laser-data import,
+//! circular (ballbar) test analysis, model fitting, controller-table export and NC-program rewriting.
+//!
+//! Conventions used throughout this module tree (docs/model.md, Conventions):
+//! - positions in mm (`_mm`), errors in µm (`_um`), angles in µrad (`_urad`);
+//! - **error = actual − nominal** (ISO 230-2); **correction = −error**;
+//! - "forward" / "up" (`+`) = approach in the positive axis direction, "reverse" / "down" (`-`) the
+//!   other way (ISO 230-2 ↑ / ↓).
+//!
+//! Every importer reports file, line and column of each bad row and never drops one silently
+//! ([`import_error::ImportErrors`]).
+
+pub mod chart;
+pub mod chart_geometry;
+pub mod circular;
+pub mod diagnose;
+pub mod export;
+pub mod fit;
+pub mod html;
+pub mod identify;
+pub mod import_error;
+pub mod iso230_2;
+pub mod iso230_2_figure;
+pub mod laser_import;
+pub mod nc;
+pub mod plane_model;
+pub mod polar;
+pub mod report;
+pub mod table;

@@ -1,0 +1,399 @@
+//! The CANopen source: turns frames into samples for the configured encoders (CiA 406) and analog
+//! channels (CiA 404), watches heartbeats and PDO freshness, and says how to bring the nodes up.
+//! Sans-IO ([`CanopenSource`]) plus a thin async loop over any [`CanBus`] ([`run`]).
+//!
+//! Staleness: a channel is reported [`Health::Stale`] by [`CanopenSource::poll`] when its node's
+//! heartbeat is older than `heartbeat_timeout_s` (if heartbeats are monitored) or its PDO is older
+//! than `pdo_timeout_s`; the stale sample carries the last decoded value (NaN if none yet).
+
+use super::cia404::AnalogChannel;
+use super::cia406::{EncoderChannel, PositionDecoder};
+use super::nmt::{HeartbeatMonitor, NmtCommand, encode_nmt};
+use super::sdo::{CYCLIC_TIMER_6200, SdoRequest, SdoResponse};
+use crate::can::{CanBus, CanError, Frame};
+use crate::{ChannelId, Health, Sample};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+
+fn default_pdo_timeout_s() -> f64 {
+    0.1
+}
+
+/// `[canopen]` section of the field TOML.
+#[derive(Debug, Clone, PartialEq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CanopenConfig {
+    #[serde(default)]
+    pub encoder: Vec<EncoderChannel>,
+    #[serde(default)]
+    pub analog: Vec<AnalogChannel>,
+    /// Heartbeat consumer time per node; `None` = heartbeats not monitored.
+    #[serde(default)]
+    pub heartbeat_timeout_s: Option<f64>,
+    /// A channel with no PDO for this long is stale.
+    #[serde(default = "default_pdo_timeout_s")]
+    pub pdo_timeout_s: f64,
+}
+
+/// Counters over the source's life.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CanopenCounters {
+    pub frames: u64,
+    /// Frames that matched no configured PDO, heartbeat or SDO reply.
+    pub unmatched: u64,
+    pub decode_errors: u64,
+    pub out_of_range: u64,
+    pub heartbeat_timeouts: u64,
+    /// SDO aborts received from our nodes (e.g. the encoder refused the 6200h cyclic timer).
+    pub sdo_aborts: u64,
+}
+
+#[derive(Debug, Clone, Copy)]
+enum Target {
+    Encoder(usize),
+    Analog(usize),
+}
+
+#[derive(Debug, Clone)]
+struct Freshness {
+    /// The channel's id, resolved at construction.
+    channel: ChannelId,
+    node: u8,
+    last_pdo_s: Option<f64>,
+    last_value: f64,
+}
+
+#[derive(Debug)]
+pub struct CanopenSource {
+    cfg: CanopenConfig,
+    encoders: Vec<PositionDecoder>,
+    by_cob: HashMap<u16, Vec<Target>>,
+    monitors: BTreeMap<u8, HeartbeatMonitor>,
+    /// Index: encoders first, then analogs.
+    fresh: Vec<Freshness>,
+    pub counters: CanopenCounters,
+}
+
+impl CanopenSource {
+    pub fn new(cfg: CanopenConfig) -> Self {
+        let mut by_cob: HashMap<u16, Vec<Target>> = HashMap::new();
+        let mut fresh = Vec::new();
+        for (i, e) in cfg.encoder.iter().enumerate() {
+            by_cob
+                .entry(e.cob_id())
+                .or_default()
+                .push(Target::Encoder(i));
+            fresh.push(Freshness {
+                channel: ChannelId::of(&e.channel),
+                node: e.node_id,
+                last_pdo_s: None,
+                last_value: f64::NAN,
+            });
+        }
+        for (i, a) in cfg.analog.iter().enumerate() {
+            by_cob
+                .entry(a.cob_id())
+                .or_default()
+                .push(Target::Analog(i));
+            fresh.push(Freshness {
+                channel: ChannelId::of(&a.channel),
+                node: a.node_id,
+                last_pdo_s: None,
+                last_value: f64::NAN,
+            });
+        }
+        let monitors = match cfg.heartbeat_timeout_s {
+            Some(t) => fresh
+                .iter()
+                .map(|f| (f.node, HeartbeatMonitor::new(f.node, t)))
+                .collect(),
+            None => BTreeMap::new(),
+        };
+        CanopenSource {
+            encoders: cfg
+                .encoder
+                .iter()
+                .cloned()
+                .map(PositionDecoder::new)
+                .collect(),
+            cfg,
+            by_cob,
+            monitors,
+            fresh,
+            counters: CanopenCounters::default(),
+        }
+    }
+
+    /// Nodes that carry configured channels, ascending.
+    pub fn nodes(&self) -> BTreeSet<u8> {
+        self.fresh.iter().map(|f| f.node).collect()
+    }
+
+    /// Frames to send at start: SDO writes of the cyclic timer (6200h) for encoders that set one, then
+    /// NMT start for every node. SDO replies arrive as frames and are counted, not required.
+    pub fn bring_up(&self) -> Vec<Frame> {
+        let mut out: Vec<Frame> = self
+            .cfg
+            .encoder
+            .iter()
+            .filter_map(|e| {
+                e.cyclic_ms
+                    .map(|ms| SdoRequest::write_u16(CYCLIC_TIMER_6200, 0, ms).encode(e.node_id))
+            })
+            .collect();
+        out.extend(
+            self.nodes()
+                .into_iter()
+                .map(|n| encode_nmt(NmtCommand::Start, n)),
+        );
+        out
+    }
+
+    /// Decode one frame received at `t_s`; samples are appended to `out`.
+    pub fn on_frame(&mut self, f: &Frame, t_s: f64, out: &mut Vec<Sample>) {
+        self.counters.frames += 1;
+        let mut matched = false;
+        for m in self.monitors.values_mut() {
+            matched |= m.on_frame(f, t_s);
+        }
+        if let Some(targets) = self
+            .by_cob
+            .get(&(f.raw_id() as u16))
+            .filter(|_| f.raw_id() <= 0x7FF)
+        {
+            for t in targets {
+                let (slot, s) = match *t {
+                    Target::Encoder(i) => (i, self.encoders[i].decode(f, t_s)),
+                    Target::Analog(i) => {
+                        let slot = self.encoders.len() + i;
+                        let id = self.fresh[slot].channel;
+                        (slot, self.cfg.analog[i].decode_as(id, f, t_s))
+                    }
+                };
+                let Some(s) = s else { continue };
+                matched = true;
+                match s.health {
+                    Health::DecodeError => self.counters.decode_errors += 1,
+                    Health::OutOfRange => self.counters.out_of_range += 1,
+                    _ => {}
+                }
+                if s.health == Health::Ok {
+                    self.fresh[slot].last_value = s.value;
+                }
+                self.fresh[slot].last_pdo_s = Some(t_s);
+                out.push(s);
+            }
+        }
+        // SDO replies from our nodes (0x580 + node) are expected traffic after bring-up.
+        if let Some((node, resp)) = SdoResponse::decode(f)
+            && self.nodes().contains(&node)
+        {
+            matched = true;
+            if let SdoResponse::Abort { index, sub, code } = resp {
+                self.counters.sdo_aborts += 1;
+                tracing::warn!(node, "SDO abort {code:#010x} on {index:04X}h:{sub}");
+            }
+        }
+        if !matched {
+            self.counters.unmatched += 1;
+        }
+    }
+
+    /// Staleness check at `t_s`: a `Stale` sample for every channel that timed out.
+    pub fn poll(&mut self, t_s: f64, out: &mut Vec<Sample>) {
+        let mut hb_stale = BTreeSet::new();
+        for (node, m) in &mut self.monitors {
+            let before = m.timeouts;
+            if m.poll(t_s) == Health::Stale {
+                hb_stale.insert(*node);
+            }
+            self.counters.heartbeat_timeouts += m.timeouts - before;
+        }
+        for f in &self.fresh {
+            let pdo_old = f
+                .last_pdo_s
+                .is_none_or(|t| t_s - t > self.cfg.pdo_timeout_s);
+            if pdo_old || hb_stale.contains(&f.node) {
+                out.push(Sample {
+                    channel: f.channel,
+                    t_s,
+                    value: f.last_value,
+                    health: Health::Stale,
+                });
+            }
+        }
+    }
+}
+
+/// Run the source on a bus: send the bring-up frames, then decode until the bus fails or `out` is
+/// closed, checking staleness every `poll_period`. `clock_s` gives the receive time in seconds.
+pub async fn run<B: CanBus>(
+    bus: &mut B,
+    src: &mut CanopenSource,
+    clock_s: impl Fn() -> f64,
+    poll_period: std::time::Duration,
+    out: tokio::sync::mpsc::Sender<Vec<Sample>>,
+) -> Result<(), CanError> {
+    run_observed(bus, src, clock_s, poll_period, out, |_, _| {}).await
+}
+
+/// [`run`], calling `observe(bus, frames_received)` after the bring-up and on every poll tick, so
+/// the caller can report the link (frames flowing, the bus state from error frames) while it runs.
+/// `frames_received` counts the frames this call received (0 until the first one arrives).
+pub async fn run_observed<B: CanBus>(
+    bus: &mut B,
+    src: &mut CanopenSource,
+    clock_s: impl Fn() -> f64,
+    poll_period: std::time::Duration,
+    out: tokio::sync::mpsc::Sender<Vec<Sample>>,
+    mut observe: impl FnMut(&B, u64),
+) -> Result<(), CanError> {
+    for f in src.bring_up() {
+        bus.send(&f).await?;
+    }
+    let mut tick = tokio::time::interval(poll_period);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut batch = Vec::new();
+    let mut received = 0u64;
+    observe(bus, received);
+    loop {
+        // Frames first: after a host pause the socket holds frames that arrived while this task
+        // did not run; judging PDO freshness before reading them would report channels stale
+        // whose data is waiting right here. The tick is polled as soon as the socket is drained.
+        tokio::select! {
+            biased;
+            f = bus.recv() => match f {
+                Ok(f) => {
+                    received += 1;
+                    src.on_frame(&f, clock_s(), &mut batch);
+                }
+                // Lost frames are not fatal: the positions come again in the next cycle.
+                Err(CanError::Overrun(n)) => src.counters.decode_errors += n,
+                Err(e) => return Err(e),
+            },
+            _ = tick.tick() => {
+                src.poll(clock_s(), &mut batch);
+                observe(bus, received);
+            }
+        }
+        if !batch.is_empty() && out.send(std::mem::take(&mut batch)).await.is_err() {
+            return Ok(());
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::cia404::AnalogType;
+    use super::super::nmt::{NodeState, encode_heartbeat};
+    use super::*;
+
+    pub(crate) fn cfg() -> CanopenConfig {
+        CanopenConfig {
+            encoder: vec![EncoderChannel {
+                cyclic_ms: Some(10),
+                ..EncoderChannel::new("x_mm", 1, 1000.0)
+            }],
+            analog: vec![AnalogChannel {
+                decimal_digits: 1,
+                ..AnalogChannel::new("T_spindle_C", 0x10, AnalogType::Int16)
+            }],
+            heartbeat_timeout_s: Some(0.3),
+            pdo_timeout_s: 0.1,
+        }
+    }
+
+    #[test]
+    fn bring_up_sets_timer_then_starts_nodes() {
+        let mut src = CanopenSource::new(cfg());
+        let ids: Vec<u32> = src.bring_up().iter().map(|f| f.raw_id()).collect();
+        assert_eq!(ids, vec![0x601, 0x000, 0x000]);
+        let mut out = Vec::new();
+        let ack = SdoResponse::DownloadAck {
+            index: 0x6200,
+            sub: 0,
+        }
+        .encode(1);
+        let abort = SdoResponse::Abort {
+            index: 0x6200,
+            sub: 0,
+            code: 0x0609_0030,
+        }
+        .encode(1);
+        src.on_frame(&ack, 0.0, &mut out);
+        src.on_frame(&abort, 0.0, &mut out);
+        assert!(out.is_empty());
+        assert_eq!((src.counters.sdo_aborts, src.counters.unmatched), (1, 0));
+    }
+
+    #[test]
+    fn decodes_counts_and_goes_stale() {
+        let c = cfg();
+        let mut src = CanopenSource::new(c.clone());
+        let mut out = Vec::new();
+        src.on_frame(&encode_heartbeat(1, NodeState::Operational), 0.0, &mut out);
+        src.on_frame(
+            &encode_heartbeat(0x10, NodeState::Operational),
+            0.0,
+            &mut out,
+        );
+        src.on_frame(&c.encoder[0].encode_position(12.5).unwrap(), 0.01, &mut out);
+        src.on_frame(&c.analog[0].encode(21.5).unwrap(), 0.01, &mut out);
+        src.on_frame(&Frame::standard(0x123, &[]).unwrap(), 0.01, &mut out);
+        assert_eq!(out.len(), 2);
+        assert_eq!((out[0].channel.name(), out[0].value), ("x_mm", 12.5));
+        assert_eq!((out[1].channel.name(), out[1].value), ("T_spindle_C", 21.5));
+        assert_eq!(src.counters.unmatched, 1);
+        out.clear();
+        src.poll(0.05, &mut out);
+        assert!(out.is_empty(), "{out:?}");
+        // PDOs stop: stale after pdo_timeout, carrying the last value.
+        src.poll(0.2, &mut out);
+        assert_eq!(out.len(), 2);
+        assert!(out.iter().all(|s| s.health == Health::Stale));
+        assert_eq!(out[0].value, 12.5);
+        out.clear();
+        src.on_frame(&c.encoder[0].encode_position(12.6).unwrap(), 0.4, &mut out);
+        out.clear();
+        src.poll(0.41, &mut out);
+        // x is fresh by PDO, but node 1's heartbeat is 0.41 s old > 0.3 s.
+        assert!(out.iter().any(|s| s.channel == "x_mm"));
+        assert_eq!(src.counters.heartbeat_timeouts, 2);
+    }
+
+    #[tokio::test]
+    async fn runs_on_the_mem_bus() {
+        use crate::can::MemBus;
+        let c = cfg();
+        let bus = MemBus::new(64);
+        let mut gw = bus.endpoint();
+        let mut sim = bus.endpoint();
+        let (tx, mut rx) = tokio::sync::mpsc::channel(16);
+        let t0 = std::time::Instant::now();
+        let task = tokio::spawn(async move {
+            let mut src = CanopenSource::new(c);
+            run(
+                &mut gw,
+                &mut src,
+                move || t0.elapsed().as_secs_f64(),
+                std::time::Duration::from_secs(10),
+                tx,
+            )
+            .await
+        });
+        // The simulator sees the bring-up, then answers with a position.
+        let first = sim.recv().await.unwrap();
+        assert_eq!(first.raw_id(), 0x601);
+        let enc = cfg().encoder[0].clone();
+        sim.send(&enc.encode_position(-3.25).unwrap())
+            .await
+            .unwrap();
+        let got = loop {
+            let b = rx.recv().await.unwrap();
+            if let Some(s) = b.into_iter().find(|s| s.health == Health::Ok) {
+                break s;
+            }
+        };
+        assert_eq!((got.channel.name(), got.value), ("x_mm", -3.25));
+        task.abort();
+    }
+}

@@ -1,0 +1,190 @@
+//! Model drift per machine (issue 17 point 3): `retrocomp fleet` runs `diagnose` (the library,
+//! [`retrocomp_analysis::diagnose`]) on a schedule over each machine's latest collected recording against that
+//! machine's own model, and flags the machine whose residual against its model has grown.
+//!
+//! A machine's model was identified on that machine, so its residual (measured − model, µm, over
+//! every error signal: docs/diagnose-json.md `rms_before_um`) starts at the measurement noise. The machine is
+//! flagged **drifted** when that residual reaches `min_residual_um` *and* diagnose names the
+//! physics that explains it (verdict `found` or `ambiguous`; the first finding is shown): a large
+//! residual nobody can explain is reported as `unexplained`, not as drift of a known effect. The
+//! first diagnosis of a machine is kept as its baseline, so the view shows how far the residual
+//! grew. Files: the recording is the newest `*.csv` under `<collect dir>/<group>/<edge node>/`
+//! ([`retrocomp_gateway::telemetry::recordings`] layout), the model is `<models dir>/<edge node>.toml`.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use retrocomp_analysis::diagnose::report::{Finding, Report};
+use retrocomp_analysis::diagnose::{self, select::Options};
+use retrocomp_gateway::telemetry::TelemetryError;
+use retrocomp_model::MachineModel;
+use retrocomp_model::recording::Recording;
+
+/// Diagnose a recording against a machine model (what `retrocomp diagnose --model` does).
+/// Errors name the recording or the model file; the cause is their `source()`.
+pub fn diagnose_against(recording: &Path, model: &Path) -> Result<Report, TelemetryError> {
+    let rec = Recording::read_path(recording)
+        .map_err(TelemetryError::setup(recording.display().to_string()))?;
+    let m = MachineModel::from_toml_path(model)
+        .map_err(|e| TelemetryError::Invalid(format!("{}: {e}", model.display())))?;
+    let sims = diagnose::model_sim::simulate(&m, &rec)
+        .map_err(TelemetryError::setup(model.display().to_string()))?;
+    let d = diagnose::diagnose_with_sim(&rec, &sims, &Options::default())
+        .map_err(TelemetryError::setup(recording.display().to_string()))?;
+    Ok(d.report)
+}
+
+/// The newest complete recording (`*.csv`, by modification time) of a machine, if any.
+pub fn latest_recording(collect_dir: &Path, group: &str, edge_node: &str) -> Option<PathBuf> {
+    let dir = collect_dir.join(group).join(edge_node);
+    std::fs::read_dir(dir)
+        .ok()?
+        .filter_map(Result::ok)
+        .filter(|e| e.path().extension().is_some_and(|x| x == "csv"))
+        .filter_map(|e| Some((e.metadata().ok()?.modified().ok()?, e.path())))
+        .max()
+        .map(|(_, p)| p)
+}
+
+/// Every machine with a collection directory: (group, edge node).
+pub fn machines(collect_dir: &Path) -> Vec<(String, String)> {
+    let mut out = vec![];
+    let subdirs = |p: &Path| -> Vec<String> {
+        std::fs::read_dir(p)
+            .map(|rd| {
+                rd.filter_map(Result::ok)
+                    .filter(|e| e.path().is_dir())
+                    .filter_map(|e| e.file_name().into_string().ok())
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    for g in subdirs(collect_dir) {
+        for n in subdirs(&collect_dir.join(&g)) {
+            out.push((g.clone(), n));
+        }
+    }
+    out.sort();
+    out
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DriftState {
+    /// Residual below the threshold: the model still describes the machine.
+    Ok,
+    /// Residual at or above the threshold and diagnose names the effect: the model drifted.
+    Drifted,
+    /// Residual at or above the threshold, no effect explains it.
+    Unexplained,
+    /// No model for this machine, or diagnose failed (see `error`).
+    Error,
+}
+
+/// The latest scheduled diagnosis of one machine (shown in the fleet view and its JSON).
+#[derive(Clone, Debug, Serialize)]
+pub struct MachineDrift {
+    pub state: DriftState,
+    pub recording: String,
+    pub model: String,
+    /// Residual against the model, µm RMS over the error signals (docs/diagnose-json.md `rms_before_um`).
+    pub rms_um: f64,
+    /// The first diagnosis' residual of this machine, µm.
+    pub baseline_rms_um: f64,
+    pub verdict: String,
+    /// What explains the residual (diagnose's most important finding), when drifted.
+    pub finding: Option<Finding>,
+    pub diagnoses: u64,
+    pub error: Option<String>,
+}
+
+/// Judge one diagnosis; `prev` is the machine's previous result (for its baseline and count).
+pub fn judge(
+    report: &Report,
+    recording: &Path,
+    model: &Path,
+    min_residual_um: f64,
+    prev: Option<&MachineDrift>,
+) -> MachineDrift {
+    let explained = matches!(report.verdict.as_str(), "found" | "ambiguous");
+    let state = if report.rms_before_um < min_residual_um {
+        DriftState::Ok
+    } else if explained {
+        DriftState::Drifted
+    } else {
+        DriftState::Unexplained
+    };
+    let baseline = prev
+        .filter(|p| p.state != DriftState::Error)
+        .map_or(report.rms_before_um, |p| p.baseline_rms_um);
+    MachineDrift {
+        state,
+        recording: recording.display().to_string(),
+        model: model.display().to_string(),
+        rms_um: report.rms_before_um,
+        baseline_rms_um: baseline,
+        verdict: report.verdict.clone(),
+        finding: (state == DriftState::Drifted)
+            .then(|| report.findings.first().cloned())
+            .flatten(),
+        diagnoses: prev.map_or(0, |p| p.diagnoses) + 1,
+        error: None,
+    }
+}
+
+/// A failed diagnosis (no model, unreadable recording…), keeping the machine's history.
+pub fn failed(
+    recording: &Path,
+    model: &Path,
+    error: String,
+    prev: Option<&MachineDrift>,
+) -> MachineDrift {
+    MachineDrift {
+        state: DriftState::Error,
+        recording: recording.display().to_string(),
+        model: model.display().to_string(),
+        rms_um: f64::NAN,
+        baseline_rms_um: prev.map_or(f64::NAN, |p| p.baseline_rms_um),
+        verdict: String::new(),
+        finding: None,
+        diagnoses: prev.map_or(0, |p| p.diagnoses),
+        error: Some(error),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn report(verdict: &str, rms: f64) -> Report {
+        Report {
+            verdict: verdict.into(),
+            rms_before_um: rms,
+            mismatch: vec![],
+            findings: vec![],
+            alternatives: vec![],
+            dropped: vec![],
+            forward_check: vec![],
+        }
+    }
+
+    #[test]
+    fn drift_needs_a_grown_residual_and_an_explanation() {
+        let (r, m) = (Path::new("r.csv"), Path::new("m.toml"));
+        let first = judge(&report("none", 0.3), r, m, 2.0, None);
+        assert_eq!(first.state, DriftState::Ok);
+        let second = judge(&report("found", 5.0), r, m, 2.0, Some(&first));
+        assert_eq!(second.state, DriftState::Drifted);
+        assert_eq!(second.baseline_rms_um, 0.3);
+        assert_eq!(second.diagnoses, 2);
+        assert_eq!(
+            judge(&report("none", 5.0), r, m, 2.0, None).state,
+            DriftState::Unexplained
+        );
+        assert_eq!(
+            judge(&report("found", 1.0), r, m, 2.0, None).state,
+            DriftState::Ok
+        );
+    }
+}

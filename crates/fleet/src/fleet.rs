@@ -1,0 +1,565 @@
+//! The fleet's health as a Sparkplug host sees it (sans-IO: messages and times are passed in,
+//! outgoing NCMDs are taken out with [`FleetView::poll_transmit`]; `retrocomp fleet` is its MQTT
+//! shell, src/telemetry/fleet_client.rs). Per edge node:
+//! - **online** from any NBIRTH or NDATA (a host started after a box sees its data first: the box is
+//!   online from that data, never offline while data flows); offline on an NDEATH whose bdSeq is
+//!   the current session's (a late will of an older connection does not kill a re-born node);
+//! - a **rebirth request** (NCMD `Node Control/Rebirth` = true, Sparkplug 3.0) when NDATA or an
+//!   NDEATH comes from a node it has no birth for, or NDATA uses an alias its birth did not define;
+//!   at most one per node per interval ([`RebirthLimiter`]);
+//! - the latest metric values from NBIRTH (names and aliases) and NDATA (aliases), seq gaps, when
+//!   it was last seen (host clock), its fault names, the applied correction per axis, and a
+//!   verdict: offline, online (data flows, birth not seen yet), compensating, degraded (faults, an
+//!   axis not tracking, the controller link down) or idle (compensation disabled).
+//!
+//! Units as the published metrics (µm, mm); times ms since the Unix epoch.
+
+use std::collections::{BTreeMap, HashMap, VecDeque};
+
+use prost::Message;
+use serde::Serialize;
+
+use retrocomp_gateway::telemetry::rebirth::RebirthLimiter;
+use retrocomp_gateway::telemetry::sparkplug::{
+    self, BD_SEQ, DataType, Kind, Metric, Payload, REBIRTH, Value,
+};
+
+/// Rebirth requests per node, at most one per this long by default, ms.
+pub const DEFAULT_REBIRTH_INTERVAL_MS: u64 = 5000;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Verdict {
+    Offline,
+    /// Data flows but no birth was seen yet (its metrics have no names until the rebirth).
+    Online,
+    Compensating,
+    Degraded,
+    Idle,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Node {
+    pub group: String,
+    pub edge_node: String,
+    pub alive: bool,
+    /// The NBIRTH of the current session was seen (names of the aliases known).
+    pub born: bool,
+    pub bd_seq: Option<u64>,
+    pub births: u64,
+    pub ndata: u64,
+    /// NDATA whose seq was not one more than the message before (messages lost or reordered).
+    pub seq_gaps: u64,
+    /// Timestamp of the latest message (the box's clock), ms since the Unix epoch.
+    pub last_ms: u64,
+    /// When the latest message arrived (the host's clock), ms since the Unix epoch.
+    pub last_seen_ms: u64,
+    /// Rebirth requests (NCMD) sent to this node.
+    pub rebirths_requested: u64,
+    /// NDATA metrics whose alias no birth named (dropped; a rebirth is requested).
+    pub unknown_aliases: u64,
+    #[serde(skip)]
+    last_seq: Option<u64>,
+    #[serde(skip)]
+    aliases: HashMap<u64, String>,
+    #[serde(skip)]
+    rebirth: RebirthLimiter,
+    /// Latest value of every metric, by name (numbers as f64, text as strings).
+    pub metrics: BTreeMap<String, serde_json::Value>,
+}
+
+fn json_of(v: &Value) -> serde_json::Value {
+    match v {
+        Value::Int(x) => (*x).into(),
+        Value::Long(x) => (*x).into(),
+        Value::Float(x) => {
+            serde_json::Number::from_f64(f64::from(*x)).map_or(serde_json::Value::Null, Into::into)
+        }
+        Value::Double(x) => {
+            serde_json::Number::from_f64(*x).map_or(serde_json::Value::Null, Into::into)
+        }
+        Value::Boolean(b) => (*b).into(),
+        Value::String(s) => s.clone().into(),
+    }
+}
+
+impl Node {
+    fn new(group: &str, edge_node: &str, rebirth_interval_ms: u64) -> Self {
+        Node {
+            group: group.into(),
+            edge_node: edge_node.into(),
+            alive: false,
+            born: false,
+            bd_seq: None,
+            births: 0,
+            ndata: 0,
+            seq_gaps: 0,
+            last_ms: 0,
+            last_seen_ms: 0,
+            rebirths_requested: 0,
+            unknown_aliases: 0,
+            last_seq: None,
+            aliases: HashMap::new(),
+            rebirth: RebirthLimiter::new(rebirth_interval_ms),
+            metrics: BTreeMap::new(),
+        }
+    }
+
+    /// Offline, online (no birth yet), or what the latest values say.
+    pub fn verdict(&self) -> Verdict {
+        if !self.alive {
+            return Verdict::Offline;
+        }
+        if !self.born {
+            return Verdict::Online;
+        }
+        let m = &self.metrics;
+        let faults = m
+            .get("Gateway/active_faults")
+            .and_then(serde_json::Value::as_u64)
+            .unwrap_or(0);
+        let not_tracking = m
+            .iter()
+            .any(|(k, v)| k.starts_with("Axis/") && k.ends_with("/mode") && v != "tracking");
+        let sink_down = m.get("Sink/connected") == Some(&serde_json::Value::Bool(false));
+        let enabled = m.get("Gateway/enabled") != Some(&serde_json::Value::Bool(false));
+        if !enabled {
+            Verdict::Idle
+        } else if faults > 0 || not_tracking || sink_down {
+            Verdict::Degraded
+        } else {
+            Verdict::Compensating
+        }
+    }
+
+    /// The active faults' names (`Gateway/faults`, comma-separated by the box).
+    pub fn faults(&self) -> Vec<String> {
+        self.metrics
+            .get("Gateway/faults")
+            .and_then(serde_json::Value::as_str)
+            .map(|s| {
+                s.split(',')
+                    .filter(|f| !f.is_empty())
+                    .map(str::to_string)
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    /// Correction applied after safety per axis, µm (`Axis/<axis>/applied_um`).
+    pub fn applied_um(&self) -> BTreeMap<String, f64> {
+        self.metrics
+            .iter()
+            .filter_map(|(k, v)| {
+                let axis = k.strip_prefix("Axis/")?.strip_suffix("/applied_um")?;
+                Some((axis.to_string(), v.as_f64()?))
+            })
+            .collect()
+    }
+
+    /// The node as JSON: its fields, `verdict`, `faults` and `applied_um`.
+    pub fn to_json(&self) -> serde_json::Value {
+        let mut v = serde_json::to_value(self).unwrap_or_default();
+        v["verdict"] = serde_json::to_value(self.verdict()).unwrap_or_default();
+        v["faults"] = self.faults().into();
+        v["applied_um"] = serde_json::to_value(self.applied_um()).unwrap_or_default();
+        v
+    }
+
+    /// Ask for a rebirth (rate-limited); true when one is to be sent now.
+    fn want_rebirth(&mut self, now_ms: u64) -> bool {
+        let go = self.rebirth.request(now_ms);
+        self.rebirths_requested += u64::from(go);
+        go
+    }
+
+    fn birth(&mut self, p: &Payload, bd: Option<u64>, now_ms: u64) {
+        self.alive = true;
+        self.born = true;
+        self.bd_seq = bd;
+        self.births += 1;
+        self.last_seq = p.seq;
+        self.rebirth.born(now_ms);
+        self.aliases.clear();
+        for m in &p.metrics {
+            if let (Some(name), Some(v)) = (&m.name, &m.value) {
+                if let Some(a) = m.alias {
+                    self.aliases.insert(a, name.clone());
+                }
+                self.metrics.insert(name.clone(), json_of(v));
+            }
+        }
+    }
+
+    /// NDATA; true when a rebirth is wanted (no birth, or an alias the birth did not define).
+    fn data(&mut self, p: &Payload) -> bool {
+        self.alive = true;
+        self.ndata += 1;
+        // seq comes off the wire: any u64, u64::MAX included (2^64 is a multiple of 256, so the
+        // wrapping sum is the right residue).
+        if let (Some(l), Some(s)) = (self.last_seq, p.seq)
+            && s != l.wrapping_add(1) % 256
+        {
+            self.seq_gaps += 1;
+        }
+        self.last_seq = p.seq;
+        let mut unknown = false;
+        for m in &p.metrics {
+            let name = m
+                .name
+                .clone()
+                .or_else(|| m.alias.and_then(|a| self.aliases.get(&a).cloned()));
+            let Some(name) = name else {
+                self.unknown_aliases += 1;
+                unknown = true;
+                continue;
+            };
+            if let Some(v) = &m.value
+                && m.is_historical != Some(true)
+            {
+                self.metrics.insert(name, json_of(v));
+            }
+        }
+        !self.born || unknown
+    }
+
+    /// NDEATH; true when a rebirth is wanted (a death of a node without a known birth: it may
+    /// be a late will while a newer session is up).
+    fn death(&mut self, bd: Option<u64>) -> bool {
+        if !self.born {
+            self.alive = false;
+            return true;
+        }
+        if bd.is_none() || bd == self.bd_seq {
+            self.alive = false;
+            self.born = false;
+            self.rebirth.forget();
+        }
+        false
+    }
+}
+
+/// Every edge node seen, by (group, edge node), and the NCMDs the host has to send.
+#[derive(Debug)]
+pub struct FleetView {
+    pub nodes: BTreeMap<(String, String), Node>,
+    rebirth_interval_ms: u64,
+    /// (topic, payload) of NCMDs to publish.
+    outbox: VecDeque<(String, Vec<u8>)>,
+}
+
+impl Default for FleetView {
+    fn default() -> Self {
+        FleetView::new(DEFAULT_REBIRTH_INTERVAL_MS)
+    }
+}
+
+/// NCMD `Node Control/Rebirth` = true.
+pub fn rebirth_request(now_ms: u64) -> Vec<u8> {
+    Payload {
+        timestamp: Some(now_ms),
+        metrics: vec![Metric {
+            name: Some(REBIRTH.into()),
+            timestamp: Some(now_ms),
+            datatype: Some(DataType::Boolean as u32),
+            value: Some(Value::Boolean(true)),
+            ..Default::default()
+        }],
+        ..Default::default()
+    }
+    .encode_to_vec()
+}
+
+impl FleetView {
+    /// `rebirth_interval_ms`: at most one rebirth request per node per this long.
+    pub fn new(rebirth_interval_ms: u64) -> Self {
+        FleetView {
+            nodes: BTreeMap::new(),
+            rebirth_interval_ms,
+            outbox: VecDeque::new(),
+        }
+    }
+
+    /// Take one message (`spBv1.0/<group>/<type>/<edge node>`) received at `now_ms` (host clock,
+    /// ms since the Unix epoch); other topics are ignored. True when the view changed.
+    pub fn handle_message(&mut self, topic: &str, payload: &[u8], now_ms: u64) -> bool {
+        let parts: Vec<&str> = topic.split('/').collect();
+        let [ns, group, kind, edge] = parts[..] else {
+            return false;
+        };
+        if ns != "spBv1.0" || !matches!(kind, "NBIRTH" | "NDATA" | "NDEATH") {
+            return false;
+        }
+        let Ok(p) = Payload::decode(payload) else {
+            return false;
+        };
+        let interval = self.rebirth_interval_ms;
+        let node = self
+            .nodes
+            .entry((group.to_string(), edge.to_string()))
+            .or_insert_with(|| Node::new(group, edge, interval));
+        node.last_ms = node.last_ms.max(p.timestamp.unwrap_or(0));
+        node.last_seen_ms = node.last_seen_ms.max(now_ms);
+        let bd = p.metrics.iter().find_map(|m| {
+            (m.name.as_deref() == Some(BD_SEQ)).then_some(())?;
+            match m.value {
+                Some(Value::Long(v)) => Some(v),
+                _ => None,
+            }
+        });
+        let rebirth = match kind {
+            "NBIRTH" => {
+                node.birth(&p, bd, now_ms);
+                false
+            }
+            "NDEATH" => node.death(bd),
+            _ => node.data(&p),
+        };
+        if rebirth && node.want_rebirth(now_ms) {
+            self.outbox.push_back((
+                sparkplug::topic(group, Kind::NCmd, edge),
+                rebirth_request(now_ms),
+            ));
+        }
+        true
+    }
+
+    /// The next NCMD to publish (topic, payload), deferred rebirth requests included once due.
+    pub fn poll_transmit(&mut self, now_ms: u64) -> Option<(String, Vec<u8>)> {
+        if self.outbox.is_empty() {
+            for n in self.nodes.values_mut() {
+                if n.rebirth.poll(now_ms) {
+                    n.rebirths_requested += 1;
+                    self.outbox.push_back((
+                        sparkplug::topic(&n.group, Kind::NCmd, &n.edge_node),
+                        rebirth_request(now_ms),
+                    ));
+                }
+            }
+        }
+        self.outbox.pop_front()
+    }
+
+    /// When a deferred rebirth request becomes due (ms, the clock of `handle_message`).
+    pub fn poll_timeout(&self) -> Option<u64> {
+        self.nodes.values().filter_map(|n| n.rebirth.due_ms()).min()
+    }
+
+    /// One line per node: group, edge node, verdict, bdSeq, NDATA count, seq gaps, seconds since
+    /// it was last seen (at `now_ms`), applied correction per axis (µm), fault names.
+    pub fn table(&self, now_ms: u64) -> String {
+        let mut s = format!(
+            "{:<16} {:<20} {:<13} {:>5} {:>8} {:>5} {:>7}  {:<24} {}\n",
+            "group",
+            "edge node",
+            "state",
+            "bdSeq",
+            "ndata",
+            "gaps",
+            "seen_s",
+            "applied_um",
+            "faults"
+        );
+        for n in self.nodes.values() {
+            let applied: Vec<String> = n
+                .applied_um()
+                .iter()
+                .map(|(a, v)| format!("{a}:{v:.2}"))
+                .collect();
+            let seen_s = now_ms.saturating_sub(n.last_seen_ms) as f64 / 1000.0;
+            s.push_str(&format!(
+                "{:<16} {:<20} {:<13} {:>5} {:>8} {:>5} {:>7.1}  {:<24} {}\n",
+                n.group,
+                n.edge_node,
+                format!("{:?}", n.verdict()).to_lowercase(),
+                n.bd_seq.map_or("-".into(), |b| b.to_string()),
+                n.ndata,
+                n.seq_gaps,
+                seen_s,
+                applied.join(" "),
+                n.faults().join(",")
+            ));
+        }
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use retrocomp_gateway::telemetry::sparkplug::EdgeNode;
+
+    fn vals(mode: &str, faults: u32) -> Vec<(String, Value)> {
+        vec![
+            ("Gateway/enabled".into(), Value::Boolean(true)),
+            ("Gateway/active_faults".into(), Value::Int(faults)),
+            ("Axis/x/mode".into(), Value::String(mode.into())),
+        ]
+    }
+
+    #[test]
+    fn birth_data_and_death_give_the_verdict() {
+        let mut f = FleetView::default();
+        let mut e = EdgeNode::new(0);
+        e.next_connect();
+        let t = "spBv1.0/shop/NBIRTH/mill-1";
+        f.handle_message(t, &e.birth(&vals("tracking", 0), 1), 1);
+        let key = ("shop".to_string(), "mill-1".to_string());
+        assert_eq!(f.nodes[&key].verdict(), Verdict::Compensating);
+        f.handle_message(
+            "spBv1.0/shop/NDATA/mill-1",
+            &e.data(&vals("holding", 1)[1..], 2, false),
+            0,
+        );
+        assert_eq!(f.nodes[&key].verdict(), Verdict::Degraded);
+        assert_eq!(f.nodes[&key].seq_gaps, 0);
+        // A historical value does not replace the current one.
+        f.handle_message(
+            "spBv1.0/shop/NDATA/mill-1",
+            &e.data(&vals("tracking", 0)[1..], 1, true),
+            0,
+        );
+        assert_eq!(f.nodes[&key].verdict(), Verdict::Degraded);
+        f.handle_message("spBv1.0/shop/NDEATH/mill-1", &e.death(3), 0);
+        assert_eq!(f.nodes[&key].verdict(), Verdict::Offline);
+        assert!(f.table(0).contains("offline"));
+    }
+
+    #[test]
+    fn a_late_will_of_an_older_session_does_not_kill_a_reborn_node() {
+        let mut f = FleetView::default();
+        let mut e = EdgeNode::new(0);
+        e.next_connect();
+        e.connected();
+        let old_death = e.death(1);
+        e.next_connect();
+        f.handle_message("spBv1.0/g/NBIRTH/n", &e.birth(&vals("tracking", 0), 2), 0);
+        f.handle_message("spBv1.0/g/NDEATH/n", &old_death, 0);
+        let n = &f.nodes[&("g".to_string(), "n".to_string())];
+        assert!(n.alive, "bdSeq 0's will must not end bdSeq 1's session");
+        // A skipped seq is counted.
+        let mut f2 = FleetView::default();
+        f2.handle_message("spBv1.0/g/NBIRTH/n", &e.birth(&vals("tracking", 0), 2), 0);
+        let _lost = e.data(&vals("tracking", 0), 3, false);
+        f2.handle_message(
+            "spBv1.0/g/NDATA/n",
+            &e.data(&vals("tracking", 0), 4, false),
+            0,
+        );
+        assert_eq!(f2.nodes[&("g".to_string(), "n".to_string())].seq_gaps, 1);
+    }
+
+    /// A host started after the box: NDATA first (aliases only).
+    fn running_box() -> (EdgeNode, Vec<(String, Value)>) {
+        let mut e = EdgeNode::new(7);
+        e.next_connect();
+        let mut v = vals("tracking", 1);
+        v.push(("Gateway/faults".into(), Value::String("can:stale".into())));
+        v.push(("Axis/x/applied_um".into(), Value::Double(-3.25)));
+        let _birth_before_the_host_came = e.birth(&v, 0);
+        (e, v)
+    }
+
+    #[test]
+    fn data_without_a_birth_is_online_and_asks_for_one_rebirth_per_interval() {
+        let mut f = FleetView::new(5000);
+        let (mut e, v) = running_box();
+        let key = ("shop".to_string(), "mill-1".to_string());
+        let t = "spBv1.0/shop/NDATA/mill-1";
+        // 10 Hz for 12 s of virtual time, the host polled after every message.
+        let mut ncmds = vec![];
+        for i in 0..120u64 {
+            let now = 1_000_000 + i * 100;
+            assert!(f.handle_message(t, &e.data(&v, now, false), now));
+            assert_eq!(
+                f.nodes[&key].verdict(),
+                Verdict::Online,
+                "data flows: online"
+            );
+            while let Some((topic, payload)) = f.poll_transmit(now) {
+                assert_eq!(topic, "spBv1.0/shop/NCMD/mill-1");
+                assert!(sparkplug::is_rebirth_request(&payload));
+                ncmds.push(now);
+            }
+        }
+        assert_eq!(ncmds, vec![1_000_000, 1_005_000, 1_010_000], "one per 5 s");
+        let n = &f.nodes[&key];
+        assert_eq!((n.rebirths_requested, n.ndata, n.born), (3, 120, false));
+        assert_eq!(n.last_seen_ms, 1_011_900);
+        assert!(
+            n.unknown_aliases > 0,
+            "aliases without a birth cannot be named"
+        );
+        // The box answers: born, and what the birth says.
+        let now = 1_012_000;
+        f.handle_message("spBv1.0/shop/NBIRTH/mill-1", &e.birth(&v, now), now);
+        let n = &f.nodes[&key];
+        assert_eq!(n.verdict(), Verdict::Degraded, "one active fault");
+        assert_eq!(n.bd_seq, Some(7));
+        assert_eq!(n.faults(), vec!["can:stale".to_string()]);
+        assert_eq!(n.applied_um()["x"], -3.25);
+        let j = n.to_json();
+        assert_eq!(j["verdict"], "degraded");
+        assert_eq!(j["applied_um"]["x"], -3.25);
+        assert_eq!(j["faults"][0], "can:stale");
+        // Born: its data asks for nothing more, even long after.
+        let later = now + 60_000;
+        f.handle_message(t, &e.data(&v[..1], later, false), later);
+        assert_eq!(f.poll_transmit(later), None);
+        assert_eq!(f.poll_timeout(), None);
+        let table = f.table(later + 2500);
+        assert!(
+            table.contains("degraded") && table.contains("x:-3.25"),
+            "{table}"
+        );
+        assert!(
+            table.contains("can:stale") && table.contains("2.5"),
+            "{table}"
+        );
+    }
+
+    #[test]
+    fn a_deferred_request_goes_out_when_due_and_a_birth_cancels_it() {
+        let mut f = FleetView::new(5000);
+        let (mut e, v) = running_box();
+        let t = "spBv1.0/shop/NDATA/mill-1";
+        f.handle_message(t, &e.data(&v, 0, false), 0);
+        assert!(f.poll_transmit(0).is_some());
+        f.handle_message(t, &e.data(&v, 1000, false), 1000);
+        assert_eq!(f.poll_transmit(1000), None, "inside the interval");
+        assert_eq!(f.poll_timeout(), Some(5000));
+        assert_eq!(f.poll_transmit(4999), None);
+        assert!(f.poll_transmit(5000).is_some(), "due without new data");
+        f.handle_message(t, &e.data(&v, 6000, false), 6000);
+        f.handle_message("spBv1.0/shop/NBIRTH/mill-1", &e.birth(&v, 6100), 6100);
+        assert_eq!(f.poll_timeout(), None, "the birth answered it");
+        assert_eq!(f.poll_transmit(20_000), None);
+    }
+
+    #[test]
+    fn a_death_without_a_birth_asks_and_data_after_it_is_online_again() {
+        let mut f = FleetView::new(5000);
+        let (mut e, v) = running_box();
+        let key = ("g".to_string(), "n".to_string());
+        f.handle_message("spBv1.0/g/NDEATH/n", &e.death(0), 0);
+        assert_eq!(f.nodes[&key].verdict(), Verdict::Offline);
+        assert!(f.poll_transmit(0).is_some(), "maybe a late will: ask");
+        f.handle_message("spBv1.0/g/NDATA/n", &e.data(&v, 10, false), 10);
+        assert_eq!(f.nodes[&key].verdict(), Verdict::Online);
+        // Born (a birth the host saw with fewer metrics than the data uses), then an alias that
+        // birth did not define: ask again.
+        let mut smaller = EdgeNode::new(7);
+        smaller.next_connect();
+        f.handle_message("spBv1.0/g/NBIRTH/n", &smaller.birth(&v[..2], 6000), 6000);
+        f.handle_message("spBv1.0/g/NDATA/n", &e.data(&v, 6010, false), 6010);
+        assert_eq!(
+            f.poll_transmit(6010),
+            None,
+            "the birth at 6000 restarted the interval"
+        );
+        assert!(
+            f.poll_transmit(11_000).is_some(),
+            "then the unknown alias is asked about"
+        );
+    }
+}

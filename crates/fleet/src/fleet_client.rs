@@ -1,0 +1,165 @@
+//! The MQTT shell of a Sparkplug B host around the sans-IO [`FleetView`] (src/telemetry/fleet.rs):
+//! one subscription to `spBv1.0/<group>/+/+` (QoS 1), renewed on every reconnect, the view's
+//! rebirth requests published as NCMD (QoS 0, not retained, as Sparkplug 3.0 says for NCMD), and
+//! optionally the recordings topic fed to a [`Collector`]. Used by `retrocomp fleet`, the MQTT tests and the
+//! fleet bench. Units as in [`FleetView`].
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
+
+use crate::fleet::FleetView;
+use retrocomp_gateway::telemetry::publisher::now_ms;
+use retrocomp_gateway::telemetry::recordings::{Collector, Took};
+
+/// Why the fleet client could not be built or lost its link.
+#[derive(Debug, thiserror::Error)]
+pub enum FleetClientError {
+    /// The broker address is not HOST:PORT.
+    #[error("--broker {0}: expected HOST:PORT")]
+    Broker(String),
+    /// The subscription request could not be queued.
+    #[error(transparent)]
+    Subscribe(#[from] rumqttc::ClientError),
+    /// The link to the broker failed (the next poll reconnects).
+    #[error(transparent)]
+    Connection(#[from] Box<rumqttc::ConnectionError>),
+}
+
+/// The MQTT shell around [`FleetView`]: one subscription to `spBv1.0/<group>/+/+` (QoS 1),
+/// renewed on every reconnect.
+pub struct FleetClient {
+    client: AsyncClient,
+    events: rumqttc::EventLoop,
+    topic: String,
+    pub view: FleetView,
+    /// Recordings collected from `recordings_topic`, when collecting.
+    pub collector: Option<(Collector, String)>,
+    /// The broker acknowledged the subscription (messages from now on are seen).
+    pub subscribed: bool,
+    subacks: u32,
+}
+
+// By hand: rumqttc's event loop has no Debug.
+impl std::fmt::Debug for FleetClient {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FleetClient")
+            .field("topic", &self.topic)
+            .field("subscribed", &self.subscribed)
+            .finish_non_exhaustive()
+    }
+}
+
+impl FleetClient {
+    /// `broker` is HOST:PORT; `group` None watches every group.
+    pub fn new(broker: &str, group: Option<&str>) -> Result<Self, FleetClientError> {
+        let (host, port) = broker
+            .rsplit_once(':')
+            .and_then(|(h, p)| Some((h.to_string(), p.parse::<u16>().ok()?)))
+            .ok_or_else(|| FleetClientError::Broker(broker.to_string()))?;
+        let id = format!("retrocomp-fleet-{}-{port}", std::process::id());
+        let mut o = MqttOptions::new(id, host, port);
+        o.set_keep_alive(Duration::from_secs(10));
+        o.set_max_packet_size(1 << 20, 1 << 20);
+        let (client, events) = AsyncClient::new(o, 64);
+        Ok(FleetClient {
+            client,
+            events,
+            topic: format!("spBv1.0/{}/+/+", group.unwrap_or("+")),
+            view: FleetView::default(),
+            collector: None,
+            subscribed: false,
+            subacks: 0,
+        })
+    }
+
+    /// Also collect recordings published on `topic` (a filter) into `dir`.
+    pub fn collect(&mut self, dir: PathBuf, topic: &str) {
+        self.collector = Some((Collector::new(dir), topic.to_string()));
+    }
+
+    /// Wait for the next event (or a deferred rebirth request falling due); true when a
+    /// Sparkplug message changed the view. A link error is returned after a 500 ms pause (the
+    /// next call reconnects).
+    pub async fn poll(&mut self) -> Result<bool, FleetClientError> {
+        let wait = self
+            .view
+            .poll_timeout()
+            .map(|due| Duration::from_millis(due.saturating_sub(now_ms())));
+        let ev = tokio::select! {
+            ev = self.events.poll() => ev,
+            _ = tokio::time::sleep(wait.unwrap_or_default()), if wait.is_some() => {
+                self.send_ncmds()?;
+                return Ok(false);
+            }
+        };
+        let r = self.handle(ev).await;
+        self.send_ncmds()?;
+        r
+    }
+
+    /// Publish the view's pending NCMDs (a full request queue leaves them for the next poll).
+    fn send_ncmds(&mut self) -> Result<(), FleetClientError> {
+        while let Some((topic, payload)) = self.view.poll_transmit(now_ms()) {
+            tracing::debug!(topic, "fleet: rebirth requested");
+            self.client
+                .try_publish(topic, QoS::AtMostOnce, false, payload)?;
+        }
+        Ok(())
+    }
+
+    async fn handle(
+        &mut self,
+        ev: Result<Event, rumqttc::ConnectionError>,
+    ) -> Result<bool, FleetClientError> {
+        match ev {
+            Ok(Event::Incoming(Packet::ConnAck(_))) => {
+                self.subscribed = false;
+                self.subacks = 0;
+                self.client
+                    .try_subscribe(self.topic.clone(), QoS::AtLeastOnce)?;
+                if let Some((_, t)) = &self.collector {
+                    self.client.try_subscribe(t.clone(), QoS::AtLeastOnce)?;
+                }
+                Ok(false)
+            }
+            Ok(Event::Incoming(Packet::SubAck(_))) => {
+                // Subscribed once every SUBACK is in (one or two subscriptions).
+                self.subscribed = self.collector.is_none() || self.pending_subacks_done();
+                Ok(false)
+            }
+            Ok(Event::Incoming(Packet::Publish(p))) if p.topic.starts_with("spBv1.0/") => {
+                Ok(self.view.handle_message(&p.topic, &p.payload, now_ms()))
+            }
+            Ok(Event::Incoming(Packet::Publish(p))) => {
+                if let Some((c, _)) = &mut self.collector {
+                    match c.ingest(&p.payload) {
+                        Ok(Took::Written(Some(path))) => {
+                            tracing::info!(path = %path.display(), "fleet: recording collected");
+                        }
+                        Ok(Took::Refused(why)) => {
+                            tracing::warn!(topic = p.topic, why, "fleet: recording chunk refused");
+                        }
+                        Ok(_) => {}
+                        Err(e) => tracing::error!(%e, "fleet: cannot write a recording"),
+                    }
+                }
+                Ok(false)
+            }
+            Ok(_) => Ok(false),
+            Err(e) => {
+                tokio::time::sleep(Duration::from_millis(500)).await;
+                Err(Box::new(e).into())
+            }
+        }
+    }
+}
+
+impl FleetClient {
+    /// Counts SUBACKs since the last CONNACK: true at the second (telemetry + recordings).
+    fn pending_subacks_done(&mut self) -> bool {
+        self.subacks += 1;
+        self.subacks >= 2
+    }
+}

@@ -1,0 +1,288 @@
+//! The cycle loop, on its own OS thread (see [`super::realtime`]): every `cycle_ms` it drains the
+//! samples, reseeds and actions that arrived, runs the [`Engine`], hands the outputs to the sink and,
+//! at most [`STATUS_PERIOD_S`] apart, publishes a status snapshot. The loop body ([`CycleLoop::step`])
+//! allocates nothing on a cycle that does not publish (tests/gateway_no_alloc.rs counts it).
+//!
+//! Timing: cycles are due at `start + k·period` on the gateway clock (`epoch`); a cycle that ran late
+//! (host pause) is not repeated to catch up — the next one is the next due time after now — and is
+//! counted in [`CycleReport`] (`late_cycles`, `max_late_ms`): the engine judges staleness from the
+//! samples' own times, so one late cycle does not by itself make any channel stale.
+//!
+//! Compensation dropped: whenever compensation is enabled but an axis is not tracking its target
+//! (inputs stale → holding or ramping out, model fault), the engine reports the fault
+//! `compensation.<axis>` (logged at start and clear, in status and metrics); this loop also sums the
+//! time, so a run's summary says how long compensation was off ([`CycleReport::not_compensating_s`]).
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use tokio::sync::{mpsc, watch};
+
+use super::engine::{Engine, ErrorModel};
+use super::http::Control;
+use super::source_health::SourceBoard;
+use super::status::{SinkStatus, StatusSnapshot};
+use super::supervise::CycleCounter;
+use retrocomp_bus::Sample;
+use retrocomp_model::Axis;
+
+/// Status snapshots are published at most this often (10 Hz), s: building one allocates (names,
+/// term maps), so never every cycle.
+pub const STATUS_PERIOD_S: f64 = 0.1;
+
+/// How many recent cycles the compute-time percentiles cover.
+pub const COMPUTE_WINDOW: usize = 1 << 16;
+
+/// Per-axis outputs handed to the sink: (axis, correction µm).
+pub type Outputs = Vec<(Axis, f64)>;
+
+/// The channels between the cycle and the rest of the runtime.
+#[derive(Debug)]
+pub struct CycleIo {
+    /// Samples from the bus sources.
+    pub samples: mpsc::Receiver<Sample>,
+    /// Positions the controller writes into a served register image (origin-shift server).
+    pub served: mpsc::Receiver<Sample>,
+    /// The sink found another value in the controller: continue from it.
+    pub reseed: mpsc::Receiver<(Axis, f64)>,
+    /// Token-guarded actions from the status endpoint.
+    pub control: mpsc::Receiver<Control>,
+    pub outputs: watch::Sender<Outputs>,
+    pub status: watch::Sender<Option<Arc<StatusSnapshot>>>,
+    pub sink_status: watch::Receiver<SinkStatus>,
+    pub board: SourceBoard,
+    pub counter: CycleCounter,
+    /// The Sparkplug B publisher's state for the snapshots (`[telemetry.mqtt]`), if configured.
+    pub telemetry: Option<crate::telemetry::publisher::TelemetryAnnotator>,
+}
+
+/// What the loop reports when it stops.
+#[derive(Clone, Debug, Default)]
+pub struct CycleReport {
+    pub cycles: u64,
+    /// Engine compute time per cycle, µs (p50, p99) over the last [`COMPUTE_WINDOW`] cycles.
+    pub compute_us_p50: f64,
+    pub compute_us_p99: f64,
+    /// Cycles that started more than one period after they were due, and the worst lateness.
+    pub late_cycles: u64,
+    pub max_late_ms: f64,
+    /// Time during which compensation was enabled but at least one axis did not track, s.
+    pub not_compensating_s: f64,
+    /// Separate episodes of that.
+    pub not_compensating_episodes: u64,
+    /// Time during which compensation ran without the terms of an unusable optional channel
+    /// (e.g. the load terms while the force is stale), s, and its episodes.
+    pub partial_s: f64,
+    pub partial_episodes: u64,
+}
+
+pub struct CycleLoop {
+    engine: Engine,
+    model: Box<dyn ErrorModel + Send>,
+    /// Which model runs (name, hash, loaded when), copied into every snapshot.
+    model_identity: Option<super::status::ModelIdentity>,
+    /// A model switch in progress (`POST /api/model`).
+    switcher: super::model_switch::Switcher,
+    io: CycleIo,
+    compute_ns: Vec<u64>,
+    last_publish_s: Option<f64>,
+    last_step_s: Option<f64>,
+    dropped: bool,
+    partial: bool,
+    report: CycleReport,
+    /// Compute-time histogram and late cycles, copied into every snapshot (`/metrics`).
+    timing: crate::status::CycleTiming,
+}
+
+// By hand: the model is a trait object.
+impl std::fmt::Debug for CycleLoop {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CycleLoop")
+            .field("engine", &self.engine)
+            .field("model_identity", &self.model_identity)
+            .field("report", &self.report)
+            .finish_non_exhaustive()
+    }
+}
+
+impl CycleLoop {
+    pub fn new(engine: Engine, model: Box<dyn ErrorModel + Send>, io: CycleIo) -> Self {
+        Self {
+            engine,
+            model_identity: model.identity(),
+            model,
+            switcher: Default::default(),
+            io,
+            // The ring of compute times is allocated once: a gateway runs for months.
+            compute_ns: Vec::with_capacity(COMPUTE_WINDOW),
+            last_publish_s: None,
+            last_step_s: None,
+            dropped: false,
+            partial: false,
+            report: CycleReport::default(),
+            timing: Default::default(),
+        }
+    }
+
+    /// One cycle at `now_s` (gateway clock). Returns true when it published a status snapshot
+    /// (the only part that allocates).
+    pub fn step(&mut self, now_s: f64) -> bool {
+        let e = &mut self.engine;
+        while let Ok(s) = self.io.samples.try_recv() {
+            e.ingest(&s);
+        }
+        while let Ok(s) = self.io.served.try_recv() {
+            e.ingest(&s);
+        }
+        while let Ok((axis, held)) = self.io.reseed.try_recv() {
+            if let Err(err) = e.reseed(axis, held) {
+                let axis = axis.name();
+                tracing::error!(%err, axis, "cannot continue from the controller's value; holding");
+            }
+        }
+        // Disabling ramps each axis to zero through the safety ramps (Engine::set_enabled); a
+        // model switch ramps out, swaps between two cycles, ramps in (model_switch.rs).
+        while let Ok(c) = self.io.control.try_recv() {
+            match c {
+                Control::SetCompensation { enabled } => self.switcher.set_enabled(enabled, e),
+                Control::SwitchModel(swap) => self.switcher.request(*swap, e),
+            }
+        }
+        if let Some(swap) = self.switcher.poll(e) {
+            self.model = swap.model;
+            self.model_identity = Some(swap.identity);
+        }
+        let t0 = Instant::now();
+        let outs = e.cycle_in_place(now_s, self.model.as_mut());
+        let took = t0.elapsed();
+        self.timing.observe(took.as_secs_f64());
+        let took_ns = u64::try_from(took.as_nanos()).unwrap_or(u64::MAX);
+        if self.compute_ns.len() < COMPUTE_WINDOW {
+            self.compute_ns.push(took_ns);
+        } else {
+            self.compute_ns[(self.report.cycles as usize) % COMPUTE_WINDOW] = took_ns;
+        }
+        // Reuse the channel's buffer (same axes every cycle: no allocation).
+        self.io.outputs.send_modify(|held| copy_outputs(held, outs));
+        let dropped = self.engine.compensation_dropped();
+        if let Some(t) = self.last_step_s
+            && self.dropped
+        {
+            self.report.not_compensating_s += (now_s - t).max(0.0);
+        }
+        if dropped && !self.dropped {
+            self.report.not_compensating_episodes += 1;
+        }
+        self.dropped = dropped;
+        let partial = self.engine.compensation_partial();
+        if let Some(t) = self.last_step_s
+            && self.partial
+        {
+            self.report.partial_s += (now_s - t).max(0.0);
+        }
+        if partial && !self.partial {
+            self.report.partial_episodes += 1;
+        }
+        self.partial = partial;
+        self.last_step_s = Some(now_s);
+        self.report.cycles += 1;
+        self.io.counter.set(self.report.cycles);
+        let due = self
+            .last_publish_s
+            .is_none_or(|t| now_s - t >= STATUS_PERIOD_S || now_s < t);
+        if due {
+            self.publish(now_s);
+        }
+        due
+    }
+
+    /// Build and publish the status snapshot now.
+    pub fn publish(&mut self, now_s: f64) {
+        let mut snap = self.engine.snapshot();
+        snap.model.clone_from(&self.model_identity);
+        snap.timing = self.timing;
+        if let Some(t) = self.io.telemetry.as_mut() {
+            t.annotate(&mut snap);
+        }
+        add_links(&mut snap, &self.io.sink_status.borrow(), &self.io.board);
+        let _ = self.io.status.send(Some(Arc::new(snap)));
+        self.last_publish_s = Some(now_s);
+    }
+
+    /// Run every `period` on the gateway clock (`epoch`) until `stop` is set; then publish a last
+    /// snapshot and report.
+    pub fn run(mut self, epoch: Instant, period: Duration, stop: &AtomicBool) -> CycleReport {
+        let period_s = period.as_secs_f64();
+        let mut due = epoch.elapsed();
+        while !stop.load(Ordering::Acquire) {
+            let now = epoch.elapsed();
+            if now < due {
+                std::thread::sleep(due - now);
+                continue;
+            }
+            let late_s = (now - due).as_secs_f64();
+            if late_s > period_s {
+                self.report.late_cycles += 1;
+                self.timing.late_cycles += 1;
+                self.report.max_late_ms = self.report.max_late_ms.max(late_s * 1e3);
+            }
+            self.step(now.as_secs_f64());
+            // Skip the missed due times: the next cycle is the first due time after now.
+            let behind = ((now - due).as_secs_f64() / period_s).floor() as u32;
+            due += period * (behind + 1);
+        }
+        self.publish(epoch.elapsed().as_secs_f64());
+        self.finish()
+    }
+
+    fn finish(mut self) -> CycleReport {
+        self.compute_ns.sort_unstable();
+        let n = self.compute_ns.len();
+        let pct = |p: f64| {
+            self.compute_ns
+                .get(((n as f64 - 1.0) * p) as usize)
+                .map_or(0.0, |ns| *ns as f64 / 1e3)
+        };
+        self.report.compute_us_p50 = pct(0.5);
+        self.report.compute_us_p99 = pct(0.99);
+        self.report
+    }
+}
+
+/// `dst = src` without allocating when the axes are as many as last cycle.
+fn copy_outputs(dst: &mut Outputs, src: &[(Axis, f64)]) {
+    dst.clear();
+    dst.extend_from_slice(src);
+}
+
+/// The sink's status and every source's link into `snap`, their faults added to its active ones:
+/// the cycle's snapshots and the runtime's start-up ones (before the first cycle) alike.
+pub(crate) fn add_links(snap: &mut StatusSnapshot, sink: &SinkStatus, board: &SourceBoard) {
+    snap.active_faults.extend(sink.faults.iter().cloned());
+    match &mut snap.sink {
+        Some(s) => s.clone_from(sink),
+        None => snap.sink = Some(sink.clone()),
+    }
+    board.copy_into(&mut snap.sources);
+    for src in &snap.sources {
+        let faults = src.faults.iter().map(|&(k, t)| (src.name.clone(), k, t));
+        snap.active_faults.extend(faults);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outputs_are_copied_in_place_and_follow_a_changed_axis_set() {
+        let mut held: Outputs = vec![(Axis::X, 1.0), (Axis::Z, 2.0)];
+        let buffer_at = held.as_ptr();
+        copy_outputs(&mut held, &[(Axis::X, -3.5), (Axis::Z, 4.0)]);
+        assert_eq!(held, [(Axis::X, -3.5), (Axis::Z, 4.0)]);
+        assert_eq!(held.as_ptr(), buffer_at, "the buffer was reused");
+        copy_outputs(&mut held, &[(Axis::Y, 0.25)]);
+        assert_eq!(held, [(Axis::Y, 0.25)]);
+    }
+}

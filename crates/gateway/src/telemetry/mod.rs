@@ -1,0 +1,29 @@
+//! Telemetry of a box to the plant: Sparkplug B (Eclipse Sparkplug 3.0) over MQTT, so a shop of
+//! retrofitted machines shows up in any Sparkplug host (Ignition, a `retrocomp fleet`, a stock
+//! decoder). Layout: [`sparkplug`] (the protobuf payload, topics, bdSeq/seq: sans-IO),
+//! [`metrics`] (a gateway status snapshot as named metrics, report by exception), [`queue`]
+//! (bounded store-and-forward queue, on disk), [`config`] (`[telemetry.mqtt]`), [`publisher`] (the
+//! rumqttc shell fed from the gateway's status watch; it can never block the cycle), [`fleet`] (the
+//! host side: per box alive/compensating/degraded from its messages, for `retrocomp fleet`;
+//! [`fleet_client`] is its MQTT shell), [`rebirth`] (the rate limit of rebirths, both sides),
+//! [`recordings`] + [`shipper`] (a box's recording CSV to the fleet, chunked through the same queue;
+//! collected per machine), [`drift`] (scheduled diagnose per machine against its own model). Units as in
+//! the status: µm for corrections (correction = −error), mm for positions; timestamps ms since
+//! the Unix epoch, taken when the snapshot was sampled.
+
+pub mod annotate;
+pub mod config;
+mod error;
+pub mod metrics;
+pub mod publisher;
+pub mod queue;
+pub mod rebirth;
+pub mod recordings;
+pub mod shipper;
+pub mod sparkplug;
+pub mod status;
+mod tls;
+
+pub use config::{MqttConfig, TelemetrySection};
+pub use error::TelemetryError;
+pub use publisher::{Publisher, PublisherInputs, TelemetryStatus, spawn};
