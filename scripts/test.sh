@@ -31,10 +31,15 @@ trap 'rm -f "$log"' EXIT
 problems=()
 cargo fmt --all -- --check || problems+=("cargo fmt --check")
 cargo clippy --workspace --all-targets --locked -- -D warnings || problems+=("cargo clippy")
+# The appliance gateway without its optional northbound servers (no OPC UA, MQTT or web crates).
+cargo clippy -p retrocomp-gateway --no-default-features --all-targets --locked -- -D warnings ||
+    problems+=("cargo clippy -p retrocomp-gateway --no-default-features")
+cargo test --locked -p retrocomp-gateway --no-default-features --lib config 2>&1 | tee -a "$log"
+[ "${PIPESTATUS[0]}" -eq 0 ] || problems+=("cargo test -p retrocomp-gateway --no-default-features")
 bash scripts/audit.sh || problems+=("cargo audit")
 cargo test --workspace --locked --no-fail-fast 2>&1 | tee -a "$log"
 [ "${PIPESTATUS[0]}" -eq 0 ] || problems+=("cargo test --workspace")
-cargo test --locked -p retrocomp --features gpio --lib quadrature 2>&1 | tee -a "$log"
+cargo test --locked -p retrocomp-gateway --features gpio --lib quadrature 2>&1 | tee -a "$log"
 [ "${PIPESTATUS[0]}" -eq 0 ] || problems+=("cargo test --features gpio")
 bash scripts/deb-check.sh 2>&1 | tee -a "$log"
 [ "${PIPESTATUS[0]}" -eq 0 ] || problems+=("scripts/deb-check.sh")

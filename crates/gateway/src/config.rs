@@ -382,6 +382,30 @@ position_channel = "x_mm"
         FieldConfig::parse(&format!("{BASE}{extra}"), Path::new("field.toml"))
     }
 
+    /// A section whose server this build leaves out is refused with its key and line, never
+    /// ignored; a build with the server accepts the same text (the check can fail both ways).
+    #[test]
+    fn a_section_this_build_cannot_serve_is_refused_at_its_line() {
+        let opcua = parse("[opcua]\nlisten = \"127.0.0.1:4840\"\nanonymous = true\n");
+        let mqtt = parse(
+            "[telemetry.mqtt]\nbroker = \"127.0.0.1:1883\"\ngroup_id = \"g\"\nedge_node_id = \"n\"\n",
+        );
+        for (section, built, result) in [
+            ("opcua", cfg!(feature = "opcua"), opcua),
+            ("telemetry.mqtt", cfg!(feature = "mqtt"), mqtt),
+        ] {
+            if built {
+                assert!(result.is_ok(), "{section}: {result:?}");
+            } else {
+                let e = result.unwrap_err().to_string();
+                assert!(
+                    e.contains("field.toml:") && e.contains(section) && e.contains("cargo feature"),
+                    "{e}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn modbus_and_serial_sources_parse_into_the_bus_schema() {
         let cfg = parse(

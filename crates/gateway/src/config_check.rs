@@ -165,6 +165,7 @@ impl FieldConfig {
     }
 
     pub(super) fn validate(&self) -> Result<(), (String, String)> {
+        self.check_built_in()?;
         if let Some(m) = self.telemetry.as_ref().and_then(|t| t.mqtt.as_ref()) {
             m.check()?;
         }
@@ -196,6 +197,24 @@ impl FieldConfig {
             tracing::warn!(
                 "no [sink] configured: the gateway computes and reports, but corrects nothing"
             );
+        }
+        Ok(())
+    }
+
+    /// A section whose server this build leaves out (the gateway crate's features `opcua`, `mqtt`)
+    /// is refused, not ignored: the plant would wait for data that never comes.
+    fn check_built_in(&self) -> Result<(), (String, String)> {
+        if self.opcua.is_some() && !cfg!(feature = "opcua") {
+            return Err((
+                "opcua".into(),
+                "this build has no OPC UA server (built without the cargo feature `opcua`)".into(),
+            ));
+        }
+        if self.telemetry.as_ref().is_some_and(|t| t.mqtt.is_some()) && !cfg!(feature = "mqtt") {
+            return Err((
+                "telemetry.mqtt".into(),
+                "this build has no MQTT telemetry (built without the cargo feature `mqtt`)".into(),
+            ));
         }
         Ok(())
     }

@@ -54,7 +54,7 @@ pub struct CycleIo {
     pub board: SourceBoard,
     pub counter: CycleCounter,
     /// The Sparkplug B publisher's state for the snapshots (`[telemetry.mqtt]`), if configured.
-    pub telemetry: Option<crate::telemetry::publisher::TelemetryAnnotator>,
+    pub telemetry: Option<crate::telemetry::annotate::TelemetryAnnotator>,
 }
 
 /// What the loop reports when it stops.

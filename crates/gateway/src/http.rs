@@ -129,13 +129,15 @@ pub async fn serve(
 }
 
 fn router(state: AppState, limits: &Limits) -> Router {
-    Router::new()
+    let api = Router::new()
         .route("/status", get_route(status_json).fallback(not_allowed))
         .route("/metrics", get_route(metrics).fallback(not_allowed))
         .route("/text", get_route(text).fallback(not_allowed))
-        .route("/api/compensation", post(set_compensation))
-        .merge(super::web::routes())
-        .fallback(fallback)
+        .route("/api/compensation", post(set_compensation));
+    // The live page and its assets (feature `web`); without it `/` is the fallback's 404.
+    #[cfg(feature = "web")]
+    let api = api.merge(super::web::routes());
+    api.fallback(fallback)
         .layer(DefaultBodyLimit::max(limits.max_body_bytes))
         .layer(tower_http::limit::RequestBodyLimitLayer::new(
             limits.max_body_bytes,

@@ -41,6 +41,7 @@ pub(super) struct AppState {
     pub(super) api: Arc<Api>,
     pub(super) history: super::history::SharedHistory,
     /// The last model switch accepted (name, sha256), for `GET /api/models`.
+    #[cfg_attr(not(feature = "web"), allow(dead_code))]
     pub(super) model_request: Arc<std::sync::Mutex<Option<(String, String)>>>,
     /// The endpoint's listener policy (`allow_writes_from` decides who may act) and faults.
     pub(super) policy: Arc<retrocomp_bus::listen::ListenPolicy>,

@@ -33,6 +33,7 @@ pub mod status;
 pub mod supervise;
 pub mod telemetry;
 pub mod unit_network;
+#[cfg(feature = "web")]
 pub mod web;
 
 pub use direction::{DirectionConfig, DirectionLatch};

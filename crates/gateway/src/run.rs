@@ -36,6 +36,7 @@ use super::cycle::{CycleIo, CycleLoop, CycleReport, Outputs};
 use super::engine::{Engine, ErrorModel};
 use super::error::GatewayError;
 use super::http::{Api, Control, Limits, serve};
+#[cfg(feature = "opcua")]
 use super::opcua::OpcUaServer;
 use super::status::{SinkStatus, StatusSnapshot};
 use super::supervise::{CycleCounter, SourceFeed};
@@ -45,6 +46,8 @@ use crate::origin_shift::sink_task::OriginShiftClientSink;
 use crate::quadrature::sink::QuadratureOutput;
 use crate::sink::{LocalFuture, Sink, SinkIo, StartValues};
 use crate::status::ModelIdentity;
+#[cfg(feature = "mqtt")]
+use crate::telemetry::Publisher;
 use retrocomp_bus::Sample;
 use retrocomp_bus::realtime;
 
@@ -227,7 +230,7 @@ async fn start_endpoints(
     cfg: &FieldConfig,
     status_rx: watch::Receiver<Option<Arc<StatusSnapshot>>>,
     control_tx: mpsc::Sender<Control>,
-    identity: Option<ModelIdentity>,
+    #[cfg_attr(not(feature = "opcua"), allow(unused_variables))] identity: Option<ModelIdentity>,
     status_addr: Option<oneshot::Sender<SocketAddr>>,
 ) -> Result<(Option<OpcUaServer>, tokio::task::JoinHandle<()>), GatewayError> {
     let listen: SocketAddr = cfg
@@ -241,12 +244,16 @@ async fn start_endpoints(
         models: Some(Arc::new(super::model_switch::Catalog::from_config(cfg))),
     };
     let opcua = match &cfg.opcua {
+        #[cfg(feature = "opcua")]
         Some(o) => {
             let rx = status_rx.clone();
             let srv = super::opcua::start(o, &cfg.gateway.name, rx, identity).await?;
             tracing::info!("OPC UA endpoint {} (read-only)", srv.endpoint);
             Some(srv)
         }
+        // Refused at load already (`FieldConfig::validate`); kept so the match is total.
+        #[cfg(not(feature = "opcua"))]
+        Some(_) => return Err(GatewayError::Refused(NOT_BUILT_OPCUA.into())),
         None => None,
     };
     let limits = Limits {
@@ -263,11 +270,59 @@ async fn start_endpoints(
     Ok((opcua, http_task))
 }
 
+/// What a build without the `opcua` / `mqtt` features answers for a section it cannot serve.
+#[cfg(not(feature = "opcua"))]
+const NOT_BUILT_OPCUA: &str = "[opcua]: this build has no OPC UA server (cargo feature `opcua`)";
+#[cfg(not(feature = "mqtt"))]
+const NOT_BUILT_MQTT: &str =
+    "[telemetry.mqtt]: this build has no MQTT telemetry (cargo feature `mqtt`)";
+
+/// Without the `opcua` feature no server exists: the type has no value.
+#[cfg(not(feature = "opcua"))]
+#[derive(Debug)]
+enum OpcUaServer {}
+
+#[cfg(not(feature = "opcua"))]
+impl OpcUaServer {
+    fn stop(self) {
+        match self {}
+    }
+}
+
+/// Without the `mqtt` feature no publisher exists: the type has no value.
+#[cfg(not(feature = "mqtt"))]
+#[derive(Debug)]
+enum Publisher {}
+
+#[cfg(not(feature = "mqtt"))]
+impl Publisher {
+    fn annotator(&self) -> crate::telemetry::annotate::TelemetryAnnotator {
+        match *self {}
+    }
+
+    async fn stop(self, _grace: Duration) {
+        match self {}
+    }
+}
+
+#[cfg(not(feature = "mqtt"))]
+fn start_telemetry(
+    cfg: &FieldConfig,
+    _status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
+) -> Result<Option<Publisher>, GatewayError> {
+    // Refused at load already (`FieldConfig::validate`).
+    match cfg.telemetry.as_ref().and_then(|t| t.mqtt.as_ref()) {
+        Some(_) => Err(GatewayError::Refused(NOT_BUILT_MQTT.into())),
+        None => Ok(None),
+    }
+}
+
 /// The Sparkplug publisher of the field config's `[telemetry.mqtt]`, if any.
+#[cfg(feature = "mqtt")]
 fn start_telemetry(
     cfg: &FieldConfig,
     status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
-) -> Result<Option<crate::telemetry::Publisher>, GatewayError> {
+) -> Result<Option<Publisher>, GatewayError> {
     let Some(m) = cfg.telemetry.as_ref().and_then(|t| t.mqtt.clone()) else {
         return Ok(None);
     };

@@ -13,7 +13,9 @@
 //! This file holds the `[opcua]` section of the field config and its start-time checks;
 //! `space.rs` maps a status snapshot to nodes (sans-IO), `server.rs` is the async-opcua shell.
 
+#[cfg(feature = "opcua")]
 mod server;
+#[cfg(feature = "opcua")]
 pub mod space;
 
 use std::net::SocketAddr;
@@ -21,6 +23,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+#[cfg(feature = "opcua")]
 pub use server::{OpcUaServer, start};
 
 /// `[opcua]` of the field config. Absent → no OPC UA server.
@@ -182,8 +185,10 @@ impl OpcUaSection {
             read_password(&u.password_file)
                 .map_err(|what| (format!("opcua.users[{i}].password_file"), what))?;
         }
+        #[cfg_attr(not(feature = "opcua"), allow(unused_variables))]
         for (i, u) in self.cert_users.iter_mut().enumerate() {
             u.certificate = base.join(&u.certificate);
+            #[cfg(feature = "opcua")]
             opcua::crypto::CertificateStore::read_cert(&u.certificate).map_err(|e| {
                 (
                     format!("opcua.cert_users[{i}].certificate"),

@@ -6,7 +6,16 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
-use super::queue::DropPolicy;
+/// What the store-and-forward queue gives up when it is full.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum DropPolicy {
+    /// Keep the newest telemetry (what an operator looks at first).
+    #[default]
+    DropOldest,
+    /// Keep the start of the outage (what explains it).
+    DropNewest,
+}
 
 /// `[telemetry]`: only MQTT today.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]

@@ -14,16 +14,24 @@
 pub mod annotate;
 pub mod config;
 mod error;
+#[cfg(feature = "mqtt")]
 pub mod metrics;
+#[cfg(feature = "mqtt")]
 pub mod publisher;
+#[cfg(feature = "mqtt")]
 pub mod queue;
 pub mod rebirth;
 pub mod recordings;
+#[cfg(feature = "mqtt")]
 pub mod shipper;
+#[cfg(feature = "mqtt")]
 pub mod sparkplug;
 pub mod status;
+#[cfg(feature = "mqtt")]
 mod tls;
 
 pub use config::{MqttConfig, TelemetrySection};
 pub use error::TelemetryError;
-pub use publisher::{Publisher, PublisherInputs, TelemetryStatus, spawn};
+#[cfg(feature = "mqtt")]
+pub use publisher::{Publisher, PublisherInputs, spawn};
+pub use status::TelemetryStatus;

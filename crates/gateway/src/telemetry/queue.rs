@@ -12,20 +12,11 @@ use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 
 use prost::Message;
-use serde::{Deserialize, Serialize};
 
 use super::metrics::Record;
 use super::sparkplug::{Metric, Payload};
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum DropPolicy {
-    /// Keep the newest telemetry (what an operator looks at first).
-    #[default]
-    DropOldest,
-    /// Keep the start of the outage (what explains it).
-    DropNewest,
-}
+pub use super::config::DropPolicy;
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct QueueLimits {
