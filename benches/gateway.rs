@@ -34,7 +34,7 @@ use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use retrocomp_bus::can::frame::Frame;
 use retrocomp_bus::{ChannelId, Health, Sample};
 use retrocomp_gateway::config::FieldConfig;
-use retrocomp_gateway::quadrature::{EdgeScheduler, Event, SchedulerConfig, Step, simulate};
+use retrocomp_gateway::sinks::quadrature::{EdgeScheduler, Event, SchedulerConfig, Step, simulate};
 use retrocomp_gateway::{AxisErrors, Engine, ErrorModel, MachineState};
 
 /// Per axis: a cubic in its own position (EXX-like), squareness × other axis, thermal growth ∝
@@ -107,7 +107,7 @@ position_channel = "z_mm"
 
 fn engine() -> Engine {
     let cfg = FieldConfig::parse(CFG, Path::new("bench.toml")).unwrap();
-    Engine::new(&cfg, &BTreeMap::new()).unwrap()
+    cfg.engine(&BTreeMap::new()).unwrap()
 }
 
 fn feed(e: &mut Engine, t: f64) {
@@ -173,7 +173,7 @@ fn cycle_compute(c: &mut Criterion) {
 /// The real model path: Studer S-36 (seed 004 tables, exact 4×4 HTM chain) through the adapter,
 /// 2 axes; p50/p99 of individually timed cycles printed, criterion estimate with ingest.
 fn cycle_compute_studer(c: &mut Criterion) {
-    use retrocomp_gateway::model_adapter::MachineModelAdapter;
+    use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
     use retrocomp_model::MachineModel;
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let model =
@@ -181,7 +181,7 @@ fn cycle_compute_studer(c: &mut Criterion) {
     let mut m = MachineModelAdapter::new(model);
     let text = CFG.replace("[[axis]]\nname = \"y\"\nposition_channel = \"y_mm\"\n", "");
     let cfg = FieldConfig::parse(&text, Path::new("bench.toml")).unwrap();
-    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let mut e = cfg.engine(&BTreeMap::new()).unwrap();
     let mut t = 0.0f64;
     let feed2 = |e: &mut Engine, t: f64| {
         for (ch, v) in [
@@ -295,8 +295,8 @@ fn pipeline_gateway(c: &mut Criterion) {
     use retrocomp_bus::canopen::cia404::{AnalogChannel, AnalogType};
     use retrocomp_bus::canopen::cia406::EncoderChannel;
     use retrocomp_bus::canopen::source::{CanopenConfig, CanopenSource};
-    use retrocomp_gateway::model_adapter::MachineModelAdapter;
-    use retrocomp_gateway::origin_shift::{RegisterMap, WriteBlock};
+    use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+    use retrocomp_gateway::sinks::origin_shift::{RegisterMap, WriteBlock};
     use retrocomp_model::MachineModel;
 
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -309,7 +309,7 @@ fn pipeline_gateway(c: &mut Criterion) {
            [[axis]]\nname = \"y\"\nposition_channel = \"y_mm\"\n\
            [[axis]]\nname = \"z\"\nposition_channel = \"z_mm\"\n";
     let cfg = FieldConfig::parse(&axes, Path::new("bench.toml")).unwrap();
-    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let mut e = cfg.engine(&BTreeMap::new()).unwrap();
     let encoder = |channel: &str, node_id: u8| EncoderChannel::new(channel, node_id, 1000.0);
     let can = CanopenConfig {
         encoder: vec![encoder("x_mm", 1), encoder("y_mm", 2), encoder("z_mm", 3)],

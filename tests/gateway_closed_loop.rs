@@ -11,8 +11,8 @@ use std::time::Duration;
 
 use retrocomp_bus::{Health, Sample};
 use retrocomp_gateway::config::FieldConfig;
-use retrocomp_gateway::origin_shift::RegisterMap;
 use retrocomp_gateway::run::run;
+use retrocomp_gateway::sinks::origin_shift::RegisterMap;
 use retrocomp_gateway::{AxisErrors, ErrorModel, MachineState};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, oneshot};
@@ -205,9 +205,10 @@ async fn wait_until(
 async fn poll_status(addr: &str, pred: impl Fn(&str) -> bool) -> String {
     let t0 = std::time::Instant::now();
     loop {
-        let (_, body) = retrocomp_gateway::http::get(addr, "/status", Duration::from_secs(2))
-            .await
-            .unwrap();
+        let (_, body) =
+            retrocomp_gateway::northbound::http::get(addr, "/status", Duration::from_secs(2))
+                .await
+                .unwrap();
         if pred(&body) || t0.elapsed() > GENEROUS {
             return body;
         }
@@ -252,7 +253,7 @@ async fn gateway_survives_faults_and_never_jumps() {
 
     // Status endpoint, read-only, on loopback.
     let (code, body) =
-        retrocomp_gateway::http::get(&status_addr, "/status", Duration::from_secs(2))
+        retrocomp_gateway::northbound::http::get(&status_addr, "/status", Duration::from_secs(2))
             .await
             .unwrap();
     assert_eq!(code, 200);
@@ -262,7 +263,7 @@ async fn gateway_survives_faults_and_never_jumps() {
         "{body}"
     );
     let (code, metrics) =
-        retrocomp_gateway::http::get(&status_addr, "/metrics", Duration::from_secs(2))
+        retrocomp_gateway::northbound::http::get(&status_addr, "/metrics", Duration::from_secs(2))
             .await
             .unwrap();
     assert_eq!(code, 200);

@@ -67,7 +67,7 @@ fn demo_serve_prints_the_page_and_the_opcua_endpoint_and_both_answer() {
         .build()
         .unwrap();
     let get = |path: &str| {
-        rt.block_on(retrocomp_gateway::http::request(
+        rt.block_on(retrocomp_gateway::northbound::http::request(
             page,
             "GET".parse().unwrap(),
             path,

@@ -85,7 +85,9 @@ fn s(ch: &str, t: f64, v: f64) -> Sample {
 #[test]
 fn closed_loop_core_behaviour() {
     let cfg = FieldConfig::parse(CFG, Path::new("t.toml")).unwrap();
-    let mut e = Engine::new(&cfg, &BTreeMap::from([("x".to_string(), 4.0)])).unwrap();
+    let mut e = cfg
+        .engine(&BTreeMap::from([("x".to_string(), 4.0)]))
+        .unwrap();
     let mut m = TestModel;
     let dt = 0.01;
     let mut t = 0.0;
@@ -177,7 +179,7 @@ fn closed_loop_core_behaviour() {
 #[test]
 fn temperatures_are_latched_at_the_thermal_period() {
     let cfg = FieldConfig::parse(CFG, Path::new("t.toml")).unwrap();
-    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let mut e = cfg.engine(&BTreeMap::new()).unwrap();
     let mut m = TestModel;
     let mut t = 0.0;
     let mut targets = Vec::new();
@@ -202,7 +204,7 @@ fn temperatures_are_latched_at_the_thermal_period() {
 #[test]
 fn a_bad_reading_replaced_before_the_cycle_is_logged_once_and_never_used() {
     let cfg = FieldConfig::parse(CFG, Path::new("t.toml")).unwrap();
-    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let mut e = cfg.engine(&BTreeMap::new()).unwrap();
     let mut m = TestModel;
     let mut t = 0.0;
     let feed = |e: &mut Engine, t: f64, temp: f64| {
@@ -276,12 +278,12 @@ stale_after_s = 0.1
 /// (not `compensation.<axis>`), and the force's return ramps the terms back in.
 #[test]
 fn a_stale_force_drops_only_the_load_terms_ramped() {
-    use retrocomp_gateway::model_adapter::MachineModelAdapter;
+    use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
     use retrocomp_model::MachineModel;
     let cfg = FieldConfig::parse(CFG3, Path::new("t.toml")).unwrap();
     let model = MachineModel::from_toml_str(retrocomp::demo::FULL_MODEL, "full").unwrap();
     let mut m = MachineModelAdapter::new(model);
-    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let mut e = cfg.engine(&BTreeMap::new()).unwrap();
     let dt = 0.01;
     let mut t = 0.0;
     let mut outs: Vec<f64> = Vec::new();
@@ -381,12 +383,12 @@ fn a_stale_force_drops_only_the_load_terms_ramped() {
 /// compensates with the other terms: the model's load terms are not left out silently.
 #[test]
 fn an_undelivered_optional_input_is_a_lasting_fault_naming_it() {
-    use retrocomp_gateway::model_adapter::MachineModelAdapter;
+    use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
     use retrocomp_model::MachineModel;
     let cfg = FieldConfig::parse(CFG3, Path::new("t.toml")).unwrap();
     let model = MachineModel::from_toml_str(retrocomp::demo::FULL_MODEL, "full").unwrap();
     let mut m = MachineModelAdapter::new(model);
-    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let mut e = cfg.engine(&BTreeMap::new()).unwrap();
     e.report_undelivered(&[ChannelId::of("F_cut_N")]);
     let no_source = ("F_cut_N".to_string(), FaultKind::NoSource);
     let mut t = 0.0;

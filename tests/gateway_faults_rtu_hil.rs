@@ -146,7 +146,7 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
         }
         if let Some(addr) = &status_addr {
             let at_s = t0.elapsed().as_secs_f64();
-            let got = rt.block_on(retrocomp_gateway::http::get(
+            let got = rt.block_on(retrocomp_gateway::northbound::http::get(
                 addr,
                 "/status",
                 Duration::from_millis(200),

@@ -14,7 +14,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use retrocomp_bus::listen::ListenPolicy;
-use retrocomp_gateway::http::Limits;
+use retrocomp_gateway::northbound::http::Limits;
 
 const CHILD_ENV: &str = "RETROCOMP_HTTP_FLOOD_CHILD";
 const NOFILE: u64 = 160;
@@ -50,7 +50,7 @@ fn child(mode: &str) {
     let (_tx, rx) = tokio::sync::watch::channel(None);
     // The server runs on the runtime's workers; this thread answers stdin.
     let (addr, _task) = rt
-        .block_on(retrocomp_gateway::http::serve(
+        .block_on(retrocomp_gateway::northbound::http::serve(
             "127.0.0.1:0".parse().unwrap(),
             rx,
             Default::default(),
@@ -190,7 +190,9 @@ fn flood(test_name: &str, mode: &str) -> Outcome {
         let mut last = None;
         while t0.elapsed() < Duration::from_secs(60) {
             let addr = addr.to_string();
-            match retrocomp_gateway::http::get(&addr, "/status", Duration::from_secs(5)).await {
+            match retrocomp_gateway::northbound::http::get(&addr, "/status", Duration::from_secs(5))
+                .await
+            {
                 Ok((503, body)) if body == "no cycle run yet\n" => {
                     last = None;
                     break;

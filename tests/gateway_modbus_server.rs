@@ -15,8 +15,10 @@ use std::time::{Duration, Instant};
 use retrocomp_bus::Sample;
 use retrocomp_gateway::SinkStatus;
 use retrocomp_gateway::config::FieldConfig;
-use retrocomp_gateway::guard::AxisLimits;
-use retrocomp_gateway::origin_shift::server::{OriginShiftServer, ServerConfig, ServerTransport};
+use retrocomp_gateway::sinks::guard::AxisLimits;
+use retrocomp_gateway::sinks::origin_shift::server::{
+    OriginShiftServer, ServerConfig, ServerTransport,
+};
 use tokio::sync::{mpsc, watch};
 
 #[path = "peers/mod.rs"]

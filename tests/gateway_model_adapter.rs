@@ -8,7 +8,7 @@ use std::path::Path;
 use retrocomp_bus::{Health, Sample};
 use retrocomp_gateway::Engine;
 use retrocomp_gateway::config::FieldConfig;
-use retrocomp_gateway::model_adapter::MachineModelAdapter;
+use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
 use retrocomp_model::MachineModel;
 
 const CFG: &str = r#"
@@ -38,7 +38,7 @@ fn studer_table_6_1_through_the_gateway() {
         MachineModel::from_toml_path(&root.join("deploy/examples/studer-s36.toml")).unwrap();
     let mut m = MachineModelAdapter::new(model);
     let cfg = FieldConfig::parse(CFG, Path::new("studer.toml")).unwrap();
-    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let mut e = cfg.engine(&BTreeMap::new()).unwrap();
     let mut t = 0.0;
     let mut step = |e: &mut Engine, z: f64| {
         t += 0.01;

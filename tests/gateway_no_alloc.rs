@@ -26,8 +26,8 @@ use retrocomp_bus::{ChannelId, Health, Sample};
 use retrocomp_gateway::Engine;
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::cycle::STATUS_PERIOD_S;
-use retrocomp_gateway::model_adapter::MachineModelAdapter;
-use retrocomp_gateway::prometheus::StatusSnapshot;
+use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+use retrocomp_gateway::northbound::prometheus::StatusSnapshot;
 use retrocomp_model::Axis;
 use retrocomp_model::MachineModel;
 
@@ -120,7 +120,7 @@ fn steady_state_cycles_allocate_nothing() {
     let model = MachineModel::from_toml_path(&root.join("deploy/demo/mill-full.toml")).unwrap();
     let mut m = MachineModelAdapter::new(model);
     let cfg = FieldConfig::parse(CFG, Path::new("no-alloc.toml")).unwrap();
-    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let mut e = cfg.engine(&BTreeMap::new()).unwrap();
     let mut samples: Vec<Sample> = [
         "x_mm",
         "y_mm",
@@ -209,7 +209,7 @@ fn drive_cycle_loop(
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let model = MachineModel::from_toml_path(&root.join("deploy/demo/mill-full.toml")).unwrap();
     let cfg = FieldConfig::parse(CFG, Path::new("no-alloc.toml")).unwrap();
-    let engine = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let engine = cfg.engine(&BTreeMap::new()).unwrap();
     let (sample_tx, sample_rx) = mpsc::channel(16_384);
     let (_served_tx, served) = mpsc::channel(8);
     let (_reseed_tx, reseed) = mpsc::channel(8);
@@ -407,14 +407,14 @@ fn frames_to_register_words_allocate_nothing_per_cycle() {
     use retrocomp_bus::canopen::cia404::{AnalogChannel, AnalogType};
     use retrocomp_bus::canopen::cia406::EncoderChannel;
     use retrocomp_bus::canopen::source::{CanopenConfig, CanopenSource};
-    use retrocomp_gateway::origin_shift::{RegisterMap, WriteBlock};
-    use retrocomp_gateway::quadrature::CountQuantizer;
+    use retrocomp_gateway::sinks::origin_shift::{RegisterMap, WriteBlock};
+    use retrocomp_gateway::sinks::quadrature::CountQuantizer;
 
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let model = MachineModel::from_toml_path(&root.join("deploy/demo/mill-full.toml")).unwrap();
     let mut m = MachineModelAdapter::new(model);
     let cfg = FieldConfig::parse(CFG, Path::new("no-alloc.toml")).unwrap();
-    let mut e = Engine::new(&cfg, &BTreeMap::new()).unwrap();
+    let mut e = cfg.engine(&BTreeMap::new()).unwrap();
     let encoder = |channel: &str, node_id: u8| EncoderChannel::new(channel, node_id, 1000.0);
     let analog = |channel: &str, node_id: u8| AnalogChannel {
         decimal_digits: 3,
@@ -509,8 +509,8 @@ fn frames_to_register_words_allocate_nothing_per_cycle() {
 #[test]
 fn an_origin_shift_write_period_allocates_nothing() {
     use retrocomp_bus::fault::FaultLog;
-    use retrocomp_gateway::origin_shift::sink_task::{SinkSources, update_faults_of};
-    use retrocomp_gateway::origin_shift::{
+    use retrocomp_gateway::sinks::origin_shift::sink_task::{SinkSources, update_faults_of};
+    use retrocomp_gateway::sinks::origin_shift::{
         Action, Outcome, RegisterMap, Reply, SinkAxis, SinkCore, Words,
     };
 
@@ -595,9 +595,9 @@ fn an_origin_shift_write_period_allocates_nothing() {
 #[test]
 fn an_origin_shift_server_update_allocates_nothing() {
     use retrocomp_bus::ChannelId;
-    use retrocomp_gateway::guard::AxisLimits;
-    use retrocomp_gateway::origin_shift::Words;
-    use retrocomp_gateway::origin_shift::server_core::{ServerCore, ServerMap, Update};
+    use retrocomp_gateway::sinks::guard::AxisLimits;
+    use retrocomp_gateway::sinks::origin_shift::Words;
+    use retrocomp_gateway::sinks::origin_shift::server_core::{ServerCore, ServerMap, Update};
 
     let map: ServerMap = toml::from_str(&format!(
         "heartbeat_address = 10\n{AXES_MAP}\

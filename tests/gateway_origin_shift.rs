@@ -7,7 +7,7 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use retrocomp_gateway::origin_shift::{
+use retrocomp_gateway::sinks::origin_shift::{
     ClientConfig, OriginShiftClient, Outcome, RegisterMap, Transport,
 };
 use retrocomp_model::Axis;

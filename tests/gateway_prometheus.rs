@@ -167,7 +167,7 @@ fn url_encode(s: &str) -> String {
 
 /// One instant query against Prometheus' HTTP API; the parsed answer, or None if it did not answer.
 fn query(rig: &web_rig::Rig, prom: &Prometheus, expr: &str) -> Option<Value> {
-    use retrocomp_gateway::http::request;
+    use retrocomp_gateway::northbound::http::request;
     let path = format!("/api/v1/query?query={}", url_encode(expr));
     let (code, body) = rig
         .rt

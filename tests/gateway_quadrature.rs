@@ -4,7 +4,7 @@
 
 use embedded_hal_mock::eh1::digital::{Mock as PinMock, State, Transaction as PinTx};
 use proptest::prelude::*;
-use retrocomp_gateway::quadrature::{
+use retrocomp_gateway::sinks::quadrature::{
     CountQuantizer, EdgeScheduler, Event, QuadDecoder, QuadraturePins, SchedulerConfig, Source,
     Step, levels_of_phase, simulate,
 };
@@ -13,7 +13,7 @@ const GAP_NS: u64 = 400; // RS-422 at 400 kHz: a ≥ 0.4 µs
 
 fn check_stream(
     sched: &EdgeScheduler,
-    out: &[retrocomp_gateway::quadrature::Transition],
+    out: &[retrocomp_gateway::sinks::quadrature::Transition],
     native_sum: i64,
     target: i64,
 ) -> Result<(), TestCaseError> {

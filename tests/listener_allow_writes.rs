@@ -12,7 +12,7 @@ use std::net::SocketAddr;
 use retrocomp_bus::fault::FaultKind;
 use retrocomp_bus::listen::ListenPolicy;
 use retrocomp_bus::modbus::server::{RegisterBank, TcpServer};
-use retrocomp_gateway::http::{Api, Limits, request, serve};
+use retrocomp_gateway::northbound::http::{Api, Limits, request, serve};
 
 fn only(ip: &str) -> ListenPolicy {
     ListenPolicy {
@@ -100,7 +100,7 @@ async fn http_actions_only_from_the_list() {
     assert_eq!(code, 403, "{body}");
     assert!(body.contains("allow_writes_from"), "{body}");
     // The read routes stay open to every peer.
-    let (code, _) = retrocomp_gateway::http::get(
+    let (code, _) = retrocomp_gateway::northbound::http::get(
         &addr.to_string(),
         "/status",
         std::time::Duration::from_secs(10),

@@ -65,13 +65,17 @@ fn child() {
             .unwrap();
         // Kept to the end: the endpoint's history task ends when the sender goes.
         let (tx, rx) = tokio::sync::watch::channel(None);
-        let (http, _task) =
-            retrocomp_gateway::http::serve(any, rx.clone(), Default::default(), Default::default())
-                .await
-                .unwrap();
-        let section: retrocomp_gateway::opcua::OpcUaSection =
+        let (http, _task) = retrocomp_gateway::northbound::http::serve(
+            any,
+            rx.clone(),
+            Default::default(),
+            Default::default(),
+        )
+        .await
+        .unwrap();
+        let section: retrocomp_gateway::northbound::opcua::OpcUaSection =
             toml::from_str("listen = \"127.0.0.1:0\"").unwrap();
-        let ua = retrocomp_gateway::opcua::start(&section, "flood", rx, None)
+        let ua = retrocomp_gateway::northbound::opcua::start(&section, "flood", rx, None)
             .await
             .unwrap();
         let hub = retrocomp_bus::can::hub::Hub::start_loopback()

@@ -21,8 +21,10 @@ use std::time::{Duration, Instant};
 
 use mosquitto::Broker;
 use peers::{Peer, free_port, spawn_python};
-use retrocomp_gateway::prometheus::StatusSnapshot;
-use retrocomp_gateway::telemetry::{self, MqttConfig, PublisherInputs, TelemetryStatus};
+use retrocomp_gateway::northbound::prometheus::StatusSnapshot;
+use retrocomp_gateway::northbound::telemetry::{
+    self, MqttConfig, PublisherInputs, TelemetryStatus,
+};
 use serde_json::Value;
 use snapshot::snapshot;
 use tokio::sync::watch;
@@ -315,9 +317,10 @@ impl retrocomp_gateway::ErrorModel for OneTerm {
 /// `/status`, or None while the gateway answers 503 "no cycle run yet" (its first cycle may come
 /// late on a loaded machine: a CI run with both cores busy saw it); any other answer fails.
 async fn status(addr: &str) -> Option<Value> {
-    let (code, body) = retrocomp_gateway::http::get(addr, "/status", Duration::from_secs(10))
-        .await
-        .unwrap();
+    let (code, body) =
+        retrocomp_gateway::northbound::http::get(addr, "/status", Duration::from_secs(10))
+            .await
+            .unwrap();
     if code == 503 && body.contains("no cycle run yet") {
         return None;
     }
@@ -441,9 +444,10 @@ drop_policy = "drop_oldest"
     })
     .await;
     assert_eq!(js["axes"][0]["mode"], "tracking", "{js}");
-    let (_, metrics) = retrocomp_gateway::http::get(&addr, "/metrics", Duration::from_secs(10))
-        .await
-        .unwrap();
+    let (_, metrics) =
+        retrocomp_gateway::northbound::http::get(&addr, "/metrics", Duration::from_secs(10))
+            .await
+            .unwrap();
     assert!(
         metrics.contains("retrocomp_telemetry_connected 0"),
         "{metrics}"

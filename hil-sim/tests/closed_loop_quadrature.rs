@@ -12,7 +12,7 @@ mod closed_loop_support;
 
 use closed_loop_support::*;
 use hil_sim::harness::{ClosedLoop, Pulse};
-use retrocomp_gateway::health::FaultKind;
+use retrocomp_gateway::engine::health::FaultKind;
 
 const DWELL1_END: f64 = 6.5;
 
@@ -139,7 +139,7 @@ fn a_stuck_then_nan_spindle_sensor_keeps_the_counts_on_the_output_without_droppi
 #[test]
 fn a_restarted_box_continues_from_the_persisted_counts_without_an_edge_at_takeover() {
     // Pulses have no read-back: the box persists the count the controller holds ahead of every
-    // step (retrocomp_gateway::quadrature::held, here the harness's in-memory store). A restarted box reads
+    // step (retrocomp_gateway::sinks::quadrature::held, here the harness's in-memory store). A restarted box reads
     // it back: it drives the lines at that count's phase (the receiver sees no edge), continues
     // its counts from it and the engine is seeded with what it realises, so the controller holds
     // exactly the engine's output afterwards — never the old counts plus a second correction.
@@ -199,7 +199,7 @@ fn a_persisted_count_beyond_the_clamp_refuses_the_restart() {
     // What the store says the controller holds is a start value the engine must accept as it is:
     // beyond the clamp (a file from another machine, a bad edit) the box refuses to start rather
     // than clip it and inject the difference, as `retrocomp run` does.
-    use retrocomp_gateway::quadrature::held::HeldCounts;
+    use retrocomp_gateway::sinks::quadrature::held::HeldCounts;
     let mut h = closed_loop_quadrature(sim_config(MOVES, true, ""));
     h.run_until(1.0);
     let beyond = (clamp_of(0) + 10.0).round() as i64;

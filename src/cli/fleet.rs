@@ -19,7 +19,7 @@ use retrocomp_model::error::Chain;
 use retrocomp_fleet::drift::{self, DriftState, MachineDrift};
 use retrocomp_fleet::fleet::FleetView;
 use retrocomp_fleet::fleet_client::FleetClient;
-use retrocomp_gateway::telemetry::publisher::now_ms;
+use retrocomp_gateway::northbound::telemetry::publisher::now_ms;
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {

@@ -4,8 +4,8 @@
 
 use std::path::PathBuf;
 
+use retrocomp_gateway::config::field_check::check_field;
 use retrocomp_gateway::engine::{AxisErrors, ErrorModel, MachineState};
-use retrocomp_gateway::field_check::check_field;
 use retrocomp_gateway::run::{require_sink, run as run_gateway};
 use retrocomp_gateway::sources::spawn_sources;
 use retrocomp_gateway::supervise::{exit_on_panic, spawn_watchdog};
@@ -84,7 +84,7 @@ impl<M: ErrorModel> ErrorModel for HangAfter<M> {
         self.inner.required_channels()
     }
 
-    fn identity(&self) -> Option<retrocomp_gateway::prometheus::ModelIdentity> {
+    fn identity(&self) -> Option<retrocomp_gateway::northbound::prometheus::ModelIdentity> {
         self.inner.identity()
     }
 

@@ -9,9 +9,9 @@ use std::time::Duration;
 
 use anyhow::Context as _;
 
-use retrocomp_gateway::telemetry::MqttConfig;
-use retrocomp_gateway::telemetry::recordings::{chunk_csv, ship_to_dir};
-use retrocomp_gateway::telemetry::shipper::{Shipment, default_topic, ship};
+use retrocomp_gateway::northbound::telemetry::MqttConfig;
+use retrocomp_gateway::northbound::telemetry::recordings::{chunk_csv, ship_to_dir};
+use retrocomp_gateway::northbound::telemetry::shipper::{Shipment, default_topic, ship};
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {

@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use anyhow::{Context, bail};
 
-use retrocomp_gateway::http::get;
+use retrocomp_gateway::northbound::http::get;
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {

@@ -32,7 +32,7 @@ use retrocomp_analysis::plane_model::parse_plane_model;
 use retrocomp_analysis::table::Direction;
 use retrocomp_gateway::StatusSnapshot;
 use retrocomp_gateway::config::FieldConfig;
-use retrocomp_gateway::http::serve_status;
+use retrocomp_gateway::northbound::http::serve_status;
 use retrocomp_model::MachineModel;
 use retrocomp_model::recording::Recording;
 

@@ -13,10 +13,10 @@ use retrocomp_bus::modbus::regmap::decode_raw;
 use retrocomp_bus::modbus::server::RegisterService;
 use retrocomp_bus::modbus::{DataType, WordOrder};
 use retrocomp_fleet::fleet::FleetView;
-use retrocomp_gateway::guard::AxisLimits;
-use retrocomp_gateway::origin_shift::server_core::{ServerCore, ServerMap};
-use retrocomp_gateway::telemetry::recordings::{Collector, Took};
-use retrocomp_gateway::telemetry::sparkplug::{self, EdgeNode, Payload};
+use retrocomp_gateway::northbound::telemetry::recordings::{Collector, Took};
+use retrocomp_gateway::northbound::telemetry::sparkplug::{self, EdgeNode, Payload};
+use retrocomp_gateway::sinks::guard::AxisLimits;
+use retrocomp_gateway::sinks::origin_shift::server_core::{ServerCore, ServerMap};
 use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
 use tokio_modbus::bytes::Bytes;
 use tokio_modbus::prelude::{Request, Response, SlaveRequest};
@@ -294,7 +294,7 @@ pub(crate) fn recording_chunks(data: &[u8]) {
     let mut col = Collector::new(dir.path().to_path_buf());
     let mut headers = std::collections::HashMap::new();
     for payload in data.split(|&b| b == 0xFF) {
-        let chunk = retrocomp_gateway::telemetry::recordings::Chunk::decode(payload);
+        let chunk = retrocomp_gateway::northbound::telemetry::recordings::Chunk::decode(payload);
         let took = col
             .ingest(payload)
             .unwrap_or_else(|e| panic!("I/O error on {:?}: {e}", String::from_utf8_lossy(payload)));

@@ -128,7 +128,7 @@ impl Rig {
         auth: Option<&str>,
         body: &str,
     ) -> (u16, String) {
-        use retrocomp_gateway::http::request;
+        use retrocomp_gateway::northbound::http::request;
         let bearer = auth.map(|t| format!("Bearer {t}"));
         let mut h = vec![("content-type", "application/json")];
         if let Some(b) = &bearer {

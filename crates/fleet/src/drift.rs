@@ -9,7 +9,7 @@
 //! residual nobody can explain is reported as `unexplained`, not as drift of a known effect. The
 //! first diagnosis of a machine is kept as its baseline, so the view shows how far the residual
 //! grew. Files: the recording is the newest `*.csv` under `<collect dir>/<group>/<edge node>/`
-//! ([`retrocomp_gateway::telemetry::recordings`] layout), the model is `<models dir>/<edge node>.toml`.
+//! ([`retrocomp_gateway::northbound::telemetry::recordings`] layout), the model is `<models dir>/<edge node>.toml`.
 
 use std::path::{Path, PathBuf};
 
@@ -17,7 +17,7 @@ use serde::Serialize;
 
 use retrocomp_analysis::diagnose::report::{Finding, Report};
 use retrocomp_analysis::diagnose::{self, select::Options};
-use retrocomp_gateway::telemetry::TelemetryError;
+use retrocomp_gateway::northbound::telemetry::TelemetryError;
 use retrocomp_model::MachineModel;
 use retrocomp_model::recording::Recording;
 

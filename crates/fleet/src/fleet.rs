@@ -19,8 +19,8 @@ use std::collections::{BTreeMap, HashMap, VecDeque};
 use prost::Message;
 use serde::Serialize;
 
-use retrocomp_gateway::telemetry::rebirth::RebirthLimiter;
-use retrocomp_gateway::telemetry::sparkplug::{
+use retrocomp_gateway::northbound::telemetry::rebirth::RebirthLimiter;
+use retrocomp_gateway::northbound::telemetry::sparkplug::{
     self, BD_SEQ, DataType, Kind, Metric, Payload, REBIRTH, Value,
 };
 
@@ -387,7 +387,7 @@ impl FleetView {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use retrocomp_gateway::telemetry::sparkplug::EdgeNode;
+    use retrocomp_gateway::northbound::telemetry::sparkplug::EdgeNode;
 
     fn vals(mode: &str, faults: u32) -> Vec<(String, Value)> {
         vec![

@@ -10,8 +10,8 @@ use std::time::Duration;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 
 use crate::fleet::FleetView;
-use retrocomp_gateway::telemetry::publisher::now_ms;
-use retrocomp_gateway::telemetry::recordings::{Collector, Took};
+use retrocomp_gateway::northbound::telemetry::publisher::now_ms;
+use retrocomp_gateway::northbound::telemetry::recordings::{Collector, Took};
 
 /// Why the fleet client could not be built or lost its link.
 #[derive(Debug, thiserror::Error)]

@@ -2,7 +2,7 @@
 //! degraded per box from its messages, rebirth requests for nodes it has no birth for),
 //! [`fleet_client`] its MQTT shell, [`drift`] the scheduled diagnosis of each machine's recordings
 //! against its own model. The box's side of the protocol (the edge node, the payload codec) is
-//! `retrocomp_gateway::telemetry`. Units as in the status snapshot: µm for corrections
+//! `retrocomp_gateway::northbound::telemetry`. Units as in the status snapshot: µm for corrections
 //! (correction = −error), mm for positions; timestamps ms since the Unix epoch.
 
 pub mod drift;

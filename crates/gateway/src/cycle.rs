@@ -19,11 +19,11 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::{mpsc, watch};
 
-use super::engine::{Engine, ErrorModel};
-use super::http::Control;
-use super::source_health::SourceBoard;
-use super::status::{SinkStatus, StatusSnapshot};
-use super::supervise::CycleCounter;
+use crate::engine::{Engine, ErrorModel};
+use crate::northbound::http::Control;
+use crate::sources::health::SourceBoard;
+use crate::status::{SinkStatus, StatusSnapshot};
+use crate::supervise::CycleCounter;
 use retrocomp_bus::Sample;
 use retrocomp_model::Axis;
 
@@ -54,7 +54,7 @@ pub struct CycleIo {
     pub board: SourceBoard,
     pub counter: CycleCounter,
     /// The Sparkplug B publisher's state for the snapshots (`[telemetry.mqtt]`), if configured.
-    pub telemetry: Option<crate::telemetry::annotate::TelemetryAnnotator>,
+    pub telemetry: Option<crate::northbound::telemetry::annotate::TelemetryAnnotator>,
 }
 
 /// What the loop reports when it stops.
@@ -81,9 +81,9 @@ pub struct CycleLoop {
     engine: Engine,
     model: Box<dyn ErrorModel + Send>,
     /// Which model runs (name, hash, loaded when), copied into every snapshot.
-    model_identity: Option<super::status::ModelIdentity>,
+    model_identity: Option<crate::status::ModelIdentity>,
     /// A model switch in progress (`POST /api/model`).
-    switcher: super::model_switch::Switcher,
+    switcher: crate::engine::model_switch::Switcher,
     io: CycleIo,
     compute_ns: Vec<u64>,
     last_publish_s: Option<f64>,

@@ -1,4 +1,4 @@
-//! The gateway runtime's one error type at its seam ([`super::run::run`], the sources, the OPC UA
+//! The gateway runtime's one error type at its seam ([`crate::run::run`], the sources, the OPC UA
 //! endpoint): what could not start, or why a running gateway stopped. Display is this layer only
 //! (the config key, the step or the source that failed); the cause is its `source()`, so the
 //! command line prints `gateway.status_listen: invalid socket address syntax` as before.
@@ -23,12 +23,15 @@ pub enum GatewayError {
     #[error("{0}")]
     Stopped(String),
     #[error(transparent)]
-    Sink(#[from] crate::sink::SinkError),
+    Sink(#[from] crate::sinks::SinkError),
+    #[cfg(feature = "opcua")]
     #[error(transparent)]
-    Telemetry(#[from] crate::telemetry::TelemetryError),
+    OpcUa(#[from] crate::northbound::opcua::OpcUaError),
+    #[error(transparent)]
+    Telemetry(#[from] crate::northbound::telemetry::TelemetryError),
     /// The field config's safety section cannot make an engine.
     #[error(transparent)]
-    Safety(#[from] super::safety::SafetyError),
+    Safety(#[from] crate::engine::safety::SafetyError),
     #[error(transparent)]
     Io(#[from] std::io::Error),
 }

@@ -1,44 +1,34 @@
-//! The gateway runtime: sources → state → model → safety → sinks. This module holds the sans-IO parts
-//! (safety limits, direction latch, sensor health and recovery, field configuration, status) and the
-//! thin async runtime that wires them to the buses.
+//! retrocomp's gateway crate: sources → engine → sinks, with the plant's servers beside them.
+//!
+//! - [`config`]: the field file (`FieldConfig`), refused at start with file, line and key when it
+//!   cannot be safe;
+//! - [`sources`]: the buses' tasks feeding samples to the cycle, and their health;
+//! - [`engine`]: the sans-IO core (state, model, direction latch, sensor health and recovery,
+//!   safety limits) that turns samples into a correction per axis;
+//! - [`sinks`]: the output trait and the last-step guard every output passes, the origin-shift
+//!   (Modbus client and server) and quadrature sinks;
+//! - [`northbound`]: HTTP/Prometheus, the live page, OPC UA, Sparkplug;
+//! - [`run`], [`cycle`], [`supervise`]: the thin tokio runtime that wires them; [`status`] is the
+//!   snapshot every consumer reads; [`error`] the runtime's error.
+//!
+//! Signs and units: correction = −error, µm; positions mm (see each module).
 
 pub mod config;
-mod config_check;
-mod config_limits;
 pub mod cycle;
-pub mod direction;
 pub mod engine;
 pub mod error;
-pub mod error_model;
-pub mod field_check;
-pub mod guard;
-pub mod health;
-pub mod history;
-pub mod http;
-mod http_state;
-pub mod model_adapter;
-pub mod model_switch;
-pub mod opcua;
-pub mod origin_shift;
-pub mod prometheus;
-mod prometheus_text;
-pub mod quadrature;
-pub mod recovery;
+pub mod northbound;
 pub mod run;
-pub mod safety;
-pub mod sink;
-pub mod source_health;
+pub mod sinks;
 pub mod sources;
 pub mod status;
 pub mod supervise;
-pub mod telemetry;
-pub mod unit_network;
-#[cfg(feature = "web")]
-pub mod web;
 
-pub use direction::{DirectionConfig, DirectionLatch};
+pub use engine::direction::{DirectionConfig, DirectionLatch};
+pub use engine::health::{
+    ChannelLimits, ChannelMonitor, ChannelStatus, FaultEvent, FaultKind, FaultLog,
+};
+pub use engine::recovery::NeighbourEstimate;
+pub use engine::safety::{AxisSafety, Input, Mode, SafetyConfig};
 pub use engine::{AxisErrors, Engine, ErrorModel, MachineState, TermError};
-pub use health::{ChannelLimits, ChannelMonitor, ChannelStatus, FaultEvent, FaultKind, FaultLog};
-pub use recovery::NeighbourEstimate;
-pub use safety::{AxisSafety, Input, Mode, SafetyConfig};
 pub use status::{AxisStatus, SinkStatus, SourceStatus, StatusSnapshot};

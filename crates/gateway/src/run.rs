@@ -31,23 +31,24 @@ use std::time::Duration;
 
 use tokio::sync::{mpsc, oneshot, watch};
 
-use super::config::{FieldConfig, OnStop};
-use super::cycle::{CycleIo, CycleLoop, CycleReport, Outputs};
-use super::engine::{Engine, ErrorModel};
-use super::error::GatewayError;
-use super::http::{Api, Control, Limits, serve};
+use crate::config::{FieldConfig, OnStop};
+use crate::cycle::{CycleIo, CycleLoop, CycleReport, Outputs};
+use crate::engine::ErrorModel;
+use crate::error::GatewayError;
+use crate::northbound::http::{Api, Control, Limits, serve};
 #[cfg(feature = "opcua")]
-use super::opcua::OpcUaServer;
-use super::status::{SinkStatus, StatusSnapshot};
-use super::supervise::{CycleCounter, SourceFeed};
-use crate::guard::AxisLimits;
-use crate::origin_shift::server::OriginShiftServerSink;
-use crate::origin_shift::sink_task::OriginShiftClientSink;
-use crate::quadrature::sink::QuadratureOutput;
-use crate::sink::{LocalFuture, Sink, SinkIo, StartValues};
-use crate::status::ModelIdentity;
+use crate::northbound::opcua::OpcUaServer;
 #[cfg(feature = "mqtt")]
-use crate::telemetry::Publisher;
+use crate::northbound::telemetry::Publisher;
+use crate::sinks::guard::AxisLimits;
+use crate::sinks::origin_shift::server::OriginShiftServerSink;
+use crate::sinks::origin_shift::sink_task::OriginShiftClientSink;
+use crate::sinks::quadrature::sink::QuadratureOutput;
+use crate::sinks::{LocalFuture, Sink, SinkIo, StartValues};
+use crate::sources::SourceFeed;
+use crate::status::ModelIdentity;
+use crate::status::{SinkStatus, StatusSnapshot};
+use crate::supervise::CycleCounter;
 use retrocomp_bus::Sample;
 use retrocomp_bus::realtime;
 
@@ -126,7 +127,7 @@ pub async fn run(
     let initial = match sink.as_mut() {
         Some(s) => {
             let starting = StartingStatus {
-                template: Engine::new(&cfg, &BTreeMap::new())?.snapshot(),
+                template: cfg.engine(&BTreeMap::new())?.snapshot(),
                 status: &status_tx,
                 sink: &sink_status_rx,
                 board: &board,
@@ -137,8 +138,8 @@ pub async fn run(
         None => BTreeMap::new(),
     };
 
-    let mut engine = Engine::new(&cfg, &initial)?;
-    engine.report_undelivered(&super::field_check::undelivered_optional(
+    let mut engine = cfg.engine(&initial)?;
+    engine.report_undelivered(&crate::config::field_check::undelivered_optional(
         &cfg,
         model.as_ref(),
     ));
@@ -241,13 +242,13 @@ async fn start_endpoints(
     let api = Api {
         token: cfg.gateway.api_token.clone(),
         control_tx: Some(control_tx),
-        models: Some(Arc::new(super::model_switch::Catalog::from_config(cfg))),
+        models: Some(Arc::new(cfg.model_catalog())),
     };
     let opcua = match &cfg.opcua {
         #[cfg(feature = "opcua")]
         Some(o) => {
             let rx = status_rx.clone();
-            let srv = super::opcua::start(o, &cfg.gateway.name, rx, identity).await?;
+            let srv = crate::northbound::opcua::start(o, &cfg.gateway.name, rx, identity).await?;
             tracing::info!("OPC UA endpoint {} (read-only)", srv.endpoint);
             Some(srv)
         }
@@ -296,7 +297,7 @@ enum Publisher {}
 
 #[cfg(not(feature = "mqtt"))]
 impl Publisher {
-    fn annotator(&self) -> crate::telemetry::annotate::TelemetryAnnotator {
+    fn annotator(&self) -> crate::northbound::telemetry::annotate::TelemetryAnnotator {
         match *self {}
     }
 
@@ -331,9 +332,9 @@ fn start_telemetry(
         .as_ref()
         .map_or_else(|| "inline".to_string(), |m| m.path.display().to_string());
     let model_identity = format!("{}:{model}", cfg.gateway.name);
-    crate::telemetry::spawn(
+    crate::northbound::telemetry::spawn(
         m,
-        crate::telemetry::PublisherInputs {
+        crate::northbound::telemetry::PublisherInputs {
             status,
             model_identity,
         },
@@ -374,7 +375,7 @@ struct StartingStatus<'a> {
     template: StatusSnapshot,
     status: &'a watch::Sender<Option<Arc<StatusSnapshot>>>,
     sink: &'a watch::Receiver<SinkStatus>,
-    board: &'a super::source_health::SourceBoard,
+    board: &'a crate::sources::health::SourceBoard,
     epoch: std::time::Instant,
 }
 
@@ -397,7 +398,7 @@ impl StartingStatus<'_> {
                 _ = tick.tick() => {
                     let mut snap = self.template.clone();
                     snap.t_s = self.epoch.elapsed().as_secs_f64();
-                    super::cycle::add_links(&mut snap, &self.sink.borrow(), self.board);
+                    crate::cycle::add_links(&mut snap, &self.sink.borrow(), self.board);
                     let _ = self.status.send(Some(Arc::new(snap)));
                 }
             }
@@ -536,7 +537,7 @@ pub fn require_sink(cfg: &FieldConfig) -> Result<(), GatewayError> {
         ));
     }
     match &cfg.sink.quadrature {
-        Some(q) => Ok(crate::quadrature::sink::check_buildable(q)?),
+        Some(q) => Ok(crate::sinks::quadrature::sink::check_buildable(q)?),
         None => Ok(()),
     }
 }

@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-pub use crate::sink::SinkStatus;
+pub use crate::sinks::SinkStatus;
 use retrocomp_bus::Health;
 use retrocomp_bus::can::BusState;
 use retrocomp_bus::fault::FaultKind;

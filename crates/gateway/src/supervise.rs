@@ -18,36 +18,11 @@ use std::time::Duration;
 
 use tokio::sync::mpsc;
 
-use super::source_health::SourceBoard;
-use retrocomp_bus::Sample;
-
 /// Exit status after a panic (BSD `EX_SOFTWARE`): "internal software error".
 pub const EXIT_TASK_PANICKED: i32 = 70;
 
 /// Ping period when `NOTIFY_SOCKET` is set but no watchdog period was given (`Type=notify` only).
 const DEFAULT_PING: Duration = Duration::from_secs(1);
-
-/// What the runtime gets from the sources: the samples, their links' status, and word of any
-/// source task that ended, plus the counter the cycle publishes its progress on.
-#[derive(Debug)]
-pub struct SourceFeed {
-    pub samples: mpsc::Receiver<Sample>,
-    pub board: SourceBoard,
-    pub deaths: TaskDeaths,
-    pub cycles: CycleCounter,
-}
-
-/// A bare sample channel (tests, the demo, benches): no links to show, no tasks to watch.
-impl From<mpsc::Receiver<Sample>> for SourceFeed {
-    fn from(samples: mpsc::Receiver<Sample>) -> Self {
-        SourceFeed {
-            samples,
-            board: SourceBoard::default(),
-            deaths: TaskDeaths::new().1,
-            cycles: CycleCounter::default(),
-        }
-    }
-}
 
 /// Receives one line per supervised task that ended while it should still run.
 #[derive(Debug)]
@@ -192,8 +167,8 @@ mod tests {
 
     #[tokio::test]
     async fn a_bare_sample_channel_reports_no_deaths() {
-        let (_tx, rx) = mpsc::channel::<Sample>(1);
-        let mut feed = SourceFeed::from(rx);
+        let (_tx, rx) = mpsc::channel::<retrocomp_bus::Sample>(1);
+        let mut feed = crate::sources::SourceFeed::from(rx);
         let next = tokio::time::timeout(Duration::from_millis(20), feed.deaths.next()).await;
         assert!(next.is_err(), "pending forever, never a spurious death");
         let (notice, mut deaths) = TaskDeaths::new();

@@ -368,12 +368,12 @@ mod guest {
         "#;
         let cfg = FieldConfig::parse(text, std::path::Path::new("vcan-field.toml"))?;
         let mut feed = spawn_sources(&cfg, std::time::Instant::now()).await?;
-        let can = |feed: &retrocomp_gateway::supervise::SourceFeed| {
+        let can = |feed: &retrocomp_gateway::sources::SourceFeed| {
             feed.board.snapshot().into_iter().find(|s| s.name == "can")
         };
         // Resend a TPDO until its value arrives as an Ok sample (the source may be mid-reopen).
         async fn value_arrives(
-            feed: &mut retrocomp_gateway::supervise::SourceFeed,
+            feed: &mut retrocomp_gateway::sources::SourceFeed,
             frame: &str,
             want_mm: f64,
         ) -> Result<()> {

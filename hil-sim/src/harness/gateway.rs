@@ -18,11 +18,11 @@ use retrocomp_bus::canopen::source::CanopenSource;
 use retrocomp_bus::serial::source::LineSource;
 use retrocomp_bus::{ChannelId, Sample};
 use retrocomp_gateway::config::FieldConfig;
+use retrocomp_gateway::engine::health::{FaultKind, FaultLog};
+use retrocomp_gateway::engine::safety::Mode;
 use retrocomp_gateway::engine::{Engine, ErrorModel};
-use retrocomp_gateway::health::{FaultKind, FaultLog};
-use retrocomp_gateway::origin_shift::sink_task::update_faults;
-use retrocomp_gateway::origin_shift::{Action, Reply, SinkAxis, SinkCore};
-use retrocomp_gateway::safety::Mode;
+use retrocomp_gateway::sinks::origin_shift::sink_task::update_faults;
+use retrocomp_gateway::sinks::origin_shift::{Action, Reply, SinkAxis, SinkCore};
 use retrocomp_model::Axis;
 
 use super::quadrature::{MemoryHeld, QuadratureBox};
@@ -105,7 +105,7 @@ impl Gateway {
             (None, Some(_)) => None,
             _ => anyhow::bail!("the harness drives [sink.origin_shift] or [sink.quadrature]"),
         };
-        let engine = Engine::new(&cfg, &initial)?;
+        let engine = cfg.engine(&initial)?;
         let axes = cfg
             .axes
             .iter()

@@ -1,5 +1,5 @@
 //! The origin-shift sink's Modbus client connection in virtual time: the same decisions as
-//! `retrocomp_gateway::origin_shift::OriginShiftClient` (`ensure_connected` / `failed`), driven by the
+//! `retrocomp_gateway::sinks::origin_shift::OriginShiftClient` (`ensure_connected` / `failed`), driven by the
 //! workspace's one reconnect backoff ([`Backoff`], `reconnect_min_ms` / `reconnect_max_ms` of the
 //! field file), with the harness' clock passed in instead of tokio's:
 //!

@@ -34,8 +34,8 @@ use std::collections::BTreeMap;
 
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::engine::ErrorModel;
-use retrocomp_gateway::origin_shift::{Action, Reply};
-use retrocomp_gateway::quadrature::{DecodeError, QuadDecoder};
+use retrocomp_gateway::sinks::origin_shift::{Action, Reply};
+use retrocomp_gateway::sinks::quadrature::{DecodeError, QuadDecoder};
 use retrocomp_model::Axis;
 
 use crate::SimConfig;

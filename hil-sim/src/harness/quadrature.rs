@@ -1,12 +1,12 @@
 //! The quadrature sink's box in the closed-loop harness: per axis the real [`CountQuantizer`]
 //! (correction µm → whole counts, residual carried) and [`EdgeScheduler`] (A/B edges under the
-//! receiver's gap and the injection rate), as `retrocomp_gateway::quadrature::sink::quadrature_task` runs
+//! receiver's gap and the injection rate), as `retrocomp_gateway::sinks::quadrature::sink::quadrature_task` runs
 //! them, stepped in the harness' virtual time (ns). The controller's side (its ×4 receiver counting
 //! the edges into the servo's feedback) is in `super` ([`crate::harness::ClosedLoop`]).
 //!
 //! Like the real shell, the box hands the counts of every changed engine output to the scheduler at
 //! once; edges are emitted when due (never before the cycle that asked for them). As the shell, it
-//! persists what the controller holds ahead of every step (`retrocomp_gateway::quadrature::held`), here in
+//! persists what the controller holds ahead of every step (`retrocomp_gateway::sinks::quadrature::held`), here in
 //! memory ([`MemoryHeld`], kept by the harness across restarts): a restarted box continues from
 //! the held counts, takes the lines at their phase and seeds the engine with what they realise.
 //!
@@ -19,10 +19,12 @@ use std::collections::BTreeMap;
 use std::rc::Rc;
 
 use retrocomp_gateway::config::QuadratureSink;
-use retrocomp_gateway::quadrature::held::{HeldCounts, HeldError, write_ahead};
-use retrocomp_gateway::quadrature::sink::held_at_start;
-use retrocomp_gateway::quadrature::{CountQuantizer, EdgeScheduler, SchedulerConfig, Transition};
-use retrocomp_gateway::sink::StartValues;
+use retrocomp_gateway::sinks::StartValues;
+use retrocomp_gateway::sinks::quadrature::held::{HeldCounts, HeldError, write_ahead};
+use retrocomp_gateway::sinks::quadrature::sink::held_at_start;
+use retrocomp_gateway::sinks::quadrature::{
+    CountQuantizer, EdgeScheduler, SchedulerConfig, Transition,
+};
 use retrocomp_model::Axis;
 
 /// The held-counts store in memory: the harness keeps one across gateway restarts (the file of the

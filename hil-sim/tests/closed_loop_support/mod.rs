@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 use hil_sim::SimConfig;
 use hil_sim::harness::{ClosedLoop, FaultEdge, ModelFactory, PlcWrite, StepTrace};
 use retrocomp_gateway::config::FieldConfig;
-use retrocomp_gateway::health::FaultKind;
-use retrocomp_gateway::model_adapter::MachineModelAdapter;
+use retrocomp_gateway::engine::health::FaultKind;
+use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
 use retrocomp_model::MachineModel;
 
 pub(crate) const CLAMP_UM: f64 = 40.0;

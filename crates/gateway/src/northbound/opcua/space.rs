@@ -1,0 +1,353 @@
+//! Sans-IO: what the OPC UA address space shows for a status snapshot. Each [`Point`] is one variable
+//! by its path below the box's object (`Monitoring/Axes/X/Correction`); the server shell creates the
+//! objects along the path and the variable the first time a path appears, and sets its value after.
+//!
+//! Layout (OPC 40501 Machine Tools where it applies; `<box>` = `gateway.name`):
+//! `Objects/Machines/<box>/Identification` (product, software, model name and hash),
+//! `Monitoring/Compensation` (enabled, cycles, model error), `Monitoring/Axes/<X>` (`Correction` =
+//! applied correction µm, `TargetCorrection`, `Position` mm, `Mode`, `Direction`,
+//! `Terms/<Geometric|Thermal|Load|Other>/<term>` µm), `Monitoring/Sensors/<channel>` (`Value` in
+//! the channel's unit, `Health`, `Healthy`, `Stale`, `Stuck`, `Substituted`), `Monitoring/Sink`
+//! (writes ok/failed, last error), `Notification` (active faults).
+//! Units: corrections µm (correction = −error), positions mm, sensors by channel-name suffix.
+
+use serde::Serialize;
+
+use crate::engine::health::FaultKind;
+use crate::northbound::prometheus::ModelIdentity;
+use crate::northbound::prometheus::StatusSnapshot;
+use retrocomp_bus::Health;
+
+/// An engineering unit: UNECE Rec. 20 code (OPC UA `EUInformation.unitId` is derived from it),
+/// symbol and name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Unit {
+    pub code: &'static str,
+    pub symbol: &'static str,
+    pub name: &'static str,
+}
+
+pub const MICROMETRE: Unit = Unit {
+    code: "4H",
+    symbol: "µm",
+    name: "micrometre",
+};
+pub const MILLIMETRE: Unit = Unit {
+    code: "MMT",
+    symbol: "mm",
+    name: "millimetre",
+};
+pub const CELSIUS: Unit = Unit {
+    code: "CEL",
+    symbol: "°C",
+    name: "degree Celsius",
+};
+pub const NEWTON: Unit = Unit {
+    code: "NEW",
+    symbol: "N",
+    name: "newton",
+};
+pub const KELVIN: Unit = Unit {
+    code: "KEL",
+    symbol: "K",
+    name: "kelvin",
+};
+pub const SECOND: Unit = Unit {
+    code: "SEC",
+    symbol: "s",
+    name: "second",
+};
+
+/// OPC UA Part 8 §5.6.3: the unitId of a UNECE code is its (up to 3) ASCII bytes, big-endian.
+pub fn unece_unit_id(code: &str) -> i32 {
+    code.bytes().fold(0i32, |acc, b| (acc << 8) | i32::from(b))
+}
+
+/// The unit of a channel, from the suffix of its name (docs/recording-csv.md: `_mm`, `_um`, `_C`, `_N`, ...).
+/// None for channels without a unit the UNECE list covers (e.g. strain `_ue`).
+pub fn unit_of_channel(name: &str) -> Option<Unit> {
+    let (_, suffix) = name.rsplit_once('_')?;
+    match suffix {
+        "mm" => Some(MILLIMETRE),
+        "um" => Some(MICROMETRE),
+        "C" => Some(CELSIUS),
+        "N" => Some(NEWTON),
+        "K" => Some(KELVIN),
+        "s" => Some(SECOND),
+        _ => None,
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum Value {
+    /// None → the variable reads with a Bad status (e.g. no target while inputs are stale).
+    F64(Option<f64>),
+    Bool(bool),
+    U64(u64),
+    Str(String),
+    StrArray(Vec<String>),
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Point {
+    /// Below the box's object, `/`-separated; the last part is the variable's browse name.
+    pub path: String,
+    pub value: Value,
+    pub unit: Option<Unit>,
+}
+
+/// Path parts that are collections (FolderType); every other intermediate part is an object.
+pub const FOLDERS: [&str; 7] = [
+    "Axes",
+    "Sensors",
+    "Terms",
+    "Geometric",
+    "Thermal",
+    "Load",
+    "Other",
+];
+
+fn p(path: String, value: Value, unit: Option<Unit>) -> Point {
+    Point { path, value, unit }
+}
+
+/// `"ramping_in"` for an enum serialised in snake_case.
+fn snake<T: Serialize>(v: &T) -> String {
+    match serde_json::to_value(v) {
+        Ok(serde_json::Value::String(s)) => s,
+        other => format!("{other:?}"),
+    }
+}
+
+/// A term's group folder: geometric/thermal/load from the model, `Other` when unknown.
+fn group_folder(model: Option<&ModelIdentity>, term: &str) -> &'static str {
+    match model.and_then(|m| m.term_groups.get(term)).copied() {
+        Some("geometric") => "Geometric",
+        Some("thermal") => "Thermal",
+        Some("load") => "Load",
+        _ => "Other",
+    }
+}
+
+/// What does not change while the gateway runs.
+pub fn identification(box_name: &str, model: Option<&ModelIdentity>) -> Vec<Point> {
+    let s = |v: &str| Value::Str(v.to_string());
+    let id = |k: &str| format!("Identification/{k}");
+    vec![
+        p(id("Name"), s(box_name), None),
+        p(id("ProductName"), s("retrocomp"), None),
+        p(id("SoftwareRevision"), s(env!("CARGO_PKG_VERSION")), None),
+        p(id("ModelName"), s(model.map_or("", |m| &m.name)), None),
+        p(id("ModelSha256"), s(model.map_or("", |m| &m.sha256)), None),
+    ]
+}
+
+/// Every variable the snapshot fills, in a stable order.
+pub fn points(snap: &StatusSnapshot, model: Option<&ModelIdentity>) -> Vec<Point> {
+    let mut out = Vec::with_capacity(64);
+    let comp = |k: &str| format!("Monitoring/Compensation/{k}");
+    out.push(p(comp("Enabled"), Value::Bool(snap.enabled), None));
+    out.push(p(comp("Cycles"), Value::U64(snap.cycles), None));
+    let model_error = snap.model_error.clone().unwrap_or_default();
+    out.push(p(comp("ModelError"), Value::Str(model_error), None));
+    out.push(p(comp("Time"), Value::F64(Some(snap.t_s)), Some(SECOND)));
+    for a in &snap.axes {
+        let ax = |k: &str| format!("Monitoring/Axes/{}/{k}", a.axis.to_uppercase());
+        let um = Some(MICROMETRE);
+        out.push(p(ax("Correction"), Value::F64(Some(a.applied_um)), um));
+        out.push(p(ax("TargetCorrection"), Value::F64(a.target_um), um));
+        out.push(p(
+            ax("Position"),
+            Value::F64(a.position_mm),
+            Some(MILLIMETRE),
+        ));
+        out.push(p(ax("Mode"), Value::Str(snake(&a.mode)), None));
+        out.push(p(
+            ax("Direction"),
+            Value::Str(retrocomp_model::approach::latched_name(a.direction).into()),
+            None,
+        ));
+        for (term, v) in &a.terms_um {
+            let path = ax(&format!("Terms/{}/{term}", group_folder(model, term)));
+            out.push(p(path, Value::F64(Some(*v)), um));
+        }
+    }
+    for (name, c) in &snap.channels {
+        let ch = |k: &str| format!("Monitoring/Sensors/{name}/{k}");
+        let has = |k: FaultKind| c.faults.contains(&k);
+        out.push(p(ch("Value"), Value::F64(c.value), unit_of_channel(name)));
+        out.push(p(ch("Health"), Value::Str(snake(&c.health)), None));
+        out.push(p(ch("Healthy"), Value::Bool(c.health == Health::Ok), None));
+        let stale = c.health == Health::Stale || has(FaultKind::Stale);
+        out.push(p(ch("Stale"), Value::Bool(stale), None));
+        out.push(p(ch("Stuck"), Value::Bool(has(FaultKind::Stuck)), None));
+        out.push(p(ch("Substituted"), Value::Bool(c.substituted), None));
+    }
+    if let Some(s) = &snap.sink {
+        let sk = |k: &str| format!("Monitoring/Sink/{k}");
+        out.push(p(sk("Kind"), Value::Str(s.kind.clone()), None));
+        out.push(p(sk("Connected"), Value::Bool(s.connected), None));
+        out.push(p(sk("WritesOk"), Value::U64(s.writes_ok), None));
+        out.push(p(sk("WritesFailed"), Value::U64(s.writes_failed), None));
+        let err = s.last_error.clone().unwrap_or_default();
+        out.push(p(sk("LastError"), Value::Str(err), None));
+    }
+    let faults: Vec<String> = snap
+        .active_faults
+        .iter()
+        .map(|(src, kind, since)| format!("{src}: {} since {since:.3} s", snake(kind)))
+        .collect();
+    let count = faults.len() as u64;
+    out.push(p(
+        "Notification/ActiveFaults".into(),
+        Value::StrArray(faults),
+        None,
+    ));
+    out.push(p(
+        "Notification/ActiveFaultCount".into(),
+        Value::U64(count),
+        None,
+    ));
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use super::*;
+    use crate::engine::health::ChannelStatus;
+    use crate::engine::safety::Mode;
+    use crate::northbound::prometheus::{AxisStatus, SinkStatus};
+    use retrocomp_model::approach::Approach;
+
+    fn snapshot() -> StatusSnapshot {
+        let terms: BTreeMap<String, f64> = [("EXX".to_string(), 1.5), ("spindle".into(), -4.0)]
+            .into_iter()
+            .collect();
+        let channels = [(
+            "T_spindle_C".to_string(),
+            ChannelStatus {
+                value: Some(24.5),
+                health: Health::Stale,
+                faults: vec![FaultKind::Stale, FaultKind::Stuck],
+                substituted: true,
+            },
+        )]
+        .into_iter()
+        .collect();
+        StatusSnapshot {
+            t_s: 12.0,
+            cycles: 7,
+            enabled: true,
+            axes: vec![AxisStatus {
+                axis: "x".into(),
+                position_mm: Some(100.0),
+                direction: Some(Approach::Forward),
+                weight_forward: 1.0,
+                target_um: None,
+                applied_um: -2.5,
+                mode: Mode::RampingIn,
+                terms_um: terms,
+                clamp_hits: 0,
+                cap_hits: 0,
+            }],
+            channels,
+            active_faults: vec![("T_spindle_C".into(), FaultKind::Stale, 10.25)],
+            model_error: None,
+            sink: Some(SinkStatus {
+                kind: "origin_shift".into(),
+                writes_ok: 3,
+                ..SinkStatus::default()
+            }),
+            sources: vec![],
+            model: None,
+            telemetry: None,
+            timing: Default::default(),
+        }
+    }
+
+    fn find<'a>(pts: &'a [Point], path: &str) -> &'a Point {
+        pts.iter()
+            .find(|p| p.path == path)
+            .unwrap_or_else(|| panic!("no {path} in {pts:#?}"))
+    }
+
+    #[test]
+    fn unece_codes_give_the_part_8_unit_ids() {
+        // Part 8 §5.6.3's own examples: "4H" (micrometre) and "CEL" (degree Celsius).
+        assert_eq!(unece_unit_id("4H"), 13384);
+        assert_eq!(unece_unit_id("CEL"), 4408652);
+        assert_eq!(unit_of_channel("T_spindle_C"), Some(CELSIUS));
+        assert_eq!(unit_of_channel("F_cut_N"), Some(NEWTON));
+        assert_eq!(unit_of_channel("strain_g1_ue"), None);
+    }
+
+    #[test]
+    fn a_snapshot_maps_to_corrections_terms_sensors_and_faults() {
+        let model = ModelIdentity {
+            name: "mill".into(),
+            sha256: "ab".into(),
+            term_groups: [
+                ("EXX".to_string(), "geometric"),
+                ("spindle".into(), "thermal"),
+            ]
+            .into_iter()
+            .collect(),
+            ..ModelIdentity::default()
+        };
+        let pts = points(&snapshot(), Some(&model));
+        let c = find(&pts, "Monitoring/Axes/X/Correction");
+        assert_eq!(
+            (&c.value, c.unit),
+            (&Value::F64(Some(-2.5)), Some(MICROMETRE))
+        );
+        let t = find(&pts, "Monitoring/Axes/X/TargetCorrection");
+        assert_eq!(t.value, Value::F64(None));
+        let m = find(&pts, "Monitoring/Axes/X/Mode");
+        assert_eq!(m.value, Value::Str("ramping_in".into()));
+        let g = find(&pts, "Monitoring/Axes/X/Terms/Geometric/EXX");
+        assert_eq!(g.value, Value::F64(Some(1.5)));
+        let th = find(&pts, "Monitoring/Axes/X/Terms/Thermal/spindle");
+        assert_eq!(th.value, Value::F64(Some(-4.0)));
+        let v = find(&pts, "Monitoring/Sensors/T_spindle_C/Value");
+        assert_eq!((&v.value, v.unit), (&Value::F64(Some(24.5)), Some(CELSIUS)));
+        for (flag, want) in [
+            ("Stale", true),
+            ("Stuck", true),
+            ("Substituted", true),
+            ("Healthy", false),
+        ] {
+            let f = find(&pts, &format!("Monitoring/Sensors/T_spindle_C/{flag}"));
+            assert_eq!(f.value, Value::Bool(want), "{flag}");
+        }
+        let w = find(&pts, "Monitoring/Sink/WritesOk");
+        assert_eq!(w.value, Value::U64(3));
+        let f = find(&pts, "Notification/ActiveFaults");
+        assert_eq!(
+            f.value,
+            Value::StrArray(vec!["T_spindle_C: stale since 10.250 s".into()])
+        );
+        // Without a model identity the terms still show, under Other.
+        let pts = points(&snapshot(), None);
+        find(&pts, "Monitoring/Axes/X/Terms/Other/EXX");
+    }
+
+    #[test]
+    fn identification_names_the_model() {
+        let model = ModelIdentity {
+            name: "mill".into(),
+            sha256: "00ff".into(),
+            ..ModelIdentity::default()
+        };
+        let pts = identification("box-1", Some(&model));
+        assert_eq!(
+            find(&pts, "Identification/ModelSha256").value,
+            Value::Str("00ff".into())
+        );
+        assert_eq!(
+            find(&pts, "Identification/Name").value,
+            Value::Str("box-1".into())
+        );
+    }
+}

@@ -1,0 +1,351 @@
+//! The origin-shift sink's async shell: every `write_period_ms` it runs one period of the sans-IO
+//! [`SinkCore`] (read what the controller holds → last-step guard → write cycle) through the
+//! tokio-modbus client, sends reseeds back to the engine, and turns the core's flags into fault
+//! episodes (one log line at start, one at clear; in status and metrics):
+//!
+//! - `sink.origin_shift` `Disconnected`: no connection to the controller;
+//! - `sink.origin_shift` `WriteFailed`: a request was refused (Modbus exception), failed, or the
+//!   controller did not acknowledge / read back a write (connected, but values are not getting in);
+//! - `sink.origin_shift.<axis>` `BeyondClamp`: the controller holds a value beyond the clamp; that
+//!   axis is not written until it is back in range (policy in `origin_shift/guard.rs`);
+//! - `sink.origin_shift.<axis>` `WriteFailed`: the controller's value is uncertain (a foreign value
+//!   arrived while a write of ours was unconfirmed); that axis is not written this period.
+//!
+//! The heartbeat (`map.heartbeat_address`) goes out at the start of every period (`sink.rs`). On
+//! `stop` (SIGTERM/SIGINT with `[gateway] on_stop = "ramp_out"`) the task ramps every axis to 0
+//! within the per-write cap, then returns: once the controller holds 0, after `stop_ramp_max_s`, or
+//! at once when the controller cannot be reached (its watchdog rule then removes the correction).
+//!
+//! Start ([`OriginShiftClientSink`] as a [`Sink`]): the controller's current values are read first,
+//! retrying until it answers, and the engine continues from them (no jump after a gateway restart);
+//! a value beyond the clamp is not a start value (see [`OriginShiftClientSink`]).
+//!
+//! Units: µm.
+
+use std::collections::BTreeMap;
+
+use tokio::time::MissedTickBehavior;
+
+use super::client::OriginShiftSink;
+use super::{OriginShiftClient, SinkAxis, SinkCore};
+use crate::sinks::guard::SinkFaults;
+use crate::sinks::{LocalFuture, Sink, SinkError, SinkIo, StartValues};
+use retrocomp_bus::fault::{FaultEvent, FaultKind, FaultLog, FaultSource};
+use retrocomp_model::Axis;
+
+pub const SOURCE: &str = "sink.origin_shift";
+
+/// The sink's fault sources, named once: the link (`sink.origin_shift`) and each map axis
+/// (`sink.origin_shift.<axis>`, map order).
+#[derive(Clone, Debug)]
+pub struct SinkSources {
+    link: FaultSource,
+    axes: Vec<FaultSource>,
+}
+
+impl SinkSources {
+    pub fn of(core: &SinkCore) -> Self {
+        Self::named(SOURCE, core.axes().iter().map(|a| a.axis.as_str()))
+    }
+
+    /// A sink's sources: `link` and `<link>.<axis>` per axis (the sink's axis order).
+    pub fn named<'a>(link: &str, axes: impl IntoIterator<Item = &'a str>) -> Self {
+        SinkSources {
+            link: FaultSource::named(link),
+            axes: axes
+                .into_iter()
+                .map(|a| FaultSource::named(&format!("{link}.{a}")))
+                .collect(),
+        }
+    }
+}
+
+/// The sink's fault episodes from the core's flags after a period (sans-IO; `now_s` on the
+/// gateway clock). Returns the faults that started (source, kind), to log with their reason.
+/// Names its sources on every call: the sink task uses [`update_faults_of`].
+pub fn update_faults(
+    log: &mut FaultLog,
+    core: &SinkCore,
+    connected: bool,
+    now_s: f64,
+) -> Vec<(String, FaultKind)> {
+    update_faults_of(log, &SinkSources::of(core), core, connected, now_s)
+        .into_iter()
+        .filter(|e| e.started)
+        .map(|e| (e.source, e.kind))
+        .collect()
+}
+
+/// [`update_faults`] with the sources named once; returns every start and clear. Allocates only
+/// when a fault starts or clears.
+pub fn update_faults_of(
+    log: &mut FaultLog,
+    sources: &SinkSources,
+    core: &SinkCore,
+    connected: bool,
+    now_s: f64,
+) -> Vec<FaultEvent> {
+    update_sink_faults(log, sources, core.faults(), connected, now_s)
+}
+
+/// The fault episodes of any sink from its guard's flags (`f`) and its link: the one mapping every
+/// sink shares (`BeyondClamp` and `Uncertain` per axis, `Disconnected`/`WriteFailed` for the link).
+pub fn update_sink_faults(
+    log: &mut FaultLog,
+    sources: &SinkSources,
+    f: &SinkFaults,
+    connected: bool,
+    now_s: f64,
+) -> Vec<FaultEvent> {
+    let link: &[FaultKind] = if !connected {
+        &[FaultKind::Disconnected]
+    } else if f.write_failed {
+        &[FaultKind::WriteFailed]
+    } else {
+        &[]
+    };
+    let mut events = log.update(&sources.link, link, now_s);
+    for (i, source) in sources.axes.iter().enumerate() {
+        let mut kinds = [FaultKind::BeyondClamp; 2];
+        let mut n = 0;
+        if f.beyond_clamp.get(i) == Some(&true) {
+            kinds[n] = FaultKind::BeyondClamp;
+            n += 1;
+        }
+        if f.uncertain.get(i) == Some(&true) {
+            kinds[n] = FaultKind::WriteFailed;
+            n += 1;
+        }
+        let ev = log.update(source, &kinds[..n], now_s);
+        if !ev.is_empty() {
+            events.extend(ev);
+        }
+    }
+    events
+}
+
+/// Write the engine's outputs every `write_period_ms` until the runtime drops the output channel.
+pub async fn origin_shift_task(
+    os: OriginShiftSink,
+    mut client: OriginShiftClient,
+    axes: Vec<SinkAxis>,
+    channels: SinkIo,
+    epoch: std::time::Instant,
+) {
+    let SinkIo {
+        out_rx,
+        reseed_tx,
+        status,
+        stop,
+        ..
+    } = channels;
+    let mut core = SinkCore::new(os.map.clone(), axes);
+    let mut tick =
+        tokio::time::interval(std::time::Duration::from_millis(os.write_period_ms.max(1)));
+    tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
+    let mut faults = FaultLog::default();
+    let sources = SinkSources::of(&core);
+    let mut wants: Vec<(Axis, f64)> = Vec::new();
+    let mut stop_by: Option<std::time::Instant> = None;
+    loop {
+        tick.tick().await;
+        if let (None, Some(max_s)) = (stop_by, *stop.borrow()) {
+            stop_by = Some(std::time::Instant::now() + std::time::Duration::from_secs_f64(max_s));
+            core.begin_ramp_out();
+            tracing::info!(
+                max_s,
+                "stopping: ramping the correction out within the per-write cap"
+            );
+        }
+        wants.clone_from(&out_rx.borrow());
+        if wants.is_empty() && stop_by.is_none() {
+            if out_rx.has_changed().is_err() {
+                return;
+            }
+            continue;
+        }
+        client.run_period(&mut core, &wants).await;
+        if let Some(by) = stop_by {
+            let held: BTreeMap<&str, Option<f64>> = core.held_um().collect();
+            if core.is_ramped_out() {
+                tracing::info!(?held, "ramped out: the controller holds 0");
+                return;
+            }
+            if !client.is_connected() || std::time::Instant::now() >= by {
+                tracing::warn!(
+                    ?held,
+                    connected = client.is_connected(),
+                    "stopping before the correction is ramped out: the controller's watchdog rule must remove it"
+                );
+                return;
+            }
+        }
+        let reseeds = core.take_reseeds();
+        // Stopping: the engine no longer runs (nobody drains the channel).
+        for (axis, held_um) in reseeds.into_iter().filter(|_| stop_by.is_none()) {
+            if reseed_tx.send((axis, held_um)).await.is_err() {
+                return;
+            }
+        }
+        let connected = client.is_connected();
+        let now_s = epoch.elapsed().as_secs_f64();
+        let events = update_faults_of(&mut faults, &sources, &core, connected, now_s);
+        for e in events.iter().filter(|e| e.started) {
+            let held: BTreeMap<&str, Option<f64>> = core.held_um().collect();
+            tracing::warn!(
+                source = e.source.as_str(),
+                kind = ?e.kind,
+                reason = core.last_error.as_deref().unwrap_or(""),
+                ?held,
+                "origin-shift sink fault"
+            );
+        }
+        // The status in place (no copy per period; the cycle reads it at ≤ 10 Hz): steady state
+        // allocates nothing.
+        status.send_modify(|st| {
+            if st.kind.is_empty() {
+                st.kind = "origin_shift".into();
+            }
+            st.connected = connected;
+            st.writes_ok = core.writes_ok;
+            st.writes_failed = core.writes_failed;
+            st.last_error.clone_from(&core.last_error);
+            for (a, v) in core.held_um() {
+                match (st.held_um.get_mut(a), v) {
+                    (Some(held), Some(v)) => *held = v,
+                    (None, Some(v)) => {
+                        st.held_um.insert(a.to_string(), v);
+                    }
+                    (Some(_), None) => {
+                        st.held_um.remove(a);
+                    }
+                    (None, None) => {}
+                }
+            }
+            if !events.is_empty() {
+                st.faults = faults.active_by_name();
+            }
+        });
+    }
+}
+
+/// The origin-shift client as the run loop's [`Sink`]: [`Sink::start`] reads what the controller
+/// holds, [`Sink::run`] is [`origin_shift_task`].
+#[derive(Debug)]
+pub struct OriginShiftClientSink {
+    os: OriginShiftSink,
+    client: OriginShiftClient,
+    axes: Vec<SinkAxis>,
+    /// The clamp of an axis the map names but `axes` does not (the gateway's default safety), µm.
+    default_max_correction_um: f64,
+    epoch: std::time::Instant,
+}
+
+impl OriginShiftClientSink {
+    /// `axes`: clamp and per-write cap per axis; `epoch`: the gateway's clock (fault times).
+    pub fn new(
+        os: OriginShiftSink,
+        axes: Vec<SinkAxis>,
+        default_max_correction_um: f64,
+        epoch: std::time::Instant,
+    ) -> Result<Self, SinkError> {
+        let client = OriginShiftClient::new(os.client(), os.map.clone())
+            .map_err(|e| SinkError::setup("sink.origin_shift.map", e))?;
+        Ok(Self {
+            os,
+            client,
+            axes,
+            default_max_correction_um,
+            epoch,
+        })
+    }
+
+    fn max_correction_um(&self, axis: &str) -> f64 {
+        self.axes
+            .iter()
+            .find(|a| a.axis == axis)
+            .map_or(self.default_max_correction_um, |a| a.max_correction_um)
+    }
+}
+
+impl Sink for OriginShiftClientSink {
+    fn start<'a>(&'a mut self, io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>> {
+        Box::pin(async move {
+            let mut initial = read_initial(&mut self.client, &io.status, self.epoch).await;
+            // A value beyond the clamp is not a start value: the sink refuses to write that axis (a
+            // fault) until the controller's value is back in range, then the engine continues from it.
+            initial.retain(|axis, held_um| {
+                let max = self.max_correction_um(axis);
+                let ok = held_um.is_finite() && held_um.abs() <= max;
+                if !ok {
+                    tracing::error!(axis, held_um, max, "controller holds a correction beyond the clamp: not writing this axis until it is back in range");
+                }
+                ok
+            });
+            Ok(initial)
+        })
+    }
+
+    fn run(self: Box<Self>, io: SinkIo) -> LocalFuture<'static, ()> {
+        let Self {
+            os,
+            client,
+            axes,
+            epoch,
+            ..
+        } = *self;
+        Box::pin(origin_shift_task(os, client, axes, io, epoch))
+    }
+}
+
+/// Read the controller's current values, retrying until it answers (without them the first write
+/// could jump). Logs every 20th failure. Meanwhile the sink's status says so: not connected, the
+/// last error, and a `disconnected` fault of `sink.origin_shift` from the first failed read (the
+/// runtime publishes it before the first cycle); the fault clears when the controller answers.
+async fn read_initial(
+    client: &mut OriginShiftClient,
+    status: &tokio::sync::watch::Sender<crate::sinks::SinkStatus>,
+    epoch: std::time::Instant,
+) -> BTreeMap<String, f64> {
+    let mut attempt = 0u64;
+    let mut faults = FaultLog::default();
+    let link = FaultSource::named(SOURCE);
+    loop {
+        match client.read_current().await {
+            Ok(v) => {
+                tracing::info!(
+                    ?v,
+                    "controller holds these corrections; continuing from them"
+                );
+                faults.update(&link, &[], epoch.elapsed().as_secs_f64());
+                status.send_modify(|st| {
+                    st.connected = true;
+                    st.last_error = None;
+                    st.faults.clear();
+                });
+                return v.into_iter().collect();
+            }
+            Err(e) => {
+                if attempt.is_multiple_of(20) {
+                    tracing::warn!(%e, "waiting for the controller before starting");
+                }
+                let now_s = epoch.elapsed().as_secs_f64();
+                let started = !faults
+                    .update(&link, &[FaultKind::Disconnected], now_s)
+                    .is_empty();
+                status.send_modify(|st| {
+                    if st.kind.is_empty() {
+                        st.kind = "origin_shift".into();
+                    }
+                    st.connected = false;
+                    st.last_error = Some(e.to_string());
+                    if started {
+                        st.faults = faults.active_by_name();
+                    }
+                });
+                attempt += 1;
+                tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+            }
+        }
+    }
+}

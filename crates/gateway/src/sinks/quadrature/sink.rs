@@ -1,0 +1,436 @@
+//! The quadrature sink: per axis, the cycle's correction (µm, = −error) becomes whole counts
+//! ([`CountQuantizer`]: sign, resolution, carried residual) and goes to that axis's injector — a GPIO
+//! thread (`gpio` lines configured, cargo feature `gpio`) or the scheduler run in simulation (no
+//! lines configured: counts and edges are planned exactly as for GPIO, without pins).
+//!
+//! Restart (pulses have no read-back): the counts the controller holds are persisted per axis in
+//! `state_file` ([`super::held`]), written ahead of every step's edges. [`Sink::start`] reads them:
+//! the quantizer continues from them, the lines start at their phase (no edge at takeover) and the
+//! engine is seeded with the correction they realise. No file = first start (all 0, one INFO line);
+//! a corrupt or unreadable file refuses the start (nothing is injected until it is fixed); a failed
+//! write-ahead is a fault of the sink and that step injects nothing.
+//!
+//! Every count passes the box's one last-step guard first ([`super::core`]): within the clamp, one
+//! cap per step from what the controller may hold; held counts beyond the clamp are a
+//! `sink.quadrature.<axis>` `BeyondClamp` fault (nothing injected on that axis, status shows the
+//! held value). Stop (`[gateway] on_stop = "ramp_out"`): counts back to 0 within the cap per step,
+//! every [`RAMP_PERIOD_MS`], for at most `stop_ramp_max_s`; the outcome is logged.
+//!
+//! A config that names GPIO lines on a build without the `gpio` feature is refused at start
+//! ([`check_buildable`]) rather than silently simulated: the technician would otherwise see a
+//! healthy status while nothing reaches the controller.
+
+use std::collections::BTreeMap;
+use tokio::sync::watch;
+
+use super::config::{QuadratureAxis, QuadratureSink};
+use super::core::QuadratureCore;
+use super::held::{FileHeldCounts, HeldCounts, HeldError};
+use crate::sinks::guard::AxisLimits;
+use crate::sinks::origin_shift::sink_task::{SinkSources, update_sink_faults};
+use crate::sinks::quadrature::{CountQuantizer, EdgeScheduler, SchedulerConfig, simulate};
+use crate::sinks::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
+use retrocomp_bus::fault::FaultLog;
+use retrocomp_model::error::Chain;
+
+/// Period of the stop ramp-out's steps (no cycle runs then), ms.
+pub const RAMP_PERIOD_MS: u64 = 10;
+
+/// The sink's fault source (`<SOURCE>.<axis>` per axis).
+pub const SOURCE: &str = "sink.quadrature";
+
+/// Refuse GPIO lines this build cannot drive.
+pub fn check_buildable(q: &QuadratureSink) -> Result<(), SinkError> {
+    for a in &q.axes {
+        if a.gpio.is_some() && !cfg!(all(feature = "gpio", target_os = "linux")) {
+            return Err(SinkError::Refused(format!(
+                "sink.quadrature axis {}: `gpio` lines are configured but this build has no GPIO \
+                 support; rebuild with `cargo build --release --features gpio` (Linux), or remove \
+                 `gpio = …` to run the injector in simulation",
+                a.axis
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Where one axis's counts go.
+enum AxisInjector {
+    Simulated(EdgeScheduler),
+    #[cfg(all(feature = "gpio", target_os = "linux"))]
+    Gpio {
+        deltas: std::sync::mpsc::Sender<i64>,
+        counts: std::sync::Arc<std::sync::Mutex<crate::sinks::quadrature::InjectorCounts>>,
+    },
+}
+
+impl AxisInjector {
+    /// Open at `held` counts: the lines start at that phase's levels.
+    fn open(a: &QuadratureAxis, held: i64) -> Result<Self, SinkError> {
+        let sched = EdgeScheduler::new(SchedulerConfig {
+            min_edge_gap_ns: a.min_edge_gap_ns,
+            max_inject_rate_hz: a.max_inject_rate_hz,
+        })
+        .map_err(|e| SinkError::setup(format!("sink.quadrature axis {}", a.axis), e))?
+        .starting_at(held);
+        match &a.gpio {
+            None => Ok(Self::Simulated(sched)),
+            #[cfg(all(feature = "gpio", target_os = "linux"))]
+            Some(lines) => {
+                use crate::sinks::quadrature::{Injector, InjectorCounts, run_injector};
+                let (pin_a, pin_b) =
+                    crate::sinks::quadrature::gpio::open_output_pins(lines, sched.levels())
+                        .map_err(|e| {
+                            SinkError::setup(format!("sink.quadrature axis {}", a.axis), e)
+                        })?;
+                let inj = Injector::new(sched, pin_a, pin_b)
+                    .map_err(|e| SinkError::Refused(format!("axis {}: {e}", a.axis)))?;
+                let (tx, rx) = std::sync::mpsc::channel();
+                let counts = std::sync::Arc::new(std::sync::Mutex::new(InjectorCounts::default()));
+                let shared = counts.clone();
+                let axis = a.axis.clone();
+                std::thread::Builder::new()
+                    .name(format!("quadrature-{axis}"))
+                    .spawn(move || {
+                        let report = |c| *shared.lock().unwrap_or_else(|p| p.into_inner()) = c;
+                        if let Err(e) = run_injector(inj, rx, report) {
+                            tracing::error!(axis, %e, "GPIO injector stopped");
+                        }
+                    })
+                    .map_err(|e| SinkError::setup("spawning the injector thread", e))?;
+                Ok(Self::Gpio { deltas: tx, counts })
+            }
+            #[cfg(not(all(feature = "gpio", target_os = "linux")))]
+            Some(_) => Err(SinkError::Refused(format!(
+                "sink.quadrature axis {}: this build has no GPIO support (feature `gpio`)",
+                a.axis
+            ))),
+        }
+    }
+
+    /// Hand over `delta` counts; false if the injector is gone.
+    fn inject(&mut self, delta: i64) -> bool {
+        match self {
+            Self::Simulated(sched) => {
+                sched.add_inject_counts(delta);
+                let _ = simulate(sched, &[]);
+                true
+            }
+            #[cfg(all(feature = "gpio", target_os = "linux"))]
+            Self::Gpio { deltas, .. } => deltas.send(delta).is_ok(),
+        }
+    }
+
+    fn kind(&self) -> &'static str {
+        match self {
+            Self::Simulated(_) => "quadrature (simulated)",
+            #[cfg(all(feature = "gpio", target_os = "linux"))]
+            Self::Gpio { .. } => "quadrature (gpio)",
+        }
+    }
+
+    /// Counts requested but not yet written to the lines.
+    fn owed(&self) -> i64 {
+        match self {
+            Self::Simulated(s) => s.inject_remaining(),
+            #[cfg(all(feature = "gpio", target_os = "linux"))]
+            Self::Gpio { counts, .. } => counts.lock().map(|c| c.owed).unwrap_or(0),
+        }
+    }
+}
+
+/// Read the persisted counts: per configured axis the held count (0 when none is persisted) and
+/// the start values (µm the controller holds) the engine continues from.
+pub fn held_at_start(
+    q: &QuadratureSink,
+    store: &mut dyn HeldCounts,
+) -> Result<(BTreeMap<String, i64>, StartValues), HeldError> {
+    let persisted = store.load()?;
+    if persisted.is_none() {
+        tracing::info!(
+            "sink.quadrature: no held-counts file, first start: the controller holds 0 counts \
+             (delete the file after homing or power-cycling the controller)"
+        );
+    }
+    let persisted = persisted.unwrap_or_default();
+    let mut held = BTreeMap::new();
+    let mut start = StartValues::new();
+    for a in &q.axes {
+        let n = persisted.get(&a.axis).copied().unwrap_or(0);
+        let quant = CountQuantizer::continuing_from(a.resolution_um, a.count_sign, n)?;
+        held.insert(a.axis.clone(), n);
+        start.insert(a.axis.clone(), quant.correction_um_of(n));
+    }
+    Ok((held, start))
+}
+
+/// The quadrature injector as the run loop's [`Sink`]: [`Sink::start`] reads the persisted held
+/// counts ([`held_at_start`]); [`Sink::run`] is [`quadrature_task`].
+#[derive(Debug)]
+pub struct QuadratureOutput {
+    cfg: QuadratureSink,
+    limits: Vec<AxisLimits>,
+    held: BTreeMap<String, i64>,
+    epoch: std::time::Instant,
+}
+
+impl QuadratureOutput {
+    /// `limits`: clamp and per-write cap per axis; `epoch`: the gateway's clock (fault times).
+    pub fn new(cfg: QuadratureSink, limits: Vec<AxisLimits>, epoch: std::time::Instant) -> Self {
+        Self {
+            cfg,
+            limits,
+            held: BTreeMap::new(),
+            epoch,
+        }
+    }
+
+    fn store(&self) -> FileHeldCounts {
+        FileHeldCounts::new(self.cfg.state_path(std::path::Path::new(".")))
+    }
+}
+
+impl Sink for QuadratureOutput {
+    fn start<'a>(&'a mut self, _io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>> {
+        Box::pin(async move {
+            let (held, _) = held_at_start(&self.cfg, &mut self.store()).map_err(|e| {
+                SinkError::setup(
+                    "sink.quadrature state_file (nothing is injected until it is fixed)",
+                    e,
+                )
+            })?;
+            let core = QuadratureCore::new(&self.cfg, &self.limits, &held)
+                .map_err(|e| SinkError::setup("sink.quadrature", e))?;
+            let start = core.start_values();
+            if start.len() < core.len() {
+                tracing::error!(
+                    ?held,
+                    "sink.quadrature: the held counts realise a correction beyond the clamp: that axis is not injected until the file is fixed"
+                );
+            }
+            self.held = held;
+            Ok(start)
+        })
+    }
+
+    fn run(self: Box<Self>, io: SinkIo) -> LocalFuture<'static, ()> {
+        let mut store = self.store();
+        // `load` fills the store's map, so a save rewrites every axis, not only the changed one.
+        if let Err(e) = store.load() {
+            tracing::error!("{}", Chain(&e));
+        }
+        Box::pin(quadrature_task(
+            QuadratureSetup {
+                cfg: self.cfg,
+                limits: self.limits,
+                held: self.held,
+                store: Box::new(store),
+                epoch: self.epoch,
+            },
+            io,
+        ))
+    }
+}
+
+/// What [`quadrature_task`] starts from.
+pub struct QuadratureSetup {
+    pub cfg: QuadratureSink,
+    /// Clamp and per-write cap per axis.
+    pub limits: Vec<AxisLimits>,
+    /// Counts the controller holds per axis.
+    pub held: BTreeMap<String, i64>,
+    pub store: Box<dyn HeldCounts>,
+    /// The gateway's clock (fault times are seconds since it).
+    pub epoch: std::time::Instant,
+}
+
+impl std::fmt::Debug for QuadratureSetup {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("QuadratureSetup")
+            .field("cfg", &self.cfg)
+            .field("limits", &self.limits)
+            .field("held", &self.held)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Follow the cycle's outputs until the runtime drops its sender, or ramp out on `io.stop`.
+pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
+    let QuadratureSetup {
+        cfg: q,
+        limits,
+        held,
+        mut store,
+        epoch,
+    } = setup;
+    let SinkIo {
+        mut out_rx,
+        status,
+        mut stop,
+        ..
+    } = io;
+    let mut core = match QuadratureCore::new(&q, &limits, &held) {
+        Ok(c) => c,
+        Err(e) => return refuse(&status, &e),
+    };
+    let mut injectors = Vec::new();
+    for a in &q.axes {
+        match AxisInjector::open(a, held.get(&a.axis).copied().unwrap_or(0)) {
+            Ok(inj) => injectors.push(inj),
+            Err(e) => return refuse(&status, &e),
+        }
+    }
+    let mut st = SinkStatus {
+        kind: injectors.first().map_or("quadrature", |i| i.kind()).into(),
+        connected: true,
+        ..Default::default()
+    };
+    let sources = SinkSources::named(SOURCE, core.axis_names());
+    let mut faults = FaultLog::default();
+    let mut stop_by: Option<std::time::Instant> = None;
+    let mut ramp = tokio::time::interval(std::time::Duration::from_millis(RAMP_PERIOD_MS));
+    loop {
+        if let Some(by) = stop_by {
+            ramp.tick().await;
+            if core.is_ramped_out() {
+                tracing::info!("ramped out: the controller holds 0 counts on every axis");
+                return;
+            }
+            if std::time::Instant::now() >= by {
+                let held: Vec<(&str, i64)> = core
+                    .axis_names()
+                    .zip((0..core.len()).map(|i| core.held_counts(i)))
+                    .collect();
+                tracing::warn!(
+                    ?held,
+                    "stopping before the counts are ramped out: the controller keeps these"
+                );
+                return;
+            }
+        } else {
+            let closed = tokio::select! {
+                r = out_rx.changed() => r.is_err(),
+                r = stop.wait_for(Option::is_some) => if r.is_err() { return } else { false },
+            };
+            // The run is ending: ramp out if asked to, else end here.
+            if closed && stop.wait_for(Option::is_some).await.is_err() {
+                return;
+            }
+            if let Some(max_s) = *stop.borrow() {
+                stop_by =
+                    Some(std::time::Instant::now() + std::time::Duration::from_secs_f64(max_s));
+                core.begin_ramp_out();
+                tracing::info!(
+                    max_s,
+                    "stopping: ramping the counts out within the per-write cap"
+                );
+            }
+        }
+        let outs = out_rx.borrow().clone();
+        step_axes(
+            &mut core,
+            &mut injectors,
+            &outs,
+            stop_by.is_some(),
+            store.as_mut(),
+            &mut st,
+        );
+        let now_s = epoch.elapsed().as_secs_f64();
+        let events = update_sink_faults(&mut faults, &sources, core.faults(), st.connected, now_s);
+        for e in events.iter().filter(|e| e.started) {
+            tracing::warn!(source = e.source.as_str(), kind = ?e.kind, held_um = ?st.held_um, "quadrature sink fault");
+        }
+        if !events.is_empty() {
+            st.faults = faults.active_by_name();
+        }
+        let _ = status.send(st.clone());
+    }
+}
+
+/// One update of every axis: the wanted correction through the guard to the injector (0 for an
+/// axis without an output while stopping), then the status and the axes' held values.
+fn step_axes(
+    core: &mut QuadratureCore,
+    injectors: &mut [AxisInjector],
+    outs: &[(retrocomp_model::Axis, f64)],
+    stopping: bool,
+    store: &mut dyn HeldCounts,
+    st: &mut SinkStatus,
+) {
+    for (i, inj) in injectors.iter_mut().enumerate() {
+        let Some(axis) = core.axis(i) else { continue };
+        let want = match outs.iter().find(|(a, _)| *a == axis) {
+            Some((_, v)) => *v,
+            None if stopping => 0.0,
+            None => continue,
+        };
+        match core.step(i, want, store) {
+            Ok(d) if inj.inject(d) => st.writes_ok += 1,
+            Ok(_) => {
+                st.writes_failed += 1;
+                st.connected = false;
+                st.last_error = Some(format!("axis {axis}: injector stopped"));
+            }
+            Err(e) => {
+                st.writes_failed += 1;
+                st.last_error = Some(format!("axis {axis}: {}", Chain(&e)));
+            }
+        }
+        if inj.owed() == 0 {
+            core.settled(i);
+        } else {
+            tracing::debug!(
+                axis = axis.name(),
+                owed = inj.owed(),
+                "counts still owed to the lines"
+            );
+        }
+    }
+    for (i, name) in core.axis_names().enumerate() {
+        match st.held_um.get_mut(name) {
+            Some(v) => *v = core.held_um(i),
+            None => {
+                st.held_um.insert(name.to_string(), core.held_um(i));
+            }
+        }
+    }
+}
+
+/// The task cannot drive its axes: say why in the status.
+fn refuse(status: &watch::Sender<SinkStatus>, e: &(dyn std::error::Error + 'static)) {
+    tracing::error!("sink.quadrature: {}", Chain(e));
+    let _ = status.send(SinkStatus {
+        kind: "quadrature".into(),
+        last_error: Some(Chain(e).to_string()),
+        ..Default::default()
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gpio_lines_need_a_gpio_build() {
+        // The shipped field file's `[sink.quadrature]` section (the whole file is parsed by the
+        // gateway's config tests; this module sits below the gateway and reads only its section).
+        let path = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
+            .join("deploy/field/mill-quadrature.toml");
+        let text = std::fs::read_to_string(&path).unwrap();
+        let file: toml::Table = toml::from_str(&text).unwrap();
+        let q: QuadratureSink = file["sink"]["quadrature"].clone().try_into().unwrap();
+        assert!(q.axes[0].gpio.is_some());
+        let checked = check_buildable(&q);
+        if cfg!(all(feature = "gpio", target_os = "linux")) {
+            checked.unwrap();
+        } else {
+            let e = checked.unwrap_err().to_string();
+            assert!(e.contains("--features gpio") && e.contains("axis x"), "{e}");
+        }
+        let mut simulated = q.clone();
+        for a in &mut simulated.axes {
+            a.gpio = None;
+        }
+        check_buildable(&simulated).unwrap();
+    }
+}
