@@ -1,5 +1,5 @@
 //! Fleet load benchmark (not criterion: a capacity search, not a latency estimate): N simulated
-//! boxes publish Sparkplug B through the same publisher as `retrocomp run` (src/telemetry) to one
+//! boxes publish Sparkplug B through the same publisher as `retrocomp run` (crates/gateway/src/northbound/telemetry) to one
 //! Mosquitto on loopback, and one `retrocomp fleet` host (its MQTT client and view,
 //! `retrocomp_fleet::fleet_client::FleetClient`, QoS 1) counts every NDATA per edge node and its seq gaps.
 //! A box is lightweight: a task that updates a status snapshot at twice the telemetry rate (so

@@ -78,7 +78,7 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            // One line, every cause once (src/error.rs).
+            // One line, every cause once (crates/model/src/error.rs).
             let e: &(dyn std::error::Error + 'static) = e.as_ref();
             eprintln!("error: {}", retrocomp_model::error::Chain(e));
             std::process::ExitCode::FAILURE

@@ -1,5 +1,5 @@
 //! The real `retrocomp run` binary over real loopback transports: CANopen encoder TPDOs through the
-//! socketcand hub (src/bus), the Studer S-36 model (seed 004), origin-shift writes to a fake PLC over
+//! socketcand hub (crates/bus/src), the Studer S-36 model (seed 004), origin-shift writes to a fake PLC over
 //! Modbus TCP, `retrocomp status --json` against its HTTP endpoint, and a clean stop on SIGTERM.
 
 use std::process::{Command, Stdio};

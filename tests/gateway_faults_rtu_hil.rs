@@ -8,7 +8,7 @@
 //! |-------------|------------------------------------------------------------------------------|
 //! | 7.0–10.0    | `modbus_rtu_down`: the RTU slave reads every request and answers none        |
 //!
-//! What the gateway promises and is asserted here (src/bus/modbus/poll_core.rs, gateway/health.rs,
+//! What the gateway promises and is asserted here (crates/bus/src/modbus/poll_core.rs, gateway/health.rs,
 //! recovery.rs, safety.rs): a request without reply is a timeout → `Stale` samples (last good value
 //! kept, never used as fresh); the channel's fault is logged once at start and once at clear, not
 //! every poll; while `T_spindle_C` is unhealthy and its neighbour `T_spindle2_C` (CAN) is healthy,

@@ -1,4 +1,4 @@
-//! The gateway drives the real machine model (`src/models`) through `MachineModelAdapter`, with the
+//! The gateway drives the real machine model (`crates/model/src`) through `MachineModelAdapter`, with the
 //! Studer S-36 tables of Asad Ullah 2013 (seed 004, Table 6.1: EZZ forward −0.0096 mm and reverse
 //! −0.0063 mm at z = 510 mm). Correction = −error; a reversal is blended, never stepped.
 

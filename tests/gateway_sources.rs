@@ -1,5 +1,5 @@
 //! The gateway's Modbus and serial sources, end to end through the real `retrocomp run` binary:
-//! temperatures from an in-process Modbus TCP server (src/bus/modbus/server.rs, on 127.0.0.1), axis
+//! temperatures from an in-process Modbus TCP server (crates/bus/src/modbus/server.rs, on 127.0.0.1), axis
 //! positions (ND 522 DRO lines) and the spindle force (generic `F=…N` lines) from two socat ptys;
 //! `retrocomp status --json` shows them Ok and the model (deploy/field/vmc-machine.toml) computing;
 //! then the serial writer goes silent and the Modbus server goes down → those channels turn Stale,

@@ -1,6 +1,6 @@
-//! The fast evaluation plan (`src/models/plan.rs`, behind `evaluate`, `evaluate_first_order` and
+//! The fast evaluation plan (`crates/model/src/plan.rs`, behind `evaluate`, `evaluate_first_order` and
 //! `evaluate_batch`) gives the straightforward evaluator's results (`evaluate_reference`,
-//! `src/models/engine.rs`): every term, the total and every flag, and the same lag states, within
+//! `crates/model/src/engine.rs`): every term, the total and every flag, and the same lag states, within
 //! 1e-9 µm, on random input streams that visit what the plan treats specially — direction flips
 //! and unknown direction, table nodes, ends and positions beyond them (clamp + flag), lag steps
 //! with jitter, gaps and time going backwards, missing and non-finite sensors, forces and strains,

@@ -1,6 +1,6 @@
 //! One-term models lock the sign of every component (docs/model.md, Conventions: error = actual − nominal; a table
 //! states its sign and a test locks it). Each case is a model with a single constant term; the
-//! expected tool-tip error is written out by hand from the convention in `src/models/mod.rs`.
+//! expected tool-tip error is written out by hand from the convention in `crates/model/src/lib.rs`.
 
 use retrocomp_model::{MachineModel, ModelInput};
 

@@ -1,5 +1,5 @@
 //! `retrocomp demo [--out DIR] [--json] [--seconds N] [--seed N] [--serve [ADDR]] [--mqtt HOST:PORT]`: the main job on a machine with no hardware
-//! (src/gateway/demo). Prints what the fit of the measurement runs found, then per axis the
+//! (crates/gateway/src/demo). Prints what the fit of the measurement runs found, then per axis the
 //! tool-tip error RMS and max (µm) of the four runs; with
 //! `--json` the last stdout line is the machine-readable summary (fixed keys, see
 //! docs/demo.md).

@@ -1,13 +1,13 @@
 //! `retrocomp fleet --broker HOST:PORT [--group G] [--every-s S] [--seconds N] [--json]`: a
 //! Sparkplug B host that shows every box's health (alive, compensating, degraded, idle) from its
-//! NBIRTH/NDATA/NDEATH (src/telemetry/fleet.rs), asking boxes it has no birth for to rebirth.
+//! NBIRTH/NDATA/NDEATH (crates/fleet/src/fleet.rs), asking boxes it has no birth for to rebirth.
 //! Prints the table (headed by the time it was drawn) every `--every-s`; with `--json` it streams
 //! instead one JSON object per update, one line each: `{"drawn_at", "drawn_ms", "nodes": [...]}`,
 //! at most one per `--every-s` and only when something changed, plus a last one at the end.
 //! With `--seconds` it stops after that long.
-//! With `--collect-dir` it also collects the machines' recordings (src/telemetry/recordings.rs);
+//! With `--collect-dir` it also collects the machines' recordings (crates/gateway/src/northbound/telemetry/recordings.rs);
 //! with `--models` it diagnoses each machine's latest recording against its own model every
-//! `--diagnose-every-s` and flags model drift (src/telemetry/drift.rs).
+//! `--diagnose-every-s` and flags model drift (crates/fleet/src/drift.rs).
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;

@@ -1,6 +1,6 @@
 //! `retrocomp ship-recording`: a box sends a recording (docs/recording-csv.md CSV) to the fleet — over MQTT
-//! (chunked, ordered, resumable: src/telemetry/shipper.rs) or into a directory in the collection
-//! layout `<dir>/<group>/<edge node>/<name>` (src/telemetry/recordings.rs). Broker, TLS,
+//! (chunked, ordered, resumable: crates/gateway/src/northbound/telemetry/shipper.rs) or into a directory in the collection
+//! layout `<dir>/<group>/<edge node>/<name>` (crates/gateway/src/northbound/telemetry/recordings.rs). Broker, TLS,
 //! credentials, group and edge node come from a field config's `[telemetry.mqtt]` (`--config`) or
 //! from `--broker/--group/--edge-node`.
 

@@ -302,7 +302,7 @@ pub(crate) fn skip_empty_lines(mut data: &[u8]) -> &[u8] {
     }
 }
 
-/// The status endpoint (src/gateway/http.rs) through the real server on an ephemeral loopback
+/// The status endpoint (crates/gateway/src/northbound/http.rs) through the real server on an ephemeral loopback
 /// port: any bytes as a request give no answer (head never completed) or a well-formed HTTP/1.1
 /// answer with a known code and an exact Content-Length, and never take the server down (every
 /// input connects to the same server).

@@ -1,6 +1,6 @@
 //! The fleet's health as a Sparkplug host sees it (sans-IO: messages and times are passed in,
 //! outgoing NCMDs are taken out with [`FleetView::poll_transmit`]; `retrocomp fleet` is its MQTT
-//! shell, src/telemetry/fleet_client.rs). Per edge node:
+//! shell, crates/fleet/src/fleet_client.rs). Per edge node:
 //! - **online** from any NBIRTH or NDATA (a host started after a box sees its data first: the box is
 //!   online from that data, never offline while data flows); offline on an NDEATH whose bdSeq is
 //!   the current session's (a late will of an older connection does not kill a re-born node);

@@ -1,4 +1,4 @@
-//! The MQTT shell of a Sparkplug B host around the sans-IO [`FleetView`] (src/telemetry/fleet.rs):
+//! The MQTT shell of a Sparkplug B host around the sans-IO [`FleetView`] (crates/fleet/src/fleet.rs):
 //! one subscription to `spBv1.0/<group>/+/+` (QoS 1), renewed on every reconnect, the view's
 //! rebirth requests published as NCMD (QoS 0, not retained, as Sparkplug 3.0 says for NCMD), and
 //! optionally the recordings topic fed to a [`Collector`]. Used by `retrocomp fleet`, the MQTT tests and the

@@ -10,7 +10,7 @@
 //! function only starts them, then waits for shutdown, a dead source task, a sink that ended, or a
 //! cycle thread that died; it then stops the cycle (one more status snapshot) and the sink.
 //!
-//! Sinks: the configured output is a [`Sink`] (`src/sink.rs`; its shell lives with its core:
+//! Sinks: the configured output is a [`Sink`] (`crates/gateway/src/sinks/mod.rs`; its shell lives with its core:
 //! `origin_shift/sink_task.rs`, `origin_shift/server.rs`, `quadrature/sink.rs`); this file only
 //! builds it from the field config (clamp and cap per axis) and drives it on the sink thread.
 //!
@@ -497,7 +497,7 @@ async fn start_sink(
 }
 
 /// The configured sink, its clamp and per-write cap per axis from the field config's safety (the
-/// limits of the one last-step guard every sink passes its outputs through, `src/guard.rs`).
+/// limits of the one last-step guard every sink passes its outputs through, `crates/gateway/src/sinks/guard.rs`).
 fn build_sink(cfg: &FieldConfig, epoch: std::time::Instant) -> Result<Box<dyn Sink>, GatewayError> {
     let limits: Vec<AxisLimits> = cfg
         .axes

@@ -491,7 +491,7 @@ fn read_target(t: &Tbl<'_, '_>, key: &str, in_chain: &[Axis]) -> Option<Componen
     let n = t.str_req(key, "an ISO 230-1 component such as EXX, EYZ, EBX")?;
     match parse_component(&n) {
         None => {
-            t.err_key(key, format!("unknown component {n:?}; expected an ISO 230-1 name E[XYZABC][XYZ] or a seed alias (see src/models/names.rs)"));
+            t.err_key(key, format!("unknown component {n:?}; expected an ISO 230-1 name E[XYZABC][XYZ] or a seed alias (see crates/model/src/names.rs)"));
             None
         }
         Some(id) if !in_chain.contains(&id.axis) => {

@@ -1,5 +1,5 @@
 //! The in-guest half of the real-kernel vcan test: runs INSIDE the QEMU guest that
-//! `tests/vcan_qemu.rs` boots (scripts/vcan-qemu/init brings vcan0 up first), never on the host.
+//! `crates/vcan-guest/tests/vcan_qemu.rs` boots (scripts/vcan-qemu/init brings vcan0 up first), never on the host.
 //!
 //! It checks retrocomp's `SocketCanBus` against the kernel's vcan0 with can-utils as the independent
 //! peer, in both directions: `cansend` → `SocketCanBus::recv`, and `SocketCanBus::send` → `candump`.

@@ -1,7 +1,7 @@
 //! Real kernel vcan, from an ordinary `cargo test`: boots Debian's stock `linux-image-amd64` kernel in
 //! a QEMU guest (TCG: no KVM needed, no SocketCAN needed on the host) with an initramfs holding the
 //! can, can-raw, can-dev and vcan modules, can-utils and retrocomp's in-guest test program
-//! (`src/bin/vcan_guest.rs`), and asserts the guest's result marker.
+//! (`crates/vcan-guest/src/main.rs`), and asserts the guest's result marker.
 //!
 //! Host peers: busybox-static, can-utils, cpio, and apt-get/dpkg for the first kernel and QEMU
 //! download (cached in `~/.cache/retrocomp-vcan`, or `$RETROCOMP_VCAN_CACHE`). QEMU is the host's

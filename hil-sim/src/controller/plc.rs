@@ -168,7 +168,7 @@ impl OriginShiftPlc {
         let latch = match &self.cfg.handshake {
             None => true,
             Some(h) => {
-                // Toggle handshake (the gateway's side: src/origin_shift/cycle.rs): every change of
+                // Toggle handshake (the gateway's side: crates/gateway/src/sinks/origin_shift/cycle.rs): every change of
                 // the strobe is one request; the PLC latches and mirrors the strobe into the ack.
                 let strobe = self.regs[h.strobe_register as usize];
                 let ack = self.regs[h.ack_register as usize];

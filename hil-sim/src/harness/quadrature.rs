@@ -10,7 +10,7 @@
 //! memory ([`MemoryHeld`], kept by the harness across restarts): a restarted box continues from
 //! the held counts, takes the lines at their phase and seeds the engine with what they realise.
 //!
-//! Sign (src/quadrature/mod.rs): injecting +n counts makes the controller believe the slide moved
+//! Sign (crates/gateway/src/sinks/quadrature/mod.rs): injecting +n counts makes the controller believe the slide moved
 //! +n, so its servo moves the slide −n counts; a correction `c_um` injects `−c_um / resolution_um`
 //! counts (× `count_sign`).
 

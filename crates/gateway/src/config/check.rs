@@ -395,7 +395,7 @@ impl FieldConfig {
             ));
         }
         // The bus sections' own checks (transport keys, register types, channel names with a unit
-        // suffix, a channel defined by two sources): the same as `src/bus/config.rs` applies.
+        // suffix, a channel defined by two sources): the same as `crates/bus/src/config.rs` applies.
         let bus = retrocomp_bus::config::FieldConfig {
             can: self.can.clone(),
             canopen: self.canopen.clone(),

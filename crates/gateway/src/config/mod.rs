@@ -37,16 +37,16 @@ pub struct FieldConfig {
     pub model: Option<ModelSection>,
     #[serde(rename = "axis")]
     pub axes: Vec<AxisSection>,
-    /// CAN backend (`src/bus/can/backend.rs`: socketcan | socketcand | mem).
+    /// CAN backend (`crates/bus/src/can/backend.rs`: socketcan | socketcand | mem).
     #[serde(default)]
     pub can: Option<CanBackendConfig>,
-    /// CANopen nodes on that bus: CiA 406 encoders, CiA 404 analog inputs (`src/bus/canopen`).
+    /// CANopen nodes on that bus: CiA 406 encoders, CiA 404 analog inputs (`crates/bus/src/canopen`).
     #[serde(default)]
     pub canopen: Option<CanopenConfig>,
-    /// Modbus TCP/RTU sources (`[[modbus.source]]`); schema and checks owned by `src/bus/config.rs`.
+    /// Modbus TCP/RTU sources (`[[modbus.source]]`); schema and checks owned by `crates/bus/src/config.rs`.
     #[serde(default)]
     pub modbus: Option<ModbusSection>,
-    /// Serial-line sources (DRO, scales, force lines: `[[serial.source]]`); schema in `src/bus/config.rs`.
+    /// Serial-line sources (DRO, scales, force lines: `[[serial.source]]`); schema in `crates/bus/src/config.rs`.
     #[serde(default)]
     pub serial: Option<SerialSection>,
     #[serde(default, rename = "channel")]
@@ -55,10 +55,10 @@ pub struct FieldConfig {
     pub recoveries: Vec<NeighbourEstimate>,
     #[serde(default)]
     pub sink: SinkSection,
-    /// Sparkplug B over MQTT to the plant (`[telemetry.mqtt]`, src/telemetry).
+    /// Sparkplug B over MQTT to the plant (`[telemetry.mqtt]`, crates/gateway/src/northbound/telemetry).
     #[serde(default)]
     pub telemetry: Option<crate::northbound::telemetry::TelemetrySection>,
-    /// OPC UA server for the plant's systems (`src/gateway/opcua`); absent → none.
+    /// OPC UA server for the plant's systems (`crates/gateway/src/opcua`); absent → none.
     #[serde(default)]
     pub opcua: Option<crate::northbound::opcua::OpcUaSection>,
 }
@@ -134,7 +134,7 @@ fn yes() -> bool {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModelSection {
-    /// Machine model TOML (see `src/models`), relative to this file.
+    /// Machine model TOML (see `crates/model/src`), relative to this file.
     pub path: PathBuf,
 }
 
@@ -196,7 +196,7 @@ pub struct SinkSection {
     pub origin_shift: Option<OriginShiftSink>,
     #[serde(default)]
     pub quadrature: Option<QuadratureSink>,
-    /// The box as a Modbus server the controller reads (src/origin_shift/server.rs).
+    /// The box as a Modbus server the controller reads (crates/gateway/src/sinks/origin_shift/server.rs).
     #[serde(default)]
     pub origin_shift_server: Option<crate::sinks::origin_shift::server::ServerConfig>,
 }
@@ -437,7 +437,7 @@ channel = [ { name = "x_mm", key = "X" } ]
 
     #[test]
     fn bus_section_problems_are_reported_with_their_key() {
-        // TCP without a host (src/bus/config.rs check) names the key path.
+        // TCP without a host (crates/bus/src/config.rs check) names the key path.
         let e = parse(
             r#"
 [[modbus.source]]

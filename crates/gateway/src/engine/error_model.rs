@@ -1,7 +1,7 @@
 //! The seam between the engine and a model: the machine state the model reads ([`MachineState`],
 //! indexed by [`Axis`] and by the order of [`ErrorModel::required_channels`]), the per-axis error
 //! terms it writes ([`AxisErrors`]), and the [`ErrorModel`] trait (`model_adapter.rs` implements it
-//! for `src/models`). Split out of `engine.rs` so the engine file holds only the cycle.
+//! for `crates/model/src`). Split out of `engine.rs` so the engine file holds only the cycle.
 //!
 //! Signs and units: the model returns errors (actual − nominal) in µm, per axis and term; positions
 //! are mm, velocities mm/s, forward weights 0…1 (1 = approaching forward). The engine negates errors
@@ -112,7 +112,7 @@ impl AxisErrors {
     }
 }
 
-/// What the gateway needs from a model (`model_adapter.rs` implements it for `src/models`).
+/// What the gateway needs from a model (`model_adapter.rs` implements it for `crates/model/src`).
 pub trait ErrorModel {
     /// Channels the model reads (besides axis positions); their values reach the model as
     /// [`MachineState::inputs`], in this order. Missing ones make the inputs stale. Called at the

@@ -1,4 +1,4 @@
-//! Adapter from the machine model (`src/models`, [`MachineModel`]) to the gateway's [`ErrorModel`].
+//! Adapter from the machine model (`crates/model/src`, [`MachineModel`]) to the gateway's [`ErrorModel`].
 //!
 //! Channel names follow docs/recording-csv.md: temperature sensor `s` is channel `T_<s>_C`, force `F_<f>_N`,
 //! strain `strain_<g>_ue`. Direction: the model picks forward/reverse tables by `dir` (+1/−1, 0 = mean).

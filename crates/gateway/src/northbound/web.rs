@@ -1,6 +1,6 @@
 //! The live page a technician looks at (`GET /`) and the JSON it polls, served by the status
 //! endpoint (`http.rs`: same bounds, same token). Assets are compiled into the binary
-//! (`assets/web/`, uPlot 1.6.32 from the npm registry with its MIT licence): nothing is fetched
+//! (`crates/gateway/assets/web/`, uPlot 1.6.32 from the npm registry with its MIT licence): nothing is fetched
 //! from the internet at run time.
 //!
 //! Read routes (open): `/`, `/assets/*`, `/api/history?window=fine|coarse` (corrections, µm, per

@@ -1,5 +1,5 @@
 //! Starts the configured bus sources and merges their samples into one channel for the runtime:
-//! `[can]` + `[canopen]` (CiA 406 encoders, CiA 404 analog inputs) over any src/bus backend,
+//! `[can]` + `[canopen]` (CiA 406 encoders, CiA 404 analog inputs) over any crates/bus/src backend,
 //! every `[[modbus.source]]` (TCP/RTU poller: timeouts, reconnect with backoff, exceptions as
 //! `DecodeError` samples) and every `[[serial.source]]` (line framer + format parser).
 //!

@@ -1,6 +1,6 @@
 //! The box as a Modbus server for origin-shift corrections: the tokio-modbus shell (TCP or RTU) around
 //! [`ServerCore`]. Config `[sink.origin_shift_server]`; register image and safety in
-//! [`super::server_core`]. The register image is a [`RegisterBank`] (src/bus/modbus/server.rs): reads
+//! [`super::server_core`]. The register image is a [`RegisterBank`] (crates/bus/src/modbus/server.rs): reads
 //! of registers not yet served get exception 02, the controller may write only the position and held
 //! registers, and a multi-register write is applied all-or-nothing.
 //!
