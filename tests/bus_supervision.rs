@@ -1,24 +1,38 @@
 //! Supervision of the real `retrocomp run` binary for systemd, with a socketcand peer
 //! (tests/peers/socketcand_flaky.py) feeding its CAN source:
 //! - a source task that panics ends the process with status 70 and an ERROR line; one that returns
-//!   stops it with status 1 (test hook `RETROCOMP_TEST_KILL_SOURCE`, the only way to make a task
-//!   die on purpose: every real source failure is now retried);
+//!   stops it with status 1 (injected by hil-sim's `faulty_box`, which runs the gateway through the
+//!   same library call as `retrocomp run`: every real source failure is retried, and the product
+//!   binary has no test hook);
 //! - the systemd notify protocol, read from a unix datagram socket the test owns (`NOTIFY_SOCKET`):
 //!   `READY=1` once the cycle runs, then `WATCHDOG=1`, and no more pings once the cycle hangs (test
-//!   hook `RETROCOMP_TEST_HANG_CYCLE_AFTER`: the model evaluation blocks forever).
+//!   `faulty_box --fault hang-after:N`: the model evaluation blocks forever).
 //!
 //! systemd itself is not in this container (no PID 1 systemd, no `systemd-run`): the unit file's
 //! `Type=notify` / `WatchdogSec=` are exercised through the protocol they use.
 
 #[path = "peers/gateway.rs"]
 mod gateway;
+#[path = "gateway_support/hil_sim.rs"]
+mod hil_sim;
 #[path = "peers/mod.rs"]
 mod peers;
 
 use std::os::unix::net::UnixDatagram;
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use gateway::{Gateway, PATIENCE, field_toml};
+
+/// `faulty_box --config <cfg> --fault <fault>` with `envs`, watched as a gateway.
+fn faulty(cfg: &std::path::Path, status_port: u16, fault: &str, envs: &[(&str, &str)]) -> Gateway {
+    let mut cmd = Command::new(hil_sim::faulty_box_next_to_retrocomp());
+    cmd.args(["--config", cfg.to_str().unwrap(), "--fault", fault]);
+    for (k, v) in envs {
+        cmd.env(k, v);
+    }
+    Gateway::spawn(cmd, status_port)
+}
 
 /// A socketcand peer sending z = 100 mm, and a field config reading it.
 fn setup(dir: &std::path::Path) -> (peers::Peer, std::path::PathBuf, u16) {
@@ -43,11 +57,7 @@ fn setup(dir: &std::path::Path) -> (peers::Peer, std::path::PathBuf, u16) {
 fn a_panicking_source_task_ends_the_process_with_status_70() {
     let dir = tempfile::tempdir().unwrap();
     let (_peer, cfg, status_port) = setup(dir.path());
-    let mut gw = Gateway::start(
-        &cfg,
-        status_port,
-        &[("RETROCOMP_TEST_KILL_SOURCE", "can:panic")],
-    );
+    let mut gw = faulty(&cfg, status_port, "source-panic", &[]);
     let exit = gw.wait_exit();
     let log = gw.log().join("\n");
     assert_eq!(exit.code(), Some(70), "{exit:?}\n{log}");
@@ -62,11 +72,7 @@ fn a_panicking_source_task_ends_the_process_with_status_70() {
 fn a_source_task_that_returns_stops_the_process_with_an_error() {
     let dir = tempfile::tempdir().unwrap();
     let (_peer, cfg, status_port) = setup(dir.path());
-    let mut gw = Gateway::start(
-        &cfg,
-        status_port,
-        &[("RETROCOMP_TEST_KILL_SOURCE", "can:return")],
-    );
+    let mut gw = faulty(&cfg, status_port, "source-return", &[]);
     let exit = gw.wait_exit();
     let log = gw.log().join("\n");
     assert_eq!(exit.code(), Some(1), "{exit:?}\n{log}");
@@ -99,14 +105,11 @@ fn ready_then_watchdog_pings_and_no_pings_once_the_cycle_hangs() {
     let sock = UnixDatagram::bind(&sock_path).unwrap();
     let sock_str = sock_path.to_str().unwrap();
     // WATCHDOG_USEC = 0.2 s: the gateway looks at its cycle counter every 0.1 s.
-    let gw = Gateway::start(
+    let gw = faulty(
         &cfg,
         status_port,
-        &[
-            ("NOTIFY_SOCKET", sock_str),
-            ("WATCHDOG_USEC", "200000"),
-            ("RETROCOMP_TEST_HANG_CYCLE_AFTER", "200"),
-        ],
+        "hang-after:200",
+        &[("NOTIFY_SOCKET", sock_str), ("WATCHDOG_USEC", "200000")],
     );
     let mut got = Vec::new();
     let t0 = Instant::now();
@@ -125,10 +128,7 @@ fn ready_then_watchdog_pings_and_no_pings_once_the_cycle_hangs() {
     assert_eq!(got.iter().filter(|m| *m == "READY=1").count(), 1, "{got:?}");
     // The cycle hangs: the hook says so in the log.
     let t0 = Instant::now();
-    while gw
-        .log_lines(&["RETROCOMP_TEST_HANG_CYCLE_AFTER", "blocks forever"])
-        .is_empty()
-    {
+    while gw.log_lines(&["faulty_box", "blocks forever"]).is_empty() {
         assert!(
             t0.elapsed() < PATIENCE,
             "the hang hook never ran:\n{}",

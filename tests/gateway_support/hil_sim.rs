@@ -6,6 +6,16 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 pub(crate) fn hil_sim_next_to_retrocomp() -> PathBuf {
+    hil_sim_bin("hil-sim")
+}
+
+/// hil-sim's `faulty_box`: `retrocomp run` with one injected fault (the supervision tests).
+pub(crate) fn faulty_box_next_to_retrocomp() -> PathBuf {
+    hil_sim_bin("faulty_box")
+}
+
+/// The binary `name` of the hil-sim package, built as [`hil_sim_next_to_retrocomp`] says.
+fn hil_sim_bin(name: &str) -> PathBuf {
     let exe = Path::new(env!("CARGO_BIN_EXE_retrocomp"));
     let bin_dir = exe.parent().unwrap();
     let target_dir = bin_dir.parent().unwrap();
@@ -30,15 +40,7 @@ pub(crate) fn hil_sim_next_to_retrocomp() -> PathBuf {
         }
     }
     if bin_dir.file_name().is_some_and(|n| n == "release") {
-        cmd.args([
-            "build",
-            "-q",
-            "--release",
-            "-p",
-            "hil-sim",
-            "--bin",
-            "hil-sim",
-        ]);
+        cmd.args(["build", "-q", "--release", "-p", "hil-sim", "--bins"]);
     } else {
         // Exactly the build `cargo test --workspace` does (it builds hil-sim for hil-sim's own
         // integration tests), so after that command this is a no-op (≈ 0.3 s) and reuses its
@@ -49,7 +51,7 @@ pub(crate) fn hil_sim_next_to_retrocomp() -> PathBuf {
     }
     let st = cmd.status().expect("running cargo to build hil-sim");
     assert!(st.success(), "cargo build -p hil-sim failed: {st}");
-    let p = bin_dir.join("hil-sim");
+    let p = bin_dir.join(name);
     assert!(p.is_file(), "{} missing after the build", p.display());
     p
 }

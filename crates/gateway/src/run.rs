@@ -74,6 +74,37 @@ pub struct RunSummary {
     pub partial_episodes: u64,
 }
 
+/// `retrocomp run` as a service: the systemd watchdog fed from the cycle's progress
+/// (`supervise::spawn_watchdog`, a no-op without `NOTIFY_SOCKET`) and [`run`] until SIGINT or
+/// SIGTERM. `feed` comes from `sources::spawn_sources` on the clock `epoch`.
+pub async fn run_until_signal(
+    cfg: FieldConfig,
+    model: Box<dyn ErrorModel + Send>,
+    feed: SourceFeed,
+    epoch: std::time::Instant,
+) -> Result<RunSummary, GatewayError> {
+    let _watchdog = crate::supervise::spawn_watchdog(feed.cycles.clone())
+        .map_err(|e| GatewayError::setup("starting the watchdog thread", e))?;
+    let shutdown = async {
+        use tokio::signal::unix::{SignalKind, signal};
+        let mut term = signal(SignalKind::terminate()).ok();
+        let terminated = async {
+            match term.as_mut() {
+                Some(t) => {
+                    t.recv().await;
+                }
+                None => std::future::pending().await,
+            }
+        };
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => {}
+            () = terminated => {}
+        }
+        tracing::info!("stopping");
+    };
+    run(cfg, model, feed, epoch, shutdown, None).await
+}
+
 /// Run until `shutdown` resolves. `epoch` is the clock the sources stamp samples with (`t_s` =
 /// seconds since it); the engine runs on the same clock so staleness is judged right.
 /// `status_addr` receives the bound status address (port 0 allowed).

@@ -48,10 +48,6 @@ const REOPEN_MAX: Duration = Duration::from_secs(1);
 /// How often the CANopen loop checks PDO/heartbeat freshness and reports the bus state.
 const CAN_POLL: Duration = Duration::from_millis(10);
 
-/// Test hook (integration tests of the supervision only): `RETROCOMP_TEST_KILL_SOURCE=<name>:panic`
-/// or `<name>:return` makes that source's sample forwarder panic or return at its first batch.
-const KILL_HOOK: &str = "RETROCOMP_TEST_KILL_SOURCE";
-
 /// Spawn every configured source; samples (timestamped on `epoch`) arrive on the returned feed.
 /// A CAN backend, serial device or Modbus peer that cannot be opened yet is not an error: its source
 /// starts `disconnected` (a fault in `/status` from the first snapshot) and is retried with the
@@ -114,7 +110,7 @@ async fn start_sources(
                 None
             }
         };
-        let btx = forward(tx.clone(), "can", notice.clone());
+        let btx = forward(tx.clone());
         let n = notice.clone();
         tokio::spawn(async move {
             can_loop(can, co, bus, clock, btx.clone(), rep).await;
@@ -125,7 +121,7 @@ async fn start_sources(
     }
     for m in cfg.modbus.iter().flat_map(|m| &m.source) {
         let name = format!("modbus.{}", m.name);
-        let btx = forward(tx.clone(), &name, notice.clone());
+        let btx = forward(tx.clone());
         tracing::info!(source = %m.name, transport = ?m.transport, "starting Modbus poller");
         let rep = SourceReporter::new(&name, false, board.clone());
         spawn_modbus(
@@ -162,7 +158,7 @@ async fn start_sources(
                 None
             }
         };
-        let btx = forward(tx.clone(), &name, notice.clone());
+        let btx = forward(tx.clone());
         let (cfg, n) = (s.clone(), notice.clone());
         tokio::spawn(async move {
             serial_loop(cfg, port, clock, btx.clone(), rep).await;
@@ -185,31 +181,10 @@ fn not_yet_open(rep: &mut SourceReporter, why: &str) {
 }
 
 /// A batch sender whose batches are unpacked into `tx` by a forwarding task.
-fn forward(
-    tx: mpsc::Sender<Sample>,
-    source: &str,
-    notice: DeathNotice,
-) -> mpsc::Sender<Vec<Sample>> {
+fn forward(tx: mpsc::Sender<Sample>) -> mpsc::Sender<Vec<Sample>> {
     let (btx, mut brx) = mpsc::channel::<Vec<Sample>>(1024);
-    let kill = std::env::var(KILL_HOOK)
-        .ok()
-        .and_then(|v| v.strip_prefix(&format!("{source}:")).map(str::to_string));
-    let source = source.to_string();
     tokio::spawn(async move {
         while let Some(batch) = brx.recv().await {
-            match kill.as_deref() {
-                Some("panic") => {
-                    panic!("{KILL_HOOK}: source `{source}` forwarder panics (test hook)")
-                }
-                Some("return") => {
-                    notice.report(
-                        &source,
-                        &format!("{KILL_HOOK}: forwarder returned (test hook)"),
-                    );
-                    return;
-                }
-                _ => {}
-            }
             for s in batch {
                 if tx.send(s).await.is_err() {
                     return;
