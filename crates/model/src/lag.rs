@@ -6,11 +6,10 @@
 //! Which reading is held: the one that arrives at the end of the interval (u[i] over
 //! t[i−1]…t[i]), as the gateway's [`super::thermal::ThermalState::step`] applies a reading the
 //! moment it comes in. [`series`] follows the same rule so that a lag fitted offline is, to
-//! rounding, the lag the box runs; before, `series` held the previous reading (u[i−1]) and a
-//! written model differed from its fit by one sample's step after every jump of the input
-//! (0.12 µm on a synthetic rpm step), and across a gap in the rows carried the reading from before
-//! it. `thermal::tests::the_gateway_lag_is_the_offline_lag_series` locks the two together on both
-//! of the gateway's step paths. [`plant_series`] is the other rule, for a simulated plant.
+//! rounding, the lag the box runs (holding u[i−1] instead would make a written model differ from
+//! its fit by one sample's step after every jump of the input, and carry a reading across a gap in
+//! the rows). `thermal::tests::the_gateway_lag_is_the_offline_lag_series` locks the two together
+//! on both of the gateway's step paths. [`plant_series`] is the other rule, for a simulated plant.
 //!
 //! Units: Δt, τ and the sample times in seconds; the signal in its own unit. τ ≤ 0 means "no lag"
 //! (α = 1: [`series`] takes the reading itself, [`plant_series`] the previous set point). A

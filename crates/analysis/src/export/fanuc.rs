@@ -275,8 +275,8 @@ pub fn read_tape(file: &str, text: &str) -> Result<Vec<FanucAxis>, ImportErrors>
         read_tape_line(&mut sink, i as u64 + 1, raw, &mut params, &mut pitch);
     }
     let axis_ids: std::collections::BTreeSet<u8> = params.keys().map(|(_, a)| *a).collect();
-    // An empty tape (or one of comments only) would import as "no axes" and export as a tape of
-    // empty parameter rows that no reader accepts (found by fuzzing: fuzz/ controller_tables).
+    // An empty tape (or one of comments only) is refused: it would import as "no axes" and export
+    // as a tape of empty parameter rows that no reader accepts (fuzz target `controller_tables`).
     if axis_ids.is_empty() && sink.is_empty() {
         sink.push(
             0,
