@@ -61,7 +61,11 @@ impl ErrorModel for BenchModel {
             "T_z_C".into(),
         ]
     }
-    fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
+    fn axis_errors(
+        &mut self,
+        s: &MachineState,
+        out: &mut AxisErrors,
+    ) -> Result<(), retrocomp_gateway::engine::ModelError> {
         use retrocomp_model::Axis;
         let p = |a: Axis| s.position_mm(a).unwrap_or(0.0);
         let (x, y, z) = (p(Axis::X), p(Axis::Y), p(Axis::Z));

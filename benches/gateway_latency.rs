@@ -51,7 +51,11 @@ impl ErrorModel for Linear {
     fn required_channels(&self) -> Vec<retrocomp_bus::ChannelId> {
         Vec::new()
     }
-    fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
+    fn axis_errors(
+        &mut self,
+        s: &MachineState,
+        out: &mut AxisErrors,
+    ) -> Result<(), retrocomp_gateway::engine::ModelError> {
         let x = s.position_mm(retrocomp_model::Axis::X).unwrap_or(0.0);
         out.push(retrocomp_model::Axis::X, self.0.clone(), x);
         Ok(())

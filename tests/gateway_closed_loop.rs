@@ -26,7 +26,11 @@ impl ErrorModel for ThermalModel {
     fn required_channels(&self) -> Vec<retrocomp_bus::ChannelId> {
         vec!["T_spindle_C".into()]
     }
-    fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
+    fn axis_errors(
+        &mut self,
+        s: &MachineState,
+        out: &mut AxisErrors,
+    ) -> Result<(), retrocomp_gateway::engine::ModelError> {
         let e = 2.0 * (s.input(0).expect("inputs usable when the model runs") - 20.0);
         out.push(retrocomp_model::Axis::X, "thermal".into(), e);
         Ok(())

@@ -18,7 +18,11 @@ impl ErrorModel for TestModel {
     fn required_channels(&self) -> Vec<ChannelId> {
         vec!["T_spindle_C".into()]
     }
-    fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
+    fn axis_errors(
+        &mut self,
+        s: &MachineState,
+        out: &mut AxisErrors,
+    ) -> Result<(), retrocomp_gateway::engine::ModelError> {
         let t = s
             .input(0)
             .expect("the engine calls the model with its inputs usable");

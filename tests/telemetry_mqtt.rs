@@ -307,7 +307,7 @@ impl retrocomp_gateway::ErrorModel for OneTerm {
         &mut self,
         s: &retrocomp_gateway::MachineState,
         out: &mut retrocomp_gateway::AxisErrors,
-    ) -> Result<(), String> {
+    ) -> Result<(), retrocomp_gateway::engine::ModelError> {
         let x = s.position_mm(retrocomp_model::Axis::X).unwrap_or(0.0);
         out.push(retrocomp_model::Axis::X, "scale".into(), 1e-3 * x);
         Ok(())

@@ -72,7 +72,11 @@ impl<M: ErrorModel> ErrorModel for HangAfter<M> {
         self.inner.identity()
     }
 
-    fn axis_errors(&mut self, state: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
+    fn axis_errors(
+        &mut self,
+        state: &MachineState,
+        out: &mut AxisErrors,
+    ) -> Result<(), retrocomp_gateway::engine::ModelError> {
         if self.after == 0 {
             tracing::warn!("faulty_box: the cycle now blocks forever (injected hang)");
             loop {

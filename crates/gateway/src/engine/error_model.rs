@@ -1,7 +1,7 @@
 //! The seam between the engine and a model: the machine state the model reads ([`MachineState`],
 //! indexed by [`Axis`] and by the order of [`ErrorModel::required_channels`]), the per-axis error
 //! terms it writes ([`AxisErrors`]), and the [`ErrorModel`] trait (`model_adapter.rs` implements it
-//! for `crates/model/src`). Split out of `engine.rs` so the engine file holds only the cycle.
+//! for `crates/model/src`), and its one error, [`ModelError`].
 //!
 //! Signs and units: the model returns errors (actual − nominal) in µm, per axis and term; positions
 //! are mm, velocities mm/s, forward weights 0…1 (1 = approaching forward). The engine negates errors
@@ -12,6 +12,33 @@ use std::sync::Arc;
 use crate::status::ModelIdentity;
 use retrocomp_bus::ChannelId;
 use retrocomp_model::Axis;
+
+/// Why a model could not evaluate a cycle: the engine holds the cycle's outputs (an `Input::Fault`
+/// to the safety layer) and reports a `decode` fault on the model while it lasts.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ModelError {
+    /// A required input channel has no value this cycle.
+    #[error("missing {0}")]
+    MissingInput(ChannelId),
+    /// The model refused its input (a non-finite position or time).
+    #[error("model rejected the input (non-finite position or time)")]
+    InvalidInput,
+    /// Any other failure of a model the engine does not know (the message says what).
+    #[error("{0}")]
+    Other(String),
+}
+
+impl From<&str> for ModelError {
+    fn from(why: &str) -> Self {
+        ModelError::Other(why.to_string())
+    }
+}
+
+impl From<String> for ModelError {
+    fn from(why: String) -> Self {
+        ModelError::Other(why)
+    }
+}
 
 /// The machine state the model sees, indexed by [`Axis::index`] and by the position of a channel in
 /// [`ErrorModel::required_channels`]. Updated in place: a cycle allocates nothing.
@@ -126,7 +153,8 @@ pub trait ErrorModel {
     }
     /// Push, per machine axis, its error terms at `state` into `out` (cleared by the caller).
     /// `&mut self`: models keep evaluation state (thermal lags, scratch buffers).
-    fn axis_errors(&mut self, state: &MachineState, out: &mut AxisErrors) -> Result<(), String>;
+    fn axis_errors(&mut self, state: &MachineState, out: &mut AxisErrors)
+    -> Result<(), ModelError>;
     /// Which model this is (name, content hash, when loaded), for the status page; None if unknown.
     fn identity(&self) -> Option<ModelIdentity> {
         None

@@ -34,7 +34,7 @@ use retrocomp_bus::{ChannelId, Health, Sample};
 use retrocomp_model::Axis;
 use retrocomp_model::approach::Approach;
 
-pub use crate::engine::error_model::{AxisErrors, ErrorModel, MachineState, TermError};
+pub use crate::engine::error_model::{AxisErrors, ErrorModel, MachineState, ModelError, TermError};
 
 /// Everything the engine knows about one channel, by slot (index into `Engine::channels`).
 struct Channel {
@@ -95,7 +95,7 @@ pub struct Engine {
     enabled: bool,
     state: MachineState,
     errors: AxisErrors,
-    model_error: Option<String>,
+    model_error: Option<ModelError>,
     cycles: u64,
     now_s: f64,
     /// Per axis (configured order) the output of the last cycle, µm.
@@ -634,7 +634,7 @@ impl Engine {
                 })
                 .collect(),
             active_faults: self.faults.active_by_name(),
-            model_error: self.model_error.clone(),
+            model_error: self.model_error.as_ref().map(ToString::to_string),
             sink: None,
             sources: Vec::new(),
             model: None,

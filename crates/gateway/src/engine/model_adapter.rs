@@ -8,7 +8,7 @@
 
 use std::sync::Arc;
 
-use crate::engine::{AxisErrors, ErrorModel, MachineState};
+use crate::engine::{AxisErrors, ErrorModel, MachineState, ModelError};
 use crate::status::ModelIdentity;
 use retrocomp_bus::ChannelId;
 use retrocomp_model::{Axis, ErrorBreakdown, MachineModel, ModelInput, ModelState};
@@ -121,7 +121,7 @@ impl ErrorModel for MachineModelAdapter {
             .collect()
     }
 
-    fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), String> {
+    fn axis_errors(&mut self, s: &MachineState, out: &mut AxisErrors) -> Result<(), ModelError> {
         self.input.t_s = s.t_s;
         let mut weights = [1.0f64; 3];
         for ax in Axis::ALL {
@@ -133,7 +133,7 @@ impl ErrorModel for MachineModelAdapter {
         // `s.inputs` follows `required_channels`: temperatures, then forces, then strains.
         let (nt, nf) = (self.temp_channels.len(), self.force_channels.len());
         for (k, ch) in self.temp_channels.iter().enumerate() {
-            self.input.temps_c[k] = s.input(k).ok_or_else(|| format!("missing {ch}"))?;
+            self.input.temps_c[k] = s.input(k).ok_or(ModelError::MissingInput(*ch))?;
         }
         // A missing force or strain (optional, see above) is NaN: the model then takes the force
         // as absent and its load terms are zero.
@@ -145,7 +145,7 @@ impl ErrorModel for MachineModelAdapter {
         }
         self.eval(0);
         if self.main.flags.invalid_input {
-            return Err("model rejected the input (non-finite position or time)".into());
+            return Err(ModelError::InvalidInput);
         }
         // Axes mid-reversal: the base evaluation used dir 0 (mean of F/R) for them; add, per such
         // axis, w·e₊ + (1 − w)·e₋ − e_base. Exact when each table's F/R choice follows its own axis'
