@@ -54,9 +54,8 @@ fn cargo(args: &[&str]) -> String {
     String::from_utf8(out.stdout).unwrap()
 }
 
-/// Each workspace crate and the workspace crates it depends on (normal dependencies, every
-/// target platform), from `cargo metadata`.
-fn crate_graph() -> BTreeMap<String, BTreeSet<String>> {
+/// The workspace's packages, from `cargo metadata`.
+fn packages() -> Vec<serde_json::Value> {
     let meta: serde_json::Value = serde_json::from_str(&cargo(&[
         "metadata",
         "--format-version",
@@ -65,13 +64,19 @@ fn crate_graph() -> BTreeMap<String, BTreeSet<String>> {
         "--offline",
     ]))
     .unwrap();
-    let packages = meta["packages"].as_array().unwrap();
+    meta["packages"].as_array().unwrap().clone()
+}
+
+/// Each workspace crate and the workspace crates it depends on (normal dependencies, every
+/// target platform).
+fn crate_graph() -> BTreeMap<String, BTreeSet<String>> {
+    let packages = packages();
     let names: BTreeSet<String> = packages
         .iter()
         .map(|p| p["name"].as_str().unwrap().to_string())
         .collect();
     let mut graph = BTreeMap::new();
-    for p in packages {
+    for p in &packages {
         let deps = p["dependencies"]
             .as_array()
             .unwrap()
@@ -87,17 +92,8 @@ fn crate_graph() -> BTreeMap<String, BTreeSet<String>> {
 
 /// Every external crate a package depends on (normal dependencies).
 fn external_deps(package: &str) -> BTreeSet<String> {
-    let meta: serde_json::Value = serde_json::from_str(&cargo(&[
-        "metadata",
-        "--format-version",
-        "1",
-        "--no-deps",
-        "--offline",
-    ]))
-    .unwrap();
-    let p = meta["packages"]
-        .as_array()
-        .unwrap()
+    let packages = packages();
+    let p = packages
         .iter()
         .find(|p| p["name"] == package)
         .unwrap_or_else(|| panic!("no package {package}"));
