@@ -41,6 +41,12 @@ pub(super) fn forward_check(ctx: &Context, s: &SignalResult) -> Option<ForwardCh
     if s.terms.is_empty() {
         return None;
     }
+    offset_and_terms(ctx, s)
+}
+
+/// The forward check of one signal with its terms (the offset alone without any), `None` when a
+/// side of the split is too short.
+pub(super) fn offset_and_terms(ctx: &Context, s: &SignalResult) -> Option<ForwardCheck> {
     let r = &s.residual_before;
     let n = r.len();
     let (fit, scored) = (fit_rows(n), n - fit_rows(n));
@@ -59,6 +65,7 @@ pub(super) fn forward_check(ctx: &Context, s: &SignalResult) -> Option<ForwardCh
         scored_rows: scored,
         rms_sim_um,
         rms_model_um,
+        regimes: None,
     })
 }
 
