@@ -109,9 +109,8 @@ pub struct Outcome {
 /// The origins (rows) and what they follow; empty on recordings with axes.
 pub fn origins(ctx: &Context, forward_blocks: usize) -> (&'static str, Vec<usize>) {
     let n = ctx.n();
-    let ok = |i: &usize| {
-        *i as f64 >= MIN_HISTORY * n as f64 && (n - i) as f64 >= MIN_AHEAD * n as f64
-    };
+    let ok =
+        |i: &usize| *i as f64 >= MIN_HISTORY * n as f64 && (n - i) as f64 >= MIN_AHEAD * n as f64;
     if let Some(rpm) = ctx.rpm.as_deref() {
         let span = rpm.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let steps: Vec<usize> = (1..n)
@@ -188,11 +187,7 @@ fn stat_candidates(ctx: &Context, axis: char) -> Vec<StatCandidate> {
 type StatCandidate = (Candidate, f64, Vec<f64>, String);
 
 /// The statistical fit on rows `..o`: (intercept, (candidate index, gain) per term).
-fn stat_fit(
-    cands: &[StatCandidate],
-    r: &[f64],
-    o: usize,
-) -> Option<(f64, Vec<(usize, f64)>)> {
+fn stat_fit(cands: &[StatCandidate], r: &[f64], o: usize) -> Option<(f64, Vec<(usize, f64)>)> {
     let rc: Vec<regression::Candidate> = cands
         .iter()
         .map(|(_, tau, col, driver)| regression::Candidate {
@@ -469,11 +464,7 @@ pub fn range_text(d: &DriverRange) -> String {
     if let Some(w) = &d.worst {
         s.push_str(&format!(
             "; at t_s {:.0} fitted over [{:.3}, {:.3}], then seen over [{:.3}, {:.3}]",
-            w.origin_t_s,
-            w.fitted_before[0],
-            w.fitted_before[1],
-            w.seen_after[0],
-            w.seen_after[1]
+            w.origin_t_s, w.fitted_before[0], w.fitted_before[1], w.seen_after[0], w.seen_after[1]
         ));
     }
     if let (Some(a), Some(b)) = (d.rms_with_um, d.rms_without_um) {
@@ -488,4 +479,80 @@ pub fn range_text(d: &DriverRange) -> String {
     }
     s.push('\n');
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::recording::Recording;
+
+    /// A thermal-only recording stepped through four spindle speeds, whose residual follows a
+    /// sensor only up to the level it reached in the first half (a saturating effect): the drift
+    /// fitted on it extrapolates once the sensor leaves that range. Origins are the speed steps
+    /// with half the rows behind them; the term is reported with its ranges and left out of the
+    /// written model, and the report says so.
+    #[test]
+    fn a_term_driven_beyond_its_fitted_range_is_reported_and_left_out() {
+        let n = 2000;
+        let t: Vec<f64> = (0..n).map(|i| 15.0 * i as f64).collect();
+        let rpm: Vec<f64> = (0..n).map(|i| 1000.0 * (1 + i / 500) as f64).collect();
+        let d: Vec<f64> = (0..n)
+            .map(|i| {
+                let x = i as f64 / 1000.0;
+                20.0 + if x <= 1.0 { x } else { 1.0 + 4.0 * (x - 1.0) }
+            })
+            .collect();
+        let r: Vec<f64> = d
+            .iter()
+            .enumerate()
+            .map(|(i, v)| 3.0 * (v - 20.0).min(1.0) + 0.05 * ((i as f64) * 0.7).sin())
+            .collect();
+        let rec = Recording::from_columns(vec![
+            ("t_s".into(), t),
+            ("rpm".into(), rpm),
+            ("T_d_C".into(), d),
+            ("ez_um".into(), vec![0.0; n]),
+        ])
+        .unwrap();
+        let ctx = Context::from_recording(&rec);
+        let (by, o) = origins(&ctx, 10);
+        assert_eq!((by, o.clone()), ("rpm", vec![1000, 1500]));
+        let drift = Candidate {
+            axis: 'z',
+            kind: Kind::ThermalDrift {
+                sensor: "T_d_C".into(),
+            },
+            grid: vec![],
+        };
+        let out = check(&ctx, 'z', &r, &[], &[(drift, 0.0)], &Options::default())
+            .expect("a thermal-only recording with origins");
+        let range = out.ranges[0].as_ref().expect("a drift has a driver");
+        let w = range.worst.as_ref().expect("it left its range");
+        assert!(w.seen_after[1] > w.fitted_before[1] + 1.0, "{range:?}");
+        assert!(
+            range.left_out && range.rms_without_um < range.rms_with_um,
+            "{range:?}"
+        );
+        assert_eq!(out.check.left_out, vec!["thermal_drift(T_d_C)".to_string()]);
+        assert_ne!(out.check.written, "named", "{:?}", out.check);
+        assert!(out.written.is_some());
+        let text = to_text("ez_um", &out.check);
+        assert!(text.contains("left out of model.toml"), "{text}");
+    }
+
+    /// On a recording with axis columns there is no regime check (selection there is validated
+    /// leave-one-block-out and its forward check is the single split of `forward_check.rs`).
+    #[test]
+    fn recordings_with_axes_have_no_regime_check() {
+        let n = 400;
+        let rec = Recording::from_columns(vec![
+            ("t_s".into(), (0..n).map(|i| i as f64).collect()),
+            ("x_mm".into(), (0..n).map(|i| (i % 50) as f64).collect()),
+            ("rpm".into(), (0..n).map(|i| (i / 100) as f64).collect()),
+            ("ex_um".into(), vec![0.0; n]),
+        ])
+        .unwrap();
+        let ctx = Context::from_recording(&rec);
+        assert!(check(&ctx, 'x', &vec![0.0; n], &[], &[], &Options::default()).is_none());
+    }
 }
