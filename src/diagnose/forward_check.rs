@@ -19,7 +19,11 @@ pub const FORWARD_FIT_FRACTION: f64 = 0.6;
 /// RMS (µm) on the rows after the split of `r` − the least-squares fit of `cols` on the rows before
 /// it. `cols` must hold the intercept when an offset is meant.
 pub fn forward_rms<C: AsRef<[f64]>>(cols: &[C], r: &[f64]) -> f64 {
-    let split = fit_rows(r.len());
+    forward_ms_at(cols, r, fit_rows(r.len())).sqrt()
+}
+
+/// Mean square (µm²) on rows `split..` of `r` − the least-squares fit of `cols` on rows `..split`.
+pub fn forward_ms_at<C: AsRef<[f64]>>(cols: &[C], r: &[f64], split: usize) -> f64 {
     let early: Vec<&[f64]> = cols.iter().map(|c| &c.as_ref()[..split]).collect();
     let coef = lsq::coef(&early, &r[..split]);
     let rss: f64 = (split..r.len())
@@ -28,7 +32,7 @@ pub fn forward_rms<C: AsRef<[f64]>>(cols: &[C], r: &[f64]) -> f64 {
             (r[i] - fit).powi(2)
         })
         .sum();
-    (rss / (r.len() - split).max(1) as f64).sqrt()
+    rss / (r.len() - split).max(1) as f64
 }
 
 fn fit_rows(n: usize) -> usize {

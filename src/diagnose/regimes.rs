@@ -28,6 +28,7 @@ use serde::{Deserialize, Serialize};
 use super::candidates::{Candidate, Kind};
 use super::effects::EffectModel;
 use super::features::{Context, KRPM2};
+use super::forward_check::forward_ms_at;
 use super::lsq;
 use super::selection::Options;
 use crate::analysis::fit::regression::{self, Criterion};
@@ -42,6 +43,9 @@ pub const STAT_MAX_TERMS: usize = 6;
 /// FL_THERMAL: the earliest origins, fitted on one or two speed levels, then outweighed the
 /// others and the statistical fit lost everywhere; docs/diagnose.md.)
 pub const MIN_HISTORY: f64 = 0.5;
+/// Rows the check works on: a longer recording is thinned to every k-th row (a thermal fit does
+/// not need finer sampling than this over hours; it bounds the statistical fit's memory).
+pub const MAX_ROWS: usize = 100_000;
 /// An origin needs this fraction of the rows after it to be scored.
 pub const MIN_AHEAD: f64 = 0.05;
 /// A driver has left its fitted range when the rows after an origin go beyond the range before
@@ -132,22 +136,13 @@ fn range(v: &[f64]) -> [f64; 2] {
         })
 }
 
-/// Mean square on rows `o..` of r − the least-squares fit of `cols` (intercept first) on `..o`.
-fn forward_ms(cols: &[&[f64]], r: &[f64], o: usize) -> f64 {
-    let early: Vec<&[f64]> = cols.iter().map(|c| &c[..o]).collect();
-    let b = lsq::coef(&early, &r[..o]);
-    let n = r.len();
-    (o..n)
-        .map(|i| {
-            let f: f64 = cols.iter().zip(&b).map(|(c, b)| b * c[i]).sum();
-            (r[i] - f).powi(2)
-        })
-        .sum::<f64>()
-        / (n - o).max(1) as f64
-}
-
 /// The statistical fit's candidates as diagnose terms with their columns.
-fn stat_candidates(ctx: &Context, axis: char) -> Vec<StatCandidate> {
+/// (Columns thinned by `thin`.)
+fn stat_candidates(
+    ctx: &Context,
+    axis: char,
+    thin: &dyn Fn(&[f64]) -> Vec<f64>,
+) -> Vec<StatCandidate> {
     let varies = |v: &[f64]| v.iter().any(|x| (x - v[0]).abs() > 0.0);
     let mut out = vec![];
     let mut add = |sensor: &str, taus: &[f64]| {
@@ -166,7 +161,7 @@ fn stat_candidates(ctx: &Context, axis: char) -> Vec<StatCandidate> {
                 kind,
                 grid: vec![],
             };
-            let col = c.columns(ctx, tau).remove(0);
+            let col = thin(&c.columns(ctx, tau).remove(0));
             out.push((c, tau, col, sensor.to_string()));
         }
     };
@@ -274,17 +269,27 @@ pub fn check(
     if origins.is_empty() {
         return None;
     }
+    // Every `stride`-th row (all of them up to MAX_ROWS): the columns are computed on every row
+    // (the lags need them) and thinned one at a time, so a long recording's statistical
+    // candidates stay within a few hundred MB.
+    let stride = r.len().div_ceil(MAX_ROWS).max(1);
+    let thin = |v: &[f64]| -> Vec<f64> { v.iter().step_by(stride).copied().collect() };
+    let r_all = r;
+    let r = &thin(r_all)[..];
+    let sim_inputs: Vec<Vec<f64>> = sim_inputs.iter().map(|v| thin(v)).collect();
+    let origins: Vec<(usize, usize)> = origins.iter().map(|&o| (o, o.div_ceil(stride))).collect();
+    let sub: Vec<usize> = origins.iter().map(|o| o.1).collect();
     let n = r.len();
     let ones = vec![1.0; n];
     let cols: Vec<Vec<f64>> = terms
         .iter()
-        .map(|(c, th)| c.columns(ctx, *th).remove(0))
+        .map(|(c, th)| thin(&c.columns(ctx, *th).remove(0)))
         .collect();
     // What each origin's contenders are fitted on and scored against: the residual of the
     // simulation refitted on the rows before it.
-    let at_origin: Vec<(usize, Vec<f64>)> = origins
+    let at_origin: Vec<(usize, Vec<f64>)> = sub
         .iter()
-        .map(|&o| (o, refitted_sim_residual(r, sim_inputs, o)))
+        .map(|&o| (o, refitted_sim_residual(r, &sim_inputs, o)))
         .collect();
     let resid = |o: usize| -> &[f64] {
         &at_origin
@@ -302,21 +307,21 @@ pub fn check(
                 .filter(|(k, _)| !skip.contains(k))
                 .map(|(_, c)| c.as_slice()),
         );
-        let ms: f64 = at.iter().map(|&o| forward_ms(&refs, resid(o), o)).sum();
+        let ms: f64 = at.iter().map(|&o| forward_ms_at(&refs, resid(o), o)).sum();
         (ms / at.len().max(1) as f64).sqrt()
     };
     let (ranges, left) = driver_ranges(ctx, terms, &origins, opts.cv_min_gain, &named);
-    let rms_sim_um = named(&(0..terms.len()).collect::<Vec<_>>(), &origins);
-    let rms_named_um = named(&left, &origins);
-    let cands = stat_candidates(ctx, axis);
+    let rms_sim_um = named(&(0..terms.len()).collect::<Vec<_>>(), &sub);
+    let rms_named_um = named(&left, &sub);
+    let cands = stat_candidates(ctx, axis, &thin);
     let rms_statistical_um = if cands.is_empty() {
         f64::INFINITY
     } else {
-        let ms: f64 = origins
+        let ms: f64 = sub
             .iter()
             .map(|&o| stat_forward_ms(&cands, resid(o), o))
             .sum();
-        (ms / origins.len() as f64).sqrt()
+        (ms / sub.len() as f64).sqrt()
     };
     let kept: Vec<usize> = (0..terms.len()).filter(|k| !left.contains(k)).collect();
     let (written, models) = if rms_statistical_um < rms_named_um.min(rms_sim_um) {
@@ -355,7 +360,7 @@ pub fn check(
     Some(Outcome {
         check: RegimeCheck {
             regimes_by: by.into(),
-            origins_t_s: origins.iter().map(|&o| ctx.t_s[o]).collect(),
+            origins_t_s: origins.iter().map(|o| ctx.t_s[o.0]).collect(),
             rms_sim_um,
             rms_named_um,
             rms_statistical_um,
@@ -369,12 +374,12 @@ pub fn check(
 }
 
 /// Each term's driver range, and the terms left out: those whose driver leaves its fitted range at
-/// some origin and whose removal lowers the pooled forward RMS over those origins (`named(skip,
+/// some origin (`origins`: (row, its index among the thinned rows `named` scores)) and whose removal lowers the pooled forward RMS over those origins (`named(skip,
 /// at)`) by more than `min_gain` (relative). Judged one at a time against the full set.
 fn driver_ranges(
     ctx: &Context,
     terms: &[(Candidate, f64)],
-    origins: &[usize],
+    origins: &[(usize, usize)],
     min_gain: f64,
     named: &dyn Fn(&[usize], &[usize]) -> f64,
 ) -> (Vec<Option<DriverRange>>, Vec<usize>) {
@@ -386,12 +391,12 @@ fn driver_ranges(
             let (name, u) = driver(ctx, c)?;
             let mut worst: Option<(f64, Excursion)> = None;
             let mut out_at = vec![];
-            for &o in origins {
+            for &(o, thinned) in origins {
                 let (before, after) = (range(&u[..o]), range(&u[o..]));
                 let span = (before[1] - before[0]).max(1e-12);
                 let beyond = (before[0] - after[0]).max(after[1] - before[1]) / span;
                 if beyond > RANGE_MARGIN {
-                    out_at.push(o);
+                    out_at.push(thinned);
                     if worst.as_ref().is_none_or(|(w, _)| beyond > *w) {
                         worst = Some((
                             beyond,
