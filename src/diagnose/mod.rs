@@ -261,7 +261,7 @@ fn diagnose_residuals(
         let regime = regimes::check(&ctx, axis, &r, sim_inputs, &refit_terms, opts);
         out.findings(&sel, &models, &cis, signal);
         if let Some(o) = &regime {
-            out.driver_ranges(signal, &o.ranges);
+            regimes::set_driver_ranges(&mut out.findings, signal, &o.ranges);
         }
         out.runners_up(&sel, signal, opts);
         let mut result = SignalResult {
@@ -281,19 +281,8 @@ fn diagnose_residuals(
         out.mismatch
             .extend(locate::unexplained(&ctx, signal, &final_resid));
         drop(final_resid);
-        match regime {
-            Some(o) => {
-                let fc = forward_check::offset_and_terms(&ctx, &result);
-                out.forward_check.extend(fc.map(|fc| ForwardCheck {
-                    regimes: Some(o.check),
-                    ..fc
-                }));
-                result.written = o.written;
-            }
-            None => out
-                .forward_check
-                .extend(forward_check::forward_check(&ctx, &result)),
-        }
+        out.forward_check
+            .extend(forward_check::with_regimes(&ctx, &mut result, regime));
         result.after_coef.shrink_to_fit();
         out.signals.push(result);
     }
@@ -460,19 +449,6 @@ impl Assembly {
                     experiment: Some(exp),
                 });
             }
-        }
-    }
-
-    /// Each of the signal's findings (its last `ranges.len()`, in term order) with its driver's range.
-    fn driver_ranges(&mut self, signal: &str, ranges: &[Option<regimes::DriverRange>]) {
-        let mine: Vec<usize> = (0..self.findings.len())
-            .filter(|&i| self.findings[i].1.signal == signal)
-            .collect();
-        if mine.len() != ranges.len() {
-            return;
-        }
-        for (i, d) in mine.into_iter().zip(ranges) {
-            self.findings[i].1.driver_range = d.clone();
         }
     }
 

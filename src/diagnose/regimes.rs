@@ -433,6 +433,23 @@ fn driver_ranges(
     (ranges, left)
 }
 
+/// Each of `signal`'s findings (`(gain, finding)`, in term order) with its driver's range.
+pub(super) fn set_driver_ranges(
+    findings: &mut [(f64, super::report::Finding)],
+    signal: &str,
+    ranges: &[Option<DriverRange>],
+) {
+    let mine: Vec<usize> = (0..findings.len())
+        .filter(|&i| findings[i].1.signal == signal)
+        .collect();
+    if mine.len() != ranges.len() {
+        return;
+    }
+    for (i, d) in mine.into_iter().zip(ranges) {
+        findings[i].1.driver_range = d.clone();
+    }
+}
+
 /// The report's lines for one signal's check.
 pub fn to_text(signal: &str, c: &RegimeCheck) -> String {
     let mut s = format!(
