@@ -19,7 +19,11 @@ pub const FORWARD_FIT_FRACTION: f64 = 0.6;
 /// RMS (µm) on the rows after the split of `r` − the least-squares fit of `cols` on the rows before
 /// it. `cols` must hold the intercept when an offset is meant.
 pub fn forward_rms<C: AsRef<[f64]>>(cols: &[C], r: &[f64]) -> f64 {
-    let split = fit_rows(r.len());
+    forward_ms_at(cols, r, fit_rows(r.len())).sqrt()
+}
+
+/// Mean square (µm²) on rows `split..` of `r` − the least-squares fit of `cols` on rows `..split`.
+pub fn forward_ms_at<C: AsRef<[f64]>>(cols: &[C], r: &[f64], split: usize) -> f64 {
     let early: Vec<&[f64]> = cols.iter().map(|c| &c.as_ref()[..split]).collect();
     let coef = lsq::coef(&early, &r[..split]);
     let rss: f64 = (split..r.len())
@@ -28,7 +32,7 @@ pub fn forward_rms<C: AsRef<[f64]>>(cols: &[C], r: &[f64]) -> f64 {
             (r[i] - fit).powi(2)
         })
         .sum();
-    (rss / (r.len() - split).max(1) as f64).sqrt()
+    rss / (r.len() - split).max(1) as f64
 }
 
 fn fit_rows(n: usize) -> usize {
@@ -37,10 +41,33 @@ fn fit_rows(n: usize) -> usize {
 
 /// The forward check of one signal's final model; `None` without terms, or when either side of
 /// the split is too short to say anything (fewer rows than columns to fit, or none to score).
-pub(super) fn forward_check(ctx: &Context, s: &SignalResult) -> Option<ForwardCheck> {
+fn forward_check(ctx: &Context, s: &SignalResult) -> Option<ForwardCheck> {
     if s.terms.is_empty() {
         return None;
     }
+    offset_and_terms(ctx, s)
+}
+
+/// The forward check of signal `s`; with a regime check (`regimes.rs`, thermal tests) present for
+/// every signal, carrying that check, and `s.written` set to what the check chose.
+pub(super) fn with_regimes(
+    ctx: &Context,
+    s: &mut SignalResult,
+    regime: Option<super::regimes::Outcome>,
+) -> Option<ForwardCheck> {
+    let Some(o) = regime else {
+        return forward_check(ctx, s);
+    };
+    s.written = o.written;
+    offset_and_terms(ctx, s).map(|fc| ForwardCheck {
+        regimes: Some(o.check),
+        ..fc
+    })
+}
+
+/// The forward check of one signal with its terms (the offset alone without any), `None` when a
+/// side of the split is too short.
+fn offset_and_terms(ctx: &Context, s: &SignalResult) -> Option<ForwardCheck> {
     let r = &s.residual_before;
     let n = r.len();
     let (fit, scored) = (fit_rows(n), n - fit_rows(n));
@@ -59,6 +86,7 @@ pub(super) fn forward_check(ctx: &Context, s: &SignalResult) -> Option<ForwardCh
         scored_rows: scored,
         rms_sim_um,
         rms_model_um,
+        regimes: None,
     })
 }
 

@@ -21,6 +21,7 @@ mod null_model;
 pub mod output;
 pub mod plots;
 mod refit;
+pub mod regimes;
 pub mod report;
 pub mod scoring;
 pub mod select;
@@ -104,6 +105,9 @@ pub struct SignalResult {
     /// holds those of the intercept and the columns of `terms[..=k]`.
     pub after_coef: Vec<Vec<f64>>,
     pub models: Vec<EffectModel>,
+    /// What `--out` writes when it is not `models` (`regimes.rs`: named terms left out, the
+    /// statistical fit, or nothing); `None`: `models`.
+    pub written: Option<Vec<EffectModel>>,
 }
 
 impl SignalResult {
@@ -254,7 +258,11 @@ fn diagnose_residuals(
         let (models, cis, after_coef, refit_terms) =
             out.parsimony(&ctx, &r, &mut sel, signal, sim_inputs, opts);
         out.exchanged(&sel, signal);
+        let regime = regimes::check(&ctx, axis, &r, sim_inputs, &refit_terms, opts);
         out.findings(&sel, &models, &cis, signal);
+        if let Some(o) = &regime {
+            regimes::set_driver_ranges(&mut out.findings, signal, &o.ranges);
+        }
         out.runners_up(&sel, signal, opts);
         let mut result = SignalResult {
             signal: signal.clone(),
@@ -263,6 +271,7 @@ fn diagnose_residuals(
             terms: refit_terms,
             after_coef,
             models,
+            written: None,
         };
         let final_resid = result.residual_after(&ctx).pop().unwrap_or_else(|| {
             let r = &result.residual_before;
@@ -273,7 +282,7 @@ fn diagnose_residuals(
             .extend(locate::unexplained(&ctx, signal, &final_resid));
         drop(final_resid);
         out.forward_check
-            .extend(forward_check::forward_check(&ctx, &result));
+            .extend(forward_check::with_regimes(&ctx, &mut result, regime));
         result.after_coef.shrink_to_fit();
         out.signals.push(result);
     }
@@ -420,6 +429,7 @@ impl Assembly {
                     rms_after_um: term.rms_after_um,
                     heldout_rms_before_um: term.heldout_rms_before_um,
                     heldout_rms_after_um: term.heldout_rms_after_um,
+                    driver_range: None,
                 },
             ));
             for alt in &term.ambiguous_with {

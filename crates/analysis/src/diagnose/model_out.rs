@@ -291,6 +291,14 @@ fn writable_refit(
     rec: &Recording,
     axis: Axis,
 ) -> (Vec<super::effects::EffectModel>, Option<String>) {
+    if let Some(w) = &s.written {
+        let note = format!(
+            "{}: written as the rolling origin over the recording's regimes chose (forward_check[].regimes: {} term(s))",
+            s.signal,
+            w.len()
+        );
+        return (w.clone(), Some(note));
+    }
     let writable: Vec<bool> = s
         .models
         .iter()

@@ -31,6 +31,10 @@ pub struct Finding {
     pub rms_after_um: f64,
     pub heldout_rms_before_um: f64,
     pub heldout_rms_after_um: f64,
+    /// Thermal terms on recordings with no axis column: the driver's range fitted vs seen at the
+    /// rolling origins (`regimes.rs`). An added key.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub driver_range: Option<super::regimes::DriverRange>,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -54,6 +58,11 @@ pub struct ForwardCheck {
     pub scored_rows: usize,
     pub rms_sim_um: f64,
     pub rms_model_um: f64,
+    /// On recordings with no axis column: the rolling origin over the recording's regimes, the
+    /// named physics against the simulation alone and a statistical compensation fit, and what
+    /// `--out` writes (`regimes.rs`). An added key.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub regimes: Option<super::regimes::RegimeCheck>,
 }
 
 /// A term selected at some step and not in the final model: replaced by the exchange step, or
@@ -185,6 +194,9 @@ impl Report {
                 "   evidence: ΔBIC {:.1}, p {:.2e}; RMS after {:.3} µm; held-out RMS {:.3} → {:.3} µm\n",
                 f.evidence.delta_bic, f.evidence.p_value, f.rms_after_um, f.heldout_rms_before_um, f.heldout_rms_after_um
             ));
+            if let Some(d) = &f.driver_range {
+                s.push_str(&super::regimes::range_text(d));
+            }
         }
         if !self.forward_check.is_empty() {
             s.push_str("\nforward check (the found terms' gains and the offset refitted on the first rows):\n");
@@ -193,6 +205,9 @@ impl Report {
                     "  {}: fitted on the first {} rows, RMS on the {} after them: {:.3} µm with the offset alone, {:.3} µm with the found terms\n",
                     f.signal, f.fit_rows, f.scored_rows, f.rms_sim_um, f.rms_model_um
                 ));
+                if let Some(c) = &f.regimes {
+                    s.push_str(&super::regimes::to_text(&f.signal, c));
+                }
             }
         }
         if !self.alternatives.is_empty() {
