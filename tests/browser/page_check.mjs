@@ -77,6 +77,9 @@ try {
     scroll_w: document.documentElement.scrollWidth,
     charts: [...document.querySelectorAll(".uplot")].map((e) => { const r = e.getBoundingClientRect(); return [r.left, r.right]; }),
     legends: [...document.querySelectorAll(".u-legend")].map((e) => { const r = e.getBoundingClientRect(); return [r.left, r.right]; }),
+    // For the failure message: the elements reaching beyond the screen.
+    beyond: [...document.querySelectorAll("body *")].filter((e) => e.getBoundingClientRect().right > window.innerWidth + 0.5)
+      .slice(0, 8).map((e) => `${e.tagName.toLowerCase()}${e.id ? "#" + e.id : ""}.${e.className} ${Math.round(e.getBoundingClientRect().right)}`),
   });
   await page.setViewportSize({ width: 390, height: 844 });
   await page.waitForFunction(() => [...document.querySelectorAll(".uplot")].every((e) => e.getBoundingClientRect().right <= window.innerWidth), null, { timeout: 20000 }).catch(() => {});
