@@ -15,6 +15,8 @@ import sys
 
 from asyncua import Client, ua
 
+from asyncua_identification import machine
+
 
 class Watch:
     def __init__(self):
@@ -33,10 +35,7 @@ async def main(url, stop_file):
     watch = Watch()
     try:
         async with Client(url, timeout=30) as c:
-            box = None
-            for ch in await c.nodes.objects.get_children():
-                if (await ch.read_browse_name()).Name == "Machines":
-                    box = (await ch.get_children())[0]
+            box = await machine(c)
             if box is None:
                 raise RuntimeError("no Machines folder")
             name = (await box.read_browse_name()).Name
