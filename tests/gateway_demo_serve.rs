@@ -1,9 +1,14 @@
-//! `retrocomp demo --serve` end to end (issue 16.3/16.4): the real binary runs its four runs
+//! `retrocomp demo --serve` end to end (issue 16.3/16.4, 35.5): the real binary runs its four runs
 //! against the real hil-sim, then keeps a live gateway up and prints, on one line, the page's
 //! address and the OPC UA endpoint. The test reads both from its output, GETs `/status` from the
 //! page's address (the live gateway's snapshot with the demo's model) and connects Python asyncua
 //! (pinned in scripts/setup-peers.sh) to the endpoint, which must show the same box and model
-//! hash. Then SIGINT stops the demo.
+//! hash. Then it watches two passes of the program (each pass cuts the pocket once: z below 0,
+//! seen on `/status`, so the passes are counted by the simulated machine, not by a timer): one
+//! asyncua subscription held across them gets no status change and a cycle counter that never goes
+//! back, `/status` cycles never go back, the page's history spans both passes, and the fault log has
+//! no stale START for every sensor at the pass boundary (what a gateway restarted per pass showed).
+//! Then SIGINT stops the demo.
 
 #[path = "gateway_support/hil_sim.rs"]
 mod hil_sim;
@@ -12,6 +17,8 @@ mod peers;
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+
+use retrocomp_gateway::northbound::history::unix_now_s as unix_s;
 
 fn after<'a>(line: &'a str, prefix: &str) -> Option<&'a str> {
     let (_, rest) = line.split_once(prefix)?;
@@ -96,6 +103,7 @@ fn demo_serve_prints_the_page_and_the_opcua_endpoint_and_both_answer() {
         .expect("running python asyncua");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
+    let passes = two_passes(&mut demo, &get, &py, &opc, dir.path(), deadline);
     // SIGINT: the demo stops its gateway and hil-sim (kill_on_drop) and exits.
     let _ = Command::new("kill")
         .args(["-INT", &demo.id().to_string()])
@@ -119,4 +127,153 @@ fn demo_serve_prints_the_page_and_the_opcua_endpoint_and_both_answer() {
         sha.as_str(),
         "OPC UA and /status show the same model"
     );
+    passes.check();
+}
+
+/// What the test saw across two passes of the live program.
+struct Passes {
+    /// Wall time (Unix s) of the two pocket cuts: (first seen, last seen).
+    cuts: Vec<(f64, f64)>,
+    history: serde_json::Value,
+    faults: serde_json::Value,
+    watch: serde_json::Value,
+    cycles_went_back: Option<(u64, u64)>,
+    /// Every channel of the last `/status`.
+    sensors: Vec<String>,
+}
+
+/// Watch `/status` until the simulated machine has cut the pocket twice (two passes, one pass
+/// boundary between them), with one asyncua subscription held throughout.
+fn two_passes(
+    demo: &mut std::process::Child,
+    get: &dyn Fn(&str) -> (u16, String),
+    py: &std::path::Path,
+    opc: &str,
+    dir: &std::path::Path,
+    deadline: Instant,
+) -> Passes {
+    let stop = dir.join("watch.stop");
+    let mut watch = Command::new(py)
+        .arg(peers::repo().join("tests/peers/asyncua_watch.py"))
+        .arg(opc)
+        .arg(&stop)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("running python asyncua");
+    let mut out = BufReader::new(watch.stdout.take().unwrap()).lines();
+    let first = out.next().and_then(Result::ok).unwrap_or_default();
+    assert!(first.contains("subscribed"), "asyncua_watch: {first:?}");
+    let (mut cuts, mut in_cut) = (Vec::<(f64, f64)>::new(), false);
+    let (mut last_cycles, mut cycles_went_back) = (0u64, None);
+    let mut sensors = Vec::new();
+    while cuts.len() < 2 || in_cut {
+        assert!(demo.try_wait().unwrap().is_none(), "the demo ended");
+        assert!(Instant::now() < deadline, "two passes not seen: {cuts:?}");
+        let (code, body) = get("/status");
+        assert_eq!(code, 200, "{body}");
+        let st: serde_json::Value = serde_json::from_str(&body).unwrap();
+        let cycles = st["cycles"].as_u64().unwrap();
+        if cycles < last_cycles && cycles_went_back.is_none() {
+            cycles_went_back = Some((last_cycles, cycles));
+        }
+        last_cycles = cycles;
+        sensors = st["channels"]
+            .as_object()
+            .unwrap()
+            .keys()
+            .cloned()
+            .collect();
+        let z = st["channels"]["z_mm"]["value"].as_f64();
+        let now = unix_s();
+        match (z.is_some_and(|z| z < -0.25), in_cut) {
+            (true, false) => {
+                cuts.push((now, now));
+                in_cut = true;
+            }
+            (true, true) => cuts.last_mut().unwrap().1 = now,
+            (false, true) => in_cut = false,
+            _ => {}
+        }
+        std::thread::sleep(Duration::from_millis(150));
+    }
+    std::fs::write(&stop, "").unwrap();
+    let line = out.next().and_then(Result::ok).unwrap_or_default();
+    let _ = watch.wait();
+    let json = |path: &str| {
+        let (code, body) = get(path);
+        assert_eq!(code, 200, "{path}: {body}");
+        serde_json::from_str::<serde_json::Value>(&body).unwrap()
+    };
+    Passes {
+        cuts,
+        history: json("/api/history?window=fine"),
+        faults: json("/api/faults"),
+        watch: serde_json::from_str(&line).unwrap_or_else(|e| panic!("{line:?}: {e}")),
+        cycles_went_back,
+        sensors,
+    }
+}
+
+impl Passes {
+    fn check(&self) {
+        eprintln!(
+            "pocket cuts (unix s): {:?}; OPC UA watch: {}",
+            self.cuts, self.watch
+        );
+        assert_eq!(
+            self.cycles_went_back, None,
+            "/status cycles went back: a restart"
+        );
+        // One subscription, one session, across the pass boundary.
+        let w = &self.watch;
+        assert!(w["error"].is_null(), "{w}");
+        assert_eq!(w["status_changes"], serde_json::json!([]), "{w}");
+        assert_eq!(w["went_back"], false, "OPC UA cycle counter went back: {w}");
+        assert!(w["notifications"].as_u64().unwrap() >= 2, "{w}");
+        assert!(w["last"].as_u64() > w["first"].as_u64(), "{w}");
+        // The page's history holds both passes: points before the first cut and after the second.
+        let t: Vec<f64> = self.history["t_unix_s"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        let (first_cut, second_cut) = (self.cuts[0], self.cuts[1]);
+        assert!(
+            t.first().is_some_and(|&t0| t0 <= first_cut.0)
+                && t.last().is_some_and(|&t1| t1 >= second_cut.0),
+            "history {:?}..{:?} does not span the cuts {:?}",
+            t.first(),
+            t.last(),
+            self.cuts
+        );
+        let applied = self.history["series"]["x/applied"].as_array().unwrap();
+        let during = |(a, b): (f64, f64)| {
+            t.iter()
+                .zip(applied)
+                .filter(|(t, v)| **t >= a - 1.0 && **t <= b + 1.0 && v.is_number())
+                .count()
+        };
+        assert!(
+            during(first_cut) > 0 && during(second_cut) > 0,
+            "x/applied during both cuts"
+        );
+        // The pass boundary lies between the cuts: no stale START for every sensor there.
+        let log = self.faults["log"].as_array().unwrap();
+        let stale_there: std::collections::BTreeSet<&str> = log
+            .iter()
+            .filter(|e| e["event"] == "start" && e["kind"] == "stale")
+            .filter(|e| {
+                let u = e["unix_s"].as_f64().unwrap();
+                u > first_cut.1 && u < second_cut.0
+            })
+            .filter_map(|e| e["source"].as_str())
+            .filter(|s| self.sensors.iter().any(|c| c == s))
+            .collect();
+        assert!(
+            self.sensors.len() >= 6 && stale_there.len() < self.sensors.len(),
+            "every sensor went stale at the pass boundary: {stale_there:?}"
+        );
+    }
 }

@@ -121,7 +121,7 @@ fn live_page_in_headless_chromium_shows_status_faults_and_refuses_actions_withou
     };
     std::fs::create_dir_all(&shots).unwrap();
 
-    let mut rig = web_rig::start("gateway_web_browser", 12, FAULTS);
+    let mut rig = web_rig::start("gateway_web_browser", 20, FAULTS);
     rig.wait_status("first cycles", Duration::from_secs(30), |s| {
         s["axes"].as_array().is_some_and(|a| !a.is_empty())
     });
@@ -211,6 +211,43 @@ fn live_page_in_headless_chromium_shows_status_faults_and_refuses_actions_withou
     let faults = st["channels"]["T_spindle_C"]["faults"].as_array().unwrap();
     assert!(!faults.is_empty(), "/status agrees: {st}");
 
+    // The fault's start is a line on the charts; the silent sensor's age (from its own last
+    // reading) is older than every healthy one's.
+    let ma = ev("marks_and_ages");
+    assert!(ma["marks"][0].as_u64().unwrap() >= 1, "{ma}");
+    let ages = ma["ages"].as_array().unwrap();
+    let age = |ch: &str| {
+        ages.iter()
+            .find(|a| a["channel"] == ch)
+            .and_then(|a| a["age_s"].as_f64())
+            .unwrap_or_else(|| panic!("no age for {ch}: {ma}"))
+    };
+    let silent = age("T_spindle_C");
+    for a in ages.iter().filter(|a| !a["bad"].as_bool().unwrap()) {
+        let fresh = a["age_s"].as_f64().unwrap_or_else(|| panic!("{ma}"));
+        assert!(fresh >= 0.0 && fresh < silent, "{ma}");
+    }
+    // A phone, resized to and loaded at 390 × 844: no horizontal scroll, charts and legends inside.
+    let narrow: Vec<&Value> = events.iter().filter(|e| e["event"] == "narrow").collect();
+    assert_eq!(narrow.len(), 2, "{events:?}");
+    for n in narrow {
+        let l = &n["layout"];
+        let w = l["inner_w"].as_f64().unwrap();
+        assert_eq!(w, 390.0, "{n}");
+        assert!(
+            l["scroll_w"].as_f64().unwrap() <= w,
+            "horizontal scroll: {n}"
+        );
+        for key in ["charts", "legends"] {
+            let boxes = l[key].as_array().unwrap();
+            assert!(boxes.len() >= 2, "{key}: {n}");
+            for b in boxes {
+                let (left, right) = (b[0].as_f64().unwrap(), b[1].as_f64().unwrap());
+                assert!(left >= 0.0 && right <= w, "{key} off the screen: {n}");
+            }
+        }
+    }
+
     // The action without a token: refused on the page, logged, and nothing changed.
     let refused = ev("refused")["text"].as_str().unwrap().to_string();
     assert!(refused.contains("401"), "{refused}");
@@ -235,7 +272,7 @@ fn live_page_in_headless_chromium_shows_status_faults_and_refuses_actions_withou
         unexpected.is_empty(),
         "script errors on the page: {unexpected:?}"
     );
-    for f in ["web-live.png", "web-fault.png"] {
+    for f in ["web-live.png", "web-fault.png", "web-phone.png"] {
         let b = std::fs::read(shots.join(f)).unwrap();
         assert!(b.starts_with(b"\x89PNG") && b.len() > 10_000, "{f}");
     }

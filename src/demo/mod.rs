@@ -245,11 +245,18 @@ struct Live {
     opcua_port: u16,
 }
 
-/// `retrocomp demo --serve`: after the four runs, the full-model gateway runs against hil-sim
-/// again and again (each pass the warm-up and the part program, a fresh simulator), its live page
-/// and `/metrics` on `listen`, its OPC UA server on a loopback port chosen once; `on_bound` gets
-/// the page's address and the OPC UA endpoint (`opc.tcp://…/`) once the first pass is up. Returns
-/// only on error (the caller stops it with Ctrl-C).
+/// Passes of the program one live simulator runs (≈ 40 s each, so about an hour) before the live
+/// gateway and its machine are started afresh.
+pub const LIVE_PASSES: usize = 90;
+
+/// `retrocomp demo --serve`: after the four runs, ONE full-model gateway runs against ONE hil-sim
+/// that repeats the warm-up and the part program [`LIVE_PASSES`] times
+/// ([`sim_process::repeated`]): the page's history spans the passes, the fault log shows only real
+/// faults, OPC UA subscriptions and the Sparkplug session stay up between passes. Its live page and
+/// `/metrics` on `listen`, its OPC UA server on a loopback port chosen once (kept when the machine
+/// is started afresh after the last pass); `on_bound` gets the page's address and the OPC UA
+/// endpoint (`opc.tcp://…/`) once the gateway is up. Returns only on error (the caller stops it
+/// with Ctrl-C).
 pub async fn serve_live(
     opts: &DemoOptions,
     listen: &str,
@@ -308,18 +315,20 @@ async fn one_run(
     let hub = Hub::start_on_thread(([127, 0, 0, 1], 0).into(), opts.realtime_priority)
         .context("starting the socketcand hub")?;
     let sim_cfg = dir.join("sim.toml");
+    let sim_text = sim_process::sim_config(
+        opts.seed,
+        truth,
+        hub.local_addr().port(),
+        opts.warmup_s,
+        &dir.join("weighing-pty"),
+    );
+    let sim_text = match live {
+        Some(_) => sim_process::repeated(&sim_text, LIVE_PASSES),
+        None => sim_text,
+    };
     std::fs::write(
         &sim_cfg,
-        sim_process::with_realtime_priority(
-            &sim_process::sim_config(
-                opts.seed,
-                truth,
-                hub.local_addr().port(),
-                opts.warmup_s,
-                &dir.join("weighing-pty"),
-            ),
-            opts.realtime_priority,
-        ),
+        sim_process::with_realtime_priority(&sim_text, opts.realtime_priority),
     )?;
     let mut sim = sim_process::start(&opts.hil_sim, &sim_cfg, &dir).await?;
     let (mut cycles, mut writes_ok) = (0, 0);

@@ -88,6 +88,34 @@ pub fn with_realtime_priority(sim_toml: &str, priority: Option<u8>) -> String {
     }
 }
 
+/// `sim_toml` (from [`sim_config`]) running its program `passes` times in one simulator: the dwell
+/// that lets the gateway connect once, then the warm-up and the part again and again, then `M30`.
+/// For `demo --serve`: one machine and one gateway for all the passes, so the page's history,
+/// the OPC UA subscriptions and the Sparkplug session run on without a restart between passes.
+/// The simulated-time budget grows with the passes; the recording is thinned to 0.5 s (nobody
+/// scores the live run, and an hour at 100 Hz is a large file).
+pub fn repeated(sim_toml: &str, passes: usize) -> String {
+    let (head, rest) = sim_toml
+        .split_once("gcode = \"\"\"\n")
+        .expect("the template has a gcode block");
+    let (gcode, tail) = rest.split_once("\"\"\"").expect("closed gcode block");
+    let lines: Vec<&str> = gcode.lines().collect();
+    let dwell = lines
+        .iter()
+        .position(|l| l.trim_start().starts_with("G4"))
+        .expect("the program starts with a dwell");
+    let end = lines
+        .iter()
+        .rposition(|l| l.trim_start().starts_with("M30"))
+        .expect("the program ends with M30");
+    let pass = lines[dwell + 1..end].join("\n") + "\n";
+    let program = lines[..=dwell].join("\n") + "\n" + &pass.repeat(passes.max(1)) + "M30\n";
+    let max_s = format!("max_duration_s = {:.1}", 200.0 * passes.max(1) as f64);
+    (format!("{head}gcode = \"\"\"\n{program}\"\"\"{tail}"))
+        .replacen("max_duration_s = 200.0", &max_s, 1)
+        .replacen("every_s = 0.01", "every_s = 0.5", 1)
+}
+
 /// A running `hil-sim serve`.
 #[derive(Debug)]
 pub struct Sim {
@@ -172,5 +200,24 @@ mod tests {
         let rt: toml::Table = toml::from_str(&with_realtime_priority(&s, Some(20))).unwrap();
         assert_eq!(rt["clock"]["realtime_priority"].as_integer(), Some(20));
         assert_eq!(with_realtime_priority(&s, None), s);
+    }
+
+    #[test]
+    fn repeated_runs_the_pass_n_times_after_one_dwell() {
+        let one = sim_config(3, Path::new("/m/t.toml"), 4242, 10.0, Path::new("/o/pty"));
+        let three = repeated(&one, 3);
+        let v: toml::Table = toml::from_str(&three).unwrap();
+        let g = v["program"]["gcode"].as_str().unwrap();
+        assert_eq!(g.matches("G4 P1.0").count(), 1, "{g}");
+        assert_eq!(g.matches("M30").count(), 1);
+        assert!(g.trim_end().ends_with("M30"));
+        assert_eq!(g.matches("(the part:").count(), 3);
+        assert_eq!(
+            g.matches("G1 X150\nG1 X0\n").count(),
+            3 * 2,
+            "two warm-up pairs a pass"
+        );
+        assert_eq!(v["clock"]["max_duration_s"].as_float(), Some(600.0));
+        assert_eq!(v["record"]["every_s"].as_float(), Some(0.5));
     }
 }

@@ -59,6 +59,40 @@ try {
   await page.waitForTimeout(2500);
   await page.screenshot({ path: `${shots}/web-fault.png`, fullPage: true });
 
+  // The fault's start is marked on the charts (the next history/fault poll redraws them), and
+  // each sensor's age comes from its own reading: the silent one ages, the others stay fresh.
+  await page.waitForFunction(() => Number(document.querySelector("#chart-applied").dataset.marks || 0) >= 1, null, { timeout: 30000 });
+  out({
+    event: "marks_and_ages",
+    marks: await page.evaluate(() => [...document.querySelectorAll(".chart")].map((c) => Number(c.dataset.marks || 0))),
+    ages: await page.evaluate(() => [...document.querySelectorAll("#sensors tr[data-channel]")].map((r) => ({
+      channel: r.dataset.channel, age_s: r.dataset.ageS === "" ? null : Number(r.dataset.ageS), bad: r.classList.contains("bad"),
+    }))),
+  });
+
+  // A phone (390 × 844): the same page resized, then a fresh page at that size. No horizontal
+  // scroll; every chart and legend inside the screen.
+  const layout = () => ({
+    inner_w: window.innerWidth,
+    scroll_w: document.documentElement.scrollWidth,
+    charts: [...document.querySelectorAll(".uplot")].map((e) => { const r = e.getBoundingClientRect(); return [r.left, r.right]; }),
+    legends: [...document.querySelectorAll(".u-legend")].map((e) => { const r = e.getBoundingClientRect(); return [r.left, r.right]; }),
+    // For the failure message: the elements reaching beyond the screen.
+    beyond: [...document.querySelectorAll("body *")].filter((e) => e.getBoundingClientRect().right > window.innerWidth + 0.5)
+      .slice(0, 8).map((e) => `${e.tagName.toLowerCase()}${e.id ? "#" + e.id : ""}.${e.className} ${Math.round(e.getBoundingClientRect().right)}`),
+  });
+  await page.setViewportSize({ width: 390, height: 844 });
+  await page.waitForFunction(() => [...document.querySelectorAll(".uplot")].every((e) => e.getBoundingClientRect().right <= window.innerWidth), null, { timeout: 20000 }).catch(() => {});
+  out({ event: "narrow", how: "resized", layout: await page.evaluate(layout) });
+  await page.screenshot({ path: `${shots}/web-phone.png`, fullPage: true });
+  const phone = await browser.newPage({ viewport: { width: 390, height: 844 } });
+  await phone.goto(url);
+  await phone.waitForFunction(() => document.querySelectorAll(".uplot .u-legend").length >= 2, null, { timeout: 30000 });
+  await phone.waitForTimeout(2500);
+  out({ event: "narrow", how: "fresh", layout: await phone.evaluate(layout) });
+  await phone.close();
+  await page.setViewportSize({ width: 1280, height: 1000 });
+
   await page.fill("#token", "");
   await page.click("#act-disable");
   await page.waitForSelector("#act-result.bad", { timeout: 20000 });

@@ -12,12 +12,17 @@ import sys
 from asyncua import Client, ua
 
 
+async def machine(c):
+    """The box's node (the first under Objects/Machines), or None. Also used by asyncua_watch.py."""
+    for ch in await c.nodes.objects.get_children():
+        if (await ch.read_browse_name()).Name == "Machines":
+            return (await ch.get_children())[0]
+    return None
+
+
 async def main(url):
     async with Client(url, timeout=30) as c:
-        box = None
-        for ch in await c.nodes.objects.get_children():
-            if (await ch.read_browse_name()).Name == "Machines":
-                box = (await ch.get_children())[0]
+        box = await machine(c)
         if box is None:
             print("FAIL: no Machines folder", flush=True)
             sys.exit(1)

@@ -161,6 +161,9 @@ pub struct ChannelStatus {
     pub faults: Vec<FaultKind>,
     /// True when `value` is an estimate from correlated neighbours (see `recovery`).
     pub substituted: bool,
+    /// Gateway clock (s, as `t_s`) of the reading `value` comes from; None without a reading or
+    /// for a substituted value. The reading's age is the snapshot's `t_s` minus this.
+    pub reading_t_s: Option<f64>,
 }
 
 impl ChannelStatus {
@@ -171,6 +174,7 @@ impl ChannelStatus {
             health: Health::Stale,
             faults: Vec::new(),
             substituted: false,
+            reading_t_s: None,
         }
     }
 }

@@ -14,6 +14,8 @@ const el = (tag, attrs = {}, ...kids) => {
 };
 const um = (v) => (v === null || v === undefined || !isFinite(v)) ? "–" : (v >= 0 ? "+" : "−") + Math.abs(v).toFixed(3);
 const when = (unix) => new Date(unix * 1000).toLocaleTimeString([], { hour12: false });
+// "0.04 s", "12 s", "3 min": how old a reading is.
+const ageText = (s) => s === null ? "–" : s < 10 ? s.toFixed(2) + " s" : s < 120 ? s.toFixed(0) + " s" : (s / 60).toFixed(0) + " min";
 const day = (unix) => new Date(unix * 1000).toLocaleString([], { hour12: false });
 
 let lastOk = 0;
@@ -33,10 +35,10 @@ function banner() {
   let cls = "ok", text = "COMPENSATING";
   if (!snap) { cls = "wait"; text = "WAITING FOR DATA"; }
   if (snap && stale) { cls = "bad"; text = "NO DATA FROM GATEWAY"; }
-  else if (snap && snap.active_faults.length) { cls = "bad"; text = `FAULT: ${snap.active_faults.length} ACTIVE`; }
+  else if (snap && snap.active_faults.length) { cls = "bad"; text = `FAULT (${snap.active_faults.length})`; }
   else if (snap && snap.model_error) { cls = "bad"; text = "MODEL ERROR"; }
   else if (snap && !snap.enabled) { cls = "warn"; text = "COMPENSATION DISABLED"; }
-  else if (snap && snap.axes.some((a) => a.mode !== "tracking")) { cls = "warn"; text = "RAMPING / HOLDING"; }
+  else if (snap && snap.axes.some((a) => a.mode !== "tracking")) { cls = "warn"; text = "OUTPUT RAMPING OR HELD"; }
   b.className = "banner " + cls;
   b.textContent = text;
 }
@@ -55,7 +57,7 @@ function renderAxes(s) {
       el("h2", { text: `axis ${a.axis} · applied correction` }),
       el("div", { class: "big" }, el("span", { class: "applied", "data-value": String(a.applied_um), text: um(a.applied_um) }), el("small", { text: " µm" })),
       el("div", {}, "model asks ", el("b", { class: "target", text: um(a.target_um) + " µm" }),
-        " · mode ", el("span", { class: "mode", text: a.mode.replace("_", " ") })),
+        " · mode ", el("span", { class: "mode", text: a.mode })),
       el("div", { class: "meta", text: `position ${a.position_mm === null ? "–" : a.position_mm.toFixed(3) + " mm"} · ${a.direction} · clamp hits ${a.clamp_hits} · cap hits ${a.cap_hits}` }),
       el("table", {}, el("tbody", {}, ...rows))));
   }
@@ -68,11 +70,14 @@ function renderSensors(s) {
     const bad = c.health !== "ok" || c.faults.length > 0;
     const flags = [];
     if (c.substituted) flags.push(el("span", { class: "pill warn", text: "SUBSTITUTED" }), " ");
-    for (const f of c.faults) flags.push(el("span", { class: "pill bad", text: f.replace("_", " ").toUpperCase() }), " ");
-    tb.append(el("tr", { class: bad ? "bad" : (c.substituted ? "warn" : ""), "data-channel": name, "data-faults": c.faults.join(",") },
+    for (const f of c.faults) flags.push(el("span", { class: "pill bad", text: f }), " ");
+    // Age from the reading's own time (gateway clock), not the snapshot's: a held value ages.
+    const age = c.reading_t_s === null || c.reading_t_s === undefined ? null : Math.max(0, s.t_s - c.reading_t_s);
+    tb.append(el("tr", { class: bad ? "bad" : (c.substituted ? "warn" : ""), "data-channel": name, "data-faults": c.faults.join(","), "data-age-s": age === null ? "" : String(age) },
       el("td", { text: name }),
       el("td", { text: c.value === null ? "–" : c.value.toFixed(3) }),
-      el("td", {}, el("span", { class: "pill " + (c.health === "ok" ? "ok" : "bad"), text: c.health.toUpperCase() })),
+      el("td", { class: "age" + (age !== null && age > 1 ? " old" : ""), text: ageText(age) }),
+      el("td", {}, el("span", { class: "pill " + (c.health === "ok" ? "ok" : "bad"), text: c.health })),
       el("td", {}, ...flags)));
   }
 }
@@ -91,7 +96,7 @@ function renderSink(s) {
   else {
     kv(box, [
       ["sink", k.kind],
-      ["controller link", k.connected ? "CONNECTED" : "DISCONNECTED", k.connected ? "ok" : "bad"],
+      ["controller link", k.connected ? "connected" : "disconnected", k.connected ? "ok" : "bad"],
       ["writes ok / failed", `${k.writes_ok} / ${k.writes_failed}`, k.writes_failed ? "bad" : ""],
       ["last error", k.last_error || "none", k.last_error ? "bad" : ""],
       ["controller holds", Object.entries(k.held_um).map(([a, v]) => `${a} ${um(v)} µm`).join(", ") || "–"],
@@ -103,7 +108,7 @@ function renderSink(s) {
   sb.replaceChildren();
   if (!s.sources.length) sb.append(el("div", { class: "meta", text: "–" }));
   for (const src of s.sources) {
-    kv(sb, [[src.name, (src.connected ? "UP" : "DOWN") + ` · reconnects ${src.reconnects}` + (src.faults.length ? " · " + src.faults.map((f) => f[0]).join(", ") : ""), src.connected && !src.faults.length ? "ok" : "bad"]]);
+    kv(sb, [[src.name, (src.connected ? "connected" : "disconnected") + ` · reconnects ${src.reconnects}` + (src.faults.length ? " · " + src.faults.map((f) => f[0]).join(", ") : ""), src.connected && !src.faults.length ? "ok" : "bad"]]);
   }
 }
 
@@ -143,6 +148,10 @@ async function pollLogs() {
     act.replaceChildren(...(f.active.length ? f.active.map((a) => el("div", { class: "result bad" },
       `${a.source}: ${a.kind}` + (a.ack ? ` (acknowledged ${when(a.ack.unix_s)} by ${a.ack.peer})` : " (not acknowledged)")))
       : [el("div", { class: "result ok", text: "no active fault" })]));
+    if (f.log.length !== faultLog.length || (f.log.length && f.log[f.log.length - 1].unix_s !== faultLog[faultLog.length - 1].unix_s)) {
+      faultLog = f.log;
+      for (const p of Object.values(plots)) p.u.redraw(false);
+    }
     renderLog("#fault-log", f.log, (e) => el("li", { class: e.event, text: `${when(e.unix_s)}  ${e.event.toUpperCase()}  ${e.source} ${e.kind}` }));
     const h = await getJson("/api/health");
     renderLog("#health-log", h.log, (e) => el("li", { class: e.health === "ok" && !e.faults.length ? "clear" : "start",
@@ -153,10 +162,45 @@ async function pollLogs() {
   } catch (e) { /* the banner shows a dead link */ }
 }
 
+// The chart's width follows its box (window resized, phone turned): uPlot draws at a fixed size.
+const chartWidth = (box) => Math.max(160, box.clientWidth || 320);
+function resizeCharts() {
+  for (const [id, p] of Object.entries(plots)) {
+    const w = chartWidth($(id));
+    if (w !== p.u.width) p.u.setSize({ width: w, height: 220 });
+  }
+}
+window.addEventListener("resize", resizeCharts);
+if (window.ResizeObserver) new ResizeObserver(resizeCharts).observe($("main"));
+
+// Fault start (solid red) and clear (dashed green) as vertical lines, from /api/faults' log; the
+// box's data-marks says how many are in view.
+let faultLog = [];
+function drawFaultMarks(u) {
+  const [x0, x1] = [u.scales.x.min, u.scales.x.max];
+  const ctx = u.ctx;
+  let n = 0;
+  ctx.save();
+  ctx.lineWidth = Math.max(1, devicePixelRatio * 1.5);
+  for (const e of faultLog) {
+    if (!(e.unix_s >= x0 && e.unix_s <= x1)) continue;
+    const x = Math.round(u.valToPos(e.unix_s, "x", true));
+    ctx.strokeStyle = e.event === "start" ? "#c0161b" : "#1b7f3b";
+    ctx.setLineDash(e.event === "start" ? [] : [6 * devicePixelRatio, 4 * devicePixelRatio]);
+    ctx.beginPath();
+    ctx.moveTo(x, u.bbox.top);
+    ctx.lineTo(x, u.bbox.top + u.bbox.height);
+    ctx.stroke();
+    n++;
+  }
+  ctx.restore();
+  u.root.parentElement.dataset.marks = String(n);
+}
+
 function plot(id, title, names, data) {
   const key = names.join("|");
   const box = $(id);
-  const width = Math.max(300, box.clientWidth || 800);
+  const width = chartWidth(box);
   if (!plots[id] || plots[id].key !== key) {
     if (plots[id]) plots[id].u.destroy();
     const colors = ["#1f5fd6", "#d6401f", "#1b9e4b", "#8a3ffc", "#b86e00", "#00838f", "#c2185b", "#5d4037"];
@@ -165,6 +209,7 @@ function plot(id, title, names, data) {
       scales: { x: { time: true } },
       axes: [{}, { label: "µm", size: 60 }],
       series: [{}, ...names.map((n, i) => ({ label: n, stroke: colors[i % colors.length], width: 2, value: (u, v) => um(v) + " µm" }))],
+      hooks: { draw: [drawFaultMarks] },
     };
     plots[id] = { key, u: new uPlot(opts, data, box) };
   } else {

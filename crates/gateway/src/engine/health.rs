@@ -183,6 +183,7 @@ impl ChannelMonitor {
             Some(_) => Health::OutOfRange,
         };
         st.value = self.last_good.map(|(_, v)| v);
+        st.reading_t_s = self.last_good.map(|(t, _)| t);
         st.health = health;
         st.substituted = false;
     }

@@ -398,9 +398,11 @@ impl Engine {
                         health: Health::Stale,
                         faults: vec![FaultKind::Stale],
                         substituted: false,
+                        reading_t_s: None,
                     });
                 st.value = Some(est);
                 st.substituted = true;
+                st.reading_t_s = None;
             }
         }
         // 3. State: usable channel values; slow channels latched at the thermal period.

@@ -21,6 +21,7 @@ use serde::Serialize;
 
 use crate::engine::health::FaultKind;
 use crate::status::StatusSnapshot;
+use retrocomp_bus::Health;
 
 /// 15 min at 1 s.
 pub const FINE_POINTS: usize = 900;
@@ -107,7 +108,7 @@ pub struct HealthEvent {
     pub unix_s: f64,
     pub t_s: f64,
     pub channel: String,
-    pub health: String,
+    pub health: Health,
     pub substituted: bool,
     pub faults: Vec<FaultKind>,
 }
@@ -143,7 +144,7 @@ pub struct History {
     actions: VecDeque<ActionEvent>,
     /// Active faults at the last observation and their acknowledgement, if any.
     active: BTreeMap<(String, FaultKind), Option<Ack>>,
-    channel_state: BTreeMap<String, (String, bool, Vec<FaultKind>)>,
+    channel_state: BTreeMap<String, (Health, bool, Vec<FaultKind>)>,
     row: Vec<Option<f64>>,
 }
 
@@ -243,7 +244,7 @@ impl History {
 
     fn observe_health(&mut self, snap: &StatusSnapshot, unix_s: f64) {
         for (name, c) in &snap.channels {
-            let state = (format!("{:?}", c.health), c.substituted, c.faults.clone());
+            let state = (c.health, c.substituted, c.faults.clone());
             if self.channel_state.get(name) == Some(&state) {
                 continue;
             }
@@ -251,7 +252,7 @@ impl History {
                 unix_s,
                 t_s: snap.t_s,
                 channel: name.clone(),
-                health: state.0.clone(),
+                health: state.0,
                 substituted: state.1,
                 faults: state.2.clone(),
             };

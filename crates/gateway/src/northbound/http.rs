@@ -331,3 +331,7 @@ pub async fn request(
         )
     })?
 }
+
+#[cfg(test)]
+#[path = "http_spelling_tests.rs"]
+mod spelling_tests;

@@ -3,6 +3,10 @@
 //! (feature `mqtt`). Every server reads the status snapshots (`crate::status`) on its own tasks;
 //! none can slow the cycle. Units as in the snapshot unless a module says otherwise (Prometheus:
 //! base units).
+//!
+//! One spelling per state: every state (health, mode, fault kind, CAN bus state) is written as its
+//! serde name (`ok`, `ramping_in`, `stale`, `bus_off`) in every API, JSON, Prometheus label or
+//! text table alike ([`state_name`]); `http_spelling_tests.rs` reads every route and the page.
 
 pub mod history;
 pub mod http;
@@ -13,3 +17,11 @@ pub(crate) mod prometheus_text;
 pub mod telemetry;
 #[cfg(feature = "web")]
 pub mod web;
+
+/// A state's one spelling: its serde name (`"ramping_in"` for a snake_case enum).
+pub fn state_name<T: serde::Serialize>(v: &T) -> String {
+    match serde_json::to_value(v) {
+        Ok(serde_json::Value::String(s)) => s,
+        other => format!("{other:?}"),
+    }
+}

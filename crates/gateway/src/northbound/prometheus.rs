@@ -11,6 +11,7 @@ use std::fmt::Write as _;
 use crate::northbound::prometheus_text::{
     ChannelQuantity, UM_PER_M, esc, family, num, prometheus_timing,
 };
+use crate::northbound::state_name;
 use crate::status::Mode;
 use retrocomp_bus::Health;
 
@@ -76,8 +77,9 @@ fn prometheus_sink(s: &mut String, k: &SinkStatus) {
     for (source, kind, _) in &k.faults {
         let _ = writeln!(
             s,
-            "retrocomp_sink_fault_active{{source=\"{}\",kind=\"{kind:?}\"}} 1",
-            esc(source)
+            "retrocomp_sink_fault_active{{source=\"{}\",kind=\"{}\"}} 1",
+            esc(source),
+            state_name(kind)
         );
     }
 }
@@ -370,7 +372,7 @@ impl StatusSnapshot {
             s,
             "retrocomp_can_bus_state",
             "gauge",
-            "CAN controller state: 0 error-active, 1 warning, 2 error-passive, 3 bus-off.",
+            "CAN controller state: 0 active, 1 warning, 2 passive, 3 bus_off (error-active … bus off, ISO 11898-1).",
         );
         self.each_source(s, "retrocomp_can_bus_state", &|x| {
             x.can.map(|c| (c.state as u8).to_string())
@@ -388,7 +390,7 @@ impl StatusSnapshot {
             s,
             "retrocomp_can_bus_off_total",
             "counter",
-            "Times the CAN controller went bus-off.",
+            "Times the CAN controller went bus_off.",
         );
         self.each_source(s, "retrocomp_can_bus_off_total", &|x| {
             x.can.map(|c| c.bus_off_events.to_string())
@@ -479,7 +481,7 @@ impl StatusSnapshot {
                 retrocomp_model::approach::latched_name(a.direction),
                 a.target_um.map_or("-".into(), |t| format!("{t:.3}")),
                 a.applied_um,
-                format!("{:?}", a.mode).to_lowercase(),
+                state_name(&a.mode),
                 terms.join(" ")
             );
         }
@@ -491,10 +493,10 @@ impl StatusSnapshot {
         for (name, c) in &self.channels {
             let _ = writeln!(
                 s,
-                "  {:<20} {:>12} {:?}{}{}",
+                "  {:<20} {:>12} {}{}{}",
                 name,
                 c.value.map_or("-".into(), |v| format!("{v:.3}")),
-                c.health,
+                state_name(&c.health),
                 if c.substituted {
                     " (substituted from neighbours)"
                 } else {
@@ -503,7 +505,7 @@ impl StatusSnapshot {
                 if c.faults.is_empty() {
                     String::new()
                 } else {
-                    format!(" faults={:?}", c.faults)
+                    format!(" faults={}", names(&c.faults))
                 }
             );
         }
@@ -519,18 +521,23 @@ impl StatusSnapshot {
                 s,
                 "  {:<20} {} reconnects={}{}{}{}",
                 src.name,
-                if src.connected { "connected" } else { "DOWN" },
+                if src.connected {
+                    "connected"
+                } else {
+                    "disconnected"
+                },
                 src.reconnects,
                 src.can
-                    .map(
-                        |c| format!(" bus={:?} error_frames={}", c.state, c.error_frames)
-                            .to_lowercase()
-                    )
+                    .map(|c| format!(
+                        " bus={} error_frames={}",
+                        state_name(&c.state),
+                        c.error_frames
+                    ))
                     .unwrap_or_default(),
                 if src.faults.is_empty() {
                     String::new()
                 } else {
-                    format!(" faults={:?}", src.faults)
+                    format!(" faults={}", names(src.faults.iter().map(|(k, _)| k)))
                 },
                 src.last_error
                     .as_ref()
@@ -555,15 +562,25 @@ fn render_sink(s: &mut String, k: &SinkStatus) {
         if k.connected {
             "connected"
         } else {
-            "DISCONNECTED"
+            "disconnected"
         },
         k.writes_ok,
         k.writes_failed,
         held.join(" ")
     );
     for (source, kind, since) in &k.faults {
-        let _ = writeln!(s, "  fault {source} {kind:?} since {since:.3} s");
+        let _ = writeln!(
+            s,
+            "  fault {source} {} since {since:.3} s",
+            state_name(kind)
+        );
     }
+}
+
+/// `[stale, stuck]`: the states' one spelling, as a list.
+fn names<'a, T: serde::Serialize + 'a>(v: impl IntoIterator<Item = &'a T>) -> String {
+    let n: Vec<String> = v.into_iter().map(state_name).collect();
+    format!("[{}]", n.join(", "))
 }
 
 #[cfg(test)]

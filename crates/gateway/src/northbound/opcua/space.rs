@@ -11,8 +11,6 @@
 //! (writes ok/failed, last error), `Notification` (active faults).
 //! Units: corrections µm (correction = −error), positions mm, sensors by channel-name suffix.
 
-use serde::Serialize;
-
 use crate::engine::health::FaultKind;
 use crate::northbound::prometheus::ModelIdentity;
 use crate::northbound::prometheus::StatusSnapshot;
@@ -111,14 +109,6 @@ fn p(path: String, value: Value, unit: Option<Unit>) -> Point {
     Point { path, value, unit }
 }
 
-/// `"ramping_in"` for an enum serialised in snake_case.
-fn snake<T: Serialize>(v: &T) -> String {
-    match serde_json::to_value(v) {
-        Ok(serde_json::Value::String(s)) => s,
-        other => format!("{other:?}"),
-    }
-}
-
 /// A term's group folder: geometric/thermal/load from the model, `Other` when unknown.
 fn group_folder(model: Option<&ModelIdentity>, term: &str) -> &'static str {
     match model.and_then(|m| m.term_groups.get(term)).copied() {
@@ -161,7 +151,11 @@ pub fn points(snap: &StatusSnapshot, model: Option<&ModelIdentity>) -> Vec<Point
             Value::F64(a.position_mm),
             Some(MILLIMETRE),
         ));
-        out.push(p(ax("Mode"), Value::Str(snake(&a.mode)), None));
+        out.push(p(
+            ax("Mode"),
+            Value::Str(crate::northbound::state_name(&a.mode)),
+            None,
+        ));
         out.push(p(
             ax("Direction"),
             Value::Str(retrocomp_model::approach::latched_name(a.direction).into()),
@@ -176,7 +170,11 @@ pub fn points(snap: &StatusSnapshot, model: Option<&ModelIdentity>) -> Vec<Point
         let ch = |k: &str| format!("Monitoring/Sensors/{name}/{k}");
         let has = |k: FaultKind| c.faults.contains(&k);
         out.push(p(ch("Value"), Value::F64(c.value), unit_of_channel(name)));
-        out.push(p(ch("Health"), Value::Str(snake(&c.health)), None));
+        out.push(p(
+            ch("Health"),
+            Value::Str(crate::northbound::state_name(&c.health)),
+            None,
+        ));
         out.push(p(ch("Healthy"), Value::Bool(c.health == Health::Ok), None));
         let stale = c.health == Health::Stale || has(FaultKind::Stale);
         out.push(p(ch("Stale"), Value::Bool(stale), None));
@@ -195,7 +193,12 @@ pub fn points(snap: &StatusSnapshot, model: Option<&ModelIdentity>) -> Vec<Point
     let faults: Vec<String> = snap
         .active_faults
         .iter()
-        .map(|(src, kind, since)| format!("{src}: {} since {since:.3} s", snake(kind)))
+        .map(|(src, kind, since)| {
+            format!(
+                "{src}: {} since {since:.3} s",
+                crate::northbound::state_name(kind)
+            )
+        })
         .collect();
     let count = faults.len() as u64;
     out.push(p(
@@ -232,6 +235,7 @@ mod tests {
                 health: Health::Stale,
                 faults: vec![FaultKind::Stale, FaultKind::Stuck],
                 substituted: true,
+                reading_t_s: None,
             },
         )]
         .into_iter()
