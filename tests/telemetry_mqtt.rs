@@ -142,6 +142,7 @@ async fn broker_killed_and_restarted_nothing_lost_in_order_with_births_and_death
         PublisherInputs {
             status: snap_rx,
             model_identity: "test-model".into(),
+            declared: Default::default(),
         },
     )
     .unwrap();
@@ -507,6 +508,7 @@ async fn fleet_shows_boxes_compensating_degraded_and_offline_by_death_and_will()
             PublisherInputs {
                 status: rx,
                 model_identity: "m".into(),
+                declared: Default::default(),
             },
         )
         .unwrap();
