@@ -11,44 +11,18 @@
 #[path = "peers/mosquitto.rs"]
 mod mosquitto;
 mod peers;
+#[path = "peers/spb_lines.rs"]
+mod spb_lines;
 
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use mosquitto::Broker;
-use peers::{Peer, free_port, spawn_python};
+use peers::{free_port, spawn_python};
 use retrocomp_gateway::northbound::prometheus::ModelIdentity;
 use retrocomp_gateway::northbound::telemetry::declare::{HEALTH_STATES, MODE_STATES};
 use serde_json::Value;
-
-const PATIENCE: Duration = Duration::from_secs(60);
-
-/// The stock host's messages, as its callbacks received them.
-struct Host {
-    peer: Peer,
-    msgs: Vec<Value>,
-}
-
-impl Host {
-    fn until(&mut self, what: &str, done: impl Fn(&[Value]) -> bool) {
-        let deadline = Instant::now() + PATIENCE;
-        while !done(&self.msgs) {
-            assert!(
-                Instant::now() < deadline,
-                "stock host: no {what} within {PATIENCE:?}"
-            );
-            let line = self.peer.line(PATIENCE.as_secs());
-            let v: Value = serde_json::from_str(&line).unwrap_or_else(|e| panic!("{e}: {line}"));
-            if v.get("event").is_none() {
-                self.msgs.push(v);
-            }
-        }
-    }
-}
-
-fn of<'a>(msgs: &'a [Value], kind: &str) -> Vec<&'a Value> {
-    msgs.iter().filter(|m| m["type"] == kind).collect()
-}
+use spb_lines::{Host, PATIENCE, of};
 
 fn metric<'a>(msg: &'a Value, name: &str) -> Option<&'a Value> {
     msg["metrics"]
@@ -197,10 +171,10 @@ async fn a_stock_host_reads_one_birth_per_session_with_units_through_a_broker_re
     let dir = tempfile::tempdir().unwrap();
     let port = free_port();
     let broker = Broker::start(dir.path(), port);
-    let mut host = Host {
-        peer: spawn_python("spb_stock_host.py", &[&port.to_string(), "shop"]),
-        msgs: vec![],
-    };
+    let mut host = Host::new(spawn_python(
+        "spb_stock_host.py",
+        &[&port.to_string(), "shop"],
+    ));
 
     let cfg =
         retrocomp_gateway::config::FieldConfig::parse(&field_config(port), Path::new("stock.toml"))
