@@ -8,6 +8,8 @@
 //! are from the documented enumerations; the host's own data table follows the NDATA.
 //! Every wait ends on an event, with a deadline only a broken publisher reaches.
 
+#[path = "gateway_support/base_field.rs"]
+mod base_field;
 #[path = "peers/mosquitto.rs"]
 mod mosquitto;
 mod peers;
@@ -17,6 +19,7 @@ mod spb_lines;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use base_field::BASE;
 use mosquitto::Broker;
 use peers::{free_port, spawn_python};
 use retrocomp_gateway::northbound::prometheus::ModelIdentity;
@@ -67,23 +70,10 @@ impl retrocomp_gateway::ErrorModel for ScaleModel {
     }
 }
 
+/// The shared field-file head (axis x on `x_mm`, clamp 50 µm) plus two channels and telemetry.
 fn field_config(port: u16) -> String {
     format!(
-        r#"
-[gateway]
-name = "stock-judged"
-cycle_ms = 5
-[safety]
-max_correction_um = 50.0
-max_change_um_per_cycle = 0.5
-ramp_um_per_s = 100.0
-stale_hold_s = 0.5
-[direction]
-deadband_mm = 0.005
-switch_time_s = 0.05
-[[axis]]
-name = "x"
-position_channel = "x_mm"
+        r#"{BASE}
 [[channel]]
 name = "x_mm"
 min = -1.0
