@@ -13,6 +13,8 @@ mod base_field;
 #[path = "peers/mosquitto.rs"]
 mod mosquitto;
 mod peers;
+#[path = "peers/snapshot.rs"]
+mod snapshot;
 #[path = "peers/spb_lines.rs"]
 mod spb_lines;
 
@@ -285,4 +287,86 @@ async fn a_stock_host_reads_one_birth_per_session_with_units_through_a_broker_re
         Some(bd(of(&host.msgs, "NBIRTH")[1]))
     );
     assert_eq!(of(&host.msgs, "NBIRTH").len(), 2);
+}
+
+/// A model switch that adds a term: one rebirth announces it (aliases announced before keep their
+/// number), not a rebirth per snapshot; the stock host follows the new term's data.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_new_term_costs_exactly_one_rebirth() {
+    use retrocomp_gateway::northbound::telemetry::{
+        self, Declaration, DeclaredAxis, MqttConfig, PublisherInputs,
+    };
+    use std::sync::Arc;
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let _broker = Broker::start(dir.path(), port);
+    let mut host = Host::new(spawn_python(
+        "spb_stock_host.py",
+        &[&port.to_string(), "shop"],
+    ));
+    let mut cfg = MqttConfig::new(&format!("127.0.0.1:{port}"), "shop", "box-9");
+    cfg.primary_host_id = Some("stock-judge".into());
+    cfg.rate_hz = 50.0;
+    cfg.check().unwrap();
+    let (tx, rx) = tokio::sync::watch::channel(None);
+    let publisher = telemetry::spawn(
+        cfg,
+        PublisherInputs {
+            status: rx,
+            model_identity: "m".into(),
+            declared: Declaration {
+                axes: vec![DeclaredAxis {
+                    name: "x".into(),
+                    clamp_um: 50.0,
+                }],
+                terms: vec!["thermal".into()],
+                ..Default::default()
+            },
+        },
+    )
+    .unwrap();
+    let feed = |k: u64, extra: bool| {
+        let mut s = snapshot::snapshot(k);
+        if extra {
+            s.axes[0].terms_um.insert("load".into(), 0.25 * k as f64);
+        }
+        tx.send_replace(Some(Arc::new(s)));
+    };
+    for k in 1..=20 {
+        feed(k, false);
+        tokio::time::sleep(Duration::from_millis(15)).await;
+    }
+    let mut host = tokio::task::spawn_blocking(move || {
+        host.until("the first session", |m| {
+            data_since_birth_with(m, "Gateway/cycles", |v| v == 20) >= 1
+        });
+        host
+    })
+    .await
+    .unwrap();
+    // The switch: every snapshot from now on carries the new term.
+    for k in 21..=60 {
+        feed(k, true);
+        tokio::time::sleep(Duration::from_millis(15)).await;
+    }
+    let host = tokio::task::spawn_blocking(move || {
+        host.until("the new term's data", |m| {
+            data_since_birth_with(m, "Axis/x/term/load_um", |v| v == 15.0) >= 1
+        });
+        host
+    })
+    .await
+    .unwrap();
+    publisher.stop(Duration::from_secs(5)).await;
+    let births = of(&host.msgs, "NBIRTH");
+    assert_eq!(births.len(), 2, "one birth, one rebirth for the new term");
+    let alias = |b: &Value, n: &str| metric(b, n).unwrap()["alias"].clone();
+    assert!(metric(births[0], "Axis/x/term/load_um").is_none());
+    assert_eq!(
+        alias(births[0], "Axis/x/applied_um"),
+        alias(births[1], "Axis/x/applied_um"),
+        "announced aliases keep their number"
+    );
+    let load = metric(births[1], "Axis/x/term/load_um").unwrap();
+    assert_eq!(load["properties"]["engUnit"], "µm", "{load}");
 }
