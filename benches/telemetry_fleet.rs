@@ -118,6 +118,7 @@ async fn step(port: u16, broker_pid: u32, boxes: usize, rate_hz: f64, seconds: f
             PublisherInputs {
                 status: rx,
                 model_identity: "bench".into(),
+                declared: Default::default(),
             },
         )
         .unwrap();

@@ -281,6 +281,7 @@ async fn finish_sends_every_record_before_ndeath() {
         PublisherInputs {
             status: rx,
             model_identity: "m".into(),
+            declared: Default::default(),
         },
     )
     .unwrap();

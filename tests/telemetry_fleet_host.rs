@@ -54,6 +54,7 @@ fn start_box(port: u16, group: &str, node: &str, rebirth_min_interval_s: f64) ->
         PublisherInputs {
             status: rx,
             model_identity: "m".into(),
+            declared: Default::default(),
         },
     )
     .unwrap();

@@ -12,6 +12,8 @@ mod mosquitto;
 mod peers;
 #[path = "peers/snapshot.rs"]
 mod snapshot;
+#[path = "peers/spb_lines.rs"]
+mod spb_lines;
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -20,44 +22,15 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use mosquitto::Broker;
-use peers::{Peer, free_port, spawn_python};
+use peers::{free_port, spawn_python};
 use retrocomp_gateway::northbound::prometheus::StatusSnapshot;
 use retrocomp_gateway::northbound::telemetry::{
     self, MqttConfig, PublisherInputs, TelemetryStatus,
 };
 use serde_json::Value;
 use snapshot::snapshot;
+use spb_lines::{Host, PATIENCE};
 use tokio::sync::watch;
-
-const PATIENCE: Duration = Duration::from_secs(60);
-
-/// Collects the host's decoded messages.
-struct Host {
-    peer: Peer,
-    msgs: Vec<Value>,
-}
-
-impl Host {
-    /// Read lines until `done(msgs)` holds (each line within PATIENCE).
-    fn until(&mut self, what: &str, done: impl Fn(&[Value]) -> bool) {
-        let deadline = Instant::now() + PATIENCE;
-        while !done(&self.msgs) {
-            assert!(
-                Instant::now() < deadline,
-                "host: no {what} within {PATIENCE:?}"
-            );
-            let line = self.peer.line(PATIENCE.as_secs());
-            let v: Value = serde_json::from_str(&line).unwrap_or_else(|e| panic!("{e}: {line}"));
-            if v.get("event").is_none() {
-                self.msgs.push(v);
-            }
-        }
-    }
-
-    fn of(&self, kind: &str) -> Vec<&Value> {
-        self.msgs.iter().filter(|m| m["type"] == kind).collect()
-    }
-}
 
 /// `Gateway/cycles` of every NDATA (aliases resolved through the NBIRTH before it).
 fn cycles_seen(msgs: &[Value]) -> Vec<u64> {
@@ -142,6 +115,7 @@ async fn broker_killed_and_restarted_nothing_lost_in_order_with_births_and_death
         PublisherInputs {
             status: snap_rx,
             model_identity: "test-model".into(),
+            declared: Default::default(),
         },
     )
     .unwrap();
@@ -507,6 +481,7 @@ async fn fleet_shows_boxes_compensating_degraded_and_offline_by_death_and_will()
             PublisherInputs {
                 status: rx,
                 model_identity: "m".into(),
+                declared: Default::default(),
             },
         )
         .unwrap();

@@ -182,11 +182,13 @@ impl Node {
         self.rebirth.born(now_ms);
         self.aliases.clear();
         for m in &p.metrics {
-            if let (Some(name), Some(v)) = (&m.name, &m.value) {
+            if let Some(name) = &m.name {
                 if let Some(a) = m.alias {
                     self.aliases.insert(a, name.clone());
                 }
-                self.metrics.insert(name.clone(), json_of(v));
+                // A declared metric without a value yet is `is_null` (shown as null).
+                let v = m.value.as_ref().map_or(serde_json::Value::Null, json_of);
+                self.metrics.insert(name.clone(), v);
             }
         }
     }
@@ -214,10 +216,12 @@ impl Node {
                 unknown = true;
                 continue;
             };
-            if let Some(v) = &m.value
-                && m.is_historical != Some(true)
-            {
-                self.metrics.insert(name, json_of(v));
+            if m.is_historical != Some(true) {
+                if let Some(v) = &m.value {
+                    self.metrics.insert(name, json_of(v));
+                } else if m.is_null == Some(true) {
+                    self.metrics.insert(name, serde_json::Value::Null);
+                }
             }
         }
         !self.born || unknown

@@ -126,7 +126,7 @@ pub async fn run(
     } = sources.into();
     let (status_tx, status_rx) = watch::channel::<Option<Arc<StatusSnapshot>>>(None);
     // Sparkplug B publisher: its own tasks fed from the status watch (never slows the cycle).
-    let telemetry = start_telemetry(&cfg, status_rx.clone())?;
+    let telemetry = start_telemetry(&cfg, status_rx.clone(), model.identity())?;
     // Actions from the endpoint (token-guarded) reach the cycle loop through this channel.
     let (control_tx, control_rx) = mpsc::channel::<Control>(8);
     // The OPC UA server names the model; read here, the model is not shared across threads.
@@ -341,6 +341,7 @@ impl Publisher {
 fn start_telemetry(
     cfg: &FieldConfig,
     _status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
+    _model: Option<ModelIdentity>,
 ) -> Result<Option<Publisher>, GatewayError> {
     // Refused at load already (`FieldConfig::validate`).
     match cfg.telemetry.as_ref().and_then(|t| t.mqtt.as_ref()) {
@@ -354,9 +355,45 @@ fn start_telemetry(
 fn start_telemetry(
     cfg: &FieldConfig,
     status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
+    model_now: Option<ModelIdentity>,
 ) -> Result<Option<Publisher>, GatewayError> {
+    use crate::northbound::telemetry::{Declaration, DeclaredAxis, DeclaredChannel};
     let Some(m) = cfg.telemetry.as_ref().and_then(|t| t.mqtt.clone()) else {
         return Ok(None);
+    };
+    // Everything the box can publish, so a session has one NBIRTH (docs/fleet.md).
+    let mut channels: Vec<DeclaredChannel> = cfg
+        .channels
+        .iter()
+        .map(|c| DeclaredChannel {
+            name: c.name.clone(),
+            range: Some((c.min, c.max)),
+        })
+        .collect();
+    let unlimited = cfg
+        .source_channels()
+        .into_iter()
+        .map(str::to_string)
+        .chain(cfg.recoveries.iter().map(|r| r.target.clone()));
+    for name in unlimited {
+        if !channels.iter().any(|c| c.name == name) {
+            channels.push(DeclaredChannel { name, range: None });
+        }
+    }
+    let declared = Declaration {
+        axes: cfg
+            .axes
+            .iter()
+            .map(|a| DeclaredAxis {
+                name: a.name.clone(),
+                clamp_um: cfg.safety_for(&a.name).max_correction_um,
+            })
+            .collect(),
+        channels,
+        terms: model_now.map_or_else(Vec::new, |m| m.term_groups.into_keys().collect()),
+        sink: cfg.sink.origin_shift.is_some()
+            || cfg.sink.quadrature.is_some()
+            || cfg.sink.origin_shift_server.is_some(),
     };
     let model = cfg
         .model
@@ -368,6 +405,7 @@ fn start_telemetry(
         crate::northbound::telemetry::PublisherInputs {
             status,
             model_identity,
+            declared,
         },
     )
     .map(Some)

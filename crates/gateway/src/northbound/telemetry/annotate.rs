@@ -5,6 +5,9 @@ use super::status::TelemetryStatus;
 use crate::status::StatusSnapshot;
 use retrocomp_bus::fault::FaultKind;
 
+/// The fault-log source of the publisher's link (`telemetry.mqtt:disconnected`).
+pub const SOURCE: &str = "telemetry.mqtt";
+
 /// Copies the publisher's state into each status snapshot; owned by the cycle loop (which builds
 /// the snapshots, at ≤ 10 Hz), so it only reads a watch channel.
 #[derive(Debug)]
@@ -31,7 +34,7 @@ impl TelemetryAnnotator {
         } else {
             let since = *self.down_since_s.get_or_insert(snap.t_s);
             snap.active_faults
-                .push(("telemetry.mqtt".into(), FaultKind::Disconnected, since));
+                .push((SOURCE.into(), FaultKind::Disconnected, since));
         }
         snap.telemetry = Some(st);
     }

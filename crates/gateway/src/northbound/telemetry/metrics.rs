@@ -3,14 +3,18 @@
 //! values that changed since the last record, stamped with the snapshot's own time).
 //!
 //! Names and units: `Axis/<axis>/applied_um` (correction applied after safety, µm; correction =
-//! −error), `Axis/<axis>/target_um` (what the model asks, µm; NaN while inputs are faulty),
+//! −error), `Axis/<axis>/target_um` (what the model asks, µm; NaN — sent as null — while inputs
+//! are faulty),
 //! `Axis/<axis>/term/<term>_um` (breakdown by model term, µm), `Axis/<axis>/position_mm`,
 //! `Axis/<axis>/mode`; `Channel/<name>/value` (channel units, as in the field config's name),
 //! `Channel/<name>/health`; `Sink/*`; `Gateway/*`; `Model/identity`. The publisher's own state
-//! (queue, drops) is in the gateway's `/status` and `/metrics`, not in the payloads.
+//! (queue, drops) is in the gateway's `/status` and `/metrics`, not in the payloads; so is its
+//! link-down fault (`telemetry.mqtt:disconnected`): a host learns of that link from NDEATH, and a
+//! birth sent over the link must not say it is down.
 
 use serde::Serialize;
 
+use super::annotate::SOURCE as OWN_LINK;
 use super::sparkplug::{NamedValue, Value};
 use crate::status::StatusSnapshot;
 
@@ -29,15 +33,16 @@ pub fn snapshot_metrics(snap: &StatusSnapshot, model_identity: &str) -> Vec<Name
     push("Gateway/cycles".into(), Value::Long(snap.cycles));
     push("Gateway/t_s".into(), Value::Double(snap.t_s));
     push("Gateway/enabled".into(), Value::Boolean(snap.enabled));
-    push(
-        "Gateway/active_faults".into(),
-        Value::Int(snap.active_faults.len() as u32),
-    );
     let faults: Vec<String> = snap
         .active_faults
         .iter()
+        .filter(|(src, _, _)| src != OWN_LINK)
         .map(|(src, kind, _)| format!("{src}:{}", snake(kind)))
         .collect();
+    push(
+        "Gateway/active_faults".into(),
+        Value::Int(faults.len() as u32),
+    );
     push("Gateway/faults".into(), Value::String(faults.join(",")));
     push(
         "Gateway/model_error".into(),

@@ -1,7 +1,8 @@
 //! Telemetry of a box to the plant: Sparkplug B (Eclipse Sparkplug 3.0) over MQTT, so a shop of
 //! retrofitted machines shows up in any Sparkplug host (Ignition, a `retrocomp fleet`, a stock
 //! decoder). Layout: [`sparkplug`] (the protobuf payload, topics, bdSeq/seq: sans-IO),
-//! [`metrics`] (a gateway status snapshot as named metrics, report by exception), [`queue`]
+//! [`metrics`] (a gateway status snapshot as named metrics, report by exception), [`declare`] (the
+//! metric set of the NBIRTH, with units and ranges, from the field config and model), [`queue`]
 //! (bounded store-and-forward queue, on disk), [`config`] (`[telemetry.mqtt]`), [`publisher`] (the
 //! rumqttc shell fed from the gateway's status watch; it can never block the cycle), [`fleet`] (the
 //! host side: per box alive/compensating/degraded from its messages, for `retrocomp fleet`;
@@ -13,6 +14,8 @@
 
 pub mod annotate;
 pub mod config;
+#[cfg(feature = "mqtt")]
+pub mod declare;
 mod error;
 #[cfg(feature = "mqtt")]
 pub mod metrics;
@@ -31,6 +34,8 @@ pub mod status;
 mod tls;
 
 pub use config::{MqttConfig, TelemetrySection};
+#[cfg(feature = "mqtt")]
+pub use declare::{Declaration, DeclaredAxis, DeclaredChannel};
 pub use error::TelemetryError;
 #[cfg(feature = "mqtt")]
 pub use publisher::{Publisher, PublisherInputs, spawn};

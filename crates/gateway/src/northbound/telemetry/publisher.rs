@@ -27,10 +27,11 @@ use tokio::sync::{mpsc, watch};
 use super::TelemetryError;
 pub use super::annotate::TelemetryAnnotator;
 use super::config::MqttConfig;
+use super::declare::{Declaration, birth_table};
 use super::metrics::{Record, Sampler, snapshot_metrics};
 use super::queue::{self, Queue, QueueLimits};
 use super::rebirth::RebirthLimiter;
-use super::sparkplug::{self, EdgeNode, Kind, NamedValue};
+use super::sparkplug::{self, EdgeNode, Kind, MetricSpec, NamedValue};
 pub use super::status::TelemetryStatus;
 use crate::status::StatusSnapshot;
 use retrocomp_bus::Backoff;
@@ -41,6 +42,8 @@ pub struct PublisherInputs {
     pub status: watch::Receiver<Option<Arc<StatusSnapshot>>>,
     /// Model identity published as `Model/identity` (file name, fit date...).
     pub model_identity: String,
+    /// Every metric the box can publish (field config and model): one NBIRTH per session.
+    pub declared: Declaration,
 }
 
 /// The running publisher: its status, and a stop that sends NDEATH and disconnects.
@@ -136,6 +139,7 @@ pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> Result<Publisher, Tele
     let (status_tx, status_rx) = watch::channel(TelemetryStatus::default());
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel();
     let handover_drops = Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let declared = inputs.declared.specs();
     let sampler = tokio::spawn(sampler_task(
         inputs,
         cfg.rate_hz,
@@ -156,6 +160,7 @@ pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> Result<Publisher, Tele
             handover_drops,
             records_open: true,
             current: Vec::new(),
+            declared,
             records_total: 0,
             acked_total: 0,
             births_total: 0,
@@ -286,6 +291,8 @@ struct Session {
     records_open: bool,
     /// Latest value of every metric (what an NBIRTH announces).
     current: Vec<NamedValue>,
+    /// The declared metric set (NBIRTH order, units, ranges).
+    declared: Vec<MetricSpec>,
     records_total: u64,
     acked_total: u64,
     births_total: u64,
@@ -542,7 +549,8 @@ impl Session {
     /// NBIRTH with every metric's latest value; seq restarts at 0; the queue is sent (again)
     /// from its start after it, what was queued before flagged historical.
     fn birth(&mut self, c: &mut Conn) {
-        let payload = self.edge.birth(&self.current, now_ms());
+        let table = birth_table(&self.declared, &self.current);
+        let payload = self.edge.birth_declared(&table, &self.current, now_ms());
         let topic = sparkplug::topic(&self.cfg.group_id, Kind::NBirth, &self.cfg.edge_node_id);
         // QoS 0, not retained (`payloads-nbirth-qos/-retain`).
         if c.client

@@ -12,6 +12,11 @@
 //! - seq (0–255, wraps): the NBIRTH carries 0, each NDATA one more than the previous message.
 //! - NDEATH carries no seq; NCMD `Node Control/Rebirth` = true asks for a new NBIRTH (same bdSeq,
 //!   seq back to 0).
+//!
+//! Metadata: the NBIRTH gives every metric its alias, datatype and a PropertySet (spec §6.4.7,
+//! `engUnit` and, where the box knows them, `engLow`/`engHigh`: the keys SCADA hosts read for a
+//! tag's unit and range). "No value" is `is_null = true` with the metric's datatype and no value
+//! field (`payloads-metric-is-null`); inside the box it is a `Double(NaN)`.
 
 use prost::Message;
 
@@ -53,8 +58,61 @@ pub struct Metric {
     pub is_transient: Option<bool>,
     #[prost(bool, optional, tag = "7")]
     pub is_null: Option<bool>,
+    /// Units and range, sent in the NBIRTH only.
+    #[prost(message, optional, tag = "9")]
+    pub properties: Option<PropertySet>,
     #[prost(oneof = "Value", tags = "10, 11, 12, 13, 14, 15")]
     pub value: Option<Value>,
+}
+
+/// `Payload.PropertyValue.value` (the oneof): the kinds our properties use.
+#[derive(Clone, PartialEq, prost::Oneof)]
+pub enum PropertyKind {
+    #[prost(double, tag = "6")]
+    Double(f64),
+    #[prost(string, tag = "8")]
+    String(String),
+}
+
+/// `Payload.PropertyValue`.
+#[derive(Clone, PartialEq, prost::Message)]
+pub struct PropertyValue {
+    /// A [`DataType`] value.
+    #[prost(uint32, optional, tag = "1")]
+    pub r#type: Option<u32>,
+    #[prost(bool, optional, tag = "2")]
+    pub is_null: Option<bool>,
+    #[prost(oneof = "PropertyKind", tags = "6, 8")]
+    pub value: Option<PropertyKind>,
+}
+
+/// `Payload.PropertySet`: `keys[i]` names `values[i]`.
+#[derive(Clone, PartialEq, prost::Message)]
+pub struct PropertySet {
+    #[prost(string, repeated, tag = "1")]
+    pub keys: Vec<String>,
+    #[prost(message, repeated, tag = "2")]
+    pub values: Vec<PropertyValue>,
+}
+
+impl PropertySet {
+    /// The string value of `key`, if present (tests and hosts read `engUnit` this way).
+    pub fn string(&self, key: &str) -> Option<&str> {
+        let i = self.keys.iter().position(|k| k == key)?;
+        match &self.values.get(i)?.value {
+            Some(PropertyKind::String(s)) => Some(s),
+            _ => None,
+        }
+    }
+
+    /// The number value of `key`, if present.
+    pub fn double(&self, key: &str) -> Option<f64> {
+        let i = self.keys.iter().position(|k| k == key)?;
+        match self.values.get(i)?.value {
+            Some(PropertyKind::Double(x)) => Some(x),
+            _ => None,
+        }
+    }
 }
 
 /// `Payload` (template, dataset, property set and extension fields are not used here).
@@ -94,6 +152,79 @@ impl Value {
             Value::Boolean(_) => DataType::Boolean,
             Value::String(_) => DataType::String,
         }
+    }
+}
+
+/// What an NBIRTH declares about one metric besides its value: name (alias = position in the
+/// table + 1), datatype, and for numbers the unit (`engUnit`) and range (`engLow`/`engHigh`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MetricSpec {
+    pub name: String,
+    pub datatype: DataType,
+    pub unit: Option<String>,
+    pub low: Option<f64>,
+    pub high: Option<f64>,
+}
+
+impl MetricSpec {
+    /// A metric without unit or range (text, flags).
+    pub fn plain(name: impl Into<String>, datatype: DataType) -> Self {
+        MetricSpec {
+            name: name.into(),
+            datatype,
+            unit: None,
+            low: None,
+            high: None,
+        }
+    }
+
+    /// A number in `unit`.
+    pub fn numeric(name: impl Into<String>, datatype: DataType, unit: &str) -> Self {
+        MetricSpec {
+            unit: Some(unit.to_string()),
+            ..MetricSpec::plain(name, datatype)
+        }
+    }
+
+    /// With its range (`engLow`, `engHigh`).
+    pub fn range(mut self, low: f64, high: f64) -> Self {
+        self.low = Some(low);
+        self.high = Some(high);
+        self
+    }
+
+    fn properties(&self) -> Option<PropertySet> {
+        let mut set = PropertySet::default();
+        let mut add = |key: &str, t: DataType, v: PropertyKind| {
+            set.keys.push(key.to_string());
+            set.values.push(PropertyValue {
+                r#type: Some(t as u32),
+                is_null: None,
+                value: Some(v),
+            });
+        };
+        if let Some(u) = &self.unit {
+            add("engUnit", DataType::String, PropertyKind::String(u.clone()));
+        }
+        if let Some(x) = self.low {
+            add("engLow", DataType::Double, PropertyKind::Double(x));
+        }
+        if let Some(x) = self.high {
+            add("engHigh", DataType::Double, PropertyKind::Double(x));
+        }
+        (!set.keys.is_empty()).then_some(set)
+    }
+}
+
+/// A metric carrying `v` at `t_ms`: a NaN double ("no value") goes as `is_null` with no value.
+fn metric_of(v: &Value, datatype: DataType, t_ms: u64) -> Metric {
+    let null = matches!(v, Value::Double(x) if x.is_nan());
+    Metric {
+        timestamp: Some(t_ms),
+        datatype: Some(datatype as u32),
+        is_null: null.then_some(true),
+        value: (!null).then(|| v.clone()),
+        ..Default::default()
     }
 }
 
@@ -211,10 +342,26 @@ impl EdgeNode {
         .encode_to_vec()
     }
 
-    /// The NBIRTH: every metric with name, alias, type and current value, plus bdSeq and
-    /// `Node Control/Rebirth` = false; seq restarts at 0. The alias table follows `values`.
+    /// The NBIRTH of `values` alone (each metric declared by its own value, no units): for
+    /// hosts' tests and tools that have no declaration.
     pub fn birth(&mut self, values: &[NamedValue], now_ms: u64) -> Vec<u8> {
-        self.names = values.iter().map(|(n, _)| n.clone()).collect();
+        let table: Vec<MetricSpec> = values
+            .iter()
+            .map(|(n, v)| MetricSpec::plain(n.clone(), v.datatype()))
+            .collect();
+        self.birth_declared(&table, values, now_ms)
+    }
+
+    /// The NBIRTH: every metric of `table` in its order (alias = index + 1) with its datatype,
+    /// properties and current value from `values` (`is_null` when it has none yet), plus bdSeq
+    /// and `Node Control/Rebirth` = false; seq restarts at 0.
+    pub fn birth_declared(
+        &mut self,
+        table: &[MetricSpec],
+        values: &[NamedValue],
+        now_ms: u64,
+    ) -> Vec<u8> {
+        self.names = table.iter().map(|m| m.name.clone()).collect();
         self.seq = 0;
         let mut metrics = vec![
             Metric {
@@ -232,15 +379,17 @@ impl EdgeNode {
                 ..Default::default()
             },
         ];
-        for (i, (name, v)) in values.iter().enumerate() {
-            metrics.push(Metric {
-                name: Some(name.clone()),
-                alias: Some(i as u64 + 1),
-                timestamp: Some(now_ms),
-                datatype: Some(v.datatype() as u32),
-                value: Some(v.clone()),
-                ..Default::default()
-            });
+        for (i, spec) in table.iter().enumerate() {
+            let v = values
+                .iter()
+                .find(|(n, _)| *n == spec.name)
+                .map_or(Value::Double(f64::NAN), |(_, v)| v.clone());
+            // Declared with no value yet: a null of the declared type.
+            let mut m = metric_of(&v, spec.datatype, now_ms);
+            m.name = Some(spec.name.clone());
+            m.alias = Some(i as u64 + 1);
+            m.properties = spec.properties();
+            metrics.push(m);
         }
         Payload {
             timestamp: Some(now_ms),
@@ -264,14 +413,10 @@ impl EdgeNode {
             .iter()
             .filter_map(|(name, v)| {
                 let alias = self.names.iter().position(|n| n == name)? as u64 + 1;
-                Some(Metric {
-                    alias: Some(alias),
-                    timestamp: Some(t_ms),
-                    datatype: Some(v.datatype() as u32),
-                    is_historical: historical.then_some(true),
-                    value: Some(v.clone()),
-                    ..Default::default()
-                })
+                let mut m = metric_of(v, v.datatype(), t_ms);
+                m.alias = Some(alias);
+                m.is_historical = historical.then_some(true);
+                Some(m)
             })
             .collect();
         Payload {
@@ -370,6 +515,51 @@ mod tests {
         assert_eq!(d.metrics[0].alias, alias_of("Gateway/enabled"));
         assert_eq!(d.metrics[0].is_historical, Some(true));
         assert!(!n.knows_all(&[("new".into(), Value::Int(1))]));
+    }
+
+    #[test]
+    fn births_carry_units_and_nulls_of_the_declared_type() {
+        let mut n = EdgeNode::new(0);
+        n.next_connect();
+        let table = vec![
+            MetricSpec::numeric("Axis/x/applied_um", DataType::Double, "µm").range(-50.0, 50.0),
+            MetricSpec::plain("Sink/connected", DataType::Boolean),
+        ];
+        let values = vec![("Axis/x/applied_um".into(), Value::Double(f64::NAN))];
+        let b = Payload::decode(n.birth_declared(&table, &values, 3).as_slice()).unwrap();
+        let applied = &b.metrics[2];
+        assert_eq!(applied.is_null, Some(true), "NaN is sent as null");
+        assert_eq!(applied.value, None);
+        let props = applied.properties.as_ref().unwrap();
+        assert_eq!(props.string("engUnit"), Some("µm"));
+        assert_eq!(
+            (props.double("engLow"), props.double("engHigh")),
+            (Some(-50.0), Some(50.0))
+        );
+        let sink = &b.metrics[3];
+        assert_eq!(sink.name.as_deref(), Some("Sink/connected"));
+        assert_eq!(
+            (sink.is_null, sink.datatype),
+            (Some(true), Some(DataType::Boolean as u32))
+        );
+        assert_eq!(sink.properties, None, "a flag has no unit");
+        let d = Payload::decode(
+            n.data(
+                &[("Axis/x/applied_um".into(), Value::Double(f64::NAN))],
+                4,
+                false,
+            )
+            .as_slice(),
+        )
+        .unwrap();
+        assert_eq!(
+            (d.metrics[0].is_null, &d.metrics[0].value),
+            (Some(true), &None)
+        );
+        assert_eq!(
+            d.metrics[0].properties, None,
+            "properties only in the birth"
+        );
     }
 
     #[test]
