@@ -41,33 +41,16 @@ fn fit_rows(n: usize) -> usize {
 
 /// The forward check of one signal's final model; `None` without terms, or when either side of
 /// the split is too short to say anything (fewer rows than columns to fit, or none to score).
-fn forward_check(ctx: &Context, s: &SignalResult) -> Option<ForwardCheck> {
+pub(super) fn forward_check(ctx: &Context, s: &SignalResult) -> Option<ForwardCheck> {
     if s.terms.is_empty() {
         return None;
     }
     offset_and_terms(ctx, s)
 }
 
-/// The forward check of signal `s`; with a regime check (`regimes.rs`, thermal tests) present for
-/// every signal, carrying that check, and `s.written` set to what the check chose.
-pub(super) fn with_regimes(
-    ctx: &Context,
-    s: &mut SignalResult,
-    regime: Option<super::regimes::Outcome>,
-) -> Option<ForwardCheck> {
-    let Some(o) = regime else {
-        return forward_check(ctx, s);
-    };
-    s.written = o.written;
-    offset_and_terms(ctx, s).map(|fc| ForwardCheck {
-        regimes: Some(o.check),
-        ..fc
-    })
-}
-
 /// The forward check of one signal with its terms (the offset alone without any), `None` when a
 /// side of the split is too short.
-fn offset_and_terms(ctx: &Context, s: &SignalResult) -> Option<ForwardCheck> {
+pub(super) fn offset_and_terms(ctx: &Context, s: &SignalResult) -> Option<ForwardCheck> {
     let r = &s.residual_before;
     let n = r.len();
     let (fit, scored) = (fit_rows(n), n - fit_rows(n));

@@ -21,6 +21,7 @@ mod null_model;
 pub mod output;
 pub mod plots;
 mod refit;
+pub mod regime_check;
 pub mod regimes;
 pub mod report;
 pub mod scoring;
@@ -282,7 +283,7 @@ fn diagnose_residuals(
             .extend(locate::unexplained(&ctx, signal, &final_resid));
         drop(final_resid);
         out.forward_check
-            .extend(forward_check::with_regimes(&ctx, &mut result, regime));
+            .extend(regimes::with_regimes(&ctx, &mut result, regime));
         result.after_coef.shrink_to_fit();
         out.signals.push(result);
     }

@@ -34,7 +34,7 @@ pub struct Finding {
     /// Thermal terms on recordings with no axis column: the driver's range fitted vs seen at the
     /// rolling origins (`regimes.rs`). An added key.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub driver_range: Option<super::regimes::DriverRange>,
+    pub driver_range: Option<super::regime_check::DriverRange>,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -62,7 +62,7 @@ pub struct ForwardCheck {
     /// named physics against the simulation alone and a statistical compensation fit, and what
     /// `--out` writes (`regimes.rs`). An added key.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub regimes: Option<super::regimes::RegimeCheck>,
+    pub regimes: Option<super::regime_check::RegimeCheck>,
 }
 
 /// A term selected at some step and not in the final model: replaced by the exchange step, or
@@ -195,7 +195,7 @@ impl Report {
                 f.evidence.delta_bic, f.evidence.p_value, f.rms_after_um, f.heldout_rms_before_um, f.heldout_rms_after_um
             ));
             if let Some(d) = &f.driver_range {
-                s.push_str(&super::regimes::range_text(d));
+                s.push_str(&super::regime_check::range_text(d));
             }
         }
         if !self.forward_check.is_empty() {
@@ -206,7 +206,7 @@ impl Report {
                     f.signal, f.fit_rows, f.scored_rows, f.rms_sim_um, f.rms_model_um
                 ));
                 if let Some(c) = &f.regimes {
-                    s.push_str(&super::regimes::to_text(&f.signal, c));
+                    s.push_str(&super::regime_check::to_text(&f.signal, c));
                 }
             }
         }
