@@ -141,7 +141,7 @@ fn a_gateway_started_before_its_hub_serial_line_and_controller_waits_for_them() 
     assert_eq!(
         metric(
             &metrics,
-            "retrocomp_sink_fault_active{source=\"sink.origin_shift\",kind=\"Disconnected\"}"
+            "retrocomp_sink_fault_active{source=\"sink.origin_shift\",kind=\"disconnected\"}"
         ),
         Some(1.0),
         "{metrics}"

@@ -182,7 +182,7 @@ fn a_rogue_held_write_is_never_served_and_sigterm_ramps_the_served_value_out() {
     let metrics = gw.get("/metrics").unwrap();
     assert!(
         metrics.contains(
-            "retrocomp_sink_fault_active{source=\"sink.origin_shift_server.x\",kind=\"BeyondClamp\"} 1"
+            "retrocomp_sink_fault_active{source=\"sink.origin_shift_server.x\",kind=\"beyond_clamp\"} 1"
         ),
         "{metrics}"
     );
