@@ -19,8 +19,8 @@ use std::time::{Duration, Instant};
 
 use retrocomp_fleet::fleet_client::FleetClient;
 use retrocomp_gateway::Mode;
-use retrocomp_gateway::northbound::prometheus::{AxisStatus, StatusSnapshot};
 use retrocomp_gateway::northbound::telemetry::{self, MqttConfig, PublisherInputs};
+use retrocomp_gateway::status::{AxisStatus, StatusSnapshot};
 use retrocomp_model::approach::Approach;
 use tokio::sync::watch;
 

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use axum::body::Bytes;
 use axum::http::Method;
 use retrocomp_gateway::northbound::http::{Api, Control, Limits, StatusRx, request, serve};
-use retrocomp_gateway::northbound::prometheus::StatusSnapshot;
+use retrocomp_gateway::status::StatusSnapshot;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::sync::{mpsc, watch};

@@ -27,7 +27,7 @@ use retrocomp_gateway::Engine;
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::cycle::STATUS_PERIOD_S;
 use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
-use retrocomp_gateway::northbound::prometheus::StatusSnapshot;
+use retrocomp_gateway::status::StatusSnapshot;
 use retrocomp_model::Axis;
 use retrocomp_model::MachineModel;
 

@@ -23,10 +23,10 @@ use std::time::{Duration, Instant};
 
 use mosquitto::Broker;
 use peers::{free_port, spawn_python};
-use retrocomp_gateway::northbound::prometheus::StatusSnapshot;
 use retrocomp_gateway::northbound::telemetry::{
     self, MqttConfig, PublisherInputs, TelemetryStatus,
 };
+use retrocomp_gateway::status::StatusSnapshot;
 use serde_json::Value;
 use snapshot::snapshot;
 use spb_lines::{Host, PATIENCE};

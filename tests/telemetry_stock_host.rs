@@ -24,8 +24,8 @@ use std::time::{Duration, Instant};
 use base_field::BASE;
 use mosquitto::Broker;
 use peers::{free_port, spawn_python};
-use retrocomp_gateway::northbound::prometheus::ModelIdentity;
 use retrocomp_gateway::northbound::telemetry::declare::{HEALTH_STATES, MODE_STATES};
+use retrocomp_gateway::status::ModelIdentity;
 use serde_json::Value;
 use spb_lines::{Host, PATIENCE, of};
 

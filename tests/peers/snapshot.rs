@@ -6,7 +6,7 @@
 use std::collections::BTreeMap;
 
 use retrocomp_gateway::Mode;
-use retrocomp_gateway::northbound::prometheus::{AxisStatus, StatusSnapshot};
+use retrocomp_gateway::status::{AxisStatus, StatusSnapshot};
 use retrocomp_model::approach::Approach;
 
 pub(crate) fn snapshot(k: u64) -> StatusSnapshot {

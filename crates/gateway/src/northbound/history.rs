@@ -347,7 +347,7 @@ pub fn spawn(
 mod tests {
     use super::*;
     use crate::engine::safety::Mode;
-    use crate::northbound::prometheus::AxisStatus;
+    use crate::status::AxisStatus;
 
     fn snap(t_s: f64, applied_um: f64, faults: &[(&str, FaultKind, f64)]) -> StatusSnapshot {
         StatusSnapshot {

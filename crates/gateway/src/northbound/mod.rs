@@ -15,6 +15,7 @@ pub mod opcua;
 pub mod prometheus;
 pub(crate) mod prometheus_text;
 pub mod telemetry;
+pub mod text;
 #[cfg(feature = "web")]
 pub mod web;
 

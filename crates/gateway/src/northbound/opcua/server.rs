@@ -24,8 +24,8 @@ use tokio::task::JoinHandle;
 
 use super::OpcUaSection;
 use super::space::{FOLDERS, Point, Unit, Value, identification, points, unece_unit_id};
-use crate::northbound::prometheus::ModelIdentity;
-use crate::northbound::prometheus::StatusSnapshot;
+use crate::status::ModelIdentity;
+use crate::status::StatusSnapshot;
 
 /// Why the OPC UA server could not start. Display is this layer only (the key or step that
 /// failed); the cause is its `source()`.

@@ -12,8 +12,8 @@
 //! Units: corrections µm (correction = −error), positions mm, sensors by channel-name suffix.
 
 use crate::engine::health::FaultKind;
-use crate::northbound::prometheus::ModelIdentity;
-use crate::northbound::prometheus::StatusSnapshot;
+use crate::status::ModelIdentity;
+use crate::status::StatusSnapshot;
 use retrocomp_bus::Health;
 
 /// An engineering unit: UNECE Rec. 20 code (OPC UA `EUInformation.unitId` is derived from it),
@@ -221,7 +221,7 @@ mod tests {
     use super::*;
     use crate::engine::health::ChannelStatus;
     use crate::engine::safety::Mode;
-    use crate::northbound::prometheus::{AxisStatus, SinkStatus};
+    use crate::status::{AxisStatus, SinkStatus};
     use retrocomp_model::approach::Approach;
 
     fn snapshot() -> StatusSnapshot {
