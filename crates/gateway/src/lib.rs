@@ -8,8 +8,8 @@
 //! - [`sinks`]: the output trait and the last-step guard every output passes, the origin-shift
 //!   (Modbus client and server) and quadrature sinks;
 //! - [`northbound`]: HTTP/Prometheus, the live page, OPC UA, Sparkplug;
-//! - [`run`], [`cycle`], [`supervise`]: the thin tokio runtime that wires them; [`status`] is the
-//!   snapshot every consumer reads; [`error`] the runtime's error.
+//! - [`run`], [`cycle`], [`supervise`] and `servers`: the thin tokio runtime that wires them;
+//!   [`status`] is the snapshot every consumer reads; [`error`] the runtime's error.
 //!
 //! Signs and units: correction = −error, µm; positions mm (see each module).
 
@@ -19,6 +19,7 @@ pub mod engine;
 pub mod error;
 pub mod northbound;
 pub mod run;
+mod servers;
 pub mod sinks;
 pub mod sources;
 pub mod status;
