@@ -10,11 +10,14 @@
 #[path = "peers/mosquitto.rs"]
 mod mosquitto;
 mod peers;
+#[path = "gateway_support/scale_model.rs"]
+mod scale_model;
 #[path = "peers/snapshot.rs"]
 mod snapshot;
 #[path = "peers/spb_lines.rs"]
 mod spb_lines;
 
+use scale_model::ScaleModel;
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -272,22 +275,6 @@ async fn broker_killed_and_restarted_nothing_lost_in_order_with_births_and_death
     );
 }
 
-struct OneTerm;
-impl retrocomp_gateway::ErrorModel for OneTerm {
-    fn required_channels(&self) -> Vec<retrocomp_bus::ChannelId> {
-        vec![]
-    }
-    fn axis_errors(
-        &mut self,
-        s: &retrocomp_gateway::MachineState,
-        out: &mut retrocomp_gateway::AxisErrors,
-    ) -> Result<(), retrocomp_gateway::engine::ModelError> {
-        let x = s.position_mm(retrocomp_model::Axis::X).unwrap_or(0.0);
-        out.push(retrocomp_model::Axis::X, "scale".into(), 1e-3 * x);
-        Ok(())
-    }
-}
-
 /// `/status`, or None while the gateway answers 503 "no cycle run yet" (its first cycle may come
 /// late on a loaded machine: a CI run with both cores busy saw it); any other answer fails.
 async fn status(addr: &str) -> Option<Value> {
@@ -386,7 +373,10 @@ drop_policy = "drop_oldest"
     let (addr_tx, addr_rx) = tokio::sync::oneshot::channel();
     let gw = tokio::spawn(retrocomp_gateway::run::run(
         cfg,
-        Box::new(OneTerm),
+        Box::new(ScaleModel {
+            um_per_mm: 1e-3,
+            declared: false,
+        }),
         rx,
         epoch,
         async {

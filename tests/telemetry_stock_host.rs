@@ -13,11 +13,14 @@ mod base_field;
 #[path = "peers/mosquitto.rs"]
 mod mosquitto;
 mod peers;
+#[path = "gateway_support/scale_model.rs"]
+mod scale_model;
 #[path = "peers/snapshot.rs"]
 mod snapshot;
 #[path = "peers/spb_lines.rs"]
 mod spb_lines;
 
+use scale_model::ScaleModel;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -25,7 +28,6 @@ use base_field::BASE;
 use mosquitto::Broker;
 use peers::{free_port, spawn_python};
 use retrocomp_gateway::northbound::telemetry::declare::{HEALTH_STATES, MODE_STATES};
-use retrocomp_gateway::status::ModelIdentity;
 use serde_json::Value;
 use spb_lines::{Host, PATIENCE, of};
 
@@ -46,30 +48,6 @@ fn data_since_birth_with(msgs: &[Value], name: &str, pred: impl Fn(&Value) -> bo
             .filter(|m| metric(m, name).is_some_and(|x| pred(&x["value"])))
             .count()
     })
-}
-
-/// One term, declared through the model's identity (as the real model adapter does).
-struct ScaleModel;
-impl retrocomp_gateway::ErrorModel for ScaleModel {
-    fn required_channels(&self) -> Vec<retrocomp_bus::ChannelId> {
-        vec![]
-    }
-    fn axis_errors(
-        &mut self,
-        s: &retrocomp_gateway::MachineState,
-        out: &mut retrocomp_gateway::AxisErrors,
-    ) -> Result<(), retrocomp_gateway::engine::ModelError> {
-        let x = s.position_mm(retrocomp_model::Axis::X).unwrap_or(0.0);
-        out.push(retrocomp_model::Axis::X, "scale".into(), 1e-2 * x);
-        Ok(())
-    }
-    fn identity(&self) -> Option<ModelIdentity> {
-        Some(ModelIdentity {
-            name: "scale".into(),
-            term_groups: [("scale".to_string(), "geometric")].into(),
-            ..Default::default()
-        })
-    }
 }
 
 /// The shared field-file head (axis x on `x_mm`, clamp 50 µm) plus two channels and telemetry.
@@ -202,7 +180,10 @@ async fn a_stock_host_reads_one_birth_per_session_with_units_through_a_broker_re
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let gw = tokio::spawn(retrocomp_gateway::run::run(
         cfg,
-        Box::new(ScaleModel),
+        Box::new(ScaleModel {
+            um_per_mm: 1e-2,
+            declared: true,
+        }),
         rx,
         epoch,
         async {

@@ -128,6 +128,9 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
                 feed.deaths = deaths;
                 let fault = args.fault;
                 tokio::spawn(async move {
+                    // Holding the cycle's sample channel open: the run must stop on the
+                    // report, not on a closed channel.
+                    let _samples = tx;
                     if real.recv().await.is_none() {
                         return;
                     }
@@ -135,9 +138,7 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
                         panic!("faulty_box: source `can` panics (injected)");
                     }
                     notice.report("can", "faulty_box: the task returned (injected)");
-                    // Keep the channel open: the run must stop on the report, not on a close.
                     std::future::pending::<()>().await;
-                    drop(tx);
                 });
                 Box::new(model)
             }
