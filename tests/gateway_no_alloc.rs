@@ -227,6 +227,7 @@ fn drive_cycle_loop(
         sink_status,
         board: Default::default(),
         counter: Default::default(),
+        wake: Default::default(),
         telemetry: None,
     };
     let mut lp = CycleLoop::new(engine, Box::new(MachineModelAdapter::new(model)), io);

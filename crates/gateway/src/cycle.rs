@@ -3,7 +3,8 @@
 //! at most [`STATUS_PERIOD_S`] apart, publishes a status snapshot. The loop body ([`CycleLoop::step`])
 //! allocates nothing on a cycle that does not publish (tests/gateway_no_alloc.rs counts it).
 //!
-//! Timing: cycles are due at `start + k·period` on the gateway clock (`epoch`); a cycle that ran late
+//! Timing ([`crate::pacer`]): cycles are due every `period` on the gateway clock (`epoch`) and run
+//! at once when a source delivers samples, never two closer than a period; a cycle that ran late
 //! (host pause) is not repeated to catch up — the next one is the next due time after now — and is
 //! counted in [`CycleReport`] (`late_cycles`, `max_late_ms`): the engine judges staleness from the
 //! samples' own times, so one late cycle does not by itself make any channel stale.
@@ -21,6 +22,7 @@ use tokio::sync::{mpsc, watch};
 
 use crate::engine::{Engine, ErrorModel};
 use crate::northbound::http::Control;
+use crate::pacer::{CycleWake, Pacer};
 use crate::sources::health::SourceBoard;
 use crate::status::{SinkStatus, StatusSnapshot};
 use crate::supervise::CycleCounter;
@@ -53,6 +55,8 @@ pub struct CycleIo {
     pub sink_status: watch::Receiver<SinkStatus>,
     pub board: SourceBoard,
     pub counter: CycleCounter,
+    /// Raised by the sources when samples arrive: the cycle may run at once ([`Pacer`]).
+    pub wake: CycleWake,
     /// The Sparkplug B publisher's state for the snapshots (`[telemetry.mqtt]`), if configured.
     pub telemetry: Option<crate::northbound::telemetry::annotate::TelemetryAnnotator>,
 }
@@ -210,27 +214,30 @@ impl CycleLoop {
         self.last_publish_s = Some(now_s);
     }
 
-    /// Run every `period` on the gateway clock (`epoch`) until `stop` is set; then publish a last
-    /// snapshot and report.
+    /// Run on the [`Pacer`]'s schedule (every `period` on the gateway clock `epoch`, and at once
+    /// when [`CycleIo::wake`] says samples arrived) until `stop` is set; then publish a last
+    /// snapshot and report. Between cycles the thread parks: a source's notify or the due time
+    /// unparks it.
     pub fn run(mut self, epoch: Instant, period: Duration, stop: &AtomicBool) -> CycleReport {
         let period_s = period.as_secs_f64();
-        let mut due = epoch.elapsed();
+        let mut pacer = Pacer::new(epoch.elapsed().as_secs_f64(), period_s);
+        self.io.wake.register_current_thread();
         while !stop.load(Ordering::Acquire) {
-            let now = epoch.elapsed();
-            if now < due {
-                std::thread::sleep(due - now);
-                continue;
+            let now_s = epoch.elapsed().as_secs_f64();
+            if self.io.wake.take() {
+                pacer.handle_arrival(now_s);
             }
-            let late_s = (now - due).as_secs_f64();
-            if late_s > period_s {
+            let Some(run) = pacer.poll_run(now_s) else {
+                let wait_s = pacer.poll_timeout() - now_s;
+                std::thread::park_timeout(Duration::from_secs_f64(wait_s.max(0.0)));
+                continue;
+            };
+            if run.late_s > period_s {
                 self.report.late_cycles += 1;
                 self.timing.late_cycles += 1;
-                self.report.max_late_ms = self.report.max_late_ms.max(late_s * 1e3);
+                self.report.max_late_ms = self.report.max_late_ms.max(run.late_s * 1e3);
             }
-            self.step(now.as_secs_f64());
-            // Skip the missed due times: the next cycle is the first due time after now.
-            let behind = ((now - due).as_secs_f64() / period_s).floor() as u32;
-            due += period * (behind + 1);
+            self.step(now_s);
         }
         self.publish(epoch.elapsed().as_secs_f64());
         self.finish()

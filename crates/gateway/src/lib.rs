@@ -18,6 +18,7 @@ pub mod cycle;
 pub mod engine;
 pub mod error;
 pub mod northbound;
+pub mod pacer;
 pub mod run;
 mod servers;
 pub mod sinks;

@@ -116,6 +116,7 @@ pub async fn run(
 ) -> Result<RunSummary, GatewayError> {
     let SourceFeed {
         samples,
+        wake,
         board,
         mut deaths,
         cycles: counter,
@@ -182,6 +183,7 @@ pub async fn run(
         sink_status: sink_status_rx.clone(),
         board,
         counter,
+        wake,
         telemetry: telemetry.as_ref().map(|p| p.annotator()),
     };
     let stop = Arc::new(AtomicBool::new(false));

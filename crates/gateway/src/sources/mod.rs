@@ -30,6 +30,7 @@ use tokio::sync::mpsc;
 
 use crate::config::FieldConfig;
 use crate::error::GatewayError;
+use crate::pacer::CycleWake;
 use crate::sources::health::{SourceBoard, SourceReporter};
 use crate::supervise::{CycleCounter, DeathNotice, TaskDeaths};
 use retrocomp_bus::can::backend::{self, AnyCanBus, CanBackendConfig};
@@ -55,16 +56,17 @@ const CAN_POLL: Duration = Duration::from_millis(10);
 /// binary does not have, a serial setting the device refuses).
 pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> Result<SourceFeed, GatewayError> {
     let (tx, rx) = mpsc::channel::<Sample>(16_384);
+    let wake = CycleWake::default();
     let board = SourceBoard::default();
     let (notice, deaths) = TaskDeaths::new();
     let (ready_tx, ready_rx) = tokio::sync::oneshot::channel::<Result<(), GatewayError>>();
-    let (cfg, b, n) = (cfg.clone(), board.clone(), notice.clone());
+    let (cfg, b, n, w) = (cfg.clone(), board.clone(), notice.clone(), wake.clone());
     // The readers stamp each sample when they read it: a starved reader makes fresh data look
     // late, so they share the cycle's real-time priority (the Modbus pollers' threads, started
     // from this one, inherit it).
     let prio = cfg.gateway.realtime_priority;
     retrocomp_bus::realtime::spawn_runtime_thread("retrocomp-sources", prio, move || async move {
-        match start_sources(&cfg, epoch, tx.clone(), b, n).await {
+        match start_sources(&cfg, epoch, (tx.clone(), w), b, n).await {
             Ok(()) => {
                 let _ = ready_tx.send(Ok(()));
                 // The readers are tasks of this thread's runtime: keep it running until the
@@ -82,6 +84,7 @@ pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> Result<SourceFe
         .map_err(|e| GatewayError::setup("the sources thread ended while starting", e))??;
     Ok(SourceFeed {
         samples: rx,
+        wake,
         board,
         deaths,
         cycles: CycleCounter::default(),
@@ -92,7 +95,7 @@ pub async fn spawn_sources(cfg: &FieldConfig, epoch: Instant) -> Result<SourceFe
 async fn start_sources(
     cfg: &FieldConfig,
     epoch: Instant,
-    tx: mpsc::Sender<Sample>,
+    tx: (mpsc::Sender<Sample>, CycleWake),
     board: SourceBoard,
     notice: DeathNotice,
 ) -> Result<(), GatewayError> {
@@ -180,8 +183,9 @@ fn not_yet_open(rep: &mut SourceReporter, why: &str) {
     rep.on_link_down(why);
 }
 
-/// A batch sender whose batches are unpacked into `tx` by a forwarding task.
-fn forward(tx: mpsc::Sender<Sample>) -> mpsc::Sender<Vec<Sample>> {
+/// A batch sender whose batches are unpacked into `tx` by a forwarding task; each batch (one
+/// frame's, one poll's, one line's samples) wakes the cycle, which may then run at once.
+fn forward((tx, wake): (mpsc::Sender<Sample>, CycleWake)) -> mpsc::Sender<Vec<Sample>> {
     let (btx, mut brx) = mpsc::channel::<Vec<Sample>>(1024);
     tokio::spawn(async move {
         while let Some(batch) = brx.recv().await {
@@ -190,6 +194,7 @@ fn forward(tx: mpsc::Sender<Sample>) -> mpsc::Sender<Vec<Sample>> {
                     return;
                 }
             }
+            wake.notify();
         }
     });
     btx
@@ -339,6 +344,8 @@ async fn serial_loop(
 #[derive(Debug)]
 pub struct SourceFeed {
     pub samples: mpsc::Receiver<Sample>,
+    /// Notified after each batch of samples is in `samples` (the cycle's [`crate::pacer`]).
+    pub wake: CycleWake,
     pub board: SourceBoard,
     pub deaths: TaskDeaths,
     pub cycles: CycleCounter,
@@ -349,6 +356,7 @@ impl From<mpsc::Receiver<Sample>> for SourceFeed {
     fn from(samples: mpsc::Receiver<Sample>) -> Self {
         SourceFeed {
             samples,
+            wake: CycleWake::default(),
             board: SourceBoard::default(),
             deaths: TaskDeaths::new().1,
             cycles: CycleCounter::default(),

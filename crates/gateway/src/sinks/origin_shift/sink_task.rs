@@ -1,4 +1,5 @@
-//! The origin-shift sink's async shell: every `write_period_ms` it runs one period of the sans-IO
+//! The origin-shift sink's async shell: when the cycle's output changes, and every
+//! `write_period_ms` without a change, it runs one period of the sans-IO
 //! [`SinkCore`] (read what the controller holds → last-step guard → write cycle) through the
 //! tokio-modbus client, sends reseeds back to the engine, and turns the core's flags into fault
 //! episodes (one log line at start, one at clear; in status and metrics):
@@ -23,8 +24,6 @@
 //! Units: µm.
 
 use std::collections::BTreeMap;
-
-use tokio::time::MissedTickBehavior;
 
 use super::client::OriginShiftSink;
 use super::{OriginShiftClient, SinkAxis, SinkCore};
@@ -124,7 +123,37 @@ pub fn update_sink_faults(
     events
 }
 
-/// Write the engine's outputs every `write_period_ms` until the runtime drops the output channel.
+/// Until a period may run: the cycle's output differs from `ran_with` (what the last period
+/// wrote toward: a new correction goes out at once) or `period` passed since the last period (the
+/// heartbeat, the controller read, retries, the stop ramp). The cycle publishes every cycle; an
+/// unchanged output is no reason to run early.
+async fn wait_for_period(
+    out_rx: &mut tokio::sync::watch::Receiver<crate::cycle::Outputs>,
+    period: std::time::Duration,
+    last: &mut Option<tokio::time::Instant>,
+    ran_with: &[(Axis, f64)],
+) {
+    let due = last.map_or_else(tokio::time::Instant::now, |t| t + period);
+    loop {
+        if out_rx.has_changed().is_err() {
+            // The cycle ended (a stop ramp-out, or the run is over): the period alone paces.
+            tokio::time::sleep_until(due).await;
+            break;
+        }
+        tokio::select! {
+            r = out_rx.changed() => {
+                if r.is_ok() && out_rx.borrow().as_slice() != ran_with {
+                    break;
+                }
+            }
+            () = tokio::time::sleep_until(due) => break,
+        }
+    }
+    *last = Some(tokio::time::Instant::now());
+}
+
+/// Write the engine's outputs when they change, and every `write_period_ms` without a change,
+/// until the runtime drops the output channel.
 pub async fn origin_shift_task(
     os: OriginShiftSink,
     mut client: OriginShiftClient,
@@ -133,22 +162,21 @@ pub async fn origin_shift_task(
     epoch: std::time::Instant,
 ) {
     let SinkIo {
-        out_rx,
+        mut out_rx,
         reseed_tx,
         status,
         stop,
         ..
     } = channels;
     let mut core = SinkCore::new(os.map.clone(), axes);
-    let mut tick =
-        tokio::time::interval(std::time::Duration::from_millis(os.write_period_ms.max(1)));
-    tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
+    let period = std::time::Duration::from_millis(os.write_period_ms.max(1));
+    let mut last_period: Option<tokio::time::Instant> = None;
     let mut faults = FaultLog::default();
     let sources = SinkSources::of(&core);
     let mut wants: Vec<(Axis, f64)> = Vec::new();
     let mut stop_by: Option<std::time::Instant> = None;
     loop {
-        tick.tick().await;
+        wait_for_period(&mut out_rx, period, &mut last_period, &wants).await;
         if let (None, Some(max_s)) = (stop_by, *stop.borrow()) {
             stop_by = Some(std::time::Instant::now() + std::time::Duration::from_secs_f64(max_s));
             core.begin_ramp_out();
@@ -346,6 +374,55 @@ async fn read_initial(
                 attempt += 1;
                 tokio::time::sleep(std::time::Duration::from_millis(50)).await;
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio::sync::watch;
+    use tokio::time::{Duration, Instant};
+
+    const PERIOD: Duration = Duration::from_millis(80);
+
+    #[tokio::test(start_paused = true)]
+    async fn a_changed_output_wakes_the_sink_at_once_and_the_period_paces_the_rest() {
+        let (tx, mut rx) = watch::channel::<crate::cycle::Outputs>(Vec::new());
+        let mut last = None;
+        let t0 = Instant::now();
+        // The first period at once; then, without a change, one period later.
+        wait_for_period(&mut rx, PERIOD, &mut last, &[]).await;
+        assert_eq!(Instant::now(), t0);
+        wait_for_period(&mut rx, PERIOD, &mut last, &[]).await;
+        assert_eq!(Instant::now() - t0, PERIOD);
+        // A new output 30 ms later: at once.
+        tokio::time::sleep(Duration::from_millis(30)).await;
+        let t1 = Instant::now();
+        tx.send_replace(vec![(Axis::X, 1.0)]);
+        wait_for_period(&mut rx, PERIOD, &mut last, &[]).await;
+        assert_eq!(Instant::now(), t1, "a new output waits for no clock");
+        // The cycle publishing the same output again is no reason to run: the period is.
+        let ran_with = [(Axis::X, 1.0)];
+        tokio::spawn(async move {
+            for _ in 0..20 {
+                tokio::time::sleep(Duration::from_millis(1)).await;
+                tx.send_replace(vec![(Axis::X, 1.0)]);
+            }
+        });
+        wait_for_period(&mut rx, PERIOD, &mut last, &ran_with).await;
+        assert_eq!(Instant::now() - t1, PERIOD);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn after_the_cycle_ends_the_period_paces_the_stop_ramp() {
+        let (tx, mut rx) = watch::channel::<crate::cycle::Outputs>(Vec::new());
+        drop(tx);
+        let mut last = None;
+        let t0 = Instant::now();
+        for k in 0..3u32 {
+            wait_for_period(&mut rx, PERIOD, &mut last, &[]).await;
+            assert_eq!(Instant::now() - t0, PERIOD * k);
         }
     }
 }
