@@ -16,8 +16,8 @@
 //! Deterministic (seeded hil-sim metrology); no timing. µm, mm, degrees.
 
 use hil_sim::artefacts::{
-    HiddenLead, LEAD_FRACTION, LEAD_WAVES, Metrology, lead_plates, measure_plate, spaan_plates,
-    with_lead_waves,
+    HiddenLead, LEAD_FRACTION, LEAD_WAVES, Metrology, laser_runs, lead_plates, measure_plate,
+    spaan_plates, with_lead_waves,
 };
 use retrocomp_analysis::fit::lead::{LeadWave, phase_difference_deg};
 use retrocomp_analysis::identify::design::Geometry;
@@ -203,4 +203,53 @@ fn no_wave_is_found_where_there_is_none_and_no_lead_changes_nothing() {
             c.function.kind_name()
         );
     }
+}
+
+/// The direct path on the same hidden machine: laser runs of each axis every lead/4 (1.25 mm, five
+/// bidirectional runs, 0.3 µm noise), fitted by `fit axis`'s workflow with the lead: the same wave
+/// within 0.2 µm and 20°, and written into the model as a table every ≤ lead/4.
+#[test]
+fn laser_runs_every_quarter_lead_find_the_same_wave() {
+    use retrocomp_analysis::fit::to_model::{AxisForm, axis_component};
+    use retrocomp_analysis::fit::workflow::fit_axis_lead;
+    let truth = with_lead_waves(&old_mill(), &LEAD_WAVES);
+    let mut bad = Vec::new();
+    for seed in 3..=5 {
+        for want in &LEAD_WAVES {
+            let runs = laser_runs(&truth, want.axis, LEAD_MM / 4.0, 5, 0.3, seed);
+            let fit = fit_axis_lead(&runs, 50.0, 1e-4, None, Some(LEAD_MM)).unwrap();
+            let got = fit.lead.as_ref().expect("a lead wave");
+            let (da, dp) = off(got, want);
+            eprintln!(
+                "seed {seed}, laser on {}: {} (truth {:.2} µm at {:.0}°): off by {da:.3} µm, \
+                 {dp:.1}°",
+                want.axis.upper(),
+                got.describe(),
+                want.amplitude_um,
+                want.phase_deg
+            );
+            if da > 0.2 || dp > 20.0 {
+                bad.push(format!(
+                    "seed {seed}: {:?} off by {da:.3} µm, {dp:.1}°",
+                    want.axis
+                ));
+            }
+            let targets: Vec<f64> = runs.iter().map(|r| r.target_mm).collect();
+            let id = retrocomp_model::ComponentId {
+                axis: want.axis,
+                motion: Motion::Translation(want.axis),
+            };
+            let c = axis_component(&fit, id, AxisForm::Table, &targets).unwrap();
+            let ErrorFunction::Table(t) = &c.function else {
+                panic!("a table");
+            };
+            assert!(
+                t.positions_mm
+                    .windows(2)
+                    .all(|w| w[1] - w[0] <= LEAD_MM / 4.0)
+            );
+            assert!(axis_component(&fit, id, AxisForm::Piecewise, &targets).is_err());
+        }
+    }
+    assert!(bad.is_empty(), "{bad:#?}");
 }

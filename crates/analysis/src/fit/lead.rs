@@ -10,7 +10,7 @@
 //! L / [`TABLE_STEPS_PER_LEAD`] (linear interpolation of a sine at L/16 misses by at most
 //! 1 − cos(π/16) = 1.9 % of A; at L/4 it would be 29 %).
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Table nodes per lead when a component with a lead wave is written into the model.
 pub const TABLE_STEPS_PER_LEAD: f64 = 16.0;
@@ -33,7 +33,7 @@ pub fn check_lead(lead_mm: f64) -> Result<f64, String> {
 }
 
 /// One fitted lead wave with its uncertainty.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LeadWave {
     /// The component (e.g. `EXX`) or direction it belongs to.
     pub name: String,
@@ -48,6 +48,8 @@ pub struct LeadWave {
     /// Standard error of the phase, degrees (first order; large when the amplitude is not
     /// significant).
     pub phase_se_deg: f64,
+    /// Covariance of (sin_um, cos_um), µm².
+    pub cov_um2: [[f64; 2]; 2],
 }
 
 impl LeadWave {
@@ -81,6 +83,7 @@ impl LeadWave {
             } else {
                 180.0
             },
+            cov_um2: cov,
         }
     }
 
