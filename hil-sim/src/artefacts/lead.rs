@@ -164,3 +164,28 @@ pub fn laser_runs(
     }
     readings
 }
+
+/// Laser runs of X, Y, Z on `truth` (five bidirectional runs every `step_mm`, 0.3 µm noise) as
+/// `<dir>/{x,y,z}.csv` in the long layout `retrocomp fit axis` reads.
+pub fn write_laser_runs(
+    truth: &MachineModel,
+    step_mm: f64,
+    seed: u64,
+    dir: &std::path::Path,
+) -> anyhow::Result<()> {
+    use std::fmt::Write as _;
+    std::fs::create_dir_all(dir)?;
+    for axis in Axis::ALL {
+        let mut csv = String::from("target_mm,run,direction,deviation_um\n");
+        for r in laser_runs(truth, axis, step_mm, 5, 0.3, seed) {
+            let d = if r.direction == Direction::Forward {
+                '+'
+            } else {
+                '-'
+            };
+            writeln!(csv, "{},{},{d},{:.4}", r.target_mm, r.run, r.deviation_um)?;
+        }
+        std::fs::write(dir.join(format!("{}.csv", axis.lower())), csv)?;
+    }
+    Ok(())
+}

@@ -93,8 +93,13 @@ pub fn fit_axis_lead(
         let (xs, ys): (Vec<f64>, Vec<f64>) = pts.into_iter().unzip();
         fit_stepwise_lead(&xs, &ys, &cands, alpha, lead_mm)
     };
-    let forward = fit_dir(Direction::Forward)?;
-    let reverse = fit_dir(Direction::Reverse)?;
+    let mut forward = fit_dir(Direction::Forward)?;
+    let mut reverse = fit_dir(Direction::Reverse)?;
+    for (p, name) in [(&mut forward, "forward"), (&mut reverse, "reverse")] {
+        if let Some(w) = &mut p.lead {
+            w.name = name.into();
+        }
+    }
     let model = |r: &Reading| {
         if r.direction == Direction::Forward {
             forward.eval(r.target_mm)
@@ -119,7 +124,7 @@ pub fn fit_axis_lead(
         (Some(f), Some(r)) => {
             let c = |i: usize, j: usize| 0.25 * (f.cov_um2[i][j] + r.cov_um2[i][j]);
             Some(LeadWave::new(
-                "mean",
+                "both directions",
                 f.lead_mm,
                 0.5 * (f.sin_um + r.sin_um),
                 0.5 * (f.cos_um + r.cos_um),
