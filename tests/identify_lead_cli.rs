@@ -8,8 +8,13 @@
 #[path = "gateway_support/hil_sim.rs"]
 mod hil_sim;
 
-use std::path::{Path, PathBuf};
+#[path = "identify_support/cli.rs"]
+mod cli;
+
+use std::path::Path;
 use std::process::Command;
+
+use cli::{csvs, ok, retrocomp};
 
 /// The hidden waves `--lead-wave` adds: (component, amplitude µm, phase °).
 const TRUTH: [(&str, f64, f64); 3] = [
@@ -17,30 +22,6 @@ const TRUTH: [(&str, f64, f64); 3] = [
     ("EYY", 1.2, 140.0),
     ("EZZ", 1.0, -110.0),
 ];
-
-fn retrocomp() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-}
-
-fn ok(out: &std::process::Output, what: &str) -> String {
-    assert!(
-        out.status.success(),
-        "{what} failed: {}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout.clone()).unwrap()
-}
-
-fn csvs(dir: &Path) -> Vec<PathBuf> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "csv"))
-        .collect();
-    v.sort();
-    v
-}
 
 fn phase_off(a: f64, b: f64) -> f64 {
     let d = (a - b).rem_euclid(360.0);
