@@ -14,7 +14,7 @@ mod cli;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use cli::{csvs, ok, retrocomp};
+use cli::{check_config, csvs, ok, retrocomp};
 
 #[test]
 fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
@@ -118,14 +118,7 @@ fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
     );
     assert!(html.contains("SHA-256") && html.contains("Verification on held-out plates"));
 
-    ok(
-        &retrocomp()
-            .arg("check-config")
-            .arg(&model)
-            .output()
-            .unwrap(),
-        "check-config on the identified model",
-    );
+    check_config(&model);
     let path = dir.path().join("path.csv");
     std::fs::write(
         &path,

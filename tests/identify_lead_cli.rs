@@ -14,7 +14,7 @@ mod cli;
 use std::path::Path;
 use std::process::Command;
 
-use cli::{csvs, ok, retrocomp};
+use cli::{check_config, csvs, ok, retrocomp};
 
 /// The hidden waves `--lead-wave` adds: (component, amplitude µm, phase °).
 const TRUTH: [(&str, f64, f64); 3] = [
@@ -112,14 +112,7 @@ fn identify_and_fit_find_the_hidden_lead_wave() {
         check(w, amp, phase, &format!("identify {name}"));
         assert_fine_table(&toml, name);
     }
-    ok(
-        &retrocomp()
-            .arg("check-config")
-            .arg(&model)
-            .output()
-            .unwrap(),
-        "check-config on the identified model",
-    );
+    check_config(&model);
 
     for (axis, (name, amp, phase)) in ["x", "y", "z"].into_iter().zip(TRUTH) {
         let out = ok(

@@ -1,5 +1,6 @@
 //! What the `retrocomp identify` end-to-end tests share: the binary, a command's stdout (or a
-//! failure with its stderr), and the CSVs `hil-sim artefacts` wrote into a folder, sorted.
+//! failure with its stderr), the CSVs `hil-sim artefacts` wrote into a folder, sorted, and
+//! `check-config` on a written model.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
@@ -27,4 +28,12 @@ pub(crate) fn ok(out: &std::process::Output, what: &str) -> String {
         String::from_utf8_lossy(&out.stderr)
     );
     String::from_utf8(out.stdout.clone()).unwrap()
+}
+
+/// `retrocomp check-config` loads the identified model.
+pub(crate) fn check_config(model: &Path) {
+    ok(
+        &retrocomp().arg("check-config").arg(model).output().unwrap(),
+        "check-config on the identified model",
+    );
 }
