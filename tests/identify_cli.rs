@@ -8,32 +8,13 @@ mod hil_sim;
 #[path = "figure_support/pixels.rs"]
 mod pixels;
 
+#[path = "identify_support/cli.rs"]
+mod cli;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn retrocomp() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-}
-
-fn csvs(dir: &Path) -> Vec<PathBuf> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "csv"))
-        .collect();
-    v.sort();
-    v
-}
-
-fn ok(out: &std::process::Output, what: &str) -> String {
-    assert!(
-        out.status.success(),
-        "{what} failed: {}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout.clone()).unwrap()
-}
+use cli::{check_config, csvs, ok, retrocomp};
 
 #[test]
 fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
@@ -137,14 +118,7 @@ fn identify_from_hil_sim_artefacts_writes_a_loadable_model() {
     );
     assert!(html.contains("SHA-256") && html.contains("Verification on held-out plates"));
 
-    ok(
-        &retrocomp()
-            .arg("check-config")
-            .arg(&model)
-            .output()
-            .unwrap(),
-        "check-config on the identified model",
-    );
+    check_config(&model);
     let path = dir.path().join("path.csv");
     std::fs::write(
         &path,

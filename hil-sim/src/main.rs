@@ -43,6 +43,12 @@ enum Cmd {
         /// spheres, dense grid); identify either with `--knot-step-mm 30 --max-knots 16`.
         #[arg(long, value_enum, default_value = "eight")]
         spheres: hil_sim::artefacts::SpherePlan,
+        /// Give the hidden machine a 5 mm ball-screw lead wave on X, Y, Z (1.5 / 1.2 / 1.0 µm at
+        /// 30° / 140° / −110°), probe the identification plates at pitches 0.45 lead off whole
+        /// leads (62.25 × 42.25 mm), and write laser runs every 1.25 mm to <out>/laser/{x,y,z}.csv
+        /// (`retrocomp identify --lead-mm 5`, `retrocomp fit axis --lead-mm 5`).
+        #[arg(long)]
+        lead_wave: bool,
         #[arg(long)]
         out: PathBuf,
     },
@@ -63,16 +69,29 @@ fn main() -> anyhow::Result<()> {
             noise_um,
             plan,
             spheres,
+            lead_wave,
             out,
         } => {
-            let model = retrocomp_model::MachineModel::from_toml_path(&truth)
+            use hil_sim::artefacts as art;
+            let mut model = retrocomp_model::MachineModel::from_toml_path(&truth)
                 .map_err(|e| anyhow::anyhow!("--truth: {e}"))?;
+            if lead_wave {
+                model = art::with_lead_waves(&model, &art::LEAD_WAVES);
+            }
             let m = hil_sim::artefacts::Metrology {
                 probing_noise_um: noise_um,
                 ..Default::default()
             };
             let mut meas = hil_sim::artefacts::measure_plan(&model, &m, seed, plan);
             meas.spheres = hil_sim::artefacts::measure_spheres(&model, &m, seed, spheres);
+            if lead_wave {
+                let lead = art::LEAD_WAVES[0].lead_mm;
+                meas.plates = art::lead_plates(lead, art::LEAD_FRACTION)
+                    .iter()
+                    .map(|p| art::measure_plate(&model, p, &m, seed))
+                    .collect();
+                art::write_laser_runs(&model, lead / 4.0, seed, &out.join("laser"))?;
+            }
             let n = hil_sim::artefacts::write_all(&meas, &out)?;
             println!("wrote {n} artefact set-ups to {}", out.display());
             Ok(())

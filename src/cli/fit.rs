@@ -10,13 +10,14 @@ use super::fit_report;
 use super::report_args::ReportArgs;
 use super::util::write;
 use retrocomp_analysis::diagnose::model_sim::{final_lag_state, simulate_axes};
+use retrocomp_analysis::fit::lead::check_lead;
 use retrocomp_analysis::fit::regression::Criterion;
 use retrocomp_analysis::fit::to_model::{
     AxisForm, add_load, add_thermal, axis_component, put_component, single_axis_spec,
     to_checked_toml,
 };
 use retrocomp_analysis::fit::workflow::{
-    AxisFit, ContextFit, ContextOptions, Driver, fit_axis, fit_context_with,
+    AxisFit, ContextFit, ContextOptions, Driver, fit_axis_lead, fit_context_with,
 };
 use retrocomp_model::names::parse_component;
 use retrocomp_model::{ComponentId, MachineModel, ModelSpec};
@@ -92,6 +93,11 @@ pub(crate) enum What {
         /// Remove linear drift across runs before fitting.
         #[arg(long)]
         remove_drift: bool,
+        /// Lead of the axis' ball screw, mm: fit a sin/cos pair at this period beside each
+        /// direction's piecewise quadratic, report amplitude and phase, and write the table every
+        /// lead/16 (targets every ≤ lead/4 separate it; --form table only).
+        #[arg(long)]
+        lead_mm: Option<f64>,
         #[command(flatten)]
         common: Common,
     },
@@ -277,6 +283,12 @@ fn axis_text(id: ComponentId, fit: &AxisFit, slope: f64, holdout_run: Option<u32
         )),
         None => text.push_str("no held-out run (--holdout-run): δ not computed\n"),
     }
+    for w in [&fit.forward.lead, &fit.reverse.lead, &fit.lead]
+        .into_iter()
+        .flatten()
+    {
+        text.push_str(&format!("lead wave: {} {}\n", id.iso_name(), w.describe()));
+    }
     text
 }
 
@@ -290,16 +302,21 @@ pub(crate) fn run(a: &Args) -> anyhow::Result<()> {
             holdout_run,
             form,
             remove_drift,
+            lead_mm,
             common,
         } => {
             let id = component(comp)?;
+            let lead_mm = lead_mm
+                .map(check_lead)
+                .transpose()
+                .map_err(anyhow::Error::msg)?;
             anyhow::ensure!(
                 !common.skip_bad_rows,
                 "--skip-bad-rows applies to recordings (fit thermal, fit load); the ISO 230-2 runs file is read strictly"
             );
             let progress = super::term::Progress::spinner("fit: fitting the axis tables");
             let (rs, slope) = super::iso230_2::load(runs, *remove_drift)?;
-            let fit = fit_axis(&rs, *knot_step_mm, *alpha, *holdout_run)?;
+            let fit = fit_axis_lead(&rs, *knot_step_mm, *alpha, *holdout_run, lead_mm)?;
             progress.finish();
             let targets: Vec<f64> = rs.iter().map(|r| r.target_mm).collect();
             let f = match form {

@@ -10,10 +10,11 @@ use anyhow::Context;
 
 use super::report_args::ReportArgs;
 use super::util::{read, write};
+use retrocomp_analysis::fit::lead::check_lead;
 use retrocomp_analysis::html::{Block, Section};
 use retrocomp_analysis::identify::contracts::{BallBar, HolePlate, read_ballbar, read_hole_plate};
 use retrocomp_analysis::identify::design::Geometry;
-use retrocomp_analysis::identify::report::{DirVerify, components, to_spec, verify};
+use retrocomp_analysis::identify::report::{DirVerify, components, lead_waves, to_spec, verify};
 use retrocomp_analysis::identify::vouch::vouch;
 use retrocomp_analysis::identify::{Identification, Options, identify};
 use retrocomp_analysis::report::{Series, xy_svg_notes};
@@ -53,6 +54,12 @@ pub(crate) struct Args {
     /// Significance level of a knot (Spaan 99.99 % → 1e-4).
     #[arg(long, default_value_t = 1e-4)]
     pub alpha: f64,
+    /// Lead of the ball screws, mm: fit a sin/cos pair at this period on EXX, EYY and EZZ, report
+    /// its amplitude and phase, and write those components as tables every lead/16. Needs plates
+    /// whose hole pitch is not a whole number of leads (e.g. 62.25 mm for 5 mm: docs/identify.md,
+    /// "Lead wave").
+    #[arg(long)]
+    pub lead_mm: Option<f64>,
     #[command(flatten)]
     pub report: ReportArgs,
 }
@@ -109,6 +116,11 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         knot_step_mm: args.knot_step_mm.unwrap_or(base.knot_step_mm),
         max_knots: args.max_knots.unwrap_or(base.max_knots),
         alpha: args.alpha,
+        lead_mm: args
+            .lead_mm
+            .map(check_lead)
+            .transpose()
+            .map_err(anyhow::Error::msg)?,
         ..base
     };
     if !(opts.knot_step_mm.is_finite() && opts.knot_step_mm > 0.0) {
@@ -217,6 +229,13 @@ fn html_sections(
                     opts.knot_step_mm, opts.max_knots, opts.alpha
                 ),
                 "each plate's rigid pose is fitted out; deviations are actual − nominal, µm".into(),
+                match opts.lead_mm {
+                    Some(l) => format!(
+                        "a ball-screw lead wave of {l} mm on EXX, EYY, EZZ (A·sin(2πq/L + φ)), written as tables every {} mm or less",
+                        l / retrocomp_analysis::fit::lead::TABLE_STEPS_PER_LEAD
+                    ),
+                    None => "no lead wave fitted (--lead-mm)".into(),
+                },
                 "efficiency δ as Spaan (2010) Tables 3.2–3.4".into(),
             ])],
         },
@@ -236,6 +255,7 @@ fn json(id: &Identification, opts: &Options, ver: &[DirVerify], out: &Path) -> s
         "resolution": id.resolution,
         "vouch": vouch(id, &sq),
         "components": comp,
+        "lead_waves": lead_waves(id),
         "squareness": sq,
         "setups": id.setups.iter().map(|s| serde_json::json!({
             "name": s.name, "kind": s.kind,
@@ -310,6 +330,19 @@ fn text_report(id: &Identification, opts: &Options, ver: &[DirVerify], out: &Pat
                 "  (not identified to 2 µrad)"
             } else {
                 "  (not identifiable)"
+            }
+        );
+    }
+    for w in lead_waves(id) {
+        let _ = writeln!(
+            s,
+            "lead wave: {}{}",
+            w.wave.describe(),
+            if w.identified {
+                ""
+            } else {
+                "  NOT identified: the plates see it only loosely (a hole pitch that is a whole \
+                 number of leads puts every hole of a plate at one phase)"
             }
         );
     }

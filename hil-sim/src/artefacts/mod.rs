@@ -22,7 +22,9 @@ use retrocomp_model::{MachineModel, ModelInput, ModelState};
 
 use crate::rng::Noise;
 
+mod lead;
 mod spheres;
+pub use lead::*;
 pub use spheres::*;
 
 /// Noise and misalignment of the simulated metrology.

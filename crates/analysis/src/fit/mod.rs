@@ -1,8 +1,10 @@
 //! Model fitting from measurements (Spaan Ch3, Ch5; Ni 1996): linear least squares, C¹ piecewise
 //! quadratics with stepwise knot selection, thermal regression with sensor-subset selection
-//! (Mallows' Cp, BIC), and Spaan's efficiency δ on held-out data.
+//! (Mallows' Cp, BIC), a ball-screw lead wave beside a smooth part, and Spaan's efficiency δ on
+//! held-out data.
 
 pub mod efficiency;
+pub mod lead;
 pub mod lsq;
 pub mod piecewise;
 pub mod regression;

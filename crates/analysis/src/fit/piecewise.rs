@@ -6,11 +6,16 @@
 //! elimination of knots that are no longer significant.
 //!
 //! x is centred on the data mean before fitting so the x² column is well conditioned.
+//!
+//! With a lead L ([`fit_stepwise_lead`]) a ball-screw wave s·sin(2πx/L) + c·cos(2πx/L) is fitted
+//! beside it (two more columns in every candidate model, `fit::lead`): readings at steps ≤ L/4
+//! separate it from the smooth part.
 
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
+use super::lead::LeadWave;
 use super::lsq::{LsqError, lstsq};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -22,6 +27,9 @@ pub struct PiecewiseQuadratic {
     /// Knots t_i (mm, absolute) and γ_i (µm/mm²).
     pub knots_mm: Vec<f64>,
     pub gammas: Vec<f64>,
+    /// The lead wave fitted beside the smooth part, if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lead: Option<LeadWave>,
 }
 
 impl PiecewiseQuadratic {
@@ -32,7 +40,7 @@ impl PiecewiseQuadratic {
             let d = (x_mm - t).max(0.0);
             y += g * d * d;
         }
-        y
+        y + self.lead.as_ref().map_or(0.0, |w| w.eval(x_mm))
     }
 
     /// Slope dp/dx (continuous by construction).
@@ -41,6 +49,11 @@ impl PiecewiseQuadratic {
         let mut s = self.poly[1] + 2.0 * self.poly[2] * u;
         for (t, g) in self.knots_mm.iter().zip(&self.gammas) {
             s += 2.0 * g * (x_mm - t).max(0.0);
+        }
+        if let Some(w) = &self.lead {
+            let k = std::f64::consts::TAU / w.lead_mm;
+            let [sn, cs] = super::lead::columns(w.lead_mm, x_mm);
+            s += k * (w.sin_um * cs - w.cos_um * sn);
         }
         s
     }
@@ -56,14 +69,18 @@ pub enum PiecewiseError {
     Lsq(#[from] LsqError),
 }
 
-fn design(xs: &[f64], centre: f64, knots: &[f64]) -> DMatrix<f64> {
-    DMatrix::from_fn(xs.len(), 3 + knots.len(), |i, j| {
+/// Columns 1, u, u², the knots', then (with a lead) sin and cos.
+fn design(xs: &[f64], centre: f64, knots: &[f64], lead: Option<f64>) -> DMatrix<f64> {
+    let nk = 3 + knots.len();
+    let p = nk + if lead.is_some() { 2 } else { 0 };
+    DMatrix::from_fn(xs.len(), p, |i, j| {
         let u = xs[i] - centre;
         match j {
             0 => 1.0,
             1 => u,
             2 => u * u,
-            k => (xs[i] - knots[k - 3]).max(0.0).powi(2),
+            k if k < nk => (xs[i] - knots[k - 3]).max(0.0).powi(2),
+            k => lead.map_or(0.0, |l| super::lead::columns(l, xs[i])[k - nk]),
         }
     })
 }
@@ -73,8 +90,9 @@ fn sse(
     y: &DVector<f64>,
     centre: f64,
     knots: &[f64],
+    lead: Option<f64>,
 ) -> Result<(f64, DVector<f64>), LsqError> {
-    let f = lstsq(&design(xs, centre, knots), y)?;
+    let f = lstsq(&design(xs, centre, knots, lead), y)?;
     Ok((f.sse, f.beta))
 }
 
@@ -101,6 +119,17 @@ pub fn fit_stepwise(
     candidates: &[f64],
     alpha: f64,
 ) -> Result<PiecewiseQuadratic, PiecewiseError> {
+    fit_stepwise_lead(xs, ys, candidates, alpha, None)
+}
+
+/// [`fit_stepwise`] with a lead wave at `lead_mm` in every candidate model (None: none).
+pub fn fit_stepwise_lead(
+    xs: &[f64],
+    ys: &[f64],
+    candidates: &[f64],
+    alpha: f64,
+    lead_mm: Option<f64>,
+) -> Result<PiecewiseQuadratic, PiecewiseError> {
     if xs.len() != ys.len() {
         return Err(PiecewiseError::Lengths);
     }
@@ -121,24 +150,25 @@ pub fn fit_stepwise(
         .collect();
     let y = DVector::from_column_slice(ys);
     let mut knots: Vec<f64> = Vec::new();
-    let (mut cur, _) = sse(xs, &y, centre, &knots)?;
+    let extra = if lead_mm.is_some() { 2.0 } else { 0.0 };
+    let (mut cur, _) = sse(xs, &y, centre, &knots, lead_mm)?;
     loop {
         // Forward step.
         let mut best: Option<(f64, f64)> = None;
         for &t in cands.iter().filter(|t| !knots.contains(t)) {
             let mut k = knots.clone();
             k.push(t);
-            let p = 3.0 + k.len() as f64;
+            let p = 3.0 + extra + k.len() as f64;
             if n - p < 1.0 {
                 continue;
             }
-            let (s, _) = sse(xs, &y, centre, &k)?;
+            let (s, _) = sse(xs, &y, centre, &k, lead_mm)?;
             if best.is_none_or(|b| s < b.1) {
                 best = Some((t, s));
             }
         }
         let Some((t, s)) = best else { break };
-        let df1 = n - (4.0 + knots.len() as f64);
+        let df1 = n - (4.0 + extra + knots.len() as f64);
         if partial_f_p(cur, s, 1.0, df1) >= alpha {
             break;
         }
@@ -150,8 +180,8 @@ pub fn fit_stepwise(
             for i in 0..knots.len() {
                 let mut k = knots.clone();
                 k.remove(i);
-                let (s_without, _) = sse(xs, &y, centre, &k)?;
-                let p = partial_f_p(s_without, cur, 1.0, n - (3.0 + knots.len() as f64));
+                let (s_without, _) = sse(xs, &y, centre, &k, lead_mm)?;
+                let p = partial_f_p(s_without, cur, 1.0, n - (3.0 + extra + knots.len() as f64));
                 if p >= alpha && worst.is_none_or(|w| p > w.1) {
                     worst = Some((i, p, s_without));
                 }
@@ -166,12 +196,27 @@ pub fn fit_stepwise(
         }
     }
     knots.sort_by(f64::total_cmp);
-    let (_, beta) = sse(xs, &y, centre, &knots)?;
+    let (s, beta) = sse(xs, &y, centre, &knots, lead_mm)?;
+    let nk = 3 + knots.len();
+    let lead = lead_mm.map(|l| {
+        // The pair's covariance σ²·(XᵀX)⁻¹ (columns as fitted; the design is full rank at steps
+        // ≤ L/4, else the wave is reported with an infinite uncertainty).
+        let x = design(xs, centre, &knots, lead_mm);
+        let sigma2 = s / (n - nk as f64 - 2.0).max(1.0);
+        let cov = (x.transpose() * &x)
+            .try_inverse()
+            .map_or([[f64::INFINITY; 2]; 2], |m| {
+                let v = |a: usize, b: usize| sigma2 * m[(nk + a, nk + b)];
+                [[v(0, 0), v(0, 1)], [v(1, 0), v(1, 1)]]
+            });
+        LeadWave::new("fit", l, beta[nk], beta[nk + 1], cov)
+    });
     Ok(PiecewiseQuadratic {
         centre_mm: centre,
         poly: [beta[0], beta[1], beta[2]],
         gammas: (0..knots.len()).map(|i| beta[3 + i]).collect(),
         knots_mm: knots,
+        lead,
     })
 }
 

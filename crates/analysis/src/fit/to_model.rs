@@ -5,6 +5,8 @@
 //! - An axis fit becomes one component: a bidirectional table sampled from the forward/reverse
 //!   piecewise quadratics at the measured targets (`AxisForm::Table`, keeps the reversal), or one
 //!   piecewise quadratic, the mean of both directions (`AxisForm::Piecewise`, reversal dropped).
+//!   With a lead wave the table is linear at steps of lead/16 (`fit::lead`) instead of at the
+//!   targets; a piecewise quadratic cannot carry the wave.
 //! - A thermal fit becomes a `polynomial_dt` term on the target component with its sensors; each
 //!   sensor's reference is its training mean and its lag the selected τ.
 //! - A load fit becomes, per strain, a pseudo-force F = 1 N/µε · (strain − offset) and a constant
@@ -34,6 +36,10 @@ pub enum ToModelError {
     Invalid(String),
     #[error("a table needs at least 2 targets")]
     TooFewTargets,
+    #[error(
+        "a lead wave goes into the model as a table (--form table): a piecewise quadratic cannot carry it"
+    )]
+    LeadNeedsTable,
 }
 
 /// Absolute-coordinate coefficients of a centred piecewise quadratic.
@@ -52,8 +58,16 @@ pub fn axis_component(
 ) -> Result<ComponentSpec, ToModelError> {
     let lo = targets_mm.iter().cloned().fold(f64::INFINITY, f64::min);
     let hi = targets_mm.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-    let function = match form {
-        AxisForm::Table => {
+    let lead = fit.forward.lead.as_ref().map(|w| w.lead_mm);
+    let function = match (form, lead) {
+        (AxisForm::Table, Some(l)) => {
+            let t = crate::fit::lead::table_positions(lo, hi, l);
+            let f = t.iter().map(|x| fit.forward.eval(*x)).collect();
+            let r = t.iter().map(|x| fit.reverse.eval(*x)).collect();
+            ErrorFunction::Table(Table::new(t, f, r, Interpolation::Linear))
+        }
+        (AxisForm::Piecewise, Some(_)) => return Err(ToModelError::LeadNeedsTable),
+        (AxisForm::Table, None) => {
             let mut t: Vec<f64> = targets_mm.to_vec();
             t.sort_by(f64::total_cmp);
             t.dedup();
@@ -64,7 +78,7 @@ pub fn axis_component(
             let r = t.iter().map(|x| fit.reverse.eval(*x)).collect();
             ErrorFunction::Table(Table::new(t, f, r, Interpolation::C1))
         }
-        AxisForm::Piecewise => {
+        (AxisForm::Piecewise, None) => {
             let (bf, br) = (absolute_base(&fit.forward), absolute_base(&fit.reverse));
             let mut knots: Vec<(f64, f64)> = Vec::new();
             for p in [&fit.forward, &fit.reverse] {

@@ -11,7 +11,8 @@
 use serde::Serialize;
 
 use super::efficiency::{Efficiency, efficiency};
-use super::piecewise::{PiecewiseError, PiecewiseQuadratic, fit_stepwise};
+use super::lead::LeadWave;
+use super::piecewise::{PiecewiseError, PiecewiseQuadratic, fit_stepwise_lead};
 use super::regression::{
     Candidate, Criterion, LinearModel, RegressionError, Selection, first_order_lag, select,
 };
@@ -27,6 +28,10 @@ pub struct AxisFit {
     /// Efficiency δ and max residual on the held-out run (None without one).
     pub heldout: Option<Efficiency>,
     pub fit_rms_um: f64,
+    /// With a lead: the wave of both directions together (the mean of their sin and cos
+    /// coefficients, independent errors).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lead: Option<LeadWave>,
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -49,6 +54,17 @@ pub fn fit_axis(
     knot_step_mm: f64,
     alpha: f64,
     heldout_run: Option<u32>,
+) -> Result<AxisFit, FitError> {
+    fit_axis_lead(readings, knot_step_mm, alpha, heldout_run, None)
+}
+
+/// [`fit_axis`] with a ball-screw lead wave at `lead_mm` beside each direction's smooth part.
+pub fn fit_axis_lead(
+    readings: &[Reading],
+    knot_step_mm: f64,
+    alpha: f64,
+    heldout_run: Option<u32>,
+    lead_mm: Option<f64>,
 ) -> Result<AxisFit, FitError> {
     if let Some(r) = heldout_run
         && !readings.iter().any(|x| x.run == r)
@@ -75,10 +91,15 @@ pub fn fit_axis(
             .map(|r| (r.target_mm, r.deviation_um))
             .collect();
         let (xs, ys): (Vec<f64>, Vec<f64>) = pts.into_iter().unzip();
-        fit_stepwise(&xs, &ys, &cands, alpha)
+        fit_stepwise_lead(&xs, &ys, &cands, alpha, lead_mm)
     };
-    let forward = fit_dir(Direction::Forward)?;
-    let reverse = fit_dir(Direction::Reverse)?;
+    let mut forward = fit_dir(Direction::Forward)?;
+    let mut reverse = fit_dir(Direction::Reverse)?;
+    for (p, name) in [(&mut forward, "forward"), (&mut reverse, "reverse")] {
+        if let Some(w) = &mut p.lead {
+            w.name = name.into();
+        }
+    }
     let model = |r: &Reading| {
         if r.direction == Direction::Forward {
             forward.eval(r.target_mm)
@@ -99,12 +120,26 @@ pub fn fit_axis(
             &h.iter().map(|r| model(r)).collect::<Vec<_>>(),
         )
     });
+    let lead = match (&forward.lead, &reverse.lead) {
+        (Some(f), Some(r)) => {
+            let c = |i: usize, j: usize| 0.25 * (f.cov_um2[i][j] + r.cov_um2[i][j]);
+            Some(LeadWave::new(
+                "both directions",
+                f.lead_mm,
+                0.5 * (f.sin_um + r.sin_um),
+                0.5 * (f.cos_um + r.cos_um),
+                [[c(0, 0), c(0, 1)], [c(1, 0), c(1, 1)]],
+            ))
+        }
+        _ => None,
+    };
     Ok(AxisFit {
         forward,
         reverse,
         heldout_run,
         heldout,
         fit_rms_um,
+        lead,
     })
 }
 

@@ -2,7 +2,9 @@
 //!
 //! β: per component, a C¹ piecewise quadratic in its own axis position q, measured from the low
 //! end `lo` of the identified range (so every component is 0 at `lo`, the gauge artefacts cannot
-//! see): `a1·(q−lo) + a2·(q−lo)² + Σ c_i (q−t_i)₊²`; straightness components have no linear term,
+//! see): `a1·(q−lo) + a2·(q−lo)² + Σ c_i (q−t_i)₊²`; with `--lead-mm L` a positioning component
+//! also carries a lead wave `s·(sin ωq − sin ωlo) + c·(cos ωq − cos ωlo)`, ω = 2π/L, q from the
+//! axis' 0 (`fit::lead`), two more linear columns between the quadratic and the knots; straightness components have no linear term,
 //! their slope is a squareness (EC0Y ≡ slope of EXY, EB0Z of EXZ, EA0Z of EYZ; the slopes of EYX,
 //! EZX, EZY are a rotation of the artefact and fixed at 0). Then the three squareness angles.
 //! γ: per hole plate its in-plane translation (2, µm) and rotation (1, µrad), per ball-bar sphere
@@ -37,16 +39,24 @@ pub struct CompBasis {
     pub lo_mm: f64,
     pub hi_mm: f64,
     pub knots_mm: Vec<f64>,
+    /// Lead of a ball-screw wave fitted as a sin/cos pair (positioning components only), mm.
+    pub lead_mm: Option<f64>,
 }
 
 impl CompBasis {
+    /// Terms before the knots: linear (not straightness), quadratic, the lead pair.
+    fn n_smooth(&self) -> usize {
+        let lin = usize::from(self.shape != Shape::Straightness);
+        lin + 1 + if self.lead_mm.is_some() { 2 } else { 0 }
+    }
+
     pub fn n_terms(&self) -> usize {
-        self.knots_mm.len()
-            + if self.shape == Shape::Straightness {
-                1
-            } else {
-                2
-            }
+        self.n_smooth() + self.knots_mm.len()
+    }
+
+    /// Index of the lead wave's sin coefficient within this component's terms (cos follows).
+    pub fn lead_term(&self) -> Option<usize> {
+        self.lead_mm.map(|_| self.n_smooth() - 2)
     }
 
     /// Basis values at q (µm or µrad per unit coefficient), appended to `out`.
@@ -57,19 +67,27 @@ impl CompBasis {
             out.push(d);
         }
         out.push(d * d);
+        if let Some(lead) = self.lead_mm {
+            let [s0, c0] = crate::fit::lead::columns(lead, self.lo_mm);
+            let [s, c] = crate::fit::lead::columns(lead, q);
+            out.extend([s - s0, c - c0]);
+        }
         for &t in &self.knots_mm {
             let k = (q - t).max(0.0);
             out.push(k * k);
         }
     }
 
-    /// Term names for reports: `lin`, `quad`, `knot@t`.
+    /// Term names for reports: `lin`, `quad`, `sin@L`, `cos@L`, `knot@t`.
     pub fn term_names(&self) -> Vec<String> {
         let mut v = Vec::new();
         if self.shape != Shape::Straightness {
             v.push("lin".to_string());
         }
         v.push("quad".to_string());
+        if let Some(l) = self.lead_mm {
+            v.extend([format!("sin@{l}"), format!("cos@{l}")]);
+        }
         v.extend(self.knots_mm.iter().map(|t| format!("knot@{t:.0}")));
         v
     }
@@ -152,11 +170,13 @@ impl Geometry {
 }
 
 /// The 18 components with their bases over the identified ranges; candidate knots every
-/// `knot_step_mm` (at most `max_knots` per axis, evenly spread).
+/// `knot_step_mm` (at most `max_knots` per axis, evenly spread); positioning components carry a
+/// lead wave at `lead_mm` when given.
 pub fn component_bases(
     range_mm: [(f64, f64); 3],
     knot_step_mm: f64,
     max_knots: usize,
+    lead_mm: Option<f64>,
 ) -> Vec<CompBasis> {
     let mut v = Vec::new();
     for axis in Axis::ALL {
@@ -185,6 +205,7 @@ pub fn component_bases(
                 lo_mm: lo,
                 hi_mm: hi,
                 knots_mm: knots.clone(),
+                lead_mm: lead_mm.filter(|_| shape == Shape::Positioning),
             });
         }
     }

@@ -48,6 +48,9 @@ pub struct Options {
     /// fitted pose cannot see sits at ~1e-10 (rounding keeps it off zero); at 1e-10 it was kept and
     /// amplified noise to hundreds of µrad (hil-sim/tests/identify_truth.rs).
     pub rank_tol: f64,
+    /// Lead of the ball screws, mm: each positioning component (EXX, EYY, EZZ) also gets a sin/cos
+    /// pair at this period (docs/identify.md, "Lead wave"). None: no lead terms.
+    pub lead_mm: Option<f64>,
 }
 
 impl Default for Options {
@@ -59,6 +62,7 @@ impl Default for Options {
             rotations: true,
             use_tool_length: true,
             rank_tol: 1e-8,
+            lead_mm: None,
         }
     }
 }
@@ -117,7 +121,7 @@ pub fn identify(
                 (a.min(o.pos_mm[k]), b.max(o.pos_mm[k]))
             })
     });
-    let mut bases = component_bases(range_mm, opts.knot_step_mm, opts.max_knots);
+    let mut bases = component_bases(range_mm, opts.knot_step_mm, opts.max_knots, opts.lead_mm);
     if !opts.rotations {
         bases.retain(|b| !b.id.is_rotation());
     }

@@ -16,8 +16,9 @@ use super::design::{SQUARENESS, Shape};
 use super::estimate::block_f;
 use super::observe::{expanded_uv, plane_readings, rigid_2d, rot};
 use crate::fit::efficiency::efficiency;
+use crate::fit::lead::LeadWave;
 use retrocomp_model::spec::{ComponentSpec, SquarenessSpec, ToolSpec};
-use retrocomp_model::{ErrorFunction, MachineModel, ModelSpec, Motion};
+use retrocomp_model::{ErrorFunction, Interpolation, MachineModel, ModelSpec, Motion, Table};
 
 /// One component's verdict.
 #[derive(Debug, Clone, Serialize)]
@@ -83,22 +84,7 @@ fn null_moves(id: &Identification) -> Vec<Vec<f64>> {
         .null
         .iter()
         .map(|v| {
-            let mut col = 0;
-            let mut m: Vec<f64> = id
-                .bases
-                .iter()
-                .map(|b| {
-                    let c: Vec<f64> = (col..col + b.n_terms()).map(|j| v[j]).collect();
-                    col += b.n_terms();
-                    (0..=40)
-                        .map(|k| {
-                            b.eval(&c, b.lo_mm + (b.hi_mm - b.lo_mm) * f64::from(k) / 40.0)
-                                .abs()
-                        })
-                        .fold(0.0, f64::max)
-                })
-                .collect();
-            m.extend((0..3).map(|k| v[col + k].abs()));
+            let mut m = moves_of(id, v);
             let top = m.iter().copied().fold(0.0, f64::max);
             if top > 0.0 {
                 m.iter_mut().for_each(|x| *x /= top);
@@ -106,6 +92,28 @@ fn null_moves(id: &Identification) -> Vec<Vec<f64>> {
             m
         })
         .collect()
+}
+
+/// How far a change `v` of the parameters moves each component (max |value| over its range, µm or
+/// µrad) and each squareness angle: the 18 components then the 3 angles.
+fn moves_of(id: &Identification, v: &nalgebra::DVector<f64>) -> Vec<f64> {
+    let mut col = 0;
+    let mut m: Vec<f64> = id
+        .bases
+        .iter()
+        .map(|b| {
+            let c: Vec<f64> = (col..col + b.n_terms()).map(|j| v[j]).collect();
+            col += b.n_terms();
+            (0..=40)
+                .map(|k| {
+                    b.eval(&c, b.lo_mm + (b.hi_mm - b.lo_mm) * f64::from(k) / 40.0)
+                        .abs()
+                })
+                .fold(0.0, f64::max)
+        })
+        .collect();
+    m.extend((0..3).map(|k| v[col + k].abs()));
+    m
 }
 
 /// The per-component table.
@@ -279,7 +287,51 @@ fn by_motion(id: &Identification, c: retrocomp_model::ComponentId) -> String {
     }
 }
 
-/// The identified machine model (components as Spaan's piecewise quadratics, squareness angles).
+/// The lead wave of one positioning component and whether the data see it.
+#[derive(Debug, Clone, Serialize)]
+pub struct LeadReport {
+    #[serde(flatten)]
+    pub wave: LeadWave,
+    /// No combination the data cannot see moves the wave by more than [`NULL_LIMIT`] of what it
+    /// moves most, and its sin and cos coefficients are known to [`LEAD_TARGET_UM`]
+    /// ([`COVERAGE_K`] σ). Not so when every hole of each plate sits at one phase of the lead (a
+    /// pitch that is a multiple of it): the plate's pose then absorbs the wave, all but what the
+    /// plate's small rotation and expansion spread over the phases.
+    pub identified: bool,
+}
+
+/// How well a lead wave's sin and cos coefficients must be known to call it identified, µm
+/// (expanded, [`COVERAGE_K`] σ): issue 37's tolerance on the amplitude.
+pub const LEAD_TARGET_UM: f64 = 0.2;
+
+/// The lead wave of each positioning component fitted with one (`--lead-mm`): amplitude and phase
+/// with their standard errors (from the fit's covariance).
+pub fn lead_waves(id: &Identification) -> Vec<LeadReport> {
+    let s = &id.solve;
+    let mut col = 0;
+    let mut out = Vec::new();
+    for b in &id.bases {
+        if let (Some(lead), Some(k)) = (b.lead_mm, b.lead_term()) {
+            let j = col + k;
+            let v = |a: usize, b: usize| s.sigma_um * s.sigma_um * s.xtx_pinv[(j + a, j + b)];
+            let cov = [[v(0, 0), v(0, 1)], [v(1, 0), v(1, 1)]];
+            let unseen = s.null.iter().any(|n| {
+                let top = moves_of(id, n).into_iter().fold(0.0, f64::max);
+                top > 0.0 && n[j].hypot(n[j + 1]) > NULL_LIMIT * top
+            });
+            let se = cov[0][0].max(cov[1][1]).sqrt();
+            out.push(LeadReport {
+                wave: LeadWave::new(&b.id.iso_name(), lead, s.coef[j], s.coef[j + 1], cov),
+                identified: !unseen && COVERAGE_K * se <= LEAD_TARGET_UM,
+            });
+        }
+        col += b.n_terms();
+    }
+    out
+}
+
+/// The identified machine model (components as Spaan's piecewise quadratics, squareness angles;
+/// a positioning component with a lead wave as a linear table every lead/16).
 pub fn to_spec(id: &Identification, name: &str) -> ModelSpec {
     let mut spec = id.geometry.spec.clone();
     spec.name = name.to_string();
@@ -299,6 +351,16 @@ pub fn to_spec(id: &Identification, name: &str) -> ModelSpec {
     for b in &id.bases {
         let c = &id.solve.coef[col..col + b.n_terms()];
         col += b.n_terms();
+        if let Some(lead) = b.lead_mm {
+            // The wave needs nodes every lead/16: the whole component as one fine linear table.
+            let q = crate::fit::lead::table_positions(b.lo_mm, b.hi_mm, lead);
+            let v: Vec<f64> = q.iter().map(|x| b.eval(c, *x)).collect();
+            spec.components.push(ComponentSpec {
+                id: b.id,
+                function: ErrorFunction::Table(Table::new(q, v.clone(), v, Interpolation::Linear)),
+            });
+            continue;
+        }
         let (a1, rest) = if b.shape == Shape::Straightness {
             (0.0, c)
         } else {

@@ -116,6 +116,15 @@ pub fn resolution(id: &Identification, knot_step_mm: f64, max_knots: usize) -> R
          `retrocomp fit`",
         waves.join(", ")
     );
+    match id.bases.iter().find_map(|b| b.lead_mm) {
+        Some(l) => note.push_str(&format!(
+            "; except the ball screws' {l} mm lead wave, fitted as a term of its own (--lead-mm)"
+        )),
+        None => note.push_str(
+            "; a ball-screw lead wave of known lead is identifiable from plates whose pitch is not \
+             a whole number of leads, with --lead-mm (docs/identify.md, \"Lead wave\")",
+        ),
+    }
     if let Some(r) = lack_of_fit_ratio.filter(|r| *r > LACK_OF_FIT_LIMIT) {
         note.push_str(&format!(
             "; the fit's residual σ is {r:.1} × the probing repeatability: the data hold errors \
