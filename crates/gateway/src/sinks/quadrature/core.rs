@@ -183,8 +183,10 @@ mod tests {
                 min_edge_gap_ns: 400,
                 max_inject_rate_hz: 100_000.0,
                 gpio: None,
+                simulated_native: None,
             }],
             state_file: None,
+            trace: None,
         }
     }
 
