@@ -13,16 +13,18 @@ mod linuxcnc_support;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use retrocomp_bus::can::CanBus;
 use retrocomp_bus::can::hub::Hub;
 use retrocomp_bus::can::socketcand_bus::SocketcandBus;
-use retrocomp_bus::canopen::cia406::EncoderChannel;
 
 #[path = "gateway_support/process.rs"]
 mod process;
+#[path = "gateway_support/studer_can.rs"]
+mod studer_can;
+use studer_can::encoder;
 
 const MIN_EDGE_GAP_NS: u64 = 400;
 const RATE_HZ: f64 = 2_000.0;
@@ -42,7 +44,6 @@ struct Row {
 }
 
 fn field(dir: &Path, hub_port: u16) -> String {
-    let root = env!("CARGO_MANIFEST_DIR");
     let d = dir.display();
     format!(
         r#"
@@ -55,56 +56,30 @@ max_correction_um = 60.0
 max_change_um_per_cycle = 2.0
 ramp_um_per_s = 400.0
 stale_hold_s = 0.5
-[direction]
-deadband_mm = 0.005
-switch_time_s = 0.05
-[model]
-path = "{root}/deploy/examples/studer-s36.toml"
-[[axis]]
-name = "z"
-position_channel = "z_mm"
-[[axis]]
-name = "x"
-position_channel = "x_mm"
-[can]
-backend = "socketcand"
-host = "127.0.0.1"
-port = {hub_port}
-channel = "can0"
-[canopen]
-pdo_timeout_s = 0.1
-encoder = [
-  {{ channel = "z_mm", node_id = 1, counts_per_mm = 1000.0 }},
-  {{ channel = "x_mm", node_id = 2, counts_per_mm = 1000.0 }},
-]
-[sink.quadrature]
+{machine}[sink.quadrature]
 state_file = "{d}/held.toml"
 [sink.quadrature.trace]
 path = "{d}/trace.csv"
 max_bytes = 1000000
-[[sink.quadrature.axis]]
-axis = "z"
-resolution_um = 0.1
-count_sign = 1
-min_edge_gap_ns = {MIN_EDGE_GAP_NS}
-max_inject_rate_hz = {RATE_HZ}
-simulated_native = {{ moves_counts = [{}, {}], rate_hz = 1000.0 }}
-[[sink.quadrature.axis]]
-axis = "x"
-resolution_um = 0.1
-count_sign = 1
-min_edge_gap_ns = {MIN_EDGE_GAP_NS}
-max_inject_rate_hz = {RATE_HZ}
-"#,
-        NATIVE_MOVES[0], NATIVE_MOVES[1]
+{z}{x}"#,
+        machine = studer_can::machine_on_can(hub_port),
+        z = axis(
+            "z",
+            &format!(
+                "simulated_native = {{ moves_counts = [{}, {}], rate_hz = 1000.0 }}\n",
+                NATIVE_MOVES[0], NATIVE_MOVES[1]
+            )
+        ),
+        x = axis("x", ""),
     )
 }
 
-fn encoder(channel: &str, node: u8) -> EncoderChannel {
-    toml::from_str(&format!(
-        "channel = \"{channel}\"\nnode_id = {node}\ncounts_per_mm = 1000.0\n"
-    ))
-    .unwrap()
+/// One `[[sink.quadrature.axis]]`: 0.1 µm counts at the test's gap and rate cap, plus `extra`.
+fn axis(name: &str, extra: &str) -> String {
+    format!(
+        "[[sink.quadrature.axis]]\naxis = \"{name}\"\nresolution_um = 0.1\ncount_sign = 1\n\
+         min_edge_gap_ns = {MIN_EDGE_GAP_NS}\nmax_inject_rate_hz = {RATE_HZ}\n{extra}"
+    )
 }
 
 fn read_held(path: &Path) -> BTreeMap<String, i64> {
@@ -144,14 +119,7 @@ async fn run_box(dir: &Path) -> (BTreeMap<String, i64>, Vec<Row>) {
     let hub = Hub::start_loopback().await.unwrap();
     let cfg_path = dir.join("field.toml");
     std::fs::write(&cfg_path, field(dir, hub.local_addr().port())).unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .args(["run", "--config"])
-        .arg(&cfg_path)
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = process::start_run(&[], &cfg_path);
     // The machine: z drives 400 → 510 mm, x stands at 50 mm; TPDOs every 2 ms.
     let mut can = SocketcandBus::connect(hub.local_addr(), "can0")
         .await
@@ -264,16 +232,7 @@ net raw{k} encoder.{k}.rawcounts => replay.raw{k}\nnet counts{k} encoder.{k}.cou
         .arg(dir)
         .status()
         .unwrap();
-    let out = Command::new("flock")
-        .args(["-w", "1200", "/tmp/retrocomp-linuxcnc.lock"])
-        .args([
-            "setpriv",
-            "--reuid=65534",
-            "--regid=65534",
-            "--clear-groups",
-        ])
-        .arg("env")
-        .arg(format!("HOME={d}"))
+    let out = linuxcnc_support::nobody::one_at_a_time_as_nobody(dir)
         .args(["halrun", "-f"])
         .arg(dir.join("replay.hal"))
         .current_dir(dir)
