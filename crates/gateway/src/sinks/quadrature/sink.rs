@@ -359,4 +359,95 @@ mod tests {
         }
         check_buildable(&simulated).unwrap();
     }
+
+    struct Mem(BTreeMap<String, i64>);
+    impl HeldCounts for Mem {
+        fn load(&mut self) -> Result<Option<BTreeMap<String, i64>>, HeldError> {
+            Ok(Some(self.0.clone()))
+        }
+        fn save(&mut self, axis: &str, count: i64) -> Result<(), HeldError> {
+            self.0.insert(axis.into(), count);
+            Ok(())
+        }
+    }
+
+    /// A trace that cannot be written (`/dev/full`: every write is ENOSPC) is the
+    /// `sink.quadrature.trace` fault in the sink's status, while the counts still go out.
+    #[cfg(target_os = "linux")]
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_trace_that_cannot_be_written_is_a_fault_in_the_status() {
+        use crate::sinks::quadrature::config::QuadratureAxis;
+        use crate::sinks::quadrature::trace::TraceConfig;
+        let cfg = QuadratureSink {
+            axes: vec![QuadratureAxis {
+                axis: "x".into(),
+                resolution_um: 0.5,
+                count_sign: 1,
+                min_edge_gap_ns: 400,
+                max_inject_rate_hz: 100_000.0,
+                gpio: None,
+                simulated_native: None,
+            }],
+            state_file: None,
+            trace: Some(TraceConfig {
+                path: "/dev/full".into(),
+                max_bytes: 1_000_000,
+                buffer_edges: 1024,
+            }),
+        };
+        let limits = vec![AxisLimits {
+            axis: "x".into(),
+            max_correction_um: 50.0,
+            max_change_um_per_write: 1.0,
+        }];
+        let (out_tx, out_rx) = watch::channel(Vec::new());
+        let (status_tx, mut status_rx) = watch::channel(SinkStatus::default());
+        let (stop_tx, stop_rx) = watch::channel(None);
+        let (reseed_tx, _reseed_rx) = tokio::sync::mpsc::channel(1);
+        let (served, _served_rx) = tokio::sync::mpsc::channel(1);
+        let setup = QuadratureSetup {
+            cfg,
+            limits,
+            held: BTreeMap::new(),
+            store: Box::new(Mem(BTreeMap::new())),
+            epoch: std::time::Instant::now(),
+        };
+        let io = SinkIo {
+            out_rx,
+            reseed_tx,
+            status: status_tx,
+            stop: stop_rx,
+            served,
+        };
+        let local = tokio::task::LocalSet::new();
+        let task = local.spawn_local(quadrature_task(setup, io));
+        let faulted = async {
+            loop {
+                // One step per output; the writer fails on its first flush of the start row.
+                out_tx.send_modify(|o| {
+                    *o = vec![(retrocomp_model::Axis::X, 1.0)];
+                });
+                tokio::time::sleep(std::time::Duration::from_millis(5)).await;
+                let st = status_rx.borrow_and_update().clone();
+                if st
+                    .faults
+                    .iter()
+                    .any(|(s, k, _)| s == TRACE_SOURCE && *k == FaultKind::WriteFailed)
+                {
+                    return st;
+                }
+            }
+        };
+        let st = local
+            .run_until(tokio::time::timeout(
+                std::time::Duration::from_secs(30),
+                faulted,
+            ))
+            .await
+            .expect("no sink.quadrature.trace fault within 30 s");
+        assert_eq!(st.held_um["x"], 1.0, "the counts still go out: {st:?}");
+        // The run ends without a ramp-out: the task returns, its lines joined and the trace closed.
+        drop((out_tx, stop_tx));
+        local.run_until(task).await.unwrap();
+    }
 }
