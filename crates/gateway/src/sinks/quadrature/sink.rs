@@ -360,46 +360,20 @@ mod tests {
         check_buildable(&simulated).unwrap();
     }
 
-    struct Mem(BTreeMap<String, i64>);
-    impl HeldCounts for Mem {
-        fn load(&mut self) -> Result<Option<BTreeMap<String, i64>>, HeldError> {
-            Ok(Some(self.0.clone()))
-        }
-        fn save(&mut self, axis: &str, count: i64) -> Result<(), HeldError> {
-            self.0.insert(axis.into(), count);
-            Ok(())
-        }
-    }
-
     /// A trace that cannot be written (`/dev/full`: every write is ENOSPC) is the
     /// `sink.quadrature.trace` fault in the sink's status, while the counts still go out.
     #[cfg(target_os = "linux")]
     #[tokio::test(flavor = "current_thread")]
     async fn a_trace_that_cannot_be_written_is_a_fault_in_the_status() {
-        use crate::sinks::quadrature::config::QuadratureAxis;
+        use crate::sinks::quadrature::core::tests::{Mem, cfg, limits};
         use crate::sinks::quadrature::trace::TraceConfig;
-        let cfg = QuadratureSink {
-            axes: vec![QuadratureAxis {
-                axis: "x".into(),
-                resolution_um: 0.5,
-                count_sign: 1,
-                min_edge_gap_ns: 400,
-                max_inject_rate_hz: 100_000.0,
-                gpio: None,
-                simulated_native: None,
-            }],
-            state_file: None,
-            trace: Some(TraceConfig {
-                path: "/dev/full".into(),
-                max_bytes: 1_000_000,
-                buffer_edges: 1024,
-            }),
-        };
-        let limits = vec![AxisLimits {
-            axis: "x".into(),
-            max_correction_um: 50.0,
-            max_change_um_per_write: 1.0,
-        }];
+        let mut cfg = cfg();
+        cfg.trace = Some(TraceConfig {
+            path: "/dev/full".into(),
+            max_bytes: 1_000_000,
+            buffer_edges: 1024,
+        });
+        let limits = limits();
         let (out_tx, out_rx) = watch::channel(Vec::new());
         let (status_tx, mut status_rx) = watch::channel(SinkStatus::default());
         let (stop_tx, stop_rx) = watch::channel(None);
