@@ -2,28 +2,23 @@
 //! socketcand hub (crates/bus/src), the Studer S-36 model (seed 004), origin-shift writes to a fake PLC over
 //! Modbus TCP, `retrocomp status --json` against its HTTP endpoint, and a clean stop on SIGTERM.
 
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use retrocomp_bus::can::CanBus;
 use retrocomp_bus::can::hub::Hub;
 use retrocomp_bus::can::socketcand_bus::SocketcandBus;
-use retrocomp_bus::canopen::cia406::EncoderChannel;
 use tokio::net::TcpListener;
 
 #[path = "gateway_support/plc.rs"]
 mod plc;
 #[path = "gateway_support/process.rs"]
 mod process;
+#[path = "gateway_support/studer_can.rs"]
+mod studer_can;
 use plc::{Plc, serve};
-
-fn encoder(channel: &str, node: u8) -> EncoderChannel {
-    toml::from_str(&format!(
-        "channel = \"{channel}\"\nnode_id = {node}\ncounts_per_mm = 1000.0\n"
-    ))
-    .unwrap()
-}
+use studer_can::encoder;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn run_binary_end_to_end_over_loopback() {
@@ -36,7 +31,6 @@ async fn run_binary_end_to_end_over_loopback() {
         let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
         l.local_addr().unwrap().port()
     };
-    let root = env!("CARGO_MANIFEST_DIR");
     let dir = tempfile::tempdir().unwrap();
     let cfg_path = dir.path().join("field.toml");
     std::fs::write(
@@ -52,29 +46,7 @@ max_correction_um = 60.0
 max_change_um_per_cycle = 0.5
 ramp_um_per_s = 200.0
 stale_hold_s = 0.5
-[direction]
-deadband_mm = 0.005
-switch_time_s = 0.05
-[model]
-path = "{root}/deploy/examples/studer-s36.toml"
-[[axis]]
-name = "z"
-position_channel = "z_mm"
-[[axis]]
-name = "x"
-position_channel = "x_mm"
-[can]
-backend = "socketcand"
-host = "127.0.0.1"
-port = {hub_port}
-channel = "can0"
-[canopen]
-pdo_timeout_s = 0.1
-encoder = [
-  {{ channel = "z_mm", node_id = 1, counts_per_mm = 1000.0 }},
-  {{ channel = "x_mm", node_id = 2, counts_per_mm = 1000.0 }},
-]
-[sink.origin_shift]
+{machine}[sink.origin_shift]
 transport = {{ kind = "tcp", address = "{plc_addr}" }}
 write_period_ms = 10
 [sink.origin_shift.map]
@@ -91,19 +63,12 @@ kind = "int32"
 lsb_um = 0.1
 sign = 1
 "#,
-            hub_port = hub.local_addr().port()
+            machine = studer_can::machine_on_can(hub.local_addr().port())
         ),
     )
     .unwrap();
 
-    let mut child = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .args(["run", "--config"])
-        .arg(&cfg_path)
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = process::start_run(&[], &cfg_path);
 
     // The "machine": encoders 1 (z) and 2 (x) send their TPDO1 every 2 ms; z drives 400 → 510 mm.
     let mut can = SocketcandBus::connect(hub.local_addr(), "can0")

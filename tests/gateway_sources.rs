@@ -16,7 +16,7 @@ mod process;
 use std::collections::BTreeSet;
 use std::io::Write;
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -157,14 +157,7 @@ stale_after_s = 0.3
     )
     .unwrap();
 
-    let mut child = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .args(["run", "--dry-run", "--config"])
-        .arg(&cfg_path)
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = process::start_run(&["--dry-run"], &cfg_path);
 
     // The machine's serial side: DRO block and force line every 20 ms until told to stop.
     let talking = Arc::new(AtomicBool::new(true));

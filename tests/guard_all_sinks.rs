@@ -343,8 +343,10 @@ impl Quadrature {
                 min_edge_gap_ns: 400,
                 max_inject_rate_hz: 100_000.0,
                 gpio: None,
+                simulated_native: None,
             }],
             state_file: None,
+            trace: None,
         };
         let core = QuadratureCore::new(&cfg, &limits(), &BTreeMap::new()).unwrap();
         Quadrature {

@@ -1,7 +1,24 @@
-//! Stopping the gateway binary the way systemd does, shared by the binary-level gateway tests.
+//! Starting the gateway binary and stopping it the way systemd does, shared by the binary-level
+//! gateway tests.
 
-use std::process::{Child, Command};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
 use std::time::Duration;
+
+/// `retrocomp run [flags] --config <cfg>` with WARN logging, stderr piped (for
+/// [`stop_with_sigterm`]), stdout discarded.
+pub(crate) fn start_run(flags: &[&str], cfg: &Path) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .arg("run")
+        .args(flags)
+        .arg("--config")
+        .arg(cfg)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
 
 /// Send SIGTERM, wait up to 5 s for a clean exit (killing it and failing otherwise), assert the exit
 /// status is success, and return what the gateway wrote to stderr.

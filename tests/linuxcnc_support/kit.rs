@@ -17,6 +17,9 @@ pub(crate) const MODEL: &str = concat!(
     "/deploy/field/vmc-geometry.toml"
 );
 const NOBODY: u32 = 65534;
+
+#[path = "nobody.rs"]
+mod nobody;
 pub(crate) const AXES: [&str; 3] = ["x", "y", "z"];
 
 pub(crate) fn require_linuxcnc() {
@@ -190,16 +193,7 @@ pub(crate) fn start_linuxcnc(run: &mut Run, port: u16) {
     give_to_nobody(run.dir.path());
     let home = run.dir.path().join("home");
     let out = std::fs::File::create(run.dir.path().join("linuxcnc.out")).unwrap();
-    let child = Command::new("flock")
-        .args(["-w", "1200", "/tmp/retrocomp-linuxcnc.lock"])
-        .args([
-            "setpriv",
-            "--reuid=65534",
-            "--regid=65534",
-            "--clear-groups",
-        ])
-        .arg("env")
-        .arg(format!("HOME={}", home.display()))
+    let child = nobody::one_at_a_time_as_nobody(&home)
         .arg("linuxcnc")
         .arg(cfg.join("retrocomp-sim.ini"))
         .current_dir(&cfg)

@@ -8,6 +8,7 @@
 #![allow(dead_code)]
 
 pub(crate) mod headless;
+pub(crate) mod nobody;
 
 use std::path::Path;
 use std::process::Command;

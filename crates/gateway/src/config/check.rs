@@ -381,8 +381,15 @@ impl FieldConfig {
                     )
                 },
             )?;
+            if let Some(sim) = &a.simulated_native {
+                let key = format!("sink.quadrature.axis[{i}].simulated_native");
+                if a.gpio.is_some() {
+                    return Err((key, "no simulated scale on GPIO lines (they carry injected counts only): remove `gpio` or `simulated_native`".into()));
+                }
+                sim.check(a.min_edge_gap_ns).map_err(|what| (key, what))?;
+            }
         }
-        Ok(())
+        q.trace.as_ref().map_or(Ok(()), check_trace)
     }
 
     /// The bus sections: CANopen needs a CAN backend, then the bus module's own checks with every
@@ -461,4 +468,25 @@ impl FieldConfig {
         }
         Ok(())
     }
+}
+
+/// `[sink.quadrature.trace]`: a bounded file and a buffer the writer can keep up with.
+fn check_trace(t: &crate::sinks::quadrature::trace::TraceConfig) -> Result<(), (String, String)> {
+    use crate::sinks::quadrature::trace::{BUFFER_EDGES_RANGE, MAX_BYTES_RANGE};
+    if !MAX_BYTES_RANGE.contains(&t.max_bytes) {
+        return Err((
+            "sink.quadrature.trace.max_bytes".into(),
+            format!("expected {MAX_BYTES_RANGE:?} bytes, got {}", t.max_bytes),
+        ));
+    }
+    if !BUFFER_EDGES_RANGE.contains(&t.buffer_edges) {
+        return Err((
+            "sink.quadrature.trace.buffer_edges".into(),
+            format!(
+                "expected {BUFFER_EDGES_RANGE:?} edges, got {}",
+                t.buffer_edges
+            ),
+        ));
+    }
+    Ok(())
 }

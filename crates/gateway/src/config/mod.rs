@@ -230,8 +230,9 @@ impl FieldConfig {
         Ok(cfg)
     }
 
-    /// `[sink.quadrature] state_file`: made absolute against the config's directory, and its
-    /// directory must be writable (the held counts are persisted there before every step).
+    /// `[sink.quadrature] state_file` and `trace.path`: made absolute against the config's
+    /// directory, and their directories must be writable (the held counts are persisted there
+    /// before every step; the trace is written there).
     fn resolve_quadrature_state(&mut self, base: &Path) -> Result<(), (String, String)> {
         let Some(q) = self.sink.quadrature.as_mut() else {
             return Ok(());
@@ -240,6 +241,13 @@ impl FieldConfig {
         crate::sinks::quadrature::held::check_writable(&path)
             .map_err(|what| ("sink.quadrature.state_file".to_string(), what))?;
         q.state_file = Some(path);
+        if let Some(t) = q.trace.as_mut() {
+            if t.path.is_relative() {
+                t.path = base.join(&t.path);
+            }
+            crate::sinks::quadrature::held::check_writable(&t.path)
+                .map_err(|what| ("sink.quadrature.trace.path".to_string(), what))?;
+        }
         Ok(())
     }
 

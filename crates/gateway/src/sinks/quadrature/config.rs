@@ -1,6 +1,8 @@
 //! The `[sink.quadrature]` section of the field file: per axis the count resolution and sign, the
 //! receiver's edge limits and, for the `gpio` feature, the two output lines. Units: µm per count,
-//! ns, Hz. `state_file`: where the counts the controller holds are persisted ([`super::held`]).
+//! ns, Hz. `state_file`: where the counts the controller holds are persisted ([`super::held`]);
+//! `[sink.quadrature.trace]`: the edge trace ([`super::trace`]); per axis `simulated_native`: a
+//! simulated scale for the simulated sink ([`super::native`]).
 
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -17,6 +19,9 @@ pub struct QuadratureSink {
     /// default [`DEFAULT_STATE_FILE`]. Delete it after homing or power-cycling the controller.
     #[serde(default)]
     pub state_file: Option<PathBuf>,
+    /// The edge trace: every level the injector threads write (absent: no trace).
+    #[serde(default)]
+    pub trace: Option<super::trace::TraceConfig>,
 }
 
 impl QuadratureSink {
@@ -44,6 +49,9 @@ pub struct QuadratureAxis {
     /// GPIO lines (chip, A offset, B offset) for the `gpio` feature; None = simulated.
     #[serde(default)]
     pub gpio: Option<GpioLines>,
+    /// Simulated sink only: a simulated scale's native edges merged with the injected ones.
+    #[serde(default)]
+    pub simulated_native: Option<super::native::SimulatedNative>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -159,11 +159,12 @@ impl QuadratureCore {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::sinks::quadrature::config::QuadratureAxis;
 
-    struct Mem(BTreeMap<String, i64>);
+    /// Held counts in memory (the sink's tests use it too).
+    pub(crate) struct Mem(pub(crate) BTreeMap<String, i64>);
     impl HeldCounts for Mem {
         fn load(&mut self) -> Result<Option<BTreeMap<String, i64>>, HeldError> {
             Ok(Some(self.0.clone()))
@@ -174,7 +175,8 @@ mod tests {
         }
     }
 
-    fn cfg() -> QuadratureSink {
+    /// One axis x: 0.5 µm counts, 400 ns gap, 100 kHz, simulated, no trace.
+    pub(crate) fn cfg() -> QuadratureSink {
         QuadratureSink {
             axes: vec![QuadratureAxis {
                 axis: "x".into(),
@@ -183,12 +185,15 @@ mod tests {
                 min_edge_gap_ns: 400,
                 max_inject_rate_hz: 100_000.0,
                 gpio: None,
+                simulated_native: None,
             }],
             state_file: None,
+            trace: None,
         }
     }
 
-    fn limits() -> Vec<AxisLimits> {
+    /// x: clamp 50 µm, cap 1 µm per write.
+    pub(crate) fn limits() -> Vec<AxisLimits> {
         vec![AxisLimits {
             axis: "x".into(),
             max_correction_um: 50.0,

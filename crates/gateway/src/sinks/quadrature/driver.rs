@@ -61,3 +61,31 @@ where
 fn set<P: OutputPin>(p: &mut P, high: bool) -> Result<(), P::Error> {
     if high { p.set_high() } else { p.set_low() }
 }
+
+/// A line that only holds its level: the simulated sink's pins (no GPIO), so the simulated sink runs
+/// the same injector thread as the `gpio` build and its trace is what that thread wrote.
+#[derive(Debug, Default)]
+pub struct SimulatedPin {
+    high: bool,
+}
+
+impl SimulatedPin {
+    pub fn is_high(&self) -> bool {
+        self.high
+    }
+}
+
+impl embedded_hal::digital::ErrorType for SimulatedPin {
+    type Error = core::convert::Infallible;
+}
+
+impl OutputPin for SimulatedPin {
+    fn set_low(&mut self) -> Result<(), Self::Error> {
+        self.high = false;
+        Ok(())
+    }
+    fn set_high(&mut self) -> Result<(), Self::Error> {
+        self.high = true;
+        Ok(())
+    }
+}

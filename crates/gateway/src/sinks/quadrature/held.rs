@@ -139,8 +139,7 @@ pub fn check_writable(path: &Path) -> Result<(), String> {
         .and_then(|_| std::fs::remove_file(&probe))
         .map_err(|e| {
             format!(
-                "a file in a writable directory (the held counts are persisted there); {} is not \
-                 writable: {e}",
+                "a file in a writable directory; {} is not writable: {e}",
                 dir.display()
             )
         })

@@ -1,6 +1,7 @@
 //! The real-time shell around the edge scheduler: a thread that owns the A/B output pins, takes
-//! injection deltas (whole counts) from the gateway's cycle through a channel, and writes each owed
-//! edge when it falls due.
+//! injection deltas (whole counts) from the gateway's cycle and native edges (the simulated scale,
+//! [`super::native`]) through a channel ([`Feed`]), and writes each owed edge when it falls due.
+//! With an [`EdgeTrace`] it records every level it put on the lines, right where it wrote them.
 //!
 //! Generic over `embedded_hal::digital::OutputPin`, so the same loop drives `CdevPin`s (cargo feature
 //! `gpio`, see [`super::gpio`]) and the recording pins of the tests. Time is the thread's monotonic
@@ -18,13 +19,24 @@ use std::time::{Duration, Instant};
 use embedded_hal::digital::OutputPin;
 
 use super::driver::{PinError, QuadraturePins};
-use super::scheduler::{EdgeScheduler, Source};
+use super::gray::Step;
+use super::scheduler::{EdgeScheduler, Source, Transition};
+use super::trace::{EdgeTrace, TraceSource};
 
 /// Sleep when the next edge is further away than this; spin closer to it (sleep overshoots by
 /// ~50–100 µs on a stock kernel).
 const SPIN_WINDOW_NS: u64 = 200_000;
 /// How long the idle thread waits for a delta before looking again.
 const IDLE_WAIT: Duration = Duration::from_millis(50);
+
+/// What the injector thread is fed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Feed {
+    /// Counts to inject (a delta of the target, signed).
+    Inject(i64),
+    /// A native edge arrived from the scale.
+    Native(Step),
+}
 
 /// What the injector has done so far.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -65,18 +77,30 @@ where
         self.sched.add_inject_counts(delta);
     }
 
+    fn feed(&mut self, f: Feed) {
+        match f {
+            Feed::Inject(d) => self.sched.add_inject_counts(d),
+            Feed::Native(step) => self.sched.native_edge(step),
+        }
+    }
+
+    /// Levels the lines hold now.
+    pub fn levels(&self) -> (bool, bool) {
+        self.pins.levels()
+    }
+
     /// Earliest time the next edge may be written, if one is owed.
     pub fn next_due_ns(&self) -> Option<u64> {
         self.sched.next_due_ns()
     }
 
-    /// Write the edge due at `now_ns`, if any, and say where it came from.
-    pub fn service(&mut self, now_ns: u64) -> Result<Option<Source>, PinError<E>> {
+    /// Write the edge due at `now_ns`, if any, and return it (its levels are the lines' now).
+    pub fn service(&mut self, now_ns: u64) -> Result<Option<Transition>, PinError<E>> {
         match self.sched.poll(now_ns) {
             Some(tr) => {
                 self.pins.apply(&tr)?;
                 self.edges += 1;
-                Ok(Some(tr.source))
+                Ok(Some(tr))
             }
             None => Ok(None),
         }
@@ -105,21 +129,41 @@ where
     }
 }
 
-/// Run the injector on the calling thread until the delta channel closes and every owed count has
-/// been written (so a stop after the gateway's ramp to zero leaves the controller where it should
-/// be). `report` is called after every batch of deltas and when the loop ends.
+/// Run the injector on the calling thread until the feed closes and every owed edge has been
+/// written (so a stop after the gateway's ramp to zero leaves the controller where it should
+/// be). `report` is called after every batch of the feed and when the loop ends.
 pub fn run_injector<A, B, E>(
-    mut inj: Injector<A, B>,
-    deltas: Receiver<i64>,
-    mut report: impl FnMut(InjectorCounts),
+    inj: Injector<A, B>,
+    feed: Receiver<Feed>,
+    report: impl FnMut(InjectorCounts),
 ) -> Result<Injector<A, B>, PinError<E>>
 where
     A: OutputPin<Error = E>,
     B: OutputPin<Error = E>,
     E: core::fmt::Debug,
 {
-    let start = Instant::now();
+    run_injector_traced(inj, feed, report, Instant::now(), None)
+}
+
+/// [`run_injector`] on the clock started at `start` (shared by the sink's axes), recording every
+/// level written to the lines into `trace`: first the levels at takeover, then one row per edge
+/// with the time it was polled at (just before its pin write).
+pub fn run_injector_traced<A, B, E>(
+    mut inj: Injector<A, B>,
+    deltas: Receiver<Feed>,
+    mut report: impl FnMut(InjectorCounts),
+    start: Instant,
+    trace: Option<EdgeTrace>,
+) -> Result<Injector<A, B>, PinError<E>>
+where
+    A: OutputPin<Error = E>,
+    B: OutputPin<Error = E>,
+    E: core::fmt::Debug,
+{
     let now_ns = || start.elapsed().as_nanos() as u64;
+    if let Some(t) = &trace {
+        t.record(now_ns(), inj.levels(), TraceSource::Start);
+    }
     // No poll before one gap (one rate interval after an injected edge) after the previous write
     // returned (see the module comment).
     let mut not_before_ns = 0u64;
@@ -138,8 +182,8 @@ where
                 })
             };
             match msg {
-                Ok(d) => {
-                    inj.add_inject_counts(d);
+                Ok(f) => {
+                    inj.feed(f);
                     got = true;
                 }
                 Err(RecvTimeoutError::Timeout) => break,
@@ -170,8 +214,11 @@ where
             }
             continue;
         }
-        if let Some(source) = inj.service(now)? {
-            not_before_ns = now_ns() + inj.spacing_after_ns(source);
+        if let Some(tr) = inj.service(now)? {
+            if let Some(t) = &trace {
+                t.record(tr.t_ns, (tr.a, tr.b), tr.source.into());
+            }
+            not_before_ns = now_ns() + inj.spacing_after_ns(tr.source);
         }
     }
 }
@@ -256,7 +303,7 @@ mod tests {
         let (tx, rx) = std::sync::mpsc::channel();
         let worker = std::thread::spawn(move || run_injector(inj, rx, |_| {}));
         for d in [5, -2, 7, 0, -13] {
-            tx.send(d).unwrap();
+            tx.send(Feed::Inject(d)).unwrap();
             std::thread::sleep(Duration::from_millis(1));
         }
         drop(tx);
@@ -279,7 +326,7 @@ mod tests {
         let log = Log::default();
         let inj = injector(400, 20_000.0, &log);
         let (tx, rx) = std::sync::mpsc::channel();
-        tx.send(40).unwrap();
+        tx.send(Feed::Inject(40)).unwrap();
         drop(tx);
         let inj = run_injector(inj, rx, |_| {}).unwrap();
         assert_eq!(inj.counts().injected, 40);

@@ -16,7 +16,8 @@
 //! decoder), [`scheduler`] (pure edge scheduler merging native and injected edges under the gap and
 //! rate limits), [`driver`] (writes the schedule to two `embedded_hal::digital::OutputPin`s),
 //! [`injector`] (the real-time thread that writes owed edges when due), `gpio` (cargo feature `gpio`:
-//! the pins are Linux GPIO character-device lines).
+//! the pins are Linux GPIO character-device lines), [`trace`] (the edge trace the injector threads
+//! write: what they put on the lines), [`native`] (a simulated scale for the simulated sink).
 
 pub mod config;
 pub mod core;
@@ -27,11 +28,14 @@ pub mod gpio;
 pub mod gray;
 pub mod held;
 pub mod injector;
+pub mod lines;
+pub mod native;
 pub mod scheduler;
 pub mod sink;
+pub mod trace;
 
 pub use counts::CountQuantizer;
 pub use driver::QuadraturePins;
 pub use gray::{DecodeError, QuadDecoder, Step, levels_of_phase};
-pub use injector::{Injector, InjectorCounts, run_injector};
+pub use injector::{Feed, Injector, InjectorCounts, run_injector, run_injector_traced};
 pub use scheduler::{EdgeScheduler, Event, SchedulerConfig, Source, Transition, simulate};

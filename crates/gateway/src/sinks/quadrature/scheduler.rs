@@ -17,6 +17,10 @@ use std::collections::VecDeque;
 
 use super::gray::{Step, levels_of_phase};
 
+/// Native edges the backlog holds without allocating (the injector thread must not allocate; an
+/// in-spec encoder never queues more than one or two).
+pub const NATIVE_BACKLOG_PREALLOC: usize = 1024;
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SchedulerConfig {
     /// Minimum separation between any two output edges, ns.
@@ -90,7 +94,7 @@ impl EdgeScheduler {
             position: 0,
             last_out_ns: None,
             last_inject_ns: None,
-            pending_native: VecDeque::new(),
+            pending_native: VecDeque::with_capacity(NATIVE_BACKLOG_PREALLOC),
             injected_total: 0,
             inject_target: 0,
             native_total: 0,

@@ -1,7 +1,9 @@
 //! The quadrature sink: per axis, the cycle's correction (µm, = −error) becomes whole counts
-//! ([`CountQuantizer`]: sign, resolution, carried residual) and goes to that axis's injector — a GPIO
-//! thread (`gpio` lines configured, cargo feature `gpio`) or the scheduler run in simulation (no
-//! lines configured: counts and edges are planned exactly as for GPIO, without pins).
+//! ([`CountQuantizer`]: sign, resolution, carried residual) and goes to that axis's injector thread
+//! ([`super::lines`]) — on GPIO lines (`gpio` configured, cargo feature `gpio`) or on simulated
+//! pins (no lines configured: the same thread and timing, nothing leaves the process). With
+//! `[sink.quadrature.trace]` every level those threads write is traced ([`super::trace`]); a lost
+//! trace entry or a failed trace write is a `sink.quadrature.trace` `WriteFailed` fault.
 //!
 //! Restart (pulses have no read-back): the counts the controller holds are persisted per axis in
 //! `state_file` ([`super::held`]), written ahead of every step's edges. [`Sink::start`] reads them:
@@ -23,14 +25,15 @@
 use std::collections::BTreeMap;
 use tokio::sync::watch;
 
-use super::config::{QuadratureAxis, QuadratureSink};
+use super::config::QuadratureSink;
 use super::core::QuadratureCore;
 use super::held::{FileHeldCounts, HeldCounts, HeldError};
+use super::lines::Lines;
 use crate::sinks::guard::AxisLimits;
 use crate::sinks::origin_shift::sink_task::{SinkSources, update_sink_faults};
-use crate::sinks::quadrature::{CountQuantizer, EdgeScheduler, SchedulerConfig, simulate};
+use crate::sinks::quadrature::CountQuantizer;
 use crate::sinks::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
-use retrocomp_bus::fault::FaultLog;
+use retrocomp_bus::fault::{FaultKind, FaultLog, FaultSource};
 use retrocomp_model::error::Chain;
 
 /// Period of the stop ramp-out's steps (no cycle runs then), ms.
@@ -38,6 +41,9 @@ pub const RAMP_PERIOD_MS: u64 = 10;
 
 /// The sink's fault source (`<SOURCE>.<axis>` per axis).
 pub const SOURCE: &str = "sink.quadrature";
+
+/// The edge trace's fault source: entries lost (buffer full) or the file could not be written.
+pub const TRACE_SOURCE: &str = "sink.quadrature.trace";
 
 /// Refuse GPIO lines this build cannot drive.
 pub fn check_buildable(q: &QuadratureSink) -> Result<(), SinkError> {
@@ -52,91 +58,6 @@ pub fn check_buildable(q: &QuadratureSink) -> Result<(), SinkError> {
         }
     }
     Ok(())
-}
-
-/// Where one axis's counts go.
-enum AxisInjector {
-    Simulated(EdgeScheduler),
-    #[cfg(all(feature = "gpio", target_os = "linux"))]
-    Gpio {
-        deltas: std::sync::mpsc::Sender<i64>,
-        counts: std::sync::Arc<std::sync::Mutex<crate::sinks::quadrature::InjectorCounts>>,
-    },
-}
-
-impl AxisInjector {
-    /// Open at `held` counts: the lines start at that phase's levels.
-    fn open(a: &QuadratureAxis, held: i64) -> Result<Self, SinkError> {
-        let sched = EdgeScheduler::new(SchedulerConfig {
-            min_edge_gap_ns: a.min_edge_gap_ns,
-            max_inject_rate_hz: a.max_inject_rate_hz,
-        })
-        .map_err(|e| SinkError::setup(format!("sink.quadrature axis {}", a.axis), e))?
-        .starting_at(held);
-        match &a.gpio {
-            None => Ok(Self::Simulated(sched)),
-            #[cfg(all(feature = "gpio", target_os = "linux"))]
-            Some(lines) => {
-                use crate::sinks::quadrature::{Injector, InjectorCounts, run_injector};
-                let (pin_a, pin_b) =
-                    crate::sinks::quadrature::gpio::open_output_pins(lines, sched.levels())
-                        .map_err(|e| {
-                            SinkError::setup(format!("sink.quadrature axis {}", a.axis), e)
-                        })?;
-                let inj = Injector::new(sched, pin_a, pin_b)
-                    .map_err(|e| SinkError::Refused(format!("axis {}: {e}", a.axis)))?;
-                let (tx, rx) = std::sync::mpsc::channel();
-                let counts = std::sync::Arc::new(std::sync::Mutex::new(InjectorCounts::default()));
-                let shared = counts.clone();
-                let axis = a.axis.clone();
-                std::thread::Builder::new()
-                    .name(format!("quadrature-{axis}"))
-                    .spawn(move || {
-                        let report = |c| *shared.lock().unwrap_or_else(|p| p.into_inner()) = c;
-                        if let Err(e) = run_injector(inj, rx, report) {
-                            tracing::error!(axis, %e, "GPIO injector stopped");
-                        }
-                    })
-                    .map_err(|e| SinkError::setup("spawning the injector thread", e))?;
-                Ok(Self::Gpio { deltas: tx, counts })
-            }
-            #[cfg(not(all(feature = "gpio", target_os = "linux")))]
-            Some(_) => Err(SinkError::Refused(format!(
-                "sink.quadrature axis {}: this build has no GPIO support (feature `gpio`)",
-                a.axis
-            ))),
-        }
-    }
-
-    /// Hand over `delta` counts; false if the injector is gone.
-    fn inject(&mut self, delta: i64) -> bool {
-        match self {
-            Self::Simulated(sched) => {
-                sched.add_inject_counts(delta);
-                let _ = simulate(sched, &[]);
-                true
-            }
-            #[cfg(all(feature = "gpio", target_os = "linux"))]
-            Self::Gpio { deltas, .. } => deltas.send(delta).is_ok(),
-        }
-    }
-
-    fn kind(&self) -> &'static str {
-        match self {
-            Self::Simulated(_) => "quadrature (simulated)",
-            #[cfg(all(feature = "gpio", target_os = "linux"))]
-            Self::Gpio { .. } => "quadrature (gpio)",
-        }
-    }
-
-    /// Counts requested but not yet written to the lines.
-    fn owed(&self) -> i64 {
-        match self {
-            Self::Simulated(s) => s.inject_remaining(),
-            #[cfg(all(feature = "gpio", target_os = "linux"))]
-            Self::Gpio { counts, .. } => counts.lock().map(|c| c.owed).unwrap_or(0),
-        }
-    }
 }
 
 /// Read the persisted counts: per configured axis the held count (0 when none is persisted) and
@@ -273,19 +194,17 @@ pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
         Ok(c) => c,
         Err(e) => return refuse(&status, &e),
     };
-    let mut injectors = Vec::new();
-    for a in &q.axes {
-        match AxisInjector::open(a, held.get(&a.axis).copied().unwrap_or(0)) {
-            Ok(inj) => injectors.push(inj),
-            Err(e) => return refuse(&status, &e),
-        }
-    }
+    let mut lines = match Lines::open(&q, &held) {
+        Ok(l) => l,
+        Err(e) => return refuse(&status, &e),
+    };
     let mut st = SinkStatus {
-        kind: injectors.first().map_or("quadrature", |i| i.kind()).into(),
+        kind: lines.kind().into(),
         connected: true,
         ..Default::default()
     };
     let sources = SinkSources::named(SOURCE, core.axis_names());
+    let trace_source = FaultSource::named(TRACE_SOURCE);
     let mut faults = FaultLog::default();
     let mut stop_by: Option<std::time::Instant> = None;
     let mut ramp = tokio::time::interval(std::time::Duration::from_millis(RAMP_PERIOD_MS));
@@ -329,16 +248,23 @@ pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
         let outs = out_rx.borrow().clone();
         step_axes(
             &mut core,
-            &mut injectors,
+            &mut lines,
             &outs,
             stop_by.is_some(),
             store.as_mut(),
             &mut st,
         );
         let now_s = epoch.elapsed().as_secs_f64();
-        let events = update_sink_faults(&mut faults, &sources, core.faults(), st.connected, now_s);
+        let mut events =
+            update_sink_faults(&mut faults, &sources, core.faults(), st.connected, now_s);
+        let trace_lost = lines.trace_lost();
+        let trace_kinds: &[FaultKind] = match trace_lost {
+            Some((dropped, failed)) if dropped > 0 || failed => &[FaultKind::WriteFailed],
+            _ => &[],
+        };
+        events.extend(faults.update(&trace_source, trace_kinds, now_s));
         for e in events.iter().filter(|e| e.started) {
-            tracing::warn!(source = e.source.as_str(), kind = ?e.kind, held_um = ?st.held_um, "quadrature sink fault");
+            tracing::warn!(source = e.source.as_str(), kind = ?e.kind, held_um = ?st.held_um, ?trace_lost, "quadrature sink fault");
         }
         if !events.is_empty() {
             st.faults = faults.active_by_name();
@@ -351,13 +277,13 @@ pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
 /// axis without an output while stopping), then the status and the axes' held values.
 fn step_axes(
     core: &mut QuadratureCore,
-    injectors: &mut [AxisInjector],
+    lines: &mut Lines,
     outs: &[(retrocomp_model::Axis, f64)],
     stopping: bool,
     store: &mut dyn HeldCounts,
     st: &mut SinkStatus,
 ) {
-    for (i, inj) in injectors.iter_mut().enumerate() {
+    for i in 0..core.len() {
         let Some(axis) = core.axis(i) else { continue };
         let want = match outs.iter().find(|(a, _)| *a == axis) {
             Some((_, v)) => *v,
@@ -365,7 +291,7 @@ fn step_axes(
             None => continue,
         };
         match core.step(i, want, store) {
-            Ok(d) if inj.inject(d) => st.writes_ok += 1,
+            Ok(d) if lines.inject(i, d) => st.writes_ok += 1,
             Ok(_) => {
                 st.writes_failed += 1;
                 st.connected = false;
@@ -376,12 +302,12 @@ fn step_axes(
                 st.last_error = Some(format!("axis {axis}: {}", Chain(&e)));
             }
         }
-        if inj.owed() == 0 {
+        if lines.owed(i) == 0 {
             core.settled(i);
         } else {
             tracing::debug!(
                 axis = axis.name(),
-                owed = inj.owed(),
+                owed = lines.owed(i),
                 "counts still owed to the lines"
             );
         }
@@ -432,5 +358,70 @@ mod tests {
             a.gpio = None;
         }
         check_buildable(&simulated).unwrap();
+    }
+
+    /// A trace that cannot be written (`/dev/full`: every write is ENOSPC) is the
+    /// `sink.quadrature.trace` fault in the sink's status, while the counts still go out.
+    #[cfg(target_os = "linux")]
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_trace_that_cannot_be_written_is_a_fault_in_the_status() {
+        use crate::sinks::quadrature::core::tests::{Mem, cfg, limits};
+        use crate::sinks::quadrature::trace::TraceConfig;
+        let mut cfg = cfg();
+        cfg.trace = Some(TraceConfig {
+            path: "/dev/full".into(),
+            max_bytes: 1_000_000,
+            buffer_edges: 1024,
+        });
+        let limits = limits();
+        let (out_tx, out_rx) = watch::channel(Vec::new());
+        let (status_tx, mut status_rx) = watch::channel(SinkStatus::default());
+        let (stop_tx, stop_rx) = watch::channel(None);
+        let (reseed_tx, _reseed_rx) = tokio::sync::mpsc::channel(1);
+        let (served, _served_rx) = tokio::sync::mpsc::channel(1);
+        let setup = QuadratureSetup {
+            cfg,
+            limits,
+            held: BTreeMap::new(),
+            store: Box::new(Mem(BTreeMap::new())),
+            epoch: std::time::Instant::now(),
+        };
+        let io = SinkIo {
+            out_rx,
+            reseed_tx,
+            status: status_tx,
+            stop: stop_rx,
+            served,
+        };
+        let local = tokio::task::LocalSet::new();
+        let task = local.spawn_local(quadrature_task(setup, io));
+        let faulted = async {
+            loop {
+                // One step per output; the writer fails on its first flush of the start row.
+                out_tx.send_modify(|o| {
+                    *o = vec![(retrocomp_model::Axis::X, 1.0)];
+                });
+                tokio::time::sleep(std::time::Duration::from_millis(5)).await;
+                let st = status_rx.borrow_and_update().clone();
+                if st
+                    .faults
+                    .iter()
+                    .any(|(s, k, _)| s == TRACE_SOURCE && *k == FaultKind::WriteFailed)
+                {
+                    return st;
+                }
+            }
+        };
+        let st = local
+            .run_until(tokio::time::timeout(
+                std::time::Duration::from_secs(30),
+                faulted,
+            ))
+            .await
+            .expect("no sink.quadrature.trace fault within 30 s");
+        assert_eq!(st.held_um["x"], 1.0, "the counts still go out: {st:?}");
+        // The run ends without a ramp-out: the task returns, its lines joined and the trace closed.
+        drop((out_tx, stop_tx));
+        local.run_until(task).await.unwrap();
     }
 }
