@@ -177,9 +177,9 @@ mod tests {
     #[test]
     fn one_cycle_per_slot_never_two_periods_apart_and_no_arrival_waits_a_period() {
         // Arrivals at awkward rates and phases, a burst, a silence.
-        let mut arrivals: Vec<f64> = (0..200).map(|k| 0.3e-3 + k as f64 * 0.77e-3).collect();
-        arrivals.extend((0..100).map(|k| 0.05e-3 + k as f64 * 2.31e-3));
-        arrivals.extend((0..50).map(|k| 0.4 + k as f64 * 1e-6));
+        let mut arrivals: Vec<f64> = (0..200).map(|k| 0.3e-3 + f64::from(k) * 0.77e-3).collect();
+        arrivals.extend((0..100).map(|k| 0.05e-3 + f64::from(k) * 2.31e-3));
+        arrivals.extend((0..50).map(|k| 0.4 + f64::from(k) * 1e-6));
         arrivals.sort_by(f64::total_cmp);
         let (runs, waits) = drive(&arrivals, 0.6);
         for n in [1usize, 2, 5, 50] {
@@ -206,7 +206,7 @@ mod tests {
     #[test]
     fn a_source_no_faster_than_the_cycle_triggers_its_cycle_at_once() {
         for (rate, phase) in [(1.0, 0.3), (1.5, 0.05), (2.31, 0.9), (7.0, 0.5)] {
-            let arrivals: Vec<f64> = (0..300).map(|k| (phase + k as f64 * rate) * P).collect();
+            let arrivals: Vec<f64> = (0..300).map(|k| (phase + f64::from(k) * rate) * P).collect();
             let (_, waits) = drive(&arrivals, 300.0 * rate * P);
             assert_eq!(waits.len(), arrivals.len());
             let worst = waits.iter().copied().fold(0.0, f64::max);
