@@ -43,6 +43,14 @@ fn backlash_found(report: &Report, t: &Truth) -> bool {
     })
 }
 
+/// The findings as `effect params`, for failure messages.
+fn listed(r: &Report) -> Vec<String> {
+    r.findings
+        .iter()
+        .map(|f| format!("{} {:?}", f.effect, f.params))
+        .collect()
+}
+
 fn run(rec: &Recording) -> Report {
     diagnose(rec, &Options::default())
         .expect("diagnose runs")
@@ -59,11 +67,7 @@ fn pitch_recall(seed: u64, n: usize) -> (usize, Vec<String>) {
         if pitch_found(&r, &t).is_some() {
             hits += 1;
         } else {
-            let got: Vec<String> = r
-                .findings
-                .iter()
-                .map(|f| format!("{} {:?}", f.effect, f.params))
-                .collect();
+            let got = listed(&r);
             misses.push(format!(
                 "pitch seed {seed} case {i}: period {:.3} mm, amplitude {:.2}, harmonic {:.2}, \
                  min step {:.3} mm, effect/noise {:.2}: verdict {}, found {got:?}",
@@ -142,10 +146,7 @@ fn step_and_dwell_offers_no_servo_lag_and_ar099_backlash_is_found_at_effect_nois
                 "case {i}: b {:.2} µm: verdict {}, {:?}",
                 t.b_um,
                 r.verdict,
-                r.findings
-                    .iter()
-                    .map(|f| format!("{} {:?}", f.effect, f.params))
-                    .collect::<Vec<_>>()
+                listed(&r)
             ));
         }
     }
@@ -175,10 +176,7 @@ fn benchmark() {
                     t.harmonic2_um,
                     t.min_step_mm,
                     t.snr,
-                    r.findings
-                        .iter()
-                        .map(|f| format!("{} {:?}", f.effect, f.params))
-                        .collect::<Vec<_>>()
+                    listed(&r)
                 );
             }
         }
@@ -197,7 +195,17 @@ fn benchmark() {
             let hits = (0..n)
                 .filter(|&i| {
                     let (rec, t) = ar099_backlash_case(seed, i, snr);
-                    backlash_found(&run(&rec), &t)
+                    let r = run(&rec);
+                    let found = backlash_found(&r, &t);
+                    if !found {
+                        eprintln!(
+                            "miss: ar099 backlash seed {seed} case {i} effect/noise {snr}: b {:.2} µm, verdict {}, {:?}",
+                            t.b_um,
+                            r.verdict,
+                            listed(&r)
+                        );
+                    }
+                    found
                 })
                 .count();
             println!("ar099 backlash seed {seed} effect/noise {snr}: {hits}/{n}");

@@ -82,7 +82,7 @@ impl Rows {
 
 /// Pitch case `index` of `seed`: the recording and its truth.
 pub(crate) fn pitch_case(seed: u64, index: usize) -> (Recording, Truth) {
-    let mut rng = rng_for(0x5717_c4, seed, index);
+    let mut rng = rng_for(0x0057_17c4, seed, index);
     let period: f64 = rng.random_range(3.0..12.0);
     let amp: f64 = rng.random_range(1.0..4.0);
     let phase: f64 = rng.random_range(-3.1..3.1);
@@ -167,7 +167,7 @@ pub(crate) fn pitch_recording(
 /// AR(0.99) step-and-dwell backlash case `index` of `seed` at effect/noise `snr` (b/2 over the
 /// noise's stationary σ).
 pub(crate) fn ar099_backlash_case(seed: u64, index: usize, snr: f64) -> (Recording, Truth) {
-    let mut rng = rng_for(0xba_c41a, seed, index);
+    let mut rng = rng_for(0x00ba_c41a, seed, index);
     let b_um: f64 = rng.random_range(2.0..8.0) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
     let mut rows = Rows::default();
     let mut now = 0.0;

@@ -93,6 +93,8 @@ pub enum EffectModel {
     TimeDrift { um_per_h: f64 },
 }
 
+// serde's `skip_serializing_if` hands the field by reference.
+#[allow(clippy::trivially_copy_pass_by_ref)]
 fn is_zero(v: &f64) -> bool {
     *v == 0.0
 }
