@@ -21,9 +21,16 @@ impl Scored {
 impl Selector<'_> {
     /// The periodogram's peaks are compared at their refined periods: a cyclic error with its
     /// second harmonic at twice a pure period P would otherwise beat the single period on the
-    /// grid's discretisation alone (its harmonic samples frequency twice as finely).
+    /// grid's discretisation alone (its harmonic samples frequency twice as finely). Peaks below
+    /// the ΔBIC bar keep their grid value.
     pub(super) fn refine_cyclic_peaks(&self, scored: &mut [Scored], nulls: &Nulls<'_>, n_eff: f64) {
-        for s in scored.iter_mut().filter(|s| self.lib[s.idx].is_cyclic()) {
+        // Only peaks that pass the bar can win; the others are not worth their evaluations (each
+        // is a sin/cos per distinct position and a projection over every row).
+        let bar = self.opts.min_delta_bic;
+        for s in scored
+            .iter_mut()
+            .filter(|s| self.lib[s.idx].is_cyclic() && s.delta_bic > bar)
+        {
             let nl = nulls.of(s.cells);
             *s = self.refine(std::mem::replace(s, Scored::placeholder()), nl, n_eff);
         }
