@@ -120,6 +120,8 @@ pub(crate) fn draw_effect(rng: &mut ChaCha8Rng, id: &str, x_range: (f64, f64)) -
             period_mm: uniform(rng, 5.0, 25.0),
             amplitude_um: uniform(rng, 1.0, 5.0),
             phase_rad: uniform(rng, -3.1, 3.1),
+            harmonic2_um: 0.0,
+            harmonic2_phase_rad: 0.0,
         }),
         "squareness" => ex(EffectModel::Squareness {
             other_axis: 'y',

@@ -3,32 +3,52 @@
 //! linear parameters in contract units (µm per column unit). Nonlinear parameters (τ, period, decay
 //! length) are a scalar `theta` searched on `grid` (profile) and then refined.
 
-use std::f64::consts::TAU;
+mod periods;
 
 use super::effects::EffectModel;
 use super::features::{AxisFeatures, Context, lowpass};
+pub use periods::{MIN_PITCH_MM, shortest_period};
+use periods::{cyclic_columns, period_grid};
 use retrocomp_model::recording::AXES;
 
 /// Number of equal zones of a `reversal_profile` over the axis' travel.
 pub const REVERSAL_ZONES: usize = 4;
 
-/// Fewest rows with the axis moving for `servo_lag` to be a candidate (a handful of moving rows
-/// cannot separate a velocity term from the direction or position terms).
+/// Fewest rows read at a steady commanded feed ([`steady_rows`]) for `servo_lag` to be a
+/// candidate (a handful cannot separate a velocity term from the direction or position terms).
 pub const MIN_MOVING_ROWS: usize = 8;
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum Kind {
     Scale,
     Backlash,
-    ReversalProfile { edges_mm: Vec<f64> },
+    ReversalProfile {
+        edges_mm: Vec<f64>,
+    },
     Cyclic,
-    Squareness { other: char },
-    Straightness { along: char, mid_mm: f64 },
+    /// A cyclic error with its second harmonic: one fundamental period, two sin/cos pairs (a
+    /// lead-screw pitch error is rarely a pure sine; its harmonic alone can alias to a false period).
+    CyclicHarmonic,
+    Squareness {
+        other: char,
+    },
+    Straightness {
+        along: char,
+        mid_mm: f64,
+    },
     Abbe,
-    ThermalDrift { sensor: String },
-    ThermalLag { sensor: String },
-    ThermalExpansion { sensor: String },
-    Force { channel: String },
+    ThermalDrift {
+        sensor: String,
+    },
+    ThermalLag {
+        sensor: String,
+    },
+    ThermalExpansion {
+        sensor: String,
+    },
+    Force {
+        channel: String,
+    },
     ServoLag,
     ReversalSpike,
     TimeDrift,
@@ -91,6 +111,11 @@ impl Candidate {
         )
     }
 
+    /// A cyclic error (with or without its second harmonic).
+    pub fn is_cyclic(&self) -> bool {
+        matches!(self.kind, Kind::Cyclic | Kind::CyclicHarmonic)
+    }
+
     pub fn is_nonlinear(&self) -> bool {
         !self.grid.is_empty()
     }
@@ -111,6 +136,11 @@ impl Candidate {
             Kind::Backlash => vec![own().dir.iter().map(|&d| f64::from(d) / 2.0).collect()],
             Kind::ReversalProfile { edges_mm } => reversal_zone_columns(own(), edges_mm),
             Kind::Cyclic => cyclic_columns(own(), theta),
+            Kind::CyclicHarmonic => {
+                let mut cols = cyclic_columns(own(), theta);
+                cols.extend(cyclic_columns(own(), theta / 2.0));
+                cols
+            }
             Kind::Squareness { other } => {
                 vec![
                     ctx.axis(*other)
@@ -177,50 +207,6 @@ impl Candidate {
         }
     }
 
-    /// [`Candidate::columns`] at every θ of `thetas`, in order, handed to `f`. For a cyclic
-    /// candidate on a grid uniform in frequency ([`period_grid`]) the sin/cos pair of the next
-    /// period is the previous one rotated by a fixed angle per distinct position (one complex
-    /// multiply instead of two transcendental calls: the period grid's sin/cos were most of the
-    /// time of a 1M-row diagnosis); other candidates and other grids call `columns`.
-    pub fn columns_sweep(
-        &self,
-        ctx: &Context,
-        thetas: &[f64],
-        mut f: impl FnMut(f64, Vec<Vec<f64>>),
-    ) {
-        let w: Vec<f64> = thetas.iter().map(|p| TAU / p).collect();
-        let dw = if w.len() >= 3 { w[1] - w[0] } else { 0.0 };
-        let uniform = self.kind == Kind::Cyclic
-            && dw != 0.0
-            && w.windows(2)
-                .all(|p| ((p[1] - p[0]) - dw).abs() <= 1e-9 * w[0].abs());
-        if !uniform {
-            thetas.iter().for_each(|&t| f(t, self.columns(ctx, t)));
-            return;
-        }
-        let fa = ctx
-            .axis(self.axis)
-            .expect("library only lists candidates whose inputs exist");
-        let exact = |wk: f64| -> (Vec<f64>, Vec<f64>) {
-            fa.distinct_mm.iter().map(|&x| (wk * x).sin_cos()).unzip()
-        };
-        let (rs, rc) = exact(dw);
-        let (mut sv, mut cv) = (vec![], vec![]);
-        for (j, &t) in thetas.iter().enumerate() {
-            if j % REANCHOR_EVERY == 0 {
-                (sv, cv) = exact(w[j]);
-            } else {
-                for k in 0..sv.len() {
-                    let (s0, c0) = (sv[k], cv[k]);
-                    sv[k] = s0 * rc[k] + c0 * rs[k];
-                    cv[k] = c0 * rc[k] - s0 * rs[k];
-                }
-            }
-            let gather = |v: &[f64]| fa.distinct_idx.iter().map(|&k| v[k as usize]).collect();
-            f(t, vec![gather(&sv), gather(&cv)]);
-        }
-    }
-
     /// The effect model for fitted column coefficients `c` (µm per column unit) at `theta`.
     pub fn to_model(&self, c: &[f64], theta: f64) -> EffectModel {
         match &self.kind {
@@ -235,6 +221,15 @@ impl Candidate {
                 amplitude_um: c[0].hypot(c[1]),
                 // a·sin + b·cos = A·sin(· + φ) with A·cos φ = a, A·sin φ = b.
                 phase_rad: c[1].atan2(c[0]),
+                harmonic2_um: 0.0,
+                harmonic2_phase_rad: 0.0,
+            },
+            Kind::CyclicHarmonic => EffectModel::CyclicError {
+                period_mm: theta,
+                amplitude_um: c[0].hypot(c[1]),
+                phase_rad: c[1].atan2(c[0]),
+                harmonic2_um: c[2].hypot(c[3]),
+                harmonic2_phase_rad: c[3].atan2(c[2]),
             },
             Kind::Squareness { other } => EffectModel::Squareness {
                 other_axis: *other,
@@ -295,24 +290,6 @@ pub fn log_grid(lo: f64, hi: f64, r: f64) -> Vec<f64> {
     }
     g
 }
-
-/// Period grid for cyclic error: uniform in frequency, Δ(1/p) = 1/(3L) (neighbouring periods differ
-/// by p·p'/(3L) ≈ p²/(3L)), which keeps the phase drift over the travel L at a third of a cycle
-/// between neighbours, so the profile cannot step over a true period. Uniform frequency steps also
-/// let [`Candidate::columns_sweep`] rotate phasors instead of evaluating sin/cos at every period.
-fn period_grid(travel_mm: f64, min_period_mm: f64) -> Vec<f64> {
-    // Lead-screw pitches and scale periods that matter at the µm level are ≥ 2 mm.
-    let lo = min_period_mm.max(2.0).max(travel_mm / 200.0);
-    let hi = travel_mm / 1.5;
-    let step = 1.0 / (3.0 * travel_mm);
-    (0..)
-        .map(|k| 1.0 / (1.0 / lo - f64::from(k) * step))
-        .take_while(|p| *p > 0.0 && *p <= hi)
-        .collect()
-}
-
-/// Phasors are recomputed exactly every this many rotations (rounding drift stays ≤ 1e-14).
-const REANCHOR_EVERY: usize = 32;
 
 /// Every candidate for the error signal of axis `a` that the context supports.
 pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
@@ -395,31 +372,24 @@ fn own_axis_candidates(ctx: &Context, a: char, f: &AxisFeatures) -> Vec<Candidat
         .map(|k| lo + travel * k as f64 / REVERSAL_ZONES as f64)
         .collect();
     out.push(lin(Kind::ReversalProfile { edges_mm }));
-    let min_step = f
-        .pos_mm
-        .windows(2)
-        .map(|w| (w[1] - w[0]).abs())
-        .filter(|d| *d > 1e-6)
-        .fold(f64::INFINITY, f64::min);
-    // With readings only at a few targets, a period shorter than twice their spacing aliases.
-    let distinct = f.distinct_mm.len();
-    let min_period = if distinct < 200 {
-        2.5 * travel / distinct as f64
-    } else {
-        // Densely sampled positions: a period must span ≥ 4 sample steps to be seen.
-        4.0 * min_step
-    };
+    let grid = period_grid(travel, shortest_period(&f.distinct_mm));
     out.push(Candidate {
         axis: a,
         kind: Kind::Cyclic,
-        grid: period_grid(travel, min_period),
+        grid: grid.clone(),
+    });
+    out.push(Candidate {
+        axis: a,
+        kind: Kind::CyclicHarmonic,
+        grid,
     });
     if ctx.tool_mm.as_ref().is_some_and(|t| varies(t)) {
         out.push(lin(Kind::Abbe));
     }
-    // Servo lag is a candidate only where the axis moves: its column (velocity) is zero at every
-    // standstill row, so a step-and-dwell recording read at standstill offers none.
-    if f.vel_mm_s().iter().filter(|v| **v != 0.0).count() >= MIN_MOVING_ROWS {
+    // Servo lag is a candidate only where the axis is read while moving at a commanded feed: its
+    // column (velocity) is zero at every standstill row, and the rows between two dwells of a
+    // step-and-dwell run are transients of a step, not readings at a feed (issue 36.6).
+    if steady_rows(&f.vel_mm_s()) >= MIN_MOVING_ROWS {
         out.push(lin(Kind::ServoLag));
     }
     out.push(Candidate {
@@ -433,6 +403,17 @@ fn own_axis_candidates(ctx: &Context, a: char, f: &AxisFeatures) -> Vec<Candidat
         }
     }
     out
+}
+
+/// Rows read at a commanded feed: moving, between two rows moving the same way. A step-and-dwell
+/// run has none when each step is sampled once or twice between its dwells (a transient, whatever
+/// the sampling rate); a scan or a contour at a feed has one per row of its moving parts (timing
+/// jitter does not matter: only the signs are read).
+pub fn steady_rows(vel_mm_s: &[f64]) -> usize {
+    vel_mm_s
+        .windows(3)
+        .filter(|w| w[1] != 0.0 && w[0] * w[1] > 0.0 && w[2] * w[1] > 0.0)
+        .count()
 }
 
 /// The experiment that would separate two candidate families the data cannot tell apart.
@@ -465,7 +446,7 @@ impl Candidate {
         match self.kind {
             Kind::Scale => "ppm",
             Kind::Backlash | Kind::ReversalProfile { .. } => "b_um",
-            Kind::Cyclic | Kind::ReversalSpike => "amplitude_um",
+            Kind::Cyclic | Kind::CyclicHarmonic | Kind::ReversalSpike => "amplitude_um",
             Kind::Squareness { .. } => "urad",
             Kind::Straightness { .. } => "c2_um_per_mm2",
             Kind::Abbe => "urad_per_mm",
@@ -480,7 +461,7 @@ impl Candidate {
     /// Contract name of the nonlinear parameter, if any.
     pub fn theta_key(&self) -> Option<&'static str> {
         match self.kind {
-            Kind::Cyclic => Some("period_mm"),
+            Kind::Cyclic | Kind::CyclicHarmonic => Some("period_mm"),
             Kind::ThermalLag { .. } => Some("tau_s"),
             Kind::ReversalSpike => Some("decay_mm"),
             _ => None,
@@ -506,26 +487,6 @@ fn reversal_zone_columns(f: &AxisFeatures, edges_mm: &[f64]) -> Vec<Vec<f64>> {
                 .collect()
         })
         .collect()
-}
-
-/// The sin/cos pair of period `period_mm` in position.
-fn cyclic_columns(f: &AxisFeatures, period_mm: f64) -> Vec<Vec<f64>> {
-    let w = TAU / period_mm;
-    // One transcendental per distinct position: sin from cos with the half-cycle sign.
-    let (mut sv, mut cv) = (
-        Vec::with_capacity(f.distinct_mm.len()),
-        Vec::with_capacity(f.distinct_mm.len()),
-    );
-    for &x in &f.distinct_mm {
-        let ph = (w * x).rem_euclid(TAU);
-        let c = ph.cos();
-        cv.push(c);
-        sv.push((1.0 - c * c).max(0.0).sqrt() * if ph < std::f64::consts::PI { 1.0 } else { -1.0 });
-    }
-    vec![
-        f.distinct_idx.iter().map(|&k| sv[k as usize]).collect(),
-        f.distinct_idx.iter().map(|&k| cv[k as usize]).collect(),
-    ]
 }
 
 #[cfg(test)]

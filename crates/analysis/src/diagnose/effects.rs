@@ -37,11 +37,17 @@ pub enum EffectModel {
     Backlash { b_um: f64 },
     /// `e += b_um[k]/2·dir` while pos is in zone k = [edges_mm[k], edges_mm[k+1]).
     ReversalProfile { edges_mm: Vec<f64>, b_um: Vec<f64> },
-    /// `e += amplitude_um·sin(2π·pos/period_mm + phase_rad)`.
+    /// `e += amplitude_um·sin(2π·pos/period_mm + phase_rad)
+    ///      + harmonic2_um·sin(4π·pos/period_mm + harmonic2_phase_rad)`: the second harmonic of the
+    /// same fundamental (absent from the JSON when zero).
     CyclicError {
         period_mm: f64,
         amplitude_um: f64,
         phase_rad: f64,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        harmonic2_um: f64,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        harmonic2_phase_rad: f64,
     },
     /// `e += urad·1e-3·pos_other` (a squareness angle times the other axis' position).
     Squareness { other_axis: char, urad: f64 },
@@ -87,6 +93,12 @@ pub enum EffectModel {
     TimeDrift { um_per_h: f64 },
 }
 
+// serde's `skip_serializing_if` hands the field by reference.
+#[allow(clippy::trivially_copy_pass_by_ref)]
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
 #[derive(Debug, thiserror::Error, PartialEq)]
 #[error("effect `{effect}` needs {what}, which the recording does not have")]
 pub struct MissingInput {
@@ -121,6 +133,10 @@ impl EffectModel {
             Self::ScaleError { .. } => format!("{e} += ppm*1e-3 * {a}_mm"),
             Self::Backlash { .. } => format!("{e} += b_um/2 * sign(v_{a})"),
             Self::ReversalProfile { .. } => format!("{e} += b_um[zone({a}_mm)]/2 * sign(v_{a})"),
+            Self::CyclicError { harmonic2_um, .. } if *harmonic2_um != 0.0 => format!(
+                "{e} += amplitude_um * sin(2*pi*{a}_mm/period_mm + phase_rad) \
+                 + harmonic2_um * sin(4*pi*{a}_mm/period_mm + harmonic2_phase_rad)"
+            ),
             Self::CyclicError { .. } => {
                 format!("{e} += amplitude_um * sin(2*pi*{a}_mm/period_mm + phase_rad)")
             }
@@ -162,7 +178,13 @@ impl EffectModel {
                 period_mm,
                 amplitude_um,
                 phase_rad,
-            } => amplitude_um * (std::f64::consts::TAU * pos_mm / period_mm + phase_rad).sin(),
+                harmonic2_um,
+                harmonic2_phase_rad,
+            } => {
+                let w = std::f64::consts::TAU * pos_mm / period_mm;
+                amplitude_um * (w + phase_rad).sin()
+                    + harmonic2_um * (2.0 * w + harmonic2_phase_rad).sin()
+            }
             Self::Straightness {
                 mid_mm,
                 c2_um_per_mm2,

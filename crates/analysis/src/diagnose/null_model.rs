@@ -107,7 +107,7 @@ pub(super) fn score_cols(
     }
     // Long recordings: a cyclic sin/cos pair (never nearly inside the basis' span) is scored from
     // dot products, without orthonormalised copies (most of a 1M-row diagnosis' screening).
-    if nl.cells.is_none() && c.kind == Kind::Cyclic && r0.len() >= lsq::FFT_MIN_N {
+    if nl.cells.is_none() && c.is_cyclic() && r0.len() >= lsq::FFT_MIN_N {
         let (g, q) = lsq::gram_gain(basis, &cols, r0);
         return (q > 0).then(|| {
             (

@@ -251,7 +251,7 @@ fn gain_intervals(
                 Value::Array(c.iter().zip(se).map(|(v, s)| iv(*v, *s)).collect()),
             );
         }
-        candidates::Kind::Cyclic => {
+        candidates::Kind::Cyclic | candidates::Kind::CyclicHarmonic => {
             let (a, b) = (c[0], c[1]);
             let amp = a.hypot(b).max(1e-300);
             let (i0, i1) = (start, start + 1);

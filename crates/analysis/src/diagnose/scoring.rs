@@ -431,6 +431,8 @@ mod tests {
                 period_mm: 5.0,
                 amplitude_um: 1.0,
                 phase_rad: 0.3,
+                harmonic2_um: 0.0,
+                harmonic2_phase_rad: 0.0,
             },
         };
         let j = serde_json::to_value(&t).unwrap();

@@ -11,12 +11,12 @@ use super::features::{Context, lowpass};
 use super::heldout::Heldout;
 use super::lsq::{self, dot};
 use super::null_model::{
-    NoiseModel, Null, contribution, delta_bic, golden_refine, prewhitened_test, score, score_cols,
-    within_cells,
+    NoiseModel, Null, contribution, delta_bic, prewhitened_test, score, score_cols, within_cells,
 };
 use super::selection::{Alternative, Exchanged, Options, Term, set_of};
 
 mod noise;
+mod peaks;
 
 /// Share of the best thermal ΔBIC a driver-column lag needs to be preferred over a sensor.
 const DRIVER_SHARE: f64 = 0.0;
@@ -31,6 +31,9 @@ fn is_driver(ctx: &Context, c: &Candidate) -> bool {
         _ => false,
     }
 }
+
+/// Residual RMS (µm) below which nothing is left to explain (see [`Selector::step`]).
+const ROUNDING_FLOOR_UM: f64 = 1e-6;
 
 /// How many of a step's strongest candidates compete on forward held-out error.
 const FORWARD_CHOICES: usize = 8;
@@ -118,7 +121,13 @@ impl<'a> Selector<'a> {
         first_screen: Option<FirstScreen>,
     ) -> Self {
         let lib = library(ctx, axis);
-        let mut tried: usize = lib.iter().map(|c| c.grid.len().max(1)).sum();
+        // The cyclic family's periodogram is one scan: the second-harmonic form tests the same
+        // fundamental periods as the pure sine (nested, not further hypotheses).
+        let mut tried: usize = lib
+            .iter()
+            .filter(|c| c.kind != Kind::CyclicHarmonic)
+            .map(|c| c.grid.len().max(1))
+            .sum();
         let cell_of = ctx.position_cells(axis);
         if cell_of.is_some() {
             tried += lib.iter().filter(|c| within_cells(c)).count();
@@ -189,7 +198,10 @@ impl<'a> Selector<'a> {
     pub(super) fn step(&mut self) -> bool {
         let r0 = lsq::deflate(&self.basis, self.r);
         let rss0 = dot(&r0, &r0);
-        if rss0.is_nan() || rss0 <= 0.0 {
+        // A residual below a picometre RMS is the rounding of the error and simulation columns
+        // (a model that states the error exactly), not a measurement: with periods scanned down
+        // to 2 samples a cyclic term fitted the rounding pattern of integer positions.
+        if rss0.is_nan() || rss0 <= (ROUNDING_FLOOR_UM * ROUNDING_FLOOR_UM) * self.r.len() as f64 {
             return false;
         }
         // The pre-pass screened against the same null (intercept alone, nothing used).
@@ -203,6 +215,7 @@ impl<'a> Selector<'a> {
         for s in &mut scored {
             s.delta_bic = delta_bic(n_eff, nulls.of(s.cells).rss0, s.gain, s.q);
         }
+        self.refine_cyclic_peaks(&mut scored, &nulls, n_eff);
         scored.sort_by(|a, b| b.delta_bic.total_cmp(&a.delta_bic));
         // A candidate screened under both nulls keeps its better one.
         let mut seen = vec![false; self.lib.len()];
@@ -334,7 +347,18 @@ impl<'a> Selector<'a> {
         } else {
             1.0
         };
-        if !(win.delta_bic > opts.min_delta_bic && p_value * (self.tried as f64) < opts.alpha) {
+        // A reversal term's column changes only in steps at the reversals: under slow noise
+        // its information is in those steps, which the GLS test below sees and the plain fit's
+        // n_eff (a mean's information) does not (AR(0.99) step-and-dwell backlash at effect/noise
+        // 3: plain p·tried 0.011, GLS test passed). Its F-test is the GLS one there.
+        let p_bar = match noise_model {
+            Some(m) if cand.family() == "reversal" => {
+                prewhitened_test(self.ctx, cand, win.theta, nl, self.n_raw + nl.extra, m)
+                    .map_or(1.0, |(_, p)| p)
+            }
+            _ => p_value,
+        };
+        if !(win.delta_bic > opts.min_delta_bic && p_bar * (self.tried as f64) < opts.alpha) {
             return None;
         }
         // The same bar under an AR(1) error model (slow noise: null_model::prewhitened_test),
@@ -473,40 +497,6 @@ impl<'a> Selector<'a> {
         }) {
             let s = scored.remove(j);
             scored.insert(0, s);
-        }
-    }
-
-    /// Refine the winner's nonlinear parameter between its grid neighbours (golden section on
-    /// the profile RSS drop); kept when it does not explain less.
-    fn refine(&self, win: Scored, nl: &Null<'_>, n_eff: f64) -> Scored {
-        let cand = &self.lib[win.idx];
-        if !cand.is_nonlinear() {
-            return win;
-        }
-        let g = &cand.grid;
-        let i = g.iter().position(|&v| v == win.theta).unwrap_or(0);
-        let lo = g[i.saturating_sub(1)];
-        let hi = g[(i + 1).min(g.len() - 1)];
-        if hi <= lo {
-            return win;
-        }
-        let ctx = self.ctx;
-        let th = golden_refine(
-            |t| score(ctx, cand, t, nl).map_or(f64::NEG_INFINITY, |s| s.0),
-            lo,
-            hi,
-            18,
-        );
-        match score(ctx, cand, th, nl) {
-            Some((g2, q)) if g2 >= win.gain => Scored {
-                idx: win.idx,
-                theta: th,
-                gain: g2,
-                q,
-                delta_bic: delta_bic(n_eff, nl.rss0, g2, q),
-                cells: win.cells,
-            },
-            _ => win,
         }
     }
 

@@ -15,7 +15,7 @@
 
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
-use super::candidates::Candidate;
+use super::candidates::{Candidate, Kind};
 use super::features::Context;
 use super::lsq::{self, dot};
 use super::selection::{Options, Term};
@@ -115,10 +115,17 @@ fn best_choice(
 ) -> Option<Choice> {
     let n = r.len();
     let ln_n = n_eff.ln();
+    // The two cyclic forms are one slot (one fundamental per signal).
+    let same_slot =
+        |a: &Candidate, b: &Candidate| a.kind == b.kind || (a.is_cyclic() && b.is_cyclic());
+    // The exchange undoes a wrong early choice among forms of physics; a cyclic error's second
+    // harmonic (two more columns) is a refinement forward selection adds, not a replacement: on
+    // a 36-row laser table it replaced the reversal profile by fitting the positions' noise.
     let taken = |c: &Candidate| {
-        terms
-            .iter()
-            .any(|t| t.cand.kind == c.kind && t.cand.axis == c.axis)
+        c.kind == Kind::CyclicHarmonic
+            || terms
+                .iter()
+                .any(|t| same_slot(&t.cand, c) && t.cand.axis == c.axis)
     };
     // Best grid value of candidate c on `basis` (residual r0): (gain, q, θ).
     let best_of = |c: &Candidate, basis: &[Vec<f64>], r0: &[f64]| {
@@ -167,7 +174,7 @@ fn best_choice(
             let u = lsq::orthonormalize(&basis, c.columns(ctx, th_c), 1);
             basis.extend(u);
             let r1 = lsq::deflate(&basis, r);
-            for d in lib.iter().filter(|d| !taken(d) && d.kind != c.kind) {
+            for d in lib.iter().filter(|d| !taken(d) && !same_slot(d, c)) {
                 if let Some((g_d, q_d, th_d)) = best_of(d, &basis, &r1) {
                     consider(
                         score(rss0 - g_c - g_d, q_c + q_d),

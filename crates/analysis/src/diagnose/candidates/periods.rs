@@ -1,0 +1,124 @@
+//! The cyclic candidates' period scan: the least-squares periodogram's frequency grid over
+//! position, its short end from the positions' spacing, and the sin/cos columns (fundamental and
+//! second harmonic) swept over the grid by phasor rotation. Positions mm, periods mm.
+
+use std::f64::consts::TAU;
+
+use super::super::features::{AxisFeatures, Context};
+use super::{Candidate, Kind};
+
+impl Candidate {
+    /// [`Candidate::columns`] at every θ of `thetas`, in order, handed to `f`. For a cyclic
+    /// candidate on a grid uniform in frequency ([`period_grid`]) the sin/cos pair of the next
+    /// period is the previous one rotated by a fixed angle per distinct position (one complex
+    /// multiply instead of two transcendental calls: the period grid's sin/cos were most of the
+    /// time of a 1M-row diagnosis); other candidates and other grids call `columns`.
+    pub fn columns_sweep(
+        &self,
+        ctx: &Context,
+        thetas: &[f64],
+        mut f: impl FnMut(f64, Vec<Vec<f64>>),
+    ) {
+        let w: Vec<f64> = thetas.iter().map(|p| TAU / p).collect();
+        let dw = if w.len() >= 3 { w[1] - w[0] } else { 0.0 };
+        let uniform = self.is_cyclic()
+            && dw != 0.0
+            && w.windows(2)
+                .all(|p| ((p[1] - p[0]) - dw).abs() <= 1e-9 * w[0].abs());
+        if !uniform {
+            thetas.iter().for_each(|&t| f(t, self.columns(ctx, t)));
+            return;
+        }
+        let fa = ctx
+            .axis(self.axis)
+            .expect("library only lists candidates whose inputs exist");
+        let exact = |wk: f64| -> (Vec<f64>, Vec<f64>) {
+            fa.distinct_mm.iter().map(|&x| (wk * x).sin_cos()).unzip()
+        };
+        let (rs, rc) = exact(dw);
+        let (mut sv, mut cv) = (vec![], vec![]);
+        for (j, &t) in thetas.iter().enumerate() {
+            if j % REANCHOR_EVERY == 0 {
+                (sv, cv) = exact(w[j]);
+            } else {
+                for k in 0..sv.len() {
+                    let (s0, c0) = (sv[k], cv[k]);
+                    sv[k] = s0 * rc[k] + c0 * rs[k];
+                    cv[k] = c0 * rc[k] - s0 * rs[k];
+                }
+            }
+            let gather = |v: &[f64]| fa.distinct_idx.iter().map(|&k| v[k as usize]).collect();
+            let mut cols = vec![gather(&sv), gather(&cv)];
+            if self.kind == Kind::CyclicHarmonic {
+                // The second harmonic from the fundamental's phasor (double angle).
+                let s2: Vec<f64> = sv.iter().zip(&cv).map(|(s, c)| 2.0 * s * c).collect();
+                let c2: Vec<f64> = sv.iter().zip(&cv).map(|(s, c)| c * c - s * s).collect();
+                cols.extend([gather(&s2), gather(&c2)]);
+            }
+            f(t, cols);
+        }
+    }
+}
+
+/// Shortest period a cyclic candidate scans (mm): lead-screw pitches and scale periods that
+/// matter at the µm level are ≥ 2 mm.
+pub const MIN_PITCH_MM: f64 = 2.0;
+
+/// The frequency grid of the residual's least-squares periodogram over position (Lomb–Scargle
+/// / least-squares spectral analysis: each period's sin/cos pair is fitted to the residual at the
+/// positions where it was read, so uneven target spacing needs no FFT grid). From `travel/1.5` down
+/// to [`shortest_period`] (≈ 2 samples per period), uniform in frequency with Δ(1/p) = 1/(3L):
+/// neighbouring periods drift apart by a third of a cycle over the travel L, so the scan cannot step
+/// over a peak, and uniform frequency steps let [`Candidate::columns_sweep`] rotate phasors instead
+/// of evaluating sin/cos at every period. The screening (`select_step.rs`) takes the periodogram's
+/// highest peak against the step's null and refines it between its neighbours.
+pub(super) fn period_grid(travel_mm: f64, min_period_mm: f64) -> Vec<f64> {
+    let lo = min_period_mm.max(MIN_PITCH_MM);
+    let hi = travel_mm / 1.5;
+    let step = 1.0 / (3.0 * travel_mm);
+    (0..)
+        .map(|k| 1.0 / (1.0 / lo - f64::from(k) * step))
+        .take_while(|p| *p > 0.0 && *p <= hi)
+        .collect()
+}
+
+/// The shortest period the positions can show: two samples per period at the median gap between
+/// neighbouring distinct positions (`distinct_mm`, sorted). Uneven targets of several runs
+/// interleave, so their median gap is finer than any one run's step, as the least-squares
+/// periodogram's resolving power is; no count of targets enters.
+pub fn shortest_period(distinct_mm: &[f64]) -> f64 {
+    let mut gaps: Vec<f64> = distinct_mm
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|d| *d > super::super::features::DIRECTION_DEADBAND_MM)
+        .collect();
+    if gaps.is_empty() {
+        return f64::INFINITY;
+    }
+    let mid = gaps.len() / 2;
+    let (_, m, _) = gaps.select_nth_unstable_by(mid, f64::total_cmp);
+    2.0 * *m
+}
+
+/// Phasors are recomputed exactly every this many rotations (rounding drift stays ≤ 1e-14).
+const REANCHOR_EVERY: usize = 32;
+
+/// The sin/cos pair of period `period_mm` in position.
+pub(super) fn cyclic_columns(f: &AxisFeatures, period_mm: f64) -> Vec<Vec<f64>> {
+    let w = TAU / period_mm;
+    // One transcendental per distinct position: sin from cos with the half-cycle sign.
+    let (mut sv, mut cv) = (
+        Vec::with_capacity(f.distinct_mm.len()),
+        Vec::with_capacity(f.distinct_mm.len()),
+    );
+    for &x in &f.distinct_mm {
+        let ph = (w * x).rem_euclid(TAU);
+        let c = ph.cos();
+        cv.push(c);
+        sv.push((1.0 - c * c).max(0.0).sqrt() * if ph < std::f64::consts::PI { 1.0 } else { -1.0 });
+    }
+    vec![
+        f.distinct_idx.iter().map(|&k| sv[k as usize]).collect(),
+        f.distinct_idx.iter().map(|&k| cv[k as usize]).collect(),
+    ]
+}
