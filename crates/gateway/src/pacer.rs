@@ -206,7 +206,9 @@ mod tests {
     #[test]
     fn a_source_no_faster_than_the_cycle_triggers_its_cycle_at_once() {
         for (rate, phase) in [(1.0, 0.3), (1.5, 0.05), (2.31, 0.9), (7.0, 0.5)] {
-            let arrivals: Vec<f64> = (0..300).map(|k| (phase + f64::from(k) * rate) * P).collect();
+            let arrivals: Vec<f64> = (0..300)
+                .map(|k| (phase + f64::from(k) * rate) * P)
+                .collect();
             let (_, waits) = drive(&arrivals, 300.0 * rate * P);
             assert_eq!(waits.len(), arrivals.len());
             let worst = waits.iter().copied().fold(0.0, f64::max);

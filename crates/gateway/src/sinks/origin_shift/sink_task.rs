@@ -128,7 +128,7 @@ pub fn update_sink_faults(
 /// heartbeat, the controller read, retries, the stop ramp). The cycle publishes every cycle; an
 /// unchanged output is no reason to run early.
 async fn wait_for_period(
-    out_rx: &mut tokio::sync::watch::Receiver<crate::cycle::Outputs>,
+    out_rx: &mut tokio::sync::watch::Receiver<Vec<(Axis, f64)>>,
     period: std::time::Duration,
     last: &mut Option<tokio::time::Instant>,
     ran_with: &[(Axis, f64)],
@@ -388,7 +388,7 @@ mod tests {
 
     #[tokio::test(start_paused = true)]
     async fn a_changed_output_wakes_the_sink_at_once_and_the_period_paces_the_rest() {
-        let (tx, mut rx) = watch::channel::<crate::cycle::Outputs>(Vec::new());
+        let (tx, mut rx) = watch::channel::<Vec<(Axis, f64)>>(Vec::new());
         let mut last = None;
         let t0 = Instant::now();
         // The first period at once; then, without a change, one period later.
@@ -416,7 +416,7 @@ mod tests {
 
     #[tokio::test(start_paused = true)]
     async fn after_the_cycle_ends_the_period_paces_the_stop_ramp() {
-        let (tx, mut rx) = watch::channel::<crate::cycle::Outputs>(Vec::new());
+        let (tx, mut rx) = watch::channel::<Vec<(Axis, f64)>>(Vec::new());
         drop(tx);
         let mut last = None;
         let t0 = Instant::now();
