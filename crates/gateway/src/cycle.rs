@@ -1,5 +1,5 @@
-//! The cycle loop, on its own OS thread (see [`super::realtime`]): every `cycle_ms` it drains the
-//! samples, reseeds and actions that arrived, runs the [`Engine`], hands the outputs to the sink and,
+//! The cycle loop, on its own OS thread (see [`super::realtime`]): once per `cycle_ms` slot it
+//! drains the samples, reseeds and actions that arrived, runs the [`Engine`], hands the outputs to the sink and,
 //! at most [`STATUS_PERIOD_S`] apart, publishes a status snapshot. The loop body ([`CycleLoop::step`])
 //! allocates nothing on a cycle that does not publish (tests/gateway_no_alloc.rs counts it).
 //!

@@ -1,6 +1,7 @@
 //! The runtime shell around [`Engine`]: samples arrive on a channel (from the bus sources), the
-//! cycle runs every `cycle_ms`, the latest status goes to the HTTP endpoint (at most 10 Hz), and a
-//! separate sink writes the outputs so a slow or dead controller never stalls the cycle.
+//! cycle runs once per `cycle_ms` slot (when a source delivers, see `pacer.rs`), the latest status
+//! goes to the HTTP endpoint (at most 10 Hz), and a separate sink writes the outputs so a slow or
+//! dead controller never stalls the cycle.
 //!
 //! Threads (why: issue 18.5, compensation dropped under host load when the cycle and the sink were
 //! tokio tasks queued behind busy ones): the cycle runs on its own OS thread (`retrocomp-cycle`,
