@@ -90,6 +90,8 @@ pub struct CycleLoop {
     switcher: crate::engine::model_switch::Switcher,
     io: CycleIo,
     compute_ns: Vec<u64>,
+    /// The ring slot the next compute time goes to once the ring is full.
+    compute_next: usize,
     last_publish_s: Option<f64>,
     last_step_s: Option<f64>,
     dropped: bool,
@@ -120,6 +122,7 @@ impl CycleLoop {
             io,
             // The ring of compute times is allocated once: a gateway runs for months.
             compute_ns: Vec::with_capacity(COMPUTE_WINDOW),
+            compute_next: 0,
             last_publish_s: None,
             last_step_s: None,
             dropped: false,
@@ -165,8 +168,9 @@ impl CycleLoop {
         if self.compute_ns.len() < COMPUTE_WINDOW {
             self.compute_ns.push(took_ns);
         } else {
-            self.compute_ns[(self.report.cycles as usize) % COMPUTE_WINDOW] = took_ns;
+            self.compute_ns[self.compute_next] = took_ns;
         }
+        self.compute_next = (self.compute_next + 1) % COMPUTE_WINDOW;
         // Reuse the channel's buffer (same axes every cycle: no allocation).
         self.io.outputs.send_modify(|held| copy_outputs(held, outs));
         let dropped = self.engine.compensation_dropped();
@@ -247,9 +251,13 @@ impl CycleLoop {
         self.compute_ns.sort_unstable();
         let n = self.compute_ns.len();
         let pct = |p: f64| {
-            self.compute_ns
-                .get(((n as f64 - 1.0) * p) as usize)
-                .map_or(0.0, |ns| *ns as f64 / 1e3)
+            #[allow(
+                clippy::cast_possible_truncation,
+                clippy::cast_sign_loss,
+                reason = "p in [0, 1] and n ≥ 1 here: the rank is in 0..n (an empty ring gives 0.0 below)"
+            )]
+            let rank = (n.saturating_sub(1) as f64 * p.clamp(0.0, 1.0)) as usize;
+            self.compute_ns.get(rank).map_or(0.0, |ns| *ns as f64 / 1e3)
         };
         self.report.compute_us_p50 = pct(0.5);
         self.report.compute_us_p99 = pct(0.99);

@@ -12,6 +12,23 @@
 //!   [`status`] is the snapshot every consumer reads; [`error`] the runtime's error.
 //!
 //! Signs and units: correction = −error, µm; positions mm (see each module).
+//!
+//! Every numeric conversion that could truncate, wrap or lose a sign is a `try_from`, or an `as`
+//! after a clamp or check with its reason beside it (these lints are errors in CI); float
+//! comparisons say what they compare. Tests compare floats exactly where the value is exact.
+#![warn(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    clippy::cast_possible_wrap,
+    clippy::float_cmp
+)]
+#![cfg_attr(
+    test,
+    allow(
+        clippy::float_cmp,
+        reason = "tests assert values that are exact in binary (caps, clamps, sums of halves)"
+    )
+)]
 
 pub mod config;
 pub mod cycle;

@@ -221,7 +221,8 @@ impl AxisSafety {
         };
 
         let delta = (desired - self.output_um).clamp(-limit, limit);
-        if limit == cap && limit > 0.0 && (desired - self.output_um).abs() > cap {
+        // A cap hit: tracking (the limit is the per-cycle cap, not a ramp) and the step wanted more.
+        if mode == Mode::Tracking && cap > 0.0 && (desired - self.output_um).abs() > cap {
             self.cap_hits += 1;
         }
         self.output_um = (self.output_um + delta).clamp(-max, max);

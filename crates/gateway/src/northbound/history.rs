@@ -66,11 +66,11 @@ impl Ring {
             self.values
                 .push(self.t_unix_s.iter().map(|_| None).collect());
         }
-        let bucket = (unix_s / self.step_s).floor();
+        let bucket = unix_s.div_euclid(self.step_s);
         let same = self
             .t_unix_s
             .back()
-            .is_some_and(|t| (t / self.step_s).floor() == bucket);
+            .is_some_and(|t| t.div_euclid(self.step_s).total_cmp(&bucket).is_eq());
         if same {
             *self.t_unix_s.back_mut().expect("non-empty") = unix_s;
             for (col, v) in self.values.iter_mut().zip(row) {

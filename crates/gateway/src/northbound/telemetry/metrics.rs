@@ -41,7 +41,7 @@ pub fn snapshot_metrics(snap: &StatusSnapshot, model_identity: &str) -> Vec<Name
         .collect();
     push(
         "Gateway/active_faults".into(),
-        Value::Int(faults.len() as u32),
+        Value::Int(u32::try_from(faults.len()).unwrap_or(u32::MAX)),
     );
     push("Gateway/faults".into(), Value::String(faults.join(",")));
     push(
@@ -90,7 +90,10 @@ pub fn snapshot_metrics(snap: &StatusSnapshot, model_identity: &str) -> Vec<Name
 /// Same value for report-by-exception purposes (NaN equals NaN: an unchanged "no value").
 fn same(a: &Value, b: &Value) -> bool {
     match (a, b) {
-        (Value::Double(x), Value::Double(y)) => x == y || (x.is_nan() && y.is_nan()),
+        // Bit-identical or both NaN: report-by-exception sends any change, however small.
+        (Value::Double(x), Value::Double(y)) => {
+            x.to_bits() == y.to_bits() || (x.is_nan() && y.is_nan())
+        }
         _ => a == b,
     }
 }

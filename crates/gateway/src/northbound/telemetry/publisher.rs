@@ -116,7 +116,7 @@ impl Drop for Publisher {
 pub fn now_ms() -> u64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_millis() as u64)
+        .map_or(0, |d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX))
 }
 
 /// Hand-over channel between sampler and session, records.
@@ -146,7 +146,13 @@ pub fn spawn(cfg: MqttConfig, inputs: PublisherInputs) -> Result<Publisher, Tele
         rec_tx,
         handover_drops.clone(),
     ));
-    let rebirths = RebirthLimiter::new((cfg.rebirth_min_interval_s * 1000.0) as u64);
+    #[allow(
+        clippy::cast_possible_truncation,
+        clippy::cast_sign_loss,
+        reason = "the config refuses a negative or non-finite interval; `as` saturates a huge one"
+    )]
+    let min_interval_ms = (cfg.rebirth_min_interval_s.max(0.0) * 1000.0) as u64;
+    let rebirths = RebirthLimiter::new(min_interval_ms);
     let session = tokio::spawn(
         Session {
             cfg,
@@ -580,7 +586,7 @@ impl Session {
     }
 
     fn clock_ms(&self) -> u64 {
-        self.clock.elapsed().as_millis() as u64
+        u64::try_from(self.clock.elapsed().as_millis()).unwrap_or(u64::MAX)
     }
 
     fn send_queued(&mut self, c: &mut Conn) {

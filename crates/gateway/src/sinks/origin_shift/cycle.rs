@@ -134,7 +134,8 @@ impl WriteCycle {
                 self.state = State::Verifying(i);
                 Action::Read {
                     address: b.address,
-                    count: b.words.len() as u16,
+                    count: u16::try_from(b.words.len())
+                        .expect("a block is at most 123 words (map.rs)"),
                     not_before_s: now_s,
                 }
             }

@@ -220,7 +220,10 @@ impl RegisterMap {
                 .is_some_and(|h| a == u32::from(h.strobe_address))
                 || self.heartbeat_address.is_some_and(|h| a == u32::from(h))
         };
-        if len == 0 || !(0..len as u32).all(|k| allowed(u32::from(address) + k)) {
+        let Ok(len_u32) = u32::try_from(len) else {
+            return Err(MapError::NotAllowed { address, len });
+        };
+        if len == 0 || !(0..len_u32).all(|k| allowed(u32::from(address) + k)) {
             return Err(MapError::NotAllowed { address, len });
         }
         Ok(())

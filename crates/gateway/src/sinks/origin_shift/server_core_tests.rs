@@ -50,7 +50,7 @@ fn a_rogue_held_value_beyond_the_clamp_is_never_served_from() {
         "status shows the held value: {held_um}"
     );
     // The controller's own report (the −1.0 µm it applies) is the truth again.
-    report(&mut c, (-10i16) as u16);
+    report(&mut c, (-10i16).cast_unsigned());
     let u = c.poll_update(&[(Axis::X, -34.5)]).unwrap();
     assert_eq!(u.exposed_um, vec![(Axis::X, -2.0)]);
     assert_eq!(c.faults().beyond_clamp, vec![false]);
@@ -92,7 +92,12 @@ fn stop_ramps_out_within_the_cap_until_the_controller_reports_zero() {
             "{v}"
         );
         served = v;
-        report(&mut c, (v * 10.0).round() as i16 as u16);
+        #[allow(
+            clippy::cast_possible_truncation,
+            reason = "the served value in 0.1 µm words: |v| ≤ the 50 µm clamp, well inside i16"
+        )]
+        let word = (v * 10.0).round() as i16;
+        report(&mut c, word.cast_unsigned());
         if c.is_ramped_out() {
             break;
         }

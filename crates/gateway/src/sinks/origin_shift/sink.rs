@@ -294,9 +294,13 @@ impl SinkCore {
             Phase::Reading(i) => {
                 let (address, count) = self.reads[i];
                 match reply {
-                    Reply::Read(w) if w.len() == count as usize => {
-                        self.words
-                            .extend(w.iter().enumerate().map(|(k, v)| (address + k as u16, *v)));
+                    Reply::Read(w) if w.len() == usize::from(count) => {
+                        // k < count (≤ 125 per Modbus read): `address + k` as the map laid it out.
+                        self.words.extend(
+                            w.iter()
+                                .zip(0u16..)
+                                .map(|(v, k)| (address.wrapping_add(k), *v)),
+                        );
                     }
                     other => {
                         let reason = match other {

@@ -19,6 +19,8 @@ pub enum CountError {
     BadResolution(f64),
     #[error("correction must be finite, got {0} µm")]
     NotFinite(f64),
+    #[error("correction of {0} µm is more than 2^53 counts")]
+    TooLarge(f64),
 }
 
 impl CountQuantizer {
@@ -57,7 +59,18 @@ impl CountQuantizer {
         if !correction_um.is_finite() {
             return Err(CountError::NotFinite(correction_um));
         }
-        Ok((-correction_um / self.resolution_um * self.count_sign).round() as i64)
+        let counts = (-correction_um / self.resolution_um * self.count_sign).round();
+        // ±2⁵³ counts is far beyond any clamp (the guard caps the correction first); refuse rather
+        // than let `as` saturate.
+        if counts.abs() > 9.007_199_254_740_992e15 {
+            return Err(CountError::TooLarge(correction_um));
+        }
+        #[allow(
+            clippy::cast_possible_truncation,
+            reason = "|counts| ≤ 2⁵³, an integer: exact in i64"
+        )]
+        let counts = counts as i64;
+        Ok(counts)
     }
 
     /// Counts to inject now so that the running total matches the new target; the remainder below

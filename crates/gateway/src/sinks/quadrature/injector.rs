@@ -160,7 +160,8 @@ where
     B: OutputPin<Error = E>,
     E: core::fmt::Debug,
 {
-    let now_ns = || start.elapsed().as_nanos() as u64;
+    // u64 nanoseconds last 584 years.
+    let now_ns = || u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
     if let Some(t) = &trace {
         t.record(now_ns(), inj.levels(), TraceSource::Start);
     }

@@ -40,6 +40,11 @@ pub enum SchedulerConfigError {
 impl SchedulerConfig {
     /// Interval between injected edges, ns (never below the edge gap).
     pub fn inject_interval_ns(&self) -> u64 {
+        #[allow(
+            clippy::cast_possible_truncation,
+            clippy::cast_sign_loss,
+            reason = "the config refuses a rate ≤ 0 or non-finite: 1e9/rate is a positive ns count, saturating beyond u64"
+        )]
         let interval = (1e9 / self.max_inject_rate_hz).ceil() as u64;
         interval.max(self.min_edge_gap_ns)
     }
