@@ -5,6 +5,23 @@
 //! Value convention for non-`Ok` samples: `Stale` carries the last good value (NaN if there was none),
 //! `DecodeError` carries NaN (CiA 406: the last good position), `OutOfRange` the decoded value. A
 //! consumer must look at `health` before it uses `value`. See `docs/buses.md`.
+//!
+//! Every numeric conversion that could truncate, wrap or lose a sign (register words, CAN ids, DLCs,
+//! CiA 404/406 values) is a `try_from`, or an `as` after a range check with its reason beside it
+//! (these lints are errors in CI). Tests compare floats exactly where the value is exact.
+#![warn(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    clippy::cast_possible_wrap,
+    clippy::float_cmp
+)]
+#![cfg_attr(
+    test,
+    allow(
+        clippy::float_cmp,
+        reason = "tests assert values that are exact in binary or parsed from the same decimal text"
+    )
+)]
 
 pub mod backoff;
 pub mod can;

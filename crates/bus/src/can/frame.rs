@@ -44,7 +44,7 @@ impl embedded_can::Frame for Frame {
         Some(Frame {
             id: id.into(),
             remote: false,
-            len: data.len() as u8,
+            len: u8::try_from(data.len()).expect("checked ≤ 8 above"),
             data: buf,
         })
     }
@@ -56,7 +56,7 @@ impl embedded_can::Frame for Frame {
         Some(Frame {
             id: id.into(),
             remote: true,
-            len: dlc as u8,
+            len: u8::try_from(dlc).expect("checked ≤ 8 above"),
             data: [0; 8],
         })
     }

@@ -160,7 +160,7 @@ fn parse_error_frame(text: &str) -> Option<Message> {
 
 fn hex_pair(p: &[u8]) -> Option<u8> {
     let d = |c: u8| (c as char).to_digit(16);
-    Some((d(p[0])? * 16 + d(p[1])?) as u8)
+    u8::try_from(d(p[0])? * 16 + d(p[1])?).ok()
 }
 
 /// `≤ 3` hex digits → standard id, more → extended (python-can and socketcand use the digit count).
@@ -236,8 +236,14 @@ fn write_time(out: &mut String, t_s: f64) {
         0.0
     };
     let sec = t.trunc();
-    let usec = ((t - sec) * 1e6).round().min(999_999.0);
-    let _ = write!(out, " {}.{:06}", sec as u64, usec as u32);
+    let usec = ((t - sec) * 1e6).round().clamp(0.0, 999_999.0);
+    #[allow(
+        clippy::cast_possible_truncation,
+        clippy::cast_sign_loss,
+        reason = "t is finite and ≥ 0 (0.0 otherwise, above): whole seconds saturate only past 5·10¹¹ years; usec is clamped to 0..=999 999"
+    )]
+    let (sec, usec) = (sec as u64, usec as u32);
+    let _ = write!(out, " {sec}.{usec:06}");
 }
 
 /// The wire form of `msg`.

@@ -103,16 +103,33 @@ impl AnalogChannel {
                 if r < f64::from(i16::MIN) || r > f64::from(i16::MAX) {
                     return false;
                 }
-                b.copy_from_slice(&(r as i16).to_le_bytes());
+                #[allow(
+                    clippy::cast_possible_truncation,
+                    reason = "r is inside i16 (checked above)"
+                )]
+                let r = r as i16;
+                b.copy_from_slice(&r.to_le_bytes());
             }
             AnalogType::Int32 => {
                 let r = (value * self.divisor()).round();
                 if r < f64::from(i32::MIN) || r > f64::from(i32::MAX) {
                     return false;
                 }
-                b.copy_from_slice(&(r as i32).to_le_bytes());
+                #[allow(
+                    clippy::cast_possible_truncation,
+                    reason = "r is inside i32 (checked above)"
+                )]
+                let r = r as i32;
+                b.copy_from_slice(&r.to_le_bytes());
             }
-            AnalogType::Real32 => b.copy_from_slice(&(value as f32).to_le_bytes()),
+            AnalogType::Real32 => {
+                #[allow(
+                    clippy::cast_possible_truncation,
+                    reason = "REAL32 is an f32: the nearest f32 is the encoding (a value beyond f32 becomes ±inf, which a reader refuses)"
+                )]
+                let v = value as f32;
+                b.copy_from_slice(&v.to_le_bytes());
+            }
         }
         true
     }

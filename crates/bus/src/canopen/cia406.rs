@@ -109,7 +109,12 @@ impl EncoderChannel {
             return None;
         }
         let r = i128::from(self.range_counts());
-        Some((counts as i128).rem_euclid(r) as u32)
+        #[allow(
+            clippy::cast_possible_truncation,
+            reason = "counts is a finite integer with |counts| ≤ 9·10¹⁸ (checked above): exact in i128"
+        )]
+        let counts = counts as i128;
+        u32::try_from(counts.rem_euclid(r)).ok()
     }
 
     /// The TPDO the encoder sends for a raw count (the simulator's side). Bytes before `byte_offset`
@@ -183,8 +188,9 @@ impl PositionDecoder {
             self.turns = -1;
         }
         if let Some(last) = self.last_raw {
-            let delta = raw as i64 - last as i64;
-            let half = (range / 2) as i64;
+            // raw, last < range ≤ 2³² (a CiA 406 position is at most 32 bits): exact as i64.
+            let delta = raw.cast_signed() - last.cast_signed();
+            let half = (range / 2).cast_signed();
             if delta > half {
                 self.turns -= 1;
                 self.rollovers += 1;

@@ -95,7 +95,10 @@ pub fn decode_heartbeat(f: &Frame) -> Option<(u8, NodeState)> {
     if f.data().len() != 1 {
         return None;
     }
-    Some(((id - 0x700) as u8, NodeState::from_code(f.data()[0])?))
+    Some((
+        u8::try_from(id - 0x700).ok()?,
+        NodeState::from_code(f.data()[0])?,
+    ))
 }
 
 /// Tracks one node's heartbeat. The node is healthy while heartbeats arrive within `timeout_s` and it

@@ -112,7 +112,7 @@ impl SdoRequest {
             }
             _ => return None,
         };
-        Some(((id - 0x600) as u8, req))
+        Some((u8::try_from(id - 0x600).ok()?, req))
     }
 }
 
@@ -184,7 +184,7 @@ impl SdoResponse {
             }
             _ => return None,
         };
-        Some(((id - 0x580) as u8, resp))
+        Some((u8::try_from(id - 0x580).ok()?, resp))
     }
 }
 

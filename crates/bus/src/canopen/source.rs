@@ -155,11 +155,8 @@ impl CanopenSource {
         for m in self.monitors.values_mut() {
             matched |= m.on_frame(f, t_s);
         }
-        if let Some(targets) = self
-            .by_cob
-            .get(&(f.raw_id() as u16))
-            .filter(|_| f.raw_id() <= 0x7FF)
-        {
+        let cob = u16::try_from(f.raw_id()).ok().filter(|id| *id <= 0x7FF);
+        if let Some(targets) = cob.and_then(|id| self.by_cob.get(&id)) {
             for t in targets {
                 let (slot, s) = match *t {
                     Target::Encoder(i) => (i, self.encoders[i].decode(f, t_s)),

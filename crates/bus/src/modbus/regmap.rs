@@ -30,9 +30,9 @@ pub fn decode_raw(words: &[u16], t: DataType, order: WordOrder) -> Option<f64> {
     }
     let u32_of = |w: &[u16]| join_u32([w[0], w[1]], order);
     Some(match t {
-        DataType::Int16 => f64::from(words[0] as i16),
+        DataType::Int16 => f64::from(words[0].cast_signed()),
         DataType::Uint16 => f64::from(words[0]),
-        DataType::Int32 => f64::from(u32_of(words) as i32),
+        DataType::Int32 => f64::from(u32_of(words).cast_signed()),
         DataType::Uint32 => f64::from(u32_of(words)),
         DataType::Float32 => f64::from(f32::from_bits(u32_of(words))),
     })
@@ -40,6 +40,12 @@ pub fn decode_raw(words: &[u16], t: DataType, order: WordOrder) -> Option<f64> {
 
 /// Split a raw value into registers (rounded for integer types). `None` if not finite or not
 /// representable in the type. Returns the words and how many of them are used.
+#[allow(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    reason = "every integer cast below follows `fits` (the rounded value is inside the type), the f32 \
+              cast the |raw| ≤ f32::MAX check (rounding to the nearest f32 is the encoding)"
+)]
 pub fn encode_raw(raw: f64, t: DataType, order: WordOrder) -> Option<([u16; 2], usize)> {
     if !raw.is_finite() {
         return None;
@@ -48,10 +54,12 @@ pub fn encode_raw(raw: f64, t: DataType, order: WordOrder) -> Option<([u16; 2], 
     let fits = |lo: f64, hi: f64| (lo..=hi).contains(&r);
     let bits: u32 = match t {
         DataType::Int16 if fits(f64::from(i16::MIN), f64::from(i16::MAX)) => {
-            return Some(([r as i16 as u16, 0], 1));
+            return Some(([(r as i16).cast_unsigned(), 0], 1));
         }
         DataType::Uint16 if fits(0.0, f64::from(u16::MAX)) => return Some(([r as u16, 0], 1)),
-        DataType::Int32 if fits(f64::from(i32::MIN), f64::from(i32::MAX)) => r as i32 as u32,
+        DataType::Int32 if fits(f64::from(i32::MIN), f64::from(i32::MAX)) => {
+            (r as i32).cast_unsigned()
+        }
         DataType::Uint32 if fits(0.0, f64::from(u32::MAX)) => r as u32,
         DataType::Float32 if raw.abs() <= f64::from(f32::MAX) => (raw as f32).to_bits(),
         _ => return None,
@@ -149,7 +157,8 @@ pub fn plan_reads(channels: &[RegisterChannel], max_count: u16, max_gap: u16) ->
             let gap_ok = u32::from(c.address) <= b_end + 1 + u32::from(max_gap);
             let new_end = end.max(b_end);
             if b.kind == c.kind && gap_ok && new_end - u32::from(b.start) < u32::from(max_count) {
-                b.count = (new_end - u32::from(b.start) + 1) as u16;
+                b.count = u16::try_from(new_end - u32::from(b.start) + 1)
+                    .expect("a block is shorter than max_count, a u16");
                 b.members.push(i);
                 continue;
             }

@@ -60,8 +60,8 @@ impl RegisterBank {
     /// the device's own side.
     pub fn set_holding(&self, addr: u16, words: &[u16]) {
         let mut im = self.lock();
-        for (i, w) in words.iter().enumerate() {
-            im.holding.insert(addr.wrapping_add(i as u16), *w);
+        for (k, w) in (0u16..).zip(words) {
+            im.holding.insert(addr.wrapping_add(k), *w);
         }
     }
 
@@ -76,8 +76,8 @@ impl RegisterBank {
 
     pub fn set_input(&self, addr: u16, words: &[u16]) {
         let mut im = self.lock();
-        for (i, w) in words.iter().enumerate() {
-            im.input.insert(addr.wrapping_add(i as u16), *w);
+        for (k, w) in (0u16..).zip(words) {
+            im.input.insert(addr.wrapping_add(k), *w);
         }
     }
 
@@ -122,8 +122,8 @@ impl RegisterBank {
         let mut im = self.lock();
         let mut words = read(&im.holding, addr, count).ok()?;
         let r = f(&mut words);
-        for (i, w) in words.iter().enumerate() {
-            im.holding.insert(addr.wrapping_add(i as u16), *w);
+        for (k, w) in (0u16..).zip(words) {
+            im.holding.insert(addr.wrapping_add(k), w);
         }
         Some(r)
     }
@@ -144,11 +144,19 @@ impl RegisterBank {
         }
         {
             let mut im = self.lock();
-            if !(0..words.len()).all(|i| im.writable.contains(&(addr + i as u16))) {
+            // Every address must exist: one past u16::MAX is not writable either.
+            let Ok(n) = u16::try_from(words.len()) else {
+                return Err(ExceptionCode::IllegalDataAddress);
+            };
+            let writable = |k: u16| {
+                addr.checked_add(k)
+                    .is_some_and(|a| im.writable.contains(&a))
+            };
+            if !(0..n).all(writable) {
                 return Err(ExceptionCode::IllegalDataAddress);
             }
-            for (i, w) in words.iter().enumerate() {
-                im.holding.insert(addr + i as u16, *w);
+            for (k, w) in (0u16..).zip(words) {
+                im.holding.insert(addr + k, *w);
             }
         }
         self.writes.send_modify(|n| *n += 1);
@@ -167,9 +175,11 @@ impl RegisterBank {
             Request::WriteSingleRegister(a, w) => self
                 .client_write(*a, &[*w])
                 .map(|()| Response::WriteSingleRegister(*a, *w)),
-            Request::WriteMultipleRegisters(a, ws) => self
-                .client_write(*a, ws)
-                .map(|()| Response::WriteMultipleRegisters(*a, ws.len() as u16)),
+            Request::WriteMultipleRegisters(a, ws) => self.client_write(*a, ws).map(|()| {
+                // client_write refused more words than addresses.
+                let n = u16::try_from(ws.len()).unwrap_or(u16::MAX);
+                Response::WriteMultipleRegisters(*a, n)
+            }),
             _ => Err(ExceptionCode::IllegalFunction),
         }
     }

@@ -67,7 +67,8 @@ pub fn answer(
     match result {
         Ok(Response::ReadHoldingRegisters(w) | Response::ReadInputRegisters(w)) => {
             out.push(fc);
-            out.push((w.len() * 2) as u8);
+            // A read answers at most 125 registers (Modbus): 250 bytes fit the count byte.
+            out.push(u8::try_from(w.len() * 2).unwrap_or(u8::MAX));
             for x in w {
                 out.extend_from_slice(&x.to_be_bytes());
             }
@@ -81,7 +82,8 @@ pub fn answer(
         Ok(_) => out.extend_from_slice(&[fc | 0x80, u8::from(ExceptionCode::ServerDeviceFailure)]),
         Err(e) => out.extend_from_slice(&[fc | 0x80, u8::from(e)]),
     }
-    let len = (out.len() - 6) as u16;
+    // At most 1 + 1 + 1 + 250 bytes follow the length field.
+    let len = u16::try_from(out.len() - 6).unwrap_or(u16::MAX);
     out[4..6].copy_from_slice(&len.to_be_bytes());
     outcome
 }

@@ -54,7 +54,8 @@ const DEPRECATED_WORD_ORDERS: [(&str, &str); 4] = [
 
 /// The two words of `v`, in address order.
 pub fn split_u32(v: u32, order: WordOrder) -> [u16; 2] {
-    let (high, low) = ((v >> 16) as u16, v as u16);
+    let [h1, h0, l1, l0] = v.to_be_bytes();
+    let (high, low) = (u16::from_be_bytes([h1, h0]), u16::from_be_bytes([l1, l0]));
     match order {
         WordOrder::HighFirst => [high, low],
         WordOrder::LowFirst => [low, high],
@@ -175,7 +176,7 @@ mod tests {
             0x1_0000,
             0x1234_5678,
             u32::MAX,
-            (-25i32) as u32,
+            (-25i32).cast_unsigned(),
         ] {
             for o in [WordOrder::HighFirst, WordOrder::LowFirst] {
                 assert_eq!(join_u32(split_u32(v, o), o), v);
