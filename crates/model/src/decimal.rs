@@ -18,6 +18,11 @@ pub fn push_fixed6(out: &mut Vec<u8>, v: f64) {
     // around a half-way point that goes to the exact path. In that range the integer conversion is
     // `trunc` exactly, and inline (`f64::trunc`/`round` are calls into libm without SSE4.1).
     if scaled < 1_099_511_627_776.0 {
+        #[allow(
+            clippy::cast_possible_truncation,
+            clippy::cast_sign_loss,
+            reason = "0 ≤ scaled < 2⁴⁰ (abs, checked above): the conversion is the exact trunc"
+        )]
         let whole = scaled as u64;
         let frac = scaled - whole as f64;
         if (frac - 0.5).abs() > 1e-3 {
@@ -69,12 +74,13 @@ pub fn push_shortest(out: &mut Vec<u8>, v: f64) {
     // even, core::fmt upwards (2^50 + 0.25 differs), so such values, zero and non-finite ones
     // take core::fmt. Recorded measurements (full mantissas) take the fast path.
     let bits = v.to_bits();
-    let (biased, frac) = (((bits >> 52) & 0x7ff) as i32, bits & ((1u64 << 52) - 1));
+    let biased = i32::from(u16::try_from((bits >> 52) & 0x7ff).expect("11 bits"));
+    let frac = bits & ((1u64 << 52) - 1);
     let (m, e) = match biased {
         0 => (frac, -1074),
         _ => (frac | (1u64 << 52), biased - 1075),
     };
-    if !v.is_finite() || m == 0 || e + m.trailing_zeros() as i32 >= -26 {
+    if !v.is_finite() || m == 0 || e + m.trailing_zeros().cast_signed() >= -26 {
         // Writing into a Vec cannot fail.
         let _ = write!(out, "{v}");
         return;
@@ -108,7 +114,8 @@ pub fn push_shortest(out: &mut Vec<u8>, v: f64) {
             n += 1;
         }
     }
-    let mut point = point.unwrap_or(n) as i32 + exp10;
+    // n ≤ digits.len(), a small buffer: the point position fits i32.
+    let mut point = i32::try_from(point.unwrap_or(n)).expect("a short digit buffer") + exp10;
     // Leading zeros (`0.001`) move the point; trailing zeros (`1.0`, `1.50`) are dropped.
     let mut first = 0;
     while first < n && digits[first] == b'0' {
@@ -126,13 +133,17 @@ pub fn push_shortest(out: &mut Vec<u8>, v: f64) {
         out.push(b'0');
     } else if point <= 0 {
         out.extend_from_slice(b"0.");
-        out.extend(std::iter::repeat_n(b'0', (-point) as usize));
+        out.extend(std::iter::repeat_n(b'0', point.unsigned_abs() as usize));
         out.extend_from_slice(digits);
-    } else if point as usize >= digits.len() {
+    } else if point.unsigned_abs() as usize >= digits.len() {
+        // point > 0 in this branch and the next.
         out.extend_from_slice(digits);
-        out.extend(std::iter::repeat_n(b'0', point as usize - digits.len()));
+        out.extend(std::iter::repeat_n(
+            b'0',
+            point.unsigned_abs() as usize - digits.len(),
+        ));
     } else {
-        let (int, frac) = digits.split_at(point as usize);
+        let (int, frac) = digits.split_at(point.unsigned_abs() as usize);
         out.extend_from_slice(int);
         out.push(b'.');
         out.extend_from_slice(frac);

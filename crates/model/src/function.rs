@@ -112,6 +112,11 @@ impl Table {
         let x = &self.nodes;
         let last = x.len() - 2;
         let (x0, inv_h) = self.guide;
+        #[allow(
+            clippy::cast_possible_truncation,
+            clippy::cast_sign_loss,
+            reason = "a guess only: `as` saturates (q below x0 gives 0, NaN gives 0) and it is clamped to `last` and checked below"
+        )]
         let guess = ((q - x0) * inv_h) as usize;
         let mut i = guess.min(last);
         for _ in 0..2 {

@@ -51,7 +51,8 @@ fn run(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64, back: usize) -> Vec<f64> {
     for i in 0..u.len() {
         if i > 0 {
             let dt = t_s[i] - t_s[i - 1];
-            if dt != last_dt {
+            // Bit-exact: any other period (NaN at the start) recomputes α.
+            if dt.to_bits() != last_dt.to_bits() {
                 a = alpha(dt, tau_s);
                 last_dt = dt;
             }

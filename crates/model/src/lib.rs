@@ -23,6 +23,22 @@
 //! * **Direction** `dir` +1/−1 picks a bidirectional table's forward/reverse values, 0 their mean.
 //!   Latching and ramping a reversal is the gateway's job; the model is a pure function of the input
 //!   plus the thermal lag state.
+//!
+//! Every numeric conversion that could truncate, wrap or lose a sign is a `try_from`, or an `as`
+//! after a clamp or check with its reason beside it (these lints are errors in CI).
+#![warn(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    clippy::cast_possible_wrap,
+    clippy::float_cmp
+)]
+#![cfg_attr(
+    test,
+    allow(
+        clippy::float_cmp,
+        reason = "tests assert values that are exact in binary or parsed from the same decimal text"
+    )
+)]
 
 pub mod approach;
 pub mod config_issue;
@@ -191,7 +207,9 @@ impl MachineModel {
             || s.thermal
                 .iter()
                 .any(|t| !matches!(t.kind, spec::ThermalKind::PolynomialDt { .. }))
-            || s.tools.iter().any(|t| t.offset_mm != [0.0; 3])
+            || s.tools
+                .iter()
+                .any(|t| t.offset_mm.iter().any(|c| *c != 0.0))
     }
 
     /// Canonical TOML (µm, µrad, mm); reading it back gives an identical model.

@@ -49,6 +49,11 @@ impl Nodes {
         // the whole interpolation); anything further off falls back to a binary search.
         // Through i32: a float → u64 conversion has no single x86-64 instruction (≈ 10 instead of 1
         // here), and a table of 2³¹ nodes is not a table.
+        #[allow(
+            clippy::cast_possible_truncation,
+            clippy::cast_sign_loss,
+            reason = "a guess only: `as` saturates, `max(0)` makes it ≥ 0, `min(last)` keeps it in the table, and the lines below check it"
+        )]
         let mut i = ((((q - x[0]) * self.inv_mean_h) as i32).max(0) as usize).min(last);
         i -= usize::from(x[i] > q); // x[0] ≤ q, so i > 0 whenever x[i] > q
         i += usize::from((i < last) & (x[i + 1] <= q));
@@ -63,7 +68,7 @@ impl Nodes {
 /// mean ½·forward + ½·reverse, forward (the weights `Table::eval_at` applies, folded in once).
 #[inline(always)]
 pub(crate) fn dir_slot(dir: i8) -> usize {
-    (dir.signum() + 1) as usize
+    usize::from((dir.signum() + 1).unsigned_abs())
 }
 
 /// Per-direction node values: [reverse, mean, forward], each `pick(f, r)` as in `Table::eval_at`.
