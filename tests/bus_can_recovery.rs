@@ -21,7 +21,7 @@ fn z_mm(st: &serde_json::Value) -> Option<f64> {
 }
 
 fn fault_lines(gw: &Gateway, what: &str, kind: &str) -> usize {
-    gw.log_lines(&[what, "source=\"can\"", &format!("kind={kind}")])
+    gw.log_lines(&[what, "source=\"can\"", &format!("kind=\"{kind}\"")])
         .len()
 }
 
@@ -145,7 +145,7 @@ fn socketcand_peer_hangs_up_and_comes_back_and_reports_bus_off() {
     let exit = gw.stop();
     assert!(exit.success(), "{exit:?}\n{}", gw.log().join("\n"));
     let log = gw.log().join("\n");
-    for kind in ["Disconnected", "BusOff", "BusErrors"] {
+    for kind in ["disconnected", "bus_off", "bus_errors"] {
         assert_eq!(
             fault_lines(&gw, "fault started", kind),
             1,

@@ -104,9 +104,9 @@ channel = [{{ channel = "T_spindle_C", kind = "input", address = 0, type = "int1
     let exit = gw.stop();
     let log = gw.log().join("\n");
     assert!(exit.success(), "{exit:?}\n{log}");
-    for kind in ["Disconnected", "Exception"] {
+    for kind in ["disconnected", "exception"] {
         let lines = |what: &str| {
-            gw.log_lines(&[what, "source=\"modbus.pt100\"", &format!("kind={kind}")])
+            gw.log_lines(&[what, "source=\"modbus.pt100\"", &format!("kind=\"{kind}\"")])
                 .len()
         };
         assert_eq!(lines("fault started"), 1, "{kind} start lines:\n{log}");

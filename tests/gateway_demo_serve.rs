@@ -8,17 +8,30 @@
 //! asyncua subscription held across them gets no status change and a cycle counter that never goes
 //! back, `/status` cycles never go back, the page's history spans both passes, and the fault log has
 //! no stale START for every sensor at the pass boundary (what a gateway restarted per pass showed).
-//! Then SIGINT stops the demo.
+//! The demo publishes Sparkplug B (`--mqtt`) to a Mosquitto started here on loopback, decoded by a
+//! third-party host (paho-mqtt + mqtt-spb-wrapper, `tests/peers/spb_host.py`) subscribed before the
+//! demo starts: the live gateway's edge node `mill-live` has exactly one NBIRTH (one bdSeq) and no
+//! NDEATH across the pass boundary, its NDATA `seq` runs on mod 256 from the NBIRTH's 0 with no gap,
+//! and NDATA arrive during both pocket cuts. Then SIGINT stops the demo.
 
 #[path = "gateway_support/hil_sim.rs"]
 mod hil_sim;
+#[path = "peers/mosquitto.rs"]
+mod mosquitto;
 mod peers;
+#[path = "peers/spb_lines.rs"]
+mod spb_lines;
 
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use retrocomp_gateway::northbound::history::unix_now_s as unix_s;
+use serde_json::Value;
+use spb_lines::Host;
+
+/// The live gateway's Sparkplug edge node (`src/demo` names it; group `retrocomp-demo`).
+const LIVE_NODE: &str = "mill-live";
 
 fn after<'a>(line: &'a str, prefix: &str) -> Option<&'a str> {
     let (_, rest) = line.split_once(prefix)?;
@@ -32,8 +45,17 @@ fn demo_serve_prints_the_page_and_the_opcua_endpoint_and_both_answer() {
         .map(std::path::PathBuf::from)
         .unwrap_or_else(peers::python);
     let dir = tempfile::tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap();
+    // The broker and the Sparkplug host first: the host sees every birth of every run.
+    let mqtt_port = peers::free_port();
+    let _broker = mosquitto::Broker::start(dir.path(), mqtt_port);
+    let mut spb = Host::new(peers::spawn_python(
+        "spb_host.py",
+        &[&mqtt_port.to_string(), "retrocomp-demo", "scada"],
+    ));
     let mut demo = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .args(["demo", "--seconds", "0", "--serve", "127.0.0.1:0", "--out"])
+        .args(["demo", "--seconds", "0", "--serve", "127.0.0.1:0", "--mqtt"])
+        .arg(format!("127.0.0.1:{mqtt_port}"))
+        .arg("--out")
         .arg(dir.path().join("demo"))
         .env("HIL_SIM_BIN", &hil_sim)
         .stdin(Stdio::null())
@@ -88,7 +110,7 @@ fn demo_serve_prints_the_page_and_the_opcua_endpoint_and_both_answer() {
     let status = loop {
         let (code, body) = get("/status");
         if code == 200 {
-            break serde_json::from_str::<serde_json::Value>(&body).unwrap();
+            break serde_json::from_str::<Value>(&body).unwrap();
         }
         assert!(Instant::now() < deadline, "/status: {code} {body}");
         std::thread::sleep(Duration::from_millis(100));
@@ -104,6 +126,14 @@ fn demo_serve_prints_the_page_and_the_opcua_endpoint_and_both_answer() {
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     let passes = two_passes(&mut demo, &get, &py, &opc, dir.path(), deadline);
+    // Everything the live node published up to the end of the second cut (before SIGINT, whose
+    // clean stop sends the session's one NDEATH).
+    let second_end_ms = (passes.cuts[1].1 * 1000.0) as u64;
+    spb.until("mill-live NDATA after the second cut", |m| {
+        live_of(m, "NDATA")
+            .iter()
+            .any(|d| d["timestamp"].as_u64() >= Some(second_end_ms))
+    });
     // SIGINT: the demo stops its gateway and hil-sim (kill_on_drop) and exits.
     let _ = Command::new("kill")
         .args(["-INT", &demo.id().to_string()])
@@ -120,7 +150,7 @@ fn demo_serve_prints_the_page_and_the_opcua_endpoint_and_both_answer() {
         out.status,
         peers::INSTALL
     );
-    let ident: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    let ident: Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
     assert_eq!(ident["box"], "demo-full", "{ident}");
     assert_eq!(
         ident["sha256"],
@@ -128,15 +158,83 @@ fn demo_serve_prints_the_page_and_the_opcua_endpoint_and_both_answer() {
         "OPC UA and /status show the same model"
     );
     passes.check();
+    check_sparkplug(&spb.msgs, &passes.cuts);
+}
+
+/// The live node's messages of one type, in arrival order.
+fn live_of<'a>(msgs: &'a [Value], kind: &str) -> Vec<&'a Value> {
+    spb_lines::of(msgs, kind)
+        .into_iter()
+        .filter(|m| m["node"] == LIVE_NODE)
+        .collect()
+}
+
+/// One Sparkplug session across the pass boundary: one NBIRTH (so one bdSeq), no NDEATH, NDATA
+/// `seq` continuous mod 256 from the birth's 0, NDATA during both cuts.
+fn check_sparkplug(msgs: &[Value], cuts: &[(f64, f64)]) {
+    let births = live_of(msgs, "NBIRTH");
+    let deaths = live_of(msgs, "NDEATH");
+    let data = live_of(msgs, "NDATA");
+    let bd_seq = |m: &Value| {
+        m["metrics"]
+            .as_array()
+            .and_then(|ms| ms.iter().find(|x| x["name"] == "bdSeq"))
+            .and_then(|x| x["value"].as_u64())
+    };
+    eprintln!(
+        "sparkplug {LIVE_NODE}: {} NBIRTH (bdSeq {:?}), {} NDEATH, {} NDATA",
+        births.len(),
+        births.iter().map(|b| bd_seq(b)).collect::<Vec<_>>(),
+        deaths.len(),
+        data.len()
+    );
+    assert_eq!(births.len(), 1, "one NBIRTH per session: {births:?}");
+    assert!(deaths.is_empty(), "NDEATH while running: {deaths:?}");
+    assert!(bd_seq(births[0]).is_some(), "NBIRTH without bdSeq");
+    assert_eq!(births[0]["seq"], 0, "NBIRTH seq");
+    // In arrival order, the birth first, then every NDATA one seq on (mod 256).
+    let live: Vec<&Value> = msgs.iter().filter(|m| m["node"] == LIVE_NODE).collect();
+    assert_eq!(
+        live[0]["type"], "NBIRTH",
+        "data before the birth: {:?}",
+        live[0]
+    );
+    let mut gaps = vec![];
+    for w in live.windows(2) {
+        let (a, b) = (w[0]["seq"].as_u64().unwrap(), w[1]["seq"].as_u64().unwrap());
+        if b != (a + 1) % 256 {
+            gaps.push((a, b, w[1]["timestamp"].clone()));
+        }
+    }
+    assert!(
+        gaps.is_empty(),
+        "NDATA seq gaps (from, to, at ms): {gaps:?}"
+    );
+    assert!(data.iter().all(|m| m["wrapper_parsed"] == true));
+    let during = |(a, b): (f64, f64)| {
+        let (a, b) = ((a * 1000.0) as u64, (b * 1000.0) as u64);
+        data.iter()
+            .filter_map(|m| m["timestamp"].as_u64())
+            .filter(|t| *t >= a && *t <= b)
+            .count()
+    };
+    let boundary = (cuts[0].1, cuts[1].0);
+    assert!(
+        during(cuts[0]) > 0 && during(boundary) > 0 && during(cuts[1]) > 0,
+        "NDATA during the first cut, between the cuts and during the second: {}, {}, {}",
+        during(cuts[0]),
+        during(boundary),
+        during(cuts[1])
+    );
 }
 
 /// What the test saw across two passes of the live program.
 struct Passes {
     /// Wall time (Unix s) of the two pocket cuts: (first seen, last seen).
     cuts: Vec<(f64, f64)>,
-    history: serde_json::Value,
-    faults: serde_json::Value,
-    watch: serde_json::Value,
+    history: Value,
+    faults: Value,
+    watch: Value,
     cycles_went_back: Option<(u64, u64)>,
     /// Every channel of the last `/status`.
     sensors: Vec<String>,
@@ -172,7 +270,7 @@ fn two_passes(
         assert!(Instant::now() < deadline, "two passes not seen: {cuts:?}");
         let (code, body) = get("/status");
         assert_eq!(code, 200, "{body}");
-        let st: serde_json::Value = serde_json::from_str(&body).unwrap();
+        let st: Value = serde_json::from_str(&body).unwrap();
         let cycles = st["cycles"].as_u64().unwrap();
         if cycles < last_cycles && cycles_went_back.is_none() {
             cycles_went_back = Some((last_cycles, cycles));
@@ -203,7 +301,7 @@ fn two_passes(
     let json = |path: &str| {
         let (code, body) = get(path);
         assert_eq!(code, 200, "{path}: {body}");
-        serde_json::from_str::<serde_json::Value>(&body).unwrap()
+        serde_json::from_str::<Value>(&body).unwrap()
     };
     Passes {
         cuts,

@@ -247,7 +247,7 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
     assert_eq!(
         count(
             "sink.origin_shift",
-            "Disconnected",
+            "disconnected",
             MODBUS_DOWN.0 - 0.1,
             MODBUS_DOWN.1
         ),
@@ -255,24 +255,24 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
         "{starts:?}\n{log1}"
     );
     assert_eq!(
-        count("x_mm", "Stale", CAN_SILENT.0, CAN_SILENT.1),
+        count("x_mm", "stale", CAN_SILENT.0, CAN_SILENT.1),
         1,
         "{starts:?}"
     );
     for quiet in ["y_mm", "z_mm"] {
         assert_eq!(
-            count(quiet, "Stale", CAN_SILENT.0, CAN_SILENT.1),
+            count(quiet, "stale", CAN_SILENT.0, CAN_SILENT.1),
             0,
             "{starts:?}"
         );
     }
     assert_eq!(
-        count("T_spindle_C", "Stuck", T_STUCK.0, T_STUCK.1),
+        count("T_spindle_C", "stuck", T_STUCK.0, T_STUCK.1),
         1,
         "{starts:?}"
     );
     assert_eq!(
-        count("T_spindle_C", "OutOfRange", T_NAN.0 - 0.1, T_NAN.1),
+        count("T_spindle_C", "out_of_range", T_NAN.0 - 0.1, T_NAN.1),
         1,
         "NaN → 0x7FFF: {starts:?}"
     );
@@ -286,7 +286,7 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
         );
     }
     assert!(
-        count("F_cut_N", "OutOfRange", GARBAGE.0, GARBAGE.1 + 0.1) >= 1,
+        count("F_cut_N", "out_of_range", GARBAGE.0, GARBAGE.1 + 0.1) >= 1,
         "the 90 kN readings were not rejected: {starts:?}"
     );
     // Every fault that started also cleared (the run ended healthy), in every process.

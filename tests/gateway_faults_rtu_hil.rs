@@ -360,7 +360,7 @@ fn gateway_rides_through_a_modbus_rtu_slave_going_down_against_hil_sim() {
     }
     let (s0, s1) = (spindle[0], spindle[1]);
     assert!(
-        s0.1 == "Stale" && s0.2 && s1.1 == "Stale" && !s1.2,
+        s0.1 == "stale" && s0.2 && s1.1 == "stale" && !s1.2,
         "{spindle:?}"
     );
     // On the gateway's clock (it started after hil-sim, so it reads a little less): the episode

@@ -7,7 +7,7 @@
 //!    25 µm counts, X/Y/Z held, the marker 0x55AA), a second client sends FC06 to X's held
 //!    register 13 = 0x7FFF (3276.7 µm held): every FC03 read of the
 //!    correction register before and after is an exception or within 500 counts, and `/status`
-//!    and `/metrics` show the `BeyondClamp` fault of `sink.origin_shift_server.x` with the held
+//!    and `/metrics` show the `beyond_clamp` fault of `sink.origin_shift_server.x` with the held
 //!    value;
 //! 2. an mb2hal-like controller (reads the correction, applies it, writes back position, held and
 //!    marker every 20 ms) brings the axis back; on SIGTERM the box serves a ramp to 0 within the cap
@@ -170,7 +170,7 @@ fn a_rogue_held_write_is_never_served_and_sigterm_ramps_the_served_value_out() {
             "served {v} counts, clamp {MAX_COUNTS}: {lines:?}"
         );
     }
-    let st = gw.wait_status("the BeyondClamp fault of the served axis", |s| {
+    let st = gw.wait_status("the beyond_clamp fault of the served axis", |s| {
         s["sink"]["faults"].as_array().is_some_and(|f| {
             f.iter().any(|x| {
                 x[0] == "sink.origin_shift_server.x" && x[1].as_str() == Some("beyond_clamp")
@@ -187,7 +187,7 @@ fn a_rogue_held_write_is_never_served_and_sigterm_ramps_the_served_value_out() {
         "{metrics}"
     );
     assert_eq!(
-        gw.log_lines(&["origin-shift server fault", "BeyondClamp"])
+        gw.log_lines(&["origin-shift server fault", "kind=\"beyond_clamp\""])
             .len(),
         1,
         "one log line at the fault's start:\n{}",

@@ -30,7 +30,8 @@ pub(crate) struct Args {
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8080")]
     pub serve: Option<String>,
     /// Publish each compensated run as Sparkplug B to this MQTT broker (HOST:PORT; group
-    /// `retrocomp-demo`, one edge node per run), for any Sparkplug client to watch.
+    /// `retrocomp-demo`, one edge node per run: `mill-geometric`, `mill-full`, `mill-fitted`, and
+    /// `mill-live` for the `--serve` gateway), for any Sparkplug client to watch.
     #[arg(long, value_name = "HOST:PORT")]
     pub mqtt: Option<String>,
     /// `SCHED_FIFO` priority (1–99) for each run's simulated machine, CAN hub and the gateway's

@@ -78,7 +78,8 @@ pub struct DemoOptions {
     pub warmup_s: f64,
     pub hil_sim: PathBuf,
     /// `host:port` of an MQTT broker: each compensated run publishes Sparkplug B there (group
-    /// `retrocomp-demo`, edge node `mill-<run>`), through the same publisher as `run`.
+    /// `retrocomp-demo`, edge node `mill-<run>`; the live gateway of `--serve` is `mill-live`, one
+    /// Sparkplug session across its passes), through the same publisher as `run`.
     pub mqtt: Option<String>,
     /// `SCHED_FIFO` priority for the real-time parts of each run: hil-sim's threads (the machine),
     /// the socketcand hub (the bus), the gateway's cycle, sink and readers. None: normal scheduler.
@@ -339,9 +340,8 @@ async fn one_run(
         std::fs::write(&field_path, &text)?;
         let mut cfg = FieldConfig::parse(&text, &field_path)?;
         if let Some(broker) = &opts.mqtt {
-            cfg.telemetry = Some(
-                retrocomp_gateway::northbound::telemetry::config::demo_section(broker, mode.key()),
-            );
+            cfg.telemetry =
+                Some(retrocomp_gateway::northbound::telemetry::config::demo_section(broker, sub));
         }
         let epoch = Instant::now();
         let rx = spawn_sources(&cfg, epoch).await?;

@@ -79,6 +79,36 @@ impl FaultKind {
     pub const fn index(self) -> usize {
         self as usize
     }
+
+    /// Its one spelling, the serde name every API shows (`/status`, `/api/faults`, metrics'
+    /// `kind` label, Sparkplug, OPC UA) and the log writes: `beyond_clamp`, not `BeyondClamp`.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            FaultKind::Stale => "stale",
+            FaultKind::OutOfRange => "out_of_range",
+            FaultKind::NotFinite => "not_finite",
+            FaultKind::RateOfChange => "rate_of_change",
+            FaultKind::Stuck => "stuck",
+            FaultKind::Decode => "decode",
+            FaultKind::Disconnected => "disconnected",
+            FaultKind::BusOff => "bus_off",
+            FaultKind::ErrorPassive => "error_passive",
+            FaultKind::BusErrors => "bus_errors",
+            FaultKind::Exception => "exception",
+            FaultKind::WriteFailed => "write_failed",
+            FaultKind::BeyondClamp => "beyond_clamp",
+            FaultKind::Overloaded => "overloaded",
+            FaultKind::ListenerFailed => "listener_failed",
+            FaultKind::Unauthorized => "unauthorized",
+            FaultKind::NoSource => "no_source",
+        }
+    }
+}
+
+impl fmt::Display for FaultKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
 }
 
 /// Who reports a fault. Prints as its name in status, metrics and logs.
@@ -174,7 +204,12 @@ impl FaultLog {
             let slot = &mut since[kind.index()];
             if slot.is_none() {
                 *slot = Some(now_s);
-                tracing::warn!(source = name.as_str(), ?kind, t_s = now_s, "fault started");
+                tracing::warn!(
+                    source = name.as_str(),
+                    kind = kind.as_str(),
+                    t_s = now_s,
+                    "fault started"
+                );
                 events.push(FaultEvent {
                     source: name.clone(),
                     kind,
@@ -190,7 +225,7 @@ impl FaultLog {
             if let Some(from_s) = since[kind.index()].take() {
                 tracing::info!(
                     source = name.as_str(),
-                    ?kind,
+                    kind = kind.as_str(),
                     t_s = now_s,
                     lasted_s = now_s - from_s,
                     "fault cleared"
@@ -237,6 +272,16 @@ mod tests {
         ev.iter()
             .map(|e| (e.source.clone(), e.kind, e.started))
             .collect()
+    }
+
+    #[test]
+    fn as_str_is_the_serde_name() {
+        for k in FaultKind::ALL {
+            let serde = serde_json::to_value(k).unwrap();
+            assert_eq!(serde.as_str(), Some(k.as_str()), "{k:?}");
+            assert_eq!(k.to_string(), k.as_str());
+        }
+        assert_eq!(FaultKind::BeyondClamp.as_str(), "beyond_clamp");
     }
 
     #[test]

@@ -274,7 +274,7 @@ impl OriginShiftServer {
                 let held: BTreeMap<&str, f64> = self.core.held_um().collect();
                 tracing::warn!(
                     source = e.source.as_str(),
-                    kind = ?e.kind,
+                    kind = e.kind.as_str(),
                     ?held,
                     "origin-shift server fault"
                 );

@@ -222,7 +222,7 @@ pub async fn origin_shift_task(
             let held: BTreeMap<&str, Option<f64>> = core.held_um().collect();
             tracing::warn!(
                 source = e.source.as_str(),
-                kind = ?e.kind,
+                kind = e.kind.as_str(),
                 reason = core.last_error.as_deref().unwrap_or(""),
                 ?held,
                 "origin-shift sink fault"

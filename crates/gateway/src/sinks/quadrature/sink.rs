@@ -264,7 +264,7 @@ pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
         };
         events.extend(faults.update(&trace_source, trace_kinds, now_s));
         for e in events.iter().filter(|e| e.started) {
-            tracing::warn!(source = e.source.as_str(), kind = ?e.kind, held_um = ?st.held_um, ?trace_lost, "quadrature sink fault");
+            tracing::warn!(source = e.source.as_str(), kind = e.kind.as_str(), held_um = ?st.held_um, ?trace_lost, "quadrature sink fault");
         }
         if !events.is_empty() {
             st.faults = faults.active_by_name();
