@@ -233,7 +233,7 @@ pub(crate) fn table(view: &FleetView, drifts: &BTreeMap<(String, String), Machin
             };
             s.push_str(&format!(
                 "{g:<16} {n:<20} {:<11} {:>9.2} {:>9.2}  {what}\n",
-                format!("{:?}", d.state).to_lowercase(),
+                d.state.as_str(),
                 d.rms_um,
                 d.baseline_rms_um
             ));

@@ -82,6 +82,18 @@ pub enum DriftState {
     Error,
 }
 
+impl DriftState {
+    /// The state's one spelling (the JSON's, the table's).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DriftState::Ok => "ok",
+            DriftState::Drifted => "drifted",
+            DriftState::Unexplained => "unexplained",
+            DriftState::Error => "error",
+        }
+    }
+}
+
 /// The latest scheduled diagnosis of one machine (shown in the fleet view and its JSON).
 #[derive(Clone, Debug, Serialize)]
 pub struct MachineDrift {
@@ -156,6 +168,18 @@ pub fn failed(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_table_spells_each_state_as_the_json_does() {
+        for s in [
+            DriftState::Ok,
+            DriftState::Drifted,
+            DriftState::Unexplained,
+            DriftState::Error,
+        ] {
+            assert_eq!(serde_json::to_value(s).unwrap(), s.as_str());
+        }
+    }
 
     fn report(verdict: &str, rms: f64) -> Report {
         Report {
