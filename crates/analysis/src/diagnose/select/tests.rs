@@ -4,6 +4,21 @@ use super::*;
 use crate::diagnose::candidates::Kind;
 use retrocomp_model::recording::Recording;
 
+/// Positions (mm) stepping `steps` × `step_mm` up and back down, 10 samples per dwell.
+fn step_and_dwell(n: usize, steps: usize, step_mm: f64) -> Vec<f64> {
+    (0..n)
+        .map(|i| {
+            let k = (i / 10) % (2 * steps);
+            step_mm
+                * if k < steps {
+                    k as f64
+                } else {
+                    (2 * steps - k) as f64
+                }
+        })
+        .collect()
+}
+
 #[test]
 fn finds_a_backlash_and_nothing_in_pure_noise() {
     use rand::{Rng, SeedableRng};
@@ -12,12 +27,7 @@ fn finds_a_backlash_and_nothing_in_pure_noise() {
     let t: Vec<f64> = (0..n).map(|i| i as f64).collect();
     // Step-and-dwell up and down over 0..200 mm: 10 mm steps, 10 samples per dwell, so velocity
     // (servo lag) and latched direction (backlash) are not collinear.
-    let x: Vec<f64> = (0..n)
-        .map(|i| {
-            let k = (i / 10) % 40;
-            10.0 * if k < 20 { k as f64 } else { (40 - k) as f64 }
-        })
-        .collect();
+    let x = step_and_dwell(n, 20, 10.0);
     let noise: Vec<f64> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
     let rec = Recording::from_columns(vec![
         ("t_s".into(), t),
@@ -104,12 +114,7 @@ fn the_diagnosis_is_the_same_on_one_thread_and_on_two() {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(39);
     let n = 3000;
     let t: Vec<f64> = (0..n).map(|i| i as f64).collect();
-    let x: Vec<f64> = (0..n)
-        .map(|i| {
-            let k = (i / 10) % 46;
-            7.0 * if k < 23 { k as f64 } else { (46 - k) as f64 }
-        })
-        .collect();
+    let x = step_and_dwell(n, 23, 7.0);
     let temp: Vec<f64> = t.iter().map(|s| 20.0 + 3.0 * (s / 900.0).sin()).collect();
     let temp_lag = crate::diagnose::features::lowpass(&t, &temp, 120.0);
     let dir: Vec<f64> = Context::from_recording(
