@@ -1,5 +1,6 @@
-//! Speed of `retrocomp diagnose` (issue 7 item 7): 100 000 samples × 20 context channels, one core
-//! (diagnose is single-threaded). Target ≤ 10 s per diagnosis.
+//! Speed of `retrocomp diagnose` (issue 7 item 7, issue 39 point 3): 100 000 samples × 20 context
+//! channels on rayon's pool (every core; `RAYON_NUM_THREADS=1` for one). Targets ≤ 10 s per
+//! diagnosis on one core, ≤ 2 s on two. Figures: docs/performance.md, docs/diagnose-results.md.
 //! Run: `cargo bench -p retrocomp --bench diagnose`.
 
 use criterion::{Criterion, criterion_group, criterion_main};

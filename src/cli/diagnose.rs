@@ -72,6 +72,9 @@ pub(crate) fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
     let progress = super::term::Progress::spinner("diagnose: reading the recording");
     let (rec, bad) = read_recording(&a.recording, a.skip_bad_rows)?;
     progress.stage("diagnose: finding what simulation and recording disagree on");
+    // The analysis names each stage it enters (signal, selection step, exchange, refit).
+    let set = progress.stage_setter();
+    let observing = diagnose::progress::observe(move |what| set(&format!("diagnose: {what}")));
     let base = match &a.model {
         Some(m) => Some(
             retrocomp_model::MachineModel::from_toml_path(m).map_err(|e| anyhow::anyhow!("{e}"))?,
@@ -95,6 +98,7 @@ pub(crate) fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
         _ => diagnose::diagnose(rec.as_ref().expect("kept"), &Options::default()),
     }
     .with_context(|| a.recording.display().to_string())?;
+    drop(observing);
     progress.finish();
     let mut report = serde_json::to_value(&d.report)?;
     if a.skip_bad_rows {

@@ -60,6 +60,13 @@ impl Progress {
         self.0.set_message(what);
     }
 
+    /// A handle that sets the stage from another place (a library's stage observer: it must be
+    /// `Send + Sync`, which the bar's handle is).
+    pub(crate) fn stage_setter(&self) -> impl Fn(&str) + Send + Sync + 'static {
+        let pb = self.0.clone();
+        move |what: &str| pb.set_message(what.to_string())
+    }
+
     /// `n` more units of a [`Progress::bar`] done.
     pub(crate) fn inc(&self, n: u64) {
         self.0.inc(n);

@@ -20,6 +20,7 @@ mod model_slots;
 mod null_model;
 pub mod output;
 pub mod plots;
+pub mod progress;
 mod refit;
 pub mod regime_check;
 pub mod regimes;
@@ -234,6 +235,7 @@ fn diagnose_residuals(
     for res in residuals.clone() {
         let (signal, r) = res?;
         let axis = signal.chars().nth(1).expect("e<axis>_um");
+        progress::stage(|| format!("{signal}: noise pre-pass (first screening)"));
         let pre = select::unit_root_taus(&ctx, axis, &r, sim_inputs, opts);
         taus.extend(pre.as_ref().map(|(t, _)| *t));
         first_screens.push(pre.map(|(_, first)| first));
@@ -256,6 +258,7 @@ fn diagnose_residuals(
             recording_rejects,
             first_screen,
         );
+        progress::stage(|| format!("{signal}: joint refit, parsimony and checks"));
         let (models, cis, after_coef, refit_terms) =
             out.parsimony(&ctx, &r, &mut sel, signal, sim_inputs, opts);
         out.exchanged(&sel, signal);

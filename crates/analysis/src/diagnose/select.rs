@@ -89,11 +89,14 @@ pub fn select_pooled(
     );
     loop {
         while s.terms.len() < opts.max_terms && r.len() > s.n_raw + 3 {
+            let step = s.terms.len() + 1;
+            super::progress::stage(|| format!("e{axis}_um: selection step {step}"));
             if !s.step() {
                 break;
             }
         }
         // Exchange step (swap.rs), then forward selection again; at most two exchanges per signal.
+        super::progress::stage(|| format!("e{axis}_um: exchange step"));
         if s.terms.is_empty() || s.exchanges >= 2 || !s.exchange() {
             break;
         }

@@ -268,12 +268,16 @@ impl<'a> Selector<'a> {
     }
 
     /// Profile every unused candidate over its grid (best θ by RSS drop: q is fixed within a
-    /// candidate), under the plain null and, for the reversal family, within cells.
+    /// candidate), under the plain null and, for the reversal family, within cells. Candidates
+    /// are screened in parallel (rayon) and collected in library order, each candidate's grid
+    /// swept in order on one thread, so the result is the same with any number of threads.
     fn screen(&self, nulls: &Nulls<'_>) -> Vec<Scored> {
-        let mut scored: Vec<Scored> = vec![];
-        for (idx, c) in self.lib.iter().enumerate() {
-            if self.used[idx] {
-                continue;
+        use rayon::prelude::*;
+        let (ctx, used) = (self.ctx, &self.used);
+        let per_candidate = |(idx, c): (usize, &Candidate)| -> Vec<Scored> {
+            let mut out = vec![];
+            if used[idx] {
+                return out;
             }
             let thetas: Vec<f64> = if c.grid.is_empty() {
                 vec![f64::NAN]
@@ -286,7 +290,7 @@ impl<'a> Selector<'a> {
                 }
                 let nl = nulls.of(blocked);
                 let mut best: Option<Scored> = None;
-                c.columns_sweep(self.ctx, &thetas, |th, cols| {
+                c.columns_sweep(ctx, &thetas, |th, cols| {
                     if let Some((g, q)) = score_cols(c, cols, nl)
                         && best.as_ref().is_none_or(|b| g > b.gain)
                     {
@@ -300,10 +304,12 @@ impl<'a> Selector<'a> {
                         });
                     }
                 });
-                scored.extend(best);
+                out.extend(best);
             }
-        }
-        scored
+            out
+        };
+        let per: Vec<Vec<Scored>> = self.lib.par_iter().enumerate().map(per_candidate).collect();
+        per.into_iter().flatten().collect()
     }
 
     /// The step's winner among the ranked `scored`, refined and tested; `None` ends the forward

@@ -13,6 +13,7 @@
 //! pass the forward bar as a partial test given all others (ΔBIC > `min_delta_bic`, F-test ×
 //! candidates tried < α), and the held-out RMS must not get worse.
 
+use rayon::prelude::*;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
 use super::candidates::{Candidate, Kind};
@@ -55,7 +56,17 @@ fn gain(
     basis: &[Vec<f64>],
     r0: &[f64],
 ) -> Option<(f64, usize)> {
-    let u = lsq::orthonormalize(basis, c.columns(ctx, th), 1);
+    gain_cols(c, c.columns(ctx, th), basis, r0)
+}
+
+/// [`gain`] of columns already built (the grid sweep's).
+fn gain_cols(
+    c: &Candidate,
+    cols: Vec<Vec<f64>>,
+    basis: &[Vec<f64>],
+    r0: &[f64],
+) -> Option<(f64, usize)> {
+    let u = lsq::orthonormalize(basis, cols, 1);
     (!u.is_empty()).then(|| (lsq::gain(&u, r0), u.len() + usize::from(c.is_nonlinear())))
 }
 
@@ -127,17 +138,25 @@ fn best_choice(
                 .iter()
                 .any(|t| same_slot(&t.cand, c) && t.cand.axis == c.axis)
     };
-    // Best grid value of candidate c on `basis` (residual r0): (gain, q, θ).
+    // Best grid value of candidate c on `basis` (residual r0): (gain, q, θ). The grid is swept
+    // as forward selection screens it (`Candidate::columns_sweep`: a cyclic candidate's sin/cos
+    // rotated from the previous period instead of recomputed, 70 % of the exchange's time at 10⁵
+    // rows); on equal gains the last θ wins, as `max_by` picked it.
     let best_of = |c: &Candidate, basis: &[Vec<f64>], r0: &[f64]| {
         let thetas: Vec<f64> = if c.grid.is_empty() {
             vec![f64::NAN]
         } else {
             c.grid.clone()
         };
-        thetas
-            .iter()
-            .filter_map(|&th| gain(ctx, c, th, basis, r0).map(|(g, q)| (g, q, th)))
-            .max_by(|a, b| a.0.total_cmp(&b.0))
+        let mut best: Option<(f64, usize, f64)> = None;
+        c.columns_sweep(ctx, &thetas, |th, cols| {
+            if let Some((g, q)) = gain_cols(c, cols, basis, r0)
+                && best.is_none_or(|b| g.total_cmp(&b.0).is_ge())
+            {
+                best = Some((g, q, th));
+            }
+        });
+        best
     };
     // (improvement in BIC, k, [(cand, θ)]).
     let mut best: Option<Choice> = None;
@@ -152,8 +171,10 @@ fn best_choice(
             continue;
         };
         let rss_cur = rss0 - g_cur;
+        // Candidates profiled in parallel, collected in library order (rayon's `collect` keeps
+        // it): the same exchange with any number of threads.
         let mut singles: Vec<(f64, usize, f64, &Candidate)> = lib
-            .iter()
+            .par_iter()
             .filter(|c| !taken(c))
             .filter_map(|c| best_of(c, &basis, &r0).map(|(g, q, th)| (g, q, th, c)))
             .collect();
@@ -174,13 +195,16 @@ fn best_choice(
             let u = lsq::orthonormalize(&basis, c.columns(ctx, th_c), 1);
             basis.extend(u);
             let r1 = lsq::deflate(&basis, r);
-            for d in lib.iter().filter(|d| !taken(d) && !same_slot(d, c)) {
-                if let Some((g_d, q_d, th_d)) = best_of(d, &basis, &r1) {
-                    consider(
-                        score(rss0 - g_c - g_d, q_c + q_d),
-                        vec![(c.clone(), th_c), (d.clone(), th_d)],
-                    );
-                }
+            let seconds: Vec<(&Candidate, (f64, usize, f64))> = lib
+                .par_iter()
+                .filter(|d| !taken(d) && !same_slot(d, c))
+                .filter_map(|d| best_of(d, &basis, &r1).map(|b| (d, b)))
+                .collect();
+            for (d, (g_d, q_d, th_d)) in seconds {
+                consider(
+                    score(rss0 - g_c - g_d, q_c + q_d),
+                    vec![(c.clone(), th_c), (d.clone(), th_d)],
+                );
             }
             basis.truncate(m);
         }

@@ -4,6 +4,21 @@ use super::*;
 use crate::diagnose::candidates::Kind;
 use retrocomp_model::recording::Recording;
 
+/// Positions (mm) stepping `steps` × `step_mm` up and back down, 10 samples per dwell.
+fn step_and_dwell(n: usize, steps: usize, step_mm: f64) -> Vec<f64> {
+    (0..n)
+        .map(|i| {
+            let k = (i / 10) % (2 * steps);
+            step_mm
+                * if k < steps {
+                    k as f64
+                } else {
+                    (2 * steps - k) as f64
+                }
+        })
+        .collect()
+}
+
 #[test]
 fn finds_a_backlash_and_nothing_in_pure_noise() {
     use rand::{Rng, SeedableRng};
@@ -12,12 +27,7 @@ fn finds_a_backlash_and_nothing_in_pure_noise() {
     let t: Vec<f64> = (0..n).map(|i| i as f64).collect();
     // Step-and-dwell up and down over 0..200 mm: 10 mm steps, 10 samples per dwell, so velocity
     // (servo lag) and latched direction (backlash) are not collinear.
-    let x: Vec<f64> = (0..n)
-        .map(|i| {
-            let k = (i / 10) % 40;
-            10.0 * if k < 20 { k as f64 } else { (40 - k) as f64 }
-        })
-        .collect();
+    let x = step_and_dwell(n, 20, 10.0);
     let noise: Vec<f64> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
     let rec = Recording::from_columns(vec![
         ("t_s".into(), t),
@@ -94,4 +104,59 @@ fn restarted_lag_is_a_lag_started_fresh_at_each_block() {
     }
     // The restart matters here (the carried state differs at block starts).
     assert!(moved > 1.0, "{moved}");
+}
+
+/// The screening and the exchange run on rayon's pool and collect in library order: the whole
+/// diagnosis serialises to the same bytes on one thread and on two (issue 39 point 3).
+#[test]
+fn the_diagnosis_is_the_same_on_one_thread_and_on_two() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(39);
+    let n = 3000;
+    let t: Vec<f64> = (0..n).map(|i| i as f64).collect();
+    let x = step_and_dwell(n, 23, 7.0);
+    let temp: Vec<f64> = t.iter().map(|s| 20.0 + 3.0 * (s / 900.0).sin()).collect();
+    let temp_lag = crate::diagnose::features::lowpass(&t, &temp, 120.0);
+    let dir: Vec<f64> = Context::from_recording(
+        &Recording::from_columns(vec![
+            ("t_s".into(), t.clone()),
+            ("x_mm".into(), x.clone()),
+            ("ex_um".into(), vec![0.0; n]),
+        ])
+        .unwrap(),
+    )
+    .axis('x')
+    .unwrap()
+    .dir
+    .iter()
+    .map(|&d| f64::from(d))
+    .collect();
+    // Backlash, a 25 mm cyclic error, a lagged thermal drift, noise.
+    let ex: Vec<f64> = (0..n)
+        .map(|i| {
+            2.0 * dir[i]
+                + 1.5 * (std::f64::consts::TAU * x[i] / 25.0).sin()
+                + 0.8 * (temp_lag[i] - 20.0)
+                + rng.random_range(-0.5..0.5)
+        })
+        .collect();
+    let rec = Recording::from_columns(vec![
+        ("t_s".into(), t),
+        ("x_mm".into(), x),
+        ("T_spindle_C".into(), temp),
+        ("ex_um".into(), ex),
+        ("sim_ex_um".into(), vec![0.0; n]),
+    ])
+    .unwrap();
+    let on = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let d = pool.install(|| crate::diagnose::diagnose(&rec, &Options::default()).unwrap());
+        serde_json::to_string(&d.report).unwrap()
+    };
+    let one = on(1);
+    assert!(one.contains("backlash"), "{one}");
+    assert_eq!(one, on(2));
 }
