@@ -231,15 +231,15 @@ impl CycleLoop {
             if self.io.wake.take() {
                 pacer.handle_arrival(now_s);
             }
-            let Some(run) = pacer.poll_run(now_s) else {
+            let Some(late_s) = pacer.poll_run(now_s) else {
                 let wait_s = pacer.poll_timeout() - now_s;
                 std::thread::park_timeout(Duration::from_secs_f64(wait_s.max(0.0)));
                 continue;
             };
-            if run.late_s > period_s {
+            if late_s > period_s {
                 self.report.late_cycles += 1;
                 self.timing.late_cycles += 1;
-                self.report.max_late_ms = self.report.max_late_ms.max(run.late_s * 1e3);
+                self.report.max_late_ms = self.report.max_late_ms.max(late_s * 1e3);
             }
             self.step(now_s);
         }

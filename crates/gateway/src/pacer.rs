@@ -30,13 +30,6 @@ pub struct Pacer {
     due_s: f64,
 }
 
-/// What one run was: how late after its due time, s, and whether an arrival triggered it.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Run {
-    pub late_s: f64,
-    pub by_arrival: bool,
-}
-
 impl Pacer {
     /// Slots start at `start_s`; the first cycle runs at once (`start_s`), so the outputs exist
     /// from the start, then one per slot.
@@ -80,15 +73,13 @@ impl Pacer {
         self.due_s
     }
 
-    /// At `now_s`: `Some` if a cycle runs now (the caller runs it), and schedules the next.
-    pub fn poll_run(&mut self, now_s: f64) -> Option<Run> {
+    /// At `now_s`: `Some(late_s)` if a cycle runs now (the caller runs it; `late_s` is how long
+    /// after its due time, s), and schedules the next.
+    pub fn poll_run(&mut self, now_s: f64) -> Option<f64> {
         if now_s < self.due_s {
             return None;
         }
-        let run = Run {
-            late_s: now_s - self.due_s,
-            by_arrival: self.pending,
-        };
+        let late_s = now_s - self.due_s;
         let k = self.slot(now_s);
         self.done_slot = if self.done_slot < -1 {
             // The first cycle, at start: it closes the slot before the first.
@@ -103,7 +94,7 @@ impl Pacer {
         self.pending = false;
         // The next slot's fallback: at its end.
         self.due_s = self.slot_start(self.done_slot + 2);
-        Some(run)
+        Some(late_s)
     }
 }
 
