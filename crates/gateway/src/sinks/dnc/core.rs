@@ -142,6 +142,7 @@ pub struct DncCore<'m> {
     stopped_since: Option<f64>,
     stalled: bool,
     input_done: bool,
+    tape_marks: u32,
     trailer_queued: bool,
     /// First source line not completely sent.
     resume_point: u64,
@@ -186,6 +187,7 @@ impl<'m> DncCore<'m> {
             stopped_since: None,
             stalled: false,
             input_done: false,
+            tape_marks: 0,
             trailer_queued: false,
             blocks_sent: 0,
         }
@@ -197,11 +199,22 @@ impl<'m> DncCore<'m> {
         !self.input_done && self.blocks.is_empty()
     }
 
-    /// Source line `line_no` (1-based) of the program.
+    /// Source line `line_no` (1-based) of the program. The second `%` ends the program (ISO tape
+    /// end): what follows is not sent.
     pub fn feed_line(&mut self, line_no: u64, raw: &str) -> Result<(), DncError> {
         let blocks = parse_line("program", line_no, raw, self.cfg.semicolon_is_eob)
             .map_err(|e| DncError::Program(e.to_string()))?;
-        self.blocks.extend(blocks);
+        for b in blocks {
+            if b.words.is_empty() && b.source == "%" {
+                self.tape_marks += 1;
+            }
+            self.blocks.push_back(b);
+            // The second `%` is the tape end: a sender that keeps its line open ends here.
+            if self.tape_marks == 2 {
+                self.input_done = true;
+                break;
+            }
+        }
         Ok(())
     }
 

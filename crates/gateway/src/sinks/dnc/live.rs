@@ -166,7 +166,7 @@ impl ErrorFunction for LiveCorrections {
             return Some([0.0; 3]);
         }
         if let Some(a) = i.pending
-            && a.pos_mm == pos_mm
+            && a.pos_mm.map(f64::to_bits) == pos_mm.map(f64::to_bits)
             && a.dirs == dirs
         {
             return Some(a.correction_um.map(|c| -c));

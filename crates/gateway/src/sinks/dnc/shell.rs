@@ -120,6 +120,13 @@ pub async fn run_dnc(
     };
     let (mut line_no, mut model_faulted, mut sender_held) = (0u64, false, false);
     let mut buf = [0u8; 256];
+    // One character on the wire: start bit, data bits, parity, stop bits.
+    let bits =
+        1 + u32::from(s.data_bits) + u32::from(s.parity != Parity::None) + u32::from(s.stop_bits);
+    let char_s = f64::from(bits) / f64::from(s.baud);
+    let mut busy_until = 0.0;
+    // Registered once: a SIGINT that arrives while a line is being written is not lost.
+    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
     let interrupted = |core: &DncCore<'_>, why: String| Some((core.resume_point(), why));
     while !core.done() {
         match core.poll_stall(now()) {
@@ -139,16 +146,24 @@ pub async fn run_dnc(
             let cts = port.read_clear_to_send().map_err(std::io::Error::other)?;
             core.flow(!cts, now());
         }
-        let ready = match core.next_to_send(now()) {
-            Ok(b) => b.map(<[u8]>::to_vec),
-            Err(e) => {
-                sum.interrupted = interrupted(core, e.to_string());
-                return Ok(sum);
+        // Paced at the line's character rate: what the box wrote is on the wire before the next
+        // line, so a DC3 stops it within one line even where the OS buffers more (a pty, a
+        // USB adapter's FIFO).
+        let ready = if now() < busy_until {
+            None
+        } else {
+            match core.next_to_send(now()) {
+                Ok(b) => b.map(<[u8]>::to_vec),
+                Err(e) => {
+                    sum.interrupted = interrupted(core, e.to_string());
+                    return Ok(sum);
+                }
             }
         };
         if let Some(bytes) = ready {
             AsyncWriteExt::write_all(&mut port, &bytes).await?;
             AsyncWriteExt::flush(&mut port).await?;
+            busy_until = now() + bytes.len() as f64 * char_s;
             if let Some(b) = core.sent(now()) {
                 sum.blocks_sent += 1;
                 note_model(live, &mut model_faulted, &mut sum, b.line);
@@ -167,7 +182,9 @@ pub async fn run_dnc(
         }
         let tick = core
             .stall_deadline_s()
-            .map_or(0.5, |d| (d - now()).clamp(0.001, 0.5));
+            .map_or(0.5, |d| d - now())
+            .min(busy_until - now())
+            .clamp(0.001, 0.5);
         let tick = if s.flow == Flow::RtsCts {
             tick.min(0.01)
         } else {
@@ -196,7 +213,7 @@ pub async fn run_dnc(
                 live.observe(&smp);
             }
             _ = tokio::time::sleep(Duration::from_secs_f64(tick)) => {}
-            _ = tokio::signal::ctrl_c() => {
+            _ = sigint.recv() => {
                 sum.interrupted = interrupted(core, "interrupted (SIGINT)".into());
                 return Ok(sum);
             }
