@@ -247,6 +247,14 @@ fn sender_box_controller_over_ptys_every_block_read_by_rs274_at_nominal_plus_log
             w[1].line
         );
     }
+    eprintln!(
+        "{done}; {} motions read by rs274; X350 correction {:.1} µm at {:.1} s → {:.1} µm at {:.1} s",
+        canon.len(),
+        first.cx_um,
+        first.t_s,
+        last.cx_um,
+        last.t_s
+    );
 }
 
 #[test]
@@ -352,4 +360,78 @@ fn a_controller_that_never_resumes_is_a_stall_and_the_named_block_resumes_withou
         String::from_utf8_lossy(&out.stderr).contains(&format!("resuming from line {resume}")),
         "the resume point is said"
     );
+}
+
+#[test]
+fn an_unsafe_or_inconsistent_dnc_section_is_refused_with_file_line_and_key() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = field(tmp.path(), Path::new("/dev/null"), "data_bits = 7");
+    let out = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .args(["dnc", "--config", s(&cfg), "--program", s(&cfg)])
+        .args(["--port", "/dev/null"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    // `[dnc]` is line 24 of the file: parity, not given, had to be said there.
+    assert!(
+        err.contains("field.toml:24: key `dnc.parity`") && err.contains("7 data bits"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_program_from_a_tcp_sender_is_passed_on_compensated() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let (_s1, ctl_peer, ctl_box) = pair(dir, "ctl");
+    let (_s3, sen_peer, sen_box) = pair(dir, "sen");
+    let cfg = field(dir, &sen_box, "");
+    let _sensor = python("dnc_sensor.py", &[s(&sen_peer), "9600", "25.0", "0.0"]);
+    let received = dir.join("received.ngc");
+    let controller = python(
+        "dnc_controller.py",
+        &[s(&ctl_peer), "9600", s(&received), "10", "5"],
+    );
+    let port = peers::free_port();
+    let log = dir.join("sent.csv");
+    let retro = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .args(["dnc", "--config", s(&cfg), "--listen"])
+        .arg(format!("tcp:127.0.0.1:{port}"))
+        .args(["--port", s(&ctl_box), "--log", s(&log)])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let mut conn = loop {
+        match std::net::TcpStream::connect(("127.0.0.1", port)) {
+            Ok(c) => break c,
+            Err(e) => {
+                assert!(Instant::now() < deadline, "box not listening: {e}");
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        }
+    };
+    let text = program(6);
+    std::io::Write::write_all(&mut conn, text.as_bytes()).unwrap();
+    controller.line(60);
+    let out = retro.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let canon = rs274(&received).unwrap_or_else(|e| panic!("rs274: {e}"));
+    let rows = log_rows(&log);
+    assert_eq!(canon.len(), rows.len());
+    assert_eq!(rows.len(), 6 + 3);
+    // The last block (G0 Z10) ends at X50 approached in reverse: EXX = −3 + 8·50/400 = −2 µm,
+    // plus 5 K × 2 µm/K = 10 µm at 25 °C: error 8 µm, correction −8 µm (ramped in by then at
+    // 5 µm per block).
+    let last = rows.last().unwrap();
+    assert!((last.x_mm - 50.0).abs() < 1e-9);
+    assert!((last.cx_um + 8.0).abs() < 0.15, "{:.1} µm", last.cx_um);
+    for (m, r) in canon.iter().zip(&rows) {
+        assert!((m.end_mm[0] - (r.x_mm + r.cx_um / 1000.0)).abs() < 0.15e-3);
+    }
 }
