@@ -114,6 +114,21 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `retrocomp dnc --config CFG --port PORT --log LOG`; the caller adds the program source.
+fn dnc(cfg: &Path, port: &Path, log: &Path) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_retrocomp"));
+    c.args([
+        "dnc",
+        "--config",
+        s(cfg),
+        "--port",
+        s(port),
+        "--log",
+        s(log),
+    ]);
+    c
+}
+
 struct Row {
     line: u64,
     x_mm: f64,
@@ -170,9 +185,8 @@ fn sender_box_controller_over_ptys_every_block_read_by_rs274_at_nominal_plus_log
         &[s(&ctl_peer), "9600", s(&received), "80", "5"],
     );
     let log = dir.join("sent.csv");
-    let mut retro = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .args(["dnc", "--config", s(&cfg), "--sender-port", s(&snd_box)])
-        .args(["--port", s(&ctl_box), "--log", s(&log)])
+    let mut retro = dnc(&cfg, &ctl_box, &log)
+        .args(["--sender-port", s(&snd_box)])
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
@@ -274,9 +288,8 @@ fn a_controller_that_never_resumes_is_a_stall_and_the_named_block_resumes_withou
         "dnc_controller.py",
         &[s(&ctl_peer), "9600", s(&first), "1e9", "5"],
     );
-    let mut retro = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .args(["dnc", "--config", s(&cfg), "--program", s(&prog)])
-        .args(["--port", s(&ctl_box), "--log", s(&dir.join("a.csv"))])
+    let mut retro = dnc(&cfg, &ctl_box, &dir.join("a.csv"))
+        .args(["--program", s(&prog)])
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
@@ -324,9 +337,8 @@ fn a_controller_that_never_resumes_is_a_stall_and_the_named_block_resumes_withou
         "dnc_controller.py",
         &[s(&ctl_peer), "9600", s(&second), "20", "5", "1"],
     );
-    let out = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .args(["dnc", "--config", s(&cfg), "--program", s(&prog)])
-        .args(["--port", s(&ctl_box), "--log", s(&dir.join("b.csv"))])
+    let out = dnc(&cfg, &ctl_box, &dir.join("b.csv"))
+        .args(["--program", s(&prog)])
         .args(["--resume-from", &resume.to_string()])
         .output()
         .unwrap();
@@ -366,9 +378,8 @@ fn a_controller_that_never_resumes_is_a_stall_and_the_named_block_resumes_withou
 fn an_unsafe_or_inconsistent_dnc_section_is_refused_with_file_line_and_key() {
     let tmp = tempfile::tempdir().unwrap();
     let cfg = field(tmp.path(), Path::new("/dev/null"), "data_bits = 7");
-    let out = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .args(["dnc", "--config", s(&cfg), "--program", s(&cfg)])
-        .args(["--port", "/dev/null"])
+    let out = dnc(&cfg, Path::new("/dev/null"), &tmp.path().join("a.csv"))
+        .args(["--program", s(&cfg)])
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -395,10 +406,9 @@ fn a_program_from_a_tcp_sender_is_passed_on_compensated() {
     );
     let port = peers::free_port();
     let log = dir.join("sent.csv");
-    let retro = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .args(["dnc", "--config", s(&cfg), "--listen"])
+    let retro = dnc(&cfg, &ctl_box, &log)
+        .arg("--listen")
         .arg(format!("tcp:127.0.0.1:{port}"))
-        .args(["--port", s(&ctl_box), "--log", s(&log)])
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
