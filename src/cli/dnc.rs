@@ -20,7 +20,7 @@ use retrocomp_gateway::sources::spawn_sources;
 use retrocomp_model::Axis;
 
 #[derive(Debug, clap::Args)]
-#[command(group(clap::ArgGroup::new("source").required(true).args(["program", "listen", "sender_port"])))]
+#[command(group(clap::ArgGroup::new("source").args(["program", "listen", "sender_port"])))]
 pub(crate) struct Args {
     /// Field configuration TOML with a `[dnc]` section (model and sensors as for `run`).
     #[arg(long)]
@@ -35,7 +35,8 @@ pub(crate) struct Args {
     #[arg(long, value_parser = parse_listen)]
     pub listen: Option<std::net::SocketAddr>,
     /// Take the program from a DNC sender on this serial device (in-line between the DNC PC and
-    /// the controller; the sender is held back with XON/XOFF).
+    /// the controller; the sender is held back with XON/XOFF). Default: `dnc.sender_port` when
+    /// neither --program nor --listen is given.
     #[arg(long)]
     pub sender_port: Option<String>,
     /// The controller's DNC serial device; overrides `dnc.port`.
@@ -81,11 +82,14 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
                 args.config.display()
             )
         })?;
-    let source = match (&args.program, args.listen, &args.sender_port) {
+    let sender = args.sender_port.clone().or_else(|| dnc.sender_port.clone());
+    let source = match (&args.program, args.listen, sender) {
         (Some(p), _, _) => ProgramSource::File(p.clone()),
         (_, Some(a), _) => ProgramSource::Tcp(a),
-        (_, _, Some(d)) => ProgramSource::Serial(d.clone()),
-        _ => unreachable!("clap requires one source"),
+        (_, _, Some(d)) => ProgramSource::Serial(d),
+        _ => bail!(
+            "no program source: give --program FILE, --listen tcp:ADDR or --sender-port DEV (or dnc.sender_port)"
+        ),
     };
     if let ProgramSource::Serial(d) = &source
         && *d == port

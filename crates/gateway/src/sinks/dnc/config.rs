@@ -100,7 +100,8 @@ pub struct DncSection {
     /// `safety.max_change_um_per_cycle` (the per-write cap every sink uses).
     #[serde(default)]
     pub max_change_um_per_block: Option<f64>,
-    /// A DNC sender (the shop's DNC PC) writing to the box: its serial settings are these too.
+    /// A DNC sender (the shop's DNC PC) writing to the box (`--sender-port` overrides; used when
+    /// neither `--program` nor `--listen` is given): its serial settings are these too.
     #[serde(default)]
     pub sender_port: Option<String>,
 }
