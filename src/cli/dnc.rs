@@ -12,10 +12,10 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
+use retrocomp::dnc::core::{CoreConfig, DncCore};
+use retrocomp::dnc::live::{LiveCorrections, ModelAtPoint};
+use retrocomp::dnc::shell::{ProgramSource, run_dnc};
 use retrocomp_gateway::config::field_check::check_field;
-use retrocomp_gateway::sinks::dnc::core::{CoreConfig, DncCore};
-use retrocomp_gateway::sinks::dnc::live::{LiveCorrections, ModelAtPoint};
-use retrocomp_gateway::sinks::dnc::shell::{ProgramSource, run_dnc};
 use retrocomp_gateway::sources::spawn_sources;
 use retrocomp_model::Axis;
 

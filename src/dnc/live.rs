@@ -19,8 +19,8 @@ use retrocomp_bus::{ChannelId, Sample};
 use retrocomp_model::Axis;
 use retrocomp_model::approach::Approach;
 
-use crate::engine::{AxisErrors, ErrorModel, MachineState};
-use crate::sinks::guard::{GuardLimits, Verdict, WriteGuard};
+use retrocomp_gateway::engine::{AxisErrors, ErrorModel, MachineState};
+use retrocomp_gateway::sinks::guard::{GuardLimits, Verdict, WriteGuard};
 
 /// Output resolution of a compensated block, µm (the rewriter writes 4 decimals in mm).
 pub const BLOCK_LSB_UM: f64 = 0.1;

@@ -22,8 +22,8 @@ use std::collections::VecDeque;
 use retrocomp_analysis::nc::parser::{Block, parse_line};
 use retrocomp_analysis::nc::rewrite::{Point, RewriteConfig, RewriteSink, Rewriter};
 
-use super::config::LineEnd;
 use super::live::{Applied, LiveCorrections};
+use retrocomp_gateway::sinks::dnc::config::LineEnd;
 
 pub const XON: u8 = 0x11;
 pub const XOFF: u8 = 0x13;

@@ -16,9 +16,9 @@ use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncReadExt, AsyncWriteExt, BufRead
 use tokio::sync::mpsc;
 use tokio_serial::{SerialPort, SerialPortBuilderExt, SerialStream};
 
-use super::config::{DncSection, Flow};
 use super::core::{DncCore, LOG_HEADER, StallEdge, XOFF, XON};
 use super::live::LiveCorrections;
+use retrocomp_gateway::sinks::dnc::config::{DncSection, Flow};
 
 /// Where the program comes from.
 #[derive(Clone, Debug)]

@@ -3,9 +3,9 @@
 
 use retrocomp_model::approach::Approach;
 
-use super::config::LineEnd;
 use super::core::{CoreConfig, DncCore, DncError, SentBlock, StallEdge, XOFF, XON};
 use super::live::{CorrectionAt, LiveCorrections};
+use retrocomp_gateway::sinks::dnc::config::LineEnd;
 
 /// X correction = −(drift · t + slope · x) µm (a thermal drift and a scale error); Y, Z none.
 struct Drift {
