@@ -62,6 +62,28 @@ fn parse_listen(s: &str) -> Result<std::net::SocketAddr, String> {
         .map_err(|e| format!("{a:?}: {e} (expected tcp:127.0.0.1:7000)"))
 }
 
+/// Per axis X, Y, Z: the clamp of the field config's safety and the per-block cap, and whether
+/// the config drives the axis (the others get clamp 0: never a correction).
+fn guard_limits(
+    cfg: &retrocomp_gateway::config::FieldConfig,
+    dnc: &retrocomp_gateway::sinks::dnc::config::DncSection,
+) -> ([(f64, f64); 3], [bool; 3]) {
+    let mut limits = [(0.0, 0.0); 3];
+    let mut driven = [false; 3];
+    for a in &cfg.axes {
+        let Some(ax) = Axis::from_name(&a.name) else {
+            continue;
+        };
+        let s = cfg.safety_for(&a.name);
+        let cap = dnc
+            .max_change_um_per_block
+            .unwrap_or(s.max_change_um_per_cycle);
+        limits[ax.index()] = (s.max_correction_um, cap);
+        driven[ax.index()] = true;
+    }
+    (limits, driven)
+}
+
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     super::term::init_tracing("info");
     let checked = check_field(&args.config, args.model.as_deref())?;
@@ -96,20 +118,7 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     {
         bail!("--sender-port {d} is the controller's port");
     }
-    // Per axis X, Y, Z: the clamp of the field config's safety and the per-block cap.
-    let mut limits = [(0.0, 0.0); 3];
-    let mut driven = [false; 3];
-    for a in &cfg.axes {
-        let Some(ax) = Axis::from_name(&a.name) else {
-            continue;
-        };
-        let s = cfg.safety_for(&a.name);
-        let cap = dnc
-            .max_change_um_per_block
-            .unwrap_or(s.max_change_um_per_cycle);
-        limits[ax.index()] = (s.max_correction_um, cap);
-        driven[ax.index()] = true;
-    }
+    let (limits, driven) = guard_limits(&cfg, &dnc);
     let live = LiveCorrections::new(
         Box::new(ModelAtPoint::new(
             Box::new(checked.model),

@@ -129,18 +129,7 @@ pub async fn run_dnc(
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
     let interrupted = |core: &DncCore<'_>, why: String| Some((core.resume_point(), why));
     while !core.done() {
-        match core.poll_stall(now()) {
-            Some(StallEdge::Started { since_s, line }) => {
-                sum.stalls += 1;
-                tracing::warn!(source = "sink.dnc", kind = ?FaultKind::Disconnected,
-                    "fault start: the controller has held the transfer since {since_s:.1} s (no XON / CTS); block of line {line} waits, not lost");
-            }
-            Some(StallEdge::Cleared { after_s }) => {
-                tracing::info!(source = "sink.dnc", kind = ?FaultKind::Disconnected,
-                    "fault clear: the controller resumed at {after_s:.1} s");
-            }
-            None => {}
-        }
+        note_stall(core.poll_stall(now()), &mut sum);
         if s.flow == Flow::RtsCts {
             // The driver holds output while CTS is low; the core must know to judge a stall.
             let cts = port.read_clear_to_send().map_err(std::io::Error::other)?;
@@ -172,14 +161,7 @@ pub async fn run_dnc(
             }
             continue;
         }
-        // Hold the serial sender back while the core has a line waiting.
-        if let Some(h) = hold.as_mut() {
-            let want = core.wants_input();
-            if want == sender_held {
-                h.write_all(&[if want { XON } else { XOFF }]).await?;
-                sender_held = !want;
-            }
-        }
+        hold_sender(hold.as_mut(), core.wants_input(), &mut sender_held).await?;
         let tick = core
             .stall_deadline_s()
             .map_or(0.5, |d| d - now())
@@ -220,6 +202,38 @@ pub async fn run_dnc(
         }
     }
     Ok(sum)
+}
+
+/// Hold the serial sender back (XOFF) while the core has a line waiting; let it go (XON) when
+/// the core wants the next one. `held`: what the sender was last told.
+async fn hold_sender(
+    hold: Option<&mut tokio::io::WriteHalf<SerialStream>>,
+    want: bool,
+    held: &mut bool,
+) -> std::io::Result<()> {
+    if let Some(h) = hold
+        && want == *held
+    {
+        h.write_all(&[if want { XON } else { XOFF }]).await?;
+        *held = !want;
+    }
+    Ok(())
+}
+
+/// Count and log the edges of a stall.
+fn note_stall(edge: Option<StallEdge>, sum: &mut DncSummary) {
+    match edge {
+        Some(StallEdge::Started { since_s, line }) => {
+            sum.stalls += 1;
+            tracing::warn!(source = "sink.dnc", kind = ?FaultKind::Disconnected,
+                "fault start: the controller has held the transfer since {since_s:.1} s (no XON / CTS); block of line {line} waits, not lost");
+        }
+        Some(StallEdge::Cleared { after_s }) => {
+            tracing::info!(source = "sink.dnc", kind = ?FaultKind::Disconnected,
+                "fault clear: the controller resumed at {after_s:.1} s");
+        }
+        None => {}
+    }
 }
 
 /// Count and log the edges of the model fault (a block sent with the held correction).
