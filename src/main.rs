@@ -43,6 +43,8 @@ enum Command {
     Export(cli::export::Args),
     /// Rewrite an NC program with compensation.
     Nc(cli::nc::Args),
+    /// Drip-feed an NC program to a controller's DNC serial input with live offsets (docs/dnc.md).
+    Dnc(cli::dnc::Args),
     /// Circular (ballbar) test: ISO 230-4 G/F and error diagnosis.
     Circle(cli::circle::Args),
     /// Fit model terms (axis tables, thermal, load) from measurements; writes model TOML.
@@ -69,6 +71,7 @@ fn main() -> std::process::ExitCode {
         Command::Import(a) => cli::import::run(&a),
         Command::Export(a) => cli::export::run(&a),
         Command::Nc(a) => cli::nc::run(&a),
+        Command::Dnc(a) => cli::dnc::run(&a),
         Command::Circle(a) => cli::circle::run(&a),
         Command::Fit(a) => cli::fit::run(&a),
         Command::Identify(a) => cli::identify::run(&a),

@@ -7,6 +7,7 @@ pub(crate) mod demo;
 pub(crate) mod demo_report;
 pub(crate) mod diagnose;
 pub(crate) mod diagnose_report;
+pub(crate) mod dnc;
 pub(crate) mod eval;
 pub(crate) mod export;
 pub(crate) mod fit;

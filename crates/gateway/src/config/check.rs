@@ -188,11 +188,15 @@ impl FieldConfig {
         if let Some(q) = &self.sink.quadrature {
             self.validate_quadrature(q)?;
         }
+        if let Some(d) = &self.dnc {
+            d.validate(self.safety.max_correction_um)?;
+        }
         self.validate_buses()?;
         limits::check(self)?;
         if self.sink.origin_shift.is_none()
             && self.sink.quadrature.is_none()
             && self.sink.origin_shift_server.is_none()
+            && self.dnc.is_none()
         {
             tracing::warn!(
                 "no [sink] configured: the gateway computes and reports, but corrects nothing"

@@ -61,6 +61,9 @@ pub struct FieldConfig {
     /// OPC UA server for the plant's systems (`crates/gateway/src/opcua`); absent → none.
     #[serde(default)]
     pub opcua: Option<crate::northbound::opcua::OpcUaSection>,
+    /// DNC drip-feed to the controller's serial input (`retrocomp dnc`, crates/gateway/src/sinks/dnc).
+    #[serde(default)]
+    pub dnc: Option<crate::sinks::dnc::config::DncSection>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

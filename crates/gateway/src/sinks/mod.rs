@@ -7,6 +7,7 @@
 //! Units and signs: outputs are corrections per axis, µm, = −error (the engine's convention);
 //! the start values are what the controller holds per axis, µm, with the same sign.
 
+pub mod dnc;
 pub mod guard;
 pub mod origin_shift;
 pub mod quadrature;

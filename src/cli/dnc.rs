@@ -1,0 +1,185 @@
+//! `retrocomp dnc --config FIELD.toml (--program FILE | --listen tcp:ADDR | --sender-port DEV)
+//! [--port DEV] [--resume-from N] [--log SENT.csv] [--model MODEL.toml]`
+//!
+//! DNC drip-feed with live offsets (docs/dnc.md): streams the program to the controller's serial
+//! DNC input with the `[dnc]` link settings of the field config, adding to each motion block, as it
+//! is sent, the correction the live model (the field config's model, fed by its sources) has for
+//! the block's end point, through the last-step guard (clamp, per-block cap). The send log (one CSV
+//! row per block: line, nominal end point, correction, time) is flushed per block. An interrupted
+//! or refused transfer prints the block to resume from; resuming is only ever from the block the
+//! operator names with `--resume-from`.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use retrocomp::dnc::core::{CoreConfig, DncCore};
+use retrocomp::dnc::live::{LiveCorrections, ModelAtPoint};
+use retrocomp::dnc::shell::{ProgramSource, run_dnc};
+use retrocomp_gateway::config::field_check::check_field;
+use retrocomp_gateway::sources::spawn_sources;
+use retrocomp_model::Axis;
+
+#[derive(Debug, clap::Args)]
+#[command(group(clap::ArgGroup::new("source").args(["program", "listen", "sender_port"])))]
+pub(crate) struct Args {
+    /// Field configuration TOML with a `[dnc]` section (model and sensors as for `run`).
+    #[arg(long)]
+    pub config: PathBuf,
+    /// Machine model TOML; overrides `[model] path` of the field config.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// The NC program to send.
+    #[arg(long)]
+    pub program: Option<PathBuf>,
+    /// Take the program from a DNC sender connecting here: "tcp:127.0.0.1:7000".
+    #[arg(long, value_parser = parse_listen)]
+    pub listen: Option<std::net::SocketAddr>,
+    /// Take the program from a DNC sender on this serial device (in-line between the DNC PC and
+    /// the controller; the sender is held back with XON/XOFF). Default: `dnc.sender_port` when
+    /// neither --program nor --listen is given.
+    #[arg(long)]
+    pub sender_port: Option<String>,
+    /// The controller's DNC serial device; overrides `dnc.port`.
+    #[arg(long)]
+    pub port: Option<String>,
+    /// Send from this source line on (after an interrupted transfer: the line the box printed,
+    /// or any the operator chooses); the lines before set the modal state only.
+    #[arg(long, default_value_t = 1)]
+    pub resume_from: u64,
+    /// Where the send log goes (CSV, one row per block).
+    #[arg(long, default_value = "dnc-sent.csv")]
+    pub log: PathBuf,
+    /// A model input older than this is not used (the block keeps the previous correction), s.
+    #[arg(long, default_value_t = 120.0)]
+    pub max_input_age_s: f64,
+}
+
+fn parse_listen(s: &str) -> Result<std::net::SocketAddr, String> {
+    let a = s
+        .strip_prefix("tcp:")
+        .ok_or_else(|| format!("{s:?}: expected tcp:HOST:PORT"))?;
+    a.parse()
+        .map_err(|e| format!("{a:?}: {e} (expected tcp:127.0.0.1:7000)"))
+}
+
+/// Per axis X, Y, Z: the clamp of the field config's safety and the per-block cap, and whether
+/// the config drives the axis (the others get clamp 0: never a correction).
+fn guard_limits(
+    cfg: &retrocomp_gateway::config::FieldConfig,
+    dnc: &retrocomp_gateway::sinks::dnc::config::DncSection,
+) -> ([(f64, f64); 3], [bool; 3]) {
+    let mut limits = [(0.0, 0.0); 3];
+    let mut driven = [false; 3];
+    for a in &cfg.axes {
+        let Some(ax) = Axis::from_name(&a.name) else {
+            continue;
+        };
+        let s = cfg.safety_for(&a.name);
+        let cap = dnc
+            .max_change_um_per_block
+            .unwrap_or(s.max_change_um_per_cycle);
+        limits[ax.index()] = (s.max_correction_um, cap);
+        driven[ax.index()] = true;
+    }
+    (limits, driven)
+}
+
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
+    super::term::init_tracing("info");
+    let checked = check_field(&args.config, args.model.as_deref())?;
+    let cfg = checked.cfg;
+    let Some(dnc) = cfg.dnc.clone() else {
+        bail!(
+            "{}: no [dnc] section: the link to the controller (baud, parity, flow, max_line_chars …) must be stated (docs/dnc.md)",
+            args.config.display()
+        );
+    };
+    let port = args
+        .port
+        .clone()
+        .or_else(|| dnc.port.clone())
+        .with_context(|| {
+            format!(
+                "{}: dnc.port: no controller port (or --port)",
+                args.config.display()
+            )
+        })?;
+    let sender = args.sender_port.clone().or_else(|| dnc.sender_port.clone());
+    let source = match (&args.program, args.listen, sender) {
+        (Some(p), _, _) => ProgramSource::File(p.clone()),
+        (_, Some(a), _) => ProgramSource::Tcp(a),
+        (_, _, Some(d)) => ProgramSource::Serial(d),
+        _ => bail!(
+            "no program source: give --program FILE, --listen tcp:ADDR or --sender-port DEV (or dnc.sender_port)"
+        ),
+    };
+    if let ProgramSource::Serial(d) = &source
+        && *d == port
+    {
+        bail!("--sender-port {d} is the controller's port");
+    }
+    let (limits, driven) = guard_limits(&cfg, &dnc);
+    let live = LiveCorrections::new(
+        Box::new(ModelAtPoint::new(
+            Box::new(checked.model),
+            driven,
+            args.max_input_age_s,
+        )),
+        limits,
+    );
+    let core_cfg = CoreConfig {
+        line_end: dnc.line_end,
+        max_line_chars: dnc.max_line_chars,
+        leader_nuls: dnc.leader_nuls,
+        trailer_nuls: dnc.trailer_nuls,
+        stall_timeout_s: dnc.stall_timeout_s,
+        semicolon_is_eob: dnc.semicolon_is_eob,
+        diameter_x: dnc.diameter_x,
+        resume_from: args.resume_from,
+        max_correction_um: cfg.safety.max_correction_um,
+    };
+    if args.resume_from > 1 {
+        eprintln!(
+            "dnc: resuming from line {} (the lines before set the modal state only)",
+            args.resume_from
+        );
+    }
+    let mut log = std::io::BufWriter::new(
+        std::fs::File::create(&args.log)
+            .with_context(|| format!("creating the send log {}", args.log.display()))?,
+    );
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    let summary = rt.block_on(async {
+        let feed = spawn_sources(&cfg, std::time::Instant::now()).await?;
+        let mut core = DncCore::new(core_cfg, &live);
+        let r = run_dnc(
+            &dnc,
+            &port,
+            &source,
+            &mut core,
+            &live,
+            Some(feed.samples),
+            &mut log,
+        )
+        .await
+        .with_context(|| format!("DNC transfer to {port}"))?;
+        anyhow::Ok(r)
+    })?;
+    eprintln!(
+        "dnc: {} blocks sent; {} stall(s), {} block(s) with the held correction (model), {} capped by the guard; log {}",
+        summary.blocks_sent,
+        summary.stalls,
+        summary.model_faults,
+        summary.guard_limited,
+        args.log.display()
+    );
+    if let Some((line, why)) = summary.interrupted {
+        bail!(
+            "transfer stopped: {why}\nresume with --resume-from {line} (the first block not completely sent)"
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,295 @@
+//! The correction a DNC block carries: the live model evaluated at the block's nominal end point
+//! and approach directions ([`CorrectionAt`]; [`ModelAtPoint`] is the gateway's [`ErrorModel`] fed
+//! with the latest sensor values), passed through the last-step guard ([`WriteGuard`]: clamp, and
+//! per-block cap from the correction the previous block carried), as the NC rewriter's
+//! [`ErrorFunction`] so modal state and approach directions are the rewriter's own.
+//!
+//! The guard's "what the controller holds" is the correction of the last block handed to the
+//! controller (0 before the first): [`LiveCorrections::commit`] is called once a block has left the
+//! box. The rewriter may ask twice for one end point (domain check, then the piece): the second
+//! answer is the first one, cached, so a block carries one value however often it is asked.
+//!
+//! Signs and units: corrections µm, = −error; the rewriter writes `nominal − error/1000` mm, so
+//! the block's end point is `nominal + correction`. Positions mm, machine coordinates, X radial.
+
+use std::cell::RefCell;
+
+use retrocomp_analysis::nc::ErrorFunction;
+use retrocomp_bus::{ChannelId, Sample};
+use retrocomp_model::Axis;
+use retrocomp_model::approach::Approach;
+
+use retrocomp_gateway::engine::{AxisErrors, ErrorModel, MachineState};
+use retrocomp_gateway::sinks::guard::{GuardLimits, Verdict, WriteGuard};
+
+/// Output resolution of a compensated block, µm (the rewriter writes 4 decimals in mm).
+pub const BLOCK_LSB_UM: f64 = 0.1;
+
+/// Where the live correction comes from.
+pub trait CorrectionAt {
+    /// Correction per axis X, Y, Z (µm, = −error) at the nominal machine position `pos_mm`
+    /// approached in `dirs`, at `now_s`; `None` for an axis not corrected. `Err`: the model could
+    /// not be evaluated now (a missing input): the block carries the previous correction.
+    fn correction_um(
+        &mut self,
+        pos_mm: [f64; 3],
+        dirs: [Approach; 3],
+        now_s: f64,
+    ) -> Result<[Option<f64>; 3], String>;
+
+    /// A sample from the live sources (a source that reads none ignores it).
+    fn observe(&mut self, _s: &Sample) {}
+}
+
+/// What one block carries: the end point asked for, and the correction sent per axis (µm).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Applied {
+    pub pos_mm: [f64; 3],
+    pub dirs: [Approach; 3],
+    pub correction_um: [f64; 3],
+}
+
+struct Inner {
+    src: Box<dyn CorrectionAt>,
+    /// Axes with a clamp (the ones the field config drives).
+    driven: [bool; 3],
+    guard: WriteGuard,
+    now_s: f64,
+    /// The block being prepared (not yet committed).
+    pending: Option<Applied>,
+    /// Corrections carried by the last committed block.
+    held_um: [f64; 3],
+    /// Blocks before the resume point: modal state only, no correction asked.
+    bypass: bool,
+    /// The model could not be evaluated for the last block (why).
+    model_fault: Option<String>,
+    /// The guard refused the wanted value of the last block (the previous value was kept).
+    guard_refused: bool,
+}
+
+/// The rewriter's error function during a DNC transfer.
+pub struct LiveCorrections {
+    inner: RefCell<Inner>,
+}
+
+// By hand: the correction source is a trait object.
+impl std::fmt::Debug for LiveCorrections {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let i = self.inner.borrow();
+        f.debug_struct("LiveCorrections")
+            .field("held_um", &i.held_um)
+            .field("pending", &i.pending)
+            .finish_non_exhaustive()
+    }
+}
+
+impl LiveCorrections {
+    /// `limits` per axis X, Y, Z (an axis the config does not drive: clamp 0, cap 0).
+    pub fn new(src: Box<dyn CorrectionAt>, limits: [(f64, f64); 3]) -> Self {
+        let mut guard = WriteGuard::new(limits.map(|(max, cap)| GuardLimits {
+            max_correction_um: max,
+            max_change_um_per_write: cap,
+            lsb_um: BLOCK_LSB_UM,
+        }));
+        // The controller holds no correction before the first compensated block.
+        for k in 0..3 {
+            guard.observe_read(k, 0.0);
+        }
+        Self {
+            inner: RefCell::new(Inner {
+                src,
+                driven: limits.map(|(max, _)| max > 0.0),
+                guard,
+                now_s: 0.0,
+                pending: None,
+                held_um: [0.0; 3],
+                bypass: false,
+                model_fault: None,
+                guard_refused: false,
+            }),
+        }
+    }
+
+    /// A sample from the live sources, for the model's inputs.
+    pub fn observe(&self, s: &Sample) {
+        self.inner.borrow_mut().src.observe(s);
+    }
+
+    /// The time corrections are asked at (the send time of the next block), s.
+    pub fn set_now(&self, now_s: f64) {
+        self.inner.borrow_mut().now_s = now_s;
+    }
+
+    /// Blocks are only interpreted (before the operator's resume point): no correction is asked.
+    pub fn set_bypass(&self, bypass: bool) {
+        self.inner.borrow_mut().bypass = bypass;
+    }
+
+    /// The block prepared since the last commit has left the box: its correction is what the
+    /// controller holds now. Returns it (None for a block without a compensated end point).
+    pub fn commit(&self) -> Option<Applied> {
+        let mut i = self.inner.borrow_mut();
+        let a = i.pending.take()?;
+        for k in 0..3 {
+            i.guard.wrote(k, a.correction_um[k], true);
+        }
+        i.held_um = a.correction_um;
+        Some(a)
+    }
+
+    /// Forget a prepared block that will not be sent (the rewrite failed after it asked).
+    pub fn discard(&self) {
+        self.inner.borrow_mut().pending = None;
+    }
+
+    /// Why the model could not be evaluated for the last block, if it could not.
+    pub fn model_fault(&self) -> Option<String> {
+        self.inner.borrow().model_fault.clone()
+    }
+
+    /// The guard refused the wanted correction of the last block.
+    pub fn guard_refused(&self) -> bool {
+        self.inner.borrow().guard_refused
+    }
+}
+
+impl ErrorFunction for LiveCorrections {
+    /// Only the driven axes need a known position and get a correction.
+    fn axes(&self) -> [bool; 3] {
+        self.inner.borrow().driven
+    }
+
+    fn error_um(&self, pos_mm: [f64; 3], dirs: [Approach; 3]) -> Option<[f64; 3]> {
+        let mut guard = self.inner.borrow_mut();
+        let i = &mut *guard;
+        if i.bypass {
+            return Some([0.0; 3]);
+        }
+        if let Some(a) = i.pending
+            && a.pos_mm.map(f64::to_bits) == pos_mm.map(f64::to_bits)
+            && a.dirs == dirs
+        {
+            return Some(a.correction_um.map(|c| -c));
+        }
+        let want = match i.src.correction_um(pos_mm, dirs, i.now_s) {
+            Ok(w) => {
+                i.model_fault = None;
+                w
+            }
+            Err(why) => {
+                i.model_fault = Some(why);
+                [None; 3]
+            }
+        };
+        i.guard_refused = false;
+        let mut sent = [0.0; 3];
+        for k in 0..3 {
+            // No value (axis not driven, model fault): hold what the controller has.
+            let w = want[k].unwrap_or(i.held_um[k]);
+            sent[k] = match i.guard.check(k, w) {
+                Verdict::Write(v) => v,
+                _ => {
+                    i.guard_refused = true;
+                    i.held_um[k]
+                }
+            };
+        }
+        i.pending = Some(Applied {
+            pos_mm,
+            dirs,
+            correction_um: sent,
+        });
+        Some(sent.map(|c| -c))
+    }
+}
+
+/// The gateway's model evaluated at a block's end point, with the latest value of each channel
+/// it reads (temperatures, loads) from the live sources.
+pub struct ModelAtPoint {
+    model: Box<dyn ErrorModel>,
+    channels: Vec<ChannelId>,
+    /// Latest value and its time per channel of `channels`.
+    latest: Vec<Option<(f64, f64)>>,
+    /// A value older than this is not used (the block holds the previous correction), s.
+    max_age_s: f64,
+    state: MachineState,
+    errors: AxisErrors,
+    /// The axes the field config drives.
+    driven: [bool; 3],
+}
+
+// By hand: the model is a trait object.
+impl std::fmt::Debug for ModelAtPoint {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ModelAtPoint")
+            .field("channels", &self.channels)
+            .field("latest", &self.latest)
+            .finish_non_exhaustive()
+    }
+}
+
+impl ModelAtPoint {
+    pub fn new(model: Box<dyn ErrorModel>, driven: [bool; 3], max_age_s: f64) -> Self {
+        let channels = model.required_channels();
+        let axes = Axis::ALL.into_iter().filter(|a| driven[a.index()]);
+        Self {
+            latest: vec![None; channels.len()],
+            state: MachineState {
+                inputs: vec![None; channels.len()],
+                ..MachineState::default()
+            },
+            channels,
+            max_age_s,
+            errors: AxisErrors::with_axes(axes),
+            model,
+            driven,
+        }
+    }
+}
+
+impl CorrectionAt for ModelAtPoint {
+    /// Healthy, finite values of the model's channels are kept (the latest of each).
+    fn observe(&mut self, s: &Sample) {
+        if !matches!(s.health, retrocomp_bus::Health::Ok) || !s.value.is_finite() {
+            return;
+        }
+        if let Some(k) = self.channels.iter().position(|c| *c == s.channel) {
+            self.latest[k] = Some((s.value, s.t_s));
+        }
+    }
+
+    fn correction_um(
+        &mut self,
+        pos_mm: [f64; 3],
+        dirs: [Approach; 3],
+        now_s: f64,
+    ) -> Result<[Option<f64>; 3], String> {
+        for (k, v) in self.latest.iter().enumerate() {
+            self.state.inputs[k] = v.filter(|(_, t)| now_s - t <= self.max_age_s).map(|v| v.0);
+            if self.state.inputs[k].is_none() {
+                return Err(format!("no recent value of {}", self.channels[k].name()));
+            }
+        }
+        self.state.positions_mm = pos_mm.map(Some);
+        self.state.velocities_mm_per_s = [Some(0.0); 3];
+        self.state.weight_forward = dirs.map(|d| match d {
+            Approach::Forward => 1.0,
+            Approach::Reverse => 0.0,
+        });
+        self.state.t_s = now_s;
+        self.errors.clear();
+        self.model
+            .axis_errors(&self.state, &mut self.errors)
+            .map_err(|e| e.to_string())?;
+        Ok(std::array::from_fn(|k| {
+            self.driven[k].then(|| {
+                -self
+                    .errors
+                    .axis(Axis::ALL[k])
+                    .iter()
+                    .map(|t| t.error_um)
+                    .sum::<f64>()
+            })
+        }))
+    }
+}

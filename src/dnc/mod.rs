@@ -1,0 +1,20 @@
+//! DNC drip-feed with live offsets (Spaan 1995, Ch7 stage 2): the box sits in the RS-232 cable
+//! between a program source (a file, or the shop's DNC sender on a second port or a TCP socket)
+//! and a controller that takes programs only this way, and adds to each motion block, as it is
+//! sent, the correction the live model has for the block's end point, through the one last-step
+//! guard (`sinks/guard.rs`).
+//!
+//! - `retrocomp_gateway::sinks::dnc::config`: the `[dnc]` section of the field config (link
+//!   settings, the control's line length and buffer).
+//! - [`live`]: the correction of one block (model at the end point, guard: clamp and per-block cap).
+//! - [`core`]: the sans-IO drip-feed (flow control, stall fault, line-length refusal, resume, log).
+//! - [`shell`]: the async shell on tokio-serial / TCP (`retrocomp dnc`).
+//!
+//! Signs and units: corrections µm, = −error; a block's end point is nominal + correction (mm).
+
+pub mod core;
+pub mod live;
+pub mod shell;
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,258 @@
+//! The async shell of the DNC drip-feed: the controller's serial port (tokio-serial, settings from
+//! `[dnc]`), the program source (a file, a TCP connection from a DNC sender, or the sender's
+//! serial port, held back with XON/XOFF while the controller is slower), the live samples the
+//! model reads, and the CSV send log (flushed per block, so an interrupted transfer's log is
+//! complete). The decisions are the core's (`core.rs`); faults are logged once at start and clear
+//! (`sink.dnc`: `disconnected` for a stall, `decode` for a block sent without a fresh model value).
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use retrocomp_bus::Sample;
+use retrocomp_bus::fault::FaultKind;
+use retrocomp_bus::modbus::poller::Parity;
+use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncReadExt, AsyncWriteExt, BufReader, Lines};
+use tokio::sync::mpsc;
+use tokio_serial::{SerialPort, SerialPortBuilderExt, SerialStream};
+
+use super::core::{DncCore, LOG_HEADER, StallEdge, XOFF, XON};
+use super::live::LiveCorrections;
+use retrocomp_gateway::sinks::dnc::config::{DncSection, Flow};
+
+/// Where the program comes from.
+#[derive(Clone, Debug)]
+pub enum ProgramSource {
+    File(PathBuf),
+    /// Listen on this address and take the program from the first connection.
+    Tcp(std::net::SocketAddr),
+    /// The DNC sender's serial port (same settings as the controller's).
+    Serial(String),
+}
+
+/// How a transfer ended.
+#[derive(Debug)]
+pub struct DncSummary {
+    pub blocks_sent: u64,
+    pub stalls: u64,
+    pub model_faults: u64,
+    pub guard_limited: u64,
+    /// Set when the transfer did not complete: the block to resume from and why.
+    pub interrupted: Option<(u64, String)>,
+}
+
+/// Open a serial device with the `[dnc]` link settings. XON/XOFF is read by the box itself (the
+/// core stops at the next line boundary); RTS/CTS is the driver's.
+pub fn open_port(dev: &str, s: &DncSection) -> std::io::Result<SerialStream> {
+    let parity = match s.parity {
+        Parity::None => tokio_serial::Parity::None,
+        Parity::Even => tokio_serial::Parity::Even,
+        Parity::Odd => tokio_serial::Parity::Odd,
+    };
+    let flow = match s.flow {
+        Flow::XonXoff => tokio_serial::FlowControl::None,
+        Flow::RtsCts => tokio_serial::FlowControl::Hardware,
+    };
+    tokio_serial::new(dev, s.baud)
+        .parity(parity)
+        .data_bits(if s.data_bits == 7 {
+            tokio_serial::DataBits::Seven
+        } else {
+            tokio_serial::DataBits::Eight
+        })
+        .stop_bits(if s.stop_bits == 2 {
+            tokio_serial::StopBits::Two
+        } else {
+            tokio_serial::StopBits::One
+        })
+        .flow_control(flow)
+        .open_native_async()
+        .map_err(std::io::Error::other)
+}
+
+type LineSource = Lines<BufReader<Box<dyn AsyncRead + Unpin>>>;
+
+/// The program's lines, and the sender port to hold back (serial sender only).
+async fn open_source(
+    src: &ProgramSource,
+    s: &DncSection,
+) -> std::io::Result<(LineSource, Option<tokio::io::WriteHalf<SerialStream>>)> {
+    let (read, hold): (Box<dyn AsyncRead + Unpin>, _) = match src {
+        ProgramSource::File(p) => (Box::new(tokio::fs::File::open(p).await?), None),
+        ProgramSource::Tcp(addr) => {
+            let l = tokio::net::TcpListener::bind(addr).await?;
+            eprintln!("dnc: waiting for the DNC sender on tcp:{}", l.local_addr()?);
+            let (conn, peer) = l.accept().await?;
+            eprintln!("dnc: sender connected from {peer}");
+            (Box::new(conn), None)
+        }
+        ProgramSource::Serial(dev) => {
+            let (r, w) = tokio::io::split(open_port(dev, s)?);
+            (Box::new(r), Some(w))
+        }
+    };
+    Ok((BufReader::new(read).lines(), hold))
+}
+
+/// Stream the program to the controller on `port_dev` until it is sent, refused, or interrupted
+/// (SIGINT). `samples` feed the live model; `log` receives one row per block sent.
+pub async fn run_dnc(
+    s: &DncSection,
+    port_dev: &str,
+    source: &ProgramSource,
+    core: &mut DncCore<'_>,
+    live: &LiveCorrections,
+    mut samples: Option<mpsc::Receiver<Sample>>,
+    log: &mut dyn Write,
+) -> std::io::Result<DncSummary> {
+    let epoch = Instant::now();
+    let now = || epoch.elapsed().as_secs_f64();
+    let port = open_port(port_dev, s)?;
+    let (mut lines, mut hold) = open_source(source, s).await?;
+    let mut port = port;
+    writeln!(log, "{LOG_HEADER}")?;
+    let mut sum = DncSummary {
+        blocks_sent: 0,
+        stalls: 0,
+        model_faults: 0,
+        guard_limited: 0,
+        interrupted: None,
+    };
+    let (mut line_no, mut model_faulted, mut sender_held) = (0u64, false, false);
+    let mut buf = [0u8; 256];
+    // One character on the wire: start bit, data bits, parity, stop bits.
+    let bits =
+        1 + u32::from(s.data_bits) + u32::from(s.parity != Parity::None) + u32::from(s.stop_bits);
+    let char_s = f64::from(bits) / f64::from(s.baud);
+    let mut busy_until = 0.0;
+    // Registered once: a SIGINT that arrives while a line is being written is not lost.
+    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
+    let interrupted = |core: &DncCore<'_>, why: String| Some((core.resume_point(), why));
+    while !core.done() {
+        note_stall(core.poll_stall(now()), &mut sum);
+        if s.flow == Flow::RtsCts {
+            // The driver holds output while CTS is low; the core must know to judge a stall.
+            let cts = port.read_clear_to_send().map_err(std::io::Error::other)?;
+            core.flow(!cts, now());
+        }
+        // Paced at the line's character rate: what the box wrote is on the wire before the next
+        // line, so a DC3 stops it within one line even where the OS buffers more (a pty, a
+        // USB adapter's FIFO).
+        let ready = if now() < busy_until {
+            None
+        } else {
+            match core.next_to_send(now()) {
+                Ok(b) => b.map(<[u8]>::to_vec),
+                Err(e) => {
+                    sum.interrupted = interrupted(core, e.to_string());
+                    return Ok(sum);
+                }
+            }
+        };
+        if let Some(bytes) = ready {
+            AsyncWriteExt::write_all(&mut port, &bytes).await?;
+            AsyncWriteExt::flush(&mut port).await?;
+            busy_until = now() + bytes.len() as f64 * char_s;
+            if let Some(b) = core.sent(now()) {
+                sum.blocks_sent += 1;
+                note_model(live, &mut model_faulted, &mut sum, b.line);
+                writeln!(log, "{}", b.csv_row())?;
+                log.flush()?;
+            }
+            continue;
+        }
+        hold_sender(hold.as_mut(), core.wants_input(), &mut sender_held).await?;
+        let tick = core
+            .stall_deadline_s()
+            .map_or(0.5, |d| d - now())
+            .min(busy_until - now())
+            .clamp(0.001, 0.5);
+        let tick = if s.flow == Flow::RtsCts {
+            tick.min(0.01)
+        } else {
+            tick
+        };
+        tokio::select! {
+            r = port.read(&mut buf) => {
+                let n = r?;
+                if n == 0 {
+                    sum.interrupted = interrupted(core, "the controller's port closed".into());
+                    return Ok(sum);
+                }
+                core.on_bytes(&buf[..n], now());
+            }
+            l = lines.next_line(), if core.wants_input() => match l? {
+                Some(text) => {
+                    line_no += 1;
+                    if let Err(e) = core.feed_line(line_no, &text) {
+                        sum.interrupted = interrupted(core, e.to_string());
+                        return Ok(sum);
+                    }
+                }
+                None => core.end_of_input(),
+            },
+            Some(smp) = async { samples.as_mut()?.recv().await }, if samples.is_some() => {
+                live.observe(&smp);
+            }
+            _ = tokio::time::sleep(Duration::from_secs_f64(tick)) => {}
+            _ = sigint.recv() => {
+                sum.interrupted = interrupted(core, "interrupted (SIGINT)".into());
+                return Ok(sum);
+            }
+        }
+    }
+    Ok(sum)
+}
+
+/// Hold the serial sender back (XOFF) while the core has a line waiting; let it go (XON) when
+/// the core wants the next one. `held`: what the sender was last told.
+async fn hold_sender(
+    hold: Option<&mut tokio::io::WriteHalf<SerialStream>>,
+    want: bool,
+    held: &mut bool,
+) -> std::io::Result<()> {
+    if let Some(h) = hold
+        && want == *held
+    {
+        h.write_all(&[if want { XON } else { XOFF }]).await?;
+        *held = !want;
+    }
+    Ok(())
+}
+
+/// Count and log the edges of a stall.
+fn note_stall(edge: Option<StallEdge>, sum: &mut DncSummary) {
+    match edge {
+        Some(StallEdge::Started { since_s, line }) => {
+            sum.stalls += 1;
+            tracing::warn!(source = "sink.dnc", kind = ?FaultKind::Disconnected,
+                "fault start: the controller has held the transfer since {since_s:.1} s (no XON / CTS); block of line {line} waits, not lost");
+        }
+        Some(StallEdge::Cleared { after_s }) => {
+            tracing::info!(source = "sink.dnc", kind = ?FaultKind::Disconnected,
+                "fault clear: the controller resumed at {after_s:.1} s");
+        }
+        None => {}
+    }
+}
+
+/// Count and log the edges of the model fault (a block sent with the held correction).
+fn note_model(live: &LiveCorrections, faulted: &mut bool, sum: &mut DncSummary, line: u64) {
+    if live.guard_refused() {
+        sum.guard_limited += 1;
+    }
+    match (live.model_fault(), *faulted) {
+        (Some(why), false) => {
+            sum.model_faults += 1;
+            *faulted = true;
+            tracing::warn!(source = "sink.dnc", kind = ?FaultKind::Decode,
+                "fault start: line {line} sent with the held correction: {why}");
+        }
+        (None, true) => {
+            *faulted = false;
+            tracing::info!(source = "sink.dnc", kind = ?FaultKind::Decode,
+                "fault clear: line {line} carries the live correction again");
+        }
+        _ => {}
+    }
+}

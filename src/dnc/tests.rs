@@ -1,0 +1,230 @@
+//! The DNC core in virtual time: corrections taken at send time through the guard, line length,
+//! flow control and stall, resume, leader/trailer.
+
+use retrocomp_model::approach::Approach;
+
+use super::core::{CoreConfig, DncCore, DncError, SentBlock, StallEdge, XOFF, XON};
+use super::live::{CorrectionAt, LiveCorrections};
+use retrocomp_gateway::sinks::dnc::config::LineEnd;
+
+/// X correction = −(drift · t + slope · x) µm (a thermal drift and a scale error); Y, Z none.
+struct Drift {
+    um_per_s: f64,
+    um_per_mm: f64,
+    fail_after_s: f64,
+}
+
+impl CorrectionAt for Drift {
+    fn correction_um(
+        &mut self,
+        pos_mm: [f64; 3],
+        _dirs: [Approach; 3],
+        now_s: f64,
+    ) -> Result<[Option<f64>; 3], String> {
+        if now_s > self.fail_after_s {
+            return Err("no recent value of T_spindle_C".into());
+        }
+        Ok([
+            Some(-(self.um_per_s * now_s + self.um_per_mm * pos_mm[0])),
+            None,
+            None,
+        ])
+    }
+}
+
+fn live(um_per_s: f64, cap_um: f64) -> LiveCorrections {
+    LiveCorrections::new(
+        Box::new(Drift {
+            um_per_s,
+            um_per_mm: 0.01,
+            fail_after_s: f64::INFINITY,
+        }),
+        [(60.0, cap_um), (0.0, 0.0), (0.0, 0.0)],
+    )
+}
+
+fn cfg() -> CoreConfig {
+    CoreConfig {
+        line_end: LineEnd::CrLf,
+        max_line_chars: 40,
+        leader_nuls: 0,
+        trailer_nuls: 0,
+        stall_timeout_s: 5.0,
+        semicolon_is_eob: false,
+        diameter_x: false,
+        resume_from: 1,
+        max_correction_um: 60.0,
+    }
+}
+
+const PROGRAM: &str = "%\nG90 G1 F100\nX10 Y0 Z0\nX20\nX30\nX40\nM30\n%";
+
+/// Send everything, one unit every `dt_s`, never stopped; returns the bytes and the log.
+fn drain(core: &mut DncCore<'_>, program: &str, dt_s: f64) -> (String, Vec<SentBlock>) {
+    let (mut out, mut log, mut t) = (Vec::new(), Vec::new(), 0.0);
+    let mut lines = program.lines().enumerate();
+    while !core.done() {
+        if core.wants_input() {
+            match lines.next() {
+                Some((i, l)) => core.feed_line(i as u64 + 1, l).unwrap(),
+                None => core.end_of_input(),
+            }
+            continue;
+        }
+        if let Some(b) = core.next_to_send(t).unwrap() {
+            out.extend_from_slice(b);
+            log.extend(core.sent(t));
+        }
+        t += dt_s;
+    }
+    (String::from_utf8(out).unwrap(), log)
+}
+
+fn x_of(line: &str) -> f64 {
+    let w = line.split(' ').find(|w| w.starts_with('X')).unwrap();
+    w[1..].parse().unwrap()
+}
+
+#[test]
+fn each_block_carries_the_correction_at_its_send_time_at_its_end_point() {
+    let lc = live(0.1, 50.0);
+    let mut core = DncCore::new(cfg(), &lc);
+    let (out, log) = drain(&mut core, PROGRAM, 10.0);
+    let moves: Vec<&SentBlock> = log.iter().filter(|b| b.applied.is_some()).collect();
+    assert_eq!(moves.len(), 4, "{log:?}");
+    for b in &moves {
+        let a = b.applied.unwrap();
+        let want = -(0.1 * b.t_s + 0.01 * a.pos_mm[0]);
+        assert!((a.correction_um[0] - want).abs() <= 0.05 + 1e-9, "{b:?}");
+        // The line sent ends at nominal + correction.
+        let x = x_of(&b.text);
+        assert!(
+            (x - (a.pos_mm[0] + a.correction_um[0] / 1000.0)).abs() < 1e-9,
+            "{b:?}"
+        );
+    }
+    // Later blocks were sent later and carry more drift.
+    assert!(
+        moves[3].applied.unwrap().correction_um[0]
+            < moves[0].applied.unwrap().correction_um[0] - 2.0
+    );
+    assert!(out.ends_with("%\r\n") && out.contains("M30\r\n"), "{out:?}");
+    assert_eq!(log.len(), 8, "every block sent once");
+}
+
+#[test]
+fn the_change_between_two_blocks_is_capped_by_the_guard() {
+    let lc = live(0.0, 0.5);
+    let mut core = DncCore::new(cfg(), &lc);
+    let (_, log) = drain(&mut core, "G1 X100 F100\nX200\nX300\nX400", 1.0);
+    let c: Vec<f64> = log
+        .iter()
+        .map(|b| b.applied.unwrap().correction_um[0])
+        .collect();
+    // Wanted −1, −2, −3, −4 µm; the controller held 0 before the first block.
+    assert_eq!(c, vec![-0.5, -1.0, -1.5, -2.0]);
+    assert!(!lc.guard_refused());
+}
+
+#[test]
+fn a_block_that_would_grow_past_the_line_length_is_refused_not_truncated() {
+    let lc = live(1.0, 50.0);
+    let mut c = cfg();
+    c.max_line_chars = 18;
+    let mut core = DncCore::new(c, &lc);
+    core.feed_line(1, "G1 X1 Y2 Z3 F100").unwrap();
+    match core.next_to_send(30.0) {
+        Err(DncError::LineTooLong { line, chars, max }) => {
+            assert_eq!((line, max), (1, 18));
+            assert!(chars > 18);
+        }
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(core.blocks_sent(), 0);
+    assert_eq!(core.resume_point(), 1);
+}
+
+#[test]
+fn xoff_holds_the_next_line_and_a_long_hold_is_one_stall_fault_without_loss() {
+    let lc = live(0.0, 50.0);
+    let mut core = DncCore::new(cfg(), &lc);
+    for (i, l) in ["G1 X1 F100", "X2", "X3"].iter().enumerate() {
+        core.feed_line(i as u64 + 1, l).unwrap();
+    }
+    core.end_of_input();
+    assert!(core.next_to_send(0.0).unwrap().is_some());
+    assert_eq!(core.sent(0.0).map(|b| b.line), Some(1));
+    core.on_bytes(&[b'x', XOFF], 0.5);
+    assert!(core.next_to_send(1.0).unwrap().is_none());
+    assert_eq!(core.poll_stall(5.4), None, "within the timeout");
+    assert_eq!(
+        core.poll_stall(5.6),
+        Some(StallEdge::Started {
+            since_s: 0.5,
+            line: 2
+        })
+    );
+    assert_eq!(core.poll_stall(100.0), None, "one edge per episode");
+    assert!(core.stalled());
+    assert_eq!(core.resume_point(), 2);
+    core.on_bytes(&[XON], 101.0);
+    assert_eq!(
+        core.poll_stall(101.0),
+        Some(StallEdge::Cleared { after_s: 101.0 })
+    );
+    let mut sent = vec![];
+    while let Some(b) = core.next_to_send(102.0).unwrap() {
+        sent.push(String::from_utf8(b.to_vec()).unwrap());
+        core.sent(102.0);
+    }
+    assert_eq!(sent.len(), 2, "blocks 2 and 3, each once: {sent:?}");
+    assert!(
+        sent[0].starts_with("X2") && sent[1].starts_with("X3"),
+        "{sent:?}"
+    );
+    assert!(core.done());
+}
+
+#[test]
+fn resume_sends_from_the_chosen_block_with_the_modal_state_of_the_ones_before() {
+    let lc = live(0.0, 50.0);
+    let mut c = cfg();
+    c.resume_from = 4;
+    let mut core = DncCore::new(c, &lc);
+    let (out, log) = drain(&mut core, "G90 G1 X0 F100\nG91\nX10\nX10\nX10", 1.0);
+    assert_eq!(log.iter().map(|b| b.line).collect::<Vec<_>>(), vec![4, 5]);
+    // Incremental from line 2: block 4 ends at 20 mm nominal (0 + 10 + 10).
+    assert!((log[0].applied.unwrap().pos_mm[0] - 20.0).abs() < 1e-9);
+    assert!(out.starts_with("X"), "{out:?}");
+}
+
+#[test]
+fn a_model_without_fresh_inputs_holds_the_last_correction() {
+    let lc = LiveCorrections::new(
+        Box::new(Drift {
+            um_per_s: 0.0,
+            um_per_mm: 0.01,
+            fail_after_s: 1.5,
+        }),
+        [(60.0, 50.0), (0.0, 0.0), (0.0, 0.0)],
+    );
+    let mut core = DncCore::new(cfg(), &lc);
+    let (_, log) = drain(&mut core, "G1 X100 F100\nX300", 2.0);
+    assert_eq!(log[0].applied.unwrap().correction_um[0], -1.0);
+    assert_eq!(
+        log[1].applied.unwrap().correction_um[0],
+        -1.0,
+        "held, not −3"
+    );
+    assert!(lc.model_fault().is_some());
+}
+
+#[test]
+fn leader_and_trailer_frame_the_program() {
+    let lc = live(0.0, 50.0);
+    let mut c = cfg();
+    (c.leader_nuls, c.trailer_nuls, c.line_end) = (3, 2, LineEnd::Lf);
+    let mut core = DncCore::new(c, &lc);
+    let (out, _) = drain(&mut core, "%\nM30\n%", 1.0);
+    assert_eq!(out, "\0\0\0%\nM30\n%\n\0\0");
+}
