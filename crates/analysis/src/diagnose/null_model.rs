@@ -86,15 +86,16 @@ pub(super) fn score(
     theta: f64,
     nl: &Null<'_>,
 ) -> Option<(f64, usize)> {
-    score_cols(c, c.columns(ctx, theta), nl)
+    score_cols(c, c.columns(ctx, theta), nl).0
 }
 
-/// [`score`] on columns already computed (a candidate's grid sweep).
+/// [`score`] on columns already computed (a candidate's grid sweep); the column buffers come
+/// back for the sweep's next θ (`Candidate::columns_sweep`).
 pub(super) fn score_cols(
     c: &Candidate,
     mut cols: Vec<Vec<f64>>,
     nl: &Null<'_>,
-) -> Option<(f64, usize)> {
+) -> (Option<(f64, usize)>, Vec<Vec<f64>>) {
     let (basis, r0, rss0) = (&nl.basis, &nl.r0, nl.rss0);
     if let Some((cell, k)) = nl.cells {
         // A column (numerically) inside the span of the cell means explains nothing new: the
@@ -109,19 +110,20 @@ pub(super) fn score_cols(
     // dot products, without orthonormalised copies (most of a 1M-row diagnosis' screening).
     if nl.cells.is_none() && c.is_cyclic() && r0.len() >= lsq::FFT_MIN_N {
         let (g, q) = lsq::gram_gain(basis, &cols, r0);
-        return (q > 0).then(|| {
+        let scored = (q > 0).then(|| {
             (
                 g.min(rss0 * (1.0 - 1e-12)),
                 q + usize::from(c.is_nonlinear()),
             )
         });
+        return (scored, cols);
     }
     let u = lsq::orthonormalize(basis, cols, 1);
     if u.is_empty() {
-        return None;
+        return (None, u);
     }
     let g = lsq::gain(&u, r0).min(rss0 * (1.0 - 1e-12));
-    Some((g, u.len() + usize::from(c.is_nonlinear())))
+    (Some((g, u.len() + usize::from(c.is_nonlinear()))), u)
 }
 
 /// The part of `r0` a candidate explains (for collinearity between candidates).

@@ -15,6 +15,7 @@ use super::null_model::{
 };
 use super::selection::{Alternative, Exchanged, Options, Term, set_of};
 
+mod harmonic;
 mod noise;
 mod peaks;
 
@@ -270,46 +271,89 @@ impl<'a> Selector<'a> {
     /// Profile every unused candidate over its grid (best θ by RSS drop: q is fixed within a
     /// candidate), under the plain null and, for the reversal family, within cells. Candidates
     /// are screened in parallel (rayon) and collected in library order, each candidate's grid
-    /// swept in order on one thread, so the result is the same with any number of threads.
+    /// swept in order on one thread, so the result is the same with any number of threads. The
+    /// harmonic forms of cyclic errors are screened after the others, at the peaks of their
+    /// fundamental's periodogram ([`harmonic::peak_thetas`]).
     fn screen(&self, nulls: &Nulls<'_>) -> Vec<Scored> {
         use rayon::prelude::*;
-        let (ctx, used) = (self.ctx, &self.used);
-        let per_candidate = |(idx, c): (usize, &Candidate)| -> Vec<Scored> {
-            let mut out = vec![];
-            if used[idx] {
-                return out;
-            }
-            let thetas: Vec<f64> = if c.grid.is_empty() {
-                vec![f64::NAN]
-            } else {
-                c.grid.clone()
-            };
-            for blocked in [false, true] {
-                if blocked && !(nulls.cells_ok && within_cells(c)) {
-                    continue;
+        let harmonic = |c: &Candidate| c.kind == Kind::CyclicHarmonic;
+        let first: Vec<(Vec<Scored>, Option<Vec<f64>>)> = self
+            .lib
+            .par_iter()
+            .enumerate()
+            .map(|(idx, c)| {
+                if self.used[idx] || harmonic(c) {
+                    return (vec![], None);
                 }
-                let nl = nulls.of(blocked);
-                let mut best: Option<Scored> = None;
-                c.columns_sweep(ctx, &thetas, |th, cols| {
-                    if let Some((g, q)) = score_cols(c, cols, nl)
-                        && best.as_ref().is_none_or(|b| g > b.gain)
-                    {
-                        best = Some(Scored {
-                            idx,
-                            theta: th,
-                            gain: g,
-                            q,
-                            delta_bic: 0.0,
-                            cells: blocked,
-                        });
-                    }
-                });
-                out.extend(best);
+                let thetas = if c.grid.is_empty() {
+                    vec![f64::NAN]
+                } else {
+                    c.grid.clone()
+                };
+                self.screen_one(idx, c, &thetas, nulls, c.kind == Kind::Cyclic)
+            })
+            .collect();
+        let second: Vec<Vec<Scored>> = self
+            .lib
+            .par_iter()
+            .enumerate()
+            .map(|(idx, c)| {
+                if self.used[idx] || !harmonic(c) {
+                    return vec![];
+                }
+                let curve = self.fundamental_curve(c, &first, nulls);
+                let thetas = harmonic::peak_thetas(&c.grid, &curve);
+                self.screen_one(idx, c, &thetas, nulls, false).0
+            })
+            .collect();
+        first
+            .into_iter()
+            .zip(second)
+            .flat_map(|((a, _), b)| a.into_iter().chain(b))
+            .collect()
+    }
+
+    /// Candidate `c` (library index `idx`) profiled over `thetas`: its best θ under the plain
+    /// null and, for the reversal family, within cells; with `keep_curve`, the plain null's gain
+    /// at every θ (−∞ where it explains nothing), the periodogram of a cyclic candidate.
+    fn screen_one(
+        &self,
+        idx: usize,
+        c: &Candidate,
+        thetas: &[f64],
+        nulls: &Nulls<'_>,
+        keep_curve: bool,
+    ) -> (Vec<Scored>, Option<Vec<f64>>) {
+        let mut out = vec![];
+        let mut curve = keep_curve.then(|| Vec::with_capacity(thetas.len()));
+        for blocked in [false, true] {
+            if blocked && !(nulls.cells_ok && within_cells(c)) {
+                continue;
             }
-            out
-        };
-        let per: Vec<Vec<Scored>> = self.lib.par_iter().enumerate().map(per_candidate).collect();
-        per.into_iter().flatten().collect()
+            let nl = nulls.of(blocked);
+            let mut best: Option<Scored> = None;
+            c.columns_sweep(self.ctx, thetas, |th, cols| {
+                let (scored, cols) = score_cols(c, cols, nl);
+                if !blocked && let Some(curve) = curve.as_mut() {
+                    curve.push(scored.map_or(f64::NEG_INFINITY, |s| s.0));
+                }
+                if let Some((g, q)) = scored
+                    && best.as_ref().is_none_or(|b| g > b.gain)
+                {
+                    best = Some(Scored {
+                        idx,
+                        theta: th,
+                        gain: g,
+                        q,
+                        delta_bic: 0.0,
+                        cells: blocked,
+                    });
+                }
+                cols
+            });
+            out.extend(best);
+        }
+        (out, curve)
     }
 
     /// The step's winner among the ranked `scored`, refined and tested; `None` ends the forward

@@ -56,7 +56,7 @@ fn gain(
     basis: &[Vec<f64>],
     r0: &[f64],
 ) -> Option<(f64, usize)> {
-    gain_cols(c, c.columns(ctx, th), basis, r0)
+    gain_cols(c, c.columns(ctx, th), basis, r0).0
 }
 
 /// [`gain`] of columns already built (the grid sweep's).
@@ -65,9 +65,10 @@ fn gain_cols(
     cols: Vec<Vec<f64>>,
     basis: &[Vec<f64>],
     r0: &[f64],
-) -> Option<(f64, usize)> {
+) -> (Option<(f64, usize)>, Vec<Vec<f64>>) {
     let u = lsq::orthonormalize(basis, cols, 1);
-    (!u.is_empty()).then(|| (lsq::gain(&u, r0), u.len() + usize::from(c.is_nonlinear())))
+    let g = (!u.is_empty()).then(|| (lsq::gain(&u, r0), u.len() + usize::from(c.is_nonlinear())));
+    (g, u)
 }
 
 /// Held-out RMS of the model made of a set of (candidate, θ) (and a constant).
@@ -150,11 +151,13 @@ fn best_choice(
         };
         let mut best: Option<(f64, usize, f64)> = None;
         c.columns_sweep(ctx, &thetas, |th, cols| {
-            if let Some((g, q)) = gain_cols(c, cols, basis, r0)
+            let (scored, cols) = gain_cols(c, cols, basis, r0);
+            if let Some((g, q)) = scored
                 && best.is_none_or(|b| g.total_cmp(&b.0).is_ge())
             {
                 best = Some((g, q, th));
             }
+            cols
         });
         best
     };

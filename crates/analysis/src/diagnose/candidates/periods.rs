@@ -8,16 +8,19 @@ use super::super::features::{AxisFeatures, Context};
 use super::{Candidate, Kind};
 
 impl Candidate {
-    /// [`Candidate::columns`] at every θ of `thetas`, in order, handed to `f`. For a cyclic
-    /// candidate on a grid uniform in frequency ([`period_grid`]) the sin/cos pair of the next
-    /// period is the previous one rotated by a fixed angle per distinct position (one complex
-    /// multiply instead of two transcendental calls: the period grid's sin/cos were most of the
-    /// time of a 1M-row diagnosis); other candidates and other grids call `columns`.
+    /// [`Candidate::columns`] at every θ of `thetas`, in order, handed to `f`, which hands the
+    /// column buffers back for the next θ (their contents need not survive: each is overwritten).
+    /// For a cyclic candidate on a grid uniform in frequency ([`period_grid`]) the sin/cos pair
+    /// of the next period is the previous one rotated by a fixed angle per distinct position (one
+    /// complex multiply instead of two transcendental calls: the period grid's sin/cos were most
+    /// of the time of a 1M-row diagnosis), gathered into the reused buffers (a fresh 8 MB column
+    /// per period at 1M rows was a page-fault storm); other candidates and other grids call
+    /// `columns`.
     pub fn columns_sweep(
         &self,
         ctx: &Context,
         thetas: &[f64],
-        mut f: impl FnMut(f64, Vec<Vec<f64>>),
+        mut f: impl FnMut(f64, Vec<Vec<f64>>) -> Vec<Vec<f64>>,
     ) {
         let w: Vec<f64> = thetas.iter().map(|p| TAU / p).collect();
         let dw = if w.len() >= 3 { w[1] - w[0] } else { 0.0 };
@@ -26,7 +29,9 @@ impl Candidate {
             && w.windows(2)
                 .all(|p| ((p[1] - p[0]) - dw).abs() <= 1e-9 * w[0].abs());
         if !uniform {
-            thetas.iter().for_each(|&t| f(t, self.columns(ctx, t)));
+            thetas.iter().for_each(|&t| {
+                f(t, self.columns(ctx, t));
+            });
             return;
         }
         let fa = ctx
@@ -37,6 +42,9 @@ impl Candidate {
         };
         let (rs, rc) = exact(dw);
         let (mut sv, mut cv) = (vec![], vec![]);
+        let harmonic = self.kind == Kind::CyclicHarmonic;
+        let (mut s2, mut c2) = (vec![], vec![]);
+        let mut spare: Vec<Vec<f64>> = vec![];
         for (j, &t) in thetas.iter().enumerate() {
             if j % REANCHOR_EVERY == 0 {
                 (sv, cv) = exact(w[j]);
@@ -47,15 +55,24 @@ impl Candidate {
                     cv[k] = c0 * rc[k] - s0 * rs[k];
                 }
             }
-            let gather = |v: &[f64]| fa.distinct_idx.iter().map(|&k| v[k as usize]).collect();
-            let mut cols = vec![gather(&sv), gather(&cv)];
-            if self.kind == Kind::CyclicHarmonic {
+            let mut cols = std::mem::take(&mut spare);
+            cols.resize_with(if harmonic { 4 } else { 2 }, Vec::new);
+            let gather = |v: &[f64], out: &mut Vec<f64>| {
+                out.clear();
+                out.extend(fa.distinct_idx.iter().map(|&k| v[k as usize]));
+            };
+            gather(&sv, &mut cols[0]);
+            gather(&cv, &mut cols[1]);
+            if harmonic {
                 // The second harmonic from the fundamental's phasor (double angle).
-                let s2: Vec<f64> = sv.iter().zip(&cv).map(|(s, c)| 2.0 * s * c).collect();
-                let c2: Vec<f64> = sv.iter().zip(&cv).map(|(s, c)| c * c - s * s).collect();
-                cols.extend([gather(&s2), gather(&c2)]);
+                s2.clear();
+                s2.extend(sv.iter().zip(&cv).map(|(s, c)| 2.0 * s * c));
+                c2.clear();
+                c2.extend(sv.iter().zip(&cv).map(|(s, c)| c * c - s * s));
+                gather(&s2, &mut cols[2]);
+                gather(&c2, &mut cols[3]);
             }
-            f(t, cols);
+            spare = f(t, cols);
         }
     }
 }
