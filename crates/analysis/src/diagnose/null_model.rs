@@ -241,7 +241,9 @@ pub(super) fn prewhitened_test(
     }
     let q = u.len() + usize::from(c.is_nonlinear());
     let wr0 = model.whiten(&nl.r0);
-    let wu: Vec<Vec<f64>> = u.iter().map(|v| model.whiten(v)).collect();
+    // Each column is dropped once whitened: the peak is one column more than `u`, not twice `u`
+    // (this test was the peak of a 1M-row diagnosis' heap).
+    let wu: Vec<Vec<f64>> = u.into_iter().map(|v| model.whiten(&v)).collect();
     let wu = lsq::orthonormalize(&[], wu, 2);
     if wu.is_empty() {
         return None;
