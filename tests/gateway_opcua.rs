@@ -207,9 +207,10 @@ const TEMPS_SILENT_S: (f64, f64) = (15.0, 21.0);
 const QUALITY_CHANNEL: &str = "T_xscrew_C";
 
 /// asyncua_quality.py's verdict: Good, then UncertainLastUsableValue while the channel is stale
-/// (its SourceTimestamp the last reading's, older than the ServerTimestamp by at least the
-/// channel's `stale_after_s` of 0.5 s), then Good again; every ServerTimestamp is the time the
-/// server took the value (within the session, not 9999 or 1601); BuildInfo names this build.
+/// (the last reading's value, with that reading's SourceTimestamp: older than its ServerTimestamp),
+/// then Good again with a reading taken after the silence; every ServerTimestamp is the time the
+/// server took the value (before the client got it, within the session: not 9999 or 1601);
+/// BuildInfo names this build.
 fn check_quality(out: &std::process::Output, log_text: &str) {
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -218,25 +219,36 @@ fn check_quality(out: &std::process::Output, log_text: &str) {
     assert_eq!(q["error"], serde_json::Value::Null, "{q}");
     assert!(q["recovered"].as_bool().unwrap(), "{q}\n{log_text}");
     let seen = q["notifications"].as_array().unwrap();
-    let uncertain: Vec<_> = seen
+    let f = |n: &serde_json::Value, k: &str| n[k].as_f64().unwrap();
+    let first_uncertain = seen
         .iter()
-        .filter(|n| n["status"] == "UncertainLastUsableValue")
-        .collect();
-    assert!(!uncertain.is_empty(), "{q}");
-    for n in uncertain {
-        let (src, srv) = (
-            n["source_s"].as_f64().unwrap(),
-            n["server_s"].as_f64().unwrap(),
-        );
-        assert!(srv - src >= 0.5, "stale value's timestamps: {n}");
-    }
+        .position(|n| n["status"] == "UncertainLastUsableValue")
+        .unwrap();
+    assert!(first_uncertain > 0, "{q}");
+    let (before, stale) = (&seen[first_uncertain - 1], &seen[first_uncertain]);
+    assert_eq!(before["status"], "Good", "{before}");
+    assert_eq!(
+        stale["value"], before["value"],
+        "the last usable value: {stale}"
+    );
+    assert!(
+        f(stale, "source_s") >= f(before, "source_s"),
+        "{before} {stale}"
+    );
+    assert!(f(stale, "source_s") < f(stale, "server_s"), "{stale}");
+    let back = seen[first_uncertain..]
+        .iter()
+        .find(|n| n["status"] == "Good")
+        .unwrap();
+    // hil-sim's silence lasts 6 s: the reading that recovers is well after the last one before.
+    assert!(
+        f(back, "source_s") - f(stale, "source_s") > 1.0,
+        "{stale} {back}"
+    );
     for n in seen {
-        let (srv, arrived) = (
-            n["server_s"].as_f64().unwrap(),
-            n["arrived_s"].as_f64().unwrap(),
-        );
-        let src = n["source_s"].as_f64().unwrap();
-        // Taken by the server before it reached the client, and within this test's minute.
+        let (srv, arrived, src) = (f(n, "server_s"), f(n, "arrived_s"), f(n, "source_s"));
+        // Taken by the server before it reached the client (1 s for clock rounding), and
+        // within this test's minute.
         assert!(
             srv <= arrived + 1.0 && arrived - srv < 60.0,
             "ServerTimestamp: {n}"

@@ -34,7 +34,7 @@ class Quality:
     def datachange_notification(self, node, val, data):
         dv = data.monitored_item.Value
         self.seen.append({
-            "status": dv.StatusCode_.name,
+            "status": dv.StatusCode.name,
             "value": val,
             "source_s": unix(dv.SourceTimestamp),
             "server_s": unix(dv.ServerTimestamp),
@@ -77,7 +77,10 @@ async def main(url, channel):
                 "build_date_s": unix(bi.BuildDate),
             }
             sub = await c.create_subscription(100, q)
-            await sub.subscribe_data_change([node])
+            # Trigger StatusValue spelled out: it is the standard's default, but async-opcua 0.19
+            # compares only the value of an item created without a filter.
+            status_value = ua.DataChangeFilter(Trigger=ua.DataChangeTrigger.StatusValue)
+            await sub._subscribe(node, ua.AttributeIds.Value, mfilter=status_value)
             t0 = time.monotonic()
             while not q.recovered() and time.monotonic() - t0 < DEADLINE_S:
                 await asyncio.sleep(0.1)

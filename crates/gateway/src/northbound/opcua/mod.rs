@@ -43,9 +43,10 @@ pub fn is_false_certificate_report(m: &tracing::Metadata<'_>) -> bool {
     use tracing::Level;
     let missing_cert = matches!(
         (m.target(), *m.level()),
-        ("opcua_crypto::certificate_store", Level::ERROR)
-            | ("opcua_core::comms::secure_channel", Level::ERROR)
-            | ("opcua_server::server", Level::WARN)
+        (
+            "opcua_crypto::certificate_store" | "opcua_core::comms::secure_channel",
+            Level::ERROR
+        ) | ("opcua_server::server", Level::WARN)
     );
     missing_cert && NO_CERTIFICATE_NEEDED.load(std::sync::atomic::Ordering::Relaxed)
 }

@@ -58,12 +58,40 @@ const FILES: [(&str, &str); 6] = [
 pub(crate) fn imports(own_uri: &str) -> Result<Vec<Box<dyn NodeSetImport>>, String> {
     let mut out: Vec<Box<dyn NodeSetImport>> = Vec::with_capacity(FILES.len() + 1);
     for (name, xml) in FILES {
-        let inner = NodeSet2Import::new_str("en", xml, Vec::new())
+        let inner = NodeSet2Import::new_str("en", &unwrap_byte_strings(xml), Vec::new())
             .map_err(|e| format!("opcua: the nodeset {name} does not load: {e}"))?;
         out.push(Box::new(Quiet(inner)));
     }
     out.push(Box::new(Own(own_uri.to_string())));
     Ok(out)
+}
+
+/// `xml` with the base64 text of every `<ByteString>` value on one line: the published files wrap
+/// it (the deprecated type dictionaries), and async-opcua 0.19 decodes only unwrapped base64 (it
+/// would log each as an invalid byte string and drop its value).
+fn unwrap_byte_strings(xml: &str) -> String {
+    const CLOSE: &str = "</ByteString>";
+    let mut out = String::with_capacity(xml.len());
+    let mut rest = xml;
+    while let Some(open) = rest.find("<ByteString") {
+        let Some(tag_len) = rest[open..].find('>') else {
+            break;
+        };
+        let body = open + tag_len + 1;
+        out.push_str(&rest[..body]);
+        rest = &rest[body..];
+        // `<ByteString/>` has no body.
+        if out.ends_with("/>") {
+            continue;
+        }
+        let Some(len) = rest.find(CLOSE) else {
+            break;
+        };
+        out.extend(rest[..len].chars().filter(|c| !c.is_whitespace()));
+        rest = &rest[len..];
+    }
+    out.push_str(rest);
+    out
 }
 
 /// A NodeSet2 file's import, registering its namespaces without printing them on stdout (which
@@ -73,8 +101,8 @@ struct Quiet(NodeSet2Import);
 impl NodeSetImport for Quiet {
     fn register_namespaces(&self, namespaces: &mut NodeSetNamespaceMapper<'_>) {
         // The file's namespace array: index 1 is its first URI (0 is always the base namespace).
-        for (i, ns) in self.0.get_own_namespaces().iter().enumerate() {
-            namespaces.add_namespace(ns, i as u16 + 1);
+        for (i, ns) in (1u16..).zip(self.0.get_own_namespaces().iter()) {
+            namespaces.add_namespace(ns, i);
         }
     }
     fn get_own_namespaces(&self) -> Vec<String> {
@@ -103,5 +131,34 @@ impl NodeSetImport for Own {
         _namespaces: &'a NodeSetNamespaceMapper<'_>,
     ) -> Box<dyn Iterator<Item = ImportedItem> + 'a> {
         Box::new(std::iter::empty())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wrapped_base64_is_joined_and_nothing_else_changes() {
+        let xml = "<a><ByteString xmlns=\"x\">QUJD\n  REVG\r\n</ByteString><b> k  l </b>\
+                   <ByteString/><c>m n</c><ByteString>R0g=</ByteString></a>";
+        assert_eq!(
+            unwrap_byte_strings(xml),
+            "<a><ByteString xmlns=\"x\">QUJDREVG</ByteString><b> k  l </b>\
+             <ByteString/><c>m n</c><ByteString>R0g=</ByteString></a>"
+        );
+    }
+
+    #[test]
+    fn every_companion_nodeset_loads_and_owns_its_namespace() {
+        let imports = imports("urn:test").unwrap();
+        let owned: Vec<String> = imports
+            .iter()
+            .map(|i| i.get_own_namespaces()[0].clone())
+            .collect();
+        assert_eq!(owned[0], DI_URI);
+        assert_eq!(owned[2], MACHINERY_URI);
+        assert_eq!(owned[5], MACHINE_TOOL_URI);
+        assert_eq!(owned[6], "urn:test");
     }
 }

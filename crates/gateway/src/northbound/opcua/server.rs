@@ -445,6 +445,10 @@ fn build_info() -> BuildInfo {
 }
 
 /// OPC UA DateTime (100 ns ticks since 1601-01-01) of a Unix time in seconds.
+#[expect(
+    clippy::cast_possible_truncation,
+    reason = "ticks of any wall time since 1601 fit an i64 (it overflows in 30828)"
+)]
 fn unix_time(unix_s: f64) -> opcua::types::DateTime {
     const UNIX_EPOCH_TICKS: i64 = 11_644_473_600 * 10_000_000;
     opcua::types::DateTime::from(UNIX_EPOCH_TICKS + (unix_s * 1e7).round() as i64)
@@ -491,9 +495,11 @@ fn data_value(
     DataValue {
         value: Some(variant),
         status: Some(status),
+        // No picoseconds: asyncua 2.1 turns a present ServerPicoseconds into a ServerTimestamp
+        // of 1601-01-01 (or 9999-12-31 on a Read).
         source_timestamp: Some(source),
-        source_picoseconds: Some(0),
+        source_picoseconds: None,
         server_timestamp: Some(now),
-        server_picoseconds: Some(0),
+        server_picoseconds: None,
     }
 }
