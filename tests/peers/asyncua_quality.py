@@ -18,7 +18,7 @@ import time
 
 from asyncua import Client, ua
 
-from asyncua_identification import machine
+from asyncua_identification import box_variable
 
 DEADLINE_S = 60.0
 
@@ -62,12 +62,7 @@ async def main(url, channel):
     q = Quality()
     try:
         async with Client(url, timeout=30) as c:
-            box = await machine(c)
-            if box is None:
-                raise RuntimeError("no Machines folder")
-            name = (await box.read_browse_name()).Name
-            ns = box.nodeid.NamespaceIndex
-            node = c.get_node(ua.NodeId(f"Machines/{name}/Monitoring/Sensors/{channel}/Value", ns))
+            node = await box_variable(c, f"Monitoring/Sensors/{channel}/Value")
             bi = await c.get_node(ua.ObjectIds.Server_ServerStatus_BuildInfo).read_value()
             out["build_info"] = {
                 "product_name": bi.ProductName,
