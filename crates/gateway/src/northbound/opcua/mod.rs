@@ -1,6 +1,9 @@
 //! OPC UA server for the plant's systems (MES/SCADA): the box's state as an OPC UA address space,
-//! laid out after OPC 40501 (Machine Tools / umati) where it applies — `Objects/Machines/<name>` with
-//! `Identification`, `Monitoring` and `Notification` (see docs/gateway.md, "OPC UA").
+//! after the companion specifications OPC 40501-1 (Machine Tools) and OPC 40001-1 (Machinery),
+//! whose nodesets it imports: the box is a `MachineToolType` in Machinery's `Machines` folder with
+//! `Identification` (nameplate from `[opcua.identification]`), `Monitoring`, `Notification` and
+//! `Production` (see docs/gateway.md, "OPC UA"). Each value's StatusCode follows its channel's
+//! health, its SourceTimestamp is the reading's time.
 //!
 //! It runs on its own tokio tasks fed from the status watch channel (at most 10 updates a second);
 //! it never touches the cycle and cannot block it. Everything is read-only for every user: the
@@ -11,7 +14,9 @@
 //! analog value carries its `EngineeringUnits` (UNECE codes, e.g. `4H` for µm).
 //!
 //! This file holds the `[opcua]` section of the field config and its start-time checks;
-//! `space.rs` maps a status snapshot to nodes (sans-IO), `server.rs` is the async-opcua shell.
+//! `space.rs` maps a status snapshot to nodes (sans-IO), `server.rs` is the async-opcua shell,
+//! `nodesets.rs` the companion nodesets, `instance.rs` the typed machine object, `pki.rs` the
+//! certificate store an anonymous-only server does without.
 
 #[cfg(feature = "opcua")]
 mod instance;

@@ -2,7 +2,7 @@
 //! by its path below the box's object (`Monitoring/Axes/X/Correction`); the server shell creates the
 //! objects along the path and the variable the first time a path appears, and sets its value after.
 //!
-//! Layout (OPC 40501 Machine Tools where it applies; `<box>` = `gateway.name`):
+//! Layout (`<box>` = `gateway.name`, a `MachineToolType` created by `instance.rs`):
 //! `Objects/Machines/<box>/Identification` (product, software, model name and hash),
 //! `Monitoring/Compensation` (enabled, cycles, model error), `Monitoring/Axes/<X>` (`Correction` =
 //! applied correction µm, `TargetCorrection`, `Position` mm, `Mode`, `Direction`,
@@ -10,6 +10,8 @@
 //! the channel's unit, `Health`, `Healthy`, `Stale`, `Stuck`, `Substituted`), `Monitoring/Sink`
 //! (writes ok/failed, last error), `Notification` (active faults).
 //! Units: corrections µm (correction = −error), positions mm, sensors by channel-name suffix.
+//! Quality: a sensor value's follows its channel's health ([`channel_quality`]); a number the
+//! snapshot lacks is `NoData`; everything else is `Good` at the snapshot's time.
 
 use crate::engine::health::{ChannelStatus, FaultKind};
 use crate::status::ModelIdentity;
