@@ -43,17 +43,22 @@ static NO_CERTIFICATE_NEEDED: std::sync::atomic::AtomicBool =
 
 /// async-opcua's reports of a missing own certificate, when they are false: the server is
 /// anonymous only (SecurityPolicy None), so no certificate is used (see `pki.rs`). The binary's
-/// log filter drops these; every other ERROR and WARN passes.
+/// log filter drops these; every other ERROR and WARN passes. Matched by callsite (file and line
+/// in async-opcua 0.19.0, which Cargo.lock pins): after an upgrade that moves them they show
+/// again (and tests/gateway_opcua.rs fails) rather than anything else being hidden.
 pub fn is_false_certificate_report(m: &tracing::Metadata<'_>) -> bool {
-    use tracing::Level;
-    let missing_cert = matches!(
-        (m.target(), *m.level()),
-        (
-            "opcua_crypto::certificate_store" | "opcua_core::comms::secure_channel",
-            Level::ERROR
-        ) | ("opcua_server::server", Level::WARN)
-    );
-    missing_cert && NO_CERTIFICATE_NEEDED.load(std::sync::atomic::Ordering::Relaxed)
+    const CALLSITES: [(&str, u32); 5] = [
+        // "Failed to get cert and private key" / "… cert or private key" (store opened at start)
+        ("opcua_crypto::certificate_store", 109),
+        ("opcua_crypto::certificate_store", 113),
+        // "Failed to read own certificate" / "… private key" (every secure channel)
+        ("opcua_core::comms::secure_channel", 127),
+        ("opcua_core::comms::secure_channel", 134),
+        // "Server is missing its application instance certificate …"
+        ("opcua_server::server", 135),
+    ];
+    let at = (m.target(), m.line().unwrap_or(0));
+    CALLSITES.contains(&at) && NO_CERTIFICATE_NEEDED.load(std::sync::atomic::Ordering::Relaxed)
 }
 
 /// `[opcua]` of the field config. Absent → no OPC UA server.
