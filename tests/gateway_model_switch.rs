@@ -53,7 +53,8 @@ fn a_declared_model_is_switched_in_through_the_ramps_and_bad_requests_change_not
     std::fs::copy(demo.join("mill-geometric.toml"), &geo).unwrap();
     std::fs::copy(demo.join("mill-geometric.toml"), &fragile).unwrap();
     let extra = format!(
-        "\n[opcua]\nlisten = \"127.0.0.1:0\"\n[gateway.models]\ngeometric = \"{}\"\nfragile = \"{}\"\nfull = \"{}\"\n",
+        "\n[opcua]\nlisten = \"127.0.0.1:0\"\n{}[gateway.models]\ngeometric = \"{}\"\nfragile = \"{}\"\nfull = \"{}\"\n",
+        configs::OPCUA_IDENT,
         geo.display(),
         fragile.display(),
         run::demo_truth_model().display()

@@ -70,7 +70,15 @@ fn asyncua_browses_reads_and_subscribes_to_the_gateway() {
     let pty_link = dir.join("weighing-pty");
     // Twenty out-and-back strokes (to the sim's 60 s cap): the axes move while the client reads
     // (it compares until it has caught them moving; the sim is stopped when the client is done).
-    let sim = configs::sim_machine_toml(20, &truth) + &configs::sim_io_toml(port, &pty_link, None);
+    // The temperature node (10) falls silent from 15 s to 21 s of the sim's clock: its channels go
+    // stale and come back while asyncua_quality.py holds a subscription to one of them.
+    let silent = format!(
+        "\n[[io.faults]]\nkind = \"can_node_silent\"\nnode = 10\nfrom_s = {}\nto_s = {}\n",
+        TEMPS_SILENT_S.0, TEMPS_SILENT_S.1
+    );
+    let sim = configs::sim_machine_toml(20, &truth)
+        + &configs::sim_io_toml(port, &pty_link, None)
+        + &silent;
     std::fs::write(&sim_cfg, sim).unwrap();
     let mut sim = run::Sim::spawn(&hil_sim, &sim_cfg, &dir.join("out"));
     let [plc, pty] = <[String; 2]>::try_from(
@@ -78,13 +86,25 @@ fn asyncua_browses_reads_and_subscribes_to_the_gateway() {
     )
     .unwrap();
     let field = dir.join("field.toml");
-    let text =
-        configs::field_toml(port, &plc, Path::new(&pty)) + "\n[opcua]\nlisten = \"127.0.0.1:0\"\n";
+    let text = configs::field_toml(port, &plc, Path::new(&pty))
+        + "\n[opcua]\nlisten = \"127.0.0.1:0\"\n"
+        + configs::OPCUA_IDENT;
     std::fs::write(&field, text).unwrap();
-    let (mut gw, log) = run::start_gateway(dir, "gateway.log", &field, &truth);
+    // Its own TMPDIR: whatever the server puts in the temporary folder is seen (and must be gone).
+    let tmp = dir.join("tmp");
+    std::fs::create_dir_all(&tmp).unwrap();
+    let (mut gw, log) =
+        run::start_gateway_with(dir, "gateway.log", &field, &truth, &[("TMPDIR", &tmp)]);
     let opc_url = from_log(&log, "OPC UA endpoint ", &mut gw);
     let status_addr = from_log(&log, "bound=", &mut gw);
     assert!(opc_url.starts_with("opc.tcp://127.0.0.1:"), "{opc_url}");
+    let quality = Command::new(&py)
+        .arg(peers::repo().join("tests/peers/asyncua_quality.py"))
+        .args([opc_url.as_str(), QUALITY_CHANNEL])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("running asyncua_quality.py");
 
     let out = Command::new(&py)
         .arg(peers::repo().join("tests/peers/asyncua_client.py"))
@@ -94,6 +114,8 @@ fn asyncua_browses_reads_and_subscribes_to_the_gateway() {
         .expect("running the asyncua client");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
+    let quality = quality.wait_with_output().unwrap();
+    std::fs::write(dir.join("asyncua_quality.out"), &quality.stdout).unwrap();
     let alive = gw.try_wait().unwrap().is_none();
     run::stop_gateway(&mut gw, &log);
     let _ = sim.child.kill();
@@ -115,6 +137,26 @@ fn asyncua_browses_reads_and_subscribes_to_the_gateway() {
     eprintln!("asyncua summary: {summary}");
 
     assert_eq!(summary["box"], "faults-hil", "{summary}");
+    // OPC 40501-1 / 40001-1: found by its type in Machinery's Machines folder, typed components,
+    // the mandatory nameplate from [opcua.identification].
+    let c = &summary["companion"];
+    let mt = c["machine_tool_ns"].as_u64().unwrap();
+    assert_eq!(c["type_definition"], format!("ns={mt};i=13"), "{c}");
+    assert_eq!(c["identification_type"], 11, "{c}");
+    assert_eq!(
+        c["components"],
+        serde_json::json!({"Monitoring": 14, "Notification": 7, "Production": 21}),
+        "{c}"
+    );
+    assert_eq!(
+        c["nameplate"],
+        serde_json::json!({
+            "Manufacturer": "retrocomp test rig",
+            "SerialNumber": "faults-hil-1",
+            "ProductInstanceUri": "urn:retrocomp:test:faults-hil-1",
+        }),
+        "{c}"
+    );
     assert_eq!(summary["axes"], serde_json::json!(["X", "Y", "Z"]));
     let ident = &summary["identification"];
     assert_eq!(ident["ModelName"].as_str().map(str::is_empty), Some(false));
@@ -145,6 +187,92 @@ fn asyncua_browses_reads_and_subscribes_to_the_gateway() {
     assert!(summary["write_refused"].as_str().is_some(), "{summary}");
     let log_text = std::fs::read_to_string(&log).unwrap();
     assert!(log_text.contains("(read-only)"), "{log_text}");
+    check_quality(&quality, &log_text);
+    // An anonymous server needs no certificate: no ERROR about one, no certificate folder left.
+    let false_error = log_text
+        .lines()
+        .find(|l| l.contains("ERROR") && (l.contains("opcua") || l.contains("certificate")));
+    assert_eq!(false_error, None, "{log_text}");
+    let left: Vec<_> = std::fs::read_dir(&tmp)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .filter(|n| n.to_string_lossy().contains("opcua"))
+        .collect();
+    assert!(left.is_empty(), "left in TMPDIR: {left:?}");
+}
+
+/// hil-sim's temperature node is silent over this window of its clock, s.
+const TEMPS_SILENT_S: (f64, f64) = (15.0, 21.0);
+/// The channel asyncua_quality.py watches (on the temperature node; no neighbour estimate).
+const QUALITY_CHANNEL: &str = "T_xscrew_C";
+
+/// asyncua_quality.py's verdict: Good, then UncertainLastUsableValue while the channel is stale
+/// (the last reading's value, with that reading's SourceTimestamp: older than its ServerTimestamp),
+/// then Good again with a reading taken after the silence; every ServerTimestamp is the time the
+/// server took the value (before the client got it, within the session: not 9999 or 1601);
+/// BuildInfo names this build.
+fn check_quality(out: &std::process::Output, log_text: &str) {
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let q: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap_or(""))
+        .unwrap_or_else(|e| panic!("asyncua_quality.py: {e}\n{stdout}\n{stderr}"));
+    assert_eq!(q["error"], serde_json::Value::Null, "{q}");
+    assert!(q["recovered"].as_bool().unwrap(), "{q}\n{log_text}");
+    let seen = q["notifications"].as_array().unwrap();
+    let f = |n: &serde_json::Value, k: &str| n[k].as_f64().unwrap();
+    let first_uncertain = seen
+        .iter()
+        .position(|n| n["status"] == "UncertainLastUsableValue")
+        .unwrap();
+    assert!(first_uncertain > 0, "{q}");
+    let (before, stale) = (&seen[first_uncertain - 1], &seen[first_uncertain]);
+    assert_eq!(before["status"], "Good", "{before}");
+    assert_eq!(
+        stale["value"], before["value"],
+        "the last usable value: {stale}"
+    );
+    assert!(
+        f(stale, "source_s") >= f(before, "source_s"),
+        "{before} {stale}"
+    );
+    assert!(f(stale, "source_s") < f(stale, "server_s"), "{stale}");
+    let back = seen[first_uncertain..]
+        .iter()
+        .find(|n| n["status"] == "Good")
+        .unwrap();
+    // hil-sim's silence lasts 6 s: the reading that recovers is well after the last one before.
+    assert!(
+        f(back, "source_s") - f(stale, "source_s") > 1.0,
+        "{stale} {back}"
+    );
+    for n in seen {
+        let (srv, arrived, src) = (f(n, "server_s"), f(n, "arrived_s"), f(n, "source_s"));
+        // Taken by the server before it reached the client (1 s for clock rounding), and
+        // within this test's minute.
+        assert!(
+            srv <= arrived + 1.0 && arrived - srv < 60.0,
+            "ServerTimestamp: {n}"
+        );
+        assert!(
+            src <= srv + 1e-3,
+            "SourceTimestamp after ServerTimestamp: {n}"
+        );
+    }
+    let bi = &q["build_info"];
+    assert_eq!(bi["software_version"], env!("CARGO_PKG_VERSION"), "{bi}");
+    for k in ["product_name", "product_uri", "manufacturer"] {
+        assert!(
+            !bi[k].as_str().unwrap_or("").is_empty(),
+            "BuildInfo.{k}: {bi}"
+        );
+    }
+    // A build date after 2024 and not in the future.
+    let built = bi["build_date_s"].as_f64().unwrap();
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64();
+    assert!(built > 1.7e9 && built <= now, "BuildInfo.BuildDate: {bi}");
 }
 
 /// `[opcua]` with a user: anonymous stays on the unencrypted endpoint (`anonymous = true`), the
@@ -208,7 +336,10 @@ fn start_dry_run(dir: &Path, hub_port: u16, opcua: &str) -> (std::process::Child
     // Without the serial source (there is no pty to open); the sink goes with --dry-run.
     // Section headers at the start of a line (the shared fixture's comments name them too).
     let (head, tail) = full.split_once("\n[serial]\n").unwrap();
-    let text = head.to_string() + &tail[tail.find("\n[sink.origin_shift]\n").unwrap()..] + opcua;
+    let text = head.to_string()
+        + &tail[tail.find("\n[sink.origin_shift]\n").unwrap()..]
+        + opcua
+        + configs::OPCUA_IDENT;
     std::fs::write(&field, text).unwrap();
     let log = dir.join("gateway.log");
     let gw = Command::new(env!("CARGO_BIN_EXE_retrocomp"))

@@ -131,14 +131,20 @@ fn names_stream(journal_stream: &std::ffi::OsStr, m: &std::fs::Metadata) -> bool
 pub(crate) fn init_tracing(default_filter: &str) {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter));
+    use tracing_subscriber::layer::SubscriberExt as _;
+    use tracing_subscriber::util::SubscriberInitExt as _;
     let fmt = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .with_ansi(colour());
+    // async-opcua's missing-certificate ERRORs are false for an anonymous-only server.
+    let quiet = tracing_subscriber::filter::filter_fn(|m| {
+        !retrocomp_gateway::northbound::opcua::is_false_certificate_report(m)
+    });
     let _ = if stderr_is_journal() {
-        fmt.without_time().try_init()
+        fmt.without_time().finish().with(quiet).try_init()
     } else {
-        fmt.try_init()
+        fmt.finish().with(quiet).try_init()
     };
 }
 

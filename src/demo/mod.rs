@@ -418,7 +418,15 @@ fn field_text(
         Some(l) => {
             let listen = format!("status_listen = \"{}\"", l.listen);
             let text = text.replacen("status_listen = \"127.0.0.1:0\"", &listen, 1);
-            let opcua = format!("\n[opcua]\nlisten = \"127.0.0.1:{}\"\n", l.opcua_port);
+            // The demo machine's identity (OPC 40501-1 requires one): plainly a simulation.
+            let opcua = format!(
+                "\n[opcua]\nlisten = \"127.0.0.1:{}\"\n[opcua.identification]\n\
+                 manufacturer = \"retrocomp demo (simulated mill)\"\nserial_number = \"demo-{}\"\n\
+                 product_instance_uri = \"urn:retrocomp:demo:{}\"\n",
+                l.opcua_port,
+                mode.key(),
+                mode.key()
+            );
             (text + &opcua, Some(l.bound))
         }
         None => (text, None),

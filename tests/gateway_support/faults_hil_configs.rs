@@ -28,6 +28,11 @@ pub(crate) const FIXTURE_SIM: &str = include_str!("../fixtures/faults_hil/sim.to
 pub(crate) const FIXTURE_FIELD: &str = include_str!("../fixtures/faults_hil/field.toml");
 pub(crate) const FIXTURE_MAP: &str = include_str!("../fixtures/faults_hil/origin_shift_map.toml");
 
+/// `[opcua.identification]` of the test machine (OPC 40501-1's mandatory properties), to follow
+/// an `[opcua]` section.
+pub(crate) const OPCUA_IDENT: &str = "[opcua.identification]\nmanufacturer = \"retrocomp test rig\"\n\
+    serial_number = \"faults-hil-1\"\nproduct_instance_uri = \"urn:retrocomp:test:faults-hil-1\"\n";
+
 pub(crate) fn sim_toml(hub_port: u16, pty_link: &Path, truth: &Path) -> String {
     sim_machine_toml(5, truth) + &sim_faults_and_io_toml(hub_port, pty_link)
 }

@@ -118,8 +118,20 @@ pub(crate) fn start_gateway(
     field: &Path,
     model: &Path,
 ) -> (Child, PathBuf) {
+    start_gateway_with(dir, log_name, field, model, &[])
+}
+
+/// [`start_gateway`] with extra environment variables (e.g. its own `TMPDIR`).
+pub(crate) fn start_gateway_with(
+    dir: &Path,
+    log_name: &str,
+    field: &Path,
+    model: &Path,
+    env: &[(&str, &Path)],
+) -> (Child, PathBuf) {
     let log = dir.join(log_name);
     let child = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .envs(env.iter().copied())
         .arg("run")
         .arg("--config")
         .arg(field)

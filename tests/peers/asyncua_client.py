@@ -53,6 +53,64 @@ async def walk(node, path, out):
             await walk(c, p, out)
 
 
+MACHINERY_URI = "http://opcfoundation.org/UA/Machinery/"
+MACHINE_TOOL_URI = "http://opcfoundation.org/UA/MachineTool/"
+DI_URI = "http://opcfoundation.org/UA/DI/"
+
+
+async def is_subtype(client, type_id, base_id):
+    """`type_id` is `base_id` or below it (inverse HasSubtype up the type tree)."""
+    node = client.get_node(type_id)
+    for _ in range(16):
+        if node.nodeid == base_id:
+            return True
+        parents = await node.get_references(ua.ObjectIds.HasSubtype, ua.BrowseDirection.Inverse)
+        if not parents:
+            return False
+        node = client.get_node(parents[0].NodeId)
+    return False
+
+
+async def companion_checks(client, machines, box):
+    """OPC 40001-1 / 40501-1: Machines is Machinery's folder; the machines in it found by type
+    (HasTypeDefinition a MachineToolType or a subtype); the box's Identification holds DI's
+    mandatory properties."""
+    machinery = await client.get_namespace_index(MACHINERY_URI)
+    machine_tool = await client.get_namespace_index(MACHINE_TOOL_URI)
+    di = await client.get_namespace_index(DI_URI)
+    if machines.nodeid != ua.NodeId(1001, machinery):
+        fail(f"Machines is {machines.nodeid}, not Machinery's i=1001 in ns {machinery}")
+    mt_type = ua.NodeId(13, machine_tool)
+    type_name = (await client.get_node(mt_type).read_browse_name())
+    if (type_name.Name, type_name.NamespaceIndex) != ("MachineToolType", machine_tool):
+        fail(f"ns={machine_tool};i=13 is {type_name}")
+    found = []
+    for m in await machines.get_children(refs=ua.ObjectIds.Organizes):
+        t = await m.read_type_definition()
+        if t is not None and await is_subtype(client, t, mt_type):
+            found.append(m.nodeid)
+    if found != [box.nodeid]:
+        fail(f"machine tools found by type: {found}, expected [{box.nodeid}]")
+    ident = await box.get_child(f"{di}:Identification")
+    ident_type = await ident.read_type_definition()
+    nameplate = {}
+    for name in ("Manufacturer", "SerialNumber", "ProductInstanceUri"):
+        v = await (await ident.get_child(f"{di}:{name}")).read_value()
+        nameplate[name] = v.Text if isinstance(v, ua.LocalizedText) else v
+    components = {}
+    for name in ("Monitoring", "Notification", "Production"):
+        c = await box.get_child(f"{machine_tool}:{name}")
+        components[name] = (await c.read_type_definition()).Identifier
+    return {
+        "machines": machines.nodeid.to_string(),
+        "type_definition": (await box.read_type_definition()).to_string(),
+        "machine_tool_ns": machine_tool,
+        "identification_type": ident_type.Identifier,
+        "nameplate": nameplate,
+        "components": components,
+    }
+
+
 class Changes:
     def __init__(self):
         self.values = {}
@@ -73,6 +131,7 @@ async def main(opc_url, status_url):
             fail(f"expected one machine under Machines, got {len(boxes)}")
         box = boxes[0]
         box_name = (await box.read_browse_name()).Name
+        companion = await companion_checks(client, machines, box)
         variables = {}
         await walk(box, "", variables)
         ident = {k: await variables[f"Identification/{k}"].read_value()
@@ -167,6 +226,7 @@ async def main(opc_url, status_url):
 
     print(json.dumps({
         "box": box_name,
+        "companion": companion,
         "identification": ident,
         "axes": axes,
         "variables": len(variables),

@@ -20,6 +20,16 @@ async def machine(c):
     return None
 
 
+async def box_variable(c, path):
+    """The variable `Machines/<box>/<path>` (node id in the box's namespace); raises without a box.
+    Used by asyncua_watch.py and asyncua_quality.py."""
+    box = await machine(c)
+    if box is None:
+        raise RuntimeError("no Machines folder")
+    name = (await box.read_browse_name()).Name
+    return c.get_node(ua.NodeId(f"Machines/{name}/{path}", box.nodeid.NamespaceIndex))
+
+
 async def main(url):
     async with Client(url, timeout=30) as c:
         box = await machine(c)

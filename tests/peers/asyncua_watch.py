@@ -13,9 +13,9 @@ import json
 import os
 import sys
 
-from asyncua import Client, ua
+from asyncua import Client
 
-from asyncua_identification import machine
+from asyncua_identification import box_variable
 
 
 class Watch:
@@ -35,12 +35,7 @@ async def main(url, stop_file):
     watch = Watch()
     try:
         async with Client(url, timeout=30) as c:
-            box = await machine(c)
-            if box is None:
-                raise RuntimeError("no Machines folder")
-            name = (await box.read_browse_name()).Name
-            ns = box.nodeid.NamespaceIndex
-            node = c.get_node(ua.NodeId(f"Machines/{name}/Monitoring/Compensation/Cycles", ns))
+            node = await box_variable(c, "Monitoring/Compensation/Cycles")
             sub = await c.create_subscription(200, watch)
             await sub.subscribe_data_change([node])
             print(json.dumps({"event": "subscribed"}), flush=True)

@@ -403,7 +403,10 @@ position_channel = "x_mm"
     /// ignored; a build with the server accepts the same text (the check can fail both ways).
     #[test]
     fn a_section_this_build_cannot_serve_is_refused_at_its_line() {
-        let opcua = parse("[opcua]\nlisten = \"127.0.0.1:4840\"\nanonymous = true\n");
+        let opcua = parse(
+            "[opcua]\nlisten = \"127.0.0.1:4840\"\nanonymous = true\n[opcua.identification]\n\
+             manufacturer = \"m\"\nserial_number = \"1\"\nproduct_instance_uri = \"urn:m:1\"\n",
+        );
         let mqtt = parse(
             "[telemetry.mqtt]\nbroker = \"127.0.0.1:1883\"\ngroup_id = \"g\"\nedge_node_id = \"n\"\n",
         );

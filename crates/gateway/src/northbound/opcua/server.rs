@@ -9,21 +9,23 @@ use std::time::Duration;
 
 use opcua::crypto::SecurityPolicy;
 use opcua::server::address_space::{AccessLevel, ObjectBuilder, VariableBuilder};
-use opcua::server::diagnostics::NamespaceMetadata;
-use opcua::server::node_manager::memory::{SimpleNodeManager, simple_node_manager};
+use opcua::server::node_manager::memory::{SimpleNodeManager, simple_node_manager_imports};
 use opcua::server::{
     ANONYMOUS_USER_TOKEN_ID, ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken,
     SubscriptionCache,
 };
 use opcua::types::{
-    DataTypeId, DataValue, EUInformation, ExtensionObject, LocalizedText, MessageSecurityMode,
-    NodeId, ObjectId, ObjectTypeId, QualifiedName, StatusCode, UAString, VariableTypeId, Variant,
+    BuildInfo, DataTypeId, DataValue, EUInformation, ExtensionObject, LocalizedText,
+    MessageSecurityMode, NodeId, ObjectTypeId, QualifiedName, StatusCode, UAString, VariableTypeId,
+    Variant,
 };
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
 use super::OpcUaSection;
-use super::space::{FOLDERS, Point, Unit, Value, identification, points, unece_unit_id};
+use super::instance::{self, Namespaces};
+use super::nodesets;
+use super::space::{FOLDERS, Point, Quality, Unit, Value, identification, points, unece_unit_id};
 use crate::status::ModelIdentity;
 use crate::status::StatusSnapshot;
 
@@ -116,9 +118,13 @@ pub async fn start(
         .map_err(|e| OpcUaError::setup(format!("opcua.listen: binding {listen}"), e))?;
     let bound = public.addr;
     let host = cfg.host.clone().unwrap_or_else(|| bound.ip().to_string());
-    let (server, handle) = builder(cfg, box_name, &host, bound.port())?
-        .build()
-        .map_err(|e| OpcUaError::Refused(format!("opcua: {e}")))?;
+    let b = builder(cfg, box_name, &host, bound.port())?;
+    let built = if cfg.has_users() {
+        b.build()
+    } else {
+        super::pki::build_without_store(b)
+    };
+    let (server, handle) = built.map_err(|e| OpcUaError::Refused(format!("opcua: {e}")))?;
     let server = tokio::spawn(async move {
         if let Err(e) = server.run_with(inner).await {
             tracing::error!(%e, "the OPC UA server stopped");
@@ -131,12 +137,22 @@ pub async fn start(
         .ok_or_else(|| {
             OpcUaError::Refused("opcua: no node manager for the box's namespace".into())
         })?;
-    let ns = handle
-        .get_namespace_index(NAMESPACE_URI)
-        .ok_or_else(|| OpcUaError::Refused("opcua: namespace not registered".into()))?;
-    let mut space = Space::new(nm, ns, box_name);
+    let index = |uri: &str| {
+        handle
+            .get_namespace_index(uri)
+            .ok_or_else(|| OpcUaError::Refused(format!("opcua: namespace {uri} not registered")))
+    };
+    let ns = Namespaces {
+        own: index(NAMESPACE_URI)?,
+        di: index(nodesets::DI_URI)?,
+        machinery: index(nodesets::MACHINERY_URI)?,
+        machine_tool: index(nodesets::MACHINE_TOOL_URI)?,
+    };
+    let ident = cfg.identification.clone().unwrap_or_default();
+    let mut space = Space::new(nm, ns, box_name, &ident);
     space.update(
         &identification(box_name, model.as_ref()),
+        None,
         handle.subscriptions(),
     );
     let subs = handle.subscriptions().clone();
@@ -203,28 +219,25 @@ fn builder(
     host: &str,
     port: u16,
 ) -> Result<ServerBuilder, OpcUaError> {
-    let pki = cfg.pki_dir.clone().unwrap_or_else(|| {
-        // Anonymous only: no certificate is used, but the store wants a folder.
-        std::env::temp_dir().join(format!("retrocomp-opcua-pki-{}", std::process::id()))
-    });
     let mut b = ServerBuilder::new()
         .application_name(format!("retrocomp {box_name}"))
         .application_uri(format!("urn:retrocomp:{box_name}"))
         .product_uri("urn:retrocomp")
         .host(host)
         .port(port)
-        .pki_dir(pki)
         .create_sample_keypair(cfg.has_users())
+        .build_info(build_info())
         .trust_client_certs(cfg.trust_client_certs)
         .discovery_urls(vec!["/".to_owned()])
         .max_sessions(16)
-        .with_node_manager(simple_node_manager(
-            NamespaceMetadata {
-                namespace_uri: NAMESPACE_URI.to_owned(),
-                ..Default::default()
-            },
+        .with_node_manager(simple_node_manager_imports(
+            nodesets::imports(NAMESPACE_URI).map_err(OpcUaError::Refused)?,
             "retrocomp",
         ));
+    // Anonymous only: `pki::build_without_store` gives it a folder for the build alone.
+    if let Some(pki) = &cfg.pki_dir {
+        b = b.pki_dir(pki);
+    }
     if cfg.anonymous() {
         let ids = [ANONYMOUS_USER_TOKEN_ID.to_string()];
         b = b.add_endpoint("none", ServerEndpoint::new_none("/", &ids));
@@ -284,9 +297,9 @@ async fn update_loop(
         };
         if snap.model.is_some() && snap.model != model {
             model.clone_from(&snap.model);
-            space.update(&identification(&box_name, model.as_ref()), &subs);
+            space.update(&identification(&box_name, model.as_ref()), None, &subs);
         }
-        space.update(&points(&snap, model.as_ref()), &subs);
+        space.update(&points(&snap, model.as_ref()), Some(snap.t_s), &subs);
     }
 }
 
@@ -300,25 +313,17 @@ struct Space {
 }
 
 impl Space {
-    fn new(nm: Arc<SimpleNodeManager>, ns: u16, box_name: &str) -> Self {
+    fn new(
+        nm: Arc<SimpleNodeManager>,
+        ns: Namespaces,
+        box_name: &str,
+        ident: &super::Identification,
+    ) -> Self {
         let root = format!("Machines/{box_name}");
-        {
-            let mut s = nm.address_space().write();
-            let machines = NodeId::new(ns, "Machines");
-            ObjectBuilder::new(&machines, QualifiedName::new(ns, "Machines"), "Machines")
-                .is_folder()
-                .organized_by(ObjectId::ObjectsFolder)
-                .insert(&mut *s);
-            let id = NodeId::new(ns, root.clone());
-            ObjectBuilder::new(&id, QualifiedName::new(ns, box_name), box_name)
-                .description("The retrocomp box compensating this machine's volumetric error")
-                .has_type_definition(ObjectTypeId::BaseObjectType)
-                .organized_by(machines)
-                .insert(&mut *s);
-        }
+        instance::insert(&mut nm.address_space().write(), ns, &root, box_name, ident);
         Space {
             nm,
-            ns,
+            ns: ns.own,
             root,
             known: HashSet::new(),
             failing: false,
@@ -329,19 +334,25 @@ impl Space {
         NodeId::new(self.ns, format!("{}/{path}", self.root))
     }
 
-    fn update(&mut self, pts: &[Point], subs: &SubscriptionCache) {
+    /// `snap_t_s`: the snapshot's time on the gateway clock (None for what has no snapshot): a
+    /// point's reading time is placed that long before now.
+    fn update(&mut self, pts: &[Point], snap_t_s: Option<f64>, subs: &SubscriptionCache) {
         for p in pts {
             if !self.known.contains(&p.path) {
                 self.create(p);
                 self.known.insert(p.path.clone());
             }
         }
-        let now = opcua::types::DateTime::now();
+        let now_unix_s = crate::northbound::history::unix_now_s();
+        let now = unix_time(now_unix_s);
         let ids: Vec<NodeId> = pts.iter().map(|p| self.id(&p.path)).collect();
-        let values = ids
-            .iter()
-            .zip(pts)
-            .map(|(id, p)| (id, None, data_value(&p.value, now)));
+        let values = ids.iter().zip(pts).map(|(id, p)| {
+            let source = match (p.source_t_s, snap_t_s) {
+                (Some(read_s), Some(snap_s)) => unix_time(now_unix_s - (snap_s - read_s).max(0.0)),
+                _ => now,
+            };
+            (id, None, data_value(&p.value, p.quality, source, now))
+        });
         // Logged once when it starts failing and once when it works again.
         let result = self.nm.set_values(subs, values);
         match (&result, self.failing) {
@@ -419,6 +430,30 @@ impl Space {
     }
 }
 
+/// `Server/ServerStatus/BuildInfo`: this build of retrocomp. The build date is when the gateway
+/// crate was compiled (`build.rs`; `SOURCE_DATE_EPOCH` for reproducible builds).
+fn build_info() -> BuildInfo {
+    let unix_s: i64 = env!("RETROCOMP_BUILD_UNIX_S").parse().unwrap_or(0);
+    BuildInfo {
+        product_uri: "urn:retrocomp".into(),
+        manufacturer_name: "retrocomp project".into(),
+        product_name: "retrocomp gateway".into(),
+        software_version: env!("CARGO_PKG_VERSION").into(),
+        build_number: env!("CARGO_PKG_VERSION").into(),
+        build_date: unix_time(unix_s as f64),
+    }
+}
+
+/// OPC UA DateTime (100 ns ticks since 1601-01-01) of a Unix time in seconds.
+#[expect(
+    clippy::cast_possible_truncation,
+    reason = "ticks of any wall time since 1601 fit an i64 (it overflows in 30828)"
+)]
+fn unix_time(unix_s: f64) -> opcua::types::DateTime {
+    const UNIX_EPOCH_TICKS: i64 = 11_644_473_600 * 10_000_000;
+    opcua::types::DateTime::from(UNIX_EPOCH_TICKS + (unix_s * 1e7).round() as i64)
+}
+
 fn eu_information(u: Unit) -> EUInformation {
     EUInformation {
         namespace_uri: UAString::from(UNECE_URI),
@@ -428,13 +463,18 @@ fn eu_information(u: Unit) -> EUInformation {
     }
 }
 
-fn data_value(v: &Value, now: opcua::types::DateTime) -> DataValue {
+/// `source`: when the value was read (SourceTimestamp); `now`: when the server took it
+/// (ServerTimestamp). The StatusCode follows the point's quality.
+fn data_value(
+    v: &Value,
+    quality: Quality,
+    source: opcua::types::DateTime,
+    now: opcua::types::DateTime,
+) -> DataValue {
     let variant = match v {
-        Value::F64(Some(x)) => Variant::Double(*x),
-        // No value (e.g. no target while inputs are stale): Bad, so no client takes it for a number.
-        Value::F64(None) => {
-            return DataValue::new_at_status(Variant::Double(f64::NAN), now, StatusCode::BadNoData);
-        }
+        // No value (e.g. no target while inputs are stale): NaN under a Bad status, so no client
+        // takes it for a number.
+        Value::F64(x) => Variant::Double(x.unwrap_or(f64::NAN)),
         Value::Bool(b) => Variant::Boolean(*b),
         Value::U64(n) => Variant::UInt64(*n),
         Value::Str(s) => Variant::String(s.as_str().into()),
@@ -444,5 +484,22 @@ fn data_value(v: &Value, now: opcua::types::DateTime) -> DataValue {
                 .collect::<Vec<_>>(),
         ),
     };
-    DataValue::new_at(variant, now)
+    let status = match quality {
+        Quality::Good => StatusCode::Good,
+        Quality::LastUsable => StatusCode::UncertainLastUsableValue,
+        Quality::Substituted => StatusCode::UncertainSubstituteValue,
+        Quality::NoData => StatusCode::BadNoData,
+        Quality::OutOfRange => StatusCode::BadOutOfRange,
+        Quality::DeviceFailure => StatusCode::BadDeviceFailure,
+    };
+    DataValue {
+        value: Some(variant),
+        status: Some(status),
+        // No picoseconds: asyncua 2.1 turns a present ServerPicoseconds into a ServerTimestamp
+        // of 1601-01-01 (or 9999-12-31 on a Read).
+        source_timestamp: Some(source),
+        source_picoseconds: None,
+        server_timestamp: Some(now),
+        server_picoseconds: None,
+    }
 }

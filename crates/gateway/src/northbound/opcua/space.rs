@@ -2,7 +2,7 @@
 //! by its path below the box's object (`Monitoring/Axes/X/Correction`); the server shell creates the
 //! objects along the path and the variable the first time a path appears, and sets its value after.
 //!
-//! Layout (OPC 40501 Machine Tools where it applies; `<box>` = `gateway.name`):
+//! Layout (`<box>` = `gateway.name`, a `MachineToolType` created by `instance.rs`):
 //! `Objects/Machines/<box>/Identification` (product, software, model name and hash),
 //! `Monitoring/Compensation` (enabled, cycles, model error), `Monitoring/Axes/<X>` (`Correction` =
 //! applied correction µm, `TargetCorrection`, `Position` mm, `Mode`, `Direction`,
@@ -10,8 +10,10 @@
 //! the channel's unit, `Health`, `Healthy`, `Stale`, `Stuck`, `Substituted`), `Monitoring/Sink`
 //! (writes ok/failed, last error), `Notification` (active faults).
 //! Units: corrections µm (correction = −error), positions mm, sensors by channel-name suffix.
+//! Quality: a sensor value's follows its channel's health ([`channel_quality`]); a number the
+//! snapshot lacks is `NoData`; everything else is `Good` at the snapshot's time.
 
-use crate::engine::health::FaultKind;
+use crate::engine::health::{ChannelStatus, FaultKind};
 use crate::status::ModelIdentity;
 use crate::status::StatusSnapshot;
 use retrocomp_bus::Health;
@@ -86,12 +88,32 @@ pub enum Value {
     StrArray(Vec<String>),
 }
 
+/// How far a client may trust a value: the variable's StatusCode (OPC UA Part 4 §7.39).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Quality {
+    Good,
+    /// The channel went stale: the value is its last good reading (`Uncertain_LastUsableValue`).
+    LastUsable,
+    /// An estimate from correlated channels, not a reading (`Uncertain_SubstituteValue`).
+    Substituted,
+    /// No value at all (`Bad_NoData`).
+    NoData,
+    /// The channel's readings are outside its configured range (`Bad_OutOfRange`).
+    OutOfRange,
+    /// The channel's bytes do not decode, or its device answers with an exception (`Bad_DeviceFailure`).
+    DeviceFailure,
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct Point {
     /// Below the box's object, `/`-separated; the last part is the variable's browse name.
     pub path: String,
     pub value: Value,
     pub unit: Option<Unit>,
+    pub quality: Quality,
+    /// Gateway clock (s) of the reading the value comes from (its SourceTimestamp); None: the
+    /// snapshot's own time.
+    pub source_t_s: Option<f64>,
 }
 
 /// Path parts that are collections (FolderType); every other intermediate part is an object.
@@ -105,8 +127,32 @@ pub const FOLDERS: [&str; 7] = [
     "Other",
 ];
 
+/// A point read at the snapshot's time: Good, or Bad_NoData for a number that is absent.
 fn p(path: String, value: Value, unit: Option<Unit>) -> Point {
-    Point { path, value, unit }
+    let quality = match value {
+        Value::F64(None) => Quality::NoData,
+        _ => Quality::Good,
+    };
+    Point {
+        path,
+        value,
+        unit,
+        quality,
+        source_t_s: None,
+    }
+}
+
+/// A channel's value quality from its health: a stale channel's last reading is still usable
+/// (the model holds it), a faulted one is not.
+pub fn channel_quality(c: &ChannelStatus) -> Quality {
+    match (c.value, c.health) {
+        (None, _) => Quality::NoData,
+        (Some(_), _) if c.substituted => Quality::Substituted,
+        (Some(_), Health::Ok) => Quality::Good,
+        (Some(_), Health::Stale) => Quality::LastUsable,
+        (Some(_), Health::OutOfRange) => Quality::OutOfRange,
+        (Some(_), Health::DecodeError) => Quality::DeviceFailure,
+    }
 }
 
 /// A term's group folder: geometric/thermal/load from the model, `Other` when unknown.
@@ -169,7 +215,11 @@ pub fn points(snap: &StatusSnapshot, model: Option<&ModelIdentity>) -> Vec<Point
     for (name, c) in &snap.channels {
         let ch = |k: &str| format!("Monitoring/Sensors/{name}/{k}");
         let has = |k: FaultKind| c.faults.contains(&k);
-        out.push(p(ch("Value"), Value::F64(c.value), unit_of_channel(name)));
+        out.push(Point {
+            quality: channel_quality(c),
+            source_t_s: c.reading_t_s,
+            ..p(ch("Value"), Value::F64(c.value), unit_of_channel(name))
+        });
         out.push(p(
             ch("Health"),
             Value::Str(crate::northbound::state_name(&c.health)),
@@ -335,6 +385,41 @@ mod tests {
         // Without a model identity the terms still show, under Other.
         let pts = points(&snapshot(), None);
         find(&pts, "Monitoring/Axes/X/Terms/Other/EXX");
+    }
+
+    #[test]
+    fn a_channel_value_carries_its_health_and_reading_time() {
+        let c = |value, health, substituted| ChannelStatus {
+            value,
+            health,
+            faults: vec![],
+            substituted,
+            reading_t_s: Some(11.5),
+        };
+        let cases = [
+            (c(Some(1.0), Health::Ok, false), Quality::Good),
+            (c(Some(1.0), Health::Stale, false), Quality::LastUsable),
+            (c(Some(1.0), Health::Stale, true), Quality::Substituted),
+            (c(Some(1.0), Health::OutOfRange, false), Quality::OutOfRange),
+            (
+                c(Some(1.0), Health::DecodeError, false),
+                Quality::DeviceFailure,
+            ),
+            (c(None, Health::Stale, false), Quality::NoData),
+        ];
+        for (ch, want) in cases {
+            assert_eq!(channel_quality(&ch), want, "{ch:?}");
+        }
+        let mut snap = snapshot();
+        snap.channels
+            .insert("T_bed_C".into(), c(Some(21.0), Health::Stale, false));
+        let pts = points(&snap, None);
+        let v = find(&pts, "Monitoring/Sensors/T_bed_C/Value");
+        assert_eq!((v.quality, v.source_t_s), (Quality::LastUsable, Some(11.5)));
+        let t = find(&pts, "Monitoring/Axes/X/TargetCorrection");
+        assert_eq!((t.quality, t.source_t_s), (Quality::NoData, None));
+        let a = find(&pts, "Monitoring/Axes/X/Correction");
+        assert_eq!(a.quality, Quality::Good);
     }
 
     #[test]
