@@ -1,0 +1,374 @@
+//! Sensor faults (issue 36 point 4): a temperature column that is stuck, reads outside the range a
+//! sensor can physically report, jumps, or departs from a redundant neighbour is a finding of its
+//! own (`sensor_faults` of docs/diagnose-json.md), found BEFORE the physics search; the faulted
+//! column is then left out of that search ([`Context::without`]), so a broken sensor is never
+//! "explained" as physics.
+//!
+//! Columns checked: every column whose name ends in `_C` (°C: `T_<name>_C` and unnamed ones such
+//! as `coolant_C`). Windows are row ranges `[first, last]` (inclusive) and the same rows' `t_s`.
+//! Each check is one pass over the column (O(rows) a column; the neighbour check compares block
+//! means, O(columns² · blocks²)), with no per-cycle use.
+
+use serde::{Deserialize, Serialize};
+
+use super::features::Context;
+
+/// Lowest and highest temperature (°C) a machine-tool sensor can plausibly read: anything outside
+/// is the sensor or its wiring (a PT100 open circuit reads ≈ 850 °C, a short ≈ −242 °C).
+pub const PLAUSIBLE_C: (f64, f64) = (-40.0, 200.0);
+
+/// Fewest rows of one unchanged reading for a stuck sensor.
+pub const MIN_STUCK_ROWS: usize = 30;
+
+/// A stuck run must be this many times longer than the column's 99th-percentile run of equal
+/// readings (a sensor read in tenths in a steady room repeats itself; a stuck one far longer).
+pub const STUCK_RUN_RATIO: f64 = 10.0;
+
+/// A step: one row-to-row change this many times the column's robust σ of changes …
+pub const STEP_SIGMA: f64 = 30.0;
+/// … and this many times its 99th-percentile |change| (a heat step's fastest rows stay below).
+pub const STEP_P99_RATIO: f64 = 5.0;
+
+/// Blocks of equal row count for the neighbour comparison.
+pub const NEIGHBOUR_BLOCKS: usize = 24;
+/// Two columns are redundant neighbours when, fitted one on the other over the block means (Theil–
+/// Sen), the robust σ of the block residuals is at most this share of the column's range.
+pub const REDUNDANT_SIGMA_SHARE: f64 = 0.02;
+/// A block disagrees when its residual exceeds this many σ …
+pub const DISAGREE_SIGMA: f64 = 8.0;
+/// … and this share of the column's range over the blocks.
+pub const DISAGREE_RANGE_SHARE: f64 = 0.1;
+
+/// One sensor fault: the column, its kind, the window and the evidence in words.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct SensorFault {
+    /// Always `sensor_fault` (an effect of its own, never physics).
+    pub effect: String,
+    /// `stuck`, `out_of_range`, `step` or `disagreement`.
+    pub kind: String,
+    pub column: String,
+    /// For `disagreement`: the neighbour it departs from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub neighbour: Option<String>,
+    /// First and last row of the window (0-based data rows, inclusive).
+    pub rows: [usize; 2],
+    /// `t_s` of those rows.
+    pub t_s: [f64; 2],
+    pub evidence: String,
+}
+
+fn fault(kind: &str, column: &str, rows: [usize; 2], t: &[f64], evidence: String) -> SensorFault {
+    SensorFault {
+        effect: "sensor_fault".into(),
+        kind: kind.into(),
+        column: column.into(),
+        neighbour: None,
+        rows,
+        t_s: [t[rows[0]], t[rows[1]]],
+        evidence,
+    }
+}
+
+/// The `_C` columns of the context (name, values).
+fn checked(ctx: &Context) -> Vec<(&str, &[f64])> {
+    ctx.temps
+        .iter()
+        .chain(&ctx.others)
+        .filter(|(n, _)| n.ends_with("_C"))
+        .map(|(n, v)| (n.as_str(), &**v))
+        .collect()
+}
+
+/// Every sensor fault of the recording, by column then row.
+pub fn scan(ctx: &Context) -> Vec<SensorFault> {
+    let cols = checked(ctx);
+    let mut out = vec![];
+    for (name, v) in &cols {
+        let range = out_of_range(name, v, &ctx.t_s);
+        let stuck = stuck(name, v, &ctx.t_s);
+        let busy: Vec<[usize; 2]> = range.iter().chain(&stuck).map(|f| f.rows).collect();
+        out.extend(range);
+        out.extend(stuck);
+        out.extend(steps(name, v, &ctx.t_s, &busy));
+    }
+    out.extend(disagreements(&cols, &ctx.t_s, &out));
+    out
+}
+
+/// Windows of rows outside [`PLAUSIBLE_C`] (at most 5 listed a column; the evidence counts all).
+fn out_of_range(name: &str, v: &[f64], t: &[f64]) -> Vec<SensorFault> {
+    let (lo, hi) = PLAUSIBLE_C;
+    let mut wins: Vec<[usize; 2]> = vec![];
+    for (i, x) in v.iter().enumerate() {
+        if (lo..=hi).contains(x) {
+            continue;
+        }
+        match wins.last_mut() {
+            Some(w) if w[1] + 1 == i => w[1] = i,
+            _ => wins.push([i, i]),
+        }
+    }
+    let total = wins.len();
+    wins.into_iter()
+        .take(5)
+        .map(|w| {
+            let seen = v[w[0]..=w[1]]
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                    (a.min(x), b.max(x))
+                });
+            let cause = if seen.1 > 800.0 {
+                " (≈ 850 °C: a PT100 open circuit)"
+            } else if seen.0 < -200.0 {
+                " (a short circuit)"
+            } else {
+                ""
+            };
+            let more = if total > 5 {
+                format!("; {total} such windows in all")
+            } else {
+                String::new()
+            };
+            fault(
+                "out_of_range",
+                name,
+                w,
+                t,
+                format!(
+                    "reads {:.1}..{:.1} °C over {} rows, outside the {lo:.0}..{hi:.0} °C a sensor can plausibly read{cause}{more}",
+                    seen.0,
+                    seen.1,
+                    w[1] - w[0] + 1
+                ),
+            )
+        })
+        .collect()
+}
+
+/// The `q`-quantile of `v` (reorders it).
+fn quantile(v: &mut [f64], q: f64) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let k = ((v.len() - 1) as f64 * q).round() as usize;
+    *v.select_nth_unstable_by(k, f64::total_cmp).1
+}
+
+/// Runs of one unchanged reading far longer than the column's usual repeats.
+fn stuck(name: &str, v: &[f64], t: &[f64]) -> Vec<SensorFault> {
+    let mut runs: Vec<[usize; 2]> = vec![];
+    for i in 0..v.len() {
+        match runs.last_mut() {
+            Some(r) if v[r[1]] == v[i] => r[1] = i,
+            _ => runs.push([i, i]),
+        }
+    }
+    // A column that hardly changes is not "stuck" in a window: it is flat (and offers no term).
+    if runs.len() < 10 {
+        return vec![];
+    }
+    let mut lens: Vec<f64> = runs.iter().map(|r| (r[1] - r[0] + 1) as f64).collect();
+    let p99 = quantile(&mut lens, 0.99);
+    runs.into_iter()
+        .filter(|r| {
+            let len = r[1] - r[0] + 1;
+            len >= MIN_STUCK_ROWS && len as f64 >= STUCK_RUN_RATIO * p99
+        })
+        .map(|r| {
+            fault(
+                "stuck",
+                name,
+                r,
+                t,
+                format!(
+                    "reads {:.3} °C unchanged for {} rows ({:.0} s), {:.0}× its 99th-percentile run of equal readings ({p99:.0} rows)",
+                    v[r[0]],
+                    r[1] - r[0] + 1,
+                    t[r[1]] - t[r[0]],
+                    (r[1] - r[0] + 1) as f64 / p99
+                ),
+            )
+        })
+        .collect()
+}
+
+/// Single-row jumps far beyond the column's row-to-row changes, outside the `busy` windows
+/// (out-of-range and stuck windows jump at their edges already).
+fn steps(name: &str, v: &[f64], t: &[f64], busy: &[[usize; 2]]) -> Vec<SensorFault> {
+    if v.len() < 20 {
+        return vec![];
+    }
+    let d: Vec<f64> = v.windows(2).map(|w| w[1] - w[0]).collect();
+    let mut abs: Vec<f64> = d.iter().map(|x| x.abs()).collect();
+    let p99 = quantile(&mut abs, 0.99);
+    let med = quantile(&mut abs, 0.5);
+    let sigma = (1.4826 * med).max(
+        d.iter()
+            .map(|x| x.abs())
+            .filter(|x| *x > 0.0)
+            .fold(f64::INFINITY, f64::min),
+    );
+    if !sigma.is_finite() {
+        return vec![];
+    }
+    let near = |i: usize| busy.iter().any(|w| i + 1 >= w[0] && i <= w[1] + 1);
+    d.iter()
+        .enumerate()
+        .filter(|&(i, x)| {
+            x.abs() > STEP_SIGMA * sigma && x.abs() > STEP_P99_RATIO * p99 && !near(i + 1)
+        })
+        .take(5)
+        .map(|(i, x)| {
+            fault(
+                "step",
+                name,
+                [i, i + 1],
+                t,
+                format!(
+                    "jumps by {x:+.2} K from one row to the next: {:.0}× its robust σ of row-to-row changes, {:.0}× their 99th percentile",
+                    x.abs() / sigma,
+                    x.abs() / p99.max(f64::MIN_POSITIVE)
+                ),
+            )
+        })
+        .collect()
+}
+
+/// Theil–Sen fit y ≈ a + b·x: (a, b).
+fn theil_sen(x: &[f64], y: &[f64]) -> Option<(f64, f64)> {
+    let mut slopes = vec![];
+    for i in 0..x.len() {
+        for j in i + 1..x.len() {
+            if x[j] != x[i] {
+                slopes.push((y[j] - y[i]) / (x[j] - x[i]));
+            }
+        }
+    }
+    if slopes.is_empty() {
+        return None;
+    }
+    let b = quantile(&mut slopes, 0.5);
+    let mut a: Vec<f64> = x.iter().zip(y).map(|(x, y)| y - b * x).collect();
+    Some((quantile(&mut a, 0.5), b))
+}
+
+/// For column `y` against neighbour `x` (block means): the robust σ of the residuals, the range of
+/// `y` over the blocks, and the blocks whose residual disagrees — `None` when the two are not
+/// redundant neighbours.
+fn compare(x: &[f64], y: &[f64]) -> Option<(f64, f64, Vec<usize>)> {
+    let (a, b) = theil_sen(x, y)?;
+    let e: Vec<f64> = x.iter().zip(y).map(|(x, y)| y - a - b * x).collect();
+    let mut abs: Vec<f64> = e.iter().map(|v| v.abs()).collect();
+    let sigma = 1.4826 * quantile(&mut abs, 0.5);
+    let (lo, hi) = y
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
+            (l.min(v), h.max(v))
+        });
+    let range = hi - lo;
+    if range <= 0.0 || sigma > REDUNDANT_SIGMA_SHARE * range {
+        return None;
+    }
+    let bar = (DISAGREE_SIGMA * sigma).max(DISAGREE_RANGE_SHARE * range);
+    let bad = (0..e.len()).filter(|&k| e[k].abs() > bar).collect();
+    Some((sigma, range, bad))
+}
+
+/// Columns that depart from a redundant neighbour over ≥ 2 blocks. Of a disagreeing pair the
+/// faulty one is the one that no other redundant neighbour backs (the other agrees with a third
+/// column); when neither can be told, both are listed as each other's neighbour. Columns already
+/// faulted (out of range, stuck) are not compared.
+fn disagreements(cols: &[(&str, &[f64])], t: &[f64], known: &[SensorFault]) -> Vec<SensorFault> {
+    let n = t.len();
+    if n < 4 * NEIGHBOUR_BLOCKS {
+        return vec![];
+    }
+    let cols: Vec<&(&str, &[f64])> = cols
+        .iter()
+        .filter(|(c, _)| !known.iter().any(|f| f.column == *c))
+        .collect();
+    let means: Vec<Vec<f64>> = cols
+        .iter()
+        .map(|(_, v)| {
+            (0..NEIGHBOUR_BLOCKS)
+                .map(|k| {
+                    let b = &v[k * n / NEIGHBOUR_BLOCKS..(k + 1) * n / NEIGHBOUR_BLOCKS];
+                    b.iter().sum::<f64>() / b.len() as f64
+                })
+                .collect()
+        })
+        .collect();
+    // cmp[i][j]: column i fitted on column j.
+    let m = cols.len();
+    let mut cmp: Vec<Vec<Option<(f64, f64, Vec<usize>)>>> = vec![vec![None; m]; m];
+    for i in 0..m {
+        for j in 0..m {
+            if i != j {
+                cmp[i][j] = compare(&means[j], &means[i]);
+            }
+        }
+    }
+    let agrees = |i: usize, j: usize| {
+        cmp[i][j].as_ref().is_some_and(|c| c.2.is_empty())
+            && cmp[j][i].as_ref().is_some_and(|c| c.2.is_empty())
+    };
+    let mut out = vec![];
+    for i in 0..m {
+        for j in 0..m {
+            let Some((sigma, range, bad)) = &cmp[i][j] else {
+                continue;
+            };
+            if i == j || bad.len() < 2 {
+                continue;
+            }
+            let backed = |k: usize| (0..m).any(|o| o != i && o != j && agrees(k, o));
+            // i is named when j is backed by a third column and i is not; with no third
+            // column to tell, the pair is listed once each way.
+            let name_i = (backed(j) && !backed(i)) || (!backed(j) && !backed(i));
+            if !name_i {
+                continue;
+            }
+            let (first, last) = (bad[0], bad[bad.len() - 1]);
+            let rows = [
+                first * n / NEIGHBOUR_BLOCKS,
+                ((last + 1) * n / NEIGHBOUR_BLOCKS).min(n) - 1,
+            ];
+            let worst = bad
+                .iter()
+                .map(|&k| {
+                    let (a, b) = theil_sen(&means[j], &means[i]).expect("fitted above");
+                    means[i][k] - a - b * means[j][k]
+                })
+                .fold(0.0_f64, |w, e| if e.abs() > w.abs() { e } else { w });
+            let which = if backed(j) {
+                format!("{} agrees with a third column", cols[j].0)
+            } else {
+                "no third column tells which of the two is wrong".to_string()
+            };
+            let mut f = fault(
+                "disagreement",
+                cols[i].0,
+                rows,
+                t,
+                format!(
+                    "departs from its redundant neighbour {} by up to {worst:+.2} K in {} of {NEIGHBOUR_BLOCKS} blocks (σ {sigma:.3} K elsewhere, range {range:.2} K); {which}",
+                    cols[j].0,
+                    bad.len()
+                ),
+            );
+            f.neighbour = Some(cols[j].0.to_string());
+            out.push(f);
+        }
+    }
+    out
+}
+
+impl Context {
+    /// The context without the named columns (faulted sensors): the physics search never reads
+    /// them.
+    pub fn without(mut self, columns: &[&str]) -> Self {
+        self.temps.retain(|(n, _)| !columns.contains(&n.as_str()));
+        self.others.retain(|(n, _)| !columns.contains(&n.as_str()));
+        self
+    }
+}
