@@ -28,8 +28,8 @@ pub mod report;
 pub mod scoring;
 pub mod select;
 mod select_step;
-pub mod sensor_faults;
 pub mod selection;
+pub mod sensor_faults;
 pub mod swap;
 
 use serde_json::{Map, Value};
@@ -428,9 +428,10 @@ impl Assembly {
                 };
             params.retain(|_, v| !v.is_null());
             // A lag of a power of a column names the column and the exponent it acts through.
-            let power = params.get("sensor").and_then(Value::as_str).and_then(|s| {
-                features::power_of(s).map(|(c, p, _)| (c.to_string(), p))
-            });
+            let power = params
+                .get("sensor")
+                .and_then(Value::as_str)
+                .and_then(|s| features::power_of(s).map(|(c, p, _)| (c.to_string(), p)));
             if let Some((column, exponent)) = power {
                 params.insert("column".into(), column.into());
                 params.insert("exponent".into(), exponent.into());

@@ -31,13 +31,18 @@ pub const STEP_P99_RATIO: f64 = 5.0;
 
 /// Blocks of equal row count for the neighbour comparison.
 pub const NEIGHBOUR_BLOCKS: usize = 24;
-/// Two columns are redundant neighbours when, fitted one on the other over the block means (Theil–
-/// Sen), the robust σ of the block residuals is at most this share of the column's range.
+/// Two columns are redundant neighbours when, fitted one on the other over the changes of their
+/// block means (Theil–Sen), the robust σ of a block's residual is at most this share of the
+/// column's range.
 pub const REDUNDANT_SIGMA_SHARE: f64 = 0.02;
-/// A block disagrees when its residual exceeds this many σ …
-pub const DISAGREE_SIGMA: f64 = 8.0;
+/// … and the neighbour explains the column's block-to-block changes: the robust spread of what it
+/// leaves is at most this share of the changes' own.
+pub const FOLLOW_SHARE: f64 = 0.25;
+/// A block disagrees when its residual exceeds this many σ (sensors at different places of a
+/// real machine depart from each other by up to 14 σ through their own dynamics: FL_THERMAL) …
+pub const DISAGREE_SIGMA: f64 = 20.0;
 /// … and this share of the column's range over the blocks.
-pub const DISAGREE_RANGE_SHARE: f64 = 0.1;
+pub const DISAGREE_RANGE_SHARE: f64 = 0.05;
 
 /// One sensor fault: the column, its kind, the window and the evidence in words.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -252,14 +257,33 @@ fn theil_sen(x: &[f64], y: &[f64]) -> Option<(f64, f64)> {
     Some((quantile(&mut a, 0.5), b))
 }
 
-/// For column `y` against neighbour `x` (block means): the robust σ of the residuals, the range of
-/// `y` over the blocks, and the blocks whose residual disagrees — `None` when the two are not
-/// redundant neighbours.
-fn compare(x: &[f64], y: &[f64]) -> Option<(f64, f64, Vec<usize>)> {
-    let (a, b) = theil_sen(x, y)?;
-    let e: Vec<f64> = x.iter().zip(y).map(|(x, y)| y - a - b * x).collect();
-    let mut abs: Vec<f64> = e.iter().map(|v| v.abs()).collect();
-    let sigma = 1.4826 * quantile(&mut abs, 0.5);
+fn diffs(v: &[f64]) -> Vec<f64> {
+    v.windows(2).map(|w| w[1] - w[0]).collect()
+}
+
+/// Column `y` against neighbour `x` (block means): the slope `b` of y on x and the rate `c` of any
+/// steady drift between them, fitted (Theil–Sen) on the block-to-block CHANGES, so that a drift or
+/// a window of wrong readings does not bend the fit; then `e = y − b·x` per block, which is a
+/// constant plus noise while the two agree. Returns the robust σ of `e` (from the changes), the
+/// range of `y` over the blocks, `e`'s median and the blocks whose `e` departs from it — `None`
+/// when the two are not redundant neighbours (σ above [`REDUNDANT_SIGMA_SHARE`] of the range).
+fn compare(x: &[f64], y: &[f64]) -> Comparison {
+    let (dx, dy) = (diffs(x), diffs(y));
+    let (c, b) = theil_sen(&dx, &dy)?;
+    let mut inc: Vec<f64> = dx
+        .iter()
+        .zip(&dy)
+        .map(|(dx, dy)| (dy - b * dx - c).abs())
+        .collect();
+    let spread = quantile(&mut inc, 0.5);
+    let dy_mid = quantile(&mut dy.clone(), 0.5);
+    let mut own: Vec<f64> = dy.iter().map(|d| (d - dy_mid).abs()).collect();
+    // The neighbour must explain y's changes, not just leave small ones small.
+    if spread > FOLLOW_SHARE * quantile(&mut own, 0.5) {
+        return None;
+    }
+    // σ of one block's e: the changes hold two blocks' noise.
+    let sigma = 1.4826 * spread / std::f64::consts::SQRT_2;
     let (lo, hi) = y
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
@@ -269,9 +293,11 @@ fn compare(x: &[f64], y: &[f64]) -> Option<(f64, f64, Vec<usize>)> {
     if range <= 0.0 || sigma > REDUNDANT_SIGMA_SHARE * range {
         return None;
     }
+    let e: Vec<f64> = x.iter().zip(y).map(|(x, y)| y - b * x).collect();
+    let mid = quantile(&mut e.clone(), 0.5);
     let bar = (DISAGREE_SIGMA * sigma).max(DISAGREE_RANGE_SHARE * range);
-    let bad = (0..e.len()).filter(|&k| e[k].abs() > bar).collect();
-    Some((sigma, range, bad))
+    let bad = (0..e.len()).filter(|&k| (e[k] - mid).abs() > bar).collect();
+    Some((sigma, range, mid, bad))
 }
 
 /// Columns that depart from a redundant neighbour over ≥ 2 blocks. Of a disagreeing pair the
@@ -300,7 +326,7 @@ fn disagreements(cols: &[(&str, &[f64])], t: &[f64], known: &[SensorFault]) -> V
         .collect();
     // cmp[i][j]: column i fitted on column j.
     let m = cols.len();
-    let mut cmp: Vec<Vec<Option<(f64, f64, Vec<usize>)>>> = vec![vec![None; m]; m];
+    let mut cmp: Vec<Vec<Comparison>> = vec![vec![None; m]; m];
     for i in 0..m {
         for j in 0..m {
             if i != j {
@@ -309,58 +335,82 @@ fn disagreements(cols: &[(&str, &[f64])], t: &[f64], known: &[SensorFault]) -> V
         }
     }
     let agrees = |i: usize, j: usize| {
-        cmp[i][j].as_ref().is_some_and(|c| c.2.is_empty())
-            && cmp[j][i].as_ref().is_some_and(|c| c.2.is_empty())
+        cmp[i][j].as_ref().is_some_and(|c| c.3.is_empty())
+            && cmp[j][i].as_ref().is_some_and(|c| c.3.is_empty())
     };
     let mut out = vec![];
+    let flagged = |i: usize, j: usize| cmp[i][j].as_ref().filter(|c| c.3.len() >= 2);
     for i in 0..m {
-        for j in 0..m {
-            let Some((sigma, range, bad)) = &cmp[i][j] else {
-                continue;
-            };
-            if i == j || bad.len() < 2 {
+        for j in i + 1..m {
+            if flagged(i, j).is_none() && flagged(j, i).is_none() {
                 continue;
             }
             let backed = |k: usize| (0..m).any(|o| o != i && o != j && agrees(k, o));
-            // i is named when j is backed by a third column and i is not; with no third
-            // column to tell, the pair is listed once each way.
-            let name_i = (backed(j) && !backed(i)) || (!backed(j) && !backed(i));
-            if !name_i {
-                continue;
-            }
-            let (first, last) = (bad[0], bad[bad.len() - 1]);
-            let rows = [
-                first * n / NEIGHBOUR_BLOCKS,
-                ((last + 1) * n / NEIGHBOUR_BLOCKS).min(n) - 1,
-            ];
-            let worst = bad
-                .iter()
-                .map(|&k| {
-                    let (a, b) = theil_sen(&means[j], &means[i]).expect("fitted above");
-                    means[i][k] - a - b * means[j][k]
-                })
-                .fold(0.0_f64, |w, e| if e.abs() > w.abs() { e } else { w });
-            let which = if backed(j) {
-                format!("{} agrees with a third column", cols[j].0)
-            } else {
-                "no third column tells which of the two is wrong".to_string()
+            // The one a third column does not back is named; with no third column to tell,
+            // both are, each with the other as its neighbour.
+            let named: &[(usize, usize)] = match (backed(i), backed(j)) {
+                (false, true) => &[(i, j)],
+                (true, false) => &[(j, i)],
+                _ => &[(i, j), (j, i)],
             };
-            let mut f = fault(
-                "disagreement",
-                cols[i].0,
-                rows,
-                t,
-                format!(
-                    "departs from its redundant neighbour {} by up to {worst:+.2} K in {} of {NEIGHBOUR_BLOCKS} blocks (σ {sigma:.3} K elsewhere, range {range:.2} K); {which}",
-                    cols[j].0,
-                    bad.len()
-                ),
-            );
-            f.neighbour = Some(cols[j].0.to_string());
-            out.push(f);
+            for &(k, o) in named {
+                let told = backed(o) && !backed(k);
+                out.push(disagreement(&cols, &means, (k, o), &cmp, t, told));
+            }
         }
     }
     out
+}
+
+type Comparison = Option<(f64, f64, f64, Vec<usize>)>;
+
+/// The fault of column `k` departing from neighbour `o` (its comparison, else the neighbour's
+/// against it); `told`: a third column backs the neighbour.
+fn disagreement(
+    cols: &[&(&str, &[f64])],
+    means: &[Vec<f64>],
+    (k, o): (usize, usize),
+    cmp: &[Vec<Comparison>],
+    t: &[f64],
+    told: bool,
+) -> SensorFault {
+    let n = t.len();
+    let (y, x, c) = match &cmp[k][o] {
+        Some(c) if c.3.len() >= 2 => (k, o, c),
+        _ => (o, k, cmp[o][k].as_ref().expect("flagged")),
+    };
+    let (sigma, range, mid, bad) = c;
+    let (first, last) = (bad[0], bad[bad.len() - 1]);
+    let rows = [
+        first * n / NEIGHBOUR_BLOCKS,
+        ((last + 1) * n / NEIGHBOUR_BLOCKS).min(n) - 1,
+    ];
+    let b = theil_sen(&diffs(&means[x]), &diffs(&means[y]))
+        .expect("fitted")
+        .1;
+    let worst = bad
+        .iter()
+        .map(|&q| means[y][q] - b * means[x][q] - mid)
+        .fold(0.0_f64, |w, e| if e.abs() > w.abs() { e } else { w });
+    let which = if told {
+        format!("{} agrees with a third column", cols[o].0)
+    } else {
+        "no third column tells which of the two is wrong".to_string()
+    };
+    let mut f = fault(
+        "disagreement",
+        cols[k].0,
+        rows,
+        t,
+        format!(
+            "{} departs from {} by up to {worst:+.2} K in {} of {NEIGHBOUR_BLOCKS} blocks (σ {sigma:.3} K elsewhere, range {range:.2} K); {which}",
+            cols[y].0,
+            cols[x].0,
+            bad.len()
+        ),
+    );
+    f.neighbour = Some(cols[o].0.to_string());
+    f
 }
 
 impl Context {
