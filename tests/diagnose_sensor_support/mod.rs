@@ -144,7 +144,7 @@ pub(crate) fn sensor_case(
     let tau_sp: f64 = rng.random_range(900.0..2400.0);
     let tau_col: f64 = rng.random_range(3000.0..8000.0);
     let day_s: f64 = rng.random_range(60_000.0..100_000.0);
-    let phase: f64 = rng.random_range(0.0..6.28);
+    let phase: f64 = rng.random_range(0.0..std::f64::consts::TAU);
     let (mut sp, mut col) = (0.0, 0.0);
     let mut t_s = Vec::with_capacity(n);
     let mut cols: [Vec<f64>; 4] = Default::default();
@@ -162,7 +162,7 @@ pub(crate) fn sensor_case(
     }
     let names = ["T_spindle_C", "T_spindle_b_C", "T_column_C", "T_room_C"];
     // Physics from the true column node (before any fault), or a null.
-    let physics = index % 2 == 0;
+    let physics = index.is_multiple_of(2);
     let gain = if physics {
         rng.random_range(0.5..3.0) * if rng.random_bool(0.5) { 1.0 } else { -1.0 }
     } else {
@@ -214,8 +214,12 @@ pub(crate) fn sensor_case(
         Fault::Disagreement => {
             let len = share(&mut rng, 0.1, 0.3);
             let off: f64 = rng.random_range(1.0..3.0);
-            for j in start..=start + len {
-                cols[pair][j] = cols[3][j] + off + 0.01 * normal(&mut rng);
+            let (twins, room) = cols.split_at_mut(3);
+            for (v, r) in twins[pair][start..=start + len]
+                .iter_mut()
+                .zip(&room[0][start..=start + len])
+            {
+                *v = r + off + 0.01 * normal(&mut rng);
             }
             (Some(pair), [start, start + len])
         }
