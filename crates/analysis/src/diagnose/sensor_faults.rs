@@ -31,15 +31,20 @@ pub const STEP_P99_RATIO: f64 = 5.0;
 
 /// Blocks of equal row count for the neighbour comparison.
 pub const NEIGHBOUR_BLOCKS: usize = 24;
-/// Two columns are redundant neighbours when, fitted one on the other over the changes of their
-/// block means (Theil–Sen), the robust σ of a block's residual is at most this share of the
-/// column's range.
-pub const REDUNDANT_SIGMA_SHARE: f64 = 0.02;
-/// … and the neighbour explains the column's block-to-block changes: the robust spread of what it
-/// leaves is at most this share of the changes' own.
+/// Two columns are redundant neighbours (two sensors reading one spot) when the slope of one on
+/// the other (Theil–Sen on the changes of their block means) is within [`REDUNDANT_SLOPE`], the
+/// neighbour explains the column's changes ([`FOLLOW_SHARE`]) and the robust σ of what
+/// `a + b·x` (or, better by half, `a + b·x + a drift from some block on`) leaves is at most this
+/// share of the column's range. Merely correlated sensors are not compared: on FL_THERMAL, sensors
+/// at different places depart from each other by up to 40 σ through their own dynamics, and a
+/// looser bar (2 %) reported them as faults.
+pub const REDUNDANT_SIGMA_SHARE: f64 = 0.006;
+/// Slope of one redundant sensor on the other (the same quantity, up to an offset).
+pub const REDUNDANT_SLOPE: (f64, f64) = (0.8, 1.25);
+/// … and the neighbour explains the column's block-to-block changes: the sum of what it leaves
+/// (but the two largest) is at most this share of the sum of the changes.
 pub const FOLLOW_SHARE: f64 = 0.25;
-/// A block disagrees when its residual exceeds this many σ (sensors at different places of a
-/// real machine depart from each other by up to 14 σ through their own dynamics: FL_THERMAL) …
+/// A block disagrees when its residual exceeds this many σ …
 pub const DISAGREE_SIGMA: f64 = 20.0;
 /// … and this share of the column's range over the blocks.
 pub const DISAGREE_RANGE_SHARE: f64 = 0.05;
@@ -269,21 +274,38 @@ fn diffs(v: &[f64]) -> Vec<f64> {
 /// when the two are not redundant neighbours (σ above [`REDUNDANT_SIGMA_SHARE`] of the range).
 fn compare(x: &[f64], y: &[f64]) -> Comparison {
     let (dx, dy) = (diffs(x), diffs(y));
-    let (c, b) = theil_sen(&dx, &dy)?;
-    let mut inc: Vec<f64> = dx
-        .iter()
-        .zip(&dy)
-        .map(|(dx, dy)| (dy - b * dx - c).abs())
-        .collect();
-    let spread = quantile(&mut inc, 0.5);
-    let dy_mid = quantile(&mut dy.clone(), 0.5);
-    let mut own: Vec<f64> = dy.iter().map(|d| (d - dy_mid).abs()).collect();
-    // The neighbour must explain y's changes, not just leave small ones small.
-    if spread > FOLLOW_SHARE * quantile(&mut own, 0.5) {
+    // The slope of the changes: pairs of blocks on the same side of a drift's start see the
+    // same drift rate, which their slope cancels.
+    let (_, b) = theil_sen(&dx, &dy)?;
+    if !(REDUNDANT_SLOPE.0..=REDUNDANT_SLOPE.1).contains(&b) {
         return None;
     }
-    // σ of one block's e: the changes hold two blocks' noise.
-    let sigma = 1.4826 * spread / std::f64::consts::SQRT_2;
+    let mut de: Vec<f64> = dx
+        .iter()
+        .zip(&dy)
+        .map(|(dx, dy)| (dy - b * dx).abs())
+        .collect();
+    // The neighbour explains the column's changes: what it leaves, but for the two largest
+    // (the edges of a window of wrong readings), is a small share of them.
+    de.sort_by(f64::total_cmp);
+    let left: f64 = de[..de.len().saturating_sub(2)].iter().sum();
+    let own: f64 = dy.iter().map(|d| d.abs()).sum();
+    if left > FOLLOW_SHARE * own {
+        return None;
+    }
+    // y − b·x is a constant while the two agree; a drift of one of them adds a hinge (flat,
+    // then a ramp from block k0). Refitted jointly (the changes' slope is bent by the drift's
+    // start): σ is the robust spread of what the better form leaves.
+    let (k0, rate, b, sigma) = hinge(x, y, b);
+
+    let e: Vec<f64> = x.iter().zip(y).map(|(x, y)| y - b * x).collect();
+    let mid = quantile(&mut e.clone(), 0.5);
+    let mid = if rate == 0.0 {
+        mid
+    } else {
+        // The constant of the hinge form: e's median over the blocks before the ramp.
+        quantile(&mut e[..k0.max(1)].to_vec(), 0.5)
+    };
     let (lo, hi) = y
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
@@ -293,11 +315,47 @@ fn compare(x: &[f64], y: &[f64]) -> Comparison {
     if range <= 0.0 || sigma > REDUNDANT_SIGMA_SHARE * range {
         return None;
     }
-    let e: Vec<f64> = x.iter().zip(y).map(|(x, y)| y - b * x).collect();
-    let mid = quantile(&mut e.clone(), 0.5);
     let bar = (DISAGREE_SIGMA * sigma).max(DISAGREE_RANGE_SHARE * range);
-    let bad = (0..e.len()).filter(|&k| (e[k] - mid).abs() > bar).collect();
+    let drift = |k: usize| rate * k.saturating_sub(k0) as f64;
+    let bad = (0..e.len())
+        .filter(|&k| (e[k] - mid - drift(k)).abs() > bar || drift(k).abs() > bar)
+        .collect();
     Some((sigma, range, mid, bad))
+}
+
+/// The better of `y ≈ a + b·x` (b the changes' slope `b0`, rate 0, k0 = len) and `y ≈ a + b·x +
+/// rate·max(0, k − k0)` (least squares, every k0) by the robust spread (1.4826 × median
+/// |residual|) of what each leaves: (k0, rate per block, b, σ).
+fn hinge(x: &[f64], y: &[f64], b0: f64) -> (usize, f64, f64, f64) {
+    let n = y.len();
+    let spread = |res: Vec<f64>| {
+        let mut a: Vec<f64> = res.iter().map(|r| r.abs()).collect();
+        1.4826 * quantile(&mut a, 0.5)
+    };
+    let e0: Vec<f64> = x.iter().zip(y).map(|(x, y)| y - b0 * x).collect();
+    let m0 = quantile(&mut e0.clone(), 0.5);
+    let mut best = (n, 0.0, b0, spread(e0.iter().map(|v| v - m0).collect()));
+    for k0 in 1..n.saturating_sub(3) {
+        let h: Vec<f64> = (0..n).map(|k| k.saturating_sub(k0) as f64).collect();
+        let Some(c) = lsq3(x, &h, y) else {
+            continue;
+        };
+        let res: Vec<f64> = (0..n)
+            .map(|k| y[k] - c[0] - c[1] * x[k] - c[2] * h[k])
+            .collect();
+        let s = spread(res);
+        if s < 0.5 * best.3 {
+            best = (k0, c[2], c[1], s);
+        }
+    }
+    best
+}
+
+/// Least squares of `y` on [1, u, v]: the coefficients, `None` when not finite.
+fn lsq3(u: &[f64], v: &[f64], y: &[f64]) -> Option<[f64; 3]> {
+    let one = vec![1.0; y.len()];
+    let c = super::lsq::coef(&[&one, u, v], y);
+    c.iter().all(|v| v.is_finite()).then(|| [c[0], c[1], c[2]])
 }
 
 /// Columns that depart from a redundant neighbour over ≥ 2 blocks. Of a disagreeing pair the
