@@ -21,8 +21,9 @@ pub const PLAUSIBLE_C: (f64, f64) = (-40.0, 200.0);
 pub const MIN_STUCK_ROWS: usize = 30;
 
 /// A stuck run must be this many times longer than the column's 99th-percentile run of equal
-/// readings (a sensor read in tenths in a steady room repeats itself; a stuck one far longer).
-pub const STUCK_RUN_RATIO: f64 = 10.0;
+/// readings (a sensor read in tenths in a steady room repeats itself: hil-sim's quantised ambient
+/// holds one reading 13× its 99th-percentile run in the `regime` family; a stuck one far longer).
+pub const STUCK_RUN_RATIO: f64 = 30.0;
 
 /// A step: one row-to-row change this many times the column's robust σ of changes …
 pub const STEP_SIGMA: f64 = 30.0;
