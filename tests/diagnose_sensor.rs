@@ -13,6 +13,7 @@
 //! --nocapture`.
 
 mod diagnose_sensor_support;
+mod fl_support;
 
 use diagnose_sensor_support::{Fault, PowerTruth, SensorTruth, current_squared_case, sensor_case};
 use retrocomp_analysis::diagnose::features::Context;
@@ -146,32 +147,24 @@ fn an_open_circuit_is_listed_before_the_physics_with_its_window_and_evidence() {
 
 #[test]
 fn the_shared_fl_thermal_recording_has_no_sensor_fault() {
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/data/fl_thermal/fl_thermal_dev.csv"
-    );
-    let text = std::fs::read_to_string(path).expect("fixture present");
-    let mut lines = text.lines();
-    let names: Vec<String> = lines
-        .next()
-        .unwrap()
-        .split(',')
-        .map(str::to_string)
-        .collect();
-    let mut cols = vec![vec![]; names.len()];
-    for l in lines {
-        for (c, v) in cols.iter_mut().zip(l.split(',')) {
-            c.push(v.parse::<f64>().expect("number"));
-        }
-    }
+    let data = fl_support::Data::load();
     // d1 as the error signal (the recording needs one; the scan reads the temperatures only).
-    let named = names
-        .into_iter()
-        .zip(cols)
-        .map(|(n, c)| (if n == "d1_um" { "ez_um".into() } else { n }, c))
+    let named: Vec<(String, Vec<f64>)> = data
+        .names
+        .iter()
+        .zip(&data.cols)
+        .map(|(n, c)| {
+            (
+                if n == "d1_um" {
+                    "ez_um".into()
+                } else {
+                    n.clone()
+                },
+                c.clone(),
+            )
+        })
         .filter(|(n, _)| !n.starts_with('d'))
         .collect();
-    let named: Vec<(String, Vec<f64>)> = named;
     // The whole shared part and the forward splits' fit parts (first 50/60/70/80 %).
     for share in [1.0, 0.5, 0.6, 0.7, 0.8] {
         let rows = (share * named[0].1.len() as f64) as usize;
