@@ -186,6 +186,7 @@ mod tests {
             verdict: verdict.into(),
             rms_before_um: rms,
             mismatch: vec![],
+            sensor_faults: vec![],
             findings: vec![],
             alternatives: vec![],
             dropped: vec![],

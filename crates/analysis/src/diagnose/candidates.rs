@@ -329,11 +329,12 @@ pub fn library(ctx: &Context, a: char) -> Vec<Candidate> {
     }
     // Heat sources seen without a temperature sensor: a driver column (rpm, or any other numeric
     // column, which may be a decoy) through a first-order lag; other columns also as they are.
-    // (rpm/1000)² (`krpm^2`, heat ∝ n²) only through a lag, like rpm.
+    // A power of a driver (`krpm^2` = (rpm/1000)², heat ∝ n²; `<name>_A^2`, Joule heat ∝ I²)
+    // only through a lag, like rpm.
     if duration_s > 60.0 {
         for (s, v) in ctx.drivers() {
             if varies(v) {
-                if s != "rpm" && s != super::features::KRPM2 {
+                if s != "rpm" && super::features::power_of(s).is_none() {
                     out.push(lin(Kind::ThermalDrift { sensor: s.into() }));
                 }
                 out.push(Candidate {

@@ -93,31 +93,54 @@ pub struct Context {
     /// (rpm/1000)², the driver [`KRPM2`]: a heat input ∝ n² (bearing friction), kept only when it
     /// is not a linear function of rpm (see [`krpm2_of`]).
     pub krpm2: Option<Arc<[f64]>>,
+    /// Squares of the current columns (`<name>_A`, Joule heating ∝ I²), named `<name>_A^2` in
+    /// A², each kept only when it is not a linear function of its column ([`square_of`]).
+    pub powers: Vec<(String, Arc<[f64]>)>,
 }
 
 /// Name of the squared-speed driver: (rpm/1000)², so its column is of the order of the others
 /// (rpm² itself is 10⁷ and would swamp a least-squares Gram matrix next to an intercept).
 pub const KRPM2: &str = "krpm^2";
 
-/// (rpm/1000)² when it carries information rpm does not: its part not explained by a + b·rpm
-/// holds more than 1 % of its variance (an on/off spindle at one speed gives rpm² ∝ rpm exactly).
+/// (rpm/1000)² when it carries information rpm does not ([`square_of`]).
 pub fn krpm2_of(rpm: &[f64]) -> Option<Arc<[f64]>> {
-    let q: Vec<f64> = rpm.iter().map(|r| (r / 1000.0).powi(2)).collect();
-    let n = rpm.len() as f64;
+    square_of(rpm, 1000.0)
+}
+
+/// Suffix of the driver columns also offered through their square: a current (`_A`), whose heat
+/// goes as I². `rpm` has its own square ([`KRPM2`]); a power (`_kW`, `_W`) is heat already.
+pub const SQUARED_SUFFIXES: [&str; 1] = ["_A"];
+
+/// The column, exponent and divisor a power driver reads: `krpm^2` → (`rpm`, 2, 1000: the column
+/// is read in thousands before squaring), `<name>_A^2` → (`<name>_A`, 2, 1). `None` for a column
+/// read as it is (exponent 1).
+pub fn power_of(name: &str) -> Option<(&str, i32, f64)> {
+    if name == KRPM2 {
+        return Some(("rpm", 2, 1000.0));
+    }
+    name.strip_suffix("^2").map(|c| (c, 2, 1.0))
+}
+
+/// (v/`per`)² when it carries information v does not: its part not explained by a + b·v holds
+/// more than 1 % of its variance (an on/off spindle at one speed, a current switched between 0
+/// and one level, give v² ∝ v exactly, so the square could not be told from the column).
+pub fn square_of(v: &[f64], per: f64) -> Option<Arc<[f64]>> {
+    let q: Vec<f64> = v.iter().map(|x| (x / per).powi(2)).collect();
+    let n = v.len() as f64;
     if n < 3.0 {
         return None;
     }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / n;
-    let (mr, mq) = (mean(rpm), mean(&q));
-    let (mut srr, mut sqq, mut srq) = (0.0, 0.0, 0.0);
-    for (r, v) in rpm.iter().zip(&q) {
-        let (a, b) = (r / 1000.0 - mr / 1000.0, v - mq);
-        srr += a * a;
+    let (mv, mq) = (mean(v), mean(&q));
+    let (mut svv, mut sqq, mut svq) = (0.0, 0.0, 0.0);
+    for (x, y) in v.iter().zip(&q) {
+        let (a, b) = (x / per - mv / per, y - mq);
+        svv += a * a;
         sqq += b * b;
-        srq += a * b;
+        svq += a * b;
     }
-    let unexplained = if srr > 0.0 {
-        sqq - srq * srq / srr
+    let unexplained = if svv > 0.0 {
+        sqq - svq * svq / svv
     } else {
         sqq
     };
@@ -159,6 +182,15 @@ impl Context {
                 .map(|r| r.iter().map(|v| v.round() as i64).collect()),
             others: grab(rec.other_channels()),
             krpm2: rec.col("rpm").and_then(krpm2_of),
+            powers: rec
+                .other_channels()
+                .into_iter()
+                .filter(|n| SQUARED_SUFFIXES.iter().any(|s| n.ends_with(s)))
+                .filter_map(|n| {
+                    let sq = square_of(rec.col(&n).expect("listed"), 1.0)?;
+                    Some((format!("{n}^2"), sq))
+                })
+                .collect(),
             axes,
             t_s,
         }
@@ -182,6 +214,12 @@ impl Context {
             .map(|(_, v)| &**v)
             .or_else(|| self.rpm.as_deref().filter(|_| name == "rpm"))
             .or_else(|| self.krpm2.as_deref().filter(|_| name == KRPM2))
+            .or_else(|| {
+                self.powers
+                    .iter()
+                    .find(|(n, _)| n == name)
+                    .map(|(_, v)| &**v)
+            })
     }
 
     /// The resolution of column `name` (its unit): the smallest non-zero step between
@@ -204,6 +242,7 @@ impl Context {
             .map(|v| ("rpm", &**v))
             .chain(self.krpm2.iter().map(|v| (KRPM2, &**v)))
             .chain(self.others.iter().map(|(n, v)| (n.as_str(), &**v)))
+            .chain(self.powers.iter().map(|(n, v)| (n.as_str(), &**v)))
             .collect()
     }
 

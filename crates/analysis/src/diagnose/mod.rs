@@ -29,6 +29,7 @@ pub mod scoring;
 pub mod select;
 mod select_step;
 pub mod selection;
+pub mod sensor_faults;
 pub mod swap;
 
 use serde_json::{Map, Value};
@@ -227,7 +228,12 @@ fn diagnose_residuals(
     if rec.n_rows() < 8 {
         return Err(DiagnoseError::TooShort(rec.n_rows()));
     }
+    // Sensor faults first: a faulted column is a finding of its own and is left out of the
+    // physics search, so it is never explained as physics (issue 36 point 4).
     let ctx = Context::from_recording(rec);
+    let sensor_faults = sensor_faults::scan(&ctx);
+    let faulted: Vec<&str> = sensor_faults.iter().map(|f| f.column.as_str()).collect();
+    let ctx = ctx.without(&faulted);
     // The recording's noise statistic (`NoiseModel::of`): every signal's residual before any
     // term, read once ahead of the selection.
     // Each signal's first screening is kept for its selection (one screening, not two).
@@ -241,7 +247,10 @@ fn diagnose_residuals(
         first_screens.push(pre.map(|(_, first)| first));
     }
     let recording_rejects = null_model::recording_rejects_unit_root(&taus);
-    let mut out = Assembly::default();
+    let mut out = Assembly {
+        sensor_faults,
+        ..Assembly::default()
+    };
     for (res, first_screen) in residuals.zip(first_screens) {
         let (signal, r) = res?;
         let signal = &signal;
@@ -296,6 +305,8 @@ fn diagnose_residuals(
 /// The report as it is assembled from each signal's selection ([`diagnose_residuals`]).
 #[derive(Default)]
 struct Assembly {
+    /// Found before the physics search (`sensor_faults.rs`), listed before any finding.
+    sensor_faults: Vec<sensor_faults::SensorFault>,
     /// Each finding with its RSS gain (the report lists the largest first).
     findings: Vec<(f64, Finding)>,
     alternatives: Vec<AlternativeOut>,
@@ -416,6 +427,15 @@ impl Assembly {
                     _ => Map::new(),
                 };
             params.retain(|_, v| !v.is_null());
+            // A lag of a power of a column names the column and the exponent it acts through.
+            let power = params
+                .get("sensor")
+                .and_then(Value::as_str)
+                .and_then(|s| features::power_of(s).map(|(c, p, _)| (c.to_string(), p)));
+            if let Some((column, exponent)) = power {
+                params.insert("column".into(), column.into());
+                params.insert("exponent".into(), exponent.into());
+            }
             self.findings.push((
                 term.gain_rss,
                 Finding {
@@ -499,6 +519,7 @@ impl Assembly {
     /// The report (findings by RSS gain, the verdict) and the diagnosis.
     fn finish(self, ctx: Context) -> Diagnosis {
         let Assembly {
+            sensor_faults,
             mut findings,
             alternatives,
             dropped,
@@ -521,6 +542,7 @@ impl Assembly {
         let report = Report {
             verdict: verdict.into(),
             rms_before_um: (all_sq / all_n.max(1) as f64).sqrt(),
+            sensor_faults,
             mismatch,
             findings,
             alternatives,

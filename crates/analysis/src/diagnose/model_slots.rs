@@ -6,7 +6,7 @@
 //! ([`EffectModel::at_position`]): forward = approach direction +1, reverse = −1.
 
 use super::effects::EffectModel;
-use super::features::KRPM2;
+use super::features::power_of;
 use crate::fit::to_model::put_component;
 use retrocomp_model::recording::Recording;
 use retrocomp_model::spec::{
@@ -198,16 +198,24 @@ fn add_thermal_lag(
     (sensor, tau_s, um_per_k): (&str, f64, f64),
     rec: &Recording,
 ) -> Result<String, String> {
-    // (rpm/1000)² is written as the lag of rpm with exponent 2: gain per rpm², reference
-    // in rpm² (the finding's gain is per krpm², 10⁶ rpm²).
-    if sensor == KRPM2 {
-        let name = format!("rpm_sq_tau_{:.0}s", tau_s.round());
-        let t0 = first_reading(rec, "rpm")?.powi(2);
-        let um_per_rpm2 = um_per_k * 1e-6;
-        let reference = ensure_sensor(spec, &name, Some(tau_s), t0, Some("rpm".into()), Some(2.0))?;
-        push_linear_dt(spec, item, own, &name, um_per_rpm2, reference - t0);
+    // A power of a column (`krpm^2`, `<name>_A^2`) is written as the lag of the column with
+    // its exponent: gain per unit^exponent of the column as recorded, reference likewise (the
+    // finding's gain of `krpm^2` is per krpm², 10⁶ rpm²).
+    if let Some((column, exponent, per)) = power_of(sensor) {
+        let name = format!("{column}_sq_tau_{:.0}s", tau_s.round());
+        let t0 = first_reading(rec, column)?.powi(exponent);
+        let um_per_unit = um_per_k / per.powi(exponent);
+        let reference = ensure_sensor(
+            spec,
+            &name,
+            Some(tau_s),
+            t0,
+            Some(column.into()),
+            Some(f64::from(exponent)),
+        )?;
+        push_linear_dt(spec, item, own, &name, um_per_unit, reference - t0);
         return Ok(format!(
-            "sensor `{name}` (rpm, exponent 2, tau_s {tau_s:.0}) + thermal polynomial_dt on {}",
+            "sensor `{name}` ({column}, exponent {exponent}, tau_s {tau_s:.0}) + thermal polynomial_dt on {}",
             own.iso_name()
         ));
     }

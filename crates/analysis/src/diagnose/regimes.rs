@@ -196,6 +196,7 @@ fn driver<'c>(ctx: &'c Context, c: &Candidate) -> Option<(&'c str, &'c [f64])> {
             .temps
             .iter()
             .chain(&ctx.others)
+            .chain(&ctx.powers)
             .map(|(n, _)| n.as_str())
             .chain(["rpm", KRPM2])
             .find(|n| n == sensor)

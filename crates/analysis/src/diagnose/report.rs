@@ -107,6 +107,10 @@ pub struct Report {
     pub verdict: String,
     pub rms_before_um: f64,
     pub mismatch: Vec<Mismatch>,
+    /// Broken sensors, found before (and never explained as) physics: an added key, absent when
+    /// there is none (`sensor_faults.rs`). Not findings: the verdict reads the findings only.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sensor_faults: Vec<super::sensor_faults::SensorFault>,
     pub findings: Vec<Finding>,
     pub alternatives: Vec<AlternativeOut>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -166,6 +170,15 @@ impl Report {
                 s.push_str(&format!(
                     "  {:<6} {:>8.3} µm RMS  {}\n",
                     m.signal, m.rms_um, m.where_
+                ));
+            }
+        }
+        if !self.sensor_faults.is_empty() {
+            s.push_str("\nsensor faults (left out of the physics search):\n");
+            for f in &self.sensor_faults {
+                s.push_str(&format!(
+                    "  sensor_fault {} of {}: rows {}..{} (t_s {:.0}..{:.0}): {}\n",
+                    f.kind, f.column, f.rows[0], f.rows[1], f.t_s[0], f.t_s[1], f.evidence
                 ));
             }
         }

@@ -7,7 +7,7 @@
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
 use super::candidates::{Candidate, Kind, library};
-use super::features::{Context, lowpass};
+use super::features::{Context, lowpass, power_of};
 use super::heldout::Heldout;
 use super::lsq::{self, dot};
 use super::null_model::{
@@ -370,6 +370,7 @@ impl<'a> Selector<'a> {
             self.forward_choice(&mut scored);
         }
         self.prefer_driver(&mut scored);
+        self.prefer_power(&mut scored);
         self.prefer_simpler(&mut scored);
         // Slow noise where the held-out check is leave-one-block-out (see below): the
         // strongest candidate that also passes the bar under the noise model
@@ -499,6 +500,39 @@ impl<'a> Selector<'a> {
                 && s.delta_bic > opts.min_delta_bic
                 && s.delta_bic >= DRIVER_SHARE * top
                 && passes_heldout(s)
+        }) {
+            let s = scored.remove(j);
+            scored.insert(0, s);
+        }
+    }
+
+    /// The form of one driver: when the winner is a lag of a driver column read as it is (or
+    /// through a power) and the same column through a power (or as it is: `rpm` ↔ `krpm^2`,
+    /// `<name>_A` ↔ `<name>_A^2`, [`power_of`]) fits clearly better in-sample (ΔBIC above the
+    /// winner's by the ambiguity margin; the two have the same parameters, so that is a
+    /// likelihood ratio), that form is taken. Forward folds chose the driver; they restart the
+    /// lag states at each block's first row, an error of the order of what separates I from I²
+    /// when τ is long, so they cannot choose the exponent (issue 36 point 5: I² heating found
+    /// as a lag of I with τ off by 15–37 %). The form taken must still pass the forward gate.
+    fn prefer_power(&self, scored: &mut Vec<Scored>) {
+        let (ctx, lib, opts) = (self.ctx, &self.lib, self.opts);
+        let column_of = |c: &Candidate| match &c.kind {
+            Kind::ThermalLag { sensor } if is_driver(ctx, c) => {
+                Some(power_of(sensor).map_or(sensor.clone(), |(col, ..)| col.to_string()))
+            }
+            _ => None,
+        };
+        let win = &lib[scored[0].idx];
+        let Some(column) = column_of(win) else {
+            return;
+        };
+        let bar = scored[0].delta_bic + opts.ambiguity_bic;
+        if let Some(j) = scored.iter().position(|s| {
+            let c = &lib[s.idx];
+            c.label() != win.label()
+                && column_of(c).as_deref() == Some(column.as_str())
+                && s.delta_bic > bar
+                && self.guarded_cv(s).is_some()
         }) {
             let s = scored.remove(j);
             scored.insert(0, s);
