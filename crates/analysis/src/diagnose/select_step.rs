@@ -11,13 +11,13 @@ use super::features::{Context, lowpass, power_of};
 use super::heldout::Heldout;
 use super::lsq::{self, dot};
 use super::null_model::{
-    NoiseModel, Null, contribution, delta_bic, prewhitened_test, score, score_cols, within_cells,
+    NoiseModel, Null, contribution, delta_bic, prewhitened_test, score, within_cells,
 };
 use super::selection::{Alternative, Exchanged, Options, Term, set_of};
 
-mod harmonic;
 mod noise;
 mod peaks;
+mod screen;
 
 /// Share of the best thermal ΔBIC a driver-column lag needs to be preferred over a sensor.
 const DRIVER_SHARE: f64 = 0.0;
@@ -266,94 +266,6 @@ impl<'a> Selector<'a> {
             cells,
             cells_ok,
         }
-    }
-
-    /// Profile every unused candidate over its grid (best θ by RSS drop: q is fixed within a
-    /// candidate), under the plain null and, for the reversal family, within cells. Candidates
-    /// are screened in parallel (rayon) and collected in library order, each candidate's grid
-    /// swept in order on one thread, so the result is the same with any number of threads. The
-    /// harmonic forms of cyclic errors are screened after the others, at the peaks of their
-    /// fundamental's periodogram ([`harmonic::peak_thetas`]).
-    fn screen(&self, nulls: &Nulls<'_>) -> Vec<Scored> {
-        use rayon::prelude::*;
-        let harmonic = |c: &Candidate| c.kind == Kind::CyclicHarmonic;
-        let first: Vec<(Vec<Scored>, Option<Vec<f64>>)> = self
-            .lib
-            .par_iter()
-            .enumerate()
-            .map(|(idx, c)| {
-                if self.used[idx] || harmonic(c) {
-                    return (vec![], None);
-                }
-                let thetas = if c.grid.is_empty() {
-                    vec![f64::NAN]
-                } else {
-                    c.grid.clone()
-                };
-                self.screen_one(idx, c, &thetas, nulls, c.kind == Kind::Cyclic)
-            })
-            .collect();
-        let second: Vec<Vec<Scored>> = self
-            .lib
-            .par_iter()
-            .enumerate()
-            .map(|(idx, c)| {
-                if self.used[idx] || !harmonic(c) {
-                    return vec![];
-                }
-                let curve = self.fundamental_curve(c, &first, nulls);
-                let thetas = harmonic::peak_thetas(&c.grid, &curve);
-                self.screen_one(idx, c, &thetas, nulls, false).0
-            })
-            .collect();
-        first
-            .into_iter()
-            .zip(second)
-            .flat_map(|((a, _), b)| a.into_iter().chain(b))
-            .collect()
-    }
-
-    /// Candidate `c` (library index `idx`) profiled over `thetas`: its best θ under the plain
-    /// null and, for the reversal family, within cells; with `keep_curve`, the plain null's gain
-    /// at every θ (−∞ where it explains nothing), the periodogram of a cyclic candidate.
-    fn screen_one(
-        &self,
-        idx: usize,
-        c: &Candidate,
-        thetas: &[f64],
-        nulls: &Nulls<'_>,
-        keep_curve: bool,
-    ) -> (Vec<Scored>, Option<Vec<f64>>) {
-        let mut out = vec![];
-        let mut curve = keep_curve.then(|| Vec::with_capacity(thetas.len()));
-        for blocked in [false, true] {
-            if blocked && !(nulls.cells_ok && within_cells(c)) {
-                continue;
-            }
-            let nl = nulls.of(blocked);
-            let mut best: Option<Scored> = None;
-            c.columns_sweep(self.ctx, thetas, |th, cols| {
-                let (scored, cols) = score_cols(c, cols, nl);
-                if !blocked && let Some(curve) = curve.as_mut() {
-                    curve.push(scored.map_or(f64::NEG_INFINITY, |s| s.0));
-                }
-                if let Some((g, q)) = scored
-                    && best.as_ref().is_none_or(|b| g > b.gain)
-                {
-                    best = Some(Scored {
-                        idx,
-                        theta: th,
-                        gain: g,
-                        q,
-                        delta_bic: 0.0,
-                        cells: blocked,
-                    });
-                }
-                cols
-            });
-            out.extend(best);
-        }
-        (out, curve)
     }
 
     /// The step's winner among the ranked `scored`, refined and tested; `None` ends the forward
