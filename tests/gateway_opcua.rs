@@ -3,7 +3,9 @@
 //! on loopback, and Python `asyncua` (pinned in scripts/setup-peers.sh) as the plant's client:
 //! it browses `Objects/Machines/<box>`, checks each axis' `Correction` against `/status`, reads
 //! the EngineeringUnits (µm = UNECE "4H", °C = "CEL"), receives ≥ 3 data changes on a
-//! subscription, and has an anonymous write refused (tests/peers/asyncua_client.py).
+//! subscription, and has an anonymous write refused (tests/peers/asyncua_client.py); a silenced
+//! sensor's stale fault arrives as an AlarmConditionType event raised and cleared
+//! (tests/peers/asyncua_quality.py).
 
 #[path = "gateway_support/faults_hil_configs.rs"]
 mod configs;
@@ -277,7 +279,8 @@ fn check_quality(out: &std::process::Output, log_text: &str) {
     assert!(built > 1.7e9 && built <= now, "BuildInfo.BuildDate: {bi}");
 }
 
-/// asyncua_quality.py's alarm events (subscribed on `Server`, type AlarmConditionType): the watched
+/// asyncua_quality.py's alarm events (subscribed on `Server`, type AlarmConditionType): the machine
+/// object is an event notifier under `Server`; the watched
 /// channel's `stale` fault raised (ActiveState/Id and Retain true) and then cleared (both false)
 /// while hil-sim silenced it, each with the standard fields: EventType AlarmConditionType,
 /// SourceNode the machine object, SourceName the channel, a Message naming the fault, a Severity
@@ -286,6 +289,13 @@ fn check_alarms(out: &std::process::Output) {
     let stdout = String::from_utf8_lossy(&out.stdout);
     let q: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap_or("")).unwrap();
     let machine = q["machine_node"].as_str().unwrap();
+    // An event notifier, found from Server by HasNotifier (Part 3's event hierarchy).
+    assert_eq!(
+        q["machine_event_notifier"],
+        serde_json::json!(["SubscribeToEvents"]),
+        "{q}"
+    );
+    assert_eq!(q["server_notifiers"], serde_json::json!([machine]), "{q}");
     let alarms = q["alarms"].as_array().unwrap();
     let condition = format!("{QUALITY_CHANNEL}/stale");
     let mine: Vec<_> = alarms

@@ -157,6 +157,10 @@ async def main(url, channel):
             await sub._subscribe(node, ua.AttributeIds.Value, mfilter=status_value)
             box = await machine(c)
             out["machine_node"] = box.nodeid.to_string()
+            notifiers = await c.nodes.server.get_referenced_nodes(
+                refs=ua.ObjectIds.HasNotifier, direction=ua.BrowseDirection.Forward)
+            out["server_notifiers"] = [n.nodeid.to_string() for n in notifiers]
+            out["machine_event_notifier"] = sorted(e.name for e in await box.read_event_notifier())
             alarm_type = c.get_node(ua.ObjectIds.AlarmConditionType)
             events = await c.create_subscription(100, alarms)
             # A queue for a burst (a node going silent stales all its channels at once): asyncua's
