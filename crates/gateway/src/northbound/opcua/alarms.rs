@@ -5,9 +5,10 @@
 //! notifier under `Server` (HasNotifier), so a client subscribed to events on `Server` or on the
 //! machine receives them.
 //!
-//! Sans-IO: [`Alarms::observe`] diffs a snapshot against the episodes it knows and returns the
-//! transitions; [`event`] builds the event a transition is. The shell (`server.rs`) hands them to
-//! async-opcua's subscription cache.
+//! Sans-IO: [`Alarms::observe`] diffs a snapshot against the episodes it knows (as the live
+//! page's fault log does, `history::fault_changes`) and returns the transitions; [`event`]
+//! builds the event a transition is. The shell (`server.rs`) hands them to async-opcua's
+//! subscription cache.
 //!
 //! Times: `t_s` is the gateway clock (s since start, as in `/status`); an event's `Time` is wall
 //! time: a start at its `since`, placed that long before now; a clear at the snapshot that no
@@ -25,6 +26,7 @@ use opcua::nodes::NamespaceMap;
 use opcua::types::{ByteString, DateTime, LocalizedText, NodeId, ObjectTypeId, UAString};
 
 use crate::engine::health::FaultKind;
+use crate::northbound::history::{FaultKey, fault_changes};
 use crate::status::StatusSnapshot;
 
 /// A fault episode that started or cleared.
@@ -45,33 +47,20 @@ pub(crate) struct Transition {
 /// The episodes active at the last observation.
 #[derive(Debug, Default)]
 pub(crate) struct Alarms {
-    active: BTreeMap<(String, FaultKind), f64>,
+    active: BTreeMap<FaultKey, f64>,
     seq: u64,
 }
 
 impl Alarms {
     /// Transitions since the last observation: clears first, then starts, each in name order.
     pub(crate) fn observe(&mut self, snap: &StatusSnapshot) -> Vec<Transition> {
-        let now: BTreeMap<(String, FaultKind), f64> = snap
-            .active_faults
-            .iter()
-            .map(|(s, k, since)| ((s.clone(), *k), *since))
-            .collect();
-        let mut out = Vec::new();
-        let cleared: Vec<_> = self
-            .active
-            .keys()
-            .filter(|k| !now.contains_key(*k))
-            .cloned()
-            .collect();
+        let (cleared, started) = fault_changes(&self.active, snap);
+        let mut out = Vec::with_capacity(cleared.len() + started.len());
         for (source, kind) in cleared {
             self.active.remove(&(source.clone(), kind));
             out.push(self.transition(source, kind, false, snap.t_s));
         }
-        for ((source, kind), since) in now {
-            if self.active.contains_key(&(source.clone(), kind)) {
-                continue;
-            }
+        for ((source, kind), since) in started {
             self.active.insert((source.clone(), kind), since);
             out.push(self.transition(source, kind, true, since));
         }
@@ -181,14 +170,14 @@ mod tests {
     use super::*;
 
     fn snap(t_s: f64, faults: &[(&str, FaultKind, f64)]) -> StatusSnapshot {
-        StatusSnapshot {
+        let mut s = StatusSnapshot {
             t_s,
-            active_faults: faults
-                .iter()
-                .map(|(s, k, since)| (s.to_string(), *k, *since))
-                .collect(),
             ..StatusSnapshot::default()
+        };
+        for &(source, kind, since) in faults {
+            s.active_faults.push((source.into(), kind, since));
         }
+        s
     }
 
     #[test]
