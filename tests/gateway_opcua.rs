@@ -3,7 +3,9 @@
 //! on loopback, and Python `asyncua` (pinned in scripts/setup-peers.sh) as the plant's client:
 //! it browses `Objects/Machines/<box>`, checks each axis' `Correction` against `/status`, reads
 //! the EngineeringUnits (µm = UNECE "4H", °C = "CEL"), receives ≥ 3 data changes on a
-//! subscription, and has an anonymous write refused (tests/peers/asyncua_client.py).
+//! subscription, and has an anonymous write refused (tests/peers/asyncua_client.py); a silenced
+//! sensor's stale fault arrives as an AlarmConditionType event raised and cleared
+//! (tests/peers/asyncua_quality.py).
 
 #[path = "gateway_support/faults_hil_configs.rs"]
 mod configs;
@@ -116,6 +118,7 @@ fn asyncua_browses_reads_and_subscribes_to_the_gateway() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     let quality = quality.wait_with_output().unwrap();
     std::fs::write(dir.join("asyncua_quality.out"), &quality.stdout).unwrap();
+    std::fs::write(dir.join("asyncua_quality.err"), &quality.stderr).unwrap();
     let alive = gw.try_wait().unwrap().is_none();
     run::stop_gateway(&mut gw, &log);
     let _ = sim.child.kill();
@@ -188,6 +191,7 @@ fn asyncua_browses_reads_and_subscribes_to_the_gateway() {
     let log_text = std::fs::read_to_string(&log).unwrap();
     assert!(log_text.contains("(read-only)"), "{log_text}");
     check_quality(&quality, &log_text);
+    check_alarms(&quality);
     // An anonymous server needs no certificate: no ERROR about one, no certificate folder left.
     let false_error = log_text
         .lines()
@@ -273,6 +277,56 @@ fn check_quality(out: &std::process::Output, log_text: &str) {
         .unwrap()
         .as_secs_f64();
     assert!(built > 1.7e9 && built <= now, "BuildInfo.BuildDate: {bi}");
+}
+
+/// asyncua_quality.py's alarm events (subscribed on `Server`, type AlarmConditionType): the machine
+/// object is an event notifier under `Server`; the watched
+/// channel's `stale` fault raised (ActiveState/Id and Retain true) and then cleared (both false)
+/// while hil-sim silenced it, each with the standard fields: EventType AlarmConditionType,
+/// SourceNode the machine object, SourceName the channel, a Message naming the fault, a Severity
+/// in 1..=1000, its own EventId, and the clear after the start.
+fn check_alarms(out: &std::process::Output) {
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let q: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap_or("")).unwrap();
+    let machine = q["machine_node"].as_str().unwrap();
+    // An event notifier, found from Server by HasNotifier (Part 3's event hierarchy).
+    assert_eq!(
+        q["machine_event_notifier"],
+        serde_json::json!(["SubscribeToEvents"]),
+        "{q}"
+    );
+    assert_eq!(q["server_notifiers"], serde_json::json!([machine]), "{q}");
+    let alarms = q["alarms"].as_array().unwrap();
+    let condition = format!("{QUALITY_CHANNEL}/stale");
+    let mine: Vec<_> = alarms
+        .iter()
+        .filter(|e| e["condition_name"] == condition.as_str())
+        .collect();
+    // The last start before the last clear: the silence (an episode at start-up may precede it).
+    let clear = mine
+        .iter()
+        .rposition(|e| e["active"] == false)
+        .unwrap_or_else(|| panic!("no clear of {condition}: {alarms:#?}"));
+    let start = mine[..clear]
+        .iter()
+        .rposition(|e| e["active"] == true)
+        .unwrap_or_else(|| panic!("no start of {condition} before its clear: {alarms:#?}"));
+    let (start, clear) = (mine[start], mine[clear]);
+    for (e, active, word) in [(start, true, "stale"), (clear, false, "cleared")] {
+        assert_eq!(e["event_type"], "i=2915", "AlarmConditionType: {e}");
+        assert_eq!(e["source_node"], machine, "{e}");
+        assert_eq!(e["source_name"], QUALITY_CHANNEL, "{e}");
+        assert_eq!(e["active"], active, "ActiveState/Id: {e}");
+        assert_eq!(e["retain"], active, "Retain: {e}");
+        let msg = e["message"].as_str().unwrap();
+        assert!(msg.contains(QUALITY_CHANNEL) && msg.contains(word), "{e}");
+        let severity = e["severity"].as_u64().unwrap();
+        assert!((1..=1000).contains(&severity), "{e}");
+    }
+    assert_ne!(start["event_id"], clear["event_id"]);
+    // hil-sim's silence lasts 6 s: the fault held for more than 1 s of it.
+    let held_s = clear["time_s"].as_f64().unwrap() - start["time_s"].as_f64().unwrap();
+    assert!(held_s > 1.0, "{start} {clear}");
 }
 
 /// `[opcua]` with a user: anonymous stays on the unencrypted endpoint (`anonymous = true`), the

@@ -148,6 +148,33 @@ pub struct History {
     row: Vec<Option<f64>>,
 }
 
+/// A fault episode: (source, kind), as in the snapshot's `active_faults`.
+pub(crate) type FaultKey = (String, FaultKind);
+
+/// The fault episodes of `snap` against those `active` at the last observation: the ones gone
+/// (cleared), then the ones new in `snap` with their `since` (started), each in name order.
+/// The live page's fault log and the OPC UA alarms both follow episodes this way.
+pub(crate) fn fault_changes<V>(
+    active: &BTreeMap<FaultKey, V>,
+    snap: &StatusSnapshot,
+) -> (Vec<FaultKey>, Vec<(FaultKey, f64)>) {
+    let now: BTreeMap<FaultKey, f64> = snap
+        .active_faults
+        .iter()
+        .map(|(s, k, since)| ((s.clone(), *k), *since))
+        .collect();
+    let cleared = active
+        .keys()
+        .filter(|k| !now.contains_key(*k))
+        .cloned()
+        .collect();
+    let started = now
+        .into_iter()
+        .filter(|(k, _)| !active.contains_key(k))
+        .collect();
+    (cleared, started)
+}
+
 impl Default for History {
     fn default() -> Self {
         History {
@@ -204,17 +231,7 @@ impl History {
     }
 
     fn observe_faults(&mut self, snap: &StatusSnapshot, unix_s: f64) {
-        let now: BTreeMap<(String, FaultKind), f64> = snap
-            .active_faults
-            .iter()
-            .map(|(s, k, since)| ((s.clone(), *k), *since))
-            .collect();
-        let cleared: Vec<_> = self
-            .active
-            .keys()
-            .filter(|k| !now.contains_key(*k))
-            .cloned()
-            .collect();
+        let (cleared, started) = fault_changes(&self.active, snap);
         for key in cleared {
             self.active.remove(&key);
             let ev = FaultEvent {
@@ -226,10 +243,7 @@ impl History {
             };
             push_bounded(&mut self.faults, ev);
         }
-        for (key, since) in now {
-            if self.active.contains_key(&key) {
-                continue;
-            }
+        for (key, since) in started {
             let ev = FaultEvent {
                 unix_s: unix_s - (snap.t_s - since).max(0.0),
                 t_s: since,

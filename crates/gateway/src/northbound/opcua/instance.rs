@@ -1,16 +1,20 @@
 //! The box as an OPC 40501-1 `MachineToolType` instance: its object organised by Machinery's
 //! `Machines` folder, the type's mandatory components (`Identification`, `Monitoring`,
 //! `Notification`, `Production`) typed after the companion specification and with its browse
-//! names, and the Identification properties from `[opcua.identification]`. The variables the
+//! names, and the Identification properties from `[opcua.identification]`. The object is an event
+//! notifier: the faults' alarms are raised on it. The variables the
 //! status fills are created below these objects later, on first sight (`server::Space`).
 //!
 //! Node ids: the box's own namespace, `Machines/<box>/<path>` (what clients of earlier versions
 //! address); browse names and type definitions: the companion namespaces.
 
 use opcua::nodes::ReferenceDirection;
-use opcua::server::address_space::{AccessLevel, AddressSpace, ObjectBuilder, VariableBuilder};
+use opcua::server::address_space::{
+    AccessLevel, AddressSpace, EventNotifier, ObjectBuilder, VariableBuilder,
+};
 use opcua::types::{
-    DataTypeId, LocalizedText, NodeId, QualifiedName, ReferenceTypeId, VariableTypeId, Variant,
+    DataTypeId, LocalizedText, NodeId, ObjectId, QualifiedName, ReferenceTypeId, VariableTypeId,
+    Variant,
 };
 
 use super::Identification;
@@ -42,6 +46,14 @@ pub(crate) fn insert(
         .description("The machine tool whose volumetric error the retrocomp box compensates")
         .has_type_definition(NodeId::new(ns.machine_tool, MACHINE_TOOL_TYPE))
         .organized_by(machines)
+        // The faults' Alarms & Conditions events (`alarms.rs`) come from this object; HasNotifier
+        // from `Server` is how a client subscribed to the server's events finds it (Part 3 §7.16).
+        .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
+        .reference(
+            ObjectId::Server,
+            ReferenceTypeId::HasNotifier,
+            ReferenceDirection::Inverse,
+        )
         .insert(s);
     let components = [
         ("Identification", ns.di, MACHINE_TOOL_IDENTIFICATION_TYPE),

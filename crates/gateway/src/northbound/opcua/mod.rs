@@ -3,7 +3,8 @@
 //! whose nodesets it imports: the box is a `MachineToolType` in Machinery's `Machines` folder with
 //! `Identification` (nameplate from `[opcua.identification]`), `Monitoring`, `Notification` and
 //! `Production` (see docs/gateway.md, "OPC UA"). Each value's StatusCode follows its channel's
-//! health, its SourceTimestamp is the reading's time.
+//! health, its SourceTimestamp is the reading's time. Each fault's start and clear is an
+//! `AlarmConditionType` event on the machine object (OPC UA Part 9).
 //!
 //! It runs on its own tokio tasks fed from the status watch channel (at most 10 updates a second);
 //! it never touches the cycle and cannot block it. Everything is read-only for every user: the
@@ -15,9 +16,12 @@
 //!
 //! This file holds the `[opcua]` section of the field config and its start-time checks;
 //! `space.rs` maps a status snapshot to nodes (sans-IO), `server.rs` is the async-opcua shell,
-//! `nodesets.rs` the companion nodesets, `instance.rs` the typed machine object, `pki.rs` the
+//! `nodesets.rs` the companion nodesets, `instance.rs` the typed machine object, `alarms.rs` the
+//! faults' Alarms & Conditions events, `pki.rs` the
 //! certificate store an anonymous-only server does without.
 
+#[cfg(feature = "opcua")]
+mod alarms;
 #[cfg(feature = "opcua")]
 mod instance;
 #[cfg(feature = "opcua")]

@@ -1,6 +1,7 @@
 //! The async-opcua shell: builds the server (endpoints and users from `[opcua]`), binds it, and
 //! runs the updater that copies the latest status snapshot into the address space at most every
-//! [`UPDATE_PERIOD`]. Both run on their own tasks; the cycle only ever publishes on the watch channel.
+//! [`UPDATE_PERIOD`], raising each fault's start and clear as an Alarms & Conditions event
+//! (`alarms.rs`). Both run on their own tasks; the cycle only ever publishes on the watch channel.
 
 use std::collections::HashSet;
 use std::net::SocketAddr;
@@ -23,6 +24,7 @@ use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
 use super::OpcUaSection;
+use super::alarms::{self, Alarms};
 use super::instance::{self, Namespaces};
 use super::nodesets;
 use super::space::{FOLDERS, Point, Quality, Unit, Value, identification, points, unece_unit_id};
@@ -285,6 +287,15 @@ async fn update_loop(
 ) {
     let mut tick = tokio::time::interval(UPDATE_PERIOD);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut alarms = Alarms::default();
+    let machine = NodeId::new(space.ns, space.root.clone());
+    // EventIds are the run's start (Unix ns) and a sequence number: unique across restarts.
+    #[expect(
+        clippy::cast_possible_truncation,
+        clippy::cast_sign_loss,
+        reason = "Unix ns of any wall time after 1970 fit a u64 (until 2554)"
+    )]
+    let run = (crate::northbound::history::unix_now_s() * 1e9) as u64;
     loop {
         tick.tick().await;
         // Wait for a snapshot newer than the last one shown; the Arc is cloned out so the
@@ -300,7 +311,37 @@ async fn update_loop(
             space.update(&identification(&box_name, model.as_ref()), None, &subs);
         }
         space.update(&points(&snap, model.as_ref()), Some(snap.t_s), &subs);
+        raise_alarms(&alarms.observe(&snap), snap.t_s, &machine, run, &subs);
     }
+}
+
+/// Each transition's event to the clients subscribed to the machine's or the server's events.
+/// `snap_t_s`: the observed snapshot's time on the gateway clock (a start is placed at its
+/// `since`, that long before now).
+fn raise_alarms(
+    transitions: &[alarms::Transition],
+    snap_t_s: f64,
+    machine: &NodeId,
+    run: u64,
+    subs: &SubscriptionCache,
+) {
+    if transitions.is_empty() {
+        return;
+    }
+    let now_unix_s = crate::northbound::history::unix_now_s();
+    let now = unix_time(now_unix_s);
+    let events: Vec<_> = transitions
+        .iter()
+        .map(|t| {
+            let time = unix_time(now_unix_s - (snap_t_s - t.t_s).max(0.0));
+            alarms::event(t, machine, time, now, run)
+        })
+        .collect();
+    let events = events.iter().map(|e| {
+        let e: &dyn opcua::nodes::Event = e;
+        (e, machine)
+    });
+    subs.notify_events(events);
 }
 
 /// The box's nodes in the simple node manager: objects along each path created on first sight.
