@@ -50,17 +50,25 @@ pub fn run_config(
     out: &Path,
     compensate: Compensate,
 ) -> anyhow::Result<(u64, f64)> {
+    anyhow::ensure!(
+        cfg.io.dnc.is_none(),
+        "[io.dnc]: the program arrives on a serial device; run it with `hil-sim serve`"
+    );
     std::fs::create_dir_all(out).map_err(|e| anyhow::anyhow!("--out {}: {e}", out.display()))?;
     let scan = cfg.plc.scan_s;
     let realtime = cfg.clock.realtime;
-    let pacer = crate::clock::RealtimePacer::new(cfg.dt_s());
+    let pacer = crate::clock::RealtimePacer::new(cfg.dt_s() / cfg.clock.speed);
     let mut world = World::new(cfg)?;
     let manifest = serde_json::to_string_pretty(&world.manifest())?;
     std::fs::write(out.join("manifest.json"), manifest + "\n")?;
     let file = std::fs::File::create(out.join("recording.csv"))?;
     let mut oracle = Oracle::new(scan);
     let mut failure: Option<anyhow::Error> = None;
+    let mut dwell_ends = String::new();
     let (_, rows) = run_to_end(&mut world, std::io::BufWriter::new(file), |w| {
+        if let Some(d) = w.take_dwell_end() {
+            dwell_ends.push_str(&d.csv_row());
+        }
         if realtime {
             std::thread::sleep(pacer.until_next(w.ticks()));
         }
@@ -73,6 +81,10 @@ pub fn run_config(
     })?;
     if let Some(e) = failure {
         return Err(e.context("oracle compensator"));
+    }
+    if !dwell_ends.is_empty() {
+        let text = crate::world::DwellEnd::CSV_HEADER.to_string() + &dwell_ends;
+        std::fs::write(out.join("dwell_ends.csv"), text)?;
     }
     Ok((rows, world.t_s()))
 }

@@ -51,6 +51,13 @@ pub struct ClockConfig {
     /// on stderr and the normal scheduler.
     #[serde(default)]
     pub realtime_priority: Option<u8>,
+    /// With `realtime`: simulated seconds per wall-clock second (1 = real time; 20 runs a
+    /// 30-minute warm-up in 90 s while the buses and the DNC input stay live).
+    #[serde(default = "d_speed")]
+    pub speed: f64,
+}
+fn d_speed() -> f64 {
+    1.0
 }
 fn d_servo_hz() -> f64 {
     1000.0
@@ -65,6 +72,7 @@ impl Default for ClockConfig {
             realtime: false,
             max_duration_s: d_max_duration_s(),
             realtime_priority: None,
+            speed: d_speed(),
         }
     }
 }
@@ -384,6 +392,11 @@ impl SimConfig {
             c.servo_hz
         );
         ensure!(c.max_duration_s > 0.0, "clock.max_duration_s must be > 0");
+        ensure!(
+            c.speed.is_finite() && (0.01..=1000.0).contains(&c.speed),
+            "clock.speed must be 0.01..=1000 (simulated s per wall s), got {}",
+            c.speed
+        );
         if let Some(p) = c.realtime_priority {
             ensure!(
                 (1..=99).contains(&p),
@@ -447,10 +460,20 @@ impl SimConfig {
             self.program.gcode_path.is_some(),
             !self.program.script.is_empty(),
         ];
-        ensure!(
-            sources.iter().filter(|b| **b).count() == 1,
-            "program: give exactly one of `gcode`, `gcode_path` or `script`"
-        );
+        match &self.io.dnc {
+            Some(d) => {
+                ensure!(
+                    !sources.contains(&true),
+                    "program: with [io.dnc] the program arrives on the DNC input: no `gcode`, \
+                     `gcode_path` or `script`"
+                );
+                d.validate()?;
+            }
+            None => ensure!(
+                sources.iter().filter(|b| **b).count() == 1,
+                "program: give exactly one of `gcode`, `gcode_path` or `script`"
+            ),
+        }
         for (i, w) in self.program.script.windows(2).enumerate() {
             ensure!(
                 w[1].t_s > w[0].t_s,

@@ -10,6 +10,7 @@
 //! position), `growth` (thermal drift of the tool point), `force` (deflection under cutting load).
 
 use crate::config::SimConfig;
+use crate::controller::dnc::DncStream;
 use crate::controller::gcode;
 use crate::controller::interp::{ProgramRunner, ScriptRunner, Setpoint, Trajectory};
 use crate::controller::plc::OriginShiftPlc;
@@ -60,6 +61,28 @@ pub struct Readings {
     pub strains: Vec<Channel>,
 }
 
+/// The slide settled at the end of a dwell: the commanded (set-point) end point and the true
+/// tool-tip error there, at the last step wholly inside the dwell. A part's error at that point
+/// is `(pos_mm − the program's nominal)·1000 + error_um` (the set-point is the nominal unless the
+/// program itself was compensated, as a DNC stream or a rewritten file is).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DwellEnd {
+    pub t_s: f64,
+    /// Program line of the dwell (DNC: the number of the line received).
+    pub line: usize,
+    pub pos_mm: [f64; 3],
+    pub error_um: [f64; 3],
+}
+
+impl DwellEnd {
+    pub const CSV_HEADER: &'static str = "t_s,line,x_mm,y_mm,z_mm,ex_um,ey_um,ez_um\n";
+
+    pub fn csv_row(&self) -> String {
+        let ([x, y, z], [ex, ey, ez]) = (self.pos_mm, self.error_um);
+        format!("{:.6},{},{x},{y},{z},{ex},{ey},{ez}\n", self.t_s, self.line)
+    }
+}
+
 pub struct World {
     cfg: SimConfig,
     t_s: f64,
@@ -86,6 +109,9 @@ pub struct World {
     sampled: bool,
     /// Latched direction of each motor (last non-zero motion), for bidirectional truth tables.
     dir: [i8; 3],
+    /// The DNC input (`[io.dnc]`): the program arrives while it runs.
+    dnc: Option<DncStream>,
+    dwell_end: Option<DwellEnd>,
 }
 
 // By hand: the truth model is a trait object (and the machine's state is long).
@@ -114,6 +140,11 @@ impl World {
     pub fn with_truth(cfg: SimConfig, truth: Box<dyn TruthModel>) -> anyhow::Result<Self> {
         cfg.validate()?;
         let (traj, start_pos) = trajectory(&cfg)?;
+        let dnc = cfg
+            .io
+            .dnc
+            .clone()
+            .map(|d| DncStream::new(d, cfg.program.start_mm, cfg.servo.rapid_mm_min));
         let servos = start_pos.map(AxisServo::new);
         let backlash = std::array::from_fn(|k| {
             cfg.hidden
@@ -157,6 +188,8 @@ impl World {
             next_sample_s: 0.0,
             sampled: false,
             dir: [0; 3],
+            dnc,
+            dwell_end: None,
             traj,
             cfg,
         };
@@ -280,9 +313,22 @@ impl World {
         self.step(self.cfg.dt_s());
     }
 
+    /// The DNC input, if the program arrives on one.
+    pub fn dnc_mut(&mut self) -> Option<&mut DncStream> {
+        self.dnc.as_mut()
+    }
+
+    /// The dwell end of the last step, if one was reached (taken once).
+    pub fn take_dwell_end(&mut self) -> Option<DwellEnd> {
+        self.dwell_end.take()
+    }
+
     /// Advance the world by `dt_s`.
     pub fn step(&mut self, dt_s: f64) {
         let prev_nominal = self.sp.pos_mm;
+        if let (Some(d), Trajectory::Program(r)) = (&mut self.dnc, &mut self.traj) {
+            d.feed(r, self.t_s);
+        }
         self.sp = self.traj.advance(dt_s);
         self.ticks += 1;
         self.t_s = if (dt_s - self.cfg.dt_s()).abs() < 1e-15 {
@@ -324,6 +370,23 @@ impl World {
         self.sampled = false;
         if self.t_s + EPS_S >= self.next_sample_s {
             self.sample();
+        }
+        self.note_dwell_end(dt_s);
+    }
+
+    /// At the last step inside a dwell: the set-point and the true error, for [`DwellEnd`].
+    fn note_dwell_end(&mut self, dt_s: f64) {
+        let Trajectory::Program(r) = &self.traj else {
+            return;
+        };
+        if let Some(line) = r.dwell_ending(dt_s) {
+            let error_um = self.truth_error().total_um;
+            self.dwell_end = Some(DwellEnd {
+                t_s: self.t_s,
+                line,
+                pos_mm: self.sp.pos_mm,
+                error_um,
+            });
         }
     }
 
@@ -491,7 +554,9 @@ impl World {
 /// start: a script's first point, or the program's `start_mm`.
 fn trajectory(cfg: &SimConfig) -> anyhow::Result<(Trajectory, [f64; 3])> {
     let start = cfg.program.start_mm;
-    let traj = if !cfg.program.script.is_empty() {
+    let traj = if cfg.io.dnc.is_some() {
+        Trajectory::Program(ProgramRunner::streaming(start))
+    } else if !cfg.program.script.is_empty() {
         Trajectory::Script(ScriptRunner::new(cfg.program.script.clone()))
     } else {
         let text = match (&cfg.program.gcode, &cfg.program.gcode_path) {

@@ -48,20 +48,51 @@ pub struct GcodeError {
 
 /// Parse a program starting at `start_mm`. `rapid_mm_min` is the feed used for G0 blocks.
 pub fn parse(text: &str, start_mm: [f64; 3], rapid_mm_min: f64) -> Result<Vec<Block>, GcodeError> {
+    let mut p = Parser::new(start_mm, rapid_mm_min);
     let mut blocks = Vec::new();
-    let mut st = Modal {
-        pos: start_mm,
-        absolute: true,
-        motion: None,
-        feed: 0.0,
-        rpm: 0.0,
-        spindle_on: false,
-    };
     for (idx, raw) in text.lines().enumerate() {
-        let line = idx + 1;
+        if p.line(raw, idx + 1, &mut blocks)? {
+            break;
+        }
+    }
+    Ok(blocks)
+}
+
+/// The parser one line at a time, for a program that arrives as it runs (DNC): the modal state
+/// is carried between calls.
+#[derive(Debug)]
+pub struct Parser {
+    st: Modal,
+    rapid_mm_min: f64,
+}
+
+impl Parser {
+    pub fn new(start_mm: [f64; 3], rapid_mm_min: f64) -> Self {
+        Self {
+            st: Modal {
+                pos: start_mm,
+                absolute: true,
+                motion: None,
+                feed: 0.0,
+                rpm: 0.0,
+                spindle_on: false,
+            },
+            rapid_mm_min,
+        }
+    }
+
+    /// Parse line number `line` and append its blocks to `blocks`; true if it ends the program
+    /// (M2/M30).
+    pub fn line(
+        &mut self,
+        raw: &str,
+        line: usize,
+        blocks: &mut Vec<Block>,
+    ) -> Result<bool, GcodeError> {
+        let st = &mut self.st;
         let err = |msg: String| GcodeError { line, msg };
         let words = tokenize(raw).map_err(err)?;
-        let w = read_words(words, &mut st, line)?;
+        let w = read_words(words, st, line)?;
         if let Some(s) = w.s_word {
             st.rpm = s;
             if st.spindle_on {
@@ -86,17 +117,17 @@ pub fn parse(text: &str, start_mm: [f64; 3], rapid_mm_min: f64) -> Result<Vec<Bl
             st.motion = w.motion;
         }
         if w.axes.iter().any(Option::is_some) {
-            blocks.push(move_block(&w, &mut st, rapid_mm_min, line)?);
+            blocks.push(move_block(&w, st, self.rapid_mm_min, line)?);
         }
         if w.end {
             blocks.push(Block::End { line });
-            break;
         }
+        Ok(w.end)
     }
-    Ok(blocks)
 }
 
 /// The modal state carried from line to line.
+#[derive(Debug)]
 struct Modal {
     pos: [f64; 3],
     absolute: bool,

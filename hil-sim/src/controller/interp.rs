@@ -20,13 +20,15 @@ pub struct Setpoint {
     pub done: bool,
 }
 
-/// Runs G-code blocks.
+/// Runs G-code blocks. A streaming runner (DNC) is open: out of blocks it holds the set-point and
+/// waits for more instead of ending.
 #[derive(Clone, Debug)]
 pub struct ProgramRunner {
     blocks: Vec<Block>,
     idx: usize,
     t_in_block_s: f64,
     sp: Setpoint,
+    open: bool,
 }
 
 impl ProgramRunner {
@@ -39,6 +41,34 @@ impl ProgramRunner {
                 pos_mm: start_mm,
                 ..Default::default()
             },
+            open: false,
+        }
+    }
+
+    /// A runner whose blocks arrive while it runs ([`Self::push`]).
+    pub fn streaming(start_mm: [f64; 3]) -> Self {
+        Self {
+            open: true,
+            ..Self::new(Vec::new(), start_mm)
+        }
+    }
+
+    /// Append blocks to a streaming runner.
+    pub fn push(&mut self, blocks: &mut Vec<Block>) {
+        self.blocks.append(blocks);
+    }
+
+    /// Every block received has been executed (a streaming runner waits for the next one).
+    pub fn starved(&self) -> bool {
+        self.idx >= self.blocks.len()
+    }
+
+    /// The line of the dwell in progress if it ends within the next `dt_s`: this step is the last
+    /// one whole inside it (the slide is settled at the block's end point).
+    pub fn dwell_ending(&self, dt_s: f64) -> Option<usize> {
+        match self.blocks.get(self.idx) {
+            Some(Block::Dwell { s, line }) if self.t_in_block_s + dt_s >= *s - 1e-12 => Some(*line),
+            _ => None,
         }
     }
 
@@ -92,7 +122,7 @@ impl ProgramRunner {
                 }
             }
         }
-        self.sp.done = true;
+        self.sp.done = !self.open;
         self.sp
     }
 

@@ -9,10 +9,13 @@
 //!   first, `force_lsb_N`, `strain_lsb_ue`; i32::MIN = no valid reading);
 //! - the force as ASCII weighing-indicator lines on a pty (`ST,GS,+00250.0N`; `OL` for NaN; silence on
 //!   dropout);
+//! - the controller's DNC input on a serial device ([`dnc_port`], `[io.dnc]`): the program arrives
+//!   as it runs, into a buffer of N lines with XON/XOFF;
 //! - transport faults on a schedule ([`transport_faults`]): Modbus TCP down and back, the RTU slave
 //!   mute and back ([`rtu_slave`]), a CAN node silent, garbage on the weighing line; every client write to the PLC window is logged
 //!   ([`plc_server`], `plc_writes.csv`).
 
+mod dnc_port;
 pub mod plc_server;
 mod pty_link;
 pub mod publish;
@@ -33,6 +36,9 @@ pub struct IoConfig {
     pub can: Option<CanIoConfig>,
     #[serde(default)]
     pub weighing: Option<WeighingIoConfig>,
+    /// The controller's DNC input: the program arrives on a serial device while it runs.
+    #[serde(default)]
+    pub dnc: Option<crate::controller::dnc::DncConfig>,
     /// Transport faults on a schedule (`[[io.faults]]`, see [`transport_faults`]).
     #[serde(default)]
     pub faults: Vec<transport_faults::TransportFaultConfig>,

@@ -16,6 +16,7 @@
 //! ([`LagMeter`]: "behind real time" episodes printed at start and clear) and, with the weighing
 //! lines that could not be written, printed once at the end and kept in [`Status`].
 
+use super::dnc_port::{DncPort, DwellLog};
 use super::plc_server::{PlcServer, SimClock, WriteEvent};
 use super::pty_link::{PtyLink, pty_pair};
 use super::publish::Publisher;
@@ -217,6 +218,10 @@ pub async fn start(
     let (write_log_tx, write_log) = tokio::sync::mpsc::unbounded_channel::<WriteEvent>();
     let tr = open_transports(&io, &world, &bank, n, &clock, &write_log_tx, mem.as_ref()).await?;
     let outputs = open_outputs(out, &world, tr.tcp.is_some())?;
+    let dnc = match &io.dnc {
+        Some(d) => Some(DncPort::open(d, out)?),
+        None => None,
+    };
     drop(write_log_tx);
     let modbus_tcp = tr.tcp.as_ref().map(|srv| srv.local_addr());
     let schedule = Schedule::new(io.faults.clone());
@@ -241,6 +246,8 @@ pub async fn start(
         publisher,
         status_tx,
         dropped: 0,
+        dnc,
+        dwells: DwellLog::new(out),
     };
     let task = tokio::spawn(sim.run());
     Ok(Running {
@@ -429,6 +436,8 @@ struct SimTask {
     status_tx: watch::Sender<Status>,
     /// Weighing lines not written because nobody read the pty.
     dropped: u64,
+    dnc: Option<DncPort>,
+    dwells: DwellLog,
 }
 
 impl SimTask {
@@ -437,7 +446,9 @@ impl SimTask {
     async fn run(mut self) -> anyhow::Result<u64> {
         let dt = self.world.config().dt_s();
         let realtime = self.world.config().clock.realtime;
-        let pacer = RealtimePacer::new(dt);
+        // Paced at `speed` simulated seconds per wall second: one step is dt / speed of wall time.
+        let speed = self.world.config().clock.speed;
+        let pacer = RealtimePacer::new(dt / speed);
         let mut steps = 0u64;
         let mut lag = LagMeter::default();
         while !self.world.done() {
@@ -456,7 +467,7 @@ impl SimTask {
             }
             if realtime {
                 report_lag(
-                    lag.observe(pacer.elapsed_s(), steps as f64 * dt),
+                    lag.observe(pacer.elapsed_s(), steps as f64 * dt / speed),
                     self.world.t_s(),
                 );
             }
@@ -472,6 +483,9 @@ impl SimTask {
     /// Client writes → PLC window (the ack register belongs to the PLC), step, the PLC's window →
     /// image: one critical section, like a PLC's scan.
     fn scan(&mut self) -> anyhow::Result<()> {
+        if let Some(d) = self.dnc.as_mut() {
+            d.pump_in(&mut self.world);
+        }
         let (world, n, ack) = (&mut self.world, self.n, self.ack);
         self.bank
             .update_holding(0, n, |words| -> anyhow::Result<()> {
@@ -493,6 +507,10 @@ impl SimTask {
     /// published frames, registers and weighing lines, the client-write log.
     async fn after_step(&mut self) -> anyhow::Result<()> {
         self.clock.set(self.world.t_s());
+        if let Some(d) = self.dnc.as_mut() {
+            d.after_step(&mut self.world).await?;
+        }
+        self.dwells.after_step(&mut self.world)?;
         log_plc_events(&mut self.world, self.outputs.latches_csv.as_mut())?;
         let (active, changes) = self.schedule.advance(self.world.t_s());
         if !changes.is_empty() {
@@ -539,8 +557,12 @@ impl SimTask {
     }
 
     /// Print the pace summary (paced or lines dropped) and finish and flush the output files.
-    fn finish(self, realtime: bool, lag: &LagMeter) -> anyhow::Result<()> {
+    fn finish(mut self, realtime: bool, lag: &LagMeter) -> anyhow::Result<()> {
         let dropped = self.dropped;
+        if let Some(d) = self.dnc.take() {
+            d.finish(&mut self.world)?;
+        }
+        self.dwells.finish()?;
         if realtime || dropped > 0 {
             eprintln!(
                 "hil-sim: real time: max lag {:.1} ms, {} episode(s) behind for {:.3} s; \
