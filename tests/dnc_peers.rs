@@ -6,9 +6,13 @@
 //! A controller that never resumes is a stall fault; the transfer, interrupted, names the block to
 //! resume from, and resuming there delivers every block exactly once.
 
+#[path = "gateway_support/hil_sim.rs"]
+mod hil_sim;
 mod linuxcnc_support;
 #[path = "peers/mod.rs"]
 mod peers;
+#[path = "dnc_support/warmup.rs"]
+mod warmup;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -450,4 +454,121 @@ fn a_program_from_a_tcp_sender_is_passed_on_compensated() {
     for (m, r) in canon.iter().zip(&rows) {
         assert!((m.end_mm[0] - (r.x_mm + r.cx_um / 1000.0)).abs() < 0.15e-3);
     }
+}
+
+/// Issue 38 point 2: hil-sim's controller receives the program over DNC (a socat pty pair, its own
+/// 5-line buffer and XON/XOFF) during a 30-minute warm-up (simulated, paced at 20× real time), from
+/// `retrocomp dnc` reading the spindle PT100 live from hil-sim's Modbus server; the same program
+/// rewritten once by `retrocomp nc` at the start temperature (the frozen model) is run as a file.
+/// Part error at each of the 225 dwell ends from hil-sim's truth (module `warmup`).
+#[test]
+fn a_warm_up_followed_by_live_dnc_offsets_against_the_frozen_rewrite() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let hil = hil_sim::hil_sim_next_to_retrocomp();
+    let prog = dir.join("program.ngc");
+    std::fs::write(&prog, warmup::program()).unwrap();
+
+    // (c) the frozen model: rewritten once at 20 °C, run as a file (as fast as possible).
+    let frozen = dir.join("frozen.ngc");
+    let cfg_dir = dir.join("cfg");
+    std::fs::create_dir_all(&cfg_dir).unwrap();
+    warmup::field_toml(&cfg_dir, 1);
+    let out = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .args(["nc", s(&prog), "--model", s(&cfg_dir.join("model.toml"))])
+        .args(["--out", s(&frozen)])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let sim_frozen = dir.join("sim_frozen.toml");
+    let tail = format!("gcode_path = \"{}\"", frozen.display());
+    std::fs::write(&sim_frozen, warmup::sim_toml(false, &tail)).unwrap();
+    let frozen_out = dir.join("frozen_run");
+    let out = Command::new(&hil)
+        .args(["run", "--config", s(&sim_frozen), "--out", s(&frozen_out)])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let e_frozen = warmup::part_errors_um(&frozen_out.join("dwell_ends.csv"));
+
+    // (b) live DNC offsets: hil-sim serve ← socat ← retrocomp dnc.
+    let (_socat, ctl_dev, box_dev) = pair(dir, "dnc");
+    let mb_port = peers::free_port();
+    let sim_dnc = dir.join("sim_dnc.toml");
+    std::fs::write(&sim_dnc, warmup::sim_dnc_toml(&ctl_dev, mb_port)).unwrap();
+    let dnc_out = dir.join("dnc_run");
+    let mut sim = Command::new(&hil)
+        .args(["serve", "--config", s(&sim_dnc), "--out", s(&dnc_out)])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while std::net::TcpStream::connect(("127.0.0.1", mb_port)).is_err() {
+        assert!(
+            Instant::now() < deadline,
+            "hil-sim's Modbus server did not come up"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let box_dir = dir.join("box");
+    std::fs::create_dir_all(&box_dir).unwrap();
+    let field = warmup::field_toml(&box_dir, mb_port);
+    let log = dir.join("sent.csv");
+    let retro = dnc(&field, &box_dev, &log)
+        .args(["--program", s(&prog)])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // A hang guard only (the run takes 30 min / 20 ≈ 90 s of wall time when hil-sim keeps pace).
+    let deadline = Instant::now() + Duration::from_secs(900);
+    let status = loop {
+        if let Some(st) = sim.try_wait().unwrap() {
+            break st;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "hil-sim did not finish the program"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let mut sim_err = String::new();
+    std::io::Read::read_to_string(sim.stderr.as_mut().unwrap(), &mut sim_err).unwrap();
+    let retro = retro.wait_with_output().unwrap();
+    let box_err = String::from_utf8_lossy(&retro.stderr);
+    assert!(status.success(), "hil-sim serve failed:\n{sim_err}");
+    assert!(retro.status.success(), "retrocomp dnc failed:\n{box_err}");
+    let dnc_line = sim_err
+        .lines()
+        .find(|l| l.starts_with("hil-sim: dnc:"))
+        .unwrap_or_else(|| panic!("no DNC summary:\n{sim_err}"));
+    assert!(!sim_err.contains("program stopped"), "{sim_err}");
+    let e_dnc = warmup::part_errors_um(&dnc_out.join("dwell_ends.csv"));
+    assert_eq!(e_dnc.len(), warmup::STROKES, "every dwell executed once");
+    assert_eq!(e_frozen.len(), warmup::STROKES);
+    // Flow control was exercised: the program is far longer than the buffer and runs at feed.
+    let events = std::fs::read_to_string(dnc_out.join("dnc.csv")).unwrap();
+    let xoffs = events.lines().filter(|l| l.contains(",xoff,")).count();
+    let xons = events.lines().filter(|l| l.contains(",xon,")).count();
+    assert!(xoffs >= 10 && xons >= xoffs - 1, "{dnc_line}");
+
+    let (rms_d, max_d) = warmup::summary(&e_dnc);
+    let (rms_f, max_f) = warmup::summary(&e_frozen);
+    eprintln!(
+        "{dnc_line}\npart error at {} dwell ends (RMS / max, µm): live DNC {rms_d:.2} / {max_d:.2}, \
+         frozen rewrite {rms_f:.2} / {max_f:.2}",
+        e_dnc.len()
+    );
+    // The frozen rewrite knows the geometry only: the growth (3 µm/K × up to ≈ 11 K) stays.
+    assert!(
+        rms_f >= 5.0 * rms_d && max_f >= 25.0,
+        "DNC {rms_d:.2} µm vs frozen {rms_f:.2} µm"
+    );
 }

@@ -64,10 +64,11 @@ impl ProgramRunner {
     }
 
     /// The line of the dwell in progress if it ends within the next `dt_s`: this step is the last
-    /// one whole inside it (the slide is settled at the block's end point).
+    /// one whole inside it (the slide is settled at the block's end point). The test is the one
+    /// [`Self::advance`] ends the dwell by, so each dwell is reported exactly once.
     pub fn dwell_ending(&self, dt_s: f64) -> Option<usize> {
         match self.blocks.get(self.idx) {
-            Some(Block::Dwell { s, line }) if self.t_in_block_s + dt_s >= *s - 1e-12 => Some(*line),
+            Some(Block::Dwell { s, line }) if self.t_in_block_s + dt_s >= *s => Some(*line),
             _ => None,
         }
     }

@@ -31,6 +31,7 @@ pub(crate) struct DncPort {
     rx: mpsc::UnboundedReceiver<Vec<u8>>,
     reader: JoinHandle<()>,
     csv: Option<Csv>,
+    sender_gone: bool,
 }
 
 impl Drop for DncPort {
@@ -67,6 +68,7 @@ impl DncPort {
             rx,
             reader,
             csv,
+            sender_gone: false,
         })
     }
 
@@ -87,12 +89,22 @@ impl DncPort {
             return Ok(());
         };
         let out = d.input.take_output();
-        if !out.is_empty() {
-            self.tx
-                .write_all(&out)
-                .await
-                .map_err(|e| anyhow::anyhow!("io.dnc: writing XON/XOFF: {e}"))?;
+        if !out.is_empty()
+            && !self.sender_gone
+            && let Err(e) = self.tx.write_all(&out).await
+        {
+            // The sender closed the line (the transfer ended): the controller runs on what it
+            // holds; a sender that comes back gets no XON, as a real control would not send one
+            // into a dead line either.
+            eprintln!(
+                "hil-sim: dnc: XON/XOFF not written at t = {:.3} s: {e}",
+                world.t_s()
+            );
+            self.sender_gone = true;
         }
+        let Some(d) = world.dnc_mut() else {
+            return Ok(());
+        };
         let events = d.input.take_events();
         if let Some(f) = self.csv.as_mut() {
             for e in events {

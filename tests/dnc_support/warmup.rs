@@ -1,0 +1,214 @@
+//! The 30-minute warm-up of `dnc_peers`' comparison: one machine (hil-sim), one program, compensated
+//! three ways. The hidden machine: X scale error 20 ppm (8 µm at X400) and a spindle housing that
+//! warms with τ 600 s towards 12 K above ambient at 8000 rpm, growing the tool point along X by
+//! 3 µm/K; its PT100 (`T_spindle_C`, first-order lag 5 s, Modbus input register 0, 0.1 °C) is what
+//! the box reads. The box's model knows both (EXX table 0 → 8 µm over 0…400 mm, 3 µm/K on the
+//! spindle sensor). Part error at a dwell end = true tool tip − the program's nominal end point, µm:
+//! `(set-point − nominal)·1000 + hil-sim's true error there` (`dwell_ends.csv`).
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+/// Simulated seconds per wall second of the paced runs.
+pub(crate) const SPEED: f64 = 20.0;
+/// Out-and-back strokes X50 ↔ X350 (6 s at F3000) each followed by a 2 s dwell: 30 min.
+pub(crate) const STROKES: usize = 225;
+
+pub(crate) const MODEL: &str = r#"schema = 1
+[machine]
+name = "dnc-warmup"
+synthetic = true
+chain = "X F Y Z"
+tool_axis = "-z"
+[axes.x]
+travel_mm = [0.0, 400.0]
+[axes.y]
+travel_mm = [0.0, 300.0]
+[axes.z]
+travel_mm = [0.0, 300.0]
+[[tools]]
+name = "T1"
+offset_mm = [0.0, 0.0, 0.0]
+[[components]]
+name = "EXX"
+interpolation = "linear"
+positions_mm = [0.0, 400.0]
+forward_um = [0.0, 8.0]
+reverse_um = [0.0, 8.0]
+[[sensors]]
+name = "spindle"
+reference_C = 20.0
+[[thermal]]
+name = "x_growth"
+target = "EXX"
+kind = "polynomial_dt"
+sensors = ["spindle"]
+e0_um = 0.0
+b_um_per_K = [3.0]
+"#;
+
+/// The program's nominal end point of stroke `i` (where its dwell is).
+pub(crate) fn nominal_mm(i: usize) -> [f64; 3] {
+    let x = if i % 2 == 0 { 350.0 } else { 50.0 };
+    [x, (i % 20) as f64, 0.0]
+}
+
+pub(crate) fn program() -> String {
+    let mut s = String::from("%\n(WARM-UP)\nG21 G90 G17 G94\nG0 X50 Y0 Z0\nS8000 M3\nG1 F3000\n");
+    for i in 0..STROKES {
+        let [x, y, _] = nominal_mm(i);
+        s.push_str(&format!("X{x:.0} Y{y:.0}\nG4 P2\n"));
+    }
+    s.push_str("M5\nM30\n%\n");
+    s
+}
+
+/// hil-sim's machine; `tail` adds the program source and I/O.
+pub(crate) fn sim_toml(paced: bool, tail: &str) -> String {
+    format!(
+        r#"seed = 7
+[clock]
+realtime = {paced}
+speed = {SPEED}
+max_duration_s = 2400.0
+
+[program]
+start_mm = [50.0, 0.0, 0.0]
+{tail}
+[servo]
+ideal = true
+count_um = 0.1
+
+[truth.builtin]
+exx_ppm = 20.0
+
+[hidden.thermal]
+ambient_C = 20.0
+
+[[hidden.thermal.nodes]]
+name = "spindle"
+tau_s = 600.0
+rise_C_per_krpm = 1.5
+
+[[hidden.thermal.sensors]]
+name = "spindle"
+node = "spindle"
+tau_s = 5.0
+
+[[hidden.thermal.effects]]
+kind = "growth"
+node = "spindle"
+axis = "x"
+um_per_K = 3.0
+
+[record]
+every_s = 1.0
+"#
+    )
+}
+
+/// The DNC run's hil-sim: the program arrives on `dnc_dev`; the PT100 on Modbus TCP `mb_port`.
+pub(crate) fn sim_dnc_toml(dnc_dev: &Path, mb_port: u16) -> String {
+    sim_toml(true, "")
+        + &format!(
+            r#"
+[io.modbus]
+tcp_bind = "127.0.0.1:{mb_port}"
+temps_first_input = 0
+
+[io.dnc]
+device = "{}"
+baud = 19200
+buffer_lines = 5
+"#,
+            dnc_dev.display()
+        )
+}
+
+/// `retrocomp dnc`'s field file (and the model next to it): the spindle PT100 read from hil-sim
+/// every 50 ms. `x_mm` is read from the same register only because the field file must have a
+/// source for every axis' position channel: `retrocomp dnc` takes the position of each block from
+/// the block itself and never uses that value.
+pub(crate) fn field_toml(dir: &Path, mb_port: u16) -> PathBuf {
+    std::fs::write(dir.join("model.toml"), MODEL).unwrap();
+    let text = format!(
+        r#"[gateway]
+name = "dnc-warmup"
+cycle_ms = 5
+thermal_period_s = 1
+[safety]
+max_correction_um = 100.0
+max_change_um_per_cycle = 0.5
+ramp_um_per_s = 20.0
+stale_hold_s = 2.0
+[direction]
+deadband_mm = 0.005
+switch_time_s = 0.1
+[model]
+path = "model.toml"
+[[axis]]
+name = "x"
+position_channel = "x_mm"
+[[modbus.source]]
+name = "pt100"
+transport = "tcp"
+host = "127.0.0.1"
+port = {mb_port}
+period_s = 0.05
+timeout_s = 0.5
+backoff_min_s = 0.1
+backoff_max_s = 0.5
+channel = [
+  {{ channel = "T_spindle_C", kind = "input", address = 0, type = "int16", scale = 0.1 }},
+  {{ channel = "x_mm", kind = "input", address = 0, type = "int16", scale = 0.1 }},
+]
+[dnc]
+baud = 19200
+parity = "none"
+data_bits = 8
+stop_bits = 1
+flow = "xon_xoff"
+max_line_chars = 40
+max_change_um_per_block = 10.0
+"#
+    );
+    let p = dir.join("field.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// Part errors (3-D length, µm) at the dwell ends of `dwell_ends.csv`, in program order.
+pub(crate) fn part_errors_um(dwell_ends: &Path) -> Vec<f64> {
+    let text = std::fs::read_to_string(dwell_ends)
+        .unwrap_or_else(|e| panic!("{}: {e}", dwell_ends.display()));
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next(),
+        Some("t_s,line,x_mm,y_mm,z_mm,ex_um,ey_um,ez_um")
+    );
+    lines
+        .enumerate()
+        .map(|(i, l)| {
+            let f: Vec<f64> = l.split(',').map(|v| v.parse().unwrap()).collect();
+            let nom = nominal_mm(i);
+            let e: Vec<f64> = (0..3)
+                .map(|k| (f[2 + k] - nom[k]) * 1000.0 + f[5 + k])
+                .collect();
+            // The set-point is the nominal within what a correction can be (≤ 100 µm).
+            for k in 0..3 {
+                assert!(
+                    (f[2 + k] - nom[k]).abs() < 0.1,
+                    "dwell {i} at {:?}, nominal {nom:?}",
+                    &f[2..5]
+                );
+            }
+            e.iter().map(|v| v * v).sum::<f64>().sqrt()
+        })
+        .collect()
+}
+
+/// (RMS, max) of part errors, µm.
+pub(crate) fn summary(e: &[f64]) -> (f64, f64) {
+    let rms = (e.iter().map(|v| v * v).sum::<f64>() / e.len() as f64).sqrt();
+    (rms, e.iter().cloned().fold(0.0, f64::max))
+}
