@@ -49,7 +49,7 @@ b_um_per_K = [3.0]
 
 /// The program's nominal end point of stroke `i` (where its dwell is).
 pub(crate) fn nominal_mm(i: usize) -> [f64; 3] {
-    let x = if i % 2 == 0 { 350.0 } else { 50.0 };
+    let x = if i.is_multiple_of(2) { 350.0 } else { 50.0 };
     [x, (i % 20) as f64, 0.0]
 }
 
@@ -63,14 +63,21 @@ pub(crate) fn program() -> String {
     s
 }
 
-/// hil-sim's machine; `tail` adds the program source and I/O.
+/// hil-sim's machine; `tail` adds the program source. Paced runs keep their pace under
+/// `SCHED_FIFO` when allowed (a starved simulator reads the DNC line late and overruns its buffer).
 pub(crate) fn sim_toml(paced: bool, tail: &str) -> String {
+    sim_toml_every(paced, tail, 1.0)
+}
+
+/// [`sim_toml`] sampling (recording, Modbus input registers) every `every_s`.
+pub(crate) fn sim_toml_every(paced: bool, tail: &str, every_s: f64) -> String {
     format!(
         r#"seed = 7
 [clock]
 realtime = {paced}
 speed = {SPEED}
 max_duration_s = 2400.0
+realtime_priority = 20
 
 [program]
 start_mm = [50.0, 0.0, 0.0]
@@ -101,8 +108,16 @@ node = "spindle"
 axis = "x"
 um_per_K = 3.0
 
+[plc]
+scan_s = 0.004
+word = "int32"
+word_order = "high_first"
+lsb_um = 0.5
+first_register = 0
+handshake = {{ strobe_register = 10, ack_register = 11 }}
+
 [record]
-every_s = 1.0
+every_s = {every_s}
 "#
     )
 }
@@ -123,6 +138,86 @@ buffer_lines = 5
 "#,
             dnc_dev.display()
         )
+}
+
+/// The origin-shift run's hil-sim: the program as a file; the PT100 (input register 0) and the
+/// axis positions (input registers 10.., int32, 1 µm) sampled every 50 ms of simulated time on
+/// Modbus TCP `mb_port`, where the PLC window (int32 shifts at 0, 2, 4, 0.5 µm, strobe 10, ack 11)
+/// is served too.
+pub(crate) fn sim_shift_toml(program: &Path, mb_port: u16) -> String {
+    let tail = format!("gcode_path = \"{}\"", program.display());
+    sim_toml_every(true, &tail, 0.05)
+        + &format!(
+            r#"
+[io.modbus]
+tcp_bind = "127.0.0.1:{mb_port}"
+temps_first_input = 0
+positions_first_input = 10
+position_lsb_um = 1.0
+"#
+        )
+}
+
+/// `retrocomp run`'s field file for the origin-shift run: the same model, limits a 2 s dwell
+/// (100 ms of wall time at 20×) can settle in, positions and the PT100 polled every 20 ms.
+pub(crate) fn run_field_toml(dir: &Path, mb_port: u16) -> PathBuf {
+    std::fs::write(dir.join("model.toml"), MODEL).unwrap();
+    let text = format!(
+        r#"[gateway]
+name = "shift-warmup"
+cycle_ms = 5
+thermal_period_s = 0.05
+realtime_priority = 20
+[safety]
+max_correction_um = 100.0
+max_change_um_per_cycle = 2.0
+ramp_um_per_s = 200.0
+stale_hold_s = 2.0
+[direction]
+deadband_mm = 0.005
+switch_time_s = 0.02
+[model]
+path = "model.toml"
+[[axis]]
+name = "x"
+position_channel = "x_mm"
+[[modbus.source]]
+name = "plc-inputs"
+transport = "tcp"
+host = "127.0.0.1"
+port = {mb_port}
+period_s = 0.02
+timeout_s = 0.5
+backoff_min_s = 0.1
+backoff_max_s = 0.5
+channel = [
+  {{ channel = "T_spindle_C", kind = "input", address = 0, type = "int16", scale = 0.1 }},
+  {{ channel = "x_mm", kind = "input", address = 10, type = "int32", scale = 0.001 }},
+]
+[sink.origin_shift]
+transport = {{ kind = "tcp", address = "127.0.0.1:{mb_port}" }}
+request_timeout_ms = 300
+reconnect_min_ms = 20
+reconnect_max_ms = 200
+write_period_ms = 10
+
+[sink.origin_shift.map]
+[[sink.origin_shift.map.axis]]
+axis = "x"
+address = 0
+kind = "int32"
+lsb_um = 0.5
+sign = 1
+
+[sink.origin_shift.map.handshake]
+strobe_address = 10
+ack_address = 11
+timeout_ms = 200
+"#
+    );
+    let p = dir.join("field.toml");
+    std::fs::write(&p, text).unwrap();
+    p
 }
 
 /// `retrocomp dnc`'s field file (and the model next to it): the spindle PT100 read from hil-sim

@@ -6,7 +6,8 @@
 //!   origin-shift window as holding registers (FC03/06/16; the ack register is read-only), PT100
 //!   temperatures as input registers (int16, 0.1 °C; 0x7FFF = NaN/over-range, 0x8000 = sensor break
 //!   on dropout), the cutting force and the strain gauges as int32 input register pairs (hi word
-//!   first, `force_lsb_N`, `strain_lsb_ue`; i32::MIN = no valid reading);
+//!   first, `force_lsb_N`, `strain_lsb_ue`; i32::MIN = no valid reading), the axis positions too
+//!   (`positions_first_input`, int32 pairs in `position_lsb_um`);
 //! - the force as ASCII weighing-indicator lines on a pty (`ST,GS,+00250.0N`; `OL` for NaN; silence on
 //!   dropout);
 //! - the controller's DNC input on a serial device ([`dnc_port`], `[io.dnc]`): the program arrives
@@ -66,8 +67,17 @@ pub struct ModbusIoConfig {
     /// First input register of the strain block: one int32 pair (hi word first) per gauge.
     #[serde(default)]
     pub strain_first_input: Option<u16>,
+    /// First input register of the axis positions, X, Y, Z: one int32 pair (hi word first) each,
+    /// the motor encoder's position (as a drive or a PLC exposes it) in `position_lsb_um`.
+    #[serde(default)]
+    pub positions_first_input: Option<u16>,
+    #[serde(default = "d_position_lsb")]
+    pub position_lsb_um: f64,
     #[serde(default = "d_strain_lsb")]
     pub strain_lsb_ue: f64,
+}
+fn d_position_lsb() -> f64 {
+    1.0
 }
 fn d_strain_lsb() -> f64 {
     0.01

@@ -192,6 +192,12 @@ impl Publisher {
                     .collect();
                 out.input_regs.push((addr, words));
             }
+            if let Some(addr) = mb.positions_first_input {
+                let words = (0..3)
+                    .flat_map(|k| int32_words(Some(world.motor_mm(k) * 1000.0), mb.position_lsb_um))
+                    .collect();
+                out.input_regs.push((addr, words));
+            }
         }
         if let Some(w) = &self.cfg.weighing
             && t >= self.next_line_s
