@@ -14,38 +14,17 @@ pub(crate) const SPEED: f64 = 20.0;
 /// Out-and-back strokes X50 ↔ X350 (6 s at F3000) each followed by a 2 s dwell: 30 min.
 pub(crate) const STROKES: usize = 225;
 
-pub(crate) const MODEL: &str = r#"schema = 1
-[machine]
-name = "dnc-warmup"
-synthetic = true
-chain = "X F Y Z"
-tool_axis = "-z"
-[axes.x]
-travel_mm = [0.0, 400.0]
-[axes.y]
-travel_mm = [0.0, 300.0]
-[axes.z]
-travel_mm = [0.0, 300.0]
-[[tools]]
-name = "T1"
-offset_mm = [0.0, 0.0, 0.0]
-[[components]]
-name = "EXX"
-interpolation = "linear"
-positions_mm = [0.0, 400.0]
-forward_um = [0.0, 8.0]
-reverse_um = [0.0, 8.0]
-[[sensors]]
-name = "spindle"
-reference_C = 20.0
-[[thermal]]
-name = "x_growth"
-target = "EXX"
-kind = "polynomial_dt"
-sensors = ["spindle"]
-e0_um = 0.0
-b_um_per_K = [3.0]
-"#;
+/// `dnc_peers`' model with the warm-up machine's numbers: EXX the same both ways, 3 µm/K.
+pub(crate) fn model() -> String {
+    let m = crate::MODEL
+        .replace("reverse_um = [-3.0, 5.0]", "reverse_um = [0.0, 8.0]")
+        .replace("b_um_per_K = [2.0]", "b_um_per_K = [3.0]");
+    assert!(
+        m.contains("reverse_um = [0.0, 8.0]") && m.contains("[3.0]"),
+        "dnc_peers' MODEL changed"
+    );
+    m
+}
 
 /// The program's nominal end point of stroke `i` (where its dwell is).
 pub(crate) fn nominal_mm(i: usize) -> [f64; 3] {
@@ -158,43 +137,62 @@ position_lsb_um = 1.0
         )
 }
 
-/// `retrocomp run`'s field file for the origin-shift run: the same model, limits a 2 s dwell
-/// (100 ms of wall time at 20×) can settle in, positions and the PT100 polled every 20 ms.
-pub(crate) fn run_field_toml(dir: &Path, mb_port: u16) -> PathBuf {
-    std::fs::write(dir.join("model.toml"), MODEL).unwrap();
+/// A field file in `dir` with the model next to it: `[gateway]`/`[safety]`/`[direction]` keys from
+/// `limits` (cycle 5 ms, clamp 100 µm), axis X, one Modbus TCP source on `mb_port` polled every
+/// `period_s` with `channels`, then `tail`.
+fn write_field(dir: &Path, limits: [f64; 5], mb_port: u16, channels: &str, tail: &str) -> PathBuf {
+    std::fs::write(dir.join("model.toml"), model()).unwrap();
+    let [
+        thermal_period_s,
+        cap_um,
+        ramp_um_per_s,
+        switch_time_s,
+        period_s,
+    ] = limits;
     let text = format!(
         r#"[gateway]
-name = "shift-warmup"
+name = "warmup"
 cycle_ms = 5
-thermal_period_s = 0.05
+thermal_period_s = {thermal_period_s}
 realtime_priority = 20
 [safety]
 max_correction_um = 100.0
-max_change_um_per_cycle = 2.0
-ramp_um_per_s = 200.0
+max_change_um_per_cycle = {cap_um}
+ramp_um_per_s = {ramp_um_per_s}
 stale_hold_s = 2.0
 [direction]
 deadband_mm = 0.005
-switch_time_s = 0.02
+switch_time_s = {switch_time_s}
 [model]
 path = "model.toml"
 [[axis]]
 name = "x"
 position_channel = "x_mm"
 [[modbus.source]]
-name = "plc-inputs"
+name = "hil-sim"
 transport = "tcp"
 host = "127.0.0.1"
 port = {mb_port}
-period_s = 0.02
+period_s = {period_s}
 timeout_s = 0.5
 backoff_min_s = 0.1
 backoff_max_s = 0.5
 channel = [
   {{ channel = "T_spindle_C", kind = "input", address = 0, type = "int16", scale = 0.1 }},
-  {{ channel = "x_mm", kind = "input", address = 10, type = "int32", scale = 0.001 }},
+  {channels}
 ]
-[sink.origin_shift]
+{tail}"#
+    );
+    let p = dir.join("field.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// `retrocomp run`'s field file for the origin-shift run: limits a 2 s dwell (100 ms of wall time
+/// at 20×) settles in; the PT100 and the X position polled every 20 ms; hil-sim's PLC window.
+pub(crate) fn run_field_toml(dir: &Path, mb_port: u16) -> PathBuf {
+    let tail = format!(
+        r#"[sink.origin_shift]
 transport = {{ kind = "tcp", address = "127.0.0.1:{mb_port}" }}
 request_timeout_ms = 300
 reconnect_min_ms = 20
@@ -215,9 +213,8 @@ ack_address = 11
 timeout_ms = 200
 "#
     );
-    let p = dir.join("field.toml");
-    std::fs::write(&p, text).unwrap();
-    p
+    let x = r#"{ channel = "x_mm", kind = "input", address = 10, type = "int32", scale = 0.001 },"#;
+    write_field(dir, [0.05, 2.0, 200.0, 0.02, 0.02], mb_port, x, &tail)
 }
 
 /// `retrocomp dnc`'s field file (and the model next to it): the spindle PT100 read from hil-sim
@@ -225,51 +222,10 @@ timeout_ms = 200
 /// source for every axis' position channel: `retrocomp dnc` takes the position of each block from
 /// the block itself and never uses that value.
 pub(crate) fn field_toml(dir: &Path, mb_port: u16) -> PathBuf {
-    std::fs::write(dir.join("model.toml"), MODEL).unwrap();
-    let text = format!(
-        r#"[gateway]
-name = "dnc-warmup"
-cycle_ms = 5
-thermal_period_s = 1
-[safety]
-max_correction_um = 100.0
-max_change_um_per_cycle = 0.5
-ramp_um_per_s = 20.0
-stale_hold_s = 2.0
-[direction]
-deadband_mm = 0.005
-switch_time_s = 0.1
-[model]
-path = "model.toml"
-[[axis]]
-name = "x"
-position_channel = "x_mm"
-[[modbus.source]]
-name = "pt100"
-transport = "tcp"
-host = "127.0.0.1"
-port = {mb_port}
-period_s = 0.05
-timeout_s = 0.5
-backoff_min_s = 0.1
-backoff_max_s = 0.5
-channel = [
-  {{ channel = "T_spindle_C", kind = "input", address = 0, type = "int16", scale = 0.1 }},
-  {{ channel = "x_mm", kind = "input", address = 0, type = "int16", scale = 0.1 }},
-]
-[dnc]
-baud = 19200
-parity = "none"
-data_bits = 8
-stop_bits = 1
-flow = "xon_xoff"
-max_line_chars = 40
-max_change_um_per_block = 10.0
-"#
-    );
-    let p = dir.join("field.toml");
-    std::fs::write(&p, text).unwrap();
-    p
+    let x = r#"{ channel = "x_mm", kind = "input", address = 0, type = "int16", scale = 0.1 },"#;
+    let tail = "[dnc]\nbaud = 19200\nparity = \"none\"\ndata_bits = 8\nstop_bits = 1\n\
+                flow = \"xon_xoff\"\nmax_line_chars = 40\nmax_change_um_per_block = 10.0\n";
+    write_field(dir, [1.0, 0.5, 20.0, 0.1, 0.05], mb_port, x, tail)
 }
 
 /// Part errors (3-D length, µm) at the dwell ends of `dwell_ends.csv`, in program order.
