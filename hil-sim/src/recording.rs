@@ -163,6 +163,28 @@ impl<W: Write> Recorder<W> {
     }
 }
 
+/// The slide settled at the end of a dwell: the commanded (set-point) end point and the true
+/// tool-tip error there, at the last step wholly inside the dwell. A part's error at that point
+/// is `(pos_mm − the program's nominal)·1000 + error_um` (the set-point is the nominal unless the
+/// program itself was compensated, as a DNC stream or a rewritten file is).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DwellEnd {
+    pub t_s: f64,
+    /// Program line of the dwell (DNC: the number of the line received).
+    pub line: usize,
+    pub pos_mm: [f64; 3],
+    pub error_um: [f64; 3],
+}
+
+impl DwellEnd {
+    pub const CSV_HEADER: &'static str = "t_s,line,x_mm,y_mm,z_mm,ex_um,ey_um,ez_um\n";
+
+    pub fn csv_row(&self) -> String {
+        let ([x, y, z], [ex, ey, ez]) = (self.pos_mm, self.error_um);
+        format!("{:.6},{},{x},{y},{z},{ex},{ey},{ez}\n", self.t_s, self.line)
+    }
+}
+
 /// Run `world` to the end as fast as possible, calling `each_tick` after every step (compensators,
 /// bus publishers) and writing one row per sample. Returns the writer and the row count.
 pub fn run_to_end<W: Write>(

@@ -19,6 +19,7 @@ use crate::physics::cutting::CuttingConfig;
 use crate::physics::faults::Fault;
 use crate::physics::mechanics::{Backlash, CyclicConfig};
 use crate::physics::thermal::ThermalNet;
+pub use crate::recording::DwellEnd;
 use crate::rng::Noise;
 use crate::truth::TruthModel;
 
@@ -59,28 +60,6 @@ pub struct Readings {
     pub temps: Vec<Channel>,
     pub force: Option<Channel>,
     pub strains: Vec<Channel>,
-}
-
-/// The slide settled at the end of a dwell: the commanded (set-point) end point and the true
-/// tool-tip error there, at the last step wholly inside the dwell. A part's error at that point
-/// is `(pos_mm − the program's nominal)·1000 + error_um` (the set-point is the nominal unless the
-/// program itself was compensated, as a DNC stream or a rewritten file is).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct DwellEnd {
-    pub t_s: f64,
-    /// Program line of the dwell (DNC: the number of the line received).
-    pub line: usize,
-    pub pos_mm: [f64; 3],
-    pub error_um: [f64; 3],
-}
-
-impl DwellEnd {
-    pub const CSV_HEADER: &'static str = "t_s,line,x_mm,y_mm,z_mm,ex_um,ey_um,ez_um\n";
-
-    pub fn csv_row(&self) -> String {
-        let ([x, y, z], [ex, ey, ez]) = (self.pos_mm, self.error_um);
-        format!("{:.6},{},{x},{y},{z},{ex},{ey},{ez}\n", self.t_s, self.line)
-    }
 }
 
 pub struct World {

@@ -8,6 +8,7 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 /// Simulated seconds per wall second of the paced runs.
 pub(crate) const SPEED: f64 = 20.0;
@@ -262,4 +263,30 @@ pub(crate) fn part_errors_um(dwell_ends: &Path) -> Vec<f64> {
 pub(crate) fn summary(e: &[f64]) -> (f64, f64) {
     let rms = (e.iter().map(|v| v * v).sum::<f64>() / e.len() as f64).sqrt();
     (rms, e.iter().cloned().fold(0.0, f64::max))
+}
+
+/// Wait for a child to exit (a hang guard, never a timing assertion); its status and stderr.
+pub(crate) fn wait_exit(mut c: std::process::Child, what: &str, limit_s: u64) -> (bool, String) {
+    let deadline = Instant::now() + Duration::from_secs(limit_s);
+    let st = loop {
+        if let Some(st) = c.try_wait().unwrap() {
+            break st;
+        }
+        assert!(Instant::now() < deadline, "{what} did not finish");
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let mut err = String::new();
+    std::io::Read::read_to_string(c.stderr.as_mut().unwrap(), &mut err).unwrap();
+    (st.success(), err)
+}
+
+pub(crate) fn wait_listening(port: u16) {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            Instant::now() < deadline,
+            "hil-sim's Modbus server did not come up"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
 }
