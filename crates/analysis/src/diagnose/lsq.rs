@@ -185,7 +185,9 @@ pub fn quasi_difference(v: &[f64], rho: f64) -> Vec<f64> {
 /// The Newey–West window of [`effective_n`]: L = 4·n^{1/3} lags, at most n/10 (short records
 /// cannot estimate long lags), at least 1.
 pub fn newey_west_lags(n: usize) -> usize {
-    ((4.0 * (n as f64).cbrt()) as usize).min(n / 10).max(1)
+    crate::numeric::trunc_usize(4.0 * (n as f64).cbrt())
+        .min(n / 10)
+        .max(1)
 }
 
 /// Records at least this long get their autocovariances by FFT in [`effective_n`] (and cyclic
