@@ -13,8 +13,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use retrocomp::dnc::core::{CoreConfig, DncCore};
-use retrocomp::dnc::live::{LiveCorrections, ModelAtPoint};
-use retrocomp::dnc::shell::{ProgramSource, run_dnc};
+use retrocomp::dnc::live::{EngineAtPoint, LiveCorrections};
+use retrocomp::dnc::shell::{DncIo, ProgramSource, run_dnc};
 use retrocomp_gateway::config::field_check::check_field;
 use retrocomp_gateway::sources::spawn_sources;
 use retrocomp_model::Axis;
@@ -49,9 +49,6 @@ pub(crate) struct Args {
     /// Where the send log goes (CSV, one row per block).
     #[arg(long, default_value = "dnc-sent.csv")]
     pub log: PathBuf,
-    /// A model input older than this is not used (the block keeps the previous correction), s.
-    #[arg(long, default_value_t = 120.0)]
-    pub max_input_age_s: f64,
 }
 
 fn parse_listen(s: &str) -> Result<std::net::SocketAddr, String> {
@@ -62,14 +59,13 @@ fn parse_listen(s: &str) -> Result<std::net::SocketAddr, String> {
         .map_err(|e| format!("{a:?}: {e} (expected tcp:127.0.0.1:7000)"))
 }
 
-/// Per axis X, Y, Z: the clamp of the field config's safety and the per-block cap, and whether
-/// the config drives the axis (the others get clamp 0: never a correction).
+/// Per axis X, Y, Z: the clamp of the field config's safety and the per-block cap (an axis the
+/// config does not drive gets clamp 0: never a correction).
 fn guard_limits(
     cfg: &retrocomp_gateway::config::FieldConfig,
     dnc: &retrocomp_gateway::sinks::dnc::config::DncSection,
-) -> ([(f64, f64); 3], [bool; 3]) {
+) -> [(f64, f64); 3] {
     let mut limits = [(0.0, 0.0); 3];
-    let mut driven = [false; 3];
     for a in &cfg.axes {
         let Some(ax) = Axis::from_name(&a.name) else {
             continue;
@@ -79,9 +75,8 @@ fn guard_limits(
             .max_change_um_per_block
             .unwrap_or(s.max_change_um_per_cycle);
         limits[ax.index()] = (s.max_correction_um, cap);
-        driven[ax.index()] = true;
     }
-    (limits, driven)
+    limits
 }
 
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
@@ -118,13 +113,13 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     {
         bail!("--sender-port {d} is the controller's port");
     }
-    let (limits, driven) = guard_limits(&cfg, &dnc);
+    let limits = guard_limits(&cfg, &dnc);
+    // The gateway's engine judges the inputs (its `[[channel]]` limits) and evaluates the model;
+    // no safety step of its own runs: the guard below is the one output limit.
+    let mut engine = cfg.engine(&Default::default())?;
+    engine.report_undelivered(&checked.optional_missing);
     let live = LiveCorrections::new(
-        Box::new(ModelAtPoint::new(
-            Box::new(checked.model),
-            driven,
-            args.max_input_age_s,
-        )),
+        Box::new(EngineAtPoint::new(engine, Box::new(checked.model))),
         limits,
     );
     let core_cfg = CoreConfig {
@@ -153,7 +148,8 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         .enable_all()
         .build()?;
     let summary = rt.block_on(async {
-        let feed = spawn_sources(&cfg, std::time::Instant::now()).await?;
+        let epoch = std::time::Instant::now();
+        let feed = spawn_sources(&cfg, epoch).await?;
         let mut core = DncCore::new(core_cfg, &live);
         let r = run_dnc(
             &dnc,
@@ -161,7 +157,10 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
             &source,
             &mut core,
             &live,
-            Some(feed.samples),
+            DncIo {
+                samples: Some(feed.samples),
+                epoch,
+            },
             &mut log,
         )
         .await

@@ -94,18 +94,26 @@ async fn open_source(
     Ok((BufReader::new(read).lines(), hold))
 }
 
+/// The live side of a transfer: the sources' samples for the model and their clock.
+#[derive(Debug)]
+pub struct DncIo {
+    pub samples: Option<mpsc::Receiver<Sample>>,
+    /// The sources' epoch (their samples' `t_s` count from it): blocks are judged on that clock.
+    pub epoch: Instant,
+}
+
 /// Stream the program to the controller on `port_dev` until it is sent, refused, or interrupted
-/// (SIGINT). `samples` feed the live model; `log` receives one row per block sent.
+/// (SIGINT). `io.samples` feed the live model; `log` receives one row per block sent.
 pub async fn run_dnc(
     s: &DncSection,
     port_dev: &str,
     source: &ProgramSource,
     core: &mut DncCore<'_>,
     live: &LiveCorrections,
-    mut samples: Option<mpsc::Receiver<Sample>>,
+    io: DncIo,
     log: &mut dyn Write,
 ) -> std::io::Result<DncSummary> {
-    let epoch = Instant::now();
+    let DncIo { mut samples, epoch } = io;
     let now = || epoch.elapsed().as_secs_f64();
     let port = open_port(port_dev, s)?;
     let (mut lines, mut hold) = open_source(source, s).await?;

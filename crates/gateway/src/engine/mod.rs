@@ -14,6 +14,7 @@
 //! `thermal_period_s` so the thermal terms change in steps of that period, and the safety dosing cap
 //! spreads each step over cycles (Spaan Ch6: 60 s tables, 15 ms evaluation, dosing).
 
+pub mod at_point;
 pub mod direction;
 pub mod error_model;
 pub mod health;
@@ -65,6 +66,22 @@ struct AxisRuntime {
     terms: Vec<(Arc<str>, f64)>,
     /// The axis had a fresh target at least once (before that it is starting, not dropped).
     ever_tracked: bool,
+}
+
+impl AxisRuntime {
+    /// The axis' target from the model's errors: correction = −error per term (kept for the
+    /// status), their sum the target, µm.
+    fn take_target(&mut self, errors: &AxisErrors) -> f64 {
+        self.terms.clear();
+        let mut total = 0.0;
+        for t in errors.axis(self.axis) {
+            let corr = -t.error_um;
+            total += corr;
+            self.terms.push((t.term.clone(), corr));
+        }
+        self.target_um = Some(total);
+        total
+    }
 }
 
 struct Recovery {
@@ -330,6 +347,63 @@ impl Engine {
     pub fn cycle_in_place(&mut self, now_s: f64, model: &mut dyn ErrorModel) -> &[(Axis, f64)] {
         self.now_s = now_s;
         self.cycles += 1;
+        // 1.–3. Health (faults logged once), substitution, usable values (slow ones latched).
+        self.judge_channels(now_s);
+        // 3. State: positions, velocities and direction latch from the position channels.
+        for a in &mut self.axes {
+            let pos = self.channels[a.position].value;
+            let i = a.axis.index();
+            if let Some(p) = pos {
+                if let Some((t0, p0)) = a.last_pos
+                    && now_s > t0
+                {
+                    self.state.velocities_mm_per_s[i] = Some((p - p0) / (now_s - t0));
+                }
+                a.last_pos = Some((now_s, p));
+                a.latch.update(p, now_s);
+                self.state.positions_mm[i] = Some(p);
+                self.state.weight_forward[i] = a.latch.weight_forward();
+            } else {
+                self.state.positions_mm[i] = None;
+                self.state.velocities_mm_per_s[i] = None;
+            }
+            a.position_ok = pos.is_some();
+        }
+        self.state.t_s = now_s;
+        // 4. Model, on its inputs in its order.
+        let inputs_ok = self.model_inputs(model) && self.axes.iter().all(|a| a.position_ok);
+        // An unusable optional channel leaves its terms out (the model sees it missing). Either
+        // edge of that changes the target's make-up: every axis ramps to the new target.
+        let partial = inputs_ok && self.optional_missing();
+        if partial != self.partial {
+            for a in &mut self.axes {
+                a.safety.ramp_to_next_target();
+            }
+            self.partial = partial;
+        }
+        let evaluated = self.evaluate_model(model, inputs_ok, now_s);
+        // 5. Correction = −error, blended by direction; then safety.
+        for (a, out) in self.axes.iter_mut().zip(&mut self.outputs) {
+            let input = if self.model_error.is_some() {
+                a.target_um = None;
+                Input::Fault
+            } else if !a.position_ok || !evaluated {
+                a.target_um = None;
+                Input::Stale
+            } else {
+                Input::Fresh(a.take_target(&self.errors))
+            };
+            out.1 = a.safety.step(now_s, self.enabled, input);
+        }
+        self.report_drops(now_s);
+        &self.outputs
+    }
+
+    /// Steps 1–3 of a cycle for the channels, shared by [`Engine::cycle_in_place`] and
+    /// [`Engine::correction_at`]: health of every channel with fault transitions logged once (in
+    /// name order), failed channels substituted from their neighbours, and the value the model
+    /// sees of each (slow channels latched at the thermal period).
+    fn judge_channels(&mut self, now_s: f64) {
         // 1. Health of every channel, with fault transitions logged once (in name order).
         for &slot in &self.slots.by_name {
             let c = &mut self.channels[slot];
@@ -405,7 +479,7 @@ impl Engine {
                 st.reading_t_s = None;
             }
         }
-        // 3. State: usable channel values; slow channels latched at the thermal period.
+        // 3. Usable channel values; slow channels latched at the thermal period.
         let latch_slow = self
             .last_slow_latch_s
             .is_none_or(|t| now_s - t >= self.thermal_period_s);
@@ -431,28 +505,12 @@ impl Engine {
                 usable
             };
         }
-        for a in &mut self.axes {
-            let pos = self.channels[a.position].value;
-            let i = a.axis.index();
-            if let Some(p) = pos {
-                if let Some((t0, p0)) = a.last_pos
-                    && now_s > t0
-                {
-                    self.state.velocities_mm_per_s[i] = Some((p - p0) / (now_s - t0));
-                }
-                a.last_pos = Some((now_s, p));
-                a.latch.update(p, now_s);
-                self.state.positions_mm[i] = Some(p);
-                self.state.weight_forward[i] = a.latch.weight_forward();
-            } else {
-                self.state.positions_mm[i] = None;
-                self.state.velocities_mm_per_s[i] = None;
-            }
-            a.position_ok = pos.is_some();
-        }
-        self.state.t_s = now_s;
-        // 4. Model: its channels resolved to slots once (first cycle, model replaced), their values
-        // handed over in its order.
+    }
+
+    /// Step 4's inputs: the model's channels resolved to slots once (first cycle, model
+    /// replaced), their values handed over in its order. True when every required channel that
+    /// is not optional has a value.
+    fn model_inputs(&mut self, model: &dyn ErrorModel) -> bool {
         if self.required.is_none() {
             let slots = model
                 .required_channels()
@@ -474,22 +532,23 @@ impl Engine {
             .map(|&s| self.channels[s].value);
         self.state.inputs.extend(values);
         let optional = &self.optional;
-        let inputs_ok = self
-            .required
+        self.required
             .iter()
             .flatten()
             .filter(|id| !optional.contains(id))
             .all(|&id| self.channels[id].value.is_some())
-            && self.axes.iter().all(|a| a.position_ok);
-        // An unusable optional channel leaves its terms out (the model sees it missing). Either
-        // edge of that changes the target's make-up: every axis ramps to the new target.
-        let partial = inputs_ok && optional.iter().any(|&id| self.channels[id].value.is_none());
-        if partial != self.partial {
-            for a in &mut self.axes {
-                a.safety.ramp_to_next_target();
-            }
-            self.partial = partial;
-        }
+    }
+
+    /// Some optional model input is unusable now (its terms are left out).
+    fn optional_missing(&self) -> bool {
+        self.optional
+            .iter()
+            .any(|&id| self.channels[id].value.is_none())
+    }
+
+    /// Step 4's evaluation (when `inputs_ok`) into `self.errors`, its failure a `decode` fault of
+    /// the model (logged once). True when the model was evaluated.
+    fn evaluate_model(&mut self, model: &mut dyn ErrorModel, inputs_ok: bool, now_s: f64) -> bool {
         self.errors.clear();
         let model_result = if inputs_ok {
             model
@@ -514,30 +573,7 @@ impl Engine {
             }
             self.model_error = model_fault.cloned();
         }
-        let evaluated = matches!(model_result, Ok(true));
-        // 5. Correction = −error, blended by direction; then safety.
-        for (a, out) in self.axes.iter_mut().zip(&mut self.outputs) {
-            let input = if self.model_error.is_some() {
-                a.target_um = None;
-                Input::Fault
-            } else if !a.position_ok || !evaluated {
-                a.target_um = None;
-                Input::Stale
-            } else {
-                a.terms.clear();
-                let mut total = 0.0;
-                for t in self.errors.axis(a.axis) {
-                    let corr = -t.error_um;
-                    total += corr;
-                    a.terms.push((t.term.clone(), corr));
-                }
-                a.target_um = Some(total);
-                Input::Fresh(total)
-            };
-            out.1 = a.safety.step(now_s, self.enabled, input);
-        }
-        self.report_drops(now_s);
-        &self.outputs
+        matches!(model_result, Ok(true))
     }
 
     /// "Compensation dropped" per axis: enabled, the axis had compensated, and now has no fresh
