@@ -15,19 +15,15 @@ use anyhow::{Context, bail};
 use retrocomp::dnc::core::{CoreConfig, DncCore};
 use retrocomp::dnc::live::{EngineAtPoint, LiveCorrections};
 use retrocomp::dnc::shell::{DncIo, ProgramSource, run_dnc};
-use retrocomp_gateway::config::field_check::check_field;
 use retrocomp_gateway::sources::spawn_sources;
 use retrocomp_model::Axis;
 
 #[derive(Debug, clap::Args)]
 #[command(group(clap::ArgGroup::new("source").args(["program", "listen", "sender_port"])))]
 pub(crate) struct Args {
-    /// Field configuration TOML with a `[dnc]` section (model and sensors as for `run`).
-    #[arg(long)]
-    pub config: PathBuf,
-    /// Machine model TOML; overrides `[model] path` of the field config.
-    #[arg(long)]
-    pub model: Option<PathBuf>,
+    /// `--config` (with a `[dnc]` section; model and sensors as for `run`) and `--model`.
+    #[command(flatten)]
+    pub field: super::run::FieldArgs,
     /// The NC program to send.
     #[arg(long)]
     pub program: Option<PathBuf>,
@@ -81,12 +77,12 @@ fn guard_limits(
 
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     super::term::init_tracing("info");
-    let checked = check_field(&args.config, args.model.as_deref())?;
+    let checked = args.field.check()?;
     let cfg = checked.cfg;
     let Some(dnc) = cfg.dnc.clone() else {
         bail!(
             "{}: no [dnc] section: the link to the controller (baud, parity, flow, max_line_chars …) must be stated (docs/dnc.md)",
-            args.config.display()
+            args.field.config.display()
         );
     };
     let port = args
@@ -96,7 +92,7 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         .with_context(|| {
             format!(
                 "{}: dnc.port: no controller port (or --port)",
-                args.config.display()
+                args.field.config.display()
             )
         })?;
     let sender = args.sender_port.clone().or_else(|| dnc.sender_port.clone());
