@@ -13,8 +13,10 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use retrocomp::dnc::core::{CoreConfig, DncCore};
+use retrocomp::dnc::faults::StatusTx;
 use retrocomp::dnc::live::{EngineAtPoint, LiveCorrections};
 use retrocomp::dnc::shell::{DncIo, ProgramSource, run_dnc};
+use retrocomp_gateway::northbound::http::{Api, Limits, serve};
 use retrocomp_gateway::sources::spawn_sources;
 use retrocomp_model::Axis;
 
@@ -73,6 +75,26 @@ fn guard_limits(
         limits[ax.index()] = (s.max_correction_um, cap);
     }
     limits
+}
+
+/// The gateway's status endpoint on `[gateway] status_listen` (read routes only: a transfer takes
+/// no actions), fed with the transfer's snapshots.
+async fn serve_status(cfg: &retrocomp_gateway::config::FieldConfig) -> anyhow::Result<StatusTx> {
+    let listen: std::net::SocketAddr = cfg
+        .gateway
+        .status_listen
+        .parse()
+        .context("gateway.status_listen")?;
+    let (tx, rx) = tokio::sync::watch::channel(None);
+    let limits = Limits {
+        policy: cfg.gateway.listen_policy.clone(),
+        ..Limits::default()
+    };
+    let (bound, _task) = serve(listen, rx, Api::default(), limits)
+        .await
+        .with_context(|| format!("binding the status endpoint {listen} (gateway.status_listen)"))?;
+    eprintln!("dnc: status on http://{bound}/status and /metrics");
+    Ok(tx)
 }
 
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
@@ -146,6 +168,7 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     let summary = rt.block_on(async {
         let epoch = std::time::Instant::now();
         let feed = spawn_sources(&cfg, epoch).await?;
+        let status = serve_status(&cfg).await?;
         let mut core = DncCore::new(core_cfg, &live);
         let r = run_dnc(
             &dnc,
@@ -156,6 +179,7 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
             DncIo {
                 samples: Some(feed.samples),
                 epoch,
+                status: Some(status),
             },
             &mut log,
         )
@@ -172,6 +196,15 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         args.log.display()
     );
     if let Some((line, why)) = summary.interrupted {
+        // The correction travels inside the blocks: the control holds no register of the box's,
+        // only the blocks it has received (up to its buffer), the last of them carrying this.
+        match summary.last_correction {
+            Some((l, c)) => eprintln!(
+                "dnc: the control holds only the blocks it received; the last compensated one (line {l}) carries X {:.1} µm, Y {:.1} µm, Z {:.1} µm; no origin or offset register was touched",
+                c[0], c[1], c[2]
+            ),
+            None => eprintln!("dnc: no compensated block reached the control"),
+        }
         bail!(
             "transfer stopped: {why}\nresume with --resume-from {line} (the first block not completely sent)"
         );

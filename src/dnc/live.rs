@@ -152,6 +152,11 @@ impl LiveCorrections {
         self.inner.borrow().model_fault.clone()
     }
 
+    /// The correction the last block sent carried, per axis X, Y, Z (what the control holds), µm.
+    pub fn held_um(&self) -> [f64; 3] {
+        self.inner.borrow().held_um
+    }
+
     /// The guard refused the wanted correction of the last block.
     pub fn guard_refused(&self) -> bool {
         self.inner.borrow().guard_refused
