@@ -301,17 +301,7 @@ fn a_controller_that_never_resumes_is_a_stall_and_the_named_block_resumes_withou
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let stderr = retro.stderr.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        use std::io::BufRead;
-        for l in std::io::BufReader::new(stderr)
-            .lines()
-            .map_while(Result::ok)
-        {
-            let _ = tx.send(l);
-        }
-    });
+    let rx = stderr_lines(&mut retro);
     let mut err = Vec::new();
     let deadline = Instant::now() + Duration::from_secs(30);
     while !err.iter().any(|l: &String| l.contains("fault start")) {
@@ -350,11 +340,7 @@ fn a_controller_that_never_resumes_is_a_stall_and_the_named_block_resumes_withou
         .args(["--resume-from", &resume.to_string()])
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_ok(&out);
     controller.line(60);
     let got_second = std::fs::read_to_string(&second).unwrap();
     // Every source line once, in order, over the two transfers (X words carry corrections).
@@ -434,11 +420,7 @@ fn a_program_from_a_tcp_sender_is_passed_on_compensated() {
     std::io::Write::write_all(&mut conn, text.as_bytes()).unwrap();
     controller.line(60);
     let out = retro.wait_with_output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_ok(&out);
     let canon = rs274(&received).unwrap_or_else(|e| panic!("rs274: {e}"));
     let rows = log_rows(&log);
     assert_eq!(canon.len(), rows.len());
@@ -452,6 +434,15 @@ fn a_program_from_a_tcp_sender_is_passed_on_compensated() {
     for (m, r) in canon.iter().zip(&rows) {
         assert!((m.end_mm[0] - (r.x_mm + r.cx_um / 1000.0)).abs() < 0.15e-3);
     }
+}
+
+/// `retrocomp dnc` finished without error (its stderr otherwise).
+fn assert_ok(out: &std::process::Output) {
+    assert!(
+        out.status.success(),
+        "retrocomp dnc failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 /// `GET /metrics` on the box's status endpoint (`[gateway] status_listen` of `cfg`); None while it
