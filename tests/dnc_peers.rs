@@ -16,38 +16,9 @@ use std::time::{Duration, Instant};
 
 use linuxcnc_support::rs274;
 
-const MODEL: &str = r#"schema = 1
-[machine]
-name = "dnc-test"
-synthetic = true
-chain = "X F Y Z"
-tool_axis = "-z"
-[axes.x]
-travel_mm = [0.0, 400.0]
-[axes.y]
-travel_mm = [0.0, 300.0]
-[axes.z]
-travel_mm = [0.0, 300.0]
-[[tools]]
-name = "T1"
-offset_mm = [0.0, 0.0, 0.0]
-[[components]]
-name = "EXX"
-interpolation = "linear"
-positions_mm = [0.0, 400.0]
-forward_um = [0.0, 8.0]
-reverse_um = [-3.0, 5.0]
-[[sensors]]
-name = "spindle"
-reference_C = 20.0
-[[thermal]]
-name = "x_growth"
-target = "EXX"
-kind = "polynomial_dt"
-sensors = ["spindle"]
-e0_um = 0.0
-b_um_per_K = [2.0]
-"#;
+/// EXX forward 0 → 8 µm, reverse −3 → 5 µm over 0…400 mm, and 2 µm/K of spindle temperature
+/// above 20 °C (shared with the unit tests, `src/dnc/tests.rs`).
+const MODEL: &str = include_str!("peers/dnc_model.toml");
 
 fn field(dir: &Path, sensor: &Path, extra: &str) -> PathBuf {
     std::fs::write(dir.join("model.toml"), MODEL).unwrap();

@@ -271,38 +271,7 @@ fn a_lathe_in_diameter_mode_gets_the_radial_correction_twice_in_its_x_word() {
 
 /// The model of tests/dnc_peers.rs: EXX forward 0 → 8 µm, reverse −3 → 5 µm over 0…400 mm, and
 /// 2 µm/K of spindle temperature above 20 °C.
-const MODEL: &str = r#"schema = 1
-[machine]
-name = "dnc-unit"
-synthetic = true
-chain = "X F Y Z"
-tool_axis = "-z"
-[axes.x]
-travel_mm = [0.0, 400.0]
-[axes.y]
-travel_mm = [0.0, 300.0]
-[axes.z]
-travel_mm = [0.0, 300.0]
-[[tools]]
-name = "T1"
-offset_mm = [0.0, 0.0, 0.0]
-[[components]]
-name = "EXX"
-interpolation = "linear"
-positions_mm = [0.0, 400.0]
-forward_um = [0.0, 8.0]
-reverse_um = [-3.0, 5.0]
-[[sensors]]
-name = "spindle"
-reference_C = 20.0
-[[thermal]]
-name = "x_growth"
-target = "EXX"
-kind = "polynomial_dt"
-sensors = ["spindle"]
-e0_um = 0.0
-b_um_per_K = [2.0]
-"#;
+const MODEL: &str = include_str!("../../tests/peers/dnc_model.toml");
 
 const T_LIMITS: ChannelLimits = ChannelLimits {
     min: 0.0,
@@ -342,7 +311,7 @@ fn engine() -> Engine {
 
 fn model() -> Box<MachineModelAdapter> {
     Box::new(MachineModelAdapter::new(
-        MachineModel::from_toml_str(MODEL, "dnc-unit").unwrap(),
+        MachineModel::from_toml_str(MODEL, "dnc_model.toml").unwrap(),
     ))
 }
 
