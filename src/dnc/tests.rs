@@ -441,3 +441,82 @@ fn an_out_of_range_or_too_fast_temperature_is_refused_as_the_gateway_refuses_it(
     assert!((j.cx_um + 18.0).abs() < 0.05 + 1e-9, "{j:?}");
     assert!(j.dnc.is_empty() && j.gateway.is_empty(), "{j:?}");
 }
+
+#[test]
+fn the_transfers_faults_start_and_clear_in_the_published_status_and_metrics() {
+    use super::faults::DncFaults;
+    use super::shell::DncSummary;
+    let (tx, rx) = tokio::sync::watch::channel(None);
+    let mut faults = DncFaults::new(Some(tx));
+    let mut sum = DncSummary {
+        blocks_sent: 0,
+        stalls: 0,
+        model_faults: 0,
+        guard_limited: 0,
+        interrupted: None,
+        last_correction: None,
+    };
+    let lc = LiveCorrections::new(
+        Box::new(Drift {
+            um_per_s: 0.0,
+            um_per_mm: 0.01,
+            fail_after_s: 1.5,
+        }),
+        [(60.0, 50.0), (0.0, 0.0), (0.0, 0.0)],
+    );
+    let sink_faults = || {
+        let s = rx.borrow().clone().unwrap();
+        let k = s.sink.clone().unwrap();
+        assert_eq!(k.kind, "dnc");
+        assert_eq!(
+            s.active_faults, k.faults,
+            "the transfer's faults are the box's"
+        );
+        (
+            k.faults
+                .into_iter()
+                .map(|(src, kind, _)| (src, kind))
+                .collect::<Vec<_>>(),
+            s.prometheus(),
+        )
+    };
+    faults.stall(
+        Some(StallEdge::Started {
+            since_s: 0.5,
+            line: 2,
+        }),
+        &mut sum,
+        5.6,
+    );
+    faults.publish(&lc, &sum, 5.6);
+    let (f, metrics) = sink_faults();
+    assert_eq!(f, vec![("sink.dnc".to_string(), FaultKind::Disconnected)]);
+    assert!(
+        metrics.contains(r#"retrocomp_sink_fault_active{source="sink.dnc",kind="disconnected"} 1"#),
+        "{metrics}"
+    );
+    faults.stall(Some(StallEdge::Cleared { after_s: 7.0 }), &mut sum, 7.0);
+    faults.publish(&lc, &sum, 7.0);
+    assert_eq!(sink_faults().0, vec![], "cleared at XON");
+    // Two blocks, the second one after the model's inputs failed: sent with the held value.
+    let mut core = DncCore::new(cfg(), &lc);
+    let (_, log) = drain(&mut core, "G1 X100 F100\nX300", 2.0);
+    faults.block(&lc, &mut sum, log[1].line, 8.0);
+    faults.line_refused(8.0);
+    faults.publish(&lc, &sum, 8.0);
+    let (f, metrics) = sink_faults();
+    assert_eq!(
+        f,
+        vec![
+            ("sink.dnc.line".to_string(), FaultKind::OutOfRange),
+            ("sink.dnc.model".to_string(), FaultKind::Decode),
+        ]
+    );
+    assert!(metrics.contains("retrocomp_faults_active 2"), "{metrics}");
+    assert_eq!((sum.stalls, sum.model_faults), (1, 1));
+    let held = rx.borrow().clone().unwrap().sink.clone().unwrap().held_um;
+    assert!(
+        held.is_empty(),
+        "a source without axes names none: {held:?}"
+    );
+}
