@@ -30,7 +30,7 @@ pub enum ProgramSource {
 }
 
 /// How a transfer ended.
-#[derive(Debug)]
+#[derive(Debug, Default)]
 pub struct DncSummary {
     pub blocks_sent: u64,
     pub stalls: u64,
@@ -129,14 +129,7 @@ pub async fn run_dnc(
     let (mut lines, mut hold) = open_source(source, s).await?;
     let mut port = port;
     writeln!(log, "{LOG_HEADER}")?;
-    let mut sum = DncSummary {
-        blocks_sent: 0,
-        stalls: 0,
-        model_faults: 0,
-        guard_limited: 0,
-        interrupted: None,
-        last_correction: None,
-    };
+    let mut sum = DncSummary::default();
     let (mut line_no, mut sender_held) = (0u64, false);
     let mut buf = [0u8; 256];
     // One character on the wire: start bit, data bits, parity, stop bits.

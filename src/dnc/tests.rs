@@ -207,16 +207,21 @@ fn resume_sends_from_the_chosen_block_with_the_modal_state_of_the_ones_before() 
     assert!(out.starts_with("X"), "{out:?}");
 }
 
-#[test]
-fn a_model_without_fresh_inputs_holds_the_last_correction() {
-    let lc = LiveCorrections::new(
+/// −0.01 µm per mm of X, and no model value after 1.5 s.
+fn failing_after_1_5_s() -> LiveCorrections {
+    LiveCorrections::new(
         Box::new(Drift {
             um_per_s: 0.0,
             um_per_mm: 0.01,
             fail_after_s: 1.5,
         }),
         [(60.0, 50.0), (0.0, 0.0), (0.0, 0.0)],
-    );
+    )
+}
+
+#[test]
+fn a_model_without_fresh_inputs_holds_the_last_correction() {
+    let lc = failing_after_1_5_s();
     let mut core = DncCore::new(cfg(), &lc);
     let (_, log) = drain(&mut core, "G1 X100 F100\nX300", 2.0);
     assert_eq!(log[0].applied.unwrap().correction_um[0], -1.0);
@@ -238,23 +243,15 @@ fn leader_and_trailer_frame_the_program() {
     assert_eq!(out, "\0\0\0%\nM30\n%\n\0\0");
 }
 
-/// X positions mm, radial: 10 µm per 100 mm, so a diameter mistaken for a radius shows.
-struct Scale;
-
-impl CorrectionAt for Scale {
-    fn correction_um(
-        &mut self,
-        pos_mm: [f64; 3],
-        _dirs: [Approach; 3],
-        _now_s: f64,
-    ) -> Result<[Option<f64>; 3], String> {
-        Ok([Some(-0.1 * pos_mm[0]), None, None])
-    }
-}
-
 #[test]
 fn a_lathe_in_diameter_mode_gets_the_radial_correction_twice_in_its_x_word() {
-    let lc = LiveCorrections::new(Box::new(Scale), [(60.0, 50.0), (0.0, 0.0), (0.0, 0.0)]);
+    // 10 µm per 100 mm of radius, so a diameter taken for a radius shows.
+    let scale = Drift {
+        um_per_s: 0.0,
+        um_per_mm: 0.1,
+        fail_after_s: f64::INFINITY,
+    };
+    let lc = LiveCorrections::new(Box::new(scale), [(60.0, 50.0), (0.0, 0.0), (0.0, 0.0)]);
     let mut c = cfg();
     c.diameter_x = true;
     let mut core = DncCore::new(c, &lc);
@@ -386,15 +383,20 @@ fn block(
     }
 }
 
+/// 25 °C at 0 s, then the first block at `t_s`: X350 approached forward, EXX 8·350/400 = 7 µm +
+/// 5 K × 2 µm/K = 17 µm → −17 µm, no fault on either side.
+fn first_block_at_x350(core: &mut DncCore<'_>, lc: &LiveCorrections, gw: &mut Gateway, t_s: f64) {
+    feed(lc, gw, temp(0.0, 25.0));
+    let j = block(core, lc, gw, (1, "G90 G1 X350 F100"), t_s);
+    assert!((j.cx_um + 17.0).abs() < 0.05 + 1e-9, "{j:?}");
+    assert!(j.dnc.is_empty() && j.gateway.is_empty(), "{j:?}");
+}
+
 #[test]
 fn a_stale_temperature_is_refused_as_the_gateway_refuses_it_and_the_block_holds() {
     let (lc, mut gw) = (dnc_live(), gateway());
     let mut core = DncCore::new(cfg(), &lc);
-    feed(&lc, &mut gw, temp(0.0, 25.0));
-    // X350 approached forward: EXX 8·350/400 = 7 µm + 5 K × 2 µm/K = 17 µm → −17 µm.
-    let j = block(&mut core, &lc, &mut gw, (1, "G90 G1 X350 F100"), 0.5);
-    assert!((j.cx_um + 17.0).abs() < 0.05 + 1e-9, "{j:?}");
-    assert!(j.dnc.is_empty() && j.gateway.is_empty(), "{j:?}");
+    first_block_at_x350(&mut core, &lc, &mut gw, 0.5);
     // No temperature for 4 s (stale after 2 s): refused, the block carries −17 µm again.
     let j = block(&mut core, &lc, &mut gw, (2, "X50"), 4.0);
     assert_eq!(j.cx_um, -17.0, "{j:?}");
@@ -420,9 +422,7 @@ fn a_stale_temperature_is_refused_as_the_gateway_refuses_it_and_the_block_holds(
 fn an_out_of_range_or_too_fast_temperature_is_refused_as_the_gateway_refuses_it() {
     let (lc, mut gw) = (dnc_live(), gateway());
     let mut core = DncCore::new(cfg(), &lc);
-    feed(&lc, &mut gw, temp(0.0, 25.0));
-    let j = block(&mut core, &lc, &mut gw, (1, "G90 G1 X350 F100"), 0.2);
-    assert!((j.cx_um + 17.0).abs() < 0.05 + 1e-9, "{j:?}");
+    first_block_at_x350(&mut core, &lc, &mut gw, 0.2);
     // 500 °C is beyond the channel's 0…80: never used, the block holds −17 µm.
     feed(&lc, &mut gw, temp(0.5, 500.0));
     let j = block(&mut core, &lc, &mut gw, (2, "X350.0"), 0.6);
@@ -448,22 +448,8 @@ fn the_transfers_faults_start_and_clear_in_the_published_status_and_metrics() {
     use super::shell::DncSummary;
     let (tx, rx) = tokio::sync::watch::channel(None);
     let mut faults = DncFaults::new(Some(tx));
-    let mut sum = DncSummary {
-        blocks_sent: 0,
-        stalls: 0,
-        model_faults: 0,
-        guard_limited: 0,
-        interrupted: None,
-        last_correction: None,
-    };
-    let lc = LiveCorrections::new(
-        Box::new(Drift {
-            um_per_s: 0.0,
-            um_per_mm: 0.01,
-            fail_after_s: 1.5,
-        }),
-        [(60.0, 50.0), (0.0, 0.0), (0.0, 0.0)],
-    );
+    let mut sum = DncSummary::default();
+    let lc = failing_after_1_5_s();
     let sink_faults = || {
         let s = rx.borrow().clone().unwrap();
         let k = s.sink.clone().unwrap();
