@@ -153,12 +153,14 @@ fn write_field(dir: &Path, limits: [f64; 5], mb_port: u16, channels: &str, tail:
         switch_time_s,
         period_s,
     ] = limits;
+    let status_port = peers::free_port();
     let text = format!(
         r#"[gateway]
 name = "warmup"
 cycle_ms = 5
 thermal_period_s = {thermal_period_s}
 realtime_priority = 20
+status_listen = "127.0.0.1:{status_port}"
 [safety]
 max_correction_um = 100.0
 max_change_um_per_cycle = {cap_um}
@@ -229,7 +231,7 @@ pub(crate) fn field_toml(dir: &Path, mb_port: u16) -> PathBuf {
     let x = r#"{ channel = "x_mm", kind = "input", address = 0, type = "int16", scale = 0.1 },"#;
     let tail = "[dnc]\nbaud = 19200\nparity = \"none\"\ndata_bits = 8\nstop_bits = 1\n\
                 flow = \"xon_xoff\"\nmax_line_chars = 40\nmax_change_um_per_block = 10.0\n";
-    write_field(dir, [1.0, 0.5, 20.0, 0.1, 0.05], mb_port, x, tail)
+    write_field(dir, [0.05, 0.5, 20.0, 0.1, 0.05], mb_port, x, tail)
 }
 
 /// Part errors (3-D length, µm) at the dwell ends of `dwell_ends.csv`, in program order.
