@@ -2,7 +2,7 @@
 //! boxes publish Sparkplug B through the same publisher as `retrocomp run` (crates/gateway/src/northbound/telemetry) to one
 //! Mosquitto on loopback, and one `retrocomp fleet` host (its MQTT client and view,
 //! `retrocomp_fleet::fleet_client::FleetClient`, QoS 1) counts every NDATA per edge node and its seq gaps.
-//! A box is lightweight: a task that updates a status snapshot at twice the telemetry rate (so
+//! A box is lightweight (crates/fleet/src/load.rs): a task that updates a status snapshot at twice the telemetry rate (so
 //! every sampler tick has a change to send) instead of a whole gateway.
 //! For each (boxes, rate) step: after the window every publisher *finishes* (sends its queue until
 //! the broker acknowledged all of it, then NDEATH), so "produced" is final; then the fleet must
@@ -13,46 +13,15 @@
 //! Run: `cargo bench --profile test --bench telemetry_fleet -- 200x10 400x10 --seconds 15`
 //! (needs mosquitto: scripts/setup-peers.sh).
 
-use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use retrocomp_fleet::fleet_client::FleetClient;
-use retrocomp_gateway::Mode;
+use retrocomp_fleet::load::snapshot;
 use retrocomp_gateway::northbound::telemetry::{self, MqttConfig, PublisherInputs};
-use retrocomp_gateway::status::{AxisStatus, StatusSnapshot};
-use retrocomp_model::approach::Approach;
 use tokio::sync::watch;
 
 const GROUP: &str = "fleet";
-
-fn snapshot(k: u64) -> StatusSnapshot {
-    let axes = ["x", "y", "z"]
-        .iter()
-        .map(|a| AxisStatus {
-            axis: a.to_string(),
-            position_mm: Some(k as f64 * 0.5),
-            direction: Some(Approach::Forward),
-            weight_forward: 1.0,
-            target_um: Some(-(k as f64 % 50.0)),
-            applied_um: -(k as f64 % 50.0),
-            mode: Mode::Tracking,
-            terms_um: BTreeMap::from([
-                ("geometric".to_string(), -(k as f64 % 30.0)),
-                ("thermal".to_string(), -(k as f64 % 20.0)),
-            ]),
-            clamp_hits: 0,
-            cap_hits: 0,
-        })
-        .collect();
-    StatusSnapshot {
-        t_s: k as f64 * 0.001,
-        cycles: k,
-        enabled: true,
-        axes,
-        ..Default::default()
-    }
-}
 
 fn cpu_ticks(pid: u32) -> u64 {
     // utime + stime of /proc/<pid>/stat (fields 14, 15), clock ticks.

@@ -19,6 +19,7 @@ use std::collections::{BTreeMap, HashMap, VecDeque};
 use prost::Message;
 use serde::Serialize;
 
+use crate::latency::LatencyHistogram;
 use retrocomp_gateway::northbound::telemetry::rebirth::RebirthLimiter;
 use retrocomp_gateway::northbound::telemetry::sparkplug::{
     self, BD_SEQ, DataType, Kind, Metric, Payload, REBIRTH, Value,
@@ -250,6 +251,8 @@ pub struct FleetView {
     rebirth_interval_ms: u64,
     /// (topic, payload) of NCMDs to publish.
     outbox: VecDeque<(String, Vec<u8>)>,
+    /// End-to-end latency of every NDATA with a timestamp (arrival minus its timestamp).
+    pub ndata_latency: LatencyHistogram,
 }
 
 impl Default for FleetView {
@@ -281,6 +284,7 @@ impl FleetView {
             nodes: BTreeMap::new(),
             rebirth_interval_ms,
             outbox: VecDeque::new(),
+            ndata_latency: LatencyHistogram::default(),
         }
     }
 
@@ -317,7 +321,12 @@ impl FleetView {
                 false
             }
             "NDEATH" => node.death(bd),
-            _ => node.data(&p),
+            _ => {
+                if let Some(t) = p.timestamp {
+                    self.ndata_latency.record(now_ms.saturating_sub(t));
+                }
+                node.data(&p)
+            }
         };
         if rebirth && node.want_rebirth(now_ms) {
             self.outbox.push_back((
