@@ -16,24 +16,16 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+#[path = "../tests/peers/fleet_processes.rs"]
+mod fleet_processes;
+
+use fleet_processes::cpu_ticks;
 use retrocomp_fleet::fleet_client::FleetClient;
 use retrocomp_fleet::load::snapshot;
 use retrocomp_gateway::northbound::telemetry::{self, MqttConfig, PublisherInputs};
 use tokio::sync::watch;
 
 const GROUP: &str = "fleet";
-
-fn cpu_ticks(pid: u32) -> u64 {
-    // utime + stime of /proc/<pid>/stat (fields 14, 15), clock ticks.
-    std::fs::read_to_string(format!("/proc/{pid}/stat"))
-        .ok()
-        .and_then(|s| {
-            let rest = s.rsplit_once(')')?.1;
-            let f: Vec<&str> = rest.split_whitespace().collect();
-            Some(f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?)
-        })
-        .unwrap_or(0)
-}
 
 /// What the fleet host has seen so far: NDATA received, seq gaps, nodes, nodes offline.
 #[derive(Clone, Copy, Default)]

@@ -2,11 +2,13 @@
 //! test (benches/fleet_processes.rs and its test in tests/telemetry_mqtt.rs), so boxes and the
 //! fleet host run as separate OS processes with exactly the code that ships.
 //! - `boxes`: K simulated boxes in this process (crates/fleet/src/load.rs), each the real Sparkplug
-//!   publisher over TCP or TLS, for `--seconds`; then every box finishes (queue acknowledged,
-//!   NDEATH) and one JSON line reports `{"boxes", "produced", "dropped", "left"}`.
+//!   publisher over TCP or TLS; once all are connected and born one JSON line `{"connected": N}`
+//!   (with `--wait-go`, then a line on stdin), then `--seconds` more; then every box finishes (queue acknowledged, NDEATH) and one JSON
+//!   line reports `{"boxes", "produced", "dropped", "left"}`.
 //! - `host`: the fleet host's MQTT client and view (crates/fleet/src/fleet_client.rs), printing its
 //!   totals as one JSON line every `--every-ms` (`{"subscribed", "ndata", "gaps", "nodes",
-//!   "offline", "births", "latency": {"n", "p50_ms", "p99_ms", "max_ms"}}`) until killed.
+//!   "offline", "births", "latency": {"n", "p50_ms", "p99_ms", "max_ms"}}`) until killed; a
+//!   line `reset` on its stdin restarts the latency from records sampled from then on.
 //!
 //! A hidden subcommand rather than a second binary: the tests and benches reach it as
 //! `CARGO_BIN_EXE_retrocomp` without a second statically linked executable in every build.
@@ -18,6 +20,7 @@ use retrocomp_fleet::fleet_client::FleetClient;
 use retrocomp_fleet::load::{self, HostTotals};
 use retrocomp_gateway::northbound::telemetry::MqttConfig;
 use retrocomp_gateway::northbound::telemetry::config::TlsConfig;
+use retrocomp_gateway::northbound::telemetry::publisher::now_ms;
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
@@ -68,7 +71,10 @@ struct BoxesArgs {
     /// How long the boxes publish, s (then they finish).
     #[arg(long, default_value_t = 60.0)]
     seconds: f64,
-    /// How long each box may take to finish sending its queue, s.
+    /// After the `connected` line, wait for a line on stdin before the `--seconds` start.
+    #[arg(long)]
+    wait_go: bool,
+    /// How long each box may take to connect, and to finish sending its queue, s.
     #[arg(long, default_value_t = 120.0)]
     finish_s: f64,
 }
@@ -101,7 +107,24 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
             cfg.rate_hz = a.rate_hz;
             cfg.tls = a.link.tls();
             let grace = Duration::from_secs_f64(a.finish_s.max(0.0));
-            let r = rt.block_on(load::run_boxes(&cfg, a.first, a.count, a.seconds, grace))?;
+            let wait_go = a.wait_go;
+            let connected = |n: usize| async move {
+                println!("{}", serde_json::json!({ "connected": n }));
+                if wait_go {
+                    // Off the runtime's only thread: the boxes keep publishing meanwhile.
+                    let _ = tokio::task::spawn_blocking(|| {
+                        std::io::stdin().read_line(&mut String::new())
+                    })
+                    .await;
+                }
+            };
+            let r = rt.block_on(load::run_boxes(
+                &cfg,
+                (a.first, a.count),
+                a.seconds,
+                grace,
+                connected,
+            ))?;
             println!("{}", serde_json::to_string(&r)?);
             Ok(())
         }
@@ -109,8 +132,19 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
             let tls = a.link.tls();
             let mut fc = FleetClient::with_tls(&a.link.broker, Some(&a.link.group), tls.as_ref())?;
             let mut every = tokio::time::interval(Duration::from_millis(a.every_ms.max(1)));
+            // A line `reset` on stdin starts the latency histogram again (from records sampled
+            // from now on): the driver sends it once every box is connected.
+            let (reset_tx, mut reset) = tokio::sync::mpsc::unbounded_channel();
+            std::thread::spawn(move || {
+                for l in std::io::stdin().lines().map_while(Result::ok) {
+                    if l.trim() == "reset" && reset_tx.send(()).is_err() {
+                        break;
+                    }
+                }
+            });
             loop {
                 tokio::select! {
+                    Some(()) = reset.recv() => fc.view.reset_latency(now_ms()),
                     r = fc.poll() => if let Err(e) = r { tracing::warn!(%e, "fleet-load host") },
                     _ = every.tick() => {
                         println!("{}", serde_json::to_string(&HostTotals::of(&fc.view, fc.subscribed))?);

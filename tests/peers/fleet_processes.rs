@@ -2,14 +2,14 @@
 //! tests/telemetry_mqtt.rs): one fleet host process (`retrocomp fleet-load host`: the fleet
 //! host's MQTT client and view) and P box processes of K boxes each (`retrocomp fleet-load boxes`:
 //! the real Sparkplug publisher per box), all against one broker, over TLS when a CA is given.
-//! After the window every box finishes (its queue acknowledged, then NDEATH) and reports what it
+//! The window starts once every box is connected and born (the host's latency restarts there); after it every box finishes (its queue acknowledged, then NDEATH) and reports what it
 //! produced; then the host must have every record and every NDEATH. CPU shares are % of one core
 //! from /proc (utime + stime); latencies ms (host arrival − the NDATA's Sparkplug timestamp).
 #![allow(dead_code)]
 
 use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, ChildStdout, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -63,6 +63,9 @@ pub(crate) struct Load {
 #[derive(Clone, Debug)]
 pub(crate) struct Outcome {
     pub boxes: usize,
+    /// Boxes connected and born before the window, and how long that took from the spawn, s.
+    pub connected: usize,
+    pub connect_s: f64,
     /// Summed over the box processes.
     pub sent: BoxesReport,
     /// What the host had seen at the end.
@@ -71,6 +74,8 @@ pub(crate) struct Outcome {
     /// Broker and host CPU over the window, % of one core.
     pub broker_cpu_pct: f64,
     pub host_cpu_pct: f64,
+    /// All box processes together over the window, % of one core.
+    pub boxes_cpu_pct: f64,
     /// The whole machine over the window, % of all its cores (this load and anything else).
     pub machine_busy_pct: f64,
     /// From the end of the window until the boxes finished and the host had everything (or
@@ -125,6 +130,7 @@ pub(crate) fn run(
         Command::new(exe)
             .args(["fleet-load", "host", "--every-ms", "200"])
             .args(link_args(broker, &load.group, ca))
+            .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .spawn()
             .expect("start the fleet-load host"),
@@ -151,41 +157,65 @@ pub(crate) fn run(
         std::thread::sleep(Duration::from_millis(50));
     }
 
-    let (cpu0, host0, m0) = (
+    // One process at a time, each once the one before is connected and born: a plant's boxes do
+    // not all open their TLS sessions in the same millisecond. The window starts once every box
+    // is (the connect storm is not the steady state; its records still count for loss and gaps).
+    let spawned = Instant::now();
+    let mut boxes: Vec<(Killed, BufReader<ChildStdout>)> = Vec::with_capacity(load.procs);
+    let mut connected = 0;
+    for p in 0..load.procs {
+        let first = (p * load.boxes_per_proc).to_string();
+        let count = load.boxes_per_proc.to_string();
+        let rate = load.rate_hz.to_string();
+        let secs = load.seconds.to_string();
+        let mut c = Killed(
+            Command::new(exe)
+                .args(["fleet-load", "boxes", "--wait-go", "--first", &first])
+                .args(["--count", &count, "--rate-hz", &rate, "--seconds", &secs])
+                .args(link_args(broker, &load.group, ca))
+                .stdin(Stdio::piped())
+                .stdout(Stdio::piped())
+                .spawn()
+                .expect("start a fleet-load boxes process"),
+        );
+        let mut out = BufReader::new(c.0.stdout.take().expect("piped"));
+        let mut line = String::new();
+        out.read_line(&mut line).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&line).expect("a connected line");
+        connected += v["connected"].as_u64().expect("connected: N") as usize;
+        boxes.push((c, out));
+    }
+    let connect_s = spawned.elapsed().as_secs_f64();
+    let mut stdin = host.0.stdin.take().expect("piped");
+    std::io::Write::write_all(&mut stdin, b"reset\n").unwrap();
+    let ticks = |boxes: &[(Killed, BufReader<ChildStdout>)]| -> u64 {
+        boxes.iter().map(|(b, _)| cpu_ticks(b.0.id())).sum()
+    };
+    let (cpu0, host0, boxes0, m0) = (
         cpu_ticks(broker_pid),
         cpu_ticks(host.0.id()),
+        ticks(&boxes),
         machine_ticks(),
     );
+    for (b, _) in &mut boxes {
+        let go = b.0.stdin.as_mut().expect("piped");
+        std::io::Write::write_all(go, b"go\n").unwrap();
+    }
     let t0 = Instant::now();
-    let mut boxes: Vec<Killed> = (0..load.procs)
-        .map(|p| {
-            let first = (p * load.boxes_per_proc).to_string();
-            let count = load.boxes_per_proc.to_string();
-            let rate = load.rate_hz.to_string();
-            let secs = load.seconds.to_string();
-            Killed(
-                Command::new(exe)
-                    .args(["fleet-load", "boxes", "--first", &first, "--count", &count])
-                    .args(["--rate-hz", &rate, "--seconds", &secs])
-                    .args(link_args(broker, &load.group, ca))
-                    .stdout(Stdio::piped())
-                    .spawn()
-                    .expect("start a fleet-load boxes process"),
-            )
-        })
-        .collect();
     std::thread::sleep(Duration::from_secs_f64(load.seconds));
     let window_s = t0.elapsed().as_secs_f64();
-    let (cpu1, host1, m1) = (
+    // Read before the box processes exit (they finish right after their own window).
+    let (cpu1, host1, boxes1, m1) = (
         cpu_ticks(broker_pid),
         cpu_ticks(host.0.id()),
+        ticks(&boxes),
         machine_ticks(),
     );
 
     let mut sent = BoxesReport::default();
-    for b in &mut boxes {
+    for (b, o) in &mut boxes {
         let mut out = String::new();
-        std::io::Read::read_to_string(b.0.stdout.as_mut().expect("piped"), &mut out).unwrap();
+        std::io::Read::read_to_string(o, &mut out).unwrap();
         let st = b.0.wait().unwrap();
         assert!(st.success(), "a fleet-load boxes process failed ({st})");
         let r: BoxesReport = serde_json::from_str(out.trim()).expect("a boxes report line");
@@ -210,6 +240,9 @@ pub(crate) fn run(
         window_s,
         broker_cpu_pct: pct(cpu0, cpu1),
         host_cpu_pct: pct(host0, host1),
+        boxes_cpu_pct: pct(boxes0, boxes1),
+        connected,
+        connect_s,
         machine_busy_pct: 100.0 * (m1.0 - m0.0) as f64 / (m1.1 - m0.1).max(1) as f64,
         drain_s,
     }

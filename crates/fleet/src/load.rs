@@ -60,14 +60,16 @@ pub struct BoxesReport {
     pub left: u64,
 }
 
-/// Runs `count` boxes named `box-<first>` … for `seconds`, each a real publisher of `cfg`'s broker,
-/// group, rate and TLS, then finishes them all (up to `grace` each) and reports their counters.
-pub async fn run_boxes(
+/// Runs `count` boxes named `box-<first>` …, each a real publisher of `cfg`'s broker, group, rate
+/// and TLS; once every box is connected and born (or after `grace`) awaits `on_connected` with how
+/// many are (a driver can hold the window there), runs `seconds` more, then finishes them all (up
+/// to `grace` each) and reports their counters.
+pub async fn run_boxes<F: Future<Output = ()>>(
     cfg: &MqttConfig,
-    first: usize,
-    count: usize,
+    (first, count): (usize, usize),
     seconds: f64,
     grace: Duration,
+    on_connected: impl FnOnce(usize) -> F,
 ) -> Result<BoxesReport, TelemetryError> {
     let mut pubs = Vec::with_capacity(count);
     let mut feeders = Vec::with_capacity(count);
@@ -96,6 +98,14 @@ pub async fn run_boxes(
         }));
         pubs.push(p);
     }
+    let mut connected = 0;
+    let until = tokio::time::Instant::now() + grace;
+    for p in &pubs {
+        let mut st = p.status.clone();
+        let born = tokio::time::timeout_at(until, st.wait_for(|s| s.connected)).await;
+        connected += usize::from(matches!(born, Ok(Ok(_))));
+    }
+    on_connected(connected).await;
     tokio::time::sleep(Duration::from_secs_f64(seconds)).await;
     for f in &feeders {
         f.abort();
