@@ -26,7 +26,9 @@
 //! Run: `cargo bench --profile test --bench fleet_processes -- 20x100 --seconds 60`
 //! (`PxK`: P processes of K boxes; `--rate-hz R`, default 10; `--exe PATH`: another build of
 //! `retrocomp`, e.g. target/release/retrocomp; `--max-queued N|default`: the broker's
-//! `max_queued_messages`, default 1000000 as docs/fleet.md advises for a fleet). Needs mosquitto and openssl: scripts/setup-peers.sh.
+//! `max_queued_messages`, default 1000000 as docs/fleet.md advises for a fleet; `--boxes-nice N`:
+//! the box processes' niceness, default 10 — they stand for boxes on machines of their own, so on
+//! this shared machine they yield to the broker and the host under test). Needs mosquitto and openssl: scripts/setup-peers.sh.
 
 #[path = "../tests/peers/fleet_processes.rs"]
 mod fleet_processes;
@@ -95,6 +97,8 @@ fn main() {
     let (mut seconds, mut rate_hz) = (60.0, 10.0);
     let mut exe = PathBuf::from(env!("CARGO_BIN_EXE_retrocomp"));
     let (mut until_saturated, mut step_procs) = (false, 10);
+    // Box processes stand for boxes on machines of their own: they yield to the broker and host.
+    let mut boxes_nice = 10;
     // The fleet setting of docs/fleet.md ("Broker setting for a fleet"): room for the host's
     // backlog, instead of Mosquitto's default 1000 per client.
     let mut max_queued: Option<u64> = Some(1_000_000);
@@ -109,6 +113,9 @@ fn main() {
             "--rate-hz" => rate_hz = value("--rate-hz").parse().expect("--rate-hz R"),
             "--exe" => exe = value("--exe").into(),
             "--until-saturated" => until_saturated = true,
+            "--boxes-nice" => {
+                boxes_nice = value("--boxes-nice").parse().expect("--boxes-nice 0..19")
+            }
             "--max-queued" => {
                 let v = value("--max-queued");
                 max_queued = (v != "default").then(|| v.parse().expect("--max-queued N|default"));
@@ -171,6 +178,7 @@ fn main() {
             rate_hz,
             seconds,
             group: format!("load-{n}"),
+            boxes_nice,
         };
         let o = fleet_processes::run(&exe, &addr, broker.pid(), Some(&ca), &load);
         print_row(&load, &o);

@@ -310,6 +310,7 @@ fn boxes_as_separate_processes_over_tls_lose_nothing() {
         rate_hz: 10.0,
         seconds: 5.0,
         group: "fleet-tls".into(),
+        boxes_nice: 0,
     };
     let exe = std::path::Path::new(env!("CARGO_BIN_EXE_retrocomp"));
     let o = fleet_processes::run(

@@ -58,6 +58,9 @@ pub(crate) struct Load {
     pub seconds: f64,
     /// Sparkplug group (a new one per load, so loads on one broker do not mix).
     pub group: String,
+    /// Niceness of the box processes (`nice -n`): they stand for boxes on machines of their own,
+    /// so they yield to the broker and the host under test on this shared machine.
+    pub boxes_nice: u8,
 }
 
 #[derive(Clone, Debug)]
@@ -168,8 +171,11 @@ pub(crate) fn run(
         let count = load.boxes_per_proc.to_string();
         let rate = load.rate_hz.to_string();
         let secs = load.seconds.to_string();
+        let nice = load.boxes_nice.to_string();
         let mut c = Killed(
-            Command::new(exe)
+            Command::new("nice")
+                .args(["-n", &nice])
+                .arg(exe)
                 .args(["fleet-load", "boxes", "--wait-go", "--first", &first])
                 .args(["--count", &count, "--rate-hz", &rate, "--seconds", &secs])
                 .args(link_args(broker, &load.group, ca))
