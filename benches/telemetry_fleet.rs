@@ -13,7 +13,6 @@
 //! Run: `cargo bench --profile test --bench telemetry_fleet -- 200x10 400x10 --seconds 15`
 //! (needs mosquitto: scripts/setup-peers.sh).
 
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 #[path = "../tests/peers/fleet_processes.rs"]
@@ -21,7 +20,7 @@ mod fleet_processes;
 
 use fleet_processes::cpu_ticks;
 use retrocomp_fleet::fleet_client::FleetClient;
-use retrocomp_fleet::load::snapshot;
+use retrocomp_fleet::load::feed;
 use retrocomp_gateway::northbound::telemetry::{self, MqttConfig, PublisherInputs};
 use tokio::sync::watch;
 
@@ -83,16 +82,7 @@ async fn step(port: u16, broker_pid: u32, boxes: usize, rate_hz: f64, seconds: f
             },
         )
         .unwrap();
-        let period = Duration::from_secs_f64(0.5 / rate_hz);
-        feeders.push(tokio::spawn(async move {
-            let mut tick = tokio::time::interval(period);
-            let mut k = 0;
-            loop {
-                tick.tick().await;
-                k += 1;
-                tx.send_replace(Some(Arc::new(snapshot(k))));
-            }
-        }));
+        feeders.push(feed(tx, rate_hz));
         pubs.push(p);
     }
     let cpu0 = cpu_ticks(broker_pid);

@@ -50,6 +50,24 @@ pub fn snapshot(k: u64) -> StatusSnapshot {
     }
 }
 
+/// A simulated box: a task that sends [`snapshot`] 1, 2, … to a publisher's status watch at twice
+/// its telemetry rate `rate_hz`, until aborted.
+pub fn feed(
+    tx: watch::Sender<Option<Arc<StatusSnapshot>>>,
+    rate_hz: f64,
+) -> tokio::task::JoinHandle<()> {
+    let period = Duration::from_secs_f64(0.5 / rate_hz);
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(period);
+        let mut k = 0;
+        loop {
+            tick.tick().await;
+            k += 1;
+            tx.send_replace(Some(Arc::new(snapshot(k))));
+        }
+    })
+}
+
 /// What a set of simulated boxes did, once every publisher finished (its queue acknowledged by
 /// the broker, then NDEATH): records produced, dropped by a full queue, and left unsent.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -86,16 +104,7 @@ pub async fn run_boxes<F: Future<Output = ()>>(
                 declared: Default::default(),
             },
         )?;
-        let period = Duration::from_secs_f64(0.5 / cfg.rate_hz);
-        feeders.push(tokio::spawn(async move {
-            let mut tick = tokio::time::interval(period);
-            let mut k = 0;
-            loop {
-                tick.tick().await;
-                k += 1;
-                tx.send_replace(Some(Arc::new(snapshot(k))));
-            }
-        }));
+        feeders.push(feed(tx, cfg.rate_hz));
         pubs.push(p);
     }
     let mut connected = 0;
