@@ -114,7 +114,7 @@ fn main() {
             "--exe" => exe = value("--exe").into(),
             "--until-saturated" => until_saturated = true,
             "--boxes-nice" => {
-                boxes_nice = value("--boxes-nice").parse().expect("--boxes-nice 0..19")
+                boxes_nice = value("--boxes-nice").parse().expect("--boxes-nice 0..19");
             }
             "--max-queued" => {
                 let v = value("--max-queued");
