@@ -26,7 +26,8 @@
 //! Run: `cargo bench --profile test --bench fleet_processes -- 20x100 --seconds 60`
 //! (`PxK`: P processes of K boxes; `--rate-hz R`, default 10; `--exe PATH`: another build of
 //! `retrocomp`, e.g. target/release/retrocomp; `--max-queued N|default`: the broker's
-//! `max_queued_messages`, default 1000000 as docs/fleet.md advises for a fleet; `--boxes-nice N`:
+//! `max_queued_messages`, default 1000000 as docs/fleet.md advises for a fleet; `--max-inflight
+//! N|default`: its `max_inflight_messages`, default Mosquitto's 20; `--boxes-nice N`:
 //! the box processes' niceness, default 10 — they stand for boxes on machines of their own, so on
 //! this shared machine they yield to the broker and the host under test). Needs mosquitto and openssl: scripts/setup-peers.sh.
 
@@ -102,6 +103,9 @@ fn main() {
     // The fleet setting of docs/fleet.md ("Broker setting for a fleet"): room for the host's
     // backlog, instead of Mosquitto's default 1000 per client.
     let mut max_queued: Option<u64> = Some(1_000_000);
+    // QoS 1 messages in flight to one client (Mosquitto's default 20): the broker → host leg waits
+    // for the host's PUBACK every 20 messages, a wake-up of both processes on a busy machine.
+    let mut max_inflight: Option<u64> = None;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         let mut value = |name: &str| {
@@ -115,6 +119,11 @@ fn main() {
             "--until-saturated" => until_saturated = true,
             "--boxes-nice" => {
                 boxes_nice = value("--boxes-nice").parse().expect("--boxes-nice 0..19");
+            }
+            "--max-inflight" => {
+                let v = value("--max-inflight");
+                max_inflight =
+                    (v != "default").then(|| v.parse().expect("--max-inflight N|default"));
             }
             "--max-queued" => {
                 let v = value("--max-queued");
@@ -136,11 +145,20 @@ fn main() {
     }
     let dir = tempfile::tempdir().unwrap();
     let port = peers::free_port();
-    let (broker, ca) = mosquitto::Broker::start_tls(dir.path(), port, max_queued);
+    let (broker, ca) = mosquitto::Broker::start_tls(
+        dir.path(),
+        port,
+        &format!(
+            "{}{}",
+            max_queued.map_or(String::new(), |n| format!("max_queued_messages {n}\n")),
+            max_inflight.map_or(String::new(), |n| format!("max_inflight_messages {n}\n"))
+        ),
+    );
     let addr = format!("127.0.0.1:{port}");
     println!(
-        "fleet_processes: one mosquitto (TLS listener, max_queued_messages {}), one host process, {seconds} s per step, {} ({} cores)",
+        "fleet_processes: one mosquitto (TLS listener, max_queued_messages {}, max_inflight_messages {}), one host process, {seconds} s per step, {} ({} cores)",
         max_queued.map_or("default".to_string(), |n| n.to_string()),
+        max_inflight.map_or("default".to_string(), |n| n.to_string()),
         exe.display(),
         std::thread::available_parallelism().map_or(0, usize::from)
     );

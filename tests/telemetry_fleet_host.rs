@@ -291,7 +291,7 @@ async fn a_rebirth_storm_yields_at_most_one_nbirth_per_interval() {
 fn boxes_as_separate_processes_over_tls_lose_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let port = free_port();
-    let (broker, ca) = Broker::start_tls(dir.path(), port, None);
+    let (broker, ca) = Broker::start_tls(dir.path(), port, "");
     // The listener speaks only TLS: a plain MQTT CONNECT is not answered with a CONNACK (0x20).
     let mut plain = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
     plain.set_read_timeout(Some(PATIENCE)).unwrap();

@@ -22,17 +22,16 @@ impl Broker {
     }
 
     /// A broker whose listener speaks only TLS, with a certificate for IP 127.0.0.1 signed by a
-    /// CA made here (openssl); returns the CA's PEM file for the clients. `max_queued`: its
-    /// `max_queued_messages` (QoS 1 messages kept per client beyond those in flight; None:
-    /// Mosquitto's default, 1000) — docs/fleet.md says how to size it for a fleet.
-    pub(crate) fn start_tls(dir: &Path, port: u16, max_queued: Option<u64>) -> (Broker, PathBuf) {
+    /// CA made here (openssl); returns the CA's PEM file for the clients. `extra`: more config
+    /// lines (e.g. the fleet's `max_queued_messages`, docs/fleet.md).
+    pub(crate) fn start_tls(dir: &Path, port: u16, extra: &str) -> (Broker, PathBuf) {
         let (ca, cert, key) = tls_files(dir);
         let tls = format!(
             "cafile {}\ncertfile {}\nkeyfile {}\n{}",
             ca.display(),
             cert.display(),
             key.display(),
-            max_queued.map_or(String::new(), |n| format!("max_queued_messages {n}\n"))
+            extra
         );
         (Self::with_listener(dir, port, &tls), ca)
     }
