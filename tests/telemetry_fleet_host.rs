@@ -11,10 +11,16 @@
 //! 2. A rebirth storm (200 NCMD rebirth requests) at a box with `rebirth_min_interval_s = 1`:
 //!    its NBIRTHs (seen by a plain MQTT subscriber) are at least 1 s apart by their timestamps, the
 //!    storm is answered (a birth after it), and far fewer than 200 births go out.
+//! 3. Boxes and the fleet host as separate OS processes over TLS (the path of
+//!    benches/fleet_processes.rs at a tiny scale: 2 processes × 5 boxes, 10 Hz, 5 s, a TLS-only
+//!    listener with a CA made by openssl): every record produced arrives, no seq gap, every
+//!    NDEATH seen, the window's NDATA stamped for the latency; a plain MQTT CONNECT gets no CONNACK there.
 //!
 //! Every wait ends on an event with a deadline only a broken implementation reaches, except the
 //! 2 s of the requirement.
 
+#[path = "peers/fleet_processes.rs"]
+mod fleet_processes;
 #[path = "peers/mosquitto.rs"]
 mod mosquitto;
 mod peers;
@@ -279,4 +285,50 @@ async fn a_rebirth_storm_yields_at_most_one_nbirth_per_interval() {
     pump.abort();
     b.feeder.abort();
     b.publisher.stop(Duration::from_secs(5)).await;
+}
+
+#[test]
+fn boxes_as_separate_processes_over_tls_lose_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let (broker, ca) = Broker::start_tls(dir.path(), port, "");
+    // The listener speaks only TLS: a plain MQTT CONNECT is not answered with a CONNACK (0x20).
+    let mut plain = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+    plain.set_read_timeout(Some(PATIENCE)).unwrap();
+    std::io::Write::write_all(
+        &mut plain,
+        &[0x10, 12, 0, 4, b'M', b'Q', b'T', b'T', 4, 2, 0, 60, 0, 0],
+    )
+    .unwrap();
+    let mut first = [0u8; 1];
+    let n = std::io::Read::read(&mut plain, &mut first).unwrap_or(0);
+    assert!(n == 0 || first[0] != 0x20, "a plain CONNECT was accepted");
+
+    let load = fleet_processes::Load {
+        procs: 2,
+        boxes_per_proc: 5,
+        rate_hz: 10.0,
+        seconds: 5.0,
+        group: "fleet-tls".into(),
+        boxes_nice: 0,
+    };
+    let exe = std::path::Path::new(env!("CARGO_BIN_EXE_retrocomp"));
+    let o = fleet_processes::run(
+        exe,
+        &format!("127.0.0.1:{port}"),
+        broker.pid(),
+        Some(&ca),
+        &load,
+    );
+    assert_eq!((o.sent.boxes, o.connected), (10, 10));
+    // Each box samples at least its first tick.
+    assert!(o.sent.produced >= 10, "{o:?}");
+    assert_eq!(
+        (o.lost(), o.sent.dropped, o.sent.left, o.seen.gaps),
+        (0, 0, 0, 0),
+        "{o:?}"
+    );
+    assert_eq!((o.seen.nodes, o.seen.offline), (10, 10), "{o:?}");
+    // The latency counts the NDATA sampled after every box was connected (the window).
+    assert!(o.latency().n > 0 && o.latency().n <= o.seen.ndata, "{o:?}");
 }

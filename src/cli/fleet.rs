@@ -1,4 +1,4 @@
-//! `retrocomp fleet --broker HOST:PORT [--group G] [--every-s S] [--seconds N] [--json]`: a
+//! `retrocomp fleet --broker HOST:PORT [--group G] [--tls-ca-file CA.pem] [--every-s S] [--seconds N] [--json]`: a
 //! Sparkplug B host that shows every box's health (alive, compensating, degraded, idle) from its
 //! NBIRTH/NDATA/NDEATH (crates/fleet/src/fleet.rs), asking boxes it has no birth for to rebirth.
 //! Prints the table (headed by the time it was drawn) every `--every-s`; with `--json` it streams
@@ -19,6 +19,7 @@ use retrocomp_model::error::Chain;
 use retrocomp_fleet::drift::{self, DriftState, MachineDrift};
 use retrocomp_fleet::fleet::FleetView;
 use retrocomp_fleet::fleet_client::FleetClient;
+use retrocomp_gateway::northbound::telemetry::config::TlsConfig;
 use retrocomp_gateway::northbound::telemetry::publisher::now_ms;
 
 #[derive(Debug, clap::Args)]
@@ -29,6 +30,10 @@ pub(crate) struct Args {
     /// Sparkplug group to watch (default: every group).
     #[arg(long)]
     pub group: Option<String>,
+    /// PEM CA that signed the broker's certificate: connect over TLS (as a box's
+    /// `[telemetry.mqtt.tls] ca_file`).
+    #[arg(long)]
+    pub tls_ca_file: Option<PathBuf>,
     /// Print the table this often, s.
     #[arg(long, default_value_t = 5.0)]
     pub every_s: f64,
@@ -110,7 +115,8 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         "--models needs --collect-dir (the recordings to diagnose)"
     );
     rt.block_on(async {
-        let mut fc = FleetClient::new(&args.broker, args.group.as_deref())?;
+        let tls = args.tls_ca_file.clone().map(TlsConfig::with_ca);
+        let mut fc = FleetClient::with_tls(&args.broker, args.group.as_deref(), tls.as_ref())?;
         // A negative or non-finite period asks at every sweep (0 ms); a huge one saturates.
         let rebirth_every_ms = Duration::try_from_secs_f64(args.rebirth_every_s)
             .map_or(0, |d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX));

@@ -1,5 +1,5 @@
 //! The MQTT shell of a Sparkplug B host around the sans-IO [`FleetView`] (crates/fleet/src/fleet.rs):
-//! one subscription to `spBv1.0/<group>/+/+` (QoS 1), renewed on every reconnect, the view's
+//! one subscription to `spBv1.0/<group>/+/+` (QoS 1) over TCP or TLS, renewed on every reconnect, the view's
 //! rebirth requests published as NCMD (QoS 0, not retained, as Sparkplug 3.0 says for NCMD), and
 //! optionally the recordings topic fed to a [`Collector`]. Used by `retrocomp fleet`, the MQTT tests and the
 //! fleet bench. Units as in [`FleetView`].
@@ -10,8 +10,11 @@ use std::time::Duration;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 
 use crate::fleet::FleetView;
+use retrocomp_gateway::northbound::telemetry::TelemetryError;
+use retrocomp_gateway::northbound::telemetry::config::TlsConfig;
 use retrocomp_gateway::northbound::telemetry::publisher::now_ms;
 use retrocomp_gateway::northbound::telemetry::recordings::{Collector, Took};
+use retrocomp_gateway::northbound::telemetry::tls;
 
 /// Why the fleet client could not be built or lost its link.
 #[derive(Debug, thiserror::Error)]
@@ -22,6 +25,9 @@ pub enum FleetClientError {
     /// The subscription request could not be queued.
     #[error(transparent)]
     Subscribe(#[from] rumqttc::ClientError),
+    /// The TLS files cannot be used (which file, and why).
+    #[error(transparent)]
+    Tls(#[from] TelemetryError),
     /// The link to the broker failed (the next poll reconnects).
     #[error(transparent)]
     Connection(#[from] Box<rumqttc::ConnectionError>),
@@ -54,6 +60,16 @@ impl std::fmt::Debug for FleetClient {
 impl FleetClient {
     /// `broker` is HOST:PORT; `group` None watches every group.
     pub fn new(broker: &str, group: Option<&str>) -> Result<Self, FleetClientError> {
+        Self::with_tls(broker, group, None)
+    }
+
+    /// As [`FleetClient::new`], over TLS when `tls` is given (the same files and checks as a
+    /// box's `[telemetry.mqtt.tls]`).
+    pub fn with_tls(
+        broker: &str,
+        group: Option<&str>,
+        tls: Option<&TlsConfig>,
+    ) -> Result<Self, FleetClientError> {
         let (host, port) = broker
             .rsplit_once(':')
             .and_then(|(h, p)| Some((h.to_string(), p.parse::<u16>().ok()?)))
@@ -62,6 +78,11 @@ impl FleetClient {
         let mut o = MqttOptions::new(id, host, port);
         o.set_keep_alive(Duration::from_secs(10));
         o.set_max_packet_size(1 << 20, 1 << 20);
+        if let Some(t) = tls {
+            o.set_transport(rumqttc::Transport::tls_with_config(
+                rumqttc::TlsConfiguration::Rustls(std::sync::Arc::new(tls::client_config(t)?)),
+            ));
+        }
         let (client, events) = AsyncClient::new(o, 64);
         Ok(FleetClient {
             client,

@@ -87,6 +87,17 @@ pub struct TlsConfig {
     pub client_key_file: Option<PathBuf>,
 }
 
+impl TlsConfig {
+    /// TLS that checks the broker against `ca_file`, without a client certificate.
+    pub fn with_ca(ca_file: PathBuf) -> Self {
+        TlsConfig {
+            ca_file,
+            client_cert_file: None,
+            client_key_file: None,
+        }
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct QueueConfig {

@@ -31,7 +31,7 @@ pub mod shipper;
 pub mod sparkplug;
 pub mod status;
 #[cfg(feature = "mqtt")]
-mod tls;
+pub mod tls;
 
 pub use config::{MqttConfig, TelemetrySection};
 #[cfg(feature = "mqtt")]

@@ -8,7 +8,8 @@ use rustls::pki_types::{CertificateDer, PrivateKeyDer};
 use super::TelemetryError;
 use super::config::TlsConfig;
 
-pub(crate) fn client_config(t: &TlsConfig) -> Result<rustls::ClientConfig, TelemetryError> {
+/// The rustls client config of `t` (also the fleet host's, `retrocomp fleet --tls-ca-file`).
+pub fn client_config(t: &TlsConfig) -> Result<rustls::ClientConfig, TelemetryError> {
     let ca_key = || format!("telemetry.mqtt.tls.ca_file {}", t.ca_file.display());
     let mut roots = rustls::RootCertStore::empty();
     let cas = CertificateDer::pem_file_iter(&t.ca_file).map_err(TelemetryError::setup(ca_key()))?;
