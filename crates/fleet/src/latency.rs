@@ -14,6 +14,9 @@ use serde::Serialize;
 /// quantile reads as `MAX_MS + 1`, "more than").
 pub const MAX_MS: u64 = 60_000;
 
+/// Buckets 0 …= `MAX_MS` ms and the overflow bucket.
+const BUCKETS: usize = 60_002;
+
 #[derive(Clone, Debug)]
 pub struct LatencyHistogram {
     buckets: Vec<u64>,
@@ -33,7 +36,7 @@ pub struct LatencySummary {
 impl Default for LatencyHistogram {
     fn default() -> Self {
         LatencyHistogram {
-            buckets: vec![0; MAX_MS as usize + 2],
+            buckets: vec![0; BUCKETS],
             n: 0,
             max_ms: 0,
         }
@@ -43,7 +46,8 @@ impl Default for LatencyHistogram {
 impl LatencyHistogram {
     /// Count one latency, ms.
     pub fn record(&mut self, ms: u64) {
-        let i = ms.min(MAX_MS + 1) as usize;
+        // ≤ MAX_MS + 1, which is an index on any target.
+        let i = usize::try_from(ms.min(MAX_MS + 1)).unwrap_or(BUCKETS - 1);
         self.buckets[i] += 1;
         self.n += 1;
         self.max_ms = self.max_ms.max(ms);
@@ -89,6 +93,11 @@ impl LatencyHistogram {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn buckets_cover_every_ms_up_to_the_limit_and_one_overflow() {
+        assert_eq!(BUCKETS as u64, MAX_MS + 2);
+    }
+
     use super::*;
 
     #[test]
