@@ -1,4 +1,11 @@
-//! The `retrocomp` command line: one subcommand per module in `src/cli/`.
+//! The `retrocomp` command line: one subcommand per module in `src/cli/`. Numeric conversions
+//! follow the library's rule (`src/lib.rs`): `try_from`, or an `as` with its reason.
+#![warn(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    clippy::cast_possible_wrap,
+    clippy::float_cmp
+)]
 
 use clap::{Parser, Subcommand};
 

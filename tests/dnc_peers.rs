@@ -20,38 +20,9 @@ use std::time::{Duration, Instant};
 
 use linuxcnc_support::rs274;
 
-const MODEL: &str = r#"schema = 1
-[machine]
-name = "dnc-test"
-synthetic = true
-chain = "X F Y Z"
-tool_axis = "-z"
-[axes.x]
-travel_mm = [0.0, 400.0]
-[axes.y]
-travel_mm = [0.0, 300.0]
-[axes.z]
-travel_mm = [0.0, 300.0]
-[[tools]]
-name = "T1"
-offset_mm = [0.0, 0.0, 0.0]
-[[components]]
-name = "EXX"
-interpolation = "linear"
-positions_mm = [0.0, 400.0]
-forward_um = [0.0, 8.0]
-reverse_um = [-3.0, 5.0]
-[[sensors]]
-name = "spindle"
-reference_C = 20.0
-[[thermal]]
-name = "x_growth"
-target = "EXX"
-kind = "polynomial_dt"
-sensors = ["spindle"]
-e0_um = 0.0
-b_um_per_K = [2.0]
-"#;
+/// EXX forward 0 → 8 µm, reverse −3 → 5 µm over 0…400 mm, and 2 µm/K of spindle temperature
+/// above 20 °C (shared with the unit tests, `src/dnc/tests.rs`).
+const MODEL: &str = include_str!("peers/dnc_model.toml");
 
 fn field(dir: &Path, sensor: &Path, extra: &str) -> PathBuf {
     std::fs::write(dir.join("model.toml"), MODEL).unwrap();
@@ -60,6 +31,7 @@ fn field(dir: &Path, sensor: &Path, extra: &str) -> PathBuf {
 name = "dnc-test"
 cycle_ms = 5
 thermal_period_s = 1
+status_listen = "127.0.0.1:{}"
 [safety]
 max_correction_um = 100.0
 max_change_um_per_cycle = 0.5
@@ -85,6 +57,7 @@ max_line_chars = 40
 max_change_um_per_block = 10.0
 {extra}
 "#,
+        peers::free_port(),
         sensor.display()
     );
     let p = dir.join("field.toml");
@@ -303,17 +276,7 @@ fn a_controller_that_never_resumes_is_a_stall_and_the_named_block_resumes_withou
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let stderr = retro.stderr.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        use std::io::BufRead;
-        for l in std::io::BufReader::new(stderr)
-            .lines()
-            .map_while(Result::ok)
-        {
-            let _ = tx.send(l);
-        }
-    });
+    let rx = stderr_lines(&mut retro);
     let mut err = Vec::new();
     let deadline = Instant::now() + Duration::from_secs(30);
     while !err.iter().any(|l: &String| l.contains("fault start")) {
@@ -352,11 +315,7 @@ fn a_controller_that_never_resumes_is_a_stall_and_the_named_block_resumes_withou
         .args(["--resume-from", &resume.to_string()])
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_ok(&out);
     controller.line(60);
     let got_second = std::fs::read_to_string(&second).unwrap();
     // Every source line once, in order, over the two transfers (X words carry corrections).
@@ -394,9 +353,9 @@ fn an_unsafe_or_inconsistent_dnc_section_is_refused_with_file_line_and_key() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
-    // `[dnc]` is line 24 of the file: parity, not given, had to be said there.
+    // `[dnc]` is line 25 of the file: parity, not given, had to be said there.
     assert!(
-        err.contains("field.toml:24: key `dnc.parity`") && err.contains("7 data bits"),
+        err.contains("field.toml:25: key `dnc.parity`") && err.contains("7 data bits"),
         "{err}"
     );
 }
@@ -436,11 +395,7 @@ fn a_program_from_a_tcp_sender_is_passed_on_compensated() {
     std::io::Write::write_all(&mut conn, text.as_bytes()).unwrap();
     controller.line(60);
     let out = retro.wait_with_output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_ok(&out);
     let canon = rs274(&received).unwrap_or_else(|e| panic!("rs274: {e}"));
     let rows = log_rows(&log);
     assert_eq!(canon.len(), rows.len());
@@ -598,4 +553,160 @@ fn a_warm_up_followed_by_live_dnc_offsets_against_origin_shift_and_the_frozen_re
         rms_f >= 5.0 * rms_d.max(rms_s) && max_f >= 25.0,
         "DNC {rms_d:.2} µm, origin shift {rms_s:.2} µm vs frozen {rms_f:.2} µm"
     );
+}
+
+/// `retrocomp dnc` finished without error (its stderr otherwise).
+fn assert_ok(out: &std::process::Output) {
+    assert!(
+        out.status.success(),
+        "retrocomp dnc failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// `GET /metrics` on the box's status endpoint (`[gateway] status_listen` of `cfg`); None while it
+/// is not up.
+fn metrics(cfg: &Path) -> Option<String> {
+    use std::io::{Read, Write};
+    let text = std::fs::read_to_string(cfg).unwrap();
+    let addr = text
+        .lines()
+        .find_map(|l| l.strip_prefix("status_listen = "))
+        .unwrap()
+        .trim_matches('"')
+        .to_string();
+    let mut c = std::net::TcpStream::connect(addr).ok()?;
+    c.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
+    write!(
+        c,
+        "GET /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+    )
+    .ok()?;
+    let mut body = String::new();
+    c.read_to_string(&mut body).ok()?;
+    body.starts_with("HTTP/1.1 200").then_some(body)
+}
+
+/// Lines of the child's stderr, as they come.
+fn stderr_lines(child: &mut std::process::Child) -> std::sync::mpsc::Receiver<String> {
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        use std::io::BufRead;
+        for l in std::io::BufReader::new(stderr)
+            .lines()
+            .map_while(Result::ok)
+        {
+            let _ = tx.send(l);
+        }
+    });
+    rx
+}
+
+/// Poll `what` every 50 ms until it holds; panics after `secs` with `why`.
+fn wait_for(secs: u64, why: &str, mut what: impl FnMut() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(secs);
+    while !what() {
+        assert!(Instant::now() < deadline, "{why}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn a_stall_is_a_fault_in_metrics_until_xon_and_ctrl_c_leaves_log_resume_line_and_control_consistent()
+ {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let (_s1, ctl_peer, ctl_box) = pair(dir, "ctl");
+    let (_s3, sen_peer, sen_box) = pair(dir, "sen");
+    let prog = dir.join("program.ngc");
+    std::fs::write(&prog, program(30)).unwrap();
+    let cfg = field(dir, &sen_box, "stall_timeout_s = 1.0");
+    let _sensor = python("dnc_sensor.py", &[s(&sen_peer), "9600", "25.0", "0.0"]);
+    // A slow control: 1.5 s per block, XOFF at 4 of 5 lines, XON at 1: held about 4.5 s.
+    let received = dir.join("received.ngc");
+    let _controller = python(
+        "dnc_controller.py",
+        &[s(&ctl_peer), "9600", s(&received), "1500", "5"],
+    );
+    let log = dir.join("sent.csv");
+    let mut retro = dnc(&cfg, &ctl_box, &log)
+        .args(["--program", s(&prog)])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let rx = stderr_lines(&mut retro);
+    let stall = r#"retrocomp_sink_fault_active{source="sink.dnc",kind="disconnected"} 1"#;
+    let mut seen = String::new();
+    wait_for(30, "no stall fault in /metrics", || {
+        metrics(&cfg).is_some_and(|m| {
+            seen = m;
+            seen.contains(stall)
+        })
+    });
+    assert!(seen.contains("retrocomp_faults_active 1"), "{seen}");
+    assert!(
+        seen.contains(r#"retrocomp_sink_held_meters{sink="dnc",axis="x"}"#),
+        "{seen}"
+    );
+    // XON: the stall clears in /metrics while the transfer goes on.
+    wait_for(30, "the stall did not clear in /metrics", || {
+        metrics(&cfg).is_some_and(|m| {
+            seen = m;
+            !seen.contains("retrocomp_sink_fault_active{")
+        })
+    });
+    assert!(seen.contains("retrocomp_faults_active 0"), "{seen}");
+    assert!(retro.try_wait().unwrap().is_none(), "still sending");
+    // Ctrl-C (SIGINT to the child this test started) in the middle of the program.
+    wait_for(30, "no block after the stall", || log_rows(&log).len() >= 8);
+    Command::new("kill")
+        .args(["-INT", &retro.id().to_string()])
+        .status()
+        .unwrap();
+    let status = retro.wait().unwrap();
+    assert!(!status.success(), "an interrupted transfer is a failure");
+    std::thread::sleep(Duration::from_millis(200));
+    let err: Vec<String> = rx.try_iter().collect();
+    let said = |needle: &str| err.iter().find(|l| l.contains(needle)).cloned();
+    assert!(
+        said("fault started").is_some() && said("fault cleared").is_some(),
+        "{err:?}"
+    );
+    let resume: u64 = said("--resume-from ")
+        .and_then(|l| {
+            l.split("--resume-from ")
+                .nth(1)?
+                .split_whitespace()
+                .next()?
+                .parse()
+                .ok()
+        })
+        .unwrap_or_else(|| panic!("no resume point: {err:?}"));
+    // The log's last row is the last block that left the box; the resume line is the next one,
+    // and it is the last line the control received.
+    let text = std::fs::read_to_string(&log).unwrap();
+    let last = text.lines().last().unwrap();
+    let last_line: u64 = last.split(',').next().unwrap().parse().unwrap();
+    assert_eq!(resume, last_line + 1, "{last}");
+    let last_sent = last.rsplit_once(",\"").unwrap().1.trim_end_matches('"');
+    wait_for(
+        5,
+        "the control did not receive the last logged block",
+        || std::fs::read_to_string(&received).is_ok_and(|r| r.lines().last() == Some(last_sent)),
+    );
+    // What the control holds: the correction of the last compensated block, as logged.
+    let row = log_rows(&log).pop().unwrap();
+    let holds = said("the control holds only the blocks it received")
+        .unwrap_or_else(|| panic!("no statement of what the control holds: {err:?}"));
+    assert!(
+        holds.contains(&format!(
+            "(line {}) carries X {:.1} µm",
+            row.line, row.cx_um
+        )),
+        "{holds} vs line {} {:.1} µm",
+        row.line,
+        row.cx_um
+    );
+    eprintln!("resume at {resume}, log's last row {last:?}; {holds}");
 }

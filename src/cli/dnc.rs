@@ -13,21 +13,19 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use retrocomp::dnc::core::{CoreConfig, DncCore};
-use retrocomp::dnc::live::{LiveCorrections, ModelAtPoint};
-use retrocomp::dnc::shell::{ProgramSource, run_dnc};
-use retrocomp_gateway::config::field_check::check_field;
+use retrocomp::dnc::faults::StatusTx;
+use retrocomp::dnc::live::{EngineAtPoint, LiveCorrections};
+use retrocomp::dnc::shell::{DncIo, ProgramSource, run_dnc};
+use retrocomp_gateway::northbound::http::{Api, Limits, serve};
 use retrocomp_gateway::sources::spawn_sources;
 use retrocomp_model::Axis;
 
 #[derive(Debug, clap::Args)]
 #[command(group(clap::ArgGroup::new("source").args(["program", "listen", "sender_port"])))]
 pub(crate) struct Args {
-    /// Field configuration TOML with a `[dnc]` section (model and sensors as for `run`).
-    #[arg(long)]
-    pub config: PathBuf,
-    /// Machine model TOML; overrides `[model] path` of the field config.
-    #[arg(long)]
-    pub model: Option<PathBuf>,
+    /// `--config` (with a `[dnc]` section; model and sensors as for `run`) and `--model`.
+    #[command(flatten)]
+    pub field: super::run::FieldArgs,
     /// The NC program to send.
     #[arg(long)]
     pub program: Option<PathBuf>,
@@ -49,9 +47,6 @@ pub(crate) struct Args {
     /// Where the send log goes (CSV, one row per block).
     #[arg(long, default_value = "dnc-sent.csv")]
     pub log: PathBuf,
-    /// A model input older than this is not used (the block keeps the previous correction), s.
-    #[arg(long, default_value_t = 120.0)]
-    pub max_input_age_s: f64,
 }
 
 fn parse_listen(s: &str) -> Result<std::net::SocketAddr, String> {
@@ -62,14 +57,13 @@ fn parse_listen(s: &str) -> Result<std::net::SocketAddr, String> {
         .map_err(|e| format!("{a:?}: {e} (expected tcp:127.0.0.1:7000)"))
 }
 
-/// Per axis X, Y, Z: the clamp of the field config's safety and the per-block cap, and whether
-/// the config drives the axis (the others get clamp 0: never a correction).
+/// Per axis X, Y, Z: the clamp of the field config's safety and the per-block cap (an axis the
+/// config does not drive gets clamp 0: never a correction).
 fn guard_limits(
     cfg: &retrocomp_gateway::config::FieldConfig,
     dnc: &retrocomp_gateway::sinks::dnc::config::DncSection,
-) -> ([(f64, f64); 3], [bool; 3]) {
+) -> [(f64, f64); 3] {
     let mut limits = [(0.0, 0.0); 3];
-    let mut driven = [false; 3];
     for a in &cfg.axes {
         let Some(ax) = Axis::from_name(&a.name) else {
             continue;
@@ -79,19 +73,38 @@ fn guard_limits(
             .max_change_um_per_block
             .unwrap_or(s.max_change_um_per_cycle);
         limits[ax.index()] = (s.max_correction_um, cap);
-        driven[ax.index()] = true;
     }
-    (limits, driven)
+    limits
+}
+
+/// The gateway's status endpoint on `[gateway] status_listen` (read routes only: a transfer takes
+/// no actions), fed with the transfer's snapshots.
+async fn serve_status(cfg: &retrocomp_gateway::config::FieldConfig) -> anyhow::Result<StatusTx> {
+    let listen: std::net::SocketAddr = cfg
+        .gateway
+        .status_listen
+        .parse()
+        .context("gateway.status_listen")?;
+    let (tx, rx) = tokio::sync::watch::channel(None);
+    let limits = Limits {
+        policy: cfg.gateway.listen_policy.clone(),
+        ..Limits::default()
+    };
+    let (bound, _task) = serve(listen, rx, Api::default(), limits)
+        .await
+        .with_context(|| format!("binding the status endpoint {listen} (gateway.status_listen)"))?;
+    eprintln!("dnc: status on http://{bound}/status and /metrics");
+    Ok(tx)
 }
 
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     super::term::init_tracing("info");
-    let checked = check_field(&args.config, args.model.as_deref())?;
+    let checked = args.field.check()?;
     let cfg = checked.cfg;
     let Some(dnc) = cfg.dnc.clone() else {
         bail!(
             "{}: no [dnc] section: the link to the controller (baud, parity, flow, max_line_chars …) must be stated (docs/dnc.md)",
-            args.config.display()
+            args.field.config.display()
         );
     };
     let port = args
@@ -101,7 +114,7 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         .with_context(|| {
             format!(
                 "{}: dnc.port: no controller port (or --port)",
-                args.config.display()
+                args.field.config.display()
             )
         })?;
     let sender = args.sender_port.clone().or_else(|| dnc.sender_port.clone());
@@ -118,13 +131,13 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     {
         bail!("--sender-port {d} is the controller's port");
     }
-    let (limits, driven) = guard_limits(&cfg, &dnc);
+    let limits = guard_limits(&cfg, &dnc);
+    // The gateway's engine judges the inputs (its `[[channel]]` limits) and evaluates the model;
+    // no safety step of its own runs: the guard below is the one output limit.
+    let mut engine = cfg.engine(&Default::default())?;
+    engine.report_undelivered(&checked.optional_missing);
     let live = LiveCorrections::new(
-        Box::new(ModelAtPoint::new(
-            Box::new(checked.model),
-            driven,
-            args.max_input_age_s,
-        )),
+        Box::new(EngineAtPoint::new(engine, Box::new(checked.model))),
         limits,
     );
     let core_cfg = CoreConfig {
@@ -153,7 +166,9 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         .enable_all()
         .build()?;
     let summary = rt.block_on(async {
-        let feed = spawn_sources(&cfg, std::time::Instant::now()).await?;
+        let epoch = std::time::Instant::now();
+        let feed = spawn_sources(&cfg, epoch).await?;
+        let status = serve_status(&cfg).await?;
         let mut core = DncCore::new(core_cfg, &live);
         let r = run_dnc(
             &dnc,
@@ -161,7 +176,11 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
             &source,
             &mut core,
             &live,
-            Some(feed.samples),
+            DncIo {
+                samples: Some(feed.samples),
+                epoch,
+                status: Some(status),
+            },
             &mut log,
         )
         .await
@@ -177,6 +196,15 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         args.log.display()
     );
     if let Some((line, why)) = summary.interrupted {
+        // The correction travels inside the blocks: the control holds no register of the box's,
+        // only the blocks it has received (up to its buffer), the last of them carrying this.
+        match summary.last_correction {
+            Some((l, c)) => eprintln!(
+                "dnc: the control holds only the blocks it received; the last compensated one (line {l}) carries X {:.1} µm, Y {:.1} µm, Z {:.1} µm; no origin or offset register was touched",
+                c[0], c[1], c[2]
+            ),
+            None => eprintln!("dnc: no compensated block reached the control"),
+        }
         bail!(
             "transfer stopped: {why}\nresume with --resume-from {line} (the first block not completely sent)"
         );

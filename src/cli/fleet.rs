@@ -111,7 +111,10 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     );
     rt.block_on(async {
         let mut fc = FleetClient::new(&args.broker, args.group.as_deref())?;
-        fc.view = FleetView::new((args.rebirth_every_s * 1000.0) as u64);
+        // A negative or non-finite period asks at every sweep (0 ms); a huge one saturates.
+        let rebirth_every_ms = Duration::try_from_secs_f64(args.rebirth_every_s)
+            .map_or(0, |d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX));
+        fc.view = FleetView::new(rebirth_every_ms);
         // Something changed since the last JSON line.
         let mut changed = true;
         if let Some(d) = &args.collect_dir {
@@ -185,7 +188,7 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
 /// When a table or JSON line is drawn: (ms since the Unix epoch, ISO 8601 UTC to the second).
 fn drawn_now() -> (u64, String) {
     let ms = now_ms();
-    let at = chrono::DateTime::from_timestamp_millis(ms as i64)
+    let at = chrono::DateTime::from_timestamp_millis(i64::try_from(ms).unwrap_or(i64::MAX))
         .map_or_else(String::new, |t| t.format("%Y-%m-%dT%H:%M:%SZ").to_string());
     (ms, at)
 }

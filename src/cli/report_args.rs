@@ -40,7 +40,7 @@ impl ReportArgs {
         let or = |v: &Option<String>, d: &str| v.clone().unwrap_or_else(|| d.to_string());
         let now = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs() as i64);
+            .map_or(0, |d| i64::try_from(d.as_secs()).unwrap_or(i64::MAX));
         let mut h = vec![
             ("Machine".to_string(), or(&self.machine, NOT_GIVEN)),
             ("Axis / plane".to_string(), or(&self.report_axis, NOT_GIVEN)),

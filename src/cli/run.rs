@@ -4,19 +4,33 @@
 
 use std::path::PathBuf;
 
-use retrocomp_gateway::config::field_check::check_field;
+use retrocomp_gateway::config::field_check::{CheckedField, check_field};
 use retrocomp_gateway::run::{require_sink, run_until_signal};
 use retrocomp_gateway::sources::spawn_sources;
 use retrocomp_gateway::supervise::exit_on_panic;
 
+/// The field file and model every command that runs the box takes (`run`, `dnc`).
 #[derive(Debug, clap::Args)]
-pub(crate) struct Args {
-    /// Field configuration TOML (see deploy/field/).
+pub(crate) struct FieldArgs {
+    /// Field configuration TOML (see deploy/field/; `dnc` needs its `[dnc]` section).
     #[arg(long)]
-    pub config: PathBuf,
+    pub(crate) config: PathBuf,
     /// Machine model TOML; overrides `[model] path` of the field config.
     #[arg(long)]
-    pub model: Option<PathBuf>,
+    pub(crate) model: Option<PathBuf>,
+}
+
+impl FieldArgs {
+    /// Field file and model checked together, offline (the same checks as `check-config`).
+    pub(crate) fn check(&self) -> anyhow::Result<CheckedField> {
+        Ok(check_field(&self.config, self.model.as_deref())?)
+    }
+}
+
+#[derive(Debug, clap::Args)]
+pub(crate) struct Args {
+    #[command(flatten)]
+    pub field: FieldArgs,
     /// Run without any sink (compute and report only).
     #[arg(long)]
     pub dry_run: bool,
@@ -25,8 +39,7 @@ pub(crate) struct Args {
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     super::term::init_tracing("info");
     exit_on_panic();
-    // Field file and model checked together, offline (the same checks as `check-config`).
-    let checked = check_field(&args.config, args.model.as_deref())?;
+    let checked = args.field.check()?;
     let cfg = checked.cfg;
     if !args.dry_run {
         require_sink(&cfg)?;

@@ -54,7 +54,7 @@ pub struct Expected {
 }
 
 fn targets(from: f64, to: f64, step: f64) -> Vec<f64> {
-    let n = ((to - from) / step).round() as usize;
+    let n = retrocomp_analysis::numeric::round_usize((to - from) / step);
     (0..=n).map(|i| from + step * i as f64).collect()
 }
 

@@ -470,7 +470,7 @@ mod tests {
             let z = 25.0 + 25.0 * (0.11 * t).sin();
             let ts = 20.0 + 5.0 * (1.0 - (-t / 30.0).exp()) * (1.0 + 0.3 * (0.05 * t).sin());
             let tx = 20.0 + 8.0 * (1.0 - (-t / 15.0).exp()) * (1.0 + 0.5 * (0.023 * t).cos());
-            let f = if (t / 10.0) as u32 % 2 == 1 {
+            let f = if retrocomp_analysis::numeric::trunc_usize(t / 10.0) % 2 == 1 {
                 200.0 * (0.5 * t).sin().abs()
             } else {
                 0.0

@@ -39,6 +39,10 @@ pub fn readings(
         .iter()
         .map(|n| col(rec, n, what))
         .collect::<Result<_, DemoError>>()?;
+    #[allow(
+        clippy::float_cmp,
+        reason = "still means the recorded position repeats exactly (the simulation writes the same value)"
+    )]
     let same = |i: usize, j: usize| pos.iter().all(|p| p[i] == p[j]);
     // Still periods [start, end] (row indices, inclusive).
     let mut stills: Vec<(usize, usize)> = Vec::new();

@@ -55,7 +55,7 @@ const STROKE_PAIR_S: f64 = 5.0;
 
 /// The warm-up G-code: X stroke pairs for about `warmup_s` seconds (at least one pair).
 pub fn warmup_gcode(warmup_s: f64) -> String {
-    let pairs = (warmup_s / STROKE_PAIR_S).round().max(1.0) as usize;
+    let pairs = retrocomp_analysis::numeric::round_usize(warmup_s / STROKE_PAIR_S).max(1);
     "G1 X150\nG1 X0\n".repeat(pairs)
 }
 

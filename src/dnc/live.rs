@@ -1,6 +1,6 @@
 //! The correction a DNC block carries: the live model evaluated at the block's nominal end point
-//! and approach directions ([`CorrectionAt`]; [`ModelAtPoint`] is the gateway's [`ErrorModel`] fed
-//! with the latest sensor values), passed through the last-step guard ([`WriteGuard`]: clamp, and
+//! and approach directions ([`CorrectionAt`]; [`EngineAtPoint`] is the gateway's engine, its
+//! health checks and model, fed by the live sources), passed through the last-step guard ([`WriteGuard`]: clamp, and
 //! per-block cap from the correction the previous block carried), as the NC rewriter's
 //! [`ErrorFunction`] so modal state and approach directions are the rewriter's own.
 //!
@@ -15,12 +15,12 @@
 use std::cell::RefCell;
 
 use retrocomp_analysis::nc::ErrorFunction;
-use retrocomp_bus::{ChannelId, Sample};
-use retrocomp_model::Axis;
+use retrocomp_bus::Sample;
 use retrocomp_model::approach::Approach;
 
-use retrocomp_gateway::engine::{AxisErrors, ErrorModel, MachineState};
+use retrocomp_gateway::engine::{Engine, ErrorModel};
 use retrocomp_gateway::sinks::guard::{GuardLimits, Verdict, WriteGuard};
+use retrocomp_gateway::status::StatusSnapshot;
 
 /// Output resolution of a compensated block, µm (the rewriter writes 4 decimals in mm).
 pub const BLOCK_LSB_UM: f64 = 0.1;
@@ -39,6 +39,11 @@ pub trait CorrectionAt {
 
     /// A sample from the live sources (a source that reads none ignores it).
     fn observe(&mut self, _s: &Sample) {}
+
+    /// What `/status` and `/metrics` show of the source (None: it has no status).
+    fn snapshot(&self) -> Option<StatusSnapshot> {
+        None
+    }
 }
 
 /// What one block carries: the end point asked for, and the correction sent per axis (µm).
@@ -147,9 +152,27 @@ impl LiveCorrections {
         self.inner.borrow().model_fault.clone()
     }
 
+    /// The correction the last block sent carried, per axis X, Y, Z (what the control holds), µm.
+    pub fn held_um(&self) -> [f64; 3] {
+        self.inner.borrow().held_um
+    }
+
     /// The guard refused the wanted correction of the last block.
     pub fn guard_refused(&self) -> bool {
         self.inner.borrow().guard_refused
+    }
+
+    /// The source's status (the engine's channels, faults, targets), with each driven axis'
+    /// applied value the correction the last block sent carried; None for a source without one.
+    pub fn snapshot(&self) -> Option<StatusSnapshot> {
+        let i = self.inner.borrow();
+        let mut s = i.src.snapshot()?;
+        for a in &mut s.axes {
+            if let Some(ax) = retrocomp_model::Axis::from_name(&a.axis) {
+                a.applied_um = i.held_um[ax.index()];
+            }
+        }
+        Some(s)
     }
 }
 
@@ -203,59 +226,34 @@ impl ErrorFunction for LiveCorrections {
     }
 }
 
-/// The gateway's model evaluated at a block's end point, with the latest value of each channel
-/// it reads (temperatures, loads) from the live sources.
-pub struct ModelAtPoint {
+/// The gateway's engine evaluated at a block's end point: samples go through
+/// [`Engine::ingest`] (the gateway's range, rate, stuck and staleness checks, neighbour recovery,
+/// thermal latching), and a block's correction is [`Engine::correction_at`] its nominal end point
+/// and approach directions. A refusal (an input the engine judges unusable, a model failure) is
+/// the block's model fault: it carries the previous correction.
+pub struct EngineAtPoint {
+    engine: Engine,
     model: Box<dyn ErrorModel>,
-    channels: Vec<ChannelId>,
-    /// Latest value and its time per channel of `channels`.
-    latest: Vec<Option<(f64, f64)>>,
-    /// A value older than this is not used (the block holds the previous correction), s.
-    max_age_s: f64,
-    state: MachineState,
-    errors: AxisErrors,
-    /// The axes the field config drives.
-    driven: [bool; 3],
 }
 
 // By hand: the model is a trait object.
-impl std::fmt::Debug for ModelAtPoint {
+impl std::fmt::Debug for EngineAtPoint {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ModelAtPoint")
-            .field("channels", &self.channels)
-            .field("latest", &self.latest)
+        f.debug_struct("EngineAtPoint")
+            .field("engine", &self.engine)
             .finish_non_exhaustive()
     }
 }
 
-impl ModelAtPoint {
-    pub fn new(model: Box<dyn ErrorModel>, driven: [bool; 3], max_age_s: f64) -> Self {
-        let channels = model.required_channels();
-        let axes = Axis::ALL.into_iter().filter(|a| driven[a.index()]);
-        Self {
-            latest: vec![None; channels.len()],
-            state: MachineState {
-                inputs: vec![None; channels.len()],
-                ..MachineState::default()
-            },
-            channels,
-            max_age_s,
-            errors: AxisErrors::with_axes(axes),
-            model,
-            driven,
-        }
+impl EngineAtPoint {
+    pub fn new(engine: Engine, model: Box<dyn ErrorModel>) -> Self {
+        Self { engine, model }
     }
 }
 
-impl CorrectionAt for ModelAtPoint {
-    /// Healthy, finite values of the model's channels are kept (the latest of each).
+impl CorrectionAt for EngineAtPoint {
     fn observe(&mut self, s: &Sample) {
-        if !matches!(s.health, retrocomp_bus::Health::Ok) || !s.value.is_finite() {
-            return;
-        }
-        if let Some(k) = self.channels.iter().position(|c| *c == s.channel) {
-            self.latest[k] = Some((s.value, s.t_s));
-        }
+        self.engine.ingest(s);
     }
 
     fn correction_um(
@@ -264,32 +262,14 @@ impl CorrectionAt for ModelAtPoint {
         dirs: [Approach; 3],
         now_s: f64,
     ) -> Result<[Option<f64>; 3], String> {
-        for (k, v) in self.latest.iter().enumerate() {
-            self.state.inputs[k] = v.filter(|(_, t)| now_s - t <= self.max_age_s).map(|v| v.0);
-            if self.state.inputs[k].is_none() {
-                return Err(format!("no recent value of {}", self.channels[k].name()));
-            }
-        }
-        self.state.positions_mm = pos_mm.map(Some);
-        self.state.velocities_mm_per_s = [Some(0.0); 3];
-        self.state.weight_forward = dirs.map(|d| match d {
-            Approach::Forward => 1.0,
-            Approach::Reverse => 0.0,
-        });
-        self.state.t_s = now_s;
-        self.errors.clear();
-        self.model
-            .axis_errors(&self.state, &mut self.errors)
-            .map_err(|e| e.to_string())?;
-        Ok(std::array::from_fn(|k| {
-            self.driven[k].then(|| {
-                -self
-                    .errors
-                    .axis(Axis::ALL[k])
-                    .iter()
-                    .map(|t| t.error_um)
-                    .sum::<f64>()
-            })
-        }))
+        self.engine
+            .correction_at(now_s, self.model.as_mut(), pos_mm, dirs)
+            .map_err(|e| e.to_string())
+    }
+
+    fn snapshot(&self) -> Option<StatusSnapshot> {
+        let mut s = self.engine.snapshot();
+        s.model = self.model.identity();
+        Some(s)
     }
 }

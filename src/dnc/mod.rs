@@ -8,11 +8,13 @@
 //!   settings, the control's line length and buffer).
 //! - [`live`]: the correction of one block (model at the end point, guard: clamp and per-block cap).
 //! - [`core`]: the sans-IO drip-feed (flow control, stall fault, line-length refusal, resume, log).
+//! - [`faults`]: the transfer's faults (start and clear) and its status for `/status`, `/metrics`.
 //! - [`shell`]: the async shell on tokio-serial / TCP (`retrocomp dnc`).
 //!
 //! Signs and units: corrections µm, = −error; a block's end point is nominal + correction (mm).
 
 pub mod core;
+pub mod faults;
 pub mod live;
 pub mod shell;
 

@@ -2,21 +2,20 @@
 //! `[dnc]`), the program source (a file, a TCP connection from a DNC sender, or the sender's
 //! serial port, held back with XON/XOFF while the controller is slower), the live samples the
 //! model reads, and the CSV send log (flushed per block, so an interrupted transfer's log is
-//! complete). The decisions are the core's (`core.rs`); faults are logged once at start and clear
-//! (`sink.dnc`: `disconnected` for a stall, `decode` for a block sent without a fresh model value).
+//! complete). The decisions are the core's (`core.rs`); faults and status are `faults.rs`'s.
 
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use retrocomp_bus::Sample;
-use retrocomp_bus::fault::FaultKind;
 use retrocomp_bus::modbus::poller::Parity;
 use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncReadExt, AsyncWriteExt, BufReader, Lines};
 use tokio::sync::mpsc;
 use tokio_serial::{SerialPort, SerialPortBuilderExt, SerialStream};
 
-use super::core::{DncCore, LOG_HEADER, StallEdge, XOFF, XON};
+use super::core::{DncCore, DncError, LOG_HEADER, XOFF, XON};
+use super::faults::{DncFaults, StatusTx};
 use super::live::LiveCorrections;
 use retrocomp_gateway::sinks::dnc::config::{DncSection, Flow};
 
@@ -31,7 +30,7 @@ pub enum ProgramSource {
 }
 
 /// How a transfer ended.
-#[derive(Debug)]
+#[derive(Debug, Default)]
 pub struct DncSummary {
     pub blocks_sent: u64,
     pub stalls: u64,
@@ -39,6 +38,9 @@ pub struct DncSummary {
     pub guard_limited: u64,
     /// Set when the transfer did not complete: the block to resume from and why.
     pub interrupted: Option<(u64, String)>,
+    /// The last block sent with a compensated end point: its line and the correction it carried
+    /// per axis X, Y, Z (µm). The control holds nothing else of the box's.
+    pub last_correction: Option<(u64, [f64; 3])>,
 }
 
 /// Open a serial device with the `[dnc]` link settings. XON/XOFF is read by the box itself (the
@@ -94,31 +96,41 @@ async fn open_source(
     Ok((BufReader::new(read).lines(), hold))
 }
 
+/// The live side of a transfer: the sources' samples for the model and their clock, and where
+/// the status snapshots go.
+#[derive(Debug)]
+pub struct DncIo {
+    pub samples: Option<mpsc::Receiver<Sample>>,
+    /// The sources' epoch (their samples' `t_s` count from it): blocks are judged on that clock.
+    pub epoch: Instant,
+    /// The status endpoint's channel (`/status`, `/metrics`), if one is served.
+    pub status: Option<StatusTx>,
+}
+
 /// Stream the program to the controller on `port_dev` until it is sent, refused, or interrupted
-/// (SIGINT). `samples` feed the live model; `log` receives one row per block sent.
+/// (SIGINT). `io.samples` feed the live model; `log` receives one row per block sent.
 pub async fn run_dnc(
     s: &DncSection,
     port_dev: &str,
     source: &ProgramSource,
     core: &mut DncCore<'_>,
     live: &LiveCorrections,
-    mut samples: Option<mpsc::Receiver<Sample>>,
+    io: DncIo,
     log: &mut dyn Write,
 ) -> std::io::Result<DncSummary> {
-    let epoch = Instant::now();
+    let DncIo {
+        mut samples,
+        epoch,
+        status,
+    } = io;
+    let mut faults = DncFaults::new(status);
     let now = || epoch.elapsed().as_secs_f64();
     let port = open_port(port_dev, s)?;
     let (mut lines, mut hold) = open_source(source, s).await?;
     let mut port = port;
     writeln!(log, "{LOG_HEADER}")?;
-    let mut sum = DncSummary {
-        blocks_sent: 0,
-        stalls: 0,
-        model_faults: 0,
-        guard_limited: 0,
-        interrupted: None,
-    };
-    let (mut line_no, mut model_faulted, mut sender_held) = (0u64, false, false);
+    let mut sum = DncSummary::default();
+    let (mut line_no, mut sender_held) = (0u64, false);
     let mut buf = [0u8; 256];
     // One character on the wire: start bit, data bits, parity, stop bits.
     let bits =
@@ -129,7 +141,8 @@ pub async fn run_dnc(
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
     let interrupted = |core: &DncCore<'_>, why: String| Some((core.resume_point(), why));
     while !core.done() {
-        note_stall(core.poll_stall(now()), &mut sum);
+        faults.stall(core.poll_stall(now()), &mut sum, now());
+        faults.publish(live, &sum, now());
         if s.flow == Flow::RtsCts {
             // The driver holds output while CTS is low; the core must know to judge a stall.
             let cts = port.read_clear_to_send().map_err(std::io::Error::other)?;
@@ -144,6 +157,10 @@ pub async fn run_dnc(
             match core.next_to_send(now()) {
                 Ok(b) => b.map(<[u8]>::to_vec),
                 Err(e) => {
+                    if matches!(e, DncError::LineTooLong { .. }) {
+                        faults.line_refused(now());
+                        faults.publish(live, &sum, now());
+                    }
                     sum.interrupted = interrupted(core, e.to_string());
                     return Ok(sum);
                 }
@@ -155,7 +172,10 @@ pub async fn run_dnc(
             busy_until = now() + bytes.len() as f64 * char_s;
             if let Some(b) = core.sent(now()) {
                 sum.blocks_sent += 1;
-                note_model(live, &mut model_faulted, &mut sum, b.line);
+                if let Some(a) = &b.applied {
+                    sum.last_correction = Some((b.line, a.correction_um));
+                }
+                faults.block(live, &mut sum, b.line, now());
                 writeln!(log, "{}", b.csv_row())?;
                 log.flush()?;
             }
@@ -218,41 +238,4 @@ async fn hold_sender(
         *held = !want;
     }
     Ok(())
-}
-
-/// Count and log the edges of a stall.
-fn note_stall(edge: Option<StallEdge>, sum: &mut DncSummary) {
-    match edge {
-        Some(StallEdge::Started { since_s, line }) => {
-            sum.stalls += 1;
-            tracing::warn!(source = "sink.dnc", kind = ?FaultKind::Disconnected,
-                "fault start: the controller has held the transfer since {since_s:.1} s (no XON / CTS); block of line {line} waits, not lost");
-        }
-        Some(StallEdge::Cleared { after_s }) => {
-            tracing::info!(source = "sink.dnc", kind = ?FaultKind::Disconnected,
-                "fault clear: the controller resumed at {after_s:.1} s");
-        }
-        None => {}
-    }
-}
-
-/// Count and log the edges of the model fault (a block sent with the held correction).
-fn note_model(live: &LiveCorrections, faulted: &mut bool, sum: &mut DncSummary, line: u64) {
-    if live.guard_refused() {
-        sum.guard_limited += 1;
-    }
-    match (live.model_fault(), *faulted) {
-        (Some(why), false) => {
-            sum.model_faults += 1;
-            *faulted = true;
-            tracing::warn!(source = "sink.dnc", kind = ?FaultKind::Decode,
-                "fault start: line {line} sent with the held correction: {why}");
-        }
-        (None, true) => {
-            *faulted = false;
-            tracing::info!(source = "sink.dnc", kind = ?FaultKind::Decode,
-                "fault clear: line {line} carries the live correction again");
-        }
-        _ => {}
-    }
 }

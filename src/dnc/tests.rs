@@ -1,11 +1,20 @@
 //! The DNC core in virtual time: corrections taken at send time through the guard, line length,
 //! flow control and stall, resume, leader/trailer.
 
+use retrocomp_bus::fault::FaultKind;
+use retrocomp_bus::{ChannelId, Health, Sample};
 use retrocomp_model::approach::Approach;
+use retrocomp_model::{Axis, MachineModel};
 
 use super::core::{CoreConfig, DncCore, DncError, SentBlock, StallEdge, XOFF, XON};
-use super::live::{CorrectionAt, LiveCorrections};
+use super::live::{CorrectionAt, EngineAtPoint, LiveCorrections};
+use retrocomp_gateway::engine::direction::DirectionConfig;
+use retrocomp_gateway::engine::health::ChannelLimits;
+use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+use retrocomp_gateway::engine::safety::SafetyConfig;
+use retrocomp_gateway::engine::{Engine, EngineAxis, EngineConfig};
 use retrocomp_gateway::sinks::dnc::config::LineEnd;
+use retrocomp_gateway::status::StatusSnapshot;
 
 /// X correction = −(drift · t + slope · x) µm (a thermal drift and a scale error); Y, Z none.
 struct Drift {
@@ -198,16 +207,21 @@ fn resume_sends_from_the_chosen_block_with_the_modal_state_of_the_ones_before() 
     assert!(out.starts_with("X"), "{out:?}");
 }
 
-#[test]
-fn a_model_without_fresh_inputs_holds_the_last_correction() {
-    let lc = LiveCorrections::new(
+/// −0.01 µm per mm of X, and no model value after 1.5 s.
+fn failing_after_1_5_s() -> LiveCorrections {
+    LiveCorrections::new(
         Box::new(Drift {
             um_per_s: 0.0,
             um_per_mm: 0.01,
             fail_after_s: 1.5,
         }),
         [(60.0, 50.0), (0.0, 0.0), (0.0, 0.0)],
-    );
+    )
+}
+
+#[test]
+fn a_model_without_fresh_inputs_holds_the_last_correction() {
+    let lc = failing_after_1_5_s();
     let mut core = DncCore::new(cfg(), &lc);
     let (_, log) = drain(&mut core, "G1 X100 F100\nX300", 2.0);
     assert_eq!(log[0].applied.unwrap().correction_um[0], -1.0);
@@ -227,4 +241,268 @@ fn leader_and_trailer_frame_the_program() {
     let mut core = DncCore::new(c, &lc);
     let (out, _) = drain(&mut core, "%\nM30\n%", 1.0);
     assert_eq!(out, "\0\0\0%\nM30\n%\n\0\0");
+}
+
+#[test]
+fn a_lathe_in_diameter_mode_gets_the_radial_correction_twice_in_its_x_word() {
+    // 10 µm per 100 mm of radius, so a diameter taken for a radius shows.
+    let scale = Drift {
+        um_per_s: 0.0,
+        um_per_mm: 0.1,
+        fail_after_s: f64::INFINITY,
+    };
+    let lc = LiveCorrections::new(Box::new(scale), [(60.0, 50.0), (0.0, 0.0), (0.0, 0.0)]);
+    let mut c = cfg();
+    c.diameter_x = true;
+    let mut core = DncCore::new(c, &lc);
+    let (_, log) = drain(&mut core, "G1 X100 Z0 F100\nX60", 1.0);
+    let (a, b) = (log[0].applied.unwrap(), log[1].applied.unwrap());
+    // Ø100 is 50 mm from the axis: the model is asked there, −5 µm in radius.
+    assert_eq!((a.pos_mm[0], b.pos_mm[0]), (50.0, 30.0));
+    assert!((a.correction_um[0] + 5.0).abs() < 1e-9, "{a:?}");
+    assert!((b.correction_um[0] + 3.0).abs() < 1e-9, "{b:?}");
+    // The diameter word carries twice the radial correction: Ø100 − 10 µm, Ø60 − 6 µm.
+    assert!((x_of(&log[0].text) - 99.99).abs() < 1e-9, "{:?}", log[0]);
+    assert!((x_of(&log[1].text) - 59.994).abs() < 1e-9, "{:?}", log[1]);
+}
+
+/// The model of tests/dnc_peers.rs: EXX forward 0 → 8 µm, reverse −3 → 5 µm over 0…400 mm, and
+/// 2 µm/K of spindle temperature above 20 °C.
+const MODEL: &str = include_str!("../../tests/peers/dnc_model.toml");
+
+const T_LIMITS: ChannelLimits = ChannelLimits {
+    min: 0.0,
+    max: 80.0,
+    stale_after_s: 2.0,
+    max_rate_per_s: Some(1.0),
+    stuck_after_s: None,
+};
+
+fn engine() -> Engine {
+    let safety = SafetyConfig {
+        max_correction_um: 100.0,
+        max_change_um_per_cycle: 0.5,
+        ramp_um_per_s: 20.0,
+        stale_hold_s: 2.0,
+    };
+    Engine::from_config(
+        &EngineConfig {
+            axes: vec![EngineAxis {
+                axis: Axis::X,
+                position: ChannelId::of("x_mm"),
+                safety,
+            }],
+            channels: vec![(ChannelId::of("T_spindle_C"), T_LIMITS)],
+            recoveries: vec![],
+            direction: DirectionConfig {
+                deadband_mm: 0.005,
+                switch_time_s: 0.1,
+            },
+            thermal_period_s: 1.0,
+            enabled: true,
+        },
+        &[],
+    )
+    .unwrap()
+}
+
+fn model() -> Box<MachineModelAdapter> {
+    Box::new(MachineModelAdapter::new(
+        MachineModel::from_toml_str(MODEL, "dnc_model.toml").unwrap(),
+    ))
+}
+
+fn temp(t_s: f64, value: f64) -> Sample {
+    Sample {
+        channel: ChannelId::of("T_spindle_C"),
+        t_s,
+        value,
+        health: Health::Ok,
+    }
+}
+
+/// The DNC side: the engine at each block's end point, through the guard.
+fn dnc_live() -> LiveCorrections {
+    LiveCorrections::new(
+        Box::new(EngineAtPoint::new(engine(), model())),
+        [(100.0, 50.0), (0.0, 0.0), (0.0, 0.0)],
+    )
+}
+
+/// The gateway's own cycle, fed the same temperatures as the DNC side.
+struct Gateway {
+    engine: Engine,
+    model: Box<MachineModelAdapter>,
+}
+
+fn gateway() -> Gateway {
+    Gateway {
+        engine: engine(),
+        model: model(),
+    }
+}
+
+fn feed(lc: &LiveCorrections, gw: &mut Gateway, s: Sample) {
+    lc.observe(&s);
+    gw.engine.ingest(&s);
+}
+
+#[derive(Debug)]
+struct Judged {
+    cx_um: f64,
+    /// The faults of T_spindle_C as the DNC engine and the gateway's cycle judge them.
+    dnc: Vec<FaultKind>,
+    gateway: Vec<FaultKind>,
+    model_fault: Option<String>,
+}
+
+/// Send `line` at `t_s` while the gateway cycles at the same time.
+fn block(
+    core: &mut DncCore<'_>,
+    lc: &LiveCorrections,
+    gw: &mut Gateway,
+    (n, line): (u64, &str),
+    t_s: f64,
+) -> Judged {
+    core.feed_line(n, line).unwrap();
+    assert!(core.next_to_send(t_s).unwrap().is_some());
+    let b = core.sent(t_s).unwrap();
+    gw.engine.cycle(t_s, gw.model.as_mut());
+    let faults = |s: StatusSnapshot| -> Vec<FaultKind> {
+        s.active_faults
+            .into_iter()
+            .filter(|(src, _, _)| src == "T_spindle_C")
+            .map(|(_, k, _)| k)
+            .collect()
+    };
+    Judged {
+        cx_um: b.applied.unwrap().correction_um[0],
+        dnc: faults(lc.snapshot().unwrap()),
+        gateway: faults(gw.engine.snapshot()),
+        model_fault: lc.model_fault(),
+    }
+}
+
+/// 25 °C at 0 s, then the first block at `t_s`: X350 approached forward, EXX 8·350/400 = 7 µm +
+/// 5 K × 2 µm/K = 17 µm → −17 µm, no fault on either side.
+fn first_block_at_x350(core: &mut DncCore<'_>, lc: &LiveCorrections, gw: &mut Gateway, t_s: f64) {
+    feed(lc, gw, temp(0.0, 25.0));
+    let j = block(core, lc, gw, (1, "G90 G1 X350 F100"), t_s);
+    assert!((j.cx_um + 17.0).abs() < 0.05 + 1e-9, "{j:?}");
+    assert!(j.dnc.is_empty() && j.gateway.is_empty(), "{j:?}");
+}
+
+#[test]
+fn a_stale_temperature_is_refused_as_the_gateway_refuses_it_and_the_block_holds() {
+    let (lc, mut gw) = (dnc_live(), gateway());
+    let mut core = DncCore::new(cfg(), &lc);
+    first_block_at_x350(&mut core, &lc, &mut gw, 0.5);
+    // No temperature for 4 s (stale after 2 s): refused, the block carries −17 µm again.
+    let j = block(&mut core, &lc, &mut gw, (2, "X50"), 4.0);
+    assert_eq!(j.cx_um, -17.0, "{j:?}");
+    assert_eq!(j.dnc, vec![FaultKind::Stale]);
+    assert_eq!(j.dnc, j.gateway, "judged as the gateway judges it");
+    let why = j.model_fault.unwrap();
+    assert!(why.contains("T_spindle_C (stale)"), "{why}");
+    // A fresh reading is used from the next thermal latch on (1 s period, as in the gateway):
+    // X50 reverse, −3 + 8·50/400 = −2 µm, + 10 µm = 8 µm → −8 µm.
+    feed(&lc, &mut gw, temp(4.1, 25.0));
+    let j = block(&mut core, &lc, &mut gw, (3, "X50.0"), 4.2);
+    assert_eq!(j.cx_um, -17.0, "{j:?}");
+    let why = j.model_fault.unwrap();
+    assert!(why.contains("next thermal latch"), "{why}");
+    feed(&lc, &mut gw, temp(5.0, 25.0));
+    let j = block(&mut core, &lc, &mut gw, (4, "X50.00"), 5.1);
+    assert!((j.cx_um + 8.0).abs() < 0.05 + 1e-9, "{j:?}");
+    assert!(j.dnc.is_empty() && j.gateway.is_empty(), "{j:?}");
+    assert!(j.model_fault.is_none());
+}
+
+#[test]
+fn an_out_of_range_or_too_fast_temperature_is_refused_as_the_gateway_refuses_it() {
+    let (lc, mut gw) = (dnc_live(), gateway());
+    let mut core = DncCore::new(cfg(), &lc);
+    first_block_at_x350(&mut core, &lc, &mut gw, 0.2);
+    // 500 °C is beyond the channel's 0…80: never used, the block holds −17 µm.
+    feed(&lc, &mut gw, temp(0.5, 500.0));
+    let j = block(&mut core, &lc, &mut gw, (2, "X350.0"), 0.6);
+    assert_eq!(j.cx_um, -17.0, "{j:?}");
+    assert_eq!(j.dnc, vec![FaultKind::OutOfRange]);
+    assert_eq!(j.dnc, j.gateway);
+    // 25 → 45 °C in 1 s, beyond 1 K/s: a rate fault, refused the same way.
+    feed(&lc, &mut gw, temp(1.0, 45.0));
+    let j = block(&mut core, &lc, &mut gw, (3, "X350.00"), 1.1);
+    assert_eq!(j.cx_um, -17.0, "{j:?}");
+    assert_eq!(j.dnc, vec![FaultKind::RateOfChange]);
+    assert_eq!(j.dnc, j.gateway);
+    // Plausible again (25.5 °C): live, 17 + 0.5 K × 2 µm/K = 18 µm → −18 µm.
+    feed(&lc, &mut gw, temp(1.5, 25.5));
+    let j = block(&mut core, &lc, &mut gw, (4, "X350.000"), 2.2);
+    assert!((j.cx_um + 18.0).abs() < 0.05 + 1e-9, "{j:?}");
+    assert!(j.dnc.is_empty() && j.gateway.is_empty(), "{j:?}");
+}
+
+#[test]
+fn the_transfers_faults_start_and_clear_in_the_published_status_and_metrics() {
+    use super::faults::DncFaults;
+    use super::shell::DncSummary;
+    let (tx, rx) = tokio::sync::watch::channel(None);
+    let mut faults = DncFaults::new(Some(tx));
+    let mut sum = DncSummary::default();
+    let lc = failing_after_1_5_s();
+    let sink_faults = || {
+        let s = rx.borrow().clone().unwrap();
+        let k = s.sink.clone().unwrap();
+        assert_eq!(k.kind, "dnc");
+        assert_eq!(
+            s.active_faults, k.faults,
+            "the transfer's faults are the box's"
+        );
+        (
+            k.faults
+                .into_iter()
+                .map(|(src, kind, _)| (src, kind))
+                .collect::<Vec<_>>(),
+            s.prometheus(),
+        )
+    };
+    faults.stall(
+        Some(StallEdge::Started {
+            since_s: 0.5,
+            line: 2,
+        }),
+        &mut sum,
+        5.6,
+    );
+    faults.publish(&lc, &sum, 5.6);
+    let (f, metrics) = sink_faults();
+    assert_eq!(f, vec![("sink.dnc".to_string(), FaultKind::Disconnected)]);
+    assert!(
+        metrics.contains(r#"retrocomp_sink_fault_active{source="sink.dnc",kind="disconnected"} 1"#),
+        "{metrics}"
+    );
+    faults.stall(Some(StallEdge::Cleared { after_s: 7.0 }), &mut sum, 7.0);
+    faults.publish(&lc, &sum, 7.0);
+    assert_eq!(sink_faults().0, vec![], "cleared at XON");
+    // Two blocks, the second one after the model's inputs failed: sent with the held value.
+    let mut core = DncCore::new(cfg(), &lc);
+    let (_, log) = drain(&mut core, "G1 X100 F100\nX300", 2.0);
+    faults.block(&lc, &mut sum, log[1].line, 8.0);
+    faults.line_refused(8.0);
+    faults.publish(&lc, &sum, 8.0);
+    let (f, metrics) = sink_faults();
+    assert_eq!(
+        f,
+        vec![
+            ("sink.dnc.line".to_string(), FaultKind::OutOfRange),
+            ("sink.dnc.model".to_string(), FaultKind::Decode),
+        ]
+    );
+    assert!(metrics.contains("retrocomp_faults_active 2"), "{metrics}");
+    assert_eq!((sum.stalls, sum.model_faults), (1, 1));
+    let held = rx.borrow().clone().unwrap().sink.clone().unwrap().held_um;
+    assert!(
+        held.is_empty(),
+        "a source without axes names none: {held:?}"
+    );
 }

@@ -195,7 +195,7 @@ pub fn thinned(x: &[f64], y: &[f64], max: usize) -> Vec<(f64, f64)> {
 
 /// Quantile `p` of sorted values (nearest rank).
 fn quantile(sorted: &[f64], p: f64) -> f64 {
-    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
+    sorted[crate::numeric::rank(sorted.len(), p)]
 }
 
 /// y-limits that show the bulk of `values`: the 1 %–99 % quantiles widened by half their span, never
@@ -355,7 +355,7 @@ fn draw(
     layout: &mut FigureLayout,
     notes: &[String],
 ) -> DrawResult<()> {
-    let n = f.panels.len() as u32;
+    let n = u32::try_from(f.panels.len()).expect("a figure has a handful of panels");
     let height = HEIGHT_PX + (n - 1) * PANEL_HEIGHT_PX;
     let root = SVGBackend::with_string(svg, (WIDTH_PX, height)).into_drawing_area();
     root.fill(&WHITE)?;
@@ -417,7 +417,7 @@ fn draw(
             let centre = (px[0] + px[2]) / 2 - sx.start;
             strip.draw(&Text::new(
                 s.name.clone(),
-                (centre, STRIP_PX as i32 / 2),
+                (centre, crate::numeric::px(STRIP_PX) / 2),
                 style.clone(),
             ))?;
             px[1] = sy.start;
@@ -498,7 +498,7 @@ where
         for (k, line) in wrap(&s.name, 28).iter().enumerate() {
             panel.draw(&Text::new(
                 line.clone(),
-                (40, y - 7 + k as i32 * 15),
+                (40, y - 7 + crate::numeric::px_count(k) * 15),
                 font.clone(),
             ))?;
             if k > 0 {
@@ -509,7 +509,7 @@ where
     }
     let bottom = y - row + 12;
     panel.draw(&Rectangle::new(
-        [(4, 8), (w as i32 - 6, bottom)],
+        [(4, 8), (crate::numeric::px(w) - 6, bottom)],
         LEGEND_FRAME.stroke_width(1),
     ))?;
     let mut y = bottom + 22;
@@ -524,7 +524,7 @@ where
     Ok([
         px.start + 4,
         py.start + 8,
-        px.start + w as i32 - 6,
+        px.start + crate::numeric::px(w) - 6,
         py.start + bottom,
     ])
 }

@@ -51,7 +51,7 @@ fn legend_beside_the_plot_area_covers_no_data_point() {
     assert_eq!(g.legend_boxes.len(), 1);
     // The box read back from the SVG is the one the layout reports, right of the plot area.
     let b = g.legend_boxes[0];
-    assert_eq!(b.map(|v| v as i32), layout.legend_px);
+    assert_eq!(b, layout.legend_px.map(f64::from));
     assert!(layout.legend_px[0] > layout.plot_px[2]);
     // Every data element was drawn (200 markers, 200 line markers, polyline, band polygon) …
     assert!(g.data_points.len() > 600, "{}", g.data_points.len());

@@ -48,6 +48,10 @@ type Seen = std::collections::HashMap<(i64, u32, char), u64>;
 /// A second reading for the same target, run and direction is an error (it would silently weigh
 /// that run twice in the means).
 fn check_duplicate(sink: &mut ErrorSink, seen: &mut Seen, r: &Reading, line: u64) {
+    #[allow(
+        clippy::cast_possible_truncation,
+        reason = "a key only: targets are finite and far inside ±9·10⁹ mm, so nm fit an i64 exactly"
+    )]
     let key = (
         (r.target_mm * 1e6).round() as i64,
         r.run,
@@ -376,9 +380,12 @@ mod tests {
         let wide = "# laser export\ntarget_mm,run1_fwd_um,run1_rev_um\n0,1.5,-0.5\n10,2,0\n";
         let mut a = parse_readings("a.csv", long).unwrap();
         let mut b = parse_readings("b.csv", wide).unwrap();
-        let key = |r: &Reading| (r.target_mm as i64, r.direction.symbol());
-        a.sort_by_key(key);
-        b.sort_by_key(key);
+        let order = |x: &Reading, y: &Reading| {
+            (x.target_mm.total_cmp(&y.target_mm))
+                .then(x.direction.symbol().cmp(&y.direction.symbol()))
+        };
+        a.sort_by(order);
+        b.sort_by(order);
         assert_eq!(a, b);
         assert_eq!(a.len(), 4);
     }

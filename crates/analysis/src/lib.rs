@@ -9,6 +9,22 @@
 //!
 //! Every importer reports file, line and column of each bad row and never drops one silently
 //! ([`import_error::ImportErrors`]).
+//!
+//! Every numeric conversion that could truncate, wrap or lose a sign is a `try_from`, or an `as`
+//! after a clamp or check with its reason beside it (these lints are errors in CI).
+#![warn(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    clippy::cast_possible_wrap,
+    clippy::float_cmp
+)]
+#![cfg_attr(
+    test,
+    allow(
+        clippy::float_cmp,
+        reason = "tests assert values that are exact in binary or parsed from the same decimal text"
+    )
+)]
 
 pub mod chart;
 pub mod chart_geometry;
@@ -23,6 +39,7 @@ pub mod iso230_2;
 pub mod iso230_2_figure;
 pub mod laser_import;
 pub mod nc;
+pub mod numeric;
 pub mod plane_model;
 pub mod polar;
 pub mod report;

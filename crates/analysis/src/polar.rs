@@ -10,6 +10,7 @@ use plotters::prelude::*;
 
 use super::chart::{LEGEND_FRAME, PALETTE, PANEL_PX, wrap};
 use super::circular::{CircleReport, CircleTrace, Rotation};
+use super::numeric::px;
 use super::report::PlotError;
 
 /// Display units of one grid ring (the nominal circle has radius 1).
@@ -133,8 +134,8 @@ fn draw(
     let root = root.titled(title, ("sans-serif", 18))?;
     let (left, panel) = root.split_horizontally(SIZE_PX);
     let (w, h) = left.dim_in_pixel();
-    let side = w.min(h) as i32 - 20;
-    let area = left.shrink(((w as i32 - side) / 2, 0), (side, side));
+    let side = px(w.min(h)) - 20;
+    let area = left.shrink(((px(w) - side) / 2, 0), (side, side));
     let lim = 1.0 + 4.6 * RING_UNITS;
     let mut chart = ChartBuilder::on(&area).build_cartesian_2d(-lim..lim, -lim..lim)?;
     let grey = RGBColor(200, 200, 200);
@@ -229,7 +230,7 @@ where
         y += 20;
     }
     panel.draw(&Rectangle::new(
-        [(4, 8), (w as i32 - 6, y - 8)],
+        [(4, 8), (px(w) - 6, y - 8)],
         LEGEND_FRAME.stroke_width(1),
     ))?;
     y += 14;

@@ -4,6 +4,22 @@
 //! against its own model. The box's side of the protocol (the edge node, the payload codec) is
 //! `retrocomp_gateway::northbound::telemetry`. Units as in the status snapshot: µm for corrections
 //! (correction = −error), mm for positions; timestamps ms since the Unix epoch.
+//!
+//! Every numeric conversion that could truncate, wrap or lose a sign is a `try_from`, or an `as`
+//! after a clamp or check with its reason beside it (these lints are errors in CI).
+#![warn(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    clippy::cast_possible_wrap,
+    clippy::float_cmp
+)]
+#![cfg_attr(
+    test,
+    allow(
+        clippy::float_cmp,
+        reason = "tests assert values that are exact in binary or parsed from the same decimal text"
+    )
+)]
 
 pub mod drift;
 pub mod fleet;

@@ -179,7 +179,7 @@ impl Context {
             tool_mm: rec.col_shared("tool_mm"),
             run: rec
                 .col("run")
-                .map(|r| r.iter().map(|v| v.round() as i64).collect()),
+                .map(|r| r.iter().map(|&v| run_id(v)).collect()),
             others: grab(rec.other_channels()),
             krpm2: rec.col("rpm").and_then(krpm2_of),
             powers: rec
@@ -300,7 +300,7 @@ impl Context {
             return Some((vec![0; n], 1));
         }
         let k = MAX_POSITION_CELLS;
-        let cell = |x: f64| (((x - lo) / (hi - lo) * k as f64) as usize).min(k - 1);
+        let cell = |x: f64| crate::numeric::bin(x, lo, hi, k);
         Some((f.pos_mm.iter().map(|&x| cell(x)).collect(), k))
     }
 
@@ -333,10 +333,23 @@ impl Context {
     }
 }
 
+/// A `run` column's value as its block id: run ids are small whole numbers in the CSV.
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "saturating: a run id beyond ±9·10¹⁸ is still one id, the same for each of its rows"
+)]
+fn run_id(v: f64) -> i64 {
+    v.round() as i64
+}
+
 /// Axis features; the direction latch restarts at every change of `run` (a new run is a new
 /// approach: its first samples take the direction of its own first move, like the first samples of
 /// the recording), so a reverse laser run that starts where the forward run ended is read as reverse.
 /// A readings-only recording (see [`pass_starts`]) restarts it at each inferred pass as well.
+#[allow(
+    clippy::float_cmp,
+    reason = "a run id changes or it does not: ids are exact small integers"
+)]
 fn axis_features(t_s: Arc<[f64]>, pos: Arc<[f64]>, run: Option<&[f64]>) -> AxisFeatures {
     let n = pos.len();
     let mut starts = vec![0];
@@ -366,7 +379,9 @@ fn axis_features(t_s: Arc<[f64]>, pos: Arc<[f64]>, run: Option<&[f64]>) -> AxisF
         .map(|x| {
             distinct_mm
                 .binary_search_by(|d| d.total_cmp(x))
-                .expect("present") as u32
+                .ok()
+                .and_then(|k| u32::try_from(k).ok())
+                .expect("present, and a recording has fewer than 2³² rows")
         })
         .collect();
     AxisFeatures {

@@ -36,7 +36,7 @@ pub fn forward_ms_at<C: AsRef<[f64]>>(cols: &[C], r: &[f64], split: usize) -> f6
 }
 
 fn fit_rows(n: usize) -> usize {
-    (n as f64 * FORWARD_FIT_FRACTION) as usize
+    crate::numeric::trunc_usize(n as f64 * FORWARD_FIT_FRACTION)
 }
 
 /// The forward check of one signal's final model; `None` without terms, or when either side of

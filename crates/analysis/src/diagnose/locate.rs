@@ -22,7 +22,7 @@ fn bin_edges(v: &[f64]) -> Option<(f64, f64)> {
 }
 
 fn bin_of(x: f64, lo: f64, hi: f64) -> usize {
-    (((x - lo) / (hi - lo) * BINS as f64) as usize).min(BINS - 1)
+    crate::numeric::bin(x, lo, hi, BINS)
 }
 
 /// Regimes over which a residual can concentrate: (description, membership per sample).

@@ -185,7 +185,9 @@ pub fn quasi_difference(v: &[f64], rho: f64) -> Vec<f64> {
 /// The Newey–West window of [`effective_n`]: L = 4·n^{1/3} lags, at most n/10 (short records
 /// cannot estimate long lags), at least 1.
 pub fn newey_west_lags(n: usize) -> usize {
-    ((4.0 * (n as f64).cbrt()) as usize).min(n / 10).max(1)
+    crate::numeric::trunc_usize(4.0 * (n as f64).cbrt())
+        .min(n / 10)
+        .max(1)
 }
 
 /// Records at least this long get their autocovariances by FFT in [`effective_n`] (and cyclic
@@ -217,15 +219,26 @@ fn gram(
     r: &[f64],
     rows: impl Iterator<Item = usize> + Clone,
 ) -> (DMatrix<f64>, DVector<f64>) {
-    let p = cols.len();
+    gram_by(cols.len(), rows, |a, i| cols[a][i], |i| r[i])
+}
+
+/// [`gram`] of columns read through `x(a, i)` (column `a`, row `i`) and target `y(i)`, so a
+/// transformed column (demeaned within cells) need not be stored: the same sums in the same order.
+fn gram_by(
+    p: usize,
+    rows: impl Iterator<Item = usize>,
+    x: impl Fn(usize, usize) -> f64,
+    y: impl Fn(usize) -> f64,
+) -> (DMatrix<f64>, DVector<f64>) {
     let mut g = DMatrix::zeros(p, p);
     let mut h = DVector::zeros(p);
     for i in rows {
+        let yi = y(i);
         for a in 0..p {
-            let xa = cols[a][i];
-            h[a] += xa * r[i];
+            let xa = x(a, i);
+            h[a] += xa * yi;
             for b in 0..=a {
-                g[(a, b)] += xa * cols[b][i];
+                g[(a, b)] += xa * x(b, i);
             }
         }
     }
@@ -282,14 +295,20 @@ pub fn residual(cols: &[&[f64]], beta: &[f64], r: &[f64]) -> Vec<f64> {
 
 /// [`fit`] with `extra` nuisance parameters already removed from `cols` and `r`.
 fn fit_dof(cols: &[&[f64]], r: &[f64], extra: usize) -> Fit {
-    let n = r.len();
-    let (g, h) = gram(cols, r, 0..n);
+    let (g, h) = gram(cols, r, 0..r.len());
     let (beta, inv) = pinv_solve(&g, &h);
     let coef: Vec<f64> = beta.iter().copied().collect();
     let resid = residual(cols, &coef, r);
+    fit_of(coef, inv, resid, cols.len() + extra)
+}
+
+/// The [`Fit`] of solved coefficients: `inv` the pseudo-inverse of the Gram matrix, `resid` the
+/// residual, `params` the parameters spent (columns and nuisance).
+fn fit_of(coef: Vec<f64>, inv: DMatrix<f64>, resid: Vec<f64>, params: usize) -> Fit {
+    let n = resid.len();
     let rss = dot(&resid, &resid);
     let n_eff = effective_n(&resid);
-    let dof = (n_eff - (cols.len() + extra) as f64).max(1.0);
+    let dof = (n_eff - params as f64).max(1.0);
     let sigma2 = rss / n as f64 * n_eff / dof; // per-sample variance, corrected for lost dof
     let inflate = n as f64 / n_eff;
     Fit {
@@ -307,7 +326,7 @@ fn fit_dof(cols: &[&[f64]], r: &[f64], extra: usize) -> Fit {
 /// and `r` demeaned within cells (the cells count in the lost degrees of freedom). No dense
 /// indicator columns: 32 of them were 0.25 GB on a 1M-row recording.
 pub fn fit_within_cells(cols: &[&[f64]], r: &[f64], cell: &[usize], k: usize) -> Fit {
-    let demeaned = |v: &[f64]| {
+    let cell_means = |v: &[f64]| {
         let mut sum = vec![0.0; k];
         let mut cnt = vec![0usize; k];
         for (x, &c) in v.iter().zip(cell) {
@@ -317,16 +336,22 @@ pub fn fit_within_cells(cols: &[&[f64]], r: &[f64], cell: &[usize], k: usize) ->
         for (m, &c) in sum.iter_mut().zip(&cnt) {
             *m /= c.max(1) as f64;
         }
-        v.iter()
-            .zip(cell)
-            .map(|(x, &c)| x - sum[c])
-            .collect::<Vec<f64>>()
+        sum
     };
-    let rd = demeaned(r);
-    let cd: Vec<Vec<f64>> = cols.iter().map(|c| demeaned(c)).collect();
-    let refs: Vec<&[f64]> = cd.iter().map(Vec::as_slice).collect();
+    // Demeaned as each row is read, not stored: a stored copy was 8 MB per column at 10⁶ rows,
+    // the peak of the whole diagnosis (issue 36 point 7).
+    let r_means = cell_means(r);
+    let col_means: Vec<Vec<f64>> = cols.iter().map(|c| cell_means(c)).collect();
+    let x = |a: usize, i: usize| cols[a][i] - col_means[a][cell[i]];
+    let y = |i: usize| r[i] - r_means[cell[i]];
+    let (g, h) = gram_by(cols.len(), 0..r.len(), x, y);
+    let (beta, inv) = pinv_solve(&g, &h);
+    let coef: Vec<f64> = beta.iter().copied().collect();
+    let resid = (0..r.len())
+        .map(|i| y(i) - (0..cols.len()).map(|a| coef[a] * x(a, i)).sum::<f64>())
+        .collect();
     // Every cell counts as a parameter, as its indicator column did (even an empty one).
-    fit_dof(&refs, &rd, k)
+    fit_of(coef, inv, resid, cols.len() + k)
 }
 
 /// Held-out RSS: for each block, fit on the other blocks and predict this one.

@@ -451,7 +451,9 @@ fn fmt_value(v: &serde_json::Value) -> String {
     match v {
         serde_json::Value::Number(n) => {
             let x = n.as_f64().unwrap_or(f64::NAN);
-            let digits = (3 - x.abs().max(1e-300).log10().floor() as i32).clamp(0, 12) as usize;
+            let digits = crate::numeric::trunc_usize(
+                (3.0 - x.abs().max(1e-300).log10().floor()).clamp(0.0, 12.0),
+            );
             format!("{x:.digits$}")
         }
         serde_json::Value::Array(a) => {

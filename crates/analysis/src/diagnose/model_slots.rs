@@ -478,7 +478,7 @@ fn add_to_table(
         h = h.min(period_mm / NODES_PER_PERIOD);
     }
     h = h.max(span / (MAX_NODES - 1) as f64);
-    let n = (span / h).ceil() as usize;
+    let n = crate::numeric::ceil_usize(span / h);
     let mut nodes: Vec<f64> = (0..=n).map(|i| lo + span * i as f64 / n as f64).collect();
     nodes.extend(extra_nodes);
     if let EffectModel::ReversalProfile { edges_mm, .. } = m {

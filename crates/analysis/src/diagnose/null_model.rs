@@ -298,7 +298,7 @@ pub(super) fn recording_rejects_unit_root(taus: &[(f64, f64)]) -> Option<bool> {
 /// Lagged differences in the augmented Dickey–Fuller regression: Schwert's 4·(n/100)^{1/4}, at
 /// most 12 and n/20 (short records).
 pub(super) fn adf_lags(n: usize) -> usize {
-    ((4.0 * (n as f64 / 100.0).powf(0.25)) as usize)
+    crate::numeric::trunc_usize(4.0 * (n as f64 / 100.0).powf(0.25))
         .min(12)
         .min(n / 20)
 }
@@ -433,7 +433,7 @@ pub(super) fn without_cell_means(ctx: &Context, axis: char, r: &[f64]) -> Vec<f6
         return r.to_vec();
     }
     let cell = |i: usize| {
-        let b = (((f.pos_mm[i] - lo) / (hi - lo) * BINS as f64) as usize).min(BINS - 1);
+        let b = crate::numeric::bin(f.pos_mm[i], lo, hi, BINS);
         2 * b + usize::from(f.dir[i] > 0)
     };
     let mut sum = [0.0; 2 * BINS];

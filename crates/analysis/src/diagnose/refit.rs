@@ -331,7 +331,9 @@ mod tests {
     #[test]
     fn a_term_that_predicts_later_rows_worse_goes_unless_leave_one_block_out_needs_it_more() {
         let n = 1000;
-        let split = (n as f64 * super::super::forward_check::FORWARD_FIT_FRACTION) as usize;
+        let split = crate::numeric::trunc_usize(
+            n as f64 * super::super::forward_check::FORWARD_FIT_FRACTION,
+        );
         let step: Vec<f64> = (0..n).map(|i| ((i / 100) % 2) as f64).collect();
         let ramp: Vec<f64> = (0..n).map(|i| i as f64 / n as f64).collect();
         // 2 µm per step unit, a slow 1.2 µm drift that stops at the split, a small wiggle.

@@ -134,6 +134,10 @@ fn stat_candidates(
 type StatCandidate = (Candidate, f64, Vec<f64>, String);
 
 /// The statistical fit on rows `..o`: (intercept, (candidate index, gain) per term).
+#[allow(
+    clippy::float_cmp,
+    reason = "τ values are copied from the same refit, never computed twice: equal means the same term"
+)]
 fn stat_fit(cands: &[StatCandidate], r: &[f64], o: usize) -> Option<(f64, Vec<(usize, f64)>)> {
     let rc: Vec<regression::Candidate> = cands
         .iter()

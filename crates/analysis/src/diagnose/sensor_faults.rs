@@ -161,11 +161,15 @@ fn quantile(v: &mut [f64], q: f64) -> f64 {
     if v.is_empty() {
         return 0.0;
     }
-    let k = ((v.len() - 1) as f64 * q).round() as usize;
+    let k = crate::numeric::rank(v.len(), q);
     *v.select_nth_unstable_by(k, f64::total_cmp).1
 }
 
 /// Runs of one unchanged reading far longer than the column's usual repeats.
+#[allow(
+    clippy::float_cmp,
+    reason = "a stuck sensor repeats the identical reading: bit-equality is the test"
+)]
 fn stuck(name: &str, v: &[f64], t: &[f64]) -> Vec<SensorFault> {
     let mut runs: Vec<[usize; 2]> = vec![];
     for i in 0..v.len() {
@@ -246,6 +250,10 @@ fn steps(name: &str, v: &[f64], t: &[f64], busy: &[[usize; 2]]) -> Vec<SensorFau
 }
 
 /// Theil–Sen fit y ≈ a + b·x: (a, b).
+#[allow(
+    clippy::float_cmp,
+    reason = "equal abscissae give no slope (a division by zero); any difference gives one"
+)]
 fn theil_sen(x: &[f64], y: &[f64]) -> Option<(f64, f64)> {
     let mut slopes = vec![];
     for i in 0..x.len() {

@@ -94,6 +94,11 @@ pub enum FanucError {
     Table(#[from] TableError),
 }
 
+/// Rounded half away from zero, in the parameter's integer type.
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "saturating: a value past i64 then fails the ±max_abs_value check (pitch values) or is no parameter a control holds anyway"
+)]
 fn round_half_away(x: f64) -> i64 {
     x.round() as i64
 }
@@ -116,19 +121,23 @@ pub fn to_fanuc(
     let lo_mm = table.positions_mm[0];
     let hi_mm = *table.positions_mm.last().expect("validated non-empty");
     // Grid index of the travel ends, rounded outward (a grid-aligned end stays on its point).
-    let k_lo = ((lo_mm - cfg.ref_position_mm) / cfg.interval_mm + 1e-9).floor() as i64;
-    let k_hi = ((hi_mm - cfg.ref_position_mm) / cfg.interval_mm - 1e-9).ceil() as i64;
+    let k_lo = round_half_away(((lo_mm - cfg.ref_position_mm) / cfg.interval_mm + 1e-9).floor());
+    let k_hi = round_half_away(((hi_mm - cfg.ref_position_mm) / cfg.interval_mm - 1e-9).ceil());
     // Fanuc's formula: point n covers the segment below it, so the lowest segment (from grid
     // index k_lo) is carried by point ref + k_lo + 1.
     let min_point = i64::from(cfg.ref_point) + k_lo.min(0) + 1;
     let max_point = i64::from(cfg.ref_point) + k_hi.max(0);
-    if min_point < 0 {
-        return Err(FanucError::PointRange {
-            lo_mm,
-            hi_mm,
-            ref_point: cfg.ref_point,
-        });
-    }
+    let point_range = || FanucError::PointRange {
+        lo_mm,
+        hi_mm,
+        ref_point: cfg.ref_point,
+    };
+    // Point numbers are parameters (u32): below 0 or past u32 the table cannot be written.
+    let (Ok(p3621_min_point), Ok(p3622_max_point)) =
+        (u32::try_from(min_point), u32::try_from(max_point))
+    else {
+        return Err(point_range());
+    };
     let unit = cfg.detection_unit_um * f64::from(cfg.magnification);
     let mean = table.mean_um();
     let correction_units = |n: i64| -> f64 {
@@ -138,16 +147,17 @@ pub fn to_fanuc(
     let c_ref = correction_units(i64::from(cfg.ref_point));
     let cumulative = |n: i64| round_half_away(correction_units(n) - c_ref);
     let mut values = BTreeMap::new();
-    for n in min_point..=max_point {
+    for point in p3621_min_point..=p3622_max_point {
+        let n = i64::from(point);
         let v = cumulative(n) - cumulative(n - 1);
         if v.abs() > cfg.max_abs_value {
             return Err(FanucError::ValueRange {
-                point: n as u32,
+                point,
                 value: v,
                 max: cfg.max_abs_value,
             });
         }
-        values.insert(n as u32, v);
+        values.insert(point, v);
     }
     let lost_motion_um = table
         .reverse_um
@@ -159,10 +169,10 @@ pub fn to_fanuc(
     Ok(FanucAxis {
         axis: cfg.axis,
         p3620_ref_point: cfg.ref_point,
-        p3621_min_point: min_point as u32,
-        p3622_max_point: max_point as u32,
+        p3621_min_point,
+        p3622_max_point,
         p3623_magnification: cfg.magnification,
-        p3624_interval_units: units_per_interval.round() as i64,
+        p3624_interval_units: round_half_away(units_per_interval),
         p1851_backlash_units: round_half_away(lost_motion_um / cfg.detection_unit_um),
         p1850_ref_shift_units: round_half_away(c_ref * f64::from(cfg.magnification)),
         values,
@@ -406,12 +416,33 @@ fn tape_axis(
     ) else {
         return None;
     };
+    // Point numbers and the magnification are unsigned: a negative one is an error on the tape,
+    // not a number to wrap.
+    let mut unsigned = |p: u32, v: i64| {
+        let u = u32::try_from(v).ok();
+        if u.is_none() {
+            sink.push(
+                0,
+                Some(&format!("N{p} A{a}")),
+                "must be a whole number from 0 to 4294967295",
+            );
+        }
+        u
+    };
+    let (Some(r), Some(lo), Some(hi), Some(m)) = (
+        unsigned(3620, r),
+        unsigned(3621, lo),
+        unsigned(3622, hi),
+        unsigned(3623, m),
+    ) else {
+        return None;
+    };
     Some(FanucAxis {
         axis: a,
-        p3620_ref_point: r as u32,
-        p3621_min_point: lo as u32,
-        p3622_max_point: hi as u32,
-        p3623_magnification: m as u32,
+        p3620_ref_point: r,
+        p3621_min_point: lo,
+        p3622_max_point: hi,
+        p3623_magnification: m,
         p3624_interval_units: iv,
         p1851_backlash_units: b,
         // Optional: a tape without it has no reference-point shift.

@@ -117,7 +117,7 @@ pub fn phase_difference_deg(a_deg: f64, b_deg: f64) -> f64 {
 /// (both ends included).
 pub fn table_positions(lo_mm: f64, hi_mm: f64, lead_mm: f64) -> Vec<f64> {
     let max_step = lead_mm / TABLE_STEPS_PER_LEAD;
-    let n = (((hi_mm - lo_mm) / max_step).ceil() as usize).max(1);
+    let n = crate::numeric::ceil_usize((hi_mm - lo_mm) / max_step).max(1);
     (0..=n)
         .map(|k| lo_mm + (hi_mm - lo_mm) * k as f64 / n as f64)
         .collect()

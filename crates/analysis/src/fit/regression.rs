@@ -246,7 +246,7 @@ fn best_subsets(
     let (sse0, _) = fit_subset(yv, cands, &[])?;
     path.push((vec![], sse0));
     for k in 1..=kmax {
-        let cost = binom(g, k) * (lags as f64).powi(k as i32);
+        let cost = binom(g, k) * (lags as f64).powi(i32::try_from(k).unwrap_or(i32::MAX));
         let best = if cost <= 20_000.0 {
             let mut best: Option<Subset> = None;
             let mut chosen = Vec::new();

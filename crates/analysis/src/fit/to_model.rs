@@ -50,6 +50,10 @@ fn absolute_base(p: &PiecewiseQuadratic) -> [f64; 3] {
 }
 
 /// The component for an axis fit.
+#[allow(
+    clippy::float_cmp,
+    reason = "knots are copied from the two fits' shared knot vector: the same knot is bit-equal"
+)]
 pub fn axis_component(
     fit: &AxisFit,
     id: ComponentId,
@@ -212,6 +216,10 @@ pub fn add_thermal(
 /// The sensor a regressor reads: `T_<name>_C` → `<name>`; a driver `col^p` → `<col>_sq_tau_<τ>s`
 /// (p = 2) or `<col>_p<p>_tau_<τ>s`, reading `col` raised to p. Reference 0 until the caller sets
 /// it.
+#[allow(
+    clippy::float_cmp,
+    reason = "an exponent is 1.0 or 2.0 as written by the driver table, never computed"
+)]
 fn sensor_for(signal: &str, tau_s: Option<f64>) -> SensorSpec {
     let t = tau_s.unwrap_or(0.0).round();
     let (name, column, exponent) = match Driver::of_signal(signal) {

@@ -338,6 +338,10 @@ fn candidates(
 }
 
 /// [`fit_context`] with drivers, a base model's prediction and a final fit on every row.
+#[allow(
+    clippy::float_cmp,
+    reason = "run numbers are small integers, exact in f64 (parsed from the recording)"
+)]
 pub fn fit_context_with(
     rec: &Recording,
     signal: &str,

@@ -229,11 +229,15 @@ impl Rows {
         for rec in rdr.records() {
             match rec {
                 Ok(r) => {
-                    let line = r.position().map_or(0, |p| p.line() as usize);
+                    let line = r
+                        .position()
+                        .map_or(0, |p| usize::try_from(p.line()).unwrap_or(usize::MAX));
                     rows.push((line, r.iter().map(str::to_string).collect()));
                 }
                 Err(e) => {
-                    let line = e.position().map_or(0, |p| p.line() as usize);
+                    let line = e
+                        .position()
+                        .map_or(0, |p| usize::try_from(p.line()).unwrap_or(usize::MAX));
                     iss.at(line, e);
                 }
             }

@@ -181,7 +181,7 @@ pub fn component_bases(
     let mut v = Vec::new();
     for axis in Axis::ALL {
         let (lo, hi) = range_mm[axis.index()];
-        let n = (((hi - lo) / knot_step_mm).ceil() as usize)
+        let n = crate::numeric::ceil_usize((hi - lo) / knot_step_mm)
             .saturating_sub(1)
             .min(max_knots);
         let knots: Vec<f64> = (1..=n)

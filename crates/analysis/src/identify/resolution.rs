@@ -82,7 +82,7 @@ pub fn resolution(id: &Identification, knot_step_mm: f64, max_knots: usize) -> R
     let axes: Vec<AxisResolution> = (0..3)
         .map(|k| {
             let (lo, hi) = id.range_mm[k];
-            let n = (((hi - lo) / knot_step_mm).ceil() as usize)
+            let n = crate::numeric::ceil_usize((hi - lo) / knot_step_mm)
                 .saturating_sub(1)
                 .min(max_knots);
             let knot_spacing_mm = (hi - lo) / (n + 1) as f64;

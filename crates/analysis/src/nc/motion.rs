@@ -81,7 +81,7 @@ impl Rewriter<'_> {
                 limit: self.cfg.max_pieces_per_move,
             });
         }
-        Ok(n as usize)
+        Ok(crate::numeric::trunc_usize(n))
     }
 
     pub(super) fn motion_block(
@@ -227,6 +227,10 @@ impl Rewriter<'_> {
     }
 
     #[allow(clippy::too_many_arguments)]
+    #[allow(
+        clippy::float_cmp,
+        reason = "a P word is parsed from decimal text: P1 reads as exactly 1.0"
+    )]
     fn arc_block(
         &mut self,
         b: &Block,

@@ -287,9 +287,14 @@ impl<'a> Rewriter<'a> {
         refuse_subprograms(b)?;
         let has_axis = b.words.iter().any(|w| super::AXES.contains(&w.letter));
         let non_motion = self.modal(b, has_axis)?;
-        if b.get('M')
-            .is_some_and(|m| m.value == 30.0 || m.value == 2.0)
-        {
+        #[allow(
+            clippy::float_cmp,
+            reason = "an M word is parsed from decimal text: M30 and M2 read as exactly 30.0 and 2.0"
+        )]
+        let ends = b
+            .get('M')
+            .is_some_and(|m| m.value == 30.0 || m.value == 2.0);
+        if ends {
             self.st.ended = true;
         }
         if non_motion || !has_axis {
@@ -312,6 +317,10 @@ impl<'a> Rewriter<'a> {
             |code: f64, why: &'static str| RewriteError::Unsupported { line, code, why };
         let mut non_motion = false;
         for g in b.g_codes() {
+            #[allow(
+                clippy::cast_possible_truncation,
+                reason = "saturating: a code that is not a whole number of tenths (or is past i64) fails the check below"
+            )]
             let tenths = (g * 10.0).round() as i64;
             if ((g * 10.0) - tenths as f64).abs() > 1e-6 {
                 return Err(unsupported(g, "unknown G code"));
@@ -328,7 +337,9 @@ impl<'a> Rewriter<'a> {
                     self.g10(b)?;
                     non_motion = true;
                 }
-                170 | 180 | 190 => self.st.plane = (tenths / 10) as u32,
+                170 => self.st.plane = 17,
+                180 => self.st.plane = 18,
+                190 => self.st.plane = 19,
                 210 | 400 | 490 | 610 | 611 | 640 | 690 | 950 | 960 | 970 | 980 | 990 => {}
                 800 => self.st.motion = None,
                 900 => self.st.absolute = true,
@@ -338,11 +349,12 @@ impl<'a> Rewriter<'a> {
                 930 => self.st.inverse_time = true,
                 940 => self.st.inverse_time = false,
                 540 | 550 | 560 | 570 | 580 | 590 | 591 | 592 | 593 => {
-                    let i = if tenths <= 590 {
-                        ((tenths - 540) / 10) as usize
+                    let i = usize::try_from(if tenths <= 590 {
+                        (tenths - 540) / 10
                     } else {
-                        (tenths - 591) as usize + 6
-                    };
+                        tenths - 591 + 6
+                    })
+                    .expect("the arm's codes are all ≥ 540");
                     if self.st.offsets_mm[i].is_none() {
                         return Err(RewriteError::UnknownWorkOffset {
                             line,
@@ -416,7 +428,7 @@ impl<'a> Rewriter<'a> {
         let p = b.get('P').map_or(-1.0, |w| w.value);
         let i = match p {
             0.0 => self.st.wcs,
-            p if (1.0..=9.0).contains(&p) && p.fract() == 0.0 => p as usize - 1,
+            p if (1.0..=9.0).contains(&p) && p.fract() == 0.0 => crate::numeric::trunc_usize(p) - 1,
             _ => return Err(refuse("P must be 0 … 9")),
         };
         let mut o = self.st.offsets_mm[i].unwrap_or([0.0; 3]);

@@ -14,6 +14,7 @@
 //! `thermal_period_s` so the thermal terms change in steps of that period, and the safety dosing cap
 //! spreads each step over cycles (Spaan Ch6: 60 s tables, 15 ms evaluation, dosing).
 
+pub mod at_point;
 pub mod direction;
 pub mod error_model;
 pub mod health;
@@ -21,6 +22,7 @@ pub mod model_adapter;
 pub mod model_switch;
 pub mod recovery;
 pub mod safety;
+mod steps;
 
 use std::sync::Arc;
 
@@ -30,7 +32,7 @@ use crate::engine::recovery::NeighbourEstimate;
 use crate::engine::safety::{AxisSafety, Input, Mode, SafetyConfig, SafetyError};
 use crate::status::{AxisStatus, StatusSnapshot};
 use retrocomp_bus::fault::FaultSource;
-use retrocomp_bus::{ChannelId, Health, Sample};
+use retrocomp_bus::{ChannelId, Sample};
 use retrocomp_model::Axis;
 use retrocomp_model::approach::Approach;
 
@@ -330,107 +332,9 @@ impl Engine {
     pub fn cycle_in_place(&mut self, now_s: f64, model: &mut dyn ErrorModel) -> &[(Axis, f64)] {
         self.now_s = now_s;
         self.cycles += 1;
-        // 1. Health of every channel, with fault transitions logged once (in name order).
-        for &slot in &self.slots.by_name {
-            let c = &mut self.channels[slot];
-            let Some(m) = c.monitor.as_mut() else {
-                c.status = None;
-                continue;
-            };
-            // Judged into last cycle's status: its fault list is reused (no allocation while a
-            // fault stays active).
-            let st = c.status.get_or_insert_with(ChannelStatus::unknown);
-            m.status_judged_into(now_s, self.newest_input_s, st);
-            if self.undelivered.contains(&c.id) {
-                st.faults.push(FaultKind::NoSource);
-            }
-            let source = FaultSource::Channel(c.id);
-            let mut gone = m
-                .take_rejected()
-                .filter(|k| !st.faults.contains(k))
-                .peekable();
-            if gone.peek().is_some() {
-                // Rejected readings that a good one replaced before this cycle: never used, but
-                // logged — started now, cleared next cycle. (At most one of each kind: on the
-                // stack.)
-                let mut seen = [FaultKind::Stale; FaultKind::ALL.len()];
-                let mut n = 0;
-                for k in st.faults.iter().copied().chain(gone) {
-                    if n < seen.len() && !seen[..n].contains(&k) {
-                        seen[n] = k;
-                        n += 1;
-                    }
-                }
-                seen[..n].sort();
-                self.faults.update(&source, &seen[..n], now_s);
-            } else {
-                self.faults.update(&source, &st.faults, now_s);
-            }
-        }
-        // 2. Substitute failed channels from their neighbours (Ni's recovery).
-        for r in &mut self.recoveries {
-            let failed = self.channels[r.target]
-                .status
-                .as_ref()
-                .is_none_or(|s| s.health != Health::Ok);
-            if !failed {
-                continue;
-            }
-            r.values.clear();
-            for &n in &r.neighbours {
-                match self.channels[n]
-                    .status
-                    .as_ref()
-                    .filter(|s| s.health == Health::Ok)
-                    .and_then(|s| s.value)
-                {
-                    Some(v) => r.values.push(v),
-                    None => break,
-                }
-            }
-            if r.values.len() == r.neighbours.len()
-                && let Ok(est) = r.estimate.estimate(&r.values)
-            {
-                let st = self.channels[r.target]
-                    .status
-                    .get_or_insert_with(|| ChannelStatus {
-                        value: None,
-                        health: Health::Stale,
-                        faults: vec![FaultKind::Stale],
-                        substituted: false,
-                        reading_t_s: None,
-                    });
-                st.value = Some(est);
-                st.substituted = true;
-                st.reading_t_s = None;
-            }
-        }
-        // 3. State: usable channel values; slow channels latched at the thermal period.
-        let latch_slow = self
-            .last_slow_latch_s
-            .is_none_or(|t| now_s - t >= self.thermal_period_s);
-        if latch_slow {
-            self.last_slow_latch_s = Some(now_s);
-        }
-        for c in &mut self.channels {
-            let usable = c
-                .status
-                .as_ref()
-                .filter(|st| st.health == Health::Ok || st.substituted)
-                .and_then(|st| st.value);
-            c.value = if c.status.is_none() {
-                None
-            } else if c.slow {
-                if latch_slow || usable.is_none() {
-                    // A slow channel that fails between latches is dropped at once, not at the
-                    // next latch.
-                    c.latched = usable;
-                }
-                c.latched
-            } else {
-                usable
-            };
-        }
+        // 1.–3. Health (faults logged once), substitution, usable values (slow ones latched).
+        self.judge_channels(now_s);
+        // 3. State: positions, velocities and direction latch from the position channels.
         for a in &mut self.axes {
             let pos = self.channels[a.position].value;
             let i = a.axis.index();
@@ -451,70 +355,18 @@ impl Engine {
             a.position_ok = pos.is_some();
         }
         self.state.t_s = now_s;
-        // 4. Model: its channels resolved to slots once (first cycle, model replaced), their values
-        // handed over in its order.
-        if self.required.is_none() {
-            let slots = model
-                .required_channels()
-                .into_iter()
-                .map(|id| self.slots.get_or_add(&mut self.channels, id))
-                .collect();
-            self.required = Some(slots);
-            self.optional = model
-                .optional_channels()
-                .into_iter()
-                .map(|id| self.slots.get_or_add(&mut self.channels, id))
-                .collect();
-        }
-        self.state.inputs.clear();
-        let values = self
-            .required
-            .iter()
-            .flatten()
-            .map(|&s| self.channels[s].value);
-        self.state.inputs.extend(values);
-        let optional = &self.optional;
-        let inputs_ok = self
-            .required
-            .iter()
-            .flatten()
-            .filter(|id| !optional.contains(id))
-            .all(|&id| self.channels[id].value.is_some())
-            && self.axes.iter().all(|a| a.position_ok);
+        // 4. Model, on its inputs in its order.
+        let inputs_ok = self.model_inputs(model) && self.axes.iter().all(|a| a.position_ok);
         // An unusable optional channel leaves its terms out (the model sees it missing). Either
         // edge of that changes the target's make-up: every axis ramps to the new target.
-        let partial = inputs_ok && optional.iter().any(|&id| self.channels[id].value.is_none());
+        let partial = inputs_ok && self.optional_missing();
         if partial != self.partial {
             for a in &mut self.axes {
                 a.safety.ramp_to_next_target();
             }
             self.partial = partial;
         }
-        self.errors.clear();
-        let model_result = if inputs_ok {
-            model
-                .axis_errors(&self.state, &mut self.errors)
-                .map(|()| true)
-        } else {
-            Ok(false)
-        };
-        let model_fault = model_result.as_ref().err();
-        self.faults.update(
-            &FaultSource::Model,
-            if model_fault.is_some() {
-                &[FaultKind::Decode]
-            } else {
-                &[]
-            },
-            now_s,
-        );
-        if model_fault != self.model_error.as_ref() {
-            if let Some(e) = model_fault {
-                tracing::warn!(error = %e, "model evaluation failed");
-            }
-            self.model_error = model_fault.cloned();
-        }
-        let evaluated = matches!(model_result, Ok(true));
+        let evaluated = self.evaluate_model(model, inputs_ok, now_s);
         // 5. Correction = −error, blended by direction; then safety.
         for (a, out) in self.axes.iter_mut().zip(&mut self.outputs) {
             let input = if self.model_error.is_some() {
@@ -524,15 +376,7 @@ impl Engine {
                 a.target_um = None;
                 Input::Stale
             } else {
-                a.terms.clear();
-                let mut total = 0.0;
-                for t in self.errors.axis(a.axis) {
-                    let corr = -t.error_um;
-                    total += corr;
-                    a.terms.push((t.term.clone(), corr));
-                }
-                a.target_um = Some(total);
-                Input::Fresh(total)
+                Input::Fresh(a.take_target(&self.errors))
             };
             out.1 = a.safety.step(now_s, self.enabled, input);
         }

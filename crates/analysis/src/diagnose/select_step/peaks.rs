@@ -38,6 +38,10 @@ impl Selector<'_> {
 
     /// Refine the winner's nonlinear parameter between its grid neighbours (golden section on
     /// the profile RSS drop); kept when it does not explain less.
+    #[allow(
+        clippy::float_cmp,
+        reason = "the winner's θ is copied from the grid, so on-grid means bit-equal"
+    )]
     pub(super) fn refine(&self, win: Scored, nl: &Null<'_>, n_eff: f64) -> Scored {
         let cand = &self.lib[win.idx];
         if !cand.is_nonlinear() {
