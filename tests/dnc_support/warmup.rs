@@ -138,7 +138,8 @@ position_lsb_um = 1.0
         )
 }
 
-/// A field file in `dir` with the model next to it: `[gateway]`/`[safety]`/`[direction]` keys from
+/// A field file in `dir` with the model next to it (its own free `status_listen` port):
+/// `[gateway]`/`[safety]`/`[direction]` keys from
 /// `limits` (cycle 5 ms, clamp 100 µm), axis X, one Modbus TCP source on `mb_port` polled every
 /// `period_s` with `channels`, then `tail`.
 fn write_field(dir: &Path, limits: [f64; 5], mb_port: u16, channels: &str, tail: &str) -> PathBuf {
@@ -150,12 +151,15 @@ fn write_field(dir: &Path, limits: [f64; 5], mb_port: u16, channels: &str, tail:
         switch_time_s,
         period_s,
     ] = limits;
+    // `retrocomp run` and `retrocomp dnc` run at the same time: each its own status port.
+    let status_port = crate::peers::free_port();
     let text = format!(
         r#"[gateway]
 name = "warmup"
 cycle_ms = 5
 thermal_period_s = {thermal_period_s}
 realtime_priority = 20
+status_listen = "127.0.0.1:{status_port}"
 [safety]
 max_correction_um = 100.0
 max_change_um_per_cycle = {cap_um}
