@@ -522,11 +522,18 @@ fn a_warm_up_followed_by_live_dnc_offsets_against_origin_shift_and_the_frozen_re
     for e in [&e_shift, &e_dnc, &e_frozen] {
         assert_eq!(e.len(), warmup::STROKES, "every dwell executed once");
     }
-    // Flow control was exercised: the program is far longer than the buffer and runs at feed.
+    // The box's hold (`lead_blocks = 1`), not the control's XOFF, paced the transfer: without it
+    // the 5-line buffer filled to 4 and said XOFF ≈ 150 times; an XOFF, if any, was followed by XON.
     let events = std::fs::read_to_string(b_dir.join("out/dnc.csv")).unwrap();
     let xoffs = events.lines().filter(|l| l.contains(",xoff,")).count();
     let xons = events.lines().filter(|l| l.contains(",xon,")).count();
-    assert!(xoffs >= 10 && xons + 1 >= xoffs, "{dnc_line}");
+    let fill_max = events
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.rsplit(',').next()?.parse::<usize>().ok())
+        .max()
+        .unwrap();
+    eprintln!("DNC buffer fill at most {fill_max} of 5, {xoffs} XOFF");
     // The origin-shift box wrote the PLC (its shifts are in hil-sim's write log).
     let writes = std::fs::read_to_string(a_dir.join("out/plc_writes.csv")).unwrap();
     assert!(writes.lines().count() > 100, "{run_err}");
@@ -539,13 +546,14 @@ fn a_warm_up_followed_by_live_dnc_offsets_against_origin_shift_and_the_frozen_re
          {max_s:.2}, live DNC {rms_d:.2} / {max_d:.2}, frozen rewrite {rms_f:.2} / {max_f:.2}",
         e_dnc.len()
     );
-    // Issue 38 asks for DNC within 1.5× of the origin shift; this program does not get there
-    // (measured 0.60 vs 0.22 µm RMS, 2.7×; 3.4× with both cores busy): a block's correction is
-    // taken when it is sent, up to 5 lines (≈ 20 s of these 8 s strokes) before its dwell, while
-    // the growth drifts by up to 0.06 µm/s early in the warm-up (docs/dnc.md). Pinned here, not
-    // hidden: DNC ≤ 6× the origin shift, and both far below the frozen rewrite.
+    assert!(fill_max <= 3 && xons + 1 >= xoffs, "{dnc_line}");
+    // Issue 38 asks for DNC within 1.5× of the origin shift. With each block held until the one
+    // before it runs (`lead_blocks = 1`) a stroke is compensated ≈ 10 s (simulated) before its
+    // dwell ends — the previous 2 s dwell, its 6 s stroke, its own 2 s dwell — while the growth
+    // drifts by up to 0.06 µm/s: measured 0.38 / 0.99 vs 0.21 / 0.55 µm (1.8×; 1.9× / 1.6× with
+    // both cores busy, docs/dnc.md). Pinned with margin, not the 1.5× the issue asks for.
     assert!(
-        rms_d <= 6.0 * rms_s && max_d <= 6.0 * max_s,
+        rms_d <= 2.5 * rms_s && max_d <= 2.5 * max_s,
         "live DNC {rms_d:.2} / {max_d:.2} µm vs origin shift {rms_s:.2} / {max_s:.2} µm"
     );
     // The frozen rewrite knows the geometry only: the growth (3 µm/K × up to ≈ 11 K) stays.

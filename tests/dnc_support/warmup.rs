@@ -223,14 +223,17 @@ timeout_ms = 200
 }
 
 /// `retrocomp dnc`'s field file (and the model next to it): the spindle PT100 read from hil-sim
-/// every 50 ms. `x_mm` is read from the same register only because the field file must have a
-/// source for every axis' position channel: `retrocomp dnc` takes the position of each block from
-/// the block itself and never uses that value.
+/// every 50 ms, the thermal terms evaluated every 50 ms (as the origin-shift box's: 1 s of wall
+/// time would be 20 s of the machine's); each block held until the one before it is estimated to
+/// run (`lead_blocks = 1`, the control paced at `SPEED` = 20). `x_mm` is read from the same
+/// register only because the field file must have a source for every axis' position channel:
+/// `retrocomp dnc` takes the position of each block from the block itself and never uses it.
 pub(crate) fn field_toml(dir: &Path, mb_port: u16) -> PathBuf {
     let x = r#"{ channel = "x_mm", kind = "input", address = 0, type = "int16", scale = 0.1 },"#;
     let tail = "[dnc]\nbaud = 19200\nparity = \"none\"\ndata_bits = 8\nstop_bits = 1\n\
-                flow = \"xon_xoff\"\nmax_line_chars = 40\nmax_change_um_per_block = 10.0\n";
-    write_field(dir, [1.0, 0.5, 20.0, 0.1, 0.05], mb_port, x, tail)
+                flow = \"xon_xoff\"\nmax_line_chars = 40\nmax_change_um_per_block = 10.0\n\
+                lead_blocks = 1\ncontrol_speed = 20.0\n";
+    write_field(dir, [0.05, 0.5, 20.0, 0.1, 0.05], mb_port, x, tail)
 }
 
 /// Part errors (3-D length, µm) at the dwell ends of `dwell_ends.csv`, in program order.
