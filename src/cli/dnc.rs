@@ -14,6 +14,7 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use retrocomp::dnc::core::{CoreConfig, DncCore};
 use retrocomp::dnc::faults::StatusTx;
+use retrocomp::dnc::lead::LeadConfig;
 use retrocomp::dnc::live::{EngineAtPoint, LiveCorrections};
 use retrocomp::dnc::shell::{DncIo, ProgramSource, run_dnc};
 use retrocomp_gateway::northbound::http::{Api, Limits, serve};
@@ -150,6 +151,13 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         diameter_x: dnc.diameter_x,
         resume_from: args.resume_from,
         max_correction_um: cfg.safety.max_correction_um,
+        lead: LeadConfig {
+            lead_blocks: dnc.lead_blocks.unwrap_or(dnc.buffer_lines),
+            buffer_lines: dnc.buffer_lines,
+            rapid_mm_min: dnc.rapid_mm_min,
+            control_speed: dnc.control_speed,
+            dwell_p_ms: dnc.semicolon_is_eob,
+        },
     };
     if args.resume_from > 1 {
         eprintln!(

@@ -12,6 +12,9 @@
 //!   is neither lost nor sent twice.
 //! - Resume: blocks before the operator's line number are interpreted for modal state only and
 //!   not sent; [`DncCore::resume_point`] is the first block not completely sent.
+//! - Lead: with `[dnc] lead_blocks` below `buffer_lines` the next block is held (compensated
+//!   later) while the estimate of the control's buffer ([`ExecEstimate`]) says that many lines
+//!   still wait there; the controller's XOFF stops the transfer whatever the estimate says.
 //! - Every block sent yields a [`SentBlock`] (its line, nominal end point, correction, time) for
 //!   the CSV log ([`LOG_HEADER`]).
 //!
@@ -22,6 +25,7 @@ use std::collections::VecDeque;
 use retrocomp_analysis::nc::parser::{Block, parse_line};
 use retrocomp_analysis::nc::rewrite::{Point, RewriteConfig, RewriteSink, Rewriter};
 
+use super::lead::{ExecEstimate, LeadConfig};
 use super::live::{Applied, LiveCorrections};
 use retrocomp_gateway::sinks::dnc::config::LineEnd;
 
@@ -47,6 +51,8 @@ pub struct CoreConfig {
     pub resume_from: u64,
     /// Clamp of the correction, µm (the rewriter's own limit sits just above it).
     pub max_correction_um: f64,
+    /// How far ahead of its estimated execution a block is compensated.
+    pub lead: LeadConfig,
 }
 
 /// Why the transfer cannot go on.
@@ -131,6 +137,9 @@ struct Unit {
     line: u64,
     text: String,
     last_of_block: bool,
+    /// Estimated run time on the control, s; None: not a line the control buffers (leader,
+    /// trailer, tape mark).
+    exec_s: Option<f64>,
 }
 
 pub struct DncCore<'m> {
@@ -147,6 +156,7 @@ pub struct DncCore<'m> {
     /// First source line not completely sent.
     resume_point: u64,
     blocks_sent: u64,
+    lead: ExecEstimate,
 }
 
 // By hand: the rewriter holds a trait object.
@@ -168,6 +178,7 @@ impl<'m> DncCore<'m> {
             max_correction_um: cfg.max_correction_um + 2.0 * super::live::BLOCK_LSB_UM,
             ..RewriteConfig::default()
         };
+        let cfg_lead = cfg.lead;
         let mut out = VecDeque::new();
         if cfg.leader_nuls > 0 {
             out.push_back(Unit {
@@ -175,6 +186,7 @@ impl<'m> DncCore<'m> {
                 line: 0,
                 text: String::new(),
                 last_of_block: false,
+                exec_s: None,
             });
         }
         Self {
@@ -190,6 +202,7 @@ impl<'m> DncCore<'m> {
             tape_marks: 0,
             trailer_queued: false,
             blocks_sent: 0,
+            lead: ExecEstimate::new(cfg_lead),
         }
     }
 
@@ -235,6 +248,9 @@ impl<'m> DncCore<'m> {
             return Ok(None);
         }
         while self.out.is_empty() {
+            if !self.blocks.is_empty() && self.lead.holds(now_s) {
+                return Ok(None);
+            }
             let Some(b) = self.blocks.pop_front() else {
                 if self.input_done && !self.trailer_queued {
                     self.trailer_queued = true;
@@ -244,6 +260,7 @@ impl<'m> DncCore<'m> {
                             line: 0,
                             text: String::new(),
                             last_of_block: false,
+                            exec_s: None,
                         });
                     }
                     continue;
@@ -260,6 +277,7 @@ impl<'m> DncCore<'m> {
         let skip = b.line < self.cfg.resume_from;
         self.live.set_bypass(skip);
         self.live.set_now(now_s);
+        let exec_s = self.lead.duration_s(b);
         let mut bo = BlockOut::default();
         let res = self.rw.block(b, &mut bo);
         self.live.set_bypass(false);
@@ -284,6 +302,7 @@ impl<'m> DncCore<'m> {
             self.live.discard();
         }
         let n = bo.lines.len();
+        let tape_mark = b.words.is_empty() && b.source == "%";
         for (k, text) in bo.lines.into_iter().enumerate() {
             let mut bytes = text.clone().into_bytes();
             bytes.extend_from_slice(self.cfg.line_end.bytes());
@@ -292,6 +311,8 @@ impl<'m> DncCore<'m> {
                 line: b.line,
                 text,
                 last_of_block: k + 1 == n,
+                // The block runs with its last line; a tape mark is not buffered.
+                exec_s: (!tape_mark).then_some(if k + 1 == n { exec_s } else { 0.0 }),
             });
         }
         Ok(())
@@ -301,6 +322,9 @@ impl<'m> DncCore<'m> {
     /// any) is returned for the log and its correction is what the controller holds now.
     pub fn sent(&mut self, now_s: f64) -> Option<SentBlock> {
         let u = self.out.pop_front()?;
+        if let Some(d) = u.exec_s {
+            self.lead.sent(d, now_s);
+        }
         if !u.last_of_block {
             return None;
         }
@@ -368,6 +392,12 @@ impl<'m> DncCore<'m> {
             .iter()
             .find(|u| u.line > 0)
             .map_or(self.resume_point, |u| u.line)
+    }
+
+    /// When a lead hold is estimated to release (for a shell that sleeps until something
+    /// happens); None when nothing is held.
+    pub fn lead_release_s(&self) -> Option<f64> {
+        self.lead.release_s()
     }
 
     pub fn blocks_sent(&self) -> u64 {

@@ -185,6 +185,7 @@ pub async fn run_dnc(
         let tick = core
             .stall_deadline_s()
             .map_or(0.5, |d| d - now())
+            .min(core.lead_release_s().map_or(0.5, |r| r - now()))
             .min(busy_until - now())
             .clamp(0.001, 0.5);
         let tick = if s.flow == Flow::RtsCts {

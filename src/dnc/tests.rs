@@ -7,6 +7,7 @@ use retrocomp_model::approach::Approach;
 use retrocomp_model::{Axis, MachineModel};
 
 use super::core::{CoreConfig, DncCore, DncError, SentBlock, StallEdge, XOFF, XON};
+use super::lead::LeadConfig;
 use super::live::{CorrectionAt, EngineAtPoint, LiveCorrections};
 use retrocomp_gateway::engine::direction::DirectionConfig;
 use retrocomp_gateway::engine::health::ChannelLimits;
@@ -41,7 +42,7 @@ impl CorrectionAt for Drift {
     }
 }
 
-fn live(um_per_s: f64, cap_um: f64) -> LiveCorrections {
+pub(super) fn live(um_per_s: f64, cap_um: f64) -> LiveCorrections {
     LiveCorrections::new(
         Box::new(Drift {
             um_per_s,
@@ -52,7 +53,7 @@ fn live(um_per_s: f64, cap_um: f64) -> LiveCorrections {
     )
 }
 
-fn cfg() -> CoreConfig {
+pub(super) fn cfg() -> CoreConfig {
     CoreConfig {
         line_end: LineEnd::CrLf,
         max_line_chars: 40,
@@ -63,13 +64,14 @@ fn cfg() -> CoreConfig {
         diameter_x: false,
         resume_from: 1,
         max_correction_um: 60.0,
+        lead: LeadConfig::off(5),
     }
 }
 
 const PROGRAM: &str = "%\nG90 G1 F100\nX10 Y0 Z0\nX20\nX30\nX40\nM30\n%";
 
 /// Send everything, one unit every `dt_s`, never stopped; returns the bytes and the log.
-fn drain(core: &mut DncCore<'_>, program: &str, dt_s: f64) -> (String, Vec<SentBlock>) {
+pub(super) fn drain(core: &mut DncCore<'_>, program: &str, dt_s: f64) -> (String, Vec<SentBlock>) {
     let (mut out, mut log, mut t) = (Vec::new(), Vec::new(), 0.0);
     let mut lines = program.lines().enumerate();
     while !core.done() {

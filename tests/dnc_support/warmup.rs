@@ -224,13 +224,15 @@ timeout_ms = 200
 }
 
 /// `retrocomp dnc`'s field file (and the model next to it): the spindle PT100 read from hil-sim
-/// every 50 ms. `x_mm` is read from the same register only because the field file must have a
-/// source for every axis' position channel: `retrocomp dnc` takes the position of each block from
-/// the block itself and never uses that value.
+/// every 50 ms; each block held until the one before it is estimated to run (`lead_blocks = 1`,
+/// the control paced at `SPEED` = 20). `x_mm` is read from the same register only because the
+/// field file must have a source for every axis' position channel: `retrocomp dnc` takes the
+/// position of each block from the block itself and never uses that value.
 pub(crate) fn field_toml(dir: &Path, mb_port: u16) -> PathBuf {
     let x = r#"{ channel = "x_mm", kind = "input", address = 0, type = "int16", scale = 0.1 },"#;
     let tail = "[dnc]\nbaud = 19200\nparity = \"none\"\ndata_bits = 8\nstop_bits = 1\n\
-                flow = \"xon_xoff\"\nmax_line_chars = 40\nmax_change_um_per_block = 10.0\n";
+                flow = \"xon_xoff\"\nmax_line_chars = 40\nmax_change_um_per_block = 10.0\n\
+                lead_blocks = 1\ncontrol_speed = 20.0\n";
     write_field(dir, [0.05, 0.5, 20.0, 0.1, 0.05], mb_port, x, tail)
 }
 
@@ -400,11 +402,18 @@ pub(crate) fn three_ways() {
     for e in [&e_shift, &e_dnc, &e_frozen] {
         assert_eq!(e.len(), STROKES, "every dwell executed once");
     }
-    // Flow control was exercised: the program is far longer than the buffer and runs at feed.
+    // The box's hold (`lead_blocks = 1`), not the control's XOFF, paced the transfer: without it
+    // the 5-line buffer filled to 4 and said XOFF ≈ 150 times; an XOFF, if any, was followed by XON.
     let events = std::fs::read_to_string(b_dir.join("out/dnc.csv")).unwrap();
     let xoffs = events.lines().filter(|l| l.contains(",xoff,")).count();
     let xons = events.lines().filter(|l| l.contains(",xon,")).count();
-    assert!(xoffs >= 10 && xons + 1 >= xoffs, "{dnc_line}");
+    let fill_max = events
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.rsplit(',').next()?.parse::<usize>().ok())
+        .max()
+        .unwrap();
+    eprintln!("DNC buffer fill at most {fill_max} of 5, {xoffs} XOFF");
     // The origin-shift box wrote the PLC (its shifts are in hil-sim's write log).
     let writes = std::fs::read_to_string(a_dir.join("out/plc_writes.csv")).unwrap();
     assert!(writes.lines().count() > 100, "{run_err}");
@@ -417,13 +426,14 @@ pub(crate) fn three_ways() {
          {max_s:.2}, live DNC {rms_d:.2} / {max_d:.2}, frozen rewrite {rms_f:.2} / {max_f:.2}",
         e_dnc.len()
     );
-    // Issue 38 asks for DNC within 1.5× of the origin shift; this program does not get there
-    // (measured 0.60 vs 0.22 µm RMS, 2.7×; 3.4× with both cores busy): a block's correction is
-    // taken when it is sent, up to 5 lines (≈ 20 s of these 8 s strokes) before its dwell, while
-    // the growth drifts by up to 0.06 µm/s early in the warm-up (docs/dnc.md). Pinned here, not
-    // hidden: DNC ≤ 6× the origin shift, and both far below the frozen rewrite.
+    assert!(fill_max <= 3 && xons + 1 >= xoffs, "{dnc_line}");
+    // Issue 38 asks for DNC within 1.5× of the origin shift. With each block held until the one
+    // before it runs (`lead_blocks = 1`) a stroke is compensated ≈ 10 s (simulated) before its
+    // dwell ends — the previous 2 s dwell, its 6 s stroke, its own 2 s dwell — while the growth
+    // drifts by up to 0.06 µm/s: measured 0.38 / 0.99 vs 0.21 / 0.55 µm (1.8×; 1.9× / 1.6× with
+    // both cores busy, docs/dnc.md). Pinned with margin, not the 1.5× the issue asks for.
     assert!(
-        rms_d <= 6.0 * rms_s && max_d <= 6.0 * max_s,
+        rms_d <= 2.5 * rms_s && max_d <= 2.5 * max_s,
         "live DNC {rms_d:.2} / {max_d:.2} µm vs origin shift {rms_s:.2} / {max_s:.2} µm"
     );
     // The frozen rewrite knows the geometry only: the growth (3 µm/K × up to ≈ 11 K) stays.

@@ -56,6 +56,12 @@ fn d_buffer_lines() -> usize {
 fn d_stall_timeout_s() -> f64 {
     30.0
 }
+fn d_rapid_mm_min() -> f64 {
+    5000.0
+}
+fn d_control_speed() -> f64 {
+    1.0
+}
 
 /// `[dnc]` of the field TOML.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -82,6 +88,19 @@ pub struct DncSection {
     /// Lines the control buffers (Spaan: ≤ 5): how many blocks a correction can lag its execution.
     #[serde(default = "d_buffer_lines")]
     pub buffer_lines: usize,
+    /// Hold the next block while this many sent lines are estimated to wait in the control's
+    /// buffer (1 … buffer_lines; default buffer_lines: never hold, XON/XOFF alone paces): a
+    /// block's correction is then taken at most ≈ this many lines before it runs.
+    #[serde(default)]
+    pub lead_blocks: Option<usize>,
+    /// The control's G0 feed, mm/min (for the estimate behind `lead_blocks`).
+    #[serde(default = "d_rapid_mm_min")]
+    pub rapid_mm_min: f64,
+    /// How many times faster than programmed the control runs (feed override 120 % → 1.2; a
+    /// simulator paced faster than real time → its speed): the estimate's durations are divided
+    /// by it.
+    #[serde(default = "d_control_speed")]
+    pub control_speed: f64,
     /// NUL characters sent before the program (tape leader some controls expect) and after it.
     #[serde(default)]
     pub leader_nuls: usize,
@@ -136,6 +155,22 @@ impl DncSection {
         if !(1..=256).contains(&self.buffer_lines) {
             return bad("buffer_lines", "1 … 256 lines");
         }
+        if let Some(n) = self.lead_blocks
+            && !(1..=self.buffer_lines).contains(&n)
+        {
+            return bad("lead_blocks", "1 … dnc.buffer_lines lines");
+        }
+        if !(self.rapid_mm_min.is_finite() && self.rapid_mm_min > 0.0)
+            || self.rapid_mm_min > 100_000.0
+        {
+            return bad("rapid_mm_min", "finite, > 0 and at most 100000 mm/min");
+        }
+        if !(self.control_speed.is_finite() && (0.1..=100.0).contains(&self.control_speed)) {
+            return bad(
+                "control_speed",
+                "0.1 … 100 (1 on a machine at 100 % feed override)",
+            );
+        }
         if self.leader_nuls > 10_000 || self.trailer_nuls > 10_000 {
             return bad("leader_nuls", "at most 10000 NULs of leader and of trailer");
         }
@@ -174,6 +209,7 @@ mod tests {
         assert_eq!((s.baud, s.data_bits, s.stop_bits), (9600, 8, 1));
         assert_eq!(s.line_end, LineEnd::CrLf);
         assert_eq!(s.buffer_lines, 5);
+        assert_eq!(s.lead_blocks, None, "no hold unless asked");
         assert!(s.validate(60.0).is_ok());
     }
 
@@ -184,6 +220,10 @@ mod tests {
         assert_eq!(key("data_bits = 7"), "dnc.parity");
         assert_eq!(key("stop_bits = 3"), "dnc.stop_bits");
         assert_eq!(key("stall_timeout_s = 0.0"), "dnc.stall_timeout_s");
+        assert_eq!(key("lead_blocks = 0"), "dnc.lead_blocks");
+        assert_eq!(key("buffer_lines = 3\nlead_blocks = 4"), "dnc.lead_blocks");
+        assert_eq!(key("rapid_mm_min = -1.0"), "dnc.rapid_mm_min");
+        assert_eq!(key("control_speed = 0.0"), "dnc.control_speed");
         assert_eq!(
             key("max_change_um_per_block = 61.0"),
             "dnc.max_change_um_per_block"
