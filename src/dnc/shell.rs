@@ -194,6 +194,10 @@ pub async fn run_dnc(
             tick
         };
         tokio::select! {
+            // The control's bytes first: a DC3 already received is read before the timer that
+            // lets the next line go (unbiased, tokio picks among ready branches at random, so a
+            // line could go out after an XOFF that was already waiting to be read).
+            biased;
             r = port.read(&mut buf) => {
                 let n = r?;
                 if n == 0 {
