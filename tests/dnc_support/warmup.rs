@@ -287,6 +287,16 @@ pub(crate) fn wait_exit(mut c: std::process::Child, what: &str, limit_s: u64) ->
     (st.success(), err)
 }
 
+/// Run `cmd` to its end; its stderr is the failure message when it does not succeed.
+fn run_ok(cmd: &mut Command) {
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{cmd:?} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 pub(crate) fn wait_listening(port: u16) {
     let deadline = Instant::now() + Duration::from_secs(30);
     while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
@@ -348,34 +358,21 @@ pub(crate) fn three_ways() {
     let c_dir = sub("frozen");
     let frozen = c_dir.join("frozen.ngc");
     field_toml(&c_dir, 1);
-    let out = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .args(["nc", s(&prog), "--model", s(&c_dir.join("model.toml"))])
-        .args(["--out", s(&frozen)])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    run_ok(
+        Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+            .args(["nc", s(&prog), "--model", s(&c_dir.join("model.toml"))])
+            .args(["--out", s(&frozen)]),
     );
     let c_sim_cfg = c_dir.join("sim.toml");
     let tail = format!("gcode_path = \"{}\"", frozen.display());
     std::fs::write(&c_sim_cfg, sim_toml(false, &tail)).unwrap();
-    let out = Command::new(&hil)
-        .args([
-            "run",
-            "--config",
-            s(&c_sim_cfg),
-            "--out",
-            s(&c_dir.join("out")),
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    run_ok(Command::new(&hil).args([
+        "run",
+        "--config",
+        s(&c_sim_cfg),
+        "--out",
+        s(&c_dir.join("out")),
+    ]));
 
     // A hang guard only: 30 min / 20 ≈ 90 s of wall time when hil-sim keeps pace.
     let (ok, b_err) = wait_exit(b_sim, "hil-sim (DNC)", 900);
