@@ -147,6 +147,7 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         leader_nuls: dnc.leader_nuls,
         trailer_nuls: dnc.trailer_nuls,
         stall_timeout_s: dnc.stall_timeout_s,
+        start_timeout_s: dnc.start_timeout_s,
         semicolon_is_eob: dnc.semicolon_is_eob,
         diameter_x: dnc.diameter_x,
         resume_from: args.resume_from,

@@ -45,6 +45,8 @@ pub struct CoreConfig {
     pub leader_nuls: usize,
     pub trailer_nuls: usize,
     pub stall_timeout_s: f64,
+    /// Longest wait for the model's inputs before the first byte, s ([`DncError::NoInputs`]).
+    pub start_timeout_s: f64,
     pub semicolon_is_eob: bool,
     pub diameter_x: bool,
     /// First source line to send (operator's choice after an interrupted transfer); 1 = all.
@@ -64,6 +66,10 @@ pub enum DncError {
     LineTooLong { line: u64, chars: usize, max: usize },
     #[error("{0}")]
     Program(String),
+    #[error(
+        "no correction after waiting {waited_s:.1} s (dnc.start_timeout_s) for the model's inputs: {why}; nothing was sent"
+    )]
+    NoInputs { waited_s: f64, why: String },
 }
 
 /// One block that left the box.
@@ -157,6 +163,8 @@ pub struct DncCore<'m> {
     resume_point: u64,
     blocks_sent: u64,
     lead: ExecEstimate,
+    /// Before the first byte: waiting since, for which inputs (None once the model was ready).
+    start: Option<(Option<f64>, String)>,
 }
 
 // By hand: the rewriter holds a trait object.
@@ -203,6 +211,7 @@ impl<'m> DncCore<'m> {
             trailer_queued: false,
             blocks_sent: 0,
             lead: ExecEstimate::new(cfg_lead),
+            start: Some((None, String::new())),
         }
     }
 
@@ -244,7 +253,7 @@ impl<'m> DncCore<'m> {
     /// The next bytes to write (a whole line with its line end, or leader/trailer), or None while
     /// the controller said stop or nothing is ready. The block is compensated here, at `now_s`.
     pub fn next_to_send(&mut self, now_s: f64) -> Result<Option<&[u8]>, DncError> {
-        if self.stopped_since.is_some() {
+        if self.stopped_since.is_some() || !self.inputs_ready(now_s)? {
             return Ok(None);
         }
         while self.out.is_empty() {
@@ -270,6 +279,41 @@ impl<'m> DncCore<'m> {
             self.prepare(&b, now_s)?;
         }
         Ok(self.out.front().map(|u| u.bytes.as_slice()))
+    }
+
+    /// The start gate: nothing leaves the box before the model can be evaluated (a block sent
+    /// earlier would carry no correction). Once open it stays open: later input faults are the
+    /// blocks' model faults (they carry the held correction).
+    fn inputs_ready(&mut self, now_s: f64) -> Result<bool, DncError> {
+        let Some((since, why)) = &mut self.start else {
+            return Ok(true);
+        };
+        match self.live.ready(now_s) {
+            Ok(()) => {
+                self.start = None;
+                Ok(true)
+            }
+            Err(w) => {
+                let since = *since.get_or_insert(now_s);
+                if now_s - since >= self.cfg.start_timeout_s {
+                    return Err(DncError::NoInputs {
+                        waited_s: now_s - since,
+                        why: w,
+                    });
+                }
+                *why = w;
+                Ok(false)
+            }
+        }
+    }
+
+    /// Waiting at the start for these model inputs (what [`Self::next_to_send`] last found
+    /// missing); None once the first byte may go.
+    pub fn waiting_for_inputs(&self) -> Option<&str> {
+        self.start
+            .as_ref()
+            .map(|(_, w)| w.as_str())
+            .filter(|w| !w.is_empty())
     }
 
     /// Rewrite one block with the live correction at `now_s` and queue its lines.

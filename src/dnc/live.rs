@@ -37,6 +37,12 @@ pub trait CorrectionAt {
         now_s: f64,
     ) -> Result<[Option<f64>; 3], String>;
 
+    /// `Ok` once the model can be evaluated at `now_s` (every required input usable); `Err` says
+    /// which inputs are missing. A source without inputs is always ready.
+    fn ready(&mut self, _now_s: f64) -> Result<(), String> {
+        Ok(())
+    }
+
     /// A sample from the live sources (a source that reads none ignores it).
     fn observe(&mut self, _s: &Sample) {}
 
@@ -118,6 +124,11 @@ impl LiveCorrections {
     /// A sample from the live sources, for the model's inputs.
     pub fn observe(&self, s: &Sample) {
         self.inner.borrow_mut().src.observe(s);
+    }
+
+    /// `Ok` once the source can give a correction at `now_s`; `Err`: which inputs it still lacks.
+    pub fn ready(&self, now_s: f64) -> Result<(), String> {
+        self.inner.borrow_mut().src.ready(now_s)
     }
 
     /// The time corrections are asked at (the send time of the next block), s.
@@ -254,6 +265,12 @@ impl EngineAtPoint {
 impl CorrectionAt for EngineAtPoint {
     fn observe(&mut self, s: &Sample) {
         self.engine.ingest(s);
+    }
+
+    fn ready(&mut self, now_s: f64) -> Result<(), String> {
+        self.engine
+            .inputs_ready(now_s, self.model.as_ref())
+            .map_err(|e| e.to_string())
     }
 
     fn correction_um(

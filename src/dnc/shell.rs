@@ -130,7 +130,7 @@ pub async fn run_dnc(
     let mut port = port;
     writeln!(log, "{LOG_HEADER}")?;
     let mut sum = DncSummary::default();
-    let (mut line_no, mut sender_held) = (0u64, false);
+    let (mut line_no, mut sender_held, mut told_waiting) = (0u64, false, false);
     let mut buf = [0u8; 256];
     // One character on the wire: start bit, data bits, parity, stop bits.
     let bits =
@@ -180,6 +180,13 @@ pub async fn run_dnc(
                 log.flush()?;
             }
             continue;
+        }
+        if !told_waiting && let Some(why) = core.waiting_for_inputs() {
+            eprintln!(
+                "dnc: waiting up to {} s (dnc.start_timeout_s) for the model's inputs before the first line: {why}",
+                s.start_timeout_s
+            );
+            told_waiting = true;
         }
         hold_sender(hold.as_mut(), core.wants_input(), &mut sender_held).await?;
         let tick = core

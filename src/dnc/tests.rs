@@ -60,6 +60,7 @@ pub(super) fn cfg() -> CoreConfig {
         leader_nuls: 0,
         trailer_nuls: 0,
         stall_timeout_s: 5.0,
+        start_timeout_s: 10.0,
         semicolon_is_eob: false,
         diameter_x: false,
         resume_from: 1,
@@ -506,5 +507,54 @@ fn the_transfers_faults_start_and_clear_in_the_published_status_and_metrics() {
     assert!(
         held.is_empty(),
         "a source without axes names none: {held:?}"
+    );
+}
+
+#[test]
+fn nothing_is_sent_before_the_models_inputs_are_read_and_the_first_block_carries_them() {
+    let lc = dnc_live();
+    let mut c = cfg();
+    c.leader_nuls = 10;
+    let mut core = DncCore::new(c, &lc);
+    core.feed_line(1, "G90 G1 X350 F100").unwrap();
+    // No temperature yet: not even the leader goes, and the core says what it waits for.
+    for t_s in [0.0, 1.0, 5.0] {
+        assert!(core.next_to_send(t_s).unwrap().is_none(), "at {t_s} s");
+    }
+    let why = core.waiting_for_inputs().unwrap();
+    assert!(why.contains("T_spindle_C ("), "{why}");
+    // 25 °C arrives: leader, then X350 with EXX 7 µm + 5 K × 2 µm/K → −17 µm.
+    lc.observe(&temp(5.5, 25.0));
+    assert_eq!(core.next_to_send(6.0).unwrap().unwrap(), &[0u8; 10][..]);
+    assert!(core.sent(6.0).is_none());
+    assert!(core.waiting_for_inputs().is_none());
+    assert!(core.next_to_send(6.1).unwrap().is_some());
+    let b = core.sent(6.1).unwrap();
+    assert!(
+        (b.applied.unwrap().correction_um[0] + 17.0).abs() < 0.05 + 1e-9,
+        "{b:?}"
+    );
+    assert!(lc.model_fault().is_none());
+}
+
+#[test]
+fn a_model_whose_inputs_never_come_refuses_the_transfer_with_nothing_sent() {
+    let lc = dnc_live();
+    let mut core = DncCore::new(cfg(), &lc);
+    core.feed_line(1, "G90 G1 X350 F100").unwrap();
+    assert!(core.next_to_send(2.0).unwrap().is_none());
+    assert!(core.next_to_send(11.9).unwrap().is_none());
+    // 10 s (start_timeout_s) after the first try.
+    match core.next_to_send(12.0) {
+        Err(DncError::NoInputs { waited_s, why }) => {
+            assert_eq!(waited_s, 10.0);
+            assert!(why.contains("T_spindle_C"), "{why}");
+        }
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(
+        core.resume_point(),
+        1,
+        "the first block is where it resumes"
     );
 }

@@ -388,6 +388,17 @@ pub(crate) fn three_ways() {
         .unwrap();
     let (_, run_err) = wait_exit(a_box, "retrocomp run", 60);
 
+    // Every block carried the model's correction: the first waited for the PT100's first reading
+    // (a block sent before it would carry none: 7 µm of scale error at X350).
+    let box_line = box_err
+        .lines()
+        .find(|l| l.contains("blocks sent;"))
+        .unwrap_or_else(|| panic!("no transfer summary:\n{box_err}"));
+    eprintln!("{box_line}");
+    assert!(
+        box_line.contains(" 0 block(s) with the held correction"),
+        "{box_err}"
+    );
     let dnc_line = b_err
         .lines()
         .find(|l| l.starts_with("hil-sim: dnc:"))
@@ -401,6 +412,9 @@ pub(crate) fn three_ways() {
     }
     // The box's hold (`lead_blocks = 1`), not the control's XOFF, paced the transfer: without it
     // the 5-line buffer filled to 4 and said XOFF ≈ 150 times; an XOFF, if any, was followed by XON.
+    // The hold does not apply to the set-up lines before the first stroke (no motion: estimated
+    // to take no time), so a simulator that reads them late (starved) may see them as one burst
+    // and say XOFF once; the fill is reported, the XOFF count is what is asserted.
     let events = std::fs::read_to_string(b_dir.join("out/dnc.csv")).unwrap();
     let xoffs = events.lines().filter(|l| l.contains(",xoff,")).count();
     let xons = events.lines().filter(|l| l.contains(",xon,")).count();
@@ -423,7 +437,23 @@ pub(crate) fn three_ways() {
          {max_s:.2}, live DNC {rms_d:.2} / {max_d:.2}, frozen rewrite {rms_f:.2} / {max_f:.2}",
         e_dnc.len()
     );
-    assert!(fill_max <= 3 && xons + 1 >= xoffs, "{dnc_line}");
+    // Where the worst dwells are (a start-up or a one-off fault shows as one stroke).
+    let worst = |e: &[f64]| {
+        e.iter()
+            .enumerate()
+            .fold((0, 0.0), |w, (i, &v)| if v > w.1 { (i, v) } else { w })
+    };
+    eprintln!(
+        "worst dwell: origin shift {:?}, live DNC {:?}",
+        worst(&e_shift),
+        worst(&e_dnc)
+    );
+    let start: Vec<&str> = events.lines().take(40).collect();
+    assert!(
+        xoffs <= 3 && xons + 1 >= xoffs && dnc_line.contains(" 0 overrun(s)"),
+        "{dnc_line}\nthe first events:\n{}",
+        start.join("\n")
+    );
     // Issue 38 asks for DNC within 1.5× of the origin shift. With each block held until the one
     // before it runs (`lead_blocks = 1`) a stroke is compensated ≈ 10 s (simulated) before its
     // dwell ends — the previous 2 s dwell, its 6 s stroke, its own 2 s dwell — while the growth

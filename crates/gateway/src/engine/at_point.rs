@@ -69,6 +69,20 @@ impl Engine {
         Ok(out)
     }
 
+    /// Whether [`Engine::correction_at`] at `now_s` would find every required, not optional,
+    /// model input usable, judged as a call would judge them (health, thermal latch); evaluates
+    /// nothing. What a DNC transfer waits for before its first line: a block sent before then
+    /// would carry no correction.
+    pub fn inputs_ready(&mut self, now_s: f64, model: &dyn ErrorModel) -> Result<(), AtPointError> {
+        self.now_s = now_s;
+        self.judge_channels(now_s);
+        if self.model_inputs(model) {
+            Ok(())
+        } else {
+            Err(AtPointError::Inputs(self.unusable_inputs()))
+        }
+    }
+
     /// The required, not optional, model inputs without a usable value, with their faults:
     /// "T_spindle_C (stale)". Allocates: called only on a refusal.
     fn unusable_inputs(&self) -> String {

@@ -56,6 +56,9 @@ fn d_buffer_lines() -> usize {
 fn d_stall_timeout_s() -> f64 {
     30.0
 }
+fn d_start_timeout_s() -> f64 {
+    30.0
+}
 fn d_rapid_mm_min() -> f64 {
     5000.0
 }
@@ -109,6 +112,11 @@ pub struct DncSection {
     /// The controller holding XOFF (or CTS low) longer than this is a stall fault, s.
     #[serde(default = "d_stall_timeout_s")]
     pub stall_timeout_s: f64,
+    /// Longest wait at the start for the model's inputs (every required sensor read and judged
+    /// usable), s: nothing is sent before, so no block leaves without its correction; past it the
+    /// transfer is refused and nothing has been sent.
+    #[serde(default = "d_start_timeout_s")]
+    pub start_timeout_s: f64,
     /// `;` ends a block (Fanuc EOB) instead of starting a comment (LinuxCNC).
     #[serde(default)]
     pub semicolon_is_eob: bool,
@@ -179,6 +187,11 @@ impl DncSection {
         {
             return bad("stall_timeout_s", "finite, > 0 and at most 3600 s");
         }
+        if !(self.start_timeout_s.is_finite() && self.start_timeout_s > 0.0)
+            || self.start_timeout_s > 3600.0
+        {
+            return bad("start_timeout_s", "finite, > 0 and at most 3600 s");
+        }
         if let Some(c) = self.max_change_um_per_block
             && !(c.is_finite() && c > 0.0 && c <= max_correction_um)
         {
@@ -220,6 +233,7 @@ mod tests {
         assert_eq!(key("data_bits = 7"), "dnc.parity");
         assert_eq!(key("stop_bits = 3"), "dnc.stop_bits");
         assert_eq!(key("stall_timeout_s = 0.0"), "dnc.stall_timeout_s");
+        assert_eq!(key("start_timeout_s = -1.0"), "dnc.start_timeout_s");
         assert_eq!(key("lead_blocks = 0"), "dnc.lead_blocks");
         assert_eq!(key("buffer_lines = 3\nlead_blocks = 4"), "dnc.lead_blocks");
         assert_eq!(key("rapid_mm_min = -1.0"), "dnc.rapid_mm_min");
