@@ -21,7 +21,8 @@ impl RealtimePacer {
 
     /// How many steps are due now given `done_steps` already taken (0 means: wait).
     pub fn steps_due(&self, done_steps: u64) -> u64 {
-        let due = (self.start.elapsed().as_secs_f64() / self.dt_s).floor() as u64;
+        let due =
+            retrocomp_analysis::numeric::trunc_u64(self.start.elapsed().as_secs_f64() / self.dt_s);
         due.saturating_sub(done_steps)
     }
 

@@ -58,7 +58,7 @@ fn write_all(plc: &mut OriginShiftPlc, counts: [i64; 3]) -> anyhow::Result<()> {
 }
 
 fn to_counts(correction_um: f64, lsb_um: f64) -> i64 {
-    (correction_um / lsb_um).round() as i64
+    retrocomp_analysis::numeric::round_i64(correction_um / lsb_um)
 }
 
 /// Set-point oracle: every `period_s`, writes −(static truth error at the nominal position).
@@ -169,7 +169,7 @@ impl TableCompensator {
             &self.reverse_um
         };
         let u = ((pos_mm - self.origin_mm) / self.pitch_mm).clamp(0.0, (t.len() - 1) as f64);
-        let i = (u.floor() as usize).min(t.len() - 1);
+        let i = retrocomp_analysis::numeric::trunc_usize(u).min(t.len() - 1);
         match self.lookup {
             Lookup::Stepped => t[i],
             Lookup::Linear => {

@@ -10,6 +10,19 @@
 #![allow(non_snake_case)]
 // Per-axis loops index several [f64; 3] arrays at once; `for k in 0..3` reads clearest.
 #![allow(clippy::needless_range_loop)]
+#![warn(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    clippy::cast_possible_wrap,
+    clippy::float_cmp
+)]
+#![cfg_attr(
+    test,
+    allow(
+        clippy::float_cmp,
+        reason = "tests assert values that are exact in binary or parsed from the same decimal text"
+    )
+)]
 
 pub mod artefacts;
 pub mod cases;

@@ -330,6 +330,7 @@ impl World {
                 b.update(prev_motor, motor);
             }
             motor_vel[k] = (motor - prev_motor) / dt_s;
+            #[allow(clippy::float_cmp, reason = "any motion at all, however small")]
             if motor != prev_motor {
                 self.dir[k] = if motor > prev_motor { 1 } else { -1 };
             }
@@ -500,7 +501,8 @@ impl World {
         for f in self.faults.iter_mut().filter(|f| f.cfg.channel == name) {
             v = f.apply(t, v);
         }
-        v.filter(|x| x.is_finite()).map(|x| x.round() as i64)
+        v.filter(|x| x.is_finite())
+            .map(retrocomp_analysis::numeric::round_i64)
     }
 
     /// Add a sensor fault while running (faults "on demand"); the channel must exist.

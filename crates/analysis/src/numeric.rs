@@ -1,7 +1,8 @@
-//! Float → count and index conversions of the analysis code, in one place. Each rounds as its
-//! name says and saturates as Rust's `as` does (NaN and negatives → 0, beyond the type → its
-//! maximum): the right answer for a count, rank or bin of a non-negative quantity, whose callers
-//! then bound it by the length they index.
+//! Float → count and index conversions of the analysis code and of hil-sim, in one place. Each
+//! rounds as its name says and saturates as Rust's `as` does (NaN → 0; negatives → 0 for the
+//! unsigned ones; beyond the type → its minimum or maximum): the right answer for a count, rank or
+//! bin of a non-negative quantity, whose callers then bound it by the length they index, and for
+//! a simulated count (encoder, register LSBs) whose physics keeps it far inside `i64`.
 
 /// `x` rounded toward zero as a count or index (0 for a negative or NaN `x`).
 #[allow(
@@ -21,6 +22,35 @@ pub fn ceil_usize(x: f64) -> usize {
 /// `x` rounded half away from zero as a count or index (0 for a negative or NaN `x`).
 pub fn round_usize(x: f64) -> usize {
     trunc_usize(x.round())
+}
+
+/// `x` rounded toward zero as an unsigned count (0 for a negative or NaN `x`).
+#[allow(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    reason = "saturating by design (module comment)"
+)]
+pub fn trunc_u64(x: f64) -> u64 {
+    x as u64
+}
+
+/// `x` rounded half away from zero as an unsigned count (0 for a negative or NaN `x`).
+pub fn round_u64(x: f64) -> u64 {
+    trunc_u64(x.round())
+}
+
+/// `x` rounded toward zero as a signed count (0 for NaN, saturating at `i64`'s ends).
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "saturating by design (module comment)"
+)]
+pub fn trunc_i64(x: f64) -> i64 {
+    x as i64
+}
+
+/// `x` rounded half away from zero as a signed count (0 for NaN, saturating at `i64`'s ends).
+pub fn round_i64(x: f64) -> i64 {
+    trunc_i64(x.round())
 }
 
 /// The nearest-rank index of quantile `p` (0 … 1) among `n ≥ 1` sorted values.
@@ -55,6 +85,12 @@ mod tests {
         assert_eq!(trunc_usize(f64::NAN), 0);
         assert_eq!(ceil_usize(2.1), 3);
         assert_eq!(round_usize(2.5), 3);
+        assert_eq!(trunc_u64(-0.5), 0);
+        assert_eq!(round_u64(2.5), 3);
+        assert_eq!(trunc_i64(-2.9), -2);
+        assert_eq!(round_i64(-2.5), -3);
+        assert_eq!(round_i64(1e300), i64::MAX);
+        assert_eq!(round_i64(f64::NAN), 0);
         assert_eq!(rank(11, 0.5), 5);
         assert_eq!(rank(11, 1.5), 10);
         assert_eq!(bin(10.0, 0.0, 10.0, 4), 3);

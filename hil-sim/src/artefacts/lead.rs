@@ -72,7 +72,7 @@ pub fn with_lead_waves(truth: &MachineModel, waves: &[HiddenLead]) -> MachineMod
             .find(|c| c.id.axis == w.axis && c.id.motion == Motion::Translation(w.axis))
             .expect("the truth has the positioning component");
         let (lo, hi) = tr[w.axis.index()];
-        let n = ((hi - lo) / TRUTH_STEP_MM).ceil() as usize;
+        let n = retrocomp_analysis::numeric::ceil_usize((hi - lo) / TRUTH_STEP_MM);
         let q: Vec<f64> = (0..=n)
             .map(|k| lo + (hi - lo) * k as f64 / n as f64)
             .collect();
@@ -141,7 +141,7 @@ pub fn laser_runs(
     let mut out = truth.new_breakdown();
     input.tool_mm = Some(0.0);
     let mut rng = Noise::new(seed, &format!("laser/{}", axis.lower()));
-    let n = ((hi - lo) / step_mm).floor() as usize;
+    let n = retrocomp_analysis::numeric::trunc_usize((hi - lo) / step_mm);
     let mut readings = Vec::with_capacity(2 * (n + 1) * runs as usize);
     for run in 1..=runs {
         for (direction, dir) in [(Direction::Forward, 1i8), (Direction::Reverse, -1)] {

@@ -148,7 +148,8 @@ pub fn measure_sphere_on(
     let mut rng = Noise::new(seed, &format!("artefact/{}/noise", sp.name));
     let mut probe = Probe::new(truth);
     let mut points = Vec::new();
-    let rings = (grid.max_polar_deg / grid.polar_step_deg + 1e-9).floor() as usize;
+    let rings =
+        retrocomp_analysis::numeric::trunc_usize(grid.max_polar_deg / grid.polar_step_deg + 1e-9);
     for ring in 0..=rings {
         let polar = (ring as f64 * grid.polar_step_deg).to_radians();
         let n_az = if ring == 0 { 1 } else { grid.azimuths };

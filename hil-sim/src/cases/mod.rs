@@ -50,8 +50,7 @@ pub(crate) fn build_path(rng: &mut ChaCha8Rng, program: Program) -> MotionPath {
         Program::Standard => {
             let tools = [80.0, 140.0, 200.0, 110.0];
             p.move_to(0.0, 0.0, 20.0, false, 0, tools[0]);
-            for run in 0..4i64 {
-                let tool = tools[run as usize];
+            for (run, &tool) in (0..4i64).zip(&tools) {
                 p.laser_run(rng, X_TRAVEL.0, X_TRAVEL.1, 11, false, 20.0, 4.0, run, tool);
                 p.move_to(X_TRAVEL.1, 0.0, 1.0, false, run, tool);
                 p.move_to(X_TRAVEL.0, 0.0, 1.0, false, run, tool);

@@ -48,7 +48,7 @@ impl Path {
     pub fn move_to(&mut self, x: f64, y: f64, feed: f64, cut: bool, run: i64, tool: f64) {
         let (x0, y0) = self.last();
         let d = (x - x0).hypot(y - y0);
-        let steps = ((d / feed / self.dt_s).ceil() as usize).max(1);
+        let steps = retrocomp_analysis::numeric::ceil_usize(d / feed / self.dt_s).max(1);
         for k in 1..=steps {
             let f = k as f64 / steps as f64;
             self.push(x0 + f * (x - x0), y0 + f * (y - y0), cut, run, tool);
@@ -57,7 +57,7 @@ impl Path {
 
     pub fn dwell(&mut self, seconds: f64, run: i64, tool: f64) {
         let (x, y) = self.last();
-        for _ in 0..((seconds / self.dt_s).round() as usize).max(1) {
+        for _ in 0..retrocomp_analysis::numeric::round_usize(seconds / self.dt_s).max(1) {
             self.push(x, y, false, run, tool);
         }
     }

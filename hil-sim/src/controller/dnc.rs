@@ -171,7 +171,7 @@ impl DncInput {
             return;
         }
         self.counts.lines += 1;
-        let line = self.counts.lines as usize;
+        let line = usize::try_from(self.counts.lines).unwrap_or(usize::MAX);
         let kind = if self.buffer.len() >= self.cfg.buffer_lines {
             self.counts.overruns += 1;
             DncEventKind::Overrun

@@ -302,6 +302,12 @@ fn arc_motion(
     })
 }
 
+#[allow(
+    clippy::float_cmp,
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    reason = "a whole number in 0 … 999 is checked before the cast"
+)]
 fn value_code(v: f64) -> Option<u32> {
     (v >= 0.0 && v.fract() == 0.0 && v < 1000.0).then_some(v as u32)
 }

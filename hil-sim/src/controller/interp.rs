@@ -217,6 +217,7 @@ impl ScriptRunner {
             let (a, b) = (&pts[i - 1], &pts[i]);
             let u = (self.t_s - a.t_s) / (b.t_s - a.t_s);
             let lerp = |p: f64, q: f64| p + (q - p) * u;
+            #[allow(clippy::float_cmp, reason = "the same set-point: not moving")]
             let moving = a.x_mm != b.x_mm || a.y_mm != b.y_mm || a.z_mm != b.z_mm;
             (
                 [

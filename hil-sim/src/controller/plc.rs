@@ -152,7 +152,7 @@ impl OriginShiftPlc {
     /// Address of an axis' shift word(s).
     pub fn shift_register(&self, axis: usize) -> u16 {
         let words = usize::from(self.cfg.word.words());
-        self.cfg.first_register + (axis * words) as u16
+        self.cfg.first_register + u16::try_from(axis * words).expect("3 axes of ≤ 4 words")
     }
 
     /// The register words encoding `counts` (what a client writes at [`Self::shift_register`]).
@@ -207,7 +207,9 @@ impl OriginShiftPlc {
             return false;
         };
         let hb = self.regs[cfg.heartbeat_register as usize];
-        let timeout_scans = (cfg.timeout_s / self.cfg.scan_s - 1e-9).ceil().max(1.0) as u64;
+        let timeout_scans = retrocomp_analysis::numeric::trunc_u64(
+            (cfg.timeout_s / self.cfg.scan_s - 1e-9).ceil().max(1.0),
+        );
         let w = &mut self.watchdog;
         if hb != w.last_heartbeat {
             w.last_heartbeat = hb;
@@ -242,7 +244,7 @@ impl OriginShiftPlc {
                 *r - step_um * r.signum()
             };
             // Towards 0: the applied shift never runs ahead of the ramp.
-            self.shift_counts[axis] = (*r / self.cfg.lsb_um).trunc() as i64;
+            self.shift_counts[axis] = retrocomp_analysis::numeric::trunc_i64(*r / self.cfg.lsb_um);
         }
         // The shift registers hold what is applied: a client that comes back reads it.
         for axis in 0..3 {
@@ -300,7 +302,7 @@ pub fn encode_shift(
 /// The shift counts held in `regs` (at least the type's word count).
 pub fn decode_shift(word: DataType, order: WordOrder, regs: &[u16]) -> i64 {
     let n = usize::from(word.words());
-    decode_raw(&regs[..n], word, order).map_or(0, |v| v.round() as i64)
+    decode_raw(&regs[..n], word, order).map_or(0, retrocomp_analysis::numeric::round_i64)
 }
 
 #[cfg(test)]

@@ -41,7 +41,7 @@ impl AxisServo {
 
     /// Raw encoder counts of the motor position (rounded to the nearest count).
     pub fn encoder_counts(&self, count_um: f64) -> i64 {
-        (self.motor_mm * 1000.0 / count_um).round() as i64
+        retrocomp_analysis::numeric::round_i64(self.motor_mm * 1000.0 / count_um)
     }
 
     /// What the controller believes: encoder plus whatever the quadrature input injected.

@@ -159,7 +159,7 @@ fn ticks(period_ms: u64, dt_s: f64, key: &str) -> anyhow::Result<u64> {
         n >= 1.0 && (n - n.round()).abs() < 1e-9,
         "{key} = {period_ms} ms is not a whole number of {dt_s} s steps"
     );
-    Ok(n.round() as u64)
+    Ok(retrocomp_analysis::numeric::round_u64(n))
 }
 
 impl ClosedLoop {
@@ -215,7 +215,7 @@ impl ClosedLoop {
             link_up: true,
             client,
             attempts: Vec::new(),
-            dt_ns: (dt * 1e9).round() as u64,
+            dt_ns: retrocomp_analysis::numeric::round_u64(dt * 1e9),
             writes: Vec::new(),
             trace: Vec::new(),
             edges: Vec::new(),
@@ -291,7 +291,7 @@ impl ClosedLoop {
     /// strobes it in: the PLC applies it at its next scan.
     pub fn foreign_write(&mut self, axis: usize, um: f64) -> anyhow::Result<()> {
         let plc = self.world.plc_mut();
-        let counts = (um / plc.config().lsb_um).round() as i64;
+        let counts = retrocomp_analysis::numeric::round_i64(um / plc.config().lsb_um);
         let words = plc.encode(counts)?;
         plc.write(plc.shift_register(axis), &words)?;
         if let Some(h) = plc.config().handshake.clone() {

@@ -88,7 +88,9 @@ impl Service for LoggedService {
 
     fn call(&self, req: Self::Request) -> Self::Future {
         let write = match &req.request {
-            Request::WriteMultipleRegisters(a, w) => Some((*a, w.len() as u16)),
+            Request::WriteMultipleRegisters(a, w) => {
+                Some((*a, u16::try_from(w.len()).unwrap_or(u16::MAX)))
+            }
             Request::WriteSingleRegister(a, _) => Some((*a, 1)),
             _ => None,
         };

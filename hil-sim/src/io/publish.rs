@@ -33,13 +33,17 @@ pub struct Publisher {
 }
 
 /// int16 in 0.1 °C (PT100 module layout).
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "range-checked to i16 before the cast"
+)]
 pub fn pt100_word(value_C: Option<f64>) -> u16 {
     match value_C {
         None => PT100_BREAK,
         Some(v) => {
             let r = (v * 10.0).round();
             if r.is_finite() && r > -32768.0 && r < 32767.0 {
-                r as i16 as u16
+                (r as i16).cast_unsigned()
             } else {
                 PT100_OVERRANGE
             }
@@ -48,6 +52,10 @@ pub fn pt100_word(value_C: Option<f64>) -> u16 {
 }
 
 /// An int32 register pair, high word first, in units of `lsb`; `i32::MIN` = no valid reading.
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "clamped to i32 before the cast"
+)]
 pub fn int32_words(value: Option<f64>, lsb: f64) -> [u16; 2] {
     let raw = match value {
         Some(v) if v.is_finite() => (v / lsb)
@@ -55,7 +63,8 @@ pub fn int32_words(value: Option<f64>, lsb: f64) -> [u16; 2] {
             .clamp(f64::from(i32::MIN) + 1.0, f64::from(i32::MAX))
             as i32,
         _ => i32::MIN,
-    } as u32;
+    }
+    .cast_unsigned();
     retrocomp_bus::modbus::words::split_u32(raw, retrocomp_bus::modbus::WordOrder::HighFirst)
 }
 
@@ -104,8 +113,8 @@ impl Publisher {
         AnalogChannel {
             channel: name.to_string(),
             node_id: node,
-            tpdo: 1 + (i / 4) as u8,
-            byte_offset: 2 * (i % 4) as u8,
+            tpdo: u8::try_from(1 + i / 4).expect("at most 1020 temperature sensors per node"),
+            byte_offset: u8::try_from(2 * (i % 4)).expect("below 8"),
             data_type: AnalogType::Int16,
             decimal_digits: 1,
             min: None,
@@ -124,12 +133,14 @@ impl Publisher {
                 for (k, ch) in self.encoders.iter().enumerate() {
                     let counts = match can.encoder_source {
                         EncoderSource::Motor => world.encoder_counts(k),
-                        EncoderSource::Slide => {
-                            (world.slide_mm(k) * 1000.0 / count_um).round() as i64
-                        }
+                        EncoderSource::Slide => retrocomp_analysis::numeric::round_i64(
+                            world.slide_mm(k) * 1000.0 / count_um,
+                        ),
                     };
                     if let Some(c) = world.encoder_fault(k, counts) {
-                        out.frames.push(ch.encode_raw(c.rem_euclid(1 << 32) as u32));
+                        // The encoder's 32-bit counter wraps.
+                        let raw = u32::try_from(c.rem_euclid(1 << 32)).expect("in 0 … 2³²");
+                        out.frames.push(ch.encode_raw(raw));
                     }
                 }
             }
@@ -148,8 +159,7 @@ impl Publisher {
                         let ch = Self::temperature_channel(node, pdo * 4 + j, &c.name);
                         let v = c.value.unwrap_or(f64::NAN);
                         if !ch.put_value(v, &mut data) {
-                            data[2 * j..2 * j + 2]
-                                .copy_from_slice(&(PT100_OVERRANGE as i16).to_le_bytes());
+                            data[2 * j..2 * j + 2].copy_from_slice(&PT100_OVERRANGE.to_le_bytes());
                         }
                     }
                     let ch = Self::temperature_channel(node, pdo * 4, "");
@@ -219,7 +229,7 @@ mod tests {
     #[test]
     fn pt100_words_and_markers() {
         assert_eq!(pt100_word(Some(21.34)), 213);
-        assert_eq!(pt100_word(Some(-5.0)), (-50i16) as u16);
+        assert_eq!(pt100_word(Some(-5.0)), (-50i16).cast_unsigned());
         assert_eq!(pt100_word(Some(f64::NAN)), PT100_OVERRANGE);
         assert_eq!(pt100_word(Some(1e9)), PT100_OVERRANGE);
         assert_eq!(pt100_word(None), PT100_BREAK);
@@ -228,7 +238,10 @@ mod tests {
     #[test]
     fn int32_pairs_are_hi_lo_and_mark_missing_values() {
         assert_eq!(int32_words(Some(250.04), 0.1), [0, 2500]);
-        assert_eq!(int32_words(Some(-1.0), 0.01), [0xFFFF, (-100i16) as u16]);
+        assert_eq!(
+            int32_words(Some(-1.0), 0.01),
+            [0xFFFF, (-100i16).cast_unsigned()]
+        );
         assert_eq!(int32_words(None, 0.1), [0x8000, 0]);
         assert_eq!(int32_words(Some(f64::NAN), 0.1), [0x8000, 0]);
     }

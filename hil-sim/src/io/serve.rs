@@ -266,7 +266,8 @@ pub async fn start(
 /// Serve the PLC window as the holding block: its current words, client-writable except the ack
 /// register (which belongs to the PLC). Returns the window length and the ack register.
 fn serve_plc_window(world: &World, bank: &RegisterBank) -> anyhow::Result<(u16, Option<u16>)> {
-    let n = world.plc().len() as u16;
+    let n = u16::try_from(world.plc().len())
+        .map_err(|_| anyhow::anyhow!("a PLC window of more than 65535 registers"))?;
     let ack = world
         .plc()
         .config()

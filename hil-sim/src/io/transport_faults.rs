@@ -232,7 +232,7 @@ impl Garbage {
     }
 
     fn below(&mut self, n: usize) -> usize {
-        ((self.noise.uniform() * n as f64) as usize).min(n - 1)
+        retrocomp_analysis::numeric::trunc_usize(self.noise.uniform() * n as f64).min(n - 1)
     }
 
     /// The next burst and its kind.
@@ -248,7 +248,7 @@ impl Garbage {
             BurstKind::Unterminated | BurstKind::JunkLine => {
                 let len = 1 + self.below(48);
                 let mut b: Vec<u8> = (0..len)
-                    .map(|_| self.below(256) as u8)
+                    .map(|_| u8::try_from(self.below(256)).expect("below 256"))
                     // A stray CR/LF would end the burst early: keep the kind what it says.
                     .map(|c| if c == b'\r' || c == b'\n' { b'~' } else { c })
                     .collect();
@@ -306,7 +306,11 @@ mod tests {
                 } else {
                     clears += 1;
                 }
-                seen.push((c.kind, c.started, (c.t_s * 1000.0).round() as i64));
+                seen.push((
+                    c.kind,
+                    c.started,
+                    retrocomp_analysis::numeric::round_i64(c.t_s * 1000.0),
+                ));
             }
         }
         assert_eq!((starts, clears), (3, 2));
@@ -349,10 +353,13 @@ mod tests {
             if answering.last().map(|(_, a)| *a) != Some(active.rtu_answers()) {
                 answering.push((k, active.rtu_answers()));
             }
-            edges.extend(
-                ch.iter()
-                    .map(|c| (c.kind, c.started, (c.t_s * 1000.0).round() as i64)),
-            );
+            edges.extend(ch.iter().map(|c| {
+                (
+                    c.kind,
+                    c.started,
+                    retrocomp_analysis::numeric::round_i64(c.t_s * 1000.0),
+                )
+            }));
         }
         assert_eq!(answering, vec![(0, true), (2000, false), (5000, true)]);
         assert_eq!(
