@@ -1,7 +1,7 @@
 //! Fleet load with every box in a separate OS process, over TLS (not criterion: a capacity
 //! search). One Mosquitto on loopback with a TLS-only listener (a CA and server certificate made
-//! with openssl), one fleet host process (`retrocomp fleet-load host`: the MQTT client and view of
-//! `retrocomp fleet`), and P box processes of K boxes each (`retrocomp fleet-load boxes`: the real
+//! with openssl), one fleet host process (hil-sim's `fleet_load host`: the MQTT client and view of
+//! `retrocomp fleet`), and P box processes of K boxes each (`fleet_load boxes`: the real
 //! Sparkplug publisher per box, QoS 1, each box's own TLS session), at R Hz for S seconds.
 //! The path and the counting are tests/peers/fleet_processes.rs (also run, tiny, by
 //! tests/telemetry_fleet_host.rs).
@@ -25,7 +25,7 @@
 //!
 //! Run: `cargo bench --profile test --bench fleet_processes -- 20x100 --seconds 60`
 //! (`PxK`: P processes of K boxes; `--rate-hz R`, default 10; `--exe PATH`: another build of
-//! `retrocomp`, e.g. target/release/retrocomp; `--max-queued N|default`: the broker's
+//! hil-sim's `fleet_load`, e.g. target/release/fleet_load; `--max-queued N|default`: the broker's
 //! `max_queued_messages`, default 1000000 as docs/fleet.md advises for a fleet; `--max-inflight
 //! N|default`: its `max_inflight_messages`, default Mosquitto's 20; `--boxes-nice N`:
 //! the box processes' niceness, default 10 — they stand for boxes on machines of their own, so on
@@ -33,6 +33,8 @@
 
 #[path = "../tests/peers/fleet_processes.rs"]
 mod fleet_processes;
+#[path = "../tests/gateway_support/hil_sim.rs"]
+mod hil_sim;
 #[path = "../tests/peers/mosquitto.rs"]
 mod mosquitto;
 #[path = "../tests/peers/mod.rs"]
@@ -96,7 +98,7 @@ fn print_row(load: &Load, o: &Outcome) {
 fn main() {
     let mut steps: Vec<(usize, usize)> = Vec::new();
     let (mut seconds, mut rate_hz) = (60.0, 10.0);
-    let mut exe = PathBuf::from(env!("CARGO_BIN_EXE_retrocomp"));
+    let mut exe: Option<PathBuf> = None;
     let (mut until_saturated, mut step_procs) = (false, 10);
     // Box processes stand for boxes on machines of their own: they yield to the broker and host.
     let mut boxes_nice = 10;
@@ -115,7 +117,7 @@ fn main() {
         match a.as_str() {
             "--seconds" => seconds = value("--seconds").parse().expect("--seconds S"),
             "--rate-hz" => rate_hz = value("--rate-hz").parse().expect("--rate-hz R"),
-            "--exe" => exe = value("--exe").into(),
+            "--exe" => exe = Some(value("--exe").into()),
             "--until-saturated" => until_saturated = true,
             "--boxes-nice" => {
                 boxes_nice = value("--boxes-nice").parse().expect("--boxes-nice 0..19");
@@ -143,6 +145,7 @@ fn main() {
     if steps.is_empty() {
         steps = vec![(20, 100)];
     }
+    let exe = exe.unwrap_or_else(hil_sim::fleet_load_next_to_retrocomp);
     let dir = tempfile::tempdir().unwrap();
     let port = peers::free_port();
     let (broker, ca) = mosquitto::Broker::start_tls(

@@ -37,9 +37,6 @@ enum Command {
     Fleet(cli::fleet::Args),
     /// Send a recording to the fleet: MQTT (chunked, resumable) or a directory (docs/fleet.md).
     ShipRecording(cli::ship::Args),
-    /// Load-test processes: simulated boxes or a fleet host (benches/fleet_processes.rs).
-    #[command(hide = true)]
-    FleetLoad(cli::fleet_load::Args),
     /// A socketcand-protocol CAN hub on TCP, for `hil-sim serve` and `retrocomp run` without hardware.
     Hub(cli::hub::Args),
     /// Show a running gateway's per-axis corrections, term breakdown and sensor health.
@@ -74,7 +71,6 @@ fn main() -> std::process::ExitCode {
         Command::Run(a) => cli::run::run(&a),
         Command::Demo(a) => cli::demo::run(&a),
         Command::Fleet(a) => cli::fleet::run(&a),
-        Command::FleetLoad(a) => cli::fleet_load::run(&a),
         Command::ShipRecording(a) => cli::ship::run(&a),
         Command::Status(a) => cli::status::run(&a),
         Command::Hub(a) => cli::hub::run(&a),

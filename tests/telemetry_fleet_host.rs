@@ -21,6 +21,8 @@
 
 #[path = "peers/fleet_processes.rs"]
 mod fleet_processes;
+#[path = "gateway_support/hil_sim.rs"]
+mod hil_sim;
 #[path = "peers/mosquitto.rs"]
 mod mosquitto;
 mod peers;
@@ -312,9 +314,9 @@ fn boxes_as_separate_processes_over_tls_lose_nothing() {
         group: "fleet-tls".into(),
         boxes_nice: 0,
     };
-    let exe = std::path::Path::new(env!("CARGO_BIN_EXE_retrocomp"));
+    let exe = hil_sim::fleet_load_next_to_retrocomp();
     let o = fleet_processes::run(
-        exe,
+        &exe,
         &format!("127.0.0.1:{port}"),
         broker.pid(),
         Some(&ca),

@@ -13,7 +13,6 @@ pub(crate) mod export;
 pub(crate) mod fit;
 pub(crate) mod fit_report;
 pub(crate) mod fleet;
-pub(crate) mod fleet_load;
 pub(crate) mod hub;
 pub(crate) mod identify;
 pub(crate) mod import;

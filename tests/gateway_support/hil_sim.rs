@@ -14,6 +14,11 @@ pub(crate) fn faulty_box_next_to_retrocomp() -> PathBuf {
     hil_sim_bin("faulty_box")
 }
 
+/// hil-sim's `fleet_load`: simulated boxes or a fleet host (the multi-process fleet load test).
+pub(crate) fn fleet_load_next_to_retrocomp() -> PathBuf {
+    hil_sim_bin("fleet_load")
+}
+
 /// The binary `name` of the hil-sim package, built as [`hil_sim_next_to_retrocomp`] says.
 fn hil_sim_bin(name: &str) -> PathBuf {
     let exe = Path::new(env!("CARGO_BIN_EXE_retrocomp"));

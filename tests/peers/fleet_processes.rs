@@ -1,6 +1,6 @@
 //! The fleet as separate OS processes (benches/fleet_processes.rs, and its small test in
-//! tests/telemetry_mqtt.rs): one fleet host process (`retrocomp fleet-load host`: the fleet
-//! host's MQTT client and view) and P box processes of K boxes each (`retrocomp fleet-load boxes`:
+//! tests/telemetry_mqtt.rs): one fleet host process (`fleet_load host`, a test program of hil-sim: the fleet
+//! host's MQTT client and view) and P box processes of K boxes each (`fleet_load boxes`:
 //! the real Sparkplug publisher per box), all against one broker, over TLS when a CA is given.
 //! The window starts once every box is connected and born (the host's latency restarts there); after it every box finishes (its queue acknowledged, then NDEATH) and reports what it
 //! produced; then the host must have every record and every NDEATH. CPU shares are % of one core
@@ -120,7 +120,7 @@ fn link_args(broker: &str, group: &str, ca: Option<&Path>) -> Vec<std::ffi::OsSt
     a
 }
 
-/// Runs `load` with `exe` (the `retrocomp` binary) against the broker at `broker` (HOST:PORT,
+/// Runs `load` with `exe` (hil-sim's `fleet_load` binary) against the broker at `broker` (HOST:PORT,
 /// process `broker_pid`), over TLS with `ca`.
 pub(crate) fn run(
     exe: &Path,
@@ -131,7 +131,7 @@ pub(crate) fn run(
 ) -> Outcome {
     let mut host = Killed(
         Command::new(exe)
-            .args(["fleet-load", "host", "--every-ms", "200"])
+            .args(["host", "--every-ms", "200"])
             .args(link_args(broker, &load.group, ca))
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
@@ -176,7 +176,7 @@ pub(crate) fn run(
             Command::new("nice")
                 .args(["-n", &nice])
                 .arg(exe)
-                .args(["fleet-load", "boxes", "--wait-go", "--first", &first])
+                .args(["boxes", "--wait-go", "--first", &first])
                 .args(["--count", &count, "--rate-hz", &rate, "--seconds", &secs])
                 .args(link_args(broker, &load.group, ca))
                 .stdin(Stdio::piped())

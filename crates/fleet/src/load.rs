@@ -1,5 +1,5 @@
-//! A fleet's load, for the fleet benches and their test (`retrocomp fleet-load`, a hidden
-//! subcommand; benches/telemetry_fleet.rs, benches/fleet_processes.rs): simulated boxes that publish
+//! A fleet's load, for the fleet benches and their test (hil-sim's test program `fleet_load`;
+//! benches/telemetry_fleet.rs, benches/fleet_processes.rs): simulated boxes that publish
 //! through the same Sparkplug publisher as `retrocomp run` (crates/gateway/src/northbound/telemetry),
 //! and the totals a fleet host ([`FleetView`]) has seen. A simulated box is a task that updates a
 //! status snapshot at twice the telemetry rate (so every sampler tick has a change to send) instead

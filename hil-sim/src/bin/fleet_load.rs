@@ -1,6 +1,6 @@
-//! `retrocomp fleet-load boxes|host` (hidden): the two processes of the multi-process fleet load
-//! test (benches/fleet_processes.rs and its test in tests/telemetry_mqtt.rs), so boxes and the
-//! fleet host run as separate OS processes with exactly the code that ships.
+//! `fleet_load boxes|host`: the two processes of the multi-process fleet load test
+//! (benches/fleet_processes.rs and its test in tests/telemetry_fleet_host.rs), so boxes and the
+//! fleet host run as separate OS processes with exactly the library code that ships.
 //! - `boxes`: K simulated boxes in this process (crates/fleet/src/load.rs), each the real Sparkplug
 //!   publisher over TCP or TLS; once all are connected and born one JSON line `{"connected": N}`
 //!   (with `--wait-go`, then a line on stdin), then `--seconds` more; then every box finishes (queue acknowledged, NDEATH) and one JSON
@@ -10,8 +10,8 @@
 //!   "offline", "births", "latency": {"n", "p50_ms", "p99_ms", "max_ms"}}`) until killed; a
 //!   line `reset` on its stdin restarts the latency from records sampled from then on.
 //!
-//! A hidden subcommand rather than a second binary: the tests and benches reach it as
-//! `CARGO_BIN_EXE_retrocomp` without a second statically linked executable in every build.
+//! Test-only: part of hil-sim (the world around the box, here a fleet of boxes), never of the
+//! `retrocomp` package, so the Debian package does not ship it.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -22,8 +22,12 @@ use retrocomp_gateway::northbound::telemetry::MqttConfig;
 use retrocomp_gateway::northbound::telemetry::config::TlsConfig;
 use retrocomp_gateway::northbound::telemetry::publisher::now_ms;
 
-#[derive(Debug, clap::Args)]
-pub(crate) struct Args {
+#[derive(Debug, clap::Parser)]
+#[command(
+    name = "fleet_load",
+    about = "The processes of the multi-process fleet load test"
+)]
+struct Args {
     #[command(subcommand)]
     role: Role,
 }
@@ -88,7 +92,8 @@ struct HostArgs {
     every_ms: u64,
 }
 
-pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
+fn main() -> anyhow::Result<()> {
+    let args = <Args as clap::Parser>::parse();
     // One thread per process: the load test runs many of these beside the broker.
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
