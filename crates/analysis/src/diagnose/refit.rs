@@ -279,19 +279,21 @@ fn theta_interval(
     let best = rss_at(ctx, b, r0, t, theta);
     let ok = |th: f64| n_eff * (rss_at(ctx, b, r0, t, th) / best).ln() <= 3.84;
     let step = 1.01f64;
-    // The two ends are searched at once (each is independent of the other, so the interval is
-    // the same with any number of threads): at 1M rows each step is a projection of every row.
-    let walk = |next: &dyn Fn(f64) -> f64| {
-        let mut end = theta;
-        for _ in 0..120 {
-            if !ok(next(end)) {
-                break;
-            }
-            end = next(end);
+    let mut lo = theta;
+    let mut hi = theta;
+    for _ in 0..120 {
+        if !ok(lo / step) {
+            break;
         }
-        end
-    };
-    rayon::join(|| walk(&|v| v / step), || walk(&|v| v * step))
+        lo /= step;
+    }
+    for _ in 0..120 {
+        if !ok(hi * step) {
+            break;
+        }
+        hi *= step;
+    }
+    (lo, hi)
 }
 
 fn refine_min(f: impl Fn(f64) -> f64, lo: f64, hi: f64) -> f64 {
