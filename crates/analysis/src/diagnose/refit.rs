@@ -186,7 +186,7 @@ pub(super) fn joint_refit(ctx: &Context, r: &[f64], terms: &[Term]) -> Refit {
 /// deflated by it.
 fn others_basis(
     ones: &[f64],
-    cols: &[Cow<'_, [Vec<f64>]>],
+    cols: &[TermCols<'_>],
     skip: usize,
     r: &[f64],
 ) -> (Vec<Vec<f64>>, Vec<f64>) {
@@ -207,6 +207,9 @@ fn rss_at(ctx: &Context, b: &[Vec<f64>], r0: &[f64], t: &Term, th: f64) -> f64 {
     lsq::dot(r0, r0) - lsq::gain(&u, r0)
 }
 
+/// One term's columns, borrowed from its [`Term`] or computed at a refined parameter.
+type TermCols<'t> = Cow<'t, [Vec<f64>]>;
+
 /// One coordinate pass: each nonlinear parameter refined within ×/÷ 1.3 with the other terms
 /// held (kept only when it does not raise the RSS); the parameters and the terms' columns
 /// (borrowed from `terms` where the parameter stayed: a copy of every column was 80 MB at 1M
@@ -216,10 +219,9 @@ fn refine_jointly<'t>(
     r: &[f64],
     terms: &'t [Term],
     ones: &[f64],
-) -> (Vec<f64>, Vec<Cow<'t, [Vec<f64>]>>) {
+) -> (Vec<f64>, Vec<TermCols<'t>>) {
     let mut thetas: Vec<f64> = terms.iter().map(|t| t.theta).collect();
-    let mut cols: Vec<Cow<'t, [Vec<f64>]>> =
-        terms.iter().map(|t| Cow::Borrowed(&t.cols[..])).collect();
+    let mut cols: Vec<TermCols<'t>> = terms.iter().map(|t| Cow::Borrowed(&t.cols[..])).collect();
     for (k, t) in terms.iter().enumerate() {
         if t.cand.is_nonlinear() && terms.len() > 1 {
             let (b, r0) = others_basis(ones, &cols, k, r);
