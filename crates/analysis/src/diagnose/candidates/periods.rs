@@ -1,6 +1,7 @@
 //! The cyclic candidates' period scan: the least-squares periodogram's frequency grid over
 //! position, its short end from the positions' spacing, and the sin/cos columns (fundamental and
-//! second harmonic) swept over the grid by phasor rotation. Positions mm, periods mm.
+//! second harmonic) swept over the grid by phasor rotation, in fixed chunks that run in parallel
+//! and give the same bits as one sweep. Positions mm, periods mm.
 
 use std::f64::consts::TAU;
 
