@@ -7,6 +7,8 @@ mod periods;
 
 use super::effects::EffectModel;
 use super::features::{AxisFeatures, Context, lowpass};
+#[cfg(test)]
+pub(crate) use periods::SWEEP_CHUNK;
 pub use periods::{MIN_PITCH_MM, shortest_period};
 use periods::{cyclic_columns, period_grid};
 use retrocomp_model::recording::AXES;

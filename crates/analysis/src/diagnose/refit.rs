@@ -2,6 +2,8 @@
 //! 95 % intervals, cumulative fits) and parsimony after it (which term to drop next, and why).
 //! Units as in [`super`]: residuals and gains in docs/diagnose-json.md units, µm for the signal.
 
+use std::borrow::Cow;
+
 use serde_json::{Map, Value, json};
 
 use super::candidates::{self, Candidate};
@@ -184,7 +186,7 @@ pub(super) fn joint_refit(ctx: &Context, r: &[f64], terms: &[Term]) -> Refit {
 /// deflated by it.
 fn others_basis(
     ones: &[f64],
-    cols: &[Vec<Vec<f64>>],
+    cols: &[TermCols<'_>],
     skip: usize,
     r: &[f64],
 ) -> (Vec<Vec<f64>>, Vec<f64>) {
@@ -205,16 +207,21 @@ fn rss_at(ctx: &Context, b: &[Vec<f64>], r0: &[f64], t: &Term, th: f64) -> f64 {
     lsq::dot(r0, r0) - lsq::gain(&u, r0)
 }
 
+/// One term's columns, borrowed from its [`Term`] or computed at a refined parameter.
+type TermCols<'t> = Cow<'t, [Vec<f64>]>;
+
 /// One coordinate pass: each nonlinear parameter refined within ×/÷ 1.3 with the other terms
-/// held (kept only when it does not raise the RSS); the parameters and the terms' columns.
-fn refine_jointly(
+/// held (kept only when it does not raise the RSS); the parameters and the terms' columns
+/// (borrowed from `terms` where the parameter stayed: a copy of every column was 80 MB at 1M
+/// rows, the room the parallel searches below take).
+fn refine_jointly<'t>(
     ctx: &Context,
     r: &[f64],
-    terms: &[Term],
+    terms: &'t [Term],
     ones: &[f64],
-) -> (Vec<f64>, Vec<Vec<Vec<f64>>>) {
+) -> (Vec<f64>, Vec<TermCols<'t>>) {
     let mut thetas: Vec<f64> = terms.iter().map(|t| t.theta).collect();
-    let mut cols: Vec<Vec<Vec<f64>>> = terms.iter().map(|t| t.cols.clone()).collect();
+    let mut cols: Vec<TermCols<'t>> = terms.iter().map(|t| Cow::Borrowed(&t.cols[..])).collect();
     for (k, t) in terms.iter().enumerate() {
         if t.cand.is_nonlinear() && terms.len() > 1 {
             let (b, r0) = others_basis(ones, &cols, k, r);
@@ -225,7 +232,7 @@ fn refine_jointly(
             );
             if rss_at(ctx, &b, &r0, t, th) <= rss_at(ctx, &b, &r0, t, thetas[k]) {
                 thetas[k] = th;
-                cols[k] = t.cand.columns(ctx, th);
+                cols[k] = Cow::Owned(t.cand.columns(ctx, th));
             }
         }
     }
@@ -279,30 +286,31 @@ fn theta_interval(
     let best = rss_at(ctx, b, r0, t, theta);
     let ok = |th: f64| n_eff * (rss_at(ctx, b, r0, t, th) / best).ln() <= 3.84;
     let step = 1.01f64;
-    let mut lo = theta;
-    let mut hi = theta;
-    for _ in 0..120 {
-        if !ok(lo / step) {
-            break;
+    // The two ends are searched at once (each independent of the other, so the interval is the
+    // same with any number of threads): at 1M rows each step is a projection of every row.
+    let walk = |next: &(dyn Fn(f64) -> f64 + Sync)| {
+        let mut end = theta;
+        for _ in 0..120 {
+            if !ok(next(end)) {
+                break;
+            }
+            end = next(end);
         }
-        lo /= step;
-    }
-    for _ in 0..120 {
-        if !ok(hi * step) {
-            break;
-        }
-        hi *= step;
-    }
-    (lo, hi)
+        end
+    };
+    rayon::join(|| walk(&|v| v / step), || walk(&|v| v * step))
 }
 
-fn refine_min(f: impl Fn(f64) -> f64, lo: f64, hi: f64) -> f64 {
+/// Golden-section minimum of `f` on [lo, hi] (log scale); both inner points are evaluated at
+/// every step, at once (each alone, so the result is the same with any number of threads).
+fn refine_min(f: impl Fn(f64) -> f64 + Sync, lo: f64, hi: f64) -> f64 {
     let (mut a, mut b) = (lo.ln(), hi.ln());
     let k = (5f64.sqrt() - 1.0) / 2.0;
     for _ in 0..24 {
         let c = b - k * (b - a);
         let d = a + k * (b - a);
-        if f(c.exp()) < f(d.exp()) {
+        let (fc, fd) = rayon::join(|| f(c.exp()), || f(d.exp()));
+        if fc < fd {
             b = d;
         } else {
             a = c;

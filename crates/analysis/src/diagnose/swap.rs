@@ -140,7 +140,7 @@ fn best_choice(
                 .any(|t| same_slot(&t.cand, c) && t.cand.axis == c.axis)
     };
     // Best grid value of candidate c on `basis` (residual r0): (gain, q, θ). The grid is swept
-    // as forward selection screens it (`Candidate::columns_sweep`: a cyclic candidate's sin/cos
+    // as forward selection screens it (`Candidate::par_sweep_map`: a cyclic candidate's sin/cos
     // rotated from the previous period instead of recomputed, 70 % of the exchange's time at 10⁵
     // rows); on equal gains the last θ wins, as `max_by` picked it.
     let best_of = |c: &Candidate, basis: &[Vec<f64>], r0: &[f64]| {
@@ -150,15 +150,14 @@ fn best_choice(
             c.grid.clone()
         };
         let mut best: Option<(f64, usize, f64)> = None;
-        c.columns_sweep(ctx, &thetas, |th, cols| {
-            let (scored, cols) = gain_cols(c, cols, basis, r0);
+        let scores = c.par_sweep_map(ctx, &thetas, |_, cols| gain_cols(c, cols, basis, r0));
+        for (&th, scored) in thetas.iter().zip(scores) {
             if let Some((g, q)) = scored
                 && best.is_none_or(|b| g.total_cmp(&b.0).is_ge())
             {
                 best = Some((g, q, th));
             }
-            cols
-        });
+        }
         best
     };
     // (improvement in BIC, k, [(cand, θ)]).

@@ -1,6 +1,7 @@
 //! The cyclic candidates' period scan: the least-squares periodogram's frequency grid over
 //! position, its short end from the positions' spacing, and the sin/cos columns (fundamental and
-//! second harmonic) swept over the grid by phasor rotation. Positions mm, periods mm.
+//! second harmonic) swept over the grid by phasor rotation, in fixed chunks that run in parallel
+//! and give the same bits as one sweep. Positions mm, periods mm.
 
 use std::f64::consts::TAU;
 
@@ -22,6 +23,54 @@ impl Candidate {
         thetas: &[f64],
         mut f: impl FnMut(f64, Vec<Vec<f64>>) -> Vec<Vec<f64>>,
     ) {
+        match self.rotation(ctx, thetas) {
+            Some(rot) => self.rotated_sweep(ctx, thetas, 0..thetas.len(), &rot, &mut f),
+            None => thetas.iter().for_each(|&t| {
+                f(t, self.columns(ctx, t));
+            }),
+        }
+    }
+
+    /// `f`'s value at every θ of `thetas` on [`Candidate::columns_sweep`]'s columns, in grid
+    /// order, the grid split into fixed chunks of [`SWEEP_CHUNK`] periods run in parallel (rayon):
+    /// one long cyclic candidate's sweep was most of a 1M-row diagnosis' screening, on one core.
+    /// Each chunk starts where the one-thread sweep re-anchors its phasors exactly and shares its
+    /// rotation, so every θ gets the same bits as in one sweep, with any number of threads; θ off
+    /// a uniform grid are independent and mapped one by one.
+    pub fn par_sweep_map<T: Send>(
+        &self,
+        ctx: &Context,
+        thetas: &[f64],
+        f: impl Fn(f64, Vec<Vec<f64>>) -> (T, Vec<Vec<f64>>) + Sync,
+    ) -> Vec<T> {
+        use rayon::prelude::*;
+        let Some(rot) = self.rotation(ctx, thetas) else {
+            return thetas
+                .par_iter()
+                .map(|&t| f(t, self.columns(ctx, t)).0)
+                .collect();
+        };
+        let starts: Vec<usize> = (0..thetas.len()).step_by(SWEEP_CHUNK).collect();
+        let chunks: Vec<Vec<T>> = starts
+            .par_iter()
+            .map(|&s| {
+                let range = s..(s + SWEEP_CHUNK).min(thetas.len());
+                let mut out = Vec::with_capacity(range.len());
+                self.rotated_sweep(ctx, thetas, range, &rot, &mut |t, cols| {
+                    let (v, cols) = f(t, cols);
+                    out.push(v);
+                    cols
+                });
+                out
+            })
+            .collect();
+        chunks.into_iter().flatten().collect()
+    }
+
+    /// The phasor rotation of a cyclic candidate's sweep over `thetas` when they are uniform in
+    /// frequency: the angular frequencies (rad/mm) and the sin/cos of the fixed step at every
+    /// distinct position; `None` for other candidates and grids.
+    fn rotation(&self, ctx: &Context, thetas: &[f64]) -> Option<Rotation> {
         let w: Vec<f64> = thetas.iter().map(|p| TAU / p).collect();
         let dw = if w.len() >= 3 { w[1] - w[0] } else { 0.0 };
         let uniform = self.is_cyclic()
@@ -29,25 +78,37 @@ impl Candidate {
             && w.windows(2)
                 .all(|p| ((p[1] - p[0]) - dw).abs() <= 1e-9 * w[0].abs());
         if !uniform {
-            thetas.iter().for_each(|&t| {
-                f(t, self.columns(ctx, t));
-            });
-            return;
+            return None;
         }
         let fa = ctx
             .axis(self.axis)
             .expect("library only lists candidates whose inputs exist");
-        let exact = |wk: f64| -> (Vec<f64>, Vec<f64>) {
-            fa.distinct_mm.iter().map(|&x| (wk * x).sin_cos()).unzip()
-        };
-        let (rs, rc) = exact(dw);
+        let (rs, rc) = exact_phasors(fa, dw);
+        Some(Rotation { w, rs, rc })
+    }
+
+    /// The rotated sweep over `thetas[range]`: exact phasors at the range's start and every
+    /// [`REANCHOR_EVERY`]-th grid index, rotated in between.
+    fn rotated_sweep(
+        &self,
+        ctx: &Context,
+        thetas: &[f64],
+        range: std::ops::Range<usize>,
+        rot: &Rotation,
+        f: &mut dyn FnMut(f64, Vec<Vec<f64>>) -> Vec<Vec<f64>>,
+    ) {
+        let fa = ctx
+            .axis(self.axis)
+            .expect("library only lists candidates whose inputs exist");
+        let Rotation { w, rs, rc } = rot;
         let (mut sv, mut cv) = (vec![], vec![]);
         let harmonic = self.kind == Kind::CyclicHarmonic;
         let (mut s2, mut c2) = (vec![], vec![]);
         let mut spare: Vec<Vec<f64>> = vec![];
-        for (j, &t) in thetas.iter().enumerate() {
-            if j % REANCHOR_EVERY == 0 {
-                (sv, cv) = exact(w[j]);
+        let first = range.start;
+        for j in range {
+            if j == first || j % REANCHOR_EVERY == 0 {
+                (sv, cv) = exact_phasors(fa, w[j]);
             } else {
                 for k in 0..sv.len() {
                     let (s0, c0) = (sv[k], cv[k]);
@@ -72,10 +133,30 @@ impl Candidate {
                 gather(&s2, &mut cols[2]);
                 gather(&c2, &mut cols[3]);
             }
-            spare = f(t, cols);
+            spare = f(thetas[j], cols);
         }
     }
 }
+
+/// A uniform-frequency sweep's angular frequencies (rad/mm) and its step's sin/cos per distinct
+/// position.
+struct Rotation {
+    w: Vec<f64>,
+    rs: Vec<f64>,
+    rc: Vec<f64>,
+}
+
+/// sin and cos of `w_rad_per_mm` × every distinct position.
+fn exact_phasors(fa: &AxisFeatures, w_rad_per_mm: f64) -> (Vec<f64>, Vec<f64>) {
+    fa.distinct_mm
+        .iter()
+        .map(|&x| (w_rad_per_mm * x).sin_cos())
+        .unzip()
+}
+
+/// Grid periods per parallel chunk of [`Candidate::par_sweep_map`]: one re-anchoring interval,
+/// so the chunks start exactly where the one-thread sweep recomputes its phasors.
+pub(crate) const SWEEP_CHUNK: usize = REANCHOR_EVERY;
 
 /// Shortest period a cyclic candidate scans (mm): lead-screw pitches and scale periods that
 /// matter at the µm level are ≥ 2 mm.
@@ -120,22 +201,105 @@ pub fn shortest_period(distinct_mm: &[f64]) -> f64 {
 /// Phasors are recomputed exactly every this many rotations (rounding drift stays ≤ 1e-14).
 const REANCHOR_EVERY: usize = 32;
 
-/// The sin/cos pair of period `period_mm` in position.
+/// The sin/cos pair of period `period_mm` in position. Computed in fixed chunks of positions and
+/// rows in parallel (rayon): every value is computed alone, so the columns are the same bits with
+/// any number of threads, and a period's refinement (one call per golden-section step, at 1M rows
+/// a cosine per distinct position) uses every core.
 pub(super) fn cyclic_columns(f: &AxisFeatures, period_mm: f64) -> Vec<Vec<f64>> {
+    use rayon::prelude::*;
     let w = TAU / period_mm;
     // One transcendental per distinct position: sin from cos with the half-cycle sign.
     let (mut sv, mut cv) = (
-        Vec::with_capacity(f.distinct_mm.len()),
-        Vec::with_capacity(f.distinct_mm.len()),
+        vec![0.0; f.distinct_mm.len()],
+        vec![0.0; f.distinct_mm.len()],
     );
-    for &x in &f.distinct_mm {
-        let ph = (w * x).rem_euclid(TAU);
-        let c = ph.cos();
-        cv.push(c);
-        sv.push((1.0 - c * c).max(0.0).sqrt() * if ph < std::f64::consts::PI { 1.0 } else { -1.0 });
+    sv.par_chunks_mut(ELEMENT_CHUNK)
+        .zip(cv.par_chunks_mut(ELEMENT_CHUNK))
+        .zip(f.distinct_mm.par_chunks(ELEMENT_CHUNK))
+        .for_each(|((sv, cv), xs)| {
+            for ((s, c), &x) in sv.iter_mut().zip(cv.iter_mut()).zip(xs) {
+                let ph = (w * x).rem_euclid(TAU);
+                *c = ph.cos();
+                *s = (1.0 - *c * *c).max(0.0).sqrt()
+                    * if ph < std::f64::consts::PI { 1.0 } else { -1.0 };
+            }
+        });
+    let gather = |v: &[f64]| -> Vec<f64> {
+        let mut out = vec![0.0; f.distinct_idx.len()];
+        out.par_chunks_mut(ELEMENT_CHUNK)
+            .zip(f.distinct_idx.par_chunks(ELEMENT_CHUNK))
+            .for_each(|(o, idx)| {
+                o.iter_mut().zip(idx).for_each(|(o, &k)| *o = v[k as usize]);
+            });
+        out
+    };
+    vec![gather(&sv), gather(&cv)]
+}
+
+/// Positions or rows per parallel chunk of [`cyclic_columns`].
+const ELEMENT_CHUNK: usize = 1 << 15;
+
+#[cfg(test)]
+mod tests {
+    use super::super::{Candidate, library};
+    use super::{Context, SWEEP_CHUNK};
+    use retrocomp_model::recording::Recording;
+
+    /// Every column's bits at one θ, folded (order-sensitive) into one word.
+    fn bits(cols: &[Vec<f64>]) -> u64 {
+        cols.iter()
+            .flatten()
+            .fold(0u64, |h, v| h.rotate_left(5) ^ v.to_bits())
     }
-    vec![
-        f.distinct_idx.iter().map(|&k| sv[k as usize]).collect(),
-        f.distinct_idx.iter().map(|&k| cv[k as usize]).collect(),
-    ]
+
+    /// The chunked parallel sweep hands `f` the same columns, bit for bit, as one sweep, on one
+    /// thread and on three: its chunks start at the sweep's exact re-anchors (issue 39 point 3).
+    #[test]
+    fn the_parallel_sweep_is_the_one_thread_sweep_bit_for_bit() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let n = 3000;
+        // Uneven targets over 900 mm: a period grid of several hundred periods.
+        let x: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..900.0)).collect();
+        let rec = Recording::from_columns(vec![
+            ("t_s".into(), (0..n).map(|i| i as f64).collect()),
+            ("x_mm".into(), x),
+            ("ex_um".into(), vec![0.0; n]),
+        ])
+        .unwrap();
+        let ctx = Context::from_recording(&rec);
+        let cyclic: Vec<Candidate> = library(&ctx, 'x')
+            .into_iter()
+            .filter(Candidate::is_cyclic)
+            .collect();
+        assert_eq!(cyclic.len(), 2, "the fundamental and the harmonic form");
+        for c in &cyclic {
+            assert!(c.rotation(&ctx, &c.grid).is_some(), "a uniform grid");
+            assert!(c.grid.len() > 4 * SWEEP_CHUNK + 1, "{}", c.grid.len());
+            let mut one_sweep = vec![];
+            c.columns_sweep(&ctx, &c.grid, |th, cols| {
+                one_sweep.push((th.to_bits(), bits(&cols)));
+                cols
+            });
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let chunked = pool.install(|| {
+                    c.par_sweep_map(&ctx, &c.grid, |th, cols| {
+                        ((th.to_bits(), bits(&cols)), cols)
+                    })
+                });
+                assert_eq!(chunked, one_sweep, "{} on {threads}", c.label());
+            }
+            // The rotation is what is compared: it differs from fresh sin/cos in the last bits.
+            let fresh: Vec<(u64, u64)> = c
+                .grid
+                .iter()
+                .map(|&th| (th.to_bits(), bits(&c.columns(&ctx, th))))
+                .collect();
+            assert_ne!(fresh, one_sweep, "{}", c.label());
+        }
+    }
 }

@@ -106,15 +106,24 @@ fn restarted_lag_is_a_lag_started_fresh_at_each_block() {
     assert!(moved > 1.0, "{moved}");
 }
 
-/// The screening and the exchange run on rayon's pool and collect in library order: the whole
-/// diagnosis serialises to the same bytes on one thread and on two (issue 39 point 3).
+/// The screening and the exchange run on rayon's pool and collect in library order, each cyclic
+/// candidate's period grid swept in fixed parallel chunks: the whole diagnosis serialises to the
+/// same bytes on one thread and on two (issue 39 point 3). 7 mm steps give a period grid of one
+/// chunk, 1 mm steps one of several.
 #[test]
 fn the_diagnosis_is_the_same_on_one_thread_and_on_two() {
+    use crate::diagnose::candidates::SWEEP_CHUNK;
+    assert!(same_on_one_thread_and_on_two(23, 7.0) <= SWEEP_CHUNK);
+    assert!(same_on_one_thread_and_on_two(150, 1.0) > 3 * SWEEP_CHUNK);
+}
+
+/// The periods the cyclic candidate screens.
+fn same_on_one_thread_and_on_two(steps: usize, step_mm: f64) -> usize {
     use rand::{Rng, SeedableRng};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(39);
     let n = 3000;
     let t: Vec<f64> = (0..n).map(|i| i as f64).collect();
-    let x = step_and_dwell(n, 23, 7.0);
+    let x = step_and_dwell(n, steps, step_mm);
     let temp: Vec<f64> = t.iter().map(|s| 20.0 + 3.0 * (s / 900.0).sin()).collect();
     let temp_lag = crate::diagnose::features::lowpass(&t, &temp, 120.0);
     let dir: Vec<f64> = Context::from_recording(
@@ -159,4 +168,11 @@ fn the_diagnosis_is_the_same_on_one_thread_and_on_two() {
     let one = on(1);
     assert!(one.contains("backlash"), "{one}");
     assert_eq!(one, on(2));
+    let ctx = Context::from_recording(&rec);
+    let lib = crate::diagnose::candidates::library(&ctx, 'x');
+    let cyclic = lib
+        .iter()
+        .find(|c| c.is_cyclic())
+        .expect("a cyclic candidate");
+    cyclic.grid.len()
 }

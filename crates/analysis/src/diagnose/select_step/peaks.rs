@@ -26,14 +26,17 @@ impl Selector<'_> {
     pub(super) fn refine_cyclic_peaks(&self, scored: &mut [Scored], nulls: &Nulls<'_>, n_eff: f64) {
         // Only peaks that pass the bar can win; the others are not worth their evaluations (each
         // is a sin/cos per distinct position and a projection over every row).
+        // Each peak is refined on its own (in parallel: one peak's refinement at 1M rows is ≈ 20
+        // sweeps of every row), so the result is the same with any number of threads.
+        use rayon::prelude::*;
         let bar = self.opts.min_delta_bic;
-        for s in scored
-            .iter_mut()
+        scored
+            .par_iter_mut()
             .filter(|s| self.lib[s.idx].is_cyclic() && s.delta_bic > bar)
-        {
-            let nl = nulls.of(s.cells);
-            *s = self.refine(std::mem::replace(s, Scored::placeholder()), nl, n_eff);
-        }
+            .for_each(|s| {
+                let nl = nulls.of(s.cells);
+                *s = self.refine(std::mem::replace(s, Scored::placeholder()), nl, n_eff);
+            });
     }
 
     /// Refine the winner's nonlinear parameter between its grid neighbours (golden section on

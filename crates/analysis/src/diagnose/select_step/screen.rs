@@ -17,7 +17,8 @@ impl Selector<'_> {
     /// Profile every unused candidate over its grid (best θ by RSS drop: q is fixed within a
     /// candidate), under the plain null and, for the reversal family, within cells. Candidates
     /// are screened in parallel (rayon) and collected in library order, each candidate's grid
-    /// swept in order on one thread, so the result is the same with any number of threads. The
+    /// swept in fixed chunks in parallel and read in grid order ([`Candidate::par_sweep_map`]),
+    /// so the result is the same with any number of threads. The
     /// harmonic forms of cyclic errors are screened after the others, at the peaks of their
     /// fundamental's periodogram ([`peak_thetas`]).
     pub(super) fn screen(&self, nulls: &Nulls<'_>) -> Vec<Scored> {
@@ -78,8 +79,8 @@ impl Selector<'_> {
             }
             let nl = nulls.of(blocked);
             let mut best: Option<Scored> = None;
-            c.columns_sweep(self.ctx, thetas, |th, cols| {
-                let (scored, cols) = score_cols(c, cols, nl);
+            let scores = c.par_sweep_map(self.ctx, thetas, |_, cols| score_cols(c, cols, nl));
+            for (&th, scored) in thetas.iter().zip(scores) {
                 if !blocked && let Some(curve) = curve.as_mut() {
                     curve.push(scored.map_or(f64::NEG_INFINITY, |s| s.0));
                 }
@@ -95,8 +96,7 @@ impl Selector<'_> {
                         cells: blocked,
                     });
                 }
-                cols
-            });
+            }
             out.extend(best);
         }
         (out, curve)
