@@ -12,7 +12,9 @@
 //! `c(its point, now) + slope · min(t_end − now, max_horizon_s)`.
 //!
 //! Bounds: no extrapolation (the plain present value) until the window holds at least
-//! [`MIN_SAMPLES`] samples spanning half of it, and none while an input is degraded or refused
+//! [`MIN_SAMPLES`] samples spanning a quarter of it (a thermal growth is fastest at its start,
+//! so the prediction should start early; a shorter span lets the inputs' quantisation through),
+//! and none while an input is degraded or refused
 //! (the series restarts then: a substituted or returning input is a step, not a drift). The
 //! slope at the reference point stands for the slope at every point (a thermal growth that
 //! depends on position is extrapolated as the reference point's). What leaves the box still goes
@@ -134,7 +136,7 @@ impl DriftPredictor {
             sum_t += t;
             sum_c += c;
         }
-        if n < MIN_SAMPLES || last - first < self.cfg.window_s / 2.0 {
+        if n < MIN_SAMPLES || last - first < self.cfg.window_s / 4.0 {
             return None;
         }
         #[allow(
