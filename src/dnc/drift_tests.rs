@@ -58,7 +58,11 @@ fn predicting(um_per_s: f64, fail: (f64, f64), clamp_um: f64, cap_um: f64) -> Li
 /// Block `k` at `t_s`, estimated to end `ahead_s` later: X350 forward / X50 reverse alternating.
 /// Returns (x_mm, correction sent µm).
 fn block(lc: &LiveCorrections, k: usize, t_s: f64, ahead_s: f64) -> (f64, f64) {
-    let (x, dirs) = if k % 2 == 0 { (350.0, F) } else { (50.0, R) };
+    let (x, dirs) = if k.is_multiple_of(2) {
+        (350.0, F)
+    } else {
+        (50.0, R)
+    };
     lc.set_now(t_s);
     lc.set_end_s(t_s + ahead_s);
     let e = lc.error_um([x, 0.0, 0.0], dirs).unwrap();
@@ -245,8 +249,8 @@ fn the_core_asks_for_the_end_of_the_block_on_the_controls_estimated_schedule() {
     };
     let mut core = DncCore::new(c, &lc);
     let mut program = String::from("G90 G1 F600 X0\n");
-    for k in 0..120 {
-        program.push_str(if k % 2 == 0 { "X10\n" } else { "X0\n" });
+    for k in 0..120_usize {
+        program.push_str(if k.is_multiple_of(2) { "X10\n" } else { "X0\n" });
     }
     let (_, log) = drain(&mut core, &program, 0.05);
     assert_eq!(log.len(), 121);
