@@ -13,6 +13,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use retrocomp::dnc::core::{CoreConfig, DncCore};
+use retrocomp::dnc::drift::DriftConfig;
 use retrocomp::dnc::faults::StatusTx;
 use retrocomp::dnc::lead::LeadConfig;
 use retrocomp::dnc::live::{EngineAtPoint, LiveCorrections};
@@ -137,10 +138,16 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     // no safety step of its own runs: the guard below is the one output limit.
     let mut engine = cfg.engine(&Default::default())?;
     engine.report_undelivered(&checked.optional_missing);
-    let live = LiveCorrections::new(
+    let mut live = LiveCorrections::new(
         Box::new(EngineAtPoint::new(engine, Box::new(checked.model))),
         limits,
     );
+    if dnc.predict_drift {
+        live = live.with_drift(DriftConfig {
+            window_s: dnc.drift_window_s,
+            max_horizon_s: dnc.predict_max_s,
+        });
+    }
     let core_cfg = CoreConfig {
         line_end: dnc.line_end,
         max_line_chars: dnc.max_line_chars,

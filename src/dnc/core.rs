@@ -322,6 +322,7 @@ impl<'m> DncCore<'m> {
         self.live.set_bypass(skip);
         self.live.set_now(now_s);
         let exec_s = self.lead.duration_s(b);
+        self.live.set_end_s(self.lead.end_if_sent_s(exec_s, now_s));
         let mut bo = BlockOut::default();
         let res = self.rw.block(b, &mut bo);
         self.live.set_bypass(false);

@@ -151,12 +151,19 @@ impl ExecEstimate {
 
     /// A line of `duration_s` left the box at `now_s`.
     pub fn sent(&mut self, duration_s: f64, now_s: f64) {
-        if !self.holds_ever() {
-            return;
-        }
         let start = now_s.max(self.busy_until_s);
         self.busy_until_s = start + duration_s;
-        self.starts.push_back(start);
+        // The schedule of waiting lines is only kept for a hold (without one nothing pops it).
+        if self.holds_ever() {
+            self.starts.push_back(start);
+        }
+    }
+
+    /// When a line of `duration_s` sent at `now_s` is estimated to end on the control: after the
+    /// lines sent before it, and not before it arrives. What the drift prediction extrapolates
+    /// to (`drift.rs`).
+    pub fn end_if_sent_s(&self, duration_s: f64, now_s: f64) -> f64 {
+        now_s.max(self.busy_until_s) + duration_s
     }
 
     /// Sent lines estimated to be still waiting in the control at `now_s`.

@@ -9,6 +9,10 @@
 //! box. The rewriter may ask twice for one end point (domain check, then the piece): the second
 //! answer is the first one, cached, so a block carries one value however often it is asked.
 //!
+//! With [`LiveCorrections::with_drift`] a block carries the correction predicted for when it is
+//! estimated to end on the control ([`LiveCorrections::set_end_s`]; `drift.rs` says how and
+//! within which bounds), still through the same guard.
+//!
 //! Signs and units: corrections µm, = −error; the rewriter writes `nominal − error/1000` mm, so
 //! the block's end point is `nominal + correction`. Positions mm, machine coordinates, X radial.
 
@@ -21,6 +25,8 @@ use retrocomp_model::approach::Approach;
 use retrocomp_gateway::engine::{Engine, ErrorModel};
 use retrocomp_gateway::sinks::guard::{GuardLimits, Verdict, WriteGuard};
 use retrocomp_gateway::status::StatusSnapshot;
+
+use super::drift::{DriftConfig, DriftPredictor};
 
 /// Output resolution of a compensated block, µm (the rewriter writes 4 decimals in mm).
 pub const BLOCK_LSB_UM: f64 = 0.1;
@@ -43,12 +49,30 @@ pub trait CorrectionAt {
         Ok(())
     }
 
+    /// [`Self::correction_um`] another point at the `now_s` of the last call, with no sample
+    /// observed since (the drift prediction's second point per block): a source that judges its
+    /// inputs does not judge them again.
+    fn correction_again_um(
+        &mut self,
+        pos_mm: [f64; 3],
+        dirs: [Approach; 3],
+        now_s: f64,
+    ) -> Result<[Option<f64>; 3], String> {
+        self.correction_um(pos_mm, dirs, now_s)
+    }
+
     /// A sample from the live sources (a source that reads none ignores it).
     fn observe(&mut self, _s: &Sample) {}
 
     /// What `/status` and `/metrics` show of the source (None: it has no status).
     fn snapshot(&self) -> Option<StatusSnapshot> {
         None
+    }
+
+    /// The last successful [`Self::correction_um`] used an input that is not a healthy reading
+    /// of its own (substituted, an optional one missing): not a value to extrapolate from.
+    fn inputs_degraded(&self) -> bool {
+        false
     }
 }
 
@@ -66,6 +90,10 @@ struct Inner {
     driven: [bool; 3],
     guard: WriteGuard,
     now_s: f64,
+    /// When the block being prepared is estimated to end on the control, s (None: at `now_s`).
+    end_s: Option<f64>,
+    /// The drift prediction, when asked for.
+    drift: Option<DriftPredictor>,
     /// The block being prepared (not yet committed).
     pending: Option<Applied>,
     /// Corrections carried by the last committed block.
@@ -112,6 +140,8 @@ impl LiveCorrections {
                 driven: limits.map(|(max, _)| max > 0.0),
                 guard,
                 now_s: 0.0,
+                end_s: None,
+                drift: None,
                 pending: None,
                 held_um: [0.0; 3],
                 bypass: false,
@@ -134,6 +164,18 @@ impl LiveCorrections {
     /// The time corrections are asked at (the send time of the next block), s.
     pub fn set_now(&self, now_s: f64) {
         self.inner.borrow_mut().now_s = now_s;
+    }
+
+    /// Predict each block's correction for when it is estimated to end ([`Self::set_end_s`]).
+    #[must_use]
+    pub fn with_drift(self, cfg: DriftConfig) -> Self {
+        self.inner.borrow_mut().drift = Some(DriftPredictor::new(cfg));
+        self
+    }
+
+    /// When the next block is estimated to end on the control, s (the drift prediction's target).
+    pub fn set_end_s(&self, end_s: f64) {
+        self.inner.borrow_mut().end_s = Some(end_s);
     }
 
     /// Blocks are only interpreted (before the operator's resume point): no correction is asked.
@@ -205,13 +247,48 @@ impl ErrorFunction for LiveCorrections {
         {
             return Some(a.correction_um.map(|c| -c));
         }
-        let want = match i.src.correction_um(pos_mm, dirs, i.now_s) {
-            Ok(w) => {
+        let now = i.now_s;
+        // The drift series' reference point first, at the same `now` (the engine's lag states
+        // do not move at Δt = 0), so that the source's snapshot shows this block's point, which
+        // is then asked without judging the inputs again.
+        let mut again = false;
+        if let Some(d) = i.drift.as_mut()
+            && let Some((rp, rd)) = d.reference()
+            && (rp.map(f64::to_bits) != pos_mm.map(f64::to_bits) || rd != dirs)
+            && d.due(now)
+        {
+            again = true;
+            match i.src.correction_um(rp, rd, now) {
+                Ok(c) if !i.src.inputs_degraded() => d.record(rp, rd, now, c),
+                _ => d.reset(),
+            }
+        }
+        let got = if again {
+            i.src.correction_again_um(pos_mm, dirs, now)
+        } else {
+            i.src.correction_um(pos_mm, dirs, now)
+        };
+        let want = match got {
+            Ok(mut w) => {
                 i.model_fault = None;
+                if let Some(d) = i.drift.as_mut() {
+                    if i.src.inputs_degraded() {
+                        d.reset();
+                    } else {
+                        d.record(pos_mm, dirs, now, w);
+                        let ahead = d.ahead_um(now, i.end_s.unwrap_or(now));
+                        for (c, a) in w.iter_mut().zip(ahead) {
+                            *c = c.map(|v| v + a);
+                        }
+                    }
+                }
                 w
             }
             Err(why) => {
                 i.model_fault = Some(why);
+                if let Some(d) = i.drift.as_mut() {
+                    d.reset();
+                }
                 [None; 3]
             }
         };
@@ -282,6 +359,21 @@ impl CorrectionAt for EngineAtPoint {
         self.engine
             .correction_at(now_s, self.model.as_mut(), pos_mm, dirs)
             .map_err(|e| e.to_string())
+    }
+
+    fn correction_again_um(
+        &mut self,
+        pos_mm: [f64; 3],
+        dirs: [Approach; 3],
+        _now_s: f64,
+    ) -> Result<[Option<f64>; 3], String> {
+        self.engine
+            .correction_at_again(self.model.as_mut(), pos_mm, dirs)
+            .map_err(|e| e.to_string())
+    }
+
+    fn inputs_degraded(&self) -> bool {
+        self.engine.inputs_degraded()
     }
 
     fn snapshot(&self) -> Option<StatusSnapshot> {

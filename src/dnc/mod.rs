@@ -7,6 +7,7 @@
 //! - `retrocomp_gateway::sinks::dnc::config`: the `[dnc]` section of the field config (link
 //!   settings, the control's line length and buffer).
 //! - [`live`]: the correction of one block (model at the end point, guard: clamp and per-block cap).
+//! - [`drift`]: the correction predicted for when a block runs (slope at the present, bounded).
 //! - [`lead`]: the estimate of the control's buffer that holds a block until it is due.
 //! - [`core`]: the sans-IO drip-feed (flow control, stall fault, line-length refusal, resume, log).
 //! - [`faults`]: the transfer's faults (start and clear) and its status for `/status`, `/metrics`.
@@ -15,11 +16,14 @@
 //! Signs and units: corrections µm, = −error; a block's end point is nominal + correction (mm).
 
 pub mod core;
+pub mod drift;
 pub mod faults;
 pub mod lead;
 pub mod live;
 pub mod shell;
 
+#[cfg(test)]
+mod drift_tests;
 #[cfg(test)]
 mod lead_tests;
 #[cfg(test)]

@@ -271,7 +271,7 @@ fn a_lathe_in_diameter_mode_gets_the_radial_correction_twice_in_its_x_word() {
 
 /// The model of tests/dnc_peers.rs: EXX forward 0 → 8 µm, reverse −3 → 5 µm over 0…400 mm, and
 /// 2 µm/K of spindle temperature above 20 °C.
-const MODEL: &str = include_str!("../../tests/peers/dnc_model.toml");
+pub(super) const MODEL: &str = include_str!("../../tests/peers/dnc_model.toml");
 
 const T_LIMITS: ChannelLimits = ChannelLimits {
     min: 0.0,
@@ -281,7 +281,7 @@ const T_LIMITS: ChannelLimits = ChannelLimits {
     stuck_after_s: None,
 };
 
-fn engine() -> Engine {
+pub(super) fn engine() -> Engine {
     let safety = SafetyConfig {
         max_correction_um: 100.0,
         max_change_um_per_cycle: 0.5,
@@ -315,7 +315,7 @@ fn model() -> Box<MachineModelAdapter> {
     ))
 }
 
-fn temp(t_s: f64, value: f64) -> Sample {
+pub(super) fn temp(t_s: f64, value: f64) -> Sample {
     Sample {
         channel: ChannelId::of("T_spindle_C"),
         t_s,

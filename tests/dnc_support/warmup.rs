@@ -225,14 +225,16 @@ timeout_ms = 200
 
 /// `retrocomp dnc`'s field file (and the model next to it): the spindle PT100 read from hil-sim
 /// every 50 ms; each block held until the one before it is estimated to run (`lead_blocks = 1`,
-/// the control paced at `SPEED` = 20). `x_mm` is read from the same register only because the
-/// field file must have a source for every axis' position channel: `retrocomp dnc` takes the
+/// the control paced at `SPEED` = 20), and its correction predicted for when it ends from the
+/// slope over the last 2 s of the box's clock (40 s simulated, ≪ the growth's τ 600 s; at most
+/// 2 s = 40 s ahead). `x_mm` is read from the same register only because the field file must have a source for every axis' position channel: `retrocomp dnc` takes the
 /// position of each block from the block itself and never uses that value.
 pub(crate) fn field_toml(dir: &Path, mb_port: u16) -> PathBuf {
     let x = r#"{ channel = "x_mm", kind = "input", address = 0, type = "int16", scale = 0.1 },"#;
     let tail = "[dnc]\nbaud = 19200\nparity = \"none\"\ndata_bits = 8\nstop_bits = 1\n\
                 flow = \"xon_xoff\"\nmax_line_chars = 40\nmax_change_um_per_block = 10.0\n\
-                lead_blocks = 1\ncontrol_speed = 20.0\n";
+                lead_blocks = 1\ncontrol_speed = 20.0\npredict_drift = true\n\
+                drift_window_s = 2.0\npredict_max_s = 2.0\n";
     write_field(dir, [0.05, 0.5, 20.0, 0.1, 0.05], mb_port, x, tail)
 }
 
@@ -454,13 +456,16 @@ pub(crate) fn three_ways() {
         "{dnc_line}\nthe first events:\n{}",
         start.join("\n")
     );
-    // Issue 38 asks for DNC within 1.5× of the origin shift. With each block held until the one
-    // before it runs (`lead_blocks = 1`) a stroke is compensated ≈ 10 s (simulated) before its
-    // dwell ends — the previous 2 s dwell, its 6 s stroke, its own 2 s dwell — while the growth
-    // drifts by up to 0.06 µm/s: measured 0.38 / 0.99 vs 0.21 / 0.55 µm (1.8×; 1.9× / 1.6× with
-    // both cores busy, docs/dnc.md). Pinned with margin, not the 1.5× the issue asks for.
+    // Issue 38: DNC within 1.5× of the origin shift. Each block is held until the one before it
+    // runs (`lead_blocks = 1`), so a stroke is compensated ≈ 8 s (simulated) before it ends while
+    // the growth drifts by up to 0.06 µm/s; the block carries the correction predicted for its end
+    // (`predict_drift`). RMS: measured 0.22 / 0.22 µm idle, 0.23–0.26 / 0.21 with both cores busy
+    // (without the prediction 0.38 / 0.21, 1.8×). The largest error is a start-up stroke, sent
+    // before the PT100 showed its first 0.1 °C step, so no slope was there to extrapolate: 0.69 vs
+    // 0.63 µm idle but 0.97–1.05 vs 0.55–0.63 busy (≤ 1.8×): the max keeps the earlier 2.5×
+    // (docs/dnc.md).
     assert!(
-        rms_d <= 2.5 * rms_s && max_d <= 2.5 * max_s,
+        rms_d <= 1.5 * rms_s && max_d <= 2.5 * max_s,
         "live DNC {rms_d:.2} / {max_d:.2} µm vs origin shift {rms_s:.2} / {max_s:.2} µm"
     );
     // The frozen rewrite knows the geometry only: the growth (3 µm/K × up to ≈ 11 K) stays.

@@ -13,6 +13,8 @@
 
 use retrocomp_model::approach::Approach;
 
+use retrocomp_bus::Health;
+
 use super::{Engine, ErrorModel, ModelError};
 
 /// Why [`Engine::correction_at`] has no correction now.
@@ -42,6 +44,30 @@ impl Engine {
         self.now_s = now_s;
         self.cycles += 1;
         self.judge_channels(now_s);
+        self.evaluate_at(now_s, model, pos_mm, dirs)
+    }
+
+    /// [`Self::correction_at`] another point at the time of the last call, with no sample ingested
+    /// since: the channels are not judged again, so a rejected reading's fault (started at a
+    /// call, cleared at the next judging) is not cleared by this one, and the model's lag states
+    /// do not move (Δt = 0). What the DNC drift prediction's second point per block uses.
+    pub fn correction_at_again(
+        &mut self,
+        model: &mut dyn ErrorModel,
+        pos_mm: [f64; 3],
+        dirs: [Approach; 3],
+    ) -> Result<[Option<f64>; 3], AtPointError> {
+        self.evaluate_at(self.now_s, model, pos_mm, dirs)
+    }
+
+    /// Steps 3–5 of [`Self::correction_at`] on the channels as last judged.
+    fn evaluate_at(
+        &mut self,
+        now_s: f64,
+        model: &mut dyn ErrorModel,
+        pos_mm: [f64; 3],
+        dirs: [Approach; 3],
+    ) -> Result<[Option<f64>; 3], AtPointError> {
         self.state.positions_mm = pos_mm.map(Some);
         self.state.velocities_mm_per_s = [Some(0.0); 3];
         self.state.weight_forward = dirs.map(|d| match d {
@@ -81,6 +107,20 @@ impl Engine {
         } else {
             Err(AtPointError::Inputs(self.unusable_inputs()))
         }
+    }
+
+    /// True when a model input of the last call is not a healthy reading of its own: substituted
+    /// from its neighbours, or an optional one missing or faulted. A caller that extrapolates the
+    /// correction over time (`retrocomp dnc`'s drift prediction) must not extrapolate from it:
+    /// switching to or from a substitute is a step, not a drift.
+    pub fn inputs_degraded(&self) -> bool {
+        self.partial
+            || self.required.iter().flatten().any(|&slot| {
+                self.channels[slot]
+                    .status
+                    .as_ref()
+                    .is_none_or(|st| st.health != Health::Ok || st.substituted)
+            })
     }
 
     /// The required, not optional, model inputs without a usable value, with their faults:

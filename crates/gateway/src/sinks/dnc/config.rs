@@ -65,6 +65,12 @@ fn d_rapid_mm_min() -> f64 {
 fn d_control_speed() -> f64 {
     1.0
 }
+fn d_drift_window_s() -> f64 {
+    60.0
+}
+fn d_predict_max_s() -> f64 {
+    30.0
+}
 
 /// `[dnc]` of the field TOML.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -104,6 +110,17 @@ pub struct DncSection {
     /// by it.
     #[serde(default = "d_control_speed")]
     pub control_speed: f64,
+    /// Each block carries the correction predicted for when it is estimated to end on the control
+    /// (the correction's slope over `drift_window_s`, extrapolated at most `predict_max_s`),
+    /// rather than the one at its send time.
+    #[serde(default)]
+    pub predict_drift: bool,
+    /// The past the drift's slope is fitted over, s of the sources' clock.
+    #[serde(default = "d_drift_window_s")]
+    pub drift_window_s: f64,
+    /// The furthest ahead a correction is extrapolated, s (at most `drift_window_s`).
+    #[serde(default = "d_predict_max_s")]
+    pub predict_max_s: f64,
     /// NUL characters sent before the program (tape leader some controls expect) and after it.
     #[serde(default)]
     pub leader_nuls: usize,
@@ -179,6 +196,15 @@ impl DncSection {
                 "0.1 … 100 (1 on a machine at 100 % feed override)",
             );
         }
+        if !(self.drift_window_s.is_finite() && (1.0..=3600.0).contains(&self.drift_window_s)) {
+            return bad("drift_window_s", "1 … 3600 s");
+        }
+        // Extrapolating further ahead than the past the slope was fitted over is guessing.
+        if !(self.predict_max_s.is_finite()
+            && (0.0..=self.drift_window_s).contains(&self.predict_max_s))
+        {
+            return bad("predict_max_s", "0 … dnc.drift_window_s s");
+        }
         if self.leader_nuls > 10_000 || self.trailer_nuls > 10_000 {
             return bad("leader_nuls", "at most 10000 NULs of leader and of trailer");
         }
@@ -223,6 +249,7 @@ mod tests {
         assert_eq!(s.line_end, LineEnd::CrLf);
         assert_eq!(s.buffer_lines, 5);
         assert_eq!(s.lead_blocks, None, "no hold unless asked");
+        assert!(!s.predict_drift, "no prediction unless asked");
         assert!(s.validate(60.0).is_ok());
     }
 
@@ -238,6 +265,13 @@ mod tests {
         assert_eq!(key("buffer_lines = 3\nlead_blocks = 4"), "dnc.lead_blocks");
         assert_eq!(key("rapid_mm_min = -1.0"), "dnc.rapid_mm_min");
         assert_eq!(key("control_speed = 0.0"), "dnc.control_speed");
+        assert_eq!(key("drift_window_s = 0.5"), "dnc.drift_window_s");
+        assert_eq!(key("drift_window_s = nan"), "dnc.drift_window_s");
+        assert_eq!(key("predict_max_s = -1.0"), "dnc.predict_max_s");
+        assert_eq!(
+            key("drift_window_s = 10.0\npredict_max_s = 11.0"),
+            "dnc.predict_max_s"
+        );
         assert_eq!(
             key("max_change_um_per_block = 61.0"),
             "dnc.max_change_um_per_block"
