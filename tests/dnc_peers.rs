@@ -30,7 +30,7 @@ fn field(dir: &Path, sensor: &Path, extra: &str) -> PathBuf {
         r#"[gateway]
 name = "dnc-test"
 cycle_ms = 5
-thermal_period_s = 1
+thermal_period_s = 0.05
 status_listen = "127.0.0.1:{}"
 [safety]
 max_correction_um = 100.0
@@ -231,10 +231,13 @@ fn sender_box_controller_over_ptys_every_block_read_by_rs274_at_nominal_plus_log
         last.t_s,
         last.cx_um
     );
-    // 2 µm/K × 1 K/s: the rate the box followed, from its own log (±30 %: the sample's transport).
+    // 2 µm/K × 1 K/s: the rate the box followed, from its own log (±20 %: the sample's transport;
+    // measured −1.98 … −2.04, also with both cores busy). The thermal terms are latched every
+    // 50 ms: with the gateway's 1 s the 3–4 s span saw whole seconds of warming or not (−1.39).
     let rate_um_per_s = (last.cx_um - first.cx_um) / (last.t_s - first.t_s);
+    eprintln!("the box followed {rate_um_per_s:.2} µm/s (the machine: −2 µm/s)");
     assert!(
-        (-2.6..=-1.4).contains(&rate_um_per_s),
+        (-2.4..=-1.6).contains(&rate_um_per_s),
         "{rate_um_per_s:.2} µm/s"
     );
     for w in rows.windows(2) {
