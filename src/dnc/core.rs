@@ -163,8 +163,17 @@ pub struct DncCore<'m> {
     resume_point: u64,
     blocks_sent: u64,
     lead: ExecEstimate,
-    /// Before the first byte: waiting since, for which inputs (None once the model was ready).
-    start: Option<(Option<f64>, String)>,
+    /// Before the first byte: the start gate's wait (None once the model was ready).
+    start: Option<StartWait>,
+}
+
+/// The start gate's wait for the model's inputs.
+#[derive(Debug, Default)]
+struct StartWait {
+    /// First asked at, s (None before the first ask).
+    since_s: Option<f64>,
+    /// The inputs the model still lacks, as the engine says it ("T_spindle_C (stale)").
+    missing: String,
 }
 
 // By hand: the rewriter holds a trait object.
@@ -211,7 +220,7 @@ impl<'m> DncCore<'m> {
             trailer_queued: false,
             blocks_sent: 0,
             lead: ExecEstimate::new(cfg_lead),
-            start: Some((None, String::new())),
+            start: Some(StartWait::default()),
         }
     }
 
@@ -285,7 +294,7 @@ impl<'m> DncCore<'m> {
     /// earlier would carry no correction). Once open it stays open: later input faults are the
     /// blocks' model faults (they carry the held correction).
     fn inputs_ready(&mut self, now_s: f64) -> Result<bool, DncError> {
-        let Some((since, why)) = &mut self.start else {
+        let Some(wait) = &mut self.start else {
             return Ok(true);
         };
         match self.live.ready(now_s) {
@@ -294,14 +303,14 @@ impl<'m> DncCore<'m> {
                 Ok(true)
             }
             Err(w) => {
-                let since = *since.get_or_insert(now_s);
+                let since = *wait.since_s.get_or_insert(now_s);
                 if now_s - since >= self.cfg.start_timeout_s {
                     return Err(DncError::NoInputs {
                         waited_s: now_s - since,
                         why: w,
                     });
                 }
-                *why = w;
+                wait.missing = w;
                 Ok(false)
             }
         }
@@ -312,7 +321,7 @@ impl<'m> DncCore<'m> {
     pub fn waiting_for_inputs(&self) -> Option<&str> {
         self.start
             .as_ref()
-            .map(|(_, w)| w.as_str())
+            .map(|w| w.missing.as_str())
             .filter(|w| !w.is_empty())
     }
 

@@ -229,6 +229,51 @@ impl LiveCorrections {
     }
 }
 
+impl Inner {
+    /// The correction the block at `pos_mm`/`dirs` wants before the guard, µm per axis: the
+    /// source's at `now_s`, plus, with a drift prediction, the drift to the block's estimated end.
+    fn wanted_um(
+        &mut self,
+        pos_mm: [f64; 3],
+        dirs: [Approach; 3],
+    ) -> Result<[Option<f64>; 3], String> {
+        let now = self.now_s;
+        let Some(d) = self.drift.as_mut() else {
+            return self.src.correction_um(pos_mm, dirs, now);
+        };
+        // The drift series' reference point first, at the same `now` (the engine's lag states
+        // do not move at Δt = 0), so that the source's snapshot shows this block's point, which
+        // is then asked without judging the inputs again.
+        let got = match d.reference() {
+            Some((rp, rd))
+                if (rp.map(f64::to_bits) != pos_mm.map(f64::to_bits) || rd != dirs)
+                    && d.due(now) =>
+            {
+                match self.src.correction_um(rp, rd, now) {
+                    Ok(c) if !self.src.inputs_degraded() => d.record(rp, rd, now, c),
+                    _ => d.reset(),
+                }
+                self.src.correction_again_um(pos_mm, dirs, now)
+            }
+            _ => self.src.correction_um(pos_mm, dirs, now),
+        };
+        let Ok(mut w) = got else {
+            d.reset();
+            return got;
+        };
+        if self.src.inputs_degraded() {
+            d.reset();
+        } else {
+            d.record(pos_mm, dirs, now, w);
+            let ahead = d.ahead_um(now, self.end_s.unwrap_or(now));
+            for (c, a) in w.iter_mut().zip(ahead) {
+                *c = c.map(|v| v + a);
+            }
+        }
+        Ok(w)
+    }
+}
+
 impl ErrorFunction for LiveCorrections {
     /// Only the driven axes need a known position and get a correction.
     fn axes(&self) -> [bool; 3] {
@@ -247,48 +292,13 @@ impl ErrorFunction for LiveCorrections {
         {
             return Some(a.correction_um.map(|c| -c));
         }
-        let now = i.now_s;
-        // The drift series' reference point first, at the same `now` (the engine's lag states
-        // do not move at Δt = 0), so that the source's snapshot shows this block's point, which
-        // is then asked without judging the inputs again.
-        let mut again = false;
-        if let Some(d) = i.drift.as_mut()
-            && let Some((rp, rd)) = d.reference()
-            && (rp.map(f64::to_bits) != pos_mm.map(f64::to_bits) || rd != dirs)
-            && d.due(now)
-        {
-            again = true;
-            match i.src.correction_um(rp, rd, now) {
-                Ok(c) if !i.src.inputs_degraded() => d.record(rp, rd, now, c),
-                _ => d.reset(),
-            }
-        }
-        let got = if again {
-            i.src.correction_again_um(pos_mm, dirs, now)
-        } else {
-            i.src.correction_um(pos_mm, dirs, now)
-        };
-        let want = match got {
-            Ok(mut w) => {
+        let want = match i.wanted_um(pos_mm, dirs) {
+            Ok(w) => {
                 i.model_fault = None;
-                if let Some(d) = i.drift.as_mut() {
-                    if i.src.inputs_degraded() {
-                        d.reset();
-                    } else {
-                        d.record(pos_mm, dirs, now, w);
-                        let ahead = d.ahead_um(now, i.end_s.unwrap_or(now));
-                        for (c, a) in w.iter_mut().zip(ahead) {
-                            *c = c.map(|v| v + a);
-                        }
-                    }
-                }
                 w
             }
             Err(why) => {
                 i.model_fault = Some(why);
-                if let Some(d) = i.drift.as_mut() {
-                    d.reset();
-                }
                 [None; 3]
             }
         };

@@ -90,7 +90,7 @@ pub(super) fn score(
 }
 
 /// [`score`] on columns already computed (a candidate's grid sweep); the column buffers come
-/// back for the sweep's next θ (`Candidate::columns_sweep`).
+/// back for the sweep's next θ (`Candidate::par_sweep_map`).
 pub(super) fn score_cols(
     c: &Candidate,
     mut cols: Vec<Vec<f64>>,

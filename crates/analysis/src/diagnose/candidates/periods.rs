@@ -9,15 +9,10 @@ use super::super::features::{AxisFeatures, Context};
 use super::{Candidate, Kind};
 
 impl Candidate {
-    /// [`Candidate::columns`] at every θ of `thetas`, in order, handed to `f`, which hands the
-    /// column buffers back for the next θ (their contents need not survive: each is overwritten).
-    /// For a cyclic candidate on a grid uniform in frequency ([`period_grid`]) the sin/cos pair
-    /// of the next period is the previous one rotated by a fixed angle per distinct position (one
-    /// complex multiply instead of two transcendental calls: the period grid's sin/cos were most
-    /// of the time of a 1M-row diagnosis), gathered into the reused buffers (a fresh 8 MB column
-    /// per period at 1M rows was a page-fault storm); other candidates and other grids call
-    /// `columns`.
-    pub fn columns_sweep(
+    /// The one-thread sweep [`Candidate::par_sweep_map`] must equal bit for bit: every θ of
+    /// `thetas` in order, handed to `f` with its columns.
+    #[cfg(test)]
+    fn columns_sweep(
         &self,
         ctx: &Context,
         thetas: &[f64],
@@ -31,12 +26,19 @@ impl Candidate {
         }
     }
 
-    /// `f`'s value at every θ of `thetas` on [`Candidate::columns_sweep`]'s columns, in grid
-    /// order, the grid split into fixed chunks of [`SWEEP_CHUNK`] periods run in parallel (rayon):
-    /// one long cyclic candidate's sweep was most of a 1M-row diagnosis' screening, on one core.
-    /// Each chunk starts where the one-thread sweep re-anchors its phasors exactly and shares its
-    /// rotation, so every θ gets the same bits as in one sweep, with any number of threads; θ off
-    /// a uniform grid are independent and mapped one by one.
+    /// `f`'s value at every θ of `thetas` on [`Candidate::columns`] there, in grid order; `f`
+    /// hands the column buffers back for the next θ (their contents need not survive).
+    ///
+    /// For a cyclic candidate on a grid uniform in frequency ([`period_grid`]) the sin/cos pair
+    /// of the next period is the previous one rotated by a fixed angle per distinct position (one
+    /// complex multiply instead of two transcendental calls: the period grid's sin/cos were most
+    /// of the time of a 1M-row diagnosis), gathered into the reused buffers (a fresh 8 MB column
+    /// per period at 1M rows was a page-fault storm). The grid is split into fixed chunks of
+    /// [`SWEEP_CHUNK`] periods run in parallel (rayon): one long cyclic candidate's sweep was most
+    /// of a 1M-row diagnosis' screening, on one core. Each chunk starts where one sweep over the
+    /// whole grid re-anchors its phasors exactly and shares its rotation, so every θ gets the same
+    /// bits with any number of threads. θ off a uniform grid, and other candidates, are
+    /// independent and mapped one by one.
     pub fn par_sweep_map<T: Send>(
         &self,
         ctx: &Context,
@@ -167,7 +169,7 @@ pub const MIN_PITCH_MM: f64 = 2.0;
 /// positions where it was read, so uneven target spacing needs no FFT grid). From `travel/1.5` down
 /// to [`shortest_period`] (≈ 2 samples per period), uniform in frequency with Δ(1/p) = 1/(3L):
 /// neighbouring periods drift apart by a third of a cycle over the travel L, so the scan cannot step
-/// over a peak, and uniform frequency steps let [`Candidate::columns_sweep`] rotate phasors instead
+/// over a peak, and uniform frequency steps let [`Candidate::par_sweep_map`] rotate phasors instead
 /// of evaluating sin/cos at every period. The screening (`select_step.rs`) takes the periodogram's
 /// highest peak against the step's null and refines it between its neighbours.
 pub(super) fn period_grid(travel_mm: f64, min_period_mm: f64) -> Vec<f64> {
