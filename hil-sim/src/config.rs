@@ -486,6 +486,18 @@ impl SimConfig {
         if let Some(t) = &self.hidden.thermal {
             t.validate()?;
         }
+        if let (Some(can), Some(t)) = (&self.io.can, &self.hidden.thermal)
+            && can.temp_node.is_some()
+        {
+            // The pre-defined connection set has TPDO1–4 per node, 4 int16 values each; a fifth
+            // TPDO would share TPDO4's COB-ID.
+            ensure!(
+                t.sensors.len() <= crate::io::MAX_TEMPS_PER_NODE,
+                "io.can.temp_node: hidden.thermal has {} sensors, a CiA 404 node sends at most {} (TPDO1–4 × 4 int16 values)",
+                t.sensors.len(),
+                crate::io::MAX_TEMPS_PER_NODE
+            );
+        }
         if let Some(c) = &self.hidden.cutting {
             c.validate(self.hidden.thermal.as_ref())?;
         }

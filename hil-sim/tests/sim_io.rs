@@ -289,3 +289,36 @@ async fn weighing_lines_on_a_pty() {
     assert!(last > 10.0, "in cut: {last} N");
     running.abort();
 }
+
+/// One CiA 404 node has TPDO1–4, 4 temperatures each: a 17th sensor would go out on TPDO4's COB-ID
+/// and overwrite the 13th–16th in every receiver, so such a config is refused when it loads.
+#[test]
+fn more_temperatures_than_one_cia404_node_sends_are_refused() {
+    let toml = |n: usize| {
+        let sensors: Vec<String> = (0..n)
+            .map(|i| format!(r#"{{ name = "s{i}", node = "spindle" }}"#))
+            .collect();
+        format!(
+            r#"
+[program]
+script = [{{ t_s = 0.0, x_mm = 0.0, y_mm = 0.0, z_mm = 0.0 }}, {{ t_s = 1.0, x_mm = 1.0, y_mm = 0.0, z_mm = 0.0 }}]
+[hidden.thermal]
+ambient_C = 20.0
+nodes = [{{ name = "spindle", tau_s = 100.0 }}]
+sensors = [{}]
+[io.can]
+backend = "mem"
+temp_node = 10
+"#,
+            sensors.join(", ")
+        )
+    };
+    SimConfig::from_toml_str(&toml(16), None).expect("16 sensors fit TPDO1–4");
+    let e = SimConfig::from_toml_str(&toml(17), None)
+        .expect_err("a 17th sensor has no TPDO")
+        .to_string();
+    assert!(
+        e.contains("io.can.temp_node") && e.contains("17 sensors") && e.contains("at most 16"),
+        "{e}"
+    );
+}

@@ -10,7 +10,9 @@
 //!   a model failure: the engine's own channel fault says which);
 //! - `sink.dnc.guard` `write_failed`: the last-step guard refused the wanted correction;
 //! - `sink.dnc.line` `out_of_range`: a compensated line longer than the control's
-//!   `max_line_chars` was refused (the transfer stops there).
+//!   `max_line_chars` was refused (the transfer stops there);
+//! - `sink.dnc.inputs` `stale`: the model's inputs did not arrive within `start_timeout_s`, so the
+//!   transfer was refused before its first byte.
 //!
 //! Units: corrections µm (= −error), time s on the sources' clock.
 
@@ -37,22 +39,24 @@ const PUBLISH_PERIOD_S: f64 = 0.2;
 #[derive(Debug)]
 pub struct DncFaults {
     log: FaultLog,
-    sources: [FaultSource; 4],
-    active: [bool; 4],
+    sources: [FaultSource; 5],
+    active: [bool; 5],
     status: Option<StatusTx>,
     last_publish_s: f64,
 }
 
-const KINDS: [FaultKind; 4] = [
+const KINDS: [FaultKind; 5] = [
     FaultKind::Disconnected,
     FaultKind::Decode,
     FaultKind::WriteFailed,
     FaultKind::OutOfRange,
+    FaultKind::Stale,
 ];
 const STALL: usize = 0;
 const MODEL: usize = 1;
 const GUARD: usize = 2;
 const LINE: usize = 3;
+const INPUTS: usize = 4;
 
 impl DncFaults {
     pub fn new(status: Option<StatusTx>) -> Self {
@@ -63,9 +67,10 @@ impl DncFaults {
                 "sink.dnc.model",
                 "sink.dnc.guard",
                 "sink.dnc.line",
+                "sink.dnc.inputs",
             ]
             .map(FaultSource::named),
-            active: [false; 4],
+            active: [false; 5],
             status,
             last_publish_s: f64::NEG_INFINITY,
         }
@@ -124,6 +129,11 @@ impl DncFaults {
     /// A compensated line was too long for the control: refused, the transfer stops.
     pub fn line_refused(&mut self, now_s: f64) {
         self.set(LINE, true, now_s);
+    }
+
+    /// The model's inputs never became ready at the start: refused, nothing was sent.
+    pub fn inputs_refused(&mut self, now_s: f64) {
+        self.set(INPUTS, true, now_s);
     }
 
     /// Publish a snapshot when a fault changed or the period passed (no endpoint: nothing).

@@ -157,10 +157,12 @@ pub async fn run_dnc(
             match core.next_to_send(now()) {
                 Ok(b) => b.map(<[u8]>::to_vec),
                 Err(e) => {
-                    if matches!(e, DncError::LineTooLong { .. }) {
-                        faults.line_refused(now());
-                        faults.publish(live, &sum, now());
+                    match e {
+                        DncError::LineTooLong { .. } => faults.line_refused(now()),
+                        DncError::NoInputs { .. } => faults.inputs_refused(now()),
+                        _ => {}
                     }
+                    faults.publish(live, &sum, now());
                     sum.interrupted = interrupted(core, e.to_string());
                     return Ok(sum);
                 }

@@ -492,16 +492,22 @@ fn the_transfers_faults_start_and_clear_in_the_published_status_and_metrics() {
     let (_, log) = drain(&mut core, "G1 X100 F100\nX300", 2.0);
     faults.block(&lc, &mut sum, log[1].line, 8.0);
     faults.line_refused(8.0);
+    faults.inputs_refused(8.0);
     faults.publish(&lc, &sum, 8.0);
     let (f, metrics) = sink_faults();
     assert_eq!(
         f,
         vec![
+            ("sink.dnc.inputs".to_string(), FaultKind::Stale),
             ("sink.dnc.line".to_string(), FaultKind::OutOfRange),
             ("sink.dnc.model".to_string(), FaultKind::Decode),
         ]
     );
-    assert!(metrics.contains("retrocomp_faults_active 2"), "{metrics}");
+    assert!(metrics.contains("retrocomp_faults_active 3"), "{metrics}");
+    assert!(
+        metrics.contains(r#"retrocomp_sink_fault_active{source="sink.dnc.inputs",kind="stale"} 1"#),
+        "{metrics}"
+    );
     assert_eq!((sum.stalls, sum.model_faults), (1, 1));
     let held = rx.borrow().clone().unwrap().sink.clone().unwrap().held_um;
     assert!(

@@ -89,6 +89,10 @@ fn d_force_lsb() -> f64 {
     0.1
 }
 
+/// Temperatures one CiA 404 node publishes: TPDO1–4 of the pre-defined connection set, 4 int16
+/// values each (`Config::validate` refuses more on `io.can.temp_node`).
+pub const MAX_TEMPS_PER_NODE: usize = 16;
+
 /// CAN publishing. The backend keys are those of `retrocomp_bus::can::backend` (`backend = "mem" |
 /// "socketcand" | "socketcan"`, with `host`/`port`/`channel` or `interface`).
 #[derive(Clone, Debug, Deserialize, Serialize)]

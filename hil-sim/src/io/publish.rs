@@ -113,7 +113,7 @@ impl Publisher {
         AnalogChannel {
             channel: name.to_string(),
             node_id: node,
-            tpdo: u8::try_from(1 + i / 4).expect("at most 1020 temperature sensors per node"),
+            tpdo: u8::try_from(1 + i / 4).expect("at most MAX_TEMPS_PER_NODE (Config::validate)"),
             byte_offset: u8::try_from(2 * (i % 4)).expect("below 8"),
             data_type: AnalogType::Int16,
             decimal_digits: 1,
