@@ -8,7 +8,7 @@
 #        qemu-utils (e.g. from backports) `apt-get install qemu-system-x86` would remove it.
 # Never removes or downgrades a host package: every install is simulated first (apt-get -s) and
 # refused if the simulation removes or downgrades anything; the real install adds --no-remove.
-#   poppler-utils: pdftoppm/pdftotext, which tests/report_html_pdf.rs uses to read the PDF Chromium
+#   poppler-utils: pdftoppm/pdftotext, which tests/analysis/report_html_pdf.rs uses to read the PDF Chromium
 #        prints from a report
 #   librsvg2-bin: rsvg-convert, which renders every figure a test writes to PNG to check on its
 #        pixels that no legend box covers data (tests/figure_support/pixels.rs)

@@ -197,7 +197,7 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
     // host schedules hil-sim and the gateway, so this real-socket run only checks that the latched
     // shift follows the writes at all. Exactly one latch per strobe flip, every write applied, and
     // "the applied shift never moves more than one cap between two servo steps" are asserted
-    // exactly in virtual time by hil-sim/tests/closed_loop_faults.rs (the capped-write counts back to
+    // exactly in virtual time by hil-sim/tests/sim/closed_loop_faults.rs (the capped-write counts back to
     // the target, `assert_no_jump` on every 1 ms step); the write log's clamp and cap per write are
     // checked above, independent of timing.
     let share = applied_share(&writes, &recording);

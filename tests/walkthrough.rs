@@ -54,7 +54,7 @@ fn python_can_clients_talk_through_the_hub_command() {
 }
 
 /// docs/walkthrough.md's gateway side loads as written: the field config, and the model its
-/// `[model] path` names relative to it (hil-sim's side: hil-sim/tests/fuzz_regressions.rs).
+/// `[model] path` names relative to it (hil-sim's side: hil-sim/tests/sim/fuzz_regressions.rs).
 #[test]
 fn walkthrough_field_config_and_its_model_load() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/walkthrough");

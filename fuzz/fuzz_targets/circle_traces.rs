@@ -1,6 +1,6 @@
 //! Circular-test traces and the ISO 230-4 analysis.
 //! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/circle_traces/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/circle_traces/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

@@ -1,6 +1,6 @@
 //! Fanuc / ISG / LinuxCNC table readers, each with its writer's round trip.
 //! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/controller_tables/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/controller_tables/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

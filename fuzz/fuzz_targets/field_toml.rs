@@ -1,6 +1,6 @@
 //! The bus layer's field TOML loader: a config or an error, never a panic.
 //! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/field_toml/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/field_toml/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

@@ -1,6 +1,6 @@
 //! The fleet host's Sparkplug view of NBIRTH/NDATA/NDEATH messages.
 //! The check lives in tests/fuzz_checks/net.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/fleet_view/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/fleet_view/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

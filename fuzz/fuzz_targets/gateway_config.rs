@@ -1,6 +1,6 @@
 //! The whole field config (`retrocomp run --config`): a config or an error with file/line/key.
 //! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/gateway_config/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/gateway_config/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

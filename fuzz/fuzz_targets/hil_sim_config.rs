@@ -1,5 +1,5 @@
 //! hil-sim's config (`hil-sim run/serve --config`): a config or an error, never a panic.
-//! Found inputs are replayed by hil-sim/tests/fuzz_regressions.rs (hil-sim/tests/fuzz_corpus/).
+//! Found inputs are replayed by hil-sim/tests/sim/fuzz_regressions.rs (hil-sim/tests/fuzz_corpus/).
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;

@@ -1,6 +1,6 @@
 //! The status endpoint's request handling, through the real server on loopback.
 //! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/http_request/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/http_request/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

@@ -1,6 +1,6 @@
 //! Laser run import and the ISO 230-2 evaluation of what it reads; the table CSV reader.
 //! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/laser_iso230_2/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/laser_iso230_2/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

@@ -1,6 +1,6 @@
 //! The Modbus server's request path (tokio-modbus request decoder, register service, controller-write handling).
 //! The check lives in tests/fuzz_checks/net.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/modbus_server/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/modbus_server/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

@@ -1,6 +1,6 @@
 //! The machine model TOML, with the write → read round trip.
 //! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/model_toml/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/model_toml/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

@@ -1,6 +1,6 @@
 //! NC programs (`retrocomp nc`): parser, rewriter, and the rewritten program parses again.
 //! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/nc_program/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/nc_program/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

@@ -1,6 +1,6 @@
 //! The Z–X plane model loader (`retrocomp nc --plane-model`) and its evaluation.
 //! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/plane_model/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/plane_model/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

@@ -1,6 +1,6 @@
 //! The fleet host's recording collector (chunks as JSON, written to a temporary directory).
 //! The check lives in tests/fuzz_checks/net.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/recording_chunks/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/recording_chunks/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

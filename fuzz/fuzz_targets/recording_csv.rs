@@ -1,6 +1,6 @@
 //! Recording CSV (docs/recording-csv.md), strict and lenient readers.
 //! The check lives in tests/fuzz_checks/mod.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/recording_csv/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/recording_csv/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

@@ -1,6 +1,6 @@
 //! The edge node's decoders of what the broker delivers: NCMD (rebirth request) and a host's STATE.
 //! The check lives in tests/fuzz_checks/net.rs, shared with the regression suite
-//! (tests/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/sparkplug_commands/ through it).
+//! (tests/gateway/fuzz_regressions.rs runs every input kept in tests/fuzz_corpus/sparkplug_commands/ through it).
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]

@@ -11,7 +11,7 @@
 //! Why not `retrocomp_model::recording::RecordingWriter`: that writer refuses non-finite and missing cells,
 //! and the simulator must be able to produce sensor faults on demand. Fault-free recordings read back
 //! with `retrocomp_model::recording::Recording::read_strict`; with faults, `read_lenient` reports exactly
-//! the faulted rows (tested in `tests/sim_faults.rs`).
+//! the faulted rows (tested in `tests/sim/faults.rs`).
 
 use crate::world::{Readings, World};
 use std::io::Write;

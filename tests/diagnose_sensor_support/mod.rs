@@ -1,5 +1,5 @@
 //! Generators of the issue 36 points 4 and 5 benchmark families, shared by the CI tests and the
-//! full benchmark (`tests/diagnose_sensor.rs`). Thermal-only recordings (no axis column: `t_s`,
+//! full benchmark (`tests/diagnose/sensor.rs`). Thermal-only recordings (no axis column: `t_s`,
 //! drivers, temperatures °C, `ez_um` actual − nominal µm with `sim_ez_um` = 0), one row every
 //! 30 s; every draw comes from a ChaCha8 stream seeded by (family, seed, index).
 //!

@@ -1,5 +1,5 @@
 //! Generators of the issue 36 benchmark families (points 3 and 6), shared by the CI test and the
-//! full benchmark (`tests/diagnose_spectrum.rs`). Errors are actual − nominal (µm), positions
+//! full benchmark (`tests/diagnose/spectrum.rs`). Errors are actual − nominal (µm), positions
 //! commanded (mm), time in s; every draw comes from a ChaCha8 stream seeded by (family, seed,
 //! index), so a case is reproducible from its name.
 //!

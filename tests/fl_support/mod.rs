@@ -1,4 +1,4 @@
-//! Shared by the FL_THERMAL tests (`diagnose_fl_thermal`, `diagnose_fl_judge`): the fixture
+//! Shared by the FL_THERMAL tests (`fl_thermal`, `fl_judge`): the fixture
 //! loader, the static 3-sensor simulation the judge compares against, and thin wrappers over
 //! `retrocomp diagnose` / `retrocomp eval`.
 #![allow(dead_code)]

@@ -1,5 +1,5 @@
 //! The property each fuzz target checks, one function per target, shared by the cargo-fuzz targets
-//! (`fuzz/fuzz_targets/*.rs` include this file) and the normal suite (`tests/fuzz_regressions.rs`
+//! (`fuzz/fuzz_targets/*.rs` include this file) and the normal suite (`tests/gateway/fuzz_regressions.rs`
 //! runs every input kept in `tests/fuzz_corpus/<target>/` through the same function). Each takes
 //! raw bytes and panics only on a real fault: a parser panic, or a writer whose output does not read
 //! back. Errors for bad input are the expected outcome, not a failure. The targets fed from the

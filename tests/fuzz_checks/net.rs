@@ -140,7 +140,7 @@ pub(crate) fn modbus_server(data: &[u8]) {
 ///   by indexing past the bytes, a panic in every build. Kept as `crash-fc15-coils-beyond-bytes`.
 ///
 /// The panic ends the task that decodes: on TCP only that peer's connection (tokio-modbus spawns
-/// one task per connection), on RTU the whole serving task. `tests/fuzz_regressions.rs` fails once
+/// one task per connection), on RTU the whole serving task. `tests/gateway/fuzz_regressions.rs` fails once
 /// a tokio-modbus release stops panicking on either, so the skip can go.
 pub(crate) fn panics_tokio_modbus(pdu: &[u8]) -> bool {
     let be = |at: usize| {

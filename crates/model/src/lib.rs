@@ -353,7 +353,7 @@ impl MachineModel {
     }
 
     /// The straightforward evaluator (`reference.rs`) the fast plan is checked against: the same
-    /// results within rounding (`tests/models_fastpath.rs`), slower. `exact` picks the HTM chain.
+    /// results within rounding (`tests/models/fastpath.rs`), slower. `exact` picks the HTM chain.
     #[doc(hidden)]
     pub fn evaluate_reference(
         &self,

@@ -1,7 +1,7 @@
 //! The fast evaluator: a [`ModelSpec`] compiled once into a flat evaluation plan.
 //!
 //! Same conventions, terms and results as the straightforward evaluator in `reference.rs`, which stays
-//! as the oracle `tests/models_fastpath.rs` checks this one against (≤ 1e-9 µm; they differ only by
+//! as the oracle `tests/models/fastpath.rs` checks this one against (≤ 1e-9 µm; they differ only by
 //! the rounding of reordered products): error = actual − nominal, µm, machine X/Y/Z; every term's
 //! first-order contribution at the tool tip, and `higher_order` = exact − Σ first-order terms.
 //! What differs is the layout, chosen so one evaluation neither branches per term nor allocates:

@@ -1,6 +1,6 @@
 //! The reference evaluator (straightforward): a [`ModelSpec`] compiled into index arrays, evaluated term by
 //! term. `MachineModel::evaluate` runs the faster flat plan (`plan.rs`) built from these arrays;
-//! this one stays as its oracle (`MachineModel::evaluate_reference`, `tests/models_fastpath.rs`).
+//! this one stays as its oracle (`MachineModel::evaluate_reference`, `tests/models/fastpath.rs`).
 //!
 //! Terms (index = term id): components in file order, squareness entries, thermal terms, load terms,
 //! and last `higher_order` (exact − Σ first-order terms; zero in first-order evaluation). Every

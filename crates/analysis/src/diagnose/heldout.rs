@@ -69,7 +69,7 @@ impl<'a> Heldout<'a> {
         );
         // Restricted for now to recordings with no axis column: on the generated motion cases,
         // forward folds reject real thermal lags whose warm-up fills the first block (hil-sim
-        // cases_model_out case 14); they keep leave-one-block-out until that is resolved.
+        // hil-sim's cases/model_out.rs, case 14); they keep leave-one-block-out until that is resolved.
         let forward = n_blocks >= 3 && thermal_only && block.windows(2).all(|w| w[1] >= w[0]);
         Heldout {
             ctx,

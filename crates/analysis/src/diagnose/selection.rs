@@ -19,7 +19,7 @@ pub struct Options {
     /// predicted from blocks 0…k−1. Finer than `cv_blocks` so the rolling origin moves in steps
     /// shorter than a machine's heat-up (on FL_THERMAL's emulated judge, 10 was the only count of
     /// 4, 5, 6, 8, 10 with no channel worse than the static regression on any split:
-    /// `tests/diagnose_fl_judge.rs`, docs/diagnose.md).
+    /// `tests/diagnose/fl_judge.rs`, docs/diagnose.md).
     pub forward_blocks: usize,
     /// Minimum relative held-out RMS improvement for a term to stay.
     pub cv_min_gain: f64,

@@ -1,7 +1,7 @@
 //! Pure edge scheduler: merges the native encoder edges with injected correction edges into one A/B
 //! stream for the controller.
 //!
-//! Guarantees (property-tested in `tests/gateway_quadrature.rs`):
+//! Guarantees (property-tested in `tests/gateway/quadrature.rs`):
 //! - the output count is exactly native + injected (every output edge is one Gray-code step);
 //! - no two output edges are closer than `min_edge_gap_ns` (the receiver's minimum edge separation,
 //!   e.g. 400 ns for RS-422 at 400 kHz: Heidenhain "a ≥ 0.4 µs");

@@ -17,7 +17,7 @@
 //! Servo mismatch cannot be injected: the simulator has one `[servo]` gain for all axes, so τx = τy
 //! and the analysis must report Δτ ≈ 0 although each axis lags by 1/kv = 33 ms.
 
-mod sim_common;
+use crate::sim_common;
 use std::collections::BTreeMap;
 use std::f64::consts::{PI, TAU};
 

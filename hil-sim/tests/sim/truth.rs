@@ -3,7 +3,7 @@
 
 #![allow(clippy::needless_range_loop)] // per-axis loops over several [f64; 3]
 
-mod sim_common;
+use crate::sim_common;
 use hil_sim::World;
 use hil_sim::recording::run_to_end;
 use hil_sim::truth::TruthModel;

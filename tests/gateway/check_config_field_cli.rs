@@ -7,8 +7,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-#[path = "gateway_support/base_field.rs"]
-mod base_field;
+use crate::base_field;
 use base_field::BASE;
 
 fn bin() -> Command {

@@ -12,12 +12,12 @@
 //! predicted over the second half. Targets: no channel worse than the simulation, median cut ≥ 10 %
 //! (asserted: ≥ 30 %, measured 35.1 %).
 //!
-//! `FL_THERMAL_MODELS_DIR=DIR cargo test --test diagnose_fl_thermal` also fits every channel on
+//! `FL_THERMAL_MODELS_DIR=DIR cargo test --test diagnose fl_thermal::` also fits every channel on
 //! the WHOLE fixture and writes DIR/d<k>/{sim.toml, model.toml} (the deployable models).
 
 use std::path::PathBuf;
 
-mod fl_support;
+use crate::fl_support;
 use fl_support::*;
 
 #[test]

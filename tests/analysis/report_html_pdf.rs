@@ -11,12 +11,9 @@ use std::time::{Duration, Instant};
 
 use retrocomp_analysis::chart_geometry;
 
-#[path = "gateway_support/hil_sim.rs"]
-mod hil_sim;
-#[path = "figure_support/pixels.rs"]
-mod pixels;
-#[path = "analysis_support/runs.rs"]
-mod runs;
+use crate::hil_sim;
+use crate::pixels;
+use crate::runs;
 
 fn retrocomp() -> Command {
     Command::new(env!("CARGO_BIN_EXE_retrocomp"))

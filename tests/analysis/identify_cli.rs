@@ -3,13 +3,10 @@
 //! them, and the written model is loaded by `check-config` and evaluated by `eval`. Checks the
 //! report's content (verification rows, unidentifiable ECZ with its remedy, JSON fields, SVGs).
 
-#[path = "gateway_support/hil_sim.rs"]
-mod hil_sim;
-#[path = "figure_support/pixels.rs"]
-mod pixels;
+use crate::hil_sim;
+use crate::pixels;
 
-#[path = "identify_support/cli.rs"]
-mod cli;
+use crate::identify_support as cli;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -4,7 +4,7 @@
 
 #![allow(clippy::needless_range_loop)] // per-axis loops over several [f64; 3]
 
-mod sim_common;
+use crate::sim_common;
 use hil_sim::World;
 use hil_sim::compensators::Oracle;
 use sim_common::cfg;

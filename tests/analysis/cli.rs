@@ -4,8 +4,7 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-#[path = "analysis_support/runs.rs"]
-mod runs;
+use crate::runs;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_retrocomp"))
@@ -146,7 +145,7 @@ fn nc_rewrites_the_diagonal_program() {
     );
     let prog = std::fs::read_to_string(&out).unwrap();
     // Table 6.3 Geo F row 30/20 exactly; Geo R row 510/340 is X339.9380 Z509.9275 in the thesis,
-    // whose X Ø values carry ±0.2 µm of print rounding (tests/analysis_nc.rs checks all rows).
+    // whose X Ø values carry ±0.2 µm of print rounding (tests/analysis/nc.rs checks all rows).
     assert!(prog.contains("X19.9814 Z29.9988;"), "{prog}");
     assert!(prog.contains("X339.9378 Z509.9275;"), "{prog}");
     // Same program through the machine model (deploy/examples, positional terms): Table 6.3 Pos F row 30/20.

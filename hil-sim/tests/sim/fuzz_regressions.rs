@@ -1,4 +1,4 @@
-//! hil-sim's side of the fuzz regressions (see tests/fuzz_regressions.rs at the root): every input
+//! hil-sim's side of the fuzz regressions (see tests/gateway/fuzz_regressions.rs at the root): every input
 //! kept in hil-sim/tests/fuzz_corpus/<target>/ goes through the check of the cargo-fuzz target of
 //! that name (fuzz/fuzz_targets/hil_sim_gcode.rs, hil_sim_config.rs): an error is fine, a panic is not.
 

@@ -11,7 +11,7 @@
 
 use std::path::Path;
 
-mod fl_support;
+use crate::fl_support;
 use fl_support::*;
 
 const CHANNELS: [&str; 5] = ["d1_um", "d2_um", "d3_um", "d4_um", "d5_um"];

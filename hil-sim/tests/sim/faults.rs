@@ -2,7 +2,7 @@
 //! sees it — recording cells, Modbus PT100 words, CAN silence — only inside its window; the manifest
 //! names the hidden effects with docs/diagnose-json.md ids and parameters.
 
-mod sim_common;
+use crate::sim_common;
 use embedded_can::Frame as _;
 use hil_sim::World;
 use hil_sim::io::IoConfig;

@@ -19,12 +19,12 @@
 //! says which and is printed with the table.
 //! Also printed, not asserted: the structure of the shipped whole-file models
 //! (`deploy/models/fl_thermal/d<k>/found_terms.toml`: sensors and τ kept, gains and offset refitted
-//! on the fit rows, as in `diagnose_fl_loo`). Their structure was chosen on every shared row, the
+//! on the fit rows, as in `fl_loo`). Their structure was chosen on every shared row, the
 //! later rows included, so that column is optimistic for them.
 
 use std::path::Path;
 
-mod fl_support;
+use crate::fl_support;
 use fl_support::*;
 
 const CHANNELS: [&str; 5] = ["d1_um", "d2_um", "d3_um", "d4_um", "d5_um"];

@@ -9,10 +9,10 @@
 //!   under AR(0.99) noise is found at effect/noise 3.
 //!
 //! The CI tests run a few dozen cases; the full tables of docs/diagnose-results.md come from the
-//! ignored `benchmark` test: `cargo test --workspace --test diagnose_spectrum --
-//! --ignored benchmark --nocapture`.
+//! ignored `benchmark` test: `cargo test --workspace --test diagnose spectrum::benchmark --
+//! --ignored --nocapture`.
 
-mod diagnose_spectrum_support;
+use crate::diagnose_spectrum_support;
 
 use diagnose_spectrum_support::{
     Pitch, Truth, ar099_backlash_case, pitch_case, pitch_recording, rng_for,
@@ -156,7 +156,7 @@ fn step_and_dwell_offers_no_servo_lag_and_ar099_backlash_is_found_at_effect_nois
 /// The full tables of docs/diagnose-results.md (two seeds; recall per period band and harmonic,
 /// backlash recall per effect/noise). Asserts only that every case was diagnosed.
 #[test]
-#[ignore = "benchmark: cargo test --workspace --test diagnose_spectrum -- --ignored benchmark --nocapture"]
+#[ignore = "benchmark: cargo test --workspace --test diagnose spectrum::benchmark -- --ignored --nocapture"]
 fn benchmark() {
     let per_seed = 100;
     for seed in [1u64, 2] {

@@ -5,7 +5,7 @@
 
 #![allow(clippy::needless_range_loop)] // per-axis loops over several [f64; 3]
 
-mod sim_common;
+use crate::sim_common;
 use hil_sim::World;
 use hil_sim::compensators::{Lookup, Source, TableCompensator};
 use sim_common::cfg;

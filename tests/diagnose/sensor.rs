@@ -9,11 +9,11 @@
 //!   with exponent 2 and τ within 10 %.
 //!
 //! The CI tests run a smaller set; the tables of docs/diagnose-results.md come from the ignored
-//! `benchmark` test: `cargo test --workspace --test diagnose_sensor -- --ignored benchmark
+//! `benchmark` test: `cargo test --workspace --test diagnose sensor::benchmark -- --ignored
 //! --nocapture`.
 
-mod diagnose_sensor_support;
-mod fl_support;
+use crate::diagnose_sensor_support;
+use crate::fl_support;
 
 use diagnose_sensor_support::{Fault, PowerTruth, SensorTruth, current_squared_case, sensor_case};
 use retrocomp_analysis::diagnose::features::Context;
@@ -233,7 +233,7 @@ fn current_squared_heating_is_found_with_exponent_2_and_tau_within_10_percent() 
 /// The tables of docs/diagnose-results.md: recall per sensor family, nulls with physics, and the
 /// current² family's τ errors. Asserts only that every case was diagnosed.
 #[test]
-#[ignore = "benchmark: cargo test --workspace --test diagnose_sensor -- --ignored benchmark --nocapture"]
+#[ignore = "benchmark: cargo test --workspace --test diagnose sensor::benchmark -- --ignored --nocapture"]
 fn benchmark() {
     let per = 40;
     println!(

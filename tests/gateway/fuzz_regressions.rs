@@ -3,7 +3,7 @@
 //! normal suite. Inputs live in tests/fuzz_corpus/<target>/, one file each; how they were found and
 //! how to fuzz further: docs/fuzzing.md.
 
-mod fuzz_checks;
+use crate::fuzz_checks;
 
 use std::path::Path;
 

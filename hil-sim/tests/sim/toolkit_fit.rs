@@ -12,7 +12,7 @@
 //!
 //! Sign: error = actual − nominal (ISO 230-2), µm.
 
-mod sim_common;
+use crate::sim_common;
 use std::fmt::Write;
 
 use hil_sim::World;

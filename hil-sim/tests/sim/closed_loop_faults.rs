@@ -7,7 +7,7 @@
 //! the fault. The real-socket tests (`tests/gateway_faults_hil.rs` and friends) keep one run per
 //! transport for the shells.
 
-mod closed_loop_support;
+use crate::closed_loop_support;
 
 use closed_loop_support::*;
 use hil_sim::harness::ClosedLoop;

@@ -5,8 +5,7 @@
 
 use std::process::Command;
 
-#[path = "figure_support/pixels.rs"]
-mod pixels;
+use crate::pixels;
 
 use retrocomp_model::recording::Recording;
 

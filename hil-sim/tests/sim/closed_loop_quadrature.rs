@@ -8,7 +8,7 @@
 //! (the receiver holds the engine's output rounded to whole counts at every step), also across a
 //! restart of the box (it continues from the counts it persisted).
 
-mod closed_loop_support;
+use crate::closed_loop_support;
 
 use closed_loop_support::*;
 use hil_sim::harness::{ClosedLoop, Pulse};

@@ -5,11 +5,9 @@
 //! `retrocomp fit axis --lead-mm 5` must each find every wave within 0.2 µm and 20°, and write it
 //! into the model as a table every ≤ lead/4 that `check-config` loads.
 
-#[path = "gateway_support/hil_sim.rs"]
-mod hil_sim;
+use crate::hil_sim;
 
-#[path = "identify_support/cli.rs"]
-mod cli;
+use crate::identify_support as cli;
 
 use std::path::Path;
 use std::process::Command;

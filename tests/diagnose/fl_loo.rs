@@ -1,7 +1,7 @@
 //! The judge, emulated by INTERPOLATION inside the shared FL_THERMAL data (issue 12 item 7;
 //! docs/diagnose.md "Judging harness"). The withheld part of the run holds a 3500 rpm block and a
 //! 500/1500/2500 rpm ramp: speeds inside the range the shared rows show. The forward splits of
-//! `diagnose_fl_judge` predict speeds never seen (harder than the judge); here one whole spindle
+//! `fl_judge` predict speeds never seen (harder than the judge); here one whole spindle
 //! block and its cool-down (2500 rpm, then 3750 rpm) is left out of the fit rows, the simulation
 //! (static regression on the 3 best-correlated temperatures) and diagnose see the remaining rows
 //! (one file with a gap in time), and the removed block is predicted fed both ways the judge may
@@ -13,7 +13,7 @@
 
 use std::path::Path;
 
-mod fl_support;
+use crate::fl_support;
 use fl_support::*;
 
 const CHANNELS: [&str; 5] = ["d1_um", "d2_um", "d3_um", "d4_um", "d5_um"];

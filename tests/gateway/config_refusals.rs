@@ -10,8 +10,7 @@ use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::config::field_check::check_field;
 use retrocomp_model::MachineModel;
 
-#[path = "gateway_support/base_field.rs"]
-mod base_field;
+use crate::base_field;
 use base_field::BASE;
 
 /// BASE with `from` replaced by `to` (which must occur), plus `extra`.
