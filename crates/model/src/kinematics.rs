@@ -169,7 +169,7 @@ impl Elem {
 }
 
 /// Abbe arms (mm) of each element for positions `q` (indexed like `elems`) and tool offset `t`.
-#[inline]
+#[inline(always)]
 pub fn arms(elems: &[Elem], q: &[f64; 3], tool_mm: [f64; 3], out: &mut [[f64; 3]; 3]) {
     let mut acc = tool_mm;
     for (j, e) in elems.iter().enumerate().rev() {
@@ -185,7 +185,7 @@ pub fn arms(elems: &[Elem], q: &[f64; 3], tool_mm: [f64; 3], out: &mut [[f64; 3]
 }
 
 /// Nominal tool tip relative to the workpiece, mm.
-#[inline]
+#[inline(always)]
 pub fn nominal_tip(elems: &[Elem], q: &[f64; 3], tool_mm: [f64; 3]) -> [f64; 3] {
     elems
         .iter()
@@ -194,7 +194,7 @@ pub fn nominal_tip(elems: &[Elem], q: &[f64; 3], tool_mm: [f64; 3]) -> [f64; 3] 
 }
 
 /// Exact tool tip relative to the workpiece (mm) for per-element errors `delta_um`, `eps_urad`.
-#[inline]
+#[inline(always)]
 pub fn exact_tip(
     elems: &[Elem],
     q: &[f64; 3],

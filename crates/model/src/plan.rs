@@ -279,7 +279,10 @@ impl Plan {
         }
 
         let mut arm = [[0.0; 3]; 3];
-        arms(&self.elems, &q, t, &mut arm);
+        match <&[Elem; 3]>::try_from(&self.elems[..]) {
+            Ok(e3) => arms(e3, &q, t, &mut arm),
+            Err(_) => arms(&self.elems, &q, t, &mut arm),
+        }
         // arm_um[j]: element j's arm · 1e-3, the tip shift (µm) per µrad of rotation about each
         // axis is e_i × arm_um. basis[6 j + slot]: the tip shift (µm) per unit value in `slot`.
         let arm_um = arm.map(|a| [a[0] * 1e-3, a[1] * 1e-3, a[2] * 1e-3]);
@@ -463,13 +466,10 @@ impl Plan {
                 [acc[9], acc[10], acc[11]],
                 [acc[15], acc[16], acc[17]],
             ];
-            let r = exact_tip(&self.elems, &q, t, &delta, &eps);
-            let r0 = nominal_tip(&self.elems, &q, t);
-            let e = [
-                (r[0] - r0[0]) * 1e3,
-                (r[1] - r0[1]) * 1e3,
-                (r[2] - r0[2]) * 1e3,
-            ];
+            let e = match <&[Elem; 3]>::try_from(&self.elems[..]) {
+                Ok(e3) => exact_error(e3, &q, t, &delta, &eps),
+                Err(_) => exact_error(&self.elems, &q, t, &delta, &eps),
+            };
             terms[n_terms - 1] = [e[0] - first[0], e[1] - first[1], e[2] - first[2]];
             out.total_um = e;
         } else {
@@ -482,4 +482,23 @@ impl Plan {
             out.flags.invalid_input = true;
         }
     }
+}
+
+/// Exact minus nominal tool tip, µm. Inlined twice by `run`: for a chain of three elements (the
+/// length then known to the compiler: the loops unrolled, no bounds checks) and for any other.
+#[inline(always)]
+fn exact_error(
+    elems: &[Elem],
+    q: &[f64; 3],
+    t: [f64; 3],
+    delta: &[[f64; 3]; 3],
+    eps: &[[f64; 3]; 3],
+) -> [f64; 3] {
+    let r = exact_tip(elems, q, t, delta, eps);
+    let r0 = nominal_tip(elems, q, t);
+    [
+        (r[0] - r0[0]) * 1e3,
+        (r[1] - r0[1]) * 1e3,
+        (r[2] - r0[2]) * 1e3,
+    ]
 }

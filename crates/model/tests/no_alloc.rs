@@ -1,0 +1,82 @@
+//! No allocation per evaluation (issue 39 point 1): `evaluate`, `evaluate_first_order` and
+//! `evaluate_batch` of vmc-3axis allocate nothing once the state and breakdown exist, counted by a
+//! global allocator wrapper (per thread: the harness runs other tests on other threads). The floor
+//! (`benches/floor_vmc`) is held to the same.
+
+#[path = "../benches/floor_vmc/mod.rs"]
+mod floor_vmc;
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+struct Counting;
+
+thread_local! {
+    static ALLOCS: Cell<u64> = const { Cell::new(0) };
+}
+
+fn count() {
+    let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
+}
+
+// SAFETY: forwards every call to the system allocator unchanged; only counts.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        count();
+        unsafe { System.alloc(l) }
+    }
+    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
+        count();
+        unsafe { System.alloc_zeroed(l) }
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+        count();
+        unsafe { System.realloc(p, l, n) }
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        unsafe { System.dealloc(p, l) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocs() -> u64 {
+    ALLOCS.with(Cell::get)
+}
+
+#[test]
+fn evaluations_allocate_nothing() {
+    let m = floor_vmc::vmc_model();
+    let floor = floor_vmc::Floor::new(&m);
+    let pts = floor_vmc::bench_inputs(&m, 4096);
+    let (mut state, mut fstate) = (m.new_state(), floor.new_state());
+    let mut out = m.new_breakdown();
+    // One evaluation each first: the lag state starts at the first reading.
+    m.evaluate(&pts[0], &mut state, &mut out);
+    floor.run(&pts[0], &mut fstate, &mut out);
+
+    let mut batch_state = m.new_state();
+    let before = allocs();
+    for p in &pts[1..] {
+        m.evaluate(p, &mut state, &mut out);
+        m.evaluate_first_order(p, &mut state, &mut out);
+    }
+    let mut sum = 0.0;
+    m.evaluate_batch(&pts, &mut batch_state, &mut out, |_, o| {
+        sum += o.total_um[0];
+    });
+    assert_eq!(
+        allocs(),
+        before,
+        "evaluate, evaluate_first_order, evaluate_batch"
+    );
+
+    let before = allocs();
+    for p in &pts[1..] {
+        floor.run(p, &mut fstate, &mut out);
+        sum += out.total_um[0];
+    }
+    assert_eq!(allocs(), before, "the floor");
+    assert!(sum.is_finite());
+}
