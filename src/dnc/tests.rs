@@ -269,7 +269,7 @@ fn a_lathe_in_diameter_mode_gets_the_radial_correction_twice_in_its_x_word() {
     assert!((x_of(&log[1].text) - 59.994).abs() < 1e-9, "{:?}", log[1]);
 }
 
-/// The model of tests/dnc_peers.rs: EXX forward 0 → 8 µm, reverse −3 → 5 µm over 0…400 mm, and
+/// The model of tests/real_peers/dnc_peers.rs: EXX forward 0 → 8 µm, reverse −3 → 5 µm over 0…400 mm, and
 /// 2 µm/K of spindle temperature above 20 °C.
 pub(super) const MODEL: &str = include_str!("../../tests/peers/dnc_model.toml");
 

@@ -1,7 +1,7 @@
 //! One report per job, printed as a customer gets it: `retrocomp iso230-2`, `circle`, `fit axis`
 //! and `demo` write their figure SVGs and an HTML report; the SVGs are checked from their own geometry (no data
 //! point in the legend box), the HTML is printed to A4 PDF by headless Chromium (the peer of
-//! tests/gateway_web_browser.rs), and poppler's pdfinfo/pdftoppm/pdftotext check the page count,
+//! tests/real_peers/gateway_web_browser.rs), and poppler's pdfinfo/pdftoppm/pdftotext check the page count,
 //! the page size and that the figures' numbers are in the PDF's text.
 //! Peers: chromium and poppler-utils (scripts/setup-peers.sh).
 

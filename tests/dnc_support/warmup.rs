@@ -7,7 +7,7 @@
 //! `(set-point − nominal)·1000 + hil-sim's true error there` (`dwell_ends.csv`).
 #![allow(dead_code)]
 
-use crate::{dnc, hil_sim, pair, peers, s};
+use super::{dnc, hil_sim, pair, peers, s};
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -20,7 +20,7 @@ pub(crate) const STROKES: usize = 225;
 
 /// `dnc_peers`' model with the warm-up machine's numbers: EXX the same both ways, 3 µm/K.
 pub(crate) fn model() -> String {
-    let m = crate::MODEL
+    let m = super::MODEL
         .replace("reverse_um = [-3.0, 5.0]", "reverse_um = [0.0, 8.0]")
         .replace("b_um_per_K = [2.0]", "b_um_per_K = [3.0]");
     assert!(

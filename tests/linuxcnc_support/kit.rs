@@ -1,4 +1,4 @@
-//! Harness for the LinuxCNC kit's closed loop (tests/linuxcnc_closed_loop.rs): a run folder with the
+//! Harness for the LinuxCNC kit's closed loop (tests/real_peers/linuxcnc_closed_loop.rs): a run folder with the
 //! kit (deploy/linuxcnc) and its simulator config, the box (`retrocomp run`, the real binary) on
 //! 127.0.0.1, LinuxCNC 2.9 as uid 65534 (rtapi_app refuses root) with the NML file's TCP=5005
 //! removed (no port outside loopback), serialised by flock on /tmp/retrocomp-linuxcnc.lock, and the
@@ -18,8 +18,7 @@ pub(crate) const MODEL: &str = concat!(
 );
 const NOBODY: u32 = 65534;
 
-#[path = "nobody.rs"]
-mod nobody;
+use crate::linuxcnc_support::nobody;
 pub(crate) const AXES: [&str; 3] = ["x", "y", "z"];
 
 pub(crate) fn require_linuxcnc() {

@@ -1,5 +1,5 @@
 """asyncua (pinned in scripts/setup-peers.sh) against the gateway's OPC UA server configured with a
-certificate user (`[[opcua.cert_users]]`): run by tests/gateway_opcua.rs.
+certificate user (`[[opcua.cert_users]]`): run by tests/real_peers/gateway_opcua.rs.
 
 usage: asyncua_certs.py gen WORK_DIR
        asyncua_certs.py check OPC_URL WORK_DIR

@@ -1,5 +1,5 @@
 """Third-party OPC UA client (asyncua, pinned in scripts/setup-peers.sh) against the gateway's OPC UA
-server, run by tests/gateway_opcua.rs while hil-sim drives the machine.
+server, run by tests/real_peers/gateway_opcua.rs while hil-sim drives the machine.
 
 usage: asyncua_client.py OPC_URL STATUS_URL
 

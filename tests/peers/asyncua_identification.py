@@ -1,6 +1,6 @@
 """asyncua (pinned in scripts/setup-peers.sh): print the box name and the model hash the gateway's
 OPC UA server shows (`Machines/<box>/Identification/ModelSha256`), as one JSON line. Run by
-tests/gateway_demo_serve.rs and tests/gateway_model_switch.rs.
+tests/real_peers/gateway_demo_serve.rs and tests/real_peers/gateway_model_switch.rs.
 
 usage: asyncua_identification.py OPC_URL
 """

@@ -1,5 +1,5 @@
 """asyncua (pinned in scripts/setup-peers.sh): what a plant client learns about a value's quality
-from the gateway's OPC UA server. Run by tests/gateway_opcua.rs while hil-sim silences the
+from the gateway's OPC UA server. Run by tests/real_peers/gateway_opcua.rs while hil-sim silences the
 temperature node for a while.
 
 usage: asyncua_quality.py OPC_URL CHANNEL

@@ -1,5 +1,5 @@
 """asyncua (pinned in scripts/setup-peers.sh) against the gateway's OPC UA server configured with a
-user: run by tests/gateway_opcua.rs.
+user: run by tests/real_peers/gateway_opcua.rs.
 
 usage: asyncua_users.py OPC_URL USER PASSWORD WORK_DIR
 

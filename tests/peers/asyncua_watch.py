@@ -2,7 +2,7 @@
 cycle counter (`Machines/<box>/Monitoring/Compensation/Cycles`) until the file STOP_FILE exists,
 then print one JSON line: how many notifications arrived, the first and last counter, whether the
 counter ever went back (a restarted gateway counts from 0 again), and every status change the
-server sent (BadShutdown when the server goes away). Run by tests/gateway_demo_serve.rs across two
+server sent (BadShutdown when the server goes away). Run by tests/real_peers/gateway_demo_serve.rs across two
 passes of `demo --serve`. No check here depends on this machine's speed: the Rust test decides.
 
 usage: asyncua_watch.py OPC_URL STOP_FILE

@@ -1,5 +1,5 @@
 //! The fleet as separate OS processes (benches/fleet_processes.rs, and its small test in
-//! tests/telemetry_mqtt.rs): one fleet host process (`fleet_load host`, a test program of hil-sim: the fleet
+//! tests/real_peers/telemetry_mqtt.rs): one fleet host process (`fleet_load host`, a test program of hil-sim: the fleet
 //! host's MQTT client and view) and P box processes of K boxes each (`fleet_load boxes`:
 //! the real Sparkplug publisher per box), all against one broker, over TLS when a CA is given.
 //! The window starts once every box is connected and born (the host's latency restarts there); after it every box finishes (its queue acknowledged, then NDEATH) and reports what it

@@ -1,4 +1,4 @@
-"""python-can peer on the socketcand interface (for tests/bus_can_peers.rs).
+"""python-can peer on the socketcand interface (for tests/real_peers/bus_can_peers.rs).
 
 Joins HOST:PORT bus can0, prints READY, sends a CiA 406 position TPDO (node 1, 12345 counts), an
 extended-id frame with no data and a heartbeat (node 1 operational); then prints every frame it

@@ -1,5 +1,5 @@
 """pymodbus peer whose device starts answering with exceptions and stops again, for
-tests/bus_modbus_faults.rs.
+tests/real_peers/bus_modbus_faults.rs.
 
 Serves Modbus TCP on 127.0.0.1:PORT, unit 1: input registers 0..1 = 215, 223 (0.1 degC: 21.5, 22.3).
 Commands on stdin, one per line, each acknowledged on stdout:

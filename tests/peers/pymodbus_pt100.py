@@ -1,4 +1,4 @@
-"""pymodbus peer: serves a PT100 module register map over Modbus TCP or RTU (for tests/bus_modbus_peers.rs).
+"""pymodbus peer: serves a PT100 module register map over Modbus TCP or RTU (for tests/real_peers/bus_modbus_peers.rs).
 
 Map (0-based protocol addresses; pymodbus data blocks are 1-based, hence the +1 below):
   input registers 0..3   int16, 0.1 degC: 21.5, 22.3, 19.8, -4.5   (Phoenix RAD-PT100-4 style, FC04)

@@ -1,5 +1,5 @@
 """pymodbus client that plays a peer writing the origin-shift server's registers, for
-tests/listener_allow_writes.rs.
+tests/real_peers/listener_allow_writes.rs.
 
 Usage: python pymodbus_rogue.py HOST PORT SOURCE_IP. Connects from SOURCE_IP (127.0.0.2 plays a
 rogue host on the network), then prints one line per request:

@@ -1,4 +1,4 @@
-"""pyserial peer: writes instrument lines into a serial device (a pty in tests/bus_serial_peers.rs).
+"""pyserial peer: writes instrument lines into a serial device (a pty in tests/real_peers/bus_serial_peers.rs).
 
 Usage: python pyserial_lines.py DEVICE BAUD KIND
 KIND dro:      Heidenhain-style STX+sign+9 digits lines for X, Y, Z, twice, with a garbage line and a

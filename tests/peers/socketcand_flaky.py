@@ -1,4 +1,4 @@
-"""A socketcand server (rawmode) that hangs up and comes back, for tests/bus_can_recovery.rs.
+"""A socketcand server (rawmode) that hangs up and comes back, for tests/real_peers/bus_can_recovery.rs.
 
 Speaks the socketcand protocol (linux-can/socketcand doc/protocol.md, src/state_raw.c): `< hi >`,
 `< open can0 >` -> `< ok >`, `< rawmode >` -> `< ok >`, then `< frame ID SEC.USEC DATA >` every 5 ms

@@ -1,4 +1,4 @@
-"""A third-party Sparkplug B host for tests/telemetry_mqtt.rs: paho-mqtt subscribes to a group,
+"""A third-party Sparkplug B host for tests/real_peers/telemetry_mqtt.rs: paho-mqtt subscribes to a group,
 mqtt-spb-wrapper's compiled Eclipse sparkplug_b.proto decodes every payload (and its
 SpbPayloadParser must accept it), and each message is printed as one JSON line. It also plays the
 Sparkplug 3.0 primary host: STATE online (retained, QoS 1) after each (re)subscription, with the

@@ -1,4 +1,4 @@
-"""A stock Sparkplug B host application for tests/telemetry_stock_host.rs: mqtt-spb-wrapper's
+"""A stock Sparkplug B host application for tests/real_peers/telemetry_stock_host.rs: mqtt-spb-wrapper's
 MqttSpbEntityScada (its host-application class) subscribes to a group, parses every payload with
 its SpbPayloadParser and keeps each edge node's data table; this script only prints what the
 host's birth/data/death callbacks receive, one JSON line per message.

@@ -1,5 +1,5 @@
 //! `faulty_box`: `retrocomp run` with one fault injected, for the supervision tests
-//! (`tests/bus_supervision.rs`). It loads and checks the field file and model, starts the
+//! (`tests/real_peers/bus_supervision.rs`). It loads and checks the field file and model, starts the
 //! configured sources and runs the gateway through the same library call as `retrocomp run`
 //! (`run::run_until_signal`: systemd watchdog, SIGINT/SIGTERM), and injects what a real failure
 //! would look like, so the product binary carries no test hook:

@@ -1,5 +1,5 @@
 //! `fleet_load boxes|host`: the two processes of the multi-process fleet load test
-//! (benches/fleet_processes.rs and its test in tests/telemetry_fleet_host.rs), so boxes and the
+//! (benches/fleet_processes.rs and its test in tests/real_peers/telemetry_fleet_host.rs), so boxes and the
 //! fleet host run as separate OS processes with exactly the library code that ships.
 //! - `boxes`: K simulated boxes in this process (crates/fleet/src/load.rs), each the real Sparkplug
 //!   publisher over TCP or TLS; once all are connected and born one JSON line `{"connected": N}`

@@ -8,7 +8,7 @@
 //! client writes the words, flips the strobe 0↔1 and waits for ack = strobe; the PLC latches once per
 //! flip and copies the strobe into the ack), so a half-written pair is never applied and every flip is
 //! exactly one latch. (An earlier version latched on the rising edge only, so every other write of a
-//! toggling client was acknowledged without being applied: found by tests/gateway_faults_hil.rs.)
+//! toggling client was acknowledged without being applied: found by tests/real_peers/gateway_faults_hil.rs.)
 //!
 //! Optional heartbeat watchdog (`[plc.watchdog]`, the rule of docs/gateway.md): armed once the
 //! heartbeat register has changed; when it then stays unchanged for `timeout_s` the PLC trips: it

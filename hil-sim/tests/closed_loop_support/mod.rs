@@ -1,5 +1,5 @@
 //! Configs and checks shared by the closed-loop harness tests (`closed_loop_*.rs`): the demo mill
-//! of `tests/gateway_faults_hil.rs` (hidden geometry from `deploy/demo/mill-full.toml`, thermal and
+//! of `tests/real_peers/gateway_faults_hil.rs` (hidden geometry from `deploy/demo/mill-full.toml`, thermal and
 //! cutting physics, a PLC window with strobe/ack handshake) and the gateway's field config with the
 //! same clamps, dosing cap and channel limits (one copy: `tests/fixtures/faults_hil/`), on in-process
 //! links instead of sockets.

@@ -4,7 +4,7 @@
 //! busy the machine is). Every scenario asserts the clamp and the cap per write against what the PLC
 //! applied, that the applied shift never jumps, and recovery exactly: fault edges at the computed
 //! instants, and the number of writes back to the target, or bit-identity with the same run without
-//! the fault. The real-socket tests (`tests/gateway_faults_hil.rs` and friends) keep one run per
+//! the fault. The real-socket tests (`tests/real_peers/gateway_faults_hil.rs` and friends) keep one run per
 //! transport for the shells.
 
 use crate::closed_loop_support;

@@ -2,7 +2,7 @@
 //! `crate::status` (built by the cycle at ≤ 10 Hz), its plain-text table `text.rs`.
 //! Prometheus conventions: base units (lengths in metres, times in seconds, temperatures in °C,
 //! forces in N, speeds in Hz), one metric per quantity, `_total` on counters only
-//! (`promtool check metrics` passes on it: `tests/gateway_prometheus.rs`). Internally the box keeps
+//! (`promtool check metrics` passes on it: `tests/real_peers/gateway_prometheus.rs`). Internally the box keeps
 //! µm and mm; the factors are applied here, once.
 
 use std::fmt::Write as _;

@@ -49,7 +49,7 @@ static NO_CERTIFICATE_NEEDED: std::sync::atomic::AtomicBool =
 /// anonymous only (SecurityPolicy None), so no certificate is used (see `pki.rs`). The binary's
 /// log filter drops these; every other ERROR and WARN passes. Matched by callsite (file and line
 /// in async-opcua 0.19.0, which Cargo.lock pins): after an upgrade that moves them they show
-/// again (and tests/gateway_opcua.rs fails) rather than anything else being hidden.
+/// again (and tests/real_peers/gateway_opcua.rs fails) rather than anything else being hidden.
 pub fn is_false_certificate_report(m: &tracing::Metadata<'_>) -> bool {
     const CALLSITES: [(&str, u32); 5] = [
         // "Failed to get cert and private key" / "… cert or private key" (store opened at start)

@@ -1,6 +1,6 @@
 //! Eclipse Sparkplug 3.0 (Sparkplug B) on the wire: the protobuf messages of `sparkplug_b.proto`
 //! that an edge node needs (Payload, Metric, DataType; field numbers as in the spec's .proto, checked
-//! against a third-party decoder in `tests/telemetry_mqtt.rs`), the topic namespace
+//! against a third-party decoder in `tests/real_peers/telemetry_mqtt.rs`), the topic namespace
 //! `spBv1.0/<group>/<NBIRTH|NDATA|NDEATH|NCMD>/<edge node>`, and the edge node's session state
 //! (bdSeq, seq) as a sans-IO machine. Timestamps are ms since the Unix epoch (UTC), as the spec says.
 //!

@@ -1,5 +1,5 @@
 //! The edge trace: every level the injector threads put on the A/B lines, written as CSV so a
-//! counter outside the project (LinuxCNC's HAL `encoder`, `tests/linuxcnc_edge_trace.rs`) can count
+//! counter outside the project (LinuxCNC's HAL `encoder`, `tests/real_peers/linuxcnc_edge_trace.rs`) can count
 //! what the box drove.
 //!
 //! Real-time side: [`EdgeTrace::record`] is a `try_send` into a bounded channel whose buffer is
