@@ -11,9 +11,13 @@
 use std::hint::black_box;
 use std::path::Path;
 
-use criterion::measurement::{Measurement, ValueFormatter, WallTime};
+use criterion::measurement::Measurement;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use retrocomp_model::{MachineModel, ModelInput};
+
+#[path = "../crates/model/benches/thread_cpu/mod.rs"]
+mod thread_cpu;
+use thread_cpu::ThreadCpuTime;
 
 fn model() -> MachineModel {
     let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/examples/vmc-3axis.toml");
@@ -45,58 +49,6 @@ fn inputs(model: &MachineModel, n: usize) -> Vec<ModelInput> {
             input
         })
         .collect()
-}
-
-/// CPU time of the calling thread, ns (Linux `CLOCK_THREAD_CPUTIME_ID`, nanosecond resolution).
-struct ThreadCpuTime {
-    wall: WallTime,
-}
-
-#[repr(C)]
-struct Timespec {
-    tv_sec: i64,
-    tv_nsec: i64,
-}
-
-unsafe extern "C" {
-    fn clock_gettime(clock_id: i32, tp: *mut Timespec) -> i32;
-}
-
-const CLOCK_THREAD_CPUTIME_ID: i32 = 3;
-
-fn thread_cpu_ns() -> f64 {
-    let mut ts = Timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec; the clock id is Linux's thread CPU clock.
-    let rc = unsafe { clock_gettime(CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    assert_eq!(rc, 0, "clock_gettime(CLOCK_THREAD_CPUTIME_ID) failed");
-    ts.tv_sec as f64 * 1e9 + ts.tv_nsec as f64
-}
-
-impl Measurement for ThreadCpuTime {
-    type Intermediate = f64;
-    type Value = f64;
-    fn start(&self) -> f64 {
-        thread_cpu_ns()
-    }
-    fn end(&self, start: f64) -> f64 {
-        thread_cpu_ns() - start
-    }
-    fn add(&self, a: &f64, b: &f64) -> f64 {
-        a + b
-    }
-    fn zero(&self) -> f64 {
-        0.0
-    }
-    fn to_f64(&self, v: &f64) -> f64 {
-        *v
-    }
-    fn formatter(&self) -> &dyn ValueFormatter {
-        // Values are nanoseconds, like the wall clock's: reuse its formatting.
-        self.wall.formatter()
-    }
 }
 
 fn bench<M: Measurement>(c: &mut Criterion<M>, clock: &str) {
@@ -220,7 +172,7 @@ fn cpu(c: &mut Criterion<ThreadCpuTime>) {
 criterion_group!(wall_clock, wall);
 criterion_group! {
     name = cpu_clock;
-    config = Criterion::default().with_measurement(ThreadCpuTime { wall: WallTime });
+    config = Criterion::default().with_measurement(ThreadCpuTime::new());
     targets = cpu
 }
 criterion_main!(wall_clock, cpu_clock);

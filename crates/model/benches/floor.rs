@@ -15,66 +15,13 @@ mod floor_vmc;
 
 use std::hint::black_box;
 
-use criterion::measurement::{Measurement, ValueFormatter, WallTime};
+use criterion::measurement::Measurement;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use retrocomp_model::ModelInput;
 
-/// CPU time of the calling thread, ns.
-#[allow(
-    missing_debug_implementations,
-    reason = "criterion's WallTime has no Debug"
-)]
-struct ThreadCpuTime {
-    wall: WallTime,
-}
-
-#[repr(C)]
-struct Timespec {
-    tv_sec: i64,
-    tv_nsec: i64,
-}
-
-unsafe extern "C" {
-    fn clock_gettime(clock_id: i32, tp: *mut Timespec) -> i32;
-}
-
-const CLOCK_THREAD_CPUTIME_ID: i32 = 3;
-
-fn thread_cpu_ns() -> f64 {
-    let mut ts = Timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec; the clock id is Linux's thread CPU clock.
-    let rc = unsafe { clock_gettime(CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    assert_eq!(rc, 0, "clock_gettime(CLOCK_THREAD_CPUTIME_ID) failed");
-    #[allow(clippy::cast_precision_loss, reason = "ns of CPU time, < 2⁵³")]
-    let ns = ts.tv_sec as f64 * 1e9 + ts.tv_nsec as f64;
-    ns
-}
-
-impl Measurement for ThreadCpuTime {
-    type Intermediate = f64;
-    type Value = f64;
-    fn start(&self) -> f64 {
-        thread_cpu_ns()
-    }
-    fn end(&self, start: f64) -> f64 {
-        thread_cpu_ns() - start
-    }
-    fn add(&self, a: &f64, b: &f64) -> f64 {
-        a + b
-    }
-    fn zero(&self) -> f64 {
-        0.0
-    }
-    fn to_f64(&self, v: &f64) -> f64 {
-        *v
-    }
-    fn formatter(&self) -> &dyn ValueFormatter {
-        self.wall.formatter()
-    }
-}
+#[path = "thread_cpu/mod.rs"]
+mod thread_cpu;
+use thread_cpu::ThreadCpuTime;
 
 fn bench<M: Measurement>(c: &mut Criterion<M>, clock: &str) {
     let m = floor_vmc::vmc_model();
@@ -155,7 +102,7 @@ fn cpu(c: &mut Criterion<ThreadCpuTime>) {
 criterion_group!(wall_clock, wall);
 criterion_group! {
     name = cpu_clock;
-    config = Criterion::default().with_measurement(ThreadCpuTime { wall: WallTime });
+    config = Criterion::default().with_measurement(ThreadCpuTime::new());
     targets = cpu
 }
 criterion_main!(wall_clock, cpu_clock);
