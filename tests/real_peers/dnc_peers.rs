@@ -85,6 +85,25 @@ fn python(script: &str, args: &[&str]) -> peers::Peer {
     peers::spawn_python(script, args)
 }
 
+/// The simulated control (`dnc_controller.py`), at SCHED_FIFO 20 as hil-sim's simulator runs: a
+/// control's UART takes each character as it arrives and says XOFF within a character time,
+/// while a python process starved by other work reads two lines late and overruns its buffer
+/// (seen once in a loaded run: fill 6 of 5). Without the privilege it runs at normal priority and
+/// says so.
+fn controller(args: &[&str]) -> peers::Peer {
+    let p = python("dnc_controller.py", args);
+    let pid = p.child.id().to_string();
+    match Command::new("chrt").args(["-f", "-p", "20", &pid]).output() {
+        Ok(o) if o.status.success() => {}
+        Ok(o) => eprintln!(
+            "dnc_controller.py at normal priority: chrt refused SCHED_FIFO ({})",
+            String::from_utf8_lossy(&o.stderr).trim()
+        ),
+        Err(e) => eprintln!("dnc_controller.py at normal priority: no chrt ({e})"),
+    }
+    p
+}
+
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
@@ -156,10 +175,7 @@ fn sender_box_controller_over_ptys_every_block_read_by_rs274_at_nominal_plus_log
     let cfg = field(dir, &sen_box, "");
     let received = dir.join("received.ngc");
     let _sensor = python("dnc_sensor.py", &[s(&sen_peer), "9600", "20.0", "1.0"]);
-    let controller = python(
-        "dnc_controller.py",
-        &[s(&ctl_peer), "9600", s(&received), "80", "5"],
-    );
+    let controller = controller(&[s(&ctl_peer), "9600", s(&received), "80", "5"]);
     let log = dir.join("sent.csv");
     let mut retro = dnc(&cfg, &ctl_box, &log)
         .args(["--sender-port", s(&snd_box)])
@@ -270,10 +286,7 @@ fn a_controller_that_never_resumes_is_a_stall_and_the_named_block_resumes_withou
     let _sensor = python("dnc_sensor.py", &[s(&sen_peer), "9600", "20.0", "0.0"]);
     // Executes nothing: after XOFF it never sends XON.
     let first = dir.join("first.ngc");
-    let stuck = python(
-        "dnc_controller.py",
-        &[s(&ctl_peer), "9600", s(&first), "1e9", "5"],
-    );
+    let stuck = controller(&[s(&ctl_peer), "9600", s(&first), "1e9", "5"]);
     let mut retro = dnc(&cfg, &ctl_box, &dir.join("a.csv"))
         .args(["--program", s(&prog)])
         .stderr(Stdio::piped())
@@ -311,10 +324,7 @@ fn a_controller_that_never_resumes_is_a_stall_and_the_named_block_resumes_withou
     // A fresh cable (the first controller's pty closed with it).
     let (_s2, ctl_peer, ctl_box) = pair(dir, "ctl2");
     let second = dir.join("second.ngc");
-    let controller = python(
-        "dnc_controller.py",
-        &[s(&ctl_peer), "9600", s(&second), "20", "5", "1"],
-    );
+    let controller = controller(&[s(&ctl_peer), "9600", s(&second), "20", "5", "1"]);
     let out = dnc(&cfg, &ctl_box, &dir.join("b.csv"))
         .args(["--program", s(&prog)])
         .args(["--resume-from", &resume.to_string()])
@@ -376,10 +386,7 @@ fn a_program_from_a_tcp_sender_is_passed_on_compensated() {
     let cfg = field(dir, &sen_box, "");
     let _sensor = python("dnc_sensor.py", &[s(&sen_peer), "9600", "25.0", "0.0"]);
     let received = dir.join("received.ngc");
-    let controller = python(
-        "dnc_controller.py",
-        &[s(&ctl_peer), "9600", s(&received), "10", "5"],
-    );
+    let controller = controller(&[s(&ctl_peer), "9600", s(&received), "10", "5"]);
     let port = peers::free_port();
     let log = dir.join("sent.csv");
     let retro = dnc(&cfg, &ctl_box, &log)
@@ -489,10 +496,7 @@ fn a_stall_is_a_fault_in_metrics_until_xon_and_ctrl_c_leaves_log_resume_line_and
     let _sensor = python("dnc_sensor.py", &[s(&sen_peer), "9600", "25.0", "0.0"]);
     // A slow control: 1.5 s per block, XOFF at 4 of 5 lines, XON at 1: held about 4.5 s.
     let received = dir.join("received.ngc");
-    let _controller = python(
-        "dnc_controller.py",
-        &[s(&ctl_peer), "9600", s(&received), "1500", "5"],
-    );
+    let _controller = controller(&[s(&ctl_peer), "9600", s(&received), "1500", "5"]);
     let log = dir.join("sent.csv");
     let mut retro = dnc(&cfg, &ctl_box, &log)
         .args(["--program", s(&prog)])
