@@ -20,7 +20,8 @@
 #        package (deploy/cross-build.sh); qemu-user-static DOWNLOADED and unpacked into a cache
 #        (scripts/fetch-qemu-user.sh), never installed (its binfmt handlers would take over every
 #        aarch64 binary on the host), runs that package's binary. The Rust side, rustup's
-#        aarch64-unknown-linux-gnu std, is the user's (`rustup target add`): deb-check says so if absent.
+#        aarch64-unknown-linux-gnu std, is added to the toolchain in use (`rustup target add`, from
+#        rustup's own distribution server) when absent; without rustup, deb-check says what is missing.
 #   venv: <repo>/.venv with the PINNED Python peers (python-can, pymodbus, pyserial; asyncua, the OPC UA client of
 #        tests/real_peers/gateway_opcua.rs; paho-mqtt +
 #        mqtt-spb-wrapper, the Sparkplug B host of tests/real_peers/telemetry_mqtt.rs; mosquitto is its broker,
@@ -119,6 +120,13 @@ CARGO_DEB_VERSION=3.8.0
 if [ "$(cargo deb --version 2>/dev/null)" != "cargo-deb $CARGO_DEB_VERSION" ]; then
   echo "setup-peers: cargo install cargo-deb $CARGO_DEB_VERSION"
   cargo install --locked --quiet cargo-deb --version "$CARGO_DEB_VERSION"
+fi
+# The arm64 package's Rust standard library (a fresh machine has only the host's): adds a target to
+# the toolchain in use, removes nothing.
+if command -v rustup >/dev/null 2>&1 &&
+    ! rustup target list --installed | grep -qx aarch64-unknown-linux-gnu; then
+  echo "setup-peers: rustup target add aarch64-unknown-linux-gnu"
+  rustup target add aarch64-unknown-linux-gnu
 fi
 sh "$REPO/scripts/vcan-qemu/fetch-qemu.sh"
 sh "$REPO/scripts/vcan-qemu/fetch-kernel.sh"
