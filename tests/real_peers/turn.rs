@@ -40,7 +40,8 @@ impl Drop for Turn {
 fn a_second_file_waits_for_the_first_files_tests_and_the_same_file_does_not() {
     use std::sync::mpsc;
     use std::time::Duration;
-    // Runs under "tests/real_peers/turn.rs" only while no other file's test holds the turn.
+    // Its own keys ("turn-test a", "turn-test b"): it waits, like any file, until no other file's
+    // test holds the turn, and holds up the other files while it runs.
     let first = take("turn-test a");
     let same = take("turn-test a");
     let (tx, rx) = mpsc::channel();
