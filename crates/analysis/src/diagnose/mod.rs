@@ -7,6 +7,7 @@
 //! refine, validate, detect ambiguity over [`candidates`]) → joint refit with confidence intervals
 //! (this file) → [`report`] (docs/diagnose-json.md JSON / text), [`plots`] and the found-terms TOML ([`output`]).
 
+mod assembly;
 pub mod candidates;
 pub mod effects;
 pub mod features;
@@ -32,14 +33,13 @@ pub mod selection;
 pub mod sensor_faults;
 pub mod swap;
 
-use serde_json::{Map, Value};
+use rayon::prelude::*;
 
-use candidates::{Candidate, separating_experiment};
+use assembly::Assembly;
+use candidates::Candidate;
 use effects::EffectModel;
 use features::Context;
-use heldout::Heldout;
-use refit::{joint_refit, parsimony_drop};
-use report::{AlternativeOut, Dropped, Evidence, Finding, ForwardCheck, Report};
+use report::Report;
 use retrocomp_model::recording::Recording;
 use selection::Options;
 
@@ -174,9 +174,7 @@ pub fn diagnose_owned(mut rec: Recording, opts: &Options) -> Result<Diagnosis, D
             .iter()
             .any(|(s, _)| n == s || n.strip_prefix("sim_") == Some(s.as_str()))
     });
-    // Cloned one at a time at its turn (the pooled noise pass reads them first).
-    let each = residuals.iter().map(|(s, r)| Ok((s.clone(), r.clone())));
-    diagnose_residuals(&rec, each, &[], opts)
+    diagnose_residuals(&rec, residuals, &[], opts)
 }
 
 /// Diagnose against an explicit simulation per signal (`(signal, sim_um per row)`).
@@ -207,21 +205,32 @@ fn diagnose_sims(
     sim_inputs: &[Vec<f64>],
     opts: &Options,
 ) -> Result<Diagnosis, DiagnoseError> {
-    // Each residual formed when its signal's turn comes (not all at once).
-    let residuals = sims.iter().map(|(signal, sim)| {
-        let meas = rec.col(signal).ok_or(DiagnoseError::NoSimulation {
-            signal: signal.clone(),
-        })?;
-        let r: Vec<f64> = meas.iter().zip(sim.iter()).map(|(m, s)| m - s).collect();
-        Ok((signal.clone(), r))
-    });
+    let residuals = sims
+        .iter()
+        .map(|(signal, sim)| {
+            let meas = rec.col(signal).ok_or(DiagnoseError::NoSimulation {
+                signal: signal.clone(),
+            })?;
+            let r: Vec<f64> = meas.iter().zip(sim.iter()).map(|(m, s)| m - s).collect();
+            Ok((signal.clone(), r))
+        })
+        .collect::<Result<Vec<_>, DiagnoseError>>()?;
     diagnose_residuals(rec, residuals, sim_inputs, opts)
 }
 
+/// Above this many rows the error signals are diagnosed one after another; at or below it, side by
+/// side on rayon's pool (each signal's selection screens its candidates in parallel either way).
+/// Two signals at once hold two selections' candidate columns and held-out folds: on a 10⁶-row
+/// recording that would pass the 500 MB a diagnosis may use (docs/performance.md).
+pub const SIGNALS_SIDE_BY_SIDE_MAX_ROWS: usize = 250_000;
+
 /// The diagnosis of residuals r = measured − simulated, one `(signal, r)` per error signal.
+/// Signals are independent until the report is assembled: each gives an [`assembly::Part`] (in
+/// parallel on small recordings), merged in signal order, so the report is the same whether they
+/// ran side by side or in turn.
 fn diagnose_residuals(
     rec: &Recording,
-    residuals: impl Iterator<Item = Result<(String, Vec<f64>), DiagnoseError>> + Clone,
+    residuals: Vec<(String, Vec<f64>)>,
     sim_inputs: &[Vec<f64>],
     opts: &Options,
 ) -> Result<Diagnosis, DiagnoseError> {
@@ -234,31 +243,23 @@ fn diagnose_residuals(
     let sensor_faults = sensor_faults::scan(&ctx);
     let faulted: Vec<&str> = sensor_faults.iter().map(|f| f.column.as_str()).collect();
     let ctx = ctx.without(&faulted);
+    let side_by_side = rec.n_rows() <= SIGNALS_SIDE_BY_SIDE_MAX_ROWS;
     // The recording's noise statistic (`NoiseModel::of`): every signal's residual before any
     // term, read once ahead of the selection.
     // Each signal's first screening is kept for its selection (one screening, not two).
-    let (mut taus, mut first_screens) = (vec![], vec![]);
-    for res in residuals.clone() {
-        let (signal, r) = res?;
-        let axis = signal.chars().nth(1).expect("e<axis>_um");
+    let pre = each_signal(side_by_side, &residuals, |(signal, r)| {
         progress::stage(|| format!("{signal}: noise pre-pass (first screening)"));
-        let pre = select::unit_root_taus(&ctx, axis, &r, sim_inputs, opts);
-        taus.extend(pre.as_ref().map(|(t, _)| *t));
-        first_screens.push(pre.map(|(_, first)| first));
-    }
+        select::unit_root_taus(&ctx, axis_of(signal), r, sim_inputs, opts)
+    });
+    let taus: Vec<(f64, f64)> = pre.iter().flatten().map(|(t, _)| *t).collect();
     let recording_rejects = null_model::recording_rejects_unit_root(&taus);
-    let mut out = Assembly {
-        sensor_faults,
-        ..Assembly::default()
-    };
-    for (res, first_screen) in residuals.zip(first_screens) {
-        let (signal, r) = res?;
-        let signal = &signal;
-        let axis = signal.chars().nth(1).expect("e<axis>_um");
-        out.all_sq += r.iter().map(|v| v * v).sum::<f64>();
-        out.all_n += r.len();
-        out.mismatch.extend(locate::locate(&ctx, signal, &r));
-        let mut sel = select::select_pooled(
+    let work: Vec<_> = residuals
+        .into_iter()
+        .zip(pre.into_iter().map(|p| p.map(|(_, first)| first)))
+        .collect();
+    let parts = each_signal(side_by_side, work, |((signal, r), first_screen)| {
+        let axis = axis_of(&signal);
+        let sel = select::select_pooled(
             &ctx,
             axis,
             &r,
@@ -267,293 +268,31 @@ fn diagnose_residuals(
             recording_rejects,
             first_screen,
         );
-        progress::stage(|| format!("{signal}: joint refit, parsimony and checks"));
-        let (models, cis, after_coef, refit_terms) =
-            out.parsimony(&ctx, &r, &mut sel, signal, sim_inputs, opts);
-        out.exchanged(&sel, signal);
-        let regime = regimes::check(&ctx, axis, &r, sim_inputs, &refit_terms, opts);
-        out.findings(&sel, &models, &cis, signal);
-        if let Some(o) = &regime {
-            regimes::set_driver_ranges(&mut out.findings, signal, &o.ranges);
-        }
-        out.runners_up(&sel, signal, opts);
-        let mut result = SignalResult {
-            signal: signal.clone(),
-            axis,
-            residual_before: r,
-            terms: refit_terms,
-            after_coef,
-            models,
-            written: None,
-        };
-        let final_resid = result.residual_after(&ctx).pop().unwrap_or_else(|| {
-            let r = &result.residual_before;
-            let m = r.iter().sum::<f64>() / r.len() as f64;
-            r.iter().map(|v| v - m).collect()
-        });
-        out.mismatch
-            .extend(locate::unexplained(&ctx, signal, &final_resid));
-        drop(final_resid);
-        out.forward_check
-            .extend(regimes::with_regimes(&ctx, &mut result, regime));
-        result.after_coef.shrink_to_fit();
-        out.signals.push(result);
+        assembly::Part::of(&ctx, signal, r, sel, sim_inputs, opts)
+    });
+    let mut out = Assembly::new(sensor_faults);
+    for part in parts {
+        out.merge(part);
     }
     Ok(out.finish(ctx))
 }
 
-/// The report as it is assembled from each signal's selection ([`diagnose_residuals`]).
-#[derive(Default)]
-struct Assembly {
-    /// Found before the physics search (`sensor_faults.rs`), listed before any finding.
-    sensor_faults: Vec<sensor_faults::SensorFault>,
-    /// Each finding with its RSS gain (the report lists the largest first).
-    findings: Vec<(f64, Finding)>,
-    alternatives: Vec<AlternativeOut>,
-    dropped: Vec<Dropped>,
-    forward_check: Vec<ForwardCheck>,
-    mismatch: Vec<report::Mismatch>,
-    signals: Vec<SignalResult>,
-    ambiguous: bool,
-    all_sq: f64,
-    all_n: usize,
+/// The axis of an error signal `e<axis>_um`.
+fn axis_of(signal: &str) -> char {
+    signal.chars().nth(1).expect("e<axis>_um")
 }
 
-impl Assembly {
-    /// Parsimony after the final refit (issue 12 point 3), one term at a time, the rest refitted
-    /// jointly after each drop: first a term whose 95 % interval of its gain includes 0 once
-    /// every term is fitted jointly (the weakest first); then a term whose removal does not
-    /// raise the held-out RMS (forward on thermal tests: `heldout.rs`) by the bar a term needs
-    /// to enter (`cv_min_gain`), the one whose removal leaves the lowest held-out RMS first.
-    /// The second test also catches pairs of near-collinear lags with opposite gains that fit
-    /// a difference of two sensors without predicting better than one of them.
-    fn parsimony(
-        &mut self,
-        ctx: &Context,
-        r: &[f64],
-        sel: &mut select::SignalSelection,
-        signal: &str,
-        sim_inputs: &[Vec<f64>],
-        opts: &Options,
-    ) -> refit::Refit {
-        let axis = sel.axis;
-        let heldout = Heldout::new(ctx, axis, r, sim_inputs, opts);
-        loop {
-            let (models, cis, after_coef, refit_terms) = joint_refit(ctx, r, &sel.terms);
-            let Some((k, reason, with, without)) =
-                parsimony_drop(&heldout, r, &sel.terms, &cis, opts)
-            else {
-                return (models, cis, after_coef, refit_terms);
-            };
-            let t = sel.terms.remove(k);
-            let why = if reason == "ci_includes_zero" {
-                "the 95 % interval of its gain includes 0".to_string()
-            } else if reason == "no_forward_gain" {
-                format!(
-                    "removing it lowers the forward-check RMS by more than {:.0} %, and by more than it raises the held-out RMS ({with:.3} → {without:.3} µm forward)",
-                    100.0 * opts.cv_min_gain
-                )
-            } else {
-                format!(
-                    "removing it does not raise the held-out RMS by {:.0} % ({with:.3} → {without:.3} µm)",
-                    100.0 * opts.cv_min_gain
-                )
-            };
-            self.alternatives.push(AlternativeOut {
-                effect: t.cand.effect_id().into(),
-                axis: Some(axis.to_string()),
-                why_not: format!(
-                    "{} on {signal} was selected (ΔBIC {:.1}) but dropped after the final joint refit: {why}",
-                    t.cand.label(),
-                    t.delta_bic
-                ),
-                experiment: None,
-            });
-            self.dropped.push(Dropped {
-                effect: t.cand.effect_id().into(),
-                axis: axis.to_string(),
-                signal: signal.to_string(),
-                term: t.cand.label(),
-                reason: reason.into(),
-                heldout_rms_with_um: with,
-                heldout_rms_without_um: without,
-                score: if reason == "no_forward_gain" {
-                    "forward_check"
-                } else {
-                    "heldout"
-                }
-                .into(),
-                replaced_by: vec![],
-            });
-        }
-    }
-
-    /// Terms accepted and later replaced by the exchange step (unless back in the final set).
-    fn exchanged(&mut self, sel: &select::SignalSelection, signal: &str) {
-        let axis = sel.axis;
-        for ex in &sel.exchanged {
-            let label = ex.term.cand.label();
-            if sel.terms.iter().any(|t| t.cand.label() == label) {
-                continue;
-            }
-            self.dropped.push(Dropped {
-                effect: ex.term.cand.effect_id().into(),
-                axis: axis.to_string(),
-                signal: signal.to_string(),
-                term: label,
-                reason: "exchanged".into(),
-                heldout_rms_with_um: ex.heldout_rms_before_um,
-                heldout_rms_without_um: ex.heldout_rms_after_um,
-                score: "heldout".into(),
-                replaced_by: ex.by.clone(),
-            });
-        }
-    }
-
-    /// The final terms as findings, and their ambiguous alternatives.
-    fn findings(
-        &mut self,
-        sel: &select::SignalSelection,
-        models: &[EffectModel],
-        cis: &[Map<String, Value>],
-        signal: &str,
-    ) {
-        let axis = sel.axis;
-        for (k, term) in sel.terms.iter().enumerate() {
-            let model = &models[k];
-            let mut params =
-                match serde_json::to_value(model).expect("serialisable")["params"].clone() {
-                    Value::Object(m) => m,
-                    _ => Map::new(),
-                };
-            params.retain(|_, v| !v.is_null());
-            // A lag of a power of a column names the column and the exponent it acts through.
-            let power = params
-                .get("sensor")
-                .and_then(Value::as_str)
-                .and_then(|s| features::power_of(s).map(|(c, p, _)| (c.to_string(), p)));
-            if let Some((column, exponent)) = power {
-                params.insert("column".into(), column.into());
-                params.insert("exponent".into(), exponent.into());
-            }
-            self.findings.push((
-                term.gain_rss,
-                Finding {
-                    effect: model.id().into(),
-                    axis: axis.to_string(),
-                    signal: signal.to_string(),
-                    explanation: report::explanation(model.id()).into(),
-                    equation: model.equation(axis),
-                    params,
-                    ci95: cis[k].clone(),
-                    evidence: Evidence {
-                        delta_bic: term.delta_bic,
-                        p_value: term.p_value,
-                    },
-                    rms_after_um: term.rms_after_um,
-                    heldout_rms_before_um: term.heldout_rms_before_um,
-                    heldout_rms_after_um: term.heldout_rms_after_um,
-                    driver_range: None,
-                },
-            ));
-            for alt in &term.ambiguous_with {
-                self.ambiguous = true;
-                let exp = separating_experiment(term.cand.effect_id(), alt.cand.effect_id());
-                self.alternatives.push(AlternativeOut {
-                    effect: alt.cand.effect_id().into(),
-                    axis: Some(axis.to_string()),
-                    why_not: format!(
-                        "{} explains the same residual of {signal} as {} (ΔBIC {:.1} vs {:.1}, correlation {:.3}): the data cannot separate them; {exp}",
-                        alt.cand.label(),
-                        term.cand.label(),
-                        alt.delta_bic,
-                        term.delta_bic,
-                        alt.corr
-                    ),
-                    experiment: Some(exp),
-                });
-            }
-        }
-    }
-
-    /// Runners-up of the first step that were not taken: why not.
-    fn runners_up(&mut self, sel: &select::SignalSelection, signal: &str, opts: &Options) {
-        let axis = sel.axis;
-        let chosen: Vec<String> = sel
-            .terms
-            .iter()
-            .map(|t| t.cand.effect_id().to_string())
-            .collect();
-        let (first_label, best) = sel.first_choice.clone().unwrap_or_default();
-        for (c, dbic) in sel
-            .runners_up
-            .iter()
-            .filter(|(c, _)| !chosen.iter().any(|e| e == c.effect_id()))
-            .take(2)
-        {
-            if self.alternatives.iter().any(|a: &AlternativeOut| {
-                a.effect == c.effect_id() && a.axis.as_deref() == Some(&axis.to_string())
-            }) {
-                continue;
-            }
-            let why = if sel.terms.is_empty() {
-                format!(
-                    "best candidate for {signal} but below the bar (ΔBIC {dbic:.1}; needs > {} with a Holm-corrected F-test and a held-out gain)",
-                    opts.min_delta_bic
-                )
-            } else {
-                format!(
-                    "{} on {signal}: ΔBIC {dbic:.1} against {best:.1} for {first_label}, the term chosen at the first step",
-                    c.label()
-                )
-            };
-            self.alternatives.push(AlternativeOut {
-                effect: c.effect_id().into(),
-                axis: Some(axis.to_string()),
-                why_not: why,
-                experiment: None,
-            });
-        }
-    }
-
-    /// The report (findings by RSS gain, the verdict) and the diagnosis.
-    fn finish(self, ctx: Context) -> Diagnosis {
-        let Assembly {
-            sensor_faults,
-            mut findings,
-            alternatives,
-            dropped,
-            forward_check,
-            mismatch,
-            signals,
-            ambiguous,
-            all_sq,
-            all_n,
-        } = self;
-        findings.sort_by(|a, b| b.0.total_cmp(&a.0));
-        let findings: Vec<Finding> = findings.into_iter().map(|f| f.1).collect();
-        let verdict = if findings.is_empty() {
-            "none"
-        } else if ambiguous {
-            "ambiguous"
-        } else {
-            "found"
-        };
-        let report = Report {
-            verdict: verdict.into(),
-            rms_before_um: (all_sq / all_n.max(1) as f64).sqrt(),
-            sensor_faults,
-            mismatch,
-            findings,
-            alternatives,
-            dropped,
-            forward_check,
-        };
-        Diagnosis {
-            report,
-            signals,
-            context: ctx,
-        }
+/// `f` over every signal's item, in parallel when `side_by_side`; the results in the items' order
+/// either way (rayon's `collect` keeps it).
+fn each_signal<T: Send, U: Send>(
+    side_by_side: bool,
+    items: impl IntoParallelIterator<Item = T> + IntoIterator<Item = T>,
+    f: impl Fn(T) -> U + Sync + Send,
+) -> Vec<U> {
+    if side_by_side {
+        items.into_par_iter().map(f).collect()
+    } else {
+        items.into_iter().map(f).collect()
     }
 }
 
@@ -561,8 +300,10 @@ impl Assembly {
 mod tests {
     use super::*;
     use candidates::{Candidate, Kind};
+    use heldout::Heldout;
+    use refit::parsimony_drop;
     use selection::Term;
-    use serde_json::json;
+    use serde_json::{Map, json};
 
     /// Parsimony's removal test: of two lags of near-identical sensors (the second a copy of the
     /// first plus a little noise), whose gains' intervals both exclude 0, one does not improve

@@ -2,7 +2,8 @@
 //! the exchange, the final refit), for a caller's progress line (`retrocomp diagnose` draws it on
 //! stderr). One observer per process, set with [`observe`] and removed when its guard drops; with
 //! none set a stage costs one uncontended read lock. Stages are reported from the thread that
-//! drives the diagnosis, never from the parallel screening, so the observer sees them in order.
+//! drives a signal's diagnosis, never from the parallel screening, so the observer sees each
+//! signal's stages in order (two signals diagnosed side by side interleave theirs).
 
 use std::sync::RwLock;
 

@@ -107,9 +107,10 @@ fn restarted_lag_is_a_lag_started_fresh_at_each_block() {
 }
 
 /// The screening and the exchange run on rayon's pool and collect in library order, each cyclic
-/// candidate's period grid swept in fixed parallel chunks: the whole diagnosis serialises to the
-/// same bytes on one thread and on two (issue 39 point 3). 7 mm steps give a period grid of one
-/// chunk, 1 mm steps one of several.
+/// candidate's period grid swept in fixed parallel chunks, and the two error signals are diagnosed
+/// side by side and merged in signal order: the whole diagnosis serialises to the same bytes on
+/// one thread (signals in turn) and on two (issue 39 point 3). 7 mm steps give a period grid of
+/// one chunk, 1 mm steps one of several.
 #[test]
 fn the_diagnosis_is_the_same_on_one_thread_and_on_two() {
     use crate::diagnose::candidates::SWEEP_CHUNK;
@@ -149,12 +150,20 @@ fn same_on_one_thread_and_on_two(steps: usize, step_mm: f64) -> usize {
                 + rng.random_range(-0.5..0.5)
         })
         .collect();
+    // Y follows X at half the stroke; its error is thermal only, with a different gain.
+    let y: Vec<f64> = x.iter().map(|v| 0.5 * v).collect();
+    let ey: Vec<f64> = (0..n)
+        .map(|i| -1.3 * (temp_lag[i] - 20.0) + rng.random_range(-0.5..0.5))
+        .collect();
     let rec = Recording::from_columns(vec![
         ("t_s".into(), t),
         ("x_mm".into(), x),
+        ("y_mm".into(), y),
         ("T_spindle_C".into(), temp),
         ("ex_um".into(), ex),
         ("sim_ex_um".into(), vec![0.0; n]),
+        ("ey_um".into(), ey),
+        ("sim_ey_um".into(), vec![0.0; n]),
     ])
     .unwrap();
     let on = |threads: usize| {
@@ -167,6 +176,7 @@ fn same_on_one_thread_and_on_two(steps: usize, step_mm: f64) -> usize {
     };
     let one = on(1);
     assert!(one.contains("backlash"), "{one}");
+    assert!(one.contains(r#""signal":"ey_um""#), "{one}");
     assert_eq!(one, on(2));
     let ctx = Context::from_recording(&rec);
     let lib = crate::diagnose::candidates::library(&ctx, 'x');
