@@ -182,41 +182,107 @@ struct Run {
     notes: Vec<(Instant, String)>,
 }
 
+/// Brokers C and H, the proxy between H's bridge and C, and C's bridge notifications.
+struct Brokers {
+    c: Broker,
+    h: Broker,
+    proxy: Proxy,
+    notes: Notes,
+    /// Client ports of C and H.
+    ports: (u16, u16),
+    h_log: std::path::PathBuf,
+    _dir: tempfile::TempDir,
+}
+
+impl Brokers {
+    /// Starts C, the proxy and H, and waits until C says the bridge is up.
+    fn start() -> Brokers {
+        let dir = tempfile::tempdir().unwrap();
+        let (dc, dh) = (dir.path().join("c"), dir.path().join("h"));
+        std::fs::create_dir_all(&dc).unwrap();
+        std::fs::create_dir_all(&dh).unwrap();
+        let (pc, ph, pp) = (free_port(), free_port(), free_port());
+        let c = Broker::start_conf(
+            &dc,
+            pc,
+            "persistence false\nlog_dest none\nmax_queued_messages 1000000\n",
+            "allow_anonymous true\n",
+        );
+        let proxy = Proxy::start(pp, pc);
+        let notes = watch_bridge_state(pc);
+        let h_log = dh.join("mosquitto.log");
+        // NBIRTH is QoS 0 (Sparkplug): queued for the bridge during an outage only with
+        // queue_qos0_messages. One message in flight per client (H's only busy outgoing client
+        // is the bridge): with Mosquitto's default 20 the resends after a reconnect once
+        // overtook a queued NDATA of the same box (3 seq gaps, nothing lost); 1 is what its
+        // manual names for in-order delivery, which Sparkplug's seq needs.
+        let h = Broker::start_conf(
+            &dh,
+            ph,
+            &format!(
+                "persistence true\npersistence_location {}/\nlog_dest file {}\n\
+                 log_type error\nlog_type warning\nlog_type notice\nlog_type information\n\
+                 max_queued_messages 1000000\nqueue_qos0_messages true\n\
+                 max_inflight_messages 1\n",
+                dh.display(),
+                h_log.display()
+            ),
+            &bridge_section(pp),
+        );
+        let up = |n: &Notes| n.lock().unwrap().last().is_some_and(|l| l.1 == "1");
+        wait_until("the bridge never came up", || up(&notes));
+        Brokers {
+            c,
+            h,
+            proxy,
+            notes,
+            ports: (pc, ph),
+            h_log,
+            _dir: dir,
+        }
+    }
+
+    /// Cuts the link for `CUT` (restarting H meanwhile if asked); returns when it was cut and
+    /// restored.
+    fn outage(&mut self, outage: Outage) -> (Instant, Instant) {
+        let down = Instant::now();
+        self.proxy.cut();
+        if outage == Outage::CutLinkAndRestartHall {
+            std::thread::sleep(CUT / 3);
+            self.h.stop();
+            self.h.restart();
+            eprintln!(
+                "broker H restarted {:.2} s after the cut",
+                down.elapsed().as_secs_f64()
+            );
+        }
+        std::thread::sleep(CUT.saturating_sub(down.elapsed()));
+        self.proxy.restore();
+        (down, Instant::now())
+    }
+
+    /// H's log lines about its bridge.
+    fn print_bridge_log(&self) {
+        if let Ok(log) = std::fs::read_to_string(&self.h_log) {
+            for l in log
+                .lines()
+                .filter(|l| l.contains("Connecting bridge") || l.contains("local.bridge-hall-1"))
+            {
+                eprintln!("broker H: {l}");
+            }
+        }
+    }
+}
+
 /// Runs `load` on each broker (groups `<group>-c` and `<group>-h`) with `outage` a third into
 /// the window.
 fn run(load: &Load, outage: Outage) -> Run {
     let exe = hil_sim::fleet_load_next_to_retrocomp();
-    let dir = tempfile::tempdir().unwrap();
-    let (dc, dh) = (dir.path().join("c"), dir.path().join("h"));
-    std::fs::create_dir_all(&dc).unwrap();
-    std::fs::create_dir_all(&dh).unwrap();
-    let (pc, ph, pp) = (free_port(), free_port(), free_port());
-    let c = Broker::start_conf(
-        &dc,
-        pc,
-        "persistence false\nlog_dest none\nmax_queued_messages 1000000\n",
-        "allow_anonymous true\n",
+    let mut b = Brokers::start();
+    let (bc, bh) = (
+        format!("127.0.0.1:{}", b.ports.0),
+        format!("127.0.0.1:{}", b.ports.1),
     );
-    let mut proxy = Proxy::start(pp, pc);
-    let notes = watch_bridge_state(pc);
-    // NBIRTH is QoS 0 (Sparkplug): queued for the bridge during an outage only with
-    // queue_qos0_messages.
-    let mut h = Broker::start_conf(
-        &dh,
-        ph,
-        &format!(
-            "persistence true\npersistence_location {}/\nlog_dest file {}\n\
-             log_type error\nlog_type warning\nlog_type notice\nlog_type information\n\
-             max_queued_messages 1000000\nqueue_qos0_messages true\n",
-            dh.display(),
-            dh.join("mosquitto.log").display()
-        ),
-        &bridge_section(pp),
-    );
-    let up = |n: &Notes| n.lock().unwrap().last().is_some_and(|l| l.1 == "1");
-    wait_until("the bridge never came up", || up(&notes));
-
-    let (bc, bh) = (format!("127.0.0.1:{pc}"), format!("127.0.0.1:{ph}"));
     let (gc, gh) = (format!("{}-c", load.group), format!("{}-h", load.group));
     let mut host_c = HostProc::start(&exe, &bc, &gc, None, 50);
     let mut host_h = HostProc::start(&exe, &bc, &gh, None, 50);
@@ -233,7 +299,7 @@ fn run(load: &Load, outage: Outage) -> Run {
     host_c.reset_latency();
     host_h.reset_latency();
     // Broker H's CPU is of its first process (only the run without an outage reports it).
-    let (c_pid, h_pid) = (c.pid(), h.pid());
+    let (c_pid, h_pid) = (b.c.pid(), b.h.pid());
     let ticks = || {
         (
             cpu_ticks(c_pid),
@@ -251,20 +317,7 @@ fn run(load: &Load, outage: Outage) -> Run {
     let mut cut = None;
     if outage != Outage::None {
         std::thread::sleep(window / 3);
-        let down = Instant::now();
-        proxy.cut();
-        if outage == Outage::CutLinkAndRestartHall {
-            std::thread::sleep(CUT / 3);
-            h.stop();
-            h.restart();
-            eprintln!(
-                "broker H restarted {:.2} s after the cut",
-                down.elapsed().as_secs_f64()
-            );
-        }
-        std::thread::sleep(CUT.saturating_sub(down.elapsed()));
-        proxy.restore();
-        cut = Some((down, Instant::now()));
+        cut = Some(b.outage(outage));
     }
     std::thread::sleep(window.saturating_sub(t0.elapsed()));
     let window_s = t0.elapsed().as_secs_f64();
@@ -274,6 +327,8 @@ fn run(load: &Load, outage: Outage) -> Run {
     let n = load.procs * load.boxes_per_proc;
     host_c.wait_for(sent_c.produced, n);
     host_h.wait_for(sent_h.produced, n);
+    b.print_bridge_log();
+    // Clock ticks are 1/100 s: ticks / window_s is % of one core.
     let pct = |a: u64, b: u64| (b - a) as f64 / window_s;
     let side = |sent, connected, host: &HostProc, host_cpu, broker_cpu| Side {
         sent,
@@ -283,7 +338,7 @@ fn run(load: &Load, outage: Outage) -> Run {
         host_cpu_pct: host_cpu,
         broker_cpu_pct: broker_cpu,
     };
-    let r = Run {
+    Run {
         c: side(
             sent_c,
             connected_c,
@@ -301,17 +356,8 @@ fn run(load: &Load, outage: Outage) -> Run {
         window_s,
         machine_busy_pct: 100.0 * (t1s.4.0 - t0s.4.0) as f64 / (t1s.4.1 - t0s.4.1).max(1) as f64,
         cut,
-        notes: notes.lock().unwrap().clone(),
-    };
-    if let Ok(log) = std::fs::read_to_string(dh.join("mosquitto.log")) {
-        for l in log
-            .lines()
-            .filter(|l| l.contains("ridge") || l.contains("hall"))
-        {
-            eprintln!("broker H: {l}");
-        }
+        notes: b.notes.lock().unwrap().clone(),
     }
-    r
 }
 
 /// The longest stretch in `history` with no new NDATA, inside `[from, to]`: (start, end).
