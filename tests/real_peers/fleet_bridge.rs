@@ -413,13 +413,15 @@ fn boxes_on_two_bridged_brokers_lose_nothing_through_a_bridge_link_cut() {
     through_an_outage("bridge-cut", Outage::CutLink);
 }
 
-/// Fails with Mosquitto 2.0.11 (Debian 12): after broker H's restart from its persistence file,
-/// 10 of the records its bridge had queued (one per box) never crossed the bridge — in a run
+/// Fails with Mosquitto 2.0.11 (Debian 12): with its default `max_inflight_messages 20`, after
+/// broker H's restart from its persistence file, 10 of the records its bridge had queued (one per box) never crossed the bridge — in a run
 /// with H's `log_type all`, the bridge sent message ids 413–432 after the restart, then 443
-/// onwards: ids 433–442 appear nowhere in the log. Kept to rerun against
+/// onwards: ids 433–442 appear nowhere in the log. With `max_inflight_messages 1` (the config
+/// here) the bridge reconnected after the restart but nothing more of H's boxes reached the host
+/// (432 of 1210 records, no NDEATH) within the patience. Kept to rerun against
 /// another broker version; docs/fleet.md says what this means for a hall broker's restart.
 #[test]
-#[ignore = "Mosquitto 2.0.11 loses part of a bridge's restored queue (docs/fleet.md): cargo test --test real_peers fleet_bridge:: -- --ignored"]
+#[ignore = "Mosquitto 2.0.11 loses or stalls a bridge's restored queue (docs/fleet.md): cargo test --test real_peers fleet_bridge:: -- --ignored"]
 fn boxes_on_two_bridged_brokers_lose_nothing_when_the_hall_broker_restarts_during_a_cut() {
     let _turn = crate::turn::take(file!());
     through_an_outage("bridge-restart", Outage::CutLinkAndRestartHall);
