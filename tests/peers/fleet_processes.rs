@@ -18,7 +18,7 @@ use retrocomp_fleet::load::{BoxesReport, HostTotals};
 
 /// How long the host may take to subscribe, and to see every record after the boxes finished:
 /// only a broken path reaches it.
-const PATIENCE: Duration = Duration::from_secs(180);
+pub(crate) const PATIENCE: Duration = Duration::from_secs(180);
 
 /// utime + stime of a process (/proc/<pid>/stat fields 14 and 15), clock ticks (1/100 s).
 pub(crate) fn cpu_ticks(pid: u32) -> u64 {
@@ -87,8 +87,9 @@ pub(crate) struct Outcome {
 }
 
 impl Outcome {
+    /// Produced − received, a duplicate (a QoS 1 resend) not counted as received.
     pub(crate) fn lost(&self) -> i64 {
-        self.sent.produced as i64 - self.seen.ndata as i64
+        self.sent.produced as i64 - (self.seen.ndata - self.seen.duplicates) as i64
     }
 
     pub(crate) fn latency(&self) -> LatencySummary {
@@ -120,6 +121,174 @@ fn link_args(broker: &str, group: &str, ca: Option<&Path>) -> Vec<std::ffi::OsSt
     a
 }
 
+/// A fleet host process (`fleet_load host`) on one broker and group, its latest totals, and
+/// every totals line it printed with when it was read.
+pub(crate) struct HostProc {
+    child: Killed,
+    latest: Arc<Mutex<Vec<(Instant, HostTotals)>>>,
+}
+
+impl HostProc {
+    /// Starts the host on `broker` (HOST:PORT) for `group`, printing its totals every
+    /// `every_ms`, and waits until it is subscribed.
+    pub(crate) fn start(
+        exe: &Path,
+        broker: &str,
+        group: &str,
+        ca: Option<&Path>,
+        every_ms: u64,
+    ) -> HostProc {
+        let mut child = Killed(
+            Command::new(exe)
+                .args(["host", "--every-ms", &every_ms.to_string()])
+                .args(link_args(broker, group, ca))
+                .stdin(Stdio::piped())
+                .stdout(Stdio::piped())
+                .spawn()
+                .expect("start the fleet-load host"),
+        );
+        let latest: Arc<Mutex<Vec<(Instant, HostTotals)>>> = Arc::default();
+        let out = child.0.stdout.take().expect("piped");
+        let lines = latest.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(out).lines().map_while(Result::ok) {
+                let t: HostTotals = serde_json::from_str(&line).expect("a host totals line");
+                lines.lock().unwrap().push((Instant::now(), t));
+            }
+        });
+        let mut h = HostProc { child, latest };
+        let start = Instant::now();
+        while !h.seen().subscribed {
+            assert!(
+                h.child.0.try_wait().unwrap().is_none(),
+                "the fleet-load host exited"
+            );
+            assert!(start.elapsed() < PATIENCE, "the host did not subscribe");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        h
+    }
+
+    pub(crate) fn pid(&self) -> u32 {
+        self.child.0.id()
+    }
+
+    /// The latest totals.
+    pub(crate) fn seen(&self) -> HostTotals {
+        self.latest
+            .lock()
+            .unwrap()
+            .last()
+            .map(|l| l.1)
+            .unwrap_or_default()
+    }
+
+    /// Every totals line so far, with when it was read.
+    pub(crate) fn history(&self) -> Vec<(Instant, HostTotals)> {
+        self.latest.lock().unwrap().clone()
+    }
+
+    /// Restarts the host's latency from records sampled from now on.
+    pub(crate) fn reset_latency(&mut self) {
+        let stdin = self.child.0.stdin.as_mut().expect("piped");
+        std::io::Write::write_all(stdin, b"reset\n").unwrap();
+    }
+
+    /// Waits until the host has `produced` distinct NDATA and `offline` NDEATHs (or PATIENCE);
+    /// returns when it had them (or gave up).
+    pub(crate) fn wait_for(&self, produced: u64, offline: usize) -> Instant {
+        let done = Instant::now();
+        while !(self.seen().ndata - self.seen().duplicates >= produced
+            && self.seen().offline == offline)
+            && done.elapsed() < PATIENCE
+        {
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let had = Instant::now();
+        // One more totals line after the last record, so the latency counts every NDATA.
+        std::thread::sleep(Duration::from_millis(400));
+        had
+    }
+}
+
+/// The box processes of one load on one broker, connected and born, waiting for `go`.
+pub(crate) struct BoxProcs {
+    procs: Vec<(Killed, BufReader<ChildStdout>)>,
+    pub connected: usize,
+}
+
+impl BoxProcs {
+    /// Spawns `load`'s box processes against `broker`, boxes numbered from `first`: one process
+    /// at a time, each once the one before is connected and born (a plant's boxes do not all
+    /// open their sessions in the same millisecond).
+    pub(crate) fn spawn(
+        exe: &Path,
+        broker: &str,
+        ca: Option<&Path>,
+        load: &Load,
+        first: usize,
+    ) -> BoxProcs {
+        let mut procs = Vec::with_capacity(load.procs);
+        let mut connected = 0;
+        for p in 0..load.procs {
+            let first = (first + p * load.boxes_per_proc).to_string();
+            let count = load.boxes_per_proc.to_string();
+            let rate = load.rate_hz.to_string();
+            let secs = load.seconds.to_string();
+            let nice = load.boxes_nice.to_string();
+            let mut c = Killed(
+                Command::new("nice")
+                    .args(["-n", &nice])
+                    .arg(exe)
+                    .args(["boxes", "--wait-go", "--first", &first])
+                    .args(["--count", &count, "--rate-hz", &rate, "--seconds", &secs])
+                    .args(link_args(broker, &load.group, ca))
+                    .stdin(Stdio::piped())
+                    .stdout(Stdio::piped())
+                    .spawn()
+                    .expect("start a fleet-load boxes process"),
+            );
+            let mut out = BufReader::new(c.0.stdout.take().expect("piped"));
+            let mut line = String::new();
+            out.read_line(&mut line).unwrap();
+            let v: serde_json::Value = serde_json::from_str(&line).expect("a connected line");
+            connected += v["connected"].as_u64().expect("connected: N") as usize;
+            procs.push((c, out));
+        }
+        BoxProcs { procs, connected }
+    }
+
+    /// CPU of every box process together, clock ticks.
+    pub(crate) fn ticks(&self) -> u64 {
+        self.procs.iter().map(|(b, _)| cpu_ticks(b.0.id())).sum()
+    }
+
+    /// Starts every process's `--seconds`.
+    pub(crate) fn go(&mut self) {
+        for (b, _) in &mut self.procs {
+            let go = b.0.stdin.as_mut().expect("piped");
+            std::io::Write::write_all(go, b"go\n").unwrap();
+        }
+    }
+
+    /// Waits for every process's report (after its window, every box finished) and sums them.
+    pub(crate) fn finish(mut self) -> BoxesReport {
+        let mut sent = BoxesReport::default();
+        for (b, o) in &mut self.procs {
+            let mut out = String::new();
+            std::io::Read::read_to_string(o, &mut out).unwrap();
+            let st = b.0.wait().unwrap();
+            assert!(st.success(), "a fleet-load boxes process failed ({st})");
+            let r: BoxesReport = serde_json::from_str(out.trim()).expect("a boxes report line");
+            sent.boxes += r.boxes;
+            sent.produced += r.produced;
+            sent.dropped += r.dropped;
+            sent.left += r.left;
+        }
+        sent
+    }
+}
+
 /// Runs `load` with `exe` (hil-sim's `fleet_load` binary) against the broker at `broker` (HOST:PORT,
 /// process `broker_pid`), over TLS with `ca`.
 pub(crate) fn run(
@@ -129,120 +298,40 @@ pub(crate) fn run(
     ca: Option<&Path>,
     load: &Load,
 ) -> Outcome {
-    let mut host = Killed(
-        Command::new(exe)
-            .args(["host", "--every-ms", "200"])
-            .args(link_args(broker, &load.group, ca))
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("start the fleet-load host"),
-    );
-    let latest: Arc<Mutex<Option<HostTotals>>> = Arc::default();
-    {
-        let out = host.0.stdout.take().expect("piped");
-        let latest = latest.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(out).lines().map_while(Result::ok) {
-                let t: HostTotals = serde_json::from_str(&line).expect("a host totals line");
-                *latest.lock().unwrap() = Some(t);
-            }
-        });
-    }
-    let seen = || latest.lock().unwrap().unwrap_or_default();
-    let start = Instant::now();
-    while !seen().subscribed {
-        assert!(
-            host.0.try_wait().unwrap().is_none(),
-            "the fleet-load host exited"
-        );
-        assert!(start.elapsed() < PATIENCE, "the host did not subscribe");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-
-    // One process at a time, each once the one before is connected and born: a plant's boxes do
-    // not all open their TLS sessions in the same millisecond. The window starts once every box
-    // is (the connect storm is not the steady state; its records still count for loss and gaps).
+    let mut host = HostProc::start(exe, broker, &load.group, ca, 200);
+    // The window starts once every box is connected and born (the connect storm is not the
+    // steady state; its records still count for loss and gaps).
     let spawned = Instant::now();
-    let mut boxes: Vec<(Killed, BufReader<ChildStdout>)> = Vec::with_capacity(load.procs);
-    let mut connected = 0;
-    for p in 0..load.procs {
-        let first = (p * load.boxes_per_proc).to_string();
-        let count = load.boxes_per_proc.to_string();
-        let rate = load.rate_hz.to_string();
-        let secs = load.seconds.to_string();
-        let nice = load.boxes_nice.to_string();
-        let mut c = Killed(
-            Command::new("nice")
-                .args(["-n", &nice])
-                .arg(exe)
-                .args(["boxes", "--wait-go", "--first", &first])
-                .args(["--count", &count, "--rate-hz", &rate, "--seconds", &secs])
-                .args(link_args(broker, &load.group, ca))
-                .stdin(Stdio::piped())
-                .stdout(Stdio::piped())
-                .spawn()
-                .expect("start a fleet-load boxes process"),
-        );
-        let mut out = BufReader::new(c.0.stdout.take().expect("piped"));
-        let mut line = String::new();
-        out.read_line(&mut line).unwrap();
-        let v: serde_json::Value = serde_json::from_str(&line).expect("a connected line");
-        connected += v["connected"].as_u64().expect("connected: N") as usize;
-        boxes.push((c, out));
-    }
+    let mut boxes = BoxProcs::spawn(exe, broker, ca, load, 0);
     let connect_s = spawned.elapsed().as_secs_f64();
-    let mut stdin = host.0.stdin.take().expect("piped");
-    std::io::Write::write_all(&mut stdin, b"reset\n").unwrap();
-    let ticks = |boxes: &[(Killed, BufReader<ChildStdout>)]| -> u64 {
-        boxes.iter().map(|(b, _)| cpu_ticks(b.0.id())).sum()
-    };
+    host.reset_latency();
     let (cpu0, host0, boxes0, m0) = (
         cpu_ticks(broker_pid),
-        cpu_ticks(host.0.id()),
-        ticks(&boxes),
+        cpu_ticks(host.pid()),
+        boxes.ticks(),
         machine_ticks(),
     );
-    for (b, _) in &mut boxes {
-        let go = b.0.stdin.as_mut().expect("piped");
-        std::io::Write::write_all(go, b"go\n").unwrap();
-    }
+    boxes.go();
     let t0 = Instant::now();
     std::thread::sleep(Duration::from_secs_f64(load.seconds));
     let window_s = t0.elapsed().as_secs_f64();
     // Read before the box processes exit (they finish right after their own window).
     let (cpu1, host1, boxes1, m1) = (
         cpu_ticks(broker_pid),
-        cpu_ticks(host.0.id()),
-        ticks(&boxes),
+        cpu_ticks(host.pid()),
+        boxes.ticks(),
         machine_ticks(),
     );
-
-    let mut sent = BoxesReport::default();
-    for (b, o) in &mut boxes {
-        let mut out = String::new();
-        std::io::Read::read_to_string(o, &mut out).unwrap();
-        let st = b.0.wait().unwrap();
-        assert!(st.success(), "a fleet-load boxes process failed ({st})");
-        let r: BoxesReport = serde_json::from_str(out.trim()).expect("a boxes report line");
-        sent.boxes += r.boxes;
-        sent.produced += r.produced;
-        sent.dropped += r.dropped;
-        sent.left += r.left;
-    }
+    let connected = boxes.connected;
+    let sent = boxes.finish();
     let total = load.procs * load.boxes_per_proc;
-    let done = Instant::now();
-    while !(seen().ndata >= sent.produced && seen().offline == total) && done.elapsed() < PATIENCE {
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    let drain_s = t0.elapsed().as_secs_f64() - window_s;
-    // One more totals line after the last record, so the latency counts every NDATA.
-    std::thread::sleep(Duration::from_millis(400));
+    let had = host.wait_for(sent.produced, total);
+    let drain_s = (had - t0).as_secs_f64() - window_s;
     let pct = |a: u64, b: u64| 100.0 * (b - a) as f64 / 100.0 / window_s;
     Outcome {
         boxes: total,
         sent,
-        seen: seen(),
+        seen: host.seen(),
         window_s,
         broker_cpu_pct: pct(cpu0, cpu1),
         host_cpu_pct: pct(host0, host1),

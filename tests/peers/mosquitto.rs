@@ -1,8 +1,9 @@
-//! A Mosquitto child for the MQTT tests: loopback only, anonymous, no persistence, started from a
-//! generated config on a given port (never the system service), plain or TLS-only (a CA and a
-//! server certificate made with openssl); killed on drop. Shared by
-//! `telemetry_mqtt.rs` and `telemetry_fleet_drift.rs` (each includes it with `#[path]` beside
-//! `mod peers;`).
+//! A Mosquitto child for the MQTT tests: loopback only, anonymous, started from a generated config
+//! on a given port (never the system service), plain or TLS-only (a CA and a server certificate
+//! made with openssl); killed on drop. No persistence and no log unless the config given says
+//! otherwise ([`Broker::start_conf`]: e.g. a bridge section, `persistence true`), and such a broker
+//! can be stopped gracefully and started again on the same config and port (a restart). Shared by
+//! the MQTT and fleet tests (each includes it with `#[path]` beside `mod peers;`).
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
@@ -11,10 +12,15 @@ use std::time::{Duration, Instant};
 
 use crate::peers::tool;
 
-/// How long a starting broker may take to listen; only a broken install reaches it.
+/// How long a starting broker may take to listen, or a stopping one to exit; only a broken
+/// install reaches it.
 const LISTEN_PATIENCE: Duration = Duration::from_secs(120);
 
-pub(crate) struct Broker(Child);
+pub(crate) struct Broker {
+    child: Child,
+    conf: PathBuf,
+    port: u16,
+}
 
 impl Broker {
     pub(crate) fn start(dir: &Path, port: u16) -> Broker {
@@ -38,56 +44,94 @@ impl Broker {
 
     /// `listener_opts`: lines for the listener (e.g. its TLS files).
     fn with_listener(dir: &Path, port: u16, listener_opts: &str) -> Broker {
+        Self::start_conf(
+            dir,
+            port,
+            "persistence false\nlog_dest none\n",
+            &format!("{listener_opts}allow_anonymous true\n"),
+        )
+    }
+
+    /// A plain broker on `port` whose config (`dir/mosquitto.conf`) is `globals` (e.g.
+    /// `persistence true`, `persistence_location`, `log_dest file …`), then the listener, then
+    /// `tail` (its options, then e.g. a bridge section: `connection` starts one, and every line
+    /// after it belongs to it). `tail` should say `allow_anonymous true` for the clients here.
+    pub(crate) fn start_conf(dir: &Path, port: u16, globals: &str, tail: &str) -> Broker {
         let conf = dir.join("mosquitto.conf");
         // `user root` only when run as root: mosquitto would otherwise drop to its own user, which
         // cannot read the key in a root-owned temporary directory.
         let user = if is_root() { "user root\n" } else { "" };
         std::fs::write(
             &conf,
-            format!(
-                "{user}listener {port} 127.0.0.1\n{listener_opts}allow_anonymous true\npersistence false\nlog_dest none\n"
-            ),
+            format!("{user}{globals}listener {port} 127.0.0.1\n{tail}"),
         )
         .unwrap();
-        // Debian installs it in /usr/sbin, which a user's PATH may lack.
-        let exe = if Path::new("/usr/sbin/mosquitto").is_file() {
-            "/usr/sbin/mosquitto".into()
-        } else {
-            tool("mosquitto")
-        };
-        let child = Command::new(exe)
-            .arg("-c")
-            .arg(&conf)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start mosquitto (scripts/setup-peers.sh installs it)");
-        let deadline = Instant::now() + LISTEN_PATIENCE;
-        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(
-                Instant::now() < deadline,
-                "mosquitto did not listen on {port}"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        Broker(child)
+        let child = spawn(&conf, port);
+        Broker { child, conf, port }
     }
 
     pub(crate) fn pid(&self) -> u32 {
-        self.0.id()
+        self.child.id()
+    }
+
+    /// Stops the broker gracefully (SIGTERM: it closes its clients and bridges and, with
+    /// `persistence true`, writes its sessions and queues) and waits for it to exit.
+    pub(crate) fn stop(&mut self) {
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status();
+        let deadline = Instant::now() + LISTEN_PATIENCE;
+        while self.child.try_wait().unwrap().is_none() {
+            assert!(
+                Instant::now() < deadline,
+                "mosquitto did not exit on SIGTERM"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Starts the broker again on the same config and port (after [`Broker::stop`]).
+    pub(crate) fn restart(&mut self) {
+        self.child = spawn(&self.conf, self.port);
     }
 
     /// Kills the broker now (a broker outage mid-run).
     pub(crate) fn kill(mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
+        let _ = self.child.kill();
+        let _ = self.child.wait();
     }
+}
+
+/// Starts mosquitto on `conf` and waits until it listens on `port`.
+fn spawn(conf: &Path, port: u16) -> Child {
+    // Debian installs it in /usr/sbin, which a user's PATH may lack.
+    let exe = if Path::new("/usr/sbin/mosquitto").is_file() {
+        "/usr/sbin/mosquitto".into()
+    } else {
+        tool("mosquitto")
+    };
+    let child = Command::new(exe)
+        .arg("-c")
+        .arg(conf)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start mosquitto (scripts/setup-peers.sh installs it)");
+    let deadline = Instant::now() + LISTEN_PATIENCE;
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            Instant::now() < deadline,
+            "mosquitto did not listen on {port}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child
 }
 
 impl Drop for Broker {
     fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
+        let _ = self.child.kill();
+        let _ = self.child.wait();
     }
 }
 

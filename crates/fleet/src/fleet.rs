@@ -51,6 +51,9 @@ pub struct Node {
     pub ndata: u64,
     /// NDATA whose seq was not one more than the message before (messages lost or reordered).
     pub seq_gaps: u64,
+    /// NDATA whose seq equals the one before in the same session: a QoS 1 resend (at-least-once
+    /// delivery), counted here and neither as a gap nor as a new record.
+    pub duplicates: u64,
     /// Timestamp of the latest message (the box's clock), ms since the Unix epoch.
     pub last_ms: u64,
     /// When the latest message arrived (the host's clock), ms since the Unix epoch.
@@ -95,6 +98,7 @@ impl Node {
             births: 0,
             ndata: 0,
             seq_gaps: 0,
+            duplicates: 0,
             last_ms: 0,
             last_seen_ms: 0,
             rebirths_requested: 0,
@@ -200,10 +204,12 @@ impl Node {
         self.ndata += 1;
         // seq comes off the wire: any u64, u64::MAX included (2^64 is a multiple of 256, so the
         // wrapping sum is the right residue).
-        if let (Some(l), Some(s)) = (self.last_seq, p.seq)
-            && s != l.wrapping_add(1) % 256
-        {
-            self.seq_gaps += 1;
+        if let (Some(l), Some(s)) = (self.last_seq, p.seq) {
+            if s == l {
+                self.duplicates += 1;
+            } else if s != l.wrapping_add(1) % 256 {
+                self.seq_gaps += 1;
+            }
         }
         self.last_seq = p.seq;
         let mut unknown = false;
@@ -484,6 +490,25 @@ mod tests {
             0,
         );
         assert_eq!(f2.nodes[&("g".to_string(), "n".to_string())].seq_gaps, 1);
+    }
+
+    #[test]
+    fn an_ndata_resent_with_the_same_seq_is_a_duplicate_not_a_gap() {
+        let mut f = FleetView::default();
+        let mut e = EdgeNode::new(0);
+        e.next_connect();
+        f.handle_message("spBv1.0/g/NBIRTH/n", &e.birth(&vals("tracking", 0), 1), 0);
+        let d1 = e.data(&vals("tracking", 0), 2, false);
+        f.handle_message("spBv1.0/g/NDATA/n", &d1, 0);
+        // A QoS 1 resend: the broker got it, its PUBACK was lost.
+        f.handle_message("spBv1.0/g/NDATA/n", &d1, 0);
+        f.handle_message(
+            "spBv1.0/g/NDATA/n",
+            &e.data(&vals("tracking", 0), 3, false),
+            0,
+        );
+        let n = &f.nodes[&("g".to_string(), "n".to_string())];
+        assert_eq!((n.ndata, n.duplicates, n.seq_gaps), (3, 1, 0));
     }
 
     /// A host started after the box: NDATA first (aliases only).

@@ -138,13 +138,16 @@ pub async fn run_boxes<F: Future<Output = ()>>(
     Ok(r)
 }
 
-/// What a fleet host has seen: NDATA received, seq gaps, nodes, nodes offline (their NDEATH
-/// seen), births, and the end-to-end latency of the NDATA.
+/// What a fleet host has seen: NDATA received (duplicates included), seq gaps, duplicates (an
+/// NDATA with the seq of the one before), nodes, nodes offline (their NDEATH seen), births, and
+/// the end-to-end latency of the NDATA.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct HostTotals {
     pub subscribed: bool,
     pub ndata: u64,
     pub gaps: u64,
+    #[serde(default)]
+    pub duplicates: u64,
     pub nodes: usize,
     pub offline: usize,
     pub births: u64,
@@ -158,6 +161,7 @@ impl HostTotals {
             subscribed,
             ndata: n.clone().map(|n| n.ndata).sum(),
             gaps: n.clone().map(|n| n.seq_gaps).sum(),
+            duplicates: n.clone().map(|n| n.duplicates).sum(),
             nodes: n.clone().count(),
             offline: n.clone().filter(|n| !n.alive).count(),
             births: n.map(|n| n.births).sum(),
