@@ -35,6 +35,8 @@ enum Command {
     Demo(cli::demo::Args),
     /// Watch a shop of boxes over MQTT Sparkplug B: alive, compensating, degraded (docs/fleet.md).
     Fleet(cli::fleet::Args),
+    /// Diagnose the fleet's recordings as one of N workers on an MQTT 5 shared subscription (docs/fleet.md).
+    FleetWorker(cli::fleet_worker::Args),
     /// Send a recording to the fleet: MQTT (chunked, resumable) or a directory (docs/fleet.md).
     ShipRecording(cli::ship::Args),
     /// A socketcand-protocol CAN hub on TCP, for `hil-sim serve` and `retrocomp run` without hardware.
@@ -71,6 +73,7 @@ fn main() -> std::process::ExitCode {
         Command::Run(a) => cli::run::run(&a),
         Command::Demo(a) => cli::demo::run(&a),
         Command::Fleet(a) => cli::fleet::run(&a),
+        Command::FleetWorker(a) => cli::fleet_worker::run(&a),
         Command::ShipRecording(a) => cli::ship::run(&a),
         Command::Status(a) => cli::status::run(&a),
         Command::Hub(a) => cli::hub::run(&a),

@@ -7,7 +7,9 @@
 //! With `--seconds` it stops after that long.
 //! With `--collect-dir` it also collects the machines' recordings (crates/gateway/src/northbound/telemetry/recordings.rs);
 //! with `--models` it diagnoses each machine's latest recording against its own model every
-//! `--diagnose-every-s` and flags model drift (crates/fleet/src/drift.rs).
+//! `--diagnose-every-s` and flags model drift (crates/fleet/src/drift.rs); with `--workers` it
+//! publishes those diagnoses as jobs for `retrocomp fleet-worker` processes instead and arbitrates
+//! who does which (crates/fleet/src/dispatch.rs).
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -16,6 +18,7 @@ use std::time::Duration;
 use anyhow::Context as _;
 use retrocomp_model::error::Chain;
 
+use retrocomp_fleet::dispatch::{Dispatcher, Finished, Job};
 use retrocomp_fleet::drift::{self, DriftState, MachineDrift};
 use retrocomp_fleet::fleet::FleetView;
 use retrocomp_fleet::fleet_client::FleetClient;
@@ -66,6 +69,49 @@ pub(crate) struct Args {
     /// Stop once this many machines have been diagnosed (for scripts and tests).
     #[arg(long)]
     pub stop_after_diagnosed: Option<usize>,
+    /// Do not diagnose here: publish each diagnosis as a job for `retrocomp fleet-worker`
+    /// processes (an MQTT 5 shared subscription) and grant each job to one of them.
+    #[arg(long)]
+    pub workers: bool,
+    /// With --workers: publish a job again when no worker claimed it within this long, s.
+    #[arg(long, default_value_t = 30.0)]
+    pub unclaimed_s: f64,
+}
+
+/// Publish a job for every machine that has a recording (paths relative to the directories the
+/// workers share with the host); how many.
+fn submit_all(d: &mut Dispatcher, collect: &std::path::Path, drift_um: f64) -> usize {
+    let mut n = 0;
+    for (g, node) in drift::machines(collect) {
+        let Some(rec) = drift::latest_recording(collect, &g, &node) else {
+            continue;
+        };
+        let Some(rel) = rec.strip_prefix(collect).ok().and_then(|r| r.to_str()) else {
+            continue;
+        };
+        let job = Job {
+            job: 0,
+            recording: rel.to_string(),
+            model: format!("{node}.toml"),
+            group: g,
+            edge_node: node,
+            drift_um,
+        };
+        d.submit(job, now_ms());
+        n += 1;
+    }
+    n
+}
+
+/// A worker's accepted result into the machine's history (as the in-process path keeps it).
+fn take_result(drifts: &mut BTreeMap<(String, String), MachineDrift>, f: Finished) {
+    let key = (f.job.group, f.job.edge_node);
+    let p = drifts.get(&key);
+    let d = drift::with_history(f.drift, p);
+    if d.state == DriftState::Drifted && p.is_none_or(|p| p.state != DriftState::Drifted) {
+        tracing::warn!(group = key.0, edge_node = key.1, rms_um = d.rms_um, worker = f.worker, effect = ?d.finding.as_ref().map(|f| &f.effect), "fleet: model drift");
+    }
+    drifts.insert(key, d);
 }
 
 /// Diagnose every machine that has a recording and a model; `prev` keeps each machine's history.
@@ -94,14 +140,12 @@ fn diagnose_all(
     out
 }
 
-pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
+/// The arguments' checks; the unclaimed-job timeout.
+fn checked(args: &Args) -> anyhow::Result<Duration> {
     anyhow::ensure!(
         args.every_s.is_finite() && args.every_s > 0.0,
         "--every-s must be > 0"
     );
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
     anyhow::ensure!(
         args.diagnose_every_s.is_finite() && args.diagnose_every_s > 0.0,
         "--diagnose-every-s must be > 0"
@@ -114,6 +158,43 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         args.models.is_none() || args.collect_dir.is_some(),
         "--models needs --collect-dir (the recordings to diagnose)"
     );
+    anyhow::ensure!(
+        !args.workers || args.models.is_some(),
+        "--workers needs --models and --collect-dir (the diagnoses to share out)"
+    );
+    Duration::try_from_secs_f64(args.unclaimed_s)
+        .ok()
+        .filter(|d| !d.is_zero())
+        .context("--unclaimed-s must be > 0")
+}
+
+/// The workers' accepted results into `drifts`; true when there were any.
+fn take_results(
+    fc: &mut FleetClient,
+    drifts: &mut BTreeMap<(String, String), MachineDrift>,
+) -> bool {
+    let mut took = false;
+    while let Some(f) = fc.dispatch.as_mut().and_then(Dispatcher::poll_finished) {
+        take_result(drifts, f);
+        took = true;
+    }
+    took
+}
+
+/// `--stop-after-diagnosed` machines have a diagnosis.
+fn enough(args: &Args, drifts: &BTreeMap<(String, String), MachineDrift>) -> bool {
+    let done = drifts
+        .values()
+        .filter(|d| d.state != DriftState::Error)
+        .count();
+    args.stop_after_diagnosed.is_some_and(|n| done >= n)
+}
+
+pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
+    let unclaimed = checked(args)?;
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
     rt.block_on(async {
         let tls = args.tls_ca_file.clone().map(TlsConfig::with_ca);
         let mut fc = FleetClient::with_tls(&args.broker, args.group.as_deref(), tls.as_ref())?;
@@ -121,6 +202,11 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         let rebirth_every_ms = Duration::try_from_secs_f64(args.rebirth_every_s)
             .map_or(0, |d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX));
         fc.view = FleetView::new(rebirth_every_ms);
+        if args.workers {
+            // Job ids start at the host's start time: a restarted host's ids are new ones.
+            let ms = u64::try_from(unclaimed.as_millis()).unwrap_or(u64::MAX);
+            fc.dispatch = Some(Dispatcher::new(now_ms(), ms));
+        }
         // Something changed since the last JSON line.
         let mut changed = true;
         if let Some(d) = &args.collect_dir {
@@ -137,7 +223,20 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         let mut drifts: BTreeMap<(String, String), MachineDrift> = BTreeMap::new();
         let mut diag: Option<tokio::task::JoinHandle<BTreeMap<(String, String), MachineDrift>>> =
             None;
+        // With --workers: a round of jobs is due (published once the host hears the claims:
+        // a claim sent before its subscription is acknowledged would be lost).
+        let mut round_due = false;
         loop {
+            if let (Some(d), Some(c)) = (&mut fc.dispatch, &args.collect_dir)
+                && round_due
+                && fc.subscribed
+                && d.unfinished() == 0
+            {
+                round_due = false;
+                let n = submit_all(d, c, args.drift_um);
+                tracing::info!(jobs = n, "fleet: diagnose jobs published");
+                fc.send_pending()?;
+            }
             tokio::select! {
                 _ = &mut end => break,
                 _ = every.tick() => {
@@ -149,7 +248,9 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
                     }
                 }
                 _ = diag_every.tick(), if diag.is_none() => {
-                    if let (Some(c), Some(m)) = (&args.collect_dir, &args.models) {
+                    if fc.dispatch.is_some() {
+                        round_due = true;
+                    } else if let (Some(c), Some(m)) = (&args.collect_dir, &args.models) {
                         let (c, m, prev, um) = (c.clone(), m.clone(), drifts.clone(), args.drift_um);
                         // diagnose is CPU work: off the MQTT loop.
                         diag = Some(tokio::task::spawn_blocking(move || diagnose_all(&c, &m, um, &prev)));
@@ -159,14 +260,17 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
                     diag = None;
                     drifts = r?;
                     changed = true;
-                    let done = drifts.values().filter(|d| d.state != DriftState::Error).count();
-                    if args.stop_after_diagnosed.is_some_and(|n| done >= n) {
+                    if enough(args, &drifts) {
                         break;
                     }
                 }
                 r = fc.poll() => match r {
                     Ok(c) => {
-                        changed |= c;
+                        let took = take_results(&mut fc, &mut drifts);
+                        changed |= c || took;
+                        if took && enough(args, &drifts) {
+                            break;
+                        }
                         warned = false;
                         if fc.subscribed && !said_subscribed {
                             said_subscribed = true;

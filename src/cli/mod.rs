@@ -13,6 +13,7 @@ pub(crate) mod export;
 pub(crate) mod fit;
 pub(crate) mod fit_report;
 pub(crate) mod fleet;
+pub(crate) mod fleet_worker;
 pub(crate) mod hub;
 pub(crate) mod identify;
 pub(crate) mod import;

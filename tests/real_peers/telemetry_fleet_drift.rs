@@ -30,11 +30,12 @@ fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_retrocomp"))
 }
 
-/// A `retrocomp fleet` child; returns once it said it is subscribed (its stderr).
-struct Fleet(Child);
+/// A `retrocomp fleet` child; returns once it said it is subscribed (its stderr). Also used by
+/// `fleet_workers.rs`.
+pub(crate) struct Fleet(Child);
 
 impl Fleet {
-    fn start(port: u16, extra: &[&str]) -> Fleet {
+    pub(crate) fn start(port: u16, extra: &[&str]) -> Fleet {
         let mut child = bin()
             .args(["fleet", "--broker", &format!("127.0.0.1:{port}")])
             .args(["--group", "shop", "--json", "--seconds", "900"])
@@ -61,7 +62,7 @@ impl Fleet {
     }
 
     /// Wait for the fleet to stop by itself; its nodes (the last JSON line).
-    fn json(mut self) -> serde_json::Value {
+    pub(crate) fn json(mut self) -> serde_json::Value {
         let deadline = Instant::now() + PATIENCE;
         while self.0.try_wait().unwrap().is_none() {
             assert!(Instant::now() < deadline, "fleet did not finish");
@@ -84,14 +85,14 @@ impl Drop for Fleet {
     }
 }
 
-const MODEL: &str = "schema = 1\n[machine]\nname = \"t\"\nchain = \"Z X\"\ntool_axis = \"+x\"\n\
+pub(crate) const MODEL: &str = "schema = 1\n[machine]\nname = \"t\"\nchain = \"Z X\"\ntool_axis = \"+x\"\n\
     [axes.z]\ntravel_mm = [0.0, 10.0]\n[axes.x]\ntravel_mm = [0.0, 300.0]\n\
     [[tools]]\nname = \"t\"\noffset_mm = [0.0, 0.0, 0.0]\n\
     [[components]]\nname = \"EXX\"\npositions_mm = [0, 300]\nforward_mm = [0.0, 0.015]\n";
 
 /// A recording per docs/recording-csv.md: X sweeps, a spindle temperature that rises and falls (not in step
 /// with time or X), ex = 50 ppm of X + 0.2 µm noise (+ `um_per_k` × (T − 20 °C)).
-fn recording(um_per_k: f64) -> String {
+pub(crate) fn recording(um_per_k: f64) -> String {
     let mut s = String::from("t_s,x_mm,z_mm,T_spindle_C,ex_um\n");
     let mut seed: u64 = 0x2545_f491_4f6c_dd1d;
     for i in 0..1200 {

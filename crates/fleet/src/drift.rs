@@ -13,7 +13,7 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
+use serde::{Deserialize, Deserializer, Serialize};
 
 use retrocomp_analysis::diagnose::report::{Finding, Report};
 use retrocomp_analysis::diagnose::{self, select::Options};
@@ -69,7 +69,7 @@ pub fn machines(collect_dir: &Path) -> Vec<(String, String)> {
     out
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DriftState {
     /// Residual below the threshold: the model still describes the machine.
@@ -94,18 +94,24 @@ impl DriftState {
     }
 }
 
-/// The latest scheduled diagnosis of one machine (shown in the fleet view and its JSON).
-#[derive(Clone, Debug, Serialize)]
+/// The latest scheduled diagnosis of one machine (shown in the fleet view and its JSON; a
+/// worker's result, `crate::dispatch`, carries it back to the host).
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct MachineDrift {
     pub state: DriftState,
     pub recording: String,
     pub model: String,
     /// Residual against the model, µm RMS over the error signals (docs/diagnose-json.md `rms_before_um`).
+    /// NaN when there is none (JSON null).
+    #[serde(deserialize_with = "nan_if_null")]
     pub rms_um: f64,
-    /// The first diagnosis' residual of this machine, µm.
+    /// The first diagnosis' residual of this machine, µm (NaN/null before one succeeded).
+    #[serde(deserialize_with = "nan_if_null")]
     pub baseline_rms_um: f64,
     pub verdict: String,
-    /// What explains the residual (diagnose's most important finding), when drifted.
+    /// What explains the residual (diagnose's most important finding), when drifted. Read back
+    /// leniently: a finding with a NaN (written as null) is dropped, not the whole result.
+    #[serde(deserialize_with = "finding_or_none")]
     pub finding: Option<Finding>,
     pub diagnoses: u64,
     pub error: Option<String>,
@@ -143,6 +149,37 @@ pub fn judge(
         diagnoses: prev.map_or(0, |p| p.diagnoses) + 1,
         error: None,
     }
+}
+
+/// JSON writes a NaN as null: read it back as NaN.
+fn nan_if_null<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
+fn finding_or_none<'de, D: Deserializer<'de>>(d: D) -> Result<Option<Finding>, D::Error> {
+    let v = Option::<serde_json::Value>::deserialize(d)?;
+    Ok(v.and_then(|v| match serde_json::from_value(v) {
+        Ok(f) => Some(f),
+        Err(e) => {
+            tracing::warn!(%e, "fleet: a finding that cannot be read back (a NaN?) is dropped");
+            None
+        }
+    }))
+}
+
+/// A diagnosis made without the machine's history (a worker's, `crate::dispatch`) given that
+/// history: the baseline and count [`judge`] and [`failed`] would have given with `prev`.
+pub fn with_history(mut d: MachineDrift, prev: Option<&MachineDrift>) -> MachineDrift {
+    if d.state == DriftState::Error {
+        d.baseline_rms_um = prev.map_or(f64::NAN, |p| p.baseline_rms_um);
+        d.diagnoses = prev.map_or(0, |p| p.diagnoses);
+    } else {
+        if let Some(p) = prev.filter(|p| p.state != DriftState::Error) {
+            d.baseline_rms_um = p.baseline_rms_um;
+        }
+        d.diagnoses = prev.map_or(0, |p| p.diagnoses) + 1;
+    }
+    d
 }
 
 /// A failed diagnosis (no model, unreadable recording…), keeping the machine's history.
@@ -211,5 +248,33 @@ mod tests {
             judge(&report("found", 1.0), r, m, 2.0, None).state,
             DriftState::Ok
         );
+    }
+
+    #[test]
+    fn a_workers_diagnosis_given_the_history_is_the_in_process_one() {
+        let (r, m) = (Path::new("r.csv"), Path::new("m.toml"));
+        let first = judge(&report("none", 0.3), r, m, 2.0, None);
+        let err = failed(r, m, "no model".into(), Some(&first));
+        let fresh = judge(&report("found", 5.0), r, m, 2.0, None);
+        let here = judge(&report("found", 5.0), r, m, 2.0, Some(&err));
+        let there = with_history(fresh, Some(&err));
+        // After an error the baseline starts again (as judge does), the count goes on.
+        assert_eq!((there.baseline_rms_um, there.diagnoses), (5.0, 2));
+        assert_eq!(
+            serde_json::to_value(&there).unwrap(),
+            serde_json::to_value(&here).unwrap()
+        );
+        let e2 = with_history(failed(r, m, "x".into(), None), Some(&here));
+        let e2_here = failed(r, m, "x".into(), Some(&here));
+        assert_eq!(
+            serde_json::to_value(&e2).unwrap(),
+            serde_json::to_value(&e2_here).unwrap()
+        );
+        // Through JSON and back: NaN travels as null.
+        let back: MachineDrift =
+            serde_json::from_str(&serde_json::to_string(&failed(r, m, "x".into(), None)).unwrap())
+                .unwrap();
+        assert!(back.rms_um.is_nan() && back.baseline_rms_um.is_nan());
+        assert_eq!(back.state, DriftState::Error);
     }
 }

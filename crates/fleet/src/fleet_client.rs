@@ -1,7 +1,8 @@
 //! The MQTT shell of a Sparkplug B host around the sans-IO [`FleetView`] (crates/fleet/src/fleet.rs):
 //! one subscription to `spBv1.0/<group>/+/+` (QoS 1) over TCP or TLS, renewed on every reconnect, the view's
 //! rebirth requests published as NCMD (QoS 0, not retained, as Sparkplug 3.0 says for NCMD), and
-//! optionally the recordings topic fed to a [`Collector`]. Used by `retrocomp fleet`, the MQTT tests and the
+//! optionally the recordings topic fed to a [`Collector`] and the diagnose workers' topics fed to a
+//! [`Dispatcher`] (crates/fleet/src/dispatch.rs; its jobs and grants published QoS 1). Used by `retrocomp fleet`, the MQTT tests and the
 //! fleet bench. Units as in [`FleetView`].
 
 use std::path::PathBuf;
@@ -9,6 +10,7 @@ use std::time::Duration;
 
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 
+use crate::dispatch::{self, Dispatcher};
 use crate::fleet::FleetView;
 use retrocomp_gateway::northbound::telemetry::TelemetryError;
 use retrocomp_gateway::northbound::telemetry::config::TlsConfig;
@@ -42,6 +44,8 @@ pub struct FleetClient {
     pub view: FleetView,
     /// Recordings collected from `recordings_topic`, when collecting.
     pub collector: Option<(Collector, String)>,
+    /// Diagnose jobs shared out to workers, when dispatching.
+    pub dispatch: Option<Dispatcher>,
     /// The broker acknowledged the subscription (messages from now on are seen).
     pub subscribed: bool,
     subacks: u32,
@@ -90,6 +94,7 @@ impl FleetClient {
             topic: format!("spBv1.0/{}/+/+", group.unwrap_or("+")),
             view: FleetView::default(),
             collector: None,
+            dispatch: None,
             subscribed: false,
             subacks: 0,
         })
@@ -104,28 +109,43 @@ impl FleetClient {
     /// Sparkplug message changed the view. A link error is returned after a 500 ms pause (the
     /// next call reconnects).
     pub async fn poll(&mut self) -> Result<bool, FleetClientError> {
-        let wait = self
-            .view
-            .poll_timeout()
-            .map(|due| Duration::from_millis(due.saturating_sub(now_ms())));
+        let due = match (self.view.poll_timeout(), self.dispatch.as_ref()) {
+            (v, Some(d)) => v.into_iter().chain(d.poll_timeout()).min(),
+            (v, None) => v,
+        };
+        let wait = due.map(|due| Duration::from_millis(due.saturating_sub(now_ms())));
         let ev = tokio::select! {
             ev = self.events.poll() => ev,
             _ = tokio::time::sleep(wait.unwrap_or_default()), if wait.is_some() => {
-                self.send_ncmds()?;
+                self.send_pending()?;
                 return Ok(false);
             }
         };
         let r = self.handle(ev).await;
-        self.send_ncmds()?;
+        self.send_pending()?;
         r
     }
 
-    /// Publish the view's pending NCMDs (a full request queue leaves them for the next poll).
-    fn send_ncmds(&mut self) -> Result<(), FleetClientError> {
+    /// Publish the view's pending NCMDs, and the dispatcher's jobs and grants (a full request
+    /// queue leaves those for the next poll).
+    pub fn send_pending(&mut self) -> Result<(), FleetClientError> {
         while let Some((topic, payload)) = self.view.poll_transmit(now_ms()) {
             tracing::debug!(topic, "fleet: rebirth requested");
             self.client
                 .try_publish(topic, QoS::AtMostOnce, false, payload)?;
+        }
+        if let Some(d) = &mut self.dispatch {
+            while let Some((topic, payload)) = d.poll_transmit(now_ms()) {
+                let msg = (topic.clone(), payload.clone());
+                if self
+                    .client
+                    .try_publish(topic, QoS::AtLeastOnce, false, payload)
+                    .is_err()
+                {
+                    d.unsend(msg);
+                    break;
+                }
+            }
         }
         Ok(())
     }
@@ -143,11 +163,28 @@ impl FleetClient {
                 if let Some((_, t)) = &self.collector {
                     self.client.try_subscribe(t.clone(), QoS::AtLeastOnce)?;
                 }
+                if self.dispatch.is_some() {
+                    self.client.try_subscribe_many(
+                        dispatch::host_filters()
+                            .map(|f| rumqttc::SubscribeFilter::new(f, QoS::AtLeastOnce)),
+                    )?;
+                }
                 Ok(false)
             }
             Ok(Event::Incoming(Packet::SubAck(_))) => {
-                // Subscribed once every SUBACK is in (one or two subscriptions).
-                self.subscribed = self.collector.is_none() || self.pending_subacks_done();
+                // Subscribed once every SUBACK is in (one to three subscribe requests).
+                self.subacks += 1;
+                let want =
+                    1 + u32::from(self.collector.is_some()) + u32::from(self.dispatch.is_some());
+                self.subscribed = self.subacks >= want;
+                Ok(false)
+            }
+            Ok(Event::Incoming(Packet::Publish(p)))
+                if p.topic.starts_with("retrocomp/diagnose/") =>
+            {
+                if let Some(d) = &mut self.dispatch {
+                    d.handle_message(&p.topic, &p.payload, now_ms());
+                }
                 Ok(false)
             }
             Ok(Event::Incoming(Packet::Publish(p))) if p.topic.starts_with("spBv1.0/") => {
@@ -174,13 +211,5 @@ impl FleetClient {
                 Err(Box::new(e).into())
             }
         }
-    }
-}
-
-impl FleetClient {
-    /// Counts SUBACKs since the last CONNACK: true at the second (telemetry + recordings).
-    fn pending_subacks_done(&mut self) -> bool {
-        self.subacks += 1;
-        self.subacks >= 2
     }
 }
