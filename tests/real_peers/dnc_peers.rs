@@ -389,18 +389,30 @@ fn a_program_from_a_tcp_sender_is_passed_on_compensated() {
     let controller = controller(&[s(&ctl_peer), "9600", s(&received), "10", "5"]);
     let port = peers::free_port();
     let log = dir.join("sent.csv");
-    let retro = dnc(&cfg, &ctl_box, &log)
+    let mut retro = dnc(&cfg, &ctl_box, &log)
         .arg("--listen")
         .arg(format!("tcp:127.0.0.1:{port}"))
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let deadline = Instant::now() + Duration::from_secs(20);
+    // Only a broken path reaches this deadline: 20 s was once too short with both cores busy
+    // (whether the box was slow or had exited was not captured; an exit is now reported).
+    let deadline = Instant::now() + Duration::from_secs(120);
     let mut conn = loop {
         match std::net::TcpStream::connect(("127.0.0.1", port)) {
             Ok(c) => break c,
             Err(e) => {
-                assert!(Instant::now() < deadline, "box not listening: {e}");
+                if let Ok(Some(status)) = retro.try_wait() {
+                    let mut err = String::new();
+                    if let Some(mut pipe) = retro.stderr.take() {
+                        let _ = std::io::Read::read_to_string(&mut pipe, &mut err);
+                    }
+                    panic!("the box exited ({status}) before listening: {err}");
+                }
+                assert!(
+                    Instant::now() < deadline,
+                    "box not listening after 120 s: {e}"
+                );
                 std::thread::sleep(Duration::from_millis(50));
             }
         }

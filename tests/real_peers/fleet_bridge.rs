@@ -392,10 +392,14 @@ fn ndata_at(history: &[(Instant, HostTotals)], t: Instant) -> u64 {
 fn assert_everything_arrived(s: &Side, boxes: usize) {
     assert_eq!((s.sent.boxes, s.connected), (boxes, boxes), "{s:?}");
     assert!(s.sent.produced >= boxes as u64, "{:?}", s.sent);
+    // Not `gaps == 0`: a bridge's resend after its reconnect can overtake a queued record of the
+    // same box even with one message in flight (seen once in a loaded run: seq 5, 7, 6, 8). That
+    // record is reordered, not lost, as a Sparkplug host with a reorder timeout takes it; a seq
+    // never seen is lost.
     assert_eq!(
-        (s.received(), s.sent.dropped, s.sent.left, s.seen.gaps),
+        (s.received(), s.sent.dropped, s.sent.left, s.seen.lost),
         (s.sent.produced, 0, 0, 0),
-        "produced, dropped, left, gaps: {:?} {:?}",
+        "produced, dropped, left, lost seqs: {:?} {:?}",
         s.sent,
         s.seen
     );
@@ -441,11 +445,13 @@ fn through_an_outage(group: &str, outage: Outage) {
     let r = run(&load, outage);
     for (name, s) in [("C", &r.c), ("H", &r.h)] {
         eprintln!(
-            "{name}: sent {:?}, host saw {} NDATA ({} duplicates), {} gaps, {}/{} NDEATHs, latency {:?}",
+            "{name}: sent {:?}, host saw {} NDATA ({} duplicates), {} gaps ({} reordered, {} lost), {}/{} NDEATHs, latency {:?}",
             s.sent,
             s.seen.ndata,
             s.seen.duplicates,
             s.seen.gaps,
+            s.seen.reordered,
+            s.seen.lost,
             s.seen.offline,
             s.seen.nodes,
             s.seen.latency

@@ -54,6 +54,12 @@ pub struct Node {
     /// NDATA whose seq equals the one before in the same session: a QoS 1 resend (at-least-once
     /// delivery), counted here and neither as a gap nor as a new record.
     pub duplicates: u64,
+    /// NDATA that came after a later seq of its session and filled the hole it left: reordered,
+    /// not lost (a Sparkplug host waits a reorder timeout for it before asking for a rebirth).
+    pub reordered: u64,
+    /// Seqs skipped and never filled: holes of ended sessions, and holes that fell 128 or more
+    /// behind the highest seq (see [`Node::lost`] for those still open).
+    pub lost_closed: u64,
     /// Timestamp of the latest message (the box's clock), ms since the Unix epoch.
     pub last_ms: u64,
     /// When the latest message arrived (the host's clock), ms since the Unix epoch.
@@ -64,6 +70,11 @@ pub struct Node {
     pub unknown_aliases: u64,
     #[serde(skip)]
     last_seq: Option<u64>,
+    /// The highest seq of the session (mod 256) and the seqs below it not yet seen.
+    #[serde(skip)]
+    high_seq: Option<u64>,
+    #[serde(skip)]
+    holes: Vec<u64>,
     #[serde(skip)]
     aliases: HashMap<u64, String>,
     #[serde(skip)]
@@ -99,11 +110,15 @@ impl Node {
             ndata: 0,
             seq_gaps: 0,
             duplicates: 0,
+            reordered: 0,
+            lost_closed: 0,
             last_ms: 0,
             last_seen_ms: 0,
             rebirths_requested: 0,
             unknown_aliases: 0,
             last_seq: None,
+            high_seq: None,
+            holes: vec![],
             aliases: HashMap::new(),
             rebirth: RebirthLimiter::new(rebirth_interval_ms),
             metrics: BTreeMap::new(),
@@ -184,6 +199,9 @@ impl Node {
         self.bd_seq = bd;
         self.births += 1;
         self.last_seq = p.seq;
+        self.lost_closed += self.holes.len() as u64;
+        self.holes.clear();
+        self.high_seq = p.seq.map(|s| s % 256);
         self.rebirth.born(now_ms);
         self.aliases.clear();
         for m in &p.metrics {
@@ -195,6 +213,31 @@ impl Node {
                 let v = m.value.as_ref().map_or(serde_json::Value::Null, json_of);
                 self.metrics.insert(name.clone(), v);
             }
+        }
+    }
+
+    /// Seqs skipped and not (yet) seen: the open holes and those already closed as lost.
+    pub fn lost(&self) -> u64 {
+        self.lost_closed + self.holes.len() as u64
+    }
+
+    /// Loss accounting against the highest seq seen (mod 256): a seq up to 127 ahead of it opens
+    /// holes for the seqs it skipped; one behind it fills its hole (reordered) or is a resend.
+    fn account(&mut self, s: u64) {
+        let Some(high) = self.high_seq else {
+            self.high_seq = Some(s);
+            return;
+        };
+        let ahead = (s + 256 - high) % 256;
+        if (1..128).contains(&ahead) {
+            self.holes.extend((1..ahead).map(|k| (high + k) % 256));
+            self.high_seq = Some(s);
+            let before = self.holes.len();
+            self.holes.retain(|h| (s + 256 - h) % 256 < 128);
+            self.lost_closed += (before - self.holes.len()) as u64;
+        } else if let Some(i) = self.holes.iter().position(|&h| h == s) {
+            self.holes.swap_remove(i);
+            self.reordered += 1;
         }
     }
 
@@ -212,6 +255,9 @@ impl Node {
             }
         }
         self.last_seq = p.seq;
+        if let Some(s) = p.seq {
+            self.account(s % 256);
+        }
         let mut unknown = false;
         for m in &p.metrics {
             let name = m
@@ -520,6 +566,73 @@ mod tests {
         v.push(("Axis/x/applied_um".into(), Value::Double(-3.25)));
         let _birth_before_the_host_came = e.birth(&v, 0);
         (e, v)
+    }
+
+    /// A record overtaken by the next one (seq 5, 7, 6, 8) is reordered, not lost: its hole is
+    /// filled; a seq that never comes stays lost, and is closed as lost once 128 seqs behind or at
+    /// the next birth.
+    #[test]
+    fn a_reordered_ndata_fills_its_hole_and_a_missing_one_stays_lost() {
+        let mut n = Node::new("g", "n", DEFAULT_REBIRTH_INTERVAL_MS);
+        n.birth(
+            &Payload {
+                seq: Some(4),
+                ..Payload::default()
+            },
+            Some(0),
+            0,
+        );
+        for s in [5, 7, 6, 8] {
+            n.data(&Payload {
+                seq: Some(s),
+                ..Payload::default()
+            });
+        }
+        assert_eq!((n.reordered, n.lost()), (1, 0));
+        assert!(n.seq_gaps > 0, "the gap count still sees the disorder");
+        // 9 never comes; 10..=137 put it 128 behind.
+        n.data(&Payload {
+            seq: Some(10),
+            ..Payload::default()
+        });
+        assert_eq!((n.lost(), n.lost_closed), (1, 0));
+        for s in 11..=137 {
+            n.data(&Payload {
+                seq: Some(s),
+                ..Payload::default()
+            });
+        }
+        assert_eq!((n.lost(), n.lost_closed), (1, 1));
+        // Across the wrap: 254, 0 (255 skipped), then 255 late.
+        for s in 138..=254 {
+            n.data(&Payload {
+                seq: Some(s),
+                ..Payload::default()
+            });
+        }
+        n.data(&Payload {
+            seq: Some(0),
+            ..Payload::default()
+        });
+        n.data(&Payload {
+            seq: Some(255),
+            ..Payload::default()
+        });
+        assert_eq!((n.reordered, n.lost()), (2, 1));
+        // A hole open at a new birth is lost.
+        n.data(&Payload {
+            seq: Some(2),
+            ..Payload::default()
+        });
+        n.birth(
+            &Payload {
+                seq: Some(0),
+                ..Payload::default()
+            },
+            Some(1),
+            0,
+        );
+        assert_eq!(n.lost(), 2);
     }
 
     #[test]

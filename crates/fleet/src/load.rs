@@ -12,7 +12,7 @@ use std::time::Duration;
 use serde::{Deserialize, Serialize};
 use tokio::sync::watch;
 
-use crate::fleet::FleetView;
+use crate::fleet::{FleetView, Node};
 use crate::latency::LatencySummary;
 use retrocomp_gateway::Mode;
 use retrocomp_gateway::northbound::telemetry::{self, MqttConfig, PublisherInputs, TelemetryError};
@@ -139,7 +139,7 @@ pub async fn run_boxes<F: Future<Output = ()>>(
 }
 
 /// What a fleet host has seen: NDATA received (duplicates included), seq gaps, duplicates (an
-/// NDATA with the seq of the one before), nodes, nodes offline (their NDEATH seen), births, and
+/// NDATA with the seq of the one before), reordered and lost seqs, nodes, nodes offline (their NDEATH seen), births, and
 /// the end-to-end latency of the NDATA.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct HostTotals {
@@ -148,6 +148,12 @@ pub struct HostTotals {
     pub gaps: u64,
     #[serde(default)]
     pub duplicates: u64,
+    /// NDATA that filled a hole a later seq had left (`Node::reordered`).
+    #[serde(default)]
+    pub reordered: u64,
+    /// Seqs skipped and never seen (`Node::lost`).
+    #[serde(default)]
+    pub lost: u64,
     pub nodes: usize,
     pub offline: usize,
     pub births: u64,
@@ -162,6 +168,8 @@ impl HostTotals {
             ndata: n.clone().map(|n| n.ndata).sum(),
             gaps: n.clone().map(|n| n.seq_gaps).sum(),
             duplicates: n.clone().map(|n| n.duplicates).sum(),
+            reordered: n.clone().map(|n| n.reordered).sum(),
+            lost: n.clone().map(Node::lost).sum(),
             nodes: n.clone().count(),
             offline: n.clone().filter(|n| !n.alive).count(),
             births: n.map(|n| n.births).sum(),
