@@ -28,4 +28,5 @@ pub mod fleet;
 pub mod fleet_client;
 pub mod latency;
 pub mod load;
+pub mod node;
 pub mod worker;
