@@ -74,10 +74,8 @@ impl FleetClient {
         group: Option<&str>,
         tls: Option<&TlsConfig>,
     ) -> Result<Self, FleetClientError> {
-        let (host, port) = broker
-            .rsplit_once(':')
-            .and_then(|(h, p)| Some((h.to_string(), p.parse::<u16>().ok()?)))
-            .ok_or_else(|| FleetClientError::Broker(broker.to_string()))?;
+        let (host, port) =
+            host_port(broker).ok_or_else(|| FleetClientError::Broker(broker.to_string()))?;
         let id = format!("retrocomp-fleet-{}-{port}", std::process::id());
         let mut o = MqttOptions::new(id, host, port);
         o.set_keep_alive(Duration::from_secs(10));
@@ -212,4 +210,10 @@ impl FleetClient {
             }
         }
     }
+}
+
+/// `HOST:PORT` of a broker given on the command line (the host's and the workers' `--broker`).
+pub(crate) fn host_port(broker: &str) -> Option<(String, u16)> {
+    let (h, p) = broker.rsplit_once(':')?;
+    Some((h.to_string(), p.parse::<u16>().ok()?))
 }

@@ -251,10 +251,7 @@ pub async fn run(
     cfg: WorkerConfig,
     mut on: impl FnMut(WorkerEvent<'_>),
 ) -> Result<(), WorkerError> {
-    let (host, port) = cfg
-        .broker
-        .rsplit_once(':')
-        .and_then(|(h, p)| Some((h.to_string(), p.parse::<u16>().ok()?)))
+    let (host, port) = crate::fleet_client::host_port(&cfg.broker)
         .ok_or_else(|| WorkerError::Broker(cfg.broker.clone()))?;
     let mut o = MqttOptions::new(format!("retrocomp-worker-{}", cfg.id), host, port);
     o.set_keep_alive(Duration::from_secs(10));
