@@ -1,5 +1,6 @@
 //! The cycle loop, on its own OS thread (see [`super::realtime`]): once per `cycle_ms` slot it
-//! drains the samples, reseeds and actions that arrived, runs the [`Engine`], hands the outputs to the sink and,
+//! drains the samples, reseeds and actions that arrived into the [`CycleCore`] (the sans-IO cycle
+//! the closed-loop harness drives too), runs it, hands the outputs to the sink and,
 //! at most [`STATUS_PERIOD_S`] apart, publishes a status snapshot. The loop body ([`CycleLoop::step`])
 //! allocates nothing on a cycle that does not publish (tests/gateway_no_alloc.rs counts it).
 //!
@@ -21,7 +22,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
 
 use crate::engine::{Engine, ErrorModel};
-use crate::northbound::http::Control;
+use crate::gateway_core::{Control, CycleCore};
 use crate::pacer::{CycleWake, Pacer};
 use crate::sources::health::SourceBoard;
 use crate::status::{SinkStatus, StatusSnapshot};
@@ -81,88 +82,58 @@ pub struct CycleReport {
     pub partial_episodes: u64,
 }
 
+#[derive(Debug)]
 pub struct CycleLoop {
-    engine: Engine,
-    model: Box<dyn ErrorModel + Send>,
-    /// Which model runs (name, hash, loaded when), copied into every snapshot.
-    model_identity: Option<crate::status::ModelIdentity>,
-    /// A model switch in progress (`POST /api/model`).
-    switcher: crate::engine::model_switch::Switcher,
+    /// What a cycle does (sans-IO, shared with the closed-loop harness).
+    core: CycleCore,
     io: CycleIo,
     compute_ns: Vec<u64>,
     /// The ring slot the next compute time goes to once the ring is full.
     compute_next: usize,
     last_publish_s: Option<f64>,
-    last_step_s: Option<f64>,
-    dropped: bool,
-    partial: bool,
     report: CycleReport,
     /// Compute-time histogram and late cycles, copied into every snapshot (`/metrics`).
     timing: crate::status::CycleTiming,
 }
 
-// By hand: the model is a trait object.
-impl std::fmt::Debug for CycleLoop {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("CycleLoop")
-            .field("engine", &self.engine)
-            .field("model_identity", &self.model_identity)
-            .field("report", &self.report)
-            .finish_non_exhaustive()
-    }
-}
-
 impl CycleLoop {
     pub fn new(engine: Engine, model: Box<dyn ErrorModel + Send>, io: CycleIo) -> Self {
         Self {
-            engine,
-            model_identity: model.identity(),
-            model,
-            switcher: Default::default(),
+            core: CycleCore::new(engine, model),
             io,
             // The ring of compute times is allocated once: a gateway runs for months.
             compute_ns: Vec::with_capacity(COMPUTE_WINDOW),
             compute_next: 0,
             last_publish_s: None,
-            last_step_s: None,
-            dropped: false,
-            partial: false,
             report: CycleReport::default(),
             timing: Default::default(),
         }
     }
 
-    /// One cycle at `now_s` (gateway clock). Returns true when it published a status snapshot
-    /// (the only part that allocates).
+    /// One cycle at `now_s` (gateway clock): what arrived since the last one goes into the
+    /// [`CycleCore`] (samples, served positions, reseeds, actions, in that order), the core runs,
+    /// the outputs go to the sink. Returns true when it published a status snapshot (the only part
+    /// that allocates).
     pub fn step(&mut self, now_s: f64) -> bool {
-        let e = &mut self.engine;
+        let core = &mut self.core;
         while let Ok(s) = self.io.samples.try_recv() {
-            e.ingest(&s);
+            core.handle_sample(&s);
         }
         while let Ok(s) = self.io.served.try_recv() {
-            e.ingest(&s);
+            core.handle_sample(&s);
         }
         while let Ok((axis, held)) = self.io.reseed.try_recv() {
-            if let Err(err) = e.reseed(axis, held) {
-                let axis = axis.name();
-                tracing::error!(%err, axis, "cannot continue from the controller's value; holding");
-            }
+            // A refusal is logged by the core; the axis holds.
+            let _ = core.handle_reseed(axis, held);
         }
-        // Disabling ramps each axis to zero through the safety ramps (Engine::set_enabled); a
-        // model switch ramps out, swaps between two cycles, ramps in (model_switch.rs).
         while let Ok(c) = self.io.control.try_recv() {
-            match c {
-                Control::SetCompensation { enabled } => self.switcher.set_enabled(enabled, e),
-                Control::SwitchModel(swap) => self.switcher.request(*swap, e),
-            }
-        }
-        if let Some(swap) = self.switcher.poll(e) {
-            self.model = swap.model;
-            self.model_identity = Some(swap.identity);
+            core.handle_control(c);
         }
         let t0 = Instant::now();
-        let outs = e.cycle_in_place(now_s, self.model.as_mut());
+        let outs = core.poll_cycle(now_s);
         let took = t0.elapsed();
+        // Reuse the channel's buffer (same axes every cycle: no allocation).
+        self.io.outputs.send_modify(|held| copy_outputs(held, outs));
         self.timing.observe(took.as_secs_f64());
         let took_ns = u64::try_from(took.as_nanos()).unwrap_or(u64::MAX);
         if self.compute_ns.len() < COMPUTE_WINDOW {
@@ -171,31 +142,8 @@ impl CycleLoop {
             self.compute_ns[self.compute_next] = took_ns;
         }
         self.compute_next = (self.compute_next + 1) % COMPUTE_WINDOW;
-        // Reuse the channel's buffer (same axes every cycle: no allocation).
-        self.io.outputs.send_modify(|held| copy_outputs(held, outs));
-        let dropped = self.engine.compensation_dropped();
-        if let Some(t) = self.last_step_s
-            && self.dropped
-        {
-            self.report.not_compensating_s += (now_s - t).max(0.0);
-        }
-        if dropped && !self.dropped {
-            self.report.not_compensating_episodes += 1;
-        }
-        self.dropped = dropped;
-        let partial = self.engine.compensation_partial();
-        if let Some(t) = self.last_step_s
-            && self.partial
-        {
-            self.report.partial_s += (now_s - t).max(0.0);
-        }
-        if partial && !self.partial {
-            self.report.partial_episodes += 1;
-        }
-        self.partial = partial;
-        self.last_step_s = Some(now_s);
-        self.report.cycles += 1;
-        self.io.counter.set(self.report.cycles);
+        let cycles = self.core.compensation_time().cycles;
+        self.io.counter.set(cycles);
         let due = self
             .last_publish_s
             .is_none_or(|t| now_s - t >= STATUS_PERIOD_S || now_s < t);
@@ -207,8 +155,7 @@ impl CycleLoop {
 
     /// Build and publish the status snapshot now.
     pub fn publish(&mut self, now_s: f64) {
-        let mut snap = self.engine.snapshot();
-        snap.model.clone_from(&self.model_identity);
+        let mut snap = self.core.snapshot();
         snap.timing = self.timing;
         if let Some(t) = self.io.telemetry.as_mut() {
             t.annotate(&mut snap);
@@ -248,6 +195,12 @@ impl CycleLoop {
     }
 
     fn finish(mut self) -> CycleReport {
+        let t = self.core.compensation_time();
+        self.report.cycles = t.cycles;
+        self.report.not_compensating_s = t.not_compensating_s;
+        self.report.not_compensating_episodes = t.not_compensating_episodes;
+        self.report.partial_s = t.partial_s;
+        self.report.partial_episodes = t.partial_episodes;
         self.compute_ns.sort_unstable();
         let n = self.compute_ns.len();
         let pct = |p: f64| {

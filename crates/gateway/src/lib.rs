@@ -8,6 +8,9 @@
 //! - [`sinks`]: the output trait and the last-step guard every output passes, the origin-shift
 //!   (Modbus client and server) and quadrature sinks;
 //! - [`northbound`]: HTTP/Prometheus, the live page, OPC UA, Sparkplug;
+//! - [`gateway_core`]: the same parts composed sans-IO, time passed in ([`gateway_core::CycleCore`]
+//!   is the cycle the runtime runs; [`gateway_core::GatewayCore`] is what the closed-loop harness
+//!   drives);
 //! - [`run`], [`cycle`], [`supervise`] and `servers`: the thin tokio runtime that wires them;
 //!   [`status`] is the snapshot every consumer reads; [`error`] the runtime's error.
 //!
@@ -34,6 +37,7 @@ pub mod config;
 pub mod cycle;
 pub mod engine;
 pub mod error;
+pub mod gateway_core;
 pub mod northbound;
 pub mod pacer;
 pub mod run;

@@ -38,7 +38,6 @@ use crate::engine::ErrorModel;
 use crate::error::GatewayError;
 use crate::northbound::http::Control;
 use crate::servers::{start_endpoints, start_telemetry};
-use crate::sinks::guard::AxisLimits;
 use crate::sinks::origin_shift::server::OriginShiftServerSink;
 use crate::sinks::origin_shift::sink_task::OriginShiftClientSink;
 use crate::sinks::quadrature::sink::QuadratureOutput;
@@ -409,18 +408,7 @@ async fn start_sink(
 /// The configured sink, its clamp and per-write cap per axis from the field config's safety (the
 /// limits of the one last-step guard every sink passes its outputs through, `crates/gateway/src/sinks/guard.rs`).
 fn build_sink(cfg: &FieldConfig, epoch: std::time::Instant) -> Result<Box<dyn Sink>, GatewayError> {
-    let limits: Vec<AxisLimits> = cfg
-        .axes
-        .iter()
-        .map(|a| {
-            let s = cfg.safety_for(&a.name);
-            AxisLimits {
-                axis: a.name.clone(),
-                max_correction_um: s.max_correction_um,
-                max_change_um_per_write: s.max_change_um_per_cycle,
-            }
-        })
-        .collect();
+    let limits = cfg.sink_limits();
     if let Some(srv) = cfg.sink.origin_shift_server.clone() {
         return Ok(Box::new(OriginShiftServerSink::new(srv, limits, epoch)));
     }

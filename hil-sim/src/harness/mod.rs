@@ -1,6 +1,7 @@
 //! A deterministic closed loop in one process, in the manner of quinn-proto's `Pair` tests: hil-sim's
-//! [`World`] ↔ the bus codecs ↔ retrocomp's `Engine` ↔ the origin-shift sink core ↔ the simulated
-//! PLC, all advanced by one [`ClosedLoop::step`] in virtual time. No threads, no sleeps, no sockets:
+//! [`World`] ↔ retrocomp's own sans-IO gateway ([`GatewayCore`]: its source cores, cycle, engine
+//! and sink cores, composed by the gateway crate, not here) ↔ the simulated PLC or the quadrature
+//! receivers, all advanced by one [`ClosedLoop::step`] in virtual time. No threads, no sleeps, no sockets:
 //! the same configs give the same run, bit for bit, however busy the machine is.
 //!
 //! Per step (the world's servo period, 1 ms by default), in this fixed order:
@@ -9,7 +10,9 @@
 //! 3. the sim's own encoders ([`Publisher`]: CiA 406 / CiA 404 frames, weighing lines) produce what
 //!    is due; frames of a silent node are dropped ([`silenced`]), garbage bytes ([`Garbage`], seeded)
 //!    go on the serial line before the lines; the gateway decodes them with its own source cores;
-//! 4. on a cycle tick (`gateway.cycle_ms`) the engine runs;
+//! 4. on a cycle tick (`gateway.cycle_ms`) the gateway's cycle runs (reseeds of the last sink
+//!    period first, as through the runtime's channel); with `[sink.quadrature]` the box steps the
+//!    outputs through the sink's guard and its lines' due edges reach the controller's receivers;
 //! 5. the sink's request in flight (issued one step earlier: one step of latency) is answered from
 //!    the PLC's registers, or fails while the Modbus link is down (the client drops the connection
 //!    and waits out its [`retrocomp_bus::Backoff`], [`link`]); on a write-period tick
@@ -26,9 +29,7 @@
 //!
 //! Units: µm for shifts and corrections (register = correction; + moves the slide +), s for time.
 
-pub mod gateway;
 pub mod link;
-pub mod quadrature;
 
 use std::collections::BTreeMap;
 
@@ -42,11 +43,11 @@ use crate::SimConfig;
 use crate::io::publish::Publisher;
 use crate::io::transport_faults::{Garbage, Schedule, Transition, silenced};
 use crate::world::World;
-pub use gateway::{FaultEdge, Gateway};
 pub use link::{ClientLink, ConnectAttempt};
+pub use retrocomp_gateway::gateway_core::{FaultEdge, GatewayCore, MemoryHeld};
 
 /// Builds a fresh model for each gateway start (a restart loads it again).
-pub type ModelFactory = Box<dyn Fn() -> Box<dyn ErrorModel>>;
+pub type ModelFactory = Box<dyn Fn() -> Box<dyn ErrorModel + Send>>;
 
 /// One A/B edge the controller's quadrature receiver saw (`[sink.quadrature]`).
 #[derive(Clone, Debug, PartialEq)]
@@ -115,7 +116,7 @@ pub struct ClosedLoop {
     garbage: Garbage,
     field: FieldConfig,
     model: ModelFactory,
-    gateway: Option<Gateway>,
+    gateway: Option<GatewayCore>,
     generation: u32,
     cycle_ticks: u64,
     write_ticks: u64,
@@ -136,7 +137,7 @@ pub struct ClosedLoop {
     receivers: Option<[Receiver; 3]>,
     pulses: Vec<Pulse>,
     /// `[sink.quadrature]`: the box's held-counts store, surviving its restarts (the state file).
-    held_counts: quadrature::MemoryHeld,
+    held_counts: MemoryHeld,
 }
 
 // By hand: the model factory is a closure.
@@ -238,10 +239,10 @@ impl ClosedLoop {
             let old = std::mem::replace(&mut self.client, fresh);
             self.attempts.extend_from_slice(old.attempts());
         }
-        let gw = Gateway::start(
+        let gw = GatewayCore::start(
             self.field.clone(),
             (self.model)(),
-            &held,
+            held,
             self.held_counts.clone(),
         )?;
         // A new box takes the lines at its scheduler's levels (the held count's phase): the
@@ -259,7 +260,7 @@ impl ClosedLoop {
     }
 
     /// `[sink.quadrature]`: the box's persisted held counts (its state file, in memory).
-    pub fn held_counts(&self) -> &quadrature::MemoryHeld {
+    pub fn held_counts(&self) -> &MemoryHeld {
         &self.held_counts
     }
 
@@ -313,16 +314,16 @@ impl ClosedLoop {
         let junk = self.garbage.poll(t, active.serial_garbage);
         if let Some(gw) = self.gateway.as_mut() {
             for f in out.frames.iter().filter(|f| !silenced(f, &active)) {
-                gw.on_frame(f, t);
+                gw.handle_frame(f, t);
             }
             self.serial_bytes += junk.len() as u64;
-            gw.on_serial(0, &junk, t);
+            gw.handle_serial(0, &junk, t);
             for l in &out.lines {
                 self.serial_bytes += l.len() as u64;
-                gw.on_serial(0, l.as_bytes(), t);
+                gw.handle_serial(0, l.as_bytes(), t);
             }
             if tick.is_multiple_of(self.cycle_ticks) {
-                gw.cycle(t);
+                gw.poll_cycle(t);
             }
         }
         if self.receivers.is_some() {
@@ -369,15 +370,14 @@ impl ClosedLoop {
             return;
         };
         let now_ns = tick * self.dt_ns;
-        let outs = gw.outputs().to_vec();
+        if tick.is_multiple_of(self.cycle_ticks) {
+            gw.poll_quadrature(now_ns, self.world.t_s());
+        }
         let Some(q) = gw.quadrature_mut() else {
             return;
         };
-        if tick.is_multiple_of(self.cycle_ticks) {
-            q.on_outputs(&outs, now_ns);
-        }
         let edges: Vec<_> = q
-            .edges_until(now_ns)
+            .poll_edges(now_ns)
             .into_iter()
             .map(|(axis, tr)| (axis, tr.t_ns, (tr.a, tr.b)))
             .collect();
@@ -454,12 +454,12 @@ impl ClosedLoop {
                 self.client.failed(now);
                 Reply::Failed("transport: connection lost (harness link down)".into())
             };
-            gw.reply(reply, t, self.client.is_connected());
+            gw.handle_reply(reply, t, self.client.is_connected());
             return;
         }
         if tick.is_multiple_of(self.write_ticks) {
             let connected = self.client.ensure_connected(now, t, link_up);
-            gw.begin_period(t, connected);
+            gw.poll_period(t, connected);
         }
     }
 
@@ -495,11 +495,11 @@ impl ClosedLoop {
         &mut self.world
     }
 
-    pub fn gateway(&self) -> Option<&Gateway> {
+    pub fn gateway(&self) -> Option<&GatewayCore> {
         self.gateway.as_ref()
     }
 
-    pub fn gateway_mut(&mut self) -> Option<&mut Gateway> {
+    pub fn gateway_mut(&mut self) -> Option<&mut GatewayCore> {
         self.gateway.as_mut()
     }
 

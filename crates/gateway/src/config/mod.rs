@@ -345,6 +345,22 @@ impl FieldConfig {
     }
 
     /// Safety settings for an axis (its override or the global one).
+    /// The clamp and per-write cap of every configured axis: the limits of the one last-step guard
+    /// every sink passes its outputs through (`sinks/guard.rs`).
+    pub fn sink_limits(&self) -> Vec<crate::sinks::guard::AxisLimits> {
+        self.axes
+            .iter()
+            .map(|a| {
+                let s = self.safety_for(&a.name);
+                crate::sinks::guard::AxisLimits {
+                    axis: a.name.clone(),
+                    max_correction_um: s.max_correction_um,
+                    max_change_um_per_write: s.max_change_um_per_cycle,
+                }
+            })
+            .collect()
+    }
+
     pub fn safety_for(&self, axis: &str) -> SafetyConfig {
         self.axes
             .iter()

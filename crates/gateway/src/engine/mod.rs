@@ -503,6 +503,11 @@ impl Engine {
         Ok(())
     }
 
+    /// The outputs as of the last cycle (before the first: the start values), borrowed.
+    pub fn last_outputs(&self) -> &[(Axis, f64)] {
+        &self.outputs
+    }
+
     /// Current outputs without running a cycle.
     pub fn outputs(&self) -> Vec<(Axis, f64)> {
         self.axes

@@ -138,6 +138,16 @@ impl Catalog {
     }
 }
 
+/// A run-time action accepted on the authenticated API, for the cycle to apply. The engine
+/// applies `SetCompensation` with `Engine::set_enabled`, so disabling ramps the correction to zero
+/// through the same safety ramps as the `[gateway] enabled` switch. `SwitchModel` carries a model
+/// already loaded and checked off the cycle thread (`model_switch.rs`: ramp out, swap, ramp in).
+#[derive(Debug, PartialEq)]
+pub enum Control {
+    SetCompensation { enabled: bool },
+    SwitchModel(Box<ModelSwap>),
+}
+
 /// The cycle side of a switch (sans-IO: the cycle loop calls it between cycles).
 #[derive(Debug, Default)]
 pub struct Switcher {

@@ -15,15 +15,8 @@ use crate::status::StatusSnapshot;
 
 pub type StatusRx = watch::Receiver<Option<Arc<StatusSnapshot>>>;
 
-/// A run-time action accepted on the authenticated API, for the run loop to apply. The engine
-/// applies `SetCompensation` with `Engine::set_enabled`, so disabling ramps the correction to zero
-/// through the same safety ramps as the `[gateway] enabled` switch. `SwitchModel` carries a model
-/// already loaded and checked off the cycle thread (`model_switch.rs`: ramp out, swap, ramp in).
-#[derive(Debug, PartialEq)]
-pub enum Control {
-    SetCompensation { enabled: bool },
-    SwitchModel(Box<crate::engine::model_switch::ModelSwap>),
-}
+/// A run-time action accepted on the authenticated API (defined with the switch that applies it).
+pub use crate::engine::model_switch::Control;
 
 /// What the action routes need: the token from the field config (`[gateway] api_token`; `None`
 /// → every action is refused with 403), the channel to the run loop (`None` → 503) and the

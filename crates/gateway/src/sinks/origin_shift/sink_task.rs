@@ -123,6 +123,55 @@ pub fn update_sink_faults(
     events
 }
 
+/// What one period of the origin-shift sink leaves for the rest of the gateway: the values the
+/// engine continues from (the controller held another value) and the fault episodes that started
+/// or cleared.
+#[derive(Debug, Default)]
+pub struct PeriodEnd {
+    pub reseeds: Vec<(Axis, f64)>,
+    pub events: Vec<FaultEvent>,
+}
+
+/// The end of one period (sans-IO; `connected`: the client's link after it, `now_s` on the
+/// gateway clock). Every driver of the sink ends its periods here (the task below and
+/// `gateway_core`).
+pub fn end_period(
+    core: &mut SinkCore,
+    log: &mut FaultLog,
+    sources: &SinkSources,
+    connected: bool,
+    now_s: f64,
+) -> PeriodEnd {
+    PeriodEnd {
+        reseeds: core.take_reseeds(),
+        events: update_faults_of(log, sources, core, connected, now_s),
+    }
+}
+
+/// What the controller holds that the engine may continue from: a value beyond its axis's clamp
+/// (`limits`; `default_max_um` for an axis they do not name) or not finite is not a start value —
+/// the sink refuses to write that axis (a `BeyondClamp` fault) until the controller's value is back
+/// in range, and the engine continues from it then.
+pub fn start_values_within(
+    held_um: BTreeMap<String, f64>,
+    limits: &[SinkAxis],
+    default_max_um: f64,
+) -> BTreeMap<String, f64> {
+    let mut held_um = held_um;
+    held_um.retain(|axis, held_um| {
+        let max = limits
+            .iter()
+            .find(|a| a.axis == *axis)
+            .map_or(default_max_um, |a| a.max_correction_um);
+        let ok = held_um.is_finite() && held_um.abs() <= max;
+        if !ok {
+            tracing::error!(axis, held_um, max, "controller holds a correction beyond the clamp: not writing this axis until it is back in range");
+        }
+        ok
+    });
+    held_um
+}
+
 /// Until a period may run: the cycle's output differs from `ran_with` (what the last period
 /// wrote toward: a new correction goes out at once) or `period` passed since the last period (the
 /// heartbeat, the controller read, retries, the stop ramp). The cycle publishes every cycle; an
@@ -208,16 +257,16 @@ pub async fn origin_shift_task(
                 return;
             }
         }
-        let reseeds = core.take_reseeds();
+        let connected = client.is_connected();
+        let now_s = epoch.elapsed().as_secs_f64();
+        let PeriodEnd { reseeds, events } =
+            end_period(&mut core, &mut faults, &sources, connected, now_s);
         // Stopping: the engine no longer runs (nobody drains the channel).
         for (axis, held_um) in reseeds.into_iter().filter(|_| stop_by.is_none()) {
             if reseed_tx.send((axis, held_um)).await.is_err() {
                 return;
             }
         }
-        let connected = client.is_connected();
-        let now_s = epoch.elapsed().as_secs_f64();
-        let events = update_faults_of(&mut faults, &sources, &core, connected, now_s);
         for e in events.iter().filter(|e| e.started) {
             let held: BTreeMap<&str, Option<f64>> = core.held_um().collect();
             tracing::warn!(
@@ -287,30 +336,17 @@ impl OriginShiftClientSink {
             epoch,
         })
     }
-
-    fn max_correction_um(&self, axis: &str) -> f64 {
-        self.axes
-            .iter()
-            .find(|a| a.axis == axis)
-            .map_or(self.default_max_correction_um, |a| a.max_correction_um)
-    }
 }
 
 impl Sink for OriginShiftClientSink {
     fn start<'a>(&'a mut self, io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>> {
         Box::pin(async move {
-            let mut initial = read_initial(&mut self.client, &io.status, self.epoch).await;
-            // A value beyond the clamp is not a start value: the sink refuses to write that axis (a
-            // fault) until the controller's value is back in range, then the engine continues from it.
-            initial.retain(|axis, held_um| {
-                let max = self.max_correction_um(axis);
-                let ok = held_um.is_finite() && held_um.abs() <= max;
-                if !ok {
-                    tracing::error!(axis, held_um, max, "controller holds a correction beyond the clamp: not writing this axis until it is back in range");
-                }
-                ok
-            });
-            Ok(initial)
+            let initial = read_initial(&mut self.client, &io.status, self.epoch).await;
+            Ok(start_values_within(
+                initial,
+                &self.axes,
+                self.default_max_correction_um,
+            ))
         })
     }
 

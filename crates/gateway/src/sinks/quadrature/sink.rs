@@ -273,11 +273,30 @@ pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
     }
 }
 
-/// One update of every axis: the wanted correction through the guard to the injector (0 for an
-/// axis without an output while stopping), then the status and the axes' held values.
-fn step_axes(
+/// Where a step's counts go: the injector threads' lines ([`Lines`]), or lines stepped in virtual
+/// time (`gateway_core::quadrature`). Axis `i` is the core's axis order.
+pub trait CountLines {
+    /// Hand `delta` counts to axis `i`; false if that axis can take no more (its injector is gone).
+    fn inject(&mut self, i: usize, delta: i64) -> bool;
+    /// Counts axis `i` was given but has not yet put on its lines.
+    fn owed(&self, i: usize) -> i64;
+}
+
+impl CountLines for Lines {
+    fn inject(&mut self, i: usize, delta: i64) -> bool {
+        Lines::inject(self, i, delta)
+    }
+    fn owed(&self, i: usize) -> i64 {
+        Lines::owed(self, i)
+    }
+}
+
+/// One update of every axis: the wanted correction through the guard to the lines (0 for an
+/// axis without an output while stopping), then the status and the axes' held values. Every
+/// driver of the quadrature sink steps through here (the runtime's task and the harness).
+pub fn step_axes(
     core: &mut QuadratureCore,
-    lines: &mut Lines,
+    lines: &mut dyn CountLines,
     outs: &[(retrocomp_model::Axis, f64)],
     stopping: bool,
     store: &mut dyn HeldCounts,
@@ -290,6 +309,12 @@ fn step_axes(
             None if stopping => 0.0,
             None => continue,
         };
+        // The last step's edges are all on the lines: the controller holds exactly the emitted
+        // count. Said before this step, or the guard would still allow for the count before it
+        // and move this axis only every other step.
+        if lines.owed(i) == 0 {
+            core.settled(i);
+        }
         match core.step(i, want, store) {
             Ok(d) if lines.inject(i, d) => st.writes_ok += 1,
             Ok(_) => {
@@ -358,6 +383,48 @@ mod tests {
             a.gpio = None;
         }
         check_buildable(&simulated).unwrap();
+    }
+
+    /// Lines like the injector threads': counts handed over are owed until the thread has put
+    /// them out, which happens between two steps ([`Threads::between_steps`]).
+    struct Threads {
+        out: i64,
+        owed: i64,
+    }
+    impl Threads {
+        fn between_steps(&mut self) {
+            self.out += std::mem::take(&mut self.owed);
+        }
+    }
+    impl CountLines for Threads {
+        fn inject(&mut self, _: usize, delta: i64) -> bool {
+            self.owed += delta;
+            true
+        }
+        fn owed(&self, _: usize) -> i64 {
+            self.owed
+        }
+    }
+
+    #[test]
+    fn the_counts_follow_the_output_one_cap_every_step_once_the_lines_put_them_out() {
+        use crate::sinks::quadrature::core::tests::{Mem, cfg, limits};
+        let mut core = QuadratureCore::new(&cfg(), &limits(), &BTreeMap::new()).unwrap();
+        let mut lines = Threads { out: 0, owed: 0 };
+        let mut store = Mem(BTreeMap::new());
+        let mut st = SinkStatus::default();
+        // The engine ramps 0 → 5 µm at the cap (1 µm = 2 counts of 0.5 µm per step).
+        for k in 1..=5 {
+            let outs = [(retrocomp_model::Axis::X, f64::from(k))];
+            step_axes(&mut core, &mut lines, &outs, false, &mut store, &mut st);
+            lines.between_steps();
+            assert_eq!(
+                lines.out,
+                -2 * i64::from(k),
+                "step {k}: the counts lag the output"
+            );
+        }
+        assert_eq!(st.held_um["x"], 5.0);
     }
 
     /// A trace that cannot be written (`/dev/full`: every write is ENOSPC) is the

@@ -1,0 +1,355 @@
+//! The gateway as one sans-IO object: sources → engine → sink, with time passed in and nothing
+//! spawned. [`GatewayCore`] holds the parts the runtime (`run.rs`) drives on its threads — the
+//! CANopen and serial-line source cores, the [`CycleCore`] (engine, model, switch, accounting),
+//! and either the origin-shift [`SinkCore`] closed by [`end_period`] or the quadrature sink's core
+//! stepped by its [`step_axes`](crate::sinks::quadrature::sink::step_axes) — and composes them in
+//! the runtime's order. The closed-loop harness (`hil-sim`) drives this type and wires nothing
+//! itself, so a change of the cycle's order, the reseed path, the guard or the fault mapping is
+//! one change under both.
+//!
+//! Driving vocabulary: `handle_*` for what arrived (a CAN frame, serial bytes, the controller's
+//! reply), `poll_*` for what is due at `now_s` (a cycle, a sink request, quadrature edges).
+//! Reseeds found by a sink period reach the engine at the next cycle, as through the runtime's
+//! channel.
+//!
+//! Units: corrections µm (correction = −error), positions mm, time s (gateway clock) and ns on
+//! the quadrature lines.
+
+pub mod cycle;
+pub mod quadrature;
+
+use std::collections::BTreeMap;
+
+use retrocomp_bus::can::Frame;
+use retrocomp_bus::canopen::source::CanopenSource;
+use retrocomp_bus::fault::FaultEvent;
+use retrocomp_bus::serial::source::LineSource;
+use retrocomp_bus::{ChannelId, Sample};
+use retrocomp_model::Axis;
+
+pub use cycle::{CompensationTime, Control, CycleCore};
+pub use quadrature::{MemoryHeld, QuadratureBox};
+
+use crate::config::FieldConfig;
+use crate::engine::ErrorModel;
+use crate::engine::health::{FaultKind, FaultLog};
+use crate::engine::safety::Mode;
+use crate::error::GatewayError;
+use crate::sinks::origin_shift::sink_task::{SinkSources, end_period, start_values_within};
+use crate::sinks::origin_shift::{Action, Reply, SinkCore};
+
+/// One fault edge as the gateway logs it (source, kind, started or cleared, gateway time).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FaultEdge {
+    pub t_s: f64,
+    pub source: String,
+    pub kind: FaultKind,
+    pub started: bool,
+}
+
+impl FaultEdge {
+    fn of(e: FaultEvent) -> Self {
+        FaultEdge {
+            t_s: e.t_s,
+            source: e.source,
+            kind: e.kind,
+            started: e.started,
+        }
+    }
+}
+
+/// The origin-shift sink: its core, fault log and the period's request in flight.
+#[derive(Debug)]
+struct OriginShift {
+    core: SinkCore,
+    sources: SinkSources,
+    faults: FaultLog,
+    /// The request in flight (answered by [`GatewayCore::handle_reply`]), if a period runs.
+    pending: Option<Action>,
+}
+
+/// Decoders → cycle → sink, sans-IO.
+#[derive(Debug)]
+pub struct GatewayCore {
+    cfg: FieldConfig,
+    cycle: CycleCore,
+    canopen: Option<CanopenSource>,
+    serial: Vec<LineSource>,
+    origin_shift: Option<OriginShift>,
+    quadrature: Option<QuadratureBox>,
+    samples: Vec<Sample>,
+    /// Values a sink period found in the controller, for the next cycle.
+    reseeds: Vec<(Axis, f64)>,
+    /// Engine faults active after the last cycle (to turn the snapshot into edges).
+    engine_active: BTreeMap<(String, FaultKind), f64>,
+    /// Fault edges since the last [`GatewayCore::take_edges`].
+    edges: Vec<FaultEdge>,
+    /// Channels whose samples are kept ([`GatewayCore::record_samples`]), and those samples.
+    recorded: Vec<ChannelId>,
+    sample_log: Vec<Sample>,
+}
+
+impl GatewayCore {
+    /// Start as `retrocomp run` does: the sink says what the controller holds (`held_um` for the
+    /// origin-shift registers, read by the driver; `held_counts` for quadrature) and the engine
+    /// continues from what is within the clamp. `[sink.origin_shift]` or `[sink.quadrature]`.
+    pub fn start(
+        cfg: FieldConfig,
+        model: Box<dyn ErrorModel + Send>,
+        held_um: BTreeMap<String, f64>,
+        held_counts: MemoryHeld,
+    ) -> Result<Self, GatewayError> {
+        let limits = cfg.sink_limits();
+        let (initial, origin_shift, quadrature) =
+            match (&cfg.sink.origin_shift, &cfg.sink.quadrature) {
+                (Some(os), None) => {
+                    let core = SinkCore::new(os.map.clone(), limits.clone());
+                    let initial =
+                        start_values_within(held_um, &limits, cfg.safety.max_correction_um);
+                    let os = OriginShift {
+                        sources: SinkSources::of(&core),
+                        core,
+                        faults: FaultLog::default(),
+                        pending: None,
+                    };
+                    (initial, Some(os), None)
+                }
+                (None, Some(q)) => {
+                    let (b, start) = QuadratureBox::new(q, &limits, held_counts)?;
+                    (start, None, Some(b))
+                }
+                _ => {
+                    return Err(GatewayError::Refused(
+                        "the sans-IO gateway drives [sink.origin_shift] or [sink.quadrature]"
+                            .into(),
+                    ));
+                }
+            };
+        let engine = cfg.engine(&initial)?;
+        let canopen = cfg.canopen.clone().map(CanopenSource::new);
+        let serial = cfg
+            .serial
+            .iter()
+            .flat_map(|s| s.source.iter().cloned())
+            .map(LineSource::new)
+            .collect();
+        Ok(Self {
+            cycle: CycleCore::new(engine, model),
+            cfg,
+            canopen,
+            serial,
+            origin_shift,
+            quadrature,
+            samples: Vec::new(),
+            reseeds: Vec::new(),
+            engine_active: BTreeMap::new(),
+            edges: Vec::new(),
+            recorded: Vec::new(),
+            sample_log: Vec::new(),
+        })
+    }
+
+    pub fn config(&self) -> &FieldConfig {
+        &self.cfg
+    }
+
+    /// A CAN frame arrived at `t_s`.
+    pub fn handle_frame(&mut self, f: &Frame, t_s: f64) {
+        if let Some(c) = self.canopen.as_mut() {
+            c.on_frame(f, t_s, &mut self.samples);
+        }
+    }
+
+    /// Bytes arrived on serial source `i` at `t_s`.
+    pub fn handle_serial(&mut self, i: usize, bytes: &[u8], t_s: f64) {
+        if let Some(s) = self.serial.get_mut(i) {
+            s.push(bytes, t_s, &mut self.samples);
+        }
+    }
+
+    /// Keep every sample of `channel` the engine ingests from now on (in arrival order).
+    pub fn record_samples(&mut self, channel: &str) {
+        self.recorded.push(ChannelId::of(channel));
+    }
+
+    /// The samples of the recorded channels, in the order the engine ingested them.
+    pub fn recorded_samples(&self) -> &[Sample] {
+        &self.sample_log
+    }
+
+    /// Garbage lines the serial sources counted so far.
+    pub fn serial_garbage_lines(&self) -> u64 {
+        self.serial.iter().map(|s| s.counters().garbage_lines).sum()
+    }
+
+    /// One cycle at `now_s`: the sources' freshness checks, every sample in arrival order, the
+    /// reseeds of the last sink period, the cycle, and the engine's fault edges. Returns the
+    /// outputs (µm, axis order).
+    pub fn poll_cycle(&mut self, now_s: f64) -> &[(Axis, f64)] {
+        if let Some(c) = self.canopen.as_mut() {
+            c.poll(now_s, &mut self.samples);
+        }
+        for s in &self.serial {
+            s.poll(now_s, &mut self.samples);
+        }
+        for s in self.samples.drain(..) {
+            if self.recorded.contains(&s.channel) {
+                self.sample_log.push(s);
+            }
+            self.cycle.handle_sample(&s);
+        }
+        for (axis, held_um) in self.reseeds.drain(..) {
+            // The sink hands over in-clamp values only; a refusal is logged and the axis holds.
+            let _ = self.cycle.handle_reseed(axis, held_um);
+        }
+        self.cycle.poll_cycle(now_s);
+        self.engine_edges(now_s);
+        self.cycle.outputs()
+    }
+
+    /// An action from the API, applied by the next cycle.
+    pub fn handle_control(&mut self, c: Control) {
+        self.cycle.handle_control(c);
+    }
+
+    fn engine_edges(&mut self, now_s: f64) {
+        let now: BTreeMap<(String, FaultKind), f64> = self
+            .cycle
+            .engine()
+            .snapshot()
+            .active_faults
+            .into_iter()
+            .map(|(s, k, t)| ((s, k), t))
+            .collect();
+        for ((source, kind), t) in &now {
+            if !self.engine_active.contains_key(&(source.clone(), *kind)) {
+                self.edges.push(FaultEdge {
+                    t_s: *t,
+                    source: source.clone(),
+                    kind: *kind,
+                    started: true,
+                });
+            }
+        }
+        for (source, kind) in self.engine_active.keys() {
+            if !now.contains_key(&(source.clone(), *kind)) {
+                self.edges.push(FaultEdge {
+                    t_s: now_s,
+                    source: source.clone(),
+                    kind: *kind,
+                    started: false,
+                });
+            }
+        }
+        self.engine_active = now;
+    }
+
+    /// The engine's outputs after the last cycle (before the first: the start values), µm.
+    pub fn outputs(&self) -> &[(Axis, f64)] {
+        self.cycle.outputs()
+    }
+
+    pub fn cycle_core(&self) -> &CycleCore {
+        &self.cycle
+    }
+
+    /// The engine's mode of `axis`.
+    pub fn mode(&self, axis: &str) -> Option<Mode> {
+        self.cycle.engine().axis_mode(Axis::from_name(axis)?)
+    }
+
+    /// The value the engine's state holds for `channel` this cycle (None: unusable).
+    pub fn channel_value(&self, channel: &str) -> Option<f64> {
+        let snap = self.cycle.engine().snapshot();
+        let st = snap.channels.iter().find(|(n, _)| *n == channel)?;
+        let usable = st.1.health == retrocomp_bus::Health::Ok || st.1.substituted;
+        st.1.value.filter(|_| usable)
+    }
+
+    /// Compensation enabled but some axis is not tracking (the `compensation.<axis>` fault).
+    pub fn compensation_dropped(&self) -> bool {
+        self.cycle.engine().compensation_dropped()
+    }
+
+    /// Start an origin-shift write period at `now_s`. `connected`: the client is connected (else
+    /// the period fails at once, as the client's `ensure_connected` does). Returns the first
+    /// request.
+    pub fn poll_period(&mut self, now_s: f64, connected: bool) -> Option<&Action> {
+        let os = self.origin_shift.as_mut()?;
+        if !connected {
+            os.core.not_connected("link down");
+            os.pending = None;
+            self.end_period(now_s, false);
+            return None;
+        }
+        let a = os.core.begin_at(self.cycle.outputs(), now_s);
+        self.settle(a, now_s, connected)
+    }
+
+    /// The request in flight, if any.
+    pub fn pending(&self) -> Option<&Action> {
+        self.origin_shift.as_ref()?.pending.as_ref()
+    }
+
+    /// The controller's reply to the request in flight; `connected`: the client's connection after
+    /// it (a transport failure drops it, a Modbus exception does not). Returns the next request.
+    pub fn handle_reply(&mut self, reply: Reply, now_s: f64, connected: bool) -> Option<&Action> {
+        let os = self.origin_shift.as_mut()?;
+        os.pending = None;
+        let a = os.core.on_reply(reply, now_s);
+        self.settle(a, now_s, connected)
+    }
+
+    fn settle(&mut self, a: Action, now_s: f64, connected: bool) -> Option<&Action> {
+        if matches!(a, Action::Done(_)) {
+            // The shell's fault update after the period: `client.is_connected()`.
+            self.end_period(now_s, connected);
+            return None;
+        }
+        let os = self.origin_shift.as_mut()?;
+        os.pending = Some(a);
+        os.pending.as_ref()
+    }
+
+    /// The end of a period, as the sink task ends one: reseeds for the next cycle, fault edges.
+    fn end_period(&mut self, now_s: f64, connected: bool) {
+        let Some(os) = self.origin_shift.as_mut() else {
+            return;
+        };
+        os.pending = None;
+        let end = end_period(&mut os.core, &mut os.faults, &os.sources, connected, now_s);
+        self.reseeds.extend(end.reseeds);
+        self.edges.extend(end.events.into_iter().map(FaultEdge::of));
+    }
+
+    /// The origin-shift sink core's writes so far (ok, failed).
+    pub fn sink_writes(&self) -> (u64, u64) {
+        self.origin_shift
+            .as_ref()
+            .map_or((0, 0), |s| (s.core.writes_ok, s.core.writes_failed))
+    }
+
+    /// The quadrature box takes the last cycle's outputs at `now_ns` (= `now_s`), through the
+    /// sink's guard. Its fault edges join the gateway's.
+    pub fn poll_quadrature(&mut self, now_ns: u64, now_s: f64) {
+        let outs = self.cycle.outputs();
+        if let Some(q) = self.quadrature.as_mut() {
+            let events = q.handle_outputs(outs, now_ns, now_s);
+            self.edges.extend(events.into_iter().map(FaultEdge::of));
+        }
+    }
+
+    /// The quadrature box (`[sink.quadrature]`), if that is the sink.
+    pub fn quadrature_mut(&mut self) -> Option<&mut QuadratureBox> {
+        self.quadrature.as_mut()
+    }
+
+    pub fn quadrature(&self) -> Option<&QuadratureBox> {
+        self.quadrature.as_ref()
+    }
+
+    /// Fault edges (engine and sink) since the last call.
+    pub fn take_edges(&mut self) -> Vec<FaultEdge> {
+        std::mem::take(&mut self.edges)
+    }
+}
