@@ -76,6 +76,10 @@ pub(crate) struct Args {
     /// With --workers: publish a job again when no worker claimed it within this long, s.
     #[arg(long, default_value_t = 30.0)]
     pub unclaimed_s: f64,
+    /// With --workers: take a job back from a worker that has not finished it this long after
+    /// its grant (alive but stuck), s; doubled for that job at every take-back.
+    #[arg(long, default_value_t = 1800.0)]
+    pub owner_timeout_s: f64,
 }
 
 /// Publish a job for every machine that has a recording (paths relative to the directories the
@@ -140,8 +144,17 @@ fn diagnose_all(
     out
 }
 
-/// The arguments' checks; the unclaimed-job timeout.
-fn checked(args: &Args) -> anyhow::Result<Duration> {
+/// A positive period in ms (saturating), or what is wrong with `flag`.
+fn positive_ms(s: f64, flag: &str) -> anyhow::Result<u64> {
+    Duration::try_from_secs_f64(s)
+        .ok()
+        .filter(|d| !d.is_zero())
+        .map(|d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX))
+        .with_context(|| format!("{flag} must be > 0"))
+}
+
+/// The arguments' checks; the unclaimed-job timeout and the owners' lease, ms.
+fn checked(args: &Args) -> anyhow::Result<(u64, u64)> {
     anyhow::ensure!(
         args.every_s.is_finite() && args.every_s > 0.0,
         "--every-s must be > 0"
@@ -162,10 +175,10 @@ fn checked(args: &Args) -> anyhow::Result<Duration> {
         !args.workers || args.models.is_some(),
         "--workers needs --models and --collect-dir (the diagnoses to share out)"
     );
-    Duration::try_from_secs_f64(args.unclaimed_s)
-        .ok()
-        .filter(|d| !d.is_zero())
-        .context("--unclaimed-s must be > 0")
+    Ok((
+        positive_ms(args.unclaimed_s, "--unclaimed-s")?,
+        positive_ms(args.owner_timeout_s, "--owner-timeout-s")?,
+    ))
 }
 
 /// The workers' accepted results into `drifts`; true when there were any.
@@ -191,7 +204,7 @@ fn enough(args: &Args, drifts: &BTreeMap<(String, String), MachineDrift>) -> boo
 }
 
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
-    let unclaimed = checked(args)?;
+    let (unclaimed_ms, owner_timeout_ms) = checked(args)?;
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
@@ -204,8 +217,8 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         fc.view = FleetView::new(rebirth_every_ms);
         if args.workers {
             // Job ids start at the host's start time: a restarted host's ids are new ones.
-            let ms = u64::try_from(unclaimed.as_millis()).unwrap_or(u64::MAX);
-            fc.dispatch = Some(Dispatcher::new(now_ms(), ms));
+            let d = Dispatcher::new(now_ms(), unclaimed_ms).with_owner_timeout(owner_timeout_ms);
+            fc.dispatch = Some(d);
         }
         // Something changed since the last JSON line.
         let mut changed = true;

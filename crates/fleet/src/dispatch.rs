@@ -13,6 +13,11 @@
 //! `unclaimed_ms` (a message lost, or stuck behind a busy worker) is published again; a result from
 //! anyone but the owner is ignored. So each job's accepted result comes from exactly one worker.
 //!
+//! An owner alive but stuck (its will never comes) holds its job for at most its **lease**
+//! ([`Dispatcher::with_owner_timeout`]): a job not finished within the lease after its grant is
+//! taken back (the owner is told with a denied grant, its late result is ignored) and published
+//! again, with the lease doubled, so a job that is merely slow is not taken back forever.
+//!
 //! Times are ms on the caller's clock (the host uses ms since the Unix epoch).
 
 use std::collections::{BTreeMap, VecDeque};
@@ -99,6 +104,20 @@ struct Slot {
     owner: Option<String>,
     /// When it was last published and nobody owned it since, ms.
     sent_ms: u64,
+    /// When the current owner was granted it, ms.
+    granted_ms: u64,
+    /// How long an owner may hold it unfinished, ms (doubles at every take-back).
+    lease_ms: u64,
+}
+
+impl Slot {
+    /// When the owner's lease ends (None: no owner, or no lease: `u64::MAX` is never).
+    fn lease_end_ms(&self) -> Option<u64> {
+        self.owner
+            .as_ref()
+            .map(|_| self.granted_ms.saturating_add(self.lease_ms))
+            .filter(|end| *end != u64::MAX)
+    }
 }
 
 /// The host's side: unfinished jobs and their owners. Finished jobs are forgotten; a message
@@ -108,6 +127,7 @@ pub struct Dispatcher {
     jobs: BTreeMap<u64, Slot>,
     next_id: u64,
     unclaimed_ms: u64,
+    owner_timeout_ms: u64,
     outbox: VecDeque<(String, Vec<u8>)>,
     finished: VecDeque<Finished>,
     /// Jobs published again (owner gone, or unclaimed in time).
@@ -116,6 +136,8 @@ pub struct Dispatcher {
     pub denied: u64,
     /// Results ignored (not from the owner, or an unknown job).
     pub ignored: u64,
+    /// Jobs taken back from an owner that did not finish within its lease.
+    pub taken_back: u64,
 }
 
 fn json<T: Serialize>(v: &T) -> Vec<u8> {
@@ -131,12 +153,21 @@ impl Dispatcher {
             jobs: BTreeMap::new(),
             next_id: first_id,
             unclaimed_ms,
+            owner_timeout_ms: u64::MAX,
             outbox: VecDeque::new(),
             finished: VecDeque::new(),
             republished: 0,
             denied: 0,
             ignored: 0,
+            taken_back: 0,
         }
+    }
+
+    /// An owner may hold a job unfinished for `ms` after its grant (then twice as long after each
+    /// take-back of that job). Without it an owner holds its job until its will.
+    pub fn with_owner_timeout(mut self, ms: u64) -> Self {
+        self.owner_timeout_ms = ms.max(1);
+        self
     }
 
     /// Jobs not finished yet.
@@ -156,6 +187,8 @@ impl Dispatcher {
                 job,
                 owner: None,
                 sent_ms: now_ms,
+                granted_ms: now_ms,
+                lease_ms: self.owner_timeout_ms,
             },
         );
         id
@@ -192,10 +225,11 @@ impl Dispatcher {
     }
 
     /// First claim wins; the owner claiming again is granted again (its grant may be lost).
-    pub fn handle_claim(&mut self, c: &Claim, _now_ms: u64) {
+    pub fn handle_claim(&mut self, c: &Claim, now_ms: u64) {
         let granted = match self.jobs.get_mut(&c.job) {
             Some(s) if s.owner.is_none() => {
                 s.owner = Some(c.worker.clone());
+                s.granted_ms = now_ms;
                 true
             }
             Some(s) => s.owner.as_deref() == Some(c.worker.as_str()),
@@ -255,8 +289,12 @@ impl Dispatcher {
         self.publish(&job);
     }
 
-    /// The next message to publish (topic, JSON), jobs unclaimed for too long published again.
+    /// The next message to publish (topic, JSON): jobs unclaimed for too long published again,
+    /// jobs whose owner's lease ended taken back (a denied grant to it) and published again.
     pub fn poll_transmit(&mut self, now_ms: u64) -> Option<(String, Vec<u8>)> {
+        if self.outbox.is_empty() {
+            self.take_back_expired(now_ms);
+        }
         if self.outbox.is_empty() {
             let late: Vec<u64> = self
                 .jobs
@@ -273,17 +311,47 @@ impl Dispatcher {
         self.outbox.pop_front()
     }
 
+    fn take_back_expired(&mut self, now_ms: u64) {
+        let expired: Vec<(u64, String)> = self
+            .jobs
+            .iter()
+            .filter(|(_, s)| s.lease_end_ms().is_some_and(|end| now_ms >= end))
+            .filter_map(|(id, s)| Some((*id, s.owner.clone()?)))
+            .collect();
+        for (id, owner) in expired {
+            tracing::warn!(
+                job = id,
+                worker = owner,
+                "fleet: a worker did not finish its job within its lease: taken back"
+            );
+            let g = Grant {
+                job: id,
+                worker: owner.clone(),
+                granted: false,
+            };
+            self.outbox.push_back((topic(GRANTS, &owner), json(&g)));
+            if let Some(s) = self.jobs.get_mut(&id) {
+                s.lease_ms = s.lease_ms.saturating_mul(2);
+            }
+            self.taken_back += 1;
+            self.republish(id, now_ms);
+        }
+    }
+
     /// Put back a message [`Dispatcher::poll_transmit`] gave that could not be sent yet.
     pub fn unsend(&mut self, msg: (String, Vec<u8>)) {
         self.outbox.push_front(msg);
     }
 
-    /// When the next unclaimed job falls due (ms); None when no job waits for a claim.
+    /// When the next unclaimed job falls due or the next owner's lease ends (ms); None when no
+    /// job waits for either.
     pub fn poll_timeout(&self) -> Option<u64> {
         self.jobs
             .values()
-            .filter(|s| s.owner.is_none())
-            .map(|s| s.sent_ms.saturating_add(self.unclaimed_ms))
+            .filter_map(|s| match s.owner {
+                Some(_) => s.lease_end_ms(),
+                None => Some(s.sent_ms.saturating_add(self.unclaimed_ms)),
+            })
             .min()
     }
 

@@ -145,6 +145,47 @@ fn an_unclaimed_job_goes_out_again_after_the_timeout_and_not_before() {
 }
 
 #[test]
+fn a_stuck_owner_loses_its_job_at_the_end_of_its_lease_and_the_lease_doubles() {
+    const LEASE: u64 = 60_000;
+    let mut d = Dispatcher::new(1, T).with_owner_timeout(LEASE);
+    let a = d.submit(job("m1"), 0);
+    jobs(&mut d, 0);
+    assert!(claim(&mut d, a, "w1", 10));
+    assert_eq!(d.poll_timeout(), Some(10 + LEASE), "the owner's lease");
+    assert!(jobs(&mut d, 10 + LEASE - 1).is_empty(), "not before");
+    // w1 is alive (no will) but never finishes: at the lease's end it is told and the job goes out.
+    let mut out = vec![];
+    while let Some(m) = d.poll_transmit(10 + LEASE) {
+        out.push(m);
+    }
+    let denied = Grant {
+        job: a,
+        worker: "w1".into(),
+        granted: false,
+    };
+    assert_eq!(
+        out[0],
+        (topic(GRANTS, "w1"), serde_json::to_vec(&denied).unwrap())
+    );
+    assert_eq!(out.len(), 2, "{out:?}");
+    assert!(out[1].0.starts_with(JOBS));
+    assert_eq!((d.taken_back, d.republished), (1, 1));
+    // The next owner holds it twice as long; the stuck one's late result is not accepted.
+    let t2 = 20 + LEASE;
+    assert!(claim(&mut d, a, "w2", t2));
+    assert_eq!(d.poll_timeout(), Some(t2 + 2 * LEASE));
+    assert!(
+        jobs(&mut d, t2 + 2 * LEASE - 1).is_empty(),
+        "a slow job is not taken back early"
+    );
+    result(&mut d, a, "w1");
+    assert!(d.poll_finished().is_none());
+    result(&mut d, a, "w2");
+    assert_eq!(d.poll_finished().map(|f| f.worker).as_deref(), Some("w2"));
+    assert_eq!(d.poll_timeout(), None);
+}
+
+#[test]
 fn a_reconnected_worker_keeps_what_it_holds_and_frees_the_rest() {
     let mut d = Dispatcher::new(1, T);
     let a = d.submit(job("m1"), 0);
@@ -189,11 +230,13 @@ struct SimWorker {
 /// finishes once (by its owner: the dispatcher takes no other result), and no two live workers ever hold a grant for the same job.
 #[test]
 fn every_job_is_finished_exactly_once_across_random_interleavings() {
-    // Over all seeds: owners were killed, jobs lost and published again, claims denied.
-    let (mut all_kills, mut all_republished, mut all_denied) = (0, 0, 0);
+    // Over all seeds: owners were killed (their will) or stuck (no will, never finishing), jobs
+    // lost and published again, claims denied, stuck owners' jobs taken back at their lease's end.
+    let (mut all_kills, mut all_republished, mut all_denied, mut all_taken_back) = (0, 0, 0, 0);
     for seed in 1..=300u64 {
         let mut rng = Rng(seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1);
-        let mut d = Dispatcher::new(1, T);
+        // A lease far beyond a live worker's time on a job (a few s here): only stuck owners hit it.
+        let mut d = Dispatcher::new(1, T).with_owner_timeout(200_000);
         let mut ws: Vec<SimWorker> = (0..4)
             .map(|_| SimWorker {
                 alive: true,
@@ -272,15 +315,18 @@ fn every_job_is_finished_exactly_once_across_random_interleavings() {
                     }
                 }
                 _ => {
-                    // Kill one, at most two per run (the others finish the work); its will.
+                    // Kill one (its will) or let it hang (no will: it keeps what it holds and
+                    // does nothing more), at most two per run (the others finish the work).
                     let i = rng.below(ws.len());
                     if kills < 2 && ws[i].alive && rng.below(20) == 0 {
                         kills += 1;
                         ws[i].alive = false;
-                        to_host.push_back((
-                            topic(WORKERS, &format!("w{i}")),
-                            br#"{"state":"offline"}"#.to_vec(),
-                        ));
+                        if rng.below(2) == 0 {
+                            to_host.push_back((
+                                topic(WORKERS, &format!("w{i}")),
+                                br#"{"state":"offline"}"#.to_vec(),
+                            ));
+                        }
                     }
                 }
             }
@@ -306,10 +352,11 @@ fn every_job_is_finished_exactly_once_across_random_interleavings() {
         all_kills += kills;
         all_republished += d.republished;
         all_denied += d.denied;
+        all_taken_back += d.taken_back;
     }
     assert!(
-        all_kills > 50 && all_republished > 100 && all_denied > 100,
+        all_kills > 50 && all_republished > 100 && all_denied > 100 && all_taken_back > 5,
         "the interleavings did not exercise the paths: {all_kills} kills, \
-         {all_republished} republished, {all_denied} denied"
+         {all_republished} republished, {all_denied} denied, {all_taken_back} taken back"
     );
 }
