@@ -13,7 +13,7 @@ use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use crate::dispatch::{self, Dispatcher};
 use crate::fleet::FleetView;
 use retrocomp_gateway::northbound::telemetry::TelemetryError;
-use retrocomp_gateway::northbound::telemetry::config::TlsConfig;
+use retrocomp_gateway::northbound::telemetry::config::{TlsConfig, broker_host_port};
 use retrocomp_gateway::northbound::telemetry::publisher::now_ms;
 use retrocomp_gateway::northbound::telemetry::recordings::{Collector, Took};
 use retrocomp_gateway::northbound::telemetry::tls;
@@ -21,7 +21,7 @@ use retrocomp_gateway::northbound::telemetry::tls;
 /// Why the fleet client could not be built or lost its link.
 #[derive(Debug, thiserror::Error)]
 pub enum FleetClientError {
-    /// The broker address is not HOST:PORT.
+    /// The broker address is not HOST:PORT (a non-empty host, a port 1..=65535).
     #[error("--broker {0}: expected HOST:PORT")]
     Broker(String),
     /// The subscription request could not be queued.
@@ -212,8 +212,22 @@ impl FleetClient {
     }
 }
 
-/// `HOST:PORT` of a broker given on the command line (the host's and the workers' `--broker`).
+/// `HOST:PORT` of a broker given on the command line (the host's and the workers' `--broker`),
+/// by the box's rule for its broker (a non-empty host, a port 1..=65535, `[v6]:port`).
 pub(crate) fn host_port(broker: &str) -> Option<(String, u16)> {
-    let (h, p) = broker.rsplit_once(':')?;
-    Some((h.to_string(), p.parse::<u16>().ok()?))
+    broker_host_port(broker).ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::host_port;
+
+    #[test]
+    fn a_broker_is_a_host_and_a_port_1_to_65535_by_the_boxs_rule() {
+        assert_eq!(host_port("broker:1883"), Some(("broker".into(), 1883)));
+        assert_eq!(host_port("[::1]:8883"), Some(("::1".into(), 8883)));
+        for bad in ["broker", ":1883", "broker:0", "broker:65536", "broker:x"] {
+            assert_eq!(host_port(bad), None, "{bad}");
+        }
+    }
 }

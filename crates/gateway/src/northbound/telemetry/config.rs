@@ -204,20 +204,7 @@ impl MqttConfig {
 
     /// (host, port) of `broker`.
     pub fn host_port(&self) -> Result<(String, u16), String> {
-        let (h, p) = self
-            .broker
-            .rsplit_once(':')
-            .ok_or_else(|| format!("expected host:port, got {:?}", self.broker))?;
-        let port = p.parse::<u16>().map_err(|_| {
-            format!(
-                "expected host:port with a port 1..=65535, got {:?}",
-                self.broker
-            )
-        })?;
-        if h.is_empty() || port == 0 {
-            return Err(format!("expected host:port, got {:?}", self.broker));
-        }
-        Ok((h.trim_matches(['[', ']']).to_string(), port))
+        broker_host_port(&self.broker)
     }
 
     /// Start-time checks: (key below `telemetry.mqtt`, what was expected). Files named by the
@@ -336,4 +323,20 @@ impl MqttConfig {
             }
         }
     }
+}
+
+/// A broker's `host:port` (`[v6]:port` too): a non-empty host and a port 1..=65535. The one rule
+/// for every broker address the project reads (the box's `[telemetry.mqtt] broker`, the fleet
+/// host's and the workers' `--broker`).
+pub fn broker_host_port(broker: &str) -> Result<(String, u16), String> {
+    let (h, p) = broker
+        .rsplit_once(':')
+        .ok_or_else(|| format!("expected host:port, got {broker:?}"))?;
+    let port = p
+        .parse::<u16>()
+        .map_err(|_| format!("expected host:port with a port 1..=65535, got {broker:?}"))?;
+    if h.is_empty() || port == 0 {
+        return Err(format!("expected host:port, got {broker:?}"));
+    }
+    Ok((h.trim_matches(['[', ']']).to_string(), port))
 }
