@@ -203,29 +203,40 @@ fn enough(args: &Args, drifts: &BTreeMap<(String, String), MachineDrift>) -> boo
     args.stop_after_diagnosed.is_some_and(|n| done >= n)
 }
 
+/// The host's MQTT client as the arguments configure it: TLS, rebirth requests, the job
+/// dispatcher (`--workers`), the recordings' collection. Needs a tokio runtime.
+fn fleet_client(
+    args: &Args,
+    unclaimed_ms: u64,
+    owner_timeout_ms: u64,
+) -> anyhow::Result<FleetClient> {
+    let tls = args.tls_ca_file.clone().map(TlsConfig::with_ca);
+    let mut fc = FleetClient::with_tls(&args.broker, args.group.as_deref(), tls.as_ref())?;
+    // A negative or non-finite period asks at every sweep (0 ms); a huge one saturates.
+    let rebirth_every_ms = Duration::try_from_secs_f64(args.rebirth_every_s)
+        .map_or(0, |d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX));
+    fc.view = FleetView::new(rebirth_every_ms);
+    if args.workers {
+        // Job ids start at the host's start time: a restarted host's ids are new ones.
+        let d = Dispatcher::new(now_ms(), unclaimed_ms).with_owner_timeout(owner_timeout_ms);
+        fc.dispatch = Some(d);
+    }
+    if let Some(d) = &args.collect_dir {
+        std::fs::create_dir_all(d).with_context(|| d.display().to_string())?;
+        fc.collect(d.clone(), &args.recordings_topic);
+    }
+    Ok(fc)
+}
+
 pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     let (unclaimed_ms, owner_timeout_ms) = checked(args)?;
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
     rt.block_on(async {
-        let tls = args.tls_ca_file.clone().map(TlsConfig::with_ca);
-        let mut fc = FleetClient::with_tls(&args.broker, args.group.as_deref(), tls.as_ref())?;
-        // A negative or non-finite period asks at every sweep (0 ms); a huge one saturates.
-        let rebirth_every_ms = Duration::try_from_secs_f64(args.rebirth_every_s)
-            .map_or(0, |d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX));
-        fc.view = FleetView::new(rebirth_every_ms);
-        if args.workers {
-            // Job ids start at the host's start time: a restarted host's ids are new ones.
-            let d = Dispatcher::new(now_ms(), unclaimed_ms).with_owner_timeout(owner_timeout_ms);
-            fc.dispatch = Some(d);
-        }
+        let mut fc = fleet_client(args, unclaimed_ms, owner_timeout_ms)?;
         // Something changed since the last JSON line.
         let mut changed = true;
-        if let Some(d) = &args.collect_dir {
-            std::fs::create_dir_all(d).with_context(|| d.display().to_string())?;
-            fc.collect(d.clone(), &args.recordings_topic);
-        }
         let mut every = tokio::time::interval(Duration::from_secs_f64(args.every_s));
         let mut diag_every =
             tokio::time::interval(Duration::from_secs_f64(args.diagnose_every_s));
