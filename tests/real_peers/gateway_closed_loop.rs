@@ -4,6 +4,11 @@
 //! silent, temperature stuck then NaN, undecodable samples, and the gateway itself restarted.
 //! Asserted on the PLC's own write log: never a value beyond the clamp, never a change beyond the
 //! dosing cap relative to what the PLC held, resumes without a jump, recovers when sources return.
+//! Every wait is for an event (a register value, a /status field) with a bound that is never a
+//! measurement, so nothing here times the gateway; the timing of the same faults (edges at their
+//! instants, hold and ramp, the reconnect backoff, the writes back to the target) is asserted
+//! exactly in virtual time by hil-sim/tests/sim/closed_loop_faults.rs (docs/hil-sim.md, "Real-peer
+//! timing → virtual time").
 
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};

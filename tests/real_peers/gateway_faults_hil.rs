@@ -14,13 +14,22 @@
 //! | 22.0        | the gateway is SIGKILLed and restarted at once                           |
 //! | 25.5        | the gateway is stopped with SIGTERM and restarted                        |
 //!
-//! Asserted on hil-sim's own log of every client write (`plc_writes.csv`) and its recording:
-//! the gateway process survives every fault; no register value beyond the clamp (Y's per-axis clamp
-//! of 5 µm binds); no change between consecutive register values beyond the dosing cap (+1 LSB of
-//! rounding); each restart continues from what the PLC held; after each fault clears the applied
-//! correction is back within `TOL_UM` of the ideal correction (−(uncompensated error), clamped, from
-//! the simulator's truth); while the spindle sensor is stuck/NaN its neighbour's estimate keeps the
-//! thermal term tracking; the gateway logs each fault once when it starts and once when it clears.
+//! This is the real-peer smoke test of the shells and transports (CAN over socketcand, Modbus TCP,
+//! the weighing pty, process kill/stop/restart). Asserted on hil-sim's own log of every client write
+//! (`plc_writes.csv`), its recording and the gateway's logs: hil-sim injected every fault; the
+//! gateway process survives every fault; no register value beyond the clamp (Y's per-axis clamp of
+//! 5 µm binds); no change between consecutive register values beyond the dosing cap (+1 LSB of
+//! rounding); nothing written while the PLC is down, writes resume; each new connection continues
+//! from what the PLC held; the correction is within `TOL_UM` of the ideal one (−(uncompensated
+//! error), clamped, from the simulator's truth) before the faults and at the end, and comes back
+//! within it between faults; the encoder silence shows; while the spindle sensor is NaN its
+//! neighbour's estimate keeps the thermal term; the gateway logs each fault once when it starts and
+//! once when it clears, and every fault clears.
+//!
+//! The timing (fault edges at their instants, hold and ramp times, how many writes back to the
+//! target, "back within the tolerance N s after the fault") is asserted exactly in virtual time by
+//! hil-sim/tests/sim/closed_loop_faults.rs; the mapping is in docs/hil-sim.md ("Real-peer timing →
+//! virtual time"). The windows here only say between which faults something must happen.
 
 use crate::configs;
 use crate::hil_sim;
@@ -42,6 +51,14 @@ fn assert_alive(gw: &mut Child, log: &Path, when: &str) {
             std::fs::read_to_string(log).unwrap_or_default()
         );
     }
+}
+
+/// The closest the correction came to the ideal one in `from_s..to_s` (worst axis at each row), µm.
+fn min_dev(devs: &[(f64, [f64; 3])], from_s: f64, to_s: f64) -> f64 {
+    devs.iter()
+        .filter(|(t, _)| *t >= from_s && *t < to_s)
+        .map(|(_, d)| d.iter().fold(0.0f64, |m, v| m.max(v.abs())))
+        .fold(f64::INFINITY, f64::min)
 }
 
 fn sleep_until(t0: Instant, at_s: f64) {
@@ -127,15 +144,29 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
     // at t = GARBAGE.1 (sim); the wall time we read it gives the sim clock's lag.
     let cleared_at = sim.printed_at("hil-sim: fault SerialGarbage cleared", t0);
     let lag_s = cleared_at - GARBAGE.1;
+    // Only a bound that keeps the restarts' windows below meaningful: how far a loaded host lets
+    // the simulation or this reader fall behind is not the gateway's business.
     assert!(
-        lag_s.abs() < 1.0,
+        (-0.5..5.0).contains(&lag_s),
         "the simulation is {lag_s:.2} s off real time"
     );
 
+    let writes = check_writes(&out, lag_s);
+    let recording = check_recording(&out, &writes);
+    check_fault_logs(&log1, &log2, &log3);
+    eprintln!(
+        "faults against hil-sim: {} writes, {recording}; sim wall {sim_wall_s:.1} s",
+        writes.len()
+    );
+}
+
+/// The PLC's write log: clamp, dosing cap, nothing while the PLC is down, each new connection
+/// continuing from what the PLC held.
+fn check_writes(out: &Path, lag_s: f64) -> Vec<Write> {
     // ---- The PLC's write log: clamp, dosing cap, restarts.
     let writes = parse_writes(&std::fs::read_to_string(out.join("plc_writes.csv")).unwrap());
     assert!(writes.len() > 1000, "only {} writes", writes.len());
-    let (max_abs, max_step) = assert_clamp_and_cap(&writes);
+    let (max_abs, _) = assert_clamp_and_cap(&writes);
     assert_eq!(
         max_abs[1], CLAMP_Y_UM,
         "Y's clamp should bind in this run: {max_abs:?}"
@@ -151,8 +182,9 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
         0,
         "writes while the server was down"
     );
-    // Resumed before the next fault (how soon is the recovery check's business, below).
-    assert!(between(MODBUS_DOWN.1, CAN_SILENT.0).count() > 20);
+    // Resumed before the next fault (when exactly, and in how many writes back to the target, is
+    // asserted in virtual time by `transport_down_and_back_resumes_from_what_the_plc_holds_…`).
+    assert!(between(MODBUS_DOWN.1, CAN_SILENT.0).count() > 0);
     // Every new connection (the reconnect after `modbus_down`, each restarted gateway) continues
     // from what the PLC held, which is far from zero then, so a restart from zero would show.
     let changes: Vec<(&Write, &Write)> = writes
@@ -186,7 +218,11 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
             );
         }
     }
+    writes
+}
 
+/// The recording: the correction against the ideal one around the faults; a one-line summary.
+fn check_recording(out: &Path, writes: &[Write]) -> String {
     // ---- The recording: recovery after each fault, substitution during the sensor fault.
     let recording = std::fs::read_to_string(out.join("recording.csv")).unwrap();
     let devs = deviations(&recording);
@@ -197,42 +233,69 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
     // exactly in virtual time by hil-sim/tests/sim/closed_loop_faults.rs (the capped-write counts back to
     // the target, `assert_no_jump` on every 1 ms step); the write log's clamp and cap per write are
     // checked above, independent of timing.
-    let share = applied_share(&writes, &recording);
+    let share = applied_share(writes, &recording);
     assert!(share > 0.0, "none of the written shifts was ever applied");
     let all = [0, 1, 2];
-    let recovered = [
-        (2.5, MODBUS_DOWN.0),
-        (MODBUS_DOWN.1 + SETTLE_S, CAN_SILENT.0),
-        (CAN_SILENT.1 + SETTLE_S, T_STUCK.0),
-        (T_NAN.1 + SETTLE_S, GARBAGE.0),
-        (GARBAGE.1 + SETTLE_S, KILL_AT_S),
-        (KILL_AT_S + 1.5, TERM_AT_S),
-        (TERM_AT_S + 1.5, 30.0),
-    ];
+    // The correction is right before any fault, and right again at the end, after every fault and
+    // both restarts.
     let mut report = Vec::new();
-    for (a, b) in recovered {
+    for (a, b) in [(2.5, MODBUS_DOWN.0), (TERM_AT_S + 2.5, 30.0)] {
         let d = max_dev(&devs, a, b, &all);
         report.push(format!("{a:.1}–{b:.1} s: {d:.2} µm"));
         assert!(
             d <= TOL_UM,
-            "not recovered in {a}..{b} s: {d:.2} µm off the ideal"
+            "not within {TOL_UM} µm in {a}..{b} s: {d:.2} µm off the ideal"
         );
     }
-    // The X encoder silent: every axis holds, then ramps out (the model needs all positions).
-    let during_silence = max_dev(&devs, CAN_SILENT.0 + 0.8, CAN_SILENT.1, &all);
+    // Between the faults it comes back within the tolerance before the next one. How soon, and
+    // that it stays, is asserted exactly in virtual time (hil-sim/tests/sim/closed_loop_faults.rs:
+    // the capped writes back to the target after `modbus_down` and the silent node, the clean run
+    // rejoined after the stuck/NaN sensor and the garbage, the unbroken run met after a restart).
+    let recovered = [
+        ("modbus_down", MODBUS_DOWN.1, CAN_SILENT.0),
+        ("can_node_silent", CAN_SILENT.1, T_STUCK.0),
+        ("stuck/NaN", T_NAN.1, GARBAGE.0),
+        ("serial_garbage", GARBAGE.1, KILL_AT_S),
+        ("SIGKILL", KILL_AT_S, TERM_AT_S),
+    ];
+    for (what, a, b) in recovered {
+        let d = min_dev(&devs, a, b);
+        report.push(format!("after {what}: {d:.2} µm"));
+        assert!(
+            d <= TOL_UM,
+            "not back within {TOL_UM} µm after {what} ({a}..{b} s): at best {d:.2} µm off"
+        );
+    }
+    // The X encoder silent: every axis holds, then ramps out (the model needs all positions). The
+    // hold time and the ramp are asserted exactly by `a_silent_encoder_node_holds_for_exactly_…`.
+    let during_silence = max_dev(&devs, CAN_SILENT.0, CAN_SILENT.1 + SETTLE_S, &all);
     assert!(
         during_silence > 5.0,
         "encoder silence had no effect: {during_silence:.2} µm"
     );
-    // Spindle sensor stuck (detected after 1 s), then NaN: the neighbour keeps Z's thermal term.
-    let substituted = max_dev(&devs, T_STUCK.0 + 1.3, T_NAN.1, &[2]);
+    // Spindle sensor NaN (0x7FFF on CAN): the neighbour keeps Z's thermal term. The stuck phase
+    // before it (judged after 1 s) is asserted exactly by `a_stuck_then_nan_spindle_sensor_…`.
+    let substituted = max_dev(&devs, T_NAN.0 + 0.2, T_NAN.1, &[2]);
     assert!(
         substituted <= TOL_UM,
         "Z lost its thermal term: {substituted:.2} µm"
     );
+    let (max_abs, max_step) = assert_clamp_and_cap(writes);
+    format!(
+        "max |x,y,z| {max_abs:?} µm, max step {max_step} µm, applied share {share:.2}, \
+         encoder-silence deviation {during_silence:.1} µm, substituted Z within {substituted:.2} µm, \
+         {}",
+        report.join(", ")
+    )
+}
 
+/// The three gateways' fault logs: each fault once at start and once at clear, every fault cleared,
+/// each restart continuing from what the controller held.
+fn check_fault_logs(log1: &Path, log2: &Path, log3: &Path) {
     // ---- The gateway's fault log (gateway clock ≈ simulation clock; startup faults before 2 s).
-    let log1 = std::fs::read_to_string(&log1).unwrap();
+    // Each episode is looked for between the fault before it and the one after it: the instants of
+    // the edges are asserted exactly in virtual time (`one_episode` in closed_loop_faults.rs).
+    let log1 = std::fs::read_to_string(log1).unwrap();
     let ev = fault_events(&log1);
     let starts = episodes(&ev);
     // Episodes of (source, kind) starting in from..=to (s on the gateway clock).
@@ -245,31 +308,31 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
         count(
             "sink.origin_shift",
             "disconnected",
-            MODBUS_DOWN.0 - 0.1,
-            MODBUS_DOWN.1
+            MODBUS_DOWN.0 - 1.0,
+            CAN_SILENT.0
         ),
         1,
         "{starts:?}\n{log1}"
     );
     assert_eq!(
-        count("x_mm", "stale", CAN_SILENT.0, CAN_SILENT.1),
+        count("x_mm", "stale", CAN_SILENT.0 - 1.0, T_STUCK.0),
         1,
         "{starts:?}"
     );
     for quiet in ["y_mm", "z_mm"] {
         assert_eq!(
-            count(quiet, "stale", CAN_SILENT.0, CAN_SILENT.1),
+            count(quiet, "stale", CAN_SILENT.0 - 1.0, T_STUCK.0),
             0,
             "{starts:?}"
         );
     }
     assert_eq!(
-        count("T_spindle_C", "stuck", T_STUCK.0, T_STUCK.1),
+        count("T_spindle_C", "stuck", T_STUCK.0 - 1.0, T_NAN.1),
         1,
         "{starts:?}"
     );
     assert_eq!(
-        count("T_spindle_C", "out_of_range", T_NAN.0 - 0.1, T_NAN.1),
+        count("T_spindle_C", "out_of_range", T_NAN.0 - 1.0, GARBAGE.0),
         1,
         "NaN → 0x7FFF: {starts:?}"
     );
@@ -283,14 +346,14 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
         );
     }
     assert!(
-        count("F_cut_N", "out_of_range", GARBAGE.0, GARBAGE.1 + 0.1) >= 1,
+        count("F_cut_N", "out_of_range", GARBAGE.0 - 1.0, KILL_AT_S) >= 1,
         "the 90 kN readings were not rejected: {starts:?}"
     );
     // Every fault that started also cleared (the run ended healthy), in every process.
     for (i, log) in [
         log1.clone(),
-        std::fs::read_to_string(&log2).unwrap(),
-        std::fs::read_to_string(&log3).unwrap(),
+        std::fs::read_to_string(log2).unwrap(),
+        std::fs::read_to_string(log3).unwrap(),
     ]
     .iter()
     .enumerate()
@@ -318,11 +381,4 @@ fn gateway_rides_through_transport_and_sensor_faults_against_hil_sim() {
             );
         }
     }
-    eprintln!(
-        "faults against hil-sim: {} writes, max |x,y,z| {max_abs:?} µm, max step {max_step} µm, applied share {share:.2}, \
-         encoder-silence deviation {during_silence:.1} µm, substituted Z within {substituted:.2} µm, \
-         recovered: {}; sim wall {sim_wall_s:.1} s",
-        writes.len(),
-        report.join(", ")
-    );
 }

@@ -6,6 +6,9 @@
 //! and a force pty that vanishes and returns is reopened (the channel is Ok again).
 //! Also: every shipped field config (deploy/field/) loads with its model, and every channel its model
 //! needs is delivered by one of its sources.
+//! The waits are bounds (10–20 s), not measurements. These sources (Modbus TCP, ND 522 lines, a
+//! pty that vanishes) are not in the virtual-time harness, so this stays the test of their shells
+//! (docs/hil-sim.md, "Real-peer timing → virtual time").
 //! Peer: socat (`scripts/setup-peers.sh`).
 
 use crate::peers;
