@@ -44,12 +44,12 @@ use tokio::sync::watch;
 const PATIENCE: Duration = Duration::from_secs(120);
 
 /// A box: its publisher and the task feeding it a new snapshot every 20 ms.
-struct Box_ {
-    publisher: Publisher,
-    feeder: tokio::task::JoinHandle<()>,
+pub(crate) struct Box_ {
+    pub(crate) publisher: Publisher,
+    pub(crate) feeder: tokio::task::JoinHandle<()>,
 }
 
-fn start_box(port: u16, group: &str, node: &str, rebirth_min_interval_s: f64) -> Box_ {
+pub(crate) fn start_box(port: u16, group: &str, node: &str, rebirth_min_interval_s: f64) -> Box_ {
     let (tx, rx) = watch::channel::<Option<Arc<StatusSnapshot>>>(Some(Arc::new(snapshot(1))));
     let mut cfg = MqttConfig::new(&format!("127.0.0.1:{port}"), group, node);
     cfg.rebirth_min_interval_s = rebirth_min_interval_s;
@@ -71,7 +71,7 @@ fn start_box(port: u16, group: &str, node: &str, rebirth_min_interval_s: f64) ->
     Box_ { publisher, feeder }
 }
 
-async fn born(b: &Box_) {
+pub(crate) async fn born(b: &Box_) {
     let mut rx = b.publisher.status.clone();
     tokio::time::timeout(
         PATIENCE,
@@ -88,33 +88,26 @@ enum Line {
     Err(Instant, String),
 }
 
-fn node<'a>(update: &'a Value, name: &str) -> Option<&'a Value> {
+pub(crate) fn node<'a>(update: &'a Value, name: &str) -> Option<&'a Value> {
     update["nodes"]
         .as_array()?
         .iter()
         .find(|n| n["edge_node"] == name)
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_fleet_started_after_three_boxes_shows_them_online_within_2_s_and_gets_their_births() {
-    let _turn = crate::turn::take(file!());
-    let dir = tempfile::tempdir().unwrap();
-    let port = free_port();
-    let _broker = Broker::start(dir.path(), port);
-    let names = ["mill-1", "mill-2", "mill-3"];
-    let boxes: Vec<Box_> = names
-        .iter()
-        .map(|n| start_box(port, "hall", n, 1.0))
-        .collect();
-    for b in &boxes {
-        born(b).await;
-    }
-
+/// Starts `retrocomp fleet --group <group> --json` against the broker on `port` and reads its
+/// lines until every node in `names` is born and compensating. Returns how long after the
+/// host's subscription all were alive, the last JSON update and the host process.
+pub(crate) fn host_until_born(
+    port: u16,
+    group: &str,
+    names: &[&str],
+) -> (Duration, Value, std::process::Child) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
         .args(["fleet", "--broker", &format!("127.0.0.1:{port}")])
         .args([
             "--group",
-            "hall",
+            group,
             "--json",
             "--every-s",
             "0.1",
@@ -178,8 +171,30 @@ async fn a_fleet_started_after_three_boxes_shows_them_online_within_2_s_and_gets
         }
         last = u;
     }
-    let online_after = online_after.unwrap();
-    eprintln!("all 3 online {online_after:?} and born {born_after:?} after the SUBACK");
+    let online_after = online_after.expect("born implies alive");
+    eprintln!(
+        "all {} online {online_after:?} and born {born_after:?} after the SUBACK",
+        names.len()
+    );
+    (online_after, last, child)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fleet_started_after_three_boxes_shows_them_online_within_2_s_and_gets_their_births() {
+    let _turn = crate::turn::take(file!());
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let _broker = Broker::start(dir.path(), port);
+    let names = ["mill-1", "mill-2", "mill-3"];
+    let boxes: Vec<Box_> = names
+        .iter()
+        .map(|n| start_box(port, "hall", n, 1.0))
+        .collect();
+    for b in &boxes {
+        born(b).await;
+    }
+
+    let (online_after, last, mut child) = host_until_born(port, "hall", &names);
     assert!(
         online_after <= Duration::from_secs(2),
         "all 3 online only {online_after:?} after the subscription"
