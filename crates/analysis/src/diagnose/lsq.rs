@@ -5,37 +5,17 @@
 
 use nalgebra::{DMatrix, DVector};
 
+mod gram;
+mod mgs;
+
+pub use mgs::{orthonormalize, orthonormalize_gain};
+
 pub fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
 fn axpy(k: f64, x: &[f64], y: &mut [f64]) {
     y.iter_mut().zip(x).for_each(|(yi, xi)| *yi += k * xi);
-}
-
-/// Orthonormalise `cols` against `basis` and each other (modified Gram–Schmidt, `passes` sweeps).
-/// Columns that are (numerically) in the span already are dropped: they can explain nothing new.
-pub fn orthonormalize(basis: &[Vec<f64>], cols: Vec<Vec<f64>>, passes: usize) -> Vec<Vec<f64>> {
-    let mut out: Vec<Vec<f64>> = vec![];
-    for mut c in cols {
-        let n0 = dot(&c, &c).sqrt();
-        if n0.is_nan() || n0 <= 0.0 {
-            continue;
-        }
-        for _ in 0..passes {
-            for b in basis.iter().chain(out.iter()) {
-                let d = dot(b, &c);
-                axpy(-d, b, &mut c);
-            }
-        }
-        let n1 = dot(&c, &c).sqrt();
-        if n1 < 1e-7 * n0 {
-            continue;
-        }
-        c.iter_mut().for_each(|v| *v /= n1);
-        out.push(c);
-    }
-    out
 }
 
 /// RSS drop from projecting `r0` (already orthogonal to the basis) on orthonormal `u`.
@@ -51,21 +31,7 @@ pub fn gain(u: &[Vec<f64>], r0: &[f64]) -> f64 {
 /// the span of the basis (cyclic sin/cos pairs). Returns the drop and the number of columns kept.
 pub fn gram_gain(basis: &[Vec<f64>], cols: &[Vec<f64>], r0: &[f64]) -> (f64, usize) {
     let (q, b) = (cols.len(), basis.len());
-    let mut g = vec![0.0; q * q];
-    let mut cb = vec![0.0; b * q];
-    let mut h = vec![0.0; q];
-    for (i, ri) in r0.iter().enumerate() {
-        for a in 0..q {
-            let xa = cols[a][i];
-            h[a] += xa * ri;
-            for a2 in 0..=a {
-                g[a * q + a2] += xa * cols[a2][i];
-            }
-            for k in 0..b {
-                cb[k * q + a] += basis[k][i] * xa;
-            }
-        }
-    }
+    let (g, cb, h) = gram::sums(basis, cols, r0);
     // M = XᵀX − CᵀC (lower triangle), then Cholesky with dropping; y = L⁻¹h, gain = ‖y‖².
     let m = |a: usize, a2: usize| {
         g[a * q + a2] - (0..b).map(|k| cb[k * q + a] * cb[k * q + a2]).sum::<f64>()

@@ -118,11 +118,11 @@ pub(super) fn score_cols(
         });
         return (scored, cols);
     }
-    let u = lsq::orthonormalize(basis, cols, 1);
+    let (u, g) = lsq::orthonormalize_gain(basis, cols, r0);
     if u.is_empty() {
         return (None, u);
     }
-    let g = lsq::gain(&u, r0).min(rss0 * (1.0 - 1e-12));
+    let g = g.min(rss0 * (1.0 - 1e-12));
     (Some((g, u.len() + usize::from(c.is_nonlinear()))), u)
 }
 
