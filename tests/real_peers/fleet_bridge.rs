@@ -15,8 +15,7 @@
 //!   (`$SYS/broker/connection/<remote_clientid>/state`) went 1 → 0 → 1, and the host saw no NDATA
 //!   from H's boxes for at least half the cut while records from C's boxes kept arriving.
 //!
-//! - Rebirth across the bridge: a host started after H's boxes were born gets their births by
-//!   asking for them (NCMD in, NBIRTH out).
+//! - Rebirth across the bridge (`fleet_bridge_rebirth.rs`, on the same brokers).
 //!
 //! Every wait ends on an event with a deadline only a broken path reaches. Times s and ms;
 //! latency ms (host arrival − the NDATA's Sparkplug timestamp); CPU % of one core.
@@ -33,7 +32,7 @@ use std::time::{Duration, Instant};
 
 use retrocomp_fleet::load::{BoxesReport, HostTotals};
 
-const PATIENCE: Duration = Duration::from_secs(180);
+pub(crate) const PATIENCE: Duration = Duration::from_secs(180);
 /// How long the bridge link is cut.
 const CUT: Duration = Duration::from_secs(3);
 /// The bridge's client id on C, hence its notification topic there.
@@ -118,7 +117,7 @@ fn watch_bridge_state(port: u16) -> Notes {
     notes
 }
 
-fn wait_until(what: &str, f: impl Fn() -> bool) {
+pub(crate) fn wait_until(what: &str, f: impl Fn() -> bool) {
     let deadline = Instant::now() + PATIENCE;
     while !f() {
         assert!(Instant::now() < deadline, "{what}");
@@ -186,20 +185,20 @@ struct Run {
 }
 
 /// Brokers C and H, the proxy between H's bridge and C, and C's bridge notifications.
-struct Brokers {
+pub(crate) struct Brokers {
     c: Broker,
     h: Broker,
     proxy: Proxy,
     notes: Notes,
     /// Client ports of C and H.
-    ports: (u16, u16),
+    pub(crate) ports: (u16, u16),
     h_log: std::path::PathBuf,
     _dir: tempfile::TempDir,
 }
 
 impl Brokers {
     /// Starts C, the proxy and H, and waits until C says the bridge is up.
-    fn start() -> Brokers {
+    pub(crate) fn start() -> Brokers {
         let dir = tempfile::tempdir().unwrap();
         let (dc, dh) = (dir.path().join("c"), dir.path().join("h"));
         std::fs::create_dir_all(&dc).unwrap();
@@ -418,110 +417,6 @@ fn assert_everything_arrived(s: &Side, boxes: usize) {
 fn boxes_on_two_bridged_brokers_lose_nothing_through_a_bridge_link_cut() {
     let _turn = crate::turn::take(file!());
     through_an_outage("bridge-cut", Outage::CutLink);
-}
-
-/// Sparkplug's rebirth across the bridge: boxes born on H before any host listens (their
-/// NBIRTHs crossed to C — a watcher there saw them — and are not retained), then `retrocomp
-/// fleet` on C. The host sees only NDATA and asks each box for a rebirth (NCMD, C → bridge `in` → H);
-/// the NBIRTHs come back (H → bridge `out` → C). Asserted on H (a watcher subscribed there):
-/// every box got an NCMD after the host started and published an NBIRTH after it; and on the
-/// host: every box born and compensating.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_host_on_the_central_broker_gets_the_hall_boxes_births_by_rebirth_over_the_bridge() {
-    let _turn = crate::turn::take(file!());
-    use crate::telemetry_fleet_host::{born, host_until_born, node, start_box};
-    let b = tokio::task::block_in_place(Brokers::start);
-    let seen_on_h = watch(b.ports.1, "hall", "watch-h").await;
-    let seen_on_c = watch(b.ports.0, "hall", "watch-c").await;
-    let names = ["hall-mill-1", "hall-mill-2", "hall-mill-3"];
-    let boxes: Vec<_> = names
-        .iter()
-        .map(|n| start_box(b.ports.1, "hall", n, 1.0))
-        .collect();
-    for x in &boxes {
-        born(x).await;
-    }
-    // The bridge forwards one message at a time: wait until the births have crossed to C (so
-    // the host, subscribing later, cannot get them) before the host starts.
-    let crossed = |seen: &Arc<Mutex<Vec<(Instant, String)>>>| {
-        let seen = seen.lock().unwrap();
-        names.iter().all(|n| {
-            seen.iter()
-                .any(|(_, t)| t == &format!("spBv1.0/hall/NBIRTH/{n}"))
-        })
-    };
-    tokio::task::block_in_place(|| {
-        wait_until("the births never crossed the bridge", || {
-            crossed(&seen_on_c)
-        });
-    });
-    let host_started = Instant::now();
-    let (online_after, last, mut host) =
-        tokio::task::block_in_place(|| host_until_born(b.ports.0, "hall", &names));
-    let _ = host.kill();
-    let _ = host.wait();
-    let seen = seen_on_h.lock().unwrap().clone();
-    for name in names {
-        let n = node(&last, name).unwrap();
-        assert!(n["births"].as_u64() >= Some(1), "{n}");
-        let at = |kind: &str| {
-            seen.iter()
-                .filter(|(t, topic)| {
-                    *t >= host_started && topic == &format!("spBv1.0/hall/{kind}/{name}")
-                })
-                .map(|(t, _)| *t)
-                .min()
-        };
-        let ncmd = at("NCMD").unwrap_or_else(|| panic!("{name}: no NCMD reached H: {seen:?}"));
-        let nbirth = at("NBIRTH").unwrap_or_else(|| panic!("{name}: no NBIRTH on H: {seen:?}"));
-        assert!(nbirth >= ncmd, "{name}: the birth came before the request");
-    }
-    eprintln!("over the bridge: all online {online_after:?} after the host's subscription");
-    for x in boxes {
-        x.feeder.abort();
-        x.publisher.stop(Duration::from_secs(5)).await;
-    }
-}
-
-/// Every NCMD and NBIRTH of `group` on the broker at `port`, with when it arrived; subscribed
-/// when this returns.
-async fn watch(port: u16, group: &str, id: &str) -> Arc<Mutex<Vec<(Instant, String)>>> {
-    use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
-    let (c, mut events) = AsyncClient::new(MqttOptions::new(id, "127.0.0.1", port), 512);
-    for kind in ["NCMD", "NBIRTH"] {
-        c.subscribe(format!("spBv1.0/{group}/{kind}/+"), QoS::AtMostOnce)
-            .await
-            .unwrap();
-    }
-    let seen = Arc::new(Mutex::new(Vec::new()));
-    let (subscribed_tx, subscribed) = tokio::sync::oneshot::channel();
-    let log = seen.clone();
-    tokio::spawn(async move {
-        let _client = c;
-        let (mut subacks, mut tx) = (0, Some(subscribed_tx));
-        loop {
-            match events.poll().await {
-                Ok(Event::Incoming(Packet::SubAck(_))) => {
-                    subacks += 1;
-                    if subacks == 2
-                        && let Some(tx) = tx.take()
-                    {
-                        let _ = tx.send(());
-                    }
-                }
-                Ok(Event::Incoming(Packet::Publish(p))) => {
-                    log.lock().unwrap().push((Instant::now(), p.topic.clone()));
-                }
-                Ok(_) => {}
-                Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
-            }
-        }
-    });
-    tokio::time::timeout(PATIENCE, subscribed)
-        .await
-        .expect("the watcher was never subscribed")
-        .unwrap();
-    seen
 }
 
 /// Fails with Mosquitto 2.0.11 (Debian 12): with its default `max_inflight_messages 20`, after

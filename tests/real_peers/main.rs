@@ -56,6 +56,7 @@ mod bus_serial_peers;
 mod bus_supervision;
 mod dnc_peers;
 mod fleet_bridge;
+mod fleet_bridge_rebirth;
 mod fleet_workers;
 mod gateway_cli;
 mod gateway_closed_loop;
