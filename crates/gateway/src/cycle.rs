@@ -13,7 +13,7 @@
 //! Compensation dropped: whenever compensation is enabled but an axis is not tracking its target
 //! (inputs stale → holding or ramping out, model fault), the engine reports the fault
 //! `compensation.<axis>` (logged at start and clear, in status and metrics); this loop also sums the
-//! time, so a run's summary says how long compensation was off ([`CycleReport::not_compensating_s`]).
+//! time, so a run's summary says how long compensation was off ([`CompensationTime::not_compensating_s`] in [`CycleReport`]).
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
 
 use crate::engine::{Engine, ErrorModel};
-use crate::gateway_core::{Control, CycleCore};
+use crate::gateway_core::{CompensationTime, Control, CycleCore};
 use crate::pacer::{CycleWake, Pacer};
 use crate::sources::health::SourceBoard;
 use crate::status::{SinkStatus, StatusSnapshot};
@@ -65,21 +65,14 @@ pub struct CycleIo {
 /// What the loop reports when it stops.
 #[derive(Clone, Debug, Default)]
 pub struct CycleReport {
-    pub cycles: u64,
     /// Engine compute time per cycle, µs (p50, p99) over the last [`COMPUTE_WINDOW`] cycles.
     pub compute_us_p50: f64,
     pub compute_us_p99: f64,
     /// Cycles that started more than one period after they were due, and the worst lateness.
     pub late_cycles: u64,
     pub max_late_ms: f64,
-    /// Time during which compensation was enabled but at least one axis did not track, s.
-    pub not_compensating_s: f64,
-    /// Separate episodes of that.
-    pub not_compensating_episodes: u64,
-    /// Time during which compensation ran without the terms of an unusable optional channel
-    /// (e.g. the load terms while the force is stale), s, and its episodes.
-    pub partial_s: f64,
-    pub partial_episodes: u64,
+    /// Cycles run and the time without (full) compensation, as the [`CycleCore`] summed them.
+    pub time: CompensationTime,
 }
 
 #[derive(Debug)]
@@ -195,12 +188,7 @@ impl CycleLoop {
     }
 
     fn finish(mut self) -> CycleReport {
-        let t = self.core.compensation_time();
-        self.report.cycles = t.cycles;
-        self.report.not_compensating_s = t.not_compensating_s;
-        self.report.not_compensating_episodes = t.not_compensating_episodes;
-        self.report.partial_s = t.partial_s;
-        self.report.partial_episodes = t.partial_episodes;
+        self.report.time = self.core.compensation_time();
         self.compute_ns.sort_unstable();
         let n = self.compute_ns.len();
         let pct = |p: f64| {

@@ -236,18 +236,19 @@ pub async fn run(
 
 impl RunSummary {
     fn of(report: &CycleReport, st: &SinkStatus) -> Self {
+        let t = &report.time;
         RunSummary {
-            cycles: report.cycles,
+            cycles: t.cycles,
             writes_ok: st.writes_ok,
             writes_failed: st.writes_failed,
             compute_us_p50: report.compute_us_p50,
             compute_us_p99: report.compute_us_p99,
             late_cycles: report.late_cycles,
             max_late_ms: report.max_late_ms,
-            not_compensating_s: report.not_compensating_s,
-            not_compensating_episodes: report.not_compensating_episodes,
-            partial_s: report.partial_s,
-            partial_episodes: report.partial_episodes,
+            not_compensating_s: t.not_compensating_s,
+            not_compensating_episodes: t.not_compensating_episodes,
+            partial_s: t.partial_s,
+            partial_episodes: t.partial_episodes,
         }
     }
 }

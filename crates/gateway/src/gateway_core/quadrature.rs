@@ -207,11 +207,6 @@ impl QuadratureBox {
             .map(|a| (a.sched.injected_total(), a.sched.inject_remaining()))
     }
 
-    /// The sink's status (held µm per axis, writes, faults).
-    pub fn status(&self) -> &SinkStatus {
-        &self.status
-    }
-
     fn axis(&self, axis: Axis) -> Option<&VirtualAxis> {
         self.lines.axes.iter().find(|a| a.axis == Some(axis))
     }

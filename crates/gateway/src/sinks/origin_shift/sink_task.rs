@@ -27,7 +27,7 @@ use std::collections::BTreeMap;
 
 use super::client::OriginShiftSink;
 use super::{OriginShiftClient, SinkAxis, SinkCore};
-use crate::sinks::guard::SinkFaults;
+use crate::sinks::guard::{AxisLimits, SinkFaults};
 use crate::sinks::{LocalFuture, Sink, SinkError, SinkIo, StartValues};
 use retrocomp_bus::fault::{FaultEvent, FaultKind, FaultLog, FaultSource};
 use retrocomp_model::Axis;
@@ -154,7 +154,7 @@ pub fn end_period(
 /// in range, and the engine continues from it then.
 pub fn start_values_within(
     held_um: BTreeMap<String, f64>,
-    limits: &[SinkAxis],
+    limits: &[AxisLimits],
     default_max_um: f64,
 ) -> BTreeMap<String, f64> {
     let mut held_um = held_um;
