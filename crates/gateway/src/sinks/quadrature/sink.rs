@@ -51,7 +51,8 @@ pub fn check_buildable(q: &QuadratureSink) -> Result<(), SinkError> {
         if a.gpio.is_some() && !cfg!(all(feature = "gpio", target_os = "linux")) {
             return Err(SinkError::Refused(format!(
                 "sink.quadrature axis {}: `gpio` lines are configured but this build has no GPIO \
-                 support; rebuild with `cargo build --release --features gpio` (Linux), or remove \
+                 support; rebuild with the `gpio` feature (on by default: `cargo build --release` on \
+                 Linux, or `--features gpio` beside `--no-default-features`), or remove \
                  `gpio = …` to run the injector in simulation",
                 a.axis
             )));
