@@ -421,7 +421,7 @@ fn build_sink(cfg: &FieldConfig, epoch: std::time::Instant) -> Result<Box<dyn Si
         .origin_shift
         .clone()
         .ok_or_else(|| GatewayError::Refused("no sink configured".into()))?;
-    let sink = OriginShiftClientSink::new(os, limits, cfg.safety.max_correction_um, epoch)?;
+    let sink = OriginShiftClientSink::new(os, limits, epoch)?;
     Ok(Box::new(sink))
 }
 

@@ -104,8 +104,7 @@ impl GatewayCore {
             match (&cfg.sink.origin_shift, &cfg.sink.quadrature) {
                 (Some(os), None) => {
                     let core = SinkCore::new(os.map.clone(), limits.clone());
-                    let initial =
-                        start_values_within(held_um, &limits, cfg.safety.max_correction_um);
+                    let initial = start_values_within(held_um, &os.map, &limits);
                     let os = OriginShift {
                         sources: SinkSources::of(&core),
                         core,

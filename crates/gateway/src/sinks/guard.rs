@@ -97,6 +97,15 @@ pub struct GuardLimits {
     pub lsb_um: f64,
 }
 
+impl GuardLimits {
+    /// The one rule for "the controller holds a value within the clamp", for every sink's checks
+    /// and for which held values the engine may start from: finite, and at most half a count
+    /// beyond the clamp (a value written at the clamp reads back rounded).
+    pub fn holds_within_clamp(&self, held_um: f64) -> bool {
+        held_um.is_finite() && held_um.abs() <= self.max_correction_um + self.lsb_um * 0.5
+    }
+}
+
 /// What the guard allows for one axis this write.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Verdict {
@@ -229,10 +238,8 @@ impl WriteGuard {
         let Some((lo, hi)) = a.may_hold else {
             return Verdict::Unknown;
         };
-        // Half a count of tolerance: a value we wrote at the clamp reads back rounded.
-        let tol = lsb_um * 0.5;
         for held_um in [lo, hi] {
-            if !held_um.is_finite() || held_um.abs() > max + tol {
+            if !a.limits.holds_within_clamp(held_um) {
                 return Verdict::BeyondClamp { held_um };
             }
         }

@@ -26,7 +26,7 @@
 use super::cycle::{Action, Outcome, Reply, WriteCycle};
 use super::map::{RegisterMap, Words, WriteBlock, decode_value};
 pub use crate::sinks::guard::SinkFaults;
-use crate::sinks::guard::{GuardLimits, Verdict, WriteGuard};
+use crate::sinks::guard::{AxisLimits, Verdict, WriteGuard};
 use retrocomp_model::Axis;
 
 /// What the sink core needs per axis (clamp and per-write cap), in the map's axis order.
@@ -83,15 +83,11 @@ pub struct SinkCore {
 impl SinkCore {
     /// `axes` must name every axis of the map (its order is the map's).
     pub fn new(map: RegisterMap, axes: Vec<SinkAxis>) -> Self {
-        let guard = WriteGuard::new(map.axes.iter().map(|r| {
-            let a = axes.iter().find(|a| a.axis == r.axis);
-            GuardLimits {
-                // An axis without limits is never writable (clamp 0, cap 0 → only 0 from 0).
-                max_correction_um: a.map_or(0.0, |a| a.max_correction_um),
-                max_change_um_per_write: a.map_or(0.0, |a| a.max_change_um_per_write),
-                lsb_um: r.lsb_um,
-            }
-        }));
+        let guard = WriteGuard::new(
+            map.axes
+                .iter()
+                .map(|r| AxisLimits::of(&axes, &r.axis, r.lsb_um)),
+        );
         let axes = map
             .axes
             .iter()

@@ -26,6 +26,7 @@
 use std::collections::BTreeMap;
 
 use super::client::OriginShiftSink;
+use super::map::RegisterMap;
 use super::{OriginShiftClient, SinkAxis, SinkCore};
 use crate::sinks::guard::{AxisLimits, SinkFaults};
 use crate::sinks::{LocalFuture, Sink, SinkError, SinkIo, StartValues};
@@ -148,24 +149,28 @@ pub fn end_period(
     }
 }
 
-/// What the controller holds that the engine may continue from: a value beyond its axis's clamp
-/// (`limits`; `default_max_um` for an axis they do not name) or not finite is not a start value —
-/// the sink refuses to write that axis (a `BeyondClamp` fault) until the controller's value is back
-/// in range, and the engine continues from it then.
+/// What the controller holds that the engine may continue from: the held values the last-step
+/// guard would take as within the clamp
+/// ([`GuardLimits::holds_within_clamp`](crate::sinks::guard::GuardLimits::holds_within_clamp) with `map`'s
+/// resolution; an axis `limits` do not name has a clamp of 0). Any other value is not a start
+/// value — the sink refuses to write that axis (a `BeyondClamp` fault) until the controller's value
+/// is back in range, and the engine continues from it then.
 pub fn start_values_within(
     held_um: BTreeMap<String, f64>,
+    map: &RegisterMap,
     limits: &[AxisLimits],
-    default_max_um: f64,
 ) -> BTreeMap<String, f64> {
     let mut held_um = held_um;
     held_um.retain(|axis, held_um| {
-        let max = limits
+        let lsb_um = map
+            .axes
             .iter()
-            .find(|a| a.axis == *axis)
-            .map_or(default_max_um, |a| a.max_correction_um);
-        let ok = held_um.is_finite() && held_um.abs() <= max;
+            .find(|r| r.axis == *axis)
+            .map_or(0.0, |r| r.lsb_um);
+        let within = AxisLimits::of(limits, axis, lsb_um);
+        let ok = within.holds_within_clamp(*held_um);
         if !ok {
-            tracing::error!(axis, held_um, max, "controller holds a correction beyond the clamp: not writing this axis until it is back in range");
+            tracing::error!(axis, held_um, max = within.max_correction_um, "controller holds a correction beyond the clamp: not writing this axis until it is back in range");
         }
         ok
     });
@@ -313,8 +318,6 @@ pub struct OriginShiftClientSink {
     os: OriginShiftSink,
     client: OriginShiftClient,
     axes: Vec<SinkAxis>,
-    /// The clamp of an axis the map names but `axes` does not (the gateway's default safety), µm.
-    default_max_correction_um: f64,
     epoch: std::time::Instant,
 }
 
@@ -323,7 +326,6 @@ impl OriginShiftClientSink {
     pub fn new(
         os: OriginShiftSink,
         axes: Vec<SinkAxis>,
-        default_max_correction_um: f64,
         epoch: std::time::Instant,
     ) -> Result<Self, SinkError> {
         let client = OriginShiftClient::new(os.client(), os.map.clone())
@@ -332,7 +334,6 @@ impl OriginShiftClientSink {
             os,
             client,
             axes,
-            default_max_correction_um,
             epoch,
         })
     }
@@ -342,11 +343,7 @@ impl Sink for OriginShiftClientSink {
     fn start<'a>(&'a mut self, io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>> {
         Box::pin(async move {
             let initial = read_initial(&mut self.client, &io.status, self.epoch).await;
-            Ok(start_values_within(
-                initial,
-                &self.axes,
-                self.default_max_correction_um,
-            ))
+            Ok(start_values_within(initial, &self.os.map, &self.axes))
         })
     }
 
@@ -459,6 +456,59 @@ mod tests {
         for k in 0..3u32 {
             wait_for_period(&mut rx, PERIOD, &mut last, &[]).await;
             assert_eq!(Instant::now() - t0, PERIOD * k);
+        }
+    }
+
+    /// The engine starts from exactly the held values the last-step guard takes as within the
+    /// clamp: the same half-count tolerance, the same resolution per axis, the same clamp of 0 for
+    /// an axis without limits. (They were two rules: the start rule had no tolerance and gave an
+    /// axis without limits the default clamp.)
+    #[test]
+    fn the_start_values_are_what_the_guard_takes_as_within_the_clamp() {
+        use crate::sinks::guard::{Verdict, WriteGuard};
+        let map: RegisterMap = toml::from_str(
+            "[[axis]]\naxis = \"x\"\naddress = 0\nkind = \"int32\"\nlsb_um = 0.1\nsign = 1\n\
+             [[axis]]\naxis = \"y\"\naddress = 2\nkind = \"int16\"\nlsb_um = 1.0\nsign = -1\n\
+             [[axis]]\naxis = \"z\"\naddress = 3\nkind = \"int16\"\nlsb_um = 1.0\nsign = 1\n",
+        )
+        .unwrap();
+        let limits = [
+            AxisLimits {
+                axis: "x".into(),
+                max_correction_um: 50.0,
+                max_change_um_per_write: 1.0,
+            },
+            AxisLimits {
+                axis: "y".into(),
+                max_correction_um: 50.0,
+                max_change_um_per_write: 1.0,
+            },
+        ];
+        let guard_takes = |axis: &str, held_um: f64| {
+            let lsb_um = map.axes.iter().find(|r| r.axis == axis).unwrap().lsb_um;
+            let mut g = WriteGuard::new([AxisLimits::of(&limits, axis, lsb_um)]);
+            g.observe_read(0, held_um);
+            !matches!(g.check(0, 0.0), Verdict::BeyondClamp { .. })
+        };
+        let cases = [
+            ("x", 50.0, true),
+            ("x", 50.04, true),
+            ("x", 50.06, false),
+            ("x", -50.04, true),
+            ("x", f64::NAN, false),
+            ("x", f64::INFINITY, false),
+            ("y", 50.4, true),
+            ("y", -50.6, false),
+            ("z", 0.0, true),
+            ("z", 0.4, true),
+            ("z", 2.0, false),
+        ];
+        for (axis, held_um, within) in cases {
+            let start = start_values_within([(axis.to_string(), held_um)].into(), &map, &limits);
+            assert_eq!(start.contains_key(axis), within, "{axis} {held_um}");
+            assert_eq!(guard_takes(axis, held_um), within, "{axis} {held_um}");
+            let rule = AxisLimits::of(&limits, axis, if axis == "x" { 0.1 } else { 1.0 });
+            assert_eq!(rule.holds_within_clamp(held_um), within, "{axis} {held_um}");
         }
     }
 }
