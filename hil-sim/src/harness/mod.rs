@@ -272,6 +272,22 @@ impl ClosedLoop {
         self.start_gateway()
     }
 
+    /// The gateway is asked to stop (SIGTERM with `on_stop = "ramp_out"`): its sink ramps the
+    /// controller's correction out within the cap while the harness keeps stepping (the cycles go
+    /// on; the sink no longer follows them).
+    pub fn stop_gateway(&mut self) {
+        if let Some(gw) = self.gateway.as_mut() {
+            gw.handle_stop();
+        }
+    }
+
+    /// The stopping gateway's sink has ramped the controller out to 0 on every axis.
+    pub fn is_ramped_out(&self) -> bool {
+        self.gateway
+            .as_ref()
+            .is_some_and(GatewayCore::is_ramped_out)
+    }
+
     /// What the PLC's value registers hold per map axis, µm (decoded with the sink's own map).
     pub fn registers_held_um(&self) -> BTreeMap<String, f64> {
         let Some(os) = self.field.sink.origin_shift.as_ref() else {

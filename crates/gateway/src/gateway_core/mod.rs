@@ -8,7 +8,7 @@
 //! one change under both.
 //!
 //! Driving vocabulary: `handle_*` for what arrived (a CAN frame, serial bytes, the controller's
-//! reply), `poll_*` for what is due at `now_s` (a cycle, a sink request, quadrature edges).
+//! reply, a stop), `poll_*` for what is due at `now_s` (a cycle, a sink request, quadrature edges).
 //! Reseeds found by a sink period reach the engine at the next cycle, as through the runtime's
 //! channel.
 //!
@@ -336,6 +336,31 @@ impl GatewayCore {
             let events = q.handle_outputs(outs, now_ns, now_s);
             self.edges.extend(events.into_iter().map(FaultEdge::of));
         }
+    }
+
+    /// Stop with `on_stop = "ramp_out"` (the runtime's SIGTERM/SIGINT): from now on the sink wants
+    /// 0 on every axis whatever the cycle's outputs, at most one cap per write period (origin
+    /// shift) or per quadrature step, and never ramps an axis whose controller value is beyond the
+    /// clamp. Keep driving `poll_period` / `poll_quadrature` until [`GatewayCore::is_ramped_out`].
+    pub fn handle_stop(&mut self) {
+        if let Some(os) = self.origin_shift.as_mut() {
+            os.core.begin_ramp_out();
+        }
+        if let Some(q) = self.quadrature.as_mut() {
+            q.begin_ramp_out();
+        }
+    }
+
+    /// Stopping, and the controller holds 0 on every axis (origin shift: a period's read showed
+    /// it; quadrature: 0 counts, every edge out).
+    pub fn is_ramped_out(&self) -> bool {
+        self.origin_shift
+            .as_ref()
+            .is_none_or(|os| os.core.is_ramped_out())
+            && self
+                .quadrature
+                .as_ref()
+                .is_none_or(QuadratureBox::is_ramped_out)
     }
 
     /// The quadrature box (`[sink.quadrature]`), if that is the sink.

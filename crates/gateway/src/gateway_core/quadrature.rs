@@ -95,6 +95,8 @@ pub struct QuadratureBox {
     status: SinkStatus,
     sources: SinkSources,
     faults: FaultLog,
+    /// Stopping with `on_stop = "ramp_out"` ([`QuadratureBox::begin_ramp_out`]).
+    ramping_out: bool,
 }
 
 impl QuadratureBox {
@@ -146,6 +148,7 @@ impl QuadratureBox {
             status,
             sources,
             faults: FaultLog::default(),
+            ramping_out: false,
         };
         Ok((b, start))
     }
@@ -164,7 +167,7 @@ impl QuadratureBox {
             &mut self.core,
             &mut self.lines,
             outs,
-            false,
+            self.ramping_out,
             &mut self.store,
             &mut self.status,
         );
@@ -175,6 +178,19 @@ impl QuadratureBox {
             self.status.faults = self.faults.active_by_name();
         }
         events
+    }
+
+    /// Stop as the sink does on SIGTERM with `on_stop = "ramp_out"`: from the next step on, every
+    /// axis wants 0 whatever the outputs, at most one cap per step; an axis beyond the clamp is
+    /// not ramped (it keeps its count and its fault).
+    pub fn begin_ramp_out(&mut self) {
+        self.ramping_out = true;
+        self.core.begin_ramp_out();
+    }
+
+    /// Ramping out, every axis at 0 counts and every edge on the lines.
+    pub fn is_ramped_out(&self) -> bool {
+        self.core.is_ramped_out()
     }
 
     /// Every edge due at or before `now_ns`, in time order per axis. (As with the injector
