@@ -12,7 +12,10 @@ use crate::configs::{field_toml, sim_io_toml, sim_machine_toml};
 pub(crate) const STROKES: usize = 3;
 /// The RTU slave mute: the spindle has warmed by ≈ 3.5 °C (Z ≈ −20 µm thermal) and keeps warming.
 pub(crate) const RTU_DOWN: (f64, f64) = (7.0, 10.0);
-/// The poller: a poll every 50 ms, 200 ms reply timeout, 100–400 ms before the port is reopened.
+/// The `[[modbus.source]]` of `T_spindle_C` (one copy, shared with the virtual-time twin).
+const RTU_SOURCE: &str = include_str!("../fixtures/faults_hil/rtu_source.toml");
+/// The poller: a poll every 50 ms, 200 ms reply timeout, 100–400 ms before the port is reopened
+/// (as `rtu_source.toml` says; checked when the config is made).
 pub(crate) const RTU_PERIOD_S: f64 = 0.05;
 pub(crate) const RTU_TIMEOUT_S: f64 = 0.2;
 pub(crate) const RTU_BACKOFF_S: (f64, f64) = (0.1, 0.4);
@@ -46,23 +49,13 @@ pub(crate) fn field_toml_rtu(hub_port: u16, plc: &str, weigh_pty: &Path, rtu_dev
         "faults_hil_configs.rs changed: T_spindle_C's CAN mapping not found"
     );
     let (b0, b1) = RTU_BACKOFF_S;
-    base.replace(can_line, "")
-        + &format!(
-            r#"
-[[modbus.source]]
-name = "pt100-rtu"
-transport = "rtu"
-device = "{dev}"
-baud = 19200
-unit_id = 1
-period_s = {RTU_PERIOD_S}
-timeout_s = {RTU_TIMEOUT_S}
-backoff_min_s = {b0}
-backoff_max_s = {b1}
-channel = [
-  {{ channel = "T_spindle_C", kind = "input", address = 0, type = "int16", scale = 0.1, min = -50.0, max = 200.0 }},
-]
-"#,
-            dev = rtu_dev.display(),
-        )
+    for key in [
+        format!("period_s = {RTU_PERIOD_S}\n"),
+        format!("timeout_s = {RTU_TIMEOUT_S}\n"),
+        format!("backoff_min_s = {b0}\n"),
+        format!("backoff_max_s = {b1}\n"),
+    ] {
+        assert!(RTU_SOURCE.contains(&key), "rtu_source.toml changed: {key}");
+    }
+    base.replace(can_line, "") + &RTU_SOURCE.replace("@RTU_DEVICE@", &rtu_dev.display().to_string())
 }

@@ -220,7 +220,7 @@ async fn rtu_poller_keeps_the_inter_frame_silence() {
         max_gap: 0,
         channel,
     });
-    assert_eq!(p.core.plan.len(), 3, "three separate reads");
+    assert_eq!(p.schedule.core.plan.len(), 3, "three separate reads");
     let mut out = Vec::new();
     p.poll_once(0.0, &mut out).await; // first poll: connect and warm up
     assert!(out.iter().all(|s| s.health == Health::Ok), "{out:?}");

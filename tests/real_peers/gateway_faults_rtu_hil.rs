@@ -18,10 +18,9 @@
 //! substituted without a break, then healthy for good), never by their wall times, so a loaded host
 //! changes how many probes fall in each phase, not the verdict. On hil-sim's log of every PLC write:
 //! clamp, dosing cap, no gap in the writes, no jump; the gateway survives and stops cleanly.
-//! The timing left here (a write in each second of the mute, the tolerance windows around it, at
-//! most 1 s of reply-timeout blips, the fault log within 3 s of the mute) has no virtual-time twin:
-//! the harness has no Modbus RTU slave and `GatewayCore` no Modbus poll core (docs/hil-sim.md,
-//! "Real-peer timing → virtual time").
+//! The same run in virtual time, with exact instants, is `hil-sim/tests/sim/closed_loop_rtu.rs`
+//! (the harness's RTU slave, the same poller schedule): when the channel goes stale and comes back,
+//! the estimate at every cycle, the writes at the clean run's instants, the tolerance.
 
 use crate::configs;
 use crate::hil_sim;

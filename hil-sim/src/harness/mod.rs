@@ -7,9 +7,11 @@
 //! Per step (the world's servo period, 1 ms by default), in this fixed order:
 //! 1. the world steps (interpolator, PLC scan, servos, thermal, cutting, sensor faults);
 //! 2. the transport-fault schedule of the sim config (`[[io.faults]]`) moves to the new time;
-//! 3. the sim's own encoders ([`Publisher`]: CiA 406 / CiA 404 frames, weighing lines) produce what
-//!    is due; frames of a silent node are dropped ([`silenced`]), garbage bytes ([`Garbage`], seeded)
-//!    go on the serial line before the lines; the gateway decodes them with its own source cores;
+//! 3. the sim's own encoders ([`Publisher`]: CiA 406 / CiA 404 frames, weighing lines, the Modbus
+//!    input registers) produce what is due; frames of a silent node are dropped ([`silenced`]),
+//!    garbage bytes ([`Garbage`], seeded) go on the serial line before the lines; the gateway decodes
+//!    them with its own source cores; its `[[modbus.source]]`s poll the sim's RTU slave (`rtu.rs`:
+//!    mute while `modbus_rtu_down`, a read then times out after the source's `timeout_s`);
 //! 4. on a cycle tick (`gateway.cycle_ms`) the gateway's cycle runs (reseeds of the last sink
 //!    period first, as through the runtime's channel); with `[sink.quadrature]` the box steps the
 //!    outputs through the sink's guard and its lines' due edges reach the controller's receivers;
@@ -30,6 +32,7 @@
 //! Units: µm for shifts and corrections (register = correction; + moves the slide +), s for time.
 
 pub mod link;
+mod rtu;
 
 use std::collections::BTreeMap;
 
@@ -138,6 +141,8 @@ pub struct ClosedLoop {
     pulses: Vec<Pulse>,
     /// `[sink.quadrature]`: the box's held-counts store, surviving its restarts (the state file).
     held_counts: MemoryHeld,
+    /// The sim's Modbus RTU slave for the gateway's `[[modbus.source]]`s.
+    rtu: rtu::RtuSlave,
 }
 
 // By hand: the model factory is a closure.
@@ -201,6 +206,7 @@ impl ClosedLoop {
         };
         let io = world.config().io.clone();
         let publisher = Publisher::new(io.clone(), &world);
+        let rtu = rtu::RtuSlave::new(&field);
         // As `hil-sim serve`: mean 30 ms between bursts.
         let garbage = Garbage::new(world.config().seed, 0.03);
         let mut h = Self {
@@ -225,6 +231,7 @@ impl ClosedLoop {
             receivers,
             pulses: Vec::new(),
             held_counts: Default::default(),
+            rtu,
             world,
         };
         h.start_gateway()?;
@@ -268,6 +275,7 @@ impl ClosedLoop {
     pub fn restart_gateway(&mut self) -> anyhow::Result<()> {
         self.collect_edges();
         self.gateway = None;
+        self.rtu.restart();
         self.generation += 1;
         self.start_gateway()
     }
@@ -326,7 +334,9 @@ impl ClosedLoop {
         let (active, changes) = self.schedule.advance(t);
         self.transitions.extend(changes);
         self.link_up = !active.modbus_down;
+        self.rtu.set_answers(active.rtu_answers());
         let out = self.publisher.poll(&mut self.world);
+        self.rtu.publish(&out.input_regs);
         let junk = self.garbage.poll(t, active.serial_garbage);
         if let Some(gw) = self.gateway.as_mut() {
             for f in out.frames.iter().filter(|f| !silenced(f, &active)) {
@@ -338,6 +348,7 @@ impl ClosedLoop {
                 self.serial_bytes += l.len() as u64;
                 gw.handle_serial(0, l.as_bytes(), t);
             }
+            self.rtu.drive(gw, t);
             if tick.is_multiple_of(self.cycle_ticks) {
                 gw.poll_cycle(t);
             }
@@ -549,6 +560,11 @@ impl ClosedLoop {
     /// Every transport-fault start and clear the schedule made.
     pub fn transitions(&self) -> &[Transition] {
         &self.transitions
+    }
+
+    /// Modbus requests the sim's RTU slave left unanswered so far (muted).
+    pub fn rtu_unanswered(&self) -> u64 {
+        self.rtu.unanswered
     }
 
     /// Bytes put on the serial line so far.

@@ -30,6 +30,7 @@ pub(crate) fn truth_model() -> PathBuf {
 const FIXTURE_SIM: &str = include_str!("../../../tests/fixtures/faults_hil/sim.toml");
 const FIXTURE_FIELD: &str = include_str!("../../../tests/fixtures/faults_hil/field.toml");
 const FIXTURE_MAP: &str = include_str!("../../../tests/fixtures/faults_hil/origin_shift_map.toml");
+const FIXTURE_RTU: &str = include_str!("../../../tests/fixtures/faults_hil/rtu_source.toml");
 
 /// The sim config: `program` (G-code body between the header and M30), extra TOML (`[[faults]]`,
 /// `[[io.faults]]`) appended. `quiet`: no sensor or force noise and no screw heating, so while the
@@ -116,12 +117,31 @@ pub(crate) fn field_config() -> FieldConfig {
     field_config_with(&format!("{ORIGIN_SHIFT_SINK}\n{FIXTURE_MAP}"))
 }
 
+/// [`field_config`] with `T_spindle_C` read over Modbus RTU from the sim's slave instead of CAN
+/// (`gateway_faults_rtu_hil`'s gateway; its neighbour `T_spindle2_C` stays on CAN).
+pub(crate) fn field_config_rtu() -> FieldConfig {
+    let can_line = "  { channel = \"T_spindle_C\", node_id = 10, type = \"int16\", byte_offset = 0, decimal_digits = 1 },\n";
+    assert!(
+        FIXTURE_FIELD.contains(can_line),
+        "fixture changed: T_spindle_C on CAN"
+    );
+    let sink = format!(
+        "{}\n{ORIGIN_SHIFT_SINK}\n{FIXTURE_MAP}",
+        FIXTURE_RTU.replace("@RTU_DEVICE@", "in-process")
+    );
+    field_config_from(&FIXTURE_FIELD.replace(can_line, ""), &sink)
+}
+
 /// The same gateway with the quadrature sink instead of the origin shift.
 pub(crate) fn field_config_quadrature() -> FieldConfig {
     field_config_with(QUADRATURE_SINK)
 }
 
 fn field_config_with(sink: &str) -> FieldConfig {
+    field_config_from(FIXTURE_FIELD, sink)
+}
+
+fn field_config_from(fixture_field: &str, sink: &str) -> FieldConfig {
     let text = format!(
         r#"
 [gateway]
@@ -129,7 +149,7 @@ name = "harness"
 cycle_ms = 5
 thermal_period_s = 0.1
 status_listen = "127.0.0.1:0"
-{FIXTURE_FIELD}
+{fixture_field}
 [can]
 backend = "mem"
 

@@ -12,6 +12,7 @@ mod sim_common;
 
 mod closed_loop_faults;
 mod closed_loop_quadrature;
+mod closed_loop_rtu;
 mod closed_loop_stop;
 mod determinism;
 mod faults;

@@ -1,13 +1,18 @@
-//! The Modbus polling client (tokio-modbus, TCP or RTU): the async shell around [`PollCore`].
+//! The Modbus polling client (tokio-modbus, TCP or RTU): the async shell that does the I/O its
+//! sans-IO [`PollSchedule`] asks for (when to connect and read; [`PollCore`] turns outcomes into
+//! samples).
 //!
 //! What it adds to tokio-modbus (rust-stack.md §2): a timeout on every request and on connect (#113:
 //! the client has none); after a timeout or transport error the context is dropped and rebuilt with
 //! exponential backoff (#219 no reconnect; #60 poor RTU recovery after a bad frame); Modbus exceptions
 //! are values (→ `DecodeError` samples); on RTU a silence of t3.5 is kept between frames (#180).
 
-use super::poll_core::{PollCore, PollCounters, ReadOutcome, rtu_silence_s};
+#[cfg(doc)]
+use super::poll_core::PollCore;
+use super::poll_core::{PollCounters, ReadOutcome, rtu_silence_s};
+use super::poll_schedule::{PollRequest, PollSchedule, PollStep};
 use super::regmap::RegisterChannel;
-use crate::{Backoff, Sample};
+use crate::Sample;
 use std::time::Duration;
 use tokio::time::Instant;
 use tokio_modbus::client::Context;
@@ -88,10 +93,10 @@ pub struct ModbusSourceConfig {
 
 pub struct ModbusPoller {
     pub cfg: ModbusSourceConfig,
-    pub core: PollCore,
+    pub schedule: PollSchedule,
     ctx: Option<Context>,
-    backoff: Backoff,
-    next_connect: Instant,
+    /// The schedule's clock: seconds since the poller was made.
+    epoch: Instant,
     last_io: Option<Instant>,
 }
 
@@ -100,7 +105,7 @@ impl std::fmt::Debug for ModbusPoller {
         f.debug_struct("ModbusPoller")
             .field("source", &self.cfg.name)
             .field("connected", &self.ctx.is_some())
-            .field("counters", &self.core.counters)
+            .field("counters", &self.schedule.core.counters)
             .finish()
     }
 }
@@ -116,21 +121,24 @@ fn secs(s: f64) -> Duration {
 impl ModbusPoller {
     pub fn new(cfg: ModbusSourceConfig) -> Self {
         ModbusPoller {
-            core: PollCore::new(cfg.channel.clone(), 125, cfg.max_gap),
-            backoff: Backoff::from_secs_f64(cfg.backoff_min_s, cfg.backoff_max_s),
+            schedule: PollSchedule::new(&cfg),
             cfg,
             ctx: None,
-            next_connect: Instant::now(),
+            epoch: Instant::now(),
             last_io: None,
         }
     }
 
     pub fn counters(&self) -> PollCounters {
-        self.core.counters
+        self.schedule.counters()
     }
 
     pub fn is_connected(&self) -> bool {
         self.ctx.is_some()
+    }
+
+    fn now_s(&self) -> f64 {
+        self.epoch.elapsed().as_secs_f64()
     }
 
     async fn connect(&self) -> std::io::Result<Context> {
@@ -160,35 +168,19 @@ impl ModbusPoller {
         }
     }
 
-    async fn ensure_connected(&mut self) -> bool {
-        if self.ctx.is_some() {
-            return true;
-        }
-        if Instant::now() < self.next_connect {
-            return false;
-        }
+    /// Connect within `timeout_s`.
+    async fn try_connect(&mut self) -> bool {
         match tokio::time::timeout(secs(self.cfg.timeout_s), self.connect()).await {
             Ok(Ok(ctx)) => {
-                self.core.counters.connects += 1;
-                self.backoff.reset();
                 self.ctx = Some(ctx);
                 true
             }
             Ok(Err(e)) => {
                 tracing::debug!(source = %self.cfg.name, "modbus connect failed: {e}");
-                self.fail_connect();
                 false
             }
-            Err(_) => {
-                self.fail_connect();
-                false
-            }
+            Err(_) => false,
         }
-    }
-
-    fn fail_connect(&mut self) {
-        self.core.counters.connect_failures += 1;
-        self.next_connect = self.backoff.retry_at(Instant::now());
     }
 
     async fn read_block(&mut self, b: usize) -> ReadOutcome {
@@ -201,7 +193,7 @@ impl ModbusPoller {
                 tokio::time::sleep_until(t + secs(rtu_silence_s(self.cfg.baud))).await;
             }
         }
-        let blk = &self.core.plan[b];
+        let blk = &self.schedule.core.plan[b];
         ctx.set_slave(Slave(self.cfg.unit_id));
         let fut = async { super::read::read_registers(ctx, blk.kind, blk.start, blk.count).await };
         let r = tokio::time::timeout(secs(self.cfg.timeout_s), fut).await;
@@ -214,23 +206,38 @@ impl ModbusPoller {
         }
     }
 
-    /// One poll cycle over every planned read; samples (timestamped `t_s`) are appended to `out`.
-    pub async fn poll_once(&mut self, t_s: f64, out: &mut Vec<Sample>) {
-        let mut up = self.ensure_connected().await;
-        for b in 0..self.core.plan.len() {
-            if !up {
-                self.core.stale_block(b, t_s, out);
-                continue;
-            }
-            let outcome = self.read_block(b).await;
-            if matches!(outcome, ReadOutcome::Timeout | ReadOutcome::Transport(_)) {
-                // The context may hold a late reply or a half frame: rebuild it (#60, #219).
-                self.ctx = None;
-                self.next_connect = self.backoff.retry_at(Instant::now());
-                up = false;
-            }
-            self.core.on_outcome(b, &outcome, t_s, out);
+    /// Do what the schedule asks until the poll ends; its counters around it and the link after.
+    async fn drive(
+        &mut self,
+        first: PollStep,
+        out: &mut Vec<Sample>,
+    ) -> Option<(PollCounters, PollCounters)> {
+        let mut step = first;
+        loop {
+            step = match step {
+                PollStep::Idle => return None,
+                PollStep::Done { before, after, .. } => return Some((before, after)),
+                PollStep::Request(PollRequest::Connect) => {
+                    let ok = self.try_connect().await;
+                    self.schedule.handle_connect(ok, self.now_s(), out)
+                }
+                PollStep::Request(PollRequest::Read(b)) => {
+                    let outcome = self.read_block(b).await;
+                    if matches!(outcome, ReadOutcome::Timeout | ReadOutcome::Transport(_)) {
+                        // The context may hold a late reply or a half frame: rebuild it (#60, #219).
+                        self.ctx = None;
+                    }
+                    self.schedule.handle_outcome(&outcome, self.now_s(), out)
+                }
+            };
         }
+    }
+
+    /// One poll over every planned read now (whatever the period); samples (timestamped `t_s`)
+    /// are appended to `out`.
+    pub async fn poll_once(&mut self, t_s: f64, out: &mut Vec<Sample>) {
+        let first = self.schedule.begin(self.now_s(), t_s, out);
+        self.drive(first, out).await;
     }
 
     /// Poll every `period_s` until `out` is closed.
@@ -239,21 +246,27 @@ impl ModbusPoller {
     }
 
     /// [`Self::run`], calling `observe(before, after, connected)` with the counters around every
-    /// poll, so the caller can turn failed polls and exception replies into faults.
+    /// poll, so the caller can turn failed polls and exception replies into faults. Samples are
+    /// stamped with `clock_s()` at each poll's start.
     pub async fn run_observed(
         mut self,
         clock_s: impl Fn() -> f64,
         out: tokio::sync::mpsc::Sender<Vec<Sample>>,
         mut observe: impl FnMut(&PollCounters, &PollCounters, bool),
     ) {
-        let mut tick = tokio::time::interval(secs(self.cfg.period_s).max(Duration::from_millis(1)));
-        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
-            tick.tick().await;
+            if let Some(due_s) = self.schedule.poll_timeout() {
+                let wait = due_s - self.now_s();
+                if wait > 0.0 {
+                    tokio::time::sleep(secs(wait)).await;
+                }
+            }
             let mut batch = Vec::new();
-            let before = self.core.counters;
-            self.poll_once(clock_s(), &mut batch).await;
-            observe(&before, &self.core.counters, self.is_connected());
+            let first = self.schedule.poll(self.now_s(), clock_s(), &mut batch);
+            let Some((before, after)) = self.drive(first, &mut batch).await else {
+                continue;
+            };
+            observe(&before, &after, self.is_connected());
             if out.send(batch).await.is_err() {
                 return;
             }

@@ -7,8 +7,11 @@
 //! itself, so a change of the cycle's order, the reseed path, the guard or the fault mapping is
 //! one change under both.
 //!
-//! Driving vocabulary: `handle_*` for what arrived (a CAN frame, serial bytes, the controller's
-//! reply, a stop), `poll_*` for what is due at `now_s` (a cycle, a sink request, quadrature edges).
+//! Driving vocabulary: `handle_*` for what arrived (a CAN frame, serial bytes, a Modbus source's
+//! connect or read, the controller's reply, a stop), `poll_*` for what is due at `now_s` (a cycle, a
+//! Modbus read, a sink request, quadrature edges); `modbus_timeout` says when a Modbus source's next
+//! poll is due. A Modbus source runs the poller's own [`PollSchedule`] (period, timeout → stale,
+//! reconnect backoff); the driver does its I/O.
 //! Reseeds found by a sink period reach the engine at the next cycle, as through the runtime's
 //! channel.
 //!
@@ -23,6 +26,9 @@ use std::collections::BTreeMap;
 use retrocomp_bus::can::Frame;
 use retrocomp_bus::canopen::source::CanopenSource;
 use retrocomp_bus::fault::FaultEvent;
+use retrocomp_bus::modbus::RegisterTable;
+use retrocomp_bus::modbus::poll_core::{PollCounters, ReadOutcome};
+use retrocomp_bus::modbus::poll_schedule::{PollRequest, PollSchedule, PollStep};
 use retrocomp_bus::serial::source::LineSource;
 use retrocomp_bus::{ChannelId, Sample};
 use retrocomp_model::Axis;
@@ -58,6 +64,21 @@ impl FaultEdge {
     }
 }
 
+/// What a Modbus source asks its driver for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ModbusRequest {
+    /// Open the link (answer with [`GatewayCore::handle_modbus_connect`]).
+    Connect,
+    /// Read `count` registers of `table` from `start` (answer with
+    /// [`GatewayCore::handle_modbus_outcome`]: the words, an exception, or a timeout after the
+    /// source's `timeout_s`).
+    Read {
+        table: RegisterTable,
+        start: u16,
+        count: u16,
+    },
+}
+
 /// The origin-shift sink: its core, fault log and the period's request in flight.
 #[derive(Debug)]
 struct OriginShift {
@@ -75,6 +96,7 @@ pub struct GatewayCore {
     cycle: CycleCore,
     canopen: Option<CanopenSource>,
     serial: Vec<LineSource>,
+    modbus: Vec<PollSchedule>,
     origin_shift: Option<OriginShift>,
     quadrature: Option<QuadratureBox>,
     samples: Vec<Sample>,
@@ -132,11 +154,18 @@ impl GatewayCore {
             .flat_map(|s| s.source.iter().cloned())
             .map(LineSource::new)
             .collect();
+        let modbus = cfg
+            .modbus
+            .iter()
+            .flat_map(|m| m.source.iter())
+            .map(PollSchedule::new)
+            .collect();
         Ok(Self {
             cycle: CycleCore::new(engine, model),
             cfg,
             canopen,
             serial,
+            modbus,
             origin_shift,
             quadrature,
             samples: Vec::new(),
@@ -179,6 +208,64 @@ impl GatewayCore {
     /// Garbage lines the serial sources counted so far.
     pub fn serial_garbage_lines(&self) -> u64 {
         self.serial.iter().map(|s| s.counters().garbage_lines).sum()
+    }
+
+    /// When Modbus source `i`'s next poll is due (None: it waits for its I/O, or no such source).
+    pub fn modbus_timeout(&self, i: usize) -> Option<f64> {
+        self.modbus.get(i)?.poll_timeout()
+    }
+
+    /// Modbus source `i`'s poll due at `now_s` starts: its first request, if it needs I/O (a poll
+    /// while the link may not be retried yet only stales its channels).
+    pub fn poll_modbus(&mut self, i: usize, now_s: f64) -> Option<ModbusRequest> {
+        let m = self.modbus.get_mut(i)?;
+        let step = m.poll(now_s, now_s, &mut self.samples);
+        Self::request(m, step)
+    }
+
+    /// Modbus source `i`'s connect succeeded (`ok`) or failed at `now_s`; its next request.
+    pub fn handle_modbus_connect(
+        &mut self,
+        i: usize,
+        ok: bool,
+        now_s: f64,
+    ) -> Option<ModbusRequest> {
+        let m = self.modbus.get_mut(i)?;
+        let step = m.handle_connect(ok, now_s, &mut self.samples);
+        Self::request(m, step)
+    }
+
+    /// Modbus source `i`'s read came back with `outcome` at `now_s`; its next request. The
+    /// samples reach the engine at the next cycle.
+    pub fn handle_modbus_outcome(
+        &mut self,
+        i: usize,
+        outcome: &ReadOutcome,
+        now_s: f64,
+    ) -> Option<ModbusRequest> {
+        let m = self.modbus.get_mut(i)?;
+        let step = m.handle_outcome(outcome, now_s, &mut self.samples);
+        Self::request(m, step)
+    }
+
+    /// Modbus source `i`'s counters (requests, timeouts, connects…).
+    pub fn modbus_counters(&self, i: usize) -> Option<PollCounters> {
+        Some(self.modbus.get(i)?.counters())
+    }
+
+    fn request(m: &PollSchedule, step: PollStep) -> Option<ModbusRequest> {
+        match step {
+            PollStep::Request(PollRequest::Connect) => Some(ModbusRequest::Connect),
+            PollStep::Request(PollRequest::Read(b)) => {
+                let blk = &m.core.plan[b];
+                Some(ModbusRequest::Read {
+                    table: blk.kind,
+                    start: blk.start,
+                    count: blk.count,
+                })
+            }
+            PollStep::Done { .. } | PollStep::Idle => None,
+        }
     }
 
     /// One cycle at `now_s`: the sources' freshness checks, every sample in arrival order, the
