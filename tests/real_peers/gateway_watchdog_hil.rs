@@ -13,8 +13,9 @@
 //! The test only sequences the processes (waiting for events: the PLC's registers, hil-sim's printed
 //! watchdog edges, the gateway's exit, each with a generous deadline); every assertion is on the
 //! PLC's own record of what it applied (`plc_latches.csv`, stamped on the simulated clock).
-//! No assertion is on wall time, so nothing moved to the virtual-time harness, which has neither a
-//! frozen box nor the PLC's heartbeat watchdog (docs/hil-sim.md, "Real-peer timing → virtual time").
+//! No assertion is on wall time. The same sequence in virtual time, with exact instants (the trip
+//! one timeout after the last heartbeat, the ramp scan by scan), is
+//! `hil-sim/tests/sim/closed_loop_watchdog.rs`.
 
 use crate::configs;
 use crate::hil_sim;

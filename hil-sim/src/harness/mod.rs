@@ -22,6 +22,12 @@
 //!    a new period begins: at once when connected, else only once the backoff's next attempt is due
 //!    and the link is up.
 //!
+//! Process faults of the gateway: [`ClosedLoop::kill_gateway`] (SIGKILL, then
+//! [`ClosedLoop::start_new_gateway`] or [`ClosedLoop::restart_gateway`]), [`ClosedLoop::freeze_gateway`]
+//! (SIGSTOP/SIGCONT: it handles nothing while frozen), [`ClosedLoop::stop_gateway`] (SIGTERM with a
+//! ramp-out). The PLC's own record (latches, its heartbeat watchdog's trip / ramp / re-arm) is kept
+//! with the step's time ([`ClosedLoop::plc_events`]).
+//!
 //! Every write that reaches the PLC is logged with what the PLC applied at that moment
 //! ([`PlcWrite`]), and every step's applied shift ([`StepTrace`]): the scenarios assert the clamp,
 //! the cap per write and "no jump" on these, against what the controller actually holds.
@@ -43,6 +49,7 @@ use retrocomp_gateway::sinks::quadrature::{DecodeError, QuadDecoder};
 use retrocomp_model::Axis;
 
 use crate::SimConfig;
+use crate::controller::plc::PlcEvent;
 use crate::io::publish::Publisher;
 use crate::io::transport_faults::{Garbage, Schedule, Transition, silenced};
 use crate::world::World;
@@ -143,6 +150,9 @@ pub struct ClosedLoop {
     held_counts: MemoryHeld,
     /// The sim's Modbus RTU slave for the gateway's `[[modbus.source]]`s.
     rtu: rtu::RtuSlave,
+    /// The gateway process is stopped (SIGSTOP).
+    frozen: bool,
+    plc_events: Vec<(f64, PlcEvent)>,
 }
 
 // By hand: the model factory is a closure.
@@ -232,6 +242,8 @@ impl ClosedLoop {
             pulses: Vec::new(),
             held_counts: Default::default(),
             rtu,
+            frozen: false,
+            plc_events: Vec::new(),
             world,
         };
         h.start_gateway()?;
@@ -273,11 +285,36 @@ impl ClosedLoop {
 
     /// The gateway process dies (SIGKILL: nothing more is sent) and starts again at once.
     pub fn restart_gateway(&mut self) -> anyhow::Result<()> {
+        self.kill_gateway();
+        self.start_new_gateway()
+    }
+
+    /// The gateway process dies (SIGKILL): nothing more is sent until [`Self::start_new_gateway`].
+    pub fn kill_gateway(&mut self) {
         self.collect_edges();
         self.gateway = None;
+        self.frozen = false;
         self.rtu.restart();
         self.generation += 1;
+    }
+
+    /// A new gateway process starts (after [`Self::kill_gateway`]).
+    pub fn start_new_gateway(&mut self) -> anyhow::Result<()> {
+        anyhow::ensure!(self.gateway.is_none(), "a gateway runs");
         self.start_gateway()
+    }
+
+    /// The gateway process is frozen (SIGSTOP) or runs again (SIGCONT): frozen, it reads nothing,
+    /// cycles nothing and sends nothing (what the sources sent meanwhile is lost to it, and a
+    /// request in flight is answered when it runs again); its clock goes on.
+    pub fn freeze_gateway(&mut self, frozen: bool) {
+        self.frozen = frozen;
+    }
+
+    /// The PLC's record: every change of what it applies and every watchdog edge, at the step
+    /// that made it (`plc_latches.csv` of `hil-sim serve`).
+    pub fn plc_events(&self) -> &[(f64, PlcEvent)] {
+        &self.plc_events
     }
 
     /// The gateway is asked to stop (SIGTERM with `on_stop = "ramp_out"`): its sink ramps the
@@ -331,6 +368,8 @@ impl ClosedLoop {
         self.world.tick();
         let tick = self.world.ticks();
         let t = self.world.t_s();
+        let events = self.world.plc_mut().take_events();
+        self.plc_events.extend(events.into_iter().map(|e| (t, e)));
         let (active, changes) = self.schedule.advance(t);
         self.transitions.extend(changes);
         self.link_up = !active.modbus_down;
@@ -338,6 +377,10 @@ impl ClosedLoop {
         let out = self.publisher.poll(&mut self.world);
         self.rtu.publish(&out.input_regs);
         let junk = self.garbage.poll(t, active.serial_garbage);
+        if self.frozen {
+            self.trace_step(t);
+            return;
+        }
         if let Some(gw) = self.gateway.as_mut() {
             for f in out.frames.iter().filter(|f| !silenced(f, &active)) {
                 gw.handle_frame(f, t);
@@ -358,6 +401,11 @@ impl ClosedLoop {
         } else {
             self.run_sink(tick, t);
         }
+        self.trace_step(t);
+    }
+
+    /// The step's trace row and the gateway's fault edges.
+    fn trace_step(&mut self, t: f64) {
         let output_um = self.gateway.as_ref().map_or([f64::NAN; 3], |gw| {
             let o = gw.outputs();
             std::array::from_fn(|k| o.get(k).map_or(f64::NAN, |(_, v)| *v))

@@ -132,6 +132,18 @@ pub(crate) fn field_config_rtu() -> FieldConfig {
     field_config_from(&FIXTURE_FIELD.replace(can_line, ""), &sink)
 }
 
+/// [`field_config`] with the box's heartbeat in the PLC window (`gateway_watchdog_hil`'s gateway:
+/// register 12, the controller's rule armed with `timeout_ms`).
+pub(crate) fn field_config_heartbeat(register: u16, timeout_ms: u64) -> FieldConfig {
+    let map = "[sink.origin_shift.map]\n";
+    assert!(FIXTURE_MAP.contains(map), "fixture changed: {map}");
+    let with = FIXTURE_MAP.replace(
+        map,
+        &format!("{map}heartbeat_address = {register}\nheartbeat_timeout_ms = {timeout_ms}\n"),
+    );
+    field_config_with(&format!("{ORIGIN_SHIFT_SINK}\n{with}"))
+}
+
 /// The same gateway with the quadrature sink instead of the origin shift.
 pub(crate) fn field_config_quadrature() -> FieldConfig {
     field_config_with(QUADRATURE_SINK)

@@ -14,6 +14,7 @@ mod closed_loop_faults;
 mod closed_loop_quadrature;
 mod closed_loop_rtu;
 mod closed_loop_stop;
+mod closed_loop_watchdog;
 mod determinism;
 mod faults;
 mod fuzz_regressions;
