@@ -110,6 +110,20 @@ fn assert_ramps_at_the_rate(events: &[(f64, PlcEvent)], trip_s: f64, zero_s: f64
     }
 }
 
+/// The heartbeat stopped at `from_s`: the PLC trips one timeout after the last heartbeat it saw
+/// change (at that scan), and ramps to 0 by its rule. Returns (trip, at zero).
+fn trip_and_ramp_to_zero(h: &mut ClosedLoop, from_s: f64) -> (f64, f64) {
+    let trip = until_event(h, PlcEventKind::Trip, from_s, 2.0);
+    let beat = last_heartbeat(h, from_s);
+    assert!(
+        trip >= beat + TIMEOUT_S - 1e-9 && trip <= beat + TIMEOUT_S + SCAN_S + 1e-9,
+        "tripped at {trip} s, last heartbeat {beat} s"
+    );
+    let zero = until_event(h, PlcEventKind::AtZero, trip, 2.0);
+    assert_ramps_at_the_rate(h.plc_events(), trip, zero);
+    (trip, zero)
+}
+
 #[test]
 fn the_plc_trips_one_timeout_after_the_last_heartbeat_ramps_at_its_rate_and_the_box_comes_back_from_it()
  {
@@ -120,15 +134,8 @@ fn the_plc_trips_one_timeout_after_the_last_heartbeat_ramps_at_its_rate_and_the_
     until_holds(&mut h, HOLDS_UM);
     let kill_s = h.t_s();
     h.kill_gateway();
-    let trip1 = until_event(&mut h, PlcEventKind::Trip, kill_s, 2.0);
-    let beat1 = last_heartbeat(&h, kill_s);
-    assert!(
-        trip1 >= beat1 + TIMEOUT_S - 1e-9 && trip1 <= beat1 + TIMEOUT_S + SCAN_S + 1e-9,
-        "tripped at {trip1} s, last heartbeat {beat1} s"
-    );
-    let zero1 = until_event(&mut h, PlcEventKind::AtZero, trip1, 2.0);
+    let (trip1, zero1) = trip_and_ramp_to_zero(&mut h, kill_s);
     assert_eq!(h.applied_um(), [0.0; 3]);
-    assert_ramps_at_the_rate(h.plc_events(), trip1, zero1);
 
     // A new box starts from the PLC's 0 and takes the correction back within the cap per write.
     h.start_new_gateway().unwrap();
@@ -138,14 +145,7 @@ fn the_plc_trips_one_timeout_after_the_last_heartbeat_ramps_at_its_rate_and_the_
     // 2. SIGSTOP: the same trip and ramp; after SIGCONT the box re-reads the PLC's 0 and goes on.
     let stop_s = h.t_s();
     h.freeze_gateway(true);
-    let trip2 = until_event(&mut h, PlcEventKind::Trip, stop_s, 2.0);
-    let beat2 = last_heartbeat(&h, stop_s);
-    assert!(
-        trip2 >= beat2 + TIMEOUT_S - 1e-9 && trip2 <= beat2 + TIMEOUT_S + SCAN_S + 1e-9,
-        "tripped at {trip2} s, last heartbeat {beat2} s"
-    );
-    let zero2 = until_event(&mut h, PlcEventKind::AtZero, trip2, 2.0);
-    assert_ramps_at_the_rate(h.plc_events(), trip2, zero2);
+    let (trip2, zero2) = trip_and_ramp_to_zero(&mut h, stop_s);
     h.freeze_gateway(false);
     let cont_s = h.t_s();
     let back2 = until_event(&mut h, PlcEventKind::Rearm, cont_s, 1.0);
