@@ -102,6 +102,34 @@ fn a_mute_rtu_slave_goes_stale_in_one_timeout_is_estimated_throughout_and_back_w
         clear > RTU_DOWN.1 && clear <= RTU_DOWN.1 + TIMEOUT_S + BACKOFF_MAX_S + PERIOD_S + CYCLE_S,
         "back at {clear} s"
     );
+    // The source's link, as the runtime reports it (`modbus.pt100-rtu` Disconnected): down at the
+    // first unanswered request's timeout, which is also when its channel went stale, and up again
+    // with the reconnect that brought the channel back.
+    let link: Vec<(f64, bool)> = edges(&h, "modbus.pt100-rtu", FaultKind::Disconnected)
+        .iter()
+        .filter(|e| e.t_s > 1.0)
+        .map(|e| (e.t_s, e.started))
+        .collect();
+    assert!(
+        link.len() == 2 && link[0].1 && !link[1].1,
+        "one link episode: {link:?}"
+    );
+    assert!(
+        link[0].0 <= start && start - link[0].0 < CYCLE_S,
+        "link down at {} s, channel stale at {start} s",
+        link[0].0
+    );
+    assert!(
+        link[1].0 <= clear && clear - link[1].0 < CYCLE_S,
+        "link up at {} s, channel back at {clear} s",
+        link[1].0
+    );
+    assert!(
+        edges(&clean, "modbus.pt100-rtu", FaultKind::Disconnected)
+            .iter()
+            .all(|e| e.t_s < 1.0),
+        "the clean run's link never drops after start-up"
+    );
     // The clean run: never stale.
     assert!(after_start(&clean).is_empty());
     // The poller's own account: every unanswered request was a timeout, and it reconnected.
@@ -122,7 +150,7 @@ fn a_mute_rtu_slave_goes_stale_in_one_timeout_is_estimated_throughout_and_back_w
     let others: Vec<_> = h
         .fault_edges()
         .iter()
-        .filter(|e| e.source != "T_spindle_C" && e.t_s > 1.0)
+        .filter(|e| e.source != "T_spindle_C" && e.source != "modbus.pt100-rtu" && e.t_s > 1.0)
         .collect();
     assert!(others.is_empty(), "{others:?}");
 

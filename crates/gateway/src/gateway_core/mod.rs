@@ -43,6 +43,7 @@ use crate::engine::safety::Mode;
 use crate::error::GatewayError;
 use crate::sinks::origin_shift::sink_task::{SinkSources, end_period, start_values_within};
 use crate::sinks::origin_shift::{Action, Reply, SinkCore};
+use crate::sources::health::{SourceBoard, SourceReporter};
 
 /// One fault edge as the gateway logs it (source, kind, started or cleared, gateway time).
 #[derive(Clone, Debug, PartialEq)]
@@ -79,6 +80,16 @@ pub enum ModbusRequest {
     },
 }
 
+/// A `[[modbus.source]]`: the poller's schedule and its link as the runtime reports it
+/// (`modbus.<name>`: `Disconnected` while down, `Exception` after an exception reply).
+#[derive(Debug)]
+struct ModbusSource {
+    schedule: PollSchedule,
+    reporter: SourceReporter,
+    /// The reporter's first state (down until the first connect) is published.
+    started: bool,
+}
+
 /// The origin-shift sink: its core, fault log and the period's request in flight.
 #[derive(Debug)]
 struct OriginShift {
@@ -96,7 +107,7 @@ pub struct GatewayCore {
     cycle: CycleCore,
     canopen: Option<CanopenSource>,
     serial: Vec<LineSource>,
-    modbus: Vec<PollSchedule>,
+    modbus: Vec<ModbusSource>,
     origin_shift: Option<OriginShift>,
     quadrature: Option<QuadratureBox>,
     samples: Vec<Sample>,
@@ -158,7 +169,16 @@ impl GatewayCore {
             .modbus
             .iter()
             .flat_map(|m| m.source.iter())
-            .map(PollSchedule::new)
+            .map(|m| ModbusSource {
+                schedule: PollSchedule::new(m),
+                // As the runtime starts its reporter: down until the first connect.
+                reporter: SourceReporter::new(
+                    &format!("modbus.{}", m.name),
+                    false,
+                    SourceBoard::default(),
+                ),
+                started: false,
+            })
             .collect();
         Ok(Self {
             cycle: CycleCore::new(engine, model),
@@ -212,15 +232,20 @@ impl GatewayCore {
 
     /// When Modbus source `i`'s next poll is due (None: it waits for its I/O, or no such source).
     pub fn modbus_timeout(&self, i: usize) -> Option<f64> {
-        self.modbus.get(i)?.poll_timeout()
+        self.modbus.get(i)?.schedule.poll_timeout()
     }
 
     /// Modbus source `i`'s poll due at `now_s` starts: its first request, if it needs I/O (a poll
     /// while the link may not be retried yet only stales its channels).
     pub fn poll_modbus(&mut self, i: usize, now_s: f64) -> Option<ModbusRequest> {
         let m = self.modbus.get_mut(i)?;
-        let step = m.poll(now_s, now_s, &mut self.samples);
-        Self::request(m, step)
+        if !m.started {
+            m.started = true;
+            let events = m.reporter.publish(now_s);
+            self.edges.extend(events.into_iter().map(FaultEdge::of));
+        }
+        let step = m.schedule.poll(now_s, now_s, &mut self.samples);
+        self.modbus_step(i, step, now_s)
     }
 
     /// Modbus source `i`'s connect succeeded (`ok`) or failed at `now_s`; its next request.
@@ -231,8 +256,8 @@ impl GatewayCore {
         now_s: f64,
     ) -> Option<ModbusRequest> {
         let m = self.modbus.get_mut(i)?;
-        let step = m.handle_connect(ok, now_s, &mut self.samples);
-        Self::request(m, step)
+        let step = m.schedule.handle_connect(ok, now_s, &mut self.samples);
+        self.modbus_step(i, step, now_s)
     }
 
     /// Modbus source `i`'s read came back with `outcome` at `now_s`; its next request. The
@@ -244,27 +269,40 @@ impl GatewayCore {
         now_s: f64,
     ) -> Option<ModbusRequest> {
         let m = self.modbus.get_mut(i)?;
-        let step = m.handle_outcome(outcome, now_s, &mut self.samples);
-        Self::request(m, step)
+        let step = m.schedule.handle_outcome(outcome, now_s, &mut self.samples);
+        self.modbus_step(i, step, now_s)
     }
 
     /// Modbus source `i`'s counters (requests, timeouts, connects…).
     pub fn modbus_counters(&self, i: usize) -> Option<PollCounters> {
-        Some(self.modbus.get(i)?.counters())
+        Some(self.modbus.get(i)?.schedule.counters())
     }
 
-    fn request(m: &PollSchedule, step: PollStep) -> Option<ModbusRequest> {
+    /// The request a step asks for; a finished poll goes to the source's reporter, as the
+    /// runtime's poller thread hands it over, and its fault edges join the gateway's.
+    fn modbus_step(&mut self, i: usize, step: PollStep, now_s: f64) -> Option<ModbusRequest> {
+        let m = self.modbus.get_mut(i)?;
         match step {
             PollStep::Request(PollRequest::Connect) => Some(ModbusRequest::Connect),
             PollStep::Request(PollRequest::Read(b)) => {
-                let blk = &m.core.plan[b];
+                let blk = &m.schedule.core.plan[b];
                 Some(ModbusRequest::Read {
                     table: blk.kind,
                     start: blk.start,
                     count: blk.count,
                 })
             }
-            PollStep::Done { .. } | PollStep::Idle => None,
+            PollStep::Done {
+                before,
+                after,
+                connected,
+            } => {
+                m.reporter.on_modbus_poll(&before, &after, connected);
+                let events = m.reporter.publish(now_s);
+                self.edges.extend(events.into_iter().map(FaultEdge::of));
+                None
+            }
+            PollStep::Idle => None,
         }
     }
 
