@@ -49,7 +49,7 @@ pub enum SpherePlan {
     /// The eight plus two spheres centred below the travel ([`low_spheres`]) that reach the
     /// bottom of Z, each on a 7.5° grid of 48 points per ring (~5000 points): with knots every
     /// 30 mm (`retrocomp identify --knot-step-mm 30 --max-knots 16`) within 0.03 of the true
-    /// model on Spaan's plates (hil-sim/tests/identify/truth.rs).
+    /// model on Spaan's plates (hil-sim/tests/sim/identify/truth.rs).
     Ten,
 }
 
@@ -119,7 +119,7 @@ impl Default for SphereGrid {
     /// blocks the lower cap; 20° below the equator is what a bar reaches beside it (the 220° arcs
     /// of ball-bar tests in vertical planes). Those low rings read Z at the bottom of the Z travel
     /// at 20° instead of at grazing angles; with knots every 30 mm they bring Spaan's eight spheres
-    /// within 0.03 of the true model (hil-sim/tests/identify/truth.rs). The earlier grid (15° rings
+    /// within 0.03 of the true model (hil-sim/tests/sim/identify/truth.rs). The earlier grid (15° rings
     /// of 24 to the equator, ~1000 points) trailed it by up to 0.044 with the same knots.
     fn default() -> Self {
         SphereGrid {

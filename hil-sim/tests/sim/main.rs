@@ -1,6 +1,7 @@
 //! The simulated machine in virtual time: determinism, injected faults, the oracle, Spaan's
 //! machine, the truth it records, the toolkit on its artefacts (circle, fit), the closed-loop harness
-//! (faults, quadrature), and the fuzzers' kept inputs.
+//! (faults, quadrature, RTU, stop, watchdog), the fuzzers' kept inputs, `gen-cases`' benchmark
+//! families (`cases::`) and artefact identification against the truth (`identify::`).
 //!
 //! One test binary for these files (each was its own binary, every one linking the whole crate);
 //! a test is named `<module>::<test>`, e.g. `cargo test -p hil-sim --test sim determinism::`.
@@ -10,6 +11,7 @@ mod closed_loop_support;
 #[path = "../sim_common/mod.rs"]
 mod sim_common;
 
+mod cases;
 mod closed_loop_faults;
 mod closed_loop_quadrature;
 mod closed_loop_rtu;
@@ -18,6 +20,7 @@ mod closed_loop_watchdog;
 mod determinism;
 mod faults;
 mod fuzz_regressions;
+mod identify;
 mod oracle;
 mod spaan;
 mod toolkit_circle;

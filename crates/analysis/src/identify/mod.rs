@@ -46,7 +46,7 @@ pub struct Options {
     /// seen by the data (its square root is the relative singular value). 1e-8: on Spaan's six
     /// plates a combination of table roll (EAX), Y pitch (EBY) and Z pitch (EBZ) that plates with a
     /// fitted pose cannot see sits at ~1e-10 (rounding keeps it off zero); at 1e-10 it was kept and
-    /// amplified noise to hundreds of µrad (hil-sim/tests/identify/truth.rs).
+    /// amplified noise to hundreds of µrad (hil-sim/tests/sim/identify/truth.rs).
     pub rank_tol: f64,
     /// Lead of the ball screws, mm: each positioning component (EXX, EYY, EZZ) also gets a sin/cos
     /// pair at this period (docs/identify.md, "Lead wave"). None: no lead terms.
@@ -75,7 +75,7 @@ impl Options {
     /// Spaan's eight), and the 200–300 mm pitch wave of an old mill's X needs knots closer than
     /// 50 mm spread as 6 (114 mm on 800 mm): with the default knots eight spheres trail the true
     /// model by 0.038–0.052, with these by 0.013–0.016 (docs/identify.md,
-    /// hil-sim/tests/identify/truth.rs).
+    /// hil-sim/tests/sim/identify/truth.rs).
     pub fn for_artefacts(n_plates: usize, n_bars: usize) -> Options {
         if n_plates == 0 && n_bars > 0 {
             Options {

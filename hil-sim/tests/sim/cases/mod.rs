@@ -1,8 +1,8 @@
 //! `hil-sim gen-cases`: the concealed-effect benchmark families, their manifests and model files,
 //! the hard families, sensor faults, thermal channel naming, two effects at once, and the null walks.
 //!
-//! One test binary for these files (each was its own binary, every one linking the whole crate);
-//! a test is named `<module>::<test>`, e.g. `cargo test -p hil-sim --test cases benchmark::`.
+//! A module of hil-sim's in-process test binary; a test is named `cases::<module>::<test>`, e.g.
+//! `cargo test -p hil-sim --test sim cases::benchmark::`.
 
 mod benchmark;
 mod cli;

@@ -79,7 +79,7 @@ fn issue_12_targets_on_the_random_walk_families() {
 /// case (verdict, what was recalled, false alarm, spurious findings) and the per-family table.
 /// Asserts only that every case was diagnosed: the targets are asserted by the tests above.
 #[test]
-#[ignore = "development aid: HARD_FAMILIES=random_walk,ar099 cargo test -p hil-sim --test cases hard_benchmark::subset -- --ignored --nocapture"]
+#[ignore = "development aid: HARD_FAMILIES=random_walk,ar099 cargo test -p hil-sim --test sim cases::hard_benchmark::subset -- --ignored --nocapture"]
 fn subset() {
     let want = std::env::var("HARD_FAMILIES").unwrap_or_default();
     let num = |k: &str, d: usize| {
