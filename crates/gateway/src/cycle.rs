@@ -2,7 +2,7 @@
 //! drains the samples, reseeds and actions that arrived into the [`CycleCore`] (the sans-IO cycle
 //! the closed-loop harness drives too), runs it, hands the outputs to the sink and,
 //! at most [`STATUS_PERIOD_S`] apart, publishes a status snapshot. The loop body ([`CycleLoop::step`])
-//! allocates nothing on a cycle that does not publish (tests/gateway_no_alloc.rs counts it).
+//! allocates nothing on a cycle that does not publish (tests/gateway/no_alloc.rs counts it).
 //!
 //! Timing ([`crate::pacer`]): cycles are due every `period` on the gateway clock (`epoch`) and run
 //! at once when a source delivers samples, never two closer than a period; a cycle that ran late

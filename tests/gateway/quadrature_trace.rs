@@ -12,12 +12,8 @@ use retrocomp_gateway::sinks::quadrature::{
     EdgeScheduler, Feed, Injector, QuadDecoder, SchedulerConfig, Step, run_injector_traced,
 };
 
-#[path = "gateway_support/counting_alloc.rs"]
-mod counting_alloc;
-use counting_alloc::allocs;
+use crate::counting_alloc::allocs;
 
-#[global_allocator]
-static GLOBAL: counting_alloc::Counting = counting_alloc::Counting;
 
 const GAP_NS: u64 = 400;
 const RATE_HZ: f64 = 200_000.0;

@@ -29,12 +29,8 @@ use retrocomp_gateway::status::StatusSnapshot;
 use retrocomp_model::Axis;
 use retrocomp_model::MachineModel;
 
-#[path = "gateway_support/counting_alloc.rs"]
-mod counting_alloc;
-use counting_alloc::allocs;
+use crate::counting_alloc::allocs;
 
-#[global_allocator]
-static GLOBAL: counting_alloc::Counting = counting_alloc::Counting;
 
 /// The origin-shift register map both sink tests encode into: three int32 axes of 0.1 µm, z's
 /// register counting the other way (`sign = -1`).
