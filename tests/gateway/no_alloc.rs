@@ -31,7 +31,6 @@ use retrocomp_model::MachineModel;
 
 use crate::counting_alloc::allocs;
 
-
 /// The origin-shift register map both sink tests encode into: three int32 axes of 0.1 µm, z's
 /// register counting the other way (`sign = -1`).
 const AXES_MAP: &str = r#"

@@ -14,7 +14,6 @@ use retrocomp_gateway::sinks::quadrature::{
 
 use crate::counting_alloc::allocs;
 
-
 const GAP_NS: u64 = 400;
 const RATE_HZ: f64 = 200_000.0;
 const INTERVAL_NS: u64 = 5_000;

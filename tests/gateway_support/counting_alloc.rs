@@ -1,6 +1,6 @@
 //! A global allocator wrapper that counts allocations (alloc, alloc_zeroed, realloc; not frees) per
 //! thread, for the tests that assert a path allocates nothing (here and in the model crate's
-//! `tests/no_alloc.rs`): install it with
+//! `tests/model/no_alloc.rs`): install it with
 //! `#[global_allocator] static GLOBAL: counting_alloc::Counting = counting_alloc::Counting;`.
 //! Per thread because the test harness runs other tests on other threads.
 

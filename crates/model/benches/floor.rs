@@ -1,5 +1,5 @@
 //! `MachineModel::evaluate` side by side with the floor (`floor_vmc`: a hand-specialised evaluator
-//! of `deploy/examples/vmc-3axis.toml` giving the same breakdown, `tests/floor.rs`), issue 39 point 1.
+//! of `deploy/examples/vmc-3axis.toml` giving the same breakdown, `tests/model/floor.rs`), issue 39 point 1.
 //!
 //! Run: `cargo bench -p retrocomp-model --bench floor` (figures in docs/model.md, "Speed").
 //! Instructions per evaluation of both: `cargo run --profile bench -p retrocomp-model --example

@@ -9,13 +9,13 @@
 //! [`Floor::new`] panics when the model is not shaped like that file.
 //!
 //! It gives `MachineModel::evaluate`'s breakdown (total, all 32 terms, the clamp and travel flags)
-//! to 1e-12 µm (`crates/model/tests/floor.rs`): every sum is formed in the plan's order, so the
+//! to 1e-12 µm (`crates/model/tests/model/floor.rs`): every sum is formed in the plan's order, so the
 //! results are equal up to signed zeros. What it leaves out, and the plan pays for: the checks for
 //! non-finite positions, times, temperatures, forces and strains (the floor assumes them finite),
 //! missing channels and tool indices, sensors never read, and time going backwards (the floor's
 //! caller keeps time moving forward).
 //!
-//! Shared by `benches/floor.rs`, `tests/floor.rs` and `examples/floor_count.rs` (`#[path]`).
+//! Shared by `benches/floor.rs`, `tests/model/floor.rs` and `examples/floor_count.rs` (`#[path]`).
 
 #![allow(
     dead_code,

@@ -1,19 +1,10 @@
 //! No allocation per evaluation (issue 39 point 1): `evaluate`, `evaluate_first_order` and
-//! `evaluate_batch` of vmc-3axis allocate nothing once the state and breakdown exist, counted by a
-//! global allocator wrapper (per thread: the harness runs other tests on other threads). The floor
+//! `evaluate_batch` of vmc-3axis allocate nothing once the state and breakdown exist, counted by the
+//! binary's global allocator wrapper (per thread: the harness runs other tests on other threads). The floor
 //! (`benches/floor_vmc`) is held to the same.
 
-#[path = "../benches/floor_vmc/mod.rs"]
-mod floor_vmc;
-
-// The one counting allocator of the workspace's no-allocation tests.
-#[path = "../../../tests/gateway_support/counting_alloc.rs"]
-mod counting_alloc;
-
-use counting_alloc::allocs;
-
-#[global_allocator]
-static GLOBAL: counting_alloc::Counting = counting_alloc::Counting;
+use crate::counting_alloc::allocs;
+use crate::floor_vmc;
 
 #[test]
 fn evaluations_allocate_nothing() {

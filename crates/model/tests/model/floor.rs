@@ -5,8 +5,7 @@
 //! lags step by 1 ms with float jitter and sometimes by a gap, both tools and explicit tool lengths,
 //! and varying loads.
 
-#[path = "../benches/floor_vmc/mod.rs"]
-mod floor_vmc;
+use crate::floor_vmc;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
