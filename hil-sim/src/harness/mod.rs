@@ -38,13 +38,14 @@
 //! Units: µm for shifts and corrections (register = correction; + moves the slide +), s for time.
 
 pub mod link;
+mod plc;
+mod quadrature;
 mod rtu;
 
 use std::collections::BTreeMap;
 
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::engine::ErrorModel;
-use retrocomp_gateway::sinks::origin_shift::{Action, Reply};
 use retrocomp_gateway::sinks::quadrature::{DecodeError, QuadDecoder};
 use retrocomp_model::Axis;
 
@@ -435,106 +436,6 @@ impl ClosedLoop {
     fn collect_edges(&mut self) {
         if let Some(gw) = self.gateway.as_mut() {
             self.edges.extend(gw.take_edges());
-        }
-    }
-
-    /// The box takes the cycle's outputs (on a cycle tick) and puts the edges due by now on the
-    /// lines; the controller's receiver counts them into the servo's feedback.
-    fn run_quadrature(&mut self, tick: u64) {
-        let Some(gw) = self.gateway.as_mut() else {
-            return;
-        };
-        let now_ns = tick * self.dt_ns;
-        if tick.is_multiple_of(self.cycle_ticks) {
-            gw.poll_quadrature(now_ns, self.world.t_s());
-        }
-        let Some(q) = gw.quadrature_mut() else {
-            return;
-        };
-        let edges: Vec<_> = q
-            .poll_edges(now_ns)
-            .into_iter()
-            .map(|(axis, tr)| (axis, tr.t_ns, (tr.a, tr.b)))
-            .collect();
-        self.receive(&edges);
-    }
-
-    /// The receivers see these line levels (axis, time, (A, B)); their counts go to the servos.
-    fn receive(&mut self, levels: &[(Axis, u64, (bool, bool))]) {
-        let Some(rx) = self.receivers.as_mut() else {
-            return;
-        };
-        for &(axis, t_ns, (a, b)) in levels {
-            let Some(step) = rx[axis.index()].see(a, b) else {
-                continue;
-            };
-            if let Ok(n) = step {
-                self.world.inject_counts(axis.index(), n);
-            }
-            self.pulses.push(Pulse {
-                t_ns,
-                axis,
-                step,
-                generation: self.generation,
-            });
-        }
-    }
-
-    /// Answer the request in flight from the PLC (or fail it: link down), or begin a period.
-    fn run_sink(&mut self, tick: u64, t: f64) {
-        let Some(gw) = self.gateway.as_mut() else {
-            return;
-        };
-        let link_up = self.link_up;
-        let now = std::time::Duration::from_nanos(tick * self.dt_ns);
-        if let Some(a) = gw.pending().cloned() {
-            if let Action::Read { not_before_s, .. } = a
-                && not_before_s > t + 1e-9
-            {
-                return;
-            }
-            let reply = if link_up {
-                let plc = self.world.plc_mut();
-                match &a {
-                    Action::Write(b) => {
-                        let applied_um = std::array::from_fn(|k| plc.shift_um(k));
-                        match plc.write(b.address, &b.words) {
-                            Ok(()) => {
-                                let regs = crate::io::plc_server::shifts_um(
-                                    plc.config(),
-                                    plc.read(0, plc.len()).expect("whole window"),
-                                );
-                                self.writes.push(PlcWrite {
-                                    t_s: t,
-                                    address: b.address,
-                                    words: b.words.to_vec(),
-                                    applied_um,
-                                    registers_um: regs,
-                                    generation: self.generation,
-                                });
-                                Reply::Written
-                            }
-                            Err(e) => Reply::Failed(format!("Modbus exception: {e}")),
-                        }
-                    }
-                    Action::Read { address, count, .. } => {
-                        match plc.read(*address, *count as usize) {
-                            Ok(w) => Reply::Read(w.to_vec().into()),
-                            Err(e) => Reply::Failed(format!("Modbus exception: {e}")),
-                        }
-                    }
-                    Action::Done(_) => unreachable!("never pending"),
-                }
-            } else {
-                self.client.failed(now);
-                Reply::Failed("transport: connection lost (harness link down)".into())
-            };
-            gw.handle_reply(reply, t, self.client.is_connected());
-            return;
-        }
-        if tick.is_multiple_of(self.write_ticks) {
-            let connected = self.client.ensure_connected(now, t, link_up);
-            gw.poll_period(t, connected);
         }
     }
 
