@@ -235,6 +235,17 @@ fn a_bad_reading_replaced_before_the_cycle_is_logged_once_and_never_used() {
         "the replaced NaN is logged: {faults:?}"
     );
     assert!((out - settled).abs() < 1e-9, "the NaN was never used");
+    // The cycle's fault edges (what the log says): this one started, once.
+    let edges = |e: &Engine| -> Vec<(String, FaultKind, bool)> {
+        e.fault_events()
+            .iter()
+            .map(|ev| (ev.source.clone(), ev.kind, ev.started))
+            .collect()
+    };
+    assert_eq!(
+        edges(&e),
+        [("T_spindle_C".to_string(), FaultKind::NotFinite, true)]
+    );
     t += 0.01;
     feed(&mut e, t, 30.0);
     e.cycle(t, &mut m);
@@ -243,6 +254,15 @@ fn a_bad_reading_replaced_before_the_cycle_is_logged_once_and_never_used() {
         "cleared the next cycle: {:?}",
         e.snapshot().active_faults
     );
+    assert_eq!(
+        edges(&e),
+        [("T_spindle_C".to_string(), FaultKind::NotFinite, false)]
+    );
+    // A cycle with no change logs nothing.
+    t += 0.01;
+    feed(&mut e, t, 30.0);
+    e.cycle(t, &mut m);
+    assert!(e.fault_events().is_empty(), "{:?}", edges(&e));
 }
 
 /// Three axes and a cutting-force channel: the field config of the load-term tests.

@@ -43,6 +43,7 @@ impl Engine {
     ) -> Result<[Option<f64>; 3], AtPointError> {
         self.now_s = now_s;
         self.cycles += 1;
+        self.fault_events.clear();
         self.judge_channels(now_s);
         self.evaluate_at(now_s, model, pos_mm, dirs)
     }
@@ -57,6 +58,7 @@ impl Engine {
         pos_mm: [f64; 3],
         dirs: [Approach; 3],
     ) -> Result<[Option<f64>; 3], AtPointError> {
+        self.fault_events.clear();
         self.evaluate_at(self.now_s, model, pos_mm, dirs)
     }
 

@@ -27,7 +27,9 @@ mod steps;
 use std::sync::Arc;
 
 use crate::engine::direction::{DirectionConfig, DirectionLatch};
-use crate::engine::health::{ChannelLimits, ChannelMonitor, ChannelStatus, FaultKind, FaultLog};
+use crate::engine::health::{
+    ChannelLimits, ChannelMonitor, ChannelStatus, FaultEvent, FaultKind, FaultLog,
+};
 use crate::engine::recovery::NeighbourEstimate;
 use crate::engine::safety::{AxisSafety, Input, Mode, SafetyConfig, SafetyError};
 use crate::status::{AxisStatus, StatusSnapshot};
@@ -94,6 +96,9 @@ pub struct Engine {
     thermal_period_s: f64,
     last_slow_latch_s: Option<f64>,
     faults: FaultLog,
+    /// The fault edges the last cycle (or `correction_at`) logged (cleared when one starts;
+    /// capacity kept).
+    fault_events: Vec<FaultEvent>,
     enabled: bool,
     state: MachineState,
     errors: AxisErrors,
@@ -264,6 +269,7 @@ impl Engine {
             thermal_period_s: cfg.thermal_period_s,
             last_slow_latch_s: None,
             faults: FaultLog::default(),
+            fault_events: Vec::new(),
             enabled: cfg.enabled,
             state: MachineState::default(),
             model_error: None,
@@ -332,6 +338,7 @@ impl Engine {
     pub fn cycle_in_place(&mut self, now_s: f64, model: &mut dyn ErrorModel) -> &[(Axis, f64)] {
         self.now_s = now_s;
         self.cycles += 1;
+        self.fault_events.clear();
         // 1.–3. Health (faults logged once), substitution, usable values (slow ones latched).
         self.judge_channels(now_s);
         // 3. State: positions, velocities and direction latch from the position channels.
@@ -399,8 +406,11 @@ impl Engine {
                 .and_then(|&slot| self.channels.get(slot))
                 .is_some_and(|c| c.monitor.is_some());
             if !monitored {
-                self.faults
-                    .update(&FaultSource::Channel(*id), &[FaultKind::NoSource], now_s);
+                self.fault_events.extend(self.faults.update(
+                    &FaultSource::Channel(*id),
+                    &[FaultKind::NoSource],
+                    now_s,
+                ));
             }
         }
         let mut any = false;
@@ -416,13 +426,19 @@ impl Engine {
             };
             any |= kind.is_some();
             let kinds = kind.as_slice();
-            self.faults
-                .update(&FaultSource::Compensation(a.axis), kinds, now_s);
+            self.fault_events.extend(self.faults.update(
+                &FaultSource::Compensation(a.axis),
+                kinds,
+                now_s,
+            ));
             // Compensating, but without the terms of a lost auxiliary input.
             let partial = self.enabled && fresh && self.partial;
             let kinds: &[FaultKind] = if partial { &[FaultKind::Stale] } else { &[] };
-            self.faults
-                .update(&FaultSource::CompensationPartial(a.axis), kinds, now_s);
+            self.fault_events.extend(self.faults.update(
+                &FaultSource::CompensationPartial(a.axis),
+                kinds,
+                now_s,
+            ));
         }
         self.dropped = any;
     }
@@ -504,6 +520,12 @@ impl Engine {
     }
 
     /// The outputs as of the last cycle (before the first: the start values), borrowed.
+    /// The fault edges (started / cleared, once each) the last cycle logged, in the order it
+    /// logged them: what the runtime's log says, for a driver without one (hil-sim's harness).
+    pub fn fault_events(&self) -> &[FaultEvent] {
+        &self.fault_events
+    }
+
     pub fn last_outputs(&self) -> &[(Axis, f64)] {
         &self.outputs
     }

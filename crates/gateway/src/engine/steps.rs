@@ -64,9 +64,11 @@ impl Engine {
                     }
                 }
                 seen[..n].sort();
-                self.faults.update(&source, &seen[..n], now_s);
+                self.fault_events
+                    .extend(self.faults.update(&source, &seen[..n], now_s));
             } else {
-                self.faults.update(&source, &st.faults, now_s);
+                self.fault_events
+                    .extend(self.faults.update(&source, &st.faults, now_s));
             }
         }
         // 2. Substitute failed channels from their neighbours (Ni's recovery).
@@ -191,7 +193,7 @@ impl Engine {
             Ok(false)
         };
         let model_fault = model_result.as_ref().err();
-        self.faults.update(
+        self.fault_events.extend(self.faults.update(
             &FaultSource::Model,
             if model_fault.is_some() {
                 &[FaultKind::Decode]
@@ -199,7 +201,7 @@ impl Engine {
                 &[]
             },
             now_s,
-        );
+        ));
         if model_fault != self.model_error.as_ref() {
             if let Some(e) = model_fault {
                 tracing::warn!(error = %e, "model evaluation failed");

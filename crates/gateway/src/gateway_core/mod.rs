@@ -113,8 +113,6 @@ pub struct GatewayCore {
     samples: Vec<Sample>,
     /// Values a sink period found in the controller, for the next cycle.
     reseeds: Vec<(Axis, f64)>,
-    /// Engine faults active after the last cycle (to turn the snapshot into edges).
-    engine_active: BTreeMap<(String, FaultKind), f64>,
     /// Fault edges since the last [`GatewayCore::take_edges`].
     edges: Vec<FaultEdge>,
     /// Channels whose samples are kept ([`GatewayCore::record_samples`]), and those samples.
@@ -190,7 +188,6 @@ impl GatewayCore {
             quadrature,
             samples: Vec::new(),
             reseeds: Vec::new(),
-            engine_active: BTreeMap::new(),
             edges: Vec::new(),
             recorded: Vec::new(),
             sample_log: Vec::new(),
@@ -327,7 +324,7 @@ impl GatewayCore {
             let _ = self.cycle.handle_reseed(axis, held_um);
         }
         self.cycle.poll_cycle(now_s);
-        self.engine_edges(now_s);
+        self.engine_edges();
         self.cycle.outputs()
     }
 
@@ -336,36 +333,11 @@ impl GatewayCore {
         self.cycle.handle_control(c);
     }
 
-    fn engine_edges(&mut self, now_s: f64) {
-        let now: BTreeMap<(String, FaultKind), f64> = self
-            .cycle
-            .engine()
-            .snapshot()
-            .active_faults
-            .into_iter()
-            .map(|(s, k, t)| ((s, k), t))
-            .collect();
-        for ((source, kind), t) in &now {
-            if !self.engine_active.contains_key(&(source.clone(), *kind)) {
-                self.edges.push(FaultEdge {
-                    t_s: *t,
-                    source: source.clone(),
-                    kind: *kind,
-                    started: true,
-                });
-            }
-        }
-        for (source, kind) in self.engine_active.keys() {
-            if !now.contains_key(&(source.clone(), *kind)) {
-                self.edges.push(FaultEdge {
-                    t_s: now_s,
-                    source: source.clone(),
-                    kind: *kind,
-                    started: false,
-                });
-            }
-        }
-        self.engine_active = now;
+    /// The engine's fault edges of the cycle just run: the events its fault log logged, as the
+    /// runtime's log shows them.
+    fn engine_edges(&mut self) {
+        let events = self.cycle.engine().fault_events();
+        self.edges.extend(events.iter().cloned().map(FaultEdge::of));
     }
 
     /// The engine's outputs after the last cycle (before the first: the start values), µm.
