@@ -434,8 +434,10 @@ fn three_ways_once() -> Result<(), String> {
         .status()
         .unwrap();
     let (_, run_err) = wait_exit(a_box, "retrocomp run", 60);
+    let mut lags = Vec::new();
     for (what, err) in [("DNC", &b_err), ("origin shift", &a_err)] {
         let lag_ms = worst_lag_ms(err);
+        lags.push((what, lag_ms));
         if lag_ms >= VOID_LAG_MS {
             let said: Vec<&str> = err
                 .lines()
@@ -511,7 +513,8 @@ fn three_ways_once() -> Result<(), String> {
     let start: Vec<&str> = events.lines().take(40).collect();
     assert!(
         xoffs <= 3 && xons + 1 >= xoffs && dnc_line.contains(" 0 overrun(s)"),
-        "{dnc_line}\nthe first events:\n{}",
+        "{dnc_line}\nthe simulators' worst lag behind real time (ms, below the void bar): {lags:?}\n\
+         the first events:\n{}",
         start.join("\n")
     );
     // Issue 38: DNC within 1.5× of the origin shift. Each block is held until the one before it

@@ -18,6 +18,19 @@ use std::time::{Duration, Instant};
 
 use linuxcnc_support::rs274;
 
+/// This file's tests one at a time (after the file's turn): the warm-up comparison times a
+/// simulated control at 20× real time against the box's wall-clock estimate of it, and the other
+/// tests' simulators, socat pairs and python peers running beside it starved both (a loaded CI run:
+/// 12 XOFF where it runs with none alone).
+fn one_at_a_time() -> (crate::turn::Turn, std::sync::MutexGuard<'static, ()>) {
+    static ALONE: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let turn = crate::turn::take(file!());
+    let alone = ALONE
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    (turn, alone)
+}
+
 /// EXX forward 0 → 8 µm, reverse −3 → 5 µm over 0…400 mm, and 2 µm/K of spindle temperature
 /// above 20 °C (shared with the unit tests, `src/dnc/tests.rs`).
 const MODEL: &str = include_str!("../peers/dnc_model.toml");
@@ -162,7 +175,7 @@ fn parse_done(line: &str) -> [u64; 4] {
 
 #[test]
 fn sender_box_controller_over_ptys_every_block_read_by_rs274_at_nominal_plus_logged_correction() {
-    let _turn = crate::turn::take(file!());
+    let _turn = one_at_a_time();
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
     let (_s1, ctl_peer, ctl_box) = pair(dir, "ctl");
@@ -274,7 +287,7 @@ fn sender_box_controller_over_ptys_every_block_read_by_rs274_at_nominal_plus_log
 
 #[test]
 fn a_controller_that_never_resumes_is_a_stall_and_the_named_block_resumes_without_loss_or_repeat() {
-    let _turn = crate::turn::take(file!());
+    let _turn = one_at_a_time();
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
     let (_s1, ctl_peer, ctl_box) = pair(dir, "ctl");
@@ -360,7 +373,7 @@ fn a_controller_that_never_resumes_is_a_stall_and_the_named_block_resumes_withou
 
 #[test]
 fn an_unsafe_or_inconsistent_dnc_section_is_refused_with_file_line_and_key() {
-    let _turn = crate::turn::take(file!());
+    let _turn = one_at_a_time();
     let tmp = tempfile::tempdir().unwrap();
     let cfg = field(tmp.path(), Path::new("/dev/null"), "data_bits = 7");
     let out = dnc(&cfg, Path::new("/dev/null"), &tmp.path().join("a.csv"))
@@ -378,7 +391,7 @@ fn an_unsafe_or_inconsistent_dnc_section_is_refused_with_file_line_and_key() {
 
 #[test]
 fn a_program_from_a_tcp_sender_is_passed_on_compensated() {
-    let _turn = crate::turn::take(file!());
+    let _turn = one_at_a_time();
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
     let (_s1, ctl_peer, ctl_box) = pair(dir, "ctl");
@@ -497,7 +510,7 @@ fn wait_for(secs: u64, why: &str, mut what: impl FnMut() -> bool) {
 #[test]
 fn a_stall_is_a_fault_in_metrics_until_xon_and_ctrl_c_leaves_log_resume_line_and_control_consistent()
  {
-    let _turn = crate::turn::take(file!());
+    let _turn = one_at_a_time();
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
     let (_s1, ctl_peer, ctl_box) = pair(dir, "ctl");
@@ -599,6 +612,6 @@ fn a_stall_is_a_fault_in_metrics_until_xon_and_ctrl_c_leaves_log_resume_line_and
 /// model), run as a file. (a) and (b) run at the same time.
 #[test]
 fn a_warm_up_followed_by_live_dnc_offsets_against_origin_shift_and_the_frozen_rewrite() {
-    let _turn = crate::turn::take(file!());
+    let _turn = one_at_a_time();
     warmup::three_ways();
 }
