@@ -55,7 +55,8 @@ use crate::io::publish::Publisher;
 use crate::io::transport_faults::{Garbage, Schedule, Transition, silenced};
 use crate::world::World;
 pub use link::{ClientLink, ConnectAttempt};
-pub use retrocomp_gateway::gateway_core::{FaultEdge, GatewayCore, MemoryHeld};
+pub use retrocomp_bus::fault::FaultEvent;
+pub use retrocomp_gateway::gateway_core::{GatewayCore, MemoryHeld};
 
 /// Builds a fresh model for each gateway start (a restart loads it again).
 pub type ModelFactory = Box<dyn Fn() -> Box<dyn ErrorModel + Send>>;
@@ -140,7 +141,7 @@ pub struct ClosedLoop {
     dt_ns: u64,
     writes: Vec<PlcWrite>,
     trace: Vec<StepTrace>,
-    edges: Vec<FaultEdge>,
+    edges: Vec<FaultEvent>,
     transitions: Vec<Transition>,
     /// Bytes put on the serial line so far (lines and garbage).
     serial_bytes: u64,
@@ -494,7 +495,7 @@ impl ClosedLoop {
     }
 
     /// Every fault edge the gateways logged (engine and sink), in order.
-    pub fn fault_edges(&self) -> &[FaultEdge] {
+    pub fn fault_edges(&self) -> &[FaultEvent] {
         &self.edges
     }
 

@@ -8,7 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use hil_sim::SimConfig;
-use hil_sim::harness::{ClosedLoop, FaultEdge, ModelFactory, PlcWrite, StepTrace};
+use hil_sim::harness::{ClosedLoop, FaultEvent, ModelFactory, PlcWrite, StepTrace};
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::engine::health::FaultKind;
 use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
@@ -263,7 +263,7 @@ pub(crate) fn from(trace: &[StepTrace], t_s: f64) -> impl Iterator<Item = &StepT
 }
 
 /// Edges of (source, kind) in order.
-pub(crate) fn edges<'a>(h: &'a ClosedLoop, source: &str, kind: FaultKind) -> Vec<&'a FaultEdge> {
+pub(crate) fn edges<'a>(h: &'a ClosedLoop, source: &str, kind: FaultKind) -> Vec<&'a FaultEvent> {
     h.fault_edges()
         .iter()
         .filter(|e| e.source == source && e.kind == kind)

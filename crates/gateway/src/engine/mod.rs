@@ -519,13 +519,13 @@ impl Engine {
         Ok(())
     }
 
-    /// The outputs as of the last cycle (before the first: the start values), borrowed.
     /// The fault edges (started / cleared, once each) the last cycle logged, in the order it
     /// logged them: what the runtime's log says, for a driver without one (hil-sim's harness).
     pub fn fault_events(&self) -> &[FaultEvent] {
         &self.fault_events
     }
 
+    /// The outputs as of the last cycle (before the first: the start values), borrowed.
     pub fn last_outputs(&self) -> &[(Axis, f64)] {
         &self.outputs
     }

@@ -38,32 +38,12 @@ pub use quadrature::{MemoryHeld, QuadratureBox};
 
 use crate::config::FieldConfig;
 use crate::engine::ErrorModel;
-use crate::engine::health::{FaultKind, FaultLog};
+use crate::engine::health::FaultLog;
 use crate::engine::safety::Mode;
 use crate::error::GatewayError;
 use crate::sinks::origin_shift::sink_task::{SinkSources, end_period, start_values_within};
 use crate::sinks::origin_shift::{Action, Reply, SinkCore};
 use crate::sources::health::{SourceBoard, SourceReporter};
-
-/// One fault edge as the gateway logs it (source, kind, started or cleared, gateway time).
-#[derive(Clone, Debug, PartialEq)]
-pub struct FaultEdge {
-    pub t_s: f64,
-    pub source: String,
-    pub kind: FaultKind,
-    pub started: bool,
-}
-
-impl FaultEdge {
-    fn of(e: FaultEvent) -> Self {
-        FaultEdge {
-            t_s: e.t_s,
-            source: e.source,
-            kind: e.kind,
-            started: e.started,
-        }
-    }
-}
 
 /// What a Modbus source asks its driver for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -114,7 +94,7 @@ pub struct GatewayCore {
     /// Values a sink period found in the controller, for the next cycle.
     reseeds: Vec<(Axis, f64)>,
     /// Fault edges since the last [`GatewayCore::take_edges`].
-    edges: Vec<FaultEdge>,
+    edges: Vec<FaultEvent>,
     /// Channels whose samples are kept ([`GatewayCore::record_samples`]), and those samples.
     recorded: Vec<ChannelId>,
     sample_log: Vec<Sample>,
@@ -239,7 +219,7 @@ impl GatewayCore {
         if !m.started {
             m.started = true;
             let events = m.reporter.publish(now_s);
-            self.edges.extend(events.into_iter().map(FaultEdge::of));
+            self.edges.extend(events);
         }
         let step = m.schedule.poll(now_s, now_s, &mut self.samples);
         self.modbus_step(i, step, now_s)
@@ -296,7 +276,7 @@ impl GatewayCore {
             } => {
                 m.reporter.on_modbus_poll(&before, &after, connected);
                 let events = m.reporter.publish(now_s);
-                self.edges.extend(events.into_iter().map(FaultEdge::of));
+                self.edges.extend(events);
                 None
             }
             PollStep::Idle => None,
@@ -337,7 +317,7 @@ impl GatewayCore {
     /// runtime's log shows them.
     fn engine_edges(&mut self) {
         let events = self.cycle.engine().fault_events();
-        self.edges.extend(events.iter().cloned().map(FaultEdge::of));
+        self.edges.extend(events.iter().cloned());
     }
 
     /// The engine's outputs after the last cycle (before the first: the start values), µm.
@@ -415,7 +395,7 @@ impl GatewayCore {
         os.pending = None;
         let end = end_period(&mut os.core, &mut os.faults, &os.sources, connected, now_s);
         self.reseeds.extend(end.reseeds);
-        self.edges.extend(end.events.into_iter().map(FaultEdge::of));
+        self.edges.extend(end.events);
     }
 
     /// The origin-shift sink core's writes so far (ok, failed).
@@ -431,7 +411,7 @@ impl GatewayCore {
         let outs = self.cycle.outputs();
         if let Some(q) = self.quadrature.as_mut() {
             let events = q.handle_outputs(outs, now_ns, now_s);
-            self.edges.extend(events.into_iter().map(FaultEdge::of));
+            self.edges.extend(events);
         }
     }
 
@@ -470,7 +450,7 @@ impl GatewayCore {
     }
 
     /// Fault edges (engine and sink) since the last call.
-    pub fn take_edges(&mut self) -> Vec<FaultEdge> {
+    pub fn take_edges(&mut self) -> Vec<FaultEvent> {
         std::mem::take(&mut self.edges)
     }
 }
