@@ -95,8 +95,6 @@ pub struct QuadratureBox {
     status: SinkStatus,
     sources: SinkSources,
     faults: FaultLog,
-    /// Stopping with `on_stop = "ramp_out"` ([`QuadratureBox::begin_ramp_out`]).
-    ramping_out: bool,
 }
 
 impl QuadratureBox {
@@ -148,7 +146,6 @@ impl QuadratureBox {
             status,
             sources,
             faults: FaultLog::default(),
-            ramping_out: false,
         };
         Ok((b, start))
     }
@@ -167,7 +164,6 @@ impl QuadratureBox {
             &mut self.core,
             &mut self.lines,
             outs,
-            self.ramping_out,
             &mut self.store,
             &mut self.status,
         );
@@ -184,7 +180,6 @@ impl QuadratureBox {
     /// axis wants 0 whatever the outputs, at most one cap per step; an axis beyond the clamp is
     /// not ramped (it keeps its count and its fault).
     pub fn begin_ramp_out(&mut self) {
-        self.ramping_out = true;
         self.core.begin_ramp_out();
     }
 

@@ -484,9 +484,9 @@ mod tests {
                 max_change_um_per_write: 1.0,
             },
         ];
+        let lsb_um = |axis: &str| map.axes.iter().find(|r| r.axis == axis).unwrap().lsb_um;
         let guard_takes = |axis: &str, held_um: f64| {
-            let lsb_um = map.axes.iter().find(|r| r.axis == axis).unwrap().lsb_um;
-            let mut g = WriteGuard::new([AxisLimits::of(&limits, axis, lsb_um)]);
+            let mut g = WriteGuard::new([AxisLimits::of(&limits, axis, lsb_um(axis))]);
             g.observe_read(0, held_um);
             !matches!(g.check(0, 0.0), Verdict::BeyondClamp { .. })
         };
@@ -507,7 +507,7 @@ mod tests {
             let start = start_values_within([(axis.to_string(), held_um)].into(), &map, &limits);
             assert_eq!(start.contains_key(axis), within, "{axis} {held_um}");
             assert_eq!(guard_takes(axis, held_um), within, "{axis} {held_um}");
-            let rule = AxisLimits::of(&limits, axis, if axis == "x" { 0.1 } else { 1.0 });
+            let rule = AxisLimits::of(&limits, axis, lsb_um(axis));
             assert_eq!(rule.holds_within_clamp(held_um), within, "{axis} {held_um}");
         }
     }

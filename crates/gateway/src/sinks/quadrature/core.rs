@@ -152,6 +152,11 @@ impl QuadratureCore {
         self.ramping_out = true;
     }
 
+    /// Stopping: every axis wants 0 ([`Self::begin_ramp_out`] was called).
+    pub fn is_ramping_out(&self) -> bool {
+        self.ramping_out
+    }
+
     /// Ramping out and every axis holds 0 counts, its edges out.
     pub fn is_ramped_out(&self) -> bool {
         self.ramping_out && (0..self.axes.len()).all(|i| self.guard.holds_zero(i))

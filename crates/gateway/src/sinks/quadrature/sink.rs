@@ -247,14 +247,7 @@ pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
             }
         }
         let outs = out_rx.borrow().clone();
-        step_axes(
-            &mut core,
-            &mut lines,
-            &outs,
-            stop_by.is_some(),
-            store.as_mut(),
-            &mut st,
-        );
+        step_axes(&mut core, &mut lines, &outs, store.as_mut(), &mut st);
         let now_s = epoch.elapsed().as_secs_f64();
         let mut events =
             update_sink_faults(&mut faults, &sources, core.faults(), st.connected, now_s);
@@ -292,14 +285,13 @@ impl CountLines for Lines {
     }
 }
 
-/// One update of every axis: the wanted correction through the guard to the lines (0 for an
-/// axis without an output while stopping), then the status and the axes' held values. Every
+/// One update of every axis: the wanted correction through the guard to the lines (while the
+/// core ramps out, 0 for every axis, also one without an output), then the status and the axes' held values. Every
 /// driver of the quadrature sink steps through here (the runtime's task and the harness).
 pub fn step_axes(
     core: &mut QuadratureCore,
     lines: &mut dyn CountLines,
     outs: &[(retrocomp_model::Axis, f64)],
-    stopping: bool,
     store: &mut dyn HeldCounts,
     st: &mut SinkStatus,
 ) {
@@ -307,7 +299,7 @@ pub fn step_axes(
         let Some(axis) = core.axis(i) else { continue };
         let want = match outs.iter().find(|(a, _)| *a == axis) {
             Some((_, v)) => *v,
-            None if stopping => 0.0,
+            None if core.is_ramping_out() => 0.0,
             None => continue,
         };
         // The last step's edges are all on the lines: the controller holds exactly the emitted
@@ -417,7 +409,7 @@ mod tests {
         // The engine ramps 0 → 5 µm at the cap (1 µm = 2 counts of 0.5 µm per step).
         for k in 1..=5 {
             let outs = [(retrocomp_model::Axis::X, f64::from(k))];
-            step_axes(&mut core, &mut lines, &outs, false, &mut store, &mut st);
+            step_axes(&mut core, &mut lines, &outs, &mut store, &mut st);
             lines.between_steps();
             assert_eq!(
                 lines.out,
