@@ -18,10 +18,17 @@ use tokio_modbus::prelude::{ExceptionCode, Request, Response};
 
 /// A request of one source in flight: what it will get, and when.
 #[derive(Debug)]
-struct InFlight {
-    request: ModbusRequest,
-    due_s: f64,
-    outcome: Option<ReadOutcome>,
+enum InFlight {
+    Connect { due_s: f64 },
+    Read { due_s: f64, outcome: ReadOutcome },
+}
+
+impl InFlight {
+    fn due_s(&self) -> f64 {
+        match self {
+            InFlight::Connect { due_s } | InFlight::Read { due_s, .. } => *due_s,
+        }
+    }
 }
 
 /// The slave and the requests of every Modbus source of the gateway.
@@ -73,12 +80,11 @@ impl RtuSlave {
         for i in 0..self.in_flight.len() {
             loop {
                 let next = match self.in_flight[i].take() {
-                    Some(f) if f.due_s <= t_s + 1e-9 => match (f.request, f.outcome) {
-                        (ModbusRequest::Connect, _) => gw.handle_modbus_connect(i, true, t_s),
-                        (ModbusRequest::Read { .. }, Some(o)) => {
-                            gw.handle_modbus_outcome(i, &o, t_s)
+                    Some(f) if f.due_s() <= t_s + 1e-9 => match f {
+                        InFlight::Connect { .. } => gw.handle_modbus_connect(i, true, t_s),
+                        InFlight::Read { outcome, .. } => {
+                            gw.handle_modbus_outcome(i, &outcome, t_s)
                         }
-                        (ModbusRequest::Read { .. }, None) => unreachable!("a read has an outcome"),
                     },
                     Some(f) => {
                         self.in_flight[i] = Some(f);
@@ -105,18 +111,13 @@ impl RtuSlave {
             count,
         } = request
         else {
-            return InFlight {
-                request,
-                due_s: t_s,
-                outcome: None,
-            };
+            return InFlight::Connect { due_s: t_s };
         };
         if !self.answers {
             self.unanswered += 1;
-            return InFlight {
-                request,
+            return InFlight::Read {
                 due_s: t_s + self.timeouts_s[i],
-                outcome: Some(ReadOutcome::Timeout),
+                outcome: ReadOutcome::Timeout,
             };
         }
         let req = match table {
@@ -130,10 +131,9 @@ impl RtuSlave {
             Ok(_) => ReadOutcome::Exception(ExceptionCode::ServerDeviceFailure),
             Err(e) => ReadOutcome::Exception(e),
         };
-        InFlight {
-            request,
+        InFlight::Read {
             due_s: t_s,
-            outcome: Some(outcome),
+            outcome,
         }
     }
 }

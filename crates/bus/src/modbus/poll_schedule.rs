@@ -178,7 +178,6 @@ impl PollSchedule {
         };
         if matches!(outcome, ReadOutcome::Timeout | ReadOutcome::Transport(_)) {
             // The context may hold a late reply or a half frame: the shell rebuilds it.
-            self.connected = false;
             self.failed(now_s);
         }
         self.core.on_outcome(b, outcome, stamp_s, out);
