@@ -435,8 +435,5 @@ pub fn require_sink(cfg: &FieldConfig) -> Result<(), GatewayError> {
             "no [sink.origin_shift], [sink.origin_shift_server] or [sink.quadrature] in the config: nothing would be corrected".into(),
         ));
     }
-    match &cfg.sink.quadrature {
-        Some(q) => Ok(crate::sinks::quadrature::sink::check_buildable(q)?),
-        None => Ok(()),
-    }
+    Ok(())
 }

@@ -164,8 +164,8 @@ impl FieldConfig {
         Ok(())
     }
 
-    pub(super) fn validate(&self) -> Result<(), (String, String)> {
-        self.check_built_in()?;
+    pub(super) fn validate(&self, built: Built) -> Result<(), (String, String)> {
+        self.check_built_in(built)?;
         if let Some(m) = self.telemetry.as_ref().and_then(|t| t.mqtt.as_ref()) {
             m.check()?;
         }
@@ -205,19 +205,30 @@ impl FieldConfig {
         Ok(())
     }
 
-    /// A section whose server this build leaves out (the gateway crate's features `opcua`, `mqtt`)
-    /// is refused, not ignored: the plant would wait for data that never comes.
-    fn check_built_in(&self) -> Result<(), (String, String)> {
-        if self.opcua.is_some() && !cfg!(feature = "opcua") {
+    /// A section whose server or output this build leaves out (the gateway crate's features
+    /// `opcua`, `mqtt`, `gpio`) is refused, not ignored: the plant would wait for data that never
+    /// comes, or the technician would see a healthy status while no pulse reaches the controller.
+    fn check_built_in(&self, built: Built) -> Result<(), (String, String)> {
+        if self.opcua.is_some() && !built.opcua {
             return Err((
                 "opcua".into(),
                 "this build has no OPC UA server (built without the cargo feature `opcua`)".into(),
             ));
         }
-        if self.telemetry.as_ref().is_some_and(|t| t.mqtt.is_some()) && !cfg!(feature = "mqtt") {
+        if self.telemetry.as_ref().is_some_and(|t| t.mqtt.is_some()) && !built.mqtt {
             return Err((
                 "telemetry.mqtt".into(),
                 "this build has no MQTT telemetry (built without the cargo feature `mqtt`)".into(),
+            ));
+        }
+        let mut axes = self.sink.quadrature.iter().flat_map(|q| &q.axes);
+        if let Some(i) = axes.position(|a| a.gpio.is_some()).filter(|_| !built.gpio) {
+            return Err((
+                format!("sink.quadrature.axis[{i}].gpio"),
+                "this build drives no GPIO lines (built without the cargo feature `gpio`, or not \
+                 on Linux): rebuild with it (on by default), or remove `gpio = …` to run the \
+                 injector in simulation"
+                    .into(),
             ));
         }
         Ok(())

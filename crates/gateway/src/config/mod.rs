@@ -207,6 +207,24 @@ pub struct SinkSection {
 pub use retrocomp_model::config_issue::ConfigError;
 
 /// A semantic problem at `key`, placed on the key's line of `text`.
+/// The optional parts this build of the gateway has (its cargo features): a field file naming a
+/// part the build lacks is refused at its line ([`FieldConfig::parse`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Built {
+    pub(crate) opcua: bool,
+    pub(crate) mqtt: bool,
+    /// GPIO lines for the quadrature injector (the `gpio` feature, on Linux only).
+    pub(crate) gpio: bool,
+}
+
+impl Built {
+    pub(crate) const THIS: Built = Built {
+        opcua: cfg!(feature = "opcua"),
+        mqtt: cfg!(feature = "mqtt"),
+        gpio: cfg!(all(feature = "gpio", target_os = "linux")),
+    };
+}
+
 fn invalid(path: &Path, text: &str, key: String, what: String) -> ConfigError {
     let line = retrocomp_bus::config::locate(text, &key).unwrap_or(0);
     ConfigError::single_at(&path.display().to_string(), line, &key, what)
@@ -222,13 +240,19 @@ impl FieldConfig {
 
     /// Parse and validate; `path` is only used in messages and to resolve relative paths.
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        Self::parse_built(text, path, Built::THIS)
+    }
+
+    /// [`Self::parse`] as a build with only `built`'s optional parts would (tests check both
+    /// answers in one build).
+    fn parse_built(text: &str, path: &Path, built: Built) -> Result<Self, ConfigError> {
         let mut cfg: FieldConfig = toml::from_str(text)
             .map_err(|e| ConfigError::from_toml(&path.display().to_string(), text, &e))?;
         retrocomp_bus::modbus::words::warn_deprecated_spellings(text, &path.display().to_string());
         if let Some(m) = cfg.telemetry.as_mut().and_then(|t| t.mqtt.as_mut()) {
             m.resolve_paths(path.parent().unwrap_or(Path::new(".")));
         }
-        cfg.validate()
+        cfg.validate(built)
             .map_err(|(key, what)| invalid(path, text, key, what))?;
         Ok(cfg)
     }
@@ -415,31 +439,65 @@ position_channel = "x_mm"
         FieldConfig::parse(&format!("{BASE}{extra}"), Path::new("field.toml"))
     }
 
-    /// A section whose server this build leaves out is refused with its key and line, never
-    /// ignored; a build with the server accepts the same text (the check can fail both ways).
+    /// A section whose server or output this build leaves out is refused with its key and line,
+    /// never ignored; a build with it accepts the same text (the check can fail both ways). The
+    /// shipped builds have every part ([`Built::THIS`]); `--no-default-features` has none.
     #[test]
     fn a_section_this_build_cannot_serve_is_refused_at_its_line() {
-        let opcua = parse(
-            "[opcua]\nlisten = \"127.0.0.1:4840\"\nanonymous = true\n[opcua.identification]\n\
-             manufacturer = \"m\"\nserial_number = \"1\"\nproduct_instance_uri = \"urn:m:1\"\n",
-        );
-        let mqtt = parse(
-            "[telemetry.mqtt]\nbroker = \"127.0.0.1:1883\"\ngroup_id = \"g\"\nedge_node_id = \"n\"\n",
-        );
-        for (section, built, result) in [
-            ("opcua", cfg!(feature = "opcua"), opcua),
-            ("telemetry.mqtt", cfg!(feature = "mqtt"), mqtt),
+        let all = Built {
+            opcua: true,
+            mqtt: true,
+            gpio: true,
+        };
+        let opcua = "[opcua]\nlisten = \"127.0.0.1:4840\"\nanonymous = true\n\
+                     [opcua.identification]\nmanufacturer = \"m\"\nserial_number = \"1\"\n\
+                     product_instance_uri = \"urn:m:1\"\n";
+        let mqtt = "[telemetry.mqtt]\nbroker = \"127.0.0.1:1883\"\ngroup_id = \"g\"\nedge_node_id = \"n\"\n";
+        let base_lines = BASE.lines().count();
+        for (text, key, line, without) in [
+            (
+                format!("{BASE}{opcua}"),
+                "opcua",
+                base_lines + 1,
+                Built {
+                    opcua: false,
+                    ..all
+                },
+            ),
+            (
+                format!("{BASE}{mqtt}"),
+                "telemetry.mqtt",
+                base_lines + 1,
+                Built { mqtt: false, ..all },
+            ),
         ] {
-            if built {
-                assert!(result.is_ok(), "{section}: {result:?}");
-            } else {
-                let e = result.unwrap_err().to_string();
-                assert!(
-                    e.contains("field.toml:") && e.contains(section) && e.contains("cargo feature"),
-                    "{e}"
-                );
-            }
+            FieldConfig::parse_built(&text, Path::new("field.toml"), all).unwrap();
+            let e = FieldConfig::parse_built(&text, Path::new("field.toml"), without)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains(&format!("field.toml:{line}"))
+                    && e.contains(key)
+                    && e.contains("cargo feature"),
+                "{key}: {e}"
+            );
         }
+        // The shipped quadrature field file names GPIO lines on every axis.
+        let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
+            .join("deploy/field/mill-quadrature.toml");
+        let text = std::fs::read_to_string(&path).unwrap();
+        let first_gpio = 1 + text.lines().position(|l| l.starts_with("gpio =")).unwrap();
+        FieldConfig::parse_built(&text, Path::new("mill.toml"), all).unwrap();
+        let e =
+            FieldConfig::parse_built(&text, Path::new("mill.toml"), Built { gpio: false, ..all })
+                .unwrap_err()
+                .to_string();
+        assert!(
+            e.contains(&format!("mill.toml:{first_gpio}"))
+                && e.contains("sink.quadrature.axis[0].gpio")
+                && e.contains("cargo feature `gpio`"),
+            "{e}"
+        );
     }
 
     #[test]

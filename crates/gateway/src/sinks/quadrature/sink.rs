@@ -18,9 +18,10 @@
 //! held value). Stop (`[gateway] on_stop = "ramp_out"`): counts back to 0 within the cap per step,
 //! every [`RAMP_PERIOD_MS`], for at most `stop_ramp_max_s`; the outcome is logged.
 //!
-//! A config that names GPIO lines on a build without the `gpio` feature is refused at start
-//! ([`check_buildable`]) rather than silently simulated: the technician would otherwise see a
-//! healthy status while nothing reaches the controller.
+//! A field file that names GPIO lines on a build without the `gpio` feature is refused when it
+//! loads, at the line of the first `gpio` (the config's check of the build's parts), rather than
+//! silently simulated: the technician would otherwise see a healthy status while nothing reaches
+//! the controller.
 
 use std::collections::BTreeMap;
 use tokio::sync::watch;
@@ -44,22 +45,6 @@ pub const SOURCE: &str = "sink.quadrature";
 
 /// The edge trace's fault source: entries lost (buffer full) or the file could not be written.
 pub const TRACE_SOURCE: &str = "sink.quadrature.trace";
-
-/// Refuse GPIO lines this build cannot drive.
-pub fn check_buildable(q: &QuadratureSink) -> Result<(), SinkError> {
-    for a in &q.axes {
-        if a.gpio.is_some() && !cfg!(all(feature = "gpio", target_os = "linux")) {
-            return Err(SinkError::Refused(format!(
-                "sink.quadrature axis {}: `gpio` lines are configured but this build has no GPIO \
-                 support; rebuild with the `gpio` feature (on by default: `cargo build --release` on \
-                 Linux, or `--features gpio` beside `--no-default-features`), or remove \
-                 `gpio = …` to run the injector in simulation",
-                a.axis
-            )));
-        }
-    }
-    Ok(())
-}
 
 /// Read the persisted counts: per configured axis the held count (0 when none is persisted) and
 /// the start values (µm the controller holds) the engine continues from.
@@ -353,30 +338,6 @@ fn refuse(status: &watch::Sender<SinkStatus>, e: &(dyn std::error::Error + 'stat
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn gpio_lines_need_a_gpio_build() {
-        // The shipped field file's `[sink.quadrature]` section (the whole file is parsed by the
-        // gateway's config tests; this module sits below the gateway and reads only its section).
-        let path = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
-            .join("deploy/field/mill-quadrature.toml");
-        let text = std::fs::read_to_string(&path).unwrap();
-        let file: toml::Table = toml::from_str(&text).unwrap();
-        let q: QuadratureSink = file["sink"]["quadrature"].clone().try_into().unwrap();
-        assert!(q.axes[0].gpio.is_some());
-        let checked = check_buildable(&q);
-        if cfg!(all(feature = "gpio", target_os = "linux")) {
-            checked.unwrap();
-        } else {
-            let e = checked.unwrap_err().to_string();
-            assert!(e.contains("--features gpio") && e.contains("axis x"), "{e}");
-        }
-        let mut simulated = q.clone();
-        for a in &mut simulated.axes {
-            a.gpio = None;
-        }
-        check_buildable(&simulated).unwrap();
-    }
 
     /// Lines like the injector threads': counts handed over are owed until the thread has put
     /// them out, which happens between two steps ([`Threads::between_steps`]).
