@@ -51,7 +51,7 @@ fn pdo_decode(c: &mut Criterion) {
         b.iter(|| {
             out.clear();
             for (i, f) in frames.iter().enumerate() {
-                src.on_frame(black_box(f), i as f64 * 1e-4, &mut out);
+                src.handle_frame(black_box(f), i as f64 * 1e-4, &mut out);
             }
             black_box(out.len())
         });

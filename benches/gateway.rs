@@ -7,14 +7,14 @@
 //!   one cycle per 90 frames (1 ms cycle at 90k frames/s). Target ≥ 90k frames/s on one core.
 //!   What it is not: the decode is this file's `decode_encoder` (not the gateway's
 //!   `PositionDecoder`), the model is the synthetic `BenchModel` below (not a shipped model
-//!   through the adapter), and no sink encodes registers: it measures engine ingest + cycle
+//!   through the adapter), and no sink encodes registers: it measures engine handle_sample + cycle
 //!   (health, state, model, safety) under a frame stream, not the whole decode → sink path
 //!   (`gateway_latency` runs that path end to end over loopback).
 //! - `pipeline_gateway`: the gateway's real per-cycle path from CAN frames to the controller's
 //!   register words, one 1 ms cycle per iteration: the cycle's TPDOs (3 CiA 406 encoders, U32
 //!   counts; one CiA 404 analog node per input channel the model reads — the 14 temperatures of
 //!   `deploy/examples/vmc-3axis.toml`, int32 at 0.001 °C) decoded by the gateway's `CanopenSource`
-//!   into samples → `Engine::ingest` → `Engine::cycle_in_place` (health, state, direction latch,
+//!   into samples → `Engine::handle_sample` → `Engine::cycle_in_place` (health, state, direction latch,
 //!   the shipped model `deploy/examples/vmc-3axis.toml` through `MachineModelAdapter`: 21 ISO 230-1
 //!   tables with F/R blend, squareness, thermal lags; correction = −error; safety clamp and
 //!   dosing cap) → the origin-shift `RegisterMap::encode_into` (3 int32 axes, one FC16 block).
@@ -126,7 +126,7 @@ fn feed(e: &mut Engine, t: f64) {
         ("F_cut_N", 120.0),
         ("strain_col_ue", 3.0),
     ] {
-        e.ingest(&Sample {
+        e.handle_sample(&Sample {
             channel: ch.into(),
             t_s: t,
             value: v,
@@ -175,7 +175,7 @@ fn cycle_compute(c: &mut Criterion) {
 }
 
 /// The real model path: Studer S-36 (seed 004 tables, exact 4×4 HTM chain) through the adapter,
-/// 2 axes; p50/p99 of individually timed cycles printed, criterion estimate with ingest.
+/// 2 axes; p50/p99 of individually timed cycles printed, criterion estimate with handle_sample.
 fn cycle_compute_studer(c: &mut Criterion) {
     use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
     use retrocomp_model::MachineModel;
@@ -192,7 +192,7 @@ fn cycle_compute_studer(c: &mut Criterion) {
             ("z_mm", 255.0 + 250.0 * (t * 0.7).sin()),
             ("x_mm", 85.0 + 80.0 * (t * 1.3).cos()),
         ] {
-            e.ingest(&Sample {
+            e.handle_sample(&Sample {
                 channel: ch.into(),
                 t_s: t,
                 value: v,
@@ -263,7 +263,7 @@ fn pipeline_frames(c: &mut Criterion) {
             for (k, f) in frames.iter().enumerate() {
                 t += 1.0 / 90_000.0;
                 if let Some((node, mm)) = decode_encoder(f, 1000.0) {
-                    e.ingest(&Sample {
+                    e.handle_sample(&Sample {
                         channel: names[node as usize - 1],
                         t_s: t,
                         value: mm,
@@ -272,14 +272,14 @@ fn pipeline_frames(c: &mut Criterion) {
                 }
                 if k % 90 == 89 {
                     // Slow channels keep arriving too (once per cycle here).
-                    e.ingest(&Sample {
+                    e.handle_sample(&Sample {
                         channel: spindle,
                         t_s: t,
                         value: 30.0,
                         health: Health::Ok,
                     });
                     for ch in temps {
-                        e.ingest(&Sample {
+                        e.handle_sample(&Sample {
                             channel: ch,
                             t_s: t,
                             value: 24.0,
@@ -370,11 +370,11 @@ fn pipeline_gateway(c: &mut Criterion) {
     let mut one_cycle = |e: &mut Engine| {
         t += 1e-3;
         for f in &frames[k % CYCLES] {
-            src.on_frame(f, t, &mut batch);
+            src.handle_frame(f, t, &mut batch);
         }
         k += 1;
         for s in batch.drain(..) {
-            e.ingest(&s);
+            e.handle_sample(&s);
         }
         let outs = e.cycle_in_place(t, &mut m);
         map.encode_into(outs, &mut blocks).unwrap();

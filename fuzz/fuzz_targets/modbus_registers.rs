@@ -28,7 +28,7 @@ fuzz_target!(|data: &[u8]| {
     let mut core = PollCore::new(chans, 125, u16::from(sel & 7));
     let mut out = Vec::new();
     for b in 0..core.plan.len() {
-        core.on_outcome(b, &ReadOutcome::Registers(words.clone()), 0.0, &mut out);
+        core.handle_outcome(b, &ReadOutcome::Registers(words.clone()), 0.0, &mut out);
     }
     assert_eq!(out.len(), 4);
 });

@@ -325,7 +325,7 @@ impl ErrorFunction for LiveCorrections {
 }
 
 /// The gateway's engine evaluated at a block's end point: samples go through
-/// [`Engine::ingest`] (the gateway's range, rate, stuck and staleness checks, neighbour recovery,
+/// [`Engine::handle_sample`] (the gateway's range, rate, stuck and staleness checks, neighbour recovery,
 /// thermal latching), and a block's correction is [`Engine::correction_at`] its nominal end point
 /// and approach directions. A refusal (an input the engine judges unusable, a model failure) is
 /// the block's model fault: it carries the previous correction.
@@ -351,7 +351,7 @@ impl EngineAtPoint {
 
 impl CorrectionAt for EngineAtPoint {
     fn observe(&mut self, s: &Sample) {
-        self.engine.ingest(s);
+        self.engine.handle_sample(s);
     }
 
     fn ready(&mut self, now_s: f64) -> Result<(), String> {

@@ -347,7 +347,7 @@ fn gateway() -> Gateway {
 
 fn feed(lc: &LiveCorrections, gw: &mut Gateway, s: Sample) {
     lc.observe(&s);
-    gw.engine.ingest(&s);
+    gw.engine.handle_sample(&s);
 }
 
 #[derive(Debug)]

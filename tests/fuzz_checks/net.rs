@@ -296,7 +296,7 @@ pub(crate) fn recording_chunks(data: &[u8]) {
     for payload in data.split(|&b| b == 0xFF) {
         let chunk = retrocomp_gateway::northbound::telemetry::recordings::Chunk::decode(payload);
         let took = col
-            .ingest(payload)
+            .handle_payload(payload)
             .unwrap_or_else(|e| panic!("I/O error on {:?}: {e}", String::from_utf8_lossy(payload)));
         if let Some(c) = &chunk
             && c.index == 0

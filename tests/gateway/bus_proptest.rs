@@ -153,7 +153,7 @@ proptest! {
         let mut core = PollCore::new(chans, 125, 1);
         let mut out = Vec::new();
         for b in 0..core.plan.len() {
-            core.on_outcome(b, &ReadOutcome::Registers(words.clone()), 0.0, &mut out);
+            core.handle_outcome(b, &ReadOutcome::Registers(words.clone()), 0.0, &mut out);
         }
         prop_assert_eq!(out.len(), 3);
         for s in &out {

@@ -109,12 +109,12 @@ fn closed_loop_core_behaviour() {
             *t += dt;
             *x += v_mm_s * dt;
             if pos_alive {
-                e.ingest(&s("x_mm", *t, *x));
+                e.handle_sample(&s("x_mm", *t, *x));
             }
             if let Some(tc) = temp {
-                e.ingest(&s("T_spindle_C", *t, tc));
+                e.handle_sample(&s("T_spindle_C", *t, tc));
             }
-            e.ingest(&s("T_bed_C", *t, 30.0));
+            e.handle_sample(&s("T_bed_C", *t, 30.0));
             let o = e.cycle(*t, &mut m)[0].1;
             outs.push(o);
         }
@@ -189,10 +189,10 @@ fn temperatures_are_latched_at_the_thermal_period() {
     let mut targets = Vec::new();
     for k in 0..250 {
         t += 0.01;
-        e.ingest(&s("x_mm", t, 10.0 + f64::from(k) * 0.1));
+        e.handle_sample(&s("x_mm", t, 10.0 + f64::from(k) * 0.1));
         // Temperature rises 0.5 °C/s (within the 1 °C/s rate limit).
-        e.ingest(&s("T_spindle_C", t, 25.0 + 0.5 * t));
-        e.ingest(&s("T_bed_C", t, 25.0));
+        e.handle_sample(&s("T_spindle_C", t, 25.0 + 0.5 * t));
+        e.handle_sample(&s("T_bed_C", t, 25.0));
         e.cycle(t, &mut m);
         targets.push(e.snapshot().axes[0].terms_um["thermal"]);
     }
@@ -212,9 +212,9 @@ fn a_bad_reading_replaced_before_the_cycle_is_logged_once_and_never_used() {
     let mut m = TestModel;
     let mut t = 0.0;
     let feed = |e: &mut Engine, t: f64, temp: f64| {
-        e.ingest(&s("x_mm", t, 100.0));
-        e.ingest(&s("T_bed_C", t, 30.0));
-        e.ingest(&s("T_spindle_C", t, temp));
+        e.handle_sample(&s("x_mm", t, 100.0));
+        e.handle_sample(&s("T_bed_C", t, 30.0));
+        e.handle_sample(&s("T_spindle_C", t, temp));
     };
     for _ in 0..200 {
         t += 0.01;
@@ -224,7 +224,7 @@ fn a_bad_reading_replaced_before_the_cycle_is_logged_once_and_never_used() {
     let settled = e.cycle(t, &mut m)[0].1;
     // Within one 10 ms cycle: a NaN, then a good reading, before the engine looks.
     t += 0.01;
-    e.ingest(&s("T_spindle_C", t - 0.005, f64::NAN));
+    e.handle_sample(&s("T_spindle_C", t - 0.005, f64::NAN));
     feed(&mut e, t, 30.0);
     let out = e.cycle(t, &mut m)[0].1;
     let faults = e.snapshot().active_faults;
@@ -314,12 +314,12 @@ fn a_stale_force_drops_only_the_load_terms_ramped() {
     let mut step = |e: &mut Engine, t: &mut f64, force: bool| {
         *t += dt;
         for (ch, v) in [("x_mm", 120.0), ("y_mm", 80.0), ("z_mm", -0.5)] {
-            e.ingest(&s(ch, *t, v));
+            e.handle_sample(&s(ch, *t, v));
         }
-        e.ingest(&s("T_spindle_C", *t, 25.0));
-        e.ingest(&s("T_xscrew_C", *t, 24.0));
+        e.handle_sample(&s("T_spindle_C", *t, 25.0));
+        e.handle_sample(&s("T_xscrew_C", *t, 24.0));
         if force {
-            e.ingest(&s("F_cut_N", *t, 500.0));
+            e.handle_sample(&s("F_cut_N", *t, 500.0));
         }
         e.cycle(*t, &mut m)[0].1
     };
@@ -419,10 +419,10 @@ fn an_undelivered_optional_input_is_a_lasting_fault_naming_it() {
     for k in 0..300 {
         t += 0.01;
         for (ch, v) in [("x_mm", 120.0), ("y_mm", 80.0), ("z_mm", -0.5)] {
-            e.ingest(&s(ch, t, v));
+            e.handle_sample(&s(ch, t, v));
         }
-        e.ingest(&s("T_spindle_C", t, 25.0));
-        e.ingest(&s("T_xscrew_C", t, 24.0));
+        e.handle_sample(&s("T_spindle_C", t, 25.0));
+        e.handle_sample(&s("T_xscrew_C", t, 24.0));
         e.cycle(t, &mut m);
         let snap = e.snapshot();
         let faults: Vec<(String, FaultKind)> = snap

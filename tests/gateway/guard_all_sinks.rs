@@ -191,7 +191,7 @@ impl Client {
                     }
                 }
             };
-            action = self.core.on_reply(reply, 0.0);
+            action = self.core.handle_reply(reply, 0.0);
         }
         Ok(())
     }

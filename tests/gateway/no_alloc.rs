@@ -1,15 +1,15 @@
 //! The gateway cycle allocates nothing in steady state (issue 5 item 8: the compute part of a cycle
-//! must be cheap and predictable; issue 14.1: including ingest and sink encoding). With the demo's
+//! must be cheap and predictable; issue 14.1: including handle_sample and sink encoding). With the demo's
 //! full machine model (tables, squareness, thermal polynomial + expansion, cutting-force compliance)
 //! behind `MachineModelAdapter`, moving axes with reversals (so the F/R blend evaluates the model
 //! three times), changing temperatures and force:
-//! - `Engine::ingest` + `Engine::cycle_in_place` make zero heap allocations per cycle;
+//! - `Engine::handle_sample` + `Engine::cycle_in_place` make zero heap allocations per cycle;
 //! - so does the real loop body (`CycleLoop::step`: samples from another thread through the
 //!   sources' mpsc channel, engine, outputs into the sinks' watch channel) on every cycle that does
 //!   not publish a status snapshot (≤ 10 Hz), also while faults stay active (a NaN sensor, a
 //!   silent one, compensation dropped);
 //! - so does the whole per-cycle path from the wire to the controller's words: CAN frames decoded
-//!   by the CANopen source (CiA 406 encoders, CiA 404 analog inputs) → ingest → cycle → the
+//!   by the CANopen source (CiA 406 encoders, CiA 404 analog inputs) → handle_sample → cycle → the
 //!   origin-shift register encoding (`RegisterMap::encode_into`) and the quadrature count
 //!   quantiser.
 //!
@@ -116,7 +116,7 @@ fn steady_state_cycles_allocate_nothing() {
         for (s, v) in samples.iter_mut().zip(values) {
             s.t_s = t;
             s.value = v;
-            e.ingest(s);
+            e.handle_sample(s);
         }
         e.cycle_in_place(t, &mut m).iter().map(|o| o.1).sum::<f64>()
     };
@@ -428,11 +428,11 @@ fn frames_to_register_words_allocate_nothing_per_cycle() {
         }
         let before = allocs();
         for f in frames.iter().flatten() {
-            src.on_frame(f, t, &mut batch);
+            src.handle_frame(f, t, &mut batch);
         }
         decoded += batch.len();
         for s in batch.drain(..) {
-            e.ingest(&s);
+            e.handle_sample(&s);
         }
         let outs = e.cycle_in_place(t, &mut m);
         map.encode_into(outs, &mut blocks).unwrap();
@@ -522,7 +522,7 @@ fn an_origin_shift_write_period_allocates_nothing() {
             };
             requests += 1;
             t += 1e-4;
-            action = core.on_reply(reply, t);
+            action = core.handle_reply(reply, t);
         };
         assert!(core.take_reseeds().is_empty());
         update_faults_of(log, &sources, core, true, t);

@@ -248,7 +248,7 @@ fn run(
                 Fate::Exception => Reply::Failed("Modbus exception IllegalDataValue".into()),
                 Fate::LostReply | Fate::Dropped => Reply::Failed("transport: broken pipe".into()),
             };
-            action = core.on_reply(reply, t_s);
+            action = core.handle_reply(reply, t_s);
         }
         for (axis, held) in core.take_reseeds() {
             prop_assert!(held.abs() <= CLAMP_UM, "reseed {axis} from {held}");
@@ -302,7 +302,7 @@ fn controller_beyond_the_clamp_after_reconnect_is_never_written_from() {
                 }
                 Action::Done(_) => return written,
             };
-            a = core.on_reply(reply, 0.0);
+            a = core.handle_reply(reply, 0.0);
         }
     };
     let mut regs = [0u16; 5];

@@ -44,7 +44,7 @@ async fn python_can_and_retrocomp_exchange_frames_through_the_hub() {
         if let Some(s) = dec.decode(&f, t) {
             assert_eq!((s.value, s.health), (12.345, Health::Ok));
         }
-        hb.on_frame(&f, t);
+        hb.handle_frame(&f, t);
         t_last = t;
     }
     assert_eq!(dec.frames, 1, "the TPDO was decoded: {got:?}");

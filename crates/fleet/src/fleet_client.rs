@@ -190,7 +190,7 @@ impl FleetClient {
             }
             Ok(Event::Incoming(Packet::Publish(p))) => {
                 if let Some((c, _)) = &mut self.collector {
-                    match c.ingest(&p.payload) {
+                    match c.handle_payload(&p.payload) {
                         Ok(Took::Written(Some(path))) => {
                             tracing::info!(path = %path.display(), "fleet: recording collected");
                         }

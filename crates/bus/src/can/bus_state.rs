@@ -69,7 +69,7 @@ impl BusErrors {
         self.state
     }
 
-    pub fn on_error_frame(&mut self, f: &ErrorFrame) {
+    pub fn handle_error_frame(&mut self, f: &ErrorFrame) {
         self.error_frames += 1;
         if f.class & CAN_ERR_CNT != 0 {
             self.tx_error_count = Some(f.data[6]);
@@ -98,7 +98,7 @@ impl BusErrors {
     }
 
     /// A data or remote frame arrived: the controller is on the bus.
-    pub fn on_frame(&mut self) {
+    pub fn handle_frame(&mut self) {
         if self.state == BusState::BusOff {
             self.state = BusState::Active;
         }
@@ -121,17 +121,17 @@ mod tests {
     #[test]
     fn walks_active_warning_passive_busoff_and_back() {
         let mut b = BusErrors::default();
-        b.on_error_frame(&crtl(CRTL_TX_WARNING));
+        b.handle_error_frame(&crtl(CRTL_TX_WARNING));
         assert_eq!(b.state(), BusState::Warning);
-        b.on_error_frame(&crtl(CRTL_RX_PASSIVE));
+        b.handle_error_frame(&crtl(CRTL_RX_PASSIVE));
         assert_eq!(b.state(), BusState::Passive);
-        b.on_error_frame(&ErrorFrame::class_only(CAN_ERR_BUSOFF));
-        b.on_error_frame(&ErrorFrame::class_only(CAN_ERR_BUSOFF));
+        b.handle_error_frame(&ErrorFrame::class_only(CAN_ERR_BUSOFF));
+        b.handle_error_frame(&ErrorFrame::class_only(CAN_ERR_BUSOFF));
         assert_eq!((b.state(), b.bus_off_events), (BusState::BusOff, 1));
-        b.on_error_frame(&ErrorFrame::class_only(CAN_ERR_RESTARTED));
+        b.handle_error_frame(&ErrorFrame::class_only(CAN_ERR_RESTARTED));
         assert_eq!(b.state(), BusState::Active);
-        b.on_error_frame(&crtl(CRTL_TX_PASSIVE));
-        b.on_error_frame(&crtl(CRTL_ACTIVE));
+        b.handle_error_frame(&crtl(CRTL_TX_PASSIVE));
+        b.handle_error_frame(&crtl(CRTL_ACTIVE));
         assert_eq!(b.state(), BusState::Active);
         assert_eq!(b.error_frames, 7);
     }
@@ -143,13 +143,13 @@ mod tests {
         f.class |= CAN_ERR_CNT;
         f.data[6] = 135;
         f.data[7] = 7;
-        b.on_error_frame(&f);
+        b.handle_error_frame(&f);
         assert_eq!((b.tx_error_count, b.rx_error_count), (Some(135), Some(7)));
-        b.on_frame();
+        b.handle_frame();
         assert_eq!(b.state(), BusState::Passive, "a frame does not end passive");
-        b.on_error_frame(&ErrorFrame::class_only(CAN_ERR_BUSOFF | CAN_ERR_CRTL));
+        b.handle_error_frame(&ErrorFrame::class_only(CAN_ERR_BUSOFF | CAN_ERR_CRTL));
         assert_eq!(b.state(), BusState::BusOff);
-        b.on_frame();
+        b.handle_frame();
         assert_eq!(b.state(), BusState::Active);
     }
 }

@@ -186,7 +186,7 @@ impl SocketCanBus {
     fn accept(&mut self, kframe: ::socketcan::CanFrame) -> Option<Frame> {
         match Frame::try_from(kframe) {
             Ok(f) => {
-                self.errors.on_frame();
+                self.errors.handle_frame();
                 Some(f)
             }
             Err(::socketcan::CanFrame::Error(ef)) => {
@@ -194,7 +194,7 @@ impl SocketCanBus {
                 let d = embedded_can::Frame::data(&ef);
                 let n = d.len().min(8);
                 data[..n].copy_from_slice(&d[..n]);
-                self.errors.on_error_frame(&ErrorFrame {
+                self.errors.handle_error_frame(&ErrorFrame {
                     class: ef.error_bits(),
                     data,
                 });

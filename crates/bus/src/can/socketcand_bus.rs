@@ -111,11 +111,12 @@ impl SocketcandBus {
         loop {
             match self.next_message().await? {
                 Message::Frame { frame, t_s } => {
-                    self.errors.on_frame();
+                    self.errors.handle_frame();
                     return Ok((frame, t_s));
                 }
                 Message::ErrorFrame { class, .. } => {
-                    self.errors.on_error_frame(&ErrorFrame::class_only(class));
+                    self.errors
+                        .handle_error_frame(&ErrorFrame::class_only(class));
                 }
                 Message::Error(_) => self.server_errors += 1,
                 _ => {}

@@ -127,7 +127,7 @@ impl HeartbeatMonitor {
     }
 
     /// Feed any frame; returns true if it was this node's heartbeat.
-    pub fn on_frame(&mut self, f: &Frame, now_s: f64) -> bool {
+    pub fn handle_frame(&mut self, f: &Frame, now_s: f64) -> bool {
         match decode_heartbeat(f) {
             Some((n, st)) if n == self.node => {
                 self.last_seen_s = Some(now_s);
@@ -179,15 +179,15 @@ mod tests {
     fn heartbeat_timeout_goes_stale_and_recovers() {
         let mut m = HeartbeatMonitor::new(3, 0.3);
         assert_eq!(m.poll(0.0), Health::Stale, "never seen");
-        assert!(m.on_frame(&encode_heartbeat(3, NodeState::PreOperational), 0.0));
+        assert!(m.handle_frame(&encode_heartbeat(3, NodeState::PreOperational), 0.0));
         assert_eq!(m.poll(0.1), Health::Stale, "pre-operational sends no PDOs");
-        assert!(!m.on_frame(&encode_heartbeat(4, NodeState::Operational), 0.1));
-        assert!(m.on_frame(&encode_heartbeat(3, NodeState::Operational), 0.2));
+        assert!(!m.handle_frame(&encode_heartbeat(4, NodeState::Operational), 0.1));
+        assert!(m.handle_frame(&encode_heartbeat(3, NodeState::Operational), 0.2));
         assert_eq!(m.poll(0.45), Health::Ok);
         assert_eq!(m.poll(0.55), Health::Stale);
         assert_eq!(m.poll(0.60), Health::Stale);
         assert_eq!(m.timeouts, 1);
-        m.on_frame(&encode_heartbeat(3, NodeState::Operational), 0.7);
+        m.handle_frame(&encode_heartbeat(3, NodeState::Operational), 0.7);
         assert_eq!(m.poll(0.7), Health::Ok);
     }
 }

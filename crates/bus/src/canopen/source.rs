@@ -149,11 +149,11 @@ impl CanopenSource {
     }
 
     /// Decode one frame received at `t_s`; samples are appended to `out`.
-    pub fn on_frame(&mut self, f: &Frame, t_s: f64, out: &mut Vec<Sample>) {
+    pub fn handle_frame(&mut self, f: &Frame, t_s: f64, out: &mut Vec<Sample>) {
         self.counters.frames += 1;
         let mut matched = false;
         for m in self.monitors.values_mut() {
-            matched |= m.on_frame(f, t_s);
+            matched |= m.handle_frame(f, t_s);
         }
         let cob = u16::try_from(f.raw_id()).ok().filter(|id| *id <= 0x7FF);
         if let Some(targets) = cob.and_then(|id| self.by_cob.get(&id)) {
@@ -261,7 +261,7 @@ pub async fn run_observed<B: CanBus>(
             f = bus.recv() => match f {
                 Ok(f) => {
                     received += 1;
-                    src.on_frame(&f, clock_s(), &mut batch);
+                    src.handle_frame(&f, clock_s(), &mut batch);
                 }
                 // Lost frames are not fatal: the positions come again in the next cycle.
                 Err(CanError::Overrun(n)) => src.counters.decode_errors += n,
@@ -316,8 +316,8 @@ mod tests {
             code: 0x0609_0030,
         }
         .encode(1);
-        src.on_frame(&ack, 0.0, &mut out);
-        src.on_frame(&abort, 0.0, &mut out);
+        src.handle_frame(&ack, 0.0, &mut out);
+        src.handle_frame(&abort, 0.0, &mut out);
         assert!(out.is_empty());
         assert_eq!((src.counters.sdo_aborts, src.counters.unmatched), (1, 0));
     }
@@ -327,15 +327,15 @@ mod tests {
         let c = cfg();
         let mut src = CanopenSource::new(c.clone());
         let mut out = Vec::new();
-        src.on_frame(&encode_heartbeat(1, NodeState::Operational), 0.0, &mut out);
-        src.on_frame(
+        src.handle_frame(&encode_heartbeat(1, NodeState::Operational), 0.0, &mut out);
+        src.handle_frame(
             &encode_heartbeat(0x10, NodeState::Operational),
             0.0,
             &mut out,
         );
-        src.on_frame(&c.encoder[0].encode_position(12.5).unwrap(), 0.01, &mut out);
-        src.on_frame(&c.analog[0].encode(21.5).unwrap(), 0.01, &mut out);
-        src.on_frame(&Frame::standard(0x123, &[]).unwrap(), 0.01, &mut out);
+        src.handle_frame(&c.encoder[0].encode_position(12.5).unwrap(), 0.01, &mut out);
+        src.handle_frame(&c.analog[0].encode(21.5).unwrap(), 0.01, &mut out);
+        src.handle_frame(&Frame::standard(0x123, &[]).unwrap(), 0.01, &mut out);
         assert_eq!(out.len(), 2);
         assert_eq!((out[0].channel.name(), out[0].value), ("x_mm", 12.5));
         assert_eq!((out[1].channel.name(), out[1].value), ("T_spindle_C", 21.5));
@@ -349,7 +349,7 @@ mod tests {
         assert!(out.iter().all(|s| s.health == Health::Stale));
         assert_eq!(out[0].value, 12.5);
         out.clear();
-        src.on_frame(&c.encoder[0].encode_position(12.6).unwrap(), 0.4, &mut out);
+        src.handle_frame(&c.encoder[0].encode_position(12.6).unwrap(), 0.4, &mut out);
         out.clear();
         src.poll(0.41, &mut out);
         // x is fresh by PDO, but node 1's heartbeat is 0.41 s old > 0.3 s.

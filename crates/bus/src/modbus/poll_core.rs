@@ -55,7 +55,13 @@ impl PollCore {
     }
 
     /// Samples for block `b` given its outcome at `t_s`.
-    pub fn on_outcome(&mut self, b: usize, outcome: &ReadOutcome, t_s: f64, out: &mut Vec<Sample>) {
+    pub fn handle_outcome(
+        &mut self,
+        b: usize,
+        outcome: &ReadOutcome,
+        t_s: f64,
+        out: &mut Vec<Sample>,
+    ) {
         let block = &self.plan[b];
         self.counters.requests += 1;
         match outcome {
@@ -151,7 +157,7 @@ mod tests {
         let mut core = PollCore::new(chans(), 125, 0);
         assert_eq!(core.plan.len(), 1);
         let mut out = Vec::new();
-        core.on_outcome(
+        core.handle_outcome(
             0,
             &ReadOutcome::Registers(vec![215, 2000, 0xFFF6]),
             1.0,
@@ -162,12 +168,12 @@ mod tests {
         assert_eq!(h[1].0, Health::OutOfRange);
         assert_eq!(h[2], (Health::Ok, -1.0));
         out.clear();
-        core.on_outcome(0, &ReadOutcome::Timeout, 2.0, &mut out);
+        core.handle_outcome(0, &ReadOutcome::Timeout, 2.0, &mut out);
         assert!(out.iter().all(|s| s.health == Health::Stale));
         assert_eq!(out[0].value, 21.5, "stale keeps the last good value");
         assert!(out[1].value.is_nan(), "never good → NaN");
         out.clear();
-        core.on_outcome(
+        core.handle_outcome(
             0,
             &ReadOutcome::Exception(ExceptionCode::IllegalDataAddress),
             3.0,
@@ -178,7 +184,7 @@ mod tests {
                 .all(|s| s.health == Health::DecodeError && s.value.is_nan())
         );
         out.clear();
-        core.on_outcome(0, &ReadOutcome::Registers(vec![1]), 4.0, &mut out);
+        core.handle_outcome(0, &ReadOutcome::Registers(vec![1]), 4.0, &mut out);
         assert!(out.iter().all(|s| s.health == Health::DecodeError));
         let c = core.counters;
         assert_eq!(

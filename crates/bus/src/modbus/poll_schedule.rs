@@ -180,7 +180,7 @@ impl PollSchedule {
             // The context may hold a late reply or a half frame: the shell rebuilds it.
             self.failed(now_s);
         }
-        self.core.on_outcome(b, outcome, stamp_s, out);
+        self.core.handle_outcome(b, outcome, stamp_s, out);
         self.next_block(b + 1, out)
     }
 

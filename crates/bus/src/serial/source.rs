@@ -167,7 +167,7 @@ impl LineSource {
     }
 
     /// Call when a request was sent: the reply block starts again at the first axis.
-    pub fn on_request(&mut self) {
+    pub fn handle_request(&mut self) {
         self.seq = 0;
     }
 
@@ -190,12 +190,12 @@ impl LineSource {
         let mut lines: Vec<Vec<u8>> = Vec::new();
         self.framer.push(bytes, |l| lines.push(l.to_vec()));
         for line in lines {
-            self.on_line(&line, t_s, out);
+            self.handle_line(&line, t_s, out);
         }
     }
 
     /// Handle one already-framed line.
-    pub fn on_line(&mut self, line: &[u8], t_s: f64, out: &mut Vec<Sample>) {
+    pub fn handle_line(&mut self, line: &[u8], t_s: f64, out: &mut Vec<Sample>) {
         self.counters.lines += 1;
         let readings = match self.cfg.format.parse(line) {
             Ok(r) => r,
@@ -292,7 +292,7 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin>(
             _ = tick.tick() => {
                 if let Some(req) = &src.cfg.request {
                     wr.write_all(req.as_bytes()).await?;
-                    src.on_request();
+                    src.handle_request();
                 }
                 src.poll(clock_s(), &mut batch);
             }
@@ -344,7 +344,7 @@ mod tests {
         let got: Vec<_> = out.iter().map(|s| (s.channel.name(), s.value)).collect();
         assert_eq!(got, vec![("x_mm", 123.45), ("y_mm", -0.01), ("z_mm", 1.0)]);
         assert_eq!(s.counters().garbage_lines, 1);
-        s.on_request();
+        s.handle_request();
         out.clear();
         s.push(b"\x02+000000000\r\n", 1.2, &mut out);
         assert_eq!(

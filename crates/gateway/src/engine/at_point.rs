@@ -31,7 +31,7 @@ pub enum AtPointError {
 impl Engine {
     /// The correction per axis X, Y, Z (µm, = −error; None for an axis the engine does not drive)
     /// at the commanded machine position `pos_mm`, approached in `dirs`, at `now_s`, from the
-    /// inputs ingested so far ([`Engine::ingest`]). Faults start and clear in the engine's log as
+    /// inputs ingested so far ([`Engine::handle_sample`]). Faults start and clear in the engine's log as
     /// in a cycle (a channel's health, the model, `compensation.<axis>` while no target can be
     /// computed); [`Engine::snapshot`] shows the targets and terms of the last call.
     pub fn correction_at(

@@ -312,7 +312,7 @@ impl Engine {
 
     /// Take one decoded sample (any order; health is judged per channel). A known channel costs
     /// one index and no allocation.
-    pub fn ingest(&mut self, s: &Sample) {
+    pub fn handle_sample(&mut self, s: &Sample) {
         if s.t_s > self.newest_input_s {
             self.newest_input_s = s.t_s;
         }

@@ -75,7 +75,7 @@ impl CycleCore {
 
     /// A decoded sample from a source (any order; the engine judges health per channel).
     pub fn handle_sample(&mut self, s: &Sample) {
-        self.engine.ingest(s);
+        self.engine.handle_sample(s);
     }
 
     /// The sink found another value in the controller: continue from it. A refusal (a value the

@@ -181,7 +181,7 @@ impl GatewayCore {
     /// A CAN frame arrived at `t_s`.
     pub fn handle_frame(&mut self, f: &Frame, t_s: f64) {
         if let Some(c) = self.canopen.as_mut() {
-            c.on_frame(f, t_s, &mut self.samples);
+            c.handle_frame(f, t_s, &mut self.samples);
         }
     }
 
@@ -274,7 +274,7 @@ impl GatewayCore {
                 after,
                 connected,
             } => {
-                m.reporter.on_modbus_poll(&before, &after, connected);
+                m.reporter.handle_modbus_poll(&before, &after, connected);
                 let events = m.reporter.publish(now_s);
                 self.edges.extend(events);
                 None
@@ -372,7 +372,7 @@ impl GatewayCore {
     pub fn handle_reply(&mut self, reply: Reply, now_s: f64, connected: bool) -> Option<&Action> {
         let os = self.origin_shift.as_mut()?;
         os.pending = None;
-        let a = os.core.on_reply(reply, now_s);
+        let a = os.core.handle_reply(reply, now_s);
         self.settle(a, now_s, connected)
     }
 

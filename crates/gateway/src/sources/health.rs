@@ -101,7 +101,7 @@ impl SourceReporter {
     }
 
     /// The link failed (closed, I/O error, open failed). `why` is kept as `last_error`.
-    pub fn on_link_down(&mut self, why: &str) {
+    pub fn handle_link_down(&mut self, why: &str) {
         self.status.connected = false;
         if self.status.last_error.as_deref() != Some(why) {
             self.status.last_error = Some(why.to_string());
@@ -109,7 +109,7 @@ impl SourceReporter {
     }
 
     /// The link works again (data arrived after a reopen).
-    pub fn on_link_up(&mut self) {
+    pub fn handle_link_up(&mut self) {
         if !self.status.connected {
             self.status.connected = true;
             if self.ever_connected {
@@ -121,7 +121,7 @@ impl SourceReporter {
 
     /// The CAN backend's error-frame state. A new backend (after a reopen) starts its counters at
     /// zero; the totals shown keep counting across reopens.
-    pub fn on_can_bus(&mut self, now: BusErrors, base: &BusErrors, now_s: f64) {
+    pub fn handle_can_bus(&mut self, now: BusErrors, base: &BusErrors, now_s: f64) {
         let frames = base.error_frames + now.error_frames;
         if frames > self.error_frames_seen {
             self.error_frames_seen = frames;
@@ -137,7 +137,12 @@ impl SourceReporter {
     }
 
     /// A Modbus poll finished: `before` and `after` are the poller's counters around it.
-    pub fn on_modbus_poll(&mut self, before: &PollCounters, after: &PollCounters, connected: bool) {
+    pub fn handle_modbus_poll(
+        &mut self,
+        before: &PollCounters,
+        after: &PollCounters,
+        connected: bool,
+    ) {
         self.exception_now = after.exceptions > before.exceptions;
         self.status.modbus = Some(ModbusCounters {
             requests: after.requests,
@@ -147,13 +152,13 @@ impl SourceReporter {
             connect_failures: after.connect_failures,
         });
         if connected {
-            self.on_link_up();
+            self.handle_link_up();
         } else if after.timeouts > before.timeouts {
-            self.on_link_down("request timed out");
+            self.handle_link_down("request timed out");
         } else if after.transport_errors > before.transport_errors {
-            self.on_link_down("transport error");
+            self.handle_link_down("transport error");
         } else if after.connect_failures > before.connect_failures {
-            self.on_link_down("connect failed");
+            self.handle_link_down("connect failed");
         } else {
             self.status.connected = false;
         }
@@ -229,12 +234,12 @@ mod tests {
         assert!(r.publish(0.0).is_empty());
         let mut events = Vec::new();
         for k in 0..50 {
-            r.on_link_down("CAN bus closed");
+            r.handle_link_down("CAN bus closed");
             events.extend(r.publish(1.0 + f64::from(k) * 0.1));
         }
         assert_eq!(starts(&events), [(FaultKind::Disconnected, true)]);
         assert!(!board.snapshot()[0].connected);
-        r.on_link_up();
+        r.handle_link_up();
         assert_eq!(starts(&r.publish(7.0)), [(FaultKind::Disconnected, false)]);
         let st = &board.snapshot()[0];
         assert_eq!((st.connected, st.reconnects), (true, 1));
@@ -246,15 +251,15 @@ mod tests {
         let board = SourceBoard::default();
         let mut r = SourceReporter::new("can", true, board.clone());
         let mut b = BusErrors::default();
-        b.on_error_frame(&ErrorFrame::class_only(CAN_ERR_BUSOFF));
-        r.on_can_bus(b, &BusErrors::default(), 1.0);
+        b.handle_error_frame(&ErrorFrame::class_only(CAN_ERR_BUSOFF));
+        r.handle_can_bus(b, &BusErrors::default(), 1.0);
         let ev = starts(&r.publish(1.0));
         assert!(ev.contains(&(FaultKind::BusOff, true)), "{ev:?}");
         assert!(ev.contains(&(FaultKind::BusErrors, true)), "{ev:?}");
         // The controller rejoins; a reopened backend starts from zero, the totals do not.
         let base = b;
         let fresh = BusErrors::default();
-        r.on_can_bus(fresh, &base, 1.5);
+        r.handle_can_bus(fresh, &base, 1.5);
         assert_eq!(starts(&r.publish(1.5)), [(FaultKind::BusOff, false)]);
         assert_eq!(
             starts(&r.publish(1.0 + BUS_ERROR_HOLD_S)),
@@ -275,7 +280,7 @@ mod tests {
             if (5..15).contains(&k) {
                 c.exceptions += 1;
             }
-            r.on_modbus_poll(&before, &c, true);
+            r.handle_modbus_poll(&before, &c, true);
             events.extend(r.publish(k as f64));
         }
         assert_eq!(

@@ -180,7 +180,7 @@ fn not_yet_open(rep: &mut SourceReporter, why: &str) {
         source = rep.name(),
         "{why}; retrying (the source is a `disconnected` fault until it opens)"
     );
-    rep.on_link_down(why);
+    rep.handle_link_down(why);
 }
 
 /// A batch sender whose batches are unpacked into `tx` by a forwarding task; each batch (one
@@ -226,10 +226,10 @@ async fn can_loop(
                 out.clone(),
                 |b, frames| {
                     if frames > 0 && !rep.is_connected() {
-                        rep.on_link_up();
+                        rep.handle_link_up();
                         tracing::info!(source = rep.name(), "CAN frames flow again");
                     }
-                    rep.on_can_bus(b.bus_errors(), &base, clock());
+                    rep.handle_can_bus(b.bus_errors(), &base, clock());
                     rep.publish(clock());
                 },
             )
@@ -240,7 +240,7 @@ async fn can_loop(
             match result {
                 Ok(()) => return, // `out` closed: the gateway stopped
                 Err(e) => {
-                    rep.on_link_down(&e.to_string());
+                    rep.handle_link_down(&e.to_string());
                     rep.publish(clock());
                     tracing::debug!(%e, "CAN backend failed; reopening");
                 }
@@ -260,7 +260,7 @@ async fn can_loop(
                 bus = Some(b);
             }
             Err(e) => {
-                rep.on_link_down(&e.to_string());
+                rep.handle_link_down(&e.to_string());
                 rep.publish(clock());
                 tracing::debug!(%e, "CAN reopen failed");
             }
@@ -289,7 +289,7 @@ fn spawn_modbus(
             let closed = out.clone();
             rt.block_on(
                 poller.run_observed(&clock, out, |before, after, connected| {
-                    rep.on_modbus_poll(before, after, connected);
+                    rep.handle_modbus_poll(before, after, connected);
                     rep.publish(clock());
                 }),
             );
@@ -314,13 +314,13 @@ async fn serial_loop(
     rep.publish(clock());
     loop {
         if let Some(p) = port.take() {
-            rep.on_link_up();
+            rep.handle_link_up();
             rep.publish(clock());
             let why = match serial::run(p, LineSource::new(cfg.clone()), clock, out.clone()).await {
                 Ok(c) => format!("serial port closed ({c:?})"),
                 Err(e) => format!("serial port failed: {e}"),
             };
-            rep.on_link_down(&why);
+            rep.handle_link_down(&why);
             rep.publish(clock());
             backoff.reset();
         }
@@ -332,7 +332,7 @@ async fn serial_loop(
             Ok(p) => port = Some(p),
             Err(e) => {
                 tracing::debug!(source = %cfg.name, %e, "serial reopen failed");
-                rep.on_link_down(&format!("cannot open device: {e}"));
+                rep.handle_link_down(&format!("cannot open device: {e}"));
                 rep.publish(clock());
             }
         }

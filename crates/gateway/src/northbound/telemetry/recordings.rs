@@ -163,7 +163,7 @@ impl Collector {
         }
     }
 
-    pub fn ingest(&mut self, payload: &[u8]) -> std::io::Result<Took> {
+    pub fn handle_payload(&mut self, payload: &[u8]) -> std::io::Result<Took> {
         let Some(c) = Chunk::decode(payload) else {
             self.refused += 1;
             return Ok(Took::Refused("not a recording chunk".into()));
@@ -278,11 +278,14 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut col = Collector::new(dir.path().to_path_buf());
         let enc: Vec<Vec<u8>> = chunks.iter().map(Chunk::encode).collect();
-        assert_eq!(col.ingest(&enc[1]).unwrap(), Took::Held);
-        assert_eq!(col.ingest(&enc[0]).unwrap(), Took::Written(None));
-        assert_eq!(col.ingest(&enc[0]).unwrap(), Took::Duplicate);
+        assert_eq!(col.handle_payload(&enc[1]).unwrap(), Took::Held);
+        assert_eq!(col.handle_payload(&enc[0]).unwrap(), Took::Written(None));
+        assert_eq!(col.handle_payload(&enc[0]).unwrap(), Took::Duplicate);
         let p = path_of(dir.path(), "g", "m1", "r.csv");
-        assert_eq!(col.ingest(&enc[2]).unwrap(), Took::Written(Some(p.clone())));
+        assert_eq!(
+            col.handle_payload(&enc[2]).unwrap(),
+            Took::Written(Some(p.clone()))
+        );
         assert_eq!(std::fs::read_to_string(&p).unwrap(), CSV);
         assert_eq!(col.duplicates, 1);
     }
@@ -293,16 +296,16 @@ mod tests {
         let mut col = Collector::new(dir.path().to_path_buf());
         let a = chunk_csv("g", "m", "r.csv", CSV, 3).unwrap();
         let b = chunk_csv("g", "m", "r.csv", "t_s,y_mm\n0,0\n1,1\n2,2\n3,3\n", 3).unwrap();
-        col.ingest(&a[0].encode()).unwrap();
+        col.handle_payload(&a[0].encode()).unwrap();
         assert!(matches!(
-            col.ingest(&b[1].encode()).unwrap(),
+            col.handle_payload(&b[1].encode()).unwrap(),
             Took::Refused(_)
         ));
         assert!(chunk_csv("g", "m", "../x", CSV, 3).is_err());
         let mut evil = a[0].clone();
         evil.edge_node = "..".into();
         assert!(matches!(
-            col.ingest(&evil.encode()).unwrap(),
+            col.handle_payload(&evil.encode()).unwrap(),
             Took::Refused(_)
         ));
     }
@@ -316,7 +319,7 @@ mod tests {
         let mut part = chunk_csv("g", "m", "r.csv", CSV, 9).unwrap().remove(0);
         part.name = "r.csv.part".into();
         assert!(matches!(
-            col.ingest(&part.encode()).unwrap(),
+            col.handle_payload(&part.encode()).unwrap(),
             Took::Refused(_)
         ));
         let c0 = chunk_csv("g", "m", "r.csv", CSV, 1).unwrap().remove(0);
@@ -326,25 +329,28 @@ mod tests {
                 last: false,
                 ..c0.clone()
             };
-            assert_eq!(col.ingest(&c.encode()).unwrap(), Took::Held);
+            assert_eq!(col.handle_payload(&c.encode()).unwrap(), Took::Held);
         }
         let far = Chunk {
             index: u64::MAX,
             ..c0.clone()
         };
         assert!(matches!(
-            col.ingest(&far.encode()).unwrap(),
+            col.handle_payload(&far.encode()).unwrap(),
             Took::Refused(_)
         ));
         // The held ones are still released by the chunk they waited for.
-        assert_eq!(col.ingest(&c0.encode()).unwrap(), Took::Written(None));
+        assert_eq!(
+            col.handle_payload(&c0.encode()).unwrap(),
+            Took::Written(None)
+        );
         assert_eq!(col.refused, 2);
         // A chunk after the last one (its part file renamed) is refused, not an I/O error.
         let mut col = Collector::new(dir.path().join("after"));
         let two = chunk_csv("g", "m", "r.csv", CSV, 3).unwrap();
-        col.ingest(&two[0].encode()).unwrap();
+        col.handle_payload(&two[0].encode()).unwrap();
         assert!(matches!(
-            col.ingest(&two[1].encode()).unwrap(),
+            col.handle_payload(&two[1].encode()).unwrap(),
             Took::Written(Some(_))
         ));
         let late = Chunk {
@@ -352,10 +358,13 @@ mod tests {
             ..two[1].clone()
         };
         assert!(matches!(
-            col.ingest(&late.encode()).unwrap(),
+            col.handle_payload(&late.encode()).unwrap(),
             Took::Refused(_)
         ));
         // A chunk 0 still starts the name over.
-        assert_eq!(col.ingest(&two[0].encode()).unwrap(), Took::Written(None));
+        assert_eq!(
+            col.handle_payload(&two[0].encode()).unwrap(),
+            Took::Written(None)
+        );
     }
 }

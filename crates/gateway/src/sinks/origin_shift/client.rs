@@ -311,7 +311,7 @@ impl OriginShiftClient {
                 return outcome;
             }
             let reply = self.request(&action).await;
-            action = core.on_reply(reply, self.now_s());
+            action = core.handle_reply(reply, self.now_s());
         }
     }
 
@@ -333,7 +333,7 @@ impl OriginShiftClient {
                 return Ok(outcome);
             }
             let reply = self.request(&action).await;
-            action = cycle.on_reply(reply, self.now_s());
+            action = cycle.handle_reply(reply, self.now_s());
         }
     }
 }

@@ -149,7 +149,7 @@ impl WriteCycle {
     }
 
     /// Feed the reply to the last action, at time `now_s`; get the next action.
-    pub fn on_reply(&mut self, reply: Reply, now_s: f64) -> Action {
+    pub fn handle_reply(&mut self, reply: Reply, now_s: f64) -> Action {
         let state = self.state.clone();
         match (state, reply) {
             (State::Finished, _) => Action::Done(Outcome::Ok),
@@ -250,18 +250,18 @@ mod tests {
         let (mut c, a) = WriteCycle::start(&m, blocks.clone(), 1);
         assert_eq!(a, Action::Write(blocks[0].clone()));
         assert_eq!(
-            c.on_reply(Reply::Written, 0.0),
+            c.handle_reply(Reply::Written, 0.0),
             Action::Write(blocks[1].clone())
         );
         assert_eq!(
-            c.on_reply(Reply::Written, 0.0),
+            c.handle_reply(Reply::Written, 0.0),
             Action::Write(WriteBlock {
                 address: 30,
                 words: vec![1].into()
             })
         );
         assert_eq!(
-            c.on_reply(Reply::Written, 0.0),
+            c.handle_reply(Reply::Written, 0.0),
             Action::Read {
                 address: 31,
                 count: 1,
@@ -270,7 +270,7 @@ mod tests {
         );
         // Controller not yet acked: poll again 10 ms later.
         assert_eq!(
-            c.on_reply(Reply::Read(vec![0].into()), 0.001),
+            c.handle_reply(Reply::Read(vec![0].into()), 0.001),
             Action::Read {
                 address: 31,
                 count: 1,
@@ -278,7 +278,7 @@ mod tests {
             }
         );
         assert_eq!(
-            c.on_reply(Reply::Read(vec![1].into()), 0.011),
+            c.handle_reply(Reply::Read(vec![1].into()), 0.011),
             Action::Read {
                 address: 10,
                 count: 2,
@@ -286,7 +286,7 @@ mod tests {
             }
         );
         assert_eq!(
-            c.on_reply(Reply::Read(blocks[0].words.clone()), 0.012),
+            c.handle_reply(Reply::Read(blocks[0].words.clone()), 0.012),
             Action::Read {
                 address: 20,
                 count: 1,
@@ -294,7 +294,7 @@ mod tests {
             }
         );
         assert_eq!(
-            c.on_reply(Reply::Read(blocks[1].words.clone()), 0.013),
+            c.handle_reply(Reply::Read(blocks[1].words.clone()), 0.013),
             Action::Done(Outcome::Ok)
         );
     }
@@ -304,12 +304,12 @@ mod tests {
         let m = map(true);
         let blocks = m.encode(&[(Axis::Y, 3.0)]).unwrap();
         let (mut c, _) = WriteCycle::start(&m, blocks.clone(), 0);
-        c.on_reply(Reply::Written, 0.0);
-        c.on_reply(Reply::Written, 0.0);
+        c.handle_reply(Reply::Written, 0.0);
+        c.handle_reply(Reply::Written, 0.0);
         let mut t = 0.0;
         let out = loop {
             t += 0.01;
-            if let Action::Done(o) = c.on_reply(Reply::Read(vec![1].into()), t) {
+            if let Action::Done(o) = c.handle_reply(Reply::Read(vec![1].into()), t) {
                 break o;
             }
         };
@@ -325,16 +325,16 @@ mod tests {
         let m = map(false);
         let (mut c, _) = WriteCycle::start(&m, blocks, 0);
         assert!(matches!(
-            c.on_reply(Reply::Written, 0.0),
+            c.handle_reply(Reply::Written, 0.0),
             Action::Read { address: 20, .. }
         ));
         assert!(matches!(
-            c.on_reply(Reply::Read(vec![4].into()), 0.0),
+            c.handle_reply(Reply::Read(vec![4].into()), 0.0),
             Action::Done(Outcome::ReadbackMismatch { address: 20, .. })
         ));
         let (mut c, _) = WriteCycle::start(&m, m.encode(&[(Axis::Y, 3.0)]).unwrap(), 0);
         assert!(matches!(
-            c.on_reply(Reply::Failed("timeout".into()), 0.0),
+            c.handle_reply(Reply::Failed("timeout".into()), 0.0),
             Action::Done(Outcome::RequestFailed {
                 step: "write",
                 address: 20,

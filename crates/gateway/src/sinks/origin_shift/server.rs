@@ -153,7 +153,7 @@ impl OriginShiftServer {
     }
 
     /// Handle one controller write: positions out as samples, held values into the core.
-    async fn on_write(&mut self, samples: &mpsc::Sender<Sample>, t_s: f64) {
+    async fn handle_write(&mut self, samples: &mpsc::Sender<Sample>, t_s: f64) {
         let bank = &self.bank;
         let read = |a: u16, n: u16| {
             let mut w = Words::from_elem(0, usize::from(n));
@@ -182,7 +182,7 @@ impl OriginShiftServer {
         let mut waited = 0u64;
         while !self.core.is_seeded() {
             match tokio::time::timeout(Duration::from_secs(5), self.writes.changed()).await {
-                Ok(Ok(())) => self.on_write(samples, clock()).await,
+                Ok(Ok(())) => self.handle_write(samples, clock()).await,
                 Ok(Err(_)) => break,
                 Err(_) => {
                     waited += 5;
@@ -240,7 +240,7 @@ impl OriginShiftServer {
                 r = self.writes.changed() => {
                     if r.is_err() { return; }
                     last_write_s = clock();
-                    self.on_write(&samples, last_write_s).await;
+                    self.handle_write(&samples, last_write_s).await;
                     continue;
                 }
             }

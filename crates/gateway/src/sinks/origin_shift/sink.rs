@@ -268,7 +268,7 @@ impl SinkCore {
 
     /// Feed the reply to the last request; get the next one, or `Action::Done` at the end of the
     /// period (the outcome of the write cycle, or `Ok` when nothing needed writing).
-    pub fn on_reply(&mut self, reply: Reply, now_s: f64) -> Action {
+    pub fn handle_reply(&mut self, reply: Reply, now_s: f64) -> Action {
         match std::mem::replace(&mut self.phase, Phase::Idle) {
             Phase::Idle => Action::Done(Outcome::Ok),
             Phase::Heartbeat => match reply {
@@ -318,7 +318,7 @@ impl SinkCore {
                 self.plan(now_s)
             }
             Phase::Writing(mut cycle) => {
-                let next = cycle.on_reply(reply, now_s);
+                let next = cycle.handle_reply(reply, now_s);
                 if matches!(next, Action::Write(_)) && self.too_late(now_s) {
                     self.blocks = cycle.into_blocks();
                     return self.abandon_late(now_s);
@@ -507,12 +507,12 @@ mod tests {
             }
         );
         // x holds 1.0 µm (10 counts), y 0; strobe = ack = 1: the next flip is to 0.
-        let a = c.on_reply(Reply::Read(vec![0, 10, 0, 0, 1, 1].into()), 0.0);
+        let a = c.handle_reply(Reply::Read(vec![0, 10, 0, 0, 1, 1].into()), 0.0);
         let Action::Write(b) = a else { panic!("{a:?}") };
         assert_eq!(b.address, 0);
         assert_eq!(b.words[..], [0, 15, 0xFFFF, 0xFFFB], "1.5 and -0.5 µm");
         assert_eq!(
-            c.on_reply(Reply::Written, 0.0),
+            c.handle_reply(Reply::Written, 0.0),
             Action::Write(WriteBlock {
                 address: 4,
                 words: vec![0].into()
@@ -525,7 +525,7 @@ mod tests {
         let mut c = core();
         c.begin(&wants(0.0, 0.0));
         // x holds 100 µm (1000 counts): beyond the 60 µm clamp; y is written.
-        let a = c.on_reply(Reply::Read(vec![0, 1000, 0, 0, 0, 0].into()), 0.0);
+        let a = c.handle_reply(Reply::Read(vec![0, 1000, 0, 0, 0, 0].into()), 0.0);
         let Action::Write(b) = a else { panic!("{a:?}") };
         assert_eq!(b.address, 2, "only y");
         assert_eq!(c.faults().beyond_clamp, vec![true, false]);
@@ -536,7 +536,7 @@ mod tests {
     fn a_pending_latch_means_no_write() {
         let mut c = core();
         c.begin(&wants(0.0, 0.0));
-        let a = c.on_reply(Reply::Read(vec![0, 0, 0, 0, 1, 0].into()), 0.0);
+        let a = c.handle_reply(Reply::Read(vec![0, 0, 0, 0, 1, 0].into()), 0.0);
         assert!(
             matches!(a, Action::Done(Outcome::AckTimeout { .. })),
             "{a:?}"

@@ -75,7 +75,7 @@ impl Controller {
                 return o;
             }
             let r = self.reply(&a);
-            a = c.on_reply(r, now_s);
+            a = c.handle_reply(r, now_s);
         }
     }
 }
@@ -133,10 +133,10 @@ fn a_period_older_than_half_the_controllers_timeout_writes_no_value() {
     let mut plc = Controller::holding(5.0, 0.0);
     let a = c.begin_at(&wants(6.0, 0.0), 10.0);
     let r = plc.reply(&a); // the heartbeat
-    let read = c.on_reply(r, 10.0);
+    let read = c.handle_reply(r, 10.0);
     let r = plc.reply(&read);
     // The box froze after the read for 0.3 s > 0.2 s: the controller may have ramped out since.
-    let a = c.on_reply(r, 10.3);
+    let a = c.handle_reply(r, 10.3);
     assert!(
         matches!(
             &a,
@@ -152,10 +152,10 @@ fn a_period_older_than_half_the_controllers_timeout_writes_no_value() {
 
     // Frozen between the values and the strobe: the strobe is not sent either.
     let a = c.begin_at(&wants(6.0, 0.0), 11.0);
-    let mut a = c.on_reply(plc.reply(&a), 11.0);
-    a = c.on_reply(plc.reply(&a), 11.0); // read → first value write
+    let mut a = c.handle_reply(plc.reply(&a), 11.0);
+    a = c.handle_reply(plc.reply(&a), 11.0); // read → first value write
     assert!(matches!(&a, Action::Write(b) if b.address == 0), "{a:?}");
-    let a = c.on_reply(plc.reply(&a), 11.25);
+    let a = c.handle_reply(plc.reply(&a), 11.25);
     assert!(
         matches!(a, Action::Done(Outcome::RequestFailed { step: "late", .. })),
         "{a:?}"
