@@ -206,7 +206,6 @@ pub struct SinkSection {
 
 pub use retrocomp_model::config_issue::ConfigError;
 
-/// A semantic problem at `key`, placed on the key's line of `text`.
 /// The optional parts this build of the gateway has (its cargo features): a field file naming a
 /// part the build lacks is refused at its line ([`FieldConfig::parse`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -225,6 +224,7 @@ impl Built {
     };
 }
 
+/// A semantic problem at `key`, placed on the key's line of `text`.
 fn invalid(path: &Path, text: &str, key: String, what: String) -> ConfigError {
     let line = retrocomp_bus::config::locate(text, &key).unwrap_or(0);
     ConfigError::single_at(&path.display().to_string(), line, &key, what)
