@@ -204,9 +204,9 @@ fn add_thermal_lag(
     if let Some((column, exponent, per)) = power_of(sensor) {
         let name = format!("{column}_sq_tau_{:.0}s", tau_s.round());
         let t0 = first_reading(rec, column)?.powi(exponent);
-        // Times the reciprocal, not divided: 1/10⁶ rounds to the double `1e-6`, so krpm² gives
-        // um_per_k × 1e-6 as before a1d3104 (the shipped models' bits; dividing by 10⁶ is the
-        // correctly rounded quotient and can differ by 1 ulp). Exact for per = 1.
+        // Times the reciprocal, not divided: 1/10⁶ rounds to the double `1e-6`, so a krpm² gain
+        // is um_per_k × 1e-6, the bits the shipped FL models hold (the quotient by 10⁶ is
+        // correctly rounded and can differ from it by 1 ulp). Exact for per = 1.
         let um_per_unit = um_per_k * per.powi(exponent).recip();
         let reference = ensure_sensor(
             spec,
