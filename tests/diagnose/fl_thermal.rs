@@ -13,7 +13,8 @@
 //! (asserted: ≥ 30 %, measured 35.1 %).
 //!
 //! `FL_THERMAL_MODELS_DIR=DIR cargo test --test diagnose fl_thermal::` also fits every channel on
-//! the WHOLE fixture and writes DIR/d<k>/{sim.toml, model.toml} (the deployable models).
+//! the WHOLE fixture and writes DIR/d<k>/{sim.toml, model.toml} (the deployable models); without
+//! it they are written to a temporary directory and must equal the shipped ones byte for byte.
 
 use std::path::PathBuf;
 
@@ -83,6 +84,22 @@ fn fl_thermal_models_fitted_on_everything_run_forward() {
         let dir = root.join(ch.trim_end_matches("_um"));
         let (sim, model, report) = fit_channel(&d, ch, &(0..n).collect::<Vec<_>>(), &dir);
         std::fs::write(dir.join("report.txt"), &report).unwrap();
+        // The shipped models are what this code writes, bit for bit: a change of any number in
+        // them is a change of the code, made on purpose and regenerated with this test.
+        let shipped = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("deploy/models/fl_thermal")
+            .join(dir.file_name().unwrap());
+        for file in ["sim.toml", "model.toml", "found_terms.toml", "report.json"] {
+            let read =
+                |p: PathBuf| std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{p:?}: {e}"));
+            assert!(
+                read(dir.join(file)) == read(shipped.join(file)),
+                "{ch}: {file} differs from {:?}; if the change is meant, regenerate them: \
+                 FL_THERMAL_MODELS_DIR=deploy/models/fl_thermal cargo test --release --test diagnose \
+                 -- fl_thermal::fl_thermal_models_fitted",
+                shipped.join(file)
+            );
+        }
         // The forward check on real data (the report's `forward_check`): every channel's model,
         // its gains refitted on the first 60 % of the file, predicts the last 40 % better than
         // the offset alone (measured 2026-11-26: d1 4.75 → 2.33 … d3 8.58 → 7.26 µm).
