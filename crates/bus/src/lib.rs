@@ -27,6 +27,7 @@ pub mod backoff;
 pub mod can;
 pub mod canopen;
 pub mod config;
+mod deadline;
 pub mod fault;
 pub mod listen;
 pub mod modbus;

@@ -209,7 +209,6 @@ mod guest {
                 &mut bus,
                 &mut src,
                 move || start.elapsed().as_secs_f64(),
-                Duration::from_millis(50),
                 tx,
             )
             .await
@@ -411,7 +410,7 @@ mod guest {
         );
         ip_link("up").await?;
         value_arrives(&mut feed, "181#D0070000", 2.0).await?;
-        // The source reports the link up on its next poll tick after the frame.
+        // The source reports the link up when the first frame after the reopen arrives.
         let deadline = tokio::time::Instant::now() + STEP_TIMEOUT;
         loop {
             let st = can(&feed).context("no `can` source on the board")?;

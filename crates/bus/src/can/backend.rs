@@ -120,6 +120,15 @@ impl CanBus for AnyCanBus {
             AnyCanBus::Socketcan(b) => b.recv().await,
         }
     }
+
+    async fn recv_event(&mut self) -> Result<Option<Frame>, CanError> {
+        match self {
+            AnyCanBus::Socketcand(b) => b.recv_event().await,
+            AnyCanBus::Mem(b) => b.recv_event().await,
+            #[cfg(all(feature = "socketcan", target_os = "linux"))]
+            AnyCanBus::Socketcan(b) => b.recv_event().await,
+        }
+    }
 }
 
 #[cfg(test)]

@@ -46,7 +46,15 @@ impl From<std::io::Error> for CanError {
 /// An async CAN bus: the one interface the gateway, the simulator and the tests use.
 pub trait CanBus: Send {
     fn send(&mut self, frame: &Frame) -> impl Future<Output = Result<(), CanError>> + Send;
+    /// The next data or remote frame (error frames only update [`Self::bus_errors`]).
     fn recv(&mut self) -> impl Future<Output = Result<Frame, CanError>> + Send;
+    /// The next thing the bus received: `Some` data or remote frame, or `None` when an error
+    /// frame changed [`Self::bus_errors`]. A reader that reports the bus state wakes on it this
+    /// way (a bus that went bus-off carries no data frames to wake on). Cancel-safe where `recv`
+    /// is. Backends without error frames return only frames.
+    fn recv_event(&mut self) -> impl Future<Output = Result<Option<Frame>, CanError>> + Send {
+        async { self.recv().await.map(Some) }
+    }
     /// Bus state from the error frames seen since the bus was opened (none on in-memory buses).
     fn bus_errors(&self) -> BusErrors {
         BusErrors::default()

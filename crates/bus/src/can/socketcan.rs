@@ -225,15 +225,20 @@ impl CanBus for SocketCanBus {
 
     async fn recv(&mut self) -> Result<Frame, CanError> {
         loop {
-            let kframe = self
-                .socket
-                .async_io(READ_OR_ERROR, |s| s.read_frame())
-                .await
-                .map_err(|e| io_context(&self.ifname, "recv", e))?;
-            if let Some(f) = self.accept(kframe) {
+            if let Some(f) = self.recv_event().await? {
                 return Ok(f);
             }
         }
+    }
+
+    /// One read of the socket: `None` when it was an error frame (now in [`Self::bus_errors`]).
+    async fn recv_event(&mut self) -> Result<Option<Frame>, CanError> {
+        let kframe = self
+            .socket
+            .async_io(READ_OR_ERROR, |s| s.read_frame())
+            .await
+            .map_err(|e| io_context(&self.ifname, "recv", e))?;
+        Ok(self.accept(kframe))
     }
 }
 

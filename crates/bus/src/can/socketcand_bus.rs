@@ -109,14 +109,24 @@ impl SocketcandBus {
     /// The next frame with the server's timestamp in seconds. Cancel-safe.
     pub async fn recv_timestamped(&mut self) -> Result<(Frame, f64), CanError> {
         loop {
+            if let Some(got) = self.recv_timestamped_event().await? {
+                return Ok(got);
+            }
+        }
+    }
+
+    /// The next frame with the server's timestamp, or `None` after an error frame. Cancel-safe.
+    async fn recv_timestamped_event(&mut self) -> Result<Option<(Frame, f64)>, CanError> {
+        loop {
             match self.next_message().await? {
                 Message::Frame { frame, t_s } => {
                     self.errors.handle_frame();
-                    return Ok((frame, t_s));
+                    return Ok(Some((frame, t_s)));
                 }
                 Message::ErrorFrame { class, .. } => {
                     self.errors
                         .handle_error_frame(&ErrorFrame::class_only(class));
+                    return Ok(None);
                 }
                 Message::Error(_) => self.server_errors += 1,
                 _ => {}
@@ -137,5 +147,9 @@ impl CanBus for SocketcandBus {
 
     async fn recv(&mut self) -> Result<Frame, CanError> {
         self.recv_timestamped().await.map(|(f, _)| f)
+    }
+
+    async fn recv_event(&mut self) -> Result<Option<Frame>, CanError> {
+        Ok(self.recv_timestamped_event().await?.map(|(f, _)| f))
     }
 }

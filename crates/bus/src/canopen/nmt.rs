@@ -143,11 +143,20 @@ impl HeartbeatMonitor {
         self.state
     }
 
+    /// From when [`Self::poll`] reports this node `Stale`, given the frames seen so far (s, the
+    /// monitor's clock): never heard or not operational: already (−∞ or the heartbeat's time);
+    /// operational: when its heartbeat times out.
+    pub fn stale_from_s(&self) -> f64 {
+        match (self.last_seen_s, self.state) {
+            (Some(t), Some(NodeState::Operational)) => t + self.timeout_s,
+            (Some(t), _) => t,
+            (None, _) => f64::NEG_INFINITY,
+        }
+    }
+
     /// Health at `now_s`; counts each transition into timeout once.
     pub fn poll(&mut self, now_s: f64) -> Health {
-        let fresh = self
-            .last_seen_s
-            .is_some_and(|t| now_s - t <= self.timeout_s);
+        let fresh = self.last_seen_s.is_some_and(|t| now_s < t + self.timeout_s);
         if !fresh {
             if !self.timed_out && self.last_seen_s.is_some() {
                 self.timeouts += 1;
@@ -189,5 +198,26 @@ mod tests {
         assert_eq!(m.timeouts, 1);
         m.handle_frame(&encode_heartbeat(3, NodeState::Operational), 0.7);
         assert_eq!(m.poll(0.7), Health::Ok);
+    }
+
+    #[test]
+    fn stale_from_is_where_poll_turns_stale() {
+        let mut m = HeartbeatMonitor::new(3, 0.3);
+        assert_eq!(
+            m.stale_from_s(),
+            f64::NEG_INFINITY,
+            "never heard: stale already"
+        );
+        m.handle_frame(&encode_heartbeat(3, NodeState::PreOperational), 1.0);
+        assert_eq!(
+            m.stale_from_s(),
+            1.0,
+            "not operational: stale from that heartbeat"
+        );
+        m.handle_frame(&encode_heartbeat(3, NodeState::Operational), 2.0);
+        let from = m.stale_from_s();
+        assert!((from - 2.3).abs() < 1e-12, "{from}");
+        assert_eq!(m.poll(from - 1e-9), Health::Ok);
+        assert_eq!(m.poll(from + 1e-9), Health::Stale);
     }
 }

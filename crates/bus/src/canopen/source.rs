@@ -1,22 +1,33 @@
 //! The CANopen source: turns frames into samples for the configured encoders (CiA 406) and analog
 //! channels (CiA 404), watches heartbeats and PDO freshness, and says how to bring the nodes up.
-//! Sans-IO ([`CanopenSource`]) plus a thin async loop over any [`CanBus`] ([`run`]).
+//! Sans-IO ([`CanopenSource`]: `handle_frame(…, now)`, `poll(now)`, `poll_timeout()`) plus a thin
+//! async loop over any [`CanBus`] ([`run`]) that sleeps until the source's next deadline.
 //!
 //! Staleness: a channel is reported [`Health::Stale`] by [`CanopenSource::poll`] when its node's
-//! heartbeat is older than `heartbeat_timeout_s` (if heartbeats are monitored) or its PDO is older
-//! than `pdo_timeout_s`; the stale sample carries the last decoded value (NaN if none yet).
+//! heartbeat is older than `heartbeat_timeout_s` (if heartbeats are monitored), its node is not
+//! operational, or its PDO is older than `pdo_timeout_s`; the stale sample carries the last decoded
+//! value (NaN if none yet). [`CanopenSource::poll_timeout`] is the moment the next channel turns
+//! stale, or, while one is stale, [`STALE_REPEAT_S`] after the last poll. Times are seconds on the
+//! caller's clock.
 
 use super::cia404::AnalogChannel;
 use super::cia406::{EncoderChannel, PositionDecoder};
 use super::nmt::{HeartbeatMonitor, NmtCommand, encode_nmt};
 use super::sdo::{CYCLIC_TIMER_6200, SdoRequest, SdoResponse};
 use crate::can::{CanBus, CanError, Frame};
+use crate::deadline::{sleep_for, stale_report_due_s};
 use crate::{ChannelId, Health, Sample};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 fn default_pdo_timeout_s() -> f64 {
     0.1
 }
+
+/// While a channel is stale, [`CanopenSource::poll`] reports it again this often, s. The gateway's
+/// engine judges staleness on its inputs' clock (the newest sample of any source), which these
+/// repeated samples keep moving while every node is silent; a sample that stops the silence is
+/// handled when it arrives, not on this period.
+pub const STALE_REPEAT_S: f64 = 0.01;
 
 /// `[canopen]` section of the field TOML.
 #[derive(Debug, Clone, PartialEq, Default, serde::Deserialize, serde::Serialize)]
@@ -70,6 +81,8 @@ pub struct CanopenSource {
     monitors: BTreeMap<u8, HeartbeatMonitor>,
     /// Index: encoders first, then analogs.
     fresh: Vec<Freshness>,
+    /// When [`CanopenSource::poll`] last ran (None: never).
+    last_poll_s: Option<f64>,
     pub counters: CanopenCounters,
 }
 
@@ -119,6 +132,7 @@ impl CanopenSource {
             by_cob,
             monitors,
             fresh,
+            last_poll_s: None,
             counters: CanopenCounters::default(),
         }
     }
@@ -197,6 +211,7 @@ impl CanopenSource {
 
     /// Staleness check at `t_s`: a `Stale` sample for every channel that timed out.
     pub fn poll(&mut self, t_s: f64, out: &mut Vec<Sample>) {
+        self.last_poll_s = Some(self.last_poll_s.map_or(t_s, |p| p.max(t_s)));
         let mut hb_stale = BTreeSet::new();
         for (node, m) in &mut self.monitors {
             let before = m.timeouts;
@@ -208,7 +223,7 @@ impl CanopenSource {
         for f in &self.fresh {
             let pdo_old = f
                 .last_pdo_s
-                .is_none_or(|t| t_s - t > self.cfg.pdo_timeout_s);
+                .is_none_or(|t| t_s >= t + self.cfg.pdo_timeout_s);
             if pdo_old || hb_stale.contains(&f.node) {
                 out.push(Sample {
                     channel: f.channel,
@@ -219,57 +234,91 @@ impl CanopenSource {
             }
         }
     }
+
+    /// When [`Self::poll`] next has something to report (s, the caller's clock; may be in the
+    /// past: poll now): the earliest moment a channel turns stale, or [`STALE_REPEAT_S`] after the
+    /// last poll while one is. `None` with no channels configured.
+    pub fn poll_timeout(&self) -> Option<f64> {
+        self.fresh
+            .iter()
+            .map(|f| {
+                let pdo = f
+                    .last_pdo_s
+                    .map_or(f64::NEG_INFINITY, |t| t + self.cfg.pdo_timeout_s);
+                let hb = self
+                    .monitors
+                    .get(&f.node)
+                    .map_or(f64::INFINITY, HeartbeatMonitor::stale_from_s);
+                stale_report_due_s(pdo.min(hb), self.last_poll_s, STALE_REPEAT_S)
+            })
+            .min_by(f64::total_cmp)
+    }
 }
 
 /// Run the source on a bus: send the bring-up frames, then decode until the bus fails or `out` is
-/// closed, checking staleness every `poll_period`. `clock_s` gives the receive time in seconds.
+/// closed, checking staleness when [`CanopenSource::poll_timeout`] says. `clock_s` gives the
+/// receive time in seconds.
 pub async fn run<B: CanBus>(
     bus: &mut B,
     src: &mut CanopenSource,
     clock_s: impl Fn() -> f64,
-    poll_period: std::time::Duration,
     out: tokio::sync::mpsc::Sender<Vec<Sample>>,
 ) -> Result<(), CanError> {
-    run_observed(bus, src, clock_s, poll_period, out, |_, _| {}).await
+    run_observed(bus, src, clock_s, out, |_, _| None).await
 }
 
-/// [`run`], calling `observe(bus, frames_received)` after the bring-up and on every poll tick, so
-/// the caller can report the link (frames flowing, the bus state from error frames) while it runs.
-/// `frames_received` counts the frames this call received (0 until the first one arrives).
+/// [`run`], calling `observe(bus, frames_received)` after the bring-up, on the first frame, on
+/// every error frame, on a frame that changed [`CanBus::bus_errors`] (one that ended a bus-off)
+/// and at every deadline, so the caller can report the link (frames flowing, the bus state) while
+/// it runs. `frames_received` counts the frames this call received. `observe` returns its own next
+/// deadline (s on `clock_s`), if it has one: a fault that clears with time.
 pub async fn run_observed<B: CanBus>(
     bus: &mut B,
     src: &mut CanopenSource,
     clock_s: impl Fn() -> f64,
-    poll_period: std::time::Duration,
     out: tokio::sync::mpsc::Sender<Vec<Sample>>,
-    mut observe: impl FnMut(&B, u64),
+    mut observe: impl FnMut(&B, u64) -> Option<f64>,
 ) -> Result<(), CanError> {
     for f in src.bring_up() {
         bus.send(&f).await?;
     }
-    let mut tick = tokio::time::interval(poll_period);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut batch = Vec::new();
     let mut received = 0u64;
-    observe(bus, received);
+    let mut observed = bus.bus_errors();
+    let mut observer_due = observe(bus, received);
     loop {
+        let due = [src.poll_timeout(), observer_due]
+            .into_iter()
+            .flatten()
+            .min_by(f64::total_cmp);
+        let wait = sleep_for(due, clock_s());
         // Frames first: after a host pause the socket holds frames that arrived while this task
         // did not run; judging PDO freshness before reading them would report channels stale
-        // whose data is waiting right here. The tick is polled as soon as the socket is drained.
+        // whose data is waiting right here. The deadline is taken once the socket is drained.
         tokio::select! {
             biased;
-            f = bus.recv() => match f {
-                Ok(f) => {
+            f = bus.recv_event() => match f {
+                Ok(Some(f)) => {
                     received += 1;
                     src.handle_frame(&f, clock_s(), &mut batch);
+                    if received == 1 || bus.bus_errors() != observed {
+                        observed = bus.bus_errors();
+                        observer_due = observe(bus, received);
+                    }
+                }
+                // An error frame: the bus state may have changed.
+                Ok(None) => {
+                    observed = bus.bus_errors();
+                    observer_due = observe(bus, received);
                 }
                 // Lost frames are not fatal: the positions come again in the next cycle.
                 Err(CanError::Overrun(n)) => src.counters.decode_errors += n,
                 Err(e) => return Err(e),
             },
-            _ = tick.tick() => {
+            () = tokio::time::sleep(wait) => {
                 src.poll(clock_s(), &mut batch);
-                observe(bus, received);
+                observed = bus.bus_errors();
+                observer_due = observe(bus, received);
             }
         }
         if !batch.is_empty() && out.send(std::mem::take(&mut batch)).await.is_err() {
@@ -357,6 +406,163 @@ mod tests {
         assert_eq!(src.counters.heartbeat_timeouts, 2);
     }
 
+    /// Driven only at its own deadlines (virtual time), the source reports a channel stale at
+    /// the instant its PDO times out, again every [`STALE_REPEAT_S`] while it stays silent, and a
+    /// node's "not operational" heartbeat at once.
+    #[test]
+    fn polled_at_its_deadlines_it_reports_staleness_on_time() {
+        let c = cfg();
+        let mut src = CanopenSource::new(c.clone());
+        let mut out = Vec::new();
+        assert_eq!(
+            src.poll_timeout(),
+            Some(f64::NEG_INFINITY),
+            "nothing heard: poll now"
+        );
+        src.poll(0.0, &mut out);
+        assert_eq!(out.len(), 2, "both channels stale before any PDO");
+        assert_eq!(src.poll_timeout(), Some(STALE_REPEAT_S));
+        for node in [1, 0x10] {
+            src.handle_frame(
+                &encode_heartbeat(node, NodeState::Operational),
+                0.005,
+                &mut out,
+            );
+        }
+        src.handle_frame(&c.encoder[0].encode_position(1.0).unwrap(), 0.005, &mut out);
+        src.handle_frame(&c.analog[0].encode(20.0).unwrap(), 0.005, &mut out);
+        out.clear();
+        // Fresh now: the next deadline is the PDO timeout (0.005 + 0.1), not a tick.
+        let due = src.poll_timeout().unwrap();
+        assert!((due - 0.105).abs() < 1e-12, "{due}");
+        src.poll(due - 1e-6, &mut out);
+        assert!(out.is_empty(), "fresh just before the deadline: {out:?}");
+        src.poll(due + 1e-9, &mut out);
+        assert_eq!(out.len(), 2, "stale just after it");
+        out.clear();
+        let again = src.poll_timeout().unwrap();
+        assert!(
+            (again - (due + 1e-9 + STALE_REPEAT_S)).abs() < 1e-12,
+            "{again}"
+        );
+        // One PDO brings x back; its next deadline is its own timeout, the analog's the repeat.
+        src.handle_frame(&c.encoder[0].encode_position(1.0).unwrap(), 0.11, &mut out);
+        out.clear();
+        src.poll(again, &mut out);
+        assert_eq!(
+            out.iter().map(|s| s.channel.name()).collect::<Vec<_>>(),
+            ["T_spindle_C"]
+        );
+        // A node that leaves operational is stale from its heartbeat on: due at once.
+        src.handle_frame(
+            &encode_heartbeat(1, NodeState::PreOperational),
+            0.12,
+            &mut out,
+        );
+        assert!(src.poll_timeout().unwrap() <= 0.12);
+        out.clear();
+        src.poll(0.12, &mut out);
+        assert!(
+            out.iter()
+                .any(|s| s.channel == "x_mm" && s.health == Health::Stale)
+        );
+    }
+
+    /// A bus scripted by the test: data frames and error frames, as a SocketCAN socket gives them.
+    struct ScriptBus {
+        rx: tokio::sync::mpsc::UnboundedReceiver<Result<Frame, u32>>,
+        errors: crate::can::BusErrors,
+    }
+
+    impl CanBus for ScriptBus {
+        fn bus_errors(&self) -> crate::can::BusErrors {
+            self.errors
+        }
+        async fn send(&mut self, _: &Frame) -> Result<(), CanError> {
+            Ok(())
+        }
+        async fn recv(&mut self) -> Result<Frame, CanError> {
+            loop {
+                if let Some(f) = self.recv_event().await? {
+                    return Ok(f);
+                }
+            }
+        }
+        async fn recv_event(&mut self) -> Result<Option<Frame>, CanError> {
+            match self.rx.recv().await {
+                Some(Ok(f)) => {
+                    self.errors.handle_frame();
+                    Ok(Some(f))
+                }
+                Some(Err(class)) => {
+                    self.errors
+                        .handle_error_frame(&crate::can::ErrorFrame::class_only(class));
+                    Ok(None)
+                }
+                None => Err(CanError::Closed),
+            }
+        }
+    }
+
+    /// With PDOs flowing there is no deadline to wake on, yet the observer sees the bus go
+    /// bus-off on the error frame and come back on the next data frame, each when it happens.
+    #[tokio::test(start_paused = true)]
+    async fn the_observer_follows_the_bus_state_without_a_tick() {
+        use crate::can::BusState;
+        use crate::can::bus_state::CAN_ERR_BUSOFF;
+        use std::sync::{Arc, Mutex};
+        let c = CanopenConfig {
+            encoder: cfg().encoder,
+            analog: Vec::new(),
+            heartbeat_timeout_s: None,
+            pdo_timeout_s: 0.1,
+        };
+        let pdo = c.encoder[0].encode_position(1.0).unwrap();
+        let (script, rx) = tokio::sync::mpsc::unbounded_channel();
+        let (tx, mut samples) = tokio::sync::mpsc::channel(1024);
+        let t0 = tokio::time::Instant::now();
+        let clock = move || t0.elapsed().as_secs_f64();
+        let seen: Arc<Mutex<Vec<(f64, BusState)>>> = Arc::default();
+        let log = seen.clone();
+        let task = tokio::spawn(async move {
+            let mut bus = ScriptBus {
+                rx,
+                errors: Default::default(),
+            };
+            let mut src = CanopenSource::new(c);
+            run_observed(&mut bus, &mut src, clock, tx, |b, _| {
+                log.lock().unwrap().push((clock(), b.bus_errors().state()));
+                None
+            })
+            .await
+        });
+        tokio::spawn(async move { while samples.recv().await.is_some() {} });
+        let step = std::time::Duration::from_millis(5);
+        for i in 0..40 {
+            if i == 10 {
+                script.send(Err(CAN_ERR_BUSOFF)).unwrap();
+                tokio::time::sleep(step).await;
+            }
+            script.send(Ok(pdo)).unwrap();
+            tokio::time::sleep(step).await;
+        }
+        let seen = seen.lock().unwrap().clone();
+        let off = seen
+            .iter()
+            .position(|(_, s)| *s == BusState::BusOff)
+            .expect("bus-off seen");
+        let (t_off, _) = seen[off];
+        let (t_back, back) = seen[off + 1];
+        assert_eq!(back, BusState::Active, "{seen:?}");
+        assert!((t_off - 0.050).abs() < 1e-3, "bus-off observed at {t_off}");
+        assert!(
+            (t_back - 0.055).abs() < 1e-3,
+            "back on the bus observed at {t_back}"
+        );
+        assert_eq!(seen.last().unwrap().1, BusState::Active, "{seen:?}");
+        task.abort();
+    }
+
     #[tokio::test]
     async fn runs_on_the_mem_bus() {
         use crate::can::MemBus;
@@ -368,14 +574,7 @@ mod tests {
         let t0 = std::time::Instant::now();
         let task = tokio::spawn(async move {
             let mut src = CanopenSource::new(c);
-            run(
-                &mut gw,
-                &mut src,
-                move || t0.elapsed().as_secs_f64(),
-                std::time::Duration::from_secs(10),
-                tx,
-            )
-            .await
+            run(&mut gw, &mut src, move || t0.elapsed().as_secs_f64(), tx).await
         });
         // The simulator sees the bring-up, then answers with a position.
         let first = sim.recv().await.unwrap();

@@ -1,15 +1,19 @@
-//! A serial line source: framer + format parser + channel map, sans-IO ([`LineSource`]), with a thin
-//! async loop over any byte stream ([`run`]: a tokio-serial port or a pty in tests).
+//! A serial line source: framer + format parser + channel map, sans-IO ([`LineSource`]:
+//! `push`/`handle_line(…, now)`, `poll(now)`, `poll_transmit()` for the request, `poll_timeout()`),
+//! with a thin async loop over any byte stream ([`run`]: a tokio-serial port or a pty in tests)
+//! that sleeps until the source's next deadline. Times are seconds on the caller's clock.
 //!
 //! Every reading becomes `value = reading · scale + offset` in the channel's unit. Lines that do not
 //! parse, overlong lines and readings for no configured key are counted and skipped, never fatal.
-//! A channel with no reading for `timeout_s` is reported `Stale` by [`LineSource::poll`].
+//! A channel with no reading for `timeout_s` is reported `Stale` by [`LineSource::poll`] from that
+//! moment, and again every `period_s` while it stays silent.
 
 use super::formats::{
     GenericFormat, LineError, Reading, parse_generic, parse_heidenhain, parse_mitutoyo,
     parse_nd522, parse_weighing,
 };
 use super::framer::{DEFAULT_MAX_LINE, LineFramer};
+use crate::deadline::{sleep_for, stale_report_due_s};
 use crate::{ChannelId, Health, Sample};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 
@@ -144,6 +148,11 @@ pub struct LineSource {
     /// Each channel's id, resolved at construction.
     ids: Vec<ChannelId>,
     last: Vec<(Option<f64>, f64)>,
+    /// When [`LineSource::poll`] last ran (None: never) and when its next period starts.
+    last_poll_s: Option<f64>,
+    next_period_s: f64,
+    /// A period started and the request for it is not sent yet.
+    request_due: bool,
     counters: SerialCounters,
 }
 
@@ -155,6 +164,9 @@ impl LineSource {
             last: vec![(None, f64::NAN); cfg.channel.len()],
             ids: cfg.channel.iter().map(|c| ChannelId::of(&c.name)).collect(),
             cfg,
+            last_poll_s: None,
+            next_period_s: f64::NEG_INFINITY,
+            request_due: false,
             counters: SerialCounters::default(),
         }
     }
@@ -241,10 +253,22 @@ impl LineSource {
         }
     }
 
-    /// `Stale` samples (last good value) for channels silent for more than `timeout_s`.
-    pub fn poll(&self, t_s: f64, out: &mut Vec<Sample>) {
+    /// The request period, s (`period_s`, kept within 1 ms … 1 h).
+    fn period_s(&self) -> f64 {
+        self.cfg.period_s.clamp(1e-3, 3600.0)
+    }
+
+    /// At `t_s`: start the next period if it is due (its request then waits in
+    /// [`Self::poll_transmit`]), and a `Stale` sample (last good value) for every channel silent
+    /// for `timeout_s` or longer.
+    pub fn poll(&mut self, t_s: f64, out: &mut Vec<Sample>) {
+        if t_s >= self.next_period_s {
+            self.next_period_s = t_s + self.period_s();
+            self.request_due = self.cfg.request.is_some();
+        }
+        self.last_poll_s = Some(self.last_poll_s.map_or(t_s, |p| p.max(t_s)));
         for (&channel, (seen, v)) in self.ids.iter().zip(&self.last) {
-            if seen.is_none_or(|t| t_s - t > self.cfg.timeout_s) {
+            if seen.is_none_or(|t| t_s >= t + self.cfg.timeout_s) {
                 out.push(Sample {
                     channel,
                     t_s,
@@ -253,6 +277,29 @@ impl LineSource {
                 });
             }
         }
+    }
+
+    /// The request to send now, once per period (`request` of the config; none without one). The
+    /// reply block then starts again at the first axis.
+    pub fn poll_transmit(&mut self) -> Option<&[u8]> {
+        if !std::mem::take(&mut self.request_due) {
+            return None;
+        }
+        self.handle_request();
+        self.cfg.request.as_deref().map(str::as_bytes)
+    }
+
+    /// When [`Self::poll`] is next due (s; may be in the past: poll now): the next period, or
+    /// earlier the moment a channel falls silent for `timeout_s`. A silent channel is reported
+    /// again on every period.
+    pub fn poll_timeout(&self) -> f64 {
+        self.last
+            .iter()
+            .map(|(seen, _)| {
+                let from = seen.map_or(f64::NEG_INFINITY, |t| t + self.cfg.timeout_s);
+                stale_report_due_s(from, self.last_poll_s, self.period_s())
+            })
+            .fold(self.next_period_s, f64::min)
     }
 }
 
@@ -263,7 +310,8 @@ pub fn open(cfg: &SerialSourceConfig) -> Result<tokio_serial::SerialStream, toki
 }
 
 /// Read lines from `io` until EOF, an I/O error, or `out` closing; send `request` every `period_s`
-/// if configured; report staleness each period. Returns the final counters.
+/// if configured; report staleness when [`LineSource::poll_timeout`] says. Returns the final
+/// counters.
 pub async fn run<S: AsyncRead + AsyncWrite + Unpin>(
     io: S,
     mut src: LineSource,
@@ -271,12 +319,10 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin>(
     out: tokio::sync::mpsc::Sender<Vec<Sample>>,
 ) -> std::io::Result<SerialCounters> {
     let (mut rd, mut wr) = tokio::io::split(io);
-    let period = std::time::Duration::from_secs_f64(src.cfg.period_s.clamp(1e-3, 3600.0));
-    let mut tick = tokio::time::interval(period);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut buf = [0u8; 1024];
     loop {
         let mut batch = Vec::new();
+        let wait = sleep_for(Some(src.poll_timeout()), clock_s());
         tokio::select! {
             // Checked first: once the consumer is gone, a hang-up of the line (EIO on a pty) is the
             // expected end, not a failure to report.
@@ -289,12 +335,11 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin>(
                 }
                 src.push(&buf[..n], clock_s(), &mut batch);
             }
-            _ = tick.tick() => {
-                if let Some(req) = &src.cfg.request {
-                    wr.write_all(req.as_bytes()).await?;
-                    src.handle_request();
-                }
+            () = tokio::time::sleep(wait) => {
                 src.poll(clock_s(), &mut batch);
+                if let Some(req) = src.poll_transmit() {
+                    wr.write_all(req).await?;
+                }
             }
         }
         if !batch.is_empty() && out.send(batch).await.is_err() {
@@ -356,6 +401,55 @@ mod tests {
         let stale: Vec<_> = out.iter().map(|s| s.channel.name()).collect();
         assert_eq!(stale, vec!["y_mm", "z_mm"]);
         assert!(out.iter().all(|s| s.health == Health::Stale));
+    }
+
+    /// Driven only at its own deadlines (virtual time): one request per period, a channel that
+    /// falls silent reported at that instant (not at the next period), then once per period.
+    #[test]
+    fn polled_at_its_deadlines_it_requests_each_period_and_reports_silence_on_time() {
+        let mut s = LineSource::new(dro());
+        let mut out = Vec::new();
+        assert_eq!(
+            s.poll_timeout(),
+            f64::NEG_INFINITY,
+            "the first period starts at once"
+        );
+        s.poll(0.0, &mut out);
+        assert_eq!(s.poll_transmit(), Some(&b"\x02"[..]));
+        assert_eq!(s.poll_transmit(), None, "one request per period");
+        assert_eq!(out.len(), 3, "nothing read yet: every channel stale");
+        assert_eq!(s.poll_timeout(), 0.1, "next period");
+        out.clear();
+        s.push(
+            b"\x02+000000000\r\n\x02+000000000\r\n\x02+000000000\r\n",
+            0.05,
+            &mut out,
+        );
+        s.poll(0.1, &mut out);
+        assert!(s.poll_transmit().is_some());
+        out.clear();
+        // Read at 0.05, silent for timeout_s = 0.5: due at 0.55, between periods (0.5, 0.6).
+        let mut requests = 1;
+        let mut stale_at = None;
+        while stale_at.is_none() {
+            let now = s.poll_timeout();
+            s.poll(now, &mut out);
+            requests += usize::from(s.poll_transmit().is_some());
+            if !out.is_empty() {
+                stale_at = Some(now);
+            }
+        }
+        assert_eq!(requests, 1 + 4, "periods at 0.2, 0.3, 0.4, 0.5");
+        assert!((stale_at.unwrap() - 0.55).abs() < 1e-9, "{stale_at:?}");
+        assert_eq!(out.len(), 3);
+        assert!(
+            s.poll_transmit().is_none(),
+            "a staleness deadline is not a period"
+        );
+        assert!(
+            (s.poll_timeout() - 0.6).abs() < 1e-9,
+            "then the next period"
+        );
     }
 
     #[test]

@@ -10,7 +10,8 @@
 //! Driving vocabulary: `handle_*` for what arrived (a CAN frame, serial bytes, a Modbus source's
 //! connect or read, the controller's reply, a stop), `poll_*` for what is due at `now_s` (a cycle, a
 //! Modbus read, a sink request, quadrature edges); `modbus_timeout` says when a Modbus source's next
-//! poll is due. A Modbus source runs the poller's own [`PollSchedule`] (period, timeout → stale,
+//! poll is due. The CANopen and serial cores are polled in a cycle once their own `poll_timeout`
+//! has come, as the runtime's shells sleep until it. A Modbus source runs the poller's own [`PollSchedule`] (period, timeout → stale,
 //! reconnect backoff); the driver does its I/O.
 //! Reseeds found by a sink period reach the engine at the next cycle, as through the runtime's
 //! channel.
@@ -287,11 +288,17 @@ impl GatewayCore {
     /// reseeds of the last sink period, the cycle, and the engine's fault edges. Returns the
     /// outputs (µm, axis order).
     pub fn poll_cycle(&mut self, now_s: f64) -> &[(Axis, f64)] {
-        if let Some(c) = self.canopen.as_mut() {
+        // Each source is polled when it says so, as the runtime's shells do (an earlier deadline
+        // waits for this cycle: the cycle is the harness's step).
+        if let Some(c) = self.canopen.as_mut()
+            && c.poll_timeout().is_some_and(|due| due <= now_s)
+        {
             c.poll(now_s, &mut self.samples);
         }
-        for s in &self.serial {
-            s.poll(now_s, &mut self.samples);
+        for s in &mut self.serial {
+            if s.poll_timeout() <= now_s {
+                s.poll(now_s, &mut self.samples);
+            }
         }
         for s in self.samples.drain(..) {
             if self.recorded.contains(&s.channel) {

@@ -53,7 +53,7 @@ impl SourceBoard {
     }
 }
 
-/// One source's link state and faults. Call the `on_*` methods as things happen, then
+/// One source's link state and faults. Call the `handle_*` methods as things happen, then
 /// [`SourceReporter::publish`]: it logs fault transitions and updates the board when anything changed.
 #[derive(Debug)]
 pub struct SourceReporter {
@@ -181,7 +181,7 @@ impl SourceReporter {
         }
         if self
             .last_error_frame_s
-            .is_some_and(|t| now_s - t < BUS_ERROR_HOLD_S)
+            .is_some_and(|t| now_s < t + BUS_ERROR_HOLD_S)
         {
             f.push(FaultKind::BusErrors);
         }
@@ -189,6 +189,18 @@ impl SourceReporter {
             f.push(FaultKind::Exception);
         }
         f
+    }
+
+    /// When [`Self::publish`] next has a change to report without new input (s, the gateway
+    /// clock): the `bus_errors` fault clearing [`BUS_ERROR_HOLD_S`] after the last error frame.
+    pub fn poll_timeout(&self) -> Option<f64> {
+        let t = self.last_error_frame_s?;
+        let holding = self
+            .status
+            .faults
+            .iter()
+            .any(|(k, _)| *k == FaultKind::BusErrors);
+        holding.then_some(t + BUS_ERROR_HOLD_S)
     }
 
     /// Log fault transitions (once at start, once at clear) and update the board if anything changed.
@@ -261,10 +273,12 @@ mod tests {
         let fresh = BusErrors::default();
         r.handle_can_bus(fresh, &base, 1.5);
         assert_eq!(starts(&r.publish(1.5)), [(FaultKind::BusOff, false)]);
-        assert_eq!(
-            starts(&r.publish(1.0 + BUS_ERROR_HOLD_S)),
-            [(FaultKind::BusErrors, false)]
-        );
+        // The shell sleeps until the hold ends: that is when the fault clears, not a tick later.
+        let due = r.poll_timeout().expect("bus_errors clears with time");
+        assert_eq!(due, 1.0 + BUS_ERROR_HOLD_S);
+        assert!(r.publish(due - 1e-9).is_empty());
+        assert_eq!(starts(&r.publish(due)), [(FaultKind::BusErrors, false)]);
+        assert_eq!(r.poll_timeout(), None, "nothing left to clear");
         let can = board.snapshot()[0].can.unwrap();
         assert_eq!((can.error_frames, can.bus_off_events), (1, 1));
     }

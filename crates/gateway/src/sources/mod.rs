@@ -46,8 +46,6 @@ use retrocomp_bus::{Backoff, Sample};
 /// a second costs nothing.
 const REOPEN_MIN: Duration = Duration::from_millis(200);
 const REOPEN_MAX: Duration = Duration::from_secs(1);
-/// How often the CANopen loop checks PDO/heartbeat freshness and reports the bus state.
-const CAN_POLL: Duration = Duration::from_millis(10);
 
 /// Spawn every configured source; samples (timestamped on `epoch`) arrive on the returned feed.
 /// A CAN backend, serial device or Modbus peer that cannot be opened yet is not an error: its source
@@ -218,22 +216,17 @@ async fn can_loop(
     rep.publish(clock());
     loop {
         if let Some(mut b) = bus.take() {
-            let result = canopen::run_observed(
-                &mut b,
-                &mut src,
-                clock,
-                CAN_POLL,
-                out.clone(),
-                |b, frames| {
+            let result =
+                canopen::run_observed(&mut b, &mut src, clock, out.clone(), |b, frames| {
                     if frames > 0 && !rep.is_connected() {
                         rep.handle_link_up();
                         tracing::info!(source = rep.name(), "CAN frames flow again");
                     }
                     rep.handle_can_bus(b.bus_errors(), &base, clock());
                     rep.publish(clock());
-                },
-            )
-            .await;
+                    rep.poll_timeout()
+                })
+                .await;
             let seen = b.bus_errors();
             base.error_frames += seen.error_frames;
             base.bus_off_events += seen.bus_off_events;
