@@ -123,7 +123,9 @@ async fn write(link: &[String], address: u16, values: &[u16]) -> (bool, String) 
 }
 
 async fn exercise(link: Vec<String>, transport: ServerTransport) {
-    let mut server = OriginShiftServer::start(config(transport), &guards())
+    let epoch = Instant::now();
+    let clock = move || epoch.elapsed().as_secs_f64();
+    let mut server = OriginShiftServer::start(config(transport), &guards(), clock())
         .await
         .unwrap();
     let link = match server.local_addr() {
@@ -135,8 +137,6 @@ async fn exercise(link: Vec<String>, transport: ServerTransport) {
         None => link,
     };
     let (samples_tx, mut samples_rx) = mpsc::channel::<Sample>(64);
-    let epoch = Instant::now();
-    let clock = move || epoch.elapsed().as_secs_f64();
 
     // Not seeded: the correction register does not exist yet.
     let mut a = link[..link.len() - 1].to_vec();

@@ -5,12 +5,14 @@
 //! state machine), [`crate::sinks::guard`] (the last-step check every output of the box passes),
 //! [`sink`] (one write period: read, guard, write cycle; sans-IO), [`client`] (tokio-modbus shell:
 //! per-request timeout, reconnect with backoff, start by reading the current values); or served:
-//! [`server`] (tokio-modbus TCP/RTU server shell) around [`server_core`] (sans-IO register image,
-//! clamp and per-update cap). Units: µm; sign convention in [`map`].
+//! [`server`] (tokio-modbus TCP/RTU server shell) around [`served`] (sans-IO periods: controller
+//! writes, silence, stop, fault episodes) and [`server_core`] (sans-IO register image, clamp and
+//! per-update cap). Units: µm; sign convention in [`map`].
 
 pub mod client;
 pub mod cycle;
 pub mod map;
+pub mod served;
 pub mod server;
 pub mod server_core;
 pub mod server_map;

@@ -8,6 +8,8 @@
 //! the controller has written what it holds (only when held registers are configured), which is the
 //! engine's start value; [`OriginShiftServer::run`] then updates the image every `update_period_ms`
 //! from the engine's outputs and turns each controller write into position samples (`x_mm`).
+//! What each write and period decides is the sans-IO [`ServedSink`]; this shell moves registers
+//! between it and the bank, sends the samples and publishes the status.
 //! [`OriginShiftServerSink`] is that flow as the run loop's [`Sink`].
 //!
 //! Faults (one log line at start and clear, in status and metrics, as the client sink's):
@@ -28,13 +30,12 @@ use tokio::task::JoinHandle;
 use tokio::time::MissedTickBehavior;
 
 use super::map::Words;
-use super::server_core::{ServerCore, ServerMap, Update};
-use super::sink_task::{SinkSources, update_sink_faults};
+use super::served::{ServedSink, StopEnd};
+use super::server_core::ServerMap;
 use crate::sinks::guard::AxisLimits;
 use crate::sinks::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
-use retrocomp_bus::fault::FaultLog;
 use retrocomp_bus::modbus::server::{RegisterBank, TcpServer, spawn_rtu};
-use retrocomp_bus::{ChannelId, Health, Sample};
+use retrocomp_bus::{Health, Sample};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
@@ -79,17 +80,15 @@ fn default_controller_timeout_ms() -> u64 {
 
 type Outputs = Vec<(retrocomp_model::Axis, f64)>;
 
-/// The running server (listener or RTU task) and its core.
+/// The running server (listener or RTU task) and its sans-IO sink.
 #[derive(Debug)]
 pub struct OriginShiftServer {
     cfg: ServerConfig,
-    core: ServerCore,
+    served: ServedSink,
     bank: RegisterBank,
     writes: watch::Receiver<u64>,
     tcp: Option<TcpServer>,
     rtu: Option<JoinHandle<std::io::Result<()>>>,
-    /// The last controller write's positions (channel, mm), reused: no allocation per write.
-    positions: Vec<(ChannelId, f64)>,
 }
 
 /// Why the origin-shift server could not start (the messages as the serving code reports them).
@@ -103,8 +102,13 @@ pub enum ServerStartError {
 }
 
 impl OriginShiftServer {
-    /// Bind the TCP listener or open the serial device. `limits`: clamp and per-update cap per axis.
-    pub async fn start(cfg: ServerConfig, limits: &[AxisLimits]) -> Result<Self, ServerStartError> {
+    /// Bind the TCP listener or open the serial device. `limits`: clamp and per-update cap per axis;
+    /// `now_s`: the gateway clock (the controller's silence counts from here).
+    pub async fn start(
+        cfg: ServerConfig,
+        limits: &[AxisLimits],
+        now_s: f64,
+    ) -> Result<Self, ServerStartError> {
         let bank = RegisterBank::new();
         for (address, count) in cfg.map.writable() {
             bank.allow_writes(address, count);
@@ -137,13 +141,12 @@ impl OriginShiftServer {
             }
         }
         Ok(Self {
-            core: ServerCore::new(cfg.map.clone(), limits),
+            served: ServedSink::new(&cfg, limits, now_s),
             cfg,
             bank,
             writes,
             tcp,
             rtu,
-            positions: Vec::new(),
         })
     }
 
@@ -159,9 +162,7 @@ impl OriginShiftServer {
             let mut w = Words::from_elem(0, usize::from(n));
             bank.holding_into(a, &mut w).then_some(w)
         };
-        self.core
-            .handle_controller_write_into(read, &mut self.positions);
-        for &(channel, value) in &self.positions {
+        for &(channel, value) in self.served.handle_write(read, t_s) {
             let s = Sample {
                 channel,
                 t_s,
@@ -180,7 +181,7 @@ impl OriginShiftServer {
         clock: &impl Fn() -> f64,
     ) -> BTreeMap<String, f64> {
         let mut waited = 0u64;
-        while !self.core.is_seeded() {
+        while !self.served.core().is_seeded() {
             match tokio::time::timeout(Duration::from_secs(5), self.writes.changed()).await {
                 Ok(Ok(())) => self.handle_write(samples, clock()).await,
                 Ok(Err(_)) => break,
@@ -193,8 +194,9 @@ impl OriginShiftServer {
                 }
             }
         }
-        let reported: BTreeMap<&str, f64> = self.core.held_um().collect();
-        let held: BTreeMap<String, f64> = self.core.start_values().into_iter().collect();
+        let core = self.served.core();
+        let reported: BTreeMap<&str, f64> = core.held_um().collect();
+        let held: BTreeMap<String, f64> = core.start_values().into_iter().collect();
         if held.len() < reported.len() {
             tracing::error!(
                 ?reported,
@@ -220,41 +222,32 @@ impl OriginShiftServer {
     ) {
         let mut tick = tokio::time::interval(Duration::from_millis(self.cfg.update_period_ms));
         tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
-        let listens_to_controller = !self.cfg.map.writable().is_empty();
-        let timeout_s = self.cfg.controller_timeout_ms as f64 / 1e3;
-        let mut last_write_s = clock();
-        let mut faults = FaultLog::default();
-        let sources = SinkSources::named(SOURCE, self.core.axis_names());
-        let mut stop_by: Option<f64> = None;
         status.send_replace(SinkStatus {
             kind: "origin_shift_server".into(),
             connected: true,
             ..Default::default()
         });
-        // Reused every update: a server allocates nothing per tick, steady or faulted (the status,
-        // its "has not written" text included, is edited in place).
-        let mut update = Update::default();
         loop {
             tokio::select! {
                 _ = tick.tick() => {}
                 r = self.writes.changed() => {
                     if r.is_err() { return; }
-                    last_write_s = clock();
-                    self.handle_write(&samples, last_write_s).await;
+                    self.handle_write(&samples, clock()).await;
                     continue;
                 }
             }
-            if let (None, Some(max_s)) = (stop_by, *stop.borrow()) {
-                stop_by = Some(clock() + max_s);
-                self.core.begin_ramp_out();
+            if let (false, Some(max_s)) = (self.served.is_stopping(), *stop.borrow()) {
+                self.served.handle_stop(max_s, clock());
                 tracing::info!(
                     max_s,
                     "stopping: serving a ramp to 0 within the per-update cap until the controller reports holding 0"
                 );
             }
+            let now = clock();
             // The borrow (a read lock on the engine's outputs) ends before the next await.
-            let updated = self.core.poll_update_into(&out_rx.borrow(), &mut update);
-            if updated {
+            let period = self.served.poll_period(&out_rx.borrow(), now);
+            if period.updated {
+                let update = self.served.update();
                 for &(address, count) in &update.withdrawn {
                     self.bank.clear_holding(address, count);
                 }
@@ -262,16 +255,22 @@ impl OriginShiftServer {
                     self.bank.set_holding(b.address, &b.words);
                 }
             }
-            let now = clock();
-            if let Some(by) = stop_by
-                && self.stopped(by, now)
-            {
+            let core = self.served.core();
+            if let Some(end) = period.stopped {
+                let held: BTreeMap<&str, f64> = core.held_um().collect();
+                match end {
+                    StopEnd::RampedOut => {
+                        tracing::info!(?held, "ramped out: the controller reports holding 0");
+                    }
+                    StopEnd::Deadline => tracing::warn!(
+                        ?held,
+                        "stopping before the correction is ramped out: the controller's watchdog rule must remove it"
+                    ),
+                }
                 return;
             }
-            let gone = listens_to_controller && now - last_write_s > timeout_s;
-            let events = update_sink_faults(&mut faults, &sources, self.core.faults(), !gone, now);
-            for e in events.iter().filter(|e| e.started) {
-                let held: BTreeMap<&str, f64> = self.core.held_um().collect();
+            for e in period.events.iter().filter(|e| e.started) {
+                let held: BTreeMap<&str, f64> = core.held_um().collect();
                 tracing::warn!(
                     source = e.source.as_str(),
                     kind = e.kind.as_str(),
@@ -279,66 +278,53 @@ impl OriginShiftServer {
                     "origin-shift server fault"
                 );
             }
-            let writes_ok = self.core.updates();
-            let core = &self.core;
             // Empty (no allocation) unless the listener has a fault: a refused peer, a flood.
             let listener_faults = self
                 .tcp
                 .as_ref()
                 .map(|t| t.health().faults())
                 .unwrap_or_default();
-            status.send_modify(|st| {
-                st.writes_ok = writes_ok;
-                st.connected = !gone;
-                if gone {
-                    // Rewritten in place: the text allocates once per fault, not per tick.
-                    let text = st.last_error.get_or_insert_with(String::new);
-                    text.clear();
-                    let _ = write!(
-                        text,
-                        "the controller has not written for {:.1} s",
-                        now - last_write_s
-                    );
-                } else {
-                    st.last_error = None;
-                }
-                for (a, v) in core.held_um() {
-                    match st.held_um.get_mut(a) {
-                        Some(held) => *held = v,
-                        None => {
-                            st.held_um.insert(a.to_string(), v);
-                        }
-                    }
-                }
-                // The sink's faults are rebuilt on an edge; the listener's own entries (a refused
-                // peer, a flood) are replaced every tick.
-                if events.is_empty() {
-                    st.faults.retain(|f| !f.0.starts_with("listener."));
-                } else {
-                    st.faults = faults.active_by_name();
-                }
-                st.faults.extend(listener_faults.iter().cloned());
-            });
+            let active = (!period.events.is_empty()).then(|| self.served.active_faults());
+            publish_status(&status, core, period.silent_s, active, &listener_faults);
         }
     }
+}
 
-    /// During a stop ramp-out: true (logged) once the controller reports holding 0 on every axis,
-    /// or at `by_s`.
-    fn stopped(&self, by_s: f64, now_s: f64) -> bool {
-        let held: BTreeMap<&str, f64> = self.core.held_um().collect();
-        if self.core.is_ramped_out() {
-            tracing::info!(?held, "ramped out: the controller reports holding 0");
-            return true;
+/// One period's status, edited in place: a server allocates nothing per period, steady or faulted
+/// (the "has not written" text is rewritten in its buffer). `active`: the sink's faults when they
+/// changed this period; the listener's own entries (a refused peer, a flood) are replaced every
+/// period.
+fn publish_status(
+    status: &watch::Sender<SinkStatus>,
+    core: &super::server_core::ServerCore,
+    silent_s: Option<f64>,
+    active: Option<Vec<(String, retrocomp_bus::fault::FaultKind, f64)>>,
+    listener_faults: &[(String, retrocomp_bus::fault::FaultKind, f64)],
+) {
+    status.send_modify(|st| {
+        st.writes_ok = core.updates();
+        st.connected = silent_s.is_none();
+        if let Some(silent) = silent_s {
+            let text = st.last_error.get_or_insert_with(String::new);
+            text.clear();
+            let _ = write!(text, "the controller has not written for {silent:.1} s");
+        } else {
+            st.last_error = None;
         }
-        if now_s >= by_s {
-            tracing::warn!(
-                ?held,
-                "stopping before the correction is ramped out: the controller's watchdog rule must remove it"
-            );
-            return true;
+        for (a, v) in core.held_um() {
+            match st.held_um.get_mut(a) {
+                Some(held) => *held = v,
+                None => {
+                    st.held_um.insert(a.to_string(), v);
+                }
+            }
         }
-        false
-    }
+        match active {
+            Some(faults) => st.faults = faults,
+            None => st.faults.retain(|f| !f.0.starts_with("listener.")),
+        }
+        st.faults.extend(listener_faults.iter().cloned());
+    });
 }
 
 /// The server's fault source (`<SOURCE>.<axis>` per axis).
@@ -378,11 +364,11 @@ impl OriginShiftServerSink {
 impl Sink for OriginShiftServerSink {
     fn start<'a>(&'a mut self, io: &'a SinkIo) -> LocalFuture<'a, Result<StartValues, SinkError>> {
         Box::pin(async move {
-            let mut server = OriginShiftServer::start(self.cfg.clone(), &self.limits)
-                .await
-                .map_err(|e| SinkError::setup("sink.origin_shift_server", e))?;
             let epoch = self.epoch;
             let clock = move || epoch.elapsed().as_secs_f64();
+            let mut server = OriginShiftServer::start(self.cfg.clone(), &self.limits, clock())
+                .await
+                .map_err(|e| SinkError::setup("sink.origin_shift_server", e))?;
             let held = server.wait_seeded(&io.served, &clock).await;
             self.server = Some(server);
             Ok(held)
