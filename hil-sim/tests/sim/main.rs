@@ -1,6 +1,6 @@
 //! The simulated machine in virtual time: determinism, injected faults, the oracle, Spaan's
 //! machine, the truth it records, the toolkit on its artefacts (circle, fit), the closed-loop harness
-//! (faults, quadrature, RTU, stop, watchdog), the fuzzers' kept inputs, `gen-cases`' benchmark
+//! (faults, quadrature, RTU, stop, watchdog), the server mode's guard, the fuzzers' kept inputs, `gen-cases`' benchmark
 //! families (`cases::`) and artefact identification against the truth (`identify::`).
 //!
 //! One test binary for these files (each was its own binary, every one linking the whole crate);
@@ -22,6 +22,7 @@ mod faults;
 mod fuzz_regressions;
 mod identify;
 mod oracle;
+mod served_guard;
 mod spaan;
 mod toolkit_circle;
 mod toolkit_fit;

@@ -73,6 +73,12 @@ impl CycleCore {
         }
     }
 
+    /// Start over with `engine` (before any cycle ran: a server's engine starts once the
+    /// controller has reported what it holds).
+    pub fn replace_engine(&mut self, engine: Engine) {
+        self.engine = engine;
+    }
+
     /// A decoded sample from a source (any order; the engine judges health per channel).
     pub fn handle_sample(&mut self, s: &Sample) {
         self.engine.handle_sample(s);

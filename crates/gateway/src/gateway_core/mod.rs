@@ -1,15 +1,17 @@
 //! The gateway as one sans-IO object: sources → engine → sink, with time passed in and nothing
 //! spawned. [`GatewayCore`] holds the parts the runtime (`run.rs`) drives on its threads — the
 //! CANopen and serial-line source cores, the [`CycleCore`] (engine, model, switch, accounting),
-//! and either the origin-shift [`SinkCore`] closed by [`end_period`] or the quadrature sink's core
-//! stepped by its [`step_axes`](crate::sinks::quadrature::sink::step_axes) — and composes them in
-//! the runtime's order. The closed-loop harness (`hil-sim`) drives this type and wires nothing
+//! and one sink: the origin-shift [`SinkCore`] closed by [`end_period`], the quadrature sink's core
+//! stepped by its [`step_axes`](crate::sinks::quadrature::sink::step_axes), or the origin-shift
+//! server's register bank and [`ServedSink`](crate::sinks::origin_shift::served::ServedSink)
+//! ([`ServedBox`], started by [`GatewayCore::start_served`]: the engine starts once the controller
+//! has reported what it holds) — and composes them in the runtime's order. The closed-loop harness (`hil-sim`) drives this type and wires nothing
 //! itself, so a change of the cycle's order, the reseed path, the guard or the fault mapping is
 //! one change under both.
 //!
 //! Driving vocabulary: `handle_*` for what arrived (a CAN frame, serial bytes, a Modbus source's
-//! connect or read, the controller's reply, a stop), `poll_*` for what is due at `now_s` (a cycle, a
-//! Modbus read, a sink request, quadrature edges); `modbus_timeout` says when a Modbus source's next
+//! connect or read, the controller's reply or request to the server, a stop), `poll_*` for what is
+//! due at `now_s` (a cycle, a Modbus read, a sink request, quadrature edges, a server update); `modbus_timeout` says when a Modbus source's next
 //! poll is due. The CANopen and serial cores are polled in a cycle once their own `poll_timeout`
 //! has come, as the runtime's shells sleep until it. A Modbus source runs the poller's own [`PollSchedule`] (period, timeout → stale,
 //! reconnect backoff); the driver does its I/O.
@@ -21,6 +23,7 @@
 
 pub mod cycle;
 pub mod quadrature;
+pub mod served;
 
 use std::collections::BTreeMap;
 
@@ -36,6 +39,7 @@ use retrocomp_model::Axis;
 
 pub use cycle::{CompensationTime, Control, CycleCore};
 pub use quadrature::{MemoryHeld, QuadratureBox};
+pub use served::ServedBox;
 
 use crate::config::FieldConfig;
 use crate::engine::ErrorModel;
@@ -91,6 +95,12 @@ pub struct GatewayCore {
     modbus: Vec<ModbusSource>,
     origin_shift: Option<OriginShift>,
     quadrature: Option<QuadratureBox>,
+    served: Option<ServedBox>,
+    /// The engine runs: always, except for a server whose controller has not yet reported what
+    /// it holds (the runtime starts its engine from that report).
+    engine_started: bool,
+    /// A stop was asked for; a server takes it at its next update period.
+    stop_requested: bool,
     samples: Vec<Sample>,
     /// Values a sink period found in the controller, for the next cycle.
     reseeds: Vec<(Axis, f64)>,
@@ -137,6 +147,46 @@ impl GatewayCore {
                 }
             };
         let engine = cfg.engine(&initial)?;
+        Ok(Self::build(
+            cfg,
+            engine,
+            model,
+            origin_shift,
+            quadrature,
+            None,
+        ))
+    }
+
+    /// Start with `[sink.origin_shift_server]` at `now_s`, as `retrocomp run` does: the server
+    /// answers the controller from now on ([`GatewayCore::handle_server_request`]), and the
+    /// engine starts, from what the controller reports holding within the clamp, once it has
+    /// reported it; until then [`GatewayCore::poll_cycle`] runs no cycle.
+    pub fn start_served(
+        cfg: FieldConfig,
+        model: Box<dyn ErrorModel + Send>,
+        now_s: f64,
+    ) -> Result<Self, GatewayError> {
+        let Some(srv) = cfg.sink.origin_shift_server.clone() else {
+            return Err(GatewayError::Refused(
+                "start_served needs [sink.origin_shift_server]".into(),
+            ));
+        };
+        let served = ServedBox::new(&srv, &cfg.sink_limits(), now_s);
+        let engine = cfg.engine(&BTreeMap::new())?;
+        let mut core = Self::build(cfg, engine, model, None, None, Some(served));
+        core.engine_started = false;
+        core.start_engine_if_seeded()?;
+        Ok(core)
+    }
+
+    fn build(
+        cfg: FieldConfig,
+        engine: crate::engine::Engine,
+        model: Box<dyn ErrorModel + Send>,
+        origin_shift: Option<OriginShift>,
+        quadrature: Option<QuadratureBox>,
+        served: Option<ServedBox>,
+    ) -> Self {
         let canopen = cfg.canopen.clone().map(CanopenSource::new);
         let serial = cfg
             .serial
@@ -159,7 +209,7 @@ impl GatewayCore {
                 started: false,
             })
             .collect();
-        Ok(Self {
+        Self {
             cycle: CycleCore::new(engine, model),
             cfg,
             canopen,
@@ -167,12 +217,70 @@ impl GatewayCore {
             modbus,
             origin_shift,
             quadrature,
+            served,
+            engine_started: true,
+            stop_requested: false,
             samples: Vec::new(),
             reseeds: Vec::new(),
             edges: Vec::new(),
             recorded: Vec::new(),
             sample_log: Vec::new(),
-        })
+        }
+    }
+
+    /// A server whose controller has reported what it holds: the engine starts from it (the
+    /// values within the clamp; a value beyond it leaves that axis unserved and at 0).
+    fn start_engine_if_seeded(&mut self) -> Result<(), GatewayError> {
+        let Some(served) = self.served.as_ref() else {
+            return Ok(());
+        };
+        if self.engine_started || !served.sink().core().is_seeded() {
+            return Ok(());
+        }
+        let held: BTreeMap<String, f64> = served.sink().core().start_values().into_iter().collect();
+        self.cycle.replace_engine(self.cfg.engine(&held)?);
+        self.engine_started = true;
+        Ok(())
+    }
+
+    /// The controller's Modbus request to the served image at `now_s` (`[sink.origin_shift_server]`),
+    /// answered as the server answers it; an accepted write is the controller's report (held
+    /// values, positions as samples for the next cycle). `IllegalFunction` without a server.
+    pub fn handle_server_request(
+        &mut self,
+        req: &tokio_modbus::prelude::Request<'_>,
+        now_s: f64,
+    ) -> Result<tokio_modbus::prelude::Response, tokio_modbus::prelude::ExceptionCode> {
+        let Some(served) = self.served.as_mut() else {
+            return Err(tokio_modbus::prelude::ExceptionCode::IllegalFunction);
+        };
+        let answer = served.handle_request(req, now_s, &mut self.samples);
+        if let Err(e) = self.start_engine_if_seeded() {
+            tracing::error!(%e, "cannot start the engine from the controller's report");
+        }
+        answer
+    }
+
+    /// One update period of the server at `now_s` (every `update_period_ms`): the image moves
+    /// toward the last cycle's outputs through the guard; a stop asked for is taken here. Its
+    /// fault edges join the gateway's. Returns how a stop ramp-out ended, if it did.
+    pub fn poll_served(
+        &mut self,
+        now_s: f64,
+    ) -> Option<crate::sinks::origin_shift::served::StopEnd> {
+        let max_s = self.cfg.gateway.stop_ramp_max_s;
+        let served = self.served.as_mut()?;
+        if self.stop_requested && !served.sink().is_stopping() {
+            served.sink_mut().handle_stop(max_s, now_s);
+        }
+        let period = served.poll_period(self.cycle.outputs(), now_s);
+        self.edges.extend(period.events);
+        period.stopped
+    }
+
+    /// The server (`[sink.origin_shift_server]`), if that is the sink.
+    pub fn served(&self) -> Option<&ServedBox> {
+        self.served.as_ref()
     }
 
     pub fn config(&self) -> &FieldConfig {
@@ -288,6 +396,9 @@ impl GatewayCore {
     /// reseeds of the last sink period, the cycle, and the engine's fault edges. Returns the
     /// outputs (µm, axis order).
     pub fn poll_cycle(&mut self, now_s: f64) -> &[(Axis, f64)] {
+        if !self.engine_started {
+            return self.cycle.outputs();
+        }
         // Each source is polled when it says so, as the runtime's shells do (an earlier deadline
         // waits for this cycle: the cycle is the harness's step).
         if let Some(c) = self.canopen.as_mut()
@@ -424,9 +535,12 @@ impl GatewayCore {
 
     /// Stop with `on_stop = "ramp_out"` (the runtime's SIGTERM/SIGINT): from now on the sink wants
     /// 0 on every axis whatever the cycle's outputs, at most one cap per write period (origin
-    /// shift) or per quadrature step, and never ramps an axis whose controller value is beyond the
-    /// clamp. Keep driving `poll_period` / `poll_quadrature` until [`GatewayCore::is_ramped_out`].
+    /// shift), per quadrature step or per server update (taken at the next `poll_served`, with the
+    /// `stop_ramp_max_s` deadline), and never ramps an axis whose controller value is beyond the
+    /// clamp. Keep driving `poll_period` / `poll_quadrature` / `poll_served` until
+    /// [`GatewayCore::is_ramped_out`].
     pub fn handle_stop(&mut self) {
+        self.stop_requested = true;
         if let Some(os) = self.origin_shift.as_mut() {
             os.core.begin_ramp_out();
         }
@@ -445,6 +559,10 @@ impl GatewayCore {
                 .quadrature
                 .as_ref()
                 .is_none_or(QuadratureBox::is_ramped_out)
+            && self
+                .served
+                .as_ref()
+                .is_none_or(|s| s.sink().core().is_ramped_out())
     }
 
     /// The quadrature box (`[sink.quadrature]`), if that is the sink.
