@@ -5,16 +5,17 @@
 //! stepped by its [`step_axes`](crate::sinks::quadrature::sink::step_axes), or the origin-shift
 //! server's register bank and [`ServedSink`](crate::sinks::origin_shift::served::ServedSink)
 //! ([`ServedBox`], started by [`GatewayCore::start_served`]: the engine starts once the controller
-//! has reported what it holds) — and composes them in the runtime's order. The closed-loop harness (`hil-sim`) drives this type and wires nothing
-//! itself, so a change of the cycle's order, the reseed path, the guard or the fault mapping is
-//! one change under both.
+//! has reported what it holds) — and composes them in the runtime's order. The closed-loop
+//! harness (`hil-sim`) drives this type and wires nothing itself, so a change of the cycle's
+//! order, the reseed path, the guard or the fault mapping is one change under both.
 //!
 //! Driving vocabulary: `handle_*` for what arrived (a CAN frame, serial bytes, a Modbus source's
 //! connect or read, the controller's reply or request to the server, a stop), `poll_*` for what is
-//! due at `now_s` (a cycle, a Modbus read, a sink request, quadrature edges, a server update); `modbus_timeout` says when a Modbus source's next
-//! poll is due. The CANopen and serial cores are polled in a cycle once their own `poll_timeout`
-//! has come, as the runtime's shells sleep until it. A Modbus source runs the poller's own [`PollSchedule`] (period, timeout → stale,
-//! reconnect backoff); the driver does its I/O.
+//! due at `now_s` (a cycle, a Modbus read, a sink request, quadrature edges, a server update);
+//! `modbus_timeout` says when a Modbus source's next poll is due. The CANopen and serial cores are
+//! polled in a cycle once their own `poll_timeout` has come, as the runtime's shells sleep until
+//! it. A Modbus source runs the poller's own [`PollSchedule`] (period, timeout → stale, reconnect
+//! backoff); the driver does its I/O.
 //! Reseeds found by a sink period reach the engine at the next cycle, as through the runtime's
 //! channel.
 //!
@@ -23,7 +24,6 @@
 
 pub mod cycle;
 pub mod quadrature;
-pub mod served;
 
 use std::collections::BTreeMap;
 
@@ -37,9 +37,9 @@ use retrocomp_bus::serial::source::LineSource;
 use retrocomp_bus::{ChannelId, Sample};
 use retrocomp_model::Axis;
 
+pub use crate::sinks::origin_shift::served::ServedBox;
 pub use cycle::{CompensationTime, Control, CycleCore};
 pub use quadrature::{MemoryHeld, QuadratureBox};
-pub use served::ServedBox;
 
 use crate::config::FieldConfig;
 use crate::engine::ErrorModel;
@@ -251,10 +251,26 @@ impl GatewayCore {
         req: &tokio_modbus::prelude::Request<'_>,
         now_s: f64,
     ) -> Result<tokio_modbus::prelude::Response, tokio_modbus::prelude::ExceptionCode> {
+        use tokio_modbus::prelude::Request;
         let Some(served) = self.served.as_mut() else {
             return Err(tokio_modbus::prelude::ExceptionCode::IllegalFunction);
         };
-        let answer = served.handle_request(req, now_s, &mut self.samples);
+        let answer = served.bank().handle(req);
+        let wrote = matches!(
+            req,
+            Request::WriteSingleRegister(..) | Request::WriteMultipleRegisters(..)
+        );
+        if wrote && answer.is_ok() {
+            // As the server's shell: positions go to the cycle as samples.
+            for &(channel, value) in served.handle_bank_write(now_s) {
+                self.samples.push(Sample {
+                    channel,
+                    t_s: now_s,
+                    value,
+                    health: retrocomp_bus::Health::Ok,
+                });
+            }
+        }
         if let Err(e) = self.start_engine_if_seeded() {
             tracing::error!(%e, "cannot start the engine from the controller's report");
         }

@@ -3,9 +3,11 @@
 //! values into the [`ServerCore`] and its guard), a stop ([`ServedSink::handle_stop`]: ramp to 0
 //! within the cap, with a deadline), and each update period ([`ServedSink::poll_period`]): the
 //! image update through the guard, the controller-silence fault, the fault episodes (each logged
-//! once when it starts and once when it clears) and whether the stop has ended. The shell applies
-//! the update to the register bank and publishes the status; the virtual-time gateway
-//! (`gateway_core`) drives the same object.
+//! once when it starts and once when it clears) and whether the stop has ended. [`ServedBox`] is
+//! that sink with the register bank the controller reads and writes (a plain in-memory image): a
+//! write the bank accepted becomes a controller write, an update period's blocks and withdrawals
+//! go into the bank. The tokio shell serves the bank over TCP or RTU and publishes the status;
+//! the virtual-time gateway (`gateway_core`) answers the controller's requests from the same bank.
 //!
 //! Time: seconds on the gateway clock, passed in. Units: corrections µm, positions mm.
 
@@ -16,6 +18,7 @@ use super::sink_task::{SinkSources, update_sink_faults};
 use crate::sinks::guard::AxisLimits;
 use retrocomp_bus::ChannelId;
 use retrocomp_bus::fault::{FaultEvent, FaultLog};
+use retrocomp_bus::modbus::server::RegisterBank;
 use retrocomp_model::Axis;
 
 /// How a stop ramp-out ended.
@@ -144,6 +147,69 @@ impl ServedSink {
             silent_s: gone.then_some(silent),
             stopped,
         }
+    }
+}
+
+/// The served register image and its sink.
+#[derive(Debug)]
+pub struct ServedBox {
+    bank: RegisterBank,
+    sink: ServedSink,
+}
+
+impl ServedBox {
+    /// The server of `cfg` with `limits`, serving from `now_s`: only the position, held and marker
+    /// registers take writes, and nothing is readable until the controller has reported what it
+    /// holds.
+    pub fn new(cfg: &ServerConfig, limits: &[AxisLimits], now_s: f64) -> Self {
+        let bank = RegisterBank::new();
+        for (address, count) in cfg.map.writable() {
+            bank.allow_writes(address, count);
+        }
+        ServedBox {
+            bank,
+            sink: ServedSink::new(cfg, limits, now_s),
+        }
+    }
+
+    /// The register image (a handle: the transports serve a clone of it).
+    pub fn bank(&self) -> &RegisterBank {
+        &self.bank
+    }
+
+    pub fn sink(&self) -> &ServedSink {
+        &self.sink
+    }
+
+    pub fn sink_mut(&mut self) -> &mut ServedSink {
+        &mut self.sink
+    }
+
+    /// The bank took a write of the controller at `now_s`: read what it wrote. Returns its
+    /// positions (channel, mm) to send as samples.
+    pub fn handle_bank_write(&mut self, now_s: f64) -> &[(ChannelId, f64)] {
+        let bank = &self.bank;
+        let read = |a: u16, n: u16| {
+            let mut w = Words::from_elem(0, usize::from(n));
+            bank.holding_into(a, &mut w).then_some(w)
+        };
+        self.sink.handle_write(read, now_s)
+    }
+
+    /// One update period at `now_s` toward `targets` (µm), its blocks and withdrawals applied to
+    /// the bank.
+    pub fn poll_period(&mut self, targets: &[(Axis, f64)], now_s: f64) -> Period {
+        let period = self.sink.poll_period(targets, now_s);
+        if period.updated {
+            let update = self.sink.update();
+            for &(address, count) in &update.withdrawn {
+                self.bank.clear_holding(address, count);
+            }
+            for b in &update.blocks {
+                self.bank.set_holding(b.address, &b.words);
+            }
+        }
+        period
     }
 }
 

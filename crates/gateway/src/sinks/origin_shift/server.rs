@@ -1,14 +1,15 @@
-//! The box as a Modbus server for origin-shift corrections: the tokio-modbus shell (TCP or RTU) around
-//! [`ServerCore`]. Config `[sink.origin_shift_server]`; register image and safety in
-//! [`super::server_core`]. The register image is a [`RegisterBank`] (crates/bus/src/modbus/server.rs): reads
-//! of registers not yet served get exception 02, the controller may write only the position and held
-//! registers, and a multi-register write is applied all-or-nothing.
+//! The box as a Modbus server for origin-shift corrections: the tokio-modbus shell (TCP or RTU)
+//! around [`ServedBox`]. Config `[sink.origin_shift_server]`; register image and safety in
+//! [`super::server_core`]. The register image is a
+//! [`RegisterBank`](retrocomp_bus::modbus::server::RegisterBank): reads of registers not yet
+//! served get exception 02, the controller may write only the position and held registers, and a
+//! multi-register write is applied all-or-nothing.
 //!
 //! Flow: [`OriginShiftServer::start`] binds; [`OriginShiftServer::wait_seeded`] waits (logging) until
 //! the controller has written what it holds (only when held registers are configured), which is the
 //! engine's start value; [`OriginShiftServer::run`] then updates the image every `update_period_ms`
 //! from the engine's outputs and turns each controller write into position samples (`x_mm`).
-//! What each write and period decides is the sans-IO [`ServedSink`]; this shell moves registers
+//! What each write and period decides is the sans-IO [`ServedBox`] (its sink and register bank); this shell moves registers
 //! between it and the bank, sends the samples and publishes the status.
 //! [`OriginShiftServerSink`] is that flow as the run loop's [`Sink`].
 //!
@@ -29,12 +30,11 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::MissedTickBehavior;
 
-use super::map::Words;
-use super::served::{ServedSink, StopEnd};
+use super::served::{ServedBox, StopEnd};
 use super::server_core::ServerMap;
 use crate::sinks::guard::AxisLimits;
 use crate::sinks::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
-use retrocomp_bus::modbus::server::{RegisterBank, TcpServer, spawn_rtu};
+use retrocomp_bus::modbus::server::{TcpServer, spawn_rtu};
 use retrocomp_bus::{Health, Sample};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -80,12 +80,11 @@ fn default_controller_timeout_ms() -> u64 {
 
 type Outputs = Vec<(retrocomp_model::Axis, f64)>;
 
-/// The running server (listener or RTU task) and its sans-IO sink.
+/// The running server (listener or RTU task) and its sans-IO register image and sink.
 #[derive(Debug)]
 pub struct OriginShiftServer {
     cfg: ServerConfig,
-    served: ServedSink,
-    bank: RegisterBank,
+    served: ServedBox,
     writes: watch::Receiver<u64>,
     tcp: Option<TcpServer>,
     rtu: Option<JoinHandle<std::io::Result<()>>>,
@@ -109,10 +108,8 @@ impl OriginShiftServer {
         limits: &[AxisLimits],
         now_s: f64,
     ) -> Result<Self, ServerStartError> {
-        let bank = RegisterBank::new();
-        for (address, count) in cfg.map.writable() {
-            bank.allow_writes(address, count);
-        }
+        let served = ServedBox::new(&cfg, limits, now_s);
+        let bank = served.bank().clone();
         let writes = bank.subscribe_writes();
         let (mut tcp, mut rtu) = (None, None);
         match &cfg.transport {
@@ -141,9 +138,8 @@ impl OriginShiftServer {
             }
         }
         Ok(Self {
-            served: ServedSink::new(&cfg, limits, now_s),
             cfg,
-            bank,
+            served,
             writes,
             tcp,
             rtu,
@@ -157,12 +153,7 @@ impl OriginShiftServer {
 
     /// Handle one controller write: positions out as samples, held values into the core.
     async fn handle_write(&mut self, samples: &mpsc::Sender<Sample>, t_s: f64) {
-        let bank = &self.bank;
-        let read = |a: u16, n: u16| {
-            let mut w = Words::from_elem(0, usize::from(n));
-            bank.holding_into(a, &mut w).then_some(w)
-        };
-        for &(channel, value) in self.served.handle_write(read, t_s) {
+        for &(channel, value) in self.served.handle_bank_write(t_s) {
             let s = Sample {
                 channel,
                 t_s,
@@ -181,7 +172,7 @@ impl OriginShiftServer {
         clock: &impl Fn() -> f64,
     ) -> BTreeMap<String, f64> {
         let mut waited = 0u64;
-        while !self.served.core().is_seeded() {
+        while !self.served.sink().core().is_seeded() {
             match tokio::time::timeout(Duration::from_secs(5), self.writes.changed()).await {
                 Ok(Ok(())) => self.handle_write(samples, clock()).await,
                 Ok(Err(_)) => break,
@@ -194,7 +185,7 @@ impl OriginShiftServer {
                 }
             }
         }
-        let core = self.served.core();
+        let core = self.served.sink().core();
         let reported: BTreeMap<&str, f64> = core.held_um().collect();
         let held: BTreeMap<String, f64> = core.start_values().into_iter().collect();
         if held.len() < reported.len() {
@@ -236,8 +227,8 @@ impl OriginShiftServer {
                     continue;
                 }
             }
-            if let (false, Some(max_s)) = (self.served.is_stopping(), *stop.borrow()) {
-                self.served.handle_stop(max_s, clock());
+            if let (false, Some(max_s)) = (self.served.sink().is_stopping(), *stop.borrow()) {
+                self.served.sink_mut().handle_stop(max_s, clock());
                 tracing::info!(
                     max_s,
                     "stopping: serving a ramp to 0 within the per-update cap until the controller reports holding 0"
@@ -246,16 +237,7 @@ impl OriginShiftServer {
             let now = clock();
             // The borrow (a read lock on the engine's outputs) ends before the next await.
             let period = self.served.poll_period(&out_rx.borrow(), now);
-            if period.updated {
-                let update = self.served.update();
-                for &(address, count) in &update.withdrawn {
-                    self.bank.clear_holding(address, count);
-                }
-                for b in &update.blocks {
-                    self.bank.set_holding(b.address, &b.words);
-                }
-            }
-            let core = self.served.core();
+            let core = self.served.sink().core();
             if let Some(end) = period.stopped {
                 let held: BTreeMap<&str, f64> = core.held_um().collect();
                 match end {
@@ -284,7 +266,7 @@ impl OriginShiftServer {
                 .as_ref()
                 .map(|t| t.health().faults())
                 .unwrap_or_default();
-            let active = (!period.events.is_empty()).then(|| self.served.active_faults());
+            let active = (!period.events.is_empty()).then(|| self.served.sink().active_faults());
             publish_status(&status, core, period.silent_s, active, &listener_faults);
         }
     }
