@@ -3,8 +3,9 @@
 # 1. installs the third-party peers (scripts/setup-peers.sh: apt socat, mbpoll, can-utils…, never
 #    removing or downgrading a host package; QEMU and the guest kernel downloaded into a cache, not
 #    installed; LinuxCNC; a .venv with pinned python-can, pymodbus, pyserial) — quick when present;
-# 2. `cargo fmt --check` and `cargo clippy --workspace --all-targets -- -D warnings`; `cargo audit`
-#    (scripts/audit.sh) against the committed RustSec snapshot, or a newer clone on the machine;
+# 2. `cargo fmt --check`, `cargo clippy --workspace --all-targets -- -D warnings` and
+#    `cargo doc --workspace --no-deps` with warnings as errors (every intra-doc link resolves);
+#    `cargo audit` (scripts/audit.sh) against the committed RustSec snapshot, or a newer clone;
 # 3. the whole cargo test suite with --no-fail-fast (every test binary runs even after a failure),
 #    including the real-peer integration tests and the QEMU guest that runs the socketcan backend
 #    against real kernel vcan;
@@ -18,7 +19,7 @@
 #    cargo deb, lintian, the unpacked package's files, modes and `check-config` answers (arm64's
 #    under qemu-aarch64, unpacked into a cache, never installed).
 # Ends with ONE line `N passed, N failed` (the sum of every `test result:` line) and exits non-zero
-# if any test failed, a test binary did not build or run, or fmt/clippy complained.
+# if any test failed, a test binary did not build or run, or fmt/clippy/rustdoc complained.
 # Needs root or sudo for apt (step 1). Takes ≈ 10 min on an idle 2-core VM, much more under load.
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -37,6 +38,10 @@ cargo clippy --workspace --all-targets --locked -- -D warnings || problems+=("ca
 # The appliance gateway without its optional northbound servers (no OPC UA, MQTT or web crates).
 cargo clippy -p retrocomp-gateway --no-default-features --all-targets --locked -- -D warnings ||
     problems+=("cargo clippy -p retrocomp-gateway --no-default-features")
+# Every intra-doc link resolves (rustdoc's -D warnings); the rendered pages are only the check's
+# by-product and are removed (≈ 60 MB of target/).
+RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --locked -q || problems+=("cargo doc")
+rm -rf target/doc
 bash scripts/audit.sh || problems+=("cargo audit")
 cargo test --workspace --locked --no-fail-fast 2>&1 | tee -a "$log"
 [ "${PIPESTATUS[0]}" -eq 0 ] || problems+=("cargo test --workspace")

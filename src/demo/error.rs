@@ -1,5 +1,5 @@
 //! The demo's one error type ([`DemoError`]) and the adapter its files use to name what failed
-//! ([`Context`], as the command line's `anyhow` does, but typed). Display is this layer only (the
+//! (`Context`, as the command line's `anyhow` does, but typed). Display is this layer only (the
 //! step, file or run that failed); the cause is its `source()`, so `retrocomp demo` prints
 //! `gateway (full): binding status endpoint 127.0.0.1:0: …` as before.
 

@@ -1,4 +1,4 @@
-//! The cycle loop, on its own OS thread (see [`super::realtime`]): once per `cycle_ms` slot it
+//! The cycle loop, on its own OS thread (see [`retrocomp_bus::realtime`]): once per `cycle_ms` slot it
 //! drains the samples, reseeds and actions that arrived into the [`CycleCore`] (the sans-IO cycle
 //! the closed-loop harness drives too), runs it, hands the outputs to the sink and,
 //! at most [`STATUS_PERIOD_S`] apart, publishes a status snapshot. The loop body ([`CycleLoop::step`])

@@ -1,4 +1,4 @@
-//! The runtime shell around [`Engine`]: samples arrive on a channel (from the bus sources), the
+//! The runtime shell around [`Engine`](crate::engine::Engine): samples arrive on a channel (from the bus sources), the
 //! cycle runs once per `cycle_ms` slot (when a source delivers, see `pacer.rs`), the latest status
 //! goes to the HTTP endpoint (at most 10 Hz), and a separate sink writes the outputs so a slow or
 //! dead controller never stalls the cycle.

@@ -2,7 +2,7 @@
 //! worse than one that restarts, so
 //! - a panic in any task or thread ends the process with [`EXIT_TASK_PANICKED`] and one ERROR line
 //!   ([`exit_on_panic`]); a source task that *returns* while the gateway runs is reported on
-//!   [`SourceFeed::deaths`] and the runtime stops with an error (exit status 1);
+//!   [`SourceFeed::deaths`](crate::sources::SourceFeed::deaths) and the runtime stops with an error (exit status 1);
 //! - the systemd watchdog (`Type=notify`, `WatchdogSec=`) is fed only while cycles progress: the
 //!   cycle publishes its count on a [`CycleCounter`], a thread ([`spawn_watchdog`]) sends
 //!   `READY=1` after the first cycle (sources opened, sink's initial read done, engine built) and

@@ -3,8 +3,8 @@
 //! y ← y + α·(u − y) with α = 1 − e^(−Δt/τ). Used by the model's thermal terms ([`super::thermal`]),
 //! the fit's lagged regressors (`analysis::fit`), diagnose's features and hil-sim's physics.
 //!
-//! Which reading is held: the one that arrives at the end of the interval (u[i] over
-//! t[i−1]…t[i]), as the gateway's [`super::thermal::ThermalState::step`] applies a reading the
+//! Which reading is held: the one that arrives at the end of the interval (`u[i]` over
+//! `t[i−1]…t[i]`), as the gateway's [`super::thermal::ThermalState::step`] applies a reading the
 //! moment it comes in. [`series`] follows the same rule so that a lag fitted offline is, to
 //! rounding, the lag the box runs (holding u[i−1] instead would make a written model differ from
 //! its fit by one sample's step after every jump of the input, and carry a reading across a gap in
@@ -25,16 +25,16 @@ pub fn alpha(dt_s: f64, tau_s: f64) -> f64 {
     }
 }
 
-/// The lagged series of `u` sampled at `t_s`, started at `y0`: y[0] = y0 and
-/// y[i] = y[i−1] + α(t[i] − t[i−1])·(u[i] − y[i−1]) (each reading held over the interval it ends,
+/// The lagged series of `u` sampled at `t_s`, started at `y0`: `y[0] = y0` and
+/// `y[i] = y[i−1] + α(t[i] − t[i−1])·(u[i] − y[i−1])` (each reading held over the interval it ends,
 /// as [`super::thermal::ThermalState::step`] does). For readings: the fit's and diagnose's
 /// regressors, and the evaluation of a model over a recording.
 pub fn series(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64) -> Vec<f64> {
     run(t_s, u, tau_s, y0, 0)
 }
 
-/// A plant's response to an input *schedule*: the value set at t[i−1] acts until t[i]
-/// (y[i] = y[i−1] + α·(u[i−1] − y[i−1])), the exact solution for a commanded speed or an ambient
+/// A plant's response to an input *schedule*: the value set at `t[i−1]` acts until `t[i]`
+/// (`y[i] = y[i−1] + α·(u[i−1] − y[i−1])`), the exact solution for a commanded speed or an ambient
 /// held between its set points. hil-sim's physics drives its simulated machine with it; a model
 /// reading sensors uses [`series`], so the two differ by one sample the way a real machine and its
 /// sampled model do.

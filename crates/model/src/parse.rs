@@ -1,5 +1,5 @@
 //! TOML → [`ModelSpec`]: every key read, checked and converted to internal units exactly once.
-//! The schema is documented in `docs/model.md`; each problem becomes a [`ConfigIssue`] naming file,
+//! The schema is documented in `docs/model.md`; each problem becomes a [`ConfigIssue`](crate::ConfigIssue) naming file,
 //! line, key and what was expected, and reading continues so one run reports them all.
 
 use std::collections::HashSet;

@@ -274,7 +274,7 @@ mod guest {
         Ok(())
     }
 
-    /// `20000004#...` is CAN_ERR_FLAG | CAN_ERR_CRTL with data[1] = CAN_ERR_CRTL_RX_WARNING.
+    /// `20000004#...` is CAN_ERR_FLAG | CAN_ERR_CRTL with `data[1]` = CAN_ERR_CRTL_RX_WARNING.
     async fn error_frame_skipped() -> Result<()> {
         let mut bus = SocketCanBus::open(IF)?;
         cansend("20000004#0004000000000000").await?;
@@ -302,8 +302,8 @@ mod guest {
     }
 
     /// Bus-off cannot happen on vcan, but its error frames can be sent (cansend with CAN_ERR_FLAG):
-    /// error-passive (CRTL, data[1] = TX_PASSIVE), bus-off with counters (BUSOFF | CNT, TEC in
-    /// data[6]), restarted; a data frame then still arrives.
+    /// error-passive (CRTL, `data[1]` = TX_PASSIVE), bus-off with counters (BUSOFF | CNT, TEC in
+    /// `data[6]`), restarted; a data frame then still arrives.
     async fn error_frames_bus_state() -> Result<()> {
         let mut bus = SocketCanBus::open(IF)?;
         cansend("20000004#0020000000000000").await?;

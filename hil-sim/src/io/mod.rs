@@ -10,7 +10,7 @@
 //!   (`positions_first_input`, int32 pairs in `position_lsb_um`);
 //! - the force as ASCII weighing-indicator lines on a pty (`ST,GS,+00250.0N`; `OL` for NaN; silence on
 //!   dropout);
-//! - the controller's DNC input on a serial device ([`dnc_port`], `[io.dnc]`): the program arrives
+//! - the controller's DNC input on a serial device (`dnc_port`, `[io.dnc]`): the program arrives
 //!   as it runs, into a buffer of N lines with XON/XOFF;
 //! - transport faults on a schedule ([`transport_faults`]): Modbus TCP down and back, the RTU slave
 //!   mute and back ([`rtu_slave`]), a CAN node silent, garbage on the weighing line; every client write to the PLC window is logged

@@ -3,7 +3,7 @@
 //! to other nodes. Ambient drifts linearly and swings daily. Sensors read a node (or ambient) through
 //! their own first-order lag plus an offset; noise is added when they are sampled.
 //!
-//! dT/dt = (T_amb + rise_C_per_krpm·rpm/1000 + Σ_k rise_C_per_mm_s[k]·|v_k| − T)/tau_s + Σ_c (T_c − T)/tau_c
+//! `dT/dt = (T_amb + rise_C_per_krpm·rpm/1000 + Σ_k rise_C_per_mm_s[k]·|v_k| − T)/tau_s + Σ_c (T_c − T)/tau_c`
 //! (so `rise_*` is the steady-state rise in °C). Effects act relative to each node's start temperature
 //! (thermal terms are zeroed at job start, as in Spaan Ch5):
 //! - `growth`:    e_axis += um_per_K · ΔT                     (drift of the tool point)

@@ -35,7 +35,7 @@ pub enum EffectModel {
     ScaleError { ppm: f64 },
     /// `e += b_um/2·dir` (dir = latched approach direction ±1).
     Backlash { b_um: f64 },
-    /// `e += b_um[k]/2·dir` while pos is in zone k = [edges_mm[k], edges_mm[k+1]).
+    /// `e += b_um[k]/2·dir` while pos is in zone k = `[edges_mm[k], edges_mm[k+1])`.
     ReversalProfile { edges_mm: Vec<f64>, b_um: Vec<f64> },
     /// `e += amplitude_um·sin(2π·pos/period_mm + phase_rad)
     ///      + harmonic2_um·sin(4π·pos/period_mm + harmonic2_phase_rad)`: the second harmonic of the

@@ -6,7 +6,7 @@
 //! Motion features come from the commanded positions (`<a>_mm`, docs/recording-csv.md): direction is latched by
 //! the definition shared with the gateway ([`retrocomp_model::approach`], deadband
 //! [`DIRECTION_DEADBAND_MM`]), so dwells keep the direction of their approach, as in ISO 230-2
-//! step-and-dwell runs; velocity is zero at every standstill row (see [`velocity`]).
+//! step-and-dwell runs; velocity is zero at every standstill row (see `velocity`).
 
 use std::sync::Arc;
 
@@ -41,7 +41,7 @@ pub struct AxisFeatures {
 }
 
 impl AxisFeatures {
-    /// Velocity of the commanded motion (mm/s), zero at standstill rows (see [`velocity`]).
+    /// Velocity of the commanded motion (mm/s), zero at standstill rows (see `velocity`).
     pub fn vel_mm_s(&self) -> Vec<f64> {
         let mut vel = Vec::with_capacity(self.pos_mm.len());
         for w in self.bounds.windows(2) {

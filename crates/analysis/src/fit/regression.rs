@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 use super::lsq::{LsqError, lstsq};
 
 /// First-order lag of `x` sampled at times `t_s` (exact discretisation for piecewise-constant
-/// input); τ = 0 returns `x`. The filter starts settled at x[0].
+/// input); τ = 0 returns `x`. The filter starts settled at `x[0]`.
 pub fn first_order_lag(t_s: &[f64], x: &[f64], tau_s: f64) -> Vec<f64> {
     if tau_s <= 0.0 || x.is_empty() {
         return x.to_vec();

@@ -29,12 +29,12 @@ impl Candidate {
     /// `f`'s value at every θ of `thetas` on [`Candidate::columns`] there, in grid order; `f`
     /// hands the column buffers back for the next θ (their contents need not survive).
     ///
-    /// For a cyclic candidate on a grid uniform in frequency ([`period_grid`]) the sin/cos pair
+    /// For a cyclic candidate on a grid uniform in frequency (`period_grid`) the sin/cos pair
     /// of the next period is the previous one rotated by a fixed angle per distinct position (one
     /// complex multiply instead of two transcendental calls: the period grid's sin/cos were most
     /// of the time of a 1M-row diagnosis), gathered into the reused buffers (a fresh 8 MB column
     /// per period at 1M rows was a page-fault storm). The grid is split into fixed chunks of
-    /// [`SWEEP_CHUNK`] periods run in parallel (rayon): one long cyclic candidate's sweep was most
+    /// `SWEEP_CHUNK` periods run in parallel (rayon): one long cyclic candidate's sweep was most
     /// of a 1M-row diagnosis' screening, on one core. Each chunk starts where one sweep over the
     /// whole grid re-anchors its phasors exactly and shares its rotation, so every θ gets the same
     /// bits with any number of threads. θ off a uniform grid, and other candidates, are
