@@ -38,6 +38,7 @@
 //! Units: µm for shifts and corrections (register = correction; + moves the slide +), s for time.
 
 pub mod link;
+mod master;
 mod plc;
 mod quadrature;
 mod rtu;
@@ -131,7 +132,11 @@ pub struct ClosedLoop {
     gateway: Option<GatewayCore>,
     generation: u32,
     cycle_ticks: u64,
+    /// The sink's write period (`[sink.origin_shift]`) or the server's update period
+    /// (`[sink.origin_shift_server]`), in steps.
     write_ticks: u64,
+    /// `[sink.origin_shift_server]`: the controller's master polls the box every this many steps.
+    master_ticks: u64,
     /// Modbus link state after the last step (the schedule's `modbus_down`).
     link_up: bool,
     /// The sink's client connection (one per gateway start) and the attempts of earlier starts.
@@ -187,13 +192,35 @@ impl ClosedLoop {
         let world = World::new(sim)?;
         let dt = world.config().dt_s();
         let cycle_ticks = ticks(field.gateway.cycle_ms, dt, "gateway.cycle_ms")?;
-        let (write_ticks, client) = match &field.sink.origin_shift {
-            Some(os) => (
+        let (write_ticks, client) = match (
+            &field.sink.origin_shift,
+            &field.sink.origin_shift_server,
+        ) {
+            (Some(os), _) => (
                 ticks(os.write_period_ms, dt, "sink.origin_shift.write_period_ms")?,
                 ClientLink::connected(os.reconnect_min_ms, os.reconnect_max_ms),
             ),
-            None => (0, ClientLink::connected(0, 0)),
+            (None, Some(srv)) => {
+                let lsb = world.config().plc.lsb_um;
+                anyhow::ensure!(
+                    srv.map
+                        .axes
+                        .iter()
+                        .all(|r| (r.lsb_um - lsb).abs() < 1e-12 && r.sign == 1),
+                    "sink.origin_shift_server.map: every axis needs the PLC's lsb_um {lsb} and sign 1"
+                );
+                (
+                    ticks(
+                        srv.update_period_ms,
+                        dt,
+                        "sink.origin_shift_server.update_period_ms",
+                    )?,
+                    ClientLink::connected(0, 0),
+                )
+            }
+            (None, None) => (0, ClientLink::connected(0, 0)),
         };
+        let master_ticks = ticks(master::MASTER_PERIOD_MS, dt, "the master's period")?;
         // One injected count is one count of the controller's feedback (`servo.count_um`).
         let receivers = match &field.sink.quadrature {
             Some(q) => {
@@ -231,6 +258,7 @@ impl ClosedLoop {
             generation: 0,
             cycle_ticks,
             write_ticks,
+            master_ticks,
             link_up: true,
             client,
             attempts: Vec::new(),
@@ -260,12 +288,16 @@ impl ClosedLoop {
             let old = std::mem::replace(&mut self.client, fresh);
             self.attempts.extend_from_slice(old.attempts());
         }
-        let gw = GatewayCore::start(
-            self.field.clone(),
-            (self.model)(),
-            held,
-            self.held_counts.clone(),
-        )?;
+        let gw = if self.field.sink.origin_shift_server.is_some() {
+            GatewayCore::start_served(self.field.clone(), (self.model)(), self.world.t_s())?
+        } else {
+            GatewayCore::start(
+                self.field.clone(),
+                (self.model)(),
+                held,
+                self.held_counts.clone(),
+            )?
+        };
         // A new box takes the lines at its scheduler's levels (the held count's phase): the
         // controller's receiver sees whatever change that is from the levels the old box left.
         if let Some(q) = gw.quadrature() {
@@ -400,6 +432,8 @@ impl ClosedLoop {
         }
         if self.receivers.is_some() {
             self.run_quadrature(tick);
+        } else if self.field.sink.origin_shift_server.is_some() {
+            self.run_server(tick, t);
         } else {
             self.run_sink(tick, t);
         }

@@ -113,6 +113,25 @@ axis = [
 ]
 "#;
 
+/// The box as a Modbus server instead (`[sink.origin_shift_server]`): the PLC's master reads the
+/// corrections (int32 at 0, 2, 4, the PLC's 0.5 µm) and writes what the PLC applies into the held
+/// registers (20, 22, 24); updated every 10 ms, as the client sink writes.
+const SERVER_SINK: &str = r#"
+[sink.origin_shift_server]
+transport = { kind = "tcp", listen = "127.0.0.1:0" }
+update_period_ms = 10
+controller_timeout_ms = 1000
+
+[sink.origin_shift_server.map]
+heartbeat_address = 30
+axis = [
+  { axis = "x", address = 0, kind = "int32", lsb_um = 0.5, sign = 1 },
+  { axis = "y", address = 2, kind = "int32", lsb_um = 0.5, sign = 1 },
+  { axis = "z", address = 4, kind = "int32", lsb_um = 0.5, sign = 1 },
+]
+held = [{ axis = "x", address = 20 }, { axis = "y", address = 22 }, { axis = "z", address = 24 }]
+"#;
+
 pub(crate) fn field_config() -> FieldConfig {
     field_config_with(&format!("{ORIGIN_SHIFT_SINK}\n{FIXTURE_MAP}"))
 }
@@ -197,6 +216,12 @@ channel = [ {{ name = "F_cut_N" }} ]
 pub(crate) fn model_factory() -> ModelFactory {
     let model = MachineModel::from_toml_path(&truth_model()).expect("model");
     Box::new(move || Box::new(MachineModelAdapter::new(model.clone())))
+}
+
+/// The loop with the box serving the corrections and the PLC's master polling it.
+pub(crate) fn closed_loop_served(sim: SimConfig) -> ClosedLoop {
+    let field = field_config_with(SERVER_SINK);
+    ClosedLoop::new(sim, field, model_factory()).expect("harness")
 }
 
 pub(crate) fn closed_loop(sim: SimConfig) -> ClosedLoop {

@@ -15,6 +15,7 @@ mod cases;
 mod closed_loop_faults;
 mod closed_loop_quadrature;
 mod closed_loop_rtu;
+mod closed_loop_served;
 mod closed_loop_stop;
 mod closed_loop_watchdog;
 mod determinism;

@@ -11,7 +11,8 @@
 //! 2. an mb2hal-like controller (every 20 ms: read each correction, an exception keeps what it
 //!    applies; apply; write back position, held and marker) brings X back: every value it reads
 //!    is within the clamp and one cap from what it applied;
-//! 3. a stop serves a ramp to 0 within the cap until the controller reports holding 0.
+//! 3. a stop serves a ramp to 0 within the cap until the controller reports holding 0;
+//! 4. a register the controller has not written is not a report (of 0).
 
 use std::path::Path;
 
@@ -225,4 +226,28 @@ fn the_engine_starts_from_the_controllers_report_within_the_clamp() {
     );
     let x = read(&mut gw, 0, 0.03).expect("x served");
     assert!((x - 20).abs() <= CAP_COUNTS, "{x}");
+}
+
+/// A controller that writes its registers one request at a time (a PLC's master block per
+/// axis): a held register it has not written yet reads 0 in the image, and that 0 is nobody's
+/// report. The engine starts once every axis was reported, from the reported values.
+#[test]
+fn registers_the_controller_has_not_written_are_not_reports_of_0() {
+    let mut gw = gateway();
+    let write = |gw: &mut GatewayCore, address: u16, value: u16| {
+        let r = gw.handle_server_request(&Request::WriteSingleRegister(address, value), 0.0);
+        assert!(r.is_ok(), "{r:?}");
+    };
+    write(&mut gw, 16, MARKER);
+    write(&mut gw, 13, 20);
+    assert_eq!(gw.poll_served(0.01), None);
+    assert_eq!(
+        read(&mut gw, 0, 0.011),
+        Err(ExceptionCode::IllegalDataAddress),
+        "Y and Z not reported: nothing served"
+    );
+    write(&mut gw, 14, (-30i16).cast_unsigned());
+    write(&mut gw, 15, 40);
+    let start: Vec<(Axis, f64)> = gw.outputs().to_vec();
+    assert_eq!(start, [(Axis::X, 2.0), (Axis::Y, -3.0), (Axis::Z, 4.0)]);
 }

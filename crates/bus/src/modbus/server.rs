@@ -25,6 +25,9 @@ struct Image {
     holding: BTreeMap<u16, u16>,
     input: BTreeMap<u16, u16>,
     writable: BTreeSet<u16>,
+    /// Registers a client has written since the bank was made (the 0 a writable register is
+    /// created with is nobody's value).
+    written: BTreeSet<u16>,
 }
 
 /// The shared register image. Clone it to hand the same registers to the server and to the code that
@@ -111,6 +114,22 @@ impl RegisterBank {
         true
     }
 
+    /// [`Self::holding_into`], but only registers a client has written (a writable register the
+    /// client has not written yet reads as absent, not as its initial 0): what a device takes as
+    /// the client's report.
+    pub fn client_written_into(&self, addr: u16, out: &mut [u16]) -> bool {
+        let all_written = {
+            let im = self.lock();
+            (0..out.len()).all(|i| {
+                u16::try_from(i)
+                    .ok()
+                    .and_then(|i| addr.checked_add(i))
+                    .is_some_and(|a| im.written.contains(&a))
+            })
+        };
+        all_written && self.holding_into(addr, out)
+    }
+
     /// Read `count` holding registers, let `f` change them, write them back, all under one lock (a
     /// device's scan: no client write lands between its read and its write-back).
     pub fn update_holding<R>(
@@ -157,6 +176,7 @@ impl RegisterBank {
             }
             for (k, w) in (0u16..).zip(words) {
                 im.holding.insert(addr + k, *w);
+                im.written.insert(addr + k);
             }
         }
         self.writes.send_modify(|n| *n += 1);
@@ -287,6 +307,31 @@ pub fn spawn_rtu(
 mod tests {
     use super::*;
     use std::borrow::Cow;
+
+    /// A writable register reads 0 before any client wrote it, but that 0 is not a client's
+    /// report: only registers a client wrote count, the device's own writes do not.
+    #[test]
+    fn only_what_a_client_wrote_is_its_report() {
+        let b = RegisterBank::new();
+        b.allow_writes(20, 4);
+        let mut two = [9u16; 2];
+        assert!(b.holding_into(20, &mut two), "readable as 0");
+        assert!(!b.client_written_into(20, &mut two), "nobody wrote it");
+        assert!(b.handle(&Request::WriteSingleRegister(20, 7)).is_ok());
+        assert!(!b.client_written_into(20, &mut two), "21 still unwritten");
+        let mut one = [0u16; 1];
+        assert!(b.client_written_into(20, &mut one));
+        assert_eq!(one, [7]);
+        b.set_holding(22, &[1, 2]);
+        assert!(
+            !b.client_written_into(22, &mut two),
+            "the device's own write"
+        );
+        assert!(b.client_write(21, &[5, 6, 8]).is_ok());
+        let mut four = [0u16; 4];
+        assert!(b.client_written_into(20, &mut four));
+        assert_eq!(four, [7, 5, 6, 8]);
+    }
 
     #[test]
     fn reads_writes_and_exceptions() {

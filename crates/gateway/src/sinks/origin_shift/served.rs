@@ -186,12 +186,15 @@ impl ServedBox {
     }
 
     /// The bank took a write of the controller at `now_s`: read what it wrote. Returns its
-    /// positions (channel, mm) to send as samples.
+    /// positions (channel, mm) to send as samples. Only registers the controller has written
+    /// count: a held or position register it has not written yet reads 0 in the image, which is
+    /// nobody's report (taking it as "holds 0" would seed the engine, and the guard, from 0 on an
+    /// axis the controller holds elsewhere, when its first write carried other registers).
     pub fn handle_bank_write(&mut self, now_s: f64) -> &[(ChannelId, f64)] {
         let bank = &self.bank;
         let read = |a: u16, n: u16| {
             let mut w = Words::from_elem(0, usize::from(n));
-            bank.holding_into(a, &mut w).then_some(w)
+            bank.client_written_into(a, &mut w).then_some(w)
         };
         self.sink.handle_write(read, now_s)
     }

@@ -18,7 +18,8 @@
 //! counts. A reported value beyond the clamp is a `BeyondClamp` fault, a report too far from what
 //! was served an `Uncertain` one: that axis' correction registers are withdrawn (reads get
 //! exception 02, so the controller keeps what it applies) and the next report is the truth again.
-//! Before the controller has reported what it holds, no correction register exists: after a box
+//! Before the controller has reported what it holds (a held register it has not written is no
+//! report: the shell reads only registers a client wrote), no correction register exists: after a box
 //! restart it resumes from the controller's value instead of jumping from zero. Without held
 //! registers the box takes what it served as applied (the config check refuses such maps where
 //! it must). Stop ([`ServerCore::begin_ramp_out`]): every axis wants 0, within the cap per update,

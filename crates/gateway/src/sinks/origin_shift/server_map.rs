@@ -87,7 +87,7 @@ impl ServerMap {
         }
     }
 
-    pub(super) fn held_register(&self, h: &HeldRegister) -> Option<AxisRegister> {
+    pub fn held_register(&self, h: &HeldRegister) -> Option<AxisRegister> {
         self.axes
             .iter()
             .find(|a| a.axis == h.axis)
