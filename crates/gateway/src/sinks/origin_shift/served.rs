@@ -220,21 +220,12 @@ impl ServedBox {
 mod tests {
     use super::*;
     use crate::sinks::origin_shift::server::ServerTransport;
-    use crate::sinks::origin_shift::server_core::ServerMap;
+    use crate::sinks::origin_shift::server_core::guard_tests::{limits, map};
     use retrocomp_bus::fault::FaultKind;
 
-    /// x: int16 correction at 0 (0.1 µm per count), heartbeat at 1, position at 10 (10 µm per
-    /// count), held value at 11.
+    /// The rogue-report tests' map and limits (`server_core_tests.rs`), updated every 10 ms,
+    /// the controller gone after 0.5 s.
     fn cfg() -> ServerConfig {
-        let map: ServerMap = toml::from_str(
-            r#"
-            heartbeat_address = 1
-            axis = [ { axis = "x", address = 0, kind = "int16", lsb_um = 0.1, sign = 1 } ]
-            position = [ { channel = "x_mm", address = 10, kind = "int16", lsb_um = 10.0 } ]
-            held = [ { axis = "x", address = 11 } ]
-            "#,
-        )
-        .unwrap();
         ServerConfig {
             transport: ServerTransport::Tcp {
                 listen: "127.0.0.1:0".into(),
@@ -243,16 +234,8 @@ mod tests {
             update_period_ms: 10,
             controller_timeout_ms: 500,
             listen_policy: Default::default(),
-            map,
+            map: map(),
         }
-    }
-
-    fn limits() -> Vec<AxisLimits> {
-        vec![AxisLimits {
-            axis: "x".into(),
-            max_correction_um: 50.0,
-            max_change_um_per_write: 1.0,
-        }]
     }
 
     /// The controller's write: what it holds (counts of 0.1 µm) and its position (counts of 10 µm).

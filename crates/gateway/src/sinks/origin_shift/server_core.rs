@@ -433,4 +433,4 @@ mod tests {
 
 #[cfg(test)]
 #[path = "server_core_tests.rs"]
-mod guard_tests;
+pub(crate) mod guard_tests;

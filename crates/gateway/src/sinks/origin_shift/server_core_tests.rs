@@ -5,7 +5,8 @@ use std::collections::BTreeMap;
 
 use super::*;
 
-fn limits() -> Vec<AxisLimits> {
+/// x: clamp 50 µm, cap 1 µm per update (also the served sink's tests').
+pub(crate) fn limits() -> Vec<AxisLimits> {
     vec![AxisLimits {
         axis: "x".into(),
         max_correction_um: 50.0,
@@ -13,7 +14,9 @@ fn limits() -> Vec<AxisLimits> {
     }]
 }
 
-fn map() -> ServerMap {
+/// x: int16 correction at 0 (0.1 µm per count), heartbeat at 1, position at 10 (10 µm per
+/// count), held value at 11.
+pub(crate) fn map() -> ServerMap {
     toml::from_str(
         r#"
         heartbeat_address = 1
