@@ -118,16 +118,19 @@ impl RegisterBank {
     /// client has not written yet reads as absent, not as its initial 0): what a device takes as
     /// the client's report.
     pub fn client_written_into(&self, addr: u16, out: &mut [u16]) -> bool {
-        let all_written = {
-            let im = self.lock();
-            (0..out.len()).all(|i| {
-                u16::try_from(i)
-                    .ok()
-                    .and_then(|i| addr.checked_add(i))
-                    .is_some_and(|a| im.written.contains(&a))
-            })
-        };
-        all_written && self.holding_into(addr, out)
+        let im = self.lock();
+        for (i, w) in out.iter_mut().enumerate() {
+            let Some(v) = u16::try_from(i)
+                .ok()
+                .and_then(|i| addr.checked_add(i))
+                .filter(|a| im.written.contains(a))
+                .and_then(|a| im.holding.get(&a))
+            else {
+                return false;
+            };
+            *w = *v;
+        }
+        true
     }
 
     /// Read `count` holding registers, let `f` change them, write them back, all under one lock (a

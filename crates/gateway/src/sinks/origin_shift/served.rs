@@ -31,7 +31,7 @@ pub enum StopEnd {
 }
 
 /// What one update period did.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct Period {
     /// The image changed: [`ServedSink::update`] holds the blocks to set and the axes withdrawn.
     pub updated: bool,
