@@ -11,7 +11,9 @@
 //!    value;
 //! 2. an mb2hal-like controller (reads the correction, applies it, writes back position, held and
 //!    marker every 20 ms) brings the axis back; on SIGTERM the box serves a ramp to 0 within the cap
-//!    until the controller reports holding 0, says so in its log, and exits.
+//!    until the controller reports holding 0, says so in its log, and exits;
+//! 3. a PLC master reporting what it holds one axis at a time (marker, then one FC06 per held
+//!    register) is not served until every axis is in, then from what it holds, within one cap.
 
 use std::io::{BufRead, BufReader, Write};
 use std::process::{Command, Stdio};
@@ -106,6 +108,20 @@ fn config(modbus_port: u16, status_port: u16) -> String {
     cfg
 }
 
+/// `retrocomp run` on the kit's config (loopback ports), once its Modbus server listens.
+fn start(dir: &std::path::Path) -> (Gateway, u16) {
+    let (modbus_port, status_port) = (peers::free_port(), peers::free_port());
+    let cfg_path = dir.join("sim.toml");
+    let mut f = std::fs::File::create(&cfg_path).unwrap();
+    f.write_all(config(modbus_port, status_port).as_bytes())
+        .unwrap();
+    let gw = Gateway::start_args(&["run", "--config"], &cfg_path, status_port, &[]);
+    wait_until("the Modbus server listening", || {
+        std::net::TcpStream::connect(("127.0.0.1", modbus_port)).is_ok()
+    });
+    (gw, modbus_port)
+}
+
 /// A pymodbus script as a child; its stdout lines collected as they come.
 fn python(script: &str, port: u16) -> (std::process::Child, Arc<Mutex<Vec<String>>>) {
     let mut child = Command::new(peers::python())
@@ -145,15 +161,7 @@ fn wait_until(what: &str, mut pred: impl FnMut() -> bool) {
 fn a_rogue_held_write_is_never_served_and_sigterm_ramps_the_served_value_out() {
     let _turn = crate::turn::take(file!());
     let dir = tempfile::tempdir().unwrap();
-    let (modbus_port, status_port) = (peers::free_port(), peers::free_port());
-    let cfg_path = dir.path().join("sim.toml");
-    let mut f = std::fs::File::create(&cfg_path).unwrap();
-    f.write_all(config(modbus_port, status_port).as_bytes())
-        .unwrap();
-    let mut gw = Gateway::start_args(&["run", "--config"], &cfg_path, status_port, &[]);
-    wait_until("the Modbus server listening", || {
-        std::net::TcpStream::connect(("127.0.0.1", modbus_port)).is_ok()
-    });
+    let (mut gw, modbus_port) = start(dir.path());
 
     // 1. The reported scenario.
     let (mut rogue, lines) = python(ROGUE, modbus_port);
@@ -221,4 +229,85 @@ fn a_rogue_held_write_is_never_served_and_sigterm_ramps_the_served_value_out() {
         "{log}"
     );
     assert!(exit.success(), "{exit}\n{log}");
+}
+
+/// A PLC's master block that reports what it holds one axis at a time (positions in one FC16,
+/// the marker, then one FC06 per held register), the correction (2, −3, 4) µm = (20, −30, 40)
+/// counts, beside a box that has just started. After each partial report it reads the
+/// corrections (`partial exc` or `partial ok x y z`) while five update periods pass; after the
+/// last, `read x y z` for every served FC03 of registers 0–2.
+const ONE_AXIS_AT_A_TIME: &str = r#"
+import sys, time
+from pymodbus.client import ModbusTcpClient
+port = int(sys.argv[1])
+a = ModbusTcpClient("127.0.0.1", port=port, retries=0); assert a.connect()
+def s16(v):
+    return v - 65536 if v >= 32768 else v
+def corrections(tag):
+    r = a.read_holding_registers(0, count=3)
+    if r.isError():
+        print(f"{tag} exc", flush=True); return False
+    print(f"{tag} ok " + " ".join(str(s16(v)) for v in r.registers), flush=True)
+    return True
+def partial():
+    for _ in range(5):
+        corrections("partial"); time.sleep(0.02)
+for address, value in [(16, 21930), (13, 20), (14, -30 & 0xFFFF)]:
+    if address == 16:
+        assert not a.write_registers(10, [6000, 4000, 4000]).isError()
+    assert not a.write_register(address, value).isError()
+    partial()
+assert not a.write_register(15, 40).isError()
+deadline = time.time() + 60
+while not corrections("read"):
+    assert time.time() < deadline, "never served"
+    time.sleep(0.02)
+for _ in range(20):
+    corrections("read"); time.sleep(0.02)
+"#;
+
+#[test]
+fn a_controller_reporting_one_axis_at_a_time_is_resumed_from_what_it_holds() {
+    let _turn = crate::turn::take(file!());
+    let dir = tempfile::tempdir().unwrap();
+    let (gw, modbus_port) = start(dir.path());
+    let (mut plc, lines) = python(ONE_AXIS_AT_A_TIME, modbus_port);
+    let status = plc.wait().unwrap();
+    let lines = lines.lock().unwrap().clone();
+    assert!(status.success(), "pymodbus failed: {lines:?}");
+
+    // Registers nobody has written are no report of 0: nothing is served before Z's.
+    let partial: Vec<&String> = lines.iter().filter(|l| l.starts_with("partial")).collect();
+    assert_eq!(partial.len(), 15, "{lines:?}");
+    assert!(
+        partial.iter().all(|l| *l == "partial exc"),
+        "served before every axis was reported: {lines:?}"
+    );
+    // Then it resumes from what the controller holds, never beyond one cap of it.
+    let held = [20, -30, 40];
+    let served: Vec<Vec<i64>> = lines
+        .iter()
+        .filter_map(|l| l.strip_prefix("read ok "))
+        .map(|v| v.split(' ').map(|w| w.parse().unwrap()).collect())
+        .collect();
+    assert!(served.len() >= 21, "{lines:?}");
+    for v in &served {
+        for (k, (s, h)) in v.iter().zip(held).enumerate() {
+            assert!(
+                (s - h).abs() <= CAP_COUNTS,
+                "axis {k}: served {s} counts, the controller holds {h} (cap {CAP_COUNTS}): {lines:?}"
+            );
+        }
+    }
+    let st = gw.status().expect("/status");
+    assert_eq!(st["sink"]["faults"], serde_json::json!([]), "{st}");
+    for (axis, um) in [("x", 2.0), ("y", -3.0), ("z", 4.0)] {
+        let h = st["sink"]["held_um"][axis].as_f64().unwrap();
+        assert!((h - um).abs() < 1e-9, "status: {axis} holds {h} µm");
+    }
+    assert!(
+        gw.log_lines(&["origin-shift server fault"]).is_empty(),
+        "no fault episode: {}",
+        gw.log().join("\n")
+    );
 }
