@@ -2,13 +2,13 @@
 # Builds the Debian packages from the binaries of the test profile and checks them (docs/install.md,
 # "Building the package"):
 #   1. amd64: `cargo deb --no-build --profile deb-test`: the test profile's target/debug/retrocomp
-#      (the binary the test suite just built) copied to target/deb-test/ (cargo-deb reads
+#      (the binary the test suite just built) hard-linked as target/deb-test/ (cargo-deb reads
 #      `target/release/` in the assets as the profile's directory). The shipped package is
 #      `cargo deb --profile dist`; building that here would compile the whole dependency tree a
 #      second time with fat LTO (≈ 9 min of CPU on 2 cores).
 #   2. arm64: the same binary cross-built (deploy/cross-build.sh --profile test: the Debian cross
 #      linker, rustup's aarch64 std; the host's build scripts and proc macros of step 1 are reused)
-#      into target/aarch64-unknown-linux-gnu/debug/, copied to …/deb-test/ and packaged with
+#      into target/aarch64-unknown-linux-gnu/debug/, hard-linked as …/deb-test/ and packaged with
 #      `cargo deb --no-build --profile deb-test --target aarch64-unknown-linux-gnu`.
 #   Each package: lintian reports no error (warnings are printed, not fatal); it is unpacked into a
 #   scratch root (`dpkg -x`, no maintainer script runs): the files the unit and the docs promise are
@@ -38,7 +38,8 @@ need cargo-deb "cargo install --locked cargo-deb (scripts/setup-peers.sh does)"
 need lintian "apt-get install lintian (scripts/setup-peers.sh does)"
 need dpkg-deb "a Debian host"
 
-# package ARCH DIR [--target TRIPLE]: packages DIR/debug/retrocomp (copied to DIR/deb-test/) into
+# package ARCH DIR [--target TRIPLE]: packages DIR/debug/retrocomp (hard-linked as DIR/deb-test/:
+# cargo-deb strips into a file of its own and never writes its source, and a copy was ≈ 60 MB) into
 # $TARGET_DIR/debian-test/; sets `deb` to the .deb's path (not printed: the counters of ok/bad
 # would be lost in a command substitution's subshell).
 package() {
@@ -46,13 +47,15 @@ package() {
     local arch="$1" dir="$2"
     shift 2
     mkdir -p "$dir/deb-test"
-    cp -f "$dir/debug/retrocomp" "$dir/deb-test/retrocomp"
+    ln -f "$dir/debug/retrocomp" "$dir/deb-test/retrocomp"
     local out="$TARGET_DIR/debian-test"
     mkdir -p "$out"
     rm -f "$out"/retrocomp_*_"$arch".deb
     if cargo deb --no-build --profile deb-test --locked -p retrocomp "$@" -o "$out/" \
         >"$out.$arch.log" 2>&1; then
         ok "cargo deb ($arch)"
+        # cargo-deb's stripped scratch copy of the binary (≈ 40 MB), in the .deb now.
+        rm -f "$dir"/retrocomp/retrocomp.stripped-*.tmp
     else
         cat "$out.$arch.log" >&2
         bad "cargo deb ($arch)"

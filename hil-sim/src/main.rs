@@ -26,7 +26,7 @@ enum Cmd {
     GenCases(hil_sim::cli::GenCasesArgs),
     /// Probe hole plates and static ball-bar spheres on a hidden machine model (Spaan's plan: six
     /// identification plates, five verification plates, eight spheres) in `retrocomp identify`'s
-    /// contracts: <out>/plates, <out>/verify, <out>/ballbar.
+    /// contracts: OUT/plates, OUT/verify, OUT/ballbar.
     Artefacts {
         #[arg(long, default_value_t = 1)]
         seed: u64,
@@ -45,7 +45,7 @@ enum Cmd {
         spheres: hil_sim::artefacts::SpherePlan,
         /// Give the hidden machine a 5 mm ball-screw lead wave on X, Y, Z (1.5 / 1.2 / 1.0 µm at
         /// 30° / 140° / −110°), probe the identification plates at pitches 0.45 lead off whole
-        /// leads (62.25 × 42.25 mm), and write laser runs every 1.25 mm to <out>/laser/{x,y,z}.csv
+        /// leads (62.25 × 42.25 mm), and write laser runs every 1.25 mm to OUT/laser/{x,y,z}.csv
         /// (`retrocomp identify --lead-mm 5`, `retrocomp fit axis --lead-mm 5`).
         #[arg(long)]
         lead_wave: bool,

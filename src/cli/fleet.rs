@@ -49,14 +49,14 @@ pub(crate) struct Args {
     /// Ask a box it has no birth for to rebirth at most this often, s.
     #[arg(long, default_value_t = 5.0)]
     pub rebirth_every_s: f64,
-    /// Collect the machines' recordings into DIR/<group>/<edge node>/ (from MQTT, and what
+    /// Collect the machines' recordings into DIR/GROUP/EDGE_NODE/ (from MQTT, and what
     /// `ship-recording --to-dir DIR` wrote there).
     #[arg(long)]
     pub collect_dir: Option<PathBuf>,
     /// MQTT topic filter of the recordings.
     #[arg(long, default_value = "retrocomp/recordings/#")]
     pub recordings_topic: String,
-    /// Machine models, DIR/<edge node>.toml: with --collect-dir, diagnose every machine's latest
+    /// Machine models, DIR/EDGE_NODE.toml: with --collect-dir, diagnose every machine's latest
     /// recording against its own model on a schedule and flag model drift.
     #[arg(long)]
     pub models: Option<PathBuf>,

@@ -20,7 +20,7 @@ pub(crate) struct Args {
     /// The directory the fleet collects recordings into (the same files: a share).
     #[arg(long)]
     pub collect_dir: PathBuf,
-    /// Machine models, DIR/<edge node>.toml.
+    /// Machine models, DIR/EDGE_NODE.toml.
     #[arg(long)]
     pub models: PathBuf,
     /// This worker's name, unique among the workers.

@@ -25,10 +25,10 @@ pub(crate) struct Args {
     /// Kinematic chain, workpiece → tool, F = frame (e.g. "X F Y Z").
     #[arg(long)]
     pub chain: String,
-    /// Hole-plate placements (CSV; side file <stem>.toml).
+    /// Hole-plate placements (CSV; side file STEM.toml).
     #[arg(long, num_args = 1..)]
     pub hole_plate: Vec<PathBuf>,
-    /// Static ball-bar set-ups (CSV; side file <stem>.toml).
+    /// Static ball-bar set-ups (CSV; side file STEM.toml).
     #[arg(long, num_args = 1..)]
     pub ballbar: Vec<PathBuf>,
     /// Held-out hole plates for residual, σ and efficiency δ.

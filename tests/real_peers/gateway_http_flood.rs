@@ -4,7 +4,7 @@
 //! refusal as one fault (not one line per client), and the process can still open the connection a
 //! controller link would need on reconnect (the descriptor reserve).
 //!
-//! The child is this test binary run again with `RETROCOMP_HTTP_FLOOD_CHILD=1` (it then serves
+//! The child is this test binary (`real_peers`) run again with `RETROCOMP_HTTP_FLOOD_CHILD=1` (it then serves
 //! and obeys stdin instead of flooding); everything is on 127.0.0.1 with ephemeral ports.
 
 use std::io::{BufRead, BufReader, Write};
@@ -247,8 +247,9 @@ fn idle_flood_does_not_starve_answers_or_descriptors() {
     if let Some(mode) = std::env::var_os(CHILD_ENV) {
         return child(mode.to_str().unwrap());
     }
+    let _turn = crate::turn::take(file!());
     let o = flood(
-        "idle_flood_does_not_starve_answers_or_descriptors",
+        "gateway_http_flood::idle_flood_does_not_starve_answers_or_descriptors",
         "reserve",
     );
     assert!(
@@ -270,7 +271,11 @@ fn accept_emfile_backs_off_and_recovers() {
     if let Some(mode) = std::env::var_os(CHILD_ENV) {
         return child(mode.to_str().unwrap());
     }
-    let o = flood("accept_emfile_backs_off_and_recovers", "emfile");
+    let _turn = crate::turn::take(file!());
+    let o = flood(
+        "gateway_http_flood::accept_emfile_backs_off_and_recovers",
+        "emfile",
+    );
     // No descriptor-count check here: at the limit the child's table churns while the parent
     // lists /proc/PID/fd, so the listing can count one closing and one opening descriptor (161 of
     // 160 seen once); the kernel enforces the limit anyway. What matters is below.

@@ -8,7 +8,7 @@
 //! a peer not flooding is served during the flood, and the flooding address is served again
 //! within 1 s after its connections close.
 //!
-//! The child is this test binary run again with `RETROCOMP_LISTENER_FLOOD_CHILD=1`; everything is
+//! The child is this test binary (`real_peers`) run again with `RETROCOMP_LISTENER_FLOOD_CHILD=1`; everything is
 //! on loopback with ephemeral ports.
 
 use std::io::{BufRead, BufReader, Read, Write};
@@ -212,6 +212,7 @@ fn every_listener_survives_2000_idle_connections_under_nofile_1024() {
     if std::env::var_os(CHILD_ENV).is_some() {
         return child();
     }
+    let _turn = crate::turn::take(file!());
     let mut lim = libc::rlimit {
         rlim_cur: 0,
         rlim_max: 0,
@@ -231,7 +232,7 @@ fn every_listener_survives_2000_idle_connections_under_nofile_1024() {
     let mut cmd = Command::new(std::env::current_exe().unwrap());
     cmd.args([
         "--exact",
-        "every_listener_survives_2000_idle_connections_under_nofile_1024",
+        "listener_flood::every_listener_survives_2000_idle_connections_under_nofile_1024",
         "--nocapture",
     ])
     .env(CHILD_ENV, "1")
