@@ -4,7 +4,9 @@
 //! yet, or withdrawn — keeps what the PLC applies), puts what it read into the PLC's shift
 //! registers (and toggles the strobe when the window has a handshake, as the PLC program that
 //! latches its master's input would), copies the box's heartbeat into the PLC watchdog's register
-//! if it has one, and writes back what the PLC applies into the box's held registers (FC16 each).
+//! if it has one, writes back what the PLC applies into the box's held registers (FC16 each), then
+//! sets the write marker when the map has one (FC06: mb2hal's marker register, set once its
+//! outputs are valid; the box takes the held registers as a report only once it reads the marker).
 //! While the Modbus link is down (`modbus_down`) the master's requests do not arrive. The box's
 //! update period runs on its own tick (`update_period_ms`), after the cycle of the same step.
 //!
@@ -92,6 +94,11 @@ impl ClosedLoop {
             }
         }
         report_held(gw, srv, &applied_um, t);
+        if let Some(m) = &srv.map.write_marker {
+            let mark = Request::WriteSingleRegister(m.address, m.value);
+            let r = gw.handle_server_request(&mark, t);
+            debug_assert!(r.is_ok(), "the marker register takes writes: {r:?}");
+        }
     }
 }
 

@@ -115,7 +115,8 @@ axis = [
 
 /// The box as a Modbus server instead (`[sink.origin_shift_server]`): the PLC's master reads the
 /// corrections (int32 at 0, 2, 4, the PLC's 0.5 µm) and writes what the PLC applies into the held
-/// registers (20, 22, 24); updated every 10 ms, as the client sink writes.
+/// registers (20, 22, 24), then the write marker (26); updated every 10 ms, as the client sink
+/// writes.
 const SERVER_SINK: &str = r#"
 [sink.origin_shift_server]
 transport = { kind = "tcp", listen = "127.0.0.1:0" }
@@ -130,6 +131,7 @@ axis = [
   { axis = "z", address = 4, kind = "int32", lsb_um = 0.5, sign = 1 },
 ]
 held = [{ axis = "x", address = 20 }, { axis = "y", address = 22 }, { axis = "z", address = 24 }]
+write_marker = { address = 26, value = 21930 }
 "#;
 
 pub(crate) fn field_config() -> FieldConfig {
