@@ -1,7 +1,7 @@
 //! Fleet load benchmark (not criterion: a capacity search, not a latency estimate): N simulated
 //! boxes publish Sparkplug B through the same publisher as `retrocomp run` (crates/gateway/src/northbound/telemetry) to one
 //! Mosquitto on loopback, and one `retrocomp fleet` host (its MQTT client and view,
-//! `retrocomp_fleet::fleet_client::FleetClient`, QoS 1) counts every NDATA per edge node and its seq gaps.
+//! `retrocomp_fleet::FleetClient`, QoS 1) counts every NDATA per edge node and its seq gaps.
 //! A box is lightweight (crates/fleet/src/load.rs): a task that updates a status snapshot at twice the telemetry rate (so
 //! every sampler tick has a change to send) instead of a whole gateway.
 //! For each (boxes, rate) step: after the window every publisher *finishes* (sends its queue until
@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 mod fleet_processes;
 
 use fleet_processes::cpu_ticks;
-use retrocomp_fleet::fleet_client::FleetClient;
+use retrocomp_fleet::FleetClient;
 use retrocomp_fleet::load::feed;
 use retrocomp_gateway::northbound::telemetry::{self, MqttConfig, PublisherInputs};
 use tokio::sync::watch;

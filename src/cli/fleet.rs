@@ -18,10 +18,10 @@ use std::time::Duration;
 use anyhow::Context as _;
 use retrocomp_model::error::Chain;
 
+use retrocomp_fleet::FleetClient;
+use retrocomp_fleet::FleetView;
 use retrocomp_fleet::dispatch::{Dispatcher, Finished, Job};
 use retrocomp_fleet::drift::{self, DriftState, MachineDrift};
-use retrocomp_fleet::fleet::FleetView;
-use retrocomp_fleet::fleet_client::FleetClient;
 use retrocomp_gateway::northbound::telemetry::config::TlsConfig;
 use retrocomp_gateway::northbound::telemetry::publisher::now_ms;
 

@@ -12,7 +12,7 @@ use retrocomp_bus::modbus::read::read_registers;
 use retrocomp_bus::modbus::regmap::decode_raw;
 use retrocomp_bus::modbus::server::RegisterService;
 use retrocomp_bus::modbus::{DataType, WordOrder};
-use retrocomp_fleet::fleet::FleetView;
+use retrocomp_fleet::FleetView;
 use retrocomp_gateway::northbound::telemetry::recordings::{Collector, Took};
 use retrocomp_gateway::northbound::telemetry::sparkplug::{self, EdgeNode, Payload};
 use retrocomp_gateway::sinks::guard::AxisLimits;

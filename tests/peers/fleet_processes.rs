@@ -13,7 +13,7 @@ use std::process::{Child, ChildStdout, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use retrocomp_fleet::latency::LatencySummary;
+use retrocomp_fleet::LatencySummary;
 use retrocomp_fleet::load::{BoxesReport, HostTotals};
 
 /// How long the host may take to subscribe, and to see every record after the boxes finished:

@@ -264,7 +264,7 @@ fn a_shipment_cut_short_by_a_dead_broker_resumes_from_its_disk_queue() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn finish_sends_every_record_before_ndeath() {
     let _turn = crate::turn::take(file!());
-    use retrocomp_fleet::fleet_client::FleetClient;
+    use retrocomp_fleet::FleetClient;
     use retrocomp_gateway::northbound::telemetry::{self, MqttConfig, PublisherInputs};
     use std::sync::Arc;
     let dir = tempfile::tempdir().unwrap();

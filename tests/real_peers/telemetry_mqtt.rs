@@ -430,9 +430,9 @@ drop_policy = "drop_oldest"
 }
 
 async fn fleet_until(
-    f: &mut retrocomp_fleet::fleet_client::FleetClient,
+    f: &mut retrocomp_fleet::FleetClient,
     what: &str,
-    pred: impl Fn(&retrocomp_fleet::fleet_client::FleetClient) -> bool,
+    pred: impl Fn(&retrocomp_fleet::FleetClient) -> bool,
 ) {
     let deadline = Instant::now() + PATIENCE;
     while !pred(f) {
@@ -447,8 +447,8 @@ async fn fleet_until(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn fleet_shows_boxes_compensating_degraded_and_offline_by_death_and_will() {
     let _turn = crate::turn::take(file!());
-    use retrocomp_fleet::fleet::Verdict;
-    use retrocomp_fleet::fleet_client::FleetClient;
+    use retrocomp_fleet::FleetClient;
+    use retrocomp_fleet::Verdict;
     let dir = tempfile::tempdir().unwrap();
     let port = free_port();
     let _broker = Broker::start(dir.path(), port);

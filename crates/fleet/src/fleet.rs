@@ -22,7 +22,7 @@ use std::collections::{BTreeMap, VecDeque};
 use prost::Message;
 
 use crate::latency::LatencyHistogram;
-pub use crate::node::{Node, Verdict};
+use crate::node::Node;
 use retrocomp_gateway::northbound::telemetry::sparkplug::{
     self, BD_SEQ, DataType, Kind, Metric, Payload, REBIRTH, Value,
 };
@@ -210,6 +210,7 @@ impl FleetView {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::Verdict;
     use retrocomp_gateway::northbound::telemetry::sparkplug::EdgeNode;
 
     fn vals(mode: &str, faults: u32) -> Vec<(String, Value)> {

@@ -12,7 +12,7 @@ use serde::Serialize;
 
 /// The largest latency with its own bucket, ms; longer ones count in the overflow bucket (their
 /// quantile reads as `MAX_MS + 1`, "more than").
-pub const MAX_MS: u64 = 60_000;
+pub(crate) const MAX_MS: u64 = 60_000;
 
 /// Buckets 0 …= `MAX_MS` ms and the overflow bucket.
 const BUCKETS: usize = 60_002;

@@ -1,8 +1,10 @@
-//! retrocomp's plant side: [`fleet`] is a Sparkplug B host for many boxes (alive/compensating/
-//! degraded per box from its messages, rebirth requests for nodes it has no birth for),
-//! [`fleet_client`] its MQTT shell, [`drift`] the scheduled diagnosis of each machine's recordings
-//! against its own model, [`dispatch`] that diagnosis shared out to many [`worker`] processes, [`latency`] the end-to-end latency of the data a host receives, [`load`]
-//! simulated boxes and a host's totals for the fleet load benches. The box's side of the protocol (the edge node, the payload codec) is
+//! retrocomp's plant side: [`FleetView`] is a Sparkplug B host for many boxes (alive/compensating/
+//! degraded per [`Node`] from its messages, rebirth requests for nodes it has no birth for),
+//! [`FleetClient`] its MQTT shell, [`drift`] the scheduled diagnosis of each machine's recordings
+//! against its own model, [`dispatch`] that diagnosis shared out to many [`worker`] processes,
+//! [`LatencyHistogram`] the end-to-end latency of the data a host receives, [`load`] simulated
+//! boxes and a host's totals for the fleet load benches. The box's side of the protocol (the edge
+//! node, the payload codec) is
 //! `retrocomp_gateway::northbound::telemetry`. Units as in the status snapshot: µm for corrections
 //! (correction = −error), mm for positions; timestamps ms since the Unix epoch.
 //!
@@ -22,11 +24,19 @@
     )
 )]
 
+// Namespaces of functions and protocol constants (`drift::judge`, `worker::run`,
+// `dispatch::JOBS`) stay public modules; the host's types are re-exported here from private ones.
 pub mod dispatch;
 pub mod drift;
-pub mod fleet;
-pub mod fleet_client;
-pub mod latency;
 pub mod load;
-pub mod node;
 pub mod worker;
+
+mod fleet;
+mod fleet_client;
+mod latency;
+mod node;
+
+pub use fleet::{DEFAULT_REBIRTH_INTERVAL_MS, FleetView, rebirth_request};
+pub use fleet_client::{FleetClient, FleetClientError};
+pub use latency::{LatencyHistogram, LatencySummary};
+pub use node::{Node, Verdict};

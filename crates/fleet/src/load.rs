@@ -12,8 +12,8 @@ use std::time::Duration;
 use serde::{Deserialize, Serialize};
 use tokio::sync::watch;
 
-use crate::fleet::{FleetView, Node};
 use crate::latency::LatencySummary;
+use crate::{FleetView, Node};
 use retrocomp_gateway::Mode;
 use retrocomp_gateway::northbound::telemetry::{self, MqttConfig, PublisherInputs, TelemetryError};
 use retrocomp_gateway::status::{AxisStatus, StatusSnapshot};

@@ -1,6 +1,6 @@
 //! One edge node as a Sparkplug host sees it: session (bdSeq, births, alive), the latest metric
 //! values by name, the seq accounting (gaps, duplicates, reordered and lost records) and the
-//! verdict ([`Verdict`]). [`crate::fleet::FleetView`] routes each message to its node.
+//! verdict ([`Verdict`]). [`crate::FleetView`] routes each message to its node.
 //!
 //! Units as the published metrics (µm, mm); times ms since the Unix epoch; seq is Sparkplug's
 //! 0–255 counter.

@@ -16,7 +16,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use retrocomp_fleet::fleet_client::FleetClient;
+use retrocomp_fleet::FleetClient;
 use retrocomp_fleet::load::{self, HostTotals};
 use retrocomp_gateway::northbound::telemetry::MqttConfig;
 use retrocomp_gateway::northbound::telemetry::config::TlsConfig;

@@ -4,9 +4,9 @@
 //! [`metrics`] (a gateway status snapshot as named metrics, report by exception), [`declare`] (the
 //! metric set of the NBIRTH, with units and ranges, from the field config and model), [`queue`]
 //! (bounded store-and-forward queue, on disk), [`config`] (`[telemetry.mqtt]`), [`publisher`] (the
-//! rumqttc shell fed from the gateway's status watch; it can never block the cycle), `retrocomp_fleet::fleet` (the
+//! rumqttc shell fed from the gateway's status watch; it can never block the cycle), `retrocomp_fleet::FleetView` (the
 //! host side: per box alive/compensating/degraded from its messages, for `retrocomp fleet`;
-//! `retrocomp_fleet::fleet_client` is its MQTT shell), [`rebirth`] (the rate limit of rebirths, both sides),
+//! `retrocomp_fleet::FleetClient` is its MQTT shell), [`rebirth`] (the rate limit of rebirths, both sides),
 //! [`recordings`] + [`shipper`] (a box's recording CSV to the fleet, chunked through the same queue;
 //! collected per machine), `retrocomp_fleet::drift` (scheduled diagnose per machine against its own model). Units as in
 //! the status: µm for corrections (correction = −error), mm for positions; timestamps ms since

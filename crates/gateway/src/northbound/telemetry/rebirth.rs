@@ -3,7 +3,7 @@
 //! - the box ([`super::publisher`]) answers NCMD rebirth requests with at most one NBIRTH per
 //!   `telemetry.mqtt.rebirth_min_interval_s`: a request inside the interval is remembered and
 //!   answered once the interval has passed, so a storm of requests costs one NBIRTH per interval;
-//! - the fleet host (`retrocomp_fleet::fleet`) asks each node for a rebirth at most once per interval while
+//! - the fleet host (`retrocomp_fleet::FleetView`) asks each node for a rebirth at most once per interval while
 //!   it has no birth for it (every NDATA of an unknown node would otherwise be one NCMD).
 //!
 //! Any NBIRTH (asked for or not) answers what is pending and starts a new interval.
