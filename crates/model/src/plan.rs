@@ -29,6 +29,9 @@ use super::thermal::LagPlan;
 use super::{ErrorBreakdown, EvalFlags, ModelInput, ModelState};
 
 mod build;
+mod chain;
+
+use chain::{Chain3, layout};
 
 /// Where a term's value goes: its breakdown index, chain element and slot (0..3 δ x/y/z in µm,
 /// 3..6 ε a/b/c in µrad).
@@ -127,6 +130,8 @@ struct LoadTerm {
 #[derive(Clone, Debug)]
 pub(crate) struct Plan {
     elems: Vec<Elem>,
+    /// The chain compiled per layout when it has three elements (`None`: the general code).
+    chain3: Option<Chain3>,
     travel_mm: Vec<Option<(f64, f64)>>,
     tools_mm: Vec<[f64; 3]>,
     tool_axis: (usize, f64),
@@ -168,6 +173,7 @@ impl Plan {
 
         Plan {
             elems: c.elems.clone(),
+            chain3: Chain3::new(&c.elems),
             travel_mm: spec.axes.iter().map(|a| a.travel_mm).collect(),
             tools_mm: spec.tools.iter().map(|t| t.offset_mm).collect(),
             tool_axis: (spec.tool_axis.0.index(), spec.tool_axis.1),
@@ -278,11 +284,14 @@ impl Plan {
             };
         }
 
-        let mut arm = [[0.0; 3]; 3];
-        match <&[Elem; 3]>::try_from(&self.elems[..]) {
-            Ok(e3) => arms(e3, &q, t, &mut arm),
-            Err(_) => arms(&self.elems, &q, t, &mut arm),
-        }
+        let arm = match &self.chain3 {
+            Some(c) => layout!(c, arms(&q, t)),
+            None => {
+                let mut arm = [[0.0; 3]; 3];
+                arms(&self.elems, &q, t, &mut arm);
+                arm
+            }
+        };
         // arm_um[j]: element j's arm · 1e-3, the tip shift (µm) per µrad of rotation about each
         // axis is e_i × arm_um. basis[6 j + slot]: the tip shift (µm) per unit value in `slot`.
         let arm_um = arm.map(|a| [a[0] * 1e-3, a[1] * 1e-3, a[2] * 1e-3]);
@@ -466,9 +475,9 @@ impl Plan {
                 [acc[9], acc[10], acc[11]],
                 [acc[15], acc[16], acc[17]],
             ];
-            let e = match <&[Elem; 3]>::try_from(&self.elems[..]) {
-                Ok(e3) => exact_error(e3, &q, t, &delta, &eps),
-                Err(_) => exact_error(&self.elems, &q, t, &delta, &eps),
+            let e = match &self.chain3 {
+                Some(c) => layout!(c, exact_error(&q, t, &delta, &eps)),
+                None => exact_error(&self.elems, &q, t, &delta, &eps),
             };
             terms[n_terms - 1] = [e[0] - first[0], e[1] - first[1], e[2] - first[2]];
             out.total_um = e;
@@ -484,9 +493,8 @@ impl Plan {
     }
 }
 
-/// Exact minus nominal tool tip, µm. Inlined twice by `run`: for a chain of three elements (the
-/// length then known to the compiler: the loops unrolled, no bounds checks) and for any other.
-#[inline(always)]
+/// Exact minus nominal tool tip, µm, for a chain of other than three elements (`Chain3` otherwise).
+#[inline]
 fn exact_error(
     elems: &[Elem],
     q: &[f64; 3],

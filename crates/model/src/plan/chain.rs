@@ -1,0 +1,127 @@
+//! The kinematic chain of three elements compiled per layout: which elements sit on the workpiece
+//! side is a const parameter, chosen once per evaluation by [`layout!`], so the chain runs without a
+//! branch per element. Positions mm, errors δ µm and ε µrad, the result µm (actual − nominal).
+//!
+//! The arithmetic is `kinematics::{arms, nominal_tip, exact_tip}`'s, operation for operation and in
+//! the same order (the side sign folded into the stored offsets: ±1 · o is exact), so the results
+//! are the same bits; only the branches on `Elem::workpiece_side` are gone.
+
+use crate::kinematics::{Elem, add, rotation_rows, sin_cos_9};
+
+/// A chain of exactly three elements, its constants in the layout the kernels read.
+#[derive(Clone, Debug)]
+pub(super) struct Chain3 {
+    /// Bit j set: element j is on the workpiece side.
+    pub layout: u8,
+    /// Nominal unit direction per element.
+    u: [[f64; 3]; 3],
+    /// Direction after the squareness tilts per element.
+    u_tilted: [[f64; 3]; 3],
+    /// ±offset (− on the workpiece side), mm.
+    offset_mm: [[f64; 3]; 3],
+}
+
+impl Chain3 {
+    pub(super) fn new(elems: &[Elem]) -> Option<Chain3> {
+        let e: &[Elem; 3] = elems.try_into().ok()?;
+        let side = |e: &Elem| if e.workpiece_side { -1.0 } else { 1.0 };
+        Some(Chain3 {
+            layout: e
+                .iter()
+                .enumerate()
+                .map(|(j, e)| u8::from(e.workpiece_side) << j)
+                .sum(),
+            u: e.each_ref().map(|e| e.u),
+            u_tilted: e.each_ref().map(|e| e.u_tilted),
+            offset_mm: e.each_ref().map(|e| e.offset_mm.map(|o| side(e) * o)),
+        })
+    }
+
+    /// `Elem::nominal`.
+    #[inline(always)]
+    fn nominal(&self, j: usize, q_mm: f64) -> [f64; 3] {
+        let (u, o) = (self.u[j], self.offset_mm[j]);
+        [q_mm * u[0] + o[0], q_mm * u[1] + o[1], q_mm * u[2] + o[2]]
+    }
+
+    /// `Elem::actual_translation`.
+    #[inline(always)]
+    fn actual(&self, j: usize, q_mm: f64) -> [f64; 3] {
+        let (u, o) = (self.u_tilted[j], self.offset_mm[j]);
+        [q_mm * u[0] + o[0], q_mm * u[1] + o[1], q_mm * u[2] + o[2]]
+    }
+
+    /// `kinematics::arms` for layout (W0, W1, W2).
+    #[inline(always)]
+    pub(super) fn arms<const W0: bool, const W1: bool, const W2: bool>(
+        &self,
+        q: &[f64; 3],
+        tool_mm: [f64; 3],
+    ) -> [[f64; 3]; 3] {
+        let mut out = [[0.0; 3]; 3];
+        let mut acc = tool_mm;
+        for (j, wp) in [(2, W2), (1, W1), (0, W0)] {
+            let n = self.nominal(j, q[j]);
+            if wp {
+                acc = add(acc, n);
+                out[j] = acc;
+            } else {
+                out[j] = acc;
+                acc = add(acc, n);
+            }
+        }
+        out
+    }
+
+    /// Exact minus nominal tool tip, µm (`kinematics::exact_tip` − `nominal_tip`, × 1e3).
+    #[inline(always)]
+    pub(super) fn exact_error<const W0: bool, const W1: bool, const W2: bool>(
+        &self,
+        q: &[f64; 3],
+        tool_mm: [f64; 3],
+        delta_um: &[[f64; 3]; 3],
+        eps_urad: &[[f64; 3]; 3],
+    ) -> [f64; 3] {
+        let theta: [f64; 9] = std::array::from_fn(|k| eps_urad[k / 3][k % 3] * 1e-6);
+        let (sin, cos) = sin_cos_9(theta);
+        let mut p = tool_mm;
+        for (j, wp) in [(2, W2), (1, W1), (0, W0)] {
+            let d = delta_um[j];
+            let pick = |v: &[f64; 9]| [v[3 * j], v[3 * j + 1], v[3 * j + 2]];
+            let rot = rotation_rows(pick(&sin), pick(&cos));
+            let tr = self.actual(j, q[j]);
+            let v = if wp { add(p, tr) } else { p };
+            let w = [
+                rot[0][0] * v[0] + rot[0][1] * v[1] + rot[0][2] * v[2] + d[0] * 1e-3,
+                rot[1][0] * v[0] + rot[1][1] * v[1] + rot[1][2] * v[2] + d[1] * 1e-3,
+                rot[2][0] * v[0] + rot[2][1] * v[1] + rot[2][2] * v[2] + d[2] * 1e-3,
+            ];
+            p = if wp { w } else { add(w, tr) };
+        }
+        let r0 = (0..3).fold(tool_mm, |acc, j| add(acc, self.nominal(j, q[j])));
+        [
+            (p[0] - r0[0]) * 1e3,
+            (p[1] - r0[1]) * 1e3,
+            (p[2] - r0[2]) * 1e3,
+        ]
+    }
+}
+
+/// `$chain.$kernel::<W0, W1, W2>($args)` for the chain's layout: one jump to the kernel compiled
+/// for it.
+macro_rules! layout {
+    ($chain:expr, $kernel:ident($($arg:expr),*)) => {{
+        let c = $chain;
+        match c.layout {
+            0 => c.$kernel::<false, false, false>($($arg),*),
+            1 => c.$kernel::<true, false, false>($($arg),*),
+            2 => c.$kernel::<false, true, false>($($arg),*),
+            3 => c.$kernel::<true, true, false>($($arg),*),
+            4 => c.$kernel::<false, false, true>($($arg),*),
+            5 => c.$kernel::<true, false, true>($($arg),*),
+            6 => c.$kernel::<false, true, true>($($arg),*),
+            _ => c.$kernel::<true, true, true>($($arg),*),
+        }
+    }};
+}
+pub(super) use layout;
