@@ -1,18 +1,24 @@
 //! The kinematic chain of three elements compiled per layout: which elements sit on the workpiece
-//! side is a const parameter, chosen once per evaluation by [`layout!`], so the chain runs without a
-//! branch per element. Positions mm, errors δ µm and ε µrad, the result µm (actual − nominal).
+//! side, and whether the chain is plain (three distinct axes along their unit vectors, no carriage
+//! offsets), are const parameters chosen once per evaluation by [`layout!`], so the chain runs
+//! without a branch per element. Positions mm, errors δ µm and ε µrad, the result µm (actual −
+//! nominal).
 //!
-//! The arithmetic is `kinematics::{arms, nominal_tip, exact_tip}`'s, operation for operation and in
-//! the same order (the side sign folded into the stored offsets: ±1 · o is exact), so the results
-//! are the same bits; only the branches on `Elem::workpiece_side` are gone.
+//! The arithmetic is `kinematics::{arms, nominal_tip, exact_tip}`'s in the same order (the side
+//! sign folded into the stored offsets: ±1 · o is exact). A plain chain leaves out the terms that
+//! are structurally zero: q · 0 and + 0 offsets in the nominal translations, + 0 offsets in the
+//! actual ones. Adding or multiplying by zero can only change the sign of a zero, so every non-zero
+//! result has the same bits as the general code's.
 
 use crate::kinematics::{Elem, add, rotation_rows, sin_cos_9};
 
 /// A chain of exactly three elements, its constants in the layout the kernels read.
 #[derive(Clone, Debug)]
 pub(super) struct Chain3 {
-    /// Bit j set: element j is on the workpiece side.
+    /// Bit j set: element j is on the workpiece side; bit 3 set: the chain is plain.
     pub layout: u8,
+    /// Machine axis index (0..3) of each element.
+    axis: [usize; 3],
     /// Nominal unit direction per element.
     u: [[f64; 3]; 3],
     /// Direction after the squareness tilts per element.
@@ -25,12 +31,23 @@ impl Chain3 {
     pub(super) fn new(elems: &[Elem]) -> Option<Chain3> {
         let e: &[Elem; 3] = elems.try_into().ok()?;
         let side = |e: &Elem| if e.workpiece_side { -1.0 } else { 1.0 };
+        let axis = e.each_ref().map(|e| e.axis.index());
+        let plain = axis[0] != axis[1]
+            && axis[1] != axis[2]
+            && axis[0] != axis[2]
+            && e.iter().all(|e| {
+                let mut unit = [0.0; 3];
+                unit[e.axis.index()] = 1.0;
+                e.u == unit && e.offset_mm == [0.0; 3]
+            });
         Some(Chain3 {
             layout: e
                 .iter()
                 .enumerate()
                 .map(|(j, e)| u8::from(e.workpiece_side) << j)
-                .sum(),
+                .sum::<u8>()
+                | u8::from(plain) << 3,
+            axis,
             u: e.each_ref().map(|e| e.u),
             u_tilted: e.each_ref().map(|e| e.u_tilted),
             offset_mm: e.each_ref().map(|e| e.offset_mm.map(|o| side(e) * o)),
@@ -51,9 +68,20 @@ impl Chain3 {
         [q_mm * u[0] + o[0], q_mm * u[1] + o[1], q_mm * u[2] + o[2]]
     }
 
-    /// `kinematics::arms` for layout (W0, W1, W2).
+    /// `p` plus element j's nominal translation at `q_mm`.
     #[inline(always)]
-    pub(super) fn arms<const W0: bool, const W1: bool, const W2: bool>(
+    fn add_nominal<const PLAIN: bool>(&self, mut p: [f64; 3], j: usize, q_mm: f64) -> [f64; 3] {
+        if PLAIN {
+            p[self.axis[j]] += q_mm;
+            p
+        } else {
+            add(p, self.nominal(j, q_mm))
+        }
+    }
+
+    /// `kinematics::arms` for layout (W0, W1, W2, PLAIN).
+    #[inline(always)]
+    pub(super) fn arms<const W0: bool, const W1: bool, const W2: bool, const PLAIN: bool>(
         &self,
         q: &[f64; 3],
         tool_mm: [f64; 3],
@@ -61,13 +89,12 @@ impl Chain3 {
         let mut out = [[0.0; 3]; 3];
         let mut acc = tool_mm;
         for (j, wp) in [(2, W2), (1, W1), (0, W0)] {
-            let n = self.nominal(j, q[j]);
             if wp {
-                acc = add(acc, n);
+                acc = self.add_nominal::<PLAIN>(acc, j, q[j]);
                 out[j] = acc;
             } else {
                 out[j] = acc;
-                acc = add(acc, n);
+                acc = self.add_nominal::<PLAIN>(acc, j, q[j]);
             }
         }
         out
@@ -75,7 +102,7 @@ impl Chain3 {
 
     /// Exact minus nominal tool tip, µm (`kinematics::exact_tip` − `nominal_tip`, × 1e3).
     #[inline(always)]
-    pub(super) fn exact_error<const W0: bool, const W1: bool, const W2: bool>(
+    pub(super) fn exact_error<const W0: bool, const W1: bool, const W2: bool, const PLAIN: bool>(
         &self,
         q: &[f64; 3],
         tool_mm: [f64; 3],
@@ -89,7 +116,12 @@ impl Chain3 {
             let d = delta_um[j];
             let pick = |v: &[f64; 9]| [v[3 * j], v[3 * j + 1], v[3 * j + 2]];
             let rot = rotation_rows(pick(&sin), pick(&cos));
-            let tr = self.actual(j, q[j]);
+            let tr = if PLAIN {
+                let u = self.u_tilted[j];
+                [q[j] * u[0], q[j] * u[1], q[j] * u[2]]
+            } else {
+                self.actual(j, q[j])
+            };
             let v = if wp { add(p, tr) } else { p };
             let w = [
                 rot[0][0] * v[0] + rot[0][1] * v[1] + rot[0][2] * v[2] + d[0] * 1e-3,
@@ -98,7 +130,7 @@ impl Chain3 {
             ];
             p = if wp { w } else { add(w, tr) };
         }
-        let r0 = (0..3).fold(tool_mm, |acc, j| add(acc, self.nominal(j, q[j])));
+        let r0 = (0..3).fold(tool_mm, |acc, j| self.add_nominal::<PLAIN>(acc, j, q[j]));
         [
             (p[0] - r0[0]) * 1e3,
             (p[1] - r0[1]) * 1e3,
@@ -107,20 +139,28 @@ impl Chain3 {
     }
 }
 
-/// `$chain.$kernel::<W0, W1, W2>($args)` for the chain's layout: one jump to the kernel compiled
-/// for it.
+/// `$chain.$kernel::<W0, W1, W2, PLAIN>($args)` for the chain's layout: one jump to the kernel
+/// compiled for it.
 macro_rules! layout {
     ($chain:expr, $kernel:ident($($arg:expr),*)) => {{
         let c = $chain;
         match c.layout {
-            0 => c.$kernel::<false, false, false>($($arg),*),
-            1 => c.$kernel::<true, false, false>($($arg),*),
-            2 => c.$kernel::<false, true, false>($($arg),*),
-            3 => c.$kernel::<true, true, false>($($arg),*),
-            4 => c.$kernel::<false, false, true>($($arg),*),
-            5 => c.$kernel::<true, false, true>($($arg),*),
-            6 => c.$kernel::<false, true, true>($($arg),*),
-            _ => c.$kernel::<true, true, true>($($arg),*),
+            0 => c.$kernel::<false, false, false, false>($($arg),*),
+            1 => c.$kernel::<true, false, false, false>($($arg),*),
+            2 => c.$kernel::<false, true, false, false>($($arg),*),
+            3 => c.$kernel::<true, true, false, false>($($arg),*),
+            4 => c.$kernel::<false, false, true, false>($($arg),*),
+            5 => c.$kernel::<true, false, true, false>($($arg),*),
+            6 => c.$kernel::<false, true, true, false>($($arg),*),
+            7 => c.$kernel::<true, true, true, false>($($arg),*),
+            8 => c.$kernel::<false, false, false, true>($($arg),*),
+            9 => c.$kernel::<true, false, false, true>($($arg),*),
+            10 => c.$kernel::<false, true, false, true>($($arg),*),
+            11 => c.$kernel::<true, true, false, true>($($arg),*),
+            12 => c.$kernel::<false, false, true, true>($($arg),*),
+            13 => c.$kernel::<true, false, true, true>($($arg),*),
+            14 => c.$kernel::<false, true, true, true>($($arg),*),
+            _ => c.$kernel::<true, true, true, true>($($arg),*),
         }
     }};
 }
