@@ -32,6 +32,10 @@ impl Chain3 {
         let e: &[Elem; 3] = elems.try_into().ok()?;
         let side = |e: &Elem| if e.workpiece_side { -1.0 } else { 1.0 };
         let axis = e.each_ref().map(|e| e.axis.index());
+        #[allow(
+            clippy::float_cmp,
+            reason = "what a plain chain leaves out must be exactly q · 0 and + 0"
+        )]
         let plain = axis[0] != axis[1]
             && axis[1] != axis[2]
             && axis[0] != axis[2]
@@ -165,3 +169,58 @@ macro_rules! layout {
     }};
 }
 pub(super) use layout;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kinematics::{arms, exact_tip, nominal_tip};
+    use crate::names::Axis;
+
+    fn elem(axis: Axis, workpiece_side: bool, offset_mm: [f64; 3], tilt: [f64; 3]) -> Elem {
+        let mut u = [0.0; 3];
+        u[axis.index()] = 1.0;
+        Elem {
+            axis,
+            workpiece_side,
+            offset_mm,
+            u,
+            u_tilted: add(u, tilt),
+        }
+    }
+
+    /// Every layout, plain or with offsets, gives `kinematics`' arms and exact − nominal tip: equal
+    /// as numbers (a plain chain may differ in the sign of a zero only).
+    #[test]
+    fn every_layout_gives_the_general_chain() {
+        let q = [412.5, -140.0, 37.0];
+        let t = [0.0, 0.0, -150.0];
+        let d = [[3.0, -8.0, 1.5], [-2.0, 4.0, 9.0], [0.5, -6.0, 2.0]];
+        let r = [[12.0, -7.0, 3.0], [-4.0, 15.0, -9.0], [6.0, 2.0, -11.0]];
+        for with_offsets in [false, true] {
+            for wp in 0..8u8 {
+                let o = |k: f64| {
+                    if with_offsets {
+                        [k, -2.0 * k, 0.5]
+                    } else {
+                        [0.0; 3]
+                    }
+                };
+                let side = |j: u8| wp & (1 << j) != 0;
+                let elems = [
+                    elem(Axis::Y, side(0), o(5.0), [0.0; 3]),
+                    elem(Axis::X, side(1), o(-3.0), [2e-5, 0.0, 0.0]),
+                    elem(Axis::Z, side(2), o(7.0), [1e-5, -2e-5, 0.0]),
+                ];
+                let c = Chain3::new(&elems).expect("three elements");
+                assert_eq!(c.layout, wp | (u8::from(!with_offsets) << 3));
+                let mut want = [[0.0; 3]; 3];
+                arms(&elems, &q, t, &mut want);
+                assert_eq!(layout!(&c, arms(&q, t)), want, "layout {wp}");
+                let (r1, r0) = (exact_tip(&elems, &q, t, &d, &r), nominal_tip(&elems, &q, t));
+                let want: [f64; 3] = std::array::from_fn(|k| (r1[k] - r0[k]) * 1e3);
+                let got = layout!(&c, exact_error(&q, t, &d, &r));
+                assert_eq!(got, want, "layout {wp}");
+            }
+        }
+    }
+}
