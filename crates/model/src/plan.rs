@@ -285,7 +285,7 @@ impl Plan {
         }
 
         let arm = match &self.chain3 {
-            Some(c) => layout!(c, arms(&q, t)),
+            Some(c) => layout!(c, arms(&q, &input.pos_mm, t)),
             None => {
                 let mut arm = [[0.0; 3]; 3];
                 arms(&self.elems, &q, t, &mut arm);
@@ -476,7 +476,7 @@ impl Plan {
                 [acc[15], acc[16], acc[17]],
             ];
             let e = match &self.chain3 {
-                Some(c) => layout!(c, exact_error(&q, t, &delta, &eps)),
+                Some(c) => layout!(c, exact_error(&q, &input.pos_mm, t, &delta, &eps)),
                 None => exact_error(&self.elems, &q, t, &delta, &eps),
             };
             terms[n_terms - 1] = [e[0] - first[0], e[1] - first[1], e[2] - first[2]];

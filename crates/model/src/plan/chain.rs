@@ -6,9 +6,10 @@
 //!
 //! The arithmetic is `kinematics::{arms, nominal_tip, exact_tip}`'s in the same order (the side
 //! sign folded into the stored offsets: ±1 · o is exact). A plain chain leaves out the terms that
-//! are structurally zero: q · 0 and + 0 offsets in the nominal translations, + 0 offsets in the
-//! actual ones. Adding or multiplying by zero can only change the sign of a zero, so every non-zero
-//! result has the same bits as the general code's.
+//! are structurally zero: q · 0 and + 0 offsets in the nominal translations (an arm is then the
+//! tool plus the positions its element carries, a nominal tip the tool plus all positions), + 0
+//! offsets in the actual ones. Adding or multiplying by zero can only change the sign of a zero,
+//! so every non-zero result has the same bits as the general code's.
 
 use crate::kinematics::{Elem, add, rotation_rows, sin_cos_9};
 
@@ -17,14 +18,15 @@ use crate::kinematics::{Elem, add, rotation_rows, sin_cos_9};
 pub(super) struct Chain3 {
     /// Bit j set: element j is on the workpiece side; bit 3 set: the chain is plain.
     pub layout: u8,
-    /// Machine axis index (0..3) of each element.
-    axis: [usize; 3],
     /// Nominal unit direction per element.
     u: [[f64; 3]; 3],
     /// Direction after the squareness tilts per element.
     u_tilted: [[f64; 3]; 3],
     /// ±offset (− on the workpiece side), mm.
     offset_mm: [[f64; 3]; 3],
+    /// Plain chain: per element, 1 for each machine axis whose travel its arm includes (the later
+    /// elements, and its own on the workpiece side), else 0: arm = tool + mask · position.
+    arm_mask: [[f64; 3]; 3],
 }
 
 impl Chain3 {
@@ -44,6 +46,15 @@ impl Chain3 {
                 unit[e.axis.index()] = 1.0;
                 e.u == unit && e.offset_mm == [0.0; 3]
             });
+        let arm_mask = std::array::from_fn(|j| {
+            let mut m = [0.0; 3];
+            for (k, ek) in e.iter().enumerate() {
+                if k > j || (k == j && ek.workpiece_side) {
+                    m[ek.axis.index()] = 1.0;
+                }
+            }
+            m
+        });
         Some(Chain3 {
             layout: e
                 .iter()
@@ -51,10 +62,10 @@ impl Chain3 {
                 .map(|(j, e)| u8::from(e.workpiece_side) << j)
                 .sum::<u8>()
                 | u8::from(plain) << 3,
-            axis,
             u: e.each_ref().map(|e| e.u),
             u_tilted: e.each_ref().map(|e| e.u_tilted),
             offset_mm: e.each_ref().map(|e| e.offset_mm.map(|o| side(e) * o)),
+            arm_mask,
         })
     }
 
@@ -72,33 +83,30 @@ impl Chain3 {
         [q_mm * u[0] + o[0], q_mm * u[1] + o[1], q_mm * u[2] + o[2]]
     }
 
-    /// `p` plus element j's nominal translation at `q_mm`.
-    #[inline(always)]
-    fn add_nominal<const PLAIN: bool>(&self, mut p: [f64; 3], j: usize, q_mm: f64) -> [f64; 3] {
-        if PLAIN {
-            p[self.axis[j]] += q_mm;
-            p
-        } else {
-            add(p, self.nominal(j, q_mm))
-        }
-    }
-
-    /// `kinematics::arms` for layout (W0, W1, W2, PLAIN).
+    /// `kinematics::arms` for layout (W0, W1, W2, PLAIN); `pos_mm` by machine axis (a plain chain
+    /// has all three, so q is `pos_mm` reordered).
     #[inline(always)]
     pub(super) fn arms<const W0: bool, const W1: bool, const W2: bool, const PLAIN: bool>(
         &self,
         q: &[f64; 3],
+        pos_mm: &[f64; 3],
         tool_mm: [f64; 3],
     ) -> [[f64; 3]; 3] {
+        if PLAIN {
+            let (t, p) = (tool_mm, pos_mm);
+            return self
+                .arm_mask
+                .map(|m| [t[0] + p[0] * m[0], t[1] + p[1] * m[1], t[2] + p[2] * m[2]]);
+        }
         let mut out = [[0.0; 3]; 3];
         let mut acc = tool_mm;
         for (j, wp) in [(2, W2), (1, W1), (0, W0)] {
             if wp {
-                acc = self.add_nominal::<PLAIN>(acc, j, q[j]);
+                acc = add(acc, self.nominal(j, q[j]));
                 out[j] = acc;
             } else {
                 out[j] = acc;
-                acc = self.add_nominal::<PLAIN>(acc, j, q[j]);
+                acc = add(acc, self.nominal(j, q[j]));
             }
         }
         out
@@ -109,6 +117,7 @@ impl Chain3 {
     pub(super) fn exact_error<const W0: bool, const W1: bool, const W2: bool, const PLAIN: bool>(
         &self,
         q: &[f64; 3],
+        pos_mm: &[f64; 3],
         tool_mm: [f64; 3],
         delta_um: &[[f64; 3]; 3],
         eps_urad: &[[f64; 3]; 3],
@@ -134,7 +143,11 @@ impl Chain3 {
             ];
             p = if wp { w } else { add(w, tr) };
         }
-        let r0 = (0..3).fold(tool_mm, |acc, j| self.add_nominal::<PLAIN>(acc, j, q[j]));
+        let r0 = if PLAIN {
+            add(tool_mm, *pos_mm)
+        } else {
+            (0..3).fold(tool_mm, |acc, j| add(acc, self.nominal(j, q[j])))
+        };
         [
             (p[0] - r0[0]) * 1e3,
             (p[1] - r0[1]) * 1e3,
@@ -215,10 +228,12 @@ mod tests {
                 assert_eq!(c.layout, wp | (u8::from(!with_offsets) << 3));
                 let mut want = [[0.0; 3]; 3];
                 arms(&elems, &q, t, &mut want);
-                assert_eq!(layout!(&c, arms(&q, t)), want, "layout {wp}");
+                // q by element for the chain Y X Z, by machine axis.
+                let pos = [q[1], q[0], q[2]];
+                assert_eq!(layout!(&c, arms(&q, &pos, t)), want, "layout {wp}");
                 let (r1, r0) = (exact_tip(&elems, &q, t, &d, &r), nominal_tip(&elems, &q, t));
                 let want: [f64; 3] = std::array::from_fn(|k| (r1[k] - r0[k]) * 1e3);
-                let got = layout!(&c, exact_error(&q, t, &d, &r));
+                let got = layout!(&c, exact_error(&q, &pos, t, &d, &r));
                 assert_eq!(got, want, "layout {wp}");
             }
         }
