@@ -15,7 +15,9 @@
 //! * A term's first-order effect is its value times a basis row of its element (translation: unit
 //!   vector; rotation ε about e_i: 1e-3 µm/(µrad·mm) · e_i × arm), built once per evaluation.
 //! * Thermal terms keep only their non-zero coefficients, as flat (sensor, coefficient) lists; the
-//!   lag step multiplies by a stored 1/τ (`thermal::LagPlan`).
+//!   lag step multiplies by a stored 1/τ (`thermal::LagPlan`). When no motion would see its thermal
+//!   values added in another order, the terms run as one loop per formula (no per-term `match`).
+//! * A chain of three elements runs kernels compiled per layout (`plan/chain.rs`).
 //! * The breakdown is overwritten in place: every term is written on every valid evaluation, so
 //!   nothing is zeroed first and `terms_um` is only resized when its length is wrong.
 
@@ -25,7 +27,7 @@ use super::kinematics::{Elem, arms, cross, exact_tip, nominal_tip};
 use super::lookup::{Curve, Nodes, dir_slot};
 use super::reference::{Compiled, ForceSource};
 use super::spec::ModelSpec;
-use super::thermal::LagPlan;
+use super::thermal::{LagPlan, ThermalState};
 use super::{ErrorBreakdown, EvalFlags, ModelInput, ModelState};
 
 mod build;
@@ -115,6 +117,21 @@ struct ThermalTerm {
     op: ThermalOp,
 }
 
+/// The thermal terms split by formula, each kind run as its own loop without a per-term `match`.
+/// Built only when that order adds every motion's thermal values in the terms' order
+/// ([`build::thermal_by_kind`]), so every sum, and its bits, stays the same.
+#[derive(Clone, Debug, Default)]
+struct ThermalByKind {
+    /// (target, e0, linear, quadratic): e0 + Σ b ΔT + Σ c ΔT ΔT.
+    polynomial: Vec<(Target, f64, Range<usize>, Range<usize>)>,
+    /// (target, s0, linear, quadratic): q_target · 1e-3 · (s0 + Σ s ΔT + Σ d ΔT ΔT).
+    slope: Vec<(Target, f64, Range<usize>, Range<usize>)>,
+    /// (target, sensor, α ppm/K, origin mm, reference °C).
+    expansion: Vec<(Target, usize, f64, f64, f64)>,
+    /// The rest (stations), through [`Plan::thermal_value`].
+    other: Vec<ThermalTerm>,
+}
+
 #[derive(Clone, Debug)]
 struct LoadTerm {
     target: Target,
@@ -141,6 +158,8 @@ pub(crate) struct Plan {
     /// (term, element, first-order tip shift per mm of the element's travel, µm/mm).
     squareness: Vec<(usize, usize, [f64; 3])>,
     thermal: Vec<ThermalTerm>,
+    /// `thermal` by kind when that keeps the order of every sum (`None`: one loop over `thermal`).
+    thermal_by_kind: Option<ThermalByKind>,
     /// Non-zero linear coefficients: (sensor, coefficient).
     linear: Vec<(usize, f64)>,
     /// Non-zero quadratic coefficients: (sensor i, sensor j, coefficient).
@@ -181,6 +200,7 @@ impl Plan {
             groups,
             singles,
             squareness,
+            thermal_by_kind: build::thermal_by_kind(&thermal),
             thermal,
             linear,
             quadratic,
@@ -200,6 +220,73 @@ impl Plan {
         self.quadratic[r.clone()]
             .iter()
             .fold(0.0, |acc, &(i, j, c)| acc + c * dt[i] * dt[j])
+    }
+
+    /// A thermal term's value (µm or µrad) at element positions `q`; sets `clamped` for a
+    /// position outside the stations.
+    #[inline(always)]
+    fn thermal_value(
+        &self,
+        th: &ThermalTerm,
+        q: &[f64; 3],
+        ts: &ThermalState,
+        clamped: &mut [bool; 3],
+    ) -> f64 {
+        let dt = &ts.delta_c[..];
+        let qt = q[th.target.elem];
+        match &th.op {
+            ThermalOp::Polynomial {
+                e0,
+                linear,
+                quadratic,
+            } => e0 + self.linear(linear, dt) + self.quadratic(quadratic, dt),
+            ThermalOp::Slope {
+                s0,
+                linear,
+                quadratic,
+            } => {
+                // Coefficients are per metre of travel: q_mm · 1e-3 m/mm.
+                qt * 1e-3 * (s0 + self.linear(linear, dt) + self.quadratic(quadratic, dt))
+            }
+            ThermalOp::Expansion {
+                sensor,
+                alpha_ppm_per_k,
+                origin_mm,
+                reference_c,
+            } => {
+                let abs_c = ts.lagged_c(*sensor).unwrap_or(*reference_c);
+                // ppm/K · mm · K = 1e-6 mm = 1e-3 µm.
+                alpha_ppm_per_k * (qt - origin_mm) * (abs_c - reference_c) * 1e-3
+            }
+            ThermalOp::Stations {
+                along,
+                stations_mm,
+                inv_gap,
+                e0,
+                linear,
+            } => {
+                let x = along.map_or(0.0, |a| q[a]);
+                let at = |k: usize| e0[k] + self.linear(&linear[k], dt);
+                let n = stations_mm.len();
+                if x.is_nan() || x < stations_mm[0] || x > stations_mm[n - 1] {
+                    if let Some(a) = along {
+                        clamped[*a] = true;
+                    }
+                    if x > stations_mm[n - 1] {
+                        at(n - 1)
+                    } else {
+                        at(0)
+                    }
+                } else {
+                    let mut k = 0;
+                    while k + 2 < n && stations_mm[k + 1] <= x {
+                        k += 1;
+                    }
+                    let w = (x - stations_mm[k]) * inv_gap[k];
+                    (1.0 - w) * at(k) + w * at(k + 1)
+                }
+            }
+        }
     }
 
     /// One evaluation (exact HTM chain or first order); steps the lag states to `input.t_s`.
@@ -375,62 +462,36 @@ impl Plan {
         }
         let ts = &state.thermal;
         let dt = &ts.delta_c[..];
-        for th in &self.thermal {
-            let qt = q[th.target.elem];
-            let v = match &th.op {
-                ThermalOp::Polynomial {
-                    e0,
-                    linear,
-                    quadratic,
-                } => e0 + self.linear(linear, dt) + self.quadratic(quadratic, dt),
-                ThermalOp::Slope {
-                    s0,
-                    linear,
-                    quadratic,
-                } => {
+        match &self.thermal_by_kind {
+            Some(k) => {
+                for (tg, e0, lin, quad) in &k.polynomial {
+                    let v = e0 + self.linear(lin, dt) + self.quadratic(quad, dt);
+                    apply(&mut acc, &basis, terms, *tg, v);
+                }
+                for (tg, s0, lin, quad) in &k.slope {
                     // Coefficients are per metre of travel: q_mm · 1e-3 m/mm.
-                    qt * 1e-3 * (s0 + self.linear(linear, dt) + self.quadratic(quadratic, dt))
+                    let qt = q[tg.elem];
+                    let v = qt * 1e-3 * (s0 + self.linear(lin, dt) + self.quadratic(quad, dt));
+                    apply(&mut acc, &basis, terms, *tg, v);
                 }
-                ThermalOp::Expansion {
-                    sensor,
-                    alpha_ppm_per_k,
-                    origin_mm,
-                    reference_c,
-                } => {
-                    let abs_c = ts.lagged_c(*sensor).unwrap_or(*reference_c);
+                for &(tg, sensor, alpha_ppm_per_k, origin_mm, reference_c) in &k.expansion {
+                    let abs_c = ts.lagged_c(sensor).unwrap_or(reference_c);
                     // ppm/K · mm · K = 1e-6 mm = 1e-3 µm.
-                    alpha_ppm_per_k * (qt - origin_mm) * (abs_c - reference_c) * 1e-3
+                    let v =
+                        alpha_ppm_per_k * (q[tg.elem] - origin_mm) * (abs_c - reference_c) * 1e-3;
+                    apply(&mut acc, &basis, terms, tg, v);
                 }
-                ThermalOp::Stations {
-                    along,
-                    stations_mm,
-                    inv_gap,
-                    e0,
-                    linear,
-                } => {
-                    let x = along.map_or(0.0, |a| q[a]);
-                    let at = |k: usize| e0[k] + self.linear(&linear[k], dt);
-                    let n = stations_mm.len();
-                    if x.is_nan() || x < stations_mm[0] || x > stations_mm[n - 1] {
-                        if let Some(a) = along {
-                            clamped[*a] = true;
-                        }
-                        if x > stations_mm[n - 1] {
-                            at(n - 1)
-                        } else {
-                            at(0)
-                        }
-                    } else {
-                        let mut k = 0;
-                        while k + 2 < n && stations_mm[k + 1] <= x {
-                            k += 1;
-                        }
-                        let w = (x - stations_mm[k]) * inv_gap[k];
-                        (1.0 - w) * at(k) + w * at(k + 1)
-                    }
+                for th in &k.other {
+                    let v = self.thermal_value(th, &q, ts, &mut clamped);
+                    apply(&mut acc, &basis, terms, th.target, v);
                 }
-            };
-            apply(&mut acc, &basis, terms, th.target, v);
+            }
+            None => {
+                for th in &self.thermal {
+                    let v = self.thermal_value(th, &q, ts, &mut clamped);
+                    apply(&mut acc, &basis, terms, th.target, v);
+                }
+            }
         }
         for l in &self.load {
             let e = l.target.elem;

@@ -3,7 +3,7 @@
 
 use std::ops::Range;
 
-use super::{Group, LoadTerm, Single, Target, ThermalOp, ThermalTerm};
+use super::{Group, LoadTerm, Single, Target, ThermalByKind, ThermalOp, ThermalTerm};
 use crate::function::{ErrorFunction, Interpolation, Table};
 use crate::lookup::{Curve, Nodes, by_dir};
 use crate::reference::Compiled;
@@ -217,4 +217,50 @@ pub(super) fn load_terms(spec: &ModelSpec, c: &Compiled, first_term: usize) -> V
             }
         })
         .collect()
+}
+
+/// The thermal terms by kind (polynomial, slope, expansion, the rest), or `None` when running the
+/// kinds one after the other would add two terms of one motion in another order than the terms'.
+pub(super) fn thermal_by_kind(thermal: &[ThermalTerm]) -> Option<ThermalByKind> {
+    let rank = |op: &ThermalOp| match op {
+        ThermalOp::Polynomial { .. } => 0,
+        ThermalOp::Slope { .. } => 1,
+        ThermalOp::Expansion { .. } => 2,
+        ThermalOp::Stations { .. } => 3,
+    };
+    for (i, a) in thermal.iter().enumerate() {
+        for b in &thermal[i + 1..] {
+            if a.target.at == b.target.at && rank(&a.op) > rank(&b.op) {
+                return None;
+            }
+        }
+    }
+    let mut k = ThermalByKind::default();
+    for th in thermal {
+        let tg = th.target;
+        match &th.op {
+            ThermalOp::Polynomial {
+                e0,
+                linear,
+                quadratic,
+            } => k
+                .polynomial
+                .push((tg, *e0, linear.clone(), quadratic.clone())),
+            ThermalOp::Slope {
+                s0,
+                linear,
+                quadratic,
+            } => k.slope.push((tg, *s0, linear.clone(), quadratic.clone())),
+            ThermalOp::Expansion {
+                sensor,
+                alpha_ppm_per_k,
+                origin_mm,
+                reference_c,
+            } => k
+                .expansion
+                .push((tg, *sensor, *alpha_ppm_per_k, *origin_mm, *reference_c)),
+            ThermalOp::Stations { .. } => k.other.push(th.clone()),
+        }
+    }
+    Some(k)
 }
