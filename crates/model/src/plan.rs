@@ -70,6 +70,18 @@ struct Group {
     full_from_term: Option<usize>,
 }
 
+/// A group that is a full block (`Group::full_from_term`) with its rows as arrays of six, run before
+/// the other groups (built so only when no group before it in the list has its element).
+#[derive(Clone, Debug)]
+struct Block6 {
+    elem: usize,
+    nodes: Nodes,
+    /// Per direction slot ([`dir_slot`]): per node, δx δy δz εa εb εc.
+    rows: [Vec<[f64; 6]>; 3],
+    /// The breakdown index of δx (the other five follow).
+    first_term: usize,
+}
+
 /// A component the groups do not cover (C¹ table, polynomial, piecewise quadratic).
 #[derive(Clone, Debug)]
 struct Single {
@@ -153,6 +165,7 @@ pub(crate) struct Plan {
     tools_mm: Vec<[f64; 3]>,
     tool_axis: (usize, f64),
     n_terms: usize,
+    blocks: Vec<Block6>,
     groups: Vec<Group>,
     singles: Vec<Single>,
     /// (term, element, first-order tip shift per mm of the element's travel, µm/mm).
@@ -174,6 +187,7 @@ impl Plan {
         let n_comp = spec.components.len();
         let (mut groups, singles) = build::group_components(spec, c);
         build::fill_group_rows(&mut groups, spec);
+        let (blocks, groups) = build::split_blocks(groups);
 
         let n_sq = spec.squareness.len();
         let squareness = c
@@ -197,6 +211,7 @@ impl Plan {
             tools_mm: spec.tools.iter().map(|t| t.offset_mm).collect(),
             tool_axis: (spec.tool_axis.0.index(), spec.tool_axis.1),
             n_terms: c.term_names.len(),
+            blocks,
             groups,
             singles,
             squareness,
@@ -411,8 +426,40 @@ impl Plan {
         }
         let mut clamped = [false; 3];
 
-        for g in &self.groups {
+        // A full block's values into its element's motions and, through its basis rows written
+        // out (v · 1 as v, v · 0 as 0, v · (−a)), into its six terms.
+        #[inline(always)]
+        fn write_block(acc: &mut [f64], block: &mut [[f64; 3]], v: [f64; 6], arm_um: [f64; 3]) {
+            for (acc, v) in acc.iter_mut().zip(&v) {
+                *acc += v;
+            }
+            let [ax, ay, az] = arm_um;
+            block.copy_from_slice(&[
+                [v[0], 0.0, 0.0],
+                [0.0, v[1], 0.0],
+                [0.0, 0.0, v[2]],
+                [0.0, v[3] * -az, v[3] * ay],
+                [v[4] * az, 0.0, v[4] * -ax],
+                [v[5] * -ay, v[5] * ax, 0.0],
+            ]);
+        }
+        for b in &self.blocks {
             // Clamped: both nodes the end node and f = 0, so a + 0 · (b − a) = a exactly.
+            let e = b.elem;
+            let (lo, hi, f, cl) = b.nodes.locate(q[e]);
+            clamped[e] |= cl;
+            let rows = &b.rows[dir_slot(dir[e])];
+            let (r0, r1) = (rows[lo], rows[hi]);
+            let v: [f64; 6] = std::array::from_fn(|s| r0[s] + f * (r1[s] - r0[s]));
+            let t0 = b.first_term;
+            write_block(
+                &mut acc[6 * e..6 * e + 6],
+                &mut terms[t0..t0 + 6],
+                v,
+                arm_um[e],
+            );
+        }
+        for g in &self.groups {
             let (lo, hi, f, cl) = g.nodes.locate(q[g.elem]);
             clamped[g.elem] |= cl;
             let rows = &g.rows[dir_slot(dir[g.elem])];
@@ -425,19 +472,7 @@ impl Plan {
             {
                 let v: [f64; 6] = std::array::from_fn(|s| a[s] + f * (b[s] - a[s]));
                 let e = g.elem;
-                for (acc, v) in acc[6 * e..6 * e + 6].iter_mut().zip(&v) {
-                    *acc += v;
-                }
-                // `apply` with the basis rows written out (the same products: v · 1, v · 0, v · (−a)).
-                let [ax, ay, az] = arm_um[e];
-                block.copy_from_slice(&[
-                    [v[0], 0.0, 0.0],
-                    [0.0, v[1], 0.0],
-                    [0.0, 0.0, v[2]],
-                    [0.0, v[3] * -az, v[3] * ay],
-                    [v[4] * az, 0.0, v[4] * -ax],
-                    [v[5] * -ay, v[5] * ax, 0.0],
-                ]);
+                write_block(&mut acc[6 * e..6 * e + 6], block, v, arm_um[e]);
                 continue;
             }
             for (&tg, (&a, &b)) in g.members.iter().zip(a.iter().zip(b)) {

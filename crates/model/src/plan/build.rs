@@ -3,7 +3,7 @@
 
 use std::ops::Range;
 
-use super::{Group, LoadTerm, Single, Target, ThermalByKind, ThermalOp, ThermalTerm};
+use super::{Block6, Group, LoadTerm, Single, Target, ThermalByKind, ThermalOp, ThermalTerm};
 use crate::function::{ErrorFunction, Interpolation, Table};
 use crate::lookup::{Curve, Nodes, by_dir};
 use crate::reference::Compiled;
@@ -263,4 +263,27 @@ pub(super) fn thermal_by_kind(thermal: &[ThermalTerm]) -> Option<ThermalByKind> 
         }
     }
     Some(k)
+}
+
+/// The full groups that can run first as [`Block6`]s (no group before one has its element, so every
+/// motion's sums keep their order), and the groups left.
+pub(super) fn split_blocks(groups: Vec<Group>) -> (Vec<Block6>, Vec<Group>) {
+    let (mut blocks, mut rest) = (Vec::new(), Vec::new());
+    for (i, g) in groups.iter().enumerate() {
+        let first_of_elem = groups[..i].iter().all(|h| h.elem != g.elem);
+        match g.full_from_term {
+            Some(first_term) if first_of_elem => blocks.push(Block6 {
+                elem: g.elem,
+                nodes: g.nodes.clone(),
+                rows: g.rows.each_ref().map(|r| {
+                    r.chunks_exact(6)
+                        .map(|c| c.try_into().expect("six members"))
+                        .collect()
+                }),
+                first_term,
+            }),
+            _ => rest.push(g.clone()),
+        }
+    }
+    (blocks, rest)
 }
