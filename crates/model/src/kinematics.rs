@@ -54,7 +54,7 @@ pub fn sin_cos(theta: f64) -> (f64, f64) {
 /// test chooses the short series for all nine, which then run as straight array arithmetic; the
 /// values are the same as nine calls would give.
 #[inline(always)]
-fn sin_cos_9(theta: [f64; 9]) -> ([f64; 9], [f64; 9]) {
+pub(crate) fn sin_cos_9(theta: [f64; 9]) -> ([f64; 9], [f64; 9]) {
     if theta.iter().fold(true, |ok, t| ok & (t.abs() <= 1e-4)) {
         let s = theta.map(|t| t - t * (t * t) * (1.0 / 6.0));
         let c = theta.map(|t| {
@@ -71,7 +71,7 @@ fn sin_cos_9(theta: [f64; 9]) -> ([f64; 9], [f64; 9]) {
 /// Rx(a) · Ry(b) · Rz(c) as rows of plain arrays (the evaluator's form of [`rotation_xyz`]) from
 /// the sines and cosines of a, b, c.
 #[inline(always)]
-fn rotation_rows([sa, sb, sc]: [f64; 3], [ca, cb, cc]: [f64; 3]) -> [[f64; 3]; 3] {
+pub(crate) fn rotation_rows([sa, sb, sc]: [f64; 3], [ca, cb, cc]: [f64; 3]) -> [[f64; 3]; 3] {
     let (sa_sb, ca_sb) = (sa * sb, ca * sb);
     [
         [cb * cc, -cb * sc, sb],

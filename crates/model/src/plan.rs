@@ -15,11 +15,11 @@
 //! * A term's first-order effect is its value times a basis row of its element (translation: unit
 //!   vector; rotation ε about e_i: 1e-3 µm/(µrad·mm) · e_i × arm), built once per evaluation.
 //! * Thermal terms keep only their non-zero coefficients, as flat (sensor, coefficient) lists; the
-//!   lag step multiplies by a stored 1/τ (`thermal::LagPlan`).
+//!   lag step multiplies by a stored 1/τ (`thermal::LagPlan`). When no motion would see its thermal
+//!   values added in another order, the terms run as one loop per formula (no per-term `match`).
+//! * A chain of three elements runs kernels compiled per layout (`plan/chain.rs`).
 //! * The breakdown is overwritten in place: every term is written on every valid evaluation, so
 //!   nothing is zeroed first and `terms_um` is only resized when its length is wrong.
-
-use std::ops::Range;
 
 use super::kinematics::{Elem, arms, cross, exact_tip, nominal_tip};
 use super::lookup::{Curve, Nodes, dir_slot};
@@ -29,6 +29,11 @@ use super::thermal::LagPlan;
 use super::{ErrorBreakdown, EvalFlags, ModelInput, ModelState};
 
 mod build;
+mod chain;
+mod thermal_ops;
+
+use chain::{Chain3, layout};
+use thermal_ops::{ThermalByKind, ThermalOp, ThermalTerm};
 
 /// Where a term's value goes: its breakdown index, chain element and slot (0..3 δ x/y/z in µm,
 /// 3..6 ε a/b/c in µrad).
@@ -65,51 +70,23 @@ struct Group {
     full_from_term: Option<usize>,
 }
 
+/// A group that is a full block (`Group::full_from_term`) with its rows as arrays of six, run before
+/// the other groups (built so only when no group before it in the list has its element).
+#[derive(Clone, Debug)]
+struct Block6 {
+    elem: usize,
+    nodes: Nodes,
+    /// Per direction slot ([`dir_slot`]): per node, δx δy δz εa εb εc.
+    rows: [Vec<[f64; 6]>; 3],
+    /// The breakdown index of δx (the other five follow).
+    first_term: usize,
+}
+
 /// A component the groups do not cover (C¹ table, polynomial, piecewise quadratic).
 #[derive(Clone, Debug)]
 struct Single {
     target: Target,
     curve: Curve,
-}
-
-/// A thermal term's formula with sensor lists resolved to flat coefficient ranges (`Plan::linear`,
-/// `Plan::quadratic`).
-#[derive(Clone, Debug)]
-enum ThermalOp {
-    /// e0 + Σ b ΔT + Σ c ΔT ΔT.
-    Polynomial {
-        e0: f64,
-        linear: Range<usize>,
-        quadratic: Range<usize>,
-    },
-    /// q_target · 1e-3 · (s0 + Σ s ΔT + Σ d ΔT ΔT).
-    Slope {
-        s0: f64,
-        linear: Range<usize>,
-        quadratic: Range<usize>,
-    },
-    /// α · (q_target − origin) · (T_lagged − reference) · 1e-3.
-    Expansion {
-        sensor: usize,
-        alpha_ppm_per_k: f64,
-        origin_mm: f64,
-        reference_c: f64,
-    },
-    /// Stations along `along` (a chain element; absent axis = position 0), linear between them.
-    Stations {
-        along: Option<usize>,
-        stations_mm: Vec<f64>,
-        /// 1 / (s_{k+1} − s_k).
-        inv_gap: Vec<f64>,
-        e0: Vec<f64>,
-        linear: Vec<Range<usize>>,
-    },
-}
-
-#[derive(Clone, Debug)]
-struct ThermalTerm {
-    target: Target,
-    op: ThermalOp,
 }
 
 #[derive(Clone, Debug)]
@@ -127,15 +104,20 @@ struct LoadTerm {
 #[derive(Clone, Debug)]
 pub(crate) struct Plan {
     elems: Vec<Elem>,
+    /// The chain compiled per layout when it has three elements (`None`: the general code).
+    chain3: Option<Chain3>,
     travel_mm: Vec<Option<(f64, f64)>>,
     tools_mm: Vec<[f64; 3]>,
     tool_axis: (usize, f64),
     n_terms: usize,
+    blocks: Vec<Block6>,
     groups: Vec<Group>,
     singles: Vec<Single>,
     /// (term, element, first-order tip shift per mm of the element's travel, µm/mm).
     squareness: Vec<(usize, usize, [f64; 3])>,
     thermal: Vec<ThermalTerm>,
+    /// `thermal` by kind when that keeps the order of every sum (`None`: one loop over `thermal`).
+    thermal_by_kind: Option<ThermalByKind>,
     /// Non-zero linear coefficients: (sensor, coefficient).
     linear: Vec<(usize, f64)>,
     /// Non-zero quadratic coefficients: (sensor i, sensor j, coefficient).
@@ -150,6 +132,7 @@ impl Plan {
         let n_comp = spec.components.len();
         let (mut groups, singles) = build::group_components(spec, c);
         build::fill_group_rows(&mut groups, spec);
+        let (blocks, groups) = build::split_blocks(groups);
 
         let n_sq = spec.squareness.len();
         let squareness = c
@@ -168,13 +151,16 @@ impl Plan {
 
         Plan {
             elems: c.elems.clone(),
+            chain3: Chain3::new(&c.elems),
             travel_mm: spec.axes.iter().map(|a| a.travel_mm).collect(),
             tools_mm: spec.tools.iter().map(|t| t.offset_mm).collect(),
             tool_axis: (spec.tool_axis.0.index(), spec.tool_axis.1),
             n_terms: c.term_names.len(),
+            blocks,
             groups,
             singles,
             squareness,
+            thermal_by_kind: build::thermal_by_kind(&thermal),
             thermal,
             linear,
             quadratic,
@@ -182,18 +168,6 @@ impl Plan {
             force_source: c.force_source.clone(),
             load,
         }
-    }
-
-    #[inline]
-    fn linear(&self, r: &Range<usize>, dt: &[f64]) -> f64 {
-        self.linear[r.clone()].iter().map(|&(i, b)| b * dt[i]).sum()
-    }
-
-    #[inline]
-    fn quadratic(&self, r: &Range<usize>, dt: &[f64]) -> f64 {
-        self.quadratic[r.clone()]
-            .iter()
-            .fold(0.0, |acc, &(i, j, c)| acc + c * dt[i] * dt[j])
     }
 
     /// One evaluation (exact HTM chain or first order); steps the lag states to `input.t_s`.
@@ -278,11 +252,14 @@ impl Plan {
             };
         }
 
-        let mut arm = [[0.0; 3]; 3];
-        match <&[Elem; 3]>::try_from(&self.elems[..]) {
-            Ok(e3) => arms(e3, &q, t, &mut arm),
-            Err(_) => arms(&self.elems, &q, t, &mut arm),
-        }
+        let arm = match &self.chain3 {
+            Some(c) => layout!(c, arms(&q, &input.pos_mm, t)),
+            None => {
+                let mut arm = [[0.0; 3]; 3];
+                arms(&self.elems, &q, t, &mut arm);
+                arm
+            }
+        };
         // arm_um[j]: element j's arm · 1e-3, the tip shift (µm) per µrad of rotation about each
         // axis is e_i × arm_um. basis[6 j + slot]: the tip shift (µm) per unit value in `slot`.
         let arm_um = arm.map(|a| [a[0] * 1e-3, a[1] * 1e-3, a[2] * 1e-3]);
@@ -300,23 +277,42 @@ impl Plan {
         // acc[6 j + slot]: element j's δ x/y/z (µm), then ε a/b/c (µrad).
         let mut acc = [0.0; 18];
         let terms = &mut out.terms_um[..];
-        // A term's value: into its element's motions and, times its basis row, into its term.
-        #[inline(always)]
-        fn apply(
-            acc: &mut [f64; 18],
-            basis: &[[f64; 3]; 18],
-            terms: &mut [[f64; 3]],
-            tg: Target,
-            v: f64,
-        ) {
-            acc[tg.at] += v;
-            let b = basis[tg.at];
-            terms[tg.term] = [v * b[0], v * b[1], v * b[2]];
-        }
         let mut clamped = [false; 3];
 
-        for g in &self.groups {
+        // A full block's values into its element's motions and, through its basis rows written
+        // out (v · 1 as v, v · 0 as 0, v · (−a)), into its six terms.
+        #[inline(always)]
+        fn write_block(acc: &mut [f64], block: &mut [[f64; 3]], v: [f64; 6], arm_um: [f64; 3]) {
+            for (acc, v) in acc.iter_mut().zip(&v) {
+                *acc += v;
+            }
+            let [ax, ay, az] = arm_um;
+            block.copy_from_slice(&[
+                [v[0], 0.0, 0.0],
+                [0.0, v[1], 0.0],
+                [0.0, 0.0, v[2]],
+                [0.0, v[3] * -az, v[3] * ay],
+                [v[4] * az, 0.0, v[4] * -ax],
+                [v[5] * -ay, v[5] * ax, 0.0],
+            ]);
+        }
+        for b in &self.blocks {
             // Clamped: both nodes the end node and f = 0, so a + 0 · (b − a) = a exactly.
+            let e = b.elem;
+            let (lo, hi, f, cl) = b.nodes.locate(q[e]);
+            clamped[e] |= cl;
+            let rows = &b.rows[dir_slot(dir[e])];
+            let (r0, r1) = (rows[lo], rows[hi]);
+            let v: [f64; 6] = std::array::from_fn(|s| r0[s] + f * (r1[s] - r0[s]));
+            let t0 = b.first_term;
+            write_block(
+                &mut acc[6 * e..6 * e + 6],
+                &mut terms[t0..t0 + 6],
+                v,
+                arm_um[e],
+            );
+        }
+        for g in &self.groups {
             let (lo, hi, f, cl) = g.nodes.locate(q[g.elem]);
             clamped[g.elem] |= cl;
             let rows = &g.rows[dir_slot(dir[g.elem])];
@@ -329,19 +325,7 @@ impl Plan {
             {
                 let v: [f64; 6] = std::array::from_fn(|s| a[s] + f * (b[s] - a[s]));
                 let e = g.elem;
-                for (acc, v) in acc[6 * e..6 * e + 6].iter_mut().zip(&v) {
-                    *acc += v;
-                }
-                // `apply` with the basis rows written out (the same products: v · 1, v · 0, v · (−a)).
-                let [ax, ay, az] = arm_um[e];
-                block.copy_from_slice(&[
-                    [v[0], 0.0, 0.0],
-                    [0.0, v[1], 0.0],
-                    [0.0, 0.0, v[2]],
-                    [0.0, v[3] * -az, v[3] * ay],
-                    [v[4] * az, 0.0, v[4] * -ax],
-                    [v[5] * -ay, v[5] * ax, 0.0],
-                ]);
+                write_block(&mut acc[6 * e..6 * e + 6], block, v, arm_um[e]);
                 continue;
             }
             for (&tg, (&a, &b)) in g.members.iter().zip(a.iter().zip(b)) {
@@ -364,65 +348,7 @@ impl Plan {
                 sq_total[2] + ct[2],
             ];
         }
-        let ts = &state.thermal;
-        let dt = &ts.delta_c[..];
-        for th in &self.thermal {
-            let qt = q[th.target.elem];
-            let v = match &th.op {
-                ThermalOp::Polynomial {
-                    e0,
-                    linear,
-                    quadratic,
-                } => e0 + self.linear(linear, dt) + self.quadratic(quadratic, dt),
-                ThermalOp::Slope {
-                    s0,
-                    linear,
-                    quadratic,
-                } => {
-                    // Coefficients are per metre of travel: q_mm · 1e-3 m/mm.
-                    qt * 1e-3 * (s0 + self.linear(linear, dt) + self.quadratic(quadratic, dt))
-                }
-                ThermalOp::Expansion {
-                    sensor,
-                    alpha_ppm_per_k,
-                    origin_mm,
-                    reference_c,
-                } => {
-                    let abs_c = ts.lagged_c(*sensor).unwrap_or(*reference_c);
-                    // ppm/K · mm · K = 1e-6 mm = 1e-3 µm.
-                    alpha_ppm_per_k * (qt - origin_mm) * (abs_c - reference_c) * 1e-3
-                }
-                ThermalOp::Stations {
-                    along,
-                    stations_mm,
-                    inv_gap,
-                    e0,
-                    linear,
-                } => {
-                    let x = along.map_or(0.0, |a| q[a]);
-                    let at = |k: usize| e0[k] + self.linear(&linear[k], dt);
-                    let n = stations_mm.len();
-                    if x.is_nan() || x < stations_mm[0] || x > stations_mm[n - 1] {
-                        if let Some(a) = along {
-                            clamped[*a] = true;
-                        }
-                        if x > stations_mm[n - 1] {
-                            at(n - 1)
-                        } else {
-                            at(0)
-                        }
-                    } else {
-                        let mut k = 0;
-                        while k + 2 < n && stations_mm[k + 1] <= x {
-                            k += 1;
-                        }
-                        let w = (x - stations_mm[k]) * inv_gap[k];
-                        (1.0 - w) * at(k) + w * at(k + 1)
-                    }
-                }
-            };
-            apply(&mut acc, &basis, terms, th.target, v);
-        }
+        self.thermal_stage(&q, &state.thermal, &mut acc, &basis, terms, &mut clamped);
         for l in &self.load {
             let e = l.target.elem;
             let (v, cl) = l.curve.eval(q[e], dir[e]);
@@ -466,9 +392,9 @@ impl Plan {
                 [acc[9], acc[10], acc[11]],
                 [acc[15], acc[16], acc[17]],
             ];
-            let e = match <&[Elem; 3]>::try_from(&self.elems[..]) {
-                Ok(e3) => exact_error(e3, &q, t, &delta, &eps),
-                Err(_) => exact_error(&self.elems, &q, t, &delta, &eps),
+            let e = match &self.chain3 {
+                Some(c) => layout!(c, exact_error(&q, &input.pos_mm, t, &delta, &eps)),
+                None => exact_error(&self.elems, &q, t, &delta, &eps),
             };
             terms[n_terms - 1] = [e[0] - first[0], e[1] - first[1], e[2] - first[2]];
             out.total_um = e;
@@ -484,9 +410,16 @@ impl Plan {
     }
 }
 
-/// Exact minus nominal tool tip, µm. Inlined twice by `run`: for a chain of three elements (the
-/// length then known to the compiler: the loops unrolled, no bounds checks) and for any other.
+/// A term's value: into its element's motions and, times its basis row, into its term.
 #[inline(always)]
+fn apply(acc: &mut [f64; 18], basis: &[[f64; 3]; 18], terms: &mut [[f64; 3]], tg: Target, v: f64) {
+    acc[tg.at] += v;
+    let b = basis[tg.at];
+    terms[tg.term] = [v * b[0], v * b[1], v * b[2]];
+}
+
+/// Exact minus nominal tool tip, µm, for a chain of other than three elements (`Chain3` otherwise).
+#[inline]
 fn exact_error(
     elems: &[Elem],
     q: &[f64; 3],

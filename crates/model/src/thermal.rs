@@ -69,6 +69,18 @@ impl ThermalState {
             .then(|| self.lagged[i])
     }
 
+    /// [`lagged_c`](Self::lagged_c)`(i)`, or `default` without one; once every sensor has started
+    /// (the usual case) one flag answers instead of sensor i's own.
+    #[inline]
+    pub(crate) fn lagged_or(&self, i: usize, default: f64) -> f64 {
+        if self.all_started
+            && let Some(&l) = self.lagged.get(i)
+        {
+            return l;
+        }
+        self.lagged_c(i).unwrap_or(default)
+    }
+
     fn set_lagged(&mut self, i: usize, v: f64) {
         self.lagged[i] = v;
         if !self.started[i] {

@@ -3,7 +3,7 @@
 
 use std::ops::Range;
 
-use super::{Group, LoadTerm, Single, Target, ThermalOp, ThermalTerm};
+use super::{Block6, Group, LoadTerm, Single, Target, ThermalByKind, ThermalOp, ThermalTerm};
 use crate::function::{ErrorFunction, Interpolation, Table};
 use crate::lookup::{Curve, Nodes, by_dir};
 use crate::reference::Compiled;
@@ -217,4 +217,73 @@ pub(super) fn load_terms(spec: &ModelSpec, c: &Compiled, first_term: usize) -> V
             }
         })
         .collect()
+}
+
+/// The thermal terms by kind (polynomial, slope, expansion, the rest), or `None` when running the
+/// kinds one after the other would add two terms of one motion in another order than the terms'.
+pub(super) fn thermal_by_kind(thermal: &[ThermalTerm]) -> Option<ThermalByKind> {
+    let rank = |op: &ThermalOp| match op {
+        ThermalOp::Polynomial { .. } => 0,
+        ThermalOp::Slope { .. } => 1,
+        ThermalOp::Expansion { .. } => 2,
+        ThermalOp::Stations { .. } => 3,
+    };
+    for (i, a) in thermal.iter().enumerate() {
+        for b in &thermal[i + 1..] {
+            if a.target.at == b.target.at && rank(&a.op) > rank(&b.op) {
+                return None;
+            }
+        }
+    }
+    let mut k = ThermalByKind::default();
+    for th in thermal {
+        let tg = th.target;
+        match &th.op {
+            ThermalOp::Polynomial {
+                e0,
+                linear,
+                quadratic,
+            } => k
+                .polynomial
+                .push((tg, *e0, linear.clone(), quadratic.clone())),
+            ThermalOp::Slope {
+                s0,
+                linear,
+                quadratic,
+            } => k.slope.push((tg, *s0, linear.clone(), quadratic.clone())),
+            ThermalOp::Expansion {
+                sensor,
+                alpha_ppm_per_k,
+                origin_mm,
+                reference_c,
+            } => k
+                .expansion
+                .push((tg, *sensor, *alpha_ppm_per_k, *origin_mm, *reference_c)),
+            ThermalOp::Stations { .. } => k.other.push(th.clone()),
+        }
+    }
+    Some(k)
+}
+
+/// The full groups that can run first as [`Block6`]s (no group before one has its element, so every
+/// motion's sums keep their order), and the groups left.
+pub(super) fn split_blocks(groups: Vec<Group>) -> (Vec<Block6>, Vec<Group>) {
+    let (mut blocks, mut rest) = (Vec::new(), Vec::new());
+    for (i, g) in groups.iter().enumerate() {
+        let first_of_elem = groups[..i].iter().all(|h| h.elem != g.elem);
+        match g.full_from_term {
+            Some(first_term) if first_of_elem => blocks.push(Block6 {
+                elem: g.elem,
+                nodes: g.nodes.clone(),
+                rows: g.rows.each_ref().map(|r| {
+                    r.chunks_exact(6)
+                        .map(|c| c.try_into().expect("six members"))
+                        .collect()
+                }),
+                first_term,
+            }),
+            _ => rest.push(g.clone()),
+        }
+    }
+    (blocks, rest)
 }
