@@ -44,3 +44,18 @@ pub(crate) fn stop_with_sigterm(child: &mut Child) -> String {
     assert!(code.success(), "exit {code:?}: {err}");
     err
 }
+
+/// This process's descriptor limit (`RLIMIT_NOFILE`), as `prlimit --nofile=SOFT:HARD` would set
+/// it; the flood tests' children call it between fork and exec (setrlimit is async-signal-safe).
+pub(crate) fn set_nofile(soft: u64, hard: u64) -> std::io::Result<()> {
+    let lim = libc::rlimit {
+        rlim_cur: soft,
+        rlim_max: hard,
+    };
+    // SAFETY: setrlimit reads only the struct we pass.
+    if unsafe { libc::setrlimit(libc::RLIMIT_NOFILE, &lim) } == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
+}

@@ -16,22 +16,11 @@ use std::time::{Duration, Instant};
 use retrocomp_bus::listen::ListenPolicy;
 use retrocomp_gateway::northbound::http::Limits;
 
+use crate::process::set_nofile;
+
 const CHILD_ENV: &str = "RETROCOMP_HTTP_FLOOD_CHILD";
 const NOFILE: u64 = 160;
 const CLIENTS: usize = 1100;
-
-fn set_nofile(soft: u64, hard: u64) -> std::io::Result<()> {
-    let lim = libc::rlimit {
-        rlim_cur: soft,
-        rlim_max: hard,
-    };
-    // SAFETY: setrlimit reads only the struct we pass.
-    if unsafe { libc::setrlimit(libc::RLIMIT_NOFILE, &lim) } == 0 {
-        Ok(())
-    } else {
-        Err(std::io::Error::last_os_error())
-    }
-}
 
 /// Child: serve on loopback, print the address, then answer `probe ADDR` lines by opening a TCP
 /// connection to ADDR (what a controller link does on reconnect) until stdin closes.

@@ -22,25 +22,14 @@ use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpSocket, TcpStream};
 
+use crate::process::set_nofile;
+
 const CHILD_ENV: &str = "RETROCOMP_LISTENER_FLOOD_CHILD";
 const NOFILE: u64 = 1024;
 const CLIENTS: usize = 2000;
 const ROGUE: [u8; 4] = [127, 0, 0, 2];
 const MAX_GAP: Duration = Duration::from_millis(500);
 const RECOVERY: Duration = Duration::from_secs(1);
-
-fn set_nofile(soft: u64, hard: u64) -> std::io::Result<()> {
-    let lim = libc::rlimit {
-        rlim_cur: soft,
-        rlim_max: hard,
-    };
-    // SAFETY: setrlimit reads only the struct we pass.
-    if unsafe { libc::setrlimit(libc::RLIMIT_NOFILE, &lim) } == 0 {
-        Ok(())
-    } else {
-        Err(std::io::Error::last_os_error())
-    }
-}
 
 /// Child: the four servers on loopback with their default policies; prints their addresses and
 /// serves until stdin closes.
