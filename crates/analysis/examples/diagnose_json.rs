@@ -4,14 +4,15 @@
 //! `diagnose_owned`, then `serde_json::to_string_pretty`).
 //!
 //! ```text
-//! MALLOC_ARENA_MAX=1 /usr/bin/time -v \
-//!   cargo run --release -p retrocomp-analysis --example diagnose_json -- recording.csv > out.json
+//! MALLOC_ARENA_MAX=1 MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=268435456 \
+//!   /usr/bin/time -v target/release/examples/diagnose_json recording.csv > out.json
 //! ```
 //!
-//! `MALLOC_ARENA_MAX=1` stands for the CLI's `mallopt(M_ARENA_MAX, 1)` (the RSS it reports is the
-//! CLI's). `--no-run` drops the `run` column first (how tests/diagnose/asadullah.rs also runs the
-//! Asad Ullah tables); `--skip-bad-rows` reads leniently, as the CLI flag does (the skipped rows
-//! are not added to the JSON here).
+//! (built by `cargo build --release -p retrocomp-analysis --example diagnose_json`). The three
+//! glibc variables stand for the CLI's `mallopt` calls (src/cli/diagnose.rs), so the time and RSS
+//! are the CLI's. `--no-run` drops the `run` column first (how tests/diagnose/asadullah.rs also
+//! runs the Asad Ullah tables); `--skip-bad-rows` reads leniently, as the CLI flag does (the
+//! skipped rows are not added to the JSON here).
 
 use retrocomp_analysis::diagnose::{diagnose_owned, select::Options};
 use retrocomp_model::recording::Recording;
