@@ -69,7 +69,7 @@ pub(crate) fn skipped_rows_json(bad: &[BadRow]) -> serde_json::Value {
 }
 
 pub(crate) fn run_diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
-    one_malloc_arena();
+    tune_malloc();
     let progress = super::term::Progress::spinner("diagnose: reading the recording");
     let (rec, bad) = read_recording(&a.recording, a.skip_bad_rows)?;
     progress.stage("diagnose: finding what simulation and recording disagree on");
@@ -227,15 +227,24 @@ pub(crate) fn run_bench(a: &BenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// One glibc malloc arena for the whole process. The screening's rayon threads each allocate and
-/// free recording-length columns (8 MB at 10⁶ rows); with an arena per thread glibc keeps each
-/// thread's freed columns for that thread, which cost ≈ 90 MB of peak RSS on the 1M-row mill
-/// recording (618 → 525 MB, the same JSON, +1 s of system time: `docs/performance.md`).
-fn one_malloc_arena() {
+/// One glibc malloc arena for the whole process, and freed columns kept in it for the next one.
+/// The screening's rayon threads each allocate and free recording-length columns (8 MB at 10⁶
+/// rows); with an arena per thread glibc keeps each thread's freed columns for that thread, which
+/// cost ≈ 90 MB of peak RSS on the 1M-row mill recording (618 → 525 MB, the same JSON, +1 s of
+/// system time: `docs/performance.md`). glibc's defaults also serve a block that large by mmap,
+/// or give the heap's freed top back to the kernel, so nearly every fresh column was first-touch
+/// page faults: 3.9 million on that recording, ≈ 7.5 s of system time. With blocks up to 32 MB
+/// (the ceiling of glibc's own sliding mmap threshold) taken from the heap, and its top trimmed
+/// only beyond 256 MB free: 0.27 million faults, 0.7 s (part of the saving returns as user time:
+/// calloc zeroes a reused block itself), the same peak RSS (448 → 446 MB) and the same JSON (the
+/// allocator places buffers, it computes nothing).
+fn tune_malloc() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt only sets an allocator parameter; it is called before any thread of ours
     // exists and its result (0 on failure) only means the default stays.
     unsafe {
         libc::mallopt(libc::M_ARENA_MAX, 1);
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 256 << 20);
     }
 }
