@@ -59,3 +59,18 @@ pub(crate) fn set_nofile(soft: u64, hard: u64) -> std::io::Result<()> {
         Err(std::io::Error::last_os_error())
     }
 }
+
+/// A flood test's child process: INFO logs to stderr (what the parent counts) and the two-worker
+/// runtime its servers run on.
+pub(crate) fn child_runtime() -> tokio::runtime::Runtime {
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_max_level(tracing::Level::INFO)
+        .with_ansi(false)
+        .init();
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
+}

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use retrocomp_bus::listen::ListenPolicy;
 use retrocomp_gateway::northbound::http::Limits;
 
-use crate::process::set_nofile;
+use crate::process::{child_runtime, set_nofile};
 
 const CHILD_ENV: &str = "RETROCOMP_HTTP_FLOOD_CHILD";
 const NOFILE: u64 = 160;
@@ -26,16 +26,7 @@ const CLIENTS: usize = 1100;
 /// connection to ADDR (what a controller link does on reconnect) until stdin closes.
 fn child(mode: &str) {
     let limits = child_limits(mode);
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_max_level(tracing::Level::INFO)
-        .with_ansi(false)
-        .init();
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap();
+    let rt = child_runtime();
     let (_tx, rx) = tokio::sync::watch::channel(None);
     // The server runs on the runtime's workers; this thread answers stdin.
     let (addr, _task) = rt

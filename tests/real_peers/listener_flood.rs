@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpSocket, TcpStream};
 
-use crate::process::set_nofile;
+use crate::process::{child_runtime, set_nofile};
 
 const CHILD_ENV: &str = "RETROCOMP_LISTENER_FLOOD_CHILD";
 const NOFILE: u64 = 1024;
@@ -34,16 +34,7 @@ const RECOVERY: Duration = Duration::from_secs(1);
 /// Child: the four servers on loopback with their default policies; prints their addresses and
 /// serves until stdin closes.
 fn child() {
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_max_level(tracing::Level::INFO)
-        .with_ansi(false)
-        .init();
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap();
+    let rt = child_runtime();
     let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
     let (modbus, http, ua, hub, _status_tx) = rt.block_on(async {
         let bank = retrocomp_bus::modbus::server::RegisterBank::new();
