@@ -1,5 +1,5 @@
 //! Starting the gateway binary and stopping it the way systemd does, shared by the binary-level
-//! gateway tests.
+//! gateway tests; a child process's descriptor limit and runtime, for the flood tests.
 
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
