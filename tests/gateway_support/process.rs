@@ -1,6 +1,7 @@
 //! Starting the gateway binary and stopping it the way systemd does, shared by the binary-level
 //! gateway tests; a child process's descriptor limit and runtime, for the flood tests.
 
+use std::os::unix::process::CommandExt;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
@@ -73,4 +74,26 @@ pub(crate) fn child_runtime() -> tokio::runtime::Runtime {
         .enable_all()
         .build()
         .unwrap()
+}
+
+/// This test binary run again as a flood test's child: only `test` (`--exact`), with `envs`, its
+/// stdin and stdout piped, stderr into `log`, and its descriptor limit `nofile` (soft = hard, as
+/// `LimitNOFILE=` would set it) from before it starts.
+pub(crate) fn spawn_child(
+    test: &str,
+    envs: &[(&str, &str)],
+    nofile: u64,
+    log: std::fs::File,
+) -> Child {
+    let mut cmd = Command::new(std::env::current_exe().unwrap());
+    cmd.args(["--exact", test, "--nocapture"])
+        .envs(envs.iter().copied())
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(log);
+    // SAFETY: only setrlimit (async-signal-safe) between fork and exec.
+    unsafe {
+        cmd.pre_exec(move || set_nofile(nofile, nofile));
+    }
+    cmd.spawn().unwrap()
 }

@@ -9,14 +9,12 @@
 
 use std::io::{BufRead, BufReader, Write};
 use std::net::SocketAddr;
-use std::os::unix::process::CommandExt;
-use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use retrocomp_bus::listen::ListenPolicy;
 use retrocomp_gateway::northbound::http::Limits;
 
-use crate::process::{child_runtime, set_nofile};
+use crate::process::{child_runtime, set_nofile, spawn_child};
 
 const CHILD_ENV: &str = "RETROCOMP_HTTP_FLOOD_CHILD";
 const NOFILE: u64 = 160;
@@ -106,17 +104,7 @@ fn flood(test_name: &str, mode: &str) -> Outcome {
     let log_path =
         std::env::temp_dir().join(format!("http_flood_{mode}_{}.log", std::process::id()));
     let log = std::fs::File::create(&log_path).unwrap();
-    let mut cmd = Command::new(std::env::current_exe().unwrap());
-    cmd.args(["--exact", test_name, "--nocapture"])
-        .env(CHILD_ENV, mode)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(log);
-    // SAFETY: only setrlimit (async-signal-safe) between fork and exec.
-    unsafe {
-        cmd.pre_exec(|| set_nofile(NOFILE, NOFILE));
-    }
-    let mut child = cmd.spawn().unwrap();
+    let mut child = spawn_child(test_name, &[(CHILD_ENV, mode)], NOFILE, log);
     let mut stdin = child.stdin.take().unwrap();
     let mut out = BufReader::new(child.stdout.take().unwrap());
     let mut read_tagged = |tag: &str| -> String {

@@ -13,8 +13,6 @@
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::SocketAddr;
-use std::os::unix::process::CommandExt;
-use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -22,7 +20,7 @@ use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpSocket, TcpStream};
 
-use crate::process::{child_runtime, set_nofile};
+use crate::process::{child_runtime, set_nofile, spawn_child};
 
 const CHILD_ENV: &str = "RETROCOMP_LISTENER_FLOOD_CHILD";
 const NOFILE: u64 = 1024;
@@ -209,22 +207,12 @@ fn every_listener_survives_2000_idle_connections_under_nofile_1024() {
 
     let log_path = std::env::temp_dir().join(format!("listener_flood_{}.log", std::process::id()));
     let log = std::fs::File::create(&log_path).unwrap();
-    let mut cmd = Command::new(std::env::current_exe().unwrap());
-    cmd.args([
-        "--exact",
+    let mut child = spawn_child(
         "listener_flood::every_listener_survives_2000_idle_connections_under_nofile_1024",
-        "--nocapture",
-    ])
-    .env(CHILD_ENV, "1")
-    .env("RUST_LOG", "info")
-    .stdin(Stdio::piped())
-    .stdout(Stdio::piped())
-    .stderr(log);
-    // SAFETY: only setrlimit (async-signal-safe) between fork and exec.
-    unsafe {
-        cmd.pre_exec(|| set_nofile(NOFILE, NOFILE));
-    }
-    let mut child = cmd.spawn().unwrap();
+        &[(CHILD_ENV, "1"), ("RUST_LOG", "info")],
+        NOFILE,
+        log,
+    );
     let stdin = child.stdin.take().unwrap();
     let mut out = BufReader::new(child.stdout.take().unwrap());
     let mut line = String::new();
