@@ -235,7 +235,9 @@ fn a_rogue_held_write_is_never_served_and_sigterm_ramps_the_served_value_out() {
 /// the marker, then one FC06 per held register), the correction (2, −3, 4) µm = (20, −30, 40)
 /// counts, beside a box that has just started. After each partial report it reads the
 /// corrections (`partial exc` or `partial ok x y z`) while five update periods pass; after the
-/// last, `read x y z` for every served FC03 of registers 0–2.
+/// last, `read x y z` for every served FC03 of registers 0–2, then `done`. From Z's report on it
+/// reports what it holds every 20 ms (one FC06 per axis), as a master does each cycle, so the box
+/// never sees it silent (`controller_timeout_ms`), and it runs until the test kills it.
 const ONE_AXIS_AT_A_TIME: &str = r#"
 import sys, time
 from pymodbus.client import ModbusTcpClient
@@ -258,12 +260,18 @@ for address, value in [(16, 21930), (13, 20), (14, -30 & 0xFFFF)]:
     assert not a.write_register(address, value).isError()
     partial()
 assert not a.write_register(15, 40).isError()
+def report():
+    for address, value in [(13, 20), (14, -30 & 0xFFFF), (15, 40)]:
+        assert not a.write_register(address, value).isError()
 deadline = time.time() + 60
 while not corrections("read"):
     assert time.time() < deadline, "never served"
-    time.sleep(0.02)
+    report(); time.sleep(0.02)
 for _ in range(20):
-    corrections("read"); time.sleep(0.02)
+    report(); corrections("read"); time.sleep(0.02)
+print("done", flush=True)
+while True:
+    report(); time.sleep(0.02)
 "#;
 
 #[test]
@@ -271,10 +279,17 @@ fn a_controller_reporting_one_axis_at_a_time_is_resumed_from_what_it_holds() {
     let _turn = crate::turn::take(file!());
     let dir = tempfile::tempdir().unwrap();
     let (gw, modbus_port) = start(dir.path());
-    let (mut plc, lines) = python(ONE_AXIS_AT_A_TIME, modbus_port);
-    let status = plc.wait().unwrap();
-    let lines = lines.lock().unwrap().clone();
-    assert!(status.success(), "pymodbus failed: {lines:?}");
+    let (mut plc, out) = python(ONE_AXIS_AT_A_TIME, modbus_port);
+    wait_until("the PLC's master done reading", || {
+        let done = out.lock().unwrap().iter().any(|l| l == "done");
+        assert!(
+            done || plc.try_wait().unwrap().is_none(),
+            "pymodbus failed: {:?}",
+            out.lock().unwrap()
+        );
+        done
+    });
+    let lines = out.lock().unwrap().clone();
 
     // Registers nobody has written are no report of 0: nothing is served before Z's.
     let partial: Vec<&String> = lines.iter().filter(|l| l.starts_with("partial")).collect();
@@ -310,4 +325,6 @@ fn a_controller_reporting_one_axis_at_a_time_is_resumed_from_what_it_holds() {
         "no fault episode: {}",
         gw.log().join("\n")
     );
+    let _ = plc.kill();
+    let _ = plc.wait();
 }
