@@ -7,8 +7,8 @@ use std::fmt::Write;
 use std::path::{Path, PathBuf};
 
 use retrocomp_gateway::config::field_check::{CheckedField, check_field};
-use retrocomp_model::function::ErrorFunction;
-use retrocomp_model::spec::{Branch, ThermalKind};
+use retrocomp_model::ErrorFunction;
+use retrocomp_model::{Branch, ThermalKind};
 use retrocomp_model::{MachineModel, ModelSpec};
 
 #[derive(Debug, clap::Args)]

@@ -19,7 +19,7 @@ use retrocomp_analysis::fit::to_model::{
 use retrocomp_analysis::fit::workflow::{
     AxisFit, ContextFit, ContextOptions, Driver, fit_axis_lead, fit_context_with,
 };
-use retrocomp_model::names::parse_component;
+use retrocomp_model::parse_component;
 use retrocomp_model::{ComponentId, MachineModel, ModelSpec};
 
 #[derive(Debug, clap::Args)]

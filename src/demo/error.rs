@@ -25,7 +25,7 @@ pub enum DemoError {
     #[error(transparent)]
     Recording(#[from] retrocomp_model::recording::RecordingError),
     #[error(transparent)]
-    Config(#[from] retrocomp_model::config_issue::ConfigError),
+    Config(#[from] retrocomp_model::ConfigError),
     #[error(transparent)]
     Toml(#[from] toml::ser::Error),
     /// The fitted terms do not make a model.

@@ -29,10 +29,10 @@ use retrocomp_analysis::fit::to_model::{AxisForm, axis_component, put_component,
 use retrocomp_analysis::fit::workflow::fit_axis;
 use retrocomp_analysis::iso230_2::Reading;
 use retrocomp_model::approach::{ApproachLatch, RECORDED_DEADBAND_MM};
-use retrocomp_model::names::parse_component;
+use retrocomp_model::parse_component;
 use retrocomp_model::recording::Recording;
-use retrocomp_model::spec::{ForceSpec, LoadKind, LoadSpec, SensorSpec, ThermalKind, ThermalSpec};
 use retrocomp_model::{Axis, ComponentId, ErrorFunction, MachineModel, ModelSpec};
+use retrocomp_model::{ForceSpec, LoadKind, LoadSpec, SensorSpec, ThermalKind, ThermalSpec};
 
 /// Significance of a knot (Spaan: 99.99 %).
 const KNOT_ALPHA: f64 = 1e-4;

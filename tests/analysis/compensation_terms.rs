@@ -10,7 +10,7 @@ use retrocomp_analysis::fit::regression::{Criterion, first_order_lag};
 use retrocomp_analysis::fit::to_model::{add_thermal, to_checked_toml};
 use retrocomp_analysis::fit::workflow::{ContextOptions, Driver, fit_context_with, source_values};
 use retrocomp_model::MachineModel;
-use retrocomp_model::names::parse_component;
+use retrocomp_model::parse_component;
 use retrocomp_model::recording::Recording;
 
 /// Base: EXX = 2 µm/K · (T_a − 20). Truth adds 3e-7 µm/rpm² through a 600 s lag of rpm² and

@@ -205,7 +205,7 @@ mod to_model {
         AxisForm, add_load, add_thermal, axis_component, put_component, single_axis_spec,
         to_checked_toml,
     };
-    use retrocomp_model::names::parse_component;
+    use retrocomp_model::parse_component;
     use retrocomp_model::{Axis, MachineModel};
 
     fn runs() -> Vec<Reading> {

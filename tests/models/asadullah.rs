@@ -7,7 +7,7 @@
 
 use std::path::Path;
 
-use retrocomp_model::{ComponentId, MachineModel, Motion, names::Axis};
+use retrocomp_model::{Axis, ComponentId, MachineModel, Motion};
 
 const TABLE_6_3: [[f64; 10]; 18] = [
     [

@@ -76,7 +76,7 @@ fn demo_json_full_model_cuts_volumetric_error_by_80_percent() {
     let model = retrocomp_model::MachineModel::from_toml_str(&fitted_toml, "mill-fitted.toml")
         .unwrap_or_else(|e| panic!("{e}\n{fitted_toml}"));
     let growth = model.spec().thermal.iter().find_map(|t| match &t.kind {
-        retrocomp_model::spec::ThermalKind::PolynomialDt {
+        retrocomp_model::ThermalKind::PolynomialDt {
             sensors, b_per_k, ..
         } if t.target.iso_name() == "EZZ" => sensors
             .iter()

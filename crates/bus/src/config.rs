@@ -76,7 +76,7 @@ pub struct FieldConfig {
     pub serial: SerialSection,
 }
 
-pub use retrocomp_model::config_issue::{ConfigError, ConfigIssue};
+pub use retrocomp_model::{ConfigError, ConfigIssue};
 
 /// Read and validate a field TOML file.
 pub fn load(path: &Path) -> Result<FieldConfig, ConfigError> {

@@ -75,7 +75,7 @@ impl ConfigError {
     }
 
     /// A TOML syntax or schema error of `text`, placed at its span (or at the bracket it found
-    /// unclosed: [`syntax_place`]).
+    /// unclosed, see `syntax_place`).
     pub fn from_toml(file: &str, text: &str, e: &toml::de::Error) -> Self {
         let msg = e.message().trim();
         let ((line, column), message) = match e.span() {
@@ -97,7 +97,7 @@ impl ConfigError {
 /// Where a TOML syntax error at byte `at` belongs, and its message. The parser notices an array or
 /// inline table left open only where the next key or table header starts (lines later); the
 /// mistake is the bracket, so the error is placed on it, with the parser's own words kept.
-pub fn syntax_place(text: &str, at: usize, msg: &str) -> ((usize, usize), String) {
+pub(crate) fn syntax_place(text: &str, at: usize, msg: &str) -> ((usize, usize), String) {
     let here = line_col(text, at);
     let Some(open) = unclosed_bracket(text, at) else {
         return (here, msg.to_string());
@@ -166,7 +166,7 @@ fn unclosed_bracket(text: &str, byte: usize) -> Option<usize> {
 }
 
 /// 1-based line and column (in characters) of byte offset `byte` of `text`.
-pub fn line_col(text: &str, byte: usize) -> (usize, usize) {
+pub(crate) fn line_col(text: &str, byte: usize) -> (usize, usize) {
     let before = &text.as_bytes()[..byte.min(text.len())];
     let line = before.iter().filter(|&&c| c == b'\n').count() + 1;
     let start = before

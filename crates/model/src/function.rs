@@ -138,7 +138,7 @@ impl Table {
     /// Where `q_mm` falls in the table. Tables with equal `positions_mm` locate alike, so one
     /// [`Location`] serves every component of an axis (one search instead of six).
     #[inline]
-    pub fn locate(&self, q_mm: f64) -> Location {
+    pub(crate) fn locate(&self, q_mm: f64) -> Location {
         let nodes = &self.nodes;
         let n = nodes.len();
         // NaN is clamped and flagged rather than propagated.
@@ -157,13 +157,13 @@ impl Table {
     }
 
     /// Whether two tables have the same nodes (then a [`Location`] of one is valid for the other).
-    pub fn same_positions(&self, other: &Table) -> bool {
+    pub(crate) fn same_positions(&self, other: &Table) -> bool {
         self.positions_mm == other.positions_mm
     }
 
     /// Value at a location found by [`locate`](Self::locate) on a table with the same positions.
     #[inline]
-    pub fn eval_at(&self, loc: Location, dir: i8) -> (f64, bool) {
+    pub(crate) fn eval_at(&self, loc: Location, dir: i8) -> (f64, bool) {
         let nodes = &self.nodes;
         // Branch-free choice (the approach direction changes often): weights 1/0, 0/1 or ½/½; each
         // is exact, so forward and reverse values come through unchanged.
@@ -202,7 +202,7 @@ impl Table {
 /// A position located in a table: a segment and the fraction t ∈ [0, 1] along it, or the end node
 /// it was clamped to.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Location {
+pub(crate) enum Location {
     Inside { segment: usize, t: f64 },
     Clamped(usize),
 }

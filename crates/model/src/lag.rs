@@ -1,15 +1,16 @@
 //! The one first-order lag kernel of the workspace: a temperature (or any slow signal) seen through a
 //! first-order lag with time constant τ, discretised exactly for an input held between samples:
-//! y ← y + α·(u − y) with α = 1 − e^(−Δt/τ). Used by the model's thermal terms ([`super::thermal`]),
-//! the fit's lagged regressors (`analysis::fit`), diagnose's features and hil-sim's physics.
+//! y ← y + α·(u − y) with α = 1 − e^(−Δt/τ). Used by the model's thermal terms
+//! ([`crate::ThermalState`]), the fit's lagged regressors (`analysis::fit`), diagnose's features and
+//! hil-sim's physics.
 //!
 //! Which reading is held: the one that arrives at the end of the interval (`u[i]` over
-//! `t[i−1]…t[i]`), as the gateway's [`super::thermal::ThermalState::step`] applies a reading the
-//! moment it comes in. [`series`] follows the same rule so that a lag fitted offline is, to
-//! rounding, the lag the box runs (holding u[i−1] instead would make a written model differ from
-//! its fit by one sample's step after every jump of the input, and carry a reading across a gap in
-//! the rows). `thermal::tests::the_gateway_lag_is_the_offline_lag_series` locks the two together
-//! on both of the gateway's step paths. [`plant_series`] is the other rule, for a simulated plant.
+//! `t[i−1]…t[i]`), as the gateway's `ThermalState::step` applies a reading the moment it comes in.
+//! [`series`] follows the same rule so that a lag fitted offline is, to rounding, the lag the box
+//! runs (holding u[i−1] instead would make a written model differ from its fit by one sample's step
+//! after every jump of the input, and carry a reading across a gap in the rows).
+//! `thermal::tests::the_gateway_lag_is_the_offline_lag_series` locks the two together on both of the
+//! gateway's step paths. [`plant_series`] is the other rule, for a simulated plant.
 //!
 //! Units: Δt, τ and the sample times in seconds; the signal in its own unit. τ ≤ 0 means "no lag"
 //! (α = 1: [`series`] takes the reading itself, [`plant_series`] the previous set point). A
@@ -27,7 +28,7 @@ pub fn alpha(dt_s: f64, tau_s: f64) -> f64 {
 
 /// The lagged series of `u` sampled at `t_s`, started at `y0`: `y[0] = y0` and
 /// `y[i] = y[i−1] + α(t[i] − t[i−1])·(u[i] − y[i−1])` (each reading held over the interval it ends,
-/// as [`super::thermal::ThermalState::step`] does). For readings: the fit's and diagnose's
+/// as `ThermalState::step` does). For readings: the fit's and diagnose's
 /// regressors, and the evaluation of a model over a recording.
 pub fn series(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64) -> Vec<f64> {
     run(t_s, u, tau_s, y0, 0)

@@ -1,6 +1,6 @@
 //! retrocomp's model crate: the machine model and the volumetric error engine, and the vocabulary
 //! every other crate shares ([`units`], [`approach`], the [`recording`] CSV and its [`decimal`]
-//! writer, [`config_issue`] for file:line:key errors, [`error`]'s cause chain). No async runtime.
+//! writer, [`ConfigError`] for file:line:key errors, [`error`]'s cause chain). No async runtime.
 //!
 //! The machine model:
 //!
@@ -27,6 +27,7 @@
 //! Every numeric conversion that could truncate, wrap or lose a sign is a `try_from`, or an `as`
 //! after a clamp or check with its reason beside it (these lints are errors in CI).
 #![warn(
+    unreachable_pub,
     clippy::cast_possible_truncation,
     clippy::cast_sign_loss,
     clippy::cast_possible_wrap,
@@ -40,37 +41,42 @@
     )
 )]
 
+// The vocabulary other crates share, by namespace (one path each): `approach::Approach`,
+// `recording::Recording`, `lag::series`, … The model's own types are re-exported at the root.
 pub mod approach;
-pub mod config_issue;
 pub mod decimal;
 pub mod error;
+pub mod kinematics;
+pub mod lag;
 pub mod recording;
 pub mod units;
 
-pub mod function;
-pub mod kinematics;
-pub mod lag;
+mod config_issue;
+mod function;
 mod lookup;
-pub mod names;
-pub mod parse;
-pub mod parse_terms;
+mod names;
+mod parse;
+mod parse_terms;
 mod plan;
-pub mod reference;
-pub mod spec;
-pub mod thermal;
-pub mod toml_reader;
-pub mod write;
+mod reference;
+mod spec;
+mod thermal;
+mod toml_reader;
+mod write;
 
 use std::path::Path;
 
+pub use config_issue::{ConfigError, ConfigIssue};
 pub use function::{ErrorFunction, Interpolation, Table};
-pub use names::{Axis, ComponentId, Motion, Squareness};
-pub use spec::{LagState, ModelSpec};
-pub use toml_reader::{ConfigError, ConfigIssue};
+pub use names::{Axis, ComponentId, Motion, Squareness, parse_component};
+pub use spec::{
+    AxisSpec, Branch, ComponentSpec, ForceSpec, LagState, LoadKind, LoadSpec, ModelSpec,
+    SensorSpec, SquarenessSpec, StrainSource, ThermalKind, ThermalSpec, ToolSpec,
+};
+pub use thermal::ThermalState;
 
 use plan::Plan;
 use reference::Compiled;
-use thermal::ThermalState;
 
 /// A loaded machine model. Cheap to share (`Clone + Send + Sync`); evaluation state lives in
 /// [`ModelState`], so one model can serve many threads.
@@ -206,7 +212,7 @@ impl MachineModel {
             || !s.load.is_empty()
             || s.thermal
                 .iter()
-                .any(|t| !matches!(t.kind, spec::ThermalKind::PolynomialDt { .. }))
+                .any(|t| !matches!(t.kind, ThermalKind::PolynomialDt { .. }))
             || s.tools
                 .iter()
                 .any(|t| t.offset_mm.iter().any(|c| *c != 0.0))

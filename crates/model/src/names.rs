@@ -278,7 +278,7 @@ fn two_axes(s: &str) -> Option<(Axis, Axis)> {
 
 /// Parse a squareness name: ISO or a seed alias (Szx/Sxz, VDI xsy/xsz/ysz, Graves axSquXZ/axParZS,
 /// axSqu01/02/12).
-pub fn parse_squareness(name: &str) -> Option<Squareness> {
+pub(crate) fn parse_squareness(name: &str) -> Option<Squareness> {
     match name.trim() {
         "EC0Y" | "xsy" | "Sxy" | "Syx" | "axSqu02" => Some(Squareness::EC0Y),
         "EB0Z" | "xsz" | "Sxz" | "Szx" | "axSquXZ" | "axParZS" | "axSqu01" => {

@@ -13,7 +13,7 @@ const TOP_KEYS: &str = "schema, machine, axes, tools, components, squareness, se
 lag_state";
 
 /// Parse and validate a model file's text. `origin` names the file in messages.
-pub fn parse_model(text: &str, origin: &str) -> Result<ModelSpec, ConfigError> {
+pub(crate) fn parse_model(text: &str, origin: &str) -> Result<ModelSpec, ConfigError> {
     let ctx = Ctx::new(origin, text);
     let Some(doc) = ctx.parse() else {
         return Err(ctx.into_error());

@@ -83,7 +83,7 @@ impl SensorSpec {
 
 /// |reading|^exponent (`Some`), or the reading (`None`): the lag input of a sensor.
 #[inline]
-pub fn power_input(exponent: Option<f64>, reading: f64) -> f64 {
+pub(crate) fn power_input(exponent: Option<f64>, reading: f64) -> f64 {
     match exponent {
         Some(p) => reading.abs().powf(p),
         None => reading,

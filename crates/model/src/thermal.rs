@@ -31,13 +31,13 @@ pub struct ThermalState {
 
 /// What stepping found wrong with the inputs.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct StepIssues {
+pub(crate) struct StepIssues {
     pub missing_temperature: bool,
     pub time_backwards: bool,
 }
 
 impl ThermalState {
-    pub fn new(n: usize) -> Self {
+    pub(crate) fn new(n: usize) -> Self {
         ThermalState {
             lagged: vec![0.0; n],
             started: vec![false; n],
@@ -69,16 +69,16 @@ impl ThermalState {
             .then(|| self.lagged[i])
     }
 
-    /// [`lagged_c`](Self::lagged_c)`(i)`, or `default` without one; once every sensor has started
+    /// [`lagged_c`](Self::lagged_c)`(i)`, or `default_c` without one; once every sensor has started
     /// (the usual case) one flag answers instead of sensor i's own.
     #[inline]
-    pub(crate) fn lagged_or(&self, i: usize, default: f64) -> f64 {
+    pub(crate) fn lagged_or_c(&self, i: usize, default_c: f64) -> f64 {
         if self.all_started
             && let Some(&l) = self.lagged.get(i)
         {
             return l;
         }
-        self.lagged_c(i).unwrap_or(default)
+        self.lagged_c(i).unwrap_or(default_c)
     }
 
     fn set_lagged(&mut self, i: usize, v: f64) {
@@ -93,7 +93,7 @@ impl ThermalState {
     /// step advances it from there with Δt = t − `t_s`, the step's reading held over that span.
     /// Sets the time of the last step for every sensor; sensors not resumed start at their first
     /// reading as usual.
-    pub fn resume(&mut self, i: usize, lagged: f64, t_s: f64) {
+    pub(crate) fn resume(&mut self, i: usize, lagged: f64, t_s: f64) {
         self.set_lagged(i, lagged);
         self.last_t_s = Some(t_s);
     }
@@ -117,7 +117,7 @@ impl ThermalState {
 
     /// Advance every lag to `t_s` with readings `temps_c` (by sensor index). A missing or non-finite
     /// reading holds that sensor's state; time going backwards holds all states and is reported.
-    pub fn step(&mut self, sensors: &[SensorSpec], temps_c: &[f64], t_s: f64) -> StepIssues {
+    pub(crate) fn step(&mut self, sensors: &[SensorSpec], temps_c: &[f64], t_s: f64) -> StepIssues {
         if self.len() != sensors.len() {
             *self = ThermalState::new(sensors.len());
         }
@@ -327,7 +327,7 @@ fn linear(b: &[f64], idx: &[usize], dt: &[f64]) -> f64 {
 /// gives absolute lagged temperatures for the expansion term; `q_target_mm` is the target axis'
 /// position, `q_along_mm` the stations axis' position. Returns (value, clamped).
 #[inline]
-pub fn thermal_value(
+pub(crate) fn thermal_value(
     kind: &ThermalKind,
     idx: &[usize],
     delta_c: &[f64],

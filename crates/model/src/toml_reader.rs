@@ -7,18 +7,18 @@ use std::cell::RefCell;
 use toml::Spanned;
 use toml::de::{DeArray, DeTable, DeValue};
 
-pub use crate::config_issue::{ConfigError, ConfigIssue};
+pub(crate) use crate::config_issue::{ConfigError, ConfigIssue};
 
 /// Collects issues while reading one file.
 #[derive(Debug)]
-pub struct Ctx<'t> {
+pub(crate) struct Ctx<'t> {
     file: String,
     text: &'t str,
     issues: RefCell<Vec<ConfigIssue>>,
 }
 
 impl<'t> Ctx<'t> {
-    pub fn new(file: &str, text: &'t str) -> Self {
+    pub(crate) fn new(file: &str, text: &'t str) -> Self {
         Ctx {
             file: file.to_string(),
             text,
@@ -33,7 +33,7 @@ impl<'t> Ctx<'t> {
         (line, col)
     }
 
-    pub fn err(&self, span: std::ops::Range<usize>, key: &str, message: impl Into<String>) {
+    pub(crate) fn err(&self, span: std::ops::Range<usize>, key: &str, message: impl Into<String>) {
         let (line, column) = self.line_col(span.start);
         self.issues.borrow_mut().push(ConfigIssue {
             file: self.file.clone(),
@@ -44,18 +44,18 @@ impl<'t> Ctx<'t> {
         });
     }
 
-    pub fn has_errors(&self) -> bool {
+    pub(crate) fn has_errors(&self) -> bool {
         !self.issues.borrow().is_empty()
     }
 
-    pub fn into_error(self) -> ConfigError {
+    pub(crate) fn into_error(self) -> ConfigError {
         let mut issues = self.issues.into_inner();
         issues.sort_by_key(|i| (i.line, i.column));
         ConfigError { issues }
     }
 
     /// Parse the document; a syntax error becomes an issue with toml's own message.
-    pub fn parse(&self) -> Option<Spanned<DeTable<'t>>> {
+    pub(crate) fn parse(&self) -> Option<Spanned<DeTable<'t>>> {
         match DeTable::parse(self.text) {
             Ok(t) => Some(t),
             Err(e) => {
@@ -75,11 +75,11 @@ impl<'t> Ctx<'t> {
     }
 }
 
-pub type Val<'t> = Spanned<DeValue<'t>>;
+pub(crate) type Val<'t> = Spanned<DeValue<'t>>;
 
 /// A table being read. Keys that are never asked for are reported by [`Tbl::finish`].
 #[derive(Debug)]
-pub struct Tbl<'a, 't> {
+pub(crate) struct Tbl<'a, 't> {
     pub ctx: &'a Ctx<'t>,
     pub table: &'a DeTable<'t>,
     pub path: String,
@@ -102,7 +102,7 @@ fn as_f64(v: &DeValue<'_>) -> Option<f64> {
 }
 
 impl<'a, 't> Tbl<'a, 't> {
-    pub fn new(
+    pub(crate) fn new(
         ctx: &'a Ctx<'t>,
         table: &'a DeTable<'t>,
         path: String,
@@ -117,7 +117,7 @@ impl<'a, 't> Tbl<'a, 't> {
         }
     }
 
-    pub fn key_path(&self, key: &str) -> String {
+    pub(crate) fn key_path(&self, key: &str) -> String {
         if self.path.is_empty() {
             key.to_string()
         } else {
@@ -125,11 +125,11 @@ impl<'a, 't> Tbl<'a, 't> {
         }
     }
 
-    pub fn err_here(&self, message: impl Into<String>) {
+    pub(crate) fn err_here(&self, message: impl Into<String>) {
         self.ctx.err(self.span.clone(), &self.path, message);
     }
 
-    pub fn err_key(&self, key: &str, message: impl Into<String>) {
+    pub(crate) fn err_key(&self, key: &str, message: impl Into<String>) {
         let span = self.get_raw(key).map_or(self.span.clone(), |v| v.span());
         self.ctx.err(span, &self.key_path(key), message);
     }
@@ -138,17 +138,17 @@ impl<'a, 't> Tbl<'a, 't> {
         self.table.get(key)
     }
 
-    pub fn get(&self, key: &str) -> Option<&'a Val<'t>> {
+    pub(crate) fn get(&self, key: &str) -> Option<&'a Val<'t>> {
         self.used.borrow_mut().push(key.to_string());
         self.get_raw(key)
     }
 
-    pub fn has(&self, key: &str) -> bool {
+    pub(crate) fn has(&self, key: &str) -> bool {
         self.table.get(key).is_some()
     }
 
     /// All keys present, in file order of appearance is not guaranteed; used for suffix searches.
-    pub fn keys(&self) -> Vec<String> {
+    pub(crate) fn keys(&self) -> Vec<String> {
         self.table
             .iter()
             .map(|(k, _)| k.get_ref().to_string())
@@ -158,7 +158,7 @@ impl<'a, 't> Tbl<'a, 't> {
     /// Report keys that were never read, with the list of keys this table accepts. When this table
     /// already has a problem, keys that fit the accepted list were merely skipped after it and are
     /// not reported again.
-    pub fn finish(&self, accepted: &str) {
+    pub(crate) fn finish(&self, accepted: &str) {
         let used = self.used.borrow();
         let prefix = format!("{}.", self.path);
         let had_error = self
@@ -187,7 +187,7 @@ impl<'a, 't> Tbl<'a, 't> {
         }
     }
 
-    pub fn str_opt(&self, key: &str) -> Option<String> {
+    pub(crate) fn str_opt(&self, key: &str) -> Option<String> {
         let v = self.get(key)?;
         match v.get_ref() {
             DeValue::String(s) => Some(s.to_string()),
@@ -202,7 +202,7 @@ impl<'a, 't> Tbl<'a, 't> {
         }
     }
 
-    pub fn str_req(&self, key: &str, what: &str) -> Option<String> {
+    pub(crate) fn str_req(&self, key: &str, what: &str) -> Option<String> {
         if !self.has(key) {
             self.used.borrow_mut().push(key.to_string());
             self.err_here(format!("missing key `{key}` ({what})"));
@@ -211,7 +211,7 @@ impl<'a, 't> Tbl<'a, 't> {
         self.str_opt(key)
     }
 
-    pub fn bool_opt(&self, key: &str) -> Option<bool> {
+    pub(crate) fn bool_opt(&self, key: &str) -> Option<bool> {
         let v = self.get(key)?;
         match v.get_ref() {
             DeValue::Boolean(b) => Some(*b),
@@ -226,7 +226,7 @@ impl<'a, 't> Tbl<'a, 't> {
         }
     }
 
-    pub fn int_opt(&self, key: &str) -> Option<i64> {
+    pub(crate) fn int_opt(&self, key: &str) -> Option<i64> {
         let v = self.get(key)?;
         match v.get_ref() {
             DeValue::Integer(i) => {
@@ -244,12 +244,12 @@ impl<'a, 't> Tbl<'a, 't> {
     }
 
     /// A finite number (integers are accepted).
-    pub fn f64_opt(&self, key: &str) -> Option<f64> {
+    pub(crate) fn f64_opt(&self, key: &str) -> Option<f64> {
         let v = self.get(key)?;
         self.num_value(v, &self.key_path(key))
     }
 
-    pub fn f64_req(&self, key: &str, what: &str) -> Option<f64> {
+    pub(crate) fn f64_req(&self, key: &str, what: &str) -> Option<f64> {
         if !self.has(key) {
             self.used.borrow_mut().push(key.to_string());
             self.err_here(format!("missing key `{key}` ({what})"));
@@ -281,12 +281,12 @@ impl<'a, 't> Tbl<'a, 't> {
     }
 
     /// An array of finite numbers; every bad element is reported with its index.
-    pub fn vec_opt(&self, key: &str) -> Option<Vec<f64>> {
+    pub(crate) fn vec_opt(&self, key: &str) -> Option<Vec<f64>> {
         let v = self.get(key)?;
         self.vec_value(v, &self.key_path(key))
     }
 
-    pub fn vec_value(&self, v: &Val<'t>, path: &str) -> Option<Vec<f64>> {
+    pub(crate) fn vec_value(&self, v: &Val<'t>, path: &str) -> Option<Vec<f64>> {
         let arr = self.array(v, path, "numbers")?;
         self.every_item(arr, path, |item, p| self.num_value(item, p))
     }
@@ -326,14 +326,14 @@ impl<'a, 't> Tbl<'a, 't> {
     }
 
     /// An array of arrays of numbers (a matrix), rows may differ in length (checked by the caller).
-    pub fn matrix_opt(&self, key: &str) -> Option<Vec<Vec<f64>>> {
+    pub(crate) fn matrix_opt(&self, key: &str) -> Option<Vec<Vec<f64>>> {
         let v = self.get(key)?;
         let path = self.key_path(key);
         let arr = self.array(v, &path, "arrays")?;
         self.every_item(arr, &path, |row, p| self.vec_value(row, p))
     }
 
-    pub fn vec3_opt(&self, key: &str) -> Option<[f64; 3]> {
+    pub(crate) fn vec3_opt(&self, key: &str) -> Option<[f64; 3]> {
         let v = self.get(key)?;
         let path = self.key_path(key);
         let xs = self.vec_value(v, &path)?;
@@ -348,7 +348,7 @@ impl<'a, 't> Tbl<'a, 't> {
         Some([xs[0], xs[1], xs[2]])
     }
 
-    pub fn strings_opt(&self, key: &str) -> Option<Vec<String>> {
+    pub(crate) fn strings_opt(&self, key: &str) -> Option<Vec<String>> {
         let v = self.get(key)?;
         let path = self.key_path(key);
         let arr = self.array(v, &path, "strings")?;
@@ -370,7 +370,7 @@ impl<'a, 't> Tbl<'a, 't> {
     }
 
     /// A sub-table (`[a.b]` or inline).
-    pub fn table_opt(&self, key: &str) -> Option<Tbl<'a, 't>> {
+    pub(crate) fn table_opt(&self, key: &str) -> Option<Tbl<'a, 't>> {
         let v = self.get(key)?;
         match v.get_ref() {
             DeValue::Table(t) => Some(Tbl::new(self.ctx, t, self.key_path(key), v.span())),
@@ -386,7 +386,7 @@ impl<'a, 't> Tbl<'a, 't> {
     }
 
     /// An array of tables (`[[key]]`); absent → empty.
-    pub fn tables(&self, key: &str) -> Vec<Tbl<'a, 't>> {
+    pub(crate) fn tables(&self, key: &str) -> Vec<Tbl<'a, 't>> {
         let Some(v) = self.get(key) else {
             return Vec::new();
         };
@@ -412,7 +412,7 @@ impl<'a, 't> Tbl<'a, 't> {
 
     /// Find the one key `{prefix}_{unit}` present for one of `units`; reports a clash when two are
     /// present. Returns (unit, key).
-    pub fn find_suffixed(&self, prefix: &str, units: &[&str]) -> Option<(String, String)> {
+    pub(crate) fn find_suffixed(&self, prefix: &str, units: &[&str]) -> Option<(String, String)> {
         let mut found: Vec<(String, String)> = Vec::new();
         for u in units {
             let k = format!("{prefix}_{u}");

@@ -83,7 +83,7 @@ fn function(out: &mut String, f: &ErrorFunction, unit: &str, kind_key: &str) {
     }
 }
 
-pub fn write_model(s: &ModelSpec) -> String {
+pub(crate) fn write_model(s: &ModelSpec) -> String {
     let mut o = String::new();
     write_machine(&mut o, s);
     for a in &s.axes {

@@ -26,8 +26,8 @@ use super::model_slots::{Item, add_item};
 use super::{DiagnoseError, Diagnosis};
 use crate::fit::to_model::to_checked_toml;
 use retrocomp_model::recording::{AXES, Recording};
-use retrocomp_model::spec::{AxisSpec, Branch, ToolSpec};
 use retrocomp_model::{Axis, MachineModel, ModelSpec};
+use retrocomp_model::{AxisSpec, Branch, ToolSpec};
 
 /// Relative and absolute tolerance (RMS over the recording) of the per-term check.
 const CHECK_REL: f64 = 0.02;
@@ -237,7 +237,7 @@ fn offset_into_e0(spec: &mut ModelSpec, signal: &str, offset: f64) -> Option<Str
         .iter_mut()
         .rev()
         .find(|t| t.name.starts_with(&stem))?;
-    let retrocomp_model::spec::ThermalKind::PolynomialDt { e0, .. } = &mut th.kind else {
+    let retrocomp_model::ThermalKind::PolynomialDt { e0, .. } = &mut th.kind else {
         return None;
     };
     *e0 += offset;

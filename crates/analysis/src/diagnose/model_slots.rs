@@ -9,12 +9,12 @@ use super::effects::EffectModel;
 use super::features::power_of;
 use crate::fit::to_model::put_component;
 use retrocomp_model::recording::Recording;
-use retrocomp_model::spec::{
-    ComponentSpec, ForceSpec, LoadKind, LoadSpec, SensorSpec, SquarenessSpec, StrainSource,
-    ThermalKind, ThermalSpec,
-};
 use retrocomp_model::{
     Axis, ComponentId, ErrorFunction, Interpolation, ModelSpec, Motion, Squareness, Table,
+};
+use retrocomp_model::{
+    ComponentSpec, ForceSpec, LoadKind, LoadSpec, SensorSpec, SquarenessSpec, StrainSource,
+    ThermalKind, ThermalSpec,
 };
 
 /// Table grid: at least this many intervals over the span, and ≥ 32 nodes per cyclic period.

@@ -14,12 +14,12 @@
 
 use crate::fit::piecewise::PiecewiseQuadratic;
 use crate::fit::workflow::{AxisFit, ContextFit, Driver};
-use retrocomp_model::spec::{
-    AxisSpec, Branch, ComponentSpec, ForceSpec, LoadKind, LoadSpec, SensorSpec, StrainSource,
-    ThermalKind, ThermalSpec, ToolSpec,
-};
 use retrocomp_model::{
     Axis, ComponentId, ErrorFunction, Interpolation, MachineModel, ModelSpec, Table,
+};
+use retrocomp_model::{
+    AxisSpec, Branch, ComponentSpec, ForceSpec, LoadKind, LoadSpec, SensorSpec, StrainSource,
+    ThermalKind, ThermalSpec, ToolSpec,
 };
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

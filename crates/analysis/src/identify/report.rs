@@ -17,7 +17,7 @@ use super::estimate::block_f;
 use super::observe::{expanded_uv, plane_readings, rigid_2d, rot};
 use crate::fit::efficiency::efficiency;
 use crate::fit::lead::LeadWave;
-use retrocomp_model::spec::{ComponentSpec, SquarenessSpec, ToolSpec};
+use retrocomp_model::{ComponentSpec, SquarenessSpec, ToolSpec};
 use retrocomp_model::{ErrorFunction, Interpolation, MachineModel, ModelSpec, Motion, Table};
 
 /// One component's verdict.
@@ -263,7 +263,7 @@ fn by_motion(id: &Identification, c: retrocomp_model::ComponentId) -> String {
         .spec
         .axes
         .iter()
-        .any(|a| a.axis == c.axis && a.branch == retrocomp_model::spec::Branch::Tool);
+        .any(|a| a.axis == c.axis && a.branch == retrocomp_model::Branch::Tool);
     match c.motion {
         Motion::Rotation(d) if d == tool_axis && tool_side => format!(
             "a second tool vector with a sideways offset (a probe offset along X or Y): rotation \

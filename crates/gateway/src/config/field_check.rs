@@ -11,8 +11,8 @@ use crate::config::{ConfigError, FieldConfig};
 use crate::engine::ErrorModel;
 use crate::engine::model_adapter::MachineModelAdapter;
 use retrocomp_bus::ChannelId;
+use retrocomp_model::ConfigIssue;
 use retrocomp_model::MachineModel;
-use retrocomp_model::config_issue::ConfigIssue;
 
 /// A field file that passed every offline check, with its model ready for the engine.
 #[derive(Debug)]

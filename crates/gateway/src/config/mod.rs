@@ -204,7 +204,7 @@ pub struct SinkSection {
     pub origin_shift_server: Option<crate::sinks::origin_shift::server::ServerConfig>,
 }
 
-pub use retrocomp_model::config_issue::ConfigError;
+pub use retrocomp_model::ConfigError;
 
 /// The optional parts this build of the gateway has (its cargo features): a field file naming a
 /// part the build lacks is refused at its line ([`FieldConfig::parse`]).

@@ -23,8 +23,8 @@
 )]
 
 use retrocomp_model::kinematics::rotation_about;
-use retrocomp_model::spec::{LoadKind, ThermalKind};
 use retrocomp_model::{Axis, ErrorFunction, MachineModel, ModelInput, Table};
+use retrocomp_model::{LoadKind, ThermalKind};
 
 /// Sensors by index in the file: the thermal terms below address them by these numbers.
 const SENSORS: [&str; 16] = [

@@ -107,7 +107,7 @@ impl Plan {
                 origin_mm,
                 reference_c,
             } => {
-                let abs_c = ts.lagged_or(*sensor, *reference_c);
+                let abs_c = ts.lagged_or_c(*sensor, *reference_c);
                 // ppm/K · mm · K = 1e-6 mm = 1e-3 µm.
                 alpha_ppm_per_k * (qt - origin_mm) * (abs_c - reference_c) * 1e-3
             }
@@ -167,7 +167,7 @@ impl Plan {
                     apply(acc, basis, terms, *tg, v);
                 }
                 for &(tg, sensor, alpha_ppm_per_k, origin_mm, reference_c) in &k.expansion {
-                    let abs_c = ts.lagged_or(sensor, reference_c);
+                    let abs_c = ts.lagged_or_c(sensor, reference_c);
                     // ppm/K · mm · K = 1e-6 mm = 1e-3 µm.
                     let v =
                         alpha_ppm_per_k * (q[tg.elem] - origin_mm) * (abs_c - reference_c) * 1e-3;

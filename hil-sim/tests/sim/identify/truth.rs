@@ -599,7 +599,7 @@ fn without_abbe_terms_or_probe_length_the_models_fail_the_targets() {
 #[test]
 fn direct_method_on_the_old_machine() {
     use retrocomp_analysis::fit::piecewise::fit_stepwise;
-    use retrocomp_model::spec::ComponentSpec;
+    use retrocomp_model::ComponentSpec;
     let truth = load("old-mill-3axis.toml");
     let meas = measure(&truth, 7, Plan::Six);
     let mut noise = hil_sim::rng::Noise::new(7, "direct");
