@@ -4,7 +4,7 @@
 use criterion::{Criterion, criterion_group, criterion_main};
 use retrocomp_analysis::circular::{CircleSetup, CircleTrace, Rotation, analyse};
 use retrocomp_analysis::iso230_2::{Reading, evaluate};
-use retrocomp_analysis::nc::model_errors::ModelErrors;
+use retrocomp_analysis::nc::ModelErrors;
 use retrocomp_analysis::nc::parser::parse_program;
 use retrocomp_analysis::nc::rewrite::{RewriteConfig, rewrite};
 use retrocomp_analysis::table::Direction;

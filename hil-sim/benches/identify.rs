@@ -8,7 +8,7 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use hil_sim::artefacts::{Metrology, Plan, measure_plan};
-use retrocomp_analysis::identify::design::Geometry;
+use retrocomp_analysis::identify::Geometry;
 use retrocomp_analysis::identify::report::to_spec;
 use retrocomp_analysis::identify::{Options, identify};
 use retrocomp_model::MachineModel;

@@ -26,7 +26,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use retrocomp_analysis::nc::ErrorFunction;
-use retrocomp_analysis::nc::model_errors::ModelErrors;
+use retrocomp_analysis::nc::ModelErrors;
 use retrocomp_analysis::nc::rewrite::{
     POINTS_HEADER, Point, RewriteConfig, RewriteSink, RewriteStats, rewrite_stream,
 };

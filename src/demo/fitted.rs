@@ -23,10 +23,10 @@ use super::error::{Context as _, DemoError};
 
 use super::campaign::{AxisPlan, REFERENCE_MM};
 use super::readings::{ERR, readings, readings_csv};
-use retrocomp_analysis::fit::efficiency::{Efficiency, efficiency};
 use retrocomp_analysis::fit::regression::{Candidate, Criterion, select};
 use retrocomp_analysis::fit::to_model::{AxisForm, axis_component, put_component, to_checked_toml};
 use retrocomp_analysis::fit::workflow::fit_axis;
+use retrocomp_analysis::fit::{Efficiency, efficiency};
 use retrocomp_analysis::iso230_2::Reading;
 use retrocomp_model::approach::{ApproachLatch, RECORDED_DEADBAND_MM};
 use retrocomp_model::parse_component;

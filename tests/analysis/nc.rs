@@ -238,7 +238,7 @@ fn unsupported_codes_and_limits_are_refused_with_the_line() {
 
 mod with_machine_model {
     use super::*;
-    use retrocomp_analysis::nc::model_errors::ModelErrors;
+    use retrocomp_analysis::nc::ModelErrors;
     use retrocomp_model::{Axis, ComponentId, MachineModel, Motion};
 
     fn example(name: &str) -> MachineModel {

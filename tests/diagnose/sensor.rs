@@ -291,8 +291,8 @@ fn a_current_squared_lag_is_written_to_model_toml_with_its_column_and_exponent()
     let (rec, _) = current_squared_case(36, 0, 1500);
     let d = diagnose(&rec, &Options::default()).expect("diagnose runs");
     assert!(power_finding(&d.report).is_some(), "{}", d.report.to_text());
-    let out = retrocomp_analysis::diagnose::model_out::model_with_findings(&d, &rec, None)
-        .expect("model builds");
+    let out =
+        retrocomp_analysis::diagnose::model_with_findings(&d, &rec, None).expect("model builds");
     assert!(
         out.toml.contains("column = \"motor_current_A\"") && out.toml.contains("exponent = 2"),
         "{}",

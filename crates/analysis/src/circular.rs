@@ -27,7 +27,7 @@ use std::f64::consts::{FRAC_PI_2, PI, TAU};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
-use super::fit::lsq::{LsqError, lstsq};
+use super::fit::{LsqError, lstsq};
 use super::import_error::{ErrorSink, ImportErrors};
 
 mod terms;

@@ -46,20 +46,20 @@ impl std::error::Error for ImportErrors {}
 
 /// Collects errors for one file; `finish` turns them into a `Result`.
 #[derive(Debug)]
-pub struct ErrorSink {
+pub(crate) struct ErrorSink {
     file: String,
     errors: Vec<ImportError>,
 }
 
 impl ErrorSink {
-    pub fn new(file: &str) -> Self {
+    pub(crate) fn new(file: &str) -> Self {
         Self {
             file: file.to_string(),
             errors: Vec::new(),
         }
     }
 
-    pub fn push(&mut self, line: u64, column: Option<&str>, message: impl Into<String>) {
+    pub(crate) fn push(&mut self, line: u64, column: Option<&str>, message: impl Into<String>) {
         self.errors.push(ImportError {
             file: self.file.clone(),
             line,
@@ -68,11 +68,11 @@ impl ErrorSink {
         });
     }
 
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.errors.is_empty()
     }
 
-    pub fn finish<T>(self, value: T) -> Result<T, ImportErrors> {
+    pub(crate) fn finish<T>(self, value: T) -> Result<T, ImportErrors> {
         if self.errors.is_empty() {
             Ok(value)
         } else {
@@ -81,7 +81,7 @@ impl ErrorSink {
     }
 
     /// Parses a finite float, recording a located error otherwise.
-    pub fn parse_f64(&mut self, line: u64, column: &str, text: &str) -> Option<f64> {
+    pub(crate) fn parse_f64(&mut self, line: u64, column: &str, text: &str) -> Option<f64> {
         match text.trim().parse::<f64>() {
             Ok(v) if v.is_finite() => Some(v),
             Ok(_) => {

@@ -13,6 +13,8 @@
 //! Every numeric conversion that could truncate, wrap or lose a sign is a `try_from`, or an `as`
 //! after a clamp or check with its reason beside it (these lints are errors in CI).
 #![warn(
+    unreachable_pub,
+    unnameable_types,
     clippy::cast_possible_truncation,
     clippy::cast_sign_loss,
     clippy::cast_possible_wrap,
@@ -34,7 +36,7 @@ pub mod export;
 pub mod fit;
 pub mod html;
 pub mod identify;
-pub mod import_error;
+mod import_error;
 pub mod iso230_2;
 pub mod iso230_2_figure;
 pub mod laser_import;
@@ -44,3 +46,5 @@ pub mod plane_model;
 pub mod polar;
 pub mod report;
 pub mod table;
+
+pub use import_error::{ImportError, ImportErrors};

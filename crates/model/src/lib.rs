@@ -28,6 +28,7 @@
 //! after a clamp or check with its reason beside it (these lints are errors in CI).
 #![warn(
     unreachable_pub,
+    unnameable_types,
     clippy::cast_possible_truncation,
     clippy::cast_sign_loss,
     clippy::cast_possible_wrap,

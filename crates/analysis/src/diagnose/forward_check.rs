@@ -14,16 +14,16 @@ use super::report::ForwardCheck;
 
 /// Fraction of the rows the forward gains are fitted on (the rest is predicted); also the split of
 /// `diagnose-bench`'s forward ratio.
-pub const FORWARD_FIT_FRACTION: f64 = 0.6;
+pub(super) const FORWARD_FIT_FRACTION: f64 = 0.6;
 
 /// RMS (µm) on the rows after the split of `r` − the least-squares fit of `cols` on the rows before
 /// it. `cols` must hold the intercept when an offset is meant.
-pub fn forward_rms<C: AsRef<[f64]>>(cols: &[C], r: &[f64]) -> f64 {
+pub(super) fn forward_rms<C: AsRef<[f64]>>(cols: &[C], r: &[f64]) -> f64 {
     forward_ms_at(cols, r, fit_rows(r.len())).sqrt()
 }
 
 /// Mean square (µm²) on rows `split..` of `r` − the least-squares fit of `cols` on rows `..split`.
-pub fn forward_ms_at<C: AsRef<[f64]>>(cols: &[C], r: &[f64], split: usize) -> f64 {
+pub(super) fn forward_ms_at<C: AsRef<[f64]>>(cols: &[C], r: &[f64], split: usize) -> f64 {
     let early: Vec<&[f64]> = cols.iter().map(|c| &c.as_ref()[..split]).collect();
     let coef = lsq::coef(&early, &r[..split]);
     let rss: f64 = (split..r.len())

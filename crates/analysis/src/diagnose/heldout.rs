@@ -31,7 +31,7 @@ use super::selection::Options;
 
 /// The validation folds of one signal and how they are scored.
 #[derive(Debug)]
-pub struct Heldout<'a> {
+pub(super) struct Heldout<'a> {
     ctx: &'a Context,
     r: &'a [f64],
     /// The simulation's inputs, refitted per forward fold when `Options::refit_sim` (else empty:
@@ -51,7 +51,7 @@ impl<'a> Heldout<'a> {
     /// The folds of signal `axis`'s residual `r`: `opts.forward_blocks` time blocks on thermal
     /// tests (no axis column), else `opts.cv_blocks` (or the `run` blocks, or position cells:
     /// [`Context::blocks_for`]).
-    pub fn new(
+    pub(super) fn new(
         ctx: &'a Context,
         axis: char,
         r: &'a [f64],
@@ -92,18 +92,18 @@ impl<'a> Heldout<'a> {
     }
 
     /// The simulation's inputs are refitted per forward fold ([`Heldout`]'s top comment).
-    pub fn refits_sim(&self) -> bool {
+    pub(super) fn refits_sim(&self) -> bool {
         self.forward && !self.sim.is_empty()
     }
 
     /// Held-out RMS (µm) of the intercept plus `set` (candidate, nonlinear parameter); forward
     /// with the simulation's gains refitted per fold when its inputs are known.
-    pub fn rms(&self, set: &[(&Candidate, f64)]) -> f64 {
+    pub(super) fn rms(&self, set: &[(&Candidate, f64)]) -> f64 {
         self.score(set, self.refits_sim())
     }
 
     /// [`Heldout::rms`] with the simulation as given (fitted on every row, not refitted per fold).
-    pub fn rms_in_sample(&self, set: &[(&Candidate, f64)]) -> f64 {
+    pub(super) fn rms_in_sample(&self, set: &[(&Candidate, f64)]) -> f64 {
         self.score(set, false)
     }
 

@@ -89,7 +89,7 @@ fn regimes(ctx: &Context) -> Vec<(String, Vec<bool>)> {
 
 /// Where residual `r` (mean removed) concentrates: the regime with the largest RMS, if it is at least
 /// 1.3× the overall RMS and holds ≥ 2 % of the samples; plus the CUSUM onset of a level change.
-pub fn locate(ctx: &Context, signal: &str, r: &[f64]) -> Vec<Mismatch> {
+pub(super) fn locate(ctx: &Context, signal: &str, r: &[f64]) -> Vec<Mismatch> {
     let mean = r.iter().sum::<f64>() / r.len().max(1) as f64;
     let (total, n) = rms(r.iter().map(|v| v - mean));
     let mut out = vec![Mismatch {
@@ -125,7 +125,7 @@ pub fn locate(ctx: &Context, signal: &str, r: &[f64]) -> Vec<Mismatch> {
 
 /// Two-sided CUSUM against the level of the first 10 % of the residual: k = 0.5σ, h = max(5, ln n)·σ.
 /// Returns the estimated onset time (where the alarming sum last left zero).
-pub fn cusum_onset(t_s: &[f64], r: &[f64]) -> Option<f64> {
+pub(super) fn cusum_onset(t_s: &[f64], r: &[f64]) -> Option<f64> {
     let n = r.len();
     if n < 50 {
         return None;
@@ -160,7 +160,7 @@ pub fn cusum_onset(t_s: &[f64], r: &[f64]) -> Option<f64> {
 
 /// Structure left in a residual: bins of each position axis and of time whose means differ beyond
 /// noise (ANOVA on n_eff, p < 1e-3) and explain ≥ 10 % of the residual variance.
-pub fn unexplained(ctx: &Context, signal: &str, r: &[f64]) -> Vec<Mismatch> {
+pub(super) fn unexplained(ctx: &Context, signal: &str, r: &[f64]) -> Vec<Mismatch> {
     let n = r.len();
     let mean = r.iter().sum::<f64>() / n.max(1) as f64;
     let sst: f64 = r.iter().map(|v| (v - mean).powi(2)).sum();

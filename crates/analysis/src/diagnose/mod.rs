@@ -3,7 +3,7 @@
 //!
 //! Residual r = measured − simulated, per error signal (`ex_um` …, µm, actual − nominal). Every
 //! finding's parameters are in docs/diagnose-json.md units; adding the finding's term to the simulation reduces r.
-//! Pipeline: [`features`] (context per sample) → [`locate`] (where/when) → [`select`] (screen, select,
+//! Pipeline: [`features`] (context per sample) → `locate` (where/when) → [`select`] (screen, select,
 //! refine, validate, detect ambiguity over [`candidates`]) → joint refit with confidence intervals
 //! (this file) → [`report`] (docs/diagnose-json.md JSON / text), [`plots`] and the found-terms TOML ([`output`]).
 
@@ -11,11 +11,11 @@ mod assembly;
 pub mod candidates;
 pub mod effects;
 pub mod features;
-pub mod forward_check;
-pub mod heldout;
-pub mod locate;
+mod forward_check;
+mod heldout;
+mod locate;
 pub mod lsq;
-pub mod model_out;
+mod model_out;
 pub mod model_sim;
 mod model_slots;
 mod null_model;
@@ -23,13 +23,13 @@ pub mod output;
 pub mod plots;
 pub mod progress;
 mod refit;
-pub mod regime_check;
-pub mod regimes;
+mod regime_check;
+mod regimes;
 pub mod report;
 pub mod scoring;
 pub mod select;
 mod select_step;
-pub mod selection;
+mod selection;
 pub mod sensor_faults;
 pub mod swap;
 
@@ -40,6 +40,9 @@ use candidates::Candidate;
 use effects::EffectModel;
 use features::Context;
 use report::Report;
+
+pub use model_out::{ModelOut, model_with_findings};
+pub use regime_check::{DriverRange, Excursion, RegimeCheck};
 use retrocomp_model::recording::Recording;
 use selection::Options;
 

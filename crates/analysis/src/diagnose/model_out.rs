@@ -60,7 +60,7 @@ pub fn model_with_findings(
 /// is written too, as `e0` of that signal's last added `polynomial_dt` term (`--fit-offset`: for a
 /// simulation that was itself fitted on this recording, whose intercept was fitted without the
 /// found terms).
-pub fn model_with_findings_opts(
+pub(super) fn model_with_findings_opts(
     d: &Diagnosis,
     rec: &Recording,
     base: Option<&MachineModel>,
@@ -468,7 +468,7 @@ fn fmt_value(v: &serde_json::Value) -> String {
 }
 
 /// Write `model.toml` into `dir`.
-pub fn write_model(
+pub(super) fn write_model(
     out: &ModelOut,
     dir: &std::path::Path,
 ) -> Result<std::path::PathBuf, DiagnoseError> {

@@ -130,7 +130,7 @@ fn run(
 /// |reading|^exponent) through the sensor's first-order lag when it has one (started at steady
 /// state on the first row, as the model starts it), minus its reference. A polynomial_dt term is
 /// linear in these, so a forward fold can refit the simulation's thermal gains on them
-/// ([`super::heldout`]). Sensors whose column the recording lacks are left out (the simulation
+/// (`super::heldout`). Sensors whose column the recording lacks are left out (the simulation
 /// would have failed on them).
 pub fn regressors(model: &MachineModel, rec: &Recording) -> Vec<Vec<f64>> {
     let Some(t) = rec.col("t_s") else {

@@ -1,5 +1,5 @@
 //! Files written by `diagnose --out DIR`: the docs/diagnose-json.md report as JSON (`report.json`), the machine
-//! model with the found terms added (`model.toml`, see [`super::model_out`]), the found terms as a
+//! model with the found terms added (`model.toml`, see `super::model_out`), the found terms as a
 //! plain list (`found_terms.toml`: one `[[term]]` per finding, params in contract units, for people
 //! and scripts; not a model file), and the SVG plots of [`super::plots`].
 
@@ -59,7 +59,7 @@ pub fn write_outputs(
     write_outputs_opts(d, rec, base, dir, false)
 }
 
-/// As [`write_outputs`]; `write_offset`: see [`super::model_out::model_with_findings_opts`].
+/// As [`write_outputs`]; `write_offset`: see `super::model_out::model_with_findings_opts`.
 pub fn write_outputs_opts(
     d: &Diagnosis,
     rec: &Recording,

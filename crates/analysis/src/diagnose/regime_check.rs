@@ -55,7 +55,7 @@ pub struct Excursion {
 }
 
 /// The report's lines for one signal's check.
-pub fn to_text(signal: &str, c: &RegimeCheck) -> String {
+pub(super) fn to_text(signal: &str, c: &RegimeCheck) -> String {
     let mut s = format!(
         "  {signal}: rolling origin over {} regimes ({} origins): forward RMS {:.3} µm simulation alone, {:.3} µm named physics, {:.3} µm statistical compensation fit; model.toml holds the {}\n",
         c.regimes_by,
@@ -84,7 +84,7 @@ pub fn to_text(signal: &str, c: &RegimeCheck) -> String {
 }
 
 /// The report's line for a finding's driver range.
-pub fn range_text(d: &DriverRange) -> String {
+pub(super) fn range_text(d: &DriverRange) -> String {
     let [lo, hi] = d.fitted;
     let mut s = format!("   driver {} fitted over [{lo:.3}, {hi:.3}]", d.driver);
     if let Some(w) = &d.worst {

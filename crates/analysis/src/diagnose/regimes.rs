@@ -35,35 +35,35 @@ use super::selection::Options;
 use crate::fit::regression::{self, Criterion};
 
 /// Lags of the statistical fit (s): the shipped compensation fit's (`--lags-s 0,300,1200,4800`).
-pub const STAT_LAGS_S: [f64; 4] = [0.0, 300.0, 1200.0, 4800.0];
+pub(super) const STAT_LAGS_S: [f64; 4] = [0.0, 300.0, 1200.0, 4800.0];
 /// Largest subset size averaged by the statistical fit (`--max-terms 6`).
-pub const STAT_MAX_TERMS: usize = 6;
+pub(super) const STAT_MAX_TERMS: usize = 6;
 /// An origin needs this fraction of the rows before it. What is written is fitted on every row;
 /// a fit on less than half of them is a different model (fewer regimes, one heat-up), and its
 /// forward error says more about that than about the one written. (1/3 was tried first on
 /// FL_THERMAL: the earliest origins, fitted on one or two speed levels, then outweighed the
 /// others and the statistical fit lost everywhere; docs/diagnose.md.)
-pub const MIN_HISTORY: f64 = 0.5;
+pub(super) const MIN_HISTORY: f64 = 0.5;
 /// Rows the check works on: a longer recording is thinned to every k-th row (a thermal fit does
 /// not need finer sampling than this over hours; it bounds the statistical fit's memory).
-pub const MAX_ROWS: usize = 100_000;
+pub(super) const MAX_ROWS: usize = 100_000;
 /// An origin needs this fraction of the rows after it to be scored.
-pub const MIN_AHEAD: f64 = 0.05;
+pub(super) const MIN_AHEAD: f64 = 0.05;
 /// A driver has left its fitted range when the rows after an origin go beyond the range before
 /// it by more than this fraction of that range's span.
-pub const RANGE_MARGIN: f64 = 0.1;
+pub(super) const RANGE_MARGIN: f64 = 0.1;
 
 /// The outcome for one signal: the check, each term's driver range (in term order; `None` for a
 /// term with no driver column), and the models `--out` writes (`None`: the named terms as found).
 #[derive(Debug)]
-pub struct Outcome {
+pub(super) struct Outcome {
     pub check: RegimeCheck,
     pub ranges: Vec<Option<DriverRange>>,
     pub written: Option<Vec<EffectModel>>,
 }
 
 /// The origins (rows) and what they follow; empty on recordings with axes.
-pub fn origins(ctx: &Context, forward_blocks: usize) -> (&'static str, Vec<usize>) {
+pub(super) fn origins(ctx: &Context, forward_blocks: usize) -> (&'static str, Vec<usize>) {
     let n = ctx.n();
     let ok =
         |i: &usize| *i as f64 >= MIN_HISTORY * n as f64 && (n - i) as f64 >= MIN_AHEAD * n as f64;
@@ -211,7 +211,7 @@ fn driver<'c>(ctx: &'c Context, c: &Candidate) -> Option<(&'c str, &'c [f64])> {
 
 /// The regime check of residual `r` with the final `terms` (candidate, refitted θ); `None` on
 /// recordings with axes or without an origin.
-pub fn check(
+pub(super) fn check(
     ctx: &Context,
     axis: char,
     r: &[f64],

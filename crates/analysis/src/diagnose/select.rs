@@ -39,7 +39,7 @@ pub use super::selection::{Alternative, Exchanged, Options, SignalSelection, Ter
 /// Run forward selection on residual `r` of the signal of axis `axis`.
 ///
 /// `sim_inputs`: the simulation's thermal inputs when it is a machine model (else empty); forward
-/// validation then refits its gains per fold ([`super::heldout::Heldout`]), and a term is kept only if it improves
+/// validation then refits its gains per fold (`super::heldout::Heldout`), and a term is kept only if it improves
 /// that score AND does not worsen the forward error against the simulation as given (the guard
 /// below).
 pub fn select(

@@ -4,7 +4,7 @@
 use nalgebra::{DMatrix, DVector};
 
 #[derive(Debug, Clone, PartialEq)]
-pub struct LsqFit {
+pub(crate) struct LsqFit {
     pub beta: DVector<f64>,
     /// Residual sum of squares.
     pub sse: f64,
@@ -26,7 +26,7 @@ pub enum LsqError {
 
 /// Solves min ‖Xβ − y‖². Columns are scaled to unit norm first so that regressors in different
 /// units (mm, mm², °C) do not make the rank decision depend on units.
-pub fn lstsq(x: &DMatrix<f64>, y: &DVector<f64>) -> Result<LsqFit, LsqError> {
+pub(crate) fn lstsq(x: &DMatrix<f64>, y: &DVector<f64>) -> Result<LsqFit, LsqError> {
     let (n, p) = x.shape();
     if n < p {
         return Err(LsqError::Underdetermined { rows: n, cols: p });

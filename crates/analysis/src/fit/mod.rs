@@ -3,10 +3,16 @@
 //! (Mallows' Cp, BIC), a ball-screw lead wave beside a smooth part, and Spaan's efficiency δ on
 //! held-out data.
 
-pub mod efficiency;
+mod efficiency;
 pub mod lead;
-pub mod lsq;
-pub mod piecewise;
+mod lsq;
+mod piecewise;
 pub mod regression;
 pub mod to_model;
 pub mod workflow;
+
+pub use efficiency::{Efficiency, efficiency};
+pub use lsq::LsqError;
+pub use piecewise::{PiecewiseError, PiecewiseQuadratic, fit_stepwise};
+
+pub(crate) use lsq::lstsq;

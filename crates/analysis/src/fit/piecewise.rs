@@ -123,7 +123,7 @@ pub fn fit_stepwise(
 }
 
 /// [`fit_stepwise`] with a lead wave at `lead_mm` in every candidate model (None: none).
-pub fn fit_stepwise_lead(
+pub(super) fn fit_stepwise_lead(
     xs: &[f64],
     ys: &[f64],
     candidates: &[f64],

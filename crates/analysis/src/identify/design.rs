@@ -101,7 +101,7 @@ impl CompBasis {
 }
 
 /// The squareness angles in β's order.
-pub const SQUARENESS: [retrocomp_model::Squareness; 3] = [
+pub(super) const SQUARENESS: [retrocomp_model::Squareness; 3] = [
     retrocomp_model::Squareness::EC0Y,
     retrocomp_model::Squareness::EB0Z,
     retrocomp_model::Squareness::EA0Z,
@@ -172,7 +172,7 @@ impl Geometry {
 /// The 18 components with their bases over the identified ranges; candidate knots every
 /// `knot_step_mm` (at most `max_knots` per axis, evenly spread); positioning components carry a
 /// lead wave at `lead_mm` when given.
-pub fn component_bases(
+pub(super) fn component_bases(
     range_mm: [(f64, f64); 3],
     knot_step_mm: f64,
     max_knots: usize,
@@ -213,7 +213,7 @@ pub fn component_bases(
 }
 
 /// Error (µm) per unit of each squareness angle (µrad) at r (model convention, docs/model.md).
-pub fn squareness_rows(pos_mm: [f64; 3]) -> [[f64; 3]; 3] {
+pub(super) fn squareness_rows(pos_mm: [f64; 3]) -> [[f64; 3]; 3] {
     let [_, y, z] = pos_mm;
     [
         [-y * 1e-3, 0.0, 0.0], // EC0Y on y: ex = −S·y
@@ -240,7 +240,7 @@ pub struct Obs {
 }
 
 /// Fills one design row: β columns of `bases` (in order), 3 squareness, then γ at `beta_len + 3`.
-pub fn fill_row(geo: &Geometry, bases: &[CompBasis], o: &Obs, row: &mut [f64]) {
+pub(super) fn fill_row(geo: &Geometry, bases: &[CompBasis], o: &Obs, row: &mut [f64]) {
     row.fill(0.0);
     let arms = geo.arms_by_axis(o.pos_mm, o.tool_mm);
     let mut col = 0;

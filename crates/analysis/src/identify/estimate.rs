@@ -38,13 +38,13 @@ pub enum EstimateError {
 }
 
 /// Number of β columns (components + 3 squareness).
-pub fn beta_len(bases: &[CompBasis]) -> usize {
+pub(super) fn beta_len(bases: &[CompBasis]) -> usize {
     bases.iter().map(CompBasis::n_terms).sum::<usize>() + 3
 }
 
 /// Solves for one basis set and observation set; `n_setup` γ columns.
 /// `rank_tol`: relative eigenvalue of the scaled XᵀX below which a direction counts as unseen.
-pub fn solve(
+pub(super) fn solve(
     geo: &Geometry,
     bases: &[CompBasis],
     obs: &[Obs],
@@ -144,7 +144,7 @@ pub fn solve(
 /// Duplicate probings (same artefact, same hole, different `repeat`): where two probings of one
 /// hole disagree by more than `limit_um` in a direction, the one farther from the fit is dropped
 /// (Spaan: lubrication pulses of 13–15 µm). Returns the indices of the observations to drop.
-pub fn duplicate_outliers(obs: &[Obs], residual_um: &[f64], limit_um: f64) -> Vec<usize> {
+pub(super) fn duplicate_outliers(obs: &[Obs], residual_um: &[f64], limit_um: f64) -> Vec<usize> {
     use std::collections::HashMap;
     let mut groups: HashMap<(usize, &str, Option<usize>), Vec<usize>> = HashMap::new();
     for (i, o) in obs.iter().enumerate() {
@@ -189,7 +189,7 @@ pub fn duplicate_outliers(obs: &[Obs], residual_um: &[f64], limit_um: f64) -> Ve
 
 /// Backward stepwise knot elimination: per round, in each component the least significant knot
 /// (|t| below the two-sided `alpha` quantile) is removed; repeat until all knots are significant.
-pub fn eliminate_knots(
+pub(super) fn eliminate_knots(
     geo: &Geometry,
     bases: &mut [CompBasis],
     obs: &[Obs],
@@ -233,7 +233,7 @@ pub fn eliminate_knots(
 
 /// Partial F of a block of β (Wald form, equal to the extra-sum-of-squares F in least squares)
 /// and its p-value; None when the block is not estimable.
-pub fn block_f(s: &Solve, cols: std::ops::Range<usize>) -> Option<(f64, f64)> {
+pub(super) fn block_f(s: &Solve, cols: std::ops::Range<usize>) -> Option<(f64, f64)> {
     let k = cols.len();
     let b = DVector::from_iterator(k, cols.clone().map(|j| s.coef[j]));
     let c = DMatrix::from_fn(k, k, |i, j| s.xtx_pinv[(cols.start + i, cols.start + j)]);

@@ -9,25 +9,30 @@
 //! identified range (artefacts cannot see constants); see `design.rs` for the other gauges.
 //!
 //! - [`contracts`]: the CSV + side-TOML readers and writers (docs/identify.md).
-//! - [`observe`]: artefact → observations, thermal expansion removed.
-//! - [`design`]: the chain's first-order design rows.
-//! - [`estimate`]: the solve, knot elimination, outliers, F/t, null space.
+//! - `observe`: artefact → observations, thermal expansion removed.
+//! - `design`: the chain's first-order design rows.
+//! - `estimate`: the solve, knot elimination, outliers, F/t, null space.
 //! - [`report`]: the fitted model, per-component significance and identifiability, verification.
-//! - [`resolution`]: the shortest wavelength identified per axis, and lack of fit beyond it.
+//! - `resolution`: the shortest wavelength identified per axis, and lack of fit beyond it.
 //! - [`vouch`]: the probe range and plate positions the model vouches for, and what would widen them.
 
 pub mod contracts;
-pub mod design;
-pub mod estimate;
-pub mod observe;
+mod design;
+mod estimate;
+mod observe;
 pub mod report;
-pub mod resolution;
+mod resolution;
 pub mod vouch;
 
+pub use design::{ChainError, CompBasis, Geometry, Obs, Shape};
+pub use estimate::{EstimateError, Solve};
+pub use observe::Setup;
+pub use resolution::{AxisResolution, Resolution};
+
 use contracts::{BallBar, HolePlate};
-use design::{CompBasis, Geometry, Obs, component_bases};
-use estimate::{EstimateError, Solve, beta_len, duplicate_outliers, eliminate_knots, solve};
-use observe::{Setup, ballbar_obs, plate_obs};
+use design::component_bases;
+use estimate::{beta_len, duplicate_outliers, eliminate_knots, solve};
+use observe::{ballbar_obs, plate_obs};
 
 /// Options of the fit.
 #[derive(Debug, Clone, PartialEq)]
@@ -101,7 +106,7 @@ pub struct Identification {
     pub outliers: Vec<(String, String, u32)>,
     pub range_mm: [(f64, f64); 3],
     /// Shortest wavelength identified per axis, and lack of fit beyond it.
-    pub resolution: resolution::Resolution,
+    pub resolution: Resolution,
 }
 
 /// The joint fit of all artefacts.
@@ -185,7 +190,7 @@ pub fn identify(
         obs,
         outliers,
         range_mm,
-        resolution: resolution::Resolution::default(),
+        resolution: Resolution::default(),
     };
     id.resolution = resolution::resolution(&id, opts.knot_step_mm, opts.max_knots);
     Ok(id)

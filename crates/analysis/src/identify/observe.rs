@@ -28,7 +28,7 @@ pub struct Setup {
 }
 
 /// Plate coordinates p (mm) of each probing at its plate temperature.
-pub fn expanded_uv(plate: &HolePlate) -> Vec<[f64; 2]> {
+pub(super) fn expanded_uv(plate: &HolePlate) -> Vec<[f64; 2]> {
     plate
         .probes
         .iter()
@@ -42,7 +42,7 @@ pub fn expanded_uv(plate: &HolePlate) -> Vec<[f64; 2]> {
 }
 
 /// Corrected in-plane machine coordinates of each probing.
-pub fn plane_readings(plate: &HolePlate) -> Vec<[f64; 2]> {
+pub(super) fn plane_readings(plate: &HolePlate) -> Vec<[f64; 2]> {
     let [a, b] = plate.plane.axes();
     plate
         .probes
@@ -55,7 +55,7 @@ pub fn plane_readings(plate: &HolePlate) -> Vec<[f64; 2]> {
 }
 
 /// Least-squares rigid 2-D fit r ≈ c + R(θ)p: (c, θ).
-pub fn rigid_2d(p: &[[f64; 2]], r: &[[f64; 2]]) -> ([f64; 2], f64) {
+pub(super) fn rigid_2d(p: &[[f64; 2]], r: &[[f64; 2]]) -> ([f64; 2], f64) {
     let n = p.len() as f64;
     let mp = p
         .iter()
@@ -82,13 +82,13 @@ pub fn rigid_2d(p: &[[f64; 2]], r: &[[f64; 2]]) -> ([f64; 2], f64) {
 }
 
 /// Rotates p by θ.
-pub fn rot(th: f64, p: [f64; 2]) -> [f64; 2] {
+pub(super) fn rot(th: f64, p: [f64; 2]) -> [f64; 2] {
     let (s, c) = th.sin_cos();
     [c * p[0] - s * p[1], s * p[0] + c * p[1]]
 }
 
 /// Observations of one plate (two per probing); γ columns start at `first`.
-pub fn plate_obs(plate: &HolePlate, artefact: usize, first: usize) -> (Vec<Obs>, Setup) {
+pub(super) fn plate_obs(plate: &HolePlate, artefact: usize, first: usize) -> (Vec<Obs>, Setup) {
     let [a, b] = plate.plane.axes();
     let p = expanded_uv(plate);
     let r = plane_readings(plate);
@@ -130,7 +130,7 @@ pub fn plate_obs(plate: &HolePlate, artefact: usize, first: usize) -> (Vec<Obs>,
 }
 
 /// Observations of one ball-bar sphere (one per point); γ = centre shift (3).
-pub fn ballbar_obs(bar: &BallBar, artefact: usize, first: usize) -> (Vec<Obs>, Setup) {
+pub(super) fn ballbar_obs(bar: &BallBar, artefact: usize, first: usize) -> (Vec<Obs>, Setup) {
     let c0 = bar.centre_mm;
     let mut obs = Vec::with_capacity(bar.points.len());
     for pt in &bar.points {

@@ -15,7 +15,7 @@ use super::contracts::HolePlate;
 use super::design::{SQUARENESS, Shape};
 use super::estimate::block_f;
 use super::observe::{expanded_uv, plane_readings, rigid_2d, rot};
-use crate::fit::efficiency::efficiency;
+use crate::fit::efficiency;
 use crate::fit::lead::LeadWave;
 use retrocomp_model::{ComponentSpec, SquarenessSpec, ToolSpec};
 use retrocomp_model::{ErrorFunction, Interpolation, MachineModel, ModelSpec, Motion, Table};

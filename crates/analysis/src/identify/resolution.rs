@@ -47,7 +47,7 @@ pub struct Resolution {
 /// Positions closer than this count as one (mm): repeats and a plate's row of holes.
 const SAME_MM: f64 = 0.5;
 /// Residual σ above this multiple of the repeatability is reported as lack of fit.
-pub const LACK_OF_FIT_LIMIT: f64 = 1.25;
+pub(super) const LACK_OF_FIT_LIMIT: f64 = 1.25;
 
 fn largest_gap(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -78,7 +78,7 @@ fn repeatability_um(obs: &[Obs]) -> Option<f64> {
 }
 
 /// The resolution of `id`; `knot_step_mm`, `max_knots` as in [`super::Options`].
-pub fn resolution(id: &Identification, knot_step_mm: f64, max_knots: usize) -> Resolution {
+pub(super) fn resolution(id: &Identification, knot_step_mm: f64, max_knots: usize) -> Resolution {
     let axes: Vec<AxisResolution> = (0..3)
         .map(|k| {
             let (lo, hi) = id.range_mm[k];

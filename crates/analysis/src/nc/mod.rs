@@ -8,10 +8,12 @@
 //! program by G10 L2; G54 not given = zero). Cutter compensation, tool length offsets, G92 shifts
 //! and canned cycles must be expanded first and are refused, not silently misread.
 
-pub mod model_errors;
+mod model_errors;
 mod motion;
 pub mod parser;
 pub mod rewrite;
+
+pub use model_errors::ModelErrors;
 
 use crate::table::Direction;
 

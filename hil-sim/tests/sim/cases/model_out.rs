@@ -6,8 +6,8 @@
 //! in the schema are named with their parameters in the TOML's comment block.
 
 use hil_sim::cases::generate_case;
-use retrocomp_analysis::diagnose::model_out::model_with_findings;
 use retrocomp_analysis::diagnose::model_sim::simulate;
+use retrocomp_analysis::diagnose::model_with_findings;
 use retrocomp_analysis::diagnose::{diagnose, select::Options};
 use retrocomp_model::MachineModel;
 

@@ -20,7 +20,7 @@ use hil_sim::artefacts::{
     spaan_plates, with_lead_waves,
 };
 use retrocomp_analysis::fit::lead::{LeadWave, phase_difference_deg};
-use retrocomp_analysis::identify::design::Geometry;
+use retrocomp_analysis::identify::Geometry;
 use retrocomp_analysis::identify::report::{LeadReport, lead_waves, to_spec};
 use retrocomp_analysis::identify::{Identification, Options, identify};
 use retrocomp_model::{Axis, ErrorFunction, MachineModel, Motion};

@@ -8,8 +8,8 @@
 //! docs/identify-results.md quotes.
 
 use hil_sim::artefacts::{Metrology, PlatePlacement, measure_plate};
+use retrocomp_analysis::identify::Geometry;
 use retrocomp_analysis::identify::contracts::{HolePlate, Plane};
-use retrocomp_analysis::identify::design::Geometry;
 use retrocomp_analysis::identify::report::{DirVerify, components, to_spec, verify};
 use retrocomp_analysis::identify::vouch::{Vouch, vouch};
 use retrocomp_analysis::identify::{Identification, Options, identify};

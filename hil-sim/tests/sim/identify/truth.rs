@@ -16,7 +16,7 @@ use hil_sim::artefacts::{
     Measured, Metrology, Plan, SpherePlan, measure_plan, measure_plate, measure_spheres, resampled,
     xz_edge_plates,
 };
-use retrocomp_analysis::identify::design::Geometry;
+use retrocomp_analysis::identify::Geometry;
 use retrocomp_analysis::identify::report::{DirVerify, components, to_spec, verify};
 use retrocomp_analysis::identify::{Identification, Options, identify};
 use retrocomp_model::{ErrorFunction, MachineModel};
@@ -114,7 +114,7 @@ fn component_errors(
         let n = d.len() as f64;
         let mq = qs.iter().sum::<f64>() / n;
         let md = d.iter().sum::<f64>() / n;
-        let slope = if r.shape == retrocomp_analysis::identify::design::Shape::Straightness {
+        let slope = if r.shape == retrocomp_analysis::identify::Shape::Straightness {
             qs.iter()
                 .zip(&d)
                 .map(|(q, d)| (q - mq) * (d - md))
@@ -598,7 +598,7 @@ fn without_abbe_terms_or_probe_length_the_models_fail_the_targets() {
 /// squareness from a square (±2 µrad); verified on the same five plates.
 #[test]
 fn direct_method_on_the_old_machine() {
-    use retrocomp_analysis::fit::piecewise::fit_stepwise;
+    use retrocomp_analysis::fit::fit_stepwise;
     use retrocomp_model::ComponentSpec;
     let truth = load("old-mill-3axis.toml");
     let meas = measure(&truth, 7, Plan::Six);
