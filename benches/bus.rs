@@ -9,12 +9,10 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use retrocomp_bus::can::{CanBus, Frame, Hub, SocketcandBus};
-use retrocomp_bus::canopen::cia406::{CountingDirection, EncoderChannel};
-use retrocomp_bus::canopen::source::{CanopenConfig, CanopenSource};
-use retrocomp_bus::modbus::poller::Parity;
+use retrocomp_bus::canopen::{CanopenConfig, CanopenSource, CountingDirection, EncoderChannel};
 use retrocomp_bus::modbus::{
-    DataType, ModbusPoller, ModbusSourceConfig, RegisterBank, RegisterChannel, RegisterTable,
-    TcpServer, TransportKind, WordOrder,
+    DataType, ModbusPoller, ModbusSourceConfig, Parity, RegisterBank, RegisterChannel,
+    RegisterTable, TcpServer, TransportKind, WordOrder,
 };
 use std::hint::black_box;
 use std::time::{Duration, Instant};

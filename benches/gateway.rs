@@ -31,7 +31,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use retrocomp_bus::can::frame::Frame;
+use retrocomp_bus::can::Frame;
 use retrocomp_bus::{ChannelId, Health, Sample};
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::sinks::quadrature::{EdgeScheduler, Event, SchedulerConfig, Step, simulate};
@@ -296,9 +296,9 @@ fn pipeline_frames(c: &mut Criterion) {
 
 /// See the top comment (`pipeline_gateway`).
 fn pipeline_gateway(c: &mut Criterion) {
-    use retrocomp_bus::canopen::cia404::{AnalogChannel, AnalogType};
-    use retrocomp_bus::canopen::cia406::EncoderChannel;
-    use retrocomp_bus::canopen::source::{CanopenConfig, CanopenSource};
+    use retrocomp_bus::canopen::{
+        AnalogChannel, AnalogType, CanopenConfig, CanopenSource, EncoderChannel,
+    };
     use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
     use retrocomp_gateway::sinks::origin_shift::{RegisterMap, WriteBlock};
     use retrocomp_model::MachineModel;

@@ -27,8 +27,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use retrocomp_bus::can::socketcand_bus::SocketcandBus;
-use retrocomp_bus::can::{CanBus, Frame, Hub};
+use retrocomp_bus::can::{CanBus, Frame, Hub, SocketcandBus};
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::sources::spawn_sources;
 use retrocomp_gateway::{AxisErrors, ErrorModel, MachineState};

@@ -3,10 +3,10 @@
 
 use libfuzzer_sys::fuzz_target;
 use retrocomp_bus::can::Frame;
-use retrocomp_bus::canopen::cia404::{AnalogChannel, AnalogType};
-use retrocomp_bus::canopen::cia406::{CountingDirection, EncoderChannel, PositionDecoder};
-use retrocomp_bus::canopen::nmt::{decode_heartbeat, decode_nmt};
-use retrocomp_bus::canopen::sdo::{SdoRequest, SdoResponse};
+use retrocomp_bus::canopen::{
+    AnalogChannel, AnalogType, CountingDirection, EncoderChannel, PositionDecoder, SdoRequest,
+    SdoResponse, decode_heartbeat, decode_nmt,
+};
 
 fuzz_target!(|data: &[u8]| {
     if data.len() < 6 {

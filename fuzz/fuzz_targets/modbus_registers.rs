@@ -2,8 +2,9 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use retrocomp_bus::modbus::poll_core::{PollCore, ReadOutcome};
-use retrocomp_bus::modbus::regmap::{DataType, RegisterChannel, RegisterTable, WordOrder, decode_raw};
+use retrocomp_bus::modbus::{
+    DataType, PollCore, ReadOutcome, RegisterChannel, RegisterTable, WordOrder, decode_raw,
+};
 
 fuzz_target!(|data: &[u8]| {
     let Some((&sel, rest)) = data.split_first() else { return };

@@ -170,7 +170,7 @@ impl Default for ServoConfig {
     }
 }
 
-/// The register vocabulary of the PLC window is the workspace's one (`retrocomp_bus::modbus::words`):
+/// The register vocabulary of the PLC window is the workspace's one (`retrocomp_bus::modbus`):
 /// `word = "int16" | "int32" | ...`, `word_order = "high_first" | "low_first"`.
 pub use retrocomp_bus::modbus::{DataType, WordOrder};
 
@@ -378,7 +378,7 @@ impl SimConfig {
             .map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;
         let cfg = Self::from_toml_str(&text, path.parent())
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        retrocomp_bus::modbus::words::warn_deprecated_spellings(&text, &path.display().to_string());
+        retrocomp_bus::modbus::warn_deprecated_spellings(&text, &path.display().to_string());
         Ok(cfg)
     }
 

@@ -12,7 +12,7 @@ use std::sync::atomic::Ordering;
 
 use anyhow::Context;
 
-use retrocomp_bus::can::hub::{Hub, HubStats};
+use retrocomp_bus::can::{Hub, HubStats};
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {

@@ -28,7 +28,7 @@ use error::Context as _;
 
 pub use error::DemoError;
 use metrics::{DemoStats, ErrorTrace, GatewayRun, GatewayRuns, RunStats};
-use retrocomp_bus::can::hub::Hub;
+use retrocomp_bus::can::Hub;
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
 use retrocomp_gateway::sources::spawn_sources;

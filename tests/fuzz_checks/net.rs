@@ -6,12 +6,9 @@
 use std::sync::OnceLock;
 
 use prost::Message as _;
-use retrocomp_bus::modbus::RegisterBank;
-use retrocomp_bus::modbus::RegisterTable;
-use retrocomp_bus::modbus::read::read_registers;
-use retrocomp_bus::modbus::regmap::decode_raw;
-use retrocomp_bus::modbus::server::RegisterService;
-use retrocomp_bus::modbus::{DataType, WordOrder};
+use retrocomp_bus::modbus::{
+    DataType, RegisterBank, RegisterService, RegisterTable, WordOrder, decode_raw, read_registers,
+};
 use retrocomp_fleet::FleetView;
 use retrocomp_gateway::northbound::telemetry::recordings::{Collector, Took};
 use retrocomp_gateway::northbound::telemetry::sparkplug::{self, EdgeNode, Payload};

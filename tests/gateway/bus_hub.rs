@@ -86,8 +86,7 @@ async fn client_reports_refused_handshake() {
 
 #[tokio::test]
 async fn backends_from_toml_talk_to_each_other() {
-    use retrocomp_bus::can::MemBus;
-    use retrocomp_bus::can::backend::{CanBackendConfig, open};
+    use retrocomp_bus::can::{CanBackendConfig, MemBus, open};
     #[derive(serde::Deserialize)]
     struct Doc {
         can: CanBackendConfig,

@@ -5,18 +5,18 @@ use proptest::prelude::*;
 use retrocomp_bus::Health;
 use retrocomp_bus::can::Frame;
 use retrocomp_bus::can::socketcand::{Decoder, Message, encode, parse_message};
-use retrocomp_bus::canopen::cia404::{AnalogChannel, AnalogType};
-use retrocomp_bus::canopen::cia406::{CountingDirection, EncoderChannel, PositionDecoder};
-use retrocomp_bus::canopen::nmt::{decode_heartbeat, decode_nmt};
-use retrocomp_bus::canopen::sdo::{SdoRequest, SdoResponse};
-use retrocomp_bus::modbus::poll_core::{PollCore, ReadOutcome};
-use retrocomp_bus::modbus::regmap::{
-    DataType, RegisterChannel, RegisterTable, WordOrder, decode_raw, encode_raw,
+use retrocomp_bus::canopen::{
+    AnalogChannel, AnalogType, CountingDirection, EncoderChannel, PositionDecoder, SdoRequest,
+    SdoResponse, decode_heartbeat, decode_nmt,
 };
-use retrocomp_bus::serial::formats::{
-    GenericFormat, parse_generic, parse_heidenhain, parse_mitutoyo, parse_nd522, parse_weighing,
+use retrocomp_bus::modbus::{
+    DataType, PollCore, ReadOutcome, RegisterChannel, RegisterTable, WordOrder, decode_raw,
+    encode_raw,
 };
-use retrocomp_bus::serial::framer::LineFramer;
+use retrocomp_bus::serial::{
+    GenericFormat, LineFramer, parse_generic, parse_heidenhain, parse_mitutoyo, parse_nd522,
+    parse_weighing,
+};
 
 const CASES: u32 = 100_000;
 

@@ -369,9 +369,9 @@ fn the_cycle_loop_allocates_nothing_while_compensation_is_dropped() {
 /// ingests them and runs the cycle, and both sinks' encodings consume the outputs.
 #[test]
 fn frames_to_register_words_allocate_nothing_per_cycle() {
-    use retrocomp_bus::canopen::cia404::{AnalogChannel, AnalogType};
-    use retrocomp_bus::canopen::cia406::EncoderChannel;
-    use retrocomp_bus::canopen::source::{CanopenConfig, CanopenSource};
+    use retrocomp_bus::canopen::{
+        AnalogChannel, AnalogType, CanopenConfig, CanopenSource, EncoderChannel,
+    };
     use retrocomp_gateway::sinks::origin_shift::{RegisterMap, WriteBlock};
     use retrocomp_gateway::sinks::quadrature::CountQuantizer;
 

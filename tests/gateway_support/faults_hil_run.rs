@@ -11,7 +11,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex, mpsc};
 use std::time::{Duration, Instant};
 
-use retrocomp_bus::can::hub::Hub;
+use retrocomp_bus::can::Hub;
 
 /// A fresh, empty run folder `name` under the target dir's tmp.
 pub(crate) fn run_dir(name: &str) -> PathBuf {

@@ -1,7 +1,7 @@
 //! The Studer S-36 grinder (seed 004's model) as the binary-level gateway tests see it: z and x
 //! read from CiA 406 encoders (nodes 1 and 2, 1000 counts/mm) through a socketcand hub on loopback.
 
-use retrocomp_bus::canopen::cia406::EncoderChannel;
+use retrocomp_bus::canopen::EncoderChannel;
 
 /// `[direction]`, `[model]`, the two `[[axis]]` and `[can]` + `[canopen]` of a field file whose
 /// CAN is the hub on 127.0.0.1:`hub_port`.

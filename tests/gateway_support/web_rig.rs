@@ -20,7 +20,7 @@ pub(crate) struct Rig {
     pub log: PathBuf,
     pub addr: String,
     pub rt: tokio::runtime::Runtime,
-    _hub: retrocomp_bus::can::hub::Hub,
+    _hub: retrocomp_bus::can::Hub,
     pub t0: Instant,
 }
 

@@ -7,9 +7,10 @@ use crate::peers;
 
 use retrocomp_bus::Health;
 use retrocomp_bus::can::{CanBus, Frame, Hub, SocketcandBus};
-use retrocomp_bus::canopen::cia406::{EncoderChannel, PositionDecoder};
-use retrocomp_bus::canopen::nmt::{HeartbeatMonitor, NmtCommand, encode_nmt};
-use retrocomp_bus::canopen::sdo::{CYCLIC_TIMER_6200, SdoRequest};
+use retrocomp_bus::canopen::{
+    CYCLIC_TIMER_6200, EncoderChannel, HeartbeatMonitor, NmtCommand, PositionDecoder, SdoRequest,
+    encode_nmt,
+};
 use std::time::Duration;
 use tokio::time::timeout;
 

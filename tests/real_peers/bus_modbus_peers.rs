@@ -5,10 +5,9 @@
 use crate::peers;
 
 use retrocomp_bus::Health;
-use retrocomp_bus::modbus::poller::Parity;
 use retrocomp_bus::modbus::{
-    DataType, ModbusPoller, ModbusSourceConfig, RegisterBank, RegisterChannel, RegisterTable,
-    TcpServer, TransportKind, WordOrder,
+    DataType, ModbusPoller, ModbusSourceConfig, Parity, RegisterBank, RegisterChannel,
+    RegisterTable, TcpServer, TransportKind, WordOrder,
 };
 use std::time::{Duration, Instant};
 

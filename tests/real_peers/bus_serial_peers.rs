@@ -4,8 +4,9 @@
 
 use crate::peers;
 
-use retrocomp_bus::serial::source::{SerialCounters, open, run};
-use retrocomp_bus::serial::{LineFormat, LineSource, SerialChannel, SerialSourceConfig};
+use retrocomp_bus::serial::{
+    LineFormat, LineSource, SerialChannel, SerialCounters, SerialSourceConfig, open, run,
+};
 use retrocomp_bus::{Health, Sample};
 use std::time::Duration;
 

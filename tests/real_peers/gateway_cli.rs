@@ -6,9 +6,7 @@ use std::process::Command;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use retrocomp_bus::can::CanBus;
-use retrocomp_bus::can::hub::Hub;
-use retrocomp_bus::can::socketcand_bus::SocketcandBus;
+use retrocomp_bus::can::{CanBus, Hub, SocketcandBus};
 use tokio::net::TcpListener;
 
 use crate::plc;

@@ -18,7 +18,7 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use gateway::{Gateway, has_fault, metric};
-use retrocomp_bus::can::hub::Hub;
+use retrocomp_bus::can::Hub;
 
 /// How long the peripherals stay away after the gateway started.
 const ABSENT_S: f64 = 5.0;

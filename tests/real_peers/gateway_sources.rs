@@ -22,7 +22,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use retrocomp_bus::modbus::server::{RegisterBank, TcpServer};
+use retrocomp_bus::modbus::{RegisterBank, TcpServer};
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::engine::ErrorModel;
 use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;

@@ -16,9 +16,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use retrocomp_bus::can::CanBus;
-use retrocomp_bus::can::hub::Hub;
-use retrocomp_bus::can::socketcand_bus::SocketcandBus;
+use retrocomp_bus::can::{CanBus, Hub, SocketcandBus};
 
 use crate::process;
 use crate::studer_can;

@@ -11,7 +11,7 @@ use std::net::SocketAddr;
 
 use retrocomp_bus::fault::FaultKind;
 use retrocomp_bus::listen::ListenPolicy;
-use retrocomp_bus::modbus::server::{RegisterBank, TcpServer};
+use retrocomp_bus::modbus::{RegisterBank, TcpServer};
 use retrocomp_gateway::northbound::http::{Api, Limits, request, serve};
 
 fn only(ip: &str) -> ListenPolicy {

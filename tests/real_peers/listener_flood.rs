@@ -35,10 +35,10 @@ fn child() {
     let rt = child_runtime();
     let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
     let (modbus, http, ua, hub, _status_tx) = rt.block_on(async {
-        let bank = retrocomp_bus::modbus::server::RegisterBank::new();
+        let bank = retrocomp_bus::modbus::RegisterBank::new();
         bank.set_holding(0, &[1, 2]);
         bank.allow_writes(10, 3);
-        let modbus = retrocomp_bus::modbus::server::TcpServer::start(any, bank)
+        let modbus = retrocomp_bus::modbus::TcpServer::start(any, bank)
             .await
             .unwrap();
         // Kept to the end: the endpoint's history task ends when the sender goes.
@@ -56,9 +56,7 @@ fn child() {
         let ua = retrocomp_gateway::northbound::opcua::start(&section, "flood", rx, None)
             .await
             .unwrap();
-        let hub = retrocomp_bus::can::hub::Hub::start_loopback()
-            .await
-            .unwrap();
+        let hub = retrocomp_bus::can::Hub::start_loopback().await.unwrap();
         (modbus, http, ua, hub, tx)
     });
     println!(

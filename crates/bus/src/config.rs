@@ -39,10 +39,8 @@
 //! and the key path (`canopen.encoder[1].counts_per_mm`), and all problems are reported at once.
 
 use super::can::CanBackendConfig;
-use super::canopen::cia404::{AnalogChannel, AnalogType};
-use super::canopen::cia406::EncoderChannel;
-use super::canopen::source::CanopenConfig;
-use super::modbus::poller::{ModbusSourceConfig, TransportKind};
+use super::canopen::{AnalogChannel, AnalogType, CanopenConfig, EncoderChannel};
+use super::modbus::{ModbusSourceConfig, TransportKind};
 use super::serial::{LineFormat, SerialSourceConfig};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -90,7 +88,7 @@ pub fn load(path: &Path) -> Result<FieldConfig, ConfigError> {
 pub fn parse(text: &str, file: &str) -> Result<FieldConfig, ConfigError> {
     let cfg: FieldConfig =
         toml::from_str(text).map_err(|e| ConfigError::from_toml(file, text, &e))?;
-    super::modbus::words::warn_deprecated_spellings(text, file);
+    super::modbus::warn_deprecated_spellings(text, file);
     let issues: Vec<ConfigIssue> = validate(&cfg)
         .into_iter()
         .map(|(key, message)| ConfigIssue {

@@ -15,6 +15,7 @@
     clippy::cast_possible_wrap,
     clippy::float_cmp
 )]
+#![warn(unreachable_pub, unnameable_types)]
 #![cfg_attr(
     test,
     allow(
@@ -23,17 +24,20 @@
     )
 )]
 
-pub mod backoff;
+// Namespaces of the API stay public modules; `backoff` and `sample` each hold one concept and are
+// re-exported here from private modules.
 pub mod can;
 pub mod canopen;
 pub mod config;
-mod deadline;
 pub mod fault;
 pub mod listen;
 pub mod modbus;
 pub mod realtime;
-pub mod sample;
 pub mod serial;
+
+mod backoff;
+mod deadline;
+mod sample;
 
 pub use backoff::Backoff;
 pub use sample::{ChannelId, Health, Sample};

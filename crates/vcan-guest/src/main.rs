@@ -14,9 +14,10 @@ mod guest {
     use anyhow::{Context, Result, bail, ensure};
     use embedded_can::{Frame as _, Id, StandardId};
     use retrocomp_bus::Health;
-    use retrocomp_bus::can::socketcan::{IdFilter, SocketCanBus};
-    use retrocomp_bus::can::{BusState, CanBackendConfig, CanBus, CanError, Frame};
-    use retrocomp_bus::canopen::source::{self, CanopenConfig, CanopenSource};
+    use retrocomp_bus::can::{
+        BusState, CanBackendConfig, CanBus, CanError, Frame, IdFilter, SocketCanBus,
+    };
+    use retrocomp_bus::canopen::{self, CanopenConfig, CanopenSource};
     use retrocomp_gateway::FaultKind;
     use std::time::{Duration, SystemTime};
     use tokio::io::AsyncReadExt;
@@ -160,7 +161,7 @@ mod guest {
     }
 
     /// The gateway's path as configured in the field TOML: backend = "socketcan" selects
-    /// `SocketCanBus` via `backend::open`; the CANopen source sends its bring-up (SDO write 6200h
+    /// `SocketCanBus` via `can::open`; the CANopen source sends its bring-up (SDO write 6200h
     /// cyclic timer = 10 ms, then NMT start), which candump must see byte for byte; a TPDO from
     /// cansend becomes a sample; with no further PDO the channel goes stale (pdo_timeout_s).
     async fn canopen_end_to_end() -> Result<()> {
@@ -196,7 +197,7 @@ mod guest {
             .context("cannot run candump")?;
         wait_for_receivers(before).await?;
 
-        let mut bus = retrocomp_bus::can::backend::open(&field.can, None).await?;
+        let mut bus = retrocomp_bus::can::open(&field.can, None).await?;
         ensure!(
             matches!(bus, retrocomp_bus::can::AnyCanBus::Socketcan(_)),
             "backend = \"socketcan\" opened {bus:?}"
@@ -205,7 +206,7 @@ mod guest {
         let (tx, mut rx) = tokio::sync::mpsc::channel(64);
         let start = std::time::Instant::now();
         let task = tokio::spawn(async move {
-            source::run(
+            canopen::run(
                 &mut bus,
                 &mut src,
                 move || start.elapsed().as_secs_f64(),

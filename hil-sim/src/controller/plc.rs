@@ -19,7 +19,7 @@
 //! shift and every trip / re-arm / at-zero edge is an [`PlcEvent`] for the observers' log.
 
 use crate::config::{DataType, PlcConfig, WordOrder};
-use retrocomp_bus::modbus::regmap::{decode_raw, encode_raw};
+use retrocomp_bus::modbus::{decode_raw, encode_raw};
 
 /// What changed in a scan (for `plc_latches.csv`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -9,9 +9,7 @@
 //! sent; a read the muted slave does not answer times out exactly the source's `timeout_s` after
 //! it was sent. Whether the slave answers is decided when the request reaches it.
 
-use retrocomp_bus::modbus::RegisterBank;
-use retrocomp_bus::modbus::poll_core::ReadOutcome;
-use retrocomp_bus::modbus::regmap::RegisterTable;
+use retrocomp_bus::modbus::{ReadOutcome, RegisterBank, RegisterTable};
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::gateway_core::{GatewayCore, ModbusRequest};
 use tokio_modbus::prelude::{ExceptionCode, Request, Response};

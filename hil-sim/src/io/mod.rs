@@ -2,7 +2,7 @@
 //! - CAN ([`retrocomp_bus::can`] backends: in-memory, socketcand hub/daemon, SocketCAN/vcan):
 //!   CiA 406 encoder TPDOs (6004h, one node per axis) and CiA 404 temperatures (INT16, 0.1 °C, four per
 //!   TPDO), plus CANopen heartbeats; encoder faults (`enc_x` …) silence or freeze an encoder's TPDO;
-//! - Modbus TCP and RTU (on a pty), one register image ([`retrocomp_bus::modbus::server`]): the PLC's
+//! - Modbus TCP and RTU (on a pty), one register image ([`retrocomp_bus::modbus::RegisterBank`]): the PLC's
 //!   origin-shift window as holding registers (FC03/06/16; the ack register is read-only), PT100
 //!   temperatures as input registers (int16, 0.1 °C; 0x7FFF = NaN/over-range, 0x8000 = sensor break
 //!   on dropout), the cutting force and the strain gauges as int32 input register pairs (hi word
@@ -93,12 +93,12 @@ fn d_force_lsb() -> f64 {
 /// values each (`Config::validate` refuses more on `io.can.temp_node`).
 pub const MAX_TEMPS_PER_NODE: usize = 16;
 
-/// CAN publishing. The backend keys are those of `retrocomp_bus::can::backend` (`backend = "mem" |
+/// CAN publishing. The backend keys are those of `retrocomp_bus::can::CanBackendConfig` (`backend = "mem" |
 /// "socketcand" | "socketcan"`, with `host`/`port`/`channel` or `interface`).
 #[derive(Clone, Debug, Deserialize, Serialize)]
 pub struct CanIoConfig {
     #[serde(flatten)]
-    pub backend: retrocomp_bus::can::backend::CanBackendConfig,
+    pub backend: retrocomp_bus::can::CanBackendConfig,
     /// CiA 406 encoder node ids for x, y, z.
     #[serde(default = "d_nodes")]
     pub encoder_nodes: [u8; 3],

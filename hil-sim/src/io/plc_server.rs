@@ -11,7 +11,7 @@
 
 use crate::config::PlcConfig;
 use crate::controller::plc::decode_shift;
-use retrocomp_bus::modbus::server::{RegisterBank, RegisterService};
+use retrocomp_bus::modbus::{RegisterBank, RegisterService};
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};

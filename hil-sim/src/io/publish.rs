@@ -4,9 +4,9 @@
 use super::{EncoderSource, IoConfig};
 use crate::world::World;
 use retrocomp_bus::can::Frame;
-use retrocomp_bus::canopen::cia404::{AnalogChannel, AnalogType};
-use retrocomp_bus::canopen::cia406::EncoderChannel;
-use retrocomp_bus::canopen::nmt::{NodeState, encode_heartbeat};
+use retrocomp_bus::canopen::{
+    AnalogChannel, AnalogType, EncoderChannel, NodeState, encode_heartbeat,
+};
 
 /// PT100 register for a missing (dropped-out) sensor: "sensor break", as PT100 modules report it.
 pub const PT100_BREAK: u16 = 0x8000;
@@ -65,7 +65,7 @@ pub fn int32_words(value: Option<f64>, lsb: f64) -> [u16; 2] {
         _ => i32::MIN,
     }
     .cast_unsigned();
-    retrocomp_bus::modbus::words::split_u32(raw, retrocomp_bus::modbus::WordOrder::HighFirst)
+    retrocomp_bus::modbus::split_u32(raw, retrocomp_bus::modbus::WordOrder::HighFirst)
 }
 
 /// A weighing-indicator line (A&D/CAS style) for a force in N; `None` on dropout.

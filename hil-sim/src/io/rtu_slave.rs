@@ -1,5 +1,5 @@
 //! The simulator's Modbus RTU slave on its pty: retrocomp's register service
-//! ([`retrocomp_bus::modbus::server::RegisterService`]) behind a mute switch, for the
+//! ([`retrocomp_bus::modbus::RegisterService`]) behind a mute switch, for the
 //! `modbus_rtu_down` transport fault. Muted, the slave still reads every request off the line (so
 //! the pty never fills and no half frame is left behind) but answers none and applies no write — what
 //! a powered-off or unplugged slave looks like to the master: a timeout on every request. Unmuted,
@@ -11,7 +11,7 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use retrocomp_bus::modbus::server::{RegisterBank, RegisterService};
+use retrocomp_bus::modbus::{RegisterBank, RegisterService};
 use tokio::task::JoinHandle;
 use tokio_modbus::prelude::{ExceptionCode, Response, SlaveRequest};
 use tokio_modbus::server::Service;

@@ -25,9 +25,8 @@ use super::transport_faults::{Active, Garbage, Schedule, Transition, silenced};
 use crate::clock::{LagEdge, LagMeter, RealtimePacer};
 use crate::recording::Recorder;
 use crate::{SimConfig, World};
-use retrocomp_bus::can::backend::{AnyCanBus, open as open_can};
-use retrocomp_bus::can::{CanBus, MemBus};
-use retrocomp_bus::modbus::server::RegisterBank;
+use retrocomp_bus::can::{AnyCanBus, CanBus, MemBus, open as open_can};
+use retrocomp_bus::modbus::RegisterBank;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};

@@ -453,7 +453,7 @@ mod tests {
 
     #[test]
     fn garbage_is_seeded_and_never_a_valid_plausible_reading() {
-        use retrocomp_bus::serial::framer::LineFramer;
+        use retrocomp_bus::serial::LineFramer;
         let (mut a, mut b) = (Garbage::new(7, 0.03), Garbage::new(7, 0.03));
         let mut kinds = std::collections::BTreeMap::new();
         for _ in 0..2000 {
@@ -470,7 +470,7 @@ mod tests {
             // Whatever parses as a weighing reading is the absurd one (a range check catches it).
             let mut parsed = Vec::new();
             LineFramer::new(256).push(&ba, |line| {
-                if let Ok(r) = retrocomp_bus::serial::formats::parse_weighing(line, Some("N")) {
+                if let Ok(r) = retrocomp_bus::serial::parse_weighing(line, Some("N")) {
                     parsed.push(r.value);
                 }
             });

@@ -1,6 +1,6 @@
 //! The virtual-time twin of `gateway_faults_rtu_hil`: the same gateway (`T_spindle_C` over Modbus
 //! RTU, its neighbour `T_spindle2_C` on CAN, the `[[recovery]]` estimate), the same poller rule
-//! (`retrocomp_bus::modbus::poll_schedule`: the runtime's poller runs it too) and the same mute of
+//! (`retrocomp_bus::modbus::PollSchedule`: the runtime's poller runs it too) and the same mute of
 //! the sim's RTU slave, 7–10 s, asserted on exact instants instead of wall-clock windows: when the
 //! channel goes stale and comes back (from the poll period, reply timeout and reconnect backoff of
 //! `tests/fixtures/faults_hil/rtu_source.toml`), that the estimate stands in for the whole mute

@@ -5,8 +5,7 @@
 use hil_sim::SimConfig;
 use hil_sim::io::serve::start;
 use retrocomp_bus::can::{CanBus, Hub, MemBus, SocketcandBus};
-use retrocomp_bus::canopen::cia404::{AnalogChannel, AnalogType};
-use retrocomp_bus::canopen::cia406::{EncoderChannel, PositionDecoder};
+use retrocomp_bus::canopen::{AnalogChannel, AnalogType, EncoderChannel, PositionDecoder};
 use std::time::Duration;
 use tokio::time::timeout;
 use tokio_modbus::prelude::*;

@@ -12,10 +12,10 @@
 //! frame proves it rejoined (drivers with `restart-ms` do not always send `RESTARTED`).
 
 /// linux/can/error.h error classes (in the error frame's id).
-pub const CAN_ERR_CRTL: u32 = 0x0004;
+pub(crate) const CAN_ERR_CRTL: u32 = 0x0004;
 pub const CAN_ERR_BUSOFF: u32 = 0x0040;
-pub const CAN_ERR_RESTARTED: u32 = 0x0100;
-pub const CAN_ERR_CNT: u32 = 0x0200;
+pub(crate) const CAN_ERR_RESTARTED: u32 = 0x0100;
+pub(crate) const CAN_ERR_CNT: u32 = 0x0200;
 /// data[1] bits of a `CAN_ERR_CRTL` frame.
 const CRTL_RX_WARNING: u8 = 0x04;
 const CRTL_TX_WARNING: u8 = 0x08;

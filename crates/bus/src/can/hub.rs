@@ -27,7 +27,7 @@ use tokio::task::AbortHandle;
 use crate::listen::{Conn, Handler, IdleStream, ListenPolicy, ListenerHealth, Spec, listen};
 
 /// Frames a client may fall behind before it loses some.
-pub const HUB_QUEUE: usize = 8192;
+pub(crate) const HUB_QUEUE: usize = 8192;
 
 /// Counters, readable while the hub runs.
 #[derive(Debug, Default)]
@@ -58,7 +58,7 @@ pub struct Hub {
 
 /// The hub's listener policy: everything local, so the per-peer cap is the whole cap, and a long
 /// idle time (a CAN bus may carry nothing for minutes, and socketcand has no keep-alive).
-pub fn hub_policy() -> ListenPolicy {
+pub(crate) fn hub_policy() -> ListenPolicy {
     ListenPolicy {
         max_connections: 64,
         max_connections_per_peer: 64,

@@ -1,20 +1,25 @@
 //! CAN: the portable frame, the async bus trait every backend implements, and the backends.
 
-pub mod backend;
-pub mod bus_state;
-pub mod frame;
-pub mod hub;
-pub mod mem;
-#[cfg(all(feature = "socketcan", target_os = "linux"))]
-pub mod socketcan;
+// The socketcand ASCII codec stays a public namespace (`socketcand::encode`, `socketcand::Decoder`);
+// the backends' types are re-exported here from private modules.
 pub mod socketcand;
-pub mod socketcand_bus;
 
-pub use backend::{AnyCanBus, CanBackendConfig};
-pub use bus_state::{BusErrors, BusState, ErrorFrame};
+mod backend;
+mod bus_state;
+mod frame;
+mod hub;
+mod mem;
+#[cfg(all(feature = "socketcan", target_os = "linux"))]
+mod socketcan;
+mod socketcand_bus;
+
+pub use backend::{AnyCanBus, CanBackendConfig, open};
+pub use bus_state::{BusErrors, BusState, CAN_ERR_BUSOFF, ErrorFrame};
 pub use frame::Frame;
-pub use hub::Hub;
+pub use hub::{Hub, HubStats};
 pub use mem::{MemBus, MemEndpoint};
+#[cfg(all(feature = "socketcan", target_os = "linux"))]
+pub use socketcan::{IdFilter, SocketCanBus};
 pub use socketcand_bus::SocketcandBus;
 
 use std::future::Future;

@@ -289,7 +289,7 @@ fn can_family_available() -> bool {
 
 /// Maps a failed `open(ifname)` to a clear error. `can_family_available` is only called for ENODEV
 /// (see the module comment); it is a parameter so the mapping is testable on any kernel.
-pub fn classify_open_error(
+pub(crate) fn classify_open_error(
     ifname: &str,
     e: &io::Error,
     can_family_available: impl FnOnce() -> bool,

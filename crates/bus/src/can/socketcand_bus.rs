@@ -12,10 +12,10 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpStream, ToSocketAddrs};
 
 /// The socketcand default TCP port.
-pub const DEFAULT_PORT: u16 = 29536;
+pub(crate) const DEFAULT_PORT: u16 = 29536;
 
 /// How long the handshake may take before `connect` gives up.
-pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
+pub(crate) const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
 
 #[derive(Debug)]
 pub struct SocketcandBus {

@@ -6,11 +6,22 @@
 //! plus the node id, SDO client→server 0x600 + node, server→client 0x580 + node, heartbeat 0x700 + node.
 //! Node ids are 1..=127. Multi-byte values are little-endian (CiA 301).
 
-pub mod cia404;
-pub mod cia406;
-pub mod nmt;
-pub mod sdo;
-pub mod source;
+mod cia404;
+mod cia406;
+mod nmt;
+mod sdo;
+mod source;
+
+pub use cia404::{AnalogChannel, AnalogType};
+pub use cia406::{CountingDirection, EncoderChannel, PositionDecoder};
+pub use nmt::{
+    HeartbeatMonitor, NmtCommand, NodeState, decode_heartbeat, decode_nmt, encode_heartbeat,
+    encode_nmt,
+};
+pub use sdo::{
+    ABORT_BAD_COMMAND, ABORT_NO_OBJECT, CYCLIC_TIMER_6200, PRESET_6003, SdoRequest, SdoResponse,
+};
+pub use source::{CanopenConfig, CanopenCounters, CanopenSource, run, run_observed};
 
 /// A node id was outside 1..=127.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]

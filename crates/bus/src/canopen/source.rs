@@ -27,7 +27,7 @@ fn default_pdo_timeout_s() -> f64 {
 /// engine judges staleness on its inputs' clock (the newest sample of any source), which these
 /// repeated samples keep moving while every node is silent; a sample that stops the silence is
 /// handled when it arrives, not on this period.
-pub const STALE_REPEAT_S: f64 = 0.01;
+pub(crate) const STALE_REPEAT_S: f64 = 0.01;
 
 /// `[canopen]` section of the field TOML.
 #[derive(Debug, Clone, PartialEq, Default, serde::Deserialize, serde::Serialize)]
@@ -236,7 +236,7 @@ impl CanopenSource {
     }
 
     /// When [`Self::poll`] next has something to report (s, the caller's clock; may be in the
-    /// past: poll now): the earliest moment a channel turns stale, or [`STALE_REPEAT_S`] after the
+    /// past: poll now): the earliest moment a channel turns stale, or `STALE_REPEAT_S` after the
     /// last poll while one is. `None` with no channels configured.
     pub fn poll_timeout(&self) -> Option<f64> {
         self.fresh
@@ -509,7 +509,7 @@ mod tests {
     #[tokio::test(start_paused = true)]
     async fn the_observer_follows_the_bus_state_without_a_tick() {
         use crate::can::BusState;
-        use crate::can::bus_state::CAN_ERR_BUSOFF;
+        use crate::can::CAN_ERR_BUSOFF;
         use std::sync::{Arc, Mutex};
         let c = CanopenConfig {
             encoder: cfg().encoder,

@@ -123,7 +123,7 @@ fn sample(channel: ChannelId, t_s: f64, value: f64, health: Health) -> Sample {
 
 /// Modbus RTU inter-frame silence t3.5 in seconds: 3.5 characters of 11 bits up to 19200 Bd, a fixed
 /// 1.75 ms above (Modbus over serial line spec §2.5.1.1; anchors-compensation.md: 9600 Bd → 4.01 ms).
-pub fn rtu_silence_s(baud: u32) -> f64 {
+pub(crate) fn rtu_silence_s(baud: u32) -> f64 {
     if baud > 19_200 {
         1.75e-3
     } else {
@@ -134,7 +134,7 @@ pub fn rtu_silence_s(baud: u32) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::modbus::regmap::{DataType, RegisterTable, WordOrder};
+    use crate::modbus::{DataType, RegisterTable, WordOrder};
 
     fn chans() -> Vec<RegisterChannel> {
         (0..3)

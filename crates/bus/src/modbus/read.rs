@@ -34,7 +34,7 @@ pub async fn read_registers(
 }
 
 /// The words of `rsp` if it answers a read of `count` registers of `table`.
-pub fn check_reply(
+pub(crate) fn check_reply(
     table: RegisterTable,
     count: u16,
     rsp: Response,

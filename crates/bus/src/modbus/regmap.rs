@@ -9,7 +9,7 @@
 
 use crate::Health;
 
-pub use super::words::{DataType, WordOrder};
+use super::words::{DataType, WordOrder};
 use super::words::{join_u32, split_u32};
 
 #[derive(
@@ -139,12 +139,16 @@ pub struct ReadBlock {
 }
 
 /// FC03/FC04 read at most 125 registers (Modbus application protocol §6.3).
-pub const MAX_READ_REGISTERS: u16 = 125;
+pub(crate) const MAX_READ_REGISTERS: u16 = 125;
 
 /// Group channels into as few reads as possible: same kind, sorted by address, merged while the span
 /// stays ≤ `max_count` registers and the hole between neighbours is ≤ `max_gap` registers (reading a
 /// hole is cheaper than another round trip, but a device may reject unmapped addresses: gap 0 is safe).
-pub fn plan_reads(channels: &[RegisterChannel], max_count: u16, max_gap: u16) -> Vec<ReadBlock> {
+pub(crate) fn plan_reads(
+    channels: &[RegisterChannel],
+    max_count: u16,
+    max_gap: u16,
+) -> Vec<ReadBlock> {
     let max_count = max_count.clamp(2, MAX_READ_REGISTERS);
     let mut idx: Vec<usize> = (0..channels.len()).collect();
     idx.sort_by_key(|&i| (channels[i].kind, channels[i].address));

@@ -21,24 +21,24 @@ const MAX_PDU: usize = 253;
 
 /// What one request did, for the shell to report.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Outcome {
+pub(crate) enum Outcome {
     Answered,
     /// A write from a peer that may not write: refused with exception 01.
     RefusedWrite,
 }
 
 /// Length of the PDU that follows `head`, or None when it is not a Modbus TCP header.
-pub fn pdu_len(head: &[u8; HEAD]) -> Option<usize> {
+pub(crate) fn pdu_len(head: [u8; HEAD]) -> Option<usize> {
     let proto = u16::from_be_bytes([head[2], head[3]]);
     let len = usize::from(u16::from_be_bytes([head[4], head[5]]));
     (proto == 0 && (2..=MAX_PDU + 1).contains(&len)).then(|| len - 1)
 }
 
 /// Answer one request ADU (`head` + `pdu`) into `out` (cleared first): the sans-IO core.
-pub fn answer(
+pub(crate) fn answer(
     bank: &RegisterBank,
     may_write: bool,
-    head: &[u8; HEAD],
+    head: [u8; HEAD],
     pdu: &[u8],
     out: &mut Vec<u8>,
 ) -> Outcome {
@@ -89,7 +89,7 @@ pub fn answer(
 }
 
 /// Serve `conn` until the peer closes, sends something that is not Modbus TCP, or idles out.
-pub async fn serve(mut conn: Conn, bank: RegisterBank) {
+pub(crate) async fn serve(mut conn: Conn, bank: RegisterBank) {
     let mut head = [0u8; HEAD];
     let mut pdu = [0u8; MAX_PDU];
     let mut out = Vec::with_capacity(HEAD + MAX_PDU);
@@ -97,14 +97,14 @@ pub async fn serve(mut conn: Conn, bank: RegisterBank) {
         if conn.stream.read_exact(&mut head).await.is_err() {
             return;
         }
-        let Some(n) = pdu_len(&head) else {
+        let Some(n) = pdu_len(head) else {
             tracing::debug!(peer = %conn.peer, "modbus tcp: not an MBAP header; closing");
             return;
         };
         if conn.stream.read_exact(&mut pdu[..n]).await.is_err() {
             return;
         }
-        if answer(&bank, conn.may_write, &head, &pdu[..n], &mut out) == Outcome::RefusedWrite {
+        if answer(&bank, conn.may_write, head, &pdu[..n], &mut out) == Outcome::RefusedWrite {
             conn.health.refused_write(conn.peer.ip());
         }
         if conn.stream.write_all(&out).await.is_err() {
@@ -129,23 +129,23 @@ mod tests {
         let mut out = Vec::new();
         // FC03 at 0, 2 registers.
         let pdu = [3, 0, 0, 0, 2];
-        assert_eq!(pdu_len(&head(6)), Some(5));
+        assert_eq!(pdu_len(head(6)), Some(5));
         assert_eq!(
-            answer(&bank, false, &head(6), &pdu, &mut out),
+            answer(&bank, false, head(6), &pdu, &mut out),
             Outcome::Answered
         );
         assert_eq!(out, [0x12, 0x34, 0, 0, 0, 7, 5, 3, 4, 0, 7, 0, 8]);
         // FC06 at 11 from a peer that may not write: exception 01, nothing written.
         let pdu = [6, 0, 11, 0x7F, 0xFF];
         assert_eq!(
-            answer(&bank, false, &head(6), &pdu, &mut out),
+            answer(&bank, false, head(6), &pdu, &mut out),
             Outcome::RefusedWrite
         );
         assert_eq!(out, [0x12, 0x34, 0, 0, 0, 3, 5, 0x86, 1]);
         assert_eq!(bank.holding(11, 1), Some(vec![0]));
         // The same from the controller is applied and echoed.
         assert_eq!(
-            answer(&bank, true, &head(6), &pdu, &mut out),
+            answer(&bank, true, head(6), &pdu, &mut out),
             Outcome::Answered
         );
         assert_eq!(out, [0x12, 0x34, 0, 0, 0, 6, 5, 6, 0, 11, 0x7F, 0xFF]);
@@ -153,17 +153,17 @@ mod tests {
         // FC16 at 10, 2 registers.
         let pdu = [0x10, 0, 10, 0, 2, 4, 0, 1, 0, 2];
         assert_eq!(
-            answer(&bank, true, &head(11), &pdu, &mut out),
+            answer(&bank, true, head(11), &pdu, &mut out),
             Outcome::Answered
         );
         assert_eq!(out, [0x12, 0x34, 0, 0, 0, 6, 5, 0x10, 0, 10, 0, 2]);
         // Unknown function, a malformed known one, not-Modbus headers.
-        answer(&bank, true, &head(2), &[0x2B], &mut out);
+        answer(&bank, true, head(2), &[0x2B], &mut out);
         assert_eq!(&out[7..], [0xAB, 1]);
-        answer(&bank, true, &head(3), &[3, 0], &mut out);
+        answer(&bank, true, head(3), &[3, 0], &mut out);
         assert_eq!(&out[7..], [0x83, 3]);
-        assert_eq!(pdu_len(&[0, 0, 0, 1, 0, 6, 1]), None);
-        assert_eq!(pdu_len(&head(1)), None);
-        assert_eq!(pdu_len(&head(255)), None);
+        assert_eq!(pdu_len([0, 0, 0, 1, 0, 6, 1]), None);
+        assert_eq!(pdu_len(head(1)), None);
+        assert_eq!(pdu_len(head(255)), None);
     }
 }

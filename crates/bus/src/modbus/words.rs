@@ -63,7 +63,7 @@ pub fn split_u32(v: u32, order: WordOrder) -> [u16; 2] {
 }
 
 /// The 32-bit value of two words in address order (inverse of [`split_u32`]).
-pub fn join_u32(words: [u16; 2], order: WordOrder) -> u32 {
+pub(crate) fn join_u32(words: [u16; 2], order: WordOrder) -> u32 {
     let (high, low) = match order {
         WordOrder::HighFirst => (words[0], words[1]),
         WordOrder::LowFirst => (words[1], words[0]),
@@ -73,7 +73,7 @@ pub fn join_u32(words: [u16; 2], order: WordOrder) -> u32 {
 
 /// One use of an old spelling in a TOML text.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Deprecated {
+pub(crate) struct Deprecated {
     /// 1-based line of the value.
     pub line: usize,
     /// Dotted key path (`sink.origin_shift.map.axis[0].word_order`).
@@ -84,7 +84,7 @@ pub struct Deprecated {
 
 impl Deprecated {
     /// `file:line: key `k`: word_order "cdab" is deprecated, write "low_first"`.
-    pub fn message(&self, file: &str) -> String {
+    pub(crate) fn message(&self, file: &str) -> String {
         format!(
             "{file}:{}: key `{}`: \"{}\" is a deprecated spelling, write \"{}\"",
             self.line, self.key, self.found, self.instead
@@ -94,7 +94,7 @@ impl Deprecated {
 
 /// Every `word_order` in `text` spelled the old way. A text that is not TOML yields nothing (its
 /// loader reports the syntax error).
-pub fn deprecated_spellings(text: &str) -> Vec<Deprecated> {
+pub(crate) fn deprecated_spellings(text: &str) -> Vec<Deprecated> {
     let mut out = Vec::new();
     if let Ok(root) = DeTable::parse(text) {
         walk_table(text, root.get_ref(), "", &mut out);
@@ -104,7 +104,8 @@ pub fn deprecated_spellings(text: &str) -> Vec<Deprecated> {
     out
 }
 
-/// [`deprecated_spellings`], each logged as a WARN naming `file` and line; returns the messages.
+/// Every `word_order` in `text` spelled the old way, each logged as a WARN naming `file` and line;
+/// returns the messages.
 pub fn warn_deprecated_spellings(text: &str, file: &str) -> Vec<String> {
     deprecated_spellings(text)
         .iter()

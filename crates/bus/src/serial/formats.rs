@@ -49,7 +49,7 @@ fn text(line: &[u8]) -> Result<&str, LineError> {
 
 /// A signed decimal number: optional sign, digits, at most one point, at least one digit, nothing else
 /// (no exponent, no inf/nan, which `f64::from_str` would accept).
-pub fn parse_decimal(s: &str) -> Option<f64> {
+pub(crate) fn parse_decimal(s: &str) -> Option<f64> {
     let body = s.strip_prefix(['+', '-']).unwrap_or(s);
     let digits = body.bytes().filter(u8::is_ascii_digit).count();
     let points = body.bytes().filter(|&c| c == b'.').count();

@@ -3,7 +3,7 @@
 //! without terminators cannot grow memory. The framer does not interpret content (STX, signs, units).
 
 /// Default longest line accepted, bytes.
-pub const DEFAULT_MAX_LINE: usize = 128;
+pub(crate) const DEFAULT_MAX_LINE: usize = 128;
 
 #[derive(Debug, Clone)]
 pub struct LineFramer {

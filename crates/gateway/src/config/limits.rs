@@ -7,7 +7,7 @@
 use crate::config::FieldConfig;
 use crate::sinks::origin_shift::map::AxisRegister;
 use crate::sinks::origin_shift::server::ServerConfig;
-use retrocomp_bus::modbus::words::DataType;
+use retrocomp_bus::modbus::DataType;
 
 type Checked = Result<(), (String, String)>;
 

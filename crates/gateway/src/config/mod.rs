@@ -22,8 +22,8 @@ use crate::engine::{Engine, EngineAxis, EngineConfig};
 pub use crate::sinks::origin_shift::client::OriginShiftSink;
 pub use crate::sinks::quadrature::config::{GpioLines, QuadratureAxis, QuadratureSink};
 use retrocomp_bus::ChannelId;
-use retrocomp_bus::can::backend::CanBackendConfig;
-use retrocomp_bus::canopen::source::CanopenConfig;
+use retrocomp_bus::can::CanBackendConfig;
+use retrocomp_bus::canopen::CanopenConfig;
 use retrocomp_bus::config::{ModbusSection, SerialSection};
 use retrocomp_model::Axis;
 
@@ -248,7 +248,7 @@ impl FieldConfig {
     fn parse_built(text: &str, path: &Path, built: Built) -> Result<Self, ConfigError> {
         let mut cfg: FieldConfig = toml::from_str(text)
             .map_err(|e| ConfigError::from_toml(&path.display().to_string(), text, &e))?;
-        retrocomp_bus::modbus::words::warn_deprecated_spellings(text, &path.display().to_string());
+        retrocomp_bus::modbus::warn_deprecated_spellings(text, &path.display().to_string());
         if let Some(m) = cfg.telemetry.as_mut().and_then(|t| t.mqtt.as_mut()) {
             m.resolve_paths(path.parent().unwrap_or(Path::new(".")));
         }

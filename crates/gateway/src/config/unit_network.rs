@@ -17,8 +17,8 @@ use std::net::{IpAddr, SocketAddr};
 use crate::config::FieldConfig;
 use crate::sinks::origin_shift::client::Transport;
 use crate::sinks::origin_shift::server::ServerTransport;
-use retrocomp_bus::can::backend::CanBackendConfig;
-use retrocomp_bus::modbus::poller::TransportKind;
+use retrocomp_bus::can::CanBackendConfig;
+use retrocomp_bus::modbus::TransportKind;
 
 /// The remote peers of one field file, as the unit's IP filter sees them.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]

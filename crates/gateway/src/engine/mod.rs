@@ -5,7 +5,7 @@
 //! samples and time.
 //!
 //! Identities: axes are [`Axis`], channels [`ChannelId`] (resolved from their names when the config
-//! loads, `retrocomp_bus::sample`). No name is looked up and no `String` built on the per-sample or
+//! loads, `retrocomp_bus::ChannelId`). No name is looked up and no `String` built on the per-sample or
 //! per-cycle path; names appear only in [`Engine::snapshot`] (status, metrics) and in the log lines
 //! of a fault that starts or clears (fault sources are typed: [`FaultSource`]).
 //!

@@ -28,12 +28,12 @@ pub mod quadrature;
 use std::collections::BTreeMap;
 
 use retrocomp_bus::can::Frame;
-use retrocomp_bus::canopen::source::CanopenSource;
+use retrocomp_bus::canopen::CanopenSource;
 use retrocomp_bus::fault::FaultEvent;
-use retrocomp_bus::modbus::RegisterTable;
-use retrocomp_bus::modbus::poll_core::{PollCounters, ReadOutcome};
-use retrocomp_bus::modbus::poll_schedule::{PollRequest, PollSchedule, PollStep};
-use retrocomp_bus::serial::source::LineSource;
+use retrocomp_bus::modbus::{
+    PollCounters, PollRequest, PollSchedule, PollStep, ReadOutcome, RegisterTable,
+};
+use retrocomp_bus::serial::LineSource;
 use retrocomp_bus::{ChannelId, Sample};
 use retrocomp_model::Axis;
 

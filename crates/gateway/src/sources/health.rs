@@ -14,7 +14,7 @@ use crate::engine::health::{BUS_ERROR_HOLD_S, FaultEvent, FaultKind, FaultLog};
 use crate::status::{CanBusStatus, ModbusCounters, SourceStatus};
 use retrocomp_bus::can::{BusErrors, BusState};
 use retrocomp_bus::fault::FaultSource;
-use retrocomp_bus::modbus::poll_core::PollCounters;
+use retrocomp_bus::modbus::PollCounters;
 
 /// Every source's latest status, shared between the source tasks (writers) and the cycle (reader).
 #[derive(Clone, Debug, Default)]
@@ -232,8 +232,7 @@ impl SourceReporter {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use retrocomp_bus::can::ErrorFrame;
-    use retrocomp_bus::can::bus_state::CAN_ERR_BUSOFF;
+    use retrocomp_bus::can::{CAN_ERR_BUSOFF, ErrorFrame};
 
     fn starts(ev: &[FaultEvent]) -> Vec<(FaultKind, bool)> {
         ev.iter().map(|e| (e.kind, e.started)).collect()

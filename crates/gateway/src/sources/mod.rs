@@ -33,11 +33,10 @@ use crate::error::GatewayError;
 use crate::pacer::CycleWake;
 use crate::sources::health::{SourceBoard, SourceReporter};
 use crate::supervise::{CycleCounter, DeathNotice, TaskDeaths};
-use retrocomp_bus::can::backend::{self, AnyCanBus, CanBackendConfig};
-use retrocomp_bus::can::{BusErrors, CanBus, CanError};
-use retrocomp_bus::canopen::source::{self as canopen, CanopenConfig, CanopenSource};
-use retrocomp_bus::modbus::poller::ModbusPoller;
-use retrocomp_bus::serial::source::{self as serial, LineSource, SerialSourceConfig};
+use retrocomp_bus::can::{self, AnyCanBus, BusErrors, CanBackendConfig, CanBus, CanError};
+use retrocomp_bus::canopen::{self, CanopenConfig, CanopenSource};
+use retrocomp_bus::modbus::ModbusPoller;
+use retrocomp_bus::serial::{self, LineSource, SerialSourceConfig};
 use retrocomp_bus::{Backoff, Sample};
 
 /// Reopen delays of a CAN backend or a serial port that closed, failed or could not be opened at
@@ -99,7 +98,7 @@ async fn start_sources(
 ) -> Result<(), GatewayError> {
     let clock = move || epoch.elapsed().as_secs_f64();
     if let (Some(can), Some(co)) = (cfg.can.clone(), cfg.canopen.clone()) {
-        let opened = backend::open(&can, None).await;
+        let opened = can::open(&can, None).await;
         let mut rep = SourceReporter::new("can", opened.is_ok(), board.clone());
         let bus = match opened {
             Ok(bus) => Some(bus),
@@ -247,7 +246,7 @@ async fn can_loop(
             return;
         }
         tokio::time::sleep(backoff.next_delay()).await;
-        match backend::open(&can, None).await {
+        match can::open(&can, None).await {
             Ok(b) => {
                 tracing::debug!(backend = %can, "CAN backend reopened; waiting for frames");
                 bus = Some(b);

@@ -6,7 +6,7 @@
 //!
 //! Units: seconds (`_s`), characters, lines, µm (`_um`).
 
-use retrocomp_bus::modbus::poller::Parity;
+use retrocomp_bus::modbus::Parity;
 use serde::{Deserialize, Serialize};
 
 /// How the controller says "stop" and "go".

@@ -15,8 +15,7 @@ use tokio_modbus::prelude::Slave;
 use super::cycle::{Action, Outcome, Reply, WriteCycle};
 use super::map::{MapError, RegisterMap};
 use super::sink::SinkCore;
-use retrocomp_bus::modbus::RegisterTable;
-use retrocomp_bus::modbus::read::read_registers;
+use retrocomp_bus::modbus::{RegisterTable, read_registers};
 use retrocomp_model::Axis;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -23,8 +23,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use retrocomp_bus::modbus::regmap::{decode_raw, encode_raw};
 pub use retrocomp_bus::modbus::{DataType, WordOrder};
+use retrocomp_bus::modbus::{decode_raw, encode_raw};
 use retrocomp_model::Axis;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

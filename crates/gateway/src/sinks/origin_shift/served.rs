@@ -18,7 +18,7 @@ use super::sink_task::{SinkSources, update_sink_faults};
 use crate::sinks::guard::AxisLimits;
 use retrocomp_bus::ChannelId;
 use retrocomp_bus::fault::{FaultEvent, FaultLog};
-use retrocomp_bus::modbus::server::RegisterBank;
+use retrocomp_bus::modbus::RegisterBank;
 use retrocomp_model::Axis;
 
 /// How a stop ramp-out ended.

@@ -1,7 +1,7 @@
 //! The box as a Modbus server for origin-shift corrections: the tokio-modbus shell (TCP or RTU)
 //! around [`ServedBox`]. Config `[sink.origin_shift_server]`; register image and safety in
 //! [`super::server_core`]. The register image is a
-//! [`RegisterBank`](retrocomp_bus::modbus::server::RegisterBank): reads of registers not yet
+//! [`RegisterBank`](retrocomp_bus::modbus::RegisterBank): reads of registers not yet
 //! served get exception 02, the controller may write only the position and held registers, and a
 //! multi-register write is applied all-or-nothing.
 //!
@@ -34,7 +34,7 @@ use super::served::{ServedBox, StopEnd};
 use super::server_core::ServerMap;
 use crate::sinks::guard::AxisLimits;
 use crate::sinks::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
-use retrocomp_bus::modbus::server::{TcpServer, spawn_rtu};
+use retrocomp_bus::modbus::{TcpServer, spawn_rtu};
 use retrocomp_bus::{Health, Sample};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
