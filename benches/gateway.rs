@@ -177,7 +177,7 @@ fn cycle_compute(c: &mut Criterion) {
 /// The real model path: Studer S-36 (seed 004 tables, exact 4×4 HTM chain) through the adapter,
 /// 2 axes; p50/p99 of individually timed cycles printed, criterion estimate with handle_sample.
 fn cycle_compute_studer(c: &mut Criterion) {
-    use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+    use retrocomp_gateway::engine::MachineModelAdapter;
     use retrocomp_model::MachineModel;
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let model =
@@ -299,7 +299,7 @@ fn pipeline_gateway(c: &mut Criterion) {
     use retrocomp_bus::canopen::{
         AnalogChannel, AnalogType, CanopenConfig, CanopenSource, EncoderChannel,
     };
-    use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+    use retrocomp_gateway::engine::MachineModelAdapter;
     use retrocomp_gateway::sinks::origin_shift::{RegisterMap, WriteBlock};
     use retrocomp_model::MachineModel;
 

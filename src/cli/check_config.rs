@@ -6,7 +6,7 @@
 use std::fmt::Write;
 use std::path::{Path, PathBuf};
 
-use retrocomp_gateway::config::field_check::{CheckedField, check_field};
+use retrocomp_gateway::config::{CheckedField, check_field};
 use retrocomp_model::ErrorFunction;
 use retrocomp_model::{Branch, ThermalKind};
 use retrocomp_model::{MachineModel, ModelSpec};
@@ -89,7 +89,7 @@ pub(crate) fn field_summary(path: &Path, c: &CheckedField) -> String {
     let _ = writeln!(o, "model file {}:", c.model_path.display());
     o.push_str(&summary(c.model.model()));
     // The drop-in its peers need under the shipped unit (docs/install.md, "The unit's network").
-    o.push_str(&retrocomp_gateway::config::unit_network::UnitNetwork::of(cfg).drop_in());
+    o.push_str(&retrocomp_gateway::config::UnitNetwork::of(cfg).drop_in());
     o
 }
 

@@ -54,7 +54,7 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
         args.seconds
     );
     if let Some(b) = &args.mqtt {
-        retrocomp_gateway::northbound::telemetry::config::demo_section(b, "check")
+        retrocomp_gateway::northbound::telemetry::demo_section(b, "check")
             .mqtt
             .as_ref()
             .map_or(Ok(()), |m| m.check())

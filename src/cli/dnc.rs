@@ -63,7 +63,7 @@ fn parse_listen(s: &str) -> Result<std::net::SocketAddr, String> {
 /// config does not drive gets clamp 0: never a correction).
 fn guard_limits(
     cfg: &retrocomp_gateway::config::FieldConfig,
-    dnc: &retrocomp_gateway::sinks::dnc::config::DncSection,
+    dnc: &retrocomp_gateway::sinks::dnc::DncSection,
 ) -> [(f64, f64); 3] {
     let mut limits = [(0.0, 0.0); 3];
     for a in &cfg.axes {

@@ -22,8 +22,8 @@ use retrocomp_fleet::FleetClient;
 use retrocomp_fleet::FleetView;
 use retrocomp_fleet::dispatch::{Dispatcher, Finished, Job};
 use retrocomp_fleet::drift::{self, DriftState, MachineDrift};
-use retrocomp_gateway::northbound::telemetry::config::TlsConfig;
-use retrocomp_gateway::northbound::telemetry::publisher::now_ms;
+use retrocomp_gateway::northbound::telemetry::TlsConfig;
+use retrocomp_gateway::northbound::telemetry::now_ms;
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {

@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use retrocomp_gateway::config::field_check::{CheckedField, check_field};
+use retrocomp_gateway::config::{CheckedField, check_field};
 use retrocomp_gateway::run::{require_sink, run_until_signal};
 use retrocomp_gateway::sources::spawn_sources;
 use retrocomp_gateway::supervise::exit_on_panic;

@@ -11,7 +11,7 @@ use anyhow::Context as _;
 
 use retrocomp_gateway::northbound::telemetry::MqttConfig;
 use retrocomp_gateway::northbound::telemetry::recordings::{chunk_csv, ship_to_dir};
-use retrocomp_gateway::northbound::telemetry::shipper::{Shipment, default_topic, ship};
+use retrocomp_gateway::northbound::telemetry::{Shipment, default_topic, ship};
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {

@@ -30,7 +30,7 @@ pub use error::DemoError;
 use metrics::{DemoStats, ErrorTrace, GatewayRun, GatewayRuns, RunStats};
 use retrocomp_bus::can::Hub;
 use retrocomp_gateway::config::FieldConfig;
-use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+use retrocomp_gateway::engine::MachineModelAdapter;
 use retrocomp_gateway::sources::spawn_sources;
 use retrocomp_model::MachineModel;
 use retrocomp_model::recording::Recording;
@@ -340,8 +340,9 @@ async fn one_run(
         std::fs::write(&field_path, &text)?;
         let mut cfg = FieldConfig::parse(&text, &field_path)?;
         if let Some(broker) = &opts.mqtt {
-            cfg.telemetry =
-                Some(retrocomp_gateway::northbound::telemetry::config::demo_section(broker, sub));
+            cfg.telemetry = Some(retrocomp_gateway::northbound::telemetry::demo_section(
+                broker, sub,
+            ));
         }
         let epoch = Instant::now();
         let rx = spawn_sources(&cfg, epoch).await?;

@@ -27,7 +27,7 @@ use retrocomp_analysis::nc::rewrite::{Point, RewriteConfig, RewriteSink, Rewrite
 
 use super::lead::{ExecEstimate, LeadConfig};
 use super::live::{Applied, LiveCorrections};
-use retrocomp_gateway::sinks::dnc::config::LineEnd;
+use retrocomp_gateway::sinks::dnc::LineEnd;
 
 pub const XON: u8 = 0x11;
 pub const XOFF: u8 = 0x13;

@@ -11,7 +11,7 @@ use super::drift::{DriftConfig, DriftPredictor};
 use super::lead::LeadConfig;
 use super::live::{CorrectionAt, EngineAtPoint, LiveCorrections};
 use super::tests::{MODEL, cfg, drain, engine, temp};
-use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+use retrocomp_gateway::engine::MachineModelAdapter;
 
 const F: [Approach; 3] = [Approach::Forward; 3];
 const R: [Approach; 3] = [Approach::Reverse; 3];

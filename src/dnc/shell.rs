@@ -17,7 +17,7 @@ use tokio_serial::{SerialPort, SerialPortBuilderExt, SerialStream};
 use super::core::{DncCore, DncError, LOG_HEADER, XOFF, XON};
 use super::faults::{DncFaults, StatusTx};
 use super::live::LiveCorrections;
-use retrocomp_gateway::sinks::dnc::config::{DncSection, Flow};
+use retrocomp_gateway::sinks::dnc::{DncSection, Flow};
 
 /// Where the program comes from.
 #[derive(Clone, Debug)]

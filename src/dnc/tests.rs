@@ -9,12 +9,12 @@ use retrocomp_model::{Axis, MachineModel};
 use super::core::{CoreConfig, DncCore, DncError, SentBlock, StallEdge, XOFF, XON};
 use super::lead::LeadConfig;
 use super::live::{CorrectionAt, EngineAtPoint, LiveCorrections};
-use retrocomp_gateway::engine::direction::DirectionConfig;
-use retrocomp_gateway::engine::health::ChannelLimits;
-use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
-use retrocomp_gateway::engine::safety::SafetyConfig;
+use retrocomp_gateway::ChannelLimits;
+use retrocomp_gateway::DirectionConfig;
+use retrocomp_gateway::SafetyConfig;
+use retrocomp_gateway::engine::MachineModelAdapter;
 use retrocomp_gateway::engine::{Engine, EngineAxis, EngineConfig};
-use retrocomp_gateway::sinks::dnc::config::LineEnd;
+use retrocomp_gateway::sinks::dnc::LineEnd;
 use retrocomp_gateway::status::StatusSnapshot;
 
 /// X correction = −(drift · t + slope · x) µm (a thermal drift and a scale error); Y, Z none.

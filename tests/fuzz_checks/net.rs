@@ -13,7 +13,7 @@ use retrocomp_fleet::FleetView;
 use retrocomp_gateway::northbound::telemetry::recordings::{Collector, Took};
 use retrocomp_gateway::northbound::telemetry::sparkplug::{self, EdgeNode, Payload};
 use retrocomp_gateway::sinks::guard::AxisLimits;
-use retrocomp_gateway::sinks::origin_shift::server_core::{ServerCore, ServerMap};
+use retrocomp_gateway::sinks::origin_shift::{ServerCore, ServerMap};
 use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
 use tokio_modbus::bytes::Bytes;
 use tokio_modbus::prelude::{Request, Response, SlaveRequest};

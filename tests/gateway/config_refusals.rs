@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 
 use retrocomp_gateway::config::FieldConfig;
-use retrocomp_gateway::config::field_check::check_field;
+use retrocomp_gateway::config::check_field;
 use retrocomp_model::MachineModel;
 
 use crate::base_field;

@@ -302,7 +302,7 @@ stale_after_s = 0.1
 /// (not `compensation.<axis>`), and the force's return ramps the terms back in.
 #[test]
 fn a_stale_force_drops_only_the_load_terms_ramped() {
-    use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+    use retrocomp_gateway::engine::MachineModelAdapter;
     use retrocomp_model::MachineModel;
     let cfg = FieldConfig::parse(CFG3, Path::new("t.toml")).unwrap();
     let model = MachineModel::from_toml_str(retrocomp::demo::FULL_MODEL, "full").unwrap();
@@ -407,7 +407,7 @@ fn a_stale_force_drops_only_the_load_terms_ramped() {
 /// compensates with the other terms: the model's load terms are not left out silently.
 #[test]
 fn an_undelivered_optional_input_is_a_lasting_fault_naming_it() {
-    use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+    use retrocomp_gateway::engine::MachineModelAdapter;
     use retrocomp_model::MachineModel;
     let cfg = FieldConfig::parse(CFG3, Path::new("t.toml")).unwrap();
     let model = MachineModel::from_toml_str(retrocomp::demo::FULL_MODEL, "full").unwrap();

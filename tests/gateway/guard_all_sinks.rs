@@ -34,11 +34,11 @@ use std::collections::BTreeMap;
 use proptest::prelude::*;
 use proptest::test_runner::TestCaseError;
 use retrocomp_gateway::sinks::guard::AxisLimits;
-use retrocomp_gateway::sinks::origin_shift::server_core::{ServerCore, ServerMap, Update};
 use retrocomp_gateway::sinks::origin_shift::{Action, RegisterMap, Reply, SinkCore};
-use retrocomp_gateway::sinks::quadrature::config::{QuadratureAxis, QuadratureSink};
-use retrocomp_gateway::sinks::quadrature::core::QuadratureCore;
-use retrocomp_gateway::sinks::quadrature::held::{HeldCounts, HeldError};
+use retrocomp_gateway::sinks::origin_shift::{ServerCore, ServerMap, Update};
+use retrocomp_gateway::sinks::quadrature::QuadratureCore;
+use retrocomp_gateway::sinks::quadrature::{HeldCounts, HeldError};
+use retrocomp_gateway::sinks::quadrature::{QuadratureAxis, QuadratureSink};
 use retrocomp_model::Axis;
 
 const MAX_UM: f64 = 50.0;

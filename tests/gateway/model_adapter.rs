@@ -8,7 +8,7 @@ use std::path::Path;
 use retrocomp_bus::{Health, Sample};
 use retrocomp_gateway::Engine;
 use retrocomp_gateway::config::FieldConfig;
-use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+use retrocomp_gateway::engine::MachineModelAdapter;
 use retrocomp_model::MachineModel;
 
 const CFG: &str = r#"

@@ -24,7 +24,7 @@ use retrocomp_bus::{ChannelId, Health, Sample};
 use retrocomp_gateway::Engine;
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::cycle::STATUS_PERIOD_S;
-use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+use retrocomp_gateway::engine::MachineModelAdapter;
 use retrocomp_gateway::status::StatusSnapshot;
 use retrocomp_model::Axis;
 use retrocomp_model::MachineModel;
@@ -474,10 +474,10 @@ fn frames_to_register_words_allocate_nothing_per_cycle() {
 #[test]
 fn an_origin_shift_write_period_allocates_nothing() {
     use retrocomp_bus::fault::FaultLog;
-    use retrocomp_gateway::sinks::origin_shift::sink_task::{SinkSources, update_faults_of};
     use retrocomp_gateway::sinks::origin_shift::{
         Action, Outcome, RegisterMap, Reply, SinkAxis, SinkCore, Words,
     };
+    use retrocomp_gateway::sinks::origin_shift::{SinkSources, update_faults_of};
 
     let map: RegisterMap = toml::from_str(&format!(
         "heartbeat_address = 10\nheartbeat_timeout_ms = 60000\n{AXES_MAP}\
@@ -562,7 +562,7 @@ fn an_origin_shift_server_update_allocates_nothing() {
     use retrocomp_bus::ChannelId;
     use retrocomp_gateway::sinks::guard::AxisLimits;
     use retrocomp_gateway::sinks::origin_shift::Words;
-    use retrocomp_gateway::sinks::origin_shift::server_core::{ServerCore, ServerMap, Update};
+    use retrocomp_gateway::sinks::origin_shift::{ServerCore, ServerMap, Update};
 
     let map: ServerMap = toml::from_str(&format!(
         "heartbeat_address = 10\n{AXES_MAP}\

@@ -6,7 +6,7 @@
 
 use std::time::Instant;
 
-use retrocomp_gateway::sinks::quadrature::driver::SimulatedPin;
+use retrocomp_gateway::sinks::quadrature::SimulatedPin;
 use retrocomp_gateway::sinks::quadrature::trace::{HEADER, TraceConfig, TraceWriter};
 use retrocomp_gateway::sinks::quadrature::{
     EdgeScheduler, Feed, Injector, QuadDecoder, SchedulerConfig, Step, run_injector_traced,

@@ -6,7 +6,7 @@
 //! controller applied at that moment. Units: µm.
 
 use proptest::prelude::*;
-use retrocomp_gateway::sinks::origin_shift::map::decode_value;
+use retrocomp_gateway::sinks::origin_shift::decode_value;
 use retrocomp_gateway::sinks::origin_shift::{Action, RegisterMap, Reply, SinkAxis, SinkCore};
 use retrocomp_model::Axis;
 
@@ -46,7 +46,7 @@ impl Plc {
 
     fn set(&mut self, axis: usize, um: f64) {
         let r = &self.map.axes[axis];
-        let w = retrocomp_gateway::sinks::origin_shift::map::encode_value(r, um).unwrap();
+        let w = retrocomp_gateway::sinks::origin_shift::encode_value(r, um).unwrap();
         let a = r.address as usize;
         self.regs[a..a + w.len()].copy_from_slice(&w);
     }

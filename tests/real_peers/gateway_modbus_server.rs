@@ -16,9 +16,7 @@ use retrocomp_bus::Sample;
 use retrocomp_gateway::SinkStatus;
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::sinks::guard::AxisLimits;
-use retrocomp_gateway::sinks::origin_shift::server::{
-    OriginShiftServer, ServerConfig, ServerTransport,
-};
+use retrocomp_gateway::sinks::origin_shift::{OriginShiftServer, ServerConfig, ServerTransport};
 use tokio::sync::{mpsc, watch};
 
 use crate::peers;

@@ -25,7 +25,7 @@ use std::time::Duration;
 use retrocomp_bus::modbus::{RegisterBank, TcpServer};
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::engine::ErrorModel;
-use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+use retrocomp_gateway::engine::MachineModelAdapter;
 use retrocomp_model::MachineModel;
 
 fn status(port: u16) -> Option<serde_json::Value> {

@@ -265,7 +265,7 @@ async fn a_rebirth_storm_yields_at_most_one_nbirth_per_interval() {
     let mut last_request_ms = 0;
     for i in 0..200u64 {
         // Taken before the request goes: whatever birth answers it is stamped no earlier.
-        last_request_ms = telemetry::publisher::now_ms();
+        last_request_ms = telemetry::now_ms();
         let req = retrocomp_fleet::rebirth_request(i);
         watcher
             .publish(ncmd, QoS::AtMostOnce, false, req)

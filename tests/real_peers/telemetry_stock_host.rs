@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 use base_field::BASE;
 use mosquitto::Broker;
 use peers::{free_port, spawn_python};
-use retrocomp_gateway::northbound::telemetry::declare::{HEALTH_STATES, MODE_STATES};
+use retrocomp_gateway::northbound::telemetry::{HEALTH_STATES, MODE_STATES};
 use serde_json::Value;
 use spb_lines::{Host, PATIENCE, of};
 

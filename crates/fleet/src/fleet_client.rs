@@ -13,10 +13,10 @@ use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use crate::dispatch::{self, Dispatcher};
 use crate::fleet::FleetView;
 use retrocomp_gateway::northbound::telemetry::TelemetryError;
-use retrocomp_gateway::northbound::telemetry::config::{TlsConfig, broker_host_port};
-use retrocomp_gateway::northbound::telemetry::publisher::now_ms;
+use retrocomp_gateway::northbound::telemetry::now_ms;
 use retrocomp_gateway::northbound::telemetry::recordings::{Collector, Took};
 use retrocomp_gateway::northbound::telemetry::tls;
+use retrocomp_gateway::northbound::telemetry::{TlsConfig, broker_host_port};
 
 /// Why the fleet client could not be built or lost its link.
 #[derive(Debug, thiserror::Error)]

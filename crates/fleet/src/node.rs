@@ -9,7 +9,7 @@ use std::collections::{BTreeMap, HashMap};
 
 use serde::Serialize;
 
-use retrocomp_gateway::northbound::telemetry::rebirth::RebirthLimiter;
+use retrocomp_gateway::northbound::telemetry::RebirthLimiter;
 use retrocomp_gateway::northbound::telemetry::sparkplug::{Payload, Value};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]

@@ -20,6 +20,8 @@
 //! after a clamp or check with its reason beside it (these lints are errors in CI); float
 //! comparisons say what they compare. Tests compare floats exactly where the value is exact.
 #![warn(
+    unreachable_pub,
+    unnameable_types,
     clippy::cast_possible_truncation,
     clippy::cast_sign_loss,
     clippy::cast_possible_wrap,
@@ -51,7 +53,7 @@ pub use engine::direction::{DirectionConfig, DirectionLatch};
 pub use engine::health::{
     ChannelLimits, ChannelMonitor, ChannelStatus, FaultEvent, FaultKind, FaultLog,
 };
-pub use engine::recovery::NeighbourEstimate;
-pub use engine::safety::{AxisSafety, Input, Mode, SafetyConfig};
+pub use engine::recovery::{NeighbourEstimate, RecoveryError};
+pub use engine::safety::{AxisSafety, Input, Mode, SafetyConfig, SafetyError};
 pub use engine::{AxisErrors, Engine, ErrorModel, MachineState, TermError};
 pub use status::{AxisStatus, SinkStatus, SourceStatus, StatusSnapshot};

@@ -16,7 +16,7 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use retrocomp_bus::Sample;
-use retrocomp_gateway::config::field_check::check_field;
+use retrocomp_gateway::config::check_field;
 use retrocomp_gateway::engine::{AxisErrors, ErrorModel, MachineState};
 use retrocomp_gateway::run::run_until_signal;
 use retrocomp_gateway::sources::spawn_sources;

@@ -19,8 +19,8 @@ use std::time::Duration;
 use retrocomp_fleet::FleetClient;
 use retrocomp_fleet::load::{self, HostTotals};
 use retrocomp_gateway::northbound::telemetry::MqttConfig;
-use retrocomp_gateway::northbound::telemetry::config::TlsConfig;
-use retrocomp_gateway::northbound::telemetry::publisher::now_ms;
+use retrocomp_gateway::northbound::telemetry::TlsConfig;
+use retrocomp_gateway::northbound::telemetry::now_ms;
 
 #[derive(Debug, clap::Parser)]
 #[command(

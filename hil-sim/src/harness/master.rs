@@ -12,8 +12,8 @@
 //!
 //! Units: µm for shifts (the PLC and the box use the same LSB, checked at start), s for time.
 
-use retrocomp_gateway::sinks::origin_shift::map::{decode_value, encode_value};
-use retrocomp_gateway::sinks::origin_shift::server::ServerConfig;
+use retrocomp_gateway::sinks::origin_shift::ServerConfig;
+use retrocomp_gateway::sinks::origin_shift::{decode_value, encode_value};
 use tokio_modbus::prelude::{Request, Response};
 
 use super::{ClosedLoop, PlcWrite};

@@ -9,9 +9,9 @@ use std::path::{Path, PathBuf};
 
 use hil_sim::SimConfig;
 use hil_sim::harness::{ClosedLoop, FaultEvent, ModelFactory, PlcWrite, StepTrace};
+use retrocomp_gateway::FaultKind;
 use retrocomp_gateway::config::FieldConfig;
-use retrocomp_gateway::engine::health::FaultKind;
-use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+use retrocomp_gateway::engine::MachineModelAdapter;
 use retrocomp_model::MachineModel;
 
 pub(crate) const CLAMP_UM: f64 = 40.0;

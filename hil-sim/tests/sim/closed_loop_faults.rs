@@ -11,7 +11,7 @@ use crate::closed_loop_support;
 
 use closed_loop_support::*;
 use hil_sim::harness::ClosedLoop;
-use retrocomp_gateway::engine::health::FaultKind;
+use retrocomp_gateway::FaultKind;
 
 /// The first dwell (X150 Y100) and the second (X40 Y30, 130 mm later at 60 mm/s) of [`MOVES`], s.
 const DWELL1: (f64, f64) = (3.5, 6.5);

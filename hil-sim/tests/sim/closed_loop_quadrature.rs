@@ -12,7 +12,7 @@ use crate::closed_loop_support;
 
 use closed_loop_support::*;
 use hil_sim::harness::{ClosedLoop, Pulse};
-use retrocomp_gateway::engine::health::FaultKind;
+use retrocomp_gateway::FaultKind;
 
 const DWELL1_END: f64 = 6.5;
 
@@ -200,7 +200,7 @@ fn a_persisted_count_beyond_the_clamp_injects_nothing_on_that_axis_and_is_a_faul
     // bad edit) is no start value: the restarted box refuses that axis — nothing injected, never
     // ramped from, a `sink.quadrature.x` BeyondClamp fault — and drives the others, as the
     // runtime's sink does (the harness steps the sink's own core).
-    use retrocomp_gateway::sinks::quadrature::held::HeldCounts;
+    use retrocomp_gateway::sinks::quadrature::HeldCounts;
     let mut h = closed_loop_quadrature(sim_config(MOVES, true, ""));
     h.run_until(1.0);
     let beyond = (clamp_of(0) + 10.0).round() as i64;

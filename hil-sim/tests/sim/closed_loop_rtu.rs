@@ -11,7 +11,7 @@ use crate::closed_loop_support;
 
 use closed_loop_support::*;
 use hil_sim::harness::ClosedLoop;
-use retrocomp_gateway::engine::health::FaultKind;
+use retrocomp_gateway::FaultKind;
 
 /// The RTU slave's mute, s (as `gateway_faults_rtu_hil`'s `RTU_DOWN`).
 const RTU_DOWN: (f64, f64) = (7.0, 10.0);

@@ -131,7 +131,7 @@ fn stopping_ramps_the_counts_out_one_count_per_cycle_all_one_way() {
 
 #[test]
 fn stopping_leaves_a_count_beyond_the_clamp_where_it_is_and_ramps_the_other_axes() {
-    use retrocomp_gateway::sinks::quadrature::held::HeldCounts;
+    use retrocomp_gateway::sinks::quadrature::HeldCounts;
     let mut h = closed_loop_quadrature(sim_config(MOVES, true, ""));
     h.run_until(1.0);
     let beyond = (clamp_of(0) + 10.0).round() as i64;

@@ -18,9 +18,9 @@ use std::path::Path;
 
 use retrocomp_bus::fault::FaultKind;
 use retrocomp_gateway::config::FieldConfig;
-use retrocomp_gateway::engine::model_adapter::MachineModelAdapter;
+use retrocomp_gateway::engine::MachineModelAdapter;
 use retrocomp_gateway::gateway_core::GatewayCore;
-use retrocomp_gateway::sinks::origin_shift::served::StopEnd;
+use retrocomp_gateway::sinks::origin_shift::StopEnd;
 use retrocomp_model::{Axis, MachineModel};
 use tokio_modbus::prelude::{ExceptionCode, Request, Response};
 

@@ -115,7 +115,7 @@ pub fn check_field(
 
 /// The optional inputs of `model` that no source of `cfg` delivers (each a `no_source` fault while
 /// the box runs). A required one missing is the start-up refusal of [`check_field`], not listed.
-pub fn undelivered_optional(cfg: &FieldConfig, model: &dyn ErrorModel) -> Vec<ChannelId> {
+pub(crate) fn undelivered_optional(cfg: &FieldConfig, model: &dyn ErrorModel) -> Vec<ChannelId> {
     check_channels(cfg, model).unwrap_or_default()
 }
 

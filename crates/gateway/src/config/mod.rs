@@ -3,9 +3,9 @@
 //! (from the toml crate); semantic errors name the key path (`axis[1].position_channel`).
 
 pub(crate) mod check;
-pub mod field_check;
+pub(crate) mod field_check;
 pub(crate) mod limits;
-pub mod unit_network;
+pub(crate) mod unit_network;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -204,7 +204,9 @@ pub struct SinkSection {
     pub origin_shift_server: Option<crate::sinks::origin_shift::server::ServerConfig>,
 }
 
+pub use field_check::{CheckedField, check_field};
 pub use retrocomp_model::ConfigError;
+pub use unit_network::UnitNetwork;
 
 /// The optional parts this build of the gateway has (its cargo features): a field file naming a
 /// part the build lacks is refused at its line ([`FieldConfig::parse`]).

@@ -32,11 +32,11 @@ pub struct ChannelLimits {
 /// clock again, s. Within it, "no new sample" is read as "our readers did not run" (a host pause),
 /// not as "the sensor is silent". Safe: stale inputs only hold the last output for `stale_hold_s`
 /// anyway, which is what frozen inputs give too.
-pub const INPUT_LAG_ALLOW_S: f64 = 0.5;
+pub(crate) const INPUT_LAG_ALLOW_S: f64 = 0.5;
 
 /// A CAN `BusErrors` fault lasts this long after the last error frame, s: error frames come in
 /// bursts, and one episode per burst is what an operator wants to read.
-pub const BUS_ERROR_HOLD_S: f64 = 1.0;
+pub(crate) const BUS_ERROR_HOLD_S: f64 = 1.0;
 
 #[derive(Clone, Debug)]
 pub struct ChannelMonitor {
@@ -147,7 +147,7 @@ impl ChannelMonitor {
     /// Status at `now_s` with staleness judged on the inputs' own clock: `inputs_s` is the newest
     /// sample time the gateway has received from any source (≤ `now_s`). A value is stale when the
     /// sources' clock shows this channel silent for `stale_after_s` (`inputs_s − t_last`), or when
-    /// even allowing [`INPUT_LAG_ALLOW_S`] for every input being late (the gateway's readers
+    /// even allowing `INPUT_LAG_ALLOW_S` for every input being late (the gateway's readers
     /// starved by the host) it is older than `stale_after_s` on the wall clock. So a cycle that ran
     /// late, or samples still sitting in a socket buffer, do not make a channel stale; a silent
     /// channel among talking ones does, and a total silence does after the allowance.

@@ -14,14 +14,14 @@
 //! `thermal_period_s` so the thermal terms change in steps of that period, and the safety dosing cap
 //! spreads each step over cycles (Spaan Ch6: 60 s tables, 15 ms evaluation, dosing).
 
-pub mod at_point;
-pub mod direction;
-pub mod error_model;
-pub mod health;
-pub mod model_adapter;
-pub mod model_switch;
-pub mod recovery;
-pub mod safety;
+pub(crate) mod at_point;
+pub(crate) mod direction;
+pub(crate) mod error_model;
+pub(crate) mod health;
+pub(crate) mod model_adapter;
+pub(crate) mod model_switch;
+pub(crate) mod recovery;
+pub(crate) mod safety;
 mod steps;
 
 use std::sync::Arc;
@@ -39,6 +39,9 @@ use retrocomp_model::Axis;
 use retrocomp_model::approach::Approach;
 
 pub use crate::engine::error_model::{AxisErrors, ErrorModel, MachineState, ModelError, TermError};
+pub use at_point::AtPointError;
+pub use model_adapter::MachineModelAdapter;
+pub use model_switch::{Catalog, ModelSwap, SwitchError};
 
 /// Everything the engine knows about one channel, by slot (index into `Engine::channels`).
 struct Channel {

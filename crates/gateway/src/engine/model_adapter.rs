@@ -188,7 +188,7 @@ impl ErrorModel for MachineModelAdapter {
 /// Name, SHA-256 of the canonical TOML, when it was loaded (now), and each term's group
 /// (components, squareness: geometric; `[[thermal]]` terms: thermal; `[[load]]` terms: load; the
 /// chain's cross terms: other).
-pub fn identity_of(model: &MachineModel) -> ModelIdentity {
+pub(crate) fn identity_of(model: &MachineModel) -> ModelIdentity {
     use sha2::Digest as _;
     let spec = model.spec();
     let hash = sha2::Sha256::digest(model.to_toml_string().as_bytes());

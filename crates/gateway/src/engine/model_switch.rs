@@ -26,7 +26,7 @@ use crate::status::ModelIdentity;
 use retrocomp_model::MachineModel;
 
 /// A declared model's name: 1–64 of `[A-Za-z0-9_-]` (never a path).
-pub fn check_name(name: &str) -> Result<(), String> {
+pub(crate) fn check_name(name: &str) -> Result<(), String> {
     let ok = (1..=64).contains(&name.len())
         && name
             .chars()
@@ -150,7 +150,7 @@ pub enum Control {
 
 /// The cycle side of a switch (sans-IO: the cycle loop calls it between cycles).
 #[derive(Debug, Default)]
-pub struct Switcher {
+pub(crate) struct Switcher {
     pending: Option<ModelSwap>,
     /// Compensation state to return to after the swap.
     resume_enabled: bool,
@@ -158,7 +158,7 @@ pub struct Switcher {
 
 impl Switcher {
     /// Start ramping out for `swap` (a newer request replaces a pending one).
-    pub fn request(&mut self, swap: ModelSwap, engine: &mut Engine) {
+    pub(crate) fn request(&mut self, swap: ModelSwap, engine: &mut Engine) {
         if self.pending.is_none() {
             self.resume_enabled = engine.enabled();
         }
@@ -172,7 +172,7 @@ impl Switcher {
     }
 
     /// `POST /api/compensation` during a switch sets what compensation returns to.
-    pub fn set_enabled(&mut self, enabled: bool, engine: &mut Engine) {
+    pub(crate) fn set_enabled(&mut self, enabled: bool, engine: &mut Engine) {
         if self.pending.is_some() {
             self.resume_enabled = enabled;
         } else {
@@ -182,7 +182,7 @@ impl Switcher {
 
     /// The model to switch to, once every output is at 0; the engine then resolves the new
     /// model's channels at its next cycle and compensation returns (ramping in).
-    pub fn poll(&mut self, engine: &mut Engine) -> Option<ModelSwap> {
+    pub(crate) fn poll(&mut self, engine: &mut Engine) -> Option<ModelSwap> {
         self.pending.as_ref()?;
         if !engine.outputs_at_zero() {
             return None;
@@ -196,11 +196,6 @@ impl Switcher {
             "model switch: new model in use"
         );
         Some(swap)
-    }
-
-    /// What a switch in progress goes to.
-    pub fn pending(&self) -> Option<&ModelIdentity> {
-        self.pending.as_ref().map(|s| &s.identity)
     }
 }
 

@@ -41,7 +41,7 @@ pub enum SafetyError {
 }
 
 /// Largest clamp a config may ask for, µm (10 mm: beyond that the unit is wrong, not the machine).
-pub const MAX_CORRECTION_LIMIT_UM: f64 = 10_000.0;
+pub(crate) const MAX_CORRECTION_LIMIT_UM: f64 = 10_000.0;
 
 impl SafetyConfig {
     pub fn validate(&self) -> Result<(), SafetyError> {

@@ -1,8 +1,8 @@
 //! The gateway as one sans-IO object: sources → engine → sink, with time passed in and nothing
 //! spawned. [`GatewayCore`] holds the parts the runtime (`run.rs`) drives on its threads — the
 //! CANopen and serial-line source cores, the [`CycleCore`] (engine, model, switch, accounting),
-//! and one sink: the origin-shift [`SinkCore`] closed by [`end_period`], the quadrature sink's core
-//! stepped by its [`step_axes`](crate::sinks::quadrature::sink::step_axes), or the origin-shift
+//! and one sink: the origin-shift [`SinkCore`] closed by `end_period`, the quadrature sink's core
+//! stepped by its `step_axes`, or the origin-shift
 //! server's register bank and [`ServedSink`](crate::sinks::origin_shift::served::ServedSink)
 //! ([`ServedBox`], started by [`GatewayCore::start_served`]: the engine starts once the controller
 //! has reported what it holds) — and composes them in the runtime's order. The closed-loop
@@ -22,8 +22,8 @@
 //! Units: corrections µm (correction = −error), positions mm, time s (gateway clock) and ns on
 //! the quadrature lines.
 
-pub mod cycle;
-pub mod quadrature;
+pub(crate) mod cycle;
+pub(crate) mod quadrature;
 
 use std::collections::BTreeMap;
 

@@ -56,7 +56,7 @@ impl SourceBoard {
 /// One source's link state and faults. Call the `handle_*` methods as things happen, then
 /// [`SourceReporter::publish`]: it logs fault transitions and updates the board when anything changed.
 #[derive(Debug)]
-pub struct SourceReporter {
+pub(crate) struct SourceReporter {
     status: SourceStatus,
     published: Option<SourceStatus>,
     /// `status.name` as the fault log's source (built once).
@@ -74,7 +74,7 @@ pub struct SourceReporter {
 
 impl SourceReporter {
     /// A source whose link is up (`connected`) or not yet (a Modbus peer that is down at start).
-    pub fn new(name: &str, connected: bool, board: SourceBoard) -> Self {
+    pub(crate) fn new(name: &str, connected: bool, board: SourceBoard) -> Self {
         SourceReporter {
             status: SourceStatus {
                 name: name.to_string(),
@@ -92,16 +92,16 @@ impl SourceReporter {
         }
     }
 
-    pub fn name(&self) -> &str {
+    pub(crate) fn name(&self) -> &str {
         &self.status.name
     }
 
-    pub fn is_connected(&self) -> bool {
+    pub(crate) fn is_connected(&self) -> bool {
         self.status.connected
     }
 
     /// The link failed (closed, I/O error, open failed). `why` is kept as `last_error`.
-    pub fn handle_link_down(&mut self, why: &str) {
+    pub(crate) fn handle_link_down(&mut self, why: &str) {
         self.status.connected = false;
         if self.status.last_error.as_deref() != Some(why) {
             self.status.last_error = Some(why.to_string());
@@ -109,7 +109,7 @@ impl SourceReporter {
     }
 
     /// The link works again (data arrived after a reopen).
-    pub fn handle_link_up(&mut self) {
+    pub(crate) fn handle_link_up(&mut self) {
         if !self.status.connected {
             self.status.connected = true;
             if self.ever_connected {
@@ -121,7 +121,7 @@ impl SourceReporter {
 
     /// The CAN backend's error-frame state. A new backend (after a reopen) starts its counters at
     /// zero; the totals shown keep counting across reopens.
-    pub fn handle_can_bus(&mut self, now: BusErrors, base: &BusErrors, now_s: f64) {
+    pub(crate) fn handle_can_bus(&mut self, now: BusErrors, base: &BusErrors, now_s: f64) {
         let frames = base.error_frames + now.error_frames;
         if frames > self.error_frames_seen {
             self.error_frames_seen = frames;
@@ -137,7 +137,7 @@ impl SourceReporter {
     }
 
     /// A Modbus poll finished: `before` and `after` are the poller's counters around it.
-    pub fn handle_modbus_poll(
+    pub(crate) fn handle_modbus_poll(
         &mut self,
         before: &PollCounters,
         after: &PollCounters,
@@ -193,7 +193,7 @@ impl SourceReporter {
 
     /// When [`Self::publish`] next has a change to report without new input (s, the gateway
     /// clock): the `bus_errors` fault clearing [`BUS_ERROR_HOLD_S`] after the last error frame.
-    pub fn poll_timeout(&self) -> Option<f64> {
+    pub(crate) fn poll_timeout(&self) -> Option<f64> {
         let t = self.last_error_frame_s?;
         let holding = self
             .status
@@ -204,7 +204,7 @@ impl SourceReporter {
     }
 
     /// Log fault transitions (once at start, once at clear) and update the board if anything changed.
-    pub fn publish(&mut self, now_s: f64) -> Vec<FaultEvent> {
+    pub(crate) fn publish(&mut self, now_s: f64) -> Vec<FaultEvent> {
         let faults = self.faults(now_s);
         let same = faults.len() == self.status.faults.len()
             && faults

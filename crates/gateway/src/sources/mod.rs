@@ -10,7 +10,7 @@
 //! Every source comes back by itself: a CAN backend that fails (socketcand peer hung up, SocketCAN
 //! interface down or removed) is reopened, a serial port reopened, a Modbus context rebuilt, each
 //! with the one [`Backoff`]. The link's state is a fault of the source (`can`, `modbus.<name>`,
-//! `serial.<name>`; [`SourceReporter`]): `disconnected` from the failure until data flows again
+//! `serial.<name>`; `SourceReporter`): `disconnected` from the failure until data flows again
 //! (for CAN: until the first frame after the reopen, since a SocketCAN socket reopens fine on an
 //! interface that is still down), plus `bus_off` / `error_passive` / `bus_errors` from CAN error
 //! frames and `exception` while a Modbus device answers with exceptions. A source task that ends
@@ -22,7 +22,9 @@
 //! shares a tokio worker with the status endpoint or whatever else the caller's runtime runs (the
 //! demo's in-process hubs), so a busy runtime does not leave frames and lines unread (issue 18.5).
 
-pub mod health;
+pub(crate) mod health;
+
+pub use health::SourceBoard;
 
 use std::time::{Duration, Instant};
 
@@ -31,7 +33,7 @@ use tokio::sync::mpsc;
 use crate::config::FieldConfig;
 use crate::error::GatewayError;
 use crate::pacer::CycleWake;
-use crate::sources::health::{SourceBoard, SourceReporter};
+use crate::sources::health::SourceReporter;
 use crate::supervise::{CycleCounter, DeathNotice, TaskDeaths};
 use retrocomp_bus::can::{self, AnyCanBus, BusErrors, CanBackendConfig, CanBus, CanError};
 use retrocomp_bus::canopen::{self, CanopenConfig, CanopenSource};

@@ -31,7 +31,7 @@ mod pki;
 #[cfg(feature = "opcua")]
 mod server;
 #[cfg(feature = "opcua")]
-pub mod space;
+pub(crate) mod space;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};

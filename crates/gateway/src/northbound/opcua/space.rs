@@ -21,51 +21,51 @@ use retrocomp_bus::Health;
 /// An engineering unit: UNECE Rec. 20 code (OPC UA `EUInformation.unitId` is derived from it),
 /// symbol and name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Unit {
+pub(crate) struct Unit {
     pub code: &'static str,
     pub symbol: &'static str,
     pub name: &'static str,
 }
 
-pub const MICROMETRE: Unit = Unit {
+pub(crate) const MICROMETRE: Unit = Unit {
     code: "4H",
     symbol: "µm",
     name: "micrometre",
 };
-pub const MILLIMETRE: Unit = Unit {
+pub(crate) const MILLIMETRE: Unit = Unit {
     code: "MMT",
     symbol: "mm",
     name: "millimetre",
 };
-pub const CELSIUS: Unit = Unit {
+pub(crate) const CELSIUS: Unit = Unit {
     code: "CEL",
     symbol: "°C",
     name: "degree Celsius",
 };
-pub const NEWTON: Unit = Unit {
+pub(crate) const NEWTON: Unit = Unit {
     code: "NEW",
     symbol: "N",
     name: "newton",
 };
-pub const KELVIN: Unit = Unit {
+pub(crate) const KELVIN: Unit = Unit {
     code: "KEL",
     symbol: "K",
     name: "kelvin",
 };
-pub const SECOND: Unit = Unit {
+pub(crate) const SECOND: Unit = Unit {
     code: "SEC",
     symbol: "s",
     name: "second",
 };
 
 /// OPC UA Part 8 §5.6.3: the unitId of a UNECE code is its (up to 3) ASCII bytes, big-endian.
-pub fn unece_unit_id(code: &str) -> i32 {
+pub(crate) fn unece_unit_id(code: &str) -> i32 {
     code.bytes().fold(0i32, |acc, b| (acc << 8) | i32::from(b))
 }
 
 /// The unit of a channel, from the suffix of its name (docs/recording-csv.md: `_mm`, `_um`, `_C`, `_N`, ...).
 /// None for channels without a unit the UNECE list covers (e.g. strain `_ue`).
-pub fn unit_of_channel(name: &str) -> Option<Unit> {
+pub(crate) fn unit_of_channel(name: &str) -> Option<Unit> {
     let (_, suffix) = name.rsplit_once('_')?;
     match suffix {
         "mm" => Some(MILLIMETRE),
@@ -79,7 +79,7 @@ pub fn unit_of_channel(name: &str) -> Option<Unit> {
 }
 
 #[derive(Clone, Debug, PartialEq)]
-pub enum Value {
+pub(crate) enum Value {
     /// None → the variable reads with a Bad status (e.g. no target while inputs are stale).
     F64(Option<f64>),
     Bool(bool),
@@ -90,7 +90,7 @@ pub enum Value {
 
 /// How far a client may trust a value: the variable's StatusCode (OPC UA Part 4 §7.39).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Quality {
+pub(crate) enum Quality {
     Good,
     /// The channel went stale: the value is its last good reading (`Uncertain_LastUsableValue`).
     LastUsable,
@@ -105,7 +105,7 @@ pub enum Quality {
 }
 
 #[derive(Clone, Debug, PartialEq)]
-pub struct Point {
+pub(crate) struct Point {
     /// Below the box's object, `/`-separated; the last part is the variable's browse name.
     pub path: String,
     pub value: Value,
@@ -117,7 +117,7 @@ pub struct Point {
 }
 
 /// Path parts that are collections (FolderType); every other intermediate part is an object.
-pub const FOLDERS: [&str; 7] = [
+pub(crate) const FOLDERS: [&str; 7] = [
     "Axes",
     "Sensors",
     "Terms",
@@ -144,7 +144,7 @@ fn p(path: String, value: Value, unit: Option<Unit>) -> Point {
 
 /// A channel's value quality from its health: a stale channel's last reading is still usable
 /// (the model holds it), a faulted one is not.
-pub fn channel_quality(c: &ChannelStatus) -> Quality {
+pub(crate) fn channel_quality(c: &ChannelStatus) -> Quality {
     match (c.value, c.health) {
         (None, _) => Quality::NoData,
         (Some(_), _) if c.substituted => Quality::Substituted,
@@ -166,7 +166,7 @@ fn group_folder(model: Option<&ModelIdentity>, term: &str) -> &'static str {
 }
 
 /// What does not change while the gateway runs.
-pub fn identification(box_name: &str, model: Option<&ModelIdentity>) -> Vec<Point> {
+pub(crate) fn identification(box_name: &str, model: Option<&ModelIdentity>) -> Vec<Point> {
     let s = |v: &str| Value::Str(v.to_string());
     let id = |k: &str| format!("Identification/{k}");
     vec![
@@ -179,7 +179,7 @@ pub fn identification(box_name: &str, model: Option<&ModelIdentity>) -> Vec<Poin
 }
 
 /// Every variable the snapshot fills, in a stable order.
-pub fn points(snap: &StatusSnapshot, model: Option<&ModelIdentity>) -> Vec<Point> {
+pub(crate) fn points(snap: &StatusSnapshot, model: Option<&ModelIdentity>) -> Vec<Point> {
     let mut out = Vec::with_capacity(64);
     let comp = |k: &str| format!("Monitoring/Compensation/{k}");
     out.push(p(comp("Enabled"), Value::Bool(snap.enabled), None));

@@ -6,7 +6,7 @@ use crate::status::StatusSnapshot;
 use retrocomp_bus::fault::FaultKind;
 
 /// The fault-log source of the publisher's link (`telemetry.mqtt:disconnected`).
-pub const SOURCE: &str = "telemetry.mqtt";
+pub(crate) const SOURCE: &str = "telemetry.mqtt";
 
 /// Copies the publisher's state into each status snapshot; owned by the cycle loop (which builds
 /// the snapshots, at ≤ 10 Hz), so it only reads a watch channel.

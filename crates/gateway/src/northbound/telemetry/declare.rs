@@ -10,7 +10,7 @@
 //! as its range; counters in what they count (`cycles`, `faults`, `writes`).
 //!
 //! The text states are enumerations with the spellings `/status` uses: [`HEALTH_STATES`],
-//! [`MODE_STATES`], [`SINK_KINDS`].
+//! [`MODE_STATES`]; `Sink/kind` is `origin_shift`, `origin_shift_server` or `quadrature`.
 
 use super::sparkplug::{DataType, MetricSpec, NamedValue};
 
@@ -18,8 +18,6 @@ use super::sparkplug::{DataType, MetricSpec, NamedValue};
 pub const HEALTH_STATES: [&str; 4] = ["ok", "stale", "out_of_range", "decode_error"];
 /// `Axis/<axis>/mode`: the safety mode (`status::Mode`, snake_case).
 pub const MODE_STATES: [&str; 4] = ["tracking", "ramping_in", "holding", "ramping_out"];
-/// `Sink/kind`: the controller link.
-pub const SINK_KINDS: [&str; 3] = ["origin_shift", "origin_shift_server", "quadrature"];
 
 /// One compensated axis and its clamp.
 #[derive(Clone, Debug, PartialEq)]
@@ -51,7 +49,7 @@ pub struct Declaration {
 }
 
 impl Declaration {
-    /// The NBIRTH table: names in the order [`super::metrics::snapshot_metrics`] produces them,
+    /// The NBIRTH table: names in the order `super::metrics::snapshot_metrics` produces them,
     /// with datatype, unit and range.
     pub fn specs(&self) -> Vec<MetricSpec> {
         use DataType::{Boolean, Double, String as Text, UInt32, UInt64};
@@ -100,7 +98,7 @@ impl Declaration {
 
 /// The NBIRTH table for what is known now: the declaration, then every metric with a value that
 /// it does not name (declared by its value's type and its name's unit).
-pub fn birth_table(declared: &[MetricSpec], current: &[NamedValue]) -> Vec<MetricSpec> {
+pub(crate) fn birth_table(declared: &[MetricSpec], current: &[NamedValue]) -> Vec<MetricSpec> {
     let mut table = declared.to_vec();
     for (n, v) in current {
         if !table.iter().any(|m| m.name == *n) {
@@ -120,7 +118,7 @@ fn spec(name: &str, datatype: DataType) -> MetricSpec {
 }
 
 /// The engineering unit of a numeric metric, from its name.
-pub fn unit_of(name: &str) -> Option<&str> {
+pub(crate) fn unit_of(name: &str) -> Option<&str> {
     match name {
         "Gateway/cycles" => return Some("cycles"),
         "Gateway/t_s" => return Some("s"),

@@ -27,7 +27,7 @@ fn snake<T: Serialize>(t: &T) -> String {
 }
 
 /// The metrics of one snapshot, in a stable order (the birth's alias order).
-pub fn snapshot_metrics(snap: &StatusSnapshot, model_identity: &str) -> Vec<NamedValue> {
+pub(crate) fn snapshot_metrics(snap: &StatusSnapshot, model_identity: &str) -> Vec<NamedValue> {
     let mut out: Vec<NamedValue> = Vec::with_capacity(16 + 8 * snap.axes.len());
     let mut push = |name: String, v: Value| out.push((name, v));
     push("Gateway/cycles".into(), Value::Long(snap.cycles));
@@ -109,26 +109,21 @@ fn is_state(name: &str) -> bool {
 
 /// A data record: the values that changed, sampled at `t_ms` (ms since the Unix epoch).
 #[derive(Clone, Debug, PartialEq)]
-pub struct Record {
+pub(crate) struct Record {
     pub t_ms: u64,
     pub values: Vec<NamedValue>,
 }
 
 /// Report by exception: remembers the last values sent and yields only the changes.
 #[derive(Debug, Default)]
-pub struct Sampler {
+pub(crate) struct Sampler {
     last: Vec<NamedValue>,
 }
 
 impl Sampler {
-    /// Every metric's last value (what an NBIRTH must announce).
-    pub fn current(&self) -> &[NamedValue] {
-        &self.last
-    }
-
     /// True when a state metric (enable, faults, modes, health, sink link) differs from the last
     /// record: the caller publishes now instead of waiting for its tick.
-    pub fn state_changed(&self, now: &[NamedValue]) -> bool {
+    pub(crate) fn state_changed(&self, now: &[NamedValue]) -> bool {
         now.iter().filter(|(n, _)| is_state(n)).any(|(n, v)| {
             self.last
                 .iter()
@@ -138,7 +133,7 @@ impl Sampler {
     }
 
     /// The record of what changed since the last one (None when nothing did).
-    pub fn record(&mut self, now: Vec<NamedValue>, t_ms: u64) -> Option<Record> {
+    pub(crate) fn record(&mut self, now: Vec<NamedValue>, t_ms: u64) -> Option<Record> {
         let changed: Vec<NamedValue> = now
             .iter()
             .filter(|(n, v)| {

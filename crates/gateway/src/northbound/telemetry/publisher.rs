@@ -25,14 +25,14 @@ use rumqttc::{
 use tokio::sync::{mpsc, watch};
 
 use super::TelemetryError;
-pub use super::annotate::TelemetryAnnotator;
+pub(crate) use super::annotate::TelemetryAnnotator;
 use super::config::MqttConfig;
 use super::declare::{Declaration, birth_table};
 use super::metrics::{Record, Sampler, snapshot_metrics};
 use super::queue::{self, Queue, QueueLimits};
 use super::rebirth::RebirthLimiter;
 use super::sparkplug::{self, EdgeNode, Kind, MetricSpec, NamedValue};
-pub use super::status::TelemetryStatus;
+pub(crate) use super::status::TelemetryStatus;
 use crate::status::StatusSnapshot;
 use retrocomp_bus::Backoff;
 

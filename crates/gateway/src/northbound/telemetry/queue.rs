@@ -16,10 +16,10 @@ use prost::Message;
 use super::metrics::Record;
 use super::sparkplug::{Metric, Payload};
 
-pub use super::config::DropPolicy;
+pub(crate) use super::config::DropPolicy;
 
 #[derive(Clone, Debug, PartialEq)]
-pub struct QueueLimits {
+pub(crate) struct QueueLimits {
     pub dir: Option<PathBuf>,
     pub max_records: usize,
     pub max_bytes: u64,
@@ -28,13 +28,13 @@ pub struct QueueLimits {
 
 /// One queued record: its id (increasing, the send order) and its encoded bytes.
 #[derive(Clone, Debug)]
-pub struct Entry {
+pub(crate) struct Entry {
     pub id: u64,
     pub bytes: Vec<u8>,
 }
 
 #[derive(Debug)]
-pub struct Queue {
+pub(crate) struct Queue {
     limits: QueueLimits,
     entries: VecDeque<Entry>,
     next_id: u64,
@@ -45,7 +45,7 @@ pub struct Queue {
     disk_error_logged: bool,
 }
 
-pub fn encode(rec: &Record) -> Vec<u8> {
+pub(crate) fn encode(rec: &Record) -> Vec<u8> {
     Payload {
         timestamp: Some(rec.t_ms),
         metrics: rec
@@ -62,7 +62,7 @@ pub fn encode(rec: &Record) -> Vec<u8> {
     .encode_to_vec()
 }
 
-pub fn decode(bytes: &[u8]) -> Option<Record> {
+pub(crate) fn decode(bytes: &[u8]) -> Option<Record> {
     let p = Payload::decode(bytes).ok()?;
     let values = p
         .metrics
@@ -81,7 +81,7 @@ fn file_of(dir: &Path, id: u64) -> PathBuf {
 
 impl Queue {
     /// Open the queue, reading back what a previous run left in `limits.dir` (oldest first).
-    pub fn open(limits: QueueLimits) -> std::io::Result<Self> {
+    pub(crate) fn open(limits: QueueLimits) -> std::io::Result<Self> {
         let mut q = Queue {
             limits,
             entries: VecDeque::new(),
@@ -124,24 +124,24 @@ impl Queue {
         Ok(q)
     }
 
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.entries.len()
     }
 
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.entries.is_empty()
     }
 
-    pub fn bytes(&self) -> u64 {
+    pub(crate) fn bytes(&self) -> u64 {
         self.bytes
     }
 
-    pub fn dropped_total(&self) -> u64 {
+    pub(crate) fn dropped_total(&self) -> u64 {
         self.dropped_total
     }
 
     /// The id the next pushed record gets.
-    pub fn next_id(&self) -> u64 {
+    pub(crate) fn next_id(&self) -> u64 {
         self.next_id
     }
 
@@ -152,7 +152,7 @@ impl Queue {
 
     /// Append a record; when the queue is full, the policy drops a record (counted). Returns
     /// the number of records dropped by this push.
-    pub fn push(&mut self, bytes: Vec<u8>) -> u64 {
+    pub(crate) fn push(&mut self, bytes: Vec<u8>) -> u64 {
         let extra = bytes.len() as u64;
         let mut dropped = 0;
         while self.full_with(extra) {
@@ -206,7 +206,7 @@ impl Queue {
     }
 
     /// The first entry whose id is at least `from` (the next to send).
-    pub fn first_from(&self, from: u64) -> Option<&Entry> {
+    pub(crate) fn first_from(&self, from: u64) -> Option<&Entry> {
         // Ids increase along the deque, so the first match is found by bisection.
         let i = self.entries.partition_point(|e| e.id < from);
         self.entries.get(i)
@@ -214,7 +214,7 @@ impl Queue {
 
     /// Forget an entry (acknowledged by the broker, or dropped). Unknown ids are ignored (an
     /// acknowledgement of a record that the drop policy already removed).
-    pub fn remove(&mut self, id: u64) {
+    pub(crate) fn remove(&mut self, id: u64) {
         let i = self.entries.partition_point(|e| e.id < id);
         if self.entries.get(i).is_some_and(|e| e.id == id) {
             let e = self.entries.remove(i).expect("index checked");

@@ -3,7 +3,7 @@
 //! sample per row) into **chunks** of whole rows; every chunk repeats the header, so each is itself
 //! a valid recording CSV. A chunk travels as a small JSON envelope naming the machine (Sparkplug
 //! group + edge node), the recording's file name, its index and whether it is the last one. The
-//! shell ([`super::shipper`]) puts chunks through the same bounded store-and-forward [`super::queue`]
+//! shell (`super::shipper`) puts chunks through the same bounded store-and-forward `super::queue`
 //! as the telemetry (QoS 1, leave on PUBACK, resent after a reconnect), so they arrive in order and
 //! possibly twice; the [`Collector`] on the fleet side writes them per machine as
 //! `<dir>/<group>/<edge node>/<name>` (the contract again), appending rows in index order,

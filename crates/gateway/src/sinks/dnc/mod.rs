@@ -2,4 +2,6 @@
 //! input. The drip-feed itself (it needs the NC rewriter of the offline toolkit, which the
 //! appliance's gateway does not build) is `src/dnc/` of the `retrocomp` package (`retrocomp dnc`).
 
-pub mod config;
+pub(crate) mod config;
+
+pub use config::{DncSection, Flow, LineEnd};

@@ -31,7 +31,7 @@ use tokio::task::JoinHandle;
 use tokio::time::MissedTickBehavior;
 
 use super::served::{ServedBox, StopEnd};
-use super::server_core::ServerMap;
+use super::server_map::ServerMap;
 use crate::sinks::guard::AxisLimits;
 use crate::sinks::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
 use retrocomp_bus::modbus::{TcpServer, spawn_rtu};
@@ -310,7 +310,7 @@ fn publish_status(
 }
 
 /// The server's fault source (`<SOURCE>.<axis>` per axis).
-pub const SOURCE: &str = "sink.origin_shift_server";
+pub(crate) const SOURCE: &str = "sink.origin_shift_server";
 
 impl Drop for OriginShiftServer {
     fn drop(&mut self) {
@@ -323,7 +323,7 @@ impl Drop for OriginShiftServer {
 /// The origin-shift server as the run loop's [`Sink`]: [`Sink::start`] binds and waits until the
 /// controller reports what it holds (the engine's start value), [`Sink::run`] serves.
 #[derive(Debug)]
-pub struct OriginShiftServerSink {
+pub(crate) struct OriginShiftServerSink {
     cfg: ServerConfig,
     /// Clamp and per-update cap per axis.
     limits: Vec<AxisLimits>,
@@ -333,7 +333,11 @@ pub struct OriginShiftServerSink {
 }
 
 impl OriginShiftServerSink {
-    pub fn new(cfg: ServerConfig, limits: Vec<AxisLimits>, epoch: std::time::Instant) -> Self {
+    pub(crate) fn new(
+        cfg: ServerConfig,
+        limits: Vec<AxisLimits>,
+        epoch: std::time::Instant,
+    ) -> Self {
         Self {
             cfg,
             limits,

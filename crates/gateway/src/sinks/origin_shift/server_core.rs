@@ -29,9 +29,7 @@
 
 use super::map::decode_value;
 use super::map::{AxisRegister, RegisterMap, Words, WriteBlock};
-pub use super::server_map::{
-    HeldRegister, PositionRegister, ServerMap, ServerMapError, WriteMarker,
-};
+use super::server_map::ServerMap;
 use crate::sinks::guard::{AxisLimits, SinkFaults, Verdict, WriteGuard};
 use retrocomp_bus::ChannelId;
 use retrocomp_model::Axis;
@@ -294,6 +292,7 @@ impl ServerCore {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sinks::origin_shift::WriteMarker;
     use std::collections::BTreeMap;
 
     pub(crate) fn map() -> ServerMap {

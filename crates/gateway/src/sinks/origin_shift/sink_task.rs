@@ -33,7 +33,7 @@ use crate::sinks::{LocalFuture, Sink, SinkError, SinkIo, StartValues};
 use retrocomp_bus::fault::{FaultEvent, FaultKind, FaultLog, FaultSource};
 use retrocomp_model::Axis;
 
-pub const SOURCE: &str = "sink.origin_shift";
+pub(crate) const SOURCE: &str = "sink.origin_shift";
 
 /// The sink's fault sources, named once: the link (`sink.origin_shift`) and each map axis
 /// (`sink.origin_shift.<axis>`, map order).
@@ -61,22 +61,7 @@ impl SinkSources {
 }
 
 /// The sink's fault episodes from the core's flags after a period (sans-IO; `now_s` on the
-/// gateway clock). Returns the faults that started (source, kind), to log with their reason.
-/// Names its sources on every call: the sink task uses [`update_faults_of`].
-pub fn update_faults(
-    log: &mut FaultLog,
-    core: &SinkCore,
-    connected: bool,
-    now_s: f64,
-) -> Vec<(String, FaultKind)> {
-    update_faults_of(log, &SinkSources::of(core), core, connected, now_s)
-        .into_iter()
-        .filter(|e| e.started)
-        .map(|e| (e.source, e.kind))
-        .collect()
-}
-
-/// [`update_faults`] with the sources named once; returns every start and clear. Allocates only
+/// gateway clock), with the sources named once; returns every start and clear. Allocates only
 /// when a fault starts or clears.
 pub fn update_faults_of(
     log: &mut FaultLog,
@@ -90,7 +75,7 @@ pub fn update_faults_of(
 
 /// The fault episodes of any sink from its guard's flags (`f`) and its link: the one mapping every
 /// sink shares (`BeyondClamp` and `Uncertain` per axis, `Disconnected`/`WriteFailed` for the link).
-pub fn update_sink_faults(
+pub(crate) fn update_sink_faults(
     log: &mut FaultLog,
     sources: &SinkSources,
     f: &SinkFaults,
@@ -128,7 +113,7 @@ pub fn update_sink_faults(
 /// engine continues from (the controller held another value) and the fault episodes that started
 /// or cleared.
 #[derive(Debug, Default)]
-pub struct PeriodEnd {
+pub(crate) struct PeriodEnd {
     pub reseeds: Vec<(Axis, f64)>,
     pub events: Vec<FaultEvent>,
 }
@@ -136,7 +121,7 @@ pub struct PeriodEnd {
 /// The end of one period (sans-IO; `connected`: the client's link after it, `now_s` on the
 /// gateway clock). Every driver of the sink ends its periods here (the task below and
 /// `gateway_core`).
-pub fn end_period(
+pub(crate) fn end_period(
     core: &mut SinkCore,
     log: &mut FaultLog,
     sources: &SinkSources,
@@ -155,7 +140,7 @@ pub fn end_period(
 /// resolution; an axis `limits` do not name has a clamp of 0). Any other value is not a start
 /// value — the sink refuses to write that axis (a `BeyondClamp` fault) until the controller's value
 /// is back in range, and the engine continues from it then.
-pub fn start_values_within(
+pub(crate) fn start_values_within(
     held_um: BTreeMap<String, f64>,
     map: &RegisterMap,
     limits: &[AxisLimits],
@@ -208,7 +193,7 @@ async fn wait_for_period(
 
 /// Write the engine's outputs when they change, and every `write_period_ms` without a change,
 /// until the runtime drops the output channel.
-pub async fn origin_shift_task(
+pub(crate) async fn origin_shift_task(
     os: OriginShiftSink,
     mut client: OriginShiftClient,
     axes: Vec<SinkAxis>,
@@ -314,7 +299,7 @@ pub async fn origin_shift_task(
 /// The origin-shift client as the run loop's [`Sink`]: [`Sink::start`] reads what the controller
 /// holds, [`Sink::run`] is [`origin_shift_task`].
 #[derive(Debug)]
-pub struct OriginShiftClientSink {
+pub(crate) struct OriginShiftClientSink {
     os: OriginShiftSink,
     client: OriginShiftClient,
     axes: Vec<SinkAxis>,
@@ -323,7 +308,7 @@ pub struct OriginShiftClientSink {
 
 impl OriginShiftClientSink {
     /// `axes`: clamp and per-write cap per axis; `epoch`: the gateway's clock (fault times).
-    pub fn new(
+    pub(crate) fn new(
         os: OriginShiftSink,
         axes: Vec<SinkAxis>,
         epoch: std::time::Instant,

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// Where the held counts are persisted when `state_file` is not given.
-pub const DEFAULT_STATE_FILE: &str = "/var/lib/retrocomp/quadrature-held.toml";
+pub(crate) const DEFAULT_STATE_FILE: &str = "/var/lib/retrocomp/quadrature-held.toml";
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -16,7 +16,7 @@ pub struct QuadratureSink {
     #[serde(rename = "axis")]
     pub axes: Vec<QuadratureAxis>,
     /// The held-counts file (relative paths: to the config file's directory once resolved);
-    /// default [`DEFAULT_STATE_FILE`]. Delete it after homing or power-cycling the controller.
+    /// default `DEFAULT_STATE_FILE`. Delete it after homing or power-cycling the controller.
     #[serde(default)]
     pub state_file: Option<PathBuf>,
     /// The edge trace: every level the injector threads write (absent: no trace).

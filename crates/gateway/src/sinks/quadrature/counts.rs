@@ -38,7 +38,7 @@ impl CountQuantizer {
     }
 
     /// A quantizer that continues from `held_counts` already emitted (what the controller holds,
-    /// persisted by [`super::held`]): the next delta is taken against them, not against 0.
+    /// persisted by `super::held`): the next delta is taken against them, not against 0.
     pub fn continuing_from(
         resolution_um: f64,
         count_sign: i8,

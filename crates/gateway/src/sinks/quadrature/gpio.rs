@@ -17,7 +17,7 @@ use crate::sinks::SinkError;
 const CONSUMER: &str = "retrocomp-quadrature";
 
 /// Request both lines as outputs at `levels` (A, B). Errors name the chip and the line.
-pub fn open_output_pins(
+pub(crate) fn open_output_pins(
     lines: &GpioLines,
     levels: (bool, bool),
 ) -> Result<(CdevPin, CdevPin), SinkError> {

@@ -60,7 +60,7 @@ pub trait HeldCounts {
 /// The count delta for `correction_um`, persisted ahead: when the target count changes it is saved
 /// first, and only then handed out. A failed save hands out nothing (the quantizer stays at what is
 /// persisted), so the controller never holds a count the store does not know.
-pub fn write_ahead(
+pub(crate) fn write_ahead(
     store: &mut dyn HeldCounts,
     axis: &str,
     quant: &mut CountQuantizer,
@@ -75,21 +75,17 @@ pub fn write_ahead(
 
 /// The gateway's store: one TOML file per sink (`x = -6`), replaced atomically on every change.
 #[derive(Debug)]
-pub struct FileHeldCounts {
+pub(crate) struct FileHeldCounts {
     path: PathBuf,
     counts: BTreeMap<String, i64>,
 }
 
 impl FileHeldCounts {
-    pub fn new(path: PathBuf) -> Self {
+    pub(crate) fn new(path: PathBuf) -> Self {
         Self {
             path,
             counts: BTreeMap::new(),
         }
-    }
-
-    pub fn path(&self) -> &Path {
-        &self.path
     }
 }
 
@@ -129,7 +125,7 @@ impl HeldCounts for FileHeldCounts {
 }
 
 /// Refuse a state file whose directory this process cannot write (checked at start).
-pub fn check_writable(path: &Path) -> Result<(), String> {
+pub(crate) fn check_writable(path: &Path) -> Result<(), String> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),

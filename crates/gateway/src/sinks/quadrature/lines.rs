@@ -34,7 +34,7 @@ struct AxisLines {
 }
 
 /// Every configured axis's lines (config order) and the trace.
-pub struct Lines {
+pub(crate) struct Lines {
     axes: Vec<AxisLines>,
     trace: Option<TraceWriter>,
 }
@@ -50,7 +50,10 @@ impl std::fmt::Debug for Lines {
 
 impl Lines {
     /// Open every axis at its `held` counts (the lines start at that phase's levels: no edge).
-    pub fn open(q: &QuadratureSink, held: &BTreeMap<String, i64>) -> Result<Self, SinkError> {
+    pub(crate) fn open(
+        q: &QuadratureSink,
+        held: &BTreeMap<String, i64>,
+    ) -> Result<Self, SinkError> {
         let trace = match &q.trace {
             Some(t) => Some(
                 TraceWriter::start(t, q.axes.iter().map(|a| a.axis.clone()).collect()).map_err(
@@ -74,7 +77,7 @@ impl Lines {
     }
 
     /// Hand `delta` counts to axis `i`; false if its injector is gone.
-    pub fn inject(&mut self, i: usize, delta: i64) -> bool {
+    pub(crate) fn inject(&mut self, i: usize, delta: i64) -> bool {
         self.axes[i]
             .feed
             .as_ref()
@@ -82,17 +85,17 @@ impl Lines {
     }
 
     /// Counts axis `i` was given but has not yet written to its lines.
-    pub fn owed(&self, i: usize) -> i64 {
+    pub(crate) fn owed(&self, i: usize) -> i64 {
         self.axes[i].counts.lock().map(|c| c.owed).unwrap_or(0)
     }
 
     /// `"quadrature (gpio)"` or `"quadrature (simulated)"` (the first axis's).
-    pub fn kind(&self) -> &'static str {
+    pub(crate) fn kind(&self) -> &'static str {
         self.axes.first().map_or("quadrature", |a| a.kind)
     }
 
     /// Trace entries lost so far, and whether the trace stopped on a write error.
-    pub fn trace_lost(&self) -> Option<(u64, bool)> {
+    pub(crate) fn trace_lost(&self) -> Option<(u64, bool)> {
         self.trace.as_ref().map(|t| (t.dropped(), t.failed()))
     }
 }

@@ -12,30 +12,36 @@
 //!   `−c_um / resolution_um` counts (times `count_sign` if the encoder counts opposite to the axis).
 //!   [`counts::CountQuantizer`] owns this conversion.
 //!
-//! Layers: [`counts`] (µm → whole counts with a carried residual), [`gray`] (levels ↔ phase, the
-//! decoder), [`scheduler`] (pure edge scheduler merging native and injected edges under the gap and
-//! rate limits), [`driver`] (writes the schedule to two `embedded_hal::digital::OutputPin`s),
-//! [`injector`] (the real-time thread that writes owed edges when due), `gpio` (cargo feature `gpio`:
+//! Layers: `counts` (µm → whole counts with a carried residual), `gray` (levels ↔ phase, the
+//! decoder), `scheduler` (pure edge scheduler merging native and injected edges under the gap and
+//! rate limits), `driver` (writes the schedule to two `embedded_hal::digital::OutputPin`s),
+//! `injector` (the real-time thread that writes owed edges when due), `gpio` (cargo feature `gpio`:
 //! the pins are Linux GPIO character-device lines), [`trace`] (the edge trace the injector threads
-//! write: what they put on the lines), [`native`] (a simulated scale for the simulated sink).
+//! write: what they put on the lines), `native` (a simulated scale for the simulated sink).
 
-pub mod config;
-pub mod core;
-pub mod counts;
-pub mod driver;
+pub(crate) mod config;
+pub(crate) mod core;
+pub(crate) mod counts;
+pub(crate) mod driver;
 #[cfg(all(feature = "gpio", target_os = "linux"))]
-pub mod gpio;
-pub mod gray;
-pub mod held;
-pub mod injector;
-pub mod lines;
-pub mod native;
-pub mod scheduler;
-pub mod sink;
+pub(crate) mod gpio;
+pub(crate) mod gray;
+pub(crate) mod held;
+pub(crate) mod injector;
+pub(crate) mod lines;
+pub(crate) mod native;
+pub(crate) mod scheduler;
+pub(crate) mod sink;
 pub mod trace;
 
-pub use counts::CountQuantizer;
-pub use driver::QuadraturePins;
+pub use self::core::QuadratureCore;
+pub use config::{QuadratureAxis, QuadratureSink};
+pub use counts::{CountError, CountQuantizer};
+pub use driver::{PinError, QuadraturePins, SimulatedPin};
 pub use gray::{DecodeError, QuadDecoder, Step, levels_of_phase};
+pub use held::{HeldCounts, HeldError};
 pub use injector::{Feed, Injector, InjectorCounts, run_injector, run_injector_traced};
-pub use scheduler::{EdgeScheduler, Event, SchedulerConfig, Source, Transition, simulate};
+pub use native::SimulatedNative;
+pub use scheduler::{
+    EdgeScheduler, Event, SchedulerConfig, SchedulerConfigError, Source, Transition, simulate,
+};

@@ -56,7 +56,7 @@ impl SimulatedNative {
 }
 
 /// The scale's thread: sends its edges into `feed` until done or `stop` is set.
-pub fn spawn_scale(
+pub(crate) fn spawn_scale(
     sim: SimulatedNative,
     feed: Sender<Feed>,
     stop: Arc<AtomicBool>,

@@ -19,7 +19,7 @@ use super::gray::{Step, levels_of_phase};
 
 /// Native edges the backlog holds without allocating (the injector thread must not allocate; an
 /// in-spec encoder never queues more than one or two).
-pub const NATIVE_BACKLOG_PREALLOC: usize = 1024;
+pub(crate) const NATIVE_BACKLOG_PREALLOC: usize = 1024;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SchedulerConfig {
@@ -107,7 +107,7 @@ impl EdgeScheduler {
     }
 
     /// Start at output position `held_counts` (what the controller's receiver holds from an earlier
-    /// box, [`super::held`]): the lines then start at its phase's levels, so taking them over shows
+    /// box, `super::held`): the lines then start at its phase's levels, so taking them over shows
     /// the receiver no edge. Injection totals still count from this box's start.
     pub fn starting_at(mut self, held_counts: i64) -> Self {
         self.position = held_counts;

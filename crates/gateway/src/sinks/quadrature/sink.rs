@@ -38,17 +38,17 @@ use retrocomp_bus::fault::{FaultKind, FaultLog, FaultSource};
 use retrocomp_model::error::Chain;
 
 /// Period of the stop ramp-out's steps (no cycle runs then), ms.
-pub const RAMP_PERIOD_MS: u64 = 10;
+pub(crate) const RAMP_PERIOD_MS: u64 = 10;
 
 /// The sink's fault source (`<SOURCE>.<axis>` per axis).
-pub const SOURCE: &str = "sink.quadrature";
+pub(crate) const SOURCE: &str = "sink.quadrature";
 
 /// The edge trace's fault source: entries lost (buffer full) or the file could not be written.
-pub const TRACE_SOURCE: &str = "sink.quadrature.trace";
+pub(crate) const TRACE_SOURCE: &str = "sink.quadrature.trace";
 
 /// Read the persisted counts: per configured axis the held count (0 when none is persisted) and
 /// the start values (µm the controller holds) the engine continues from.
-pub fn held_at_start(
+pub(crate) fn held_at_start(
     q: &QuadratureSink,
     store: &mut dyn HeldCounts,
 ) -> Result<(BTreeMap<String, i64>, StartValues), HeldError> {
@@ -74,7 +74,7 @@ pub fn held_at_start(
 /// The quadrature injector as the run loop's [`Sink`]: [`Sink::start`] reads the persisted held
 /// counts ([`held_at_start`]); [`Sink::run`] is [`quadrature_task`].
 #[derive(Debug)]
-pub struct QuadratureOutput {
+pub(crate) struct QuadratureOutput {
     cfg: QuadratureSink,
     limits: Vec<AxisLimits>,
     held: BTreeMap<String, i64>,
@@ -83,7 +83,11 @@ pub struct QuadratureOutput {
 
 impl QuadratureOutput {
     /// `limits`: clamp and per-write cap per axis; `epoch`: the gateway's clock (fault times).
-    pub fn new(cfg: QuadratureSink, limits: Vec<AxisLimits>, epoch: std::time::Instant) -> Self {
+    pub(crate) fn new(
+        cfg: QuadratureSink,
+        limits: Vec<AxisLimits>,
+        epoch: std::time::Instant,
+    ) -> Self {
         Self {
             cfg,
             limits,
@@ -140,7 +144,7 @@ impl Sink for QuadratureOutput {
 }
 
 /// What [`quadrature_task`] starts from.
-pub struct QuadratureSetup {
+pub(crate) struct QuadratureSetup {
     pub cfg: QuadratureSink,
     /// Clamp and per-write cap per axis.
     pub limits: Vec<AxisLimits>,
@@ -162,7 +166,7 @@ impl std::fmt::Debug for QuadratureSetup {
 }
 
 /// Follow the cycle's outputs until the runtime drops its sender, or ramp out on `io.stop`.
-pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
+pub(crate) async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
     let QuadratureSetup {
         cfg: q,
         limits,
@@ -254,7 +258,7 @@ pub async fn quadrature_task(setup: QuadratureSetup, io: SinkIo) {
 
 /// Where a step's counts go: the injector threads' lines ([`Lines`]), or lines stepped in virtual
 /// time (`gateway_core::quadrature`). Axis `i` is the core's axis order.
-pub trait CountLines {
+pub(crate) trait CountLines {
     /// Hand `delta` counts to axis `i`; false if that axis can take no more (its injector is gone).
     fn inject(&mut self, i: usize, delta: i64) -> bool;
     /// Counts axis `i` was given but has not yet put on its lines.
@@ -273,7 +277,7 @@ impl CountLines for Lines {
 /// One update of every axis: the wanted correction through the guard to the lines (while the
 /// core ramps out, 0 for every axis, also one without an output), then the status and the axes' held values. Every
 /// driver of the quadrature sink steps through here (the runtime's task and the harness).
-pub fn step_axes(
+pub(crate) fn step_axes(
     core: &mut QuadratureCore,
     lines: &mut dyn CountLines,
     outs: &[(retrocomp_model::Axis, f64)],
