@@ -11,6 +11,8 @@
 // Per-axis loops index several [f64; 3] arrays at once; `for k in 0..3` reads clearest.
 #![allow(clippy::needless_range_loop)]
 #![warn(
+    unreachable_pub,
+    unnameable_types,
     clippy::cast_possible_truncation,
     clippy::cast_sign_loss,
     clippy::cast_possible_wrap,

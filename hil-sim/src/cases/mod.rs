@@ -12,11 +12,11 @@
 //! the recording carries lagged, noisy, quantised sensors (so the candidate forms are approximations).
 //!
 //! This is the `standard` family (files `case_NNNN`, output unchanged since before families
-//! existed); [`hard`] adds six families with one difficulty each (`<family>_NNNN`).
+//! existed); `hard` adds six families with one difficulty each (`<family>_NNNN`).
 
-pub mod hard;
-pub mod physics;
-pub mod trajectory;
+pub(crate) mod hard;
+pub(crate) mod physics;
+pub(crate) mod trajectory;
 
 pub use hard::{Family, generate_family_case};
 

@@ -16,7 +16,7 @@ fn gauss(rng: &mut ChaCha8Rng) -> f64 {
     (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
 }
 
-pub fn quantize(v: f64, lsb: f64) -> f64 {
+pub(crate) fn quantize(v: f64, lsb: f64) -> f64 {
     (v / lsb).round() * lsb
 }
 
@@ -25,14 +25,14 @@ pub fn quantize(v: f64, lsb: f64) -> f64 {
 /// spindle heat AND by axis-motion friction (`motion_speed_mm_s`, 0.05 °C per mm/s), with its own
 /// time constant `tau_struct_s` — so it is not a pure lag of the spindle node; ambient drifts slowly.
 #[derive(Debug)]
-pub struct Thermal {
+pub(crate) struct Thermal {
     pub spindle_c: Vec<f64>,
     pub structure_c: Vec<f64>,
     pub ambient_c: Vec<f64>,
 }
 
 #[allow(clippy::too_many_arguments)]
-pub fn thermal(
+pub(crate) fn thermal(
     t_s: &[f64],
     rpm: &[f64],
     motion_speed_mm_s: &[f64],
@@ -55,7 +55,7 @@ pub fn thermal(
 }
 
 /// The standard ambient: 20 °C plus a slow sine of `amp_c` and period `period_s`, starting at 20.
-pub fn standard_ambient(t_s: &[f64], amp_c: f64, period_s: f64) -> Vec<f64> {
+pub(crate) fn standard_ambient(t_s: &[f64], amp_c: f64, period_s: f64) -> Vec<f64> {
     t_s.iter()
         .map(|t| 20.0 + amp_c * (std::f64::consts::TAU * t / period_s).sin())
         .collect()
@@ -64,7 +64,7 @@ pub fn standard_ambient(t_s: &[f64], amp_c: f64, period_s: f64) -> Vec<f64> {
 /// [`thermal`] with a given ambient and the share of the spindle node's rise that heats the
 /// structure (`spindle_share`, 0.4 in the standard cases; 0 leaves the structure unheated by it).
 #[allow(clippy::too_many_arguments)]
-pub fn thermal_with_ambient(
+pub(crate) fn thermal_with_ambient(
     t_s: &[f64],
     ambient_c: Vec<f64>,
     rpm: &[f64],
@@ -93,7 +93,7 @@ pub fn thermal_with_ambient(
 }
 
 /// A temperature sensor on a node: its own lag, white noise, 0.1 °C quantisation.
-pub fn temp_sensor(
+pub(crate) fn temp_sensor(
     rng: &mut ChaCha8Rng,
     t_s: &[f64],
     node_c: &[f64],
@@ -107,7 +107,7 @@ pub fn temp_sensor(
 }
 
 /// A random-walk "sensor" measuring nothing (decoy).
-pub fn random_walk(rng: &mut ChaCha8Rng, n: usize, start: f64, step: f64) -> Vec<f64> {
+pub(crate) fn random_walk(rng: &mut ChaCha8Rng, n: usize, start: f64, step: f64) -> Vec<f64> {
     let mut v = start;
     (0..n)
         .map(|_| {
@@ -118,7 +118,7 @@ pub fn random_walk(rng: &mut ChaCha8Rng, n: usize, start: f64, step: f64) -> Vec
 }
 
 /// Cutting force (N): `mean_n` with 8 % process noise while in cut, 0 in air.
-pub fn cutting_force(rng: &mut ChaCha8Rng, cut: &[bool], mean_n: f64) -> Vec<f64> {
+pub(crate) fn cutting_force(rng: &mut ChaCha8Rng, cut: &[bool], mean_n: f64) -> Vec<f64> {
     cut.iter()
         .map(|&c| {
             if c {
@@ -131,14 +131,14 @@ pub fn cutting_force(rng: &mut ChaCha8Rng, cut: &[bool], mean_n: f64) -> Vec<f64
 }
 
 /// Load cell reading: force + 1 % of mean white noise, 0.1 N resolution.
-pub fn load_cell(rng: &mut ChaCha8Rng, f: &[f64], noise_n: f64) -> Vec<f64> {
+pub(crate) fn load_cell(rng: &mut ChaCha8Rng, f: &[f64], noise_n: f64) -> Vec<f64> {
     f.iter()
         .map(|v| quantize(v + noise_n * gauss(rng), 0.1))
         .collect()
 }
 
 /// Strain gauge (µε): compliance of the column, apparent strain from its own temperature, noise.
-pub fn strain_gauge(
+pub(crate) fn strain_gauge(
     rng: &mut ChaCha8Rng,
     f: &[f64],
     temp_c: &[f64],
@@ -154,7 +154,7 @@ pub fn strain_gauge(
 
 /// Measurement noise of total standard deviation ≈ `sigma_um`: 60 % white, 80 % AR(1) with ρ = 0.9
 /// (in variance: 0.36 + 0.64 = 1), 0.5 % outliers of ±6σ, then 0.05 µm quantisation (laser resolution).
-pub fn error_noise(rng: &mut ChaCha8Rng, n: usize, sigma_um: f64) -> Vec<f64> {
+pub(crate) fn error_noise(rng: &mut ChaCha8Rng, n: usize, sigma_um: f64) -> Vec<f64> {
     let rho: f64 = 0.9;
     let innov = (1.0 - rho * rho).sqrt();
     let mut ar = 0.0;
@@ -172,7 +172,7 @@ pub fn error_noise(rng: &mut ChaCha8Rng, n: usize, sigma_um: f64) -> Vec<f64> {
 
 /// AR(1) noise with coefficient `rho` and stationary standard deviation `sigma_um` (started in its
 /// stationary distribution, so the whole recording has that σ).
-pub fn ar1_noise(rng: &mut ChaCha8Rng, n: usize, sigma_um: f64, rho: f64) -> Vec<f64> {
+pub(crate) fn ar1_noise(rng: &mut ChaCha8Rng, n: usize, sigma_um: f64, rho: f64) -> Vec<f64> {
     let innov = (1.0 - rho * rho).sqrt();
     let mut a = gauss(rng);
     (0..n)
@@ -192,7 +192,7 @@ fn centred_rms(v: &[f64]) -> f64 {
 
 /// A Gaussian random walk (i.i.d. increments) scaled so its centred RMS over the recording is
 /// `sigma_um`: non-stationary noise with no σ of its own.
-pub fn walk_noise(rng: &mut ChaCha8Rng, n: usize, sigma_um: f64) -> Vec<f64> {
+pub(crate) fn walk_noise(rng: &mut ChaCha8Rng, n: usize, sigma_um: f64) -> Vec<f64> {
     let mut w = 0.0;
     let v: Vec<f64> = (0..n)
         .map(|_| {
@@ -205,7 +205,7 @@ pub fn walk_noise(rng: &mut ChaCha8Rng, n: usize, sigma_um: f64) -> Vec<f64> {
 }
 
 /// Sample correlation of two equally long series.
-pub fn correlation(a: &[f64], b: &[f64]) -> f64 {
+pub(crate) fn correlation(a: &[f64], b: &[f64]) -> f64 {
     let n = a.len() as f64;
     let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
     let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
@@ -221,7 +221,7 @@ pub fn correlation(a: &[f64], b: &[f64]) -> f64 {
 /// the one whose sample correlation with `noise` is largest in magnitude is returned with that
 /// correlation. It tracks the noise over the recording by selection, not by cause: it holds no
 /// information about the noise's future.
-pub fn correlated_walk_decoy(
+pub(crate) fn correlated_walk_decoy(
     rng: &mut ChaCha8Rng,
     noise: &[f64],
     start: f64,

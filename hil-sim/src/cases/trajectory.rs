@@ -8,7 +8,7 @@ use rand_chacha::ChaCha8Rng;
 
 /// Sampled commanded path. `cut` marks samples in cut (force applied); `run` the block id.
 #[derive(Clone, Debug, Default)]
-pub struct Path {
+pub(crate) struct Path {
     pub dt_s: f64,
     pub x_mm: Vec<f64>,
     pub y_mm: Vec<f64>,
@@ -18,17 +18,14 @@ pub struct Path {
 }
 
 impl Path {
-    pub fn new(dt_s: f64) -> Self {
+    pub(crate) fn new(dt_s: f64) -> Self {
         Path {
             dt_s,
             ..Default::default()
         }
     }
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.x_mm.len()
-    }
-    pub fn is_empty(&self) -> bool {
-        self.x_mm.is_empty()
     }
     fn last(&self) -> (f64, f64) {
         (
@@ -45,7 +42,7 @@ impl Path {
     }
 
     /// Linear move at `feed` mm/s to (x, y), one sample per period (the last sample lands on target).
-    pub fn move_to(&mut self, x: f64, y: f64, feed: f64, cut: bool, run: i64, tool: f64) {
+    pub(crate) fn move_to(&mut self, x: f64, y: f64, feed: f64, cut: bool, run: i64, tool: f64) {
         let (x0, y0) = self.last();
         let d = (x - x0).hypot(y - y0);
         let steps = retrocomp_analysis::numeric::ceil_usize(d / feed / self.dt_s).max(1);
@@ -55,7 +52,7 @@ impl Path {
         }
     }
 
-    pub fn dwell(&mut self, seconds: f64, run: i64, tool: f64) {
+    pub(crate) fn dwell(&mut self, seconds: f64, run: i64, tool: f64) {
         let (x, y) = self.last();
         for _ in 0..retrocomp_analysis::numeric::round_usize(seconds / self.dt_s).max(1) {
             self.push(x, y, false, run, tool);
@@ -65,7 +62,7 @@ impl Path {
     /// ISO 230-2-style bidirectional run on X (or Y when `on_y`) over [lo, hi] with irregular target
     /// spacing (so periodic errors are not aliased onto the targets) and `overshoot` past both ends.
     #[allow(clippy::too_many_arguments)]
-    pub fn laser_run(
+    pub(crate) fn laser_run(
         &mut self,
         rng: &mut ChaCha8Rng,
         lo: f64,
@@ -111,6 +108,6 @@ impl Path {
 }
 
 /// Draw helper.
-pub fn uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
+pub(crate) fn uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
     rng.random_range(lo..hi)
 }

@@ -16,8 +16,8 @@ use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::path::PathBuf;
 
-pub const XON: u8 = 0x11;
-pub const XOFF: u8 = 0x13;
+pub(crate) const XON: u8 = 0x11;
+pub(crate) const XOFF: u8 = 0x13;
 
 /// `[io.dnc]`: the DNC input of `hil-sim serve`.
 #[derive(Clone, Debug, Deserialize, Serialize)]

@@ -190,17 +190,17 @@ fn point_on(motion: Motion, from: [f64; 3], to: [f64; 3], u: f64) -> [f64; 3] {
 
 /// Scripted trajectory: piecewise-linear in time.
 #[derive(Clone, Debug)]
-pub struct ScriptRunner {
+pub(crate) struct ScriptRunner {
     points: Vec<ScriptPoint>,
     t_s: f64,
 }
 
 impl ScriptRunner {
-    pub fn new(points: Vec<ScriptPoint>) -> Self {
+    pub(crate) fn new(points: Vec<ScriptPoint>) -> Self {
         Self { points, t_s: 0.0 }
     }
 
-    pub fn advance(&mut self, dt_s: f64) -> Setpoint {
+    pub(crate) fn advance(&mut self, dt_s: f64) -> Setpoint {
         self.t_s += dt_s;
         let pts = &self.points;
         let last = pts.len() - 1;
@@ -250,13 +250,13 @@ impl ScriptRunner {
 
 /// Either kind of trajectory source.
 #[derive(Clone, Debug)]
-pub enum Trajectory {
+pub(crate) enum Trajectory {
     Program(ProgramRunner),
     Script(ScriptRunner),
 }
 
 impl Trajectory {
-    pub fn advance(&mut self, dt_s: f64) -> Setpoint {
+    pub(crate) fn advance(&mut self, dt_s: f64) -> Setpoint {
         match self {
             Trajectory::Program(p) => p.advance(dt_s),
             Trajectory::Script(s) => s.advance(dt_s),

@@ -1,8 +1,12 @@
 //! The legacy controller: part-program interpreter, interpolator, per-axis position loop, and the PLC
 //! window through which origin shifts arrive.
 
-pub mod dnc;
+pub(crate) mod dnc;
 pub mod gcode;
-pub mod interp;
-pub mod plc;
-pub mod servo;
+pub(crate) mod interp;
+pub(crate) mod plc;
+pub(crate) mod servo;
+
+pub use dnc::{DncConfig, DncCounts, DncEvent, DncEventKind, DncInput, DncStream};
+pub use interp::{ProgramRunner, Setpoint};
+pub use plc::{OriginShiftPlc, PlcEvent, PlcEventKind, RegisterError};

@@ -289,7 +289,7 @@ impl OriginShiftPlc {
 }
 
 /// The register words of a shift of `counts`, in the window's type and word order.
-pub fn encode_shift(
+pub(crate) fn encode_shift(
     word: DataType,
     order: WordOrder,
     counts: i64,
@@ -300,7 +300,7 @@ pub fn encode_shift(
 }
 
 /// The shift counts held in `regs` (at least the type's word count).
-pub fn decode_shift(word: DataType, order: WordOrder, regs: &[u16]) -> i64 {
+pub(crate) fn decode_shift(word: DataType, order: WordOrder, regs: &[u16]) -> i64 {
     let n = usize::from(word.words());
     decode_raw(&regs[..n], word, order).map_or(0, retrocomp_analysis::numeric::round_i64)
 }

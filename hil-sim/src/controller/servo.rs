@@ -13,7 +13,7 @@
 use crate::config::ServoConfig;
 
 #[derive(Clone, Debug)]
-pub struct AxisServo {
+pub(crate) struct AxisServo {
     motor_mm: f64,
     vel_mm_s: f64,
     injected_counts: i64,
@@ -21,7 +21,7 @@ pub struct AxisServo {
 }
 
 impl AxisServo {
-    pub fn new(start_mm: f64) -> Self {
+    pub(crate) fn new(start_mm: f64) -> Self {
         Self {
             motor_mm: start_mm,
             vel_mm_s: 0.0,
@@ -31,35 +31,31 @@ impl AxisServo {
     }
 
     /// True motor-side (screw) position.
-    pub fn motor_mm(&self) -> f64 {
+    pub(crate) fn motor_mm(&self) -> f64 {
         self.motor_mm
     }
 
-    pub fn velocity_mm_s(&self) -> f64 {
-        self.vel_mm_s
-    }
-
     /// Raw encoder counts of the motor position (rounded to the nearest count).
-    pub fn encoder_counts(&self, count_um: f64) -> i64 {
+    pub(crate) fn encoder_counts(&self, count_um: f64) -> i64 {
         retrocomp_analysis::numeric::round_i64(self.motor_mm * 1000.0 / count_um)
     }
 
     /// What the controller believes: encoder plus whatever the quadrature input injected.
-    pub fn measured_mm(&self, count_um: f64) -> f64 {
+    pub(crate) fn measured_mm(&self, count_um: f64) -> f64 {
         (self.encoder_counts(count_um) + self.injected_counts) as f64 * count_um / 1000.0
     }
 
     /// Quadrature feedback input: add `counts` (signed) to the measured position.
-    pub fn inject_counts(&mut self, counts: i64) {
+    pub(crate) fn inject_counts(&mut self, counts: i64) {
         self.injected_counts += counts;
     }
 
-    pub fn injected_counts(&self) -> i64 {
+    pub(crate) fn injected_counts(&self) -> i64 {
         self.injected_counts
     }
 
     /// Advance one servo tick toward `target_mm`; `v_ff_mm_s` is the set-point velocity.
-    pub fn step(&mut self, p: &ServoConfig, target_mm: f64, v_ff_mm_s: f64, dt_s: f64) {
+    pub(crate) fn step(&mut self, p: &ServoConfig, target_mm: f64, v_ff_mm_s: f64, dt_s: f64) {
         if p.ideal {
             // Ideal loop: the injected counts still shift the slide, exactly as a perfect servo would.
             let new = target_mm - self.injected_counts as f64 * p.count_um / 1000.0;

@@ -8,8 +8,8 @@
 //! 1. the world steps (interpolator, PLC scan, servos, thermal, cutting, sensor faults);
 //! 2. the transport-fault schedule of the sim config (`[[io.faults]]`) moves to the new time;
 //! 3. the sim's own encoders ([`Publisher`]: CiA 406 / CiA 404 frames, weighing lines, the Modbus
-//!    input registers) produce what is due; frames of a silent node are dropped ([`silenced`]),
-//!    garbage bytes ([`Garbage`], seeded) go on the serial line before the lines; the gateway decodes
+//!    input registers) produce what is due; frames of a silent node are dropped (`silenced`),
+//!    garbage bytes (`Garbage`, seeded) go on the serial line before the lines; the gateway decodes
 //!    them with its own source cores; its `[[modbus.source]]`s poll the sim's RTU slave (`rtu.rs`:
 //!    mute while `modbus_rtu_down`, a read then times out after the source's `timeout_s`);
 //! 4. on a cycle tick (`gateway.cycle_ms`) the gateway's cycle runs (reseeds of the last sink
@@ -17,7 +17,7 @@
 //!    outputs through the sink's guard and its lines' due edges reach the controller's receivers;
 //! 5. the sink's request in flight (issued one step earlier: one step of latency) is answered from
 //!    the PLC's registers, or fails while the Modbus link is down (the client drops the connection
-//!    and waits out its [`retrocomp_bus::Backoff`], [`link`]); on a write-period tick
+//!    and waits out its [`retrocomp_bus::Backoff`], `link`); on a write-period tick
 //!    (`write_period_ms`, skipped while a period still runs, as tokio's `MissedTickBehavior::Skip`)
 //!    a new period begins: at once when connected, else only once the backoff's next attempt is due
 //!    and the link is up.
@@ -37,7 +37,7 @@
 //!
 //! Units: µm for shifts and corrections (register = correction; + moves the slide +), s for time.
 
-pub mod link;
+pub(crate) mod link;
 mod master;
 mod plc;
 mod quadrature;

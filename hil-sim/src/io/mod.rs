@@ -12,17 +12,20 @@
 //!   dropout);
 //! - the controller's DNC input on a serial device (`dnc_port`, `[io.dnc]`): the program arrives
 //!   as it runs, into a buffer of N lines with XON/XOFF;
-//! - transport faults on a schedule ([`transport_faults`]): Modbus TCP down and back, the RTU slave
-//!   mute and back ([`rtu_slave`]), a CAN node silent, garbage on the weighing line; every client write to the PLC window is logged
-//!   ([`plc_server`], `plc_writes.csv`).
+//! - transport faults on a schedule (`transport_faults`): Modbus TCP down and back, the RTU slave
+//!   mute and back (`rtu_slave`), a CAN node silent, garbage on the weighing line; every client write to the PLC window is logged
+//!   (`plc_server`, `plc_writes.csv`).
 
 mod dnc_port;
-pub mod plc_server;
+pub(crate) mod plc_server;
 mod pty_link;
-pub mod publish;
-pub mod rtu_slave;
+pub(crate) mod publish;
+pub(crate) mod rtu_slave;
 pub mod serve;
-pub mod transport_faults;
+pub(crate) mod transport_faults;
+
+pub use publish::{Outputs, PT100_BREAK, PT100_OVERRANGE, Publisher};
+pub use transport_faults::{Transition, TransportFaultConfig, TransportFaultKind};
 
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -40,9 +43,9 @@ pub struct IoConfig {
     /// The controller's DNC input: the program arrives on a serial device while it runs.
     #[serde(default)]
     pub dnc: Option<crate::controller::dnc::DncConfig>,
-    /// Transport faults on a schedule (`[[io.faults]]`, see [`transport_faults`]).
+    /// Transport faults on a schedule (`[[io.faults]]`, see `transport_faults`).
     #[serde(default)]
-    pub faults: Vec<transport_faults::TransportFaultConfig>,
+    pub faults: Vec<TransportFaultConfig>,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize)]

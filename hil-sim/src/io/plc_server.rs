@@ -24,20 +24,20 @@ use tokio_modbus::server::Service;
 
 /// The simulated time, shared with the server so writes are stamped on the sim clock.
 #[derive(Clone, Debug, Default)]
-pub struct SimClock(Arc<AtomicU64>);
+pub(crate) struct SimClock(Arc<AtomicU64>);
 
 impl SimClock {
-    pub fn set(&self, t_s: f64) {
+    pub(crate) fn set(&self, t_s: f64) {
         self.0.store(t_s.to_bits(), Ordering::Relaxed);
     }
-    pub fn get(&self) -> f64 {
+    pub(crate) fn get(&self) -> f64 {
         f64::from_bits(self.0.load(Ordering::Relaxed))
     }
 }
 
 /// One accepted client write.
 #[derive(Clone, Debug, PartialEq)]
-pub struct WriteEvent {
+pub(crate) struct WriteEvent {
     pub t_s: f64,
     pub address: u16,
     pub count: u16,
@@ -48,9 +48,9 @@ pub struct WriteEvent {
 }
 
 impl WriteEvent {
-    pub const CSV_HEADER: &'static str = "t_s,address,count,x_um,y_um,z_um,client_port\n";
+    pub(crate) const CSV_HEADER: &'static str = "t_s,address,count,x_um,y_um,z_um,client_port\n";
 
-    pub fn csv_row(&self) -> String {
+    pub(crate) fn csv_row(&self) -> String {
         let [x, y, z] = self.shifts_um;
         format!(
             "{:.4},{},{},{x},{y},{z},{}\n",
@@ -60,7 +60,7 @@ impl WriteEvent {
 }
 
 /// The shift registers of a PLC window (words from address 0), µm.
-pub fn shifts_um(plc: &PlcConfig, window: &[u16]) -> [f64; 3] {
+pub(crate) fn shifts_um(plc: &PlcConfig, window: &[u16]) -> [f64; 3] {
     let words = usize::from(plc.word.words());
     std::array::from_fn(|axis| {
         let a = plc.first_register as usize + axis * words;
@@ -111,7 +111,7 @@ impl Service for LoggedService {
 }
 
 /// A Modbus TCP server over the PLC's register bank that can go down and come back on its port.
-pub struct PlcServer {
+pub(crate) struct PlcServer {
     addr: SocketAddr,
     svc: LoggedService,
     task: Option<JoinHandle<()>>,
@@ -130,7 +130,7 @@ impl std::fmt::Debug for PlcServer {
 impl PlcServer {
     /// Listen on `bind` (port 0 picks one; a restart reuses the port that was picked). Accepted
     /// writes go to `log`.
-    pub async fn start(
+    pub(crate) async fn start(
         bind: SocketAddr,
         bank: RegisterBank,
         plc: PlcConfig,
@@ -179,16 +179,16 @@ impl PlcServer {
         }));
     }
 
-    pub fn local_addr(&self) -> SocketAddr {
+    pub(crate) fn local_addr(&self) -> SocketAddr {
         self.addr
     }
 
-    pub fn is_up(&self) -> bool {
+    pub(crate) fn is_up(&self) -> bool {
         self.task.is_some()
     }
 
     /// Close the listener and every live connection.
-    pub fn stop(&mut self) {
+    pub(crate) fn stop(&mut self) {
         if let Some(t) = self.task.take() {
             t.abort();
         }
@@ -197,7 +197,7 @@ impl PlcServer {
     /// Listen again on the same address. The port was ours a moment ago (tokio binds with
     /// SO_REUSEADDR, so our own TIME_WAIT sockets do not block it); retried for up to 2 s in case
     /// the abort has not released the listener yet.
-    pub async fn restart(&mut self) -> std::io::Result<()> {
+    pub(crate) async fn restart(&mut self) -> std::io::Result<()> {
         if self.is_up() {
             return Ok(());
         }

@@ -37,7 +37,7 @@ pub struct Publisher {
     clippy::cast_possible_truncation,
     reason = "range-checked to i16 before the cast"
 )]
-pub fn pt100_word(value_C: Option<f64>) -> u16 {
+pub(crate) fn pt100_word(value_C: Option<f64>) -> u16 {
     match value_C {
         None => PT100_BREAK,
         Some(v) => {
@@ -56,7 +56,7 @@ pub fn pt100_word(value_C: Option<f64>) -> u16 {
     clippy::cast_possible_truncation,
     reason = "clamped to i32 before the cast"
 )]
-pub fn int32_words(value: Option<f64>, lsb: f64) -> [u16; 2] {
+pub(crate) fn int32_words(value: Option<f64>, lsb: f64) -> [u16; 2] {
     let raw = match value {
         Some(v) if v.is_finite() => (v / lsb)
             .round()
@@ -69,7 +69,7 @@ pub fn int32_words(value: Option<f64>, lsb: f64) -> [u16; 2] {
 }
 
 /// A weighing-indicator line (A&D/CAS style) for a force in N; `None` on dropout.
-pub fn weighing_line(force_N: Option<f64>) -> Option<String> {
+pub(crate) fn weighing_line(force_N: Option<f64>) -> Option<String> {
     let f = force_N?;
     Some(if f.is_finite() && f.abs() < 99999.9 {
         format!("ST,GS,{f:+08.1}N\r\n")

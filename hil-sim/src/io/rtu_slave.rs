@@ -18,21 +18,21 @@ use tokio_modbus::server::Service;
 
 /// Shared mute switch of one RTU slave (clone it into the serve loop).
 #[derive(Clone, Debug, Default)]
-pub struct RtuMute(Arc<AtomicBool>);
+pub(crate) struct RtuMute(Arc<AtomicBool>);
 
 impl RtuMute {
-    pub fn set(&self, muted: bool) {
+    pub(crate) fn set(&self, muted: bool) {
         self.0.store(muted, Ordering::Relaxed);
     }
 
-    pub fn is_muted(&self) -> bool {
+    pub(crate) fn is_muted(&self) -> bool {
         self.0.load(Ordering::Relaxed)
     }
 }
 
 /// The register service, silent while muted.
 #[derive(Clone, Debug)]
-pub struct MutableService {
+pub(crate) struct MutableService {
     pub inner: RegisterService,
     pub mute: RtuMute,
 }
@@ -53,7 +53,7 @@ impl Service for MutableService {
 }
 
 /// Serve `bank` as RTU slave `slave` on `serial` (the pty master), mutable through the returned switch.
-pub fn spawn(
+pub(crate) fn spawn(
     serial: tokio_serial::SerialStream,
     bank: RegisterBank,
     slave: u8,

@@ -1,8 +1,8 @@
 //! The async shell of `hil-sim serve`: runs the world on the simulation clock (real time, or as fast
 //! as possible) and moves the publisher's bytes onto the configured transports; client writes to the
 //! Modbus holding registers reach the PLC window before every step. Transport faults
-//! (`[[io.faults]]`, decided by [`super::transport_faults`]) are acted on here: the Modbus TCP server
-//! goes down and comes back, the RTU slave goes mute and answers again ([`super::rtu_slave`]), a CAN
+//! (`[[io.faults]]`, decided by `super::transport_faults`) are acted on here: the Modbus TCP server
+//! goes down and comes back, the RTU slave goes mute and answers again (`super::rtu_slave`), a CAN
 //! node's frames are dropped, garbage goes on the weighing pty. Each
 //! fault's start and clear is printed once on stderr (`hil-sim: fault modbus_down started at t = 4.000 s`).
 //!

@@ -44,7 +44,7 @@ fn d_inf() -> f64 {
 }
 
 /// Check `[[io.faults]]`; messages name the entry and the key.
-pub fn validate(faults: &[TransportFaultConfig]) -> anyhow::Result<()> {
+pub(crate) fn validate(faults: &[TransportFaultConfig]) -> anyhow::Result<()> {
     for (i, f) in faults.iter().enumerate() {
         anyhow::ensure!(
             f.from_s.is_finite() && f.from_s >= 0.0,
@@ -76,7 +76,7 @@ pub fn validate(faults: &[TransportFaultConfig]) -> anyhow::Result<()> {
 
 /// The transport faults active at one instant.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct Active {
+pub(crate) struct Active {
     pub modbus_down: bool,
     pub modbus_rtu_down: bool,
     pub silent_nodes: Vec<u8>,
@@ -85,7 +85,7 @@ pub struct Active {
 
 impl Active {
     /// Whether the RTU slave answers requests now (it is mute while `modbus_rtu_down` is active).
-    pub fn rtu_answers(&self) -> bool {
+    pub(crate) fn rtu_answers(&self) -> bool {
         !self.modbus_rtu_down
     }
 }
@@ -101,23 +101,19 @@ pub struct Transition {
 }
 
 #[derive(Clone, Debug, Default)]
-pub struct Schedule {
+pub(crate) struct Schedule {
     faults: Vec<TransportFaultConfig>,
     was_active: Vec<bool>,
 }
 
 impl Schedule {
-    pub fn new(faults: Vec<TransportFaultConfig>) -> Self {
+    pub(crate) fn new(faults: Vec<TransportFaultConfig>) -> Self {
         let was_active = vec![false; faults.len()];
         Self { faults, was_active }
     }
 
-    pub fn is_empty(&self) -> bool {
-        self.faults.is_empty()
-    }
-
     /// The faults active at `t_s` (pure: no state).
-    pub fn at(&self, t_s: f64) -> Active {
+    pub(crate) fn at(&self, t_s: f64) -> Active {
         let mut a = Active::default();
         for f in self
             .faults
@@ -141,7 +137,7 @@ impl Schedule {
     }
 
     /// Move to `t_s`: the faults active now and the starts/clears since the previous call.
-    pub fn advance(&mut self, t_s: f64) -> (Active, Vec<Transition>) {
+    pub(crate) fn advance(&mut self, t_s: f64) -> (Active, Vec<Transition>) {
         let mut changes = Vec::new();
         for (f, was) in self.faults.iter().zip(&mut self.was_active) {
             let now = t_s >= f.from_s && t_s < f.to_s;
@@ -162,7 +158,7 @@ impl Schedule {
 /// CANopen node id of a frame: the low 7 bits of an 11-bit COB-ID whose function code carries one
 /// (EMCY, PDOs, SDOs, heartbeat: 0x081..=0x7FF); `None` for NMT (0x000), SYNC (0x080), TIME (0x100)
 /// and extended frames.
-pub fn canopen_node(frame: &Frame) -> Option<u8> {
+pub(crate) fn canopen_node(frame: &Frame) -> Option<u8> {
     let id = frame.raw_id();
     if id > 0x7FF || id == 0x100 {
         return None;
@@ -172,14 +168,14 @@ pub fn canopen_node(frame: &Frame) -> Option<u8> {
 }
 
 /// True when `frame` comes from a node that is silent now.
-pub fn silenced(frame: &Frame, active: &Active) -> bool {
+pub(crate) fn silenced(frame: &Frame, active: &Active) -> bool {
     canopen_node(frame).is_some_and(|n| active.silent_nodes.contains(&n))
 }
 
 /// Line noise for the weighing pty (seeded): bursts at Poisson times, between and into the regular
 /// lines (an unterminated burst glues onto the next line and breaks it).
 #[derive(Clone, Debug)]
-pub struct Garbage {
+pub(crate) struct Garbage {
     noise: Noise,
     mean_interval_s: f64,
     next_s: Option<f64>,
@@ -187,7 +183,7 @@ pub struct Garbage {
 
 /// What a garbage burst is (for tests and docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum BurstKind {
+pub(crate) enum BurstKind {
     /// Random bytes with no line end: they glue onto the next line and break it.
     Unterminated,
     /// Random bytes ending in CR LF: a line that parses as nothing.
@@ -199,11 +195,11 @@ pub enum BurstKind {
 }
 
 /// The absurd reading of [`BurstKind::Absurd`], N.
-pub const ABSURD_FORCE_N: f64 = 90_000.0;
+pub(crate) const ABSURD_FORCE_N: f64 = 90_000.0;
 
 impl Garbage {
     /// Bursts every `mean_interval_s` on average while the fault is active.
-    pub fn new(seed: u64, mean_interval_s: f64) -> Self {
+    pub(crate) fn new(seed: u64, mean_interval_s: f64) -> Self {
         Self {
             noise: Noise::new(seed, "io/serial_garbage"),
             mean_interval_s,
@@ -213,7 +209,7 @@ impl Garbage {
 
     /// The bursts due at `t_s` while the fault is active (call every step; `active = false` resets
     /// the schedule so the next window starts afresh).
-    pub fn poll(&mut self, t_s: f64, active: bool) -> Vec<u8> {
+    pub(crate) fn poll(&mut self, t_s: f64, active: bool) -> Vec<u8> {
         let mut out = Vec::new();
         if !active {
             self.next_s = None;
@@ -236,7 +232,7 @@ impl Garbage {
     }
 
     /// The next burst and its kind.
-    pub fn burst(&mut self) -> (BurstKind, Vec<u8>) {
+    pub(crate) fn burst(&mut self) -> (BurstKind, Vec<u8>) {
         let u = self.noise.uniform();
         let kind = match u {
             u if u < 0.35 => BurstKind::Unterminated,

@@ -39,24 +39,20 @@ impl BacklashConfig {
 
 /// Lost-motion state: the slide position relative to the motor.
 #[derive(Clone, Debug)]
-pub struct Backlash {
+pub(crate) struct Backlash {
     cfg: BacklashConfig,
     offset_um: f64,
 }
 
 impl Backlash {
     /// Starts as if the axis last moved in +direction (slide b/2 short).
-    pub fn new(cfg: BacklashConfig, motor_mm: f64) -> Self {
+    pub(crate) fn new(cfg: BacklashConfig, motor_mm: f64) -> Self {
         let offset_um = -cfg.b_at_um(motor_mm) / 2.0;
         Self { cfg, offset_um }
     }
 
-    pub fn config(&self) -> &BacklashConfig {
-        &self.cfg
-    }
-
     /// Move the motor to `motor_mm` (after the previous position `prev_mm`); returns slide − motor, µm.
-    pub fn update(&mut self, prev_mm: f64, motor_mm: f64) -> f64 {
+    pub(crate) fn update(&mut self, prev_mm: f64, motor_mm: f64) -> f64 {
         let half = self.cfg.b_at_um(motor_mm).abs() / 2.0;
         let dp_um = (motor_mm - prev_mm) * 1000.0;
         // The slide does not move until the screw takes up the play: slide − motor shrinks by the motion.
@@ -64,7 +60,7 @@ impl Backlash {
         self.offset_um
     }
 
-    pub fn offset_um(&self) -> f64 {
+    pub(crate) fn offset_um(&self) -> f64 {
         self.offset_um
     }
 }

@@ -1,10 +1,16 @@
 //! The true machine's hidden physics: everything the visible geometric model does not know.
 //! Each effect is a small state machine stepped by the world; all of them are off unless configured.
 
-pub mod cutting;
+pub(crate) mod cutting;
 pub mod faults;
-pub mod mechanics;
-pub mod thermal;
+pub(crate) mod mechanics;
+pub(crate) mod thermal;
+
+pub use cutting::{CuttingConfig, GaugeConfig};
+pub use mechanics::{BacklashConfig, CyclicConfig};
+pub use thermal::{
+    Coupling, NodeConfig, SensorConfig, ThermalConfig, ThermalEffect, ThermalNet, ThermalTerms,
+};
 
 use serde::{Deserialize, Serialize};
 

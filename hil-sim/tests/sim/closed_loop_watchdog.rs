@@ -9,7 +9,7 @@
 use crate::closed_loop_support;
 
 use closed_loop_support::*;
-use hil_sim::controller::plc::{PlcEvent, PlcEventKind};
+use hil_sim::controller::{PlcEvent, PlcEventKind};
 use hil_sim::harness::ClosedLoop;
 
 const HEARTBEAT_REGISTER: u16 = 12;

@@ -6,7 +6,7 @@ use crate::sim_common;
 use embedded_can::Frame as _;
 use hil_sim::World;
 use hil_sim::io::IoConfig;
-use hil_sim::io::publish::{PT100_BREAK, PT100_OVERRANGE, Publisher};
+use hil_sim::io::{PT100_BREAK, PT100_OVERRANGE, Publisher};
 use hil_sim::recording::run_to_end;
 use sim_common::{cfg, col, read_csv};
 
