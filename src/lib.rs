@@ -6,6 +6,8 @@
 //! Every numeric conversion that could truncate, wrap or lose a sign is a `try_from`, or an `as`
 //! after a clamp or check with its reason beside it (these lints are errors in CI).
 #![warn(
+    unreachable_pub,
+    unnameable_types,
     clippy::cast_possible_truncation,
     clippy::cast_sign_loss,
     clippy::cast_possible_wrap,

@@ -6,7 +6,7 @@
 
 use std::path::PathBuf;
 
-use retrocomp::demo::{DemoOptions, Mode, run_demo, sim_process::locate_hil_sim};
+use retrocomp::demo::{DemoOptions, Mode, locate_hil_sim, run_demo};
 
 use super::report_args::ReportArgs;
 

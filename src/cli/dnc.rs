@@ -12,12 +12,10 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use retrocomp::dnc::core::{CoreConfig, DncCore};
-use retrocomp::dnc::drift::DriftConfig;
-use retrocomp::dnc::faults::StatusTx;
-use retrocomp::dnc::lead::LeadConfig;
-use retrocomp::dnc::live::{EngineAtPoint, LiveCorrections};
-use retrocomp::dnc::shell::{DncIo, ProgramSource, run_dnc};
+use retrocomp::dnc::{
+    CoreConfig, DncCore, DncIo, DriftConfig, EngineAtPoint, LeadConfig, LiveCorrections,
+    ProgramSource, StatusTx, run_dnc,
+};
 use retrocomp_gateway::northbound::http::{Api, Limits, serve};
 use retrocomp_gateway::sources::spawn_sources;
 use retrocomp_model::Axis;

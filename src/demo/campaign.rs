@@ -27,9 +27,9 @@ use retrocomp_model::Axis;
 
 /// Where the axes sit while another axis is measured; every axis' targets include its coordinate,
 /// so the Y and Z tables can be zeroed there (see [`super::fitted`]).
-pub const REFERENCE_MM: [f64; 3] = [0.0, 0.0, 0.0];
+pub(crate) const REFERENCE_MM: [f64; 3] = [0.0, 0.0, 0.0];
 /// Averaging window at the end of each dwell, s.
-pub const READ_WINDOW_S: f64 = 1.0;
+pub(crate) const READ_WINDOW_S: f64 = 1.0;
 /// Overshoot before each direction's first target, mm (ISO 230-2 approach).
 const OVERSHOOT_MM: f64 = 2.0;
 /// A hil-sim measurement run is offline and takes well under this; a hung child fails the demo.
@@ -37,7 +37,7 @@ const RUN_TIMEOUT: Duration = Duration::from_secs(300);
 
 /// One axis' stepped bidirectional runs.
 #[derive(Clone, Debug, PartialEq)]
-pub struct AxisPlan {
+pub(crate) struct AxisPlan {
     pub axis: Axis,
     pub targets_mm: Vec<f64>,
     pub runs: u32,
@@ -47,7 +47,7 @@ pub struct AxisPlan {
 
 /// One expected reading of a plan, in program order.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Expected {
+pub(crate) struct Expected {
     pub run: u32,
     pub target_mm: f64,
     pub direction: Direction,
@@ -60,7 +60,7 @@ fn targets(from: f64, to: f64, step: f64) -> Vec<f64> {
 
 /// The demo mill's campaign: targets span the part program's range on every axis (X 0–150,
 /// Y 0–100, Z −0.5–50) inside the travels; 4 runs each (3 fitted, the 4th held out for δ).
-pub fn demo_plans() -> [AxisPlan; 3] {
+pub(crate) fn demo_plans() -> [AxisPlan; 3] {
     let plan = |axis, targets_mm| AxisPlan {
         axis,
         targets_mm,
@@ -81,7 +81,7 @@ fn axis_word(axis: Axis) -> char {
 
 impl AxisPlan {
     /// The measurement program (machine coordinates, absolute, mm, G4 P in seconds).
-    pub fn gcode(&self) -> String {
+    pub(crate) fn gcode(&self) -> String {
         let k = axis_word(self.axis);
         let (first, last) = (
             self.targets_mm[0],
@@ -103,7 +103,7 @@ impl AxisPlan {
     }
 
     /// The readings the program produces, in order (runs numbered from 1).
-    pub fn expected(&self) -> Vec<Expected> {
+    pub(crate) fn expected(&self) -> Vec<Expected> {
         let mut v = Vec::new();
         for run in 1..=self.runs {
             for &target_mm in &self.targets_mm {
@@ -127,7 +127,7 @@ impl AxisPlan {
 
 /// The context program: warm-up, cuts, cool-down, second warm-up. The stock top is z = 0 (the
 /// demo's `[hidden.cutting]`); the force is kc · depth · feed per tooth, so depths and feeds vary.
-pub fn context_gcode() -> String {
+pub(crate) fn context_gcode() -> String {
     let mut g = String::from("G90 G21\nG4 P3                (cold)\nS4000 M3\nG1 F3600\n");
     for _ in 0..3 {
         g.push_str("G1 X150\nG1 Y100 Z40\nG1 X0\nG1 Y0 Z0\n");
@@ -157,7 +157,7 @@ pub fn context_gcode() -> String {
 
 /// The demo's hidden machine (the filled sim template) with another program: offline clock, no
 /// buses, `every_s` recording interval.
-pub fn measurement_config(
+pub(crate) fn measurement_config(
     sim_toml: &str,
     gcode: &str,
     every_s: f64,
@@ -191,7 +191,7 @@ pub fn measurement_config(
 }
 
 /// Runs `hil-sim run --config CONFIG --out DIR` and returns DIR/recording.csv.
-pub async fn run_measurement(
+pub(crate) async fn run_measurement(
     hil_sim: &Path,
     config: &Path,
     out: &Path,

@@ -8,7 +8,12 @@ use std::net::SocketAddr;
 use std::path::Path;
 
 /// Field config for one run. `thermal_period_s` is short because the demo's warm-up is accelerated.
-pub fn field_toml(name: &str, hub: SocketAddr, plc: SocketAddr, weighing_pty: &Path) -> String {
+pub(crate) fn field_toml(
+    name: &str,
+    hub: SocketAddr,
+    plc: SocketAddr,
+    weighing_pty: &Path,
+) -> String {
     let pty = weighing_pty.display();
     let (hub_port, plc_addr) = (hub.port(), plc);
     format!(
@@ -101,7 +106,7 @@ timeout_ms = 200
 
 /// `field` (from [`field_toml`]) with the gateway's cycle, sink and source readers under
 /// `SCHED_FIFO` at `priority` (`[gateway] realtime_priority`). `None`: unchanged.
-pub fn with_realtime_priority(field: &str, priority: Option<u8>) -> String {
+pub(crate) fn with_realtime_priority(field: &str, priority: Option<u8>) -> String {
     match priority {
         Some(p) => field.replacen(
             "[gateway]\n",

@@ -41,7 +41,7 @@ const MAX_CONTEXT_TERMS: usize = 3;
 
 /// What the fit produced, for the report and the plots.
 #[derive(Clone, Debug, Default)]
-pub struct FitOutcome {
+pub(crate) struct FitOutcome {
     /// The model TOML (already re-read through the validating parser).
     pub toml: String,
     /// One line per fitted component / context signal.
@@ -74,7 +74,7 @@ fn zero_at_reference(r: &mut [Reading], reference_mm: f64) -> Result<(), DemoErr
 }
 
 /// Fits the geometric tables into `spec` from one recording per plan.
-pub fn fit_geometry(
+pub(crate) fn fit_geometry(
     spec: &mut ModelSpec,
     runs: &[(&AxisPlan, &Recording, &str)],
     out: &mut FitOutcome,
@@ -124,7 +124,7 @@ pub fn fit_geometry(
 
 /// Mean of each `T_*_C` column over the cold geometry runs: the reference temperature of the
 /// geometric tables.
-pub fn reference_temperatures(recs: &[&Recording]) -> Vec<(String, f64)> {
+pub(crate) fn reference_temperatures(recs: &[&Recording]) -> Vec<(String, f64)> {
     let mut names: Vec<String> = recs.iter().flat_map(|r| r.temperature_channels()).collect();
     names.sort();
     names.dedup();
@@ -229,7 +229,7 @@ fn sensor_of(channel: &str) -> &str {
 
 /// Fits the thermal and load terms into `spec` from the context run; `geometric` is the model with
 /// the fitted tables (its error is removed first), `t_ref` the cold reference temperatures.
-pub fn fit_context_terms(
+pub(crate) fn fit_context_terms(
     spec: &mut ModelSpec,
     geometric: &MachineModel,
     rec: &Recording,
@@ -421,7 +421,7 @@ fn add_compliance(spec: &mut ModelSpec, target: ComponentId, short: &str, f: &st
 }
 
 /// The whole fit: geometry, then context on top of it. `base` is the machine without error terms.
-pub fn fit_model(
+pub(crate) fn fit_model(
     base: &ModelSpec,
     geometry: &[(&AxisPlan, &Recording, &str)],
     context: (&Recording, &str),

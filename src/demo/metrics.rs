@@ -26,7 +26,7 @@ pub struct RunStats {
 pub struct ErrorTrace {
     pub t_s: Vec<f64>,
     pub e_um: Vec<[f64; 3]>,
-    /// The program's phases found in the recording ([`phases`]); empty when it has no `z_mm` and
+    /// The program's phases found in the recording (`phases`); empty when it has no `z_mm` and
     /// `rpm` columns or no cut.
     pub phases: Vec<Phase>,
 }
@@ -42,7 +42,7 @@ pub struct Phase {
 /// The demo program's phases from what the machine did (deploy/demo/sim.toml): **warm-up** from
 /// the spindle's start to the cut, **cut** while the tool is below the stock top (z < 0 mm, the
 /// spindle on), **cool-down** from the spindle's stop after the cut to the end. No cut: none.
-pub fn phases(t_s: &[f64], z_mm: &[f64], rpm: &[f64]) -> Vec<Phase> {
+pub(crate) fn phases(t_s: &[f64], z_mm: &[f64], rpm: &[f64]) -> Vec<Phase> {
     let n = t_s.len().min(z_mm.len()).min(rpm.len());
     let cutting = |i: &usize| z_mm[*i] < 0.0 && rpm[*i] > 0.0;
     let (Some(c0), Some(c1)) = ((0..n).find(cutting), (0..n).rev().find(cutting)) else {
@@ -65,7 +65,7 @@ pub fn phases(t_s: &[f64], z_mm: &[f64], rpm: &[f64]) -> Vec<Phase> {
 }
 
 /// Parse the `t_s` and `e*_um` columns of a recording. `what` names the file in errors.
-pub fn parse_recording(csv_text: &str, what: &str) -> Result<ErrorTrace, DemoError> {
+pub(crate) fn parse_recording(csv_text: &str, what: &str) -> Result<ErrorTrace, DemoError> {
     let mut rdr = csv::ReaderBuilder::new()
         .has_headers(true)
         .from_reader(csv_text.as_bytes());
@@ -117,7 +117,7 @@ pub fn parse_recording(csv_text: &str, what: &str) -> Result<ErrorTrace, DemoErr
 }
 
 /// RMS and max per axis, and the volumetric max, over every sample with `t_s >= from_s`.
-pub fn stats(trace: &ErrorTrace, from_s: f64) -> Result<RunStats, DemoError> {
+pub(crate) fn stats(trace: &ErrorTrace, from_s: f64) -> Result<RunStats, DemoError> {
     let mut sq = [0.0; 3];
     let mut max = [0.0f64; 3];
     let mut vol = 0.0f64;

@@ -1,10 +1,10 @@
 //! `retrocomp demo`: the product's main job on a machine with no hardware. hil-sim (a separate
-//! binary, see [`sim_process`]) plays an old mill with hidden geometric, thermal and cutting-force
+//! binary, see `sim_process`) plays an old mill with hidden geometric, thermal and cutting-force
 //! physics; the gateway (this crate, in-process) reads its encoders and temperatures through a
 //! socketcand hub on loopback and writes origin shifts into its PLC window over Modbus TCP. Four
 //! runs of the same program: no compensation, the geometric-only truth model, the full truth model
 //! (geometry + thermal + cutting-force load, the force read as weighing lines on a serial pty), and
-//! the model FITTED from the simulator's own measurement runs ([`campaign`], [`fitted`]): what a
+//! the model FITTED from the simulator's own measurement runs (`campaign`, `fitted`): what a
 //! compensation engineer would get without knowing the truth. Error = actual − nominal, µm, at the
 //! tool tip; correction = −error.
 //!
@@ -12,14 +12,14 @@
 //! with its own hub, sim and gateway) so the demo takes one program's wall time; they are
 //! independent processes and sockets, with the same seed.
 
-pub mod campaign;
-pub mod error;
-pub mod field;
-pub mod fitted;
-pub mod metrics;
-pub mod plot;
-pub mod readings;
-pub mod sim_process;
+pub(crate) mod campaign;
+pub(crate) mod error;
+pub(crate) mod field;
+pub(crate) mod fitted;
+pub(crate) mod metrics;
+pub(crate) mod plot;
+pub(crate) mod readings;
+pub(crate) mod sim_process;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -27,13 +27,15 @@ use std::time::Instant;
 use error::Context as _;
 
 pub use error::DemoError;
-use metrics::{DemoStats, ErrorTrace, GatewayRun, GatewayRuns, RunStats};
+pub use metrics::{AxisStats, DemoStats, ErrorTrace, GatewayRun, GatewayRuns, Phase, RunStats};
+pub use plot::DemoFigure;
 use retrocomp_bus::can::Hub;
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::engine::MachineModelAdapter;
 use retrocomp_gateway::sources::spawn_sources;
 use retrocomp_model::MachineModel;
 use retrocomp_model::recording::Recording;
+pub use sim_process::locate_hil_sim;
 
 /// The geometric-only model (also hil-sim's hidden truth geometry).
 pub const GEOMETRIC_MODEL: &str = include_str!("../../deploy/demo/mill-geometric.toml");
@@ -108,7 +110,7 @@ pub struct DemoResult {
     pub campaign_s: f64,
     pub wall_s: f64,
     /// The figures written into the output folder (error per axis, volumetric).
-    pub figures: Vec<plot::DemoFigure>,
+    pub figures: Vec<DemoFigure>,
 }
 
 /// Measure, fit, then run the four modes; write recordings, configs, models and plots under
@@ -252,7 +254,7 @@ pub const LIVE_PASSES: usize = 90;
 
 /// `retrocomp demo --serve`: after the four runs, ONE full-model gateway runs against ONE hil-sim
 /// that repeats the warm-up and the part program [`LIVE_PASSES`] times
-/// ([`sim_process::repeated`]): the page's history spans the passes, the fault log shows only real
+/// (`sim_process::repeated`): the page's history spans the passes, the fault log shows only real
 /// faults, OPC UA subscriptions and the Sparkplug session stay up between passes. Its live page and
 /// `/metrics` on `listen`, its OPC UA server on a loopback port chosen once (kept when the machine
 /// is started afresh after the last pass); `on_bound` gets the page's address and the OPC UA

@@ -28,11 +28,11 @@ pub struct DemoFigure {
 }
 
 /// The runs of the second panel: the models that compensate geometry, heat and load.
-pub const DETAIL_RUNS: [Mode; 2] = [Mode::Full, Mode::Fitted];
+pub(crate) const DETAIL_RUNS: [Mode; 2] = [Mode::Full, Mode::Fitted];
 
 /// Writes `error_x.svg`, `error_y.svg`, `error_z.svg` and `volumetric.svg` into `out` and returns
 /// them (the `--html` report embeds them).
-pub fn write_plots(out: &Path, runs: &[RunResult]) -> Result<Vec<DemoFigure>, DemoError> {
+pub(crate) fn write_plots(out: &Path, runs: &[RunResult]) -> Result<Vec<DemoFigure>, DemoError> {
     let mut written = vec![];
     for ((file, svg, _), title) in figures(runs)?.into_iter().zip(titles()) {
         let path = out.join(&file);
@@ -54,7 +54,9 @@ fn titles() -> [String; 4] {
 }
 
 /// The four figures: file name, SVG text and where the chart put its panels and phase bands.
-pub fn figures(runs: &[RunResult]) -> Result<Vec<(String, String, FigureLayout)>, DemoError> {
+pub(crate) fn figures(
+    runs: &[RunResult],
+) -> Result<Vec<(String, String, FigureLayout)>, DemoError> {
     let mut out = vec![];
     let titles = titles();
     for (k, axis) in ["x", "y", "z"].iter().enumerate() {

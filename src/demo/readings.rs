@@ -15,7 +15,7 @@ use retrocomp_analysis::table::Direction;
 use retrocomp_model::recording::Recording;
 
 const POS: [&str; 3] = ["x_mm", "y_mm", "z_mm"];
-pub const ERR: [&str; 3] = ["ex_um", "ey_um", "ez_um"];
+pub(crate) const ERR: [&str; 3] = ["ex_um", "ey_um", "ez_um"];
 /// Nominal positions closer than this are "on target", mm.
 const ON_TARGET_MM: f64 = 1e-3;
 
@@ -25,7 +25,7 @@ fn col<'a>(rec: &'a Recording, name: &str, what: &str) -> Result<&'a [f64], Demo
 }
 
 /// The readings of `plan` in `rec`, per error signal (index 0 = ex_um, 1 = ey_um, 2 = ez_um).
-pub fn readings(
+pub(crate) fn readings(
     plan: &AxisPlan,
     rec: &Recording,
     what: &str,
@@ -96,7 +96,7 @@ pub fn readings(
 }
 
 /// Readings as the long ISO 230-2 CSV of `retrocomp iso230-2` / `retrocomp fit axis`.
-pub fn readings_csv(readings: &[Reading], comment: &str) -> String {
+pub(crate) fn readings_csv(readings: &[Reading], comment: &str) -> String {
     let mut s = format!("# {comment}\ntarget_mm,run,direction,deviation_um\n");
     for r in readings {
         let d = if r.direction == Direction::Forward {

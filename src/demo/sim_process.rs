@@ -12,7 +12,7 @@ use tokio::process::{Child, Command};
 use tokio::task::JoinHandle;
 
 /// The sim config template (placeholders `@SEED@`, `@TRUTH_MODEL@`, `@HUB_PORT@`, `@WARMUP@`).
-pub const SIM_TEMPLATE: &str = include_str!("../../deploy/demo/sim.toml");
+pub(crate) const SIM_TEMPLATE: &str = include_str!("../../deploy/demo/sim.toml");
 
 /// `hil-sim` next to the current executable, else `$HIL_SIM_BIN`.
 pub fn locate_hil_sim() -> Result<PathBuf, DemoError> {
@@ -54,12 +54,12 @@ pub fn locate_hil_sim() -> Result<PathBuf, DemoError> {
 const STROKE_PAIR_S: f64 = 5.0;
 
 /// The warm-up G-code: X stroke pairs for about `warmup_s` seconds (at least one pair).
-pub fn warmup_gcode(warmup_s: f64) -> String {
+pub(crate) fn warmup_gcode(warmup_s: f64) -> String {
     let pairs = retrocomp_analysis::numeric::round_usize(warmup_s / STROKE_PAIR_S).max(1);
     "G1 X150\nG1 X0\n".repeat(pairs)
 }
 
-pub fn sim_config(
+pub(crate) fn sim_config(
     seed: u64,
     truth_model: &Path,
     hub_port: u16,
@@ -77,7 +77,7 @@ pub fn sim_config(
 /// `sim_toml` (from [`sim_config`]) with the simulator's threads under `SCHED_FIFO` at `priority`
 /// (`[clock] realtime_priority`): the simulated machine keeps its pace on a busy host, as a real
 /// one does on its own hardware. `None`: unchanged.
-pub fn with_realtime_priority(sim_toml: &str, priority: Option<u8>) -> String {
+pub(crate) fn with_realtime_priority(sim_toml: &str, priority: Option<u8>) -> String {
     match priority {
         Some(p) => sim_toml.replacen(
             "[clock]\n",
@@ -94,7 +94,7 @@ pub fn with_realtime_priority(sim_toml: &str, priority: Option<u8>) -> String {
 /// the OPC UA subscriptions and the Sparkplug session run on without a restart between passes.
 /// The simulated-time budget grows with the passes; the recording is thinned to 0.5 s (nobody
 /// scores the live run, and an hour at 100 Hz is a large file).
-pub fn repeated(sim_toml: &str, passes: usize) -> String {
+pub(crate) fn repeated(sim_toml: &str, passes: usize) -> String {
     let (head, rest) = sim_toml
         .split_once("gcode = \"\"\"\n")
         .expect("the template has a gcode block");
@@ -118,7 +118,7 @@ pub fn repeated(sim_toml: &str, passes: usize) -> String {
 
 /// A running `hil-sim serve`.
 #[derive(Debug)]
-pub struct Sim {
+pub(crate) struct Sim {
     pub child: Child,
     pub modbus: SocketAddr,
     /// Device of the pty carrying the weighing lines (the cutting force).
@@ -129,7 +129,7 @@ pub struct Sim {
 
 /// Start `hil-sim serve --config CONFIG --out OUT` and wait for its Modbus TCP address and the
 /// weighing pty (hil-sim prints both before the program starts).
-pub async fn start(bin: &Path, config: &Path, out: &Path) -> Result<Sim, DemoError> {
+pub(crate) async fn start(bin: &Path, config: &Path, out: &Path) -> Result<Sim, DemoError> {
     let mut child = Command::new(bin)
         .arg("serve")
         .arg("--config")

@@ -29,13 +29,13 @@ use super::lead::{ExecEstimate, LeadConfig};
 use super::live::{Applied, LiveCorrections};
 use retrocomp_gateway::sinks::dnc::LineEnd;
 
-pub const XON: u8 = 0x11;
-pub const XOFF: u8 = 0x13;
+pub(crate) const XON: u8 = 0x11;
+pub(crate) const XOFF: u8 = 0x13;
 
 /// Header of the send log: source line, nominal end point (machine, X radial, mm), correction
 /// carried per axis (µm, = −error; the block's end point is nominal + correction), send time (s,
 /// from the start of the transfer) and the text sent.
-pub const LOG_HEADER: &str = "line,x_mm,y_mm,z_mm,cx_um,cy_um,cz_um,t_s,text";
+pub(crate) const LOG_HEADER: &str = "line,x_mm,y_mm,z_mm,cx_um,cy_um,cz_um,t_s,text";
 
 /// What the core needs to know of the link and the program.
 #[derive(Clone, Debug)]

@@ -28,9 +28,9 @@ use std::collections::VecDeque;
 use retrocomp_model::approach::Approach;
 
 /// Fewest samples a slope is taken from.
-pub const MIN_SAMPLES: usize = 4;
+pub(crate) const MIN_SAMPLES: usize = 4;
 /// Most samples kept (`window_s / 64` apart: a full window holds ≈ 65).
-pub const CAPACITY: usize = 128;
+pub(crate) const CAPACITY: usize = 128;
 
 /// The `[dnc]` keys of the prediction.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -43,7 +43,7 @@ pub struct DriftConfig {
 
 /// The reference point's correction over time and the slope fitted to it.
 #[derive(Debug)]
-pub struct DriftPredictor {
+pub(crate) struct DriftPredictor {
     cfg: DriftConfig,
     reference: Option<([f64; 3], [Approach; 3])>,
     /// (t_s, correction per axis X, Y, Z µm) at the reference point, oldest first.
@@ -51,7 +51,7 @@ pub struct DriftPredictor {
 }
 
 impl DriftPredictor {
-    pub fn new(cfg: DriftConfig) -> Self {
+    pub(crate) fn new(cfg: DriftConfig) -> Self {
         Self {
             cfg,
             reference: None,
@@ -60,13 +60,13 @@ impl DriftPredictor {
     }
 
     /// The point the series is taken at (None before the first compensated block).
-    pub fn reference(&self) -> Option<([f64; 3], [Approach; 3])> {
+    pub(crate) fn reference(&self) -> Option<([f64; 3], [Approach; 3])> {
         self.reference
     }
 
     /// Whether a sample at `now_s` would be kept (the caller evaluates the reference point only
     /// then).
-    pub fn due(&self, now_s: f64) -> bool {
+    pub(crate) fn due(&self, now_s: f64) -> bool {
         self.samples
             .back()
             .is_none_or(|&(t, _)| now_s - t >= self.cfg.window_s / 64.0 || now_s < t)
@@ -74,7 +74,7 @@ impl DriftPredictor {
 
     /// The correction at `pos_mm`/`dirs` at `now_s`, from healthy inputs. The first one fixes
     /// the reference point; later ones count only at the reference point.
-    pub fn record(
+    pub(crate) fn record(
         &mut self,
         pos_mm: [f64; 3],
         dirs: [Approach; 3],
@@ -101,13 +101,13 @@ impl DriftPredictor {
     }
 
     /// An input is degraded or refused: the series restarts (the reference point stays).
-    pub fn reset(&mut self) {
+    pub(crate) fn reset(&mut self) {
         self.samples.clear();
     }
 
     /// What to add to the present correction of each axis for a block estimated to end at
     /// `end_s`, µm (0 while the series is too short or the block is not in the future).
-    pub fn ahead_um(&self, now_s: f64, end_s: f64) -> [f64; 3] {
+    pub(crate) fn ahead_um(&self, now_s: f64, end_s: f64) -> [f64; 3] {
         let h = (end_s - now_s).clamp(0.0, self.cfg.max_horizon_s);
         let mut out = [0.0; 3];
         if !h.is_finite() || h == 0.0 {

@@ -37,7 +37,7 @@ const PUBLISH_PERIOD_S: f64 = 0.2;
 
 /// The transfer's fault state, its log and its status publisher.
 #[derive(Debug)]
-pub struct DncFaults {
+pub(crate) struct DncFaults {
     log: FaultLog,
     sources: [FaultSource; 5],
     active: [bool; 5],
@@ -59,7 +59,7 @@ const LINE: usize = 3;
 const INPUTS: usize = 4;
 
 impl DncFaults {
-    pub fn new(status: Option<StatusTx>) -> Self {
+    pub(crate) fn new(status: Option<StatusTx>) -> Self {
         Self {
             log: FaultLog::default(),
             sources: [
@@ -88,7 +88,7 @@ impl DncFaults {
     }
 
     /// A stall's edge: counted, said with the block that waits, and its fault set.
-    pub fn stall(&mut self, edge: Option<StallEdge>, sum: &mut DncSummary, now_s: f64) {
+    pub(crate) fn stall(&mut self, edge: Option<StallEdge>, sum: &mut DncSummary, now_s: f64) {
         match edge {
             Some(StallEdge::Started { since_s, line }) => {
                 sum.stalls += 1;
@@ -106,7 +106,13 @@ impl DncFaults {
     }
 
     /// A block left the box: whether it carried the live correction, and the guard's verdict.
-    pub fn block(&mut self, live: &LiveCorrections, sum: &mut DncSummary, line: u64, now_s: f64) {
+    pub(crate) fn block(
+        &mut self,
+        live: &LiveCorrections,
+        sum: &mut DncSummary,
+        line: u64,
+        now_s: f64,
+    ) {
         let refused = live.guard_refused();
         if refused {
             sum.guard_limited += 1;
@@ -127,17 +133,17 @@ impl DncFaults {
     }
 
     /// A compensated line was too long for the control: refused, the transfer stops.
-    pub fn line_refused(&mut self, now_s: f64) {
+    pub(crate) fn line_refused(&mut self, now_s: f64) {
         self.set(LINE, true, now_s);
     }
 
     /// The model's inputs never became ready at the start: refused, nothing was sent.
-    pub fn inputs_refused(&mut self, now_s: f64) {
+    pub(crate) fn inputs_refused(&mut self, now_s: f64) {
         self.set(INPUTS, true, now_s);
     }
 
     /// Publish a snapshot when a fault changed or the period passed (no endpoint: nothing).
-    pub fn publish(&mut self, live: &LiveCorrections, sum: &DncSummary, now_s: f64) {
+    pub(crate) fn publish(&mut self, live: &LiveCorrections, sum: &DncSummary, now_s: f64) {
         let Some(tx) = &self.status else { return };
         if now_s - self.last_publish_s < PUBLISH_PERIOD_S {
             return;

@@ -51,7 +51,7 @@ impl LeadConfig {
 
 /// The modal state a duration needs and the estimated schedule of the lines sent.
 #[derive(Debug)]
-pub struct ExecEstimate {
+pub(crate) struct ExecEstimate {
     cfg: LeadConfig,
     pos_mm: [f64; 3],
     feed_mm_min: Option<f64>,
@@ -66,7 +66,7 @@ pub struct ExecEstimate {
 }
 
 impl ExecEstimate {
-    pub fn new(cfg: LeadConfig) -> Self {
+    pub(crate) fn new(cfg: LeadConfig) -> Self {
         Self {
             cfg,
             pos_mm: [0.0; 3],
@@ -86,7 +86,7 @@ impl ExecEstimate {
 
     /// Interpret `b` (every block, sent or not, in program order) and return its estimated
     /// duration on the control, s of the box's clock.
-    pub fn duration_s(&mut self, b: &Block) -> f64 {
+    pub(crate) fn duration_s(&mut self, b: &Block) -> f64 {
         let mut dwell = false;
         for g in b.g_codes() {
             #[allow(
@@ -150,7 +150,7 @@ impl ExecEstimate {
     }
 
     /// A line of `duration_s` left the box at `now_s`.
-    pub fn sent(&mut self, duration_s: f64, now_s: f64) {
+    pub(crate) fn sent(&mut self, duration_s: f64, now_s: f64) {
         let start = now_s.max(self.busy_until_s);
         self.busy_until_s = start + duration_s;
         // The schedule of waiting lines is only kept for a hold (without one nothing pops it).
@@ -162,12 +162,12 @@ impl ExecEstimate {
     /// When a line of `duration_s` sent at `now_s` is estimated to end on the control: after the
     /// lines sent before it, and not before it arrives. What the drift prediction extrapolates
     /// to (`drift.rs`).
-    pub fn end_if_sent_s(&self, duration_s: f64, now_s: f64) -> f64 {
+    pub(crate) fn end_if_sent_s(&self, duration_s: f64, now_s: f64) -> f64 {
         now_s.max(self.busy_until_s) + duration_s
     }
 
     /// Sent lines estimated to be still waiting in the control at `now_s`.
-    pub fn waiting(&mut self, now_s: f64) -> usize {
+    pub(crate) fn waiting(&mut self, now_s: f64) -> usize {
         while self.starts.front().is_some_and(|&s| s <= now_s) {
             self.starts.pop_front();
         }
@@ -175,12 +175,12 @@ impl ExecEstimate {
     }
 
     /// Whether the next block is held at `now_s`.
-    pub fn holds(&mut self, now_s: f64) -> bool {
+    pub(crate) fn holds(&mut self, now_s: f64) -> bool {
         self.holds_ever() && self.waiting(now_s) >= self.cfg.lead_blocks
     }
 
     /// When the hold is estimated to release (for a shell that sleeps until then).
-    pub fn release_s(&self) -> Option<f64> {
+    pub(crate) fn release_s(&self) -> Option<f64> {
         if !self.holds_ever() {
             return None;
         }

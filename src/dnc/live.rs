@@ -29,7 +29,7 @@ use retrocomp_gateway::status::StatusSnapshot;
 use super::drift::{DriftConfig, DriftPredictor};
 
 /// Output resolution of a compensated block, µm (the rewriter writes 4 decimals in mm).
-pub const BLOCK_LSB_UM: f64 = 0.1;
+pub(crate) const BLOCK_LSB_UM: f64 = 0.1;
 
 /// Where the live correction comes from.
 pub trait CorrectionAt {

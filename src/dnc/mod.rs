@@ -6,21 +6,28 @@
 //!
 //! - `retrocomp_gateway::sinks::dnc::config`: the `[dnc]` section of the field config (link
 //!   settings, the control's line length and buffer).
-//! - [`live`]: the correction of one block (model at the end point, guard: clamp and per-block cap).
-//! - [`drift`]: the correction predicted for when a block runs (slope at the present, bounded).
-//! - [`lead`]: the estimate of the control's buffer that holds a block until it is due.
-//! - [`core`]: the sans-IO drip-feed (flow control, stall fault, line-length refusal, resume, log).
-//! - [`faults`]: the transfer's faults (start and clear) and its status for `/status`, `/metrics`.
-//! - [`shell`]: the async shell on tokio-serial / TCP (`retrocomp dnc`).
+//! - `live`: the correction of one block (model at the end point, guard: clamp and per-block cap).
+//! - `drift`: the correction predicted for when a block runs (slope at the present, bounded).
+//! - `lead`: the estimate of the control's buffer that holds a block until it is due.
+//! - `core`: the sans-IO drip-feed (flow control, stall fault, line-length refusal, resume, log).
+//! - `faults`: the transfer's faults (start and clear) and its status for `/status`, `/metrics`.
+//! - `shell`: the async shell on tokio-serial / TCP (`retrocomp dnc`).
 //!
 //! Signs and units: corrections µm, = −error; a block's end point is nominal + correction (mm).
 
-pub mod core;
-pub mod drift;
-pub mod faults;
-pub mod lead;
-pub mod live;
-pub mod shell;
+pub(crate) mod core;
+pub(crate) mod drift;
+pub(crate) mod faults;
+pub(crate) mod lead;
+pub(crate) mod live;
+pub(crate) mod shell;
+
+pub use self::core::{CoreConfig, DncCore, DncError, SentBlock, StallEdge};
+pub use drift::DriftConfig;
+pub use faults::StatusTx;
+pub use lead::LeadConfig;
+pub use live::{Applied, CorrectionAt, EngineAtPoint, LiveCorrections};
+pub use shell::{DncIo, DncSummary, ProgramSource, run_dnc};
 
 #[cfg(test)]
 mod drift_tests;

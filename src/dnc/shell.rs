@@ -45,7 +45,7 @@ pub struct DncSummary {
 
 /// Open a serial device with the `[dnc]` link settings. XON/XOFF is read by the box itself (the
 /// core stops at the next line boundary); RTS/CTS is the driver's.
-pub fn open_port(dev: &str, s: &DncSection) -> std::io::Result<SerialStream> {
+pub(crate) fn open_port(dev: &str, s: &DncSection) -> std::io::Result<SerialStream> {
     let parity = match s.parity {
         Parity::None => tokio_serial::Parity::None,
         Parity::Even => tokio_serial::Parity::Even,
