@@ -18,9 +18,7 @@ pub use nmt::{
     HeartbeatMonitor, NmtCommand, NodeState, decode_heartbeat, decode_nmt, encode_heartbeat,
     encode_nmt,
 };
-pub use sdo::{
-    ABORT_BAD_COMMAND, ABORT_NO_OBJECT, CYCLIC_TIMER_6200, PRESET_6003, SdoRequest, SdoResponse,
-};
+pub use sdo::{CYCLIC_TIMER_6200, SdoRequest, SdoResponse};
 pub use source::{CanopenConfig, CanopenCounters, CanopenSource, run, run_observed};
 
 /// A node id was outside 1..=127.

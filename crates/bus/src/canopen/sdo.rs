@@ -7,8 +7,6 @@ use embedded_can::Frame as _;
 
 /// CiA 406 cyclic timer object: TPDO1 event time in ms (U16).
 pub const CYCLIC_TIMER_6200: u16 = 0x6200;
-/// CiA 406 preset value (U32).
-pub const PRESET_6003: u16 = 0x6003;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SdoRequest {
@@ -41,11 +39,6 @@ pub enum SdoResponse {
         code: u32,
     },
 }
-
-/// Abort code: object does not exist in the object dictionary.
-pub const ABORT_NO_OBJECT: u32 = 0x0602_0000;
-/// Abort code: command specifier not valid or unknown.
-pub const ABORT_BAD_COMMAND: u32 = 0x0504_0001;
 
 impl SdoRequest {
     /// Write a U16 (e.g. 6200h cyclic timer in ms).
@@ -191,6 +184,9 @@ impl SdoResponse {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Abort code (CiA 301): object does not exist in the object dictionary.
+    const ABORT_NO_OBJECT: u32 = 0x0602_0000;
 
     #[test]
     fn cyclic_timer_write_wire_form() {
