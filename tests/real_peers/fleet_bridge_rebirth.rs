@@ -11,7 +11,8 @@ use std::time::{Duration, Instant};
 /// NBIRTHs crossed to C — a watcher there saw them — and are not retained), then `retrocomp
 /// fleet` on C. The host sees only NDATA and asks each box for a rebirth (NCMD, C → bridge `in` → H);
 /// the NBIRTHs come back (H → bridge `out` → C). Asserted on H (a watcher subscribed there):
-/// every box got an NCMD after the host started and published an NBIRTH after it; and on the
+/// every box got an NCMD after the host started and published an NBIRTH after that NCMD (a birth
+/// of its own before the request, e.g. after a reconnect, is reported, not counted); and on the
 /// host: every box born and compensating.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_host_on_the_central_broker_gets_the_hall_boxes_births_by_rebirth_over_the_bridge() {
@@ -51,17 +52,28 @@ async fn a_host_on_the_central_broker_gets_the_hall_boxes_births_by_rebirth_over
     for name in names {
         let n = node(&last, name).unwrap();
         assert!(n["births"].as_u64() >= Some(1), "{n}");
-        let at = |kind: &str| {
+        // The first message of `kind` for this box on H at or after `from`.
+        let first_from = |kind: &str, from: Instant| {
             seen.iter()
-                .filter(|(t, topic)| {
-                    *t >= host_started && topic == &format!("spBv1.0/hall/{kind}/{name}")
-                })
+                .filter(|(t, topic)| *t >= from && topic == &format!("spBv1.0/hall/{kind}/{name}"))
                 .map(|(t, _)| *t)
                 .min()
         };
-        let ncmd = at("NCMD").unwrap_or_else(|| panic!("{name}: no NCMD reached H: {seen:?}"));
-        let nbirth = at("NBIRTH").unwrap_or_else(|| panic!("{name}: no NBIRTH on H: {seen:?}"));
-        assert!(nbirth >= ncmd, "{name}: the birth came before the request");
+        let ncmd = first_from("NCMD", host_started)
+            .unwrap_or_else(|| panic!("{name}: no NCMD reached H: {seen:?}"));
+        // The birth that answers the request: a box may also be born on its own meanwhile (a
+        // reconnect on a loaded machine), which is Sparkplug-legal and not what is tested here.
+        first_from("NBIRTH", ncmd)
+            .unwrap_or_else(|| panic!("{name}: no NBIRTH on H after the host's NCMD: {seen:?}"));
+        let unsolicited = seen
+            .iter()
+            .filter(|(t, topic)| {
+                *t >= host_started && *t < ncmd && topic == &format!("spBv1.0/hall/NBIRTH/{name}")
+            })
+            .count();
+        if unsolicited > 0 {
+            eprintln!("{name}: {unsolicited} NBIRTH(s) between the host's start and its NCMD");
+        }
     }
     eprintln!("over the bridge: all online {online_after:?} after the host's subscription");
     for x in boxes {
