@@ -3,7 +3,8 @@
 
 use std::path::Path;
 
-use retrocomp_gateway::config::{ConfigError, FieldConfig};
+use retrocomp_gateway::config::FieldConfig;
+use retrocomp_model::ConfigError;
 
 fn field(name: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -74,7 +74,7 @@ pub struct FieldConfig {
     pub serial: SerialSection,
 }
 
-pub use retrocomp_model::{ConfigError, ConfigIssue};
+use retrocomp_model::{ConfigError, ConfigIssue};
 
 /// Read and validate a field TOML file.
 pub fn load(path: &Path) -> Result<FieldConfig, ConfigError> {

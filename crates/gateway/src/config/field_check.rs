@@ -7,12 +7,11 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::config::{ConfigError, FieldConfig};
+use crate::config::FieldConfig;
 use crate::engine::ErrorModel;
 use crate::engine::model_adapter::MachineModelAdapter;
 use retrocomp_bus::ChannelId;
-use retrocomp_model::ConfigIssue;
-use retrocomp_model::MachineModel;
+use retrocomp_model::{ConfigError, ConfigIssue, MachineModel};
 
 /// A field file that passed every offline check, with its model ready for the engine.
 #[derive(Debug)]

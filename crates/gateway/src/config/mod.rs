@@ -26,6 +26,7 @@ use retrocomp_bus::can::CanBackendConfig;
 use retrocomp_bus::canopen::CanopenConfig;
 use retrocomp_bus::config::{ModbusSection, SerialSection};
 use retrocomp_model::Axis;
+use retrocomp_model::ConfigError;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -205,7 +206,6 @@ pub struct SinkSection {
 }
 
 pub use field_check::{CheckedField, check_field};
-pub use retrocomp_model::ConfigError;
 pub use unit_network::UnitNetwork;
 
 /// The optional parts this build of the gateway has (its cargo features): a field file naming a
