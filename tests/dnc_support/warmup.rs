@@ -5,7 +5,6 @@
 //! the box reads. The box's model knows both (EXX table 0 → 8 µm over 0…400 mm, 3 µm/K on the
 //! spindle sensor). Part error at a dwell end = true tool tip − the program's nominal end point, µm:
 //! `(set-point − nominal)·1000 + hil-sim's true error there` (`dwell_ends.csv`).
-#![allow(dead_code)]
 
 use super::{dnc, hil_sim, pair, peers, s};
 

@@ -4,7 +4,6 @@
 //! raw bytes and panics only on a real fault: a parser panic, or a writer whose output does not read
 //! back. Errors for bad input are the expected outcome, not a failure. The targets fed from the
 //! network (Modbus server and client, Sparkplug, fleet host) are in `net.rs`.
-#![allow(dead_code)]
 
 pub(crate) mod net;
 pub(crate) use net::{

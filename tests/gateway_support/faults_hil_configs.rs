@@ -1,7 +1,6 @@
 //! The run of `gateway_faults_hil`: the fault script (simulated seconds), hil-sim's config (the demo
 //! mill with a second spindle sensor, sensor faults and `[[io.faults]]`) and the gateway's field
 //! config (clamps, dosing cap, channel limits, the spindle sensor's neighbour estimate).
-#![allow(dead_code)]
 
 use std::path::Path;
 

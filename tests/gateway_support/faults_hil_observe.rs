@@ -1,7 +1,6 @@
 //! What `gateway_faults_hil` reads back: hil-sim's log of client writes (`plc_writes.csv`), its
 //! recording (applied shift vs the ideal correction), and the gateway's fault log lines. Sans-IO:
 //! every function takes the text.
-#![allow(dead_code)]
 
 use std::collections::BTreeMap;
 
@@ -94,53 +93,6 @@ pub(crate) fn deviations(recording: &str) -> Vec<(f64, [f64; 3])> {
             (v(t), d)
         })
         .collect()
-}
-
-/// Latched-shift steps the controller's own write log does not account for. Between two recording
-/// rows the applied shift may move by at most `per_write_um` for each value write (`address` 0) the
-/// PLC logged since the row before, plus one (a write logged just before that row and latched at the
-/// next scan). Counting the writes instead of assuming "two per 10 ms row" keeps this exact when the
-/// simulation and the gateway are paused unevenly by a loaded host (three writes can then fall
-/// between two rows). Returns (largest step µm, the rows that exceed their bound: (t_s, step, writes)).
-pub(crate) fn latched_steps_beyond_writes(
-    recording: &str,
-    writes: &[Write],
-    per_write_um: f64,
-) -> (f64, Vec<(f64, f64, usize)>) {
-    let mut rdr = csv::Reader::from_reader(recording.as_bytes());
-    let h = rdr.headers().unwrap().clone();
-    let col = |n: &str| h.iter().position(|c| c == n).unwrap();
-    let (t, cols) = (
-        col("t_s"),
-        [col("shift_x_um"), col("shift_y_um"), col("shift_z_um")],
-    );
-    let rows: Vec<(f64, [f64; 3])> = rdr
-        .records()
-        .map(|r| {
-            let r = r.unwrap();
-            let v = |i: usize| r[i].parse::<f64>().unwrap();
-            (v(t), cols.map(v))
-        })
-        .collect();
-    let value_writes: Vec<f64> = writes
-        .iter()
-        .filter(|w| w.address == 0)
-        .map(|w| w.t_s)
-        .collect();
-    let (mut max_step, mut beyond) = (0.0f64, Vec::new());
-    for p in rows.windows(2) {
-        let ((t0, a), (t1, b)) = (p[0], p[1]);
-        let step = (0..3).map(|k| (b[k] - a[k]).abs()).fold(0.0, f64::max);
-        max_step = max_step.max(step);
-        let n = value_writes
-            .iter()
-            .filter(|&&tw| tw > t0 && tw <= t1)
-            .count();
-        if step > (n + 1) as f64 * per_write_um + 1e-9 {
-            beyond.push((t1, step, n));
-        }
-    }
-    (max_step, beyond)
 }
 
 /// Share of the distinct values written to the shift registers (in write order, repeats collapsed)

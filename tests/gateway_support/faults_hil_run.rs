@@ -3,7 +3,6 @@
 //! to place hil-sim's fault edges on the test's clock) and its endpoints read from what it prints;
 //! `retrocomp run` with its log in a file, stopped with SIGTERM. Each run gets a fresh folder under
 //! the target dir, kept afterwards for a post-mortem.
-#![allow(dead_code)]
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};

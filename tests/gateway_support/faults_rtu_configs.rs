@@ -2,7 +2,6 @@
 //! `gateway_faults_hil` (`faults_hil_configs.rs`), shorter, with the spindle temperature
 //! `T_spindle_C` read over Modbus RTU from hil-sim's pty instead of CAN, and one transport fault:
 //! `modbus_rtu_down` (the RTU slave mute) mid-run. Times are simulated seconds.
-#![allow(dead_code)]
 
 use std::path::Path;
 

@@ -1,6 +1,5 @@
 //! A fake PLC for the gateway tests: a tokio-modbus TCP server on 127.0.0.1 holding registers in a
 //! map, logging every write, optionally acknowledging the strobe like a cooperating PLC program.
-#![allow(dead_code)]
 
 use std::collections::HashMap;
 use std::future;

@@ -1,7 +1,6 @@
 //! A one-term error model for runtime tests that need a model but not the machine model: x's
 //! error is `um_per_mm` × x (µm, error = actual − nominal), term `scale`. With `declared`, its
 //! identity names the term (as the real model adapter does), so the Sparkplug birth declares it.
-#![allow(dead_code)]
 
 use retrocomp_gateway::engine::ModelError;
 use retrocomp_gateway::status::ModelIdentity;

@@ -2,7 +2,6 @@
 //! `hil-sim serve` (the demo mill, real time, CAN through a loopback socketcand hub, the PLC on
 //! Modbus TCP, weighing lines on a pty) and the real `retrocomp run` child with an API token, its
 //! status address read from its log. Dropping the rig kills both.
-#![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 use std::process::Child;

@@ -1,7 +1,6 @@
 //! What the `retrocomp identify` end-to-end tests share: the binary, a command's stdout (or a
 //! failure with its stderr), the CSVs `hil-sim artefacts` wrote into a folder, sorted, and
 //! `check-config` on a written model.
-#![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

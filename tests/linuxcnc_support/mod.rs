@@ -5,8 +5,6 @@
 //! Positions are in mm; canonical positions are converted to machine coordinates (work offset
 //! added; X is the radius in lathe diameter mode, as the interpreter holds it).
 
-#![allow(dead_code)]
-
 pub(crate) mod headless;
 pub(crate) mod nobody;
 

@@ -2,7 +2,6 @@
 //! its stderr collected line by line while it runs (so a chatty log never fills the pipe), its
 //! `/status` and `/metrics` fetched over HTTP, waits that end on an event (with a generous deadline
 //! that only a broken gateway reaches), and a kill on drop.
-#![allow(dead_code)]
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;

@@ -1,5 +1,6 @@
 //! Helpers for the integration tests that talk to real third-party peers (python-can, pymodbus,
 //! pyserial, socat, mbpoll). A missing peer FAILS the test with the command that installs it.
+//! Included by `real_peers` and by the `fleet_processes` bench, each using part of it.
 #![allow(dead_code)]
 
 use std::io::{BufRead, BufReader};

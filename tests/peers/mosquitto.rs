@@ -2,8 +2,8 @@
 //! on a given port (never the system service), plain or TLS-only (a CA and a server certificate
 //! made with openssl); killed on drop. No persistence and no log unless the config given says
 //! otherwise ([`Broker::start_conf`]: e.g. a bridge section, `persistence true`), and such a broker
-//! can be stopped gracefully and started again on the same config and port (a restart). Shared by
-//! the MQTT and fleet tests (each includes it with `#[path]` beside `mod peers;`).
+//! can be stopped gracefully and started again on the same config and port (a restart). Included
+//! by `real_peers` and by the `fleet_processes` bench, each using part of it.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};

@@ -1,7 +1,6 @@
 //! A gateway status snapshot for the Sparkplug tests: one axis `x` tracking, its correction and
 //! position moving with the cycle count `k` (so every snapshot differs and NDATA keeps flowing).
-//! Shared by `telemetry_mqtt.rs`, `telemetry_fleet_drift.rs` and `telemetry_fleet_host.rs` (each includes it with `#[path]`).
-#![allow(dead_code)]
+//! Used by `real_peers`' `telemetry_mqtt`, `telemetry_fleet_drift` and `telemetry_fleet_host`.
 
 use std::collections::BTreeMap;
 

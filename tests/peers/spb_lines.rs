@@ -1,7 +1,5 @@
 //! The JSON lines a Sparkplug host peer prints (`spb_host.py`, `spb_stock_host.py`), collected
-//! until a condition holds. Shared by `telemetry_mqtt.rs` and `telemetry_stock_host.rs` (each
-//! includes it with `#[path]` beside `mod peers;`).
-#![allow(dead_code)]
+//! until a condition holds. Used by `real_peers`' `telemetry_mqtt` and `telemetry_stock_host`.
 
 use std::time::{Duration, Instant};
 

@@ -3,7 +3,6 @@
 //! cutting physics, a PLC window with strobe/ack handshake) and the gateway's field config with the
 //! same clamps, dosing cap and channel limits (one copy: `tests/fixtures/faults_hil/`), on in-process
 //! links instead of sockets.
-#![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 

@@ -1,5 +1,4 @@
 // Shared helpers for the sim_* integration tests (included with `mod sim_common;`).
-#![allow(dead_code)]
 
 use hil_sim::SimConfig;
 
