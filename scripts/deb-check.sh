@@ -17,6 +17,7 @@
 #   --field` on the unpacked field file: arm64's under qemu-aarch64 (scripts/fetch-qemu-user.sh:
 #   Debian's qemu-user-static unpacked into a cache, never installed) with `-L /usr/aarch64-linux-gnu`
 #   (the loader and libc of libc6-arm64-cross), as the dynamically linked binary the package ships.
+#   The arm64 build tree is removed afterwards (RETROCOMP_KEEP_CROSS=1 keeps it); both .deb stay.
 # Prints `deb-check: N passed, N failed` and exits non-zero on any failure; a missing tool or Rust
 # target is a failure that says how to install it.
 set -uo pipefail
@@ -161,5 +162,9 @@ arm64() {
     check_unpacked "$deb" "$qemu" -L "$sysroot"
 }
 arm64
+# The arm64 tree (≈ 770 MB: its own dependency graph) is needed by nothing after its package is
+# checked, and the .deb is kept in debian-test/; RETROCOMP_KEEP_CROSS=1 keeps it for a quicker
+# second local run.
+[ "${RETROCOMP_KEEP_CROSS:-0}" = 1 ] || rm -rf "${TARGET_DIR:?}/$cross"
 
 finish

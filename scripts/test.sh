@@ -15,7 +15,8 @@
 #    step 2; its refusals of a field file naming them are tested in step 3 (the config check takes
 #    the build's parts as a value), so no third dependency graph is built for a test run.
 # 4. the Debian packages (scripts/deb-check.sh): amd64 of the binary step 3 built, arm64 of the same
-#    code cross-built with the test profile (≈ 8 min of CPU more on a cold target/, ≈ 1 GB of disk);
+#    code cross-built with the test profile (≈ 8 min of CPU more on a cold target/; its ≈ 0.8 GB
+#    build tree is removed once its package is checked);
 #    cargo deb, lintian, the unpacked package's files, modes and `check-config` answers (arm64's
 #    under qemu-aarch64, unpacked into a cache, never installed).
 # Ends with ONE line `N passed, N failed` (the sum of every `test result:` line) and exits non-zero
