@@ -4,7 +4,7 @@
 //! (Debian librsvg2-bin, scripts/setup-peers.sh) at its own size, and the legend box — less its
 //! swatches — must hold no pixel of a series colour, while the plot area holds them.
 //! Grey series colours (r = g = b) are left to the geometric check: anti-aliased black text is
-//! grey too.
+//! grey too. Included by the `analysis` and `diagnose` test binaries, each using part of it.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};

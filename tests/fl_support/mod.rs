@@ -1,6 +1,7 @@
 //! Shared by the FL_THERMAL tests (`fl_thermal`, `fl_judge`): the fixture
 //! loader, the static 3-sensor simulation the judge compares against, and thin wrappers over
 //! `retrocomp diagnose` / `retrocomp eval`.
+//! Included by the `analysis` and `diagnose` test binaries, each using part of it.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};

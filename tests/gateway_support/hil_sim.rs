@@ -1,5 +1,6 @@
 //! The hil-sim binary for binary-level gateway tests: (re)built next to retrocomp's with the same
 //! profile, features and target dir, so it is never stale when only this crate's tests were built.
+//! Included by `analysis`, `real_peers` and the `fleet_processes` bench, each using part of it.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
