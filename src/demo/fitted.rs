@@ -31,6 +31,7 @@ use retrocomp_analysis::iso230_2::Reading;
 use retrocomp_model::approach::{ApproachLatch, RECORDED_DEADBAND_MM};
 use retrocomp_model::parse_component;
 use retrocomp_model::recording::Recording;
+use retrocomp_model::units::ChannelKind;
 use retrocomp_model::{Axis, ComponentId, ErrorFunction, MachineModel, ModelSpec};
 use retrocomp_model::{ForceSpec, LoadKind, LoadSpec, SensorSpec, ThermalKind, ThermalSpec};
 
@@ -205,7 +206,7 @@ fn context_candidates(
     for ch in rec
         .load_channels()
         .into_iter()
-        .filter(|c| c.starts_with("F_"))
+        .filter(|c| ChannelKind::of(c) == ChannelKind::ForceN)
     {
         cands.push((
             ch.clone(),

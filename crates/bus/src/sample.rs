@@ -7,7 +7,9 @@
 //! Identity: a channel name is resolved ONCE, when a config is loaded or a decoder is built
 //! ([`ChannelId::of`]), into a small `Copy` index. Samples, the engine's state and the model seam
 //! carry that index; the name is looked up only for display (status, metrics, logs, JSON), where
-//! [`ChannelId::name`] returns exactly the configured spelling. The registry is process-wide and
+//! [`ChannelId::name`] returns exactly the configured spelling; what the channel measures
+//! ([`ChannelKind`], read from the name's prefix and unit suffix) is resolved with it, so no later
+//! code reads a kind from a name. The registry is process-wide and
 //! append-only (a gateway has tens of channels, so the leaked names are bounded by the configs
 //! loaded), which lets every decoder resolve its channel at construction without a registry being
 //! threaded through every constructor.
@@ -15,6 +17,8 @@
 use std::collections::HashMap;
 use std::fmt;
 use std::sync::{LazyLock, RwLock};
+
+use retrocomp_model::units::ChannelKind;
 
 /// Health of a channel's latest value.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
@@ -46,7 +50,7 @@ pub struct ChannelId(u32);
 
 #[derive(Default)]
 struct Registry {
-    names: Vec<&'static str>,
+    names: Vec<(&'static str, ChannelKind)>,
     ids: HashMap<&'static str, ChannelId>,
 }
 
@@ -65,7 +69,7 @@ impl ChannelId {
         }
         let id = ChannelId(u32::try_from(r.names.len()).expect("fewer than 2³² channel names"));
         let leaked: &'static str = Box::leak(name.to_owned().into_boxed_str());
-        r.names.push(leaked);
+        r.names.push((leaked, ChannelKind::of(name)));
         r.ids.insert(leaked, id);
         id
     }
@@ -79,6 +83,15 @@ impl ChannelId {
     /// The configured name (for display; takes the registry's read lock, so keep it off the
     /// per-cycle path: cache it at setup).
     pub fn name(self) -> &'static str {
+        self.entry().0
+    }
+
+    /// What the channel measures, resolved from its name when it was registered.
+    pub fn kind(self) -> ChannelKind {
+        self.entry().1
+    }
+
+    fn entry(self) -> (&'static str, ChannelKind) {
         let r = REGISTRY.read().unwrap_or_else(|e| e.into_inner());
         r.names[self.0 as usize]
     }
@@ -163,5 +176,19 @@ mod tests {
         let json = serde_json::to_string(&a).unwrap();
         assert_eq!(json, "\"test_sample_a_mm\"");
         assert_eq!(serde_json::from_str::<ChannelId>(&json).unwrap(), a);
+    }
+
+    #[test]
+    fn the_kind_is_resolved_with_the_name() {
+        assert_eq!(
+            ChannelId::of("test_sample_a_mm").kind(),
+            ChannelKind::LengthMm
+        );
+        assert_eq!(
+            ChannelId::of("T_test_sample_C").kind(),
+            ChannelKind::TemperatureC
+        );
+        assert_eq!(ChannelId::of("F_test_sample_N").kind(), ChannelKind::ForceN);
+        assert_eq!(ChannelId::of("test_sample_rpm").kind(), ChannelKind::Other);
     }
 }

@@ -12,6 +12,8 @@ use std::io::{Read, Write};
 use std::path::Path;
 use std::sync::Arc;
 
+use crate::units::ChannelKind;
+
 /// One rejected row: its 1-based line number in the file (the header is line 1) and why.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BadRow {
@@ -283,7 +285,7 @@ impl Recording {
     pub fn temperature_channels(&self) -> Vec<String> {
         self.names
             .iter()
-            .filter(|n| n.starts_with("T_") && n.ends_with("_C") && n.len() > 4)
+            .filter(|n| ChannelKind::of(n) == ChannelKind::TemperatureC)
             .cloned()
             .collect()
     }
@@ -291,7 +293,7 @@ impl Recording {
     pub fn strain_channels(&self) -> Vec<String> {
         self.names
             .iter()
-            .filter(|n| n.starts_with("strain_") && n.ends_with("_ue") && n.len() > 10)
+            .filter(|n| ChannelKind::of(n) == ChannelKind::StrainUe)
             .cloned()
             .collect()
     }
@@ -299,10 +301,7 @@ impl Recording {
     pub fn load_channels(&self) -> Vec<String> {
         self.names
             .iter()
-            .filter(|n| {
-                (n.starts_with("F_") && n.ends_with("_N") && n.len() > 4)
-                    || (n.starts_with("strain_") && n.ends_with("_ue") && n.len() > 10)
-            })
+            .filter(|n| ChannelKind::of(n).is_load())
             .cloned()
             .collect()
     }

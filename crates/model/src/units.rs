@@ -97,9 +97,79 @@ impl AngleUnit {
     }
 }
 
+/// What a channel measures, by the naming convention every channel and recording column follows
+/// (`docs/recording-csv.md`): the prefix names the quantity, the suffix its unit. Read from a name
+/// only here, once, when a field config or a recording is read; everything after carries the kind.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ChannelKind {
+    /// `T_<name>_C`: a temperature, °C (latched at the thermal period; thermal terms read it).
+    TemperatureC,
+    /// `<name>_mm`: a length, mm (an axis position `x_mm`, the tool length `tool_mm`).
+    LengthMm,
+    /// `F_<name>_N`: a force, N.
+    ForceN,
+    /// `strain_<name>_ue`: a strain, µm/m.
+    StrainUe,
+    /// Any other name: a context signal (`rpm`, `load_pct`, …).
+    Other,
+}
+
+impl ChannelKind {
+    /// The kind of the channel named `name` (a prefix or suffix alone is not enough: `T_C`,
+    /// `F__N` and `_mm` are `Other`).
+    pub fn of(name: &str) -> Self {
+        let framed = |prefix: &str, suffix: &str| {
+            name.len() > prefix.len() + suffix.len()
+                && name.starts_with(prefix)
+                && name.ends_with(suffix)
+        };
+        if framed("T_", "_C") {
+            Self::TemperatureC
+        } else if framed("F_", "_N") {
+            Self::ForceN
+        } else if framed("strain_", "_ue") {
+            Self::StrainUe
+        } else if framed("", "_mm") {
+            Self::LengthMm
+        } else {
+            Self::Other
+        }
+    }
+
+    /// A force or strain channel: what the load terms read.
+    pub fn is_load(self) -> bool {
+        matches!(self, Self::ForceN | Self::StrainUe)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn channel_kinds_by_the_naming_convention() {
+        use ChannelKind::*;
+        for (name, kind) in [
+            ("T_spindle_C", TemperatureC),
+            ("T_x_C", TemperatureC),
+            ("x_mm", LengthMm),
+            ("tool_mm", LengthMm),
+            ("F_cut_N", ForceN),
+            ("strain_col_ue", StrainUe),
+            ("rpm", Other),
+            // A prefix or suffix alone is not a kind.
+            ("T_C", Other),
+            ("T__C", Other),
+            ("T_spindle_K", Other),
+            ("F__N", Other),
+            ("strain__ue", Other),
+            ("_mm", Other),
+            ("spindle_C", Other),
+        ] {
+            assert_eq!(ChannelKind::of(name), kind, "{name}");
+        }
+        assert!(ForceN.is_load() && StrainUe.is_load() && !TemperatureC.is_load());
+    }
 
     #[test]
     fn arcsec_round_trip_and_known_value() {

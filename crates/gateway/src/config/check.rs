@@ -3,6 +3,7 @@
 //! the schema; units as there (ms, s, µm).
 
 use crate::config::*;
+use retrocomp_model::units::ChannelKind;
 
 fn safety_key(prefix: &str, e: &SafetyError) -> String {
     use crate::engine::safety::SafetyError::*;
@@ -253,7 +254,7 @@ impl FieldConfig {
                     format!("axis {} configured twice", a.name),
                 ));
             }
-            if !a.position_channel.ends_with("_mm") {
+            if ChannelKind::of(&a.position_channel) != ChannelKind::LengthMm {
                 return Err((
                     format!("axis[{i}].position_channel"),
                     format!(

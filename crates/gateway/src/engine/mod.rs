@@ -10,7 +10,7 @@
 //! of a fault that starts or clears (fault sources are typed: [`FaultSource`]).
 //!
 //! Signs: the model returns errors (actual − nominal, µm); the engine outputs corrections (= −error).
-//! Channels whose name starts with `T_` are slow (temperatures): their value is latched every
+//! Temperature channels (`T_<name>_C`, `ChannelKind::TemperatureC`) are slow: their value is latched every
 //! `thermal_period_s` so the thermal terms change in steps of that period, and the safety dosing cap
 //! spreads each step over cycles (Spaan Ch6: 60 s tables, 15 ms evaluation, dosing).
 
@@ -37,6 +37,7 @@ use retrocomp_bus::fault::FaultSource;
 use retrocomp_bus::{ChannelId, Sample};
 use retrocomp_model::Axis;
 use retrocomp_model::approach::Approach;
+use retrocomp_model::units::ChannelKind;
 
 pub use crate::engine::error_model::{AxisErrors, ErrorModel, MachineState, ModelError, TermError};
 pub use at_point::AtPointError;
@@ -143,10 +144,6 @@ fn default_limits() -> ChannelLimits {
     }
 }
 
-fn is_slow(channel: &str) -> bool {
-    channel.starts_with("T_")
-}
-
 /// Where each channel the engine knows lives in `Engine::channels`.
 #[derive(Default)]
 struct Slots {
@@ -174,7 +171,7 @@ impl Slots {
             name,
             monitor: None,
             status: None,
-            slow: is_slow(name),
+            slow: id.kind() == ChannelKind::TemperatureC,
             latched: None,
             value: None,
         });
@@ -194,7 +191,7 @@ pub struct EngineConfig {
     pub channels: Vec<(ChannelId, ChannelLimits)>,
     pub recoveries: Vec<NeighbourEstimate>,
     pub direction: DirectionConfig,
-    /// Slow channels (`T_…`) are latched at this period, s.
+    /// Slow channels (temperatures, `T_<name>_C`) are latched at this period, s.
     pub thermal_period_s: f64,
     /// Compensation enabled at start.
     pub enabled: bool,

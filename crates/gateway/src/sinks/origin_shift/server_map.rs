@@ -6,6 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::map::{AxisRegister, DataType, MapError, RegisterMap, WordOrder};
+use retrocomp_model::units::ChannelKind;
 
 /// A register the controller writes an axis position into.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -176,7 +177,7 @@ impl ServerMap {
             }
         }
         for (i, p) in self.positions.iter().enumerate() {
-            if !p.channel.ends_with("_mm") {
+            if ChannelKind::of(&p.channel) != ChannelKind::LengthMm {
                 return Err(bad(
                     format!("position[{i}].channel"),
                     format!(
