@@ -10,9 +10,10 @@
 //! of a fault that starts or clears (fault sources are typed: [`FaultSource`]).
 //!
 //! Signs: the model returns errors (actual − nominal, µm); the engine outputs corrections (= −error).
-//! Temperature channels (`T_<name>_C`, `ChannelKind::TemperatureC`) are slow: their value is latched every
-//! `thermal_period_s` so the thermal terms change in steps of that period, and the safety dosing cap
-//! spreads each step over cycles (Spaan Ch6: 60 s tables, 15 ms evaluation, dosing).
+//! Temperature channels (`T_<name>_C`, `ChannelKind::TemperatureC`) are slow: their value is
+//! latched every `thermal_period_s` so the thermal terms change in steps of that period, and the
+//! safety dosing cap spreads each step over cycles (Spaan Ch6: 60 s tables, 15 ms evaluation,
+//! dosing).
 
 pub(crate) mod at_point;
 pub(crate) mod direction;
