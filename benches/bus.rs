@@ -8,6 +8,7 @@
 //! Run: `cargo bench --bench bus`.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use retrocomp_bus::ChannelTable;
 use retrocomp_bus::can::{CanBus, Frame, Hub, SocketcandBus};
 use retrocomp_bus::canopen::{CanopenConfig, CanopenSource, CountingDirection, EncoderChannel};
 use retrocomp_bus::modbus::{
@@ -38,10 +39,13 @@ fn pdo_decode(c: &mut Criterion) {
     let frames: Vec<Frame> = (0..3000)
         .map(|i| encs[i % 3].encode_position(i as f64 * 0.013).unwrap())
         .collect();
-    let mut src = CanopenSource::new(CanopenConfig {
-        encoder: encs,
-        ..CanopenConfig::default()
-    });
+    let mut src = CanopenSource::new(
+        CanopenConfig {
+            encoder: encs,
+            ..CanopenConfig::default()
+        },
+        &mut ChannelTable::default(),
+    );
     let mut out = Vec::with_capacity(frames.len());
     let mut g = c.benchmark_group("pdo_decode");
     g.throughput(Throughput::Elements(frames.len() as u64));
@@ -164,7 +168,7 @@ fn modbus_poll(c: &mut Criterion) {
                 })
                 .collect(),
         };
-        (srv, ModbusPoller::new(cfg))
+        (srv, ModbusPoller::new(cfg, &mut ChannelTable::default()))
     });
     let mut out = Vec::with_capacity(16);
     c.bench_function("modbus_tcp_poll16", |b| {

@@ -32,7 +32,9 @@ use std::time::Instant;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use retrocomp_bus::can::Frame;
-use retrocomp_bus::{ChannelId, Health, Sample};
+use std::sync::Arc;
+
+use retrocomp_bus::{Health, Sample};
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::sinks::quadrature::{EdgeScheduler, Event, SchedulerConfig, Step, simulate};
 use retrocomp_gateway::{AxisErrors, Engine, ErrorModel, MachineState};
@@ -41,7 +43,7 @@ use retrocomp_gateway::{AxisErrors, Engine, ErrorModel, MachineState};
 /// position × ΔT, and a direction-dependent reversal term. Term names made once (as the machine
 /// model adapter does), so the cycle allocates nothing.
 struct BenchModel {
-    names: [std::sync::Arc<str>; 3],
+    names: [Arc<str>; 3],
 }
 
 impl BenchModel {
@@ -53,7 +55,7 @@ impl BenchModel {
 }
 
 impl ErrorModel for BenchModel {
-    fn required_channels(&self) -> Vec<ChannelId> {
+    fn required_channels(&self) -> Vec<Arc<str>> {
         vec![
             "T_spindle_C".into(),
             "T_x_C".into(),
@@ -126,8 +128,9 @@ fn feed(e: &mut Engine, t: f64) {
         ("F_cut_N", 120.0),
         ("strain_col_ue", 3.0),
     ] {
+        let channel = e.channels_mut().resolve(ch);
         e.handle_sample(&Sample {
-            channel: ch.into(),
+            channel,
             t_s: t,
             value: v,
             health: Health::Ok,
@@ -192,8 +195,9 @@ fn cycle_compute_studer(c: &mut Criterion) {
             ("z_mm", 255.0 + 250.0 * (t * 0.7).sin()),
             ("x_mm", 85.0 + 80.0 * (t * 1.3).cos()),
         ] {
+            let channel = e.channels_mut().resolve(ch);
             e.handle_sample(&Sample {
-                channel: ch.into(),
+                channel,
                 t_s: t,
                 value: v,
                 health: Health::Ok,
@@ -248,11 +252,12 @@ fn pipeline_frames(c: &mut Criterion) {
             Frame::standard(0x180 + node, &counts.to_le_bytes()).unwrap()
         })
         .collect();
-    // Channel ids resolved once, as the decoders do at construction.
-    let names = ["x_mm", "y_mm", "z_mm"].map(ChannelId::of);
-    let temps = ["T_x_C", "T_y_C", "T_z_C"].map(ChannelId::of);
-    let spindle = ChannelId::of("T_spindle_C");
+    // Channel ids resolved once in the engine's table, as the decoders do at construction.
     let mut e = engine();
+    let table = e.channels_mut();
+    let names = ["x_mm", "y_mm", "z_mm"].map(|n| table.resolve(n));
+    let temps = ["T_x_C", "T_y_C", "T_z_C"].map(|n| table.resolve(n));
+    let spindle = table.resolve("T_spindle_C");
     let mut m = BenchModel::new();
     let mut t = 0.0;
     feed(&mut e, t);
@@ -320,15 +325,15 @@ fn pipeline_gateway(c: &mut Criterion) {
         analog: inputs
             .iter()
             .enumerate()
-            .map(|(k, id)| AnalogChannel {
+            .map(|(k, name)| AnalogChannel {
                 decimal_digits: 3,
-                ..AnalogChannel::new(id.name(), 0x10 + k as u8, AnalogType::Int32)
+                ..AnalogChannel::new(name, 0x10 + k as u8, AnalogType::Int32)
             })
             .collect(),
         heartbeat_timeout_s: None,
         pdo_timeout_s: 0.1,
     };
-    let mut src = CanopenSource::new(can.clone());
+    let mut src = CanopenSource::new(can.clone(), e.channels_mut());
     let map: RegisterMap = toml::from_str(
         "[[axis]]\naxis = \"x\"\naddress = 0\nkind = \"int32\"\nlsb_um = 0.1\nsign = 1\n\
          [[axis]]\naxis = \"y\"\naddress = 2\nkind = \"int32\"\nlsb_um = 0.1\nsign = 1\n\

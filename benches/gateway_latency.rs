@@ -54,7 +54,7 @@ async fn within<T>(what: &str, f: impl Future<Output = T>) -> T {
 struct Linear(Arc<str>);
 
 impl ErrorModel for Linear {
-    fn required_channels(&self) -> Vec<retrocomp_bus::ChannelId> {
+    fn required_channels(&self) -> Vec<Arc<str>> {
         Vec::new()
     }
     fn axis_errors(

@@ -30,6 +30,7 @@ fuzz_target!(|data: &[u8]| {
         assert_eq!(SdoResponse::decode(&r.encode(n)), Some((n, r)));
     }
     let node = (hdr[5] & 0x7F).max(1);
+    let mut table = retrocomp_bus::ChannelTable::default();
     let mut dec = PositionDecoder::new(EncoderChannel {
         channel: "x_mm".into(),
         node_id: node,
@@ -42,7 +43,7 @@ fuzz_target!(|data: &[u8]| {
         cyclic_ms: None,
         min_mm: None,
         max_mm: None,
-    });
+    }, &mut table);
     let _ = dec.decode(&f, 0.0);
     let a = AnalogChannel {
         channel: "T_C".into(),
@@ -54,5 +55,5 @@ fuzz_target!(|data: &[u8]| {
         min: None,
         max: None,
     };
-    let _ = a.decode(&f, 0.0);
+    let _ = a.decode(table.resolve("T_C"), &f, 0.0);
 });

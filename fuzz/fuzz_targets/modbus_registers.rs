@@ -26,7 +26,7 @@ fuzz_target!(|data: &[u8]| {
             max: Some(100.0),
         })
         .collect();
-    let mut core = PollCore::new(chans, 125, u16::from(sel & 7));
+    let mut core = PollCore::new(chans, &mut retrocomp_bus::ChannelTable::default(), 125, u16::from(sel & 7));
     let mut out = Vec::new();
     for b in 0..core.plan.len() {
         core.handle_outcome(b, &ReadOutcome::Registers(words.clone()), 0.0, &mut out);

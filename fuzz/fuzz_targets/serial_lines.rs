@@ -24,7 +24,7 @@ fuzz_target!(|data: &[u8]| {
             max_line: 64,
             channel: vec![SerialChannel { name: "v_mm".into(), key: None, scale: 1.0, offset: 0.0, min: None, max: None }],
         };
-        let mut src = LineSource::new(cfg);
+        let mut src = LineSource::new(cfg, &mut retrocomp_bus::ChannelTable::default());
         let mut out = Vec::new();
         src.push(data, 0.0, &mut out);
         for s in &out {

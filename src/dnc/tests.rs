@@ -2,7 +2,7 @@
 //! flow control and stall, resume, leader/trailer.
 
 use retrocomp_bus::fault::FaultKind;
-use retrocomp_bus::{ChannelId, Health, Sample};
+use retrocomp_bus::{ChannelTable, Health, Sample};
 use retrocomp_model::approach::Approach;
 use retrocomp_model::{Axis, MachineModel};
 
@@ -281,7 +281,16 @@ const T_LIMITS: ChannelLimits = ChannelLimits {
     stuck_after_s: None,
 };
 
+/// The engine's channels: every table built here gives the same ids (one fixed order).
+fn channels() -> ChannelTable {
+    let mut table = ChannelTable::default();
+    table.resolve("x_mm");
+    table.resolve("T_spindle_C");
+    table
+}
+
 pub(super) fn engine() -> Engine {
+    let table = channels();
     let safety = SafetyConfig {
         max_correction_um: 100.0,
         max_change_um_per_cycle: 0.5,
@@ -292,10 +301,10 @@ pub(super) fn engine() -> Engine {
         &EngineConfig {
             axes: vec![EngineAxis {
                 axis: Axis::X,
-                position: ChannelId::of("x_mm"),
+                position: table.get("x_mm").unwrap(),
                 safety,
             }],
-            channels: vec![(ChannelId::of("T_spindle_C"), T_LIMITS)],
+            channels: vec![(table.get("T_spindle_C").unwrap(), T_LIMITS)],
             recoveries: vec![],
             direction: DirectionConfig {
                 deadband_mm: 0.005,
@@ -304,6 +313,7 @@ pub(super) fn engine() -> Engine {
             thermal_period_s: 1.0,
             enabled: true,
         },
+        table,
         &[],
     )
     .unwrap()
@@ -317,7 +327,7 @@ fn model() -> Box<MachineModelAdapter> {
 
 pub(super) fn temp(t_s: f64, value: f64) -> Sample {
     Sample {
-        channel: ChannelId::of("T_spindle_C"),
+        channel: channels().get("T_spindle_C").unwrap(),
         t_s,
         value,
         health: Health::Ok,

@@ -6,6 +6,7 @@
 use std::sync::OnceLock;
 
 use prost::Message as _;
+use retrocomp_bus::ChannelTable;
 use retrocomp_bus::modbus::{
     DataType, RegisterBank, RegisterService, RegisterTable, WordOrder, decode_raw, read_registers,
 };
@@ -68,7 +69,7 @@ pub(crate) fn modbus_server(data: &[u8]) {
             max_change_um_per_write: 1.0,
         })
         .into();
-    let mut core = ServerCore::new(map, &limits);
+    let mut core = ServerCore::new(map, &limits, &mut ChannelTable::default());
     let service = RegisterService {
         bank: bank.clone(),
         slave: None,

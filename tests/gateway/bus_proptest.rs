@@ -2,7 +2,6 @@
 //! round trips where an encoder exists.
 
 use proptest::prelude::*;
-use retrocomp_bus::Health;
 use retrocomp_bus::can::Frame;
 use retrocomp_bus::can::socketcand::{Decoder, Message, encode, parse_message};
 use retrocomp_bus::canopen::{
@@ -17,6 +16,7 @@ use retrocomp_bus::serial::{
     GenericFormat, LineFramer, parse_generic, parse_heidenhain, parse_mitutoyo, parse_nd522,
     parse_weighing,
 };
+use retrocomp_bus::{ChannelTable, Health};
 
 const CASES: u32 = 100_000;
 
@@ -111,7 +111,7 @@ proptest! {
             direction: CountingDirection::Negative, offset_mm: 1.0, total_range_counts: Some(range), cyclic_ms: None,
             min_mm: None, max_mm: None,
         };
-        let mut dec = PositionDecoder::new(enc);
+        let mut dec = PositionDecoder::new(enc, &mut ChannelTable::default());
         let _ = dec.decode(&f, 0.0);
         let _ = dec.decode(&f, 0.0);
         let a = AnalogChannel {
@@ -119,7 +119,7 @@ proptest! {
             data_type: [AnalogType::Int16, AnalogType::Int32, AnalogType::Real32][t],
             decimal_digits: digits, min: None, max: None,
         };
-        let _ = a.decode(&f, 0.0);
+        let _ = a.decode(ChannelTable::default().resolve("T_C"), &f, 0.0);
     }
 
     #[test]
@@ -130,7 +130,7 @@ proptest! {
             total_range_counts: None, cyclic_ms: None, min_mm: None, max_mm: None,
         };
         let mm = counts as f64 / 1000.0;
-        let mut dec = PositionDecoder::new(enc.clone());
+        let mut dec = PositionDecoder::new(enc.clone(), &mut ChannelTable::default());
         let s = dec.decode(&enc.encode_position(mm).unwrap(), 0.0).unwrap();
         prop_assert_eq!(s.health, Health::Ok);
         prop_assert!((s.value - mm).abs() <= 0.5e-3 + 1e-9 * mm.abs(), "{} vs {}", s.value, mm);
@@ -150,7 +150,7 @@ proptest! {
             channel: format!("c{i}_C"), kind: RegisterTable::Input, address: start + 2 * i, data_type: dt,
             word_order: wo, scale, offset: 0.5, min: Some(-10.0), max: Some(10.0),
         }).collect();
-        let mut core = PollCore::new(chans, 125, 1);
+        let mut core = PollCore::new(chans, &mut ChannelTable::default(), 125, 1);
         let mut out = Vec::new();
         for b in 0..core.plan.len() {
             core.handle_outcome(b, &ReadOutcome::Registers(words.clone()), 0.0, &mut out);

@@ -451,3 +451,46 @@ fn the_quadrature_state_file_must_be_writable() {
         "{msg}"
     );
 }
+
+/// One channel table per box: every decoder built from a field file resolves its channels to
+/// the ids the engine gives them (the file's `channel_table`), so no decoder adds a name and a
+/// sample's id means the same channel on every thread.
+#[test]
+fn decoders_and_the_engine_share_the_field_files_channel_ids() {
+    use retrocomp_bus::canopen::CanopenSource;
+    use retrocomp_bus::modbus::PollSchedule;
+    use retrocomp_bus::serial::LineSource;
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fuzz_corpus/field_toml/sensors-can-modbus-serial.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let cfg = FieldConfig::parse(&text, &path).unwrap();
+    let table = cfg.channel_table();
+    let mut built = table.clone();
+    CanopenSource::new(cfg.canopen.clone().unwrap(), &mut built);
+    for m in &cfg.modbus.as_ref().unwrap().source {
+        PollSchedule::new(m, &mut built);
+    }
+    for s in &cfg.serial.as_ref().unwrap().source {
+        LineSource::new(s.clone(), &mut built);
+    }
+    assert_eq!(built.len(), table.len(), "a decoder added a name");
+    let engine = cfg.engine(&std::collections::BTreeMap::new()).unwrap();
+    let names = [
+        "x_mm",
+        "y_mm",
+        "z_mm",
+        "T_column_C",
+        "T_spindle_C",
+        "T_table_C",
+        "F_spindle_N",
+        "x_dro_mm",
+    ];
+    for name in names {
+        let id = table
+            .get(name)
+            .unwrap_or_else(|| panic!("{name} not in the table"));
+        assert_eq!(engine.channels().get(name), Some(id), "{name}");
+        assert_eq!(engine.channels().name(id), name);
+    }
+    assert_eq!(table.len(), names.len(), "one id per name");
+}

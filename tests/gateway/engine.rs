@@ -6,7 +6,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use retrocomp_bus::{ChannelId, Health, Sample};
+use retrocomp_bus::{Health, Sample};
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::{AxisErrors, Engine, ErrorModel, FaultKind, MachineState, Mode};
 use retrocomp_model::Axis;
@@ -15,7 +15,7 @@ use retrocomp_model::Axis;
 struct TestModel;
 
 impl ErrorModel for TestModel {
-    fn required_channels(&self) -> Vec<ChannelId> {
+    fn required_channels(&self) -> Vec<std::sync::Arc<str>> {
         vec!["T_spindle_C".into()]
     }
     fn axis_errors(
@@ -77,12 +77,20 @@ coefficients = [0.0, 1.0]
 fit_rms = 0.1
 "#;
 
-fn s(ch: &str, t: f64, v: f64) -> Sample {
-    Sample {
-        channel: ch.into(),
-        t_s: t,
-        value: v,
-        health: Health::Ok,
+/// A good sample of the channel named `ch`, its id resolved in the engine's table.
+trait Feed {
+    fn feed(&mut self, ch: &str, t: f64, v: f64);
+}
+
+impl Feed for Engine {
+    fn feed(&mut self, ch: &str, t: f64, v: f64) {
+        let channel = self.channels_mut().resolve(ch);
+        self.handle_sample(&Sample {
+            channel,
+            t_s: t,
+            value: v,
+            health: Health::Ok,
+        });
     }
 }
 
@@ -109,12 +117,12 @@ fn closed_loop_core_behaviour() {
             *t += dt;
             *x += v_mm_s * dt;
             if pos_alive {
-                e.handle_sample(&s("x_mm", *t, *x));
+                e.feed("x_mm", *t, *x);
             }
             if let Some(tc) = temp {
-                e.handle_sample(&s("T_spindle_C", *t, tc));
+                e.feed("T_spindle_C", *t, tc);
             }
-            e.handle_sample(&s("T_bed_C", *t, 30.0));
+            e.feed("T_bed_C", *t, 30.0);
             let o = e.cycle(*t, &mut m)[0].1;
             outs.push(o);
         }
@@ -189,10 +197,10 @@ fn temperatures_are_latched_at_the_thermal_period() {
     let mut targets = Vec::new();
     for k in 0..250 {
         t += 0.01;
-        e.handle_sample(&s("x_mm", t, 10.0 + f64::from(k) * 0.1));
+        e.feed("x_mm", t, 10.0 + f64::from(k) * 0.1);
         // Temperature rises 0.5 °C/s (within the 1 °C/s rate limit).
-        e.handle_sample(&s("T_spindle_C", t, 25.0 + 0.5 * t));
-        e.handle_sample(&s("T_bed_C", t, 25.0));
+        e.feed("T_spindle_C", t, 25.0 + 0.5 * t);
+        e.feed("T_bed_C", t, 25.0);
         e.cycle(t, &mut m);
         targets.push(e.snapshot().axes[0].terms_um["thermal"]);
     }
@@ -212,9 +220,9 @@ fn a_bad_reading_replaced_before_the_cycle_is_logged_once_and_never_used() {
     let mut m = TestModel;
     let mut t = 0.0;
     let feed = |e: &mut Engine, t: f64, temp: f64| {
-        e.handle_sample(&s("x_mm", t, 100.0));
-        e.handle_sample(&s("T_bed_C", t, 30.0));
-        e.handle_sample(&s("T_spindle_C", t, temp));
+        e.feed("x_mm", t, 100.0);
+        e.feed("T_bed_C", t, 30.0);
+        e.feed("T_spindle_C", t, temp);
     };
     for _ in 0..200 {
         t += 0.01;
@@ -224,7 +232,7 @@ fn a_bad_reading_replaced_before_the_cycle_is_logged_once_and_never_used() {
     let settled = e.cycle(t, &mut m)[0].1;
     // Within one 10 ms cycle: a NaN, then a good reading, before the engine looks.
     t += 0.01;
-    e.handle_sample(&s("T_spindle_C", t - 0.005, f64::NAN));
+    e.feed("T_spindle_C", t - 0.005, f64::NAN);
     feed(&mut e, t, 30.0);
     let out = e.cycle(t, &mut m)[0].1;
     let faults = e.snapshot().active_faults;
@@ -314,12 +322,12 @@ fn a_stale_force_drops_only_the_load_terms_ramped() {
     let mut step = |e: &mut Engine, t: &mut f64, force: bool| {
         *t += dt;
         for (ch, v) in [("x_mm", 120.0), ("y_mm", 80.0), ("z_mm", -0.5)] {
-            e.handle_sample(&s(ch, *t, v));
+            e.feed(ch, *t, v);
         }
-        e.handle_sample(&s("T_spindle_C", *t, 25.0));
-        e.handle_sample(&s("T_xscrew_C", *t, 24.0));
+        e.feed("T_spindle_C", *t, 25.0);
+        e.feed("T_xscrew_C", *t, 24.0);
         if force {
-            e.handle_sample(&s("F_cut_N", *t, 500.0));
+            e.feed("F_cut_N", *t, 500.0);
         }
         e.cycle(*t, &mut m)[0].1
     };
@@ -413,16 +421,16 @@ fn an_undelivered_optional_input_is_a_lasting_fault_naming_it() {
     let model = MachineModel::from_toml_str(retrocomp::demo::FULL_MODEL, "full").unwrap();
     let mut m = MachineModelAdapter::new(model);
     let mut e = cfg.engine(&BTreeMap::new()).unwrap();
-    e.report_undelivered(&[ChannelId::of("F_cut_N")]);
+    e.report_undelivered(&["F_cut_N".into()]);
     let no_source = ("F_cut_N".to_string(), FaultKind::NoSource);
     let mut t = 0.0;
     for k in 0..300 {
         t += 0.01;
         for (ch, v) in [("x_mm", 120.0), ("y_mm", 80.0), ("z_mm", -0.5)] {
-            e.handle_sample(&s(ch, t, v));
+            e.feed(ch, t, v);
         }
-        e.handle_sample(&s("T_spindle_C", t, 25.0));
-        e.handle_sample(&s("T_xscrew_C", t, 24.0));
+        e.feed("T_spindle_C", t, 25.0);
+        e.feed("T_xscrew_C", t, 24.0);
         e.cycle(t, &mut m);
         let snap = e.snapshot();
         let faults: Vec<(String, FaultKind)> = snap
@@ -443,4 +451,39 @@ fn an_undelivered_optional_input_is_a_lasting_fault_naming_it() {
         .find(|(s, k, _)| *s == "F_cut_N" && *k == FaultKind::NoSource)
         .map(|f| f.2);
     assert!(since.is_some_and(|s| s <= 0.01 + 1e-9), "{since:?}");
+}
+
+/// A sample whose id the engine's table did not issue (a decoder wired to another table) is
+/// dropped: it is not judged under another channel's name, and the engine does not panic.
+#[test]
+fn a_sample_of_an_id_the_engine_did_not_issue_is_dropped() {
+    let cfg = FieldConfig::parse(CFG, Path::new("t.toml")).unwrap();
+    let mut e = cfg.engine(&BTreeMap::new()).unwrap();
+    let mut m = TestModel;
+    e.feed("T_spindle_C", 0.0, 25.0);
+    e.cycle(0.01, &mut m);
+    let known = e.channels().len();
+    let before: Vec<String> = e.snapshot().channels.into_keys().collect();
+    let mut other = retrocomp_bus::ChannelTable::default();
+    let foreign = (0..=known)
+        .map(|k| other.resolve(&format!("c{k}_mm")))
+        .last()
+        .unwrap();
+    for k in 0..3 {
+        e.handle_sample(&Sample {
+            channel: foreign,
+            t_s: 0.02 + f64::from(k) * 0.01,
+            value: 1e9,
+            health: Health::Ok,
+        });
+    }
+    e.cycle(0.05, &mut m);
+    assert_eq!(
+        foreign.index(),
+        known,
+        "an id just beyond the engine's table"
+    );
+    assert_eq!(e.channels().len(), known, "the table is unchanged");
+    let after: Vec<String> = e.snapshot().channels.into_keys().collect();
+    assert_eq!(after, before, "no channel judged the foreign samples");
 }

@@ -33,6 +33,7 @@ use std::collections::BTreeMap;
 
 use proptest::prelude::*;
 use proptest::test_runner::TestCaseError;
+use retrocomp_bus::ChannelTable;
 use retrocomp_gateway::sinks::guard::AxisLimits;
 use retrocomp_gateway::sinks::origin_shift::{Action, RegisterMap, Reply, SinkCore};
 use retrocomp_gateway::sinks::origin_shift::{ServerCore, ServerMap, Update};
@@ -229,7 +230,7 @@ fn server_map() -> ServerMap {
 impl Server {
     fn new() -> Self {
         Server {
-            core: ServerCore::new(server_map(), &limits()),
+            core: ServerCore::new(server_map(), &limits(), &mut ChannelTable::default()),
             update: Update::default(),
             served: None,
             held_reg: 0,
@@ -289,7 +290,7 @@ impl Server {
                 self.write_held(c);
             }
             Ev::BoxRestart => {
-                self.core = ServerCore::new(server_map(), &limits());
+                self.core = ServerCore::new(server_map(), &limits(), &mut ChannelTable::default());
                 self.served = None;
                 if self.stopping {
                     self.core.begin_ramp_out();

@@ -43,8 +43,9 @@ fn studer_table_6_1_through_the_gateway() {
     let mut step = |e: &mut Engine, z: f64| {
         t += 0.01;
         for (ch, v) in [("z_mm", z), ("x_mm", 0.0)] {
+            let channel = e.channels_mut().resolve(ch);
             e.handle_sample(&Sample {
-                channel: ch.into(),
+                channel,
                 t_s: t,
                 value: v,
                 health: Health::Ok,

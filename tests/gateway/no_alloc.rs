@@ -20,7 +20,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use retrocomp_bus::fault::FaultKind;
-use retrocomp_bus::{ChannelId, Health, Sample};
+use retrocomp_bus::{Health, Sample};
 use retrocomp_gateway::Engine;
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::cycle::STATUS_PERIOD_S;
@@ -95,7 +95,7 @@ fn steady_state_cycles_allocate_nothing() {
     ]
     .iter()
     .map(|ch| Sample {
-        channel: ChannelId::of(ch),
+        channel: e.channels_mut().resolve(ch),
         t_s: 0.0,
         value: 0.0,
         health: Health::Ok,
@@ -165,6 +165,7 @@ fn drive_cycle_loop(
     count_from: u64,
     samples: fn(u64, f64) -> Vec<(&'static str, f64)>,
 ) -> LoopRun {
+    use retrocomp_gateway::ErrorModel;
     use retrocomp_gateway::cycle::{CycleIo, CycleLoop};
     use std::sync::Arc;
     use std::sync::atomic::{AtomicU64, Ordering};
@@ -173,7 +174,18 @@ fn drive_cycle_loop(
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let model = MachineModel::from_toml_path(&root.join("deploy/demo/mill-full.toml")).unwrap();
     let cfg = FieldConfig::parse(CFG, Path::new("no-alloc.toml")).unwrap();
-    let engine = cfg.engine(&BTreeMap::new()).unwrap();
+    let mut engine = cfg.engine(&BTreeMap::new()).unwrap();
+    let model = MachineModelAdapter::new(model);
+    // The producer's ids are the engine's: every name it sends (the model's inputs and the
+    // channels of the first cycle, as the sources' table holds them) is in the table before the
+    // engine moves to the loop.
+    for name in model.required_channels() {
+        engine.channels_mut().resolve(&name);
+    }
+    for (name, _) in samples(1, 1e-3) {
+        engine.channels_mut().resolve(name);
+    }
+    let table = engine.channels().clone();
     let (sample_tx, sample_rx) = mpsc::channel(16_384);
     let (_served_tx, served) = mpsc::channel(8);
     let (_reseed_tx, reseed) = mpsc::channel(8);
@@ -194,7 +206,7 @@ fn drive_cycle_loop(
         wake: Default::default(),
         telemetry: None,
     };
-    let mut lp = CycleLoop::new(engine, Box::new(MachineModelAdapter::new(model)), io);
+    let mut lp = CycleLoop::new(engine, Box::new(model), io);
     // Lock-step with the producer through two counters (no allocation to synchronise).
     let sent = Arc::new(AtomicU64::new(0));
     let done = Arc::new(AtomicU64::new(0));
@@ -204,7 +216,7 @@ fn drive_cycle_loop(
             let t = k as f64 * 1e-3;
             for (ch, value) in samples(k, t) {
                 let s = Sample {
-                    channel: ChannelId::of(ch),
+                    channel: table.get(ch).expect("a channel the engine knows"),
                     t_s: t,
                     value,
                     health: Health::Ok,
@@ -220,6 +232,7 @@ fn drive_cycle_loop(
     let (mut quiet_allocs, mut publishes) = (0u64, 0u64);
     for k in 1..=steps {
         while sent.load(Ordering::Acquire) < k {
+            assert!(!producer.is_finished(), "the producer stopped at cycle {k}");
             std::thread::yield_now();
         }
         let before = allocs();
@@ -395,7 +408,7 @@ fn frames_to_register_words_allocate_nothing_per_cycle() {
         heartbeat_timeout_s: None,
         pdo_timeout_s: 0.1,
     };
-    let mut src = CanopenSource::new(can.clone());
+    let mut src = CanopenSource::new(can.clone(), e.channels_mut());
     let map: RegisterMap = toml::from_str(AXES_MAP).unwrap();
     map.validate().unwrap();
     let mut quantisers: Vec<CountQuantizer> = (0..3)
@@ -559,7 +572,7 @@ fn an_origin_shift_write_period_allocates_nothing() {
 /// what it holds, and its X position, every 10th update.
 #[test]
 fn an_origin_shift_server_update_allocates_nothing() {
-    use retrocomp_bus::ChannelId;
+    use retrocomp_bus::{ChannelId, ChannelTable};
     use retrocomp_gateway::sinks::guard::AxisLimits;
     use retrocomp_gateway::sinks::origin_shift::Words;
     use retrocomp_gateway::sinks::origin_shift::{ServerCore, ServerMap, Update};
@@ -579,7 +592,9 @@ fn an_origin_shift_server_update_allocates_nothing() {
             max_change_um_per_write: 0.5,
         })
         .to_vec();
-    let mut core = ServerCore::new(map, &guards);
+    let mut table = ChannelTable::default();
+    let mut core = ServerCore::new(map, &guards, &mut table);
+    let x_mm = table.get("x_mm").unwrap();
     let mut image = [0u16; 32];
     let mut update = Update::default();
     let mut positions: Vec<(ChannelId, f64)> = Vec::new();
@@ -607,7 +622,7 @@ fn an_origin_shift_server_update_allocates_nothing() {
             };
             core.handle_controller_write_into(read, positions);
             assert_eq!(positions.len(), 1, "{positions:?}");
-            assert_eq!(positions[0].0, ChannelId::of("x_mm"));
+            assert_eq!(positions[0].0, x_mm);
         }
         let ok = core.poll_update_into(&wants, update);
         for b in &update.blocks {

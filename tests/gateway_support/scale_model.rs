@@ -13,7 +13,7 @@ pub(crate) struct ScaleModel {
 }
 
 impl ErrorModel for ScaleModel {
-    fn required_channels(&self) -> Vec<retrocomp_bus::ChannelId> {
+    fn required_channels(&self) -> Vec<std::sync::Arc<str>> {
         vec![]
     }
 

@@ -32,7 +32,7 @@ async fn python_can_and_retrocomp_exchange_frames_through_the_hub() {
         cyclic_ms: Some(10),
         ..EncoderChannel::new("x_mm", 1, 1000.0)
     };
-    let mut dec = PositionDecoder::new(enc);
+    let mut dec = PositionDecoder::new(enc, &mut retrocomp_bus::ChannelTable::default());
     let mut hb = HeartbeatMonitor::new(1, 1.0);
     let mut got = Vec::new();
     let mut t_last = 0.0;

@@ -4,11 +4,11 @@
 
 use crate::peers;
 
-use retrocomp_bus::Health;
 use retrocomp_bus::modbus::{
     DataType, ModbusPoller, ModbusSourceConfig, Parity, RegisterBank, RegisterChannel,
     RegisterTable, TcpServer, TransportKind, WordOrder,
 };
+use retrocomp_bus::{ChannelTable, Health};
 use std::time::{Duration, Instant};
 
 fn chan(
@@ -83,10 +83,10 @@ async fn poll_until_answered(p: &mut ModbusPoller) -> Vec<retrocomp_bus::Sample>
     }
 }
 
-fn check_pt100(out: &[retrocomp_bus::Sample]) {
+fn check_pt100(out: &[retrocomp_bus::Sample], table: &ChannelTable) {
     let get = |n: &str| {
         out.iter()
-            .find(|s| s.channel == n)
+            .find(|s| table.name(s.channel) == n)
             .unwrap_or_else(|| panic!("no {n}"))
     };
     for (n, v) in [
@@ -113,9 +113,10 @@ async fn reads_pymodbus_pt100_over_tcp() {
     let _peer = peers::spawn_python("pymodbus_pt100.py", &["tcp", &port.to_string()]);
     let mut cfg = config(TransportKind::Tcp);
     cfg.port = port;
-    let mut p = ModbusPoller::new(cfg);
+    let mut table = ChannelTable::default();
+    let mut p = ModbusPoller::new(cfg, &mut table);
     let out = poll_until_answered(&mut p).await;
-    check_pt100(&out);
+    check_pt100(&out, &table);
     assert!(p.counters().exceptions >= 1);
 }
 
@@ -127,9 +128,10 @@ async fn reads_pymodbus_pt100_over_rtu_on_socat_pty() {
     let _peer = peers::spawn_python("pymodbus_pt100.py", &["rtu", a.to_str().unwrap(), "19200"]);
     let mut cfg = config(TransportKind::Rtu);
     cfg.device = Some(b.to_string_lossy().into_owned());
-    let mut p = ModbusPoller::new(cfg);
+    let mut table = ChannelTable::default();
+    let mut p = ModbusPoller::new(cfg, &mut table);
     let out = poll_until_answered(&mut p).await;
-    check_pt100(&out);
+    check_pt100(&out, &table);
 }
 
 #[tokio::test]
@@ -148,7 +150,7 @@ async fn silent_server_times_out_then_reconnects_when_back() {
     cfg.port = addr.port();
     cfg.timeout_s = 0.2;
     cfg.channel.truncate(1);
-    let mut p = ModbusPoller::new(cfg);
+    let mut p = ModbusPoller::new(cfg, &mut ChannelTable::default());
     let t0 = Instant::now();
     let mut out = Vec::new();
     p.poll_once(1.0, &mut out).await;

@@ -4,11 +4,11 @@
 
 use crate::peers;
 
-use retrocomp_bus::Health;
 use retrocomp_bus::modbus::{
     DataType, ModbusPoller, ModbusSourceConfig, Parity, RegisterBank, RegisterChannel,
     RegisterTable, TcpServer, TransportKind, WordOrder, spawn_rtu,
 };
+use retrocomp_bus::{ChannelTable, Health};
 use std::time::Duration;
 use tokio::time::timeout;
 use tokio_modbus::prelude::*;
@@ -135,7 +135,7 @@ async fn rtu_server_on_a_pty_answers_the_poller_and_mbpoll() {
             max: None,
         }],
     };
-    let mut p = ModbusPoller::new(cfg.clone());
+    let mut p = ModbusPoller::new(cfg.clone(), &mut ChannelTable::default());
     let mut out = Vec::new();
     p.poll_once(0.0, &mut out).await;
     assert_eq!(out[0].health, Health::Ok, "{out:?} {p:?}");
@@ -143,11 +143,14 @@ async fn rtu_server_on_a_pty_answers_the_poller_and_mbpoll() {
     // Another slave id on the same line: our server stays silent, the poller times out (stale).
     // (The port is opened exclusively, so the first poller must close it first.)
     drop(p);
-    let mut other = ModbusPoller::new(ModbusSourceConfig {
-        unit_id: 8,
-        timeout_s: 0.3,
-        ..cfg
-    });
+    let mut other = ModbusPoller::new(
+        ModbusSourceConfig {
+            unit_id: 8,
+            timeout_s: 0.3,
+            ..cfg
+        },
+        &mut ChannelTable::default(),
+    );
     out.clear();
     other.poll_once(0.0, &mut out).await;
     assert_eq!(out[0].health, Health::Stale);
@@ -202,22 +205,25 @@ async fn rtu_poller_keeps_the_inter_frame_silence() {
             max: None,
         })
         .collect();
-    let mut p = ModbusPoller::new(ModbusSourceConfig {
-        name: "slow".into(),
-        transport: TransportKind::Rtu,
-        host: None,
-        port: 502,
-        device: Some(b.to_string_lossy().into_owned()),
-        baud: 1200,
-        parity: Parity::None,
-        unit_id: 1,
-        period_s: 1.0,
-        timeout_s: 2.0,
-        backoff_min_s: 0.05,
-        backoff_max_s: 0.5,
-        max_gap: 0,
-        channel,
-    });
+    let mut p = ModbusPoller::new(
+        ModbusSourceConfig {
+            name: "slow".into(),
+            transport: TransportKind::Rtu,
+            host: None,
+            port: 502,
+            device: Some(b.to_string_lossy().into_owned()),
+            baud: 1200,
+            parity: Parity::None,
+            unit_id: 1,
+            period_s: 1.0,
+            timeout_s: 2.0,
+            backoff_min_s: 0.05,
+            backoff_max_s: 0.5,
+            max_gap: 0,
+            channel,
+        },
+        &mut ChannelTable::default(),
+    );
     assert_eq!(p.schedule.core.plan.len(), 3, "three separate reads");
     let mut out = Vec::new();
     p.poll_once(0.0, &mut out).await; // first poll: connect and warm up

@@ -7,7 +7,7 @@ use crate::peers;
 use retrocomp_bus::serial::{
     LineFormat, LineSource, SerialChannel, SerialCounters, SerialSourceConfig, open, run,
 };
-use retrocomp_bus::{Health, Sample};
+use retrocomp_bus::{ChannelTable, Health, Sample};
 use std::time::Duration;
 
 fn ch(name: &str, key: Option<&str>, scale: f64) -> SerialChannel {
@@ -21,18 +21,20 @@ fn ch(name: &str, key: Option<&str>, scale: f64) -> SerialChannel {
     }
 }
 
-/// Run the source on the pty until `want` non-stale samples arrived (≤ 15 s), then return them.
+/// Run the source on the pty until `want` non-stale samples arrived (≤ 15 s), then return them
+/// with the table that names their channels.
 async fn collect(
     cfg: SerialSourceConfig,
     kind: &str,
     want: usize,
-) -> (Vec<Sample>, SerialCounters, peers::Peer) {
+) -> (Vec<Sample>, ChannelTable, SerialCounters, peers::Peer) {
     let dir = tempfile::tempdir().unwrap();
     let (socat, a, b) = peers::socat_pair(dir.path());
     let mut cfg = cfg;
     cfg.device = Some(b.to_string_lossy().into_owned());
     let port = open(&cfg).expect("open pty with tokio-serial");
-    let src = LineSource::new(cfg);
+    let mut table = ChannelTable::default();
+    let src = LineSource::new(cfg, &mut table);
     let (tx, mut rx) = tokio::sync::mpsc::channel(64);
     let t0 = std::time::Instant::now();
     let task = tokio::spawn(run(port, src, move || t0.elapsed().as_secs_f64(), tx));
@@ -65,7 +67,7 @@ async fn collect(
         .unwrap()
         .unwrap_or_else(|e| panic!("serial source failed: {e}"));
     drop(dir);
-    (got, counters, writer)
+    (got, table, counters, writer)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -86,8 +88,11 @@ async fn parses_heidenhain_dro_lines_from_pyserial() {
             ch("z_mm", None, 1.0),
         ],
     };
-    let (got, counters, _w) = collect(cfg, "dro", 6).await;
-    let v: Vec<(&str, f64)> = got.iter().map(|s| (s.channel.name(), s.value)).collect();
+    let (got, table, counters, _w) = collect(cfg, "dro", 6).await;
+    let v: Vec<(&str, f64)> = got
+        .iter()
+        .map(|s| (table.name(s.channel), s.value))
+        .collect();
     assert_eq!(
         v,
         vec![
@@ -123,13 +128,16 @@ async fn parses_weighing_indicator_lines_from_pyserial() {
         max_line: 64,
         channel: vec![ch("F_gross_N", Some("GS"), G), ch("F_net_N", Some("NT"), G)],
     };
-    let (got, counters, _w) = collect(cfg, "weighing", 4).await;
+    let (got, table, counters, _w) = collect(cfg, "weighing", 4).await;
     assert_eq!(counters.unstable_skipped, 1, "{counters:?}");
     assert!(
         counters.garbage_lines >= 1,
         "`#####` is counted: {counters:?}"
     );
-    let v: Vec<(&str, Health)> = got.iter().map(|s| (s.channel.name(), s.health)).collect();
+    let v: Vec<(&str, Health)> = got
+        .iter()
+        .map(|s| (table.name(s.channel), s.health))
+        .collect();
     assert_eq!(
         v,
         vec![

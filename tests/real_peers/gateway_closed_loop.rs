@@ -14,7 +14,7 @@ use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use retrocomp_bus::{Health, Sample};
+use retrocomp_bus::{ChannelTable, Health, Sample};
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::run::run;
 use retrocomp_gateway::sinks::origin_shift::RegisterMap;
@@ -27,7 +27,7 @@ use plc::{Plc, serve};
 
 struct ThermalModel;
 impl ErrorModel for ThermalModel {
-    fn required_channels(&self) -> Vec<retrocomp_bus::ChannelId> {
+    fn required_channels(&self) -> Vec<Arc<str>> {
         vec!["T_spindle_C".into()]
     }
     fn axis_errors(
@@ -121,7 +121,11 @@ fn feeder(
     tx: mpsc::Sender<Sample>,
     mode: Arc<AtomicU8>,
     t0: std::time::Instant,
+    channels: &ChannelTable,
 ) -> tokio::task::JoinHandle<()> {
+    // The ids the gateway's engine gives these names (the field file's table).
+    let id = |name: &str| channels.get(name).expect("a channel of the field file");
+    let (t_bed, t_spindle, x_mm) = (id("T_bed_C"), id("T_spindle_C"), id("x_mm"));
     tokio::spawn(async move {
         let mut k = 0u64;
         loop {
@@ -137,13 +141,13 @@ fn feeder(
             };
             let mut batch = vec![
                 Sample {
-                    channel: "T_bed_C".into(),
+                    channel: t_bed,
                     t_s: t,
                     value: 30.0 + 1e-4 * (k % 5) as f64,
                     health: Health::Ok,
                 },
                 Sample {
-                    channel: "T_spindle_C".into(),
+                    channel: t_spindle,
                     t_s: t,
                     value: if m == TEMP_NAN { f64::NAN } else { temp },
                     health: Health::Ok,
@@ -151,7 +155,7 @@ fn feeder(
             ];
             if m != ENCODER_SILENT {
                 batch.push(Sample {
-                    channel: "x_mm".into(),
+                    channel: x_mm,
                     t_s: t,
                     value: x,
                     health: Health::Ok,
@@ -159,7 +163,7 @@ fn feeder(
             }
             if m == GARBAGE {
                 batch.push(Sample {
-                    channel: "x_mm".into(),
+                    channel: x_mm,
                     t_s: t,
                     value: 0.0,
                     health: Health::DecodeError,
@@ -241,7 +245,7 @@ async fn gateway_survives_faults_and_never_jumps() {
     // --- gateway run 1 ---
     let (tx, rx) = mpsc::channel(4096);
     let epoch = std::time::Instant::now();
-    let feed = feeder(tx, mode.clone(), epoch);
+    let feed = feeder(tx, mode.clone(), epoch, &cfg.channel_table());
     let (stop_tx, stop_rx) = oneshot::channel::<()>();
     let (addr_tx, addr_rx) = oneshot::channel();
     let gw = tokio::spawn(run(
@@ -364,7 +368,7 @@ async fn gateway_survives_faults_and_never_jumps() {
     let n_before = plc.lock().unwrap().history.len();
     let (tx, rx) = mpsc::channel(4096);
     let epoch = std::time::Instant::now();
-    let feed = feeder(tx, mode.clone(), epoch);
+    let feed = feeder(tx, mode.clone(), epoch, &cfg.channel_table());
     let (stop_tx, stop_rx) = oneshot::channel::<()>();
     let gw = tokio::spawn(run(
         cfg.clone(),

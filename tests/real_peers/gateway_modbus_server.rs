@@ -12,7 +12,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use retrocomp_bus::Sample;
+use retrocomp_bus::{ChannelTable, Sample};
 use retrocomp_gateway::SinkStatus;
 use retrocomp_gateway::config::FieldConfig;
 use retrocomp_gateway::sinks::guard::AxisLimits;
@@ -123,7 +123,8 @@ async fn write(link: &[String], address: u16, values: &[u16]) -> (bool, String) 
 async fn exercise(link: Vec<String>, transport: ServerTransport) {
     let epoch = Instant::now();
     let clock = move || epoch.elapsed().as_secs_f64();
-    let mut server = OriginShiftServer::start(config(transport), &guards(), clock())
+    let mut table = ChannelTable::default();
+    let mut server = OriginShiftServer::start(config(transport), &guards(), &mut table, clock())
         .await
         .unwrap();
     let link = match server.local_addr() {
@@ -159,7 +160,7 @@ async fn exercise(link: Vec<String>, transport: ServerTransport) {
         .unwrap();
     assert_eq!(held, BTreeMap::from([("x".to_string(), 12.3)]));
     let s = samples_rx.recv().await.unwrap();
-    assert_eq!((s.channel.name(), s.value), ("x_mm", 150.0));
+    assert_eq!((table.name(s.channel), s.value), ("x_mm", 150.0));
 
     // The engine wants 20 µm; the controller still reports 12.3 µm: at most 13.3 µm is served.
     let (out_tx, out_rx) = watch::channel(vec![(retrocomp_model::Axis::X, 20.0)]);

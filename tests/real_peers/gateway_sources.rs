@@ -304,7 +304,7 @@ fn every_shipped_field_config_loads_with_its_model_and_sources_what_the_model_ne
         let sourced = sourced_channels(&cfg);
         for c in adapter.required_channels() {
             assert!(
-                sourced.iter().any(|s| c == s.as_str()),
+                sourced.iter().any(|s| *c == **s),
                 "{}: the model needs {c} but no source delivers it (sources: {sourced:?})",
                 path.display()
             );

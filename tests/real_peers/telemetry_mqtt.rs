@@ -352,11 +352,14 @@ drop_policy = "drop_oldest"
     let cfg = retrocomp_gateway::config::FieldConfig::parse(&text, Path::new("dead.toml")).unwrap();
     let (tx, rx) = tokio::sync::mpsc::channel(4096);
     let epoch = Instant::now();
+    // The ids the gateway's engine gives these names (the field file's table).
+    let channels = cfg.channel_table();
+    let x_mm = channels.get("x_mm").expect("x_mm in the field file");
     let feeder = tokio::spawn(async move {
         loop {
             let t = epoch.elapsed().as_secs_f64();
             let s = Sample {
-                channel: "x_mm".into(),
+                channel: x_mm,
                 t_s: t,
                 value: 100.0 + 50.0 * (t * 0.5).sin(),
                 health: Health::Ok,

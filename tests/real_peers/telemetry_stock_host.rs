@@ -148,18 +148,24 @@ async fn a_stock_host_reads_one_birth_per_session_with_units_through_a_broker_re
     let (tx, rx) = tokio::sync::mpsc::channel(4096);
     let (temp_on_tx, temp_on) = tokio::sync::watch::channel(false);
     let epoch = Instant::now();
+    // The ids the gateway's engine gives these names (the field file's table).
+    let channels = cfg.channel_table();
+    let x_mm = channels.get("x_mm").expect("x_mm in the field file");
+    let t_spindle = channels
+        .get("T_spindle_C")
+        .expect("T_spindle_C in the field file");
     let feeder = tokio::spawn(async move {
         loop {
             let t = epoch.elapsed().as_secs_f64();
             let mut s = vec![Sample {
-                channel: "x_mm".into(),
+                channel: x_mm,
                 t_s: t,
                 value: 100.0 + 50.0 * (t * 0.5).sin(),
                 health: Health::Ok,
             }];
             if *temp_on.borrow() {
                 s.push(Sample {
-                    channel: "T_spindle_C".into(),
+                    channel: t_spindle,
                     t_s: t,
                     value: 21.5,
                     health: Health::Ok,

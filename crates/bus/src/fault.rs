@@ -16,7 +16,6 @@ use std::sync::Arc;
 
 use serde::Serialize;
 
-use crate::ChannelId;
 use retrocomp_model::Axis;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
@@ -114,8 +113,9 @@ impl fmt::Display for FaultKind {
 /// Who reports a fault. Prints as its name in status, metrics and logs.
 #[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum FaultSource {
-    /// A sensor channel: its configured name.
-    Channel(ChannelId),
+    /// A sensor channel: its configured name (the engine's [`crate::ChannelTable`] entry, shared;
+    /// cloning it is a reference count).
+    Channel(Arc<str>),
     /// The model's evaluation: `model`.
     Model,
     /// Compensation enabled but the axis not tracking its target: `compensation.<axis>`.
@@ -144,7 +144,7 @@ impl From<&str> for FaultSource {
 impl fmt::Display for FaultSource {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            FaultSource::Channel(id) => f.write_str(id.name()),
+            FaultSource::Channel(n) => f.write_str(n),
             FaultSource::Model => f.write_str("model"),
             FaultSource::Compensation(a) => write!(f, "compensation.{a}"),
             FaultSource::CompensationPartial(a) => write!(f, "compensation.{a}.partial"),

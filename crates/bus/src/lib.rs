@@ -40,4 +40,4 @@ mod deadline;
 mod sample;
 
 pub use backoff::Backoff;
-pub use sample::{ChannelId, Health, Sample};
+pub use sample::{ChannelId, ChannelTable, Health, Sample};

@@ -4,19 +4,17 @@
 //! Units are those of the channel (its name carries them: `x_mm`, `T_spindle_C`, `F_cut_N`); time is
 //! seconds on the receiver's clock.
 //!
-//! Identity: a channel name is resolved ONCE, when a config is loaded or a decoder is built
-//! ([`ChannelId::of`]), into a small `Copy` index. Samples, the engine's state and the model seam
-//! carry that index; the name is looked up only for display (status, metrics, logs, JSON), where
-//! [`ChannelId::name`] returns exactly the configured spelling; what the channel measures
-//! ([`ChannelKind`], read from the name's prefix and unit suffix) is resolved with it, so no later
-//! code reads a kind from a name. The registry is process-wide and
-//! append-only (a gateway has tens of channels, so the leaked names are bounded by the configs
-//! loaded), which lets every decoder resolve its channel at construction without a registry being
-//! threaded through every constructor.
+//! Identity: a channel name is resolved ONCE, when a gateway is built (config load, decoder
+//! construction), into a small `Copy` index by the [`ChannelTable`] that gateway owns. Samples,
+//! the engine's state and the model seam carry that index; the name is looked up in the table
+//! only for display (status, metrics, logs, JSON), where [`ChannelTable::name`] returns exactly
+//! the configured spelling. What the channel measures ([`ChannelKind`], read from the name's
+//! prefix and unit suffix) is resolved with it, so no later code reads a kind from a name. An id
+//! means something only in the table that issued it: one gateway, one table, built before its
+//! decoders and moved into its engine.
 
 use std::collections::HashMap;
-use std::fmt;
-use std::sync::{LazyLock, RwLock};
+use std::sync::Arc;
 
 use retrocomp_model::units::ChannelKind;
 
@@ -34,7 +32,7 @@ pub enum Health {
 }
 
 /// One decoded value.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sample {
     /// The channel (resolved from its configured name, with its unit suffix: `x_mm`, `T_spindle_C`).
     pub channel: ChannelId,
@@ -43,117 +41,80 @@ pub struct Sample {
     pub health: Health,
 }
 
-/// A channel's identity: an index into the process-wide registry of channel names (see the module
-/// comment). Equal names give equal ids; ids order by registration, not by name.
-#[derive(Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+/// A channel's identity: a dense index into the [`ChannelTable`] that resolved its name (see the
+/// module comment). Equal names in one table give equal ids; ids order by registration, not by
+/// name. It prints as its index (`ChannelId(3)`): the name is the table's.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct ChannelId(u32);
 
-#[derive(Default)]
-struct Registry {
-    names: Vec<(&'static str, ChannelKind)>,
-    ids: HashMap<&'static str, ChannelId>,
-}
-
-static REGISTRY: LazyLock<RwLock<Registry>> = LazyLock::new(Default::default);
-
 impl ChannelId {
-    /// The id of `name`, registering it the first time (setup time: config load, decoder
-    /// construction; allocates only for a new name).
-    pub fn of(name: &str) -> ChannelId {
-        if let Some(id) = Self::lookup(name) {
-            return id;
-        }
-        let mut r = REGISTRY.write().unwrap_or_else(|e| e.into_inner());
-        if let Some(&id) = r.ids.get(name) {
-            return id;
-        }
-        let id = ChannelId(u32::try_from(r.names.len()).expect("fewer than 2³² channel names"));
-        let leaked: &'static str = Box::leak(name.to_owned().into_boxed_str());
-        r.names.push((leaked, ChannelKind::of(name)));
-        r.ids.insert(leaked, id);
-        id
-    }
-
-    /// The id of `name` if it was ever registered.
-    pub fn lookup(name: &str) -> Option<ChannelId> {
-        let r = REGISTRY.read().unwrap_or_else(|e| e.into_inner());
-        r.ids.get(name).copied()
-    }
-
-    /// The configured name (for display; takes the registry's read lock, so keep it off the
-    /// per-cycle path: cache it at setup).
-    pub fn name(self) -> &'static str {
-        self.entry().0
-    }
-
-    /// What the channel measures, resolved from its name when it was registered.
-    pub fn kind(self) -> ChannelKind {
-        self.entry().1
-    }
-
-    fn entry(self) -> (&'static str, ChannelKind) {
-        let r = REGISTRY.read().unwrap_or_else(|e| e.into_inner());
-        r.names[self.0 as usize]
-    }
-
     /// Dense index (registration order), for tables indexed by channel.
     pub fn index(self) -> usize {
         self.0 as usize
     }
 }
 
-impl fmt::Debug for ChannelId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{:?}", self.name())
-    }
+/// One configured channel: its name as written and what it measures.
+#[derive(Clone, Debug, PartialEq, Eq)]
+struct Entry {
+    name: Arc<str>,
+    kind: ChannelKind,
 }
 
-impl fmt::Display for ChannelId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
+/// The channels one gateway knows, append-only: each name resolved once into a [`ChannelId`]
+/// with its [`ChannelKind`]. Built with the gateway (its decoders, its engine's configured and
+/// model channels) and owned by its engine; every display of a channel asks it for the name.
+#[derive(Clone, Debug, Default)]
+pub struct ChannelTable {
+    entries: Vec<Entry>,
+    ids: HashMap<Arc<str>, ChannelId>,
 }
 
-impl From<&str> for ChannelId {
-    fn from(name: &str) -> Self {
-        ChannelId::of(name)
+impl ChannelTable {
+    /// The id of `name`, adding it the first time (setup time; allocates only for a new name).
+    pub fn resolve(&mut self, name: &str) -> ChannelId {
+        if let Some(&id) = self.ids.get(name) {
+            return id;
+        }
+        let id = ChannelId(u32::try_from(self.entries.len()).expect("fewer than 2³² channels"));
+        let name: Arc<str> = Arc::from(name);
+        self.entries.push(Entry {
+            kind: ChannelKind::of(&name),
+            name: Arc::clone(&name),
+        });
+        self.ids.insert(name, id);
+        id
     }
-}
 
-impl From<&String> for ChannelId {
-    fn from(name: &String) -> Self {
-        ChannelId::of(name)
+    /// The id of `name` if this table has it.
+    pub fn get(&self, name: &str) -> Option<ChannelId> {
+        self.ids.get(name).copied()
     }
-}
 
-impl From<String> for ChannelId {
-    fn from(name: String) -> Self {
-        ChannelId::of(&name)
+    /// The configured name of `id`. Panics for an id this table did not issue (a bug: ids of
+    /// one gateway never meet another's table).
+    pub fn name(&self, id: ChannelId) -> &str {
+        &self.entries[id.index()].name
     }
-}
 
-impl PartialEq<str> for ChannelId {
-    fn eq(&self, other: &str) -> bool {
-        self.name() == other
+    /// [`ChannelTable::name`] as a shared string (a reference count, never an allocation), for
+    /// a status, fault source or error that outlives the borrow.
+    pub fn shared_name(&self, id: ChannelId) -> Arc<str> {
+        Arc::clone(&self.entries[id.index()].name)
     }
-}
 
-impl PartialEq<&str> for ChannelId {
-    fn eq(&self, other: &&str) -> bool {
-        self.name() == *other
+    /// What `id` measures, resolved from its name when it was added.
+    pub fn kind(&self, id: ChannelId) -> ChannelKind {
+        self.entries[id.index()].kind
     }
-}
 
-impl serde::Serialize for ChannelId {
-    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_str(self.name())
+    /// How many channels the table holds (ids are `0..len`).
+    pub fn len(&self) -> usize {
+        self.entries.len()
     }
-}
 
-impl<'de> serde::Deserialize<'de> for ChannelId {
-    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let name = <std::borrow::Cow<'de, str>>::deserialize(d)?;
-        Ok(ChannelId::of(&name))
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
     }
 }
 
@@ -163,32 +124,54 @@ mod tests {
 
     #[test]
     fn a_name_resolves_to_one_id_and_back() {
-        let a = ChannelId::of("test_sample_a_mm");
-        let b = ChannelId::of("test_sample_b_mm");
+        let mut t = ChannelTable::default();
+        let a = t.resolve("x_mm");
+        let b = t.resolve("y_mm");
         assert_ne!(a, b);
-        assert_eq!(ChannelId::of("test_sample_a_mm"), a);
-        assert_eq!(ChannelId::lookup("test_sample_a_mm"), Some(a));
-        assert_eq!(ChannelId::lookup("test_sample_never_registered"), None);
-        assert_eq!(a.name(), "test_sample_a_mm");
-        assert_eq!(a.to_string(), "test_sample_a_mm");
-        assert_eq!(format!("{b:?}"), "\"test_sample_b_mm\"");
-        assert!(a == "test_sample_a_mm");
-        let json = serde_json::to_string(&a).unwrap();
-        assert_eq!(json, "\"test_sample_a_mm\"");
-        assert_eq!(serde_json::from_str::<ChannelId>(&json).unwrap(), a);
+        assert_eq!(t.resolve("x_mm"), a);
+        assert_eq!(t.get("x_mm"), Some(a));
+        assert_eq!(t.get("never_registered"), None);
+        assert_eq!(t.name(a), "x_mm");
+        assert_eq!(&*t.shared_name(b), "y_mm");
+        assert_eq!((a.index(), b.index(), t.len()), (0, 1, 2));
+        assert_eq!(format!("{b:?}"), "ChannelId(1)");
+    }
+
+    #[test]
+    fn two_tables_are_independent() {
+        let mut one = ChannelTable::default();
+        let mut two = ChannelTable::default();
+        one.resolve("x_mm");
+        let y_in_one = one.resolve("y_mm");
+        let y_in_two = two.resolve("y_mm");
+        assert_ne!(y_in_one, y_in_two);
+        assert_eq!(two.get("x_mm"), None);
+        assert_eq!(one.name(y_in_one), two.name(y_in_two));
     }
 
     #[test]
     fn the_kind_is_resolved_with_the_name() {
+        let mut t = ChannelTable::default();
+        let kinds = [
+            "x_mm",
+            "T_spindle_C",
+            "F_cut_N",
+            "strain_column_ue",
+            "spindle_rpm",
+        ]
+        .map(|n| {
+            let id = t.resolve(n);
+            t.kind(id)
+        });
         assert_eq!(
-            ChannelId::of("test_sample_a_mm").kind(),
-            ChannelKind::LengthMm
+            kinds,
+            [
+                ChannelKind::LengthMm,
+                ChannelKind::TemperatureC,
+                ChannelKind::ForceN,
+                ChannelKind::StrainUe,
+                ChannelKind::Other
+            ]
         );
-        assert_eq!(
-            ChannelId::of("T_test_sample_C").kind(),
-            ChannelKind::TemperatureC
-        );
-        assert_eq!(ChannelId::of("F_test_sample_N").kind(), ChannelKind::ForceN);
-        assert_eq!(ChannelId::of("test_sample_rpm").kind(), ChannelKind::Other);
     }
 }

@@ -411,7 +411,12 @@ async fn start_sink(
 fn build_sink(cfg: &FieldConfig, epoch: std::time::Instant) -> Result<Box<dyn Sink>, GatewayError> {
     let limits = cfg.sink_limits();
     if let Some(srv) = cfg.sink.origin_shift_server.clone() {
-        return Ok(Box::new(OriginShiftServerSink::new(srv, limits, epoch)));
+        return Ok(Box::new(OriginShiftServerSink::new(
+            srv,
+            limits,
+            cfg.channel_table(),
+            epoch,
+        )));
     }
     if let Some(q) = cfg.sink.quadrature.clone() {
         return Ok(Box::new(QuadratureOutput::new(q, limits, epoch)));

@@ -202,7 +202,8 @@ mod guest {
             matches!(bus, retrocomp_bus::can::AnyCanBus::Socketcan(_)),
             "backend = \"socketcan\" opened {bus:?}"
         );
-        let mut src = CanopenSource::new(field.canopen);
+        let mut table = retrocomp_bus::ChannelTable::default();
+        let mut src = CanopenSource::new(field.canopen, &mut table);
         let (tx, mut rx) = tokio::sync::mpsc::channel(64);
         let start = std::time::Instant::now();
         let task = tokio::spawn(async move {
@@ -239,7 +240,8 @@ mod guest {
                 .context("no Ok-then-Stale samples within the timeout")?
                 .context("CANopen source stopped")?;
             for s in batch {
-                ensure!(s.channel == "x_mm", "unexpected channel {}", s.channel);
+                let name = table.name(s.channel);
+                ensure!(name == "x_mm", "unexpected channel {name}");
                 match s.health {
                     Health::Ok => ok_value = Some(s.value),
                     Health::Stale if ok_value.is_some() => went_stale = true,

@@ -64,7 +64,7 @@ struct HangAfter<M> {
 }
 
 impl<M: ErrorModel> ErrorModel for HangAfter<M> {
-    fn required_channels(&self) -> Vec<retrocomp_bus::ChannelId> {
+    fn required_channels(&self) -> Vec<std::sync::Arc<str>> {
         self.inner.required_channels()
     }
 

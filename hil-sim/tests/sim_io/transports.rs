@@ -185,7 +185,9 @@ fn encoder(node: u8) -> EncoderChannel {
 
 /// Collect frames until the simulation ends, decode x and the temperatures.
 async fn check_can_frames(mut rx: impl CanBus, mut done: impl FnMut() -> bool) {
-    let mut dec = PositionDecoder::new(encoder(1));
+    let mut table = retrocomp_bus::ChannelTable::default();
+    let mut dec = PositionDecoder::new(encoder(1), &mut table);
+    let t_id = table.resolve("T");
     let temp = |i: usize| AnalogChannel {
         channel: "T".into(),
         node_id: 10,
@@ -202,7 +204,7 @@ async fn check_can_frames(mut rx: impl CanBus, mut done: impl FnMut() -> bool) {
         if let Some(s) = dec.decode(&f, 0.0) {
             last_x = Some(s.value);
         }
-        if let (Some(a), Some(b)) = (temp(0).decode(&f, 0.0), temp(1).decode(&f, 0.0)) {
+        if let (Some(a), Some(b)) = (temp(0).decode(t_id, &f, 0.0), temp(1).decode(t_id, &f, 0.0)) {
             temps = Some((a.value, b.value));
         }
         if f.raw_id() == 0x701 {

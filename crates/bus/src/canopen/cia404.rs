@@ -4,6 +4,8 @@
 //! Units are the channel's (its name says them: `T_spindle_C`).
 
 use super::tpdo_cob_id;
+#[cfg(test)]
+use crate::ChannelTable;
 use crate::can::Frame;
 use crate::{ChannelId, Health, Sample};
 use embedded_can::Frame as _;
@@ -144,14 +146,9 @@ impl AnalogChannel {
         Frame::standard(self.cob_id(), &d[..n])
     }
 
-    /// `None` if the frame is not this channel's PDO. Resolves the channel name on every call:
-    /// for tests and tools; a source resolves it once and calls [`AnalogChannel::decode_as`].
-    pub fn decode(&self, f: &Frame, t_s: f64) -> Option<Sample> {
-        self.decode_as(ChannelId::of(&self.channel), f, t_s)
-    }
-
-    /// [`AnalogChannel::decode`] with the channel's id resolved by the caller.
-    pub fn decode_as(&self, channel: ChannelId, f: &Frame, t_s: f64) -> Option<Sample> {
+    /// The sample of `channel` (this channel's id in the gateway's table) that `f` carries;
+    /// `None` if the frame is not this channel's PDO.
+    pub fn decode(&self, channel: ChannelId, f: &Frame, t_s: f64) -> Option<Sample> {
         if f.is_extended() || f.is_remote_frame() || f.raw_id() != u32::from(self.cob_id()) {
             return None;
         }
@@ -192,16 +189,21 @@ mod tests {
         }
     }
 
+    /// The id these tests decode as (the channel's name plays no part in decoding).
+    fn id() -> ChannelId {
+        ChannelTable::default().resolve("T_test_C")
+    }
+
     #[test]
     fn decimal_digits_scale_integers() {
         // 6132h = 3 → raw / 1000 (rust-stack.md §6, esd CAN-CBX-THERMO §8.10).
         let c = ch(AnalogType::Int32, 3, 0);
         let f = Frame::standard(0x290, &21345i32.to_le_bytes()).unwrap();
-        let s = c.decode(&f, 0.5).unwrap();
+        let s = c.decode(id(), &f, 0.5).unwrap();
         assert_eq!((s.value, s.health), (21.345, Health::Ok));
         let c = ch(AnalogType::Int16, 1, 2);
         let f = Frame::standard(0x290, &[0xAA, 0xAA, 0x0B, 0xFF]).unwrap(); // -245 → -24.5
-        assert_eq!(c.decode(&f, 0.0).unwrap().value, -24.5);
+        assert_eq!(c.decode(id(), &f, 0.0).unwrap().value, -24.5);
     }
 
     #[test]
@@ -213,7 +215,7 @@ mod tests {
         ] {
             let c = ch(t, d, 4);
             let f = c.encode(23.25).unwrap();
-            assert!((c.decode(&f, 0.0).unwrap().value - 23.25).abs() < 1e-6);
+            assert!((c.decode(id(), &f, 0.0).unwrap().value - 23.25).abs() < 1e-6);
         }
         assert!(
             ch(AnalogType::Int16, 3, 0).encode(40.0).is_none(),
@@ -226,7 +228,7 @@ mod tests {
         let hot = ch(AnalogType::Real32, 0, 0).encode(300.0).unwrap();
         assert_eq!(
             ch(AnalogType::Real32, 0, 0)
-                .decode(&hot, 0.0)
+                .decode(id(), &hot, 0.0)
                 .unwrap()
                 .health,
             Health::OutOfRange

@@ -13,7 +13,7 @@
 
 use super::tpdo_cob_id;
 use crate::can::Frame;
-use crate::{ChannelId, Health, Sample};
+use crate::{ChannelId, ChannelTable, Health, Sample};
 use embedded_can::Frame as _;
 
 /// CiA 406 counting direction (object 6000h bit 0): how the encoder's counts relate to the axis'
@@ -148,9 +148,10 @@ pub struct PositionDecoder {
 }
 
 impl PositionDecoder {
-    pub fn new(cfg: EncoderChannel) -> Self {
+    /// The decoder of `cfg`, its channel resolved in `channels`.
+    pub fn new(cfg: EncoderChannel, channels: &mut ChannelTable) -> Self {
         PositionDecoder {
-            channel: ChannelId::of(&cfg.channel),
+            channel: channels.resolve(&cfg.channel),
             cfg,
             last_raw: None,
             turns: 0,
@@ -242,7 +243,7 @@ mod tests {
 
     #[test]
     fn decodes_le_u32_on_0x181() {
-        let mut d = PositionDecoder::new(x_encoder());
+        let mut d = PositionDecoder::new(x_encoder(), &mut ChannelTable::default());
         let f = Frame::standard(0x181, &[0x39, 0x30, 0, 0]).unwrap(); // 12345 counts
         let s = d.decode(&f, 1.0).unwrap();
         assert_eq!((s.value, s.health), (12.345, Health::Ok));
@@ -265,7 +266,7 @@ mod tests {
             total_range_counts: Some(2048 * 4096),
             ..x_encoder()
         };
-        let mut d = PositionDecoder::new(cfg.clone());
+        let mut d = PositionDecoder::new(cfg.clone(), &mut ChannelTable::default());
         for mm in [500.0, 499.9975, 123.4, -200.0] {
             let s = d.decode(&cfg.encode_position(mm).unwrap(), 0.0).unwrap();
             assert!(
@@ -286,7 +287,7 @@ mod tests {
             total_range_counts: Some(1 << 24),
             ..x_encoder()
         };
-        let mut d = PositionDecoder::new(cfg.clone());
+        let mut d = PositionDecoder::new(cfg.clone(), &mut ChannelTable::default());
         let top = (1u32 << 24) - 10;
         // First frame just below the top of the range: read nearest to zero, i.e. −10 counts.
         assert!((d.decode(&cfg.encode_raw(top), 0.0).unwrap().value + 0.010).abs() < 1e-9);
@@ -298,7 +299,7 @@ mod tests {
         assert!((s.value + 0.010).abs() < 1e-9);
         assert_eq!(d.rollovers, 2);
         // Far travel: 3 times round the range upwards in steps below half the range.
-        let mut far = PositionDecoder::new(cfg.clone());
+        let mut far = PositionDecoder::new(cfg.clone(), &mut ChannelTable::default());
         let step_mm = ((1u64 << 24) / 3) as f64 / 1000.0;
         let mut last = 0.0;
         for k in 0..=9 {
@@ -318,7 +319,7 @@ mod tests {
             max_mm: Some(800.0),
             ..x_encoder()
         };
-        let mut d = PositionDecoder::new(cfg.clone());
+        let mut d = PositionDecoder::new(cfg.clone(), &mut ChannelTable::default());
         let s = d.decode(&cfg.encode_position(800.5).unwrap(), 0.0).unwrap();
         assert_eq!(s.health, Health::OutOfRange);
     }

@@ -16,7 +16,7 @@ use super::nmt::{HeartbeatMonitor, NmtCommand, encode_nmt};
 use super::sdo::{CYCLIC_TIMER_6200, SdoRequest, SdoResponse};
 use crate::can::{CanBus, CanError, Frame};
 use crate::deadline::{sleep_for, stale_report_due_s};
-use crate::{ChannelId, Health, Sample};
+use crate::{ChannelId, ChannelTable, Health, Sample};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 fn default_pdo_timeout_s() -> f64 {
@@ -87,7 +87,8 @@ pub struct CanopenSource {
 }
 
 impl CanopenSource {
-    pub fn new(cfg: CanopenConfig) -> Self {
+    /// The source of `cfg`, its channels resolved in `channels` (the gateway's table).
+    pub fn new(cfg: CanopenConfig, channels: &mut ChannelTable) -> Self {
         let mut by_cob: HashMap<u16, Vec<Target>> = HashMap::new();
         let mut fresh = Vec::new();
         for (i, e) in cfg.encoder.iter().enumerate() {
@@ -96,7 +97,7 @@ impl CanopenSource {
                 .or_default()
                 .push(Target::Encoder(i));
             fresh.push(Freshness {
-                channel: ChannelId::of(&e.channel),
+                channel: channels.resolve(&e.channel),
                 node: e.node_id,
                 last_pdo_s: None,
                 last_value: f64::NAN,
@@ -108,7 +109,7 @@ impl CanopenSource {
                 .or_default()
                 .push(Target::Analog(i));
             fresh.push(Freshness {
-                channel: ChannelId::of(&a.channel),
+                channel: channels.resolve(&a.channel),
                 node: a.node_id,
                 last_pdo_s: None,
                 last_value: f64::NAN,
@@ -126,7 +127,7 @@ impl CanopenSource {
                 .encoder
                 .iter()
                 .cloned()
-                .map(PositionDecoder::new)
+                .map(|e| PositionDecoder::new(e, channels))
                 .collect(),
             cfg,
             by_cob,
@@ -177,7 +178,7 @@ impl CanopenSource {
                     Target::Analog(i) => {
                         let slot = self.encoders.len() + i;
                         let id = self.fresh[slot].channel;
-                        (slot, self.cfg.analog[i].decode_as(id, f, t_s))
+                        (slot, self.cfg.analog[i].decode(id, f, t_s))
                     }
                 };
                 let Some(s) = s else { continue };
@@ -350,7 +351,7 @@ mod tests {
 
     #[test]
     fn bring_up_sets_timer_then_starts_nodes() {
-        let mut src = CanopenSource::new(cfg());
+        let mut src = CanopenSource::new(cfg(), &mut ChannelTable::default());
         let ids: Vec<u32> = src.bring_up().iter().map(|f| f.raw_id()).collect();
         assert_eq!(ids, vec![0x601, 0x000, 0x000]);
         let mut out = Vec::new();
@@ -374,7 +375,8 @@ mod tests {
     #[test]
     fn decodes_counts_and_goes_stale() {
         let c = cfg();
-        let mut src = CanopenSource::new(c.clone());
+        let mut table = ChannelTable::default();
+        let mut src = CanopenSource::new(c.clone(), &mut table);
         let mut out = Vec::new();
         src.handle_frame(&encode_heartbeat(1, NodeState::Operational), 0.0, &mut out);
         src.handle_frame(
@@ -386,8 +388,11 @@ mod tests {
         src.handle_frame(&c.analog[0].encode(21.5).unwrap(), 0.01, &mut out);
         src.handle_frame(&Frame::standard(0x123, &[]).unwrap(), 0.01, &mut out);
         assert_eq!(out.len(), 2);
-        assert_eq!((out[0].channel.name(), out[0].value), ("x_mm", 12.5));
-        assert_eq!((out[1].channel.name(), out[1].value), ("T_spindle_C", 21.5));
+        assert_eq!((table.name(out[0].channel), out[0].value), ("x_mm", 12.5));
+        assert_eq!(
+            (table.name(out[1].channel), out[1].value),
+            ("T_spindle_C", 21.5)
+        );
         assert_eq!(src.counters.unmatched, 1);
         out.clear();
         src.poll(0.05, &mut out);
@@ -402,7 +407,7 @@ mod tests {
         out.clear();
         src.poll(0.41, &mut out);
         // x is fresh by PDO, but node 1's heartbeat is 0.41 s old > 0.3 s.
-        assert!(out.iter().any(|s| s.channel == "x_mm"));
+        assert!(out.iter().any(|s| table.name(s.channel) == "x_mm"));
         assert_eq!(src.counters.heartbeat_timeouts, 2);
     }
 
@@ -412,7 +417,8 @@ mod tests {
     #[test]
     fn polled_at_its_deadlines_it_reports_staleness_on_time() {
         let c = cfg();
-        let mut src = CanopenSource::new(c.clone());
+        let mut table = ChannelTable::default();
+        let mut src = CanopenSource::new(c.clone(), &mut table);
         let mut out = Vec::new();
         assert_eq!(
             src.poll_timeout(),
@@ -450,7 +456,9 @@ mod tests {
         out.clear();
         src.poll(again, &mut out);
         assert_eq!(
-            out.iter().map(|s| s.channel.name()).collect::<Vec<_>>(),
+            out.iter()
+                .map(|s| table.name(s.channel))
+                .collect::<Vec<_>>(),
             ["T_spindle_C"]
         );
         // A node that leaves operational is stale from its heartbeat on: due at once.
@@ -464,7 +472,7 @@ mod tests {
         src.poll(0.12, &mut out);
         assert!(
             out.iter()
-                .any(|s| s.channel == "x_mm" && s.health == Health::Stale)
+                .any(|s| table.name(s.channel) == "x_mm" && s.health == Health::Stale)
         );
     }
 
@@ -529,7 +537,8 @@ mod tests {
                 rx,
                 errors: Default::default(),
             };
-            let mut src = CanopenSource::new(c);
+            let mut table = ChannelTable::default();
+            let mut src = CanopenSource::new(c, &mut table);
             run_observed(&mut bus, &mut src, clock, tx, |b, _| {
                 log.lock().unwrap().push((clock(), b.bus_errors().state()));
                 None
@@ -572,8 +581,9 @@ mod tests {
         let mut sim = bus.endpoint();
         let (tx, mut rx) = tokio::sync::mpsc::channel(16);
         let t0 = std::time::Instant::now();
+        let mut table = ChannelTable::default();
+        let mut src = CanopenSource::new(c, &mut table);
         let task = tokio::spawn(async move {
-            let mut src = CanopenSource::new(c);
             run(&mut gw, &mut src, move || t0.elapsed().as_secs_f64(), tx).await
         });
         // The simulator sees the bring-up, then answers with a position.
@@ -589,7 +599,7 @@ mod tests {
                 break s;
             }
         };
-        assert_eq!((got.channel.name(), got.value), ("x_mm", -3.25));
+        assert_eq!((table.name(got.channel), got.value), ("x_mm", -3.25));
         task.abort();
     }
 }

@@ -6,7 +6,7 @@
 //! with the channel's last good value (NaN if none).
 
 use super::regmap::{ReadBlock, RegisterChannel, plan_reads};
-use crate::{ChannelId, Health, Sample};
+use crate::{ChannelId, ChannelTable, Health, Sample};
 use tokio_modbus::ExceptionCode;
 
 /// What one read request produced.
@@ -43,11 +43,17 @@ pub struct PollCore {
 }
 
 impl PollCore {
-    pub fn new(channels: Vec<RegisterChannel>, max_count: u16, max_gap: u16) -> Self {
+    /// The poller of `channels`, each resolved in `table` (the gateway's).
+    pub fn new(
+        channels: Vec<RegisterChannel>,
+        table: &mut ChannelTable,
+        max_count: u16,
+        max_gap: u16,
+    ) -> Self {
         let plan = plan_reads(&channels, max_count, max_gap);
         PollCore {
             last_good: vec![f64::NAN; channels.len()],
-            ids: channels.iter().map(|c| ChannelId::of(&c.channel)).collect(),
+            ids: channels.iter().map(|c| table.resolve(&c.channel)).collect(),
             channels,
             plan,
             counters: PollCounters::default(),
@@ -154,7 +160,7 @@ mod tests {
 
     #[test]
     fn outcomes_map_to_health() {
-        let mut core = PollCore::new(chans(), 125, 0);
+        let mut core = PollCore::new(chans(), &mut ChannelTable::default(), 125, 0);
         assert_eq!(core.plan.len(), 1);
         let mut out = Vec::new();
         core.handle_outcome(

@@ -19,7 +19,7 @@
 
 use super::poll_core::{PollCore, PollCounters, ReadOutcome};
 use super::poller::ModbusSourceConfig;
-use crate::{Backoff, Sample};
+use crate::{Backoff, ChannelTable, Sample};
 
 /// The I/O the schedule asks for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -74,9 +74,10 @@ pub struct PollSchedule {
 }
 
 impl PollSchedule {
-    pub fn new(cfg: &ModbusSourceConfig) -> Self {
+    /// The schedule of `cfg`, its channels resolved in `channels` (the gateway's table).
+    pub fn new(cfg: &ModbusSourceConfig, channels: &mut ChannelTable) -> Self {
         PollSchedule {
-            core: PollCore::new(cfg.channel.clone(), 125, cfg.max_gap),
+            core: PollCore::new(cfg.channel.clone(), channels, 125, cfg.max_gap),
             period_s: if cfg.period_s.is_finite() {
                 cfg.period_s.max(1e-3)
             } else {
@@ -241,7 +242,7 @@ channel = [
 
     #[test]
     fn connect_then_every_block_in_order_once_per_period() {
-        let mut s = PollSchedule::new(&cfg());
+        let mut s = PollSchedule::new(&cfg(), &mut ChannelTable::default());
         assert_eq!(s.core.plan.len(), 2, "two blocks (max_gap 0)");
         let mut out = Vec::new();
         assert_eq!(s.poll_timeout(), Some(f64::NEG_INFINITY));
@@ -279,7 +280,7 @@ channel = [
 
     #[test]
     fn a_timeout_drops_the_link_stales_the_rest_and_reconnects_after_the_doubling_backoff() {
-        let mut s = PollSchedule::new(&cfg());
+        let mut s = PollSchedule::new(&cfg(), &mut ChannelTable::default());
         let mut out = Vec::new();
         s.poll(0.0, 0.0, &mut out);
         s.handle_connect(true, 0.0, &mut out);
@@ -361,7 +362,7 @@ channel = [
 
     #[test]
     fn a_poll_that_overran_its_period_starts_the_next_a_period_after_it_began() {
-        let mut s = PollSchedule::new(&cfg());
+        let mut s = PollSchedule::new(&cfg(), &mut ChannelTable::default());
         let mut out = Vec::new();
         s.poll(0.0, 0.0, &mut out);
         s.handle_connect(true, 0.0, &mut out);

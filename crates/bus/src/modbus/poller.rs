@@ -12,7 +12,7 @@ use super::poll_core::PollCore;
 use super::poll_core::{PollCounters, ReadOutcome, rtu_silence_s};
 use super::poll_schedule::{PollRequest, PollSchedule, PollStep};
 use super::regmap::RegisterChannel;
-use crate::Sample;
+use crate::{ChannelTable, Sample};
 use std::time::Duration;
 use tokio::time::Instant;
 use tokio_modbus::client::Context;
@@ -119,9 +119,10 @@ fn secs(s: f64) -> Duration {
 }
 
 impl ModbusPoller {
-    pub fn new(cfg: ModbusSourceConfig) -> Self {
+    /// The poller of `cfg`, its channels resolved in `channels` (the gateway's table).
+    pub fn new(cfg: ModbusSourceConfig, channels: &mut ChannelTable) -> Self {
         ModbusPoller {
-            schedule: PollSchedule::new(&cfg),
+            schedule: PollSchedule::new(&cfg, channels),
             cfg,
             ctx: None,
             epoch: Instant::now(),

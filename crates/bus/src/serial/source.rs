@@ -14,7 +14,7 @@ use super::formats::{
 };
 use super::framer::{DEFAULT_MAX_LINE, LineFramer};
 use crate::deadline::{sleep_for, stale_report_due_s};
-use crate::{ChannelId, Health, Sample};
+use crate::{ChannelId, ChannelTable, Health, Sample};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 
 #[derive(Debug, Clone, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
@@ -157,12 +157,17 @@ pub struct LineSource {
 }
 
 impl LineSource {
-    pub fn new(cfg: SerialSourceConfig) -> Self {
+    /// The source of `cfg`, its channels resolved in `channels` (the gateway's table).
+    pub fn new(cfg: SerialSourceConfig, channels: &mut ChannelTable) -> Self {
         LineSource {
             framer: LineFramer::new(cfg.max_line),
             seq: 0,
             last: vec![(None, f64::NAN); cfg.channel.len()],
-            ids: cfg.channel.iter().map(|c| ChannelId::of(&c.name)).collect(),
+            ids: cfg
+                .channel
+                .iter()
+                .map(|c| channels.resolve(&c.name))
+                .collect(),
             cfg,
             last_poll_s: None,
             next_period_s: f64::NEG_INFINITY,
@@ -378,7 +383,8 @@ mod tests {
 
     #[test]
     fn heidenhain_block_assigns_axes_in_order_and_skips_garbage() {
-        let mut s = LineSource::new(dro());
+        let mut table = ChannelTable::default();
+        let mut s = LineSource::new(dro(), &mut table);
         let mut out = Vec::new();
         s.push(
             b"\x02+001234500\r\n\x02-000000100\r\nnoise!!\r\n\x02+000",
@@ -386,19 +392,23 @@ mod tests {
             &mut out,
         );
         s.push(b"010000\r\n", 1.01, &mut out);
-        let got: Vec<_> = out.iter().map(|s| (s.channel.name(), s.value)).collect();
+        let got: Vec<_> = out
+            .iter()
+            .map(|s| (table.name(s.channel), s.value))
+            .collect();
         assert_eq!(got, vec![("x_mm", 123.45), ("y_mm", -0.01), ("z_mm", 1.0)]);
         assert_eq!(s.counters().garbage_lines, 1);
         s.handle_request();
         out.clear();
         s.push(b"\x02+000000000\r\n", 1.2, &mut out);
         assert_eq!(
-            out[0].channel, "x_mm",
+            table.name(out[0].channel),
+            "x_mm",
             "a request restarts at the first axis"
         );
         out.clear();
         s.poll(1.6, &mut out);
-        let stale: Vec<_> = out.iter().map(|s| s.channel.name()).collect();
+        let stale: Vec<_> = out.iter().map(|s| table.name(s.channel)).collect();
         assert_eq!(stale, vec!["y_mm", "z_mm"]);
         assert!(out.iter().all(|s| s.health == Health::Stale));
     }
@@ -407,7 +417,7 @@ mod tests {
     /// falls silent reported at that instant (not at the next period), then once per period.
     #[test]
     fn polled_at_its_deadlines_it_requests_each_period_and_reports_silence_on_time() {
-        let mut s = LineSource::new(dro());
+        let mut s = LineSource::new(dro(), &mut ChannelTable::default());
         let mut out = Vec::new();
         assert_eq!(
             s.poll_timeout(),
@@ -469,7 +479,7 @@ mod tests {
             }],
             ..dro()
         };
-        let mut s = LineSource::new(cfg);
+        let mut s = LineSource::new(cfg, &mut ChannelTable::default());
         let mut out = Vec::new();
         s.push(
             b"US,GS,+0001.000kg\r\nST,GS,+0010.000kg\r\nST,NT,+0002.000kg\r\nOL,GS,+9999.999kg\r\n",
@@ -488,7 +498,8 @@ mod tests {
         // A Heidenhain DRO answers Ctrl-B (0x02) with one line per axis.
         let (ours, mut device) = tokio::io::duplex(256);
         let (tx, mut rx) = tokio::sync::mpsc::channel(16);
-        let task = tokio::spawn(run(ours, LineSource::new(dro()), || 0.0, tx));
+        let mut table = ChannelTable::default();
+        let task = tokio::spawn(run(ours, LineSource::new(dro(), &mut table), || 0.0, tx));
         let mut req = [0u8; 1];
         device.read_exact(&mut req).await.unwrap();
         assert_eq!(req, [0x02]);
@@ -501,7 +512,10 @@ mod tests {
             let b = rx.recv().await.unwrap();
             got.extend(b.into_iter().filter(|s| s.health == Health::Ok));
         }
-        let v: Vec<_> = got.iter().map(|s| (s.channel.name(), s.value)).collect();
+        let v: Vec<_> = got
+            .iter()
+            .map(|s| (table.name(s.channel), s.value))
+            .collect();
         assert_eq!(v, vec![("x_mm", 10.0), ("y_mm", 20.0), ("z_mm", -30.0)]);
         drop(device); // EOF ends the source with its counters
         let c = task.await.unwrap().unwrap();

@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 use crate::config::FieldConfig;
 use crate::engine::ErrorModel;
 use crate::engine::model_adapter::MachineModelAdapter;
-use retrocomp_bus::ChannelId;
 use retrocomp_model::{ConfigError, ConfigIssue, MachineModel};
+use std::sync::Arc;
 
 /// A field file that passed every offline check, with its model ready for the engine.
 #[derive(Debug)]
@@ -22,7 +22,7 @@ pub struct CheckedField {
     pub model: MachineModelAdapter,
     /// Optional model inputs (forces, strains) that no source delivers: the load terms stay out and
     /// `compensation.<axis>.partial` stays active while the box runs.
-    pub optional_missing: Vec<ChannelId>,
+    pub optional_missing: Vec<Arc<str>>,
 }
 
 /// The field file's key that names the model.
@@ -114,12 +114,12 @@ pub fn check_field(
 
 /// The optional inputs of `model` that no source of `cfg` delivers (each a `no_source` fault while
 /// the box runs). A required one missing is the start-up refusal of [`check_field`], not listed.
-pub(crate) fn undelivered_optional(cfg: &FieldConfig, model: &dyn ErrorModel) -> Vec<ChannelId> {
+pub(crate) fn undelivered_optional(cfg: &FieldConfig, model: &dyn ErrorModel) -> Vec<Arc<str>> {
     check_channels(cfg, model).unwrap_or_default()
 }
 
 /// Every required channel of `model` delivered; returns the optional ones that are not.
-fn check_channels(cfg: &FieldConfig, model: &dyn ErrorModel) -> Result<Vec<ChannelId>, String> {
+fn check_channels(cfg: &FieldConfig, model: &dyn ErrorModel) -> Result<Vec<Arc<str>>, String> {
     let mut have: Vec<&str> = cfg.source_channels();
     // A recovery estimates its target from neighbours: delivered when they all are.
     for r in &cfg.recoveries {
@@ -128,17 +128,17 @@ fn check_channels(cfg: &FieldConfig, model: &dyn ErrorModel) -> Result<Vec<Chann
         }
     }
     let optional = model.optional_channels();
-    let missing: Vec<ChannelId> = model
+    let missing: Vec<Arc<str>> = model
         .required_channels()
         .into_iter()
-        .filter(|c| !have.contains(&c.name()))
+        .filter(|c| !have.contains(&&**c))
         .collect();
-    let (optional_missing, required_missing): (Vec<ChannelId>, Vec<ChannelId>) =
+    let (optional_missing, required_missing): (Vec<Arc<str>>, Vec<Arc<str>>) =
         missing.into_iter().partition(|c| optional.contains(c));
     if required_missing.is_empty() {
         return Ok(optional_missing);
     }
-    let names: Vec<&str> = required_missing.iter().map(|c| c.name()).collect();
+    let names: Vec<&str> = required_missing.iter().map(|c| &**c).collect();
     Err(format!(
         "the model needs {} but no source delivers {} (sources deliver {have:?}): expected a source channel for each (e.g. a [[modbus.source]] channel), or a model without these inputs; without them no axis would ever be compensated",
         names.join(", "),

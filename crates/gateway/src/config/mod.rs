@@ -21,7 +21,7 @@ use crate::engine::safety::SafetyError;
 use crate::engine::{Engine, EngineAxis, EngineConfig};
 pub use crate::sinks::origin_shift::client::OriginShiftSink;
 pub use crate::sinks::quadrature::config::{GpioLines, QuadratureAxis, QuadratureSink};
-use retrocomp_bus::ChannelId;
+use retrocomp_bus::ChannelTable;
 use retrocomp_bus::can::CanBackendConfig;
 use retrocomp_bus::canopen::CanopenConfig;
 use retrocomp_bus::config::{ModbusSection, SerialSection};
@@ -298,6 +298,30 @@ impl FieldConfig {
         Ok(cfg)
     }
 
+    /// The box's channel table: every channel this file names, resolved in one fixed order
+    /// (`[[channel]]`, axis positions, source channels, recovery targets and neighbours), so
+    /// every part built from this file (decoders on their threads, the engine, the sink's
+    /// server) gets the same id for a name. The engine adds the model's inputs after these.
+    pub fn channel_table(&self) -> ChannelTable {
+        let mut table = ChannelTable::default();
+        let recoveries = self
+            .recoveries
+            .iter()
+            .flat_map(|r| std::iter::once(&r.target).chain(&r.neighbours))
+            .map(String::as_str);
+        let names = self
+            .channels
+            .iter()
+            .map(|c| c.name.as_str())
+            .chain(self.axes.iter().map(|a| a.position_channel.as_str()))
+            .chain(self.source_channels())
+            .chain(recoveries);
+        for name in names {
+            table.resolve(name);
+        }
+        table
+    }
+
     /// Channels the configured sources deliver.
     pub fn source_channels(&self) -> Vec<&str> {
         let mut out: Vec<&str> = Vec::new();
@@ -332,7 +356,9 @@ impl FieldConfig {
             .iter()
             .filter_map(|(n, v)| Some((Axis::from_name(n)?, *v)))
             .collect();
-        Engine::from_config(&self.engine_config(), &initial)
+        let mut table = self.channel_table();
+        let cfg = self.engine_config(&mut table);
+        Engine::from_config(&cfg, table, &initial)
     }
 
     /// The declared models and the channels the box has (configured, delivered by a source, or
@@ -344,9 +370,10 @@ impl FieldConfig {
         Catalog::new(self.gateway.models.clone(), channels)
     }
 
-    /// The engine's part of this file, names resolved. Panics on an axis name other than x, y or z,
-    /// which [`FieldConfig::parse`] refuses.
-    pub fn engine_config(&self) -> EngineConfig {
+    /// The engine's part of this file, names resolved in `table` (this file's
+    /// [`FieldConfig::channel_table`]). Panics on an axis name other than x, y or z, which
+    /// [`FieldConfig::parse`] refuses.
+    pub fn engine_config(&self, table: &mut ChannelTable) -> EngineConfig {
         EngineConfig {
             axes: self
                 .axes
@@ -354,14 +381,14 @@ impl FieldConfig {
                 .map(|a| EngineAxis {
                     axis: Axis::from_name(&a.name)
                         .unwrap_or_else(|| panic!("axis {:?} is not x, y or z", a.name)),
-                    position: ChannelId::of(&a.position_channel),
+                    position: table.resolve(&a.position_channel),
                     safety: a.safety.unwrap_or(self.safety),
                 })
                 .collect(),
             channels: self
                 .channels
                 .iter()
-                .map(|c| (ChannelId::of(&c.name), c.limits()))
+                .map(|c| (table.resolve(&c.name), c.limits()))
                 .collect(),
             recoveries: self.recoveries.clone(),
             direction: self.direction,

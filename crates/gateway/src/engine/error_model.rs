@@ -10,16 +10,15 @@
 use std::sync::Arc;
 
 use crate::status::ModelIdentity;
-use retrocomp_bus::ChannelId;
 use retrocomp_model::Axis;
 
 /// Why a model could not evaluate a cycle: the engine holds the cycle's outputs (an `Input::Fault`
 /// to the safety layer) and reports a `decode` fault on the model while it lasts.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum ModelError {
-    /// A required input channel has no value this cycle.
+    /// A required input channel (its name) has no value this cycle.
     #[error("missing {0}")]
-    MissingInput(ChannelId),
+    MissingInput(Arc<str>),
     /// The model refused its input (a non-finite position or time).
     #[error("model rejected the input (non-finite position or time)")]
     InvalidInput,
@@ -141,14 +140,15 @@ impl AxisErrors {
 
 /// What the gateway needs from a model (`model_adapter.rs` implements it for `crates/model/src`).
 pub trait ErrorModel {
-    /// Channels the model reads (besides axis positions); their values reach the model as
-    /// [`MachineState::inputs`], in this order. Missing ones make the inputs stale. Called at the
-    /// engine's first cycle, and again after `Engine::model_replaced` (never per cycle).
-    fn required_channels(&self) -> Vec<ChannelId>;
+    /// Channels the model reads (besides axis positions), by name; their values reach the model
+    /// as [`MachineState::inputs`], in this order. Missing ones make the inputs stale. Called at
+    /// the engine's first cycle, and again after `Engine::model_replaced` (never per cycle): the
+    /// engine resolves the names in its channel table then.
+    fn required_channels(&self) -> Vec<Arc<str>>;
     /// Those of [`ErrorModel::required_channels`] whose loss removes only the terms that use them
     /// (the model is evaluated without them and those terms are zero), not the whole correction:
     /// auxiliary inputs such as a cutting force. Default: none.
-    fn optional_channels(&self) -> Vec<ChannelId> {
+    fn optional_channels(&self) -> Vec<Arc<str>> {
         Vec::new()
     }
     /// Push, per machine axis, its error terms at `state` into `out` (cleared by the caller).

@@ -203,7 +203,7 @@ mod tests {
             stuck_after_s: None,
         });
         let sample = |t_s: f64, value: f64| Sample {
-            channel: "T_C".into(),
+            channel: retrocomp_bus::ChannelTable::default().resolve("T_C"),
             t_s,
             value,
             health: Health::Ok,
@@ -258,7 +258,7 @@ mod tests {
 
     fn sample(t_s: f64, value: f64) -> Sample {
         Sample {
-            channel: "T_spindle_C".into(),
+            channel: retrocomp_bus::ChannelTable::default().resolve("T_spindle_C"),
             t_s,
             value,
             health: Health::Ok,

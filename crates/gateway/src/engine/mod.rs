@@ -23,44 +23,26 @@ pub(crate) mod model_adapter;
 pub(crate) mod model_switch;
 pub(crate) mod recovery;
 pub(crate) mod safety;
+mod slots;
 mod steps;
 
 use std::sync::Arc;
 
 use crate::engine::direction::{DirectionConfig, DirectionLatch};
-use crate::engine::health::{
-    ChannelLimits, ChannelMonitor, ChannelStatus, FaultEvent, FaultKind, FaultLog,
-};
+use crate::engine::health::{ChannelLimits, ChannelMonitor, FaultEvent, FaultKind, FaultLog};
 use crate::engine::recovery::NeighbourEstimate;
 use crate::engine::safety::{AxisSafety, Input, Mode, SafetyConfig, SafetyError};
 use crate::status::{AxisStatus, StatusSnapshot};
 use retrocomp_bus::fault::FaultSource;
-use retrocomp_bus::{ChannelId, Sample};
+use retrocomp_bus::{ChannelId, ChannelTable, Sample};
 use retrocomp_model::Axis;
 use retrocomp_model::approach::Approach;
-use retrocomp_model::units::ChannelKind;
+use slots::{Channel, Slots, default_limits};
 
 pub use crate::engine::error_model::{AxisErrors, ErrorModel, MachineState, ModelError, TermError};
 pub use at_point::AtPointError;
 pub use model_adapter::MachineModelAdapter;
 pub use model_switch::{Catalog, ModelSwap, SwitchError};
-
-/// Everything the engine knows about one channel, by slot (index into `Engine::channels`).
-struct Channel {
-    /// Its identity: the fault source of its health faults.
-    id: ChannelId,
-    /// The configured name, for the status (resolved once).
-    name: &'static str,
-    /// None until the first sample of a channel that is not configured (it is then judged with
-    /// [`default_limits`]); such a channel has no status and no value.
-    monitor: Option<ChannelMonitor>,
-    status: Option<ChannelStatus>,
-    slow: bool,
-    /// Slow channels: the value latched at the last thermal period.
-    latched: Option<f64>,
-    /// What the model sees this cycle (usable, slow ones latched).
-    value: Option<f64>,
-}
 
 struct AxisRuntime {
     axis: Axis,
@@ -84,6 +66,9 @@ struct Recovery {
 }
 
 pub struct Engine {
+    /// The gateway's channels: every id the engine and its sources' samples carry was issued
+    /// here (configured channels, model inputs, recovery neighbours, the decoders' channels).
+    table: ChannelTable,
     axes: Vec<AxisRuntime>,
     channels: Vec<Channel>,
     /// Channel slots, by [`ChannelId::index`] and in name order (the order faults are logged in).
@@ -96,6 +81,8 @@ pub struct Engine {
     /// Optional model inputs no configured source delivers ([`Engine::report_undelivered`]): a
     /// `no_source` fault each, active for the whole run.
     undelivered: Vec<ChannelId>,
+    /// Ids of samples this table did not issue, already logged ([`Engine::handle_sample`]).
+    foreign: Vec<ChannelId>,
     /// Some optional channel was unusable at the last cycle (its terms were left out).
     partial: bool,
     thermal_period_s: f64,
@@ -134,55 +121,6 @@ impl std::fmt::Debug for Engine {
     }
 }
 
-/// Limits for channels seen on a bus but not configured: anything finite, stale after 1 s.
-fn default_limits() -> ChannelLimits {
-    ChannelLimits {
-        min: -1e12,
-        max: 1e12,
-        stale_after_s: 1.0,
-        max_rate_per_s: None,
-        stuck_after_s: None,
-    }
-}
-
-/// Where each channel the engine knows lives in `Engine::channels`.
-#[derive(Default)]
-struct Slots {
-    /// Slot by [`ChannelId::index`] (`usize::MAX`: not known to this engine).
-    by_id: Vec<usize>,
-    /// Slots in channel-name order.
-    by_name: Vec<usize>,
-}
-
-impl Slots {
-    /// The slot of `id`, adding a channel without monitor when it is new (the only allocation).
-    fn get_or_add(&mut self, channels: &mut Vec<Channel>, id: ChannelId) -> usize {
-        if let Some(&slot) = self.by_id.get(id.index())
-            && slot != usize::MAX
-        {
-            return slot;
-        }
-        if self.by_id.len() <= id.index() {
-            self.by_id.resize(id.index() + 1, usize::MAX);
-        }
-        let slot = channels.len();
-        let name = id.name();
-        channels.push(Channel {
-            id,
-            name,
-            monitor: None,
-            status: None,
-            slow: id.kind() == ChannelKind::TemperatureC,
-            latched: None,
-            value: None,
-        });
-        self.by_id[id.index()] = slot;
-        let at = self.by_name.partition_point(|&s| channels[s].name < name);
-        self.by_name.insert(at, slot);
-        slot
-    }
-}
-
 /// What the engine is built from (`FieldConfig::engine_config`): the part of the field file about compensation (channels and
 /// their limits, axes with their position channel and safety, recoveries, direction latch, thermal
 /// period), with names resolved to [`Axis`] and [`ChannelId`]. Transports and sinks are not in it.
@@ -209,16 +147,20 @@ pub struct EngineAxis {
 }
 
 impl Engine {
-    /// The engine of `cfg`; `initial_outputs_um`: what each axis' sink holds now, so the first
-    /// outputs continue from there (axes not given start at 0).
+    /// The engine of `cfg`, whose ids `table` issued (the engine keeps it: model inputs and
+    /// recovery neighbours are resolved in it too); `initial_outputs_um`: what each axis' sink
+    /// holds now, so the first outputs continue from there (axes not given start at 0). Panics
+    /// on an id of `cfg` that `table` did not issue (build both with
+    /// [`FieldConfig::engine`](crate::config::FieldConfig::engine)).
     pub fn from_config(
         cfg: &EngineConfig,
+        mut table: ChannelTable,
         initial_outputs_um: &[(Axis, f64)],
     ) -> Result<Self, SafetyError> {
         let mut channels = Vec::new();
         let mut slots = Slots::default();
         for (id, limits) in &cfg.channels {
-            let slot = slots.get_or_add(&mut channels, *id);
+            let slot = slots.get_or_add(&mut channels, &table, *id);
             channels[slot].monitor = Some(ChannelMonitor::new(limits.clone()));
         }
         let mut axes = Vec::new();
@@ -229,7 +171,7 @@ impl Engine {
                 .map_or(0.0, |(_, v)| *v);
             axes.push(AxisRuntime {
                 axis: a.axis,
-                position: slots.get_or_add(&mut channels, a.position),
+                position: slots.get_or_add(&mut channels, &table, a.position),
                 position_ok: false,
                 latch: DirectionLatch::new(cfg.direction),
                 safety: AxisSafety::new(a.safety, initial)?,
@@ -239,16 +181,16 @@ impl Engine {
                 ever_tracked: false,
             });
         }
+        let mut slot_of = |name: &str| {
+            let id = table.resolve(name);
+            slots.get_or_add(&mut channels, &table, id)
+        };
         let recoveries = cfg
             .recoveries
             .iter()
             .map(|r| Recovery {
-                target: slots.get_or_add(&mut channels, ChannelId::of(&r.target)),
-                neighbours: r
-                    .neighbours
-                    .iter()
-                    .map(|n| slots.get_or_add(&mut channels, ChannelId::of(n)))
-                    .collect(),
+                target: slot_of(&r.target),
+                neighbours: r.neighbours.iter().map(|n| slot_of(n)).collect(),
                 values: Vec::with_capacity(r.neighbours.len()),
                 estimate: r.clone(),
             })
@@ -258,6 +200,7 @@ impl Engine {
             .map(|a| (a.axis, a.safety.output_um()))
             .collect();
         Ok(Self {
+            table,
             errors: AxisErrors::with_axes(axes.iter().map(|a| a.axis)),
             axes,
             channels,
@@ -266,6 +209,7 @@ impl Engine {
             required: None,
             optional: Vec::new(),
             undelivered: Vec::new(),
+            foreign: Vec::new(),
             partial: false,
             thermal_period_s: cfg.thermal_period_s,
             last_slow_latch_s: None,
@@ -312,12 +256,20 @@ impl Engine {
     }
 
     /// Take one decoded sample (any order; health is judged per channel). A known channel costs
-    /// one index and no allocation.
+    /// one index and no allocation. A sample whose id this engine's table did not issue (a
+    /// decoder built on another table: a wiring bug) is dropped with one ERROR line per id, not
+    /// judged under another channel's name.
     pub fn handle_sample(&mut self, s: &Sample) {
+        if s.channel.index() >= self.table.len() {
+            self.reject_foreign(s.channel);
+            return;
+        }
         if s.t_s > self.newest_input_s {
             self.newest_input_s = s.t_s;
         }
-        let slot = self.slots.get_or_add(&mut self.channels, s.channel);
+        let slot = self
+            .slots
+            .get_or_add(&mut self.channels, &self.table, s.channel);
         self.channels[slot]
             .monitor
             .get_or_insert_with(|| ChannelMonitor::new(default_limits()))
@@ -408,7 +360,7 @@ impl Engine {
                 .is_some_and(|c| c.monitor.is_some());
             if !monitored {
                 self.fault_events.extend(self.faults.update(
-                    &FaultSource::Channel(*id),
+                    &FaultSource::Channel(self.table.shared_name(*id)),
                     &[FaultKind::NoSource],
                     now_s,
                 ));
@@ -447,8 +399,38 @@ impl Engine {
     /// Optional model inputs that no configured source delivers (the field check's list): each is
     /// a `no_source` fault on its channel from the next cycle on, for as long as the box runs, so a
     /// model that leaves its load terms out says which input is missing.
-    pub fn report_undelivered(&mut self, channels: &[ChannelId]) {
-        self.undelivered = channels.to_vec();
+    pub fn report_undelivered(&mut self, channels: &[Arc<str>]) {
+        self.undelivered = channels.iter().map(|n| self.table.resolve(n)).collect();
+    }
+
+    /// A sample of an id beyond the table: logged once per id (setup bug, never per sample).
+    fn reject_foreign(&mut self, id: ChannelId) {
+        if !self.foreign.contains(&id) {
+            tracing::error!(
+                index = id.index(),
+                known = self.table.len(),
+                "a sample's channel id is not in the engine's channel table: dropped"
+            );
+            self.foreign.push(id);
+        }
+    }
+
+    /// The slot of the channel `name`, resolved in the engine's table and added when new (setup:
+    /// the model's inputs at the first cycle and after a model switch).
+    fn slot_of(&mut self, name: &str) -> usize {
+        let id = self.table.resolve(name);
+        self.slots.get_or_add(&mut self.channels, &self.table, id)
+    }
+
+    /// The gateway's channel table (names of the ids in samples, status and faults).
+    pub fn channels(&self) -> &ChannelTable {
+        &self.table
+    }
+
+    /// The table lent to a decoder built after the engine, so that the ids in its samples are
+    /// this engine's (the table is append-only: adding a name changes no existing id).
+    pub fn channels_mut(&mut self) -> &mut ChannelTable {
+        &mut self.table
     }
 
     /// True when, this cycle, compensation is enabled and tracking without the terms of an unusable

@@ -10,7 +10,6 @@ use std::sync::Arc;
 
 use crate::engine::{AxisErrors, ErrorModel, MachineState, ModelError};
 use crate::status::ModelIdentity;
-use retrocomp_bus::ChannelId;
 use retrocomp_model::{Axis, ErrorBreakdown, MachineModel, ModelInput, ModelState};
 
 #[derive(Debug)]
@@ -25,9 +24,9 @@ pub struct MachineModelAdapter {
     acc: Vec<[f64; 3]>,
     /// The model's channels, resolved once; [`ErrorModel::required_channels`] lists them in this
     /// order (temperatures, forces, strains), so `MachineState::inputs` follows it too.
-    temp_channels: Vec<ChannelId>,
-    force_channels: Vec<ChannelId>,
-    strain_channels: Vec<ChannelId>,
+    temp_channels: Vec<Arc<str>>,
+    force_channels: Vec<Arc<str>>,
+    strain_channels: Vec<Arc<str>>,
     /// The model's term names, shared with the engine's per-axis breakdown (no allocation per cycle).
     term_names: Vec<Arc<str>>,
     /// Use the first-order closed form (cheaper) instead of the exact 4×4 chain.
@@ -56,16 +55,20 @@ impl MachineModelAdapter {
             plus: model.new_breakdown(),
             minus: model.new_breakdown(),
             acc: Vec::new(),
-            temp_channels: model.sensor_columns().iter().map(ChannelId::from).collect(),
+            temp_channels: model
+                .sensor_columns()
+                .iter()
+                .map(|c| Arc::from(c.as_str()))
+                .collect(),
             force_channels: model
                 .force_channels()
                 .iter()
-                .map(|s| ChannelId::of(&format!("F_{s}_N")))
+                .map(|s| Arc::from(format!("F_{s}_N")))
                 .collect(),
             strain_channels: model
                 .strain_channels()
                 .iter()
-                .map(|s| ChannelId::of(&format!("strain_{s}_ue")))
+                .map(|s| Arc::from(format!("strain_{s}_ue")))
                 .collect(),
             term_names: model
                 .term_names()
@@ -101,23 +104,23 @@ impl ErrorModel for MachineModelAdapter {
         Some(self.identity.clone())
     }
 
-    fn required_channels(&self) -> Vec<ChannelId> {
+    fn required_channels(&self) -> Vec<Arc<str>> {
         self.temp_channels
             .iter()
             .chain(&self.force_channels)
             .chain(&self.strain_channels)
-            .copied()
+            .cloned()
             .collect()
     }
 
     /// Forces and strains feed only the `[[load]]` terms, which are linear in the force (compliance
     /// × F, reference × F / F_ref): without them those terms are zero and the geometric and thermal
     /// terms are unchanged, so a stale force drops only the load terms.
-    fn optional_channels(&self) -> Vec<ChannelId> {
+    fn optional_channels(&self) -> Vec<Arc<str>> {
         self.force_channels
             .iter()
             .chain(&self.strain_channels)
-            .copied()
+            .cloned()
             .collect()
     }
 
@@ -133,7 +136,9 @@ impl ErrorModel for MachineModelAdapter {
         // `s.inputs` follows `required_channels`: temperatures, then forces, then strains.
         let (nt, nf) = (self.temp_channels.len(), self.force_channels.len());
         for (k, ch) in self.temp_channels.iter().enumerate() {
-            self.input.temps_c[k] = s.input(k).ok_or(ModelError::MissingInput(*ch))?;
+            self.input.temps_c[k] = s
+                .input(k)
+                .ok_or_else(|| ModelError::MissingInput(Arc::clone(ch)))?;
         }
         // A missing force or strain (optional, see above) is NaN: the model then takes the force
         // as absent and its load terms are zero.

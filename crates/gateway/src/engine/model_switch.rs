@@ -117,7 +117,7 @@ impl Catalog {
         let missing: Vec<String> = adapter
             .required_channels()
             .into_iter()
-            .map(|c| c.name().to_string())
+            .map(|c| c.to_string())
             .filter(|c| !self.channels.contains(c) && !seen.contains(c))
             .collect();
         if !missing.is_empty() {

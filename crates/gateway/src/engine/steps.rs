@@ -46,7 +46,6 @@ impl Engine {
             if self.undelivered.contains(&c.id) {
                 st.faults.push(FaultKind::NoSource);
             }
-            let source = FaultSource::Channel(c.id);
             let mut gone = m
                 .take_rejected()
                 .filter(|k| !st.faults.contains(k))
@@ -65,10 +64,10 @@ impl Engine {
                 }
                 seen[..n].sort();
                 self.fault_events
-                    .extend(self.faults.update(&source, &seen[..n], now_s));
+                    .extend(self.faults.update(&c.source, &seen[..n], now_s));
             } else {
                 self.fault_events
-                    .extend(self.faults.update(&source, &st.faults, now_s));
+                    .extend(self.faults.update(&c.source, &st.faults, now_s));
             }
         }
         // 2. Substitute failed channels from their neighbours (Ni's recovery).
@@ -142,17 +141,11 @@ impl Engine {
     /// is not optional has a value.
     pub(super) fn model_inputs(&mut self, model: &dyn ErrorModel) -> bool {
         if self.required.is_none() {
-            let slots = model
-                .required_channels()
-                .into_iter()
-                .map(|id| self.slots.get_or_add(&mut self.channels, id))
-                .collect();
+            let required = model.required_channels();
+            let optional = model.optional_channels();
+            let slots = required.iter().map(|name| self.slot_of(name)).collect();
             self.required = Some(slots);
-            self.optional = model
-                .optional_channels()
-                .into_iter()
-                .map(|id| self.slots.get_or_add(&mut self.channels, id))
-                .collect();
+            self.optional = optional.iter().map(|name| self.slot_of(name)).collect();
         }
         self.state.inputs.clear();
         let values = self

@@ -34,7 +34,7 @@ use retrocomp_bus::modbus::{
     PollCounters, PollRequest, PollSchedule, PollStep, ReadOutcome, RegisterTable,
 };
 use retrocomp_bus::serial::LineSource;
-use retrocomp_bus::{ChannelId, Sample};
+use retrocomp_bus::{ChannelId, ChannelTable, Sample};
 use retrocomp_model::Axis;
 
 pub use crate::sinks::origin_shift::served::ServedBox;
@@ -171,7 +171,7 @@ impl GatewayCore {
                 "start_served needs [sink.origin_shift_server]".into(),
             ));
         };
-        let served = ServedBox::new(&srv, &cfg.sink_limits(), now_s);
+        let served = ServedBox::new(&srv, &cfg.sink_limits(), &mut cfg.channel_table(), now_s);
         let engine = cfg.engine(&BTreeMap::new())?;
         let mut core = Self::build(cfg, engine, model, None, None, Some(served));
         core.engine_started = false;
@@ -187,19 +187,24 @@ impl GatewayCore {
         quadrature: Option<QuadratureBox>,
         served: Option<ServedBox>,
     ) -> Self {
-        let canopen = cfg.canopen.clone().map(CanopenSource::new);
+        // The ids the engine gives these names (it built the same table from the same file).
+        let mut channels = cfg.channel_table();
+        let canopen = cfg
+            .canopen
+            .clone()
+            .map(|co| CanopenSource::new(co, &mut channels));
         let serial = cfg
             .serial
             .iter()
             .flat_map(|s| s.source.iter().cloned())
-            .map(LineSource::new)
+            .map(|s| LineSource::new(s, &mut channels))
             .collect();
         let modbus = cfg
             .modbus
             .iter()
             .flat_map(|m| m.source.iter())
             .map(|m| ModbusSource {
-                schedule: PollSchedule::new(m),
+                schedule: PollSchedule::new(m, &mut channels),
                 // As the runtime starts its reporter: down until the first connect.
                 reporter: SourceReporter::new(
                     &format!("modbus.{}", m.name),
@@ -317,9 +322,17 @@ impl GatewayCore {
         }
     }
 
-    /// Keep every sample of `channel` the engine ingests from now on (in arrival order).
+    /// Keep every sample of `channel` the engine ingests from now on (in arrival order). A name
+    /// the box does not know has no samples to keep.
     pub fn record_samples(&mut self, channel: &str) {
-        self.recorded.push(ChannelId::of(channel));
+        if let Some(id) = self.channels().get(channel) {
+            self.recorded.push(id);
+        }
+    }
+
+    /// The box's channel table: the names of the ids in its samples.
+    pub fn channels(&self) -> &ChannelTable {
+        self.cycle.engine().channels()
     }
 
     /// The samples of the recorded channels, in the order the engine ingested them.

@@ -36,7 +36,7 @@ use crate::pacer::CycleWake;
 use crate::sources::health::SourceReporter;
 use crate::supervise::{CycleCounter, DeathNotice, TaskDeaths};
 use retrocomp_bus::can::{self, AnyCanBus, BusErrors, CanBackendConfig, CanBus, CanError};
-use retrocomp_bus::canopen::{self, CanopenConfig, CanopenSource};
+use retrocomp_bus::canopen::{self, CanopenSource};
 use retrocomp_bus::modbus::ModbusPoller;
 use retrocomp_bus::serial::{self, LineSource, SerialSourceConfig};
 use retrocomp_bus::{Backoff, Sample};
@@ -99,7 +99,10 @@ async fn start_sources(
     notice: DeathNotice,
 ) -> Result<(), GatewayError> {
     let clock = move || epoch.elapsed().as_secs_f64();
+    // The ids the engine gives these names (it builds the same table from the same file).
+    let mut channels = cfg.channel_table();
     if let (Some(can), Some(co)) = (cfg.can.clone(), cfg.canopen.clone()) {
+        let src = CanopenSource::new(co, &mut channels);
         let opened = can::open(&can, None).await;
         let mut rep = SourceReporter::new("can", opened.is_ok(), board.clone());
         let bus = match opened {
@@ -115,7 +118,7 @@ async fn start_sources(
         let btx = forward(tx.clone());
         let n = notice.clone();
         tokio::spawn(async move {
-            can_loop(can, co, bus, clock, btx.clone(), rep).await;
+            can_loop(can, src, bus, clock, btx.clone(), rep).await;
             if !btx.is_closed() {
                 n.report("can", "the CAN source loop returned");
             }
@@ -127,7 +130,7 @@ async fn start_sources(
         tracing::info!(source = %m.name, transport = ?m.transport, "starting Modbus poller");
         let rep = SourceReporter::new(&name, false, board.clone());
         spawn_modbus(
-            ModbusPoller::new(m.clone()),
+            ModbusPoller::new(m.clone(), &mut channels),
             clock,
             btx,
             rep,
@@ -162,8 +165,9 @@ async fn start_sources(
         };
         let btx = forward(tx.clone());
         let (cfg, n) = (s.clone(), notice.clone());
+        let src = LineSource::new(s.clone(), &mut channels);
         tokio::spawn(async move {
-            serial_loop(cfg, port, clock, btx.clone(), rep).await;
+            serial_loop(cfg, src, port, clock, btx.clone(), rep).await;
             if !btx.is_closed() {
                 n.report(&name, "the serial source loop returned");
             }
@@ -203,13 +207,12 @@ fn forward((tx, wake): (mpsc::Sender<Sample>, CycleWake)) -> mpsc::Sender<Vec<Sa
 /// closes (the gateway stopped).
 async fn can_loop(
     can: CanBackendConfig,
-    co: CanopenConfig,
+    mut src: CanopenSource,
     first: Option<AnyCanBus>,
     clock: impl Fn() -> f64 + Copy,
     out: mpsc::Sender<Vec<Sample>>,
     mut rep: SourceReporter,
 ) {
-    let mut src = CanopenSource::new(co);
     let mut bus = first;
     let mut backoff = Backoff::new(REOPEN_MIN, REOPEN_MAX);
     // Error-frame totals of the backends closed so far (a reopened backend counts from zero).
@@ -295,9 +298,11 @@ fn spawn_modbus(
 }
 
 /// Run one serial source; when the port closes or fails (USB adapter unplugged), reopen it with the
-/// backoff. Meanwhile its channels get no samples and go `Stale` in the runtime.
+/// backoff. Meanwhile its channels get no samples and go `Stale` in the runtime. `src` is the
+/// source as built (channels resolved); each opened port reads with a fresh copy of it.
 async fn serial_loop(
     cfg: SerialSourceConfig,
+    src: LineSource,
     first: Option<tokio_serial::SerialStream>,
     clock: impl Fn() -> f64 + Copy,
     out: mpsc::Sender<Vec<Sample>>,
@@ -310,7 +315,7 @@ async fn serial_loop(
         if let Some(p) = port.take() {
             rep.handle_link_up();
             rep.publish(clock());
-            let why = match serial::run(p, LineSource::new(cfg.clone()), clock, out.clone()).await {
+            let why = match serial::run(p, src.clone(), clock, out.clone()).await {
                 Ok(c) => format!("serial port closed ({c:?})"),
                 Err(e) => format!("serial port failed: {e}"),
             };

@@ -16,9 +16,9 @@ use super::server::{SOURCE, ServerConfig};
 use super::server_core::{ServerCore, Update};
 use super::sink_task::{SinkSources, update_sink_faults};
 use crate::sinks::guard::AxisLimits;
-use retrocomp_bus::ChannelId;
 use retrocomp_bus::fault::{FaultEvent, FaultLog};
 use retrocomp_bus::modbus::RegisterBank;
+use retrocomp_bus::{ChannelId, ChannelTable};
 use retrocomp_model::Axis;
 
 /// How a stop ramp-out ended.
@@ -63,9 +63,15 @@ pub struct ServedSink {
 }
 
 impl ServedSink {
-    /// A server for `cfg` with `limits` (clamp and per-update cap per axis), serving from `now_s`.
-    pub fn new(cfg: &ServerConfig, limits: &[AxisLimits], now_s: f64) -> Self {
-        let core = ServerCore::new(cfg.map.clone(), limits);
+    /// A server for `cfg` with `limits` (clamp and per-update cap per axis), serving from `now_s`;
+    /// its position channels resolved in `channels`.
+    pub fn new(
+        cfg: &ServerConfig,
+        limits: &[AxisLimits],
+        channels: &mut ChannelTable,
+        now_s: f64,
+    ) -> Self {
+        let core = ServerCore::new(cfg.map.clone(), limits, channels);
         let sources = SinkSources::named(SOURCE, core.axis_names());
         ServedSink {
             core,
@@ -160,15 +166,20 @@ pub struct ServedBox {
 impl ServedBox {
     /// The server of `cfg` with `limits`, serving from `now_s`: only the position, held and marker
     /// registers take writes, and nothing is readable until the controller has reported what it
-    /// holds.
-    pub fn new(cfg: &ServerConfig, limits: &[AxisLimits], now_s: f64) -> Self {
+    /// holds. Position channels are resolved in `channels`.
+    pub fn new(
+        cfg: &ServerConfig,
+        limits: &[AxisLimits],
+        channels: &mut ChannelTable,
+        now_s: f64,
+    ) -> Self {
         let bank = RegisterBank::new();
         for (address, count) in cfg.map.writable() {
             bank.allow_writes(address, count);
         }
         ServedBox {
             bank,
-            sink: ServedSink::new(cfg, limits, now_s),
+            sink: ServedSink::new(cfg, limits, channels, now_s),
         }
     }
 
@@ -262,10 +273,11 @@ mod tests {
     /// `controller_timeout_ms` and clears on the next write; positions go out as samples.
     #[test]
     fn a_silent_controller_is_one_episode_and_a_write_ends_it() {
-        let mut s = ServedSink::new(&cfg(), &limits(), 0.0);
+        let mut table = ChannelTable::default();
+        let mut s = ServedSink::new(&cfg(), &limits(), &mut table, 0.0);
         let x = [(Axis::X, 10.0)];
         let pos = s.handle_write(report(0, 12345), 0.0).to_vec();
-        assert_eq!(pos, vec![(ChannelId::of("x_mm"), 123.45)]);
+        assert_eq!(pos, vec![(table.get("x_mm").unwrap(), 123.45)]);
         let p = s.poll_period(&x, 0.01);
         assert!(p.updated && p.events.is_empty() && p.silent_s.is_none());
         assert!(
@@ -286,7 +298,7 @@ mod tests {
     /// for it) and is one `beyond_clamp` episode of that axis.
     #[test]
     fn a_reported_value_beyond_the_clamp_withdraws_the_axis() {
-        let mut s = ServedSink::new(&cfg(), &limits(), 0.0);
+        let mut s = ServedSink::new(&cfg(), &limits(), &mut ChannelTable::default(), 0.0);
         let x = [(Axis::X, 10.0)];
         s.handle_write(report(0, 0), 0.0);
         assert!(s.poll_period(&x, 0.01).updated);
@@ -312,7 +324,7 @@ mod tests {
     fn a_stop_ends_when_the_controller_holds_0_or_at_its_deadline() {
         let x = [(Axis::X, 10.0)];
         for (reports_zero, want) in [(true, StopEnd::RampedOut), (false, StopEnd::Deadline)] {
-            let mut s = ServedSink::new(&cfg(), &limits(), 0.0);
+            let mut s = ServedSink::new(&cfg(), &limits(), &mut ChannelTable::default(), 0.0);
             s.handle_write(report(20, 0), 0.0);
             s.handle_stop(0.1, 0.0);
             s.handle_stop(5.0, 0.0);

@@ -35,7 +35,7 @@ use super::server_map::ServerMap;
 use crate::sinks::guard::AxisLimits;
 use crate::sinks::{LocalFuture, Sink, SinkError, SinkIo, SinkStatus, StartValues};
 use retrocomp_bus::modbus::{TcpServer, spawn_rtu};
-use retrocomp_bus::{Health, Sample};
+use retrocomp_bus::{ChannelTable, Health, Sample};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
@@ -102,13 +102,15 @@ pub enum ServerStartError {
 
 impl OriginShiftServer {
     /// Bind the TCP listener or open the serial device. `limits`: clamp and per-update cap per axis;
-    /// `now_s`: the gateway clock (the controller's silence counts from here).
+    /// `channels`: the gateway's table (the position channels' ids); `now_s`: the gateway clock
+    /// (the controller's silence counts from here).
     pub async fn start(
         cfg: ServerConfig,
         limits: &[AxisLimits],
+        channels: &mut ChannelTable,
         now_s: f64,
     ) -> Result<Self, ServerStartError> {
-        let served = ServedBox::new(&cfg, limits, now_s);
+        let served = ServedBox::new(&cfg, limits, channels, now_s);
         let bank = served.bank().clone();
         let writes = bank.subscribe_writes();
         let (mut tcp, mut rtu) = (None, None);
@@ -327,6 +329,8 @@ pub(crate) struct OriginShiftServerSink {
     cfg: ServerConfig,
     /// Clamp and per-update cap per axis.
     limits: Vec<AxisLimits>,
+    /// The gateway's channel table (the ids of the positions the controller writes).
+    channels: ChannelTable,
     /// The gateway's clock (sample and fault times are seconds since it).
     epoch: std::time::Instant,
     server: Option<OriginShiftServer>,
@@ -336,11 +340,13 @@ impl OriginShiftServerSink {
     pub(crate) fn new(
         cfg: ServerConfig,
         limits: Vec<AxisLimits>,
+        channels: ChannelTable,
         epoch: std::time::Instant,
     ) -> Self {
         Self {
             cfg,
             limits,
+            channels,
             epoch,
             server: None,
         }
@@ -352,9 +358,14 @@ impl Sink for OriginShiftServerSink {
         Box::pin(async move {
             let epoch = self.epoch;
             let clock = move || epoch.elapsed().as_secs_f64();
-            let mut server = OriginShiftServer::start(self.cfg.clone(), &self.limits, clock())
-                .await
-                .map_err(|e| SinkError::setup("sink.origin_shift_server", e))?;
+            let mut server = OriginShiftServer::start(
+                self.cfg.clone(),
+                &self.limits,
+                &mut self.channels,
+                clock(),
+            )
+            .await
+            .map_err(|e| SinkError::setup("sink.origin_shift_server", e))?;
             let held = server.wait_seeded(&io.served, &clock).await;
             self.server = Some(server);
             Ok(held)

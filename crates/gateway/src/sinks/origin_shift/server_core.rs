@@ -31,7 +31,7 @@ use super::map::decode_value;
 use super::map::{AxisRegister, RegisterMap, Words, WriteBlock};
 use super::server_map::ServerMap;
 use crate::sinks::guard::{AxisLimits, SinkFaults, Verdict, WriteGuard};
-use retrocomp_bus::ChannelId;
+use retrocomp_bus::{ChannelId, ChannelTable};
 use retrocomp_model::Axis;
 
 /// One axis of the core.
@@ -73,8 +73,9 @@ pub struct Update {
 }
 
 impl ServerCore {
-    /// `limits`: clamp and per-update cap per corrected axis. The map must be valid.
-    pub fn new(map: ServerMap, limits: &[AxisLimits]) -> Self {
+    /// `limits`: clamp and per-update cap per corrected axis; the position channels are resolved
+    /// in `channels` (the gateway's table). The map must be valid.
+    pub fn new(map: ServerMap, limits: &[AxisLimits], channels: &mut ChannelTable) -> Self {
         let mut guard = WriteGuard::new(
             map.axes
                 .iter()
@@ -106,7 +107,12 @@ impl ServerCore {
             positions: map
                 .positions
                 .iter()
-                .map(|p| (ChannelId::of(&p.channel), ServerMap::position_register(p)))
+                .map(|p| {
+                    (
+                        channels.resolve(&p.channel),
+                        ServerMap::position_register(p),
+                    )
+                })
                 .collect(),
             map,
             axes,
@@ -187,8 +193,12 @@ impl ServerCore {
     ) -> Vec<(String, f64)> {
         let mut out = Vec::new();
         self.handle_controller_write_into(|a, n| read(a, n).map(Words::from_vec), &mut out);
+        // `positions` follows the map's `[[position]]` order: the name is the map's.
         out.into_iter()
-            .map(|(c, mm)| (c.name().to_string(), mm))
+            .filter_map(|(c, mm)| {
+                let k = self.positions.iter().position(|(id, _)| *id == c)?;
+                Some((self.map.positions[k].channel.clone(), mm))
+            })
             .collect()
     }
 
@@ -366,7 +376,7 @@ mod tests {
 
     #[test]
     fn nothing_served_until_the_controller_reports_then_ramps_from_its_value() {
-        let mut c = ServerCore::new(map(), &guards());
+        let mut c = ServerCore::new(map(), &guards(), &mut ChannelTable::default());
         assert!(c.poll_update(&[(Axis::X, 20.0)]).is_none());
         // The controller writes x held = 12.3 µm (123 counts), z held = 0, position x = 150.00 mm.
         let image: BTreeMap<u16, u16> = [(30, 123), (31, 0), (32, 0), (20, 15000)].into();
@@ -400,7 +410,7 @@ mod tests {
             value: 0x55AA,
         });
         m.validate(&["x", "z"]).unwrap();
-        let mut c = ServerCore::new(m, &guards());
+        let mut c = ServerCore::new(m, &guards(), &mut ChannelTable::default());
         // A freshly loaded client writes zeros everywhere, marker included: not taken.
         let zeros: BTreeMap<u16, u16> = [(30, 0), (31, 0), (32, 0), (20, 0), (40, 0)].into();
         let pos =
@@ -417,7 +427,7 @@ mod tests {
     fn a_controller_holding_zero_keeps_the_exposed_value_within_one_cap() {
         // Not homed: the controller gates the counts to 0 and reports 0, so the box may not run
         // ahead to the target however many updates pass.
-        let mut c = ServerCore::new(map(), &guards());
+        let mut c = ServerCore::new(map(), &guards(), &mut ChannelTable::default());
         let image: BTreeMap<u16, u16> = [(30, 0), (31, 0), (32, 0)].into();
         c.handle_controller_write(|a, n| (a..a + n).map(|k| image.get(&k).copied()).collect());
         for _ in 0..100 {

@@ -35,7 +35,7 @@ fn report(c: &mut ServerCore, held_counts: u16) {
 
 #[test]
 fn a_rogue_held_value_beyond_the_clamp_is_never_served_from() {
-    let mut c = ServerCore::new(map(), &limits());
+    let mut c = ServerCore::new(map(), &limits(), &mut ChannelTable::default());
     report(&mut c, 0);
     let u = c.poll_update(&[(Axis::X, -34.5)]).unwrap();
     assert_eq!(u.exposed_um, vec![(Axis::X, -1.0)]);
@@ -61,7 +61,7 @@ fn a_rogue_held_value_beyond_the_clamp_is_never_served_from() {
 
 #[test]
 fn a_report_far_from_the_served_value_is_uncertain_then_the_next_is_the_truth() {
-    let mut c = ServerCore::new(map(), &limits());
+    let mut c = ServerCore::new(map(), &limits(), &mut ChannelTable::default());
     report(&mut c, 200); // 20 µm
     c.poll_update(&[(Axis::X, 25.0)]).unwrap();
     report(&mut c, 210);
@@ -83,7 +83,7 @@ fn a_report_far_from_the_served_value_is_uncertain_then_the_next_is_the_truth() 
 
 #[test]
 fn stop_ramps_out_within_the_cap_until_the_controller_reports_zero() {
-    let mut c = ServerCore::new(map(), &limits());
+    let mut c = ServerCore::new(map(), &limits(), &mut ChannelTable::default());
     report(&mut c, 25); // 2.5 µm
     c.begin_ramp_out();
     let mut served = 2.5f64;
@@ -110,7 +110,7 @@ fn stop_ramps_out_within_the_cap_until_the_controller_reports_zero() {
 
 #[test]
 fn a_start_value_beyond_the_clamp_is_not_one() {
-    let mut c = ServerCore::new(map(), &limits());
+    let mut c = ServerCore::new(map(), &limits(), &mut ChannelTable::default());
     report(&mut c, 600); // 60 µm > 50
     assert!(c.is_seeded());
     assert!(c.start_values().is_empty());
