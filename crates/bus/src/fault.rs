@@ -14,6 +14,8 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::sync::Arc;
 
+use crate::ChannelId;
+
 use serde::Serialize;
 
 use retrocomp_model::Axis;
@@ -113,9 +115,10 @@ impl fmt::Display for FaultKind {
 /// Who reports a fault. Prints as its name in status, metrics and logs.
 #[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum FaultSource {
-    /// A sensor channel: its configured name (the engine's [`crate::ChannelTable`] entry, shared;
-    /// cloning it is a reference count).
-    Channel(Arc<str>),
+    /// A sensor channel: its id and configured name, from the engine's [`crate::ChannelTable`]
+    /// (the id orders and compares, as cheaply as before names were shared; cloning the name is a
+    /// reference count).
+    Channel(ChannelId, Arc<str>),
     /// The model's evaluation: `model`.
     Model,
     /// Compensation enabled but the axis not tracking its target: `compensation.<axis>`.
@@ -144,7 +147,7 @@ impl From<&str> for FaultSource {
 impl fmt::Display for FaultSource {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            FaultSource::Channel(n) => f.write_str(n),
+            FaultSource::Channel(_, n) => f.write_str(n),
             FaultSource::Model => f.write_str("model"),
             FaultSource::Compensation(a) => write!(f, "compensation.{a}"),
             FaultSource::CompensationPartial(a) => write!(f, "compensation.{a}.partial"),

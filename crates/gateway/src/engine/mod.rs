@@ -360,7 +360,7 @@ impl Engine {
                 .is_some_and(|c| c.monitor.is_some());
             if !monitored {
                 self.fault_events.extend(self.faults.update(
-                    &FaultSource::Channel(self.table.shared_name(*id)),
+                    &FaultSource::Channel(*id, self.table.shared_name(*id)),
                     &[FaultKind::NoSource],
                     now_s,
                 ));

@@ -69,7 +69,7 @@ impl Slots {
         let name = table.shared_name(id);
         channels.push(Channel {
             id,
-            source: FaultSource::Channel(Arc::clone(&name)),
+            source: FaultSource::Channel(id, Arc::clone(&name)),
             name: Arc::clone(&name),
             monitor: None,
             status: None,
