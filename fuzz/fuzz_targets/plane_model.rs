@@ -4,6 +4,7 @@
 #![no_main]
 
 #[path = "../../tests/fuzz_checks/mod.rs"]
+#[allow(dead_code, reason = "one target uses one check of the shared module")]
 mod checks;
 
 libfuzzer_sys::fuzz_target!(|data: &[u8]| checks::plane_model(data));
