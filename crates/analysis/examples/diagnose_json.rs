@@ -12,7 +12,9 @@
 //! glibc variables stand for the CLI's `mallopt` calls (src/cli/diagnose.rs), so the time and RSS
 //! are the CLI's. `--no-run` drops the `run` column first (how tests/diagnose/asadullah.rs also
 //! runs the Asad Ullah tables); `--skip-bad-rows` reads leniently, as the CLI flag does (the
-//! skipped rows are not added to the JSON here).
+//! skipped rows are not added to the JSON here). Each stage the diagnosis reports
+//! (`diagnose::progress`) is printed on stderr with the wall and CPU seconds since the start
+//! (CPU from /proc), so a run shows where its time goes and how much of it ran on both cores.
 
 use retrocomp_analysis::diagnose::{diagnose_owned, select::Options};
 use retrocomp_model::recording::Recording;
@@ -38,8 +40,38 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .collect();
         rec = Recording::from_columns(cols)?;
     }
+    let start = std::time::Instant::now();
+    let _stages = retrocomp_analysis::diagnose::progress::observe(move |stage| {
+        eprintln!(
+            "{:8.2} s wall {:8.2} s cpu  {stage}",
+            start.elapsed().as_secs_f64(),
+            cpu_s()
+        );
+    });
     let d = diagnose_owned(rec, &Options::default())?;
+    eprintln!(
+        "{:8.2} s wall {:8.2} s cpu  done",
+        start.elapsed().as_secs_f64(),
+        cpu_s()
+    );
     let report = serde_json::to_value(&d.report)?;
     println!("{}", serde_json::to_string_pretty(&report)?);
     Ok(())
+}
+
+/// The process' CPU time (user + system) so far, from /proc/self/stat (NaN where unreadable).
+fn cpu_s() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return f64::NAN;
+    };
+    // Fields after the command name's closing parenthesis; utime and stime are the 12th and 13th.
+    let after = stat.rsplit_once(')').map_or("", |(_, a)| a);
+    let f: Vec<f64> = after
+        .split_whitespace()
+        .skip(11)
+        .take(2)
+        .filter_map(|v| v.parse().ok())
+        .collect();
+    // Clock ticks: 100 per second on Linux (USER_HZ).
+    f.iter().sum::<f64>() / 100.0
 }

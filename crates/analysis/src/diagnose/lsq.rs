@@ -5,9 +5,11 @@
 
 use nalgebra::{DMatrix, DVector};
 
+mod blocks;
 mod gram;
 mod mgs;
 
+pub use blocks::{cv_rss, forward_block_rss, forward_rss, forward_rss_pred};
 pub use mgs::{orthonormalize, orthonormalize_gain};
 
 pub fn dot(a: &[f64], b: &[f64]) -> f64 {
@@ -320,112 +322,6 @@ pub fn fit_within_cells(cols: &[&[f64]], r: &[f64], cell: &[usize], k: usize) ->
     fit_of(coef, inv, resid, cols.len() + k)
 }
 
-/// Held-out RSS: for each block, fit on the other blocks and predict this one.
-pub fn cv_rss(cols: &[&[f64]], r: &[f64], block: &[usize], n_blocks: usize) -> f64 {
-    let n = r.len();
-    let (g, h) = gram(cols, r, 0..n);
-    let mut per: Vec<(DMatrix<f64>, DVector<f64>)> = (0..n_blocks)
-        .map(|_| {
-            (
-                DMatrix::zeros(cols.len(), cols.len()),
-                DVector::zeros(cols.len()),
-            )
-        })
-        .collect();
-    for i in 0..n {
-        let (gb, hb) = &mut per[block[i]];
-        for a in 0..cols.len() {
-            let xa = cols[a][i];
-            hb[a] += xa * r[i];
-            for b in 0..cols.len() {
-                gb[(a, b)] += xa * cols[b][i];
-            }
-        }
-    }
-    let betas: Vec<DVector<f64>> = per
-        .iter()
-        .map(|(gb, hb)| pinv_solve(&(&g - gb), &(&h - hb)).0)
-        .collect();
-    (0..n)
-        .map(|i| {
-            let b = &betas[block[i]];
-            (r[i]
-                - cols
-                    .iter()
-                    .enumerate()
-                    .map(|(a, c)| b[a] * c[i])
-                    .sum::<f64>())
-            .powi(2)
-        })
-        .sum()
-}
-
-/// Forward (rolling-origin) validation over time-ordered blocks 0..n_blocks: block k is predicted
-/// by the fit on blocks 0..k only, for k ≥ 1, so nothing is judged on data earlier than what
-/// chose it. Returns (RSS over the predicted rows, number of predicted rows).
-pub fn forward_rss(cols: &[&[f64]], r: &[f64], block: &[usize], n_blocks: usize) -> (f64, usize) {
-    forward_rss_pred(cols, cols, r, block, n_blocks)
-}
-
-/// [`forward_rss`] with the gains fitted on `cols` and block k predicted from `pred` (the same
-/// regressors as a NEW recording starting at block k would compute them: lag states restarted
-/// there, see `select::restarted`). `pred` has the layout of `cols`.
-pub fn forward_rss_pred(
-    cols: &[&[f64]],
-    pred: &[&[f64]],
-    r: &[f64],
-    block: &[usize],
-    n_blocks: usize,
-) -> (f64, usize) {
-    forward_block_rss(cols, pred, r, block, n_blocks)
-        .iter()
-        .fold((0.0, 0), |(s, m), b| (s + b.0, m + b.1))
-}
-
-/// Per block: (RSS, rows) of block k predicted by gains fitted on `cols` over blocks before k
-/// (block 0 is never predicted: (0, 0)); prediction from `pred` as in [`forward_rss_pred`].
-pub fn forward_block_rss(
-    cols: &[&[f64]],
-    pred: &[&[f64]],
-    r: &[f64],
-    block: &[usize],
-    n_blocks: usize,
-) -> Vec<(f64, usize)> {
-    let p = cols.len();
-    let mut per: Vec<(DMatrix<f64>, DVector<f64>)> = (0..n_blocks)
-        .map(|_| (DMatrix::zeros(p, p), DVector::zeros(p)))
-        .collect();
-    for i in 0..r.len() {
-        let (gb, hb) = &mut per[block[i]];
-        for a in 0..p {
-            let xa = cols[a][i];
-            hb[a] += xa * r[i];
-            for b in 0..p {
-                gb[(a, b)] += xa * cols[b][i];
-            }
-        }
-    }
-    // Coefficients fitted on blocks before k, per k.
-    let mut betas: Vec<Option<DVector<f64>>> = vec![None; n_blocks];
-    let (mut g, mut h) = (DMatrix::zeros(p, p), DVector::zeros(p));
-    for k in 0..n_blocks {
-        if k > 0 {
-            betas[k] = Some(pinv_solve(&g, &h).0);
-        }
-        g += &per[k].0;
-        h += &per[k].1;
-    }
-    let mut out = vec![(0.0, 0usize); n_blocks];
-    for i in 0..r.len() {
-        if let Some(b) = &betas[block[i]] {
-            let fit: f64 = (0..p).map(|a| b[a] * pred[a][i]).sum();
-            out[block[i]].0 += (r[i] - fit).powi(2);
-            out[block[i]].1 += 1;
-        }
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
     #[test]
@@ -470,22 +366,6 @@ mod tests {
     }
 
     use super::*;
-
-    #[test]
-    fn forward_validation_predicts_each_block_from_earlier_blocks_only() {
-        // r = 2·x in blocks 0–1 and 5·x in block 2: the forward fit of block 2 comes from blocks
-        // 0–1 only (slope 2), so its error is 3·x there; block 0 is never predicted.
-        let n = 30;
-        let x: Vec<f64> = (0..n).map(|i| 1.0 + i as f64).collect();
-        let block: Vec<usize> = (0..n).map(|i| i / 10).collect();
-        let r: Vec<f64> = (0..n)
-            .map(|i| if block[i] < 2 { 2.0 } else { 5.0 } * x[i])
-            .collect();
-        let (rss, m) = forward_rss(&[&x], &r, &block, 3);
-        assert_eq!(m, 20);
-        let want: f64 = (20..30).map(|i| (3.0 * x[i]).powi(2)).sum();
-        assert!((rss - want).abs() < 1e-6 * want, "{rss} vs {want}");
-    }
 
     #[test]
     fn fit_recovers_exact_coefficients_and_projection_matches_fit() {

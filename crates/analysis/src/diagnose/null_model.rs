@@ -190,8 +190,12 @@ impl NoiseModel {
         recording_rejects: Option<bool>,
     ) -> NoiseModel {
         let lags = adf_lags(null_noise.len());
-        let stationary = recording_rejects.unwrap_or(true)
-            && rejects_unit_root(adf_tau(null_noise, lags), adf_tau(alt_noise, lags));
+        let stationary = recording_rejects.unwrap_or(true) && {
+            // The two statistics are independent regressions over every row: side by side.
+            let (null_tau, alt_tau) =
+                rayon::join(|| adf_tau(null_noise, lags), || adf_tau(alt_noise, lags));
+            rejects_unit_root(null_tau, alt_tau)
+        };
         if stationary {
             NoiseModel {
                 rho: lsq::ar1_coefficient(alt_noise),

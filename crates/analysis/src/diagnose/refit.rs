@@ -52,7 +52,12 @@ pub(super) fn parsimony_drop(
     if let Some(k) = weakest {
         return Some((k, "ci_includes_zero", with, without(k)));
     }
-    let lobo: Vec<f64> = (0..terms.len()).map(without).collect();
+    // Each removal scored alone, side by side (rayon), collected in term order: the same with
+    // any number of threads.
+    let lobo: Vec<f64> = {
+        use rayon::prelude::*;
+        (0..terms.len()).into_par_iter().map(without).collect()
+    };
     lobo.iter()
         .enumerate()
         .filter(|(_, w)| w.is_finite() && with >= *w * (1.0 - opts.cv_min_gain))

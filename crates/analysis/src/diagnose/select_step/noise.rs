@@ -53,10 +53,14 @@ impl Selector<'_> {
         if scored.is_empty() {
             return None;
         }
-        let null_noise = without_cell_means(self.ctx, self.axis, &nulls.plain.r0);
+        // Each residual and each statistic is computed alone, side by side: the same bits with
+        // any number of threads.
+        let (null_noise, alt_noise) = rayon::join(
+            || without_cell_means(self.ctx, self.axis, &nulls.plain.r0),
+            || self.top_noise(&scored, &nulls),
+        );
         let lags = adf_lags(null_noise.len());
-        let alt_noise = self.top_noise(&scored, &nulls);
-        let taus = (adf_tau(&null_noise, lags), adf_tau(&alt_noise, lags));
+        let taus = rayon::join(|| adf_tau(&null_noise, lags), || adf_tau(&alt_noise, lags));
         Some((taus, FirstScreen(scored)))
     }
 }
