@@ -201,21 +201,33 @@ fn gram_by(
     let mut g = DMatrix::zeros(p, p);
     let mut h = DVector::zeros(p);
     for i in rows {
-        let yi = y(i);
-        for a in 0..p {
-            let xa = x(a, i);
-            h[a] += xa * yi;
-            for b in 0..=a {
-                g[(a, b)] += xa * x(b, i);
-            }
+        add_row_lower(&mut g, &mut h, |a| x(a, i), y(i));
+    }
+    mirror_lower(&mut g);
+    (g, h)
+}
+
+/// One row's products added to the Gram sums: g_ab += x_a·x_b for b ≤ a (the lower triangle,
+/// [`mirror_lower`] completes it), h_a += x_a·y; `x(a)` is column a at the row. Sums taken row
+/// by row through here have the bits of their row order.
+fn add_row_lower(g: &mut DMatrix<f64>, h: &mut DVector<f64>, x: impl Fn(usize) -> f64, y: f64) {
+    for a in 0..h.len() {
+        let xa = x(a);
+        h[a] += xa * y;
+        for b in 0..=a {
+            g[(a, b)] += xa * x(b);
         }
     }
-    for a in 0..p {
+}
+
+/// The upper triangle copied from the lower one: x_a·x_b and x_b·x_a are the same product, so
+/// the copy is the bits the upper sums would have.
+fn mirror_lower(g: &mut DMatrix<f64>) {
+    for a in 0..g.nrows() {
         for b in 0..a {
             g[(b, a)] = g[(a, b)];
         }
     }
-    (g, h)
 }
 
 fn pinv_solve(g: &DMatrix<f64>, h: &DVector<f64>) -> (DVector<f64>, DMatrix<f64>) {

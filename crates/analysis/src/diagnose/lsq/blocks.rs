@@ -7,13 +7,13 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{gram, pinv_solve};
+use super::{add_row_lower, gram, mirror_lower, pinv_solve};
 
 /// Held-out RSS: for each block, fit on the other blocks and predict this one. The whole
 /// record's sums and each half of the blocks' sums are independent passes over the rows, run
 /// side by side (rayon); each sum is still taken alone in row order, so the result is the same
-/// bits with any number of threads (at 10⁶ rows, run in turn, they were a fifth of the work a
-/// diagnosis did on one thread while the other idled: `perf record`, docs/performance.md).
+/// bits with any number of threads (at 10⁶ rows, run in turn, they were the largest part of the
+/// work a diagnosis did on one thread while the other idled: docs/performance.md).
 pub fn cv_rss(cols: &[&[f64]], r: &[f64], block: &[usize], n_blocks: usize) -> f64 {
     let n = r.len();
     let ((g, h), per) = rayon::join(
@@ -57,8 +57,7 @@ fn each_block_gram(
 }
 
 /// The Gram matrix and right-hand side of each block in `blocks` (rows of other blocks
-/// skipped), each sum in row order. Only the lower triangle is summed and then mirrored: x_a·x_b
-/// and x_b·x_a are the same product, so the mirror is the bits of the upper sum.
+/// skipped), each sum in row order, as [`gram`] sums them.
 fn block_grams(
     cols: &[&[f64]],
     r: &[f64],
@@ -71,24 +70,13 @@ fn block_grams(
         .map(|_| (DMatrix::zeros(p, p), DVector::zeros(p)))
         .collect();
     for (i, &k) in block.iter().enumerate().take(r.len()) {
-        if !blocks.contains(&k) {
-            continue;
-        }
-        let (gb, hb) = &mut per[k - blocks.start];
-        for a in 0..p {
-            let xa = cols[a][i];
-            hb[a] += xa * r[i];
-            for b in 0..=a {
-                gb[(a, b)] += xa * cols[b][i];
-            }
+        if blocks.contains(&k) {
+            let (gb, hb) = &mut per[k - blocks.start];
+            add_row_lower(gb, hb, |a| cols[a][i], r[i]);
         }
     }
     for (gb, _) in &mut per {
-        for a in 0..p {
-            for b in 0..a {
-                gb[(b, a)] = gb[(a, b)];
-            }
-        }
+        mirror_lower(gb);
     }
     per
 }
