@@ -6,10 +6,12 @@
 use nalgebra::{DMatrix, DVector};
 
 mod blocks;
+mod cgs;
 mod gram;
 mod mgs;
 
 pub use blocks::{cv_rss, forward_block_rss, forward_rss, forward_rss_pred};
+pub use cgs::projected_gain;
 pub use mgs::{orthonormalize, orthonormalize_gain};
 
 pub fn dot(a: &[f64], b: &[f64]) -> f64 {
@@ -158,8 +160,10 @@ pub fn newey_west_lags(n: usize) -> usize {
         .max(1)
 }
 
-/// Records at least this long get their autocovariances by FFT in [`effective_n`] (and cyclic
-/// candidates their screening gain from [`gram_gain`]); shorter ones keep the direct sums.
+/// Records at least this long get their autocovariances by FFT in [`effective_n`], cyclic
+/// candidates their screening gain from [`gram_gain`] and the others theirs from
+/// [`projected_gain`]; shorter ones keep the direct sums and modified Gram–Schmidt (the bits their
+/// shipped models and suites were written with).
 pub const FFT_MIN_N: usize = 200_000;
 
 /// Σ_i c_i·c_{i+k} for k = 0…lags of c = r − mean, by the Wiener–Khinchin route: zero-pad to

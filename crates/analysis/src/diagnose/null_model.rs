@@ -118,6 +118,18 @@ pub(super) fn score_cols(
         });
         return (scored, cols);
     }
+    // Long recordings: every other candidate (thermal lags at each τ of their grid, most of the
+    // rest of the screening) without orthonormalised copies either (`lsq::projected_gain`).
+    if r0.len() >= lsq::FFT_MIN_N {
+        let (g, q) = lsq::projected_gain(basis, &cols, r0);
+        let scored = (q > 0).then(|| {
+            (
+                g.min(rss0 * (1.0 - 1e-12)),
+                q + usize::from(c.is_nonlinear()),
+            )
+        });
+        return (scored, cols);
+    }
     let (u, g) = lsq::orthonormalize_gain(basis, cols, r0);
     if u.is_empty() {
         return (None, u);

@@ -207,9 +207,15 @@ fn others_basis(
 }
 
 /// RSS of `r0` (already deflated by basis `b`) after term `t` at parameter `th` is fitted too.
+/// Long recordings without orthonormalised copies of the columns (`lsq::projected_gain`).
 fn rss_at(ctx: &Context, b: &[Vec<f64>], r0: &[f64], t: &Term, th: f64) -> f64 {
-    let u = lsq::orthonormalize(b, t.cand.columns(ctx, th), 1);
-    lsq::dot(r0, r0) - lsq::gain(&u, r0)
+    let cols = t.cand.columns(ctx, th);
+    let gain = if r0.len() >= lsq::FFT_MIN_N {
+        lsq::projected_gain(b, &cols, r0).0
+    } else {
+        lsq::gain(&lsq::orthonormalize(b, cols, 1), r0)
+    };
+    lsq::dot(r0, r0) - gain
 }
 
 /// One term's columns, borrowed from its [`Term`] or computed at a refined parameter.
