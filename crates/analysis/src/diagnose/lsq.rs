@@ -37,37 +37,14 @@ pub fn gram_gain(basis: &[Vec<f64>], cols: &[Vec<f64>], r0: &[f64]) -> (f64, usi
     let (q, b) = (cols.len(), basis.len());
     let (g, cb, h) = gram::sums(basis, cols, r0);
     // M = XᵀX − CᵀC (lower triangle), then Cholesky with dropping; y = L⁻¹h, gain = ‖y‖².
-    let m = |a: usize, a2: usize| {
-        g[a * q + a2] - (0..b).map(|k| cb[k * q + a] * cb[k * q + a2]).sum::<f64>()
-    };
-    let mut l = vec![0.0; q * q];
-    let mut kept: Vec<usize> = vec![];
-    let mut y = vec![0.0; q];
-    for j in 0..q {
-        let mut d = m(j, j);
-        for &k in &kept {
-            d -= l[j * q + k] * l[j * q + k];
+    let mut m = vec![0.0; q * q];
+    for a in 0..q {
+        for a2 in 0..=a {
+            m[a * q + a2] =
+                g[a * q + a2] - (0..b).map(|k| cb[k * q + a] * cb[k * q + a2]).sum::<f64>();
         }
-        if d.is_nan() || d <= 1e-10 * g[j * q + j] {
-            continue;
-        }
-        let djj = d.sqrt();
-        l[j * q + j] = djj;
-        for j2 in j + 1..q {
-            let mut v = m(j2, j);
-            for &k in &kept {
-                v -= l[j2 * q + k] * l[j * q + k];
-            }
-            l[j2 * q + j] = v / djj;
-        }
-        let mut v = h[j];
-        for &k in &kept {
-            v -= l[j * q + k] * y[k];
-        }
-        y[j] = v / djj;
-        kept.push(j);
     }
-    (kept.iter().map(|&k| y[k] * y[k]).sum(), kept.len())
+    cgs::cholesky_gain(&m, &h, |j, d| !(d.is_nan() || d <= 1e-10 * g[j * q + j]))
 }
 
 /// `r0` minus its projection on orthonormal `u`.

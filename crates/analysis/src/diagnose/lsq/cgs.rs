@@ -91,13 +91,20 @@ pub fn projected_gain(basis: &[Vec<f64>], cols: &[Vec<f64>], r0: &[f64]) -> (f64
     let m: Vec<f64> = m.iter().map(total).collect();
     let h: Vec<f64> = h.iter().map(total).collect();
     let norm0: Vec<f64> = norm0.iter().map(|l| total(l).sqrt()).collect();
-    cholesky_gain(&m, &h, &norm0)
+    cholesky_gain(&m, &h, |j, d| {
+        let n1 = d.max(0.0).sqrt();
+        norm0[j].is_finite() && norm0[j] > 0.0 && n1.is_finite() && n1 >= 1e-7 * norm0[j]
+    })
 }
 
-/// y = L⁻¹h for the Cholesky factor L of the q×q matrix `m` (lower triangle read), a column
-/// dropped where its pivot's root is below 1e-7 of `norm0` (its norm before any projection):
-/// (‖y‖², columns kept).
-fn cholesky_gain(m: &[f64], h: &[f64], norm0: &[f64]) -> (f64, usize) {
+/// y = L⁻¹h for the Cholesky factor L of the q×q matrix `m` (lower triangle read), column j
+/// kept only where `keep(j, pivot)` holds for its pivot (what is left of its squared norm beside
+/// the columns kept before it): (‖y‖², columns kept).
+pub(super) fn cholesky_gain(
+    m: &[f64],
+    h: &[f64],
+    keep: impl Fn(usize, f64) -> bool,
+) -> (f64, usize) {
     let q = h.len();
     let mut l = vec![0.0; q * q];
     let mut y = vec![0.0; q];
@@ -106,18 +113,18 @@ fn cholesky_gain(m: &[f64], h: &[f64], norm0: &[f64]) -> (f64, usize) {
         let d = kept
             .iter()
             .fold(m[j * q + j], |d, &k| d - l[j * q + k] * l[j * q + k]);
-        let n1 = d.max(0.0).sqrt();
-        if !(norm0[j].is_finite() && norm0[j] > 0.0 && n1.is_finite() && n1 >= 1e-7 * norm0[j]) {
+        if !keep(j, d) {
             continue;
         }
-        l[j * q + j] = n1;
+        let djj = d.sqrt();
+        l[j * q + j] = djj;
         for j2 in j + 1..q {
             let v = kept
                 .iter()
                 .fold(m[j2 * q + j], |v, &k| v - l[j2 * q + k] * l[j * q + k]);
-            l[j2 * q + j] = v / n1;
+            l[j2 * q + j] = v / djj;
         }
-        y[j] = kept.iter().fold(h[j], |v, &k| v - l[j * q + k] * y[k]) / n1;
+        y[j] = kept.iter().fold(h[j], |v, &k| v - l[j * q + k] * y[k]) / djj;
         kept.push(j);
     }
     (kept.iter().map(|&k| y[k] * y[k]).sum(), kept.len())
