@@ -173,7 +173,14 @@ fn the_model_has_no_runtime() {
 /// `scripts/test.sh` compiles that build (`cargo clippy -p retrocomp-gateway --no-default-features`).
 #[test]
 fn the_bare_gateway_leaves_out_opcua_mqtt_and_the_analysis_crates() {
-    let heavy = ["async-opcua", "rumqttc", "statrs", "rustfft", "plotters"];
+    let heavy = [
+        "async-opcua",
+        "rumqttc",
+        "statrs",
+        "rustfft",
+        "realfft",
+        "plotters",
+    ];
     let tree = |extra: &[&str]| {
         let mut args = vec![
             "tree",

@@ -9,6 +9,7 @@ mod blocks;
 mod cgs;
 mod gram;
 mod mgs;
+mod spans;
 
 pub use blocks::{cv_rss, forward_block_rss, forward_rss, forward_rss_pred};
 pub use cgs::projected_gain;
@@ -139,28 +140,45 @@ pub fn newey_west_lags(n: usize) -> usize {
 
 /// Records at least this long get their autocovariances by FFT in [`effective_n`], cyclic
 /// candidates their screening gain from [`gram_gain`] and the others theirs from
-/// [`projected_gain`]; shorter ones keep the direct sums and modified Gram–Schmidt (the bits their
-/// shipped models and suites were written with).
+/// [`projected_gain`], and [`orthonormalize`]'s sums over parallel spans of rows; shorter ones
+/// keep the direct sums and one-chain modified Gram–Schmidt (the bits their shipped models and
+/// suites were written with).
 pub const FFT_MIN_N: usize = 200_000;
 
 /// Σ_i c_i·c_{i+k} for k = 0…lags of c = r − mean, by the Wiener–Khinchin route: zero-pad to
-/// ≥ n + lags (no wrap-around), |FFT|², inverse FFT.
+/// m ≥ n + lags (no wrap-around), |FFT|², and back. The power spectrum P is real and even, so its
+/// inverse transform is (1/m)·Σ_j P_j·cos(2πjk/m), the real part of the forward transform of P
+/// laid out over all m frequencies: one real forward plan serves both ways.
 fn autocovariances_fft(r: &[f64], mean: f64, lags: usize) -> Vec<f64> {
-    use rustfft::{FftPlanner, num_complex::Complex};
+    use realfft::RealFftPlanner;
+    use std::sync::{Mutex, PoisonError};
+    // One plan kept for the process: its twiddles (16 MB at 10⁶ rows) were recomputed at every
+    // call, half of its time.
+    static PLANS: Mutex<Option<RealFftPlanner<f64>>> = Mutex::new(None);
     let m = (r.len() + lags + 1).next_power_of_two();
-    let mut buf: Vec<Complex<f64>> = r
+    let fft = PLANS
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner)
+        .get_or_insert_with(RealFftPlanner::new)
+        .plan_fft_forward(m);
+    let mut buf: Vec<f64> = r
         .iter()
-        .map(|&v| Complex::new(v - mean, 0.0))
-        .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
+        .map(|&v| v - mean)
+        .chain(std::iter::repeat(0.0))
         .take(m)
         .collect();
-    // One planner per direction: a planner keeps its plans, and the forward plan's twiddles
-    // (16 MB at 10⁶ rows) need not live while the inverse plan is built and run.
-    FftPlanner::new().plan_fft_forward(m).process(&mut buf);
-    buf.iter_mut()
-        .for_each(|z| *z = Complex::new(z.norm_sqr(), 0.0));
-    FftPlanner::new().plan_fft_inverse(m).process(&mut buf);
-    buf[..=lags].iter().map(|z| z.re / m as f64).collect()
+    let mut spectrum = fft.make_output_vec();
+    fft.process(&mut buf, &mut spectrum)
+        .expect("buffers sized by the plan");
+    // P_j at j and at m − j (m ≥ 2: r holds at least 8 values).
+    buf[0] = spectrum[0].norm_sqr();
+    for (j, z) in spectrum.iter().enumerate().skip(1) {
+        buf[j] = z.norm_sqr();
+        buf[m - j] = buf[j];
+    }
+    fft.process(&mut buf, &mut spectrum)
+        .expect("buffers sized by the plan");
+    spectrum[..=lags].iter().map(|z| z.re / m as f64).collect()
 }
 
 fn gram(
@@ -348,7 +366,10 @@ mod tests {
         let c: Vec<f64> = (0..5000)
             .map(|i| ((f64::from(i) * 0.37).sin() + (f64::from(i) * 1.91).cos() * 0.5).powi(3))
             .collect();
-        let fft = autocovariances_fft(&c, 0.0, 40);
+        // Read with an offset the mean removes, as `effective_n` hands it over.
+        let shifted: Vec<f64> = c.iter().map(|v| v + 0.25).collect();
+        let fft = autocovariances_fft(&shifted, 0.25, 40);
+        assert_eq!(fft.len(), 41);
         for (k, a) in fft.iter().enumerate() {
             let direct = dot(&c[..c.len() - k], &c[k..]);
             assert!(

@@ -11,8 +11,10 @@
 //! one classical pass projects as well as one modified pass; the two differ by rounding. The
 //! squared norm of the part outside the basis is summed from that part itself, not as
 //! ‖c‖² − ‖Bᵀc‖² ([`super::gram_gain`]), so a column nearly in the span keeps its precision.
-//! Every sum is split over [`LANES`] partial sums by row in a fixed way, whatever the number of
-//! columns or threads.
+//! Every sum is split over [`LANES`] partial sums by row in a fixed way and over the fixed spans
+//! of rows [`super::spans`] runs in parallel, whatever the number of columns or threads.
+
+use super::spans::sum_spans;
 
 /// Rows per block: one block of a column, the part outside the basis and four basis vectors stay
 /// in the first-level cache. A multiple of [`LANES`].
@@ -41,53 +43,67 @@ fn total(l: &Lanes) -> f64 {
 /// basis and the columns kept before it is below 1e-7 of its norm, or it is zero or not finite).
 pub fn projected_gain(basis: &[Vec<f64>], cols: &[Vec<f64>], r0: &[f64]) -> (f64, usize) {
     let (n, k, q) = (r0.len(), basis.len(), cols.len());
-    // Pass one: ‖c‖² and Bᵀc per column.
-    let mut norm0 = vec![[0.0; LANES]; q];
-    let mut coef = vec![vec![[0.0; LANES]; k]; q];
-    for start in (0..n).step_by(BLOCK) {
-        let rows = start..(start + BLOCK).min(n);
-        for (a, c) in cols.iter().enumerate() {
-            let c = &c[rows.clone()];
-            add_products(&mut norm0[a], c, c);
-            for (j0, group) in basis.chunks(GROUP).enumerate() {
-                let acc = &mut coef[a][j0 * GROUP..j0 * GROUP + group.len()];
-                match group.len() {
-                    1 => dots::<1>(acc, group, c, &rows),
-                    2 => dots::<2>(acc, group, c, &rows),
-                    3 => dots::<3>(acc, group, c, &rows),
-                    _ => dots::<GROUP>(acc, group, c, &rows),
+    // Pass one, per span: ‖c‖² (q lanes), then Bᵀc (k lanes per column).
+    let one = sum_spans(n, |span| {
+        let mut acc = vec![[0.0; LANES]; q + q * k];
+        let (norm0, coef) = acc.split_at_mut(q);
+        for start in span.clone().step_by(BLOCK) {
+            let rows = start..(start + BLOCK).min(span.end);
+            for (a, c) in cols.iter().enumerate() {
+                let c = &c[rows.clone()];
+                add_products(&mut norm0[a], c, c);
+                for (j0, group) in basis.chunks(GROUP).enumerate() {
+                    let acc = &mut coef[a * k + j0 * GROUP..a * k + j0 * GROUP + group.len()];
+                    match group.len() {
+                        1 => dots::<1>(acc, group, c, &rows),
+                        2 => dots::<2>(acc, group, c, &rows),
+                        3 => dots::<3>(acc, group, c, &rows),
+                        _ => dots::<GROUP>(acc, group, c, &rows),
+                    }
                 }
             }
         }
-    }
-    let coef: Vec<Vec<f64>> = coef.iter().map(|c| c.iter().map(total).collect()).collect();
-    // Pass two: C⊥ block by block; its products (lower triangle, row-major q×q) and C⊥ᵀr0.
-    let mut m = vec![[0.0; LANES]; q * q];
-    let mut h = vec![[0.0; LANES]; q];
-    let mut v = vec![0.0; q * BLOCK];
-    for start in (0..n).step_by(BLOCK) {
-        let rows = start..(start + BLOCK).min(n);
-        let len = rows.len();
-        for (a, c) in cols.iter().enumerate() {
-            let va = &mut v[a * BLOCK..a * BLOCK + len];
-            va.copy_from_slice(&c[rows.clone()]);
-            for (b, d) in basis.iter().zip(&coef[a]) {
-                va.iter_mut()
-                    .zip(&b[rows.clone()])
-                    .for_each(|(vi, bi)| *vi -= d * bi);
+        acc
+    });
+    let (norm0, coef) = one.split_at(q);
+    let coef: Vec<Vec<f64>> = (0..q)
+        .map(|a| coef[a * k..a * k + k].iter().map(total).collect())
+        .collect();
+    // Pass two, per span: C⊥ block by block; its products (lower triangle, row-major q×q), then
+    // C⊥ᵀr0 (q lanes).
+    let two = sum_spans(n, |span| {
+        let mut acc = vec![[0.0; LANES]; q * q + q];
+        let (m, h) = acc.split_at_mut(q * q);
+        let mut v = vec![0.0; q * BLOCK];
+        for start in span.clone().step_by(BLOCK) {
+            let rows = start..(start + BLOCK).min(span.end);
+            let len = rows.len();
+            for (a, c) in cols.iter().enumerate() {
+                let va = &mut v[a * BLOCK..a * BLOCK + len];
+                va.copy_from_slice(&c[rows.clone()]);
+                for (b, d) in basis.chunks(GROUP).zip(coef[a].chunks(GROUP)) {
+                    match b.len() {
+                        1 => subtract::<1>(va, b, d, &rows),
+                        2 => subtract::<2>(va, b, d, &rows),
+                        3 => subtract::<3>(va, b, d, &rows),
+                        _ => subtract::<GROUP>(va, b, d, &rows),
+                    }
+                }
+                add_products(&mut h[a], va, &r0[rows.clone()]);
             }
-            add_products(&mut h[a], va, &r0[rows.clone()]);
-        }
-        for a in 0..q {
-            for a2 in 0..=a {
-                let (x, y) = (
-                    &v[a * BLOCK..a * BLOCK + len],
-                    &v[a2 * BLOCK..a2 * BLOCK + len],
-                );
-                add_products(&mut m[a * q + a2], x, y);
+            for a in 0..q {
+                for a2 in 0..=a {
+                    let (x, y) = (
+                        &v[a * BLOCK..a * BLOCK + len],
+                        &v[a2 * BLOCK..a2 * BLOCK + len],
+                    );
+                    add_products(&mut m[a * q + a2], x, y);
+                }
             }
         }
-    }
+        acc
+    });
+    let (m, h) = two.split_at(q * q);
     let m: Vec<f64> = m.iter().map(total).collect();
     let h: Vec<f64> = h.iter().map(total).collect();
     let norm0: Vec<f64> = norm0.iter().map(|l| total(l).sqrt()).collect();
@@ -128,6 +144,24 @@ pub(super) fn cholesky_gain(
         kept.push(j);
     }
     (kept.iter().map(|&k| y[k] * y[k]).sum(), kept.len())
+}
+
+/// `v -= d_j·b_j` for the `K` basis columns `b` (their rows `rows`), in basis order for every
+/// element as one column at a time would: each element read and written once per group, not once
+/// per basis column (that load and store was most of pass two).
+fn subtract<const K: usize>(
+    v: &mut [f64],
+    basis: &[Vec<f64>],
+    d: &[f64],
+    rows: &std::ops::Range<usize>,
+) {
+    let b: [&[f64]; K] = std::array::from_fn(|j| &basis[j][rows.clone()]);
+    let d: [f64; K] = std::array::from_fn(|j| d[j]);
+    for (i, vi) in v.iter_mut().enumerate() {
+        for j in 0..K {
+            *vi -= d[j] * b[j][i];
+        }
+    }
 }
 
 /// Σ x·y of one block (starting at a multiple of [`LANES`]) added onto the lanes.
@@ -185,13 +219,13 @@ mod tests {
     }
 
     /// The classical two-pass gain is the modified Gram–Schmidt gain to rounding, and keeps the
-    /// same columns: basis sizes that leave every group remainder, a length that is not whole
-    /// blocks, one and several columns, a column nearly in the span (≈1e-5 of its norm outside
+    /// same columns: basis sizes that leave every group remainder, two spans and a length that is
+    /// not whole blocks, one and several columns, a column nearly in the span (≈1e-5 of its norm outside
     /// it), a column in the span of the basis, one in the span of the candidate's other columns,
     /// a zero column.
     #[test]
     fn classical_gains_are_the_modified_gram_schmidt_gains() {
-        let n = 3 * super::BLOCK + 77;
+        let n = super::super::spans::SPAN + 3 * super::BLOCK + 77;
         let raw: Vec<Vec<f64>> = std::iter::once(vec![1.0; n])
             .chain((0..6).map(|k| col(n, 0.001 * f64::from(k + 1), 0.2)))
             .collect();

@@ -1,16 +1,24 @@
 //! The row sums behind [`super::gram_gain`]: XᵀX, BᵀX and Xᵀr0 of a candidate's columns X, the
-//! orthonormal basis B and the residual r0. Every sum is accumulated over the rows in row order,
-//! each product as in one loop over the rows, so the sums are the same bits; what differs is that
+//! orthonormal basis B and the residual r0. Every sum is accumulated over each span of rows
+//! ([`super::spans`]) in row order in two partial sums (even and odd rows), as one loop over the
+//! rows would, so the blocked sums are that loop's bits whatever the blocks; what differs is that
 //! several sums are carried in registers at once (a loop over the rows indexing every column and
 //! every sum through the heap was most of a 10⁶-row diagnosis' screening), over blocks of rows
 //! that stay in cache while each group of left-hand columns is run over them.
 
+use super::spans::sum_spans;
+
 /// Rows per block: the candidate's columns of one block stay in cache while every group of
-/// left-hand columns (r0, X, B) is run over them.
+/// left-hand columns (r0, X, B) is run over them. Even, so a block starts on lane 0; a divisor of
+/// [`super::spans::SPAN`].
 const BLOCK: usize = 2048;
 
-/// Left-hand columns per pass over a block: with two candidate columns, eight independent sums.
-const GROUP: usize = 4;
+/// Partial sums per product: row i is added to lane i mod 2, the lanes added at the end. With one
+/// chain per product a row waited for the previous row's additions (the sums were bound by the
+/// addition latency); two rows side by side are one two-wide multiply and add.
+const LANES: usize = 2;
+
+type Lanes = [f64; LANES];
 
 /// The sums of [`super::gram_gain`]: XᵀX (row-major q×q, lower triangle filled), BᵀX (row k of
 /// the basis: entries k·q..k·q+q) and Xᵀr0.
@@ -19,16 +27,18 @@ pub(super) fn sums(
     cols: &[Vec<f64>],
     r0: &[f64],
 ) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    // Left-hand columns per pass over a block: eight two-lane sums either way (what the sixteen
+    // vector registers of baseline x86-64 hold beside the operands).
     match cols.len() {
-        2 => sums_q::<2>(basis, cols, r0),
-        4 => sums_q::<4>(basis, cols, r0),
+        2 => sums_q::<2, 4>(basis, cols, r0),
+        4 => sums_q::<4, 2>(basis, cols, r0),
         _ => sums_any(basis, cols, r0),
     }
 }
 
-/// [`sums`] for `Q` candidate columns: every left-hand column y (r0, then each column of X, then
-/// each of B) gets Σ_i y_i·x_a,i for every a, carried across the blocks.
-fn sums_q<const Q: usize>(
+/// [`sums`] for `Q` candidate columns, `G` left-hand columns per pass: every left-hand column y
+/// (r0, then each column of X, then each of B) gets Σ_i y_i·x_a,i for every a.
+fn sums_q<const Q: usize, const G: usize>(
     basis: &[Vec<f64>],
     cols: &[Vec<f64>],
     r0: &[f64],
@@ -39,79 +49,107 @@ fn sums_q<const Q: usize>(
         .chain(xs.iter().copied())
         .chain(basis.iter().map(|b| &b[..n]))
         .collect();
-    let mut acc = vec![[0.0; Q]; ys.len()];
-    for start in (0..n).step_by(BLOCK) {
-        let rows = start..(start + BLOCK).min(n);
-        let x: [&[f64]; Q] = std::array::from_fn(|a| &xs[a][rows.clone()]);
-        for (acc, ys) in acc.chunks_mut(GROUP).zip(ys.chunks(GROUP)) {
-            match ys.len() {
-                1 => group::<Q, 1>(acc, ys, x, &rows),
-                2 => group::<Q, 2>(acc, ys, x, &rows),
-                3 => group::<Q, 3>(acc, ys, x, &rows),
-                _ => group::<Q, GROUP>(acc, ys, x, &rows),
+    // Per span: the lanes of every (y, a) sum, y-major.
+    let lanes = sum_spans(n, |span| {
+        let mut acc = vec![[[0.0; LANES]; Q]; ys.len()];
+        for start in span.clone().step_by(BLOCK) {
+            let rows = start..(start + BLOCK).min(span.end);
+            let x: [&[f64]; Q] = std::array::from_fn(|a| &xs[a][rows.clone()]);
+            for (acc, ys) in acc.chunks_mut(G).zip(ys.chunks(G)) {
+                match ys.len() {
+                    1 => group::<Q, 1>(acc, ys, x, &rows),
+                    2 => group::<Q, 2>(acc, ys, x, &rows),
+                    3 => group::<Q, 3>(acc, ys, x, &rows),
+                    _ => group::<Q, 4>(acc, ys, x, &rows),
+                }
             }
         }
-    }
+        acc.concat()
+    });
+    let acc: Vec<f64> = lanes.iter().map(total).collect();
     let (b, q) = (basis.len(), Q);
     let mut g = vec![0.0; q * q];
     for a in 0..q {
-        g[a * q..=a * q + a].copy_from_slice(&acc[1 + a][..=a]);
+        g[a * q..=a * q + a].copy_from_slice(&acc[(1 + a) * q..=(1 + a) * q + a]);
     }
-    let cb = acc[1 + q..1 + q + b].concat();
-    (g, cb, acc[0].to_vec())
+    let cb = acc[(1 + q) * q..(1 + q + b) * q].to_vec();
+    (g, cb, acc[..q].to_vec())
+}
+
+fn total(l: &Lanes) -> f64 {
+    l[0] + l[1]
 }
 
 /// `K` left-hand columns' sums against the `Q` candidate columns `x` over one block of rows,
-/// added in row order onto `acc`.
+/// each row onto its lane of `acc`.
 fn group<const Q: usize, const K: usize>(
-    acc: &mut [[f64; Q]],
+    acc: &mut [[Lanes; Q]],
     ys: &[&[f64]],
     x: [&[f64]; Q],
     rows: &std::ops::Range<usize>,
 ) {
     let len = rows.len();
     let y: [&[f64]; K] = std::array::from_fn(|j| &ys[j][rows.clone()]);
-    let mut s: [[f64; Q]; K] = std::array::from_fn(|j| acc[j]);
-    for i in 0..len {
-        let xi: [f64; Q] = std::array::from_fn(|a| x[a][i]);
+    let mut s: [[Lanes; Q]; K] = std::array::from_fn(|j| acc[j]);
+    let whole = len / LANES * LANES;
+    for i in (0..whole).step_by(LANES) {
+        let xi: [Lanes; Q] = std::array::from_fn(|a| std::array::from_fn(|l| x[a][i + l]));
         for j in 0..K {
-            let yj = y[j][i];
+            let yj: Lanes = std::array::from_fn(|l| y[j][i + l]);
             for a in 0..Q {
-                s[j][a] += yj * xi[a];
+                for l in 0..LANES {
+                    s[j][a][l] += yj[l] * xi[a][l];
+                }
+            }
+        }
+    }
+    for i in whole..len {
+        for j in 0..K {
+            for a in 0..Q {
+                s[j][a][i - whole] += y[j][i] * x[a][i];
             }
         }
     }
     acc[..K].copy_from_slice(&s);
 }
 
-/// [`sums`] for any number of candidate columns: one loop over the rows.
+/// [`sums`] for any number of candidate columns: one loop over each span's rows, the same lanes.
 fn sums_any(basis: &[Vec<f64>], cols: &[Vec<f64>], r0: &[f64]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let (q, b) = (cols.len(), basis.len());
-    let mut g = vec![0.0; q * q];
-    let mut cb = vec![0.0; b * q];
-    let mut h = vec![0.0; q];
-    for (i, ri) in r0.iter().enumerate() {
-        for a in 0..q {
-            let xa = cols[a][i];
-            h[a] += xa * ri;
-            for a2 in 0..=a {
-                g[a * q + a2] += xa * cols[a2][i];
-            }
-            for k in 0..b {
-                cb[k * q + a] += basis[k][i] * xa;
+    // Per span: XᵀX (q·q), then BᵀX (b·q), then Xᵀr0 (q).
+    let lanes = sum_spans(r0.len(), |span| {
+        let mut acc = vec![[0.0; LANES]; q * q + b * q + q];
+        let (g, rest) = acc.split_at_mut(q * q);
+        let (cb, h) = rest.split_at_mut(b * q);
+        for i in span {
+            let l = i % LANES;
+            for a in 0..q {
+                let xa = cols[a][i];
+                h[a][l] += xa * r0[i];
+                for a2 in 0..=a {
+                    g[a * q + a2][l] += xa * cols[a2][i];
+                }
+                for k in 0..b {
+                    cb[k * q + a][l] += basis[k][i] * xa;
+                }
             }
         }
-    }
-    (g, cb, h)
+        acc
+    });
+    let acc: Vec<f64> = lanes.iter().map(total).collect();
+    let (g, rest) = acc.split_at(q * q);
+    let (cb, h) = rest.split_at(b * q);
+    (g.to_vec(), cb.to_vec(), h.to_vec())
 }
 
 #[cfg(test)]
 mod tests {
     /// The blocked, grouped sums are the one-loop sums bit for bit, for two and four columns and
-    /// basis sizes that leave every group remainder, over a length that is not a whole block.
+    /// basis sizes that leave every group remainder, over two spans and a length that is not a
+    /// whole block.
     #[test]
     fn grouped_sums_are_the_one_loop_sums_bit_for_bit() {
-        let n = 3 * super::BLOCK + 77;
+        let n = super::super::spans::SPAN + 3 * super::BLOCK + 77;
         let col = |w: f64, p: f64| -> Vec<f64> {
             (0..n)
                 .map(|i| (w * i as f64 + p).sin() * (1.0 + 1e-3 * i as f64))

@@ -43,24 +43,49 @@ fn orthonormalize_dots(
                 &out[k - basis.len()]
             }
         };
-        let (n0_sq, mut d) = norm_and_dot(&c, (steps > 0).then(|| along(0)));
+        let long = n >= super::FFT_MIN_N;
+        let (n0_sq, mut d) = if long {
+            long_norm_and_dot(&mut c, (steps > 0).then(|| along(0)))
+        } else {
+            norm_and_dot(&c, (steps > 0).then(|| along(0)))
+        };
         let n0 = n0_sq.sqrt();
         if n0.is_nan() || n0 <= 0.0 {
             continue;
         }
         for j in 1..steps {
-            d = subtract_then_dot(&mut c, -d, along(j - 1), along(j));
+            let (prev, next) = (along(j - 1), along(j));
+            d = if long {
+                lane_sum(&mut c, |i, v| {
+                    *v += -d * prev[i];
+                    next[i] * *v
+                })
+            } else {
+                subtract_then_dot(&mut c, -d, prev, next)
+            };
         }
-        let n1 = if steps > 0 {
-            subtract_then_norm(&mut c, -d, along(steps - 1))
-        } else {
-            n0_sq
+        let n1 = match (steps, long) {
+            (0, _) => n0_sq,
+            (_, true) => {
+                let prev = along(steps - 1);
+                lane_sum(&mut c, |i, v| {
+                    *v += -d * prev[i];
+                    *v * *v
+                })
+            }
+            (_, false) => subtract_then_norm(&mut c, -d, along(steps - 1)),
         }
         .sqrt();
         if n1 < 1e-7 * n0 {
             continue;
         }
         match r0 {
+            Some(r0) if r0.len() == n && long => {
+                dots.push(lane_sum(&mut c, |i, v| {
+                    *v /= n1;
+                    *v * r0[i]
+                }));
+            }
             Some(r0) if r0.len() == n => {
                 dots.push(c.iter_mut().zip(r0).fold(-0.0, |d, (v, r)| {
                     *v /= n1;
@@ -75,6 +100,39 @@ fn orthonormalize_dots(
         out.push(c);
     }
     (out, dots)
+}
+
+/// Partial sums per row of the long-recording passes: row i → lane i mod 4.
+const LANES: usize = 4;
+
+/// Σ_i `row(i, c_i)` (the row updating c_i in place) over the rows of a long recording: four
+/// partial sums by row per span, the spans in parallel and added in order
+/// ([`super::spans::sum_spans_mut`]), so the same bits with any number of threads. One running
+/// sum per pass waited on the adder at every row, on one core (orthonormalising a 10⁶-row
+/// basis held the other core idle); these sums differ from it by rounding.
+fn lane_sum(c: &mut [f64], row: impl Fn(usize, &mut f64) -> f64 + Sync) -> f64 {
+    let lanes = super::spans::sum_spans_mut(c, |start, part| {
+        let mut l = [0.0; LANES];
+        let whole = part.len() / LANES * LANES;
+        let mut quads = part.chunks_exact_mut(LANES);
+        for (q, quad) in quads.by_ref().enumerate() {
+            for (k, v) in quad.iter_mut().enumerate() {
+                l[k] += row(start + q * LANES + k, v);
+            }
+        }
+        for (k, v) in quads.into_remainder().iter_mut().enumerate() {
+            l[k] += row(start + whole + k, v);
+        }
+        vec![l]
+    });
+    let l = lanes[0];
+    (l[0] + l[1]) + (l[2] + l[3])
+}
+
+/// [`norm_and_dot`] of a long recording, as [`lane_sum`]s (`c` is not changed).
+fn long_norm_and_dot(c: &mut [f64], b: Option<&[f64]>) -> (f64, f64) {
+    let norm = lane_sum(c, |_, v| *v * *v);
+    (norm, b.map_or(-0.0, |b| lane_sum(c, |i, v| b[i] * *v)))
 }
 
 /// (Σ c², Σ b·c) in one pass; the second is −0 (an empty sum) without `b`. Sums start at −0,
@@ -172,5 +230,52 @@ mod tests {
                 assert_eq!(g.to_bits(), super::super::gain(&want, &r0).to_bits());
             }
         }
+    }
+
+    /// From `FFT_MIN_N` rows the passes' sums are four partial sums per span: the columns are
+    /// the two-pass ones to rounding (same columns kept), and the same bits on one thread and
+    /// on several.
+    #[test]
+    fn long_recordings_orthonormalise_as_the_two_pass_one_on_any_number_of_threads() {
+        let n = super::super::FFT_MIN_N + 77;
+        let col = |w: f64, p: f64| -> Vec<f64> {
+            (0..n)
+                .map(|i| (w * i as f64 + p).sin() + 1e-6 * i as f64)
+                .collect()
+        };
+        let basis = two_pass(&[], vec![vec![1.0; n], col(1e-5, 0.2)], 2);
+        let cols = vec![col(0.05, 0.0), vec![3.0; n], col(0.3, 0.5)];
+        let r0 = col(0.05, 0.3);
+        let want = two_pass(&basis, cols.clone(), 2);
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("a thread pool")
+                .install(|| {
+                    (
+                        super::orthonormalize(&basis, cols.clone(), 2),
+                        super::orthonormalize_gain(&basis, cols.clone(), &r0),
+                    )
+                })
+        };
+        let (one, (one_u, one_g)) = run(1);
+        assert_eq!(one.len(), want.len(), "the constant column is dropped");
+        for (a, b) in one.iter().zip(&want) {
+            let err = a
+                .iter()
+                .zip(b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f64::max);
+            assert!(err < 1e-12, "{err}");
+        }
+        let g = super::super::gain(&two_pass(&basis, cols.clone(), 1), &r0);
+        assert!((one_g - g).abs() <= 1e-9 * g, "{one_g} vs {g}");
+        let (four, (four_u, four_g)) = run(4);
+        let bits =
+            |u: &[Vec<f64>]| -> Vec<u64> { u.concat().iter().map(|v| v.to_bits()).collect() };
+        assert_eq!(bits(&one), bits(&four));
+        assert_eq!(bits(&one_u), bits(&four_u));
+        assert_eq!(one_g.to_bits(), four_g.to_bits());
     }
 }
