@@ -189,7 +189,7 @@ fn gram(
     gram_by(cols.len(), rows, |a, i| cols[a][i], |i| r[i])
 }
 
-/// [`gram`] of columns read through `x(a, i)` (column `a`, row `i`) and target `y(i)`, so a
+/// [`fn@gram`] of columns read through `x(a, i)` (column `a`, row `i`) and target `y(i)`, so a
 /// transformed column (demeaned within cells) need not be stored: the same sums in the same order.
 fn gram_by(
     p: usize,

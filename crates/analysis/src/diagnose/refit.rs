@@ -127,7 +127,7 @@ pub(super) type Refit = (
 /// others held), then give each term its model and 95 % intervals: linear gains from the covariance
 /// (inflated for correlated residuals), nonlinear ones by profile likelihood (n_eff·ln RSS ratio ≤ 3.84).
 /// Also returns the coefficients of the cumulative fits (terms fitted jointly up to each one) and
-/// the terms at their refitted parameters, from which [`SignalResult::residual_after`] recomputes
+/// the terms at their refitted parameters, from which [`super::SignalResult::residual_after`] recomputes
 /// the cumulative residuals.
 pub(super) fn joint_refit(ctx: &Context, r: &[f64], terms: &[Term]) -> Refit {
     let ones = vec![1.0; r.len()];

@@ -410,7 +410,7 @@ impl<'a> Rewriter<'a> {
         Ok(non_motion)
     }
 
-    /// G10 L2 P<n> X Y Z: sets work offset n (P0 = the current one) to the given values.
+    /// `G10 L2 P<n> X Y Z`: sets work offset n (P0 = the current one) to the given values.
     fn g10(&mut self, b: &Block) -> Result<(), RewriteError> {
         let line = b.line;
         let refuse = |why: &str| RewriteError::Refused {

@@ -57,7 +57,7 @@ fn each_block_gram(
 }
 
 /// The Gram matrix and right-hand side of each block in `blocks` (rows of other blocks
-/// skipped), each sum in row order, as [`gram`] sums them.
+/// skipped), each sum in row order, as [`fn@gram`] sums them.
 fn block_grams(
     cols: &[&[f64]],
     r: &[f64],

@@ -1,4 +1,4 @@
-//! Row sums of the long-recording kernels ([`super::gram`], [`super::cgs`]) over fixed spans of
+//! Row sums of the long-recording kernels ([`mod@super::gram`], [`super::cgs`]) over fixed spans of
 //! rows run in parallel (rayon). A span's sums are kept as partial sums by row (lanes); the spans'
 //! lanes are added in span order, so every sum is the same bits with any number of threads. These
 //! kernels are called one candidate or one parameter at a time where little else runs beside them

@@ -5,7 +5,7 @@
 
 use super::super::lsq;
 
-/// The error model of one selection step's prewhitened test ([`prewhitened_test`]), chosen once
+/// The error model of one selection step's prewhitened test ([`super::prewhitened_test`]), chosen once
 /// per step (not per candidate: a candidate that happens to absorb the shape of a random walk
 /// leaves a residual that looks stationary, and letting each candidate pick its own noise model
 /// let the best such absorber through).
