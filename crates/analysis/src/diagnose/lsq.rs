@@ -35,8 +35,27 @@ pub fn gain(u: &[Vec<f64>], r0: &[f64]) -> f64 {
 /// subtraction cannot resolve less), so it is used only for candidates that are never nearly in
 /// the span of the basis (cyclic sin/cos pairs). Returns the drop and the number of columns kept.
 pub fn gram_gain(basis: &[Vec<f64>], cols: &[Vec<f64>], r0: &[f64]) -> (f64, usize) {
-    let (q, b) = (cols.len(), basis.len());
-    let (g, cb, h) = gram::sums(basis, cols, r0);
+    gain_of_sums(cols.len(), basis.len(), gram::sums(basis, cols, r0))
+}
+
+/// [`gram_gain`] of `periods` sin/cos pairs written block by block by `fill(rows, cols)` (each
+/// pair's two columns over `rows`, from 0 in `cols[p]`): the same gains, bit for bit, with r0
+/// and the basis read once for all the pairs (`gram::pair_sums_sweep`).
+pub fn gram_gains_sweep(
+    basis: &[Vec<f64>],
+    r0: &[f64],
+    periods: usize,
+    fill: impl FnMut(std::ops::Range<usize>, &mut [[Vec<f64>; 2]]),
+) -> Vec<(f64, usize)> {
+    gram::pair_sums_sweep(basis, r0, periods, fill)
+        .into_iter()
+        .map(|sums| gain_of_sums(2, basis.len(), sums))
+        .collect()
+}
+
+/// The gain and columns kept of [`gram_gain`] from its sums (XᵀX, BᵀX, Xᵀr0; q columns, b basis
+/// columns).
+fn gain_of_sums(q: usize, b: usize, (g, cb, h): (Vec<f64>, Vec<f64>, Vec<f64>)) -> (f64, usize) {
     // M = XᵀX − CᵀC (lower triangle), then Cholesky with dropping; y = L⁻¹h, gain = ‖y‖².
     let mut m = vec![0.0; q * q];
     for a in 0..q {

@@ -113,15 +113,8 @@ pub(super) fn score_cols(
     }
     // Long recordings: a cyclic sin/cos pair (never nearly inside the basis' span) is scored from
     // dot products, without orthonormalised copies (most of a 1M-row diagnosis' screening).
-    if nl.cells.is_none() && c.is_cyclic() && r0.len() >= lsq::FFT_MIN_N {
-        let (g, q) = lsq::gram_gain(basis, &cols, r0);
-        let scored = (q > 0).then(|| {
-            (
-                g.min(rss0 * (1.0 - 1e-12)),
-                q + usize::from(c.is_nonlinear()),
-            )
-        });
-        return (scored, cols);
+    if pair_by_sums(c, nl) {
+        return (pair_scored(c, nl, lsq::gram_gain(basis, &cols, r0)), cols);
     }
     // Long recordings: every other candidate (thermal lags at each τ of their grid, most of the
     // rest of the screening) without orthonormalised copies either (`lsq::projected_gain`).
@@ -141,6 +134,26 @@ pub(super) fn score_cols(
     }
     let g = g.min(rss0 * (1.0 - 1e-12));
     (Some((g, u.len() + usize::from(c.is_nonlinear()))), u)
+}
+
+/// Whether a cyclic pair is scored from its sums (`lsq::gram_gain`) under `nl`: on long
+/// recordings, without cell means.
+pub(super) fn pair_by_sums(c: &Candidate, nl: &Null<'_>) -> bool {
+    nl.cells.is_none() && c.is_cyclic() && nl.r0.len() >= lsq::FFT_MIN_N
+}
+
+/// A cyclic pair's score from its [`lsq::gram_gain`] (gain, columns kept) under `nl`.
+pub(super) fn pair_scored(
+    c: &Candidate,
+    nl: &Null<'_>,
+    (g, q): (f64, usize),
+) -> Option<(f64, usize)> {
+    (q > 0).then(|| {
+        (
+            g.min(nl.rss0 * (1.0 - 1e-12)),
+            q + usize::from(c.is_nonlinear()),
+        )
+    })
 }
 
 /// The part of `r0` a candidate explains (for collinearity between candidates).

@@ -6,6 +6,7 @@
 use std::f64::consts::TAU;
 
 use super::super::features::{AxisFeatures, Context};
+use super::super::lsq;
 use super::{Candidate, Kind};
 
 impl Candidate {
@@ -67,6 +68,50 @@ impl Candidate {
             })
             .collect();
         chunks.into_iter().flatten().collect()
+    }
+
+    /// [`lsq::gram_gain`] of this cyclic pair at every θ of `thetas` against `basis` and `r0`,
+    /// the same bits as [`Candidate::par_sweep_map`] with `gram_gain` on each θ's columns, when
+    /// the grid is uniform in frequency (else `None`): each chunk's phasors are rotated per row
+    /// (a row's value is its distinct position's, by the same arithmetic) block by block, every
+    /// period of the chunk at once, so the columns never leave cache and r0 and the basis are
+    /// read once per chunk instead of once per period.
+    pub fn par_sweep_gram_gains(
+        &self,
+        ctx: &Context,
+        thetas: &[f64],
+        basis: &[Vec<f64>],
+        r0: &[f64],
+    ) -> Option<Vec<(f64, usize)>> {
+        use rayon::prelude::*;
+        if self.kind != Kind::Cyclic {
+            return None;
+        }
+        let rot = self.rotation(ctx, thetas)?;
+        let fa = ctx.axis(self.axis)?;
+        let starts: Vec<usize> = (0..thetas.len()).step_by(SWEEP_CHUNK).collect();
+        let chunks: Vec<Vec<(f64, usize)>> = starts
+            .par_iter()
+            .map(|&s| {
+                let periods = SWEEP_CHUNK.min(thetas.len() - s);
+                let (sv, cv) = exact_phasors(fa, rot.w[s]);
+                lsq::gram_gains_sweep(basis, r0, periods, |rows, cols| {
+                    for (o, i) in rows.enumerate() {
+                        let k = fa.distinct_idx[i] as usize;
+                        let (rs, rc) = (rot.rs[k], rot.rc[k]);
+                        let (mut s0, mut c0) = (sv[k], cv[k]);
+                        for (p, pair) in cols.iter_mut().enumerate() {
+                            if p > 0 {
+                                (s0, c0) = (s0 * rc + c0 * rs, c0 * rc - s0 * rs);
+                            }
+                            pair[0][o] = s0;
+                            pair[1][o] = c0;
+                        }
+                    }
+                })
+            })
+            .collect();
+        Some(chunks.into_iter().flatten().collect())
     }
 
     /// The phasor rotation of a cyclic candidate's sweep over `thetas` when they are uniform in
@@ -302,6 +347,55 @@ mod tests {
                 .map(|&th| (th.to_bits(), bits(&c.columns(&ctx, th))))
                 .collect();
             assert_ne!(fresh, one_sweep, "{}", c.label());
+        }
+    }
+
+    /// The pair sweep's gains are `gram_gain` on each period's swept columns, bit for bit, on one
+    /// thread and on three, over two spans of rows and blocks that do not divide them; only the
+    /// fundamental is swept so.
+    #[test]
+    fn the_pair_sweep_gains_are_each_periods_gains_bit_for_bit() {
+        use super::super::super::lsq;
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let n = 70_001;
+        let x: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..900.0)).collect();
+        let r: Vec<f64> = x
+            .iter()
+            .map(|p| (p / 7.3).sin() + rng.random_range(-0.5..0.5))
+            .collect();
+        let ramp: Vec<f64> = (0..n).map(|i| i as f64 / n as f64).collect();
+        let rec = Recording::from_columns(vec![
+            ("t_s".into(), (0..n).map(|i| i as f64).collect()),
+            ("x_mm".into(), x),
+            ("ex_um".into(), vec![0.0; n]),
+        ])
+        .unwrap();
+        let ctx = Context::from_recording(&rec);
+        let basis = lsq::orthonormalize(&[], vec![vec![1.0; n], ramp], 2);
+        let r0 = lsq::deflate(&basis, &r);
+        for c in library(&ctx, 'x').iter().filter(|c| c.is_cyclic()) {
+            let thetas = &c.grid[..(3 * SWEEP_CHUNK + 5).min(c.grid.len())];
+            if c.kind != super::Kind::Cyclic {
+                assert!(c.par_sweep_gram_gains(&ctx, thetas, &basis, &r0).is_none());
+                continue;
+            }
+            assert!(thetas.len() > 2 * SWEEP_CHUNK);
+            let key = |v: Vec<(f64, usize)>| -> Vec<(u64, usize)> {
+                v.into_iter().map(|(g, q)| (g.to_bits(), q)).collect()
+            };
+            let want = key(c.par_sweep_map(&ctx, thetas, |_, cols| {
+                (lsq::gram_gain(&basis, &cols, &r0), cols)
+            }));
+            assert!(want.iter().all(|&(_, q)| q == 2));
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let got = pool.install(|| c.par_sweep_gram_gains(&ctx, thetas, &basis, &r0));
+                assert_eq!(key(got.expect("a uniform grid")), want, "on {threads}");
+            }
         }
     }
 }

@@ -52,22 +52,41 @@ fn sums_q<const Q: usize, const G: usize>(
     // Per span: the lanes of every (y, a) sum, y-major.
     let lanes = sum_spans(n, |span| {
         let mut acc = vec![[[0.0; LANES]; Q]; ys.len()];
+        let mut yb: Vec<&[f64]> = Vec::with_capacity(ys.len());
         for start in span.clone().step_by(BLOCK) {
             let rows = start..(start + BLOCK).min(span.end);
             let x: [&[f64]; Q] = std::array::from_fn(|a| &xs[a][rows.clone()]);
-            for (acc, ys) in acc.chunks_mut(G).zip(ys.chunks(G)) {
-                match ys.len() {
-                    1 => group::<Q, 1>(acc, ys, x, &rows),
-                    2 => group::<Q, 2>(acc, ys, x, &rows),
-                    3 => group::<Q, 3>(acc, ys, x, &rows),
-                    _ => group::<Q, 4>(acc, ys, x, &rows),
-                }
-            }
+            yb.clear();
+            yb.extend(ys.iter().map(|y| &y[rows.clone()]));
+            block_sums::<Q, G>(&mut acc, &yb, x);
         }
         acc.concat()
     });
+    assemble::<Q>(&lanes, basis.len())
+}
+
+/// One block's sums of every left-hand column `ys` (sliced to the block) against `x`, `G` at a
+/// time, onto `acc` (one entry per left-hand column).
+fn block_sums<const Q: usize, const G: usize>(
+    acc: &mut [[Lanes; Q]],
+    ys: &[&[f64]],
+    x: [&[f64]; Q],
+) {
+    for (acc, ys) in acc.chunks_mut(G).zip(ys.chunks(G)) {
+        match ys.len() {
+            1 => group::<Q, 1>(acc, ys, x),
+            2 => group::<Q, 2>(acc, ys, x),
+            3 => group::<Q, 3>(acc, ys, x),
+            _ => group::<Q, 4>(acc, ys, x),
+        }
+    }
+}
+
+/// XᵀX (lower triangle), BᵀX and Xᵀr0 from the lanes of every (y, a) sum, y-major (y: r0, the
+/// `Q` columns, the `b` basis columns).
+fn assemble<const Q: usize>(lanes: &[Lanes], b: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let acc: Vec<f64> = lanes.iter().map(total).collect();
-    let (b, q) = (basis.len(), Q);
+    let q = Q;
     let mut g = vec![0.0; q * q];
     for a in 0..q {
         g[a * q..=a * q + a].copy_from_slice(&acc[(1 + a) * q..=(1 + a) * q + a]);
@@ -76,20 +95,76 @@ fn sums_q<const Q: usize, const G: usize>(
     (g, cb, acc[..q].to_vec())
 }
 
+/// Rows per block of [`pair_sums_sweep`]: every period's two columns of a block (32 periods:
+/// 256 KB) and the block of r0 and the basis stay in cache. Blocks do not change the sums' bits
+/// (only the spans do).
+const SWEEP_BLOCK: usize = 512;
+
+/// [`sums`] of `periods` sin/cos pairs at once, the same bits as one call per pair: `fill(rows,
+/// cols)` writes each pair's two columns over `rows` (from 0 in `cols[p]`), block by block, so
+/// the pairs are never stored whole and r0 and the basis are read once for all of them (one
+/// call per pair read them once per pair: the cyclic screening of a 10⁶-row recording was
+/// bound by that). The spans run in turn here (the caller runs sweeps side by side) and are
+/// added in span order as [`sum_spans`] adds them.
+pub(super) fn pair_sums_sweep(
+    basis: &[Vec<f64>],
+    r0: &[f64],
+    periods: usize,
+    mut fill: impl FnMut(std::ops::Range<usize>, &mut [[Vec<f64>; 2]]),
+) -> Vec<(Vec<f64>, Vec<f64>, Vec<f64>)> {
+    const Q: usize = 2;
+    let n = r0.len();
+    let ny = 1 + Q + basis.len();
+    let mut cols: Vec<[Vec<f64>; 2]> = (0..periods)
+        .map(|_| [vec![0.0; SWEEP_BLOCK], vec![0.0; SWEEP_BLOCK]])
+        .collect();
+    let mut totals: Vec<Vec<[Lanes; Q]>> = vec![];
+    for span_start in (0..n.max(1)).step_by(super::spans::SPAN) {
+        let span = span_start..(span_start + super::spans::SPAN).min(n);
+        let mut acc = vec![vec![[[0.0; LANES]; Q]; ny]; periods];
+        for start in span.clone().step_by(SWEEP_BLOCK) {
+            let rows = start..(start + SWEEP_BLOCK).min(span.end);
+            let len = rows.len();
+            fill(rows.clone(), &mut cols);
+            let mut yb: Vec<&[f64]> = Vec::with_capacity(ny);
+            for (acc, pair) in acc.iter_mut().zip(&cols) {
+                let x: [&[f64]; Q] = [&pair[0][..len], &pair[1][..len]];
+                yb.clear();
+                yb.push(&r0[rows.clone()]);
+                yb.extend(x);
+                yb.extend(basis.iter().map(|b| &b[rows.clone()]));
+                block_sums::<Q, 4>(acc, &yb, x);
+            }
+        }
+        if totals.is_empty() {
+            totals = acc;
+        } else {
+            for (t, a) in totals.iter_mut().zip(acc) {
+                for (t, a) in t.iter_mut().zip(a) {
+                    for q in 0..Q {
+                        for l in 0..LANES {
+                            t[q][l] += a[q][l];
+                        }
+                    }
+                }
+            }
+        }
+    }
+    totals
+        .iter()
+        .map(|t| assemble::<Q>(&t.concat(), basis.len()))
+        .collect()
+}
+
 fn total(l: &Lanes) -> f64 {
     l[0] + l[1]
 }
 
 /// `K` left-hand columns' sums against the `Q` candidate columns `x` over one block of rows,
 /// each row onto its lane of `acc`.
-fn group<const Q: usize, const K: usize>(
-    acc: &mut [[Lanes; Q]],
-    ys: &[&[f64]],
-    x: [&[f64]; Q],
-    rows: &std::ops::Range<usize>,
-) {
-    let len = rows.len();
-    let y: [&[f64]; K] = std::array::from_fn(|j| &ys[j][rows.clone()]);
+fn group<const Q: usize, const K: usize>(acc: &mut [[Lanes; Q]], ys: &[&[f64]], x: [&[f64]; Q]) {
+    let len = x[0].len();
+    let y: [&[f64]; K] = std::array::from_fn(|j| &ys[j][..len]);
     let mut s: [[Lanes; Q]; K] = std::array::from_fn(|j| acc[j]);
     let whole = len / LANES * LANES;
     for i in (0..whole).step_by(LANES) {

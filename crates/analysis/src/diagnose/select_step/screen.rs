@@ -6,7 +6,7 @@
 //! columns was two thirds of a 1M-row diagnosis' screening. Periods mm.
 
 use super::super::candidates::{Candidate, Kind};
-use super::super::null_model::{score_cols, within_cells};
+use super::super::null_model::{pair_by_sums, pair_scored, score_cols, within_cells};
 use super::{Nulls, Scored, Selector};
 
 /// Fundamental peaks whose neighbourhoods (and their doubled periods) the harmonic form is
@@ -79,7 +79,15 @@ impl Selector<'_> {
             }
             let nl = nulls.of(blocked);
             let mut best: Option<Scored> = None;
-            let scores = c.par_sweep_map(self.ctx, thetas, |_, cols| score_cols(c, cols, nl));
+            // A cyclic pair on a long recording: every period of a chunk in one pass over the
+            // rows (the same bits as one period at a time).
+            let swept = pair_by_sums(c, nl)
+                .then(|| c.par_sweep_gram_gains(self.ctx, thetas, &nl.basis, &nl.r0))
+                .flatten();
+            let scores = match swept {
+                Some(gains) => gains.into_iter().map(|gq| pair_scored(c, nl, gq)).collect(),
+                None => c.par_sweep_map(self.ctx, thetas, |_, cols| score_cols(c, cols, nl)),
+            };
             for (&th, scored) in thetas.iter().zip(scores) {
                 if !blocked && let Some(curve) = curve.as_mut() {
                     curve.push(scored.map_or(f64::NEG_INFINITY, |s| s.0));
