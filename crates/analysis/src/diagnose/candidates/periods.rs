@@ -292,6 +292,18 @@ mod tests {
     use super::{Context, SWEEP_CHUNK};
     use retrocomp_model::recording::Recording;
 
+    /// The context of a recording read at positions `x` (mm), one row per second.
+    fn context_of(x: Vec<f64>) -> Context {
+        let n = x.len();
+        let rec = Recording::from_columns(vec![
+            ("t_s".into(), (0..n).map(|i| i as f64).collect()),
+            ("x_mm".into(), x),
+            ("ex_um".into(), vec![0.0; n]),
+        ])
+        .unwrap();
+        Context::from_recording(&rec)
+    }
+
     /// Every column's bits at one θ, folded (order-sensitive) into one word.
     fn bits(cols: &[Vec<f64>]) -> u64 {
         cols.iter()
@@ -308,13 +320,7 @@ mod tests {
         let n = 3000;
         // Uneven targets over 900 mm: a period grid of several hundred periods.
         let x: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..900.0)).collect();
-        let rec = Recording::from_columns(vec![
-            ("t_s".into(), (0..n).map(|i| i as f64).collect()),
-            ("x_mm".into(), x),
-            ("ex_um".into(), vec![0.0; n]),
-        ])
-        .unwrap();
-        let ctx = Context::from_recording(&rec);
+        let ctx = context_of(x);
         let cyclic: Vec<Candidate> = library(&ctx, 'x')
             .into_iter()
             .filter(Candidate::is_cyclic)
@@ -365,13 +371,7 @@ mod tests {
             .map(|p| (p / 7.3).sin() + rng.random_range(-0.5..0.5))
             .collect();
         let ramp: Vec<f64> = (0..n).map(|i| i as f64 / n as f64).collect();
-        let rec = Recording::from_columns(vec![
-            ("t_s".into(), (0..n).map(|i| i as f64).collect()),
-            ("x_mm".into(), x),
-            ("ex_um".into(), vec![0.0; n]),
-        ])
-        .unwrap();
-        let ctx = Context::from_recording(&rec);
+        let ctx = context_of(x);
         let basis = lsq::orthonormalize(&[], vec![vec![1.0; n], ramp], 2);
         let r0 = lsq::deflate(&basis, &r);
         for c in library(&ctx, 'x').iter().filter(|c| c.is_cyclic()) {
