@@ -6,7 +6,7 @@
 //! every sum through the heap was most of a 10⁶-row diagnosis' screening), over blocks of rows
 //! that stay in cache while each group of left-hand columns is run over them.
 
-use super::spans::sum_spans;
+use super::spans::{sum_spans, sum_spans_in_turn};
 
 /// Rows per block: the candidate's columns of one block stay in cache while every group of
 /// left-hand columns (r0, X, B) is run over them. Even, so a block starts on lane 0; a divisor of
@@ -104,8 +104,8 @@ const SWEEP_BLOCK: usize = 512;
 /// cols)` writes each pair's two columns over `rows` (from 0 in `cols[p]`), block by block, so
 /// the pairs are never stored whole and r0 and the basis are read once for all of them (one
 /// call per pair read them once per pair: the cyclic screening of a 10⁶-row recording was
-/// bound by that). The spans run in turn here (the caller runs sweeps side by side) and are
-/// added in span order as [`sum_spans`] adds them.
+/// bound by that). The spans run in turn ([`sum_spans_in_turn`]: `fill` carries its phasors from
+/// block to block, and the caller runs sweeps side by side).
 pub(super) fn pair_sums_sweep(
     basis: &[Vec<f64>],
     r0: &[f64],
@@ -118,9 +118,8 @@ pub(super) fn pair_sums_sweep(
     let mut cols: Vec<[Vec<f64>; 2]> = (0..periods)
         .map(|_| [vec![0.0; SWEEP_BLOCK], vec![0.0; SWEEP_BLOCK]])
         .collect();
-    let mut totals: Vec<Vec<[Lanes; Q]>> = vec![];
-    for span_start in (0..n.max(1)).step_by(super::spans::SPAN) {
-        let span = span_start..(span_start + super::spans::SPAN).min(n);
+    // Per span: the lanes of every (period, y, a) sum, period-major, then y-major.
+    let lanes = sum_spans_in_turn(n, |span| {
         let mut acc = vec![vec![[[0.0; LANES]; Q]; ny]; periods];
         for start in span.clone().step_by(SWEEP_BLOCK) {
             let rows = start..(start + SWEEP_BLOCK).min(span.end);
@@ -136,23 +135,11 @@ pub(super) fn pair_sums_sweep(
                 block_sums::<Q, 4>(acc, &yb, x);
             }
         }
-        if totals.is_empty() {
-            totals = acc;
-        } else {
-            for (t, a) in totals.iter_mut().zip(acc) {
-                for (t, a) in t.iter_mut().zip(a) {
-                    for q in 0..Q {
-                        for l in 0..LANES {
-                            t[q][l] += a[q][l];
-                        }
-                    }
-                }
-            }
-        }
-    }
-    totals
-        .iter()
-        .map(|t| assemble::<Q>(&t.concat(), basis.len()))
+        acc.concat().concat()
+    });
+    lanes
+        .chunks(ny * Q)
+        .map(|l| assemble::<Q>(l, basis.len()))
         .collect()
 }
 

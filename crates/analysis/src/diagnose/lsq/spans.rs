@@ -44,6 +44,21 @@ pub(super) fn sum_spans_mut<const L: usize>(
     )
 }
 
+/// [`sum_spans`] with the spans run one after another on the calling thread, for an `f` that
+/// carries state from span to span (a phasor rotated row by row); the same bits. Its callers run
+/// several such sums side by side themselves.
+pub(super) fn sum_spans_in_turn<const L: usize>(
+    n: usize,
+    mut f: impl FnMut(Range<usize>) -> Vec<[f64; L]>,
+) -> Vec<[f64; L]> {
+    add_in_order(
+        (0..n.max(1))
+            .step_by(SPAN)
+            .map(|s| f(s..(s + SPAN).min(n)))
+            .collect(),
+    )
+}
+
 /// The spans' lanes added lane by lane, in span order.
 fn add_in_order<const L: usize>(parts: Vec<Vec<[f64; L]>>) -> Vec<[f64; L]> {
     let mut parts = parts.into_iter();
@@ -60,7 +75,7 @@ fn add_in_order<const L: usize>(parts: Vec<Vec<[f64; L]>>) -> Vec<[f64; L]> {
 
 #[cfg(test)]
 mod tests {
-    use super::{SPAN, sum_spans, sum_spans_mut};
+    use super::{SPAN, sum_spans, sum_spans_in_turn, sum_spans_mut};
 
     fn pool(threads: usize) -> rayon::ThreadPool {
         rayon::ThreadPoolBuilder::new()
@@ -109,12 +124,25 @@ mod tests {
                 })
             });
             assert_eq!(got_mut[0].map(f64::to_bits), want.map(f64::to_bits));
+            let mut spans_seen = 0;
+            let in_turn = pool(threads).install(|| {
+                sum_spans_in_turn(n, |rows| {
+                    assert_eq!(rows.start, spans_seen * SPAN, "spans in row order");
+                    spans_seen += 1;
+                    per_span(rows)
+                })
+            });
+            assert_eq!(in_turn[0].map(f64::to_bits), want.map(f64::to_bits));
             assert!(
                 c.iter().zip(&x).all(|(a, b)| *a == -*b),
                 "every row updated once"
             );
         }
         assert_eq!(sum_spans(0, |r| vec![[r.len() as f64; 2]]), vec![[0.0; 2]]);
+        assert_eq!(
+            sum_spans_in_turn(0, |r| vec![[r.len() as f64; 2]]),
+            vec![[0.0; 2]]
+        );
         assert_eq!(
             sum_spans_mut(&mut [], |_, p| vec![[p.len() as f64; 2]]),
             vec![[0.0; 2]]
