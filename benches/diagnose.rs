@@ -1,11 +1,14 @@
 //! Speed of `retrocomp diagnose` (issue 7 item 7, issue 39 point 3): 100 000 samples × 20 context
 //! channels on rayon's pool (every core; `RAYON_NUM_THREADS=1` for one). Targets ≤ 10 s per
-//! diagnosis on one core, ≤ 2 s on two. Figures: docs/performance.md, docs/diagnose-results.md.
-//! Run: `cargo bench -p retrocomp --bench diagnose`.
+//! diagnosis on one core, ≤ 2 s on two. Beside it, one call of `effective_n` (the long-run
+//! variance every test and criterion of a diagnosis divides by; one FFT pair per call) on a
+//! residual as long as the 10⁶-row recording of `hil-sim/examples/mill-1m.toml`. Figures:
+//! docs/performance.md, docs/diagnose-results.md. Run: `cargo bench -p retrocomp --bench diagnose`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use rand::{Rng, SeedableRng};
 use retrocomp_analysis::diagnose::features::lowpass;
+use retrocomp_analysis::diagnose::lsq::effective_n;
 use retrocomp_analysis::diagnose::{diagnose, select::Options};
 use retrocomp_model::recording::Recording;
 
@@ -112,5 +115,31 @@ fn bench(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench);
+/// Rows of the mill-1m recording (`hil-sim/examples/mill-1m.toml`).
+const MILL_1M_ROWS: usize = 1_035_560;
+
+/// `effective_n` of an AR(1) (ρ 0.95) plus white residual of [`MILL_1M_ROWS`] rows.
+fn bench_effective_n(c: &mut Criterion) {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let mut ar = 0.0;
+    let r: Vec<f64> = (0..MILL_1M_ROWS)
+        .map(|_| {
+            ar = 0.95 * ar + rng.random_range(-1.0..1.0);
+            ar + rng.random_range(-1.0..1.0)
+        })
+        .collect();
+    let mut g = c.benchmark_group("diagnose");
+    g.sample_size(20);
+    g.bench_function("effective_n_1035560_rows", |b| {
+        b.iter(|| {
+            let n_eff = effective_n(std::hint::black_box(&r));
+            // The AR(1) part makes neighbouring rows share most of their information.
+            assert!(n_eff > 0.0 && n_eff < 0.5 * MILL_1M_ROWS as f64, "{n_eff}");
+            n_eff
+        });
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench, bench_effective_n);
 criterion_main!(benches);
