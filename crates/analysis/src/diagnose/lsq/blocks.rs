@@ -7,7 +7,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{add_row_lower, gram, mirror_lower, pinv_solve};
+use super::{RowSums, gram, pinv_solve};
 
 /// Held-out RSS: for each block, fit on the other blocks and predict this one. The whole
 /// record's sums and each half of the blocks' sums are independent passes over the rows, run
@@ -65,20 +65,13 @@ fn block_grams(
     blocks: std::ops::Range<usize>,
 ) -> Vec<(DMatrix<f64>, DVector<f64>)> {
     let p = cols.len();
-    let mut per: Vec<(DMatrix<f64>, DVector<f64>)> = blocks
-        .clone()
-        .map(|_| (DMatrix::zeros(p, p), DVector::zeros(p)))
-        .collect();
+    let mut per: Vec<RowSums> = blocks.clone().map(|_| RowSums::new(p)).collect();
     for (i, &k) in block.iter().enumerate().take(r.len()) {
         if blocks.contains(&k) {
-            let (gb, hb) = &mut per[k - blocks.start];
-            add_row_lower(gb, hb, |a| cols[a][i], r[i]);
+            per[k - blocks.start].add_row(|a| cols[a][i], r[i]);
         }
     }
-    for (gb, _) in &mut per {
-        mirror_lower(gb);
-    }
-    per
+    per.into_iter().map(RowSums::into_gram).collect()
 }
 
 /// Forward (rolling-origin) validation over time-ordered blocks 0..n_blocks: block k is predicted

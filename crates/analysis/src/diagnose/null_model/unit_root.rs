@@ -3,7 +3,7 @@
 //! (augmented Dickey–Fuller τ against MacKinnon's 1 % critical values). Residuals µm; τ, ρ and θ
 //! are dimensionless.
 
-use super::super::lsq;
+use super::super::lsq::{self, RowSums};
 
 /// The error model of one selection step's prewhitened test ([`super::prewhitened_test`]), chosen once
 /// per step (not per candidate: a candidate that happens to absorb the shape of a random walk
@@ -140,27 +140,21 @@ pub(in crate::diagnose) fn adf_tau(y: &[f64], p: usize) -> f64 {
     }
     let k = p + 2;
     let mean = y.iter().sum::<f64>() / n as f64;
-    let mut xtx = nalgebra::DMatrix::<f64>::zeros(k, k);
-    let mut xty = nalgebra::DVector::<f64>::zeros(k);
+    let mut sums = RowSums::new(k);
     let mut yty = 0.0;
     // Row t: [1, y_{t−1} − ȳ, Δy_{t−1}, …, Δy_{t−p}], response Δy_t.
-    let mut x = vec![0.0; k];
     for t in p + 1..n {
+        let x = sums.row_mut();
         x[0] = 1.0;
         x[1] = y[t - 1] - mean;
         for j in 1..=p {
             x[1 + j] = y[t - j] - y[t - j - 1];
         }
         let dy = y[t] - y[t - 1];
-        for a in 0..k {
-            xty[a] += x[a] * dy;
-            for b in 0..=a {
-                xtx[(a, b)] += x[a] * x[b];
-            }
-        }
+        sums.add_values(dy);
         yty += dy * dy;
     }
-    xtx.fill_upper_triangle_with_lower_triangle();
+    let (xtx, xty) = sums.into_gram();
     let Some(chol) = xtx.cholesky() else {
         return f64::INFINITY;
     };
