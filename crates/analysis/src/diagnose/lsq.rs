@@ -53,6 +53,21 @@ pub fn gram_gains_sweep(
         .collect()
 }
 
+/// [`gram_gain`] of one sin/cos pair whose row i is `phasors[·][idx[i]]` (one value per distinct
+/// position), the same bits, without the pair's two whole columns (`gram::pair_sums_gathered`).
+pub fn gram_gain_gathered(
+    basis: &[Vec<f64>],
+    r0: &[f64],
+    phasors: [&[f64]; 2],
+    idx: &[u32],
+) -> (f64, usize) {
+    gain_of_sums(
+        2,
+        basis.len(),
+        gram::pair_sums_gathered(basis, r0, phasors, idx),
+    )
+}
+
 /// The gain and columns kept of [`gram_gain`] from its sums (XᵀX, BᵀX, Xᵀr0; q columns, b basis
 /// columns).
 fn gain_of_sums(q: usize, b: usize, (g, cb, h): (Vec<f64>, Vec<f64>, Vec<f64>)) -> (f64, usize) {

@@ -91,6 +91,13 @@ pub(super) fn score(
     theta: f64,
     nl: &Null<'_>,
 ) -> Option<(f64, usize)> {
+    // A cyclic pair by its sums (as `score_cols` scores it) needs no columns: its rows are
+    // gathered block by block from one value per distinct position (the same bits).
+    if pair_by_sums(c, nl)
+        && let Some(gq) = c.pair_gram_gain(ctx, theta, &nl.basis, &nl.r0)
+    {
+        return pair_scored(c, nl, gq);
+    }
     score_cols(c, c.columns(ctx, theta), nl).0
 }
 

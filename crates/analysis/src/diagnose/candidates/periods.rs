@@ -114,6 +114,29 @@ impl Candidate {
         Some(chunks.into_iter().flatten().collect())
     }
 
+    /// [`lsq::gram_gain`] of this cyclic pair at period `theta` against `basis` and `r0`, the
+    /// same bits as on its [`Candidate::columns`], which are not built: each row's value is
+    /// gathered from its distinct position's block by block (`None` for other candidates).
+    pub fn pair_gram_gain(
+        &self,
+        ctx: &Context,
+        theta: f64,
+        basis: &[Vec<f64>],
+        r0: &[f64],
+    ) -> Option<(f64, usize)> {
+        if self.kind != Kind::Cyclic {
+            return None;
+        }
+        let fa = ctx.axis(self.axis)?;
+        let (sv, cv) = cyclic_phasors(fa, theta);
+        Some(lsq::gram_gain_gathered(
+            basis,
+            r0,
+            [&sv, &cv],
+            &fa.distinct_idx,
+        ))
+    }
+
     /// The phasor rotation of a cyclic candidate's sweep over `thetas` when they are uniform in
     /// frequency: the angular frequencies (rad/mm) and the sin/cos of the fixed step at every
     /// distinct position; `None` for other candidates and grids.
@@ -254,6 +277,23 @@ const REANCHOR_EVERY: usize = 32;
 /// a cosine per distinct position) uses every core.
 pub(super) fn cyclic_columns(f: &AxisFeatures, period_mm: f64) -> Vec<Vec<f64>> {
     use rayon::prelude::*;
+    let (sv, cv) = cyclic_phasors(f, period_mm);
+    let gather = |v: &[f64]| -> Vec<f64> {
+        let mut out = vec![0.0; f.distinct_idx.len()];
+        out.par_chunks_mut(ELEMENT_CHUNK)
+            .zip(f.distinct_idx.par_chunks(ELEMENT_CHUNK))
+            .for_each(|(o, idx)| {
+                o.iter_mut().zip(idx).for_each(|(o, &k)| *o = v[k as usize]);
+            });
+        out
+    };
+    vec![gather(&sv), gather(&cv)]
+}
+
+/// [`cyclic_columns`]' values at every distinct position (sin, cos), before they are gathered
+/// into rows.
+fn cyclic_phasors(f: &AxisFeatures, period_mm: f64) -> (Vec<f64>, Vec<f64>) {
+    use rayon::prelude::*;
     let w = TAU / period_mm;
     // One transcendental per distinct position: sin from cos with the half-cycle sign.
     let (mut sv, mut cv) = (
@@ -271,16 +311,7 @@ pub(super) fn cyclic_columns(f: &AxisFeatures, period_mm: f64) -> Vec<Vec<f64>> 
                     * if ph < std::f64::consts::PI { 1.0 } else { -1.0 };
             }
         });
-    let gather = |v: &[f64]| -> Vec<f64> {
-        let mut out = vec![0.0; f.distinct_idx.len()];
-        out.par_chunks_mut(ELEMENT_CHUNK)
-            .zip(f.distinct_idx.par_chunks(ELEMENT_CHUNK))
-            .for_each(|(o, idx)| {
-                o.iter_mut().zip(idx).for_each(|(o, &k)| *o = v[k as usize]);
-            });
-        out
-    };
-    vec![gather(&sv), gather(&cv)]
+    (sv, cv)
 }
 
 /// Positions or rows per parallel chunk of [`cyclic_columns`].
@@ -357,8 +388,10 @@ mod tests {
     }
 
     /// The pair sweep's gains are `gram_gain` on each period's swept columns, bit for bit, on one
-    /// thread and on three, over two spans of rows and blocks that do not divide them; only the
-    /// fundamental is swept so.
+    /// thread and on three, over two spans of rows and blocks that do not divide them; so is one
+    /// period's gain gathered from its distinct positions (`pair_gram_gain`, off the grid, as a
+    /// refinement asks for it) against `gram_gain` on its `columns`. Only the fundamental is
+    /// scored so.
     #[test]
     fn the_pair_sweep_gains_are_each_periods_gains_bit_for_bit() {
         use super::super::super::lsq;
@@ -378,6 +411,7 @@ mod tests {
             let thetas = &c.grid[..(3 * SWEEP_CHUNK + 5).min(c.grid.len())];
             if c.kind != super::Kind::Cyclic {
                 assert!(c.par_sweep_gram_gains(&ctx, thetas, &basis, &r0).is_none());
+                assert!(c.pair_gram_gain(&ctx, thetas[1], &basis, &r0).is_none());
                 continue;
             }
             assert!(thetas.len() > 2 * SWEEP_CHUNK);
@@ -395,6 +429,11 @@ mod tests {
                     .unwrap();
                 let got = pool.install(|| c.par_sweep_gram_gains(&ctx, thetas, &basis, &r0));
                 assert_eq!(key(got.expect("a uniform grid")), want, "on {threads}");
+                for th in [0.5 * (thetas[0] + thetas[1]), thetas[7] * 1.000_3] {
+                    let want = key(vec![lsq::gram_gain(&basis, &c.columns(&ctx, th), &r0)]);
+                    let got = pool.install(|| c.pair_gram_gain(&ctx, th, &basis, &r0));
+                    assert_eq!(key(got.into_iter().collect()), want, "{th} on {threads}");
+                }
             }
         }
     }

@@ -112,35 +112,76 @@ pub(super) fn pair_sums_sweep(
     periods: usize,
     mut fill: impl FnMut(std::ops::Range<usize>, &mut [[Vec<f64>; 2]]),
 ) -> Vec<(Vec<f64>, Vec<f64>, Vec<f64>)> {
-    const Q: usize = 2;
-    let n = r0.len();
-    let ny = 1 + Q + basis.len();
-    let mut cols: Vec<[Vec<f64>; 2]> = (0..periods)
-        .map(|_| [vec![0.0; SWEEP_BLOCK], vec![0.0; SWEEP_BLOCK]])
-        .collect();
-    // Per span: the lanes of every (period, y, a) sum, period-major, then y-major.
-    let lanes = sum_spans_in_turn(n, |span| {
-        let mut acc = vec![vec![[[0.0; LANES]; Q]; ny]; periods];
-        for start in span.clone().step_by(SWEEP_BLOCK) {
-            let rows = start..(start + SWEEP_BLOCK).min(span.end);
-            let len = rows.len();
-            fill(rows.clone(), &mut cols);
-            let mut yb: Vec<&[f64]> = Vec::with_capacity(ny);
-            for (acc, pair) in acc.iter_mut().zip(&cols) {
-                let x: [&[f64]; Q] = [&pair[0][..len], &pair[1][..len]];
-                yb.clear();
-                yb.push(&r0[rows.clone()]);
-                yb.extend(x);
-                yb.extend(basis.iter().map(|b| &b[rows.clone()]));
-                block_sums::<Q, 4>(acc, &yb, x);
+    let mut cols = pair_blocks(periods);
+    sum_spans_in_turn(r0.len(), |span| {
+        span_pair_sums(basis, r0, span, &mut cols, &mut fill)
+    })
+    .chunks(pair_ys(basis) * 2)
+    .map(|l| assemble::<2>(l, basis.len()))
+    .collect()
+}
+
+/// [`sums`] of one sin/cos pair whose row i is `phasors[·][idx[i]]` (a value per distinct
+/// position), the same bits, gathered block by block instead of into two whole columns (at 10⁶
+/// rows, writing and reading back 16 MB per call of a period's refinement); spans in parallel.
+pub(super) fn pair_sums_gathered(
+    basis: &[Vec<f64>],
+    r0: &[f64],
+    phasors: [&[f64]; 2],
+    idx: &[u32],
+) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let lanes = sum_spans(r0.len(), |span| {
+        let mut gather = |rows: std::ops::Range<usize>, cols: &mut [[Vec<f64>; 2]]| {
+            for (q, col) in cols[0].iter_mut().enumerate() {
+                for (o, &k) in col.iter_mut().zip(&idx[rows.clone()]) {
+                    *o = phasors[q][k as usize];
+                }
             }
-        }
-        acc.concat().concat()
+        };
+        span_pair_sums(basis, r0, span, &mut pair_blocks(1), &mut gather)
     });
-    lanes
-        .chunks(ny * Q)
-        .map(|l| assemble::<Q>(l, basis.len()))
+    assemble::<2>(&lanes, basis.len())
+}
+
+/// Left-hand columns of a pair's sums: r0, the pair, the basis.
+fn pair_ys(basis: &[Vec<f64>]) -> usize {
+    3 + basis.len()
+}
+
+/// One block of each of `periods` pairs' two columns.
+fn pair_blocks(periods: usize) -> Vec<[Vec<f64>; 2]> {
+    (0..periods)
+        .map(|_| [vec![0.0; SWEEP_BLOCK], vec![0.0; SWEEP_BLOCK]])
         .collect()
+}
+
+/// The lanes of every pair's sums over one span (pair-major, then y-major), the pairs written
+/// block by block into `cols` by `fill`.
+fn span_pair_sums(
+    basis: &[Vec<f64>],
+    r0: &[f64],
+    span: std::ops::Range<usize>,
+    cols: &mut [[Vec<f64>; 2]],
+    fill: &mut impl FnMut(std::ops::Range<usize>, &mut [[Vec<f64>; 2]]),
+) -> Vec<Lanes> {
+    const Q: usize = 2;
+    let ny = pair_ys(basis);
+    let mut acc = vec![vec![[[0.0; LANES]; Q]; ny]; cols.len()];
+    for start in span.clone().step_by(SWEEP_BLOCK) {
+        let rows = start..(start + SWEEP_BLOCK).min(span.end);
+        let len = rows.len();
+        fill(rows.clone(), cols);
+        let mut yb: Vec<&[f64]> = Vec::with_capacity(ny);
+        for (acc, pair) in acc.iter_mut().zip(&*cols) {
+            let x: [&[f64]; Q] = [&pair[0][..len], &pair[1][..len]];
+            yb.clear();
+            yb.push(&r0[rows.clone()]);
+            yb.extend(x);
+            yb.extend(basis.iter().map(|b| &b[rows.clone()]));
+            block_sums::<Q, 4>(acc, &yb, x);
+        }
+    }
+    acc.concat().concat()
 }
 
 fn total(l: &Lanes) -> f64 {
