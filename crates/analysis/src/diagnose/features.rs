@@ -54,7 +54,7 @@ impl AxisFeatures {
     pub fn dist_since_rev_mm(&self) -> Vec<f64> {
         let mut dist = Vec::with_capacity(self.pos_mm.len());
         for w in self.bounds.windows(2) {
-            dist.extend(latch(&self.pos_mm[w[0]..w[1]]).1);
+            latch(&self.pos_mm[w[0]..w[1]], |_, since| dist.push(since));
         }
         dist
     }
@@ -366,7 +366,7 @@ fn axis_features(t_s: Arc<[f64]>, pos: Arc<[f64]>, run: Option<&[f64]>) -> AxisF
     bounds.shrink_to_fit();
     let mut dir = Vec::with_capacity(n);
     for w in bounds.windows(2) {
-        dir.extend(latch(&pos[w[0]..w[1]]).0);
+        dir.extend(latched_dir(&pos[w[0]..w[1]]));
     }
     let mut distinct_mm = pos.to_vec();
     distinct_mm.sort_by(f64::total_cmp);
@@ -451,15 +451,13 @@ fn velocity(t_s: &[f64], pos: &[f64]) -> Vec<f64> {
     vel
 }
 
-/// Latched direction (the shared definition of [`retrocomp_model::approach`]) and distance since reversal
-/// of one run.
-fn latch(pos: &[f64]) -> (Vec<i8>, Vec<f64>) {
-    let n = pos.len();
-    let mut dir = vec![0i8; n];
-    let mut dist = vec![0.0; n];
+/// Latched direction (the shared definition of [`retrocomp_model::approach`]) and distance since
+/// reversal of each row of one run, in row order, to `row(dir, since_mm)`: the features keep the
+/// direction, a reversal candidate's columns the distance (each without the other's column).
+fn latch(pos: &[f64], mut row: impl FnMut(i8, f64)) {
     let mut l = ApproachLatch::new(DIRECTION_DEADBAND_MM);
     let mut since = 1e9; // no reversal seen yet: "far from any reversal"
-    for i in 0..n {
+    for i in 0..pos.len() {
         let was = l.dir();
         if let Some(ext) = l.update(pos[i]) {
             if was != 0 {
@@ -470,16 +468,21 @@ fn latch(pos: &[f64]) -> (Vec<i8>, Vec<f64>) {
         } else if i > 0 {
             since += (pos[i] - pos[i - 1]).abs();
         }
-        dir[i] = l.dir();
-        dist[i] = since;
+        row(l.dir(), since);
     }
-    // The first move's direction also applies to the samples before it (they were approached from
-    // somewhere; the best guess is the same side), so the latch never has to invent a zero level.
+}
+
+/// The latched direction of each row of one run. The first move's direction also applies to the
+/// samples before it (they were approached from somewhere; the best guess is the same side), so
+/// the latch never has to invent a zero level.
+fn latched_dir(pos: &[f64]) -> Vec<i8> {
+    let mut dir = Vec::with_capacity(pos.len());
+    latch(pos, |d, _| dir.push(d));
     if let Some(first) = dir.iter().position(|&v| v != 0) {
         let d0 = dir[first];
         dir[..first].iter_mut().for_each(|v| *v = d0);
     }
-    (dir, dist)
+    dir
 }
 
 /// First-order low-pass of `u` with time constant `tau_s`, exact for a signal held between samples
