@@ -70,8 +70,8 @@ impl Candidate {
         chunks.into_iter().flatten().collect()
     }
 
-    /// [`lsq::gram_gain`] of this cyclic pair at every θ of `thetas` against `basis` and `r0`,
-    /// the same bits as [`Candidate::par_sweep_map`] with `gram_gain` on each θ's columns, when
+    /// [`lsq::gram_gain`] of this cyclic pair at every period of `periods_mm` against `basis` and `r0`,
+    /// the same bits as [`Candidate::par_sweep_map`] with `gram_gain` on each period's columns, when
     /// the grid is uniform in frequency (else `None`): each chunk's phasors are rotated per row
     /// (a row's value is its distinct position's, by the same arithmetic) block by block, every
     /// period of the chunk at once, so the columns never leave cache and r0 and the basis are
@@ -79,7 +79,7 @@ impl Candidate {
     pub fn par_sweep_gram_gains(
         &self,
         ctx: &Context,
-        thetas: &[f64],
+        periods_mm: &[f64],
         basis: &[Vec<f64>],
         r0: &[f64],
     ) -> Option<Vec<(f64, usize)>> {
@@ -87,13 +87,13 @@ impl Candidate {
         if self.kind != Kind::Cyclic {
             return None;
         }
-        let rot = self.rotation(ctx, thetas)?;
+        let rot = self.rotation(ctx, periods_mm)?;
         let fa = ctx.axis(self.axis)?;
-        let starts: Vec<usize> = (0..thetas.len()).step_by(SWEEP_CHUNK).collect();
+        let starts: Vec<usize> = (0..periods_mm.len()).step_by(SWEEP_CHUNK).collect();
         let chunks: Vec<Vec<(f64, usize)>> = starts
             .par_iter()
             .map(|&s| {
-                let periods = SWEEP_CHUNK.min(thetas.len() - s);
+                let periods = SWEEP_CHUNK.min(periods_mm.len() - s);
                 let (sv, cv) = exact_phasors(fa, rot.w[s]);
                 lsq::gram_gains_sweep(basis, r0, periods, |rows, cols| {
                     for (o, i) in rows.enumerate() {
@@ -114,13 +114,13 @@ impl Candidate {
         Some(chunks.into_iter().flatten().collect())
     }
 
-    /// [`lsq::gram_gain`] of this cyclic pair at period `theta` against `basis` and `r0`, the
+    /// [`lsq::gram_gain`] of this cyclic pair at period `period_mm` against `basis` and `r0`, the
     /// same bits as on its [`Candidate::columns`], which are not built: each row's value is
     /// gathered from its distinct position's block by block (`None` for other candidates).
     pub fn pair_gram_gain(
         &self,
         ctx: &Context,
-        theta: f64,
+        period_mm: f64,
         basis: &[Vec<f64>],
         r0: &[f64],
     ) -> Option<(f64, usize)> {
@@ -128,7 +128,7 @@ impl Candidate {
             return None;
         }
         let fa = ctx.axis(self.axis)?;
-        let (sv, cv) = cyclic_phasors(fa, theta);
+        let (sv, cv) = cyclic_phasors(fa, period_mm);
         Some(lsq::gram_gain_gathered(
             basis,
             r0,
