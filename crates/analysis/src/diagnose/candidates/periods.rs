@@ -102,7 +102,7 @@ impl Candidate {
                         let (mut s0, mut c0) = (sv[k], cv[k]);
                         for (p, pair) in cols.iter_mut().enumerate() {
                             if p > 0 {
-                                (s0, c0) = (s0 * rc + c0 * rs, c0 * rc - s0 * rs);
+                                (s0, c0) = rotate(s0, c0, rs, rc);
                             }
                             pair[0][o] = s0;
                             pair[1][o] = c0;
@@ -181,9 +181,7 @@ impl Candidate {
                 (sv, cv) = exact_phasors(fa, w[j]);
             } else {
                 for k in 0..sv.len() {
-                    let (s0, c0) = (sv[k], cv[k]);
-                    sv[k] = s0 * rc[k] + c0 * rs[k];
-                    cv[k] = c0 * rc[k] - s0 * rs[k];
+                    (sv[k], cv[k]) = rotate(sv[k], cv[k], rs[k], rc[k]);
                 }
             }
             let mut cols = std::mem::take(&mut spare);
@@ -222,6 +220,14 @@ fn exact_phasors(fa: &AxisFeatures, w_rad_per_mm: f64) -> (Vec<f64>, Vec<f64>) {
         .iter()
         .map(|&x| (w_rad_per_mm * x).sin_cos())
         .unzip()
+}
+
+/// The phasor `(sin θ, cos θ)` advanced by the step whose sin/cos are `(rs, rc)`: the angle-sum
+/// formulas. Both sweeps rotate through this one expression, so their phasors (and the sums the
+/// bit-identity tests compare) are the same bits.
+#[inline(always)]
+fn rotate(s: f64, c: f64, rs: f64, rc: f64) -> (f64, f64) {
+    (s * rc + c * rs, c * rc - s * rs)
 }
 
 /// Grid periods per parallel chunk of [`Candidate::par_sweep_map`]: one re-anchoring interval,
