@@ -47,21 +47,47 @@ pub fn plant_series(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64) -> Vec<f64> {
 fn run(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64, back: usize) -> Vec<f64> {
     let mut out = Vec::with_capacity(u.len());
     let mut y = y0;
-    // α recomputed only when the sample period changes (usually never after the first step).
-    let (mut last_dt, mut a) = (f64::NAN, 1.0);
+    let mut alphas = AlphaCache::new(tau_s);
     for i in 0..u.len() {
         if i > 0 {
-            let dt = t_s[i] - t_s[i - 1];
-            // Bit-exact: any other period (NaN at the start) recomputes α.
-            if dt.to_bits() != last_dt.to_bits() {
-                a = alpha(dt, tau_s);
-                last_dt = dt;
-            }
-            y += a * (u[i - back] - y);
+            y += alphas.get(t_s[i] - t_s[i - 1]) * (u[i - back] - y);
         }
         out.push(y);
     }
     out
+}
+
+/// [`alpha`] for one τ, remembered per sample period: a recording's periods are few (a 1 kHz
+/// clock read as decimal seconds gives ≈ 20 distinct Δt) but alternate from row to row, so keeping
+/// only the last one computed an exponential for every other row. Direct-mapped on Δt's bits; a
+/// slot holds the exact α of its exact Δt (NaN marks it empty: no Δt has NaN's bits here, and a NaN
+/// Δt never matches), so the series is the same bits as with an α computed per row.
+struct AlphaCache {
+    tau_s: f64,
+    slots: [(u64, f64); ALPHA_SLOTS],
+}
+
+const ALPHA_SLOTS: usize = 64;
+
+impl AlphaCache {
+    fn new(tau_s: f64) -> Self {
+        AlphaCache {
+            tau_s,
+            slots: [(f64::NAN.to_bits(), 1.0); ALPHA_SLOTS],
+        }
+    }
+
+    #[inline]
+    fn get(&mut self, dt_s: f64) -> f64 {
+        let bits = dt_s.to_bits();
+        // Fibonacci hashing: the top bits of the product mix every bit of Δt.
+        let k = (bits.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as usize;
+        let slot = &mut self.slots[k];
+        if slot.0 != bits || dt_s.is_nan() {
+            *slot = (bits, alpha(dt_s, self.tau_s));
+        }
+        slot.1
+    }
 }
 
 #[cfg(test)]
@@ -95,5 +121,31 @@ mod tests {
             [5.0, 5.0, 6.0]
         );
         assert!(series(&[], &[], 1.0, 0.0).is_empty());
+    }
+
+    /// The remembered α per sample period gives the bits of an α computed at every row: periods
+    /// that alternate (a 1 kHz clock in decimal seconds), more distinct periods than the cache
+    /// has slots (so they collide and are recomputed), a NaN time and out-of-order times.
+    #[test]
+    fn remembered_alphas_are_the_per_row_alphas_bit_for_bit() {
+        let mut t: Vec<f64> = (0..5000).map(|i| f64::from(i) * 0.001).collect();
+        t.extend((0..3000).map(|i| 5.0 + f64::from(i * i % 997) * 1e-3 + f64::from(i) * 0.01));
+        t[6000] = f64::NAN;
+        t[7000] = t[6999] - 0.5;
+        let u: Vec<f64> = (0..t.len()).map(|i| (i as f64 * 0.37).sin()).collect();
+        let distinct: std::collections::HashSet<u64> =
+            t.windows(2).map(|w| (w[1] - w[0]).to_bits()).collect();
+        assert!(distinct.len() > 4 * ALPHA_SLOTS, "{}", distinct.len());
+        for (tau_s, back) in [(30.0, 0), (0.004, 0), (30.0, 1), (0.0, 0)] {
+            let mut y = 0.25;
+            let mut reference = vec![y];
+            for i in 1..t.len() {
+                y += alpha(t[i] - t[i - 1], tau_s) * (u[i - back] - y);
+                reference.push(y);
+            }
+            let got = run(&t, &u, tau_s, 0.25, back);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&got), bits(&reference), "τ = {tau_s} s, back = {back}");
+        }
     }
 }
