@@ -43,48 +43,88 @@ pub fn plant_series(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64) -> Vec<f64> {
     run(t_s, u, tau_s, y0, 1)
 }
 
+/// [`series`] at every time constant of `taus_s`, each minus `offset` (`y[i] − offset`; an
+/// `offset` of 0 leaves the series' bits), in one pass over the rows per [`LANES`] time
+/// constants: a lag is a chain of dependent steps, so one series at a time waits on each step's
+/// latency, while interleaved series fill the pipeline. Each series is the same bits as
+/// [`series`] at its τ (the same steps in the same order).
+pub fn series_each(t_s: &[f64], u: &[f64], taus_s: &[f64], y0: f64, offset: f64) -> Vec<Vec<f64>> {
+    taus_s
+        .chunks(LANES)
+        .flat_map(|taus| run_lanes(t_s, u, taus, y0, 0, offset))
+        .collect()
+}
+
+/// Time constants one pass of [`series_each`] carries.
+pub const LANES: usize = 4;
+
 /// y[i] = y[i−1] + α·(u[i − back] − y[i−1]) for i ≥ 1.
 fn run(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64, back: usize) -> Vec<f64> {
-    let mut out = Vec::with_capacity(u.len());
-    let mut y = y0;
-    let mut alphas = AlphaCache::new(tau_s);
+    let mut out = run_lanes(t_s, u, &[tau_s], y0, back, 0.0);
+    out.pop().expect("one lane per time constant")
+}
+
+/// [`run`] for up to [`LANES`] time constants `taus_s` at once, each series minus `offset`.
+fn run_lanes(
+    t_s: &[f64],
+    u: &[f64],
+    taus_s: &[f64],
+    y0: f64,
+    back: usize,
+    offset: f64,
+) -> Vec<Vec<f64>> {
+    let lanes = taus_s.len();
+    assert!(lanes <= LANES, "{lanes} time constants, at most {LANES}");
+    let mut out: Vec<Vec<f64>> = (0..lanes).map(|_| Vec::with_capacity(u.len())).collect();
+    let mut y = [y0; LANES];
+    let mut alphas = AlphaCache::new(taus_s);
     for i in 0..u.len() {
         if i > 0 {
-            y += alphas.get(t_s[i] - t_s[i - 1]) * (u[i - back] - y);
+            let a = alphas.get(t_s[i] - t_s[i - 1]);
+            let ui = u[i - back];
+            for l in 0..lanes {
+                y[l] += a[l] * (ui - y[l]);
+            }
         }
-        out.push(y);
+        for (o, y) in out.iter_mut().zip(y) {
+            o.push(y - offset);
+        }
     }
     out
 }
 
-/// [`alpha`] for one τ, remembered per sample period: a recording's periods are few (a 1 kHz
-/// clock read as decimal seconds gives ≈ 20 distinct Δt) but alternate from row to row, so keeping
-/// only the last one computed an exponential for every other row. Direct-mapped on Δt's bits; a
-/// slot holds the exact α of its exact Δt (NaN marks it empty: no Δt has NaN's bits here, and a NaN
-/// Δt never matches), so the series is the same bits as with an α computed per row.
+/// [`alpha`] for up to [`LANES`] time constants, remembered per sample period: a recording's
+/// periods are few (a 1 kHz clock read as decimal seconds gives ≈ 20 distinct Δt) but alternate
+/// from row to row, so keeping only the last one computed an exponential for every other row.
+/// Direct-mapped on Δt's bits; a slot holds the exact α of its exact Δt (NaN marks it empty: no Δt
+/// has NaN's bits here, and a NaN Δt never matches), so a series is the same bits as with its α
+/// computed at every row.
 struct AlphaCache {
-    tau_s: f64,
-    slots: [(u64, f64); ALPHA_SLOTS],
+    taus_s: [f64; LANES],
+    slots: [(u64, [f64; LANES]); ALPHA_SLOTS],
 }
 
 const ALPHA_SLOTS: usize = 64;
 
 impl AlphaCache {
-    fn new(tau_s: f64) -> Self {
+    fn new(taus_s: &[f64]) -> Self {
+        // Lanes past the given time constants repeat the first: computed, never read.
+        let taus_s =
+            std::array::from_fn(|l| taus_s.get(l).or(taus_s.first()).copied().unwrap_or(0.0));
         AlphaCache {
-            tau_s,
-            slots: [(f64::NAN.to_bits(), 1.0); ALPHA_SLOTS],
+            taus_s,
+            slots: [(f64::NAN.to_bits(), [1.0; LANES]); ALPHA_SLOTS],
         }
     }
 
     #[inline]
-    fn get(&mut self, dt_s: f64) -> f64 {
+    fn get(&mut self, dt_s: f64) -> [f64; LANES] {
         let bits = dt_s.to_bits();
         // Fibonacci hashing: the top bits of the product mix every bit of Δt.
         let k = (bits.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as usize;
         let slot = &mut self.slots[k];
         if slot.0 != bits || dt_s.is_nan() {
-            *slot = (bits, alpha(dt_s, self.tau_s));
+            *slot = (bits, self.taus_s.map(|tau_s| alpha(dt_s, tau_s)));
         }
         slot.1
     }
@@ -144,8 +184,36 @@ mod tests {
                 reference.push(y);
             }
             let got = run(&t, &u, tau_s, 0.25, back);
-            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&got), bits(&reference), "τ = {tau_s} s, back = {back}");
         }
+    }
+
+    fn bits(v: &[f64]) -> Vec<u64> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    /// Series carried side by side (a full group of lanes and a remainder) are each the bits of
+    /// the series alone, and the offset is subtracted after the lag, not fed into it.
+    #[test]
+    fn series_each_is_each_series_bit_for_bit() {
+        let t: Vec<f64> = (0..3000)
+            .map(|i| f64::from(i) * 0.001 + f64::from(i % 7) * 1e-5)
+            .collect();
+        let u: Vec<f64> = (0..t.len())
+            .map(|i| 20.0 + (i as f64 * 0.01).sin())
+            .collect();
+        let taus = [30.0, 39.0, 0.05, 0.0, 66.0, 0.2];
+        for offset in [0.0, 20.0] {
+            let each = series_each(&t, &u, &taus, u[0], offset);
+            assert_eq!(each.len(), taus.len());
+            for (y, &tau_s) in each.iter().zip(&taus) {
+                let alone: Vec<f64> = series(&t, &u, tau_s, u[0])
+                    .iter()
+                    .map(|v| v - offset)
+                    .collect();
+                assert_eq!(bits(y), bits(&alone), "τ = {tau_s} s, offset {offset}");
+            }
+        }
+        assert!(series_each(&t, &u, &[], 0.0, 0.0).is_empty());
     }
 }

@@ -6,7 +6,7 @@
 mod periods;
 
 use super::effects::EffectModel;
-use super::features::{AxisFeatures, Context, lowpass};
+use super::features::{AxisFeatures, Context};
 #[cfg(test)]
 pub(crate) use periods::SWEEP_CHUNK;
 pub use periods::{MIN_PITCH_MM, shortest_period};
@@ -122,6 +122,17 @@ impl Candidate {
         !self.grid.is_empty()
     }
 
+    /// A thermal lag's column at each time constant of `taus_s` (s): the sensor's reading
+    /// through the first-order lag ([`super::features::lowpass`], started at the first reading)
+    /// minus the first reading, °C (or the driver's unit). Empty for other candidates.
+    pub fn lag_columns(&self, ctx: &Context, taus_s: &[f64]) -> Vec<Vec<f64>> {
+        let Kind::ThermalLag { sensor } = &self.kind else {
+            return vec![];
+        };
+        let t = ctx.temp(sensor).expect("listed");
+        retrocomp_model::lag::series_each(&ctx.t_s, t, taus_s, t[0], t[0])
+    }
+
     /// Regressor columns at nonlinear parameter `theta` (ignored by linear candidates).
     pub fn columns(&self, ctx: &Context, theta: f64) -> Vec<Vec<f64>> {
         let own = || {
@@ -175,16 +186,7 @@ impl Candidate {
                 ]
             }
             Kind::ThermalDrift { sensor } => vec![rise(sensor).collect()],
-            Kind::ThermalLag { sensor } => {
-                let t = ctx.temp(sensor).expect("listed");
-                let t0 = t[0];
-                vec![
-                    lowpass(&ctx.t_s, t, theta)
-                        .into_iter()
-                        .map(|v| v - t0)
-                        .collect(),
-                ]
-            }
+            Kind::ThermalLag { .. } => self.lag_columns(ctx, &[theta]),
             Kind::ThermalExpansion { sensor } => {
                 vec![
                     rise(sensor)
@@ -526,6 +528,65 @@ mod tests {
         assert!(
             !three.contains(&"thermal_drift(krpm^2)".to_string()),
             "{three:?}"
+        );
+    }
+
+    /// A thermal lag's swept columns (time constants carried side by side, `lag::series_each`)
+    /// are each the sensor's `lowpass` minus its first reading, bit for bit, on one thread and
+    /// on three, over a grid that is not a whole number of lane groups.
+    #[test]
+    fn a_lags_swept_columns_are_each_lowpass_minus_the_first_reading_bit_for_bit() {
+        let n = 2000;
+        // Uneven sample periods (they alternate, as a 1 kHz clock in decimal seconds does).
+        let t: Vec<f64> = (0..n)
+            .map(|i| 0.7 * i as f64 + [0.0, 0.013, 0.05][i % 3])
+            .collect();
+        let temp: Vec<f64> = (0..n).map(|i| 20.0 + (i as f64 / 150.0).sin()).collect();
+        let rec = Recording::from_columns(vec![
+            ("t_s".into(), t.clone()),
+            ("T_spindle_C".into(), temp.clone()),
+            ("ez_um".into(), vec![0.0; n]),
+        ])
+        .unwrap();
+        let ctx = Context::from_recording(&rec);
+        let lag = library(&ctx, 'z')
+            .into_iter()
+            .find(|c| c.label() == "thermal_lag(T_spindle_C)")
+            .expect("a lag candidate");
+        assert!(
+            lag.grid.len() % retrocomp_model::lag::LANES != 0,
+            "{}",
+            lag.grid.len()
+        );
+        let want: Vec<(u64, Vec<u64>)> = lag
+            .grid
+            .iter()
+            .map(|&tau_s| {
+                let col = super::super::features::lowpass(&t, &temp, tau_s);
+                (
+                    tau_s.to_bits(),
+                    col.iter().map(|v| (v - temp[0]).to_bits()).collect(),
+                )
+            })
+            .collect();
+        for threads in [1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let got = pool.install(|| {
+                lag.par_sweep_map(&ctx, &lag.grid, |tau_s, cols| {
+                    assert_eq!(cols.len(), 1);
+                    let bits = cols[0].iter().map(|v| v.to_bits()).collect::<Vec<u64>>();
+                    ((tau_s.to_bits(), bits), cols)
+                })
+            });
+            assert_eq!(got, want, "on {threads} threads");
+        }
+        let one = lag.columns(&ctx, lag.grid[1]);
+        assert_eq!(
+            one[0].iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            want[1].1
         );
     }
 }

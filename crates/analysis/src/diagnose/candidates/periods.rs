@@ -8,6 +8,7 @@ use std::f64::consts::TAU;
 use super::super::features::{AxisFeatures, Context};
 use super::super::lsq;
 use super::{Candidate, Kind};
+use retrocomp_model::lag;
 
 impl Candidate {
     /// The one-thread sweep [`Candidate::par_sweep_map`] must equal bit for bit: every θ of
@@ -38,8 +39,9 @@ impl Candidate {
     /// `SWEEP_CHUNK` periods run in parallel (rayon): one long cyclic candidate's sweep was most
     /// of a 1M-row diagnosis' screening, on one core. Each chunk starts where one sweep over the
     /// whole grid re-anchors its phasors exactly and shares its rotation, so every θ gets the same
-    /// bits with any number of threads. θ off a uniform grid, and other candidates, are
-    /// independent and mapped one by one.
+    /// bits with any number of threads. A thermal lag's time constants are lagged
+    /// `lag::LANES` at a time ([`Candidate::lag_columns`]). θ off a uniform grid, and other
+    /// candidates, are independent and mapped one by one.
     pub fn par_sweep_map<T: Send>(
         &self,
         ctx: &Context,
@@ -47,6 +49,18 @@ impl Candidate {
         f: impl Fn(f64, Vec<Vec<f64>>) -> (T, Vec<Vec<f64>>) + Sync,
     ) -> Vec<T> {
         use rayon::prelude::*;
+        if matches!(self.kind, Kind::ThermalLag { .. }) {
+            return thetas
+                .par_chunks(lag::LANES)
+                .flat_map_iter(|taus| {
+                    let cols = self.lag_columns(ctx, taus);
+                    cols.into_iter()
+                        .zip(taus)
+                        .map(|(col, &tau_s)| f(tau_s, vec![col]).0)
+                        .collect::<Vec<T>>()
+                })
+                .collect();
+        }
         let Some(rot) = self.rotation(ctx, thetas) else {
             return thetas
                 .par_iter()
