@@ -199,13 +199,7 @@ impl Candidate {
             Kind::ServoLag => vec![own().vel_mm_s().iter().map(|v| -v).collect()],
             Kind::ReversalSpike => {
                 let f = own();
-                vec![
-                    f.dir
-                        .iter()
-                        .zip(&f.dist_since_rev_mm())
-                        .map(|(&d, s)| f64::from(d) * (-s / theta).exp())
-                        .collect(),
-                ]
+                vec![spike_column(&f.dir, &f.dist_since_rev_mm(), theta)]
             }
             Kind::TimeDrift => vec![ctx.t_s.iter().map(|t| t / 3600.0).collect()],
         }
@@ -270,6 +264,15 @@ impl Candidate {
             Kind::TimeDrift => EffectModel::TimeDrift { um_per_h: c[0] },
         }
     }
+}
+
+/// A reversal spike's column at decay length `decay_mm`: the latched direction (±1, 0) times
+/// e^(−s/decay) of the distance since the reversal `dist_mm` (mm).
+pub(super) fn spike_column(dir: &[i8], dist_mm: &[f64], decay_mm: f64) -> Vec<f64> {
+    dir.iter()
+        .zip(dist_mm)
+        .map(|(&d, s)| f64::from(d) * (-s / decay_mm).exp())
+        .collect()
 }
 
 fn range(v: &[f64]) -> (f64, f64) {
@@ -495,98 +498,4 @@ fn reversal_zone_columns(f: &AxisFeatures, edges_mm: &[f64]) -> Vec<Vec<f64>> {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use retrocomp_model::recording::Recording;
-
-    fn thermal_lib(rpm: impl Fn(usize) -> f64) -> Vec<String> {
-        let n = 400;
-        let rec = Recording::from_columns(vec![
-            ("t_s".into(), (0..n).map(|i| 15.0 * i as f64).collect()),
-            ("rpm".into(), (0..n).map(&rpm).collect()),
-            ("ez_um".into(), vec![0.0; n]),
-        ])
-        .unwrap();
-        library(&Context::from_recording(&rec), 'z')
-            .iter()
-            .map(Candidate::label)
-            .collect()
-    }
-
-    #[test]
-    fn squared_speed_is_a_lag_driver_only_when_rpm_has_several_levels() {
-        // On/off at one speed: (rpm/1000)² is a multiple of rpm, no information of its own.
-        let one = thermal_lib(|i| if (i / 100) % 2 == 0 { 3000.0 } else { 0.0 });
-        assert!(one.contains(&"thermal_lag(rpm)".to_string()), "{one:?}");
-        assert!(!one.iter().any(|l| l.contains("krpm^2")), "{one:?}");
-        // 0, 1250, 2500 rpm: offered, as a lag only (like rpm).
-        let three = thermal_lib(|i| [1250.0, 0.0, 2500.0, 0.0][i / 100]);
-        assert!(
-            three.contains(&"thermal_lag(krpm^2)".to_string()),
-            "{three:?}"
-        );
-        assert!(
-            !three.contains(&"thermal_drift(krpm^2)".to_string()),
-            "{three:?}"
-        );
-    }
-
-    /// A thermal lag's swept columns (time constants carried side by side, `lag::series_each`)
-    /// are each the sensor's `lowpass` minus its first reading, bit for bit, on one thread and
-    /// on three, over a grid that is not a whole number of lane groups.
-    #[test]
-    fn a_lags_swept_columns_are_each_lowpass_minus_the_first_reading_bit_for_bit() {
-        let n = 2000;
-        // Uneven sample periods (they alternate, as a 1 kHz clock in decimal seconds does).
-        let t: Vec<f64> = (0..n)
-            .map(|i| 0.7 * i as f64 + [0.0, 0.013, 0.05][i % 3])
-            .collect();
-        let temp: Vec<f64> = (0..n).map(|i| 20.0 + (i as f64 / 150.0).sin()).collect();
-        let rec = Recording::from_columns(vec![
-            ("t_s".into(), t.clone()),
-            ("T_spindle_C".into(), temp.clone()),
-            ("ez_um".into(), vec![0.0; n]),
-        ])
-        .unwrap();
-        let ctx = Context::from_recording(&rec);
-        let lag = library(&ctx, 'z')
-            .into_iter()
-            .find(|c| c.label() == "thermal_lag(T_spindle_C)")
-            .expect("a lag candidate");
-        assert!(
-            lag.grid.len() % retrocomp_model::lag::LANES != 0,
-            "{}",
-            lag.grid.len()
-        );
-        let want: Vec<(u64, Vec<u64>)> = lag
-            .grid
-            .iter()
-            .map(|&tau_s| {
-                let col = super::super::features::lowpass(&t, &temp, tau_s);
-                (
-                    tau_s.to_bits(),
-                    col.iter().map(|v| (v - temp[0]).to_bits()).collect(),
-                )
-            })
-            .collect();
-        for threads in [1, 3] {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            let got = pool.install(|| {
-                lag.par_sweep_map(&ctx, &lag.grid, |tau_s, cols| {
-                    assert_eq!(cols.len(), 1);
-                    let bits = cols[0].iter().map(|v| v.to_bits()).collect::<Vec<u64>>();
-                    ((tau_s.to_bits(), bits), cols)
-                })
-            });
-            assert_eq!(got, want, "on {threads} threads");
-        }
-        let one = lag.columns(&ctx, lag.grid[1]);
-        assert_eq!(
-            one[0].iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-            want[1].1
-        );
-    }
-}
+mod tests;

@@ -7,7 +7,7 @@ use std::f64::consts::TAU;
 
 use super::super::features::{AxisFeatures, Context};
 use super::super::lsq;
-use super::{Candidate, Kind};
+use super::{Candidate, Kind, spike_column};
 use retrocomp_model::lag;
 
 impl Candidate {
@@ -40,8 +40,9 @@ impl Candidate {
     /// of a 1M-row diagnosis' screening, on one core. Each chunk starts where one sweep over the
     /// whole grid re-anchors its phasors exactly and shares its rotation, so every θ gets the same
     /// bits with any number of threads. A thermal lag's time constants are lagged
-    /// `lag::LANES` at a time ([`Candidate::lag_columns`]). θ off a uniform grid, and other
-    /// candidates, are independent and mapped one by one.
+    /// `lag::LANES` at a time ([`Candidate::lag_columns`]); a reversal spike's decay lengths
+    /// share one distance-since-reversal column. θ off a uniform grid, and other candidates, are
+    /// independent and mapped one by one.
     pub fn par_sweep_map<T: Send>(
         &self,
         ctx: &Context,
@@ -59,6 +60,17 @@ impl Candidate {
                         .map(|(col, &tau_s)| f(tau_s, vec![col]).0)
                         .collect::<Vec<T>>()
                 })
+                .collect();
+        }
+        if self.kind == Kind::ReversalSpike {
+            // The distance since reversal once for the whole grid, not once per decay length.
+            let fa = ctx
+                .axis(self.axis)
+                .expect("library only lists candidates whose inputs exist");
+            let dist_mm = fa.dist_since_rev_mm();
+            return thetas
+                .par_iter()
+                .map(|&decay_mm| f(decay_mm, vec![spike_column(&fa.dir, &dist_mm, decay_mm)]).0)
                 .collect();
         }
         let Some(rot) = self.rotation(ctx, thetas) else {
