@@ -37,7 +37,7 @@ fn squared_speed_is_a_lag_driver_only_when_rpm_has_several_levels() {
 
 /// A thermal lag's swept columns (time constants carried side by side, `lag::series_each`)
 /// are each the sensor's `lowpass` minus its first reading, bit for bit, on one thread and
-/// on three, over a grid that is not a whole number of lane groups.
+/// on three, over a grid that is not a whole number of lane groups; so is each τ's column alone.
 #[test]
 fn a_lags_swept_columns_are_each_lowpass_minus_the_first_reading_bit_for_bit() {
     let n = 2000;
@@ -73,25 +73,7 @@ fn a_lags_swept_columns_are_each_lowpass_minus_the_first_reading_bit_for_bit() {
             )
         })
         .collect();
-    for threads in [1, 3] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        let got = pool.install(|| {
-            lag.par_sweep_map(&ctx, &lag.grid, |tau_s, cols| {
-                assert_eq!(cols.len(), 1);
-                let bits = cols[0].iter().map(|v| v.to_bits()).collect::<Vec<u64>>();
-                ((tau_s.to_bits(), bits), cols)
-            })
-        });
-        assert_eq!(got, want, "on {threads} threads");
-    }
-    let one = lag.columns(&ctx, lag.grid[1]);
-    assert_eq!(
-        one[0].iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-        want[1].1
-    );
+    assert_sweep_is(&ctx, &lag, &want);
 }
 
 /// A reversal spike's swept columns (one distance-since-reversal column for the grid) are
@@ -118,7 +100,7 @@ fn a_spikes_swept_columns_share_one_distance_column_bit_for_bit() {
     let f = ctx.axis('x').unwrap();
     let dist = f.dist_since_rev_mm();
     assert!(f.dir.contains(&-1) && dist.iter().any(|&s| s < 1.0));
-    let want: Vec<Vec<u64>> = spike
+    let want: Vec<(u64, Vec<u64>)> = spike
         .grid
         .iter()
         .map(|&decay| {
@@ -127,27 +109,35 @@ fn a_spikes_swept_columns_share_one_distance_column_bit_for_bit() {
                 .iter()
                 .zip(&dist)
                 .map(|(&d, s)| f64::from(d) * (-s / decay).exp());
-            col.map(f64::to_bits).collect()
+            (decay.to_bits(), col.map(f64::to_bits).collect())
         })
         .collect();
+    assert_sweep_is(&ctx, &spike, &want);
+}
+
+/// `c`'s one-column sweep over its grid hands `f` (θ, column) of `want`, bit for bit, on one
+/// thread and on three, and `Candidate::columns` at each θ is the same column.
+fn assert_sweep_is(ctx: &Context, c: &Candidate, want: &[(u64, Vec<u64>)]) {
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
     for threads in [1, 3] {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()
             .unwrap();
         let got = pool.install(|| {
-            spike.par_sweep_map(&ctx, &spike.grid, |_, cols| {
-                (
-                    cols[0].iter().map(|v| v.to_bits()).collect::<Vec<u64>>(),
-                    cols,
-                )
+            c.par_sweep_map(ctx, &c.grid, |theta, cols| {
+                assert_eq!(cols.len(), 1);
+                ((theta.to_bits(), bits(&cols[0])), cols)
             })
         });
-        assert_eq!(got, want, "on {threads} threads");
+        assert_eq!(got, want, "{} on {threads} threads", c.label());
     }
-    let one = spike.columns(&ctx, spike.grid[2]);
-    assert_eq!(
-        one[0].iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-        want[2]
-    );
+    for (&theta, (_, col)) in c.grid.iter().zip(want) {
+        assert_eq!(
+            &bits(&c.columns(ctx, theta)[0]),
+            col,
+            "{} at {theta}",
+            c.label()
+        );
+    }
 }
