@@ -1,7 +1,10 @@
 //! The cyclic candidates' period scan: the least-squares periodogram's frequency grid over
 //! position, its short end from the positions' spacing, and the sin/cos columns (fundamental and
 //! second harmonic) swept over the grid by phasor rotation, in fixed chunks that run in parallel
-//! and give the same bits as one sweep. Positions mm, periods mm.
+//! and give the same bits as one sweep. The same sweep ([`Candidate::par_sweep_map`]) takes every
+//! other candidate's grid too: a thermal lag's time constants (s) in lanes of one pass over the
+//! rows, a reversal spike's decay lengths (mm) over one shared distance column. Positions mm,
+//! periods mm.
 
 use std::f64::consts::TAU;
 
@@ -347,8 +350,8 @@ fn cyclic_phasors(f: &AxisFeatures, period_mm: f64) -> (Vec<f64>, Vec<f64>) {
 /// quotient n is exact (representable), so one fused multiply-add of the exact integer n gives it
 /// with no rounding, instead of the bit-serial long division of the software `fmod` (2 % of a
 /// 10⁶-row diagnosis' CPU, one call per distinct position per period). A quotient estimate off by
-/// one shows as a remainder outside [0, y) and is stepped back; a quotient too large for an exact
-/// integer, and non-finite values, go to `rem_euclid` itself.
+/// one shows as a remainder outside `fmod`'s range (x's sign, smaller than y) and is stepped back;
+/// a quotient too large for an exact integer, and non-finite values, go to `rem_euclid` itself.
 fn rem_euclid(x: f64, y: f64) -> f64 {
     let q = (x / y).trunc();
     if !(q.abs() < 4_503_599_627_370_496.0 && y.is_finite() && y > 0.0) {
