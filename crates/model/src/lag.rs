@@ -58,7 +58,7 @@ pub fn series_each(t_s: &[f64], u: &[f64], taus_s: &[f64], y0: f64, offset: f64)
 /// Time constants one pass of [`series_each`] carries.
 pub const LANES: usize = 4;
 
-/// y[i] = y[i−1] + α·(u[i − back] − y[i−1]) for i ≥ 1.
+/// `y[i] = y[i−1] + α·(u[i − back] − y[i−1])` for i ≥ 1.
 fn run(t_s: &[f64], u: &[f64], tau_s: f64, y0: f64, back: usize) -> Vec<f64> {
     let mut out = run_lanes(t_s, u, &[tau_s], y0, back, 0.0);
     out.pop().expect("one lane per time constant")

@@ -49,7 +49,7 @@ pub(super) struct ThermalTerm {
 
 /// The thermal terms split by formula, each kind run as its own loop without a per-term `match`.
 /// Built only when that order adds every motion's thermal values in the terms' order
-/// ([`build::thermal_by_kind`]), so every sum, and its bits, stays the same.
+/// ([`super::build::thermal_by_kind`]), so every sum, and its bits, stays the same.
 #[derive(Clone, Debug, Default)]
 pub(super) struct ThermalByKind {
     /// (target, e0, linear, quadratic): e0 + Σ b ΔT + Σ c ΔT ΔT.
