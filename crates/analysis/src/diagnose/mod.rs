@@ -299,6 +299,16 @@ fn each_signal<T: Send, U: Send>(
     }
 }
 
+/// A rayon pool of `threads` threads: the tests that lock "the same bits with any number of
+/// threads" run the same call in pools of different sizes.
+#[cfg(test)]
+pub(crate) fn test_pool(threads: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("a thread pool")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -457,10 +457,7 @@ mod tests {
                 cols
             });
             for threads in [1, 3] {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .unwrap();
+                let pool = crate::diagnose::test_pool(threads);
                 let chunked = pool.install(|| {
                     c.par_sweep_map(&ctx, &c.grid, |th, cols| {
                         ((th.to_bits(), bits(&cols)), cols)
@@ -514,10 +511,7 @@ mod tests {
             }));
             assert!(want.iter().all(|&(_, q)| q == 2));
             for threads in [1, 3] {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .unwrap();
+                let pool = crate::diagnose::test_pool(threads);
                 let got = pool.install(|| c.par_sweep_gram_gains(&ctx, thetas, &basis, &r0));
                 assert_eq!(key(got.expect("a uniform grid")), want, "on {threads}");
                 for th in [0.5 * (thetas[0] + thetas[1]), thetas[7] * 1.000_3] {

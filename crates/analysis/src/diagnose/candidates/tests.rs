@@ -120,10 +120,7 @@ fn a_spikes_swept_columns_share_one_distance_column_bit_for_bit() {
 fn assert_sweep_is(ctx: &Context, c: &Candidate, want: &[(u64, Vec<u64>)]) {
     let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
     for threads in [1, 3] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
+        let pool = crate::diagnose::test_pool(threads);
         let got = pool.install(|| {
             c.par_sweep_map(ctx, &c.grid, |theta, cols| {
                 assert_eq!(cols.len(), 1);

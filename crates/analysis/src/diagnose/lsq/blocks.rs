@@ -192,10 +192,7 @@ mod tests {
         let ordered: Vec<usize> = (0..n).map(|i| i * n_blocks / n).collect();
         let mut seen = vec![];
         for threads in [1, 3] {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .expect("pool");
+            let pool = crate::diagnose::test_pool(threads);
             pool.install(|| {
                 let got = bits(&each_block_gram(&cols, &r, &block, n_blocks));
                 assert_eq!(got, want, "block sums on {threads} threads");

@@ -248,16 +248,12 @@ mod tests {
         let r0 = col(0.05, 0.3);
         let want = two_pass(&basis, cols.clone(), 2);
         let run = |threads: usize| {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .expect("a thread pool")
-                .install(|| {
-                    (
-                        super::orthonormalize(&basis, cols.clone(), 2),
-                        super::orthonormalize_gain(&basis, cols.clone(), &r0),
-                    )
-                })
+            crate::diagnose::test_pool(threads).install(|| {
+                (
+                    super::orthonormalize(&basis, cols.clone(), 2),
+                    super::orthonormalize_gain(&basis, cols.clone(), &r0),
+                )
+            })
         };
         let (one, (one_u, one_g)) = run(1);
         assert_eq!(one.len(), want.len(), "the constant column is dropped");

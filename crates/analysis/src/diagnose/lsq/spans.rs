@@ -76,13 +76,7 @@ fn add_in_order<const L: usize>(parts: Vec<Vec<[f64; L]>>) -> Vec<[f64; L]> {
 #[cfg(test)]
 mod tests {
     use super::{SPAN, sum_spans, sum_spans_in_turn, sum_spans_mut};
-
-    fn pool(threads: usize) -> rayon::ThreadPool {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("a thread pool")
-    }
+    use crate::diagnose::test_pool as pool;
 
     /// The sums are the spans' sums added in span order, the same bits on one thread and on
     /// several, over a length that is not whole spans; an empty column still has its sums.

@@ -167,10 +167,7 @@ fn same_on_one_thread_and_on_two(steps: usize, step_mm: f64) -> usize {
     ])
     .unwrap();
     let on = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
+        let pool = crate::diagnose::test_pool(threads);
         let d = pool.install(|| crate::diagnose::diagnose(&rec, &Options::default()).unwrap());
         serde_json::to_string(&d.report).unwrap()
     };
