@@ -60,6 +60,11 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
             .map_or(Ok(()), |m| m.check())
             .map_err(|(key, what)| anyhow::anyhow!("--mqtt {b}: {key}: {what}"))?;
     }
+    if let Some(listen) = &args.serve {
+        // Checked before the four runs (≈ 40 s), not after them; the live gateway binds it again.
+        std::net::TcpListener::bind(listen.as_str())
+            .map_err(|e| anyhow::anyhow!("--serve {listen}: cannot listen there: {e}"))?;
+    }
     let hil_sim = locate_hil_sim()?;
     if args.realtime_priority > 0 {
         warn_if_fifo_refused(args.realtime_priority);

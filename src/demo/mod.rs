@@ -244,7 +244,11 @@ fn truth_model(mode: Mode) -> Result<MachineModel, DemoError> {
 struct Live {
     listen: String,
     bound: tokio::sync::oneshot::Sender<std::net::SocketAddr>,
-    /// The OPC UA server's loopback port, the same on every pass (clients keep their endpoint).
+    /// The OPC UA server's loopback port, the same on every pass (clients keep their endpoint),
+    /// held by this listener until the gateway binds it: hil-sim's server and every connection
+    /// the run opens take ephemeral ports from the same range, so a port merely chosen earlier
+    /// could be taken by the time the OPC UA server binds it.
+    opcua: std::net::TcpListener,
     opcua_port: u16,
 }
 
@@ -265,10 +269,8 @@ pub async fn serve_live(
     listen: &str,
     on_bound: impl FnOnce(std::net::SocketAddr, String),
 ) -> Result<(), DemoError> {
-    // A free port now, bound again by each pass's OPC UA server (nothing else takes it between).
-    let opcua_port = std::net::TcpListener::bind("127.0.0.1:0")?
-        .local_addr()?
-        .port();
+    // A free port on the first pass, the same one on every later pass.
+    let mut opcua_port = 0;
     let models = opts.out.join("models");
     std::fs::create_dir_all(&models)?;
     let geo_path = models.join("mill-geometric.toml");
@@ -277,9 +279,12 @@ pub async fn serve_live(
     let mut on_bound = Some(on_bound);
     loop {
         let (tx, rx) = tokio::sync::oneshot::channel();
+        let opcua = reserve_port(opcua_port).await?;
+        opcua_port = opcua.local_addr()?.port();
         let live = Live {
             listen: listen.to_string(),
             bound: tx,
+            opcua,
             opcua_port,
         };
         let run = one_run(
@@ -301,6 +306,23 @@ pub async fn serve_live(
                     }
                 }
             }
+        }
+    }
+}
+
+/// A loopback listener on `port` (0: any free one). A later pass asks again for the port the
+/// previous pass's OPC UA server held, which that server's stop may release a moment late.
+async fn reserve_port(port: u16) -> Result<std::net::TcpListener, DemoError> {
+    let mut tries = 0;
+    loop {
+        match std::net::TcpListener::bind((std::net::Ipv4Addr::LOCALHOST, port)) {
+            Ok(l) => return Ok(l),
+            Err(e) if port != 0 && tries < 50 => {
+                tracing::debug!(port, %e, "the OPC UA port is not free yet");
+                tries += 1;
+                tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+            }
+            Err(e) => return Err(e).with_context(|| format!("reserving OPC UA port {port}")),
         }
     }
 }
@@ -337,7 +359,7 @@ async fn one_run(
     let (mut cycles, mut writes_ok) = (0, 0);
     let mut gateway = GatewayRun::default();
     let status = if let Some(model) = model {
-        let (text, bound) = field_text(opts, mode, hub.local_addr(), &sim, live);
+        let (text, live) = field_text(opts, mode, hub.local_addr(), &sim, live);
         let field_path = dir.join("field.toml");
         std::fs::write(&field_path, &text)?;
         let mut cfg = FieldConfig::parse(&text, &field_path)?;
@@ -349,7 +371,12 @@ async fn one_run(
         let epoch = Instant::now();
         let rx = spawn_sources(&cfg, epoch).await?;
         let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-        let gw = tokio::spawn(retrocomp_gateway::run::run(
+        // The OPC UA port is released just before the gateway binds it.
+        let bound = live.map(|(bound, opcua)| {
+            drop(opcua);
+            bound
+        });
+        let mut gw = tokio::spawn(retrocomp_gateway::run::run(
             cfg,
             Box::new(MachineModelAdapter::new(model)),
             rx,
@@ -359,7 +386,14 @@ async fn one_run(
             },
             bound,
         ));
-        let status = sim.child.wait().await;
+        let status =
+            match sim_process::until_exit_or_gateway_end(sim.child.wait(), &mut gw, sub).await {
+                Ok(status) => status,
+                Err(e) => {
+                    let _ = sim.child.kill().await;
+                    return Err(e);
+                }
+            };
         let _ = stop_tx.send(());
         let summary = gw
             .await
@@ -406,7 +440,10 @@ fn field_text(
     live: Option<Live>,
 ) -> (
     String,
-    Option<tokio::sync::oneshot::Sender<std::net::SocketAddr>>,
+    Option<(
+        tokio::sync::oneshot::Sender<std::net::SocketAddr>,
+        std::net::TcpListener,
+    )>,
 ) {
     let text = field::field_toml(
         &format!("demo-{}", mode.key()),
@@ -416,7 +453,7 @@ fn field_text(
     );
     let text = field::with_realtime_priority(&text, opts.realtime_priority);
     // The live gateway (`--serve`): the page on the asked address and, for the plant, an
-    // OPC UA server on the port `serve_live` chose (printed beside the page's address).
+    // OPC UA server on the port `serve_live` holds (printed beside the page's address).
     match live {
         Some(l) => {
             let listen = format!("status_listen = \"{}\"", l.listen);
@@ -430,7 +467,7 @@ fn field_text(
                 mode.key(),
                 mode.key()
             );
-            (text + &opcua, Some(l.bound))
+            (text + &opcua, Some((l.bound, l.opcua)))
         }
         None => (text, None),
     }

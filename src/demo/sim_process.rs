@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::Stdio;
 
 use super::error::{Context as _, DemoError};
+use retrocomp_gateway::error::GatewayError;
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, Command};
 use tokio::task::JoinHandle;
@@ -184,9 +185,68 @@ pub(crate) async fn start(bin: &Path, config: &Path, out: &Path) -> Result<Sim, 
     })
 }
 
+/// Wait for hil-sim's exit while its gateway runs. The gateway runs until told to stop, so one that
+/// ends first (a port it could not bind, a sink or source that died) is this run's error, reported
+/// now and not when the machine's program ends (a live run's program lasts an hour, and its page
+/// would never come up). The caller stops hil-sim then.
+pub(crate) async fn until_exit_or_gateway_end<S>(
+    sim_exit: impl Future<Output = S>,
+    gateway: &mut JoinHandle<Result<retrocomp_gateway::run::RunSummary, GatewayError>>,
+    run: &str,
+) -> Result<S, DemoError> {
+    tokio::select! {
+        biased;
+        status = sim_exit => Ok(status),
+        ended = gateway => {
+            let summary = ended
+                .context("gateway task")?
+                .with_context(|| format!("gateway ({run})"))?;
+            Err(DemoError::Failed(format!(
+                "gateway ({run}) stopped after {} cycles, before hil-sim ended its program",
+                summary.cycles
+            )))
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[tokio::test]
+    async fn a_gateway_that_ends_before_the_machine_ends_the_run_with_its_error() {
+        let mut failed = tokio::spawn(async {
+            Err(GatewayError::Stopped(
+                "binding 127.0.0.1:1: address in use".into(),
+            ))
+        });
+        let e = until_exit_or_gateway_end(std::future::pending::<()>(), &mut failed, "live")
+            .await
+            .unwrap_err();
+        let chain = format!("{e}: {}", std::error::Error::source(&e).unwrap());
+        assert!(chain.starts_with("gateway (live): "), "{chain}");
+        assert!(chain.contains("address in use"), "{chain}");
+        // A gateway that returns without being told to stop is an error too, not a finished run.
+        let mut returned = tokio::spawn(async {
+            Ok(retrocomp_gateway::run::RunSummary {
+                cycles: 7,
+                ..Default::default()
+            })
+        });
+        let e = until_exit_or_gateway_end(std::future::pending::<()>(), &mut returned, "full")
+            .await
+            .unwrap_err();
+        assert!(
+            e.to_string().contains("(full) stopped after 7 cycles"),
+            "{e}"
+        );
+        // The machine's exit first: its status, the gateway left running for the caller to stop.
+        let mut running = tokio::spawn(std::future::pending());
+        let ended = until_exit_or_gateway_end(async { 3 }, &mut running, "full").await;
+        assert_eq!(ended.unwrap(), 3);
+        assert!(!running.is_finished());
+        running.abort();
+    }
 
     #[test]
     fn template_is_filled_completely() {

@@ -155,3 +155,25 @@ fn demo_without_hil_sim_says_how_to_build_it() {
     assert!(!out.status.success());
     assert!(err.contains("cargo build --release --workspace"), "{err}");
 }
+
+#[test]
+fn demo_serve_on_a_taken_address_fails_before_the_runs() {
+    let _turn = crate::turn::take(file!());
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = taken.local_addr().unwrap().to_string();
+    let dir = tempfile::tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .args(["demo", "--seconds", "0", "--serve", &addr, "--out"])
+        .arg(dir.path().join("o"))
+        .stdin(std::process::Stdio::null())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains(&format!("--serve {addr}: cannot listen there")),
+        "{err}"
+    );
+    // Refused before the first run: nothing was written.
+    assert!(!dir.path().join("o").exists(), "{err}");
+}

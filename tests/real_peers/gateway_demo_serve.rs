@@ -50,15 +50,21 @@ fn demo_serve_prints_the_page_and_the_opcua_endpoint_and_both_answer() {
         "spb_host.py",
         &[&mqtt_port.to_string(), "retrocomp-demo", "scada"],
     ));
+    let demo_log = dir.path().join("demo.stderr");
     let mut demo = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
         .args(["demo", "--seconds", "0", "--serve", "127.0.0.1:0", "--mqtt"])
         .arg(format!("127.0.0.1:{mqtt_port}"))
         .arg("--out")
         .arg(dir.path().join("demo"))
         .env("HIL_SIM_BIN", &hil_sim)
+        // Its setup steps (sources, endpoints, OPC UA) logged, so a hang says where it stopped.
+        .env(
+            "RUST_LOG",
+            "error,retrocomp=info,retrocomp_gateway=info,retrocomp_gateway::sources=warn",
+        )
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
-        .stderr(Stdio::null())
+        .stderr(std::fs::File::create(&demo_log).unwrap())
         .spawn()
         .expect("starting retrocomp demo --serve");
     let (tx, lines) = std::sync::mpsc::channel::<String>();
@@ -78,7 +84,8 @@ fn demo_serve_prints_the_page_and_the_opcua_endpoint_and_both_answer() {
             Ok(l) => seen += &(l + "\n"),
             Err(e) => {
                 let _ = demo.kill();
-                panic!("no live page line ({e}); stdout so far:\n{seen}");
+                let log = std::fs::read_to_string(&demo_log).unwrap_or_default();
+                panic!("no live page line ({e}); stdout so far:\n{seen}\nstderr:\n{log}");
             }
         }
     };
