@@ -62,7 +62,10 @@ pub(crate) fn run(args: &Args) -> anyhow::Result<()> {
     }
     if let Some(listen) = &args.serve {
         // Checked before the four runs (≈ 40 s), not after them; the live gateway binds it again.
-        std::net::TcpListener::bind(listen.as_str())
+        let addr: std::net::SocketAddr = listen.parse().map_err(|e| {
+            anyhow::anyhow!("--serve {listen}: expected IP:PORT, e.g. 127.0.0.1:8080 ({e})")
+        })?;
+        std::net::TcpListener::bind(addr)
             .map_err(|e| anyhow::anyhow!("--serve {listen}: cannot listen there: {e}"))?;
     }
     let hil_sim = locate_hil_sim()?;

@@ -157,7 +157,7 @@ fn demo_without_hil_sim_says_how_to_build_it() {
 }
 
 #[test]
-fn demo_serve_on_a_taken_address_fails_before_the_runs() {
+fn demo_serve_refuses_an_address_it_cannot_listen_on_before_the_runs() {
     let _turn = crate::turn::take(file!());
     let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = taken.local_addr().unwrap().to_string();
@@ -175,5 +175,19 @@ fn demo_serve_on_a_taken_address_fails_before_the_runs() {
         "{err}"
     );
     // Refused before the first run: nothing was written.
+    assert!(!dir.path().join("o").exists(), "{err}");
+    // A host name is not an address the gateway's `status_listen` takes: refused as early.
+    let out = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+        .args(["demo", "--serve", "localhost:8080", "--out"])
+        .arg(dir.path().join("o"))
+        .stdin(std::process::Stdio::null())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("--serve localhost:8080: expected IP:PORT"),
+        "{err}"
+    );
     assert!(!dir.path().join("o").exists(), "{err}");
 }
