@@ -162,32 +162,27 @@ fn demo_serve_refuses_an_address_it_cannot_listen_on_before_the_runs() {
     let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = taken.local_addr().unwrap().to_string();
     let dir = tempfile::tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .args(["demo", "--seconds", "0", "--serve", &addr, "--out"])
-        .arg(dir.path().join("o"))
-        .stdin(std::process::Stdio::null())
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "{err}");
-    assert!(
-        err.contains(&format!("--serve {addr}: cannot listen there")),
-        "{err}"
-    );
-    // Refused before the first run: nothing was written.
-    assert!(!dir.path().join("o").exists(), "{err}");
-    // A host name is not an address the gateway's `status_listen` takes: refused as early.
-    let out = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
-        .args(["demo", "--serve", "localhost:8080", "--out"])
-        .arg(dir.path().join("o"))
-        .stdin(std::process::Stdio::null())
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "{err}");
-    assert!(
-        err.contains("--serve localhost:8080: expected IP:PORT"),
-        "{err}"
-    );
-    assert!(!dir.path().join("o").exists(), "{err}");
+    // A port held here, and a host name (the gateway's `status_listen` takes IP:PORT only).
+    for (serve, why) in [
+        (
+            addr.as_str(),
+            format!("--serve {addr}: cannot listen there"),
+        ),
+        (
+            "localhost:8080",
+            "--serve localhost:8080: expected IP:PORT".into(),
+        ),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_retrocomp"))
+            .args(["demo", "--seconds", "0", "--serve", serve, "--out"])
+            .arg(dir.path().join("o"))
+            .stdin(std::process::Stdio::null())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{err}");
+        assert!(err.contains(&why), "{err}");
+        // Refused before the first run: nothing was written.
+        assert!(!dir.path().join("o").exists(), "{err}");
+    }
 }
